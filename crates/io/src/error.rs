@@ -1,0 +1,77 @@
+//! The one error type of `warpbench-io`: every error names the file and the problem.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+/// What went wrong, without the file (see [`Error`]).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ErrorKind {
+    #[error("cannot read or write: {0}")]
+    Io(#[source] std::io::Error),
+    #[error("file is truncated: {0}")]
+    Truncated(String),
+    #[error("not a {format} file: {detail}")]
+    BadMagic { format: &'static str, detail: String },
+    #[error("unsupported: {0}")]
+    Unsupported(String),
+    #[error("invalid: {0}")]
+    Invalid(String),
+    #[error("volume too large: {what} needs {bytes} bytes, more than the limit of {limit} bytes")]
+    TooLarge { what: String, bytes: u128, limit: u64 },
+    #[error("the folder holds {} DICOM series; choose one with its SeriesInstanceUID:\n{}", .0.len(), list_series(.0))]
+    MultipleSeries(Vec<crate::volume::SeriesSummary>),
+    #[error("DICOM: {0}")]
+    Dicom(String),
+    #[error("landmark {index}: {problem}")]
+    Landmark { index: usize, problem: String },
+    #[error("cancelled")]
+    Cancelled,
+}
+
+fn list_series(s: &[crate::volume::SeriesSummary]) -> String {
+    s.iter().map(|x| format!("  {x}")).collect::<Vec<_>>().join("\n")
+}
+
+/// An error in reading or writing one file (or folder).
+#[derive(Debug)]
+pub struct Error {
+    pub path: PathBuf,
+    pub kind: ErrorKind,
+}
+
+impl fmt::Display for Error {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}: {}", self.path.display(), self.kind)
+    }
+}
+
+impl std::error::Error for Error {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        self.kind.source()
+    }
+}
+
+impl Error {
+    pub fn new(path: impl AsRef<Path>, kind: ErrorKind) -> Self {
+        Self { path: path.as_ref().to_path_buf(), kind }
+    }
+    pub fn io(path: impl AsRef<Path>, e: std::io::Error) -> Self {
+        // A short read is a truncated file, whatever reader hit it.
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            return Self::new(path, ErrorKind::Truncated(e.to_string()));
+        }
+        Self::new(path, ErrorKind::Io(e))
+    }
+    pub fn invalid(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
+        Self::new(path, ErrorKind::Invalid(msg.into()))
+    }
+    pub fn unsupported(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
+        Self::new(path, ErrorKind::Unsupported(msg.into()))
+    }
+    pub fn truncated(path: impl AsRef<Path>, msg: impl Into<String>) -> Self {
+        Self::new(path, ErrorKind::Truncated(msg.into()))
+    }
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -1,0 +1,613 @@
+//! Landmark pairs and their files: BigWarp CSV, Slicer `.mrk.json` and Slicer `.fcsv`.
+//!
+//! A [`LandmarkPair`] joins a point on the **moving** volume (the source of the warp) to the
+//! matching point on the **fixed** volume (the target), both in LPS mm. Either half may be
+//! missing while a user is still placing points; [`complete_active_pairs`] returns what a solver
+//! can use.
+//!
+//! # Formats
+//!
+//! - **BigWarp CSV** (BigWarp `LandmarkTableModel`, written with opencsv): no header, one row per
+//!   pair, `Name, Active, mvg-x, mvg-y, mvg-z, fix-x, fix-y, fix-z` — the moving point comes
+//!   first. Fields are quoted (`"Pt-0","true","1.0",…`); a missing half is written as `Infinity`
+//!   in all three of its columns. 2-D files (6 columns) are refused. BigWarp coordinates are
+//!   "world units" with no patient orientation: **we read them as LPS mm** unless
+//!   [`BigWarpCsvOptions::ras`] says they are RAS. [`read_bigwarp_csv`], [`write_bigwarp_csv`].
+//! - **Slicer `.mrk.json`** (markups schema v1, `Modules/Loadable/Markups/Resources/Schema`):
+//!   the first markup of type `Fiducial`; `coordinateSystem` `LPS` (the default when absent) or
+//!   `RAS`; `coordinateUnits` `mm` (default) or `um` (converted to mm); `controlPoints[]` with
+//!   `position`, `label`, `selected` and `positionStatus` — only `defined` points have a
+//!   position, `undefined` and `preview` points are missing. [`read_mrk_json`], [`write_mrk_json`].
+//! - **Slicer `.fcsv`** (legacy, Slicer `Docs/developer_guide/modules/markups.md`): `#` header
+//!   lines `# Markups fiducial file version = 4.11`, `# CoordinateSystem = LPS | RAS | 0 | 1`
+//!   (0 = RAS, 1 = LPS; LPS when absent, as Slicer assumes for files), `# columns = id,x,y,z,…`;
+//!   the columns line locates x, y, z, sel and label (extra columns, such as the two that
+//!   Slicer 5 appends, are ignored); without it the default order
+//!   `id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID` is used.
+//!   [`read_fcsv`], [`write_fcsv`].
+//!
+//! A Slicer file holds **one side**: [`read_slicer_pair`] reads a moving and a fixed list and
+//! pairs them by index (Slicer's Fiducial Registration Wizard and Landmark Registration do the
+//! same); the pair is active when both points are selected. [`write_slicer_pair`] writes both.
+//!
+//! # Conventions
+//!
+//! Points are stored in LPS; RAS files are converted at I/O (negate x and y). NaN coordinates are
+//! refused with [`ErrorKind::Landmark`], whose index is **1-based** (the n-th landmark in the
+//! file); the message also gives the landmark's name and, for text formats, its line. Writers go
+//! through [`crate::write_atomic`] and print coordinates with Rust's shortest round-trip
+//! formatting, so a write/read round trip is exact.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use serde_json::{Value, json};
+
+use crate::error::{Error, ErrorKind, Result};
+use crate::geometry::{Lps, Point3};
+
+/// The schema URL written into `.mrk.json` files.
+pub const MARKUPS_SCHEMA: &str = "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json#";
+
+/// One landmark pair: a point on the moving volume and its match on the fixed volume.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LandmarkPair {
+    /// Free text; may be empty or repeated.
+    pub name: String,
+    /// Whether the pair takes part in the warp (BigWarp "Active", Slicer "selected").
+    pub active: bool,
+    /// The point on the moving (source) volume, or `None` when not placed yet.
+    pub moving: Option<Point3<Lps>>,
+    /// The point on the fixed (target) volume, or `None` when not placed yet.
+    pub fixed: Option<Point3<Lps>>,
+}
+
+impl LandmarkPair {
+    /// An active pair with both halves.
+    #[must_use]
+    pub fn new(name: impl Into<String>, moving: Point3<Lps>, fixed: Point3<Lps>) -> Self {
+        Self { name: name.into(), active: true, moving: Some(moving), fixed: Some(fixed) }
+    }
+
+    /// True when both halves are placed.
+    #[must_use]
+    pub fn is_complete(&self) -> bool {
+        self.moving.is_some() && self.fixed.is_some()
+    }
+}
+
+/// The moving and fixed points of the active pairs that have both halves, in file order.
+#[must_use]
+pub fn complete_active_pairs(pairs: &[LandmarkPair]) -> (Vec<Point3<Lps>>, Vec<Point3<Lps>>) {
+    pairs.iter().filter(|p| p.active).filter_map(|p| Some((p.moving?, p.fixed?))).unzip()
+}
+
+/// One Slicer control point (one side of a pair).
+#[derive(Clone, Debug, PartialEq)]
+pub struct SlicerPoint {
+    pub label: String,
+    pub selected: bool,
+    /// `None` for a point whose position is not defined (`positionStatus` other than `defined`).
+    pub position: Option<Point3<Lps>>,
+}
+
+fn landmark_error(path: &Path, index0: usize, name: &str, line: Option<u64>, problem: impl AsRef<str>) -> Error {
+    let at = line.map(|l| format!(", line {l}")).unwrap_or_default();
+    Error::new(
+        path,
+        ErrorKind::Landmark { index: index0 + 1, problem: format!("(1-based, {name:?}{at}) {}", problem.as_ref()) },
+    )
+}
+
+fn read_text(path: &Path) -> Result<String> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    String::from_utf8(bytes).map_err(|e| Error::invalid(path, format!("not UTF-8 text: {e}")))
+}
+
+/// Shortest text that parses back to the same f64 (`1.0`, `-0.5`, `1e-7`).
+fn num(x: f64) -> String {
+    format!("{x:?}")
+}
+
+fn flip_xy(p: Point3<Lps>) -> Point3<Lps> {
+    let [x, y, z] = p.coords();
+    Point3::new(-x, -y, z)
+}
+
+// ---------------------------------------------------------------------------------------------
+// BigWarp CSV
+
+/// Options for BigWarp CSV files.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BigWarpCsvOptions {
+    /// The file's coordinates are RAS (x and y are negated on read and write). Default: LPS.
+    pub ras: bool,
+}
+
+/// Reads a BigWarp landmarks CSV, taking its coordinates as LPS mm.
+pub fn read_bigwarp_csv(path: &Path) -> Result<Vec<LandmarkPair>> {
+    read_bigwarp_csv_with(path, BigWarpCsvOptions::default())
+}
+
+/// Reads a BigWarp landmarks CSV with `options`.
+pub fn read_bigwarp_csv_with(path: &Path, options: BigWarpCsvOptions) -> Result<Vec<LandmarkPair>> {
+    parse_bigwarp_csv(path, &read_text(path)?, options)
+}
+
+/// Parses BigWarp CSV text; `name` is used in errors.
+pub fn parse_bigwarp_csv(name: &Path, text: &str, options: BigWarpCsvOptions) -> Result<Vec<LandmarkPair>> {
+    let mut reader = csv::ReaderBuilder::new().has_headers(false).flexible(true).from_reader(text.as_bytes());
+    let mut pairs = Vec::new();
+    for (i, record) in reader.records().enumerate() {
+        let record = record.map_err(|e| Error::invalid(name, format!("landmark {} (1-based): {e}", i + 1)))?;
+        let line = record.position().map(csv::Position::line);
+        if record.iter().all(|f| f.trim().is_empty()) {
+            continue;
+        }
+        let label = record.get(0).unwrap_or("").to_string();
+        match record.len() {
+            8 => {}
+            6 => {
+                return Err(landmark_error(name, i, &label, line, "2-D landmarks are not supported (6 columns)"));
+            }
+            n => {
+                return Err(landmark_error(
+                    name,
+                    i,
+                    &label,
+                    line,
+                    format!(
+                        "{n} columns; BigWarp 3-D rows have 8: name, active, mvg-x, mvg-y, mvg-z, fix-x, fix-y, fix-z"
+                    ),
+                ));
+            }
+        }
+        let active = match record.get(1).unwrap_or("").trim().to_ascii_lowercase().as_str() {
+            "true" => true,
+            "false" => false,
+            other => {
+                return Err(landmark_error(name, i, &label, line, format!("active is {other:?}, not true or false")));
+            }
+        };
+        let mut halves = [None, None];
+        for (h, half) in halves.iter_mut().enumerate() {
+            let side = if h == 0 { "moving" } else { "fixed" };
+            let mut xyz = [0.0; 3];
+            for (c, v) in xyz.iter_mut().enumerate() {
+                let s = record.get(2 + 3 * h + c).unwrap_or("").trim();
+                *v = parse_java_double(s).ok_or_else(|| {
+                    landmark_error(name, i, &label, line, format!("{side} {} is {s:?}, not a number", axis(c)))
+                })?;
+            }
+            *half = half_point(name, i, &label, line, side, xyz)?;
+        }
+        let [moving, fixed] = halves.map(|p| p.map(|p| if options.ras { flip_xy(p) } else { p }));
+        pairs.push(LandmarkPair { name: label, active, moving, fixed });
+    }
+    Ok(pairs)
+}
+
+fn axis(c: usize) -> &'static str {
+    ["x", "y", "z"][c]
+}
+
+/// Java's `Double.toString` spellings (`Infinity`, `-Infinity`, `NaN`) and ordinary numbers.
+fn parse_java_double(s: &str) -> Option<f64> {
+    match s {
+        "Infinity" | "+Infinity" => Some(f64::INFINITY),
+        "-Infinity" => Some(f64::NEG_INFINITY),
+        "NaN" => Some(f64::NAN),
+        _ => s.parse().ok(),
+    }
+}
+
+/// All three coordinates infinite → a missing half; all finite → a point; anything else is an error.
+fn half_point(
+    name: &Path,
+    i: usize,
+    label: &str,
+    line: Option<u64>,
+    side: &str,
+    xyz: [f64; 3],
+) -> Result<Option<Point3<Lps>>> {
+    if let Some(c) = xyz.iter().position(|v| v.is_nan()) {
+        return Err(landmark_error(name, i, label, line, format!("{side} {} is NaN", axis(c))));
+    }
+    let infinite = xyz.iter().filter(|v| v.is_infinite()).count();
+    match infinite {
+        0 => Ok(Some(Point3::from_array(xyz))),
+        3 => Ok(None),
+        _ => Err(landmark_error(
+            name,
+            i,
+            label,
+            line,
+            format!("{side} point {xyz:?} is partly infinite (a missing half has Infinity in all three)"),
+        )),
+    }
+}
+
+/// BigWarp CSV text for `pairs`, quoted like opencsv.
+pub fn to_bigwarp_csv(name: &Path, pairs: &[LandmarkPair], options: BigWarpCsvOptions) -> Result<String> {
+    let quote = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
+    let mut out = String::new();
+    for (i, p) in pairs.iter().enumerate() {
+        let mut fields = vec![quote(&p.name), quote(if p.active { "true" } else { "false" })];
+        for (side, half) in [("moving", p.moving), ("fixed", p.fixed)] {
+            match half {
+                Some(pt) => {
+                    check_finite(name, i, &p.name, side, pt)?;
+                    let pt = if options.ras { flip_xy(pt) } else { pt };
+                    fields.extend(pt.coords().iter().map(|&v| quote(&num(v))));
+                }
+                None => fields.extend(std::iter::repeat_n(quote("Infinity"), 3)),
+            }
+        }
+        out.push_str(&fields.join(","));
+        out.push('\n');
+    }
+    Ok(out)
+}
+
+fn check_finite(name: &Path, i: usize, label: &str, side: &str, p: Point3<Lps>) -> Result<()> {
+    if p.is_finite() {
+        Ok(())
+    } else {
+        Err(landmark_error(name, i, label, None, format!("{side} point {:?} is not finite", p.coords())))
+    }
+}
+
+/// Writes `pairs` as a BigWarp CSV in LPS.
+pub fn write_bigwarp_csv(path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
+    write_bigwarp_csv_with(path, pairs, BigWarpCsvOptions::default())
+}
+
+/// Writes `pairs` as a BigWarp CSV with `options`.
+pub fn write_bigwarp_csv_with(path: &Path, pairs: &[LandmarkPair], options: BigWarpCsvOptions) -> Result<()> {
+    let text = to_bigwarp_csv(path, pairs, options)?;
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Slicer .mrk.json
+
+/// Reads the first fiducial (point) list of a Slicer `.mrk.json` file.
+pub fn read_mrk_json(path: &Path) -> Result<Vec<SlicerPoint>> {
+    parse_mrk_json(path, &read_text(path)?)
+}
+
+/// Parses `.mrk.json` text; `name` is used in errors.
+pub fn parse_mrk_json(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
+    let root: Value = serde_json::from_str(text).map_err(|e| Error::invalid(name, format!("not JSON: {e}")))?;
+    let markups = root
+        .get("markups")
+        .and_then(Value::as_array)
+        .ok_or_else(|| Error::invalid(name, "no \"markups\" list: not a Slicer markups file"))?;
+    let Some(list) = markups.iter().find(|m| m.get("type").and_then(Value::as_str) == Some("Fiducial")) else {
+        let types: Vec<&str> = markups.iter().map(|m| m.get("type").and_then(Value::as_str).unwrap_or("?")).collect();
+        return Err(Error::invalid(name, format!("no Fiducial (point list) markup; the file holds {types:?}")));
+    };
+    let ras = match list.get("coordinateSystem").and_then(Value::as_str) {
+        None | Some("LPS") => false,
+        Some("RAS") => true,
+        Some(other) => return Err(Error::invalid(name, format!("coordinateSystem {other:?} is neither LPS nor RAS"))),
+    };
+    let mm_per_unit = match list.get("coordinateUnits").and_then(Value::as_str) {
+        None | Some("mm") => 1.0,
+        Some("um") => 1e-3,
+        Some(other) => return Err(Error::invalid(name, format!("coordinateUnits {other:?} is neither mm nor um"))),
+    };
+    let empty = Vec::new();
+    let points = match list.get("controlPoints") {
+        None | Some(Value::Null) => &empty,
+        Some(Value::Array(a)) => a,
+        Some(_) => return Err(Error::invalid(name, "\"controlPoints\" is not a list")),
+    };
+    let mut out = Vec::with_capacity(points.len());
+    for (i, cp) in points.iter().enumerate() {
+        let label = cp.get("label").and_then(Value::as_str).unwrap_or("").to_string();
+        let selected = cp.get("selected").and_then(Value::as_bool).unwrap_or(true);
+        let status = cp.get("positionStatus").and_then(Value::as_str).unwrap_or("defined");
+        let position = if status == "defined" {
+            let xyz = cp
+                .get("position")
+                .and_then(Value::as_array)
+                .filter(|a| a.len() == 3)
+                .and_then(|a| a.iter().map(Value::as_f64).collect::<Option<Vec<f64>>>())
+                .ok_or_else(|| landmark_error(name, i, &label, None, "position is not a list of 3 numbers"))?;
+            let mut p = [xyz[0] * mm_per_unit, xyz[1] * mm_per_unit, xyz[2] * mm_per_unit];
+            if let Some(c) = p.iter().position(|v| !v.is_finite()) {
+                return Err(landmark_error(name, i, &label, None, format!("position {} is not finite", axis(c))));
+            }
+            if ras {
+                p[0] = -p[0];
+                p[1] = -p[1];
+            }
+            Some(Point3::from_array(p))
+        } else {
+            None
+        };
+        out.push(SlicerPoint { label, selected, position });
+    }
+    Ok(out)
+}
+
+/// `.mrk.json` text (LPS, mm) for `points`.
+pub fn to_mrk_json(name: &Path, points: &[SlicerPoint]) -> Result<String> {
+    let mut cps = Vec::with_capacity(points.len());
+    for (i, p) in points.iter().enumerate() {
+        let (position, status) = match p.position {
+            Some(pt) => {
+                check_finite(name, i, &p.label, "position", pt)?;
+                (pt.coords(), "defined")
+            }
+            None => ([0.0; 3], "undefined"),
+        };
+        cps.push(json!({
+            "id": (i + 1).to_string(),
+            "label": p.label,
+            "description": "",
+            "associatedNodeID": "",
+            "position": position,
+            // Slicer's identity orientation (in its RAS) expressed in this file's LPS, as Slicer writes it.
+            "orientation": [-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 1.0],
+            "selected": p.selected,
+            "locked": false,
+            "visibility": true,
+            "positionStatus": status,
+        }));
+    }
+    let doc = json!({
+        "@schema": MARKUPS_SCHEMA,
+        "markups": [{
+            "type": "Fiducial",
+            "coordinateSystem": "LPS",
+            "coordinateUnits": "mm",
+            "locked": false,
+            "fixedNumberOfControlPoints": false,
+            "labelFormat": "%N-%d",
+            "lastUsedControlPointNumber": points.len(),
+            "controlPoints": cps,
+        }],
+    });
+    let mut text = serde_json::to_string_pretty(&doc).map_err(|e| Error::invalid(name, e.to_string()))?;
+    text.push('\n');
+    Ok(text)
+}
+
+/// Writes `points` as a Slicer `.mrk.json` point list in LPS.
+pub fn write_mrk_json(path: &Path, points: &[SlicerPoint]) -> Result<()> {
+    let text = to_mrk_json(path, points)?;
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Slicer .fcsv
+
+const FCSV_DEFAULT_COLUMNS: [&str; 14] =
+    ["id", "x", "y", "z", "ow", "ox", "oy", "oz", "vis", "sel", "lock", "label", "desc", "associatedNodeID"];
+
+/// Reads a Slicer `.fcsv` fiducial file.
+pub fn read_fcsv(path: &Path) -> Result<Vec<SlicerPoint>> {
+    parse_fcsv(path, &read_text(path)?)
+}
+
+/// Splits one CSV row as Slicer's `CsvCodec` does: a quote only opens a quoted field at its start.
+fn split_csv_row(row: &str) -> Vec<String> {
+    let mut fields = Vec::new();
+    let mut cur = String::new();
+    let mut chars = row.chars().peekable();
+    let mut quoted = false;
+    while let Some(c) = chars.next() {
+        if quoted {
+            if c == '"' {
+                if chars.peek() == Some(&'"') {
+                    cur.push('"');
+                    chars.next();
+                } else {
+                    quoted = false;
+                }
+            } else {
+                cur.push(c);
+            }
+        } else if c == ',' {
+            fields.push(std::mem::take(&mut cur));
+        } else if c == '"' && cur.is_empty() {
+            quoted = true;
+        } else {
+            cur.push(c);
+        }
+    }
+    fields.push(cur);
+    fields
+}
+
+/// Parses `.fcsv` text; `name` is used in errors.
+pub fn parse_fcsv(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
+    let mut version: Option<String> = None;
+    let mut ras = false;
+    let mut columns: Option<Vec<String>> = None;
+    let mut rows: Vec<(u64, &str)> = Vec::new();
+    for (lineno, line) in text.lines().enumerate() {
+        let line = line.trim_end_matches('\r');
+        if let Some(comment) = line.strip_prefix('#') {
+            let comment = comment.trim();
+            if let Some(v) = comment.strip_prefix("Markups fiducial file version =") {
+                version = Some(v.trim().to_string());
+            } else if let Some(cs) = comment.strip_prefix("CoordinateSystem =") {
+                ras = match cs.trim() {
+                    "LPS" | "1" => false,
+                    "RAS" | "0" => true,
+                    other => {
+                        return Err(Error::invalid(
+                            name,
+                            format!("CoordinateSystem {other:?} is not LPS, RAS, 0 or 1"),
+                        ));
+                    }
+                };
+            } else if let Some(cols) = comment.strip_prefix("columns =") {
+                columns = Some(cols.split(',').map(|c| c.trim().to_string()).collect());
+            }
+        } else if !line.trim().is_empty() {
+            rows.push((lineno as u64 + 1, line));
+        }
+    }
+    if version.is_none() && columns.is_none() {
+        return Err(Error::unsupported(
+            name,
+            "no \"# Markups fiducial file version\" or \"# columns\" line: not a Slicer 4+ .fcsv file",
+        ));
+    }
+    let cols: Vec<String> = columns.unwrap_or_else(|| FCSV_DEFAULT_COLUMNS.iter().map(ToString::to_string).collect());
+    let find = |c: &str| cols.iter().position(|x| x == c);
+    let (Some(ix), Some(iy), Some(iz)) = (find("x"), find("y"), find("z")) else {
+        return Err(Error::invalid(name, format!("the columns line {cols:?} has no x, y and z")));
+    };
+    let (isel, ilabel) = (find("sel"), find("label"));
+
+    let mut out = Vec::with_capacity(rows.len());
+    for (i, (lineno, row)) in rows.into_iter().enumerate() {
+        let f = split_csv_row(row);
+        let label = ilabel.and_then(|k| f.get(k)).cloned().unwrap_or_default();
+        let mut xyz = [0.0; 3];
+        for (c, &k) in [ix, iy, iz].iter().enumerate() {
+            let s = f.get(k).map_or("", |s| s.trim());
+            let v: f64 = s.parse().map_err(|_| {
+                landmark_error(name, i, &label, Some(lineno), format!("{} is {s:?}, not a number", axis(c)))
+            })?;
+            if v.is_nan() {
+                return Err(landmark_error(name, i, &label, Some(lineno), format!("{} is NaN", axis(c))));
+            }
+            if !v.is_finite() {
+                return Err(landmark_error(name, i, &label, Some(lineno), format!("{} is not finite", axis(c))));
+            }
+            xyz[c] = v;
+        }
+        let selected = match isel.and_then(|k| f.get(k)).map(|s| s.trim()) {
+            None | Some("") => true,
+            Some(s) => {
+                s.parse::<i64>()
+                    .map_err(|_| landmark_error(name, i, &label, Some(lineno), format!("sel is {s:?}, not 0 or 1")))?
+                    != 0
+            }
+        };
+        let p = Point3::from_array(xyz);
+        out.push(SlicerPoint { label, selected, position: Some(if ras { flip_xy(p) } else { p }) });
+    }
+    Ok(out)
+}
+
+fn fcsv_text_field(s: &str) -> String {
+    if s.contains([',', '"', '\n', '\r']) || s.starts_with(' ') {
+        format!("\"{}\"", s.replace(['\n', '\r'], " ").replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+/// `.fcsv` text (version 4.11, LPS) for `points`. Points without a position cannot be stored.
+pub fn to_fcsv(name: &Path, points: &[SlicerPoint]) -> Result<String> {
+    let mut out = String::from("# Markups fiducial file version = 4.11\n# CoordinateSystem = LPS\n");
+    out.push_str("# columns = ");
+    out.push_str(&FCSV_DEFAULT_COLUMNS.join(","));
+    out.push('\n');
+    for (i, p) in points.iter().enumerate() {
+        let Some(pt) = p.position else {
+            return Err(landmark_error(
+                name,
+                i,
+                &p.label,
+                None,
+                "has no position; .fcsv cannot store a missing point (use .mrk.json)",
+            ));
+        };
+        check_finite(name, i, &p.label, "position", pt)?;
+        let [x, y, z] = pt.coords();
+        let _ = writeln!(
+            out,
+            "{},{},{},{},0,0,0,1,1,{},0,{},,",
+            i + 1,
+            num(x),
+            num(y),
+            num(z),
+            u8::from(p.selected),
+            fcsv_text_field(&p.label)
+        );
+    }
+    Ok(out)
+}
+
+/// Writes `points` as a Slicer `.fcsv` file (version 4.11, LPS).
+pub fn write_fcsv(path: &Path, points: &[SlicerPoint]) -> Result<()> {
+    let text = to_fcsv(path, points)?;
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Slicer pairs
+
+fn is_fcsv(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("fcsv"))
+}
+
+/// Reads one Slicer point list: `.fcsv` by extension, otherwise `.mrk.json`.
+pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
+    if is_fcsv(path) { read_fcsv(path) } else { read_mrk_json(path) }
+}
+
+/// Writes one Slicer point list: `.fcsv` by extension, otherwise `.mrk.json`.
+pub fn write_slicer_points(path: &Path, points: &[SlicerPoint]) -> Result<()> {
+    if is_fcsv(path) { write_fcsv(path, points) } else { write_mrk_json(path, points) }
+}
+
+/// Reads a moving and a fixed Slicer point list and pairs them by index.
+///
+/// The name is the moving label (the fixed one when that is empty); the pair is active when both
+/// points are selected. Lists of different lengths are an error that names both files.
+pub fn read_slicer_pair(moving_path: &Path, fixed_path: &Path) -> Result<Vec<LandmarkPair>> {
+    let moving = read_slicer_points(moving_path)?;
+    let fixed = read_slicer_points(fixed_path)?;
+    if moving.len() != fixed.len() {
+        return Err(Error::invalid(
+            fixed_path,
+            format!(
+                "the moving list {} has {} points but the fixed list {} has {}; Slicer lists are paired by index",
+                moving_path.display(),
+                moving.len(),
+                fixed_path.display(),
+                fixed.len()
+            ),
+        ));
+    }
+    Ok(moving
+        .into_iter()
+        .zip(fixed)
+        .map(|(m, f)| LandmarkPair {
+            name: if m.label.is_empty() { f.label } else { m.label },
+            active: m.selected && f.selected,
+            moving: m.position,
+            fixed: f.position,
+        })
+        .collect())
+}
+
+/// Writes the moving and the fixed halves of `pairs` as two Slicer point lists (format by extension).
+pub fn write_slicer_pair(moving_path: &Path, fixed_path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
+    let side = |moving: bool| -> Vec<SlicerPoint> {
+        pairs
+            .iter()
+            .map(|p| SlicerPoint {
+                label: p.name.clone(),
+                selected: p.active,
+                position: if moving { p.moving } else { p.fixed },
+            })
+            .collect()
+    };
+    let (m, f) = (side(true), side(false));
+    // Render both before writing either, so a refused pair leaves neither file behind.
+    let render =
+        |path: &Path, pts: &[SlicerPoint]| if is_fcsv(path) { to_fcsv(path, pts) } else { to_mrk_json(path, pts) };
+    let (mt, ft) = (render(moving_path, &m)?, render(fixed_path, &f)?);
+    crate::write_atomic(moving_path, |w| w.write_all(mt.as_bytes()))?;
+    crate::write_atomic(fixed_path, |w| w.write_all(ft.as_bytes()))
+}

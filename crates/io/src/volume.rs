@@ -1,0 +1,362 @@
+//! [`Volume`]: a voxel grid with its sample type kept, placed in patient space (LPS, mm).
+
+use std::fmt;
+use std::path::Path;
+
+use serde::Serialize;
+
+use crate::error::{Error, ErrorKind, Result};
+use crate::geometry::{Index, Lps, Point3, Transform, spacing_mm};
+
+/// The stored sample type of a volume.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SampleType {
+    U8,
+    I16,
+    U16,
+    F32,
+}
+
+impl SampleType {
+    #[must_use]
+    pub const fn bytes(self) -> usize {
+        match self {
+            Self::U8 => 1,
+            Self::I16 | Self::U16 => 2,
+            Self::F32 => 4,
+        }
+    }
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::U8 => "u8",
+            Self::I16 => "i16",
+            Self::U16 => "u16",
+            Self::F32 => "f32",
+        }
+    }
+}
+
+/// Voxel samples, x (i) fastest, then y (j), then z (k).
+#[derive(Clone, PartialEq)]
+pub enum VoxelData {
+    U8(Vec<u8>),
+    I16(Vec<i16>),
+    U16(Vec<u16>),
+    F32(Vec<f32>),
+}
+
+impl fmt::Debug for VoxelData {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "VoxelData::{}[{}]", self.sample_type().name(), self.len())
+    }
+}
+
+impl VoxelData {
+    #[must_use]
+    pub fn sample_type(&self) -> SampleType {
+        match self {
+            Self::U8(_) => SampleType::U8,
+            Self::I16(_) => SampleType::I16,
+            Self::U16(_) => SampleType::U16,
+            Self::F32(_) => SampleType::F32,
+        }
+    }
+    #[must_use]
+    pub fn len(&self) -> usize {
+        match self {
+            Self::U8(v) => v.len(),
+            Self::I16(v) => v.len(),
+            Self::U16(v) => v.len(),
+            Self::F32(v) => v.len(),
+        }
+    }
+    #[must_use]
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    /// One sample as f64.
+    #[must_use]
+    pub fn get_f64(&self, i: usize) -> f64 {
+        match self {
+            Self::U8(v) => f64::from(v[i]),
+            Self::I16(v) => f64::from(v[i]),
+            Self::U16(v) => f64::from(v[i]),
+            Self::F32(v) => f64::from(v[i]),
+        }
+    }
+    /// A converted copy as f32 (exact for u8, i16 and u16).
+    #[must_use]
+    pub fn to_f32(&self) -> Vec<f32> {
+        match self {
+            Self::U8(v) => v.iter().map(|&x| f32::from(x)).collect(),
+            Self::I16(v) => v.iter().map(|&x| f32::from(x)).collect(),
+            Self::U16(v) => v.iter().map(|&x| f32::from(x)).collect(),
+            Self::F32(v) => v.clone(),
+        }
+    }
+    /// Minimum and maximum of the finite samples, or `None` when there is none.
+    #[must_use]
+    pub fn finite_range(&self) -> Option<(f64, f64)> {
+        fn mm<T: Copy + Into<f64>>(v: &[T]) -> Option<(f64, f64)> {
+            v.iter().map(|&x| x.into()).filter(|x: &f64| x.is_finite()).fold(None, |acc, x| match acc {
+                None => Some((x, x)),
+                Some((lo, hi)) => Some((f64::min(lo, x), f64::max(hi, x))),
+            })
+        }
+        match self {
+            Self::U8(v) => mm(v),
+            Self::I16(v) => mm(v),
+            Self::U16(v) => mm(v),
+            Self::F32(v) => mm(v),
+        }
+    }
+    /// The samples as little-endian bytes, in storage order. Used for checksums that
+    /// independent readers reproduce (`numpy.asarray(x, '<dtype').tobytes(order='F')`).
+    #[must_use]
+    pub fn to_le_bytes(&self) -> Vec<u8> {
+        match self {
+            Self::U8(v) => v.clone(),
+            Self::I16(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Self::U16(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Self::F32(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+        }
+    }
+}
+
+/// Where `lps_from_index` came from. Readers never return a bare matrix.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum GeometrySource {
+    /// NIfTI sform (srow_x/y/z), used because sform_code > 0.
+    NiftiSform { code: i32 },
+    /// NIfTI qform (quaternion), used because sform_code = 0 and qform_code > 0.
+    NiftiQform { code: i32 },
+    /// NIfTI pixdim only (both codes 0): axis-aligned, origin 0, as in the NIfTI spec's method 1.
+    NiftiPixdim,
+    /// DICOM ImagePositionPatient / ImageOrientationPatient / PixelSpacing.
+    DicomPatient,
+    /// NRRD `space`, `space directions` and `space origin`.
+    NrrdSpace,
+    /// NRRD without a space: `spacings` only, axis-aligned, origin 0.
+    NrrdSpacings,
+    /// The file carries no geometry (e.g. a DICOM Secondary Capture without ImagePositionPatient,
+    /// ImageOrientationPatient and PixelSpacing): identity directions, unit spacing, origin 0.
+    /// Readers add a warning to the metadata when they assume it.
+    Assumed,
+}
+
+/// Imaging modality, from DICOM (0008,0060) or stated by the caller.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Modality {
+    Ct,
+    Mr,
+    Other(String),
+    Unknown,
+}
+
+impl Modality {
+    #[must_use]
+    pub fn from_dicom(code: &str) -> Self {
+        match code.trim() {
+            "CT" => Self::Ct,
+            "MR" => Self::Mr,
+            "" => Self::Unknown,
+            other => Self::Other(other.to_string()),
+        }
+    }
+}
+
+/// A linear rescale `value = slope * stored + intercept` and whether it was applied to the samples.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Rescale {
+    pub slope: f64,
+    pub intercept: f64,
+    /// True when the samples in the volume already hold `slope * stored + intercept`.
+    pub applied: bool,
+}
+
+impl Rescale {
+    pub const IDENTITY: Self = Self { slope: 1.0, intercept: 0.0, applied: false };
+    #[must_use]
+    #[allow(clippy::float_cmp, reason = "identity means exactly slope 1 and intercept 0")]
+    pub fn is_identity(&self) -> bool {
+        self.slope == 1.0 && self.intercept == 0.0
+    }
+}
+
+/// Identifying metadata. Every field is optional: not every format carries it.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Metadata {
+    pub description: Option<String>,
+    pub series_instance_uid: Option<String>,
+    pub study_instance_uid: Option<String>,
+    pub patient_id: Option<String>,
+    pub series_number: Option<i64>,
+    /// Physical units of the (rescaled) values, e.g. "HU".
+    pub value_units: Option<String>,
+    /// Non-fatal problems found while reading (e.g. uneven slice spacing).
+    pub warnings: Vec<String>,
+}
+
+/// A short description of one DICOM series found in a folder.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SeriesSummary {
+    pub series_instance_uid: String,
+    pub series_number: Option<i64>,
+    pub modality: String,
+    pub description: String,
+    pub files: usize,
+}
+
+impl fmt::Display for SeriesSummary {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "{} (series {}, {}, \"{}\", {} files)",
+            self.series_instance_uid,
+            self.series_number.map_or_else(|| "?".to_string(), |n| n.to_string()),
+            self.modality,
+            self.description,
+            self.files
+        )
+    }
+}
+
+/// A 3-D voxel grid placed in patient space.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Volume {
+    /// Number of voxels along i, j, k.
+    pub dims: [usize; 3],
+    /// Samples, i fastest. `data.len() == dims[0] * dims[1] * dims[2]`.
+    pub data: VoxelData,
+    /// Direction cosines × spacing, plus the LPS position of voxel (0,0,0)'s centre.
+    pub lps_from_index: Transform<Lps, Index>,
+    pub geometry_source: GeometrySource,
+    pub modality: Modality,
+    pub rescale: Rescale,
+    pub metadata: Metadata,
+}
+
+impl Volume {
+    /// Builds a volume after checking that `data` has exactly `dims` samples and the geometry is invertible.
+    pub fn new(
+        path: &Path,
+        dims: [usize; 3],
+        data: VoxelData,
+        lps_from_index: Transform<Lps, Index>,
+        geometry_source: GeometrySource,
+    ) -> Result<Self> {
+        let n = checked_voxel_count(path, dims)?;
+        if data.len() != n {
+            return Err(Error::invalid(path, format!("{} samples for dims {dims:?} ({n} expected)", data.len())));
+        }
+        if !lps_from_index.is_valid_affine() {
+            return Err(Error::invalid(
+                path,
+                format!("the voxel-to-patient matrix is singular or not finite: {:?}", lps_from_index.rows()),
+            ));
+        }
+        Ok(Self {
+            dims,
+            data,
+            lps_from_index,
+            geometry_source,
+            modality: Modality::Unknown,
+            rescale: Rescale::IDENTITY,
+            metadata: Metadata::default(),
+        })
+    }
+
+    #[must_use]
+    pub fn spacing_mm(&self) -> [f64; 3] {
+        spacing_mm(&self.lps_from_index)
+    }
+
+    #[must_use]
+    pub fn sample_type(&self) -> SampleType {
+        self.data.sample_type()
+    }
+
+    /// Linear sample offset of voxel (i, j, k).
+    #[must_use]
+    pub fn offset(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+
+    /// LPS position of the centre of voxel (i, j, k).
+    #[must_use]
+    pub fn voxel_lps(&self, i: usize, j: usize, k: usize) -> Point3<Lps> {
+        self.lps_from_index.apply_point(Point3::new(i as f64, j as f64, k as f64))
+    }
+}
+
+/// Default cap on the bytes of decoded voxel data that a reader allocates (see [`crate::LoadOptions`]).
+pub const DEFAULT_MAX_VOXEL_BYTES: u64 = 16 << 30;
+
+/// `dims[0] * dims[1] * dims[2]`, or an error when it overflows or a dimension is 0.
+pub fn checked_voxel_count(path: &Path, dims: [usize; 3]) -> Result<usize> {
+    if dims.contains(&0) {
+        return Err(Error::invalid(path, format!("a dimension is zero: {dims:?}")));
+    }
+    dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d)).ok_or_else(|| {
+        Error::new(
+            path,
+            ErrorKind::TooLarge {
+                what: format!("dims {dims:?}"),
+                bytes: dims.iter().try_fold(1u128, |a, &d| a.checked_mul(d as u128)).unwrap_or(u128::MAX),
+                limit: DEFAULT_MAX_VOXEL_BYTES,
+            },
+        )
+    })
+}
+
+/// Checks that `dims` samples of `bytes_per_sample` fit under `limit` bytes; returns the sample count.
+/// Call this before allocating anything whose size comes from a file.
+pub fn check_allocation(path: &Path, dims: [usize; 3], bytes_per_sample: usize, limit: u64) -> Result<usize> {
+    let bytes = dims.iter().try_fold(bytes_per_sample as u128, |a, &d| a.checked_mul(d as u128)).unwrap_or(u128::MAX);
+    if bytes > u128::from(limit) {
+        return Err(Error::new(path, ErrorKind::TooLarge { what: format!("dims {dims:?}"), bytes, limit }));
+    }
+    checked_voxel_count(path, dims)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overflowing_dims_are_rejected_without_allocating() {
+        let p = Path::new("x.nii");
+        let e = check_allocation(p, [usize::MAX, 2, 2], 2, DEFAULT_MAX_VOXEL_BYTES).expect_err("too large");
+        assert!(matches!(e.kind, ErrorKind::TooLarge { .. }), "{e}");
+        assert!(e.to_string().starts_with("x.nii: volume too large"), "{e}");
+        let e = check_allocation(p, [100_000, 100_000, 100_000], 1, DEFAULT_MAX_VOXEL_BYTES).expect_err("too large");
+        assert!(matches!(e.kind, ErrorKind::TooLarge { .. }));
+        let e = check_allocation(p, [usize::MAX; 3], 8, DEFAULT_MAX_VOXEL_BYTES).expect_err("overflows u128");
+        assert!(matches!(e.kind, ErrorKind::TooLarge { .. }));
+        assert!(check_allocation(p, [0, 2, 2], 1, 10).is_err());
+        assert_eq!(check_allocation(p, [2, 3, 4], 4, 1000).expect("fits"), 24);
+    }
+
+    #[test]
+    fn volume_checks_sample_count_and_geometry() {
+        let p = Path::new("v");
+        let ok =
+            Volume::new(p, [2, 2, 1], VoxelData::U8(vec![0; 4]), Transform::identity(), GeometrySource::NiftiPixdim);
+        assert!(ok.is_ok());
+        let short =
+            Volume::new(p, [2, 2, 2], VoxelData::U8(vec![0; 4]), Transform::identity(), GeometrySource::NiftiPixdim);
+        assert!(short.is_err());
+        let singular = Volume::new(
+            p,
+            [2, 2, 1],
+            VoxelData::U8(vec![0; 4]),
+            Transform::from_scale_translation([1.0, 0.0, 1.0], [0.0; 3]),
+            GeometrySource::NiftiPixdim,
+        );
+        assert!(singular.is_err());
+    }
+}

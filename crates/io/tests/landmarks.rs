@@ -1,0 +1,393 @@
+//! Landmark files: hand-written fixtures (tests/data/landmarks/README.md), round trips, bad rows.
+
+use std::path::{Path, PathBuf};
+
+use proptest::prelude::*;
+use warpbench_io::ErrorKind;
+use warpbench_io::geometry::{Lps, Point3};
+use warpbench_io::landmarks::{
+    self, BigWarpCsvOptions, LandmarkPair, SlicerPoint, complete_active_pairs, parse_bigwarp_csv, parse_fcsv,
+    parse_mrk_json,
+};
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/landmarks").join(name)
+}
+
+fn p(x: f64, y: f64, z: f64) -> Point3<Lps> {
+    Point3::new(x, y, z)
+}
+
+/// The LPS points that every Slicer fixture describes (README.md).
+fn slicer_points_lps() -> [Point3<Lps>; 3] {
+    [p(-53.5, -73.25, 10.0), p(49.875, -88.5, 0.0), p(-25.25, 59.25, -12.5)]
+}
+
+fn csv(text: &str) -> warpbench_io::Result<Vec<LandmarkPair>> {
+    parse_bigwarp_csv(Path::new("pairs.csv"), text, BigWarpCsvOptions::default())
+}
+
+fn landmark_error(e: &warpbench_io::Error) -> (usize, String) {
+    match &e.kind {
+        ErrorKind::Landmark { index, problem } => (*index, problem.clone()),
+        other => panic!("expected a landmark error, got {other}"),
+    }
+}
+
+#[test]
+fn bigwarp_csv_fixture_reads_moving_first() {
+    let pairs = landmarks::read_bigwarp_csv(&fixture("bigwarp_pairs.csv")).expect("read");
+    assert_eq!(pairs.len(), 4);
+    assert_eq!(pairs[0], LandmarkPair::new("Pt-0", p(10.5, -20.25, 30.0), p(11.5, -19.25, 31.0)));
+    assert!(!pairs[1].active, "Pt-1 is inactive");
+    assert_eq!(pairs[1].fixed, Some(p(1.0, 2.0, 3.0)));
+    assert_eq!(pairs[2].moving, Some(p(-5.125, 6.0, 7.75)));
+    assert_eq!(pairs[2].fixed, None, "Infinity marks a missing half");
+    assert_eq!(pairs[3].moving, Some(p(0.001, 250.0, -3.0)), "Java's 1.0E-3 spelling");
+    // The solver sees the active, complete pairs only.
+    let (moving, fixed) = complete_active_pairs(&pairs);
+    assert_eq!(moving, vec![p(10.5, -20.25, 30.0), p(0.001, 250.0, -3.0)]);
+    assert_eq!(fixed, vec![p(11.5, -19.25, 31.0), p(4.0, 5.0, 6.0)]);
+}
+
+#[test]
+fn bigwarp_ras_option_negates_x_and_y() {
+    let path = fixture("bigwarp_pairs.csv");
+    let ras = landmarks::read_bigwarp_csv_with(&path, BigWarpCsvOptions { ras: true }).expect("read");
+    assert_eq!(ras[0].moving, Some(p(-10.5, 20.25, 30.0)));
+    assert_eq!(ras[2].fixed, None);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("ras.csv");
+    landmarks::write_bigwarp_csv_with(&out, &ras, BigWarpCsvOptions { ras: true }).expect("write");
+    assert_eq!(landmarks::read_bigwarp_csv(&out).expect("read"), landmarks::read_bigwarp_csv(&path).expect("read"));
+}
+
+#[test]
+fn bigwarp_unquoted_and_negative_infinity_are_read() {
+    let pairs =
+        csv("a,TRUE, 1,2,3 ,-Infinity,-Infinity,-Infinity\n\n\"b, with comma\",false,1,2,3,4,5,6\n").expect("read");
+    assert_eq!(pairs.len(), 2);
+    assert_eq!(pairs[0].fixed, None);
+    assert_eq!(pairs[1].name, "b, with comma");
+    // Empty and duplicate names are allowed.
+    assert_eq!(csv("\"\",true,1,2,3,4,5,6\n\"\",true,1,2,3,4,5,6\n").expect("read").len(), 2);
+}
+
+#[test]
+fn bigwarp_2d_files_are_refused() {
+    let e = csv("\"Pt-0\",\"true\",\"1.0\",\"2.0\",\"3.0\",\"4.0\"\n").expect_err("2-D");
+    assert!(e.to_string().contains("2-D landmarks are not supported"), "{e}");
+    assert!(e.to_string().starts_with("pairs.csv: "), "{e}");
+}
+
+#[test]
+fn bigwarp_malformed_rows_name_file_and_landmark() {
+    let good = "\"Pt-0\",\"true\",\"1\",\"2\",\"3\",\"4\",\"5\",\"6\"\n";
+    let cases = [
+        ("\"Pt-1\",\"true\",\"1\",\"2\",\"3\",\"4\",\"5\"\n", "7 columns"),
+        ("\"Pt-1\",\"yes\",\"1\",\"2\",\"3\",\"4\",\"5\",\"6\"\n", "active"),
+        ("\"Pt-1\",\"true\",\"1\",\"two\",\"3\",\"4\",\"5\",\"6\"\n", "moving y"),
+        ("\"Pt-1\",\"true\",\"1\",\"2\",\"3\",\"Infinity\",\"5\",\"6\"\n", "partly infinite"),
+        ("\"Pt-1\",\"true\",\"1\",\"2\",\"3\",\"4\",\"NaN\",\"6\"\n", "fixed y is NaN"),
+        ("\"Pt-1\",\"true\",\"nan\",\"2\",\"3\",\"4\",\"5\",\"6\"\n", "moving x is NaN"),
+    ];
+    for (row, want) in cases {
+        let e = csv(&format!("{good}{row}")).expect_err(want);
+        let (index, problem) = landmark_error(&e);
+        assert_eq!(index, 2, "{e}");
+        assert!(problem.contains(want) && problem.contains("Pt-1") && problem.contains("1-based"), "{e}");
+        assert!(e.to_string().starts_with("pairs.csv: landmark 2: "), "{e}");
+    }
+}
+
+#[test]
+fn bigwarp_writer_quotes_like_opencsv_and_round_trips() {
+    let pairs = vec![
+        LandmarkPair::new("Pt-0", p(0.1, -2.0, 1e-7), p(1.0 / 3.0, 2.0, -0.0)),
+        LandmarkPair { name: "say \"hi\"".into(), active: false, moving: None, fixed: Some(p(1.0, 2.0, 3.0)) },
+    ];
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("pairs.csv");
+    landmarks::write_bigwarp_csv(&out, &pairs).expect("write");
+    let text = std::fs::read_to_string(&out).expect("text");
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines[0], "\"Pt-0\",\"true\",\"0.1\",\"-2.0\",\"1e-7\",\"0.3333333333333333\",\"2.0\",\"-0.0\"");
+    assert_eq!(lines[1], "\"say \"\"hi\"\"\",\"false\",\"Infinity\",\"Infinity\",\"Infinity\",\"1.0\",\"2.0\",\"3.0\"");
+    assert_eq!(landmarks::read_bigwarp_csv(&out).expect("read"), pairs);
+    // NaN is refused on write, and nothing is written.
+    let bad = dir.path().join("bad.csv");
+    let nan = [LandmarkPair::new("x", p(f64::NAN, 0.0, 0.0), p(0.0, 0.0, 0.0))];
+    assert!(landmarks::write_bigwarp_csv(&bad, &nan).is_err());
+    assert!(!bad.exists());
+}
+
+#[test]
+fn mrk_json_ras_and_lps_fixtures_describe_the_same_points() {
+    let lps = landmarks::read_mrk_json(&fixture("slicer5_lps.mrk.json")).expect("lps");
+    let ras = landmarks::read_mrk_json(&fixture("slicer5_ras.mrk.json")).expect("ras");
+    assert_eq!(lps, ras);
+    assert_eq!(lps.len(), 4);
+    for (got, want) in lps.iter().zip(slicer_points_lps()) {
+        assert_eq!(got.position, Some(want), "{got:?}");
+    }
+    assert_eq!(lps[0].label, "F-1");
+    assert!(lps[0].selected && !lps[1].selected);
+    assert_eq!(lps[3].position, None, "positionStatus undefined is a missing point");
+}
+
+#[test]
+fn mrk_json_defaults_units_and_status() {
+    let name = Path::new("m.mrk.json");
+    let minimal = r#"{"markups":[{"type":"Fiducial","controlPoints":[{"label":"A","position":[1,2,3]}]}]}"#;
+    let pts = parse_mrk_json(name, minimal).expect("minimal");
+    assert_eq!(pts, vec![SlicerPoint { label: "A".into(), selected: true, position: Some(p(1.0, 2.0, 3.0)) }]);
+    let um = r#"{"markups":[{"type":"Fiducial","coordinateSystem":"RAS","coordinateUnits":"um",
+        "controlPoints":[{"position":[1000,-2500,500]},{"position":[1,1,1],"positionStatus":"preview"}]}]}"#;
+    let pts = parse_mrk_json(name, um).expect("um");
+    assert_eq!(pts[0].position, Some(p(-1.0, 2.5, 0.5)));
+    assert_eq!(pts[1].position, None, "preview points are missing");
+    // The first Fiducial list is read, after other markups.
+    let mixed = r#"{"markups":[{"type":"Line","controlPoints":[]},{"type":"Fiducial","controlPoints":[]}]}"#;
+    assert!(parse_mrk_json(name, mixed).expect("mixed").is_empty());
+    for (text, want) in [
+        (r#"{"markups":[{"type":"Curve"}]}"#, "no Fiducial"),
+        (r#"{"markups":[]}"#, "no Fiducial"),
+        (r"{}", "markups"),
+        ("not json", "not JSON"),
+        (r#"{"markups":[{"type":"Fiducial","coordinateSystem":"XYZ"}]}"#, "coordinateSystem"),
+        (r#"{"markups":[{"type":"Fiducial","coordinateUnits":"cm"}]}"#, "coordinateUnits"),
+        (r#"{"markups":[{"type":"Fiducial","controlPoints":[{"position":[1,2]}]}]}"#, "3 numbers"),
+        (r#"{"markups":[{"type":"Fiducial","controlPoints":[{"position":[1,null,2]}]}]}"#, "3 numbers"),
+        (r#"{"markups":[{"type":"Fiducial","controlPoints":[{"position":[1,NaN,2]}]}]}"#, "not JSON"),
+    ] {
+        let e = parse_mrk_json(name, text).expect_err(want);
+        assert!(e.to_string().contains(want) && e.to_string().starts_with("m.mrk.json: "), "{want}: {e}");
+    }
+}
+
+#[test]
+fn mrk_json_writer_writes_a_complete_lps_file_and_round_trips() {
+    let pts = vec![
+        SlicerPoint { label: "F-1".into(), selected: true, position: Some(p(-53.5, 0.1, 1e-9)) },
+        SlicerPoint { label: "gap".into(), selected: false, position: None },
+    ];
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("pts.mrk.json");
+    landmarks::write_mrk_json(&out, &pts).expect("write");
+    let doc: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&out).expect("text")).expect("json");
+    assert_eq!(doc["@schema"], landmarks::MARKUPS_SCHEMA);
+    let m = &doc["markups"][0];
+    assert_eq!(m["type"], "Fiducial");
+    assert_eq!(m["coordinateSystem"], "LPS");
+    assert_eq!(m["coordinateUnits"], "mm");
+    for cp in m["controlPoints"].as_array().expect("points") {
+        for key in [
+            "id",
+            "label",
+            "description",
+            "associatedNodeID",
+            "position",
+            "orientation",
+            "selected",
+            "locked",
+            "visibility",
+            "positionStatus",
+        ] {
+            assert!(cp.get(key).is_some(), "control point lacks {key}: {cp}");
+        }
+        assert_eq!(cp["orientation"].as_array().map(Vec::len), Some(9));
+    }
+    assert_eq!(m["controlPoints"][1]["positionStatus"], "undefined");
+    assert_eq!(landmarks::read_mrk_json(&out).expect("read"), pts);
+}
+
+#[test]
+fn fcsv_with_slicer5_extra_columns_and_legacy_ras_code() {
+    let lps = landmarks::read_fcsv(&fixture("slicer5_extra_columns.fcsv")).expect("extra columns");
+    let ras = landmarks::read_fcsv(&fixture("legacy_ras_code0.fcsv")).expect("code 0");
+    assert_eq!(lps.len(), 3);
+    for ((a, b), want) in lps.iter().zip(&ras).zip(slicer_points_lps()) {
+        assert_eq!(a.position, Some(want));
+        assert_eq!(b.position, Some(want));
+        assert_eq!(a.label, b.label);
+    }
+    assert_eq!(lps.iter().map(|p| p.selected).collect::<Vec<_>>(), [true, false, true]);
+    // The same points as the JSON fixtures.
+    let json = landmarks::read_mrk_json(&fixture("slicer5_lps.mrk.json")).expect("json");
+    assert_eq!(&json[..3], &lps[..]);
+}
+
+#[test]
+fn fcsv_columns_line_and_default_order() {
+    let name = Path::new("f.fcsv");
+    let reordered = "# Markups fiducial file version = 5.6\n# CoordinateSystem = RAS\n\
+                     # columns = label,sel,z,y,x\n\"A, B\",0,3,2,1\n";
+    let pts = parse_fcsv(name, reordered).expect("reordered");
+    assert_eq!(pts, vec![SlicerPoint { label: "A, B".into(), selected: false, position: Some(p(-1.0, -2.0, 3.0)) }]);
+    let no_columns = "# Markups fiducial file version = 4.11\n# CoordinateSystem = 1\n\
+                      id9,1.5,2.5,3.5,0,0,0,1,1,1,0,L,,\n";
+    let pts = parse_fcsv(name, no_columns).expect("default order");
+    assert_eq!(pts[0].position, Some(p(1.5, 2.5, 3.5)));
+    assert_eq!(pts[0].label, "L");
+    // Absent CoordinateSystem: LPS, as Slicer assumes for files.
+    let no_cs = "# Markups fiducial file version = 4.11\n1,1,2,3,0,0,0,1,1,1,0,L,,\n";
+    assert_eq!(parse_fcsv(name, no_cs).expect("no cs")[0].position, Some(p(1.0, 2.0, 3.0)));
+}
+
+#[test]
+fn fcsv_bad_rows_are_refused() {
+    let name = Path::new("f.fcsv");
+    let head = "# Markups fiducial file version = 4.11\n# CoordinateSystem = LPS\n\
+                # columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID\n\
+                1,0,0,0,0,0,0,1,1,1,0,ok,,\n";
+    for (row, want) in [
+        ("2,1,nan,3,0,0,0,1,1,1,0,bad,,", "y is NaN"),
+        ("2,1,2,,0,0,0,1,1,1,0,bad,,", "z is \"\""),
+        ("2,1,2,inf,0,0,0,1,1,1,0,bad,,", "not finite"),
+        ("2,1,2", "z is \"\""),
+        ("2,1,2,3,0,0,0,1,1,maybe,0,bad,,", "sel"),
+    ] {
+        let e = parse_fcsv(name, &format!("{head}{row}\n")).expect_err(want);
+        let (index, problem) = landmark_error(&e);
+        assert_eq!(index, 2, "{e}");
+        assert!(problem.contains(want) && problem.contains("line 5"), "{want}: {e}");
+        assert!(e.to_string().starts_with("f.fcsv: landmark 2: "), "{e}");
+    }
+    let e = parse_fcsv(name, "# CoordinateSystem = XYZ\n").expect_err("cs");
+    assert!(e.to_string().contains("CoordinateSystem"), "{e}");
+    let e = parse_fcsv(name, "a,1,2,3\n").expect_err("unversioned");
+    assert!(matches!(e.kind, ErrorKind::Unsupported(_)), "{e}");
+    let e = parse_fcsv(name, "# columns = id,label\n1,a\n").expect_err("no xyz");
+    assert!(e.to_string().contains("x, y and z"), "{e}");
+}
+
+#[test]
+fn fcsv_round_trip_and_missing_points() {
+    let pts = vec![
+        SlicerPoint { label: "with, comma".into(), selected: false, position: Some(p(0.1, -1e-12, 12345.678)) },
+        SlicerPoint { label: "F-2".into(), selected: true, position: Some(p(-0.0, 2.0, 3.0)) },
+    ];
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("pts.fcsv");
+    landmarks::write_fcsv(&out, &pts).expect("write");
+    let text = std::fs::read_to_string(&out).expect("text");
+    assert!(
+        text.starts_with("# Markups fiducial file version = 4.11\n# CoordinateSystem = LPS\n# columns = id,x,y,z,")
+    );
+    assert_eq!(landmarks::read_fcsv(&out).expect("read"), pts);
+    let missing = [SlicerPoint { label: "gap".into(), selected: true, position: None }];
+    let e = landmarks::write_fcsv(&dir.path().join("gap.fcsv"), &missing).expect_err("missing");
+    assert!(e.to_string().contains(".mrk.json"), "{e}");
+}
+
+#[test]
+fn slicer_pair_reads_by_index() {
+    let pairs =
+        landmarks::read_slicer_pair(&fixture("slicer5_ras.mrk.json"), &fixture("slicer5_lps.mrk.json")).expect("pair");
+    assert_eq!(pairs.len(), 4);
+    assert_eq!(pairs[0], LandmarkPair::new("F-1", slicer_points_lps()[0], slicer_points_lps()[0]));
+    assert!(!pairs[1].active, "F-2 is not selected");
+    assert!(!pairs[3].is_complete());
+    let (m, f) = complete_active_pairs(&pairs);
+    assert_eq!(m.len(), 2);
+    assert_eq!(m, f);
+    // Mixed formats pair too, but only lists of equal length.
+    let e = landmarks::read_slicer_pair(&fixture("slicer5_extra_columns.fcsv"), &fixture("slicer5_lps.mrk.json"))
+        .expect_err("3 vs 4");
+    let msg = e.to_string();
+    assert!(msg.contains("slicer5_extra_columns.fcsv") && msg.contains("slicer5_lps.mrk.json"), "{msg}");
+    assert!(msg.contains("has 3 points") && msg.contains("has 4"), "{msg}");
+}
+
+#[test]
+fn slicer_pair_round_trips_through_both_formats() {
+    let pairs = vec![
+        LandmarkPair::new("A", p(1.0, 2.0, 3.0), p(-1.5, 2.25, 0.1)),
+        LandmarkPair { name: "B".into(), active: false, moving: Some(p(0.0, 0.0, 1.0)), fixed: Some(p(4.0, 5.0, 6.0)) },
+    ];
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (m, f) in [("m.mrk.json", "f.mrk.json"), ("m.fcsv", "f.fcsv"), ("m.fcsv", "f.mrk.json")] {
+        let (m, f) = (dir.path().join(m), dir.path().join(f));
+        landmarks::write_slicer_pair(&m, &f, &pairs).expect("write");
+        assert_eq!(landmarks::read_slicer_pair(&m, &f).expect("read"), pairs);
+    }
+    // A missing half fits JSON but not .fcsv; the refused write leaves neither file.
+    let gap = vec![LandmarkPair { name: "G".into(), active: true, moving: Some(p(1.0, 1.0, 1.0)), fixed: None }];
+    let (m, f) = (dir.path().join("gm.mrk.json"), dir.path().join("gf.mrk.json"));
+    landmarks::write_slicer_pair(&m, &f, &gap).expect("json gap");
+    assert_eq!(landmarks::read_slicer_pair(&m, &f).expect("read"), gap);
+    let (m, f) = (dir.path().join("gm.fcsv"), dir.path().join("gf.fcsv"));
+    assert!(landmarks::write_slicer_pair(&m, &f, &gap).is_err());
+    assert!(!m.exists() && !f.exists());
+}
+
+fn coord() -> impl Strategy<Value = f64> {
+    prop_oneof![-1e4f64..1e4, any::<f64>().prop_filter("finite", |x| x.is_finite()), Just(0.0), Just(-0.0)]
+}
+
+fn point() -> impl Strategy<Value = Option<Point3<Lps>>> {
+    proptest::option::weighted(0.85, (coord(), coord(), coord()).prop_map(|(x, y, z)| p(x, y, z)))
+}
+
+fn pair() -> impl Strategy<Value = LandmarkPair> {
+    ("[ -~]{0,12}", any::<bool>(), point(), point()).prop_map(|(name, active, moving, fixed)| LandmarkPair {
+        name,
+        active,
+        moving,
+        fixed,
+    })
+}
+
+/// True when serde_json parses floats exactly (its `float_roundtrip` feature). Without it, its
+/// parser may land one ULP off for long mantissas; then JSON round trips get that much slack.
+fn json_floats_are_exact() -> bool {
+    let hard = 4.501_766_808_677_364_3e61_f64;
+    serde_json::from_str::<f64>(&format!("{hard:?}")).ok() == Some(hard)
+}
+
+fn same_point(a: Option<Point3<Lps>>, b: Option<Point3<Lps>>) -> bool {
+    match (a, b) {
+        (Some(a), Some(b)) if !json_floats_are_exact() => a.coords().iter().zip(b.coords()).all(|(x, y)| {
+            // Within 2 ULP (same sign), which also covers subnormals.
+            x.is_sign_negative() == y.is_sign_negative() && x.to_bits().abs_diff(y.to_bits()) <= 2
+        }),
+        (a, b) => a == b,
+    }
+}
+
+proptest! {
+    /// Law: BigWarp CSV write then read is the identity (names, flags, missing halves, exact f64).
+    #[test]
+    fn random_pairs_round_trip_through_bigwarp_csv(pairs in proptest::collection::vec(pair(), 0..12), ras in any::<bool>()) {
+        let name = Path::new("r.csv");
+        let options = BigWarpCsvOptions { ras };
+        let text = landmarks::to_bigwarp_csv(name, &pairs, options).expect("write");
+        let back = parse_bigwarp_csv(name, &text, options).expect("read");
+        prop_assert_eq!(back, pairs);
+    }
+
+    /// Law: a `.mrk.json` moving/fixed pair written and read back is the identity.
+    #[test]
+    fn random_pairs_round_trip_through_mrk_json(pairs in proptest::collection::vec(pair(), 0..12)) {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (m, f) = (dir.path().join("m.mrk.json"), dir.path().join("f.mrk.json"));
+        landmarks::write_slicer_pair(&m, &f, &pairs).expect("write");
+        let back = landmarks::read_slicer_pair(&m, &f).expect("read");
+        prop_assert_eq!(back.len(), pairs.len());
+        for (b, a) in back.iter().zip(&pairs) {
+            // Pairing rule: an empty moving label falls back to the fixed one, which is the same name.
+            prop_assert_eq!(&b.name, &a.name);
+            prop_assert_eq!(b.active, a.active);
+            prop_assert!(same_point(b.moving, a.moving), "{:?} vs {:?}", b.moving, a.moving);
+            prop_assert!(same_point(b.fixed, a.fixed), "{:?} vs {:?}", b.fixed, a.fixed);
+        }
+    }
+
+    /// Law: no text makes the parsers panic.
+    #[test]
+    fn arbitrary_text_never_panics(text in "(\\PC|\n|,|\"|#){0,200}") {
+        let _ = parse_bigwarp_csv(Path::new("x.csv"), &text, BigWarpCsvOptions::default());
+        let _ = parse_fcsv(Path::new("x.fcsv"), &text);
+        let _ = parse_mrk_json(Path::new("x.mrk.json"), &text);
+    }
+}
