@@ -1,0 +1,36 @@
+//! Exit codes: 0 ok; 2 bad input or usage (the message names the file and the problem);
+//! 1 internal error; 3 an accuracy gate failed (used by `eval`).
+
+use std::process::ExitCode;
+
+/// A failure that knows which exit code it maps to.
+#[derive(Debug)]
+pub enum Failure {
+    /// Bad input or usage: exit code 2.
+    BadInput(anyhow::Error),
+    /// A bug or an environment problem: exit code 1.
+    Internal(anyhow::Error),
+}
+
+impl Failure {
+    #[must_use]
+    pub fn code(&self) -> ExitCode {
+        match self {
+            Self::BadInput(_) => ExitCode::from(2),
+            Self::Internal(_) => ExitCode::from(1),
+        }
+    }
+    #[must_use]
+    pub fn error(&self) -> &anyhow::Error {
+        match self {
+            Self::BadInput(e) | Self::Internal(e) => e,
+        }
+    }
+}
+
+/// A reader or writer error is about the input (exit code 2): it names the file and the problem.
+impl From<warpbench_io::Error> for Failure {
+    fn from(e: warpbench_io::Error) -> Self {
+        Self::BadInput(e.into())
+    }
+}

@@ -1,0 +1,241 @@
+//! `warpbench info <file-or-dir> [--json]`: dims, spacing, `lps_from_index`, where the geometry came
+//! from, sample type, value range, modality and series of a volume. With `--json` the output follows
+//! the `warpbench-info/1` schema documented in `docs/cli.md`.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use serde::Serialize;
+use sha2::{Digest, Sha256};
+use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, Modality, SeriesSummary, Volume};
+
+use crate::exit::Failure;
+use crate::progress::Bar;
+
+/// Options of `warpbench info`.
+#[derive(Clone, Debug, Default)]
+pub struct InfoOptions {
+    pub path: PathBuf,
+    pub json: bool,
+    /// 4-D NIfTI: the frame to read.
+    pub frame: Option<usize>,
+    /// DICOM folder with several series: the SeriesInstanceUID to read.
+    pub series: Option<String>,
+    pub quiet: bool,
+}
+
+/// The `--json` document, schema `warpbench-info/1`.
+#[derive(Debug, Serialize)]
+pub struct InfoJson {
+    pub schema: &'static str,
+    pub path: String,
+    #[serde(flatten)]
+    pub content: InfoContent,
+}
+
+/// What `info` found: one volume, or a folder of several DICOM series to choose from.
+#[derive(Debug, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum InfoContent {
+    Volume(Box<VolumeInfo>),
+    SeriesList { series: Vec<SeriesSummary> },
+}
+
+/// One volume's description.
+#[derive(Debug, Serialize)]
+pub struct VolumeInfo {
+    pub format: &'static str,
+    pub dims: [usize; 3],
+    pub spacing_mm: [f64; 3],
+    /// Row-major 4×4: LPS mm = M · (i, j, k, 1), index 0 at the centre of the first voxel.
+    pub lps_from_index: [[f64; 4]; 4],
+    pub geometry_source: GeometrySourceJson,
+    pub dtype: &'static str,
+    /// [min, max] of the finite samples (after rescale), or null when there is none.
+    pub value_range: Option<[f64; 2]>,
+    /// "CT", "MR", another DICOM modality code, or null.
+    pub modality: Option<String>,
+    pub rescale: RescaleJson,
+    pub value_units: Option<String>,
+    pub series_instance_uid: Option<String>,
+    pub study_instance_uid: Option<String>,
+    pub series_number: Option<i64>,
+    pub description: Option<String>,
+    pub warnings: Vec<String>,
+    /// sha256 of the samples as little-endian `dtype`, i fastest: equal to what an independent
+    /// reader gets from `numpy.asarray(v, '<dtype').tobytes(order='F')`.
+    pub voxel_sha256: String,
+}
+
+#[derive(Debug, Serialize)]
+pub struct GeometrySourceJson {
+    /// One of sform, qform, pixdim, dicom, nrrd_space, nrrd_spacings, assumed.
+    pub kind: &'static str,
+    /// The NIfTI sform/qform code, when there is one.
+    pub code: Option<i32>,
+}
+
+#[derive(Debug, Serialize)]
+pub struct RescaleJson {
+    pub slope: f64,
+    pub intercept: f64,
+    pub applied: bool,
+}
+
+impl From<GeometrySource> for GeometrySourceJson {
+    fn from(g: GeometrySource) -> Self {
+        let (kind, code) = match g {
+            GeometrySource::NiftiSform { code } => ("sform", Some(code)),
+            GeometrySource::NiftiQform { code } => ("qform", Some(code)),
+            GeometrySource::NiftiPixdim => ("pixdim", None),
+            GeometrySource::DicomPatient => ("dicom", None),
+            GeometrySource::NrrdSpace => ("nrrd_space", None),
+            GeometrySource::NrrdSpacings => ("nrrd_spacings", None),
+            GeometrySource::Assumed => ("assumed", None),
+        };
+        Self { kind, code }
+    }
+}
+
+fn modality_code(m: &Modality) -> Option<String> {
+    match m {
+        Modality::Ct => Some("CT".into()),
+        Modality::Mr => Some("MR".into()),
+        Modality::Other(s) => Some(s.clone()),
+        Modality::Unknown => None,
+    }
+}
+
+fn format_name(f: Format) -> &'static str {
+    match f {
+        Format::Nifti => "nifti",
+        Format::Nrrd => "nrrd",
+        Format::Dicom => "dicom",
+    }
+}
+
+impl VolumeInfo {
+    #[must_use]
+    pub fn new(format: Format, v: &Volume) -> Self {
+        Self {
+            format: format_name(format),
+            dims: v.dims,
+            spacing_mm: v.spacing_mm(),
+            lps_from_index: v.lps_from_index.rows(),
+            geometry_source: v.geometry_source.into(),
+            dtype: v.sample_type().name(),
+            value_range: v.data.finite_range().map(|(a, b)| [a, b]),
+            modality: modality_code(&v.modality),
+            rescale: RescaleJson { slope: v.rescale.slope, intercept: v.rescale.intercept, applied: v.rescale.applied },
+            value_units: v.metadata.value_units.clone(),
+            series_instance_uid: v.metadata.series_instance_uid.clone(),
+            study_instance_uid: v.metadata.study_instance_uid.clone(),
+            series_number: v.metadata.series_number,
+            description: v.metadata.description.clone(),
+            warnings: v.metadata.warnings.clone(),
+            voxel_sha256: hex::encode(Sha256::digest(v.data.to_le_bytes())),
+        }
+    }
+}
+
+/// Loads `opts.path` and describes it.
+pub fn inspect(opts: &InfoOptions) -> Result<InfoJson, Failure> {
+    let path = &opts.path;
+    let format = Format::detect(path)?;
+    let mut bar = Bar::new(opts.quiet);
+    let mut load = LoadOptions::new().progress(|p| bar.update(p));
+    load.frame = opts.frame;
+    load.series_instance_uid.clone_from(&opts.series);
+    let loaded = load.open(path);
+    drop(load);
+    bar.finish();
+    let content = match loaded {
+        Ok(v) => InfoContent::Volume(Box::new(VolumeInfo::new(format, &v))),
+        Err(e) => match e.kind {
+            ErrorKind::MultipleSeries(series) => InfoContent::SeriesList { series },
+            _ => return Err(e.into()),
+        },
+    };
+    Ok(InfoJson { schema: "warpbench-info/1", path: path.display().to_string(), content })
+}
+
+/// Runs `warpbench info`, writing to `out`.
+pub fn run(opts: &InfoOptions, out: &mut dyn Write) -> Result<(), Failure> {
+    let info = inspect(opts)?;
+    let written = if opts.json {
+        serde_json::to_writer_pretty(&mut *out, &info).map_err(std::io::Error::from).and_then(|()| writeln!(out))
+    } else {
+        write_text(&info, out)
+    };
+    written.context("writing the output").map_err(Failure::Internal)
+}
+
+fn fmt3(v: [f64; 3]) -> String {
+    format!("{} × {} × {}", trim(v[0]), trim(v[1]), trim(v[2]))
+}
+
+fn trim(x: f64) -> String {
+    let s = format!("{x:.6}");
+    let s = s.trim_end_matches('0').trim_end_matches('.');
+    if s == "-0" { "0".into() } else { s.into() }
+}
+
+fn write_text(info: &InfoJson, out: &mut dyn Write) -> std::io::Result<()> {
+    writeln!(out, "{}", info.path)?;
+    match &info.content {
+        InfoContent::SeriesList { series } => {
+            writeln!(out, "  {} DICOM series; pick one with --series UID:", series.len())?;
+            for s in series {
+                writeln!(out, "  - {s}")?;
+            }
+        }
+        InfoContent::Volume(v) => write_volume(v, out)?,
+    }
+    Ok(())
+}
+
+fn write_volume(v: &VolumeInfo, out: &mut dyn Write) -> std::io::Result<()> {
+    let d = v.dims;
+    writeln!(out, "  format          {}", v.format)?;
+    writeln!(out, "  dims            {} × {} × {}", d[0], d[1], d[2])?;
+    writeln!(out, "  spacing         {} mm", fmt3(v.spacing_mm))?;
+    let g = &v.geometry_source;
+    match g.code {
+        Some(c) => writeln!(out, "  geometry from   {} (code {c})", g.kind)?,
+        None => writeln!(out, "  geometry from   {}", g.kind)?,
+    }
+    writeln!(out, "  lps_from_index")?;
+    for row in &v.lps_from_index {
+        writeln!(out, "    [{:>12.6} {:>12.6} {:>12.6} {:>12.6}]", row[0], row[1], row[2], row[3])?;
+    }
+    writeln!(out, "  dtype           {}", v.dtype)?;
+    match v.value_range {
+        Some([lo, hi]) => writeln!(
+            out,
+            "  value range     {} .. {}{}",
+            trim(lo),
+            trim(hi),
+            v.value_units.as_deref().map(|u| format!(" {u}")).unwrap_or_default()
+        )?,
+        None => writeln!(out, "  value range     (no finite samples)")?,
+    }
+    let r = &v.rescale;
+    if r.applied {
+        writeln!(out, "  rescale         value = {} × stored + {} (applied)", trim(r.slope), trim(r.intercept))?;
+    } else {
+        writeln!(out, "  rescale         none")?;
+    }
+    writeln!(out, "  modality        {}", v.modality.as_deref().unwrap_or("unknown"))?;
+    if let Some(uid) = &v.series_instance_uid {
+        let num = v.series_number.map(|n| format!(" (series {n})")).unwrap_or_default();
+        writeln!(out, "  series          {uid}{num}")?;
+    }
+    if let Some(desc) = &v.description {
+        writeln!(out, "  description     {desc}")?;
+    }
+    for w in &v.warnings {
+        writeln!(out, "  warning         {w}")?;
+    }
+    Ok(())
+}

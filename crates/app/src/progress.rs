@@ -1,0 +1,42 @@
+//! Progress bars on stderr (indicatif), silenced by `--quiet` or when stderr is not a terminal.
+
+use std::ops::ControlFlow;
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use warpbench_io::Progress;
+
+/// A progress bar that follows `warpbench_io` progress reports, switching label per stage.
+#[derive(Debug)]
+pub struct Bar {
+    bar: ProgressBar,
+    stage: &'static str,
+}
+
+impl Bar {
+    #[must_use]
+    pub fn new(quiet: bool) -> Self {
+        let bar = ProgressBar::with_draw_target(
+            Some(0),
+            if quiet { ProgressDrawTarget::hidden() } else { ProgressDrawTarget::stderr() },
+        );
+        let style = ProgressStyle::with_template("{msg:>24} [{bar:40}] {percent:>3}% {elapsed}")
+            .map_or_else(|_| ProgressStyle::default_bar(), |s| s.progress_chars("=> "));
+        bar.set_style(style);
+        Self { bar, stage: "" }
+    }
+
+    /// Feeds one report into the bar; never cancels.
+    pub fn update(&mut self, p: Progress) -> ControlFlow<()> {
+        if p.stage != self.stage {
+            self.stage = p.stage;
+            self.bar.set_message(p.stage);
+            self.bar.set_length(p.total);
+        }
+        self.bar.set_position(p.done);
+        ControlFlow::Continue(())
+    }
+
+    pub fn finish(&self) {
+        self.bar.finish_and_clear();
+    }
+}
