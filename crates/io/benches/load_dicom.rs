@@ -68,6 +68,7 @@ fn main() {
     let dir = repo().join("data-cache/bench/ct-512x512x300");
     if !dir.exists() {
         eprintln!("building {} ...", dir.display());
+        std::fs::create_dir_all(dir.parent().expect("data-cache/bench")).expect("create data-cache/bench");
         build_series(&dir);
     }
     let mut times = Vec::new();
