@@ -1,0 +1,62 @@
+//! TPS benchmarks: fit at N = 100 and N = 1000, and single-threaded evaluation of a 64³ grid for N = 100.
+//!
+//! `cargo bench -p warpbench-solver --bench tps -- --warm-up-time 1 --measurement-time 3`
+
+use std::hint::black_box;
+
+use criterion::{Criterion, criterion_group, criterion_main};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use warpbench_io::geometry::Point3;
+use warpbench_solver::tps::{Tps, fit_pullback};
+use warpbench_solver::{Fixed, Moving};
+
+/// N landmark pairs in a 200 mm box with a smooth ~10 mm displacement.
+fn landmarks(n: usize, seed: u64) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let moving: Vec<Point3<Moving>> = (0..n)
+        .map(|_| {
+            Point3::new(
+                rng.random_range(-100.0..100.0),
+                rng.random_range(-100.0..100.0),
+                rng.random_range(-100.0..100.0),
+            )
+        })
+        .collect();
+    let fixed = moving
+        .iter()
+        .map(|p| {
+            let [x, y, z] = p.coords();
+            Point3::new(x + 10.0 * (y / 40.0).sin(), y + 10.0 * (z / 50.0).cos(), z + 8.0 * (x / 60.0).sin())
+        })
+        .collect();
+    (moving, fixed)
+}
+
+fn bench_fit(c: &mut Criterion) {
+    for n in [100, 1000] {
+        let (moving, fixed) = landmarks(n, 7);
+        c.bench_function(&format!("tps_fit_n{n}"), |b| {
+            b.iter(|| fit_pullback(black_box(&moving), black_box(&fixed), 0.0).expect("fit"));
+        });
+    }
+}
+
+fn bench_eval(c: &mut Criterion) {
+    let (moving, fixed) = landmarks(100, 11);
+    let tps: Tps<Moving, Fixed> = fit_pullback(&moving, &fixed, 0.0).expect("fit");
+    let side = 64;
+    let points: Vec<[f64; 3]> = (0..side * side * side)
+        .map(|i| {
+            let (x, y, z) = (i % side, (i / side) % side, i / (side * side));
+            [x as f64 * 3.2 - 100.0, y as f64 * 3.2 - 100.0, z as f64 * 3.2 - 100.0]
+        })
+        .collect();
+    let mut out = vec![[0.0; 3]; points.len()];
+    c.bench_function("tps_eval_64cubed_n100_1thread", |b| {
+        b.iter(|| tps.eval_into(black_box(&points), black_box(&mut out)));
+    });
+}
+
+criterion_group!(benches, bench_fit, bench_eval);
+criterion_main!(benches);

@@ -1,0 +1,33 @@
+//! # warpbench-solver
+//!
+//! Landmark warps between the moving and the fixed volume, in both directions, and the tools to
+//! judge them. A landmark pair is (p_i ∈ moving LPS, q_i ∈ fixed LPS); the forward warp d maps
+//! moving to fixed with d(p_i) ≈ q_i, and the **pull-back** u = d⁻¹ maps fixed to moving, because
+//! the renderer and the exporter compute v'(x) = v_moving(u(x)) (Brunet, Nowak & Gleicher 2006 §3).
+//! Every function says which direction it computes; the types say it too ([`spaces`]).
+//!
+//! - [`tps`]: thin-plate spline with the 3-D kernel U(r) = r and a stiffness λ.
+//! - [`bspline`]: hierarchical (multilevel) cubic B-spline approximation (Lee, Wolberg & Shin 1997).
+//! - [`linear`]: affine, similarity and rigid least-squares fits (Umeyama 1991) and the predicted TRE.
+//! - [`invert`]: an approximate inverse of a forward warp by scattered-data interpolation.
+//! - [`control`]: sampling a pull-back into a control texture for the GPU.
+//! - [`method`]: [`Method`], fitting any of the above by name, in either direction.
+//! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
+//! - [`synthetic`]: seeded known warps for accuracy tests.
+
+pub mod bspline;
+pub mod control;
+pub mod diagnostics;
+pub mod error;
+pub mod invert;
+pub mod linear;
+pub mod method;
+pub mod spaces;
+pub mod synthetic;
+pub mod tps;
+pub mod warp;
+
+pub use error::{Result, SolverError};
+pub use method::Method;
+pub use spaces::{Aabb, Fixed, Moving};
+pub use warp::{Parallelism, Warp};

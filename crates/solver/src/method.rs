@@ -1,0 +1,70 @@
+//! [`Method`]: one name for "fit this kind of warp to these pairs", in either direction.
+//!
+//! The CLI's `--method`, the app's method switch, leave-one-out and the accuracy tests all fit a
+//! warp without caring which kind it is; they go through [`Method::fit`], which returns a boxed
+//! [`Warp`]. For a forward warp d = `fixed_from_moving` pass (p_i, q_i); for the pull-back
+//! u = `moving_from_fixed` pass the reversed pairs (q_i, p_i): every method fits the pull-back
+//! directly, so it is exact (or, for the approximating methods, as close) at the landmarks.
+
+use std::fmt;
+
+use warpbench_io::geometry::{Point3, Space};
+
+use crate::bspline::{BSplineParams, HierarchicalBSpline};
+use crate::error::Result;
+use crate::linear::{self, LinearKind};
+use crate::spaces::Aabb;
+use crate::tps::Tps;
+use crate::warp::Warp;
+
+/// A warp model and its parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Method {
+    /// Thin-plate spline with stiffness λ ≥ 0: 0 interpolates; λ > 0 is the smoothing spline
+    /// `Regularisation::Smoothing(λ)` (K − λI), whose bending energy falls monotonically as λ grows.
+    /// ITK's `Stiffness` (K + λI) is not used here: for U(r) = r it makes the warp rougher as λ grows
+    /// and is singular at the kernel's eigenvalues (see [`crate::tps`]).
+    Tps { stiffness: f64 },
+    /// Hierarchical cubic B-spline over the source domain.
+    BSpline(BSplineParams),
+    /// Affine, similarity or rigid least squares.
+    Linear(LinearKind),
+}
+
+impl fmt::Display for Method {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Tps { stiffness } if *stiffness == 0.0 => write!(f, "tps"),
+            Self::Tps { stiffness } => write!(f, "tps(λ={stiffness})"),
+            Self::BSpline(p) => write!(f, "hbspline({} levels)", p.levels),
+            Self::Linear(k) => write!(f, "{k}"),
+        }
+    }
+}
+
+impl Method {
+    /// The default of each kind, by the CLI names `tps`, `hbspline`, `affine`, `similarity`, `rigid`.
+    #[must_use]
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "tps" => Some(Self::Tps { stiffness: 0.0 }),
+            "hbspline" => Some(Self::BSpline(BSplineParams::default())),
+            other => other.parse().ok().map(Self::Linear),
+        }
+    }
+
+    /// Fits the warp taking `src` to `dst`. `domain` bounds where it will be evaluated (the source
+    /// volume's box); only the B-spline uses it.
+    pub fn fit<To: Space, From: Space>(
+        &self,
+        src: &[Point3<From>],
+        dst: &[Point3<To>],
+        domain: Aabb<From>,
+    ) -> Result<Box<dyn Warp<To, From>>> {
+        Ok(match self {
+            Self::Tps { stiffness } => Box::new(Tps::fit_smoothing(src, dst, *stiffness)?),
+            Self::BSpline(params) => Box::new(HierarchicalBSpline::fit(src, dst, domain, params)?),
+            Self::Linear(kind) => Box::new(linear::fit(*kind, src, dst)?.warp),
+        })
+    }
+}

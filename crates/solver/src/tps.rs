@@ -1,0 +1,661 @@
+//! Thin-plate spline (TPS) with the 3-D kernel U(r) = r.
+//!
+//! # The formula
+//!
+//! Given landmark pairs (pᵢ, qᵢ), i = 1…N, the TPS is
+//!
+//! ```text
+//! f(x) = A x + b + Σᵢ wᵢ U(‖x − pᵢ‖),      U(r) = r,
+//! ```
+//!
+//! with A ∈ ℝ³ˣ³, b ∈ ℝ³ and bending weights wᵢ ∈ ℝ³ (Bookstein 1989 in 2-D; U(r) = r is the 3-D
+//! biharmonic kernel, Davis et al. 1997). In the notation of ITK's `KernelTransform` (whose 3-D
+//! `ThinPlateSplineKernelTransform` uses G(r) = r·I): Kᵢⱼ = U(‖pᵢ − pⱼ‖), P has rows (pᵢᵀ, 1), Y has
+//! rows qᵢᵀ, and the weights W (rows wᵢᵀ) and the affine part [Aᵀ; bᵀ] solve
+//!
+//! ```text
+//! L [W; Aᵀ bᵀ] = [Y; 0],     L = [ K + λI   P ]
+//!                                [ Pᵀ       0 ],
+//! ```
+//!
+//! i.e. f(pᵢ) + λ wᵢ = qᵢ and Pᵀ W = 0 (the weights carry no affine part).
+//!
+//! # Stiffness λ: two conventions
+//!
+//! - [`Regularisation::ItkStiffness`] (what [`Tps::fit`] takes) is ITK's `SetStiffness` exactly: λ is added
+//!   to the diagonal of K (ITK `ComputeReflexiveG`). λ = 0 interpolates. **Caveat:** in 3-D, U(r) = r is
+//!   conditionally *negative* definite, so on the space Pᵀw = 0 the reduced matrix Q₂ᵀKQ₂ has eigenvalues
+//!   −μⱼ < 0, and Q₂ᵀ(K + λI)Q₂ has eigenvalues λ − μⱼ. For 0 < λ < min μⱼ the fit approximates
+//!   (|qᵢ − f(pᵢ)| = λ|wᵢ|, shrinking as λ → 0) but the bending energy *grows* with λ; for λ > max μⱼ it
+//!   tends to the least-squares affine fit; in between the system passes through singularities (λ = μⱼ),
+//!   where [`Tps::fit`] returns [`SolverError::Degenerate`]. ITK behaves the same (its SVD zeroes the
+//!   singular value instead). μ_min is typically a few mm for landmarks a few cm apart.
+//! - [`Regularisation::Smoothing`] is the well-posed smoothing spline: λ enters as K − λI, so
+//!   Q₂ᵀ(K − λI)Q₂ stays negative definite for every λ ≥ 0, and f minimises
+//!   Σᵢ ‖qᵢ − f(pᵢ)‖² + λ·E(f) with E(f) = −Σᵢⱼ wᵢ·wⱼ Kᵢⱼ ∝ the thin-plate bending energy (Wahba 1990 §2.4;
+//!   Rohr et al. 2001). Residuals qᵢ − f(pᵢ) = −λ wᵢ; E decreases monotonically in λ; λ → ∞ gives the
+//!   least-squares affine fit. Prefer this for noisy landmarks.
+//!
+//! # Directions
+//!
+//! A [`Tps<To, From>`] maps `From` to `To` and fits f(pᵢ) ≈ qᵢ with pᵢ ∈ `From`, qᵢ ∈ `To`. With landmark
+//! pairs (pᵢ ∈ moving, qᵢ ∈ fixed): [`fit_forward`] gives d = `fixed_from_moving`, and [`fit_pullback`]
+//! fits the *reversed* pairs qᵢ → pᵢ, giving u = `moving_from_fixed`, exact at the landmarks (it is not
+//! d⁻¹ elsewhere). Renderers sample the pull-back into a control texture (Brunet, Nowak & Gleicher 2006
+//! §3.3: the TPS is evaluated on the CPU on a regular grid and interpolated by the texture unit).
+//!
+//! # Solve
+//!
+//! Coordinates are centred and scaled for the affine block (P̂ rows ((pᵢ − c)/s, 1)), which spans the
+//! same functions. With the Householder QR P̂ = Q [R; 0], Q = [Q₁ Q₂], the constraint P̂ᵀW = 0 is W = Q₂Ω,
+//! and Ω solves the symmetric (N−4)² system Q₂ᵀ(K ± λI)Q₂ Ω = Q₂ᵀY (Cholesky of its negation; ITK
+//! stiffness falls back to Cholesky or LU), then R [Aᵀ; bᵀ]̂ = Q₁ᵀ(Y − (K ± λI)W). Every fit checks the
+//! factor's pivot ratio ([`PIVOT_RTOL`]) and estimated condition ([`RCOND_MIN`]) and the backward error of the full system ([`RESIDUAL_RTOL`]),
+//! and never returns non-finite coefficients.
+//!
+//! # Degenerate input (decisions)
+//!
+//! - Lengths differ → [`SolverError::LengthMismatch`]; a NaN/∞ coordinate → [`SolverError::NonFinite`];
+//!   λ negative or not finite → [`SolverError::InvalidParameter`]; more than [`MAX_LANDMARKS`] pairs →
+//!   [`SolverError::InvalidParameter`] (the solve is O(N³) time, O(N²) memory).
+//! - Two sources at the same position (within [`SAME_POSITION_RTOL`]·(1 + max|x|) mm) with different targets
+//!   → [`SolverError::Duplicate`]; with the same target (the same pair entered twice) → merged, the first
+//!   copy kept (ITK's min-norm SVD solution gives the same map). [`Tps::centres`] lists the merged centres.
+//! - Fewer than 4 distinct sources → [`SolverError::TooFew`] (no lower-rank fallback: use the rigid or
+//!   similarity fits of [`crate::linear`] for 1–3 pairs).
+//! - All sources coplanar or collinear (RMS thickness < [`FLAT_RTOL`] × RMS extent: P is rank-deficient and
+//!   the affine part undetermined) → [`SolverError::Degenerate`] naming "coplanar" or "collinear".
+//!
+//! # References
+//!
+//! - F. L. Bookstein, "Principal warps: thin-plate splines and the decomposition of deformations",
+//!   IEEE TPAMI 11(6), 1989.
+//! - M. H. Davis, A. Khotanzad, D. P. Flamig, S. E. Harms, "A physics-based coordinate transformation for
+//!   3-D image matching", IEEE TMI 16(3), 1997.
+//! - ITK `itk::KernelTransform` / `itk::ThinPlateSplineKernelTransform` (p, q, K, P, L, W, Stiffness).
+//! - T. Brunet, K. E. Nowak, M. Gleicher, "Integrating dynamic deformations into interactive volume
+//!   visualization", EuroVis 2006, §3.3 (TPS warps sampled into deformation textures).
+//! - K. Rohr et al., "Landmark-based elastic registration using approximating thin-plate splines",
+//!   IEEE TMI 20(6), 2001; G. Wahba, "Spline models for observational data", SIAM 1990.
+
+use std::marker::PhantomData;
+
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix4x3};
+use warpbench_io::geometry::{Point3, Space, Transform};
+
+use crate::warp::check_pairs;
+use crate::{Fixed, Moving, Result, SolverError, Warp};
+
+/// The affine part needs 4 non-coplanar landmarks.
+pub const MIN_LANDMARKS: usize = 4;
+/// Largest accepted N: the dense solve needs 8·N² bytes (200 MB here) and O(N³) time.
+pub const MAX_LANDMARKS: usize = 5_000;
+/// Two sources closer than this × (1 + max|coordinate| in mm) are the same position.
+pub const SAME_POSITION_RTOL: f64 = 1e-9;
+/// Sources whose RMS thickness (smallest principal axis) is below this × their RMS extent are coplanar.
+pub const FLAT_RTOL: f64 = 1e-6;
+/// A factorisation whose smallest/largest pivot ratio is below this is singular.
+pub const PIVOT_RTOL: f64 = 1e-13;
+/// Smallest accepted estimate of 1/cond(M) for the reduced (N−4)² system (cond ≈ 1e12 loses 4 of 16 digits).
+pub const RCOND_MIN: f64 = 1e-12;
+/// Largest accepted backward error of the solved system, relative to the size of its terms.
+pub const RESIDUAL_RTOL: f64 = 1e-9;
+
+/// Centres per block of the evaluation kernel (f64 lanes; the tail is padded with zero weights).
+const LANES: usize = 2;
+const METHOD: &str = "thin-plate spline";
+
+/// How λ enters the TPS system (see the module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Regularisation {
+    /// λ = 0: f(pᵢ) = qᵢ exactly.
+    Interpolate,
+    /// ITK's `Stiffness`: K + λI, ITK's convention (cross-checked to 1e-6 mm); singular at some intermediate λ.
+    ItkStiffness(f64),
+    /// Smoothing spline: K − λI, minimising Σ‖qᵢ − f(pᵢ)‖² + λ·E(f). Well-posed for every λ ≥ 0.
+    Smoothing(f64),
+}
+
+impl From<f64> for Regularisation {
+    /// A bare λ is ITK's stiffness, as in [`Tps::fit`].
+    fn from(stiffness: f64) -> Self {
+        Self::ItkStiffness(stiffness)
+    }
+}
+
+impl Regularisation {
+    /// The value added to the diagonal of K.
+    #[must_use]
+    pub fn k_diagonal(self) -> f64 {
+        match self {
+            Self::Interpolate => 0.0,
+            Self::ItkStiffness(l) => l,
+            Self::Smoothing(l) => -l,
+        }
+    }
+
+    fn validate(self) -> Result<()> {
+        let l = match self {
+            Self::Interpolate => 0.0,
+            Self::ItkStiffness(l) | Self::Smoothing(l) => l,
+        };
+        if l.is_finite() && l >= 0.0 {
+            Ok(())
+        } else {
+            Err(SolverError::InvalidParameter(format!("TPS stiffness must be finite and ≥ 0, got {l}")))
+        }
+    }
+}
+
+/// One block of [`LANES`] centres and their weights, structure-of-arrays for the evaluation kernel.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Block {
+    px: [f64; LANES],
+    py: [f64; LANES],
+    pz: [f64; LANES],
+    wx: [f64; LANES],
+    wy: [f64; LANES],
+    wz: [f64; LANES],
+}
+
+/// A thin-plate spline f: `From` → `To`, f(x) = A x + b + Σᵢ wᵢ ‖x − pᵢ‖ (module docs).
+#[derive(Clone, Debug)]
+pub struct Tps<To: Space, From: Space> {
+    /// Number of centres (the last block is padded with zero weights).
+    n: usize,
+    blocks: Vec<Block>,
+    /// A: row r, column c = ∂f_r/∂x_c of the affine part.
+    a: Matrix3<f64>,
+    b: [f64; 3],
+    regularisation: Regularisation,
+    spaces: PhantomData<(To, From)>,
+}
+
+/// Fits the forward warp d = `fixed_from_moving` with d(pᵢ) ≈ qᵢ (pᵢ moving, qᵢ fixed).
+///
+/// `regularisation` is a bare f64 (ITK stiffness, as [`Tps::fit`]) or a [`Regularisation`].
+pub fn fit_forward(
+    moving: &[Point3<Moving>],
+    fixed: &[Point3<Fixed>],
+    regularisation: impl Into<Regularisation>,
+) -> Result<Tps<Fixed, Moving>> {
+    Tps::fit_regularised(moving, fixed, regularisation.into())
+}
+
+/// Fits the pull-back u = `moving_from_fixed` directly on the reversed pairs, u(qᵢ) ≈ pᵢ: exact at the
+/// landmarks for λ = 0 (not the inverse of [`fit_forward`] elsewhere). Errors index the pairs.
+pub fn fit_pullback(
+    moving: &[Point3<Moving>],
+    fixed: &[Point3<Fixed>],
+    regularisation: impl Into<Regularisation>,
+) -> Result<Tps<Moving, Fixed>> {
+    Tps::fit_regularised(fixed, moving, regularisation.into())
+}
+
+impl<To: Space, From: Space> Tps<To, From> {
+    /// Fits f(`src[i]`) ≈ `dst[i]` with ITK's stiffness convention (K + λI; λ = 0 interpolates).
+    pub fn fit(src: &[Point3<From>], dst: &[Point3<To>], stiffness: f64) -> Result<Self> {
+        Self::fit_regularised(src, dst, Regularisation::ItkStiffness(stiffness))
+    }
+
+    /// Fits the smoothing spline (K − λI), well-posed for every λ ≥ 0.
+    pub fn fit_smoothing(src: &[Point3<From>], dst: &[Point3<To>], lambda: f64) -> Result<Self> {
+        Self::fit_regularised(src, dst, Regularisation::Smoothing(lambda))
+    }
+
+    /// Fits f(`src[i]`) ≈ `dst[i]` with the given regularisation.
+    pub fn fit_regularised(src: &[Point3<From>], dst: &[Point3<To>], regularisation: Regularisation) -> Result<Self> {
+        regularisation.validate()?;
+        check_pairs(src, dst)?;
+        if src.len() > MAX_LANDMARKS {
+            return Err(SolverError::InvalidParameter(format!(
+                "a TPS takes at most {MAX_LANDMARKS} landmark pairs, got {}",
+                src.len()
+            )));
+        }
+        if src.len() < MIN_LANDMARKS {
+            return Err(SolverError::TooFew { method: METHOD, needed: MIN_LANDMARKS, got: src.len() });
+        }
+        let p: Vec<[f64; 3]> = src.iter().map(Point3::coords).collect();
+        let q: Vec<[f64; 3]> = dst.iter().map(Point3::coords).collect();
+        let (p, q) = merge_duplicates(&p, &q)?;
+        if p.len() < MIN_LANDMARKS {
+            return Err(SolverError::TooFew { method: METHOD, needed: MIN_LANDMARKS, got: p.len() });
+        }
+        let (centre, scale) = check_spread(&p)?;
+        let solution = solve(&p, &q, centre, scale, regularisation.k_diagonal())?;
+        let tps = Self::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
+        tps.check_solution(&p, &q, &solution)?;
+        Ok(tps)
+    }
+
+    /// Builds a TPS from its parts, e.g. for synthetic warps: f(x) = A x + b + Σᵢ `weights[i]`·‖x − `centres[i]`‖.
+    ///
+    /// Checks lengths and finiteness only. The map is smooth for any weights; it is the TPS that
+    /// [`Tps::fit`] recovers from samples at its centres only when Σᵢ wᵢ = 0 and Σᵢ wᵢ pᵢᵀ = 0.
+    pub fn from_parts(centres: &[Point3<From>], weights: &[[f64; 3]], a: Matrix3<f64>, b: [f64; 3]) -> Result<Self> {
+        if centres.len() != weights.len() {
+            return Err(SolverError::LengthMismatch { sources: centres.len(), targets: weights.len() });
+        }
+        for (index, (c, w)) in centres.iter().zip(weights).enumerate() {
+            if !c.is_finite() || !w.iter().all(|v| v.is_finite()) {
+                return Err(SolverError::NonFinite { index });
+            }
+        }
+        if !a.iter().chain(&b).all(|v| v.is_finite()) {
+            return Err(SolverError::InvalidParameter("TPS affine part is not finite".into()));
+        }
+        let p: Vec<[f64; 3]> = centres.iter().map(Point3::coords).collect();
+        Ok(Self::from_raw(&p, weights, a, b, Regularisation::Interpolate))
+    }
+
+    fn from_raw(p: &[[f64; 3]], w: &[[f64; 3]], a: Matrix3<f64>, b: [f64; 3], regularisation: Regularisation) -> Self {
+        let mut blocks = vec![Block::default(); p.len().div_ceil(LANES)];
+        for (i, (pi, wi)) in p.iter().zip(w).enumerate() {
+            let (blk, l) = (&mut blocks[i / LANES], i % LANES);
+            (blk.px[l], blk.py[l], blk.pz[l]) = (pi[0], pi[1], pi[2]);
+            (blk.wx[l], blk.wy[l], blk.wz[l]) = (wi[0], wi[1], wi[2]);
+        }
+        // Padding lanes keep zero weights; centre them on a real centre so r stays small and finite.
+        if let (Some(first), Some(last)) = (p.first(), blocks.last_mut()) {
+            for l in (p.len() - 1) % LANES + 1..LANES {
+                (last.px[l], last.py[l], last.pz[l]) = (first[0], first[1], first[2]);
+            }
+        }
+        Self { n: p.len(), blocks, a, b, regularisation, spaces: PhantomData }
+    }
+
+    /// Number of centres pᵢ (after merging duplicated pairs).
+    #[must_use]
+    pub fn num_centres(&self) -> usize {
+        self.n
+    }
+
+    /// The centres pᵢ, in `From`.
+    #[must_use]
+    pub fn centres(&self) -> Vec<Point3<From>> {
+        (0..self.n)
+            .map(|i| {
+                let (blk, l) = (&self.blocks[i / LANES], i % LANES);
+                Point3::new(blk.px[l], blk.py[l], blk.pz[l])
+            })
+            .collect()
+    }
+
+    /// The bending weights wᵢ (dimensionless: mm of `To` per mm of distance), one per centre.
+    #[must_use]
+    pub fn weights(&self) -> Vec<[f64; 3]> {
+        (0..self.n)
+            .map(|i| {
+                let (blk, l) = (&self.blocks[i / LANES], i % LANES);
+                [blk.wx[l], blk.wy[l], blk.wz[l]]
+            })
+            .collect()
+    }
+
+    /// The linear part A of the affine term (row r, column c).
+    #[must_use]
+    pub fn linear(&self) -> Matrix3<f64> {
+        self.a
+    }
+
+    /// The translation b of the affine term, in mm.
+    #[must_use]
+    pub fn translation(&self) -> [f64; 3] {
+        self.b
+    }
+
+    /// The affine term x ↦ A x + b as a typed transform.
+    #[must_use]
+    pub fn affine(&self) -> Transform<To, From> {
+        Transform::from_linear_translation(self.a, self.b)
+    }
+
+    /// The regularisation it was fitted with ([`Regularisation::Interpolate`] for [`Tps::from_parts`]).
+    #[must_use]
+    pub fn regularisation(&self) -> Regularisation {
+        self.regularisation
+    }
+
+    /// E = −Σᵢⱼ wᵢ·wⱼ ‖pᵢ − pⱼ‖ (= −tr WᵀKW), proportional to the thin-plate bending energy; ≥ 0 when
+    /// Pᵀ W = 0, zero for an affine map. O(N²).
+    #[must_use]
+    pub fn bending_energy(&self) -> f64 {
+        let (p, w) = (self.centres(), self.weights());
+        let mut e = 0.0;
+        for (pi, wi) in p.iter().zip(&w) {
+            for (pj, wj) in p.iter().zip(&w) {
+                e -= pi.distance(pj) * (wi[0] * wj[0] + wi[1] * wj[1] + wi[2] * wj[2]);
+            }
+        }
+        e
+    }
+
+    /// Evaluates f at one point (mm in `From` → mm in `To`). No allocation.
+    #[inline]
+    #[must_use]
+    #[allow(clippy::needless_range_loop)] // one lane index over six arrays: the form LLVM vectorises
+    pub fn eval_point(&self, x: [f64; 3]) -> [f64; 3] {
+        let mut s = [[0.0; LANES]; 3];
+        for blk in &self.blocks {
+            for l in 0..LANES {
+                let (dx, dy, dz) = (x[0] - blk.px[l], x[1] - blk.py[l], x[2] - blk.pz[l]);
+                let r = (dx * dx + dy * dy + dz * dz).sqrt();
+                s[0][l] += r * blk.wx[l];
+                s[1][l] += r * blk.wy[l];
+                s[2][l] += r * blk.wz[l];
+            }
+        }
+        self.finish(x, &s)
+    }
+
+    /// The kernel: `out[k]` = f(`points[k]`) (mm). Never allocates or spawns threads; split `points` and
+    /// `out` into chunks to parallelise.
+    ///
+    /// # Panics
+    /// When `points` and `out` differ in length.
+    pub fn eval_into(&self, points: &[[f64; 3]], out: &mut [[f64; 3]]) {
+        assert_eq!(points.len(), out.len(), "eval_into: points and out differ in length");
+        for (x, y) in points.iter().zip(out.iter_mut()) {
+            *y = self.eval_point(*x);
+        }
+    }
+
+    /// Adds the affine part to the lane sums of the kernel terms.
+    #[inline]
+    fn finish(&self, x: [f64; 3], s: &[[f64; LANES]; 3]) -> [f64; 3] {
+        let a = &self.a;
+        let sum = |s: &[f64; LANES]| s.iter().sum::<f64>();
+        std::array::from_fn(|r| a[(r, 0)] * x[0] + a[(r, 1)] * x[1] + a[(r, 2)] * x[2] + self.b[r] + sum(&s[r]))
+    }
+
+    /// Checks the fitted system: finite coefficients, and a small backward error of f(pᵢ) + λwᵢ = qᵢ.
+    fn check_solution(&self, p: &[[f64; 3]], q: &[[f64; 3]], s: &Solution) -> Result<()> {
+        let coeffs_finite = s.w.iter().flatten().chain(self.a.iter()).chain(&self.b).all(|v| v.is_finite());
+        if !coeffs_finite {
+            return Err(SolverError::Degenerate("the TPS system gave non-finite coefficients".into()));
+        }
+        let d = self.regularisation.k_diagonal();
+        let max_abs = |v: &[[f64; 3]]| v.iter().flatten().fold(0.0_f64, |m, x| m.max(x.abs()));
+        let (max_w, max_q, diam) = (max_abs(&s.w), max_abs(q), s.diameter);
+        let scale = 1.0 + max_q + (p.len() as f64 * diam + d.abs()) * max_w;
+        let mut worst = 0.0_f64;
+        for ((pi, qi), wi) in p.iter().zip(q).zip(&s.w) {
+            let f = self.eval_point(*pi);
+            for c in 0..3 {
+                worst = worst.max((f[c] + d * wi[c] - qi[c]).abs());
+            }
+        }
+        if worst.is_finite() && worst <= RESIDUAL_RTOL * scale {
+            Ok(())
+        } else {
+            Err(SolverError::Degenerate(format!(
+                "the TPS system is too ill-conditioned: residual {worst:.3e} mm exceeds {:.3e} mm",
+                RESIDUAL_RTOL * scale
+            )))
+        }
+    }
+}
+
+impl<To: Space, From: Space> Warp<To, From> for Tps<To, From> {
+    fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        self.eval_point(x)
+    }
+
+    /// Analytic: ∂f/∂x = A + Σᵢ wᵢ (x − pᵢ)ᵀ / ‖x − pᵢ‖. At a centre (r = 0) U = r is not differentiable;
+    /// its term is taken as 0, the symmetric limit that central differences also give.
+    fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
+        let mut j = self.a;
+        for blk in &self.blocks {
+            for l in 0..LANES {
+                let d = [x[0] - blk.px[l], x[1] - blk.py[l], x[2] - blk.pz[l]];
+                let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                if r > 0.0 {
+                    let w = [blk.wx[l], blk.wy[l], blk.wz[l]];
+                    for (row, wr) in w.iter().enumerate() {
+                        for (col, dc) in d.iter().enumerate() {
+                            j[(row, col)] += wr * dc / r;
+                        }
+                    }
+                }
+            }
+        }
+        j
+    }
+}
+
+/// Drops repeated pairs (same source and same target); errors on a shared source with different targets.
+#[allow(clippy::type_complexity)]
+fn merge_duplicates(p: &[[f64; 3]], q: &[[f64; 3]]) -> Result<(Vec<[f64; 3]>, Vec<[f64; 3]>)> {
+    let max_abs = |v: &[[f64; 3]]| v.iter().flatten().fold(0.0_f64, |m, x| m.max(x.abs()));
+    let tol_p = SAME_POSITION_RTOL * (1.0 + max_abs(p));
+    let tol_q = SAME_POSITION_RTOL * (1.0 + max_abs(q));
+    let dist2 = |a: &[f64; 3], b: &[f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
+    let mut kept: Vec<usize> = Vec::with_capacity(p.len());
+    for j in 0..p.len() {
+        let mut duplicate = false;
+        for &i in &kept {
+            if dist2(&p[i], &p[j]) <= tol_p * tol_p {
+                if dist2(&q[i], &q[j]) <= tol_q * tol_q {
+                    duplicate = true;
+                    break;
+                }
+                return Err(SolverError::Duplicate { first: i, second: j });
+            }
+        }
+        if !duplicate {
+            kept.push(j);
+        }
+    }
+    Ok((kept.iter().map(|&i| p[i]).collect(), kept.iter().map(|&i| q[i]).collect()))
+}
+
+/// Returns the centroid and RMS radius of `p`, or an error when `p` is coplanar or collinear.
+fn check_spread(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
+    let n = p.len() as f64;
+    let mut c = [0.0; 3];
+    for pi in p {
+        for k in 0..3 {
+            c[k] += pi[k] / n;
+        }
+    }
+    let mut scatter = Matrix3::zeros();
+    for pi in p {
+        let d = nalgebra::Vector3::new(pi[0] - c[0], pi[1] - c[1], pi[2] - c[2]);
+        scatter += d * d.transpose() / n;
+    }
+    let mut ev: Vec<f64> = scatter.symmetric_eigenvalues().iter().map(|e| e.max(0.0)).collect();
+    ev.sort_by(f64::total_cmp);
+    let (lo, mid, hi) = (ev[0].sqrt(), ev[1].sqrt(), ev[2].sqrt());
+    if hi.is_nan() || hi <= 0.0 || mid < FLAT_RTOL * hi {
+        return Err(SolverError::Degenerate(format!(
+            "the {} source landmarks are collinear (RMS extents {hi:.3e}, {mid:.3e} mm): a TPS needs 4 \
+             non-coplanar landmarks",
+            p.len()
+        )));
+    }
+    if lo < FLAT_RTOL * hi {
+        return Err(SolverError::Degenerate(format!(
+            "the {} source landmarks are coplanar (RMS thickness {lo:.3e} mm vs extent {hi:.3e} mm): a TPS \
+             needs 4 non-coplanar landmarks",
+            p.len()
+        )));
+    }
+    let scale = (ev[0] + ev[1] + ev[2]).sqrt();
+    Ok((c, scale))
+}
+
+/// The solved coefficients: weights per centre and the affine part in raw mm.
+struct Solution {
+    w: Vec<[f64; 3]>,
+    a: Matrix3<f64>,
+    b: [f64; 3],
+    /// Largest source extent (bounding-box diagonal), mm; scales the residual check.
+    diameter: f64,
+}
+
+/// A Householder reflector H = I − τ v vᵀ (v zero above its pivot).
+struct Reflector {
+    v: DVector<f64>,
+    tau: f64,
+}
+
+impl Reflector {
+    /// Applies H from the left to every column of `m`.
+    fn apply_left(&self, m: &mut DMatrix<f64>) {
+        let vt_m = self.v.transpose() * &*m;
+        m.ger(-self.tau, &self.v, &vt_m.transpose(), 1.0);
+    }
+
+    /// S ← H S H for symmetric S, as the rank-2 update S − v zᵀ − z vᵀ with z = τ S v − (τ² vᵀSv / 2) v.
+    fn apply_both(&self, s: &mut DMatrix<f64>) {
+        let u = &*s * &self.v;
+        let gamma = self.v.dot(&u);
+        let z = u * self.tau - &self.v * (0.5 * self.tau * self.tau * gamma);
+        s.ger(-1.0, &self.v, &z, 1.0);
+        s.ger(-1.0, &z, &self.v, 1.0);
+    }
+}
+
+/// Householder QR of the N×4 matrix P̂ (in place): returns the 4 reflectors and R (4×4, upper).
+fn householder_qr(p_hat: &mut DMatrix<f64>) -> Result<(Vec<Reflector>, nalgebra::Matrix4<f64>)> {
+    let n = p_hat.nrows();
+    let mut reflectors = Vec::with_capacity(4);
+    for k in 0..4 {
+        let x = p_hat.view((k, k), (n - k, 1)).clone_owned();
+        let norm = x.norm();
+        if norm.is_nan() || norm <= 0.0 {
+            return Err(SolverError::Degenerate("the TPS affine block P is rank-deficient".into()));
+        }
+        let alpha = if x[0] >= 0.0 { -norm } else { norm };
+        let mut v = DVector::zeros(n);
+        v.rows_mut(k, n - k).copy_from(&x.column(0));
+        v[k] -= alpha;
+        let tau = 2.0 / v.norm_squared();
+        let h = Reflector { v, tau };
+        h.apply_left(p_hat);
+        reflectors.push(h);
+    }
+    let r = p_hat.fixed_view::<4, 4>(0, 0).upper_triangle();
+    Ok((reflectors, r))
+}
+
+/// Solves L [W; Â] = [Y; 0] by eliminating the affine block (module docs, "Solve").
+fn solve(p: &[[f64; 3]], q: &[[f64; 3]], c: [f64; 3], s: f64, k_diagonal: f64) -> Result<Solution> {
+    let n = p.len();
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for pi in p {
+        for k in 0..3 {
+            lo[k] = lo[k].min(pi[k]);
+            hi[k] = hi[k].max(pi[k]);
+        }
+    }
+    let diameter = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
+
+    // K̃ = K + dI (d = ±λ), symmetric.
+    let mut k_mat = DMatrix::<f64>::zeros(n, n);
+    for j in 0..n {
+        k_mat[(j, j)] = k_diagonal;
+        for i in j + 1..n {
+            let r = ((p[i][0] - p[j][0]).powi(2) + (p[i][1] - p[j][1]).powi(2) + (p[i][2] - p[j][2]).powi(2)).sqrt();
+            k_mat[(i, j)] = r;
+            k_mat[(j, i)] = r;
+        }
+    }
+    let mut p_hat = DMatrix::<f64>::from_fn(n, 4, |i, k| if k < 3 { (p[i][k] - c[k]) / s } else { 1.0 });
+    let mut y = DMatrix::<f64>::from_fn(n, 3, |i, k| q[i][k]);
+
+    let (reflectors, r) = householder_qr(&mut p_hat)?;
+    for h in &reflectors {
+        h.apply_both(&mut k_mat);
+        h.apply_left(&mut y);
+    }
+    // Now k_mat = Qᵀ K̃ Q and y = Qᵀ Y; W = Q [0; Ω] with M₂₂ Ω = y₂.
+    let m = n - 4;
+    let omega = if m == 0 {
+        DMatrix::<f64>::zeros(0, 3)
+    } else {
+        let m22 = k_mat.view((4, 4), (m, m)).clone_owned();
+        solve_symmetric(m22, &y.rows(4, m).clone_owned(), k_diagonal)?
+    };
+    // R Â = y₁ − M₁₂ Ω.
+    let rhs1 = y.rows(0, 4) - k_mat.view((0, 4), (4, m)) * &omega;
+    let r_inv = r.try_inverse().ok_or_else(|| SolverError::Degenerate("the TPS affine block P is singular".into()))?;
+    let a_hat: Matrix4x3<f64> = r_inv * Matrix4x3::from_fn(|i, k| rhs1[(i, k)]);
+
+    let mut w = DMatrix::<f64>::zeros(n, 3);
+    w.rows_mut(4, m).copy_from(&omega);
+    for h in reflectors.iter().rev() {
+        h.apply_left(&mut w);
+    }
+
+    // Undo the centring and scaling: f(x) = Σ Â_k((x − c)/s) + Â₃ = A x + b.
+    let a = Matrix3::from_fn(|row, col| a_hat[(col, row)] / s);
+    let b = std::array::from_fn(|row| a_hat[(3, row)] - (0..3).map(|col| a[(row, col)] * c[col]).sum::<f64>());
+    let w = (0..n).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect();
+    Ok(Solution { w, a, b, diameter })
+}
+
+/// Solves M Ω = Y for the symmetric reduced matrix M = Q₂ᵀ(K + dI)Q₂.
+///
+/// M is negative definite for d ≤ μ_min (always for d ≤ 0): Cholesky of −M. ITK stiffness d > 0 may make
+/// it positive definite (Cholesky of M) or indefinite (LU with partial pivoting). Each factor is checked by
+/// its pivot ratio ([`PIVOT_RTOL`]) and by an estimate of 1/cond(M) from one solve with a fixed ±1 probe
+/// (‖v‖ / (‖M‖_F ‖M⁻¹v‖) ≥ 1/(√n·cond₂), [`RCOND_MIN`]).
+fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result<DMatrix<f64>> {
+    enum Factor {
+        NegCholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
+        Cholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
+        Lu(nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>),
+    }
+    let pivot_ratio = |diag: &DVector<f64>, power: i32| {
+        let (lo, hi) = diag.iter().fold((f64::INFINITY, 0.0_f64), |(lo, hi), d| (lo.min(d.abs()), hi.max(d.abs())));
+        if hi > 0.0 { (lo / hi).powi(power) } else { 0.0 }
+    };
+    let singular = |what: &str, value: f64| {
+        let msg = if k_diagonal > 0.0 {
+            format!(
+                "the TPS system is singular at ITK stiffness {k_diagonal} ({what} {value:.1e}): with U(r) = r, \
+                 K + λI loses rank when λ equals an eigenvalue of the reduced kernel; use another λ or \
+                 Regularisation::Smoothing"
+            )
+        } else {
+            format!("the TPS system is singular ({what} {value:.1e}): landmarks nearly coincide")
+        };
+        SolverError::Degenerate(msg)
+    };
+    let norm_m = m.norm();
+    // The pivots of LDLᵀ are L_ii², so the ratio of squared diagonals is comparable to an LU pivot ratio.
+    let (factor, ratio) = if let Some(ch) = (-&m).cholesky() {
+        let r = pivot_ratio(&ch.l_dirty().diagonal(), 2);
+        (Factor::NegCholesky(ch), r)
+    } else if k_diagonal <= 0.0 {
+        return Err(singular("Cholesky failed, pivot ratio", 0.0));
+    } else if let Some(ch) = m.clone().cholesky() {
+        let r = pivot_ratio(&ch.l_dirty().diagonal(), 2);
+        (Factor::Cholesky(ch), r)
+    } else {
+        let lu = m.lu();
+        let r = pivot_ratio(&lu.u().diagonal(), 1);
+        (Factor::Lu(lu), r)
+    };
+    if ratio.is_nan() || ratio < PIVOT_RTOL {
+        return Err(singular("pivot ratio", ratio));
+    }
+    let solve = |rhs: &DMatrix<f64>| match &factor {
+        Factor::NegCholesky(ch) => Some(-ch.solve(rhs)),
+        Factor::Cholesky(ch) => Some(ch.solve(rhs)),
+        Factor::Lu(lu) => lu.solve(rhs),
+    };
+    let probe = DMatrix::from_fn(y.nrows(), 1, |i, _| {
+        let h = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        if h >> 63 == 0 { 1.0 } else { -1.0 }
+    });
+    let z = solve(&probe).ok_or_else(|| singular("pivot ratio", 0.0))?;
+    let rcond = probe.norm() / (norm_m * z.norm());
+    if rcond.is_nan() || rcond < RCOND_MIN {
+        return Err(singular("estimated 1/cond", rcond));
+    }
+    solve(y).ok_or_else(|| singular("pivot ratio", 0.0))
+}
