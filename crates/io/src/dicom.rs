@@ -184,6 +184,14 @@ impl Source<'_> {
         }
     }
 
+    /// Bytes the source holds (the file size on disk).
+    fn byte_len(&self) -> Result<u64> {
+        match self {
+            Self::File(p) => std::fs::metadata(p).map(|m| m.len()).map_err(|e| Error::io(p, e)),
+            Self::Bytes(_, b) => Ok(b.len() as u64),
+        }
+    }
+
     /// True when the data carries the 128-byte preamble and `DICM`.
     fn has_preamble(&self) -> Result<bool> {
         match self {
@@ -1021,6 +1029,40 @@ fn is_colour(photometric: &str) -> bool {
 // Reading a series
 // ---------------------------------------------------------------------------------------------
 
+/// Largest decoded-to-encoded size ratio believed for compressed pixel data (deflate peaks near
+/// 1032:1; RLE at 64:1; JPEG lossless far lower). Only lossy JPEG 2000 of flat images comes close.
+const MAX_COMPRESSION_RATIO: u64 = 2048;
+
+/// Refuses a series whose files cannot hold `decoded_bytes` of pixels: at most their size when
+/// uncompressed, at most [`MAX_COMPRESSION_RATIO`] times it when compressed. Runs before the volume
+/// is allocated, so a small file that claims huge Rows × Columns × frames fails without allocating.
+fn check_files_can_hold(label: &Path, sources: &[Source], series: &[Header], decoded_bytes: u64) -> Result<()> {
+    let mut seen = std::collections::BTreeSet::new();
+    let mut capacity = 0u64;
+    for h in series {
+        if !seen.insert(h.source) {
+            continue;
+        }
+        let len = sources[h.source].byte_len()?;
+        let uncompressed = matches!(
+            h.transfer_syntax.as_str(),
+            "1.2.840.10008.1.2" | "1.2.840.10008.1.2.1" | "1.2.840.10008.1.2.2" | "1.2.840.10008.1.2.1.98"
+        );
+        capacity = capacity.saturating_add(if uncompressed { len } else { len.saturating_mul(MAX_COMPRESSION_RATIO) });
+    }
+    if decoded_bytes > capacity {
+        return Err(Error::truncated(
+            label,
+            format!(
+                "Rows × Columns × frames need {decoded_bytes} bytes of pixels, but the {} file(s) can hold at most \
+                 {capacity}",
+                seen.len()
+            ),
+        ));
+    }
+    Ok(())
+}
+
 fn read_series(label: &Path, sources: &[Source], headers: Vec<Header>, opts: &mut LoadOptions) -> Result<Volume> {
     let series = select_series(label, headers, opts)?;
     let plan = plan_geometry(label, sources, &series)?;
@@ -1034,6 +1076,7 @@ fn read_series(label: &Path, sources: &[Source], headers: Vec<Header>, opts: &mu
     let dims = plan.dims;
     let slice_len = dims[0] * dims[1];
     let total = volume::check_allocation(label, dims, kind.bytes(), opts.max_voxel_bytes)?;
+    check_files_can_hold(label, sources, &series, (total * kind.bytes()) as u64)?;
     let mut stored = Stored::zeros(kind, total);
     let mut ranges = vec![(0i64, 0i64); dims[2]];
 

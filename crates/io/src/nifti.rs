@@ -124,6 +124,19 @@ pub fn looks_like_nifti(head: &[u8]) -> bool {
     false
 }
 
+/// What bounds the bytes a source can deliver, checked before the voxel buffer is allocated.
+#[derive(Clone, Copy, Debug)]
+enum Extent {
+    /// An uncompressed file or buffer of this many bytes: the data must end inside it.
+    Exact(u64),
+    /// A gzip stream of this many compressed bytes: it cannot inflate to more than
+    /// [`MAX_DEFLATE_RATIO`] times that, so a tiny `.nii.gz` claiming gigabytes fails early.
+    Gzip(u64),
+}
+
+/// Deflate's largest expansion: 258-byte matches coded in about 2 bits give about 1032:1.
+const MAX_DEFLATE_RATIO: u64 = 1032;
+
 /// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content).
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
     let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
@@ -132,19 +145,19 @@ pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
     let n = read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
     file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
     if n == 2 && magic == GZIP_MAGIC {
-        read_source(path, &mut MultiGzDecoder::new(BufReader::new(file)), None, opts)
+        read_source(path, &mut MultiGzDecoder::new(BufReader::new(file)), Extent::Gzip(file_len), opts)
     } else {
-        read_source(path, &mut BufReader::new(file), Some(file_len), opts)
+        read_source(path, &mut BufReader::new(file), Extent::Exact(file_len), opts)
     }
 }
 
 /// Reads a NIfTI-1/2 volume from memory (gzip detected by the magic bytes 1f 8b); `name` is used in errors.
 pub fn read_bytes(name: &Path, bytes: &[u8], opts: &mut LoadOptions) -> Result<Volume> {
     if bytes.starts_with(&GZIP_MAGIC) {
-        read_source(name, &mut MultiGzDecoder::new(bytes), None, opts)
+        read_source(name, &mut MultiGzDecoder::new(bytes), Extent::Gzip(bytes.len() as u64), opts)
     } else {
         let mut src = bytes;
-        read_source(name, &mut src, Some(bytes.len() as u64), opts)
+        read_source(name, &mut src, Extent::Exact(bytes.len() as u64), opts)
     }
 }
 
@@ -488,7 +501,7 @@ struct Layout {
     frame_bytes: usize,
 }
 
-fn layout(path: &Path, h: &Header, opts: &LoadOptions, file_len: Option<u64>) -> Result<Layout> {
+fn layout(path: &Path, h: &Header, opts: &LoadOptions, extent: Extent) -> Result<Layout> {
     let ndim = h.dim[0];
     if !(1..=7).contains(&ndim) {
         return Err(Error::invalid(path, format!("dim[0] = {ndim}, expected 1 to 7 dimensions")));
@@ -555,17 +568,28 @@ fn layout(path: &Path, h: &Header, opts: &LoadOptions, file_len: Option<u64>) ->
     // nifti1_io and nibabel truncate a fractional offset.
     let vox_offset = h.vox_offset as u64;
     let frame_offset = (frame as u128 * frame_bytes_wide + u128::from(vox_offset)).min(u128::from(u64::MAX)) as u64;
-    if let Some(len) = file_len {
-        let end = u128::from(frame_offset) + frame_bytes_wide;
-        if end > u128::from(len) {
-            return Err(Error::truncated(
-                path,
-                format!(
-                    "the voxel data needs bytes {frame_offset}..{end} (dims {dims3:?}, frame {frame}, vox_offset \
-                     {vox_offset}) but the file has {len} bytes"
-                ),
-            ));
-        }
+    let end = u128::from(frame_offset) + frame_bytes_wide;
+    if let Extent::Gzip(len) = extent
+        && end > u128::from(len) * u128::from(MAX_DEFLATE_RATIO)
+    {
+        return Err(Error::truncated(
+            path,
+            format!(
+                "the voxel data needs {end} bytes (dims {dims3:?}, frame {frame}) but a {len}-byte gzip stream \
+                 inflates to at most {MAX_DEFLATE_RATIO} times that"
+            ),
+        ));
+    }
+    if let Extent::Exact(len) = extent
+        && end > u128::from(len)
+    {
+        return Err(Error::truncated(
+            path,
+            format!(
+                "the voxel data needs bytes {frame_offset}..{end} (dims {dims3:?}, frame {frame}, vox_offset \
+                 {vox_offset}) but the file has {len} bytes"
+            ),
+        ));
     }
     Ok(Layout { dims: dims3, datatype, frame_offset, frame_bytes })
 }
@@ -819,9 +843,9 @@ fn rescale_samples<S: Stored>(
     })
 }
 
-fn read_source<S: Source>(path: &Path, src: &mut S, file_len: Option<u64>, opts: &mut LoadOptions) -> Result<Volume> {
+fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut LoadOptions) -> Result<Volume> {
     let h = read_header(path, src)?;
-    let l = layout(path, &h, opts, file_len)?;
+    let l = layout(path, &h, opts, extent)?;
     let (lps_from_index, geometry_source) = lps_from_index(path, &h)?;
     let scale = scaling(path, &h)?;
     let max_voxel_bytes = opts.max_voxel_bytes;

@@ -959,8 +959,10 @@ proptest! {
         prop_assert!(back.lps_from_index.max_abs_diff(&geom) < tol);
         // The qform alone reproduces rigid geometry too, except near a 180° turn: there the
         // quaternion's a = √(1 − b² − c² − d²) comes from float32 b, c, d and loses half its digits
-        // (a limit of NIfTI-1 itself).
-        let cos_turn = (rot.trace() - 1.0) / 2.0;
+        // (a limit of NIfTI-1 itself). The qform stores the RAS rotation diag(−1, −1, 1)·R, so that is
+        // the turn to measure (a 73° turn in LPS can be a 176° turn in RAS).
+        let ras_rot = Matrix3::from_diagonal(&Vector3::new(-1.0, -1.0, 1.0)) * rot;
+        let cos_turn = (ras_rot.trace() - 1.0) / 2.0;
         if !nifti2 && cos_turn > (160f64).to_radians().cos() {
             drop_sform(&p);
             let q = warpbench_io::open(&p).expect("read qform");

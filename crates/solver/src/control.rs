@@ -274,8 +274,9 @@ mod tests {
     fn bspline_fast_path_equals_texel_by_texel_sampling() {
         use crate::bspline::BSplineParams;
         let g = grid();
-        let q: Vec<Point3<Fixed>> =
-            (0..12).map(|i| Point3::new(-90.0 + 15.0 * f64::from(i), 40.0 * f64::from(i % 3) - 60.0, 8.0 * f64::from(i % 5))).collect();
+        let q: Vec<Point3<Fixed>> = (0..12)
+            .map(|i| Point3::new(-90.0 + 15.0 * f64::from(i), 40.0 * f64::from(i % 3) - 60.0, 8.0 * f64::from(i % 5)))
+            .collect();
         let p: Vec<Point3<Moving>> = q.iter().map(|y| Point3::from_array(Affine.apply_raw(y.coords()))).collect();
         let u = HierarchicalBSpline::fit(&q, &p, g.domain, &BSplineParams::default()).expect("fit");
         let fast = ControlTexture::sample_bspline(&u, g, Parallelism::Rayon).expect("sample");
