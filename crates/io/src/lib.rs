@@ -17,6 +17,7 @@ pub mod dicom;
 pub mod dicom_write;
 pub mod error;
 pub mod geometry;
+pub mod jpegls;
 pub mod landmarks;
 pub mod nifti;
 pub mod nrrd;

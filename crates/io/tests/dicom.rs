@@ -543,27 +543,38 @@ fn enhanced_multi_frame_uses_functional_groups() {
     assert_eq!(v.metadata.value_units.as_deref(), Some("HU"));
 }
 
-#[test]
-fn jpeg_ls_is_reported_as_unsupported() {
-    let s = Slice::new("1.2.3.4", 1, P0);
-    let mut obj = s.object();
-    obj.put(DataElement::new(
-        tags::PIXEL_DATA,
-        VR::OB,
-        PixelFragmentSequence::new(vec![], vec![vec![0xFF, 0xD8, 0xFF, 0xF7, 0, 0]]),
-    ));
-    let dir = tempfile::tempdir().expect("temp");
-    let path = dir.path().join("jls.dcm");
-    obj.with_meta(FileMetaTableBuilder::new().transfer_syntax("1.2.840.10008.1.2.4.80"))
+fn encapsulated_slice(dir: &Path, name: &str, transfer_syntax: &str, frame: Vec<u8>) -> PathBuf {
+    let mut obj = Slice::new("1.2.3.4", 1, P0).object();
+    obj.put(DataElement::new(tags::PIXEL_DATA, VR::OB, PixelFragmentSequence::new(vec![], vec![frame])));
+    let path = dir.join(name);
+    obj.with_meta(FileMetaTableBuilder::new().transfer_syntax(transfer_syntax))
         .expect("meta")
         .write_to_file(&path)
         .expect("write");
-    let err = dicom::read_files(std::slice::from_ref(&path), &mut LoadOptions::new()).expect_err("JPEG-LS");
+    path
+}
+
+#[test]
+fn unsupported_transfer_syntax_is_named() {
+    let dir = tempfile::tempdir().expect("temp");
+    let path = encapsulated_slice(dir.path(), "j2k-part2.dcm", "1.2.840.10008.1.2.4.92", vec![0xFF, 0x4F, 0xFF, 0x51]);
+    let err = dicom::read_files(std::slice::from_ref(&path), &mut LoadOptions::new()).expect_err("JPEG 2000 Part 2");
     let msg = err.to_string();
-    assert!(msg.contains("jpeg-ls") && msg.contains("JPEG-LS Lossless (1.2.840.10008.1.2.4.80)"), "{msg}");
-    assert!(matches!(err.kind, ErrorKind::Unsupported(_)));
+    assert!(msg.contains("JPEG 2000 Part 2") && msg.contains("1.2.840.10008.1.2.4.92"), "{msg}");
+    assert!(matches!(err.kind, ErrorKind::Unsupported(_)), "{err:?}");
     assert_eq!(err.path, path);
-    assert!(SUPPORTED_TRANSFER_SYNTAXES.iter().all(|(uid, _)| !uid.starts_with("1.2.840.10008.1.2.4.8")));
+}
+
+#[test]
+fn broken_jpeg_ls_frame_is_an_error_naming_the_file() {
+    assert!(SUPPORTED_TRANSFER_SYNTAXES.iter().any(|(uid, _)| *uid == "1.2.840.10008.1.2.4.80"));
+    let dir = tempfile::tempdir().expect("temp");
+    // SOI, then an SOF55 marker whose segment is cut off.
+    let path = encapsulated_slice(dir.path(), "jls.dcm", "1.2.840.10008.1.2.4.80", vec![0xFF, 0xD8, 0xFF, 0xF7, 0, 0]);
+    let err = dicom::read_files(std::slice::from_ref(&path), &mut LoadOptions::new()).expect_err("broken JPEG-LS");
+    let msg = err.to_string();
+    assert!(msg.contains("JPEG-LS frame 1") && msg.to_lowercase().contains("jpeg-ls"), "{msg}");
+    assert_eq!(err.path, path);
 }
 
 #[test]
