@@ -1,0 +1,175 @@
+//! Renders the real MRI (moving, `tests/data/nifti/ch2.nii.gz`) deformed onto the real CT (fixed,
+//! `tests/data/nifti/cranium_ct.nii.gz`) in one ray-cast pass, and writes a PNG.
+//!
+//! ```text
+//! cargo run --release -p warpbench-app --example render_pair -- out.png [mix|additive|difference|checkerboard|red-cyan|fixed-only|moving-only] [size]
+//! ```
+//!
+//! The landmarks are synthetic: 10 pairs around each head's centre of mass (a rigid offset between the two heads)
+//! plus a few mm of local deformation. A TPS pull-back u = moving_from_fixed is fitted on them
+//! (`Tps::<Moving, Fixed>::fit(q, p, 0)`), sampled into a 64³ control texture over the fixed volume's box, and the
+//! GPU pulls the MR through it at every ray sample.
+
+use anyhow::{Context, Result, bail};
+use warpbench_gpu::glam::DVec3;
+use warpbench_gpu::{
+    BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume,
+    LayerStyle, OrbitCamera, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData, RaycastRenderer,
+    RenderSettings, RenderTarget, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+};
+use warpbench_io::Volume;
+use warpbench_io::geometry::Point3;
+use warpbench_io::volume::VoxelData;
+use warpbench_solver::control::{ControlGrid, ControlTexture};
+use warpbench_solver::spaces::{Aabb, Fixed, Moving};
+use warpbench_solver::tps::Tps;
+
+fn samples(v: &Volume) -> VolumeSamples<'_> {
+    match &v.data {
+        VoxelData::U8(d) => VolumeSamples::U8(d),
+        VoxelData::I16(d) => VolumeSamples::I16(d),
+        VoxelData::U16(d) => VolumeSamples::U16(d),
+        VoxelData::F32(d) => VolumeSamples::F32(d),
+    }
+}
+
+/// LPS centroid of the voxels whose value exceeds `threshold` (sampled every 2nd voxel).
+fn centroid_above(v: &Volume, threshold: f64) -> DVec3 {
+    let (mut sum, mut n) = (DVec3::ZERO, 0.0);
+    for k in (0..v.dims[2]).step_by(2) {
+        for j in (0..v.dims[1]).step_by(2) {
+            for i in (0..v.dims[0]).step_by(2) {
+                if v.data.get_f64(v.offset(i, j, k)) > threshold {
+                    sum += DVec3::from_array(v.voxel_lps(i, j, k).coords());
+                    n += 1.0;
+                }
+            }
+        }
+    }
+    if n > 0.0 { sum / n } else { DVec3::ZERO }
+}
+
+/// The `q`-th quantile of the values above `floor`.
+fn quantile_above(v: &Volume, floor: f64, q: f64) -> f64 {
+    let mut vals: Vec<f64> =
+        (0..v.data.len()).step_by(7).map(|i| v.data.get_f64(i)).filter(|x| x.is_finite() && *x > floor).collect();
+    if vals.is_empty() {
+        return floor + 1.0;
+    }
+    vals.sort_by(f64::total_cmp);
+    vals[((vals.len() - 1) as f64 * q) as usize]
+}
+
+fn blend_from_name(name: &str) -> Result<BlendMode> {
+    BlendMode::ALL.into_iter().find(|b| b.name() == name).with_context(|| {
+        let names: Vec<_> = BlendMode::ALL.iter().map(|b| b.name()).collect();
+        format!("unknown blend mode {name:?}; one of {names:?}")
+    })
+}
+
+fn main() -> Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let Some(out) = args.first() else { bail!("usage: render_pair OUT.png [blend] [size]") };
+    let blend = blend_from_name(args.get(1).map_or("mix", String::as_str))?;
+    let size: u32 = args.get(2).map_or(Ok(512), |s| s.parse()).context("size")?;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let ct = warpbench_io::open(root.join("tests/data/nifti/cranium_ct.nii.gz")).context("reading the CT")?;
+    let mr = warpbench_io::open(root.join("tests/data/nifti/ch2.nii.gz")).context("reading the MR")?;
+    eprintln!("fixed CT {:?} {} spacing {:?}", ct.dims, ct.sample_type().name(), ct.spacing_mm());
+    eprintln!("moving MR {:?} {} spacing {:?}", mr.dims, mr.sample_type().name(), mr.spacing_mm());
+
+    // Landmarks: the same pattern around each head's centre (bone in the CT, tissue in the MR), with local jitter.
+    let mr_floor = quantile_above(&mr, 0.0, 0.3);
+    let (c_fixed, c_moving) = (centroid_above(&ct, 300.0), centroid_above(&mr, mr_floor));
+    eprintln!("head centres: CT {c_fixed:.1}, MR {c_moving:.1} (LPS mm)");
+    let pattern = [
+        [40.0, 0.0, 0.0],
+        [-40.0, 0.0, 0.0],
+        [0.0, 50.0, 0.0],
+        [0.0, -50.0, 0.0],
+        [0.0, 0.0, 40.0],
+        [0.0, 0.0, -30.0],
+        [30.0, 30.0, 25.0],
+        [-30.0, -30.0, 25.0],
+        [30.0, -35.0, -20.0],
+        [-30.0, 35.0, -20.0],
+    ];
+    let local_mm = [[3.0, 0.0, 1.0], [-2.0, 1.0, 0.0], [0.0, 3.0, -1.0], [1.0, -2.5, 0.0], [0.0, 0.0, 3.0]];
+    let q: Vec<Point3<Fixed>> =
+        pattern.iter().map(|o| Point3::from_array((c_fixed + DVec3::from_array(*o)).to_array())).collect();
+    let p: Vec<Point3<Moving>> = pattern
+        .iter()
+        .enumerate()
+        .map(|(i, o)| {
+            let local = DVec3::from_array(local_mm[i % local_mm.len()]);
+            Point3::from_array((c_moving + DVec3::from_array(*o) + local).to_array())
+        })
+        .collect();
+    let moving_from_fixed = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).context("TPS fit")?;
+
+    // A 64³ control texture over the fixed volume's box.
+    let ctx = GpuContext::headless().context("GPU device")?;
+    eprintln!("GPU: {}", ctx.describe());
+    let budget = VolumeBudget::for_device(&ctx.limits);
+    let fixed_desc = VolumeDesc { dims: ct.dims, samples: samples(&ct), lps_from_index: ct.lps_from_index.rows() };
+    let moving_desc = VolumeDesc { dims: mr.dims, samples: samples(&mr), lps_from_index: mr.lps_from_index.rows() };
+    let fixed = PreparedVolume::prepare(&fixed_desc, ctx.capabilities, budget)?;
+    let moving = PreparedVolume::prepare(&moving_desc, ctx.capabilities, budget)?;
+    for w in fixed.warnings.iter().chain(&moving.warnings) {
+        eprintln!("warning: {w}");
+    }
+    let (lo, hi) = (fixed.info.box_min_lps, fixed.info.box_max_lps);
+    let domain = Aabb::new(Point3::from_array(lo.to_array()), Point3::from_array(hi.to_array()));
+    let grid = ControlGrid::cube(64, domain).context("control grid")?;
+    let control = ControlTexture::sample(&moving_from_fixed, grid);
+    let control_desc = ControlDesc {
+        dims: grid.dims,
+        texels: control.as_f32s(),
+        box_min_ref: lo.to_array(),
+        box_max_ref: hi.to_array(),
+    };
+    let control = PreparedControl::prepare(&control_desc, ctx.capabilities.float32_filterable)?;
+
+    let renderer = RaycastRenderer::new(&ctx)?;
+    let fixed_gpu = GpuVolume::upload(&ctx, &fixed)?;
+    let moving_gpu = GpuVolume::upload(&ctx, &moving)?;
+    let control_gpu = GpuControlTexture::upload(&ctx, &control);
+    let tfs =
+        GpuTransferFunctions::upload(&ctx, &[Preset::CtBone.transfer_function(), Preset::MrT1.transfer_function()]);
+    let ct_window = Preset::CtBone.default_window().unwrap_or(Window::from_range(-300.0, 1700.0));
+    let mr_window = Window::from_range(mr_floor as f32, quantile_above(&mr, mr_floor, 0.99) as f32);
+    let fixed_layer = GpuLayer {
+        volume: &fixed_gpu,
+        control: None,
+        style: LayerStyle { window: ct_window, tf_row: 0, opacity_scale: 0.6, visible: true },
+    };
+    let moving_layer = GpuLayer {
+        volume: &moving_gpu,
+        control: Some(&control_gpu),
+        style: LayerStyle { window: mr_window, tf_row: 1, opacity_scale: 1.0, visible: true },
+    };
+    let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
+    let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, zoom: 1.3, target_ref: c_fixed.as_vec3(), ..cam };
+    let settings = RenderSettings {
+        blend,
+        samples_per_voxel: 1.0,
+        jitter_seed: Some(1),
+        box_override_ref: Some((lo.as_vec3(), hi.as_vec3())),
+        ..Default::default()
+    };
+    let frame = GpuFrame { fixed: fixed_layer, moving: moving_layer, tfs: &tfs };
+    let data = RaycastDrawData::new(&ctx, &renderer, &frame, &cam, &settings, (size, size));
+    let target = RenderTarget::new(&ctx, size, size);
+    let start = std::time::Instant::now();
+    renderer.render(&ctx, &data, &target)?;
+    let mut rgba = target.read_back(&ctx)?;
+    eprintln!("rendered {size}×{size} ({}) in {:.2} s", blend.name(), start.elapsed().as_secs_f64());
+    // Premultiplied over black: the colour channels are the picture; make it opaque.
+    for px in rgba.chunks_exact_mut(4) {
+        px[3] = 255;
+    }
+    image::save_buffer(out, &rgba, size, size, image::ExtendedColorType::Rgba8)
+        .with_context(|| format!("writing {out}"))?;
+    eprintln!("wrote {out}");
+    Ok(())
+}

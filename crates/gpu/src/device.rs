@@ -1,0 +1,182 @@
+//! [`GpuContext`]: the wgpu device and queue, what they can do, and the uncaptured errors they reported.
+//!
+//! Only what the passes need is requested: [`wgpu::Features::TEXTURE_FORMAT_16BIT_NORM`] (exact 16-bit volumes in
+//! `R16Unorm`) and [`wgpu::Features::FLOAT32_FILTERABLE`] (filtered `R32Float`/`Rgba32Float`), each only when the
+//! adapter has it ([`crate::raycast::RaycastRenderer::OPTIONAL_FEATURES`]), and the adapter's own limits (so that large
+//! 3-D textures are allowed). Works on lavapipe (Vulkan on the CPU), on GL (`WGPU_BACKEND=gl`) and on real GPUs.
+
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use crate::error::{GpuError, Result};
+
+/// Optional features the device has, as the upload code needs to know them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Capabilities {
+    /// `R16Unorm` textures (`TEXTURE_FORMAT_16BIT_NORM`).
+    pub norm16: bool,
+    /// Linear filtering of `R32Float` and `Rgba32Float` (`FLOAT32_FILTERABLE`).
+    pub float32_filterable: bool,
+}
+
+impl Capabilities {
+    #[must_use]
+    pub fn from_features(features: wgpu::Features) -> Self {
+        Self {
+            norm16: features.contains(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM),
+            float32_filterable: features.contains(wgpu::Features::FLOAT32_FILTERABLE),
+        }
+    }
+
+    /// True when every volume format this crate chooses can be filtered by the sampler; otherwise volumes are
+    /// `R32Float` and the shader filters by hand (see [`crate::volume`]).
+    #[must_use]
+    pub fn volumes_filterable(&self) -> bool {
+        self.norm16 || self.float32_filterable
+    }
+}
+
+/// Which optional features [`GpuContext::headless_with`] may request. Turning one off exercises the fallback paths
+/// (the tests do this on lavapipe, which has both).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FeatureRequest {
+    pub allow_norm16: bool,
+    pub allow_float32_filterable: bool,
+}
+
+impl Default for FeatureRequest {
+    fn default() -> Self {
+        Self { allow_norm16: true, allow_float32_filterable: true }
+    }
+}
+
+impl FeatureRequest {
+    /// The features to request from an adapter that offers `available`.
+    #[must_use]
+    pub fn features(&self, available: wgpu::Features) -> wgpu::Features {
+        let mut wanted = crate::raycast::RaycastRenderer::OPTIONAL_FEATURES;
+        if !self.allow_norm16 {
+            wanted.remove(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM);
+        }
+        if !self.allow_float32_filterable {
+            wanted.remove(wgpu::Features::FLOAT32_FILTERABLE);
+        }
+        wanted & available
+    }
+}
+
+/// Uncaptured wgpu errors, each distinct message kept once.
+#[derive(Debug, Default)]
+struct ErrorLog {
+    seen: BTreeSet<String>,
+    pending: Vec<String>,
+}
+
+/// The device, its queue and what they support. Cheap to share by reference; resources created from it
+/// (volumes, renderers, draw data) borrow it only while they are created or used.
+#[derive(Debug)]
+pub struct GpuContext {
+    pub adapter_info: wgpu::AdapterInfo,
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub limits: wgpu::Limits,
+    pub capabilities: Capabilities,
+    errors: Arc<Mutex<ErrorLog>>,
+}
+
+impl GpuContext {
+    /// A device without a window: the adapter chosen by `WGPU_BACKEND`/`WGPU_ADAPTER_NAME`/`WGPU_POWER_PREF`
+    /// (wgpu's environment variables) or the default one, with all optional features it has.
+    pub fn headless() -> Result<Self> {
+        Self::headless_with(FeatureRequest::default())
+    }
+
+    /// As [`Self::headless`], requesting only the optional features `request` allows.
+    pub fn headless_with(request: FeatureRequest) -> Result<Self> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let options = wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
+            ..Default::default()
+        };
+        let adapter =
+            pollster::block_on(instance.request_adapter(&options)).map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let descriptor = wgpu::DeviceDescriptor {
+            label: Some("warpbench-gpu"),
+            required_features: request.features(adapter.features()),
+            required_limits: adapter.limits(),
+            ..Default::default()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&descriptor))?;
+        Ok(Self::from_device(adapter.get_info(), device, queue))
+    }
+
+    /// Wraps a device someone else created (the app's eframe device). Installs the uncaptured-error handler:
+    /// errors are collected and returned once by [`Self::take_errors`] / [`Self::check_errors`] instead of panicking.
+    #[must_use]
+    pub fn from_device(adapter_info: wgpu::AdapterInfo, device: wgpu::Device, queue: wgpu::Queue) -> Self {
+        let errors = Arc::new(Mutex::new(ErrorLog::default()));
+        let sink = Arc::clone(&errors);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| {
+            let message = e.to_string();
+            let mut log = sink.lock().unwrap_or_else(PoisonError::into_inner);
+            if log.seen.insert(message.clone()) {
+                log.pending.push(message);
+            }
+        }));
+        let limits = device.limits();
+        let capabilities = Capabilities::from_features(device.features());
+        Self { adapter_info, device, queue, limits, capabilities, errors }
+    }
+
+    /// Errors reported since the last call; a message already returned once is not returned again.
+    #[must_use]
+    pub fn take_errors(&self) -> Vec<String> {
+        std::mem::take(&mut self.errors.lock().unwrap_or_else(PoisonError::into_inner).pending)
+    }
+
+    /// `Err` with the new uncaptured errors, if any.
+    pub fn check_errors(&self) -> Result<()> {
+        let errors = self.take_errors();
+        if errors.is_empty() { Ok(()) } else { Err(GpuError::Wgpu(errors)) }
+    }
+
+    /// Waits for all submitted work. GL can time out a single wait on long submissions (stack.md gotcha 2), so a
+    /// timeout is retried a few times.
+    pub fn wait_idle(&self) -> Result<()> {
+        let mut last = None;
+        for _ in 0..8 {
+            match self.device.poll(wgpu::PollType::wait_indefinitely()) {
+                Ok(_) => return Ok(()),
+                Err(wgpu::PollError::Timeout) => last = Some(wgpu::PollError::Timeout),
+                Err(e) => return Err(GpuError::Readback(e.to_string())),
+            }
+        }
+        Err(GpuError::Readback(format!("device poll kept timing out: {last:?}")))
+    }
+
+    /// A one-line description of the adapter, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)".
+    #[must_use]
+    pub fn describe(&self) -> String {
+        format!("{} ({:?}, {:?})", self.adapter_info.name, self.adapter_info.backend, self.adapter_info.device_type)
+    }
+}
+
+/// Whether tests must fail rather than skip without an adapter (CI sets `REQUIRE_GPU_ADAPTER=1`).
+#[must_use]
+pub fn adapter_required() -> bool {
+    std::env::var("REQUIRE_GPU_ADAPTER").is_ok_and(|v| v == "1")
+}
+
+/// For tests and examples: a headless context, or `None` with a printed note when there is no adapter and
+/// `REQUIRE_GPU_ADAPTER=1` is not set. Panics on any other failure.
+#[must_use]
+pub fn headless_or_skip(request: FeatureRequest) -> Option<GpuContext> {
+    match GpuContext::headless_with(request) {
+        Ok(ctx) => Some(ctx),
+        Err(GpuError::NoAdapter(why)) if !adapter_required() => {
+            eprintln!("note: skipping GPU test, no adapter ({why}); set REQUIRE_GPU_ADAPTER=1 to make this fail");
+            None
+        }
+        Err(e) => panic!("GPU context: {e}"),
+    }
+}

@@ -1,0 +1,52 @@
+//! GPU ray casting for warpbench: the fixed and the deformed moving volume rendered together in one pass, with a
+//! CPU reference of the same math.
+//!
+//! # Overview
+//!
+//! - [`GpuContext`] ([`device`]): a headless device ([`GpuContext::headless`]) or one the app already has
+//!   ([`GpuContext::from_device`]); requests only the optional features the passes use and collects wgpu's
+//!   uncaptured errors, each reported once.
+//! - [`shaders`]: the registry of every WGSL file (`shaders/*.wgsl`), used by the runtime and validated by the tests.
+//! - [`volume`]: [`PreparedVolume::prepare`] chooses an exact texture format and downsamples oversized volumes;
+//!   [`GpuVolume::upload`] makes the 3-D texture.
+//! - [`transfer`]: [`TransferFunction`]s, [`Preset`]s and [`Window`]s; [`GpuTransferFunctions`] is the 256×N texture.
+//! - [`control`]: control textures (sampled pull-backs) from the solver's layout: [`PreparedControl`], [`GpuControlTexture`].
+//! - [`camera`]: [`OrbitCamera`] (`clip_from_ref` and its inverse).
+//! - [`raycast`]: [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), [`BlendMode`],
+//!   [`RenderSettings`], [`RaycastUniforms`], [`RenderTarget`] (texture + readback).
+//! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
+//!
+//! # Spaces
+//!
+//! Everything is rendered in **ref** space: the fixed volume's LPS patient space, in mm. A volume's own space is
+//! `lps` (for the moving volume, the moving LPS space); `index` is continuous voxel index (0 = centre of the first
+//! voxel); `tex` is [0,1]³ texture coordinates with texel centres at (i + ½)/n. The moving volume is pulled back
+//! through a control texture: x_ref ↦ u(x_ref) = x_ref + disp(x_ref) in moving `lps` (Brunet, Nowak & Gleicher 2006
+//! §3). Transforms are named `b_from_a` (`tex_from_lps`, `ctrl_tex_from_ref`, `ref_from_clip`).
+//!
+//! This crate takes plain data (dims, sample slices, row-major 4×4 `lps_from_index`, f32 control texels) and does
+//! not depend on `warpbench-io` or `warpbench-solver`.
+
+pub mod camera;
+pub mod control;
+pub mod cpu_reference;
+pub mod device;
+pub mod error;
+pub mod raycast;
+pub mod shaders;
+pub mod transfer;
+pub mod volume;
+
+/// The glam version of this crate's API (matrices and vectors), re-exported for callers.
+pub use glam;
+
+pub use camera::{OrbitCamera, Projection};
+pub use control::{ControlDesc, ControlInfo, GpuControlTexture, PreparedControl};
+pub use device::{Capabilities, FeatureRequest, GpuContext};
+pub use error::{GpuError, Result};
+pub use raycast::{
+    BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, RaycastDrawData, RaycastRenderer, RaycastUniforms,
+    RenderSettings, RenderTarget, VolumeUniforms,
+};
+pub use transfer::{GpuTransferFunctions, Preset, TransferFunction, Window};
+pub use volume::{GpuVolume, PreparedVolume, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};

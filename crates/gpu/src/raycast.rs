@@ -1,0 +1,603 @@
+//! The ray caster: one full-screen pass that samples the fixed and the (deformed) moving volume at the same points
+//! of ref space (Brunet et al. 2006 §4.3: both volumes share one proxy geometry), classifies each with its transfer
+//! function, combines them by a [`BlendMode`] and composites front to back.
+//!
+//! Per pixel: a ray from the near to the far plane (`ref_from_clip`), clipped to the proxy box (the ref-space box
+//! around both volumes and the control textures); samples at t_k = t_enter + (k + j)·step with j = 0, or a fixed
+//! per-pixel hash when jitter is on; at each x_ref, for each visible volume, u(x) = x + disp(ctrl_tex_from_ref · x)
+//! (or x), `tex_from_lps · u(x)`, trilinear sample (transparent outside [0,1]³), value → TF; opacity correction
+//! α' = 1 − (1 − α)^(step/ref_step) with ref_step one voxel of the finest visible spacing; blend; "over"
+//! compositing of premultiplied colour, stopping at α > 0.99. The output is premultiplied RGBA8.
+//!
+//! Types: [`RaycastRenderer`] (long-lived: pipeline, layout, samplers) and [`RaycastDrawData`] (one frame: bind
+//! group and uniforms over the volumes, control textures and transfer functions). [`RaycastUniforms`] is built by
+//! [`RaycastUniforms::new`] from plain [`LayerParams`], which the CPU reference ([`crate::cpu_reference`]) consumes too.
+
+use bytemuck::{Pod, Zeroable};
+use glam::{DVec3, Mat4};
+
+use crate::camera::OrbitCamera;
+use crate::control::{ControlInfo, GpuControlTexture};
+use crate::device::GpuContext;
+use crate::error::{GpuError, Result};
+use crate::shaders::{RAYCAST, Stage};
+use crate::transfer::{GpuTransferFunctions, Window};
+use crate::volume::{GpuVolume, VolumeInfo};
+
+/// `VolumeUniforms.flags`
+pub const VOLUME_VISIBLE: u32 = 1;
+pub const VOLUME_HAS_WARP: u32 = 2;
+pub const VOLUME_MANUAL_FILTER: u32 = 4;
+/// `RaycastUniforms.flags`
+pub const RAYCAST_JITTER: u32 = 1;
+/// Early ray termination threshold.
+pub const EARLY_EXIT_ALPHA: f32 = 0.99;
+
+/// One volume's uniforms. Keep in sync with `VolumeUniforms` in shaders/raycast.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct VolumeUniforms {
+    /// Column-major, as glam and WGSL store matrices.
+    pub tex_from_lps: [[f32; 4]; 4],
+    pub ctrl_tex_from_ref: [[f32; 4]; 4],
+    pub value_offset: f32,
+    pub value_scale: f32,
+    pub window_low: f32,
+    pub window_width: f32,
+    pub tf_row: u32,
+    pub opacity_scale: f32,
+    pub flags: u32,
+    _pad0: u32,
+}
+const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 160);
+
+/// The frame's uniforms. Keep in sync with `RaycastUniforms` in shaders/raycast.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct RaycastUniforms {
+    pub ref_from_clip: [[f32; 4]; 4],
+    pub box_min_ref: [f32; 3],
+    pub step_mm: f32,
+    pub box_max_ref: [f32; 3],
+    pub ref_step_mm: f32,
+    pub viewport_px: [f32; 2],
+    pub blend_mode: u32,
+    pub flags: u32,
+    pub blend_weight: f32,
+    pub checker_cell_mm: f32,
+    pub max_steps: u32,
+    pub jitter_seed: u32,
+    pub fixed: VolumeUniforms,
+    pub moving: VolumeUniforms,
+}
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 448);
+
+/// How the two classified samples combine (`RaycastUniforms.blend_mode`, `BLEND_*` in the shader).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum BlendMode {
+    /// (1 − w)·fixed + w·moving.
+    Mix {
+        moving_weight: f32,
+    },
+    /// fixed + moving, clamped.
+    Additive,
+    /// |fixed − moving| in colour, max of the opacities: aligned structures go dark.
+    Difference,
+    /// A 3-D checkerboard of `cell_mm` cells in ref space; cells with an even index sum show fixed.
+    Checkerboard {
+        cell_mm: f32,
+    },
+    /// Fixed luminance in red, moving luminance in green and blue.
+    RedCyan,
+    FixedOnly,
+    MovingOnly,
+}
+
+impl BlendMode {
+    /// One of each, for tests and menus.
+    pub const ALL: [Self; 7] = [
+        Self::Mix { moving_weight: 0.5 },
+        Self::Additive,
+        Self::Difference,
+        Self::Checkerboard { cell_mm: 12.0 },
+        Self::RedCyan,
+        Self::FixedOnly,
+        Self::MovingOnly,
+    ];
+
+    #[must_use]
+    pub fn code(self) -> u32 {
+        match self {
+            Self::Mix { .. } => 0,
+            Self::Additive => 1,
+            Self::Difference => 2,
+            Self::Checkerboard { .. } => 3,
+            Self::RedCyan => 4,
+            Self::FixedOnly => 5,
+            Self::MovingOnly => 6,
+        }
+    }
+
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Mix { .. } => "mix",
+            Self::Additive => "additive",
+            Self::Difference => "difference",
+            Self::Checkerboard { .. } => "checkerboard",
+            Self::RedCyan => "red-cyan",
+            Self::FixedOnly => "fixed-only",
+            Self::MovingOnly => "moving-only",
+        }
+    }
+}
+
+/// Frame-wide settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderSettings {
+    pub blend: BlendMode,
+    /// Samples per voxel of the finest visible spacing (step = spacing / samples_per_voxel).
+    pub samples_per_voxel: f32,
+    /// `Some(seed)`: jitter ray starts by a fixed per-pixel hash of (pixel, seed). `None` for tests and goldens.
+    pub jitter_seed: Option<u32>,
+    /// Upper bound on samples per ray.
+    pub max_steps: u32,
+    /// Replaces the automatic proxy box (the box around both volumes and their control textures).
+    pub box_override_ref: Option<(glam::Vec3, glam::Vec3)>,
+}
+
+impl Default for RenderSettings {
+    fn default() -> Self {
+        Self {
+            blend: BlendMode::Mix { moving_weight: 0.5 },
+            samples_per_voxel: 1.0,
+            jitter_seed: None,
+            max_steps: 4096,
+            box_override_ref: None,
+        }
+    }
+}
+
+/// How one volume is drawn.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerStyle {
+    pub window: Window,
+    /// Row in the transfer-function texture.
+    pub tf_row: u32,
+    /// Multiplies the TF opacity.
+    pub opacity_scale: f32,
+    pub visible: bool,
+}
+
+/// Everything about one volume that goes into the uniforms, without GPU resources.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerParams {
+    pub volume: VolumeInfo,
+    /// The pull-back into this volume's LPS space; `None` is the identity fast path.
+    pub control: Option<ControlInfo>,
+    pub style: LayerStyle,
+}
+
+impl LayerParams {
+    fn uniforms(&self, tf_rows: u32) -> VolumeUniforms {
+        let mut flags = 0;
+        if self.style.visible {
+            flags |= VOLUME_VISIBLE;
+        }
+        if self.control.is_some() {
+            flags |= VOLUME_HAS_WARP;
+        }
+        if self.volume.manual_filter {
+            flags |= VOLUME_MANUAL_FILTER;
+        }
+        VolumeUniforms {
+            tex_from_lps: self.volume.tex_from_lps.to_cols_array_2d(),
+            ctrl_tex_from_ref: self.control.map_or(Mat4::IDENTITY, |c| c.ctrl_tex_from_ref).to_cols_array_2d(),
+            value_offset: self.volume.value_offset,
+            value_scale: self.volume.value_scale,
+            window_low: self.style.window.low(),
+            window_width: self.style.window.width,
+            tf_row: self.style.tf_row.min(tf_rows.max(1) - 1),
+            opacity_scale: self.style.opacity_scale,
+            flags,
+            _pad0: 0,
+        }
+    }
+
+    /// Box around the volume's voxels and its control texture's box, in ref space. The moving volume's own LPS box
+    /// stands in for its deformed position (exact for the identity).
+    fn box_ref(&self) -> (DVec3, DVec3) {
+        let (mut lo, mut hi) = (self.volume.box_min_lps, self.volume.box_max_lps);
+        if let Some(c) = self.control {
+            lo = lo.min(c.box_min_ref);
+            hi = hi.max(c.box_max_ref);
+        }
+        (lo, hi)
+    }
+}
+
+impl RaycastUniforms {
+    /// The uniforms of one frame `size_px` = (width, height) big.
+    #[must_use]
+    pub fn new(
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        size_px: (u32, u32),
+        fixed: &LayerParams,
+        moving: &LayerParams,
+        tf_rows: u32,
+    ) -> Self {
+        let (w, h) = (size_px.0.max(1), size_px.1.max(1));
+        let (box_min, box_max) = settings.box_override_ref.unwrap_or_else(|| {
+            let (a, b) = (fixed.box_ref(), moving.box_ref());
+            (a.0.min(b.0).as_vec3(), a.1.max(b.1).as_vec3())
+        });
+        let visible: Vec<&LayerParams> = match settings.blend {
+            BlendMode::FixedOnly => vec![fixed],
+            BlendMode::MovingOnly => vec![moving],
+            _ => vec![fixed, moving],
+        };
+        let finest_mm =
+            visible.iter().filter(|l| l.style.visible).flat_map(|l| l.volume.spacing_mm).fold(f64::INFINITY, f64::min);
+        let finest_mm = if finest_mm.is_finite() { finest_mm as f32 } else { 1.0 };
+        let (blend_weight, checker_cell_mm) = match settings.blend {
+            BlendMode::Mix { moving_weight } => (moving_weight, 1.0),
+            BlendMode::Checkerboard { cell_mm } => (0.5, cell_mm.max(1e-3)),
+            _ => (0.5, 1.0),
+        };
+        Self {
+            ref_from_clip: camera.ref_from_clip(w as f32 / h as f32).to_cols_array_2d(),
+            box_min_ref: box_min.to_array(),
+            step_mm: finest_mm / settings.samples_per_voxel.max(1e-3),
+            box_max_ref: box_max.to_array(),
+            ref_step_mm: finest_mm,
+            viewport_px: [w as f32, h as f32],
+            blend_mode: settings.blend.code(),
+            flags: if settings.jitter_seed.is_some() { RAYCAST_JITTER } else { 0 },
+            blend_weight,
+            checker_cell_mm,
+            max_steps: settings.max_steps,
+            jitter_seed: settings.jitter_seed.unwrap_or(0),
+            fixed: fixed.uniforms(tf_rows),
+            moving: moving.uniforms(tf_rows),
+        }
+    }
+}
+
+/// The long-lived part of the ray caster: pipeline, bind group layout, samplers and the placeholder control texture.
+#[derive(Debug)]
+pub struct RaycastRenderer {
+    pipeline: wgpu::RenderPipeline,
+    layout: wgpu::BindGroupLayout,
+    volume_sampler: wgpu::Sampler,
+    linear_sampler: wgpu::Sampler,
+    placeholder_control: wgpu::TextureView,
+    volumes_filterable: bool,
+}
+
+impl RaycastRenderer {
+    /// The output format.
+    pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+    /// Requested when the adapter has them; without them the pass falls back (see [`crate::volume`] and
+    /// [`crate::control`]).
+    pub const OPTIONAL_FEATURES: wgpu::Features =
+        wgpu::Features::TEXTURE_FORMAT_16BIT_NORM.union(wgpu::Features::FLOAT32_FILTERABLE);
+    /// Sampled textures and samplers per fragment stage this pass binds.
+    pub const SAMPLED_TEXTURES: u32 = 5;
+    pub const SAMPLERS: u32 = 2;
+
+    pub fn new(ctx: &GpuContext) -> Result<Self> {
+        let l = &ctx.limits;
+        if l.max_sampled_textures_per_shader_stage < Self::SAMPLED_TEXTURES
+            || l.max_samplers_per_shader_stage < Self::SAMPLERS
+        {
+            return Err(GpuError::Unsupported(format!(
+                "the ray caster binds {} textures and {} samplers per stage; the device allows {} and {}",
+                Self::SAMPLED_TEXTURES,
+                Self::SAMPLERS,
+                l.max_sampled_textures_per_shader_stage,
+                l.max_samplers_per_shader_stage
+            )));
+        }
+        let device = &ctx.device;
+        let volumes_filterable = ctx.capabilities.volumes_filterable();
+        let tex3d = |binding, filterable| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable },
+                view_dimension: wgpu::TextureViewDimension::D3,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let sampler = |binding, kind| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Sampler(kind),
+            count: None,
+        };
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("raycast"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<RaycastUniforms>() as u64),
+                    },
+                    count: None,
+                },
+                tex3d(1, volumes_filterable),
+                tex3d(2, volumes_filterable),
+                tex3d(3, true),
+                tex3d(4, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 5,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                sampler(
+                    6,
+                    if volumes_filterable {
+                        wgpu::SamplerBindingType::Filtering
+                    } else {
+                        wgpu::SamplerBindingType::NonFiltering
+                    },
+                ),
+                sampler(7, wgpu::SamplerBindingType::Filtering),
+            ],
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("raycast"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = RAYCAST.create_module(device);
+        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("raycast"),
+            layout: Some(&pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &module,
+                entry_point: RAYCAST.entry_point(Stage::Vertex),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &module,
+                entry_point: RAYCAST.entry_point(Stage::Fragment),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: Self::TARGET_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
+        });
+        let filter = if volumes_filterable { wgpu::FilterMode::Linear } else { wgpu::FilterMode::Nearest };
+        let clamp = wgpu::AddressMode::ClampToEdge;
+        let volume_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("volume"),
+            address_mode_u: clamp,
+            address_mode_v: clamp,
+            address_mode_w: clamp,
+            mag_filter: filter,
+            min_filter: filter,
+            ..Default::default()
+        });
+        let linear_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("linear"),
+            address_mode_u: clamp,
+            address_mode_v: clamp,
+            address_mode_w: clamp,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            ..Default::default()
+        });
+        let placeholder_control = GpuControlTexture::placeholder(ctx);
+        ctx.check_errors()?;
+        Ok(Self { pipeline, layout, volume_sampler, linear_sampler, placeholder_control, volumes_filterable })
+    }
+
+    /// Records the pass's draw into `pass` (whose target must be [`Self::TARGET_FORMAT`]).
+    pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
+        pass.set_pipeline(&self.pipeline);
+        pass.set_bind_group(0, &data.bind_group, &[]);
+        pass.draw(0..3, 0..1);
+    }
+
+    /// Renders `data` into `target` (cleared to transparent) and submits.
+    pub fn render(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("raycast") });
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("raycast"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: &target.view,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: None,
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            self.draw(&mut pass, data);
+        }
+        ctx.queue.submit([encoder.finish()]);
+        ctx.check_errors()
+    }
+}
+
+/// One volume with its optional control texture, as bound for a frame.
+#[derive(Clone, Copy, Debug)]
+pub struct GpuLayer<'a> {
+    pub volume: &'a GpuVolume,
+    pub control: Option<&'a GpuControlTexture>,
+    pub style: LayerStyle,
+}
+
+impl GpuLayer<'_> {
+    #[must_use]
+    pub fn params(&self) -> LayerParams {
+        LayerParams { volume: self.volume.info, control: self.control.map(|c| c.info), style: self.style }
+    }
+}
+
+/// What a frame binds: both layers and the transfer-function texture their styles index.
+#[derive(Clone, Copy, Debug)]
+pub struct GpuFrame<'a> {
+    pub fixed: GpuLayer<'a>,
+    pub moving: GpuLayer<'a>,
+    pub tfs: &'a GpuTransferFunctions,
+}
+
+/// One frame's resources: the uniform buffer and the bind group over both layers and the transfer functions.
+#[derive(Debug)]
+pub struct RaycastDrawData {
+    pub uniforms: RaycastUniforms,
+    buffer: wgpu::Buffer,
+    bind_group: wgpu::BindGroup,
+}
+
+impl RaycastDrawData {
+    /// Uniforms for `camera`/`settings` at `size_px`, bound with the layers' textures.
+    #[must_use]
+    pub fn new(
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        frame: &GpuFrame<'_>,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        size_px: (u32, u32),
+    ) -> Self {
+        let (fixed, moving) = (frame.fixed.params(), frame.moving.params());
+        let uniforms = RaycastUniforms::new(camera, settings, size_px, &fixed, &moving, frame.tfs.rows);
+        Self::with_uniforms(ctx, renderer, frame, uniforms)
+    }
+
+    /// As [`Self::new`] with uniforms built by the caller (the tests share them with the CPU reference).
+    #[must_use]
+    pub fn with_uniforms(
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        frame: &GpuFrame<'_>,
+        uniforms: RaycastUniforms,
+    ) -> Self {
+        let GpuFrame { fixed, moving, tfs } = frame;
+        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("raycast uniforms"),
+            size: std::mem::size_of::<RaycastUniforms>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        ctx.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&uniforms));
+        let fixed_ctrl = fixed.control.map_or(&renderer.placeholder_control, |c| &c.view);
+        let moving_ctrl = moving.control.map_or(&renderer.placeholder_control, |c| &c.view);
+        debug_assert!(renderer.volumes_filterable != fixed.volume.info.manual_filter);
+        let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("raycast"),
+            layout: &renderer.layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&fixed.volume.view) },
+                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&moving.volume.view) },
+                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(fixed_ctrl) },
+                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(moving_ctrl) },
+                wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::TextureView(&tfs.view) },
+                wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::Sampler(&renderer.volume_sampler) },
+                wgpu::BindGroupEntry { binding: 7, resource: wgpu::BindingResource::Sampler(&renderer.linear_sampler) },
+            ],
+        });
+        Self { uniforms, buffer, bind_group }
+    }
+
+    /// New camera, settings or styles for the same textures.
+    pub fn update_uniforms(&mut self, ctx: &GpuContext, uniforms: RaycastUniforms) {
+        self.uniforms = uniforms;
+        ctx.queue.write_buffer(&self.buffer, 0, bytemuck::bytes_of(&uniforms));
+    }
+}
+
+/// An `Rgba8Unorm` render target the app can show (`TEXTURE_BINDING`) and tests can read back (`COPY_SRC`).
+#[derive(Debug)]
+pub struct RenderTarget {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl RenderTarget {
+    #[must_use]
+    pub fn new(ctx: &GpuContext, width: u32, height: u32) -> Self {
+        let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("raycast target"),
+            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: RaycastRenderer::TARGET_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                | wgpu::TextureUsages::TEXTURE_BINDING
+                | wgpu::TextureUsages::COPY_SRC,
+            view_formats: &[],
+        });
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        Self { texture, view, width, height }
+    }
+
+    /// Premultiplied RGBA8, rows top to bottom, `4 · width` bytes per row (the copy's 256-byte row alignment removed).
+    pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
+        let row = 4 * self.width;
+        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: u64::from(padded) * u64::from(self.height),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+        encoder.copy_texture_to_buffer(
+            self.texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: None },
+            },
+            wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
+        );
+        ctx.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        ctx.wait_idle()?;
+        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mapped = buffer.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mut out = Vec::with_capacity((row * self.height) as usize);
+        for r in 0..self.height as usize {
+            out.extend_from_slice(&mapped[r * padded as usize..r * padded as usize + row as usize]);
+        }
+        drop(mapped);
+        buffer.unmap();
+        ctx.check_errors()?;
+        Ok(out)
+    }
+}

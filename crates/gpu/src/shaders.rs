@@ -1,0 +1,102 @@
+//! The shader registry: every WGSL file of the crate, with its entry points and the uniform structs that have a
+//! Rust twin. The runtime creates modules from [`ShaderSource`]s here, and `tests/shaders.rs` validates each one with
+//! naga (no device) and checks the Rust struct sizes against naga's layout of the WGSL struct of the same name.
+
+use crate::raycast::{RaycastUniforms, VolumeUniforms};
+
+/// A pipeline stage, as the registry records entry points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    Vertex,
+    Fragment,
+    Compute,
+}
+
+/// One WGSL file.
+#[derive(Clone, Copy, Debug)]
+pub struct ShaderSource {
+    /// Label, also used in error messages.
+    pub name: &'static str,
+    /// Path relative to the workspace root.
+    pub path: &'static str,
+    pub source: &'static str,
+    pub entry_points: &'static [(&'static str, Stage)],
+    /// The WGSL structs that have a `#[repr(C)]` Rust twin.
+    pub uniform_structs: &'static [StructLayout],
+}
+
+/// A Rust struct's layout, to compare with naga's layout of the WGSL struct of the same name.
+#[derive(Clone, Copy, Debug)]
+pub struct StructLayout {
+    pub name: &'static str,
+    pub size: usize,
+    /// `(field name, byte offset)`, in declaration order; padding fields (`_pad*`) are left out.
+    pub fields: &'static [(&'static str, usize)],
+}
+
+/// `layout!(Type { field, field, … })`: the [`StructLayout`] of a Rust struct from `size_of` and `offset_of!`.
+macro_rules! layout {
+    ($ty:ident { $($field:ident),* $(,)? }) => {
+        StructLayout {
+            name: stringify!($ty),
+            size: std::mem::size_of::<$ty>(),
+            fields: &[$((stringify!($field), std::mem::offset_of!($ty, $field))),*],
+        }
+    };
+}
+
+impl ShaderSource {
+    #[must_use]
+    pub fn create_module(&self, device: &wgpu::Device) -> wgpu::ShaderModule {
+        device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(self.name),
+            source: wgpu::ShaderSource::Wgsl(self.source.into()),
+        })
+    }
+
+    /// The name of the entry point for `stage` (the first one listed).
+    #[must_use]
+    pub fn entry_point(&self, stage: Stage) -> Option<&'static str> {
+        self.entry_points.iter().find(|(_, s)| *s == stage).map(|(n, _)| *n)
+    }
+}
+
+/// The ray caster: `vs_fullscreen` + `fs_raycast` (see [`crate::raycast`]).
+pub const RAYCAST: ShaderSource = ShaderSource {
+    name: "raycast",
+    path: "shaders/raycast.wgsl",
+    source: include_str!("../../../shaders/raycast.wgsl"),
+    entry_points: &[("vs_fullscreen", Stage::Vertex), ("fs_raycast", Stage::Fragment)],
+    uniform_structs: &[
+        layout!(VolumeUniforms {
+            tex_from_lps,
+            ctrl_tex_from_ref,
+            value_offset,
+            value_scale,
+            window_low,
+            window_width,
+            tf_row,
+            opacity_scale,
+            flags
+        }),
+        layout!(RaycastUniforms {
+            ref_from_clip,
+            box_min_ref,
+            step_mm,
+            box_max_ref,
+            ref_step_mm,
+            viewport_px,
+            blend_mode,
+            flags,
+            blend_weight,
+            checker_cell_mm,
+            max_steps,
+            jitter_seed,
+            fixed,
+            moving
+        }),
+    ],
+};
+
+/// Every shader of the crate.
+pub const ALL: &[ShaderSource] = &[RAYCAST];

@@ -1,0 +1,252 @@
+//! Shared fixtures for the GPU tests: small synthetic CT/MR-like volumes, a smooth warp, and helpers that render the
+//! same frame on the GPU and with the CPU reference.
+
+#![allow(dead_code, reason = "each test binary uses a different subset")]
+
+use glam::{DVec3, Vec3};
+use warpbench_gpu::cpu_reference::{self, CpuLayer};
+use warpbench_gpu::device::headless_or_skip;
+use warpbench_gpu::{
+    ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume,
+    LayerParams, LayerStyle, OrbitCamera, PreparedControl, PreparedVolume, Preset, RaycastDrawData, RaycastRenderer,
+    RaycastUniforms, RenderSettings, RenderTarget, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+};
+
+pub const N: usize = 64;
+
+/// A headless context, or `None` (the test then returns early) without an adapter unless REQUIRE_GPU_ADAPTER=1.
+pub fn context(request: FeatureRequest) -> Option<GpuContext> {
+    let ctx = headless_or_skip(request)?;
+    eprintln!("GPU: {} {:?}", ctx.describe(), ctx.capabilities);
+    Some(ctx)
+}
+
+/// Row-major `lps_from_index` for an n³ grid of `spacing` mm, centred on `centre`, rotated by `angle_rad` about z.
+pub fn grid_lps_from_index(n: usize, spacing: f64, centre: [f64; 3], angle_rad: f64) -> [[f64; 4]; 4] {
+    let (s, c) = angle_rad.sin_cos();
+    let h = (n as f64 - 1.0) / 2.0;
+    // p = R·(spacing·(i − h)) + centre
+    let r = [[c * spacing, -s * spacing, 0.0], [s * spacing, c * spacing, 0.0], [0.0, 0.0, spacing]];
+    let mut m = [[0.0; 4]; 4];
+    for row in 0..3 {
+        m[row][..3].copy_from_slice(&r[row]);
+        m[row][3] = centre[row] - h * (r[row][0] + r[row][1] + r[row][2]);
+    }
+    m[3][3] = 1.0;
+    m
+}
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// A CT-like head: air −1000 HU, soft tissue 40 HU inside radius 0.42, a bone shell (1200 HU) at 0.36–0.42 of the
+/// box, an off-centre dense blob; smooth edges (≈ 1.5 voxels). i16 samples.
+pub fn ct_phantom(n: usize) -> Vec<i16> {
+    let mut out = Vec::with_capacity(n * n * n);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let p = DVec3::new(i as f64, j as f64, k as f64) / (n as f64 - 1.0) - DVec3::splat(0.5);
+                let r = (p * DVec3::new(1.0, 1.15, 1.05)).length();
+                let w = 1.5 / n as f64;
+                let head = 1.0 - smoothstep(0.42 - w, 0.42 + w, r);
+                let bone = smoothstep(0.36 - w, 0.36 + w, r) * head;
+                let blob = 1.0 - smoothstep(0.06, 0.06 + 2.0 * w, (p - DVec3::new(0.12, -0.05, 0.1)).length());
+                let hu = -1000.0 + 1040.0 * head + 1160.0 * bone + 600.0 * blob;
+                out.push(hu.round() as i16);
+            }
+        }
+    }
+    out
+}
+
+/// An MR-like head: a bright ellipsoidal "brain" with two darker "ventricles", values 0..255, u8 samples.
+pub fn mr_phantom(n: usize) -> Vec<u8> {
+    let mut out = Vec::with_capacity(n * n * n);
+    for k in 0..n {
+        for j in 0..n {
+            for i in 0..n {
+                let p = DVec3::new(i as f64, j as f64, k as f64) / (n as f64 - 1.0) - DVec3::splat(0.5);
+                let w = 1.5 / n as f64;
+                let brain = 1.0 - smoothstep(0.33 - w, 0.33 + w, (p * DVec3::new(1.1, 0.9, 1.2)).length());
+                let scalp = 1.0 - smoothstep(0.4 - w, 0.4 + w, p.length());
+                let vent = |c: DVec3| 1.0 - smoothstep(0.05, 0.05 + 2.0 * w, (p - c).length());
+                let v = 60.0 * scalp + 150.0 * brain
+                    - 120.0 * (vent(DVec3::new(0.08, 0.0, 0.05)) + vent(DVec3::new(-0.08, 0.0, 0.05)));
+                out.push(v.clamp(0.0, 255.0).round() as u8);
+            }
+        }
+    }
+    out
+}
+
+/// The fixed (CT, 3 mm, centred at 0) and moving (MR, 3.3 mm, rotated 10° and shifted) volume descriptions.
+pub struct Phantoms {
+    pub ct: Vec<i16>,
+    pub mr: Vec<u8>,
+    pub ct_lps_from_index: [[f64; 4]; 4],
+    pub mr_lps_from_index: [[f64; 4]; 4],
+}
+
+impl Phantoms {
+    pub fn new() -> Self {
+        Self {
+            ct: ct_phantom(N),
+            mr: mr_phantom(N),
+            ct_lps_from_index: grid_lps_from_index(N, 3.0, [0.0, 0.0, 0.0], 0.0),
+            mr_lps_from_index: grid_lps_from_index(N, 3.3, [4.0, -3.0, 2.0], 10f64.to_radians()),
+        }
+    }
+    pub fn ct_desc(&self) -> VolumeDesc<'_> {
+        VolumeDesc { dims: [N; 3], samples: VolumeSamples::I16(&self.ct), lps_from_index: self.ct_lps_from_index }
+    }
+    pub fn mr_desc(&self) -> VolumeDesc<'_> {
+        VolumeDesc { dims: [N; 3], samples: VolumeSamples::U8(&self.mr), lps_from_index: self.mr_lps_from_index }
+    }
+}
+
+/// `[dx,dy,dz,0]` texels of `disp` sampled at the texel centres of an n³ grid over [min, max] (the solver's layout).
+pub fn sample_control(n: usize, min: [f64; 3], max: [f64; 3], disp: impl Fn(DVec3) -> DVec3) -> Vec<f32> {
+    let mut out = Vec::with_capacity(4 * n * n * n);
+    for c in 0..n {
+        for b in 0..n {
+            for a in 0..n {
+                let f = DVec3::new(a as f64 + 0.5, b as f64 + 0.5, c as f64 + 0.5) / n as f64;
+                let x = DVec3::from_array(min) + f * (DVec3::from_array(max) - DVec3::from_array(min));
+                let d = disp(x);
+                out.extend([d.x as f32, d.y as f32, d.z as f32, 0.0]);
+            }
+        }
+    }
+    out
+}
+
+/// A smooth warp of a few mm: the moving phantom's offset plus a sinusoidal bulge.
+pub fn smooth_displacement(x: DVec3) -> DVec3 {
+    let s = (x / 40.0).map(f64::sin);
+    DVec3::new(4.0 + 3.0 * s.y, -3.0 + 2.5 * s.z, 2.0 + 2.0 * s.x)
+}
+
+pub const CTRL_MIN: [f64; 3] = [-96.0; 3];
+pub const CTRL_MAX: [f64; 3] = [96.0; 3];
+
+/// CPU-side and GPU-side versions of one scene.
+pub struct Scene {
+    pub fixed: PreparedVolume,
+    pub moving: PreparedVolume,
+    pub control: Option<PreparedControl>,
+    pub tfs: Vec<TransferFunction>,
+    pub fixed_style: LayerStyle,
+    pub moving_style: LayerStyle,
+}
+
+impl Scene {
+    pub fn new(ctx: &GpuContext, p: &Phantoms, warp: Option<&[f32]>, ctrl_n: usize) -> Self {
+        let budget = VolumeBudget::for_device(&ctx.limits);
+        let fixed = PreparedVolume::prepare(&p.ct_desc(), ctx.capabilities, budget).expect("fixed");
+        let moving = PreparedVolume::prepare(&p.mr_desc(), ctx.capabilities, budget).expect("moving");
+        let control = warp.map(|texels| {
+            let desc = ControlDesc { dims: [ctrl_n; 3], texels, box_min_ref: CTRL_MIN, box_max_ref: CTRL_MAX };
+            PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).expect("control")
+        });
+        let tfs = vec![Preset::CtBone.transfer_function(), Preset::MrT1.transfer_function()];
+        let fixed_style = LayerStyle {
+            window: Preset::CtBone.default_window().expect("CT window"),
+            tf_row: 0,
+            opacity_scale: 1.0,
+            visible: true,
+        };
+        let moving_style =
+            LayerStyle { window: Window::from_range(0.0, 220.0), tf_row: 1, opacity_scale: 1.0, visible: true };
+        Self { fixed, moving, control, tfs, fixed_style, moving_style }
+    }
+
+    pub fn params(&self) -> (LayerParams, LayerParams) {
+        (
+            LayerParams { volume: self.fixed.info, control: None, style: self.fixed_style },
+            LayerParams {
+                volume: self.moving.info,
+                control: self.control.as_ref().map(|c| c.info),
+                style: self.moving_style,
+            },
+        )
+    }
+
+    pub fn uniforms(&self, camera: &OrbitCamera, settings: &RenderSettings, size: (u32, u32)) -> RaycastUniforms {
+        let (f, m) = self.params();
+        RaycastUniforms::new(camera, settings, size, &f, &m, self.tfs.len() as u32)
+    }
+
+    pub fn cpu(&self, u: &RaycastUniforms) -> Vec<u8> {
+        let f = CpuLayer { volume: &self.fixed, control: None };
+        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref() };
+        // Split the rows over threads: the reference is single-threaded and slow in debug builds.
+        let h = u.viewport_px[1] as u32;
+        let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get).min(8) as u32;
+        let chunk = h.div_ceil(threads);
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..threads)
+                .map(|t| {
+                    let rows = (t * chunk).min(h)..((t + 1) * chunk).min(h);
+                    let (f, m) = (&f, &m);
+                    scope.spawn(move || cpu_reference::render_rows(u, f, m, &self.tfs, rows))
+                })
+                .collect();
+            handles.into_iter().flat_map(|h| h.join().expect("reference thread")).collect()
+        })
+    }
+}
+
+/// The GPU resources of a [`Scene`], and a renderer.
+pub struct GpuScene {
+    pub renderer: RaycastRenderer,
+    pub fixed: GpuVolume,
+    pub moving: GpuVolume,
+    pub control: Option<GpuControlTexture>,
+    pub tfs: GpuTransferFunctions,
+}
+
+impl GpuScene {
+    pub fn new(ctx: &GpuContext, s: &Scene) -> Self {
+        Self {
+            renderer: RaycastRenderer::new(ctx).expect("renderer"),
+            fixed: GpuVolume::upload(ctx, &s.fixed).expect("upload fixed"),
+            moving: GpuVolume::upload(ctx, &s.moving).expect("upload moving"),
+            control: s.control.as_ref().map(|c| GpuControlTexture::upload(ctx, c)),
+            tfs: GpuTransferFunctions::upload(ctx, &s.tfs),
+        }
+    }
+
+    pub fn render(&self, ctx: &GpuContext, s: &Scene, u: &RaycastUniforms) -> Vec<u8> {
+        let f = GpuLayer { volume: &self.fixed, control: None, style: s.fixed_style };
+        let m = GpuLayer { volume: &self.moving, control: self.control.as_ref(), style: s.moving_style };
+        let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
+        let data = RaycastDrawData::with_uniforms(ctx, &self.renderer, &frame, *u);
+        let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
+        self.renderer.render(ctx, &data, &target).expect("render");
+        target.read_back(ctx).expect("read back")
+    }
+}
+
+/// Largest per-channel difference, and how many channels differ by more than `over`.
+pub fn max_diff(a: &[u8], b: &[u8], over: u8) -> (u8, usize) {
+    assert_eq!(a.len(), b.len());
+    let diffs = a.iter().zip(b).map(|(x, y)| x.abs_diff(*y));
+    let (mut max, mut count) = (0u8, 0usize);
+    for d in diffs {
+        max = max.max(d);
+        count += usize::from(d > over);
+    }
+    (max, count)
+}
+
+/// Fraction of pixels with any visible content (alpha > 0).
+pub fn coverage(img: &[u8]) -> f32 {
+    img.chunks_exact(4).filter(|p| p[3] > 0).count() as f32 / (img.len() / 4) as f32
+}
+
+pub fn v3(x: f32, y: f32, z: f32) -> Vec3 {
+    Vec3::new(x, y, z)
+}

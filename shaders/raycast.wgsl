@@ -1,0 +1,255 @@
+// Ray casting of the fixed and the (deformed) moving volume together, in one full-screen pass.
+//
+// Space names follow STYLE.md: `ref` is the shared render space (the fixed volume's LPS, mm), `lps` a
+// volume's own patient space, `tex` [0,1]^3 texture coordinates, `ctrl_tex` the control texture's.
+// Every sample x_ref is mapped through the volume's pull-back u (Brunet et al. 2006 §3.2):
+//   u(x) = x + disp(ctrl_tex_from_ref · x)     (or u(x) = x on the identity fast path)
+// then sampled at tex_from_lps · u(x), classified with the volume's transfer function and blended.
+//
+// The CPU reference in crates/gpu/src/cpu_reference.rs implements the same math: keep the two in sync.
+
+// Keep in sync with `VolumeUniforms` in crates/gpu/src/raycast.rs.
+struct VolumeUniforms {
+    tex_from_lps: mat4x4<f32>,
+    ctrl_tex_from_ref: mat4x4<f32>,
+    // value = value_offset + value_scale * texel
+    value_offset: f32,
+    value_scale: f32,
+    // TF coordinate = clamp((value - window_low) / window_width, 0, 1)
+    window_low: f32,
+    window_width: f32,
+    // this volume's row in the transfer-function texture
+    tf_row: u32,
+    opacity_scale: f32,
+    flags: u32,
+    _pad0: u32,
+}
+
+// Keep in sync with `RaycastUniforms` in crates/gpu/src/raycast.rs.
+struct RaycastUniforms {
+    ref_from_clip: mat4x4<f32>,
+    box_min_ref: vec3<f32>,
+    step_mm: f32,
+    box_max_ref: vec3<f32>,
+    ref_step_mm: f32,
+    viewport_px: vec2<f32>,
+    blend_mode: u32,
+    flags: u32,
+    blend_weight: f32,
+    checker_cell_mm: f32,
+    max_steps: u32,
+    jitter_seed: u32,
+    fixed: VolumeUniforms,
+    moving: VolumeUniforms,
+}
+
+// VolumeUniforms.flags
+const VOLUME_VISIBLE: u32 = 1u;
+const VOLUME_HAS_WARP: u32 = 2u;
+const VOLUME_MANUAL_FILTER: u32 = 4u;
+
+// RaycastUniforms.flags
+const RAYCAST_JITTER: u32 = 1u;
+
+// RaycastUniforms.blend_mode
+const BLEND_MIX: u32 = 0u;
+const BLEND_ADDITIVE: u32 = 1u;
+const BLEND_DIFFERENCE: u32 = 2u;
+const BLEND_CHECKERBOARD: u32 = 3u;
+const BLEND_RED_CYAN: u32 = 4u;
+const BLEND_FIXED_ONLY: u32 = 5u;
+const BLEND_MOVING_ONLY: u32 = 6u;
+
+const EARLY_EXIT_ALPHA: f32 = 0.99;
+
+@group(0) @binding(0) var<uniform> u: RaycastUniforms;
+@group(0) @binding(1) var fixed_tex: texture_3d<f32>;
+@group(0) @binding(2) var moving_tex: texture_3d<f32>;
+@group(0) @binding(3) var fixed_ctrl_tex: texture_3d<f32>;
+@group(0) @binding(4) var moving_ctrl_tex: texture_3d<f32>;
+@group(0) @binding(5) var tf_tex: texture_2d<f32>;
+// Trilinear (or nearest, on the manual-filter path), clamp-to-edge.
+@group(0) @binding(6) var volume_sampler: sampler;
+// Trilinear, clamp-to-edge: control textures.
+@group(0) @binding(7) var linear_sampler: sampler;
+
+struct VertexOutput {
+    @builtin(position) position: vec4<f32>,
+}
+
+// One triangle covering the viewport: (-1,-1), (3,-1), (-1,3).
+@vertex
+fn vs_fullscreen(@builtin(vertex_index) vertex_index: u32) -> VertexOutput {
+    let x = f32((vertex_index << 1u) & 2u) * 2.0 - 1.0;
+    let y = f32(vertex_index & 2u) * 2.0 - 1.0;
+    var out: VertexOutput;
+    out.position = vec4<f32>(x, y, 0.0, 1.0);
+    return out;
+}
+
+// PCG hash (Jarzynski & Olano 2020): a reproducible per-pixel jitter.
+fn pcg_hash(v: u32) -> u32 {
+    let state = v * 747796405u + 2891336453u;
+    let word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+// Trilinear interpolation by hand (8 textureLoad), clamp-to-edge, texel centres at (i + ½)/n:
+// used when the volume format is not filterable on this device.
+fn sample_manual(vol: texture_3d<f32>, p_tex: vec3<f32>) -> f32 {
+    let dims = vec3<i32>(textureDimensions(vol));
+    let n = vec3<f32>(dims);
+    let c = clamp(p_tex * n - vec3<f32>(0.5), vec3<f32>(0.0), n - vec3<f32>(1.0));
+    let i0 = vec3<i32>(floor(c));
+    let f = c - floor(c);
+    let i1 = min(i0 + vec3<i32>(1), dims - vec3<i32>(1));
+    let c000 = textureLoad(vol, vec3<i32>(i0.x, i0.y, i0.z), 0).r;
+    let c100 = textureLoad(vol, vec3<i32>(i1.x, i0.y, i0.z), 0).r;
+    let c010 = textureLoad(vol, vec3<i32>(i0.x, i1.y, i0.z), 0).r;
+    let c110 = textureLoad(vol, vec3<i32>(i1.x, i1.y, i0.z), 0).r;
+    let c001 = textureLoad(vol, vec3<i32>(i0.x, i0.y, i1.z), 0).r;
+    let c101 = textureLoad(vol, vec3<i32>(i1.x, i0.y, i1.z), 0).r;
+    let c011 = textureLoad(vol, vec3<i32>(i0.x, i1.y, i1.z), 0).r;
+    let c111 = textureLoad(vol, vec3<i32>(i1.x, i1.y, i1.z), 0).r;
+    let x00 = mix(c000, c100, f.x);
+    let x10 = mix(c010, c110, f.x);
+    let x01 = mix(c001, c101, f.x);
+    let x11 = mix(c011, c111, f.x);
+    return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
+}
+
+// One volume's classified sample at x_ref: premultiplied RGBA, opacity-corrected for the step.
+// Transparent outside the volume's [0,1]^3 texture box.
+fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>, step_ratio: f32) -> vec4<f32> {
+    var p_lps = x_ref;
+    if (v.flags & VOLUME_HAS_WARP) != 0u {
+        let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
+        p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
+    }
+    let p_tex = (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
+    if any(p_tex < vec3<f32>(0.0)) || any(p_tex > vec3<f32>(1.0)) {
+        return vec4<f32>(0.0);
+    }
+    var texel: f32;
+    if (v.flags & VOLUME_MANUAL_FILTER) != 0u {
+        texel = sample_manual(vol, p_tex);
+    } else {
+        texel = textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
+    }
+    let value = v.value_offset + v.value_scale * texel;
+    let t = clamp((value - v.window_low) / v.window_width, 0.0, 1.0);
+    let rgba = sample_tf(v.tf_row, t);
+    let alpha = clamp(rgba.a * v.opacity_scale, 0.0, 1.0);
+    // Opacity correction: α' = 1 − (1 − α)^(step / ref_step).
+    let alpha_corrected = 1.0 - exp2(step_ratio * log2(max(1.0 - alpha, 1e-7)));
+    return vec4<f32>(rgba.rgb * alpha_corrected, alpha_corrected);
+}
+
+// Linear interpolation between the 256 entries of row `row` (entry i at t = i/255), done by hand with two
+// textureLoad: the sampler's filtering weights have as little as 8 bits on some devices (lavapipe), which biases
+// low opacities that are composited ~100 times; by hand the result is exact f32 on every device.
+fn sample_tf(row: u32, t: f32) -> vec4<f32> {
+    let x = clamp(t, 0.0, 1.0) * 255.0;
+    let i0 = min(u32(floor(x)), 255u);
+    let i1 = min(i0 + 1u, 255u);
+    let f = x - f32(i0);
+    let a = textureLoad(tf_tex, vec2<u32>(i0, row), 0);
+    let b = textureLoad(tf_tex, vec2<u32>(i1, row), 0);
+    return mix(a, b, f);
+}
+
+fn luminance(c: vec3<f32>) -> f32 {
+    return dot(c, vec3<f32>(0.2126, 0.7152, 0.0722));
+}
+
+fn is_visible(v: VolumeUniforms) -> bool {
+    return (v.flags & VOLUME_VISIBLE) != 0u;
+}
+
+// Combines the two premultiplied samples by the blend mode (premultiplied out).
+fn blend(f: vec4<f32>, m: vec4<f32>, x_ref: vec3<f32>) -> vec4<f32> {
+    switch u.blend_mode {
+        case BLEND_ADDITIVE: {
+            return min(f + m, vec4<f32>(1.0));
+        }
+        case BLEND_DIFFERENCE: {
+            return vec4<f32>(abs(f.rgb - m.rgb), max(f.a, m.a));
+        }
+        case BLEND_CHECKERBOARD: {
+            let cell = vec3<i32>(floor(x_ref / u.checker_cell_mm));
+            if ((cell.x + cell.y + cell.z) & 1) == 0 {
+                return f;
+            }
+            return m;
+        }
+        case BLEND_RED_CYAN: {
+            let lf = luminance(f.rgb);
+            let lm = luminance(m.rgb);
+            return vec4<f32>(lf, lm, lm, 1.0 - (1.0 - f.a) * (1.0 - m.a));
+        }
+        case BLEND_FIXED_ONLY: {
+            return f;
+        }
+        case BLEND_MOVING_ONLY: {
+            return m;
+        }
+        default: {
+            return mix(f, m, u.blend_weight);
+        }
+    }
+}
+
+@fragment
+fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
+    // Pixel centre → NDC (y up) → a ray in ref space between the near and the far plane.
+    let ndc = vec2<f32>(in.position.x / u.viewport_px.x * 2.0 - 1.0, 1.0 - in.position.y / u.viewport_px.y * 2.0);
+    let near_h = u.ref_from_clip * vec4<f32>(ndc, 0.0, 1.0);
+    let far_h = u.ref_from_clip * vec4<f32>(ndc, 1.0, 1.0);
+    let origin_ref = near_h.xyz / near_h.w;
+    let dir_ref = normalize(far_h.xyz / far_h.w - origin_ref);
+
+    // Slab intersection with the proxy box.
+    let inv_dir = 1.0 / dir_ref;
+    let t0 = (u.box_min_ref - origin_ref) * inv_dir;
+    let t1 = (u.box_max_ref - origin_ref) * inv_dir;
+    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
+    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
+    let t_enter = max(t_near, 0.0);
+    if t_far <= t_enter {
+        return vec4<f32>(0.0);
+    }
+
+    var jitter = 0.0;
+    if (u.flags & RAYCAST_JITTER) != 0u {
+        let px = vec2<u32>(in.position.xy);
+        let h = pcg_hash(px.x + pcg_hash(px.y + pcg_hash(u.jitter_seed)));
+        jitter = f32(h >> 8u) / 16777216.0;
+    }
+
+    let step_ratio = u.step_mm / u.ref_step_mm;
+    let use_fixed = is_visible(u.fixed) && u.blend_mode != BLEND_MOVING_ONLY;
+    let use_moving = is_visible(u.moving) && u.blend_mode != BLEND_FIXED_ONLY;
+    var acc = vec4<f32>(0.0);
+    for (var k = 0u; k < u.max_steps; k++) {
+        let t = t_enter + (f32(k) + jitter) * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        let x_ref = origin_ref + t * dir_ref;
+        var f = vec4<f32>(0.0);
+        var m = vec4<f32>(0.0);
+        if use_fixed {
+            f = classify(fixed_tex, fixed_ctrl_tex, u.fixed, x_ref, step_ratio);
+        }
+        if use_moving {
+            m = classify(moving_tex, moving_ctrl_tex, u.moving, x_ref, step_ratio);
+        }
+        let c = blend(f, m, x_ref);
+        // Front-to-back "over" compositing of premultiplied colour.
+        acc += (1.0 - acc.a) * c;
+        if acc.a > EARLY_EXIT_ALPHA {
+            break;
+        }
+    }
+    return acc;
+}
