@@ -43,6 +43,7 @@
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use dicom_core::value::Value;
@@ -208,20 +209,12 @@ impl Source<'_> {
         }
     }
 
-    /// Opens the object; `header_only` stops before PixelData, otherwise right after it.
-    ///
-    /// The element lengths are checked first ([`check_lengths`]): dicom-rs allocates whatever a
-    /// length field claims (up to 4 GiB) before reading, and reads on past PixelData into any
-    /// trailing padding. The parser gets the bytes up to the end of the top-level PixelData only.
-    fn open(&self, header_only: bool) -> Result<DefaultDicomObject> {
+    /// The file's bytes, after checking the preamble and every element length ([`check_lengths`]).
+    fn read_checked(&self) -> Result<(Cow<'_, [u8]>, Checked)> {
         let path = self.path();
-        let owned;
-        let bytes: &[u8] = match self {
-            Self::File(p) => {
-                owned = std::fs::read(p).map_err(|e| Error::io(p, e))?;
-                &owned
-            }
-            Self::Bytes(_, b) => b,
+        let bytes: Cow<'_, [u8]> = match self {
+            Self::File(p) => Cow::Owned(std::fs::read(p).map_err(|e| Error::io(p, e))?),
+            Self::Bytes(_, b) => Cow::Borrowed(b),
         };
         if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
             return Err(Error::new(
@@ -229,15 +222,50 @@ impl Source<'_> {
                 ErrorKind::BadMagic { format: "DICOM", detail: "no 'DICM' after the 128-byte preamble".into() },
             ));
         }
-        let data = &bytes[128..];
-        let end = check_lengths(data).map_err(|(truncated, msg)| {
+        let checked = check_lengths(&bytes[128..]).map_err(|(truncated, msg)| {
             if truncated { Error::truncated(path, msg) } else { Error::new(path, ErrorKind::Dicom(msg)) }
         })?;
+        Ok((bytes, checked))
+    }
+
+    /// Opens the object; `header_only` stops before PixelData, otherwise right after it.
+    ///
+    /// The element lengths are checked first ([`check_lengths`]): dicom-rs allocates whatever a
+    /// length field claims (up to 4 GiB) before reading, and reads on past PixelData into any
+    /// trailing padding. The parser gets the bytes up to the end of the top-level PixelData only.
+    fn open(&self, header_only: bool) -> Result<DefaultDicomObject> {
+        let (bytes, checked) = self.read_checked()?;
+        let data = &bytes[128..];
         let options = OpenFileOptions::new().read_preamble(ReadPreamble::Never);
         let options =
             if header_only { options.read_until(tags::PIXEL_DATA) } else { options.read_to(tags::PIXEL_DATA) };
-        options.from_reader(&data[..end]).map_err(|e| Error::new(path, ErrorKind::Dicom(error_chain(&e))))
+        options
+            .from_reader(&data[..checked.end])
+            .map_err(|e| Error::new(self.path(), ErrorKind::Dicom(error_chain(&e))))
     }
+
+    /// For native (uncompressed) pixel data with a defined length: the header parsed by dicom-rs,
+    /// and the file's bytes with the PixelData value's range in them. The pixels are not copied
+    /// into a parsed object, so a large multi-frame file costs its size once, not twice.
+    fn open_native_pixels(&self) -> Result<(DefaultDicomObject, Cow<'_, [u8]>, Range<usize>)> {
+        let (bytes, checked) = self.read_checked()?;
+        let Some(value) = checked.pixel_value.clone() else {
+            return Err(Error::invalid(self.path(), "PixelData (7FE0,0010) is missing or has no defined length"));
+        };
+        let options = OpenFileOptions::new().read_preamble(ReadPreamble::Never).read_until(tags::PIXEL_DATA);
+        let obj = options
+            .from_reader(&bytes[128..128 + checked.end])
+            .map_err(|e| Error::new(self.path(), ErrorKind::Dicom(error_chain(&e))))?;
+        Ok((obj, bytes, 128 + value.start..128 + value.end))
+    }
+}
+
+/// What [`check_lengths`] found: where the top-level PixelData ends (or the data ends), and the
+/// range of its value when it has a defined length (native pixel data).
+#[derive(Clone, Debug)]
+struct Checked {
+    end: usize,
+    pixel_value: Option<Range<usize>>,
 }
 
 /// Deepest sequence nesting accepted (dicom-rs builds nested objects recursively).
@@ -247,8 +275,8 @@ const MAX_DEPTH: usize = 32;
 /// that every defined length fits in the data. Returns where the top-level PixelData ends (or the
 /// data ends). Errors are `(is_truncation, message)`. A deflated data set is checked up to the
 /// file meta group only.
-fn check_lengths(data: &[u8]) -> std::result::Result<usize, (bool, String)> {
-    let mut w = Walker { data, explicit: true, big_endian: false, pixel_end: None };
+fn check_lengths(data: &[u8]) -> std::result::Result<Checked, (bool, String)> {
+    let mut w = Walker { data, explicit: true, big_endian: false, pixel_end: None, pixel_value: None };
     // File meta group: explicit VR little endian, group 0002.
     let mut pos = 4;
     let mut ts = String::new();
@@ -262,13 +290,13 @@ fn check_lengths(data: &[u8]) -> std::result::Result<usize, (bool, String)> {
         pos = value.end;
     }
     match ts.as_str() {
-        "1.2.840.10008.1.2.1.99" => return Ok(data.len()), // deflated: dicom-rs inflates it
+        "1.2.840.10008.1.2.1.99" => return Ok(Checked { end: data.len(), pixel_value: None }), // deflated: dicom-rs inflates it
         "1.2.840.10008.1.2" => w.explicit = false,
         "1.2.840.10008.1.2.2" => w.big_endian = true,
         _ => {}
     }
     w.elements(pos, data.len(), 0, false)?;
-    Ok(w.pixel_end.unwrap_or(data.len()))
+    Ok(Checked { end: w.pixel_end.unwrap_or(data.len()), pixel_value: w.pixel_value })
 }
 
 /// Explicit VRs with a 16-bit length field (PS3.5 Table 7.1-2).
@@ -282,6 +310,8 @@ struct Walker<'a> {
     explicit: bool,
     big_endian: bool,
     pixel_end: Option<usize>,
+    /// The top-level PixelData value, when its length is defined.
+    pixel_value: Option<Range<usize>>,
 }
 
 type WalkResult<T> = std::result::Result<T, (bool, String)>;
@@ -374,6 +404,9 @@ impl Walker<'_> {
                 let value = self.value_range(tag, start, len, end)?;
                 if self.is_sequence(pos, tag) {
                     self.defined_items(value.clone(), depth + 1)?;
+                }
+                if depth == 0 && tag == (0x7FE0, 0x0010) {
+                    self.pixel_value = Some(value.clone());
                 }
                 pos = value.end;
             }
@@ -1306,14 +1339,22 @@ fn decode_file(
     ranges: &mut [(i64, i64)],
 ) -> Result<()> {
     let path = src.path();
-    let mut obj = src.open(false)?;
+    let ts = h.transfer_syntax.as_str();
+    let native = NATIVE_SYNTAXES.contains(&ts);
+    // Little-endian native pixels are copied straight from the file's bytes (peak: file + volume);
+    // big-endian ones go through dicom-rs, which swaps the words, and deflated data sets through
+    // dicom-rs, which inflates them.
+    let (mut obj, raw) = if matches!(ts, "1.2.840.10008.1.2" | "1.2.840.10008.1.2.1") {
+        let (obj, bytes, range) = src.open_native_pixels()?;
+        (obj, Some((bytes, range)))
+    } else {
+        (src.open(false)?, None)
+    };
     // The file is read again: check that it still matches its header.
     let now = parse_pixel_format(&obj).map_err(|e| Error::invalid(path, e))?;
     if now != *fmt {
         return Err(Error::invalid(path, "the file changed while it was being read"));
     }
-    let ts = h.transfer_syntax.as_str();
-    let native = NATIVE_SYNTAXES.contains(&ts);
     let layout = BitLayout::new(path, fmt, native)?;
     let bytes = usize::from(fmt.bits_allocated / 8);
     let frame_bytes = slice_len * bytes;
@@ -1327,58 +1368,62 @@ fn decode_file(
             ),
         )
     };
-    let pixel = obj.get(tags::PIXEL_DATA).ok_or_else(|| Error::invalid(path, "PixelData (7FE0,0010) is missing"))?;
-
     let decoded: Vec<u8>;
-    let samples: FrameData = match pixel.value() {
-        Value::Primitive(p) if native => match p {
-            PrimitiveValue::U16(w) if bytes >= 2 => FrameData::Words(w),
-            PrimitiveValue::U8(b) => FrameData::Bytes(Cow::Borrowed(b)),
-            other => FrameData::Bytes(other.to_bytes()),
-        },
-        Value::PixelSequence(seq) if !native && ts == RLE_LOSSLESS => {
-            decoded = decode_rle(path, seq.fragments(), fmt, bytes)?;
-            FrameData::Bytes(Cow::Borrowed(&decoded))
-        }
-        Value::PixelSequence(seq) if !native && JPEG_LS_SYNTAXES.contains(&ts) => {
-            decoded = decode_jpeg_ls(path, seq.fragments(), fmt, bytes)?;
-            FrameData::Bytes(Cow::Borrowed(&decoded))
-        }
-        Value::PixelSequence(seq) if !native => {
-            if JPEG_SYNTAXES.contains(&ts) {
-                check_jpeg(path, seq.fragments(), fmt)?;
-            } else if J2K_SYNTAXES.contains(&ts) {
-                check_j2k(path, seq.fragments(), fmt)?;
+    let samples: FrameData = if let Some((bytes, range)) = &raw {
+        FrameData::Bytes(Cow::Borrowed(&bytes[range.clone()]))
+    } else {
+        let pixel =
+            obj.get(tags::PIXEL_DATA).ok_or_else(|| Error::invalid(path, "PixelData (7FE0,0010) is missing"))?;
+        match pixel.value() {
+            Value::Primitive(p) if native => match p {
+                PrimitiveValue::U16(w) if bytes >= 2 => FrameData::Words(w),
+                PrimitiveValue::U8(b) => FrameData::Bytes(Cow::Borrowed(b)),
+                other => FrameData::Bytes(other.to_bytes()),
+            },
+            Value::PixelSequence(seq) if !native && ts == RLE_LOSSLESS => {
+                decoded = decode_rle(path, seq.fragments(), fmt, bytes)?;
+                FrameData::Bytes(Cow::Borrowed(&decoded))
             }
-            // dicom-pixeldata also parses windows, LUTs and rescale (and fails on odd ones): we read
-            // those ourselves, so remove them before decoding.
-            for tag in [
-                tags::WINDOW_CENTER,
-                tags::WINDOW_WIDTH,
-                tags::VOILUT_FUNCTION,
-                tags::VOILUT_SEQUENCE,
-                tags::RESCALE_INTERCEPT,
-                tags::RESCALE_SLOPE,
-                tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
-                tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE,
-            ] {
-                obj.remove_element(tag);
+            Value::PixelSequence(seq) if !native && JPEG_LS_SYNTAXES.contains(&ts) => {
+                decoded = decode_jpeg_ls(path, seq.fragments(), fmt, bytes)?;
+                FrameData::Bytes(Cow::Borrowed(&decoded))
             }
-            let name = transfer_syntax_name(ts).unwrap_or(ts);
-            let pd = obj.decode_pixel_data().map_err(|e| {
-                Error::new(path, ErrorKind::Dicom(format!("cannot decode {name} pixel data: {}", error_chain(&e))))
-            })?;
-            decoded = pd.into_data();
-            FrameData::Bytes(Cow::Borrowed(&decoded))
-        }
-        _ => {
-            return Err(Error::invalid(
-                path,
-                format!(
-                    "PixelData (7FE0,0010) is {} for transfer syntax {ts}",
-                    if native { "encapsulated" } else { "not encapsulated" }
-                ),
-            ));
+            Value::PixelSequence(seq) if !native => {
+                if JPEG_SYNTAXES.contains(&ts) {
+                    check_jpeg(path, seq.fragments(), fmt)?;
+                } else if J2K_SYNTAXES.contains(&ts) {
+                    check_j2k(path, seq.fragments(), fmt)?;
+                }
+                // dicom-pixeldata also parses windows, LUTs and rescale (and fails on odd ones): we read
+                // those ourselves, so remove them before decoding.
+                for tag in [
+                    tags::WINDOW_CENTER,
+                    tags::WINDOW_WIDTH,
+                    tags::VOILUT_FUNCTION,
+                    tags::VOILUT_SEQUENCE,
+                    tags::RESCALE_INTERCEPT,
+                    tags::RESCALE_SLOPE,
+                    tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
+                    tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE,
+                ] {
+                    obj.remove_element(tag);
+                }
+                let name = transfer_syntax_name(ts).unwrap_or(ts);
+                let pd = obj.decode_pixel_data().map_err(|e| {
+                    Error::new(path, ErrorKind::Dicom(format!("cannot decode {name} pixel data: {}", error_chain(&e))))
+                })?;
+                decoded = pd.into_data();
+                FrameData::Bytes(Cow::Borrowed(&decoded))
+            }
+            _ => {
+                return Err(Error::invalid(
+                    path,
+                    format!(
+                        "PixelData (7FE0,0010) is {} for transfer syntax {ts}",
+                        if native { "encapsulated" } else { "not encapsulated" }
+                    ),
+                ));
+            }
         }
     };
     let have = samples.len_bytes();
