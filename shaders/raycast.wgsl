@@ -22,7 +22,8 @@ struct VolumeUniforms {
     tf_row: u32,
     opacity_scale: f32,
     flags: u32,
-    _pad0: u32,
+    // iso-surface threshold, value units
+    iso_value: f32,
 }
 
 // Keep in sync with `RaycastUniforms` in crates/gpu/src/raycast.rs.

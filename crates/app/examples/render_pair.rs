@@ -141,22 +141,22 @@ fn main() -> Result<()> {
     let fixed_layer = GpuLayer {
         volume: &fixed_gpu,
         control: None,
-        style: LayerStyle { window: ct_window, tf_row: 0, opacity_scale: 0.6, visible: true },
+        style: LayerStyle { window: ct_window, tf_row: 0, opacity_scale: 0.6, visible: true, iso_value: 300.0 },
     };
     let moving_layer = GpuLayer {
         volume: &moving_gpu,
         control: Some(&control_gpu),
-        style: LayerStyle { window: mr_window, tf_row: 1, opacity_scale: 1.0, visible: true },
+        style: LayerStyle {
+            window: mr_window,
+            tf_row: 1,
+            opacity_scale: 1.0,
+            visible: true,
+            iso_value: mr_window.low() + 0.3 * mr_window.width,
+        },
     };
     let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
     let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, zoom: 1.3, target_ref: c_fixed.as_vec3(), ..cam };
-    let settings = RenderSettings {
-        blend,
-        samples_per_voxel: 1.0,
-        jitter_seed: Some(1),
-        box_override_ref: Some((lo.as_vec3(), hi.as_vec3())),
-        ..Default::default()
-    };
+    let settings = RenderSettings { blend, samples_per_voxel: 1.0, jitter_seed: Some(1), ..Default::default() };
     let frame = GpuFrame { fixed: fixed_layer, moving: moving_layer, tfs: &tfs };
     let data = RaycastDrawData::new(&ctx, &renderer, &frame, &cam, &settings, (size, size));
     let target = RenderTarget::new(&ctx, size, size);

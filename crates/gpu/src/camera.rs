@@ -3,7 +3,7 @@
 //! Azimuth 0 and elevation 0 look from anterior (−y) towards posterior (+y) with superior (+z) up, so the patient's
 //! left (+x) is on the image's right. Azimuth turns about the superior axis; elevation raises the eye towards
 //! superior. `clip_from_ref = clip_from_view · view_from_ref`, with glam 0.34's right-handed view and its
-//! `directx` projections (WebGPU convention: NDC z ∈ [0, 1], y up). The ray caster generates rays with
+//! `directx` projections (WebGPU convention: NDC z ∈ \[0, 1\], y up). The ray caster generates rays with
 //! [`OrbitCamera::ref_from_clip`].
 
 use glam::camera::rh::{proj::directx, view::look_at_mat4};

@@ -31,12 +31,16 @@ pub struct ControlDesc<'a> {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ControlInfo {
     pub dims: [u32; 3],
-    /// Ref mm → [0,1]³ control-texture coordinates.
+    /// Ref mm → \[0, 1\]³ control-texture coordinates.
     pub ctrl_tex_from_ref: Mat4,
     pub box_min_ref: DVec3,
     pub box_max_ref: DVec3,
     /// Largest storage error of a displacement component (0 for f32).
     pub quantisation_mm: f32,
+    /// Componentwise minimum and maximum of the stored displacements (mm). Trilinear interpolation with
+    /// clamp-to-edge never leaves [min, max], so every x has d(x) in this range: the proxy box uses it.
+    pub disp_min_mm: Vec3,
+    pub disp_max_mm: Vec3,
 }
 
 /// A control texture ready for upload; `texels` already hold the values the GPU will see (rounded to f16 when the
@@ -81,12 +85,21 @@ impl PreparedControl {
             .zip(&texels)
             .flat_map(|(a, b)| (0..3).map(move |i| (a[i] - b[i]).abs()))
             .fold(0.0f32, f32::max);
+        let (disp_min_mm, disp_max_mm) = texels
+            .iter()
+            .map(|c| Vec3::new(c[0], c[1], c[2]))
+            .fold((Vec3::INFINITY, Vec3::NEG_INFINITY), |(lo, hi), d| (lo.min(d), hi.max(d)));
+        if !disp_min_mm.is_finite() || !disp_max_mm.is_finite() {
+            return Err(GpuError::InvalidInput("control texture has non-finite displacements".into()));
+        }
         let info = ControlInfo {
             dims: desc.dims.map(|d| d as u32),
             ctrl_tex_from_ref,
             box_min_ref: min,
             box_max_ref: max,
             quantisation_mm,
+            disp_min_mm,
+            disp_max_mm,
         };
         Ok(Self { info, format, texels })
     }
@@ -133,6 +146,8 @@ impl GpuControlTexture {
             box_min_ref: DVec3::ZERO,
             box_max_ref: DVec3::ONE,
             quantisation_mm: 0.0,
+            disp_min_mm: Vec3::ZERO,
+            disp_max_mm: Vec3::ZERO,
         };
         Self::create(ctx, info, wgpu::TextureFormat::Rgba16Float, [1, 1, 1], &[0u8; 8]).view
     }

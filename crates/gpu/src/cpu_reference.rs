@@ -22,7 +22,7 @@ pub struct CpuLayer<'a> {
     pub control: Option<&'a PreparedControl>,
 }
 
-/// Trilinear interpolation at `p_tex` ∈ [0,1]³ of a `dims` grid with texel centres at (i + ½)/n and clamp-to-edge
+/// Trilinear interpolation at `p_tex` ∈ \[0, 1\]³ of a `dims` grid with texel centres at (i + ½)/n and clamp-to-edge
 /// addressing; `texel(i)` returns the texel at linear index i (x fastest).
 pub fn trilinear(dims: [u32; 3], p_tex: Vec3, texel: impl Fn(usize) -> Vec4) -> Vec4 {
     let n = Vec3::new(dims[0] as f32, dims[1] as f32, dims[2] as f32);
@@ -219,7 +219,7 @@ mod tests {
     }
 
     fn style(visible: bool) -> LayerStyle {
-        LayerStyle { window: Window::from_range(0.0, 1.0), tf_row: 0, opacity_scale: 1.0, visible }
+        LayerStyle { window: Window::from_range(0.0, 1.0), tf_row: 0, opacity_scale: 1.0, visible, iso_value: 0.5 }
     }
 
     /// A constant volume with a flat TF of opacity α per reference step: after L mm the accumulated opacity is

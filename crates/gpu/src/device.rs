@@ -81,6 +81,10 @@ pub struct GpuContext {
     pub queue: wgpu::Queue,
     pub limits: wgpu::Limits,
     pub capabilities: Capabilities,
+    /// `R32Float` can be a (write-only) storage texture: what [`crate::prefilter::PrefilterPass`] writes. From the
+    /// adapter's `get_texture_format_features` in [`Self::headless_with`]; [`Self::from_device`] assumes it (the WebGPU
+    /// core format table guarantees it), [`Self::with_r32float_storage`] overrides it.
+    pub r32float_storage: bool,
     errors: Arc<Mutex<ErrorLog>>,
 }
 
@@ -107,7 +111,11 @@ impl GpuContext {
             ..Default::default()
         };
         let (device, queue) = pollster::block_on(adapter.request_device(&descriptor))?;
-        Ok(Self::from_device(adapter.get_info(), device, queue))
+        let r32float_storage = adapter
+            .get_texture_format_features(wgpu::TextureFormat::R32Float)
+            .allowed_usages
+            .contains(wgpu::TextureUsages::STORAGE_BINDING);
+        Ok(Self::from_device(adapter.get_info(), device, queue).with_r32float_storage(r32float_storage))
     }
 
     /// Wraps a device someone else created (the app's eframe device). Installs the uncaptured-error handler:
@@ -125,7 +133,14 @@ impl GpuContext {
         }));
         let limits = device.limits();
         let capabilities = Capabilities::from_features(device.features());
-        Self { adapter_info, device, queue, limits, capabilities, errors }
+        Self { adapter_info, device, queue, limits, capabilities, r32float_storage: true, errors }
+    }
+
+    /// Sets [`Self::r32float_storage`] (from the adapter's `get_texture_format_features`).
+    #[must_use]
+    pub fn with_r32float_storage(mut self, supported: bool) -> Self {
+        self.r32float_storage = supported;
+        self
     }
 
     /// Errors reported since the last call; a message already returned once is not returned again.

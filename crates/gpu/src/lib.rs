@@ -14,13 +14,15 @@
 //! - [`camera`]: [`OrbitCamera`] (`clip_from_ref` and its inverse).
 //! - [`raycast`]: [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), [`BlendMode`],
 //!   [`RenderSettings`], [`RaycastUniforms`], [`RenderTarget`] (texture + readback).
+//! - [`prefilter`]: [`PrefilterPass`], a separable Gaussian (compute, optionally half resolution) whose result
+//!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
 //!
 //! # Spaces
 //!
 //! Everything is rendered in **ref** space: the fixed volume's LPS patient space, in mm. A volume's own space is
 //! `lps` (for the moving volume, the moving LPS space); `index` is continuous voxel index (0 = centre of the first
-//! voxel); `tex` is [0,1]³ texture coordinates with texel centres at (i + ½)/n. The moving volume is pulled back
+//! voxel); `tex` is \[0, 1\]³ texture coordinates with texel centres at (i + ½)/n. The moving volume is pulled back
 //! through a control texture: x_ref ↦ u(x_ref) = x_ref + disp(x_ref) in moving `lps` (Brunet, Nowak & Gleicher 2006
 //! §3). Transforms are named `b_from_a` (`tex_from_lps`, `ctrl_tex_from_ref`, `ref_from_clip`).
 //!
@@ -32,6 +34,7 @@ pub mod control;
 pub mod cpu_reference;
 pub mod device;
 pub mod error;
+pub mod prefilter;
 pub mod raycast;
 pub mod shaders;
 pub mod transfer;
@@ -44,6 +47,7 @@ pub use camera::{OrbitCamera, Projection};
 pub use control::{ControlDesc, ControlInfo, GpuControlTexture, PreparedControl};
 pub use device::{Capabilities, FeatureRequest, GpuContext};
 pub use error::{GpuError, Result};
+pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use raycast::{
     BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, RaycastDrawData, RaycastRenderer, RaycastUniforms,
     RenderSettings, RenderTarget, VolumeUniforms,

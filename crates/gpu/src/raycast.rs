@@ -3,9 +3,9 @@
 //! function, combines them by a [`BlendMode`] and composites front to back.
 //!
 //! Per pixel: a ray from the near to the far plane (`ref_from_clip`), clipped to the proxy box (the ref-space box
-//! around both volumes and the control textures); samples at t_k = t_enter + (k + j)·step with j = 0, or a fixed
+//! where either volume can appear after its warp, [`LayerParams::box_ref`]); samples at t_k = t_enter + (k + j)·step with j = 0, or a fixed
 //! per-pixel hash when jitter is on; at each x_ref, for each visible volume, u(x) = x + disp(ctrl_tex_from_ref · x)
-//! (or x), `tex_from_lps · u(x)`, trilinear sample (transparent outside [0,1]³), value → TF; opacity correction
+//! (or x), `tex_from_lps · u(x)`, trilinear sample (transparent outside \[0, 1\]³), value → TF; opacity correction
 //! α' = 1 − (1 − α)^(step/ref_step) with ref_step one voxel of the finest visible spacing; blend; "over"
 //! compositing of premultiplied colour, stopping at α > 0.99. The output is premultiplied RGBA8.
 //!
@@ -47,7 +47,8 @@ pub struct VolumeUniforms {
     pub tf_row: u32,
     pub opacity_scale: f32,
     pub flags: u32,
-    _pad0: u32,
+    /// Iso-surface threshold, value units.
+    pub iso_value: f32,
 }
 const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 160);
 
@@ -142,7 +143,8 @@ pub struct RenderSettings {
     pub jitter_seed: Option<u32>,
     /// Upper bound on samples per ray.
     pub max_steps: u32,
-    /// Replaces the automatic proxy box (the box around both volumes and their control textures).
+    /// Replaces the automatic proxy box (the union of both layers' [`LayerParams::box_ref`]: where each volume can
+    /// appear after its warp).
     pub box_override_ref: Option<(glam::Vec3, glam::Vec3)>,
 }
 
@@ -167,6 +169,9 @@ pub struct LayerStyle {
     /// Multiplies the TF opacity.
     pub opacity_scale: f32,
     pub visible: bool,
+    /// Iso-surface threshold in this volume's value units (HU for CT). Carried in the uniforms for the iso-surface
+    /// shading mode (not yet used by the shader).
+    pub iso_value: f32,
 }
 
 /// Everything about one volume that goes into the uniforms, without GPU resources.
@@ -200,19 +205,21 @@ impl LayerParams {
             tf_row: self.style.tf_row.min(tf_rows.max(1) - 1),
             opacity_scale: self.style.opacity_scale,
             flags,
-            _pad0: 0,
+            iso_value: self.style.iso_value,
         }
     }
 
-    /// Box around the volume's voxels and its control texture's box, in ref space. The moving volume's own LPS box
-    /// stands in for its deformed position (exact for the identity).
-    fn box_ref(&self) -> (DVec3, DVec3) {
-        let (mut lo, mut hi) = (self.volume.box_min_lps, self.volume.box_max_lps);
-        if let Some(c) = self.control {
-            lo = lo.min(c.box_min_ref);
-            hi = hi.max(c.box_max_ref);
+    /// A ref-space box that contains every point where this layer can have content: the volume is non-transparent
+    /// only where u(x) = x + d(x) lies in its LPS box [lo, hi], and d(x) lies componentwise in
+    /// [`ControlInfo::disp_min_mm`, `ControlInfo::disp_max_mm`] everywhere (trilinear, clamp-to-edge), so
+    /// x ∈ [lo − d_max, hi − d_min]. Exact for the identity and for a constant displacement; conservative otherwise.
+    #[must_use]
+    pub fn box_ref(&self) -> (DVec3, DVec3) {
+        let (lo, hi) = (self.volume.box_min_lps, self.volume.box_max_lps);
+        match self.control {
+            Some(c) => (lo - c.disp_max_mm.as_dvec3(), hi - c.disp_min_mm.as_dvec3()),
+            None => (lo, hi),
         }
-        (lo, hi)
     }
 }
 
@@ -599,5 +606,39 @@ impl RenderTarget {
         buffer.unmap();
         ctx.check_errors()?;
         Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::control::{ControlDesc, PreparedControl};
+    use crate::device::Capabilities;
+    use crate::volume::{PreparedVolume, VolumeBudget, VolumeDesc, VolumeSamples};
+
+    #[test]
+    fn proxy_box_covers_the_warped_extent() {
+        let samples = vec![0u8; 8];
+        let lps_from_index = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        let desc = VolumeDesc { dims: [2, 2, 2], samples: VolumeSamples::U8(&samples), lps_from_index };
+        let caps = Capabilities { norm16: true, float32_filterable: true };
+        let budget = VolumeBudget { max_dimension: 64, max_bytes: 1 << 20 };
+        let vol = PreparedVolume::prepare(&desc, caps, budget).expect("volume");
+        // Voxel-edge box [−0.5, 1.5]³; displacements x ∈ [−10, 2], y = 3, z = 0.
+        let texels: Vec<f32> = [[-10.0, 3.0, 0.0, 0.0], [2.0, 3.0, 0.0, 0.0]].concat().repeat(4);
+        let cdesc = ControlDesc { dims: [2, 2, 2], texels: &texels, box_min_ref: [0.0; 3], box_max_ref: [1.0; 3] };
+        let ctrl = PreparedControl::prepare(&cdesc, true).expect("control");
+        let style = LayerStyle {
+            window: Window::from_range(0.0, 1.0),
+            tf_row: 0,
+            opacity_scale: 1.0,
+            visible: true,
+            iso_value: 0.5,
+        };
+        let plain = LayerParams { volume: vol.info, control: None, style };
+        let warped = LayerParams { control: Some(ctrl.info), ..plain };
+        assert_eq!(plain.box_ref(), (DVec3::splat(-0.5), DVec3::splat(1.5)));
+        let (lo, hi) = warped.box_ref();
+        assert_eq!((lo, hi), (DVec3::new(-2.5, -3.5, -0.5), DVec3::new(11.5, -1.5, 1.5)));
     }
 }

@@ -2,6 +2,7 @@
 //! Rust twin. The runtime creates modules from [`ShaderSource`]s here, and `tests/shaders.rs` validates each one with
 //! naga (no device) and checks the Rust struct sizes against naga's layout of the WGSL struct of the same name.
 
+use crate::prefilter::PrefilterUniforms;
 use crate::raycast::{RaycastUniforms, VolumeUniforms};
 
 /// A pipeline stage, as the registry records entry points.
@@ -77,7 +78,8 @@ pub const RAYCAST: ShaderSource = ShaderSource {
             window_width,
             tf_row,
             opacity_scale,
-            flags
+            flags,
+            iso_value
         }),
         layout!(RaycastUniforms {
             ref_from_clip,
@@ -98,5 +100,14 @@ pub const RAYCAST: ShaderSource = ShaderSource {
     ],
 };
 
+/// The gradient prefilter: `cs_gaussian_from_volume` (x) and `cs_gaussian_from_layers` (y, z), one axis of a separable Gaussian (see [`crate::prefilter`]).
+pub const PREFILTER: ShaderSource = ShaderSource {
+    name: "prefilter",
+    path: "shaders/prefilter.wgsl",
+    source: include_str!("../../../shaders/prefilter.wgsl"),
+    entry_points: &[("cs_gaussian_from_volume", Stage::Compute), ("cs_gaussian_from_layers", Stage::Compute)],
+    uniform_structs: &[layout!(PrefilterUniforms { axis, radius_vox, sigma_vox, dst_dims })],
+};
+
 /// Every shader of the crate.
-pub const ALL: &[ShaderSource] = &[RAYCAST];
+pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER];

@@ -1,6 +1,6 @@
 //! 1-D transfer functions (value → colour and opacity) and their window/level mapping.
 //!
-//! A [`TransferFunction`] has 256 RGBA8 entries over the TF coordinate t ∈ [0, 1]; entry i sits at t = i/255. A
+//! A [`TransferFunction`] has 256 RGBA8 entries over the TF coordinate t ∈ \[0, 1\]; entry i sits at t = i/255. A
 //! [`Window`] maps a volume value to t: `t = clamp((value − (level − width/2)) / width, 0, 1)`. Several transfer
 //! functions are stacked as rows of one 256×N `Rgba8Unorm` 2-D texture ([`GpuTransferFunctions`]; 2-D rather than
 //! 1-D, stack.md gotcha 7). The shader interpolates linearly between entries ⌊255·t⌋ and the next **by hand** (two
@@ -37,7 +37,7 @@ impl Window {
     }
 }
 
-/// 256 straight-alpha RGBA8 entries over t ∈ [0, 1].
+/// 256 straight-alpha RGBA8 entries over t ∈ \[0, 1\].
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TransferFunction {
     pub name: String,
@@ -48,7 +48,7 @@ pub struct TransferFunction {
 pub const TF_ENTRIES: usize = 256;
 
 impl TransferFunction {
-    /// Piecewise-linear through `points` = (t, straight RGBA in [0,1]), sorted by t; constant beyond the ends.
+    /// Piecewise-linear through `points` = (t, straight RGBA in \[0, 1\]), sorted by t; constant beyond the ends.
     #[must_use]
     pub fn from_points(name: &str, points: &[(f32, [f32; 4])]) -> Self {
         let entries = (0..TF_ENTRIES)

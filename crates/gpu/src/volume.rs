@@ -19,7 +19,7 @@
 //! by an integer factor per axis, with a warning that names the factors ([`PreparedVolume::warnings`]).
 //!
 //! Each volume carries `tex_from_lps` = `tex_from_index · index_from_lps`, with tex = (index + ½)/dims, so that
-//! [0,1]³ is the box of voxel edges.
+//! \[0, 1\]³ is the box of voxel edges.
 
 use glam::{DMat4, DVec3, DVec4, Mat4};
 
@@ -139,7 +139,7 @@ pub struct VolumeInfo {
     pub dims: [u32; 3],
     pub value_offset: f32,
     pub value_scale: f32,
-    /// LPS mm → [0,1]³ texture coordinates.
+    /// LPS mm → \[0, 1\]³ texture coordinates.
     pub tex_from_lps: Mat4,
     /// Index (of the texture) → LPS mm.
     pub lps_from_index: DMat4,

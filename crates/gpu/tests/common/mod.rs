@@ -157,9 +157,15 @@ impl Scene {
             tf_row: 0,
             opacity_scale: 1.0,
             visible: true,
+            iso_value: 300.0,
         };
-        let moving_style =
-            LayerStyle { window: Window::from_range(0.0, 220.0), tf_row: 1, opacity_scale: 1.0, visible: true };
+        let moving_style = LayerStyle {
+            window: Window::from_range(0.0, 220.0),
+            tf_row: 1,
+            opacity_scale: 1.0,
+            visible: true,
+            iso_value: 110.0,
+        };
         Self { fixed, moving, control, tfs, fixed_style, moving_style }
     }
 

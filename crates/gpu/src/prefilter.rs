@@ -1,0 +1,424 @@
+//! The gradient prefilter (Brunet, Nowak & Gleicher 2006 §3.4): a separable 3-D Gaussian
+//! G_σ ∗ v, σ in source voxels, run as three compute dispatches (x, y, z) that each may halve their axis, so the
+//! result can be stored at half resolution (the filtered volume is band-limited). The ray caster takes central
+//! differences of this copy, through the warp, for shading (the shading modes of the ray caster, next slice).
+//!
+//! Output texel j along an axis lies at source index c_j = (j + ½)·n_src/n_dst − ½ (both textures cover the same
+//! \[0,1\]³ box of voxel edges, so the ray caster samples them with the same `tex_from_lps`) and holds
+//! Σᵢ wᵢ·v[clamp(i)] / Σᵢ wᵢ with wᵢ = exp(−(i − c_j)²/(2σ²)), i ∈ [⌊c_j⌋ − r, ⌈c_j⌉ + r], r = ⌈2.5σ⌉
+//! ([`PrefilterSettings::radius_vox`]), clamp-to-edge. Values are the volume's normalised texels (the affine value
+//! mapping commutes with a filter whose weights sum to 1).
+//!
+//! **Format.** Every pass writes an `R32Float` write-only storage texture, a 2-D *array* with one layer per z
+//! (wgpu's GL backend binds a 3-D storage texture as a single layer: wgpu-hal 30 `ImageBinding` has layered = false
+//! for `D3`, so writes to z > 0 are lost; an array view is bound layered on every backend): `R32Float` is storage-capable in the WebGPU
+//! core format table and reported so (`get_texture_format_features`, `STORAGE_BINDING`) by lavapipe and by GL, where
+//! `R16Float` and `R8Unorm` are not (research/stack.md §2). [`GpuContext::headless_with`] records the adapter's answer
+//! in [`GpuContext::r32float_storage`] and [`PrefilterPass::new`] checks it. `R32Float` is not filterable on GL, so the
+//! ray caster filters the prefiltered copy by hand (8 `textureLoad`s), on every device alike.
+//!
+//! Types: [`PrefilterPass`] (long-lived pipeline), [`GpuPrefiltered`] (the result texture), [`cpu_prefilter`] (the
+//! CPU reference, the oracle of `tests/prefilter.rs`).
+
+use bytemuck::{Pod, Zeroable};
+
+use crate::device::GpuContext;
+use crate::error::{GpuError, Result};
+use crate::shaders::PREFILTER;
+use crate::volume::{GpuVolume, PreparedVolume};
+
+/// The prefilter's output format (see the module docs).
+pub const PREFILTER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// `@workgroup_size` of the prefilter's entry points.
+const WORKGROUP: u32 = 4;
+
+/// One axis pass's uniforms. Keep in sync with `PrefilterUniforms` in shaders/prefilter.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct PrefilterUniforms {
+    pub axis: u32,
+    pub radius_vox: u32,
+    pub sigma_vox: f32,
+    _pad0: u32,
+    /// The output texture's dims (`textureDimensions` of a 3-D storage texture reads 0 on wgpu's GL backend).
+    pub dst_dims: [u32; 3],
+    _pad1: u32,
+}
+const _: () = assert!(std::mem::size_of::<PrefilterUniforms>() == 32);
+
+/// Gaussian width and output resolution.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PrefilterSettings {
+    /// Standard deviation in source voxels (clamped to ≥ 0.25).
+    pub sigma_vox: f32,
+    /// Halve each axis (rounding up): an eighth of the texels. Use σ ≥ 1 then, so the result is band-limited.
+    pub half_resolution: bool,
+}
+
+impl Default for PrefilterSettings {
+    fn default() -> Self {
+        Self { sigma_vox: 1.0, half_resolution: false }
+    }
+}
+
+impl PrefilterSettings {
+    #[must_use]
+    pub fn sigma(self) -> f32 {
+        self.sigma_vox.max(0.25)
+    }
+
+    /// Taps on each side beyond the two nearest source voxels: ⌈2.5σ⌉.
+    #[must_use]
+    pub fn radius_vox(self) -> u32 {
+        (2.5 * self.sigma()).ceil() as u32
+    }
+
+    /// The output dims for source dims `dims`.
+    #[must_use]
+    pub fn output_dims(self, dims: [u32; 3]) -> [u32; 3] {
+        if self.half_resolution { dims.map(|d| d.div_ceil(2)) } else { dims }
+    }
+
+    fn uniforms(self, axis: u32, dst_dims: [u32; 3]) -> PrefilterUniforms {
+        PrefilterUniforms { axis, radius_vox: self.radius_vox(), sigma_vox: self.sigma(), _pad0: 0, dst_dims, _pad1: 0 }
+    }
+}
+
+/// A prefiltered volume on the CPU: normalised texels, x fastest.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PrefilteredTexels {
+    pub dims: [u32; 3],
+    pub texels: Vec<f32>,
+}
+
+impl PrefilteredTexels {
+    /// [`cpu_prefilter`] of `volume`'s normalised texels.
+    #[must_use]
+    pub fn from_volume(volume: &PreparedVolume, settings: PrefilterSettings) -> Self {
+        cpu_prefilter(volume.info.dims, |i| volume.texels.normalised(i), settings)
+    }
+}
+
+/// One axis pass of the shader, in f32: `src` has dims `src_dims`, the result `dst_dims` (differing only on `axis`).
+fn cpu_axis(src: &[f32], src_dims: [u32; 3], axis: usize, dst_dims: [u32; 3], s: PrefilterSettings) -> Vec<f32> {
+    let (n_src, n_dst) = (src_dims[axis], dst_dims[axis]);
+    let radius = s.radius_vox() as i32;
+    let inv_two_var = 0.5 / (s.sigma() * s.sigma());
+    let last = n_src as i32 - 1;
+    // The weights depend only on the output index along the axis: (first source index, weights) per j.
+    let taps: Vec<(i32, Vec<f32>)> = (0..n_dst)
+        .map(|j| {
+            let c = (j as f32 + 0.5) * n_src as f32 / n_dst as f32 - 0.5;
+            let (lo, hi) = (c.floor() as i32 - radius, c.ceil() as i32 + radius);
+            (lo, (lo..=hi).map(|i| (-(i as f32 - c) * (i as f32 - c) * inv_two_var).exp()).collect())
+        })
+        .collect();
+    let (sx, sy) = (src_dims[0] as usize, src_dims[1] as usize);
+    let mut out = Vec::with_capacity(dst_dims.iter().map(|&d| d as usize).product());
+    for z in 0..dst_dims[2] {
+        for y in 0..dst_dims[1] {
+            for x in 0..dst_dims[0] {
+                let mut q = [x as i32, y as i32, z as i32];
+                let (lo, weights) = &taps[q[axis] as usize];
+                let (mut sum, mut weight_sum) = (0.0f32, 0.0f32);
+                for (k, &w) in weights.iter().enumerate() {
+                    q[axis] = (lo + k as i32).clamp(0, last);
+                    sum += w * src[q[0] as usize + sx * (q[1] as usize + sy * q[2] as usize)];
+                    weight_sum += w;
+                }
+                out.push(sum / weight_sum);
+            }
+        }
+    }
+    out
+}
+
+/// The CPU reference of [`PrefilterPass::run`]: the x, y and z passes of the shader, in f32, in the same order.
+#[must_use]
+pub fn cpu_prefilter(dims: [u32; 3], texel: impl Fn(usize) -> f32, settings: PrefilterSettings) -> PrefilteredTexels {
+    let count: usize = dims.iter().map(|&d| d as usize).product();
+    let mut data: Vec<f32> = (0..count).map(texel).collect();
+    let out_dims = settings.output_dims(dims);
+    let mut cur = dims;
+    for axis in 0..3 {
+        let mut next = cur;
+        next[axis] = out_dims[axis];
+        data = cpu_axis(&data, cur, axis, next, settings);
+        cur = next;
+    }
+    PrefilteredTexels { dims: out_dims, texels: data }
+}
+
+/// The prefiltered copy of a volume on the GPU: an `R32Float` 2-D array texture, layer = z (read by the ray caster
+/// with `textureLoad`, copyable for tests).
+#[derive(Debug)]
+pub struct GpuPrefiltered {
+    pub dims: [u32; 3],
+    pub settings: PrefilterSettings,
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+}
+
+/// An `R32Float` 2-D array texture of `dims[2]` layers, and its `D2Array` view.
+fn r32_layers(
+    ctx: &GpuContext,
+    label: &str,
+    dims: [u32; 3],
+    usage: wgpu::TextureUsages,
+) -> (wgpu::Texture, wgpu::TextureView) {
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d { width: dims[0], height: dims[1], depth_or_array_layers: dims[2] },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: PREFILTER_FORMAT,
+        usage,
+        view_formats: &[],
+    });
+    let view = texture.create_view(&wgpu::TextureViewDescriptor {
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    });
+    (texture, view)
+}
+
+impl GpuPrefiltered {
+    /// The texels, x fastest (for tests).
+    pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<f32>> {
+        let [w, h, d] = self.dims;
+        let row = 4 * w;
+        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("prefilter readback"),
+            size: u64::from(padded) * u64::from(h) * u64::from(d),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("prefilter readback") });
+        encoder.copy_texture_to_buffer(
+            self.texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: Some(h) },
+            },
+            wgpu::Extent3d { width: w, height: h, depth_or_array_layers: d },
+        );
+        ctx.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        ctx.wait_idle()?;
+        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mapped = buffer.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mut out = Vec::with_capacity((w * h * d) as usize);
+        for r in 0..(h * d) as usize {
+            let bytes = &mapped[r * padded as usize..r * padded as usize + row as usize];
+            out.extend(bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));
+        }
+        drop(mapped);
+        buffer.unmap();
+        ctx.check_errors()?;
+        Ok(out)
+    }
+}
+
+/// The long-lived part of the prefilter: the compute pipeline and its bind group layout.
+#[derive(Debug)]
+pub struct PrefilterPass {
+    /// x pass (reads the volume's 3-D texture) and y/z passes (read the previous 2-D array).
+    from_volume: (wgpu::ComputePipeline, wgpu::BindGroupLayout),
+    from_layers: (wgpu::ComputePipeline, wgpu::BindGroupLayout),
+}
+
+impl PrefilterPass {
+    /// Storage textures per compute stage and invocations per workgroup the pass needs.
+    pub const STORAGE_TEXTURES: u32 = 1;
+    pub const INVOCATIONS: u32 = WORKGROUP * WORKGROUP * WORKGROUP;
+    const FROM_VOLUME: &str = "cs_gaussian_from_volume";
+    const FROM_LAYERS: &str = "cs_gaussian_from_layers";
+
+    pub fn new(ctx: &GpuContext) -> Result<Self> {
+        let l = &ctx.limits;
+        if !ctx.r32float_storage
+            || l.max_texture_array_layers < 2
+            || l.max_storage_textures_per_shader_stage < Self::STORAGE_TEXTURES
+            || l.max_compute_invocations_per_workgroup < Self::INVOCATIONS
+            || l.max_compute_workgroup_size_z < WORKGROUP
+        {
+            return Err(GpuError::Unsupported(format!(
+                "the prefilter needs compute with {} R32Float storage texture(s) and {} invocations per workgroup \
+                 (R32Float storage: {}; limits: {} storage textures, {} invocations)",
+                Self::STORAGE_TEXTURES,
+                Self::INVOCATIONS,
+                ctx.r32float_storage,
+                l.max_storage_textures_per_shader_stage,
+                l.max_compute_invocations_per_workgroup
+            )));
+        }
+        let device = &ctx.device;
+        let module = PREFILTER.create_module(device);
+        let make = |entry_point: &str, source: wgpu::TextureViewDimension, source_binding: u32| {
+            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(entry_point),
+                entries: &[
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 0,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Buffer {
+                            ty: wgpu::BufferBindingType::Uniform,
+                            has_dynamic_offset: false,
+                            min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<PrefilterUniforms>() as u64),
+                        },
+                        count: None,
+                    },
+                    wgpu::BindGroupLayoutEntry {
+                        binding: source_binding,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                            view_dimension: source,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 2,
+                        visibility: wgpu::ShaderStages::COMPUTE,
+                        ty: wgpu::BindingType::StorageTexture {
+                            access: wgpu::StorageTextureAccess::WriteOnly,
+                            format: PREFILTER_FORMAT,
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                        },
+                        count: None,
+                    },
+                ],
+            });
+            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+                label: Some(entry_point),
+                bind_group_layouts: &[Some(&layout)],
+                immediate_size: 0,
+            });
+            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry_point),
+                layout: Some(&pipeline_layout),
+                module: &module,
+                entry_point: Some(entry_point),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                cache: None,
+            });
+            (pipeline, layout)
+        };
+        let from_volume = make(Self::FROM_VOLUME, wgpu::TextureViewDimension::D3, 1);
+        let from_layers = make(Self::FROM_LAYERS, wgpu::TextureViewDimension::D2Array, 3);
+        ctx.check_errors()?;
+        Ok(Self { from_volume, from_layers })
+    }
+
+    /// Records the three axis passes that filter `volume` into a new texture, which is returned; the caller submits
+    /// `encoder`. Fails when the volume has more slices than the device allows array layers. Intermediate textures are dropped once the commands have run.
+    pub fn encode(
+        &self,
+        ctx: &GpuContext,
+        encoder: &mut wgpu::CommandEncoder,
+        volume: &GpuVolume,
+        settings: PrefilterSettings,
+    ) -> Result<GpuPrefiltered> {
+        let src_dims = volume.info.dims;
+        if src_dims[2] > ctx.limits.max_texture_array_layers {
+            return Err(GpuError::Unsupported(format!(
+                "the prefilter stores z as array layers: {} slices, the device allows {}",
+                src_dims[2], ctx.limits.max_texture_array_layers
+            )));
+        }
+        let out_dims = settings.output_dims(src_dims);
+        let storage = wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING;
+        let mut cur_dims = src_dims;
+        let mut cur_view = volume.view.clone();
+        let mut result = None;
+        for axis in 0..3u32 {
+            let mut next_dims = cur_dims;
+            next_dims[axis as usize] = out_dims[axis as usize];
+            let last = axis == 2;
+            let usage = if last { storage | wgpu::TextureUsages::COPY_SRC } else { storage };
+            let (texture, view) =
+                r32_layers(ctx, if last { "prefiltered" } else { "prefilter pass" }, next_dims, usage);
+            let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("prefilter uniforms"),
+                size: std::mem::size_of::<PrefilterUniforms>() as u64,
+                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+                mapped_at_creation: false,
+            });
+            ctx.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&settings.uniforms(axis, next_dims)));
+            let ((pipeline, layout), source_binding) =
+                if axis == 0 { (&self.from_volume, 1) } else { (&self.from_layers, 3) };
+            let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("prefilter"),
+                layout,
+                entries: &[
+                    wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
+                    wgpu::BindGroupEntry {
+                        binding: source_binding,
+                        resource: wgpu::BindingResource::TextureView(&cur_view),
+                    },
+                    wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
+                ],
+            });
+            {
+                let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("prefilter"),
+                    timestamp_writes: None,
+                });
+                pass.set_pipeline(pipeline);
+                pass.set_bind_group(0, &bind_group, &[]);
+                pass.dispatch_workgroups(
+                    next_dims[0].div_ceil(WORKGROUP),
+                    next_dims[1].div_ceil(WORKGROUP),
+                    next_dims[2].div_ceil(WORKGROUP),
+                );
+            }
+            cur_dims = next_dims;
+            cur_view = view.clone();
+            if last {
+                result = Some((texture, view));
+            }
+        }
+        let (texture, view) = result.unwrap_or_else(|| unreachable!("three passes ran"));
+        Ok(GpuPrefiltered { dims: out_dims, settings, texture, view })
+    }
+
+    /// Filters `volume` and submits.
+    pub fn run(&self, ctx: &GpuContext, volume: &GpuVolume, settings: PrefilterSettings) -> Result<GpuPrefiltered> {
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("prefilter") });
+        let out = self.encode(ctx, &mut encoder, volume, settings)?;
+        ctx.queue.submit([encoder.finish()]);
+        ctx.check_errors()?;
+        Ok(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn constants_and_linear_ramps_are_preserved_in_the_interior() {
+        let dims = [9, 8, 7];
+        let ramp = |i: usize| (i % 9) as f32 * 0.1 + 0.2;
+        for half in [false, true] {
+            let s = PrefilterSettings { sigma_vox: 1.0, half_resolution: half };
+            let c = cpu_prefilter(dims, |_| 0.5, s);
+            assert_eq!(c.dims, s.output_dims(dims));
+            assert!(c.texels.iter().all(|v| (v - 0.5).abs() < 1e-6));
+            // A ramp along x is reproduced where the taps do not reach the edges: value at c_j.
+            let r = cpu_prefilter(dims, ramp, s);
+            let n = r.dims[0] as usize;
+            let j = n / 2;
+            let c_j = (j as f32 + 0.5) * 9.0 / n as f32 - 0.5;
+            assert!((r.texels[j] - (c_j * 0.1 + 0.2)).abs() < 1e-5, "half {half}: {} at c {c_j}", r.texels[j]);
+        }
+    }
+}
