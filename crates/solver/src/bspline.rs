@@ -471,7 +471,7 @@ pub struct GridScratch {
     grid_dims: [usize; 3],
 }
 
-/// A regular grid of points `origin + (i, j, k) · spacing`, i < dims[0] etc., x fastest.
+/// A regular grid of points `origin + (i, j, k) · spacing`, i < `dims[0]` etc., x fastest.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RegularGrid {
     pub origin_mm: [f64; 3],

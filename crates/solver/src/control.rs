@@ -13,7 +13,7 @@
 //! ```
 //!
 //! so `tex = (x − min) / (max − min)` maps the box onto [0, 1]³ and a trilinear sampler with
-//! clamp-to-edge addressing reproduces [`ControlTexture::lookup`] exactly.
+//! clamp-to-edge addressing reproduces [`ControlTexture::lookup_raw`] exactly.
 //!
 //! Each texel stores the **displacement** u(x) − x in mm (moving LPS minus fixed LPS, both patient
 //! space) as `[dx, dy, dz, 0]` f32, texels in x-fastest order: the buffer uploads as an
