@@ -43,6 +43,7 @@
 
 use std::borrow::Cow;
 use std::collections::BTreeMap;
+use std::io::{Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
@@ -235,7 +236,7 @@ impl Source<'_> {
     /// trailing padding. The parser gets the bytes up to the end of the top-level PixelData only.
     fn open(&self, header_only: bool) -> Result<DefaultDicomObject> {
         let (bytes, checked) = self.read_checked()?;
-        let data = &bytes[128..];
+        let data = checked.replacement.as_deref().unwrap_or(&bytes[128..]);
         let options = OpenFileOptions::new().read_preamble(ReadPreamble::Never);
         let options =
             if header_only { options.read_until(tags::PIXEL_DATA) } else { options.read_to(tags::PIXEL_DATA) };
@@ -266,6 +267,9 @@ impl Source<'_> {
 struct Checked {
     end: usize,
     pixel_value: Option<Range<usize>>,
+    /// For a deflated data set with bytes after PixelData: the data (from `DICM`) re-deflated up to
+    /// the end of PixelData, to be parsed instead of the file's.
+    replacement: Option<Vec<u8>>,
 }
 
 /// Deepest sequence nesting accepted (dicom-rs builds nested objects recursively).
@@ -290,13 +294,40 @@ fn check_lengths(data: &[u8]) -> std::result::Result<Checked, (bool, String)> {
         pos = value.end;
     }
     match ts.as_str() {
-        "1.2.840.10008.1.2.1.99" => return Ok(Checked { end: data.len(), pixel_value: None }), // deflated: dicom-rs inflates it
+        "1.2.840.10008.1.2.1.99" => {
+            // dicom-rs inflates the data set and then trusts its lengths (a fuzzer found a 5 KB
+            // file claiming a 1.9 GB element). Inflate it here, bounded by deflate's largest
+            // expansion, and walk the result, so no length can claim more than the data holds.
+            let cap = (data.len() as u64).saturating_mul(1032).saturating_add(1024);
+            let mut inflated = Vec::new();
+            flate2::read::DeflateDecoder::new(&data[pos..])
+                .take(cap)
+                .read_to_end(&mut inflated)
+                .map_err(|e| (false, format!("the deflated data set does not inflate: {e}")))?;
+            let mut inner =
+                Walker { data: &inflated, explicit: true, big_endian: false, pixel_end: None, pixel_value: None };
+            inner.elements(0, inflated.len(), 0, false)?;
+            // As for the other syntaxes, dicom-rs must not read past PixelData (trailing padding or
+            // garbage): a deflated stream cannot be cut, so re-deflate the part up to its end.
+            let replacement = match inner.pixel_end {
+                Some(end) if end < inflated.len() => {
+                    let mut enc = flate2::write::DeflateEncoder::new(data[..pos].to_vec(), flate2::Compression::fast());
+                    enc.write_all(&inflated[..end])
+                        .and_then(|()| enc.finish())
+                        .map(Some)
+                        .map_err(|e| (false, format!("cannot re-deflate the data set: {e}")))?
+                }
+                _ => None,
+            };
+            let end = replacement.as_ref().map_or(data.len(), Vec::len);
+            return Ok(Checked { end, pixel_value: None, replacement });
+        }
         "1.2.840.10008.1.2" => w.explicit = false,
         "1.2.840.10008.1.2.2" => w.big_endian = true,
         _ => {}
     }
     w.elements(pos, data.len(), 0, false)?;
-    Ok(Checked { end: w.pixel_end.unwrap_or(data.len()), pixel_value: w.pixel_value })
+    Ok(Checked { end: w.pixel_end.unwrap_or(data.len()), pixel_value: w.pixel_value, replacement: None })
 }
 
 /// Explicit VRs with a 16-bit length field (PS3.5 Table 7.1-2).

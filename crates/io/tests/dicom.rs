@@ -797,3 +797,14 @@ fn fixture_single_files_decode_or_fail_clearly() {
         }
     }
 }
+
+/// Found by cargo-fuzz: a deflated data set with junk after PixelData, one element claiming 1.9 GB.
+/// What follows PixelData is ignored (as trailing padding is in plain files), so the image loads,
+/// and nothing reads or allocates the claim.
+#[test]
+fn deflated_data_set_is_not_read_past_pixel_data() {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/dicom/regressions/deflate_trailing_garbage.dcm");
+    let v = dicom::read_files(std::slice::from_ref(&path), &mut LoadOptions::new()).expect("loads");
+    assert_eq!(v.dims, [512, 512, 1]);
+}
