@@ -6,6 +6,15 @@
 //   u(x) = x + disp(ctrl_tex_from_ref · x)     (or u(x) = x on the identity fast path)
 // then sampled at tex_from_lps · u(x), classified with the volume's transfer function and blended.
 //
+// Shading (Brunet et al. 2006 §3.4; Westermann & Rezk-Salama 2001 §3.3): the gradient at x_ref is taken by central
+// differences *in ref space, through the warp*, of the prefiltered copy v_pf (or the volume when there is none):
+//   g_i(x) = [v_pf(tex(u(x + h e_i))) − v_pf(tex(u(x − h e_i)))] / (2h)
+// i.e. the gradient of the deformed volume, so the lighting follows the deformation. Headlight l = −ray direction:
+//   colour' = clamp(colour·(ambient + diffuse·|n·l|) + specular·|n·l|^shininess, 0, 1),  n = g/|g|
+// (|n·l| = 1 where |g| is ~0). DVR shades every sample with opacity > 0; iso mode finds, per volume, the first sample
+// whose value ≥ iso_value, refines it by bisection between the last two samples, shades it opaque, and blends the two
+// volumes' hits once by the blend mode.
+//
 // The CPU reference in crates/gpu/src/cpu_reference.rs implements the same math: keep the two in sync.
 
 // Keep in sync with `VolumeUniforms` in crates/gpu/src/raycast.rs.
@@ -40,6 +49,15 @@ struct RaycastUniforms {
     checker_cell_mm: f32,
     max_steps: u32,
     jitter_seed: u32,
+    shading_mode: u32,
+    bisection_steps: u32,
+    // central-difference step h, ref mm
+    gradient_step_mm: f32,
+    ambient: f32,
+    diffuse: f32,
+    specular: f32,
+    shininess: f32,
+    _pad0: u32,
     fixed: VolumeUniforms,
     moving: VolumeUniforms,
 }
@@ -48,6 +66,17 @@ struct RaycastUniforms {
 const VOLUME_VISIBLE: u32 = 1u;
 const VOLUME_HAS_WARP: u32 = 2u;
 const VOLUME_MANUAL_FILTER: u32 = 4u;
+const VOLUME_HAS_PREFILTER: u32 = 8u;
+
+// RaycastUniforms.shading_mode. The pipeline is specialised on it: SHADING is set to the same value at pipeline
+// creation, so each mode's pipeline compiles only its own code.
+override SHADING: u32 = 0u;
+const SHADING_NONE: u32 = 0u;
+const SHADING_DVR: u32 = 1u;
+const SHADING_ISO: u32 = 2u;
+
+// Below this squared gradient length (normalised texel units per mm) the normal is undefined: |n·l| = 1.
+const MIN_GRADIENT_SQ: f32 = 1e-12;
 
 // RaycastUniforms.flags
 const RAYCAST_JITTER: u32 = 1u;
@@ -73,6 +102,9 @@ const EARLY_EXIT_ALPHA: f32 = 0.99;
 @group(0) @binding(6) var volume_sampler: sampler;
 // Trilinear, clamp-to-edge: control textures.
 @group(0) @binding(7) var linear_sampler: sampler;
+// Prefiltered copies (R32Float, layer = z; a 1×1×1 placeholder without VOLUME_HAS_PREFILTER), filtered by hand.
+@group(0) @binding(8) var fixed_pf_tex: texture_2d_array<f32>;
+@group(0) @binding(9) var moving_pf_tex: texture_2d_array<f32>;
 
 struct VertexOutput {
     @builtin(position) position: vec4<f32>,
@@ -119,31 +151,162 @@ fn sample_manual(vol: texture_3d<f32>, p_tex: vec3<f32>) -> f32 {
     return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
 }
 
-// One volume's classified sample at x_ref: premultiplied RGBA, opacity-corrected for the step.
-// Transparent outside the volume's [0,1]^3 texture box.
-fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>, step_ratio: f32) -> vec4<f32> {
+// Trilinear interpolation by hand of a 2-D array texture read as a volume (layer = z), clamp-to-edge, texel centres
+// at (i + ½)/n: the prefiltered copies (R32Float, not filterable everywhere).
+fn sample_layers(vol: texture_2d_array<f32>, p_tex: vec3<f32>) -> f32 {
+    let dims = vec3<i32>(vec3<u32>(textureDimensions(vol), textureNumLayers(vol)));
+    let n = vec3<f32>(dims);
+    let c = clamp(p_tex * n - vec3<f32>(0.5), vec3<f32>(0.0), n - vec3<f32>(1.0));
+    let i0 = vec3<i32>(floor(c));
+    let f = c - floor(c);
+    let i1 = min(i0 + vec3<i32>(1), dims - vec3<i32>(1));
+    let c000 = textureLoad(vol, vec2<i32>(i0.x, i0.y), i0.z, 0).r;
+    let c100 = textureLoad(vol, vec2<i32>(i1.x, i0.y), i0.z, 0).r;
+    let c010 = textureLoad(vol, vec2<i32>(i0.x, i1.y), i0.z, 0).r;
+    let c110 = textureLoad(vol, vec2<i32>(i1.x, i1.y), i0.z, 0).r;
+    let c001 = textureLoad(vol, vec2<i32>(i0.x, i0.y), i1.z, 0).r;
+    let c101 = textureLoad(vol, vec2<i32>(i1.x, i0.y), i1.z, 0).r;
+    let c011 = textureLoad(vol, vec2<i32>(i0.x, i1.y), i1.z, 0).r;
+    let c111 = textureLoad(vol, vec2<i32>(i1.x, i1.y), i1.z, 0).r;
+    let x00 = mix(c000, c100, f.x);
+    let x10 = mix(c010, c110, f.x);
+    let x01 = mix(c001, c101, f.x);
+    let x11 = mix(c011, c111, f.x);
+    return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
+}
+
+// tex(u(x_ref)): the volume's texture coordinates of ref point x_ref, through the warp when there is one.
+fn warp_to_tex(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
     var p_lps = x_ref;
     if (v.flags & VOLUME_HAS_WARP) != 0u {
         let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
         p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
     }
-    let p_tex = (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
-    if any(p_tex < vec3<f32>(0.0)) || any(p_tex > vec3<f32>(1.0)) {
-        return vec4<f32>(0.0);
-    }
+    return (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
+}
+
+fn outside_tex(p_tex: vec3<f32>) -> bool {
+    return any(p_tex < vec3<f32>(0.0)) || any(p_tex > vec3<f32>(1.0));
+}
+
+// The volume's value (value units) at p_tex.
+fn volume_value(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
     var texel: f32;
     if (v.flags & VOLUME_MANUAL_FILTER) != 0u {
         texel = sample_manual(vol, p_tex);
     } else {
         texel = textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
     }
-    let value = v.value_offset + v.value_scale * texel;
+    return v.value_offset + v.value_scale * texel;
+}
+
+// The normalised texel the gradient differentiates: the prefiltered copy, or the volume itself without one.
+fn gradient_source(vol: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
+    if (v.flags & VOLUME_HAS_PREFILTER) != 0u {
+        return sample_layers(pf, p_tex);
+    }
+    if (v.flags & VOLUME_MANUAL_FILTER) != 0u {
+        return sample_manual(vol, p_tex);
+    }
+    return textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
+}
+
+// Central differences in ref space through the warp: the gradient of the deformed (prefiltered) volume at x_ref.
+fn warped_gradient(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+    let h = u.gradient_step_mm;
+    var g = vec3<f32>(0.0);
+    for (var i = 0; i < 3; i++) {
+        var e = vec3<f32>(0.0);
+        e[i] = h;
+        let plus = gradient_source(vol, pf, v, warp_to_tex(ctrl, v, x_ref + e));
+        let minus = gradient_source(vol, pf, v, warp_to_tex(ctrl, v, x_ref - e));
+        g[i] = (plus - minus) / (2.0 * h);
+    }
+    return g;
+}
+
+// Headlight shading of a straight colour with gradient g; `light` is the unit vector towards the eye.
+fn shade(rgb: vec3<f32>, g: vec3<f32>, light: vec3<f32>) -> vec3<f32> {
+    let len_sq = dot(g, g);
+    var n_dot_l = 1.0;
+    if len_sq > MIN_GRADIENT_SQ {
+        n_dot_l = abs(dot(g, light)) * inverseSqrt(len_sq);
+    }
+    n_dot_l = min(n_dot_l, 1.0);
+    var spec = 0.0;
+    if u.specular > 0.0 {
+        // n·l^shininess, as exp2/log2 (pow(0, s) is undefined in WGSL).
+        spec = u.specular * exp2(u.shininess * log2(max(n_dot_l, 1e-7)));
+    }
+    return clamp(rgb * (u.ambient + u.diffuse * n_dot_l) + vec3<f32>(spec), vec3<f32>(0.0), vec3<f32>(1.0));
+}
+
+// One volume's classified sample at x_ref: premultiplied RGBA, opacity-corrected for the step, lit in DVR mode.
+// Transparent outside the volume's [0,1]^3 texture box.
+fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>, step_ratio: f32, light: vec3<f32>) -> vec4<f32> {
+    let p_tex = warp_to_tex(ctrl, v, x_ref);
+    if outside_tex(p_tex) {
+        return vec4<f32>(0.0);
+    }
+    let value = volume_value(vol, v, p_tex);
     let t = clamp((value - v.window_low) / v.window_width, 0.0, 1.0);
     let rgba = sample_tf(v.tf_row, t);
     let alpha = clamp(rgba.a * v.opacity_scale, 0.0, 1.0);
     // Opacity correction: α' = 1 − (1 − α)^(step / ref_step).
     let alpha_corrected = 1.0 - exp2(step_ratio * log2(max(1.0 - alpha, 1e-7)));
-    return vec4<f32>(rgba.rgb * alpha_corrected, alpha_corrected);
+    var rgb = rgba.rgb;
+    if SHADING == SHADING_DVR && alpha_corrected > 0.0 {
+        rgb = shade(rgb, warped_gradient(vol, ctrl, pf, v, x_ref), light);
+    }
+    return vec4<f32>(rgb * alpha_corrected, alpha_corrected);
+}
+
+// The value at x_ref, or -inf outside the volume's texture box (never a hit).
+fn iso_value_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> f32 {
+    let p_tex = warp_to_tex(ctrl, v, x_ref);
+    if outside_tex(p_tex) {
+        return -3.4e38;
+    }
+    return volume_value(vol, v, p_tex);
+}
+
+// Iso mode: the ray parameter of the first point with value ≥ iso_value (the first such sample, refined by bisection
+// between it and the previous sample), or -1 without a hit.
+fn iso_hit(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_enter: f32, t_far: f32, jitter: f32) -> f32 {
+    var t_prev = -1.0;
+    for (var k = 0u; k < u.max_steps; k++) {
+        let t = t_enter + (f32(k) + jitter) * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        if iso_value_at(vol, ctrl, v, origin + t * dir) >= v.iso_value {
+            if t_prev < 0.0 {
+                return t;
+            }
+            var lo = t_prev;
+            var hi = t;
+            for (var b = 0u; b < u.bisection_steps; b++) {
+                let mid = 0.5 * (lo + hi);
+                if iso_value_at(vol, ctrl, v, origin + mid * dir) >= v.iso_value {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            return 0.5 * (lo + hi);
+        }
+        t_prev = t;
+    }
+    return -1.0;
+}
+
+// Iso mode: the lit, opaque colour (premultiplied, α = 1) of a hit at x_ref: the TF colour of the value there.
+fn iso_colour(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>, light: vec3<f32>) -> vec4<f32> {
+    let p_tex = warp_to_tex(ctrl, v, x_ref);
+    let value = volume_value(vol, v, p_tex);
+    let t = clamp((value - v.window_low) / v.window_width, 0.0, 1.0);
+    let rgb = shade(sample_tf(v.tf_row, t).rgb, warped_gradient(vol, ctrl, pf, v, x_ref), light);
+    return vec4<f32>(rgb, 1.0);
 }
 
 // Linear interpolation between the 256 entries of row `row` (entry i at t = i/255), done by hand with two
@@ -230,6 +393,36 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
     let step_ratio = u.step_mm / u.ref_step_mm;
     let use_fixed = is_visible(u.fixed) && u.blend_mode != BLEND_MOVING_ONLY;
     let use_moving = is_visible(u.moving) && u.blend_mode != BLEND_FIXED_ONLY;
+    let light = -dir_ref;
+
+    if SHADING == SHADING_ISO {
+        var t_f = -1.0;
+        var t_m = -1.0;
+        if use_fixed {
+            t_f = iso_hit(fixed_tex, fixed_ctrl_tex, u.fixed, origin_ref, dir_ref, t_enter, t_far, jitter);
+        }
+        if use_moving {
+            t_m = iso_hit(moving_tex, moving_ctrl_tex, u.moving, origin_ref, dir_ref, t_enter, t_far, jitter);
+        }
+        if t_f < 0.0 && t_m < 0.0 {
+            return vec4<f32>(0.0);
+        }
+        var f = vec4<f32>(0.0);
+        var m = vec4<f32>(0.0);
+        // The checkerboard picks its cell at the nearer hit.
+        var t_near_hit = t_f;
+        if t_f >= 0.0 {
+            f = iso_colour(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, origin_ref + t_f * dir_ref, light);
+        }
+        if t_m >= 0.0 {
+            m = iso_colour(moving_tex, moving_ctrl_tex, moving_pf_tex, u.moving, origin_ref + t_m * dir_ref, light);
+            if t_f < 0.0 || t_m < t_f {
+                t_near_hit = t_m;
+            }
+        }
+        return blend(f, m, origin_ref + t_near_hit * dir_ref);
+    }
+
     var acc = vec4<f32>(0.0);
     for (var k = 0u; k < u.max_steps; k++) {
         let t = t_enter + (f32(k) + jitter) * u.step_mm;
@@ -240,10 +433,10 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
         var f = vec4<f32>(0.0);
         var m = vec4<f32>(0.0);
         if use_fixed {
-            f = classify(fixed_tex, fixed_ctrl_tex, u.fixed, x_ref, step_ratio);
+            f = classify(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, x_ref, step_ratio, light);
         }
         if use_moving {
-            m = classify(moving_tex, moving_ctrl_tex, u.moving, x_ref, step_ratio);
+            m = classify(moving_tex, moving_ctrl_tex, moving_pf_tex, u.moving, x_ref, step_ratio, light);
         }
         let c = blend(f, m, x_ref);
         // Front-to-back "over" compositing of premultiplied colour.

@@ -2,8 +2,11 @@
 //! `tests/data/nifti/cranium_ct.nii.gz`) in one ray-cast pass, and writes a PNG.
 //!
 //! ```text
-//! cargo run --release -p warpbench-app --example render_pair -- out.png [mix|additive|difference|checkerboard|red-cyan|fixed-only|moving-only] [size]
+//! cargo run --release -p warpbench-app --example render_pair -- out.png [mix|additive|difference|checkerboard|red-cyan|fixed-only|moving-only] [size] [none|dvr|iso]
 //! ```
+//!
+//! Shading (default `dvr`): both volumes are lit with gradients of their Gaussian-prefiltered copies (σ = 1.5 voxels,
+//! GPU prefilter pass), the MR's taken through the warp, with central differences over the coarsest spacing.
 //!
 //! The landmarks are synthetic: 10 pairs around each head's centre of mass (a rigid offset between the two heads)
 //! plus a few mm of local deformation. A TPS pull-back u = moving_from_fixed is fitted on them
@@ -14,8 +17,9 @@ use anyhow::{Context, Result, bail};
 use warpbench_gpu::glam::DVec3;
 use warpbench_gpu::{
     BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume,
-    LayerStyle, OrbitCamera, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData, RaycastRenderer,
-    RenderSettings, RenderTarget, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection,
+    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, VolumeDesc,
+    VolumeSamples, Window,
 };
 use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
@@ -72,6 +76,11 @@ fn main() -> Result<()> {
     let Some(out) = args.first() else { bail!("usage: render_pair OUT.png [blend] [size]") };
     let blend = blend_from_name(args.get(1).map_or("mix", String::as_str))?;
     let size: u32 = args.get(2).map_or(Ok(512), |s| s.parse()).context("size")?;
+    let shading_name = args.get(3).map_or("dvr", String::as_str);
+    let shading = ShadingMode::ALL
+        .into_iter()
+        .find(|m| m.name() == shading_name)
+        .with_context(|| format!("unknown shading {shading_name:?}; one of none, dvr, iso"))?;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let ct = warpbench_io::open(root.join("tests/data/nifti/cranium_ct.nii.gz")).context("reading the CT")?;
     let mr = warpbench_io::open(root.join("tests/data/nifti/ch2.nii.gz")).context("reading the MR")?;
@@ -134,6 +143,10 @@ fn main() -> Result<()> {
     let fixed_gpu = GpuVolume::upload(&ctx, &fixed)?;
     let moving_gpu = GpuVolume::upload(&ctx, &moving)?;
     let control_gpu = GpuControlTexture::upload(&ctx, &control);
+    let prefilter = PrefilterPass::new(&ctx)?;
+    let pf_settings = PrefilterSettings { sigma_vox: 1.5, half_resolution: false };
+    let fixed_pf = prefilter.run(&ctx, &fixed_gpu, pf_settings)?;
+    let moving_pf = prefilter.run(&ctx, &moving_gpu, pf_settings)?;
     let tfs =
         GpuTransferFunctions::upload(&ctx, &[Preset::CtBone.transfer_function(), Preset::MrT1.transfer_function()]);
     let ct_window = Preset::CtBone.default_window().unwrap_or(Window::from_range(-300.0, 1700.0));
@@ -141,11 +154,13 @@ fn main() -> Result<()> {
     let fixed_layer = GpuLayer {
         volume: &fixed_gpu,
         control: None,
+        prefiltered: Some(&fixed_pf),
         style: LayerStyle { window: ct_window, tf_row: 0, opacity_scale: 0.6, visible: true, iso_value: 300.0 },
     };
     let moving_layer = GpuLayer {
         volume: &moving_gpu,
         control: Some(&control_gpu),
+        prefiltered: Some(&moving_pf),
         style: LayerStyle {
             window: mr_window,
             tf_row: 1,
@@ -156,14 +171,27 @@ fn main() -> Result<()> {
     };
     let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
     let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, zoom: 1.3, target_ref: c_fixed.as_vec3(), ..cam };
-    let settings = RenderSettings { blend, samples_per_voxel: 1.0, jitter_seed: Some(1), ..Default::default() };
+    let coarsest_mm = fixed.info.spacing_mm.iter().chain(&moving.info.spacing_mm).fold(0.0f64, |a, &b| a.max(b)) as f32;
+    let settings = RenderSettings {
+        blend,
+        samples_per_voxel: 1.0,
+        jitter_seed: Some(1),
+        // Central differences over the CT's coarsest spacing (its 1.5 mm slices), not the finest: smoother normals.
+        shading: Shading { gradient_step_mm: Some(coarsest_mm), ..Shading::with_mode(shading) },
+        ..Default::default()
+    };
     let frame = GpuFrame { fixed: fixed_layer, moving: moving_layer, tfs: &tfs };
     let data = RaycastDrawData::new(&ctx, &renderer, &frame, &cam, &settings, (size, size));
     let target = RenderTarget::new(&ctx, size, size);
     let start = std::time::Instant::now();
     renderer.render(&ctx, &data, &target)?;
     let mut rgba = target.read_back(&ctx)?;
-    eprintln!("rendered {size}×{size} ({}) in {:.2} s", blend.name(), start.elapsed().as_secs_f64());
+    eprintln!(
+        "rendered {size}×{size} ({}, shading {}) in {:.2} s",
+        blend.name(),
+        shading.name(),
+        start.elapsed().as_secs_f64()
+    );
     // Premultiplied over black: the colour channels are the picture; make it opaque.
     for px in rgba.chunks_exact_mut(4) {
         px[3] = 255;

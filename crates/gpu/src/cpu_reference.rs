@@ -4,23 +4,32 @@
 //! small images (64² in the tests).
 //!
 //! It consumes exactly what the GPU consumes: the [`RaycastUniforms`] of the frame, the [`PreparedVolume`]s and
-//! [`PreparedControl`]s whose texels were uploaded, and the [`TransferFunction`] rows.
+//! [`PreparedControl`]s whose texels were uploaded, the [`PrefilteredTexels`] the gradients come from, and the
+//! [`TransferFunction`] rows. Shading (DVR and iso-surface, gradients through the warp) follows the shader's
+//! formulas exactly: see `shaders/raycast.wgsl` and [`crate::raycast::Shading`].
 
 use glam::{Mat4, Vec3, Vec4};
 
 use crate::control::PreparedControl;
+use crate::prefilter::PrefilteredTexels;
 use crate::raycast::{
-    EARLY_EXIT_ALPHA, RAYCAST_JITTER, RaycastUniforms, VOLUME_HAS_WARP, VOLUME_VISIBLE, VolumeUniforms,
+    EARLY_EXIT_ALPHA, RAYCAST_JITTER, RaycastUniforms, ShadingMode, VOLUME_HAS_PREFILTER, VOLUME_HAS_WARP,
+    VOLUME_VISIBLE, VolumeUniforms,
 };
 use crate::transfer::{TF_ENTRIES, TransferFunction};
 use crate::volume::PreparedVolume;
 
-/// One volume on the CPU side: its texels and optional control texture.
+/// One volume on the CPU side: its texels, optional control texture and optional prefiltered copy.
 #[derive(Clone, Copy, Debug)]
 pub struct CpuLayer<'a> {
     pub volume: &'a PreparedVolume,
     pub control: Option<&'a PreparedControl>,
+    /// Used where the uniforms say `VOLUME_HAS_PREFILTER`.
+    pub prefiltered: Option<&'a PrefilteredTexels>,
 }
+
+/// Below this squared gradient length the normal is undefined and |n·l| = 1 (the shader's `MIN_GRADIENT_SQ`).
+const MIN_GRADIENT_SQ: f32 = 1e-12;
 
 /// Trilinear interpolation at `p_tex` ∈ \[0, 1\]³ of a `dims` grid with texel centres at (i + ½)/n and clamp-to-edge
 /// addressing; `texel(i)` returns the texel at linear index i (x fastest).
@@ -53,15 +62,9 @@ fn tf_sample(tfs: &[TransferFunction], row: u32, t: f32) -> Vec4 {
     tfs.get(row as usize).map_or(Vec4::ZERO, |tf| Vec4::from_array(tf.sample(t)))
 }
 
-/// The shader's `classify`: premultiplied, opacity-corrected RGBA of one volume at `x_ref`.
+/// The shader's `warp_to_tex`: tex(u(x_ref)).
 #[must_use]
-pub fn classify(
-    layer: &CpuLayer<'_>,
-    v: &VolumeUniforms,
-    tfs: &[TransferFunction],
-    x_ref: Vec3,
-    step_ratio: f32,
-) -> Vec4 {
+pub fn warp_to_tex(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
     let mut p_lps = x_ref;
     if v.flags & VOLUME_HAS_WARP != 0
         && let Some(ctrl) = layer.control
@@ -70,18 +73,136 @@ pub fn classify(
         let d = trilinear(ctrl.info.dims, c_tex, |i| Vec4::from_array(ctrl.texels[i]));
         p_lps = x_ref + d.truncate();
     }
-    let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps);
-    if p_tex.cmplt(Vec3::ZERO).any() || p_tex.cmpgt(Vec3::ONE).any() {
-        return Vec4::ZERO;
-    }
+    Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps)
+}
+
+fn outside_tex(p_tex: Vec3) -> bool {
+    p_tex.cmplt(Vec3::ZERO).any() || p_tex.cmpgt(Vec3::ONE).any()
+}
+
+/// The shader's `volume_value`.
+fn volume_value(layer: &CpuLayer<'_>, v: &VolumeUniforms, p_tex: Vec3) -> f32 {
     let vol = layer.volume;
     let texel = trilinear(vol.info.dims, p_tex, |i| Vec4::splat(vol.texels.normalised(i))).x;
-    let value = v.value_offset + v.value_scale * texel;
+    v.value_offset + v.value_scale * texel
+}
+
+/// The shader's `gradient_source`: the prefiltered copy's (or else the volume's) normalised texel at `p_tex`.
+fn gradient_source(layer: &CpuLayer<'_>, v: &VolumeUniforms, p_tex: Vec3) -> f32 {
+    if v.flags & VOLUME_HAS_PREFILTER != 0
+        && let Some(pf) = layer.prefiltered
+    {
+        return trilinear(pf.dims, p_tex, |i| Vec4::splat(pf.texels[i])).x;
+    }
+    let vol = layer.volume;
+    trilinear(vol.info.dims, p_tex, |i| Vec4::splat(vol.texels.normalised(i))).x
+}
+
+/// The shader's `warped_gradient`: central differences of the (prefiltered) volume in ref space through the warp,
+/// i.e. the gradient of the deformed volume at `x_ref` (normalised texel units per mm).
+#[must_use]
+pub fn warped_gradient(layer: &CpuLayer<'_>, u: &RaycastUniforms, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
+    let h = u.gradient_step_mm;
+    let mut g = Vec3::ZERO;
+    for i in 0..3 {
+        let mut e = Vec3::ZERO;
+        e[i] = h;
+        let plus = gradient_source(layer, v, warp_to_tex(layer, v, x_ref + e));
+        let minus = gradient_source(layer, v, warp_to_tex(layer, v, x_ref - e));
+        g[i] = (plus - minus) / (2.0 * h);
+    }
+    g
+}
+
+/// The shader's `shade`: headlight lighting of straight colour `rgb` with gradient `g`, `light` towards the eye.
+#[must_use]
+pub fn shade(u: &RaycastUniforms, rgb: Vec3, g: Vec3, light: Vec3) -> Vec3 {
+    let len_sq = g.dot(g);
+    let n_dot_l = if len_sq > MIN_GRADIENT_SQ { g.dot(light).abs() / len_sq.sqrt() } else { 1.0 }.min(1.0);
+    let spec = if u.specular > 0.0 { u.specular * (u.shininess * n_dot_l.max(1e-7).log2()).exp2() } else { 0.0 };
+    (rgb * (u.ambient + u.diffuse * n_dot_l) + Vec3::splat(spec)).clamp(Vec3::ZERO, Vec3::ONE)
+}
+
+/// The shader's `classify`: premultiplied, opacity-corrected RGBA of one volume at `x_ref`, lit in DVR mode.
+#[must_use]
+pub fn classify(
+    layer: &CpuLayer<'_>,
+    u: &RaycastUniforms,
+    v: &VolumeUniforms,
+    tfs: &[TransferFunction],
+    x_ref: Vec3,
+    light: Vec3,
+) -> Vec4 {
+    let p_tex = warp_to_tex(layer, v, x_ref);
+    if outside_tex(p_tex) {
+        return Vec4::ZERO;
+    }
+    let value = volume_value(layer, v, p_tex);
     let t = ((value - v.window_low) / v.window_width).clamp(0.0, 1.0);
     let rgba = tf_sample(tfs, v.tf_row, t);
     let alpha = (rgba.w * v.opacity_scale).clamp(0.0, 1.0);
+    let step_ratio = u.step_mm / u.ref_step_mm;
     let alpha_corrected = 1.0 - (step_ratio * (1.0 - alpha).max(1e-7).log2()).exp2();
-    (rgba.truncate() * alpha_corrected).extend(alpha_corrected)
+    let mut rgb = rgba.truncate();
+    if u.shading_mode == ShadingMode::Dvr.code() && alpha_corrected > 0.0 {
+        rgb = shade(u, rgb, warped_gradient(layer, u, v, x_ref), light);
+    }
+    (rgb * alpha_corrected).extend(alpha_corrected)
+}
+
+/// The shader's `iso_value_at`.
+fn iso_value_at(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> f32 {
+    let p_tex = warp_to_tex(layer, v, x_ref);
+    if outside_tex(p_tex) { -3.4e38 } else { volume_value(layer, v, p_tex) }
+}
+
+/// The shader's `iso_hit`: the ray parameter of the first point with value ≥ `iso_value`, or `None`.
+fn iso_hit(
+    layer: &CpuLayer<'_>,
+    u: &RaycastUniforms,
+    v: &VolumeUniforms,
+    ray: (Vec3, Vec3),
+    span: (f32, f32),
+    jitter: f32,
+) -> Option<f32> {
+    let (origin, dir) = ray;
+    let (t_enter, t_far) = span;
+    let mut t_prev: Option<f32> = None;
+    for k in 0..u.max_steps {
+        let t = t_enter + (k as f32 + jitter) * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        if iso_value_at(layer, v, origin + t * dir) >= v.iso_value {
+            let Some(prev) = t_prev else { return Some(t) };
+            let (mut lo, mut hi) = (prev, t);
+            for _ in 0..u.bisection_steps {
+                let mid = 0.5 * (lo + hi);
+                if iso_value_at(layer, v, origin + mid * dir) >= v.iso_value {
+                    hi = mid;
+                } else {
+                    lo = mid;
+                }
+            }
+            return Some(0.5 * (lo + hi));
+        }
+        t_prev = Some(t);
+    }
+    None
+}
+
+/// The shader's `iso_colour`.
+fn iso_colour(
+    layer: &CpuLayer<'_>,
+    u: &RaycastUniforms,
+    v: &VolumeUniforms,
+    tfs: &[TransferFunction],
+    x_ref: Vec3,
+    light: Vec3,
+) -> Vec4 {
+    let value = volume_value(layer, v, warp_to_tex(layer, v, x_ref));
+    let t = ((value - v.window_low) / v.window_width).clamp(0.0, 1.0);
+    shade(u, tf_sample(tfs, v.tf_row, t).truncate(), warped_gradient(layer, u, v, x_ref), light).extend(1.0)
 }
 
 fn luminance(c: Vec3) -> f32 {
@@ -141,9 +262,23 @@ pub fn shade_pixel(
     } else {
         0.0
     };
-    let step_ratio = u.step_mm / u.ref_step_mm;
     let use_fixed = u.fixed.flags & VOLUME_VISIBLE != 0 && u.blend_mode != 6;
     let use_moving = u.moving.flags & VOLUME_VISIBLE != 0 && u.blend_mode != 5;
+    let light = -dir;
+    if u.shading_mode == ShadingMode::Iso.code() {
+        let span = (t_enter, t_far);
+        let t_f = if use_fixed { iso_hit(fixed, u, &u.fixed, (origin, dir), span, jitter) } else { None };
+        let t_m = if use_moving { iso_hit(moving, u, &u.moving, (origin, dir), span, jitter) } else { None };
+        let f = t_f.map_or(Vec4::ZERO, |t| iso_colour(fixed, u, &u.fixed, tfs, origin + t * dir, light));
+        let m = t_m.map_or(Vec4::ZERO, |t| iso_colour(moving, u, &u.moving, tfs, origin + t * dir, light));
+        // The checkerboard picks its cell at the nearer hit.
+        let t_near_hit = match (t_f, t_m) {
+            (None, None) => return Vec4::ZERO,
+            (Some(a), Some(b)) => a.min(b),
+            (Some(a), None) | (None, Some(a)) => a,
+        };
+        return blend(u, f, m, origin + t_near_hit * dir);
+    }
     let mut acc = Vec4::ZERO;
     for k in 0..u.max_steps {
         let t = t_enter + (k as f32 + jitter) * u.step_mm;
@@ -151,8 +286,8 @@ pub fn shade_pixel(
             break;
         }
         let x = origin + t * dir;
-        let f = if use_fixed { classify(fixed, &u.fixed, tfs, x, step_ratio) } else { Vec4::ZERO };
-        let m = if use_moving { classify(moving, &u.moving, tfs, x, step_ratio) } else { Vec4::ZERO };
+        let f = if use_fixed { classify(fixed, u, &u.fixed, tfs, x, light) } else { Vec4::ZERO };
+        let m = if use_moving { classify(moving, u, &u.moving, tfs, x, light) } else { Vec4::ZERO };
         acc += (1.0 - acc.w) * blend(u, f, m, x);
         if acc.w > EARLY_EXIT_ALPHA {
             break;
@@ -229,13 +364,13 @@ mod tests {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 128, 0, 26])]; // α = 26/255 ≈ 0.102 per mm
         let alpha = 26.0f32 / 255.0;
-        let layer = LayerParams { volume: vol.info, control: None, style: style(true) };
+        let layer = LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false };
         let hidden = LayerParams { style: style(false), ..layer };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         for spv in [1.0f32, 2.0, 4.0] {
             let settings = RenderSettings { blend: BlendMode::FixedOnly, samples_per_voxel: spv, ..Default::default() };
             let u = RaycastUniforms::new(&cam, &settings, (9, 9), &layer, &hidden, 1);
-            let cpu = CpuLayer { volume: &vol, control: None };
+            let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
             // The centre ray crosses the whole 8 mm cube along +y: 8·spv samples of step 1/spv mm.
             let c = shade_pixel(&u, &cpu, &cpu, &tfs, [4.5, 4.5]);
             let expected = 1.0 - (1.0 - alpha).powf(8.0);
@@ -248,11 +383,11 @@ mod tests {
     fn outside_the_box_is_transparent_and_early_exit_stops_at_099() {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 255, 255, 255])];
-        let layer = LayerParams { volume: vol.info, control: None, style: style(true) };
+        let layer = LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
         let u = RaycastUniforms::new(&cam, &settings, (16, 16), &layer, &layer, 1);
-        let cpu = CpuLayer { volume: &vol, control: None };
+        let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
         let img = render(&u, &cpu, &cpu, &tfs);
         // The view is 2·radius = 8√3 mm wide: the corner pixel misses the 8 mm cube.
         assert_eq!(&img[0..4], &[0, 0, 0, 0]);
@@ -279,13 +414,55 @@ mod tests {
         let ctrl = PreparedControl::prepare(&cdesc, true).expect("prepare");
         let tfs = [TransferFunction::from_points("ramp", &[(0.0, [0.0, 0.0, 0.0, 1.0]), (1.0, [1.0, 1.0, 1.0, 1.0])])];
         let st = LayerStyle { window: Window::from_range(0.0, 7.0), ..style(true) };
-        let params = LayerParams { volume: vol.info, control: Some(ctrl.info), style: st };
+        let params = LayerParams { volume: vol.info, control: Some(ctrl.info), style: st, has_prefilter: false };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
-        let layer = CpuLayer { volume: &vol, control: Some(&ctrl) };
+        let layer = CpuLayer { volume: &vol, control: Some(&ctrl), prefiltered: None };
         let x = Vec3::new(-0.5, 0.0, 0.0); // index 3 → value 3; warped to x = 1.5 → index 5
-        let c = classify(&layer, &u.fixed, &tfs, x, 1.0);
+        let c = classify(&layer, &u, &u.fixed, &tfs, x, Vec3::Y);
         assert!((c.x - 5.0 / 7.0).abs() < 0.01, "{c}");
+    }
+
+    /// The gradient is taken through the warp: v(x) = x (a ramp along x, 1 mm voxels) pulled back through
+    /// u(x) = x + d(x) with d = (x/2, 0, 0) near the origin (a 2³ control texture over [−4, 4]³, texel centres at
+    /// ±2: trilinear reproduces the linear field between them) is v(u(x)) = 1.5·x, whose gradient is (1.5, 0, 0).
+    /// And the headlight: n ∥ l gives colour·(ambient + diffuse) + specular; n ⊥ l gives colour·ambient.
+    #[test]
+    fn gradients_follow_the_warp_and_the_headlight_lights() {
+        let n = 8usize;
+        let o = -(n as f64) / 2.0 + 0.5;
+        let samples: Vec<f32> = (0..n * n * n).map(|i| (i % n) as f32 + o as f32).collect();
+        let lps_from_index = [[1.0, 0.0, 0.0, o], [0.0, 1.0, 0.0, o], [0.0, 0.0, 1.0, o], [0.0, 0.0, 0.0, 1.0]];
+        let desc = VolumeDesc { dims: [n; 3], samples: VolumeSamples::F32(&samples), lps_from_index };
+        let vol = PreparedVolume::prepare(&desc, CAPS, BUDGET).expect("prepare");
+        let texels: Vec<f32> = (0..8).flat_map(|i| [if i & 1 == 0 { -1.0 } else { 1.0 }, 0.0, 0.0, 0.0]).collect();
+        let cdesc = crate::control::ControlDesc {
+            dims: [2, 2, 2],
+            texels: &texels,
+            box_min_ref: [-4.0; 3],
+            box_max_ref: [4.0; 3],
+        };
+        let ctrl = PreparedControl::prepare(&cdesc, true).expect("prepare");
+        let params =
+            LayerParams { volume: vol.info, control: Some(ctrl.info), style: style(true), has_prefilter: false };
+        let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
+        let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
+        assert!((u.gradient_step_mm - 1.0).abs() < 1e-6, "h defaults to one voxel");
+        let layer = CpuLayer { volume: &vol, control: Some(&ctrl), prefiltered: None };
+        let g = warped_gradient(&layer, &u, &u.fixed, Vec3::new(0.2, 0.1, -0.3));
+        assert!((g - Vec3::new(1.5, 0.0, 0.0)).abs().max_element() < 1e-4, "{g}");
+        let plain = CpuLayer { control: None, ..layer };
+        let mut unwarped = u.fixed;
+        unwarped.flags &= !VOLUME_HAS_WARP;
+        let g = warped_gradient(&plain, &u, &unwarped, Vec3::new(0.2, 0.1, -0.3));
+        assert!((g - Vec3::X).abs().max_element() < 1e-4, "{g}");
+
+        let rgb = Vec3::new(0.5, 0.4, 0.2);
+        let lit = shade(&u, rgb, Vec3::new(-3.0, 0.0, 0.0), Vec3::X);
+        let expected = rgb * (u.ambient + u.diffuse) + Vec3::splat(u.specular);
+        assert!((lit - expected.min(Vec3::ONE)).abs().max_element() < 1e-5, "{lit}");
+        let side = shade(&u, rgb, Vec3::Y, Vec3::X);
+        assert!((side - rgb * u.ambient).abs().max_element() < 1e-5, "{side}");
     }
 
     #[test]

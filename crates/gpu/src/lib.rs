@@ -13,7 +13,8 @@
 //! - [`control`]: control textures (sampled pull-backs) from the solver's layout: [`PreparedControl`], [`GpuControlTexture`].
 //! - [`camera`]: [`OrbitCamera`] (`clip_from_ref` and its inverse).
 //! - [`raycast`]: [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), [`BlendMode`],
-//!   [`RenderSettings`], [`RaycastUniforms`], [`RenderTarget`] (texture + readback).
+//!   [`RenderSettings`] with [`Shading`] ([`ShadingMode`]: unlit, lit DVR, lit iso-surface; gradients through the
+//!   warp), [`RaycastUniforms`], [`RenderTarget`] (texture + readback).
 //! - [`prefilter`]: [`PrefilterPass`], a separable Gaussian (compute, optionally half resolution) whose result
 //!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
@@ -50,7 +51,7 @@ pub use error::{GpuError, Result};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use raycast::{
     BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, RaycastDrawData, RaycastRenderer, RaycastUniforms,
-    RenderSettings, RenderTarget, VolumeUniforms,
+    RenderSettings, RenderTarget, Shading, ShadingMode, VolumeUniforms,
 };
 pub use transfer::{GpuTransferFunctions, Preset, TransferFunction, Window};
 pub use volume::{GpuVolume, PreparedVolume, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};

@@ -1,7 +1,7 @@
 //! The gradient prefilter (Brunet, Nowak & Gleicher 2006 §3.4): a separable 3-D Gaussian
 //! G_σ ∗ v, σ in source voxels, run as three compute dispatches (x, y, z) that each may halve their axis, so the
 //! result can be stored at half resolution (the filtered volume is band-limited). The ray caster takes central
-//! differences of this copy, through the warp, for shading (the shading modes of the ray caster, next slice).
+//! differences of this copy, through the warp, for shading ([`crate::raycast::ShadingMode`]).
 //!
 //! Output texel j along an axis lies at source index c_j = (j + ½)·n_src/n_dst − ½ (both textures cover the same
 //! \[0,1\]³ box of voxel edges, so the ray caster samples them with the same `tex_from_lps`) and holds
@@ -184,6 +184,49 @@ fn r32_layers(
 }
 
 impl GpuPrefiltered {
+    /// Uploads prefiltered texels computed elsewhere (the CPU reference, or a resampled copy in tests); `settings`
+    /// only records how they were made.
+    pub fn upload(ctx: &GpuContext, texels: &PrefilteredTexels, settings: PrefilterSettings) -> Result<Self> {
+        let dims = texels.dims;
+        let count: usize = dims.iter().map(|&d| d as usize).product();
+        if dims.contains(&0) || texels.texels.len() != count {
+            return Err(GpuError::InvalidInput(format!(
+                "prefiltered texels: dims {dims:?} need {count} values, got {}",
+                texels.texels.len()
+            )));
+        }
+        if dims[2] > ctx.limits.max_texture_array_layers {
+            return Err(GpuError::Unsupported(format!(
+                "{} slices as array layers; the device allows {}",
+                dims[2], ctx.limits.max_texture_array_layers
+            )));
+        }
+        let usage =
+            wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::COPY_SRC;
+        let (texture, view) = r32_layers(ctx, "prefiltered (uploaded)", dims, usage);
+        ctx.queue.write_texture(
+            texture.as_image_copy(),
+            bytemuck::cast_slice(&texels.texels),
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4 * dims[0]), rows_per_image: Some(dims[1]) },
+            wgpu::Extent3d { width: dims[0], height: dims[1], depth_or_array_layers: dims[2] },
+        );
+        Ok(Self { dims, settings, texture, view })
+    }
+
+    /// A 1×1, 1-layer zero texture, bound where a volume has no prefiltered copy (a uniform flag skips it).
+    #[must_use]
+    pub(crate) fn placeholder(ctx: &GpuContext) -> wgpu::TextureView {
+        let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+        let (texture, view) = r32_layers(ctx, "prefiltered placeholder", [1, 1, 1], usage);
+        ctx.queue.write_texture(
+            texture.as_image_copy(),
+            &[0u8; 4],
+            wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(4), rows_per_image: Some(1) },
+            wgpu::Extent3d { width: 1, height: 1, depth_or_array_layers: 1 },
+        );
+        view
+    }
+
     /// The texels, x fastest (for tests).
     pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<f32>> {
         let [w, h, d] = self.dims;

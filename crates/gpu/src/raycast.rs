@@ -9,6 +9,16 @@
 //! α' = 1 − (1 − α)^(step/ref_step) with ref_step one voxel of the finest visible spacing; blend; "over"
 //! compositing of premultiplied colour, stopping at α > 0.99. The output is premultiplied RGBA8.
 //!
+//! **Shading** ([`Shading`], [`ShadingMode`]; Brunet et al. 2006 §3.4, Westermann & Rezk-Salama 2001 §3.3): the
+//! gradient at a ref-space sample x is taken by central differences in ref space *through the warp*,
+//! gᵢ(x) = \[v_pf(tex(u(x + h·eᵢ))) − v_pf(tex(u(x − h·eᵢ)))\] / 2h, of the layer's prefiltered copy v_pf
+//! ([`crate::prefilter`]; the volume itself without one), so it is the gradient of the *deformed* volume and the
+//! lighting follows the deformation. h defaults to one voxel of the finest visible spacing. DVR lights every sample
+//! with opacity > 0; iso mode takes, per layer, the first sample with value ≥ [`LayerStyle::iso_value`], refines it
+//! by bisection, lights it opaque, and blends the two layers' hits once by the [`BlendMode`] (the checkerboard cell
+//! is chosen at the nearer hit). Each shading mode has its own pipeline (WGSL override `SHADING`), created on first
+//! use, so the unlit pass costs what it did before shading existed.
+//!
 //! Types: [`RaycastRenderer`] (long-lived: pipeline, layout, samplers) and [`RaycastDrawData`] (one frame: bind
 //! group and uniforms over the volumes, control textures and transfer functions). [`RaycastUniforms`] is built by
 //! [`RaycastUniforms::new`] from plain [`LayerParams`], which the CPU reference ([`crate::cpu_reference`]) consumes too.
@@ -20,6 +30,7 @@ use crate::camera::OrbitCamera;
 use crate::control::{ControlInfo, GpuControlTexture};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
+use crate::prefilter::GpuPrefiltered;
 use crate::shaders::{RAYCAST, Stage};
 use crate::transfer::{GpuTransferFunctions, Window};
 use crate::volume::{GpuVolume, VolumeInfo};
@@ -28,6 +39,8 @@ use crate::volume::{GpuVolume, VolumeInfo};
 pub const VOLUME_VISIBLE: u32 = 1;
 pub const VOLUME_HAS_WARP: u32 = 2;
 pub const VOLUME_MANUAL_FILTER: u32 = 4;
+/// A prefiltered copy is bound for this volume (gradients come from it; otherwise from the volume itself).
+pub const VOLUME_HAS_PREFILTER: u32 = 8;
 /// `RaycastUniforms.flags`
 pub const RAYCAST_JITTER: u32 = 1;
 /// Early ray termination threshold.
@@ -68,10 +81,21 @@ pub struct RaycastUniforms {
     pub checker_cell_mm: f32,
     pub max_steps: u32,
     pub jitter_seed: u32,
+    /// [`ShadingMode::code`]. Selects the pipeline, which is specialised on it (WGSL override `SHADING`).
+    pub shading_mode: u32,
+    /// Iso mode: bisection steps refining the first hit between the last two samples.
+    pub bisection_steps: u32,
+    /// Central-difference step h (ref mm).
+    pub gradient_step_mm: f32,
+    pub ambient: f32,
+    pub diffuse: f32,
+    pub specular: f32,
+    pub shininess: f32,
+    _pad0: u32,
     pub fixed: VolumeUniforms,
     pub moving: VolumeUniforms,
 }
-const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 448);
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 480);
 
 /// How the two classified samples combine (`RaycastUniforms.blend_mode`, `BLEND_*` in the shader).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -133,6 +157,81 @@ impl BlendMode {
     }
 }
 
+/// How samples are lit (`RaycastUniforms.shading_mode`, `SHADING_*` in the shader).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShadingMode {
+    /// Unlit direct volume rendering: the transfer function's colour as it is.
+    None,
+    /// Direct volume rendering, each sample with opacity > 0 lit by its gradient.
+    Dvr,
+    /// Per volume, the first sample whose value ≥ [`LayerStyle::iso_value`], refined by bisection, lit and opaque;
+    /// the two volumes' hits are then blended once by the [`BlendMode`].
+    Iso,
+}
+
+impl ShadingMode {
+    pub const ALL: [Self; 3] = [Self::None, Self::Dvr, Self::Iso];
+
+    #[must_use]
+    pub fn code(self) -> u32 {
+        match self {
+            Self::None => 0,
+            Self::Dvr => 1,
+            Self::Iso => 2,
+        }
+    }
+
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Dvr => "dvr",
+            Self::Iso => "iso",
+        }
+    }
+}
+
+/// Lighting: a headlight (light = view direction), two-sided.
+///
+/// For a sample with gradient g and n = g/|g|, l = −ray direction:
+/// colour' = clamp(colour·(ambient + diffuse·|n·l|) + specular·|n·l|^shininess, 0, 1) (straight colour; with a
+/// headlight the Blinn-Phong half vector is l). The gradient is taken through the warp (see [`crate::raycast`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Shading {
+    pub mode: ShadingMode,
+    pub ambient: f32,
+    pub diffuse: f32,
+    /// 0 turns specular off.
+    pub specular: f32,
+    pub shininess: f32,
+    /// Central-difference step in ref mm; `None` is one voxel of the finest visible spacing.
+    pub gradient_step_mm: Option<f32>,
+    /// Iso mode: bisection steps between the last sample below and the first at or above the threshold.
+    pub bisection_steps: u32,
+}
+
+impl Default for Shading {
+    fn default() -> Self {
+        Self {
+            mode: ShadingMode::None,
+            ambient: 0.3,
+            diffuse: 0.7,
+            specular: 0.2,
+            shininess: 24.0,
+            gradient_step_mm: None,
+            bisection_steps: 6,
+        }
+    }
+}
+
+impl Shading {
+    /// The default lighting with `mode`.
+    #[must_use]
+    pub fn with_mode(mode: ShadingMode) -> Self {
+        Self { mode, ..Self::default() }
+    }
+}
+
 /// Frame-wide settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
@@ -146,6 +245,7 @@ pub struct RenderSettings {
     /// Replaces the automatic proxy box (the union of both layers' [`LayerParams::box_ref`]: where each volume can
     /// appear after its warp).
     pub box_override_ref: Option<(glam::Vec3, glam::Vec3)>,
+    pub shading: Shading,
 }
 
 impl Default for RenderSettings {
@@ -156,6 +256,7 @@ impl Default for RenderSettings {
             jitter_seed: None,
             max_steps: 4096,
             box_override_ref: None,
+            shading: Shading::default(),
         }
     }
 }
@@ -169,8 +270,7 @@ pub struct LayerStyle {
     /// Multiplies the TF opacity.
     pub opacity_scale: f32,
     pub visible: bool,
-    /// Iso-surface threshold in this volume's value units (HU for CT). Carried in the uniforms for the iso-surface
-    /// shading mode (not yet used by the shader).
+    /// Iso-surface threshold in this volume's value units (HU for CT), for [`ShadingMode::Iso`].
     pub iso_value: f32,
 }
 
@@ -181,11 +281,16 @@ pub struct LayerParams {
     /// The pull-back into this volume's LPS space; `None` is the identity fast path.
     pub control: Option<ControlInfo>,
     pub style: LayerStyle,
+    /// A prefiltered copy is bound: gradients for shading come from it.
+    pub has_prefilter: bool,
 }
 
 impl LayerParams {
     fn uniforms(&self, tf_rows: u32) -> VolumeUniforms {
         let mut flags = 0;
+        if self.has_prefilter {
+            flags |= VOLUME_HAS_PREFILTER;
+        }
         if self.style.visible {
             flags |= VOLUME_VISIBLE;
         }
@@ -265,6 +370,14 @@ impl RaycastUniforms {
             checker_cell_mm,
             max_steps: settings.max_steps,
             jitter_seed: settings.jitter_seed.unwrap_or(0),
+            shading_mode: settings.shading.mode.code(),
+            bisection_steps: settings.shading.bisection_steps,
+            gradient_step_mm: settings.shading.gradient_step_mm.unwrap_or(finest_mm).max(1e-4),
+            ambient: settings.shading.ambient,
+            diffuse: settings.shading.diffuse,
+            specular: settings.shading.specular,
+            shininess: settings.shading.shininess.max(0.0),
+            _pad0: 0,
             fixed: fixed.uniforms(tf_rows),
             moving: moving.uniforms(tf_rows),
         }
@@ -274,11 +387,16 @@ impl RaycastUniforms {
 /// The long-lived part of the ray caster: pipeline, bind group layout, samplers and the placeholder control texture.
 #[derive(Debug)]
 pub struct RaycastRenderer {
-    pipeline: wgpu::RenderPipeline,
+    device: wgpu::Device,
+    module: wgpu::ShaderModule,
+    pipeline_layout: wgpu::PipelineLayout,
+    /// One per [`ShadingMode`], created on first use ([`Self::pipeline`]).
+    pipelines: [std::sync::OnceLock<wgpu::RenderPipeline>; 3],
     layout: wgpu::BindGroupLayout,
     volume_sampler: wgpu::Sampler,
     linear_sampler: wgpu::Sampler,
     placeholder_control: wgpu::TextureView,
+    placeholder_prefiltered: wgpu::TextureView,
     volumes_filterable: bool,
 }
 
@@ -290,7 +408,7 @@ impl RaycastRenderer {
     pub const OPTIONAL_FEATURES: wgpu::Features =
         wgpu::Features::TEXTURE_FORMAT_16BIT_NORM.union(wgpu::Features::FLOAT32_FILTERABLE);
     /// Sampled textures and samplers per fragment stage this pass binds.
-    pub const SAMPLED_TEXTURES: u32 = 5;
+    pub const SAMPLED_TEXTURES: u32 = 7;
     pub const SAMPLERS: u32 = 2;
 
     pub fn new(ctx: &GpuContext) -> Result<Self> {
@@ -314,6 +432,17 @@ impl RaycastRenderer {
             ty: wgpu::BindingType::Texture {
                 sample_type: wgpu::TextureSampleType::Float { filterable },
                 view_dimension: wgpu::TextureViewDimension::D3,
+                multisampled: false,
+            },
+            count: None,
+        };
+        // Prefiltered copies: R32Float 2-D arrays (layer = z), read with textureLoad.
+        let layers = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::FRAGMENT,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                view_dimension: wgpu::TextureViewDimension::D2Array,
                 multisampled: false,
             },
             count: None,
@@ -360,6 +489,8 @@ impl RaycastRenderer {
                     },
                 ),
                 sampler(7, wgpu::SamplerBindingType::Filtering),
+                layers(8),
+                layers(9),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -368,31 +499,6 @@ impl RaycastRenderer {
             immediate_size: 0,
         });
         let module = RAYCAST.create_module(device);
-        let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("raycast"),
-            layout: Some(&pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &module,
-                entry_point: RAYCAST.entry_point(Stage::Vertex),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: None,
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &module,
-                entry_point: RAYCAST.entry_point(Stage::Fragment),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: Self::TARGET_FORMAT,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
-            }),
-            multiview_mask: None,
-            cache: None,
-        });
         let filter = if volumes_filterable { wgpu::FilterMode::Linear } else { wgpu::FilterMode::Nearest };
         let clamp = wgpu::AddressMode::ClampToEdge;
         let volume_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -414,13 +520,72 @@ impl RaycastRenderer {
             ..Default::default()
         });
         let placeholder_control = GpuControlTexture::placeholder(ctx);
+        let placeholder_prefiltered = GpuPrefiltered::placeholder(ctx);
         ctx.check_errors()?;
-        Ok(Self { pipeline, layout, volume_sampler, linear_sampler, placeholder_control, volumes_filterable })
+        let renderer = Self {
+            device: device.clone(),
+            module,
+            pipeline_layout,
+            pipelines: Default::default(),
+            layout,
+            volume_sampler,
+            linear_sampler,
+            placeholder_control,
+            placeholder_prefiltered,
+            volumes_filterable,
+        };
+        // The unlit pipeline now, so that shader errors surface here; the lit ones on first use.
+        renderer.pipeline(ShadingMode::None.code());
+        ctx.check_errors()?;
+        Ok(renderer)
+    }
+
+    /// The pipeline specialised for shading mode `code` (the WGSL override `SHADING`), created on first use: each
+    /// mode compiles only its own code, which keeps the unlit pass as small and fast as before shading existed.
+    fn pipeline(&self, code: u32) -> &wgpu::RenderPipeline {
+        let code = code.min(ShadingMode::Iso.code());
+        self.pipelines[code as usize].get_or_init(|| {
+            let constants = [("SHADING", f64::from(code))];
+            self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("raycast"),
+                layout: Some(&self.pipeline_layout),
+                vertex: wgpu::VertexState {
+                    module: &self.module,
+                    entry_point: RAYCAST.entry_point(Stage::Vertex),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    buffers: &[],
+                },
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: None,
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &self.module,
+                    entry_point: RAYCAST.entry_point(Stage::Fragment),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        ..Default::default()
+                    },
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: Self::TARGET_FORMAT,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        })
+    }
+
+    /// Creates the pipeline for `mode` now (it is otherwise created by the first draw that needs it).
+    pub fn prepare_pipeline(&self, ctx: &GpuContext, mode: ShadingMode) -> Result<()> {
+        self.pipeline(mode.code());
+        ctx.check_errors()
     }
 
     /// Records the pass's draw into `pass` (whose target must be [`Self::TARGET_FORMAT`]).
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
-        pass.set_pipeline(&self.pipeline);
+        pass.set_pipeline(self.pipeline(data.uniforms.shading_mode));
         pass.set_bind_group(0, &data.bind_group, &[]);
         pass.draw(0..3, 0..1);
     }
@@ -452,18 +617,25 @@ impl RaycastRenderer {
     }
 }
 
-/// One volume with its optional control texture, as bound for a frame.
+/// One volume with its optional control texture and prefiltered copy, as bound for a frame.
 #[derive(Clone, Copy, Debug)]
 pub struct GpuLayer<'a> {
     pub volume: &'a GpuVolume,
     pub control: Option<&'a GpuControlTexture>,
+    /// The [`crate::PrefilterPass`] output of `volume`, for shading gradients; without it they come from `volume`.
+    pub prefiltered: Option<&'a GpuPrefiltered>,
     pub style: LayerStyle,
 }
 
 impl GpuLayer<'_> {
     #[must_use]
     pub fn params(&self) -> LayerParams {
-        LayerParams { volume: self.volume.info, control: self.control.map(|c| c.info), style: self.style }
+        LayerParams {
+            volume: self.volume.info,
+            control: self.control.map(|c| c.info),
+            style: self.style,
+            has_prefilter: self.prefiltered.is_some(),
+        }
     }
 }
 
@@ -517,6 +689,8 @@ impl RaycastDrawData {
         ctx.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&uniforms));
         let fixed_ctrl = fixed.control.map_or(&renderer.placeholder_control, |c| &c.view);
         let moving_ctrl = moving.control.map_or(&renderer.placeholder_control, |c| &c.view);
+        let fixed_pf = fixed.prefiltered.map_or(&renderer.placeholder_prefiltered, |p| &p.view);
+        let moving_pf = moving.prefiltered.map_or(&renderer.placeholder_prefiltered, |p| &p.view);
         debug_assert!(renderer.volumes_filterable != fixed.volume.info.manual_filter);
         let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("raycast"),
@@ -530,6 +704,8 @@ impl RaycastDrawData {
                 wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::TextureView(&tfs.view) },
                 wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::Sampler(&renderer.volume_sampler) },
                 wgpu::BindGroupEntry { binding: 7, resource: wgpu::BindingResource::Sampler(&renderer.linear_sampler) },
+                wgpu::BindGroupEntry { binding: 8, resource: wgpu::BindingResource::TextureView(fixed_pf) },
+                wgpu::BindGroupEntry { binding: 9, resource: wgpu::BindingResource::TextureView(moving_pf) },
             ],
         });
         Self { uniforms, buffer, bind_group }
@@ -635,7 +811,7 @@ mod tests {
             visible: true,
             iso_value: 0.5,
         };
-        let plain = LayerParams { volume: vol.info, control: None, style };
+        let plain = LayerParams { volume: vol.info, control: None, style, has_prefilter: false };
         let warped = LayerParams { control: Some(ctrl.info), ..plain };
         assert_eq!(plain.box_ref(), (DVec3::splat(-0.5), DVec3::splat(1.5)));
         let (lo, hi) = warped.box_ref();

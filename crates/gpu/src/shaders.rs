@@ -94,6 +94,13 @@ pub const RAYCAST: ShaderSource = ShaderSource {
             checker_cell_mm,
             max_steps,
             jitter_seed,
+            shading_mode,
+            bisection_steps,
+            gradient_step_mm,
+            ambient,
+            diffuse,
+            specular,
+            shininess,
             fixed,
             moving
         }),

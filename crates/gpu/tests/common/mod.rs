@@ -7,9 +7,10 @@ use glam::{DVec3, Vec3};
 use warpbench_gpu::cpu_reference::{self, CpuLayer};
 use warpbench_gpu::device::headless_or_skip;
 use warpbench_gpu::{
-    ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume,
-    LayerParams, LayerStyle, OrbitCamera, PreparedControl, PreparedVolume, Preset, RaycastDrawData, RaycastRenderer,
-    RaycastUniforms, RenderSettings, RenderTarget, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
+    GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings,
+    PrefilteredTexels, PreparedControl, PreparedVolume, Preset, RaycastDrawData, RaycastRenderer, RaycastUniforms,
+    RenderSettings, RenderTarget, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
 };
 
 pub const N: usize = 64;
@@ -140,6 +141,11 @@ pub struct Scene {
     pub tfs: Vec<TransferFunction>,
     pub fixed_style: LayerStyle,
     pub moving_style: LayerStyle,
+    /// Prefilter settings: with them, [`GpuScene::new`] runs the GPU pass for each layer that has CPU texels here;
+    /// without them it uploads those texels.
+    pub prefilter: Option<PrefilterSettings>,
+    pub fixed_pf: Option<PrefilteredTexels>,
+    pub moving_pf: Option<PrefilteredTexels>,
 }
 
 impl Scene {
@@ -166,16 +172,40 @@ impl Scene {
             visible: true,
             iso_value: 110.0,
         };
-        Self { fixed, moving, control, tfs, fixed_style, moving_style }
+        Self {
+            fixed,
+            moving,
+            control,
+            tfs,
+            fixed_style,
+            moving_style,
+            prefilter: None,
+            fixed_pf: None,
+            moving_pf: None,
+        }
+    }
+
+    /// Gives both layers prefiltered copies (the CPU reference's; the GPU scene runs the pass).
+    pub fn with_prefilter(mut self, settings: PrefilterSettings) -> Self {
+        self.fixed_pf = Some(PrefilteredTexels::from_volume(&self.fixed, settings));
+        self.moving_pf = Some(PrefilteredTexels::from_volume(&self.moving, settings));
+        self.prefilter = Some(settings);
+        self
     }
 
     pub fn params(&self) -> (LayerParams, LayerParams) {
         (
-            LayerParams { volume: self.fixed.info, control: None, style: self.fixed_style },
+            LayerParams {
+                volume: self.fixed.info,
+                control: None,
+                style: self.fixed_style,
+                has_prefilter: self.fixed_pf.is_some(),
+            },
             LayerParams {
                 volume: self.moving.info,
                 control: self.control.as_ref().map(|c| c.info),
                 style: self.moving_style,
+                has_prefilter: self.moving_pf.is_some(),
             },
         )
     }
@@ -186,8 +216,8 @@ impl Scene {
     }
 
     pub fn cpu(&self, u: &RaycastUniforms) -> Vec<u8> {
-        let f = CpuLayer { volume: &self.fixed, control: None };
-        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref() };
+        let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref() };
+        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: self.moving_pf.as_ref() };
         // Split the rows over threads: the reference is single-threaded and slow in debug builds.
         let h = u.viewport_px[1] as u32;
         let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get).min(8) as u32;
@@ -212,26 +242,56 @@ pub struct GpuScene {
     pub moving: GpuVolume,
     pub control: Option<GpuControlTexture>,
     pub tfs: GpuTransferFunctions,
+    pub fixed_pf: Option<GpuPrefiltered>,
+    pub moving_pf: Option<GpuPrefiltered>,
 }
 
 impl GpuScene {
+    /// Uploads the scene; with [`Scene::prefilter`] set, runs the GPU prefilter pass on both volumes.
     pub fn new(ctx: &GpuContext, s: &Scene) -> Self {
+        let fixed = GpuVolume::upload(ctx, &s.fixed).expect("upload fixed");
+        let moving = GpuVolume::upload(ctx, &s.moving).expect("upload moving");
+        // A layer with CPU prefiltered texels gets the GPU pass's output when `s.prefilter` is set, else an upload of
+        // the same texels.
+        let pass = s.prefilter.map(|_| PrefilterPass::new(ctx).expect("prefilter pass"));
+        let prefiltered = |vol: &GpuVolume, texels: Option<&PrefilteredTexels>| {
+            let texels = texels?;
+            Some(match (&pass, s.prefilter) {
+                (Some(pass), Some(settings)) => pass.run(ctx, vol, settings).expect("prefilter"),
+                _ => GpuPrefiltered::upload(ctx, texels, PrefilterSettings::default()).expect("upload prefiltered"),
+            })
+        };
+        let (fixed_pf, moving_pf) =
+            (prefiltered(&fixed, s.fixed_pf.as_ref()), prefiltered(&moving, s.moving_pf.as_ref()));
         Self {
             renderer: RaycastRenderer::new(ctx).expect("renderer"),
-            fixed: GpuVolume::upload(ctx, &s.fixed).expect("upload fixed"),
-            moving: GpuVolume::upload(ctx, &s.moving).expect("upload moving"),
+            fixed,
+            moving,
             control: s.control.as_ref().map(|c| GpuControlTexture::upload(ctx, c)),
             tfs: GpuTransferFunctions::upload(ctx, &s.tfs),
+            fixed_pf,
+            moving_pf,
         }
     }
 
     pub fn render(&self, ctx: &GpuContext, s: &Scene, u: &RaycastUniforms) -> Vec<u8> {
-        let f = GpuLayer { volume: &self.fixed, control: None, style: s.fixed_style };
-        let m = GpuLayer { volume: &self.moving, control: self.control.as_ref(), style: s.moving_style };
+        self.render_by(ctx, &self.renderer, s, u)
+    }
+
+    /// As [`Self::render`] with another scene's renderer (saves compiling the same pipeline again).
+    pub fn render_by(&self, ctx: &GpuContext, renderer: &RaycastRenderer, s: &Scene, u: &RaycastUniforms) -> Vec<u8> {
+        let f =
+            GpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref(), style: s.fixed_style };
+        let m = GpuLayer {
+            volume: &self.moving,
+            control: self.control.as_ref(),
+            prefiltered: self.moving_pf.as_ref(),
+            style: s.moving_style,
+        };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
-        let data = RaycastDrawData::with_uniforms(ctx, &self.renderer, &frame, *u);
+        let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
         let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
-        self.renderer.render(ctx, &data, &target).expect("render");
+        renderer.render(ctx, &data, &target).expect("render");
         target.read_back(ctx).expect("read back")
     }
 }

@@ -1,0 +1,328 @@
+//! Frame-time benchmark of the ray caster (issue 4): two deterministic procedural volumes (a CT-like i16 head and an
+//! MR-like u8 head, 256³ by default), 64³ control textures, a 512² image at 1 sample per voxel, and four cases timed
+//! in the same run:
+//!
+//! 1. **undeformed**: both volumes, mix blend, no control texture (the identity fast path);
+//! 2. **deformed**: the moving volume pulled back through a 64³ control texture;
+//! 3. **deformed + shaded**: as 2, lit DVR with gradients through the warp from prefiltered copies made once;
+//! 4. **deformed + shaded + prefilter**: as 3, with both volumes prefiltered again every frame (what a change of
+//!    volume costs).
+//!
+//! A frame is submit + wait + readback of the RGBA8 image (wall clock; warm-up frames, which also compile the
+//! pipelines, are excluded). It prints ms/frame (mean and best) and the deformation overhead deformed/undeformed.
+//!
+//! ```sh
+//! cargo bench -p warpbench-gpu --bench frame
+//! cargo bench -p warpbench-gpu --bench frame -- --size 1920x1080 --dims 512x512x300 --frames 20
+//! ```
+//!
+//! Options: `--size WxH` (image), `--dims N` or `--dims NXxNYxNZ` (both volumes), `--ctrl N` (control texture
+//! edge), `--frames N` (timed frames per case), `--spv S` (samples per voxel). The adapter is wgpu's default, or the
+//! one `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` choose. It only runs when `--bench` is among the arguments (as
+//! `cargo bench` passes), so `cargo test --benches` does not run it.
+
+use std::time::{Duration, Instant};
+
+use glam::{DVec3, Vec3};
+use warpbench_gpu::{
+    BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions,
+    GpuVolume, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset,
+    Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget,
+    VolumeDesc, VolumeSamples, Window,
+};
+
+/// Edge of both volumes' box, mm (whatever the dims).
+const BOX_MM: f64 = 240.0;
+
+struct Options {
+    size: (u32, u32),
+    dims: [usize; 3],
+    ctrl: usize,
+    frames: usize,
+    samples_per_voxel: f32,
+}
+
+fn parse_pair(s: &str) -> Option<Vec<usize>> {
+    s.split('x').map(|p| p.parse().ok()).collect()
+}
+
+fn options() -> Result<Options, String> {
+    let mut o = Options { size: (512, 512), dims: [256; 3], ctrl: 64, frames: 5, samples_per_voxel: 1.0 };
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = || it.next().ok_or_else(|| format!("{a} needs a value"));
+        match a.as_str() {
+            "--size" => match parse_pair(value()?).as_deref() {
+                Some(&[w, h]) if w > 0 && h > 0 => o.size = (w as u32, h as u32),
+                _ => return Err("--size WxH".into()),
+            },
+            "--dims" => match parse_pair(value()?).as_deref() {
+                Some(&[n]) if n > 1 => o.dims = [n; 3],
+                Some(&[x, y, z]) if x > 1 && y > 1 && z > 1 => o.dims = [x, y, z],
+                _ => return Err("--dims N or NXxNYxNZ".into()),
+            },
+            "--ctrl" => o.ctrl = value()?.parse().map_err(|e| format!("--ctrl: {e}"))?,
+            "--frames" => o.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
+            "--spv" => o.samples_per_voxel = value()?.parse().map_err(|e| format!("--spv: {e}"))?,
+            _ => {} // --bench and whatever else cargo passes
+        }
+    }
+    o.frames = o.frames.max(1);
+    o.ctrl = o.ctrl.max(2);
+    Ok(o)
+}
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+/// `f(p)` at every voxel of `dims`, p ∈ \[−½, ½\]³ the voxel centre in box units, z slabs on all cores.
+fn generate<T: Send + Copy + Default>(dims: [usize; 3], f: impl Fn(DVec3) -> T + Sync) -> Vec<T> {
+    let [nx, ny, nz] = dims;
+    let mut out = vec![T::default(); nx * ny * nz];
+    let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    let slab = nz.div_ceil(threads).max(1);
+    std::thread::scope(|s| {
+        for (c, chunk) in out.chunks_mut(slab * nx * ny).enumerate() {
+            let f = &f;
+            s.spawn(move || {
+                for (n, v) in chunk.iter_mut().enumerate() {
+                    let (i, j, k) = (n % nx, (n / nx) % ny, c * slab + n / (nx * ny));
+                    let p = DVec3::new(
+                        (i as f64 + 0.5) / nx as f64,
+                        (j as f64 + 0.5) / ny as f64,
+                        (k as f64 + 0.5) / nz as f64,
+                    ) - DVec3::splat(0.5);
+                    *v = f(p);
+                }
+            });
+        }
+    });
+    out
+}
+
+/// A CT-like head (HU): skin, soft tissue, a bone shell, a dense blob and some high-frequency texture.
+fn ct(p: DVec3) -> i16 {
+    let w = 0.006;
+    let r = (p * DVec3::new(1.0, 1.15, 1.05)).length();
+    let head = 1.0 - smoothstep(0.42 - w, 0.42 + w, r);
+    let bone = smoothstep(0.36 - w, 0.36 + w, r) * head;
+    let blob = 1.0 - smoothstep(0.06, 0.07, (p - DVec3::new(0.12, -0.05, 0.1)).length());
+    let texture = 30.0 * (p.x * 90.0).sin() * (p.y * 70.0).sin() * (p.z * 50.0).sin();
+    (-1000.0 + (1040.0 + texture) * head + 1160.0 * bone + 600.0 * blob).round() as i16
+}
+
+/// An MR-like head (0..255): scalp, brain, two ventricles.
+fn mr(p: DVec3) -> u8 {
+    let w = 0.006;
+    let brain = 1.0 - smoothstep(0.33 - w, 0.33 + w, (p * DVec3::new(1.1, 0.9, 1.2)).length());
+    let scalp = 1.0 - smoothstep(0.4 - w, 0.4 + w, p.length());
+    let vent = |c: DVec3| 1.0 - smoothstep(0.05, 0.06, (p - c).length());
+    let v =
+        60.0 * scalp + 150.0 * brain - 120.0 * (vent(DVec3::new(0.08, 0.0, 0.05)) + vent(DVec3::new(-0.08, 0.0, 0.05)));
+    v.clamp(0.0, 255.0).round() as u8
+}
+
+/// Row-major `lps_from_index` of a `dims` grid filling a `BOX_MM` cube centred at `centre`, rotated by `angle_rad`.
+fn grid(dims: [usize; 3], centre: DVec3, angle_rad: f64) -> [[f64; 4]; 4] {
+    let (s, c) = angle_rad.sin_cos();
+    let sp = dims.map(|d| BOX_MM / d as f64);
+    let r = [[c * sp[0], -s * sp[1], 0.0], [s * sp[0], c * sp[1], 0.0], [0.0, 0.0, sp[2]]];
+    let h = dims.map(|d| (d as f64 - 1.0) / 2.0);
+    let mut m = [[0.0; 4]; 4];
+    for row in 0..3 {
+        m[row][..3].copy_from_slice(&r[row]);
+        m[row][3] = centre[row] - (0..3).map(|a| r[row][a] * h[a]).sum::<f64>();
+    }
+    m[3][3] = 1.0;
+    m
+}
+
+/// `[dx, dy, dz, 0]` of a smooth warp of a few mm at the texel centres of an n³ grid over `[lo, hi]`.
+fn control_texels(n: usize, lo: DVec3, hi: DVec3) -> Vec<f32> {
+    let mut out = Vec::with_capacity(4 * n * n * n);
+    for c in 0..n {
+        for b in 0..n {
+            for a in 0..n {
+                let f = DVec3::new(a as f64 + 0.5, b as f64 + 0.5, c as f64 + 0.5) / n as f64;
+                let x = lo + f * (hi - lo);
+                let s = (x / 40.0).map(f64::sin);
+                out.extend([(4.0 + 3.0 * s.y) as f32, (-3.0 + 2.5 * s.z) as f32, (2.0 + 2.0 * s.x) as f32, 0.0]);
+            }
+        }
+    }
+    out
+}
+
+/// Mean and best of `frames` timed calls of `frame` after `warmup` untimed ones.
+fn time(frames: usize, warmup: usize, mut frame: impl FnMut()) -> (Duration, Duration) {
+    for _ in 0..warmup {
+        frame();
+    }
+    let mut times = Vec::with_capacity(frames);
+    for _ in 0..frames {
+        let t = Instant::now();
+        frame();
+        times.push(t.elapsed());
+    }
+    let mean = times.iter().sum::<Duration>() / frames as u32;
+    (mean, times.into_iter().min().unwrap_or_default())
+}
+
+fn layer<'a>(
+    volume: &'a GpuVolume,
+    control: Option<&'a GpuControlTexture>,
+    prefiltered: Option<&'a GpuPrefiltered>,
+    style: LayerStyle,
+) -> GpuLayer<'a> {
+    GpuLayer { volume, control, prefiltered, style }
+}
+
+fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+#[allow(clippy::too_many_lines, reason = "one linear benchmark script")]
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    let o = match options() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("frame bench: {e}");
+            std::process::exit(2);
+        }
+    };
+    let ctx = GpuContext::headless().expect("GPU context");
+    let [nx, ny, nz] = o.dims;
+    println!("adapter: {} {:?}", ctx.describe(), ctx.capabilities);
+    println!(
+        "volumes {nx}×{ny}×{nz} (CT i16, MR u8, {BOX_MM} mm boxes), control {c}³, image {}×{}, {} sample(s)/voxel, \
+         {} timed frames per case",
+        o.size.0,
+        o.size.1,
+        o.samples_per_voxel,
+        o.frames,
+        c = o.ctrl
+    );
+
+    let t = Instant::now();
+    let ct_samples = generate(o.dims, ct);
+    let mr_samples = generate(o.dims, mr);
+    let budget = VolumeBudget::for_device(&ctx.limits);
+    let fixed_desc = VolumeDesc {
+        dims: o.dims,
+        samples: VolumeSamples::I16(&ct_samples),
+        lps_from_index: grid(o.dims, DVec3::ZERO, 0.0),
+    };
+    let moving_desc = VolumeDesc {
+        dims: o.dims,
+        samples: VolumeSamples::U8(&mr_samples),
+        lps_from_index: grid(o.dims, DVec3::new(4.0, -3.0, 2.0), 10f64.to_radians()),
+    };
+    let fixed = PreparedVolume::prepare(&fixed_desc, ctx.capabilities, budget).expect("fixed");
+    let moving = PreparedVolume::prepare(&moving_desc, ctx.capabilities, budget).expect("moving");
+    for w in fixed.warnings.iter().chain(&moving.warnings) {
+        println!("warning: {w}");
+    }
+    let (lo, hi) = (fixed.info.box_min_lps, fixed.info.box_max_lps);
+    let texels = control_texels(o.ctrl, lo, hi);
+    let cdesc =
+        ControlDesc { dims: [o.ctrl; 3], texels: &texels, box_min_ref: lo.to_array(), box_max_ref: hi.to_array() };
+    let control = PreparedControl::prepare(&cdesc, ctx.capabilities.float32_filterable).expect("control");
+    let renderer = RaycastRenderer::new(&ctx).expect("renderer");
+    let fixed_gpu = GpuVolume::upload(&ctx, &fixed).expect("upload");
+    let moving_gpu = GpuVolume::upload(&ctx, &moving).expect("upload");
+    let control_gpu = GpuControlTexture::upload(&ctx, &control);
+    let tfs =
+        GpuTransferFunctions::upload(&ctx, &[Preset::CtBone.transfer_function(), Preset::MrT1.transfer_function()]);
+    let prefilter = PrefilterPass::new(&ctx).expect("prefilter pass");
+    let pf_settings = PrefilterSettings::default();
+    let fixed_pf = prefilter.run(&ctx, &fixed_gpu, pf_settings).expect("prefilter");
+    let moving_pf = prefilter.run(&ctx, &moving_gpu, pf_settings).expect("prefilter");
+    ctx.wait_idle().expect("wait");
+    println!("setup (generate, prepare, upload, prefilter once): {:.0} ms", ms(t.elapsed()));
+
+    let fixed_style = LayerStyle {
+        window: Preset::CtBone.default_window().unwrap_or(Window::from_range(-300.0, 1700.0)),
+        tf_row: 0,
+        opacity_scale: 0.6,
+        visible: true,
+        iso_value: 300.0,
+    };
+    let moving_style = LayerStyle {
+        window: Window::from_range(0.0, 220.0),
+        tf_row: 1,
+        opacity_scale: 1.0,
+        visible: true,
+        iso_value: 110.0,
+    };
+    let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
+    let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, target_ref: Vec3::ZERO, ..cam };
+    let target = RenderTarget::new(&ctx, o.size.0, o.size.1);
+    let undeformed = GpuFrame {
+        fixed: layer(&fixed_gpu, None, None, fixed_style),
+        moving: layer(&moving_gpu, None, None, moving_style),
+        tfs: &tfs,
+    };
+    let deformed = GpuFrame { moving: layer(&moving_gpu, Some(&control_gpu), None, moving_style), ..undeformed };
+    let shaded = GpuFrame {
+        fixed: layer(&fixed_gpu, None, Some(&fixed_pf), fixed_style),
+        moving: layer(&moving_gpu, Some(&control_gpu), Some(&moving_pf), moving_style),
+        tfs: &tfs,
+    };
+    // One proxy box in every case (the union of the undeformed and the deformed layers' boxes), so that the cases
+    // differ only in the work per sample.
+    let box_ref = [undeformed.fixed, undeformed.moving, shaded.moving]
+        .iter()
+        .map(|l| l.params().box_ref())
+        .fold((DVec3::INFINITY, DVec3::NEG_INFINITY), |(lo, hi), (a, b)| (lo.min(a), hi.max(b)));
+    let box_ref = (box_ref.0.as_vec3(), box_ref.1.as_vec3());
+    let settings = |mode| RenderSettings {
+        blend: BlendMode::Mix { moving_weight: 0.5 },
+        box_override_ref: Some(box_ref),
+        samples_per_voxel: o.samples_per_voxel,
+        shading: Shading::with_mode(mode),
+        ..Default::default()
+    };
+    let draw = |frame: &GpuFrame<'_>, mode| {
+        let data = RaycastDrawData::new(&ctx, &renderer, frame, &cam, &settings(mode), o.size);
+        renderer.render(&ctx, &data, &target).expect("render");
+        std::hint::black_box(target.read_back(&ctx).expect("read back"));
+    };
+
+    let mut results: Vec<(&str, Duration, Duration)> = Vec::new();
+    let (mean, best) = time(o.frames, 1, || draw(&undeformed, ShadingMode::None));
+    results.push(("undeformed", mean, best));
+    let (mean, best) = time(o.frames, 1, || draw(&deformed, ShadingMode::None));
+    results.push(("deformed", mean, best));
+    let (mean, best) = time(o.frames, 1, || draw(&shaded, ShadingMode::Dvr));
+    results.push(("deformed + shaded", mean, best));
+    let (mean, best) = time(o.frames, 1, || {
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("prefilter") });
+        let f = prefilter.encode(&ctx, &mut encoder, &fixed_gpu, pf_settings).expect("prefilter");
+        let m = prefilter.encode(&ctx, &mut encoder, &moving_gpu, pf_settings).expect("prefilter");
+        ctx.queue.submit([encoder.finish()]);
+        let frame = GpuFrame {
+            fixed: layer(&fixed_gpu, None, Some(&f), fixed_style),
+            moving: layer(&moving_gpu, Some(&control_gpu), Some(&m), moving_style),
+            tfs: &tfs,
+        };
+        draw(&frame, ShadingMode::Dvr);
+    });
+    results.push(("deformed + shaded + prefilter", mean, best));
+
+    println!("{:<32} {:>12} {:>12}", "case", "mean ms", "best ms");
+    for (name, mean, best) in &results {
+        println!("{name:<32} {:>12.1} {:>12.1}", ms(*mean), ms(*best));
+    }
+    let ratio = ms(results[1].1) / ms(results[0].1);
+    println!("deformation overhead (deformed / undeformed, means): {ratio:.2}×");
+    if let Err(e) = ctx.check_errors() {
+        println!("wgpu errors: {e}");
+    }
+}
