@@ -142,7 +142,7 @@ pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
     let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut magic = [0u8; 2];
-    let n = read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
+    let n = crate::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
     file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
     if n == 2 && magic == GZIP_MAGIC {
         read_source(path, &mut MultiGzDecoder::new(BufReader::new(file)), Extent::Gzip(file_len), opts)
@@ -159,19 +159,6 @@ pub fn read_bytes(name: &Path, bytes: &[u8], opts: &mut LoadOptions) -> Result<V
         let mut src = bytes;
         read_source(name, &mut src, Extent::Exact(bytes.len() as u64), opts)
     }
-}
-
-fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> io::Result<usize> {
-    let mut n = 0;
-    while n < buf.len() {
-        match r.read(&mut buf[n..]) {
-            Ok(0) => break,
-            Ok(k) => n += k,
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(n)
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -860,20 +860,6 @@ fn data_error(path: &Path, e: io::Error) -> Error {
     }
 }
 
-/// Reads as many bytes as are there, up to `buf.len()`.
-fn fill(r: &mut impl Read, buf: &mut [u8]) -> io::Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        match r.read(&mut buf[got..]) {
-            Ok(0) => break,
-            Ok(k) => got += k,
-            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(got)
-}
-
 fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mut LoadOptions) -> Result<VoxelData> {
     let size = h.stored.bytes();
     let total = (n * size) as u64;
@@ -885,7 +871,7 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
     while done < n {
         let count = (n - done).min(CHUNK_BYTES / size);
         let bytes = &mut buf[..count * size];
-        let got = fill(r, bytes).map_err(|e| data_error(path, e))?;
+        let got = crate::read_up_to(r, bytes).map_err(|e| data_error(path, e))?;
         if got < bytes.len() {
             let have = done as u64 * size as u64 + got as u64;
             return Err(Error::truncated(path, format!("the data end after {have} of {total} bytes")));
