@@ -15,6 +15,10 @@
 // whose value ≥ iso_value, refines it by bisection between the last two samples, shades it opaque, and blends the two
 // volumes' hits once by the blend mode.
 //
+// Slices (fs_slice, crates/gpu/src/slice.rs): one sample per pixel at x_ref = origin + (px + 1/2)·u + (py + 1/2)·v
+// (ref_from_frag_px), the same warp, sampling, window and transfer function; each volume contributes its TF colour
+// with opacity 1 inside its texture box (transparent outside); blended by the blend mode; no shading, no compositing.
+//
 // The CPU reference in crates/gpu/src/cpu_reference.rs implements the same math: keep the two in sync.
 
 // Keep in sync with `VolumeUniforms` in crates/gpu/src/raycast.rs.
@@ -60,6 +64,8 @@ struct RaycastUniforms {
     _pad0: u32,
     fixed: VolumeUniforms,
     moving: VolumeUniforms,
+    // Slices only: ref from framebuffer coordinates (pixel centres at i + 1/2).
+    ref_from_frag_px: mat4x4<f32>,
 }
 
 // VolumeUniforms.flags
@@ -446,4 +452,29 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
         }
     }
     return acc;
+}
+
+// Slices: one volume's TF colour at x_ref, opaque inside the volume's texture box, transparent outside.
+fn slice_sample(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec4<f32> {
+    let p_tex = warp_to_tex(ctrl, v, x_ref);
+    if outside_tex(p_tex) {
+        return vec4<f32>(0.0);
+    }
+    let value = volume_value(vol, v, p_tex);
+    let t = clamp((value - v.window_low) / v.window_width, 0.0, 1.0);
+    return vec4<f32>(sample_tf(v.tf_row, t).rgb, 1.0);
+}
+
+@fragment
+fn fs_slice(in: VertexOutput) -> @location(0) vec4<f32> {
+    let x_ref = (u.ref_from_frag_px * vec4<f32>(in.position.xy, 0.0, 1.0)).xyz;
+    var f = vec4<f32>(0.0);
+    var m = vec4<f32>(0.0);
+    if is_visible(u.fixed) && u.blend_mode != BLEND_MOVING_ONLY {
+        f = slice_sample(fixed_tex, fixed_ctrl_tex, u.fixed, x_ref);
+    }
+    if is_visible(u.moving) && u.blend_mode != BLEND_FIXED_ONLY {
+        m = slice_sample(moving_tex, moving_ctrl_tex, u.moving, x_ref);
+    }
+    return blend(f, m, x_ref);
 }

@@ -6,7 +6,8 @@
 //! It consumes exactly what the GPU consumes: the [`RaycastUniforms`] of the frame, the [`PreparedVolume`]s and
 //! [`PreparedControl`]s whose texels were uploaded, the [`PrefilteredTexels`] the gradients come from, and the
 //! [`TransferFunction`] rows. Shading (DVR and iso-surface, gradients through the warp) follows the shader's
-//! formulas exactly: see `shaders/raycast.wgsl` and [`crate::raycast::Shading`].
+//! formulas exactly: see `shaders/raycast.wgsl` and [`crate::raycast::Shading`]. Slices ([`crate::slice`]):
+//! [`slice_pixel`], [`render_slice`].
 
 use glam::{Mat4, Vec3, Vec4};
 
@@ -316,6 +317,66 @@ pub fn render_rows(
     for y in rows {
         for x in 0..w {
             let c = shade_pixel(u, fixed, moving, tfs, [x as f32 + 0.5, y as f32 + 0.5]);
+            out.extend(c.to_array().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8));
+        }
+    }
+    out
+}
+
+/// The shader's `slice_sample`: the TF colour of one volume at `x_ref`, opaque inside its texture box, transparent
+/// outside (see [`crate::slice`]).
+#[must_use]
+pub fn slice_sample(layer: &CpuLayer<'_>, v: &VolumeUniforms, tfs: &[TransferFunction], x_ref: Vec3) -> Vec4 {
+    let p_tex = warp_to_tex(layer, v, x_ref);
+    if outside_tex(p_tex) {
+        return Vec4::ZERO;
+    }
+    let value = volume_value(layer, v, p_tex);
+    let t = ((value - v.window_low) / v.window_width).clamp(0.0, 1.0);
+    tf_sample(tfs, v.tf_row, t).truncate().extend(1.0)
+}
+
+/// The shader's `fs_slice`: premultiplied RGBA (not yet quantised) of the slice pixel whose centre is at
+/// `pixel_centre` (framebuffer coordinates, (px + ½, py + ½)), with `u` from [`RaycastUniforms::for_slice`].
+#[must_use]
+pub fn slice_pixel(
+    u: &RaycastUniforms,
+    fixed: &CpuLayer<'_>,
+    moving: &CpuLayer<'_>,
+    tfs: &[TransferFunction],
+    pixel_centre: [f32; 2],
+) -> Vec4 {
+    let x = Mat4::from_cols_array_2d(&u.ref_from_frag_px).transform_point3(Vec3::new(
+        pixel_centre[0],
+        pixel_centre[1],
+        0.0,
+    ));
+    let f = if u.fixed.flags & VOLUME_VISIBLE != 0 && u.blend_mode != 6 {
+        slice_sample(fixed, &u.fixed, tfs, x)
+    } else {
+        Vec4::ZERO
+    };
+    let m = if u.moving.flags & VOLUME_VISIBLE != 0 && u.blend_mode != 5 {
+        slice_sample(moving, &u.moving, tfs, x)
+    } else {
+        Vec4::ZERO
+    };
+    blend(u, f, m, x)
+}
+
+/// The whole slice as premultiplied RGBA8, rows top to bottom (what [`crate::RaycastRenderer::render_slice`] draws).
+#[must_use]
+pub fn render_slice(
+    u: &RaycastUniforms,
+    fixed: &CpuLayer<'_>,
+    moving: &CpuLayer<'_>,
+    tfs: &[TransferFunction],
+) -> Vec<u8> {
+    let (w, h) = (u.viewport_px[0] as u32, u.viewport_px[1] as u32);
+    let mut out = Vec::with_capacity((4 * w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let c = slice_pixel(u, fixed, moving, tfs, [x as f32 + 0.5, y as f32 + 0.5]);
             out.extend(c.to_array().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8));
         }
     }

@@ -15,6 +15,8 @@
 //! - [`raycast`]: [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), [`BlendMode`],
 //!   [`RenderSettings`] with [`Shading`] ([`ShadingMode`]: unlit, lit DVR, lit iso-surface; gradients through the
 //!   warp), [`RaycastUniforms`], [`RenderTarget`] (texture + readback).
+//! - [`slice`](mod@slice): [`SlicePlane`] (axial/coronal/sagittal planes of the fixed grid, oblique planes, pixel ↔ ref), drawn
+//!   by [`RaycastRenderer::render_slice`] with the ray caster's sampling, classification and blending.
 //! - [`prefilter`]: [`PrefilterPass`], a separable Gaussian (compute, optionally half resolution) whose result
 //!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
@@ -38,6 +40,7 @@ pub mod error;
 pub mod prefilter;
 pub mod raycast;
 pub mod shaders;
+pub mod slice;
 pub mod transfer;
 pub mod volume;
 
@@ -53,5 +56,6 @@ pub use raycast::{
     BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, RaycastDrawData, RaycastRenderer, RaycastUniforms,
     RenderSettings, RenderTarget, Shading, ShadingMode, VolumeUniforms,
 };
+pub use slice::SlicePlane;
 pub use transfer::{GpuTransferFunctions, Preset, TransferFunction, Window};
 pub use volume::{GpuVolume, PreparedVolume, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};

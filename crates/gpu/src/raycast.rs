@@ -26,12 +26,13 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Mat4};
 
-use crate::camera::OrbitCamera;
+use crate::camera::{OrbitCamera, Projection};
 use crate::control::{ControlInfo, GpuControlTexture};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::prefilter::GpuPrefiltered;
 use crate::shaders::{RAYCAST, Stage};
+use crate::slice::SlicePlane;
 use crate::transfer::{GpuTransferFunctions, Window};
 use crate::volume::{GpuVolume, VolumeInfo};
 
@@ -94,8 +95,11 @@ pub struct RaycastUniforms {
     _pad0: u32,
     pub fixed: VolumeUniforms,
     pub moving: VolumeUniforms,
+    /// Slices only (`fs_slice`): ref from framebuffer coordinates, x_ref = ref_from_frag_px · (x, y, 0, 1) with pixel
+    /// centres at (px + ½, py + ½) ([`crate::SlicePlane::ref_from_frag_px`]); the identity for 3-D frames.
+    pub ref_from_frag_px: [[f32; 4]; 4],
 }
-const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 480);
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 544);
 
 /// How the two classified samples combine (`RaycastUniforms.blend_mode`, `BLEND_*` in the shader).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -380,6 +384,28 @@ impl RaycastUniforms {
             _pad0: 0,
             fixed: fixed.uniforms(tf_rows),
             moving: moving.uniforms(tf_rows),
+            ref_from_frag_px: Mat4::IDENTITY.to_cols_array_2d(),
+        }
+    }
+
+    /// The uniforms of a slice ([`crate::slice`]) through `plane`, drawn with [`RaycastRenderer::render_slice`]:
+    /// the viewport is `plane.size`; of `settings` only the blend mode matters (slices are unlit, one sample per
+    /// pixel).
+    #[must_use]
+    pub fn for_slice(
+        plane: &SlicePlane,
+        settings: &RenderSettings,
+        fixed: &LayerParams,
+        moving: &LayerParams,
+        tf_rows: u32,
+    ) -> Self {
+        let (w, h) = plane.size;
+        let centre = DVec3::from_array(plane.ref_from_pixel(f64::from(w) / 2.0, f64::from(h) / 2.0)).as_vec3();
+        let camera = OrbitCamera::fit(centre - glam::Vec3::ONE, centre + glam::Vec3::ONE, Projection::Orthographic);
+        let settings = RenderSettings { shading: Shading::default(), jitter_seed: None, ..*settings };
+        Self {
+            ref_from_frag_px: plane.ref_from_frag_px().to_cols_array_2d(),
+            ..Self::new(&camera, &settings, (w, h), fixed, moving, tf_rows)
         }
     }
 }
@@ -392,6 +418,8 @@ pub struct RaycastRenderer {
     pipeline_layout: wgpu::PipelineLayout,
     /// One per [`ShadingMode`], created on first use ([`Self::pipeline`]).
     pipelines: [std::sync::OnceLock<wgpu::RenderPipeline>; 3],
+    /// The slice pipeline (`fs_slice`), created on first use.
+    slice_pipeline: std::sync::OnceLock<wgpu::RenderPipeline>,
     layout: wgpu::BindGroupLayout,
     volume_sampler: wgpu::Sampler,
     linear_sampler: wgpu::Sampler,
@@ -410,6 +438,8 @@ impl RaycastRenderer {
     /// Sampled textures and samplers per fragment stage this pass binds.
     pub const SAMPLED_TEXTURES: u32 = 7;
     pub const SAMPLERS: u32 = 2;
+    /// The slice fragment entry point in `shaders/raycast.wgsl`.
+    pub const SLICE_ENTRY_POINT: &'static str = "fs_slice";
 
     pub fn new(ctx: &GpuContext) -> Result<Self> {
         let l = &ctx.limits;
@@ -527,6 +557,7 @@ impl RaycastRenderer {
             module,
             pipeline_layout,
             pipelines: Default::default(),
+            slice_pipeline: std::sync::OnceLock::new(),
             layout,
             volume_sampler,
             linear_sampler,
@@ -545,35 +576,40 @@ impl RaycastRenderer {
     fn pipeline(&self, code: u32) -> &wgpu::RenderPipeline {
         let code = code.min(ShadingMode::Iso.code());
         self.pipelines[code as usize].get_or_init(|| {
-            let constants = [("SHADING", f64::from(code))];
-            self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("raycast"),
-                layout: Some(&self.pipeline_layout),
-                vertex: wgpu::VertexState {
-                    module: &self.module,
-                    entry_point: RAYCAST.entry_point(Stage::Vertex),
-                    compilation_options: wgpu::PipelineCompilationOptions::default(),
-                    buffers: &[],
-                },
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: None,
-                multisample: wgpu::MultisampleState::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &self.module,
-                    entry_point: RAYCAST.entry_point(Stage::Fragment),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &constants,
-                        ..Default::default()
-                    },
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: Self::TARGET_FORMAT,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
+            self.create_pipeline("raycast", RAYCAST.entry_point(Stage::Fragment), &[("SHADING", f64::from(code))])
+        })
+    }
+
+    /// The slice pipeline: the same module, layout and vertex stage, fragment entry point [`Self::SLICE_ENTRY_POINT`].
+    fn slice_pipeline(&self) -> &wgpu::RenderPipeline {
+        self.slice_pipeline.get_or_init(|| self.create_pipeline("slice", Some(Self::SLICE_ENTRY_POINT), &[]))
+    }
+
+    fn create_pipeline(&self, label: &str, fragment: Option<&str>, constants: &[(&str, f64)]) -> wgpu::RenderPipeline {
+        self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some(label),
+            layout: Some(&self.pipeline_layout),
+            vertex: wgpu::VertexState {
+                module: &self.module,
+                entry_point: RAYCAST.entry_point(Stage::Vertex),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[],
+            },
+            primitive: wgpu::PrimitiveState::default(),
+            depth_stencil: None,
+            multisample: wgpu::MultisampleState::default(),
+            fragment: Some(wgpu::FragmentState {
+                module: &self.module,
+                entry_point: fragment,
+                compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
+                targets: &[Some(wgpu::ColorTargetState {
+                    format: Self::TARGET_FORMAT,
+                    blend: None,
+                    write_mask: wgpu::ColorWrites::ALL,
+                })],
+            }),
+            multiview_mask: None,
+            cache: None,
         })
     }
 
@@ -590,8 +626,29 @@ impl RaycastRenderer {
         pass.draw(0..3, 0..1);
     }
 
+    /// Records a slice draw ([`crate::slice`]; `data` built from [`RaycastUniforms::for_slice`]) into `pass`.
+    pub fn draw_slice(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
+        pass.set_pipeline(self.slice_pipeline());
+        pass.set_bind_group(0, &data.bind_group, &[]);
+        pass.draw(0..3, 0..1);
+    }
+
+    /// Renders the slice `data` ([`RaycastUniforms::for_slice`]) into `target` (the plane's size, cleared to
+    /// transparent) and submits.
+    pub fn render_slice(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
+        Self::render_with(ctx, target, |pass| self.draw_slice(pass, data))
+    }
+
     /// Renders `data` into `target` (cleared to transparent) and submits.
     pub fn render(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
+        Self::render_with(ctx, target, |pass| self.draw(pass, data))
+    }
+
+    fn render_with(
+        ctx: &GpuContext,
+        target: &RenderTarget,
+        record: impl FnOnce(&mut wgpu::RenderPass<'_>),
+    ) -> Result<()> {
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("raycast") });
         {
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -610,7 +667,7 @@ impl RaycastRenderer {
                 occlusion_query_set: None,
                 multiview_mask: None,
             });
-            self.draw(&mut pass, data);
+            record(&mut pass);
         }
         ctx.queue.submit([encoder.finish()]);
         ctx.check_errors()
@@ -668,6 +725,21 @@ impl RaycastDrawData {
     ) -> Self {
         let (fixed, moving) = (frame.fixed.params(), frame.moving.params());
         let uniforms = RaycastUniforms::new(camera, settings, size_px, &fixed, &moving, frame.tfs.rows);
+        Self::with_uniforms(ctx, renderer, frame, uniforms)
+    }
+
+    /// A slice through `plane` ([`crate::slice`]), drawn with [`RaycastRenderer::render_slice`] into a target of
+    /// `plane.size`.
+    #[must_use]
+    pub fn for_slice(
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        frame: &GpuFrame<'_>,
+        plane: &SlicePlane,
+        settings: &RenderSettings,
+    ) -> Self {
+        let (fixed, moving) = (frame.fixed.params(), frame.moving.params());
+        let uniforms = RaycastUniforms::for_slice(plane, settings, &fixed, &moving, frame.tfs.rows);
         Self::with_uniforms(ctx, renderer, frame, uniforms)
     }
 

@@ -62,12 +62,12 @@ impl ShaderSource {
     }
 }
 
-/// The ray caster: `vs_fullscreen` + `fs_raycast` (see [`crate::raycast`]).
+/// The ray caster: `vs_fullscreen` + `fs_raycast` (see [`crate::raycast`]), and `fs_slice` (see [`crate::slice`]).
 pub const RAYCAST: ShaderSource = ShaderSource {
     name: "raycast",
     path: "shaders/raycast.wgsl",
     source: include_str!("../../../shaders/raycast.wgsl"),
-    entry_points: &[("vs_fullscreen", Stage::Vertex), ("fs_raycast", Stage::Fragment)],
+    entry_points: &[("vs_fullscreen", Stage::Vertex), ("fs_raycast", Stage::Fragment), ("fs_slice", Stage::Fragment)],
     uniform_structs: &[
         layout!(VolumeUniforms {
             tex_from_lps,
@@ -102,7 +102,8 @@ pub const RAYCAST: ShaderSource = ShaderSource {
             specular,
             shininess,
             fixed,
-            moving
+            moving,
+            ref_from_frag_px
         }),
     ],
 };

@@ -10,7 +10,7 @@ use warpbench_gpu::{
     ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings,
     PrefilteredTexels, PreparedControl, PreparedVolume, Preset, RaycastDrawData, RaycastRenderer, RaycastUniforms,
-    RenderSettings, RenderTarget, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    RenderSettings, RenderTarget, SlicePlane, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
 };
 
 pub const N: usize = 64;
@@ -215,6 +215,19 @@ impl Scene {
         RaycastUniforms::new(camera, settings, size, &f, &m, self.tfs.len() as u32)
     }
 
+    /// Uniforms of a slice through `plane` ([`RaycastUniforms::for_slice`]).
+    pub fn slice_uniforms(&self, plane: &SlicePlane, settings: &RenderSettings) -> RaycastUniforms {
+        let (f, m) = self.params();
+        RaycastUniforms::for_slice(plane, settings, &f, &m, self.tfs.len() as u32)
+    }
+
+    /// The CPU reference's slice (single-threaded: slices are one sample per pixel).
+    pub fn cpu_slice(&self, u: &RaycastUniforms) -> Vec<u8> {
+        let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: None };
+        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: None };
+        cpu_reference::render_slice(u, &f, &m, &self.tfs)
+    }
+
     pub fn cpu(&self, u: &RaycastUniforms) -> Vec<u8> {
         let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref() };
         let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: self.moving_pf.as_ref() };
@@ -276,6 +289,24 @@ impl GpuScene {
 
     pub fn render(&self, ctx: &GpuContext, s: &Scene, u: &RaycastUniforms) -> Vec<u8> {
         self.render_by(ctx, &self.renderer, s, u)
+    }
+
+    /// The slice `u` ([`Scene::slice_uniforms`]) drawn by `renderer`, read back.
+    pub fn render_slice(
+        &self,
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        s: &Scene,
+        u: &RaycastUniforms,
+    ) -> Vec<u8> {
+        let f = GpuLayer { volume: &self.fixed, control: None, prefiltered: None, style: s.fixed_style };
+        let m =
+            GpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: None, style: s.moving_style };
+        let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
+        let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
+        let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
+        renderer.render_slice(ctx, &data, &target).expect("render slice");
+        target.read_back(ctx).expect("read back")
     }
 
     /// As [`Self::render`] with another scene's renderer (saves compiling the same pipeline again).
