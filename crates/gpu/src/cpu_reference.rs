@@ -312,11 +312,17 @@ pub fn render_rows(
     tfs: &[TransferFunction],
     rows: std::ops::Range<u32>,
 ) -> Vec<u8> {
+    rasterise(u, rows, |centre| shade_pixel(u, fixed, moving, tfs, centre))
+}
+
+/// Rows `rows` of a `viewport_px`-wide image as RGBA8, each pixel from `pixel` at its centre (x + ½, y + ½),
+/// quantised as the render target stores it.
+fn rasterise(u: &RaycastUniforms, rows: std::ops::Range<u32>, pixel: impl Fn([f32; 2]) -> Vec4) -> Vec<u8> {
     let w = u.viewport_px[0] as u32;
     let mut out = Vec::with_capacity((4 * w * rows.len() as u32) as usize);
     for y in rows {
         for x in 0..w {
-            let c = shade_pixel(u, fixed, moving, tfs, [x as f32 + 0.5, y as f32 + 0.5]);
+            let c = pixel([x as f32 + 0.5, y as f32 + 0.5]);
             out.extend(c.to_array().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8));
         }
     }
@@ -372,15 +378,7 @@ pub fn render_slice(
     moving: &CpuLayer<'_>,
     tfs: &[TransferFunction],
 ) -> Vec<u8> {
-    let (w, h) = (u.viewport_px[0] as u32, u.viewport_px[1] as u32);
-    let mut out = Vec::with_capacity((4 * w * h) as usize);
-    for y in 0..h {
-        for x in 0..w {
-            let c = slice_pixel(u, fixed, moving, tfs, [x as f32 + 0.5, y as f32 + 0.5]);
-            out.extend(c.to_array().map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8));
-        }
-    }
-    out
+    rasterise(u, 0..u.viewport_px[1] as u32, |centre| slice_pixel(u, fixed, moving, tfs, centre))
 }
 
 /// Checks that `tfs` has the shape the GPU texture has.

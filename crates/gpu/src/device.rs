@@ -169,6 +169,52 @@ impl GpuContext {
         Err(GpuError::Readback(format!("device poll kept timing out: {last:?}")))
     }
 
+    /// Copies `texture` (`width × height × layers` texels of `bytes_per_texel` bytes: a 2-D texture, a 2-D array
+    /// or a 3-D texture) back to the CPU, tightly packed, rows top to bottom, layer after layer (the copy's
+    /// 256-byte row alignment removed). Waits for the GPU.
+    pub fn read_texture(&self, texture: &wgpu::Texture, size: [u32; 3], bytes_per_texel: u32) -> Result<Vec<u8>> {
+        let [width, height, layers] = size;
+        let row = bytes_per_texel * width;
+        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+        let rows = height * layers;
+        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("readback"),
+            size: u64::from(padded) * u64::from(rows),
+            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+            mapped_at_creation: false,
+        });
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
+        encoder.copy_texture_to_buffer(
+            texture.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &buffer,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(padded),
+                    rows_per_image: Some(height),
+                },
+            },
+            wgpu::Extent3d { width, height, depth_or_array_layers: layers },
+        );
+        self.queue.submit([encoder.finish()]);
+        let (tx, rx) = std::sync::mpsc::channel();
+        buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait_idle()?;
+        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mapped = buffer.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
+        let mut out = Vec::with_capacity((row * rows) as usize);
+        for r in 0..rows as usize {
+            out.extend_from_slice(&mapped[r * padded as usize..r * padded as usize + row as usize]);
+        }
+        drop(mapped);
+        buffer.unmap();
+        self.check_errors()?;
+        Ok(out)
+    }
+
     /// A one-line description of the adapter, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)".
     #[must_use]
     pub fn describe(&self) -> String {

@@ -820,40 +820,7 @@ impl RenderTarget {
 
     /// Premultiplied RGBA8, rows top to bottom, `4 · width` bytes per row (the copy's 256-byte row alignment removed).
     pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
-        let row = 4 * self.width;
-        let padded = row.div_ceil(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT) * wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: u64::from(padded) * u64::from(self.height),
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        let mut encoder =
-            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("readback") });
-        encoder.copy_texture_to_buffer(
-            self.texture.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded), rows_per_image: None },
-            },
-            wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
-        );
-        ctx.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        ctx.wait_idle()?;
-        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mapped = buffer.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mut out = Vec::with_capacity((row * self.height) as usize);
-        for r in 0..self.height as usize {
-            out.extend_from_slice(&mapped[r * padded as usize..r * padded as usize + row as usize]);
-        }
-        drop(mapped);
-        buffer.unmap();
-        ctx.check_errors()?;
-        Ok(out)
+        ctx.read_texture(&self.texture, [self.width, self.height, 1], 4)
     }
 }
 
