@@ -38,6 +38,7 @@ pub mod cpu_reference;
 pub mod device;
 pub mod error;
 pub mod prefilter;
+pub mod pullback;
 pub mod raycast;
 pub mod shaders;
 pub mod slice;
@@ -52,6 +53,7 @@ pub use control::{ControlDesc, ControlInfo, GpuControlTexture, PreparedControl};
 pub use device::{Capabilities, FeatureRequest, GpuContext};
 pub use error::{GpuError, Result};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
+pub use pullback::{TpsDesc, TpsLocal};
 pub use raycast::{
     BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, RaycastDrawData, RaycastRenderer, RaycastUniforms,
     RenderSettings, RenderTarget, Shading, ShadingMode, VolumeUniforms,
