@@ -136,7 +136,7 @@ mod tests {
             linear: [[1.01, 0.02, 0.0], [-0.01, 0.98, 0.03], [0.0, 0.01, 1.02]],
             translation: [3.0, -2.0, 5.0],
         };
-        tps.validate().unwrap();
+        tps.validate().expect("valid TPS");
         let origin = [0.0, 120.0, 280.0];
         let local = tps.local(origin);
         for x in [[-60.0, 100.0, 260.0], [20.0, 140.0, 300.0], [5.0, 121.0, 279.0]] {
@@ -155,9 +155,9 @@ mod tests {
         centres[2][1] = f64::NAN;
         let tps =
             TpsDesc { centres_ref: &centres, weights: &weights, linear: [[1.0, 0.0, 0.0]; 3], translation: [0.0; 3] };
-        let err = tps.validate().unwrap_err().to_string();
+        let err = tps.validate().expect_err("NaN centre").to_string();
         assert!(err.contains("centre 2"), "{err}");
         let short = TpsDesc { centres_ref: &centres[..1], ..tps };
-        assert!(short.validate().unwrap_err().to_string().contains("1 centres but 4 weights"));
+        assert!(short.validate().expect_err("short weights").to_string().contains("1 centres but 4 weights"));
     }
 }
