@@ -19,6 +19,12 @@
 // (ref_from_frag_px), the same warp, sampling, window and transfer function; each volume contributes its TF colour
 // with opacity 1 inside its texture box (transparent outside); blended by the blend mode; no shading, no compositing.
 //
+// First hit (fs_raycast's second output, for depth-testing landmark glyphs, crates/gpu/src/glyph.rs): the NDC depth
+// (0 near … 1 far) of the first sample where the accumulated opacity reaches HIT_OPACITY (DVR) or of the nearer
+// iso-surface hit; NO_HIT_DEPTH where the ray hits nothing. A point at distance t along the ray (from the near-plane
+// point o, direction r) has NDC depth z = t·n_w / (k − t·d_w), where n = ref_from_clip·(ndc, 0, 1), d =
+// ref_from_clip·(ndc, 1, 1) − n and k = (d.xyz − o·d_w)·r: ref_from_clip is linear in homogeneous coordinates.
+//
 // The CPU reference in crates/gpu/src/cpu_reference.rs implements the same math: keep the two in sync.
 
 // Keep in sync with `VolumeUniforms` in crates/gpu/src/raycast.rs.
@@ -97,6 +103,9 @@ const BLEND_FIXED_ONLY: u32 = 5u;
 const BLEND_MOVING_ONLY: u32 = 6u;
 
 const EARLY_EXIT_ALPHA: f32 = 0.99;
+// Keep in sync with `HIT_OPACITY` and `NO_HIT_DEPTH` in crates/gpu/src/raycast.rs.
+const HIT_OPACITY: f32 = 0.5;
+const NO_HIT_DEPTH: f32 = 2.0;
 
 @group(0) @binding(0) var<uniform> u: RaycastUniforms;
 @group(0) @binding(1) var fixed_tex: texture_3d<f32>;
@@ -369,8 +378,25 @@ fn blend(f: vec4<f32>, m: vec4<f32>, x_ref: vec3<f32>) -> vec4<f32> {
     }
 }
 
+struct RaycastOutput {
+    @location(0) colour: vec4<f32>,
+    // The f32 depth's bits: R32Uint is colour-renderable everywhere (R32Float is not on GLES).
+    @location(1) hit_depth: u32,
+}
+
+fn no_hit(colour: vec4<f32>) -> RaycastOutput {
+    return RaycastOutput(colour, bitcast<u32>(NO_HIT_DEPTH));
+}
+
+// The NDC depth of the point at distance t along the pixel's ray (see the header).
+fn ndc_depth(near_h: vec4<f32>, far_h: vec4<f32>, origin_ref: vec3<f32>, dir_ref: vec3<f32>, t: f32) -> f32 {
+    let d = far_h - near_h;
+    let k = dot(d.xyz - origin_ref * d.w, dir_ref);
+    return t * near_h.w / (k - t * d.w);
+}
+
 @fragment
-fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
+fn fs_raycast(in: VertexOutput) -> RaycastOutput {
     // Pixel centre → NDC (y up) → a ray in ref space between the near and the far plane.
     let ndc = vec2<f32>(in.position.x / u.viewport_px.x * 2.0 - 1.0, 1.0 - in.position.y / u.viewport_px.y * 2.0);
     let near_h = u.ref_from_clip * vec4<f32>(ndc, 0.0, 1.0);
@@ -386,7 +412,7 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
     let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
     let t_enter = max(t_near, 0.0);
     if t_far <= t_enter {
-        return vec4<f32>(0.0);
+        return no_hit(vec4<f32>(0.0));
     }
 
     var jitter = 0.0;
@@ -411,7 +437,7 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
             t_m = iso_hit(moving_tex, moving_ctrl_tex, u.moving, origin_ref, dir_ref, t_enter, t_far, jitter);
         }
         if t_f < 0.0 && t_m < 0.0 {
-            return vec4<f32>(0.0);
+            return no_hit(vec4<f32>(0.0));
         }
         var f = vec4<f32>(0.0);
         var m = vec4<f32>(0.0);
@@ -426,10 +452,12 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
                 t_near_hit = t_m;
             }
         }
-        return blend(f, m, origin_ref + t_near_hit * dir_ref);
+        let colour = blend(f, m, origin_ref + t_near_hit * dir_ref);
+        return RaycastOutput(colour, bitcast<u32>(ndc_depth(near_h, far_h, origin_ref, dir_ref, t_near_hit)));
     }
 
     var acc = vec4<f32>(0.0);
+    var hit_depth = NO_HIT_DEPTH;
     for (var k = 0u; k < u.max_steps; k++) {
         let t = t_enter + (f32(k) + jitter) * u.step_mm;
         if t >= t_far {
@@ -447,11 +475,14 @@ fn fs_raycast(in: VertexOutput) -> @location(0) vec4<f32> {
         let c = blend(f, m, x_ref);
         // Front-to-back "over" compositing of premultiplied colour.
         acc += (1.0 - acc.a) * c;
+        if hit_depth == NO_HIT_DEPTH && acc.a >= HIT_OPACITY {
+            hit_depth = ndc_depth(near_h, far_h, origin_ref, dir_ref, t);
+        }
         if acc.a > EARLY_EXIT_ALPHA {
             break;
         }
     }
-    return acc;
+    return RaycastOutput(acc, bitcast<u32>(hit_depth));
 }
 
 // Slices: one volume's TF colour at x_ref, opaque inside the volume's texture box, transparent outside.

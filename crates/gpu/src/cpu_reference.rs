@@ -12,10 +12,13 @@
 use glam::{Mat4, Vec3, Vec4};
 
 use crate::control::PreparedControl;
+use crate::glyph::{
+    GlyphInstance, GlyphUniforms, KIND_POINT, MODE_SLICE as GLYPH_MODE_SLICE, MODE_VIEW as GLYPH_MODE_VIEW,
+};
 use crate::prefilter::PrefilteredTexels;
 use crate::raycast::{
-    EARLY_EXIT_ALPHA, RAYCAST_JITTER, RaycastUniforms, ShadingMode, VOLUME_HAS_PREFILTER, VOLUME_HAS_WARP,
-    VOLUME_VISIBLE, VolumeUniforms,
+    EARLY_EXIT_ALPHA, HIT_OPACITY, NO_HIT_DEPTH, RAYCAST_JITTER, RaycastUniforms, ShadingMode, VOLUME_HAS_PREFILTER,
+    VOLUME_HAS_WARP, VOLUME_VISIBLE, VolumeUniforms,
 };
 use crate::transfer::{TF_ENTRIES, TransferFunction};
 use crate::volume::PreparedVolume;
@@ -241,6 +244,26 @@ pub fn shade_pixel(
     tfs: &[TransferFunction],
     pixel_centre: [f32; 2],
 ) -> Vec4 {
+    shade_pixel_with_hit(u, fixed, moving, tfs, pixel_centre).0
+}
+
+/// The NDC depth of the point at distance `t` along a pixel's ray (the shader's `ndc_depth`).
+fn ndc_depth(near_h: Vec4, far_h: Vec4, origin: Vec3, dir: Vec3, t: f32) -> f32 {
+    let d = far_h - near_h;
+    let k = (d.truncate() - origin * d.w).dot(dir);
+    t * near_h.w / (k - t * d.w)
+}
+
+/// [`shade_pixel`] and the pixel's first-hit NDC depth ([`crate::RenderTarget::hit_depth`]: where the accumulated
+/// opacity reaches [`HIT_OPACITY`], or the nearer iso hit; [`NO_HIT_DEPTH`] without a hit).
+#[must_use]
+pub fn shade_pixel_with_hit(
+    u: &RaycastUniforms,
+    fixed: &CpuLayer<'_>,
+    moving: &CpuLayer<'_>,
+    tfs: &[TransferFunction],
+    pixel_centre: [f32; 2],
+) -> (Vec4, f32) {
     let ref_from_clip = Mat4::from_cols_array_2d(&u.ref_from_clip);
     let ndc = [pixel_centre[0] / u.viewport_px[0] * 2.0 - 1.0, 1.0 - pixel_centre[1] / u.viewport_px[1] * 2.0];
     let near_h = ref_from_clip * Vec4::new(ndc[0], ndc[1], 0.0, 1.0);
@@ -254,7 +277,7 @@ pub fn shade_pixel(
     let t_far = t0.max(t1).min_element();
     let t_enter = t_near.max(0.0);
     if t_far <= t_enter || t_far.is_nan() {
-        return Vec4::ZERO;
+        return (Vec4::ZERO, NO_HIT_DEPTH);
     }
     let jitter = if u.flags & RAYCAST_JITTER != 0 {
         let (px, py) = (pixel_centre[0] as u32, pixel_centre[1] as u32);
@@ -274,13 +297,14 @@ pub fn shade_pixel(
         let m = t_m.map_or(Vec4::ZERO, |t| iso_colour(moving, u, &u.moving, tfs, origin + t * dir, light));
         // The checkerboard picks its cell at the nearer hit.
         let t_near_hit = match (t_f, t_m) {
-            (None, None) => return Vec4::ZERO,
+            (None, None) => return (Vec4::ZERO, NO_HIT_DEPTH),
             (Some(a), Some(b)) => a.min(b),
             (Some(a), None) | (None, Some(a)) => a,
         };
-        return blend(u, f, m, origin + t_near_hit * dir);
+        return (blend(u, f, m, origin + t_near_hit * dir), ndc_depth(near_h, far_h, origin, dir, t_near_hit));
     }
     let mut acc = Vec4::ZERO;
+    let mut hit_depth = NO_HIT_DEPTH;
     for k in 0..u.max_steps {
         let t = t_enter + (k as f32 + jitter) * u.step_mm;
         if t >= t_far {
@@ -290,11 +314,29 @@ pub fn shade_pixel(
         let f = if use_fixed { classify(fixed, u, &u.fixed, tfs, x, light) } else { Vec4::ZERO };
         let m = if use_moving { classify(moving, u, &u.moving, tfs, x, light) } else { Vec4::ZERO };
         acc += (1.0 - acc.w) * blend(u, f, m, x);
+        if hit_depth == NO_HIT_DEPTH && acc.w >= HIT_OPACITY {
+            hit_depth = ndc_depth(near_h, far_h, origin, dir, t);
+        }
         if acc.w > EARLY_EXIT_ALPHA {
             break;
         }
     }
-    acc
+    (acc, hit_depth)
+}
+
+/// The first-hit depth image of [`render`] (what [`crate::RenderTarget::read_hit_depth`] returns).
+#[must_use]
+pub fn render_hit_depth(
+    u: &RaycastUniforms,
+    fixed: &CpuLayer<'_>,
+    moving: &CpuLayer<'_>,
+    tfs: &[TransferFunction],
+) -> Vec<f32> {
+    let (w, h) = (u.viewport_px[0] as u32, u.viewport_px[1] as u32);
+    (0..h)
+        .flat_map(|y| (0..w).map(move |x| [x as f32 + 0.5, y as f32 + 0.5]))
+        .map(|centre| shade_pixel_with_hit(u, fixed, moving, tfs, centre).1)
+        .collect()
 }
 
 /// The whole image as premultiplied RGBA8, rows top to bottom (what [`crate::RenderTarget::read_back`] returns).
@@ -327,6 +369,111 @@ fn rasterise(u: &RaycastUniforms, rows: std::ops::Range<u32>, pixel: impl Fn([f3
         }
     }
     out
+}
+
+/// The glyph pass ([`crate::glyph`], `shaders/glyph.wgsl`) over `image` (premultiplied RGBA8, `viewport_px`
+/// big, rows top to bottom), in instance order, each write quantised as the render target stores it. `hit_depth` is
+/// the frame's first-hit depth ([`render_hit_depth`]) in the 3-D view (empty: no hit anywhere, like the GPU pass
+/// without a frame's hit depth) and ignored for slices.
+pub fn composite_glyphs(u: &GlyphUniforms, glyphs: &[GlyphInstance], hit_depth: &[f32], image: &mut [u8]) {
+    let (w, h) = (u.viewport_px[0] as i64, u.viewport_px[1] as i64);
+    let clip_from_ref = Mat4::from_cols_array_2d(&u.clip_from_ref);
+    let ref_from_clip = Mat4::from_cols_array_2d(&u.ref_from_clip);
+    let project = |p: Vec3| -> Option<Vec3> {
+        let clip = clip_from_ref * p.extend(1.0);
+        if clip.w <= 0.0 {
+            return None;
+        }
+        let ndc = clip.truncate() / clip.w;
+        Some(Vec3::new((ndc.x + 1.0) * 0.5 * u.viewport_px[0], (1.0 - ndc.y) * 0.5 * u.viewport_px[1], ndc.z))
+    };
+    let ray_distance = |ndc: glam::Vec2, z: f32| {
+        let near_h = ref_from_clip * Vec4::new(ndc.x, ndc.y, 0.0, 1.0);
+        let p_h = ref_from_clip * Vec4::new(ndc.x, ndc.y, z, 1.0);
+        (p_h.truncate() / p_h.w).distance(near_h.truncate() / near_h.w)
+    };
+    for glyph in glyphs {
+        let (mut a, mut b) = (Vec3::from_array(glyph.a_ref), Vec3::from_array(glyph.b_ref));
+        let mut radius = glyph.radius_px;
+        if u.mode == GLYPH_MODE_SLICE {
+            let n = Vec3::from_array(u.plane_normal_ref);
+            let (da, db) = (n.dot(a) - u.plane_offset_mm, n.dot(b) - u.plane_offset_mm);
+            if glyph.kind == KIND_POINT {
+                let q = da / u.slab_half_mm;
+                if q.abs() > 1.0 {
+                    continue;
+                }
+                radius *= (1.0 - q * q).sqrt();
+            } else {
+                let (mut s0, mut s1) = (0.0f32, 1.0f32);
+                let dd = db - da;
+                if dd.abs() < 1e-12 {
+                    if da.abs() > u.slab_half_mm {
+                        continue;
+                    }
+                } else {
+                    let (lo, hi) = ((-u.slab_half_mm - da) / dd, (u.slab_half_mm - da) / dd);
+                    s0 = s0.max(lo.min(hi));
+                    s1 = s1.min(lo.max(hi));
+                    if s0 > s1 {
+                        continue;
+                    }
+                }
+                let e = b - a;
+                (a, b) = (a + s0 * e, a + s1 * e);
+            }
+        }
+        let (Some(pa), Some(pb)) = (project(a), project(b)) else { continue };
+        if pa.z < 0.0 || pb.z < 0.0 || radius <= 0.0 {
+            continue;
+        }
+        let e = pb.truncate() - pa.truncate();
+        let len_sq = e.dot(e);
+        let reach = radius + 1.0;
+        let x_range =
+            (pa.x.min(pb.x) - reach).floor().max(0.0) as i64..=((pa.x.max(pb.x) + reach).ceil() as i64).min(w - 1);
+        let y_range =
+            (pa.y.min(pb.y) - reach).floor().max(0.0) as i64..=((pa.y.max(pb.y) + reach).ceil() as i64).min(h - 1);
+        for y in y_range {
+            for x in x_range.clone() {
+                let p = glam::Vec2::new(x as f32 + 0.5, y as f32 + 0.5);
+                let s = if len_sq > 1e-12 { ((p - pa.truncate()).dot(e) / len_sq).clamp(0.0, 1.0) } else { 0.0 };
+                let dist = p.distance(pa.truncate() + s * e);
+                let coverage = (radius + 0.5 - dist).clamp(0.0, 1.0);
+                if coverage <= 0.0 {
+                    continue;
+                }
+                let mut rgb = Vec3::new(glyph.colour[0], glyph.colour[1], glyph.colour[2]);
+                if glyph.kind == KIND_POINT {
+                    let rim = (dist - (radius - u.outline_px) + 0.5).clamp(0.0, 1.0);
+                    rgb = rgb.lerp(Vec3::ZERO, rim);
+                }
+                let mut alpha = glyph.colour[3] * coverage;
+                let i = (y * w + x) as usize;
+                if u.mode == GLYPH_MODE_VIEW {
+                    let hit = hit_depth.get(i).copied().unwrap_or(NO_HIT_DEPTH);
+                    if hit <= 1.0 {
+                        let ndc =
+                            glam::Vec2::new(p.x / u.viewport_px[0] * 2.0 - 1.0, 1.0 - p.y / u.viewport_px[1] * 2.0);
+                        let z = pa.z + s * (pb.z - pa.z);
+                        if ray_distance(ndc, z) > ray_distance(ndc, hit) + u.depth_tolerance_mm {
+                            alpha *= u.occluded_alpha;
+                        }
+                    }
+                }
+                if alpha <= 0.0 {
+                    continue;
+                }
+                let src = (rgb * alpha).extend(alpha);
+                let px = &mut image[4 * i..4 * i + 4];
+                let dst = Vec4::from_array(std::array::from_fn(|c| f32::from(px[c]) / 255.0));
+                let out = src + dst * (1.0 - alpha);
+                for (c, v) in px.iter_mut().zip(out.to_array()) {
+                    *c = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+                }
+            }
+        }
+    }
 }
 
 /// The shader's `slice_sample`: the TF colour of one volume at `x_ref`, opaque inside its texture box, transparent

@@ -19,6 +19,8 @@
 //!   by [`RaycastRenderer::render_slice`] with the ray caster's sampling, classification and blending.
 //! - [`prefilter`]: [`PrefilterPass`], a separable Gaussian (compute, optionally half resolution) whose result
 //!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
+//! - [`glyph`]: landmark glyphs ([`GlyphRenderer`], [`GlyphDrawData`], [`pair_glyphs`]): points and pair lines over the
+//!   3-D view, depth-tested against the ray caster's first hit ([`RenderTarget::hit_depth`]), and over slices.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
 //!
 //! # Spaces
@@ -37,6 +39,7 @@ pub mod control;
 pub mod cpu_reference;
 pub mod device;
 pub mod error;
+pub mod glyph;
 pub mod prefilter;
 pub mod pullback;
 pub mod raycast;
@@ -52,6 +55,9 @@ pub use camera::{OrbitCamera, Projection};
 pub use control::{ControlDesc, ControlInfo, GpuControlTexture, PreparedControl};
 pub use device::{Capabilities, FeatureRequest, GpuContext};
 pub use error::{GpuError, Result};
+pub use glyph::{
+    GlyphDrawData, GlyphInstance, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, pair_glyphs,
+};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use pullback::{TpsDesc, TpsLocal};
 pub use raycast::{

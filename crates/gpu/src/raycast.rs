@@ -431,6 +431,9 @@ pub struct RaycastRenderer {
 impl RaycastRenderer {
     /// The output format.
     pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+    /// The format of the first-hit depth, the ray caster's second output ([`RenderTarget::hit_depth`]): the bits of
+    /// an f32 NDC depth, because R32Float is not colour-renderable on GLES (wgpu's GL backend) and R32Uint is.
+    pub const HIT_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
     /// Requested when the adapter has them; without them the pass falls back (see [`crate::volume`] and
     /// [`crate::control`]).
     pub const OPTIONAL_FEATURES: wgpu::Features =
@@ -576,16 +579,36 @@ impl RaycastRenderer {
     fn pipeline(&self, code: u32) -> &wgpu::RenderPipeline {
         let code = code.min(ShadingMode::Iso.code());
         self.pipelines[code as usize].get_or_init(|| {
-            self.create_pipeline("raycast", RAYCAST.entry_point(Stage::Fragment), &[("SHADING", f64::from(code))])
+            let fragment = RAYCAST.entry_point(Stage::Fragment);
+            self.create_pipeline("raycast", fragment, &[("SHADING", f64::from(code))], true)
         })
     }
 
     /// The slice pipeline: the same module, layout and vertex stage, fragment entry point [`Self::SLICE_ENTRY_POINT`].
     fn slice_pipeline(&self) -> &wgpu::RenderPipeline {
-        self.slice_pipeline.get_or_init(|| self.create_pipeline("slice", Some(Self::SLICE_ENTRY_POINT), &[]))
+        self.slice_pipeline.get_or_init(|| self.create_pipeline("slice", Some(Self::SLICE_ENTRY_POINT), &[], false))
     }
 
-    fn create_pipeline(&self, label: &str, fragment: Option<&str>, constants: &[(&str, f64)]) -> wgpu::RenderPipeline {
+    /// `with_hit_depth`: the fragment stage also writes the first-hit depth (`fs_raycast`; slices do not).
+    fn create_pipeline(
+        &self,
+        label: &str,
+        fragment: Option<&str>,
+        constants: &[(&str, f64)],
+        with_hit_depth: bool,
+    ) -> wgpu::RenderPipeline {
+        let colour = Some(wgpu::ColorTargetState {
+            format: Self::TARGET_FORMAT,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let hit_depth = Some(wgpu::ColorTargetState {
+            format: Self::HIT_DEPTH_FORMAT,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let targets = [colour, hit_depth];
+        let targets = if with_hit_depth { &targets[..] } else { &targets[..1] };
         self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some(label),
             layout: Some(&self.pipeline_layout),
@@ -602,11 +625,7 @@ impl RaycastRenderer {
                 module: &self.module,
                 entry_point: fragment,
                 compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
-                targets: &[Some(wgpu::ColorTargetState {
-                    format: Self::TARGET_FORMAT,
-                    blend: None,
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
+                targets,
             }),
             multiview_mask: None,
             cache: None,
@@ -619,14 +638,16 @@ impl RaycastRenderer {
         ctx.check_errors()
     }
 
-    /// Records the pass's draw into `pass` (whose target must be [`Self::TARGET_FORMAT`]).
+    /// Records the pass's draw into `pass`, whose colour attachments must be [`Self::TARGET_FORMAT`] and
+    /// [`Self::HIT_DEPTH_FORMAT`] ([`RenderTarget::colour_attachments`]).
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
         pass.set_pipeline(self.pipeline(data.uniforms.shading_mode));
         pass.set_bind_group(0, &data.bind_group, &[]);
         pass.draw(0..3, 0..1);
     }
 
-    /// Records a slice draw ([`crate::slice`]; `data` built from [`RaycastUniforms::for_slice`]) into `pass`.
+    /// Records a slice draw ([`crate::slice`]; `data` built from [`RaycastUniforms::for_slice`]) into `pass`, whose
+    /// one colour attachment is [`Self::TARGET_FORMAT`].
     pub fn draw_slice(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
         pass.set_pipeline(self.slice_pipeline());
         pass.set_bind_group(0, &data.bind_group, &[]);
@@ -636,32 +657,27 @@ impl RaycastRenderer {
     /// Renders the slice `data` ([`RaycastUniforms::for_slice`]) into `target` (the plane's size, cleared to
     /// transparent) and submits.
     pub fn render_slice(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        Self::render_with(ctx, target, |pass| self.draw_slice(pass, data))
+        Self::render_with(ctx, target, false, |pass| self.draw_slice(pass, data))
     }
 
     /// Renders `data` into `target` (cleared to transparent) and submits.
     pub fn render(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        Self::render_with(ctx, target, |pass| self.draw(pass, data))
+        Self::render_with(ctx, target, true, |pass| self.draw(pass, data))
     }
 
     fn render_with(
         ctx: &GpuContext,
         target: &RenderTarget,
+        with_hit_depth: bool,
         record: impl FnOnce(&mut wgpu::RenderPass<'_>),
     ) -> Result<()> {
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("raycast") });
         {
+            let attachments = target.colour_attachments();
+            let attachments = if with_hit_depth { &attachments[..] } else { &attachments[..1] };
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("raycast"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: &target.view,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
+                color_attachments: attachments,
                 depth_stencil_attachment: None,
                 timestamp_writes: None,
                 occlusion_query_set: None,
@@ -790,11 +806,21 @@ impl RaycastDrawData {
     }
 }
 
-/// An `Rgba8Unorm` render target the app can show (`TEXTURE_BINDING`) and tests can read back (`COPY_SRC`).
+/// The ray caster's first-hit threshold: the hit depth is taken where the accumulated opacity first reaches it.
+/// Keep in sync with `HIT_OPACITY` in shaders/raycast.wgsl.
+pub const HIT_OPACITY: f32 = 0.5;
+/// The hit depth of a ray that hits nothing (beyond the far plane's 1). Keep in sync with shaders/raycast.wgsl.
+pub const NO_HIT_DEPTH: f32 = 2.0;
+
+/// An `Rgba8Unorm` render target the app can show (`TEXTURE_BINDING`) and tests can read back (`COPY_SRC`), with
+/// the ray caster's first-hit depth beside it (NDC depth as f32 bits in R32Uint, [`NO_HIT_DEPTH`] where nothing was hit), which the
+/// glyph pass ([`crate::glyph`]) depth-tests against.
 #[derive(Debug)]
 pub struct RenderTarget {
     pub texture: wgpu::Texture,
     pub view: wgpu::TextureView,
+    pub hit_depth: wgpu::Texture,
+    pub hit_depth_view: wgpu::TextureView,
     pub width: u32,
     pub height: u32,
 }
@@ -802,7 +828,7 @@ pub struct RenderTarget {
 impl RenderTarget {
     #[must_use]
     pub fn new(ctx: &GpuContext, width: u32, height: u32) -> Self {
-        let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        let descriptor = wgpu::TextureDescriptor {
             label: Some("raycast target"),
             size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
             mip_level_count: 1,
@@ -813,9 +839,38 @@ impl RenderTarget {
                 | wgpu::TextureUsages::TEXTURE_BINDING
                 | wgpu::TextureUsages::COPY_SRC,
             view_formats: &[],
-        });
+        };
+        let texture = ctx.device.create_texture(&descriptor);
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        Self { texture, view, width, height }
+        let hit_depth = ctx.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("raycast hit depth"),
+            format: RaycastRenderer::HIT_DEPTH_FORMAT,
+            ..descriptor
+        });
+        let hit_depth_view = hit_depth.create_view(&wgpu::TextureViewDescriptor::default());
+        Self { texture, view, hit_depth, hit_depth_view, width, height }
+    }
+
+    /// The two attachments of a ray-casting pass, cleared to transparent and to [`NO_HIT_DEPTH`].
+    #[must_use]
+    pub fn colour_attachments(&self) -> [Option<wgpu::RenderPassColorAttachment<'_>>; 2] {
+        let clear = |view, value| {
+            Some(wgpu::RenderPassColorAttachment {
+                view,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(value), store: wgpu::StoreOp::Store },
+            })
+        };
+        let no_hit = wgpu::Color { r: f64::from(NO_HIT_DEPTH.to_bits()), g: 0.0, b: 0.0, a: 0.0 };
+        [clear(&self.view, wgpu::Color::TRANSPARENT), clear(&self.hit_depth_view, no_hit)]
+    }
+
+    /// The first-hit NDC depth per pixel of the last 3-D render, rows top to bottom ([`NO_HIT_DEPTH`] where the ray
+    /// hit nothing; slice renders leave it as it was).
+    pub fn read_hit_depth(&self, ctx: &GpuContext) -> Result<Vec<f32>> {
+        let bytes = ctx.read_texture(&self.hit_depth, [self.width, self.height, 1], 4)?;
+        Ok(bytemuck::pod_collect_to_vec(&bytes))
     }
 
     /// Premultiplied RGBA8, rows top to bottom, `4 · width` bytes per row (the copy's 256-byte row alignment removed).

@@ -2,6 +2,7 @@
 //! Rust twin. The runtime creates modules from [`ShaderSource`]s here, and `tests/shaders.rs` validates each one with
 //! naga (no device) and checks the Rust struct sizes against naga's layout of the WGSL struct of the same name.
 
+use crate::glyph::GlyphUniforms;
 use crate::prefilter::PrefilterUniforms;
 use crate::raycast::{RaycastUniforms, VolumeUniforms};
 
@@ -117,5 +118,25 @@ pub const PREFILTER: ShaderSource = ShaderSource {
     uniform_structs: &[layout!(PrefilterUniforms { axis, radius_vox, sigma_vox, dst_dims })],
 };
 
+/// Landmark glyphs: `vs_glyph` + `fs_glyph`, screen-space capsules over a frame or a slice (see [`crate::glyph`]).
+pub const GLYPH: ShaderSource = ShaderSource {
+    name: "glyph",
+    path: "shaders/glyph.wgsl",
+    source: include_str!("../../../shaders/glyph.wgsl"),
+    entry_points: &[("vs_glyph", Stage::Vertex), ("fs_glyph", Stage::Fragment)],
+    uniform_structs: &[layout!(GlyphUniforms {
+        clip_from_ref,
+        ref_from_clip,
+        plane_normal_ref,
+        plane_offset_mm,
+        viewport_px,
+        mode,
+        occluded_alpha,
+        depth_tolerance_mm,
+        slab_half_mm,
+        outline_px
+    })],
+};
+
 /// Every shader of the crate.
-pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER];
+pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER, GLYPH];

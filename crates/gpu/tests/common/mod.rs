@@ -228,6 +228,13 @@ impl Scene {
         cpu_reference::render_slice(u, &f, &m, &self.tfs)
     }
 
+    /// The CPU reference's first-hit depth image (single-threaded).
+    pub fn cpu_hit_depth(&self, u: &RaycastUniforms) -> Vec<f32> {
+        let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref() };
+        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: self.moving_pf.as_ref() };
+        cpu_reference::render_hit_depth(u, &f, &m, &self.tfs)
+    }
+
     pub fn cpu(&self, u: &RaycastUniforms) -> Vec<u8> {
         let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref() };
         let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: self.moving_pf.as_ref() };
@@ -311,6 +318,17 @@ impl GpuScene {
 
     /// As [`Self::render`] with another scene's renderer (saves compiling the same pipeline again).
     pub fn render_by(&self, ctx: &GpuContext, renderer: &RaycastRenderer, s: &Scene, u: &RaycastUniforms) -> Vec<u8> {
+        self.render_target(ctx, renderer, s, u).read_back(ctx).expect("read back")
+    }
+
+    /// The frame `u` rendered by `renderer` into a new target (colour and first-hit depth), not read back.
+    pub fn render_target(
+        &self,
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        s: &Scene,
+        u: &RaycastUniforms,
+    ) -> RenderTarget {
         let f =
             GpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref(), style: s.fixed_style };
         let m = GpuLayer {
@@ -323,7 +341,7 @@ impl GpuScene {
         let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
         let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
         renderer.render(ctx, &data, &target).expect("render");
-        target.read_back(ctx).expect("read back")
+        target
     }
 }
 
