@@ -27,8 +27,8 @@ use glam::{DVec3, Vec3};
 use warpbench_gpu::{
     BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions,
     GpuVolume, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset,
-    Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget,
-    VolumeDesc, VolumeSamples, Window,
+    Projection, Quality, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode,
+    VolumeBudget, VolumeDesc, VolumeSamples, Window,
 };
 
 /// Edge of both volumes' box, mm (whatever the dims).
@@ -288,11 +288,12 @@ fn main() {
         shading: Shading::with_mode(mode),
         ..Default::default()
     };
-    let draw = |frame: &GpuFrame<'_>, mode| {
-        let data = RaycastDrawData::new(&ctx, &renderer, frame, &cam, &settings(mode), o.size);
+    let draw_at = |frame: &GpuFrame<'_>, mode, quality| {
+        let data = RaycastDrawData::new(&ctx, &renderer, frame, &cam, &settings(mode).at(quality), o.size);
         renderer.render(&ctx, &data, &target).expect("render");
         std::hint::black_box(target.read_back(&ctx).expect("read back"));
     };
+    let draw = |frame: &GpuFrame<'_>, mode| draw_at(frame, mode, Quality::Full);
 
     let mut results: Vec<(&str, Duration, Duration)> = Vec::new();
     let (mean, best) = time(o.frames, 1, || draw(&undeformed, ShadingMode::None));
@@ -301,6 +302,8 @@ fn main() {
     results.push(("deformed", mean, best));
     let (mean, best) = time(o.frames, 1, || draw(&shaded, ShadingMode::Dvr));
     results.push(("deformed + shaded", mean, best));
+    let (mean, best) = time(o.frames, 1, || draw_at(&shaded, ShadingMode::Dvr, Quality::Interactive));
+    results.push(("deformed + shaded, interactive", mean, best));
     let (mean, best) = time(o.frames, 1, || {
         let mut encoder =
             ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("prefilter") });

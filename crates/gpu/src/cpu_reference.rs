@@ -539,7 +539,7 @@ mod tests {
     use super::*;
     use crate::camera::{OrbitCamera, Projection};
     use crate::device::Capabilities;
-    use crate::raycast::{BlendMode, LayerParams, LayerStyle, RenderSettings};
+    use crate::raycast::{BlendMode, LayerParams, LayerStyle, Quality, RenderSettings};
     use crate::transfer::Window;
     use crate::volume::{VolumeBudget, VolumeDesc, VolumeSamples};
 
@@ -583,6 +583,28 @@ mod tests {
             assert!((c.w - expected).abs() < 2e-4, "spv {spv}: α {} vs {expected}", c.w);
             assert!((c.x - c.w).abs() < 1e-5 && (c.y - c.w * 128.0 / 255.0).abs() < 1e-4, "{c}");
         }
+    }
+
+    #[test]
+    fn interactive_frames_sample_coarser_with_the_same_opacity() {
+        let vol = constant_volume(8, 0.5);
+        let tfs = [flat_tf([255, 128, 0, 26])];
+        let layer = LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false };
+        let hidden = LayerParams { style: style(false), ..layer };
+        let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
+        let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
+        let settings = RenderSettings { blend: BlendMode::FixedOnly, samples_per_voxel: 2.0, ..Default::default() };
+        let frame = |quality| {
+            let u = RaycastUniforms::new(&cam, &settings.at(quality), (9, 9), &layer, &hidden, 1);
+            (u.step_mm, shade_pixel(&u, &cpu, &cpu, &tfs, [4.5, 4.5]))
+        };
+        let (full_step, full) = frame(Quality::Full);
+        let (fast_step, fast) = frame(Quality::Interactive);
+        assert!((full_step - 0.5).abs() < 1e-6 && (fast_step - 2.0).abs() < 1e-6, "{full_step} {fast_step}");
+        assert!((full - fast).abs().max_element() < 2e-4, "{full} vs {fast}");
+        // Never finer than the full rate.
+        let coarse = RenderSettings { samples_per_voxel: 0.25, ..settings };
+        assert!((coarse.at(Quality::Interactive).samples_per_voxel - 0.25).abs() < f32::EPSILON);
     }
 
     #[test]

@@ -61,7 +61,7 @@ pub use glyph::{
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use pullback::{TpsDesc, TpsLocal};
 pub use raycast::{
-    BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, RaycastDrawData, RaycastRenderer, RaycastUniforms,
+    BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, Quality, RaycastDrawData, RaycastRenderer, RaycastUniforms,
     RenderSettings, RenderTarget, Shading, ShadingMode, VolumeUniforms,
 };
 pub use slice::SlicePlane;

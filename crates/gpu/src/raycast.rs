@@ -236,12 +236,25 @@ impl Shading {
     }
 }
 
+/// Which sample rate a frame uses: the full one when the view is still, a lower one while the user drags (Brunet,
+/// Nowak & Gleicher 2006 §6.2: their implementation "adjusts sampling rates to provide faster performance at the
+/// expense of image quality"). Opacity is corrected to the step, so the picture keeps its brightness and only gets
+/// coarser.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Quality {
+    #[default]
+    Full,
+    Interactive,
+}
+
 /// Frame-wide settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderSettings {
     pub blend: BlendMode,
     /// Samples per voxel of the finest visible spacing (step = spacing / samples_per_voxel).
     pub samples_per_voxel: f32,
+    /// The samples per voxel of [`Quality::Interactive`] frames ([`Self::at`]).
+    pub interaction_samples_per_voxel: f32,
     /// `Some(seed)`: jitter ray starts by a fixed per-pixel hash of (pixel, seed). `None` for tests and goldens.
     pub jitter_seed: Option<u32>,
     /// Upper bound on samples per ray.
@@ -257,10 +270,25 @@ impl Default for RenderSettings {
         Self {
             blend: BlendMode::Mix { moving_weight: 0.5 },
             samples_per_voxel: 1.0,
+            interaction_samples_per_voxel: 0.5,
             jitter_seed: None,
             max_steps: 4096,
             box_override_ref: None,
             shading: Shading::default(),
+        }
+    }
+}
+
+impl RenderSettings {
+    /// These settings at `quality`: [`Quality::Interactive`] samples at [`Self::interaction_samples_per_voxel`]
+    /// (never more finely than the full rate).
+    #[must_use]
+    pub fn at(&self, quality: Quality) -> Self {
+        match quality {
+            Quality::Full => *self,
+            Quality::Interactive => {
+                Self { samples_per_voxel: self.interaction_samples_per_voxel.min(self.samples_per_voxel), ..*self }
+            }
         }
     }
 }
