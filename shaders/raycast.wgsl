@@ -509,3 +509,170 @@ fn fs_slice(in: VertexOutput) -> @location(0) vec4<f32> {
     }
     return blend(f, m, x_ref);
 }
+
+// Ray picking (crates/gpu/src/pick.rs; Brunet et al. 2006 §4.1, §5.1): a compute entry point over the same bindings,
+// so that a pick marches exactly the samples the frame shows. One invocation per ray, in ref space, through the
+// proxy box, at the frame's step, without jitter, through the target volume's pull-back. Probes (per sample s, the
+// target volume's uncorrected TF opacity α(s) = TF(value)·opacity_scale, its deformed-space gradient g(s) in value
+// units per mm):
+//   PROBE_OPACITY:     α(s) ≥ threshold;
+//   PROBE_GRADIENT:    |g(s)| ≥ threshold;
+//   PROBE_ACCUMULATED: A(s) ≥ threshold, the target volume's front-to-back accumulated opacity, with the partial
+//                      step A(s) = A_prev + (1 − A_prev)·(1 − (1 − α(s))^((s − t_prev)/ref_step)) inside the last step.
+// The first sample that satisfies the probe is refined by `bisection_steps` bisections between it and the previous
+// sample. The hit reports x_ref, its distance along the ray, the pull-back u(x_ref) in the volume's LPS space and the
+// value there. The CPU reference is `cpu_reference::pick`.
+
+// Keep in sync with `PickUniforms` in crates/gpu/src/pick.rs.
+struct PickUniforms {
+    probe: u32,
+    target_volume: u32,
+    threshold: f32,
+    ray_count: u32,
+    bisection_steps: u32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// Keep in sync with `PickRay` in crates/gpu/src/pick.rs.
+struct PickRay {
+    origin_ref: vec3<f32>,
+    _pad0: f32,
+    dir_ref: vec3<f32>,
+    _pad1: f32,
+}
+
+// Keep in sync with `PickHit` in crates/gpu/src/pick.rs.
+struct PickHit {
+    x_ref: vec3<f32>,
+    t_mm: f32,
+    p_lps: vec3<f32>,
+    value: f32,
+    hit: u32,
+    target_volume: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+const PROBE_OPACITY: u32 = 0u;
+const PROBE_GRADIENT: u32 = 1u;
+const PROBE_ACCUMULATED: u32 = 2u;
+const TARGET_FIXED: u32 = 0u;
+
+@group(1) @binding(0) var<uniform> pick: PickUniforms;
+@group(1) @binding(1) var<storage, read> pick_rays: array<PickRay>;
+@group(1) @binding(2) var<storage, read_write> pick_hits: array<PickHit>;
+
+// The target volume's uncorrected opacity at x_ref (0 outside its texture box).
+fn pick_alpha(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> f32 {
+    let p_tex = warp_to_tex(ctrl, v, x_ref);
+    if outside_tex(p_tex) {
+        return 0.0;
+    }
+    let t = clamp((volume_value(vol, v, p_tex) - v.window_low) / v.window_width, 0.0, 1.0);
+    return clamp(sample_tf(v.tf_row, t).a * v.opacity_scale, 0.0, 1.0);
+}
+
+// The probe's quantity at x_ref (opacity, or gradient magnitude in value units per mm); the accumulated probe uses
+// the opacity and composites it in cs_pick.
+fn pick_quantity(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> f32 {
+    if pick.probe == PROBE_GRADIENT {
+        if outside_tex(warp_to_tex(ctrl, v, x_ref)) {
+            return 0.0;
+        }
+        return abs(v.value_scale) * length(warped_gradient(vol, ctrl, pf, v, x_ref));
+    }
+    return pick_alpha(vol, ctrl, v, x_ref);
+}
+
+// Opacity accumulated over a partial step of `len_mm` at opacity α, on top of `acc`.
+fn accumulate(acc: f32, alpha: f32, len_mm: f32) -> f32 {
+    return acc + (1.0 - acc) * (1.0 - exp2(len_mm / u.ref_step_mm * log2(max(1.0 - alpha, 1e-7))));
+}
+
+fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, ray: PickRay) -> PickHit {
+    var out: PickHit;
+    out.hit = 0u;
+    out.target_volume = pick.target_volume;
+    let origin = ray.origin_ref;
+    let dir = ray.dir_ref;
+    let inv_dir = 1.0 / dir;
+    let t0 = (u.box_min_ref - origin) * inv_dir;
+    let t1 = (u.box_max_ref - origin) * inv_dir;
+    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
+    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
+    let t_enter = max(t_near, 0.0);
+    if !(t_far > t_enter) {
+        return out;
+    }
+    var t_prev = -1.0;
+    var acc = 0.0;
+    for (var k = 0u; k < u.max_steps; k++) {
+        let t = t_enter + f32(k) * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        let q = pick_quantity(vol, ctrl, pf, v, origin + t * dir);
+        var found = false;
+        if pick.probe == PROBE_ACCUMULATED {
+            found = accumulate(acc, q, u.step_mm) >= pick.threshold;
+        } else {
+            found = q >= pick.threshold;
+        }
+        if found {
+            var t_hit = t;
+            if t_prev >= 0.0 {
+                var lo = t_prev;
+                var hi = t;
+                for (var b = 0u; b < pick.bisection_steps; b++) {
+                    let mid = 0.5 * (lo + hi);
+                    let qm = pick_quantity(vol, ctrl, pf, v, origin + mid * dir);
+                    var inside = false;
+                    if pick.probe == PROBE_ACCUMULATED {
+                        inside = accumulate(acc, qm, mid - t_prev) >= pick.threshold;
+                    } else {
+                        inside = qm >= pick.threshold;
+                    }
+                    if inside {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                t_hit = 0.5 * (lo + hi);
+            }
+            let x_ref = origin + t_hit * dir;
+            var p_lps = x_ref;
+            if (v.flags & VOLUME_HAS_WARP) != 0u {
+                let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
+                p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
+            }
+            out.hit = 1u;
+            out.x_ref = x_ref;
+            out.t_mm = t_hit;
+            out.p_lps = p_lps;
+            out.value = volume_value(vol, v, (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz);
+            return out;
+        }
+        if pick.probe == PROBE_ACCUMULATED {
+            acc = accumulate(acc, q, u.step_mm);
+        }
+        t_prev = t;
+    }
+    return out;
+}
+
+@compute @workgroup_size(64)
+fn cs_pick(@builtin(global_invocation_id) id: vec3<u32>) {
+    let i = id.x;
+    if i >= pick.ray_count {
+        return;
+    }
+    let ray = pick_rays[i];
+    if pick.target_volume == TARGET_FIXED {
+        pick_hits[i] = pick_march(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, ray);
+    } else {
+        pick_hits[i] = pick_march(moving_tex, moving_ctrl_tex, moving_pf_tex, u.moving, ray);
+    }
+}

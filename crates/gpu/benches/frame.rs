@@ -1,12 +1,16 @@
 //! Frame-time benchmark of the ray caster (issue 4): two deterministic procedural volumes (a CT-like i16 head and an
-//! MR-like u8 head, 256³ by default), 64³ control textures, a 512² image at 1 sample per voxel, and four cases timed
-//! in the same run:
+//! MR-like u8 head, 256³ by default), 64³ control textures, a 512² image at 1 sample per voxel, and these cases
+//! timed in the same run:
 //!
 //! 1. **undeformed**: both volumes, mix blend, no control texture (the identity fast path);
 //! 2. **deformed**: the moving volume pulled back through a 64³ control texture;
 //! 3. **deformed + shaded**: as 2, lit DVR with gradients through the warp from prefiltered copies made once;
 //! 4. **deformed + shaded + prefilter**: as 3, with both volumes prefiltered again every frame (what a change of
-//!    volume costs).
+//!    volume costs);
+//! 5. **deformed + shaded, interactive**: as 3 at the interaction sample rate ([`warpbench_gpu::Quality`], 0.5
+//!    samples per voxel);
+//! 6. **pick** (three probes): click to result for one ray through the centre pixel into the deformed moving volume
+//!    ([`warpbench_gpu::PickPass`]: upload, dispatch, read back).
 //!
 //! A frame is submit + wait + readback of the RGBA8 image (wall clock; warm-up frames, which also compile the
 //! pipelines, are excluded). It prints ms/frame (mean and best) and the deformation overhead deformed/undeformed.
@@ -26,9 +30,9 @@ use std::time::{Duration, Instant};
 use glam::{DVec3, Vec3};
 use warpbench_gpu::{
     BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions,
-    GpuVolume, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset,
-    Projection, Quality, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode,
-    VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    GpuVolume, LayerStyle, OrbitCamera, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
+    PreparedControl, PreparedVolume, Preset, Probe, Projection, Quality, RaycastDrawData, RaycastRenderer,
+    RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, VolumeDesc, VolumeSamples, Window,
 };
 
 /// Edge of both volumes' box, mm (whatever the dims).
@@ -318,6 +322,23 @@ fn main() {
         draw(&frame, ShadingMode::Dvr);
     });
     results.push(("deformed + shaded + prefilter", mean, best));
+
+    // Picking: click to result (upload one ray, dispatch, read back) on the deformed frame.
+    let pick_pass = PickPass::new(&ctx, &renderer).expect("pick pass");
+    let data = RaycastDrawData::new(&ctx, &renderer, &deformed, &cam, &settings(ShadingMode::None), o.size);
+    let centre = [o.size.0 as f32 / 2.0, o.size.1 as f32 / 2.0];
+    let ray = PickRay::from_pixel(&data.uniforms, centre).expect("ray");
+    for (name, probe) in [
+        ("pick, opacity 0.5, 1 ray", Probe::Opacity { threshold: 0.5 }),
+        ("pick, gradient, 1 ray", Probe::Gradient { threshold: 50.0 }),
+        ("pick, accumulated 0.95, 1 ray", Probe::default()),
+    ] {
+        let request = PickRequest::new(PickTarget::Moving, probe);
+        let (mean, best) = time(o.frames.max(20), 2, || {
+            std::hint::black_box(pick_pass.pick(&ctx, &data, &request, &[ray]).expect("pick"));
+        });
+        results.push((name, mean, best));
+    }
 
     println!("{:<32} {:>12} {:>12}", "case", "mean ms", "best ms");
     for (name, mean, best) in &results {

@@ -15,6 +15,7 @@ use crate::control::PreparedControl;
 use crate::glyph::{
     GlyphInstance, GlyphUniforms, KIND_POINT, MODE_SLICE as GLYPH_MODE_SLICE, MODE_VIEW as GLYPH_MODE_VIEW,
 };
+use crate::pick::{PickHit, PickRay, PickRequest, PickTarget, Probe};
 use crate::prefilter::PrefilteredTexels;
 use crate::raycast::{
     EARLY_EXIT_ALPHA, HIT_OPACITY, NO_HIT_DEPTH, RAYCAST_JITTER, RaycastUniforms, ShadingMode, VOLUME_HAS_PREFILTER,
@@ -369,6 +370,89 @@ fn rasterise(u: &RaycastUniforms, rows: std::ops::Range<u32>, pixel: impl Fn([f3
         }
     }
     out
+}
+
+/// The shader's `cs_pick` for one ray ([`crate::pick`]): marches `ray` through the target layer of the frame `u`
+/// (its box and step, no jitter) and returns the probe's first hit, refined by bisection.
+#[must_use]
+pub fn pick(
+    u: &RaycastUniforms,
+    fixed: &CpuLayer<'_>,
+    moving: &CpuLayer<'_>,
+    tfs: &[TransferFunction],
+    request: &PickRequest,
+    ray: &PickRay,
+) -> PickHit {
+    let (layer, v) = match request.target {
+        PickTarget::Fixed => (fixed, &u.fixed),
+        PickTarget::Moving => (moving, &u.moving),
+    };
+    let threshold = request.probe.threshold();
+    let accumulated = matches!(request.probe, Probe::Accumulated { .. });
+    let quantity = |x: Vec3| -> f32 {
+        let p_tex = warp_to_tex(layer, v, x);
+        if outside_tex(p_tex) {
+            return 0.0;
+        }
+        if let Probe::Gradient { .. } = request.probe {
+            return v.value_scale.abs() * warped_gradient(layer, u, v, x).length();
+        }
+        let t = ((volume_value(layer, v, p_tex) - v.window_low) / v.window_width).clamp(0.0, 1.0);
+        (tf_sample(tfs, v.tf_row, t).w * v.opacity_scale).clamp(0.0, 1.0)
+    };
+    let accumulate = |acc: f32, alpha: f32, len_mm: f32| {
+        acc + (1.0 - acc) * (1.0 - (len_mm / u.ref_step_mm * (1.0 - alpha).max(1e-7).log2()).exp2())
+    };
+    let (origin, dir) = (Vec3::from_array(ray.origin_ref), Vec3::from_array(ray.dir_ref));
+    let inv_dir = dir.recip();
+    let t0 = (Vec3::from_array(u.box_min_ref) - origin) * inv_dir;
+    let t1 = (Vec3::from_array(u.box_max_ref) - origin) * inv_dir;
+    let t_far = t0.max(t1).min_element();
+    let t_enter = t0.min(t1).max_element().max(0.0);
+    let miss = PickHit::miss(request.target);
+    // Also a miss when t_far is NaN (a ray parallel to a face, outside the slab), as in the shader.
+    if t_far.is_nan() || t_far <= t_enter {
+        return miss;
+    }
+    let (mut t_prev, mut acc) = (-1.0f32, 0.0f32);
+    for k in 0..u.max_steps {
+        let t = t_enter + k as f32 * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        let q = quantity(origin + t * dir);
+        let found = if accumulated { accumulate(acc, q, u.step_mm) >= threshold } else { q >= threshold };
+        if found {
+            let mut t_hit = t;
+            if t_prev >= 0.0 {
+                let (mut lo, mut hi) = (t_prev, t);
+                for _ in 0..request.bisection_steps.min(32) {
+                    let mid = 0.5 * (lo + hi);
+                    let qm = quantity(origin + mid * dir);
+                    let inside =
+                        if accumulated { accumulate(acc, qm, mid - t_prev) >= threshold } else { qm >= threshold };
+                    if inside {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                t_hit = 0.5 * (lo + hi);
+            }
+            let x_ref = origin + t_hit * dir;
+            let p_lps = match (v.flags & VOLUME_HAS_WARP != 0, layer.control) {
+                (true, Some(c)) => x_ref + c.displacement(x_ref),
+                _ => x_ref,
+            };
+            let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps);
+            return PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, p_tex));
+        }
+        if accumulated {
+            acc = accumulate(acc, q, u.step_mm);
+        }
+        t_prev = t;
+    }
+    miss
 }
 
 /// The glyph pass ([`crate::glyph`], `shaders/glyph.wgsl`) over `image` (premultiplied RGBA8, `viewport_px`

@@ -19,6 +19,8 @@
 //!   by [`RaycastRenderer::render_slice`] with the ray caster's sampling, classification and blending.
 //! - [`prefilter`]: [`PrefilterPass`], a separable Gaussian (compute, optionally half resolution) whose result
 //!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
+//! - [`pick`](mod@pick): [`PickPass`], ray picking in the deformed volumes (probes: opacity, gradient, accumulated
+//!   opacity; bisection refinement), returning the hit in ref space and in the volume's own LPS space.
 //! - [`glyph`]: landmark glyphs ([`GlyphRenderer`], [`GlyphDrawData`], [`pair_glyphs`]): points and pair lines over the
 //!   3-D view, depth-tested against the ray caster's first hit ([`RenderTarget::hit_depth`]), and over slices.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
@@ -40,6 +42,7 @@ pub mod cpu_reference;
 pub mod device;
 pub mod error;
 pub mod glyph;
+pub mod pick;
 pub mod prefilter;
 pub mod pullback;
 pub mod raycast;
@@ -58,6 +61,7 @@ pub use error::{GpuError, Result};
 pub use glyph::{
     GlyphDrawData, GlyphInstance, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, pair_glyphs,
 };
+pub use pick::{PickHit, PickPass, PickRay, PickRequest, PickTarget, Probe};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use pullback::{TpsDesc, TpsLocal};
 pub use raycast::{

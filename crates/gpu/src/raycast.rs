@@ -438,6 +438,10 @@ impl RaycastUniforms {
     }
 }
 
+/// The stages that see the frame's bind group: the ray caster's fragment stage and the picking pass
+/// ([`crate::pick`]), which marches the same samples in a compute shader.
+const FRAME_STAGES: wgpu::ShaderStages = wgpu::ShaderStages::FRAGMENT.union(wgpu::ShaderStages::COMPUTE);
+
 /// The long-lived part of the ray caster: pipeline, bind group layout, samplers and the placeholder control texture.
 #[derive(Debug)]
 pub struct RaycastRenderer {
@@ -489,7 +493,7 @@ impl RaycastRenderer {
         let volumes_filterable = ctx.capabilities.volumes_filterable();
         let tex3d = |binding, filterable| wgpu::BindGroupLayoutEntry {
             binding,
-            visibility: wgpu::ShaderStages::FRAGMENT,
+            visibility: FRAME_STAGES,
             ty: wgpu::BindingType::Texture {
                 sample_type: wgpu::TextureSampleType::Float { filterable },
                 view_dimension: wgpu::TextureViewDimension::D3,
@@ -500,7 +504,7 @@ impl RaycastRenderer {
         // Prefiltered copies: R32Float 2-D arrays (layer = z), read with textureLoad.
         let layers = |binding| wgpu::BindGroupLayoutEntry {
             binding,
-            visibility: wgpu::ShaderStages::FRAGMENT,
+            visibility: FRAME_STAGES,
             ty: wgpu::BindingType::Texture {
                 sample_type: wgpu::TextureSampleType::Float { filterable: false },
                 view_dimension: wgpu::TextureViewDimension::D2Array,
@@ -510,7 +514,7 @@ impl RaycastRenderer {
         };
         let sampler = |binding, kind| wgpu::BindGroupLayoutEntry {
             binding,
-            visibility: wgpu::ShaderStages::FRAGMENT,
+            visibility: FRAME_STAGES,
             ty: wgpu::BindingType::Sampler(kind),
             count: None,
         };
@@ -519,7 +523,7 @@ impl RaycastRenderer {
             entries: &[
                 wgpu::BindGroupLayoutEntry {
                     binding: 0,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility: FRAME_STAGES,
                     ty: wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
@@ -533,7 +537,7 @@ impl RaycastRenderer {
                 tex3d(4, true),
                 wgpu::BindGroupLayoutEntry {
                     binding: 5,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    visibility: FRAME_STAGES,
                     ty: wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Float { filterable: true },
                         view_dimension: wgpu::TextureViewDimension::D2,
@@ -658,6 +662,18 @@ impl RaycastRenderer {
             multiview_mask: None,
             cache: None,
         })
+    }
+
+    /// The layout of a frame's bind group (group 0), shared with the picking pass.
+    #[must_use]
+    pub fn bind_group_layout(&self) -> &wgpu::BindGroupLayout {
+        &self.layout
+    }
+
+    /// The `shaders/raycast.wgsl` module, whose `cs_pick` entry point the picking pass uses.
+    #[must_use]
+    pub fn module(&self) -> &wgpu::ShaderModule {
+        &self.module
     }
 
     /// Creates the pipeline for `mode` now (it is otherwise created by the first draw that needs it).
@@ -825,6 +841,12 @@ impl RaycastDrawData {
             ],
         });
         Self { uniforms, buffer, bind_group }
+    }
+
+    /// The frame's bind group (group 0 of the ray caster and of the picking pass).
+    #[must_use]
+    pub fn bind_group(&self) -> &wgpu::BindGroup {
+        &self.bind_group
     }
 
     /// New camera, settings or styles for the same textures.

@@ -3,6 +3,7 @@
 //! naga (no device) and checks the Rust struct sizes against naga's layout of the WGSL struct of the same name.
 
 use crate::glyph::GlyphUniforms;
+use crate::pick::{PickHit, PickRay, PickUniforms};
 use crate::prefilter::PrefilterUniforms;
 use crate::raycast::{RaycastUniforms, VolumeUniforms};
 
@@ -63,12 +64,18 @@ impl ShaderSource {
     }
 }
 
-/// The ray caster: `vs_fullscreen` + `fs_raycast` (see [`crate::raycast`]), and `fs_slice` (see [`crate::slice`]).
+/// The ray caster: `vs_fullscreen` + `fs_raycast` (see [`crate::raycast`]), `fs_slice` (see [`crate::slice`]) and
+/// `cs_pick` (see [`crate::pick`]).
 pub const RAYCAST: ShaderSource = ShaderSource {
     name: "raycast",
     path: "shaders/raycast.wgsl",
     source: include_str!("../../../shaders/raycast.wgsl"),
-    entry_points: &[("vs_fullscreen", Stage::Vertex), ("fs_raycast", Stage::Fragment), ("fs_slice", Stage::Fragment)],
+    entry_points: &[
+        ("vs_fullscreen", Stage::Vertex),
+        ("fs_raycast", Stage::Fragment),
+        ("fs_slice", Stage::Fragment),
+        ("cs_pick", Stage::Compute),
+    ],
     uniform_structs: &[
         layout!(VolumeUniforms {
             tex_from_lps,
@@ -106,6 +113,9 @@ pub const RAYCAST: ShaderSource = ShaderSource {
             moving,
             ref_from_frag_px
         }),
+        layout!(PickUniforms { probe, target_volume, threshold, ray_count, bisection_steps }),
+        layout!(PickRay { origin_ref, dir_ref }),
+        layout!(PickHit { x_ref, t_mm, p_lps, value, hit, target_volume }),
     ],
 };
 

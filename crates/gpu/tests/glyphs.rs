@@ -18,18 +18,14 @@
 mod common;
 
 use common::*;
-use glam::{DVec3, Mat4, Vec2, Vec3};
+use glam::{Mat4, Vec2, Vec3};
 use warpbench_gpu::cpu_reference::composite_glyphs;
 use warpbench_gpu::raycast::NO_HIT_DEPTH;
 use warpbench_gpu::{
-    BlendMode, FeatureRequest, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, LayerStyle,
-    OrbitCamera, PreparedVolume, Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget,
-    SlicePlane, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    BlendMode, FeatureRequest, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, OrbitCamera,
+    Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane,
 };
 
-const BALL_N: usize = 32;
-const BALL_SPACING_MM: f64 = 2.0;
-const RADIUS_MM: f32 = 20.0;
 const SIZE: (u32, u32) = (96, 96);
 const SAMPLES_PER_VOXEL: f32 = 4.0;
 const STEP_MM: f32 = BALL_SPACING_MM as f32 / SAMPLES_PER_VOXEL;
@@ -38,52 +34,8 @@ const MOVING: [f32; 4] = [1.0, 0.55, 0.0, 1.0];
 const FIXED: [f32; 4] = [0.15, 0.55, 1.0, 1.0];
 const LINE: [f32; 4] = [1.0, 1.0, 1.0, 0.85];
 
-/// The ball scene: the fixed layer is the ball, the moving layer the same volume, hidden (`FixedOnly`).
 fn ball_scene(ctx: &warpbench_gpu::GpuContext) -> Scene {
-    let h = (BALL_N as f64 - 1.0) / 2.0;
-    let lps_from_index = [
-        [BALL_SPACING_MM, 0.0, 0.0, -h * BALL_SPACING_MM],
-        [0.0, BALL_SPACING_MM, 0.0, -h * BALL_SPACING_MM],
-        [0.0, 0.0, BALL_SPACING_MM, -h * BALL_SPACING_MM],
-        [0.0, 0.0, 0.0, 1.0],
-    ];
-    let values: Vec<f32> = (0..BALL_N.pow(3))
-        .map(|i| {
-            let idx = DVec3::new((i % BALL_N) as f64, ((i / BALL_N) % BALL_N) as f64, (i / BALL_N / BALL_N) as f64);
-            RADIUS_MM - ((idx - h) * BALL_SPACING_MM).length() as f32
-        })
-        .collect();
-    let desc = VolumeDesc { dims: [BALL_N; 3], samples: VolumeSamples::F32(&values), lps_from_index };
-    let budget = VolumeBudget::for_device(&ctx.limits);
-    let ball = PreparedVolume::prepare(&desc, ctx.capabilities, budget).expect("ball");
-    let grey = [0.6, 0.6, 0.6];
-    let tf = TransferFunction::from_points(
-        "step",
-        &[
-            (0.0, [grey[0], grey[1], grey[2], 0.0]),
-            (0.49, [grey[0], grey[1], grey[2], 0.0]),
-            (0.51, [grey[0], grey[1], grey[2], 1.0]),
-            (1.0, [grey[0], grey[1], grey[2], 1.0]),
-        ],
-    );
-    let style = |visible| LayerStyle {
-        window: Window::from_range(-2.0, 2.0),
-        tf_row: 0,
-        opacity_scale: 1.0,
-        visible,
-        iso_value: 0.0,
-    };
-    Scene {
-        fixed: ball.clone(),
-        moving: ball,
-        control: None,
-        tfs: vec![tf],
-        fixed_style: style(true),
-        moving_style: style(false),
-        prefilter: None,
-        fixed_pf: None,
-        moving_pf: None,
-    }
+    common::ball_scene(ctx, |r_mm| RADIUS_MM - r_mm, (-2.0, 2.0))
 }
 
 fn settings() -> RenderSettings {
@@ -111,14 +63,6 @@ fn pixel_ray(ref_from_clip: Mat4, p: Vec2) -> (Vec3, Vec3, Vec2) {
 /// Distance along the pixel's ray of NDC depth `z`.
 fn ray_distance(ref_from_clip: Mat4, ndc: Vec2, z: f32) -> f32 {
     ref_from_clip.project_point3(ndc.extend(z)).distance(ref_from_clip.project_point3(ndc.extend(0.0)))
-}
-
-/// Where the ray enters the sphere of radius `r` about the origin, if it does.
-fn sphere_entry(origin: Vec3, dir: Vec3, r: f32) -> Option<f32> {
-    let b = origin.dot(dir);
-    let c = origin.length_squared() - r * r;
-    let disc = b * b - c;
-    (disc >= 0.0).then(|| -b - disc.sqrt())
 }
 
 /// The screen pixel (framebuffer px, y down) of `p_ref`.
@@ -158,7 +102,7 @@ fn hit_depth_lies_on_the_analytic_sphere_and_matches_the_cpu() {
             // Rays that pass well inside the sphere (not grazing) must hit it on its surface.
             let closest = (origin - origin.dot(dir) * dir).length();
             if closest < RADIUS_MM - 2.0 {
-                let t_surface = sphere_entry(origin, dir, RADIUS_MM).expect("enters");
+                let t_surface = sphere_entry(origin, dir, Vec3::ZERO, RADIUS_MM).expect("enters");
                 assert!(g <= 1.0, "pixel ({x}, {y}) misses the ball");
                 let err = ray_distance(ref_from_clip, ndc, g) - t_surface;
                 worst_early = worst_early.min(err);

@@ -365,3 +365,70 @@ pub fn coverage(img: &[u8]) -> f32 {
 pub fn v3(x: f32, y: f32, z: f32) -> Vec3 {
     Vec3::new(x, y, z)
 }
+
+/// The analytic ball grid: 32³ voxels of 2 mm.
+pub const BALL_N: usize = 32;
+pub const BALL_SPACING_MM: f64 = 2.0;
+/// The ball's radius (mm).
+pub const RADIUS_MM: f32 = 20.0;
+
+/// A [`BALL_N`]³ f32 volume of [`BALL_SPACING_MM`] centred on `centre_lps`, whose value at each voxel is
+/// `value(r_mm)` of the voxel centre's distance r to `centre_lps`.
+pub fn ball_volume(ctx: &GpuContext, centre_lps: [f64; 3], value: impl Fn(f32) -> f32) -> PreparedVolume {
+    let h = (BALL_N as f64 - 1.0) / 2.0;
+    let s = BALL_SPACING_MM;
+    let c = centre_lps;
+    let lps_from_index =
+        [[s, 0.0, 0.0, c[0] - h * s], [0.0, s, 0.0, c[1] - h * s], [0.0, 0.0, s, c[2] - h * s], [0.0, 0.0, 0.0, 1.0]];
+    let values: Vec<f32> = (0..BALL_N.pow(3))
+        .map(|i| {
+            let idx = DVec3::new((i % BALL_N) as f64, ((i / BALL_N) % BALL_N) as f64, (i / BALL_N / BALL_N) as f64);
+            value(((idx - h) * s).length() as f32)
+        })
+        .collect();
+    let desc = VolumeDesc { dims: [BALL_N; 3], samples: VolumeSamples::F32(&values), lps_from_index };
+    PreparedVolume::prepare(&desc, ctx.capabilities, VolumeBudget::for_device(&ctx.limits)).expect("ball")
+}
+
+/// The ball scene: the fixed layer is a ball at the origin with values `value(r)`, windowed to `window` and
+/// classified by a step transfer function (transparent below the window's middle, opaque grey above); the moving
+/// layer is the same volume, hidden.
+pub fn ball_scene(ctx: &GpuContext, value: impl Fn(f32) -> f32, window: (f32, f32)) -> Scene {
+    let ball = ball_volume(ctx, [0.0; 3], value);
+    let grey = [0.6, 0.6, 0.6];
+    let tf = TransferFunction::from_points(
+        "step",
+        &[
+            (0.0, [grey[0], grey[1], grey[2], 0.0]),
+            (0.49, [grey[0], grey[1], grey[2], 0.0]),
+            (0.51, [grey[0], grey[1], grey[2], 1.0]),
+            (1.0, [grey[0], grey[1], grey[2], 1.0]),
+        ],
+    );
+    let style = |visible| LayerStyle {
+        window: Window::from_range(window.0, window.1),
+        tf_row: 0,
+        opacity_scale: 1.0,
+        visible,
+        iso_value: 0.0,
+    };
+    Scene {
+        fixed: ball.clone(),
+        moving: ball,
+        control: None,
+        tfs: vec![tf],
+        fixed_style: style(true),
+        moving_style: style(false),
+        prefilter: None,
+        fixed_pf: None,
+        moving_pf: None,
+    }
+}
+
+/// Where the ray origin + t·dir (unit dir) enters the sphere of radius `r` about `centre`, if it does.
+pub fn sphere_entry(origin: Vec3, dir: Vec3, centre: Vec3, r: f32) -> Option<f32> {
+    let o = origin - centre;
+    let b = o.dot(dir);
+    let disc = b * b - (o.length_squared() - r * r);
+    (disc >= 0.0).then(|| -b - disc.sqrt())
+}
