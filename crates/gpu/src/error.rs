@@ -22,6 +22,9 @@ pub enum GpuError {
     Wgpu(Vec<String>),
     #[error("reading the image back failed: {0}")]
     Readback(String),
+    /// The caller's progress callback asked to stop (the export checks it after each slab).
+    #[error("cancelled after {slices_done} of {slices_total} slices")]
+    Cancelled { slices_done: usize, slices_total: usize },
 }
 
 pub type Result<T, E = GpuError> = std::result::Result<T, E>;

@@ -11,6 +11,8 @@
 //!   [`GpuVolume::upload`] makes the 3-D texture.
 //! - [`transfer`]: [`TransferFunction`]s, [`Preset`]s and [`Window`]s; [`GpuTransferFunctions`] is the 256×N texture.
 //! - [`control`]: control textures (sampled pull-backs) from the solver's layout: [`PreparedControl`], [`GpuControlTexture`].
+//! - [`control_eval`]: [`ControlEvalPass`] evaluates a TPS ([`TpsDesc`]) or hierarchical B-spline ([`BSplineDesc`])
+//!   pull-back straight into a control texture on the GPU, its displacement bounds reduced there too.
 //! - [`camera`]: [`OrbitCamera`] (`clip_from_ref` and its inverse).
 //! - [`raycast`]: [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), [`BlendMode`],
 //!   [`RenderSettings`] with [`Shading`] ([`ShadingMode`]: unlit, lit DVR, lit iso-surface; gradients through the
@@ -38,9 +40,11 @@
 
 pub mod camera;
 pub mod control;
+pub mod control_eval;
 pub mod cpu_reference;
 pub mod device;
 pub mod error;
+pub mod export;
 pub mod glyph;
 pub mod pick;
 pub mod prefilter;
@@ -56,14 +60,19 @@ pub use glam;
 
 pub use camera::{OrbitCamera, Projection};
 pub use control::{ControlDesc, ControlInfo, GpuControlTexture, PreparedControl};
+pub use control_eval::{ControlEvalPass, ControlGridDesc, PendingControl};
 pub use device::{Capabilities, FeatureRequest, GpuContext};
 pub use error::{GpuError, Result};
+pub use export::{
+    ExportPass, ExportRequest, ExportSamples, ExportedSamples, ExportedVolume, Interpolation, OutputType, Progress,
+    PullBack, SampleType, SourceVolume, TargetGrid, export_cpu,
+};
 pub use glyph::{
     GlyphDrawData, GlyphInstance, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, pair_glyphs,
 };
 pub use pick::{PickHit, PickPass, PickRay, PickRequest, PickTarget, Probe};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
-pub use pullback::{TpsDesc, TpsLocal};
+pub use pullback::{BSplineDesc, LatticeDesc, TpsDesc, TpsLocal};
 pub use raycast::{
     BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, Quality, RaycastDrawData, RaycastRenderer, RaycastUniforms,
     RenderSettings, RenderTarget, Shading, ShadingMode, VolumeUniforms,

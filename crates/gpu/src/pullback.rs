@@ -16,6 +16,10 @@
 //! u(x) − x = (A − I) x′ + (A o + b − o) + Σᵢ wᵢ ‖x′ − (pᵢ − o)‖,
 //!
 //! i.e. the *displacement* in local coordinates, the quantity control textures store.
+//!
+//! A hierarchical B-spline pull-back (Lee, Wolberg & Shin 1997) is u(x) = x + Σ_ℓ D_ℓ(clamp(x, Ω_ℓ)) over control
+//! lattices ([`BSplineDesc`], [`LatticeDesc`]); its f32 evaluation works in cell units of each lattice, so it needs
+//! no local form.
 
 use glam::{DMat3, DVec3};
 
@@ -117,6 +121,124 @@ impl TpsLocal {
     }
 }
 
+/// The most control points one [`LatticeDesc`] may have (the solver's `bspline::MAX_CONTROL_POINTS`, 128³).
+pub const MAX_LATTICE_POINTS: usize = 1 << 21;
+
+/// One cubic B-spline control lattice of a hierarchical B-spline pull-back (Lee, Wolberg & Shin 1997), in the
+/// solver's layout (`warpbench_solver::bspline::ControlLattice`): `cells` per axis over the box [min, max] (ref mm),
+/// edge h = (max − min)/cells, and 3 coefficients (dx, dy, dz mm) per control point, x fastest, with
+/// (cells + 3) points per axis; storage index 0 is the paper's index −1, so point (i, j, k) sits at
+/// min + (i − 1, j − 1, k − 1)·h.
+#[derive(Clone, Copy, Debug)]
+pub struct LatticeDesc<'a> {
+    pub cells: [usize; 3],
+    pub min_mm: [f64; 3],
+    pub max_mm: [f64; 3],
+    pub coefficients: &'a [f64],
+}
+
+/// A hierarchical B-spline pull-back u(x) = x + Σ_ℓ D_ℓ(clamp(x, [min_ℓ, max_ℓ])), ref mm → moving LPS mm, D_ℓ the
+/// tensor-product cubic B-spline of lattice ℓ (Lee et al. 1997 eq. 1). The solver refines all its levels onto one
+/// lattice (`HierarchicalBSpline::lattice`), so it passes one; unrefined levels can be passed as several. Each lattice
+/// is evaluated at x clamped to its own box, as the solver does: the displacement is constant along an axis beyond
+/// the box.
+#[derive(Clone, Copy, Debug)]
+pub struct BSplineDesc<'a> {
+    pub lattices: &'a [LatticeDesc<'a>],
+}
+
+impl LatticeDesc<'_> {
+    /// Control points per axis: cells + 3.
+    #[must_use]
+    pub fn points(&self) -> [usize; 3] {
+        self.cells.map(|c| c.saturating_add(3))
+    }
+
+    /// Checks cells, box, coefficient count and finiteness; `index` names the lattice in messages.
+    pub fn validate(&self, index: usize) -> Result<()> {
+        let bad = |why: String| Err(GpuError::InvalidInput(format!("B-spline lattice {index}: {why}")));
+        if self.cells.contains(&0) {
+            return bad(format!("needs at least one cell per axis, got {:?}", self.cells));
+        }
+        if !(0..3).all(|a| self.min_mm[a].is_finite() && self.max_mm[a].is_finite() && self.max_mm[a] > self.min_mm[a])
+        {
+            return bad(format!("box {:?} .. {:?} is empty or not finite", self.min_mm, self.max_mm));
+        }
+        let points = self.points().iter().try_fold(1usize, |acc, &n| acc.checked_mul(n));
+        match points {
+            Some(n) if n <= MAX_LATTICE_POINTS => {
+                if self.coefficients.len() != 3 * n {
+                    return bad(format!(
+                        "{:?} cells need {} coefficients, got {}",
+                        self.cells,
+                        3 * n,
+                        self.coefficients.len()
+                    ));
+                }
+            }
+            _ => return bad(format!("{:?} cells exceed {MAX_LATTICE_POINTS} control points", self.cells)),
+        }
+        if let Some(i) = self.coefficients.iter().position(|c| !c.is_finite()) {
+            return bad(format!("coefficient {i} is not finite"));
+        }
+        Ok(())
+    }
+
+    /// D(clamp(x)) in f64 (the solver's `ControlLattice::eval`).
+    #[must_use]
+    pub fn displacement(&self, x_ref: [f64; 3]) -> [f64; 3] {
+        let mut first = [0usize; 3];
+        let mut weights = [[0.0f64; 4]; 3];
+        for a in 0..3 {
+            let (lo, hi, cells) = (self.min_mm[a], self.max_mm[a], self.cells[a]);
+            let u = (x_ref[a].clamp(lo, hi) - lo) / (hi - lo) * cells as f64;
+            let i = (u.floor() as usize).min(cells - 1);
+            let s = u - i as f64;
+            first[a] = i;
+            weights[a] = [
+                (1.0 - s).powi(3),
+                3.0 * s.powi(3) - 6.0 * s * s + 4.0,
+                -3.0 * s.powi(3) + 3.0 * s * s + 3.0 * s + 1.0,
+                s.powi(3),
+            ]
+            .map(|b| b / 6.0);
+        }
+        let [n0, n1, _] = self.points();
+        let mut d = [0.0; 3];
+        for (c, wz) in weights[2].iter().enumerate() {
+            for (b, wy) in weights[1].iter().enumerate() {
+                for (a, wx) in weights[0].iter().enumerate() {
+                    let k = 3 * (((first[2] + c) * n1 + first[1] + b) * n0 + first[0] + a);
+                    for (r, dr) in d.iter_mut().enumerate() {
+                        *dr += wz * wy * wx * self.coefficients[k + r];
+                    }
+                }
+            }
+        }
+        d
+    }
+}
+
+impl BSplineDesc<'_> {
+    /// Checks every lattice ([`LatticeDesc::validate`]).
+    pub fn validate(&self) -> Result<()> {
+        self.lattices.iter().enumerate().try_for_each(|(i, l)| l.validate(i))
+    }
+
+    /// u(x) in f64, the reference the f32 paths are compared with.
+    #[must_use]
+    pub fn eval(&self, x_ref: [f64; 3]) -> [f64; 3] {
+        let mut u = x_ref;
+        for l in self.lattices {
+            let d = l.displacement(x_ref);
+            for a in 0..3 {
+                u[a] += d[a];
+            }
+        }
+        u
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -147,6 +269,33 @@ mod tests {
                 assert!((f64::from(d[c]) - (u[c] - x[c])).abs() < 1e-4, "{x:?} component {c}");
             }
         }
+    }
+
+    #[test]
+    fn constant_lattice_is_a_translation_everywhere_and_validate_names_problems() {
+        let coefficients: Vec<f64> = (0..5 * 4 * 6).flat_map(|_| [1.5, -2.0, 0.25]).collect();
+        let lattice = LatticeDesc {
+            cells: [2, 1, 3],
+            min_mm: [-10.0, 0.0, 100.0],
+            max_mm: [10.0, 5.0, 130.0],
+            coefficients: &coefficients,
+        };
+        let desc = BSplineDesc { lattices: &[lattice] };
+        desc.validate().expect("valid lattice");
+        // The bases sum to 1, inside the box and (clamped) far outside it.
+        for x in [[0.0, 2.5, 110.0], [-9.9, 4.9, 129.0], [500.0, -300.0, 0.0]] {
+            let u = desc.eval(x);
+            assert!((u[0] - x[0] - 1.5).abs() < 1e-12 && (u[1] - x[1] + 2.0).abs() < 1e-12, "{x:?}: {u:?}");
+        }
+        let short = LatticeDesc { coefficients: &coefficients[3..], ..lattice };
+        let err = BSplineDesc { lattices: &[lattice, short] }.validate().expect_err("short").to_string();
+        assert!(err.contains("lattice 1") && err.contains("360 coefficients"), "{err}");
+        let mut nan = coefficients.clone();
+        nan[7] = f64::NAN;
+        let err = LatticeDesc { coefficients: &nan, ..lattice }.validate(0).expect_err("NaN").to_string();
+        assert!(err.contains("coefficient 7"), "{err}");
+        assert!(LatticeDesc { cells: [0, 1, 3], ..lattice }.validate(0).is_err());
+        assert!(LatticeDesc { max_mm: [-10.0, 5.0, 130.0], ..lattice }.validate(0).is_err());
     }
 
     #[test]

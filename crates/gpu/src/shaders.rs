@@ -2,6 +2,8 @@
 //! Rust twin. The runtime creates modules from [`ShaderSource`]s here, and `tests/shaders.rs` validates each one with
 //! naga (no device) and checks the Rust struct sizes against naga's layout of the WGSL struct of the same name.
 
+use crate::control_eval::{BSplineUniforms, ControlEvalUniforms, LatticeUniforms};
+use crate::export::ExportUniforms;
 use crate::glyph::GlyphUniforms;
 use crate::pick::{PickHit, PickRay, PickUniforms};
 use crate::prefilter::PrefilterUniforms;
@@ -148,5 +150,53 @@ pub const GLYPH: ShaderSource = ShaderSource {
     })],
 };
 
+/// GPU control-texture evaluation: `cs_tps` and `cs_bspline`, a pull-back's displacement at every texel centre into a
+/// staging buffer, with its bounds reduced (see [`crate::control_eval`]).
+pub const CONTROL_EVAL: ShaderSource = ShaderSource {
+    name: "control_eval",
+    path: "shaders/control_eval.wgsl",
+    source: include_str!("../../../shaders/control_eval.wgsl"),
+    entry_points: &[("cs_tps", Stage::Compute), ("cs_bspline", Stage::Compute)],
+    uniform_structs: &[
+        layout!(ControlEvalUniforms {
+            dims,
+            row_stride_texels,
+            first_local,
+            store_f16,
+            pitch_mm,
+            count,
+            offset_mm,
+            linear_minus_identity
+        }),
+        layout!(LatticeUniforms { first_cell, coef_offset, cell_step, cells }),
+        layout!(BSplineUniforms { lattices }),
+    ],
+};
+
+/// The export of the warped volume: `cs_export`, one z-slab of the target per dispatch (see [`crate::export`]).
+pub const EXPORT: ShaderSource = ShaderSource {
+    name: "export",
+    path: "shaders/export.wgsl",
+    source: include_str!("../../../shaders/export.wgsl"),
+    entry_points: &[("cs_export", Stage::Compute)],
+    uniform_structs: &[layout!(ExportUniforms {
+        source_index_from_target_index,
+        pullback_from_target_index,
+        source_index_from_lps,
+        tps_row0,
+        tps_row1,
+        tps_row2,
+        target_dims,
+        slab_first_slice,
+        source_dims,
+        slab_slices,
+        control_dims,
+        pullback,
+        interpolation,
+        centre_count,
+        outside_value
+    })],
+};
+
 /// Every shader of the crate.
-pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER, GLYPH];
+pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER, GLYPH, CONTROL_EVAL, EXPORT];
