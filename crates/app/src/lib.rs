@@ -4,8 +4,15 @@
 //! as a function that takes parsed options and writes to the given output, so tests can call it.
 //!
 //! - [`info`]: `warpbench info <file-or-dir> [--json]`, what a volume holds and where it sits in LPS.
+//! - [`render`]: `warpbench render`, one frame (3-D view or slice) of the fixed and the deformed moving volume, with
+//!   landmark glyphs, to PNG.
+//! - [`inputs`]: loading the pair, reading and checking landmarks, fitting the warp (shared by the pair subcommands).
+//! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
 //! - [`exit`]: the exit-code convention shared by every subcommand.
 
 pub mod exit;
 pub mod info;
+pub mod inputs;
 pub mod progress;
+pub mod render;
+pub mod scene;

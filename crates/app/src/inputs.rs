@@ -1,0 +1,233 @@
+//! What every pair subcommand (`render`, `warp`, `field`) reads first: the fixed and moving volumes, the landmark
+//! pairs, and the warp fitted on them.
+//!
+//! Landmarks are checked against the volumes before anything is fitted: a pair whose moving point lies outside the
+//! moving volume's box (of voxel edges), or whose fixed point lies outside the fixed volume's, is bad input, named by
+//! its index (1-based, in file order) and name.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::anyhow;
+use warpbench_io::geometry::{Lps, Point3, Space};
+use warpbench_io::landmarks::{self, LandmarkPair};
+use warpbench_io::{LoadOptions, Volume};
+use warpbench_solver::bspline::BSplineParams;
+use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::warp::Warp;
+
+use crate::exit::Failure;
+use crate::progress::Bar;
+
+/// Loads a volume (any format `io` reads), with a progress bar unless `quiet`.
+pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume, Failure> {
+    let mut bar = Bar::new(quiet);
+    let loaded = LoadOptions::new().progress(|p| bar.update(p)).open(path);
+    bar.finish();
+    Ok(loaded?)
+}
+
+/// Where the landmark pairs come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum LandmarkSource {
+    /// One file of pairs: BigWarp CSV (`.csv`).
+    Pairs(PathBuf),
+    /// Two Slicer point lists (`.mrk.json` or `.fcsv`), moving then fixed, matched by order.
+    SlicerPair { moving: PathBuf, fixed: PathBuf },
+}
+
+impl LandmarkSource {
+    /// From the CLI's `--landmarks L` or `--moving-points M --fixed-points F`.
+    pub fn from_args(
+        landmarks: Option<PathBuf>,
+        moving_points: Option<PathBuf>,
+        fixed_points: Option<PathBuf>,
+    ) -> Result<Option<Self>, Failure> {
+        match (landmarks, moving_points, fixed_points) {
+            (None, None, None) => Ok(None),
+            (Some(l), None, None) => Ok(Some(Self::Pairs(l))),
+            (None, Some(moving), Some(fixed)) => Ok(Some(Self::SlicerPair { moving, fixed })),
+            (Some(_), _, _) => Err(Failure::BadInput(anyhow!(
+                "give either --landmarks or --moving-points with --fixed-points, not both"
+            ))),
+            _ => Err(Failure::BadInput(anyhow!("--moving-points and --fixed-points go together"))),
+        }
+    }
+
+    /// The paths, for messages and for the refuse-to-overwrite check.
+    #[must_use]
+    pub fn paths(&self) -> Vec<&Path> {
+        match self {
+            Self::Pairs(p) => vec![p],
+            Self::SlicerPair { moving, fixed } => vec![moving, fixed],
+        }
+    }
+
+    fn describe(&self) -> String {
+        self.paths().iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ")
+    }
+
+    /// Reads the pairs. A single `.mrk.json`/`.fcsv` is refused with a hint: one Slicer list holds one side only.
+    pub fn read(&self) -> Result<Vec<LandmarkPair>, Failure> {
+        match self {
+            Self::Pairs(path) => {
+                let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
+                if matches!(ext.as_deref(), Some("json" | "fcsv")) {
+                    return Err(Failure::BadInput(anyhow!(
+                        "{}: a Slicer point list holds one side of the pairs; give the moving and the fixed list \
+                         with --moving-points and --fixed-points",
+                        path.display()
+                    )));
+                }
+                Ok(landmarks::read_bigwarp_csv(path)?)
+            }
+            Self::SlicerPair { moving, fixed } => Ok(landmarks::read_slicer_pair(moving, fixed)?),
+        }
+    }
+}
+
+/// The active, complete pairs, typed by space, with their 1-based index and name for messages.
+#[derive(Clone, Debug)]
+pub struct Correspondences {
+    pub moving: Vec<Point3<Moving>>,
+    pub fixed: Vec<Point3<Fixed>>,
+    /// `(index in the file, 1-based; name)` of each pair kept.
+    pub labels: Vec<(usize, String)>,
+}
+
+/// The box of voxel edges of `v` in its LPS space, as an axis-aligned box (the corners' bounds).
+#[must_use]
+pub fn volume_box<S: Space>(v: &Volume) -> Aabb<S> {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for corner in 0..8 {
+        let idx = std::array::from_fn(|a| if corner >> a & 1 == 0 { -0.5 } else { v.dims[a] as f64 - 0.5 });
+        let p = v.lps_from_index.apply_point(Point3::from_array(idx)).coords();
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    Aabb::new(Point3::from_array(lo), Point3::from_array(hi))
+}
+
+/// Whether `p` lies in the voxel-edge box of `v` (in its index space, so oblique grids are exact).
+fn inside(v: &Volume, p: Point3<Lps>) -> bool {
+    let Some(index_from_lps) = v.lps_from_index.inverse() else { return false };
+    let idx = index_from_lps.apply_point(p).coords();
+    (0..3).all(|a| idx[a] >= -0.5 && idx[a] <= v.dims[a] as f64 - 0.5)
+}
+
+/// Checks `pairs` against the volumes (module docs) and keeps the active, complete ones. Errors name the source,
+/// the pair and the problem; fewer than `min_pairs` complete active pairs is an error too.
+pub fn correspondences(
+    source: &LandmarkSource,
+    pairs: &[LandmarkPair],
+    moving: &Volume,
+    fixed: &Volume,
+    min_pairs: usize,
+) -> Result<Correspondences, Failure> {
+    let mut out = Correspondences { moving: Vec::new(), fixed: Vec::new(), labels: Vec::new() };
+    let bad = |i: usize, pair: &LandmarkPair, what: &str| {
+        let name = if pair.name.is_empty() { String::new() } else { format!(" ({})", pair.name) };
+        Failure::BadInput(anyhow!("{}: landmark {}{name} {what}", source.describe(), i + 1))
+    };
+    for (i, pair) in pairs.iter().enumerate() {
+        if !pair.active {
+            continue;
+        }
+        let (Some(p), Some(q)) = (pair.moving, pair.fixed) else { continue };
+        if !p.coords().iter().chain(&q.coords()).all(|c| c.is_finite()) {
+            return Err(bad(i, pair, "has a coordinate that is not a number"));
+        }
+        if !inside(moving, p) {
+            return Err(bad(i, pair, &format!("is outside the moving volume (at {:?} mm LPS)", p.coords())));
+        }
+        if !inside(fixed, q) {
+            return Err(bad(i, pair, &format!("is outside the fixed volume (at {:?} mm LPS)", q.coords())));
+        }
+        out.moving.push(as_moving(p));
+        out.fixed.push(as_fixed(q));
+        out.labels.push((i + 1, pair.name.clone()));
+    }
+    if out.moving.len() < min_pairs {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: {} active pairs with both points; this needs at least {min_pairs}",
+            source.describe(),
+            out.moving.len()
+        )));
+    }
+    Ok(out)
+}
+
+/// `--method` (with `--stiffness` for TPS and `--levels` for the hierarchical B-spline) as a [`Method`].
+pub fn method_from_args(name: &str, stiffness: f64, levels: Option<usize>) -> Result<Method, Failure> {
+    let method = Method::from_name(name).ok_or_else(|| {
+        Failure::BadInput(anyhow!("unknown --method {name:?}; use tps, hbspline, affine, similarity or rigid"))
+    })?;
+    if !(stiffness.is_finite() && stiffness >= 0.0) {
+        return Err(Failure::BadInput(anyhow!("--stiffness {stiffness} must be a number ≥ 0")));
+    }
+    Ok(match method {
+        Method::Tps { .. } => Method::Tps { stiffness },
+        Method::BSpline(p) => Method::BSpline(BSplineParams { levels: levels.unwrap_or(p.levels), ..p }),
+        other @ Method::Linear(_) => other,
+    })
+}
+
+/// The minimum number of pairs each method needs.
+#[must_use]
+pub fn min_pairs(method: &Method) -> usize {
+    match method {
+        Method::Tps { .. } | Method::Linear(_) => 4,
+        Method::BSpline(_) => 1,
+    }
+}
+
+/// The pull-back u = moving_from_fixed, fitted on the reversed pairs over `fixed_box`.
+pub fn fit_pullback(
+    method: &Method,
+    c: &Correspondences,
+    fixed_box: Aabb<Fixed>,
+) -> Result<Box<dyn Warp<Moving, Fixed>>, Failure> {
+    method.fit(&c.fixed, &c.moving, fixed_box).map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))
+}
+
+/// The forward warp d = fixed_from_moving (where a moving point appears in the deformed view), over `moving_box`.
+pub fn fit_forward(
+    method: &Method,
+    c: &Correspondences,
+    moving_box: Aabb<Moving>,
+) -> Result<Box<dyn Warp<Fixed, Moving>>, Failure> {
+    method
+        .fit(&c.moving, &c.fixed, moving_box)
+        .map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))
+}
+
+/// An output file and whether it may replace an existing one (`--out`, `--force`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OutputFile {
+    pub path: PathBuf,
+    pub force: bool,
+}
+
+impl OutputFile {
+    /// Refuses to write over an input, or over an existing file without `force`.
+    pub fn check(&self, inputs: &[&Path]) -> Result<(), Failure> {
+        check_output(&self.path, inputs, self.force)
+    }
+}
+
+/// Refuses to write `out` over an input, or over an existing file without `force`.
+pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<(), Failure> {
+    let canonical = |p: &Path| std::fs::canonicalize(p).ok();
+    if let Some(out_c) = canonical(out)
+        && inputs.iter().any(|i| canonical(i).as_ref() == Some(&out_c))
+    {
+        return Err(Failure::BadInput(anyhow!("{}: refusing to overwrite an input", out.display())));
+    }
+    if out.exists() && !force {
+        return Err(Failure::BadInput(anyhow!("{}: exists; use --force to overwrite it", out.display())));
+    }
+    Ok(())
+}

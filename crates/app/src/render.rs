@@ -1,0 +1,340 @@
+//! `warpbench render`: one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to a
+//! PNG, headless, with the renderer and options of the app. This is how docs and bug reports get pictures.
+//!
+//! Without `--moving` only the fixed volume is drawn. With `--moving` and landmarks, the moving volume is pulled
+//! back through the fitted warp (a control texture of `--grid`³ texels over the fixed box) and the landmark glyphs
+//! are drawn: each fixed (target) point qᵢ in blue, each moving (source) point where the warp shows it, d(pᵢ), in
+//! orange, and a line between them (the residual; zero length for an interpolating warp). `--slice` draws a slice of
+//! the fixed grid instead of the 3-D view.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, anyhow};
+use warpbench_gpu::glam::{Vec2, Vec3};
+use warpbench_gpu::{
+    BlendMode, GlyphDrawData, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, GpuContext,
+    GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PrefilterPass,
+    PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData, RaycastRenderer,
+    RenderSettings, RenderTarget, Shading, ShadingMode, SlicePlane, VolumeBudget, pair_glyphs,
+};
+use warpbench_io::Volume;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Warp;
+
+use crate::exit::Failure;
+use crate::inputs::{self, LandmarkSource, OutputFile};
+use crate::scene;
+
+/// Which slice of the fixed grid `--slice` asks for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SliceSpec {
+    Axial(f64),
+    Coronal(f64),
+    Sagittal(f64),
+}
+
+impl std::str::FromStr for SliceSpec {
+    type Err = String;
+    /// `axial:POS`, `coronal:POS` or `sagittal:POS`, POS in mm along S, P or L; a bare name is the centre.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, pos) = s.split_once(':').unwrap_or((s, "nan"));
+        let pos: f64 = if pos == "nan" {
+            f64::NAN
+        } else {
+            pos.parse().map_err(|_| format!("slice position {pos:?} is not a number (mm)"))?
+        };
+        match name {
+            "axial" => Ok(Self::Axial(pos)),
+            "coronal" => Ok(Self::Coronal(pos)),
+            "sagittal" => Ok(Self::Sagittal(pos)),
+            _ => Err(format!("slice {name:?}: use axial, coronal or sagittal, optionally with :POS in mm")),
+        }
+    }
+}
+
+/// `--camera az,el[,dist]`: azimuth and elevation in degrees, distance from the target in mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraSpec {
+    pub azimuth_deg: f32,
+    pub elevation_deg: f32,
+    pub distance_mm: Option<f32>,
+}
+
+impl std::str::FromStr for CameraSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let parts: Vec<f32> = s
+            .split(',')
+            .map(|p| p.trim().parse::<f32>().map_err(|_| format!("camera value {p:?} is not a number")))
+            .collect::<Result<_, _>>()?;
+        match parts[..] {
+            [az, el] if az.is_finite() && el.is_finite() => {
+                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: None })
+            }
+            [az, el, d] if az.is_finite() && el.is_finite() && d.is_finite() && d > 0.0 => {
+                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: Some(d) })
+            }
+            _ => Err(format!("--camera {s:?}: give az,el or az,el,dist (degrees, degrees, mm > 0)")),
+        }
+    }
+}
+
+/// `--size WxH`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("--size {s:?}: use WxH, e.g. 512x512"))?;
+    let parse = |v: &str| v.parse::<u32>().ok().filter(|n| (1..=8192).contains(n));
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("--size {s:?}: width and height must be 1..8192")),
+    }
+}
+
+/// `--blend`.
+pub fn parse_blend(s: &str, weight: f32, cell_mm: f32) -> Result<BlendMode, Failure> {
+    BlendMode::ALL
+        .into_iter()
+        .find(|b| b.name() == s)
+        .map(|b| match b {
+            BlendMode::Mix { .. } => BlendMode::Mix { moving_weight: weight.clamp(0.0, 1.0) },
+            BlendMode::Checkerboard { .. } => BlendMode::Checkerboard { cell_mm: cell_mm.max(0.1) },
+            other => other,
+        })
+        .ok_or_else(|| {
+            let names: Vec<&str> = BlendMode::ALL.iter().map(|b| b.name()).collect();
+            Failure::BadInput(anyhow!("unknown --blend {s:?}; use one of {}", names.join(", ")))
+        })
+}
+
+/// Options of `warpbench render`.
+#[derive(Clone, Debug)]
+pub struct RenderOptions {
+    pub fixed: PathBuf,
+    pub moving: Option<PathBuf>,
+    pub landmarks: Option<LandmarkSource>,
+    pub method: String,
+    pub stiffness: f64,
+    pub levels: Option<usize>,
+    pub grid: usize,
+    pub blend: String,
+    pub mix_weight: f32,
+    pub checker_mm: f32,
+    pub preset: Option<String>,
+    pub moving_preset: Option<String>,
+    pub shading: ShadingMode,
+    pub camera: Option<CameraSpec>,
+    pub perspective: bool,
+    pub size: (u32, u32),
+    pub samples_per_voxel: f32,
+    pub slice: Option<SliceSpec>,
+    pub glyphs: bool,
+    pub out: OutputFile,
+    pub quiet: bool,
+}
+
+/// What was rendered, for the caller's message.
+#[derive(Clone, Debug)]
+pub struct Rendered {
+    pub size: (u32, u32),
+    pub adapter: String,
+    pub pairs: usize,
+}
+
+/// One volume on the GPU with its style.
+struct Layer {
+    gpu: GpuVolume,
+    prefiltered: Option<warpbench_gpu::GpuPrefiltered>,
+    style: LayerStyle,
+}
+
+fn upload(
+    ctx: &GpuContext,
+    volume: &Volume,
+    preset: Option<Preset>,
+    tf_row: u32,
+    prefilter: Option<&PrefilterPass>,
+    quiet: bool,
+) -> Result<(Layer, Preset), Failure> {
+    let prepared =
+        PreparedVolume::prepare(&scene::volume_desc(volume), ctx.capabilities, VolumeBudget::for_device(&ctx.limits))
+            .map_err(|e| Failure::BadInput(anyhow!("preparing the volume for the GPU: {e}")))?;
+    if !quiet {
+        for w in &prepared.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
+    let gpu = GpuVolume::upload(ctx, &prepared).map_err(gpu_failure)?;
+    let prefiltered = match prefilter {
+        Some(pass) => {
+            let settings = PrefilterSettings { sigma_vox: 1.0, half_resolution: false };
+            Some(pass.run(ctx, &gpu, settings).map_err(gpu_failure)?)
+        }
+        None => None,
+    };
+    let (preset, window) = scene::auto_style(volume, preset);
+    let iso_value = window.low() + 0.3 * window.width;
+    let style = LayerStyle { window, tf_row, opacity_scale: 1.0, visible: true, iso_value };
+    Ok((Layer { gpu, prefiltered, style }, preset))
+}
+
+fn gpu_failure(e: warpbench_gpu::GpuError) -> Failure {
+    Failure::Internal(anyhow::Error::from(e).context("GPU"))
+}
+
+/// Renders and writes the PNG. Loads, fits, renders, then writes atomically.
+pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
+    let mut inputs_paths: Vec<&Path> = vec![&opts.fixed];
+    inputs_paths.extend(opts.moving.as_deref());
+    if let Some(l) = &opts.landmarks {
+        inputs_paths.extend(l.paths());
+    }
+    opts.out.check(&inputs_paths)?;
+    if opts.landmarks.is_some() && opts.moving.is_none() {
+        return Err(Failure::BadInput(anyhow!("landmarks need a moving volume (--moving)")));
+    }
+    let fixed = inputs::load_volume(&opts.fixed, opts.quiet)?;
+    let moving = opts.moving.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
+    let fixed_box = inputs::volume_box::<Fixed>(&fixed);
+
+    // The warp and the glyphs, when there are landmarks.
+    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
+    let mut pullback: Option<Box<dyn Warp<Moving, Fixed>>> = None;
+    let mut glyph_pairs = Vec::new();
+    if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
+        let pairs = source.read()?;
+        let c = inputs::correspondences(source, &pairs, moving, &fixed, inputs::min_pairs(&method))?;
+        pullback = Some(inputs::fit_pullback(&method, &c, fixed_box)?);
+        let forward = inputs::fit_forward(&method, &c, inputs::volume_box::<Moving>(moving))?;
+        glyph_pairs = c
+            .moving
+            .iter()
+            .zip(&c.fixed)
+            .map(|(p, q)| GlyphPair {
+                moving_ref: Some(Vec3::from_array(forward.apply(*p).coords().map(|v| v as f32))),
+                fixed_ref: Some(Vec3::from_array(q.coords().map(|v| v as f32))),
+                selected: false,
+                active: true,
+            })
+            .collect();
+    }
+
+    let ctx = GpuContext::headless().map_err(gpu_failure)?;
+    let renderer = RaycastRenderer::new(&ctx).map_err(gpu_failure)?;
+    let prefilter = match opts.shading {
+        ShadingMode::None => None,
+        _ => Some(PrefilterPass::new(&ctx).map_err(gpu_failure)?),
+    };
+    let preset = opts.preset.as_deref().map(scene::preset_from_name).transpose()?;
+    let moving_preset = opts.moving_preset.as_deref().map(scene::preset_from_name).transpose()?;
+    let (fixed_layer, fixed_preset) = upload(&ctx, &fixed, preset, 0, prefilter.as_ref(), opts.quiet)?;
+    let moving_layer = match &moving {
+        Some(m) => Some(upload(&ctx, m, moving_preset, 1, prefilter.as_ref(), opts.quiet)?),
+        None => None,
+    };
+    let moving_preset = moving_layer.as_ref().map_or(fixed_preset, |(_, p)| *p);
+    let tfs =
+        GpuTransferFunctions::upload(&ctx, &[fixed_preset.transfer_function(), moving_preset.transfer_function()]);
+    let control = match &pullback {
+        Some(warp) => {
+            let (grid, texture) = scene::control_texture(warp.as_ref(), fixed_box, opts.grid)?;
+            let desc = scene::control_desc(&grid, &texture, &fixed_box);
+            let prepared = PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).map_err(gpu_failure)?;
+            Some(GpuControlTexture::upload(&ctx, &prepared))
+        }
+        None => None,
+    };
+
+    let fixed_gpu = GpuLayer {
+        volume: &fixed_layer.gpu,
+        control: None,
+        prefiltered: fixed_layer.prefiltered.as_ref(),
+        style: fixed_layer.style,
+    };
+    let moving_gpu = match &moving_layer {
+        Some((layer, _)) => GpuLayer {
+            volume: &layer.gpu,
+            control: control.as_ref(),
+            prefiltered: layer.prefiltered.as_ref(),
+            style: layer.style,
+        },
+        // Without a moving volume the fixed one fills the slot, hidden.
+        None => GpuLayer { style: LayerStyle { visible: false, ..fixed_layer.style }, ..fixed_gpu },
+    };
+    let blend = if moving.is_some() {
+        parse_blend(&opts.blend, opts.mix_weight, opts.checker_mm)?
+    } else {
+        BlendMode::FixedOnly
+    };
+    let frame = GpuFrame { fixed: fixed_gpu, moving: moving_gpu, tfs: &tfs };
+    let settings = RenderSettings {
+        blend,
+        samples_per_voxel: opts.samples_per_voxel,
+        shading: Shading::with_mode(opts.shading),
+        ..Default::default()
+    };
+    let glyph_renderer = GlyphRenderer::new(&ctx).map_err(gpu_failure)?;
+    let glyphs = if opts.glyphs { pair_glyphs(&glyph_pairs, &GlyphStyle::default()) } else { Vec::new() };
+
+    let (target, glyph_uniforms, hit_depth) = if let Some(spec) = opts.slice {
+        let m = fixed.lps_from_index.rows();
+        let mid = |a: usize| 0.5 * (fixed_box.min.coords()[a] + fixed_box.max.coords()[a]);
+        let pos = |p: f64, a| if p.is_nan() { mid(a) } else { p };
+        let plane = match spec {
+            SliceSpec::Axial(p) => SlicePlane::axial(&m, fixed.dims, pos(p, 2)),
+            SliceSpec::Coronal(p) => SlicePlane::coronal(&m, fixed.dims, pos(p, 1)),
+            SliceSpec::Sagittal(p) => SlicePlane::sagittal(&m, fixed.dims, pos(p, 0)),
+        };
+        let data = RaycastDrawData::for_slice(&ctx, &renderer, &frame, &plane, &settings);
+        let target = RenderTarget::new(&ctx, plane.size.0, plane.size.1);
+        renderer.render_slice(&ctx, &data, &target).map_err(gpu_failure)?;
+        let gu = GlyphUniforms::for_slice(&plane, &GlyphSettings::default()).map_err(gpu_failure)?;
+        (target, gu, false)
+    } else {
+        let (lo, hi) = (fixed_box.min.coords(), fixed_box.max.coords());
+        let lo = Vec3::from_array(lo.map(|v| v as f32));
+        let hi = Vec3::from_array(hi.map(|v| v as f32));
+        let projection =
+            if opts.perspective { Projection::Perspective { fov_y_rad: 0.6 } } else { Projection::Orthographic };
+        let mut camera = OrbitCamera::fit(lo, hi, projection);
+        if let Some(c) = opts.camera {
+            camera.azimuth_rad = c.azimuth_deg.to_radians();
+            camera.elevation_rad = c.elevation_deg.to_radians();
+            if let Some(d) = c.distance_mm {
+                camera.distance_mm = d;
+            }
+        }
+        camera.pan_mm = Vec2::ZERO;
+        let data = RaycastDrawData::new(&ctx, &renderer, &frame, &camera, &settings, opts.size);
+        let target = RenderTarget::new(&ctx, opts.size.0, opts.size.1);
+        renderer.render(&ctx, &data, &target).map_err(gpu_failure)?;
+        (target, GlyphUniforms::for_view(&camera, opts.size, &GlyphSettings::default()), true)
+    };
+    if !glyphs.is_empty() {
+        let view = hit_depth.then_some(&target.hit_depth_view);
+        let data = GlyphDrawData::new(&ctx, &glyph_renderer, glyph_uniforms, &glyphs, view);
+        glyph_renderer.render(&ctx, &data, &target).map_err(gpu_failure)?;
+    }
+    let mut rgba = target.read_back(&ctx).map_err(gpu_failure)?;
+    // Premultiplied over black: the colour channels are the picture; make it opaque.
+    for px in rgba.chunks_exact_mut(4) {
+        px[3] = 255;
+    }
+    write_png(&opts.out.path, &rgba, target.width, target.height)?;
+    Ok(Rendered { size: (target.width, target.height), adapter: ctx.describe(), pairs: glyph_pairs.len() })
+}
+
+/// Encodes RGBA8 as PNG and writes it atomically.
+fn write_png(out: &Path, rgba: &[u8], width: u32, height: u32) -> Result<(), Failure> {
+    let mut png = Vec::new();
+    image::write_buffer_with_format(
+        &mut std::io::Cursor::new(&mut png),
+        rgba,
+        width,
+        height,
+        image::ExtendedColorType::Rgba8,
+        image::ImageFormat::Png,
+    )
+    .context("encoding the PNG")
+    .map_err(Failure::Internal)?;
+    warpbench_io::atomic::write_atomic(out, |w| w.write_all(&png))?;
+    Ok(())
+}

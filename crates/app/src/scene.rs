@@ -1,0 +1,98 @@
+//! From loaded volumes and a fitted warp to what the renderer takes: plain volume data, transfer-function presets
+//! with windows chosen from the data, and the pull-back sampled into a control texture over the fixed volume's box.
+//! Shared by `warpbench render` and the app, so both show the same picture.
+
+use anyhow::anyhow;
+use warpbench_gpu::{ControlDesc, Preset, VolumeDesc, VolumeSamples, Window};
+use warpbench_io::Volume;
+use warpbench_io::volume::{Modality, VoxelData};
+use warpbench_solver::control::{ControlGrid, ControlTexture};
+use warpbench_solver::spaces::{Aabb, Fixed, Moving};
+use warpbench_solver::warp::Warp;
+
+use crate::exit::Failure;
+
+/// The renderer's view of a loaded volume (borrowed samples, its `lps_from_index`).
+#[must_use]
+pub fn volume_desc(v: &Volume) -> VolumeDesc<'_> {
+    let samples = match &v.data {
+        VoxelData::U8(d) => VolumeSamples::U8(d),
+        VoxelData::I16(d) => VolumeSamples::I16(d),
+        VoxelData::U16(d) => VolumeSamples::U16(d),
+        VoxelData::F32(d) => VolumeSamples::F32(d),
+    };
+    VolumeDesc { dims: v.dims, samples, lps_from_index: v.lps_from_index.rows() }
+}
+
+/// The preset names the CLI and the app accept.
+pub const PRESET_NAMES: [&str; 4] = ["ct-bone", "ct-soft-tissue", "mr-t1", "grey-ramp"];
+
+/// A preset by name ([`PRESET_NAMES`]).
+pub fn preset_from_name(name: &str) -> Result<Preset, Failure> {
+    Preset::ALL
+        .into_iter()
+        .zip(PRESET_NAMES)
+        .find(|(_, n)| *n == name)
+        .map(|(p, _)| p)
+        .ok_or_else(|| Failure::BadInput(anyhow!("unknown preset {name:?}; use one of {}", PRESET_NAMES.join(", "))))
+}
+
+/// Whether `v` looks like a CT: DICOM says so, or its values reach into air (below −500, Hounsfield units).
+#[must_use]
+pub fn looks_like_ct(v: &Volume) -> bool {
+    match v.modality {
+        Modality::Ct => true,
+        Modality::Mr => false,
+        _ => v.data.finite_range().is_some_and(|(lo, _)| lo < -500.0),
+    }
+}
+
+/// The `q`-quantile of the values above `floor`, from every 7th sample (enough for a window).
+fn quantile_above(v: &Volume, floor: f64, q: f64) -> Option<f64> {
+    let mut vals: Vec<f64> =
+        (0..v.data.len()).step_by(7).map(|i| v.data.get_f64(i)).filter(|x| x.is_finite() && *x > floor).collect();
+    if vals.is_empty() {
+        return None;
+    }
+    let k = ((vals.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    let (_, x, _) = vals.select_nth_unstable_by(k, f64::total_cmp);
+    Some(*x)
+}
+
+/// The preset and window to show `v` with: `preset` if given, else CT bone for a CT and MR T1 otherwise. Presets
+/// with a fixed window (the CT ones, in HU) use it; the others window the data between the 2nd percentile of the
+/// foreground (values above 5 % of the 99th percentile) and its 99th percentile.
+#[must_use]
+pub fn auto_style(v: &Volume, preset: Option<Preset>) -> (Preset, Window) {
+    let preset = preset.unwrap_or(if looks_like_ct(v) { Preset::CtBone } else { Preset::MrT1 });
+    if let Some(w) = preset.default_window() {
+        return (preset, w);
+    }
+    let (lo, hi) = v.data.finite_range().unwrap_or((0.0, 1.0));
+    let p99 = quantile_above(v, lo, 0.99).unwrap_or(hi);
+    let floor = lo + 0.05 * (p99 - lo);
+    let low = quantile_above(v, floor, 0.02).unwrap_or(lo);
+    let high = if p99 > low { p99 } else { hi.max(low + 1.0) };
+    (preset, Window::from_range(low as f32, high as f32))
+}
+
+/// The pull-back `moving_from_fixed` sampled into an n³ control texture over `fixed_box` (the ref box).
+pub fn control_texture(
+    moving_from_fixed: &dyn Warp<Moving, Fixed>,
+    fixed_box: Aabb<Fixed>,
+    n: usize,
+) -> Result<(ControlGrid, ControlTexture), Failure> {
+    let grid = ControlGrid::cube(n, fixed_box).map_err(|e| Failure::BadInput(anyhow!("control texture: {e}")))?;
+    Ok((grid, ControlTexture::sample(moving_from_fixed, grid)))
+}
+
+/// The renderer's view of a control texture.
+#[must_use]
+pub fn control_desc<'a>(grid: &ControlGrid, texture: &'a ControlTexture, fixed_box: &Aabb<Fixed>) -> ControlDesc<'a> {
+    ControlDesc {
+        dims: grid.dims,
+        texels: texture.as_f32s(),
+        box_min_ref: fixed_box.min.coords(),
+        box_max_ref: fixed_box.max.coords(),
+    }
+}
