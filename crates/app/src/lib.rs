@@ -6,6 +6,8 @@
 //! - [`info`]: `warpbench info <file-or-dir> [--json]`, what a volume holds and where it sits in LPS.
 //! - [`render`]: `warpbench render`, one frame (3-D view or slice) of the fixed and the deformed moving volume, with
 //!   landmark glyphs, to PNG.
+//! - [`warp`](mod@warp): `warpbench warp`, the moving volume resampled into the fixed grid through the pull-back, to
+//!   NIfTI (and DICOM), on the GPU or the CPU.
 //! - [`inputs`]: loading the pair, reading and checking landmarks, fitting the warp (shared by the pair subcommands).
 //! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
 //! - [`exit`]: the exit-code convention shared by every subcommand.
@@ -16,3 +18,4 @@ pub mod inputs;
 pub mod progress;
 pub mod render;
 pub mod scene;
+pub mod warp;

@@ -8,7 +8,9 @@ use warpbench_app::exit::Failure;
 use warpbench_app::info::{self, InfoOptions};
 use warpbench_app::inputs::{LandmarkSource, OutputFile};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
+use warpbench_app::warp::{self, Backend, PullBackMode, WarpOptions};
 use warpbench_gpu::ShadingMode;
+use warpbench_gpu::export::Interpolation;
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
 #[derive(Debug, Parser)]
@@ -44,6 +46,16 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
+    /// Resample the moving volume into the fixed volume's grid through the landmark warp, and write a NIfTI
+    /// (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
+    ///
+    /// The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
+    /// app shows), or evaluated exactly per voxel with --exact (TPS). Examples:
+    ///
+    ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
+    ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
+    #[command(verbatim_doc_comment)]
+    Warp(Box<WarpArgs>),
     /// Render one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to PNG,
     /// headless, with the app's renderer.
     ///
@@ -56,6 +68,134 @@ enum Command {
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
     #[command(verbatim_doc_comment)]
     Render(Box<RenderArgs>),
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum InterpArg {
+    Nearest,
+    Linear,
+    Cubic,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum BackendArg {
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+#[derive(Debug, clap::Args)]
+#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
+struct WarpArgs {
+    /// The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder.
+    #[arg(long)]
+    fixed: PathBuf,
+    /// The moving volume, resampled.
+    #[arg(long)]
+    moving: PathBuf,
+    /// Landmark pairs (BigWarp CSV, moving then fixed coordinates, LPS mm).
+    #[arg(long)]
+    landmarks: Option<PathBuf>,
+    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
+    #[arg(long)]
+    moving_points: Option<PathBuf>,
+    /// Slicer point list of the fixed points, matched to --moving-points by order.
+    #[arg(long)]
+    fixed_points: Option<PathBuf>,
+    /// The warp: tps, hbspline, affine, similarity or rigid.
+    #[arg(long, default_value = "tps")]
+    method: String,
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
+    #[arg(long, default_value_t = 0.0)]
+    stiffness: f64,
+    /// Hierarchical B-spline levels.
+    #[arg(long)]
+    levels: Option<usize>,
+    /// Control-texture texels per axis over the output grid (2..=256).
+    #[arg(long, default_value_t = 64, conflicts_with = "exact")]
+    grid: usize,
+    /// Evaluate the pull-back exactly at every voxel (TPS, and the linear warps) instead of a control texture.
+    #[arg(long)]
+    exact: bool,
+    /// Interpolation: nearest, linear (trilinear) or cubic (Catmull-Rom).
+    #[arg(long, value_enum, default_value = "linear")]
+    interp: InterpArg,
+    /// Where to resample: auto (GPU when available), cpu or gpu.
+    #[arg(long, value_enum, default_value = "auto")]
+    backend: BackendArg,
+    /// Write f32 samples instead of the moving volume's type (rounded half to even and clamped).
+    #[arg(long)]
+    float: bool,
+    /// Another volume whose grid the output takes instead of the fixed volume's.
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// The value of voxels that map outside the moving volume (default −1024 for a CT, else 0).
+    #[arg(long, allow_hyphen_values = true)]
+    outside: Option<f64>,
+    /// The NIfTI to write (.nii or .nii.gz).
+    #[arg(long)]
+    out: PathBuf,
+    /// Also write the result as a DICOM series (new UIDs) into this new folder.
+    #[arg(long)]
+    out_dicom: Option<PathBuf>,
+    /// Print a JSON report (schema warpbench-warp/1) to stdout.
+    #[arg(long)]
+    json: bool,
+    /// Overwrite --out if it exists.
+    #[arg(long)]
+    force: bool,
+    /// No progress bars or messages.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn run_warp(a: WarpArgs) -> Result<(), Failure> {
+    let landmarks = LandmarkSource::from_args(a.landmarks, a.moving_points, a.fixed_points)?.ok_or_else(|| {
+        Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
+    })?;
+    let opts = WarpOptions {
+        fixed: a.fixed,
+        moving: a.moving,
+        landmarks,
+        method: a.method,
+        stiffness: a.stiffness,
+        levels: a.levels,
+        pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
+        interpolation: match a.interp {
+            InterpArg::Nearest => Interpolation::Nearest,
+            InterpArg::Linear => Interpolation::Trilinear,
+            InterpArg::Cubic => Interpolation::CatmullRom,
+        },
+        backend: match a.backend {
+            BackendArg::Auto => Backend::Auto,
+            BackendArg::Cpu => Backend::Cpu,
+            BackendArg::Gpu => Backend::Gpu,
+        },
+        float: a.float,
+        reference: a.reference,
+        outside_value: a.outside,
+        out: OutputFile { path: a.out, force: a.force },
+        out_dicom: a.out_dicom,
+        quiet: a.quiet,
+    };
+    let report = warp::run(&opts)?;
+    if a.json {
+        let text = serde_json::to_string_pretty(&report).map_err(|e| Failure::Internal(e.into()))?;
+        println!("{text}");
+    } else if !opts.quiet {
+        eprintln!(
+            "wrote {} ({}×{}×{} {}, {} pairs, {}, {})",
+            report.out,
+            report.dims[0],
+            report.dims[1],
+            report.dims[2],
+            report.dtype,
+            report.pairs,
+            report.pullback,
+            report.backend
+        );
+    }
+    Ok(())
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -192,6 +332,7 @@ fn main() -> ExitCode {
         Command::Info { path, json, frame, series, quiet } => {
             info::run(&InfoOptions { path, json, frame, series, quiet }, &mut std::io::stdout().lock())
         }
+        Command::Warp(args) => run_warp(*args),
         Command::Render(args) => run_render(*args),
     };
     match result {

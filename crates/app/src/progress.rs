@@ -36,6 +36,15 @@ impl Bar {
         ControlFlow::Continue(())
     }
 
+    /// Shows `done` of `total` for `stage` (for work that reports its own progress, like the export's slices).
+    pub fn set(&self, stage: &'static str, done: u64, total: u64) {
+        if self.bar.message() != stage {
+            self.bar.set_message(stage);
+        }
+        self.bar.set_length(total);
+        self.bar.set_position(done);
+    }
+
     pub fn finish(&self) {
         self.bar.finish_and_clear();
     }

@@ -236,7 +236,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let control = match &pullback {
         Some(warp) => {
             let (grid, texture) = scene::control_texture(warp.as_ref(), fixed_box, opts.grid)?;
-            let desc = scene::control_desc(&grid, &texture, &fixed_box);
+            let desc = scene::control_desc(&grid, &texture);
             let prepared = PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).map_err(gpu_failure)?;
             Some(GpuControlTexture::upload(&ctx, &prepared))
         }

@@ -76,23 +76,35 @@ pub fn auto_style(v: &Volume, preset: Option<Preset>) -> (Preset, Window) {
     (preset, Window::from_range(low as f32, high as f32))
 }
 
-/// The pull-back `moving_from_fixed` sampled into an n³ control texture over `fixed_box` (the ref box).
+/// The pull-back `moving_from_fixed` sampled into an n³ control texture whose texel centres span `fixed_box`
+/// (the ref box) edge to edge: the texture's own box is `fixed_box` grown by half a texel on every side. Trilinear
+/// lookups then interpolate between samples everywhere in `fixed_box` and never clamp there, so an affine pull-back
+/// is reproduced exactly and a smooth one to the interpolation error, up to the box's faces.
 pub fn control_texture(
     moving_from_fixed: &dyn Warp<Moving, Fixed>,
     fixed_box: Aabb<Fixed>,
     n: usize,
 ) -> Result<(ControlGrid, ControlTexture), Failure> {
-    let grid = ControlGrid::cube(n, fixed_box).map_err(|e| Failure::BadInput(anyhow!("control texture: {e}")))?;
+    if n < 2 {
+        return Err(Failure::BadInput(anyhow!("control texture: {n} texels per axis; at least 2")));
+    }
+    let (lo, hi) = (fixed_box.min.coords(), fixed_box.max.coords());
+    let half_texel: [f64; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / (2.0 * (n as f64 - 1.0)));
+    let grown = Aabb::new(
+        warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| lo[a] - half_texel[a])),
+        warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| hi[a] + half_texel[a])),
+    );
+    let grid = ControlGrid::cube(n, grown).map_err(|e| Failure::BadInput(anyhow!("control texture: {e}")))?;
     Ok((grid, ControlTexture::sample(moving_from_fixed, grid)))
 }
 
-/// The renderer's view of a control texture.
+/// The renderer's view of a control texture (over its grid's box).
 #[must_use]
-pub fn control_desc<'a>(grid: &ControlGrid, texture: &'a ControlTexture, fixed_box: &Aabb<Fixed>) -> ControlDesc<'a> {
+pub fn control_desc<'a>(grid: &ControlGrid, texture: &'a ControlTexture) -> ControlDesc<'a> {
     ControlDesc {
         dims: grid.dims,
         texels: texture.as_f32s(),
-        box_min_ref: fixed_box.min.coords(),
-        box_max_ref: fixed_box.max.coords(),
+        box_min_ref: grid.domain.min.coords(),
+        box_max_ref: grid.domain.max.coords(),
     }
 }

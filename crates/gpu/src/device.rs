@@ -215,6 +215,13 @@ impl GpuContext {
         Ok(out)
     }
 
+    /// Whether the adapter is a CPU driver (lavapipe, llvmpipe, WARP): fine for tests and small frames, slower than
+    /// native CPU code for bulk work such as exports.
+    #[must_use]
+    pub fn is_cpu_driver(&self) -> bool {
+        self.adapter_info.device_type == wgpu::DeviceType::Cpu
+    }
+
     /// A one-line description of the adapter, e.g. "llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan, Cpu)".
     #[must_use]
     pub fn describe(&self) -> String {

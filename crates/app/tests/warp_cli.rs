@@ -1,0 +1,249 @@
+//! `warpbench warp` end to end, on real fixtures: identity landmarks give back the input; a rigid landmark set on
+//! the CT reproduces the rigidly resampled CT (against a brute-force f64 trilinear resampling written here); the GPU
+//! and the CPU backends write the same file; `--out-dicom` writes a series our reader reads back; refusals.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use warpbench_io::volume::VoxelData;
+
+fn data(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel)
+}
+
+fn warpbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run warpbench")
+}
+
+fn assert_ok(out: &Output) {
+    assert_eq!(out.status.code(), Some(0), "stderr: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+/// A BigWarp CSV of (moving p, fixed q) pairs.
+fn write_pairs(path: &Path, pairs: &[([f64; 3], [f64; 3])]) {
+    let lines: Vec<String> = pairs
+        .iter()
+        .enumerate()
+        .map(|(i, (p, q))| {
+            let f: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
+            format!("\"Pt-{i}\",\"true\",{}\n", f.join(","))
+        })
+        .collect();
+    std::fs::write(path, lines.concat()).expect("write landmarks");
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().expect("utf8 path")
+}
+
+#[test]
+fn identity_landmarks_give_back_the_input_on_both_backends() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let points = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
+    let pairs: Vec<_> = points.iter().map(|q| (*q, *q)).collect();
+    let csv = dir.path().join("identity.csv");
+    write_pairs(&csv, &pairs);
+    let input = warpbench_io::open(&mri).expect("read the fixture");
+    for backend in ["cpu", "gpu"] {
+        let out = dir.path().join(format!("same_{backend}.nii.gz"));
+        let run = warpbench(&[
+            "warp",
+            "--fixed",
+            s(&mri),
+            "--moving",
+            s(&mri),
+            "--landmarks",
+            s(&csv),
+            "--backend",
+            backend,
+            "--quiet",
+            "--out",
+            s(&out),
+        ]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        if backend == "gpu" && run.status.code() == Some(1) && stderr.contains("no GPU adapter") {
+            assert!(std::env::var_os("REQUIRE_GPU_ADAPTER").is_none(), "no GPU adapter: {stderr}");
+            continue;
+        }
+        assert_ok(&run);
+        let output = warpbench_io::open(&out).expect("read the output");
+        assert_eq!(output.dims, input.dims);
+        assert!(output.lps_from_index.max_abs_diff(&input.lps_from_index) < 1e-6, "geometry changed");
+        assert_eq!(output.data, input.data, "{backend}: identity landmarks changed the voxels");
+    }
+}
+
+/// Brute-force trilinear sample of `v` (f64) at continuous index `s`, clamp-to-edge, or None outside
+/// −½ ≤ s ≤ n − ½.
+fn trilinear(v: &warpbench_io::Volume, s: [f64; 3]) -> Option<f64> {
+    if (0..3).any(|a| s[a] < -0.5 || s[a] > v.dims[a] as f64 - 0.5) {
+        return None;
+    }
+    let c: Vec<f64> = (0..3).map(|a| s[a].clamp(0.0, v.dims[a] as f64 - 1.0)).collect();
+    let i0: Vec<usize> = c.iter().map(|x| x.floor() as usize).collect();
+    let f: Vec<f64> = c.iter().zip(&i0).map(|(x, i)| x - *i as f64).collect();
+    let mut acc = 0.0;
+    for corner in 0..8 {
+        let mut w = 1.0;
+        let mut idx = [0usize; 3];
+        for a in 0..3 {
+            let hi = corner >> a & 1 == 1;
+            idx[a] = if hi { (i0[a] + 1).min(v.dims[a] - 1) } else { i0[a] };
+            w *= if hi { f[a] } else { 1.0 - f[a] };
+        }
+        acc += w * v.data.get_f64(v.offset(idx[0], idx[1], idx[2]));
+    }
+    Some(acc)
+}
+
+#[test]
+fn a_rigid_landmark_set_reproduces_the_rigidly_resampled_ct() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let ct_path = data("nifti/cranium_ct.nii.gz");
+    let ct = warpbench_io::open(&ct_path).expect("read the CT");
+    // u(x) = R (x − c) + c + t: 8° about S through the CT's centre c, then t = (5, −3, 2) mm.
+    let c = [0.0, 0.0, 0.0];
+    let (sin, cos) = 8f64.to_radians().sin_cos();
+    let t = [5.0, -3.0, 2.0];
+    let u = |x: [f64; 3]| {
+        let d = [x[0] - c[0], x[1] - c[1], x[2] - c[2]];
+        [cos * d[0] - sin * d[1] + c[0] + t[0], sin * d[0] + cos * d[1] + c[1] + t[1], d[2] + c[2] + t[2]]
+    };
+    let fixed_points = [
+        [-60.0, -60.0, -40.0],
+        [60.0, -50.0, -30.0],
+        [50.0, 60.0, -20.0],
+        [-50.0, 50.0, 10.0],
+        [0.0, 0.0, 40.0],
+        [30.0, -20.0, 50.0],
+        [-20.0, 30.0, -50.0],
+        [10.0, 10.0, 0.0],
+    ];
+    let pairs: Vec<_> = fixed_points.iter().map(|q| (u(*q), *q)).collect();
+    let csv = dir.path().join("rigid.csv");
+    write_pairs(&csv, &pairs);
+    let out = dir.path().join("rigid.nii.gz");
+    assert_ok(&warpbench(&[
+        "warp",
+        "--fixed",
+        s(&ct_path),
+        "--moving",
+        s(&ct_path),
+        "--landmarks",
+        s(&csv),
+        "--method",
+        "rigid",
+        "--exact",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        s(&out),
+    ]));
+    let warped = warpbench_io::open(&out).expect("read the output");
+    assert!(matches!(warped.data, VoxelData::I16(_)), "the CT's sample type is kept");
+    let index_from_lps = ct.lps_from_index.inverse().expect("invertible");
+    let (mut compared, mut worst, mut off) = (0usize, 0.0f64, 0usize);
+    for k in (0..ct.dims[2]).step_by(3) {
+        for j in (0..ct.dims[1]).step_by(5) {
+            for i in (0..ct.dims[0]).step_by(5) {
+                let x = ct.voxel_lps(i, j, k).coords();
+                let s_idx = index_from_lps.apply_point(warpbench_io::geometry::Point3::from_array(u(x))).coords();
+                // Skip voxels within 1e-3 voxel of the inside boundary (where f32 rounding may decide either way).
+                let near_edge = (0..3)
+                    .any(|a| (s_idx[a] + 0.5).abs() < 1e-3 || (s_idx[a] - (ct.dims[a] as f64 - 0.5)).abs() < 1e-3);
+                if near_edge {
+                    continue;
+                }
+                let expected = trilinear(&ct, s_idx).unwrap_or(-1024.0).round_ties_even().clamp(-32768.0, 32767.0);
+                let got = warped.data.get_f64(warped.offset(i, j, k));
+                let d = (got - expected).abs();
+                worst = worst.max(d);
+                off += usize::from(d > 1.0);
+                compared += 1;
+            }
+        }
+    }
+    eprintln!("{compared} voxels compared: worst |warp − reference| = {worst} HU, {off} differ by more than 1 HU");
+    assert!(compared > 50_000, "too few voxels compared: {compared}");
+    // The rigid fit is exact on noise-free pairs up to ~1e-10 mm, and the export evaluates in f32 (~1e-5 voxel):
+    // only rounding ties (x.5 HU) can differ, by 1.
+    assert!(worst <= 1.0, "the warp differs from the rigid resampling by {worst} HU");
+}
+
+#[test]
+fn writes_a_dicom_series_and_refuses_bad_requests() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
+    let pairs: Vec<_> = q.iter().map(|q| ([q[0] + 2.0, q[1] - 1.0, q[2] + 3.0], *q)).collect();
+    let csv = dir.path().join("shift.csv");
+    write_pairs(&csv, &pairs);
+    let out = dir.path().join("shift.nii");
+    let dcm = dir.path().join("series");
+    assert_ok(&warpbench(&[
+        "warp",
+        "--fixed",
+        s(&mri),
+        "--moving",
+        s(&mri),
+        "--landmarks",
+        s(&csv),
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--out",
+        s(&out),
+        "--out-dicom",
+        s(&dcm),
+    ]));
+    let nii = warpbench_io::open(&out).expect("read the NIfTI");
+    let series = warpbench_io::open(&dcm).expect("read the DICOM series");
+    // The series may order its axes differently (slices along the normal of the image plane), so compare the same
+    // LPS points: every voxel centre of the series is a voxel centre of the NIfTI with the same value.
+    assert_eq!(series.dims.iter().product::<usize>(), nii.dims.iter().product::<usize>());
+    let nii_index_from_lps = nii.lps_from_index.inverse().expect("invertible");
+    for k in 0..series.dims[2] {
+        for j in (0..series.dims[1]).step_by(3) {
+            for i in (0..series.dims[0]).step_by(3) {
+                let idx = nii_index_from_lps.apply_point(series.voxel_lps(i, j, k)).coords();
+                let r = idx.map(f64::round);
+                assert!(idx.iter().zip(&r).all(|(a, b)| (a - b).abs() < 1e-3), "({i}, {j}, {k}) is not a voxel centre");
+                let (a, b, c) = (r[0] as usize, r[1] as usize, r[2] as usize);
+                let (want, got) = (nii.data.get_f64(nii.offset(a, b, c)), series.data.get_f64(series.offset(i, j, k)));
+                assert!((want - got).abs() < 1e-9, "voxel ({i}, {j}, {k}): DICOM {got}, NIfTI {want}");
+            }
+        }
+    }
+
+    let expect_bad = |args: &[&str], needle: &str| {
+        let run = warpbench(args);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
+    };
+    let m = s(&mri);
+    let l = s(&csv);
+    let fresh = dir.path().join("fresh.nii.gz");
+    let f = s(&fresh);
+    expect_bad(
+        &["warp", "--fixed", m, "--moving", m, "--landmarks", l, "--method", "hbspline", "--exact", "-q", "--out", f],
+        "--exact",
+    );
+    expect_bad(
+        &["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", s(&dir.path().join("x.png"))],
+        ".nii",
+    );
+    expect_bad(&["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", s(&out)], "exists; use --force");
+    expect_bad(
+        &["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", m],
+        "refusing to overwrite an input",
+    );
+    expect_bad(&["warp", "--fixed", m, "--moving", m, "-q", "--out", f], "--landmarks");
+    expect_bad(
+        &["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", f, "--out-dicom", s(&dcm)],
+        "new or empty folder",
+    );
+    assert!(!fresh.exists(), "a refused run wrote its output");
+}
