@@ -217,18 +217,7 @@ impl PendingControl {
     /// [`ControlInfo`]. Call it after submitting the encoder the work was recorded into. Fails when a displacement was
     /// not finite (or beyond the f16 range when storing halves).
     pub fn resolve(self, ctx: &GpuContext) -> Result<GpuControlTexture> {
-        let (tx, rx) = std::sync::mpsc::channel();
-        self.bounds.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        ctx.wait_idle()?;
-        rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
-        let words: Vec<u32> = {
-            let mapped = self.bounds.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
-            bytemuck::pod_collect_to_vec(&mapped)
-        };
-        self.bounds.unmap();
-        ctx.check_errors()?;
+        let words: Vec<u32> = ctx.map_read(&self.bounds, self.bounds.size(), bytemuck::pod_collect_to_vec)?;
         if words[7] != 0 {
             return Err(GpuError::InvalidInput(
                 "the pull-back's displacement is not finite (or beyond the f16 range of the control texture) at some \

@@ -198,18 +198,29 @@ impl GpuContext {
             wgpu::Extent3d { width, height, depth_or_array_layers: layers },
         );
         self.queue.submit([encoder.finish()]);
+        self.map_read(&buffer, buffer.size(), |mapped| {
+            let mut out = Vec::with_capacity((row * rows) as usize);
+            for r in 0..rows as usize {
+                out.extend_from_slice(&mapped[r * padded as usize..r * padded as usize + row as usize]);
+            }
+            out
+        })
+    }
+
+    /// Maps the first `bytes` of `buffer` (a `MAP_READ` buffer whose filling work is already submitted), waits for
+    /// the GPU, hands the bytes to `read`, unmaps, and reports wgpu's errors. Every readback goes through here.
+    pub fn map_read<T>(&self, buffer: &wgpu::Buffer, bytes: u64, read: impl FnOnce(&[u8]) -> T) -> Result<T> {
+        let slice = buffer.slice(..bytes);
         let (tx, rx) = std::sync::mpsc::channel();
-        buffer.slice(..).map_async(wgpu::MapMode::Read, move |r| {
+        slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
         self.wait_idle()?;
         rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mapped = buffer.get_mapped_range(..).map_err(|e| GpuError::Readback(e.to_string()))?;
-        let mut out = Vec::with_capacity((row * rows) as usize);
-        for r in 0..rows as usize {
-            out.extend_from_slice(&mapped[r * padded as usize..r * padded as usize + row as usize]);
-        }
-        drop(mapped);
+        let out = {
+            let mapped = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
+            read(&mapped)
+        };
         buffer.unmap();
         self.check_errors()?;
         Ok(out)

@@ -343,21 +343,7 @@ impl PickPass {
         }
         encoder.copy_buffer_to_buffer(&hit_buffer, 0, &readback, 0, hits_size);
         ctx.queue.submit([encoder.finish()]);
-        let (tx, rx) = std::sync::mpsc::channel();
-        readback.slice(..).map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        ctx.wait_idle()?;
-        rx.recv()
-            .map_err(|e| GpuError::Readback(format!("pick: {e}")))?
-            .map_err(|e| GpuError::Readback(format!("pick: {e}")))?;
-        let hits = {
-            let mapped = readback.get_mapped_range(..).map_err(|e| GpuError::Readback(format!("pick: {e}")))?;
-            bytemuck::pod_collect_to_vec(&mapped)
-        };
-        readback.unmap();
-        ctx.check_errors()?;
-        Ok(hits)
+        ctx.map_read(&readback, hits_size, bytemuck::pod_collect_to_vec)
     }
 }
 

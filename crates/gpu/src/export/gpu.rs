@@ -381,19 +381,7 @@ fn upload_tps(ctx: &GpuContext, pullback: &PlanPullBack) -> (wgpu::Buffer, u32) 
 
 /// Maps the first `bytes` of `readback`, hands the f32s to `sink`, unmaps.
 fn read_slab(ctx: &GpuContext, readback: &wgpu::Buffer, bytes: u64, sink: impl FnOnce(&[f32])) -> Result<()> {
-    let slice = readback.slice(..bytes);
-    let (tx, rx) = std::sync::mpsc::channel();
-    slice.map_async(wgpu::MapMode::Read, move |r| {
-        let _ = tx.send(r);
-    });
-    ctx.wait_idle()?;
-    rx.recv().map_err(|e| GpuError::Readback(e.to_string()))?.map_err(|e| GpuError::Readback(e.to_string()))?;
-    {
-        let mapped = slice.get_mapped_range().map_err(|e| GpuError::Readback(e.to_string()))?;
-        sink(bytemuck::cast_slice(&mapped));
-    }
-    readback.unmap();
-    ctx.check_errors()
+    ctx.map_read(readback, bytes, |mapped| sink(bytemuck::cast_slice(mapped)))
 }
 
 fn allocate(output: SampleType, len: usize) -> Result<ExportedSamples> {
