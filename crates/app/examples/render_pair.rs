@@ -14,28 +14,17 @@
 //! GPU pulls the MR through it at every ray sample.
 
 use anyhow::{Context, Result, bail};
+use warpbench_app::scene;
 use warpbench_gpu::glam::DVec3;
 use warpbench_gpu::{
-    BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume,
-    LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection,
-    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, VolumeDesc,
-    VolumeSamples, Window,
+    GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera,
+    PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData,
+    RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, Window,
 };
 use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
-use warpbench_io::volume::VoxelData;
-use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::tps::Tps;
-
-fn samples(v: &Volume) -> VolumeSamples<'_> {
-    match &v.data {
-        VoxelData::U8(d) => VolumeSamples::U8(d),
-        VoxelData::I16(d) => VolumeSamples::I16(d),
-        VoxelData::U16(d) => VolumeSamples::U16(d),
-        VoxelData::F32(d) => VolumeSamples::F32(d),
-    }
-}
 
 /// LPS centroid of the voxels whose value exceeds `threshold` (sampled every 2nd voxel).
 fn centroid_above(v: &Volume, threshold: f64) -> DVec3 {
@@ -64,17 +53,11 @@ fn quantile_above(v: &Volume, floor: f64, q: f64) -> f64 {
     vals[((vals.len() - 1) as f64 * q) as usize]
 }
 
-fn blend_from_name(name: &str) -> Result<BlendMode> {
-    BlendMode::ALL.into_iter().find(|b| b.name() == name).with_context(|| {
-        let names: Vec<_> = BlendMode::ALL.iter().map(|b| b.name()).collect();
-        format!("unknown blend mode {name:?}; one of {names:?}")
-    })
-}
-
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(out) = args.first() else { bail!("usage: render_pair OUT.png [blend] [size]") };
-    let blend = blend_from_name(args.get(1).map_or("mix", String::as_str))?;
+    let blend = warpbench_app::render::parse_blend(args.get(1).map_or("mix", String::as_str), 0.5, 12.0)
+        .map_err(|f| anyhow::anyhow!("{:#}", f.error()))?;
     let size: u32 = args.get(2).map_or(Ok(512), |s| s.parse()).context("size")?;
     let shading_name = args.get(3).map_or("dvr", String::as_str);
     let shading = ShadingMode::ALL
@@ -120,8 +103,7 @@ fn main() -> Result<()> {
     let ctx = GpuContext::headless().context("GPU device")?;
     eprintln!("GPU: {}", ctx.describe());
     let budget = VolumeBudget::for_device(&ctx.limits);
-    let fixed_desc = VolumeDesc { dims: ct.dims, samples: samples(&ct), lps_from_index: ct.lps_from_index.rows() };
-    let moving_desc = VolumeDesc { dims: mr.dims, samples: samples(&mr), lps_from_index: mr.lps_from_index.rows() };
+    let (fixed_desc, moving_desc) = (scene::volume_desc(&ct), scene::volume_desc(&mr));
     let fixed = PreparedVolume::prepare(&fixed_desc, ctx.capabilities, budget)?;
     let moving = PreparedVolume::prepare(&moving_desc, ctx.capabilities, budget)?;
     for w in fixed.warnings.iter().chain(&moving.warnings) {
@@ -129,14 +111,9 @@ fn main() -> Result<()> {
     }
     let (lo, hi) = (fixed.info.box_min_lps, fixed.info.box_max_lps);
     let domain = Aabb::new(Point3::from_array(lo.to_array()), Point3::from_array(hi.to_array()));
-    let grid = ControlGrid::cube(64, domain).context("control grid")?;
-    let control = ControlTexture::sample(&moving_from_fixed, grid);
-    let control_desc = ControlDesc {
-        dims: grid.dims,
-        texels: control.as_f32s(),
-        box_min_ref: lo.to_array(),
-        box_max_ref: hi.to_array(),
-    };
+    let (grid, control) =
+        scene::control_texture(&moving_from_fixed, domain, 64).map_err(|f| anyhow::anyhow!("{:#}", f.error()))?;
+    let control_desc = scene::control_desc(&grid, &control);
     let control = PreparedControl::prepare(&control_desc, ctx.capabilities.float32_filterable)?;
 
     let renderer = RaycastRenderer::new(&ctx)?;
