@@ -23,6 +23,7 @@
 //!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
 //! - [`pick`](mod@pick): [`PickPass`], ray picking in the deformed volumes (probes: opacity, gradient, accumulated
 //!   opacity; bisection refinement), returning the hit in ref space and in the volume's own LPS space.
+//! - [`pool`]: [`TexturePool`], textures reused by descriptor ([`TextureKey`]); [`RenderTarget::from_pool`].
 //! - [`glyph`]: landmark glyphs ([`GlyphRenderer`], [`GlyphDrawData`], [`pair_glyphs`]): points and pair lines over the
 //!   3-D view, depth-tested against the ray caster's first hit ([`RenderTarget::hit_depth`]), and over slices.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
@@ -47,6 +48,7 @@ pub mod error;
 pub mod export;
 pub mod glyph;
 pub mod pick;
+pub mod pool;
 pub mod prefilter;
 pub mod pullback;
 pub mod raycast;
@@ -71,6 +73,7 @@ pub use glyph::{
     GlyphDrawData, GlyphInstance, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, pair_glyphs,
 };
 pub use pick::{PickHit, PickPass, PickRay, PickRequest, PickTarget, Probe};
+pub use pool::{PoolStats, TextureKey, TexturePool};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use pullback::{BSplineDesc, LatticeDesc, TpsDesc, TpsLocal};
 pub use raycast::{

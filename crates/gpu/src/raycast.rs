@@ -30,6 +30,7 @@ use crate::camera::{OrbitCamera, Projection};
 use crate::control::{ControlInfo, GpuControlTexture};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
+use crate::pool::{TextureKey, TexturePool};
 use crate::prefilter::GpuPrefiltered;
 use crate::shaders::{RAYCAST, Stage};
 use crate::slice::SlicePlane;
@@ -873,32 +874,34 @@ pub struct RenderTarget {
     pub hit_depth_view: wgpu::TextureView,
     pub width: u32,
     pub height: u32,
+    /// Where the textures go back when the target is dropped ([`Self::from_pool`]).
+    pool: Option<TexturePool>,
 }
 
 impl RenderTarget {
+    /// The usages of both textures.
+    pub const USAGE: wgpu::TextureUsages = wgpu::TextureUsages::RENDER_ATTACHMENT
+        .union(wgpu::TextureUsages::TEXTURE_BINDING)
+        .union(wgpu::TextureUsages::COPY_SRC);
+
     #[must_use]
     pub fn new(ctx: &GpuContext, width: u32, height: u32) -> Self {
-        let descriptor = wgpu::TextureDescriptor {
-            label: Some("raycast target"),
-            size: wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: RaycastRenderer::TARGET_FORMAT,
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                | wgpu::TextureUsages::TEXTURE_BINDING
-                | wgpu::TextureUsages::COPY_SRC,
-            view_formats: &[],
-        };
-        let texture = ctx.device.create_texture(&descriptor);
+        // A private pool: the textures are simply freed with the target.
+        let mut target = Self::from_pool(&TexturePool::new(&ctx.device), width, height);
+        target.pool = None;
+        target
+    }
+
+    /// A target whose textures come from `pool` and return to it when the target is dropped: resizing a view or
+    /// rendering a new slice each frame then reuses GPU memory instead of allocating it.
+    #[must_use]
+    pub fn from_pool(pool: &TexturePool, width: u32, height: u32) -> Self {
+        let key = |format| TextureKey::d2(width.max(1), height.max(1), format, Self::USAGE);
+        let texture = pool.acquire(key(RaycastRenderer::TARGET_FORMAT), "raycast target");
+        let hit_depth = pool.acquire(key(RaycastRenderer::HIT_DEPTH_FORMAT), "raycast hit depth");
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        let hit_depth = ctx.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("raycast hit depth"),
-            format: RaycastRenderer::HIT_DEPTH_FORMAT,
-            ..descriptor
-        });
         let hit_depth_view = hit_depth.create_view(&wgpu::TextureViewDescriptor::default());
-        Self { texture, view, hit_depth, hit_depth_view, width, height }
+        Self { texture, view, hit_depth, hit_depth_view, width, height, pool: Some(pool.clone()) }
     }
 
     /// The two attachments of a ray-casting pass, cleared to transparent and to [`NO_HIT_DEPTH`].
@@ -926,6 +929,15 @@ impl RenderTarget {
     /// Premultiplied RGBA8, rows top to bottom, `4 · width` bytes per row (the copy's 256-byte row alignment removed).
     pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
         ctx.read_texture(&self.texture, [self.width, self.height, 1], 4)
+    }
+}
+
+impl Drop for RenderTarget {
+    fn drop(&mut self) {
+        if let Some(pool) = self.pool.take() {
+            pool.release(self.texture.clone());
+            pool.release(self.hit_depth.clone());
+        }
     }
 }
 
