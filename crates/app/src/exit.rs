@@ -10,6 +10,8 @@ pub enum Failure {
     BadInput(anyhow::Error),
     /// A bug or an environment problem: exit code 1.
     Internal(anyhow::Error),
+    /// An accuracy gate failed (`eval --max-tre-mm`): exit code 3.
+    AccuracyGate(anyhow::Error),
 }
 
 impl Failure {
@@ -18,12 +20,13 @@ impl Failure {
         match self {
             Self::BadInput(_) => ExitCode::from(2),
             Self::Internal(_) => ExitCode::from(1),
+            Self::AccuracyGate(_) => ExitCode::from(3),
         }
     }
     #[must_use]
     pub fn error(&self) -> &anyhow::Error {
         match self {
-            Self::BadInput(e) | Self::Internal(e) => e,
+            Self::BadInput(e) | Self::Internal(e) | Self::AccuracyGate(e) => e,
         }
     }
 }

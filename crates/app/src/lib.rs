@@ -8,11 +8,17 @@
 //!   landmark glyphs, to PNG.
 //! - [`warp`](mod@warp): `warpbench warp`, the moving volume resampled into the fixed grid through the pull-back, to
 //!   NIfTI (and DICOM), on the GPU or the CPU.
+//! - [`eval`]: `warpbench eval`, a known synthetic warp of a real volume recovered from sampled landmarks: TRE,
+//!   leave-one-out, inverse consistency, folding, NCC/RMSE, an accuracy gate (exit 3), and the `--suite` grid.
+//! - [`field`]: `warpbench field`, the pull-back as a NIfTI displacement field (ITK/ANTs/Slicer convention) and,
+//!   for linear warps, an ITK `.tfm`.
 //! - [`inputs`]: loading the pair, reading and checking landmarks, fitting the warp (shared by the pair subcommands).
 //! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
 //! - [`exit`]: the exit-code convention shared by every subcommand.
 
+pub mod eval;
 pub mod exit;
+pub mod field;
 pub mod info;
 pub mod inputs;
 pub mod progress;

@@ -5,6 +5,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
 use warpbench_app::exit::Failure;
+use warpbench_app::field::{self, FieldOptions};
 use warpbench_app::info::{self, InfoOptions};
 use warpbench_app::inputs::{LandmarkSource, OutputFile};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
@@ -56,6 +57,18 @@ enum Command {
     ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
     #[command(verbatim_doc_comment)]
     Warp(Box<WarpArgs>),
+    /// Measure how well a landmark warp recovers a known synthetic deformation of a real volume: TRE at held-out
+    /// foreground points, leave-one-out, inverse consistency, folding, and NCC/RMSE against the ground truth.
+    ///
+    /// The volume is deformed by a seeded synthetic warp, landmark pairs are sampled in its foreground, the warp is
+    /// fitted, and the fit is compared with the truth (docs/accuracy.md has the definitions). --max-tre-mm gates
+    /// the result (exit 3); --suite runs the grid kinds × N × methods. Examples:
+    ///
+    ///     warpbench eval --volume tests/data/nifti/avg152T1_LR_nifti.nii --kind sine --amplitude-mm 5 --landmarks 50
+    ///     warpbench eval --volume mr.nii.gz --kind bump --landmarks 20 --on-features --max-tre-mm 2 --json eval.json
+    ///     warpbench eval --volume mr.nii.gz --suite --suite-md docs/accuracy.md --json suite.json
+    #[command(verbatim_doc_comment)]
+    Eval(Box<EvalArgs>),
     /// Render one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to PNG,
     /// headless, with the app's renderer.
     ///
@@ -68,6 +81,17 @@ enum Command {
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
     #[command(verbatim_doc_comment)]
     Render(Box<RenderArgs>),
+    /// Write the pull-back as a displacement field (NIfTI, intent DISPVECT) that ITK, ANTs and 3D Slicer read, and
+    /// for linear warps also as an ITK transform file.
+    ///
+    /// At each voxel centre x of the fixed grid (or --reference's) the field holds u(x) − x, u = moving_from_fixed
+    /// fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform maps fixed point x to moving
+    /// point x + D(x). Vectors are stored in RAS, as ITK's NIfTI reader expects. Examples:
+    ///
+    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
+    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method rigid --tfm rigid.tfm --out rigid_field.nii.gz
+    #[command(verbatim_doc_comment)]
+    Field(Box<FieldArgs>),
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -283,6 +307,83 @@ struct RenderArgs {
     quiet: bool,
 }
 
+#[derive(Debug, clap::Args)]
+struct FieldArgs {
+    /// The fixed volume: its grid is the field's grid unless --reference is given.
+    #[arg(long)]
+    fixed: PathBuf,
+    /// The moving volume (landmarks are checked against it).
+    #[arg(long)]
+    moving: PathBuf,
+    /// Landmark pairs (BigWarp CSV, moving then fixed coordinates, LPS mm).
+    #[arg(long)]
+    landmarks: Option<PathBuf>,
+    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
+    #[arg(long)]
+    moving_points: Option<PathBuf>,
+    /// Slicer point list of the fixed points, matched to --moving-points by order.
+    #[arg(long)]
+    fixed_points: Option<PathBuf>,
+    /// The warp: tps, hbspline, affine, similarity or rigid.
+    #[arg(long, default_value = "tps")]
+    method: String,
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
+    #[arg(long, default_value_t = 0.0)]
+    stiffness: f64,
+    /// Hierarchical B-spline levels.
+    #[arg(long)]
+    levels: Option<usize>,
+    /// Sample the field on this volume's grid instead of the fixed volume's.
+    #[arg(long)]
+    reference: Option<PathBuf>,
+    /// Also write the warp as an ITK transform file (affine, similarity and rigid only).
+    #[arg(long)]
+    tfm: Option<PathBuf>,
+    /// The displacement field to write (.nii or .nii.gz).
+    #[arg(long)]
+    out: PathBuf,
+    /// Print a JSON summary (schema warpbench-field/1, see docs/cli.md) to stdout.
+    #[arg(long)]
+    json: bool,
+    /// Overwrite --out (and --tfm) if they exist.
+    #[arg(long)]
+    force: bool,
+    /// No progress bars or messages.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn run_field(a: FieldArgs) -> Result<(), Failure> {
+    let landmarks = LandmarkSource::from_args(a.landmarks, a.moving_points, a.fixed_points)?.ok_or_else(|| {
+        Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
+    })?;
+    let opts = FieldOptions {
+        fixed: a.fixed,
+        moving: a.moving,
+        landmarks,
+        method: a.method,
+        stiffness: a.stiffness,
+        levels: a.levels,
+        reference: a.reference,
+        out: OutputFile { path: a.out, force: a.force },
+        tfm: a.tfm,
+        json: a.json,
+        quiet: a.quiet,
+    };
+    let done = field::run(&opts, &mut std::io::stdout().lock())?;
+    if !opts.quiet && !opts.json {
+        let d = done.dims;
+        eprintln!(
+            "wrote {} ({}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
+            done.out, d[0], d[1], d[2], done.pairs, done.method, done.max_displacement_mm
+        );
+        if let Some(tfm) = &done.tfm {
+            eprintln!("wrote {tfm}");
+        }
+    }
+    Ok(())
+}
+
 fn run_render(a: RenderArgs) -> Result<(), Failure> {
     let landmarks = LandmarkSource::from_args(a.landmarks, a.moving_points, a.fixed_points)?;
     let opts = RenderOptions {
@@ -326,6 +427,111 @@ fn run_render(a: RenderArgs) -> Result<(), Failure> {
     Ok(())
 }
 
+#[derive(Debug, clap::Args)]
+#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
+struct EvalArgs {
+    /// The real volume to deform (NIfTI, NRRD or a DICOM series folder); it is also the ground truth.
+    #[arg(long)]
+    volume: PathBuf,
+    /// The synthetic warp: sine, twist, bend, bump, tps-random or bspline-random.
+    #[arg(long, default_value = "sine")]
+    kind: String,
+    /// The warp's largest displacement, mm.
+    #[arg(long, default_value_t = 10.0)]
+    amplitude_mm: f64,
+    /// Landmark pairs N.
+    #[arg(long, default_value_t = 50)]
+    landmarks: usize,
+    /// The fitted warp: tps, hbspline, affine, similarity or rigid.
+    #[arg(long, default_value = "tps")]
+    method: String,
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
+    #[arg(long, default_value_t = 0.0)]
+    stiffness: f64,
+    /// Hierarchical B-spline levels.
+    #[arg(long)]
+    levels: Option<usize>,
+    /// Seed of the warp, the landmarks and the held-out points.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Place landmarks on strong-gradient voxels (at least a spacing apart) instead of at random.
+    #[arg(long)]
+    on_features: bool,
+    /// Held-out foreground points for the TRE (at least 1000).
+    #[arg(long, default_value_t = warpbench_app::eval::MIN_HELD_OUT)]
+    held_out: usize,
+    /// Control-texture texels per axis for the recovered volume (2..=256).
+    #[arg(long, default_value_t = 64)]
+    grid: usize,
+    /// Write the report as JSON (schema warpbench-eval/1, or warpbench-eval-suite/1 with --suite; docs/cli.md).
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Overwrite --json if it exists.
+    #[arg(long)]
+    force: bool,
+    /// Exit with code 3 when the TRE statistic (--gate-statistic) exceeds this, mm.
+    #[arg(long)]
+    max_tre_mm: Option<f64>,
+    /// The TRE statistic --max-tre-mm gates: mean, median, p95 or max.
+    #[arg(long, default_value = "p95")]
+    gate_statistic: warpbench_app::eval::TreStatistic,
+    /// Run the grid kinds × N × methods instead of one evaluation.
+    #[arg(long)]
+    suite: bool,
+    /// Suite kinds (comma-separated; default all six).
+    #[arg(long, value_delimiter = ',', requires = "suite")]
+    suite_kinds: Option<Vec<String>>,
+    /// Suite landmark counts (comma-separated; default 10,20,50,100,200).
+    #[arg(long, value_delimiter = ',', requires = "suite")]
+    suite_n: Option<Vec<usize>>,
+    /// Suite methods (comma-separated; default tps,hbspline,affine,similarity,rigid).
+    #[arg(long, value_delimiter = ',', requires = "suite")]
+    suite_methods: Option<Vec<String>>,
+    /// Markdown file whose generated suite section is replaced (default: print the section).
+    #[arg(long, requires = "suite")]
+    suite_md: Option<PathBuf>,
+    /// How the suite's markdown describes the machine (default: the thread count).
+    #[arg(long, requires = "suite")]
+    machine: Option<String>,
+    /// No progress bars.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+fn run_eval(a: EvalArgs) -> Result<(), Failure> {
+    use warpbench_app::eval::{self, EvalOptions, SuiteOptions};
+    let suite = a.suite.then(|| {
+        let standard = SuiteOptions::standard();
+        SuiteOptions {
+            kinds: a.suite_kinds.unwrap_or(standard.kinds),
+            landmark_counts: a.suite_n.unwrap_or(standard.landmark_counts),
+            methods: a.suite_methods.unwrap_or(standard.methods),
+            markdown: a.suite_md,
+            machine: a.machine,
+        }
+    });
+    let opts = EvalOptions {
+        volume: a.volume,
+        kind: a.kind,
+        amplitude_mm: a.amplitude_mm,
+        landmarks: a.landmarks,
+        method: a.method,
+        stiffness: a.stiffness,
+        levels: a.levels,
+        seed: a.seed,
+        on_features: a.on_features,
+        held_out: a.held_out,
+        grid: a.grid,
+        json: a.json,
+        force: a.force,
+        max_tre_mm: a.max_tre_mm,
+        gate_statistic: a.gate_statistic,
+        suite,
+        quiet: a.quiet,
+    };
+    eval::run(&opts, &mut std::io::stdout().lock())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -333,7 +539,9 @@ fn main() -> ExitCode {
             info::run(&InfoOptions { path, json, frame, series, quiet }, &mut std::io::stdout().lock())
         }
         Command::Warp(args) => run_warp(*args),
+        Command::Eval(args) => run_eval(*args),
         Command::Render(args) => run_render(*args),
+        Command::Field(args) => run_field(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

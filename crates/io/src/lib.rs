@@ -8,6 +8,7 @@
 //! - [`nifti`], [`nrrd`], [`dicom`]: the format modules, with their writers.
 //! - [`landmarks`]: landmark pairs, BigWarp CSV and Slicer `.mrk.json` / `.fcsv`.
 //! - [`geometry`]: points, vectors and transforms that carry their space in the type.
+//! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one affine transform.
 //!
 //! Every error names the file and the problem ([`Error`]); bad input never panics, sizes are
 //! checked before allocating, and writers replace their output atomically ([`write_atomic`]).
@@ -17,6 +18,7 @@ pub mod dicom;
 pub mod dicom_write;
 pub mod error;
 pub mod geometry;
+pub mod itk_tfm;
 pub mod jpegls;
 pub mod landmarks;
 pub mod nifti;

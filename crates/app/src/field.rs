@@ -1,0 +1,292 @@
+//! `warpbench field`: the pull-back as a displacement field that ITK, ANTs and 3D Slicer read, and for the linear
+//! methods also as an ITK transform file (`.tfm`).
+//!
+//! At every voxel centre x of the output grid (the fixed volume's, or `--reference`'s), in LPS mm, the field holds
+//!
+//! ```text
+//! D(x) = u(x) − x,    u = moving_from_fixed, the pull-back fitted on the landmark pairs
+//! ```
+//!
+//! evaluated exactly (not through a control texture), slice by slice on every core. This is the convention of ITK's
+//! `DisplacementFieldTransform` as `ResampleImageFilter` uses it: the output (fixed) point x is read from the input
+//! (moving) point x + D(x). The file is NIfTI-1 float32 with intent `NIFTI_INTENT_DISPVECT`, shape [X, Y, Z, 1, 3]
+//! and the vectors in RAS, written by [`warpbench_io::nifti::write_displacement_field`], whose module docs quote the
+//! lines of ITK's NIfTI reader that flip them back to LPS.
+//!
+//! `--tfm` (affine, similarity, rigid) writes the same pull-back x ↦ A x + b as an ITK `AffineTransform_double_3_3`
+//! ([`warpbench_io::itk_tfm`]), which ITK applies in LPS, like our patient space.
+
+use std::io::Write;
+use std::num::NonZeroUsize;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, PoisonError};
+
+use anyhow::{Context, anyhow};
+use serde::Serialize;
+use warpbench_io::geometry::{Index, Lps, Transform};
+use warpbench_io::itk_tfm::{self, ItkAffine};
+use warpbench_io::nifti;
+use warpbench_io::{Progress, volume};
+use warpbench_solver::linear;
+use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Warp;
+
+use crate::exit::Failure;
+use crate::inputs::{self, LandmarkSource, OutputFile};
+use crate::progress::Bar;
+
+/// The `--json` schema name.
+pub const SCHEMA: &str = "warpbench-field/1";
+
+/// Options of `warpbench field`.
+#[derive(Clone, Debug)]
+pub struct FieldOptions {
+    pub fixed: PathBuf,
+    pub moving: PathBuf,
+    pub landmarks: LandmarkSource,
+    pub method: String,
+    pub stiffness: f64,
+    pub levels: Option<usize>,
+    /// The output grid, when not the fixed volume's.
+    pub reference: Option<PathBuf>,
+    /// The displacement field (`.nii` or `.nii.gz`); `force` applies to `tfm` too.
+    pub out: OutputFile,
+    /// The ITK transform file, for the linear methods.
+    pub tfm: Option<PathBuf>,
+    /// Print the summary as JSON (schema [`SCHEMA`]) to the output.
+    pub json: bool,
+    pub quiet: bool,
+}
+
+/// What was written: the `--json` document, schema `warpbench-field/1` (docs/cli.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct FieldSummary {
+    pub schema: &'static str,
+    /// The displacement field written.
+    pub out: String,
+    /// The output grid: voxels along i, j, k, spacing and `lps_from_index` (row-major).
+    pub dims: [usize; 3],
+    pub spacing_mm: [f64; 3],
+    pub lps_from_index: [[f64; 4]; 4],
+    /// `"fixed"` or `"reference"`: whose grid the field is sampled on.
+    pub grid: &'static str,
+    /// The method as fitted, e.g. `tps`, `tps(λ=0.5)`, `hbspline(4 levels)`, `affine`.
+    pub method: String,
+    /// Landmark pairs used (active, with both points).
+    pub pairs: usize,
+    /// The largest |D(x)| over the grid, mm.
+    pub max_displacement_mm: f64,
+    /// The ITK transform file written, or null.
+    pub tfm: Option<String>,
+}
+
+/// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
+/// `--json`.
+pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
+    let mut input_paths: Vec<&Path> = vec![&opts.fixed, &opts.moving];
+    input_paths.extend(opts.landmarks.paths());
+    input_paths.extend(opts.reference.as_deref());
+    opts.out.check(&input_paths)?;
+    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
+    let linear_kind = match (&opts.tfm, method) {
+        (None, _) => None,
+        (Some(_), Method::Linear(kind)) => Some(kind),
+        (Some(tfm), other) => {
+            return Err(Failure::BadInput(anyhow!(
+                "{}: an ITK transform file holds a linear warp; --method {other} is not one (use affine, similarity \
+                 or rigid, or only the displacement field)",
+                tfm.display()
+            )));
+        }
+    };
+    if let Some(tfm) = &opts.tfm {
+        if tfm == &opts.out.path {
+            return Err(Failure::BadInput(anyhow!("{}: --tfm and --out are the same file", tfm.display())));
+        }
+        inputs::check_output(tfm, &input_paths, opts.out.force)?;
+    }
+
+    let fixed = inputs::load_volume(&opts.fixed, opts.quiet)?;
+    let moving = inputs::load_volume(&opts.moving, opts.quiet)?;
+    let reference = opts.reference.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
+    let pairs = opts.landmarks.read()?;
+    let c = inputs::correspondences(&opts.landmarks, &pairs, &moving, &fixed, inputs::min_pairs(&method))?;
+    // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
+    let moving_from_fixed = inputs::fit_pullback(&method, &c, inputs::volume_box::<Fixed>(&fixed))?;
+
+    let grid = reference.as_ref().unwrap_or(&fixed);
+    let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
+    volume::check_allocation(&opts.out.path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let mut bar = Bar::new(opts.quiet);
+    let sampled = sample_displacements(moving_from_fixed.as_ref(), dims, &lps_from_index, |done, total| {
+        let _ = bar.update(Progress { stage: "sampling the field", done, total });
+    });
+    bar.finish();
+    let Some(max_displacement_mm) = sampled.max_norm_mm else {
+        return Err(Failure::Internal(anyhow!("the {method} warp is not finite somewhere in the output grid")));
+    };
+    // The affine for --tfm is the same fit as `moving_from_fixed` (Method::Linear fits exactly this), done before
+    // anything is written.
+    let tfm = match (&opts.tfm, linear_kind) {
+        (Some(path), Some(kind)) => {
+            let fit = linear::fit_pullback(kind, &c.moving, &c.fixed)
+                .map_err(|e| Failure::BadInput(anyhow!("fitting the {kind} warp: {e}")))?;
+            Some((path, ItkAffine::from_offset(fit.warp.linear(), fit.warp.translation())))
+        }
+        _ => None,
+    };
+    nifti::write_displacement_field(&opts.out.path, dims, &lps_from_index, &sampled.displacements_lps)?;
+    if let Some((path, affine)) = tfm {
+        itk_tfm::write_affine(path, &affine)?;
+    }
+
+    let summary = FieldSummary {
+        schema: SCHEMA,
+        out: opts.out.path.display().to_string(),
+        dims,
+        spacing_mm: grid.spacing_mm(),
+        lps_from_index: lps_from_index.rows(),
+        grid: if reference.is_some() { "reference" } else { "fixed" },
+        method: method.to_string(),
+        pairs: c.moving.len(),
+        max_displacement_mm,
+        tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
+    };
+    if opts.json {
+        serde_json::to_writer_pretty(&mut *out, &summary)
+            .map_err(std::io::Error::from)
+            .and_then(|()| writeln!(out))
+            .context("writing the JSON summary")
+            .map_err(Failure::Internal)?;
+    }
+    Ok(summary)
+}
+
+/// A sampled displacement field.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SampledField {
+    /// u(x) − x at each voxel centre, LPS mm, i fastest.
+    pub displacements_lps: Vec<[f32; 3]>,
+    /// The largest |u(x) − x| (mm, before rounding to f32), or `None` when some value is not finite.
+    pub max_norm_mm: Option<f64>,
+}
+
+/// Evaluates `moving_from_fixed` at every voxel centre of the grid (`dims`, `lps_from_index`) and stores u(x) − x.
+///
+/// Slices (constant k) are handed out one at a time to one worker per core (`std::thread::scope`); each slice is one
+/// [`Warp::apply_batch_raw`] call. `progress(done, total)` is called on the calling thread, which works too, after
+/// each slice it evaluates, with the number of slices finished by all workers.
+pub fn sample_displacements(
+    moving_from_fixed: &dyn Warp<Moving, Fixed>,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    mut progress: impl FnMut(u64, u64),
+) -> SampledField {
+    let [nx, ny, nz] = dims;
+    let slice = Slices { moving_from_fixed, nx, per_slice: nx * ny, nz, lps_from_index: lps_from_index.rows() };
+    let mut displacements_lps = vec![[0.0f32; 3]; slice.per_slice * nz];
+    let queue = Mutex::new(displacements_lps.chunks_mut(slice.per_slice.max(1)).enumerate());
+    let finished = AtomicU64::new(0);
+    let workers = std::thread::available_parallelism().map_or(1, NonZeroUsize::get).min(nz.max(1));
+    let results: Vec<(f64, bool)> = std::thread::scope(|s| {
+        let helpers: Vec<_> =
+            (1..workers).map(|_| s.spawn(|| slice.run(&queue, &finished, &mut |_: u64, _: u64| {}))).collect();
+        let mut all = vec![slice.run(&queue, &finished, &mut progress)];
+        // A helper that panicked (a bug in a warp) makes the field not finite: reported as an internal error.
+        all.extend(helpers.into_iter().map(|h| h.join().unwrap_or((f64::NAN, false))));
+        all
+    });
+    let finite = results.iter().all(|&(_, f)| f);
+    let max_norm_mm = results.iter().map(|&(m, _)| m).fold(0.0f64, f64::max);
+    SampledField { displacements_lps, max_norm_mm: finite.then_some(max_norm_mm) }
+}
+
+/// What each worker of [`sample_displacements`] needs.
+struct Slices<'w> {
+    moving_from_fixed: &'w dyn Warp<Moving, Fixed>,
+    nx: usize,
+    per_slice: usize,
+    nz: usize,
+    lps_from_index: [[f64; 4]; 4],
+}
+
+type SliceQueue<'a> = Mutex<std::iter::Enumerate<std::slice::ChunksMut<'a, [f32; 3]>>>;
+
+impl Slices<'_> {
+    /// Takes slices from `queue` until it is empty; returns the largest |d| seen and whether every value was finite.
+    fn run(&self, queue: &SliceQueue, finished: &AtomicU64, progress: &mut dyn FnMut(u64, u64)) -> (f64, bool) {
+        let m = &self.lps_from_index;
+        let (mut xs, mut us) = (vec![[0.0f64; 3]; self.per_slice], vec![[0.0f64; 3]; self.per_slice]);
+        let (mut max_mm, mut finite) = (0.0f64, true);
+        loop {
+            let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+            let Some((k, slice)) = next else { break };
+            for (n, x_lps) in xs.iter_mut().enumerate() {
+                let ijk = [(n % self.nx) as f64, (n / self.nx) as f64, k as f64];
+                *x_lps = std::array::from_fn(|r| m[r][0] * ijk[0] + m[r][1] * ijk[1] + m[r][2] * ijk[2] + m[r][3]);
+            }
+            self.moving_from_fixed.apply_batch_raw(&xs, &mut us);
+            for ((d, x), u) in slice.iter_mut().zip(&xs).zip(&us) {
+                let d_mm = [u[0] - x[0], u[1] - x[1], u[2] - x[2]];
+                let norm = d_mm.iter().map(|v| v * v).sum::<f64>().sqrt();
+                finite &= norm.is_finite();
+                max_mm = max_mm.max(norm);
+                *d = d_mm.map(|v| v as f32);
+            }
+            let done = finished.fetch_add(1, Ordering::Relaxed) + 1;
+            progress(done, self.nz as u64);
+        }
+        (max_mm, finite)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use warpbench_solver::linear::AffineWarp;
+
+    use super::*;
+
+    /// x ↦ M x + t from the rows of M (built through `Transform::linear`: the app does not depend on nalgebra).
+    fn transform(rows: [[f64; 3]; 3], t: [f64; 3]) -> Transform<Lps, Index> {
+        let mut m = Transform::<Lps, Index>::identity().linear();
+        for (r, row) in rows.iter().enumerate() {
+            for (c, &v) in row.iter().enumerate() {
+                m[(r, c)] = v;
+            }
+        }
+        Transform::from_linear_translation(m, t)
+    }
+
+    #[test]
+    fn every_voxel_gets_its_own_displacement_and_progress_reaches_the_end() {
+        // u(x) = A x + b on an oblique grid: D(x) = (A − I) x + b differs at every voxel, so a slice written to the
+        // wrong k or a voxel out of order shows.
+        let a = transform([[1.02, 0.01, 0.0], [-0.01, 0.99, 0.03], [0.0, 0.02, 1.01]], [0.0; 3]).linear();
+        let u: AffineWarp<Moving, Fixed> = AffineWarp::new(a, [2.0, -1.0, 0.5]);
+        let lps_from_index = transform([[1.5, 0.2, 0.0], [0.0, -2.0, 0.0], [0.1, 0.0, 3.0]], [-40.0, 30.0, -20.0]);
+        let dims = [7, 5, 9];
+        let mut reports = Vec::new();
+        let sampled = sample_displacements(&u, dims, &lps_from_index, |done, total| reports.push((done, total)));
+        let mut max_mm = 0.0f64;
+        for k in 0..9 {
+            for j in 0..5 {
+                for i in 0..7 {
+                    let x =
+                        lps_from_index.apply_point(warpbench_io::geometry::Point3::new(i as f64, j as f64, k as f64));
+                    let x = x.coords();
+                    let want: [f64; 3] = std::array::from_fn(|r| u.apply_raw(x)[r] - x[r]);
+                    let got = sampled.displacements_lps[i + 7 * (j + 5 * k)];
+                    let err = (0..3).map(|r| (want[r] - f64::from(got[r])).abs()).fold(0.0, f64::max);
+                    assert!(err < 1e-5, "voxel ({i}, {j}, {k}): {got:?} vs {want:?}");
+                    max_mm = max_mm.max(want.iter().map(|v| v * v).sum::<f64>().sqrt());
+                }
+            }
+        }
+        let reported = sampled.max_norm_mm.expect("finite");
+        assert!((reported - max_mm).abs() < 1e-9, "{reported} vs {max_mm}");
+        assert!(!reports.is_empty() && reports.iter().all(|&(d, t)| t == 9 && (1..=9).contains(&d)));
+        assert!(reports.windows(2).all(|w| w[0].0 < w[1].0), "progress goes forward: {reports:?}");
+    }
+}

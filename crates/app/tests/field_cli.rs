@@ -1,0 +1,378 @@
+//! `warpbench field` end to end: the binary on a real MRI fixture (`avg152T1_LR_nifti.nii`, 91×109×91, 2 mm, stored
+//! left-right flipped) as both fixed and moving volume, checked three ways:
+//!
+//! - against our own math: the field read back with our reader equals u(x) − x at every voxel, u fitted here through
+//!   `warpbench_solver`; the `.tfm` read back equals the solver's affine;
+//! - against an independent reader: `tests/data/itk/field_*_reference.json` hold what SimpleITK 2.5.7 (ITK 5.4) maps
+//!   at 441 voxel centres and at the landmarks when it reads a field (and a `.tfm`) this command wrote
+//!   (`data-scripts/check_field_sitk.py`); the field written now must give the same points;
+//! - and its refusals (exit 2, nothing written).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use warpbench_io::geometry::{Index, Lps, Point3, Transform};
+use warpbench_io::itk_tfm;
+use warpbench_io::landmarks::read_bigwarp_csv;
+use warpbench_io::nifti::{DisplacementField, read_displacement_field};
+use warpbench_solver::linear::{self, LinearKind};
+use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::warp::Warp;
+
+/// The field is float32: a displacement of at most ~10 mm is rounded by less than 1e-6 mm; this leaves room for
+/// the difference between our batch evaluation and the point evaluation used here.
+const F32_TOLERANCE_MM: f64 = 1e-4;
+
+fn fixture() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii")
+}
+
+fn itk_data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/itk").join(name)
+}
+
+fn warpbench(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run warpbench")
+}
+
+fn assert_ok(out: &Output) {
+    assert_eq!(out.status.code(), Some(0), "stderr: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+fn utf8(p: &Path) -> &str {
+    p.to_str().expect("utf8 path")
+}
+
+/// Landmark pairs (BigWarp CSV, LPS mm) on voxel centres of the fixture: fixed points inside the brain, moving
+/// points shifted by (3, −2, 1.5) mm plus a few mm of local deformation. `outside_third` moves pair 3 out of the
+/// moving volume.
+fn write_pairs(dir: &Path, outside_third: bool) -> PathBuf {
+    let fixed = [
+        [0.0, 18.0, 18.0],
+        [40.0, 18.0, 18.0],
+        [-40.0, 18.0, 18.0],
+        [0.0, 70.0, 18.0],
+        [0.0, -40.0, 18.0],
+        [0.0, 18.0, 60.0],
+        [0.0, 18.0, -20.0],
+    ];
+    let local = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.5, 0.0, 1.0], [0.0, 0.0, -2.0], [1.0, 1.0, 0.0]];
+    let mut lines = Vec::new();
+    for (i, q) in fixed.iter().enumerate() {
+        let l = local[i % local.len()];
+        let mut p = [q[0] + 3.0 + l[0], q[1] - 2.0 + l[1], q[2] + 1.5 + l[2]];
+        if outside_third && i == 2 {
+            p[0] = -300.0;
+        }
+        let fields: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
+        lines.push(format!("\"Pt-{i}\",\"true\",{}\n", fields.join(",")));
+    }
+    let path = dir.join(if outside_third { "outside.csv" } else { "pairs.csv" });
+    std::fs::write(&path, lines.concat()).expect("write landmarks");
+    path
+}
+
+/// The (moving, fixed) points of a BigWarp CSV, typed.
+fn read_points(csv: &Path) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
+    let pairs = read_bigwarp_csv(csv).expect("landmarks");
+    let moving = pairs.iter().map(|p| as_moving(p.moving.expect("moving point"))).collect();
+    let fixed = pairs.iter().map(|p| as_fixed(p.fixed.expect("fixed point"))).collect();
+    (moving, fixed)
+}
+
+/// The pull-back u = moving_from_fixed fitted as the CLI fits it (over the fixed volume's box).
+fn pullback(method: &Method, csv: &Path) -> Box<dyn Warp<Moving, Fixed>> {
+    let (moving, fixed) = read_points(csv);
+    let volume = warpbench_io::open(fixture()).expect("fixture");
+    let fixed_box = warpbench_app::inputs::volume_box::<Fixed>(&volume);
+    method.fit(&fixed, &moving, fixed_box).expect("fit")
+}
+
+fn voxel_lps(lps_from_index: &Transform<Lps, Index>, ijk: [usize; 3]) -> [f64; 3] {
+    lps_from_index.apply_point(Point3::from_array(ijk.map(|v| v as f64))).coords()
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
+}
+
+/// The largest |D_file(x) − (u(x) − x)| over every voxel of `field`.
+fn max_error_mm(field: &DisplacementField, u: &dyn Warp<Moving, Fixed>) -> f64 {
+    let [nx, ny, nz] = field.dims;
+    let mut worst = 0.0f64;
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let x = voxel_lps(&field.lps_from_index, [i, j, k]);
+                let u_x = u.apply_raw(x);
+                let d = field.displacements_lps[i + nx * (j + ny * k)].map(f64::from);
+                worst = worst.max(distance([x[0] + d[0], x[1] + d[1], x[2] + d[2]], u_x));
+            }
+        }
+    }
+    worst
+}
+
+#[test]
+fn field_read_back_equals_the_pullback_and_maps_the_landmarks() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (f, pairs) = (fixture(), write_pairs(dir.path(), false));
+    let out_gz = dir.path().join("field.nii.gz");
+    let run = warpbench(&[
+        "field",
+        "--fixed",
+        utf8(&f),
+        "--moving",
+        utf8(&f),
+        "--landmarks",
+        utf8(&pairs),
+        "--json",
+        "--quiet",
+        "--out",
+        utf8(&out_gz),
+    ]);
+    assert_ok(&run);
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+    assert_eq!(json["schema"], "warpbench-field/1");
+    assert_eq!(json["dims"], serde_json::json!([91, 109, 91]));
+    assert_eq!(json["spacing_mm"], serde_json::json!([2.0, 2.0, 2.0]));
+    assert_eq!(
+        (json["grid"].as_str(), json["method"].as_str(), json["pairs"].as_u64()),
+        (Some("fixed"), Some("tps"), Some(7))
+    );
+    assert_eq!(json["tfm"], serde_json::Value::Null);
+
+    let field = read_displacement_field(&out_gz).expect("our reader reads the field");
+    assert_eq!(field.dims, [91, 109, 91]);
+    let fixed = warpbench_io::open(&f).expect("fixture");
+    assert!(field.lps_from_index.max_abs_diff(&fixed.lps_from_index) < 1e-4);
+    let u = pullback(&Method::Tps { stiffness: 0.0 }, &pairs);
+    let worst = max_error_mm(&field, u.as_ref());
+    assert!(worst < F32_TOLERANCE_MM, "the field differs from the pull-back by up to {worst} mm");
+    let max_d =
+        field.displacements_lps.iter().map(|d| d.map(f64::from)).map(|d| distance(d, [0.0; 3])).fold(0.0, f64::max);
+    let reported = json["max_displacement_mm"].as_f64().expect("max_displacement_mm");
+    assert!((max_d - reported).abs() < 1e-4 && reported > 4.0, "max |D| {max_d} vs reported {reported}");
+
+    // The fixed landmarks lie on voxel centres: there the field maps qᵢ to pᵢ (TPS interpolates).
+    let index_from_lps = field.lps_from_index.inverse().expect("invertible");
+    let (moving_points, fixed_points) = read_points(&pairs);
+    for (p, q) in moving_points.iter().zip(&fixed_points) {
+        let idx = index_from_lps.apply_point(Point3::from_array(q.coords())).coords().map(|v| v.round() as usize);
+        let d = field.displacements_lps[idx[0] + 91 * (idx[1] + 109 * idx[2])].map(f64::from);
+        let q = q.coords();
+        let mapped = [q[0] + d[0], q[1] + d[1], q[2] + d[2]];
+        assert!(distance(mapped, p.coords()) < F32_TOLERANCE_MM, "q {q:?} maps to {mapped:?}, not {:?}", p.coords());
+    }
+
+    // Uncompressed, the header says what ITK needs: dim [5, X, Y, Z, 1, 3], intent 1006, float32.
+    let out_nii = dir.path().join("field.nii");
+    let args = ["field", "--fixed", utf8(&f), "--moving", utf8(&f), "--landmarks", utf8(&pairs), "--quiet", "--out"];
+    assert_ok(&warpbench(&[&args[..], &[utf8(&out_nii)]].concat()));
+    let raw = std::fs::read(&out_nii).expect("read the field");
+    let i16_at = |o: usize| i16::from_le_bytes([raw[o], raw[o + 1]]);
+    assert_eq!((0..8).map(|i| i16_at(40 + 2 * i)).collect::<Vec<_>>(), [5, 91, 109, 91, 1, 3, 1, 1]);
+    assert_eq!((i16_at(68), i16_at(70)), (1006, 16), "intent_code and datatype");
+    assert_eq!(raw.len(), 352 + 91 * 109 * 91 * 3 * 4);
+    let same = read_displacement_field(&out_nii).expect("read .nii");
+    assert_eq!(same.displacements_lps, field.displacements_lps, ".nii and .nii.gz hold the same field");
+}
+
+#[test]
+fn reference_sets_the_grid() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (f, pairs) = (fixture(), write_pairs(dir.path(), false));
+    let reference = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/big.nii.gz");
+    let out = dir.path().join("field.nii.gz");
+    let run = warpbench(&[
+        "field",
+        "--fixed",
+        utf8(&f),
+        "--moving",
+        utf8(&f),
+        "--landmarks",
+        utf8(&pairs),
+        "--reference",
+        utf8(&reference),
+        "--json",
+        "--out",
+        utf8(&out),
+    ]);
+    assert_ok(&run);
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+    assert_eq!((json["grid"].as_str(), &json["dims"]), (Some("reference"), &serde_json::json!([64, 64, 21])));
+    let field = read_displacement_field(&out).expect("read");
+    let grid = warpbench_io::open(&reference).expect("reference volume");
+    assert_eq!(field.dims, grid.dims);
+    assert!(field.lps_from_index.max_abs_diff(&grid.lps_from_index) < 1e-4);
+    // The same warp (fitted over the fixed box), evaluated on the reference's voxel centres.
+    let worst = max_error_mm(&field, pullback(&Method::Tps { stiffness: 0.0 }, &pairs).as_ref());
+    assert!(worst < F32_TOLERANCE_MM, "{worst} mm");
+}
+
+#[test]
+fn tfm_round_trips_and_equals_the_solver_affine() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (f, pairs) = (fixture(), write_pairs(dir.path(), false));
+    let (out, tfm) = (dir.path().join("affine.nii.gz"), dir.path().join("affine.tfm"));
+    let run = warpbench(&[
+        "field",
+        "--fixed",
+        utf8(&f),
+        "--moving",
+        utf8(&f),
+        "--landmarks",
+        utf8(&pairs),
+        "--method",
+        "affine",
+        "--tfm",
+        utf8(&tfm),
+        "--json",
+        "--out",
+        utf8(&out),
+    ]);
+    assert_ok(&run);
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+    assert_eq!(json["tfm"].as_str(), Some(utf8(&tfm)));
+    let text = std::fs::read_to_string(&tfm).expect("tfm text");
+    assert!(text.starts_with("#Insight Transform File V1.0\n#Transform 0\nTransform: AffineTransform_double_3_3\n"));
+    let read = itk_tfm::read_affine(&tfm).expect("our parser reads it");
+    let (moving, fixed) = read_points(&pairs);
+    let fit = linear::fit_pullback(LinearKind::Affine, &moving, &fixed).expect("fit");
+    assert_eq!(read.matrix.map(f64::to_bits), fit.warp.linear().map(f64::to_bits), "A, bit for bit");
+    assert_eq!(read.offset().map(f64::to_bits), fit.warp.translation().map(f64::to_bits), "b, bit for bit");
+    // The field of the same run is that affine.
+    let field = read_displacement_field(&out).expect("read");
+    let worst = max_error_mm(&field, &fit.warp);
+    assert!(worst < F32_TOLERANCE_MM, "field vs tfm: {worst} mm");
+}
+
+/// The ITK reference: what SimpleITK maps when it reads a field (and a `.tfm`) written by this command from
+/// `tests/data/itk/field_pairs.csv` (`tests/data/PROVENANCE.md`). The field written now must hold the same vectors
+/// where ITK sampled it, and both must be the exact pull-back.
+#[test]
+fn itk_reads_our_field_as_our_pullback() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (f, pairs) = (fixture(), itk_data("field_pairs.csv"));
+    for (method, reference) in [("tps", "field_tps_reference.json"), ("rigid", "field_rigid_reference.json")] {
+        let text = std::fs::read_to_string(itk_data(reference)).expect("reference JSON");
+        let itk: serde_json::Value = serde_json::from_str(&text).expect("parse reference");
+        let out = dir.path().join(format!("{method}.nii.gz"));
+        let tfm = dir.path().join(format!("{method}.tfm"));
+        let mut args = vec!["field", "--fixed", utf8(&f), "--moving", utf8(&f), "--landmarks", utf8(&pairs)];
+        args.extend(["--method", method, "--quiet", "--out", utf8(&out)]);
+        if method == "rigid" {
+            args.extend(["--tfm", utf8(&tfm)]);
+        }
+        assert_ok(&warpbench(&args));
+        let field = read_displacement_field(&out).expect("read");
+        let u = pullback(&Method::from_name(method).expect("method"), &pairs);
+
+        let point = |v: &serde_json::Value| -> [f64; 3] {
+            let a = v.as_array().expect("a point");
+            std::array::from_fn(|i| a[i].as_f64().expect("a number"))
+        };
+        let grid = itk["field"]["grid"].as_array().expect("grid points");
+        assert!(grid.len() > 300, "{} grid points", grid.len());
+        for g in grid {
+            let idx: [usize; 3] = point(&g["index"]).map(|v| v as usize);
+            let (x_itk, mapped_itk) = (point(&g["x"]), point(&g["mapped"]));
+            // ITK places the voxel where we do (so it read our sform/qform as we meant them) ...
+            let x_lps = voxel_lps(&field.lps_from_index, idx);
+            assert!(distance(x_itk, x_lps) < 1e-4, "voxel {idx:?}: ITK {x_itk:?}, ours {x_lps:?}");
+            // ... reads there the vector we write now (so the RAS flip and the plane order are what ITK expects) ...
+            let d = field.displacements_lps[idx[0] + 91 * (idx[1] + 109 * idx[2])].map(f64::from);
+            let ours = [x_lps[0] + d[0], x_lps[1] + d[1], x_lps[2] + d[2]];
+            assert!(
+                distance(mapped_itk, ours) < F32_TOLERANCE_MM,
+                "{method} {idx:?}: ITK {mapped_itk:?}, ours {ours:?}"
+            );
+            // ... and that is the pull-back.
+            assert!(distance(mapped_itk, u.apply_raw(x_lps)) < F32_TOLERANCE_MM, "{method} {idx:?}");
+        }
+        // Off the grid ITK interpolates linearly: at the landmarks (not voxel centres) the TPS field maps qᵢ within
+        // 0.1 mm of pᵢ (U(r) = r has a cusp at each landmark, which linear interpolation cuts).
+        if method == "tps" {
+            let worst = itk["field"]["landmark_max_error_mm"].as_f64().expect("landmark error");
+            assert!(worst < 0.11, "ITK maps the landmarks {worst} mm from their targets");
+        } else {
+            let read = itk_tfm::read_affine(&tfm).expect("tfm");
+            for l in itk["tfm"]["landmarks"].as_array().expect("tfm landmarks") {
+                let (q, mapped_itk) = (point(&l["fixed"]), point(&l["mapped"]));
+                assert!(distance(mapped_itk, read.apply(q)) < 1e-9, "tfm at {q:?}: ITK {mapped_itk:?}");
+                assert!(distance(mapped_itk, u.apply_raw(q)) < 1e-9, "tfm vs the rigid pull-back at {q:?}");
+            }
+            let diff = itk["tfm"]["max_field_difference_mm"].as_f64().expect("field vs tfm");
+            assert!(diff < F32_TOLERANCE_MM, "ITK: the rigid field and the tfm differ by {diff} mm");
+        }
+    }
+}
+
+#[test]
+fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let f = fixture();
+    let f = utf8(&f);
+    let (good, outside) = (write_pairs(dir.path(), false), write_pairs(dir.path(), true));
+    let out = dir.path().join("x.nii.gz");
+    let o = utf8(&out);
+    let expect_bad = |args: &[&str], needle: &str| {
+        let run = warpbench(args);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
+    };
+    let l = utf8(&good);
+    let tfm = dir.path().join("x.tfm");
+    expect_bad(
+        &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--tfm", utf8(&tfm), "--quiet", "--out", o],
+        "x.tfm: an ITK transform file holds a linear warp; --method tps is not one",
+    );
+    expect_bad(
+        &["field", "--fixed", f, "--moving", f, "--landmarks", utf8(&outside), "--quiet", "--out", o],
+        "landmark 3 (Pt-2) is outside the moving volume",
+    );
+    expect_bad(&["field", "--fixed", f, "--moving", f, "--quiet", "--out", o], "give --landmarks");
+    expect_bad(
+        &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--out", f],
+        "refusing to overwrite an input",
+    );
+    expect_bad(
+        &[
+            "field",
+            "--fixed",
+            f,
+            "--moving",
+            f,
+            "--landmarks",
+            l,
+            "--method",
+            "rigid",
+            "--tfm",
+            o,
+            "--quiet",
+            "--out",
+            o,
+        ],
+        "--tfm and --out are the same file",
+    );
+    assert!(!out.exists() && !tfm.exists(), "a refused run wrote a file");
+
+    // An existing output needs --force, and is left as it was without it.
+    std::fs::write(&out, b"keep me").expect("write");
+    expect_bad(&["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--out", o], "exists; use --force");
+    assert_eq!(std::fs::read(&out).expect("read"), b"keep me");
+    std::fs::write(&tfm, b"keep me too").expect("write");
+    expect_bad(
+        &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--method", "rigid", "--tfm", utf8(&tfm), "--quiet"]
+            .into_iter()
+            .chain(["--out", utf8(&dir.path().join("new.nii"))])
+            .collect::<Vec<_>>(),
+        "x.tfm: exists; use --force",
+    );
+    assert_eq!(std::fs::read(&tfm).expect("read"), b"keep me too");
+    assert!(!dir.path().join("new.nii").exists());
+    assert_ok(&warpbench(&["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--force", "--out", o]));
+    assert!(read_displacement_field(&out).is_ok(), "--force replaced the file with a field");
+}
