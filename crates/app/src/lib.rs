@@ -14,11 +14,14 @@
 //!   for linear warps, an ITK `.tfm`.
 //! - [`inputs`]: loading the pair, reading and checking landmarks, fitting the warp (shared by the pair subcommands).
 //! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
+//! - [`gui`]: the workbench window (eframe): the deformed pair in a 3-D view and three slice views, the warp method
+//!   and view settings, the landmark table; the demo pair when no files are given.
 //! - [`exit`]: the exit-code convention shared by every subcommand.
 
 pub mod eval;
 pub mod exit;
 pub mod field;
+pub mod gui;
 pub mod info;
 pub mod inputs;
 pub mod progress;

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand, ValueEnum};
 use warpbench_app::exit::Failure;
 use warpbench_app::field::{self, FieldOptions};
+use warpbench_app::gui::{self, GuiOptions};
 use warpbench_app::info::{self, InfoOptions};
 use warpbench_app::inputs::{LandmarkSource, OutputFile};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
@@ -14,11 +15,47 @@ use warpbench_gpu::ShadingMode;
 use warpbench_gpu::export::Interpolation;
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
+///
+/// Without a subcommand it opens the workbench window: with --fixed and --moving on those volumes, otherwise on the
+/// demo pair (a head CT and a head MRI).
 #[derive(Debug, Parser)]
-#[command(name = "warpbench", version, about)]
+#[command(name = "warpbench", version, about, args_conflicts_with_subcommands = true)]
 struct Cli {
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    gui: GuiArgs,
+}
+
+/// The window's options (no subcommand).
+#[derive(Debug, clap::Args)]
+struct GuiArgs {
+    /// The fixed volume to open (with --moving).
+    #[arg(long, requires = "moving")]
+    fixed: Option<PathBuf>,
+    /// The moving volume to open (with --fixed).
+    #[arg(long, requires = "fixed")]
+    moving: Option<PathBuf>,
+    /// Landmark pairs (BigWarp CSV) to open with them.
+    #[arg(long, requires = "fixed")]
+    landmarks: Option<PathBuf>,
+    /// Save a screenshot of the window here, then close (with --exit-after-frames).
+    #[arg(long)]
+    screenshot: Option<PathBuf>,
+    /// Close the window after this many frames with the volumes shown (smoke tests).
+    #[arg(long)]
+    exit_after_frames: Option<u32>,
+}
+
+fn run_gui(a: GuiArgs) -> Result<(), Failure> {
+    let opts = GuiOptions {
+        fixed: a.fixed,
+        moving: a.moving,
+        landmarks: a.landmarks.map(LandmarkSource::Pairs),
+        exit_after_frames: a.exit_after_frames.or(a.screenshot.is_some().then_some(5)),
+        screenshot: a.screenshot,
+    };
+    gui::run(opts).map_err(Failure::Internal)
 }
 
 #[derive(Debug, Subcommand)]
@@ -534,7 +571,16 @@ fn run_eval(a: EvalArgs) -> Result<(), Failure> {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command {
+    let Some(command) = cli.command else {
+        return match run_gui(cli.gui) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(f) => {
+                eprintln!("warpbench: {:#}", f.error());
+                f.code()
+            }
+        };
+    };
+    let result = match command {
         Command::Info { path, json, frame, series, quiet } => {
             info::run(&InfoOptions { path, json, frame, series, quiet }, &mut std::io::stdout().lock())
         }

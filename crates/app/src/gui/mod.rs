@@ -1,0 +1,535 @@
+//! The workbench window (eframe/egui): the fixed and the deformed moving volume in a 3-D view and three slice views
+//! of the fixed grid, rendered by `warpbench_gpu` on eframe's own wgpu device, with the landmark glyphs, the warp
+//! method and the view settings in a side panel.
+//!
+//! Bare `warpbench` opens the demo pair ([`demo`]). Loading runs on a worker thread; the window stays responsive
+//! and shows an error (naming the file) instead of the views when it fails. Frames are rendered only when something
+//! changed, at the interaction sample rate while the camera is being dragged ([`warpbench_gpu::Quality`]).
+
+pub mod demo;
+pub mod panels;
+pub mod viewer;
+
+use std::path::PathBuf;
+use std::sync::mpsc::{Receiver, TryRecvError};
+
+use anyhow::{Context as _, anyhow};
+use eframe::egui;
+use warpbench_gpu::glam::Vec3;
+use warpbench_gpu::{
+    GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, PreparedControl, Projection, Quality, SlicePlane, pair_glyphs,
+};
+use warpbench_io::Volume;
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::warp::Warp;
+
+use crate::inputs::{self, LandmarkSource};
+use crate::scene;
+use panels::ViewSettings;
+use viewer::{Shown, Viewer};
+
+/// What the window opens with.
+#[derive(Clone, Debug, Default)]
+pub struct GuiOptions {
+    /// `None` (with `moving` `None`): the demo pair.
+    pub fixed: Option<PathBuf>,
+    pub moving: Option<PathBuf>,
+    pub landmarks: Option<LandmarkSource>,
+    /// Save a screenshot of the window here after `exit_after_frames` frames with the pair shown, then close.
+    pub screenshot: Option<PathBuf>,
+    pub exit_after_frames: Option<u32>,
+}
+
+/// The loaded inputs, before they reach the GPU.
+#[derive(Debug)]
+pub struct Loaded {
+    pub fixed: Volume,
+    pub moving: Volume,
+    pub pairs: Vec<LandmarkPair>,
+    /// e.g. "cranium_ct.nii.gz -> ch2.nii.gz (demo)".
+    pub title: String,
+}
+
+/// Loads what `opts` names (the demo pair when it names nothing).
+pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
+    let name =
+        |p: &std::path::Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into());
+    match (&opts.fixed, &opts.moving) {
+        (Some(f), Some(m)) => {
+            let fixed = warpbench_io::open(f)?;
+            let moving = warpbench_io::open(m)?;
+            let pairs = match &opts.landmarks {
+                Some(source) => source.read().map_err(|e| anyhow!("{:#}", e.error()))?,
+                None => Vec::new(),
+            };
+            Ok(Loaded { title: format!("{} -> {}", name(f), name(m)), fixed, moving, pairs })
+        }
+        (None, None) => {
+            if let Some((f, m)) = demo::demo_paths() {
+                let fixed = warpbench_io::open(&f)?;
+                let moving = warpbench_io::open(&m)?;
+                let pairs = demo::demo_landmarks(&fixed, &moving);
+                Ok(Loaded { title: format!("{} -> {} (demo)", name(&f), name(&m)), fixed, moving, pairs })
+            } else {
+                let fixed = demo::phantom(96, 2.0, [0.0; 3], true);
+                let moving = demo::phantom(96, 2.0, [6.0, -4.0, 3.0], false);
+                let pairs = demo::demo_landmarks(&fixed, &moving);
+                Ok(Loaded { title: "phantom CT -> phantom MR (demo)".into(), fixed, moving, pairs })
+            }
+        }
+        _ => Err(anyhow!("give both a fixed and a moving volume, or neither for the demo pair")),
+    }
+}
+
+/// The warp fitted on the active pairs: the pull-back the renderer uses and the forward map that places the moving
+/// glyphs.
+struct Fitted {
+    forward: Box<dyn Warp<Fixed, Moving>>,
+    pairs: usize,
+}
+
+impl std::fmt::Debug for Fitted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Fitted").field("pairs", &self.pairs).finish_non_exhaustive()
+    }
+}
+
+/// The window's state once the pair is on the GPU.
+#[derive(Debug)]
+pub struct Ready {
+    pub loaded: Loaded,
+    pub viewer: Viewer,
+    pub settings: ViewSettings,
+    pub camera: OrbitCamera,
+    /// Slice positions (mm along S, P, L through the fixed grid).
+    pub slice_mm: [f64; 3],
+    view: Option<Shown>,
+    slices: [Option<Shown>; 3],
+    fitted: Option<Fitted>,
+    /// The last fit's problem, shown in the status bar.
+    pub fit_error: Option<String>,
+    dirty: bool,
+    dragging: bool,
+    pub last_render_ms: f64,
+}
+
+#[derive(Debug)]
+enum Phase {
+    Loading(Receiver<anyhow::Result<Loaded>>),
+    Failed(String),
+    Ready(Box<Ready>),
+}
+
+/// The eframe app.
+pub struct Workbench {
+    phase: Phase,
+    render_state: Option<eframe::egui_wgpu::RenderState>,
+    screenshot: Option<PathBuf>,
+    exit_after_frames: Option<u32>,
+    ready_frames: u32,
+    screenshot_requested: bool,
+}
+
+impl std::fmt::Debug for Workbench {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Workbench")
+            .field("phase", &self.phase)
+            .field("ready_frames", &self.ready_frames)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Workbench {
+    /// Starts loading `opts` on a worker thread.
+    #[must_use]
+    pub fn new(cc: &eframe::CreationContext<'_>, opts: GuiOptions) -> Self {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let ctx = cc.egui_ctx.clone();
+        let load_opts = opts.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(load(&load_opts));
+            ctx.request_repaint();
+        });
+        Self {
+            phase: Phase::Loading(rx),
+            render_state: cc.wgpu_render_state.clone(),
+            screenshot: opts.screenshot,
+            exit_after_frames: opts.exit_after_frames,
+            ready_frames: 0,
+            screenshot_requested: false,
+        }
+    }
+
+    /// The state once loaded (for tests).
+    #[must_use]
+    pub fn ready(&self) -> Option<&Ready> {
+        match &self.phase {
+            Phase::Ready(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    /// The loading error, if loading failed.
+    #[must_use]
+    pub fn failure(&self) -> Option<&str> {
+        match &self.phase {
+            Phase::Failed(e) => Some(e),
+            _ => None,
+        }
+    }
+
+    fn poll_loading(&mut self) {
+        let Phase::Loading(rx) = &self.phase else { return };
+        let loaded = match rx.try_recv() {
+            Ok(result) => result,
+            Err(TryRecvError::Empty) => return,
+            Err(TryRecvError::Disconnected) => Err(anyhow!("the loading thread stopped")),
+        };
+        self.phase = match loaded.and_then(|l| self.upload(l)) {
+            Ok(ready) => Phase::Ready(Box::new(ready)),
+            Err(e) => Phase::Failed(format!("{e:#}")),
+        };
+    }
+
+    fn upload(&self, loaded: Loaded) -> anyhow::Result<Ready> {
+        let rs = self.render_state.as_ref().context("the window has no wgpu renderer")?;
+        let viewer = Viewer::new(rs, &loaded.fixed, &loaded.moving)?;
+        let (lo, hi) = viewer.scene_box();
+        let mut camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
+        camera.azimuth_rad = 0.6;
+        camera.elevation_rad = 0.25;
+        let mid = (lo + hi) * 0.5;
+        let mut ready = Ready {
+            loaded,
+            viewer,
+            settings: ViewSettings::default(),
+            camera,
+            slice_mm: [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)],
+            view: None,
+            slices: [None, None, None],
+            fitted: None,
+            fit_error: None,
+            dirty: true,
+            dragging: false,
+            last_render_ms: 0.0,
+        };
+        ready.refit();
+        Ok(ready)
+    }
+}
+
+impl Ready {
+    /// Fits the warp to the active pairs with the current method and uploads its control texture; with fewer pairs
+    /// than the method needs, the moving volume is shown unwarped and the status bar says why.
+    pub fn refit(&mut self) {
+        self.dirty = true;
+        let method = self.settings.method();
+        let name = panels::METHODS[self.settings.method.min(panels::METHODS.len() - 1)];
+        let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
+        let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
+        let (moving, fixed): (Vec<_>, Vec<_>) = self
+            .loaded
+            .pairs
+            .iter()
+            .filter(|p| p.active)
+            .filter_map(|p| Some((as_moving(p.moving?), as_fixed(p.fixed?))))
+            .unzip();
+        let result = (|| -> anyhow::Result<Fitted> {
+            let need = inputs::min_pairs(&method);
+            if moving.len() < need {
+                return Err(anyhow!("{} active pairs; {name} needs {need}", moving.len()));
+            }
+            let pullback = method.fit(&fixed, &moving, fixed_box).map_err(|e| anyhow!("{name}: {e}"))?;
+            let forward = method.fit(&moving, &fixed, moving_box).map_err(|e| anyhow!("{name}: {e}"))?;
+            let (grid, texture) = scene::control_texture(pullback.as_ref(), fixed_box, self.settings.grid_n)
+                .map_err(|e| anyhow!("{:#}", e.error()))?;
+            let prepared = PreparedControl::prepare(
+                &scene::control_desc(&grid, &texture),
+                self.viewer.ctx.capabilities.float32_filterable,
+            )
+            .map_err(|e| anyhow!("{e}"))?;
+            self.viewer.set_control(Some(&prepared));
+            Ok(Fitted { forward, pairs: moving.len() })
+        })();
+        match result {
+            Ok(fitted) => {
+                self.fitted = Some(fitted);
+                self.fit_error = None;
+            }
+            Err(e) => {
+                self.viewer.set_control(None);
+                self.fitted = None;
+                self.fit_error = Some(format!("{e:#}"));
+            }
+        }
+    }
+
+    /// Number of pairs the current warp was fitted on.
+    #[must_use]
+    pub fn fitted_pairs(&self) -> usize {
+        self.fitted.as_ref().map_or(0, |f| f.pairs)
+    }
+
+    fn glyphs(&self) -> Vec<GlyphInstance> {
+        if !self.settings.show_landmarks {
+            return Vec::new();
+        }
+        let to_vec = |c: [f64; 3]| Vec3::from_array(c.map(|v| v as f32));
+        let pairs: Vec<GlyphPair> = self
+            .loaded
+            .pairs
+            .iter()
+            .map(|p| GlyphPair {
+                moving_ref: p.moving.map(|m| match &self.fitted {
+                    Some(f) => to_vec(f.forward.apply(as_moving(m)).coords()),
+                    None => to_vec(m.coords()),
+                }),
+                fixed_ref: p.fixed.map(|q| to_vec(q.coords())),
+                selected: false,
+                active: p.active,
+            })
+            .collect();
+        pair_glyphs(&pairs, &GlyphStyle::default())
+    }
+
+    fn slice_planes(&self) -> [SlicePlane; 3] {
+        let f = &self.loaded.fixed;
+        let m = f.lps_from_index.rows();
+        [
+            SlicePlane::axial(&m, f.dims, self.slice_mm[0]),
+            SlicePlane::coronal(&m, f.dims, self.slice_mm[1]),
+            SlicePlane::sagittal(&m, f.dims, self.slice_mm[2]),
+        ]
+    }
+
+    /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui.
+    fn render(&mut self, rs: &eframe::egui_wgpu::RenderState, view_px: (u32, u32)) -> anyhow::Result<()> {
+        if !self.dirty && self.view.as_ref().is_some_and(|v| (v.target.width, v.target.height) == view_px) {
+            return Ok(());
+        }
+        let start = std::time::Instant::now();
+        self.viewer.begin_frame();
+        self.viewer.sync_presets();
+        let glyphs = self.glyphs();
+        let settings = self.settings.render_settings();
+        let quality = if self.dragging { Quality::Interactive } else { Quality::Full };
+        let target = self.viewer.render_view(&self.camera, &settings, quality, view_px, &glyphs)?;
+        self.view = Some(viewer::show(rs, target, self.view.take()));
+        let planes = self.slice_planes();
+        for (slot, plane) in self.slices.iter_mut().zip(planes) {
+            let target = self.viewer.render_slice(&plane, &settings, &glyphs)?;
+            *slot = Some(viewer::show(rs, target, slot.take()));
+        }
+        self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
+        self.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.dirty = false;
+        Ok(())
+    }
+
+    /// Marks the views for re-rendering.
+    pub fn invalidate(&mut self) {
+        self.dirty = true;
+    }
+}
+
+impl eframe::App for Workbench {
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        self.poll_loading();
+        let render_state = self.render_state.clone();
+        match &mut self.phase {
+            Phase::Loading(_) => {
+                egui::CentralPanel::default().show(ui, |ui| {
+                    ui.horizontal(|ui| {
+                        ui.spinner();
+                        ui.label("Loading the volumes...");
+                    });
+                });
+            }
+            Phase::Failed(message) => {
+                egui::CentralPanel::default().show(ui, |ui| {
+                    ui.heading("Could not open the volumes");
+                    ui.label(message.as_str());
+                });
+            }
+            Phase::Ready(ready) => {
+                workbench_ui(ui, ready, render_state.as_ref());
+                self.ready_frames += 1;
+            }
+        }
+        if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
+            && self.ready_frames >= n
+        {
+            self.screenshot_requested = true;
+            if let Some(path) = self.screenshot.clone() {
+                let ctx = ui.ctx().clone();
+                ui.ctx().request_screenshot(move |image| {
+                    if let Err(e) = save_png(&path, &image) {
+                        eprintln!("warpbench: {e:#}");
+                    }
+                    ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+                    ctx.request_repaint();
+                });
+            } else {
+                ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+        }
+        if matches!(self.phase, Phase::Loading(_)) || self.exit_after_frames.is_some() {
+            ui.ctx().request_repaint();
+        }
+    }
+}
+
+/// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
+fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
+    egui::Panel::left("settings").resizable(true).default_size(260.0).show(ui, |ui| {
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            ui.heading(ready.loaded.title.as_str());
+            let change = panels::settings_ui(ui, &mut ready.settings);
+            if change.refit {
+                ready.refit();
+            } else if change.redraw {
+                ready.invalidate();
+            }
+            ui.separator();
+            if panels::layers_ui(ui, &mut ready.viewer.fixed, &mut ready.viewer.moving) {
+                ready.invalidate();
+            }
+            ui.separator();
+            if panels::landmarks_ui(ui, &mut ready.loaded.pairs) {
+                ready.refit();
+            }
+        });
+    });
+    egui::Panel::bottom("status").show(ui, |ui| {
+        ui.horizontal(|ui| {
+            ui.label(format!("GPU: {}", ready.viewer.ctx.describe()));
+            ui.separator();
+            ui.label(format!("last frame {:.0} ms", ready.last_render_ms));
+            ui.separator();
+            match &ready.fit_error {
+                Some(e) => ui.colored_label(egui::Color32::LIGHT_RED, format!("warp off: {e}")),
+                None => ui.label(format!(
+                    "{} fitted on {} pairs",
+                    panels::METHODS[ready.settings.method.min(panels::METHODS.len() - 1)],
+                    ready.fitted_pairs()
+                )),
+            };
+        });
+    });
+    egui::Panel::bottom("slices").resizable(true).default_size(300.0).show(ui, |ui| {
+        ui.columns(3, |columns| {
+            let names = ["Axial", "Coronal", "Sagittal"];
+            for (a, col) in columns.iter_mut().enumerate() {
+                col.label(names[a]);
+                let before = ready.slice_mm[a];
+                col.add(
+                    egui::Slider::new(&mut ready.slice_mm[a], -150.0..=150.0)
+                        .text(format!("{} position (mm)", names[a])),
+                );
+                if (ready.slice_mm[a] - before).abs() > f64::EPSILON {
+                    ready.invalidate();
+                }
+                if let Some(shown) = &ready.slices[a] {
+                    let avail = col.available_size();
+                    let (w, h) = (shown.target.width as f32, shown.target.height as f32);
+                    let scale = (avail.x / w).min(avail.y.max(64.0) / h);
+                    col.add(egui::Image::new(egui::load::SizedTexture::new(
+                        shown.texture_id,
+                        egui::vec2(w, h) * scale,
+                    )));
+                }
+            }
+        });
+    });
+    egui::CentralPanel::default().show(ui, |ui| {
+        let avail = ui.available_size();
+        let ppp = ui.ctx().pixels_per_point();
+        // Cap the 3-D view's pixels: CPU drivers render about 1 Mpixel·step per second.
+        let px = (avail * ppp).min(egui::vec2(1024.0, 1024.0)).max(egui::vec2(32.0, 32.0));
+        let view_px = (px.x as u32, px.y as u32);
+        if let Some(rs) = render_state
+            && let Err(e) = ready.render(rs, view_px)
+        {
+            ready.fit_error = Some(format!("rendering: {e:#}"));
+        }
+        if let Some(shown) = &ready.view {
+            let response = ui.add(
+                egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, avail))
+                    .sense(egui::Sense::click_and_drag()),
+            );
+            let drag = response.drag_delta();
+            let was_dragging = ready.dragging;
+            ready.dragging = response.dragged();
+            if drag != egui::Vec2::ZERO {
+                ready.camera.azimuth_rad -= drag.x * 0.01;
+                ready.camera.elevation_rad = (ready.camera.elevation_rad + drag.y * 0.01).clamp(-1.5, 1.5);
+                ready.invalidate();
+            }
+            if was_dragging && !ready.dragging {
+                // Back to the full sample rate once the drag ends.
+                ready.invalidate();
+            }
+            if response.hovered() {
+                let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+                if scroll != 0.0 {
+                    ready.camera.zoom = (ready.camera.zoom * (1.0 + scroll * 0.002)).clamp(0.2, 20.0);
+                    ready.invalidate();
+                }
+            }
+        }
+    });
+    if ready.dirty {
+        ui.ctx().request_repaint();
+    }
+}
+
+fn save_png(path: &std::path::Path, image: &egui::ColorImage) -> anyhow::Result<()> {
+    let [w, h] = image.size;
+    let rgba: Vec<u8> = image.pixels.iter().flat_map(egui::Color32::to_array).collect();
+    let mut png = Vec::new();
+    image::write_buffer_with_format(
+        &mut std::io::Cursor::new(&mut png),
+        &rgba,
+        w as u32,
+        h as u32,
+        image::ExtendedColorType::Rgba8,
+        image::ImageFormat::Png,
+    )
+    .context("encoding the screenshot")?;
+    warpbench_io::atomic::write_atomic(path, |out| out.write_all(&png))?;
+    Ok(())
+}
+
+/// Opens the window and runs until it is closed.
+pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
+    let native = eframe::NativeOptions {
+        viewport: egui::ViewportBuilder::default().with_inner_size([1280.0, 860.0]).with_title("warpbench"),
+        renderer: eframe::Renderer::Wgpu,
+        wgpu_options: wgpu_options(),
+        ..Default::default()
+    };
+    eframe::run_native("warpbench", native, Box::new(move |cc| Ok(Box::new(Workbench::new(cc, opts)))))
+        .map_err(|e| anyhow!("the window: {e}"))
+}
+
+/// eframe's wgpu set-up with the adapter's own limits and the optional features the renderer uses (the defaults
+/// are WebGL2 limits on GL, without compute).
+#[must_use]
+pub fn wgpu_options() -> eframe::egui_wgpu::WgpuConfiguration {
+    use eframe::egui_wgpu::{WgpuSetup, WgpuSetupCreateNew};
+    use eframe::wgpu;
+    let device_descriptor = std::sync::Arc::new(|adapter: &wgpu::Adapter| wgpu::DeviceDescriptor {
+        label: Some("warpbench"),
+        required_features: adapter.features() & warpbench_gpu::RaycastRenderer::OPTIONAL_FEATURES,
+        required_limits: adapter.limits(),
+        ..Default::default()
+    });
+    eframe::egui_wgpu::WgpuConfiguration {
+        wgpu_setup: WgpuSetup::CreateNew(WgpuSetupCreateNew {
+            device_descriptor,
+            ..WgpuSetupCreateNew::without_display_handle()
+        }),
+        ..Default::default()
+    }
+}

@@ -1,0 +1,202 @@
+//! The side panel's sections, each a `*_ui(ui, …)` function over plain state, so each can be tested alone. Every
+//! widget carries a label that egui_kittest (and screen readers) can find.
+
+use eframe::egui;
+use warpbench_gpu::{BlendMode, Preset, RenderSettings, Shading, ShadingMode};
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::bspline::BSplineParams;
+use warpbench_solver::linear::LinearKind;
+use warpbench_solver::method::Method;
+
+use super::viewer::Layer;
+use crate::scene::PRESET_NAMES;
+
+/// The warp families the method switch offers.
+pub const METHODS: [&str; 5] = ["tps", "hbspline", "affine", "similarity", "rigid"];
+
+/// What the view and the warp look like.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewSettings {
+    /// Index into [`BlendMode::ALL`].
+    pub blend: usize,
+    pub mix_weight: f32,
+    pub checker_mm: f32,
+    pub shading: ShadingMode,
+    pub samples_per_voxel: f32,
+    /// Index into [`METHODS`].
+    pub method: usize,
+    pub stiffness: f64,
+    pub bspline_levels: usize,
+    /// Control-texture texels per axis.
+    pub grid_n: usize,
+    pub show_landmarks: bool,
+}
+
+impl Default for ViewSettings {
+    fn default() -> Self {
+        Self {
+            blend: 0,
+            mix_weight: 0.5,
+            checker_mm: 16.0,
+            shading: ShadingMode::Dvr,
+            samples_per_voxel: 1.0,
+            method: 0,
+            stiffness: 0.0,
+            bspline_levels: BSplineParams::default().levels,
+            grid_n: 48,
+            show_landmarks: true,
+        }
+    }
+}
+
+impl ViewSettings {
+    #[must_use]
+    pub fn blend_mode(&self) -> BlendMode {
+        match BlendMode::ALL[self.blend.min(BlendMode::ALL.len() - 1)] {
+            BlendMode::Mix { .. } => BlendMode::Mix { moving_weight: self.mix_weight },
+            BlendMode::Checkerboard { .. } => BlendMode::Checkerboard { cell_mm: self.checker_mm },
+            other => other,
+        }
+    }
+
+    #[must_use]
+    pub fn render_settings(&self) -> RenderSettings {
+        RenderSettings {
+            blend: self.blend_mode(),
+            samples_per_voxel: self.samples_per_voxel,
+            shading: Shading::with_mode(self.shading),
+            ..Default::default()
+        }
+    }
+
+    #[must_use]
+    pub fn method(&self) -> Method {
+        match METHODS[self.method.min(METHODS.len() - 1)] {
+            "tps" => Method::Tps { stiffness: self.stiffness },
+            "hbspline" => Method::BSpline(BSplineParams { levels: self.bspline_levels, ..BSplineParams::default() }),
+            "affine" => Method::Linear(LinearKind::Affine),
+            "similarity" => Method::Linear(LinearKind::Similarity),
+            _ => Method::Linear(LinearKind::Rigid),
+        }
+    }
+}
+
+/// What a panel changed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Change {
+    /// The picture changed: render again.
+    pub redraw: bool,
+    /// The warp changed: fit again (and render).
+    pub refit: bool,
+}
+
+/// Blend, shading, sample rate and warp method.
+pub fn settings_ui(ui: &mut egui::Ui, s: &mut ViewSettings) -> Change {
+    let before = s.clone();
+    ui.label("View");
+    egui::ComboBox::from_label("Blend mode").selected_text(BlendMode::ALL[s.blend].name()).show_ui(ui, |ui| {
+        for (i, mode) in BlendMode::ALL.iter().enumerate() {
+            ui.selectable_value(&mut s.blend, i, mode.name());
+        }
+    });
+    match BlendMode::ALL[s.blend] {
+        BlendMode::Mix { .. } => {
+            ui.add(egui::Slider::new(&mut s.mix_weight, 0.0..=1.0).text("Moving weight"));
+        }
+        BlendMode::Checkerboard { .. } => {
+            ui.add(egui::Slider::new(&mut s.checker_mm, 2.0..=60.0).text("Checker cell (mm)"));
+        }
+        _ => {}
+    }
+    egui::ComboBox::from_label("Shading").selected_text(s.shading.name()).show_ui(ui, |ui| {
+        for mode in ShadingMode::ALL {
+            ui.selectable_value(&mut s.shading, mode, mode.name());
+        }
+    });
+    ui.add(egui::Slider::new(&mut s.samples_per_voxel, 0.25..=4.0).logarithmic(true).text("Samples per voxel"));
+    ui.checkbox(&mut s.show_landmarks, "Show landmarks");
+    ui.separator();
+    ui.label("Warp");
+    egui::ComboBox::from_label("Method").selected_text(METHODS[s.method]).show_ui(ui, |ui| {
+        for (i, name) in METHODS.iter().enumerate() {
+            ui.selectable_value(&mut s.method, i, *name);
+        }
+    });
+    match METHODS[s.method] {
+        "tps" => {
+            ui.add(egui::Slider::new(&mut s.stiffness, 0.0..=50.0).text("Stiffness (lambda)"));
+        }
+        "hbspline" => {
+            ui.add(egui::Slider::new(&mut s.bspline_levels, 1..=6).text("B-spline levels"));
+        }
+        _ => {}
+    }
+    ui.add(egui::Slider::new(&mut s.grid_n, 8..=128).text("Control texture texels"));
+    let refit = s.method != before.method
+        || s.stiffness.to_bits() != before.stiffness.to_bits()
+        || s.bspline_levels != before.bspline_levels
+        || s.grid_n != before.grid_n;
+    Change { redraw: *s != before, refit }
+}
+
+/// Per volume: visibility and transfer-function preset. Returns whether anything changed.
+pub fn layers_ui(ui: &mut egui::Ui, fixed: &mut Layer, moving: &mut Layer) -> bool {
+    let mut changed = false;
+    for (name, layer) in [("Fixed", fixed), ("Moving", moving)] {
+        ui.horizontal(|ui| {
+            changed |= ui.checkbox(&mut layer.visible, format!("{name} visible")).changed();
+        });
+        let index = Preset::ALL.iter().position(|p| *p == layer.preset).unwrap_or(0);
+        let mut chosen = index;
+        egui::ComboBox::from_label(format!("{name} preset")).selected_text(PRESET_NAMES[index]).show_ui(ui, |ui| {
+            for (i, preset_name) in PRESET_NAMES.iter().enumerate() {
+                ui.selectable_value(&mut chosen, i, *preset_name);
+            }
+        });
+        if chosen != index {
+            layer.preset = Preset::ALL[chosen];
+            if let Some(w) = layer.preset.default_window() {
+                layer.window = w;
+            }
+            changed = true;
+        }
+        let (mut low, mut high) = (layer.window.low(), layer.window.low() + layer.window.width);
+        let span = (high - low).abs().max(1.0);
+        let range = (low - span)..=(high + span);
+        changed |= ui.add(egui::Slider::new(&mut low, range.clone()).text(format!("{name} window low"))).changed();
+        changed |= ui.add(egui::Slider::new(&mut high, range).text(format!("{name} window high"))).changed();
+        if high > low {
+            layer.window = warpbench_gpu::Window::from_range(low, high);
+        }
+    }
+    changed
+}
+
+/// The landmark table: active, name, moving and fixed positions (LPS mm). Returns whether a pair was toggled.
+pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair]) -> bool {
+    ui.label(format!("Landmarks ({} pairs)", pairs.len()));
+    let fmt = |p: Option<warpbench_io::geometry::Point3<warpbench_io::geometry::Lps>>| {
+        p.map_or_else(
+            || "-".to_owned(),
+            |p| {
+                let c = p.coords();
+                format!("{:.1}, {:.1}, {:.1}", c[0], c[1], c[2])
+            },
+        )
+    };
+    let mut changed = false;
+    egui::Grid::new("landmarks").striped(true).show(ui, |ui| {
+        ui.label("pair (on = in the fit)");
+        ui.label("moving (mm)");
+        ui.label("fixed (mm)");
+        ui.end_row();
+        for pair in pairs.iter_mut() {
+            let name = if pair.name.is_empty() { "(unnamed)".to_owned() } else { pair.name.clone() };
+            changed |= ui.checkbox(&mut pair.active, name).changed();
+            ui.label(fmt(pair.moving));
+            ui.label(fmt(pair.fixed));
+            ui.end_row();
+        }
+    });
+    changed
+}

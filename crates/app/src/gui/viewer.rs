@@ -1,0 +1,199 @@
+//! The app's GPU side, on eframe's own wgpu device: the two volumes, their transfer functions and prefiltered
+//! copies, the moving volume's control texture, and the renderer; it draws the 3-D view and the slices into pooled
+//! render targets that egui shows as native textures.
+
+use eframe::egui_wgpu;
+use warpbench_gpu::glam::Vec3;
+use warpbench_gpu::{
+    GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame,
+    GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PrefilterPass,
+    PrefilterSettings, PreparedControl, PreparedVolume, Preset, Quality, RaycastDrawData, RaycastRenderer,
+    RenderSettings, RenderTarget, SlicePlane, TexturePool, VolumeBudget, Window,
+};
+use warpbench_io::Volume;
+
+use crate::scene;
+
+/// One volume on the GPU with how it is drawn.
+#[derive(Debug)]
+pub struct Layer {
+    pub volume: GpuVolume,
+    pub prefiltered: GpuPrefiltered,
+    pub preset: Preset,
+    pub window: Window,
+    pub visible: bool,
+}
+
+impl Layer {
+    fn style(&self, tf_row: u32) -> LayerStyle {
+        LayerStyle {
+            window: self.window,
+            tf_row,
+            opacity_scale: 1.0,
+            visible: self.visible,
+            iso_value: self.window.low() + 0.3 * self.window.width,
+        }
+    }
+}
+
+/// A rendered image and the egui texture that shows it.
+#[derive(Debug)]
+pub struct Shown {
+    pub target: RenderTarget,
+    pub texture_id: eframe::egui::TextureId,
+}
+
+/// The renderer and the scene's GPU resources.
+#[derive(Debug)]
+pub struct Viewer {
+    pub ctx: GpuContext,
+    renderer: RaycastRenderer,
+    glyphs: GlyphRenderer,
+    pool: TexturePool,
+    pub fixed: Layer,
+    pub moving: Layer,
+    tfs: GpuTransferFunctions,
+    tf_presets: [Preset; 2],
+    pub control: Option<GpuControlTexture>,
+}
+
+fn gpu_error(e: warpbench_gpu::GpuError) -> anyhow::Error {
+    anyhow::Error::from(e).context("GPU")
+}
+
+impl Viewer {
+    /// Uploads both volumes to the device of `render_state`.
+    pub fn new(render_state: &egui_wgpu::RenderState, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
+        let ctx = GpuContext::from_device(
+            render_state.adapter.get_info(),
+            render_state.device.clone(),
+            render_state.queue.clone(),
+        );
+        let renderer = RaycastRenderer::new(&ctx).map_err(gpu_error)?;
+        let glyphs = GlyphRenderer::new(&ctx).map_err(gpu_error)?;
+        let prefilter = PrefilterPass::new(&ctx).map_err(gpu_error)?;
+        let pool = TexturePool::new(&ctx.device);
+        let upload = |v: &Volume| -> anyhow::Result<Layer> {
+            let prepared = PreparedVolume::prepare(
+                &scene::volume_desc(v),
+                ctx.capabilities,
+                VolumeBudget::for_device(&ctx.limits),
+            )
+            .map_err(gpu_error)?;
+            let volume = GpuVolume::upload(&ctx, &prepared).map_err(gpu_error)?;
+            let prefiltered = prefilter
+                .run(&ctx, &volume, PrefilterSettings { sigma_vox: 1.0, half_resolution: false })
+                .map_err(gpu_error)?;
+            let (preset, window) = scene::auto_style(v, None);
+            Ok(Layer { volume, prefiltered, preset, window, visible: true })
+        };
+        let (fixed, moving) = (upload(fixed)?, upload(moving)?);
+        let tf_presets = [fixed.preset, moving.preset];
+        let tfs = GpuTransferFunctions::upload(&ctx, &tf_presets.map(Preset::transfer_function));
+        Ok(Self { ctx, renderer, glyphs, pool, fixed, moving, tfs, tf_presets, control: None })
+    }
+
+    /// Re-uploads the transfer functions when a layer's preset changed.
+    pub fn sync_presets(&mut self) {
+        let wanted = [self.fixed.preset, self.moving.preset];
+        if wanted != self.tf_presets {
+            self.tfs = GpuTransferFunctions::upload(&self.ctx, &wanted.map(Preset::transfer_function));
+            self.tf_presets = wanted;
+        }
+    }
+
+    fn frame(&self) -> GpuFrame<'_> {
+        GpuFrame {
+            fixed: GpuLayer {
+                volume: &self.fixed.volume,
+                control: None,
+                prefiltered: Some(&self.fixed.prefiltered),
+                style: self.fixed.style(0),
+            },
+            moving: GpuLayer {
+                volume: &self.moving.volume,
+                control: self.control.as_ref(),
+                prefiltered: Some(&self.moving.prefiltered),
+                style: self.moving.style(1),
+            },
+            tfs: &self.tfs,
+        }
+    }
+
+    /// The 3-D view at `size_px`, with `glyphs` over it.
+    pub fn render_view(
+        &self,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        quality: Quality,
+        size_px: (u32, u32),
+        glyphs: &[GlyphInstance],
+    ) -> anyhow::Result<RenderTarget> {
+        let frame = self.frame();
+        let data = RaycastDrawData::new(&self.ctx, &self.renderer, &frame, camera, &settings.at(quality), size_px);
+        let target = RenderTarget::from_pool(&self.pool, size_px.0, size_px.1);
+        self.renderer.render(&self.ctx, &data, &target).map_err(gpu_error)?;
+        if !glyphs.is_empty() {
+            let gu = GlyphUniforms::for_view(camera, size_px, &GlyphSettings::default());
+            let data = GlyphDrawData::new(&self.ctx, &self.glyphs, gu, glyphs, Some(&target.hit_depth_view));
+            self.glyphs.render(&self.ctx, &data, &target).map_err(gpu_error)?;
+        }
+        Ok(target)
+    }
+
+    /// A slice through `plane`, with `glyphs` near it.
+    pub fn render_slice(
+        &self,
+        plane: &SlicePlane,
+        settings: &RenderSettings,
+        glyphs: &[GlyphInstance],
+    ) -> anyhow::Result<RenderTarget> {
+        let frame = self.frame();
+        let data = RaycastDrawData::for_slice(&self.ctx, &self.renderer, &frame, plane, settings);
+        let target = RenderTarget::from_pool(&self.pool, plane.size.0, plane.size.1);
+        self.renderer.render_slice(&self.ctx, &data, &target).map_err(gpu_error)?;
+        if !glyphs.is_empty() {
+            let gu = GlyphUniforms::for_slice(plane, &GlyphSettings::default()).map_err(gpu_error)?;
+            let data = GlyphDrawData::new(&self.ctx, &self.glyphs, gu, glyphs, None);
+            self.glyphs.render(&self.ctx, &data, &target).map_err(gpu_error)?;
+        }
+        Ok(target)
+    }
+
+    /// Uploads a control texture (or removes the warp with `None`).
+    pub fn set_control(&mut self, prepared: Option<&PreparedControl>) {
+        self.control = prepared.map(|p| GpuControlTexture::upload(&self.ctx, p));
+    }
+
+    /// Marks a new UI frame for the texture pool, freeing targets idle for a few frames.
+    pub fn begin_frame(&self) {
+        self.pool.begin_frame();
+        let _freed = self.pool.trim(8);
+    }
+
+    /// The box of both volumes, for the camera.
+    #[must_use]
+    pub fn scene_box(&self) -> (Vec3, Vec3) {
+        let f = &self.fixed.volume.info;
+        (f.box_min_lps.as_vec3(), f.box_max_lps.as_vec3())
+    }
+}
+
+/// Shows `target` through egui: registers its colour texture, or re-points `previous` at it.
+#[must_use]
+pub fn show(render_state: &egui_wgpu::RenderState, target: RenderTarget, previous: Option<Shown>) -> Shown {
+    let mut renderer = render_state.renderer.write();
+    let texture_id = match previous {
+        Some(old) => {
+            renderer.update_egui_texture_from_wgpu_texture(
+                &render_state.device,
+                &target.view,
+                eframe::wgpu::FilterMode::Linear,
+                old.texture_id,
+            );
+            old.texture_id
+        }
+        None => renderer.register_native_texture(&render_state.device, &target.view, eframe::wgpu::FilterMode::Linear),
+    };
+    Shown { target, texture_id }
+}

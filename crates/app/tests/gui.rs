@@ -1,0 +1,113 @@
+//! The workbench window driven headlessly through egui_kittest (wgpu on the CPU driver), by accessibility labels:
+//! it loads a pair, renders the 3-D view and the slices on egui's own device, and reacts to the blend-mode switch
+//! and to a landmark being switched off (the warp is fitted again).
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use warpbench_app::gui::{GuiOptions, Workbench};
+use warpbench_app::inputs::LandmarkSource;
+
+fn mri() -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii")
+}
+
+/// Five pairs on the MRI, the moving points shifted by a few mm.
+fn pairs(dir: &Path) -> std::path::PathBuf {
+    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
+    let lines: Vec<String> = q
+        .iter()
+        .enumerate()
+        .map(|(i, q)| {
+            let p = [q[0] + 3.0, q[1] - 2.0 + i as f64, q[2] + 1.5];
+            let f: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
+            format!("\"Pt-{i}\",\"true\",{}\n", f.join(","))
+        })
+        .collect();
+    let path = dir.join("pairs.csv");
+    std::fs::write(&path, lines.concat()).expect("write landmarks");
+    path
+}
+
+/// Steps the harness until the pair is loaded and drawn (or fails, or 60 s pass).
+fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    loop {
+        harness.step();
+        if let Some(e) = harness.state().failure() {
+            panic!("loading failed: {e}");
+        }
+        if harness.state().ready().is_some_and(|r| r.last_render_ms > 0.0) {
+            return;
+        }
+        assert!(start.elapsed() < Duration::from_mins(1), "the pair was not shown within a minute");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+#[test]
+fn loads_a_pair_renders_it_and_follows_the_controls() {
+    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
+        eprintln!("skipped: no GPU adapter");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.fitted_pairs(), 5, "the TPS is fitted on the five pairs: {:?}", ready.fit_error);
+    assert!(ready.fit_error.is_none());
+
+    // Blend mode: open the combo box and choose "difference".
+    harness.get_by_label("Blend mode").click();
+    harness.run_steps(3);
+    harness.get_by_label("difference").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(warpbench_gpu::BlendMode::ALL[ready.settings.blend].name(), "difference");
+
+    // Switching a pair off refits the warp on the other four.
+    harness.get_by_label("Pt-2").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(!ready.loaded.pairs[2].active);
+    assert_eq!(ready.fitted_pairs(), 4);
+    // Rigid needs at least 4 pairs; with 4 active it fits.
+    harness.get_by_label("Method").click();
+    harness.run_steps(3);
+    harness.get_by_label("rigid").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.settings.method().to_string(), "rigid");
+    assert_eq!(ready.fitted_pairs(), 4, "{:?}", ready.fit_error);
+}
+
+#[test]
+fn a_missing_file_is_reported_in_the_window() {
+    let opts = GuiOptions {
+        fixed: Some(Path::new("/nonexistent/fixed.nii").to_path_buf()),
+        moving: Some(mri()),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(600.0, 300.0)).build_eframe(|cc| Workbench::new(cc, opts));
+    let start = Instant::now();
+    while harness.state().failure().is_none() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let message = harness.state().failure().expect("failed").to_owned();
+    assert!(message.contains("/nonexistent/fixed.nii"), "{message}");
+    harness.get_by_label("Could not open the volumes");
+}
