@@ -249,7 +249,7 @@ fn tfm_round_trips_and_equals_the_solver_affine() {
 }
 
 /// The ITK reference: what SimpleITK maps when it reads a field (and a `.tfm`) written by this command from
-/// `tests/data/itk/field_pairs.csv` (`tests/data/PROVENANCE.md`). The field written now must hold the same vectors
+/// `tests/data/itk/field_pairs.csv` (`tests/data/itk/README.md`). The field written now must hold the same vectors
 /// where ITK sampled it, and both must be the exact pull-back.
 #[test]
 fn itk_reads_our_field_as_our_pullback() {
