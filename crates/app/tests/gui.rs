@@ -111,3 +111,71 @@ fn a_missing_file_is_reported_in_the_window() {
     assert!(message.contains("/nonexistent/fixed.nii"), "{message}");
     harness.get_by_label("Could not open the volumes");
 }
+
+/// A primary-button click at `pos` (window points): press, then release on the next frame.
+fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
+    let press = |pressed| egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Primary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    };
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.input_mut().events.push(press(true));
+    harness.step();
+    harness.input_mut().events.push(press(false));
+    harness.run_steps(2);
+}
+
+#[test]
+fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
+    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
+        eprintln!("skipped: no GPU adapter");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    let axial_mm = harness.state().ready().expect("loaded").slice_mm[0];
+
+    // In a slice: the source at the centre of the axial slice, the target a little to its right.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    let rect = harness.get_by_label("Axial slice").rect();
+    click_at(&mut harness, rect.center());
+    assert!(
+        matches!(harness.state().ready().expect("loaded").placing, warpbench_app::gui::Placing::Target { .. }),
+        "the first click places the source"
+    );
+    click_at(&mut harness, rect.center() + egui::vec2(rect.width() * 0.1, 0.0));
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.placing, warpbench_app::gui::Placing::Idle);
+    assert_eq!(ready.loaded.pairs.len(), 6, "a sixth pair");
+    assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit_error);
+    let pair = ready.loaded.pairs.last().expect("pair");
+    let (p, q) = (pair.moving.expect("source").coords(), pair.fixed.expect("target").coords());
+    // Both clicks lie on the axial plane of the fixed grid (voxel centres, 2 mm apart); the source went through the
+    // pull-back, which moves it by a few mm at most.
+    assert!((q[2] - axial_mm).abs() <= 1.0, "target S {} vs slice {axial_mm}", q[2]);
+    assert!((p[2] - q[2]).abs() < 10.0 && p[0] < q[0], "source {p:?}, target {q:?}");
+
+    // In the 3-D view: the brain at the centre of the view is hit on both volumes.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    let view = harness.get_by_label("3-D view").rect();
+    click_at(&mut harness, view.center());
+    click_at(&mut harness, view.center());
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert_eq!(ready.loaded.pairs.len(), 7, "a seventh pair from the 3-D view");
+    let pair = ready.loaded.pairs.last().expect("pair");
+    let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
+    assert!(inside(pair.moving.expect("source").coords()) && inside(pair.fixed.expect("target").coords()));
+}

@@ -15,11 +15,13 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 
 use anyhow::{Context as _, anyhow};
 use eframe::egui;
+use warpbench_gpu::PickTarget;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, PreparedControl, Projection, Quality, SlicePlane, pair_glyphs,
 };
 use warpbench_io::Volume;
+use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::Warp;
@@ -85,8 +87,22 @@ pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
 /// The warp fitted on the active pairs: the pull-back the renderer uses and the forward map that places the moving
 /// glyphs.
 struct Fitted {
+    /// u = moving_from_fixed: where a point of the deformed view comes from in the moving volume.
+    pullback: Box<dyn Warp<Moving, Fixed>>,
     forward: Box<dyn Warp<Fixed, Moving>>,
     pairs: usize,
+}
+
+/// Adding a pair: the source is picked on the (deformed) moving volume, then the target on the fixed one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Placing {
+    Idle,
+    /// The next click picks the source (a point of the moving volume, in moving LPS).
+    Source,
+    /// The next click picks the target; the source is placed.
+    Target {
+        moving: Point3<Lps>,
+    },
 }
 
 impl std::fmt::Debug for Fitted {
@@ -112,6 +128,8 @@ pub struct Ready {
     dirty: bool,
     dragging: bool,
     pub last_render_ms: f64,
+    /// Adding a pair by picking.
+    pub placing: Placing,
 }
 
 #[derive(Debug)]
@@ -213,6 +231,7 @@ impl Workbench {
             dirty: true,
             dragging: false,
             last_render_ms: 0.0,
+            placing: Placing::Idle,
         };
         ready.refit();
         Ok(ready)
@@ -250,7 +269,7 @@ impl Ready {
             )
             .map_err(|e| anyhow!("{e}"))?;
             self.viewer.set_control(Some(&prepared));
-            Ok(Fitted { forward, pairs: moving.len() })
+            Ok(Fitted { pullback, forward, pairs: moving.len() })
         })();
         match result {
             Ok(fitted) => {
@@ -327,6 +346,49 @@ impl Ready {
         Ok(())
     }
 
+    /// Places the point at ref position `x_ref` (a click in a slice, or a pick in the 3-D view, already in ref
+    /// space): the source through the warp's pull-back (the moving volume's point shown there) unless the pick gives
+    /// it (`moving_lps`), the target as is. A completed pair is appended, active, and the warp is fitted again.
+    pub fn place_at_ref(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
+        match self.placing {
+            Placing::Idle => {}
+            Placing::Source => {
+                let p = moving_lps.unwrap_or_else(|| match &self.fitted {
+                    Some(f) => f.pullback.apply_raw(x_ref),
+                    None => x_ref,
+                });
+                self.placing = Placing::Target { moving: Point3::from_array(p) };
+            }
+            Placing::Target { moving } => {
+                let name = format!("Pt-{}", self.loaded.pairs.len() + 1);
+                self.loaded.pairs.push(LandmarkPair::new(name, moving, Point3::from_array(x_ref)));
+                self.placing = Placing::Idle;
+                self.refit();
+            }
+        }
+        self.invalidate();
+    }
+
+    /// A click at framebuffer point `pixel` of the 3-D view: picks the volume the placing step asks for.
+    fn pick_in_view(&mut self, pixel: [f32; 2]) {
+        let target = match self.placing {
+            Placing::Idle => return,
+            Placing::Source => PickTarget::Moving,
+            Placing::Target { .. } => PickTarget::Fixed,
+        };
+        let Some(size) = self.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let settings = self.settings.render_settings();
+        match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.settings.probe()) {
+            Ok(Some(hit)) => {
+                let x_ref = hit.x_ref.map(f64::from);
+                let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
+                self.place_at_ref(x_ref, moving);
+            }
+            Ok(None) => self.fit_error = Some("the click hit nothing: try another point or probe".into()),
+            Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
+        }
+    }
+
     /// Marks the views for re-rendering.
     pub fn invalidate(&mut self) {
         self.dirty = true;
@@ -396,6 +458,17 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                 ready.invalidate();
             }
             ui.separator();
+            ui.horizontal(|ui| {
+                let adding = ready.placing != Placing::Idle;
+                if ui.selectable_label(adding, "Add pair").clicked() {
+                    ready.placing = if adding { Placing::Idle } else { Placing::Source };
+                }
+                match ready.placing {
+                    Placing::Idle => ui.label(""),
+                    Placing::Source => ui.label("click the moving volume (source)"),
+                    Placing::Target { .. } => ui.label("click the fixed volume (target)"),
+                };
+            });
             if panels::landmarks_ui(ui, &mut ready.loaded.pairs) {
                 ready.refit();
             }
@@ -417,6 +490,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             };
         });
     });
+    let planes = ready.slice_planes();
     egui::Panel::bottom("slices").resizable(true).default_size(300.0).show(ui, |ui| {
         ui.columns(3, |columns| {
             let names = ["Axial", "Coronal", "Sagittal"];
@@ -434,10 +508,20 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     let avail = col.available_size();
                     let (w, h) = (shown.target.width as f32, shown.target.height as f32);
                     let scale = (avail.x / w).min(avail.y.max(64.0) / h);
-                    col.add(egui::Image::new(egui::load::SizedTexture::new(
-                        shown.texture_id,
-                        egui::vec2(w, h) * scale,
-                    )));
+                    let response = col.add(
+                        egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, egui::vec2(w, h) * scale))
+                            .sense(egui::Sense::click()),
+                    );
+                    let label = format!("{} slice", names[a]);
+                    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, &label));
+                    if response.clicked()
+                        && let Some(pos) = response.interact_pointer_pos()
+                    {
+                        // Framebuffer coordinates of the slice image; pixel centres are at i + 1/2.
+                        let f = (pos - response.rect.min) / scale;
+                        let x_ref = planes[a].ref_from_pixel(f64::from(f.x) - 0.5, f64::from(f.y) - 0.5);
+                        ready.place_at_ref(x_ref, None);
+                    }
                 }
             }
         });
@@ -458,6 +542,14 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                 egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, avail))
                     .sense(egui::Sense::click_and_drag()),
             );
+            response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "3-D view"));
+            if response.clicked()
+                && let Some(pos) = response.interact_pointer_pos()
+            {
+                let f = (pos - response.rect.min) / response.rect.size();
+                let (w, h) = (shown.target.width as f32, shown.target.height as f32);
+                ready.pick_in_view([f.x * w, f.y * h]);
+            }
             let drag = response.drag_delta();
             let was_dragging = ready.dragging;
             ready.dragging = response.dragged();

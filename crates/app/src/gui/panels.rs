@@ -2,7 +2,7 @@
 //! widget carries a label that egui_kittest (and screen readers) can find.
 
 use eframe::egui;
-use warpbench_gpu::{BlendMode, Preset, RenderSettings, Shading, ShadingMode};
+use warpbench_gpu::{BlendMode, Preset, Probe, RenderSettings, Shading, ShadingMode};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::linear::LinearKind;
@@ -30,7 +30,14 @@ pub struct ViewSettings {
     /// Control-texture texels per axis.
     pub grid_n: usize,
     pub show_landmarks: bool,
+    /// Index into [`PROBES`]: how a click in the 3-D view finds its point.
+    pub pick_probe: usize,
+    /// The probe's threshold: opacity (0..1), gradient magnitude (value units per mm) or accumulated opacity.
+    pub pick_threshold: f32,
 }
+
+/// The picking probes (`warpbench_gpu::Probe`), by name.
+pub const PROBES: [&str; 3] = ["accumulated opacity", "opacity", "gradient"];
 
 impl Default for ViewSettings {
     fn default() -> Self {
@@ -45,6 +52,8 @@ impl Default for ViewSettings {
             bspline_levels: BSplineParams::default().levels,
             grid_n: 48,
             show_landmarks: true,
+            pick_probe: 0,
+            pick_threshold: 0.95,
         }
     }
 }
@@ -66,6 +75,15 @@ impl ViewSettings {
             samples_per_voxel: self.samples_per_voxel,
             shading: Shading::with_mode(self.shading),
             ..Default::default()
+        }
+    }
+
+    #[must_use]
+    pub fn probe(&self) -> Probe {
+        match self.pick_probe {
+            1 => Probe::Opacity { threshold: self.pick_threshold },
+            2 => Probe::Gradient { threshold: self.pick_threshold },
+            _ => Probe::Accumulated { level: self.pick_threshold },
         }
     }
 
@@ -132,11 +150,30 @@ pub fn settings_ui(ui: &mut egui::Ui, s: &mut ViewSettings) -> Change {
         _ => {}
     }
     ui.add(egui::Slider::new(&mut s.grid_n, 8..=128).text("Control texture texels"));
+    ui.separator();
+    ui.label("Picking (3-D view)");
+    let probe_before = s.pick_probe;
+    egui::ComboBox::from_label("Pick probe").selected_text(PROBES[s.pick_probe]).show_ui(ui, |ui| {
+        for (i, name) in PROBES.iter().enumerate() {
+            ui.selectable_value(&mut s.pick_probe, i, *name);
+        }
+    });
+    if s.pick_probe != probe_before {
+        s.pick_threshold = match s.pick_probe {
+            1 => 0.5,
+            2 => 50.0,
+            _ => 0.95,
+        };
+    }
+    let range = if s.pick_probe == 2 { 0.0..=2000.0 } else { 0.0..=1.0 };
+    ui.add(egui::Slider::new(&mut s.pick_threshold, range).text("Pick threshold"));
     let refit = s.method != before.method
         || s.stiffness.to_bits() != before.stiffness.to_bits()
         || s.bspline_levels != before.bspline_levels
         || s.grid_n != before.grid_n;
-    Change { redraw: *s != before, refit }
+    let redraw =
+        ViewSettings { pick_probe: before.pick_probe, pick_threshold: before.pick_threshold, ..s.clone() } != before;
+    Change { redraw, refit }
 }
 
 /// Per volume: visibility and transfer-function preset. Returns whether anything changed.

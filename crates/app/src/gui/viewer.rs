@@ -6,9 +6,9 @@ use eframe::egui_wgpu;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame,
-    GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PrefilterPass,
-    PrefilterSettings, PreparedControl, PreparedVolume, Preset, Quality, RaycastDrawData, RaycastRenderer,
-    RenderSettings, RenderTarget, SlicePlane, TexturePool, VolumeBudget, Window,
+    GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay,
+    PickRequest, PickTarget, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Probe, Quality,
+    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, VolumeBudget, Window,
 };
 use warpbench_io::Volume;
 
@@ -49,6 +49,7 @@ pub struct Viewer {
     pub ctx: GpuContext,
     renderer: RaycastRenderer,
     glyphs: GlyphRenderer,
+    picker: PickPass,
     pool: TexturePool,
     pub fixed: Layer,
     pub moving: Layer,
@@ -72,6 +73,7 @@ impl Viewer {
         let renderer = RaycastRenderer::new(&ctx).map_err(gpu_error)?;
         let glyphs = GlyphRenderer::new(&ctx).map_err(gpu_error)?;
         let prefilter = PrefilterPass::new(&ctx).map_err(gpu_error)?;
+        let picker = PickPass::new(&ctx, &renderer).map_err(gpu_error)?;
         let pool = TexturePool::new(&ctx.device);
         let upload = |v: &Volume| -> anyhow::Result<Layer> {
             let prepared = PreparedVolume::prepare(
@@ -90,7 +92,7 @@ impl Viewer {
         let (fixed, moving) = (upload(fixed)?, upload(moving)?);
         let tf_presets = [fixed.preset, moving.preset];
         let tfs = GpuTransferFunctions::upload(&ctx, &tf_presets.map(Preset::transfer_function));
-        Ok(Self { ctx, renderer, glyphs, pool, fixed, moving, tfs, tf_presets, control: None })
+        Ok(Self { ctx, renderer, glyphs, picker, pool, fixed, moving, tfs, tf_presets, control: None })
     }
 
     /// Re-uploads the transfer functions when a layer's preset changed.
@@ -158,6 +160,24 @@ impl Viewer {
             self.glyphs.render(&self.ctx, &data, &target).map_err(gpu_error)?;
         }
         Ok(target)
+    }
+
+    /// Picks the first hit of `probe` in the `target` volume (deformed, for the moving one) along the ray through
+    /// framebuffer point `pixel` of the 3-D view (`size_px`, `camera`, `settings` as it was drawn).
+    pub fn pick(
+        &self,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        size_px: (u32, u32),
+        pixel: [f32; 2],
+        target: PickTarget,
+        probe: Probe,
+    ) -> anyhow::Result<Option<PickHit>> {
+        let frame = self.frame();
+        let data = RaycastDrawData::new(&self.ctx, &self.renderer, &frame, camera, settings, size_px);
+        let ray = PickRay::from_pixel(&data.uniforms, pixel).map_err(gpu_error)?;
+        let hits = self.picker.pick(&self.ctx, &data, &PickRequest::new(target, probe), &[ray]).map_err(gpu_error)?;
+        Ok(hits.first().and_then(PickHit::found).copied())
     }
 
     /// Uploads a control texture (or removes the warp with `None`).
