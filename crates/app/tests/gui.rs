@@ -76,12 +76,46 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(warpbench_gpu::BlendMode::ALL[ready.settings.blend].name(), "difference");
 
+    // Undo (the button) brings the mix blend back, redo (Ctrl+Shift+Z) the difference again, Ctrl+Z undoes again.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let blend = |h: &Harness<'_, Workbench>| {
+        warpbench_gpu::BlendMode::ALL[h.state().ready().expect("loaded").settings.blend].name()
+    };
+    assert_eq!(blend(&harness), "mix");
+    let key = |h: &mut Harness<'_, Workbench>, modifiers: egui::Modifiers| {
+        for pressed in [true, false] {
+            h.input_mut().events.push(egui::Event::Key {
+                key: egui::Key::Z,
+                physical_key: None,
+                pressed,
+                repeat: false,
+                modifiers,
+            });
+            h.run_steps(2);
+        }
+    };
+    key(&mut harness, egui::Modifiers::COMMAND | egui::Modifiers::SHIFT);
+    assert_eq!(blend(&harness), "difference");
+    key(&mut harness, egui::Modifiers::COMMAND);
+    assert_eq!(blend(&harness), "mix");
+    key(&mut harness, egui::Modifiers::COMMAND | egui::Modifiers::SHIFT);
+    assert_eq!(blend(&harness), "difference");
+
     // Switching a pair off refits the warp on the other four.
     harness.get_by_label("Pt-2").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert!(!ready.loaded.pairs[2].active);
     assert_eq!(ready.fitted_pairs(), 4);
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.loaded.pairs[2].active, "undo switches the pair back on");
+    assert_eq!(ready.fitted_pairs(), 5, "and refits");
+    harness.get_by_label("Redo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").fitted_pairs(), 4);
     // Rigid needs at least 4 pairs; with 4 active it fits.
     harness.get_by_label("Method").click();
     harness.run_steps(3);

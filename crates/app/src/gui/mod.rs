@@ -7,6 +7,7 @@
 //! changed, at the interaction sample rate while the camera is being dragged ([`warpbench_gpu::Quality`]).
 
 pub mod demo;
+pub mod history;
 pub mod panels;
 pub mod viewer;
 
@@ -28,6 +29,7 @@ use warpbench_solver::warp::Warp;
 
 use crate::inputs::{self, LandmarkSource};
 use crate::scene;
+use history::{History, LayerLook, Snapshot};
 use panels::ViewSettings;
 use viewer::{Shown, Viewer};
 
@@ -130,6 +132,8 @@ pub struct Ready {
     pub last_render_ms: f64,
     /// Adding a pair by picking.
     pub placing: Placing,
+    /// Undo and redo.
+    pub history: History,
 }
 
 #[derive(Debug)]
@@ -232,7 +236,18 @@ impl Workbench {
             dragging: false,
             last_render_ms: 0.0,
             placing: Placing::Idle,
+            // Replaced just below by the real first state, which needs the rest of `ready`.
+            history: History::new(Snapshot {
+                pairs: Vec::new(),
+                settings: ViewSettings::default(),
+                layers: [LayerLook {
+                    preset: warpbench_gpu::Preset::GreyRamp,
+                    window: warpbench_gpu::Window::from_range(0.0, 1.0),
+                    visible: true,
+                }; 2],
+            }),
         };
+        ready.history = History::new(ready.snapshot());
         ready.refit();
         Ok(ready)
     }
@@ -389,6 +404,42 @@ impl Ready {
         }
     }
 
+    /// What undo restores, as it is now.
+    #[must_use]
+    pub fn snapshot(&self) -> Snapshot {
+        let look = |l: &viewer::Layer| LayerLook { preset: l.preset, window: l.window, visible: l.visible };
+        Snapshot {
+            pairs: self.loaded.pairs.clone(),
+            settings: self.settings.clone(),
+            layers: [look(&self.viewer.fixed), look(&self.viewer.moving)],
+        }
+    }
+
+    /// Puts `s` back: pairs, settings and looks; fits the warp again.
+    fn restore(&mut self, s: &Snapshot) {
+        self.loaded.pairs.clone_from(&s.pairs);
+        self.settings = s.settings.clone();
+        for (layer, look) in [&mut self.viewer.fixed, &mut self.viewer.moving].into_iter().zip(s.layers) {
+            (layer.preset, layer.window, layer.visible) = (look.preset, look.window, look.visible);
+        }
+        self.placing = Placing::Idle;
+        self.refit();
+    }
+
+    /// Undoes the last change (Ctrl+Z).
+    pub fn undo(&mut self) {
+        if let Some(s) = self.history.undo().cloned() {
+            self.restore(&s);
+        }
+    }
+
+    /// Redoes the last undone change (Ctrl+Shift+Z).
+    pub fn redo(&mut self) {
+        if let Some(s) = self.history.redo().cloned() {
+            self.restore(&s);
+        }
+    }
+
     /// Marks the views for re-rendering.
     pub fn invalidate(&mut self) {
         self.dirty = true;
@@ -444,9 +495,25 @@ impl eframe::App for Workbench {
 
 /// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
 fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
+    // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
+    let redo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z);
+    let undo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::Z);
+    if ui.input_mut(|i| i.consume_shortcut(&redo)) {
+        ready.redo();
+    } else if ui.input_mut(|i| i.consume_shortcut(&undo)) {
+        ready.undo();
+    }
     egui::Panel::left("settings").resizable(true).default_size(260.0).show(ui, |ui| {
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading(ready.loaded.title.as_str());
+            ui.horizontal(|ui| {
+                if ui.add_enabled(ready.history.can_undo(), egui::Button::new("Undo")).clicked() {
+                    ready.undo();
+                }
+                if ui.add_enabled(ready.history.can_redo(), egui::Button::new("Redo")).clicked() {
+                    ready.redo();
+                }
+            });
             let change = panels::settings_ui(ui, &mut ready.settings);
             if change.refit {
                 ready.refit();
@@ -571,6 +638,11 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             }
         }
     });
+    // A change becomes an undo step once it has settled (a slider drag is one step).
+    if ready.placing == Placing::Idle && !ui.input(|i| i.pointer.any_down()) {
+        let now = ready.snapshot();
+        ready.history.record(&now);
+    }
     if ready.dirty {
         ui.ctx().request_repaint();
     }

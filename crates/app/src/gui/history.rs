@@ -1,0 +1,118 @@
+//! Undo and redo over everything the user changes: the landmark pairs, the view and warp settings, and each
+//! volume's preset, window and visibility.
+//!
+//! The window records a [`Snapshot`] once a change has settled (no pointer button held, so a slider drag is one
+//! step, not one per frame). [`History::undo`] and [`History::redo`] walk back and forth; a new change after an undo
+//! drops the redo branch, as every editor does.
+
+use warpbench_gpu::{Preset, Window};
+use warpbench_io::landmarks::LandmarkPair;
+
+use super::panels::ViewSettings;
+
+/// One volume's look.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerLook {
+    pub preset: Preset,
+    pub window: Window,
+    pub visible: bool,
+}
+
+/// Everything undo restores.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Snapshot {
+    pub pairs: Vec<LandmarkPair>,
+    pub settings: ViewSettings,
+    pub layers: [LayerLook; 2],
+}
+
+/// Past and future snapshots around the current one.
+#[derive(Clone, Debug)]
+pub struct History {
+    past: Vec<Snapshot>,
+    current: Snapshot,
+    future: Vec<Snapshot>,
+    /// Oldest steps are dropped beyond this.
+    limit: usize,
+}
+
+impl History {
+    #[must_use]
+    pub fn new(current: Snapshot) -> Self {
+        Self { past: Vec::new(), current, future: Vec::new(), limit: 500 }
+    }
+
+    /// Records `now` as a new step if it differs from the current one; returns whether it did.
+    pub fn record(&mut self, now: &Snapshot) -> bool {
+        if *now == self.current {
+            return false;
+        }
+        let previous = std::mem::replace(&mut self.current, now.clone());
+        self.past.push(previous);
+        if self.past.len() > self.limit {
+            self.past.remove(0);
+        }
+        self.future.clear();
+        true
+    }
+
+    /// The state before the current one, which becomes current; `None` at the start.
+    pub fn undo(&mut self) -> Option<&Snapshot> {
+        let previous = self.past.pop()?;
+        let current = std::mem::replace(&mut self.current, previous);
+        self.future.push(current);
+        Some(&self.current)
+    }
+
+    /// The state undone last, which becomes current again; `None` when nothing was undone.
+    pub fn redo(&mut self) -> Option<&Snapshot> {
+        let next = self.future.pop()?;
+        let current = std::mem::replace(&mut self.current, next);
+        self.past.push(current);
+        Some(&self.current)
+    }
+
+    #[must_use]
+    pub fn can_undo(&self) -> bool {
+        !self.past.is_empty()
+    }
+
+    #[must_use]
+    pub fn can_redo(&self) -> bool {
+        !self.future.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn snapshot(n: usize) -> Snapshot {
+        let look = LayerLook { preset: Preset::GreyRamp, window: Window::from_range(0.0, 1.0), visible: true };
+        Snapshot {
+            pairs: (0..n)
+                .map(|i| {
+                    let p = warpbench_io::geometry::Point3::new(i as f64, 0.0, 0.0);
+                    LandmarkPair::new(format!("p{i}"), p, p)
+                })
+                .collect(),
+            settings: ViewSettings::default(),
+            layers: [look; 2],
+        }
+    }
+
+    #[test]
+    fn undo_redo_walk_the_steps_and_a_new_change_drops_the_redo_branch() {
+        let mut h = History::new(snapshot(0));
+        assert!(!h.record(&snapshot(0)), "no change, no step");
+        assert!(h.record(&snapshot(1)) && h.record(&snapshot(2)));
+        assert_eq!(h.undo().map(|s| s.pairs.len()), Some(1));
+        assert_eq!(h.undo().map(|s| s.pairs.len()), Some(0));
+        assert!(h.undo().is_none() && !h.can_undo());
+        assert_eq!(h.redo().map(|s| s.pairs.len()), Some(1));
+        assert!(h.can_redo());
+        assert!(h.record(&snapshot(5)), "a new change after an undo");
+        assert!(!h.can_redo(), "drops the redo branch");
+        assert_eq!(h.undo().map(|s| s.pairs.len()), Some(1));
+    }
+}
