@@ -68,6 +68,25 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     assert_eq!(ready.fitted_pairs(), 5, "the TPS is fitted on the five pairs: {:?}", ready.fit_error);
     assert!(ready.fit_error.is_none());
 
+    // The table's errors: TPS interpolates (residual ~0); every pair has a leave-one-out error.
+    for (i, e) in ready.errors.iter().enumerate() {
+        let e = e.expect("errors for an active pair");
+        assert!(e.residual_mm < 1e-6, "pair {i}: residual {}", e.residual_mm);
+        assert!(e.leave_one_out_mm.is_some_and(|l| l > 0.0 && l < 50.0), "pair {i}: {e:?}");
+    }
+    // Go to a pair: the slices move to its fixed point.
+    harness.get_by_label("Go to Pt-1").click();
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert!((ready.slice_mm[0] - 18.0).abs() < 1e-9 && (ready.slice_mm[2] - 40.0).abs() < 1e-9, "{:?}", ready.slice_mm);
+    // Delete a pair, and undo it.
+    harness.get_by_label("Delete Pt-0").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").fitted_pairs(), 4);
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").fitted_pairs(), 5);
+
     // Blend mode: open the combo box and choose "difference".
     harness.get_by_label("Blend mode").click();
     harness.run_steps(3);

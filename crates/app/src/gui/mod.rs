@@ -24,8 +24,9 @@ use warpbench_gpu::{
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::diagnostics::{leave_one_out, residuals};
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
-use warpbench_solver::warp::Warp;
+use warpbench_solver::warp::{Parallelism, Warp};
 
 use crate::inputs::{self, LandmarkSource};
 use crate::scene;
@@ -134,6 +135,8 @@ pub struct Ready {
     pub placing: Placing,
     /// Undo and redo.
     pub history: History,
+    /// Per pair (aligned with `loaded.pairs`): the fit's residual and leave-one-out error, for the active pairs.
+    pub errors: Vec<Option<panels::PairErrors>>,
 }
 
 #[derive(Debug)]
@@ -236,6 +239,7 @@ impl Workbench {
             dragging: false,
             last_render_ms: 0.0,
             placing: Placing::Idle,
+            errors: Vec::new(),
             // Replaced just below by the real first state, which needs the rest of `ready`.
             history: History::new(Snapshot {
                 pairs: Vec::new(),
@@ -262,13 +266,20 @@ impl Ready {
         let name = panels::METHODS[self.settings.method.min(panels::METHODS.len() - 1)];
         let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
         let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
-        let (moving, fixed): (Vec<_>, Vec<_>) = self
-            .loaded
-            .pairs
+        let used: Vec<usize> = (0..self.loaded.pairs.len())
+            .filter(|&i| {
+                let p = &self.loaded.pairs[i];
+                p.active && p.moving.is_some() && p.fixed.is_some()
+            })
+            .collect();
+        let (moving, fixed): (Vec<_>, Vec<_>) = used
             .iter()
-            .filter(|p| p.active)
-            .filter_map(|p| Some((as_moving(p.moving?), as_fixed(p.fixed?))))
+            .filter_map(|&i| {
+                let p = &self.loaded.pairs[i];
+                Some((as_moving(p.moving?), as_fixed(p.fixed?)))
+            })
             .unzip();
+        self.errors = vec![None; self.loaded.pairs.len()];
         let result = (|| -> anyhow::Result<Fitted> {
             let need = inputs::min_pairs(&method);
             if moving.len() < need {
@@ -288,6 +299,12 @@ impl Ready {
         })();
         match result {
             Ok(fitted) => {
+                // Residuals of the pull-back at the targets, and leave-one-out errors (refits without each pair).
+                let residuals = residuals(fitted.pullback.as_ref(), &fixed, &moving);
+                let loo = leave_one_out(&fixed, &moving, |f, m| method.fit(f, m, fixed_box), Parallelism::Rayon);
+                for ((&i, r), l) in used.iter().zip(residuals).zip(loo) {
+                    self.errors[i] = Some(panels::PairErrors { residual_mm: r, leave_one_out_mm: l });
+                }
                 self.fitted = Some(fitted);
                 self.fit_error = None;
             }
@@ -402,6 +419,16 @@ impl Ready {
             Ok(None) => self.fit_error = Some("the click hit nothing: try another point or probe".into()),
             Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
         }
+    }
+
+    /// Centres the camera and the three slices on pair `i`'s fixed point.
+    pub fn jump_to(&mut self, i: usize) {
+        let Some(q) = self.loaded.pairs.get(i).and_then(|p| p.fixed) else { return };
+        let c = q.coords();
+        self.slice_mm = [c[2], c[1], c[0]];
+        self.camera.target_ref = Vec3::from_array(c.map(|v| v as f32));
+        self.camera.pan_mm = warpbench_gpu::glam::Vec2::ZERO;
+        self.invalidate();
     }
 
     /// What undo restores, as it is now.
@@ -536,8 +563,14 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     Placing::Target { .. } => ui.label("click the fixed volume (target)"),
                 };
             });
-            if panels::landmarks_ui(ui, &mut ready.loaded.pairs) {
-                ready.refit();
+            match panels::landmarks_ui(ui, &mut ready.loaded.pairs, &ready.errors) {
+                panels::LandmarkAction::None => {}
+                panels::LandmarkAction::Refit => ready.refit(),
+                panels::LandmarkAction::Delete(i) => {
+                    ready.loaded.pairs.remove(i);
+                    ready.refit();
+                }
+                panels::LandmarkAction::Jump(i) => ready.jump_to(i),
             }
         });
     });

@@ -209,8 +209,41 @@ pub fn layers_ui(ui: &mut egui::Ui, fixed: &mut Layer, moving: &mut Layer) -> bo
     changed
 }
 
-/// The landmark table: active, name, moving and fixed positions (LPS mm). Returns whether a pair was toggled.
-pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair]) -> bool {
+/// A pair's errors after a fit (mm).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairErrors {
+    /// |u(qᵢ) − pᵢ|: zero for an interpolating warp.
+    pub residual_mm: f64,
+    /// The error at pᵢ of the warp refitted without pair i; `None` when the refit fails (too few pairs left).
+    pub leave_one_out_mm: Option<f64>,
+}
+
+/// What the landmark table asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LandmarkAction {
+    None,
+    /// A pair was switched on or off, or renamed: fit again.
+    Refit,
+    Delete(usize),
+    /// Centre the views on pair i.
+    Jump(usize),
+}
+
+/// Green below 1 mm, amber below 3 mm, red above: how far a pair disagrees with the others.
+fn error_colour(mm: f64) -> egui::Color32 {
+    if mm < 1.0 {
+        egui::Color32::from_rgb(90, 200, 90)
+    } else if mm < 3.0 {
+        egui::Color32::from_rgb(230, 180, 60)
+    } else {
+        egui::Color32::from_rgb(235, 90, 80)
+    }
+}
+
+/// The landmark table: active (with the name), moving and fixed positions (LPS mm), the residual and leave-one-out
+/// error (colour-coded), and per pair a button to centre the views on it and one to delete it; then the mean and
+/// max leave-one-out error and the worst pairs.
+pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Option<PairErrors>]) -> LandmarkAction {
     ui.label(format!("Landmarks ({} pairs)", pairs.len()));
     let fmt = |p: Option<warpbench_io::geometry::Point3<warpbench_io::geometry::Lps>>| {
         p.map_or_else(
@@ -221,19 +254,49 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair]) -> bool {
             },
         )
     };
-    let mut changed = false;
+    let mut action = LandmarkAction::None;
     egui::Grid::new("landmarks").striped(true).show(ui, |ui| {
-        ui.label("pair (on = in the fit)");
-        ui.label("moving (mm)");
-        ui.label("fixed (mm)");
+        for heading in ["pair (on = in the fit)", "moving (mm)", "fixed (mm)", "resid.", "LOO", "", ""] {
+            ui.label(heading);
+        }
         ui.end_row();
-        for pair in pairs.iter_mut() {
+        for (i, pair) in pairs.iter_mut().enumerate() {
             let name = if pair.name.is_empty() { "(unnamed)".to_owned() } else { pair.name.clone() };
-            changed |= ui.checkbox(&mut pair.active, name).changed();
+            if ui.checkbox(&mut pair.active, name).changed() {
+                action = LandmarkAction::Refit;
+            }
             ui.label(fmt(pair.moving));
             ui.label(fmt(pair.fixed));
+            if let Some(e) = errors.get(i).copied().flatten() {
+                ui.colored_label(error_colour(e.residual_mm), format!("{:.2}", e.residual_mm));
+                match e.leave_one_out_mm {
+                    Some(l) => ui.colored_label(error_colour(l), format!("{l:.2}")),
+                    None => ui.label("-"),
+                };
+            } else {
+                ui.label("-");
+                ui.label("-");
+            }
+            if ui.small_button(format!("Go to {}", pair.name)).clicked() {
+                action = LandmarkAction::Jump(i);
+            }
+            if ui.small_button(format!("Delete {}", pair.name)).clicked() {
+                action = LandmarkAction::Delete(i);
+            }
             ui.end_row();
         }
     });
-    changed
+    let mut loo: Vec<(f64, &str)> = errors
+        .iter()
+        .zip(pairs.iter())
+        .filter_map(|(e, p)| Some((e.as_ref()?.leave_one_out_mm?, p.name.as_str())))
+        .collect();
+    if !loo.is_empty() {
+        loo.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mean = loo.iter().map(|(e, _)| e).sum::<f64>() / loo.len() as f64;
+        ui.label(format!("Leave-one-out error: mean {mean:.2} mm, max {:.2} mm", loo[0].0));
+        let worst: Vec<String> = loo.iter().take(3).map(|(e, n)| format!("{n} {e:.2}")).collect();
+        ui.label(format!("Worst: {}", worst.join(", ")));
+    }
+    action
 }
