@@ -39,6 +39,9 @@ struct GuiArgs {
     /// Landmark pairs (BigWarp CSV) to open with them.
     #[arg(long, requires = "fixed")]
     landmarks: Option<PathBuf>,
+    /// A saved session (.warpbench.json) to open: its volumes, landmarks and settings.
+    #[arg(long, conflicts_with_all = ["fixed", "moving", "landmarks"])]
+    session: Option<PathBuf>,
     /// Save a screenshot of the window here, then close (with --exit-after-frames).
     #[arg(long)]
     screenshot: Option<PathBuf>,
@@ -54,6 +57,8 @@ fn run_gui(a: GuiArgs) -> Result<(), Failure> {
         landmarks: a.landmarks.map(LandmarkSource::Pairs),
         exit_after_frames: a.exit_after_frames.or(a.screenshot.is_some().then_some(5)),
         screenshot: a.screenshot,
+        session: a.session,
+        autosave: None,
     };
     gui::run(opts).map_err(Failure::Internal)
 }

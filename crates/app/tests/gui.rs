@@ -59,6 +59,7 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
         fixed: Some(mri()),
         moving: Some(mri()),
         landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        autosave: Some(dir.path().join("autosave.warpbench.json")),
         ..GuiOptions::default()
     };
     let mut harness =
@@ -191,6 +192,7 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
         fixed: Some(mri()),
         moving: Some(mri()),
         landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        autosave: Some(dir.path().join("autosave.warpbench.json")),
         ..GuiOptions::default()
     };
     let mut harness =
@@ -231,4 +233,69 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     let pair = ready.loaded.pairs.last().expect("pair");
     let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
     assert!(inside(pair.moving.expect("source").coords()) && inside(pair.fixed.expect("target").coords()));
+}
+
+#[test]
+fn sessions_save_and_reopen_and_a_crash_is_recovered() {
+    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
+        eprintln!("skipped: no GPU adapter");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        autosave: Some(autosave.clone()),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    assert!(harness.state().recovery.is_none(), "no crashed session to offer");
+    // Change things: the method, a pair switched off, the camera; then save the session.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.settings.method = 4; // rigid
+        ready.loaded.pairs[1].active = false;
+        ready.camera.azimuth_rad = 1.0;
+        ready.refit();
+    }
+    let saved = harness.state().ready().expect("loaded").to_session(true);
+    let session_path = dir.path().join("project.warpbench.json");
+    warpbench_app::gui::session::save(&session_path, &saved).expect("save");
+    // The window autosaves, then "crashes" (no clean exit).
+    harness.state_mut().autosave_now(false);
+    drop(harness);
+
+    // Reopening the project restores it.
+    let opts = GuiOptions {
+        session: Some(session_path),
+        autosave: Some(dir.path().join("other-autosave.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.to_session(true), saved, "the reopened session is the saved one");
+    assert_eq!(ready.fitted_pairs(), 4);
+    drop(harness);
+
+    // A new window on the crashed autosave offers recovery, and recovering brings the pairs back.
+    let opts = GuiOptions { autosave: Some(autosave), ..GuiOptions::default() };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    assert!(harness.state().recovery.is_some(), "a crashed session is offered");
+    wait_until_shown(&mut harness);
+    harness.get_by_label("Recover the last session").click();
+    harness.run_steps(2);
+    wait_until_shown(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(
+        ready.loaded.pairs,
+        saved.landmarks.iter().map(warpbench_app::gui::session::SessionPair::to_pair).collect::<Vec<_>>()
+    );
+    assert_eq!(ready.settings.method().to_string(), "rigid");
 }

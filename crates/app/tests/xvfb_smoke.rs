@@ -26,6 +26,7 @@ fn the_window_shows_the_demo_pair_under_xvfb() {
         .arg(&shot)
         .args(["--exit-after-frames", "3"])
         .env("XDG_RUNTIME_DIR", dir.path())
+        .env("WARPBENCH_STATE_DIR", dir.path())
         .output()
         .expect("run xvfb-run");
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -44,4 +45,9 @@ fn the_window_shows_the_demo_pair_under_xvfb() {
         .filter(|&(x, y)| img.get_pixel(x, y).0[..3].iter().map(|&c| u32::from(c)).sum::<u32>() > 300)
         .count();
     assert!(bright > 5_000, "the 3-D view has only {bright} bright pixels");
+    // The exit was normal: the autosave says so (a crash would leave clean_exit false, and the next start offers
+    // recovery).
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let text = std::fs::read_to_string(&autosave).expect("the window autosaves on exit");
+    assert!(text.contains("\"clean_exit\": true"), "{text}");
 }

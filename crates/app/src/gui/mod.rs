@@ -9,6 +9,7 @@
 pub mod demo;
 pub mod history;
 pub mod panels;
+pub mod session;
 pub mod viewer;
 
 use std::path::PathBuf;
@@ -44,6 +45,10 @@ pub struct GuiOptions {
     /// Save a screenshot of the window here after `exit_after_frames` frames with the pair shown, then close.
     pub screenshot: Option<PathBuf>,
     pub exit_after_frames: Option<u32>,
+    /// A `.warpbench.json` session to open (its volumes, landmarks and settings); overrides the fields above.
+    pub session: Option<PathBuf>,
+    /// Where to autosave (`None`: [`session::autosave_path`]).
+    pub autosave: Option<PathBuf>,
 }
 
 /// The loaded inputs, before they reach the GPU.
@@ -54,12 +59,26 @@ pub struct Loaded {
     pub pairs: Vec<LandmarkPair>,
     /// e.g. "cranium_ct.nii.gz -> ch2.nii.gz (demo)".
     pub title: String,
+    /// The input paths (`None` for the demo pair), for sessions.
+    pub fixed_path: Option<PathBuf>,
+    pub moving_path: Option<PathBuf>,
+    /// The session whose settings apply once the pair is shown.
+    pub session: Option<session::SessionFile>,
 }
 
-/// Loads what `opts` names (the demo pair when it names nothing).
+/// Loads what `opts` names: a session, two volumes (with landmarks), or the demo pair when it names nothing.
 pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
     let name =
         |p: &std::path::Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into());
+    if let Some(path) = &opts.session {
+        let file = session::load(path)?;
+        let mut loaded =
+            load(&GuiOptions { fixed: file.fixed.clone(), moving: file.moving.clone(), ..GuiOptions::default() })?;
+        loaded.pairs = file.landmarks.iter().map(session::SessionPair::to_pair).collect();
+        loaded.title = format!("{} ({})", loaded.title, name(path));
+        loaded.session = Some(file);
+        return Ok(loaded);
+    }
     match (&opts.fixed, &opts.moving) {
         (Some(f), Some(m)) => {
             let fixed = warpbench_io::open(f)?;
@@ -68,20 +87,26 @@ pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
                 Some(source) => source.read().map_err(|e| anyhow!("{:#}", e.error()))?,
                 None => Vec::new(),
             };
-            Ok(Loaded { title: format!("{} -> {}", name(f), name(m)), fixed, moving, pairs })
+            Ok(Loaded {
+                title: format!("{} -> {}", name(f), name(m)),
+                fixed,
+                moving,
+                pairs,
+                fixed_path: Some(f.clone()),
+                moving_path: Some(m.clone()),
+                session: None,
+            })
         }
         (None, None) => {
-            if let Some((f, m)) = demo::demo_paths() {
-                let fixed = warpbench_io::open(&f)?;
-                let moving = warpbench_io::open(&m)?;
-                let pairs = demo::demo_landmarks(&fixed, &moving);
-                Ok(Loaded { title: format!("{} -> {} (demo)", name(&f), name(&m)), fixed, moving, pairs })
+            let (title, fixed, moving) = if let Some((f, m)) = demo::demo_paths() {
+                (format!("{} -> {} (demo)", name(&f), name(&m)), warpbench_io::open(&f)?, warpbench_io::open(&m)?)
             } else {
                 let fixed = demo::phantom(96, 2.0, [0.0; 3], true);
                 let moving = demo::phantom(96, 2.0, [6.0, -4.0, 3.0], false);
-                let pairs = demo::demo_landmarks(&fixed, &moving);
-                Ok(Loaded { title: "phantom CT -> phantom MR (demo)".into(), fixed, moving, pairs })
-            }
+                ("phantom CT -> phantom MR (demo)".to_owned(), fixed, moving)
+            };
+            let pairs = demo::demo_landmarks(&fixed, &moving);
+            Ok(Loaded { title, fixed, moving, pairs, fixed_path: None, moving_path: None, session: None })
         }
         _ => Err(anyhow!("give both a fixed and a moving volume, or neither for the demo pair")),
     }
@@ -137,6 +162,10 @@ pub struct Ready {
     pub history: History,
     /// Per pair (aligned with `loaded.pairs`): the fit's residual and leave-one-out error, for the active pairs.
     pub errors: Vec<Option<panels::PairErrors>>,
+    /// The session and landmark file fields of the side panel.
+    pub files: panels::FileFields,
+    /// The last message of a file action (saved, or the error), shown in the side panel.
+    pub file_message: Option<String>,
 }
 
 #[derive(Debug)]
@@ -146,9 +175,16 @@ enum Phase {
     Ready(Box<Ready>),
 }
 
+/// How often the window autosaves.
+pub const AUTOSAVE_INTERVAL: std::time::Duration = std::time::Duration::from_secs(30);
+
 /// The eframe app.
 pub struct Workbench {
     phase: Phase,
+    autosave_path: PathBuf,
+    last_autosave: std::time::Instant,
+    /// A copy of the autosave a crashed window left, offered for recovery.
+    pub recovery: Option<PathBuf>,
     render_state: Option<eframe::egui_wgpu::RenderState>,
     screenshot: Option<PathBuf>,
     exit_after_frames: Option<u32>,
@@ -169,15 +205,17 @@ impl Workbench {
     /// Starts loading `opts` on a worker thread.
     #[must_use]
     pub fn new(cc: &eframe::CreationContext<'_>, opts: GuiOptions) -> Self {
-        let (tx, rx) = std::sync::mpsc::channel();
-        let ctx = cc.egui_ctx.clone();
-        let load_opts = opts.clone();
-        std::thread::spawn(move || {
-            let _ = tx.send(load(&load_opts));
-            ctx.request_repaint();
+        let autosave_path = opts.autosave.clone().unwrap_or_else(session::autosave_path);
+        // A crashed window's autosave is copied aside before this window's first autosave replaces it.
+        let recovery = session::load(&autosave_path).ok().filter(|s| !s.clean_exit).and_then(|_| {
+            let copy = autosave_path.with_file_name("autosave.recovered.warpbench.json");
+            std::fs::copy(&autosave_path, &copy).ok().map(|_| copy)
         });
         Self {
-            phase: Phase::Loading(rx),
+            phase: Self::start_loading(&cc.egui_ctx, opts.clone()),
+            autosave_path,
+            last_autosave: std::time::Instant::now(),
+            recovery,
             render_state: cc.wgpu_render_state.clone(),
             screenshot: opts.screenshot,
             exit_after_frames: opts.exit_after_frames,
@@ -186,10 +224,38 @@ impl Workbench {
         }
     }
 
+    fn start_loading(ctx: &egui::Context, opts: GuiOptions) -> Phase {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let ctx = ctx.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(load(&opts));
+            ctx.request_repaint();
+        });
+        Phase::Loading(rx)
+    }
+
+    /// Saves the session to the autosave file now (`clean_exit`: this is the last save of a normal exit).
+    pub fn autosave_now(&mut self, clean_exit: bool) {
+        self.last_autosave = std::time::Instant::now();
+        let Phase::Ready(ready) = &self.phase else { return };
+        let file = ready.to_session(clean_exit);
+        if let Err(e) = session::save_creating_folder(&self.autosave_path, &file) {
+            eprintln!("warpbench: autosave to {}: {e:#}", self.autosave_path.display());
+        }
+    }
+
     /// The state once loaded (for tests).
     #[must_use]
     pub fn ready(&self) -> Option<&Ready> {
         match &self.phase {
+            Phase::Ready(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    /// The state once loaded, to change it (for tests).
+    pub fn ready_mut(&mut self) -> Option<&mut Ready> {
+        match &mut self.phase {
             Phase::Ready(r) => Some(r),
             _ => None,
         }
@@ -240,6 +306,8 @@ impl Workbench {
             last_render_ms: 0.0,
             placing: Placing::Idle,
             errors: Vec::new(),
+            files: panels::FileFields::default(),
+            file_message: None,
             // Replaced just below by the real first state, which needs the rest of `ready`.
             history: History::new(Snapshot {
                 pairs: Vec::new(),
@@ -251,6 +319,9 @@ impl Workbench {
                 }; 2],
             }),
         };
+        if let Some(file) = ready.loaded.session.take() {
+            ready.apply_session(&file);
+        }
         ready.history = History::new(ready.snapshot());
         ready.refit();
         Ok(ready)
@@ -431,6 +502,81 @@ impl Ready {
         self.invalidate();
     }
 
+    /// The session as it is now.
+    #[must_use]
+    pub fn to_session(&self, clean_exit: bool) -> session::SessionFile {
+        let s = &self.settings;
+        let layer = |l: &viewer::Layer| session::SessionLayer {
+            preset: crate::scene::PRESET_NAMES
+                [warpbench_gpu::Preset::ALL.iter().position(|p| *p == l.preset).unwrap_or(0)]
+            .to_owned(),
+            window_low: l.window.low(),
+            window_high: l.window.low() + l.window.width,
+            visible: l.visible,
+        };
+        session::SessionFile {
+            schema: session::SCHEMA.to_owned(),
+            fixed: self.loaded.fixed_path.clone(),
+            moving: self.loaded.moving_path.clone(),
+            landmarks: self.loaded.pairs.iter().map(session::SessionPair::from_pair).collect(),
+            settings: session::SessionSettings {
+                blend: warpbench_gpu::BlendMode::ALL[s.blend.min(6)].name().to_owned(),
+                mix_weight: s.mix_weight,
+                checker_mm: s.checker_mm,
+                shading: s.shading.name().to_owned(),
+                samples_per_voxel: s.samples_per_voxel,
+                method: panels::METHODS[s.method.min(panels::METHODS.len() - 1)].to_owned(),
+                stiffness: s.stiffness,
+                bspline_levels: s.bspline_levels,
+                control_texels: s.grid_n,
+                show_landmarks: s.show_landmarks,
+            },
+            layers: [layer(&self.viewer.fixed), layer(&self.viewer.moving)],
+            camera: session::SessionCamera {
+                azimuth_deg: self.camera.azimuth_rad.to_degrees(),
+                elevation_deg: self.camera.elevation_rad.to_degrees(),
+                zoom: self.camera.zoom,
+                target_lps: self.camera.target_ref.to_array(),
+            },
+            slice_mm: self.slice_mm,
+            clean_exit,
+        }
+    }
+
+    /// Applies a session's settings, looks, camera and slices (its pairs are already loaded). Unknown names keep the
+    /// current choice.
+    pub fn apply_session(&mut self, f: &session::SessionFile) {
+        let st = &f.settings;
+        let s = &mut self.settings;
+        if let Some(i) = warpbench_gpu::BlendMode::ALL.iter().position(|b| b.name() == st.blend) {
+            s.blend = i;
+        }
+        if let Some(m) = warpbench_gpu::ShadingMode::ALL.into_iter().find(|m| m.name() == st.shading) {
+            s.shading = m;
+        }
+        if let Some(i) = panels::METHODS.iter().position(|m| *m == st.method) {
+            s.method = i;
+        }
+        (s.mix_weight, s.checker_mm, s.samples_per_voxel) = (st.mix_weight, st.checker_mm, st.samples_per_voxel);
+        (s.stiffness, s.bspline_levels, s.grid_n) = (st.stiffness, st.bspline_levels, st.control_texels.clamp(2, 256));
+        s.show_landmarks = st.show_landmarks;
+        for (layer, look) in [&mut self.viewer.fixed, &mut self.viewer.moving].into_iter().zip(&f.layers) {
+            if let Some(i) = crate::scene::PRESET_NAMES.iter().position(|n| *n == look.preset) {
+                layer.preset = warpbench_gpu::Preset::ALL[i];
+            }
+            if look.window_high > look.window_low {
+                layer.window = warpbench_gpu::Window::from_range(look.window_low, look.window_high);
+            }
+            layer.visible = look.visible;
+        }
+        self.camera.azimuth_rad = f.camera.azimuth_deg.to_radians();
+        self.camera.elevation_rad = f.camera.elevation_deg.to_radians();
+        self.camera.zoom = f.camera.zoom.clamp(0.2, 20.0);
+        self.camera.target_ref = Vec3::from_array(f.camera.target_lps);
+        self.slice_mm = f.slice_mm;
+        self.invalidate();
+    }
+
     /// What undo restores, as it is now.
     #[must_use]
     pub fn snapshot(&self) -> Snapshot {
@@ -474,8 +620,38 @@ impl Ready {
 }
 
 impl eframe::App for Workbench {
+    fn on_exit(&mut self) {
+        self.autosave_now(true);
+    }
+
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.poll_loading();
+        if matches!(self.phase, Phase::Ready(_)) && self.last_autosave.elapsed() >= AUTOSAVE_INTERVAL {
+            self.autosave_now(false);
+        }
+        if let (Some(path), Phase::Ready(_)) = (self.recovery.clone(), &self.phase) {
+            let mut choice = None;
+            egui::Panel::top("recovery").show(ui, |ui| {
+                ui.horizontal(|ui| {
+                    ui.label("The last session did not end normally.");
+                    if ui.button("Recover the last session").clicked() {
+                        choice = Some(true);
+                    }
+                    if ui.button("Discard it").clicked() {
+                        choice = Some(false);
+                    }
+                });
+            });
+            match choice {
+                Some(true) => {
+                    self.recovery = None;
+                    let opts = GuiOptions { session: Some(path), ..GuiOptions::default() };
+                    self.phase = Self::start_loading(ui.ctx(), opts);
+                }
+                Some(false) => self.recovery = None,
+                None => {}
+            }
+        }
         let render_state = self.render_state.clone();
         match &mut self.phase {
             Phase::Loading(_) => {
@@ -571,6 +747,34 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     ready.refit();
                 }
                 panels::LandmarkAction::Jump(i) => ready.jump_to(i),
+            }
+            ui.separator();
+            match panels::files_ui(ui, &mut ready.files) {
+                panels::FileAction::None => {}
+                panels::FileAction::SaveSession(path) => {
+                    let file = ready.to_session(true);
+                    ready.file_message = Some(match session::save(&path, &file) {
+                        Ok(()) => format!("saved {}", path.display()),
+                        Err(e) => format!("{e:#}"),
+                    });
+                }
+                panels::FileAction::ExportLandmarks(path) => {
+                    ready.file_message = Some(match panels::export_landmarks(&path, &ready.loaded.pairs) {
+                        Ok(()) => format!("wrote {}", path.display()),
+                        Err(e) => format!("{e:#}"),
+                    });
+                }
+                panels::FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
+                    Ok(pairs) => {
+                        ready.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
+                        ready.loaded.pairs = pairs;
+                        ready.refit();
+                    }
+                    Err(e) => ready.file_message = Some(format!("{e:#}")),
+                },
+            }
+            if let Some(m) = &ready.file_message {
+                ui.label(m.as_str());
             }
         });
     });

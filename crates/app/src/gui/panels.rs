@@ -300,3 +300,105 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
     }
     action
 }
+
+/// The paths typed into the side panel's file section.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct FileFields {
+    pub session: String,
+    pub landmarks: String,
+}
+
+/// What the file section asks for.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FileAction {
+    None,
+    SaveSession(std::path::PathBuf),
+    ImportLandmarks(std::path::PathBuf),
+    ExportLandmarks(std::path::PathBuf),
+}
+
+/// Session and landmark files: a path field and its buttons each.
+pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> FileAction {
+    let mut action = FileAction::None;
+    let path = |s: &str| std::path::PathBuf::from(s.trim());
+    ui.label("Files");
+    ui.add(egui::TextEdit::singleline(&mut fields.session).hint_text("session.warpbench.json"))
+        .labelled_by(ui.label("Session file").id);
+    if ui.add_enabled(!fields.session.trim().is_empty(), egui::Button::new("Save session")).clicked() {
+        action = FileAction::SaveSession(path(&fields.session));
+    }
+    ui.add(egui::TextEdit::singleline(&mut fields.landmarks).hint_text("pairs.csv, or moving.fcsv"))
+        .labelled_by(ui.label("Landmark file").id);
+    ui.horizontal(|ui| {
+        let enabled = !fields.landmarks.trim().is_empty();
+        if ui.add_enabled(enabled, egui::Button::new("Import landmarks")).clicked() {
+            action = FileAction::ImportLandmarks(path(&fields.landmarks));
+        }
+        if ui.add_enabled(enabled, egui::Button::new("Export landmarks")).clicked() {
+            action = FileAction::ExportLandmarks(path(&fields.landmarks));
+        }
+    });
+    action
+}
+
+/// Writes the pairs as a BigWarp CSV (`.csv`), or as a Slicer pair of point lists for `.mrk.json` / `.fcsv`:
+/// `NAME.mrk.json` becomes `NAME_moving.mrk.json` and `NAME_fixed.mrk.json`.
+pub fn export_landmarks(path: &std::path::Path, pairs: &[LandmarkPair]) -> anyhow::Result<()> {
+    match slicer_pair_paths(path) {
+        Some((moving, fixed)) => warpbench_io::landmarks::write_slicer_pair(&moving, &fixed, pairs)?,
+        None => warpbench_io::landmarks::write_bigwarp_csv(path, pairs)?,
+    }
+    Ok(())
+}
+
+/// Reads pairs from a BigWarp CSV, or from the `_moving` / `_fixed` Slicer lists named like [`export_landmarks`]
+/// writes them.
+pub fn import_landmarks(path: &std::path::Path) -> anyhow::Result<Vec<LandmarkPair>> {
+    Ok(match slicer_pair_paths(path) {
+        Some((moving, fixed)) => warpbench_io::landmarks::read_slicer_pair(&moving, &fixed)?,
+        None => warpbench_io::landmarks::read_bigwarp_csv(path)?,
+    })
+}
+
+/// For a Slicer name (`.mrk.json` or `.fcsv`), the moving and fixed list paths.
+fn slicer_pair_paths(path: &std::path::Path) -> Option<(std::path::PathBuf, std::path::PathBuf)> {
+    let name = path.file_name()?.to_str()?;
+    let lower = name.to_ascii_lowercase();
+    let ext = [".mrk.json", ".fcsv"].into_iter().find(|e| lower.ends_with(e))?;
+    let stem = &name[..name.len() - ext.len()];
+    let with = |side: &str| path.with_file_name(format!("{stem}_{side}{}", &name[name.len() - ext.len()..]));
+    Some((with("moving"), with("fixed")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use warpbench_io::geometry::Point3;
+
+    #[test]
+    fn landmarks_round_trip_through_bigwarp_csv_and_a_slicer_pair() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let pairs = vec![
+            LandmarkPair::new("a", Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)),
+            LandmarkPair {
+                active: false,
+                ..LandmarkPair::new("b", Point3::new(-1.5, 0.0, 2.25), Point3::new(0.0, 1.0, 0.0))
+            },
+        ];
+        for name in ["pairs.csv", "pairs.mrk.json", "pairs.fcsv"] {
+            let path = dir.path().join(name);
+            export_landmarks(&path, &pairs).expect("export");
+            let back = import_landmarks(&path).expect("import");
+            assert_eq!(back.len(), 2, "{name}");
+            for (a, b) in back.iter().zip(&pairs) {
+                let close = |x: Option<Point3<warpbench_io::geometry::Lps>>,
+                             y: Option<Point3<warpbench_io::geometry::Lps>>| {
+                    x.zip(y).is_some_and(|(x, y)| x.distance(&y) < 1e-6)
+                };
+                assert!(close(a.moving, b.moving) && close(a.fixed, b.fixed), "{name}: {a:?} vs {b:?}");
+            }
+        }
+        assert!(dir.path().join("pairs_moving.mrk.json").is_file() && dir.path().join("pairs_fixed.fcsv").is_file());
+        assert!(import_landmarks(&dir.path().join("missing.csv")).is_err());
+    }
+}
