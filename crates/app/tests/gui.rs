@@ -299,3 +299,38 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
     );
     assert_eq!(ready.settings.method().to_string(), "rigid");
 }
+
+#[test]
+fn a_folding_warp_is_flagged_with_its_location() {
+    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
+        eprintln!("skipped: no GPU adapter");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        autosave: Some(dir.path().join("autosave.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 700.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    assert!(harness.state().ready().expect("loaded").jacobian.is_some_and(|j| j.min_det > 0.0), "no folding yet");
+    assert!(harness.query_by_label_contains("the warp folds").is_none());
+    // Two pairs 6 mm apart whose sources cross over (each moves 10 mm past the other): the pull-back folds there.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        let pt = |x: f64| warpbench_io::geometry::Point3::new(x, 18.0, 30.0);
+        ready.loaded.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x1", pt(13.0), pt(0.0)));
+        ready.loaded.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x2", pt(-7.0), pt(6.0)));
+        ready.refit();
+    }
+    harness.run_steps(2);
+    let j = harness.state().ready().expect("loaded").jacobian.expect("a fit");
+    assert!(j.min_det <= 0.0 && j.fraction_folded > 0.0, "{j:?}");
+    // The minimum lies between the crossing pairs.
+    assert!((j.min_at[0] - 3.0).abs() < 15.0 && (j.min_at[2] - 30.0).abs() < 15.0, "{j:?}");
+    harness.get_by_label_contains("the warp folds");
+}

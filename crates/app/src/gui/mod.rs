@@ -25,7 +25,7 @@ use warpbench_gpu::{
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_solver::diagnostics::{leave_one_out, residuals};
+use warpbench_solver::diagnostics::{jacobian_determinants, leave_one_out, residuals};
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::{Parallelism, Warp};
 
@@ -166,6 +166,8 @@ pub struct Ready {
     pub files: panels::FileFields,
     /// The last message of a file action (saved, or the error), shown in the side panel.
     pub file_message: Option<String>,
+    /// The pull-back's Jacobian over the fixed box after the last fit (folding where det ≤ 0).
+    pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
 }
 
 #[derive(Debug)]
@@ -308,6 +310,7 @@ impl Workbench {
             errors: Vec::new(),
             files: panels::FileFields::default(),
             file_message: None,
+            jacobian: None,
             // Replaced just below by the real first state, which needs the rest of `ready`.
             history: History::new(Snapshot {
                 pairs: Vec::new(),
@@ -376,12 +379,16 @@ impl Ready {
                 for ((&i, r), l) in used.iter().zip(residuals).zip(loo) {
                     self.errors[i] = Some(panels::PairErrors { residual_mm: r, leave_one_out_mm: l });
                 }
+                // Folding: det ∇u on a 32³ grid of cells over the fixed volume's box.
+                self.jacobian =
+                    Some(jacobian_determinants(fitted.pullback.as_ref(), &fixed_box, [32; 3], Parallelism::Rayon));
                 self.fitted = Some(fitted);
                 self.fit_error = None;
             }
             Err(e) => {
                 self.viewer.set_control(None);
                 self.fitted = None;
+                self.jacobian = None;
                 self.fit_error = Some(format!("{e:#}"));
             }
         }
@@ -764,6 +771,15 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                         Err(e) => format!("{e:#}"),
                     });
                 }
+                panels::FileAction::Screenshot(path) => {
+                    // The window as it is drawn this frame, saved when the integration hands the pixels over.
+                    ui.ctx().request_screenshot(move |image| {
+                        if let Err(e) = save_png(&path, &image) {
+                            eprintln!("warpbench: {e:#}");
+                        }
+                    });
+                    ready.file_message = Some("screenshot requested".into());
+                }
                 panels::FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
                     Ok(pairs) => {
                         ready.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
@@ -784,6 +800,21 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             ui.separator();
             ui.label(format!("last frame {:.0} ms", ready.last_render_ms));
             ui.separator();
+            if let Some(j) = ready.jacobian.as_ref().filter(|j| j.min_det <= 0.0) {
+                let at = j.min_at;
+                ui.colored_label(
+                    egui::Color32::from_rgb(235, 90, 80),
+                    format!(
+                        "the warp folds: {:.2} % of the box, det {:.2} at ({:.0}, {:.0}, {:.0}) mm",
+                        100.0 * j.fraction_folded,
+                        j.min_det,
+                        at[0],
+                        at[1],
+                        at[2]
+                    ),
+                );
+                ui.separator();
+            }
             match &ready.fit_error {
                 Some(e) => ui.colored_label(egui::Color32::LIGHT_RED, format!("warp off: {e}")),
                 None => ui.label(format!(

@@ -306,6 +306,7 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
 pub struct FileFields {
     pub session: String,
     pub landmarks: String,
+    pub screenshot: String,
 }
 
 /// What the file section asks for.
@@ -315,6 +316,7 @@ pub enum FileAction {
     SaveSession(std::path::PathBuf),
     ImportLandmarks(std::path::PathBuf),
     ExportLandmarks(std::path::PathBuf),
+    Screenshot(std::path::PathBuf),
 }
 
 /// Session and landmark files: a path field and its buttons each.
@@ -338,6 +340,11 @@ pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> FileAction {
             action = FileAction::ExportLandmarks(path(&fields.landmarks));
         }
     });
+    ui.add(egui::TextEdit::singleline(&mut fields.screenshot).hint_text("screenshot.png"))
+        .labelled_by(ui.label("Screenshot file").id);
+    if ui.add_enabled(!fields.screenshot.trim().is_empty(), egui::Button::new("Save screenshot")).clicked() {
+        action = FileAction::Screenshot(path(&fields.screenshot));
+    }
     action
 }
 
