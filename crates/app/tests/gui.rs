@@ -41,6 +41,8 @@ fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
             panic!("loading failed: {e}");
         }
         if harness.state().ready().is_some_and(|r| r.last_render_ms > 0.0) {
+            // A few more frames so the layout settles (clicks go to last frame's positions).
+            harness.run_steps(3);
             return;
         }
         assert!(start.elapsed() < Duration::from_mins(1), "the pair was not shown within a minute");

@@ -826,16 +826,14 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
         });
     });
     let planes = ready.slice_planes();
-    egui::Panel::bottom("slices").resizable(true).default_size(300.0).show(ui, |ui| {
+    let slices_height = (ui.available_height() * 0.4).max(160.0);
+    egui::Panel::bottom("slices").exact_size(slices_height).show(ui, |ui| {
         ui.columns(3, |columns| {
             let names = ["Axial", "Coronal", "Sagittal"];
             for (a, col) in columns.iter_mut().enumerate() {
                 col.label(names[a]);
                 let before = ready.slice_mm[a];
-                col.add(
-                    egui::Slider::new(&mut ready.slice_mm[a], -150.0..=150.0)
-                        .text(format!("{} position (mm)", names[a])),
-                );
+                col.add(egui::Slider::new(&mut ready.slice_mm[a], -150.0..=150.0).text(format!("{} mm", names[a])));
                 if (ready.slice_mm[a] - before).abs() > f64::EPSILON {
                     ready.invalidate();
                 }

@@ -256,7 +256,7 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
     };
     let mut action = LandmarkAction::None;
     egui::Grid::new("landmarks").striped(true).show(ui, |ui| {
-        for heading in ["pair (on = in the fit)", "moving (mm)", "fixed (mm)", "resid.", "LOO", "", ""] {
+        for heading in ["pair (on = in fit)", "moving (mm)", "fixed (mm)", "resid.", "LOO", "", ""] {
             ui.label(heading);
         }
         ui.end_row();
@@ -277,10 +277,17 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
                 ui.label("-");
                 ui.label("-");
             }
-            if ui.small_button(format!("Go to {}", pair.name)).clicked() {
+            // Compact buttons, with full names for screen readers and tests.
+            let go = ui.small_button("go").on_hover_text("Centre the views on this pair");
+            let go_name = format!("Go to {}", pair.name);
+            go.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, &go_name));
+            if go.clicked() {
                 action = LandmarkAction::Jump(i);
             }
-            if ui.small_button(format!("Delete {}", pair.name)).clicked() {
+            let delete = ui.small_button("x").on_hover_text("Delete this pair");
+            let delete_name = format!("Delete {}", pair.name);
+            delete.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, &delete_name));
+            if delete.clicked() {
                 action = LandmarkAction::Delete(i);
             }
             ui.end_row();
