@@ -202,6 +202,18 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     wait_until_shown(&mut harness);
     let axial_mm = harness.state().ready().expect("loaded").slice_mm[0];
 
+    // Without Add pair, a click in a slice moves the other two slices through the clicked point (linked views).
+    let rect = harness.get_by_label("Axial slice").rect();
+    let before = harness.state().ready().expect("loaded").slice_mm;
+    click_at(&mut harness, rect.center() + egui::vec2(rect.width() * 0.2, -rect.height() * 0.1));
+    let after = harness.state().ready().expect("loaded").slice_mm;
+    assert!((after[0] - before[0]).abs() < 1e-9, "the axial plane stays: {before:?} -> {after:?}");
+    assert!(after[2] > before[2] + 5.0, "the sagittal plane moves to the right (+L): {before:?} -> {after:?}");
+    // Rows follow the fixed grid's j axis (here P decreases with j), so a click above the centre is more posterior.
+    assert!(after[1] > before[1] + 2.0, "the coronal plane moves with the click: {before:?} -> {after:?}");
+    harness.run_steps(2);
+    harness.get_by_label_contains("cursor LPS");
+
     // In a slice: the source at the centre of the axial slice, the target a little to its right.
     harness.get_by_label("Add pair").click();
     harness.run_steps(2);

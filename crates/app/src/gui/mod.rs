@@ -168,6 +168,8 @@ pub struct Ready {
     pub file_message: Option<String>,
     /// The pull-back's Jacobian over the fixed box after the last fit (folding where det ≤ 0).
     pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
+    /// The LPS point under the cursor in a slice view, for the status bar.
+    pub cursor_lps: Option<[f64; 3]>,
 }
 
 #[derive(Debug)]
@@ -311,6 +313,7 @@ impl Workbench {
             files: panels::FileFields::default(),
             file_message: None,
             jacobian: None,
+            cursor_lps: None,
             // Replaced just below by the real first state, which needs the rest of `ready`.
             history: History::new(Snapshot {
                 pairs: Vec::new(),
@@ -798,8 +801,16 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
         ui.horizontal(|ui| {
             ui.label(format!("GPU: {}", ready.viewer.ctx.describe()));
             ui.separator();
-            ui.label(format!("last frame {:.0} ms", ready.last_render_ms));
+            ui.label(format!(
+                "last frame {:.0} ms ({:.1} fps)",
+                ready.last_render_ms,
+                1000.0 / ready.last_render_ms.max(1e-3)
+            ));
             ui.separator();
+            if let Some([l, p, s]) = ready.cursor_lps {
+                ui.label(format!("cursor LPS ({l:.1}, {p:.1}, {s:.1}) mm"));
+                ui.separator();
+            }
             if let Some(j) = ready.jacobian.as_ref().filter(|j| j.min_det <= 0.0) {
                 let at = j.min_at;
                 ui.colored_label(
@@ -828,6 +839,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
     let planes = ready.slice_planes();
     let slices_height = (ui.available_height() * 0.4).max(160.0);
     egui::Panel::bottom("slices").exact_size(slices_height).show(ui, |ui| {
+        ready.cursor_lps = None;
         ui.columns(3, |columns| {
             let names = ["Axial", "Coronal", "Sagittal"];
             for (a, col) in columns.iter_mut().enumerate() {
@@ -847,13 +859,35 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     );
                     let label = format!("{} slice", names[a]);
                     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, &label));
+                    // Framebuffer coordinates of the slice image (pixel centres at i + 1/2) to ref mm.
+                    let to_ref = |pos: egui::Pos2| {
+                        let f = (pos - response.rect.min) / scale;
+                        planes[a].ref_from_pixel(f64::from(f.x) - 0.5, f64::from(f.y) - 0.5)
+                    };
+                    if let Some(pos) = response.hover_pos() {
+                        ready.cursor_lps = Some(to_ref(pos));
+                    }
                     if response.clicked()
                         && let Some(pos) = response.interact_pointer_pos()
                     {
-                        // Framebuffer coordinates of the slice image; pixel centres are at i + 1/2.
-                        let f = (pos - response.rect.min) / scale;
-                        let x_ref = planes[a].ref_from_pixel(f64::from(f.x) - 0.5, f64::from(f.y) - 0.5);
-                        ready.place_at_ref(x_ref, None);
+                        let x_ref = to_ref(pos);
+                        if ready.placing == Placing::Idle {
+                            // Linked navigation: the other two slices move through the clicked point.
+                            ready.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
+                            ready.invalidate();
+                        } else {
+                            ready.place_at_ref(x_ref, None);
+                        }
+                    }
+                    // The crosshair: where the other two planes cut this one.
+                    let centre = [ready.slice_mm[2], ready.slice_mm[1], ready.slice_mm[0]];
+                    if let Some(q) = planes[a].pixel_from_ref(centre) {
+                        let p =
+                            response.rect.min + egui::vec2((q[0] as f32 + 0.5) * scale, (q[1] as f32 + 0.5) * scale);
+                        let stroke = egui::Stroke::new(1.0, egui::Color32::from_rgba_unmultiplied(255, 230, 90, 160));
+                        let painter = col.painter_at(response.rect);
+                        painter.hline(response.rect.x_range(), p.y, stroke);
+                        painter.vline(p.x, response.rect.y_range(), stroke);
                     }
                 }
             }
