@@ -150,15 +150,9 @@ enum BackendArg {
     Gpu,
 }
 
+/// The landmarks and the warp method, shared by `warp`, `field` and `render`.
 #[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct WarpArgs {
-    /// The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume, resampled.
-    #[arg(long)]
-    moving: PathBuf,
+struct PairArgs {
     /// Landmark pairs (BigWarp CSV, moving then fixed coordinates, LPS mm).
     #[arg(long)]
     landmarks: Option<PathBuf>,
@@ -177,6 +171,33 @@ struct WarpArgs {
     /// Hierarchical B-spline levels.
     #[arg(long)]
     levels: Option<usize>,
+}
+
+impl PairArgs {
+    /// The landmark source, if any was given.
+    fn source(&self) -> Result<Option<LandmarkSource>, Failure> {
+        LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
+    }
+
+    /// The landmark source, which this subcommand needs.
+    fn required_source(&self) -> Result<LandmarkSource, Failure> {
+        self.source()?.ok_or_else(|| {
+            Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
+        })
+    }
+}
+
+#[derive(Debug, clap::Args)]
+#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
+struct WarpArgs {
+    /// The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder.
+    #[arg(long)]
+    fixed: PathBuf,
+    /// The moving volume, resampled.
+    #[arg(long)]
+    moving: PathBuf,
+    #[command(flatten)]
+    pairs: PairArgs,
     /// Control-texture texels per axis over the output grid (2..=256).
     #[arg(long, default_value_t = 64, conflicts_with = "exact")]
     grid: usize,
@@ -216,16 +237,14 @@ struct WarpArgs {
 }
 
 fn run_warp(a: WarpArgs) -> Result<(), Failure> {
-    let landmarks = LandmarkSource::from_args(a.landmarks, a.moving_points, a.fixed_points)?.ok_or_else(|| {
-        Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
-    })?;
+    let landmarks = a.pairs.required_source()?;
     let opts = WarpOptions {
         fixed: a.fixed,
         moving: a.moving,
         landmarks,
-        method: a.method,
-        stiffness: a.stiffness,
-        levels: a.levels,
+        method: a.pairs.method,
+        stiffness: a.pairs.stiffness,
+        levels: a.pairs.levels,
         pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
         interpolation: match a.interp {
             InterpArg::Nearest => Interpolation::Nearest,
@@ -280,24 +299,8 @@ struct RenderArgs {
     /// The moving volume, shown deformed by the landmark warp.
     #[arg(long)]
     moving: Option<PathBuf>,
-    /// Landmark pairs (BigWarp CSV, moving then fixed coordinates, LPS mm).
-    #[arg(long)]
-    landmarks: Option<PathBuf>,
-    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
-    #[arg(long)]
-    moving_points: Option<PathBuf>,
-    /// Slicer point list of the fixed points, matched to --moving-points by order.
-    #[arg(long)]
-    fixed_points: Option<PathBuf>,
-    /// The warp: tps, hbspline, affine, similarity or rigid.
-    #[arg(long, default_value = "tps")]
-    method: String,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
-    #[arg(long, default_value_t = 0.0)]
-    stiffness: f64,
-    /// Hierarchical B-spline levels.
-    #[arg(long)]
-    levels: Option<usize>,
+    #[command(flatten)]
+    pairs: PairArgs,
     /// Control-texture texels per axis over the fixed box (2..=256).
     #[arg(long, default_value_t = 64)]
     grid: usize,
@@ -357,24 +360,8 @@ struct FieldArgs {
     /// The moving volume (landmarks are checked against it).
     #[arg(long)]
     moving: PathBuf,
-    /// Landmark pairs (BigWarp CSV, moving then fixed coordinates, LPS mm).
-    #[arg(long)]
-    landmarks: Option<PathBuf>,
-    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
-    #[arg(long)]
-    moving_points: Option<PathBuf>,
-    /// Slicer point list of the fixed points, matched to --moving-points by order.
-    #[arg(long)]
-    fixed_points: Option<PathBuf>,
-    /// The warp: tps, hbspline, affine, similarity or rigid.
-    #[arg(long, default_value = "tps")]
-    method: String,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
-    #[arg(long, default_value_t = 0.0)]
-    stiffness: f64,
-    /// Hierarchical B-spline levels.
-    #[arg(long)]
-    levels: Option<usize>,
+    #[command(flatten)]
+    pairs: PairArgs,
     /// Sample the field on this volume's grid instead of the fixed volume's.
     #[arg(long)]
     reference: Option<PathBuf>,
@@ -396,16 +383,14 @@ struct FieldArgs {
 }
 
 fn run_field(a: FieldArgs) -> Result<(), Failure> {
-    let landmarks = LandmarkSource::from_args(a.landmarks, a.moving_points, a.fixed_points)?.ok_or_else(|| {
-        Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
-    })?;
+    let landmarks = a.pairs.required_source()?;
     let opts = FieldOptions {
         fixed: a.fixed,
         moving: a.moving,
         landmarks,
-        method: a.method,
-        stiffness: a.stiffness,
-        levels: a.levels,
+        method: a.pairs.method,
+        stiffness: a.pairs.stiffness,
+        levels: a.pairs.levels,
         reference: a.reference,
         out: OutputFile { path: a.out, force: a.force },
         tfm: a.tfm,
@@ -427,14 +412,14 @@ fn run_field(a: FieldArgs) -> Result<(), Failure> {
 }
 
 fn run_render(a: RenderArgs) -> Result<(), Failure> {
-    let landmarks = LandmarkSource::from_args(a.landmarks, a.moving_points, a.fixed_points)?;
+    let landmarks = a.pairs.source()?;
     let opts = RenderOptions {
         fixed: a.fixed,
         moving: a.moving,
         landmarks,
-        method: a.method,
-        stiffness: a.stiffness,
-        levels: a.levels,
+        method: a.pairs.method,
+        stiffness: a.pairs.stiffness,
+        levels: a.pairs.levels,
         grid: a.grid,
         blend: a.blend,
         mix_weight: a.mix_weight,

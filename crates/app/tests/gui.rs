@@ -50,23 +50,37 @@ fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
     }
 }
 
-#[test]
-fn loads_a_pair_renders_it_and_follows_the_controls() {
-    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
+/// Whether there is no GPU adapter (the test is then skipped, unless REQUIRE_GPU_ADAPTER is set).
+fn no_adapter() -> bool {
+    let missing = std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err();
+    if missing {
         eprintln!("skipped: no GPU adapter");
-        return;
     }
-    let dir = tempfile::tempdir().expect("tempdir");
+    missing
+}
+
+/// A window of `size` on the MRI fixture as fixed and moving, with the five pairs of [`pairs`] and an autosave in
+/// `dir`, stepped until the pair is shown.
+fn open_mri_pair(dir: &Path, size: egui::Vec2) -> Harness<'static, Workbench> {
     let opts = GuiOptions {
         fixed: Some(mri()),
         moving: Some(mri()),
-        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
-        autosave: Some(dir.path().join("autosave.warpbench.json")),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir))),
+        autosave: Some(dir.join("autosave.warpbench.json")),
         ..GuiOptions::default()
     };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = Harness::builder().with_size(size).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
     wait_until_shown(&mut harness);
+    harness
+}
+
+#[test]
+fn loads_a_pair_renders_it_and_follows_the_controls() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.fitted_pairs(), 5, "the TPS is fitted on the five pairs: {:?}", ready.fit_error);
     assert!(ready.fit_error.is_none());
@@ -185,21 +199,11 @@ fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
 
 #[test]
 fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
-    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
-        eprintln!("skipped: no GPU adapter");
+    if no_adapter() {
         return;
     }
     let dir = tempfile::tempdir().expect("tempdir");
-    let opts = GuiOptions {
-        fixed: Some(mri()),
-        moving: Some(mri()),
-        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
-        autosave: Some(dir.path().join("autosave.warpbench.json")),
-        ..GuiOptions::default()
-    };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
-    wait_until_shown(&mut harness);
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
     let axial_mm = harness.state().ready().expect("loaded").slice_mm[0];
 
     // Without Add pair, a click in a slice moves the other two slices through the clicked point (linked views).
@@ -251,8 +255,7 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
 
 #[test]
 fn sessions_save_and_reopen_and_a_crash_is_recovered() {
-    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
-        eprintln!("skipped: no GPU adapter");
+    if no_adapter() {
         return;
     }
     let dir = tempfile::tempdir().expect("tempdir");
@@ -316,21 +319,11 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
 
 #[test]
 fn a_folding_warp_is_flagged_with_its_location() {
-    if std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err() {
-        eprintln!("skipped: no GPU adapter");
+    if no_adapter() {
         return;
     }
     let dir = tempfile::tempdir().expect("tempdir");
-    let opts = GuiOptions {
-        fixed: Some(mri()),
-        moving: Some(mri()),
-        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
-        autosave: Some(dir.path().join("autosave.warpbench.json")),
-        ..GuiOptions::default()
-    };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(1100.0, 700.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
-    wait_until_shown(&mut harness);
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 700.0));
     assert!(harness.state().ready().expect("loaded").jacobian.is_some_and(|j| j.min_det > 0.0), "no folding yet");
     assert!(harness.query_by_label_contains("the warp folds").is_none());
     // Two pairs 6 mm apart whose sources cross over (each moves 10 mm past the other): the pull-back folds there.
