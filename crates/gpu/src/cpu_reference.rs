@@ -235,6 +235,17 @@ pub fn blend(u: &RaycastUniforms, f: Vec4, m: Vec4, x_ref: Vec3) -> Vec4 {
     }
 }
 
+/// The span [t_enter, t_far] of the ray `origin + t·dir` inside the frame's proxy box (slab test, t ≥ 0), or `None`
+/// when it misses, including a NaN t_far (a ray parallel to a face, outside its slab), as the shaders decide.
+fn proxy_span(u: &RaycastUniforms, origin: Vec3, dir: Vec3) -> Option<(f32, f32)> {
+    let inv_dir = dir.recip();
+    let t0 = (Vec3::from_array(u.box_min_ref) - origin) * inv_dir;
+    let t1 = (Vec3::from_array(u.box_max_ref) - origin) * inv_dir;
+    let t_far = t0.max(t1).min_element();
+    let t_enter = t0.min(t1).max_element().max(0.0);
+    (t_far > t_enter).then_some((t_enter, t_far))
+}
+
 /// Premultiplied RGBA (not yet quantised) of the pixel whose centre is at `pixel_centre` (framebuffer coordinates,
 /// y down, (x + ½, y + ½)).
 #[must_use]
@@ -271,15 +282,7 @@ pub fn shade_pixel_with_hit(
     let far_h = ref_from_clip * Vec4::new(ndc[0], ndc[1], 1.0, 1.0);
     let origin = near_h.truncate() / near_h.w;
     let dir = (far_h.truncate() / far_h.w - origin).normalize();
-    let inv_dir = dir.recip();
-    let t0 = (Vec3::from_array(u.box_min_ref) - origin) * inv_dir;
-    let t1 = (Vec3::from_array(u.box_max_ref) - origin) * inv_dir;
-    let t_near = t0.min(t1).max_element();
-    let t_far = t0.max(t1).min_element();
-    let t_enter = t_near.max(0.0);
-    if t_far <= t_enter || t_far.is_nan() {
-        return (Vec4::ZERO, NO_HIT_DEPTH);
-    }
+    let Some((t_enter, t_far)) = proxy_span(u, origin, dir) else { return (Vec4::ZERO, NO_HIT_DEPTH) };
     let jitter = if u.flags & RAYCAST_JITTER != 0 {
         let (px, py) = (pixel_centre[0] as u32, pixel_centre[1] as u32);
         let h = pcg_hash(px.wrapping_add(pcg_hash(py.wrapping_add(pcg_hash(u.jitter_seed)))));
@@ -404,16 +407,8 @@ pub fn pick(
         acc + (1.0 - acc) * (1.0 - (len_mm / u.ref_step_mm * (1.0 - alpha).max(1e-7).log2()).exp2())
     };
     let (origin, dir) = (Vec3::from_array(ray.origin_ref), Vec3::from_array(ray.dir_ref));
-    let inv_dir = dir.recip();
-    let t0 = (Vec3::from_array(u.box_min_ref) - origin) * inv_dir;
-    let t1 = (Vec3::from_array(u.box_max_ref) - origin) * inv_dir;
-    let t_far = t0.max(t1).min_element();
-    let t_enter = t0.min(t1).max_element().max(0.0);
     let miss = PickHit::miss(request.target);
-    // Also a miss when t_far is NaN (a ray parallel to a face, outside the slab), as in the shader.
-    if t_far.is_nan() || t_far <= t_enter {
-        return miss;
-    }
+    let Some((t_enter, t_far)) = proxy_span(u, origin, dir) else { return miss };
     let (mut t_prev, mut acc) = (-1.0f32, 0.0f32);
     for k in 0..u.max_steps {
         let t = t_enter + k as f32 * u.step_mm;
