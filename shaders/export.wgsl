@@ -94,7 +94,7 @@ fn tps_displacement(x: vec3<f32>) -> vec3<f32> {
     );
     for (var n = 0u; n < u.centre_count; n++) {
         let e = x - tps_terms[2u * n].xyz;
-        let r = sqrt((e.x * e.x + e.y * e.y) + e.z * e.z);
+        let r = sqrt(e.x * e.x + (e.y * e.y + e.z * e.z));
         d += tps_terms[2u * n + 1u].xyz * r;
     }
     return d;

@@ -103,7 +103,7 @@ pub struct TpsLocal {
 
 impl TpsLocal {
     /// The displacement u(o + x′) − (o + x′) in f32, with the GPU's order of operations (affine, then centres in
-    /// order).
+    /// order; squared distances as dx² + (dy² + dz²), which lets the CPU export reuse dy² + dz² along a row).
     #[must_use]
     pub fn displacement(&self, x_local: [f32; 3]) -> [f32; 3] {
         let l = &self.linear_minus_identity;
@@ -112,7 +112,7 @@ impl TpsLocal {
         });
         for (p, w) in self.centres_local.iter().zip(&self.weights) {
             let (dx, dy, dz) = (x_local[0] - p[0], x_local[1] - p[1], x_local[2] - p[2]);
-            let r = (dx * dx + dy * dy + dz * dz).sqrt();
+            let r = (dx * dx + (dy * dy + dz * dz)).sqrt();
             for c in 0..3 {
                 d[c] += w[c] * r;
             }

@@ -1,8 +1,13 @@
 //! The CPU path of the export: rayon over the z-slices of each slab, one target row at a time in two steps (the
 //! row's source positions, then the samples). The arithmetic is `shaders/export.wgsl`'s, operation for operation:
 //! affine maps as ((m₃ + j·m₁) + k·m₂) + i·m₀, lerps as a + f·(b − a), Catmull-Rom sums left to right, the TPS's
-//! terms in order (eight voxels at a time, lane by lane, which keeps each voxel's order and lets the compiler use
-//! SIMD).
+//! terms in order (a block of voxels at a time, lane by lane, which keeps each voxel's order and lets the compiler
+//! use SIMD; see [`tps_row`]).
+
+#![allow(
+    clippy::inline_always,
+    reason = "the row code must be inlined into `fill_row_avx2` to be compiled with its target features"
+)]
 
 use rayon::prelude::*;
 
@@ -10,9 +15,6 @@ use super::{Acc, report, try_zeroed, with_samples};
 use super::{ExportRequest, ExportedVolume, Interpolation, OutputType, Plan, PlanPullBack, Progress, Sample};
 use crate::error::Result;
 use crate::pullback::TpsLocal;
-
-/// Voxels evaluated together by the TPS kernel.
-const LANES: usize = 8;
 
 /// Resamples `request` on the calling thread and rayon's pool, calling `progress` after each slab (see the module
 /// docs of [`crate::export`]); `false` from `progress` cancels with [`crate::GpuError::Cancelled`].
@@ -45,13 +47,13 @@ fn run<S: Sample, O: Sample>(plan: &Plan, source: &[S], progress: &mut dyn FnMut
     let [nx, ny, nz] = plan.target_dims;
     let slab = plan.slab_slices.unwrap_or_else(default_slab_slices).clamp(1, nz);
     let outside = O::from_f64(plan.outside_value);
+    let isa = Isa::detect();
     for (s, chunk) in out.chunks_mut(slab * nx * ny).enumerate() {
         chunk.par_chunks_mut(nx * ny).enumerate().for_each(|(dk, slice)| {
             let k = s * slab + dk;
             let mut scratch = RowScratch::new(nx);
             for (j, row) in slice.chunks_mut(nx).enumerate() {
-                scratch.positions(plan, j, k);
-                sample_row(plan.interpolation, source, plan.source_dims, &scratch.source_index, row, outside);
+                fill_row(isa, plan, source, &mut scratch, row, [j, k], outside);
             }
         });
         report(progress, ((s + 1) * slab).min(nz), nz)?;
@@ -59,65 +61,155 @@ fn run<S: Sample, O: Sample>(plan: &Plan, source: &[S], progress: &mut dyn FnMut
     Ok(out)
 }
 
-/// Per-thread buffers of one row.
+/// The instruction set the row loops are built for, detected once per export.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Isa {
+    /// The target's baseline (SSE2 on x86-64).
+    Portable,
+    /// x86-64 with AVX2 and FMA: the row loops in an AVX2 build, and the TPS kernel of [`simd`].
+    #[cfg(target_arch = "x86_64")]
+    Avx2Fma,
+}
+
+impl Isa {
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+                return Self::Avx2Fma;
+            }
+        }
+        Self::Portable
+    }
+}
+
+/// Writes target row (j, k): its source positions, then its samples. The work is SIMD-friendly loops over the row,
+/// so with [`Isa::Avx2Fma`] it runs in an AVX2 build of the same code.
+fn fill_row<S: Sample, O: Sample>(
+    isa: Isa,
+    plan: &Plan,
+    source: &[S],
+    scratch: &mut RowScratch,
+    row: &mut [O],
+    jk: [usize; 2],
+    outside: O,
+) {
+    match isa {
+        Isa::Portable => fill_row_portable(isa, plan, source, scratch, row, jk, outside),
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2Fma => {
+            #[allow(unsafe_code, reason = "runtime dispatch to the AVX2 build of the same safe code")]
+            // SAFETY: the only requirement of a `target_feature` function is that the CPU has the features, and
+            // `Isa::detect` found them.
+            unsafe {
+                fill_row_avx2(isa, plan, source, scratch, row, jk, outside);
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fill_row_avx2<S: Sample, O: Sample>(
+    isa: Isa,
+    plan: &Plan,
+    source: &[S],
+    scratch: &mut RowScratch,
+    row: &mut [O],
+    jk: [usize; 2],
+    outside: O,
+) {
+    fill_row_portable(isa, plan, source, scratch, row, jk, outside);
+}
+
+#[inline(always)]
+fn fill_row_portable<S: Sample, O: Sample>(
+    isa: Isa,
+    plan: &Plan,
+    source: &[S],
+    scratch: &mut RowScratch,
+    row: &mut [O],
+    [j, k]: [usize; 2],
+    outside: O,
+) {
+    scratch.positions(isa, plan, j, k);
+    let [sx, sy, sz] = &scratch.source_index;
+    sample_row(plan.interpolation, source, plan.source_dims, [sx, sy, sz], row, outside);
+}
+
+/// Per-thread buffers of one row, as structure of arrays (one `Vec` per axis) so that the row loops vectorise.
 struct RowScratch {
-    source_index: Vec<[f32; 3]>,
-    pullback_at: Vec<[f32; 3]>,
-    displacement: Vec<[f32; 3]>,
+    /// Continuous source index of each voxel.
+    source_index: [Vec<f32>; 3],
+    /// Where the pull-back is evaluated: each voxel in the pull-back's local mm.
+    pullback_at: [Vec<f32>; 3],
+    /// The pull-back's displacement at each voxel, local mm.
+    displacement: [Vec<f32>; 3],
 }
 
 /// ((m₃ + j·m₁) + k·m₂): the part of an affine map (columns) that is constant along a row.
-#[inline]
+#[inline(always)]
 fn row_base(m: &[[f32; 4]; 4], j: f32, k: f32) -> [f32; 3] {
     std::array::from_fn(|r| (m[3][r] + j * m[1][r]) + k * m[2][r])
 }
 
-#[inline]
-fn along_row(base: [f32; 3], m: &[[f32; 4]; 4], i: f32) -> [f32; 3] {
-    std::array::from_fn(|r| base[r] + i * m[0][r])
+/// base + i·m₀ for i = 0, 1, …, per axis: the row's positions under the affine map m.
+#[inline(always)]
+fn along_row(base: [f32; 3], m: &[[f32; 4]; 4], out: &mut [Vec<f32>; 3]) {
+    for (r, o) in out.iter_mut().enumerate() {
+        for (i, v) in o.iter_mut().enumerate() {
+            *v = base[r] + i as f32 * m[0][r];
+        }
+    }
 }
 
 impl RowScratch {
     fn new(nx: usize) -> Self {
-        Self { source_index: vec![[0.0; 3]; nx], pullback_at: vec![[0.0; 3]; nx], displacement: vec![[0.0; 3]; nx] }
+        let row = || std::array::from_fn(|_| vec![0.0; nx]);
+        Self { source_index: row(), pullback_at: row(), displacement: row() }
     }
 
     /// The continuous source index of every voxel of row (j, k) (steps 1 and 2 of the module docs).
-    fn positions(&mut self, plan: &Plan, j: usize, k: usize) {
+    #[inline(always)]
+    fn positions(&mut self, isa: Isa, plan: &Plan, j: usize, k: usize) {
         let (jf, kf) = (j as f32, k as f32);
         let m = &plan.source_index_from_target_index;
-        let base = row_base(m, jf, kf);
-        for (i, s) in self.source_index.iter_mut().enumerate() {
-            *s = along_row(base, m, i as f32);
-        }
+        along_row(row_base(m, jf, kf), m, &mut self.source_index);
         if matches!(plan.pullback, PlanPullBack::Identity) {
             return;
         }
         let p = &plan.pullback_from_target_index;
-        let base = row_base(p, jf, kf);
-        for (i, x) in self.pullback_at.iter_mut().enumerate() {
-            *x = along_row(base, p, i as f32);
-        }
+        along_row(row_base(p, jf, kf), p, &mut self.pullback_at);
+        let [x, y, z] = &self.pullback_at;
         match &plan.pullback {
             PlanPullBack::Identity => {}
             PlanPullBack::Control { dims, texels } => {
                 let mut cursor = ControlCursor::new(*dims, texels);
-                for (d, c) in self.displacement.iter_mut().zip(&self.pullback_at) {
-                    *d = cursor.displacement(*c);
+                for (i, ((x, y), z)) in x.iter().zip(y).zip(z).enumerate() {
+                    let d = cursor.displacement([*x, *y, *z]);
+                    for (a, da) in self.displacement.iter_mut().enumerate() {
+                        da[i] = d[a];
+                    }
                 }
             }
-            PlanPullBack::Tps(tps) => tps_displacements(tps, &self.pullback_at, &mut self.displacement),
+            PlanPullBack::Tps(tps) => {
+                // The row runs along local x only when the map's first column has no y and z part; then every
+                // voxel's y and z are exactly base + i·0.
+                let along_x = p[0][1] == 0.0 && p[0][2] == 0.0;
+                tps_row(tps, [x, y, z], along_x, isa, &mut self.displacement);
+            }
         }
         let l = &plan.source_index_from_lps;
-        for (s, d) in self.source_index.iter_mut().zip(&self.displacement) {
-            for r in 0..3 {
-                s[r] += (l[0][r] * d[0] + l[1][r] * d[1]) + l[2][r] * d[2];
+        let [d0, d1, d2] = &self.displacement;
+        for (r, s) in self.source_index.iter_mut().enumerate() {
+            for (s, ((d0, d1), d2)) in s.iter_mut().zip(d0.iter().zip(d1).zip(d2)) {
+                *s += (l[0][r] * d0 + l[1][r] * d1) + l[2][r] * d2;
             }
         }
     }
 }
 
-#[inline]
+#[inline(always)]
 fn lerp3(a: [f32; 4], b: [f32; 4], f: f32) -> [f32; 4] {
     std::array::from_fn(|r| a[r] + f * (b[r] - a[r]))
 }
@@ -137,7 +229,7 @@ impl<'a> ControlCursor<'a> {
         Self { dims, texels, cell: usize::MAX, corners: [[0.0; 4]; 8] }
     }
 
-    #[inline]
+    #[inline(always)]
     pub(crate) fn displacement(&mut self, c: [f32; 3]) -> [f32; 3] {
         let dims = self.dims;
         let mut i0 = [0usize; 3];
@@ -176,44 +268,123 @@ impl<'a> ControlCursor<'a> {
     }
 }
 
-/// [`TpsLocal::displacement`] at every point of `xs` (local mm), `LANES` voxels at a time with each voxel's
-/// operations in the same order.
-pub(crate) fn tps_displacements(tps: &TpsLocal, xs: &[[f32; 3]], out: &mut [[f32; 3]]) {
-    let l = &tps.linear_minus_identity;
-    let o = &tps.offset_mm;
-    for (chunk, dst) in xs.chunks(LANES).zip(out.chunks_mut(LANES)) {
-        let mut x = [[0.0f32; LANES]; 3];
-        for (lane, p) in chunk.iter().enumerate() {
-            for a in 0..3 {
-                x[a][lane] = p[a];
+/// [`TpsLocal::displacement`] at the voxels (x, y, z)ᵢ of one row (local mm, structure of arrays).
+///
+/// The cost is N square roots per voxel, so the kernel is built for them: each centre is one pass over the row (a
+/// loop the compiler vectorises, square roots included), and when the row runs along x (`along_x`: all y equal, all z
+/// equal, as on the usual axis-aligned target grid) each centre's dy² + dz² is computed once per row, which is why the
+/// canonical order of the squared distance is dx² + (dy² + dz²). With [`Isa::Portable`] the result equals
+/// [`TpsLocal::displacement`] bit for bit; rows along x with [`Isa::Avx2Fma`] go through [`simd::centres_along_x`]
+/// instead (square roots from the reciprocal-square-root estimate and a Newton step, fused multiply-adds), which
+/// agrees to about one f32 rounding per term.
+#[inline(always)]
+pub(crate) fn tps_row(tps: &TpsLocal, [x, y, z]: [&[f32]; 3], along_x: bool, isa: Isa, out: &mut [Vec<f32>; 3]) {
+    let n = x.len();
+    let (y, z) = (&y[..n], &z[..n]);
+    let (l, o) = (&tps.linear_minus_identity, &tps.offset_mm);
+    for (r, dr) in out.iter_mut().enumerate() {
+        for (d, ((x, y), z)) in dr[..n].iter_mut().zip(x.iter().zip(y).zip(z)) {
+            *d = ((l[r][0] * x + l[r][1] * y) + l[r][2] * z) + o[r];
+        }
+    }
+    let [d0, d1, d2] = out;
+    let (d0, d1, d2) = (&mut d0[..n], &mut d1[..n], &mut d2[..n]);
+    if n == 0 {
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
+    if along_x && isa == Isa::Avx2Fma {
+        #[allow(unsafe_code, reason = "a kernel built for AVX2 and FMA")]
+        // SAFETY: `Isa::Avx2Fma` is only detected on CPUs with AVX2 and FMA.
+        unsafe {
+            simd::centres_along_x(tps, x, [y[0], z[0]], [d0, d1, d2]);
+        }
+        return;
+    }
+    let _ = isa;
+    for (p, w) in tps.centres_local.iter().zip(&tps.weights) {
+        let accumulate = |((d0, d1), d2): ((&mut f32, &mut f32), &mut f32), radius: f32| {
+            *d0 += w[0] * radius;
+            *d1 += w[1] * radius;
+            *d2 += w[2] * radius;
+        };
+        let d = d0.iter_mut().zip(d1.iter_mut()).zip(d2.iter_mut());
+        if along_x {
+            let (dy, dz) = (y[0] - p[1], z[0] - p[2]);
+            let yz = dy * dy + dz * dz;
+            for (d, x) in d.zip(x) {
+                let dx = x - p[0];
+                accumulate(d, (dx * dx + yz).sqrt());
+            }
+        } else {
+            for (d, ((x, y), z)) in d.zip(x.iter().zip(y).zip(z)) {
+                let (dx, dy, dz) = (x - p[0], y - p[1], z - p[2]);
+                accumulate(d, (dx * dx + (dy * dy + dz * dz)).sqrt());
             }
         }
-        let mut d = [[0.0f32; LANES]; 3];
-        for r in 0..3 {
-            for lane in 0..LANES {
-                d[r][lane] = ((l[r][0] * x[0][lane] + l[r][1] * x[1][lane]) + l[r][2] * x[2][lane]) + o[r];
-            }
-        }
-        for (p, w) in tps.centres_local.iter().zip(&tps.weights) {
-            let mut radius = [0.0f32; LANES];
-            for lane in 0..LANES {
-                let (dx, dy, dz) = (x[0][lane] - p[0], x[1][lane] - p[1], x[2][lane] - p[2]);
-                radius[lane] = ((dx * dx + dy * dy) + dz * dz).sqrt();
-            }
-            for r in 0..3 {
-                for lane in 0..LANES {
-                    d[r][lane] += w[r] * radius[lane];
+    }
+}
+
+/// The TPS kernel for x86-64 with AVX2 and FMA.
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    use std::arch::x86_64::{__m256, _mm256_fmadd_ps, _mm256_set1_ps, _mm256_sqrt_ps, _mm256_sub_ps};
+
+    use crate::pullback::TpsLocal;
+
+    /// Voxels per block: two registers, so that a block's six accumulators, its positions and one centre's
+    /// broadcasts stay in the sixteen registers for the whole loop over the centres.
+    const BLOCK: usize = 16;
+
+    /// Adds Σᵢ wᵢ ‖x − pᵢ‖ to `d` along a row whose voxels share y and z (`yz`), 16 voxels at a time with the
+    /// centres in the inner loop. ‖·‖ = s·ŷ(1.5 − ½·s·ŷ·ŷ) with ŷ the hardware estimate of 1/√s (relative error
+    /// ≤ 1.5·2⁻¹²; after the Newton step about 2⁻²³, an f32 rounding), s = dx² + (dy² + dz²) floored at 10⁻³⁰ so
+    /// that a voxel on a centre gives 0, not 0·∞. A short last block is padded with copies of the last voxel.
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) fn centres_along_x(tps: &TpsLocal, x: &[f32], [y, z]: [f32; 2], d: [&mut [f32]; 3]) {
+        let yz: Vec<f32> = tps
+            .centres_local
+            .iter()
+            .map(|p| {
+                let (dy, dz) = (y - p[1], z - p[2]);
+                dy * dy + dz * dz
+            })
+            .collect();
+        let [d0, d1, d2] = d;
+        let n = x.len();
+        let mut start = 0;
+        while start < n {
+            let len = (n - start).min(BLOCK);
+            let block = start..start + len;
+            let pad = |v: &[f32]| -> [__m256; 2] {
+                let mut a = [v[len - 1]; BLOCK];
+                a[..len].copy_from_slice(v);
+                bytemuck::cast(a)
+            };
+            let [x0, x1] = pad(&x[block.clone()]);
+            let mut acc = [pad(&d0[block.clone()]), pad(&d1[block.clone()]), pad(&d2[block.clone()])];
+            for ((p, w), &s) in tps.centres_local.iter().zip(&tps.weights).zip(&yz) {
+                let (px, s) = (_mm256_set1_ps(p[0]), _mm256_set1_ps(s));
+                let w = [_mm256_set1_ps(w[0]), _mm256_set1_ps(w[1]), _mm256_set1_ps(w[2])];
+                for (h, x) in [x0, x1].into_iter().enumerate() {
+                    let dx = _mm256_sub_ps(x, px);
+                    let r = _mm256_sqrt_ps(_mm256_fmadd_ps(dx, dx, s));
+                    for (a, w) in acc.iter_mut().zip(&w) {
+                        a[h] = _mm256_fmadd_ps(*w, r, a[h]);
+                    }
                 }
             }
-        }
-        for (lane, v) in dst.iter_mut().enumerate() {
-            *v = [d[0][lane], d[1][lane], d[2][lane]];
+            for (a, d) in acc.iter().zip([&mut *d0, &mut *d1, &mut *d2]) {
+                let a: [f32; BLOCK] = bytemuck::cast(*a);
+                d[block.clone()].copy_from_slice(&a[..len]);
+            }
+            start += BLOCK;
         }
     }
 }
 
 /// Catmull-Rom weights of the taps at −1, 0, 1, 2 (the shader's `catmull_rom`).
-#[inline]
+#[inline(always)]
 fn catmull_rom(t: f32) -> [f32; 4] {
     [
         t * (-0.5 + t * (1.0 - 0.5 * t)),
@@ -223,39 +394,93 @@ fn catmull_rom(t: f32) -> [f32; 4] {
     ]
 }
 
-#[inline]
+#[inline(always)]
 fn weighted4<A: Acc>(w: [f32; 4], v: [A; 4]) -> A {
     ((A::weight(w[0]) * v[0] + A::weight(w[1]) * v[1]) + A::weight(w[2]) * v[2]) + A::weight(w[3]) * v[3]
 }
 
-#[inline]
+#[inline(always)]
 fn lerp<A: Acc>(a: A, b: A, f: f32) -> A {
     a + A::weight(f) * (b - a)
 }
 
 /// ⌊x⌋ for finite |x| < 2³¹, exactly `f32::floor` (which is a libm call on x86-64 without SSE4.1).
-#[inline]
+#[inline(always)]
 fn floor_i32(x: f32) -> i32 {
     let t = x as i32;
     t - i32::from(t as f32 > x)
 }
 
 /// Whether `s` lies in the box of voxel edges, −½ ≤ sₐ ≤ nₐ − ½ (false for NaN).
-#[inline]
+#[inline(always)]
 fn inside(s: [f32; 3], n: [f32; 3]) -> bool {
-    (0..3).all(|a| s[a] >= -0.5 && s[a] <= n[a] - 0.5)
+    let within = |a: usize| s[a] >= -0.5 && s[a] <= n[a] - 0.5;
+    within(0) && within(1) && within(2)
 }
 
+/// Voxels per block of the trilinear lane loops.
+const LANES: usize = 8;
+
+/// A full block of [`LANES`] voxels whose trilinear taps (cell corners ⌊s⌋ and ⌊s⌋ + 1 on every axis) all lie
+/// inside the source: the index of each lane's first tap and its fractions.
+struct TrilinearLanes {
+    base: [usize; LANES],
+    f: [[f32; LANES]; 3],
+}
+
+impl TrilinearLanes {
+    /// `None` for a short block or when a lane needs the edge handling (outside, clamped or NaN).
+    #[inline(always)]
+    fn new(block: [&[f32]; 3], last: [isize; 3], stride: [usize; 3]) -> Option<Self> {
+        // 2²³: adding and subtracting it rounds 0 ≤ x < 2²² to the nearest integer, and the integer is then the
+        // low mantissa bits of x + 2²³. Floats, compares and bit operations only, so the lane loops vectorise (a
+        // saturating `as` cast does not); the results equal `floor_i32` and `x − ⌊x⌋` exactly.
+        const MAGIC: f32 = 8_388_608.0;
+        let block: [&[f32; LANES]; 3] =
+            [block[0].try_into().ok()?, block[1].try_into().ok()?, block[2].try_into().ok()?];
+        if last.iter().any(|&l| l >= 1 << 22) {
+            return None;
+        }
+        let mut s0 = [[0u32; LANES]; 3];
+        let mut f = [[0.0f32; LANES]; 3];
+        let mut interior = [true; LANES];
+        for a in 0..3 {
+            // 0 ≤ ⌊s⌋ < n − 1 ⟺ 0 ≤ s < n − 1 (false for NaN); this implies −½ ≤ s ≤ n − ½, inside.
+            let limit = last[a] as f32;
+            for lane in 0..LANES {
+                let x = block[a][lane];
+                interior[lane] &= x >= 0.0 && x < limit;
+                let x = if interior[lane] { x } else { 0.0 };
+                let nearest = (x + MAGIC) - MAGIC;
+                let floor = if nearest > x { nearest - 1.0 } else { nearest };
+                s0[a][lane] = (floor + MAGIC).to_bits() & 0x7f_ffff;
+                f[a][lane] = x - floor;
+            }
+        }
+        if interior.contains(&false) {
+            return None;
+        }
+        let base = std::array::from_fn(|lane| {
+            s0[0][lane] as usize + stride[1] * s0[1][lane] as usize + stride[2] * s0[2][lane] as usize
+        });
+        Some(Self { base, f })
+    }
+}
+
+#[inline(always)]
 /// Samples `source` at the continuous indices `positions`, writing one output row. Taps are addressed by per-axis
 /// offsets (clamped index × stride) summed, so a tap costs two additions.
 fn sample_row<S: Sample, O: Sample>(
     interpolation: Interpolation,
     source: &[S],
     dims: [usize; 3],
-    positions: &[[f32; 3]],
+    [sx, sy, sz]: [&[f32]; 3],
     out: &mut [O],
     outside: O,
 ) {
+    let len = out.len();
+    let (sx, sy, sz) = (&sx[..len], &sy[..len], &sz[..len]);
+    let positions = sx.iter().zip(sy).zip(sz).map(|((x, y), z)| [*x, *y, *z]);
     let n = dims.map(|d| d as f32);
     let last = dims.map(|d| d as isize - 1);
     let stride = [1, dims[0], dims[0] * dims[1]];
@@ -266,7 +491,7 @@ fn sample_row<S: Sample, O: Sample>(
     match interpolation {
         Interpolation::Nearest => {
             for (o, s) in out.iter_mut().zip(positions) {
-                *o = if inside(*s, n) {
+                *o = if inside(s, n) {
                     let q: [usize; 3] = std::array::from_fn(|a| offset(a, floor_i32(s[a] + 0.5) as isize));
                     store(at(q[0] + q[1] + q[2]))
                 } else {
@@ -275,25 +500,53 @@ fn sample_row<S: Sample, O: Sample>(
             }
         }
         Interpolation::Trilinear => {
-            for (o, s) in out.iter_mut().zip(positions) {
-                if !inside(*s, n) {
-                    *o = outside;
+            let dy = stride[1];
+            let dz = stride[2];
+            let taps = [0, 1, dy, dy + 1, dz, dz + 1, dz + dy, dz + dy + 1];
+            for (b, o_block) in out.chunks_mut(LANES).enumerate() {
+                let block = b * LANES..b * LANES + o_block.len();
+                let s_block = [&sx[block.clone()], &sy[block.clone()], &sz[block.clone()]];
+                // Lanes: a block of voxels whose eight taps all lie inside the source goes through SIMD-friendly
+                // lane loops (the same operations per voxel as the scalar path below, in the same order).
+                if let Some(lanes) = TrilinearLanes::new(s_block, last, stride)
+                    && let Ok(o_block) = <&mut [O; LANES]>::try_from(&mut *o_block)
+                {
+                    let mut v = [[S::Acc::weight(0.0); LANES]; 8];
+                    for (t, offset) in taps.iter().enumerate() {
+                        for lane in 0..LANES {
+                            v[t][lane] = source[lanes.base[lane] + offset].acc();
+                        }
+                    }
+                    let f = &lanes.f;
+                    for (lane, o) in o_block.iter_mut().enumerate() {
+                        let x00 = lerp(v[0][lane], v[1][lane], f[0][lane]);
+                        let x10 = lerp(v[2][lane], v[3][lane], f[0][lane]);
+                        let x01 = lerp(v[4][lane], v[5][lane], f[0][lane]);
+                        let x11 = lerp(v[6][lane], v[7][lane], f[0][lane]);
+                        *o = store(lerp(lerp(x00, x10, f[1][lane]), lerp(x01, x11, f[1][lane]), f[2][lane]));
+                    }
                     continue;
                 }
-                let s0 = s.map(floor_i32);
-                let f: [f32; 3] = std::array::from_fn(|a| s[a] - s0[a] as f32);
-                let [x0, y0, z0]: [usize; 3] = std::array::from_fn(|a| offset(a, s0[a] as isize));
-                let [x1, y1, z1]: [usize; 3] = std::array::from_fn(|a| offset(a, s0[a] as isize + 1));
-                let x00 = lerp(at(x0 + y0 + z0), at(x1 + y0 + z0), f[0]);
-                let x10 = lerp(at(x0 + y1 + z0), at(x1 + y1 + z0), f[0]);
-                let x01 = lerp(at(x0 + y0 + z1), at(x1 + y0 + z1), f[0]);
-                let x11 = lerp(at(x0 + y1 + z1), at(x1 + y1 + z1), f[0]);
-                *o = store(lerp(lerp(x00, x10, f[1]), lerp(x01, x11, f[1]), f[2]));
+                for (o, s) in o_block.iter_mut().zip(positions.clone().skip(block.start)) {
+                    if !inside(s, n) {
+                        *o = outside;
+                        continue;
+                    }
+                    let s0 = s.map(floor_i32);
+                    let f: [f32; 3] = std::array::from_fn(|a| s[a] - s0[a] as f32);
+                    let [x0, y0, z0]: [usize; 3] = std::array::from_fn(|a| offset(a, s0[a] as isize));
+                    let [x1, y1, z1]: [usize; 3] = std::array::from_fn(|a| offset(a, s0[a] as isize + 1));
+                    let x00 = lerp(at(x0 + y0 + z0), at(x1 + y0 + z0), f[0]);
+                    let x10 = lerp(at(x0 + y1 + z0), at(x1 + y1 + z0), f[0]);
+                    let x01 = lerp(at(x0 + y0 + z1), at(x1 + y0 + z1), f[0]);
+                    let x11 = lerp(at(x0 + y1 + z1), at(x1 + y1 + z1), f[0]);
+                    *o = store(lerp(lerp(x00, x10, f[1]), lerp(x01, x11, f[1]), f[2]));
+                }
             }
         }
         Interpolation::CatmullRom => {
             for (o, s) in out.iter_mut().zip(positions) {
-                if !inside(*s, n) {
+                if !inside(s, n) {
                     *o = outside;
                     continue;
                 }
@@ -320,20 +573,132 @@ mod tests {
     use super::*;
 
     #[test]
-    fn lane_kernel_is_tps_local_bit_for_bit() {
+    fn row_kernel_is_tps_local_bit_for_bit() {
         let tps = TpsLocal {
             origin_ref: [0.0; 3],
             linear_minus_identity: [[0.01, -0.02, 0.003], [0.0, 0.015, -0.01], [0.02, 0.0, -0.005]],
             offset_mm: [1.5, -0.25, 3.0],
-            centres_local: vec![[10.0, -20.0, 5.0], [-30.0, 12.5, 40.0], [0.0, 0.0, -7.0]],
-            weights: vec![[0.01, -0.03, 0.02], [-0.02, 0.01, 0.0], [0.01, 0.02, -0.02]],
+            centres_local: vec![[10.0, -20.0, 5.0], [-30.0, 12.5, 40.0], [0.0, 0.0, -7.0], [-12.3, 4.0, 0.5]],
+            weights: vec![[0.01, -0.03, 0.02], [-0.02, 0.01, 0.0], [0.01, 0.02, -0.02], [0.0, -0.01, 0.01]],
         };
-        let xs: Vec<[f32; 3]> = (0..13).map(|i| [i as f32 * 3.7 - 20.0, 11.0 - i as f32, 0.5 * i as f32]).collect();
-        let mut out = vec![[0.0; 3]; xs.len()];
-        tps_displacements(&tps, &xs, &mut out);
-        for (x, d) in xs.iter().zip(&out) {
-            assert_eq!(*d, tps.displacement(*x));
+        let base = [-20.0, 4.0, 0.5];
+        // Along x (dy² + dz² per row, and a voxel on a centre: radius 0) and oblique; lengths that are not a
+        // multiple of a SIMD register.
+        for step in [[3.7f32, 0.0, 0.0], [3.7, -1.0, 0.5], [0.0, 0.0, 1.25]] {
+            for len in [1, 13, 16, 37] {
+                let x: [Vec<f32>; 3] =
+                    std::array::from_fn(|a| (0..len).map(|i| base[a] + i as f32 * step[a]).collect());
+                let mut out = std::array::from_fn(|_| vec![f32::NAN; len]);
+                let along_x = step[1] == 0.0 && step[2] == 0.0;
+                tps_row(&tps, [&x[0], &x[1], &x[2]], along_x, Isa::Portable, &mut out);
+                for i in 0..len {
+                    let expected = tps.displacement([x[0][i], x[1][i], x[2][i]]);
+                    assert_eq!([out[0][i], out[1][i], out[2][i]], expected, "step {step:?}, voxel {i} of {len}");
+                }
+            }
         }
+    }
+
+    #[test]
+    #[cfg(target_arch = "x86_64")]
+    fn simd_row_kernel_agrees_with_tps_local_to_f32_rounding() {
+        if Isa::detect() != Isa::Avx2Fma {
+            eprintln!("no AVX2 + FMA on this CPU: nothing to compare");
+            return;
+        }
+        let centres: Vec<[f32; 3]> = (0..37)
+            .map(|c| [(c * 37 % 200) as f32 - 100.0, (c * 91 % 160) as f32 - 80.0, (c * 53 % 120) as f32 - 60.0])
+            .collect();
+        let weights: Vec<[f32; 3]> = (0..37)
+            .map(|c| [((c % 7) as f32 - 3.0) * 0.02, ((c % 5) as f32 - 2.0) * 0.03, (c % 3) as f32 * -0.01])
+            .collect();
+        // A voxel exactly on the first centre: radius 0, not NaN.
+        let first = centres[0];
+        let tps = TpsLocal {
+            origin_ref: [0.0; 3],
+            linear_minus_identity: [[0.01, -0.02, 0.003], [0.0, 0.015, -0.01], [0.02, 0.0, -0.005]],
+            offset_mm: [1.5, -0.25, 3.0],
+            centres_local: centres,
+            weights,
+        };
+        for len in [1, 7, 16, 45, 256] {
+            let x: Vec<f32> = (0..len).map(|i| first[0] - 3.0 * i as f32).collect();
+            let (y, z) = (vec![first[1]; len], vec![first[2]; len]);
+            let mut out = std::array::from_fn(|_| vec![f32::NAN; len]);
+            tps_row(&tps, [&x, &y, &z], true, Isa::Avx2Fma, &mut out);
+            for i in 0..len {
+                let p = [x[i], y[i], z[i]];
+                let expected = tps.displacement(p);
+                // Each of the 37 terms is rounded differently (fused multiply-adds): a few f32 roundings of the
+                // largest term, |w|·r ≤ 0.06 · 300 mm.
+                let scale: f32 = tps
+                    .centres_local
+                    .iter()
+                    .zip(&tps.weights)
+                    .map(|(c, w)| {
+                        w.iter().map(|v| v.abs()).fold(0.0, f32::max)
+                            * (0..3).map(|a| (p[a] - c[a]).powi(2)).sum::<f32>().sqrt()
+                    })
+                    .sum();
+                for a in 0..3 {
+                    let got = out[a][i];
+                    assert!(got.is_finite(), "voxel {i} of {len}: {got}");
+                    assert!(
+                        (got - expected[a]).abs() <= 4.0 * f32::EPSILON * (scale + 10.0),
+                        "voxel {i} of {len}, axis {a}: {got} vs {}",
+                        expected[a]
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn trilinear_lanes_equal_the_scalar_path_bit_for_bit() {
+        let dims = [9, 7, 5];
+        let source: Vec<f32> =
+            (0..dims.iter().product::<usize>()).map(|i| ((i * 7919) % 1013) as f32 * 0.37 - 90.0).collect();
+        // Positions inside, on the edge (clamped), outside and NaN, mixed so that some blocks of eight take the
+        // lanes and some the scalar path.
+        let len = 8 * 40;
+        let mut xyz: [Vec<f32>; 3] = Default::default();
+        for i in 0..len {
+            let t = i as f32;
+            let mut p =
+                [(t * 0.618_034).fract() * 8.9 - 0.3, (t * 0.414_214).fract() * 6.5, (t * 0.302_776).fract() * 4.2];
+            if i >= 8 * 20 {
+                // The second half: whole blocks well inside, where the lanes run.
+                p = [p[0] * 0.8 + 0.1, p[1] * 0.8 + 0.1, p[2] * 0.7 + 0.1];
+            }
+            if i == 13 {
+                p[1] = f32::NAN;
+            }
+            for a in 0..3 {
+                xyz[a].push(p[a]);
+            }
+        }
+        let mut row = vec![0.0f32; len];
+        sample_row(Interpolation::Trilinear, &source, dims, [&xyz[0], &xyz[1], &xyz[2]], &mut row, -1.0);
+        let mut lanes_used = 0;
+        for i in 0..len {
+            // One voxel at a time: always the scalar path.
+            let mut one = [0.0f32];
+            sample_row(
+                Interpolation::Trilinear,
+                &source,
+                dims,
+                [&xyz[0][i..=i], &xyz[1][i..=i], &xyz[2][i..=i]],
+                &mut one,
+                -1.0,
+            );
+            assert_eq!(row[i].to_bits(), one[0].to_bits(), "voxel {i}");
+        }
+        for b in 0..len / 8 {
+            let block = b * 8..b * 8 + 8;
+            let s = [&xyz[0][block.clone()], &xyz[1][block.clone()], &xyz[2][block]];
+            lanes_used += usize::from(TrilinearLanes::new(s, [8, 6, 4], [1, 9, 63]).is_some());
+        }
+        assert!(lanes_used >= 10 && lanes_used < len / 8, "{lanes_used} blocks through the lanes");
     }
 
     #[test]
