@@ -11,6 +11,7 @@
 //! (`warpbench_gpu::export`).
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::anyhow;
 use serde::Serialize;
@@ -91,6 +92,20 @@ pub struct WarpReport {
     /// `cpu` or `gpu: <adapter>`.
     pub backend: String,
     pub outside_value: f64,
+    /// Wall-clock seconds of each stage.
+    pub seconds: WarpSeconds,
+}
+
+/// Wall-clock seconds of the stages of `warpbench warp`, for benchmarks: `load` (every input volume), `fit` (the
+/// landmarks, the fit and the control texture), `resample` (the export, output allocation included), `write` (the
+/// NIfTI, and the DICOM series when asked), and `total` (from the start of loading).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct WarpSeconds {
+    pub load: f64,
+    pub fit: f64,
+    pub resample: f64,
+    pub write: f64,
+    pub total: f64,
 }
 
 fn export_samples(v: &Volume) -> ExportSamples<'_> {
@@ -186,9 +201,13 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         )));
     }
 
+    let start = Instant::now();
+    let mut lap = Lap(start);
+    let mut seconds = WarpSeconds::default();
     let fixed = inputs::load_volume(&opts.fixed, opts.quiet)?;
     let moving = inputs::load_volume(&opts.moving, opts.quiet)?;
     let reference = opts.reference.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
+    seconds.load = lap.next();
     let grid_volume = reference.as_ref().unwrap_or(&fixed);
     let pairs = opts.landmarks.read()?;
     let c = inputs::correspondences(&opts.landmarks, &pairs, &moving, &fixed, inputs::min_pairs(&method))?;
@@ -225,6 +244,11 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         lps_from_index: moving.lps_from_index.rows(),
     };
     let target = TargetGrid { dims: grid_volume.dims, lps_from_index: grid_volume.lps_from_index.rows() };
+    let grid_lps_from_index = grid_volume.lps_from_index;
+    // Only the grids' geometry is needed from here on: free their voxels before the output is allocated (peak
+    // memory: the moving volume and the output).
+    drop(reference);
+    drop(fixed);
     let request = ExportRequest {
         interpolation: opts.interpolation,
         output: if opts.float { OutputType::F32 } else { OutputType::Source },
@@ -232,6 +256,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         ..ExportRequest::new(source, target, export_pullback)
     };
 
+    seconds.fit = lap.next();
     let bar = crate::progress::Bar::new(opts.quiet);
     let mut report_progress = |p: Progress| {
         bar.set("resampling", p.slices_done as u64, p.slices_total as u64);
@@ -256,12 +281,13 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         GpuError::InvalidInput(_) => Failure::BadInput(anyhow!("resampling {}: {e}", opts.moving.display())),
         other => Failure::Internal(anyhow::Error::from(other).context("resampling")),
     })?;
+    seconds.resample = lap.next();
 
     let mut volume = Volume::new(
         &opts.out.path,
         exported.dims,
         voxel_data(exported.samples)?,
-        grid_volume.lps_from_index,
+        grid_lps_from_index,
         GeometrySource::NiftiSform { code: 1 },
     )?;
     volume.modality = moving.modality.clone();
@@ -274,6 +300,8 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         };
         dicom_write::write_series(dir, &volume, &dicom_opts)?;
     }
+    seconds.write = lap.next();
+    seconds.total = start.elapsed().as_secs_f64();
     Ok(WarpReport {
         schema: "warpbench-warp/1",
         out: opts.out.path.display().to_string(),
@@ -290,7 +318,20 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         interpolation: interpolation_name(opts.interpolation),
         backend,
         outside_value,
+        seconds,
     })
+}
+
+/// Seconds since the previous lap.
+struct Lap(Instant);
+
+impl Lap {
+    fn next(&mut self) -> f64 {
+        let now = Instant::now();
+        let seconds = now.duration_since(self.0).as_secs_f64();
+        self.0 = now;
+        seconds
+    }
 }
 
 /// `.nii` or `.nii.gz`, in any case.

@@ -58,6 +58,7 @@ fn identity_landmarks_give_back_the_input_on_both_backends() {
             "--backend",
             backend,
             "--quiet",
+            "--json",
             "--out",
             s(&out),
         ]);
@@ -67,6 +68,13 @@ fn identity_landmarks_give_back_the_input_on_both_backends() {
             continue;
         }
         assert_ok(&run);
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("the --json report");
+        assert_eq!(report["schema"], "warpbench-warp/1");
+        assert!(report["backend"].as_str().is_some_and(|b| b.starts_with(backend)), "{report}");
+        // The stages' seconds are measured and add up to at most the total.
+        let stage = |k: &str| report["seconds"][k].as_f64().unwrap_or(f64::NAN);
+        let stages: f64 = ["load", "fit", "resample", "write"].iter().map(|k| stage(k)).sum();
+        assert!(stage("resample") > 0.0 && stage("load") > 0.0 && stages <= stage("total") + 1e-6, "{report}");
         let output = warpbench_io::open(&out).expect("read the output");
         assert_eq!(output.dims, input.dims);
         assert!(output.lps_from_index.max_abs_diff(&input.lps_from_index) < 1e-6, "geometry changed");
