@@ -185,11 +185,10 @@ impl RowScratch {
             PlanPullBack::Identity => {}
             PlanPullBack::Control { dims, texels } => {
                 let mut cursor = ControlCursor::new(*dims, texels);
-                for (i, ((x, y), z)) in x.iter().zip(y).zip(z).enumerate() {
-                    let d = cursor.displacement([*x, *y, *z]);
-                    for (a, da) in self.displacement.iter_mut().enumerate() {
-                        da[i] = d[a];
-                    }
+                let [d0, d1, d2] = &mut self.displacement;
+                let d = d0.iter_mut().zip(d1.iter_mut()).zip(d2.iter_mut());
+                for (((d0, d1), d2), ((x, y), z)) in d.zip(x.iter().zip(y).zip(z)) {
+                    [*d0, *d1, *d2] = cursor.displacement([*x, *y, *z]);
                 }
             }
             PlanPullBack::Tps(tps) => {
@@ -512,9 +511,14 @@ fn sample_row<S: Sample, O: Sample>(
                     && let Ok(o_block) = <&mut [O; LANES]>::try_from(&mut *o_block)
                 {
                     let mut v = [[S::Acc::weight(0.0); LANES]; 8];
-                    for (t, offset) in taps.iter().enumerate() {
-                        for lane in 0..LANES {
-                            v[t][lane] = source[lanes.base[lane] + offset].acc();
+                    // The taps in pairs along x: [x0, x1] of each of the four rows.
+                    let (rows, _) = v.as_chunks_mut::<2>();
+                    for ([v0, v1], offset) in rows.iter_mut().zip(taps.iter().step_by(2)) {
+                        for ((v0, v1), base) in v0.iter_mut().zip(v1.iter_mut()).zip(&lanes.base) {
+                            let at = base + offset;
+                            let pair = &source[at..at + 2];
+                            *v0 = pair[0].acc();
+                            *v1 = pair[1].acc();
                         }
                     }
                     let f = &lanes.f;
