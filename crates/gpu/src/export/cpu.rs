@@ -356,6 +356,9 @@ mod simd {
             let len = (n - start).min(BLOCK);
             let block = start..start + len;
             let pad = |v: &[f32]| -> [__m256; 2] {
+                if let Ok(full) = <[f32; BLOCK]>::try_from(v) {
+                    return bytemuck::cast(full);
+                }
                 let mut a = [v[len - 1]; BLOCK];
                 a[..len].copy_from_slice(v);
                 bytemuck::cast(a)
@@ -375,7 +378,10 @@ mod simd {
             }
             for (a, d) in acc.iter().zip([&mut *d0, &mut *d1, &mut *d2]) {
                 let a: [f32; BLOCK] = bytemuck::cast(*a);
-                d[block.clone()].copy_from_slice(&a[..len]);
+                match <&mut [f32; BLOCK]>::try_from(&mut d[block.clone()]) {
+                    Ok(full) => *full = a,
+                    Err(_) => d[block.clone()].copy_from_slice(&a[..len]),
+                }
             }
             start += BLOCK;
         }
