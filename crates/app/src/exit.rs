@@ -1,5 +1,7 @@
 //! Exit codes: 0 ok; 2 bad input or usage (the message names the file and the problem);
-//! 1 internal error; 3 an accuracy gate failed (used by `eval`).
+//! 1 internal error; 3 an accuracy gate failed (used by `eval`). [`Failure::Cancelled`] (130, as for an interrupted
+//! command) comes only from the in-memory cores when their caller (the window's cancel button) stops them; no
+//! subcommand cancels.
 
 use std::process::ExitCode;
 
@@ -12,6 +14,8 @@ pub enum Failure {
     Internal(anyhow::Error),
     /// An accuracy gate failed (`eval --max-tre-mm`): exit code 3.
     AccuracyGate(anyhow::Error),
+    /// The caller's progress callback asked to stop; nothing was written: exit code 130.
+    Cancelled(anyhow::Error),
 }
 
 impl Failure {
@@ -21,12 +25,13 @@ impl Failure {
             Self::BadInput(_) => ExitCode::from(2),
             Self::Internal(_) => ExitCode::from(1),
             Self::AccuracyGate(_) => ExitCode::from(3),
+            Self::Cancelled(_) => ExitCode::from(130),
         }
     }
     #[must_use]
     pub fn error(&self) -> &anyhow::Error {
         match self {
-            Self::BadInput(e) | Self::Internal(e) | Self::AccuracyGate(e) => e,
+            Self::BadInput(e) | Self::Internal(e) | Self::AccuracyGate(e) | Self::Cancelled(e) => e,
         }
     }
 }

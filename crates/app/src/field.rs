@@ -15,26 +15,30 @@
 //!
 //! `--tfm` (affine, similarity, rigid) writes the same pull-back x ↦ A x + b as an ITK `AffineTransform_double_3_3`
 //! ([`warpbench_io::itk_tfm`]), which ITK applies in LPS, like our patient space.
+//!
+//! [`run`] loads the files, calls the in-memory core [`displacement_field`] (the pairs checked, the fit, the
+//! sampling, with a progress callback that can cancel) and writes with [`write_field`]; the window exports through
+//! the same three.
 
 use std::io::Write;
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, PoisonError};
 
 use anyhow::{Context, anyhow};
 use serde::Serialize;
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine};
-use warpbench_io::nifti;
-use warpbench_io::{Progress, volume};
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::{Progress, Volume, nifti, volume};
 use warpbench_solver::linear;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkSource, OutputFile};
+use crate::inputs::{self, LandmarkSource, Names, OutputFile};
 use crate::progress::Bar;
 
 /// The `--json` schema name.
@@ -90,17 +94,15 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     input_paths.extend(opts.reference.as_deref());
     opts.out.check(&input_paths)?;
     let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
-    let linear_kind = match (&opts.tfm, method) {
-        (None, _) => None,
-        (Some(_), Method::Linear(kind)) => Some(kind),
-        (Some(tfm), other) => {
-            return Err(Failure::BadInput(anyhow!(
-                "{}: an ITK transform file holds a linear warp; --method {other} is not one (use affine, similarity \
-                 or rigid, or only the displacement field)",
-                tfm.display()
-            )));
-        }
-    };
+    if let Some(tfm) = &opts.tfm
+        && !matches!(method, Method::Linear(_))
+    {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: an ITK transform file holds a linear warp; --method {method} is not one (use affine, similarity or \
+             rigid, or only the displacement field)",
+            tfm.display()
+        )));
+    }
     if let Some(tfm) = &opts.tfm {
         if tfm == &opts.out.path {
             return Err(Failure::BadInput(anyhow!("{}: --tfm and --out are the same file", tfm.display())));
@@ -112,46 +114,38 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     let moving = inputs::load_volume(&opts.moving, opts.quiet)?;
     let reference = opts.reference.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
     let pairs = opts.landmarks.read()?;
-    let c = inputs::correspondences(&opts.landmarks, &pairs, &moving, &fixed, inputs::min_pairs(&method))?;
-    // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
-    let moving_from_fixed = inputs::fit_pullback(&method, &c, inputs::volume_box::<Fixed>(&fixed))?;
-
+    let names = Names {
+        moving: opts.moving.display().to_string(),
+        landmarks: opts.landmarks.describe(),
+        out: opts.out.path.clone(),
+    };
     let grid = reference.as_ref().unwrap_or(&fixed);
-    let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
-    volume::check_allocation(&opts.out.path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-    let mut bar = Bar::new(opts.quiet);
-    let sampled = sample_displacements(moving_from_fixed.as_ref(), dims, &lps_from_index, |done, total| {
-        let _ = bar.update(Progress { stage: "sampling the field", done, total });
+    // The bar appears with the first slice, after the checks and the fit.
+    let mut bar: Option<Bar> = None;
+    let field = displacement_field(grid, &fixed, &moving, &pairs, &names, &method, &mut |done, total| {
+        let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
+            stage: "sampling the field",
+            done,
+            total,
+        });
+        true
     });
-    bar.finish();
-    let Some(max_displacement_mm) = sampled.max_norm_mm else {
-        return Err(Failure::Internal(anyhow!("the {method} warp is not finite somewhere in the output grid")));
-    };
-    // The affine for --tfm is the same fit as `moving_from_fixed` (Method::Linear fits exactly this), done before
-    // anything is written.
-    let tfm = match (&opts.tfm, linear_kind) {
-        (Some(path), Some(kind)) => {
-            let fit = linear::fit_pullback(kind, &c.moving, &c.fixed)
-                .map_err(|e| Failure::BadInput(anyhow!("fitting the {kind} warp: {e}")))?;
-            Some((path, ItkAffine::from_offset(fit.warp.linear(), fit.warp.translation())))
-        }
-        _ => None,
-    };
-    nifti::write_displacement_field(&opts.out.path, dims, &lps_from_index, &sampled.displacements_lps)?;
-    if let Some((path, affine)) = tfm {
-        itk_tfm::write_affine(path, &affine)?;
+    if let Some(bar) = bar {
+        bar.finish();
     }
+    let field = field?;
+    write_field(&field, &opts.out.path, opts.tfm.as_deref())?;
 
     let summary = FieldSummary {
         schema: SCHEMA,
         out: opts.out.path.display().to_string(),
-        dims,
-        spacing_mm: grid.spacing_mm(),
-        lps_from_index: lps_from_index.rows(),
+        dims: field.dims,
+        spacing_mm: field.spacing_mm,
+        lps_from_index: field.lps_from_index.rows(),
         grid: if reference.is_some() { "reference" } else { "fixed" },
-        method: method.to_string(),
-        pairs: c.moving.len(),
-        max_displacement_mm,
+        method: field.method,
+        pairs: field.pairs,
+        max_displacement_mm: field.max_displacement_mm,
         tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
     };
     if opts.json {
@@ -162,6 +156,95 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
             .map_err(Failure::Internal)?;
     }
     Ok(summary)
+}
+
+/// The pull-back's displacement field on an output grid, and what the summary says about it: what
+/// [`displacement_field`] returns and [`write_field`] writes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Field {
+    /// The output grid: voxels along i, j, k, spacing and `lps_from_index`.
+    pub dims: [usize; 3],
+    pub spacing_mm: [f64; 3],
+    pub lps_from_index: Transform<Lps, Index>,
+    /// u(x) − x at each voxel centre, LPS mm, i fastest.
+    pub displacements_lps: Vec<[f32; 3]>,
+    /// The largest |u(x) − x| over the grid, mm.
+    pub max_displacement_mm: f64,
+    /// The method as fitted, e.g. `tps`, `affine`.
+    pub method: String,
+    /// Landmark pairs used (active, with both points).
+    pub pairs: usize,
+    /// For the linear methods, the same pull-back x ↦ A x + b as an ITK affine (what `--tfm` writes); else `None`.
+    pub affine: Option<ItkAffine>,
+}
+
+/// The displacement field `warpbench field` writes, in memory: `method` fitted on `pairs` (raw, as read: checked
+/// against `moving` and `fixed` here, by [`inputs::check_pairs`]) over the fixed volume's box, and sampled exactly
+/// at every voxel centre of `grid` (the fixed volume, or `--reference`; only its geometry is read). `names` name the
+/// inputs and the output in messages.
+///
+/// `progress(done, total)` is called after slices of the grid are sampled (module docs); returning `false` stops
+/// the sampling with [`Failure::Cancelled`] and no field.
+pub fn displacement_field(
+    grid: &Volume,
+    fixed: &Volume,
+    moving: &Volume,
+    pairs: &[LandmarkPair],
+    names: &Names,
+    method: &Method,
+    progress: &mut dyn FnMut(u64, u64) -> bool,
+) -> Result<Field, Failure> {
+    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(method))?;
+    // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
+    let moving_from_fixed = inputs::fit_pullback(method, &c, inputs::volume_box::<Fixed>(fixed))?;
+
+    let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
+    volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let sampled = sample_displacements(moving_from_fixed.as_ref(), dims, &lps_from_index, progress)
+        .ok_or_else(|| Failure::Cancelled(anyhow!("sampling the displacement field: cancelled")))?;
+    let Some(max_displacement_mm) = sampled.max_norm_mm else {
+        return Err(Failure::Internal(anyhow!("the {method} warp is not finite somewhere in the output grid")));
+    };
+    // The affine for `.tfm` is the same fit as `moving_from_fixed` (Method::Linear fits exactly this).
+    let affine = match method {
+        Method::Linear(kind) => {
+            let fit = linear::fit_pullback(*kind, &c.moving, &c.fixed)
+                .map_err(|e| Failure::BadInput(anyhow!("fitting the {kind} warp: {e}")))?;
+            Some(ItkAffine::from_offset(fit.warp.linear(), fit.warp.translation()))
+        }
+        _ => None,
+    };
+    Ok(Field {
+        dims,
+        spacing_mm: grid.spacing_mm(),
+        lps_from_index,
+        displacements_lps: sampled.displacements_lps,
+        max_displacement_mm,
+        method: method.to_string(),
+        pairs: c.moving.len(),
+        affine,
+    })
+}
+
+/// Writes `field` as `warpbench field` does: the NIfTI displacement field at `out` and, when `tfm` is given, the
+/// ITK transform file (linear methods only). Each write is atomic.
+pub fn write_field(field: &Field, out: &Path, tfm: Option<&Path>) -> Result<(), Failure> {
+    let tfm = match (tfm, &field.affine) {
+        (None, _) => None,
+        (Some(path), Some(affine)) => Some((path, affine)),
+        (Some(path), None) => {
+            return Err(Failure::BadInput(anyhow!(
+                "{}: an ITK transform file holds a linear warp; the {} warp is not one",
+                path.display(),
+                field.method
+            )));
+        }
+    };
+    nifti::write_displacement_field(out, field.dims, &field.lps_from_index, &field.displacements_lps)?;
+    if let Some((path, affine)) = tfm {
+        itk_tfm::write_affine(path, affine)?;
+    }
+    Ok(())
 }
 
 /// A sampled displacement field.
@@ -177,30 +260,34 @@ pub struct SampledField {
 ///
 /// Slices (constant k) are handed out one at a time to one worker per core (`std::thread::scope`); each slice is one
 /// [`Warp::apply_batch_raw`] call. `progress(done, total)` is called on the calling thread, which works too, after
-/// each slice it evaluates, with the number of slices finished by all workers.
+/// each slice it evaluates, with the number of slices finished by all workers. When it returns `false` no worker
+/// takes another slice, and the result is `None`.
 pub fn sample_displacements(
     moving_from_fixed: &dyn Warp<Moving, Fixed>,
     dims: [usize; 3],
     lps_from_index: &Transform<Lps, Index>,
-    mut progress: impl FnMut(u64, u64),
-) -> SampledField {
+    progress: &mut dyn FnMut(u64, u64) -> bool,
+) -> Option<SampledField> {
     let [nx, ny, nz] = dims;
     let slice = Slices { moving_from_fixed, nx, per_slice: nx * ny, nz, lps_from_index: lps_from_index.rows() };
     let mut displacements_lps = vec![[0.0f32; 3]; slice.per_slice * nz];
     let queue = Mutex::new(displacements_lps.chunks_mut(slice.per_slice.max(1)).enumerate());
-    let finished = AtomicU64::new(0);
+    let shared = Shared { queue, finished: AtomicU64::new(0), cancelled: AtomicBool::new(false) };
     let workers = std::thread::available_parallelism().map_or(1, NonZeroUsize::get).min(nz.max(1));
     let results: Vec<(f64, bool)> = std::thread::scope(|s| {
         let helpers: Vec<_> =
-            (1..workers).map(|_| s.spawn(|| slice.run(&queue, &finished, &mut |_: u64, _: u64| {}))).collect();
-        let mut all = vec![slice.run(&queue, &finished, &mut progress)];
+            (1..workers).map(|_| s.spawn(|| slice.run(&shared, &mut |_: u64, _: u64| true))).collect();
+        let mut all = vec![slice.run(&shared, progress)];
         // A helper that panicked (a bug in a warp) makes the field not finite: reported as an internal error.
         all.extend(helpers.into_iter().map(|h| h.join().unwrap_or((f64::NAN, false))));
         all
     });
+    if shared.cancelled.load(Ordering::Relaxed) {
+        return None;
+    }
     let finite = results.iter().all(|&(_, f)| f);
     let max_norm_mm = results.iter().map(|&(m, _)| m).fold(0.0f64, f64::max);
-    SampledField { displacements_lps, max_norm_mm: finite.then_some(max_norm_mm) }
+    Some(SampledField { displacements_lps, max_norm_mm: finite.then_some(max_norm_mm) })
 }
 
 /// What each worker of [`sample_displacements`] needs.
@@ -214,14 +301,26 @@ struct Slices<'w> {
 
 type SliceQueue<'a> = Mutex<std::iter::Enumerate<std::slice::ChunksMut<'a, [f32; 3]>>>;
 
+/// What the workers of [`sample_displacements`] share: the slices left, how many are finished, and whether the
+/// caller cancelled.
+struct Shared<'a> {
+    queue: SliceQueue<'a>,
+    finished: AtomicU64,
+    cancelled: AtomicBool,
+}
+
 impl Slices<'_> {
-    /// Takes slices from `queue` until it is empty; returns the largest |d| seen and whether every value was finite.
-    fn run(&self, queue: &SliceQueue, finished: &AtomicU64, progress: &mut dyn FnMut(u64, u64)) -> (f64, bool) {
+    /// Takes slices from the queue until it is empty or the work is cancelled (`progress` returned `false`, here or
+    /// on another worker); returns the largest |d| seen and whether every value was finite.
+    fn run(&self, shared: &Shared, progress: &mut dyn FnMut(u64, u64) -> bool) -> (f64, bool) {
         let m = &self.lps_from_index;
         let (mut xs, mut us) = (vec![[0.0f64; 3]; self.per_slice], vec![[0.0f64; 3]; self.per_slice]);
         let (mut max_mm, mut finite) = (0.0f64, true);
         loop {
-            let next = queue.lock().unwrap_or_else(PoisonError::into_inner).next();
+            if shared.cancelled.load(Ordering::Relaxed) {
+                break;
+            }
+            let next = shared.queue.lock().unwrap_or_else(PoisonError::into_inner).next();
             let Some((k, slice)) = next else { break };
             for (n, x_lps) in xs.iter_mut().enumerate() {
                 let ijk = [(n % self.nx) as f64, (n / self.nx) as f64, k as f64];
@@ -235,8 +334,10 @@ impl Slices<'_> {
                 max_mm = max_mm.max(norm);
                 *d = d_mm.map(|v| v as f32);
             }
-            let done = finished.fetch_add(1, Ordering::Relaxed) + 1;
-            progress(done, self.nz as u64);
+            let done = shared.finished.fetch_add(1, Ordering::Relaxed) + 1;
+            if !progress(done, self.nz as u64) {
+                shared.cancelled.store(true, Ordering::Relaxed);
+            }
         }
         (max_mm, finite)
     }
@@ -268,7 +369,11 @@ mod tests {
         let lps_from_index = transform([[1.5, 0.2, 0.0], [0.0, -2.0, 0.0], [0.1, 0.0, 3.0]], [-40.0, 30.0, -20.0]);
         let dims = [7, 5, 9];
         let mut reports = Vec::new();
-        let sampled = sample_displacements(&u, dims, &lps_from_index, |done, total| reports.push((done, total)));
+        let sampled = sample_displacements(&u, dims, &lps_from_index, &mut |done, total| {
+            reports.push((done, total));
+            true
+        })
+        .expect("not cancelled");
         let mut max_mm = 0.0f64;
         for k in 0..9 {
             for j in 0..5 {

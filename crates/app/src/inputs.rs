@@ -63,7 +63,9 @@ impl LandmarkSource {
         }
     }
 
-    fn describe(&self) -> String {
+    /// The paths joined by ` + `, as messages name the pairs' origin.
+    #[must_use]
+    pub fn describe(&self) -> String {
         self.paths().iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ")
     }
 
@@ -84,6 +86,18 @@ impl LandmarkSource {
             Self::SlicerPair { moving, fixed } => Ok(landmarks::read_slicer_pair(moving, fixed)?),
         }
     }
+}
+
+/// What the in-memory cores ([`crate::warp::resample`], [`crate::field::displacement_field`]) call their inputs and
+/// output in messages: the files' paths on the command line, the window's own names in the window.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Names {
+    /// The moving volume, e.g. its path.
+    pub moving: String,
+    /// Where the landmark pairs come from, e.g. [`LandmarkSource::describe`].
+    pub landmarks: String,
+    /// The output file, named by errors about the output (a grid too large to allocate).
+    pub out: PathBuf,
 }
 
 /// The active, complete pairs, typed by space, with their 1-based index and name for messages.
@@ -127,10 +141,22 @@ pub fn correspondences(
     fixed: &Volume,
     min_pairs: usize,
 ) -> Result<Correspondences, Failure> {
+    check_pairs(&source.describe(), pairs, moving, fixed, min_pairs)
+}
+
+/// [`correspondences`] for pairs that come from no [`LandmarkSource`] (the window's table): messages name them by
+/// `origin` instead of the files' paths.
+pub fn check_pairs(
+    origin: &str,
+    pairs: &[LandmarkPair],
+    moving: &Volume,
+    fixed: &Volume,
+    min_pairs: usize,
+) -> Result<Correspondences, Failure> {
     let mut out = Correspondences { moving: Vec::new(), fixed: Vec::new(), labels: Vec::new() };
     let bad = |i: usize, pair: &LandmarkPair, what: &str| {
         let name = if pair.name.is_empty() { String::new() } else { format!(" ({})", pair.name) };
-        Failure::BadInput(anyhow!("{}: landmark {}{name} {what}", source.describe(), i + 1))
+        Failure::BadInput(anyhow!("{origin}: landmark {}{name} {what}", i + 1))
     };
     for (i, pair) in pairs.iter().enumerate() {
         if !pair.active {
@@ -152,8 +178,7 @@ pub fn correspondences(
     }
     if out.moving.len() < min_pairs {
         return Err(Failure::BadInput(anyhow!(
-            "{}: {} active pairs with both points; this needs at least {min_pairs}",
-            source.describe(),
+            "{origin}: {} active pairs with both points; this needs at least {min_pairs}",
             out.moving.len()
         )));
     }

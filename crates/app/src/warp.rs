@@ -9,6 +9,9 @@
 //! affine map). The resampling runs on the GPU (`--backend gpu`), on the CPU with rayon (`cpu`), or on the GPU when
 //! there is an adapter and the samples fit f32 exactly (`auto`); both give the same result
 //! (`warpbench_gpu::export`).
+//!
+//! [`run`] loads the files, calls the in-memory core [`resample`] (the pairs checked, the fit, the export, with a
+//! progress callback that can cancel) and writes with [`write_outputs`]; the window exports through the same three.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -21,15 +24,18 @@ use warpbench_gpu::export::{
 };
 use warpbench_gpu::{GpuContext, GpuError, TpsDesc};
 use warpbench_io::dicom_write::{self, DicomSeriesOptions};
+use warpbench_io::geometry::{Index, Lps, Transform};
+use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, nifti};
+use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkSource, OutputFile};
+use crate::inputs::{self, LandmarkSource, Names, OutputFile};
 use crate::scene;
 
 /// Where the resampling runs.
@@ -127,7 +133,7 @@ fn voxel_data(samples: ExportedSamples) -> Result<VoxelData, Failure> {
     })
 }
 
-/// The pull-back as the export takes it, with its description for the report. `control` holds the sampled texels.
+/// The pull-back as fitted.
 enum FittedPullBack {
     Tps(Tps<Moving, Fixed>),
     Other(Box<dyn Warp<Moving, Fixed>>),
@@ -179,27 +185,277 @@ fn interpolation_name(i: Interpolation) -> &'static str {
     }
 }
 
-/// Runs `warpbench warp`: loads, fits, resamples, writes (atomically), and reports.
-pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
-    let mut input_paths: Vec<&Path> = vec![&opts.fixed, &opts.moving];
-    input_paths.extend(opts.landmarks.paths());
-    input_paths.extend(opts.reference.as_deref());
-    opts.out.check(&input_paths)?;
-    if !is_nifti_name(&opts.out.path) {
-        return Err(Failure::BadInput(anyhow!("{}: --out must end in .nii or .nii.gz", opts.out.path.display())));
+/// Everything `warp` needs besides files: the settings of [`WarpOptions`] without paths.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WarpSettings {
+    /// The warp model, as fitted on the landmark pairs.
+    pub method: Method,
+    pub pullback: PullBackMode,
+    pub interpolation: Interpolation,
+    /// f32 output instead of the moving volume's sample type.
+    pub float: bool,
+    pub backend: Backend,
+    /// The value of output voxels that map outside the moving volume; `None`: −1024 for a CT, else 0.
+    pub outside_value: Option<f64>,
+}
+
+/// What [`resample`] made: the volume `warp` writes, and what its report says about it.
+#[derive(Debug)]
+pub struct Resampled {
+    /// The moving volume resampled on the output grid: its geometry (`NiftiSform { code: 1 }`), the moving
+    /// volume's sample type (f32 with [`WarpSettings::float`]) and modality.
+    pub volume: Volume,
+    /// The method as fitted, e.g. `tps`, `affine`.
+    pub method: String,
+    /// Landmark pairs used (active, with both points).
+    pub pairs: usize,
+    /// `grid N` or `exact`.
+    pub pullback: String,
+    pub interpolation: &'static str,
+    /// `cpu` or `gpu: <adapter>`.
+    pub backend: String,
+    /// The outside value used (given, or chosen from the moving volume's modality).
+    pub outside_value: f64,
+    /// Why [`Backend::Auto`] resampled on the CPU, when a GPU was tried and not used (the CLI prints it as a note).
+    pub cpu_fallback: Option<String>,
+    /// Wall-clock seconds of the fit (landmark checks, fit, control texture) and of the resampling.
+    pub fit_seconds: f64,
+    pub resample_seconds: f64,
+}
+
+/// Resamples `moving` on `grid`'s geometry through the pull-back fitted on `pairs` (raw, as read: checked against
+/// `moving` and `fixed` here, by [`inputs::check_pairs`]); the volume `warpbench warp` writes, which is this
+/// function's result. `grid` is the output grid: the fixed volume, or `--reference`; only its geometry is read.
+/// `names` name the inputs in messages.
+///
+/// `progress` is called after each slab of output slices; returning `false` stops the resampling with
+/// [`Failure::Cancelled`] and no volume.
+pub fn resample(
+    grid: &Volume,
+    fixed: &Volume,
+    moving: &Volume,
+    pairs: &[LandmarkPair],
+    names: &Names,
+    settings: &WarpSettings,
+    progress: &mut dyn FnMut(Progress) -> bool,
+) -> Result<Resampled, Failure> {
+    let fitted = Fitted::new(grid, fixed, moving, pairs, names, settings)?;
+    fitted.resample(moving, names, progress)
+}
+
+/// Refuses `--exact` with the hierarchical B-spline (it is evaluated through a control texture only).
+fn check_pullback_mode(method: &Method, pullback: PullBackMode) -> Result<(), Failure> {
+    if pullback == PullBackMode::Exact && matches!(method, Method::BSpline(_)) {
+        return Err(Failure::BadInput(anyhow!(
+            "--exact evaluates a TPS (or a linear warp) per voxel; use --grid N for the hierarchical B-spline"
+        )));
     }
-    if let Some(dir) = &opts.out_dicom
+    Ok(())
+}
+
+/// Refuses outputs `warp` cannot write: `out` not `.nii`/`.nii.gz`, or `out_dicom` an existing folder that is not
+/// empty. (Whether `out` may be replaced is [`OutputFile::check`]'s business.)
+pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> Result<(), Failure> {
+    if !is_nifti_name(out) {
+        return Err(Failure::BadInput(anyhow!("{}: --out must end in .nii or .nii.gz", out.display())));
+    }
+    if let Some(dir) = out_dicom
         && dir.exists()
         && std::fs::read_dir(dir).map_err(|e| Failure::BadInput(anyhow!("{}: {e}", dir.display())))?.next().is_some()
     {
         return Err(Failure::BadInput(anyhow!("{}: --out-dicom must be a new or empty folder", dir.display())));
     }
-    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
-    if opts.pullback == PullBackMode::Exact && matches!(method, Method::BSpline(_)) {
-        return Err(Failure::BadInput(anyhow!(
-            "--exact evaluates a TPS (or a linear warp) per voxel; use --grid N for the hierarchical B-spline"
-        )));
+    Ok(())
+}
+
+/// The DICOM series description `warp` writes: `warpbench <method> warp of <moving file name>`.
+#[must_use]
+pub fn series_description(method: &str, moving: &Path) -> String {
+    format!("warpbench {method} warp of {}", file_name(moving))
+}
+
+/// Writes `volume` as `warp` does: a NIfTI at `out` and, when `out_dicom` is given, a DICOM series in that folder
+/// (new or empty) with `series_description` and the volume's modality. Each write is atomic.
+pub fn write_outputs(
+    volume: &Volume,
+    out: &Path,
+    out_dicom: Option<&Path>,
+    series_description: &str,
+) -> Result<(), Failure> {
+    nifti::write(out, volume)?;
+    if let Some(dir) = out_dicom {
+        let dicom_opts = DicomSeriesOptions {
+            modality: volume.modality.clone(),
+            series_description: series_description.to_owned(),
+            ..DicomSeriesOptions::default()
+        };
+        dicom_write::write_series(dir, volume, &dicom_opts)?;
     }
+    Ok(())
+}
+
+/// The pull-back as the export takes it, owned.
+enum ExportPullBack {
+    Tps(TpsParts),
+    Control(ControlGrid, ControlTexture),
+}
+
+impl ExportPullBack {
+    fn desc(&self) -> PullBack<'_> {
+        match self {
+            Self::Tps(parts) => PullBack::Tps(parts.desc()),
+            Self::Control(grid, texture) => PullBack::Control(scene::control_desc(grid, texture)),
+        }
+    }
+}
+
+/// The first half of [`resample`]: the pairs checked, the warp fitted, and what the export needs besides the moving
+/// volume's samples. It holds only the output grid's geometry, so `run` frees the fixed and reference voxels before
+/// the output is allocated.
+struct Fitted {
+    settings: WarpSettings,
+    pairs: usize,
+    pullback: ExportPullBack,
+    target: TargetGrid,
+    grid_lps_from_index: Transform<Lps, Index>,
+    outside_value: f64,
+    fit_seconds: f64,
+}
+
+impl Fitted {
+    fn new(
+        grid: &Volume,
+        fixed: &Volume,
+        moving: &Volume,
+        pairs: &[LandmarkPair],
+        names: &Names,
+        settings: &WarpSettings,
+    ) -> Result<Self, Failure> {
+        let start = Instant::now();
+        let method = settings.method;
+        check_pullback_mode(&method, settings.pullback)?;
+        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(&method))?;
+        let target_box = inputs::volume_box::<Fixed>(grid);
+        let pullback = match method {
+            Method::Tps { stiffness } => FittedPullBack::Tps(
+                Tps::fit_smoothing(&c.fixed, &c.moving, stiffness)
+                    .map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))?,
+            ),
+            _ => FittedPullBack::Other(inputs::fit_pullback(&method, &c, target_box)?),
+        };
+        let pullback = match (&pullback, settings.pullback) {
+            (FittedPullBack::Tps(t), PullBackMode::Exact) => ExportPullBack::Tps(TpsParts::new(t)),
+            (_, mode) => {
+                let grid_n = match mode {
+                    PullBackMode::Grid(n) => n,
+                    // Linear warps: trilinear interpolation of an affine map is exact, so 2³ texels suffice.
+                    PullBackMode::Exact => 2,
+                };
+                let (grid, texture) = scene::control_texture(pullback.as_warp(), target_box, grid_n)?;
+                ExportPullBack::Control(grid, texture)
+            }
+        };
+        let outside_value = settings.outside_value.unwrap_or(if scene::looks_like_ct(moving) { -1024.0 } else { 0.0 });
+        Ok(Self {
+            settings: *settings,
+            pairs: c.moving.len(),
+            pullback,
+            target: TargetGrid { dims: grid.dims, lps_from_index: grid.lps_from_index.rows() },
+            grid_lps_from_index: grid.lps_from_index,
+            outside_value,
+            fit_seconds: start.elapsed().as_secs_f64(),
+        })
+    }
+
+    /// The second half of [`resample`]: `moving` (the volume the pairs were checked against) through the export.
+    fn resample(
+        &self,
+        moving: &Volume,
+        names: &Names,
+        progress: &mut dyn FnMut(Progress) -> bool,
+    ) -> Result<Resampled, Failure> {
+        let start = Instant::now();
+        let settings = &self.settings;
+        let source = SourceVolume {
+            dims: moving.dims,
+            samples: export_samples(moving),
+            lps_from_index: moving.lps_from_index.rows(),
+        };
+        let request = ExportRequest {
+            interpolation: settings.interpolation,
+            output: if settings.float { OutputType::F32 } else { OutputType::Source },
+            outside_value: self.outside_value,
+            ..ExportRequest::new(source, self.target, self.pullback.desc())
+        };
+        let mut cpu_fallback = None;
+        let (exported, backend) = match settings.backend {
+            Backend::Cpu => (export_cpu(&request, progress), "cpu".to_owned()),
+            Backend::Gpu | Backend::Auto => match gpu_export(&request, settings.backend == Backend::Auto, progress) {
+                Ok((v, adapter)) => (Ok(v), format!("gpu: {adapter}")),
+                // A cancelled GPU export is not retried on the CPU.
+                Err(e) if settings.backend == Backend::Auto && !matches!(e, GpuError::Cancelled { .. }) => {
+                    cpu_fallback = Some(e.to_string());
+                    (export_cpu(&request, progress), "cpu".to_owned())
+                }
+                Err(e) => (Err(e), "gpu".to_owned()),
+            },
+        };
+        let exported = exported.map_err(|e| match e {
+            GpuError::InvalidInput(_) => Failure::BadInput(anyhow!("resampling {}: {e}", names.moving)),
+            GpuError::Cancelled { .. } => Failure::Cancelled(anyhow::Error::from(e).context("resampling")),
+            other => Failure::Internal(anyhow::Error::from(other).context("resampling")),
+        })?;
+        let resample_seconds = start.elapsed().as_secs_f64();
+
+        let mut volume = Volume::new(
+            &names.out,
+            exported.dims,
+            voxel_data(exported.samples)?,
+            self.grid_lps_from_index,
+            GeometrySource::NiftiSform { code: 1 },
+        )?;
+        volume.modality = moving.modality.clone();
+        Ok(Resampled {
+            volume,
+            method: settings.method.to_string(),
+            pairs: self.pairs,
+            pullback: match settings.pullback {
+                PullBackMode::Grid(n) => format!("grid {n}"),
+                PullBackMode::Exact => "exact".into(),
+            },
+            interpolation: interpolation_name(settings.interpolation),
+            backend,
+            outside_value: self.outside_value,
+            cpu_fallback,
+            fit_seconds: self.fit_seconds,
+            resample_seconds,
+        })
+    }
+}
+
+/// Runs `warpbench warp`: loads, fits, resamples, writes (atomically), and reports. The work between loading and
+/// writing is [`resample`]'s.
+pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
+    let mut input_paths: Vec<&Path> = vec![&opts.fixed, &opts.moving];
+    input_paths.extend(opts.landmarks.paths());
+    input_paths.extend(opts.reference.as_deref());
+    opts.out.check(&input_paths)?;
+    check_outputs(&opts.out.path, opts.out_dicom.as_deref())?;
+    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
+    check_pullback_mode(&method, opts.pullback)?;
+    let settings = WarpSettings {
+        method,
+        pullback: opts.pullback,
+        interpolation: opts.interpolation,
+        float: opts.float,
+        backend: opts.backend,
+        outside_value: opts.outside_value,
+    };
+    let names = Names {
+        moving: opts.moving.display().to_string(),
+        landmarks: opts.landmarks.describe(),
+        out: opts.out.path.clone(),
+    };
 
     let start = Instant::now();
     let mut lap = Lap(start);
@@ -208,98 +464,31 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     let moving = inputs::load_volume(&opts.moving, opts.quiet)?;
     let reference = opts.reference.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
     seconds.load = lap.next();
-    let grid_volume = reference.as_ref().unwrap_or(&fixed);
     let pairs = opts.landmarks.read()?;
-    let c = inputs::correspondences(&opts.landmarks, &pairs, &moving, &fixed, inputs::min_pairs(&method))?;
-    let target_box = inputs::volume_box::<Fixed>(grid_volume);
-    let pullback = match method {
-        Method::Tps { stiffness } => FittedPullBack::Tps(
-            Tps::fit_smoothing(&c.fixed, &c.moving, stiffness)
-                .map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))?,
-        ),
-        _ => FittedPullBack::Other(inputs::fit_pullback(&method, &c, target_box)?),
-    };
-
-    // The pull-back as the export takes it.
-    let tps_parts = match (&pullback, opts.pullback) {
-        (FittedPullBack::Tps(t), PullBackMode::Exact) => Some(TpsParts::new(t)),
-        _ => None,
-    };
-    let grid_n = match opts.pullback {
-        PullBackMode::Grid(n) => n,
-        // Linear warps: trilinear interpolation of an affine map is exact, so 2³ texels suffice.
-        PullBackMode::Exact => 2,
-    };
-    let control =
-        if tps_parts.is_none() { Some(scene::control_texture(pullback.as_warp(), target_box, grid_n)?) } else { None };
-    let export_pullback = match (&tps_parts, &control) {
-        (Some(parts), _) => PullBack::Tps(parts.desc()),
-        (None, Some((grid, texture))) => PullBack::Control(scene::control_desc(grid, texture)),
-        (None, None) => unreachable!("either the TPS parts or a control texture"),
-    };
-    let outside_value = opts.outside_value.unwrap_or(if scene::looks_like_ct(&moving) { -1024.0 } else { 0.0 });
-    let source = SourceVolume {
-        dims: moving.dims,
-        samples: export_samples(&moving),
-        lps_from_index: moving.lps_from_index.rows(),
-    };
-    let target = TargetGrid { dims: grid_volume.dims, lps_from_index: grid_volume.lps_from_index.rows() };
-    let grid_lps_from_index = grid_volume.lps_from_index;
-    // Only the grids' geometry is needed from here on: free their voxels before the output is allocated (peak
-    // memory: the moving volume and the output).
+    // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
+    // the output is allocated (peak memory: the moving volume and the output).
+    let fitted = Fitted::new(reference.as_ref().unwrap_or(&fixed), &fixed, &moving, &pairs, &names, &settings)?;
     drop(reference);
     drop(fixed);
-    let request = ExportRequest {
-        interpolation: opts.interpolation,
-        output: if opts.float { OutputType::F32 } else { OutputType::Source },
-        outside_value,
-        ..ExportRequest::new(source, target, export_pullback)
-    };
 
     seconds.fit = lap.next();
     let bar = crate::progress::Bar::new(opts.quiet);
-    let mut report_progress = |p: Progress| {
+    let resampled = fitted.resample(&moving, &names, &mut |p: Progress| {
         bar.set("resampling", p.slices_done as u64, p.slices_total as u64);
         true
-    };
-    let (exported, backend) = match opts.backend {
-        Backend::Cpu => (export_cpu(&request, &mut report_progress), "cpu".to_owned()),
-        Backend::Gpu | Backend::Auto => match gpu_export(&request, opts.backend == Backend::Auto, &mut report_progress)
-        {
-            Ok((v, adapter)) => (Ok(v), format!("gpu: {adapter}")),
-            Err(e) if opts.backend == Backend::Auto => {
-                if !opts.quiet {
-                    eprintln!("note: resampling on the CPU ({e})");
-                }
-                (export_cpu(&request, &mut report_progress), "cpu".to_owned())
-            }
-            Err(e) => (Err(e), "gpu".to_owned()),
-        },
-    };
+    });
     bar.finish();
-    let exported = exported.map_err(|e| match e {
-        GpuError::InvalidInput(_) => Failure::BadInput(anyhow!("resampling {}: {e}", opts.moving.display())),
-        other => Failure::Internal(anyhow::Error::from(other).context("resampling")),
-    })?;
+    let resampled = resampled?;
+    if let Some(reason) = &resampled.cpu_fallback
+        && !opts.quiet
+    {
+        eprintln!("note: resampling on the CPU ({reason})");
+    }
     seconds.resample = lap.next();
 
-    let mut volume = Volume::new(
-        &opts.out.path,
-        exported.dims,
-        voxel_data(exported.samples)?,
-        grid_lps_from_index,
-        GeometrySource::NiftiSform { code: 1 },
-    )?;
-    volume.modality = moving.modality.clone();
-    nifti::write(&opts.out.path, &volume)?;
-    if let Some(dir) = &opts.out_dicom {
-        let dicom_opts = DicomSeriesOptions {
-            modality: moving.modality.clone(),
-            series_description: format!("warpbench {method} warp of {}", file_name(&opts.moving)),
-            ..DicomSeriesOptions::default()
-        };
-        dicom_write::write_series(dir, &volume, &dicom_opts)?;
-    }
+    let volume = &resampled.volume;
+    let description = series_description(&resampled.method, &opts.moving);
+    write_outputs(volume, &opts.out.path, opts.out_dicom.as_deref(), &description)?;
     seconds.write = lap.next();
     seconds.total = start.elapsed().as_secs_f64();
     Ok(WarpReport {
@@ -309,15 +498,12 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         dims: volume.dims,
         spacing_mm: volume.spacing_mm(),
         dtype: volume.sample_type().name(),
-        method: method.to_string(),
-        pairs: c.moving.len(),
-        pullback: match opts.pullback {
-            PullBackMode::Grid(n) => format!("grid {n}"),
-            PullBackMode::Exact => "exact".into(),
-        },
-        interpolation: interpolation_name(opts.interpolation),
-        backend,
-        outside_value,
+        method: resampled.method.clone(),
+        pairs: resampled.pairs,
+        pullback: resampled.pullback.clone(),
+        interpolation: resampled.interpolation,
+        backend: resampled.backend.clone(),
+        outside_value: resampled.outside_value,
         seconds,
     })
 }

@@ -7,10 +7,16 @@
 //!   at 441 voxel centres and at the landmarks when it reads a field (and a `.tfm`) this command wrote
 //!   (`data-scripts/check_field_sitk.py`); the field written now must give the same points;
 //! - and its refusals (exit 2, nothing written).
+//!
+//! The in-memory core the window calls, `field::displacement_field` with `field::write_field`, writes the very files
+//! the command writes, and stops when its progress callback says so.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use warpbench_app::exit::Failure;
+use warpbench_app::field;
+use warpbench_app::inputs::Names;
 use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 use warpbench_io::itk_tfm;
 use warpbench_io::landmarks::read_bigwarp_csv;
@@ -375,4 +381,113 @@ fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
     assert!(!dir.path().join("new.nii").exists());
     assert_ok(&warpbench(&["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--force", "--out", o]));
     assert!(read_displacement_field(&out).is_ok(), "--force replaced the file with a field");
+}
+
+fn names(moving: &Path, csv: &Path, out: &Path) -> Names {
+    Names { moving: moving.display().to_string(), landmarks: csv.display().to_string(), out: out.to_path_buf() }
+}
+
+#[test]
+fn the_in_memory_core_writes_the_files_the_command_writes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (f, csv) = (fixture(), write_pairs(dir.path(), false));
+    let volume = warpbench_io::open(&f).expect("fixture");
+    let pairs = read_bigwarp_csv(&csv).expect("landmarks");
+    for (name, method) in [("tps", Method::Tps { stiffness: 0.0 }), ("affine", Method::Linear(LinearKind::Affine))] {
+        let (cli_out, cli_tfm) =
+            (dir.path().join(format!("cli_{name}.nii")), dir.path().join(format!("cli_{name}.tfm")));
+        let mut args = vec!["field", "--fixed", utf8(&f), "--moving", utf8(&f), "--landmarks", utf8(&csv)];
+        args.extend_from_slice(&["--method", name, "--json", "--quiet", "--out", utf8(&cli_out)]);
+        let linear = matches!(method, Method::Linear(_));
+        if linear {
+            args.extend_from_slice(&["--tfm", utf8(&cli_tfm)]);
+        }
+        let run = warpbench(&args);
+        assert_ok(&run);
+        let json: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+
+        let (core_out, core_tfm) =
+            (dir.path().join(format!("core_{name}.nii")), dir.path().join(format!("core_{name}.tfm")));
+        let mut last = (0, 0);
+        let sampled = field::displacement_field(
+            &volume,
+            &volume,
+            &volume,
+            &pairs,
+            &names(&f, &csv, &core_out),
+            &method,
+            &mut |done, total| {
+                assert!(done > last.0 && done <= total, "{done} of {total} after {last:?}");
+                last = (done, total);
+                true
+            },
+        )
+        .expect("the field in memory");
+        assert_eq!(last.1, 91, "progress counts the slices");
+        field::write_field(&sampled, &core_out, linear.then_some(core_tfm.as_path())).expect("write");
+        let read = |p: &Path| std::fs::read(p).expect("read a written file");
+        assert!(read(&cli_out) == read(&core_out), "{name}: the core's field differs from the command's");
+        assert_eq!(linear, core_tfm.exists());
+        if linear {
+            assert_eq!(read(&cli_tfm), read(&core_tfm), "{name}: the core's .tfm differs from the command's");
+        }
+        assert_eq!(json["method"], sampled.method.as_str());
+        assert_eq!(json["pairs"], sampled.pairs);
+        // serde_json may parse a float one ulp off what it printed.
+        let reported = json["max_displacement_mm"].as_f64().expect("max_displacement_mm");
+        assert!(
+            (reported - sampled.max_displacement_mm).abs() <= 1e-12 * reported,
+            "{reported} vs {}",
+            sampled.max_displacement_mm
+        );
+        assert_eq!(json["dims"], serde_json::json!(sampled.dims));
+        assert_eq!(json["spacing_mm"], serde_json::json!(sampled.spacing_mm));
+        assert_eq!(json["lps_from_index"], serde_json::json!(sampled.lps_from_index.rows()));
+    }
+
+    // A .tfm of a warp that is not linear is refused before anything is written.
+    let tps = field::displacement_field(
+        &volume,
+        &volume,
+        &volume,
+        &pairs,
+        &names(&f, &csv, Path::new("unused.nii")),
+        &Method::Tps { stiffness: 0.0 },
+        &mut |_, _| true,
+    )
+    .expect("the field in memory");
+    let (out, tfm) = (dir.path().join("refused.nii"), dir.path().join("refused.tfm"));
+    assert!(matches!(field::write_field(&tps, &out, Some(&tfm)), Err(Failure::BadInput(_))));
+    assert!(!out.exists() && !tfm.exists(), "a refused write wrote something");
+}
+
+#[test]
+fn the_in_memory_core_stops_when_progress_says_so() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (f, csv) = (fixture(), write_pairs(dir.path(), false));
+    let volume = warpbench_io::open(&f).expect("fixture");
+    let pairs = read_bigwarp_csv(&csv).expect("landmarks");
+    // Stop at the first report, and at the second.
+    for stop_at in [1, 2] {
+        let mut calls = 0;
+        let result = field::displacement_field(
+            &volume,
+            &volume,
+            &volume,
+            &pairs,
+            &names(&f, &csv, &dir.path().join("never.nii")),
+            &Method::Tps { stiffness: 0.0 },
+            &mut |_, _| {
+                calls += 1;
+                calls < stop_at
+            },
+        );
+        match result {
+            Err(Failure::Cancelled(e)) => assert!(format!("{e:#}").contains("cancelled"), "{e:#}"),
+            Err(other) => panic!("stop at {stop_at}: {:#}", other.error()),
+            Ok(_) => panic!("stop at {stop_at}: a cancelled sampling returned a field"),
+        }
+        assert_eq!(calls, stop_at, "no progress call after the one that said stop");
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 1, "only the pairs: nothing was written");
 }

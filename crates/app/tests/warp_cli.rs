@@ -1,11 +1,18 @@
 //! `warpbench warp` end to end, on real fixtures: identity landmarks give back the input; a rigid landmark set on
 //! the CT reproduces the rigidly resampled CT (against a brute-force f64 trilinear resampling written here); the GPU
-//! and the CPU backends write the same file; `--out-dicom` writes a series our reader reads back; refusals.
+//! and the CPU backends write the same file; `--out-dicom` writes a series our reader reads back; refusals. And the
+//! in-memory core the window calls, `warp::resample`, makes the very file the command writes, and stops when asked.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use warpbench_app::exit::Failure;
+use warpbench_app::inputs::Names;
+use warpbench_app::warp::{self, Backend, PullBackMode, WarpSettings};
+use warpbench_gpu::export::{Interpolation, Progress};
+use warpbench_io::landmarks::read_bigwarp_csv;
 use warpbench_io::volume::VoxelData;
+use warpbench_solver::method::Method;
 
 fn data(rel: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel)
@@ -254,4 +261,148 @@ fn writes_a_dicom_series_and_refuses_bad_requests() {
         "new or empty folder",
     );
     assert!(!fresh.exists(), "a refused run wrote its output");
+}
+
+/// Pairs on the MRI fixture: fixed points inside the brain, moving points shifted by (2, −1, 3) mm plus a few mm of
+/// local deformation, so the TPS is not affine.
+fn deformed_pairs(dir: &Path) -> PathBuf {
+    let q = [
+        [0.0, 18.0, 18.0],
+        [40.0, 18.0, 18.0],
+        [-40.0, 30.0, 0.0],
+        [0.0, 70.0, 40.0],
+        [10.0, -40.0, 18.0],
+        [0.0, 18.0, -20.0],
+    ];
+    let local = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.5, 0.0, 1.0], [0.0, 0.0, -2.0], [1.0, 1.0, 0.0], [0.0; 3]];
+    let pairs: Vec<_> =
+        q.iter().zip(local).map(|(q, l)| ([q[0] + 2.0 + l[0], q[1] - 1.0 + l[1], q[2] + 3.0 + l[2]], *q)).collect();
+    let csv = dir.join("deformed.csv");
+    write_pairs(&csv, &pairs);
+    csv
+}
+
+fn names(moving: &Path, csv: &Path, out: &Path) -> Names {
+    Names { moving: moving.display().to_string(), landmarks: csv.display().to_string(), out: out.to_path_buf() }
+}
+
+#[test]
+fn the_in_memory_core_makes_the_file_the_command_writes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let csv = deformed_pairs(dir.path());
+    let volume = warpbench_io::open(&mri).expect("read the fixture");
+    let pairs = read_bigwarp_csv(&csv).expect("read the pairs");
+    // A control texture with linear interpolation (the defaults), and the exact TPS with cubic interpolation to f32.
+    let cases: [(&[&str], WarpSettings); 2] = [
+        (
+            &["--grid", "24"],
+            WarpSettings {
+                method: Method::Tps { stiffness: 0.0 },
+                pullback: PullBackMode::Grid(24),
+                interpolation: Interpolation::Trilinear,
+                float: false,
+                backend: Backend::Cpu,
+                outside_value: None,
+            },
+        ),
+        (
+            &["--exact", "--interp", "cubic", "--float", "--outside", "-7.5"],
+            WarpSettings {
+                method: Method::Tps { stiffness: 0.0 },
+                pullback: PullBackMode::Exact,
+                interpolation: Interpolation::CatmullRom,
+                float: true,
+                backend: Backend::Cpu,
+                outside_value: Some(-7.5),
+            },
+        ),
+    ];
+    for (n, (extra, settings)) in cases.iter().enumerate() {
+        let from_cli = dir.path().join(format!("cli_{n}.nii"));
+        let mut args = vec!["warp", "--fixed", s(&mri), "--moving", s(&mri), "--landmarks", s(&csv), "--method", "tps"];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--backend", "cpu", "--quiet", "--json", "--out", s(&from_cli)]);
+        let run = warpbench(&args);
+        assert_ok(&run);
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("the --json report");
+
+        let from_core = dir.path().join(format!("core_{n}.nii"));
+        let mut calls = 0usize;
+        let resampled = warp::resample(
+            &volume,
+            &volume,
+            &volume,
+            &pairs,
+            &names(&mri, &csv, &from_core),
+            settings,
+            &mut |p: Progress| {
+                calls += 1;
+                assert!(p.slices_done <= p.slices_total && p.slices_total == volume.dims[2], "{p:?}");
+                true
+            },
+        )
+        .expect("resample in memory");
+        assert!(calls > 1, "progress is reported per slab: {calls} calls");
+        let description = warp::series_description(&resampled.method, &mri);
+        warp::write_outputs(&resampled.volume, &from_core, None, &description).expect("write");
+        let (cli_bytes, core_bytes) =
+            (std::fs::read(&from_cli).expect("CLI file"), std::fs::read(&from_core).expect("core file"));
+        assert!(cli_bytes == core_bytes, "case {n}: the core's file differs from the command's");
+
+        // What the report says is what the core says.
+        assert_eq!(report["method"], resampled.method.as_str());
+        assert_eq!(report["pairs"], resampled.pairs);
+        assert_eq!(report["pullback"], resampled.pullback.as_str());
+        assert_eq!(report["interpolation"], resampled.interpolation);
+        assert_eq!(report["backend"], resampled.backend.as_str());
+        assert_eq!(report["outside_value"], resampled.outside_value);
+        assert_eq!(report["dtype"], resampled.volume.sample_type().name());
+        assert_eq!(resampled.volume.modality, volume.modality);
+        assert_eq!(resampled.volume.lps_from_index, volume.lps_from_index);
+        // The warp moves voxels: the comparison is not between two copies of the input.
+        assert!(resampled.volume.data != volume.data || settings.float, "case {n}: nothing moved");
+    }
+}
+
+#[test]
+fn the_in_memory_core_stops_when_progress_says_so() {
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let volume = warpbench_io::open(&mri).expect("read the fixture");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = deformed_pairs(dir.path());
+    let pairs = read_bigwarp_csv(&csv).expect("read the pairs");
+    let settings = WarpSettings {
+        method: Method::Tps { stiffness: 0.0 },
+        pullback: PullBackMode::Grid(16),
+        interpolation: Interpolation::Trilinear,
+        float: false,
+        backend: Backend::Cpu,
+        outside_value: None,
+    };
+    // Stop at the first report, and at the second (after a slab was done).
+    for stop_at in [1, 2] {
+        let mut calls = 0usize;
+        let result = warp::resample(
+            &volume,
+            &volume,
+            &volume,
+            &pairs,
+            &names(&mri, &csv, &dir.path().join("never.nii")),
+            &settings,
+            &mut |_: Progress| {
+                calls += 1;
+                calls < stop_at
+            },
+        );
+        match result {
+            Err(Failure::Cancelled(e)) => {
+                assert!(format!("{e:#}").contains("cancelled"), "{e:#}");
+            }
+            Err(other) => panic!("stop at {stop_at}: {:#}", other.error()),
+            Ok(_) => panic!("stop at {stop_at}: a cancelled resampling returned a volume"),
+        }
+        assert_eq!(calls, stop_at, "no progress call after the one that said stop");
+    }
+    assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 1, "only the pairs: nothing was written");
 }
