@@ -139,7 +139,7 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     assert_eq!(blend(&harness), "difference");
 
     // Switching a pair off refits the warp on the other four.
-    harness.get_by_label("Pt-2").click();
+    harness.get_by_label("Use Pt-2").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert!(!ready.loaded.pairs[2].active);
@@ -179,7 +179,8 @@ fn a_missing_file_is_reported_in_the_window() {
     }
     let message = harness.state().failure().expect("failed").to_owned();
     assert!(message.contains("/nonexistent/fixed.nii"), "{message}");
-    harness.get_by_label("Could not open the volumes");
+    harness.get_by_label("No volumes are open");
+    harness.get_by_label("Open the demo pair");
 }
 
 /// A primary-button click at `pos` (window points): press, then release on the next frame.
@@ -340,4 +341,251 @@ fn a_folding_warp_is_flagged_with_its_location() {
     // The minimum lies between the crossing pairs.
     assert!((j.min_at[0] - 3.0).abs() < 15.0 && (j.min_at[2] - 30.0).abs() < 15.0, "{j:?}");
     harness.get_by_label_contains("the warp folds");
+}
+
+/// A file dropped on the window (egui leaves the type to the integration).
+#[derive(Debug)]
+struct Dropped(std::path::PathBuf);
+
+impl egui::DroppedFile for Dropped {
+    fn path(&self) -> &Path {
+        &self.0
+    }
+    fn bytes(&self) -> Result<Vec<u8>, String> {
+        std::fs::read(&self.0).map_err(|e| e.to_string())
+    }
+}
+
+fn drop_files(harness: &mut Harness<'_, Workbench>, paths: &[std::path::PathBuf]) {
+    for p in paths {
+        harness.input_mut().dropped_files.push(std::sync::Arc::new(Dropped(p.clone())));
+    }
+    harness.run_steps(2);
+}
+
+/// Steps until no volume is being read (or 60 s pass).
+fn wait_for_reads(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    while harness.state().reading() > 0 {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(1), "a read did not finish within a minute");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    harness.run_steps(3);
+}
+
+fn data(rel: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel)
+}
+
+#[test]
+fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    harness.get_by_label("File");
+
+    // A corrupt volume: asked which side, read on a worker, refused in a dialog that names it; the pair stays.
+    drop_files(&mut harness, &[data("bad/random.nii")]);
+    harness.get_by_label("the moving volume").click();
+    harness.run_steps(2);
+    wait_for_reads(&mut harness);
+    let message = harness.state().dialogs.error.clone().expect("an error dialog");
+    assert!(message.contains("random.nii") && message.contains("moving"), "{message}");
+    harness.get_by_label("OK").click();
+    harness.run_steps(2);
+    assert!(harness.state().dialogs.error.is_none());
+    assert_eq!(harness.state().ready().expect("the pair stays").loaded.moving.dims, [91, 109, 91]);
+
+    // A DICOM folder with a CT and an MR series: the chooser lists both; the MR becomes the moving volume.
+    let folder = data("dicom/mixed_ct5n_mr_small");
+    drop_files(&mut harness, std::slice::from_ref(&folder));
+    harness.get_by_label("the moving volume").click();
+    harness.run_steps(2);
+    wait_for_reads(&mut harness);
+    let (side, _, series) = harness.state().dialogs.series.clone().expect("the series chooser");
+    assert_eq!((side, series.len()), (warpbench_app::gui::open::Side::Moving, 2));
+    harness.get_by_label_contains(": MR ").click();
+    harness.run_steps(2);
+    wait_for_reads(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.loaded.moving_path.as_deref(), Some(folder.as_path()));
+    assert_eq!(ready.loaded.moving.modality, warpbench_io::Modality::Mr);
+    assert!(ready.loaded.title.contains("mixed_ct5n_mr_small"), "{}", ready.loaded.title);
+    // The landmarks stay (patient space), and the warp is fitted again against the new volume.
+    assert_eq!(ready.loaded.pairs.len(), 5);
+
+    // Two volumes dropped together: the first is the fixed one, the second the moving one.
+    let ct = data("nifti/avg152T1_LR_nifti2.nii.gz");
+    drop_files(&mut harness, &[ct.clone(), mri()]);
+    wait_for_reads(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.loaded.fixed_path.as_deref(), Some(ct.as_path()));
+    assert_eq!(ready.loaded.moving_path.as_deref(), Some(mri().as_path()));
+    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+}
+
+#[test]
+fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    // The accuracy panel: a histogram and the worst pairs.
+    harness.get_by_label("Leave-one-out histogram");
+    harness.get_by_label_contains("Leave-one-out error: mean");
+
+    // Rename pair 1; undo brings the old name back.
+    harness.get_by_label("Name of pair 1").focus();
+    harness.run_steps(2);
+    harness.get_by_label("Name of pair 1").type_text("nasion");
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").loaded.pairs[0].name.contains("nasion"));
+    // The typed text arrived in one frame: one undo step.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").loaded.pairs[0].name, "Pt-0");
+
+    // Drag Pt-1's fixed point 30 points to the right within the axial slice through it.
+    harness.get_by_label("Go to Pt-1").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    let q = ready.loaded.pairs[1].fixed.expect("fixed").coords();
+    let plane = ready.slice_plane(0);
+    let rect = harness.get_by_label("Axial slice").rect();
+    let scale = rect.width() / plane.size.0 as f32;
+    let px = plane.pixel_from_ref(q).expect("on the plane");
+    assert!(px[2].abs() < 1.0, "the axial slice goes through the pair: {px:?}");
+    let start = rect.min + egui::vec2((px[0] as f32 + 0.5) * scale, (px[1] as f32 + 0.5) * scale);
+    let end = start + egui::vec2(30.0, 0.0);
+    let button = |pos, pressed| egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Primary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    };
+    harness.input_mut().events.push(egui::Event::PointerMoved(start));
+    harness.input_mut().events.push(button(start, true));
+    harness.step();
+    for t in [0.25f32, 0.5, 0.75, 1.0] {
+        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
+        harness.step();
+    }
+    let during = harness.state().ready().expect("loaded");
+    assert!(during.drag.is_some(), "the press grabbed the glyph");
+    harness.input_mut().events.push(button(end, false));
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.drag.is_none());
+    let moved = ready.loaded.pairs[1].fixed.expect("fixed").coords();
+    let expected = plane.ref_from_pixel(px[0] + f64::from(30.0 / scale), px[1]);
+    for a in 0..3 {
+        assert!((moved[a] - expected[a]).abs() < 1.0, "dragged to {moved:?}, expected {expected:?}");
+    }
+    assert!((moved[0] - q[0]).abs() > 10.0, "it moved: {q:?} -> {moved:?}");
+    // The drag refitted the warp and, once released, the diagnostics.
+    assert_eq!(ready.fitted_pairs(), 5);
+    assert!(ready.errors[1].is_some_and(|e| e.leave_one_out_mm.is_some()));
+    // One drag is one undo step.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let back = harness.state().ready().expect("loaded").loaded.pairs[1].fixed.expect("fixed").coords();
+    assert_eq!(back.map(f64::to_bits), q.map(f64::to_bits), "undo puts the point back exactly");
+}
+
+#[test]
+fn an_oblique_slice_turns_about_the_crosshair() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    let straight = harness.state().ready().expect("loaded").slice_plane(0);
+    harness.get_by_label("Axial oblique").click();
+    harness.run_steps(2);
+    harness.get_by_label("Axial tilt");
+    harness.state_mut().ready_mut().expect("loaded").settings.oblique[0].tilt_deg = 30.0;
+    harness.state_mut().ready_mut().expect("loaded").invalidate();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    let turned = ready.slice_plane(0);
+    let dot: f64 = (0..3).map(|i| straight.normal_ref().expect("n")[i] * turned.normal_ref().expect("n")[i]).sum();
+    assert!((dot.abs() - 30f64.to_radians().cos()).abs() < 1e-6, "normals at {} deg", dot.abs().acos().to_degrees());
+    // It turns about the crosshair: the crosshair point lies on the turned plane.
+    let s = ready.slice_mm;
+    let d = turned.pixel_from_ref([s[2], s[1], s[0]]).expect("plane")[2];
+    assert!(d.abs() < 1e-6, "crosshair {d} mm off the plane");
+    assert_eq!(turned.size, straight.size);
+}
+
+/// Steps until the window's export finishes (or 2 min pass); returns the message it left.
+fn wait_for_export(harness: &mut Harness<'_, Workbench>) -> String {
+    let start = Instant::now();
+    while harness.state().ready().expect("loaded").export.is_some() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(2), "the export did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    harness.run_steps(2);
+    harness.state().ready().expect("loaded").file_message.clone().unwrap_or_default()
+}
+
+#[test]
+fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 900.0));
+    let csv = dir.path().join("pairs.csv");
+
+    // A bad name is refused before anything runs. (The export section is at the bottom of the side panel.)
+    harness.get_by_label("Export file").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("Export file").focus();
+    harness.get_by_label("Export file").type_text(&dir.path().join("warped.txt").display().to_string());
+    harness.run_steps(2);
+    harness.get_by_label("Export warped volume").click();
+    harness.run_steps(2);
+    let message = harness.state().ready().expect("loaded").file_message.clone().unwrap_or_default();
+    assert!(message.contains(".nii"), "{message}");
+    assert!(!dir.path().join("warped.txt").exists());
+
+    let warped = dir.path().join("warped.nii.gz");
+    harness.state_mut().ready_mut().expect("loaded").export_fields.out = warped.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("Export warped volume").click();
+    harness.run_steps(1);
+    let message = wait_for_export(&mut harness);
+    assert!(message.starts_with("wrote ") && message.contains("5 pairs"), "{message}");
+
+    let field_out = dir.path().join("field.nii.gz");
+    harness.state_mut().ready_mut().expect("loaded").export_fields.out = field_out.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("Export displacement field").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("Export displacement field").click();
+    harness.run_steps(1);
+    let message = wait_for_export(&mut harness);
+    assert!(message.contains("displacement field"), "{message}");
+
+    // The same files as `warpbench warp --exact` and `warpbench field` write for the same inputs, byte for byte.
+    let cli = |args: &[&str]| {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run");
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    };
+    let (m, c) = (mri().display().to_string(), csv.display().to_string());
+    let cli_warped = dir.path().join("cli_warped.nii.gz");
+    let cli_field = dir.path().join("cli_field.nii.gz");
+    let common = ["--fixed", m.as_str(), "--moving", m.as_str(), "--landmarks", c.as_str(), "--quiet"];
+    let warped_arg = cli_warped.display().to_string();
+    cli(&[&["warp"], &common[..], &["--exact", "--interp", "linear", "--out", warped_arg.as_str()]].concat());
+    let field_arg = cli_field.display().to_string();
+    cli(&[&["field"], &common[..], &["--out", field_arg.as_str()]].concat());
+    assert!(std::fs::read(&warped).expect("window's") == std::fs::read(&cli_warped).expect("CLI's"), "warped volume");
+    assert!(std::fs::read(&field_out).expect("window's") == std::fs::read(&cli_field).expect("CLI's"), "field");
 }

@@ -7,12 +7,15 @@
 //! changed, at the interaction sample rate while the camera is being dragged ([`warpbench_gpu::Quality`]).
 
 pub mod demo;
+pub mod export;
 pub mod history;
+pub mod open;
 pub mod panels;
 pub mod session;
 pub mod viewer;
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::sync::mpsc::{Receiver, TryRecvError};
 
 use anyhow::{Context as _, anyhow};
@@ -54,8 +57,8 @@ pub struct GuiOptions {
 /// The loaded inputs, before they reach the GPU.
 #[derive(Debug)]
 pub struct Loaded {
-    pub fixed: Volume,
-    pub moving: Volume,
+    pub fixed: Arc<Volume>,
+    pub moving: Arc<Volume>,
     pub pairs: Vec<LandmarkPair>,
     /// e.g. "cranium_ct.nii.gz -> ch2.nii.gz (demo)".
     pub title: String,
@@ -66,14 +69,18 @@ pub struct Loaded {
     pub session: Option<session::SessionFile>,
 }
 
-/// Loads what `opts` names: a session, two volumes (with landmarks), or the demo pair when it names nothing.
-pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
+/// Loads what `opts` names: a session, two volumes (with landmarks), or the demo pair when it names nothing,
+/// reporting each file's progress to `watch` and stopping when it is cancelled.
+pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>) -> anyhow::Result<Loaded> {
+    let read = |p: &std::path::Path| watch.load_options(p).open(p).map(Arc::new);
     let name =
         |p: &std::path::Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into());
     if let Some(path) = &opts.session {
         let file = session::load(path)?;
-        let mut loaded =
-            load(&GuiOptions { fixed: file.fixed.clone(), moving: file.moving.clone(), ..GuiOptions::default() })?;
+        let mut loaded = load(
+            &GuiOptions { fixed: file.fixed.clone(), moving: file.moving.clone(), ..GuiOptions::default() },
+            watch,
+        )?;
         loaded.pairs = file.landmarks.iter().map(session::SessionPair::to_pair).collect();
         loaded.title = format!("{} ({})", loaded.title, name(path));
         loaded.session = Some(file);
@@ -81,8 +88,8 @@ pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
     }
     match (&opts.fixed, &opts.moving) {
         (Some(f), Some(m)) => {
-            let fixed = warpbench_io::open(f)?;
-            let moving = warpbench_io::open(m)?;
+            let fixed = read(f)?;
+            let moving = read(m)?;
             let pairs = match &opts.landmarks {
                 Some(source) => source.read().map_err(|e| anyhow!("{:#}", e.error()))?,
                 None => Vec::new(),
@@ -99,10 +106,10 @@ pub fn load(opts: &GuiOptions) -> anyhow::Result<Loaded> {
         }
         (None, None) => {
             let (title, fixed, moving) = if let Some((f, m)) = demo::demo_paths() {
-                (format!("{} -> {} (demo)", name(&f), name(&m)), warpbench_io::open(&f)?, warpbench_io::open(&m)?)
+                (format!("{} -> {} (demo)", name(&f), name(&m)), read(&f)?, read(&m)?)
             } else {
-                let fixed = demo::phantom(96, 2.0, [0.0; 3], true);
-                let moving = demo::phantom(96, 2.0, [6.0, -4.0, 3.0], false);
+                let fixed = Arc::new(demo::phantom(96, 2.0, [0.0; 3], true));
+                let moving = Arc::new(demo::phantom(96, 2.0, [6.0, -4.0, 3.0], false));
                 ("phantom CT -> phantom MR (demo)".to_owned(), fixed, moving)
             };
             let pairs = demo::demo_landmarks(&fixed, &moving);
@@ -132,6 +139,38 @@ pub enum Placing {
         moving: Point3<Lps>,
     },
 }
+
+/// Which point of a pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum End {
+    /// The source, on the moving volume (drawn where the warp shows it).
+    Moving,
+    /// The target, on the fixed volume.
+    Fixed,
+}
+
+/// Where a landmark is being dragged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DragView {
+    /// Along the visible surface of the 3-D view (a pick per drag event).
+    ThreeD,
+    /// Within the plane of slice view 0 (axial), 1 (coronal) or 2 (sagittal).
+    Slice(usize),
+}
+
+/// A landmark point being dragged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DragPoint {
+    pub pair: usize,
+    pub end: End,
+    pub view: DragView,
+}
+
+/// How close (points) a press must be to a landmark glyph to grab it.
+const GRAB_RADIUS: f32 = 8.0;
+
+/// How far (mm) from a slice plane a landmark is still drawn on, and grabbed from, that slice.
+const SLICE_SLAB_MM: f64 = 3.0;
 
 impl std::fmt::Debug for Fitted {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -170,11 +209,19 @@ pub struct Ready {
     pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
     /// The LPS point under the cursor in a slice view, for the status bar.
     pub cursor_lps: Option<[f64; 3]>,
+    /// The pair selected in the table or by clicking its glyph.
+    pub selected: Option<usize>,
+    /// A landmark point being dragged.
+    pub drag: Option<DragPoint>,
+    /// The export running on a worker thread.
+    pub export: Option<export::ExportJob>,
+    /// The export section's fields.
+    pub export_fields: export::ExportFields,
 }
 
 #[derive(Debug)]
 enum Phase {
-    Loading(Receiver<anyhow::Result<Loaded>>),
+    Loading { rx: Receiver<anyhow::Result<Loaded>>, watch: Arc<open::Watch> },
     Failed(String),
     Ready(Box<Ready>),
 }
@@ -194,6 +241,12 @@ pub struct Workbench {
     exit_after_frames: Option<u32>,
     ready_frames: u32,
     screenshot_requested: bool,
+    /// Volumes being read for File > Open and drops.
+    jobs: Vec<open::VolumeJob>,
+    /// Volumes read while no pair is shown, waiting for the other side.
+    pending: [Option<(Arc<Volume>, PathBuf)>; 2],
+    /// The open dialogs: error, series chooser, dropped volume, native dialog.
+    pub dialogs: open::OpenDialogs,
 }
 
 impl std::fmt::Debug for Workbench {
@@ -225,17 +278,22 @@ impl Workbench {
             exit_after_frames: opts.exit_after_frames,
             ready_frames: 0,
             screenshot_requested: false,
+            jobs: Vec::new(),
+            pending: [None, None],
+            dialogs: open::OpenDialogs::default(),
         }
     }
 
     fn start_loading(ctx: &egui::Context, opts: GuiOptions) -> Phase {
         let (tx, rx) = std::sync::mpsc::channel();
         let ctx = ctx.clone();
+        let watch = Arc::new(open::Watch::default());
+        let worker_watch = Arc::clone(&watch);
         std::thread::spawn(move || {
-            let _ = tx.send(load(&opts));
+            let _ = tx.send(load(&opts, &worker_watch));
             ctx.request_repaint();
         });
-        Phase::Loading(rx)
+        Phase::Loading { rx, watch }
     }
 
     /// Saves the session to the autosave file now (`clean_exit`: this is the last save of a normal exit).
@@ -275,7 +333,7 @@ impl Workbench {
     }
 
     fn poll_loading(&mut self) {
-        let Phase::Loading(rx) = &self.phase else { return };
+        let Phase::Loading { rx, .. } = &self.phase else { return };
         let loaded = match rx.try_recv() {
             Ok(result) => result,
             Err(TryRecvError::Empty) => return,
@@ -285,6 +343,99 @@ impl Workbench {
             Ok(ready) => Phase::Ready(Box::new(ready)),
             Err(e) => Phase::Failed(format!("{e:#}")),
         };
+    }
+
+    /// Starts reading a volume for one side of the pair (File > Open, a drop, the series chooser); a read already
+    /// running for that side is cancelled.
+    pub fn open_volume(&mut self, ctx: &egui::Context, side: open::Side, path: PathBuf, series: Option<String>) {
+        for job in self.jobs.iter().filter(|j| j.side == side) {
+            job.watch.cancel();
+        }
+        self.jobs.retain(|j| j.side != side);
+        self.jobs.push(open::VolumeJob::start(ctx, side, path, series));
+    }
+
+    /// The volume reads still running (for tests).
+    #[must_use]
+    pub fn reading(&self) -> usize {
+        self.jobs.len()
+    }
+
+    /// Takes finished reads: a volume replaces its side of the shown pair, or waits for the other side when no
+    /// pair is shown; a failure opens the error dialog or the series chooser.
+    fn poll_volume_jobs(&mut self) {
+        let mut finished = Vec::new();
+        self.jobs.retain(|job| match job.poll() {
+            Some(result) => {
+                finished.push((job.side, job.path.clone(), result));
+                false
+            }
+            None => true,
+        });
+        for (side, path, result) in finished {
+            let volume = match result {
+                Ok(v) => Arc::new(v),
+                Err(e) => {
+                    self.dialogs.failed(side, &path, &e);
+                    continue;
+                }
+            };
+            let rs = self.render_state.clone();
+            if let (Phase::Ready(ready), Some(rs)) = (&mut self.phase, rs.as_ref()) {
+                if let Err(e) = ready.replace_volume(rs, side, volume, path) {
+                    self.dialogs.error = Some(format!("{e:#}"));
+                }
+                continue;
+            }
+            self.pending[side as usize] = Some((volume, path));
+            if let [Some(_), Some(_)] = &self.pending {
+                let [Some((fixed, f)), Some((moving, m))] = std::mem::take(&mut self.pending) else { continue };
+                let loaded = Loaded {
+                    title: format!("{} -> {}", open::file_name(&f), open::file_name(&m)),
+                    fixed,
+                    moving,
+                    pairs: Vec::new(),
+                    fixed_path: Some(f),
+                    moving_path: Some(m),
+                    session: None,
+                };
+                self.phase = match self.upload(loaded) {
+                    Ok(ready) => Phase::Ready(Box::new(ready)),
+                    Err(e) => Phase::Failed(format!("{e:#}")),
+                };
+            }
+        }
+    }
+
+    /// Acts on what the menu, a dialog, a drop or a chooser asked for.
+    fn handle(&mut self, ctx: &egui::Context, event: open::OpenEvent) {
+        use open::{OpenEvent, Purpose};
+        match event {
+            OpenEvent::Volume { side, path, series } => self.open_volume(ctx, side, path, series),
+            OpenEvent::OpenSession(path) => {
+                self.phase = Self::start_loading(ctx, GuiOptions { session: Some(path), ..GuiOptions::default() });
+            }
+            OpenEvent::Demo => self.phase = Self::start_loading(ctx, GuiOptions::default()),
+            OpenEvent::Dialog(purpose) => self.dialogs.dialog = Some(open::DialogJob::start(ctx, purpose)),
+            OpenEvent::ImportLandmarks(path) => match &mut self.phase {
+                Phase::Ready(ready) => ready.file_action(ctx, panels::FileAction::ImportLandmarks(path)),
+                _ => self.dialogs.error = Some("Open a pair of volumes before importing landmarks.".into()),
+            },
+            OpenEvent::Save(purpose, path) => {
+                let Phase::Ready(ready) = &mut self.phase else { return };
+                let action = match purpose {
+                    Purpose::SaveSession => panels::FileAction::SaveSession(path),
+                    Purpose::ExportLandmarks => panels::FileAction::ExportLandmarks(path),
+                    Purpose::Screenshot => panels::FileAction::Screenshot(path),
+                    Purpose::ExportWarped => panels::FileAction::ExportWarped(path),
+                    Purpose::ExportField => panels::FileAction::ExportField(path),
+                    Purpose::OpenFile(_) | Purpose::OpenFolder(_) | Purpose::OpenSession | Purpose::ImportLandmarks => {
+                        return;
+                    }
+                };
+                ready.file_action(ctx, action);
+            }
+        }
     }
 
     fn upload(&self, loaded: Loaded) -> anyhow::Result<Ready> {
@@ -314,6 +465,10 @@ impl Workbench {
             file_message: None,
             jacobian: None,
             cursor_lps: None,
+            selected: None,
+            drag: None,
+            export: None,
+            export_fields: export::ExportFields::default(),
             // Replaced just below by the real first state, which needs the rest of `ready`.
             history: History::new(Snapshot {
                 pairs: Vec::new(),
@@ -336,8 +491,19 @@ impl Workbench {
 
 impl Ready {
     /// Fits the warp to the active pairs with the current method and uploads its control texture; with fewer pairs
-    /// than the method needs, the moving volume is shown unwarped and the status bar says why.
+    /// than the method needs, the moving volume is shown unwarped and the status bar says why. Then the diagnostics:
+    /// residuals, leave-one-out errors and folding.
     pub fn refit(&mut self) {
+        self.fit(true);
+    }
+
+    /// The fit of [`Self::refit`] without leave-one-out and folding (N more fits and a Jacobian grid): what a drag
+    /// event runs, so that the warp follows the pointer; the diagnostics follow when the drag ends.
+    pub fn refit_interactive(&mut self) {
+        self.fit(false);
+    }
+
+    fn fit(&mut self, diagnostics: bool) {
         self.dirty = true;
         let method = self.settings.method();
         let name = panels::METHODS[self.settings.method.min(panels::METHODS.len() - 1)];
@@ -356,7 +522,9 @@ impl Ready {
                 Some((as_moving(p.moving?), as_fixed(p.fixed?)))
             })
             .unzip();
-        self.errors = vec![None; self.loaded.pairs.len()];
+        if diagnostics {
+            self.errors = vec![None; self.loaded.pairs.len()];
+        }
         let result = (|| -> anyhow::Result<Fitted> {
             let need = inputs::min_pairs(&method);
             if moving.len() < need {
@@ -375,6 +543,12 @@ impl Ready {
             Ok(Fitted { pullback, forward, pairs: moving.len() })
         })();
         match result {
+            Ok(fitted) if !diagnostics => {
+                // Keep the last diagnostics until the drag ends.
+                self.errors.resize(self.loaded.pairs.len(), None);
+                self.fitted = Some(fitted);
+                self.fit_error = None;
+            }
             Ok(fitted) => {
                 // Residuals of the pull-back at the targets, and leave-one-out errors (refits without each pair).
                 let residuals = residuals(fitted.pullback.as_ref(), &fixed, &moving);
@@ -397,6 +571,178 @@ impl Ready {
         }
     }
 
+    /// Carries out a file action of the side panel or the File menu; the outcome goes to `file_message`.
+    pub fn file_action(&mut self, ctx: &egui::Context, action: panels::FileAction) {
+        use panels::FileAction;
+        match action {
+            FileAction::None => {}
+            FileAction::SaveSession(path) => {
+                let file = self.to_session(true);
+                self.file_message = Some(match session::save(&path, &file) {
+                    Ok(()) => format!("saved {}", path.display()),
+                    Err(e) => format!("{e:#}"),
+                });
+            }
+            FileAction::ExportLandmarks(path) => {
+                self.file_message = Some(match panels::export_landmarks(&path, &self.loaded.pairs) {
+                    Ok(()) => format!("wrote {}", path.display()),
+                    Err(e) => format!("{e:#}"),
+                });
+            }
+            FileAction::Screenshot(path) => {
+                // The window as it is drawn this frame, saved when the integration hands the pixels over.
+                ctx.request_screenshot(move |image| {
+                    if let Err(e) = save_png(&path, &image) {
+                        eprintln!("warpbench: {e:#}");
+                    }
+                });
+                self.file_message = Some("screenshot requested".into());
+            }
+            FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
+                Ok(pairs) => {
+                    self.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
+                    self.loaded.pairs = pairs;
+                    self.refit();
+                }
+                Err(e) => self.file_message = Some(format!("{e:#}")),
+            },
+            FileAction::ExportWarped(path) => self.start_export(ctx, export::ExportKind::Warped { dicom: None }, path),
+            FileAction::ExportField(path) => self.start_export(ctx, export::ExportKind::Field, path),
+        }
+    }
+
+    /// Starts exporting the warped moving volume or the displacement field to `out` on a worker thread (one
+    /// export at a time), with the current pairs and method.
+    pub fn start_export(&mut self, ctx: &egui::Context, kind: export::ExportKind, out: PathBuf) {
+        if self.export.is_some() {
+            self.file_message = Some("an export is running: wait for it or cancel it".into());
+            return;
+        }
+        let input = export::ExportInput {
+            fixed: Arc::clone(&self.loaded.fixed),
+            moving: Arc::clone(&self.loaded.moving),
+            fixed_path: self.loaded.fixed_path.clone(),
+            moving_path: self.loaded.moving_path.clone(),
+            pairs: self.loaded.pairs.clone(),
+            method: self.settings.method(),
+        };
+        match export::ExportJob::start(ctx, kind, out, input) {
+            Ok(job) => {
+                self.file_message = None;
+                self.export = Some(job);
+            }
+            Err(e) => self.file_message = Some(e),
+        }
+    }
+
+    /// Replaces one side of the pair with `volume` read from `path`: new GPU resources, the views re-centred on a
+    /// new fixed volume, and the warp fitted again. The landmarks stay (their points are in patient space).
+    pub fn replace_volume(
+        &mut self,
+        rs: &eframe::egui_wgpu::RenderState,
+        side: open::Side,
+        volume: Arc<Volume>,
+        path: PathBuf,
+    ) -> anyhow::Result<()> {
+        let (fixed, moving) = match side {
+            open::Side::Fixed => (volume, Arc::clone(&self.loaded.moving)),
+            open::Side::Moving => (Arc::clone(&self.loaded.fixed), volume),
+        };
+        self.viewer = Viewer::new(rs, &fixed, &moving)?;
+        (self.loaded.fixed, self.loaded.moving) = (fixed, moving);
+        match side {
+            open::Side::Fixed => self.loaded.fixed_path = Some(path),
+            open::Side::Moving => self.loaded.moving_path = Some(path),
+        }
+        let name = |p: &Option<PathBuf>| p.as_deref().map_or_else(|| "(demo)".to_owned(), open::file_name);
+        self.loaded.title = format!("{} -> {}", name(&self.loaded.fixed_path), name(&self.loaded.moving_path));
+        if side == open::Side::Fixed {
+            let (lo, hi) = self.viewer.scene_box();
+            let (azimuth, elevation) = (self.camera.azimuth_rad, self.camera.elevation_rad);
+            self.camera = OrbitCamera::fit(lo, hi, self.camera.projection);
+            (self.camera.azimuth_rad, self.camera.elevation_rad) = (azimuth, elevation);
+            let mid = (lo + hi) * 0.5;
+            self.slice_mm = [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)];
+        }
+        self.view = None;
+        self.slices = [None, None, None];
+        self.refit();
+        Ok(())
+    }
+
+    /// Where pair `i`'s `end` is drawn, ref mm: the fixed point as is, the moving point through the forward warp
+    /// (where the deformed moving volume shows it).
+    #[must_use]
+    pub fn glyph_ref(&self, i: usize, end: End) -> Option<[f64; 3]> {
+        let p = self.loaded.pairs.get(i)?;
+        match end {
+            End::Fixed => p.fixed.map(|q| q.coords()),
+            End::Moving => p.moving.map(|m| match &self.fitted {
+                Some(f) => f.forward.apply(as_moving(m)).coords(),
+                None => m.coords(),
+            }),
+        }
+    }
+
+    /// The landmark glyph nearest `pointer` within [`GRAB_RADIUS`], given where each glyph lands on screen
+    /// (`screen`: ref mm to screen points, `None` when not shown there).
+    fn grab(&self, pointer: egui::Pos2, screen: impl Fn([f64; 3]) -> Option<egui::Pos2>) -> Option<(usize, End)> {
+        let mut best: Option<(f32, usize, End)> = None;
+        for i in 0..self.loaded.pairs.len() {
+            for end in [End::Fixed, End::Moving] {
+                let Some(at) = self.glyph_ref(i, end).and_then(&screen) else { continue };
+                let d = at.distance(pointer);
+                if d <= GRAB_RADIUS && best.is_none_or(|(b, ..)| d < b) {
+                    best = Some((d, i, end));
+                }
+            }
+        }
+        best.map(|(_, i, end)| (i, end))
+    }
+
+    /// Moves the dragged point so that it is shown at `x_ref`: the fixed point to x_ref, the moving point to
+    /// u(x_ref) (the moving point the warp shows there) unless a pick gives it (`moving_lps`). Refits interactively.
+    fn drag_to(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
+        let Some(drag) = self.drag else { return };
+        let moving = moving_lps.unwrap_or_else(|| match &self.fitted {
+            Some(f) => f.pullback.apply_raw(x_ref),
+            None => x_ref,
+        });
+        let Some(pair) = self.loaded.pairs.get_mut(drag.pair) else { return };
+        match drag.end {
+            End::Fixed => pair.fixed = Some(Point3::from_array(x_ref)),
+            End::Moving => pair.moving = Some(Point3::from_array(moving)),
+        }
+        self.refit_interactive();
+    }
+
+    /// Ends a drag: the full fit with its diagnostics.
+    fn end_drag(&mut self) {
+        if self.drag.take().is_some() {
+            self.refit();
+        }
+    }
+
+    /// A drag event in the 3-D view at framebuffer point `pixel`: the dragged point follows the surface under the
+    /// pointer (the volume it belongs to, picked with the current probe); off the volume it stays.
+    fn drag_in_view(&mut self, pixel: [f32; 2]) {
+        let Some(drag) = self.drag else { return };
+        let Some(size) = self.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let target = match drag.end {
+            End::Moving => PickTarget::Moving,
+            End::Fixed => PickTarget::Fixed,
+        };
+        let settings = self.settings.render_settings();
+        match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.settings.probe()) {
+            Ok(Some(hit)) => {
+                let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
+                self.drag_to(hit.x_ref.map(f64::from), moving);
+            }
+            Ok(None) => {}
+            Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
+        }
+    }
+
     /// Number of pairs the current warp was fitted on.
     #[must_use]
     pub fn fitted_pairs(&self) -> usize {
@@ -412,27 +758,44 @@ impl Ready {
             .loaded
             .pairs
             .iter()
-            .map(|p| GlyphPair {
+            .enumerate()
+            .map(|(i, p)| GlyphPair {
                 moving_ref: p.moving.map(|m| match &self.fitted {
                     Some(f) => to_vec(f.forward.apply(as_moving(m)).coords()),
                     None => to_vec(m.coords()),
                 }),
                 fixed_ref: p.fixed.map(|q| to_vec(q.coords())),
-                selected: false,
+                selected: self.selected == Some(i),
                 active: p.active,
             })
             .collect();
         pair_glyphs(&pairs, &GlyphStyle::default())
     }
 
+    /// Slice view `a`'s plane (0 axial, 1 coronal, 2 sagittal).
+    #[must_use]
+    pub fn slice_plane(&self, a: usize) -> SlicePlane {
+        self.slice_planes()[a.min(2)]
+    }
+
+    /// The three slice planes: grid planes of the fixed volume through the crosshair, or oblique planes turned
+    /// about it (same pixel size and image size as the grid plane).
     fn slice_planes(&self) -> [SlicePlane; 3] {
         let f = &self.loaded.fixed;
         let m = f.lps_from_index.rows();
-        [
+        let grid = [
             SlicePlane::axial(&m, f.dims, self.slice_mm[0]),
             SlicePlane::coronal(&m, f.dims, self.slice_mm[1]),
             SlicePlane::sagittal(&m, f.dims, self.slice_mm[2]),
-        ]
+        ];
+        let crosshair = [self.slice_mm[2], self.slice_mm[1], self.slice_mm[0]];
+        std::array::from_fn(|a| {
+            let (plane, o) = (grid[a], self.settings.oblique[a]);
+            if !o.on {
+                return plane;
+            }
+            oblique_plane(&plane, crosshair, o).unwrap_or(plane)
+        })
     }
 
     /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui.
@@ -505,6 +868,7 @@ impl Ready {
     /// Centres the camera and the three slices on pair `i`'s fixed point.
     pub fn jump_to(&mut self, i: usize) {
         let Some(q) = self.loaded.pairs.get(i).and_then(|p| p.fixed) else { return };
+        self.selected = Some(i);
         let c = q.coords();
         self.slice_mm = [c[2], c[1], c[0]];
         self.camera.target_ref = Vec3::from_array(c.map(|v| v as f32));
@@ -636,8 +1000,30 @@ impl eframe::App for Workbench {
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.poll_loading();
+        self.poll_volume_jobs();
         if matches!(self.phase, Phase::Ready(_)) && self.last_autosave.elapsed() >= AUTOSAVE_INTERVAL {
             self.autosave_now(false);
+        }
+        let ctx = ui.ctx().clone();
+        let mut events = Vec::new();
+        egui::Panel::top("menu").show(ui, |ui| {
+            egui::MenuBar::new().ui(ui, |ui| {
+                let ready = matches!(self.phase, Phase::Ready(_));
+                events.extend(open::file_menu(ui, ready, self.dialogs.dialog.is_some()));
+            });
+        });
+        if !self.jobs.is_empty() {
+            egui::Panel::top("reading").show(ui, |ui| {
+                for job in &self.jobs {
+                    ui.label(format!("Opening {} as the {} volume", open::file_name(&job.path), job.side.name()));
+                    open::progress_ui(ui, &job.watch);
+                }
+            });
+        }
+        events.extend(self.dialogs.take_dropped(&ctx));
+        events.extend(self.dialogs.ui(&ctx));
+        for event in events {
+            self.handle(&ctx, event);
         }
         if let (Some(path), Phase::Ready(_)) = (self.recovery.clone(), &self.phase) {
             let mut choice = None;
@@ -656,32 +1042,36 @@ impl eframe::App for Workbench {
                 Some(true) => {
                     self.recovery = None;
                     let opts = GuiOptions { session: Some(path), ..GuiOptions::default() };
-                    self.phase = Self::start_loading(ui.ctx(), opts);
+                    self.phase = Self::start_loading(&ctx, opts);
                 }
                 Some(false) => self.recovery = None,
                 None => {}
             }
         }
         let render_state = self.render_state.clone();
+        let mut open_demo = false;
         match &mut self.phase {
-            Phase::Loading(_) => {
+            Phase::Loading { watch, .. } => {
                 egui::CentralPanel::default().show(ui, |ui| {
-                    ui.horizontal(|ui| {
-                        ui.spinner();
-                        ui.label("Loading the volumes...");
-                    });
+                    ui.label("Loading the volumes...");
+                    open::progress_ui(ui, watch);
                 });
             }
             Phase::Failed(message) => {
                 egui::CentralPanel::default().show(ui, |ui| {
-                    ui.heading("Could not open the volumes");
+                    ui.heading("No volumes are open");
                     ui.label(message.as_str());
+                    ui.label("Open a fixed and a moving volume from the File menu, drop them on the window, or:");
+                    open_demo = ui.button("Open the demo pair").clicked();
                 });
             }
             Phase::Ready(ready) => {
                 workbench_ui(ui, ready, render_state.as_ref());
                 self.ready_frames += 1;
             }
+        }
+        if open_demo {
+            self.phase = Self::start_loading(&ctx, GuiOptions::default());
         }
         if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
             && self.ready_frames >= n
@@ -700,7 +1090,11 @@ impl eframe::App for Workbench {
                 ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
             }
         }
-        if matches!(self.phase, Phase::Loading(_)) || self.exit_after_frames.is_some() {
+        if matches!(self.phase, Phase::Loading { .. })
+            || !self.jobs.is_empty()
+            || self.dialogs.dialog.is_some()
+            || self.exit_after_frames.is_some()
+        {
             ui.ctx().request_repaint();
         }
     }
@@ -708,6 +1102,15 @@ impl eframe::App for Workbench {
 
 /// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
 fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
+    if let Some(job) = &ready.export {
+        match job.poll() {
+            Some(result) => {
+                ready.file_message = Some(result.unwrap_or_else(|e| e));
+                ready.export = None;
+            }
+            None => ui.ctx().request_repaint_after(std::time::Duration::from_millis(100)),
+        }
+    }
     // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
     let redo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z);
     let undo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::Z);
@@ -749,48 +1152,30 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     Placing::Target { .. } => ui.label("click the fixed volume (target)"),
                 };
             });
-            match panels::landmarks_ui(ui, &mut ready.loaded.pairs, &ready.errors) {
+            match panels::landmarks_ui(ui, &mut ready.loaded.pairs, &ready.errors, ready.selected) {
                 panels::LandmarkAction::None => {}
                 panels::LandmarkAction::Refit => ready.refit(),
                 panels::LandmarkAction::Delete(i) => {
                     ready.loaded.pairs.remove(i);
+                    ready.selected = None;
                     ready.refit();
                 }
                 panels::LandmarkAction::Jump(i) => ready.jump_to(i),
+                panels::LandmarkAction::Select(i) => {
+                    ready.selected = Some(i);
+                    ready.invalidate();
+                }
             }
             ui.separator();
-            match panels::files_ui(ui, &mut ready.files) {
-                panels::FileAction::None => {}
-                panels::FileAction::SaveSession(path) => {
-                    let file = ready.to_session(true);
-                    ready.file_message = Some(match session::save(&path, &file) {
-                        Ok(()) => format!("saved {}", path.display()),
-                        Err(e) => format!("{e:#}"),
-                    });
-                }
-                panels::FileAction::ExportLandmarks(path) => {
-                    ready.file_message = Some(match panels::export_landmarks(&path, &ready.loaded.pairs) {
-                        Ok(()) => format!("wrote {}", path.display()),
-                        Err(e) => format!("{e:#}"),
-                    });
-                }
-                panels::FileAction::Screenshot(path) => {
-                    // The window as it is drawn this frame, saved when the integration hands the pixels over.
-                    ui.ctx().request_screenshot(move |image| {
-                        if let Err(e) = save_png(&path, &image) {
-                            eprintln!("warpbench: {e:#}");
-                        }
-                    });
-                    ready.file_message = Some("screenshot requested".into());
-                }
-                panels::FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
-                    Ok(pairs) => {
-                        ready.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
-                        ready.loaded.pairs = pairs;
-                        ready.refit();
-                    }
-                    Err(e) => ready.file_message = Some(format!("{e:#}")),
-                },
+            if let Some(i) = panels::accuracy_ui(ui, &ready.loaded.pairs, &ready.errors) {
+                ready.jump_to(i);
+            }
+            ui.separator();
+            let action = panels::files_ui(ui, &mut ready.files);
+            ready.file_action(ui.ctx(), action);
+            ui.separator();
+            if let Some((kind, out)) = export::export_ui(ui, &mut ready.export_fields, ready.export.as_ref()) {
+                ready.start_export(ui.ctx(), kind, out);
             }
             if let Some(m) = &ready.file_message {
                 ui.label(m.as_str());
@@ -849,14 +1234,23 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                 if (ready.slice_mm[a] - before).abs() > f64::EPSILON {
                     ready.invalidate();
                 }
+                if panels::oblique_ui(col, names[a], &mut ready.settings.oblique[a]) {
+                    ready.invalidate();
+                }
                 if let Some(shown) = &ready.slices[a] {
                     let avail = col.available_size();
                     let (w, h) = (shown.target.width as f32, shown.target.height as f32);
                     let scale = (avail.x / w).min(avail.y.max(64.0) / h);
-                    let response = col.add(
-                        egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, egui::vec2(w, h) * scale))
-                            .sense(egui::Sense::click()),
-                    );
+                    // The image exactly fills the rect the response reports, so that pointer positions map to
+                    // pixels one to one.
+                    let size = egui::vec2(w, h) * scale;
+                    // (Not justified: the response covers the image and nothing more.)
+                    let (rect, response) = col
+                        .with_layout(egui::Layout::top_down(egui::Align::Min), |ui| {
+                            ui.allocate_exact_size(size, egui::Sense::click_and_drag())
+                        })
+                        .inner;
+                    egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, size)).paint_at(col, rect);
                     let label = format!("{} slice", names[a]);
                     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, &label));
                     // Framebuffer coordinates of the slice image (pixel centres at i + 1/2) to ref mm.
@@ -866,6 +1260,35 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     };
                     if let Some(pos) = response.hover_pos() {
                         ready.cursor_lps = Some(to_ref(pos));
+                    }
+                    // Dragging a landmark within this plane: grab the glyph under the press.
+                    let plane = planes[a];
+                    let rect_min = response.rect.min;
+                    let on_screen = |p_ref: [f64; 3]| {
+                        plane
+                            .pixel_from_ref(p_ref)
+                            .filter(|q| q[2].abs() <= SLICE_SLAB_MM)
+                            .map(|q| rect_min + egui::vec2((q[0] as f32 + 0.5) * scale, (q[1] as f32 + 0.5) * scale))
+                    };
+                    if response.drag_started()
+                        && ready.placing == Placing::Idle
+                        && let Some(press) = col.input(|i| i.pointer.press_origin())
+                        && let Some((pair, end)) = ready.grab(press, on_screen)
+                    {
+                        ready.drag = Some(DragPoint { pair, end, view: DragView::Slice(a) });
+                        ready.selected = Some(pair);
+                    }
+                    let dragging_here = ready.drag.is_some_and(|d| d.view == DragView::Slice(a));
+                    if dragging_here
+                        && response.dragged()
+                        && let Some(pos) = response.interact_pointer_pos()
+                    {
+                        ready.dragging = true;
+                        ready.drag_to(to_ref(pos), None);
+                    }
+                    if dragging_here && response.drag_stopped() {
+                        ready.dragging = false;
+                        ready.end_drag();
                     }
                     if response.clicked()
                         && let Some(pos) = response.interact_pointer_pos()
@@ -910,14 +1333,49 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     .sense(egui::Sense::click_and_drag()),
             );
             response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "3-D view"));
+            let (w, h) = (shown.target.width as f32, shown.target.height as f32);
+            let to_pixel = |pos: egui::Pos2| {
+                let f = (pos - response.rect.min) / response.rect.size();
+                [f.x * w, f.y * h]
+            };
             if response.clicked()
                 && let Some(pos) = response.interact_pointer_pos()
             {
-                let f = (pos - response.rect.min) / response.rect.size();
-                let (w, h) = (shown.target.width as f32, shown.target.height as f32);
-                ready.pick_in_view([f.x * w, f.y * h]);
+                ready.pick_in_view(to_pixel(pos));
             }
-            let drag = response.drag_delta();
+            // A press on a landmark glyph drags it along the surface; elsewhere a drag orbits the camera.
+            let clip_from_ref = ready.camera.clip_from_ref(w / h);
+            let rect = response.rect;
+            let on_screen = |p_ref: [f64; 3]| {
+                let c = clip_from_ref * Vec3::from_array(p_ref.map(|v| v as f32)).extend(1.0);
+                (c.w > 0.0).then(|| {
+                    let (x, y) = (c.x / c.w, c.y / c.w);
+                    rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height())
+                })
+            };
+            if response.drag_started()
+                && ready.placing == Placing::Idle
+                && let Some(press) = ui.input(|i| i.pointer.press_origin())
+                && let Some((pair, end)) = ready.grab(press, on_screen)
+            {
+                ready.drag = Some(DragPoint { pair, end, view: DragView::ThreeD });
+                ready.selected = Some(pair);
+            }
+            let landmark_drag = ready.drag.is_some_and(|d| d.view == DragView::ThreeD);
+            if landmark_drag {
+                if response.dragged()
+                    && response.drag_delta() != egui::Vec2::ZERO
+                    && let Some(pos) = response.interact_pointer_pos()
+                {
+                    ready.dragging = true;
+                    ready.drag_in_view(to_pixel(pos));
+                }
+                if response.drag_stopped() {
+                    ready.dragging = false;
+                    ready.end_drag();
+                }
+            }
+            let drag = if landmark_drag { egui::Vec2::ZERO } else { response.drag_delta() };
             let was_dragging = ready.dragging;
             ready.dragging = response.dragged();
             if drag != egui::Vec2::ZERO {
@@ -946,6 +1404,18 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
     if ready.dirty {
         ui.ctx().request_repaint();
     }
+}
+
+/// `plane` turned about `centre_ref` by the oblique view's tilt (about the image's horizontal axis) and spin (about
+/// its vertical axis), keeping its pixel size and image size; `None` for a degenerate plane.
+fn oblique_plane(plane: &SlicePlane, centre_ref: [f64; 3], o: panels::Oblique) -> Option<SlicePlane> {
+    use warpbench_gpu::glam::{DQuat, DVec3};
+    let u = DVec3::from_array(plane.u_ref);
+    let up = -DVec3::from_array(plane.v_ref);
+    let normal = DVec3::from_array(plane.normal_ref()?);
+    let turn = DQuat::from_axis_angle(u.try_normalize()?, f64::from(o.tilt_deg).to_radians())
+        * DQuat::from_axis_angle(up.try_normalize()?, f64::from(o.spin_deg).to_radians());
+    SlicePlane::oblique(centre_ref, (turn * normal).to_array(), (turn * up).to_array(), u.length(), plane.size).ok()
 }
 
 fn save_png(path: &std::path::Path, image: &egui::ColorImage) -> anyhow::Result<()> {

@@ -30,10 +30,40 @@ pub struct ViewSettings {
     /// Control-texture texels per axis.
     pub grid_n: usize,
     pub show_landmarks: bool,
+    /// Per slice view (axial, coronal, sagittal): oblique, and its tilt (about the image's horizontal axis) and
+    /// spin (about its vertical axis), degrees, around the crosshair.
+    pub oblique: [Oblique; 3],
     /// Index into [`PROBES`]: how a click in the 3-D view finds its point.
     pub pick_probe: usize,
     /// The probe's threshold: opacity (0..1), gradient magnitude (value units per mm) or accumulated opacity.
     pub pick_threshold: f32,
+}
+
+/// A slice view's oblique mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Oblique {
+    pub on: bool,
+    pub tilt_deg: f32,
+    pub spin_deg: f32,
+}
+
+/// A slice view's oblique controls (labelled "NAME oblique", "NAME tilt", "NAME spin"). Returns whether they
+/// changed.
+pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
+    let before = *o;
+    ui.horizontal(|ui| {
+        let on = ui.checkbox(&mut o.on, "oblique");
+        let on_name = format!("{name} oblique");
+        on.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, o.on, &on_name));
+        if o.on {
+            for (value, what) in [(&mut o.tilt_deg, "tilt"), (&mut o.spin_deg, "spin")] {
+                let slider = ui.add(egui::Slider::new(value, -75.0..=75.0).suffix(" deg").text(what));
+                let label = format!("{name} {what}");
+                slider.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, &label));
+            }
+        }
+    });
+    *o != before
 }
 
 /// The picking probes (`warpbench_gpu::Probe`), by name.
@@ -52,6 +82,7 @@ impl Default for ViewSettings {
             bspline_levels: BSplineParams::default().levels,
             grid_n: 48,
             show_landmarks: true,
+            oblique: [Oblique::default(); 3],
             pick_probe: 0,
             pick_threshold: 0.95,
         }
@@ -222,15 +253,18 @@ pub struct PairErrors {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum LandmarkAction {
     None,
-    /// A pair was switched on or off, or renamed: fit again.
+    /// A pair was switched on or off: fit again.
     Refit,
     Delete(usize),
-    /// Centre the views on pair i.
+    /// Centre the views on pair i (and select it).
     Jump(usize),
+    /// Select pair i (highlighted in the views).
+    Select(usize),
 }
 
 /// Green below 1 mm, amber below 3 mm, red above: how far a pair disagrees with the others.
-fn error_colour(mm: f64) -> egui::Color32 {
+#[must_use]
+pub fn error_colour(mm: f64) -> egui::Color32 {
     if mm < 1.0 {
         egui::Color32::from_rgb(90, 200, 90)
     } else if mm < 3.0 {
@@ -240,10 +274,15 @@ fn error_colour(mm: f64) -> egui::Color32 {
     }
 }
 
-/// The landmark table: active (with the name), moving and fixed positions (LPS mm), the residual and leave-one-out
-/// error (colour-coded), and per pair a button to centre the views on it and one to delete it; then the mean and
-/// max leave-one-out error and the worst pairs.
-pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Option<PairErrors>]) -> LandmarkAction {
+/// The landmark table: per pair whether it is in the fit, its name (editable), the moving and fixed positions
+/// (LPS mm), the residual and leave-one-out error (colour-coded), and buttons to select it, centre the views on it
+/// and delete it. `selected` is highlighted.
+pub fn landmarks_ui(
+    ui: &mut egui::Ui,
+    pairs: &mut [LandmarkPair],
+    errors: &[Option<PairErrors>],
+    selected: Option<usize>,
+) -> LandmarkAction {
     ui.label(format!("Landmarks ({} pairs)", pairs.len()));
     let fmt = |p: Option<warpbench_io::geometry::Point3<warpbench_io::geometry::Lps>>| {
         p.map_or_else(
@@ -256,17 +295,30 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
     };
     let mut action = LandmarkAction::None;
     egui::Grid::new("landmarks").striped(true).show(ui, |ui| {
-        for heading in ["pair (on = in fit)", "moving (mm)", "fixed (mm)", "resid.", "LOO", "", ""] {
+        for heading in ["on", "name", "moving (mm)", "fixed (mm)", "resid.", "LOO", "", ""] {
             ui.label(heading);
         }
         ui.end_row();
         for (i, pair) in pairs.iter_mut().enumerate() {
-            let name = if pair.name.is_empty() { "(unnamed)".to_owned() } else { pair.name.clone() };
-            if ui.checkbox(&mut pair.active, name).changed() {
+            // Compact widgets, with full names for screen readers and tests.
+            let shown_name = pair.name.clone();
+            let label = |what: &str| format!("{what} {shown_name}");
+            let active = ui.checkbox(&mut pair.active, "").on_hover_text("In the fit");
+            let active_name = label("Use");
+            active.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, pair.active, &active_name));
+            if active.changed() {
                 action = LandmarkAction::Refit;
             }
-            ui.label(fmt(pair.moving));
-            ui.label(fmt(pair.fixed));
+            let name_name = format!("Name of pair {}", i + 1);
+            let name = ui.add(egui::TextEdit::singleline(&mut pair.name).desired_width(56.0));
+            name.widget_info(|| egui::WidgetInfo::labeled(egui::Role::TextInput, true, &name_name));
+            let position = ui.selectable_label(selected == Some(i), fmt(pair.moving));
+            if position.clicked() {
+                action = LandmarkAction::Select(i);
+            }
+            if ui.selectable_label(selected == Some(i), fmt(pair.fixed)).clicked() {
+                action = LandmarkAction::Select(i);
+            }
             if let Some(e) = errors.get(i).copied().flatten() {
                 ui.colored_label(error_colour(e.residual_mm), format!("{:.2}", e.residual_mm));
                 match e.leave_one_out_mm {
@@ -277,15 +329,14 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
                 ui.label("-");
                 ui.label("-");
             }
-            // Compact buttons, with full names for screen readers and tests.
             let go = ui.small_button("go").on_hover_text("Centre the views on this pair");
-            let go_name = format!("Go to {}", pair.name);
+            let go_name = label("Go to");
             go.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, &go_name));
             if go.clicked() {
                 action = LandmarkAction::Jump(i);
             }
             let delete = ui.small_button("x").on_hover_text("Delete this pair");
-            let delete_name = format!("Delete {}", pair.name);
+            let delete_name = label("Delete");
             delete.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, &delete_name));
             if delete.clicked() {
                 action = LandmarkAction::Delete(i);
@@ -293,19 +344,75 @@ pub fn landmarks_ui(ui: &mut egui::Ui, pairs: &mut [LandmarkPair], errors: &[Opt
             ui.end_row();
         }
     });
-    let mut loo: Vec<(f64, &str)> = errors
-        .iter()
-        .zip(pairs.iter())
-        .filter_map(|(e, p)| Some((e.as_ref()?.leave_one_out_mm?, p.name.as_str())))
-        .collect();
-    if !loo.is_empty() {
-        loo.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let mean = loo.iter().map(|(e, _)| e).sum::<f64>() / loo.len() as f64;
-        ui.label(format!("Leave-one-out error: mean {mean:.2} mm, max {:.2} mm", loo[0].0));
-        let worst: Vec<String> = loo.iter().take(3).map(|(e, n)| format!("{n} {e:.2}")).collect();
-        ui.label(format!("Worst: {}", worst.join(", ")));
-    }
     action
+}
+
+/// The leave-one-out errors of the pairs that have one, largest first, with the pair's index.
+#[must_use]
+pub fn loo_ranking(pairs: &[LandmarkPair], errors: &[Option<PairErrors>]) -> Vec<(f64, usize)> {
+    let mut loo: Vec<(f64, usize)> = errors
+        .iter()
+        .enumerate()
+        .take(pairs.len())
+        .filter_map(|(i, e)| Some((e.as_ref()?.leave_one_out_mm?, i)))
+        .collect();
+    loo.sort_by(|a, b| b.0.total_cmp(&a.0));
+    loo
+}
+
+/// Histogram bins of `values` (mm): `bins` equal bins from 0 to the largest value (at least 1 mm), as (bin
+/// centre, width, count).
+#[must_use]
+pub fn histogram(values: &[f64], bins: usize) -> Vec<(f64, f64, usize)> {
+    let bins = bins.max(1);
+    let top = values.iter().copied().fold(1.0f64, f64::max);
+    let width = top / bins as f64;
+    let mut counts = vec![0usize; bins];
+    for &v in values {
+        let b = ((v / width) as usize).min(bins - 1);
+        counts[b] += 1;
+    }
+    counts.into_iter().enumerate().map(|(b, n)| ((b as f64 + 0.5) * width, width, n)).collect()
+}
+
+/// The accuracy panel: a histogram of the leave-one-out errors, their mean and max, and the worst pairs (each a
+/// button that selects it). Returns the pair to select and centre on.
+pub fn accuracy_ui(ui: &mut egui::Ui, pairs: &[LandmarkPair], errors: &[Option<PairErrors>]) -> Option<usize> {
+    ui.label("Accuracy (leave-one-out)");
+    let loo = loo_ranking(pairs, errors);
+    if loo.is_empty() {
+        ui.label("Leave-one-out needs one pair more than the method's minimum.");
+        return None;
+    }
+    let values: Vec<f64> = loo.iter().map(|(e, _)| *e).collect();
+    let mean = values.iter().sum::<f64>() / values.len() as f64;
+    ui.label(format!("Leave-one-out error: mean {mean:.2} mm, max {:.2} mm ({} pairs)", values[0], values.len()));
+    let bars: Vec<egui_plot::Bar> = histogram(&values, 10)
+        .into_iter()
+        .map(|(centre, width, n)| egui_plot::Bar::new(centre, n as f64).width(width * 0.95).fill(error_colour(centre)))
+        .collect();
+    let plot = egui_plot::Plot::new("loo histogram")
+        .height(90.0)
+        .allow_zoom(false)
+        .allow_drag(false)
+        .allow_scroll(false)
+        .allow_boxed_zoom(false)
+        .include_y(0.0)
+        .x_axis_label("LOO error (mm)")
+        .y_axis_label("pairs");
+    let response = plot.show(ui, |p| p.bar_chart(egui_plot::BarChart::new("leave-one-out", bars))).response;
+    response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "Leave-one-out histogram"));
+    let mut chosen = None;
+    ui.horizontal_wrapped(|ui| {
+        ui.label("Worst:");
+        for &(e, i) in loo.iter().take(3) {
+            let text = egui::RichText::new(format!("{} {e:.2} mm", pairs[i].name)).color(error_colour(e));
+            if ui.button(text).clicked() {
+                chosen = Some(i);
+            }
+        }
+    });
+    chosen
 }
 
 /// The paths typed into the side panel's file section.
@@ -324,6 +431,10 @@ pub enum FileAction {
     ImportLandmarks(std::path::PathBuf),
     ExportLandmarks(std::path::PathBuf),
     Screenshot(std::path::PathBuf),
+    /// Export the warped moving volume (NIfTI `.nii`/`.nii.gz`), as `warpbench warp` does.
+    ExportWarped(std::path::PathBuf),
+    /// Export the displacement field (NIfTI), as `warpbench field` does.
+    ExportField(std::path::PathBuf),
 }
 
 /// Session and landmark files: a path field and its buttons each.
@@ -388,6 +499,25 @@ fn slicer_pair_paths(path: &std::path::Path) -> Option<(std::path::PathBuf, std:
 mod tests {
     use super::*;
     use warpbench_io::geometry::Point3;
+
+    #[test]
+    fn histogram_bins_count_every_value_and_rank_the_worst() {
+        let values = [0.2, 0.4, 0.45, 1.9, 2.0, 5.0];
+        let bins = histogram(&values, 5);
+        assert_eq!(bins.len(), 5);
+        assert_eq!(bins.iter().map(|b| b.2).sum::<usize>(), values.len());
+        // 0..1, 1..2, 2..3, 3..4, 4..5 mm: the maximum falls in the last bin.
+        assert_eq!(bins.iter().map(|b| b.2).collect::<Vec<_>>(), [3, 1, 1, 0, 1]);
+        assert!((bins[0].0 - 0.5).abs() < 1e-12 && (bins[0].1 - 1.0).abs() < 1e-12);
+        // Below 1 mm the range is 0..1 mm.
+        assert_eq!(histogram(&[0.1, 0.3], 2).iter().map(|b| b.2).collect::<Vec<_>>(), [2, 0]);
+        let pairs: Vec<LandmarkPair> = (0..3)
+            .map(|i| LandmarkPair::new(format!("p{i}"), Point3::new(0.0, 0.0, 0.0), Point3::new(0.0, 0.0, 0.0)))
+            .collect();
+        let e = |l: Option<f64>| Some(PairErrors { residual_mm: 0.0, leave_one_out_mm: l });
+        let ranking = loo_ranking(&pairs, &[e(Some(1.5)), None, e(Some(4.0))]);
+        assert_eq!(ranking, [(4.0, 2), (1.5, 0)]);
+    }
 
     #[test]
     fn landmarks_round_trip_through_bigwarp_csv_and_a_slicer_pair() {

@@ -1,0 +1,184 @@
+//! Exporting from the window: the warped moving volume (NIfTI, and optionally a DICOM series) and the displacement
+//! field, on a worker thread with a progress bar and a cancel button, through the same code as `warpbench warp`
+//! ([`crate::warp::resample`], [`crate::warp::write_outputs`]) and `warpbench field`
+//! ([`crate::field::displacement_field`], [`crate::field::write_field`]).
+//!
+//! The warped volume is resampled on the fixed grid with the window's method: exactly per voxel for TPS and the
+//! linear warps, through a 64³ control texture for the hierarchical B-spline (as the CLI's defaults do), trilinear,
+//! in the moving volume's sample type. Outputs are written atomically; an input is never overwritten.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, TryRecvError};
+
+use eframe::egui;
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::{Progress, Volume};
+use warpbench_solver::method::Method;
+
+use super::open::{Watch, file_name};
+use crate::exit::Failure;
+use crate::field;
+use crate::inputs::{self, Names};
+use crate::warp::{self, Backend, PullBackMode, WarpSettings};
+
+/// What to export.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ExportKind {
+    /// The warped moving volume as NIfTI, and as a DICOM series in this (new or empty) folder when given.
+    Warped { dicom: Option<PathBuf> },
+    /// The pull-back as a displacement field (NIfTI, ITK/ANTs/Slicer convention).
+    Field,
+}
+
+/// The pair and the warp to export, as the window has them.
+#[derive(Clone, Debug)]
+pub struct ExportInput {
+    pub fixed: Arc<Volume>,
+    pub moving: Arc<Volume>,
+    pub fixed_path: Option<PathBuf>,
+    pub moving_path: Option<PathBuf>,
+    pub pairs: Vec<LandmarkPair>,
+    pub method: Method,
+}
+
+/// An export running on a worker thread.
+#[derive(Debug)]
+pub struct ExportJob {
+    pub kind: ExportKind,
+    pub out: PathBuf,
+    pub watch: Arc<Watch>,
+    rx: Receiver<Result<String, String>>,
+}
+
+impl ExportJob {
+    /// Checks the output path and starts the export; a bad path is refused at once.
+    ///
+    /// # Errors
+    /// The output does not end in `.nii`/`.nii.gz`, is one of the inputs, or the DICOM folder is not empty.
+    pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
+        let dicom = match &kind {
+            ExportKind::Warped { dicom } => dicom.as_deref(),
+            ExportKind::Field => None,
+        };
+        let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
+        warp::check_outputs(&out, dicom)
+            .and_then(|()| inputs::check_output(&out, &inputs, true))
+            .map_err(|e| format!("{:#}", e.error()))?;
+        let watch = Arc::new(Watch::default());
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (worker_watch, worker_kind, worker_out, ctx) = (Arc::clone(&watch), kind.clone(), out.clone(), ctx.clone());
+        std::thread::spawn(move || {
+            let result = run(&worker_kind, &worker_out, &input, &worker_watch).map_err(|e| format!("{:#}", e.error()));
+            let _ = tx.send(result);
+            ctx.request_repaint();
+        });
+        Ok(Self { kind, out, watch, rx })
+    }
+
+    /// `Ok(message)` or `Err(message)` once the worker is done.
+    #[must_use]
+    pub fn poll(&self) -> Option<Result<String, String>> {
+        match self.rx.try_recv() {
+            Ok(result) => Some(result),
+            Err(TryRecvError::Empty) => None,
+            Err(TryRecvError::Disconnected) => Some(Err("the export thread stopped".into())),
+        }
+    }
+}
+
+/// The export itself (on the worker): the CLI's core, then its writer.
+fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Result<String, Failure> {
+    let moving_name = input.moving_path.as_deref().map_or_else(|| "the moving volume".to_owned(), file_name);
+    let names =
+        Names { moving: moving_name.clone(), landmarks: "the window's landmarks".into(), out: out.to_path_buf() };
+    let (fixed, moving) = (input.fixed.as_ref(), input.moving.as_ref());
+    match kind {
+        ExportKind::Warped { dicom } => {
+            let settings = WarpSettings {
+                method: input.method,
+                pullback: if matches!(input.method, Method::BSpline(_)) {
+                    PullBackMode::Grid(64)
+                } else {
+                    PullBackMode::Exact
+                },
+                interpolation: warpbench_gpu::Interpolation::Trilinear,
+                float: false,
+                backend: Backend::Auto,
+                outside_value: None,
+            };
+            let mut progress = |p: warpbench_gpu::Progress| {
+                let (done, total) = (p.slices_done as u64, p.slices_total as u64);
+                watch.report(&file_name(out), Progress { stage: "resampling slices", done, total });
+                !watch.cancelled()
+            };
+            let resampled = warp::resample(fixed, fixed, moving, &input.pairs, &names, &settings, &mut progress)?;
+            let description = warp::series_description(&resampled.method, Path::new(&moving_name));
+            warp::write_outputs(&resampled.volume, out, dicom.as_deref(), &description)?;
+            let also = dicom.as_ref().map_or_else(String::new, |d| format!(" and a DICOM series in {}", d.display()));
+            Ok(format!(
+                "wrote {}{also}: {} warp of {} pairs, {}, {}",
+                out.display(),
+                resampled.method,
+                resampled.pairs,
+                resampled.pullback,
+                resampled.backend
+            ))
+        }
+        ExportKind::Field => {
+            let mut progress = |done: u64, total: u64| {
+                watch.report(&file_name(out), Progress { stage: "field slices", done, total });
+                !watch.cancelled()
+            };
+            let f =
+                field::displacement_field(fixed, fixed, moving, &input.pairs, &names, &input.method, &mut progress)?;
+            field::write_field(&f, out, None)?;
+            Ok(format!(
+                "wrote {}: {} displacement field of {} pairs, largest {:.1} mm",
+                out.display(),
+                f.method,
+                f.pairs,
+                f.max_displacement_mm
+            ))
+        }
+    }
+}
+
+/// The export section of the side panel: the output fields and buttons, or the running export's progress bar and
+/// Cancel button. Returns the export asked for.
+pub fn export_ui(
+    ui: &mut egui::Ui,
+    fields: &mut ExportFields,
+    running: Option<&ExportJob>,
+) -> Option<(ExportKind, PathBuf)> {
+    ui.label("Export (fixed grid)");
+    if let Some(job) = running {
+        ui.label(format!("Exporting {}", file_name(&job.out)));
+        super::open::progress_ui(ui, &job.watch);
+        return None;
+    }
+    ui.add(egui::TextEdit::singleline(&mut fields.out).hint_text("warped.nii.gz"))
+        .labelled_by(ui.label("Export file").id);
+    ui.add(egui::TextEdit::singleline(&mut fields.dicom).hint_text("optional: a new folder"))
+        .labelled_by(ui.label("DICOM series folder").id);
+    let path = PathBuf::from(fields.out.trim());
+    let enabled = !fields.out.trim().is_empty();
+    let mut asked = None;
+    ui.horizontal(|ui| {
+        if ui.add_enabled(enabled, egui::Button::new("Export warped volume")).clicked() {
+            let dicom = Some(PathBuf::from(fields.dicom.trim())).filter(|d| !d.as_os_str().is_empty());
+            asked = Some((ExportKind::Warped { dicom }, path.clone()));
+        }
+        if ui.add_enabled(enabled, egui::Button::new("Export displacement field")).clicked() {
+            asked = Some((ExportKind::Field, path.clone()));
+        }
+    });
+    asked
+}
+
+/// The paths typed into the export section.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ExportFields {
+    pub out: String,
+    pub dicom: String,
+}

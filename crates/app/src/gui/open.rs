@@ -1,0 +1,475 @@
+//! Opening files from the window: volumes read on a worker thread with a progress bar and a cancel button, a chooser
+//! when a DICOM folder holds several series, native file dialogs (rfd, on their own thread so the window keeps
+//! drawing), files dropped on the window, and the dialog that reports a file that could not be opened.
+//!
+//! Everything here is state plus `*_ui` functions that return what the user asked for ([`OpenEvent`]); the
+//! workbench ([`super::Workbench`]) acts on the events.
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, TryRecvError};
+use std::sync::{Arc, Mutex, PoisonError};
+
+use eframe::egui;
+use warpbench_io::error::ErrorKind;
+use warpbench_io::{LoadOptions, Progress, SeriesSummary, Volume};
+
+/// Progress and cancellation shared between a worker thread and the window.
+#[derive(Debug, Default)]
+pub struct Watch {
+    /// The file being read (its name) and how far.
+    progress: Mutex<Option<(String, Progress)>>,
+    cancel: AtomicBool,
+}
+
+impl Watch {
+    /// [`LoadOptions`] that report to this watch and stop when it is cancelled.
+    #[must_use]
+    pub fn load_options(self: &Arc<Self>, path: &Path) -> LoadOptions<'static> {
+        let watch = Arc::clone(self);
+        let name = file_name(path);
+        LoadOptions::new().progress(move |p| {
+            watch.report(&name, p);
+            if watch.cancelled() { ControlFlow::Break(()) } else { ControlFlow::Continue(()) }
+        })
+    }
+
+    /// Records that `what` is at `p`.
+    pub fn report(&self, what: &str, p: Progress) {
+        *self.progress.lock().unwrap_or_else(PoisonError::into_inner) = Some((what.to_owned(), p));
+    }
+
+    /// The last report.
+    #[must_use]
+    pub fn progress(&self) -> Option<(String, Progress)> {
+        self.progress.lock().unwrap_or_else(PoisonError::into_inner).clone()
+    }
+
+    /// Asks the worker to stop.
+    pub fn cancel(&self) {
+        self.cancel.store(true, Ordering::Relaxed);
+    }
+
+    #[must_use]
+    pub fn cancelled(&self) -> bool {
+        self.cancel.load(Ordering::Relaxed)
+    }
+}
+
+/// The file name of `path` for messages (the whole path when it has none).
+#[must_use]
+pub fn file_name(path: &Path) -> String {
+    path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned())
+}
+
+/// A progress bar for `watch` with a Cancel button (labelled "Cancel loading" for tests and screen readers).
+/// Returns whether Cancel was clicked.
+pub fn progress_ui(ui: &mut egui::Ui, watch: &Watch) -> bool {
+    let mut clicked = false;
+    ui.horizontal(|ui| {
+        ui.spinner();
+        let (text, fraction) = match watch.progress() {
+            Some((name, p)) => (format!("Reading {name}: {} {} of {}", p.stage, p.done, p.total), p.fraction()),
+            None => ("Starting...".to_owned(), 0.0),
+        };
+        ui.add(egui::ProgressBar::new(fraction).desired_width(220.0).show_percentage());
+        ui.label(text);
+        let cancel = ui.button("Cancel");
+        cancel.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, "Cancel loading"));
+        if cancel.clicked() {
+            watch.cancel();
+            clicked = true;
+        }
+    });
+    clicked
+}
+
+/// Which volume of the pair a file replaces.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Side {
+    Fixed,
+    Moving,
+}
+
+impl Side {
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Fixed => "fixed",
+            Self::Moving => "moving",
+        }
+    }
+}
+
+/// One volume read on a worker thread.
+#[derive(Debug)]
+pub struct VolumeJob {
+    pub side: Side,
+    pub path: PathBuf,
+    pub watch: Arc<Watch>,
+    rx: Receiver<warpbench_io::Result<Volume>>,
+}
+
+impl VolumeJob {
+    /// Starts reading `path` (`series`: the SeriesInstanceUID to read from a DICOM folder with several).
+    #[must_use]
+    pub fn start(ctx: &egui::Context, side: Side, path: PathBuf, series: Option<String>) -> Self {
+        let watch = Arc::new(Watch::default());
+        let (tx, rx) = std::sync::mpsc::channel();
+        let (worker_watch, worker_path, ctx) = (Arc::clone(&watch), path.clone(), ctx.clone());
+        std::thread::spawn(move || {
+            let mut options = worker_watch.load_options(&worker_path);
+            if let Some(uid) = series {
+                options = options.series(uid);
+            }
+            let _ = tx.send(options.open(&worker_path));
+            ctx.request_repaint();
+        });
+        Self { side, path, watch, rx }
+    }
+
+    /// The result, once the worker is done.
+    #[must_use]
+    pub fn poll(&self) -> Option<warpbench_io::Result<Volume>> {
+        match self.rx.try_recv() {
+            Ok(result) => Some(result),
+            Err(TryRecvError::Empty) => None,
+            Err(TryRecvError::Disconnected) => Some(Err(warpbench_io::Error::new(
+                &self.path,
+                ErrorKind::Io(std::io::Error::other("the loading thread stopped")),
+            ))),
+        }
+    }
+}
+
+/// What a native file dialog is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Purpose {
+    /// A volume file (NIfTI, NRRD) for one side.
+    OpenFile(Side),
+    /// A DICOM series folder for one side.
+    OpenFolder(Side),
+    OpenSession,
+    ImportLandmarks,
+    SaveSession,
+    ExportLandmarks,
+    ExportWarped,
+    ExportField,
+    Screenshot,
+}
+
+impl Purpose {
+    fn dialog(self) -> rfd::FileDialog {
+        let d = rfd::FileDialog::new();
+        let volumes = |d: rfd::FileDialog| {
+            d.add_filter("Volumes (NIfTI, NRRD)", &["nii", "gz", "nrrd", "nhdr"]).add_filter("All files", &["*"])
+        };
+        match self {
+            Self::OpenFile(side) => volumes(d.set_title(format!("Open the {} volume", side.name()))),
+            Self::OpenFolder(side) => d.set_title(format!("Open a DICOM folder as the {} volume", side.name())),
+            Self::OpenSession | Self::SaveSession => d.add_filter("warpbench session", &["json"]),
+            Self::ImportLandmarks | Self::ExportLandmarks => {
+                d.add_filter("Landmarks (BigWarp CSV, Slicer)", &["csv", "json", "fcsv"])
+            }
+            Self::ExportWarped | Self::ExportField => d.add_filter("NIfTI", &["nii", "gz"]),
+            Self::Screenshot => d.add_filter("PNG image", &["png"]),
+        }
+    }
+
+    fn saves(self) -> bool {
+        matches!(
+            self,
+            Self::SaveSession | Self::ExportLandmarks | Self::ExportWarped | Self::ExportField | Self::Screenshot
+        )
+    }
+}
+
+/// A native dialog running on its own thread (rfd's dialogs block their thread; through the XDG portal on Linux,
+/// any thread may open one).
+#[derive(Debug)]
+pub struct DialogJob {
+    pub purpose: Purpose,
+    rx: Receiver<Option<PathBuf>>,
+}
+
+impl DialogJob {
+    #[must_use]
+    pub fn start(ctx: &egui::Context, purpose: Purpose) -> Self {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let ctx = ctx.clone();
+        std::thread::spawn(move || {
+            let dialog = purpose.dialog();
+            let chosen = match purpose {
+                Purpose::OpenFolder(_) => dialog.pick_folder(),
+                p if p.saves() => dialog.save_file(),
+                _ => dialog.pick_file(),
+            };
+            let _ = tx.send(chosen);
+            ctx.request_repaint();
+        });
+        Self { purpose, rx }
+    }
+
+    /// `Some(Some(path))` when a path was chosen, `Some(None)` when the dialog was dismissed (or no dialog could be
+    /// shown), `None` while it is open.
+    #[must_use]
+    pub fn poll(&self) -> Option<Option<PathBuf>> {
+        match self.rx.try_recv() {
+            Ok(chosen) => Some(chosen),
+            Err(TryRecvError::Empty) => None,
+            Err(TryRecvError::Disconnected) => Some(None),
+        }
+    }
+}
+
+/// What a dropped (or chosen) file is, from its name: a session, a landmark file, or a volume (a folder is a
+/// DICOM series).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FileKind {
+    Session,
+    Landmarks,
+    Volume,
+}
+
+#[must_use]
+pub fn classify(path: &Path) -> FileKind {
+    let name = file_name(path).to_ascii_lowercase();
+    if path.is_dir() {
+        FileKind::Volume
+    } else if name.ends_with(".warpbench.json") {
+        FileKind::Session
+    } else if [".csv", ".fcsv", ".mrk.json"].iter().any(|e| name.ends_with(e)) {
+        FileKind::Landmarks
+    } else {
+        FileKind::Volume
+    }
+}
+
+/// What the user asked for through a menu, a dialog, a drop or a chooser.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum OpenEvent {
+    /// Read this volume (from this series of a DICOM folder) as one side of the pair.
+    Volume {
+        side: Side,
+        path: PathBuf,
+        series: Option<String>,
+    },
+    OpenSession(PathBuf),
+    ImportLandmarks(PathBuf),
+    /// A save dialog returned a path.
+    Save(Purpose, PathBuf),
+    /// Start a native dialog.
+    Dialog(Purpose),
+    /// Open the demo pair.
+    Demo,
+}
+
+/// The dialogs of opening: the error report, the series chooser and the question a dropped volume asks.
+#[derive(Debug, Default)]
+pub struct OpenDialogs {
+    /// A file that could not be opened, and why.
+    pub error: Option<String>,
+    /// A DICOM folder with several series: which to read, for which side.
+    pub series: Option<(Side, PathBuf, Vec<SeriesSummary>)>,
+    /// A dropped volume waiting for "fixed or moving?".
+    pub dropped: Option<PathBuf>,
+    /// The native dialog that is open.
+    pub dialog: Option<DialogJob>,
+}
+
+impl OpenDialogs {
+    /// Reports a failed read of `path` for `side`: the series chooser when the folder holds several series, the
+    /// error dialog otherwise (a cancelled read says nothing).
+    pub fn failed(&mut self, side: Side, path: &Path, error: &warpbench_io::Error) {
+        match &error.kind {
+            ErrorKind::MultipleSeries(list) => self.series = Some((side, path.to_path_buf(), list.clone())),
+            ErrorKind::Cancelled => {}
+            _ => self.error = Some(format!("Could not open the {} volume: {error}", side.name())),
+        }
+    }
+
+    /// Files dropped on the window this frame: sessions and landmark files open directly; a volume asks which
+    /// side it is (two volumes dropped together are the fixed and the moving one, in that order).
+    pub fn take_dropped(&mut self, ctx: &egui::Context) -> Vec<OpenEvent> {
+        let dropped: Vec<PathBuf> = ctx.input(|i| {
+            i.raw.dropped_files.iter().map(|f| f.path().to_path_buf()).filter(|p| !p.as_os_str().is_empty()).collect()
+        });
+        let mut events = Vec::new();
+        let mut volumes = Vec::new();
+        for path in dropped {
+            match classify(&path) {
+                FileKind::Session => events.push(OpenEvent::OpenSession(path)),
+                FileKind::Landmarks => events.push(OpenEvent::ImportLandmarks(path)),
+                FileKind::Volume => volumes.push(path),
+            }
+        }
+        match <[PathBuf; 2]>::try_from(volumes) {
+            Ok([fixed, moving]) => {
+                events.push(OpenEvent::Volume { side: Side::Fixed, path: fixed, series: None });
+                events.push(OpenEvent::Volume { side: Side::Moving, path: moving, series: None });
+            }
+            Err(mut volumes) => {
+                if let Some(last) = volumes.pop() {
+                    self.dropped = Some(last);
+                }
+            }
+        }
+        events
+    }
+
+    /// Polls the native dialog and draws the open dialogs; returns what the user chose.
+    pub fn ui(&mut self, ctx: &egui::Context) -> Vec<OpenEvent> {
+        let mut events = Vec::new();
+        if let Some(job) = &self.dialog
+            && let Some(chosen) = job.poll()
+        {
+            let purpose = job.purpose;
+            self.dialog = None;
+            if let Some(path) = chosen {
+                events.push(match purpose {
+                    Purpose::OpenFile(side) | Purpose::OpenFolder(side) => {
+                        OpenEvent::Volume { side, path, series: None }
+                    }
+                    Purpose::OpenSession => OpenEvent::OpenSession(path),
+                    Purpose::ImportLandmarks => OpenEvent::ImportLandmarks(path),
+                    other => OpenEvent::Save(other, path),
+                });
+            }
+        }
+        if let Some(message) = self.error.clone() {
+            let mut open = true;
+            egui::Window::new("Could not open").collapsible(false).open(&mut open).show(ctx, |ui| {
+                ui.label(message.as_str());
+                if ui.button("OK").clicked() {
+                    self.error = None;
+                }
+            });
+            if !open {
+                self.error = None;
+            }
+        }
+        if let Some((side, path, list)) = self.series.clone() {
+            let mut close = false;
+            egui::Window::new("Choose a series").collapsible(false).show(ctx, |ui| {
+                ui.label(format!(
+                    "{} holds {} series. Open which as the {} volume?",
+                    path.display(),
+                    list.len(),
+                    side.name()
+                ));
+                for s in &list {
+                    let text = format!(
+                        "Series {}: {} \"{}\", {} files",
+                        s.series_number.map_or_else(|| "?".to_owned(), |n| n.to_string()),
+                        s.modality,
+                        s.description,
+                        s.files
+                    );
+                    if ui.button(text).clicked() {
+                        events.push(OpenEvent::Volume {
+                            side,
+                            path: path.clone(),
+                            series: Some(s.series_instance_uid.clone()),
+                        });
+                        close = true;
+                    }
+                }
+                if ui.button("Cancel").clicked() {
+                    close = true;
+                }
+            });
+            if close {
+                self.series = None;
+            }
+        }
+        if let Some(path) = self.dropped.clone() {
+            let mut close = false;
+            egui::Window::new("Open the dropped volume").collapsible(false).show(ctx, |ui| {
+                ui.label(format!("Open {} as:", file_name(&path)));
+                ui.horizontal(|ui| {
+                    for side in [Side::Fixed, Side::Moving] {
+                        if ui.button(format!("the {} volume", side.name())).clicked() {
+                            events.push(OpenEvent::Volume { side, path: path.clone(), series: None });
+                            close = true;
+                        }
+                    }
+                    if ui.button("Cancel").clicked() {
+                        close = true;
+                    }
+                });
+            });
+            if close {
+                self.dropped = None;
+            }
+        }
+        events
+    }
+}
+
+/// The File menu. Items that need a path open a native dialog (their text fields in the side panel do the same
+/// without one).
+pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<OpenEvent> {
+    let mut event = None;
+    ui.menu_button("File", |ui| {
+        let mut item = |ui: &mut egui::Ui, text: &str, enabled: bool, e: OpenEvent| {
+            if ui.add_enabled(enabled && !dialog_open, egui::Button::new(text)).clicked() {
+                event = Some(e);
+                ui.close();
+            }
+        };
+        for side in [Side::Fixed, Side::Moving] {
+            item(ui, &format!("Open {} volume...", side.name()), true, OpenEvent::Dialog(Purpose::OpenFile(side)));
+            item(
+                ui,
+                &format!("Open {} DICOM folder...", side.name()),
+                true,
+                OpenEvent::Dialog(Purpose::OpenFolder(side)),
+            );
+        }
+        item(ui, "Open the demo pair", true, OpenEvent::Demo);
+        ui.separator();
+        item(ui, "Open session...", true, OpenEvent::Dialog(Purpose::OpenSession));
+        item(ui, "Save session...", ready, OpenEvent::Dialog(Purpose::SaveSession));
+        ui.separator();
+        item(ui, "Import landmarks...", ready, OpenEvent::Dialog(Purpose::ImportLandmarks));
+        item(ui, "Export landmarks...", ready, OpenEvent::Dialog(Purpose::ExportLandmarks));
+        ui.separator();
+        item(ui, "Export warped volume...", ready, OpenEvent::Dialog(Purpose::ExportWarped));
+        item(ui, "Export displacement field...", ready, OpenEvent::Dialog(Purpose::ExportField));
+        item(ui, "Save screenshot...", ready, OpenEvent::Dialog(Purpose::Screenshot));
+    });
+    event
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn files_are_classified_by_name() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        assert_eq!(classify(&dir.path().join("a.warpbench.json")), FileKind::Session);
+        assert_eq!(classify(&dir.path().join("pairs.CSV")), FileKind::Landmarks);
+        assert_eq!(classify(&dir.path().join("moving.mrk.json")), FileKind::Landmarks);
+        assert_eq!(classify(&dir.path().join("ct.nii.gz")), FileKind::Volume);
+        // A folder is a DICOM series, whatever its name.
+        let folder = dir.path().join("series.csv");
+        std::fs::create_dir(&folder).expect("mkdir");
+        assert_eq!(classify(&folder), FileKind::Volume);
+    }
+
+    #[test]
+    fn a_watch_reports_and_cancels_a_real_read() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii");
+        let watch = Arc::new(Watch::default());
+        let volume = watch.load_options(&path).open(&path).expect("read the fixture");
+        let (name, p) = watch.progress().expect("progress was reported");
+        assert_eq!(name, "avg152T1_LR_nifti.nii");
+        assert!(p.total > 0 && p.done == p.total, "{p:?}");
+        assert_eq!(volume.dims, [91, 109, 91]);
+        watch.cancel();
+        let err = watch.load_options(&path).open(&path).expect_err("cancelled");
+        assert!(matches!(err.kind, ErrorKind::Cancelled), "{err}");
+    }
+}
