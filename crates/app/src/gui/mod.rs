@@ -29,7 +29,8 @@ use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::diagnostics::{jacobian_determinants, leave_one_out, residuals};
-use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::{Parallelism, Warp};
 
 use crate::inputs::{self, LandmarkSource};
@@ -121,11 +122,38 @@ pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>) -> anyhow::Result<Loade
 
 /// The warp fitted on the active pairs: the pull-back the renderer uses and the forward map that places the moving
 /// glyphs.
-struct Fitted {
+pub struct Fitted {
     /// u = moving_from_fixed: where a point of the deformed view comes from in the moving volume.
-    pullback: Box<dyn Warp<Moving, Fixed>>,
-    forward: Box<dyn Warp<Fixed, Moving>>,
-    pairs: usize,
+    pub pullback: Box<dyn Warp<Moving, Fixed>>,
+    pub forward: Box<dyn Warp<Fixed, Moving>>,
+    pub pairs: usize,
+}
+
+/// What one landmark change costs before the frame: the pull-back and the forward warp fitted on the pairs
+/// (`fixed[i]` ↔ `moving[i]`), and the pull-back sampled into a `grid_n`³ control texture over the fixed box, ready to
+/// upload. The window runs this on every drag event; `benches/drag.rs` times it with the frame.
+///
+/// # Errors
+/// Too few pairs for the method, a fit that fails (degenerate pairs), or a control texture that cannot be made.
+pub fn fit_warp(
+    method: &Method,
+    fixed: &[Point3<Fixed>],
+    moving: &[Point3<Moving>],
+    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
+    grid_n: usize,
+    float32_filterable: bool,
+) -> anyhow::Result<(Fitted, PreparedControl)> {
+    let need = inputs::min_pairs(method);
+    if moving.len() < need {
+        return Err(anyhow!("{} active pairs; {method} needs {need}", moving.len()));
+    }
+    let pullback = method.fit(fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let (grid, texture) =
+        scene::control_texture(pullback.as_ref(), fixed_box, grid_n).map_err(|e| anyhow!("{:#}", e.error()))?;
+    let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
+        .map_err(|e| anyhow!("{e}"))?;
+    Ok((Fitted { pullback, forward, pairs: moving.len() }, prepared))
 }
 
 /// Adding a pair: the source is picked on the (deformed) moving volume, then the target on the fixed one.
@@ -506,7 +534,6 @@ impl Ready {
     fn fit(&mut self, diagnostics: bool) {
         self.dirty = true;
         let method = self.settings.method();
-        let name = panels::METHODS[self.settings.method.min(panels::METHODS.len() - 1)];
         let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
         let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
         let used: Vec<usize> = (0..self.loaded.pairs.len())
@@ -525,23 +552,13 @@ impl Ready {
         if diagnostics {
             self.errors = vec![None; self.loaded.pairs.len()];
         }
-        let result = (|| -> anyhow::Result<Fitted> {
-            let need = inputs::min_pairs(&method);
-            if moving.len() < need {
-                return Err(anyhow!("{} active pairs; {name} needs {need}", moving.len()));
-            }
-            let pullback = method.fit(&fixed, &moving, fixed_box).map_err(|e| anyhow!("{name}: {e}"))?;
-            let forward = method.fit(&moving, &fixed, moving_box).map_err(|e| anyhow!("{name}: {e}"))?;
-            let (grid, texture) = scene::control_texture(pullback.as_ref(), fixed_box, self.settings.grid_n)
-                .map_err(|e| anyhow!("{:#}", e.error()))?;
-            let prepared = PreparedControl::prepare(
-                &scene::control_desc(&grid, &texture),
-                self.viewer.ctx.capabilities.float32_filterable,
-            )
-            .map_err(|e| anyhow!("{e}"))?;
-            self.viewer.set_control(Some(&prepared));
-            Ok(Fitted { pullback, forward, pairs: moving.len() })
-        })();
+        let boxes = (fixed_box, moving_box);
+        let filterable = self.viewer.ctx.capabilities.float32_filterable;
+        let result =
+            fit_warp(&method, &fixed, &moving, boxes, self.settings.grid_n, filterable).map(|(f, prepared)| {
+                self.viewer.set_control(Some(&prepared));
+                f
+            });
         match result {
             Ok(fitted) if !diagnostics => {
                 // Keep the last diagnostics until the drag ends.

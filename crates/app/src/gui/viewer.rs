@@ -70,6 +70,11 @@ impl Viewer {
             render_state.device.clone(),
             render_state.queue.clone(),
         );
+        Self::with_context(ctx, fixed, moving)
+    }
+
+    /// Uploads both volumes to `ctx`'s device (the window's, or a headless one for benchmarks).
+    pub fn with_context(ctx: GpuContext, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
         let renderer = RaycastRenderer::new(&ctx).map_err(gpu_error)?;
         let glyphs = GlyphRenderer::new(&ctx).map_err(gpu_error)?;
         let prefilter = PrefilterPass::new(&ctx).map_err(gpu_error)?;

@@ -1,0 +1,190 @@
+//! Drag-event benchmark (issue 7): what the window does on one landmark drag event, headless, on the same code
+//! path: the pull-back and forward TPS fitted on N pairs and the pull-back sampled into the control texture
+//! ([`warpbench_app::gui::fit_warp`]), the texture uploaded, and the 3-D view rendered at the interaction sample rate
+//! with the landmark glyphs ([`warpbench_app::gui::viewer::Viewer`]), waiting for the GPU to finish.
+//!
+//! The pair is the demo pair (the Colin27 MRI as fixed, the Cranium CT as moving, from `tests/data/nifti`), with N
+//! seeded pairs in the central 80 % of the fixed box and a smooth 5 mm displacement; each event moves one fixed point
+//! by 0.5 mm, as a drag does. Reports the mean and best event time and its parts (fit + texture, upload + frame).
+//!
+//! ```sh
+//! cargo bench -p warpbench-app --bench drag
+//! cargo bench -p warpbench-app --bench drag -- --size 1920x1080 --pairs 100 --events 20
+//! ```
+//!
+//! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--grid N` (control texture
+//! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one). The adapter is wgpu's
+//! default, or the one `WGPU_BACKEND` chooses. It only runs when `--bench` is among the arguments (as `cargo bench`
+//! passes), so `cargo test --benches` does not run it.
+
+use std::time::{Duration, Instant};
+
+use warpbench_app::gui::{demo, fit_warp, viewer::Viewer};
+use warpbench_gpu::glam::Vec3;
+use warpbench_gpu::{GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, pair_glyphs};
+use warpbench_io::Volume;
+use warpbench_io::geometry::{Lps, Point3};
+use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+
+struct Options {
+    size: (u32, u32),
+    pairs: usize,
+    events: usize,
+    grid: usize,
+    quality: Quality,
+}
+
+fn options() -> Result<Options, String> {
+    let mut o = Options { size: (1920, 1080), pairs: 100, events: 10, grid: 48, quality: Quality::Interactive };
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = || it.next().ok_or_else(|| format!("{a} needs a value"));
+        let number = |v: &str| v.parse::<usize>().map_err(|e| format!("{a}: {e}"));
+        match a.as_str() {
+            "--size" => {
+                let v = value()?;
+                let (w, h) = v.split_once('x').ok_or_else(|| format!("--size {v}: expected WxH"))?;
+                o.size =
+                    (w.parse().map_err(|e| format!("--size: {e}"))?, h.parse().map_err(|e| format!("--size: {e}"))?);
+            }
+            "--pairs" => o.pairs = number(value()?)?,
+            "--events" => o.events = number(value()?)?.max(1),
+            "--grid" => o.grid = number(value()?)?,
+            "--full" => o.quality = Quality::Full,
+            "--bench" => {}
+            other => return Err(format!("unknown option {other}")),
+        }
+    }
+    Ok(o)
+}
+
+/// A number in [0, 1) from `i` and `salt` (a fixed, seedless sequence).
+fn hash01(i: usize, salt: u64) -> f64 {
+    let mut x = (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ salt.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 31;
+    x = x.wrapping_mul(0x94D0_49BB_1331_11EB);
+    x ^= x >> 29;
+    (x >> 11) as f64 / (1u64 << 53) as f64
+}
+
+/// N fixed points in the central 80 % of the fixed box and their moving points 5 mm away along a smooth field.
+fn pairs(fixed: &Volume, n: usize) -> (Vec<Point3<Lps>>, Vec<Point3<Lps>>) {
+    let (lo, hi) = box_lps(fixed);
+    let q: Vec<Point3<Lps>> = (0..n)
+        .map(|i| {
+            let c: [f64; 3] = std::array::from_fn(|a| lo[a] + (0.1 + 0.8 * hash01(i, a as u64 + 1)) * (hi[a] - lo[a]));
+            Point3::new(c[0], c[1], c[2])
+        })
+        .collect();
+    let p = q
+        .iter()
+        .map(|q| {
+            let c = q.coords();
+            Point3::new(
+                c[0] + 5.0 * (c[1] / 25.0).sin(),
+                c[1] + 5.0 * (c[2] / 30.0).sin(),
+                c[2] + 5.0 * (c[0] / 28.0).cos(),
+            )
+        })
+        .collect();
+    (q, p)
+}
+
+fn box_lps(v: &Volume) -> ([f64; 3], [f64; 3]) {
+    let b = warpbench_app::inputs::volume_box::<Fixed>(v);
+    (b.min.coords(), b.max.coords())
+}
+
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    let o = match options() {
+        Ok(o) => o,
+        Err(e) => {
+            eprintln!("drag bench: {e}");
+            std::process::exit(2);
+        }
+    };
+    let (fixed, moving) = match demo::demo_paths() {
+        Some((ct, mr)) => (
+            warpbench_io::open(&mr).unwrap_or_else(|e| panic!("{e}")),
+            warpbench_io::open(&ct).unwrap_or_else(|e| panic!("{e}")),
+        ),
+        None => (demo::phantom(96, 2.0, [0.0; 3], false), demo::phantom(96, 2.0, [6.0, -4.0, 3.0], true)),
+    };
+    let ctx = match GpuContext::headless() {
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("drag bench: no GPU adapter ({e})");
+            return;
+        }
+    };
+    let adapter = ctx.describe();
+    let filterable = ctx.capabilities.float32_filterable;
+    let mut viewer = Viewer::with_context(ctx, &fixed, &moving).unwrap_or_else(|e| panic!("{e:#}"));
+    let (lo, hi) = viewer.scene_box();
+    let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
+    let settings = RenderSettings::default();
+    let method = Method::Tps { stiffness: 0.0 };
+    let boxes =
+        (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));
+    let (mut q, p) = pairs(&fixed, o.pairs);
+    let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
+
+    let mut event = |e: usize| -> (Duration, Duration) {
+        // The drag: pair 0's fixed point moves 0.5 mm along L.
+        let c = q[0].coords();
+        q[0] = Point3::new(c[0] + 0.5 * (e % 7) as f64, c[1], c[2]);
+        let t0 = Instant::now();
+        let fixed_pts: Vec<_> = q.iter().copied().map(as_fixed).collect();
+        let (fitted, prepared) =
+            fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable).unwrap_or_else(|e| panic!("{e:#}"));
+        let t1 = Instant::now();
+        viewer.set_control(Some(&prepared));
+        let glyph_pairs: Vec<GlyphPair> = q
+            .iter()
+            .zip(&p)
+            .map(|(q, p)| GlyphPair {
+                moving_ref: Some(Vec3::from_array(fitted.forward.apply(as_moving(*p)).coords().map(|v| v as f32))),
+                fixed_ref: Some(Vec3::from_array(q.coords().map(|v| v as f32))),
+                selected: false,
+                active: true,
+            })
+            .collect();
+        let glyphs = pair_glyphs(&glyph_pairs, &GlyphStyle::default());
+        let target =
+            viewer.render_view(&camera, &settings, o.quality, o.size, &glyphs).unwrap_or_else(|e| panic!("{e:#}"));
+        viewer.ctx.wait_idle().unwrap_or_else(|e| panic!("{e}"));
+        drop(target);
+        (t1 - t0, t1.elapsed())
+    };
+    // Warm-up: pipelines compile, the pool fills.
+    for e in 0..2 {
+        event(e);
+    }
+    let mut totals = Vec::new();
+    let (mut fit_sum, mut frame_sum) = (Duration::ZERO, Duration::ZERO);
+    for e in 0..o.events {
+        let (fit, frame) = event(e + 2);
+        fit_sum += fit;
+        frame_sum += frame;
+        totals.push(fit + frame);
+    }
+    let n = o.events as u32;
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    let best = totals.iter().min().copied().unwrap_or_default();
+    println!(
+        "drag bench: {adapter}; {}x{} view, {:?} quality, {} pairs (TPS), {}³ control texture, {} events",
+        o.size.0, o.size.1, o.quality, o.pairs, o.grid, o.events
+    );
+    println!(
+        "per drag event: mean {:.1} ms (best {:.1} ms) = fit + texture {:.1} ms + upload + frame {:.1} ms",
+        ms(totals.iter().sum::<Duration>() / n),
+        ms(best),
+        ms(fit_sum / n),
+        ms(frame_sum / n)
+    );
+}
