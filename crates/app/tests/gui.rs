@@ -589,3 +589,39 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     assert!(std::fs::read(&warped).expect("window's") == std::fs::read(&cli_warped).expect("CLI's"), "warped volume");
     assert!(std::fs::read(&field_out).expect("window's") == std::fs::read(&cli_field).expect("CLI's"), "field");
 }
+
+#[test]
+fn snapshot_with_nothing_open() {
+    if no_adapter() {
+        return;
+    }
+    // Nothing open: the menu, the message and the demo button.
+    let opts = GuiOptions {
+        fixed: Some(Path::new("/nonexistent/fixed.nii").to_path_buf()),
+        moving: Some(mri()),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(640.0, 240.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let start = Instant::now();
+    while harness.state().failure().is_none() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    harness.run_steps(2);
+    harness.snapshot("no_volumes");
+}
+
+#[test]
+fn snapshot_of_the_pair() {
+    if no_adapter() {
+        return;
+    }
+    // The MRI pair with its five landmarks; the status bar (adapter name, frame time) is masked.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 600.0));
+    let status = harness.get_by_label_contains("last frame").rect();
+    harness.mask(egui::Rect::from_x_y_ranges(0.0..=900.0, (status.top() - 4.0)..=600.0));
+    harness.snapshot("mri_pair");
+}

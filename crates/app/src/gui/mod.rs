@@ -1247,7 +1247,11 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             for (a, col) in columns.iter_mut().enumerate() {
                 col.label(names[a]);
                 let before = ready.slice_mm[a];
-                col.add(egui::Slider::new(&mut ready.slice_mm[a], -150.0..=150.0).text(format!("{} mm", names[a])));
+                // Narrow columns: the slider leaves room for its value field; its name is for screen readers.
+                col.spacing_mut().slider_width = (col.available_width() - 64.0).max(40.0);
+                let slider = col.add(egui::Slider::new(&mut ready.slice_mm[a], -150.0..=150.0).suffix(" mm"));
+                let slider_name = format!("{} position", names[a]);
+                slider.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, &slider_name));
                 if (ready.slice_mm[a] - before).abs() > f64::EPSILON {
                     ready.invalidate();
                 }

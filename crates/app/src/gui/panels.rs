@@ -51,7 +51,8 @@ pub struct Oblique {
 /// changed.
 pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
     let before = *o;
-    ui.horizontal(|ui| {
+    ui.horizontal_wrapped(|ui| {
+        ui.spacing_mut().slider_width = (ui.available_width() - 110.0).max(40.0);
         let on = ui.checkbox(&mut o.on, "oblique");
         let on_name = format!("{name} oblique");
         on.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, o.on, &on_name));
