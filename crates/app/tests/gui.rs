@@ -625,3 +625,51 @@ fn snapshot_of_the_pair() {
     harness.mask(egui::Rect::from_x_y_ranges(0.0..=900.0, (status.top() - 4.0)..=600.0));
     harness.snapshot("mri_pair");
 }
+
+#[test]
+fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    let rect = harness.get_by_label("3-D view").rect();
+    let ready = harness.state().ready().expect("loaded");
+    // Where pair 3's fixed point is drawn: the camera's projection onto the view's rect.
+    let q = ready.loaded.pairs[3].fixed.expect("fixed").coords();
+    let clip = ready.camera.clip_from_ref(rect.width() / rect.height())
+        * warpbench_gpu::glam::Vec3::from_array(q.map(|v| v as f32)).extend(1.0);
+    let (x, y) = (clip.x / clip.w, clip.y / clip.w);
+    let start = rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height());
+    let end = start + egui::vec2(0.0, 25.0);
+    let camera_before = ready.camera.azimuth_rad;
+    let button = |pos, pressed| egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Primary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    };
+    harness.input_mut().events.push(egui::Event::PointerMoved(start));
+    harness.input_mut().events.push(button(start, true));
+    harness.step();
+    for t in [0.3f32, 0.6, 1.0] {
+        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
+        harness.step();
+    }
+    let during = harness.state().ready().expect("loaded");
+    assert_eq!(during.drag.map(|d| (d.pair, d.end)), Some((3, warpbench_app::gui::End::Fixed)), "grabbed");
+    harness.input_mut().events.push(button(end, false));
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert!((ready.camera.azimuth_rad - camera_before).abs() < 1e-6, "a landmark drag does not orbit the camera");
+    let moved = ready.loaded.pairs[3].fixed.expect("fixed").coords();
+    // The pointer went down the screen: the point moved, to the visible surface (picked on the fixed volume), and
+    // stays inside the head.
+    let d: f64 = (0..3).map(|a| (moved[a] - q[a]).powi(2)).sum::<f64>().sqrt();
+    assert!(d > 5.0, "moved {d} mm: {q:?} -> {moved:?}");
+    assert!(moved[2] < q[2], "down the screen is inferior here: {q:?} -> {moved:?}");
+    let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
+    assert!(inside(moved), "{moved:?}");
+    assert_eq!(ready.fitted_pairs(), 5);
+}
