@@ -311,7 +311,7 @@ pub fn landmarks_ui(
                 action = LandmarkAction::Refit;
             }
             let name_name = format!("Name of pair {}", i + 1);
-            let name = ui.add(egui::TextEdit::singleline(&mut pair.name).desired_width(56.0));
+            let name = ui.add_sized([84.0, 18.0], egui::TextEdit::singleline(&mut pair.name));
             name.widget_info(|| egui::WidgetInfo::labeled(egui::Role::TextInput, true, &name_name));
             let position = ui.selectable_label(selected == Some(i), fmt(pair.moving));
             if position.clicked() {
