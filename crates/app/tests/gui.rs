@@ -672,4 +672,11 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
     assert!(inside(moved), "{moved:?}");
     assert_eq!(ready.fitted_pairs(), 5);
+
+    // Orbit away, then Reset camera brings the starting view back.
+    harness.state_mut().ready_mut().expect("loaded").camera.azimuth_rad = 2.5;
+    harness.get_by_label("Reset camera").click();
+    harness.run_steps(2);
+    let camera = harness.state().ready().expect("loaded").camera;
+    assert!((camera.azimuth_rad - 0.6).abs() < 1e-6 && (camera.elevation_rad - 0.25).abs() < 1e-6, "{camera:?}");
 }

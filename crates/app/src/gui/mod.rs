@@ -215,12 +215,11 @@ pub struct Ready {
     pub camera: OrbitCamera,
     /// Slice positions (mm along S, P, L through the fixed grid).
     pub slice_mm: [f64; 3],
-    view: Option<Shown>,
-    slices: [Option<Shown>; 3],
+    /// The rendered images and what needs rendering again.
+    images: Images,
     fitted: Option<Fitted>,
     /// The last fit's problem, shown in the status bar.
     pub fit_error: Option<String>,
-    dirty: bool,
     dragging: bool,
     pub last_render_ms: f64,
     /// Adding a pair by picking.
@@ -245,6 +244,32 @@ pub struct Ready {
     pub export: Option<export::ExportJob>,
     /// The export section's fields.
     pub export_fields: export::ExportFields,
+}
+
+/// The 3-D view's and the slices' images as egui shows them, and what needs rendering again.
+#[derive(Debug)]
+struct Images {
+    view: Option<Shown>,
+    slices: [Option<Shown>; 3],
+    view_dirty: bool,
+    slices_dirty: bool,
+    /// The last 3-D view was rendered reduced (interaction rate and size): render it fully once interaction ends.
+    view_reduced: bool,
+    /// Measured cost of the 3-D view on a CPU driver (ms per pixel, full quality), for the interaction size.
+    view_ms_per_px: Option<f64>,
+}
+
+impl Default for Images {
+    fn default() -> Self {
+        Self {
+            view: None,
+            slices: [None, None, None],
+            view_dirty: true,
+            slices_dirty: true,
+            view_reduced: false,
+            view_ms_per_px: None,
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -480,11 +505,9 @@ impl Workbench {
             settings: ViewSettings::default(),
             camera,
             slice_mm: [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)],
-            view: None,
-            slices: [None, None, None],
+            images: Images::default(),
             fitted: None,
             fit_error: None,
-            dirty: true,
             dragging: false,
             last_render_ms: 0.0,
             placing: Placing::Idle,
@@ -532,7 +555,7 @@ impl Ready {
     }
 
     fn fit(&mut self, diagnostics: bool) {
-        self.dirty = true;
+        self.invalidate();
         let method = self.settings.method();
         let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
         let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
@@ -681,8 +704,7 @@ impl Ready {
             let mid = (lo + hi) * 0.5;
             self.slice_mm = [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)];
         }
-        self.view = None;
-        self.slices = [None, None, None];
+        self.images = Images::default();
         self.refit();
         Ok(())
     }
@@ -744,7 +766,7 @@ impl Ready {
     /// pointer (the volume it belongs to, picked with the current probe); off the volume it stays.
     fn drag_in_view(&mut self, pixel: [f32; 2]) {
         let Some(drag) = self.drag else { return };
-        let Some(size) = self.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let Some(size) = self.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
         let target = match drag.end {
             End::Moving => PickTarget::Moving,
             End::Fixed => PickTarget::Fixed,
@@ -815,9 +837,20 @@ impl Ready {
         })
     }
 
-    /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui.
-    fn render(&mut self, rs: &eframe::egui_wgpu::RenderState, view_px: (u32, u32)) -> anyhow::Result<()> {
-        if !self.dirty && self.view.as_ref().is_some_and(|v| (v.target.width, v.target.height) == view_px) {
+    /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui. While the user
+    /// interacts (`interacting`: a button is held), the 3-D view drops to the interaction sample rate and, on a CPU
+    /// driver, to a size that renders in about [`INTERACTIVE_BUDGET_MS`]; it is rendered fully when interaction ends.
+    fn render(
+        &mut self,
+        rs: &eframe::egui_wgpu::RenderState,
+        view_px: (u32, u32),
+        interacting: bool,
+    ) -> anyhow::Result<()> {
+        let full_size = self.images.view.as_ref().is_some_and(|v| (v.target.width, v.target.height) == view_px);
+        let view_needed = self.images.view_dirty
+            || (!full_size && !self.images.view_reduced)
+            || (self.images.view_reduced && !interacting);
+        if !view_needed && !self.images.slices_dirty {
             return Ok(());
         }
         let start = std::time::Instant::now();
@@ -825,18 +858,45 @@ impl Ready {
         self.viewer.sync_presets();
         let glyphs = self.glyphs();
         let settings = self.settings.render_settings();
-        let quality = if self.dragging { Quality::Interactive } else { Quality::Full };
-        let target = self.viewer.render_view(&self.camera, &settings, quality, view_px, &glyphs)?;
-        self.view = Some(viewer::show(rs, target, self.view.take()));
-        let planes = self.slice_planes();
-        for (slot, plane) in self.slices.iter_mut().zip(planes) {
-            let target = self.viewer.render_slice(&plane, &settings, &glyphs)?;
-            *slot = Some(viewer::show(rs, target, slot.take()));
+        if view_needed {
+            let cpu = self.viewer.ctx.is_cpu_driver();
+            let (quality, px) = if interacting {
+                (Quality::Interactive, interactive_size(view_px, if cpu { self.images.view_ms_per_px } else { None }))
+            } else {
+                (Quality::Full, view_px)
+            };
+            let view_start = std::time::Instant::now();
+            let target = self.viewer.render_view(&self.camera, &settings, quality, px, &glyphs)?;
+            if cpu && quality == Quality::Full {
+                // A CPU driver renders before the window can present anyway: wait, and learn the cost per pixel.
+                self.viewer.ctx.wait_idle().map_err(|e| anyhow!("{e}"))?;
+                let pixels = f64::from(px.0) * f64::from(px.1);
+                self.images.view_ms_per_px = Some(view_start.elapsed().as_secs_f64() * 1e3 / pixels.max(1.0));
+            }
+            self.images.view = Some(viewer::show(rs, target, self.images.view.take()));
+            self.images.view_reduced = px != view_px || quality != Quality::Full;
+            self.images.view_dirty = false;
+        }
+        if self.images.slices_dirty {
+            let planes = self.slice_planes();
+            for (slot, plane) in self.images.slices.iter_mut().zip(planes) {
+                let target = self.viewer.render_slice(&plane, &settings, &glyphs)?;
+                *slot = Some(viewer::show(rs, target, slot.take()));
+            }
+            self.images.slices_dirty = false;
         }
         self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
         self.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
-        self.dirty = false;
         Ok(())
+    }
+
+    /// Puts the camera back: the whole fixed volume in view, from the front-left, slightly above.
+    pub fn reset_camera(&mut self) {
+        let (lo, hi) = self.viewer.scene_box();
+        self.camera = OrbitCamera::fit(lo, hi, self.camera.projection);
+        self.camera.azimuth_rad = 0.6;
+        self.camera.elevation_rad = 0.25;
+        self.invalidate_view();
     }
 
     /// Places the point at ref position `x_ref` (a click in a slice, or a pick in the 3-D view, already in ref
@@ -869,7 +929,7 @@ impl Ready {
             Placing::Source => PickTarget::Moving,
             Placing::Target { .. } => PickTarget::Fixed,
         };
-        let Some(size) = self.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let Some(size) = self.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
         let settings = self.settings.render_settings();
         match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.settings.probe()) {
             Ok(Some(hit)) => {
@@ -1004,9 +1064,26 @@ impl Ready {
         }
     }
 
-    /// Marks the views for re-rendering.
+    /// Marks the 3-D view and the slices for re-rendering.
     pub fn invalidate(&mut self) {
-        self.dirty = true;
+        self.images.view_dirty = true;
+        self.images.slices_dirty = true;
+    }
+
+    /// Marks the 3-D view only (the camera moved).
+    pub fn invalidate_view(&mut self) {
+        self.images.view_dirty = true;
+    }
+
+    /// Marks the slices only (a slice moved or turned).
+    pub fn invalidate_slices(&mut self) {
+        self.images.slices_dirty = true;
+    }
+
+    /// Whether something waits to be rendered.
+    #[must_use]
+    pub fn needs_render(&self) -> bool {
+        self.images.view_dirty || self.images.slices_dirty || self.images.view_reduced
     }
 }
 
@@ -1146,6 +1223,9 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                 if ui.add_enabled(ready.history.can_redo(), egui::Button::new("Redo")).clicked() {
                     ready.redo();
                 }
+                if ui.button("Reset camera").clicked() {
+                    ready.reset_camera();
+                }
             });
             let change = panels::settings_ui(ui, &mut ready.settings);
             if change.refit {
@@ -1253,12 +1333,12 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                 let slider_name = format!("{} position", names[a]);
                 slider.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, &slider_name));
                 if (ready.slice_mm[a] - before).abs() > f64::EPSILON {
-                    ready.invalidate();
+                    ready.invalidate_slices();
                 }
                 if panels::oblique_ui(col, names[a], &mut ready.settings.oblique[a]) {
-                    ready.invalidate();
+                    ready.invalidate_slices();
                 }
-                if let Some(shown) = &ready.slices[a] {
+                if let Some(shown) = &ready.images.slices[a] {
                     let avail = col.available_size();
                     let (w, h) = (shown.target.width as f32, shown.target.height as f32);
                     let scale = (avail.x / w).min(avail.y.max(64.0) / h);
@@ -1318,7 +1398,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                         if ready.placing == Placing::Idle {
                             // Linked navigation: the other two slices move through the clicked point.
                             ready.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
-                            ready.invalidate();
+                            ready.invalidate_slices();
                         } else {
                             ready.place_at_ref(x_ref, None);
                         }
@@ -1343,12 +1423,13 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
         // Cap the 3-D view's pixels: CPU drivers render about 1 Mpixel·step per second.
         let px = (avail * ppp).min(egui::vec2(1024.0, 1024.0)).max(egui::vec2(32.0, 32.0));
         let view_px = (px.x as u32, px.y as u32);
+        let interacting = ui.input(|i| i.pointer.any_down()) || ready.dragging;
         if let Some(rs) = render_state
-            && let Err(e) = ready.render(rs, view_px)
+            && let Err(e) = ready.render(rs, view_px, interacting)
         {
             ready.fit_error = Some(format!("rendering: {e:#}"));
         }
-        if let Some(shown) = &ready.view {
+        if let Some(shown) = &ready.images.view {
             let response = ui.add(
                 egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, avail))
                     .sense(egui::Sense::click_and_drag()),
@@ -1402,17 +1483,17 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             if drag != egui::Vec2::ZERO {
                 ready.camera.azimuth_rad -= drag.x * 0.01;
                 ready.camera.elevation_rad = (ready.camera.elevation_rad + drag.y * 0.01).clamp(-1.5, 1.5);
-                ready.invalidate();
+                ready.invalidate_view();
             }
             if was_dragging && !ready.dragging {
                 // Back to the full sample rate once the drag ends.
-                ready.invalidate();
+                ready.invalidate_view();
             }
             if response.hovered() {
                 let scroll = ui.input(|i| i.smooth_scroll_delta.y);
                 if scroll != 0.0 {
                     ready.camera.zoom = (ready.camera.zoom * (1.0 + scroll * 0.002)).clamp(0.2, 20.0);
-                    ready.invalidate();
+                    ready.invalidate_view();
                 }
             }
         }
@@ -1422,9 +1503,24 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
         let now = ready.snapshot();
         ready.history.record(&now);
     }
-    if ready.dirty {
+    if ready.needs_render() {
         ui.ctx().request_repaint();
     }
+}
+
+/// What the 3-D view may cost per frame while the user interacts on a CPU driver, ms.
+pub const INTERACTIVE_BUDGET_MS: f64 = 60.0;
+
+/// The 3-D view's size while interacting: `full` on a GPU (`ms_per_px` unknown); on a CPU driver scaled down so that
+/// `ms_per_px` (measured at full quality; the interaction rate halves it again) gives about
+/// [`INTERACTIVE_BUDGET_MS`], at most 4× smaller per side.
+#[must_use]
+pub fn interactive_size(full: (u32, u32), ms_per_px: Option<f64>) -> (u32, u32) {
+    let Some(per_px) = ms_per_px.filter(|v| *v > 0.0) else { return full };
+    let pixels = f64::from(full.0) * f64::from(full.1);
+    let scale = (INTERACTIVE_BUDGET_MS / (0.5 * per_px * pixels)).sqrt().clamp(0.25, 1.0);
+    let shrink = |n: u32| ((f64::from(n) * scale).round() as u32).max(16);
+    (shrink(full.0), shrink(full.1))
 }
 
 /// `plane` turned about `centre_ref` by the oblique view's tilt (about the image's horizontal axis) and spin (about
@@ -1486,5 +1582,27 @@ pub fn wgpu_options() -> eframe::egui_wgpu::WgpuConfiguration {
             ..WgpuSetupCreateNew::without_display_handle()
         }),
         ..Default::default()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_interactive_view_shrinks_to_the_budget_on_cpu_drivers_only() {
+        let full = (1000, 500);
+        // A GPU (no measurement): full size.
+        assert_eq!(interactive_size(full, None), full);
+        // Cheap enough already: full size.
+        assert_eq!(interactive_size(full, Some(1e-6)), full);
+        // 400 ms for 500 000 pixels at full quality: half of that at the interaction rate, scaled down to 60 ms.
+        let per_px = 400.0 / 500_000.0;
+        let (w, h) = interactive_size(full, Some(per_px));
+        let cost = 0.5 * per_px * f64::from(w) * f64::from(h);
+        assert!(w < 1000 && (cost - INTERACTIVE_BUDGET_MS).abs() < 0.1 * INTERACTIVE_BUDGET_MS, "{w}x{h}: {cost} ms");
+        assert!((f64::from(w) / f64::from(h) - 2.0).abs() < 0.05, "aspect kept: {w}x{h}");
+        // Never below a quarter per side (lavapipe's 4 s for this view would ask for less).
+        assert_eq!(interactive_size(full, Some(4000.0 / 500_000.0)), (250, 125));
     }
 }
