@@ -276,6 +276,7 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
     {
         let ready = harness.state_mut().ready_mut().expect("loaded");
         ready.settings.method = 4; // rigid
+        ready.settings.oblique[1] = warpbench_app::gui::panels::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
         ready.loaded.pairs[1].active = false;
         ready.camera.azimuth_rad = 1.0;
         ready.refit();

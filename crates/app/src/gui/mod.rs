@@ -981,6 +981,11 @@ impl Ready {
                 bspline_levels: s.bspline_levels,
                 control_texels: s.grid_n,
                 show_landmarks: s.show_landmarks,
+                oblique: s.oblique.map(|o| session::SessionOblique {
+                    on: o.on,
+                    tilt_deg: o.tilt_deg,
+                    spin_deg: o.spin_deg,
+                }),
             },
             layers: [layer(&self.viewer.fixed), layer(&self.viewer.moving)],
             camera: session::SessionCamera {
@@ -1011,6 +1016,11 @@ impl Ready {
         (s.mix_weight, s.checker_mm, s.samples_per_voxel) = (st.mix_weight, st.checker_mm, st.samples_per_voxel);
         (s.stiffness, s.bspline_levels, s.grid_n) = (st.stiffness, st.bspline_levels, st.control_texels.clamp(2, 256));
         s.show_landmarks = st.show_landmarks;
+        s.oblique = st.oblique.map(|o| panels::Oblique {
+            on: o.on,
+            tilt_deg: o.tilt_deg.clamp(-75.0, 75.0),
+            spin_deg: o.spin_deg.clamp(-75.0, 75.0),
+        });
         for (layer, look) in [&mut self.viewer.fixed, &mut self.viewer.moving].into_iter().zip(&f.layers) {
             if let Some(i) = crate::scene::PRESET_NAMES.iter().position(|n| *n == look.preset) {
                 layer.preset = warpbench_gpu::Preset::ALL[i];

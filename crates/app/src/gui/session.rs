@@ -60,6 +60,18 @@ pub struct SessionSettings {
     pub bspline_levels: usize,
     pub control_texels: usize,
     pub show_landmarks: bool,
+    /// Per slice view (axial, coronal, sagittal): oblique or not, tilt and spin in degrees. Optional: files written
+    /// before it existed open with straight slices.
+    #[serde(default)]
+    pub oblique: [SessionOblique; 3],
+}
+
+/// A slice view's oblique mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct SessionOblique {
+    pub on: bool,
+    pub tilt_deg: f32,
+    pub spin_deg: f32,
 }
 
 /// One volume's look.
@@ -173,5 +185,43 @@ mod tests {
         std::fs::write(&path, v.to_string()).expect("write");
         // NaN is not valid JSON (serde writes null), so the pair is refused as malformed or non-finite.
         assert!(load(&path).is_err());
+    }
+
+    #[test]
+    fn oblique_slices_round_trip_and_older_files_open_with_straight_slices() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("s.warpbench.json");
+        let layer = SessionLayer { preset: "mr-t1".into(), window_low: 0.0, window_high: 100.0, visible: true };
+        let mut file = SessionFile {
+            schema: SCHEMA.into(),
+            fixed: None,
+            moving: None,
+            landmarks: Vec::new(),
+            settings: SessionSettings {
+                blend: "mix".into(),
+                mix_weight: 0.5,
+                checker_mm: 16.0,
+                shading: "dvr".into(),
+                samples_per_voxel: 1.0,
+                method: "tps".into(),
+                stiffness: 0.0,
+                bspline_levels: 4,
+                control_texels: 48,
+                show_landmarks: true,
+                oblique: [SessionOblique::default(); 3],
+            },
+            layers: [layer.clone(), layer],
+            camera: SessionCamera { azimuth_deg: 30.0, elevation_deg: 10.0, zoom: 1.0, target_lps: [0.0; 3] },
+            slice_mm: [0.0; 3],
+            clean_exit: true,
+        };
+        file.settings.oblique[2] = SessionOblique { on: true, tilt_deg: 12.5, spin_deg: -30.0 };
+        save(&path, &file).expect("save");
+        assert_eq!(load(&path).expect("load"), file);
+        // A file from before oblique slices: no `oblique` key.
+        let mut v: serde_json::Value = serde_json::to_value(&file).expect("json");
+        v["settings"].as_object_mut().expect("settings").remove("oblique");
+        std::fs::write(&path, v.to_string()).expect("write");
+        assert_eq!(load(&path).expect("older file").settings.oblique, [SessionOblique::default(); 3]);
     }
 }
