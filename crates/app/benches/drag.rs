@@ -13,13 +13,14 @@
 //! ```
 //!
 //! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--grid N` (control texture
-//! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one). The adapter is wgpu's
+//! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
+//! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU). The adapter is wgpu's
 //! default, or the one `WGPU_BACKEND` chooses. It only runs when `--bench` is among the arguments (as `cargo bench`
 //! passes), so `cargo test --benches` does not run it.
 
 use std::time::{Duration, Instant};
 
-use warpbench_app::gui::{demo, fit_warp, viewer::Viewer};
+use warpbench_app::gui::{demo, fit_warp, fit_warp_on_gpu, viewer::Viewer};
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, pair_glyphs};
 use warpbench_io::Volume;
@@ -33,10 +34,18 @@ struct Options {
     events: usize,
     grid: usize,
     quality: Quality,
+    gpu_eval: bool,
 }
 
 fn options() -> Result<Options, String> {
-    let mut o = Options { size: (1920, 1080), pairs: 100, events: 10, grid: 48, quality: Quality::Interactive };
+    let mut o = Options {
+        size: (1920, 1080),
+        pairs: 100,
+        events: 10,
+        grid: 48,
+        quality: Quality::Interactive,
+        gpu_eval: false,
+    };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -53,6 +62,7 @@ fn options() -> Result<Options, String> {
             "--events" => o.events = number(value()?)?.max(1),
             "--grid" => o.grid = number(value()?)?,
             "--full" => o.quality = Quality::Full,
+            "--gpu-eval" => o.gpu_eval = true,
             "--bench" => {}
             other => return Err(format!("unknown option {other}")),
         }
@@ -140,10 +150,16 @@ fn main() {
         q[0] = Point3::new(c[0] + 0.5 * (e % 7) as f64, c[1], c[2]);
         let t0 = Instant::now();
         let fixed_pts: Vec<_> = q.iter().copied().map(as_fixed).collect();
-        let (fitted, prepared) =
-            fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable).unwrap_or_else(|e| panic!("{e:#}"));
+        let fitted = if o.gpu_eval {
+            fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer)
+        } else {
+            fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable).map(|(fitted, prepared)| {
+                viewer.set_control(Some(&prepared));
+                fitted
+            })
+        }
+        .unwrap_or_else(|e| panic!("{e:#}"));
         let t1 = Instant::now();
-        viewer.set_control(Some(&prepared));
         let glyph_pairs: Vec<GlyphPair> = q
             .iter()
             .zip(&p)
@@ -177,11 +193,17 @@ fn main() {
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     let best = totals.iter().min().copied().unwrap_or_default();
     println!(
-        "drag bench: {adapter}; {}x{} view, {:?} quality, {} pairs (TPS), {}³ control texture, {} events",
-        o.size.0, o.size.1, o.quality, o.pairs, o.grid, o.events
+        "drag bench: {adapter}; {}x{} view, {:?} quality, {} pairs (TPS), {}³ control texture on the {}, {} events",
+        o.size.0,
+        o.size.1,
+        o.quality,
+        o.pairs,
+        o.grid,
+        if o.gpu_eval { "GPU" } else { "CPU" },
+        o.events
     );
     println!(
-        "per drag event: mean {:.1} ms (best {:.1} ms) = fit + texture {:.1} ms + upload + frame {:.1} ms",
+        "per drag event: mean {:.1} ms (best {:.1} ms) = fit + texture {:.1} ms + upload + frame {:.1} ms (with --gpu-eval the texture is in the first part)",
         ms(totals.iter().sum::<Duration>() / n),
         ms(best),
         ms(fit_sum / n),

@@ -3,11 +3,12 @@
 //! Shared by `warpbench render` and the app, so both show the same picture.
 
 use anyhow::anyhow;
-use warpbench_gpu::{ControlDesc, Preset, VolumeDesc, VolumeSamples, Window};
+use warpbench_gpu::{ControlDesc, Preset, TpsDesc, VolumeDesc, VolumeSamples, Window};
 use warpbench_io::Volume;
 use warpbench_io::volume::{Modality, VoxelData};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
+use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
@@ -85,6 +86,13 @@ pub fn control_texture(
     fixed_box: Aabb<Fixed>,
     n: usize,
 ) -> Result<(ControlGrid, ControlTexture), Failure> {
+    let grid = control_grid(fixed_box, n)?;
+    Ok((grid, ControlTexture::sample(moving_from_fixed, grid)))
+}
+
+/// The grid of [`control_texture`]: n³ texels over `fixed_box` grown by half a texel, so that the texel centres
+/// span the box edge to edge. The GPU evaluates the same grid ([`warpbench_gpu::ControlGridDesc`]).
+pub fn control_grid(fixed_box: Aabb<Fixed>, n: usize) -> Result<ControlGrid, Failure> {
     if n < 2 {
         return Err(Failure::BadInput(anyhow!("control texture: {n} texels per axis; at least 2")));
     }
@@ -94,8 +102,39 @@ pub fn control_texture(
         warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| lo[a] - half_texel[a])),
         warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| hi[a] + half_texel[a])),
     );
-    let grid = ControlGrid::cube(n, grown).map_err(|e| Failure::BadInput(anyhow!("control texture: {e}")))?;
-    Ok((grid, ControlTexture::sample(moving_from_fixed, grid)))
+    ControlGrid::cube(n, grown).map_err(|e| Failure::BadInput(anyhow!("control texture: {e}")))
+}
+
+/// A TPS pull-back as plain arrays, for the GPU crate (which does not depend on the solver).
+#[derive(Clone, Debug)]
+pub struct TpsParts {
+    centres: Vec<[f64; 3]>,
+    weights: Vec<[f64; 3]>,
+    linear: [[f64; 3]; 3],
+    translation: [f64; 3],
+}
+
+impl TpsParts {
+    #[must_use]
+    pub fn new(tps: &Tps<Moving, Fixed>) -> Self {
+        let a = tps.linear();
+        Self {
+            centres: tps.centres().iter().map(warpbench_io::geometry::Point3::coords).collect(),
+            weights: tps.weights(),
+            linear: std::array::from_fn(|r| std::array::from_fn(|c| a[(r, c)])),
+            translation: tps.translation(),
+        }
+    }
+
+    #[must_use]
+    pub fn desc(&self) -> TpsDesc<'_> {
+        TpsDesc {
+            centres_ref: &self.centres,
+            weights: &self.weights,
+            linear: self.linear,
+            translation: self.translation,
+        }
+    }
 }
 
 /// The renderer's view of a control texture (over its grid's box).

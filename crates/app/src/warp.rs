@@ -22,7 +22,7 @@ use warpbench_gpu::export::{
     ExportPass, ExportRequest, ExportSamples, ExportedSamples, Interpolation, OutputType, Progress, PullBack,
     SourceVolume, TargetGrid, export_cpu,
 };
-use warpbench_gpu::{GpuContext, GpuError, TpsDesc};
+use warpbench_gpu::{GpuContext, GpuError};
 use warpbench_io::dicom_write::{self, DicomSeriesOptions};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::landmarks::LandmarkPair;
@@ -148,35 +148,6 @@ impl FittedPullBack {
     }
 }
 
-/// Plain TPS data for the GPU crate.
-struct TpsParts {
-    centres: Vec<[f64; 3]>,
-    weights: Vec<[f64; 3]>,
-    linear: [[f64; 3]; 3],
-    translation: [f64; 3],
-}
-
-impl TpsParts {
-    fn new(tps: &Tps<Moving, Fixed>) -> Self {
-        let a = tps.linear();
-        Self {
-            centres: tps.centres().iter().map(warpbench_io::geometry::Point3::coords).collect(),
-            weights: tps.weights(),
-            linear: std::array::from_fn(|r| std::array::from_fn(|c| a[(r, c)])),
-            translation: tps.translation(),
-        }
-    }
-
-    fn desc(&self) -> TpsDesc<'_> {
-        TpsDesc {
-            centres_ref: &self.centres,
-            weights: &self.weights,
-            linear: self.linear,
-            translation: self.translation,
-        }
-    }
-}
-
 fn interpolation_name(i: Interpolation) -> &'static str {
     match i {
         Interpolation::Nearest => "nearest",
@@ -296,7 +267,7 @@ pub fn write_outputs(
 
 /// The pull-back as the export takes it, owned.
 enum ExportPullBack {
-    Tps(TpsParts),
+    Tps(scene::TpsParts),
     Control(ControlGrid, ControlTexture),
 }
 
@@ -344,7 +315,7 @@ impl Fitted {
             _ => FittedPullBack::Other(inputs::fit_pullback(&method, &c, target_box)?),
         };
         let pullback = match (&pullback, settings.pullback) {
-            (FittedPullBack::Tps(t), PullBackMode::Exact) => ExportPullBack::Tps(TpsParts::new(t)),
+            (FittedPullBack::Tps(t), PullBackMode::Exact) => ExportPullBack::Tps(scene::TpsParts::new(t)),
             (_, mode) => {
                 let grid_n = match mode {
                     PullBackMode::Grid(n) => n,

@@ -31,6 +31,7 @@ use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::diagnostics::{jacobian_determinants, leave_one_out, residuals};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::{Parallelism, Warp};
 
 use crate::inputs::{self, LandmarkSource};
@@ -143,10 +144,7 @@ pub fn fit_warp(
     grid_n: usize,
     float32_filterable: bool,
 ) -> anyhow::Result<(Fitted, PreparedControl)> {
-    let need = inputs::min_pairs(method);
-    if moving.len() < need {
-        return Err(anyhow!("{} active pairs; {method} needs {need}", moving.len()));
-    }
+    enough_pairs(method, moving.len())?;
     let pullback = method.fit(fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
     let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
     let (grid, texture) =
@@ -154,6 +152,56 @@ pub fn fit_warp(
     let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
         .map_err(|e| anyhow!("{e}"))?;
     Ok((Fitted { pullback, forward, pairs: moving.len() }, prepared))
+}
+
+fn enough_pairs(method: &Method, pairs: usize) -> anyhow::Result<()> {
+    let need = inputs::min_pairs(method);
+    if pairs < need {
+        return Err(anyhow!("{pairs} active pairs; {method} needs {need}"));
+    }
+    Ok(())
+}
+
+/// [`fit_warp`] for a TPS with the control texture evaluated on the GPU ([`warpbench_gpu::ControlEvalPass`], into
+/// `viewer`'s texture) instead of sampled on the CPU and uploaded: the same grid, the same function, evaluated in
+/// f32 about the box's centre.
+///
+/// # Errors
+/// Not a TPS, too few pairs, a fit that fails, or the GPU pass failing.
+pub fn fit_warp_on_gpu(
+    method: &Method,
+    fixed: &[Point3<Fixed>],
+    moving: &[Point3<Moving>],
+    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
+    grid_n: usize,
+    viewer: &mut Viewer,
+) -> anyhow::Result<Fitted> {
+    let Method::Tps { stiffness } = *method else {
+        return Err(anyhow!("the GPU evaluates TPS control textures only, not {method}"));
+    };
+    enough_pairs(method, moving.len())?;
+    let tps: Tps<Moving, Fixed> = Tps::fit_smoothing(fixed, moving, stiffness).map_err(|e| anyhow!("{method}: {e}"))?;
+    let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let grid = scene::control_grid(fixed_box, grid_n).map_err(|e| anyhow!("{:#}", e.error()))?;
+    let desc = warpbench_gpu::ControlGridDesc {
+        dims: grid.dims,
+        box_min_ref: grid.domain.min.coords(),
+        box_max_ref: grid.domain.max.coords(),
+    };
+    viewer.evaluate_control_tps(&scene::TpsParts::new(&tps).desc(), &desc)?;
+    Ok(Fitted { pullback: Box::new(tps), forward, pairs: moving.len() })
+}
+
+/// Where the window makes the control texture after a fit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ControlEval {
+    /// A TPS on the GPU when the adapter is a real GPU; otherwise on the CPU (a CPU driver runs the compute pass
+    /// slower than the solver's sampling on rayon).
+    #[default]
+    Auto,
+    Cpu,
+    /// A TPS on the GPU whatever the adapter (other methods on the CPU).
+    Gpu,
 }
 
 /// Adding a pair: the source is picked on the (deformed) moving volume, then the target on the fixed one.
@@ -244,6 +292,8 @@ pub struct Ready {
     pub export: Option<export::ExportJob>,
     /// The export section's fields.
     pub export_fields: export::ExportFields,
+    /// Where the control texture is made.
+    pub control_eval: ControlEval,
 }
 
 /// The 3-D view's and the slices' images as egui shows them, and what needs rendering again.
@@ -520,6 +570,7 @@ impl Workbench {
             drag: None,
             export: None,
             export_fields: export::ExportFields::default(),
+            control_eval: ControlEval::Auto,
             // Replaced just below by the real first state, which needs the rest of `ready`.
             history: History::new(Snapshot {
                 pairs: Vec::new(),
@@ -576,12 +627,21 @@ impl Ready {
             self.errors = vec![None; self.loaded.pairs.len()];
         }
         let boxes = (fixed_box, moving_box);
-        let filterable = self.viewer.ctx.capabilities.float32_filterable;
-        let result =
+        let on_gpu = matches!(method, Method::Tps { .. })
+            && match self.control_eval {
+                ControlEval::Auto => !self.viewer.ctx.is_cpu_driver(),
+                ControlEval::Cpu => false,
+                ControlEval::Gpu => true,
+            };
+        let result = if on_gpu {
+            fit_warp_on_gpu(&method, &fixed, &moving, boxes, self.settings.grid_n, &mut self.viewer)
+        } else {
+            let filterable = self.viewer.ctx.capabilities.float32_filterable;
             fit_warp(&method, &fixed, &moving, boxes, self.settings.grid_n, filterable).map(|(f, prepared)| {
                 self.viewer.set_control(Some(&prepared));
                 f
-            });
+            })
+        };
         match result {
             Ok(fitted) if !diagnostics => {
                 // Keep the last diagnostics until the drag ends.

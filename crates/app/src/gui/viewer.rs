@@ -5,10 +5,11 @@
 use eframe::egui_wgpu;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
-    GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame,
-    GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay,
-    PickRequest, PickTarget, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Probe, Quality,
-    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, VolumeBudget, Window,
+    ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms,
+    GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerStyle,
+    OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
+    PreparedControl, PreparedVolume, Preset, Probe, Quality, RaycastDrawData, RaycastRenderer, RenderSettings,
+    RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget, Window,
 };
 use warpbench_io::Volume;
 
@@ -56,6 +57,10 @@ pub struct Viewer {
     tfs: GpuTransferFunctions,
     tf_presets: [Preset; 2],
     pub control: Option<GpuControlTexture>,
+    /// Evaluates TPS pull-backs straight into the control texture, made on first use.
+    control_eval: Option<ControlEvalPass>,
+    /// `control` came from `control_eval` (so it can be written again in place).
+    control_from_eval: bool,
 }
 
 fn gpu_error(e: warpbench_gpu::GpuError) -> anyhow::Error {
@@ -97,7 +102,20 @@ impl Viewer {
         let (fixed, moving) = (upload(fixed)?, upload(moving)?);
         let tf_presets = [fixed.preset, moving.preset];
         let tfs = GpuTransferFunctions::upload(&ctx, &tf_presets.map(Preset::transfer_function));
-        Ok(Self { ctx, renderer, glyphs, picker, pool, fixed, moving, tfs, tf_presets, control: None })
+        Ok(Self {
+            ctx,
+            renderer,
+            glyphs,
+            picker,
+            pool,
+            fixed,
+            moving,
+            tfs,
+            tf_presets,
+            control: None,
+            control_eval: None,
+            control_from_eval: false,
+        })
     }
 
     /// Re-uploads the transfer functions when a layer's preset changed.
@@ -185,9 +203,24 @@ impl Viewer {
         Ok(hits.first().and_then(PickHit::found).copied())
     }
 
+    /// Evaluates the TPS pull-back `tps` into the control texture on `grid` on the GPU (reusing the current
+    /// texture when it has the same size), instead of sampling it on the CPU and uploading it.
+    pub fn evaluate_control_tps(&mut self, tps: &TpsDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()> {
+        if self.control_eval.is_none() {
+            self.control_eval = Some(ControlEvalPass::new(&self.ctx).map_err(gpu_error)?);
+        }
+        let Some(pass) = &self.control_eval else { unreachable!("made just above") };
+        // An uploaded texture has other usages: only a texture the pass made is written again in place.
+        let reuse = self.control.take().filter(|_| self.control_from_eval);
+        self.control = Some(pass.evaluate_tps(&self.ctx, tps, grid, reuse).map_err(gpu_error)?);
+        self.control_from_eval = true;
+        Ok(())
+    }
+
     /// Uploads a control texture (or removes the warp with `None`).
     pub fn set_control(&mut self, prepared: Option<&PreparedControl>) {
         self.control = prepared.map(|p| GpuControlTexture::upload(&self.ctx, p));
+        self.control_from_eval = false;
     }
 
     /// Marks a new UI frame for the texture pool, freeing targets idle for a few frames.
