@@ -50,6 +50,16 @@ fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
     }
 }
 
+/// Steps until loading has failed (or 20 s pass).
+fn wait_for_failure(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    while harness.state().failure().is_none() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
 /// Whether there is no GPU adapter (the test is then skipped, unless REQUIRE_GPU_ADAPTER is set).
 fn no_adapter() -> bool {
     let missing = std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err();
@@ -171,12 +181,7 @@ fn a_missing_file_is_reported_in_the_window() {
     };
     let mut harness =
         Harness::builder().with_size(egui::vec2(600.0, 300.0)).build_eframe(|cc| Workbench::new(cc, opts));
-    let start = Instant::now();
-    while harness.state().failure().is_none() {
-        harness.step();
-        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    wait_for_failure(&mut harness);
     let message = harness.state().failure().expect("failed").to_owned();
     assert!(message.contains("/nonexistent/fixed.nii"), "{message}");
     harness.get_by_label("No volumes are open");
@@ -604,12 +609,7 @@ fn snapshot_with_nothing_open() {
     };
     let mut harness =
         Harness::builder().with_size(egui::vec2(640.0, 240.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
-    let start = Instant::now();
-    while harness.state().failure().is_none() {
-        harness.step();
-        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
-        std::thread::sleep(Duration::from_millis(10));
-    }
+    wait_for_failure(&mut harness);
     harness.run_steps(2);
     harness.snapshot("no_volumes");
 }
