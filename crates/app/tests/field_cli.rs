@@ -11,8 +11,11 @@
 //! The in-memory core the window calls, `field::displacement_field` with `field::write_field`, writes the very files
 //! the command writes, and stops when its progress callback says so.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+use common::{assert_ok, deformed_pairs as write_pairs, mri as fixture, utf8, warpbench};
 
 use warpbench_app::exit::Failure;
 use warpbench_app::field;
@@ -30,53 +33,8 @@ use warpbench_solver::warp::Warp;
 /// the difference between our batch evaluation and the point evaluation used here.
 const F32_TOLERANCE_MM: f64 = 1e-4;
 
-fn fixture() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii")
-}
-
 fn itk_data(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/itk").join(name)
-}
-
-fn warpbench(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run warpbench")
-}
-
-fn assert_ok(out: &Output) {
-    assert_eq!(out.status.code(), Some(0), "stderr: {}", String::from_utf8_lossy(&out.stderr));
-}
-
-fn utf8(p: &Path) -> &str {
-    p.to_str().expect("utf8 path")
-}
-
-/// Landmark pairs (BigWarp CSV, LPS mm) on voxel centres of the fixture: fixed points inside the brain, moving
-/// points shifted by (3, −2, 1.5) mm plus a few mm of local deformation. `outside_third` moves pair 3 out of the
-/// moving volume.
-fn write_pairs(dir: &Path, outside_third: bool) -> PathBuf {
-    let fixed = [
-        [0.0, 18.0, 18.0],
-        [40.0, 18.0, 18.0],
-        [-40.0, 18.0, 18.0],
-        [0.0, 70.0, 18.0],
-        [0.0, -40.0, 18.0],
-        [0.0, 18.0, 60.0],
-        [0.0, 18.0, -20.0],
-    ];
-    let local = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.5, 0.0, 1.0], [0.0, 0.0, -2.0], [1.0, 1.0, 0.0]];
-    let mut lines = Vec::new();
-    for (i, q) in fixed.iter().enumerate() {
-        let l = local[i % local.len()];
-        let mut p = [q[0] + 3.0 + l[0], q[1] - 2.0 + l[1], q[2] + 1.5 + l[2]];
-        if outside_third && i == 2 {
-            p[0] = -300.0;
-        }
-        let fields: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
-        lines.push(format!("\"Pt-{i}\",\"true\",{}\n", fields.join(",")));
-    }
-    let path = dir.join(if outside_third { "outside.csv" } else { "pairs.csv" });
-    std::fs::write(&path, lines.concat()).expect("write landmarks");
-    path
 }
 
 /// The (moving, fixed) points of a BigWarp CSV, typed.

@@ -2,8 +2,12 @@
 //! it loads a pair, renders the 3-D view and the slices on egui's own device, and reacts to the blend-mode switch
 //! and to a landmark being switched off (the warp is fitted again).
 
+mod common;
+
 use std::path::Path;
 use std::time::{Duration, Instant};
+
+use common::{data, mri};
 
 use eframe::egui;
 use egui_kittest::Harness;
@@ -11,24 +15,13 @@ use egui_kittest::kittest::Queryable;
 use warpbench_app::gui::{GuiOptions, Workbench};
 use warpbench_app::inputs::LandmarkSource;
 
-fn mri() -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii")
-}
-
 /// Five pairs on the MRI, the moving points shifted by a few mm.
 fn pairs(dir: &Path) -> std::path::PathBuf {
     let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
-    let lines: Vec<String> = q
-        .iter()
-        .enumerate()
-        .map(|(i, q)| {
-            let p = [q[0] + 3.0, q[1] - 2.0 + i as f64, q[2] + 1.5];
-            let f: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
-            format!("\"Pt-{i}\",\"true\",{}\n", f.join(","))
-        })
-        .collect();
+    let pairs: Vec<([f64; 3], [f64; 3])> =
+        q.iter().enumerate().map(|(i, q)| ([q[0] + 3.0, q[1] - 2.0 + i as f64, q[2] + 1.5], *q)).collect();
     let path = dir.join("pairs.csv");
-    std::fs::write(&path, lines.concat()).expect("write landmarks");
+    common::write_pairs_csv(&path, &pairs);
     path
 }
 
@@ -378,10 +371,6 @@ fn wait_for_reads(harness: &mut Harness<'_, Workbench>) {
         std::thread::sleep(Duration::from_millis(10));
     }
     harness.run_steps(3);
-}
-
-fn data(rel: &str) -> std::path::PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel)
 }
 
 #[test]

@@ -3,16 +3,12 @@
 //!
 //! Without a GPU adapter the render tests skip, unless REQUIRE_GPU_ADAPTER=1 (CI), where they fail.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-fn fixture() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii")
-}
+use std::path::Path;
+use std::process::Output;
 
-fn warpbench(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run warpbench")
-}
+use common::{assert_ok, deformed_pairs as write_pairs, mri as fixture, warpbench};
 
 /// Whether the run failed only for want of a GPU (then the test is skipped, outside CI).
 fn no_adapter(out: &Output) -> bool {
@@ -23,38 +19,6 @@ fn no_adapter(out: &Output) -> bool {
         return true;
     }
     false
-}
-
-fn assert_ok(out: &Output) {
-    assert_eq!(out.status.code(), Some(0), "stderr: {}", String::from_utf8_lossy(&out.stderr));
-}
-
-/// Landmark pairs (BigWarp CSV, LPS mm): fixed points inside the brain, moving points shifted by (3, −2, 1.5) mm
-/// plus a few mm of local deformation, so the warp is not rigid.
-fn write_pairs(dir: &Path, outside_third: bool) -> PathBuf {
-    let fixed = [
-        [0.0, 18.0, 18.0],
-        [40.0, 18.0, 18.0],
-        [-40.0, 18.0, 18.0],
-        [0.0, 70.0, 18.0],
-        [0.0, -40.0, 18.0],
-        [0.0, 18.0, 60.0],
-        [0.0, 18.0, -20.0],
-    ];
-    let local = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.5, 0.0, 1.0], [0.0, 0.0, -2.0], [1.0, 1.0, 0.0]];
-    let mut lines = Vec::new();
-    for (i, q) in fixed.iter().enumerate() {
-        let l = local[i % local.len()];
-        let mut p = [q[0] + 3.0 + l[0], q[1] - 2.0 + l[1], q[2] + 1.5 + l[2]];
-        if outside_third && i == 2 {
-            p[0] = -300.0;
-        }
-        let fields: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
-        lines.push(format!("\"Pt-{i}\",\"true\",{}\n", fields.join(",")));
-    }
-    let path = dir.join(if outside_third { "outside.csv" } else { "pairs.csv" });
-    std::fs::write(&path, lines.concat()).expect("write landmarks");
-    path
 }
 
 fn read_png(path: &Path) -> image::RgbaImage {

@@ -3,8 +3,11 @@
 //! and the CPU backends write the same file; `--out-dicom` writes a series our reader reads back; refusals. And the
 //! in-memory core the window calls, `warp::resample`, makes the very file the command writes, and stops when asked.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
+use common::{assert_ok, data, utf8 as s, warpbench, write_pairs_csv as write_pairs};
 
 use warpbench_app::exit::Failure;
 use warpbench_app::inputs::Names;
@@ -13,35 +16,6 @@ use warpbench_gpu::export::{Interpolation, Progress};
 use warpbench_io::landmarks::read_bigwarp_csv;
 use warpbench_io::volume::VoxelData;
 use warpbench_solver::method::Method;
-
-fn data(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel)
-}
-
-fn warpbench(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run warpbench")
-}
-
-fn assert_ok(out: &Output) {
-    assert_eq!(out.status.code(), Some(0), "stderr: {}", String::from_utf8_lossy(&out.stderr));
-}
-
-/// A BigWarp CSV of (moving p, fixed q) pairs.
-fn write_pairs(path: &Path, pairs: &[([f64; 3], [f64; 3])]) {
-    let lines: Vec<String> = pairs
-        .iter()
-        .enumerate()
-        .map(|(i, (p, q))| {
-            let f: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
-            format!("\"Pt-{i}\",\"true\",{}\n", f.join(","))
-        })
-        .collect();
-    std::fs::write(path, lines.concat()).expect("write landmarks");
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().expect("utf8 path")
-}
 
 #[test]
 fn identity_landmarks_give_back_the_input_on_both_backends() {

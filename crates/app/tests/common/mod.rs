@@ -1,0 +1,72 @@
+//! Helpers shared by the app's end-to-end tests: fixture paths, running the binary, and writing landmark files.
+#![allow(dead_code, reason = "each test binary uses a subset")]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// A committed fixture under `tests/data`.
+pub fn data(rel: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel)
+}
+
+/// The MRI fixture the tests warp (`avg152T1_LR_nifti.nii`, 91×109×91, 2 mm).
+pub fn mri() -> PathBuf {
+    data("nifti/avg152T1_LR_nifti.nii")
+}
+
+/// Runs the `warpbench` binary.
+pub fn warpbench<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run warpbench")
+}
+
+pub fn assert_ok(out: &Output) {
+    assert_eq!(out.status.code(), Some(0), "stderr: {}", String::from_utf8_lossy(&out.stderr));
+}
+
+pub fn utf8(p: &Path) -> &str {
+    p.to_str().expect("utf8 path")
+}
+
+/// A BigWarp CSV of (moving p, fixed q) pairs (LPS mm), named `Pt-0`, `Pt-1`, …
+pub fn write_pairs_csv(path: &Path, pairs: &[([f64; 3], [f64; 3])]) {
+    let lines: Vec<String> = pairs
+        .iter()
+        .enumerate()
+        .map(|(i, (p, q))| {
+            let f: Vec<String> = p.iter().chain(q).map(|v| format!("\"{v}\"")).collect();
+            format!("\"Pt-{i}\",\"true\",{}\n", f.join(","))
+        })
+        .collect();
+    std::fs::write(path, lines.concat()).expect("write landmarks");
+}
+
+/// Seven pairs on the MRI fixture: fixed points inside the brain, moving points shifted by (3, −2, 1.5) mm plus a
+/// few mm of local deformation, so the warp is not rigid. `outside_third` moves pair 2's moving point out of the
+/// volume. Written as `pairs.csv` (or `outside.csv`) in `dir`.
+pub fn deformed_pairs(dir: &Path, outside_third: bool) -> PathBuf {
+    let fixed = [
+        [0.0, 18.0, 18.0],
+        [40.0, 18.0, 18.0],
+        [-40.0, 18.0, 18.0],
+        [0.0, 70.0, 18.0],
+        [0.0, -40.0, 18.0],
+        [0.0, 18.0, 60.0],
+        [0.0, 18.0, -20.0],
+    ];
+    let local = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.5, 0.0, 1.0], [0.0, 0.0, -2.0], [1.0, 1.0, 0.0]];
+    let pairs: Vec<([f64; 3], [f64; 3])> = fixed
+        .iter()
+        .enumerate()
+        .map(|(i, q)| {
+            let l = local[i % local.len()];
+            let mut p = [q[0] + 3.0 + l[0], q[1] - 2.0 + l[1], q[2] + 1.5 + l[2]];
+            if outside_third && i == 2 {
+                p[0] = -300.0;
+            }
+            (p, *q)
+        })
+        .collect();
+    let path = dir.join(if outside_third { "outside.csv" } else { "pairs.csv" });
+    write_pairs_csv(&path, &pairs);
+    path
+}
