@@ -545,9 +545,8 @@ impl Workbench {
         let rs = self.render_state.as_ref().context("the window has no wgpu renderer")?;
         let viewer = Viewer::new(rs, &loaded.fixed, &loaded.moving)?;
         let (lo, hi) = viewer.scene_box();
-        let mut camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
-        camera.azimuth_rad = 0.6;
-        camera.elevation_rad = 0.25;
+        // Placed by `reset_camera` below.
+        let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
         let mid = (lo + hi) * 0.5;
         let mut ready = Ready {
             loaded,
@@ -582,6 +581,7 @@ impl Workbench {
                 }; 2],
             }),
         };
+        ready.reset_camera();
         if let Some(file) = ready.loaded.session.take() {
             ready.apply_session(&file);
         }
