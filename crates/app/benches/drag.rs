@@ -14,12 +14,16 @@
 //!
 //! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--grid N` (control texture
 //! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
-//! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU). The adapter is wgpu's
+//! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU), `--refine` (after the
+//! events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the reduced view,
+//! then the full view band by band, once with the cost per pixel unknown and once with it measured; it reports the
+//! longest band, which is what a UI frame waits for, against the one-pass full view). The adapter is wgpu's
 //! default, or the one `WGPU_BACKEND` chooses. It only runs when `--bench` is among the arguments (as `cargo bench`
 //! passes), so `cargo test --benches` does not run it.
 
 use std::time::{Duration, Instant};
 
+use warpbench_app::gui::pacing::{Bands, interactive_size};
 use warpbench_app::gui::{demo, fit_warp, fit_warp_on_gpu, viewer::Viewer};
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, pair_glyphs};
@@ -35,6 +39,7 @@ struct Options {
     grid: usize,
     quality: Quality,
     gpu_eval: bool,
+    refine: bool,
 }
 
 fn options() -> Result<Options, String> {
@@ -45,6 +50,7 @@ fn options() -> Result<Options, String> {
         grid: 48,
         quality: Quality::Interactive,
         gpu_eval: false,
+        refine: false,
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -63,6 +69,7 @@ fn options() -> Result<Options, String> {
             "--grid" => o.grid = number(value()?)?,
             "--full" => o.quality = Quality::Full,
             "--gpu-eval" => o.gpu_eval = true,
+            "--refine" => o.refine = true,
             "--bench" => {}
             other => return Err(format!("unknown option {other}")),
         }
@@ -209,4 +216,58 @@ fn main() {
         ms(fit_sum / n),
         ms(frame_sum / n)
     );
+    if o.refine {
+        refine(&viewer, &camera, &settings, o.size);
+    }
+}
+
+/// The release after a drag on a CPU driver, as the window paces it: the one-pass full view for reference, the
+/// reduced view shown at once, and the full view band by band (without glyphs, which are drawn once at the end).
+fn refine(viewer: &Viewer, camera: &OrbitCamera, settings: &RenderSettings, size: (u32, u32)) {
+    let ms = |d: Duration| d.as_secs_f64() * 1e3;
+    let wait = || viewer.ctx.wait_idle().unwrap_or_else(|e| panic!("{e}"));
+    let timed = |f: &dyn Fn()| {
+        let t = Instant::now();
+        f();
+        wait();
+        t.elapsed()
+    };
+    let once = timed(&|| drop(viewer.render_view(camera, settings, Quality::Full, size, &[]).expect("full view")));
+    let per_px = ms(once) / (f64::from(size.0) * f64::from(size.1));
+    let small = interactive_size(size, Some(per_px));
+    let reduced =
+        timed(&|| drop(viewer.render_view(camera, settings, Quality::Interactive, small, &[]).expect("reduced view")));
+    println!(
+        "release: one-pass full view {:.0} ms ({:.2} us/px); reduced view {}x{} {:.0} ms",
+        ms(once),
+        per_px * 1e3,
+        small.0,
+        small.1,
+        ms(reduced)
+    );
+    for (label, view_cost) in [("cost unknown (first view)", None), ("cost measured", Some(per_px))] {
+        let target = viewer.view_target(size);
+        let mut bands = Bands::new(size.0, size.1);
+        let mut times = Vec::new();
+        while !bands.done() {
+            let band = bands.next(view_cost);
+            let t = Instant::now();
+            viewer
+                .render_view_rows(camera, settings, Quality::Full, &target, band.clone())
+                .unwrap_or_else(|e| panic!("{e:#}"));
+            wait();
+            times.push(ms(t.elapsed()));
+            bands.rendered(&band, ms(t.elapsed()));
+        }
+        let total: f64 = times.iter().sum();
+        let mut sorted = times.clone();
+        sorted.sort_by(f64::total_cmp);
+        println!(
+            "bands, {label}: {} frames, longest {:.0} ms, median {:.0} ms, total {:.0} ms",
+            times.len(),
+            sorted.last().copied().unwrap_or(0.0),
+            sorted.get(sorted.len() / 2).copied().unwrap_or(0.0),
+            total
+        );
+    }
 }

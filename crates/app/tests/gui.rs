@@ -12,7 +12,7 @@ use common::{data, mri};
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use warpbench_app::gui::{GuiOptions, Workbench};
+use warpbench_app::gui::{GuiOptions, Ready, Workbench};
 use warpbench_app::inputs::LandmarkSource;
 
 /// Five pairs on the MRI, the moving points shifted by a few mm.
@@ -25,7 +25,7 @@ fn pairs(dir: &Path) -> std::path::PathBuf {
     path
 }
 
-/// Steps the harness until the pair is loaded and drawn (or fails, or 60 s pass).
+/// Steps the harness until the pair is loaded and drawn at full quality (or fails, or 60 s pass).
 fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
     let start = Instant::now();
     loop {
@@ -33,13 +33,24 @@ fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
         if let Some(e) = harness.state().failure() {
             panic!("loading failed: {e}");
         }
-        if harness.state().ready().is_some_and(|r| r.last_render_ms > 0.0) {
+        if harness.state().ready().is_some() {
             // A few more frames so the layout settles (clicks go to last frame's positions).
             harness.run_steps(3);
+            wait_until_rendered(harness);
             return;
         }
         assert!(start.elapsed() < Duration::from_mins(1), "the pair was not shown within a minute");
         std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Steps the harness until the views are rendered fully (on a CPU driver the 3-D view is refined band by band over
+/// several frames), or 60 s pass.
+fn wait_until_rendered(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    while harness.state().ready().is_some_and(Ready::needs_render) {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(1), "the views were not rendered within a minute");
     }
 }
 
@@ -601,6 +612,59 @@ fn snapshot_with_nothing_open() {
     wait_for_failure(&mut harness);
     harness.run_steps(2);
     harness.snapshot("no_volumes");
+}
+
+#[test]
+fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 600.0));
+    let cpu = harness.state().ready().expect("ready").viewer.ctx.is_cpu_driver();
+    let ((full_w, full_h), full) = harness.state().ready().and_then(Ready::view_shown).expect("a view");
+    assert!(full, "the view is not refined after loading");
+    harness.get_by_label("Reset camera").click();
+    harness.step();
+    harness.step();
+    let ready = harness.state().ready().expect("ready");
+    let (size, full) = ready.view_shown().expect("a view");
+    if cpu {
+        // The camera moved: a reduced view at once, the full one still to come.
+        assert!(!full && size.0 <= full_w && size.1 <= full_h, "{size:?} full {full}");
+        assert!(ready.needs_render(), "nothing left to refine");
+    }
+    // Each frame adds a band until the full view is shown.
+    let mut progress = vec![ready.view_refine_progress().unwrap_or(0.0)];
+    let start = Instant::now();
+    while harness.state().ready().is_some_and(Ready::needs_render) {
+        harness.step();
+        if let Some(p) = harness.state().ready().and_then(Ready::view_refine_progress) {
+            progress.push(p);
+        }
+        assert!(start.elapsed() < Duration::from_mins(1), "not refined within a minute");
+    }
+    eprintln!("refined in {} frames: {progress:?}", progress.len());
+    assert!(progress.windows(2).all(|w| w[1] > w[0]), "a band did not advance: {progress:?}");
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.view_shown(), Some(((full_w, full_h), true)));
+    // The refined image is the one-pass full-quality render, glyphs included, bit for bit.
+    let shown = ready.read_view().expect("read the view");
+    let once = ready
+        .viewer
+        .render_view(
+            &ready.camera,
+            &ready.settings.render_settings(),
+            warpbench_gpu::Quality::Full,
+            (full_w, full_h),
+            &ready.glyphs(),
+        )
+        .expect("render at once");
+    let once = once.read_back(&ready.viewer.ctx).expect("read back");
+    let alpha = shown.chunks(4).filter(|p| p[3] > 0).count();
+    assert!(alpha * 10 > shown.len() / 4, "the view is mostly empty: {alpha} px");
+    let differ = shown.iter().zip(&once).filter(|(a, b)| a != b).count();
+    assert_eq!(differ, 0, "the refined view differs from the one-pass view in {differ} channels");
 }
 
 #[test]

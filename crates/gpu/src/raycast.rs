@@ -702,23 +702,51 @@ impl RaycastRenderer {
     /// Renders the slice `data` ([`RaycastUniforms::for_slice`]) into `target` (the plane's size, cleared to
     /// transparent) and submits.
     pub fn render_slice(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        Self::render_with(ctx, target, false, |pass| self.draw_slice(pass, data))
+        Self::render_with(ctx, target, false, LoadOp::Clear, |pass| self.draw_slice(pass, data))
     }
 
     /// Renders `data` into `target` (cleared to transparent) and submits.
     pub fn render(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        Self::render_with(ctx, target, true, |pass| self.draw(pass, data))
+        Self::render_with(ctx, target, true, LoadOp::Clear, |pass| self.draw(pass, data))
+    }
+
+    /// Renders the rows `rows` of `data`'s frame (a band across the whole width, rows counted from the top) into
+    /// `target` and submits, so that a frame too slow for one UI frame (on a CPU driver) is rendered over several.
+    /// A band from row 0 clears the whole target first; a later band keeps what earlier bands drew. Every pixel's ray
+    /// depends only on the pixel, so bands covering all rows give exactly the image of [`Self::render`].
+    pub fn render_rows(
+        &self,
+        ctx: &GpuContext,
+        data: &RaycastDrawData,
+        target: &RenderTarget,
+        rows: std::ops::Range<u32>,
+    ) -> Result<()> {
+        let rows = rows.start.min(target.height)..rows.end.min(target.height);
+        if rows.is_empty() {
+            return Ok(());
+        }
+        let load = if rows.start == 0 { LoadOp::Clear } else { LoadOp::Keep };
+        Self::render_with(ctx, target, true, load, |pass| {
+            pass.set_scissor_rect(0, rows.start, target.width, rows.end - rows.start);
+            self.draw(pass, data);
+        })
     }
 
     fn render_with(
         ctx: &GpuContext,
         target: &RenderTarget,
         with_hit_depth: bool,
+        load: LoadOp,
         record: impl FnOnce(&mut wgpu::RenderPass<'_>),
     ) -> Result<()> {
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("raycast") });
         {
-            let attachments = target.colour_attachments();
+            let mut attachments = target.colour_attachments();
+            if load == LoadOp::Keep {
+                for a in attachments.iter_mut().flatten() {
+                    a.ops.load = wgpu::LoadOp::Load;
+                }
+            }
             let attachments = if with_hit_depth { &attachments[..] } else { &attachments[..1] };
             let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
                 label: Some("raycast"),
@@ -733,6 +761,15 @@ impl RaycastRenderer {
         ctx.queue.submit([encoder.finish()]);
         ctx.check_errors()
     }
+}
+
+/// What a ray-casting pass does with the target's contents before drawing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum LoadOp {
+    /// Clear to transparent and no hit.
+    Clear,
+    /// Keep them (a later band of [`RaycastRenderer::render_rows`]).
+    Keep,
 }
 
 /// One volume with its optional control texture and prefiltered copy, as bound for a frame.

@@ -300,3 +300,45 @@ fn shading_follows_the_deformation() {
     }
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
+
+/// A frame rendered band by band (uneven bands, one of a single row, the last past the bottom; jitter and shading
+/// on) equals the frame rendered at once, colour and first-hit depth, bit for bit: a pixel's ray depends on that
+/// pixel only. A later band changes only its own rows.
+#[test]
+fn a_frame_rendered_in_bands_equals_the_whole_frame() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let p = Phantoms::new();
+    let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
+    let scene = Scene::new(&ctx, &p, Some(&warp), 16);
+    let gpu = GpuScene::new(&ctx, &scene);
+    let cam = OrbitCamera { azimuth_rad: 0.5, elevation_rad: 0.3, ..front_ortho() };
+    let settings = RenderSettings {
+        jitter_seed: Some(7),
+        shading: Shading::with_mode(ShadingMode::Dvr),
+        ..RenderSettings::default()
+    };
+    let u = scene.uniforms(&cam, &settings, SIZE);
+    let whole = gpu.render_target(&ctx, &gpu.renderer, &scene, &u);
+    let banded = warpbench_gpu::RenderTarget::new(&ctx, SIZE.0, SIZE.1);
+    gpu.render_rows_into(&ctx, &gpu.renderer, &scene, &u, &banded, &[0..7, 7..30, 30..31, 31..90]);
+    let read =
+        |t: &warpbench_gpu::RenderTarget| (t.read_back(&ctx).expect("colour"), t.read_hit_depth(&ctx).expect("depth"));
+    let (whole_rgba, whole_depth) = read(&whole);
+    assert!(coverage(&whole_rgba) > 0.2, "the frame shows too little: {}", coverage(&whole_rgba));
+    let (banded_rgba, banded_depth) = read(&banded);
+    assert!(whole_rgba == banded_rgba, "colour differs: {:?}", max_diff(&whole_rgba, &banded_rgba, 0));
+    assert!(whole_depth.iter().map(|d| d.to_bits()).eq(banded_depth.iter().map(|d| d.to_bits())), "hit depth differs");
+
+    // Another frame over rows 20..30 only: those rows become the other frame's, the rest stay.
+    let other = scene.uniforms(&cam, &RenderSettings { blend: BlendMode::Difference, ..settings }, SIZE);
+    let other_rgba = gpu.render(&ctx, &scene, &other);
+    gpu.render_rows_into(&ctx, &gpu.renderer, &scene, &other, &banded, std::slice::from_ref(&(20..30)));
+    let (mixed, _) = read(&banded);
+    let row = |img: &[u8], y: usize| img[4 * SIZE.0 as usize * y..4 * SIZE.0 as usize * (y + 1)].to_vec();
+    let changed = (0..SIZE.1 as usize).filter(|&y| row(&whole_rgba, y) != row(&other_rgba, y)).count();
+    assert!(changed > 10, "the two frames should differ on many rows: {changed}");
+    for y in 0..SIZE.1 as usize {
+        let expected = if (20..30).contains(&y) { row(&other_rgba, y) } else { row(&whole_rgba, y) };
+        assert!(row(&mixed, y) == expected, "row {y} is not the expected frame's");
+    }
+}

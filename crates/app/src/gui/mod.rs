@@ -10,6 +10,7 @@ pub mod demo;
 pub mod export;
 pub mod history;
 pub mod open;
+pub mod pacing;
 pub mod panels;
 pub mod session;
 pub mod viewer;
@@ -37,6 +38,7 @@ use warpbench_solver::warp::{Parallelism, Warp};
 use crate::inputs::{self, LandmarkSource};
 use crate::scene;
 use history::{History, LayerLook, Snapshot};
+use pacing::{Refine, interactive_size};
 use panels::ViewSettings;
 use viewer::{Shown, Viewer};
 
@@ -303,9 +305,12 @@ struct Images {
     slices: [Option<Shown>; 3],
     view_dirty: bool,
     slices_dirty: bool,
-    /// The last 3-D view was rendered reduced (interaction rate and size): render it fully once interaction ends.
+    /// The 3-D view shown is reduced (interaction rate and size): a full one is to follow.
     view_reduced: bool,
-    /// Measured cost of the 3-D view on a CPU driver (ms per pixel, full quality), for the interaction size.
+    /// On a CPU driver, the full view being rendered band by band ([`pacing`]).
+    refine: Option<Refine>,
+    /// Measured cost of the 3-D view on a CPU driver (ms per pixel, full quality), for the interaction size and the
+    /// bands.
     view_ms_per_px: Option<f64>,
 }
 
@@ -317,6 +322,7 @@ impl Default for Images {
             view_dirty: true,
             slices_dirty: true,
             view_reduced: false,
+            refine: None,
             view_ms_per_px: None,
         }
     }
@@ -848,7 +854,9 @@ impl Ready {
         self.fitted.as_ref().map_or(0, |f| f.pairs)
     }
 
-    fn glyphs(&self) -> Vec<GlyphInstance> {
+    /// The landmark glyphs drawn over the views (none when landmarks are hidden).
+    #[must_use]
+    pub fn glyphs(&self) -> Vec<GlyphInstance> {
         if !self.settings.show_landmarks {
             return Vec::new();
         }
@@ -897,20 +905,26 @@ impl Ready {
         })
     }
 
-    /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui. While the user
-    /// interacts (`interacting`: a button is held), the 3-D view drops to the interaction sample rate and, on a CPU
-    /// driver, to a size that renders in about [`INTERACTIVE_BUDGET_MS`]; it is rendered fully when interaction ends.
+    /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui.
+    ///
+    /// On a GPU a changed view is drawn again at once: at the interaction sample rate while the user interacts
+    /// (`interacting`: a button is held), fully otherwise. On a CPU driver a changed view is drawn reduced (the
+    /// interaction rate, at a size that renders in about [`pacing::INTERACTIVE_BUDGET_MS`]), and then each frame
+    /// renders one band of the full view until it is done and shown ([`pacing`]).
     fn render(
         &mut self,
         rs: &eframe::egui_wgpu::RenderState,
         view_px: (u32, u32),
         interacting: bool,
     ) -> anyhow::Result<()> {
-        let full_size = self.images.view.as_ref().is_some_and(|v| (v.target.width, v.target.height) == view_px);
-        let view_needed = self.images.view_dirty
-            || (!full_size && !self.images.view_reduced)
-            || (self.images.view_reduced && !interacting);
-        if !view_needed && !self.images.slices_dirty {
+        let cpu = self.viewer.ctx.is_cpu_driver();
+        let shown_size = self.images.view.as_ref().map(|v| (v.target.width, v.target.height));
+        let refine_size = self.images.refine.as_ref().map(Refine::size);
+        let stale = self.images.view_dirty
+            || (shown_size != Some(view_px) && !self.images.view_reduced)
+            || refine_size.is_some_and(|s| s != view_px);
+        let refine = self.images.view_reduced && (cpu || !interacting);
+        if !stale && !refine && !self.images.slices_dirty {
             return Ok(());
         }
         let start = std::time::Instant::now();
@@ -918,24 +932,24 @@ impl Ready {
         self.viewer.sync_presets();
         let glyphs = self.glyphs();
         let settings = self.settings.render_settings();
-        if view_needed {
-            let cpu = self.viewer.ctx.is_cpu_driver();
-            let (quality, px) = if interacting {
-                (Quality::Interactive, interactive_size(view_px, if cpu { self.images.view_ms_per_px } else { None }))
+        if stale {
+            self.images.refine = None;
+            let (quality, px) = if interacting || cpu {
+                let measured = self.images.view_ms_per_px.or(Some(pacing::CPU_GUESS_MS_PER_PX));
+                (Quality::Interactive, interactive_size(view_px, if cpu { measured } else { None }))
             } else {
                 (Quality::Full, view_px)
             };
-            let view_start = std::time::Instant::now();
             let target = self.viewer.render_view(&self.camera, &settings, quality, px, &glyphs)?;
-            if cpu && quality == Quality::Full {
-                // A CPU driver renders before the window can present anyway: wait, and learn the cost per pixel.
-                self.viewer.ctx.wait_idle().map_err(|e| anyhow!("{e}"))?;
-                let pixels = f64::from(px.0) * f64::from(px.1);
-                self.images.view_ms_per_px = Some(view_start.elapsed().as_secs_f64() * 1e3 / pixels.max(1.0));
-            }
             self.images.view = Some(viewer::show(rs, target, self.images.view.take()));
-            self.images.view_reduced = px != view_px || quality != Quality::Full;
+            self.images.view_reduced = quality != Quality::Full;
             self.images.view_dirty = false;
+        } else if refine && !cpu {
+            let target = self.viewer.render_view(&self.camera, &settings, Quality::Full, view_px, &glyphs)?;
+            self.images.view = Some(viewer::show(rs, target, self.images.view.take()));
+            self.images.view_reduced = false;
+        } else if refine {
+            self.refine_band(rs, view_px, &settings, &glyphs)?;
         }
         if self.images.slices_dirty {
             let planes = self.slice_planes();
@@ -948,6 +962,51 @@ impl Ready {
         self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
         self.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(())
+    }
+
+    /// Renders the next band of the full 3-D view on a CPU driver, waits for it (so that it is measured and the UI
+    /// frame does not queue behind more than one band), and shows the view once the last band is done.
+    fn refine_band(
+        &mut self,
+        rs: &eframe::egui_wgpu::RenderState,
+        view_px: (u32, u32),
+        settings: &warpbench_gpu::RenderSettings,
+        glyphs: &[warpbench_gpu::GlyphInstance],
+    ) -> anyhow::Result<()> {
+        let refine = self.images.refine.get_or_insert_with(|| Refine::new(self.viewer.view_target(view_px)));
+        let band = refine.bands.next(self.images.view_ms_per_px);
+        let band_start = std::time::Instant::now();
+        self.viewer.render_view_rows(&self.camera, settings, Quality::Full, &refine.target, band.clone())?;
+        self.viewer.ctx.wait_idle().map_err(|e| anyhow!("{e}"))?;
+        refine.bands.rendered(&band, band_start.elapsed().as_secs_f64() * 1e3);
+        if refine.bands.done()
+            && let Some(done) = self.images.refine.take()
+        {
+            self.images.view_ms_per_px = done.bands.ms_per_px();
+            self.viewer.draw_view_glyphs(&self.camera, &done.target, glyphs)?;
+            self.images.view = Some(viewer::show(rs, done.target, self.images.view.take()));
+            self.images.view_reduced = false;
+        }
+        Ok(())
+    }
+
+    /// On a CPU driver, how much of the full 3-D view is rendered while it is rendered band by band (0..1).
+    #[must_use]
+    pub fn view_refine_progress(&self) -> Option<f32> {
+        self.images.refine.as_ref().map(|r| r.bands.progress())
+    }
+
+    /// The 3-D view's image shown now, read back (premultiplied RGBA8, rows top to bottom).
+    pub fn read_view(&self) -> anyhow::Result<Vec<u8>> {
+        let shown = self.images.view.as_ref().context("no 3-D view is shown")?;
+        shown.target.read_back(&self.viewer.ctx).map_err(|e| anyhow!("{e}"))
+    }
+
+    /// The size of the 3-D view's image shown now, and whether it is the full-quality one.
+    #[must_use]
+    pub fn view_shown(&self) -> Option<((u32, u32), bool)> {
+        let v = self.images.view.as_ref()?;
+        Some(((v.target.width, v.target.height), !self.images.view_reduced))
     }
 
     /// Puts the camera back: the whole fixed volume in view, from the front-left, slightly above.
@@ -1359,6 +1418,10 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                 1000.0 / ready.last_render_ms.max(1e-3)
             ));
             ui.separator();
+            if let Some(done) = ready.view_refine_progress() {
+                ui.label(format!("refining the 3-D view: {:.0} %", 100.0 * done));
+                ui.separator();
+            }
             if let Some([l, p, s]) = ready.cursor_lps {
                 ui.label(format!("cursor LPS ({l:.1}, {p:.1}, {s:.1}) mm"));
                 ui.separator();
@@ -1490,8 +1553,10 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
     egui::CentralPanel::default().show(ui, |ui| {
         let avail = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
-        // Cap the 3-D view's pixels: CPU drivers render about 1 Mpixel·step per second.
-        let px = (avail * ppp).min(egui::vec2(1024.0, 1024.0)).max(egui::vec2(32.0, 32.0));
+        // A GPU renders the view at the screen's pixels; a CPU driver (about 1 Mpixel·step per second) at most at
+        // 1024² so that its reduced view (a quarter per side at least) still fits the frame budget.
+        let cap = if ready.viewer.ctx.is_cpu_driver() { 1024.0 } else { 8192.0 };
+        let px = (avail * ppp).min(egui::vec2(cap, cap)).max(egui::vec2(32.0, 32.0));
         let view_px = (px.x as u32, px.y as u32);
         let interacting = ui.input(|i| i.pointer.any_down()) || ready.dragging;
         if let Some(rs) = render_state
@@ -1578,21 +1643,6 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
     }
 }
 
-/// What the 3-D view may cost per frame while the user interacts on a CPU driver, ms.
-pub const INTERACTIVE_BUDGET_MS: f64 = 60.0;
-
-/// The 3-D view's size while interacting: `full` on a GPU (`ms_per_px` unknown); on a CPU driver scaled down so that
-/// `ms_per_px` (measured at full quality; the interaction rate halves it again) gives about
-/// [`INTERACTIVE_BUDGET_MS`], at most 4× smaller per side.
-#[must_use]
-pub fn interactive_size(full: (u32, u32), ms_per_px: Option<f64>) -> (u32, u32) {
-    let Some(per_px) = ms_per_px.filter(|v| *v > 0.0) else { return full };
-    let pixels = f64::from(full.0) * f64::from(full.1);
-    let scale = (INTERACTIVE_BUDGET_MS / (0.5 * per_px * pixels)).sqrt().clamp(0.25, 1.0);
-    let shrink = |n: u32| ((f64::from(n) * scale).round() as u32).max(16);
-    (shrink(full.0), shrink(full.1))
-}
-
 /// `plane` turned about `centre_ref` by the oblique view's tilt (about the image's horizontal axis) and spin (about
 /// its vertical axis), keeping its pixel size and image size; `None` for a degenerate plane.
 fn oblique_plane(plane: &SlicePlane, centre_ref: [f64; 3], o: panels::Oblique) -> Option<SlicePlane> {
@@ -1652,27 +1702,5 @@ pub fn wgpu_options() -> eframe::egui_wgpu::WgpuConfiguration {
             ..WgpuSetupCreateNew::without_display_handle()
         }),
         ..Default::default()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_interactive_view_shrinks_to_the_budget_on_cpu_drivers_only() {
-        let full = (1000, 500);
-        // A GPU (no measurement): full size.
-        assert_eq!(interactive_size(full, None), full);
-        // Cheap enough already: full size.
-        assert_eq!(interactive_size(full, Some(1e-6)), full);
-        // 400 ms for 500 000 pixels at full quality: half of that at the interaction rate, scaled down to 60 ms.
-        let per_px = 400.0 / 500_000.0;
-        let (w, h) = interactive_size(full, Some(per_px));
-        let cost = 0.5 * per_px * f64::from(w) * f64::from(h);
-        assert!(w < 1000 && (cost - INTERACTIVE_BUDGET_MS).abs() < 0.1 * INTERACTIVE_BUDGET_MS, "{w}x{h}: {cost} ms");
-        assert!((f64::from(w) / f64::from(h) - 2.0).abs() < 0.05, "aspect kept: {w}x{h}");
-        // Never below a quarter per side (lavapipe's 4 s for this view would ask for less).
-        assert_eq!(interactive_size(full, Some(4000.0 / 500_000.0)), (250, 125));
     }
 }

@@ -154,16 +154,47 @@ impl Viewer {
         size_px: (u32, u32),
         glyphs: &[GlyphInstance],
     ) -> anyhow::Result<RenderTarget> {
-        let frame = self.frame();
-        let data = RaycastDrawData::new(&self.ctx, &self.renderer, &frame, camera, &settings.at(quality), size_px);
-        let target = RenderTarget::from_pool(&self.pool, size_px.0, size_px.1);
-        self.renderer.render(&self.ctx, &data, &target).map_err(gpu_error)?;
-        if !glyphs.is_empty() {
-            let gu = GlyphUniforms::for_view(camera, size_px, &GlyphSettings::default());
-            let data = GlyphDrawData::new(&self.ctx, &self.glyphs, gu, glyphs, Some(&target.hit_depth_view));
-            self.glyphs.render(&self.ctx, &data, &target).map_err(gpu_error)?;
-        }
+        let target = self.view_target(size_px);
+        self.render_view_rows(camera, settings, quality, &target, 0..size_px.1)?;
+        self.draw_view_glyphs(camera, &target, glyphs)?;
         Ok(target)
+    }
+
+    /// A render target for the 3-D view at `size_px`, from the pool.
+    #[must_use]
+    pub fn view_target(&self, size_px: (u32, u32)) -> RenderTarget {
+        RenderTarget::from_pool(&self.pool, size_px.0, size_px.1)
+    }
+
+    /// Renders the rows `rows` of the 3-D view into `target` (its size is the view's), without glyphs: a band of a
+    /// view rendered over several UI frames. A band from row 0 clears the target; later ones keep earlier bands.
+    pub fn render_view_rows(
+        &self,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        quality: Quality,
+        target: &RenderTarget,
+        rows: std::ops::Range<u32>,
+    ) -> anyhow::Result<()> {
+        let frame = self.frame();
+        let size_px = (target.width, target.height);
+        let data = RaycastDrawData::new(&self.ctx, &self.renderer, &frame, camera, &settings.at(quality), size_px);
+        self.renderer.render_rows(&self.ctx, &data, target, rows).map_err(gpu_error)
+    }
+
+    /// Draws `glyphs` over a rendered 3-D view, hidden where the volume's first hit is nearer.
+    pub fn draw_view_glyphs(
+        &self,
+        camera: &OrbitCamera,
+        target: &RenderTarget,
+        glyphs: &[GlyphInstance],
+    ) -> anyhow::Result<()> {
+        if glyphs.is_empty() {
+            return Ok(());
+        }
+        let gu = GlyphUniforms::for_view(camera, (target.width, target.height), &GlyphSettings::default());
+        let data = GlyphDrawData::new(&self.ctx, &self.glyphs, gu, glyphs, Some(&target.hit_depth_view));
+        self.glyphs.render(&self.ctx, &data, target).map_err(gpu_error)
     }
 
     /// A slice through `plane`, with `glyphs` near it.

@@ -329,6 +329,35 @@ impl GpuScene {
         s: &Scene,
         u: &RaycastUniforms,
     ) -> RenderTarget {
+        let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
+        renderer.render(ctx, &self.draw_data(ctx, renderer, s, u), &target).expect("render");
+        target
+    }
+
+    /// Renders the frame `u` by `renderer` into `target` band by band ([`RaycastRenderer::render_rows`]), in the
+    /// order given.
+    pub fn render_rows_into(
+        &self,
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        s: &Scene,
+        u: &RaycastUniforms,
+        target: &RenderTarget,
+        bands: &[std::ops::Range<u32>],
+    ) {
+        let data = self.draw_data(ctx, renderer, s, u);
+        for rows in bands {
+            renderer.render_rows(ctx, &data, target, rows.clone()).expect("render rows");
+        }
+    }
+
+    fn draw_data(
+        &self,
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        s: &Scene,
+        u: &RaycastUniforms,
+    ) -> RaycastDrawData {
         let f =
             GpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref(), style: s.fixed_style };
         let m = GpuLayer {
@@ -338,10 +367,7 @@ impl GpuScene {
             style: s.moving_style,
         };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
-        let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
-        let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
-        renderer.render(ctx, &data, &target).expect("render");
-        target
+        RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u)
     }
 }
 

@@ -1,0 +1,200 @@
+//! How much of the 3-D view the window renders per UI frame, so that panels never wait on it.
+//!
+//! On a GPU the view renders in a few ms and is simply drawn again when it changes. A CPU driver (lavapipe,
+//! llvmpipe) takes seconds for a full-quality view, and egui shares its queue, so a whole frame at once would freeze
+//! the window. There the view is paced:
+//! - when it changes, a reduced view (the interaction sample rate, at [`interactive_size`]) is shown at once;
+//! - then the full-quality view is rendered in bands of rows ([`band_rows`]), one band per UI frame, each sized to
+//!   about [`INTERACTIVE_BUDGET_MS`] from the measured cost per pixel, into a target of its own ([`Refine`]), and
+//!   shown once its last band is done. Bands give exactly the one-pass image (each ray depends on its pixel only), so
+//!   the result does not depend on timing: only how many frames it takes does.
+
+use warpbench_gpu::RenderTarget;
+
+/// What the 3-D view may cost per UI frame on a CPU driver, ms: a reduced view while the user interacts, or one
+/// band of the full view.
+pub const INTERACTIVE_BUDGET_MS: f64 = 60.0;
+
+/// The cost per pixel of a full-quality view assumed on a CPU driver before one has been measured, ms (lavapipe on
+/// 2 cores of this project's machine: about 4 µs; see `docs/benchmarks.md`).
+pub const CPU_GUESS_MS_PER_PX: f64 = 4e-3;
+
+/// The 3-D view's size while interacting: `full` on a GPU (`ms_per_px` unknown); on a CPU driver scaled down so that
+/// `ms_per_px` (measured at full quality; the interaction rate halves it again) gives about
+/// [`INTERACTIVE_BUDGET_MS`], at most 4× smaller per side.
+#[must_use]
+pub fn interactive_size(full: (u32, u32), ms_per_px: Option<f64>) -> (u32, u32) {
+    let Some(per_px) = ms_per_px.filter(|v| *v > 0.0) else { return full };
+    let pixels = f64::from(full.0) * f64::from(full.1);
+    let scale = (INTERACTIVE_BUDGET_MS / (0.5 * per_px * pixels)).sqrt().clamp(0.25, 1.0);
+    let shrink = |n: u32| ((f64::from(n) * scale).round() as u32).max(16);
+    (shrink(full.0), shrink(full.1))
+}
+
+/// How many rows of a full-quality view `width` pixels wide fit in [`INTERACTIVE_BUDGET_MS`] at `ms_per_px`
+/// ([`CPU_GUESS_MS_PER_PX`] when unmeasured): at least one, at most `height`.
+#[must_use]
+pub fn band_rows(width: u32, height: u32, ms_per_px: Option<f64>) -> u32 {
+    let per_px = ms_per_px.filter(|v| v.is_finite() && *v > 0.0).unwrap_or(CPU_GUESS_MS_PER_PX);
+    let rows = INTERACTIVE_BUDGET_MS / (per_px * f64::from(width.max(1)));
+    // `as` saturates: a huge quotient is clamped below.
+    (rows.floor() as u32).clamp(1, height.max(1))
+}
+
+/// The bands of a full-quality view `width` × `height` and what they cost so far.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bands {
+    pub width: u32,
+    pub height: u32,
+    /// Rows `0..rows_done` are rendered.
+    pub rows_done: u32,
+    /// The last band's cost per pixel, ms.
+    last_ms_per_px: Option<f64>,
+    /// The time spent on the bands so far, ms.
+    spent_ms: f64,
+}
+
+impl Bands {
+    #[must_use]
+    pub fn new(width: u32, height: u32) -> Self {
+        Self { width, height, rows_done: 0, last_ms_per_px: None, spent_ms: 0.0 }
+    }
+
+    /// The next band, sized by [`band_rows`] from the higher of the last whole view's average cost per pixel
+    /// (`view_ms_per_px`; [`CPU_GUESS_MS_PER_PX`] before one is measured) and the last band's. Rows cost what their
+    /// rays cross: empty rows (above the head) are cheap, and sizing the band after them by their cost alone would
+    /// overrun the budget many times over.
+    #[must_use]
+    pub fn next(&self, view_ms_per_px: Option<f64>) -> std::ops::Range<u32> {
+        let floor = view_ms_per_px.filter(|v| v.is_finite() && *v > 0.0).unwrap_or(CPU_GUESS_MS_PER_PX);
+        let cost = self.last_ms_per_px.map_or(floor, |band| band.max(floor));
+        let rows = band_rows(self.width, self.height, Some(cost));
+        self.rows_done..self.rows_done.saturating_add(rows).min(self.height)
+    }
+
+    /// Records that `band` (from [`Self::next`]) took `ms`.
+    pub fn rendered(&mut self, band: &std::ops::Range<u32>, ms: f64) {
+        let rows = band.end.saturating_sub(band.start);
+        let pixels = f64::from(self.width) * f64::from(rows);
+        self.rows_done = band.end.max(self.rows_done);
+        self.last_ms_per_px = Some(ms / pixels.max(1.0));
+        self.spent_ms += ms;
+    }
+
+    /// Whether every row is rendered.
+    #[must_use]
+    pub fn done(&self) -> bool {
+        self.rows_done >= self.height
+    }
+
+    /// The rendered fraction, 0..=1.
+    #[must_use]
+    pub fn progress(&self) -> f32 {
+        self.rows_done as f32 / self.height.max(1) as f32
+    }
+
+    /// The average cost per pixel of the rows rendered so far, ms.
+    #[must_use]
+    pub fn ms_per_px(&self) -> Option<f64> {
+        let pixels = f64::from(self.width) * f64::from(self.rows_done);
+        (pixels > 0.0).then(|| self.spent_ms / pixels)
+    }
+}
+
+/// A full-quality 3-D view being rendered band by band into a target of its own, while the window still shows the
+/// reduced one.
+#[derive(Debug)]
+pub struct Refine {
+    pub target: RenderTarget,
+    pub bands: Bands,
+}
+
+impl Refine {
+    #[must_use]
+    pub fn new(target: RenderTarget) -> Self {
+        let bands = Bands::new(target.width, target.height);
+        Self { target, bands }
+    }
+
+    /// The size of the view it renders.
+    #[must_use]
+    pub fn size(&self) -> (u32, u32) {
+        (self.target.width, self.target.height)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_interactive_view_shrinks_to_the_budget_on_cpu_drivers_only() {
+        let full = (1000, 500);
+        // A GPU (no measurement): full size.
+        assert_eq!(interactive_size(full, None), full);
+        // Cheap enough already: full size.
+        assert_eq!(interactive_size(full, Some(1e-6)), full);
+        // 400 ms for 500 000 pixels at full quality: half of that at the interaction rate, scaled down to 60 ms.
+        let per_px = 400.0 / 500_000.0;
+        let (w, h) = interactive_size(full, Some(per_px));
+        let cost = 0.5 * per_px * f64::from(w) * f64::from(h);
+        assert!(w < 1000 && (cost - INTERACTIVE_BUDGET_MS).abs() < 0.1 * INTERACTIVE_BUDGET_MS, "{w}x{h}: {cost} ms");
+        assert!((f64::from(w) / f64::from(h) - 2.0).abs() < 0.05, "aspect kept: {w}x{h}");
+        // Never below a quarter per side (lavapipe's 4 s for this view would ask for less).
+        assert_eq!(interactive_size(full, Some(4000.0 / 500_000.0)), (250, 125));
+    }
+
+    #[test]
+    fn a_band_fills_the_budget_and_stays_within_the_view() {
+        // 4 µs per pixel, 1000 wide: 4 ms per row, 15 rows in 60 ms.
+        assert_eq!(band_rows(1000, 700, Some(4e-3)), 15);
+        // Unmeasured: the CPU guess, the same here.
+        assert_eq!(band_rows(1000, 700, None), 15);
+        // Cheap: the whole view in one band; absurdly slow: still one row; nonsense costs fall back to the guess.
+        assert_eq!(band_rows(1000, 700, Some(1e-9)), 700);
+        assert_eq!(band_rows(1000, 700, Some(1e3)), 1);
+        assert_eq!(band_rows(1000, 700, Some(f64::NAN)), 15);
+        assert_eq!(band_rows(1000, 700, Some(-1.0)), 15);
+        // Cost at most the budget, within a row of it.
+        let per_px = 3.3e-3;
+        let rows = band_rows(640, 480, Some(per_px));
+        let cost = |r: u32| per_px * 640.0 * f64::from(r);
+        assert!(cost(rows) <= INTERACTIVE_BUDGET_MS && cost(rows + 1) > INTERACTIVE_BUDGET_MS, "{rows} rows");
+    }
+
+    #[test]
+    fn bands_cover_the_view_once_and_stay_near_the_budget_where_the_cost_changes() {
+        // A 500 × 300 view whose rows 0..100 are empty (0.1 µs per pixel) and the rest cost 4 µs per pixel.
+        let cost = |row: u32| if row < 100 { 1e-4 } else { 4e-3 };
+        let mut bands = Bands::new(500, 300);
+        let mut worst_ms = 0.0f64;
+        let mut frames = 0;
+        while !bands.done() {
+            let band = bands.next(None);
+            assert_eq!(band.start, bands.rows_done, "bands are contiguous");
+            assert!(!band.is_empty(), "a band advances");
+            let ms: f64 = band.clone().map(|r| 500.0 * cost(r)).sum();
+            worst_ms = worst_ms.max(ms);
+            bands.rendered(&band, ms);
+            frames += 1;
+            assert!(frames < 1000, "does not end");
+        }
+        assert_eq!(bands.rows_done, 300);
+        assert!((bands.progress() - 1.0).abs() < f32::EPSILON);
+        // Sized by the empty rows' cost, the band after them would be the whole rest: 200 rows × 2 ms = 400 ms.
+        assert!(worst_ms <= INTERACTIVE_BUDGET_MS + 1e-9, "a band took {worst_ms} ms");
+        let average = bands.ms_per_px().expect("measured");
+        let expected = (100.0 * 1e-4 + 200.0 * 4e-3) / 300.0;
+        assert!((average - expected).abs() < 1e-9, "{average} vs {expected}");
+        // With the whole view's average known (below the heavy rows' cost), a band over the heavy rows costs at most
+        // their cost over the average times the budget, and the next one fits.
+        let mut again = Bands::new(500, 300);
+        again.rendered(&(0..100), 100.0 * 500.0 * 1e-4);
+        let band = again.next(Some(average));
+        let ms: f64 = band.clone().map(|r| 500.0 * cost(r)).sum();
+        assert!(ms <= 4e-3 / average * INTERACTIVE_BUDGET_MS, "{ms} ms");
+        again.rendered(&band, ms);
+        let ms: f64 = again.next(Some(average)).map(|r| 500.0 * cost(r)).sum();
+        assert!(ms <= INTERACTIVE_BUDGET_MS + 1e-9, "{ms} ms");
+    }
+}
