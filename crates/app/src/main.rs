@@ -45,7 +45,7 @@ struct GuiArgs {
     /// Save a screenshot of the window here, then close (with --exit-after-frames).
     #[arg(long)]
     screenshot: Option<PathBuf>,
-    /// Close the window after this many frames with the volumes shown (smoke tests).
+    /// Close the window after this many frames with the volumes shown, once they are fully rendered (smoke tests).
     #[arg(long)]
     exit_after_frames: Option<u32>,
 }

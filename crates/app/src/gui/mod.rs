@@ -49,7 +49,8 @@ pub struct GuiOptions {
     pub fixed: Option<PathBuf>,
     pub moving: Option<PathBuf>,
     pub landmarks: Option<LandmarkSource>,
-    /// Save a screenshot of the window here after `exit_after_frames` frames with the pair shown, then close.
+    /// Save a screenshot of the window here after `exit_after_frames` frames with the pair shown and fully rendered,
+    /// then close.
     pub screenshot: Option<PathBuf>,
     pub exit_after_frames: Option<u32>,
     /// A `.warpbench.json` session to open (its volumes, landmarks and settings); overrides the fields above.
@@ -1296,8 +1297,11 @@ impl eframe::App for Workbench {
         if open_demo {
             self.phase = Self::start_loading(&ctx, GuiOptions::default());
         }
+        // Counted once the views are rendered fully (on a CPU driver the 3-D view is refined over many frames).
+        let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render());
         if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
             && self.ready_frames >= n
+            && rendered
         {
             self.screenshot_requested = true;
             if let Some(path) = self.screenshot.clone() {
