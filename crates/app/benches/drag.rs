@@ -26,7 +26,9 @@ use std::time::{Duration, Instant};
 use warpbench_app::gui::pacing::{Bands, interactive_size};
 use warpbench_app::gui::{demo, fit_warp, fit_warp_on_gpu, viewer::Viewer};
 use warpbench_gpu::glam::Vec3;
-use warpbench_gpu::{GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, pair_glyphs};
+use warpbench_gpu::{
+    GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, SlicePlane, pair_glyphs,
+};
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_solver::method::Method;
@@ -218,6 +220,7 @@ fn main() {
     );
     if o.refine {
         refine(&viewer, &camera, &settings, o.size);
+        slices(&viewer, &fixed, &settings);
     }
 }
 
@@ -270,4 +273,27 @@ fn refine(viewer: &Viewer, camera: &OrbitCamera, settings: &RenderSettings, size
             total
         );
     }
+}
+
+/// The three slice views through the fixed grid's centre, as the window renders them after a change (without
+/// glyphs).
+fn slices(viewer: &Viewer, fixed: &Volume, settings: &RenderSettings) {
+    let m = fixed.lps_from_index.rows();
+    let planes = [
+        SlicePlane::axial(&m, fixed.dims, 0.0),
+        SlicePlane::coronal(&m, fixed.dims, 0.0),
+        SlicePlane::sagittal(&m, fixed.dims, 0.0),
+    ];
+    let render = || {
+        let t = Instant::now();
+        for plane in &planes {
+            drop(viewer.render_slice(plane, settings, &[]).unwrap_or_else(|e| panic!("{e:#}")));
+        }
+        viewer.ctx.wait_idle().unwrap_or_else(|e| panic!("{e}"));
+        t.elapsed()
+    };
+    render();
+    let best = (0..5).map(|_| render()).min().unwrap_or_default();
+    let sizes: Vec<String> = planes.iter().map(|p| format!("{}x{}", p.size.0, p.size.1)).collect();
+    println!("three slices ({}): best of 5 {:.1} ms", sizes.join(", "), best.as_secs_f64() * 1e3);
 }
