@@ -274,8 +274,8 @@ impl<'a> ControlCursor<'a> {
 /// equal, as on the usual axis-aligned target grid) each centre's dy² + dz² is computed once per row, which is why the
 /// canonical order of the squared distance is dx² + (dy² + dz²). With [`Isa::Portable`] the result equals
 /// [`TpsLocal::displacement`] bit for bit; rows along x with [`Isa::Avx2Fma`] go through [`simd::centres_along_x`]
-/// instead (square roots from the reciprocal-square-root estimate and a Newton step, fused multiply-adds), which
-/// agrees to about one f32 rounding per term.
+/// instead (the same correctly rounded square roots, but fused multiply-adds, so each term may differ by one f32
+/// rounding).
 #[inline(always)]
 pub(crate) fn tps_row(tps: &TpsLocal, [x, y, z]: [&[f32]; 3], along_x: bool, isa: Isa, out: &mut [Vec<f32>; 3]) {
     let n = x.len();
@@ -335,10 +335,11 @@ mod simd {
     /// broadcasts stay in the sixteen registers for the whole loop over the centres.
     const BLOCK: usize = 16;
 
-    /// Adds Σᵢ wᵢ ‖x − pᵢ‖ to `d` along a row whose voxels share y and z (`yz`), 16 voxels at a time with the
-    /// centres in the inner loop. ‖·‖ = s·ŷ(1.5 − ½·s·ŷ·ŷ) with ŷ the hardware estimate of 1/√s (relative error
-    /// ≤ 1.5·2⁻¹²; after the Newton step about 2⁻²³, an f32 rounding), s = dx² + (dy² + dz²) floored at 10⁻³⁰ so
-    /// that a voxel on a centre gives 0, not 0·∞. A short last block is padded with copies of the last voxel.
+    /// Adds Σᵢ wᵢ ‖x − pᵢ‖ to `d` along a row whose voxels share y and z, 16 voxels at a time with the centres in
+    /// the inner loop: ‖·‖ = √(fma(dx, dx, dy² + dz²)) with each centre's dy² + dz² computed once for the row, and
+    /// the weights accumulated by fused multiply-adds. The square root is the correctly rounded `vsqrtps`: the
+    /// reciprocal-square-root estimate with a Newton step measured slower on this kernel, which is bound by the
+    /// square-root unit (`docs/benchmarks.md`). A short last block is padded with copies of the last voxel.
     #[target_feature(enable = "avx2,fma")]
     pub(super) fn centres_along_x(tps: &TpsLocal, x: &[f32], [y, z]: [f32; 2], d: [&mut [f32]; 3]) {
         let yz: Vec<f32> = tps
