@@ -24,7 +24,8 @@
 use std::time::{Duration, Instant};
 
 use warpbench_app::gui::pacing::{Bands, interactive_size};
-use warpbench_app::gui::{demo, fit_warp, fit_warp_on_gpu, viewer::Viewer};
+use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
+use warpbench_app::gui::{demo, fit_warp, fit_warp_on_gpu};
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, SlicePlane, pair_glyphs,
@@ -143,7 +144,16 @@ fn main() {
     };
     let adapter = ctx.describe();
     let filterable = ctx.capabilities.float32_filterable;
-    let mut viewer = Viewer::with_context(ctx, &fixed, &moving).unwrap_or_else(|e| panic!("{e:#}"));
+    // As the window does once a pair is read: prepared on the loading thread, uploaded on the UI thread.
+    let facts = DeviceFacts::of(&ctx);
+    let prepare_start = Instant::now();
+    let layers = [&fixed, &moving].map(|v| LayerData::prepare(v, facts).unwrap_or_else(|e| panic!("{e:#}")));
+    let prepare = prepare_start.elapsed();
+    let upload_start = Instant::now();
+    let mut viewer = Viewer::from_layers(ctx, &layers[0], &layers[1]).unwrap_or_else(|e| panic!("{e:#}"));
+    viewer.ctx.wait_idle().unwrap_or_else(|e| panic!("{e}"));
+    let upload = upload_start.elapsed();
+    drop(layers);
     let (lo, hi) = viewer.scene_box();
     let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
     let settings = RenderSettings::default();
@@ -210,6 +220,14 @@ fn main() {
         o.grid,
         if o.gpu_eval { "GPU" } else { "CPU" },
         o.events
+    );
+    println!(
+        "showing the pair: prepared {:.0} ms (loading thread: LayerData::prepare, {}), uploaded {:.0} ms (UI thread: \
+         Viewer::from_layers, pipelines included{})",
+        ms(prepare),
+        if facts.cpu_driver { "with the CPU prefilter" } else { "texels only" },
+        ms(upload),
+        if facts.cpu_driver { "" } else { ", with the GPU prefilter" }
     );
     println!(
         "per drag event: mean {:.1} ms (best {:.1} ms) = fit + texture {:.1} ms + upload + frame {:.1} ms (with --gpu-eval the texture is in the first part)",

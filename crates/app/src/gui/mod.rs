@@ -40,7 +40,7 @@ use crate::scene;
 use history::{History, LayerLook, Snapshot};
 use pacing::{Refine, interactive_size};
 use panels::ViewSettings;
-use viewer::{Shown, Viewer};
+use viewer::{DeviceFacts, LayerData, Shown, Viewer};
 
 /// What the window opens with.
 #[derive(Clone, Debug, Default)]
@@ -72,6 +72,29 @@ pub struct Loaded {
     pub moving_path: Option<PathBuf>,
     /// The session whose settings apply once the pair is shown.
     pub session: Option<session::SessionFile>,
+}
+
+/// A loaded pair and, when the window's device was known, both volumes prepared for it ([`LayerData::prepare`]), all
+/// made on the loading thread.
+#[derive(Debug)]
+pub struct LoadedPair {
+    pub loaded: Loaded,
+    /// Fixed, moving.
+    pub layers: Option<[LayerData; 2]>,
+}
+
+impl LoadedPair {
+    /// Loads what `opts` names ([`load`]) and prepares both volumes for a device like `facts`.
+    pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>, facts: Option<DeviceFacts>) -> anyhow::Result<Self> {
+        let loaded = load(opts, watch)?;
+        let layers = match facts {
+            Some(facts) => {
+                Some([LayerData::prepare(&loaded.fixed, facts)?, LayerData::prepare(&loaded.moving, facts)?])
+            }
+            None => None,
+        };
+        Ok(Self { loaded, layers })
+    }
 }
 
 /// Loads what `opts` names: a session, two volumes (with landmarks), or the demo pair when it names nothing,
@@ -329,9 +352,17 @@ impl Default for Images {
     }
 }
 
+/// A volume read (and maybe prepared) for one side while the other is still being read.
+#[derive(Debug)]
+struct Pending {
+    volume: Arc<Volume>,
+    path: PathBuf,
+    layer: Option<LayerData>,
+}
+
 #[derive(Debug)]
 enum Phase {
-    Loading { rx: Receiver<anyhow::Result<Loaded>>, watch: Arc<open::Watch> },
+    Loading { rx: Receiver<anyhow::Result<LoadedPair>>, watch: Arc<open::Watch> },
     Failed(String),
     Ready(Box<Ready>),
 }
@@ -354,7 +385,9 @@ pub struct Workbench {
     /// Volumes being read for File > Open and drops.
     jobs: Vec<open::VolumeJob>,
     /// Volumes read while no pair is shown, waiting for the other side.
-    pending: [Option<(Arc<Volume>, PathBuf)>; 2],
+    pending: [Option<Pending>; 2],
+    /// The window's device, as the loading threads prepare volumes for it.
+    facts: Option<DeviceFacts>,
     /// The open dialogs: error, series chooser, dropped volume, native dialog.
     pub dialogs: open::OpenDialogs,
 }
@@ -378,8 +411,10 @@ impl Workbench {
             let copy = autosave_path.with_file_name("autosave.recovered.warpbench.json");
             std::fs::copy(&autosave_path, &copy).ok().map(|_| copy)
         });
+        let facts = cc.wgpu_render_state.as_ref().map(|rs| DeviceFacts::of(&Viewer::context(rs)));
         Self {
-            phase: Self::start_loading(&cc.egui_ctx, opts.clone()),
+            phase: Self::start_loading(&cc.egui_ctx, opts.clone(), facts),
+            facts,
             autosave_path,
             last_autosave: std::time::Instant::now(),
             recovery,
@@ -394,13 +429,13 @@ impl Workbench {
         }
     }
 
-    fn start_loading(ctx: &egui::Context, opts: GuiOptions) -> Phase {
+    fn start_loading(ctx: &egui::Context, opts: GuiOptions, facts: Option<DeviceFacts>) -> Phase {
         let (tx, rx) = std::sync::mpsc::channel();
         let ctx = ctx.clone();
         let watch = Arc::new(open::Watch::default());
         let worker_watch = Arc::clone(&watch);
         std::thread::spawn(move || {
-            let _ = tx.send(load(&opts, &worker_watch));
+            let _ = tx.send(LoadedPair::load(&opts, &worker_watch, facts));
             ctx.request_repaint();
         });
         Phase::Loading { rx, watch }
@@ -462,7 +497,7 @@ impl Workbench {
             job.watch.cancel();
         }
         self.jobs.retain(|j| j.side != side);
-        self.jobs.push(open::VolumeJob::start(ctx, side, path, series));
+        self.jobs.push(open::VolumeJob::start(ctx, side, path, series, self.facts));
     }
 
     /// The volume reads still running (for tests).
@@ -483,33 +518,38 @@ impl Workbench {
             None => true,
         });
         for (side, path, result) in finished {
-            let volume = match result {
-                Ok(v) => Arc::new(v),
+            let (volume, layer) = match result {
+                Ok(open::ReadVolume { volume, layer: Some(Err(e)) }) => {
+                    drop(volume);
+                    self.dialogs.error = Some(format!("{}: {e:#}", path.display()));
+                    continue;
+                }
+                Ok(open::ReadVolume { volume, layer }) => (Arc::new(volume), layer.and_then(Result::ok)),
                 Err(e) => {
                     self.dialogs.failed(side, &path, &e);
                     continue;
                 }
             };
-            let rs = self.render_state.clone();
-            if let (Phase::Ready(ready), Some(rs)) = (&mut self.phase, rs.as_ref()) {
-                if let Err(e) = ready.replace_volume(rs, side, volume, path) {
+            if let Phase::Ready(ready) = &mut self.phase {
+                if let Err(e) = ready.replace_volume(side, volume, layer, path) {
                     self.dialogs.error = Some(format!("{e:#}"));
                 }
                 continue;
             }
-            self.pending[side as usize] = Some((volume, path));
+            self.pending[side as usize] = Some(Pending { volume, path, layer });
             if let [Some(_), Some(_)] = &self.pending {
-                let [Some((fixed, f)), Some((moving, m))] = std::mem::take(&mut self.pending) else { continue };
+                let [Some(fixed), Some(moving)] = std::mem::take(&mut self.pending) else { continue };
+                let layers = fixed.layer.zip(moving.layer).map(|(f, m)| [f, m]);
                 let loaded = Loaded {
-                    title: format!("{} -> {}", open::file_name(&f), open::file_name(&m)),
-                    fixed,
-                    moving,
+                    title: format!("{} -> {}", open::file_name(&fixed.path), open::file_name(&moving.path)),
+                    fixed: fixed.volume,
+                    moving: moving.volume,
                     pairs: Vec::new(),
-                    fixed_path: Some(f),
-                    moving_path: Some(m),
+                    fixed_path: Some(fixed.path),
+                    moving_path: Some(moving.path),
                     session: None,
                 };
-                self.phase = match self.upload(loaded) {
+                self.phase = match self.upload(LoadedPair { loaded, layers }) {
                     Ok(ready) => Phase::Ready(Box::new(ready)),
                     Err(e) => Phase::Failed(format!("{e:#}")),
                 };
@@ -523,9 +563,10 @@ impl Workbench {
         match event {
             OpenEvent::Volume { side, path, series } => self.open_volume(ctx, side, path, series),
             OpenEvent::OpenSession(path) => {
-                self.phase = Self::start_loading(ctx, GuiOptions { session: Some(path), ..GuiOptions::default() });
+                self.phase =
+                    Self::start_loading(ctx, GuiOptions { session: Some(path), ..GuiOptions::default() }, self.facts);
             }
-            OpenEvent::Demo => self.phase = Self::start_loading(ctx, GuiOptions::default()),
+            OpenEvent::Demo => self.phase = Self::start_loading(ctx, GuiOptions::default(), self.facts),
             OpenEvent::Dialog(purpose) => self.dialogs.dialog = Some(open::DialogJob::start(ctx, purpose)),
             OpenEvent::ImportLandmarks(path) => match &mut self.phase {
                 Phase::Ready(ready) => ready.file_action(ctx, panels::FileAction::ImportLandmarks(path)),
@@ -548,9 +589,14 @@ impl Workbench {
         }
     }
 
-    fn upload(&self, loaded: Loaded) -> anyhow::Result<Ready> {
+    fn upload(&self, pair: LoadedPair) -> anyhow::Result<Ready> {
         let rs = self.render_state.as_ref().context("the window has no wgpu renderer")?;
-        let viewer = Viewer::new(rs, &loaded.fixed, &loaded.moving)?;
+        let LoadedPair { loaded, layers } = pair;
+        let ctx = Viewer::context(rs);
+        let viewer = match layers {
+            Some([fixed, moving]) => Viewer::from_layers(ctx, &fixed, &moving)?,
+            None => Viewer::with_context(ctx, &loaded.fixed, &loaded.moving)?,
+        };
         let (lo, hi) = viewer.scene_box();
         // Placed by `reset_camera` below.
         let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
@@ -742,21 +788,25 @@ impl Ready {
         }
     }
 
-    /// Replaces one side of the pair with `volume` read from `path`: new GPU resources, the views re-centred on a
-    /// new fixed volume, and the warp fitted again. The landmarks stay (their points are in patient space).
+    /// Replaces one side of the pair with `volume` read from `path` (`layer`: prepared for the GPU on the reading
+    /// thread, else here): that side's GPU resources, the views re-centred on a new fixed volume, and the warp fitted
+    /// again. The landmarks stay (their points are in patient space).
     pub fn replace_volume(
         &mut self,
-        rs: &eframe::egui_wgpu::RenderState,
         side: open::Side,
         volume: Arc<Volume>,
+        layer: Option<LayerData>,
         path: PathBuf,
     ) -> anyhow::Result<()> {
-        let (fixed, moving) = match side {
-            open::Side::Fixed => (volume, Arc::clone(&self.loaded.moving)),
-            open::Side::Moving => (Arc::clone(&self.loaded.fixed), volume),
+        let layer = match layer {
+            Some(layer) => layer,
+            None => LayerData::prepare(&volume, DeviceFacts::of(&self.viewer.ctx))?,
         };
-        self.viewer = Viewer::new(rs, &fixed, &moving)?;
-        (self.loaded.fixed, self.loaded.moving) = (fixed, moving);
+        self.viewer.replace_layer(side == open::Side::Fixed, &layer)?;
+        match side {
+            open::Side::Fixed => self.loaded.fixed = volume,
+            open::Side::Moving => self.loaded.moving = volume,
+        }
         match side {
             open::Side::Fixed => self.loaded.fixed_path = Some(path),
             open::Side::Moving => self.loaded.moving_path = Some(path),
@@ -1266,7 +1316,7 @@ impl eframe::App for Workbench {
                 Some(true) => {
                     self.recovery = None;
                     let opts = GuiOptions { session: Some(path), ..GuiOptions::default() };
-                    self.phase = Self::start_loading(&ctx, opts);
+                    self.phase = Self::start_loading(&ctx, opts, self.facts);
                 }
                 Some(false) => self.recovery = None,
                 None => {}
@@ -1295,7 +1345,7 @@ impl eframe::App for Workbench {
             }
         }
         if open_demo {
-            self.phase = Self::start_loading(&ctx, GuiOptions::default());
+            self.phase = Self::start_loading(&ctx, GuiOptions::default(), self.facts);
         }
         // Counted once the views are rendered fully (on a CPU driver the 3-D view is refined over many frames).
         let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render());

@@ -11,6 +11,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::{Arc, Mutex, PoisonError};
 
+use super::viewer::{DeviceFacts, LayerData};
 use eframe::egui;
 use warpbench_io::error::ErrorKind;
 use warpbench_io::{LoadOptions, Progress, SeriesSummary, Volume};
@@ -108,13 +109,28 @@ pub struct VolumeJob {
     pub side: Side,
     pub path: PathBuf,
     pub watch: Arc<Watch>,
-    rx: Receiver<warpbench_io::Result<Volume>>,
+    rx: Receiver<warpbench_io::Result<ReadVolume>>,
+}
+
+/// A volume read by a [`VolumeJob`], and prepared for the window's device when it was known (an error there is the
+/// GPU's: the file itself was read).
+#[derive(Debug)]
+pub struct ReadVolume {
+    pub volume: Volume,
+    pub layer: Option<anyhow::Result<LayerData>>,
 }
 
 impl VolumeJob {
-    /// Starts reading `path` (`series`: the SeriesInstanceUID to read from a DICOM folder with several).
+    /// Starts reading `path` (`series`: the SeriesInstanceUID to read from a DICOM folder with several), and
+    /// preparing it for a device like `facts`.
     #[must_use]
-    pub fn start(ctx: &egui::Context, side: Side, path: PathBuf, series: Option<String>) -> Self {
+    pub fn start(
+        ctx: &egui::Context,
+        side: Side,
+        path: PathBuf,
+        series: Option<String>,
+        facts: Option<DeviceFacts>,
+    ) -> Self {
         let watch = Arc::new(Watch::default());
         let (tx, rx) = std::sync::mpsc::channel();
         let (worker_watch, worker_path, ctx) = (Arc::clone(&watch), path.clone(), ctx.clone());
@@ -123,7 +139,11 @@ impl VolumeJob {
             if let Some(uid) = series {
                 options = options.series(uid);
             }
-            let _ = tx.send(options.open(&worker_path));
+            let read = options.open(&worker_path).map(|volume| {
+                let layer = facts.map(|facts| LayerData::prepare(&volume, facts));
+                ReadVolume { volume, layer }
+            });
+            let _ = tx.send(read);
             ctx.request_repaint();
         });
         Self { side, path, watch, rx }
@@ -131,7 +151,7 @@ impl VolumeJob {
 
     /// The result, once the worker is done.
     #[must_use]
-    pub fn poll(&self) -> Option<warpbench_io::Result<Volume>> {
+    pub fn poll(&self) -> Option<warpbench_io::Result<ReadVolume>> {
         match self.rx.try_recv() {
             Ok(result) => Some(result),
             Err(TryRecvError::Empty) => None,

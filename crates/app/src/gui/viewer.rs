@@ -5,15 +5,62 @@
 use eframe::egui_wgpu;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
-    ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms,
-    GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerStyle,
-    OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
-    PreparedControl, PreparedVolume, Preset, Probe, Quality, RaycastDrawData, RaycastRenderer, RenderSettings,
-    RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget, Window,
+    Capabilities, ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings,
+    GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume,
+    LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
+    PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Quality, RaycastDrawData, RaycastRenderer,
+    RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget, Window,
 };
 use warpbench_io::Volume;
 
 use crate::scene;
+
+/// What preparing a volume for the GPU needs to know about the device: plain values, so that the preparation can
+/// run on a loading thread.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DeviceFacts {
+    pub capabilities: Capabilities,
+    pub budget: VolumeBudget,
+    /// A CPU driver (lavapipe, llvmpipe): the prefilter runs on the CPU, where it is many times faster.
+    pub cpu_driver: bool,
+}
+
+impl DeviceFacts {
+    #[must_use]
+    pub fn of(ctx: &GpuContext) -> Self {
+        Self {
+            capabilities: ctx.capabilities,
+            budget: VolumeBudget::for_device(&ctx.limits),
+            cpu_driver: ctx.is_cpu_driver(),
+        }
+    }
+}
+
+/// The prefilter's settings for shading gradients.
+const PREFILTER: PrefilterSettings = PrefilterSettings { sigma_vox: 1.0, half_resolution: false };
+
+/// One volume prepared for the GPU on any thread: its texels in the texture's format, on a CPU driver its
+/// prefiltered copy, and its initial look.
+#[derive(Debug)]
+pub struct LayerData {
+    prepared: PreparedVolume,
+    /// Made on the CPU for a CPU driver; `None`: the GPU pass makes it at upload.
+    prefiltered: Option<PrefilteredTexels>,
+    preset: Preset,
+    window: Window,
+}
+
+impl LayerData {
+    /// Converts `v` to the texture's format (downsampled to the device's budget) and, for a CPU driver, prefilters
+    /// it: the slow part of showing a volume, done here so that a loading thread can do it.
+    pub fn prepare(v: &Volume, facts: DeviceFacts) -> anyhow::Result<Self> {
+        let prepared =
+            PreparedVolume::prepare(&scene::volume_desc(v), facts.capabilities, facts.budget).map_err(gpu_error)?;
+        let prefiltered = facts.cpu_driver.then(|| PrefilteredTexels::from_volume(&prepared, PREFILTER));
+        let (preset, window) = scene::auto_style(v, None);
+        Ok(Self { prepared, prefiltered, preset, window })
+    }
+}
 
 /// One volume on the GPU with how it is drawn.
 #[derive(Debug)]
@@ -26,6 +73,17 @@ pub struct Layer {
 }
 
 impl Layer {
+    /// Uploads `data`, prefiltering it with `pass` unless it comes prefiltered.
+    fn upload(ctx: &GpuContext, pass: &PrefilterPass, data: &LayerData) -> anyhow::Result<Self> {
+        let volume = GpuVolume::upload(ctx, &data.prepared).map_err(gpu_error)?;
+        let prefiltered = match &data.prefiltered {
+            Some(texels) => GpuPrefiltered::upload(ctx, texels, PREFILTER),
+            None => pass.run(ctx, &volume, PREFILTER),
+        }
+        .map_err(gpu_error)?;
+        Ok(Self { volume, prefiltered, preset: data.preset, window: data.window, visible: true })
+    }
+
     fn style(&self, tf_row: u32) -> LayerStyle {
         LayerStyle {
             window: self.window,
@@ -51,6 +109,7 @@ pub struct Viewer {
     renderer: RaycastRenderer,
     glyphs: GlyphRenderer,
     picker: PickPass,
+    prefilter: PrefilterPass,
     pool: TexturePool,
     pub fixed: Layer,
     pub moving: Layer,
@@ -68,38 +127,31 @@ fn gpu_error(e: warpbench_gpu::GpuError) -> anyhow::Error {
 }
 
 impl Viewer {
-    /// Uploads both volumes to the device of `render_state`.
-    pub fn new(render_state: &egui_wgpu::RenderState, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
-        let ctx = GpuContext::from_device(
+    /// The device of `render_state` (the window's).
+    #[must_use]
+    pub fn context(render_state: &egui_wgpu::RenderState) -> GpuContext {
+        GpuContext::from_device(
             render_state.adapter.get_info(),
             render_state.device.clone(),
             render_state.queue.clone(),
-        );
-        Self::with_context(ctx, fixed, moving)
+        )
     }
 
-    /// Uploads both volumes to `ctx`'s device (the window's, or a headless one for benchmarks).
+    /// Prepares and uploads both volumes to `ctx`'s device (the window's, or a headless one for benchmarks).
     pub fn with_context(ctx: GpuContext, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
+        let facts = DeviceFacts::of(&ctx);
+        Self::from_layers(ctx, &LayerData::prepare(fixed, facts)?, &LayerData::prepare(moving, facts)?)
+    }
+
+    /// Uploads two prepared volumes to `ctx`'s device.
+    pub fn from_layers(ctx: GpuContext, fixed: &LayerData, moving: &LayerData) -> anyhow::Result<Self> {
         let renderer = RaycastRenderer::new(&ctx).map_err(gpu_error)?;
         let glyphs = GlyphRenderer::new(&ctx).map_err(gpu_error)?;
         let prefilter = PrefilterPass::new(&ctx).map_err(gpu_error)?;
         let picker = PickPass::new(&ctx, &renderer).map_err(gpu_error)?;
         let pool = TexturePool::new(&ctx.device);
-        let upload = |v: &Volume| -> anyhow::Result<Layer> {
-            let prepared = PreparedVolume::prepare(
-                &scene::volume_desc(v),
-                ctx.capabilities,
-                VolumeBudget::for_device(&ctx.limits),
-            )
-            .map_err(gpu_error)?;
-            let volume = GpuVolume::upload(&ctx, &prepared).map_err(gpu_error)?;
-            let prefiltered = prefilter
-                .run(&ctx, &volume, PrefilterSettings { sigma_vox: 1.0, half_resolution: false })
-                .map_err(gpu_error)?;
-            let (preset, window) = scene::auto_style(v, None);
-            Ok(Layer { volume, prefiltered, preset, window, visible: true })
-        };
-        let (fixed, moving) = (upload(fixed)?, upload(moving)?);
+        let fixed = Layer::upload(&ctx, &prefilter, fixed)?;
+        let moving = Layer::upload(&ctx, &prefilter, moving)?;
         let tf_presets = [fixed.preset, moving.preset];
         let tfs = GpuTransferFunctions::upload(&ctx, &tf_presets.map(Preset::transfer_function));
         Ok(Self {
@@ -107,6 +159,7 @@ impl Viewer {
             renderer,
             glyphs,
             picker,
+            prefilter,
             pool,
             fixed,
             moving,
@@ -116,6 +169,13 @@ impl Viewer {
             control_eval: None,
             control_from_eval: false,
         })
+    }
+
+    /// Replaces the fixed (`fixed`) or the moving volume with a prepared one, keeping the other on the GPU.
+    pub fn replace_layer(&mut self, fixed: bool, data: &LayerData) -> anyhow::Result<()> {
+        let layer = Layer::upload(&self.ctx, &self.prefilter, data)?;
+        *(if fixed { &mut self.fixed } else { &mut self.moving }) = layer;
+        Ok(())
     }
 
     /// Re-uploads the transfer functions when a layer's preset changed.
