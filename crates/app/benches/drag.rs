@@ -12,7 +12,8 @@
 //! cargo bench -p warpbench-app --bench drag -- --size 1920x1080 --pairs 100 --events 20
 //! ```
 //!
-//! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--grid N` (control texture
+//! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--method NAME` (tps; also
+//! hbspline, affine, similarity, rigid; `--gpu-eval` takes tps and hbspline), `--grid N` (control texture
 //! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
 //! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU), `--refine` (after the
 //! events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the reduced view,
@@ -43,6 +44,7 @@ struct Options {
     quality: Quality,
     gpu_eval: bool,
     refine: bool,
+    method: Method,
 }
 
 fn options() -> Result<Options, String> {
@@ -54,6 +56,7 @@ fn options() -> Result<Options, String> {
         quality: Quality::Interactive,
         gpu_eval: false,
         refine: false,
+        method: Method::Tps { stiffness: 0.0 },
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -73,6 +76,10 @@ fn options() -> Result<Options, String> {
             "--full" => o.quality = Quality::Full,
             "--gpu-eval" => o.gpu_eval = true,
             "--refine" => o.refine = true,
+            "--method" => {
+                let v = value()?;
+                o.method = Method::from_name(v).ok_or_else(|| format!("--method {v}: tps, hbspline, affine, ...?"))?;
+            }
             "--bench" => {}
             other => return Err(format!("unknown option {other}")),
         }
@@ -157,7 +164,7 @@ fn main() {
     let (lo, hi) = viewer.scene_box();
     let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
     let settings = RenderSettings::default();
-    let method = Method::Tps { stiffness: 0.0 };
+    let method = o.method;
     let boxes =
         (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));
     let (mut q, p) = pairs(&fixed, o.pairs);
@@ -208,11 +215,24 @@ fn main() {
         frame_sum += frame;
         totals.push(fit + frame);
     }
+    // The two fits alone: with --gpu-eval, what a drag event leaves on the CPU besides the pick.
+    let fixed_pts: Vec<_> = q.iter().copied().map(as_fixed).collect();
+    let fits = (0..o.events.max(5))
+        .map(|_| {
+            let t = Instant::now();
+            let pullback = method.fit(&fixed_pts, &moving_pts, boxes.0).unwrap_or_else(|e| panic!("{e}"));
+            let forward = method.fit(&moving_pts, &fixed_pts, boxes.1).unwrap_or_else(|e| panic!("{e}"));
+            let elapsed = t.elapsed();
+            drop((pullback, forward));
+            elapsed
+        })
+        .min()
+        .unwrap_or_default();
     let n = o.events as u32;
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     let best = totals.iter().min().copied().unwrap_or_default();
     println!(
-        "drag bench: {adapter}; {}x{} view, {:?} quality, {} pairs (TPS), {}³ control texture on the {}, {} events",
+        "drag bench: {adapter}; {}x{} view, {:?} quality, {} pairs ({method}), {}³ control texture on the {}, {} events",
         o.size.0,
         o.size.1,
         o.quality,
@@ -236,6 +256,7 @@ fn main() {
         ms(fit_sum / n),
         ms(frame_sum / n)
     );
+    println!("the two fits alone (pull-back and forward, CPU): best {:.2} ms", ms(fits));
     if o.refine {
         refine(&viewer, &camera, &settings, o.size);
         slices(&viewer, &fixed, &settings);

@@ -742,43 +742,51 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
-    // The CPU's texels: the same fit and grid, sampled by the solver (f64), as the window's CPU path uploads them.
-    let ready = harness.state().ready().expect("loaded");
-    let (fixed, moving): (Vec<_>, Vec<_>) = ready
-        .loaded
-        .pairs
-        .iter()
-        .map(|p| {
-            (
-                warpbench_solver::spaces::as_fixed(p.fixed.expect("fixed")),
-                warpbench_solver::spaces::as_moving(p.moving.expect("moving")),
-            )
-        })
-        .unzip();
-    let boxes = (
-        warpbench_app::inputs::volume_box(&ready.loaded.fixed),
-        warpbench_app::inputs::volume_box(&ready.loaded.moving),
-    );
-    let n = ready.settings.grid_n;
-    let (fitted, _) =
-        warpbench_app::gui::fit_warp(&ready.settings.method(), &fixed, &moving, boxes, n, true).expect("fit");
-    let (_, texture) = warpbench_app::scene::control_texture(fitted.pullback.as_ref(), boxes.0, n).expect("sample");
-    let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
-    // The GPU's: evaluated into the window's control texture.
-    let ready = harness.state_mut().ready_mut().expect("loaded");
-    ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
-    ready.refit();
-    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
-    let control = ready.viewer.control.as_ref().expect("a control texture");
-    assert_eq!(control.info.dims.map(|d| d as usize), [n; 3]);
-    let gpu = warpbench_gpu::control_eval::read_back_texels(&ready.viewer.ctx, control).expect("read back");
-    assert_eq!(gpu.len(), cpu.len());
-    let largest = cpu.iter().flat_map(|t| t[..3].iter()).fold(0.0f32, |m, v| m.max(v.abs()));
-    assert!(largest > 1.0, "the warp moves things: {largest} mm");
-    let worst = cpu.iter().zip(&gpu).flat_map(|(a, b)| (0..3).map(move |i| (a[i] - b[i]).abs())).fold(0.0f32, f32::max);
-    // The same function on the same grid: f64 on the CPU against f32 about the box centre on the GPU (and f16 storage
-    // where float32 textures do not filter).
-    assert!(worst < 0.01 + 1e-3 * largest, "worst texel difference {worst} mm (largest displacement {largest} mm)");
-    harness.run_steps(2);
-    assert!(harness.state().ready().expect("loaded").fit_error.is_none());
+    for method in ["tps", "hbspline"] {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.settings.method =
+            warpbench_app::gui::panels::METHODS.iter().position(|m| *m == method).expect("a method");
+        // The CPU's texels: the same fit and grid, sampled by the solver (f64), as the window's CPU path uploads them.
+        let (fixed, moving): (Vec<_>, Vec<_>) = ready
+            .loaded
+            .pairs
+            .iter()
+            .map(|p| {
+                (
+                    warpbench_solver::spaces::as_fixed(p.fixed.expect("fixed")),
+                    warpbench_solver::spaces::as_moving(p.moving.expect("moving")),
+                )
+            })
+            .unzip();
+        let boxes = (
+            warpbench_app::inputs::volume_box(&ready.loaded.fixed),
+            warpbench_app::inputs::volume_box(&ready.loaded.moving),
+        );
+        let n = ready.settings.grid_n;
+        let (fitted, _) =
+            warpbench_app::gui::fit_warp(&ready.settings.method(), &fixed, &moving, boxes, n, true).expect("fit");
+        let (_, texture) = warpbench_app::scene::control_texture(fitted.pullback.as_ref(), boxes.0, n).expect("sample");
+        let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
+        // The GPU's: evaluated into the window's control texture.
+        ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
+        ready.refit();
+        assert!(ready.fit_error.is_none(), "{method}: {:?}", ready.fit_error);
+        assert!(ready.viewer.control_made_on_gpu(), "{method}: the texture was not evaluated on the GPU");
+        let control = ready.viewer.control.as_ref().expect("a control texture");
+        assert_eq!(control.info.dims.map(|d| d as usize), [n; 3]);
+        let gpu = warpbench_gpu::control_eval::read_back_texels(&ready.viewer.ctx, control).expect("read back");
+        assert_eq!(gpu.len(), cpu.len());
+        let largest = cpu.iter().flat_map(|t| t[..3].iter()).fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(largest > 1.0, "{method}: the warp moves things: {largest} mm");
+        let worst =
+            cpu.iter().zip(&gpu).flat_map(|(a, b)| (0..3).map(move |i| (a[i] - b[i]).abs())).fold(0.0f32, f32::max);
+        // The same function on the same grid: f64 on the CPU against f32 on the GPU (a TPS about the box centre),
+        // and f16 storage where float32 textures do not filter.
+        assert!(
+            worst < 0.01 + 1e-3 * largest,
+            "{method}: worst texel difference {worst} mm (largest displacement {largest} mm)"
+        );
+        harness.run_steps(2);
+        assert!(harness.state().ready().expect("loaded").fit_error.is_none());
+    }
 }

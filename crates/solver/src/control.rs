@@ -122,8 +122,14 @@ pub fn sample_pullback_into<W: Warp<Moving, Fixed> + ?Sized>(
 }
 
 impl ControlTexture {
-    /// Samples the pull-back `moving_from_fixed` on `grid` using rayon.
+    /// Samples the pull-back `moving_from_fixed` on `grid` using rayon: a hierarchical B-spline (also behind a
+    /// `Box<dyn Warp>`) through [`Self::sample_bspline`], any other warp texel by texel ([`sample_pullback_into`]).
     pub fn sample<W: Warp<Moving, Fixed> + ?Sized>(moving_from_fixed: &W, grid: ControlGrid) -> Self {
+        if let Some(spline) = moving_from_fixed.as_hierarchical_bspline()
+            && let Ok(texture) = Self::sample_bspline(spline, grid, Parallelism::Rayon)
+        {
+            return texture;
+        }
         let mut texels = vec![[0.0; 4]; grid.texel_count()];
         sample_pullback_into(moving_from_fixed, &grid, Parallelism::Rayon, &mut texels);
         Self { grid, texels }
@@ -280,9 +286,14 @@ mod tests {
         let p: Vec<Point3<Moving>> = q.iter().map(|y| Point3::from_array(Affine.apply_raw(y.coords()))).collect();
         let u = HierarchicalBSpline::fit(&q, &p, g.domain, &BSplineParams::default()).expect("fit");
         let fast = ControlTexture::sample_bspline(&u, g, Parallelism::Rayon).expect("sample");
-        let slow = ControlTexture::sample(&u, g);
-        let worst = fast.as_f32s().iter().zip(slow.as_f32s()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        let mut slow = vec![[0.0; 4]; g.texel_count()];
+        sample_pullback_into(&u, &g, Parallelism::Rayon, &mut slow);
+        let worst = fast.as_f32s().iter().zip(slow.as_flattened()).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
         assert!(worst < 1e-4, "fast and texel-by-texel sampling differ by {worst} mm");
+        // `sample` takes the fast path, also for the B-spline behind a `Box<dyn Warp>` as `Method::fit` returns it.
+        let boxed: Box<dyn Warp<Moving, Fixed>> = Box::new(u);
+        assert_eq!(ControlTexture::sample(&boxed, g).texels, fast.texels);
+        assert!(ControlTexture::sample(&Affine, g).texels.iter().any(|t| t[0] != 0.0), "other warps still sample");
     }
 
     #[test]

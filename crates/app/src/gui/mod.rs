@@ -188,12 +188,18 @@ fn enough_pairs(method: &Method, pairs: usize) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// [`fit_warp`] for a TPS with the control texture evaluated on the GPU ([`warpbench_gpu::ControlEvalPass`], into
-/// `viewer`'s texture) instead of sampled on the CPU and uploaded: the same grid, the same function, evaluated in
-/// f32 about the box's centre.
+/// Whether [`fit_warp_on_gpu`] can evaluate `method`'s control texture on the GPU: a TPS or a hierarchical B-spline.
+#[must_use]
+pub fn gpu_evaluates(method: &Method) -> bool {
+    matches!(method, Method::Tps { .. } | Method::BSpline(_))
+}
+
+/// [`fit_warp`] with the control texture evaluated on the GPU ([`warpbench_gpu::ControlEvalPass`], into `viewer`'s
+/// texture) instead of sampled on the CPU and uploaded: the same grid, the same function (a TPS evaluated in f32
+/// about the box's centre, or the B-spline's refined lattice).
 ///
 /// # Errors
-/// Not a TPS, too few pairs, a fit that fails, or the GPU pass failing.
+/// Not a TPS or a hierarchical B-spline, too few pairs, a fit that fails, or the GPU pass failing.
 pub fn fit_warp_on_gpu(
     method: &Method,
     fixed: &[Point3<Fixed>],
@@ -202,31 +208,47 @@ pub fn fit_warp_on_gpu(
     grid_n: usize,
     viewer: &mut Viewer,
 ) -> anyhow::Result<Fitted> {
-    let Method::Tps { stiffness } = *method else {
-        return Err(anyhow!("the GPU evaluates TPS control textures only, not {method}"));
-    };
+    if !gpu_evaluates(method) {
+        return Err(anyhow!("the GPU evaluates TPS and B-spline control textures only, not {method}"));
+    }
     enough_pairs(method, moving.len())?;
-    let tps: Tps<Moving, Fixed> = Tps::fit_smoothing(fixed, moving, stiffness).map_err(|e| anyhow!("{method}: {e}"))?;
-    let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
     let grid = scene::control_grid(fixed_box, grid_n).map_err(|e| anyhow!("{:#}", e.error()))?;
     let desc = warpbench_gpu::ControlGridDesc {
         dims: grid.dims,
         box_min_ref: grid.domain.min.coords(),
         box_max_ref: grid.domain.max.coords(),
     };
-    viewer.evaluate_control_tps(&scene::TpsParts::new(&tps).desc(), &desc)?;
-    Ok(Fitted { pullback: Box::new(tps), forward, pairs: moving.len() })
+    let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let pullback: Box<dyn Warp<Moving, Fixed>> = if let Method::Tps { stiffness } = *method {
+        let tps: Tps<Moving, Fixed> =
+            Tps::fit_smoothing(fixed, moving, stiffness).map_err(|e| anyhow!("{method}: {e}"))?;
+        viewer.evaluate_control_tps(&scene::TpsParts::new(&tps).desc(), &desc)?;
+        Box::new(tps)
+    } else {
+        let pullback = method.fit(fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
+        let spline = pullback.as_hierarchical_bspline().context("the B-spline fit gave another warp")?;
+        let l = spline.lattice();
+        let lattice = warpbench_gpu::LatticeDesc {
+            cells: l.cells(),
+            min_mm: l.min_mm(),
+            max_mm: l.max_mm(),
+            coefficients: l.coefficients(),
+        };
+        viewer.evaluate_control_bspline(&warpbench_gpu::BSplineDesc { lattices: &[lattice] }, &desc)?;
+        pullback
+    };
+    Ok(Fitted { pullback, forward, pairs: moving.len() })
 }
 
 /// Where the window makes the control texture after a fit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ControlEval {
-    /// A TPS on the GPU when the adapter is a real GPU; otherwise on the CPU (a CPU driver runs the compute pass
-    /// slower than the solver's sampling on rayon).
+    /// A TPS or a B-spline on the GPU when the adapter is a real GPU; otherwise on the CPU (a CPU driver runs the
+    /// compute pass slower than the solver's sampling on rayon).
     #[default]
     Auto,
     Cpu,
-    /// A TPS on the GPU whatever the adapter (other methods on the CPU).
+    /// A TPS or a B-spline on the GPU whatever the adapter (the linear methods on the CPU).
     Gpu,
 }
 
@@ -680,7 +702,7 @@ impl Ready {
             self.errors = vec![None; self.loaded.pairs.len()];
         }
         let boxes = (fixed_box, moving_box);
-        let on_gpu = matches!(method, Method::Tps { .. })
+        let on_gpu = gpu_evaluates(&method)
             && match self.control_eval {
                 ControlEval::Auto => !self.viewer.ctx.is_cpu_driver(),
                 ControlEval::Cpu => false,

@@ -5,11 +5,12 @@
 use eframe::egui_wgpu;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
-    Capabilities, ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings,
-    GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions, GpuVolume,
-    LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
-    PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Quality, RaycastDrawData, RaycastRenderer,
-    RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget, Window,
+    BSplineDesc, Capabilities, ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer,
+    GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
+    GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget,
+    PrefilterPass, PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Quality,
+    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget,
+    Window,
 };
 use warpbench_io::Volume;
 
@@ -297,15 +298,43 @@ impl Viewer {
     /// Evaluates the TPS pull-back `tps` into the control texture on `grid` on the GPU (reusing the current
     /// texture when it has the same size), instead of sampling it on the CPU and uploading it.
     pub fn evaluate_control_tps(&mut self, tps: &TpsDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()> {
+        self.evaluate_control(|pass, ctx, reuse| pass.evaluate_tps(ctx, tps, grid, reuse))
+    }
+
+    /// Evaluates the hierarchical B-spline pull-back `bspline` into the control texture on `grid` on the GPU, as
+    /// [`Self::evaluate_control_tps`] does for a TPS.
+    pub fn evaluate_control_bspline(
+        &mut self,
+        bspline: &BSplineDesc<'_>,
+        grid: &ControlGridDesc,
+    ) -> anyhow::Result<()> {
+        self.evaluate_control(|pass, ctx, reuse| pass.evaluate_bspline(ctx, bspline, grid, reuse))
+    }
+
+    /// Runs `evaluate` with the control-evaluation pass (made on first use) and the texture it may write again.
+    fn evaluate_control(
+        &mut self,
+        evaluate: impl FnOnce(
+            &ControlEvalPass,
+            &GpuContext,
+            Option<GpuControlTexture>,
+        ) -> warpbench_gpu::Result<GpuControlTexture>,
+    ) -> anyhow::Result<()> {
         if self.control_eval.is_none() {
             self.control_eval = Some(ControlEvalPass::new(&self.ctx).map_err(gpu_error)?);
         }
         let Some(pass) = &self.control_eval else { unreachable!("made just above") };
         // An uploaded texture has other usages: only a texture the pass made is written again in place.
         let reuse = self.control.take().filter(|_| self.control_from_eval);
-        self.control = Some(pass.evaluate_tps(&self.ctx, tps, grid, reuse).map_err(gpu_error)?);
+        self.control = Some(evaluate(pass, &self.ctx, reuse).map_err(gpu_error)?);
         self.control_from_eval = true;
         Ok(())
+    }
+
+    /// Whether the control texture was evaluated on the GPU (not uploaded from the CPU).
+    #[must_use]
+    pub fn control_made_on_gpu(&self) -> bool {
+        self.control.is_some() && self.control_from_eval
     }
 
     /// Uploads a control texture (or removes the warp with `None`).
