@@ -12,7 +12,7 @@ use common::{data, mri};
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use warpbench_app::gui::{GuiOptions, Ready, Workbench};
+use warpbench_app::gui::{GuiOptions, Placing, Ready, Workbench};
 use warpbench_app::inputs::LandmarkSource;
 
 /// Five pairs on the MRI, the moving points shifted by a few mm.
@@ -665,6 +665,56 @@ fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
     assert!(alpha * 10 > shown.len() / 4, "the view is mostly empty: {alpha} px");
     let differ = shown.iter().zip(&once).filter(|(a, b)| a != b).count();
     assert_eq!(differ, 0, "the refined view differs from the one-pass view in {differ} channels");
+}
+
+#[test]
+fn keyboard_shortcuts_add_cancel_delete_and_reset() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    let placing = |h: &Harness<'_, Workbench>| h.state().ready().expect("ready").placing;
+    // Space starts adding a pair, Esc cancels it.
+    harness.key_press(egui::Key::Space);
+    harness.run_steps(2);
+    assert_eq!(placing(&harness), Placing::Source);
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
+    assert_eq!(placing(&harness), Placing::Idle);
+    // Delete removes the selected pair (here Pt-1, the second, selected by its Go to button); Ctrl+Z brings it back.
+    harness.get_by_label("Go to Pt-1").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("ready").selected, Some(1));
+    harness.key_press(egui::Key::Delete);
+    harness.run_steps(3);
+    let names = |h: &Harness<'_, Workbench>| -> Vec<String> {
+        h.state().ready().expect("ready").loaded.pairs.iter().map(|p| p.name.clone()).collect()
+    };
+    assert_eq!(names(&harness), ["Pt-0", "Pt-2", "Pt-3", "Pt-4"]);
+    assert_eq!(harness.state().ready().expect("ready").fitted_pairs(), 4);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::Z);
+    harness.run_steps(3);
+    assert_eq!(names(&harness), ["Pt-0", "Pt-1", "Pt-2", "Pt-3", "Pt-4"]);
+    // With nothing selected, Delete deletes nothing.
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("ready").selected, None);
+    harness.key_press(egui::Key::Delete);
+    harness.run_steps(2);
+    assert_eq!(names(&harness).len(), 5);
+    // R puts a turned camera back.
+    harness.state_mut().ready_mut().expect("ready").camera.azimuth_rad = 2.0;
+    harness.key_press(egui::Key::R);
+    harness.run_steps(2);
+    assert!((harness.state().ready().expect("ready").camera.azimuth_rad - 0.6).abs() < 1e-6);
+    // A single key typed into a text field stays there: R into a pair's name does not reset the camera.
+    harness.state_mut().ready_mut().expect("ready").camera.azimuth_rad = 2.0;
+    harness.get_by_label("Name of pair 1").click();
+    harness.run_steps(2);
+    harness.key_press(egui::Key::R);
+    harness.run_steps(2);
+    assert!((harness.state().ready().expect("ready").camera.azimuth_rad - 2.0).abs() < 1e-6, "R reset the camera");
 }
 
 #[test]

@@ -1082,6 +1082,20 @@ impl Ready {
         Some(((v.target.width, v.target.height), !self.images.view_reduced))
     }
 
+    /// Starts adding a pair (the next pick is its source), or stops (a placed source is dropped).
+    pub fn toggle_adding(&mut self) {
+        self.placing = if self.placing == Placing::Idle { Placing::Source } else { Placing::Idle };
+    }
+
+    /// Deletes pair `i` and fits the warp again.
+    pub fn delete_pair(&mut self, i: usize) {
+        if i < self.loaded.pairs.len() {
+            self.loaded.pairs.remove(i);
+            self.selected = None;
+            self.refit();
+        }
+    }
+
     /// Puts the camera back: the whole fixed volume in view, from the front-left, slightly above.
     pub fn reset_camera(&mut self) {
         let (lo, hi) = self.viewer.scene_box();
@@ -1399,6 +1413,43 @@ impl eframe::App for Workbench {
     }
 }
 
+/// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo,
+/// Space starts or stops adding a pair, Esc cancels it (or clears the selection), Delete removes the selected pair,
+/// R resets the camera. The single keys only act while no text field has the keyboard.
+fn keyboard(ui: &mut egui::Ui, ready: &mut Ready) {
+    // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
+    let redo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z);
+    let undo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::Z);
+    if ui.input_mut(|i| i.consume_shortcut(&redo)) {
+        ready.redo();
+    } else if ui.input_mut(|i| i.consume_shortcut(&undo)) {
+        ready.undo();
+    }
+    if ui.ctx().egui_wants_keyboard_input() {
+        return;
+    }
+    let key = |ui: &mut egui::Ui, k: egui::Key| ui.input_mut(|i| i.consume_key(egui::Modifiers::NONE, k));
+    if key(ui, egui::Key::Space) {
+        ready.toggle_adding();
+    }
+    if key(ui, egui::Key::Escape) {
+        if ready.placing == Placing::Idle {
+            ready.selected = None;
+        } else {
+            ready.placing = Placing::Idle;
+        }
+        ready.invalidate();
+    }
+    if (key(ui, egui::Key::Delete) || key(ui, egui::Key::Backspace))
+        && let Some(i) = ready.selected
+    {
+        ready.delete_pair(i);
+    }
+    if key(ui, egui::Key::R) {
+        ready.reset_camera();
+    }
+}
+
 /// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
 fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
     if let Some(job) = &ready.export {
@@ -1410,25 +1461,20 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             None => ui.ctx().request_repaint_after(std::time::Duration::from_millis(100)),
         }
     }
-    // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
-    let redo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z);
-    let undo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::Z);
-    if ui.input_mut(|i| i.consume_shortcut(&redo)) {
-        ready.redo();
-    } else if ui.input_mut(|i| i.consume_shortcut(&undo)) {
-        ready.undo();
-    }
+    keyboard(ui, ready);
     egui::Panel::left("settings").resizable(true).default_size(260.0).show(ui, |ui| {
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading(ready.loaded.title.as_str());
             ui.horizontal(|ui| {
-                if ui.add_enabled(ready.history.can_undo(), egui::Button::new("Undo")).clicked() {
+                if ui.add_enabled(ready.history.can_undo(), egui::Button::new("Undo")).on_hover_text("Ctrl+Z").clicked()
+                {
                     ready.undo();
                 }
-                if ui.add_enabled(ready.history.can_redo(), egui::Button::new("Redo")).clicked() {
+                let redo = egui::Button::new("Redo");
+                if ui.add_enabled(ready.history.can_redo(), redo).on_hover_text("Ctrl+Shift+Z").clicked() {
                     ready.redo();
                 }
-                if ui.button("Reset camera").clicked() {
+                if ui.button("Reset camera").on_hover_text("R").clicked() {
                     ready.reset_camera();
                 }
             });
@@ -1445,8 +1491,8 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             ui.separator();
             ui.horizontal(|ui| {
                 let adding = ready.placing != Placing::Idle;
-                if ui.selectable_label(adding, "Add pair").clicked() {
-                    ready.placing = if adding { Placing::Idle } else { Placing::Source };
+                if ui.selectable_label(adding, "Add pair").on_hover_text("Space; Esc cancels").clicked() {
+                    ready.toggle_adding();
                 }
                 match ready.placing {
                     Placing::Idle => ui.label(""),
@@ -1457,11 +1503,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             match panels::landmarks_ui(ui, &mut ready.loaded.pairs, &ready.errors, ready.selected) {
                 panels::LandmarkAction::None => {}
                 panels::LandmarkAction::Refit => ready.refit(),
-                panels::LandmarkAction::Delete(i) => {
-                    ready.loaded.pairs.remove(i);
-                    ready.selected = None;
-                    ready.refit();
-                }
+                panels::LandmarkAction::Delete(i) => ready.delete_pair(i),
                 panels::LandmarkAction::Jump(i) => ready.jump_to(i),
                 panels::LandmarkAction::Select(i) => {
                     ready.selected = Some(i);
