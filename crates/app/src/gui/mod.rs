@@ -541,8 +541,7 @@ impl Workbench {
         });
         for (side, path, result) in finished {
             let (volume, layer) = match result {
-                Ok(open::ReadVolume { volume, layer: Some(Err(e)) }) => {
-                    drop(volume);
+                Ok(open::ReadVolume { layer: Some(Err(e)), .. }) => {
                     self.dialogs.error = Some(format!("{}: {e:#}", path.display()));
                     continue;
                 }
@@ -826,12 +825,8 @@ impl Ready {
         };
         self.viewer.replace_layer(side == open::Side::Fixed, &layer)?;
         match side {
-            open::Side::Fixed => self.loaded.fixed = volume,
-            open::Side::Moving => self.loaded.moving = volume,
-        }
-        match side {
-            open::Side::Fixed => self.loaded.fixed_path = Some(path),
-            open::Side::Moving => self.loaded.moving_path = Some(path),
+            open::Side::Fixed => (self.loaded.fixed, self.loaded.fixed_path) = (volume, Some(path)),
+            open::Side::Moving => (self.loaded.moving, self.loaded.moving_path) = (volume, Some(path)),
         }
         let name = |p: &Option<PathBuf>| p.as_deref().map_or_else(|| "(demo)".to_owned(), open::file_name);
         self.loaded.title = format!("{} -> {}", name(&self.loaded.fixed_path), name(&self.loaded.moving_path));
