@@ -38,7 +38,7 @@ use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkSource, Names, OutputFile};
+use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::progress::Bar;
 
 /// The `--json` schema name.
@@ -47,14 +47,8 @@ pub const SCHEMA: &str = "warpbench-field/1";
 /// Options of `warpbench field`.
 #[derive(Clone, Debug)]
 pub struct FieldOptions {
-    pub fixed: PathBuf,
-    pub moving: PathBuf,
-    pub landmarks: LandmarkSource,
-    pub method: String,
-    pub stiffness: f64,
-    pub levels: Option<usize>,
-    /// The output grid, when not the fixed volume's.
-    pub reference: Option<PathBuf>,
+    /// The pair, landmarks, method, and the output grid (`reference`, else the fixed volume's).
+    pub inputs: PairInputs,
     /// The displacement field (`.nii` or `.nii.gz`); `force` applies to `tfm` too.
     pub out: OutputFile,
     /// The ITK transform file, for the linear methods.
@@ -89,11 +83,9 @@ pub struct FieldSummary {
 /// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
 /// `--json`.
 pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
-    let mut input_paths: Vec<&Path> = vec![&opts.fixed, &opts.moving];
-    input_paths.extend(opts.landmarks.paths());
-    input_paths.extend(opts.reference.as_deref());
+    let input_paths = opts.inputs.paths();
     opts.out.check(&input_paths)?;
-    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
+    let method = opts.inputs.method()?;
     if let Some(tfm) = &opts.tfm
         && !matches!(method, Method::Linear(_))
     {
@@ -110,15 +102,9 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         inputs::check_output(tfm, &input_paths, opts.out.force)?;
     }
 
-    let fixed = inputs::load_volume(&opts.fixed, opts.quiet)?;
-    let moving = inputs::load_volume(&opts.moving, opts.quiet)?;
-    let reference = opts.reference.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
-    let pairs = opts.landmarks.read()?;
-    let names = Names {
-        moving: opts.moving.display().to_string(),
-        landmarks: opts.landmarks.describe(),
-        out: opts.out.path.clone(),
-    };
+    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet)?;
+    let pairs = opts.inputs.landmarks.read()?;
+    let names = opts.inputs.names(&opts.out.path);
     let grid = reference.as_ref().unwrap_or(&fixed);
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;

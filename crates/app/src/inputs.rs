@@ -88,6 +88,60 @@ impl LandmarkSource {
     }
 }
 
+/// The inputs `warpbench warp` and `warpbench field` share: the pair, its landmarks, the method, and the grid to
+/// sample on when it is not the fixed volume's.
+#[derive(Clone, Debug)]
+pub struct PairInputs {
+    pub fixed: PathBuf,
+    pub moving: PathBuf,
+    pub landmarks: LandmarkSource,
+    /// `tps`, `hbspline`, `affine`, `similarity` or `rigid`.
+    pub method: String,
+    pub stiffness: f64,
+    pub levels: Option<usize>,
+    /// The output grid, when not the fixed volume's.
+    pub reference: Option<PathBuf>,
+}
+
+/// The volumes of [`PairInputs`], loaded.
+#[derive(Debug)]
+pub struct PairVolumes {
+    pub fixed: Volume,
+    pub moving: Volume,
+    pub reference: Option<Volume>,
+}
+
+impl PairInputs {
+    /// Every input file, which no output may be.
+    #[must_use]
+    pub fn paths(&self) -> Vec<&Path> {
+        let mut paths: Vec<&Path> = vec![&self.fixed, &self.moving];
+        paths.extend(self.landmarks.paths());
+        paths.extend(self.reference.as_deref());
+        paths
+    }
+
+    /// The method the options name, checked ([`method_from_args`]).
+    pub fn method(&self) -> Result<Method, Failure> {
+        method_from_args(&self.method, self.stiffness, self.levels)
+    }
+
+    /// What messages call the inputs, and `out`.
+    #[must_use]
+    pub fn names(&self, out: &Path) -> Names {
+        Names { moving: self.moving.display().to_string(), landmarks: self.landmarks.describe(), out: out.to_owned() }
+    }
+
+    /// Loads the fixed, moving and reference volumes (with progress bars unless `quiet`).
+    pub fn load_volumes(&self, quiet: bool) -> Result<PairVolumes, Failure> {
+        Ok(PairVolumes {
+            fixed: load_volume(&self.fixed, quiet)?,
+            moving: load_volume(&self.moving, quiet)?,
+            reference: self.reference.as_deref().map(|p| load_volume(p, quiet)).transpose()?,
+        })
+    }
+}
+
 /// What the in-memory cores ([`crate::warp::resample`], [`crate::field::displacement_field`]) call their inputs and
 /// output in messages: the files' paths on the command line, the window's own names in the window.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -8,7 +8,7 @@ use warpbench_app::exit::Failure;
 use warpbench_app::field::{self, FieldOptions};
 use warpbench_app::gui::{self, GuiOptions};
 use warpbench_app::info::{self, InfoOptions};
-use warpbench_app::inputs::{LandmarkSource, OutputFile};
+use warpbench_app::inputs::{LandmarkSource, OutputFile, PairInputs};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpOptions};
 use warpbench_gpu::ShadingMode;
@@ -179,6 +179,19 @@ impl PairArgs {
         LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
     }
 
+    /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.
+    fn inputs(self, fixed: PathBuf, moving: PathBuf, reference: Option<PathBuf>) -> Result<PairInputs, Failure> {
+        Ok(PairInputs {
+            landmarks: self.required_source()?,
+            fixed,
+            moving,
+            method: self.method,
+            stiffness: self.stiffness,
+            levels: self.levels,
+            reference,
+        })
+    }
+
     /// The landmark source, which this subcommand needs.
     fn required_source(&self) -> Result<LandmarkSource, Failure> {
         self.source()?.ok_or_else(|| {
@@ -237,14 +250,8 @@ struct WarpArgs {
 }
 
 fn run_warp(a: WarpArgs) -> Result<(), Failure> {
-    let landmarks = a.pairs.required_source()?;
     let opts = WarpOptions {
-        fixed: a.fixed,
-        moving: a.moving,
-        landmarks,
-        method: a.pairs.method,
-        stiffness: a.pairs.stiffness,
-        levels: a.pairs.levels,
+        inputs: a.pairs.inputs(a.fixed, a.moving, a.reference)?,
         pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
         interpolation: match a.interp {
             InterpArg::Nearest => Interpolation::Nearest,
@@ -257,7 +264,6 @@ fn run_warp(a: WarpArgs) -> Result<(), Failure> {
             BackendArg::Gpu => Backend::Gpu,
         },
         float: a.float,
-        reference: a.reference,
         outside_value: a.outside,
         out: OutputFile { path: a.out, force: a.force },
         out_dicom: a.out_dicom,
@@ -383,15 +389,8 @@ struct FieldArgs {
 }
 
 fn run_field(a: FieldArgs) -> Result<(), Failure> {
-    let landmarks = a.pairs.required_source()?;
     let opts = FieldOptions {
-        fixed: a.fixed,
-        moving: a.moving,
-        landmarks,
-        method: a.pairs.method,
-        stiffness: a.pairs.stiffness,
-        levels: a.pairs.levels,
-        reference: a.reference,
+        inputs: a.pairs.inputs(a.fixed, a.moving, a.reference)?,
         out: OutputFile { path: a.out, force: a.force },
         tfm: a.tfm,
         json: a.json,

@@ -35,7 +35,7 @@ use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkSource, Names, OutputFile};
+use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::scene;
 
 /// Where the resampling runs.
@@ -62,18 +62,13 @@ pub enum PullBackMode {
 /// Options of `warpbench warp`.
 #[derive(Clone, Debug)]
 pub struct WarpOptions {
-    pub fixed: PathBuf,
-    pub moving: PathBuf,
-    pub landmarks: LandmarkSource,
-    pub method: String,
-    pub stiffness: f64,
-    pub levels: Option<usize>,
+    /// The pair, landmarks, method, and the output grid (`reference`, else the fixed volume's).
+    pub inputs: PairInputs,
     pub pullback: PullBackMode,
     pub interpolation: Interpolation,
     pub backend: Backend,
     /// f32 output instead of the moving volume's sample type.
     pub float: bool,
-    pub reference: Option<PathBuf>,
     /// The value of output voxels that map outside the moving volume; `None`: −1024 for a CT, else 0.
     pub outside_value: Option<f64>,
     pub out: OutputFile,
@@ -407,12 +402,9 @@ impl Fitted {
 /// Runs `warpbench warp`: loads, fits, resamples, writes (atomically), and reports. The work between loading and
 /// writing is [`resample`]'s.
 pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
-    let mut input_paths: Vec<&Path> = vec![&opts.fixed, &opts.moving];
-    input_paths.extend(opts.landmarks.paths());
-    input_paths.extend(opts.reference.as_deref());
-    opts.out.check(&input_paths)?;
+    opts.out.check(&opts.inputs.paths())?;
     check_outputs(&opts.out.path, opts.out_dicom.as_deref())?;
-    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
+    let method = opts.inputs.method()?;
     check_pullback_mode(&method, opts.pullback)?;
     let settings = WarpSettings {
         method,
@@ -422,20 +414,14 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         backend: opts.backend,
         outside_value: opts.outside_value,
     };
-    let names = Names {
-        moving: opts.moving.display().to_string(),
-        landmarks: opts.landmarks.describe(),
-        out: opts.out.path.clone(),
-    };
+    let names = opts.inputs.names(&opts.out.path);
 
     let start = Instant::now();
     let mut lap = Lap(start);
     let mut seconds = WarpSeconds::default();
-    let fixed = inputs::load_volume(&opts.fixed, opts.quiet)?;
-    let moving = inputs::load_volume(&opts.moving, opts.quiet)?;
-    let reference = opts.reference.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
+    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet)?;
     seconds.load = lap.next();
-    let pairs = opts.landmarks.read()?;
+    let pairs = opts.inputs.landmarks.read()?;
     // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
     // the output is allocated (peak memory: the moving volume and the output).
     let fitted = Fitted::new(reference.as_ref().unwrap_or(&fixed), &fixed, &moving, &pairs, &names, &settings)?;
@@ -458,7 +444,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     seconds.resample = lap.next();
 
     let volume = &resampled.volume;
-    let description = series_description(&resampled.method, &opts.moving);
+    let description = series_description(&resampled.method, &opts.inputs.moving);
     write_outputs(volume, &opts.out.path, opts.out_dicom.as_deref(), &description)?;
     seconds.write = lap.next();
     seconds.total = start.elapsed().as_secs_f64();
