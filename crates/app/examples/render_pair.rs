@@ -8,50 +8,22 @@
 //! Shading (default `dvr`): both volumes are lit with gradients of their Gaussian-prefiltered copies (σ = 1.5 voxels,
 //! GPU prefilter pass), the MR's taken through the warp, with central differences over the coarsest spacing.
 //!
-//! The landmarks are synthetic: 10 pairs around each head's centre of mass (a rigid offset between the two heads)
-//! plus a few mm of local deformation. A TPS pull-back u = moving_from_fixed is fitted on them
+//! The landmarks are the window's demo pairs (`gui::demo::demo_landmarks`): 10 pairs around each head's centre of
+//! mass (a rigid offset between the two heads) plus a few mm of local deformation. A TPS pull-back u = moving_from_fixed is fitted on them
 //! (`Tps::<Moving, Fixed>::fit(q, p, 0)`), sampled into a 64³ control texture over the fixed volume's box, and the
 //! GPU pulls the MR through it at every ray sample.
 
 use anyhow::{Context, Result, bail};
+use warpbench_app::gui::demo;
 use warpbench_app::scene;
-use warpbench_gpu::glam::DVec3;
 use warpbench_gpu::{
     GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera,
     PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData,
     RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, Window,
 };
-use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
-use warpbench_solver::spaces::{Aabb, Fixed, Moving};
+use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::tps::Tps;
-
-/// LPS centroid of the voxels whose value exceeds `threshold` (sampled every 2nd voxel).
-fn centroid_above(v: &Volume, threshold: f64) -> DVec3 {
-    let (mut sum, mut n) = (DVec3::ZERO, 0.0);
-    for k in (0..v.dims[2]).step_by(2) {
-        for j in (0..v.dims[1]).step_by(2) {
-            for i in (0..v.dims[0]).step_by(2) {
-                if v.data.get_f64(v.offset(i, j, k)) > threshold {
-                    sum += DVec3::from_array(v.voxel_lps(i, j, k).coords());
-                    n += 1.0;
-                }
-            }
-        }
-    }
-    if n > 0.0 { sum / n } else { DVec3::ZERO }
-}
-
-/// The `q`-th quantile of the values above `floor`.
-fn quantile_above(v: &Volume, floor: f64, q: f64) -> f64 {
-    let mut vals: Vec<f64> =
-        (0..v.data.len()).step_by(7).map(|i| v.data.get_f64(i)).filter(|x| x.is_finite() && *x > floor).collect();
-    if vals.is_empty() {
-        return floor + 1.0;
-    }
-    vals.sort_by(f64::total_cmp);
-    vals[((vals.len() - 1) as f64 * q) as usize]
-}
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -70,33 +42,11 @@ fn main() -> Result<()> {
     eprintln!("fixed CT {:?} {} spacing {:?}", ct.dims, ct.sample_type().name(), ct.spacing_mm());
     eprintln!("moving MR {:?} {} spacing {:?}", mr.dims, mr.sample_type().name(), mr.spacing_mm());
 
-    // Landmarks: the same pattern around each head's centre (bone in the CT, tissue in the MR), with local jitter.
-    let mr_floor = quantile_above(&mr, 0.0, 0.3);
-    let (c_fixed, c_moving) = (centroid_above(&ct, 300.0), centroid_above(&mr, mr_floor));
-    eprintln!("head centres: CT {c_fixed:.1}, MR {c_moving:.1} (LPS mm)");
-    let pattern = [
-        [40.0, 0.0, 0.0],
-        [-40.0, 0.0, 0.0],
-        [0.0, 50.0, 0.0],
-        [0.0, -50.0, 0.0],
-        [0.0, 0.0, 40.0],
-        [0.0, 0.0, -30.0],
-        [30.0, 30.0, 25.0],
-        [-30.0, -30.0, 25.0],
-        [30.0, -35.0, -20.0],
-        [-30.0, 35.0, -20.0],
-    ];
-    let local_mm = [[3.0, 0.0, 1.0], [-2.0, 1.0, 0.0], [0.0, 3.0, -1.0], [1.0, -2.5, 0.0], [0.0, 0.0, 3.0]];
-    let q: Vec<Point3<Fixed>> =
-        pattern.iter().map(|o| Point3::from_array((c_fixed + DVec3::from_array(*o)).to_array())).collect();
-    let p: Vec<Point3<Moving>> = pattern
-        .iter()
-        .enumerate()
-        .map(|(i, o)| {
-            let local = DVec3::from_array(local_mm[i % local_mm.len()]);
-            Point3::from_array((c_moving + DVec3::from_array(*o) + local).to_array())
-        })
-        .collect();
+    // Landmarks: the window's demo pairs, the same pattern around each head's centre (bone in the CT, tissue in the
+    // MR), with local jitter.
+    let pairs = demo::demo_landmarks(&ct, &mr);
+    let (q, p): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) =
+        pairs.iter().filter_map(|pair| Some((as_fixed(pair.fixed?), as_moving(pair.moving?)))).unzip();
     let moving_from_fixed = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).context("TPS fit")?;
 
     // A 64³ control texture over the fixed volume's box.
@@ -127,7 +77,7 @@ fn main() -> Result<()> {
     let tfs =
         GpuTransferFunctions::upload(&ctx, &[Preset::CtBone.transfer_function(), Preset::MrT1.transfer_function()]);
     let ct_window = Preset::CtBone.default_window().unwrap_or(Window::from_range(-300.0, 1700.0));
-    let mr_window = Window::from_range(mr_floor as f32, quantile_above(&mr, mr_floor, 0.99) as f32);
+    let (_, mr_window) = scene::auto_style(&mr, Some(Preset::MrT1));
     let fixed_layer = GpuLayer {
         volume: &fixed_gpu,
         control: None,
@@ -147,7 +97,10 @@ fn main() -> Result<()> {
         },
     };
     let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
-    let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, zoom: 1.3, target_ref: c_fixed.as_vec3(), ..cam };
+    // Aimed at the fixed landmarks' centre.
+    let centre: [f64; 3] = std::array::from_fn(|a| q.iter().map(|x| x.coords()[a]).sum::<f64>() / q.len() as f64);
+    let target_ref = warpbench_gpu::glam::Vec3::from_array(centre.map(|v| v as f32));
+    let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, zoom: 1.3, target_ref, ..cam };
     let coarsest_mm = fixed.info.spacing_mm.iter().chain(&moving.info.spacing_mm).fold(0.0f64, |a, &b| a.max(b)) as f32;
     let settings = RenderSettings {
         blend,
