@@ -51,6 +51,7 @@ use glam::{DVec3, Mat4, Vec3};
 use half::f16;
 use wgpu::util::DeviceExt;
 
+use crate::compute::{self, binding, storage, uniform};
 use crate::control::{ControlInfo, GpuControlTexture};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
@@ -304,52 +305,19 @@ impl ControlEvalPass {
         }
         let device = &ctx.device;
         let module = CONTROL_EVAL.create_module(device);
-        let entry = |binding: u32, ty: wgpu::BindingType| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty,
-            count: None,
-        };
-        let buffer = |ty: wgpu::BufferBindingType, min: u64| wgpu::BindingType::Buffer {
-            ty,
-            has_dynamic_offset: false,
-            min_binding_size: wgpu::BufferSize::new(min),
-        };
-        let storage = |read_only: bool| wgpu::BufferBindingType::Storage { read_only };
         let common = [
-            entry(0, buffer(wgpu::BufferBindingType::Uniform, std::mem::size_of::<ControlEvalUniforms>() as u64)),
-            entry(1, buffer(storage(false), 4)),
-            entry(2, buffer(storage(false), BOUNDS_BYTES)),
+            binding(0, uniform::<ControlEvalUniforms>()),
+            binding(1, storage(false, Some(4))),
+            binding(2, storage(false, Some(BOUNDS_BYTES))),
         ];
         let make = |entry_point: &str, extra: &[wgpu::BindGroupLayoutEntry]| {
             let entries: Vec<_> = common.iter().chain(extra).copied().collect();
-            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(entry_point),
-                entries: &entries,
-            });
-            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(entry_point),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
-            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry_point),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry_point),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                cache: None,
-            });
-            (pipeline, layout)
+            let layout = compute::layout(device, entry_point, &entries);
+            (compute::pipeline(device, entry_point, &module, Some(entry_point), &[&layout]), layout)
         };
-        let tps = make(Self::TPS, &[entry(3, buffer(storage(true), 32))]);
-        let bspline = make(
-            Self::BSPLINE,
-            &[
-                entry(4, buffer(wgpu::BufferBindingType::Uniform, std::mem::size_of::<BSplineUniforms>() as u64)),
-                entry(5, buffer(storage(true), 4)),
-            ],
-        );
+        let tps = make(Self::TPS, &[binding(3, storage(true, Some(32)))]);
+        let bspline =
+            make(Self::BSPLINE, &[binding(4, uniform::<BSplineUniforms>()), binding(5, storage(true, Some(4)))]);
         ctx.check_errors()?;
         Ok(Self { tps, bspline, staging: Mutex::new(None) })
     }

@@ -40,6 +40,7 @@
 //! not depend on `warpbench-io` or `warpbench-solver`.
 
 pub mod camera;
+mod compute;
 pub mod control;
 pub mod control_eval;
 pub mod cpu_reference;

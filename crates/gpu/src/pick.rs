@@ -25,6 +25,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{Mat4, Vec3, Vec4};
 
+use crate::compute::{self, binding, storage, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::raycast::{RaycastDrawData, RaycastRenderer, RaycastUniforms};
@@ -236,46 +237,15 @@ impl PickPass {
             return Err(GpuError::Unsupported("picking needs 2 storage buffers in the compute stage".into()));
         }
         let device = &ctx.device;
-        let storage = |binding, read_only| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Buffer {
-                ty: wgpu::BufferBindingType::Storage { read_only },
-                has_dynamic_offset: false,
-                min_binding_size: None,
-            },
-            count: None,
-        };
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("pick"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<PickUniforms>() as u64),
-                    },
-                    count: None,
-                },
-                storage(1, true),
-                storage(2, false),
-            ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("pick"),
-            bind_group_layouts: &[Some(renderer.bind_group_layout()), Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("pick"),
-            layout: Some(&pipeline_layout),
-            module: renderer.module(),
-            entry_point: RAYCAST.entry_point(Stage::Compute),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        });
+        let layout = compute::layout(
+            device,
+            "pick",
+            &[binding(0, uniform::<PickUniforms>()), binding(1, storage(true, None)), binding(2, storage(false, None))],
+        );
+        // Group 0 is the ray caster's frame, group 1 the rays and hits.
+        let entry_point = RAYCAST.entry_point(Stage::Compute);
+        let pipeline =
+            compute::pipeline(device, "pick", renderer.module(), entry_point, &[renderer.bind_group_layout(), &layout]);
         ctx.check_errors()?;
         Ok(Self { pipeline, layout })
     }

@@ -23,6 +23,7 @@
 use bytemuck::{Pod, Zeroable};
 use rayon::prelude::*;
 
+use crate::compute::{self, binding, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::shaders::PREFILTER;
@@ -274,55 +275,21 @@ impl PrefilterPass {
         let device = &ctx.device;
         let module = PREFILTER.create_module(device);
         let make = |entry_point: &str, source: wgpu::TextureViewDimension, source_binding: u32| {
-            let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(entry_point),
-                entries: &[
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 0,
-                        visibility: wgpu::ShaderStages::COMPUTE,
-                        ty: wgpu::BindingType::Buffer {
-                            ty: wgpu::BufferBindingType::Uniform,
-                            has_dynamic_offset: false,
-                            min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<PrefilterUniforms>() as u64),
-                        },
-                        count: None,
-                    },
-                    wgpu::BindGroupLayoutEntry {
-                        binding: source_binding,
-                        visibility: wgpu::ShaderStages::COMPUTE,
-                        ty: wgpu::BindingType::Texture {
-                            sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                            view_dimension: source,
-                            multisampled: false,
-                        },
-                        count: None,
-                    },
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 2,
-                        visibility: wgpu::ShaderStages::COMPUTE,
-                        ty: wgpu::BindingType::StorageTexture {
-                            access: wgpu::StorageTextureAccess::WriteOnly,
-                            format: PREFILTER_FORMAT,
-                            view_dimension: wgpu::TextureViewDimension::D2Array,
-                        },
-                        count: None,
-                    },
+            let output = wgpu::BindingType::StorageTexture {
+                access: wgpu::StorageTextureAccess::WriteOnly,
+                format: PREFILTER_FORMAT,
+                view_dimension: wgpu::TextureViewDimension::D2Array,
+            };
+            let layout = compute::layout(
+                device,
+                entry_point,
+                &[
+                    binding(0, uniform::<PrefilterUniforms>()),
+                    binding(source_binding, compute::texture(source)),
+                    binding(2, output),
                 ],
-            });
-            let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-                label: Some(entry_point),
-                bind_group_layouts: &[Some(&layout)],
-                immediate_size: 0,
-            });
-            let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                label: Some(entry_point),
-                layout: Some(&pipeline_layout),
-                module: &module,
-                entry_point: Some(entry_point),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                cache: None,
-            });
-            (pipeline, layout)
+            );
+            (compute::pipeline(device, entry_point, &module, Some(entry_point), &[&layout]), layout)
         };
         let from_volume = make(Self::FROM_VOLUME, wgpu::TextureViewDimension::D3, 1);
         let from_layers = make(Self::FROM_LAYERS, wgpu::TextureViewDimension::D2Array, 3);

@@ -11,6 +11,7 @@ use bytemuck::{Pod, Zeroable};
 
 use super::{ExportRequest, ExportedSamples, ExportedVolume, Plan, PlanPullBack, Progress, Sample, SampleType};
 use super::{report, try_zeroed, with_samples};
+use crate::compute::{self, binding, storage, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::shaders::EXPORT;
@@ -56,26 +57,6 @@ pub struct ExportPass {
     layout: wgpu::BindGroupLayout,
 }
 
-fn entry(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry { binding, visibility: wgpu::ShaderStages::COMPUTE, ty, count: None }
-}
-
-fn texture_3d() -> wgpu::BindingType {
-    wgpu::BindingType::Texture {
-        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-        view_dimension: wgpu::TextureViewDimension::D3,
-        multisampled: false,
-    }
-}
-
-fn storage(read_only: bool) -> wgpu::BindingType {
-    wgpu::BindingType::Buffer {
-        ty: wgpu::BufferBindingType::Storage { read_only },
-        has_dynamic_offset: false,
-        min_binding_size: None,
-    }
-}
-
 impl ExportPass {
     /// Storage buffers per compute stage and invocations per workgroup the pass needs.
     pub const STORAGE_BUFFERS: u32 = 2;
@@ -103,36 +84,20 @@ impl ExportPass {
         }
         let device = &ctx.device;
         let module = EXPORT.create_module(device);
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("export"),
-            entries: &[
-                entry(
-                    0,
-                    wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<ExportUniforms>() as u64),
-                    },
-                ),
-                entry(1, texture_3d()),
-                entry(2, texture_3d()),
-                entry(3, storage(true)),
-                entry(4, storage(false)),
+        let texture_3d = || compute::texture(wgpu::TextureViewDimension::D3);
+        let layout = compute::layout(
+            device,
+            "export",
+            &[
+                binding(0, uniform::<ExportUniforms>()),
+                binding(1, texture_3d()),
+                binding(2, texture_3d()),
+                binding(3, storage(true, None)),
+                binding(4, storage(false, None)),
             ],
-        });
-        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("export"),
-            bind_group_layouts: &[Some(&layout)],
-            immediate_size: 0,
-        });
-        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("export"),
-            layout: Some(&pipeline_layout),
-            module: &module,
-            entry_point: EXPORT.entry_point(crate::shaders::Stage::Compute),
-            compilation_options: wgpu::PipelineCompilationOptions::default(),
-            cache: None,
-        });
+        );
+        let entry_point = EXPORT.entry_point(crate::shaders::Stage::Compute);
+        let pipeline = compute::pipeline(device, "export", &module, entry_point, &[&layout]);
         ctx.check_errors()?;
         Ok(Self { pipeline, layout })
     }
