@@ -422,6 +422,19 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert!(ready.loaded.title.contains("mixed_ct5n_mr_small"), "{}", ready.loaded.title);
     // The landmarks stay (patient space), and the warp is fitted again against the new volume.
     assert_eq!(ready.loaded.pairs.len(), 5);
+    // Opening a volume is an undo step: undo shows the MRI again, redo the DICOM series.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.loaded.moving_path.as_deref(), Some(mri().as_path()));
+    assert_eq!(ready.loaded.moving.dims, [91, 109, 91]);
+    assert!(!ready.loaded.title.contains("mixed_ct5n_mr_small"), "{}", ready.loaded.title);
+    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    harness.get_by_label("Redo").click();
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.loaded.moving_path.as_deref(), Some(folder.as_path()));
+    assert_ne!(ready.loaded.moving.dims, [91, 109, 91]);
 
     // Two volumes dropped together: the first is the fixed one, the second the moving one.
     let ct = data("nifti/avg152T1_LR_nifti2.nii.gz");

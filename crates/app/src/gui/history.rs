@@ -1,11 +1,15 @@
-//! Undo and redo over everything the user changes: the landmark pairs, the view and warp settings, and each
-//! volume's preset, window and visibility.
+//! Undo and redo over everything the user changes: the landmark pairs, the view and warp settings, each volume's
+//! preset, window and visibility, and which volume each side shows (opening another one is a step too).
 //!
 //! The window records a [`Snapshot`] once a change has settled (no pointer button held, so a slider drag is one
 //! step, not one per frame). [`History::undo`] and [`History::redo`] walk back and forth; a new change after an undo
 //! drops the redo branch, as every editor does.
 
+use std::path::PathBuf;
+use std::sync::Arc;
+
 use warpbench_gpu::{Preset, Window};
+use warpbench_io::Volume;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::panels::ViewSettings;
@@ -18,12 +22,29 @@ pub struct LayerLook {
     pub visible: bool,
 }
 
+/// The volume one side shows, and where it was read from (`None`: the demo pair). Two are equal when they are the
+/// same read (the same `Arc`), not merely equal voxels: undo then swaps volumes without comparing their data. The
+/// history keeps a replaced volume in memory for as long as a step refers to it.
+#[derive(Clone, Debug)]
+pub struct VolumeRef {
+    pub volume: Arc<Volume>,
+    pub path: Option<PathBuf>,
+}
+
+impl PartialEq for VolumeRef {
+    fn eq(&self, other: &Self) -> bool {
+        Arc::ptr_eq(&self.volume, &other.volume) && self.path == other.path
+    }
+}
+
 /// Everything undo restores.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Snapshot {
     pub pairs: Vec<LandmarkPair>,
     pub settings: ViewSettings,
     pub layers: [LayerLook; 2],
+    /// Fixed, moving.
+    pub volumes: [VolumeRef; 2],
 }
 
 /// Past and future snapshots around the current one.
@@ -87,7 +108,11 @@ impl History {
 mod tests {
     use super::*;
 
-    fn snapshot(n: usize) -> Snapshot {
+    fn volume() -> VolumeRef {
+        VolumeRef { volume: Arc::new(crate::gui::demo::phantom(4, 1.0, [0.0; 3], false)), path: None }
+    }
+
+    fn snapshot_with(n: usize, volumes: [VolumeRef; 2]) -> Snapshot {
         let look = LayerLook { preset: Preset::GreyRamp, window: Window::from_range(0.0, 1.0), visible: true };
         Snapshot {
             pairs: (0..n)
@@ -98,7 +123,16 @@ mod tests {
                 .collect(),
             settings: ViewSettings::default(),
             layers: [look; 2],
+            volumes,
         }
+    }
+
+    thread_local! {
+        static PAIR: [VolumeRef; 2] = [volume(), volume()];
+    }
+
+    fn snapshot(n: usize) -> Snapshot {
+        snapshot_with(n, PAIR.with(Clone::clone))
     }
 
     #[test]
@@ -114,5 +148,22 @@ mod tests {
         assert!(h.record(&snapshot(5)), "a new change after an undo");
         assert!(!h.can_redo(), "drops the redo branch");
         assert_eq!(h.undo().map(|s| s.pairs.len()), Some(1));
+    }
+
+    #[test]
+    fn another_volume_is_a_step_and_volumes_compare_by_identity() {
+        let mut h = History::new(snapshot(1));
+        // Equal voxels, another read: a change (a file reopened is a step, as in an editor).
+        let [fixed, moving] = PAIR.with(Clone::clone);
+        let reread = VolumeRef { volume: Arc::new((*moving.volume).clone()), path: None };
+        assert_eq!(reread.volume.dims, moving.volume.dims);
+        assert!(h.record(&snapshot_with(1, [fixed.clone(), reread.clone()])));
+        // The same read from another path is a change too; the same read and path is not.
+        let elsewhere = VolumeRef { path: Some(PathBuf::from("/data/mr.nii")), ..reread.clone() };
+        assert!(h.record(&snapshot_with(1, [fixed.clone(), elsewhere.clone()])));
+        assert!(!h.record(&snapshot_with(1, [fixed.clone(), elsewhere])));
+        let back = h.undo().expect("a step").volumes[1].clone();
+        assert!(back == reread && back != moving);
+        assert!(h.undo().expect("a step").volumes[1] == moving);
     }
 }

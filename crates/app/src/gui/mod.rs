@@ -37,7 +37,7 @@ use warpbench_solver::warp::{Parallelism, Warp};
 
 use crate::inputs::{self, LandmarkSource};
 use crate::scene;
-use history::{History, LayerLook, Snapshot};
+use history::{History, LayerLook, Snapshot, VolumeRef};
 use pacing::{Refine, interactive_size};
 use panels::ViewSettings;
 use viewer::{DeviceFacts, LayerData, Shown, Viewer};
@@ -613,6 +613,8 @@ impl Workbench {
     fn upload(&self, pair: LoadedPair) -> anyhow::Result<Ready> {
         let rs = self.render_state.as_ref().context("the window has no wgpu renderer")?;
         let LoadedPair { loaded, layers } = pair;
+        let placeholder_volumes =
+            [&loaded.fixed, &loaded.moving].map(|v| VolumeRef { volume: Arc::clone(v), path: None });
         let ctx = Viewer::context(rs);
         let viewer = match layers {
             Some([fixed, moving]) => Viewer::from_layers(ctx, &fixed, &moving)?,
@@ -653,6 +655,7 @@ impl Workbench {
                     window: warpbench_gpu::Window::from_range(0.0, 1.0),
                     visible: true,
                 }; 2],
+                volumes: placeholder_volumes,
             }),
         };
         ready.reset_camera();
@@ -819,14 +822,22 @@ impl Ready {
         layer: Option<LayerData>,
         path: PathBuf,
     ) -> anyhow::Result<()> {
+        self.swap_volume(side, VolumeRef { volume, path: Some(path) }, layer)?;
+        self.refit();
+        Ok(())
+    }
+
+    /// Shows `to` on `side` (prepared as `layer`, else here) without fitting again: the GPU layer (with the volume's
+    /// automatic look), the title, and for the fixed side the camera and slices re-centred.
+    fn swap_volume(&mut self, side: open::Side, to: VolumeRef, layer: Option<LayerData>) -> anyhow::Result<()> {
         let layer = match layer {
             Some(layer) => layer,
-            None => LayerData::prepare(&volume, DeviceFacts::of(&self.viewer.ctx))?,
+            None => LayerData::prepare(&to.volume, DeviceFacts::of(&self.viewer.ctx))?,
         };
         self.viewer.replace_layer(side == open::Side::Fixed, &layer)?;
         match side {
-            open::Side::Fixed => (self.loaded.fixed, self.loaded.fixed_path) = (volume, Some(path)),
-            open::Side::Moving => (self.loaded.moving, self.loaded.moving_path) = (volume, Some(path)),
+            open::Side::Fixed => (self.loaded.fixed, self.loaded.fixed_path) = (to.volume, to.path),
+            open::Side::Moving => (self.loaded.moving, self.loaded.moving_path) = (to.volume, to.path),
         }
         let name = |p: &Option<PathBuf>| p.as_deref().map_or_else(|| "(demo)".to_owned(), open::file_name);
         self.loaded.title = format!("{} -> {}", name(&self.loaded.fixed_path), name(&self.loaded.moving_path));
@@ -839,7 +850,6 @@ impl Ready {
             self.slice_mm = [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)];
         }
         self.images = Images::default();
-        self.refit();
         Ok(())
     }
 
@@ -1243,15 +1253,31 @@ impl Ready {
     #[must_use]
     pub fn snapshot(&self) -> Snapshot {
         let look = |l: &viewer::Layer| LayerLook { preset: l.preset, window: l.window, visible: l.visible };
+        let volume = |v: &Arc<Volume>, path: &Option<PathBuf>| VolumeRef { volume: Arc::clone(v), path: path.clone() };
         Snapshot {
             pairs: self.loaded.pairs.clone(),
             settings: self.settings.clone(),
             layers: [look(&self.viewer.fixed), look(&self.viewer.moving)],
+            volumes: [
+                volume(&self.loaded.fixed, &self.loaded.fixed_path),
+                volume(&self.loaded.moving, &self.loaded.moving_path),
+            ],
         }
     }
 
-    /// Puts `s` back: pairs, settings and looks; fits the warp again.
+    /// Puts `s` back: the volumes (prepared again for the GPU when they differ), pairs, settings and looks; fits
+    /// the warp again.
     fn restore(&mut self, s: &Snapshot) {
+        let now = self.snapshot();
+        for (side, (was, is)) in
+            [open::Side::Fixed, open::Side::Moving].into_iter().zip(s.volumes.iter().zip(&now.volumes))
+        {
+            if was != is
+                && let Err(e) = self.swap_volume(side, was.clone(), None)
+            {
+                self.file_message = Some(format!("restoring the {} volume: {e:#}", side.name()));
+            }
+        }
         self.loaded.pairs.clone_from(&s.pairs);
         self.settings = s.settings.clone();
         for (layer, look) in [&mut self.viewer.fixed, &mut self.viewer.moving].into_iter().zip(s.layers) {
