@@ -318,6 +318,8 @@ pub struct Ready {
     pub fit_error: Option<String>,
     dragging: bool,
     pub last_render_ms: f64,
+    /// The window's frame rate, for the status bar.
+    frame_rate: pacing::FrameRate,
     /// Adding a pair by picking.
     pub placing: Placing,
     /// Undo and redo.
@@ -635,6 +637,7 @@ impl Workbench {
             fit_error: None,
             dragging: false,
             last_render_ms: 0.0,
+            frame_rate: pacing::FrameRate::default(),
             placing: Placing::Idle,
             errors: Vec::new(),
             files: panels::FileFields::default(),
@@ -1473,6 +1476,7 @@ fn keyboard(ui: &mut egui::Ui, ready: &mut Ready) {
 
 /// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
 fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
+    ready.frame_rate.tick(std::time::Instant::now());
     if let Some(job) = &ready.export {
         match job.poll() {
             Some(result) => {
@@ -1551,11 +1555,11 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
         ui.horizontal(|ui| {
             ui.label(format!("GPU: {}", ready.viewer.ctx.describe()));
             ui.separator();
-            ui.label(format!(
-                "last frame {:.0} ms ({:.1} fps)",
-                ready.last_render_ms,
-                1000.0 / ready.last_render_ms.max(1e-3)
-            ));
+            ui.label(format!("last frame {:.0} ms", ready.last_render_ms))
+                .on_hover_text("What the views took to render in the last frame that rendered them");
+            ui.separator();
+            ui.label(ready.frame_rate.fps().map_or_else(|| "idle".to_owned(), |f| format!("{f:.0} fps")))
+                .on_hover_text("Frames the window drew in the last second (none while nothing changes)");
             ui.separator();
             if let Some(done) = ready.view_refine_progress() {
                 ui.label(format!("refining the 3-D view: {:.0} %", 100.0 * done));

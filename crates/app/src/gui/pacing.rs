@@ -123,9 +123,56 @@ impl Refine {
     }
 }
 
+/// The window's frame rate over the last second, from the frames' start times (what the status bar shows).
+#[derive(Debug, Default)]
+pub struct FrameRate {
+    starts: std::collections::VecDeque<std::time::Instant>,
+}
+
+impl FrameRate {
+    const WINDOW: std::time::Duration = std::time::Duration::from_secs(1);
+
+    /// Records a frame that started at `now`.
+    pub fn tick(&mut self, now: std::time::Instant) {
+        self.starts.push_back(now);
+        while self.starts.front().is_some_and(|&t| now.duration_since(t) > Self::WINDOW) {
+            self.starts.pop_front();
+        }
+    }
+
+    /// Frames per second over the last second; `None` when fewer than two frames started in it (an idle window
+    /// draws no frames).
+    #[must_use]
+    pub fn fps(&self) -> Option<f64> {
+        let (first, last) = (self.starts.front()?, self.starts.back()?);
+        let span = last.duration_since(*first).as_secs_f64();
+        (self.starts.len() >= 2 && span > 0.0).then(|| (self.starts.len() - 1) as f64 / span)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_frame_rate_counts_the_last_second_only() {
+        let t0 = std::time::Instant::now();
+        let ms = |n: u64| t0 + std::time::Duration::from_millis(n);
+        let mut rate = FrameRate::default();
+        assert_eq!(rate.fps(), None);
+        rate.tick(ms(0));
+        assert_eq!(rate.fps(), None, "one frame is no rate");
+        // 11 frames 50 ms apart: 20 fps.
+        for i in 1..=10 {
+            rate.tick(ms(50 * i));
+        }
+        assert!((rate.fps().expect("a rate") - 20.0).abs() < 1e-9);
+        // After a pause, the frames before it no longer count: two frames 100 ms apart, 10 fps.
+        rate.tick(ms(5000));
+        assert_eq!(rate.fps(), None, "the first frame after an idle second");
+        rate.tick(ms(5100));
+        assert!((rate.fps().expect("a rate") - 10.0).abs() < 1e-9);
+    }
 
     #[test]
     fn the_interactive_view_shrinks_to_the_budget_on_cpu_drivers_only() {
