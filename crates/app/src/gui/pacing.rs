@@ -32,10 +32,10 @@ pub fn interactive_size(full: (u32, u32), ms_per_px: Option<f64>) -> (u32, u32) 
 }
 
 /// How many rows of a full-quality view `width` pixels wide fit in [`INTERACTIVE_BUDGET_MS`] at `ms_per_px`
-/// ([`CPU_GUESS_MS_PER_PX`] when unmeasured): at least one, at most `height`.
+/// ([`CPU_GUESS_MS_PER_PX`] when that is not a positive number): at least one, at most `height`.
 #[must_use]
-pub fn band_rows(width: u32, height: u32, ms_per_px: Option<f64>) -> u32 {
-    let per_px = ms_per_px.filter(|v| v.is_finite() && *v > 0.0).unwrap_or(CPU_GUESS_MS_PER_PX);
+pub fn band_rows(width: u32, height: u32, ms_per_px: f64) -> u32 {
+    let per_px = if ms_per_px.is_finite() && ms_per_px > 0.0 { ms_per_px } else { CPU_GUESS_MS_PER_PX };
     let rows = INTERACTIVE_BUDGET_MS / (per_px * f64::from(width.max(1)));
     // `as` saturates: a huge quotient is clamped below.
     (rows.floor() as u32).clamp(1, height.max(1))
@@ -66,9 +66,10 @@ impl Bands {
     /// overrun the budget many times over.
     #[must_use]
     pub fn next(&self, view_ms_per_px: Option<f64>) -> std::ops::Range<u32> {
-        let floor = view_ms_per_px.filter(|v| v.is_finite() && *v > 0.0).unwrap_or(CPU_GUESS_MS_PER_PX);
+        let floor = view_ms_per_px.unwrap_or(CPU_GUESS_MS_PER_PX);
+        // `max` ignores a NaN side; `band_rows` falls back to the guess for what remains unusable.
         let cost = self.last_ms_per_px.map_or(floor, |band| band.max(floor));
-        let rows = band_rows(self.width, self.height, Some(cost));
+        let rows = band_rows(self.width, self.height, cost);
         self.rows_done..self.rows_done.saturating_add(rows).min(self.height)
     }
 
@@ -194,17 +195,18 @@ mod tests {
     #[test]
     fn a_band_fills_the_budget_and_stays_within_the_view() {
         // 4 µs per pixel, 1000 wide: 4 ms per row, 15 rows in 60 ms.
-        assert_eq!(band_rows(1000, 700, Some(4e-3)), 15);
-        // Unmeasured: the CPU guess, the same here.
-        assert_eq!(band_rows(1000, 700, None), 15);
-        // Cheap: the whole view in one band; absurdly slow: still one row; nonsense costs fall back to the guess.
-        assert_eq!(band_rows(1000, 700, Some(1e-9)), 700);
-        assert_eq!(band_rows(1000, 700, Some(1e3)), 1);
-        assert_eq!(band_rows(1000, 700, Some(f64::NAN)), 15);
-        assert_eq!(band_rows(1000, 700, Some(-1.0)), 15);
+        assert_eq!(band_rows(1000, 700, 4e-3), 15);
+        // Cheap: the whole view in one band; absurdly slow: still one row; nonsense costs fall back to the guess
+        // (4 µs per pixel, the same 15 rows).
+        assert_eq!(band_rows(1000, 700, 1e-9), 700);
+        assert_eq!(band_rows(1000, 700, 1e3), 1);
+        assert_eq!(band_rows(1000, 700, f64::NAN), 15);
+        assert_eq!(band_rows(1000, 700, -1.0), 15);
+        // Unmeasured bands use the guess too.
+        assert_eq!(Bands::new(1000, 700).next(None), 0..15);
         // Cost at most the budget, within a row of it.
         let per_px = 3.3e-3;
-        let rows = band_rows(640, 480, Some(per_px));
+        let rows = band_rows(640, 480, per_px);
         let cost = |r: u32| per_px * 640.0 * f64::from(r);
         assert!(cost(rows) <= INTERACTIVE_BUDGET_MS && cost(rows + 1) > INTERACTIVE_BUDGET_MS, "{rows} rows");
     }

@@ -216,9 +216,20 @@ impl Viewer {
         glyphs: &[GlyphInstance],
     ) -> anyhow::Result<RenderTarget> {
         let target = self.view_target(size_px);
-        self.render_view_rows(camera, settings, quality, &target, 0..size_px.1)?;
+        let data = self.view_data(camera, settings, quality, size_px);
+        self.renderer.render(&self.ctx, &data, &target).map_err(gpu_error)?;
         self.draw_view_glyphs(camera, &target, glyphs)?;
         Ok(target)
+    }
+
+    fn view_data(
+        &self,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        quality: Quality,
+        size_px: (u32, u32),
+    ) -> RaycastDrawData {
+        RaycastDrawData::new(&self.ctx, &self.renderer, &self.frame(), camera, &settings.at(quality), size_px)
     }
 
     /// A render target for the 3-D view at `size_px`, from the pool.
@@ -237,9 +248,7 @@ impl Viewer {
         target: &RenderTarget,
         rows: std::ops::Range<u32>,
     ) -> anyhow::Result<()> {
-        let frame = self.frame();
-        let size_px = (target.width, target.height);
-        let data = RaycastDrawData::new(&self.ctx, &self.renderer, &frame, camera, &settings.at(quality), size_px);
+        let data = self.view_data(camera, settings, quality, (target.width, target.height));
         self.renderer.render_rows(&self.ctx, &data, target, rows).map_err(gpu_error)
     }
 
