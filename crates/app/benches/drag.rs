@@ -15,10 +15,11 @@
 //! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--method NAME` (tps; also
 //! hbspline, affine, similarity, rigid; `--gpu-eval` takes tps and hbspline), `--grid N` (control texture
 //! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
-//! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU), `--refine` (after the
-//! events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the reduced view,
-//! then the full view band by band, once with the cost per pixel unknown and once with it measured; it reports the
-//! longest band, which is what a UI frame waits for, against the one-pass full view). The adapter is wgpu's
+//! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU), `--gpu-prefilter`
+//! (on a CPU driver, the prefilter as a compute pass at upload instead of on the CPU while preparing), `--refine`
+//! (after the events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the
+//! reduced view, then the full view band by band, once with the cost per pixel unknown and once with it measured; it
+//! reports the longest band, which is what a UI frame waits for, against the one-pass full view). The adapter is wgpu's
 //! default, or the one `WGPU_BACKEND` chooses. It only runs when `--bench` is among the arguments (as `cargo bench`
 //! passes), so `cargo test --benches` does not run it.
 
@@ -45,6 +46,7 @@ struct Options {
     gpu_eval: bool,
     refine: bool,
     method: Method,
+    gpu_prefilter: bool,
 }
 
 fn options() -> Result<Options, String> {
@@ -57,6 +59,7 @@ fn options() -> Result<Options, String> {
         gpu_eval: false,
         refine: false,
         method: Method::Tps { stiffness: 0.0 },
+        gpu_prefilter: false,
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -76,6 +79,7 @@ fn options() -> Result<Options, String> {
             "--full" => o.quality = Quality::Full,
             "--gpu-eval" => o.gpu_eval = true,
             "--refine" => o.refine = true,
+            "--gpu-prefilter" => o.gpu_prefilter = true,
             "--method" => {
                 let v = value()?;
                 o.method = Method::from_name(v).ok_or_else(|| format!("--method {v}: tps, hbspline, affine, ...?"))?;
@@ -152,7 +156,9 @@ fn main() {
     let adapter = ctx.describe();
     let filterable = ctx.capabilities.float32_filterable;
     // As the window does once a pair is read: prepared on the loading thread, uploaded on the UI thread.
-    let facts = DeviceFacts::of(&ctx);
+    // --gpu-prefilter: the prefilter compute pass at upload even on a CPU driver, as the window did before it
+    // prefiltered on the loading thread.
+    let facts = DeviceFacts { cpu_driver: ctx.is_cpu_driver() && !o.gpu_prefilter, ..DeviceFacts::of(&ctx) };
     let prepare_start = Instant::now();
     let layers = [&fixed, &moving].map(|v| LayerData::prepare(v, facts).unwrap_or_else(|e| panic!("{e:#}")));
     let prepare = prepare_start.elapsed();
