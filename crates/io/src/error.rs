@@ -19,6 +19,17 @@ pub enum ErrorKind {
     Invalid(String),
     #[error("volume too large: {what} needs {bytes} bytes, more than the limit of {limit} bytes")]
     TooLarge { what: String, bytes: u128, limit: u64 },
+    /// The allocation was tried (fallibly) and the system refused it.
+    #[error("not enough memory for {what}: {bytes} bytes ({}) could not be allocated", gib(*.bytes))]
+    OutOfMemory { what: String, bytes: u128 },
+    /// A named pipe, a device or a socket: reading it could block or never end, so it is refused before it is
+    /// opened. `what` says which kind of file it is.
+    #[error("{what}, not a regular file: volumes are read from regular files and DICOM series from folders")]
+    NotARegularFile { what: &'static str },
+    /// A 4-D file holds several frames and none was chosen. Front ends word the choice their own way
+    /// (the CLI's `--frame`, the window's frame field).
+    #[error("4-D file with {frames} frames: choose one frame to read (0 to {})", .frames.saturating_sub(1))]
+    FrameRequired { frames: usize },
     #[error("the folder holds {} DICOM series; choose one with its SeriesInstanceUID:\n{}", .0.len(), list_series(.0))]
     MultipleSeries(Vec<crate::volume::SeriesSummary>),
     #[error("DICOM: {0}")]
@@ -27,6 +38,11 @@ pub enum ErrorKind {
     Landmark { index: usize, problem: String },
     #[error("cancelled")]
     Cancelled,
+}
+
+/// `bytes` in GiB with one decimal, for messages.
+fn gib(bytes: u128) -> String {
+    format!("{:.1} GiB", bytes as f64 / f64::from(1u32 << 30))
 }
 
 fn list_series(s: &[crate::volume::SeriesSummary]) -> String {

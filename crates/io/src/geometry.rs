@@ -217,10 +217,28 @@ impl<To: Space, From: Space> Transform<To, From> {
         self.to_from.try_inverse().map(Transform::from_matrix)
     }
 
-    /// True when every entry is finite and the linear part is invertible.
+    /// True when the map is a usable affine: every entry finite, every column of the linear part of finite,
+    /// non-zero length (so a volume's spacing is finite), the columns' directions not (nearly) coplanar, and an
+    /// inverse with finite entries.
+    ///
+    /// Singularity is judged on the unit columns, |det [d₀/‖d₀‖ d₁/‖d₁‖ d₂/‖d₂‖]| > [`MIN_UNIT_DETERMINANT`],
+    /// so that it does not depend on the scale: a grid of 10⁻⁵ mm voxels is valid (if implausible), one whose
+    /// third axis lies in the plane of the first two is not.
     #[must_use]
     pub fn is_valid_affine(&self) -> bool {
-        self.to_from.iter().all(|v| v.is_finite()) && self.linear().determinant().abs() > 1e-12
+        if !self.to_from.iter().all(|v| v.is_finite()) {
+            return false;
+        }
+        let mut unit = self.linear();
+        for mut c in unit.column_iter_mut() {
+            let n = c.norm();
+            if !(n.is_finite() && n > 0.0) {
+                return false;
+            }
+            c /= n;
+        }
+        unit.determinant().abs() > MIN_UNIT_DETERMINANT
+            && self.to_from.try_inverse().is_some_and(|inv| inv.iter().all(|v| v.is_finite()))
     }
 
     /// Largest absolute difference between the entries of two transforms.
@@ -229,6 +247,11 @@ impl<To: Space, From: Space> Transform<To, From> {
         self.to_from.iter().zip(other.to_from.iter()).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)
     }
 }
+
+/// Below this |determinant| of its unit columns, a linear part counts as singular (see
+/// [`Transform::is_valid_affine`]): the volume of the parallelepiped of the three unit directions, 1 for
+/// orthogonal axes.
+pub const MIN_UNIT_DETERMINANT: f64 = 1e-6;
 
 /// `c_from_b * b_from_a = c_from_a`: composes only when the inner spaces match.
 impl<C: Space, B: Space, A: Space> Mul<Transform<B, A>> for Transform<C, B> {
@@ -292,6 +315,21 @@ mod tests {
     fn vectors_ignore_translation() {
         let t: Transform<Lps, Index> = Transform::from_scale_translation([1.0, 1.0, 1.0], [5.0, 5.0, 5.0]);
         assert_eq!(t.apply_vector(Vector3::new(1.0, 0.0, 0.0)).coords(), [1.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn validity_is_judged_on_unit_directions_and_finite_lengths() {
+        let tiny: Transform<Lps, Index> = Transform::from_scale_translation([1e-5; 3], [0.0; 3]);
+        assert!(tiny.is_valid_affine(), "small voxels are valid (if implausible)");
+        // Finite entries whose column length (and determinant) overflow: an infinite spacing.
+        let huge: Transform<Lps, Index> = Transform::from_scale_translation([1e308; 3], [0.0; 3]);
+        assert!(!huge.is_valid_affine());
+        assert!(spacing_mm(&huge).iter().all(|s| s.is_infinite()));
+        let coplanar: Transform<Lps, Index> =
+            Transform::from_linear_translation(Matrix3::new(1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 0.0, 0.0, 1e-9), [0.0; 3]);
+        assert!(!coplanar.is_valid_affine());
+        let subnormal: Transform<Lps, Index> = Transform::from_scale_translation([1e-310; 3], [0.0; 3]);
+        assert!(!subnormal.is_valid_affine(), "its inverse is not finite");
     }
 
     #[test]

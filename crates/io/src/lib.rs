@@ -47,8 +47,7 @@ impl Format {
     /// Detects the format of `path`: folders are DICOM series; files by extension, then by magic bytes.
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn detect(path: &Path) -> Result<Self> {
-        let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-        if meta.is_dir() {
+        if check_file_or_folder(path)?.is_dir() {
             return Ok(Self::Dicom);
         }
         // Lowercased above, so the comparisons below are case-insensitive.
@@ -78,6 +77,50 @@ impl Format {
     }
 }
 
+/// Refuses `path` unless it is a regular file (following symbolic links), before anything opens it: a named
+/// pipe blocks in `open`, a device such as `/dev/zero` never ends. Returns the file's metadata (its length bounds
+/// every read and skip that follows).
+pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_file() {
+        return Ok(meta);
+    }
+    let what = if meta.is_dir() { "a folder (only DICOM series are read from folders)" } else { special_kind(&meta) };
+    Err(Error::new(path, ErrorKind::NotARegularFile { what }))
+}
+
+/// [`check_regular_file`], but a folder (a DICOM series) is accepted too.
+pub(crate) fn check_file_or_folder(path: &Path) -> Result<std::fs::Metadata> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_file() || meta.is_dir() {
+        return Ok(meta);
+    }
+    Err(Error::new(path, ErrorKind::NotARegularFile { what: special_kind(&meta) }))
+}
+
+/// What a file that is neither regular nor a folder is, in words.
+fn special_kind(meta: &std::fs::Metadata) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let t = meta.file_type();
+        if t.is_fifo() {
+            return "a named pipe (FIFO)";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    let _ = meta;
+    "a special file"
+}
+
 /// Reads as many bytes as are there, up to `buf.len()` (retrying interrupted reads); the shared
 /// helper of every reader that must tell a short file from a full one.
 pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
@@ -102,11 +145,14 @@ impl LoadOptions<'_> {
     /// Reads the volume at `path` (a file or a DICOM series folder).
     pub fn open(&mut self, path: impl AsRef<Path>) -> Result<Volume> {
         let path = path.as_ref();
-        match Format::detect(path)? {
+        let mut volume = match Format::detect(path)? {
             Format::Nifti => nifti::read(path, self),
             Format::Nrrd => nrrd::read(path, self),
             Format::Dicom if path.is_dir() => dicom::read_folder(path, self),
             Format::Dicom => dicom::read_files(&[path.to_path_buf()], self),
-        }
+        }?;
+        // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
+        volume.note_geometry_warnings();
+        Ok(volume)
     }
 }

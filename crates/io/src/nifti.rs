@@ -39,6 +39,11 @@
 //! We keep patient space in LPS, so `lps_from_index = lps_from_ras · ras_from_index` with
 //! `lps_from_ras = diag(−1, −1, 1)`, and record which method was used in [`GeometrySource`].
 //! A non-finite or zero spacing used by the geometry, or a non-finite or singular matrix, is an error.
+//!
+//! When both codes are set, the sform is used (as nibabel does) but ITK and SimpleITK use the qform, so a file
+//! whose two transforms differ lands in two places. We compare them at the centres of the grid's 8 corner
+//! voxels: farther apart than 0.1 mm anywhere, or of opposite handedness (det < 0 for one only), and
+//! `metadata.warnings` names both codes, the largest distance and the handedness, and says the sform is used.
 //! Spatial units other than mm (`xyzt_units`) are noted in `metadata.warnings` but not applied,
 //! as nibabel and ITK do.
 //!
@@ -53,12 +58,17 @@
 //! - otherwise i16 if slope and intercept are integers and every value is an integer within i16,
 //!   else u16 likewise, else f32.
 //!
-//! A 4-D file gives one frame, chosen by [`LoadOptions::frame`]; dims beyond the 4th must be 1.
+//! A 4-D file gives one frame, chosen by [`LoadOptions::frame`]; dims beyond the 4th must be 1. Without a
+//! frame, a file of several frames is [`ErrorKind::FrameRequired`] with the frame count, which each front end
+//! words for its own way of choosing (the CLI's `--frame`).
 //!
 //! # Robustness and memory
 //!
-//! Every header field is validated before anything is allocated from it; sizes are checked with
-//! [`volume::check_allocation`], and for an uncompressed file against the file length. A gzip
+//! Only a regular file is opened (a named pipe would block, a device never end). Every header field is
+//! validated before anything is allocated from it; sizes are checked with [`volume::check_allocation`]
+//! (the [`LoadOptions::max_voxel_bytes`] cap), and for an uncompressed file against the file length. Sample
+//! buffers are allocated fallibly ([`volume::try_with_capacity`]): memory the system refuses is an
+//! [`ErrorKind::OutOfMemory`] naming the file and the size, never an abort. A gzip
 //! stream is decompressed straight into the final buffer, reading exactly the bytes needed. With no
 //! rescale the samples are decoded chunk by chunk into the output (peak ≈ 1× the output); with a
 //! rescale the raw frame is read first, then converted (peak ≤ 2×).
@@ -167,6 +177,7 @@ const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content).
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
+    crate::check_regular_file(path)?;
     let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut magic = [0u8; 2];
@@ -549,12 +560,7 @@ fn layout(path: &Path, h: &Header, opts: &LoadOptions, extent: Extent) -> Result
     let frames = dims[4];
     let frame = match (opts.frame, frames) {
         (None, 1) => 0,
-        (None, n) => {
-            return Err(Error::invalid(
-                path,
-                format!("4-D file with {n} frames: choose a frame (0 to {}) with LoadOptions::frame", n - 1),
-            ));
-        }
+        (None, frames) => return Err(Error::new(path, ErrorKind::FrameRequired { frames })),
         (Some(t), n) if t >= n => {
             return Err(Error::invalid(path, format!("frame {t} is out of range: the file has {n} frame(s)")));
         }
@@ -678,7 +684,66 @@ fn ras_from_index_qform(bcd: [f64; 3], qoffset: [f64; 3], spacing: [f64; 3], qfa
     m
 }
 
-fn lps_from_index(path: &Path, h: &Header) -> Result<(Transform<Lps, Index>, GeometrySource)> {
+/// The qform's `ras_from_index` from the header's quaternion, qoffset and pixdim, checked for finite values.
+fn qform(path: &Path, h: &Header) -> Result<Matrix4<f64>> {
+    let spacing = [spacing(path, h, 1)?, spacing(path, h, 2)?, spacing(path, h, 3)?];
+    let qfac = if h.pixdim[0] < 0.0 { -1.0 } else { 1.0 };
+    if !h.quatern_bcd.iter().chain(&h.qoffset).all(|v| v.is_finite()) {
+        return Err(Error::invalid(
+            path,
+            format!("the qform is not finite: quatern_b/c/d {:?}, qoffset {:?}", h.quatern_bcd, h.qoffset),
+        ));
+    }
+    Ok(ras_from_index_qform(h.quatern_bcd, h.qoffset, spacing, qfac))
+}
+
+/// Two mappings of the same grid closer than this everywhere on it (and of the same handedness) agree: float32
+/// storage and the qform's float32 quaternion (whose a loses digits near a 180° turn) differ by less.
+const SFORM_QFORM_TOL_MM: f64 = 0.1;
+
+/// When both the sform and the qform are set, a warning if they place the `dims` grid differently: how far apart
+/// the two mappings are at the grid's 8 corner voxels (mm), whether one is the mirror image of the other, and
+/// which one is used. nibabel (and we) use the sform; ITK and SimpleITK use the qform.
+fn sform_qform_disagreement(path: &Path, h: &Header, sform: &Matrix4<f64>, dims: [usize; 3]) -> Option<String> {
+    let (s_code, q_code) = (h.sform_code, h.qform_code);
+    let q = match qform(path, h) {
+        Ok(q) => q,
+        Err(e) => {
+            return Some(format!(
+                "qform_code is {q_code} but the qform is unusable ({}); the sform (code {s_code}) is used",
+                e.kind
+            ));
+        }
+    };
+    let (sform, qform): (Transform<Ras, Index>, Transform<Ras, Index>) =
+        (Transform::from_matrix(*sform), Transform::from_matrix(q));
+    let apart_mm = volume::corner_indices(dims)
+        .into_iter()
+        .map(|p| sform.apply_point(p).distance(&qform.apply_point(p)))
+        .fold(0.0, f64::max);
+    let mirrored = (sform.linear().determinant() < 0.0) != (qform.linear().determinant() < 0.0);
+    if apart_mm <= SFORM_QFORM_TOL_MM && !mirrored {
+        return None;
+    }
+    let handedness = if mirrored {
+        "and of opposite handedness (one is the mirror image of the other, e.g. a left-right flip)"
+    } else {
+        "with the same handedness"
+    };
+    Some(format!(
+        "the sform (code {s_code}) and the qform (code {q_code}) disagree: they are up to {apart_mm:.2} mm apart at \
+         the volume's corners, {handedness}; the sform is used, as nibabel does (ITK and SimpleITK use the qform, \
+         so they place this volume elsewhere)"
+    ))
+}
+
+/// `lps_from_index`, where it came from, and a warning when the sform and the qform are both set but disagree.
+fn lps_from_index(
+    path: &Path,
+    h: &Header,
+    dims: [usize; 3],
+) -> Result<(Transform<Lps, Index>, GeometrySource, Option<String>)> {
+    let mut warning = None;
     let (ras_from_index, source, what) = if h.sform_code > 0 {
         let mut m = Matrix4::identity();
         for (r, row) in h.srow.iter().enumerate() {
@@ -686,18 +751,12 @@ fn lps_from_index(path: &Path, h: &Header) -> Result<(Transform<Lps, Index>, Geo
                 m[(r, c)] = v;
             }
         }
+        if h.qform_code > 0 {
+            warning = sform_qform_disagreement(path, h, &m, dims);
+        }
         (m, GeometrySource::NiftiSform { code: h.sform_code }, "sform (srow_x/y/z)")
     } else if h.qform_code > 0 {
-        let spacing = [spacing(path, h, 1)?, spacing(path, h, 2)?, spacing(path, h, 3)?];
-        let qfac = if h.pixdim[0] < 0.0 { -1.0 } else { 1.0 };
-        if !h.quatern_bcd.iter().chain(&h.qoffset).all(|v| v.is_finite()) {
-            return Err(Error::invalid(
-                path,
-                format!("the qform is not finite: quatern_b/c/d {:?}, qoffset {:?}", h.quatern_bcd, h.qoffset),
-            ));
-        }
-        let m = ras_from_index_qform(h.quatern_bcd, h.qoffset, spacing, qfac);
-        (m, GeometrySource::NiftiQform { code: h.qform_code }, "qform")
+        (qform(path, h)?, GeometrySource::NiftiQform { code: h.qform_code }, "qform")
     } else {
         let spacing = [spacing(path, h, 1)?, spacing(path, h, 2)?, spacing(path, h, 3)?];
         let m = Matrix4::from_diagonal(&nalgebra::Vector4::new(spacing[0], spacing[1], spacing[2], 1.0));
@@ -710,7 +769,7 @@ fn lps_from_index(path: &Path, h: &Header) -> Result<(Transform<Lps, Index>, Geo
             format!("the {what} voxel-to-world matrix is singular or not finite: {:?}", ras_from_index.rows()),
         ));
     }
-    Ok((lps_from_ras() * ras_from_index, source))
+    Ok((lps_from_ras() * ras_from_index, source, warning))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -798,7 +857,7 @@ fn stream_convert<S: Stored, O>(
     progress: &mut Reporter,
     convert: impl Fn(S) -> O,
 ) -> Result<Vec<O>> {
-    let mut out = Vec::with_capacity(n_bytes / S::BYTES);
+    let mut out = volume::try_with_capacity(progress.path, n_bytes / S::BYTES, "the voxel samples")?;
     let mut scratch = vec![0u8; n_bytes.min(CHUNK_BYTES)];
     let mut left = n_bytes;
     while left > 0 {
@@ -853,18 +912,29 @@ fn rescale_samples<S: Stored>(
             target = SampleType::U16;
         }
     }
-    volume::check_allocation(path, dims, target.bytes(), limit)?;
+    let n = volume::check_allocation(path, dims, target.bytes(), limit)?;
+    let what = "the rescaled samples";
     Ok(match target {
-        SampleType::I16 => VoxelData::I16(values().map(|v| v as i16).collect()),
-        SampleType::U16 => VoxelData::U16(values().map(|v| v as u16).collect()),
-        _ => VoxelData::F32(values().map(|v| v as f32).collect()),
+        SampleType::I16 => {
+            VoxelData::I16(extend(volume::try_with_capacity(path, n, what)?, values().map(|v| v as i16)))
+        }
+        SampleType::U16 => {
+            VoxelData::U16(extend(volume::try_with_capacity(path, n, what)?, values().map(|v| v as u16)))
+        }
+        _ => VoxelData::F32(extend(volume::try_with_capacity(path, n, what)?, values().map(|v| v as f32))),
     })
+}
+
+/// `v` with `items` appended (into the room already reserved).
+fn extend<T>(mut v: Vec<T>, items: impl Iterator<Item = T>) -> Vec<T> {
+    v.extend(items);
+    v
 }
 
 fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut LoadOptions) -> Result<Volume> {
     let h = read_header(path, src)?;
     let l = layout(path, &h, opts, extent)?;
-    let (lps_from_index, geometry_source) = lps_from_index(path, &h)?;
+    let (lps_from_index, geometry_source, geometry_warning) = lps_from_index(path, &h, l.dims)?;
     let scale = scaling(path, &h)?;
     let max_voxel_bytes = opts.max_voxel_bytes;
 
@@ -887,7 +957,8 @@ fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut L
     let data = match scale {
         None => read_identity(src, &l, h.big_endian, &mut progress)?,
         Some(slope_inter) => {
-            let mut raw = vec![0u8; l.frame_bytes];
+            let mut raw = volume::try_with_capacity(path, l.frame_bytes, "the stored samples before rescaling")?;
+            raw.resize(l.frame_bytes, 0);
             for chunk in raw.chunks_mut(CHUNK_BYTES) {
                 fill(path, src, chunk, "the voxel data")?;
                 progress.advance(chunk.len())?;
@@ -903,6 +974,7 @@ fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut L
     if !h.descrip.is_empty() {
         volume.metadata.description = Some(h.descrip.clone());
     }
+    volume.metadata.warnings.extend(geometry_warning);
     match h.xyzt_units & 0x07 {
         1 => volume.metadata.warnings.push("xyzt_units says metres; coordinates are used as mm".to_string()),
         3 => volume.metadata.warnings.push("xyzt_units says micrometres; coordinates are used as mm".to_string()),
@@ -1270,6 +1342,7 @@ pub fn write_displacement_field(
 /// Reads a displacement field written by [`write_displacement_field`] or by ITK, ANTs or Slicer: NIfTI-1 or -2,
 /// intent 1006, shape [X, Y, Z, 1, 3], float32 or float64, RAS vectors (returned in LPS). Errors name the file.
 pub fn read_displacement_field(path: &Path) -> Result<DisplacementField> {
+    crate::check_regular_file(path)?;
     let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut magic = [0u8; 2];
@@ -1328,7 +1401,7 @@ fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Res
             format!("a scaled displacement field (scl_slope {}, scl_inter {})", h.scl_slope, h.scl_inter),
         ));
     }
-    let (lps_from_index, geometry_source) = lps_from_index(path, &h)?;
+    let (lps_from_index, geometry_source, _) = lps_from_index(path, &h, dims)?;
     // The output is 12 bytes a voxel; a stored plane is at most 8 bytes a voxel, so both fit once this passes.
     let n = volume::check_allocation(path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
     let plane_bytes = n * datatype.bytes();
@@ -1364,7 +1437,8 @@ fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Res
         io::copy(&mut src.by_ref().take(skip), &mut io::sink()).map_err(|e| Error::io(path, e))?;
     }
     let mut progress = Reporter { path, opts: &mut opts, done: 0, total: 3 * plane_bytes as u64 };
-    let mut displacements_lps = vec![[0.0f32; 3]; n];
+    let mut displacements_lps = volume::try_with_capacity(path, n, "the displacement vectors")?;
+    displacements_lps.resize(n, [0.0f32; 3]);
     for (c, sign) in LPS_RAS_SIGN.into_iter().enumerate() {
         let plane: Vec<f32> = if datatype == DataType::F32 {
             stream_convert(src, plane_bytes, h.big_endian, &mut progress, |x: f32| x)?

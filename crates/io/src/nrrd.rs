@@ -39,7 +39,12 @@
 //! - Bad input never panics: the header is capped at [`MAX_HEADER_BYTES`], numbers are checked,
 //!   [`crate::volume::check_allocation`] runs before any voxel buffer exists, raw data are checked
 //!   against the file length first, and samples are converted in chunks, so the peak memory is
-//!   the output plus one chunk.
+//!   the output plus one chunk. The output buffer is allocated fallibly
+//!   ([`crate::volume::try_with_capacity`]): memory the system refuses is an error naming the file.
+//! - No hang: the header and a detached data file must be regular files (a named pipe or a device
+//!   such as `/dev/zero` is refused before it is opened), and every skip and scan of the data
+//!   (line skip, byte skip, gzip, hex, ASCII) reads at most the bytes the file had when it was
+//!   opened; a `line skip` whose line does not end before them is a truncated file.
 //! - The writer ([`write()`], [`write_with`]) writes NRRD0004 in LPS with the directions and the
 //!   origin printed with Rust's shortest round-trip formatting (exact f64), little-endian,
 //!   gzip-compressed unless asked otherwise, through [`crate::write_atomic`].
@@ -56,7 +61,7 @@ use nalgebra::Matrix3;
 use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::options::LoadOptions;
-use crate::volume::{GeometrySource, Metadata, SampleType, Volume, VoxelData, check_allocation};
+use crate::volume::{GeometrySource, Metadata, SampleType, Volume, VoxelData, check_allocation, try_with_capacity};
 
 /// Longest header accepted, in bytes, up to and including the blank line that ends it.
 pub const MAX_HEADER_BYTES: u64 = 1 << 20;
@@ -82,6 +87,7 @@ impl Default for NrrdWriteOptions {
 
 /// Reads the NRRD file (attached `.nrrd` or detached `.nhdr`) at `path`.
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
+    crate::check_regular_file(path)?;
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let base = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
@@ -752,6 +758,8 @@ fn read_from<R: BufRead>(
             return Err(Error::unsupported(name, format!("detached data file {df:?} cannot be read from memory")));
         };
         let data_path = base.join(df);
+        // A pipe would block and a device such as /dev/zero never ends: refused before it is opened.
+        crate::check_regular_file(&data_path)?;
         let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
         let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
         decode_payload(&data_path, BufReader::new(file), len, &h, n, need, opts)?
@@ -760,10 +768,12 @@ fn read_from<R: BufRead>(
     };
 
     let mut volume = Volume::new(name, g.dims, data, g.lps_from_index, g.source)?;
+    let mut warnings = std::mem::take(&mut h.warnings);
+    warnings.append(&mut volume.metadata.warnings); // the geometry's, from Volume::new
     volume.metadata = Metadata {
         description: h.content.clone(),
         value_units: h.sample_units.clone().filter(|s| !s.is_empty()),
-        warnings: std::mem::take(&mut h.warnings),
+        warnings,
         ..Metadata::default()
     };
     Ok(volume)
@@ -781,21 +791,25 @@ fn preflight_size(name: &Path, dims: [usize; 3], bytes_per_sample: usize, limit:
 
 /// Decodes the `n` samples (`need` stored bytes) that start at the reader's position, which has
 /// `len` bytes left. `path` is the file that holds the data (for errors).
+///
+/// The reader is cut at those `len` bytes, so every skip and scan below ends with the file, even
+/// one that grows or claims a line skip longer than itself.
 fn decode_payload<R: BufRead>(
     path: &Path,
-    mut r: R,
+    r: R,
     mut len: u64,
     h: &Header,
     n: usize,
     need: u64,
     opts: &mut LoadOptions,
 ) -> Result<VoxelData> {
+    let mut r = r.take(len);
     for i in 0..h.line_skip {
-        let skipped = r.skip_until(b'\n').map_err(|e| Error::io(path, e))? as u64;
-        if skipped == 0 {
+        let (skipped, ended) = skip_line(&mut r).map_err(|e| Error::io(path, e))?;
+        if !ended {
             return Err(Error::truncated(
                 path,
-                format!("the data end within line skip ({i} of {} lines)", h.line_skip),
+                format!("the data end within line skip ({i} of {} lines skipped)", h.line_skip),
             ));
         }
         len = len.saturating_sub(skipped);
@@ -844,6 +858,28 @@ fn decode_payload<R: BufRead>(
     Ok(data)
 }
 
+/// Skips one line, through its `\n`; returns the bytes skipped and whether the `\n` was there (not the end of the
+/// input first).
+fn skip_line(r: &mut impl BufRead) -> io::Result<(u64, bool)> {
+    let mut skipped = 0u64;
+    loop {
+        let buf = match r.fill_buf() {
+            Ok(b) => b,
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e),
+        };
+        if buf.is_empty() {
+            return Ok((skipped, false));
+        }
+        let (used, ended) = buf.iter().position(|&b| b == b'\n').map_or((buf.len(), false), |i| (i + 1, true));
+        r.consume(used);
+        skipped += used as u64;
+        if ended {
+            return Ok((skipped, true));
+        }
+    }
+}
+
 fn skip_bytes(path: &Path, r: &mut impl Read, count: u64, what: &str) -> Result<()> {
     let skipped = io::copy(&mut r.by_ref().take(count), &mut io::sink()).map_err(|e| data_error(path, e))?;
     if skipped < count {
@@ -864,7 +900,7 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
     let size = h.stored.bytes();
     let total = (n * size) as u64;
     let big = h.big_endian;
-    let mut out = Sink::new(h.stored.output(), n);
+    let mut out = Sink::new(path, h.stored.output(), n)?;
     let mut buf = vec![0u8; CHUNK_BYTES.min(n * size)];
     let mut done = 0usize;
     opts.report(path, "reading", 0, total)?;
@@ -899,13 +935,15 @@ macro_rules! from_bytes {
 }
 
 impl Sink {
-    fn new(t: SampleType, n: usize) -> Self {
-        match t {
-            SampleType::U8 => Self::U8(Vec::with_capacity(n)),
-            SampleType::I16 => Self::I16(Vec::with_capacity(n)),
-            SampleType::U16 => Self::U16(Vec::with_capacity(n)),
-            SampleType::F32 => Self::F32(Vec::with_capacity(n)),
-        }
+    /// Room for `n` samples of `t`, allocated fallibly (an error naming `path`, never an abort).
+    fn new(path: &Path, t: SampleType, n: usize) -> Result<Self> {
+        let what = format!("{n} samples of {}", t.name());
+        Ok(match t {
+            SampleType::U8 => Self::U8(try_with_capacity(path, n, &what)?),
+            SampleType::I16 => Self::I16(try_with_capacity(path, n, &what)?),
+            SampleType::U16 => Self::U16(try_with_capacity(path, n, &what)?),
+            SampleType::F32 => Self::F32(try_with_capacity(path, n, &what)?),
+        })
     }
 
     fn push_bytes(&mut self, stored: Stored, big: bool, bytes: &[u8]) {
@@ -960,7 +998,7 @@ fn decode_ascii(
     opts: &mut LoadOptions,
 ) -> Result<VoxelData> {
     const MAX_TOKEN: usize = 64;
-    let mut out = Sink::new(stored.output(), n);
+    let mut out = Sink::new(path, stored.output(), n)?;
     let mut tok = String::new();
     let mut count = 0usize;
     let mut finish_token = |tok: &mut String, count: &mut usize| -> Result<()> {

@@ -112,6 +112,26 @@ impl VoxelData {
             Self::F32(v) => mm(v),
         }
     }
+    /// Calls `f` with the samples as little-endian bytes, in storage order, a bounded chunk at a time: what
+    /// [`Self::to_le_bytes`] returns, without a full-size copy (for checksums of large volumes).
+    pub fn for_each_le_chunk(&self, mut f: impl FnMut(&[u8])) {
+        const CHUNK_SAMPLES: usize = 1 << 16;
+        fn each<T: Copy, const N: usize>(v: &[T], le: impl Fn(T) -> [u8; N], f: &mut impl FnMut(&[u8])) {
+            let mut buf = Vec::with_capacity(CHUNK_SAMPLES * N);
+            for chunk in v.chunks(CHUNK_SAMPLES) {
+                buf.clear();
+                buf.extend(chunk.iter().flat_map(|&x| le(x)));
+                f(&buf);
+            }
+        }
+        match self {
+            Self::U8(v) => v.chunks(CHUNK_SAMPLES).for_each(f),
+            Self::I16(v) => each(v, i16::to_le_bytes, &mut f),
+            Self::U16(v) => each(v, u16::to_le_bytes, &mut f),
+            Self::F32(v) => each(v, f32::to_le_bytes, &mut f),
+        }
+    }
+
     /// The samples as little-endian bytes, in storage order. Used for checksums that
     /// independent readers reproduce (`numpy.asarray(x, '<dtype').tobytes(order='F')`).
     #[must_use]
@@ -256,10 +276,14 @@ impl Volume {
         if !lps_from_index.is_valid_affine() {
             return Err(Error::invalid(
                 path,
-                format!("the voxel-to-patient matrix is singular or not finite: {:?}", lps_from_index.rows()),
+                format!(
+                    "the voxel-to-patient matrix is singular or not finite (spacing {:?} mm): {:?}",
+                    spacing_mm(&lps_from_index),
+                    lps_from_index.rows()
+                ),
             ));
         }
-        Ok(Self {
+        let mut volume = Self {
             dims,
             data,
             lps_from_index,
@@ -267,7 +291,41 @@ impl Volume {
             modality: Modality::Unknown,
             rescale: Rescale::IDENTITY,
             metadata: Metadata::default(),
-        })
+        };
+        volume.note_geometry_warnings();
+        Ok(volume)
+    }
+
+    /// Warnings about a geometry that is valid but implausible for a medical volume: a spacing outside
+    /// [`PLAUSIBLE_SPACING_MM`] (wrong units, a corrupt header).
+    #[must_use]
+    pub fn geometry_warnings(&self) -> Vec<String> {
+        let (lo, hi) = PLAUSIBLE_SPACING_MM;
+        let spacing = self.spacing_mm();
+        let odd: Vec<String> = ["i", "j", "k"]
+            .iter()
+            .zip(spacing)
+            .filter(|&(_, s)| !(lo..=hi).contains(&s))
+            .map(|(axis, s)| format!("{s:e} mm along {axis}"))
+            .collect();
+        if odd.is_empty() {
+            return Vec::new();
+        }
+        vec![format!(
+            "implausible voxel spacing: {} (a medical volume has {lo:e} to {hi:e} mm); check the file's units \
+             and geometry",
+            odd.join(", ")
+        )]
+    }
+
+    /// Adds [`Self::geometry_warnings`] to `metadata.warnings`, once (readers that replace the metadata call it
+    /// again; it does not repeat a warning).
+    pub fn note_geometry_warnings(&mut self) {
+        for w in self.geometry_warnings() {
+            if !self.metadata.warnings.contains(&w) {
+                self.metadata.warnings.push(w);
+            }
+        }
     }
 
     #[must_use]
@@ -291,6 +349,31 @@ impl Volume {
     pub fn voxel_lps(&self, i: usize, j: usize, k: usize) -> Point3<Lps> {
         self.lps_from_index.apply_point(Point3::new(i as f64, j as f64, k as f64))
     }
+}
+
+/// The voxel spacings (mm) that [`Volume::geometry_warnings`] accepts without a warning: from 0.1 µm
+/// (histology, micro-CT) to 1 m. Outside it, the units or the header are almost certainly wrong.
+pub const PLAUSIBLE_SPACING_MM: (f64, f64) = (1e-4, 1e3);
+
+/// The index of the centres of the 8 corner voxels of a `dims` grid.
+#[must_use]
+pub fn corner_indices(dims: [usize; 3]) -> [Point3<Index>; 8] {
+    let last = dims.map(|d| d.saturating_sub(1) as f64);
+    std::array::from_fn(|c| {
+        let pick = |axis: usize| if c & (1 << axis) == 0 { 0.0 } else { last[axis] };
+        Point3::new(pick(0), pick(1), pick(2))
+    })
+}
+
+/// An empty vector with room for `n` samples, allocated fallibly: when the memory cannot be had the
+/// error ([`ErrorKind::OutOfMemory`]) names `path` and the size, where `Vec::with_capacity` would abort
+/// the process. Every reader allocates its sample buffers through this.
+pub fn try_with_capacity<T>(path: &Path, n: usize, what: &str) -> Result<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| {
+        Error::new(path, ErrorKind::OutOfMemory { what: what.to_string(), bytes: n as u128 * size_of::<T>() as u128 })
+    })?;
+    Ok(v)
 }
 
 /// Default cap on the bytes of decoded voxel data that a reader allocates (see [`crate::LoadOptions`]).

@@ -1032,3 +1032,81 @@ fn fixtures_match_the_independent_reader_when_present() {
     }
     eprintln!("checked {checked} NIfTI fixtures");
 }
+
+// ---------------------------------------------------------------------------------------------
+// sform and qform both set (issue 13, item 7), and the frame a 4-D file needs (item 17)
+// ---------------------------------------------------------------------------------------------
+
+/// The warning about a disagreeing sform and qform, if the volume has one.
+fn sform_qform_warning(v: &Volume) -> Option<&String> {
+    v.metadata.warnings.iter().find(|w| w.contains("sform") && w.contains("qform"))
+}
+
+/// The largest distance the warning reports, in mm.
+fn reported_apart_mm(w: &str) -> f64 {
+    let before = w.split(" mm apart").next().expect("a distance");
+    before.rsplit(' ').next().expect("a number").parse().unwrap_or_else(|_| panic!("no distance in {w:?}"))
+}
+
+#[test]
+fn a_sform_and_qform_that_disagree_are_a_warning_naming_both() {
+    // jhu189: the qform is a left-right mirror image of the sform, ~150 mm away (ITK puts it elsewhere).
+    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/jhu189.nii.gz");
+    let v = warpbench_io::open(&p).expect("read jhu189");
+    assert!(matches!(v.geometry_source, GeometrySource::NiftiSform { .. }), "{:?}", v.geometry_source);
+    let w = sform_qform_warning(&v).unwrap_or_else(|| panic!("no warning in {:?}", v.metadata.warnings));
+    assert!(w.contains("sform (code") && w.contains("qform (code"), "{w}");
+    assert!(w.contains("opposite handedness") && w.contains("the sform is used"), "{w}");
+    let apart = reported_apart_mm(w);
+    assert!((100.0..400.0).contains(&apart), "{apart} mm: {w}");
+
+    // Hand-built, both versions and byte orders: the same rotation, origins 5 mm apart along x.
+    for (ver, be) in all_orders() {
+        let mut h = Hdr::new(ver, be, &[4, 3, 2], 2, 8);
+        h.sform_code = 1;
+        h.qform_code = 1;
+        h.srow = [[1.0, 0.0, 0.0, 10.0], [0.0, 1.0, 0.0, 20.0], [0.0, 0.0, 1.0, 30.0]];
+        h.qoffset = [15.0, 20.0, 30.0];
+        let v = read_mem(&h.file(&[0; 24])).expect("valid file");
+        let w = sform_qform_warning(&v).unwrap_or_else(|| panic!("{ver:?} be={be}: {:?}", v.metadata.warnings));
+        assert!(w.contains("same handedness"), "{w}");
+        assert!((reported_apart_mm(w) - 5.0).abs() < 0.01, "{w}");
+        // The sform is what the volume uses.
+        assert_eq!(v.lps_from_index.translation(), [-10.0, -20.0, 30.0]);
+    }
+}
+
+#[test]
+fn a_sform_and_qform_that_agree_give_no_warning() {
+    // Our writer stores both (code 1); for a rigid geometry they agree to float32 rounding.
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (i, geom) in [oblique(false), oblique(true), Transform::identity()].into_iter().enumerate() {
+        let p = dir.path().join(format!("both{i}.nii.gz"));
+        nifti::write(&p, &volume(SampleType::U8, [64, 64, 48], geom)).expect("write");
+        let v = warpbench_io::open(&p).expect("read");
+        assert!(v.metadata.warnings.is_empty(), "case {i}: {:?}", v.metadata.warnings);
+    }
+    // Hand-built: the qform a 180° turn about z with pixdim (2, 2, 3), the sform the same matrix.
+    let mut h = Hdr::new(Ver::V1, false, &[4, 3, 2], 2, 8);
+    h.sform_code = 2;
+    h.qform_code = 1;
+    h.quatern_bcd = [0.0, 0.0, 1.0];
+    h.pixdim = [1.0, 2.0, 2.0, 3.0, 1.0, 1.0, 1.0, 1.0];
+    h.qoffset = [1.0, 2.0, 3.0];
+    h.srow = [[-2.0, 0.0, 0.0, 1.0], [0.0, -2.0, 0.0, 2.0], [0.0, 0.0, 3.0, 3.0]];
+    let v = read_mem(&h.file(&[0; 24])).expect("valid file");
+    assert!(v.metadata.warnings.is_empty(), "{:?}", v.metadata.warnings);
+    // Only the sform set: nothing to compare.
+    h.qform_code = 0;
+    h.qoffset = [100.0; 3];
+    assert!(read_mem(&h.file(&[0; 24])).expect("valid file").metadata.warnings.is_empty());
+}
+
+#[test]
+fn a_four_d_file_without_a_frame_says_how_many_frames_in_the_error_kind() {
+    let e = expect_err(read_mem(&four_d(Ver::V1, false, 5)), "4-D without a frame");
+    assert!(matches!(e.kind, ErrorKind::FrameRequired { frames: 5 }), "{e}");
+    // The library's message names no API: each front end says how to choose (the CLI's --frame).
+    let msg = e.to_string();
+    assert!(msg.contains("5 frames") && msg.contains("0 to 4") && !msg.contains("LoadOptions"), "{msg}");
+}
