@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use serde::Serialize;
 use sha2::{Digest, Sha256};
-use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, Modality, SeriesSummary, Volume};
+use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, Modality, SeriesSummary, Volume, VoxelData};
 
 use crate::exit::Failure;
 use crate::progress::Bar;
@@ -134,8 +134,27 @@ impl VolumeInfo {
             series_number: v.metadata.series_number,
             description: v.metadata.description.clone(),
             warnings: v.metadata.warnings.clone(),
-            voxel_sha256: hex::encode(Sha256::digest(v.data.to_le_bytes())),
+            voxel_sha256: voxel_sha256(&v.data),
         }
+    }
+}
+
+/// sha256 of the samples as little-endian bytes, hashed a chunk at a time (no copy of a large volume).
+fn voxel_sha256(data: &VoxelData) -> String {
+    let mut hasher = Sha256::new();
+    data.for_each_le_chunk(|bytes| hasher.update(bytes));
+    hex::encode(hasher.finalize())
+}
+
+/// A reader's error in the words of this command: a 4-D file's frame is chosen with `--frame`.
+fn cli_error(e: warpbench_io::Error) -> Failure {
+    match e.kind {
+        ErrorKind::FrameRequired { frames } => Failure::BadInput(anyhow::anyhow!(
+            "{}: 4-D file with {frames} frames: choose one with --frame N (N from 0 to {})",
+            e.path.display(),
+            frames.saturating_sub(1)
+        )),
+        _ => e.into(),
     }
 }
 
@@ -154,15 +173,21 @@ pub fn inspect(opts: &InfoOptions) -> Result<InfoJson, Failure> {
         Ok(v) => InfoContent::Volume(Box::new(VolumeInfo::new(format, &v))),
         Err(e) => match e.kind {
             ErrorKind::MultipleSeries(series) => InfoContent::SeriesList { series },
-            _ => return Err(e.into()),
+            _ => return Err(cli_error(e)),
         },
     };
     Ok(InfoJson { schema: "warpbench-info/1", path: path.display().to_string(), content })
 }
 
-/// Runs `warpbench info`, writing to `out`.
+/// Runs `warpbench info`, writing to `out`. The volume's warnings also go to stderr, where they are seen
+/// when `out` is a pipe or a `--json` document.
 pub fn run(opts: &InfoOptions, out: &mut dyn Write) -> Result<(), Failure> {
     let info = inspect(opts)?;
+    if let InfoContent::Volume(v) = &info.content {
+        for w in &v.warnings {
+            eprintln!("warpbench: warning: {}: {w}", info.path);
+        }
+    }
     let written = if opts.json {
         serde_json::to_writer_pretty(&mut *out, &info).map_err(std::io::Error::from).and_then(|()| writeln!(out))
     } else {
