@@ -85,7 +85,7 @@ pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
     if meta.is_file() {
         return Ok(meta);
     }
-    let what = if meta.is_dir() { "a folder (only DICOM series are read from folders)" } else { special_kind(&meta) };
+    let what = if meta.is_dir() { "a folder" } else { special_kind(&meta) };
     Err(Error::new(path, ErrorKind::NotARegularFile { what }))
 }
 

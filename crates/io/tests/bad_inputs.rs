@@ -275,3 +275,13 @@ fn an_implausible_spacing_is_a_warning() {
     let v = nrrd_with_directions("(0.5,0,0) (0,0.5,0) (0,0,3)").expect("plausible");
     assert!(v.metadata.warnings.is_empty(), "{:?}", v.metadata.warnings);
 }
+
+#[test]
+fn a_folder_given_to_a_file_reader_is_refused_by_name() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let folder = dir.path().join("looks_like.nii");
+    std::fs::create_dir(&folder).expect("mkdir");
+    let e = warpbench_io::nifti::read(&folder, &mut LoadOptions::new()).expect_err("a folder");
+    assert!(matches!(e.kind, ErrorKind::NotARegularFile { what: "a folder" }), "{e}");
+    assert!(e.to_string().starts_with(&format!("{}: a folder, not a regular file", folder.display())), "{e}");
+}
