@@ -4,6 +4,10 @@
 //! Landmarks are checked against the volumes before anything is fitted: a pair whose moving point lies outside the
 //! moving volume's box (of voxel edges), or whose fixed point lies outside the fixed volume's, is bad input, named by
 //! its index (1-based, in file order) and name.
+//!
+//! The fit then checks the pairs themselves ([`warpbench_solver::pairs`], the same rules for every method): its
+//! errors ([`fit_pullback`], [`fit_forward`], [`fit_error`]) and warnings ([`fit_warnings`]) name the landmark file
+//! and number the pairs as the file does (1-based, inactive and incomplete pairs counted), not as the fit saw them.
 
 use std::path::{Path, PathBuf};
 
@@ -11,6 +15,7 @@ use anyhow::anyhow;
 use warpbench_io::geometry::{Lps, Point3, Space};
 use warpbench_io::landmarks::{self, LandmarkPair};
 use warpbench_io::{LoadOptions, Volume};
+use warpbench_solver::SolverError;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
@@ -161,6 +166,16 @@ pub struct Correspondences {
     pub fixed: Vec<Point3<Fixed>>,
     /// `(index in the file, 1-based; name)` of each pair kept.
     pub labels: Vec<(usize, String)>,
+    /// Where the pairs come from, as messages name it (the files' paths, or the window's name for its table).
+    pub origin: String,
+}
+
+impl Correspondences {
+    /// The file's number (1-based) of the fit's pair `n` (1-based, counting only the pairs kept).
+    #[must_use]
+    pub fn file_number(&self, n: usize) -> usize {
+        n.checked_sub(1).and_then(|i| self.labels.get(i)).map_or(n, |(file_index, _)| *file_index)
+    }
 }
 
 /// The box of voxel edges of `v` in its LPS space, as an axis-aligned box (the corners' bounds).
@@ -207,7 +222,8 @@ pub fn check_pairs(
     fixed: &Volume,
     min_pairs: usize,
 ) -> Result<Correspondences, Failure> {
-    let mut out = Correspondences { moving: Vec::new(), fixed: Vec::new(), labels: Vec::new() };
+    let mut out =
+        Correspondences { moving: Vec::new(), fixed: Vec::new(), labels: Vec::new(), origin: origin.to_owned() };
     let bad = |i: usize, pair: &LandmarkPair, what: &str| {
         let name = if pair.name.is_empty() { String::new() } else { format!(" ({})", pair.name) };
         Failure::BadInput(anyhow!("{origin}: landmark {}{name} {what}", i + 1))
@@ -254,13 +270,33 @@ pub fn method_from_args(name: &str, stiffness: f64, levels: Option<usize>) -> Re
     })
 }
 
-/// The minimum number of pairs each method needs.
+/// The minimum number of pairs each method needs: the solver's ([`Method::needs`]; 4 for TPS, the hierarchical
+/// B-spline and affine, 3 for similarity and rigid).
 #[must_use]
 pub fn min_pairs(method: &Method) -> usize {
-    match method {
-        Method::Tps { .. } | Method::Linear(_) => 4,
-        Method::BSpline(_) => 1,
-    }
+    method.needs().min_pairs
+}
+
+/// The message for a fit of `c` that failed with `e`: `<landmark file>: fitting the <method> warp: <problem>`, the
+/// pairs numbered as in the file.
+#[must_use]
+pub fn fit_error(method: &Method, c: &Correspondences, e: SolverError) -> Failure {
+    let e = e.renumber(|n| c.file_number(n));
+    Failure::BadInput(anyhow!("{}: fitting the {method} warp: {e}", c.origin))
+}
+
+/// What the solver finds suspicious in `c` for `method` (a pair given twice, a nearly flat set of points), as
+/// messages: `<landmark file>: <warning>`, the pairs numbered as in the file. The same for either direction of the
+/// fit; empty when there is nothing to say or when the fit will refuse the pairs (its error says why). The CLI
+/// prints each as `warning: …` on stderr.
+#[must_use]
+pub fn fit_warnings(method: &Method, c: &Correspondences) -> Vec<String> {
+    method
+        .check(&c.fixed, &c.moving)
+        .unwrap_or_default()
+        .into_iter()
+        .map(|w| format!("{}: {}", c.origin, w.renumber(|n| c.file_number(n))))
+        .collect()
 }
 
 /// The pull-back u = moving_from_fixed, fitted on the reversed pairs over `fixed_box`.
@@ -269,7 +305,7 @@ pub fn fit_pullback(
     c: &Correspondences,
     fixed_box: Aabb<Fixed>,
 ) -> Result<Box<dyn Warp<Moving, Fixed>>, Failure> {
-    method.fit(&c.fixed, &c.moving, fixed_box).map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))
+    method.fit(&c.fixed, &c.moving, fixed_box).map_err(|e| fit_error(method, c, e))
 }
 
 /// The forward warp d = fixed_from_moving (where a moving point appears in the deformed view), over `moving_box`.
@@ -278,9 +314,7 @@ pub fn fit_forward(
     c: &Correspondences,
     moving_box: Aabb<Moving>,
 ) -> Result<Box<dyn Warp<Fixed, Moving>>, Failure> {
-    method
-        .fit(&c.moving, &c.fixed, moving_box)
-        .map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))
+    method.fit(&c.moving, &c.fixed, moving_box).map_err(|e| fit_error(method, c, e))
 }
 
 /// An output file and whether it may replace an existing one (`--out`, `--force`).

@@ -49,8 +49,10 @@
 //! functions: φ_j = D₀(knot_j)), and the hierarchy fits what remains, as in the `mba` library's linear
 //! initial approximation. Plain BA shrinks towards zero away from the data, so without this step a
 //! constant or linear displacement would not be reproduced; with it both are reproduced exactly
-//! everywhere in Ω (tested). A is a pseudo-inverse solution, so 1–3 landmarks or coplanar ones give a
-//! translation or an in-plane affine map rather than an error.
+//! everywhere in Ω (tested). A is a pseudo-inverse solution, so on scattered samples
+//! ([`HierarchicalBSpline::fit_displacements_raw`]) 1–3 points or coplanar ones give a translation or an in-plane
+//! affine map; landmark pairs ([`HierarchicalBSpline::fit`]) are refused in those cases, as for every method
+//! ([`crate::pairs`]): the out-of-plane part would be arbitrary.
 //!
 //! # Two tiers
 //!
@@ -69,6 +71,11 @@ use warpbench_io::geometry::{Point3, Space};
 
 use crate::spaces::{Aabb, Fixed, Moving};
 use crate::{Parallelism, SolverError, Warp};
+
+/// What a fit to landmark pairs needs ([`crate::pairs`]): the same as a TPS, since the affine initial approximation
+/// is a full affine map: 4 distinct pairs, neither side coplanar.
+pub const NEEDS: crate::pairs::Needs =
+    crate::pairs::Needs { method: "hierarchical B-spline", min_pairs: 4, spread: crate::pairs::Spread::NotCoplanar };
 
 /// The largest control lattice a fit may build (control points, all three axes together): 128³.
 pub const MAX_CONTROL_POINTS: usize = 1 << 21;
@@ -1084,6 +1091,8 @@ pub struct HierarchicalBSpline<To: Space, From: Space> {
     lattice: ControlLattice,
     domain: Aabb<From>,
     report: FitReport,
+    /// What [`crate::pairs::validate`] found suspicious in the pairs of [`HierarchicalBSpline::fit`].
+    warnings: Vec<crate::pairs::PairWarning>,
     spaces: PhantomData<fn(From) -> To>,
 }
 
@@ -1105,27 +1114,33 @@ impl<To: Space, From: Space> HierarchicalBSpline<To, From> {
     }
 
     /// Fits w(src_i) ≈ dst_i: the displacement dst_i − src_i as a function of src_i, over `domain`.
-    /// No landmarks give the identity; a non-finite coordinate gives [`SolverError::NonFinite`].
+    ///
+    /// The pairs are checked first by [`crate::pairs::validate`] with [`NEEDS`], as every method's are: at least 4
+    /// distinct pairs, neither side coincident, collinear or coplanar (the affine initial approximation is
+    /// undetermined across a plane: 3 pairs gave displacements of 258 mm, identical fixed points 3 895 mm). A
+    /// repeated pair is counted once; what looks wrong is in [`Self::warnings`]. The identity is
+    /// [`Self::identity`].
     pub fn fit(
         src: &[Point3<From>],
         dst: &[Point3<To>],
         domain: Aabb<From>,
         params: &BSplineParams,
     ) -> crate::Result<Self> {
-        crate::warp::check_pairs(src, dst)?;
-        let points: Vec<[f64; 3]> = src.iter().map(Point3::coords).collect();
-        let displacements: Vec<[f64; 3]> = src
+        let checked = crate::pairs::validate(&NEEDS, src, dst)?;
+        let points = checked.distinct_raw(src);
+        let displacements: Vec<[f64; 3]> = points
             .iter()
-            .zip(dst)
-            .map(|(s, d)| {
-                let (s, d) = (s.coords(), d.coords());
-                [d[0] - s[0], d[1] - s[1], d[2] - s[2]]
-            })
+            .zip(checked.distinct_raw(dst))
+            .map(|(s, d)| [d[0] - s[0], d[1] - s[1], d[2] - s[2]])
             .collect();
-        Self::fit_displacements_raw(&points, &displacements, domain, params)
+        let mut fitted = Self::fit_displacements_raw(&points, &displacements, domain, params)?;
+        fitted.warnings = checked.warnings;
+        Ok(fitted)
     }
 
-    /// Fits D(points_i) ≈ displacements_i (raw mm). Points outside `domain` are clamped into it.
+    /// Fits D(points_i) ≈ displacements_i (raw mm). Points outside `domain` are clamped into it. This is the lower
+    /// tier for scattered samples of a displacement (e.g. [`crate::invert`]): it checks lengths and finiteness
+    /// only, not the landmark rules of [`Self::fit`]; no points give the identity.
     pub fn fit_displacements_raw(
         points: &[[f64; 3]],
         displacements: &[[f64; 3]],
@@ -1134,17 +1149,21 @@ impl<To: Space, From: Space> HierarchicalBSpline<To, From> {
     ) -> crate::Result<Self> {
         check_domain(&domain)?;
         if points.len() != displacements.len() {
-            return Err(SolverError::LengthMismatch { sources: points.len(), targets: displacements.len() });
+            return Err(SolverError::InvalidParameter(format!(
+                "{} sample points but {} displacements",
+                points.len(),
+                displacements.len()
+            )));
         }
         if let Some(index) =
             points.iter().zip(displacements).position(|(p, d)| !(p.iter().chain(d.iter()).all(|v| v.is_finite())))
         {
-            return Err(SolverError::NonFinite { index });
+            return Err(SolverError::InvalidParameter(format!("sample {} is not finite", index + 1)));
         }
         let (lo, hi) = (domain.min.coords(), domain.max.coords());
         let clamped: Vec<[f64; 3]> = points.iter().map(|p| std::array::from_fn(|a| p[a].clamp(lo[a], hi[a]))).collect();
         let (lattice, report) = fit_hierarchy(&Data::Scattered(&clamped), displacements, lo, hi, params)?;
-        Ok(Self { lattice, domain, report, spaces: PhantomData })
+        Ok(Self { lattice, domain, report, warnings: Vec::new(), spaces: PhantomData })
     }
 
     /// Fits D to `displacements` sampled on `grid` (x fastest), separably: each level costs O(grid + lattice).
@@ -1160,21 +1179,25 @@ impl<To: Space, From: Space> HierarchicalBSpline<To, From> {
         check_domain(&domain)?;
         grid.check()?;
         if displacements.len() != grid.len() {
-            return Err(SolverError::LengthMismatch { sources: grid.len(), targets: displacements.len() });
+            return Err(SolverError::InvalidParameter(format!(
+                "a grid of {} points but {} displacements",
+                grid.len(),
+                displacements.len()
+            )));
         }
         if let Some(index) = displacements.iter().position(|d| !d.iter().all(|v| v.is_finite())) {
-            return Err(SolverError::NonFinite { index });
+            return Err(SolverError::InvalidParameter(format!("grid displacement {} is not finite", index + 1)));
         }
         let (lo, hi) = (domain.min.coords(), domain.max.coords());
         let (lattice, report) = fit_hierarchy(&Data::Grid(grid, par), displacements, lo, hi, params)?;
-        Ok(Self { lattice, domain, report, spaces: PhantomData })
+        Ok(Self { lattice, domain, report, warnings: Vec::new(), spaces: PhantomData })
     }
 
     /// Wraps a lattice (its box becomes the domain).
     #[must_use]
     pub fn from_lattice(lattice: ControlLattice, report: FitReport) -> Self {
         let domain = Aabb::new(Point3::from_array(lattice.min_mm), Point3::from_array(lattice.max_mm));
-        Self { lattice, domain, report, spaces: PhantomData }
+        Self { lattice, domain, report, warnings: Vec::new(), spaces: PhantomData }
     }
 
     /// The control lattice of D (finest level; all levels are refined onto it).
@@ -1193,6 +1216,13 @@ impl<To: Space, From: Space> HierarchicalBSpline<To, From> {
     #[must_use]
     pub fn domain(&self) -> Aabb<From> {
         self.domain
+    }
+
+    /// What [`crate::pairs::validate`] found suspicious in the pairs of [`Self::fit`] (pairs numbered from 1); empty
+    /// for the other constructors.
+    #[must_use]
+    pub fn warnings(&self) -> &[crate::pairs::PairWarning] {
+        &self.warnings
     }
 
     /// How the fit ended (levels, residuals at the data).

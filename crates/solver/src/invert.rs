@@ -154,10 +154,10 @@ pub fn invert<To: Space, From: Space, W: Warp<To, From>>(
     domain_to: Aabb<To>,
     params: &InvertParams,
 ) -> crate::Result<(HierarchicalBSpline<From, To>, InverseReport)> {
-    check_box("inverse source box", &domain_from)?;
-    check_box("inverse target box", &domain_to)?;
-    check_grid_dims("source samples", params.source_samples)?;
-    check_grid_dims("target samples", params.target_samples)?;
+    check_box(&format!("the inverse's {} box", From::NAME), &domain_from)?;
+    check_box(&format!("the inverse's {} box", To::NAME), &domain_to)?;
+    check_grid_dims(&format!("{} samples", From::NAME), params.source_samples)?;
+    check_grid_dims(&format!("{} samples", To::NAME), params.target_samples)?;
     check_grid_dims("check samples", params.check_samples)?;
     params.bspline.finest_cells()?;
     if !(params.tolerance_mm.is_finite() && params.tolerance_mm >= 0.0) {
@@ -177,7 +177,7 @@ pub fn invert<To: Space, From: Space, W: Warp<To, From>>(
     let mut displacements = Vec::with_capacity(images.len());
     for (j, y) in images.iter().enumerate() {
         if !y.iter().all(|v| v.is_finite()) {
-            return Err(non_finite("source", j));
+            return Err(non_finite(From::NAME, j));
         }
         if (0..3).all(|a| y[a] >= lo_to[a] && y[a] <= hi_to[a]) {
             let x = source_grid.point(j);
@@ -222,7 +222,7 @@ pub fn invert<To: Space, From: Space, W: Warp<To, From>>(
             Parallelism::Rayon => positions.par_iter_mut().zip(&jacobians).enumerate().for_each(correct),
         }
         if let Some(index) = positions.iter().position(|p| !p.iter().all(|v| v.is_finite())) {
-            return Err(non_finite("target", index));
+            return Err(non_finite(To::NAME, index));
         }
         // Inexact Newton: the next iteration corrects what this fit leaves, so fitting the correction to a
         // tenth of its size suffices (and skips levels or passes that would not change the outcome).

@@ -12,6 +12,7 @@
 //! - [`invert`]: an approximate inverse of a forward warp by scattered-data interpolation.
 //! - [`control`]: sampling a pull-back into a control texture for the GPU.
 //! - [`method`]: [`Method`], fitting any of the above by name, in either direction.
+//! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
 //! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
 //! - [`synthetic`]: seeded known warps for accuracy tests.
 
@@ -22,6 +23,7 @@ pub mod error;
 pub mod invert;
 pub mod linear;
 pub mod method;
+pub mod pairs;
 pub mod spaces;
 pub mod synthetic;
 pub mod tps;

@@ -21,12 +21,15 @@
 //!   when rank Σ_xy ≥ 2 (Umeyama's condition), which needs N ≥ 3 points that are not collinear:
 //!   with one or two points, or a collinear set, a rotation about the points' line leaves every
 //!   residual unchanged, so these inputs are rejected with [`SolverError::TooFew`] or
-//!   [`SolverError::Degenerate`] instead of returning an arbitrary rotation.
+//!   [`SolverError::Flat`] instead of returning an arbitrary rotation.
+//!
+//! Every fit first checks its pairs with [`crate::pairs::validate`] and [`LinearKind::needs`], as every method
+//! does: too few distinct pairs, a coincident, collinear or (affine) coplanar side, or one point with two partners
+//! is refused; a repeated pair counts once (so N below is the number of distinct pairs). The same ratio,
+//! [`DEGENERACY_RATIO`] (= [`crate::pairs::FLAT_RTOL`]), judges the fits' own checks: the RMS spread of the points
+//! along their second (rigid, similarity) or third (affine) principal axis against the spread along the first.
 //!
 //! Every fit reports its fiducial registration error FRE = √((1/N) Σ ‖f(p_i) − q_i‖²) (RMS, mm).
-//! Degeneracy is judged by [`DEGENERACY_RATIO`]: the ratio of the RMS spread of the source points
-//! along their second (rigid, similarity) or third (affine) principal axis to the spread along the
-//! first.
 //!
 //! The pull-back (fixed → moving) is fitted directly from the reversed pairs ([`fit_pullback`]),
 //! not by inverting the forward fit; for rigid fits the two agree exactly, for similarity and affine
@@ -70,15 +73,15 @@ use std::str::FromStr;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use warpbench_io::geometry::{Point3, Space, Transform};
 
+use crate::pairs::{self, Needs, Spread};
 use crate::spaces::{Fixed, Moving};
-use crate::warp::check_pairs;
 use crate::{Result, SolverError, Warp};
 
 /// Degeneracy threshold: a configuration whose RMS spread along a needed principal axis is below
 /// this fraction of the spread along the first axis is treated as collinear (rigid, similarity) or
 /// coplanar (affine). 1e-6 keeps well above floating-point noise (≈ 1e-8 for exactly collinear
 /// points) while accepting any configuration a user could click.
-pub const DEGENERACY_RATIO: f64 = 1e-6;
+pub const DEGENERACY_RATIO: f64 = crate::pairs::FLAT_RTOL;
 
 /// Which family of linear maps to fit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -112,6 +115,17 @@ impl LinearKind {
             Self::Affine => 4,
             Self::Similarity | Self::Rigid => 3,
         }
+    }
+
+    /// What the fit needs of its pairs ([`crate::pairs`]): affine 4 distinct pairs, neither side coplanar;
+    /// similarity and rigid 3, neither side collinear.
+    #[must_use]
+    pub const fn needs(self) -> Needs {
+        let spread = match self {
+            Self::Affine => Spread::NotCoplanar,
+            Self::Similarity | Self::Rigid => Spread::NotCollinear,
+        };
+        Needs { method: self.name(), min_pairs: self.min_points(), spread }
     }
 
     /// Degrees of freedom of the family.
@@ -297,7 +311,7 @@ pub fn fit_affine<To: Space, From: Space>(src: &[Point3<From>], dst: &[Point3<To
     let kind = LinearKind::Affine;
     let (p, q) = prepare(kind, src, dst)?;
     let shape = PrincipalFrame::of(&p);
-    shape.require_rank(3, "affine", "coplanar")?;
+    shape.require_rank(3, "affine", From::NAME, "coplanar")?;
     let (pm, qm) = (Vector3::from(mean(&p)), Vector3::from(mean(&q)));
     // Normal equations S Aᵀ = Σ p'_i q'_iᵀ with S = Σ p'_i p'_iᵀ, solved by Cholesky (S is
     // positive definite once the configuration is not coplanar), plus one step of iterative
@@ -307,9 +321,9 @@ pub fn fit_affine<To: Space, From: Space>(src: &[Point3<From>], dst: &[Point3<To
         let d = Vector3::from(*pi) - pm;
         scatter += d * d.transpose();
     }
-    let chol = scatter
-        .cholesky()
-        .ok_or_else(|| SolverError::Degenerate("affine: the source scatter matrix is not positive definite".into()))?;
+    let chol = scatter.cholesky().ok_or_else(|| {
+        SolverError::Degenerate(format!("affine: the scatter matrix of the {} points is singular", From::NAME))
+    })?;
     let solve_step = |linear: &Matrix3<f64>| {
         let mut rhs = Matrix3::zeros();
         for (pi, qi) in p.iter().zip(&q) {
@@ -345,7 +359,7 @@ fn umeyama<To: Space, From: Space>(
 ) -> Result<LinearFit<To, From>> {
     let (p, q) = prepare(kind, src, dst)?;
     let shape = PrincipalFrame::of(&p);
-    shape.require_rank(2, kind.name(), "collinear (the rotation about their line is undetermined)")?;
+    shape.require_rank(2, kind.name(), From::NAME, "collinear (the rotation about their line is undetermined)")?;
     let n = p.len() as f64;
     let (pm, qm) = (Vector3::from(mean(&p)), Vector3::from(mean(&q)));
     let mut sigma_xy = Matrix3::zeros();
@@ -369,8 +383,9 @@ fn umeyama<To: Space, From: Space>(
     // spreads, hence the squared ratio.
     if !(d_max > 0.0 && sorted[1] > DEGENERACY_RATIO * DEGENERACY_RATIO * d_max) {
         return Err(SolverError::Degenerate(format!(
-            "{}: the target points are collinear or coincide, so the rotation is undetermined",
-            kind.name()
+            "{}: the {} points are collinear or coincide, so the rotation is undetermined",
+            kind.name(),
+            To::NAME
         )));
     }
     let mut s = Vector3::new(1.0, 1.0, 1.0);
@@ -393,13 +408,11 @@ fn umeyama<To: Space, From: Space>(
 /// Source and target coordinates, raw mm.
 type RawPairs = (Vec<[f64; 3]>, Vec<[f64; 3]>);
 
-/// Checks the pairs and the count, returning raw coordinates.
+/// Checks the pairs ([`pairs::validate`] with [`LinearKind::needs`]), returning the raw coordinates of the distinct
+/// ones: a repeated pair counts once, as in every method.
 fn prepare<To: Space, From: Space>(kind: LinearKind, src: &[Point3<From>], dst: &[Point3<To>]) -> Result<RawPairs> {
-    check_pairs(src, dst)?;
-    if src.len() < kind.min_points() {
-        return Err(SolverError::TooFew { method: kind.name(), needed: kind.min_points(), got: src.len() });
-    }
-    Ok((src.iter().map(Point3::coords).collect(), dst.iter().map(Point3::coords).collect()))
+    let checked = pairs::validate(&kind.needs(), src, dst)?;
+    Ok((checked.distinct_raw(src), checked.distinct_raw(dst)))
 }
 
 fn finish<To: Space, From: Space>(
@@ -462,15 +475,15 @@ impl PrincipalFrame {
     }
 
     /// Requires spread along the first `rank` axes (relative to [`DEGENERACY_RATIO`]).
-    fn require_rank(&self, rank: usize, method: &str, shape: &str) -> Result<()> {
+    fn require_rank(&self, rank: usize, method: &str, space: &str, shape: &str) -> Result<()> {
         let first = self.lambda[0];
         if !(first.is_finite() && first > 0.0) {
-            return Err(SolverError::Degenerate(format!("{method}: all source points coincide")));
+            return Err(SolverError::Degenerate(format!("{method}: all {space} points coincide")));
         }
         let ratio = (self.lambda[rank - 1] / first).sqrt();
         if ratio < DEGENERACY_RATIO {
             return Err(SolverError::Degenerate(format!(
-                "{method}: the source points are {shape} (spread ratio {ratio:.1e})"
+                "{method}: the {space} points are {shape} (spread ratio {ratio:.1e})"
             )));
         }
         Ok(())
@@ -513,7 +526,7 @@ impl<S: Space> TrePredictor<S> {
             return Err(SolverError::InvalidParameter(format!("FLE must be finite and ≥ 0, got {fle_rms_mm}")));
         }
         if let Some(index) = fiducials.iter().position(|p| !p.is_finite()) {
-            return Err(SolverError::NonFinite { index });
+            return Err(SolverError::NonFinite { pair: index + 1 });
         }
         if fiducials.len() < kind.min_points() {
             return Err(SolverError::TooFew { method: kind.name(), needed: kind.min_points(), got: fiducials.len() });
@@ -521,8 +534,8 @@ impl<S: Space> TrePredictor<S> {
         let raw: Vec<[f64; 3]> = fiducials.iter().map(Point3::coords).collect();
         let frame = PrincipalFrame::of(&raw);
         match kind {
-            LinearKind::Affine => frame.require_rank(3, "affine TRE", "coplanar")?,
-            _ => frame.require_rank(2, kind.name(), "collinear")?,
+            LinearKind::Affine => frame.require_rank(3, "affine TRE", S::NAME, "coplanar")?,
+            _ => frame.require_rank(2, kind.name(), S::NAME, "collinear")?,
         }
         let fle_sq_over_n = fle_rms_mm * fle_rms_mm / fiducials.len() as f64;
         Ok(Self { kind, frame, fle_sq_over_n, space: PhantomData })
@@ -581,7 +594,9 @@ pub fn predicted_tre_for<S: Space>(
     target: Point3<S>,
 ) -> Result<f64> {
     if !target.is_finite() {
-        return Err(SolverError::InvalidParameter("the target has a non-finite coordinate".into()));
+        return Err(SolverError::InvalidParameter(
+            "the point to predict the TRE at has a non-finite coordinate".into(),
+        ));
     }
     Ok(TrePredictor::new(kind, fiducials, fle_rms_mm)?.rms_tre_mm(target))
 }

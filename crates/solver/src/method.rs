@@ -10,11 +10,12 @@ use std::fmt;
 
 use warpbench_io::geometry::{Point3, Space};
 
-use crate::bspline::{BSplineParams, HierarchicalBSpline};
+use crate::bspline::{self, BSplineParams, HierarchicalBSpline};
 use crate::error::Result;
 use crate::linear::{self, LinearKind};
+use crate::pairs::{self, Needs, PairWarning};
 use crate::spaces::Aabb;
-use crate::tps::Tps;
+use crate::tps::{self, Tps};
 use crate::warp::Warp;
 
 /// A warp model and its parameters.
@@ -53,8 +54,25 @@ impl Method {
         }
     }
 
-    /// Fits the warp taking `src` to `dst`. `domain` bounds where it will be evaluated (the source
-    /// volume's box); only the B-spline uses it.
+    /// What this method needs of its pairs ([`crate::pairs`]).
+    #[must_use]
+    pub fn needs(&self) -> Needs {
+        match self {
+            Self::Tps { .. } => tps::NEEDS,
+            Self::BSpline(_) => bspline::NEEDS,
+            Self::Linear(kind) => kind.needs(),
+        }
+    }
+
+    /// Checks the pairs as [`Method::fit`] does, in either direction alike: the warnings the fit would give (pairs
+    /// numbered from 1), or the error it would refuse them with. Callers show the warnings (the CLI on stderr, the
+    /// window in its status).
+    pub fn check<To: Space, From: Space>(&self, src: &[Point3<From>], dst: &[Point3<To>]) -> Result<Vec<PairWarning>> {
+        Ok(pairs::validate(&self.needs(), src, dst)?.warnings)
+    }
+
+    /// Fits the warp taking `src` to `dst`. `domain` bounds where it will be evaluated (the `From`
+    /// volume's box); only the B-spline uses it. The pairs are checked first ([`Method::check`]).
     pub fn fit<To: Space, From: Space>(
         &self,
         src: &[Point3<From>],

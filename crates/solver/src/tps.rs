@@ -55,16 +55,19 @@
 //!
 //! # Degenerate input (decisions)
 //!
+//! Every fit first runs [`crate::pairs::validate`] with [`NEEDS`] (4 distinct pairs, neither side coplanar), as
+//! every other method does; its errors and warnings number the pairs from 1 and name the sides by their spaces.
+//!
 //! - Lengths differ → [`SolverError::LengthMismatch`]; a NaN/∞ coordinate → [`SolverError::NonFinite`];
 //!   λ negative or not finite → [`SolverError::InvalidParameter`]; more than [`MAX_LANDMARKS`] pairs →
 //!   [`SolverError::InvalidParameter`] (the solve is O(N³) time, O(N²) memory).
-//! - Two sources at the same position (within [`SAME_POSITION_RTOL`]·(1 + max|x|) mm) with different targets
-//!   → [`SolverError::Duplicate`]; with the same target (the same pair entered twice) → merged, the first
-//!   copy kept (ITK's min-norm SVD solution gives the same map). [`Tps::centres`] lists the merged centres.
-//! - Fewer than 4 distinct sources → [`SolverError::TooFew`] (no lower-rank fallback: use the rigid or
-//!   similarity fits of [`crate::linear`] for 1–3 pairs).
-//! - All sources coplanar or collinear (RMS thickness < [`FLAT_RTOL`] × RMS extent: P is rank-deficient and
-//!   the affine part undetermined) → [`SolverError::Degenerate`] naming "coplanar" or "collinear".
+//! - One point with two different partners → [`SolverError::Conflict`]; the same pair entered twice → counted
+//!   once, the first copy kept (ITK's min-norm SVD solution gives the same map), with a
+//!   [`crate::pairs::PairWarning::Repeated`] in [`Tps::warnings`]. [`Tps::centres`] lists the distinct centres.
+//! - Fewer than 4 distinct pairs → [`SolverError::TooFew`] (no lower-rank fallback: use the rigid or
+//!   similarity fits of [`crate::linear`] for 3 pairs).
+//! - Either side's points coincident, collinear or coplanar (P is rank-deficient and the affine part undetermined,
+//!   or the map collapses a volume) → [`SolverError::Coincident`] or [`SolverError::Flat`].
 //!
 //! # References
 //!
@@ -83,17 +86,15 @@ use std::marker::PhantomData;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4x3};
 use warpbench_io::geometry::{Point3, Space, Transform};
 
-use crate::warp::check_pairs;
+use crate::pairs::{self, Needs, PairWarning, Spread};
 use crate::{Fixed, Moving, Result, SolverError, Warp};
+
+pub use crate::pairs::{FLAT_RTOL, SAME_POSITION_RTOL};
 
 /// The affine part needs 4 non-coplanar landmarks.
 pub const MIN_LANDMARKS: usize = 4;
 /// Largest accepted N: the dense solve needs 8·N² bytes (200 MB here) and O(N³) time.
 pub const MAX_LANDMARKS: usize = 5_000;
-/// Two sources closer than this × (1 + max|coordinate| in mm) are the same position.
-pub const SAME_POSITION_RTOL: f64 = 1e-9;
-/// Sources whose RMS thickness (smallest principal axis) is below this × their RMS extent are coplanar.
-pub const FLAT_RTOL: f64 = 1e-6;
 /// A factorisation whose smallest/largest pivot ratio is below this is singular.
 pub const PIVOT_RTOL: f64 = 1e-13;
 /// Smallest accepted estimate of 1/cond(M) for the reduced (N−4)² system (cond ≈ 1e12 loses 4 of 16 digits).
@@ -104,6 +105,9 @@ pub const RESIDUAL_RTOL: f64 = 1e-9;
 /// Centres per block of the evaluation kernel (f64 lanes; the tail is padded with zero weights).
 const LANES: usize = 2;
 const METHOD: &str = "thin-plate spline";
+
+/// What a TPS needs of its pairs ([`crate::pairs`]): 4 distinct pairs, neither side coplanar.
+pub const NEEDS: Needs = Needs { method: METHOD, min_pairs: MIN_LANDMARKS, spread: Spread::NotCoplanar };
 
 /// How λ enters the TPS system (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -168,6 +172,8 @@ pub struct Tps<To: Space, From: Space> {
     a: Matrix3<f64>,
     b: [f64; 3],
     regularisation: Regularisation,
+    /// What [`crate::pairs::validate`] found suspicious in the pairs it was fitted on.
+    warnings: Vec<PairWarning>,
     spaces: PhantomData<(To, From)>,
 }
 
@@ -206,26 +212,19 @@ impl<To: Space, From: Space> Tps<To, From> {
     /// Fits f(`src[i]`) ≈ `dst[i]` with the given regularisation.
     pub fn fit_regularised(src: &[Point3<From>], dst: &[Point3<To>], regularisation: Regularisation) -> Result<Self> {
         regularisation.validate()?;
-        check_pairs(src, dst)?;
+        let checked = pairs::validate(&NEEDS, src, dst)?;
         if src.len() > MAX_LANDMARKS {
             return Err(SolverError::InvalidParameter(format!(
                 "a TPS takes at most {MAX_LANDMARKS} landmark pairs, got {}",
                 src.len()
             )));
         }
-        if src.len() < MIN_LANDMARKS {
-            return Err(SolverError::TooFew { method: METHOD, needed: MIN_LANDMARKS, got: src.len() });
-        }
-        let p: Vec<[f64; 3]> = src.iter().map(Point3::coords).collect();
-        let q: Vec<[f64; 3]> = dst.iter().map(Point3::coords).collect();
-        let (p, q) = merge_duplicates(&p, &q)?;
-        if p.len() < MIN_LANDMARKS {
-            return Err(SolverError::TooFew { method: METHOD, needed: MIN_LANDMARKS, got: p.len() });
-        }
-        let (centre, scale) = check_spread(&p)?;
+        let (p, q) = (checked.distinct_raw(src), checked.distinct_raw(dst));
+        let (centre, scale) = centre_and_scale(&p)?;
         let solution = solve(&p, &q, centre, scale, regularisation.k_diagonal())?;
-        let tps = Self::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
+        let mut tps = Self::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
         tps.check_solution(&p, &q, &solution)?;
+        tps.warnings = checked.warnings;
         Ok(tps)
     }
 
@@ -235,11 +234,15 @@ impl<To: Space, From: Space> Tps<To, From> {
     /// [`Tps::fit`] recovers from samples at its centres only when Σᵢ wᵢ = 0 and Σᵢ wᵢ pᵢᵀ = 0.
     pub fn from_parts(centres: &[Point3<From>], weights: &[[f64; 3]], a: Matrix3<f64>, b: [f64; 3]) -> Result<Self> {
         if centres.len() != weights.len() {
-            return Err(SolverError::LengthMismatch { sources: centres.len(), targets: weights.len() });
+            return Err(SolverError::InvalidParameter(format!(
+                "{} TPS centres but {} weights",
+                centres.len(),
+                weights.len()
+            )));
         }
         for (index, (c, w)) in centres.iter().zip(weights).enumerate() {
             if !c.is_finite() || !w.iter().all(|v| v.is_finite()) {
-                return Err(SolverError::NonFinite { index });
+                return Err(SolverError::NonFinite { pair: index + 1 });
             }
         }
         if !a.iter().chain(&b).all(|v| v.is_finite()) {
@@ -262,7 +265,14 @@ impl<To: Space, From: Space> Tps<To, From> {
                 (last.px[l], last.py[l], last.pz[l]) = (first[0], first[1], first[2]);
             }
         }
-        Self { n: p.len(), blocks, a, b, regularisation, spaces: PhantomData }
+        Self { n: p.len(), blocks, a, b, regularisation, warnings: Vec::new(), spaces: PhantomData }
+    }
+
+    /// What [`crate::pairs::validate`] found suspicious in the pairs (repeated pairs, a nearly flat side), pairs
+    /// numbered from 1 as given to the fit; empty for [`Tps::from_parts`].
+    #[must_use]
+    pub fn warnings(&self) -> &[PairWarning] {
+        &self.warnings
     }
 
     /// Number of centres pᵢ (after merging duplicated pairs).
@@ -424,34 +434,9 @@ impl<To: Space, From: Space> Warp<To, From> for Tps<To, From> {
     }
 }
 
-/// Drops repeated pairs (same source and same target); errors on a shared source with different targets.
-#[allow(clippy::type_complexity)]
-fn merge_duplicates(p: &[[f64; 3]], q: &[[f64; 3]]) -> Result<(Vec<[f64; 3]>, Vec<[f64; 3]>)> {
-    let max_abs = |v: &[[f64; 3]]| v.iter().flatten().fold(0.0_f64, |m, x| m.max(x.abs()));
-    let tol_p = SAME_POSITION_RTOL * (1.0 + max_abs(p));
-    let tol_q = SAME_POSITION_RTOL * (1.0 + max_abs(q));
-    let dist2 = |a: &[f64; 3], b: &[f64; 3]| (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2);
-    let mut kept: Vec<usize> = Vec::with_capacity(p.len());
-    for j in 0..p.len() {
-        let mut duplicate = false;
-        for &i in &kept {
-            if dist2(&p[i], &p[j]) <= tol_p * tol_p {
-                if dist2(&q[i], &q[j]) <= tol_q * tol_q {
-                    duplicate = true;
-                    break;
-                }
-                return Err(SolverError::Duplicate { first: i, second: j });
-            }
-        }
-        if !duplicate {
-            kept.push(j);
-        }
-    }
-    Ok((kept.iter().map(|&i| p[i]).collect(), kept.iter().map(|&i| q[i]).collect()))
-}
-
-/// Returns the centroid and RMS radius of `p`, or an error when `p` is coplanar or collinear.
-fn check_spread(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
+/// The centroid and RMS radius of `p`, which scale the affine block. [`pairs::validate`] has refused coincident,
+/// collinear and coplanar sets, so the radius is positive; it is checked anyway, as the solve divides by it.
+fn centre_and_scale(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
     let n = p.len() as f64;
     let mut c = [0.0; 3];
     for pi in p {
@@ -459,30 +444,13 @@ fn check_spread(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
             c[k] += pi[k] / n;
         }
     }
-    let mut scatter = Matrix3::zeros();
-    for pi in p {
-        let d = nalgebra::Vector3::new(pi[0] - c[0], pi[1] - c[1], pi[2] - c[2]);
-        scatter += d * d.transpose() / n;
+    let mean_sq = p.iter().map(|pi| (0..3).map(|k| (pi[k] - c[k]).powi(2)).sum::<f64>()).sum::<f64>() / n;
+    let scale = mean_sq.sqrt();
+    if scale.is_finite() && scale > 0.0 {
+        Ok((c, scale))
+    } else {
+        Err(SolverError::Degenerate(format!("the {} landmarks have no spread (RMS radius {scale:e} mm)", p.len())))
     }
-    let mut ev: Vec<f64> = scatter.symmetric_eigenvalues().iter().map(|e| e.max(0.0)).collect();
-    ev.sort_by(f64::total_cmp);
-    let (lo, mid, hi) = (ev[0].sqrt(), ev[1].sqrt(), ev[2].sqrt());
-    if hi.is_nan() || hi <= 0.0 || mid < FLAT_RTOL * hi {
-        return Err(SolverError::Degenerate(format!(
-            "the {} source landmarks are collinear (RMS extents {hi:.3e}, {mid:.3e} mm): a TPS needs 4 \
-             non-coplanar landmarks",
-            p.len()
-        )));
-    }
-    if lo < FLAT_RTOL * hi {
-        return Err(SolverError::Degenerate(format!(
-            "the {} source landmarks are coplanar (RMS thickness {lo:.3e} mm vs extent {hi:.3e} mm): a TPS \
-             needs 4 non-coplanar landmarks",
-            p.len()
-        )));
-    }
-    let scale = (ev[0] + ev[1] + ev[2]).sqrt();
-    Ok((c, scale))
 }
 
 /// The solved coefficients: weights per centre and the affine part in raw mm.

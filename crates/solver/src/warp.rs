@@ -77,16 +77,3 @@ impl<To: Space, From: Space, W: Warp<To, From> + ?Sized> Warp<To, From> for Box<
         (**self).as_hierarchical_bspline()
     }
 }
-
-/// Checks that two point lists pair up and are finite; shared by every fitting method.
-pub fn check_pairs<A: Space, B: Space>(src: &[Point3<A>], dst: &[Point3<B>]) -> crate::Result<()> {
-    if src.len() != dst.len() {
-        return Err(crate::SolverError::LengthMismatch { sources: src.len(), targets: dst.len() });
-    }
-    for (index, (s, d)) in src.iter().zip(dst).enumerate() {
-        if !s.is_finite() || !d.is_finite() {
-            return Err(crate::SolverError::NonFinite { index });
-        }
-    }
-    Ok(())
-}

@@ -103,7 +103,7 @@ proptest! {
     }
 
     #[test]
-    fn enough_levels_approach_the_landmarks(seed in any::<u64>(), n in 1usize..40) {
+    fn enough_levels_approach_the_landmarks(seed in any::<u64>(), n in 4usize..40) {
         let (src, dst) = random_landmarks(seed, n, 10.0);
         // "Enough levels" is relative to the closest pair: the finest cell (6.25 mm here) must separate them.
         prop_assume!(min_separation_mm(&src) > 6.25);
@@ -117,7 +117,7 @@ proptest! {
     #[test]
     fn constant_displacement_is_reproduced_everywhere(
         seed in any::<u64>(),
-        n in 1usize..20,
+        n in 4usize..20,
         shift in prop::array::uniform3(-20.0..20.0f64),
         levels in 1usize..4,
     ) {
@@ -163,7 +163,7 @@ proptest! {
     }
 
     #[test]
-    fn analytic_jacobian_matches_finite_differences(seed in any::<u64>(), n in 1usize..30) {
+    fn analytic_jacobian_matches_finite_differences(seed in any::<u64>(), n in 4usize..30) {
         let (src, dst) = random_landmarks(seed, n, 10.0);
         let params = BSplineParams { coarsest: [2, 2, 2], levels: 4, tolerance_mm: 0.0 };
         let w = HierarchicalBSpline::fit_forward(&src, &dst, domain(), &params).expect("fit");
@@ -187,7 +187,7 @@ proptest! {
     }
 
     #[test]
-    fn pullback_hits_the_reversed_landmarks(seed in any::<u64>(), n in 1usize..30) {
+    fn pullback_hits_the_reversed_landmarks(seed in any::<u64>(), n in 4usize..30) {
         let (moving, fixed) = random_landmarks(seed, n, 10.0);
         prop_assume!(min_separation_mm(&fixed) > 6.25);
         let params = BSplineParams { coarsest: [2, 2, 2], levels: 5, tolerance_mm: 0.05 };
@@ -249,11 +249,16 @@ proptest! {
 #[test]
 fn no_landmarks_is_the_identity() {
     let params = BSplineParams::default();
-    let w = HierarchicalBSpline::fit_forward(&[], &[], domain(), &params).expect("fit");
+    let w = HierarchicalBSpline::<Fixed, Moving>::identity(domain(), &params).expect("identity");
     for x in [[0.0, 0.0, 0.0], [1e3, -1e3, 5.0], [-100.0, -80.0, -60.0]] {
         assert!(max_diff(w.apply_raw(x), x) == 0.0, "identity moved {x:?}");
     }
     assert_eq!(w.fit_report().levels_used, 0);
+    // Landmark pairs are checked as for every method: none are too few.
+    assert_eq!(
+        HierarchicalBSpline::fit_forward(&[], &[], domain(), &params).err(),
+        Some(SolverError::TooFew { method: "hierarchical B-spline", needed: 4, got: 0 })
+    );
 }
 
 #[test]
@@ -263,12 +268,12 @@ fn degenerate_input_is_an_error_not_a_nan() {
     src[3] = Point3::new(f64::NAN, 0.0, 0.0);
     assert_eq!(
         HierarchicalBSpline::fit_forward(&src, &dst, domain(), &params).err(),
-        Some(SolverError::NonFinite { index: 3 })
+        Some(SolverError::NonFinite { pair: 4 })
     );
     let (src, dst) = random_landmarks(7, 5, 10.0);
     assert!(matches!(
         HierarchicalBSpline::fit_forward(&src, &dst[..4], domain(), &params),
-        Err(SolverError::LengthMismatch { sources: 5, targets: 4 })
+        Err(SolverError::LengthMismatch { from_len: 5, to_len: 4, .. })
     ));
     let flat = Aabb::new(Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 1.0));
     assert!(matches!(
@@ -299,22 +304,14 @@ fn degenerate_input_is_an_error_not_a_nan() {
 }
 
 #[test]
-fn coincident_and_coplanar_landmarks_stay_finite() {
-    // Two landmarks at one source with different targets, and all sources on one plane.
-    let src: Vec<Point3<Moving>> = vec![
-        Point3::new(0.0, 0.0, 0.0),
-        Point3::new(0.0, 0.0, 0.0),
-        Point3::new(50.0, 0.0, 0.0),
-        Point3::new(0.0, 50.0, 0.0),
-    ];
-    let dst: Vec<Point3<Fixed>> = vec![
-        Point3::new(1.0, 0.0, 0.0),
-        Point3::new(-1.0, 0.0, 0.0),
-        Point3::new(52.0, 0.0, 0.0),
-        Point3::new(0.0, 48.0, 0.0),
-    ];
+fn coincident_and_coplanar_samples_stay_finite() {
+    // Two samples at one point with different displacements, and all samples on one plane: the lower tier
+    // approximates them (landmark pairs like these are refused by `fit`, as for every method).
+    let points = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [50.0, 0.0, 0.0], [0.0, 50.0, 0.0]];
+    let displacements = [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, -2.0, 0.0]];
     let params = BSplineParams { coarsest: [2, 2, 2], levels: 5, tolerance_mm: 0.0 };
-    let w = HierarchicalBSpline::fit_forward(&src, &dst, domain(), &params).expect("fit");
+    let w = HierarchicalBSpline::<Fixed, Moving>::fit_displacements_raw(&points, &displacements, domain(), &params)
+        .expect("fit");
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     for _ in 0..200 {
         let x = random_point(&mut rng, [-300.0; 3], [300.0; 3]);
@@ -322,6 +319,13 @@ fn coincident_and_coplanar_landmarks_stay_finite() {
     }
     // The conflicting pair is approximated by its mean.
     assert!(norm(w.apply_raw([0.0; 3]), [0.0; 3]) < 0.05);
+    let src: Vec<Point3<Moving>> = points.iter().map(|p| Point3::from_array(*p)).collect();
+    let dst: Vec<Point3<Fixed>> =
+        points.iter().zip(&displacements).map(|(p, d)| Point3::new(p[0] + d[0], p[1] + d[1], p[2] + d[2])).collect();
+    assert!(matches!(
+        HierarchicalBSpline::fit_forward(&src, &dst, domain(), &params),
+        Err(SolverError::Conflict { space: "moving", first: 1, second: 2, .. })
+    ));
 }
 
 #[test]

@@ -192,7 +192,10 @@ proptest! {
         for kind in [LinearKind::Rigid, LinearKind::Similarity, LinearKind::Affine] {
             let r = fit(kind, &moving(&line), &fixed(&line));
             prop_assert!(
-                matches!(r, Err(SolverError::Degenerate(_) | SolverError::TooFew { .. })),
+                matches!(
+                    r,
+                    Err(SolverError::Flat { shape: "collinear", .. } | SolverError::Coincident { .. } | SolverError::TooFew { .. })
+                ),
                 "{kind} on a line: {r:?}"
             );
             prop_assert!(predicted_tre_for(kind, &moving(&line), 1.0, Point3::new(1.0, 2.0, 3.0)).is_err());
@@ -200,7 +203,10 @@ proptest! {
         prop_assert!(predicted_tre(&moving(&line), 1.0, Point3::new(1.0, 2.0, 3.0)).is_infinite());
         if plane.len() >= 4 {
             let r = fit_affine(&moving(&plane), &fixed(&plane));
-            prop_assert!(matches!(r, Err(SolverError::Degenerate(_))), "affine on a plane: {r:?}");
+            prop_assert!(
+                matches!(r, Err(SolverError::Flat { .. } | SolverError::Coincident { .. })),
+                "affine on a plane: {r:?}"
+            );
         }
     }
 }
@@ -224,18 +230,21 @@ fn too_few_and_invalid_inputs_are_errors() {
                 Some(SolverError::TooFew { method: kind.name(), needed: kind.min_points(), got: n })
             );
         }
-        assert!(matches!(fit(kind, &p, &q[..3]), Err(SolverError::LengthMismatch { sources: 4, targets: 3 })));
+        assert!(matches!(fit(kind, &p, &q[..3]), Err(SolverError::LengthMismatch { from_len: 4, to_len: 3, .. })));
         let mut bad = q.clone();
         bad[2] = Point3::new(f64::NAN, 0.0, 0.0);
-        assert_eq!(fit(kind, &p, &bad).err(), Some(SolverError::NonFinite { index: 2 }));
+        assert_eq!(fit(kind, &p, &bad).err(), Some(SolverError::NonFinite { pair: 3 }));
         // Every source point at one place.
         let same = vec![Point3::<Moving>::new(1.0, 2.0, 3.0); 5];
-        assert!(matches!(fit(kind, &same, &q[..1].repeat(5)), Err(SolverError::Degenerate(_))));
+        assert!(matches!(
+            fit(kind, &same, &q[..1].repeat(5)),
+            Err(SolverError::Coincident { space: "moving", count: 5, .. })
+        ));
     }
     // Targets collapsed to one point: the rotation is undetermined.
     let collapsed = vec![Point3::<Fixed>::new(5.0, 5.0, 5.0); 4];
-    assert!(matches!(fit_rigid(&p, &collapsed), Err(SolverError::Degenerate(_))));
-    assert!(matches!(fit_similarity(&p, &collapsed), Err(SolverError::Degenerate(_))));
+    assert!(matches!(fit_rigid(&p, &collapsed), Err(SolverError::Coincident { space: "fixed", .. })));
+    assert!(matches!(fit_similarity(&p, &collapsed), Err(SolverError::Coincident { space: "fixed", .. })));
     // A coplanar set is fine for rigid and similarity fits (three or more non-collinear points).
     let f = fit_rigid(&p[..3], &q[..3]).expect("a triangle fixes the rotation");
     assert_proper_rotation(&f.warp.linear());

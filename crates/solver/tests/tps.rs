@@ -373,7 +373,11 @@ fn same_source_with_different_targets_is_duplicate() {
     let mut q = p.clone();
     p.push(p[2]);
     q.push([1.0, 2.0, 3.0]);
-    assert_eq!(fit(&p, &q, Regularisation::Interpolate).unwrap_err(), SolverError::Duplicate { first: 2, second: 8 });
+    // Pairs are numbered from 1 in messages and errors.
+    assert!(matches!(
+        fit(&p, &q, Regularisation::Interpolate).unwrap_err(),
+        SolverError::Conflict { first: 3, second: 9, .. }
+    ));
 }
 
 #[test]
@@ -402,7 +406,7 @@ fn repeated_pairs_leaving_fewer_than_four_are_too_few() {
 }
 
 #[test]
-fn coplanar_and_collinear_sources_are_degenerate() {
+fn coplanar_and_collinear_points_are_flat() {
     let mut rng = ChaCha8Rng::seed_from_u64(31);
     // A tilted plane through random points, and a line.
     let plane: Vec<[f64; 3]> = (0..20)
@@ -416,8 +420,11 @@ fn coplanar_and_collinear_sources_are_degenerate() {
         let q: Vec<[f64; 3]> = pts.iter().map(|v| smooth(*v)).collect();
         for reg in [Regularisation::Interpolate, Regularisation::ItkStiffness(1.0), Regularisation::Smoothing(1.0)] {
             match fit(&pts, &q, reg) {
-                Err(SolverError::Degenerate(msg)) => assert!(msg.contains(word), "{msg}"),
-                other => panic!("{word} {reg:?}: expected Degenerate, got {other:?}"),
+                Err(e @ SolverError::Flat { shape, .. }) => {
+                    assert_eq!(shape, word);
+                    assert!(e.to_string().contains(word), "{e}");
+                }
+                other => panic!("{word} {reg:?}: expected Flat, got {other:?}"),
             }
         }
     }
@@ -450,7 +457,7 @@ fn nearly_coincident_sources_with_different_targets_error_or_stay_finite() {
                 tps.eval_into(&p, &mut out);
                 assert!(out.iter().flatten().all(|v| v.is_finite()), "gap {gap_mm}");
             }
-            Err(SolverError::Degenerate(_) | SolverError::Duplicate { .. }) => {}
+            Err(SolverError::Degenerate(_) | SolverError::Conflict { .. }) => {}
             Err(other) => panic!("gap {gap_mm}: unexpected {other}"),
         }
     }
@@ -461,17 +468,17 @@ fn non_finite_inputs_and_bad_stiffness_are_rejected() {
     let p = cube_corners();
     let mut q = p.clone();
     q[4][1] = f64::NAN;
-    assert_eq!(fit(&p, &q, Regularisation::Interpolate).unwrap_err(), SolverError::NonFinite { index: 4 });
+    assert_eq!(fit(&p, &q, Regularisation::Interpolate).unwrap_err(), SolverError::NonFinite { pair: 5 });
     let mut p_inf = p.clone();
     p_inf[6][2] = f64::INFINITY;
-    assert_eq!(fit(&p_inf, &p, Regularisation::Interpolate).unwrap_err(), SolverError::NonFinite { index: 6 });
+    assert_eq!(fit(&p_inf, &p, Regularisation::Interpolate).unwrap_err(), SolverError::NonFinite { pair: 7 });
     for bad in [-1.0, f64::NAN, f64::INFINITY] {
         assert!(matches!(fit(&p, &p, Regularisation::ItkStiffness(bad)), Err(SolverError::InvalidParameter(_))));
         assert!(matches!(fit(&p, &p, Regularisation::Smoothing(bad)), Err(SolverError::InvalidParameter(_))));
     }
     assert_eq!(
         fit(&p, &p[..7], Regularisation::Interpolate).unwrap_err(),
-        SolverError::LengthMismatch { sources: 8, targets: 7 }
+        SolverError::LengthMismatch { from_space: "lps", from_len: 8, to_space: "fixed", to_len: 7 }
     );
 }
 
@@ -484,7 +491,7 @@ fn from_parts_validates_its_inputs() {
     w_nan[2][0] = f64::NAN;
     assert_eq!(
         Tps::<Dst, Src>::from_parts(&c, &w_nan, Matrix3::identity(), [0.0; 3]).unwrap_err(),
-        SolverError::NonFinite { index: 2 }
+        SolverError::NonFinite { pair: 3 }
     );
     assert!(Tps::<Dst, Src>::from_parts(&c, &w, Matrix3::identity(), [f64::NAN, 0.0, 0.0]).is_err());
     let id = Tps::<Dst, Src>::from_parts(&c, &w, Matrix3::identity(), [0.0; 3]).expect("identity");
