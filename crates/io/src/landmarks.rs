@@ -14,23 +14,26 @@
 //!   "world units" with no patient orientation: **we read them as LPS mm** unless
 //!   [`BigWarpCsvOptions::ras`] says they are RAS. [`read_bigwarp_csv`], [`write_bigwarp_csv`].
 //! - **Slicer `.mrk.json`** (markups schema v1, `Modules/Loadable/Markups/Resources/Schema`):
-//!   the first markup of type `Fiducial`; `coordinateSystem` `LPS` (the default when absent) or
-//!   `RAS`; `coordinateUnits` `mm` (default) or `um` (converted to mm); `controlPoints[]` with
+//!   the first markup of type `Fiducial`; `coordinateSystem` `LPS` (the schema's default when
+//!   absent, as Slicer reads it) or `RAS`; `coordinateUnits` `mm` (default) or `um` (converted to
+//!   mm), as a string or a UCUM code triple (`["um", "UCUM", "micrometer"]`); `controlPoints[]` with
 //!   `position`, `label`, `selected` and `positionStatus` — only `defined` points have a
 //!   position, `undefined` and `preview` points are missing. [`read_mrk_json`], [`write_mrk_json`].
 //! - **Slicer `.fcsv`** (legacy, Slicer `Docs/developer_guide/modules/markups.md`): `#` header
 //!   lines `# Markups fiducial file version = 4.11`, `# CoordinateSystem = LPS | RAS | 0 | 1`
-//!   (0 = RAS, 1 = LPS; LPS when absent, as Slicer assumes for files), `# columns = id,x,y,z,…`;
-//!   the columns line locates x, y, z, sel and label (extra columns, such as the two that
-//!   Slicer 5 appends, are ignored); without it the default order
-//!   `id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID` is used.
-//!   [`read_fcsv`], [`write_fcsv`].
+//!   (0 = RAS, 1 = LPS), `# columns = id,x,y,z,…`; or a Slicer 3 file (no version line, RAS,
+//!   `# columns = label,x,y,z,sel,vis`). The header decides the coordinate system as Slicer does,
+//!   and a file whose coordinate system cannot be determined is refused: the table is in
+//!   [`parse_fcsv`]. The columns line locates x, y, z, sel and label (other columns are ignored,
+//!   except the `positionStatus` that Slicer 5 appends). [`read_fcsv`], [`write_fcsv`].
 //!
 //! A Slicer file holds **one side**: [`read_slicer_pair`] reads a moving and a fixed list and
 //! pairs them by index (Slicer's Fiducial Registration Wizard and Landmark Registration do the
 //! same); the pair is active when both points are selected. [`write_slicer_pair`] writes both.
 //!
 //! # Conventions
+//!
+//! Every reader accepts one leading UTF-8 byte-order mark (each `parse_*` function strips it).
 //!
 //! Points are stored in LPS; RAS files are converted at I/O (negate x and y). NaN coordinates are
 //! refused with [`ErrorKind::Landmark`], whose index is **1-based** (the n-th landmark in the
@@ -104,6 +107,13 @@ fn read_text(path: &Path) -> Result<String> {
     String::from_utf8(bytes).map_err(|e| Error::invalid(path, format!("not UTF-8 text: {e}")))
 }
 
+/// `text` without one leading UTF-8 byte-order mark (U+FEFF), which Windows editors write and Slicer, BigWarp and
+/// spreadsheet programs accept. Every `parse_*` function of this module starts here, so every reader (file or text)
+/// accepts it; a second mark is content.
+fn strip_bom(text: &str) -> &str {
+    text.strip_prefix('\u{feff}').unwrap_or(text)
+}
+
 /// Shortest text that parses back to the same f64 (`1.0`, `-0.5`, `1e-7`).
 fn num(x: f64) -> String {
     format!("{x:?}")
@@ -136,6 +146,7 @@ pub fn read_bigwarp_csv_with(path: &Path, options: BigWarpCsvOptions) -> Result<
 
 /// Parses BigWarp CSV text; `name` is used in errors.
 pub fn parse_bigwarp_csv(name: &Path, text: &str, options: BigWarpCsvOptions) -> Result<Vec<LandmarkPair>> {
+    let text = strip_bom(text);
     let mut reader = csv::ReaderBuilder::new().has_headers(false).flexible(true).from_reader(text.as_bytes());
     let mut pairs = Vec::new();
     for (i, record) in reader.records().enumerate() {
@@ -278,11 +289,15 @@ pub fn read_mrk_json(path: &Path) -> Result<Vec<SlicerPoint>> {
 
 /// Parses `.mrk.json` text; `name` is used in errors.
 pub fn parse_mrk_json(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
+    let text = strip_bom(text);
     let root: Value = serde_json::from_str(text).map_err(|e| Error::invalid(name, format!("not JSON: {e}")))?;
-    let markups = root
-        .get("markups")
-        .and_then(Value::as_array)
-        .ok_or_else(|| Error::invalid(name, "no \"markups\" list: not a Slicer markups file"))?;
+    let markups = root.get("markups").and_then(Value::as_array).ok_or_else(|| {
+        Error::invalid(
+            name,
+            "no \"markups\" list: not a Slicer markups file (expected {\"markups\": [{\"type\": \"Fiducial\", \
+             \"controlPoints\": […]}]})",
+        )
+    })?;
     let Some(list) = markups.iter().find(|m| m.get("type").and_then(Value::as_str) == Some("Fiducial")) else {
         let types: Vec<&str> = markups.iter().map(|m| m.get("type").and_then(Value::as_str).unwrap_or("?")).collect();
         return Err(Error::invalid(name, format!("no Fiducial (point list) markup; the file holds {types:?}")));
@@ -292,11 +307,7 @@ pub fn parse_mrk_json(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
         Some("RAS") => true,
         Some(other) => return Err(Error::invalid(name, format!("coordinateSystem {other:?} is neither LPS nor RAS"))),
     };
-    let mm_per_unit = match list.get("coordinateUnits").and_then(Value::as_str) {
-        None | Some("mm") => 1.0,
-        Some("um") => 1e-3,
-        Some(other) => return Err(Error::invalid(name, format!("coordinateUnits {other:?} is neither mm nor um"))),
-    };
+    let mm_per_unit = mrk_json_mm_per_unit(name, list.get("coordinateUnits"))?;
     let empty = Vec::new();
     let points = match list.get("controlPoints") {
         None | Some(Value::Null) => &empty,
@@ -330,6 +341,33 @@ pub fn parse_mrk_json(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
         out.push(SlicerPoint { label, selected, position });
     }
     Ok(out)
+}
+
+/// Millimetres per unit of `coordinateUnits`: absent (the schema's default, mm), a string `mm` or `um`, or the
+/// schema's coded form, a UCUM code triple such as `["um", "UCUM", "micrometer"]` (Slicer reads both forms).
+/// Anything else is refused: a guessed unit would scale every point.
+fn mrk_json_mm_per_unit(name: &Path, units: Option<&Value>) -> Result<f64> {
+    let code = match units {
+        None => return Ok(1.0),
+        Some(Value::String(s)) => s.as_str(),
+        Some(v @ Value::Array(triple)) => match triple.as_slice() {
+            [Value::String(code), Value::String(scheme), Value::String(_)] if scheme == "UCUM" => code.as_str(),
+            _ => {
+                return Err(Error::invalid(
+                    name,
+                    format!("coordinateUnits {v} is not a UCUM code triple such as [\"mm\",\"UCUM\",\"millimeter\"]"),
+                ));
+            }
+        },
+        Some(other) => {
+            return Err(Error::invalid(name, format!("coordinateUnits {other} is neither a string nor a UCUM code")));
+        }
+    };
+    match code {
+        "mm" => Ok(1.0),
+        "um" => Ok(1e-3),
+        other => Err(Error::invalid(name, format!("coordinateUnits {other:?} is neither mm nor um"))),
+    }
 }
 
 /// `.mrk.json` text (LPS, mm) for `points`.
@@ -422,75 +460,162 @@ fn split_csv_row(row: &str) -> Vec<String> {
     fields
 }
 
+/// Slicer 3's fiducial-list columns (`vtkMRMLFiducialListStorageNode`), used when a Slicer 3 file has no
+/// columns line.
+const FCSV_SLICER3_COLUMNS: [&str; 6] = ["label", "x", "y", "z", "sel", "vis"];
+
+/// Index of the `positionStatus` value that Slicer 5 appends, undeclared, after the 14 declared columns.
+const FCSV_POSITION_STATUS_COLUMN: usize = 14;
+
+/// What a `.fcsv` header says, collected before any row is read.
+#[derive(Default)]
+struct FcsvHeader {
+    /// `# Markups fiducial file version = V` (Slicer 4 and later).
+    version: Option<String>,
+    /// `# CoordinateSystem = …`, as written.
+    coordinate_system: Option<String>,
+    /// `# columns = …`.
+    columns: Option<Vec<String>>,
+    /// A Slicer 3 header line: `# Fiducial List file …` or `# version = …`.
+    slicer3: bool,
+}
+
+impl FcsvHeader {
+    /// Reads one `#` line the way Slicer does: name and value around the first `=`, trimmed.
+    fn take(&mut self, comment: &str) {
+        let comment = comment.trim();
+        if comment.starts_with("Fiducial List file") {
+            self.slicer3 = true;
+            return;
+        }
+        let Some((key, value)) = comment.split_once('=') else { return };
+        let value = value.trim().to_string();
+        match key.trim() {
+            "Markups fiducial file version" => self.version = Some(value),
+            "CoordinateSystem" => self.coordinate_system = Some(value),
+            "columns" => self.columns = Some(value.split(',').map(|c| c.trim().to_string()).collect()),
+            "version" => self.slicer3 = true,
+            _ => {}
+        }
+    }
+
+    /// Whether the positions are RAS (`true`) or LPS (`false`): the decision table of [`parse_fcsv`].
+    fn ras(&self, name: &Path) -> Result<bool> {
+        match (self.version.as_deref(), self.coordinate_system.as_deref()) {
+            (Some(""), _) => Err(Error::invalid(name, "the \"# Markups fiducial file version\" line has no version")),
+            (Some(_), Some("LPS" | "1")) => Ok(false),
+            (Some(_), Some("RAS" | "0")) => Ok(true),
+            (Some(_), Some(other)) => {
+                Err(Error::invalid(name, format!("CoordinateSystem {other:?} is not LPS, RAS, 0 (RAS) or 1 (LPS)")))
+            }
+            (Some(version), None) => Err(Error::invalid(
+                name,
+                format!(
+                    "version {version} file with no \"# CoordinateSystem\" line: its points could be RAS or LPS \
+                     (Slicer wrote this line from its first versioned .fcsv on, and its default changed from RAS \
+                     to LPS in 2020), so it is refused rather than guessed; add \"# CoordinateSystem = RAS\" or \
+                     \"= LPS\" after the version line"
+                ),
+            )),
+            (None, Some(cs)) => Err(Error::invalid(
+                name,
+                format!(
+                    "a \"# CoordinateSystem = {cs}\" line without a \"# Markups fiducial file version\" line: neither \
+                     a Slicer 4+ file (which has both) nor a Slicer 3 file (RAS, with neither), so its coordinate \
+                     system is unclear"
+                ),
+            )),
+            (None, None) if self.slicer3 || self.columns.is_some() => Ok(true),
+            (None, None) => Err(Error::unsupported(
+                name,
+                "no \"# Markups fiducial file version\" line, and no Slicer 3 header (\"# Fiducial List file\" or \
+                 \"# columns\"): not a Slicer .fcsv file",
+            )),
+        }
+    }
+}
+
 /// Parses `.fcsv` text; `name` is used in errors.
+///
+/// The coordinate system is decided from the header as Slicer's `vtkMRMLMarkupsFiducialStorageNode` (and, for
+/// Slicer 3 files, `vtkMRMLFiducialListStorageNode`) decides it, except that where Slicer falls back on a default
+/// that has changed between its versions, the file is refused rather than guessed:
+///
+/// | `# Markups fiducial file version` | `# CoordinateSystem` | Read as | Slicer |
+/// |---|---|---|---|
+/// | present | `LPS` or `1` | LPS | LPS |
+/// | present | `RAS` or `0` | RAS | RAS |
+/// | present | absent | **refused** | the storage node's default: RAS before Slicer 4.11 (commit 6036edbc, 2020), LPS since; every Slicer that writes the version line writes this line too |
+/// | present | anything else | **refused** | clamped to RAS |
+/// | present but empty | any | **refused** | read as Slicer 3 |
+/// | absent, with a Slicer 3 header (`# Fiducial List file`, `# version =` or `# columns =`) | absent | RAS (Slicer 3) | RAS ("assuming Slicer 3 format") |
+/// | absent | present | **refused** | RAS, the line ignored |
+/// | absent, no Slicer 3 header | absent | **refused**, not a Slicer file | RAS |
+///
+/// Columns: the `# columns` line when there is one, else `id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,
+/// associatedNodeID` (versioned) or `label,x,y,z,sel,vis` (Slicer 3). In a versioned file with at most the 14
+/// declared columns, a 15th value is Slicer 5's `positionStatus`: a point whose status is not 2 (defined) has no
+/// position.
 pub fn parse_fcsv(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
-    let mut version: Option<String> = None;
-    let mut ras = false;
-    let mut columns: Option<Vec<String>> = None;
+    let text = strip_bom(text);
+    let mut header = FcsvHeader::default();
     let mut rows: Vec<(u64, &str)> = Vec::new();
     for (lineno, line) in text.lines().enumerate() {
         let line = line.trim_end_matches('\r');
         if let Some(comment) = line.strip_prefix('#') {
-            let comment = comment.trim();
-            if let Some(v) = comment.strip_prefix("Markups fiducial file version =") {
-                version = Some(v.trim().to_string());
-            } else if let Some(cs) = comment.strip_prefix("CoordinateSystem =") {
-                ras = match cs.trim() {
-                    "LPS" | "1" => false,
-                    "RAS" | "0" => true,
-                    other => {
-                        return Err(Error::invalid(
-                            name,
-                            format!("CoordinateSystem {other:?} is not LPS, RAS, 0 or 1"),
-                        ));
-                    }
-                };
-            } else if let Some(cols) = comment.strip_prefix("columns =") {
-                columns = Some(cols.split(',').map(|c| c.trim().to_string()).collect());
-            }
+            header.take(comment);
         } else if !line.trim().is_empty() {
             rows.push((lineno as u64 + 1, line));
         }
     }
-    if version.is_none() && columns.is_none() {
-        return Err(Error::unsupported(
-            name,
-            "no \"# Markups fiducial file version\" or \"# columns\" line: not a Slicer 4+ .fcsv file",
-        ));
-    }
-    let cols: Vec<String> = columns.unwrap_or_else(|| FCSV_DEFAULT_COLUMNS.iter().map(ToString::to_string).collect());
+    let ras = header.ras(name)?;
+    let versioned = header.version.is_some();
+    let cols: Vec<String> = header.columns.unwrap_or_else(|| {
+        let default: &[&str] = if versioned { &FCSV_DEFAULT_COLUMNS } else { &FCSV_SLICER3_COLUMNS };
+        default.iter().map(ToString::to_string).collect()
+    });
     let find = |c: &str| cols.iter().position(|x| x == c);
     let (Some(ix), Some(iy), Some(iz)) = (find("x"), find("y"), find("z")) else {
         return Err(Error::invalid(name, format!("the columns line {cols:?} has no x, y and z")));
     };
     let (isel, ilabel) = (find("sel"), find("label"));
+    let istatus = find("positionStatus")
+        .or_else(|| (versioned && cols.len() <= FCSV_POSITION_STATUS_COLUMN).then_some(FCSV_POSITION_STATUS_COLUMN));
 
     let mut out = Vec::with_capacity(rows.len());
     for (i, (lineno, row)) in rows.into_iter().enumerate() {
         let f = split_csv_row(row);
         let label = ilabel.and_then(|k| f.get(k)).cloned().unwrap_or_default();
+        let err = |problem: String| landmark_error(name, i, &label, Some(lineno), problem);
+        let selected = match isel.and_then(|k| f.get(k)).map(|s| s.trim()) {
+            None | Some("") => true,
+            Some(s) => s.parse::<i64>().map_err(|_| err(format!("sel is {s:?}, not 0 or 1")))? != 0,
+        };
+        let defined = match istatus.and_then(|k| f.get(k)).map(|s| s.trim()) {
+            None | Some("" | "2") => true,
+            Some("0" | "1" | "3") => false,
+            Some(s) => {
+                return Err(err(format!(
+                    "positionStatus is {s:?}, not 0 (undefined), 1 (preview), 2 (defined) or 3 (missing)"
+                )));
+            }
+        };
+        if !defined {
+            out.push(SlicerPoint { label, selected, position: None });
+            continue;
+        }
         let mut xyz = [0.0; 3];
         for (c, &k) in [ix, iy, iz].iter().enumerate() {
             let s = f.get(k).map_or("", |s| s.trim());
-            let v: f64 = s.parse().map_err(|_| {
-                landmark_error(name, i, &label, Some(lineno), format!("{} is {s:?}, not a number", axis(c)))
-            })?;
+            let v: f64 = s.parse().map_err(|_| err(format!("{} is {s:?}, not a number", axis(c))))?;
             if v.is_nan() {
-                return Err(landmark_error(name, i, &label, Some(lineno), format!("{} is NaN", axis(c))));
+                return Err(err(format!("{} is NaN", axis(c))));
             }
             if !v.is_finite() {
-                return Err(landmark_error(name, i, &label, Some(lineno), format!("{} is not finite", axis(c))));
+                return Err(err(format!("{} is not finite", axis(c))));
             }
             xyz[c] = v;
         }
-        let selected = match isel.and_then(|k| f.get(k)).map(|s| s.trim()) {
-            None | Some("") => true,
-            Some(s) => {
-                s.parse::<i64>()
-                    .map_err(|_| landmark_error(name, i, &label, Some(lineno), format!("sel is {s:?}, not 0 or 1")))?
-                    != 0
-            }
-        };
         let p = Point3::from_array(xyz);
         out.push(SlicerPoint { label, selected, position: Some(if ras { flip_xy(p) } else { p }) });
     }

@@ -229,9 +229,9 @@ fn fcsv_columns_line_and_default_order() {
     let pts = parse_fcsv(name, no_columns).expect("default order");
     assert_eq!(pts[0].position, Some(p(1.5, 2.5, 3.5)));
     assert_eq!(pts[0].label, "L");
-    // Absent CoordinateSystem: LPS, as Slicer assumes for files.
+    // Absent CoordinateSystem in a versioned file: refused (fcsv_coordinate_system_decision_table).
     let no_cs = "# Markups fiducial file version = 4.11\n1,1,2,3,0,0,0,1,1,1,0,L,,\n";
-    assert_eq!(parse_fcsv(name, no_cs).expect("no cs")[0].position, Some(p(1.0, 2.0, 3.0)));
+    assert!(parse_fcsv(name, no_cs).is_err());
 }
 
 #[test]
@@ -390,4 +390,133 @@ proptest! {
         let _ = parse_fcsv(Path::new("x.fcsv"), &text);
         let _ = parse_mrk_json(Path::new("x.mrk.json"), &text);
     }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Issue 13, items 8 and 9: the .fcsv coordinate-system decision table, and BOMs.
+
+const BOM: &str = "\u{feff}";
+
+/// Writes `text` to `dir/name` and returns the path.
+fn write_file(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, text).expect("write");
+    path
+}
+
+#[test]
+fn slicer3_fcsv_from_slicers_test_data_is_read_as_ras() {
+    // Slicer's own Slicer 3 test file (README.md): no version line, no CoordinateSystem line,
+    // `# columns = label,x,y,z,sel,vis`. Slicer reads such positions as RAS.
+    let pts = landmarks::read_fcsv(&fixture("slicer3.fcsv")).expect("slicer 3");
+    assert_eq!(pts.len(), 56, "numPoints = 56");
+    assert_eq!(pts[0], SlicerPoint { label: "midsag2".into(), selected: true, position: Some(p(-12.5, 93.5, 7.5)) });
+    assert_eq!(pts[55].label, "midsag57");
+    assert_eq!(pts[55].position, Some(p(11.5, -71.5, -26.5)), "RAS (-11.5, 71.5, -26.5) in LPS");
+}
+
+#[test]
+fn fcsv_coordinate_system_decision_table() {
+    let name = Path::new("f.fcsv");
+    let row4 = "1,1,2,3,0,0,0,1,1,1,0,L,,\n";
+    let at = |text: &str| parse_fcsv(name, text).map(|pts| pts[0].position);
+    // Versioned files: the CoordinateSystem line decides.
+    for (cs, want) in
+        [("LPS", p(1.0, 2.0, 3.0)), ("1", p(1.0, 2.0, 3.0)), ("RAS", p(-1.0, -2.0, 3.0)), ("0", p(-1.0, -2.0, 3.0))]
+    {
+        let text = format!("# Markups fiducial file version = 4.11\n# CoordinateSystem = {cs}\n{row4}");
+        assert_eq!(at(&text).expect(cs), Some(want), "{cs}");
+    }
+    // A versioned file without a CoordinateSystem line cannot be placed: every Slicer that writes the
+    // version line writes it, and Slicer's default changed from RAS to LPS (2020). Refused, not guessed.
+    let e = at(&format!("# Markups fiducial file version = 4.11\n{row4}")).expect_err("no cs");
+    assert!(e.to_string().contains("no \"# CoordinateSystem\" line"), "{e}");
+    // Unversioned (Slicer 3) files are RAS, with columns label,x,y,z,sel,vis unless a columns line says otherwise.
+    let slicer3 = "# Fiducial List file /tmp/a.fcsv\n# name = a\n# numPoints = 1\nA,1,2,3,0,1\n";
+    assert_eq!(
+        parse_fcsv(name, slicer3).expect("slicer 3 without columns"),
+        vec![SlicerPoint { label: "A".into(), selected: false, position: Some(p(-1.0, -2.0, 3.0)) }]
+    );
+    let slicer3_columns = "# columns = x,y,z,label\n1,2,3,B\n";
+    assert_eq!(at(slicer3_columns).expect("slicer 3 columns"), Some(p(-1.0, -2.0, 3.0)));
+    // An unversioned file with a CoordinateSystem line is neither Slicer 3 nor Slicer 4+: refused.
+    let e = at("# CoordinateSystem = LPS\n# columns = label,x,y,z,sel,vis\nA,1,2,3,1,1\n").expect_err("mixed");
+    assert!(e.to_string().contains("CoordinateSystem") && e.to_string().contains("version"), "{e}");
+    // Neither a version line nor a Slicer 3 header: not a Slicer file.
+    let e = at("A,1,2,3,1,1\n").expect_err("bare");
+    assert!(matches!(e.kind, ErrorKind::Unsupported(_)), "{e}");
+    // A version line without a version is not a version.
+    let e =
+        at(&format!("# Markups fiducial file version =\n# CoordinateSystem = LPS\n{row4}")).expect_err("empty version");
+    assert!(e.to_string().contains("version"), "{e}");
+}
+
+#[test]
+fn fcsv_position_status_column_marks_points_that_are_not_placed() {
+    // Slicer 5 appends positionStatus (0 undefined, 1 preview, 2 defined, 3 missing) and autoCreated after the
+    // 14 declared columns; a point whose status is not 2 has no position (its x, y, z are placeholders).
+    let name = Path::new("f.fcsv");
+    let head = "# Markups fiducial file version = 5.6\n# CoordinateSystem = LPS\n\
+                # columns = id,x,y,z,ow,ox,oy,oz,vis,sel,lock,label,desc,associatedNodeID\n";
+    let rows = "1,1,2,3,0,0,0,1,1,1,0,A,,,2,0\n2,0,0,0,0,0,0,1,1,1,0,B,,,0,0\n3,0,0,0,0,0,0,1,1,1,0,C,,,1,0\n\
+                4,0,0,0,0,0,0,1,1,1,0,D,,,3,0\n5,4,5,6,0,0,0,1,1,1,0,E,,\n";
+    let pts = parse_fcsv(name, &format!("{head}{rows}")).expect("status");
+    let positions: Vec<_> = pts.iter().map(|p| p.position).collect();
+    assert_eq!(positions, [Some(p(1.0, 2.0, 3.0)), None, None, None, Some(p(4.0, 5.0, 6.0))]);
+    let e = parse_fcsv(name, &format!("{head}1,1,2,3,0,0,0,1,1,1,0,A,,,x,0\n")).expect_err("bad status");
+    let (index, problem) = landmark_error(&e);
+    assert!(index == 1 && problem.contains("positionStatus"), "{e}");
+}
+
+#[test]
+fn mrk_json_coded_units_are_read_not_defaulted() {
+    // The schema allows coordinateUnits as a UCUM code triple; "um" must not be read as mm.
+    let name = Path::new("m.mrk.json");
+    let doc = |units: &str| {
+        format!(
+            r#"{{"markups":[{{"type":"Fiducial","coordinateUnits":{units},"controlPoints":[{{"position":[1000,2000,3000]}}]}}]}}"#
+        )
+    };
+    let um = parse_mrk_json(name, &doc(r#"["um","UCUM","micrometer"]"#)).expect("um code");
+    assert_eq!(um[0].position, Some(p(1.0, 2.0, 3.0)));
+    let mm = parse_mrk_json(name, &doc(r#"["mm","UCUM","millimeter"]"#)).expect("mm code");
+    assert_eq!(mm[0].position, Some(p(1000.0, 2000.0, 3000.0)));
+    for bad in [r#"["mm","DCM","millimeter"]"#, r#"["cm","UCUM","centimeter"]"#, "7", r#"{"codeValue":"um"}"#] {
+        let e = parse_mrk_json(name, &doc(bad)).expect_err(bad);
+        assert!(e.to_string().contains("coordinateUnits"), "{bad}: {e}");
+    }
+}
+
+#[test]
+fn every_landmark_reader_strips_one_leading_bom() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for fixture_name in [
+        "slicer5_lps.mrk.json",
+        "slicer5_ras.mrk.json",
+        "slicer5_extra_columns.fcsv",
+        "legacy_ras_code0.fcsv",
+        "slicer3.fcsv",
+        "bigwarp_pairs.csv",
+    ] {
+        let text = std::fs::read_to_string(fixture(fixture_name)).expect("fixture");
+        let with_bom = write_file(dir.path(), fixture_name, &format!("{BOM}{text}"));
+        if Path::new(fixture_name).extension().is_some_and(|e| e == "csv") {
+            let want = landmarks::read_bigwarp_csv(&fixture(fixture_name)).expect("plain");
+            assert_eq!(landmarks::read_bigwarp_csv(&with_bom).expect("bom"), want, "{fixture_name}");
+            assert_eq!(csv(&format!("{BOM}{text}")).expect("parse bom"), want, "{fixture_name}");
+        } else {
+            let want = landmarks::read_slicer_points(&fixture(fixture_name)).expect("plain");
+            assert_eq!(landmarks::read_slicer_points(&with_bom).expect("bom"), want, "{fixture_name}");
+        }
+    }
+    let fcsv = std::fs::read_to_string(fixture("slicer5_extra_columns.fcsv")).expect("fcsv");
+    let json = std::fs::read_to_string(fixture("slicer5_lps.mrk.json")).expect("json");
+    let name = Path::new("x");
+    assert_eq!(parse_fcsv(name, &format!("{BOM}{fcsv}")).expect("fcsv"), parse_fcsv(name, &fcsv).expect("fcsv"));
+    assert_eq!(
+        parse_mrk_json(name, &format!("{BOM}{json}")).expect("json"),
+        parse_mrk_json(name, &json).expect("json")
+    );
+    // One BOM only: a second one is content, and it is refused, not skipped.
+    assert!(parse_mrk_json(name, &format!("{BOM}{BOM}{json}")).is_err());
 }
