@@ -520,3 +520,237 @@ fn every_landmark_reader_strips_one_leading_bom() {
     // One BOM only: a second one is content, and it is refused, not skipped.
     assert!(parse_mrk_json(name, &format!("{BOM}{BOM}{json}")).is_err());
 }
+
+// ---------------------------------------------------------------------------------------------
+// Issue 13, item 10: BigWarp JSON landmarks, and reading one file of pairs by content.
+
+/// BigWarp's `LandmarkTableModel.toJson()` for two pairs, the second without its moving half.
+const BIGWARP_LANDMARKS: &str = r#"{"type": "BigWarpLandmarks", "numDimensions": 3,
+    "movingPoints": [[1.5, -2.0, 3.0], [Infinity, Infinity, Infinity]],
+    "fixedPoints": [[4.0, 5.0, 6.0], [7.0, 8.0, 9.0]],
+    "active": [true, false], "names": ["A", "B, \"quoted\""]}"#;
+
+fn bigwarp_json(text: &str) -> warpbench_io::Result<Vec<LandmarkPair>> {
+    landmarks::parse_bigwarp_json(Path::new("pairs.json"), text, BigWarpCsvOptions::default())
+}
+
+#[test]
+fn bigwarp_settings_json_reads_to_the_same_pairs_as_the_csv_bigwarp_made_it_from() {
+    // BigWarp's own serialization test (README.md): it loads landmarks.csv and its settings file must equal
+    // expected.json, so the two files hold the same landmarks by BigWarp's own account.
+    let from_csv = landmarks::read_bigwarp_csv(&fixture("bigwarp_settings_landmarks.csv")).expect("csv");
+    let from_json = landmarks::read_bigwarp_json(&fixture("bigwarp_settings.json")).expect("settings json");
+    assert_eq!(from_json, from_csv);
+    assert_eq!(from_json.len(), 5);
+    assert_eq!(
+        from_json[0],
+        LandmarkPair::new(
+            "Pt-0",
+            p(193.152_710_280_373_7, 163.579_439_252_336_58, 130.000_000_000_000_03),
+            p(216.017_975_084_172_32, 233.334_191_098_499_2, 126.862_635_798_327_89)
+        )
+    );
+    // The same through the reader that picks the format by content.
+    assert_eq!(landmarks::read_landmark_pairs(&fixture("bigwarp_settings.json")).expect("by content"), from_csv);
+    // World coordinates as in the CSV reader: LPS by default, RAS when asked, for both formats.
+    let ras = BigWarpCsvOptions { ras: true };
+    assert_eq!(
+        landmarks::read_bigwarp_json_with(&fixture("bigwarp_settings.json"), ras).expect("json ras"),
+        landmarks::read_bigwarp_csv_with(&fixture("bigwarp_settings_landmarks.csv"), ras).expect("csv ras")
+    );
+}
+
+#[test]
+fn bigwarp_save_landmarks_json_with_a_pending_point_matches_the_csv() {
+    // BigWarp's "Save landmarks" to .json (TransformWriterJson): {"type": <transform>, "landmarks": {...}},
+    // a pending half as bare Infinity (Gson writes non-finite numbers that way).
+    let json = landmarks::read_bigwarp_json(&fixture("bigwarp_pairs.json")).expect("json");
+    assert_eq!(json, landmarks::read_bigwarp_csv(&fixture("bigwarp_pairs.csv")).expect("csv"));
+    assert_eq!(json[2].fixed, None);
+}
+
+#[test]
+fn bigwarp_json_is_read_alone_under_landmarks_and_under_transform() {
+    let alone = bigwarp_json(BIGWARP_LANDMARKS).expect("alone");
+    assert_eq!(
+        alone,
+        vec![
+            LandmarkPair::new("A", p(1.5, -2.0, 3.0), p(4.0, 5.0, 6.0)),
+            LandmarkPair { name: "B, \"quoted\"".into(), active: false, moving: None, fixed: Some(p(7.0, 8.0, 9.0)) },
+        ]
+    );
+    let saved = format!(r#"{{"type": "Thin Plate Spline", "landmarks": {BIGWARP_LANDMARKS}}}"#);
+    let settings =
+        format!(r#"{{"Sources": {{}}, "Transform": {{"type": "Affine", "landmarks": {BIGWARP_LANDMARKS}}}}}"#);
+    assert_eq!(bigwarp_json(&saved).expect("saved"), alone);
+    assert_eq!(bigwarp_json(&settings).expect("settings"), alone);
+    // Empty tables, as BigWarp writes them before the first point.
+    let empty =
+        r#"{"type":"BigWarpLandmarks","numDimensions":3,"movingPoints":[],"fixedPoints":[],"active":[],"names":[]}"#;
+    assert!(bigwarp_json(empty).expect("empty").is_empty());
+}
+
+#[test]
+fn bigwarp_json_bad_content_names_file_and_landmark() {
+    let doc = |moving: &str, active: &str, names: &str| {
+        format!(
+            r#"{{"type":"BigWarpLandmarks","numDimensions":3,"movingPoints":[[1,2,3],{moving}],
+            "fixedPoints":[[4,5,6],[7,8,9]],"active":{active},"names":{names}}}"#
+        )
+    };
+    let (active, names) = ("[true,true]", r#"["P1","P2"]"#);
+    for (text, want) in [
+        (doc("[1,2]", active, names), "3 numbers"),
+        (doc("[1,NaN,3]", active, names), "moving y is NaN"),
+        (doc("[1,Infinity,3]", active, names), "partly infinite"),
+        (doc("[1,\"two\",3]", active, names), "moving y"),
+        (doc("[1,null,3]", active, names), "moving y"),
+        (doc("[1,2,3]", "[true,\"yes\"]", names), "active"),
+        (doc("[1,2,3]", active, r#"["P1",2]"#), "name"),
+    ] {
+        let e = bigwarp_json(&text).expect_err(want);
+        let (index, problem) = landmark_error(&e);
+        assert_eq!(index, 2, "{want}: {e}");
+        assert!(problem.contains(want) && problem.contains("1-based"), "{want}: {e}");
+        assert!(e.to_string().starts_with("pairs.json: landmark 2: "), "{e}");
+    }
+    for (text, want) in [
+        (BIGWARP_LANDMARKS.replace("\"numDimensions\": 3", "\"numDimensions\": 2"), "2-D landmarks are not supported"),
+        (BIGWARP_LANDMARKS.replace("\"numDimensions\": 3", "\"numDimensions\": 4"), "numDimensions"),
+        (BIGWARP_LANDMARKS.replace("\"numDimensions\": 3,", ""), "numDimensions"),
+        (BIGWARP_LANDMARKS.replace("[true, false]", "[true]"), "active has 1 entries but names has 2"),
+        (BIGWARP_LANDMARKS.replace(", [7.0, 8.0, 9.0]", ""), "fixedPoints has 1 entries but names has 2"),
+        (BIGWARP_LANDMARKS.replace("\"names\"", "\"labels\""), "names"),
+        (format!(r#"{{"landmarks": {}}}"#, BIGWARP_LANDMARKS.replace("BigWarpLandmarks", "Other")), "BigWarpLandmarks"),
+        ("{\"landmarks\": [1, 2]}".to_string(), "BigWarpLandmarks"),
+        ("[1, 2]".to_string(), "BigWarpLandmarks"),
+        ("{\"type\": \"BigWarpLandmarks\"".to_string(), "not JSON"),
+    ] {
+        let e = bigwarp_json(&text).expect_err(want);
+        assert!(e.to_string().contains(want) && e.to_string().starts_with("pairs.json: "), "{want}: {e}");
+    }
+}
+
+#[test]
+fn bigwarp_json_writer_writes_what_bigwarp_reads_and_round_trips() {
+    let pairs = vec![
+        LandmarkPair::new("Pt-0", p(0.1, -2.0, 1e-7), p(1.0 / 3.0, 2.0, -0.0)),
+        LandmarkPair { name: "say \"hi\"".into(), active: false, moving: None, fixed: Some(p(1.0, 2.0, 3.0)) },
+    ];
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("pairs.json");
+    landmarks::write_bigwarp_json(&out, &pairs).expect("write");
+    let text = std::fs::read_to_string(&out).expect("text");
+    // BigWarp's loadLandmarks(.json) reads {"landmarks": {...}} (TransformWriterJson.read); a pending half is
+    // Infinity, as BigWarp writes it.
+    assert!(text.starts_with("{\n  \"landmarks\": {\n    \"type\": \"BigWarpLandmarks\",\n"), "{text}");
+    assert!(text.contains("\"numDimensions\": 3,"), "{text}");
+    assert!(text.contains("[\n        Infinity,\n        Infinity,\n        Infinity\n      ]"), "{text}");
+    assert!(text.contains("\"say \\\"hi\\\"\""), "{text}");
+    assert_eq!(landmarks::read_bigwarp_json(&out).expect("read"), pairs);
+    // Its structure (with the pending half made a string for a strict parser) is BigWarp's.
+    let strict: serde_json::Value = serde_json::from_str(&text.replace("Infinity", "\"Infinity\"")).expect("json");
+    let lm = &strict["landmarks"];
+    for key in ["type", "numDimensions", "movingPoints", "fixedPoints", "active", "names"] {
+        assert!(lm.get(key).is_some(), "no {key}: {text}");
+    }
+    assert_eq!(lm["active"], serde_json::json!([true, false]));
+    // NaN is refused on write, and nothing is written.
+    let bad = dir.path().join("bad.json");
+    let nan = [LandmarkPair::new("x", p(f64::NAN, 0.0, 0.0), p(0.0, 0.0, 0.0))];
+    assert!(landmarks::write_bigwarp_json(&bad, &nan).is_err());
+    assert!(!bad.exists());
+}
+
+#[test]
+fn one_file_of_pairs_is_read_by_content_and_written_by_extension() {
+    use landmarks::LandmarkFileFormat as F;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let pairs = landmarks::read_bigwarp_csv(&fixture("bigwarp_pairs.csv")).expect("csv");
+    // Writers: .json is BigWarp JSON, anything else but a Slicer name is BigWarp CSV.
+    let json = dir.path().join("pairs.json");
+    let csv_path = dir.path().join("pairs.csv");
+    landmarks::write_landmark_pairs(&json, &pairs).expect("json");
+    landmarks::write_landmark_pairs(&csv_path, &pairs).expect("csv");
+    assert!(std::fs::read_to_string(&json).expect("json").contains("BigWarpLandmarks"));
+    assert_eq!(
+        std::fs::read_to_string(&csv_path).expect("csv"),
+        landmarks::to_bigwarp_csv(&csv_path, &pairs, BigWarpCsvOptions::default()).expect("csv")
+    );
+    for slicer in ["pairs.mrk.json", "pairs.fcsv"] {
+        let path = dir.path().join(slicer);
+        let e = landmarks::write_landmark_pairs(&path, &pairs).expect_err(slicer);
+        assert!(e.to_string().contains("one side"), "{e}");
+        assert!(!path.exists());
+    }
+    // Readers decide by content, whatever the name.
+    let json_named_txt = write_file(dir.path(), "json.txt", &std::fs::read_to_string(&json).expect("json"));
+    let csv_named_json = write_file(dir.path(), "csv.json", &std::fs::read_to_string(&csv_path).expect("csv"));
+    for path in [&json, &csv_path, &json_named_txt, &csv_named_json] {
+        assert_eq!(landmarks::read_landmark_pairs(path).expect("read"), pairs, "{}", path.display());
+    }
+    for (name, want) in [
+        ("bigwarp_pairs.csv", F::BigWarpCsv),
+        ("bigwarp_pairs.json", F::BigWarpJson),
+        ("bigwarp_settings.json", F::BigWarpJson),
+        ("slicer5_lps.mrk.json", F::SlicerMarkupsJson),
+        ("slicer5_extra_columns.fcsv", F::SlicerFcsv),
+        ("slicer3.fcsv", F::SlicerFcsv),
+    ] {
+        assert_eq!(landmarks::detect_landmark_file(&fixture(name)).expect(name), want, "{name}");
+    }
+    // A Slicer list holds one side: refused as a file of pairs, saying so.
+    for name in ["slicer5_lps.mrk.json", "slicer3.fcsv"] {
+        let e = landmarks::read_landmark_pairs(&fixture(name)).expect_err(name);
+        assert!(matches!(e.kind, ErrorKind::Unsupported(_)) && e.to_string().contains("one side"), "{e}");
+    }
+    // An unknown JSON says what was expected, and what it found.
+    let other = write_file(dir.path(), "other.json", r#"{"points": [[1, 2, 3]], "version": 2}"#);
+    let e = landmarks::read_landmark_pairs(&other).expect_err("unknown json");
+    let msg = e.to_string();
+    assert!(msg.starts_with(&format!("{}: ", other.display())), "{msg}");
+    for want in
+        ["BigWarpLandmarks", "\"landmarks\"", "\"Transform\"", "Slicer", "\"markups\"", "\"points\", \"version\""]
+    {
+        assert!(msg.contains(want), "{want}: {msg}");
+    }
+    // A BigWarp file given as a Slicer point list says what it is.
+    let e = landmarks::read_mrk_json(&fixture("bigwarp_pairs.json")).expect_err("bigwarp as slicer");
+    assert!(e.to_string().contains("BigWarp landmarks file"), "{e}");
+}
+
+#[test]
+fn bigwarp_json_strips_a_bom() {
+    let text = std::fs::read_to_string(fixture("bigwarp_pairs.json")).expect("fixture");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = write_file(dir.path(), "bom.json", &format!("{BOM}{text}"));
+    let want = landmarks::read_bigwarp_json(&fixture("bigwarp_pairs.json")).expect("plain");
+    assert_eq!(landmarks::read_bigwarp_json(&path).expect("bom"), want);
+    assert_eq!(landmarks::read_landmark_pairs(&path).expect("bom by content"), want);
+}
+
+proptest! {
+    /// Law: BigWarp JSON write then read is the identity (names, flags, missing halves; exact f64 where
+    /// serde_json parses exactly).
+    #[test]
+    fn random_pairs_round_trip_through_bigwarp_json(pairs in proptest::collection::vec(pair(), 0..12), ras in any::<bool>()) {
+        let name = Path::new("r.json");
+        let options = BigWarpCsvOptions { ras };
+        let text = landmarks::to_bigwarp_json(name, &pairs, options).expect("write");
+        let back = landmarks::parse_bigwarp_json(name, &text, options).expect("read");
+        prop_assert_eq!(back.len(), pairs.len());
+        for (b, a) in back.iter().zip(&pairs) {
+            prop_assert_eq!(&b.name, &a.name);
+            prop_assert_eq!(b.active, a.active);
+            prop_assert!(same_point(b.moving, a.moving), "{:?} vs {:?}", b.moving, a.moving);
+            prop_assert!(same_point(b.fixed, a.fixed), "{:?} vs {:?}", b.fixed, a.fixed);
+        }
+    }
+
+    /// Law: no text makes the BigWarp JSON reader or the format detection panic.
+    #[test]
+    fn arbitrary_json_like_text_never_panics(text in "(\\PC|\n|\\[|\\]|\\{|\\}|,|\"|\\\\|Infinity|NaN|-){0,200}") {
+        let _ = landmarks::parse_bigwarp_json(Path::new("x.json"), &text, BigWarpCsvOptions::default());
+        let _ = landmarks::detect_landmark_format(Path::new("x"), &text);
+    }
+}
