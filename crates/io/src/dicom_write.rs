@@ -124,12 +124,7 @@ pub fn write_series(dir: &Path, volume: &Volume, opts: &DicomSeriesOptions) -> R
         return Err(Error::invalid(dir, "the output folder exists and is not empty"));
     }
     let stored = choose_stored(dir, volume, opts.rescale_intercept)?;
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let staging =
-        tempfile::Builder::new().prefix(".warpbench-series-").tempdir_in(parent).map_err(|e| Error::io(dir, e))?;
+    let staging = crate::atomic::StagingDir::new_beside(dir)?;
 
     let [nx, ny, nz] = volume.dims;
     let dirs = direction_cosines(&volume.lps_from_index);
@@ -211,14 +206,7 @@ pub fn write_series(dir: &Path, volume: &Volume, opts: &DicomSeriesOptions) -> R
         })?;
         files.push(dir.join(name));
     }
-    if dir.exists() {
-        std::fs::remove_dir(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    let staged = staging.keep();
-    if let Err(e) = std::fs::rename(&staged, dir) {
-        let _ = std::fs::remove_dir_all(&staged);
-        return Err(Error::io(dir, e));
-    }
+    staging.persist(dir)?;
     Ok(files)
 }
 
