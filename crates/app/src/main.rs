@@ -558,17 +558,77 @@ fn run_eval(a: EvalArgs) -> Result<(), Failure> {
     eval::run(&opts, &mut std::io::stdout().lock())
 }
 
+/// The failure's message for stderr: the error and its causes joined with ": ", each once. (An error that shows
+/// its source in its own text, as an I/O error does with the OS error, would otherwise print it twice.)
+fn message(error: &anyhow::Error) -> String {
+    let mut text = String::new();
+    for cause in error.chain() {
+        let part = cause.to_string();
+        if text.contains(&part) {
+            continue;
+        }
+        if !text.is_empty() {
+            text.push_str(": ");
+        }
+        text.push_str(&part);
+    }
+    text
+}
+
+/// Keeps a headless command's GPU probe quiet. Mesa's Vulkan device-select layer (an implicit layer the Vulkan
+/// loader runs in every process) asks the Wayland compositor which GPU drives the display whenever an instance
+/// enables `VK_KHR_wayland_surface`, and wgpu enables every surface extension there is. Without `XDG_RUNTIME_DIR`
+/// there is no compositor to ask, and libwayland prints "error: XDG_RUNTIME_DIR is invalid or not set in the
+/// environment." for each probe. A headless command has no display to match, so in exactly that case it turns the
+/// layer off (`NODEVICE_SELECT=1`), unless the user chose a device through the layer or a compositor is reachable
+/// another way.
+#[allow(unsafe_code, reason = "std::env::set_var, before any thread exists (see the SAFETY comment)")]
+fn quiet_headless_gpu_probe() {
+    let var = |name: &str| std::env::var_os(name);
+    let absolute = |name: &str| var(name).is_some_and(|v| std::path::Path::new(&v).is_absolute());
+    let compositor_reachable =
+        absolute("XDG_RUNTIME_DIR") || absolute("WAYLAND_DISPLAY") || var("WAYLAND_SOCKET").is_some();
+    let user_chose = ["NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "DRI_PRIME"].into_iter().any(|v| var(v).is_some());
+    if !compositor_reachable && !user_chose {
+        // SAFETY: called from `main` after parsing the arguments and before anything else: no other thread exists
+        // yet, so nothing reads or writes the environment at the same time.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
+}
+
+/// SIGINT, SIGTERM and SIGHUP in a headless command: remove the temporaries of the write in progress (so nothing
+/// half-written stays beside an output), then die of the signal as if it had not been handled (a shell reports 130
+/// for Ctrl-C, 143 for SIGTERM). A SIGKILL cannot be handled: the next write into that folder removes what it left
+/// (`warpbench_io::atomic`).
+#[cfg(unix)]
+fn remove_temporaries_on_signals() {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    // Without the handler a signal kills as it always did; the next run still removes the leftovers.
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]) else { return };
+    let handler = move || {
+        if let Some(signal) = signals.forever().next() {
+            warpbench_io::atomic::remove_temporaries_before_exit();
+            let _ = signal_hook::low_level::emulate_default_handler(signal);
+            std::process::exit(128 + signal);
+        }
+    };
+    let _ = std::thread::Builder::new().name("signals".into()).spawn(handler);
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let Some(command) = cli.command else {
         return match run_gui(cli.gui) {
             Ok(()) => ExitCode::SUCCESS,
             Err(f) => {
-                eprintln!("warpbench: {:#}", f.error());
+                eprintln!("warpbench: {}", message(f.error()));
                 f.code()
             }
         };
     };
+    quiet_headless_gpu_probe();
+    #[cfg(unix)]
+    remove_temporaries_on_signals();
     let result = match command {
         Command::Info { path, json, frame, series, quiet } => {
             info::run(&InfoOptions { path, json, frame, series, quiet }, &mut std::io::stdout().lock())
@@ -581,7 +641,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
-            eprintln!("warpbench: {:#}", f.error());
+            eprintln!("warpbench: {}", message(f.error()));
             f.code()
         }
     }
