@@ -15,6 +15,7 @@
 
 pub mod atomic;
 pub mod dicom;
+pub mod dicom_source;
 pub mod dicom_write;
 pub mod error;
 pub mod geometry;
