@@ -127,7 +127,7 @@ fn outputs_get_the_umask_mode_and_an_overwritten_file_keeps_its_mode() {
 fn spawn_paused(args: &[String], pause_on: &str) -> Child {
     Command::new(BIN)
         .args(args)
-        .env(TEST_PAUSE_VAR, format!("60000:{pause_on}"))
+        .env(TEST_PAUSE_VAR, format!("120000:{pause_on}"))
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
