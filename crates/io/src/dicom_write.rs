@@ -171,12 +171,7 @@ pub fn write_series(dir: &Path, volume: &Volume, opts: &DicomSeriesOptions) -> R
         return Err(Error::invalid(dir, "the output folder exists and is not empty"));
     }
     let plan = Plan::new(dir, volume, opts)?;
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let staging =
-        tempfile::Builder::new().prefix(".warpbench-series-").tempdir_in(parent).map_err(|e| Error::io(dir, e))?;
+    let staging = crate::atomic::StagingDir::new_beside(dir)?;
 
     let mut files = Vec::with_capacity(plan.file_count());
     for n in 0..plan.file_count() {
@@ -190,14 +185,7 @@ pub fn write_series(dir: &Path, volume: &Volume, opts: &DicomSeriesOptions) -> R
         })?;
         files.push(dir.join(name));
     }
-    if dir.exists() {
-        std::fs::remove_dir(dir).map_err(|e| Error::io(dir, e))?;
-    }
-    let staged = staging.keep();
-    if let Err(e) = std::fs::rename(&staged, dir) {
-        let _ = std::fs::remove_dir_all(&staged);
-        return Err(Error::io(dir, e));
-    }
+    staging.persist(dir)?;
     Ok(files)
 }
 
