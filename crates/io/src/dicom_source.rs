@@ -18,8 +18,10 @@
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 
-use dicom_core::Tag;
-use dicom_dictionary_std::tags;
+/// The tag type and the standard tag names that [`DicomSource::attribute`] and [`DicomSource::text`] take,
+/// re-exported so that callers need no DICOM crate of their own.
+pub use dicom_core::Tag;
+pub use dicom_dictionary_std::tags;
 use dicom_object::mem::InMemElement;
 use dicom_object::{InMemDicomObject, OpenFileOptions};
 

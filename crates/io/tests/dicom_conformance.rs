@@ -401,3 +401,25 @@ fn descriptions_are_cut_to_fit_and_non_ascii_text_is_declared_utf8() {
     let written = text(&out, tags::SERIES_DESCRIPTION);
     assert!(written.len() <= 64 && written.starts_with("warpbench tps warp of Körper x"), "{written:?}");
 }
+
+#[test]
+fn a_secondary_capture_source_is_referenced_from_the_multi_frame_secondary_capture() {
+    // A DICOM source of another modality (here OT, a deflated SC image): patient and study copied, image referenced,
+    // and the IOD is Secondary Capture (no acquisition attributes are copied into it).
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let input = data("dicom/single/image_dfl.dcm");
+    let volume = warpbench_io::open(&input).expect("read the SC image");
+    let (dir, files) = export(tmp.path(), &input, &volume, true);
+    assert_conformant(&files);
+    assert_reads_back(&dir, &volume);
+    let (source, out) = (open_header(&input), open_header(&files[0]));
+    assert!(
+        text(&out, tags::SOP_CLASS_UID).starts_with("1.2.840.10008.5.1.4.1.1.7."),
+        "{}",
+        text(&out, tags::SOP_CLASS_UID)
+    );
+    assert_eq!(text(&out, tags::STUDY_INSTANCE_UID), text(&source, tags::STUDY_INSTANCE_UID));
+    assert_eq!(text(&out, tags::PATIENT_ID), text(&source, tags::PATIENT_ID));
+    let refs = out.get(tags::SOURCE_IMAGE_SEQUENCE).expect("Source Image Sequence").items().expect("items");
+    assert_eq!(refs.len(), 1);
+}
