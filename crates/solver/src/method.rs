@@ -11,12 +11,13 @@ use std::fmt;
 use warpbench_io::geometry::{Point3, Space};
 
 use crate::bspline::{self, BSplineParams, HierarchicalBSpline};
+use crate::diagnostics;
 use crate::error::Result;
 use crate::linear::{self, LinearKind};
 use crate::pairs::{self, Needs, PairWarning};
 use crate::spaces::Aabb;
 use crate::tps::{self, Tps};
-use crate::warp::Warp;
+use crate::warp::{Parallelism, Warp};
 
 /// A warp model and its parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -84,5 +85,26 @@ impl Method {
             Self::BSpline(params) => Box::new(HierarchicalBSpline::fit(src, dst, domain, params)?),
             Self::Linear(kind) => Box::new(linear::fit(*kind, src, dst)?.warp),
         })
+    }
+
+    /// The leave-one-out error of every pair (pairs as for [`Method::fit`]): ‖w₋ᵢ(`src[i]`) − `dst[i]`‖ in mm, w₋ᵢ
+    /// fitted with this method on every other pair; `None` where that refit is refused. A TPS takes the closed form
+    /// of [`tps::leave_one_out`] (one solve instead of N, the same numbers); the other methods, and a TPS whose full
+    /// fit fails, refit N times ([`diagnostics::leave_one_out`], cheap for them), on the threads `parallelism`
+    /// allows.
+    #[must_use]
+    pub fn leave_one_out<To: Space, From: Space>(
+        &self,
+        src: &[Point3<From>],
+        dst: &[Point3<To>],
+        domain: Aabb<From>,
+        parallelism: Parallelism,
+    ) -> Vec<Option<f64>> {
+        if let Self::Tps { stiffness } = *self
+            && let Ok(errors) = tps::leave_one_out(src, dst, tps::Regularisation::Smoothing(stiffness))
+        {
+            return errors;
+        }
+        diagnostics::leave_one_out(src, dst, |s: &[Point3<From>], d: &[Point3<To>]| self.fit(s, d, domain), parallelism)
     }
 }

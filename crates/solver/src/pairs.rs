@@ -264,6 +264,39 @@ impl<'a> Side<'a> {
     }
 }
 
+/// For each point k of `points` (distinct positions), whether the set without it still has the spread `needs`
+/// asks for (and at least two points): the check [`validate`] would make of a leave-one-out refit, from the
+/// scatter downdated by point k, O(1) per point.
+#[must_use]
+pub fn valid_without_each(needs: &Needs, points: &[[f64; 3]]) -> Vec<bool> {
+    let n = points.len();
+    if n < 3 {
+        return vec![false; n];
+    }
+    let mean = points.iter().fold(Vector3::zeros(), |m, p| m + Vector3::from(*p)) / n as f64;
+    let scatter = points.iter().fold(Matrix3::zeros(), |s, p| {
+        let d = Vector3::from(*p) - mean;
+        s + d * d.transpose()
+    });
+    let rest = (n - 1) as f64;
+    points
+        .iter()
+        .map(|p| {
+            // Without p: the mean moves by −d/(n−1), and Σ (x − mean′)(x − mean′)ᵀ = S − d dᵀ − (n−1) m mᵀ.
+            let d = Vector3::from(*p) - mean;
+            let shift = -d / rest;
+            let cov = (scatter - d * d.transpose()) / rest - shift * shift.transpose();
+            let mut sigma: Vec<f64> = cov.symmetric_eigenvalues().iter().map(|e| e.max(0.0).sqrt()).collect();
+            sigma.sort_by(|a, b| b.total_cmp(a));
+            let across = match needs.spread {
+                Spread::NotCollinear => sigma[1],
+                Spread::NotCoplanar => sigma[2],
+            };
+            sigma[0] > 0.0 && across >= FLAT_RTOL * sigma[0]
+        })
+        .collect()
+}
+
 /// The RMS spreads σ₁ ≥ σ₂ ≥ σ₃ (mm) of `points` along their principal axes.
 fn principal_spreads(points: impl Iterator<Item = [f64; 3]> + Clone) -> [f64; 3] {
     let n = points.clone().count().max(1) as f64;

@@ -198,6 +198,86 @@ pub fn fit_pullback(
     Tps::fit_regularised(fixed, moving, regularisation.into())
 }
 
+/// The leave-one-out error of every pair, ‖f₋ᵢ(pᵢ) − qᵢ‖ in mm, where f₋ᵢ is the TPS with `regularisation` fitted
+/// on every pair but i: the same numbers as [`crate::diagnostics::leave_one_out`] with refits, from **one** solve
+/// instead of N.
+///
+/// # The closed form
+///
+/// Write the fit as L c = b with c = [W; Â], b = [Y; 0] (module docs). Let f₋ᵢ leave pair i out and put
+/// eᵢ = qᵢ − f₋ᵢ(pᵢ). f₋ᵢ has no centre at pᵢ, so its coefficients c′ (with w′ᵢ = 0) solve the full system for the
+/// data b′ = b − δᵢ eᵢᵀ: its rows j ≠ i are f₋ᵢ's own equations, row i says f₋ᵢ(pᵢ) + d·0 = qᵢ − eᵢ, and Pᵀ W′ = 0
+/// holds. Hence c′ = c − L⁻¹ δᵢ eᵢᵀ, and w′ᵢ = 0 gives
+///
+/// ```text
+/// eᵢ = wᵢ / (L⁻¹)ᵢᵢ,
+/// ```
+///
+/// the radial-basis form of Rippa (1999) for the augmented system, valid for any diagonal d = ±λ. The kernel block
+/// of L⁻¹ is G = Q₂ (Q₂ᵀ K̃ Q₂)⁻¹ Q₂ᵀ (W = G Y), so (L⁻¹)ᵢᵢ = Gᵢᵢ comes from the reduced factor the fit already
+/// has: one inverse of the (N−4)² matrix and four reflections, O(N³) once, where N refits cost O(N⁴).
+///
+/// # Which pairs get `None`
+///
+/// Those whose refit [`pairs::validate`] would refuse: fewer than 5 distinct pairs, or either side coplanar
+/// once the pair is gone (judged on the downdated scatter, O(1) per pair). A pair given twice stays in its own
+/// refit through its copy, so its error is the full fit's residual, |d|·‖wᵢ‖ (0 when interpolating).
+///
+/// # Errors
+/// What [`Tps::fit_regularised`] refuses (the full set of pairs must fit).
+///
+/// R. Rippa, "An algorithm for selecting a good value for the parameter c in radial basis function
+/// interpolation", Adv. Comput. Math. 11, 1999.
+pub fn leave_one_out<To: Space, From: Space>(
+    src: &[Point3<From>],
+    dst: &[Point3<To>],
+    regularisation: Regularisation,
+) -> Result<Vec<Option<f64>>> {
+    regularisation.validate()?;
+    let checked = pairs::validate(&NEEDS, src, dst)?;
+    if src.len() > MAX_LANDMARKS {
+        return Err(SolverError::InvalidParameter(format!(
+            "a TPS takes at most {MAX_LANDMARKS} landmark pairs, got {}",
+            src.len()
+        )));
+    }
+    let (p, q) = (checked.distinct_raw(src), checked.distinct_raw(dst));
+    let d = regularisation.k_diagonal();
+    let (solution, g) = solve(&p, &q, centre_and_scale(&p)?, d, true)?;
+    let tps = Tps::<To, From>::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
+    tps.check_solution(&p, &q, &solution)?;
+    let g = g.ok_or_else(|| SolverError::Degenerate("the TPS system gave no inverse".into()))?;
+
+    // Which distinct pair each given pair is (a repeated pair maps to its first copy), and how many copies it has.
+    let mut distinct_of = vec![usize::MAX; src.len()];
+    for (k, &i) in checked.distinct.iter().enumerate() {
+        distinct_of[i] = k;
+    }
+    for w in &checked.warnings {
+        if let pairs::PairWarning::Repeated { first, second } = *w {
+            distinct_of[second - 1] = distinct_of[first - 1];
+        }
+    }
+    let mut copies = vec![0usize; p.len()];
+    for &k in &distinct_of {
+        if let Some(c) = copies.get_mut(k) {
+            *c += 1;
+        }
+    }
+    let refit_ok_p = pairs::valid_without_each(&NEEDS, &p);
+    let refit_ok_q = pairs::valid_without_each(&NEEDS, &q);
+    let norm = |w: [f64; 3]| (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+    let error = |k: usize| -> Option<f64> {
+        let wk = norm(solution.w[k]);
+        if copies[k] > 1 {
+            return Some(d.abs() * wk);
+        }
+        let e = wk / g[k].abs();
+        (p.len() > NEEDS.min_pairs && refit_ok_p[k] && refit_ok_q[k] && g[k] != 0.0 && e.is_finite()).then_some(e)
+    };
+    Ok(distinct_of.iter().map(|&k| if k < p.len() { error(k) } else { None }).collect())
+}
+
 impl<To: Space, From: Space> Tps<To, From> {
     /// Fits f(`src[i]`) ≈ `dst[i]` with ITK's stiffness convention (K + λI; λ = 0 interpolates).
     pub fn fit(src: &[Point3<From>], dst: &[Point3<To>], stiffness: f64) -> Result<Self> {
@@ -221,7 +301,7 @@ impl<To: Space, From: Space> Tps<To, From> {
         }
         let (p, q) = (checked.distinct_raw(src), checked.distinct_raw(dst));
         let (centre, scale) = centre_and_scale(&p)?;
-        let solution = solve(&p, &q, centre, scale, regularisation.k_diagonal())?;
+        let (solution, _) = solve(&p, &q, (centre, scale), regularisation.k_diagonal(), false)?;
         let mut tps = Self::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
         tps.check_solution(&p, &q, &solution)?;
         tps.warnings = checked.warnings;
@@ -508,8 +588,15 @@ fn householder_qr(p_hat: &mut DMatrix<f64>) -> Result<(Vec<Reflector>, nalgebra:
     Ok((reflectors, r))
 }
 
-/// Solves L [W; Â] = [Y; 0] by eliminating the affine block (module docs, "Solve").
-fn solve(p: &[[f64; 3]], q: &[[f64; 3]], c: [f64; 3], s: f64, k_diagonal: f64) -> Result<Solution> {
+/// Solves L [W; Â] = [Y; 0] by eliminating the affine block (module docs, "Solve"). With `kernel_diagonal`, also
+/// returns the diagonal of the kernel block of L⁻¹, G = Q₂ M₂₂⁻¹ Q₂ᵀ (see [`leave_one_out`]).
+fn solve(
+    p: &[[f64; 3]],
+    q: &[[f64; 3]],
+    (c, s): ([f64; 3], f64),
+    k_diagonal: f64,
+    kernel_diagonal: bool,
+) -> Result<(Solution, Option<Vec<f64>>)> {
     let n = p.len();
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
@@ -541,14 +628,33 @@ fn solve(p: &[[f64; 3]], q: &[[f64; 3]], c: [f64; 3], s: f64, k_diagonal: f64) -
     }
     // Now k_mat = Qᵀ K̃ Q and y = Qᵀ Y; W = Q [0; Ω] with M₂₂ Ω = y₂.
     let m = n - 4;
-    let omega = if m == 0 {
-        DMatrix::<f64>::zeros(0, 3)
+    let (omega, factor) = if m == 0 {
+        (DMatrix::<f64>::zeros(0, 3), None)
     } else {
         let m22 = k_mat.view((4, 4), (m, m)).clone_owned();
-        solve_symmetric(m22, &y.rows(4, m).clone_owned(), k_diagonal)?
+        let (omega, factor) = solve_symmetric(m22, &y.rows(4, m).clone_owned(), k_diagonal)?;
+        (omega, Some(factor))
     };
     // R Â = y₁ − M₁₂ Ω.
     let rhs1 = y.rows(0, 4) - k_mat.view((0, 4), (4, m)) * &omega;
+    // G = Q [0 0; 0 M₂₂⁻¹] Qᵀ, in K̃'s storage (no longer needed): the reflectors applied on both sides in reverse.
+    let g_diagonal = match (kernel_diagonal, factor) {
+        (false, _) => None,
+        (true, factor) => {
+            k_mat.fill(0.0);
+            if let Some(factor) = factor {
+                let mut block = k_mat.view_mut((4, 4), (m, m));
+                block.fill_with_identity();
+                if !factor.solve_in_place(&mut block) {
+                    return Err(SolverError::Degenerate("the TPS system could not be inverted".into()));
+                }
+            }
+            for h in reflectors.iter().rev() {
+                h.apply_both(&mut k_mat);
+            }
+            Some(k_mat.diagonal().iter().copied().collect())
+        }
+    };
     let r_inv = r.try_inverse().ok_or_else(|| SolverError::Degenerate("the TPS affine block P is singular".into()))?;
     let a_hat: Matrix4x3<f64> = r_inv * Matrix4x3::from_fn(|i, k| rhs1[(i, k)]);
 
@@ -562,7 +668,7 @@ fn solve(p: &[[f64; 3]], q: &[[f64; 3]], c: [f64; 3], s: f64, k_diagonal: f64) -
     let a = Matrix3::from_fn(|row, col| a_hat[(col, row)] / s);
     let b = std::array::from_fn(|row| a_hat[(3, row)] - (0..3).map(|col| a[(row, col)] * c[col]).sum::<f64>());
     let w = (0..n).map(|i| [w[(i, 0)], w[(i, 1)], w[(i, 2)]]).collect();
-    Ok(Solution { w, a, b, diameter })
+    Ok((Solution { w, a, b, diameter }, g_diagonal))
 }
 
 /// Solves M Ω = Y for the symmetric reduced matrix M = Q₂ᵀ(K + dI)Q₂.
@@ -571,12 +677,7 @@ fn solve(p: &[[f64; 3]], q: &[[f64; 3]], c: [f64; 3], s: f64, k_diagonal: f64) -
 /// it positive definite (Cholesky of M) or indefinite (LU with partial pivoting). Each factor is checked by
 /// its pivot ratio ([`PIVOT_RTOL`]) and by an estimate of 1/cond(M) from one solve with a fixed ±1 probe
 /// (‖v‖ / (‖M‖_F ‖M⁻¹v‖) ≥ 1/(√n·cond₂), [`RCOND_MIN`]).
-fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result<DMatrix<f64>> {
-    enum Factor {
-        NegCholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
-        Cholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
-        Lu(nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>),
-    }
+fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result<(DMatrix<f64>, Factor)> {
     let pivot_ratio = |diag: &DVector<f64>, power: i32| {
         let (lo, hi) = diag.iter().fold((f64::INFINITY, 0.0_f64), |(lo, hi), d| (lo.min(d.abs()), hi.max(d.abs())));
         if hi > 0.0 { (lo / hi).powi(power) } else { 0.0 }
@@ -611,10 +712,9 @@ fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result
     if ratio.is_nan() || ratio < PIVOT_RTOL {
         return Err(singular("pivot ratio", ratio));
     }
-    let solve = |rhs: &DMatrix<f64>| match &factor {
-        Factor::NegCholesky(ch) => Some(-ch.solve(rhs)),
-        Factor::Cholesky(ch) => Some(ch.solve(rhs)),
-        Factor::Lu(lu) => lu.solve(rhs),
+    let solve = |rhs: &DMatrix<f64>| {
+        let mut x = rhs.clone();
+        factor.solve_in_place(&mut x).then_some(x)
     };
     let probe = DMatrix::from_fn(y.nrows(), 1, |i, _| {
         let h = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
@@ -625,5 +725,35 @@ fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result
     if rcond.is_nan() || rcond < RCOND_MIN {
         return Err(singular("estimated 1/cond", rcond));
     }
-    solve(y).ok_or_else(|| singular("pivot ratio", 0.0))
+    let omega = solve(y).ok_or_else(|| singular("pivot ratio", 0.0))?;
+    Ok((omega, factor))
+}
+
+/// A factorisation of the reduced matrix M = Q₂ᵀ(K + dI)Q₂ ([`solve_symmetric`]).
+enum Factor {
+    /// −M = L Lᵀ.
+    NegCholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
+    Cholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
+    Lu(nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>),
+}
+
+impl Factor {
+    /// X ← M⁻¹ X; false when the LU factor is singular.
+    fn solve_in_place<S>(&self, x: &mut nalgebra::Matrix<f64, nalgebra::Dyn, nalgebra::Dyn, S>) -> bool
+    where
+        S: nalgebra::StorageMut<f64, nalgebra::Dyn, nalgebra::Dyn>,
+    {
+        match self {
+            Self::NegCholesky(ch) => {
+                ch.solve_mut(x);
+                x.neg_mut();
+                true
+            }
+            Self::Cholesky(ch) => {
+                ch.solve_mut(x);
+                true
+            }
+            Self::Lu(lu) => lu.solve_mut(x),
+        }
+    }
 }

@@ -13,7 +13,7 @@ use proptest::test_runner::{Config, RngAlgorithm, RngSeed};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use warpbench_io::geometry::{Lps, Point3};
-use warpbench_solver::tps::{Regularisation, Tps, fit_forward, fit_pullback};
+use warpbench_solver::tps::{Regularisation, Tps, fit_forward, fit_pullback, leave_one_out};
 use warpbench_solver::{Fixed, Moving, SolverError, Warp};
 
 type Src = Lps;
@@ -525,4 +525,71 @@ fn n300_fits_and_interpolates() {
 #[ignore = "slow in the unoptimised test profile; run with --release --ignored"]
 fn n2000_fits_and_interpolates() {
     fits_and_interpolates(2000);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Leave-one-out in closed form
+
+/// The closed form against N refits with the same regularisation (what `diagnostics::leave_one_out` does); returns
+/// how many pairs have an error.
+fn assert_loo_matches_refits(p: &[[f64; 3]], q: &[[f64; 3]], reg: Regularisation) -> usize {
+    let src: Vec<Point3<Src>> = p.iter().copied().map(pt).collect();
+    let dst: Vec<Point3<Dst>> = q.iter().copied().map(pt).collect();
+    let closed = leave_one_out(&src, &dst, reg).expect("closed form");
+    let refits = warpbench_solver::diagnostics::leave_one_out(
+        &src,
+        &dst,
+        |s: &[Point3<Src>], d: &[Point3<Dst>]| Tps::fit_regularised(s, d, reg),
+        warpbench_solver::Parallelism::Sequential,
+    );
+    assert_eq!(closed.len(), refits.len());
+    for (i, (c, r)) in closed.iter().zip(&refits).enumerate() {
+        match (c, r) {
+            (Some(c), Some(r)) => {
+                // Both are O(N³) solves of the same systems; 1e-7 relative leaves room for their rounding.
+                assert!((c - r).abs() <= 1e-7 * (1.0 + r), "{reg:?}, pair {i}: closed form {c} mm, refit {r} mm");
+            }
+            (None, None) => {}
+            _ => panic!("{reg:?}, pair {i}: closed form {c:?}, refit {r:?}"),
+        }
+    }
+    closed.iter().flatten().count()
+}
+
+#[test]
+fn leave_one_out_in_closed_form_equals_refits() {
+    let mut rng = ChaCha8Rng::seed_from_u64(41);
+    for n in [5, 6, 12, 40] {
+        let p = random_points(&mut rng, n, 100.0);
+        let q: Vec<[f64; 3]> = p.iter().map(|v| smooth(*v)).collect();
+        for reg in [Regularisation::Interpolate, Regularisation::Smoothing(3.0), Regularisation::ItkStiffness(0.01)] {
+            assert_eq!(assert_loo_matches_refits(&p, &q, reg), n, "{reg:?}: every refit of well spread points fits");
+        }
+    }
+}
+
+#[test]
+fn leave_one_out_in_closed_form_handles_repeats_and_refits_that_go_flat() {
+    let mut rng = ChaCha8Rng::seed_from_u64(42);
+    // Ten points on the plane z = 0 and two off it: leaving out either off-plane point keeps the set 3-D, but with
+    // only one off-plane point, leaving it out makes the rest coplanar and the refit is refused.
+    let mut p: Vec<[f64; 3]> =
+        (0..10).map(|_| [rng.random_range(-80.0..80.0), rng.random_range(-80.0..80.0), 0.0]).collect();
+    p.push([5.0, -3.0, 40.0]);
+    let q: Vec<[f64; 3]> = p.iter().map(|v| smooth(*v)).collect();
+    for reg in [Regularisation::Interpolate, Regularisation::Smoothing(2.0)] {
+        assert_eq!(assert_loo_matches_refits(&p, &q, reg), 10);
+        let src: Vec<Point3<Src>> = p.iter().copied().map(pt).collect();
+        let dst: Vec<Point3<Dst>> = q.iter().copied().map(pt).collect();
+        assert_eq!(leave_one_out(&src, &dst, reg).expect("closed form")[10], None);
+    }
+    // A repeated pair: its refit keeps the copy, so the error is the full fit's residual.
+    let (mut p2, mut q2) = (p.clone(), q.clone());
+    p2.push([5.0, -3.0, 40.0]);
+    q2.push(q[10]);
+    p2.push([-20.0, 30.0, -25.0]);
+    q2.push(smooth([-20.0, 30.0, -25.0]));
+    for reg in [Regularisation::Interpolate, Regularisation::Smoothing(2.0)] {
+        assert_eq!(assert_loo_matches_refits(&p2, &q2, reg), 13, "{reg:?}");
+    }
 }

@@ -51,7 +51,7 @@ use warpbench_gpu::{ControlDesc, ExportedSamples};
 use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
 use warpbench_io::volume::VoxelData;
-use warpbench_solver::diagnostics::{ErrorStats, jacobian_determinants, leave_one_out};
+use warpbench_solver::diagnostics::{ErrorStats, jacobian_determinants};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::synthetic::{SyntheticKind, SyntheticWarp};
@@ -213,8 +213,9 @@ pub fn run(opts: &EvalOptions, out: &mut dyn Write) -> Result<(), Failure> {
         for &n in &plan.landmark_counts {
             let pairs = truth.landmarks(&subject, n, opts)?;
             for method in &plan.methods {
-                bar.set_message(format!("{kind}, N = {n}, {method}"));
-                reports.push(evaluate(&subject, &truth, &pairs, method, opts)?);
+                let case = format!("{kind}, N = {n}, {method}");
+                let mut stage = |what: &str| bar.set_message(format!("{case}: {what}"));
+                reports.push(evaluate(&subject, &truth, &pairs, method, opts, &mut stage)?);
                 bar.inc(1);
             }
         }
@@ -267,12 +268,17 @@ pub fn run(opts: &EvalOptions, out: &mut dyn Write) -> Result<(), Failure> {
     }
 }
 
+/// The bar of the cases, on stderr unless `quiet` (and drawn only on a terminal, like every progress bar here). Its
+/// message names the case and its stage ([`STAGES`]), and it ticks, so the elapsed time moves during a long stage.
 fn case_bar(quiet: bool, cases: usize) -> ProgressBar {
     let target = if quiet { ProgressDrawTarget::hidden() } else { ProgressDrawTarget::stderr() };
     let bar = ProgressBar::with_draw_target(Some(cases as u64), target);
     let style = ProgressStyle::with_template("{msg:>32} [{bar:30}] {pos}/{len} {elapsed}")
         .map_or_else(|_| ProgressStyle::default_bar(), |s| s.progress_chars("=> "));
     bar.set_style(style);
+    if !quiet {
+        bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    }
     bar
 }
 
@@ -563,40 +569,54 @@ fn stats(values: &[f64], what: &str) -> Result<ErrorStats, Failure> {
     ErrorStats::of(values).ok_or_else(|| Failure::Internal(anyhow!("{what}: no finite value")))
 }
 
-/// Fits `method` both ways on `pairs` and measures it against the truth (module docs).
+/// The steps of one evaluation, in order, as [`evaluate`] reports them (the progress bar shows each).
+pub const STAGES: [&str; 6] = [
+    "fitting the pull-back",
+    "fitting the forward warp",
+    "held-out errors",
+    "leave-one-out",
+    "Jacobian",
+    "recovering the image",
+];
+
+/// Fits `method` both ways on `pairs` and measures it against the truth (module docs), calling `stage` with each of
+/// [`STAGES`] as it starts.
 fn evaluate(
     subject: &Subject,
     truth: &Truth,
     pairs: &Pairs,
     method: &Method,
     opts: &EvalOptions,
+    stage: &mut dyn FnMut(&'static str),
 ) -> Result<EvalReport, Failure> {
     let n = pairs.p_moving.len();
     let fit_error = |dir: &str, e: warpbench_solver::SolverError| {
         bad(format!("{}: fitting the {method} {dir} to {n} landmark pairs: {e}", subject.path.display()))
     };
     let (box_fixed, box_moving) = (subject.box_fixed, subject.box_moving());
+    stage(STAGES[0]);
     let moving_from_fixed =
         method.fit(&pairs.q_fixed, &pairs.p_moving, box_fixed).map_err(|e| fit_error("pull-back", e))?;
+    stage(STAGES[1]);
     let fixed_from_moving =
         method.fit(&pairs.p_moving, &pairs.q_fixed, box_moving).map_err(|e| fit_error("forward warp", e))?;
 
+    stage(STAGES[2]);
     let tre: Vec<f64> =
         truth.x_fixed.iter().zip(&truth.u_true).map(|(x, t)| moving_from_fixed.apply(*x).distance(t)).collect();
     let consistency: Vec<f64> =
         truth.x_fixed.iter().map(|x| fixed_from_moving.apply(moving_from_fixed.apply(*x)).distance(x)).collect();
-    let loo = leave_one_out(
-        &pairs.q_fixed,
-        &pairs.p_moving,
-        |q: &[Point3<Fixed>], p: &[Point3<Moving>]| method.fit(q, p, box_fixed),
-        Parallelism::Rayon,
-    );
+    // A TPS in closed form from one solve; refitting it N times was O(N⁴): 2 000 pairs ran for hours.
+    stage(STAGES[3]);
+    let loo = method.leave_one_out(&pairs.q_fixed, &pairs.p_moving, box_fixed, Parallelism::Rayon);
     let loo_values: Vec<f64> = loo.iter().flatten().copied().collect();
 
+    stage(STAGES[4]);
     let fg = subject.foreground_box;
     let jacobian_dims = fg.size().map(|s| ((s / JACOBIAN_CELL_MM).ceil() as usize).clamp(1, JACOBIAN_MAX_CELLS));
     let jacobian = jacobian_determinants(moving_from_fixed.as_ref(), &fg, jacobian_dims, Parallelism::Rayon);
 
+    stage(STAGES[5]);
     let recovered = subject.recover(&truth.moving, moving_from_fixed.as_ref(), opts.grid)?;
     let after = subject.agreement(&recovered);
 
@@ -664,6 +684,37 @@ mod tests {
             acc += w * f64::from(values[at[0] + v.dims[0] * (at[1] + v.dims[1] * at[2])]);
         }
         Some(acc)
+    }
+
+    /// Every stage of a case is announced as it starts, in order, so that a long one (a large N) names itself on the
+    /// progress bar; and the leave-one-out errors of a TPS (in closed form) are those of N refits.
+    #[test]
+    fn an_evaluation_reports_its_stages_and_the_tps_leave_one_out_matches_refits() {
+        let s = subject();
+        let mut opts = EvalOptions::new(s.path.clone());
+        opts.grid = 4;
+        opts.landmarks = 30;
+        let truth = Truth::new(&s, SyntheticKind::Sine, &opts).expect("truth");
+        let pairs = truth.landmarks(&s, opts.landmarks, &opts).expect("landmarks");
+        let method = Method::from_name("tps").expect("tps");
+        let mut seen = Vec::new();
+        let report = evaluate(&s, &truth, &pairs, &method, &opts, &mut |stage| seen.push(stage)).expect("evaluate");
+        assert_eq!(seen, STAGES);
+
+        let refits = warpbench_solver::diagnostics::leave_one_out(
+            &pairs.q_fixed,
+            &pairs.p_moving,
+            |q: &[Point3<Fixed>], p: &[Point3<Moving>]| method.fit(q, p, s.box_fixed),
+            Parallelism::Sequential,
+        );
+        let refit_values: Vec<f64> = refits.iter().flatten().copied().collect();
+        assert_eq!(refit_values.len(), 30);
+        let expected = ErrorStats::of(&refit_values).expect("finite");
+        let got = report.leave_one_out_mm.expect("leave-one-out");
+        assert!(
+            (got.mean - expected.mean).abs() < 1e-6 && (got.max - expected.max).abs() < 1e-6,
+            "{got:?} vs {expected:?}"
+        );
     }
 
     /// The moving volume is V(d(y)) at every voxel y: the d texture's texel centres are the voxel centres.
