@@ -104,16 +104,51 @@ pub struct SlicerPoint {
     pub position: Option<Point3<Lps>>,
 }
 
+/// The most characters of a landmark's name that a message quotes; a longer name is cut with `…`.
+const MESSAGE_NAME_CHARS: usize = 60;
+
 fn landmark_error(path: &Path, index0: usize, name: &str, line: Option<u64>, problem: impl AsRef<str>) -> Error {
     let at = line.map(|l| format!(", line {l}")).unwrap_or_default();
+    let cut;
+    let name = match name.char_indices().nth(MESSAGE_NAME_CHARS) {
+        Some((end, _)) => {
+            cut = format!("{}…", &name[..end]);
+            cut.as_str()
+        }
+        None => name,
+    };
     Error::new(
         path,
         ErrorKind::Landmark { index: index0 + 1, problem: format!("(1-based, {name:?}{at}) {}", problem.as_ref()) },
     )
 }
 
+/// The largest landmark file read, in bytes. BigWarp and Slicer files hold at most thousands of points (5 000
+/// pairs, the TPS limit, are about 1 MB of CSV), so a larger file is refused before it is read into memory.
+pub const MAX_LANDMARK_FILE_BYTES: u64 = 256 << 20;
+
+/// The text of the landmark file at `path`: a regular file (a named pipe would block, a device never end) of at
+/// most [`MAX_LANDMARK_FILE_BYTES`], checked before it is opened and bounded while it is read.
 fn read_text(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let too_big = |bytes: u64| {
+        Error::invalid(
+            path,
+            format!(
+                "the file has {bytes} bytes, more than the {MAX_LANDMARK_FILE_BYTES} bytes a landmark file may have"
+            ),
+        )
+    };
+    let meta = crate::check_regular_file(path)?;
+    if meta.len() > MAX_LANDMARK_FILE_BYTES {
+        return Err(too_big(meta.len()));
+    }
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut bytes = Vec::new();
+    std::io::Read::read_to_end(&mut std::io::Read::take(file, MAX_LANDMARK_FILE_BYTES + 1), &mut bytes)
+        .map_err(|e| Error::io(path, e))?;
+    if bytes.len() as u64 > MAX_LANDMARK_FILE_BYTES {
+        return Err(too_big(bytes.len() as u64));
+    }
     String::from_utf8(bytes).map_err(|e| Error::invalid(path, format!("not UTF-8 text: {e}")))
 }
 

@@ -754,3 +754,48 @@ proptest! {
         let _ = landmarks::detect_landmark_format(Path::new("x"), &text);
     }
 }
+
+// ---------------------------------------------------------------------------------------------
+// Landmark files are regular files of a bounded size (the readers' mechanism of issue 13, item 4).
+
+#[cfg(unix)]
+#[test]
+fn a_named_pipe_given_as_landmarks_is_refused_without_blocking() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fifo = dir.path().join("pairs.csv");
+    let made = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(made.success());
+    let (tx, rx) = std::sync::mpsc::channel();
+    let path = fifo.clone();
+    // Opening a FIFO blocks until a writer comes: run the read on its own thread and give it 10 s.
+    std::thread::spawn(move || {
+        let _ = tx.send((
+            landmarks::read_bigwarp_csv(&path).map(|_| ()),
+            landmarks::read_landmark_pairs(&path).map(|_| ()),
+            landmarks::read_slicer_points(&path).map(|_| ()),
+        ));
+    });
+    let results = rx.recv_timeout(std::time::Duration::from_secs(10)).expect("the reader blocked on a named pipe");
+    for e in [results.0.expect_err("csv"), results.1.expect_err("pairs"), results.2.expect_err("slicer")] {
+        assert!(e.to_string().contains("pairs.csv") && e.to_string().contains("named pipe"), "{e}");
+    }
+}
+
+#[test]
+fn an_oversized_landmark_file_is_refused_before_it_is_read() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("huge.csv");
+    let file = std::fs::File::create(&path).expect("create");
+    // Sparse: no disk is used.
+    file.set_len(landmarks::MAX_LANDMARK_FILE_BYTES + 1).expect("set_len");
+    let e = landmarks::read_landmark_pairs(&path).expect_err("huge");
+    assert!(e.to_string().contains("huge.csv") && e.to_string().contains("bytes"), "{e}");
+}
+
+#[test]
+fn a_long_name_is_cut_in_messages() {
+    let long = "n".repeat(10_000);
+    let e = csv(&format!("\"{long}\",\"true\",\"1\",\"x\",\"3\",\"4\",\"5\",\"6\"\n")).expect_err("bad y");
+    let msg = e.to_string();
+    assert!(msg.len() < 300 && msg.contains("…") && msg.contains("moving y"), "{} bytes: {}", msg.len(), &msg[..200]);
+}
