@@ -688,10 +688,7 @@ pub fn parse_mrk_json(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
     let not_markups = |problem: String| {
         // Say what the file is when it is BigWarp's (whose pending halves make it Gson JSON, not JSON).
         if parse_gson_json(name, text).is_ok_and(|root| bigwarp_table(&root).is_some()) {
-            Error::unsupported(
-                name,
-                "a BigWarp landmarks file (pairs of points), not a Slicer point list: read it as a file of pairs",
-            )
+            bigwarp_not_slicer(name)
         } else {
             Error::invalid(name, problem)
         }
@@ -1081,9 +1078,36 @@ fn is_fcsv(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("fcsv"))
 }
 
-/// Reads one Slicer point list: `.fcsv` by extension, otherwise `.mrk.json`.
+fn bigwarp_not_slicer(path: &Path) -> Error {
+    Error::unsupported(
+        path,
+        "a BigWarp landmarks file (pairs of points), not a Slicer point list: read it as a file of pairs",
+    )
+}
+
+/// Reads one Slicer point list, `.mrk.json` or `.fcsv`, told apart by content ([`detect_landmark_format`]); a
+/// file named `.fcsv` is always read as one, so that its own header errors are the ones reported. A BigWarp file
+/// (pairs) is refused, saying what it is.
 pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
-    if is_fcsv(path) { read_fcsv(path) } else { read_mrk_json(path) }
+    let text = read_text(path)?;
+    if is_fcsv(path) {
+        return parse_fcsv(path, &text);
+    }
+    match detect_landmark_format(path, &text) {
+        Ok(LandmarkFileFormat::SlicerFcsv) => parse_fcsv(path, &text),
+        Ok(LandmarkFileFormat::BigWarpJson) => Err(bigwarp_not_slicer(path)),
+        Ok(LandmarkFileFormat::BigWarpCsv)
+            if parse_bigwarp_csv(path, &text, BigWarpCsvOptions::default()).is_ok_and(|p| !p.is_empty()) =>
+        {
+            Err(bigwarp_not_slicer(path))
+        }
+        Ok(LandmarkFileFormat::BigWarpCsv) => Err(Error::invalid(
+            path,
+            "not a Slicer point list: neither a .mrk.json (JSON) nor a .fcsv (text that starts with # header lines)",
+        )),
+        // Slicer JSON, and JSON that is neither (parse_mrk_json says what it lacks).
+        Ok(LandmarkFileFormat::SlicerMarkupsJson) | Err(_) => parse_mrk_json(path, &text),
+    }
 }
 
 /// Writes one Slicer point list: `.fcsv` by extension, otherwise `.mrk.json`.

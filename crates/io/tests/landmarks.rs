@@ -799,3 +799,34 @@ fn a_long_name_is_cut_in_messages() {
     let msg = e.to_string();
     assert!(msg.len() < 300 && msg.contains("…") && msg.contains("moving y"), "{} bytes: {}", msg.len(), &msg[..200]);
 }
+
+#[test]
+fn a_slicer_point_list_is_read_by_content_and_a_bigwarp_file_is_named_as_such() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // An .fcsv saved under another name reads as .fcsv; a .mrk.json under another name as JSON.
+    let fcsv = std::fs::read_to_string(fixture("slicer5_extra_columns.fcsv")).expect("fcsv");
+    let json = std::fs::read_to_string(fixture("slicer5_lps.mrk.json")).expect("json");
+    let fcsv_as_txt = write_file(dir.path(), "moving.txt", &fcsv);
+    let json_as_txt = write_file(dir.path(), "fixed.txt", &json);
+    assert_eq!(
+        landmarks::read_slicer_points(&fcsv_as_txt).expect("fcsv by content"),
+        landmarks::read_fcsv(&fixture("slicer5_extra_columns.fcsv")).expect("fcsv")
+    );
+    assert_eq!(
+        landmarks::read_slicer_points(&json_as_txt).expect("json by content"),
+        landmarks::read_mrk_json(&fixture("slicer5_lps.mrk.json")).expect("json")
+    );
+    // BigWarp files hold pairs: given as one side, they are refused, saying what they are.
+    for name in ["bigwarp_pairs.csv", "bigwarp_pairs.json", "bigwarp_settings.json"] {
+        let e = landmarks::read_slicer_points(&fixture(name)).expect_err(name);
+        assert!(e.to_string().contains("BigWarp") && e.to_string().contains("not a Slicer point list"), "{e}");
+    }
+}
+
+#[test]
+fn text_that_is_no_landmark_file_is_not_called_bigwarp() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let junk = write_file(dir.path(), "notes.txt", "hello, world\n");
+    let e = landmarks::read_slicer_points(&junk).expect_err("junk");
+    assert!(!e.to_string().contains("BigWarp") && e.to_string().contains("not a Slicer point list"), "{e}");
+}
