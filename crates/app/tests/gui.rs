@@ -248,6 +248,14 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     // pull-back, which moves it by a few mm at most.
     assert!((q[2] - axial_mm).abs() <= 1.0, "target S {} vs slice {axial_mm}", q[2]);
     assert!((p[2] - q[2]).abs() < 10.0 && p[0] < q[0], "source {p:?}, target {q:?}");
+    // The new pair is on disk at once, without another frame (the autosave follows every change of the document).
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let start = Instant::now();
+    let on_disk = |path: &Path| warpbench_app::gui::session::load(path).map(|s| s.landmarks.len()).unwrap_or(0);
+    while on_disk(&autosave) != 6 {
+        assert!(start.elapsed() < Duration::from_secs(5), "the sixth pair was not autosaved within 5 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
 
     // In the 3-D view: the brain at the centre of the view is hit on both volumes.
     harness.get_by_label("Add pair").click();
@@ -261,6 +269,31 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     let pair = ready.loaded.pairs.last().expect("pair");
     let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
     assert!(inside(pair.moving.expect("source").coords()) && inside(pair.fixed.expect("target").coords()));
+}
+
+#[test]
+fn an_idle_window_says_so_in_the_status_bar() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    // Frames were just drawn: a rate is shown.
+    harness.get_by_label_contains(" fps");
+    // Step as the event loop would: at once when asked to, after the delay the window asks for, and not at all
+    // once it asks for nothing. The window then stands idle, and its status bar must say so.
+    let start = Instant::now();
+    loop {
+        let delay =
+            harness.output().viewport_output.get(&egui::ViewportId::ROOT).map_or(Duration::MAX, |v| v.repaint_delay);
+        if delay == Duration::MAX {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(20), "the window never went idle");
+        std::thread::sleep(delay.min(Duration::from_secs(2)));
+        harness.step();
+    }
+    harness.get_by_label("idle");
 }
 
 #[test]

@@ -6,12 +6,14 @@
 //! and shows an error (naming the file) instead of the views when it fails. Frames are rendered only when something
 //! changed, at the interaction sample rate while the camera is being dragged ([`warpbench_gpu::Quality`]).
 
+pub mod autosave;
 pub mod demo;
 pub mod export;
 pub mod history;
 pub mod open;
 pub mod pacing;
 pub mod panels;
+pub mod placement;
 pub mod session;
 pub mod viewer;
 
@@ -332,8 +334,12 @@ pub struct Ready {
     pub file_message: Option<String>,
     /// The pull-back's Jacobian over the fixed box after the last fit (folding where det ≤ 0).
     pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
-    /// The LPS point under the cursor in a slice view, for the status bar.
-    pub cursor_lps: Option<[f64; 3]>,
+    /// What the pointer is over in a slice view (the fixed point and the moving point shown there), for the status
+    /// bar; a click there stores exactly these points ([`placement`]).
+    pub cursor: Option<placement::Cursor>,
+    /// Why the last click or drag did not place its point (outside its volume), shown in the status bar until the
+    /// next point is placed.
+    pub notice: Option<String>,
     /// The pair selected in the table or by clicking its glyph.
     pub selected: Option<usize>,
     /// A landmark point being dragged.
@@ -391,14 +397,11 @@ enum Phase {
     Ready(Box<Ready>),
 }
 
-/// How often the window autosaves.
-pub const AUTOSAVE_INTERVAL: std::time::Duration = std::time::Duration::from_secs(30);
-
 /// The eframe app.
 pub struct Workbench {
     phase: Phase,
-    autosave_path: PathBuf,
-    last_autosave: std::time::Instant,
+    /// Every change of the document reaches the autosave file ([`autosave`]).
+    autosave: autosave::Autosave,
     /// A copy of the autosave a crashed window left, offered for recovery.
     pub recovery: Option<PathBuf>,
     render_state: Option<eframe::egui_wgpu::RenderState>,
@@ -433,14 +436,14 @@ impl Workbench {
         // A crashed window's autosave is copied aside before this window's first autosave replaces it.
         let recovery = session::load(&autosave_path).ok().filter(|s| !s.clean_exit).and_then(|_| {
             let copy = autosave_path.with_file_name("autosave.recovered.warpbench.json");
-            std::fs::copy(&autosave_path, &copy).ok().map(|_| copy)
+            let bytes = std::fs::read(&autosave_path).ok()?;
+            warpbench_io::atomic::write_atomic(&copy, |w| std::io::Write::write_all(w, &bytes)).ok().map(|()| copy)
         });
         let facts = cc.wgpu_render_state.as_ref().map(|rs| DeviceFacts::of(&Viewer::context(rs)));
         Self {
             phase: Self::start_loading(&cc.egui_ctx, opts.clone(), facts),
             facts,
-            autosave_path,
-            last_autosave: std::time::Instant::now(),
+            autosave: autosave::Autosave::new(autosave_path),
             recovery,
             render_state: cc.wgpu_render_state.clone(),
             screenshot: opts.screenshot,
@@ -465,13 +468,27 @@ impl Workbench {
         Phase::Loading { rx, watch }
     }
 
-    /// Saves the session to the autosave file now (`clean_exit`: this is the last save of a normal exit).
+    /// Saves the session to the autosave file now and waits until it is on disk (`clean_exit`: this is the last
+    /// save of a normal exit).
     pub fn autosave_now(&mut self, clean_exit: bool) {
-        self.last_autosave = std::time::Instant::now();
         let Phase::Ready(ready) = &self.phase else { return };
         let file = ready.to_session(clean_exit);
-        if let Err(e) = session::save_creating_folder(&self.autosave_path, &file) {
-            eprintln!("warpbench: autosave to {}: {e:#}", self.autosave_path.display());
+        self.autosave.write_and_wait(&file);
+    }
+
+    /// The autosave's last write error, if it failed.
+    #[must_use]
+    pub fn autosave_error(&self) -> Option<String> {
+        self.autosave.error()
+    }
+
+    /// Hands the document as it is at the end of this frame to the autosave ([`autosave::Autosave::observe`]).
+    fn autosave_changes(&mut self, ctx: &egui::Context) {
+        let Phase::Ready(ready) = &self.phase else { return };
+        let file = ready.to_session(false);
+        let held = ctx.input(|i| i.pointer.any_down()) || ready.drag.is_some();
+        if let Some(wait) = self.autosave.observe(std::time::Instant::now(), &file, held) {
+            ctx.request_repaint_after(wait);
         }
     }
 
@@ -643,7 +660,8 @@ impl Workbench {
             files: panels::FileFields::default(),
             file_message: None,
             jacobian: None,
-            cursor_lps: None,
+            cursor: None,
+            notice: None,
             selected: None,
             drag: None,
             export: None,
@@ -890,10 +908,17 @@ impl Ready {
     /// u(x_ref) (the moving point the warp shows there) unless a pick gives it (`moving_lps`). Refits interactively.
     fn drag_to(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
         let Some(drag) = self.drag else { return };
-        let moving = moving_lps.unwrap_or_else(|| match &self.fitted {
-            Some(f) => f.pullback.apply_raw(x_ref),
-            None => x_ref,
-        });
+        let moving = moving_lps.unwrap_or_else(|| self.moving_shown_at(x_ref));
+        let (volume, p) = match drag.end {
+            End::Fixed => (&self.loaded.fixed, x_ref),
+            End::Moving => (&self.loaded.moving, moving),
+        };
+        // Off its volume the point stays where it was.
+        if let Some(message) = placement::outside_message(drag.end, volume, p) {
+            self.notice = Some(message);
+            return;
+        }
+        self.notice = None;
         let Some(pair) = self.loaded.pairs.get_mut(drag.pair) else { return };
         match drag.end {
             End::Fixed => pair.fixed = Some(Point3::from_array(x_ref)),
@@ -1116,17 +1141,26 @@ impl Ready {
     /// Places the point at ref position `x_ref` (a click in a slice, or a pick in the 3-D view, already in ref
     /// space): the source through the warp's pull-back (the moving volume's point shown there) unless the pick gives
     /// it (`moving_lps`), the target as is. A completed pair is appended, active, and the warp is fitted again.
+    ///
+    /// A point outside its volume is refused: nothing is stored, the step stays, and [`Self::notice`] says why.
     pub fn place_at_ref(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
         match self.placing {
             Placing::Idle => {}
             Placing::Source => {
-                let p = moving_lps.unwrap_or_else(|| match &self.fitted {
-                    Some(f) => f.pullback.apply_raw(x_ref),
-                    None => x_ref,
-                });
+                let p = moving_lps.unwrap_or_else(|| self.moving_shown_at(x_ref));
+                if let Some(message) = placement::outside_message(End::Moving, &self.loaded.moving, p) {
+                    self.notice = Some(message);
+                    return;
+                }
+                self.notice = None;
                 self.placing = Placing::Target { moving: Point3::from_array(p) };
             }
             Placing::Target { moving } => {
+                if let Some(message) = placement::outside_message(End::Fixed, &self.loaded.fixed, x_ref) {
+                    self.notice = Some(message);
+                    return;
+                }
+                self.notice = None;
                 let name = format!("Pt-{}", self.loaded.pairs.len() + 1);
                 self.loaded.pairs.push(LandmarkPair::new(name, moving, Point3::from_array(x_ref)));
                 self.placing = Placing::Idle;
@@ -1134,6 +1168,22 @@ impl Ready {
             }
         }
         self.invalidate();
+    }
+
+    /// The moving point the warp shows at ref point `x_ref`: u(x_ref) through the pull-back (the identity before a
+    /// warp is fitted).
+    #[must_use]
+    pub fn moving_shown_at(&self, x_ref: [f64; 3]) -> [f64; 3] {
+        match &self.fitted {
+            Some(f) => f.pullback.apply_raw(x_ref),
+            None => x_ref,
+        }
+    }
+
+    /// What the status bar shows for ref point `x_ref` under the pointer.
+    #[must_use]
+    pub fn cursor_at(&self, x_ref: [f64; 3]) -> placement::Cursor {
+        placement::Cursor { fixed_lps: x_ref, moving_lps: self.moving_shown_at(x_ref) }
     }
 
     /// A click at framebuffer point `pixel` of the 3-D view: picks the volume the placing step asks for.
@@ -1329,15 +1379,15 @@ impl Ready {
 
 impl eframe::App for Workbench {
     fn on_exit(&mut self) {
-        self.autosave_now(true);
+        if let Phase::Ready(ready) = &self.phase {
+            let file = ready.to_session(true);
+            self.autosave.finish(&file);
+        }
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         self.poll_loading();
         self.poll_volume_jobs();
-        if matches!(self.phase, Phase::Ready(_)) && self.last_autosave.elapsed() >= AUTOSAVE_INTERVAL {
-            self.autosave_now(false);
-        }
         let ctx = ui.ctx().clone();
         let mut events = Vec::new();
         egui::Panel::top("menu").show(ui, |ui| {
@@ -1407,6 +1457,7 @@ impl eframe::App for Workbench {
         if open_demo {
             self.phase = Self::start_loading(&ctx, GuiOptions::default(), self.facts);
         }
+        self.autosave_changes(&ctx);
         // Counted once the views are rendered fully (on a CPU driver the 3-D view is refined over many frames).
         let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render());
         if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
@@ -1560,13 +1611,25 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             ui.separator();
             ui.label(ready.frame_rate.fps().map_or_else(|| "idle".to_owned(), |f| format!("{f:.0} fps")))
                 .on_hover_text("Frames the window drew in the last second (none while nothing changes)");
+            // An idle window draws nothing: one more frame once this second is over shows it idle.
+            if let Some(wait) = ready.frame_rate.redraw_to_idle_in(std::time::Instant::now()) {
+                ui.ctx().request_repaint_after(wait);
+            }
             ui.separator();
             if let Some(done) = ready.view_refine_progress() {
                 ui.label(format!("refining the 3-D view: {:.0} %", 100.0 * done));
                 ui.separator();
             }
-            if let Some([l, p, s]) = ready.cursor_lps {
-                ui.label(format!("cursor LPS ({l:.1}, {p:.1}, {s:.1}) mm"));
+            if let Some(c) = ready.cursor {
+                let ([l, p, s], [ml, mp, ms]) = (c.fixed_lps, c.moving_lps);
+                ui.label(format!(
+                    "cursor LPS fixed ({l:.1}, {p:.1}, {s:.1}) mm, moving ({ml:.1}, {mp:.1}, {ms:.1}) mm"
+                ))
+                .on_hover_text("The fixed point under the pointer, and the moving point the warp shows there");
+                ui.separator();
+            }
+            if let Some(n) = &ready.notice {
+                ui.colored_label(egui::Color32::from_rgb(240, 200, 80), n.as_str());
                 ui.separator();
             }
             if let Some(j) = ready.jacobian.as_ref().filter(|j| j.min_det <= 0.0) {
@@ -1597,7 +1660,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
     let planes = ready.slice_planes();
     let slices_height = (ui.available_height() * 0.4).max(160.0);
     egui::Panel::bottom("slices").exact_size(slices_height).show(ui, |ui| {
-        ready.cursor_lps = None;
+        ready.cursor = None;
         ui.columns(3, |columns| {
             let names = ["Axial", "Coronal", "Sagittal"];
             for (a, col) in columns.iter_mut().enumerate() {
@@ -1630,22 +1693,19 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, size)).paint_at(col, rect);
                     let label = format!("{} slice", names[a]);
                     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, &label));
-                    // Framebuffer coordinates of the slice image (pixel centres at i + 1/2) to ref mm.
-                    let to_ref = |pos: egui::Pos2| {
-                        let f = (pos - response.rect.min) / scale;
-                        planes[a].ref_from_pixel(f64::from(f.x) - 0.5, f64::from(f.y) - 0.5)
-                    };
-                    if let Some(pos) = response.hover_pos() {
-                        ready.cursor_lps = Some(to_ref(pos));
+                    // The ref point under a window position, only when it is over the image ([`placement`]).
+                    let image_rect = response.rect;
+                    let to_ref = |pos: egui::Pos2| placement::slice_point(&planes[a], image_rect, scale, pos);
+                    if let Some(x_ref) = response.hover_pos().and_then(to_ref) {
+                        ready.cursor = Some(ready.cursor_at(x_ref));
                     }
                     // Dragging a landmark within this plane: grab the glyph under the press.
                     let plane = planes[a];
-                    let rect_min = response.rect.min;
                     let on_screen = |p_ref: [f64; 3]| {
                         plane
                             .pixel_from_ref(p_ref)
                             .filter(|q| q[2].abs() <= SLICE_SLAB_MM)
-                            .map(|q| rect_min + egui::vec2((q[0] as f32 + 0.5) * scale, (q[1] as f32 + 0.5) * scale))
+                            .map(|q| placement::slice_screen(image_rect, scale, q))
                     };
                     if response.drag_started()
                         && ready.placing == Placing::Idle
@@ -1656,21 +1716,20 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                         ready.selected = Some(pair);
                     }
                     let dragging_here = ready.drag.is_some_and(|d| d.view == DragView::Slice(a));
-                    if dragging_here
-                        && response.dragged()
-                        && let Some(pos) = response.interact_pointer_pos()
-                    {
+                    if dragging_here && response.dragged() {
                         ready.dragging = true;
-                        ready.drag_to(to_ref(pos), None);
+                        // Off the image the point stays where it was.
+                        if let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref) {
+                            ready.drag_to(x_ref, None);
+                        }
                     }
                     if dragging_here && response.drag_stopped() {
                         ready.dragging = false;
                         ready.end_drag();
                     }
                     if response.clicked()
-                        && let Some(pos) = response.interact_pointer_pos()
+                        && let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref)
                     {
-                        let x_ref = to_ref(pos);
                         if ready.placing == Placing::Idle {
                             // Linked navigation: the other two slices move through the clicked point.
                             ready.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
@@ -1682,8 +1741,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
                     // The crosshair: where the other two planes cut this one.
                     let centre = [ready.slice_mm[2], ready.slice_mm[1], ready.slice_mm[0]];
                     if let Some(q) = planes[a].pixel_from_ref(centre) {
-                        let p =
-                            response.rect.min + egui::vec2((q[0] as f32 + 0.5) * scale, (q[1] as f32 + 0.5) * scale);
+                        let p = placement::slice_screen(image_rect, scale, q);
                         let stroke = egui::Stroke::new(1.0, egui::Color32::from_rgba_unmultiplied(255, 230, 90, 160));
                         let painter = col.painter_at(response.rect);
                         painter.hline(response.rect.x_range(), p.y, stroke);

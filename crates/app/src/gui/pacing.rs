@@ -149,6 +149,19 @@ impl FrameRate {
         let span = last.duration_since(*first).as_secs_f64();
         (self.starts.len() >= 2 && span > 0.0).then(|| (self.starts.len() - 1) as f64 / span)
     }
+
+    /// How long after `now` the window must draw once more so that the rate it shows turns to idle if no other
+    /// frame comes: just after the last frame has left the one-second window. `None` when it shows idle already.
+    ///
+    /// An idle window draws nothing, so without this frame the status bar would go on showing the last rate. The
+    /// frame it asks for is counted too, but alone in its second it makes no rate, so it asks for no further one.
+    #[must_use]
+    pub fn redraw_to_idle_in(&self, now: std::time::Instant) -> Option<std::time::Duration> {
+        self.fps()?;
+        let last = *self.starts.back()?;
+        let idle_at = last + Self::WINDOW + std::time::Duration::from_millis(1);
+        Some(idle_at.saturating_duration_since(now))
+    }
 }
 
 #[cfg(test)]
@@ -173,6 +186,25 @@ mod tests {
         assert_eq!(rate.fps(), None, "the first frame after an idle second");
         rate.tick(ms(5100));
         assert!((rate.fps().expect("a rate") - 10.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_window_that_goes_idle_draws_once_more_to_say_so() {
+        let t0 = std::time::Instant::now();
+        let ms = |n: u64| t0 + std::time::Duration::from_millis(n);
+        let mut rate = FrameRate::default();
+        rate.tick(ms(0));
+        assert_eq!(rate.redraw_to_idle_in(ms(0)), None, "no rate shown, nothing to take back");
+        rate.tick(ms(100));
+        rate.tick(ms(200));
+        // The last frame leaves the window 1 s after it started.
+        let wait = rate.redraw_to_idle_in(ms(200)).expect("a rate is shown");
+        assert_eq!(wait, std::time::Duration::from_millis(1001));
+        // The frame drawn then shows idle and asks for no other.
+        let woken = ms(200) + wait;
+        rate.tick(woken);
+        assert_eq!(rate.fps(), None);
+        assert_eq!(rate.redraw_to_idle_in(woken), None);
     }
 
     #[test]

@@ -1,0 +1,251 @@
+//! The placement law, on the demo pair (fixed: the Cranium CT, 0.96 × 0.96 × 1.5 mm, i running towards +L and j
+//! towards −P; moving: the Colin27 MRI, 1 mm, i towards −L and j towards −P), in a 1280 × 900 window: every way a point is placed or
+//! dragged stores the point the status bar shows under the pointer (slices: straight and oblique, each of the three
+//! views, the moving and the fixed side) or the pick's hit (3-D view), and a point outside its volume is refused with
+//! a message, never stored.
+
+mod common;
+
+use std::time::{Duration, Instant};
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::{NodeT, Queryable};
+use warpbench_app::gui::{GuiOptions, Placing, Ready, Workbench};
+use warpbench_gpu::PickTarget;
+
+/// Steps until the pair is loaded and fully rendered.
+fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    loop {
+        harness.step();
+        if let Some(e) = harness.state().failure() {
+            panic!("loading failed: {e}");
+        }
+        if harness.state().ready().is_some() {
+            harness.run_steps(3);
+            wait_until_rendered(harness);
+            return;
+        }
+        assert!(start.elapsed() < Duration::from_mins(3), "the demo pair was not shown within three minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn wait_until_rendered(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    while harness.state().ready().is_some_and(Ready::needs_render) {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(3), "the views were not rendered within three minutes");
+    }
+}
+
+fn no_adapter() -> bool {
+    let missing = std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err();
+    if missing {
+        eprintln!("skipped: no GPU adapter");
+    }
+    missing
+}
+
+fn button(pos: egui::Pos2, pressed: bool) -> egui::Event {
+    egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Primary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    }
+}
+
+/// Moves the pointer to `pos` and lets the status bar show what is under it.
+fn hover(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.run_steps(2);
+}
+
+/// A click at `pos`: press, then release on the next frame.
+fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.input_mut().events.push(button(pos, true));
+    harness.step();
+    harness.input_mut().events.push(button(pos, false));
+    harness.run_steps(2);
+}
+
+/// The fixed and moving points the status bar shows under the pointer, read from its text
+/// ("cursor LPS fixed (l, p, s) mm, moving (l, p, s) mm").
+fn shown(harness: &Harness<'_, Workbench>) -> ([f64; 3], [f64; 3]) {
+    let text = {
+        let node = harness.get_by_label_contains("cursor LPS fixed");
+        let label = node.accesskit_node().label().filter(|l| !l.is_empty());
+        label.or_else(|| node.value()).unwrap_or_default()
+    };
+    let numbers: Vec<f64> = text
+        .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-'))
+        .filter(|s| !s.is_empty() && *s != "-")
+        .map(|s| s.parse().unwrap_or_else(|_| panic!("{s:?} in {text:?}")))
+        .collect();
+    assert_eq!(numbers.len(), 6, "{text:?}");
+    ([numbers[0], numbers[1], numbers[2]], [numbers[3], numbers[4], numbers[5]])
+}
+
+/// The status bar shows one decimal: stored and shown agree to its rounding.
+fn assert_shown(stored: [f64; 3], shown: [f64; 3], what: &str) {
+    for a in 0..3 {
+        assert!((stored[a] - shown[a]).abs() <= 0.051, "{what}: stored {stored:?}, the status bar showed {shown:?}");
+    }
+}
+
+fn ready<'h>(harness: &'h Harness<'_, Workbench>) -> &'h Ready {
+    harness.state().ready().expect("loaded")
+}
+
+/// Adds a pair with a source click at `source` and a target click at `target` (window points, over slice images),
+/// checking each stored point against the status bar's reading at that position.
+fn add_pair_in_slices(harness: &mut Harness<'_, Workbench>, source: egui::Pos2, target: egui::Pos2, what: &str) {
+    eprintln!("{what}: source at {source:?}, target at {target:?}");
+    let before = ready(harness).loaded.pairs.len();
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    hover(harness, source);
+    let (_, moving_shown) = shown(harness);
+    click_at(harness, source);
+    let Placing::Target { moving } = ready(harness).placing else {
+        panic!("{what}: the source click was not taken: {:?}", ready(harness).notice);
+    };
+    assert_shown(moving.coords(), moving_shown, &format!("{what}, moving point"));
+    hover(harness, target);
+    let (fixed_shown, _) = shown(harness);
+    click_at(harness, target);
+    let r = ready(harness);
+    assert_eq!(r.placing, Placing::Idle, "{what}: {:?}", r.notice);
+    assert_eq!(r.loaded.pairs.len(), before + 1, "{what}: a pair was added");
+    let pair = r.loaded.pairs.last().expect("pair");
+    assert_shown(pair.moving.expect("moving").coords(), moving_shown, &format!("{what}, stored moving point"));
+    assert_shown(pair.fixed.expect("fixed").coords(), fixed_shown, &format!("{what}, stored fixed point"));
+}
+
+#[test]
+fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_off_their_volume() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let opts = GuiOptions { autosave: Some(dir.path().join("autosave.warpbench.json")), ..GuiOptions::default() };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1280.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    assert!(ready(&harness).loaded.title.contains("cranium_ct"), "the demo pair: {}", ready(&harness).loaded.title);
+
+    // Each slice view, straight and then oblique: the source at one point, the target at another.
+    for (a, name) in ["Axial", "Coronal", "Sagittal"].into_iter().enumerate() {
+        for oblique in [false, true] {
+            if oblique {
+                harness.get_by_label(&format!("{name} oblique")).click();
+                harness.run_steps(2);
+                let r = harness.state_mut().ready_mut().expect("loaded");
+                r.settings.oblique[a].tilt_deg = 20.0;
+                r.settings.oblique[a].spin_deg = -15.0;
+                r.invalidate();
+                harness.run_steps(2);
+            }
+            // The part of the image inside the window (a turned slice's controls can push it past the edge).
+            let window = egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 900.0));
+            let rect = harness.get_by_label(&format!("{name} slice")).rect().intersect(window);
+            let source = rect.center() + egui::vec2(-0.08 * rect.width(), 0.05 * rect.height());
+            let target = rect.center() + egui::vec2(0.06 * rect.width(), -0.04 * rect.height());
+            add_pair_in_slices(&mut harness, source, target, &format!("{name} (oblique: {oblique})"));
+        }
+    }
+
+    // A drag within the axial slice: the fixed point follows the pointer and ends where the status bar says.
+    let i = ready(&harness).loaded.pairs.len() - 6;
+    harness.get_by_label(&format!("Go to {}", ready(&harness).loaded.pairs[i].name)).click();
+    harness.run_steps(2);
+    harness.run_steps(2);
+    let r = ready(&harness);
+    let plane = r.slice_plane(0);
+    let q = r.loaded.pairs[i].fixed.expect("fixed").coords();
+    let rect = harness.get_by_label("Axial slice").rect();
+    let scale = rect.width() / plane.size.0 as f32;
+    let px = plane.pixel_from_ref(q).expect("on the plane");
+    assert!(px[2].abs() < 1.0, "the axial slice goes through the pair: {px:?}");
+    let start = rect.min + egui::vec2((px[0] as f32 + 0.5) * scale, (px[1] as f32 + 0.5) * scale);
+    let end = start + egui::vec2(-25.0, 12.0);
+    harness.input_mut().events.push(egui::Event::PointerMoved(start));
+    harness.input_mut().events.push(button(start, true));
+    harness.step();
+    for t in [0.25f32, 0.5, 0.75, 1.0] {
+        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
+        harness.step();
+    }
+    assert!(ready(&harness).drag.is_some(), "the press grabbed the glyph");
+    harness.step();
+    let (fixed_shown, _) = shown(&harness);
+    harness.input_mut().events.push(button(end, false));
+    harness.run_steps(3);
+    let moved = ready(&harness).loaded.pairs[i].fixed.expect("fixed").coords();
+    assert_shown(moved, fixed_shown, "the dragged fixed point");
+    assert!((moved[0] - q[0]).abs() > 5.0, "it moved: {q:?} -> {moved:?}");
+    harness.run_steps(2);
+
+    // The 3-D view: both points are the pick's hits at the clicked pixel.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    let view = harness.get_by_label("3-D view").rect();
+    let at = view.center() + egui::vec2(0.05 * view.width(), -0.05 * view.height());
+    let ((w, h), _) = ready(&harness).view_shown().expect("a view");
+    let pixel = [(at.x - view.min.x) / view.width() * w as f32, (at.y - view.min.y) / view.height() * h as f32];
+    let pick = |harness: &Harness<'_, Workbench>, target| {
+        let r = ready(harness);
+        let settings = r.settings.render_settings();
+        r.viewer.pick(&r.camera, &settings, (w, h), pixel, target, r.settings.probe()).expect("pick").expect("a hit")
+    };
+    let moving_hit = pick(&harness, PickTarget::Moving);
+    click_at(&mut harness, at);
+    let Placing::Target { moving } = ready(&harness).placing else { panic!("the 3-D source click was not taken") };
+    assert_shown(moving.coords(), moving_hit.p_lps.map(f64::from), "3-D moving point");
+    let fixed_hit = pick(&harness, PickTarget::Fixed);
+    click_at(&mut harness, at);
+    let pair = ready(&harness).loaded.pairs.last().expect("pair").clone();
+    assert_eq!(ready(&harness).placing, Placing::Idle);
+    assert_shown(pair.fixed.expect("fixed").coords(), fixed_hit.x_ref.map(f64::from), "3-D fixed point");
+    harness.run_steps(2);
+
+    // Off its volume. The axial slice tilted by 60°: its top and bottom rows leave the CT (162 mm high).
+    let r = harness.state_mut().ready_mut().expect("loaded");
+    r.settings.oblique[0].tilt_deg = 60.0;
+    r.settings.oblique[0].spin_deg = 0.0;
+    r.invalidate();
+    harness.run_steps(2);
+    // Near the left edge of the CT's slice the moving point the warp shows lies beyond the MRI (180 mm wide, the CT
+    // 245 mm): refused, nothing stored, still waiting for the source.
+    let n = ready(&harness).loaded.pairs.len();
+    let rect = harness.get_by_label("Axial slice").rect();
+    let edge = egui::pos2(rect.min.x + 0.04 * rect.width(), rect.center().y);
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    click_at(&mut harness, edge);
+    let r = ready(&harness);
+    assert_eq!(r.placing, Placing::Source, "the source off the moving volume was refused");
+    let notice = r.notice.clone().expect("a message");
+    assert!(notice.contains("outside the moving volume"), "{notice}");
+    assert_eq!(r.loaded.pairs.len(), n);
+    harness.run_steps(2);
+    harness.get_by_label(&notice);
+    // A source inside, then a target on the top row, outside the CT: refused.
+    click_at(&mut harness, rect.center());
+    assert!(matches!(ready(&harness).placing, Placing::Target { .. }), "{:?}", ready(&harness).notice);
+    click_at(&mut harness, egui::pos2(rect.center().x, rect.min.y + 2.0));
+    let r = ready(&harness);
+    assert!(matches!(r.placing, Placing::Target { .. }), "the target off the fixed volume was refused");
+    assert!(r.notice.as_deref().is_some_and(|m| m.contains("outside the fixed volume")), "{:?}", r.notice);
+    assert_eq!(r.loaded.pairs.len(), n);
+    // Every stored pair lies in its volumes, as the command line checks them.
+    let r = ready(&harness);
+    for (k, p) in r.loaded.pairs.iter().enumerate() {
+        let (m, f) = (p.moving.expect("moving").coords(), p.fixed.expect("fixed").coords());
+        assert!(warpbench_app::gui::placement::contains(&r.loaded.moving, m), "pair {}: moving {m:?}", k + 1);
+        assert!(warpbench_app::gui::placement::contains(&r.loaded.fixed, f), "pair {}: fixed {f:?}", k + 1);
+    }
+}
