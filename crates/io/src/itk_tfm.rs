@@ -102,9 +102,10 @@ pub fn write_affine(path: &Path, affine: &ItkAffine) -> Result<()> {
     crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
 }
 
-/// Reads a `.tfm` holding one affine transform.
+/// Reads a `.tfm` holding one affine transform. Only a regular file is read (a named pipe would block, a device
+/// never end).
 pub fn read_affine(path: &Path) -> Result<ItkAffine> {
-    let len = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+    let len = crate::check_regular_file(path)?.len();
     // A single affine is a few hundred bytes; a large file is not one (and is not read into memory).
     if len > 1 << 20 {
         return Err(Error::invalid(path, format!("{len} bytes is too long for an affine transform file")));
@@ -233,5 +234,25 @@ mod tests {
         let bad = ItkAffine::from_offset(Matrix3::identity(), [f64::INFINITY, 0.0, 0.0]);
         assert!(write_affine(&out, &bad).is_err());
         assert!(!out.exists());
+    }
+
+    #[test]
+    fn a_named_pipe_is_refused_without_blocking() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let fifo = dir.path().join("pipe.tfm");
+        let status = std::process::Command::new("mkfifo").arg(&fifo).status().expect("run mkfifo");
+        assert!(status.success(), "mkfifo {}", fifo.display());
+        // Opening a FIFO for reading blocks until a writer comes: read on another thread, so a hang fails the
+        // test instead of stalling it.
+        let (tx, rx) = std::sync::mpsc::channel();
+        let path = fifo.clone();
+        std::thread::spawn(move || {
+            let _ = tx.send(read_affine(&path));
+        });
+        let result =
+            rx.recv_timeout(std::time::Duration::from_secs(20)).expect("the read ends (a pipe must not block)");
+        let e = result.expect_err("a pipe holds no transform");
+        assert!(matches!(e.kind, ErrorKind::NotARegularFile { what: "a named pipe (FIFO)" }), "{e}");
+        assert!(e.to_string().starts_with(&format!("{}: a named pipe (FIFO), not a regular file", fifo.display())));
     }
 }
