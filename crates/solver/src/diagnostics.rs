@@ -131,11 +131,31 @@ where
     W: Warp<To, From>,
     F: Fn(&[Point3<From>], &[Point3<To>]) -> Result<W> + Sync,
 {
+    leave_one_out_reporting(src, dst, fit, parallelism, &|| {})
+}
+
+/// [`leave_one_out`], calling `refitted` after each of the N refits (from the threads `parallelism` allows), so a
+/// caller can show how far it is.
+pub fn leave_one_out_reporting<To, From, W, F>(
+    src: &[Point3<From>],
+    dst: &[Point3<To>],
+    fit: F,
+    parallelism: Parallelism,
+    refitted: &(dyn Fn() + Sync),
+) -> Vec<Option<f64>>
+where
+    To: Space,
+    From: Space,
+    W: Warp<To, From>,
+    F: Fn(&[Point3<From>], &[Point3<To>]) -> Result<W> + Sync,
+{
     let one = |i: usize| {
         let keep = |v: usize| v != i;
         let s: Vec<_> = src.iter().enumerate().filter(|(j, _)| keep(*j)).map(|(_, p)| *p).collect();
         let d: Vec<_> = dst.iter().enumerate().filter(|(j, _)| keep(*j)).map(|(_, q)| *q).collect();
-        fit(&s, &d).ok().map(|w| w.apply(src[i]).distance(&dst[i]))
+        let error = fit(&s, &d).ok().map(|w| w.apply(src[i]).distance(&dst[i]));
+        refitted();
+        error
     };
     match parallelism {
         Parallelism::Sequential => (0..src.len()).map(one).collect(),

@@ -100,11 +100,25 @@ impl Method {
         domain: Aabb<From>,
         parallelism: Parallelism,
     ) -> Vec<Option<f64>> {
+        self.leave_one_out_reporting(src, dst, domain, parallelism, &|| {})
+    }
+
+    /// [`Method::leave_one_out`], calling `refitted` after each refit when it refits (not for the closed form).
+    #[must_use]
+    pub fn leave_one_out_reporting<To: Space, From: Space>(
+        &self,
+        src: &[Point3<From>],
+        dst: &[Point3<To>],
+        domain: Aabb<From>,
+        parallelism: Parallelism,
+        refitted: &(dyn Fn() + Sync),
+    ) -> Vec<Option<f64>> {
         if let Self::Tps { stiffness } = *self
             && let Ok(errors) = tps::leave_one_out(src, dst, tps::Regularisation::Smoothing(stiffness))
         {
             return errors;
         }
-        diagnostics::leave_one_out(src, dst, |s: &[Point3<From>], d: &[Point3<To>]| self.fit(s, d, domain), parallelism)
+        let fit = |s: &[Point3<From>], d: &[Point3<To>]| self.fit(s, d, domain);
+        diagnostics::leave_one_out_reporting(src, dst, fit, parallelism, refitted)
     }
 }

@@ -42,6 +42,7 @@ pub mod sampling;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::anyhow;
@@ -214,8 +215,11 @@ pub fn run(opts: &EvalOptions, out: &mut dyn Write) -> Result<(), Failure> {
             let pairs = truth.landmarks(&subject, n, opts)?;
             for method in &plan.methods {
                 let case = format!("{kind}, N = {n}, {method}");
-                let mut stage = |what: &str| bar.set_message(format!("{case}: {what}"));
-                reports.push(evaluate(&subject, &truth, &pairs, method, opts, &mut stage)?);
+                let progress = |what: &str, count: Option<(usize, usize)>| match count {
+                    None => bar.set_message(format!("{case}: {what}")),
+                    Some((done, total)) => bar.set_message(format!("{case}: {what} {done}/{total}")),
+                };
+                reports.push(evaluate(&subject, &truth, &pairs, method, opts, &progress)?);
                 bar.inc(1);
             }
         }
@@ -579,16 +583,18 @@ pub const STAGES: [&str; 6] = [
     "recovering the image",
 ];
 
-/// Fits `method` both ways on `pairs` and measures it against the truth (module docs), calling `stage` with each of
-/// [`STAGES`] as it starts.
+/// Fits `method` both ways on `pairs` and measures it against the truth (module docs), calling `progress` with each
+/// of [`STAGES`] as it starts (and `None`), and during the leave-one-out refits with how many of the N are done (for
+/// a TPS there are none: its leave-one-out errors come in closed form from one solve).
 fn evaluate(
     subject: &Subject,
     truth: &Truth,
     pairs: &Pairs,
     method: &Method,
     opts: &EvalOptions,
-    stage: &mut dyn FnMut(&'static str),
+    progress: &(dyn Fn(&'static str, Option<(usize, usize)>) + Sync),
 ) -> Result<EvalReport, Failure> {
+    let stage = |what: &'static str| progress(what, None);
     let n = pairs.p_moving.len();
     let fit_error = |dir: &str, e: warpbench_solver::SolverError| {
         bad(format!("{}: fitting the {method} {dir} to {n} landmark pairs: {e}", subject.path.display()))
@@ -608,7 +614,9 @@ fn evaluate(
         truth.x_fixed.iter().map(|x| fixed_from_moving.apply(moving_from_fixed.apply(*x)).distance(x)).collect();
     // A TPS in closed form from one solve; refitting it N times was O(N⁴): 2 000 pairs ran for hours.
     stage(STAGES[3]);
-    let loo = method.leave_one_out(&pairs.q_fixed, &pairs.p_moving, box_fixed, Parallelism::Rayon);
+    let refits = AtomicUsize::new(0);
+    let refitted = || progress(STAGES[3], Some((refits.fetch_add(1, Ordering::Relaxed) + 1, n)));
+    let loo = method.leave_one_out_reporting(&pairs.q_fixed, &pairs.p_moving, box_fixed, Parallelism::Rayon, &refitted);
     let loo_values: Vec<f64> = loo.iter().flatten().copied().collect();
 
     stage(STAGES[4]);
@@ -697,9 +705,34 @@ mod tests {
         let truth = Truth::new(&s, SyntheticKind::Sine, &opts).expect("truth");
         let pairs = truth.landmarks(&s, opts.landmarks, &opts).expect("landmarks");
         let method = Method::from_name("tps").expect("tps");
-        let mut seen = Vec::new();
-        let report = evaluate(&s, &truth, &pairs, &method, &opts, &mut |stage| seen.push(stage)).expect("evaluate");
-        assert_eq!(seen, STAGES);
+        let seen = std::sync::Mutex::new(Vec::new());
+        let record = |stage: &'static str, count: Option<(usize, usize)>| {
+            seen.lock().expect("not poisoned").push((stage, count));
+        };
+        let report = evaluate(&s, &truth, &pairs, &method, &opts, &record).expect("evaluate");
+        let seen = seen.into_inner().expect("not poisoned");
+        assert_eq!(seen, STAGES.map(|stage| (stage, None)), "a TPS does not refit");
+        // A method that refits reports each refit, and reaches N.
+        let rigid = Method::from_name("rigid").expect("rigid");
+        let seen = std::sync::Mutex::new(Vec::new());
+        let record = |stage: &'static str, count: Option<(usize, usize)>| {
+            seen.lock().expect("not poisoned").push((stage, count));
+        };
+        evaluate(&s, &truth, &pairs, &rigid, &opts, &record).expect("evaluate");
+        let seen = seen.into_inner().expect("not poisoned");
+        let stages: Vec<&str> = seen.iter().filter(|(_, c)| c.is_none()).map(|(s, _)| *s).collect();
+        assert_eq!(stages, STAGES);
+        let mut counts: Vec<usize> = seen
+            .iter()
+            .filter_map(|(_, c)| {
+                c.map(|(done, total)| {
+                    assert_eq!(total, 30);
+                    done
+                })
+            })
+            .collect();
+        counts.sort_unstable();
+        assert_eq!(counts, (1..=30).collect::<Vec<_>>());
 
         let refits = warpbench_solver::diagnostics::leave_one_out(
             &pairs.q_fixed,
