@@ -1,4 +1,5 @@
-//! TPS benchmarks: fit at N = 100 and N = 1000, and single-threaded evaluation of a 64³ grid for N = 100.
+//! TPS benchmarks: fit at N = 100 and N = 1000, single-threaded evaluation of a 64³ grid for N = 100, and the
+//! leave-one-out errors at N = 200, in closed form (one solve) and by the N refits it replaces.
 //!
 //! `cargo bench -p warpbench-solver --bench tps -- --warm-up-time 1 --measurement-time 3`
 
@@ -8,8 +9,9 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use warpbench_io::geometry::Point3;
-use warpbench_solver::tps::{Tps, fit_pullback};
-use warpbench_solver::{Fixed, Moving};
+use warpbench_solver::diagnostics::leave_one_out as refit_leave_one_out;
+use warpbench_solver::tps::{Regularisation, Tps, fit_pullback, leave_one_out};
+use warpbench_solver::{Fixed, Moving, Parallelism};
 
 /// N landmark pairs in a 200 mm box with a smooth ~10 mm displacement.
 fn landmarks(n: usize, seed: u64) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
@@ -58,5 +60,22 @@ fn bench_eval(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, bench_fit, bench_eval);
+fn bench_leave_one_out(c: &mut Criterion) {
+    let (moving, fixed) = landmarks(200, 13);
+    let reg = Regularisation::Smoothing(0.0);
+    c.bench_function("tps_leave_one_out_n200_closed_form", |b| {
+        b.iter(|| leave_one_out(black_box(&fixed), black_box(&moving), reg).expect("leave-one-out"));
+    });
+    let mut group = c.benchmark_group("slow");
+    group.sample_size(10);
+    group.bench_function("tps_leave_one_out_n200_refits_1thread", |b| {
+        b.iter(|| {
+            let fit = |q: &[Point3<Fixed>], p: &[Point3<Moving>]| Tps::fit_regularised(q, p, reg);
+            refit_leave_one_out(black_box(&fixed), black_box(&moving), fit, Parallelism::Sequential)
+        });
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_fit, bench_eval, bench_leave_one_out);
 criterion_main!(benches);
