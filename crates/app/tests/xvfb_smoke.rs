@@ -51,3 +51,97 @@ fn the_window_shows_the_demo_pair_under_xvfb() {
     let text = std::fs::read_to_string(&autosave).expect("the window autosaves on exit");
     assert!(text.contains("\"clean_exit\": true"), "{text}");
 }
+
+fn xdotool_available() -> bool {
+    Command::new("sh").args(["-c", "command -v xdotool"]).output().is_ok_and(|o| o.status.success())
+}
+
+/// The pairs of a session file, by name.
+fn session_pairs(path: &std::path::Path) -> Vec<String> {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let json: serde_json::Value = serde_json::from_str(&text).expect("a session");
+    json["landmarks"]
+        .as_array()
+        .expect("landmarks")
+        .iter()
+        .map(|p| p["name"].as_str().unwrap_or("").to_owned())
+        .collect()
+}
+
+/// No placed landmark is lost: the real window, on the demo pair in a 1280 × 900 screen, gets a pair added by
+/// clicking (Add pair, then the source and the target in the axial slice) and is killed with SIGKILL one second
+/// after the last click. The autosave left behind holds the new pair, and a window started on the recovered
+/// session (what "Recover the last session" opens) shows it.
+#[test]
+fn a_pair_added_a_second_before_a_kill_is_recovered() {
+    if !(xvfb_run_available() && xdotool_available()) {
+        assert!(std::env::var_os("REQUIRE_XVFB").is_none(), "REQUIRE_XVFB=1 but xvfb-run or xdotool is missing");
+        eprintln!("skipped: no xvfb-run or xdotool");
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let state = dir.path();
+    // Positions in the default layout of a 1280 × 900 window on the demo pair: a point of the axial slice, the
+    // Add pair button, and two points of the axial slice 7 px apart.
+    let script = r#"
+set -u
+"$BIN" >"$STATE/log" 2>&1 &
+pid=$!
+saved() { python3 -c "import json,sys; s=json.load(open('$STATE/autosave.warpbench.json')); sys.exit(0 if $1 else 1)" 2>/dev/null; }
+i=0; until saved "len(s['landmarks']) == 10"; do i=$((i+1)); [ $i -gt 1500 ] && exit 10; sleep 0.2; done
+# The window takes clicks once this one (linked navigation: the other slices move) reaches the autosave.
+xdotool mousemove 700 700 click 1
+i=0; until saved "s['slice_mm'][2] != 0.0"; do i=$((i+1)); [ $i -gt 1500 ] && exit 11; sleep 0.2; done
+xdotool mousemove 40 588 click 1; sleep 1.5
+xdotool mousemove 690 650 click 1; sleep 1.5
+xdotool mousemove 697 650 click 1; sleep 1
+kill -9 $pid
+"#;
+    let out = Command::new("xvfb-run")
+        .args(["-a", "-s", "-screen 0 1280x900x24", "sh", "-c", script])
+        .env("BIN", env!("CARGO_BIN_EXE_warpbench"))
+        .env("STATE", state)
+        .env("XDG_RUNTIME_DIR", state)
+        .env("WARPBENCH_STATE_DIR", state)
+        .output()
+        .expect("run xvfb-run");
+    let log = std::fs::read_to_string(state.join("log")).unwrap_or_default();
+    assert!(
+        out.status.success(),
+        "the script failed ({:?}): {}; window: {log}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let autosave = state.join("autosave.warpbench.json");
+    let pairs = session_pairs(&autosave);
+    assert_eq!(pairs.len(), 11, "the pair added a second before the kill is in the autosave: {pairs:?}");
+    assert!(std::fs::read_to_string(&autosave).expect("autosave").contains("\"clean_exit\": false"));
+
+    // The next start copies the crashed autosave aside and offers it; opening that copy brings the pair back.
+    let shot = state.join("shot.png");
+    let recovered = state.join("autosave.recovered.warpbench.json");
+    let run = |args: &[&std::ffi::OsStr]| {
+        Command::new("xvfb-run")
+            .args(["-a", "-s", "-screen 0 1280x900x24"])
+            .arg(env!("CARGO_BIN_EXE_warpbench"))
+            .args(args)
+            .env("XDG_RUNTIME_DIR", state)
+            .env("WARPBENCH_STATE_DIR", state)
+            .output()
+            .expect("run xvfb-run")
+    };
+    let out = run(&["--screenshot".as_ref(), shot.as_os_str(), "--exit-after-frames".as_ref(), "2".as_ref()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(session_pairs(&recovered).len(), 11, "the crashed session is kept for recovery");
+    let out = run(&[
+        "--session".as_ref(),
+        recovered.as_os_str(),
+        "--screenshot".as_ref(),
+        shot.as_os_str(),
+        "--exit-after-frames".as_ref(),
+        "2".as_ref(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let reopened = session_pairs(&autosave);
+    assert_eq!(reopened, pairs, "the recovered session shows the pairs, the new one included");
+}

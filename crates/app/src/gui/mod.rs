@@ -350,6 +350,8 @@ pub struct Ready {
     pub export_fields: export::ExportFields,
     /// Where the control texture is made.
     pub control_eval: ControlEval,
+    /// A change asked for a fit at the end of the frame ([`Self::refit_soon`]).
+    fit_pending: bool,
 }
 
 /// The 3-D view's and the slices' images as egui shows them, and what needs rendering again.
@@ -482,13 +484,10 @@ impl Workbench {
         self.autosave.error()
     }
 
-    /// Hands the document as it is at the end of this frame to the autosave ([`autosave::Autosave::observe`]).
+    /// Hands the document as it is at the end of this frame to the autosave.
     fn autosave_changes(&mut self, ctx: &egui::Context) {
-        let Phase::Ready(ready) = &self.phase else { return };
-        let file = ready.to_session(false);
-        let held = ctx.input(|i| i.pointer.any_down()) || ready.drag.is_some();
-        if let Some(wait) = self.autosave.observe(std::time::Instant::now(), &file, held) {
-            ctx.request_repaint_after(wait);
+        if let Phase::Ready(ready) = &self.phase {
+            autosave_changes(&mut self.autosave, ctx, ready);
         }
     }
 
@@ -662,6 +661,7 @@ impl Workbench {
             jacobian: None,
             cursor: None,
             notice: None,
+            fit_pending: false,
             selected: None,
             drag: None,
             export: None,
@@ -695,6 +695,23 @@ impl Ready {
     /// residuals, leave-one-out errors and folding.
     pub fn refit(&mut self) {
         self.fit(true);
+    }
+
+    /// Fits again once this frame is over ([`Self::refit`]): a change of the document reaches the autosave
+    /// before the fit and its diagnostics (many fits on a CPU) run, so what a crash can take is only the time of
+    /// the write.
+    pub fn refit_soon(&mut self) {
+        self.fit_pending = true;
+        self.invalidate();
+    }
+
+    /// Runs the fit [`Self::refit_soon`] asked for; true when there was one.
+    pub fn fit_if_pending(&mut self) -> bool {
+        let pending = std::mem::take(&mut self.fit_pending);
+        if pending {
+            self.refit();
+        }
+        pending
     }
 
     /// The fit of [`Self::refit`] without leave-one-out and folding (N more fits and a Jacobian grid): what a drag
@@ -800,7 +817,7 @@ impl Ready {
                 Ok(pairs) => {
                     self.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
                     self.loaded.pairs = pairs;
-                    self.refit();
+                    self.refit_soon();
                 }
                 Err(e) => self.file_message = Some(format!("{e:#}")),
             },
@@ -844,7 +861,7 @@ impl Ready {
         path: PathBuf,
     ) -> anyhow::Result<()> {
         self.swap_volume(side, VolumeRef { volume, path: Some(path) }, layer)?;
-        self.refit();
+        self.refit_soon();
         Ok(())
     }
 
@@ -930,7 +947,7 @@ impl Ready {
     /// Ends a drag: the full fit with its diagnostics.
     fn end_drag(&mut self) {
         if self.drag.take().is_some() {
-            self.refit();
+            self.refit_soon();
         }
     }
 
@@ -1125,7 +1142,7 @@ impl Ready {
         if i < self.loaded.pairs.len() {
             self.loaded.pairs.remove(i);
             self.selected = None;
-            self.refit();
+            self.refit_soon();
         }
     }
 
@@ -1164,7 +1181,7 @@ impl Ready {
                 let name = format!("Pt-{}", self.loaded.pairs.len() + 1);
                 self.loaded.pairs.push(LandmarkPair::new(name, moving, Point3::from_array(x_ref)));
                 self.placing = Placing::Idle;
-                self.refit();
+                self.refit_soon();
             }
         }
         self.invalidate();
@@ -1337,7 +1354,7 @@ impl Ready {
             (layer.preset, layer.window, layer.visible) = (look.preset, look.window, look.visible);
         }
         self.placing = Placing::Idle;
-        self.refit();
+        self.refit_soon();
     }
 
     /// Undoes the last change (Ctrl+Z).
@@ -1450,7 +1467,7 @@ impl eframe::App for Workbench {
                 });
             }
             Phase::Ready(ready) => {
-                workbench_ui(ui, ready, render_state.as_ref());
+                workbench_ui(ui, ready, render_state.as_ref(), &mut self.autosave);
                 self.ready_frames += 1;
             }
         }
@@ -1458,6 +1475,11 @@ impl eframe::App for Workbench {
             self.phase = Self::start_loading(&ctx, GuiOptions::default(), self.facts);
         }
         self.autosave_changes(&ctx);
+        if let Phase::Ready(ready) = &mut self.phase
+            && ready.fit_if_pending()
+        {
+            ctx.request_repaint();
+        }
         // Counted once the views are rendered fully (on a CPU driver the 3-D view is refined over many frames).
         let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render());
         if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
@@ -1485,6 +1507,16 @@ impl eframe::App for Workbench {
         {
             ui.ctx().request_repaint();
         }
+    }
+}
+
+/// Hands the document as it is now to the autosave ([`autosave::Autosave::observe`]), coalescing while the pointer
+/// is held.
+fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, ready: &Ready) {
+    let file = ready.to_session(false);
+    let held = ctx.input(|i| i.pointer.any_down()) || ready.drag.is_some();
+    if let Some(wait) = autosave.observe(std::time::Instant::now(), &file, held) {
+        ctx.request_repaint_after(wait);
     }
 }
 
@@ -1526,7 +1558,12 @@ fn keyboard(ui: &mut egui::Ui, ready: &mut Ready) {
 }
 
 /// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
-fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
+fn workbench_ui(
+    ui: &mut egui::Ui,
+    ready: &mut Ready,
+    render_state: Option<&eframe::egui_wgpu::RenderState>,
+    autosave: &mut autosave::Autosave,
+) {
     ready.frame_rate.tick(std::time::Instant::now());
     if let Some(job) = &ready.export {
         match job.poll() {
@@ -1556,7 +1593,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             });
             let change = panels::settings_ui(ui, &mut ready.settings);
             if change.refit {
-                ready.refit();
+                ready.refit_soon();
             } else if change.redraw {
                 ready.invalidate();
             }
@@ -1578,7 +1615,7 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             });
             match panels::landmarks_ui(ui, &mut ready.loaded.pairs, &ready.errors, ready.selected) {
                 panels::LandmarkAction::None => {}
-                panels::LandmarkAction::Refit => ready.refit(),
+                panels::LandmarkAction::Refit => ready.refit_soon(),
                 panels::LandmarkAction::Delete(i) => ready.delete_pair(i),
                 panels::LandmarkAction::Jump(i) => ready.jump_to(i),
                 panels::LandmarkAction::Select(i) => {
@@ -1751,6 +1788,8 @@ fn workbench_ui(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&efra
             }
         });
     });
+    // What the panels changed reaches the disk before the 3-D view renders (a second on a CPU driver).
+    autosave_changes(autosave, ui.ctx(), ready);
     egui::CentralPanel::default().show(ui, |ui| {
         let avail = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
