@@ -33,7 +33,10 @@
 //!    JPEG and JPEG 2000 go through `dicom-pixeldata`'s pure-Rust codecs after their frame
 //!    headers are checked against Rows/Columns (a mismatch would make the codec adapters panic).
 //!    Stored bits are masked to BitsStored and sign-extended for signed data. No LUT or window
-//!    is applied.
+//!    is applied. The file's bytes, the volume and the decoded RLE / JPEG-LS frames are allocated
+//!    fallibly ([`volume::try_with_capacity`]), as is a rescaled copy: memory the system refuses is an
+//!    [`ErrorKind::OutOfMemory`] naming the file and the size, never an abort. (Buffers that
+//!    dicom-rs and dicom-pixeldata allocate while parsing and decoding JPEG / JPEG 2000 are theirs.)
 //! 5. **Rescale.** value = RescaleSlope × stored + RescaleIntercept, per slice, in f64. Identity:
 //!    u8, i16, u16 kept, i8 → i16, 32-bit → f32. Otherwise: integer slope and intercept with every
 //!    value in i16 → i16, else in u16 → u16, else f32.
@@ -217,7 +220,7 @@ impl Source<'_> {
     fn read_checked(&self) -> Result<(Cow<'_, [u8]>, Checked)> {
         let path = self.path();
         let bytes: Cow<'_, [u8]> = match self {
-            Self::File(p) => Cow::Owned(std::fs::read(p).map_err(|e| Error::io(p, e))?),
+            Self::File(p) => Cow::Owned(read_whole_file(p)?),
             Self::Bytes(_, b) => Cow::Borrowed(b),
         };
         if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
@@ -262,6 +265,19 @@ impl Source<'_> {
             .map_err(|e| Error::new(self.path(), ErrorKind::Dicom(error_chain(&e))))?;
         Ok((obj, bytes, 128 + value.start..128 + value.end))
     }
+}
+
+/// The bytes of the file at `path`, into a buffer allocated fallibly for its length: memory the system refuses is
+/// an [`ErrorKind::OutOfMemory`] naming the file.
+fn read_whole_file(path: &Path) -> Result<Vec<u8>> {
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let capacity =
+        usize::try_from(len).map_err(|_| Error::invalid(path, format!("{len} bytes do not fit in memory")))?;
+    let mut bytes = volume::try_with_capacity(path, capacity, "the file's bytes")?;
+    // At most the length seen (a file that grows meanwhile is read as it was).
+    (&mut file).take(len).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+    Ok(bytes)
 }
 
 /// What [`check_lengths`] found: where the top-level PixelData ends (or the data ends), and the
@@ -1147,7 +1163,7 @@ fn read_series(label: &Path, sources: &[Source], headers: Vec<Header>, opts: &mu
     let slice_len = dims[0] * dims[1];
     let total = volume::check_allocation(label, dims, kind.bytes(), opts.max_voxel_bytes)?;
     check_files_can_hold(label, sources, &series, (total * kind.bytes()) as u64)?;
-    let mut stored = Stored::zeros(kind, total);
+    let mut stored = Stored::zeros(label, kind, total)?;
     let mut ranges = vec![(0i64, 0i64); dims[2]];
 
     // Decode file by file in the order of their first slice; each file is dropped before the next.
@@ -1263,16 +1279,39 @@ enum Stored {
 }
 
 impl Stored {
-    fn zeros(kind: StoredKind, n: usize) -> Self {
-        match kind {
-            StoredKind::U8 => Self::U8(vec![0; n]),
-            StoredKind::I8 => Self::I8(vec![0; n]),
-            StoredKind::U16 => Self::U16(vec![0; n]),
-            StoredKind::I16 => Self::I16(vec![0; n]),
-            StoredKind::U32 => Self::U32(vec![0; n]),
-            StoredKind::I32 => Self::I32(vec![0; n]),
-        }
+    /// `n` zero samples of `kind`, allocated fallibly: memory the system refuses is an
+    /// [`ErrorKind::OutOfMemory`] naming `path`, not an abort.
+    fn zeros(path: &Path, kind: StoredKind, n: usize) -> Result<Self> {
+        const WHAT: &str = "the stored pixels";
+        Ok(match kind {
+            StoredKind::U8 => Self::U8(try_zeros(path, n, WHAT)?),
+            StoredKind::I8 => Self::I8(try_zeros(path, n, WHAT)?),
+            StoredKind::U16 => Self::U16(try_zeros(path, n, WHAT)?),
+            StoredKind::I16 => Self::I16(try_zeros(path, n, WHAT)?),
+            StoredKind::U32 => Self::U32(try_zeros(path, n, WHAT)?),
+            StoredKind::I32 => Self::I32(try_zeros(path, n, WHAT)?),
+        })
     }
+}
+
+/// `n` zeros, allocated fallibly ([`volume::try_with_capacity`]): `vec![0; n]` would abort the process when
+/// the memory cannot be had.
+fn try_zeros<T: Copy + Default>(path: &Path, n: usize, what: &str) -> Result<Vec<T>> {
+    let mut v = volume::try_with_capacity(path, n, what)?;
+    v.resize(n, T::default());
+    Ok(v)
+}
+
+/// `f(i, v[i])` for every sample, into a buffer allocated fallibly. When `S` and `T` have the same layout, std
+/// collects a vector's own `into_iter` in place (no second buffer, nothing to allocate); otherwise the output is
+/// allocated with [`volume::try_with_capacity`].
+fn try_convert<S, T>(path: &Path, v: Vec<S>, f: impl FnMut((usize, S)) -> T) -> Result<Vec<T>> {
+    if size_of::<S>() == size_of::<T>() && align_of::<S>() == align_of::<T>() {
+        return Ok(v.into_iter().enumerate().map(f).collect());
+    }
+    let mut out = volume::try_with_capacity(path, v.len(), "the converted samples")?;
+    out.extend(v.into_iter().enumerate().map(f));
+    Ok(out)
 }
 
 /// How to turn the raw bits of one sample into its value.
@@ -1524,15 +1563,15 @@ fn finalize(
             Stored::I16(v) => VoxelData::I16(v),
             Stored::I8(v) => {
                 volume::check_allocation(label, dims, 2, opts.max_voxel_bytes)?;
-                VoxelData::I16(v.into_iter().map(i16::from).collect())
+                VoxelData::I16(try_convert(label, v, |(_, x)| i16::from(x))?)
             }
             Stored::U32(v) => {
                 check_f32()?;
-                VoxelData::F32(v.into_iter().map(|x| x as f32).collect())
+                VoxelData::F32(try_convert(label, v, |(_, x)| x as f32)?)
             }
             Stored::I32(v) => {
                 check_f32()?;
-                VoxelData::F32(v.into_iter().map(|x| x as f32).collect())
+                VoxelData::F32(try_convert(label, v, |(_, x)| x as f32)?)
             }
         };
         return Ok((data, Rescale::IDENTITY, warnings));
@@ -1551,7 +1590,7 @@ fn finalize(
     };
     macro_rules! convert {
         ($v:expr, $f:expr) => {
-            $v.into_iter().enumerate().map(|(i, x)| $f(map(i64::from(x), i))).collect()
+            try_convert(label, $v, |(i, x)| $f(map(i64::from(x), i)))?
         };
     }
     macro_rules! all_types {
@@ -1591,7 +1630,7 @@ fn decode_rle(path: &Path, fragments: &[Vec<u8>], fmt: &PixelFormat, bytes: usiz
         return Err(bad(format!("{} fragments for {} frames (one per frame expected)", fragments.len(), fmt.frames)));
     }
     let pixels = fmt.rows * fmt.cols;
-    let mut out = vec![0u8; pixels * bytes * fmt.frames];
+    let mut out = try_zeros(path, pixels * bytes * fmt.frames, "the decoded pixel data")?;
     for (f, frag) in fragments.iter().take(fmt.frames).enumerate() {
         let header = frag.get(..64).ok_or_else(|| bad(format!("frame {}: fragment shorter than the header", f + 1)))?;
         let word =
@@ -1628,7 +1667,7 @@ fn decode_jpeg_ls(path: &Path, fragments: &[Vec<u8>], fmt: &PixelFormat, bytes: 
     }
     let frames = jpeg_ls_frames(fragments, fmt.frames).map_err(bad)?;
     let pixels = fmt.rows * fmt.cols;
-    let mut out = vec![0u8; pixels * bytes * fmt.frames];
+    let mut out = try_zeros(path, pixels * bytes * fmt.frames, "the decoded pixel data")?;
     for (f, (data, out_frame)) in frames.iter().zip(out.chunks_exact_mut(pixels * bytes)).enumerate() {
         let codec = |e: jpegls::JpegLsError| {
             let m = format!("JPEG-LS frame {}: {e}", f + 1);

@@ -285,3 +285,92 @@ fn a_folder_given_to_a_file_reader_is_refused_by_name() {
     assert!(matches!(e.kind, ErrorKind::NotARegularFile { what: "a folder" }), "{e}");
     assert!(e.to_string().starts_with(&format!("{}: a folder, not a regular file", folder.display())), "{e}");
 }
+
+// ---------------------------------------------------------------------------------------------
+// DICOM memory
+// ---------------------------------------------------------------------------------------------
+
+/// Reads `path` in a child process: this test binary re-executed under `ulimit -v kib`, running
+/// [`child_reads_the_file_named_in_the_environment`]. Returns the line the child printed (the volume's dims or the
+/// error); a child that aborts or fails otherwise fails the test, with its output.
+fn read_in_child(path: &Path, kib: u64) -> String {
+    let exe = std::env::current_exe().expect("this test binary");
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(format!(
+            "ulimit -v {kib} && exec \"$0\" --ignored --exact child_reads_the_file_named_in_the_environment \
+             --nocapture --test-threads 1"
+        ))
+        .arg(&exe)
+        .env("WARPBENCH_CHILD_READ", path)
+        .output()
+        .expect("run the child");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{}: the child failed ({:?}):\n{stdout}\n{stderr}", path.display(), out.status);
+    let outcome = stdout.split_once("child outcome: ").map(|(_, o)| o.lines().next().unwrap_or_default());
+    outcome.unwrap_or_else(|| panic!("{}: the child printed no outcome:\n{stdout}\n{stderr}", path.display())).into()
+}
+
+/// A single-slice, 8-bit DICOM of `rows` × `cols` in an encapsulated `transfer_syntax`, whose one fragment is
+/// filler: long enough for the reader's size check (pixel data compressed at most 2048:1), not a valid codestream,
+/// so the reader allocates what Rows × Columns claim before it finds out.
+fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str) {
+    use dicom_core::value::PixelFragmentSequence;
+    use dicom_core::{DataElement, PrimitiveValue, VR};
+    use dicom_dictionary_std::{tags, uids};
+    use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
+
+    let fragment_len = (usize::from(rows) * usize::from(cols)).div_ceil(2048).next_multiple_of(2);
+    let ds = |v: &str| PrimitiveValue::from(v);
+    let obj = InMemDicomObject::from_element_iter([
+        DataElement::new(tags::SOP_CLASS_UID, VR::UI, ds(uids::MR_IMAGE_STORAGE)),
+        DataElement::new(tags::SOP_INSTANCE_UID, VR::UI, ds("1.2.826.0.1.3680043.2.9.1")),
+        DataElement::new(tags::MODALITY, VR::CS, ds("MR")),
+        DataElement::new(tags::STUDY_INSTANCE_UID, VR::UI, ds("1.2.826.0.1.3680043.2.9")),
+        DataElement::new(tags::SERIES_INSTANCE_UID, VR::UI, ds("1.2.826.0.1.3680043.2.9.2")),
+        DataElement::new(tags::INSTANCE_NUMBER, VR::IS, ds("1")),
+        DataElement::new(tags::IMAGE_POSITION_PATIENT, VR::DS, ds("0\\0\\0")),
+        DataElement::new(tags::IMAGE_ORIENTATION_PATIENT, VR::DS, ds("1\\0\\0\\0\\1\\0")),
+        DataElement::new(tags::PIXEL_SPACING, VR::DS, ds("1\\1")),
+        DataElement::new(tags::SLICE_THICKNESS, VR::DS, ds("1")),
+        DataElement::new(tags::SAMPLES_PER_PIXEL, VR::US, PrimitiveValue::from(1u16)),
+        DataElement::new(tags::PHOTOMETRIC_INTERPRETATION, VR::CS, ds("MONOCHROME2")),
+        DataElement::new(tags::ROWS, VR::US, PrimitiveValue::from(rows)),
+        DataElement::new(tags::COLUMNS, VR::US, PrimitiveValue::from(cols)),
+        DataElement::new(tags::BITS_ALLOCATED, VR::US, PrimitiveValue::from(8u16)),
+        DataElement::new(tags::BITS_STORED, VR::US, PrimitiveValue::from(8u16)),
+        DataElement::new(tags::HIGH_BIT, VR::US, PrimitiveValue::from(7u16)),
+        DataElement::new(tags::PIXEL_REPRESENTATION, VR::US, PrimitiveValue::from(0u16)),
+        DataElement::new(tags::PIXEL_DATA, VR::OB, PixelFragmentSequence::new(vec![], vec![vec![0u8; fragment_len]])),
+    ]);
+    obj.with_meta(FileMetaTableBuilder::new().transfer_syntax(transfer_syntax))
+        .expect("file meta")
+        .write_to_file(path)
+        .expect("write DICOM");
+}
+
+#[test]
+fn a_dicom_whose_pixels_cannot_be_allocated_is_an_error_not_an_abort() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // 65535² bytes (4 GiB) of stored pixels: more than the child's address space, under the default cap.
+    let stored = dir.path().join("stored-4gib.dcm");
+    encapsulated_dicom(&stored, u16::MAX, u16::MAX, "1.2.840.10008.1.2.5");
+    // 25000² bytes: the stored pixels fit in the child's 1 GiB, the decoded frames as well do not.
+    let rle = dir.path().join("decoded-rle.dcm");
+    encapsulated_dicom(&rle, 25_000, 25_000, "1.2.840.10008.1.2.5");
+    let jpeg_ls = dir.path().join("decoded-jpeg-ls.dcm");
+    encapsulated_dicom(&jpeg_ls, 25_000, 25_000, "1.2.840.10008.1.2.4.80");
+    for (path, what, bytes) in [
+        (&stored, "the stored pixels", "4294836225 bytes"),
+        (&rle, "the decoded pixel data", "625000000 bytes"),
+        (&jpeg_ls, "the decoded pixel data", "625000000 bytes"),
+    ] {
+        let outcome = read_in_child(path, CHILD_ADDRESS_SPACE_KIB);
+        let name = path.display().to_string();
+        assert!(
+            outcome.starts_with(&name) && outcome.contains(&format!("not enough memory for {what}: {bytes}")),
+            "{name}: {outcome:?}"
+        );
+    }
+}
