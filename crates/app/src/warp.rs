@@ -23,6 +23,7 @@ use warpbench_gpu::export::{
     SourceVolume, TargetGrid, export_cpu,
 };
 use warpbench_gpu::{GpuContext, GpuError};
+use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::dicom_write::{self, DicomSeriesOptions};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::landmarks::LandmarkPair;
@@ -241,18 +242,27 @@ pub fn series_description(method: &str, moving: &Path) -> String {
 }
 
 /// Writes `volume` as `warp` does: a NIfTI at `out` and, when `out_dicom` is given, a DICOM series in that folder
-/// (new or empty) with `series_description` and the volume's modality. Each write is atomic.
+/// (new or empty) with `series_description` and the volume's modality. Each write is atomic. With the moving
+/// volume's path (`moving`: the volume read from it), a DICOM moving series is the series' source: its patient,
+/// study, equipment and acquisition attributes are copied and its images referenced.
 pub fn write_outputs(
     volume: &Volume,
     out: &Path,
     out_dicom: Option<&Path>,
     series_description: &str,
+    moving: Option<(&Path, &Volume)>,
 ) -> Result<(), Failure> {
+    // Read before anything is written, so a source that cannot be read leaves no output.
+    let source = match (out_dicom, moving) {
+        (Some(_), Some((path, moving))) => DicomSource::for_volume(path, moving)?,
+        _ => None,
+    };
     nifti::write(out, volume)?;
     if let Some(dir) = out_dicom {
         let dicom_opts = DicomSeriesOptions {
             modality: volume.modality.clone(),
             series_description: series_description.to_owned(),
+            source,
             ..DicomSeriesOptions::default()
         };
         dicom_write::write_series(dir, volume, &dicom_opts)?;
@@ -445,7 +455,13 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
 
     let volume = &resampled.volume;
     let description = series_description(&resampled.method, &opts.inputs.moving);
-    write_outputs(volume, &opts.out.path, opts.out_dicom.as_deref(), &description)?;
+    write_outputs(
+        volume,
+        &opts.out.path,
+        opts.out_dicom.as_deref(),
+        &description,
+        Some((&opts.inputs.moving, &moving)),
+    )?;
     seconds.write = lap.next();
     seconds.total = start.elapsed().as_secs_f64();
     Ok(WarpReport {

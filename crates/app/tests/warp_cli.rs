@@ -319,7 +319,7 @@ fn the_in_memory_core_makes_the_file_the_command_writes() {
         .expect("resample in memory");
         assert!(calls > 1, "progress is reported per slab: {calls} calls");
         let description = warp::series_description(&resampled.method, &mri);
-        warp::write_outputs(&resampled.volume, &from_core, None, &description).expect("write");
+        warp::write_outputs(&resampled.volume, &from_core, None, &description, None).expect("write");
         let (cli_bytes, core_bytes) =
             (std::fs::read(&from_cli).expect("CLI file"), std::fs::read(&from_core).expect("core file"));
         assert!(cli_bytes == core_bytes, "case {n}: the core's file differs from the command's");

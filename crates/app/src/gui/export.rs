@@ -114,7 +114,8 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             };
             let resampled = warp::resample(fixed, fixed, moving, &input.pairs, &names, &settings, &mut progress)?;
             let description = warp::series_description(&resampled.method, Path::new(&moving_name));
-            warp::write_outputs(&resampled.volume, out, dicom.as_deref(), &description)?;
+            let source = input.moving_path.as_deref().map(|p| (p, moving));
+            warp::write_outputs(&resampled.volume, out, dicom.as_deref(), &description, source)?;
             let also = dicom.as_ref().map_or_else(String::new, |d| format!(" and a DICOM series in {}", d.display()));
             Ok(format!(
                 "wrote {}{also}: {} warp of {} pairs, {}, {}",
