@@ -36,7 +36,7 @@ struct GuiArgs {
     /// The moving volume to open (with --fixed).
     #[arg(long, requires = "fixed")]
     moving: Option<PathBuf>,
-    /// Landmark pairs (BigWarp CSV) to open with them.
+    /// Landmark pairs (BigWarp CSV or BigWarp JSON, also a BigWarp settings file) to open with them.
     #[arg(long, requires = "fixed")]
     landmarks: Option<PathBuf>,
     /// A saved session (.warpbench.json) to open: its volumes, landmarks and settings.
@@ -153,7 +153,7 @@ enum BackendArg {
 /// The landmarks and the warp method, shared by `warp`, `field` and `render`.
 #[derive(Debug, clap::Args)]
 struct PairArgs {
-    /// Landmark pairs (BigWarp CSV, moving then fixed coordinates, LPS mm).
+    /// Landmark pairs: BigWarp CSV or BigWarp JSON (.json, also a BigWarp settings file), moving then fixed, LPS mm.
     #[arg(long)]
     landmarks: Option<PathBuf>,
     /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.

@@ -190,7 +190,7 @@ impl Purpose {
             Self::OpenFolder(side) => d.set_title(format!("Open a DICOM folder as the {} volume", side.name())),
             Self::OpenSession | Self::SaveSession => d.add_filter("warpbench session", &["json"]),
             Self::ImportLandmarks | Self::ExportLandmarks => {
-                d.add_filter("Landmarks (BigWarp CSV, Slicer)", &["csv", "json", "fcsv"])
+                d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
             }
             Self::ExportWarped | Self::ExportField => d.add_filter("NIfTI", &["nii", "gz"]),
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
@@ -259,7 +259,7 @@ pub fn classify(path: &Path) -> FileKind {
         FileKind::Volume
     } else if name.ends_with(".warpbench.json") {
         FileKind::Session
-    } else if [".csv", ".fcsv", ".mrk.json"].iter().any(|e| name.ends_with(e)) {
+    } else if [".csv", ".fcsv", ".json"].iter().any(|e| name.ends_with(e)) {
         FileKind::Landmarks
     } else {
         FileKind::Volume

@@ -448,7 +448,7 @@ pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> FileAction {
     if ui.add_enabled(!fields.session.trim().is_empty(), egui::Button::new("Save session")).clicked() {
         action = FileAction::SaveSession(path(&fields.session));
     }
-    ui.add(egui::TextEdit::singleline(&mut fields.landmarks).hint_text("pairs.csv, or moving.fcsv"))
+    ui.add(egui::TextEdit::singleline(&mut fields.landmarks).hint_text("pairs.csv, pairs.json, or moving.fcsv"))
         .labelled_by(ui.label("Landmark file").id);
     ui.horizontal(|ui| {
         let enabled = !fields.landmarks.trim().is_empty();
@@ -467,22 +467,23 @@ pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> FileAction {
     action
 }
 
-/// Writes the pairs as a BigWarp CSV (`.csv`), or as a Slicer pair of point lists for `.mrk.json` / `.fcsv`:
+/// Writes the pairs as BigWarp JSON (`.json`) or BigWarp CSV (any other name), or as a Slicer pair of point lists
+/// for `.mrk.json` / `.fcsv`:
 /// `NAME.mrk.json` becomes `NAME_moving.mrk.json` and `NAME_fixed.mrk.json`.
 pub fn export_landmarks(path: &std::path::Path, pairs: &[LandmarkPair]) -> anyhow::Result<()> {
     match slicer_pair_paths(path) {
         Some((moving, fixed)) => warpbench_io::landmarks::write_slicer_pair(&moving, &fixed, pairs)?,
-        None => warpbench_io::landmarks::write_bigwarp_csv(path, pairs)?,
+        None => warpbench_io::landmarks::write_landmark_pairs(path, pairs)?,
     }
     Ok(())
 }
 
-/// Reads pairs from a BigWarp CSV, or from the `_moving` / `_fixed` Slicer lists named like [`export_landmarks`]
-/// writes them.
+/// Reads pairs from a BigWarp CSV or JSON (told apart by content), or from the `_moving` / `_fixed` Slicer lists
+/// named like [`export_landmarks`] writes them.
 pub fn import_landmarks(path: &std::path::Path) -> anyhow::Result<Vec<LandmarkPair>> {
     Ok(match slicer_pair_paths(path) {
         Some((moving, fixed)) => warpbench_io::landmarks::read_slicer_pair(&moving, &fixed)?,
-        None => warpbench_io::landmarks::read_bigwarp_csv(path)?,
+        None => warpbench_io::landmarks::read_landmark_pairs(path)?,
     })
 }
 
@@ -530,7 +531,7 @@ mod tests {
                 ..LandmarkPair::new("b", Point3::new(-1.5, 0.0, 2.25), Point3::new(0.0, 1.0, 0.0))
             },
         ];
-        for name in ["pairs.csv", "pairs.mrk.json", "pairs.fcsv"] {
+        for name in ["pairs.csv", "pairs.json", "pairs.mrk.json", "pairs.fcsv"] {
             let path = dir.path().join(name);
             export_landmarks(&path, &pairs).expect("export");
             let back = import_landmarks(&path).expect("import");
@@ -544,6 +545,10 @@ mod tests {
             }
         }
         assert!(dir.path().join("pairs_moving.mrk.json").is_file() && dir.path().join("pairs_fixed.fcsv").is_file());
+        // `.json` is BigWarp's JSON, which BigWarp's Load landmarks reads.
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("pairs.json")).expect("read")).expect("JSON");
+        assert_eq!(json["landmarks"]["type"], "BigWarpLandmarks", "{json}");
         assert!(import_landmarks(&dir.path().join("missing.csv")).is_err());
     }
 }
