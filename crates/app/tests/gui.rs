@@ -272,6 +272,26 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
 }
 
 #[test]
+fn the_readers_warnings_are_shown_in_the_window() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    // jhu189's sform and qform disagree by a left-right flip: the window says so, and which one it uses.
+    let opts = GuiOptions {
+        fixed: Some(data("nifti/jhu189.nii.gz")),
+        moving: Some(mri()),
+        autosave: Some(dir.path().join("autosave.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    harness.get_by_label_contains("The fixed volume: the sform (code 2) and the qform (code 2) disagree");
+    assert!(harness.query_by_label_contains("The moving volume:").is_none(), "the MRI has nothing to warn about");
+}
+
+#[test]
 fn an_idle_window_says_so_in_the_status_bar() {
     if no_adapter() {
         return;

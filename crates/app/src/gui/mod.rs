@@ -1601,6 +1601,7 @@ fn workbench_ui(
             if panels::layers_ui(ui, &mut ready.viewer.fixed, &mut ready.viewer.moving) {
                 ready.invalidate();
             }
+            panels::volume_warnings_ui(ui, &ready.loaded.fixed, &ready.loaded.moving);
             ui.separator();
             ui.horizontal(|ui| {
                 let adding = ready.placing != Placing::Idle;

@@ -305,6 +305,15 @@ impl OpenDialogs {
         match &error.kind {
             ErrorKind::MultipleSeries(list) => self.series = Some((side, path.to_path_buf(), list.clone())),
             ErrorKind::Cancelled => {}
+            ErrorKind::FrameRequired { frames } => {
+                self.error = Some(format!(
+                    "Could not open the {} volume: {} is a 4-D file with {frames} frames (0 to {}), and the window \
+                     shows one 3-D volume. Save the frame you want as a file of its own and open that.",
+                    side.name(),
+                    path.display(),
+                    frames.saturating_sub(1)
+                ));
+            }
             _ => self.error = Some(format!("Could not open the {} volume: {error}", side.name())),
         }
     }
@@ -465,6 +474,19 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_4d_file_is_explained_in_the_windows_words() {
+        let mut dialogs = OpenDialogs::default();
+        let path = Path::new("/data/bold.nii.gz");
+        let error = warpbench_io::Error::new(path, ErrorKind::FrameRequired { frames: 3 });
+        dialogs.failed(Side::Moving, path, &error);
+        let message = dialogs.error.expect("an error dialog");
+        assert!(message.contains("moving volume") && message.contains("/data/bold.nii.gz"), "{message}");
+        assert!(message.contains("4-D file with 3 frames (0 to 2)"), "{message}");
+        // No option of another interface (the command line's --frame, the library's LoadOptions).
+        assert!(!message.contains("--frame") && !message.contains("LoadOptions"), "{message}");
+    }
 
     #[test]
     fn files_are_classified_by_name() {

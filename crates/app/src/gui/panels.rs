@@ -275,6 +275,22 @@ pub fn error_colour(mm: f64) -> egui::Color32 {
     }
 }
 
+/// What the readers found suspicious in the volumes (implausible spacings, a NIfTI sform and qform that disagree,
+/// uneven DICOM slices), one line each, named by side; nothing when there is nothing to say.
+pub fn volume_warnings_ui(ui: &mut egui::Ui, fixed: &warpbench_io::Volume, moving: &warpbench_io::Volume) {
+    let warnings: Vec<String> = [("fixed", fixed), ("moving", moving)]
+        .into_iter()
+        .flat_map(|(side, v)| v.metadata.warnings.iter().map(move |w| format!("The {side} volume: {w}")))
+        .collect();
+    if warnings.is_empty() {
+        return;
+    }
+    ui.separator();
+    for w in warnings {
+        ui.colored_label(egui::Color32::from_rgb(240, 200, 80), w);
+    }
+}
+
 /// The landmark table: per pair whether it is in the fit, its name (editable), the moving and fixed positions
 /// (LPS mm), the residual and leave-one-out error (colour-coded), and buttons to select it, centre the views on it
 /// and delete it. `selected` is highlighted.
