@@ -1,10 +1,39 @@
 #!/usr/bin/env bash
-# Seeds each fuzz target's corpus with the small committed fixtures (files under 2 MB).
+# Seeds each fuzz target's corpus with the small committed fixtures (files under 2 MB), the bad-input corpus
+# (tests/data/bad: truncations, corrupted headers, absurd sizes) and, for NRRD, whose one fixture is 12 MB, a few
+# small files written here (one per encoding and sample type). Idempotent: files are named by content or purpose.
 set -euo pipefail
 cd "$(dirname "$0")"
 data=../tests/data
-seed() { mkdir -p "corpus/$1"; find "$data/$2" -type f -size -2M -name "$3" -exec cp {} "corpus/$1/" \; ; }
+seed() { mkdir -p "corpus/$1"; find "$data/$2" -type f -size -2M -name "$3" ! -name '*.md' -exec cp {} "corpus/$1/" \; ; }
 seed nifti nifti '*.nii*'
+seed nifti bad '*.nii*'
 seed nrrd nrrd '*.n*'
-seed dicom dicom '*.dcm'
+seed nrrd bad '*.nrrd'
+# DICOM fixtures often have no extension (pydicom_ct2/17106); every file under dicom/ is one.
+seed dicom dicom '*'
+seed dicom bad '*.dcm'
 seed landmarks landmarks '*'
+
+# NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
+nrrd() {
+    local name=$1 && shift
+    { printf 'NRRD0004\n'; while [ "$1" != -- ]; do printf '%s\n' "$1"; shift; done; printf '\n'; shift; "$@"; } \
+        >"corpus/nrrd/seed_$name.nrrd"
+}
+bytes() { printf '\001\002\003\004\005\006\007\010\011\012\013\014\015\016\017\020'; }
+lps='space: left-posterior-superior'
+dirs='space directions: (0.5,0,0) (0,0.75,0) (0,0,2)'
+nrrd raw_uchar 'type: uchar' 'dimension: 3' "$lps" 'sizes: 2 2 2' "$dirs" 'space origin: (-10,20,5.5)' \
+    'encoding: raw' -- bytes
+nrrd gzip_short 'type: short' 'dimension: 3' "$lps" 'sizes: 2 2 2' "$dirs" 'kinds: domain domain domain' \
+    'endian: little' 'encoding: gzip' 'space origin: (-146,-325,-777.5)' -- sh -c 'printf "\001\002\003\004\005\006\007\010\011\012\013\014\015\016\017\020" | gzip -n'
+nrrd hex_ushort_big 'type: ushort' 'dimension: 3' 'sizes: 2 2 2' 'spacings: 1 1 3' 'endian: big' 'encoding: hex' \
+    -- printf '0001 0002 0003 0004\n0005 0006 0007 0008\n'
+nrrd ascii_float 'type: float' 'dimension: 3' 'space: right-anterior-superior' 'sizes: 2 2 2' "$dirs" \
+    'space units: "mm" "mm" "mm"' 'encoding: ascii' -- printf '1.5 -2 3e2 4\n5 6 7 8.25\n'
+nrrd skip_int 'type: int' 'dimension: 3' 'sizes: 2 1 1' 'spacings: 1 1 1' 'line skip: 1' 'byte skip: 2' \
+    'endian: little' 'encoding: raw' -- printf 'junk\n..\001\000\000\000\002\000\000\000'
+nrrd list1_uchar 'type: uchar' 'dimension: 4' "$lps" 'sizes: 1 2 2 2' \
+    'space directions: none (1,0,0) (0,1,0) (0,0,1)' 'kinds: list domain domain domain' 'encoding: raw' -- bytes
+nrrd dims2_double 'type: double' 'dimension: 2' 'sizes: 2 1' 'spacings: 0.5 0.5' 'encoding: raw' -- bytes
