@@ -33,10 +33,11 @@
 //!    JPEG and JPEG 2000 go through `dicom-pixeldata`'s pure-Rust codecs after their frame
 //!    headers are checked against Rows/Columns (a mismatch would make the codec adapters panic).
 //!    Stored bits are masked to BitsStored and sign-extended for signed data. No LUT or window
-//!    is applied. The file's bytes, the volume and the decoded RLE / JPEG-LS frames are allocated
-//!    fallibly ([`volume::try_with_capacity`]), as is a rescaled copy: memory the system refuses is an
-//!    [`ErrorKind::OutOfMemory`] naming the file and the size, never an abort. (Buffers that
-//!    dicom-rs and dicom-pixeldata allocate while parsing and decoding JPEG / JPEG 2000 are theirs.)
+//!    is applied. The file's bytes, the volume, the decoded RLE / JPEG-LS frames (and the JPEG-LS
+//!    decoder's samples) and a rescaled copy are allocated fallibly ([`volume::try_with_capacity`]):
+//!    memory the system refuses is an [`ErrorKind::OutOfMemory`] naming the file and the size, never
+//!    an abort. (Buffers that dicom-rs and dicom-pixeldata allocate while parsing and decoding JPEG /
+//!    JPEG 2000 are theirs.)
 //! 5. **Rescale.** value = RescaleSlope × stored + RescaleIntercept, per slice, in f64. Identity:
 //!    u8, i16, u16 kept, i8 → i16, 32-bit → f32. Otherwise: integer slope and intercept with every
 //!    value in i16 → i16, else in u16 → u16, else f32.
@@ -1674,6 +1675,10 @@ fn decode_jpeg_ls(path: &Path, fragments: &[Vec<u8>], fmt: &PixelFormat, bytes: 
             match e {
                 jpegls::JpegLsError::Truncated(_) => Error::truncated(path, m),
                 jpegls::JpegLsError::Unsupported(_) => Error::unsupported(path, m),
+                jpegls::JpegLsError::OutOfMemory { bytes } => Error::new(
+                    path,
+                    ErrorKind::OutOfMemory { what: format!("the samples of JPEG-LS frame {}", f + 1), bytes },
+                ),
                 _ => Error::new(path, ErrorKind::Dicom(m)),
             }
         };

@@ -75,6 +75,10 @@ pub enum JpegLsError {
     /// The frame's size is not the one the caller expects.
     #[error("jpeg-ls frame is {width}x{height}, but {expected_width}x{expected_height} was expected")]
     SizeMismatch { width: usize, height: usize, expected_width: usize, expected_height: usize },
+    /// The memory for the frame's samples could not be allocated (the allocation is fallible, so this is an
+    /// error, not an abort).
+    #[error("not enough memory for the frame's samples: {bytes} bytes could not be allocated")]
+    OutOfMemory { bytes: u128 },
 }
 
 type Result<T> = std::result::Result<T, JpegLsError>;
@@ -284,7 +288,9 @@ pub fn decode(data: &[u8], expected: FrameSpec) -> Result<Vec<u16>> {
     let scan = data.get(h.scan_start..).unwrap_or(&[]);
     let end = scan_end(scan);
     let Some(n) = h.width.checked_mul(h.height) else { return invalid("the frame size overflows") };
-    let mut out = vec![0u16; n];
+    let mut out = Vec::new();
+    out.try_reserve_exact(n).map_err(|_| JpegLsError::OutOfMemory { bytes: n as u128 * 2 })?;
+    out.resize(n, 0u16);
     let mut reader = BitReader::new(&scan[..end]);
     decode_scan(&mut reader, &params, h.width, &mut out)?;
     // After the scan: fill bytes, then EOI.

@@ -313,15 +313,17 @@ fn read_in_child(path: &Path, kib: u64) -> String {
 }
 
 /// A single-slice, 8-bit DICOM of `rows` × `cols` in an encapsulated `transfer_syntax`, whose one fragment is
-/// filler: long enough for the reader's size check (pixel data compressed at most 2048:1), not a valid codestream,
-/// so the reader allocates what Rows × Columns claim before it finds out.
-fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str) {
+/// `head` then filler: long enough for the reader's size check (pixel data compressed at most 2048:1), not a valid
+/// codestream, so the reader allocates what Rows × Columns claim before it finds out.
+fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str, head: &[u8]) {
     use dicom_core::value::PixelFragmentSequence;
     use dicom_core::{DataElement, PrimitiveValue, VR};
     use dicom_dictionary_std::{tags, uids};
     use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
 
     let fragment_len = (usize::from(rows) * usize::from(cols)).div_ceil(2048).next_multiple_of(2);
+    let mut fragment = head.to_vec();
+    fragment.resize(fragment_len.max(head.len().next_multiple_of(2)), 0);
     let ds = |v: &str| PrimitiveValue::from(v);
     let obj = InMemDicomObject::from_element_iter([
         DataElement::new(tags::SOP_CLASS_UID, VR::UI, ds(uids::MR_IMAGE_STORAGE)),
@@ -342,7 +344,7 @@ fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str) 
         DataElement::new(tags::BITS_STORED, VR::US, PrimitiveValue::from(8u16)),
         DataElement::new(tags::HIGH_BIT, VR::US, PrimitiveValue::from(7u16)),
         DataElement::new(tags::PIXEL_REPRESENTATION, VR::US, PrimitiveValue::from(0u16)),
-        DataElement::new(tags::PIXEL_DATA, VR::OB, PixelFragmentSequence::new(vec![], vec![vec![0u8; fragment_len]])),
+        DataElement::new(tags::PIXEL_DATA, VR::OB, PixelFragmentSequence::new(vec![], vec![fragment])),
     ]);
     obj.with_meta(FileMetaTableBuilder::new().transfer_syntax(transfer_syntax))
         .expect("file meta")
@@ -355,16 +357,28 @@ fn a_dicom_whose_pixels_cannot_be_allocated_is_an_error_not_an_abort() {
     let dir = tempfile::tempdir().expect("tempdir");
     // 65535² bytes (4 GiB) of stored pixels: more than the child's address space, under the default cap.
     let stored = dir.path().join("stored-4gib.dcm");
-    encapsulated_dicom(&stored, u16::MAX, u16::MAX, "1.2.840.10008.1.2.5");
+    encapsulated_dicom(&stored, u16::MAX, u16::MAX, "1.2.840.10008.1.2.5", &[]);
     // 25000² bytes: the stored pixels fit in the child's 1 GiB, the decoded frames as well do not.
     let rle = dir.path().join("decoded-rle.dcm");
-    encapsulated_dicom(&rle, 25_000, 25_000, "1.2.840.10008.1.2.5");
+    encapsulated_dicom(&rle, 25_000, 25_000, "1.2.840.10008.1.2.5", &[]);
     let jpeg_ls = dir.path().join("decoded-jpeg-ls.dcm");
-    encapsulated_dicom(&jpeg_ls, 25_000, 25_000, "1.2.840.10008.1.2.4.80");
+    encapsulated_dicom(&jpeg_ls, 25_000, 25_000, "1.2.840.10008.1.2.4.80", &[]);
+    // 17320² bytes stored and decoded fit; the JPEG-LS decoder's 16-bit samples of the frame (a valid header for
+    // it, then filler) do not.
+    let samples = dir.path().join("jpeg-ls-samples.dcm");
+    let side = 17_320u16.to_be_bytes();
+    let header = [
+        [0xFF, 0xD8].as_slice(),                                                    // SOI
+        &[0xFF, 0xF7, 0, 11, 8, side[0], side[1], side[0], side[1], 1, 1, 0x11, 0], // SOF55: P 8, Y, X, 1 component
+        &[0xFF, 0xDA, 0, 8, 1, 1, 0, 0, 0, 0],                                      // SOS: 1 component, NEAR 0, ILV 0
+    ]
+    .concat();
+    encapsulated_dicom(&samples, 17_320, 17_320, "1.2.840.10008.1.2.4.80", &header);
     for (path, what, bytes) in [
         (&stored, "the stored pixels", "4294836225 bytes"),
         (&rle, "the decoded pixel data", "625000000 bytes"),
         (&jpeg_ls, "the decoded pixel data", "625000000 bytes"),
+        (&samples, "the samples of JPEG-LS frame 1", "599964800 bytes"),
     ] {
         let outcome = read_in_child(path, CHILD_ADDRESS_SPACE_KIB);
         let name = path.display().to_string();
