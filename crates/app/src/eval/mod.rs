@@ -573,7 +573,7 @@ fn stats(values: &[f64], what: &str) -> Result<ErrorStats, Failure> {
     ErrorStats::of(values).ok_or_else(|| Failure::Internal(anyhow!("{what}: no finite value")))
 }
 
-/// The steps of one evaluation, in order, as [`evaluate`] reports them (the progress bar shows each).
+/// The steps of one evaluation case, in order, as the progress bar names them.
 pub const STAGES: [&str; 6] = [
     "fitting the pull-back",
     "fitting the forward warp",
