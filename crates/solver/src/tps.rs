@@ -640,6 +640,17 @@ fn solve(
     // G = Q [0 0; 0 M₂₂⁻¹] Qᵀ, in K̃'s storage (no longer needed): the reflectors applied on both sides in reverse.
     let g_diagonal = match (kernel_diagonal, factor) {
         (false, _) => None,
+        (true, Some(Factor::NegCholesky(ch))) => {
+            // M = −L Lᵀ, so Gᵢᵢ = −‖L⁻¹ Q₂ᵀ eᵢ‖²: one triangular solve with the N columns of Q₂ᵀ (the rows 4.. of
+            // Qᵀ = H₄H₃H₂H₁), half the work of forming M⁻¹.
+            k_mat.fill_with_identity();
+            for h in &reflectors {
+                h.apply_left(&mut k_mat);
+            }
+            let mut q2_t = k_mat.rows_mut(4, m);
+            ch.l_dirty().solve_lower_triangular_unchecked_mut(&mut q2_t);
+            Some(q2_t.column_iter().map(|column| -column.norm_squared()).collect())
+        }
         (true, factor) => {
             k_mat.fill(0.0);
             if let Some(factor) = factor {
