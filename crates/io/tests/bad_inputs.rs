@@ -316,6 +316,11 @@ fn read_in_child(path: &Path, kib: u64) -> String {
 /// `head` then filler: long enough for the reader's size check (pixel data compressed at most 2048:1), not a valid
 /// codestream, so the reader allocates what Rows × Columns claim before it finds out.
 fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str, head: &[u8]) {
+    write_encapsulated(path, rows, cols, transfer_syntax, head, None);
+}
+
+/// [`encapsulated_dicom`], with RescaleSlope `slope` when given.
+fn write_encapsulated(path: &Path, rows: u16, cols: u16, transfer_syntax: &str, head: &[u8], slope: Option<&str>) {
     use dicom_core::value::PixelFragmentSequence;
     use dicom_core::{DataElement, PrimitiveValue, VR};
     use dicom_dictionary_std::{tags, uids};
@@ -325,7 +330,7 @@ fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str, 
     let mut fragment = head.to_vec();
     fragment.resize(fragment_len.max(head.len().next_multiple_of(2)), 0);
     let ds = |v: &str| PrimitiveValue::from(v);
-    let obj = InMemDicomObject::from_element_iter([
+    let mut obj = InMemDicomObject::from_element_iter([
         DataElement::new(tags::SOP_CLASS_UID, VR::UI, ds(uids::MR_IMAGE_STORAGE)),
         DataElement::new(tags::SOP_INSTANCE_UID, VR::UI, ds("1.2.826.0.1.3680043.2.9.1")),
         DataElement::new(tags::MODALITY, VR::CS, ds("MR")),
@@ -346,6 +351,10 @@ fn encapsulated_dicom(path: &Path, rows: u16, cols: u16, transfer_syntax: &str, 
         DataElement::new(tags::PIXEL_REPRESENTATION, VR::US, PrimitiveValue::from(0u16)),
         DataElement::new(tags::PIXEL_DATA, VR::OB, PixelFragmentSequence::new(vec![], vec![fragment])),
     ]);
+    if let Some(slope) = slope {
+        obj.put(DataElement::new(tags::RESCALE_SLOPE, VR::DS, ds(slope)));
+        obj.put(DataElement::new(tags::RESCALE_INTERCEPT, VR::DS, ds("0")));
+    }
     obj.with_meta(FileMetaTableBuilder::new().transfer_syntax(transfer_syntax))
         .expect("file meta")
         .write_to_file(path)
@@ -387,4 +396,29 @@ fn a_dicom_whose_pixels_cannot_be_allocated_is_an_error_not_an_abort() {
             "{name}: {outcome:?}"
         );
     }
+}
+
+#[test]
+fn a_rescaled_copy_that_cannot_be_allocated_is_an_error_not_an_abort() {
+    // 17408² u8 pixels, all 7, in valid RLE (runs of 128), with RescaleSlope 0.5: the f32 copy (4 bytes a voxel)
+    // does not fit in the child's 1 GiB beside the stored pixels.
+    const SIDE: u16 = 17_408;
+    let pixels = usize::from(SIDE) * usize::from(SIDE);
+    assert_eq!(pixels % 128, 0);
+    let mut rle = vec![0u8; 64];
+    rle[0..4].copy_from_slice(&1u32.to_le_bytes()); // one segment
+    rle[4..8].copy_from_slice(&64u32.to_le_bytes()); // starting after the header
+    for _ in 0..pixels / 128 {
+        rle.extend([0x81, 7]); // PackBits: repeat the next byte 128 times
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("rescaled.dcm");
+    write_encapsulated(&path, SIDE, SIDE, "1.2.840.10008.1.2.5", &rle, Some("0.5"));
+    let outcome = read_in_child(&path, CHILD_ADDRESS_SPACE_KIB);
+    let bytes = format!("{} bytes", pixels * 4);
+    assert!(
+        outcome.starts_with(&path.display().to_string())
+            && outcome.contains(&format!("not enough memory for the converted samples: {bytes}")),
+        "{outcome:?}"
+    );
 }
