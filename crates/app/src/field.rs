@@ -78,6 +78,8 @@ pub struct FieldSummary {
     pub max_displacement_mm: f64,
     /// The ITK transform file written, or null.
     pub tfm: Option<String>,
+    /// What the fit found suspicious in the pairs, as printed on stderr.
+    pub warnings: Vec<String>,
 }
 
 /// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
@@ -120,6 +122,11 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         bar.finish();
     }
     let field = field?;
+    if !opts.quiet {
+        for w in &field.warnings {
+            eprintln!("warpbench: warning: {w}");
+        }
+    }
     write_field(&field, &opts.out.path, opts.tfm.as_deref())?;
 
     let summary = FieldSummary {
@@ -133,6 +140,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         pairs: field.pairs,
         max_displacement_mm: field.max_displacement_mm,
         tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
+        warnings: field.warnings.clone(),
     };
     if opts.json {
         serde_json::to_writer_pretty(&mut *out, &summary)
@@ -162,6 +170,8 @@ pub struct Field {
     pub pairs: usize,
     /// For the linear methods, the same pull-back x ↦ A x + b as an ITK affine (what `--tfm` writes); else `None`.
     pub affine: Option<ItkAffine>,
+    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`inputs::fit_warnings`]).
+    pub warnings: Vec<String>,
 }
 
 /// The displacement field `warpbench field` writes, in memory: `method` fitted on `pairs` (raw, as read: checked
@@ -194,8 +204,7 @@ pub fn displacement_field(
     // The affine for `.tfm` is the same fit as `moving_from_fixed` (Method::Linear fits exactly this).
     let affine = match method {
         Method::Linear(kind) => {
-            let fit = linear::fit_pullback(*kind, &c.moving, &c.fixed)
-                .map_err(|e| Failure::BadInput(anyhow!("fitting the {kind} warp: {e}")))?;
+            let fit = linear::fit_pullback(*kind, &c.moving, &c.fixed).map_err(|e| inputs::fit_error(method, &c, e))?;
             Some(ItkAffine::from_offset(fit.warp.linear(), fit.warp.translation()))
         }
         _ => None,
@@ -209,6 +218,7 @@ pub fn displacement_field(
         method: method.to_string(),
         pairs: c.moving.len(),
         affine,
+        warnings: inputs::fit_warnings(method, &c),
     })
 }
 

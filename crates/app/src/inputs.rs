@@ -29,13 +29,28 @@ pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume, Failure> {
     let mut bar = Bar::new(quiet);
     let loaded = LoadOptions::new().progress(|p| bar.update(p)).open(path);
     bar.finish();
-    Ok(loaded?)
+    let volume = loaded.map_err(|e| match e.kind {
+        // The library names no option: these commands have no --frame, so say what to do here.
+        warpbench_io::ErrorKind::FrameRequired { frames } => Failure::BadInput(anyhow!(
+            "{}: 4-D file with {frames} frames: this command reads one 3-D volume; save one frame as a file of its \
+             own (`warpbench info --frame N` shows frame N, 0 to {})",
+            path.display(),
+            frames.saturating_sub(1)
+        )),
+        _ => Failure::from(e),
+    })?;
+    if !quiet {
+        for w in &volume.metadata.warnings {
+            eprintln!("warpbench: warning: {}: {w}", path.display());
+        }
+    }
+    Ok(volume)
 }
 
 /// Where the landmark pairs come from.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum LandmarkSource {
-    /// One file of pairs: BigWarp CSV (`.csv`).
+    /// One file of pairs: BigWarp CSV or BigWarp JSON, told apart by content.
     Pairs(PathBuf),
     /// Two Slicer point lists (`.mrk.json` or `.fcsv`), moving then fixed, matched by order.
     SlicerPair { moving: PathBuf, fixed: PathBuf },
@@ -78,15 +93,15 @@ impl LandmarkSource {
     pub fn read(&self) -> Result<Vec<LandmarkPair>, Failure> {
         match self {
             Self::Pairs(path) => {
-                let ext = path.extension().map(|e| e.to_string_lossy().to_ascii_lowercase());
-                if matches!(ext.as_deref(), Some("json" | "fcsv")) {
-                    return Err(Failure::BadInput(anyhow!(
+                if landmarks::detect_landmark_file(path)?.holds_pairs() {
+                    Ok(landmarks::read_landmark_pairs(path)?)
+                } else {
+                    Err(Failure::BadInput(anyhow!(
                         "{}: a Slicer point list holds one side of the pairs; give the moving and the fixed list \
                          with --moving-points and --fixed-points",
                         path.display()
-                    )));
+                    )))
                 }
-                Ok(landmarks::read_bigwarp_csv(path)?)
             }
             Self::SlicerPair { moving, fixed } => Ok(landmarks::read_slicer_pair(moving, fixed)?),
         }

@@ -202,6 +202,11 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
         let pairs = source.read()?;
         let c = inputs::correspondences(source, &pairs, moving, &fixed, inputs::min_pairs(&method))?;
+        if !opts.quiet {
+            for w in inputs::fit_warnings(&method, &c) {
+                eprintln!("warpbench: warning: {w}");
+            }
+        }
         pullback = Some(inputs::fit_pullback(&method, &c, fixed_box)?);
         let forward = inputs::fit_forward(&method, &c, inputs::volume_box::<Moving>(moving))?;
         glyph_pairs = c

@@ -94,6 +94,8 @@ pub struct WarpReport {
     /// `cpu` or `gpu: <adapter>`.
     pub backend: String,
     pub outside_value: f64,
+    /// What the fit found suspicious in the pairs (a pair given twice, a nearly flat set), as printed on stderr.
+    pub warnings: Vec<String>,
     /// Wall-clock seconds of each stage.
     pub seconds: WarpSeconds,
 }
@@ -185,6 +187,8 @@ pub struct Resampled {
     pub outside_value: f64,
     /// Why [`Backend::Auto`] resampled on the CPU, when a GPU was tried and not used (the CLI prints it as a note).
     pub cpu_fallback: Option<String>,
+    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`inputs::fit_warnings`]).
+    pub warnings: Vec<String>,
     /// Wall-clock seconds of the fit (landmark checks, fit, control texture) and of the resampling.
     pub fit_seconds: f64,
     pub resample_seconds: f64,
@@ -296,6 +300,7 @@ struct Fitted {
     grid_lps_from_index: Transform<Lps, Index>,
     outside_value: f64,
     fit_seconds: f64,
+    warnings: Vec<String>,
 }
 
 impl Fitted {
@@ -314,8 +319,7 @@ impl Fitted {
         let target_box = inputs::volume_box::<Fixed>(grid);
         let pullback = match method {
             Method::Tps { stiffness } => FittedPullBack::Tps(
-                Tps::fit_smoothing(&c.fixed, &c.moving, stiffness)
-                    .map_err(|e| Failure::BadInput(anyhow!("fitting the {method} warp: {e}")))?,
+                Tps::fit_smoothing(&c.fixed, &c.moving, stiffness).map_err(|e| inputs::fit_error(&method, &c, e))?,
             ),
             _ => FittedPullBack::Other(inputs::fit_pullback(&method, &c, target_box)?),
         };
@@ -340,6 +344,7 @@ impl Fitted {
             grid_lps_from_index: grid.lps_from_index,
             outside_value,
             fit_seconds: start.elapsed().as_secs_f64(),
+            warnings: inputs::fit_warnings(&method, &c),
         })
     }
 
@@ -403,6 +408,7 @@ impl Fitted {
             backend,
             outside_value: self.outside_value,
             cpu_fallback,
+            warnings: self.warnings.clone(),
             fit_seconds: self.fit_seconds,
             resample_seconds,
         })
@@ -446,6 +452,11 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     });
     bar.finish();
     let resampled = resampled?;
+    if !opts.quiet {
+        for w in &resampled.warnings {
+            eprintln!("warpbench: warning: {w}");
+        }
+    }
     if let Some(reason) = &resampled.cpu_fallback
         && !opts.quiet
     {
@@ -477,6 +488,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         interpolation: resampled.interpolation,
         backend: resampled.backend.clone(),
         outside_value: resampled.outside_value,
+        warnings: resampled.warnings.clone(),
         seconds,
     })
 }

@@ -213,3 +213,32 @@ fn a_repeated_pair_and_a_nearly_flat_set_give_warnings_naming_the_file_and_pairs
         "{warnings:?}"
     );
 }
+
+#[test]
+fn the_command_line_prints_the_fits_warnings_and_reports_them_in_json() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("repeated.csv");
+    let mut rows: Vec<_> = SPREAD.iter().map(|q| (shifted(*q), *q, true)).collect();
+    rows.push(rows[1]);
+    write_csv(&csv, &rows);
+    let m = mri();
+    for sub in ["field", "warp"] {
+        let out_path = dir.path().join(format!("{sub}.nii.gz"));
+        let json = dir.path().join(format!("{sub}.json"));
+        let mut args = vec![sub, "--fixed", utf8(&m), "--moving", utf8(&m), "--landmarks", utf8(&csv), "--force"];
+        args.extend(["--out", utf8(&out_path)]);
+        if sub == "warp" {
+            args.extend(["--backend", "cpu"]);
+        }
+        args.push("--json");
+        let out = warpbench(&args);
+        assert!(out.status.success(), "{sub}: {}", stderr(&out));
+        std::fs::write(&json, &out.stdout).expect("keep the report");
+        let err = stderr(&out);
+        assert!(err.contains(&format!("warning: {}: landmarks 2 and 7 are the same pair", utf8(&csv))), "{sub}: {err}");
+        let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("the --json report");
+        let warnings = report["warnings"].as_array().expect("warnings in --json");
+        assert_eq!(warnings.len(), 1, "{sub}: {report}");
+        assert!(warnings[0].as_str().is_some_and(|w| w.contains("same pair")), "{sub}: {report}");
+    }
+}

@@ -380,3 +380,27 @@ fn the_in_memory_core_stops_when_progress_says_so() {
     }
     assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 1, "only the pairs: nothing was written");
 }
+
+#[test]
+fn a_4d_input_is_refused_in_the_words_of_a_command_without_frame() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bold = data("nifti/functional.nii");
+    let out = dir.path().join("out.nii.gz");
+    let result = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&bold),
+        "--moving",
+        s(&bold),
+        "--landmarks",
+        s(&data("landmarks/bigwarp_pairs.csv")),
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("functional.nii: 4-D file with 20 frames: this command reads one 3-D volume"), "{err}");
+    // `warp` has no --frame option; the library's neutral wording is not what the user sees either.
+    assert!(!err.contains("choose one frame to read") && !err.contains("with --frame N (N"), "{err}");
+    assert!(!out.exists());
+}
