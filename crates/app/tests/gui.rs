@@ -166,7 +166,7 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     harness.get_by_label("Redo").click();
     harness.run_steps(2);
     assert_eq!(harness.state().ready().expect("loaded").fitted_pairs(), 4);
-    // Rigid needs at least 4 pairs; with 4 active it fits.
+    // Rigid needs at least 3 pairs; with 4 active it fits.
     harness.get_by_label("Method").click();
     harness.run_steps(3);
     harness.get_by_label("rigid").click();
@@ -289,6 +289,41 @@ fn the_readers_warnings_are_shown_in_the_window() {
     wait_until_shown(&mut harness);
     harness.get_by_label_contains("The fixed volume: the sform (code 2) and the qform (code 2) disagree");
     assert!(harness.query_by_label_contains("The moving volume:").is_none(), "the MRI has nothing to warn about");
+}
+
+#[test]
+fn suspicious_and_degenerate_pairs_are_named_by_their_rows_in_the_table() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    // Row 1 off (so the fit's own numbering differs from the table's), and row 6 repeats row 3.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.loaded.pairs[0].active = false;
+        let again = ready.loaded.pairs[2].clone();
+        ready.loaded.pairs.push(warpbench_io::landmarks::LandmarkPair { name: "again".into(), ..again });
+        ready.refit();
+    }
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit_error.is_none(), "a repeated pair still fits: {:?}", ready.fit_error);
+    assert_eq!(ready.fit_warnings.len(), 1, "{:?}", ready.fit_warnings);
+    assert!(ready.fit_warnings[0].contains("landmarks 3 and 6 are the same pair"), "{:?}", ready.fit_warnings);
+    harness.get_by_label_contains("Warning: landmarks 3 and 6 are the same pair");
+    // Row 6 now sends row 3's moving point elsewhere: no warp does that; the status bar says which rows.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.loaded.pairs[5].fixed = Some(warpbench_io::geometry::Point3::new(5.0, 5.0, 5.0));
+        ready.refit();
+    }
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    let e = ready.fit_error.clone().expect("refused");
+    assert!(e.contains("landmarks 3 and 6") && e.contains("moving point"), "{e}");
+    assert!(!e.contains("source") && !e.contains("target"), "one vocabulary: {e}");
+    harness.get_by_label_contains("warp off:");
 }
 
 #[test]

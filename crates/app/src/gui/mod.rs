@@ -31,7 +31,7 @@ use warpbench_gpu::{
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_solver::diagnostics::{jacobian_determinants, leave_one_out, residuals};
+use warpbench_solver::diagnostics::{jacobian_determinants, residuals};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::tps::Tps;
@@ -352,6 +352,9 @@ pub struct Ready {
     pub control_eval: ControlEval,
     /// A change asked for a fit at the end of the frame ([`Self::refit_soon`]).
     fit_pending: bool,
+    /// What the last fit found suspicious in the pairs (a pair given twice, a nearly flat set), numbered as the
+    /// table's rows.
+    pub fit_warnings: Vec<String>,
 }
 
 /// The 3-D view's and the slices' images as egui shows them, and what needs rendering again.
@@ -662,6 +665,7 @@ impl Workbench {
             cursor: None,
             notice: None,
             fit_pending: false,
+            fit_warnings: Vec::new(),
             selected: None,
             drag: None,
             export: None,
@@ -741,6 +745,22 @@ impl Ready {
         if diagnostics {
             self.errors = vec![None; self.loaded.pairs.len()];
         }
+        // The pairs are checked once here, so that refusals and warnings number them as the table does (the
+        // fits below check them again, numbered among the pairs they get).
+        let row = |n: usize| used.get(n.wrapping_sub(1)).map_or(n, |&i| i + 1);
+        match method.check(&fixed, &moving) {
+            Ok(warnings) => {
+                self.fit_warnings = warnings.into_iter().map(|w| w.renumber(row).to_string()).collect();
+            }
+            Err(e) => {
+                self.viewer.set_control(None);
+                self.fitted = None;
+                self.jacobian = None;
+                self.fit_warnings.clear();
+                self.fit_error = Some(format!("{method}: {}", e.renumber(row)));
+                return;
+            }
+        }
         let boxes = (fixed_box, moving_box);
         let on_gpu = gpu_evaluates(&method)
             && match self.control_eval {
@@ -767,7 +787,8 @@ impl Ready {
             Ok(fitted) => {
                 // Residuals of the pull-back at the targets, and leave-one-out errors (refits without each pair).
                 let residuals = residuals(fitted.pullback.as_ref(), &fixed, &moving);
-                let loo = leave_one_out(&fixed, &moving, |f, m| method.fit(f, m, fixed_box), Parallelism::Rayon);
+                // TPS in closed form from the one fit; the other methods refit without each pair.
+                let loo = method.leave_one_out(&fixed, &moving, fixed_box, Parallelism::Rayon);
                 for ((&i, r), l) in used.iter().zip(residuals).zip(loo) {
                     self.errors[i] = Some(panels::PairErrors { residual_mm: r, leave_one_out_mm: l });
                 }
@@ -1610,8 +1631,8 @@ fn workbench_ui(
                 }
                 match ready.placing {
                     Placing::Idle => ui.label(""),
-                    Placing::Source => ui.label("click the moving volume (source)"),
-                    Placing::Target { .. } => ui.label("click the fixed volume (target)"),
+                    Placing::Source => ui.label("click the point on the moving volume"),
+                    Placing::Target { .. } => ui.label("click its partner on the fixed volume"),
                 };
             });
             match panels::landmarks_ui(ui, &mut ready.loaded.pairs, &ready.errors, ready.selected) {
@@ -1623,6 +1644,9 @@ fn workbench_ui(
                     ready.selected = Some(i);
                     ready.invalidate();
                 }
+            }
+            for w in &ready.fit_warnings {
+                ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Warning: {w}"));
             }
             ui.separator();
             if let Some(i) = panels::accuracy_ui(ui, &ready.loaded.pairs, &ready.errors) {
