@@ -3,11 +3,14 @@
 //! and to a landmark being switched off (the warp is fitted again).
 
 mod common;
+#[path = "common/window.rs"]
+mod window;
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
 use common::{data, mri};
+use window::{click_at, no_adapter, wait_until_shown};
 
 use eframe::egui;
 use egui_kittest::Harness;
@@ -25,35 +28,6 @@ fn pairs(dir: &Path) -> std::path::PathBuf {
     path
 }
 
-/// Steps the harness until the pair is loaded and drawn at full quality (or fails, or 60 s pass).
-fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
-    let start = Instant::now();
-    loop {
-        harness.step();
-        if let Some(e) = harness.state().failure() {
-            panic!("loading failed: {e}");
-        }
-        if harness.state().ready().is_some() {
-            // A few more frames so the layout settles (clicks go to last frame's positions).
-            harness.run_steps(3);
-            wait_until_rendered(harness);
-            return;
-        }
-        assert!(start.elapsed() < Duration::from_mins(1), "the pair was not shown within a minute");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-/// Steps the harness until the views are rendered fully (on a CPU driver the 3-D view is refined band by band over
-/// several frames), or 60 s pass.
-fn wait_until_rendered(harness: &mut Harness<'_, Workbench>) {
-    let start = Instant::now();
-    while harness.state().ready().is_some_and(Ready::needs_render) {
-        harness.step();
-        assert!(start.elapsed() < Duration::from_mins(3), "the views were not rendered within three minutes");
-    }
-}
-
 /// Steps until loading has failed (or 20 s pass).
 fn wait_for_failure(harness: &mut Harness<'_, Workbench>) {
     let start = Instant::now();
@@ -62,15 +36,6 @@ fn wait_for_failure(harness: &mut Harness<'_, Workbench>) {
         assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
         std::thread::sleep(Duration::from_millis(10));
     }
-}
-
-/// Whether there is no GPU adapter (the test is then skipped, unless REQUIRE_GPU_ADAPTER is set).
-fn no_adapter() -> bool {
-    let missing = std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err();
-    if missing {
-        eprintln!("skipped: no GPU adapter");
-    }
-    missing
 }
 
 /// A window of `size` on the MRI fixture as fixed and moving, with the five pairs of [`pairs`] and an autosave in
@@ -190,21 +155,6 @@ fn a_missing_file_is_reported_in_the_window() {
     assert!(message.contains("/nonexistent/fixed.nii"), "{message}");
     harness.get_by_label("No volumes are open");
     harness.get_by_label("Open the demo pair");
-}
-
-/// A primary-button click at `pos` (window points): press, then release on the next frame.
-fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
-    let press = |pressed| egui::Event::PointerButton {
-        pos,
-        button: egui::PointerButton::Primary,
-        pressed,
-        modifiers: egui::Modifiers::default(),
-    };
-    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
-    harness.input_mut().events.push(press(true));
-    harness.step();
-    harness.input_mut().events.push(press(false));
-    harness.run_steps(2);
 }
 
 #[test]

@@ -1,74 +1,23 @@
 //! The placement law, on the demo pair (fixed: the Cranium CT, 0.96 × 0.96 × 1.5 mm, i running towards +L and j
-//! towards −P; moving: the Colin27 MRI, 1 mm, i towards −L and j towards −P), in a 1280 × 900 window: every way a point is placed or
-//! dragged stores the point the status bar shows under the pointer (slices: straight and oblique, each of the three
+//! towards −P; moving: the Colin27 MRI, 1 mm, i towards −L and j towards −P), in a 1280 × 900 window: every way a
+//! point is placed or dragged stores the point the status bar shows under the pointer (slices: straight and oblique, each of the three
 //! views, the moving and the fixed side) or the pick's hit (3-D view), and a point outside its volume is refused with
 //! a message, never stored.
 
 mod common;
-
-use std::time::{Duration, Instant};
+#[path = "common/window.rs"]
+mod window;
 
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable};
 use warpbench_app::gui::{GuiOptions, Placing, Ready, Workbench};
 use warpbench_gpu::PickTarget;
-
-/// Steps until the pair is loaded and fully rendered.
-fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
-    let start = Instant::now();
-    loop {
-        harness.step();
-        if let Some(e) = harness.state().failure() {
-            panic!("loading failed: {e}");
-        }
-        if harness.state().ready().is_some() {
-            harness.run_steps(3);
-            wait_until_rendered(harness);
-            return;
-        }
-        assert!(start.elapsed() < Duration::from_mins(3), "the demo pair was not shown within three minutes");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-fn wait_until_rendered(harness: &mut Harness<'_, Workbench>) {
-    let start = Instant::now();
-    while harness.state().ready().is_some_and(Ready::needs_render) {
-        harness.step();
-        assert!(start.elapsed() < Duration::from_mins(3), "the views were not rendered within three minutes");
-    }
-}
-
-fn no_adapter() -> bool {
-    let missing = std::env::var_os("REQUIRE_GPU_ADAPTER").is_none() && warpbench_gpu::GpuContext::headless().is_err();
-    if missing {
-        eprintln!("skipped: no GPU adapter");
-    }
-    missing
-}
-
-fn button(pos: egui::Pos2, pressed: bool) -> egui::Event {
-    egui::Event::PointerButton {
-        pos,
-        button: egui::PointerButton::Primary,
-        pressed,
-        modifiers: egui::Modifiers::default(),
-    }
-}
+use window::{button, click_at, no_adapter, wait_until_shown};
 
 /// Moves the pointer to `pos` and lets the status bar show what is under it.
 fn hover(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
     harness.input_mut().events.push(egui::Event::PointerMoved(pos));
-    harness.run_steps(2);
-}
-
-/// A click at `pos`: press, then release on the next frame.
-fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
-    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
-    harness.input_mut().events.push(button(pos, true));
-    harness.step();
-    harness.input_mut().events.push(button(pos, false));
     harness.run_steps(2);
 }
 
