@@ -7,8 +7,10 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ErrorKind {
+    /// The OS error is in the message and is not also the error's source, so a chain printed cause by cause
+    /// (anyhow's `{:#}`, the window's messages) names it once.
     #[error("cannot read or write: {0}")]
-    Io(#[source] std::io::Error),
+    Io(std::io::Error),
     #[error("file is truncated: {0}")]
     Truncated(String),
     #[error("not a {format} file: {detail}")]
@@ -91,3 +93,28 @@ impl Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What a front end prints of an error and its causes, as anyhow's `{:#}` does: each cause after a colon.
+    fn chain(e: &dyn std::error::Error) -> String {
+        let mut text = e.to_string();
+        let mut cause = e.source();
+        while let Some(c) = cause {
+            text.push_str(": ");
+            text.push_str(&c.to_string());
+            cause = c.source();
+        }
+        text
+    }
+
+    #[test]
+    fn an_os_error_is_named_once_however_the_chain_is_printed() {
+        let e = Error::io("/data/out.nii", std::io::Error::from_raw_os_error(13));
+        let text = chain(&e);
+        assert_eq!(text.matches("os error 13").count(), 1, "{text}");
+        assert!(text.starts_with("/data/out.nii: cannot read or write:"), "{text}");
+    }
+}
