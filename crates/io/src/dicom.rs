@@ -620,15 +620,17 @@ fn read_headers(label: &Path, sources: &[Source], skip_non_dicom: bool, opts: &m
             // DICOMDIR or a non-image object (report, presentation state, ...).
             continue;
         }
-        headers.push(parse_header(i, &obj));
+        headers.push(parse_header(i, &obj, src.byte_len()?));
     }
     opts.report(label, "reading DICOM headers", n, n)?;
     Ok(headers)
 }
 
-fn parse_header(source: usize, obj: &DefaultDicomObject) -> Header {
+/// The header of the object `obj`, read from a file of `byte_len` bytes.
+fn parse_header(source: usize, obj: &DefaultDicomObject, byte_len: u64) -> Header {
     let mut notes = Vec::new();
     let image = parse_pixel_format(obj).and_then(|fmt| {
+        check_frame_count(&fmt, byte_len, obj.meta().transfer_syntax())?;
         let geoms = parse_geometry(obj, fmt.frames, &mut notes)?;
         Ok((fmt, geoms))
     });
@@ -645,6 +647,33 @@ fn parse_header(source: usize, obj: &DefaultDicomObject) -> Header {
         image,
         notes,
     }
+}
+
+/// Refuses more frames than a file of `byte_len` bytes can hold, before a geometry record is built for each: a
+/// frame takes at least its own size in native pixel data, at least an 8-byte fragment item when encapsulated,
+/// and a deflated data set inflates at most 1032-fold. (A 2 KB file claiming 20 million frames made the header
+/// reader allocate 2.9 GB; the pixel data are checked against the files' size again before the volume is
+/// allocated, in [`check_files_can_hold`].)
+fn check_frame_count(fmt: &PixelFormat, byte_len: u64, transfer_syntax: &str) -> std::result::Result<(), String> {
+    let frame_bytes = (fmt.rows * fmt.cols) as u64
+        * u64::from(fmt.samples_per_pixel.max(1))
+        * u64::from(fmt.bits_allocated.div_ceil(8).max(1));
+    let data_bytes = if transfer_syntax.trim_end_matches(['\0', ' ']) == "1.2.840.10008.1.2.1.99" {
+        byte_len.saturating_mul(1032)
+    } else {
+        byte_len
+    };
+    let most = data_bytes / frame_bytes.min(8);
+    if fmt.frames as u64 > most {
+        return Err(format!(
+            "{} {} is more than a file of {byte_len} bytes can hold ({most} frames of {}x{} at most)",
+            tag_label("NumberOfFrames", tags::NUMBER_OF_FRAMES),
+            fmt.frames,
+            fmt.cols,
+            fmt.rows
+        ));
+    }
+    Ok(())
 }
 
 /// "Name (gggg,eeee)" for messages.

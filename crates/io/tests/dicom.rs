@@ -808,3 +808,48 @@ fn deflated_data_set_is_not_read_past_pixel_data() {
     let v = dicom::read_files(std::slice::from_ref(&path), &mut LoadOptions::new()).expect("loads");
     assert_eq!(v.dims, [512, 512, 1]);
 }
+
+/// Found by cargo-fuzz (2026-12-01): a 2 KB file whose NumberOfFrames (0028,0008) claims millions of frames made
+/// the header reader build one geometry record per frame (a 2.9 GB allocation) before anything compared the frame
+/// count with the file. More frames than the file's bytes can hold are refused when the header is read.
+#[test]
+fn more_frames_than_the_file_can_hold_are_refused_before_allocating() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/bad/frames_huge.dcm");
+    let err = dicom::read_files(std::slice::from_ref(&corpus), &mut LoadOptions::new()).expect_err("too many frames");
+    let msg = err.to_string();
+    assert!(msg.contains("frames_huge.dcm") && msg.contains("NumberOfFrames (0028,0008)"), "{msg}");
+    // Classic (one position for all frames) and enhanced (shared functional groups only), 1 × 1 pixels.
+    for enhanced in [false, true] {
+        let mut obj = Slice { rows: 1, cols: 1, pixels: vec![7], ..Slice::new("1.2.3.4", 1, P0) }.object();
+        obj.put(DataElement::new(tags::NUMBER_OF_FRAMES, VR::IS, PrimitiveValue::from("4000000000")));
+        obj.put(DataElement::new(tags::SPACING_BETWEEN_SLICES, VR::DS, PrimitiveValue::from("1")));
+        if enhanced {
+            let item = InMemDicomObject::from_element_iter([DataElement::new(
+                tags::PIXEL_MEASURES_SEQUENCE,
+                VR::SQ,
+                DataSetSequence::from(vec![InMemDicomObject::from_element_iter([DataElement::new(
+                    tags::PIXEL_SPACING,
+                    VR::DS,
+                    PrimitiveValue::from("1\\1"),
+                )])]),
+            )]);
+            obj.put(DataElement::new(
+                tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE,
+                VR::SQ,
+                DataSetSequence::from(vec![item]),
+            ));
+        }
+        let mut bytes = Vec::new();
+        obj.with_meta(FileMetaTableBuilder::new().transfer_syntax(uids::EXPLICIT_VR_LITTLE_ENDIAN))
+            .expect("meta")
+            .write_all(&mut bytes)
+            .expect("write");
+        let name = Path::new("frames.dcm");
+        let err = dicom::read_file_bytes(name, &bytes, &mut LoadOptions::new()).expect_err("4e9 frames");
+        let msg = err.to_string();
+        assert!(
+            msg.starts_with("frames.dcm") && msg.contains("NumberOfFrames (0028,0008) 4000000000"),
+            "enhanced {enhanced}: {msg}"
+        );
+    }
+}
