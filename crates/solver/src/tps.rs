@@ -198,6 +198,28 @@ pub fn fit_pullback(
     Tps::fit_regularised(fixed, moving, regularisation.into())
 }
 
+/// Points as raw LPS coordinates, in the order of the pairs.
+type RawPoints = Vec<[f64; 3]>;
+
+/// What every TPS entry point checks first (the regularisation, the pairs by [`pairs::validate`], the size limit),
+/// and the distinct pairs as raw coordinates (a repeated pair counts once).
+fn checked_pairs<To: Space, From: Space>(
+    src: &[Point3<From>],
+    dst: &[Point3<To>],
+    regularisation: Regularisation,
+) -> Result<(pairs::Checked, RawPoints, RawPoints)> {
+    regularisation.validate()?;
+    let checked = pairs::validate(&NEEDS, src, dst)?;
+    if src.len() > MAX_LANDMARKS {
+        return Err(SolverError::InvalidParameter(format!(
+            "a TPS takes at most {MAX_LANDMARKS} landmark pairs, got {}",
+            src.len()
+        )));
+    }
+    let (p, q) = (checked.distinct_raw(src), checked.distinct_raw(dst));
+    Ok((checked, p, q))
+}
+
 /// The leave-one-out error of every pair, ‖f₋ᵢ(pᵢ) − qᵢ‖ in mm, where f₋ᵢ is the TPS with `regularisation` fitted
 /// on every pair but i: the same numbers as [`crate::diagnostics::leave_one_out`] with refits, from **one** solve
 /// instead of N.
@@ -233,15 +255,7 @@ pub fn leave_one_out<To: Space, From: Space>(
     dst: &[Point3<To>],
     regularisation: Regularisation,
 ) -> Result<Vec<Option<f64>>> {
-    regularisation.validate()?;
-    let checked = pairs::validate(&NEEDS, src, dst)?;
-    if src.len() > MAX_LANDMARKS {
-        return Err(SolverError::InvalidParameter(format!(
-            "a TPS takes at most {MAX_LANDMARKS} landmark pairs, got {}",
-            src.len()
-        )));
-    }
-    let (p, q) = (checked.distinct_raw(src), checked.distinct_raw(dst));
+    let (checked, p, q) = checked_pairs(src, dst, regularisation)?;
     let d = regularisation.k_diagonal();
     let (solution, g) = solve(&p, &q, centre_and_scale(&p)?, d, true)?;
     let tps = Tps::<To, From>::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
@@ -291,15 +305,7 @@ impl<To: Space, From: Space> Tps<To, From> {
 
     /// Fits f(`src[i]`) ≈ `dst[i]` with the given regularisation.
     pub fn fit_regularised(src: &[Point3<From>], dst: &[Point3<To>], regularisation: Regularisation) -> Result<Self> {
-        regularisation.validate()?;
-        let checked = pairs::validate(&NEEDS, src, dst)?;
-        if src.len() > MAX_LANDMARKS {
-            return Err(SolverError::InvalidParameter(format!(
-                "a TPS takes at most {MAX_LANDMARKS} landmark pairs, got {}",
-                src.len()
-            )));
-        }
-        let (p, q) = (checked.distinct_raw(src), checked.distinct_raw(dst));
+        let (checked, p, q) = checked_pairs(src, dst, regularisation)?;
         let (centre, scale) = centre_and_scale(&p)?;
         let (solution, _) = solve(&p, &q, (centre, scale), regularisation.k_diagonal(), false)?;
         let mut tps = Self::from_raw(&p, &solution.w, solution.a, solution.b, regularisation);
