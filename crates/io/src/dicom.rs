@@ -301,16 +301,37 @@ const MAX_DEPTH: usize = 32;
 /// file meta group only.
 fn check_lengths(data: &[u8]) -> std::result::Result<Checked, (bool, String)> {
     let mut w = Walker { data, explicit: true, big_endian: false, pixel_end: None, pixel_value: None };
-    // File meta group: explicit VR little endian, group 0002.
-    let mut pos = 4;
+    // File meta group, explicit VR little endian. As dicom-rs reads it (dicom-object `meta.rs`):
+    // (0002,0000) with a 4-byte group length first, then elements of any group until that many
+    // bytes are consumed. (A walk that stopped at the first element outside group 0002 would
+    // leave elements that dicom-rs still reads unchecked: a fuzzer found a 1 KB file whose meta
+    // group length covered a (0003,0012) element, so that the data set dicom-rs inflated, unlike
+    // ours, declared a 3 GB element.)
+    let (tag, len, header) = w.header(4)?;
+    if tag != (0x0002, 0x0000) || len != 4 || header != 8 {
+        return Err((
+            false,
+            format!(
+                "the file meta group does not start with its group length (0002,0000) but with ({:04X},{:04X})",
+                tag.0, tag.1
+            ),
+        ));
+    }
+    let group_length = w.u32_at(4 + header, true)?;
+    let mut pos = 4 + header + 4;
+    let mut consumed = 0u64;
     let mut ts = String::new();
-    while pos + 4 <= data.len() && u16::from_le_bytes([data[pos], data[pos + 1]]) == 0x0002 {
+    while consumed < u64::from(group_length) {
         let (tag, len, header) = w.header(pos)?;
+        if len == UNDEFINED {
+            return Err((false, format!("file meta element ({:04X},{:04X}) has an undefined length", tag.0, tag.1)));
+        }
         let value = w.value_range(tag, pos + header, len, data.len())?;
         if tag == (0x0002, 0x0010) {
             ts =
                 String::from_utf8_lossy(&data[value.clone()]).trim_matches(|c: char| c == '\0' || c == ' ').to_string();
         }
+        consumed += (header as u64) + u64::from(len);
         pos = value.end;
     }
     match ts.as_str() {

@@ -809,6 +809,20 @@ fn deflated_data_set_is_not_read_past_pixel_data() {
     assert_eq!(v.dims, [512, 512, 1]);
 }
 
+/// Found by cargo-fuzz: a 1 KB deflated file whose file meta group length, (0002,0000), covers an element outside
+/// group 0002, (0003,0012). dicom-rs reads the meta group by its length, so it inflated the data set from a later
+/// byte than the length check did, and met an element declaring 3 GB, which it reserved before reading. The check
+/// now reads the meta group as dicom-rs does, and inflates the data set from the same byte: the stream is cut short
+/// there, so the file is refused by the check, never by an allocation.
+#[test]
+fn a_meta_group_length_covering_an_offgroup_element_is_checked_as_dicom_rs_reads_it() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/bad/meta_covers_offgroup.dcm");
+    let err = dicom::read_files(std::slice::from_ref(&corpus), &mut LoadOptions::new()).expect_err("hostile file");
+    let msg = err.to_string();
+    assert!(msg.contains("meta_covers_offgroup.dcm") && msg.contains("does not inflate"), "{msg}");
+    assert!(!msg.contains("reserve memory") && !msg.contains("3091726336"), "{msg}");
+}
+
 /// Found by cargo-fuzz (2026-12-01): a 2 KB file whose NumberOfFrames (0028,0008) claims millions of frames made
 /// the header reader build one geometry record per frame (a 2.9 GB allocation) before anything compared the frame
 /// count with the file. More frames than the file's bytes can hold are refused when the header is read.
