@@ -64,7 +64,8 @@ use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::jpegls;
 use crate::options::LoadOptions;
-use crate::volume::{self, GeometrySource, Modality, Rescale, SeriesSummary, Volume, VoxelData};
+use crate::series::SeriesSummary;
+use crate::volume::{self, GeometrySource, Modality, Rescale, Volume, VoxelData};
 
 /// Transfer syntaxes this reader decodes, as (UID, name).
 pub const SUPPORTED_TRANSFER_SYNTAXES: &[(&str, &str)] = &[

@@ -33,7 +33,7 @@ pub enum ErrorKind {
     #[error("4-D file with {frames} frames: choose one frame to read (0 to {})", .frames.saturating_sub(1))]
     FrameRequired { frames: usize },
     #[error("the folder holds {} DICOM series; choose one with its SeriesInstanceUID:\n{}", .0.len(), list_series(.0))]
-    MultipleSeries(Vec<crate::volume::SeriesSummary>),
+    MultipleSeries(Vec<crate::series::SeriesSummary>),
     #[error("DICOM: {0}")]
     Dicom(String),
     #[error("landmark {index}: {problem}")]
@@ -47,7 +47,7 @@ fn gib(bytes: u128) -> String {
     format!("{:.1} GiB", bytes as f64 / f64::from(1u32 << 30))
 }
 
-fn list_series(s: &[crate::volume::SeriesSummary]) -> String {
+fn list_series(s: &[crate::series::SeriesSummary]) -> String {
     s.iter().map(|x| format!("  {x}")).collect::<Vec<_>>().join("\n")
 }
 

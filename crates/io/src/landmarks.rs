@@ -1110,11 +1110,6 @@ pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
     }
 }
 
-/// Writes one Slicer point list: `.fcsv` by extension, otherwise `.mrk.json`.
-pub fn write_slicer_points(path: &Path, points: &[SlicerPoint]) -> Result<()> {
-    if is_fcsv(path) { write_fcsv(path, points) } else { write_mrk_json(path, points) }
-}
-
 /// Reads a moving and a fixed Slicer point list and pairs them by index.
 ///
 /// The name is the moving label (the fixed one when that is empty); the pair is active when both

@@ -25,6 +25,7 @@ pub mod landmarks;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
+pub mod series;
 pub mod volume;
 
 use std::io::Read;
@@ -33,7 +34,8 @@ use std::path::Path;
 pub use atomic::write_atomic;
 pub use error::{Error, ErrorKind, Result};
 pub use options::{LoadOptions, Progress};
-pub use volume::{GeometrySource, Metadata, Modality, Rescale, SampleType, SeriesSummary, Volume, VoxelData};
+pub use series::SeriesSummary;
+pub use volume::{GeometrySource, Metadata, Modality, Rescale, SampleType, Volume, VoxelData};
 
 /// A volume file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

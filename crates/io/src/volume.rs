@@ -221,30 +221,6 @@ pub struct Metadata {
     pub warnings: Vec<String>,
 }
 
-/// A short description of one DICOM series found in a folder.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct SeriesSummary {
-    pub series_instance_uid: String,
-    pub series_number: Option<i64>,
-    pub modality: String,
-    pub description: String,
-    pub files: usize,
-}
-
-impl fmt::Display for SeriesSummary {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(
-            f,
-            "{} (series {}, {}, \"{}\", {} files)",
-            self.series_instance_uid,
-            self.series_number.map_or_else(|| "?".to_string(), |n| n.to_string()),
-            self.modality,
-            self.description,
-            self.files
-        )
-    }
-}
-
 /// A 3-D voxel grid placed in patient space.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Volume {
