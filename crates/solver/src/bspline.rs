@@ -1280,8 +1280,4 @@ impl<To: Space, From: Space> Warp<To, From> for HierarchicalBSpline<To, From> {
         self.lattice.jacobian_into(x, &mut j);
         Matrix3::from_fn(|r, c| j[r][c] + if r == c { 1.0 } else { 0.0 })
     }
-
-    fn as_hierarchical_bspline(&self) -> Option<&HierarchicalBSpline<To, From>> {
-        Some(self)
-    }
 }

@@ -11,7 +11,8 @@
 //! - [`linear`]: affine, similarity and rigid least-squares fits (Umeyama 1991) and the predicted TRE.
 //! - [`invert`]: an approximate inverse of a forward warp by scattered-data interpolation.
 //! - [`control`]: sampling a pull-back into a control texture for the GPU.
-//! - [`method`]: [`Method`], fitting any of the above by name, in either direction.
+//! - [`method`]: [`Method`], fitting any of the above by name, in either direction, into a [`FittedWarp`] (the
+//!   closed set of fitted kinds, a [`Warp`] by delegation).
 //! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
 //! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
 //! - [`synthetic`]: seeded known warps for accuracy tests.
@@ -30,6 +31,6 @@ pub mod tps;
 pub mod warp;
 
 pub use error::{Result, SolverError};
-pub use method::Method;
+pub use method::{FittedWarp, Method};
 pub use spaces::{Aabb, Fixed, Moving};
 pub use warp::{Parallelism, Warp};

@@ -600,17 +600,3 @@ pub fn predicted_tre_for<S: Space>(
     }
     Ok(TrePredictor::new(kind, fiducials, fle_rms_mm)?.rms_tre_mm(target))
 }
-
-/// Predicted RMS TRE (mm) of `fit` at `target` (a point in the fit's source space), with the FLE
-/// estimated from the fit's own FRE ([`fle_from_fre`]). `fiducials` are the source points the fit
-/// was made from. `None` when the FRE carries no information (3N ≤ parameters) or the
-/// configuration is degenerate.
-#[must_use]
-pub fn predicted_tre_from_fit<To: Space, From: Space>(
-    fit: &LinearFit<To, From>,
-    fiducials: &[Point3<From>],
-    target: Point3<From>,
-) -> Option<f64> {
-    let fle = fit.estimated_fle_rms_mm()?;
-    predicted_tre_for(fit.kind, fiducials, fle, target).ok()
-}

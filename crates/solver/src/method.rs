@@ -1,19 +1,23 @@
 //! [`Method`]: one name for "fit this kind of warp to these pairs", in either direction.
 //!
 //! The CLI's `--method`, the app's method switch, leave-one-out and the accuracy tests all fit a
-//! warp without caring which kind it is; they go through [`Method::fit`], which returns a boxed
-//! [`Warp`]. For a forward warp d = `fixed_from_moving` pass (p_i, q_i); for the pull-back
-//! u = `moving_from_fixed` pass the reversed pairs (q_i, p_i): every method fits the pull-back
-//! directly, so it is exact (or, for the approximating methods, as close) at the landmarks.
+//! warp without caring which kind it is; they go through [`Method::fit`], which returns a
+//! [`FittedWarp`]: one of the closed set of fitted warps, a [`Warp`] by delegation, and matchable
+//! where the kind matters (a TPS or a B-spline lattice handed to the GPU, the lattice's separable
+//! grid sampler in [`crate::control`]). For a forward warp d = `fixed_from_moving` pass (p_i, q_i);
+//! for the pull-back u = `moving_from_fixed` pass the reversed pairs (q_i, p_i): every method fits
+//! the pull-back directly, so it is exact (or, for the approximating methods, as close) at the
+//! landmarks.
 
 use std::fmt;
 
+use nalgebra::Matrix3;
 use warpbench_io::geometry::{Point3, Space};
 
 use crate::bspline::{self, BSplineParams, HierarchicalBSpline};
 use crate::diagnostics;
 use crate::error::Result;
-use crate::linear::{self, LinearKind};
+use crate::linear::{self, AffineWarp, LinearKind};
 use crate::pairs::{self, Needs, PairWarning};
 use crate::spaces::Aabb;
 use crate::tps::{self, Tps};
@@ -79,11 +83,11 @@ impl Method {
         src: &[Point3<From>],
         dst: &[Point3<To>],
         domain: Aabb<From>,
-    ) -> Result<Box<dyn Warp<To, From>>> {
+    ) -> Result<FittedWarp<To, From>> {
         Ok(match self {
-            Self::Tps { stiffness } => Box::new(Tps::fit_smoothing(src, dst, *stiffness)?),
-            Self::BSpline(params) => Box::new(HierarchicalBSpline::fit(src, dst, domain, params)?),
-            Self::Linear(kind) => Box::new(linear::fit(*kind, src, dst)?.warp),
+            Self::Tps { stiffness } => FittedWarp::Tps(Tps::fit_smoothing(src, dst, *stiffness)?),
+            Self::BSpline(params) => FittedWarp::BSpline(HierarchicalBSpline::fit(src, dst, domain, params)?),
+            Self::Linear(kind) => FittedWarp::Linear(linear::fit(*kind, src, dst)?.warp),
         })
     }
 
@@ -120,5 +124,41 @@ impl Method {
         }
         let fit = |s: &[Point3<From>], d: &[Point3<To>]| self.fit(s, d, domain);
         diagnostics::leave_one_out_reporting(src, dst, fit, parallelism, refitted)
+    }
+}
+
+/// A warp as [`Method::fit`] gives it: one of the fitted kinds, each the [`Warp`] of its module. It is a [`Warp`] by
+/// delegation (every method, so a kind's faster batch kernel and analytic Jacobian are kept); match on it where the
+/// kind matters.
+#[derive(Clone, Debug)]
+pub enum FittedWarp<To: Space, From: Space> {
+    /// [`Method::Tps`].
+    Tps(Tps<To, From>),
+    /// [`Method::BSpline`].
+    BSpline(HierarchicalBSpline<To, From>),
+    /// [`Method::Linear`]: every linear kind is an affine map (its fit's other figures are [`linear::LinearFit`]'s).
+    Linear(AffineWarp<To, From>),
+}
+
+/// The fitted warp as a trait object, for code that takes any warp.
+impl<To: Space, From: Space> AsRef<dyn Warp<To, From>> for FittedWarp<To, From> {
+    fn as_ref(&self) -> &(dyn Warp<To, From> + 'static) {
+        match self {
+            Self::Tps(w) => w,
+            Self::BSpline(w) => w,
+            Self::Linear(w) => w,
+        }
+    }
+}
+
+impl<To: Space, From: Space> Warp<To, From> for FittedWarp<To, From> {
+    fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        AsRef::<dyn Warp<To, From>>::as_ref(self).apply_raw(x)
+    }
+    fn apply_batch_raw(&self, xs: &[[f64; 3]], out: &mut [[f64; 3]]) {
+        AsRef::<dyn Warp<To, From>>::as_ref(self).apply_batch_raw(xs, out);
+    }
+    fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
+        AsRef::<dyn Warp<To, From>>::as_ref(self).jacobian_raw(x)
     }
 }

@@ -54,13 +54,6 @@ pub trait Warp<To: Space, From: Space>: Send + Sync {
         }
         j
     }
-
-    /// This warp as a hierarchical B-spline, when it is one, so that a fitted `Box<dyn Warp>` can still be sampled
-    /// through the lattice's separable grid sampler ([`crate::control::ControlTexture::sample`]) or handed to a GPU
-    /// evaluator. `None` for every other warp.
-    fn as_hierarchical_bspline(&self) -> Option<&crate::bspline::HierarchicalBSpline<To, From>> {
-        None
-    }
 }
 
 impl<To: Space, From: Space, W: Warp<To, From> + ?Sized> Warp<To, From> for Box<W> {
@@ -72,8 +65,5 @@ impl<To: Space, From: Space, W: Warp<To, From> + ?Sized> Warp<To, From> for Box<
     }
     fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
         (**self).jacobian_raw(x)
-    }
-    fn as_hierarchical_bspline(&self) -> Option<&crate::bspline::HierarchicalBSpline<To, From>> {
-        (**self).as_hierarchical_bspline()
     }
 }
