@@ -1,0 +1,278 @@
+//! Displacement fields (`NIFTI_INTENT_DISPVECT`) as ITK, ANTs and 3D Slicer store them, with RAS vectors in the
+//! file and LPS vectors inside (see [`super`], "Displacement fields").
+
+use std::fs::File;
+use std::io::{self, BufReader, Read, Seek, SeekFrom};
+use std::path::Path;
+
+use flate2::read::MultiGzDecoder;
+
+use super::geometry::lps_from_index;
+use super::header::read_header;
+use super::layout::{Span, data_span, grid, stored_type};
+use super::samples::{DataType, scaling, stream_convert};
+use super::write::{Nifti1Content, nifti1_header_for, type_code, write_file};
+use super::{Extent, GZIP_MAGIC, Reporter, Source};
+use crate::error::{Error, Result};
+use crate::geometry::{Index, Lps, Transform};
+use crate::options::LoadOptions;
+use crate::volume::{self, GeometrySource, SampleType};
+
+/// `NIFTI_INTENT_DISPVECT` (nifti1.h): each voxel holds a displacement vector.
+pub const NIFTI_INTENT_DISPVECT: i16 = 1006;
+
+/// The sign that takes a vector component between LPS (inside) and RAS (in the file), either way.
+const LPS_RAS_SIGN: [f32; 3] = [-1.0, -1.0, 1.0];
+
+/// A displacement field read by [`read_displacement_field`]: one vector per voxel of a grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DisplacementField {
+    /// Voxels along i, j, k.
+    pub dims: [usize; 3],
+    pub lps_from_index: Transform<Lps, Index>,
+    pub geometry_source: GeometrySource,
+    /// The displacement at each voxel centre in LPS mm, i fastest (as [`Volume::data`]).
+    pub displacements_lps: Vec<[f32; 3]>,
+}
+
+/// Writes a displacement field as NIfTI-1 (`.nii`, or gzip when the name ends in `.gz`), atomically: float32,
+/// `dim = [5, X, Y, Z, 1, 3, 1, 1]`, `intent_code` 1006 (`NIFTI_INTENT_DISPVECT`), the grid's sform and qform as
+/// [`write()`] writes them, and the vectors in **RAS** (the first two components of each LPS vector negated), the
+/// component planes one after the other (all x, then all y, then all z). See the module docs, "Displacement fields".
+pub fn write_displacement_field(
+    path: &Path,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<()> {
+    let n = volume::checked_voxel_count(path, dims)?;
+    if displacements_lps.len() != n {
+        return Err(Error::invalid(path, format!("{} displacements for dims {dims:?}", displacements_lps.len())));
+    }
+    if !lps_from_index.is_valid_affine() {
+        return Err(Error::invalid(path, "the voxel-to-patient matrix is singular or not finite"));
+    }
+    if let Some(i) = displacements_lps.iter().position(|d| !d.iter().all(|v| v.is_finite())) {
+        return Err(Error::invalid(
+            path,
+            format!("the displacement at voxel {i} is not finite: {:?}", displacements_lps[i]),
+        ));
+    }
+    let what = Nifti1Content {
+        type_code: type_code(SampleType::F32),
+        descrip: b"warpbench displacement field u(x) - x, RAS mm".to_vec(),
+        vector: Some((NIFTI_INTENT_DISPVECT, 3)),
+    };
+    let header = nifti1_header_for(path, dims, lps_from_index, &what)?;
+    write_file(path, &header, |w| {
+        let mut buf = Vec::with_capacity(64 << 10);
+        for (c, sign) in LPS_RAS_SIGN.into_iter().enumerate() {
+            for chunk in displacements_lps.chunks(16 << 10) {
+                buf.clear();
+                for d in chunk {
+                    buf.extend_from_slice(&(sign * d[c]).to_le_bytes());
+                }
+                w.write_all(&buf)?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Reads a displacement field written by [`write_displacement_field`] or by ITK, ANTs or Slicer: NIfTI-1 or -2,
+/// intent 1006, shape [X, Y, Z, 1, 3], float32 or float64, RAS vectors (returned in LPS). Errors name the file.
+pub fn read_displacement_field(path: &Path) -> Result<DisplacementField> {
+    crate::check_regular_file(path)?;
+    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let mut magic = [0u8; 2];
+    let n = crate::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
+    file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
+    if n == 2 && magic == GZIP_MAGIC {
+        read_field_source(path, &mut MultiGzDecoder::new(BufReader::new(file)), Extent::Gzip(file_len))
+    } else {
+        read_field_source(path, &mut BufReader::new(file), Extent::Exact(file_len))
+    }
+}
+
+/// [`read_displacement_field`] from memory (gzip detected by the magic bytes); `name` is used in errors.
+pub fn read_displacement_field_bytes(name: &Path, bytes: &[u8]) -> Result<DisplacementField> {
+    if bytes.starts_with(&GZIP_MAGIC) {
+        read_field_source(name, &mut MultiGzDecoder::new(bytes), Extent::Gzip(bytes.len() as u64))
+    } else {
+        let mut src = bytes;
+        read_field_source(name, &mut src, Extent::Exact(bytes.len() as u64))
+    }
+}
+
+fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Result<DisplacementField> {
+    let h = read_header(path, src)?;
+    if h.intent_code != i32::from(NIFTI_INTENT_DISPVECT) {
+        return Err(Error::invalid(
+            path,
+            format!("intent_code is {}, not NIFTI_INTENT_DISPVECT (1006): not a displacement field", h.intent_code),
+        ));
+    }
+    if h.dim[0] != 5 || h.dim[4] != 1 || h.dim[5] != 3 || h.dim[1..4].iter().any(|&d| d < 1) {
+        return Err(Error::invalid(
+            path,
+            format!("dim = {:?}; a 3-D displacement field has dim = [5, X, Y, Z, 1, 3, …]", h.dim),
+        ));
+    }
+    let grid = grid(path, &h)?;
+    let dims = [grid[1], grid[2], grid[3]];
+    let datatype = stored_type(path, &h)?;
+    if !matches!(datatype, DataType::F32 | DataType::F64) {
+        return Err(Error::unsupported(
+            path,
+            format!("displacement field of datatype {}; float32 and float64 are read", h.datatype),
+        ));
+    }
+    if scaling(path, &h)?.is_some() {
+        return Err(Error::unsupported(
+            path,
+            format!("a scaled displacement field (scl_slope {}, scl_inter {})", h.scl_slope, h.scl_inter),
+        ));
+    }
+    let (lps_from_index, geometry_source, _) = lps_from_index(path, &h, dims)?;
+    // The output is 12 bytes a voxel; a stored plane is at most 8 bytes a voxel, so both fit once this passes.
+    let n = volume::check_allocation(path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let plane_bytes = n * datatype.bytes();
+    let span = Span {
+        skip: 0,
+        bytes: 3 * plane_bytes as u128,
+        what: "the displacement field",
+        detail: format!("dims {dims:?}, 3 components"),
+    };
+    let vox_offset = data_span(path, &h, extent, &span)?;
+    let mut opts = LoadOptions::new();
+    let skip = vox_offset - h.version.header_bytes() as u64;
+    if !src.seek_forward(skip).map_err(|e| Error::io(path, e))? {
+        io::copy(&mut src.by_ref().take(skip), &mut io::sink()).map_err(|e| Error::io(path, e))?;
+    }
+    let mut progress = Reporter { path, opts: &mut opts, done: 0, total: 3 * plane_bytes as u64 };
+    let mut displacements_lps = volume::try_with_capacity(path, n, "the displacement vectors")?;
+    displacements_lps.resize(n, [0.0f32; 3]);
+    for (c, sign) in LPS_RAS_SIGN.into_iter().enumerate() {
+        let plane: Vec<f32> = if datatype == DataType::F32 {
+            stream_convert(src, plane_bytes, h.big_endian, &mut progress, |x: f32| x)?
+        } else {
+            stream_convert(src, plane_bytes, h.big_endian, &mut progress, |x: f64| x as f32)?
+        };
+        for (d, v) in displacements_lps.iter_mut().zip(plane) {
+            d[c] = sign * v;
+        }
+    }
+    Ok(DisplacementField { dims, lps_from_index, geometry_source, displacements_lps })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use flate2::Compression;
+    use flate2::write::GzEncoder;
+    use nalgebra::Matrix3;
+    use std::io::Write;
+
+    use super::super::read_bytes;
+    use super::super::write::{NIFTI1_VOX_OFFSET, write};
+    use crate::ErrorKind;
+    use crate::volume::{Volume, VoxelData};
+
+    /// A small oblique grid and a field whose components differ in every voxel.
+    fn sample_field() -> ([usize; 3], Transform<Lps, Index>, Vec<[f32; 3]>) {
+        let (s, c) = 0.4f64.sin_cos();
+        let linear = Matrix3::new(c * 1.5, -s * 2.0, 0.0, s * 1.5, c * 2.0, 0.0, 0.0, 0.0, 2.5);
+        let lps_from_index = Transform::from_linear_translation(linear, [-30.0, 12.5, 7.25]);
+        let dims = [3, 4, 2];
+        let field = (0..24).map(|i| [i as f32 * 0.25 - 3.0, 1.0 - i as f32 * 0.125, (i * i) as f32 * 0.01]).collect();
+        (dims, lps_from_index, field)
+    }
+
+    #[test]
+    fn displacement_field_round_trips_with_ras_vectors_on_disk() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (dims, lps_from_index, field) = sample_field();
+        for name in ["field.nii", "field.nii.gz"] {
+            let path = dir.path().join(name);
+            write_displacement_field(&path, dims, &lps_from_index, &field).expect("write");
+            let back = read_displacement_field(&path).expect("read back");
+            assert_eq!(back.dims, dims);
+            assert!(back.lps_from_index.max_abs_diff(&lps_from_index) < 1e-4, "{:?}", back.lps_from_index);
+            assert_eq!(back.geometry_source, GeometrySource::NiftiSform { code: 1 });
+            // Negation is exact, so the vectors come back bit for bit.
+            let bits = |v: &[[f32; 3]]| v.iter().flat_map(|d| d.map(|x| (x + 0.0).to_bits())).collect::<Vec<_>>();
+            assert_eq!(bits(&back.displacements_lps), bits(&field), "{name}");
+        }
+        // The raw file: the header fields ITK reads, and the planes in RAS (x and y negated), x plane first.
+        let raw = std::fs::read(dir.path().join("field.nii")).expect("read raw");
+        let i16_at = |o: usize| i16::from_le_bytes([raw[o], raw[o + 1]]);
+        let f32_at = |o: usize| f32::from_le_bytes([raw[o], raw[o + 1], raw[o + 2], raw[o + 3]]);
+        assert_eq!((0..8).map(|i| i16_at(40 + 2 * i)).collect::<Vec<_>>(), [5, 3, 4, 2, 1, 3, 1, 1]);
+        assert_eq!((i16_at(68), i16_at(70), i16_at(72)), (1006, 16, 32));
+        assert!((f32_at(76 + 16) - 1.0).abs() < f32::EPSILON && (f32_at(76 + 20) - 1.0).abs() < f32::EPSILON);
+        assert_eq!(raw.len(), NIFTI1_VOX_OFFSET + 24 * 3 * 4);
+        let plane = |c: usize, i: usize| f32_at(NIFTI1_VOX_OFFSET + 4 * (c * 24 + i));
+        for i in [0, 5, 23] {
+            assert_eq!(plane(0, i).to_bits(), (-field[i][0]).to_bits());
+            assert_eq!(plane(1, i).to_bits(), (-field[i][1]).to_bits());
+            assert_eq!(plane(2, i).to_bits(), field[i][2].to_bits());
+        }
+        // The volume reader refuses the 5-D file rather than misreading it.
+        let e = read_bytes(Path::new("field.nii"), &raw, &mut LoadOptions::new()).expect_err("5-D");
+        assert!(e.to_string().contains("dim[5] = 3"), "{e}");
+    }
+
+    #[test]
+    fn displacement_field_reader_refuses_truncated_and_wrong_intent_files() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (dims, lps_from_index, field) = sample_field();
+        let path = dir.path().join("field.nii");
+        write_displacement_field(&path, dims, &lps_from_index, &field).expect("write");
+        let raw = std::fs::read(&path).expect("read raw");
+
+        let cut = dir.path().join("cut.nii");
+        std::fs::write(&cut, &raw[..raw.len() - 10]).expect("write cut");
+        let e = read_displacement_field(&cut).expect_err("truncated");
+        assert!(matches!(e.kind, ErrorKind::Truncated(_)), "{e}");
+        assert!(e.to_string().starts_with(&format!("{}: ", cut.display())), "{e}");
+
+        let mut gz = Vec::new();
+        let mut enc = GzEncoder::new(&mut gz, Compression::default());
+        enc.write_all(&raw[..raw.len() - 10]).expect("gzip");
+        enc.finish().expect("gzip");
+        let e = read_displacement_field_bytes(Path::new("cut.nii.gz"), &gz).expect_err("truncated gzip");
+        assert!(matches!(e.kind, ErrorKind::Truncated(_)), "{e}");
+
+        let mut vector = raw.clone();
+        vector[68..70].copy_from_slice(&1007i16.to_le_bytes());
+        let e = read_displacement_field_bytes(Path::new("vector.nii"), &vector).expect_err("intent 1007");
+        assert!(e.to_string().starts_with("vector.nii: ") && e.to_string().contains("intent_code is 1007"), "{e}");
+
+        let scalar = dir.path().join("scalar.nii");
+        let v = Volume::new(&scalar, dims, VoxelData::U8(vec![1; 24]), lps_from_index, GeometrySource::NiftiPixdim)
+            .expect("volume");
+        write(&scalar, &v).expect("write scalar");
+        let e = read_displacement_field(&scalar).expect_err("a scalar volume");
+        assert!(e.to_string().contains("intent_code is 0"), "{e}");
+
+        let mut two = raw.clone();
+        two[50..52].copy_from_slice(&2i16.to_le_bytes()); // dim[5] = 2 components
+        let e = read_displacement_field_bytes(Path::new("two.nii"), &two).expect_err("2 components");
+        assert!(e.to_string().contains("[5, X, Y, Z, 1, 3"), "{e}");
+
+        let mut huge = raw;
+        for a in 0..3 {
+            huge[42 + 2 * a..44 + 2 * a].copy_from_slice(&32000i16.to_le_bytes());
+        }
+        let e = read_displacement_field_bytes(Path::new("huge.nii"), &huge).expect_err("too large");
+        assert!(matches!(e.kind, ErrorKind::TooLarge { .. } | ErrorKind::Truncated(_)), "{e}");
+
+        let bad = dir.path().join("nan.nii");
+        let mut nan = field.clone();
+        nan[3][1] = f32::NAN;
+        let e = write_displacement_field(&bad, dims, &lps_from_index, &nan).expect_err("NaN");
+        assert!(e.to_string().contains("voxel 3"), "{e}");
+        assert!(!bad.exists());
+    }
+}
