@@ -1,6 +1,6 @@
 //! Drag-event benchmark (issue 7): what the window does on one landmark drag event, headless, on the same code
 //! path: the pull-back and forward TPS fitted on N pairs and the pull-back sampled into the control texture
-//! ([`warpbench_app::gui::fit_warp`]), the texture uploaded, and the 3-D view rendered at the interaction sample rate
+//! ([`warpbench_app::fit::fit_warp`]), the texture uploaded, and the 3-D view rendered at the interaction sample rate
 //! with the landmark glyphs ([`warpbench_app::gui::viewer::Viewer`]), waiting for the GPU to finish.
 //!
 //! The pair is the demo pair (the Colin27 MRI as fixed, the Cranium CT as moving, from `tests/data/nifti`), with N
@@ -15,7 +15,7 @@
 //! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--method NAME` (tps; also
 //! hbspline, affine, similarity, rigid; `--gpu-eval` takes tps and hbspline), `--grid N` (control texture
 //! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
-//! texture evaluated on the GPU by `gui::fit_warp_on_gpu`, as the window does on a real GPU), `--gpu-prefilter`
+//! texture evaluated on the GPU by `fit::fit_warp_on_gpu`, as the window does on a real GPU), `--gpu-prefilter`
 //! (on a CPU driver, the prefilter as a compute pass at upload instead of on the CPU while preparing), `--refine`
 //! (after the events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the
 //! reduced view, then the full view band by band, once with the cost per pixel unknown and once with it measured; it
@@ -25,9 +25,10 @@
 
 use std::time::{Duration, Instant};
 
+use warpbench_app::fit::{self, fit_warp, fit_warp_on_gpu};
+use warpbench_app::gui::demo;
 use warpbench_app::gui::pacing::{Bands, interactive_size};
 use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
-use warpbench_app::gui::{demo, fit_warp, fit_warp_on_gpu};
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, SlicePlane, pair_glyphs,
@@ -36,6 +37,7 @@ use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::warp::Warp;
 
 struct Options {
     size: (u32, u32),
@@ -226,8 +228,8 @@ fn main() {
     let fits = (0..o.events.max(5))
         .map(|_| {
             let t = Instant::now();
-            let pullback = method.fit(&fixed_pts, &moving_pts, boxes.0).unwrap_or_else(|e| panic!("{e}"));
-            let forward = method.fit(&moving_pts, &fixed_pts, boxes.1).unwrap_or_else(|e| panic!("{e}"));
+            let pullback = fit::pullback(&method, &fixed_pts, &moving_pts, boxes.0).unwrap_or_else(|e| panic!("{e}"));
+            let forward = fit::forward(&method, &fixed_pts, &moving_pts, boxes.1).unwrap_or_else(|e| panic!("{e}"));
             let elapsed = t.elapsed();
             drop((pullback, forward));
             elapsed

@@ -61,8 +61,7 @@ fn main() -> Result<()> {
     }
     let (lo, hi) = (fixed.info.box_min_lps, fixed.info.box_max_lps);
     let domain = Aabb::new(Point3::from_array(lo.to_array()), Point3::from_array(hi.to_array()));
-    let (grid, control) =
-        scene::control_texture(&moving_from_fixed, domain, 64).map_err(|f| anyhow::anyhow!("{:#}", f.error()))?;
+    let (grid, control) = scene::control_texture(&moving_from_fixed, domain, 64)?;
     let control_desc = scene::control_desc(&grid, &control);
     let control = PreparedControl::prepare(&control_desc, ctx.capabilities.float32_filterable)?;
 

@@ -32,12 +32,12 @@ use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::{Progress, Volume, nifti, volume};
-use warpbench_solver::linear;
-use warpbench_solver::method::Method;
+use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
+use crate::fit;
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::progress::Bar;
 
@@ -87,7 +87,7 @@ pub struct FieldSummary {
 pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
     let input_paths = opts.inputs.paths();
     opts.out.check(&input_paths)?;
-    let method = opts.inputs.method()?;
+    let method = opts.inputs.method().map_err(Failure::BadInput)?;
     if let Some(tfm) = &opts.tfm
         && !matches!(method, Method::Linear(_))
     {
@@ -104,8 +104,8 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         inputs::check_output(tfm, &input_paths, opts.out.force)?;
     }
 
-    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet)?;
-    let pairs = opts.inputs.landmarks.read()?;
+    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet).map_err(Failure::BadInput)?;
+    let pairs = opts.inputs.landmarks.read().map_err(Failure::BadInput)?;
     let names = opts.inputs.names(&opts.out.path);
     let grid = reference.as_ref().unwrap_or(&fixed);
     // The bar appears with the first slice, after the checks and the fit.
@@ -170,7 +170,7 @@ pub struct Field {
     pub pairs: usize,
     /// For the linear methods, the same pull-back x ↦ A x + b as an ITK affine (what `--tfm` writes); else `None`.
     pub affine: Option<ItkAffine>,
-    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`inputs::fit_warnings`]).
+    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`](crate::fit::fit_warnings)).
     pub warnings: Vec<String>,
 }
 
@@ -190,24 +190,23 @@ pub fn displacement_field(
     method: &Method,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(method))?;
+    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(method))
+        .map_err(Failure::BadInput)?;
     // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
-    let moving_from_fixed = inputs::fit_pullback(method, &c, inputs::volume_box::<Fixed>(fixed))?;
+    let moving_from_fixed =
+        fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed)).map_err(Failure::BadInput)?;
 
     let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
     volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-    let sampled = sample_displacements(moving_from_fixed.as_ref(), dims, &lps_from_index, progress)
+    let sampled = sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress)
         .ok_or_else(|| Failure::Cancelled(anyhow!("sampling the displacement field: cancelled")))?;
     let Some(max_displacement_mm) = sampled.max_norm_mm else {
         return Err(Failure::Internal(anyhow!("the {method} warp is not finite somewhere in the output grid")));
     };
-    // The affine for `.tfm` is the same fit as `moving_from_fixed` (Method::Linear fits exactly this).
-    let affine = match method {
-        Method::Linear(kind) => {
-            let fit = linear::fit_pullback(*kind, &c.moving, &c.fixed).map_err(|e| inputs::fit_error(method, &c, e))?;
-            Some(ItkAffine::from_offset(fit.warp.linear(), fit.warp.translation()))
-        }
-        _ => None,
+    // The affine for `.tfm` is `moving_from_fixed` itself when the method is linear.
+    let affine = match &moving_from_fixed {
+        FittedWarp::Linear(warp) => Some(ItkAffine::from_offset(warp.linear(), warp.translation())),
+        FittedWarp::Tps(_) | FittedWarp::BSpline(_) => None,
     };
     Ok(Field {
         dims,
@@ -218,7 +217,7 @@ pub fn displacement_field(
         method: method.to_string(),
         pairs: c.moving.len(),
         affine,
-        warnings: inputs::fit_warnings(method, &c),
+        warnings: fit::fit_warnings(method, &c),
     })
 }
 

@@ -5,39 +5,41 @@
 //! moving volume's box (of voxel edges), or whose fixed point lies outside the fixed volume's, is bad input, named by
 //! its index (1-based, in file order) and name.
 //!
-//! The fit then checks the pairs themselves ([`warpbench_solver::pairs`], the same rules for every method): its
-//! errors ([`fit_pullback`], [`fit_forward`], [`fit_error`]) and warnings ([`fit_warnings`]) name the landmark file
-//! and number the pairs as the file does (1-based, inactive and incomplete pairs counted), not as the fit saw them.
+//! The fit ([`crate::fit`]) then checks the pairs themselves ([`warpbench_solver::pairs`], the same rules for every
+//! method): its errors and warnings name the landmark file and number the pairs as the file does (1-based, inactive
+//! and incomplete pairs counted), not as the fit saw them ([`Correspondences::file_number`]).
+//!
+//! Errors are `anyhow` errors that name the file and the problem; every one is about the input, so the
+//! subcommands exit with 2 on them. The output checks ([`check_output`], [`OutputFile::check`]) return the CLI's
+//! [`Failure`] still, as the window's export chains them with `warp::check_outputs`.
 
 use std::path::{Path, PathBuf};
 
-use anyhow::anyhow;
+use anyhow::{Result, anyhow};
 use warpbench_io::geometry::{Lps, Point3, Space};
 use warpbench_io::landmarks::{self, LandmarkPair};
 use warpbench_io::{LoadOptions, Volume};
-use warpbench_solver::SolverError;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
-use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
 use crate::progress::Bar;
 
 /// Loads a volume (any format `io` reads), with a progress bar unless `quiet`.
-pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume, Failure> {
+pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
     let mut bar = Bar::new(quiet);
     let loaded = LoadOptions::new().progress(|p| bar.update(p)).open(path);
     bar.finish();
     let volume = loaded.map_err(|e| match e.kind {
         // The library names no option: these commands have no --frame, so say what to do here.
-        warpbench_io::ErrorKind::FrameRequired { frames } => Failure::BadInput(anyhow!(
+        warpbench_io::ErrorKind::FrameRequired { frames } => anyhow!(
             "{}: 4-D file with {frames} frames: this command reads one 3-D volume; save one frame as a file of its \
              own (`warpbench info --frame N` shows frame N, 0 to {})",
             path.display(),
             frames.saturating_sub(1)
-        )),
-        _ => Failure::from(e),
+        ),
+        _ => anyhow::Error::from(e),
     })?;
     if !quiet {
         for w in &volume.metadata.warnings {
@@ -62,15 +64,13 @@ impl LandmarkSource {
         landmarks: Option<PathBuf>,
         moving_points: Option<PathBuf>,
         fixed_points: Option<PathBuf>,
-    ) -> Result<Option<Self>, Failure> {
+    ) -> Result<Option<Self>> {
         match (landmarks, moving_points, fixed_points) {
             (None, None, None) => Ok(None),
             (Some(l), None, None) => Ok(Some(Self::Pairs(l))),
             (None, Some(moving), Some(fixed)) => Ok(Some(Self::SlicerPair { moving, fixed })),
-            (Some(_), _, _) => Err(Failure::BadInput(anyhow!(
-                "give either --landmarks or --moving-points with --fixed-points, not both"
-            ))),
-            _ => Err(Failure::BadInput(anyhow!("--moving-points and --fixed-points go together"))),
+            (Some(_), _, _) => Err(anyhow!("give either --landmarks or --moving-points with --fixed-points, not both")),
+            _ => Err(anyhow!("--moving-points and --fixed-points go together")),
         }
     }
 
@@ -90,17 +90,17 @@ impl LandmarkSource {
     }
 
     /// Reads the pairs. A single `.mrk.json`/`.fcsv` is refused with a hint: one Slicer list holds one side only.
-    pub fn read(&self) -> Result<Vec<LandmarkPair>, Failure> {
+    pub fn read(&self) -> Result<Vec<LandmarkPair>> {
         match self {
             Self::Pairs(path) => {
                 if landmarks::detect_landmark_file(path)?.holds_pairs() {
                     Ok(landmarks::read_landmark_pairs(path)?)
                 } else {
-                    Err(Failure::BadInput(anyhow!(
+                    Err(anyhow!(
                         "{}: a Slicer point list holds one side of the pairs; give the moving and the fixed list \
                          with --moving-points and --fixed-points",
                         path.display()
-                    )))
+                    ))
                 }
             }
             Self::SlicerPair { moving, fixed } => Ok(landmarks::read_slicer_pair(moving, fixed)?),
@@ -142,7 +142,7 @@ impl PairInputs {
     }
 
     /// The method the options name, checked ([`method_from_args`]).
-    pub fn method(&self) -> Result<Method, Failure> {
+    pub fn method(&self) -> Result<Method> {
         method_from_args(&self.method, self.stiffness, self.levels)
     }
 
@@ -153,7 +153,7 @@ impl PairInputs {
     }
 
     /// Loads the fixed, moving and reference volumes (with progress bars unless `quiet`).
-    pub fn load_volumes(&self, quiet: bool) -> Result<PairVolumes, Failure> {
+    pub fn load_volumes(&self, quiet: bool) -> Result<PairVolumes> {
         Ok(PairVolumes {
             fixed: load_volume(&self.fixed, quiet)?,
             moving: load_volume(&self.moving, quiet)?,
@@ -224,7 +224,7 @@ pub fn correspondences(
     moving: &Volume,
     fixed: &Volume,
     min_pairs: usize,
-) -> Result<Correspondences, Failure> {
+) -> Result<Correspondences> {
     check_pairs(&source.describe(), pairs, moving, fixed, min_pairs)
 }
 
@@ -236,12 +236,12 @@ pub fn check_pairs(
     moving: &Volume,
     fixed: &Volume,
     min_pairs: usize,
-) -> Result<Correspondences, Failure> {
+) -> Result<Correspondences> {
     let mut out =
         Correspondences { moving: Vec::new(), fixed: Vec::new(), labels: Vec::new(), origin: origin.to_owned() };
     let bad = |i: usize, pair: &LandmarkPair, what: &str| {
         let name = if pair.name.is_empty() { String::new() } else { format!(" ({})", pair.name) };
-        Failure::BadInput(anyhow!("{origin}: landmark {}{name} {what}", i + 1))
+        anyhow!("{origin}: landmark {}{name} {what}", i + 1)
     };
     for (i, pair) in pairs.iter().enumerate() {
         if !pair.active {
@@ -262,21 +262,20 @@ pub fn check_pairs(
         out.labels.push((i + 1, pair.name.clone()));
     }
     if out.moving.len() < min_pairs {
-        return Err(Failure::BadInput(anyhow!(
+        return Err(anyhow!(
             "{origin}: {} active pairs with both points; this needs at least {min_pairs}",
             out.moving.len()
-        )));
+        ));
     }
     Ok(out)
 }
 
 /// `--method` (with `--stiffness` for TPS and `--levels` for the hierarchical B-spline) as a [`Method`].
-pub fn method_from_args(name: &str, stiffness: f64, levels: Option<usize>) -> Result<Method, Failure> {
-    let method = Method::from_name(name).ok_or_else(|| {
-        Failure::BadInput(anyhow!("unknown --method {name:?}; use tps, hbspline, affine, similarity or rigid"))
-    })?;
+pub fn method_from_args(name: &str, stiffness: f64, levels: Option<usize>) -> Result<Method> {
+    let method = Method::from_name(name)
+        .ok_or_else(|| anyhow!("unknown --method {name:?}; use tps, hbspline, affine, similarity or rigid"))?;
     if !(stiffness.is_finite() && stiffness >= 0.0) {
-        return Err(Failure::BadInput(anyhow!("--stiffness {stiffness} must be a number ≥ 0")));
+        return Err(anyhow!("--stiffness {stiffness} must be a number ≥ 0"));
     }
     Ok(match method {
         Method::Tps { .. } => Method::Tps { stiffness },
@@ -292,46 +291,6 @@ pub fn min_pairs(method: &Method) -> usize {
     method.needs().min_pairs
 }
 
-/// The message for a fit of `c` that failed with `e`: `<landmark file>: fitting the <method> warp: <problem>`, the
-/// pairs numbered as in the file.
-#[must_use]
-pub fn fit_error(method: &Method, c: &Correspondences, e: SolverError) -> Failure {
-    let e = e.renumber(|n| c.file_number(n));
-    Failure::BadInput(anyhow!("{}: fitting the {method} warp: {e}", c.origin))
-}
-
-/// What the solver finds suspicious in `c` for `method` (a pair given twice, a nearly flat set of points), as
-/// messages: `<landmark file>: <warning>`, the pairs numbered as in the file. The same for either direction of the
-/// fit; empty when there is nothing to say or when the fit will refuse the pairs (its error says why). The CLI
-/// prints each as `warning: …` on stderr.
-#[must_use]
-pub fn fit_warnings(method: &Method, c: &Correspondences) -> Vec<String> {
-    method
-        .check(&c.fixed, &c.moving)
-        .unwrap_or_default()
-        .into_iter()
-        .map(|w| format!("{}: {}", c.origin, w.renumber(|n| c.file_number(n))))
-        .collect()
-}
-
-/// The pull-back u = moving_from_fixed, fitted on the reversed pairs over `fixed_box`.
-pub fn fit_pullback(
-    method: &Method,
-    c: &Correspondences,
-    fixed_box: Aabb<Fixed>,
-) -> Result<Box<dyn Warp<Moving, Fixed>>, Failure> {
-    method.fit(&c.fixed, &c.moving, fixed_box).map_err(|e| fit_error(method, c, e))
-}
-
-/// The forward warp d = fixed_from_moving (where a moving point appears in the deformed view), over `moving_box`.
-pub fn fit_forward(
-    method: &Method,
-    c: &Correspondences,
-    moving_box: Aabb<Moving>,
-) -> Result<Box<dyn Warp<Fixed, Moving>>, Failure> {
-    method.fit(&c.moving, &c.fixed, moving_box).map_err(|e| fit_error(method, c, e))
-}
-
 /// An output file and whether it may replace an existing one (`--out`, `--force`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct OutputFile {
@@ -341,13 +300,13 @@ pub struct OutputFile {
 
 impl OutputFile {
     /// Refuses to write over an input, or over an existing file without `force`.
-    pub fn check(&self, inputs: &[&Path]) -> Result<(), Failure> {
+    pub fn check(&self, inputs: &[&Path]) -> std::result::Result<(), Failure> {
         check_output(&self.path, inputs, self.force)
     }
 }
 
 /// Refuses to write `out` over an input, or over an existing file without `force`.
-pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<(), Failure> {
+pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> std::result::Result<(), Failure> {
     let canonical = |p: &Path| std::fs::canonicalize(p).ok();
     if let Some(out_c) = canonical(out)
         && inputs.iter().any(|i| canonical(i).as_ref() == Some(&out_c))

@@ -12,15 +12,20 @@
 //!   leave-one-out, inverse consistency, folding, NCC/RMSE, an accuracy gate (exit 3), and the `--suite` grid.
 //! - [`field`]: `warpbench field`, the pull-back as a NIfTI displacement field (ITK/ANTs/Slicer convention) and,
 //!   for linear warps, an ITK `.tfm`.
-//! - [`inputs`]: loading the pair, reading and checking landmarks, fitting the warp (shared by the pair subcommands).
+//! - [`inputs`]: loading the pair, reading landmarks and checking them against the volumes (shared by the pair
+//!   subcommands).
+//! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
+//!   of them (control texture, TPS, B-spline lattice), for the subcommands, the window and the drag bench.
 //! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
 //! - [`gui`]: the workbench window (eframe): the deformed pair in a 3-D view and three slice views, the warp method
 //!   and view settings, the landmark table; the demo pair when no files are given.
-//! - [`exit`]: the exit-code convention shared by every subcommand.
+//! - [`exit`]: the exit-code convention shared by every subcommand; the shared modules (`inputs`, `scene`, `fit`)
+//!   return `anyhow` errors, which the subcommands classify.
 
 pub mod eval;
 pub mod exit;
 pub mod field;
+pub mod fit;
 pub mod gui;
 pub mod info;
 pub mod inputs;

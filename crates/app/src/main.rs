@@ -177,6 +177,7 @@ impl PairArgs {
     /// The landmark source, if any was given.
     fn source(&self) -> Result<Option<LandmarkSource>, Failure> {
         LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
+            .map_err(Failure::BadInput)
     }
 
     /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.

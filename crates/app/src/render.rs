@@ -18,12 +18,13 @@ use warpbench_gpu::{
     RenderSettings, RenderTarget, Shading, ShadingMode, SlicePlane, VolumeBudget, pair_glyphs,
 };
 use warpbench_io::Volume;
+use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
 use crate::inputs::{self, LandmarkSource, OutputFile};
-use crate::scene;
+use crate::{fit, scene};
 
 /// Which slice of the fixed grid `--slice` asks for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -191,24 +192,26 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     if opts.landmarks.is_some() && opts.moving.is_none() {
         return Err(Failure::BadInput(anyhow!("landmarks need a moving volume (--moving)")));
     }
-    let fixed = inputs::load_volume(&opts.fixed, opts.quiet)?;
-    let moving = opts.moving.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose()?;
+    let fixed = inputs::load_volume(&opts.fixed, opts.quiet).map_err(Failure::BadInput)?;
+    let moving =
+        opts.moving.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose().map_err(Failure::BadInput)?;
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
 
     // The warp and the glyphs, when there are landmarks.
-    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels)?;
-    let mut pullback: Option<Box<dyn Warp<Moving, Fixed>>> = None;
+    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels).map_err(Failure::BadInput)?;
+    let mut pullback: Option<FittedWarp<Moving, Fixed>> = None;
     let mut glyph_pairs = Vec::new();
     if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
-        let pairs = source.read()?;
-        let c = inputs::correspondences(source, &pairs, moving, &fixed, inputs::min_pairs(&method))?;
+        let pairs = source.read().map_err(Failure::BadInput)?;
+        let c = inputs::correspondences(source, &pairs, moving, &fixed, inputs::min_pairs(&method))
+            .map_err(Failure::BadInput)?;
         if !opts.quiet {
-            for w in inputs::fit_warnings(&method, &c) {
+            for w in fit::fit_warnings(&method, &c) {
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        pullback = Some(inputs::fit_pullback(&method, &c, fixed_box)?);
-        let forward = inputs::fit_forward(&method, &c, inputs::volume_box::<Moving>(moving))?;
+        pullback = Some(fit::pullback_of(&method, &c, fixed_box).map_err(Failure::BadInput)?);
+        let forward = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
         glyph_pairs = c
             .moving
             .iter()
@@ -228,8 +231,9 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         ShadingMode::None => None,
         _ => Some(PrefilterPass::new(&ctx).map_err(gpu_failure)?),
     };
-    let preset = opts.preset.as_deref().map(scene::preset_from_name).transpose()?;
-    let moving_preset = opts.moving_preset.as_deref().map(scene::preset_from_name).transpose()?;
+    let preset = opts.preset.as_deref().map(scene::preset_from_name).transpose().map_err(Failure::BadInput)?;
+    let moving_preset =
+        opts.moving_preset.as_deref().map(scene::preset_from_name).transpose().map_err(Failure::BadInput)?;
     let (fixed_layer, fixed_preset) = upload(&ctx, &fixed, preset, 0, prefilter.as_ref(), opts.quiet)?;
     let moving_layer = match &moving {
         Some(m) => Some(upload(&ctx, m, moving_preset, 1, prefilter.as_ref(), opts.quiet)?),
@@ -240,7 +244,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         GpuTransferFunctions::upload(&ctx, &[fixed_preset.transfer_function(), moving_preset.transfer_function()]);
     let control = match &pullback {
         Some(warp) => {
-            let (grid, texture) = scene::control_texture(warp.as_ref(), fixed_box, opts.grid)?;
+            let (grid, texture) = fit::control_texture(warp, fixed_box, opts.grid).map_err(Failure::BadInput)?;
             let desc = scene::control_desc(&grid, &texture);
             let prepared = PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).map_err(gpu_failure)?;
             Some(GpuControlTexture::upload(&ctx, &prepared))

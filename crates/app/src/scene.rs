@@ -1,41 +1,59 @@
-//! From loaded volumes and a fitted warp to what the renderer takes: plain volume data, transfer-function presets
-//! with windows chosen from the data, and the pull-back sampled into a control texture over the fixed volume's box.
-//! Shared by `warpbench render` and the app, so both show the same picture.
+//! From loaded volumes and a pull-back to what the renderer takes: plain volume data, transfer-function presets
+//! with windows chosen from the data, and a pull-back sampled into a control texture over the fixed volume's box.
+//! Shared by `warpbench render` and the app, so both show the same picture. (A fitted warp's own GPU forms, and its
+//! control texture through the B-spline's fast sampler, are [`crate::fit`]'s.)
+//!
+//! Errors are `anyhow` errors that name what is wrong; every one is about the input (the CLI exits with 2).
 
-use anyhow::anyhow;
-use warpbench_gpu::{ControlDesc, Preset, TpsDesc, VolumeDesc, VolumeSamples, Window};
+use anyhow::{Result, anyhow};
+use warpbench_gpu::export::ExportSamples;
+use warpbench_gpu::{ControlDesc, Preset, VolumeDesc, VolumeSamples, Window};
 use warpbench_io::Volume;
 use warpbench_io::volume::{Modality, VoxelData};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
-use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::Warp;
-
-use crate::exit::Failure;
 
 /// The renderer's view of a loaded volume (borrowed samples, its `lps_from_index`).
 #[must_use]
 pub fn volume_desc(v: &Volume) -> VolumeDesc<'_> {
-    let samples = match &v.data {
+    VolumeDesc { dims: v.dims, samples: volume_samples(&v.data), lps_from_index: v.lps_from_index.rows() }
+}
+
+/// A volume's samples, borrowed, as the renderer uploads them: the one conversion from io's [`VoxelData`].
+#[must_use]
+pub fn volume_samples(data: &VoxelData) -> VolumeSamples<'_> {
+    match data {
         VoxelData::U8(d) => VolumeSamples::U8(d),
         VoxelData::I16(d) => VolumeSamples::I16(d),
         VoxelData::U16(d) => VolumeSamples::U16(d),
         VoxelData::F32(d) => VolumeSamples::F32(d),
-    };
-    VolumeDesc { dims: v.dims, samples, lps_from_index: v.lps_from_index.rows() }
+    }
+}
+
+/// A volume's samples, borrowed, as the export resamples them: the one conversion from io's [`VoxelData`] to the
+/// export's source type.
+#[must_use]
+pub fn export_samples(data: &VoxelData) -> ExportSamples<'_> {
+    match data {
+        VoxelData::U8(d) => ExportSamples::U8(d),
+        VoxelData::I16(d) => ExportSamples::I16(d),
+        VoxelData::U16(d) => ExportSamples::U16(d),
+        VoxelData::F32(d) => ExportSamples::F32(d),
+    }
 }
 
 /// The preset names the CLI and the app accept.
 pub const PRESET_NAMES: [&str; 4] = ["ct-bone", "ct-soft-tissue", "mr-t1", "grey-ramp"];
 
 /// A preset by name ([`PRESET_NAMES`]).
-pub fn preset_from_name(name: &str) -> Result<Preset, Failure> {
+pub fn preset_from_name(name: &str) -> Result<Preset> {
     Preset::ALL
         .into_iter()
         .zip(PRESET_NAMES)
         .find(|(_, n)| *n == name)
         .map(|(p, _)| p)
-        .ok_or_else(|| Failure::BadInput(anyhow!("unknown preset {name:?}; use one of {}", PRESET_NAMES.join(", "))))
+        .ok_or_else(|| anyhow!("unknown preset {name:?}; use one of {}", PRESET_NAMES.join(", ")))
 }
 
 /// Whether `v` looks like a CT: DICOM says so, or its values reach into air (below −500, Hounsfield units).
@@ -77,24 +95,25 @@ pub fn auto_style(v: &Volume, preset: Option<Preset>) -> (Preset, Window) {
     (preset, Window::from_range(low as f32, high as f32))
 }
 
-/// The pull-back `moving_from_fixed` sampled into an n³ control texture whose texel centres span `fixed_box`
-/// (the ref box) edge to edge: the texture's own box is `fixed_box` grown by half a texel on every side. Trilinear
-/// lookups then interpolate between samples everywhere in `fixed_box` and never clamp there, so an affine pull-back
-/// is reproduced exactly and a smooth one to the interpolation error, up to the box's faces.
-pub fn control_texture(
-    moving_from_fixed: &dyn Warp<Moving, Fixed>,
+/// The pull-back `moving_from_fixed` sampled texel by texel into an n³ control texture whose texel centres span
+/// `fixed_box` (the ref box) edge to edge: the texture's own box is `fixed_box` grown by half a texel on every side.
+/// Trilinear lookups then interpolate between samples everywhere in `fixed_box` and never clamp there, so an affine
+/// pull-back is reproduced exactly and a smooth one to the interpolation error, up to the box's faces. A fitted
+/// pull-back goes through [`crate::fit::control_texture`], which samples a B-spline faster.
+pub fn control_texture<W: Warp<Moving, Fixed> + ?Sized>(
+    moving_from_fixed: &W,
     fixed_box: Aabb<Fixed>,
     n: usize,
-) -> Result<(ControlGrid, ControlTexture), Failure> {
+) -> Result<(ControlGrid, ControlTexture)> {
     let grid = control_grid(fixed_box, n)?;
     Ok((grid, ControlTexture::sample(moving_from_fixed, grid)))
 }
 
 /// The grid of [`control_texture`]: n³ texels over `fixed_box` grown by half a texel, so that the texel centres
 /// span the box edge to edge. The GPU evaluates the same grid ([`warpbench_gpu::ControlGridDesc`]).
-pub fn control_grid(fixed_box: Aabb<Fixed>, n: usize) -> Result<ControlGrid, Failure> {
+pub fn control_grid(fixed_box: Aabb<Fixed>, n: usize) -> Result<ControlGrid> {
     if n < 2 {
-        return Err(Failure::BadInput(anyhow!("control texture: {n} texels per axis; at least 2")));
+        return Err(anyhow!("control texture: {n} texels per axis; at least 2"));
     }
     let (lo, hi) = (fixed_box.min.coords(), fixed_box.max.coords());
     let half_texel: [f64; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / (2.0 * (n as f64 - 1.0)));
@@ -102,39 +121,7 @@ pub fn control_grid(fixed_box: Aabb<Fixed>, n: usize) -> Result<ControlGrid, Fai
         warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| lo[a] - half_texel[a])),
         warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| hi[a] + half_texel[a])),
     );
-    ControlGrid::cube(n, grown).map_err(|e| Failure::BadInput(anyhow!("control texture: {e}")))
-}
-
-/// A TPS pull-back as plain arrays, for the GPU crate (which does not depend on the solver).
-#[derive(Clone, Debug)]
-pub struct TpsParts {
-    centres: Vec<[f64; 3]>,
-    weights: Vec<[f64; 3]>,
-    linear: [[f64; 3]; 3],
-    translation: [f64; 3],
-}
-
-impl TpsParts {
-    #[must_use]
-    pub fn new(tps: &Tps<Moving, Fixed>) -> Self {
-        let a = tps.linear();
-        Self {
-            centres: tps.centres().iter().map(warpbench_io::geometry::Point3::coords).collect(),
-            weights: tps.weights(),
-            linear: std::array::from_fn(|r| std::array::from_fn(|c| a[(r, c)])),
-            translation: tps.translation(),
-        }
-    }
-
-    #[must_use]
-    pub fn desc(&self) -> TpsDesc<'_> {
-        TpsDesc {
-            centres_ref: &self.centres,
-            weights: &self.weights,
-            linear: self.linear,
-            translation: self.translation,
-        }
-    }
+    ControlGrid::cube(n, grown).map_err(|e| anyhow!("control texture: {e}"))
 }
 
 /// The renderer's view of a control texture (over its grid's box).

@@ -19,8 +19,8 @@ use std::time::Instant;
 use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_gpu::export::{
-    ExportPass, ExportRequest, ExportSamples, ExportedSamples, Interpolation, OutputType, Progress, PullBack,
-    SourceVolume, TargetGrid, export_cpu,
+    ExportPass, ExportRequest, ExportedSamples, Interpolation, OutputType, Progress, PullBack, SourceVolume,
+    TargetGrid, export_cpu,
 };
 use warpbench_gpu::{GpuContext, GpuError};
 use warpbench_io::dicom_source::DicomSource;
@@ -30,12 +30,11 @@ use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, nifti};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
-use warpbench_solver::method::Method;
-use warpbench_solver::spaces::{Fixed, Moving};
-use warpbench_solver::tps::Tps;
-use warpbench_solver::warp::Warp;
+use warpbench_solver::method::{FittedWarp, Method};
+use warpbench_solver::spaces::Fixed;
 
 use crate::exit::Failure;
+use crate::fit::{self, TpsParts};
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::scene;
 
@@ -112,15 +111,6 @@ pub struct WarpSeconds {
     pub total: f64,
 }
 
-fn export_samples(v: &Volume) -> ExportSamples<'_> {
-    match &v.data {
-        VoxelData::U8(d) => ExportSamples::U8(d),
-        VoxelData::I16(d) => ExportSamples::I16(d),
-        VoxelData::U16(d) => ExportSamples::U16(d),
-        VoxelData::F32(d) => ExportSamples::F32(d),
-    }
-}
-
 fn voxel_data(samples: ExportedSamples) -> Result<VoxelData, Failure> {
     Ok(match samples {
         ExportedSamples::U8(v) => VoxelData::U8(v),
@@ -129,21 +119,6 @@ fn voxel_data(samples: ExportedSamples) -> Result<VoxelData, Failure> {
         ExportedSamples::F32(v) => VoxelData::F32(v),
         other => return Err(Failure::Internal(anyhow!("export returned {:?} samples", other.sample_type()))),
     })
-}
-
-/// The pull-back as fitted.
-enum FittedPullBack {
-    Tps(Tps<Moving, Fixed>),
-    Other(Box<dyn Warp<Moving, Fixed>>),
-}
-
-impl FittedPullBack {
-    fn as_warp(&self) -> &dyn Warp<Moving, Fixed> {
-        match self {
-            Self::Tps(t) => t,
-            Self::Other(w) => w.as_ref(),
-        }
-    }
 }
 
 fn interpolation_name(i: Interpolation) -> &'static str {
@@ -187,7 +162,7 @@ pub struct Resampled {
     pub outside_value: f64,
     /// Why [`Backend::Auto`] resampled on the CPU, when a GPU was tried and not used (the CLI prints it as a note).
     pub cpu_fallback: Option<String>,
-    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`inputs::fit_warnings`]).
+    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`](crate::fit::fit_warnings)).
     pub warnings: Vec<String>,
     /// Wall-clock seconds of the fit (landmark checks, fit, control texture) and of the resampling.
     pub fit_seconds: f64,
@@ -276,7 +251,7 @@ pub fn write_outputs(
 
 /// The pull-back as the export takes it, owned.
 enum ExportPullBack {
-    Tps(scene::TpsParts),
+    Tps(TpsParts),
     Control(ControlGrid, ControlTexture),
 }
 
@@ -315,23 +290,19 @@ impl Fitted {
         let start = Instant::now();
         let method = settings.method;
         check_pullback_mode(&method, settings.pullback)?;
-        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(&method))?;
+        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(&method))
+            .map_err(Failure::BadInput)?;
         let target_box = inputs::volume_box::<Fixed>(grid);
-        let pullback = match method {
-            Method::Tps { stiffness } => FittedPullBack::Tps(
-                Tps::fit_smoothing(&c.fixed, &c.moving, stiffness).map_err(|e| inputs::fit_error(&method, &c, e))?,
-            ),
-            _ => FittedPullBack::Other(inputs::fit_pullback(&method, &c, target_box)?),
-        };
+        let pullback = fit::pullback_of(&method, &c, target_box).map_err(Failure::BadInput)?;
         let pullback = match (&pullback, settings.pullback) {
-            (FittedPullBack::Tps(t), PullBackMode::Exact) => ExportPullBack::Tps(scene::TpsParts::new(t)),
+            (FittedWarp::Tps(t), PullBackMode::Exact) => ExportPullBack::Tps(TpsParts::new(t)),
             (_, mode) => {
                 let grid_n = match mode {
                     PullBackMode::Grid(n) => n,
                     // Linear warps: trilinear interpolation of an affine map is exact, so 2³ texels suffice.
                     PullBackMode::Exact => 2,
                 };
-                let (grid, texture) = scene::control_texture(pullback.as_warp(), target_box, grid_n)?;
+                let (grid, texture) = fit::control_texture(&pullback, target_box, grid_n).map_err(Failure::BadInput)?;
                 ExportPullBack::Control(grid, texture)
             }
         };
@@ -344,7 +315,7 @@ impl Fitted {
             grid_lps_from_index: grid.lps_from_index,
             outside_value,
             fit_seconds: start.elapsed().as_secs_f64(),
-            warnings: inputs::fit_warnings(&method, &c),
+            warnings: fit::fit_warnings(&method, &c),
         })
     }
 
@@ -359,7 +330,7 @@ impl Fitted {
         let settings = &self.settings;
         let source = SourceVolume {
             dims: moving.dims,
-            samples: export_samples(moving),
+            samples: scene::export_samples(&moving.data),
             lps_from_index: moving.lps_from_index.rows(),
         };
         let request = ExportRequest {
@@ -420,7 +391,7 @@ impl Fitted {
 pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     opts.out.check(&opts.inputs.paths())?;
     check_outputs(&opts.out.path, opts.out_dicom.as_deref())?;
-    let method = opts.inputs.method()?;
+    let method = opts.inputs.method().map_err(Failure::BadInput)?;
     check_pullback_mode(&method, opts.pullback)?;
     let settings = WarpSettings {
         method,
@@ -435,9 +406,9 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     let start = Instant::now();
     let mut lap = Lap(start);
     let mut seconds = WarpSeconds::default();
-    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet)?;
+    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet).map_err(Failure::BadInput)?;
     seconds.load = lap.next();
-    let pairs = opts.inputs.landmarks.read()?;
+    let pairs = opts.inputs.landmarks.read().map_err(Failure::BadInput)?;
     // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
     // the output is allocated (peak memory: the moving volume and the output).
     let fitted = Fitted::new(reference.as_ref().unwrap_or(&fixed), &fixed, &moving, &pairs, &names, &settings)?;

@@ -25,7 +25,7 @@ use warpbench_io::itk_tfm;
 use warpbench_io::landmarks::read_bigwarp_csv;
 use warpbench_io::nifti::{DisplacementField, read_displacement_field};
 use warpbench_solver::linear::{self, LinearKind};
-use warpbench_solver::method::Method;
+use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::Warp;
 
@@ -46,11 +46,11 @@ fn read_points(csv: &Path) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
 }
 
 /// The pull-back u = moving_from_fixed fitted as the CLI fits it (over the fixed volume's box).
-fn pullback(method: &Method, csv: &Path) -> Box<dyn Warp<Moving, Fixed>> {
+fn pullback(method: &Method, csv: &Path) -> FittedWarp<Moving, Fixed> {
     let (moving, fixed) = read_points(csv);
     let volume = warpbench_io::open(fixture()).expect("fixture");
     let fixed_box = warpbench_app::inputs::volume_box::<Fixed>(&volume);
-    method.fit(&fixed, &moving, fixed_box).expect("fit")
+    warpbench_app::fit::pullback(method, &fixed, &moving, fixed_box).expect("fit")
 }
 
 fn voxel_lps(lps_from_index: &Transform<Lps, Index>, ijk: [usize; 3]) -> [f64; 3] {

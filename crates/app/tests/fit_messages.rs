@@ -12,6 +12,7 @@ use std::path::Path;
 use std::process::Output;
 
 use common::{mri, utf8, warpbench};
+use warpbench_app::fit;
 use warpbench_app::inputs::{self, LandmarkSource};
 use warpbench_io::landmarks::read_bigwarp_csv;
 use warpbench_solver::method::Method;
@@ -185,12 +186,12 @@ fn a_repeated_pair_and_a_nearly_flat_set_give_warnings_naming_the_file_and_pairs
     for method in METHODS {
         let method = Method::from_name(method).expect("method");
         let c = inputs::correspondences(&source, &pairs, &volume, &volume, inputs::min_pairs(&method)).expect("pairs");
-        let warnings = inputs::fit_warnings(&method, &c);
+        let warnings = fit::fit_warnings(&method, &c);
         assert_eq!(warnings.len(), 1, "{method}: {warnings:?}");
         assert!(warnings[0].starts_with(utf8(&csv)), "{method}: {warnings:?}");
         assert!(warnings[0].contains("landmarks 5 and 8 are the same pair"), "{method}: {warnings:?}");
         // It still fits, counting the pair once.
-        assert!(inputs::fit_pullback(&method, &c, inputs::volume_box(&volume)).is_ok(), "{method}");
+        assert!(fit::pullback_of(&method, &c, inputs::volume_box(&volume)).is_ok(), "{method}");
     }
 
     // 0.2 mm thick over 80 mm: it fits, with a warning naming the side.
@@ -206,7 +207,7 @@ fn a_repeated_pair_and_a_nearly_flat_set_give_warnings_naming_the_file_and_pairs
     let pairs = read_bigwarp_csv(&thin).expect("read");
     let method = Method::from_name("tps").expect("tps");
     let c = inputs::correspondences(&source, &pairs, &volume, &volume, 4).expect("pairs");
-    let warnings = inputs::fit_warnings(&method, &c);
+    let warnings = fit::fit_warnings(&method, &c);
     assert!(
         warnings.iter().any(|w| w.contains("the fixed points are nearly coplanar"))
             && warnings.iter().any(|w| w.contains("the moving points are nearly coplanar")),

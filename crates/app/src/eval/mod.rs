@@ -51,7 +51,7 @@ use warpbench_gpu::export::{ExportRequest, ExportSamples, OutputType, PullBack, 
 use warpbench_gpu::{ControlDesc, ExportedSamples};
 use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
-use warpbench_io::volume::VoxelData;
+use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::diagnostics::{ErrorStats, jacobian_determinants};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -61,8 +61,7 @@ use warpbench_solver::warp::{Parallelism, Warp};
 pub use report::{EvalReport, SUITE_BEGIN, SUITE_END, SuiteReport};
 
 use crate::exit::Failure;
-use crate::inputs;
-use crate::scene;
+use crate::{fit, inputs, scene};
 use sampling::SplitMix64;
 
 /// The fewest held-out points (the default too).
@@ -312,7 +311,8 @@ impl Plan {
         let methods = methods
             .iter()
             .map(|m| inputs::method_from_args(m, opts.stiffness, opts.levels))
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(Failure::BadInput)?;
         for &n in &counts {
             for m in &methods {
                 let needed = inputs::min_pairs(m) + 1;
@@ -365,7 +365,7 @@ struct Subject {
 
 impl Subject {
     fn load(path: &Path, quiet: bool) -> Result<Self, Failure> {
-        let volume = inputs::load_volume(path, quiet)?;
+        let volume = inputs::load_volume(path, quiet).map_err(Failure::BadInput)?;
         let values = volume.data.to_f32();
         let threshold = sampling::otsu_threshold(&values).ok_or_else(|| {
             bad(format!("{}: the volume has fewer than two distinct values, so no foreground", path.display()))
@@ -402,15 +402,6 @@ impl Subject {
             threshold: self.threshold,
             foreground_voxels: self.foreground.len(),
             foreground_percent: 100.0 * self.foreground.len() as f64 / self.values.len().max(1) as f64,
-        }
-    }
-
-    fn export_samples(&self) -> ExportSamples<'_> {
-        match &self.volume.data {
-            VoxelData::U8(d) => ExportSamples::U8(d),
-            VoxelData::I16(d) => ExportSamples::I16(d),
-            VoxelData::U16(d) => ExportSamples::U16(d),
-            VoxelData::F32(d) => ExportSamples::F32(d),
         }
     }
 
@@ -451,15 +442,10 @@ impl Subject {
         report::Agreement { ncc, rmse: (se / n).sqrt() }
     }
 
-    /// The pull-back `moving_from_fixed` through a `grid`³ control texture over Ω, applied to the moving volume.
-    fn recover(
-        &self,
-        moving: &[f32],
-        moving_from_fixed: &dyn Warp<Moving, Fixed>,
-        grid: usize,
-    ) -> Result<Vec<f32>, Failure> {
-        let (control_grid, texture) = scene::control_texture(moving_from_fixed, self.box_fixed, grid)?;
-        self.export(ExportSamples::F32(moving), scene::control_desc(&control_grid, &texture))
+    /// A pull-back through `control`, its control texture over Ω (made by [`scene::control_texture`], or by
+    /// [`fit::control_texture`] for a fitted one), applied to the moving volume.
+    fn recover(&self, moving: &[f32], (grid, texture): &(ControlGrid, ControlTexture)) -> Result<Vec<f32>, Failure> {
+        self.export(ExportSamples::F32(moving), scene::control_desc(grid, texture))
     }
 }
 
@@ -491,7 +477,7 @@ impl Truth {
             box_min_ref: subject.box_fixed.min.coords(),
             box_max_ref: subject.box_fixed.max.coords(),
         };
-        let moving = subject.export(subject.export_samples(), control)?;
+        let moving = subject.export(scene::export_samples(&subject.volume.data), control)?;
         drop(texels);
         let moving_foreground = sampling::foreground(&moving, subject.threshold);
 
@@ -519,7 +505,9 @@ impl Truth {
             u_true.push(Point3::from_array(inverse.point));
         }
         let before = subject.agreement(&moving);
-        let ideal = subject.agreement(&subject.recover(&moving, &warp.pullback(), opts.grid)?);
+        let control =
+            scene::control_texture(&warp.pullback(), subject.box_fixed, opts.grid).map_err(Failure::BadInput)?;
+        let ideal = subject.agreement(&subject.recover(&moving, &control)?);
         Ok(Self { warp, moving, moving_foreground, x_fixed, u_true, before, ideal })
     }
 
@@ -602,10 +590,10 @@ fn evaluate(
     let (box_fixed, box_moving) = (subject.box_fixed, subject.box_moving());
     stage(STAGES[0]);
     let moving_from_fixed =
-        method.fit(&pairs.q_fixed, &pairs.p_moving, box_fixed).map_err(|e| fit_error("pull-back", e))?;
+        fit::pullback(method, &pairs.q_fixed, &pairs.p_moving, box_fixed).map_err(|e| fit_error("pull-back", e))?;
     stage(STAGES[1]);
     let fixed_from_moving =
-        method.fit(&pairs.p_moving, &pairs.q_fixed, box_moving).map_err(|e| fit_error("forward warp", e))?;
+        fit::forward(method, &pairs.q_fixed, &pairs.p_moving, box_moving).map_err(|e| fit_error("forward warp", e))?;
 
     stage(STAGES[2]);
     let tre: Vec<f64> =
@@ -622,10 +610,11 @@ fn evaluate(
     stage(STAGES[4]);
     let fg = subject.foreground_box;
     let jacobian_dims = fg.size().map(|s| ((s / JACOBIAN_CELL_MM).ceil() as usize).clamp(1, JACOBIAN_MAX_CELLS));
-    let jacobian = jacobian_determinants(moving_from_fixed.as_ref(), &fg, jacobian_dims, Parallelism::Rayon);
+    let jacobian = jacobian_determinants(&moving_from_fixed, &fg, jacobian_dims, Parallelism::Rayon);
 
     stage(STAGES[5]);
-    let recovered = subject.recover(&truth.moving, moving_from_fixed.as_ref(), opts.grid)?;
+    let control = fit::control_texture(&moving_from_fixed, box_fixed, opts.grid).map_err(Failure::BadInput)?;
+    let recovered = subject.recover(&truth.moving, &control)?;
     let after = subject.agreement(&recovered);
 
     Ok(EvalReport {

@@ -26,19 +26,16 @@ use eframe::egui;
 use warpbench_gpu::PickTarget;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
-    GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, PreparedControl, Projection, Quality, SlicePlane, pair_glyphs,
+    GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, Projection, Quality, SlicePlane, pair_glyphs,
 };
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::diagnostics::{jacobian_determinants, residuals};
-use warpbench_solver::method::Method;
-use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
-use warpbench_solver::tps::Tps;
+use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::{Parallelism, Warp};
 
 use crate::inputs::{self, LandmarkSource};
-use crate::scene;
 use history::{History, LayerLook, Snapshot, VolumeRef};
 use pacing::{Refine, interactive_size};
 use panels::ViewSettings;
@@ -121,7 +118,7 @@ pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>) -> anyhow::Result<Loade
             let fixed = read(f)?;
             let moving = read(m)?;
             let pairs = match &opts.landmarks {
-                Some(source) => source.read().map_err(|e| anyhow!("{:#}", e.error()))?,
+                Some(source) => source.read().map_err(|e| anyhow!("{e:#}"))?,
                 None => Vec::new(),
             };
             Ok(Loaded {
@@ -149,98 +146,7 @@ pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>) -> anyhow::Result<Loade
     }
 }
 
-/// The warp fitted on the active pairs: the pull-back the renderer uses and the forward map that places the moving
-/// glyphs.
-pub struct Fitted {
-    /// u = moving_from_fixed: where a point of the deformed view comes from in the moving volume.
-    pub pullback: Box<dyn Warp<Moving, Fixed>>,
-    pub forward: Box<dyn Warp<Fixed, Moving>>,
-    pub pairs: usize,
-}
-
-/// What one landmark change costs before the frame: the pull-back and the forward warp fitted on the pairs
-/// (`fixed[i]` ↔ `moving[i]`), and the pull-back sampled into a `grid_n`³ control texture over the fixed box, ready to
-/// upload. The window runs this on every drag event; `benches/drag.rs` times it with the frame.
-///
-/// # Errors
-/// Too few pairs for the method, a fit that fails (degenerate pairs), or a control texture that cannot be made.
-pub fn fit_warp(
-    method: &Method,
-    fixed: &[Point3<Fixed>],
-    moving: &[Point3<Moving>],
-    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
-    grid_n: usize,
-    float32_filterable: bool,
-) -> anyhow::Result<(Fitted, PreparedControl)> {
-    enough_pairs(method, moving.len())?;
-    let pullback = method.fit(fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
-    let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
-    let (grid, texture) =
-        scene::control_texture(pullback.as_ref(), fixed_box, grid_n).map_err(|e| anyhow!("{:#}", e.error()))?;
-    let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
-        .map_err(|e| anyhow!("{e}"))?;
-    Ok((Fitted { pullback, forward, pairs: moving.len() }, prepared))
-}
-
-fn enough_pairs(method: &Method, pairs: usize) -> anyhow::Result<()> {
-    let need = inputs::min_pairs(method);
-    if pairs < need {
-        return Err(anyhow!("{pairs} active pairs; {method} needs {need}"));
-    }
-    Ok(())
-}
-
-/// Whether [`fit_warp_on_gpu`] can evaluate `method`'s control texture on the GPU: a TPS or a hierarchical B-spline.
-#[must_use]
-pub fn gpu_evaluates(method: &Method) -> bool {
-    matches!(method, Method::Tps { .. } | Method::BSpline(_))
-}
-
-/// [`fit_warp`] with the control texture evaluated on the GPU ([`warpbench_gpu::ControlEvalPass`], into `viewer`'s
-/// texture) instead of sampled on the CPU and uploaded: the same grid, the same function (a TPS evaluated in f32
-/// about the box's centre, or the B-spline's refined lattice).
-///
-/// # Errors
-/// Not a TPS or a hierarchical B-spline, too few pairs, a fit that fails, or the GPU pass failing.
-pub fn fit_warp_on_gpu(
-    method: &Method,
-    fixed: &[Point3<Fixed>],
-    moving: &[Point3<Moving>],
-    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
-    grid_n: usize,
-    viewer: &mut Viewer,
-) -> anyhow::Result<Fitted> {
-    if !gpu_evaluates(method) {
-        return Err(anyhow!("the GPU evaluates TPS and B-spline control textures only, not {method}"));
-    }
-    enough_pairs(method, moving.len())?;
-    let grid = scene::control_grid(fixed_box, grid_n).map_err(|e| anyhow!("{:#}", e.error()))?;
-    let desc = warpbench_gpu::ControlGridDesc {
-        dims: grid.dims,
-        box_min_ref: grid.domain.min.coords(),
-        box_max_ref: grid.domain.max.coords(),
-    };
-    let forward = method.fit(moving, fixed, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
-    let pullback: Box<dyn Warp<Moving, Fixed>> = if let Method::Tps { stiffness } = *method {
-        let tps: Tps<Moving, Fixed> =
-            Tps::fit_smoothing(fixed, moving, stiffness).map_err(|e| anyhow!("{method}: {e}"))?;
-        viewer.evaluate_control_tps(&scene::TpsParts::new(&tps).desc(), &desc)?;
-        Box::new(tps)
-    } else {
-        let pullback = method.fit(fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
-        let spline = pullback.as_hierarchical_bspline().context("the B-spline fit gave another warp")?;
-        let l = spline.lattice();
-        let lattice = warpbench_gpu::LatticeDesc {
-            cells: l.cells(),
-            min_mm: l.min_mm(),
-            max_mm: l.max_mm(),
-            coefficients: l.coefficients(),
-        };
-        viewer.evaluate_control_bspline(&warpbench_gpu::BSplineDesc { lattices: &[lattice] }, &desc)?;
-        pullback
-    };
-    Ok(Fitted { pullback, forward, pairs: moving.len() })
-}
+pub use crate::fit::{Fitted, fit_warp, fit_warp_on_gpu, gpu_evaluates};
 
 /// Where the window makes the control texture after a fit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -297,12 +203,6 @@ const GRAB_RADIUS: f32 = 8.0;
 
 /// How far (mm) from a slice plane a landmark is still drawn on, and grabbed from, that slice.
 const SLICE_SLAB_MM: f64 = 3.0;
-
-impl std::fmt::Debug for Fitted {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Fitted").field("pairs", &self.pairs).finish_non_exhaustive()
-    }
-}
 
 /// The window's state once the pair is on the GPU.
 #[derive(Debug)]
