@@ -61,6 +61,7 @@ use dicom_object::{FileMetaTableBuilder, InMemDicomObject};
 use crate::dicom_source::{self, DicomSource};
 use crate::error::{Error, Result};
 use crate::geometry::{Point3, direction_cosines, spacing_mm};
+use crate::sample::{self, Stored, StoredType};
 use crate::volume::{Modality, Volume, VoxelData};
 
 /// What to put in the written series besides the voxels and the geometry.
@@ -94,14 +95,6 @@ impl Default for DicomSeriesOptions {
             source: None,
         }
     }
-}
-
-/// The stored pixel representation chosen for a volume.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Stored {
-    U8,
-    U16,
-    I16,
 }
 
 /// A new globally unique UID under the `2.25` (UUID-derived) root.
@@ -141,7 +134,7 @@ fn ds_multi(xs: &[f64]) -> String {
     xs.iter().map(|&x| ds(x)).collect::<Vec<_>>().join("\\")
 }
 
-fn choose_stored(path: &Path, v: &Volume, intercept: f64) -> Result<Stored> {
+fn choose_stored(path: &Path, v: &Volume, intercept: f64) -> Result<StoredType> {
     if intercept.fract() != 0.0 || !intercept.is_finite() {
         return Err(Error::invalid(path, format!("the rescale intercept must be an integer, not {intercept}")));
     }
@@ -153,11 +146,11 @@ fn choose_stored(path: &Path, v: &Volume, intercept: f64) -> Result<Stored> {
         (VoxelData::F32(_), _) => {
             Err(Error::unsupported(path, "writing f32 volumes as DICOM; convert to an integer sample type first"))
         }
-        (VoxelData::U8(_), true) => Ok(Stored::U8),
-        (VoxelData::U16(_), true) => Ok(Stored::U16),
-        (VoxelData::I16(_), true) => Ok(Stored::I16),
-        _ if lo >= 0.0 && hi <= f64::from(u16::MAX) => Ok(Stored::U16),
-        _ if lo >= f64::from(i16::MIN) && hi <= f64::from(i16::MAX) => Ok(Stored::I16),
+        (VoxelData::U8(_), true) => Ok(StoredType::U8),
+        (VoxelData::U16(_), true) => Ok(StoredType::U16),
+        (VoxelData::I16(_), true) => Ok(StoredType::I16),
+        _ if lo >= 0.0 && hi <= f64::from(u16::MAX) => Ok(StoredType::U16),
+        _ if lo >= f64::from(i16::MIN) && hi <= f64::from(i16::MAX) => Ok(StoredType::I16),
         _ => {
             Err(Error::invalid(path, format!("values {lo}..{hi} minus intercept {intercept} fit neither u16 nor i16")))
         }
@@ -212,7 +205,7 @@ impl Iod {
 /// How the samples are stored: the type and the RescaleIntercept (slope 1).
 #[derive(Clone, Copy, Debug)]
 struct Layout {
-    stored: Stored,
+    stored: StoredType,
     intercept: f64,
 }
 
@@ -222,19 +215,19 @@ impl Layout {
         let intercept = if iod == Iod::Mr { 0.0 } else { intercept };
         match choose_stored(path, v, intercept)? {
             // The CT and MR Image IODs store 16 bits; only Secondary Capture has a byte form.
-            Stored::U8 if iod != Iod::MultiFrameSc => Ok(Self { stored: Stored::U16, intercept }),
+            StoredType::U8 if iod != Iod::MultiFrameSc => Ok(Self { stored: StoredType::U16, intercept }),
             // Multi-frame Grayscale Word SC stores unsigned samples: shift them by the smallest value,
             // which the RescaleIntercept adds back (the i16 range spans at most 65535).
-            Stored::I16 if iod == Iod::MultiFrameSc => {
+            StoredType::I16 if iod == Iod::MultiFrameSc => {
                 let lo = v.data.finite_range().map_or(0.0, |(lo, _)| lo);
-                Ok(Self { stored: Stored::U16, intercept: intercept + (lo - intercept).floor() })
+                Ok(Self { stored: StoredType::U16, intercept: intercept + (lo - intercept).floor() })
             }
             stored => Ok(Self { stored, intercept }),
         }
     }
 
     const fn bits(self) -> u16 {
-        if matches!(self.stored, Stored::U8) { 8 } else { 16 }
+        if matches!(self.stored, StoredType::U8) { 8 } else { 16 }
     }
 }
 
@@ -383,7 +376,7 @@ impl Plan {
         let sop_class = match (iod, layout.stored) {
             (Iod::Ct, _) => uids::CT_IMAGE_STORAGE,
             (Iod::Mr, _) => uids::MR_IMAGE_STORAGE,
-            (Iod::MultiFrameSc, Stored::U8) => uids::MULTI_FRAME_GRAYSCALE_BYTE_SECONDARY_CAPTURE_IMAGE_STORAGE,
+            (Iod::MultiFrameSc, StoredType::U8) => uids::MULTI_FRAME_GRAYSCALE_BYTE_SECONDARY_CAPTURE_IMAGE_STORAGE,
             (Iod::MultiFrameSc, _) => uids::MULTI_FRAME_GRAYSCALE_WORD_SECONDARY_CAPTURE_IMAGE_STORAGE,
         };
         // SOP Common.
@@ -501,7 +494,7 @@ impl Plan {
         obj.put(us_el(tags::BITS_ALLOCATED, bits));
         obj.put(us_el(tags::BITS_STORED, bits));
         obj.put(us_el(tags::HIGH_BIT, bits - 1));
-        obj.put(us_el(tags::PIXEL_REPRESENTATION, u16::from(layout.stored == Stored::I16)));
+        obj.put(us_el(tags::PIXEL_REPRESENTATION, u16::from(layout.stored == StoredType::I16)));
 
         let iop = [row[0], row[1], row[2], col[0], col[1], col[2]];
         let pixel_spacing = ds_multi(&[spacing[1], spacing[0]]);
@@ -648,25 +641,15 @@ impl Plan {
     }
 }
 
-/// Appends slice `k` of `volume`, stored as `layout` says, little-endian.
+/// Appends slice `k` of `volume`, stored as `layout` says (the value minus the intercept), little-endian.
 fn push_slice(pixels: &mut Vec<u8>, volume: &Volume, k: usize, layout: Layout) {
     let slice_len = volume.dims[0] * volume.dims[1];
-    let range = k * slice_len..(k + 1) * slice_len;
     let shift = layout.intercept;
-    match (&volume.data, layout.stored) {
-        (VoxelData::U8(v), Stored::U8) => pixels.extend_from_slice(&v[range]),
-        (data, Stored::U16) => {
-            for i in range {
-                pixels.extend_from_slice(&((data.get_f64(i) - shift) as u16).to_le_bytes());
-            }
+    sample::with_stored_type!(layout.stored, T => {
+        for i in k * slice_len..(k + 1) * slice_len {
+            T::from_f64(volume.data.get_f64(i) - shift).put_le(pixels);
         }
-        (data, Stored::I16) => {
-            for i in range {
-                pixels.extend_from_slice(&((data.get_f64(i) - shift) as i16).to_le_bytes());
-            }
-        }
-        (_, Stored::U8) => unreachable!("u8 storage is chosen only for u8 volumes"),
-    }
+    });
 }
 
 #[cfg(test)]

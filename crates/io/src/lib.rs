@@ -25,6 +25,7 @@ pub mod landmarks;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
+pub mod sample;
 pub mod series;
 pub mod volume;
 

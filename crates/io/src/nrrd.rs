@@ -61,7 +61,8 @@ use nalgebra::Matrix3;
 use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::options::LoadOptions;
-use crate::volume::{GeometrySource, Metadata, SampleType, Volume, VoxelData, check_allocation, try_with_capacity};
+use crate::sample::{self, StoredType};
+use crate::volume::{GeometrySource, Metadata, SampleType, Volume, VoxelData, check_allocation};
 
 /// Longest header accepted, in bytes, up to and including the blank line that ends it.
 pub const MAX_HEADER_BYTES: u64 = 1 << 20;
@@ -163,83 +164,36 @@ fn header_text(volume: &Volume, options: NrrdWriteOptions) -> String {
     h
 }
 
-/// Writes the samples little-endian, a chunk at a time (no full-size byte copy).
+/// Writes the samples little-endian, a bounded chunk at a time (no full-size byte copy).
 fn write_samples(w: &mut dyn Write, data: &VoxelData) -> io::Result<()> {
-    fn put<T: Copy, const N: usize>(w: &mut dyn Write, v: &[T], le: impl Fn(T) -> [u8; N]) -> io::Result<()> {
-        let mut buf = Vec::with_capacity(CHUNK_BYTES);
-        for chunk in v.chunks(CHUNK_BYTES / N) {
-            buf.clear();
-            buf.extend(chunk.iter().flat_map(|&x| le(x)));
-            w.write_all(&buf)?;
-        }
-        Ok(())
-    }
-    match data {
-        VoxelData::U8(v) => w.write_all(v),
-        VoxelData::I16(v) => put(w, v, i16::to_le_bytes),
-        VoxelData::U16(v) => put(w, v, u16::to_le_bytes),
-        VoxelData::F32(v) => put(w, v, f32::to_le_bytes),
-    }
+    data.try_for_each_le_chunk(|b| w.write_all(b))
 }
 
 // ---------------------------------------------------------------------------------------------
 // Header
 
-/// A stored NRRD sample type.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Stored {
-    I8,
-    U8,
-    I16,
-    U16,
-    I32,
-    U32,
-    I64,
-    U64,
-    F32,
-    F64,
-}
-
-impl Stored {
-    fn parse(s: &str) -> Option<Self> {
-        let s = s.split_whitespace().collect::<Vec<_>>().join(" ").to_ascii_lowercase();
-        Some(match s.as_str() {
-            "signed char" | "int8" | "int8_t" => Self::I8,
-            "uchar" | "unsigned char" | "uint8" | "uint8_t" => Self::U8,
-            "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => Self::I16,
-            "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => Self::U16,
-            "int" | "signed int" | "int32" | "int32_t" => Self::I32,
-            "uint" | "unsigned int" | "uint32" | "uint32_t" => Self::U32,
-            "longlong"
-            | "long long"
-            | "long long int"
-            | "signed long long"
-            | "signed long long int"
-            | "int64"
-            | "int64_t" => Self::I64,
-            "ulonglong" | "unsigned long long" | "unsigned long long int" | "uint64" | "uint64_t" => Self::U64,
-            "float" => Self::F32,
-            "double" => Self::F64,
-            _ => return None,
-        })
-    }
-    const fn bytes(self) -> usize {
-        match self {
-            Self::I8 | Self::U8 => 1,
-            Self::I16 | Self::U16 => 2,
-            Self::I32 | Self::U32 | Self::F32 => 4,
-            Self::I64 | Self::U64 | Self::F64 => 8,
-        }
-    }
-    /// The sample type after the manifest's rules (no rescale in NRRD).
-    const fn output(self) -> SampleType {
-        match self {
-            Self::U8 => SampleType::U8,
-            Self::I8 | Self::I16 => SampleType::I16,
-            Self::U16 => SampleType::U16,
-            _ => SampleType::F32,
-        }
-    }
+/// The stored type a NRRD `type` field names (any of teem's spellings, case and spacing ignored).
+fn parse_type(s: &str) -> Option<StoredType> {
+    let s = s.split_whitespace().collect::<Vec<_>>().join(" ").to_ascii_lowercase();
+    Some(match s.as_str() {
+        "signed char" | "int8" | "int8_t" => StoredType::I8,
+        "uchar" | "unsigned char" | "uint8" | "uint8_t" => StoredType::U8,
+        "short" | "short int" | "signed short" | "signed short int" | "int16" | "int16_t" => StoredType::I16,
+        "ushort" | "unsigned short" | "unsigned short int" | "uint16" | "uint16_t" => StoredType::U16,
+        "int" | "signed int" | "int32" | "int32_t" => StoredType::I32,
+        "uint" | "unsigned int" | "uint32" | "uint32_t" => StoredType::U32,
+        "longlong"
+        | "long long"
+        | "long long int"
+        | "signed long long"
+        | "signed long long int"
+        | "int64"
+        | "int64_t" => StoredType::I64,
+        "ulonglong" | "unsigned long long" | "unsigned long long int" | "uint64" | "uint64_t" => StoredType::U64,
+        "float" => StoredType::F32,
+        "double" => StoredType::F64,
+        _ => return None,
+    })
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -272,7 +226,7 @@ impl SpaceKind {
 
 #[derive(Debug)]
 struct Header {
-    stored: Stored,
+    stored: StoredType,
     sizes: Vec<usize>,
     big_endian: bool,
     encoding: Encoding,
@@ -387,7 +341,7 @@ fn parse_header(name: &Path, lines: &[String]) -> Result<Header> {
     let mut warnings = Vec::new();
 
     let type_s = get("type").ok_or_else(|| Error::invalid(name, "the header has no \"type\" field"))?;
-    let stored = match Stored::parse(type_s) {
+    let stored = match parse_type(type_s) {
         Some(t) => t,
         None if type_s.eq_ignore_ascii_case("block") => {
             return Err(Error::unsupported(name, "NRRD type \"block\" is not a sample type we can show"));
@@ -739,7 +693,7 @@ fn read_from<R: BufRead>(
     let (lines, header_bytes) = read_header_lines(name, &mut r)?;
     let mut h = parse_header(name, &lines)?;
     let g = geometry(name, &mut h)?;
-    let out_type = h.stored.output();
+    let out_type = h.stored.unscaled();
     preflight_size(name, g.dims, out_type.bytes(), opts.max_voxel_bytes)?;
     let n = check_allocation(name, g.dims, out_type.bytes(), opts.max_voxel_bytes)?;
     let need = (n as u64).checked_mul(h.stored.bytes() as u64).ok_or_else(|| {
@@ -900,7 +854,7 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
     let size = h.stored.bytes();
     let total = (n * size) as u64;
     let big = h.big_endian;
-    let mut out = Sink::new(path, h.stored.output(), n)?;
+    let mut out = output_buffer(path, h.stored.unscaled(), n)?;
     let mut buf = vec![0u8; CHUNK_BYTES.min(n * size)];
     let mut done = 0usize;
     opts.report(path, "reading", 0, total)?;
@@ -912,93 +866,43 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
             let have = done as u64 * size as u64 + got as u64;
             return Err(Error::truncated(path, format!("the data end after {have} of {total} bytes")));
         }
-        out.push_bytes(h.stored, big, bytes);
+        sample::with_stored_type!(h.stored, T => out.extend_from(sample::decode::<T>(bytes, big)));
         done += count;
         opts.report(path, "reading", (done * size) as u64, total)?;
     }
-    Ok(out.finish())
+    Ok(out)
 }
 
-/// Collects converted samples into the output type.
-enum Sink {
-    U8(Vec<u8>),
-    I16(Vec<i16>),
-    U16(Vec<u16>),
-    F32(Vec<f32>),
+/// Room for `n` samples of `t`, allocated fallibly (an error naming `path`, never an abort).
+fn output_buffer(path: &Path, t: SampleType, n: usize) -> Result<VoxelData> {
+    VoxelData::try_empty(path, t, n, &format!("{n} samples of {}", t.name()))
 }
 
-macro_rules! from_bytes {
-    ($t:ty, $big:expr, $b:expr) => {{
-        let a = $b.try_into().unwrap_or_default();
-        if $big { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }
-    }};
-}
-
-impl Sink {
-    /// Room for `n` samples of `t`, allocated fallibly (an error naming `path`, never an abort).
-    fn new(path: &Path, t: SampleType, n: usize) -> Result<Self> {
-        let what = format!("{n} samples of {}", t.name());
-        Ok(match t {
-            SampleType::U8 => Self::U8(try_with_capacity(path, n, &what)?),
-            SampleType::I16 => Self::I16(try_with_capacity(path, n, &what)?),
-            SampleType::U16 => Self::U16(try_with_capacity(path, n, &what)?),
-            SampleType::F32 => Self::F32(try_with_capacity(path, n, &what)?),
-        })
+/// Pushes one ASCII token onto `out`; `None` when it is not a value of the stored type.
+fn push_text(out: &mut VoxelData, stored: StoredType, t: &str) -> Option<()> {
+    match (out, stored) {
+        (VoxelData::U8(v), _) => v.push(t.parse().ok()?),
+        (VoxelData::I16(v), StoredType::I8) => v.push(i16::from(t.parse::<i8>().ok()?)),
+        (VoxelData::I16(v), _) => v.push(t.parse().ok()?),
+        (VoxelData::U16(v), _) => v.push(t.parse().ok()?),
+        (VoxelData::F32(v), StoredType::F32) => v.push(t.parse().ok()?),
+        (VoxelData::F32(v), StoredType::I32 | StoredType::I64) => v.push(t.parse::<i64>().ok()? as f32),
+        (VoxelData::F32(v), StoredType::U32 | StoredType::U64) => v.push(t.parse::<u64>().ok()? as f32),
+        (VoxelData::F32(v), _) => v.push(t.parse::<f64>().ok()? as f32),
     }
-
-    fn push_bytes(&mut self, stored: Stored, big: bool, bytes: &[u8]) {
-        let size = stored.bytes();
-        let it = bytes.chunks_exact(size);
-        match (self, stored) {
-            (Self::U8(v), Stored::U8) => v.extend_from_slice(bytes),
-            (Self::I16(v), Stored::I8) => v.extend(bytes.iter().map(|&b| i16::from(b as i8))),
-            (Self::I16(v), Stored::I16) => v.extend(it.map(|b| from_bytes!(i16, big, b))),
-            (Self::U16(v), Stored::U16) => v.extend(it.map(|b| from_bytes!(u16, big, b))),
-            (Self::F32(v), Stored::F32) => v.extend(it.map(|b| from_bytes!(f32, big, b))),
-            (Self::F32(v), Stored::F64) => v.extend(it.map(|b| from_bytes!(f64, big, b) as f32)),
-            (Self::F32(v), Stored::I32) => v.extend(it.map(|b| from_bytes!(i32, big, b) as f32)),
-            (Self::F32(v), Stored::U32) => v.extend(it.map(|b| from_bytes!(u32, big, b) as f32)),
-            (Self::F32(v), Stored::I64) => v.extend(it.map(|b| from_bytes!(i64, big, b) as f32)),
-            (Self::F32(v), Stored::U64) => v.extend(it.map(|b| from_bytes!(u64, big, b) as f32)),
-            _ => unreachable!("Stored::output picks the sink"),
-        }
-    }
-
-    /// Pushes one ASCII token; `None` when it is not a value of the stored type.
-    fn push_text(&mut self, stored: Stored, t: &str) -> Option<()> {
-        match (self, stored) {
-            (Self::U8(v), _) => v.push(t.parse().ok()?),
-            (Self::I16(v), Stored::I8) => v.push(i16::from(t.parse::<i8>().ok()?)),
-            (Self::I16(v), _) => v.push(t.parse().ok()?),
-            (Self::U16(v), _) => v.push(t.parse().ok()?),
-            (Self::F32(v), Stored::F32) => v.push(t.parse().ok()?),
-            (Self::F32(v), Stored::I32 | Stored::I64) => v.push(t.parse::<i64>().ok()? as f32),
-            (Self::F32(v), Stored::U32 | Stored::U64) => v.push(t.parse::<u64>().ok()? as f32),
-            (Self::F32(v), _) => v.push(t.parse::<f64>().ok()? as f32),
-        }
-        Some(())
-    }
-
-    fn finish(self) -> VoxelData {
-        match self {
-            Self::U8(v) => VoxelData::U8(v),
-            Self::I16(v) => VoxelData::I16(v),
-            Self::U16(v) => VoxelData::U16(v),
-            Self::F32(v) => VoxelData::F32(v),
-        }
-    }
+    Some(())
 }
 
 /// Whitespace- (or comma-) separated numbers.
 fn decode_ascii(
     path: &Path,
     r: &mut impl BufRead,
-    stored: Stored,
+    stored: StoredType,
     n: usize,
     opts: &mut LoadOptions,
 ) -> Result<VoxelData> {
     const MAX_TOKEN: usize = 64;
-    let mut out = Sink::new(path, stored.output(), n)?;
+    let mut out = output_buffer(path, stored.unscaled(), n)?;
     let mut tok = String::new();
     let mut count = 0usize;
     let mut finish_token = |tok: &mut String, count: &mut usize| -> Result<()> {
@@ -1006,7 +910,7 @@ fn decode_ascii(
             tok.clear();
             return Ok(());
         }
-        out.push_text(stored, tok).ok_or_else(|| {
+        push_text(&mut out, stored, tok).ok_or_else(|| {
             Error::invalid(path, format!("ASCII sample {} is {tok:?}, not a {stored:?} value", *count + 1))
         })?;
         *count += 1;
@@ -1044,7 +948,7 @@ fn decode_ascii(
         return Err(Error::truncated(path, format!("the ASCII data end after {count} of {n} samples")));
     }
     opts.report(path, "reading", n as u64, n as u64)?;
-    Ok(out.finish())
+    Ok(out)
 }
 
 /// Decodes `hex` encoding: pairs of hex digits, whitespace ignored.

@@ -115,17 +115,34 @@ impl VoxelData {
     /// Calls `f` with the samples as little-endian bytes, in storage order, a bounded chunk at a time: what
     /// [`Self::to_le_bytes`] returns, without a full-size copy (for checksums of large volumes).
     pub fn for_each_le_chunk(&self, mut f: impl FnMut(&[u8])) {
+        let done: std::result::Result<(), std::convert::Infallible> = self.try_for_each_le_chunk(|b| {
+            f(b);
+            Ok(())
+        });
+        let Ok(()) = done;
+    }
+
+    /// [`Self::for_each_le_chunk`], stopping at the first error `f` returns: how the writers stream the samples.
+    pub fn try_for_each_le_chunk<E>(
+        &self,
+        mut f: impl FnMut(&[u8]) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
         const CHUNK_SAMPLES: usize = 1 << 16;
-        fn each<T: Copy, const N: usize>(v: &[T], le: impl Fn(T) -> [u8; N], f: &mut impl FnMut(&[u8])) {
+        fn each<T: Copy, const N: usize, E>(
+            v: &[T],
+            le: impl Fn(T) -> [u8; N],
+            f: &mut impl FnMut(&[u8]) -> std::result::Result<(), E>,
+        ) -> std::result::Result<(), E> {
             let mut buf = Vec::with_capacity(CHUNK_SAMPLES * N);
             for chunk in v.chunks(CHUNK_SAMPLES) {
                 buf.clear();
                 buf.extend(chunk.iter().flat_map(|&x| le(x)));
-                f(&buf);
+                f(&buf)?;
             }
+            Ok(())
         }
         match self {
-            Self::U8(v) => v.chunks(CHUNK_SAMPLES).for_each(f),
+            Self::U8(v) => v.chunks(CHUNK_SAMPLES).try_for_each(f),
             Self::I16(v) => each(v, i16::to_le_bytes, &mut f),
             Self::U16(v) => each(v, u16::to_le_bytes, &mut f),
             Self::F32(v) => each(v, f32::to_le_bytes, &mut f),

@@ -72,12 +72,13 @@ pub use transfer_syntax::{SUPPORTED_TRANSFER_SYNTAXES, TransferSyntax};
 
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
+use crate::sample;
 use crate::series::SeriesSummary;
 use crate::volume::{self, Modality, Volume};
 use geometry::plan_geometry;
 use header::{Header, read_headers};
 use input::{Source, folder_files};
-use pixels::{Stored, StoredKind, decode_file, finalize, has_rescale};
+use pixels::has_rescale;
 use series::{group_series, select_series, summary};
 
 /// Reads the DICOM series in folder `path` (not recursive). With several series, choose one with
@@ -174,33 +175,13 @@ fn read_series(label: &Path, sources: &[Source], headers: Vec<Header>, opts: &mu
     let Some(Ok((fmt, _))) = series.first().map(|h| &h.image) else {
         return Err(Error::invalid(label, "the series has no slices"));
     };
-    let kind = StoredKind::of(label, fmt)?;
+    let kind = pixels::stored_type(label, fmt)?;
     let dims = plan.dims;
-    let slice_len = dims[0] * dims[1];
     let total = volume::check_allocation(label, dims, kind.bytes(), opts.max_voxel_bytes)?;
     check_files_can_hold(label, sources, &series, &syntaxes, (total * kind.bytes()) as u64)?;
-    let mut stored = Stored::zeros(label, kind, total)?;
-    let mut ranges = vec![(0i64, 0i64); dims[2]];
-
-    // Decode file by file in the order of their first slice; each file is dropped before the next.
-    let mut slots_of: Vec<Vec<(usize, usize)>> = vec![Vec::new(); series.len()];
-    for (k, s) in plan.slots.iter().enumerate() {
-        slots_of[s.header].push((s.frame, k));
-    }
-    let mut order: Vec<usize> = (0..series.len()).collect();
-    order.sort_by_key(|&h| slots_of[h].iter().map(|&(_, k)| k).min().unwrap_or(usize::MAX));
-    let n_files = order.len() as u64;
-    for (done, &hi) in order.iter().enumerate() {
-        opts.report(label, "decoding slices", done as u64, n_files)?;
-        let h = &series[hi];
-        let src = &sources[h.source];
-        let Ok((hfmt, _)) = &h.image else { continue };
-        decode_file(src, syntaxes[hi], hfmt, &slots_of[hi], slice_len, &mut stored, &mut ranges)?;
-    }
-    opts.report(label, "decoding slices", n_files, n_files)?;
-
-    let rescales: Vec<(f64, f64)> = plan.slots.iter().map(|s| (s.geom.slope, s.geom.intercept)).collect();
-    let (data, rescale, mut warnings) = finalize(label, stored, slice_len, &rescales, &ranges, dims, opts)?;
+    let (data, rescale, mut warnings) = sample::with_stored_type!(kind, T => {
+        pixels::decode_series::<T>(label, sources, &series, &syntaxes, &plan, total, opts)?
+    });
     let mut vol = Volume::new(label, dims, data, plan.lps_from_index, plan.geometry_source)?;
     let h = &series[0];
     vol.modality = Modality::from_dicom(&h.modality);

@@ -11,70 +11,27 @@ use dicom_pixeldata::PixelDecoder;
 
 use super::codecs::{check_j2k, check_jpeg, decode_jpeg_ls, decode_rle};
 use super::geometry::Plan;
-use super::header::{PixelFormat, parse_pixel_format};
+use super::header::{Header, PixelFormat, parse_pixel_format};
 use super::input::{Source, error_chain};
 use super::transfer_syntax::{Codec, TransferSyntax};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
-use crate::volume::{self, Rescale, VoxelData};
+use crate::sample::{Stored, StoredType, rescaled_type};
+use crate::volume::{self, Rescale, SampleType, VoxelData};
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(super) enum StoredKind {
-    U8,
-    I8,
-    U16,
-    I16,
-    U32,
-    I32,
-}
-
-impl StoredKind {
-    pub(super) fn of(path: &Path, fmt: &PixelFormat) -> Result<Self> {
-        Ok(match (fmt.bits_allocated, fmt.signed) {
-            (8, false) => Self::U8,
-            (8, true) => Self::I8,
-            (16, false) => Self::U16,
-            (16, true) => Self::I16,
-            (32, false) => Self::U32,
-            (32, true) => Self::I32,
-            (b, _) => {
-                return Err(Error::unsupported(path, format!("BitsAllocated (0028,0100) {b} (only 8, 16 and 32)")));
-            }
-        })
-    }
-    pub(super) fn bytes(self) -> usize {
-        match self {
-            Self::U8 | Self::I8 => 1,
-            Self::U16 | Self::I16 => 2,
-            Self::U32 | Self::I32 => 4,
+/// The stored type of `fmt`'s samples: BitsAllocated 8, 16 or 32, signed when PixelRepresentation is 1.
+pub(super) fn stored_type(path: &Path, fmt: &PixelFormat) -> Result<StoredType> {
+    Ok(match (fmt.bits_allocated, fmt.signed) {
+        (8, false) => StoredType::U8,
+        (8, true) => StoredType::I8,
+        (16, false) => StoredType::U16,
+        (16, true) => StoredType::I16,
+        (32, false) => StoredType::U32,
+        (32, true) => StoredType::I32,
+        (b, _) => {
+            return Err(Error::unsupported(path, format!("BitsAllocated (0028,0100) {b} (only 8, 16 and 32)")));
         }
-    }
-}
-
-/// The volume in its stored type, before rescale.
-pub(super) enum Stored {
-    U8(Vec<u8>),
-    I8(Vec<i8>),
-    U16(Vec<u16>),
-    I16(Vec<i16>),
-    U32(Vec<u32>),
-    I32(Vec<i32>),
-}
-
-impl Stored {
-    /// `n` zero samples of `kind`, allocated fallibly: memory the system refuses is an
-    /// [`ErrorKind::OutOfMemory`] naming `path`, not an abort.
-    pub(super) fn zeros(path: &Path, kind: StoredKind, n: usize) -> Result<Self> {
-        const WHAT: &str = "the stored pixels";
-        Ok(match kind {
-            StoredKind::U8 => Self::U8(try_zeros(path, n, WHAT)?),
-            StoredKind::I8 => Self::I8(try_zeros(path, n, WHAT)?),
-            StoredKind::U16 => Self::U16(try_zeros(path, n, WHAT)?),
-            StoredKind::I16 => Self::I16(try_zeros(path, n, WHAT)?),
-            StoredKind::U32 => Self::U32(try_zeros(path, n, WHAT)?),
-            StoredKind::I32 => Self::I32(try_zeros(path, n, WHAT)?),
-        })
-    }
+    })
 }
 
 /// `n` zeros, allocated fallibly ([`volume::try_with_capacity`]): `vec![0; n]` would abort the process when
@@ -135,63 +92,85 @@ enum FrameSamples<'a> {
     Words(&'a [u16]),
 }
 
+/// Decodes the files of `series` into one buffer of `T` (sized `total`, checked by the caller) and applies the
+/// rescale. Files are decoded one at a time in the order of their first slice, each dropped before the next.
+pub(super) fn decode_series<T: Stored + Default>(
+    label: &Path,
+    sources: &[Source],
+    series: &[Header],
+    syntaxes: &[TransferSyntax],
+    plan: &Plan,
+    total: usize,
+    opts: &mut LoadOptions,
+) -> Result<(VoxelData, Rescale, Vec<String>)> {
+    let dims = plan.dims;
+    let slice_len = dims[0] * dims[1];
+    let mut stored = try_zeros::<T>(label, total, "the stored pixels")?;
+    let mut ranges = vec![(0i64, 0i64); dims[2]];
+    let mut slots_of: Vec<Vec<(usize, usize)>> = vec![Vec::new(); series.len()];
+    for (k, s) in plan.slots.iter().enumerate() {
+        slots_of[s.header].push((s.frame, k));
+    }
+    let mut order: Vec<usize> = (0..series.len()).collect();
+    order.sort_by_key(|&h| slots_of[h].iter().map(|&(_, k)| k).min().unwrap_or(usize::MAX));
+    let n_files = order.len() as u64;
+    for (done, &hi) in order.iter().enumerate() {
+        opts.report(label, "decoding slices", done as u64, n_files)?;
+        let h = &series[hi];
+        let src = &sources[h.source];
+        let Ok((hfmt, _)) = &h.image else { continue };
+        decode_file(src, syntaxes[hi], hfmt, &slots_of[hi], slice_len, &mut stored, &mut ranges)?;
+    }
+    opts.report(label, "decoding slices", n_files, n_files)?;
+
+    let rescales: Vec<(f64, f64)> = plan.slots.iter().map(|s| (s.geom.slope, s.geom.intercept)).collect();
+    finalize(label, stored, slice_len, &rescales, &ranges, dims, opts)
+}
+
 /// Writes one frame into slice `k` of `dst`; returns the (min, max) of the stored values.
-fn store_frame(dst: &mut Stored, k: usize, n: usize, src: FrameSamples, bytes: usize, layout: BitLayout) -> (i64, i64) {
-    fn fill<T: Copy>(
-        dst: &mut [T],
-        raws: impl Iterator<Item = u32>,
-        layout: BitLayout,
-        cast: impl Fn(i64) -> T,
-    ) -> (i64, i64) {
+fn store_frame<T: Stored>(
+    dst: &mut [T],
+    k: usize,
+    n: usize,
+    src: FrameSamples,
+    bytes: usize,
+    layout: BitLayout,
+) -> (i64, i64) {
+    fn fill<T: Stored>(dst: &mut [T], raws: impl Iterator<Item = u32>, layout: BitLayout) -> (i64, i64) {
         let mut lo = i64::MAX;
         let mut hi = i64::MIN;
         for (d, raw) in dst.iter_mut().zip(raws) {
             let v = layout.value(raw);
             lo = lo.min(v);
             hi = hi.max(v);
-            *d = cast(v);
+            *d = T::from_i64(v);
         }
         (lo, hi)
     }
-    fn dispatch(
-        dst: &mut Stored,
-        range: std::ops::Range<usize>,
-        raws: impl Iterator<Item = u32>,
-        l: BitLayout,
-    ) -> (i64, i64) {
-        match dst {
-            Stored::U8(v) => fill(&mut v[range], raws, l, |x| x as u8),
-            Stored::I8(v) => fill(&mut v[range], raws, l, |x| x as i8),
-            Stored::U16(v) => fill(&mut v[range], raws, l, |x| x as u16),
-            Stored::I16(v) => fill(&mut v[range], raws, l, |x| x as i16),
-            Stored::U32(v) => fill(&mut v[range], raws, l, |x| x as u32),
-            Stored::I32(v) => fill(&mut v[range], raws, l, |x| x as i32),
-        }
-    }
-    let range = k * n..(k + 1) * n;
+    let dst = &mut dst[k * n..(k + 1) * n];
     match (src, bytes) {
-        (FrameSamples::Bytes(b), 1) => dispatch(dst, range, b.iter().map(|&x| u32::from(x)), layout),
+        (FrameSamples::Bytes(b), 1) => fill(dst, b.iter().map(|&x| u32::from(x)), layout),
         (FrameSamples::Bytes(b), 2) => {
-            dispatch(dst, range, b.chunks_exact(2).map(|c| u32::from(u16::from_le_bytes([c[0], c[1]]))), layout)
+            fill(dst, b.chunks_exact(2).map(|c| u32::from(u16::from_le_bytes([c[0], c[1]]))), layout)
         }
         (FrameSamples::Bytes(b), _) => {
-            dispatch(dst, range, b.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])), layout)
+            fill(dst, b.chunks_exact(4).map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])), layout)
         }
-        (FrameSamples::Words(w), 2) => dispatch(dst, range, w.iter().map(|&x| u32::from(x)), layout),
+        (FrameSamples::Words(w), 2) => fill(dst, w.iter().map(|&x| u32::from(x)), layout),
         (FrameSamples::Words(w), _) => {
-            dispatch(dst, range, w.chunks_exact(2).map(|c| u32::from(c[0]) | (u32::from(c[1]) << 16)), layout)
+            fill(dst, w.chunks_exact(2).map(|c| u32::from(c[0]) | (u32::from(c[1]) << 16)), layout)
         }
     }
 }
 
 /// Opens one file fully, decodes its frames and stores them at their slots.
-pub(super) fn decode_file(
+fn decode_file<T: Stored>(
     src: &Source,
     ts: TransferSyntax,
     fmt: &PixelFormat,
     slots: &[(usize, usize)],
     slice_len: usize,
-    dst: &mut Stored,
+    dst: &mut [T],
     ranges: &mut [(i64, i64)],
 ) -> Result<()> {
     let path = src.path();
@@ -320,9 +299,9 @@ impl FrameData<'_> {
 }
 
 /// Applies the rescale and picks the output sample type (docs/fixture-manifest.md).
-pub(super) fn finalize(
+fn finalize<T: Stored>(
     label: &Path,
-    stored: Stored,
+    stored: Vec<T>,
     slice_len: usize,
     rescales: &[(f64, f64)],
     ranges: &[(i64, i64)],
@@ -338,23 +317,14 @@ pub(super) fn finalize(
              (the first is slope {slope0}, intercept {intercept0})"
         ));
     }
-    let check_f32 = || volume::check_allocation(label, dims, 4, opts.max_voxel_bytes);
     if identity {
-        let data = match stored {
-            Stored::U8(v) => VoxelData::U8(v),
-            Stored::U16(v) => VoxelData::U16(v),
-            Stored::I16(v) => VoxelData::I16(v),
-            Stored::I8(v) => {
-                volume::check_allocation(label, dims, 2, opts.max_voxel_bytes)?;
-                VoxelData::I16(try_convert(label, v, |(_, x)| i16::from(x))?)
-            }
-            Stored::U32(v) => {
-                check_f32()?;
-                VoxelData::F32(try_convert(label, v, |(_, x)| x as f32)?)
-            }
-            Stored::I32(v) => {
-                check_f32()?;
-                VoxelData::F32(try_convert(label, v, |(_, x)| x as f32)?)
+        let output = T::TYPE.unscaled();
+        let data = match T::into_voxels(stored) {
+            Ok(data) => data,
+            Err(stored) => {
+                // A widening (i8 to i16) needs more than the stored bytes checked so far.
+                volume::check_allocation(label, dims, output.bytes(), opts.max_voxel_bytes)?;
+                convert(label, output, stored, |(_, x)| x)?
             }
         };
         return Ok((data, Rescale::IDENTITY, warnings));
@@ -367,38 +337,29 @@ pub(super) fn finalize(
             (lo.min(p).min(q), hi.max(p).max(q))
         });
     let rescale = Rescale { slope: slope0, intercept: intercept0, applied: true };
-    let map = |x: i64, i: usize| {
+    let target = rescaled_type(integer, lo, hi);
+    volume::check_allocation(label, dims, target.bytes(), opts.max_voxel_bytes)?;
+    let data = convert(label, target, stored, |(i, x)| {
         let (s, b) = rescales[i / slice_len];
-        s * x as f64 + b
-    };
-    macro_rules! convert {
-        ($v:expr, $f:expr) => {
-            try_convert(label, $v, |(i, x)| $f(map(i64::from(x), i)))?
-        };
-    }
-    macro_rules! all_types {
-        ($f:expr, $variant:ident) => {
-            match stored {
-                Stored::U8(v) => VoxelData::$variant(convert!(v, $f)),
-                Stored::I8(v) => VoxelData::$variant(convert!(v, $f)),
-                Stored::U16(v) => VoxelData::$variant(convert!(v, $f)),
-                Stored::I16(v) => VoxelData::$variant(convert!(v, $f)),
-                Stored::U32(v) => VoxelData::$variant(convert!(v, $f)),
-                Stored::I32(v) => VoxelData::$variant(convert!(v, $f)),
-            }
-        };
-    }
-    let data = if integer && lo >= f64::from(i16::MIN) && hi <= f64::from(i16::MAX) {
-        volume::check_allocation(label, dims, 2, opts.max_voxel_bytes)?;
-        all_types!(|y: f64| y as i16, I16)
-    } else if integer && lo >= 0.0 && hi <= f64::from(u16::MAX) {
-        volume::check_allocation(label, dims, 2, opts.max_voxel_bytes)?;
-        all_types!(|y: f64| y as u16, U16)
-    } else {
-        check_f32()?;
-        all_types!(|y: f64| y as f32, F32)
-    };
+        s * x.to_i64() as f64 + b
+    })?;
     Ok((data, rescale, warnings))
+}
+
+/// `f(i, v[i])` for every sample, cast to `output`, converted in place where the layouts match
+/// ([`try_convert`]).
+fn convert<S: Stored, V: Stored>(
+    label: &Path,
+    output: SampleType,
+    v: Vec<S>,
+    mut f: impl FnMut((usize, S)) -> V,
+) -> Result<VoxelData> {
+    Ok(match output {
+        SampleType::U8 => VoxelData::U8(try_convert(label, v, |x| f(x).as_u8())?),
+        SampleType::I16 => VoxelData::I16(try_convert(label, v, |x| f(x).as_i16())?),
+        SampleType::U16 => VoxelData::U16(try_convert(label, v, |x| f(x).as_u16())?),
+        SampleType::F32 => VoxelData::F32(try_convert(label, v, |x| f(x).as_f32())?),
+    })
 }
 
 /// True when any slice has a non-identity rescale (CT values are then HU).

@@ -10,12 +10,13 @@ use flate2::read::MultiGzDecoder;
 use super::geometry::lps_from_index;
 use super::header::read_header;
 use super::layout::{Span, data_span, grid, stored_type};
-use super::samples::{DataType, scaling, stream_convert};
-use super::write::{Nifti1Content, nifti1_header_for, type_code, write_file};
+use super::samples::{datatype_code, scaling, stream_chunks};
+use super::write::{Nifti1Content, nifti1_header_for, write_file};
 use super::{Extent, GZIP_MAGIC, Reporter, Source};
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::options::LoadOptions;
+use crate::sample::{self, Stored, StoredType};
 use crate::volume::{self, GeometrySource, SampleType};
 
 /// `NIFTI_INTENT_DISPVECT` (nifti1.h): each voxel holds a displacement vector.
@@ -59,7 +60,7 @@ pub fn write_displacement_field(
         ));
     }
     let what = Nifti1Content {
-        type_code: type_code(SampleType::F32),
+        type_code: datatype_code(SampleType::F32),
         descrip: b"warpbench displacement field u(x) - x, RAS mm".to_vec(),
         vector: Some((NIFTI_INTENT_DISPVECT, 3)),
     };
@@ -122,7 +123,7 @@ fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Res
     let grid = grid(path, &h)?;
     let dims = [grid[1], grid[2], grid[3]];
     let datatype = stored_type(path, &h)?;
-    if !matches!(datatype, DataType::F32 | DataType::F64) {
+    if !matches!(datatype, StoredType::F32 | StoredType::F64) {
         return Err(Error::unsupported(
             path,
             format!("displacement field of datatype {}; float32 and float64 are read", h.datatype),
@@ -154,11 +155,10 @@ fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Res
     let mut displacements_lps = volume::try_with_capacity(path, n, "the displacement vectors")?;
     displacements_lps.resize(n, [0.0f32; 3]);
     for (c, sign) in LPS_RAS_SIGN.into_iter().enumerate() {
-        let plane: Vec<f32> = if datatype == DataType::F32 {
-            stream_convert(src, plane_bytes, h.big_endian, &mut progress, |x: f32| x)?
-        } else {
-            stream_convert(src, plane_bytes, h.big_endian, &mut progress, |x: f64| x as f32)?
-        };
+        let mut plane: Vec<f32> = volume::try_with_capacity(path, n, "the voxel samples")?;
+        sample::with_stored_type!(datatype, T => stream_chunks(src, plane_bytes, &mut progress, |chunk| {
+            plane.extend(sample::decode::<T>(chunk, h.big_endian).map(T::as_f32));
+        }))?;
         for (d, v) in displacements_lps.iter_mut().zip(plane) {
             d[c] = sign * v;
         }

@@ -5,17 +5,18 @@
 use std::path::Path;
 
 use super::header::Header;
-use super::samples::DataType;
+use super::samples::stored_type_of_code;
 use super::{Extent, MAX_DEFLATE_RATIO};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
+use crate::sample::StoredType;
 use crate::volume;
 
 /// Where the chosen frame lies and what it holds.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Layout {
     pub(super) dims: [usize; 3],
-    pub(super) datatype: DataType,
+    pub(super) datatype: StoredType,
     /// Byte offset of the chosen frame from the start of the (decompressed) file.
     pub(super) frame_offset: u64,
     pub(super) frame_bytes: usize,
@@ -40,8 +41,8 @@ pub(super) fn grid(path: &Path, h: &Header) -> Result<[usize; 8]> {
 }
 
 /// The stored sample type of `datatype`, checked against `bitpix`.
-pub(super) fn stored_type(path: &Path, h: &Header) -> Result<DataType> {
-    let datatype = DataType::from_code(path, h.datatype)?;
+pub(super) fn stored_type(path: &Path, h: &Header) -> Result<StoredType> {
+    let datatype = stored_type_of_code(path, h.datatype)?;
     if i64::from(h.bitpix) != 8 * datatype.bytes() as i64 {
         return Err(Error::invalid(
             path,

@@ -151,7 +151,7 @@ use crate::volume::{self, Rescale, Volume};
 use geometry::lps_from_index;
 use header::read_header;
 use layout::layout;
-use samples::{CHUNK_BYTES, DataType, read_identity, rescale_samples, scaling, with_stored};
+use samples::{CHUNK_BYTES, read_identity, rescale_samples, scaling};
 
 const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
 
@@ -277,7 +277,7 @@ fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut L
                 fill(path, src, chunk, "the voxel data")?;
                 progress.advance(chunk.len())?;
             }
-            with_stored!(l.datatype, T => rescale_samples::<T>(path, &raw, l.dims, h.big_endian, slope_inter, max_voxel_bytes)?)
+            crate::sample::with_stored_type!(l.datatype, T => rescale_samples::<T>(path, &raw, l.dims, h.big_endian, slope_inter, max_voxel_bytes)?)
         }
     };
 

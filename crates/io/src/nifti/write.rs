@@ -9,9 +9,10 @@ use flate2::write::GzEncoder;
 
 use super::geometry::qform_from_linear;
 use super::header::{NIFTI1_HEADER_BYTES, NIFTI1_MAGIC, NIFTI2_HEADER_BYTES, NIFTI2_MAGIC};
+use super::samples::datatype_code;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Ras, Transform, ras_from_lps};
-use crate::volume::{self, SampleType, Volume, VoxelData};
+use crate::volume::{self, Volume, VoxelData};
 
 /// Header plus the 4-byte extension flag: where our writer puts the samples.
 pub(super) const NIFTI1_VOX_OFFSET: usize = NIFTI1_HEADER_BYTES + 4;
@@ -63,34 +64,9 @@ pub(super) fn write_file(
     })
 }
 
+/// Writes the samples little-endian, a bounded chunk at a time (no full-size byte copy).
 fn write_samples(w: &mut dyn Write, data: &VoxelData) -> io::Result<()> {
-    fn le<T: Copy, const N: usize>(w: &mut dyn Write, v: &[T], bytes: fn(T) -> [u8; N]) -> io::Result<()> {
-        let mut buf = Vec::with_capacity(64 << 10);
-        for chunk in v.chunks((64 << 10) / N) {
-            buf.clear();
-            for &x in chunk {
-                buf.extend_from_slice(&bytes(x));
-            }
-            w.write_all(&buf)?;
-        }
-        Ok(())
-    }
-    match data {
-        VoxelData::U8(v) => w.write_all(v),
-        VoxelData::I16(v) => le(w, v, i16::to_le_bytes),
-        VoxelData::U16(v) => le(w, v, u16::to_le_bytes),
-        VoxelData::F32(v) => le(w, v, f32::to_le_bytes),
-    }
-}
-
-/// NIfTI datatype code and bitpix of a sample type.
-pub(super) const fn type_code(t: SampleType) -> (i16, i16) {
-    match t {
-        SampleType::U8 => (2, 8),
-        SampleType::I16 => (4, 16),
-        SampleType::U16 => (512, 16),
-        SampleType::F32 => (16, 32),
-    }
+    data.try_for_each_le_chunk(|b| w.write_all(b))
 }
 
 /// Little-endian header fields written at fixed offsets.
@@ -147,7 +123,7 @@ fn descrip(volume: &Volume) -> Vec<u8> {
 }
 
 fn nifti1_header(path: &Path, volume: &Volume) -> Result<Vec<u8>> {
-    let what = Nifti1Content { type_code: type_code(volume.sample_type()), descrip: descrip(volume), vector: None };
+    let what = Nifti1Content { type_code: datatype_code(volume.sample_type()), descrip: descrip(volume), vector: None };
     nifti1_header_for(path, volume.dims, &volume.lps_from_index, &what)
 }
 
@@ -219,7 +195,7 @@ pub(super) fn nifti1_header_for(
 
 fn nifti2_header(volume: &Volume) -> Vec<u8> {
     let g = write_geometry(&volume.lps_from_index);
-    let (datatype, bitpix) = type_code(volume.sample_type());
+    let (datatype, bitpix) = datatype_code(volume.sample_type());
     let mut buf = vec![0u8; NIFTI2_VOX_OFFSET];
     let mut p = Put(&mut buf);
     p.i32(0, NIFTI2_HEADER_BYTES as i32);
