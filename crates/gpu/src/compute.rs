@@ -1,9 +1,11 @@
 //! Building blocks the compute passes share ([`crate::ControlEvalPass`], [`crate::PrefilterPass`],
 //! [`crate::PickPass`], the GPU export): compute-stage bindings, and a pipeline with its layout.
 
-/// A binding visible to the compute stage.
-pub(crate) fn binding(binding: u32, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
-    wgpu::BindGroupLayoutEntry { binding, visibility: wgpu::ShaderStages::COMPUTE, ty, count: None }
+use crate::shader::BindSlot;
+
+/// The layout entry of `slot`, visible to the compute stage.
+pub(crate) fn binding(slot: BindSlot, ty: wgpu::BindingType) -> wgpu::BindGroupLayoutEntry {
+    slot.layout_entry(wgpu::ShaderStages::COMPUTE, ty)
 }
 
 /// A uniform buffer holding a `T`.

@@ -16,6 +16,7 @@ use half::f16;
 
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
+use crate::sampling::trilinear;
 
 /// A control texture as plain data.
 #[derive(Clone, Copy, Debug)]
@@ -108,7 +109,7 @@ impl PreparedControl {
     #[must_use]
     pub fn displacement(&self, x_ref: Vec3) -> Vec3 {
         let t = self.info.ctrl_tex_from_ref.transform_point3(x_ref);
-        let d = crate::cpu_reference::trilinear(self.info.dims, t, |i| {
+        let d = trilinear(self.info.dims, t, |i| {
             let c = self.texels[i];
             glam::Vec4::from_array(c)
         });

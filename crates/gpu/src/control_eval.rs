@@ -56,7 +56,52 @@ use crate::control::{ControlInfo, GpuControlTexture};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::pullback::{BSplineDesc, TpsDesc};
-use crate::shaders::CONTROL_EVAL;
+use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, layout};
+
+/// `shaders/control_eval.wgsl`: `cs_tps` and `cs_bspline`, a pull-back's displacement at every texel centre into a
+/// staging buffer, with its bounds reduced.
+pub const SHADER: ShaderSource = ShaderSource {
+    name: "control_eval",
+    path: "shaders/control_eval.wgsl",
+    source: include_str!("../../../shaders/control_eval.wgsl"),
+    entry_points: &[(TPS_ENTRY_POINT, Stage::Compute), (BSPLINE_ENTRY_POINT, Stage::Compute)],
+};
+const TPS_ENTRY_POINT: &str = "cs_tps";
+const BSPLINE_ENTRY_POINT: &str = "cs_bspline";
+
+/// Both entry points: [`ControlEvalUniforms`].
+pub const SLOT_UNIFORMS: BindSlot = BindSlot::new(0, 0, "p");
+/// Both: the staging buffer, rows padded for `copy_buffer_to_texture`.
+pub const SLOT_OUTPUT: BindSlot = BindSlot::new(0, 1, "out_words");
+/// Both: the bounds words (module docs).
+pub const SLOT_BOUNDS: BindSlot = BindSlot::new(0, 2, "bounds");
+/// TPS: the centres and weights, 8 f32 each.
+pub const SLOT_TPS_CENTRES: BindSlot = BindSlot::new(0, 3, "centres");
+/// B-spline: [`BSplineUniforms`].
+pub const SLOT_LATTICES: BindSlot = BindSlot::new(0, 4, "bs");
+/// B-spline: the coefficients of every lattice.
+pub const SLOT_COEFFICIENTS: BindSlot = BindSlot::new(0, 5, "coefficients");
+
+pub const INTERFACE: ShaderInterface = ShaderInterface {
+    pass: "control_eval",
+    shader: SHADER,
+    uniform_structs: &[
+        layout!(ControlEvalUniforms {
+            dims,
+            row_stride_texels,
+            first_local,
+            store_f16,
+            pitch_mm,
+            count,
+            offset_mm,
+            linear_minus_identity
+        }),
+        layout!(LatticeUniforms { first_cell, coef_offset, cell_step, cells }),
+        layout!(BSplineUniforms { lattices }),
+    ],
+    slots: &[SLOT_UNIFORMS, SLOT_OUTPUT, SLOT_BOUNDS, SLOT_TPS_CENTRES, SLOT_LATTICES, SLOT_COEFFICIENTS],
+    constants: &[],
+};
 
 /// Largest control grid per axis (the solver's `control::MAX_TEXELS`).
 pub const MAX_CONTROL_TEXELS: usize = 256;
@@ -71,7 +116,7 @@ const WORKGROUP: [u32; 3] = [8, 8, 1];
 const BOUNDS_WORDS: usize = 8;
 const BOUNDS_BYTES: u64 = (BOUNDS_WORDS * 4) as u64;
 
-/// Uniforms of both entry points. Keep in sync with `ControlEvalUniforms` in shaders/control_eval.wgsl.
+/// Uniforms of both entry points: `ControlEvalUniforms` in shaders/control_eval.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct ControlEvalUniforms {
@@ -93,7 +138,7 @@ pub struct ControlEvalUniforms {
 }
 const _: () = assert!(std::mem::size_of::<ControlEvalUniforms>() == 112);
 
-/// One lattice of [`BSplineUniforms`]. Keep in sync with `LatticeUniforms` in shaders/control_eval.wgsl.
+/// One lattice of [`BSplineUniforms`]: `LatticeUniforms` in shaders/control_eval.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct LatticeUniforms {
@@ -109,7 +154,7 @@ pub struct LatticeUniforms {
 }
 const _: () = assert!(std::mem::size_of::<LatticeUniforms>() == 48);
 
-/// The lattices of a B-spline evaluation. Keep in sync with `BSplineUniforms` in shaders/control_eval.wgsl.
+/// The lattices of a B-spline evaluation: `BSplineUniforms` in shaders/control_eval.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct BSplineUniforms {
@@ -201,12 +246,6 @@ impl PendingControl {
         &self.texture
     }
 
-    /// The mappable 32-byte buffer the bounds are copied into (layout in the module docs).
-    #[must_use]
-    pub fn bounds_buffer(&self) -> &wgpu::Buffer {
-        &self.bounds
-    }
-
     /// The texture and its view without bounds, for callers that bound the displacement otherwise (the benchmark
     /// re-evaluates one warp, whose bounds it already knows). The texture is a valid `target` for the next evaluation.
     #[must_use]
@@ -254,15 +293,16 @@ pub fn read_back_texels(ctx: &GpuContext, control: &GpuControlTexture) -> Result
     }
 }
 
-fn bind(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
-    wgpu::BindGroupEntry { binding, resource: buffer.as_entire_binding() }
+/// The whole of `buffer` in `slot`.
+fn bind(slot: BindSlot, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
+    slot.entry(buffer.as_entire_binding())
 }
 
-/// Which entry point, and its extra bindings.
+/// Which entry point, and the buffers of its own slots.
 enum Kind<'a> {
-    /// Binding 3: the centres, 8 f32 each.
+    /// [`SLOT_TPS_CENTRES`].
     Tps(&'a wgpu::Buffer),
-    /// Binding 4: [`BSplineUniforms`]; binding 5: the coefficients.
+    /// [`SLOT_LATTICES`] and [`SLOT_COEFFICIENTS`].
     BSpline(&'a wgpu::Buffer, &'a wgpu::Buffer),
 }
 
@@ -281,8 +321,6 @@ impl ControlEvalPass {
     /// Storage buffers per compute stage and invocations per workgroup the pass needs.
     pub const STORAGE_BUFFERS: u32 = 3;
     pub const INVOCATIONS: u32 = WORKGROUP[0] * WORKGROUP[1] * WORKGROUP[2];
-    const TPS: &str = "cs_tps";
-    const BSPLINE: &str = "cs_bspline";
 
     pub fn new(ctx: &GpuContext) -> Result<Self> {
         let l = &ctx.limits;
@@ -304,20 +342,22 @@ impl ControlEvalPass {
             )));
         }
         let device = &ctx.device;
-        let module = CONTROL_EVAL.create_module(device);
+        let module = SHADER.create_module(device);
         let common = [
-            binding(0, uniform::<ControlEvalUniforms>()),
-            binding(1, storage(false, Some(4))),
-            binding(2, storage(false, Some(BOUNDS_BYTES))),
+            binding(SLOT_UNIFORMS, uniform::<ControlEvalUniforms>()),
+            binding(SLOT_OUTPUT, storage(false, Some(4))),
+            binding(SLOT_BOUNDS, storage(false, Some(BOUNDS_BYTES))),
         ];
         let make = |entry_point: &str, extra: &[wgpu::BindGroupLayoutEntry]| {
             let entries: Vec<_> = common.iter().chain(extra).copied().collect();
             let layout = compute::layout(device, entry_point, &entries);
             (compute::pipeline(device, entry_point, &module, Some(entry_point), &[&layout]), layout)
         };
-        let tps = make(Self::TPS, &[binding(3, storage(true, Some(32)))]);
-        let bspline =
-            make(Self::BSPLINE, &[binding(4, uniform::<BSplineUniforms>()), binding(5, storage(true, Some(4)))]);
+        let tps = make(TPS_ENTRY_POINT, &[binding(SLOT_TPS_CENTRES, storage(true, Some(32)))]);
+        let bspline = make(
+            BSPLINE_ENTRY_POINT,
+            &[binding(SLOT_LATTICES, uniform::<BSplineUniforms>()), binding(SLOT_COEFFICIENTS, storage(true, Some(4)))],
+        );
         ctx.check_errors()?;
         Ok(Self { tps, bspline, staging: Mutex::new(None) })
     }
@@ -575,14 +615,15 @@ impl ControlEvalPass {
             mapped_at_creation: false,
         });
 
-        let mut entries = vec![bind(0, &uniform_buffer), bind(1, &staging), bind(2, &bounds)];
+        let mut entries =
+            vec![bind(SLOT_UNIFORMS, &uniform_buffer), bind(SLOT_OUTPUT, &staging), bind(SLOT_BOUNDS, &bounds)];
         let (pipeline, layout) = match kind {
             Kind::Tps(centres) => {
-                entries.push(bind(3, centres));
+                entries.push(bind(SLOT_TPS_CENTRES, centres));
                 &self.tps
             }
             Kind::BSpline(lattices, coefficients) => {
-                entries.extend([bind(4, lattices), bind(5, coefficients)]);
+                entries.extend([bind(SLOT_LATTICES, lattices), bind(SLOT_COEFFICIENTS, coefficients)]);
                 &self.bspline
             }
         };

@@ -6,7 +6,7 @@
 //! It consumes exactly what the GPU consumes: the [`RaycastUniforms`] of the frame, the [`PreparedVolume`]s and
 //! [`PreparedControl`]s whose texels were uploaded, the [`PrefilteredTexels`] the gradients come from, and the
 //! [`TransferFunction`] rows. Shading (DVR and iso-surface, gradients through the warp) follows the shader's
-//! formulas exactly: see `shaders/raycast.wgsl` and [`crate::raycast::Shading`]. Slices ([`crate::slice`]):
+//! formulas exactly: see `shaders/raycast.wgsl` and [`crate::settings::Shading`]. Slices ([`crate::slice`]):
 //! [`slice_pixel`], [`render_slice`].
 
 use glam::{Mat4, Vec3, Vec4};
@@ -18,10 +18,13 @@ use crate::glyph::{
 use crate::pick::{PickHit, PickRay, PickRequest, PickTarget, Probe};
 use crate::prefilter::PrefilteredTexels;
 use crate::raycast::{
-    EARLY_EXIT_ALPHA, HIT_OPACITY, NO_HIT_DEPTH, RAYCAST_JITTER, RaycastUniforms, ShadingMode, VOLUME_HAS_PREFILTER,
-    VOLUME_HAS_WARP, VOLUME_VISIBLE, VolumeUniforms,
+    EARLY_EXIT_ALPHA, RAYCAST_JITTER, RaycastUniforms, VOLUME_HAS_PREFILTER, VOLUME_HAS_WARP, VOLUME_VISIBLE,
+    VolumeUniforms,
 };
-use crate::transfer::{TF_ENTRIES, TransferFunction};
+use crate::sampling::trilinear;
+use crate::settings::ShadingMode;
+use crate::target::{HIT_OPACITY, NO_HIT_DEPTH};
+use crate::transfer::TransferFunction;
 use crate::volume::PreparedVolume;
 
 /// One volume on the CPU side: its texels, optional control texture and optional prefiltered copy.
@@ -35,24 +38,6 @@ pub struct CpuLayer<'a> {
 
 /// Below this squared gradient length the normal is undefined and |n·l| = 1 (the shader's `MIN_GRADIENT_SQ`).
 const MIN_GRADIENT_SQ: f32 = 1e-12;
-
-/// Trilinear interpolation at `p_tex` ∈ \[0, 1\]³ of a `dims` grid with texel centres at (i + ½)/n and clamp-to-edge
-/// addressing; `texel(i)` returns the texel at linear index i (x fastest).
-pub fn trilinear(dims: [u32; 3], p_tex: Vec3, texel: impl Fn(usize) -> Vec4) -> Vec4 {
-    let n = Vec3::new(dims[0] as f32, dims[1] as f32, dims[2] as f32);
-    let c = (p_tex * n - Vec3::splat(0.5)).clamp(Vec3::ZERO, n - Vec3::ONE);
-    let i0 = c.floor();
-    let f = c - i0;
-    let i0 = [i0.x as usize, i0.y as usize, i0.z as usize];
-    let i1 = [0, 1, 2].map(|a| (i0[a] + 1).min(dims[a] as usize - 1));
-    let (nx, ny) = (dims[0] as usize, dims[1] as usize);
-    let at = |x: usize, y: usize, z: usize| texel(x + nx * (y + ny * z));
-    let x00 = at(i0[0], i0[1], i0[2]).lerp(at(i1[0], i0[1], i0[2]), f.x);
-    let x10 = at(i0[0], i1[1], i0[2]).lerp(at(i1[0], i1[1], i0[2]), f.x);
-    let x01 = at(i0[0], i0[1], i1[2]).lerp(at(i1[0], i0[1], i1[2]), f.x);
-    let x11 = at(i0[0], i1[1], i1[2]).lerp(at(i1[0], i1[1], i1[2]), f.x);
-    x00.lerp(x10, f.y).lerp(x01.lerp(x11, f.y), f.z)
-}
 
 /// The shader's `pcg_hash`.
 #[must_use]
@@ -607,19 +592,13 @@ pub fn render_slice(
     rasterise(u, 0..u.viewport_px[1] as u32, |centre| slice_pixel(u, fixed, moving, tfs, centre))
 }
 
-/// Checks that `tfs` has the shape the GPU texture has.
-#[must_use]
-pub fn tfs_are_valid(tfs: &[TransferFunction]) -> bool {
-    !tfs.is_empty() && tfs.iter().all(|t| t.entries.len() == TF_ENTRIES)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::camera::{OrbitCamera, Projection};
     use crate::device::Capabilities;
-    use crate::raycast::{BlendMode, LayerParams, LayerStyle, Quality, RenderSettings};
-    use crate::transfer::Window;
+    use crate::settings::{BlendMode, LayerParams, LayerStyle, Quality, RenderSettings};
+    use crate::transfer::{TF_ENTRIES, Window};
     use crate::volume::{VolumeBudget, VolumeDesc, VolumeSamples};
 
     const CAPS: Capabilities = Capabilities { norm16: true, float32_filterable: true };

@@ -1,9 +1,8 @@
 //! [`GpuContext`]: the wgpu device and queue, what they can do, and the uncaptured errors they reported.
 //!
-//! Only what the passes need is requested: [`wgpu::Features::TEXTURE_FORMAT_16BIT_NORM`] (exact 16-bit volumes in
-//! `R16Unorm`) and [`wgpu::Features::FLOAT32_FILTERABLE`] (filtered `R32Float`/`Rgba32Float`), each only when the
-//! adapter has it ([`crate::raycast::RaycastRenderer::OPTIONAL_FEATURES`]), and the adapter's own limits (so that large
-//! 3-D textures are allowed). Works on lavapipe (Vulkan on the CPU), on GL (`WGPU_BACKEND=gl`) and on real GPUs.
+//! A headless device requests the optional features its caller names (the passes of this crate name theirs in
+//! [`crate::headless`]), each only when the adapter has it, and the adapter's own limits (so that large 3-D textures
+//! are allowed). Works on lavapipe (Vulkan on the CPU), on GL (`WGPU_BACKEND=gl`) and on real GPUs.
 
 use std::collections::BTreeSet;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -36,8 +35,8 @@ impl Capabilities {
     }
 }
 
-/// Which optional features [`GpuContext::headless_with`] may request. Turning one off exercises the fallback paths
-/// (the tests do this on lavapipe, which has both).
+/// Which of the optional features a headless device may request ([`GpuContext::headless_requesting`]). Turning one
+/// off exercises the fallback paths (the tests do this on lavapipe, which has both).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FeatureRequest {
     pub allow_norm16: bool,
@@ -51,10 +50,10 @@ impl Default for FeatureRequest {
 }
 
 impl FeatureRequest {
-    /// The features to request from an adapter that offers `available`.
+    /// The features of `optional` to request from an adapter that offers `available`.
     #[must_use]
-    pub fn features(&self, available: wgpu::Features) -> wgpu::Features {
-        let mut wanted = crate::raycast::RaycastRenderer::OPTIONAL_FEATURES;
+    pub fn features(&self, optional: wgpu::Features, available: wgpu::Features) -> wgpu::Features {
+        let mut wanted = optional;
         if !self.allow_norm16 {
             wanted.remove(wgpu::Features::TEXTURE_FORMAT_16BIT_NORM);
         }
@@ -82,21 +81,17 @@ pub struct GpuContext {
     pub limits: wgpu::Limits,
     pub capabilities: Capabilities,
     /// `R32Float` can be a (write-only) storage texture: what [`crate::prefilter::PrefilterPass`] writes. From the
-    /// adapter's `get_texture_format_features` in [`Self::headless_with`]; [`Self::from_device`] assumes it (the WebGPU
-    /// core format table guarantees it), [`Self::with_r32float_storage`] overrides it.
+    /// adapter's `get_texture_format_features` in [`Self::headless_requesting`]; [`Self::from_device`] assumes it
+    /// (the WebGPU core format table guarantees it), [`Self::with_r32float_storage`] overrides it.
     pub r32float_storage: bool,
     errors: Arc<Mutex<ErrorLog>>,
 }
 
 impl GpuContext {
     /// A device without a window: the adapter chosen by `WGPU_BACKEND`/`WGPU_ADAPTER_NAME`/`WGPU_POWER_PREF`
-    /// (wgpu's environment variables) or the default one, with all optional features it has.
-    pub fn headless() -> Result<Self> {
-        Self::headless_with(FeatureRequest::default())
-    }
-
-    /// As [`Self::headless`], requesting only the optional features `request` allows.
-    pub fn headless_with(request: FeatureRequest) -> Result<Self> {
+    /// (wgpu's environment variables) or the default one, with those of the `optional` features that `request`
+    /// allows and the adapter has. [`GpuContext::headless`] names the features of this crate's passes.
+    pub fn headless_requesting(optional: wgpu::Features, request: FeatureRequest) -> Result<Self> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
         let options = wgpu::RequestAdapterOptions {
             power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
@@ -106,7 +101,7 @@ impl GpuContext {
             pollster::block_on(instance.request_adapter(&options)).map_err(|e| GpuError::NoAdapter(e.to_string()))?;
         let descriptor = wgpu::DeviceDescriptor {
             label: Some("warpbench-gpu"),
-            required_features: request.features(adapter.features()),
+            required_features: request.features(optional, adapter.features()),
             required_limits: adapter.limits(),
             ..Default::default()
         };
@@ -237,25 +232,5 @@ impl GpuContext {
     #[must_use]
     pub fn describe(&self) -> String {
         format!("{} ({:?}, {:?})", self.adapter_info.name, self.adapter_info.backend, self.adapter_info.device_type)
-    }
-}
-
-/// Whether tests must fail rather than skip without an adapter (CI sets `REQUIRE_GPU_ADAPTER=1`).
-#[must_use]
-pub fn adapter_required() -> bool {
-    std::env::var("REQUIRE_GPU_ADAPTER").is_ok_and(|v| v == "1")
-}
-
-/// For tests and examples: a headless context, or `None` with a printed note when there is no adapter and
-/// `REQUIRE_GPU_ADAPTER=1` is not set. Panics on any other failure.
-#[must_use]
-pub fn headless_or_skip(request: FeatureRequest) -> Option<GpuContext> {
-    match GpuContext::headless_with(request) {
-        Ok(ctx) => Some(ctx),
-        Err(GpuError::NoAdapter(why)) if !adapter_required() => {
-            eprintln!("note: skipping GPU test, no adapter ({why}); set REQUIRE_GPU_ADAPTER=1 to make this fail");
-            None
-        }
-        Err(e) => panic!("GPU context: {e}"),
     }
 }

@@ -7,8 +7,8 @@
 //! premultiplied "over" blending ([`GlyphRenderer::render`] loads the target, it does not clear it).
 //!
 //! **3-D view** ([`GlyphUniforms::for_view`]): each glyph fragment is depth-tested against the ray caster's first
-//! hit at its pixel ([`crate::RenderTarget::hit_depth`]: where the accumulated opacity reaches
-//! [`crate::raycast::HIT_OPACITY`], or the iso-surface). Depths are compared as distances along the pixel's ray, in
+//! hit at its pixel ([`RenderTarget::hit_depth`]: where the accumulated opacity reaches
+//! [`crate::target::HIT_OPACITY`], or the iso-surface). Depths are compared as distances along the pixel's ray, in
 //! mm: a fragment farther than the hit plus [`GlyphSettings::depth_tolerance_mm`] is *behind the surface* and drawn
 //! with its opacity multiplied by [`GlyphSettings::occluded_alpha`] (0 hides it; the default keeps a ghost so that a
 //! hidden landmark can still be found, as 3D Slicer does with its occluded markups).
@@ -31,9 +31,48 @@ use glam::{DMat4, DVec3, Mat4, Vec3};
 use crate::camera::OrbitCamera;
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
-use crate::raycast::{NO_HIT_DEPTH, RaycastRenderer, RenderTarget};
-use crate::shaders::{GLYPH, Stage};
+use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, WgslConstant, layout};
 use crate::slice::SlicePlane;
+use crate::target::{NO_HIT_DEPTH, RenderTarget};
+
+/// `shaders/glyph.wgsl`: `vs_glyph` + `fs_glyph`, screen-space capsules over a frame or a slice.
+pub const SHADER: ShaderSource = ShaderSource {
+    name: "glyph",
+    path: "shaders/glyph.wgsl",
+    source: include_str!("../../../shaders/glyph.wgsl"),
+    entry_points: &[("vs_glyph", Stage::Vertex), ("fs_glyph", Stage::Fragment)],
+};
+
+pub const SLOT_UNIFORMS: BindSlot = BindSlot::new(0, 0, "g");
+/// The first-hit depth of the frame the glyphs go over ([`RenderTarget::hit_depth`]; a placeholder for slices).
+pub const SLOT_HIT_DEPTH: BindSlot = BindSlot::new(0, 1, "hit_depth_tex");
+
+pub const INTERFACE: ShaderInterface = ShaderInterface {
+    pass: "glyph",
+    shader: SHADER,
+    uniform_structs: &[
+        layout!(GlyphUniforms {
+            clip_from_ref,
+            ref_from_clip,
+            plane_normal_ref,
+            plane_offset_mm,
+            viewport_px,
+            mode,
+            occluded_alpha,
+            depth_tolerance_mm,
+            slab_half_mm,
+            outline_px
+        }),
+        layout!(GlyphInstance { a_ref, radius_px, b_ref, kind, colour }),
+    ],
+    slots: &[SLOT_UNIFORMS, SLOT_HIT_DEPTH],
+    constants: &[
+        WgslConstant::u32("MODE_VIEW", MODE_VIEW),
+        WgslConstant::u32("MODE_SLICE", MODE_SLICE),
+        WgslConstant::u32("KIND_POINT", KIND_POINT),
+        WgslConstant::f32("NO_HIT_DEPTH", NO_HIT_DEPTH),
+    ],
+};
 
 /// `GlyphUniforms::mode`: the 3-D view, depth-tested against the first hit.
 pub const MODE_VIEW: u32 = 0;
@@ -44,7 +83,7 @@ pub const KIND_POINT: u32 = 0;
 /// `GlyphInstance::kind`: a line from a to b.
 pub const KIND_LINE: u32 = 1;
 
-/// The glyph pass's uniforms. Keep in sync with `GlyphUniforms` in shaders/glyph.wgsl.
+/// The glyph pass's uniforms: `GlyphUniforms` in shaders/glyph.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct GlyphUniforms {
@@ -64,7 +103,8 @@ pub struct GlyphUniforms {
 }
 const _: () = assert!(std::mem::size_of::<GlyphUniforms>() == 176);
 
-/// One glyph, a per-instance vertex. Keep in sync with `GlyphInstance` in shaders/glyph.wgsl.
+/// One glyph, a per-instance vertex: `GlyphInstance` in shaders/glyph.wgsl, whose locations are the fields in order
+/// ([`GlyphRenderer::new`]'s vertex attributes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct GlyphInstance {
@@ -265,26 +305,22 @@ impl GlyphRenderer {
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("glyph"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
-                    ty: wgpu::BindingType::Buffer {
+                SLOT_UNIFORMS.layout_entry(
+                    wgpu::ShaderStages::VERTEX_FRAGMENT,
+                    wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
                         min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<GlyphUniforms>() as u64),
                     },
-                    count: None,
-                },
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
+                ),
+                SLOT_HIT_DEPTH.layout_entry(
+                    wgpu::ShaderStages::FRAGMENT,
+                    wgpu::BindingType::Texture {
                         sample_type: wgpu::TextureSampleType::Uint,
                         view_dimension: wgpu::TextureViewDimension::D2,
                         multisampled: false,
                     },
-                    count: None,
-                },
+                ),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -292,7 +328,7 @@ impl GlyphRenderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let module = GLYPH.create_module(device);
+        let module = SHADER.create_module(device);
         let attributes = wgpu::vertex_attr_array![
             0 => Float32x3, 1 => Float32, 2 => Float32x3, 3 => Uint32, 4 => Float32x4
         ];
@@ -306,7 +342,7 @@ impl GlyphRenderer {
             layout: Some(&pipeline_layout),
             vertex: wgpu::VertexState {
                 module: &module,
-                entry_point: GLYPH.entry_point(Stage::Vertex),
+                entry_point: SHADER.entry_point(Stage::Vertex),
                 compilation_options: wgpu::PipelineCompilationOptions::default(),
                 buffers: &[Some(wgpu::VertexBufferLayout {
                     array_stride: std::mem::size_of::<GlyphInstance>() as u64,
@@ -319,10 +355,10 @@ impl GlyphRenderer {
             multisample: wgpu::MultisampleState::default(),
             fragment: Some(wgpu::FragmentState {
                 module: &module,
-                entry_point: GLYPH.entry_point(Stage::Fragment),
+                entry_point: SHADER.entry_point(Stage::Fragment),
                 compilation_options: wgpu::PipelineCompilationOptions::default(),
                 targets: &[Some(wgpu::ColorTargetState {
-                    format: RaycastRenderer::TARGET_FORMAT,
+                    format: RenderTarget::COLOUR_FORMAT,
                     blend: Some(wgpu::BlendState { color: premultiplied_over, alpha: premultiplied_over }),
                     write_mask: wgpu::ColorWrites::ALL,
                 })],
@@ -336,7 +372,7 @@ impl GlyphRenderer {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: RaycastRenderer::HIT_DEPTH_FORMAT,
+            format: RenderTarget::HIT_DEPTH_FORMAT,
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
@@ -351,7 +387,7 @@ impl GlyphRenderer {
         Ok(Self { pipeline, layout, placeholder_hit_depth })
     }
 
-    /// Records the glyphs of `data` into `pass` (one [`RaycastRenderer::TARGET_FORMAT`] colour attachment).
+    /// Records the glyphs of `data` into `pass` (one [`RenderTarget::COLOUR_FORMAT`] colour attachment).
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &GlyphDrawData) {
         if data.count == 0 {
             return;
@@ -418,11 +454,9 @@ impl GlyphDrawData {
             label: Some("glyph"),
             layout: &renderer.layout,
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: wgpu::BindingResource::TextureView(hit_depth.unwrap_or(&renderer.placeholder_hit_depth)),
-                },
+                SLOT_UNIFORMS.entry(uniform_buffer.as_entire_binding()),
+                SLOT_HIT_DEPTH
+                    .entry(wgpu::BindingResource::TextureView(hit_depth.unwrap_or(&renderer.placeholder_hit_depth))),
             ],
         });
         let instances = Self::instance_buffer(ctx, glyphs.len());

@@ -3,22 +3,26 @@
 //!
 //! # Overview
 //!
-//! - [`GpuContext`] ([`device`]): a headless device ([`GpuContext::headless`]) or one the app already has
-//!   ([`GpuContext::from_device`]); requests only the optional features the passes use and collects wgpu's
-//!   uncaptured errors, each reported once.
-//! - [`shaders`]: the registry of every WGSL file (`shaders/*.wgsl`), used by the runtime and validated by the tests.
+//! - [`GpuContext`] ([`device`]): a headless device or one the app already has ([`GpuContext::from_device`]);
+//!   requests only the optional features its caller names and collects wgpu's uncaptured errors, each reported once.
+//!   [`headless`]: [`GpuContext::headless`], with the optional features the passes below use.
 //! - [`volume`]: [`PreparedVolume::prepare`] chooses an exact texture format and downsamples oversized volumes;
 //!   [`GpuVolume::upload`] makes the 3-D texture.
 //! - [`transfer`]: [`TransferFunction`]s, [`Preset`]s and [`Window`]s; [`GpuTransferFunctions`] is the 256×N texture.
-//! - [`control`]: control textures (sampled pull-backs) from the solver's layout: [`PreparedControl`], [`GpuControlTexture`].
+//! - [`control`]: control textures (sampled pull-backs) from the solver's layout: [`PreparedControl`],
+//!   [`GpuControlTexture`].
 //! - [`control_eval`]: [`ControlEvalPass`] evaluates a TPS ([`TpsDesc`]) or hierarchical B-spline ([`BSplineDesc`])
 //!   pull-back straight into a control texture on the GPU, its displacement bounds reduced there too.
 //! - [`camera`]: [`OrbitCamera`] (`clip_from_ref` and its inverse).
-//! - [`raycast`]: [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), [`BlendMode`],
-//!   [`RenderSettings`] with [`Shading`] ([`ShadingMode`]: unlit, lit DVR, lit iso-surface; gradients through the
-//!   warp), [`RaycastUniforms`], [`RenderTarget`] (texture + readback).
-//! - [`slice`](mod@slice): [`SlicePlane`] (axial/coronal/sagittal planes of the fixed grid, oblique planes, pixel ↔ ref), drawn
-//!   by [`RaycastRenderer::render_slice`] with the ray caster's sampling, classification and blending.
+//! - [`settings`]: what a frame is drawn with, as plain data: [`RenderSettings`] ([`BlendMode`], [`Quality`],
+//!   [`Shading`] with its [`ShadingMode`]: unlit, lit DVR, lit iso-surface; gradients through the warp), and per
+//!   volume [`LayerStyle`] and [`LayerParams`].
+//! - [`raycast`]: the ray caster, [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), with its
+//!   uniforms ([`RaycastUniforms`], [`VolumeUniforms`]), its shader and its bind slots.
+//! - [`target`]: [`RenderTarget`], the image and the first-hit depth the passes draw into.
+//! - [`slice`](mod@slice): [`SlicePlane`] (axial/coronal/sagittal planes of the fixed grid, oblique planes,
+//!   pixel ↔ ref), drawn by [`RaycastRenderer::render_slice`] with the ray caster's sampling, classification and
+//!   blending.
 //! - [`prefilter`]: [`PrefilterPass`], a separable Gaussian (compute, optionally half resolution) whose result
 //!   ([`GpuPrefiltered`]) the ray caster differentiates for shading; [`prefilter::cpu_prefilter`] is its reference.
 //! - [`pick`](mod@pick): [`PickPass`], ray picking in the deformed volumes (probes: opacity, gradient, accumulated
@@ -26,7 +30,20 @@
 //! - [`pool`]: [`TexturePool`], textures reused by descriptor ([`TextureKey`]); [`RenderTarget::from_pool`].
 //! - [`glyph`]: landmark glyphs ([`GlyphRenderer`], [`GlyphDrawData`], [`pair_glyphs`]): points and pair lines over the
 //!   3-D view, depth-tested against the ray caster's first hit ([`RenderTarget::hit_depth`]), and over slices.
+//! - [`export`]: the warped moving volume resampled onto a target grid, on the CPU ([`export_cpu`]) or the GPU
+//!   ([`ExportPass`]).
+//! - [`shader`]: what a pass declares about its WGSL (its [`shader::ShaderSource`], the layouts of its uniform
+//!   structs and its [`shader::BindSlot`]s); [`shaders`]: the registry that lists every file and every pass's
+//!   declaration, which `tests/shaders.rs` checks against naga's reading of the WGSL.
+//! - [`sampling`]: the GPU's trilinear lookup on the CPU, shared by [`control`] and [`cpu_reference`].
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
+//!
+//! # Imports
+//!
+//! No module imports (directly or through others) a module that imports it back. At the bottom, [`error`],
+//! [`shader`], [`sampling`], [`camera`], [`pool`] and [`slice`] import nothing but [`error`]; the passes import the
+//! data modules and [`shader`]; [`shaders`], [`headless`] and [`cpu_reference`] sit on top, and nothing in the crate
+//! imports them. A module of `export/` imports its siblings, never its parent.
 //!
 //! # Spaces
 //!
@@ -48,13 +65,18 @@ pub mod device;
 pub mod error;
 pub mod export;
 pub mod glyph;
+pub mod headless;
 pub mod pick;
 pub mod pool;
 pub mod prefilter;
 pub mod pullback;
 pub mod raycast;
+pub mod sampling;
+pub mod settings;
+pub mod shader;
 pub mod shaders;
 pub mod slice;
+pub mod target;
 pub mod transfer;
 pub mod volume;
 
@@ -77,10 +99,9 @@ pub use pick::{PickHit, PickPass, PickRay, PickRequest, PickTarget, Probe};
 pub use pool::{PoolStats, TextureKey, TexturePool};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use pullback::{BSplineDesc, LatticeDesc, TpsDesc, TpsLocal};
-pub use raycast::{
-    BlendMode, GpuFrame, GpuLayer, LayerParams, LayerStyle, Quality, RaycastDrawData, RaycastRenderer, RaycastUniforms,
-    RenderSettings, RenderTarget, Shading, ShadingMode, VolumeUniforms,
-};
+pub use raycast::{GpuFrame, GpuLayer, RaycastDrawData, RaycastRenderer, RaycastUniforms, VolumeUniforms};
+pub use settings::{BlendMode, LayerParams, LayerStyle, Quality, RenderSettings, Shading, ShadingMode};
 pub use slice::SlicePlane;
+pub use target::RenderTarget;
 pub use transfer::{GpuTransferFunctions, Preset, TransferFunction, Window};
 pub use volume::{GpuVolume, PreparedVolume, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};

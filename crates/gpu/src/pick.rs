@@ -28,8 +28,28 @@ use glam::{Mat4, Vec3, Vec4};
 use crate::compute::{self, binding, storage, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
-use crate::raycast::{RaycastDrawData, RaycastRenderer, RaycastUniforms};
-use crate::shaders::{RAYCAST, Stage};
+use crate::raycast::{self, FRAME_GROUP, RaycastDrawData, RaycastRenderer, RaycastUniforms};
+use crate::shader::{BindSlot, ShaderInterface, Stage, layout};
+
+/// The pass's own bind group, after the frame's ([`FRAME_GROUP`]).
+pub const PICK_GROUP: u32 = 1;
+const _: () = assert!(FRAME_GROUP == 0 && PICK_GROUP == 1, "PickPass::new lists the layouts in group order");
+pub const SLOT_UNIFORMS: BindSlot = BindSlot::new(PICK_GROUP, 0, "pick");
+pub const SLOT_RAYS: BindSlot = BindSlot::new(PICK_GROUP, 1, "pick_rays");
+pub const SLOT_HITS: BindSlot = BindSlot::new(PICK_GROUP, 2, "pick_hits");
+
+/// The picking pass's part of `shaders/raycast.wgsl` (the frame's slots are the ray caster's).
+pub const INTERFACE: ShaderInterface = ShaderInterface {
+    pass: "pick",
+    shader: raycast::SHADER,
+    uniform_structs: &[
+        layout!(PickUniforms { probe, target_volume, threshold, ray_count, bisection_steps }),
+        layout!(PickRay { origin_ref, dir_ref }),
+        layout!(PickHit { x_ref, t_mm, p_lps, value, hit, target_volume }),
+    ],
+    slots: &[SLOT_UNIFORMS, SLOT_RAYS, SLOT_HITS],
+    constants: &[],
+};
 
 /// What counts as a hit (module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -105,7 +125,7 @@ impl PickRequest {
     }
 }
 
-/// The pass's uniforms. Keep in sync with `PickUniforms` in shaders/raycast.wgsl.
+/// The pass's uniforms: `PickUniforms` in shaders/raycast.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct PickUniforms {
@@ -136,7 +156,7 @@ impl PickUniforms {
     }
 }
 
-/// A ray in ref space (mm). Keep in sync with `PickRay` in shaders/raycast.wgsl.
+/// A ray in ref space (mm): `PickRay` in shaders/raycast.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct PickRay {
@@ -169,7 +189,7 @@ impl PickRay {
     }
 }
 
-/// The result of one ray. Keep in sync with `PickHit` in shaders/raycast.wgsl.
+/// The result of one ray: `PickHit` in shaders/raycast.wgsl.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct PickHit {
@@ -240,10 +260,14 @@ impl PickPass {
         let layout = compute::layout(
             device,
             "pick",
-            &[binding(0, uniform::<PickUniforms>()), binding(1, storage(true, None)), binding(2, storage(false, None))],
+            &[
+                binding(SLOT_UNIFORMS, uniform::<PickUniforms>()),
+                binding(SLOT_RAYS, storage(true, None)),
+                binding(SLOT_HITS, storage(false, None)),
+            ],
         );
-        // Group 0 is the ray caster's frame, group 1 the rays and hits.
-        let entry_point = RAYCAST.entry_point(Stage::Compute);
+        // The layouts in group order: the ray caster's frame, then the rays and hits.
+        let entry_point = raycast::SHADER.entry_point(Stage::Compute);
         let pipeline =
             compute::pipeline(device, "pick", renderer.module(), entry_point, &[renderer.bind_group_layout(), &layout]);
         ctx.check_errors()?;
@@ -297,9 +321,9 @@ impl PickPass {
             label: Some("pick"),
             layout: &self.layout,
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: ray_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 2, resource: hit_buffer.as_entire_binding() },
+                SLOT_UNIFORMS.entry(uniform_buffer.as_entire_binding()),
+                SLOT_RAYS.entry(ray_buffer.as_entire_binding()),
+                SLOT_HITS.entry(hit_buffer.as_entire_binding()),
             ],
         });
         let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("pick") });
@@ -307,8 +331,8 @@ impl PickPass {
             let mut pass = encoder
                 .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("pick"), timestamp_writes: None });
             pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, frame.bind_group(), &[]);
-            pass.set_bind_group(1, &bind_group, &[]);
+            pass.set_bind_group(FRAME_GROUP, frame.bind_group(), &[]);
+            pass.set_bind_group(PICK_GROUP, &bind_group, &[]);
             pass.dispatch_workgroups(count.div_ceil(Self::WORKGROUP), 1, 1);
         }
         encoder.copy_buffer_to_buffer(&hit_buffer, 0, &readback, 0, hits_size);

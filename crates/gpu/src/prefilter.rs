@@ -1,7 +1,7 @@
 //! The gradient prefilter (Brunet, Nowak & Gleicher 2006 §3.4): a separable 3-D Gaussian
 //! G_σ ∗ v, σ in source voxels, run as three compute dispatches (x, y, z) that each may halve their axis, so the
 //! result can be stored at half resolution (the filtered volume is band-limited). The ray caster takes central
-//! differences of this copy, through the warp, for shading ([`crate::raycast::ShadingMode`]).
+//! differences of this copy, through the warp, for shading ([`crate::settings::ShadingMode`]).
 //!
 //! Output texel j along an axis lies at source index c_j = (j + ½)·n_src/n_dst − ½ (both textures cover the same
 //! \[0,1\]³ box of voxel edges, so the ray caster samples them with the same `tex_from_lps`) and holds
@@ -13,7 +13,7 @@
 //! (wgpu's GL backend binds a 3-D storage texture as a single layer: wgpu-hal 30 `ImageBinding` has layered = false
 //! for `D3`, so writes to z > 0 are lost; an array view is bound layered on every backend): `R32Float` is storage-capable in the WebGPU
 //! core format table and reported so (`get_texture_format_features`, `STORAGE_BINDING`) by lavapipe and by GL, where
-//! `R16Float` and `R8Unorm` are not (research/stack.md §2). [`GpuContext::headless_with`] records the adapter's answer
+//! `R16Float` and `R8Unorm` are not (research/stack.md §2). [`GpuContext::headless_requesting`] records the adapter's answer
 //! in [`GpuContext::r32float_storage`] and [`PrefilterPass::new`] checks it. `R32Float` is not filterable on GL, so the
 //! ray caster filters the prefiltered copy by hand (8 `textureLoad`s), on every device alike.
 //!
@@ -26,15 +26,43 @@ use rayon::prelude::*;
 use crate::compute::{self, binding, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
-use crate::shaders::PREFILTER;
+use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, layout};
 use crate::volume::{GpuVolume, PreparedVolume};
+
+/// `shaders/prefilter.wgsl`: `cs_gaussian_from_volume` (x) and `cs_gaussian_from_layers` (y, z), one axis of the
+/// separable Gaussian each.
+pub const SHADER: ShaderSource = ShaderSource {
+    name: "prefilter",
+    path: "shaders/prefilter.wgsl",
+    source: include_str!("../../../shaders/prefilter.wgsl"),
+    entry_points: &[(FROM_VOLUME, Stage::Compute), (FROM_LAYERS, Stage::Compute)],
+};
+/// The entry point of the x pass, which reads the volume's 3-D texture.
+const FROM_VOLUME: &str = "cs_gaussian_from_volume";
+/// The entry point of the y and z passes, which read the previous pass's 2-D array.
+const FROM_LAYERS: &str = "cs_gaussian_from_layers";
+
+pub const SLOT_UNIFORMS: BindSlot = BindSlot::new(0, 0, "p");
+/// The x pass's source: the volume.
+pub const SLOT_SOURCE_VOLUME: BindSlot = BindSlot::new(0, 1, "src_volume");
+pub const SLOT_OUTPUT: BindSlot = BindSlot::new(0, 2, "dst");
+/// The y and z passes' source: the previous pass's output.
+pub const SLOT_SOURCE_LAYERS: BindSlot = BindSlot::new(0, 3, "src_layers");
+
+pub const INTERFACE: ShaderInterface = ShaderInterface {
+    pass: "prefilter",
+    shader: SHADER,
+    uniform_structs: &[layout!(PrefilterUniforms { axis, radius_vox, sigma_vox, dst_dims })],
+    slots: &[SLOT_UNIFORMS, SLOT_SOURCE_VOLUME, SLOT_OUTPUT, SLOT_SOURCE_LAYERS],
+    constants: &[],
+};
 
 /// The prefilter's output format (see the module docs).
 pub const PREFILTER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
 /// `@workgroup_size` of the prefilter's entry points.
 const WORKGROUP: u32 = 4;
 
-/// One axis pass's uniforms. Keep in sync with `PrefilterUniforms` in shaders/prefilter.wgsl.
+/// One axis pass's uniforms: `PrefilterUniforms` in shaders/prefilter.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct PrefilterUniforms {
@@ -251,8 +279,6 @@ impl PrefilterPass {
     /// Storage textures per compute stage and invocations per workgroup the pass needs.
     pub const STORAGE_TEXTURES: u32 = 1;
     pub const INVOCATIONS: u32 = WORKGROUP * WORKGROUP * WORKGROUP;
-    const FROM_VOLUME: &str = "cs_gaussian_from_volume";
-    const FROM_LAYERS: &str = "cs_gaussian_from_layers";
 
     pub fn new(ctx: &GpuContext) -> Result<Self> {
         let l = &ctx.limits;
@@ -273,8 +299,8 @@ impl PrefilterPass {
             )));
         }
         let device = &ctx.device;
-        let module = PREFILTER.create_module(device);
-        let make = |entry_point: &str, source: wgpu::TextureViewDimension, source_binding: u32| {
+        let module = SHADER.create_module(device);
+        let make = |entry_point: &str, source: wgpu::TextureViewDimension, source_slot: BindSlot| {
             let output = wgpu::BindingType::StorageTexture {
                 access: wgpu::StorageTextureAccess::WriteOnly,
                 format: PREFILTER_FORMAT,
@@ -284,21 +310,22 @@ impl PrefilterPass {
                 device,
                 entry_point,
                 &[
-                    binding(0, uniform::<PrefilterUniforms>()),
-                    binding(source_binding, compute::texture(source)),
-                    binding(2, output),
+                    binding(SLOT_UNIFORMS, uniform::<PrefilterUniforms>()),
+                    binding(source_slot, compute::texture(source)),
+                    binding(SLOT_OUTPUT, output),
                 ],
             );
             (compute::pipeline(device, entry_point, &module, Some(entry_point), &[&layout]), layout)
         };
-        let from_volume = make(Self::FROM_VOLUME, wgpu::TextureViewDimension::D3, 1);
-        let from_layers = make(Self::FROM_LAYERS, wgpu::TextureViewDimension::D2Array, 3);
+        let from_volume = make(FROM_VOLUME, wgpu::TextureViewDimension::D3, SLOT_SOURCE_VOLUME);
+        let from_layers = make(FROM_LAYERS, wgpu::TextureViewDimension::D2Array, SLOT_SOURCE_LAYERS);
         ctx.check_errors()?;
         Ok(Self { from_volume, from_layers })
     }
 
     /// Records the three axis passes that filter `volume` into a new texture, which is returned; the caller submits
-    /// `encoder`. Fails when the volume has more slices than the device allows array layers. Intermediate textures are dropped once the commands have run.
+    /// `encoder`. Fails when the volume has more slices than the device allows array layers. Intermediate textures
+    /// are dropped once the commands have run.
     pub fn encode(
         &self,
         ctx: &GpuContext,
@@ -332,18 +359,18 @@ impl PrefilterPass {
                 mapped_at_creation: false,
             });
             ctx.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&settings.uniforms(axis, next_dims)));
-            let ((pipeline, layout), source_binding) =
-                if axis == 0 { (&self.from_volume, 1) } else { (&self.from_layers, 3) };
+            let ((pipeline, layout), source_slot) = if axis == 0 {
+                (&self.from_volume, SLOT_SOURCE_VOLUME)
+            } else {
+                (&self.from_layers, SLOT_SOURCE_LAYERS)
+            };
             let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("prefilter"),
                 layout,
                 entries: &[
-                    wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
-                    wgpu::BindGroupEntry {
-                        binding: source_binding,
-                        resource: wgpu::BindingResource::TextureView(&cur_view),
-                    },
-                    wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&view) },
+                    SLOT_UNIFORMS.entry(buffer.as_entire_binding()),
+                    source_slot.entry(wgpu::BindingResource::TextureView(&cur_view)),
+                    SLOT_OUTPUT.entry(wgpu::BindingResource::TextureView(&view)),
                 ],
             });
             {

@@ -17,38 +17,40 @@
 //! with opacity > 0; iso mode takes, per layer, the first sample with value ≥ [`LayerStyle::iso_value`], refines it
 //! by bisection, lights it opaque, and blends the two layers' hits once by the [`BlendMode`] (the checkerboard cell
 //! is chosen at the nearer hit). Each shading mode has its own pipeline (WGSL override `SHADING`), created on first
-//! use, so the unlit pass costs what it did before shading existed.
+//! use, so the unlit pass compiles none of the lighting code and pays nothing for it.
 //!
 //! Types: [`RaycastRenderer`] (long-lived: pipeline, layout, samplers) and [`RaycastDrawData`] (one frame: bind
 //! group and uniforms over the volumes, control textures and transfer functions). [`RaycastUniforms`] is built by
-//! [`RaycastUniforms::new`] from plain [`LayerParams`], which the CPU reference ([`crate::cpu_reference`]) consumes too.
+//! [`RaycastUniforms::new`] from the plain settings of [`crate::settings`], which the CPU reference
+//! ([`crate::cpu_reference`]) consumes too. It draws into a [`RenderTarget`].
 
 use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Mat4};
 
 use crate::camera::{OrbitCamera, Projection};
-use crate::control::{ControlInfo, GpuControlTexture};
+use crate::control::GpuControlTexture;
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
-use crate::pool::{TextureKey, TexturePool};
 use crate::prefilter::GpuPrefiltered;
-use crate::shaders::{RAYCAST, Stage};
+use crate::settings::{BlendMode, LayerParams, LayerStyle, RenderSettings, Shading, ShadingMode};
+use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, WgslConstant, layout};
 use crate::slice::SlicePlane;
-use crate::transfer::{GpuTransferFunctions, Window};
-use crate::volume::{GpuVolume, VolumeInfo};
+use crate::target::{HIT_OPACITY, NO_HIT_DEPTH, RenderTarget};
+use crate::transfer::GpuTransferFunctions;
+use crate::volume::GpuVolume;
 
-/// `VolumeUniforms.flags`
+/// `VolumeUniforms.flags`, the WGSL constants of the same names ([`INTERFACE`]).
 pub const VOLUME_VISIBLE: u32 = 1;
 pub const VOLUME_HAS_WARP: u32 = 2;
 pub const VOLUME_MANUAL_FILTER: u32 = 4;
 /// A prefiltered copy is bound for this volume (gradients come from it; otherwise from the volume itself).
 pub const VOLUME_HAS_PREFILTER: u32 = 8;
-/// `RaycastUniforms.flags`
+/// `RaycastUniforms.flags`.
 pub const RAYCAST_JITTER: u32 = 1;
 /// Early ray termination threshold.
 pub const EARLY_EXIT_ALPHA: f32 = 0.99;
 
-/// One volume's uniforms. Keep in sync with `VolumeUniforms` in shaders/raycast.wgsl.
+/// One volume's uniforms: `VolumeUniforms` in shaders/raycast.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct VolumeUniforms {
@@ -67,7 +69,7 @@ pub struct VolumeUniforms {
 }
 const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 160);
 
-/// The frame's uniforms. Keep in sync with `RaycastUniforms` in shaders/raycast.wgsl.
+/// The frame's uniforms: `RaycastUniforms` in shaders/raycast.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct RaycastUniforms {
@@ -102,261 +104,34 @@ pub struct RaycastUniforms {
 }
 const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 544);
 
-/// How the two classified samples combine (`RaycastUniforms.blend_mode`, `BLEND_*` in the shader).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum BlendMode {
-    /// (1 − w)·fixed + w·moving.
-    Mix {
-        moving_weight: f32,
-    },
-    /// fixed + moving, clamped.
-    Additive,
-    /// |fixed − moving| in colour, max of the opacities: aligned structures go dark.
-    Difference,
-    /// A 3-D checkerboard of `cell_mm` cells in ref space; cells with an even index sum show fixed.
-    Checkerboard {
-        cell_mm: f32,
-    },
-    /// Fixed luminance in red, moving luminance in green and blue.
-    RedCyan,
-    FixedOnly,
-    MovingOnly,
-}
-
-impl BlendMode {
-    /// One of each, for tests and menus.
-    pub const ALL: [Self; 7] = [
-        Self::Mix { moving_weight: 0.5 },
-        Self::Additive,
-        Self::Difference,
-        Self::Checkerboard { cell_mm: 12.0 },
-        Self::RedCyan,
-        Self::FixedOnly,
-        Self::MovingOnly,
-    ];
-
+impl VolumeUniforms {
+    /// The uniforms of `layer`, whose transfer function is a row of a texture of `tf_rows` rows.
     #[must_use]
-    pub fn code(self) -> u32 {
-        match self {
-            Self::Mix { .. } => 0,
-            Self::Additive => 1,
-            Self::Difference => 2,
-            Self::Checkerboard { .. } => 3,
-            Self::RedCyan => 4,
-            Self::FixedOnly => 5,
-            Self::MovingOnly => 6,
-        }
-    }
-
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::Mix { .. } => "mix",
-            Self::Additive => "additive",
-            Self::Difference => "difference",
-            Self::Checkerboard { .. } => "checkerboard",
-            Self::RedCyan => "red-cyan",
-            Self::FixedOnly => "fixed-only",
-            Self::MovingOnly => "moving-only",
-        }
-    }
-}
-
-/// How samples are lit (`RaycastUniforms.shading_mode`, `SHADING_*` in the shader).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ShadingMode {
-    /// Unlit direct volume rendering: the transfer function's colour as it is.
-    None,
-    /// Direct volume rendering, each sample with opacity > 0 lit by its gradient.
-    Dvr,
-    /// Per volume, the first sample whose value ≥ [`LayerStyle::iso_value`], refined by bisection, lit and opaque;
-    /// the two volumes' hits are then blended once by the [`BlendMode`].
-    Iso,
-}
-
-impl ShadingMode {
-    pub const ALL: [Self; 3] = [Self::None, Self::Dvr, Self::Iso];
-
-    #[must_use]
-    pub fn code(self) -> u32 {
-        match self {
-            Self::None => 0,
-            Self::Dvr => 1,
-            Self::Iso => 2,
-        }
-    }
-
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::None => "none",
-            Self::Dvr => "dvr",
-            Self::Iso => "iso",
-        }
-    }
-}
-
-/// Lighting: a headlight (light = view direction), two-sided.
-///
-/// For a sample with gradient g and n = g/|g|, l = −ray direction:
-/// colour' = clamp(colour·(ambient + diffuse·|n·l|) + specular·|n·l|^shininess, 0, 1) (straight colour; with a
-/// headlight the Blinn-Phong half vector is l). The gradient is taken through the warp (see [`crate::raycast`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Shading {
-    pub mode: ShadingMode,
-    pub ambient: f32,
-    pub diffuse: f32,
-    /// 0 turns specular off.
-    pub specular: f32,
-    pub shininess: f32,
-    /// Central-difference step in ref mm; `None` is one voxel of the finest visible spacing.
-    pub gradient_step_mm: Option<f32>,
-    /// Iso mode: bisection steps between the last sample below and the first at or above the threshold.
-    pub bisection_steps: u32,
-}
-
-impl Default for Shading {
-    fn default() -> Self {
-        Self {
-            mode: ShadingMode::None,
-            ambient: 0.3,
-            diffuse: 0.7,
-            specular: 0.2,
-            shininess: 24.0,
-            gradient_step_mm: None,
-            bisection_steps: 6,
-        }
-    }
-}
-
-impl Shading {
-    /// The default lighting with `mode`.
-    #[must_use]
-    pub fn with_mode(mode: ShadingMode) -> Self {
-        Self { mode, ..Self::default() }
-    }
-}
-
-/// Which sample rate a frame uses: the full one when the view is still, a lower one while the user drags (Brunet,
-/// Nowak & Gleicher 2006 §6.2: their implementation "adjusts sampling rates to provide faster performance at the
-/// expense of image quality"). Opacity is corrected to the step, so the picture keeps its brightness and only gets
-/// coarser.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Quality {
-    #[default]
-    Full,
-    Interactive,
-}
-
-/// Frame-wide settings.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct RenderSettings {
-    pub blend: BlendMode,
-    /// Samples per voxel of the finest visible spacing (step = spacing / samples_per_voxel).
-    pub samples_per_voxel: f32,
-    /// The samples per voxel of [`Quality::Interactive`] frames ([`Self::at`]).
-    pub interaction_samples_per_voxel: f32,
-    /// `Some(seed)`: jitter ray starts by a fixed per-pixel hash of (pixel, seed). `None` for tests and goldens.
-    pub jitter_seed: Option<u32>,
-    /// Upper bound on samples per ray.
-    pub max_steps: u32,
-    /// Replaces the automatic proxy box (the union of both layers' [`LayerParams::box_ref`]: where each volume can
-    /// appear after its warp).
-    pub box_override_ref: Option<(glam::Vec3, glam::Vec3)>,
-    pub shading: Shading,
-}
-
-impl Default for RenderSettings {
-    fn default() -> Self {
-        Self {
-            blend: BlendMode::Mix { moving_weight: 0.5 },
-            samples_per_voxel: 1.0,
-            interaction_samples_per_voxel: 0.5,
-            jitter_seed: None,
-            max_steps: 4096,
-            box_override_ref: None,
-            shading: Shading::default(),
-        }
-    }
-}
-
-impl RenderSettings {
-    /// These settings at `quality`: [`Quality::Interactive`] samples at [`Self::interaction_samples_per_voxel`]
-    /// (never more finely than the full rate).
-    #[must_use]
-    pub fn at(&self, quality: Quality) -> Self {
-        match quality {
-            Quality::Full => *self,
-            Quality::Interactive => {
-                Self { samples_per_voxel: self.interaction_samples_per_voxel.min(self.samples_per_voxel), ..*self }
-            }
-        }
-    }
-}
-
-/// How one volume is drawn.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LayerStyle {
-    pub window: Window,
-    /// Row in the transfer-function texture.
-    pub tf_row: u32,
-    /// Multiplies the TF opacity.
-    pub opacity_scale: f32,
-    pub visible: bool,
-    /// Iso-surface threshold in this volume's value units (HU for CT), for [`ShadingMode::Iso`].
-    pub iso_value: f32,
-}
-
-/// Everything about one volume that goes into the uniforms, without GPU resources.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LayerParams {
-    pub volume: VolumeInfo,
-    /// The pull-back into this volume's LPS space; `None` is the identity fast path.
-    pub control: Option<ControlInfo>,
-    pub style: LayerStyle,
-    /// A prefiltered copy is bound: gradients for shading come from it.
-    pub has_prefilter: bool,
-}
-
-impl LayerParams {
-    fn uniforms(&self, tf_rows: u32) -> VolumeUniforms {
+    pub fn new(layer: &LayerParams, tf_rows: u32) -> Self {
         let mut flags = 0;
-        if self.has_prefilter {
+        if layer.has_prefilter {
             flags |= VOLUME_HAS_PREFILTER;
         }
-        if self.style.visible {
+        if layer.style.visible {
             flags |= VOLUME_VISIBLE;
         }
-        if self.control.is_some() {
+        if layer.control.is_some() {
             flags |= VOLUME_HAS_WARP;
         }
-        if self.volume.manual_filter {
+        if layer.volume.manual_filter {
             flags |= VOLUME_MANUAL_FILTER;
         }
-        VolumeUniforms {
-            tex_from_lps: self.volume.tex_from_lps.to_cols_array_2d(),
-            ctrl_tex_from_ref: self.control.map_or(Mat4::IDENTITY, |c| c.ctrl_tex_from_ref).to_cols_array_2d(),
-            value_offset: self.volume.value_offset,
-            value_scale: self.volume.value_scale,
-            window_low: self.style.window.low(),
-            window_width: self.style.window.width,
-            tf_row: self.style.tf_row.min(tf_rows.max(1) - 1),
-            opacity_scale: self.style.opacity_scale,
+        Self {
+            tex_from_lps: layer.volume.tex_from_lps.to_cols_array_2d(),
+            ctrl_tex_from_ref: layer.control.map_or(Mat4::IDENTITY, |c| c.ctrl_tex_from_ref).to_cols_array_2d(),
+            value_offset: layer.volume.value_offset,
+            value_scale: layer.volume.value_scale,
+            window_low: layer.style.window.low(),
+            window_width: layer.style.window.width,
+            tf_row: layer.style.tf_row.min(tf_rows.max(1) - 1),
+            opacity_scale: layer.style.opacity_scale,
             flags,
-            iso_value: self.style.iso_value,
-        }
-    }
-
-    /// A ref-space box that contains every point where this layer can have content: the volume is non-transparent
-    /// only where u(x) = x + d(x) lies in its LPS box [lo, hi], and d(x) lies componentwise in
-    /// [`ControlInfo::disp_min_mm`, `ControlInfo::disp_max_mm`] everywhere (trilinear, clamp-to-edge), so
-    /// x ∈ [lo − d_max, hi − d_min]. Exact for the identity and for a constant displacement; conservative otherwise.
-    #[must_use]
-    pub fn box_ref(&self) -> (DVec3, DVec3) {
-        let (lo, hi) = (self.volume.box_min_lps, self.volume.box_max_lps);
-        match self.control {
-            Some(c) => (lo - c.disp_max_mm.as_dvec3(), hi - c.disp_min_mm.as_dvec3()),
-            None => (lo, hi),
+            iso_value: layer.style.iso_value,
         }
     }
 }
@@ -411,8 +186,8 @@ impl RaycastUniforms {
             specular: settings.shading.specular,
             shininess: settings.shading.shininess.max(0.0),
             _pad0: 0,
-            fixed: fixed.uniforms(tf_rows),
-            moving: moving.uniforms(tf_rows),
+            fixed: VolumeUniforms::new(fixed, tf_rows),
+            moving: VolumeUniforms::new(moving, tf_rows),
             ref_from_frag_px: Mat4::IDENTITY.to_cols_array_2d(),
         }
     }
@@ -439,6 +214,105 @@ impl RaycastUniforms {
     }
 }
 
+/// `shaders/raycast.wgsl`: `vs_fullscreen` + `fs_raycast` (the 3-D view), `fs_slice` ([`crate::slice`]) and
+/// `cs_pick` ([`crate::pick`]).
+pub const SHADER: ShaderSource = ShaderSource {
+    name: "raycast",
+    path: "shaders/raycast.wgsl",
+    source: include_str!("../../../shaders/raycast.wgsl"),
+    entry_points: &[
+        ("vs_fullscreen", Stage::Vertex),
+        ("fs_raycast", Stage::Fragment),
+        (RaycastRenderer::SLICE_ENTRY_POINT, Stage::Fragment),
+        ("cs_pick", Stage::Compute),
+    ],
+};
+
+/// The frame's bind group ([`RaycastDrawData::bind_group`]), group 0 of the ray caster and of the picking pass.
+pub const FRAME_GROUP: u32 = 0;
+/// [`RaycastUniforms`].
+pub const SLOT_UNIFORMS: BindSlot = BindSlot::new(FRAME_GROUP, 0, "u");
+pub const SLOT_FIXED_VOLUME: BindSlot = BindSlot::new(FRAME_GROUP, 1, "fixed_tex");
+pub const SLOT_MOVING_VOLUME: BindSlot = BindSlot::new(FRAME_GROUP, 2, "moving_tex");
+/// The fixed volume's control texture (a placeholder without a warp).
+pub const SLOT_FIXED_CONTROL: BindSlot = BindSlot::new(FRAME_GROUP, 3, "fixed_ctrl_tex");
+pub const SLOT_MOVING_CONTROL: BindSlot = BindSlot::new(FRAME_GROUP, 4, "moving_ctrl_tex");
+/// The transfer functions, one row each.
+pub const SLOT_TRANSFER_FUNCTIONS: BindSlot = BindSlot::new(FRAME_GROUP, 5, "tf_tex");
+/// Filtering or not, as the volumes' formats allow.
+pub const SLOT_VOLUME_SAMPLER: BindSlot = BindSlot::new(FRAME_GROUP, 6, "volume_sampler");
+/// Always filtering: control textures and transfer functions.
+pub const SLOT_LINEAR_SAMPLER: BindSlot = BindSlot::new(FRAME_GROUP, 7, "linear_sampler");
+/// The fixed volume's prefiltered copy (a placeholder without one).
+pub const SLOT_FIXED_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 8, "fixed_pf_tex");
+pub const SLOT_MOVING_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 9, "moving_pf_tex");
+
+/// The ray caster's part of `shaders/raycast.wgsl` (the picking pass declares its own, [`crate::pick::INTERFACE`]).
+pub const INTERFACE: ShaderInterface = ShaderInterface {
+    pass: "raycast",
+    shader: SHADER,
+    uniform_structs: &[
+        layout!(VolumeUniforms {
+            tex_from_lps,
+            ctrl_tex_from_ref,
+            value_offset,
+            value_scale,
+            window_low,
+            window_width,
+            tf_row,
+            opacity_scale,
+            flags,
+            iso_value
+        }),
+        layout!(RaycastUniforms {
+            ref_from_clip,
+            box_min_ref,
+            step_mm,
+            box_max_ref,
+            ref_step_mm,
+            viewport_px,
+            blend_mode,
+            flags,
+            blend_weight,
+            checker_cell_mm,
+            max_steps,
+            jitter_seed,
+            shading_mode,
+            bisection_steps,
+            gradient_step_mm,
+            ambient,
+            diffuse,
+            specular,
+            shininess,
+            fixed,
+            moving,
+            ref_from_frag_px
+        }),
+    ],
+    slots: &[
+        SLOT_UNIFORMS,
+        SLOT_FIXED_VOLUME,
+        SLOT_MOVING_VOLUME,
+        SLOT_FIXED_CONTROL,
+        SLOT_MOVING_CONTROL,
+        SLOT_TRANSFER_FUNCTIONS,
+        SLOT_VOLUME_SAMPLER,
+        SLOT_LINEAR_SAMPLER,
+        SLOT_FIXED_PREFILTERED,
+        SLOT_MOVING_PREFILTERED,
+    ],
+    constants: &[
+        WgslConstant::u32("VOLUME_VISIBLE", VOLUME_VISIBLE),
+        WgslConstant::u32("VOLUME_HAS_WARP", VOLUME_HAS_WARP),
+        WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
+        WgslConstant::u32("VOLUME_HAS_PREFILTER", VOLUME_HAS_PREFILTER),
+        WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
+        WgslConstant::f32("EARLY_EXIT_ALPHA", EARLY_EXIT_ALPHA),
+        WgslConstant::f32("HIT_OPACITY", HIT_OPACITY),
+        WgslConstant::f32("NO_HIT_DEPTH", NO_HIT_DEPTH),
+    ],
+};
+
 /// The stages that see the frame's bind group: the ray caster's fragment stage and the picking pass
 /// ([`crate::pick`]), which marches the same samples in a compute shader.
 const FRAME_STAGES: wgpu::ShaderStages = wgpu::ShaderStages::FRAGMENT.union(wgpu::ShaderStages::COMPUTE);
@@ -462,11 +336,6 @@ pub struct RaycastRenderer {
 }
 
 impl RaycastRenderer {
-    /// The output format.
-    pub const TARGET_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-    /// The format of the first-hit depth, the ray caster's second output ([`RenderTarget::hit_depth`]): the bits of
-    /// an f32 NDC depth, because R32Float is not colour-renderable on GLES (wgpu's GL backend) and R32Uint is.
-    pub const HIT_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
     /// Requested when the adapter has them; without them the pass falls back (see [`crate::volume`] and
     /// [`crate::control`]).
     pub const OPTIONAL_FEATURES: wgpu::Features =
@@ -492,71 +361,43 @@ impl RaycastRenderer {
         }
         let device = &ctx.device;
         let volumes_filterable = ctx.capabilities.volumes_filterable();
-        let tex3d = |binding, filterable| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: FRAME_STAGES,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable },
-                view_dimension: wgpu::TextureViewDimension::D3,
-                multisampled: false,
-            },
-            count: None,
+        let texture = |view_dimension, filterable| wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension,
+            multisampled: false,
+        };
+        let tex3d = |slot: BindSlot, filterable| {
+            slot.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D3, filterable))
         };
         // Prefiltered copies: R32Float 2-D arrays (layer = z), read with textureLoad.
-        let layers = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: FRAME_STAGES,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                view_dimension: wgpu::TextureViewDimension::D2Array,
-                multisampled: false,
-            },
-            count: None,
-        };
-        let sampler = |binding, kind| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: FRAME_STAGES,
-            ty: wgpu::BindingType::Sampler(kind),
-            count: None,
+        let layers =
+            |slot: BindSlot| slot.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2Array, false));
+        let sampler = |slot: BindSlot, kind| slot.layout_entry(FRAME_STAGES, wgpu::BindingType::Sampler(kind));
+        let volume_sampling = if volumes_filterable {
+            wgpu::SamplerBindingType::Filtering
+        } else {
+            wgpu::SamplerBindingType::NonFiltering
         };
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("raycast"),
             entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: FRAME_STAGES,
-                    ty: wgpu::BindingType::Buffer {
+                SLOT_UNIFORMS.layout_entry(
+                    FRAME_STAGES,
+                    wgpu::BindingType::Buffer {
                         ty: wgpu::BufferBindingType::Uniform,
                         has_dynamic_offset: false,
                         min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<RaycastUniforms>() as u64),
                     },
-                    count: None,
-                },
-                tex3d(1, volumes_filterable),
-                tex3d(2, volumes_filterable),
-                tex3d(3, true),
-                tex3d(4, true),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 5,
-                    visibility: FRAME_STAGES,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-                sampler(
-                    6,
-                    if volumes_filterable {
-                        wgpu::SamplerBindingType::Filtering
-                    } else {
-                        wgpu::SamplerBindingType::NonFiltering
-                    },
                 ),
-                sampler(7, wgpu::SamplerBindingType::Filtering),
-                layers(8),
-                layers(9),
+                tex3d(SLOT_FIXED_VOLUME, volumes_filterable),
+                tex3d(SLOT_MOVING_VOLUME, volumes_filterable),
+                tex3d(SLOT_FIXED_CONTROL, true),
+                tex3d(SLOT_MOVING_CONTROL, true),
+                SLOT_TRANSFER_FUNCTIONS.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2, true)),
+                sampler(SLOT_VOLUME_SAMPLER, volume_sampling),
+                sampler(SLOT_LINEAR_SAMPLER, wgpu::SamplerBindingType::Filtering),
+                layers(SLOT_FIXED_PREFILTERED),
+                layers(SLOT_MOVING_PREFILTERED),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -564,7 +405,7 @@ impl RaycastRenderer {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        let module = RAYCAST.create_module(device);
+        let module = SHADER.create_module(device);
         let filter = if volumes_filterable { wgpu::FilterMode::Linear } else { wgpu::FilterMode::Nearest };
         let clamp = wgpu::AddressMode::ClampToEdge;
         let volume_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -608,11 +449,11 @@ impl RaycastRenderer {
     }
 
     /// The pipeline specialised for shading mode `code` (the WGSL override `SHADING`), created on first use: each
-    /// mode compiles only its own code, which keeps the unlit pass as small and fast as before shading existed.
+    /// mode compiles only its own code, so the unlit pass carries none of the lighting.
     fn pipeline(&self, code: u32) -> &wgpu::RenderPipeline {
         let code = code.min(ShadingMode::Iso.code());
         self.pipelines[code as usize].get_or_init(|| {
-            let fragment = RAYCAST.entry_point(Stage::Fragment);
+            let fragment = SHADER.entry_point(Stage::Fragment);
             self.create_pipeline("raycast", fragment, &[("SHADING", f64::from(code))], true)
         })
     }
@@ -631,12 +472,12 @@ impl RaycastRenderer {
         with_hit_depth: bool,
     ) -> wgpu::RenderPipeline {
         let colour = Some(wgpu::ColorTargetState {
-            format: Self::TARGET_FORMAT,
+            format: RenderTarget::COLOUR_FORMAT,
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
         });
         let hit_depth = Some(wgpu::ColorTargetState {
-            format: Self::HIT_DEPTH_FORMAT,
+            format: RenderTarget::HIT_DEPTH_FORMAT,
             blend: None,
             write_mask: wgpu::ColorWrites::ALL,
         });
@@ -647,7 +488,7 @@ impl RaycastRenderer {
             layout: Some(&self.pipeline_layout),
             vertex: wgpu::VertexState {
                 module: &self.module,
-                entry_point: RAYCAST.entry_point(Stage::Vertex),
+                entry_point: SHADER.entry_point(Stage::Vertex),
                 compilation_options: wgpu::PipelineCompilationOptions::default(),
                 buffers: &[],
             },
@@ -677,25 +518,19 @@ impl RaycastRenderer {
         &self.module
     }
 
-    /// Creates the pipeline for `mode` now (it is otherwise created by the first draw that needs it).
-    pub fn prepare_pipeline(&self, ctx: &GpuContext, mode: ShadingMode) -> Result<()> {
-        self.pipeline(mode.code());
-        ctx.check_errors()
-    }
-
-    /// Records the pass's draw into `pass`, whose colour attachments must be [`Self::TARGET_FORMAT`] and
-    /// [`Self::HIT_DEPTH_FORMAT`] ([`RenderTarget::colour_attachments`]).
+    /// Records the pass's draw into `pass`, whose colour attachments must be [`RenderTarget::COLOUR_FORMAT`] and
+    /// [`RenderTarget::HIT_DEPTH_FORMAT`] ([`RenderTarget::colour_attachments`]).
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
         pass.set_pipeline(self.pipeline(data.uniforms.shading_mode));
-        pass.set_bind_group(0, &data.bind_group, &[]);
+        pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
         pass.draw(0..3, 0..1);
     }
 
     /// Records a slice draw ([`crate::slice`]; `data` built from [`RaycastUniforms::for_slice`]) into `pass`, whose
-    /// one colour attachment is [`Self::TARGET_FORMAT`].
+    /// one colour attachment is [`RenderTarget::COLOUR_FORMAT`].
     pub fn draw_slice(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
         pass.set_pipeline(self.slice_pipeline());
-        pass.set_bind_group(0, &data.bind_group, &[]);
+        pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
         pass.draw(0..3, 0..1);
     }
 
@@ -806,7 +641,8 @@ pub struct GpuFrame<'a> {
 #[derive(Debug)]
 pub struct RaycastDrawData {
     pub uniforms: RaycastUniforms,
-    buffer: wgpu::Buffer,
+    /// The buffer of [`Self::uniforms`], held as long as the bind group that binds it.
+    _uniform_buffer: wgpu::Buffer,
     bind_group: wgpu::BindGroup,
 }
 
@@ -866,148 +702,24 @@ impl RaycastDrawData {
             label: Some("raycast"),
             layout: &renderer.layout,
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&fixed.volume.view) },
-                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&moving.volume.view) },
-                wgpu::BindGroupEntry { binding: 3, resource: wgpu::BindingResource::TextureView(fixed_ctrl) },
-                wgpu::BindGroupEntry { binding: 4, resource: wgpu::BindingResource::TextureView(moving_ctrl) },
-                wgpu::BindGroupEntry { binding: 5, resource: wgpu::BindingResource::TextureView(&tfs.view) },
-                wgpu::BindGroupEntry { binding: 6, resource: wgpu::BindingResource::Sampler(&renderer.volume_sampler) },
-                wgpu::BindGroupEntry { binding: 7, resource: wgpu::BindingResource::Sampler(&renderer.linear_sampler) },
-                wgpu::BindGroupEntry { binding: 8, resource: wgpu::BindingResource::TextureView(fixed_pf) },
-                wgpu::BindGroupEntry { binding: 9, resource: wgpu::BindingResource::TextureView(moving_pf) },
+                SLOT_UNIFORMS.entry(buffer.as_entire_binding()),
+                SLOT_FIXED_VOLUME.entry(wgpu::BindingResource::TextureView(&fixed.volume.view)),
+                SLOT_MOVING_VOLUME.entry(wgpu::BindingResource::TextureView(&moving.volume.view)),
+                SLOT_FIXED_CONTROL.entry(wgpu::BindingResource::TextureView(fixed_ctrl)),
+                SLOT_MOVING_CONTROL.entry(wgpu::BindingResource::TextureView(moving_ctrl)),
+                SLOT_TRANSFER_FUNCTIONS.entry(wgpu::BindingResource::TextureView(&tfs.view)),
+                SLOT_VOLUME_SAMPLER.entry(wgpu::BindingResource::Sampler(&renderer.volume_sampler)),
+                SLOT_LINEAR_SAMPLER.entry(wgpu::BindingResource::Sampler(&renderer.linear_sampler)),
+                SLOT_FIXED_PREFILTERED.entry(wgpu::BindingResource::TextureView(fixed_pf)),
+                SLOT_MOVING_PREFILTERED.entry(wgpu::BindingResource::TextureView(moving_pf)),
             ],
         });
-        Self { uniforms, buffer, bind_group }
+        Self { uniforms, _uniform_buffer: buffer, bind_group }
     }
 
     /// The frame's bind group (group 0 of the ray caster and of the picking pass).
     #[must_use]
     pub fn bind_group(&self) -> &wgpu::BindGroup {
         &self.bind_group
-    }
-
-    /// New camera, settings or styles for the same textures.
-    pub fn update_uniforms(&mut self, ctx: &GpuContext, uniforms: RaycastUniforms) {
-        self.uniforms = uniforms;
-        ctx.queue.write_buffer(&self.buffer, 0, bytemuck::bytes_of(&uniforms));
-    }
-}
-
-/// The ray caster's first-hit threshold: the hit depth is taken where the accumulated opacity first reaches it.
-/// Keep in sync with `HIT_OPACITY` in shaders/raycast.wgsl.
-pub const HIT_OPACITY: f32 = 0.5;
-/// The hit depth of a ray that hits nothing (beyond the far plane's 1). Keep in sync with shaders/raycast.wgsl.
-pub const NO_HIT_DEPTH: f32 = 2.0;
-
-/// An `Rgba8Unorm` render target the app can show (`TEXTURE_BINDING`) and tests can read back (`COPY_SRC`), with
-/// the ray caster's first-hit depth beside it (NDC depth as f32 bits in R32Uint, [`NO_HIT_DEPTH`] where nothing was hit), which the
-/// glyph pass ([`crate::glyph`]) depth-tests against.
-#[derive(Debug)]
-pub struct RenderTarget {
-    pub texture: wgpu::Texture,
-    pub view: wgpu::TextureView,
-    pub hit_depth: wgpu::Texture,
-    pub hit_depth_view: wgpu::TextureView,
-    pub width: u32,
-    pub height: u32,
-    /// Where the textures go back when the target is dropped ([`Self::from_pool`]).
-    pool: Option<TexturePool>,
-}
-
-impl RenderTarget {
-    /// The usages of both textures.
-    pub const USAGE: wgpu::TextureUsages = wgpu::TextureUsages::RENDER_ATTACHMENT
-        .union(wgpu::TextureUsages::TEXTURE_BINDING)
-        .union(wgpu::TextureUsages::COPY_SRC);
-
-    #[must_use]
-    pub fn new(ctx: &GpuContext, width: u32, height: u32) -> Self {
-        // A private pool: the textures are simply freed with the target.
-        let mut target = Self::from_pool(&TexturePool::new(&ctx.device), width, height);
-        target.pool = None;
-        target
-    }
-
-    /// A target whose textures come from `pool` and return to it when the target is dropped: resizing a view or
-    /// rendering a new slice each frame then reuses GPU memory instead of allocating it.
-    #[must_use]
-    pub fn from_pool(pool: &TexturePool, width: u32, height: u32) -> Self {
-        let key = |format| TextureKey::d2(width.max(1), height.max(1), format, Self::USAGE);
-        let texture = pool.acquire(key(RaycastRenderer::TARGET_FORMAT), "raycast target");
-        let hit_depth = pool.acquire(key(RaycastRenderer::HIT_DEPTH_FORMAT), "raycast hit depth");
-        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        let hit_depth_view = hit_depth.create_view(&wgpu::TextureViewDescriptor::default());
-        Self { texture, view, hit_depth, hit_depth_view, width, height, pool: Some(pool.clone()) }
-    }
-
-    /// The two attachments of a ray-casting pass, cleared to transparent and to [`NO_HIT_DEPTH`].
-    #[must_use]
-    pub fn colour_attachments(&self) -> [Option<wgpu::RenderPassColorAttachment<'_>>; 2] {
-        let clear = |view, value| {
-            Some(wgpu::RenderPassColorAttachment {
-                view,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(value), store: wgpu::StoreOp::Store },
-            })
-        };
-        let no_hit = wgpu::Color { r: f64::from(NO_HIT_DEPTH.to_bits()), g: 0.0, b: 0.0, a: 0.0 };
-        [clear(&self.view, wgpu::Color::TRANSPARENT), clear(&self.hit_depth_view, no_hit)]
-    }
-
-    /// The first-hit NDC depth per pixel of the last 3-D render, rows top to bottom ([`NO_HIT_DEPTH`] where the ray
-    /// hit nothing; slice renders leave it as it was).
-    pub fn read_hit_depth(&self, ctx: &GpuContext) -> Result<Vec<f32>> {
-        let bytes = ctx.read_texture(&self.hit_depth, [self.width, self.height, 1], 4)?;
-        Ok(bytemuck::pod_collect_to_vec(&bytes))
-    }
-
-    /// Premultiplied RGBA8, rows top to bottom, `4 · width` bytes per row (the copy's 256-byte row alignment removed).
-    pub fn read_back(&self, ctx: &GpuContext) -> Result<Vec<u8>> {
-        ctx.read_texture(&self.texture, [self.width, self.height, 1], 4)
-    }
-}
-
-impl Drop for RenderTarget {
-    fn drop(&mut self) {
-        if let Some(pool) = self.pool.take() {
-            pool.release(self.texture.clone());
-            pool.release(self.hit_depth.clone());
-        }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::control::{ControlDesc, PreparedControl};
-    use crate::device::Capabilities;
-    use crate::volume::{PreparedVolume, VolumeBudget, VolumeDesc, VolumeSamples};
-
-    #[test]
-    fn proxy_box_covers_the_warped_extent() {
-        let samples = vec![0u8; 8];
-        let lps_from_index = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
-        let desc = VolumeDesc { dims: [2, 2, 2], samples: VolumeSamples::U8(&samples), lps_from_index };
-        let caps = Capabilities { norm16: true, float32_filterable: true };
-        let budget = VolumeBudget { max_dimension: 64, max_bytes: 1 << 20 };
-        let vol = PreparedVolume::prepare(&desc, caps, budget).expect("volume");
-        // Voxel-edge box [−0.5, 1.5]³; displacements x ∈ [−10, 2], y = 3, z = 0.
-        let texels: Vec<f32> = [[-10.0, 3.0, 0.0, 0.0], [2.0, 3.0, 0.0, 0.0]].concat().repeat(4);
-        let cdesc = ControlDesc { dims: [2, 2, 2], texels: &texels, box_min_ref: [0.0; 3], box_max_ref: [1.0; 3] };
-        let ctrl = PreparedControl::prepare(&cdesc, true).expect("control");
-        let style = LayerStyle {
-            window: Window::from_range(0.0, 1.0),
-            tf_row: 0,
-            opacity_scale: 1.0,
-            visible: true,
-            iso_value: 0.5,
-        };
-        let plain = LayerParams { volume: vol.info, control: None, style, has_prefilter: false };
-        let warped = LayerParams { control: Some(ctrl.info), ..plain };
-        assert_eq!(plain.box_ref(), (DVec3::splat(-0.5), DVec3::splat(1.5)));
-        let (lo, hi) = warped.box_ref();
-        assert_eq!((lo, hi), (DVec3::new(-2.5, -3.5, -0.5), DVec3::new(11.5, -1.5, 1.5)));
     }
 }

@@ -20,7 +20,7 @@ mod common;
 use common::*;
 use glam::{Mat4, Vec2, Vec3};
 use warpbench_gpu::cpu_reference::composite_glyphs;
-use warpbench_gpu::raycast::NO_HIT_DEPTH;
+use warpbench_gpu::target::NO_HIT_DEPTH;
 use warpbench_gpu::{
     BlendMode, FeatureRequest, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, OrbitCamera,
     Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane,

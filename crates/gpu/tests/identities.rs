@@ -4,7 +4,7 @@ mod common;
 
 use common::*;
 use glam::{DVec3, Vec4};
-use warpbench_gpu::cpu_reference::trilinear;
+use warpbench_gpu::sampling::trilinear;
 use warpbench_gpu::{
     BlendMode, FeatureRequest, LayerStyle, OrbitCamera, PrefilterSettings, PrefilteredTexels, PreparedVolume,
     Projection, RenderSettings, Shading, ShadingMode, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples,

@@ -11,8 +11,9 @@
 
 use rayon::prelude::*;
 
-use super::{Acc, report, try_zeroed, with_samples};
-use super::{ExportRequest, ExportedVolume, Interpolation, OutputType, Plan, PlanPullBack, Progress, Sample};
+use super::plan::{Plan, PlanPullBack, report};
+use super::request::{ExportRequest, ExportedSamples, ExportedVolume, Interpolation, OutputType, Progress};
+use super::sample::{Acc, Sample, try_zeroed, with_samples};
 use crate::error::Result;
 use crate::pullback::TpsLocal;
 
@@ -35,7 +36,7 @@ fn run_typed<S: Sample>(
     source: &[S],
     output: OutputType,
     progress: &mut dyn FnMut(Progress) -> bool,
-) -> Result<super::ExportedSamples> {
+) -> Result<ExportedSamples> {
     match output {
         OutputType::Source => run::<S, S>(plan, source, progress).map(S::wrap),
         OutputType::F32 => run::<S, f32>(plan, source, progress).map(f32::wrap),

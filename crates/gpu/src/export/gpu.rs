@@ -9,19 +9,62 @@
 
 use bytemuck::{Pod, Zeroable};
 
-use super::{ExportRequest, ExportedSamples, ExportedVolume, Plan, PlanPullBack, Progress, Sample, SampleType};
-use super::{report, try_zeroed, with_samples};
+use super::plan::{Plan, PlanPullBack, report};
+use super::request::{ExportRequest, ExportedSamples, ExportedVolume, Interpolation, Progress, SampleType};
+use super::sample::{Sample, try_zeroed, with_samples};
 use crate::compute::{self, binding, storage, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
-use crate::shaders::EXPORT;
+use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, layout};
+
+/// `shaders/export.wgsl`: `cs_export`, one z-slab of the target per dispatch.
+pub const SHADER: ShaderSource = ShaderSource {
+    name: "export",
+    path: "shaders/export.wgsl",
+    source: include_str!("../../../../shaders/export.wgsl"),
+    entry_points: &[("cs_export", Stage::Compute)],
+};
+
+pub const SLOT_UNIFORMS: BindSlot = BindSlot::new(0, 0, "u");
+/// The source volume as f32.
+pub const SLOT_SOURCE: BindSlot = BindSlot::new(0, 1, "source");
+/// The control texture (a placeholder for the other pull-backs).
+pub const SLOT_CONTROL: BindSlot = BindSlot::new(0, 2, "control");
+/// The TPS's centres and weights (a placeholder for the other pull-backs).
+pub const SLOT_TPS_TERMS: BindSlot = BindSlot::new(0, 3, "tps_terms");
+/// One slab's f32 output.
+pub const SLOT_SLAB: BindSlot = BindSlot::new(0, 4, "slab");
+
+pub const INTERFACE: ShaderInterface = ShaderInterface {
+    pass: "export",
+    shader: SHADER,
+    uniform_structs: &[layout!(ExportUniforms {
+        source_index_from_target_index,
+        pullback_from_target_index,
+        source_index_from_lps,
+        tps_row0,
+        tps_row1,
+        tps_row2,
+        target_dims,
+        slab_first_slice,
+        source_dims,
+        slab_slices,
+        control_dims,
+        pullback,
+        interpolation,
+        centre_count,
+        outside_value
+    })],
+    slots: &[SLOT_UNIFORMS, SLOT_SOURCE, SLOT_CONTROL, SLOT_TPS_TERMS, SLOT_SLAB],
+    constants: &[],
+};
 
 /// `@workgroup_size` of `cs_export` (x, y; z is 1).
 const WORKGROUP: u32 = 8;
 /// Source slices converted to f32 and written per upload call are at most this many bytes.
 const UPLOAD_CHUNK_BYTES: usize = 16 << 20;
 
-/// The export's uniforms. Keep in sync with `ExportUniforms` in shaders/export.wgsl.
+/// The export's uniforms: `ExportUniforms` in shaders/export.wgsl ([`INTERFACE`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct ExportUniforms {
@@ -83,20 +126,20 @@ impl ExportPass {
             )));
         }
         let device = &ctx.device;
-        let module = EXPORT.create_module(device);
+        let module = SHADER.create_module(device);
         let texture_3d = || compute::texture(wgpu::TextureViewDimension::D3);
         let layout = compute::layout(
             device,
             "export",
             &[
-                binding(0, uniform::<ExportUniforms>()),
-                binding(1, texture_3d()),
-                binding(2, texture_3d()),
-                binding(3, storage(true, None)),
-                binding(4, storage(false, None)),
+                binding(SLOT_UNIFORMS, uniform::<ExportUniforms>()),
+                binding(SLOT_SOURCE, texture_3d()),
+                binding(SLOT_CONTROL, texture_3d()),
+                binding(SLOT_TPS_TERMS, storage(true, None)),
+                binding(SLOT_SLAB, storage(false, None)),
             ],
         );
-        let entry_point = EXPORT.entry_point(crate::shaders::Stage::Compute);
+        let entry_point = SHADER.entry_point(Stage::Compute);
         let pipeline = compute::pipeline(device, "export", &module, entry_point, &[&layout]);
         ctx.check_errors()?;
         Ok(Self { pipeline, layout })
@@ -128,7 +171,7 @@ impl ExportPass {
 
     /// Resamples `request` on the GPU, calling `progress` after each slab; `false` cancels with
     /// [`GpuError::Cancelled`]. Sources that are not exact in f32 or too large for one texture are
-    /// [`GpuError::Unsupported`] (the CPU path, [`super::export_cpu`], takes them).
+    /// [`GpuError::Unsupported`] (the CPU path, [`crate::export::export_cpu`], takes them).
     pub fn run(
         &self,
         ctx: &GpuContext,
@@ -183,11 +226,11 @@ impl ExportPass {
             label: Some("export"),
             layout: &self.layout,
             entries: &[
-                wgpu::BindGroupEntry { binding: 0, resource: uniform_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::TextureView(&source_view) },
-                wgpu::BindGroupEntry { binding: 2, resource: wgpu::BindingResource::TextureView(&control_view) },
-                wgpu::BindGroupEntry { binding: 3, resource: tps_buffer.as_entire_binding() },
-                wgpu::BindGroupEntry { binding: 4, resource: slab_buffer.as_entire_binding() },
+                SLOT_UNIFORMS.entry(uniform_buffer.as_entire_binding()),
+                SLOT_SOURCE.entry(wgpu::BindingResource::TextureView(&source_view)),
+                SLOT_CONTROL.entry(wgpu::BindingResource::TextureView(&control_view)),
+                SLOT_TPS_TERMS.entry(tps_buffer.as_entire_binding()),
+                SLOT_SLAB.entry(slab_buffer.as_entire_binding()),
             ],
         });
         ctx.check_errors()?;
@@ -248,9 +291,9 @@ fn uniforms(plan: &Plan, control_dims: [u32; 3], centre_count: u32) -> ExportUni
         control_dims,
         pullback,
         interpolation: match plan.interpolation {
-            super::Interpolation::Nearest => 0,
-            super::Interpolation::Trilinear => 1,
-            super::Interpolation::CatmullRom => 2,
+            Interpolation::Nearest => 0,
+            Interpolation::Trilinear => 1,
+            Interpolation::CatmullRom => 2,
         },
         centre_count,
         outside_value: plan.outside_value as f32,

@@ -5,7 +5,7 @@
 
 use glam::{DVec3, Vec3};
 use warpbench_gpu::cpu_reference::{self, CpuLayer};
-use warpbench_gpu::device::headless_or_skip;
+use warpbench_gpu::headless::headless_or_skip;
 use warpbench_gpu::{
     ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings,
