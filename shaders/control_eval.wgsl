@@ -19,7 +19,7 @@
 // The host code is crates/gpu/src/control_eval.rs; its f64 references are `TpsDesc::eval` and `BSplineDesc::eval` in
 // crates/gpu/src/pullback.rs. Keep them in sync.
 
-// Keep in sync with `ControlEvalUniforms` in crates/gpu/src/control_eval.rs.
+// The Rust twin is `ControlEvalUniforms` in crates/gpu/src/control_eval.rs (tests/shaders.rs compares the layouts).
 struct ControlEvalUniforms {
     // control texels per axis
     dims: vec3<u32>,
@@ -46,7 +46,7 @@ struct Centre {
     w: vec4<f32>,
 }
 
-// Keep in sync with `LatticeUniforms` in crates/gpu/src/control_eval.rs.
+// The Rust twin is `LatticeUniforms` in crates/gpu/src/control_eval.rs (tests/shaders.rs compares the layouts).
 struct LatticeUniforms {
     // u (cell units, (x − Ω.min)/h) at the centre of texel (0, 0, 0)
     first_cell: vec3<f32>,
@@ -60,7 +60,8 @@ struct LatticeUniforms {
     _pad1: u32,
 }
 
-// Keep in sync with `BSplineUniforms` (and `MAX_LATTICES`) in crates/gpu/src/control_eval.rs.
+// The Rust twin is `BSplineUniforms` in crates/gpu/src/control_eval.rs, `MAX_LATTICES` long (tests/shaders.rs
+// compares the layouts).
 struct BSplineUniforms {
     lattices: array<LatticeUniforms, 8>,
 }
@@ -73,6 +74,8 @@ const NON_FINITE: u32 = 7u;
 const WORKGROUP: u32 = 64u;
 const F16_MAX: f32 = 65504.0;
 
+// The Rust code binds these through the `SLOT_*` constants of crates/gpu/src/control_eval.rs
+// (tests/shaders.rs compares the numbers).
 @group(0) @binding(0) var<uniform> p: ControlEvalUniforms;
 @group(0) @binding(1) var<storage, read_write> out_words: array<u32>;
 @group(0) @binding(2) var<storage, read_write> bounds: array<atomic<u32>, 8>;

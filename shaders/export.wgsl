@@ -15,7 +15,7 @@
 //
 // The CPU path (crates/gpu/src/export/cpu.rs) does the same f32 operations in the same order: keep them in sync.
 
-// Keep in sync with `ExportUniforms` in crates/gpu/src/export/gpu.rs.
+// The Rust twin is `ExportUniforms` in crates/gpu/src/export/gpu.rs (tests/shaders.rs compares the layouts).
 struct ExportUniforms {
     // Columns; an affine map is applied as ((m[3] + j·m[1]) + k·m[2]) + i·m[0].
     source_index_from_target_index: mat4x4<f32>,
@@ -45,6 +45,8 @@ const PULLBACK_TPS: u32 = 2u;
 const INTERPOLATION_NEAREST: u32 = 0u;
 const INTERPOLATION_TRILINEAR: u32 = 1u;
 
+// The Rust code binds these through the `SLOT_*` constants of crates/gpu/src/export/gpu.rs
+// (tests/shaders.rs compares the numbers).
 @group(0) @binding(0) var<uniform> u: ExportUniforms;
 // The moving volume as R32Float, read with textureLoad (filtered by hand, with full-precision weights).
 @group(0) @binding(1) var source: texture_3d<f32>;

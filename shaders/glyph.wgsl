@@ -15,7 +15,7 @@
 // projected onto it; a point at distance d from the plane is drawn with radius radius_px·√(1 − (d/slab_half_mm)²),
 // the cross-section of a ball, so it shrinks away from its slice and vanishes beyond the slab.
 
-// Keep in sync with `GlyphUniforms` in crates/gpu/src/glyph.rs.
+// The Rust twin is `GlyphUniforms` in crates/gpu/src/glyph.rs (tests/shaders.rs compares the layouts).
 struct GlyphUniforms {
     clip_from_ref: mat4x4<f32>,
     ref_from_clip: mat4x4<f32>,
@@ -33,14 +33,17 @@ struct GlyphUniforms {
 const MODE_VIEW: u32 = 0u;
 const MODE_SLICE: u32 = 1u;
 const KIND_POINT: u32 = 0u;
-// Keep in sync with `NO_HIT_DEPTH` in crates/gpu/src/raycast.rs.
+// `NO_HIT_DEPTH` in crates/gpu/src/target.rs (tests/shaders.rs compares the values).
 const NO_HIT_DEPTH: f32 = 2.0;
 
+// The Rust code binds these through the `SLOT_*` constants of crates/gpu/src/glyph.rs
+// (tests/shaders.rs compares the numbers).
 @group(0) @binding(0) var<uniform> g: GlyphUniforms;
 // The ray caster's first-hit NDC depth (f32 bits in R32Uint; a 1×1 NO_HIT_DEPTH placeholder for slices).
 @group(0) @binding(1) var hit_depth_tex: texture_2d<u32>;
 
-// Keep in sync with `GlyphInstance` in crates/gpu/src/glyph.rs (a per-instance vertex buffer).
+// The Rust twin is `GlyphInstance` in crates/gpu/src/glyph.rs, a per-instance vertex buffer (tests/shaders.rs
+// compares the layouts).
 struct GlyphInstance {
     @location(0) a_ref: vec3<f32>,
     @location(1) radius_px: f32,

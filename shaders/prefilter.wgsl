@@ -12,7 +12,7 @@
 //
 // The CPU reference is `cpu_prefilter` in crates/gpu/src/prefilter.rs: keep the two in sync.
 
-// Keep in sync with `PrefilterUniforms` in crates/gpu/src/prefilter.rs.
+// The Rust twin is `PrefilterUniforms` in crates/gpu/src/prefilter.rs (tests/shaders.rs compares the layouts).
 struct PrefilterUniforms {
     axis: u32,
     radius_vox: u32,
@@ -23,6 +23,8 @@ struct PrefilterUniforms {
     _pad1: u32,
 }
 
+// The Rust code binds these through the `SLOT_*` constants of crates/gpu/src/prefilter.rs
+// (tests/shaders.rs compares the numbers).
 @group(0) @binding(0) var<uniform> p: PrefilterUniforms;
 // x pass: the volume itself (any float format, read with textureLoad).
 @group(0) @binding(1) var src_volume: texture_3d<f32>;

@@ -27,7 +27,7 @@
 //
 // The CPU reference in crates/gpu/src/cpu_reference.rs implements the same math: keep the two in sync.
 
-// Keep in sync with `VolumeUniforms` in crates/gpu/src/raycast.rs.
+// The Rust twin is `VolumeUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
 struct VolumeUniforms {
     tex_from_lps: mat4x4<f32>,
     ctrl_tex_from_ref: mat4x4<f32>,
@@ -45,7 +45,7 @@ struct VolumeUniforms {
     iso_value: f32,
 }
 
-// Keep in sync with `RaycastUniforms` in crates/gpu/src/raycast.rs.
+// The Rust twin is `RaycastUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
 struct RaycastUniforms {
     ref_from_clip: mat4x4<f32>,
     box_min_ref: vec3<f32>,
@@ -103,10 +103,12 @@ const BLEND_FIXED_ONLY: u32 = 5u;
 const BLEND_MOVING_ONLY: u32 = 6u;
 
 const EARLY_EXIT_ALPHA: f32 = 0.99;
-// Keep in sync with `HIT_OPACITY` and `NO_HIT_DEPTH` in crates/gpu/src/raycast.rs.
+// `HIT_OPACITY` and `NO_HIT_DEPTH` in crates/gpu/src/target.rs (tests/shaders.rs compares the values).
 const HIT_OPACITY: f32 = 0.5;
 const NO_HIT_DEPTH: f32 = 2.0;
 
+// The Rust code binds these through the `SLOT_*` constants of crates/gpu/src/raycast.rs
+// (tests/shaders.rs compares the numbers).
 @group(0) @binding(0) var<uniform> u: RaycastUniforms;
 @group(0) @binding(1) var fixed_tex: texture_3d<f32>;
 @group(0) @binding(2) var moving_tex: texture_3d<f32>;
@@ -523,7 +525,7 @@ fn fs_slice(in: VertexOutput) -> @location(0) vec4<f32> {
 // sample. The hit reports x_ref, its distance along the ray, the pull-back u(x_ref) in the volume's LPS space and the
 // value there. The CPU reference is `cpu_reference::pick`.
 
-// Keep in sync with `PickUniforms` in crates/gpu/src/pick.rs.
+// The Rust twin is `PickUniforms` in crates/gpu/src/pick.rs (tests/shaders.rs compares the layouts).
 struct PickUniforms {
     probe: u32,
     target_volume: u32,
@@ -535,7 +537,7 @@ struct PickUniforms {
     _pad2: u32,
 }
 
-// Keep in sync with `PickRay` in crates/gpu/src/pick.rs.
+// The Rust twin is `PickRay` in crates/gpu/src/pick.rs (tests/shaders.rs compares the layouts).
 struct PickRay {
     origin_ref: vec3<f32>,
     _pad0: f32,
@@ -543,7 +545,7 @@ struct PickRay {
     _pad1: f32,
 }
 
-// Keep in sync with `PickHit` in crates/gpu/src/pick.rs.
+// The Rust twin is `PickHit` in crates/gpu/src/pick.rs (tests/shaders.rs compares the layouts).
 struct PickHit {
     x_ref: vec3<f32>,
     t_mm: f32,
@@ -560,6 +562,7 @@ const PROBE_GRADIENT: u32 = 1u;
 const PROBE_ACCUMULATED: u32 = 2u;
 const TARGET_FIXED: u32 = 0u;
 
+// Bound through the `SLOT_*` constants of crates/gpu/src/pick.rs (tests/shaders.rs compares the numbers).
 @group(1) @binding(0) var<uniform> pick: PickUniforms;
 @group(1) @binding(1) var<storage, read> pick_rays: array<PickRay>;
 @group(1) @binding(2) var<storage, read_write> pick_hits: array<PickHit>;

@@ -1,4 +1,4 @@
-//! Control-texture update benchmark (issue 5): the cost of re-evaluating a pull-back into a 64³ control texture on
+//! Control-texture update benchmark: the cost of re-evaluating a pull-back into a 64³ control texture on
 //! the GPU ([`ControlEvalPass`]), as a landmark drag does, for
 //!
 //! 1. a TPS pull-back of N = 100 landmarks,

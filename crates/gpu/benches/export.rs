@@ -1,4 +1,4 @@
-//! Export benchmark (issue 5): a procedural CT-like i16 head of `--dims` (256³ by default, 240 mm box, slightly
+//! Export benchmark: a procedural CT-like i16 head of `--dims` (256³ by default, 240 mm box, slightly
 //! rotated against the target) resampled onto an axis-aligned 256³ target grid through a TPS pull-back with
 //! `--centres` (100) centres:
 //!

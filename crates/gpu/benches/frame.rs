@@ -1,4 +1,4 @@
-//! Frame-time benchmark of the ray caster (issue 4): two deterministic procedural volumes (a CT-like i16 head and an
+//! Frame-time benchmark of the ray caster: two deterministic procedural volumes (a CT-like i16 head and an
 //! MR-like u8 head, 256³ by default), 64³ control textures, a 512² image at 1 sample per voxel, and these cases
 //! timed in the same run:
 //!
