@@ -52,12 +52,12 @@
 //! # Slabs and limits
 //!
 //! The target is processed in z-slabs ([`ExportRequest::slab_slices`], or automatic), and the progress callback is
-//! called after each slab with the slices done so far; returning `false` cancels with [`GpuError::Cancelled`]. On the
-//! GPU each slab's f32 output buffer fits `max_storage_buffer_binding_size` and [`ExportPass::SLAB_BUDGET_BYTES`], so
-//! outputs much larger than one binding (a 512 × 512 × 1000 CT) work; one target slice must fit (4096 × 4096 does).
-//! The source is one `R32Float` 3-D texture: at most `max_texture_dimension_3d` (usually 2048) per axis and
-//! [`ExportPass::MAX_SOURCE_BYTES`]; larger sources are a [`GpuError::Unsupported`] error naming the CPU path, which
-//! has no such limit. Outputs beyond
+//! called after each slab with the slices done so far; returning `false` cancels with
+//! [`crate::GpuError::Cancelled`]. On the GPU each slab's f32 output buffer fits `max_storage_buffer_binding_size`
+//! and [`ExportPass::SLAB_BUDGET_BYTES`], so outputs much larger than one binding (a 512 × 512 × 1000 CT) work; one
+//! target slice must fit (4096 × 4096 does). The source is one `R32Float` 3-D texture: at most
+//! `max_texture_dimension_3d` (usually 2048) per axis and [`ExportPass::MAX_SOURCE_BYTES`]; larger sources are a
+//! [`crate::GpuError::Unsupported`] error naming the CPU path, which has no such limit. Outputs beyond
 //! [`ExportRequest::max_output_bytes`] (default [`DEFAULT_MAX_OUTPUT_BYTES`], 16 GiB) are refused before anything is
 //! allocated.
 

@@ -41,9 +41,9 @@
 //! # Imports
 //!
 //! No module imports (directly or through others) a module that imports it back. At the bottom, [`error`],
-//! [`shader`], [`sampling`], [`camera`], [`pool`] and [`slice`] import nothing but [`error`]; the passes import the
-//! data modules and [`shader`]; [`shaders`], [`headless`] and [`cpu_reference`] sit on top, and nothing in the crate
-//! imports them. A module of `export/` imports its siblings, never its parent.
+//! [`shader`], [`sampling`], [`camera`], [`pool`] and [`slice`](mod@slice) import nothing but [`error`]; the passes
+//! import the data modules and [`shader`]; [`shaders`], [`headless`] and [`cpu_reference`] sit on top, and nothing in
+//! the crate imports them. A module of `export/` imports its siblings, never its parent.
 //!
 //! # Spaces
 //!
