@@ -12,7 +12,8 @@
 //! - **update + bounds**: the same plus the 32-byte readback of the displacement bounds
 //!   ([`ControlEvalPass::evaluate_tps`], what gives a complete `ControlInfo`).
 //!
-//! and, for comparison, the path it replaces: sampling on the CPU (`warpbench_solver::control`, rayon) + upload.
+//! and, for comparison, the CPU path to the same texture: sampling on the CPU (`warpbench_solver::control`, rayon),
+//! then the upload.
 //! Figures are wall-clock medians (and minima) after warm-up; warm-up also compiles the pipelines.
 //!
 //! ```sh
@@ -129,7 +130,7 @@ impl Case {
         }
     }
 
-    /// The CPU path this replaces: sample on the CPU (rayon), prepare, upload, wait.
+    /// The CPU path to the same texture: sample on the CPU (rayon), prepare, upload, wait.
     fn cpu_update(&self, ctx: &GpuContext, grid: ControlGrid) -> GpuControlTexture {
         let sampled = match self {
             Self::Tps { tps, .. } => ControlTexture::sample(tps, grid),
