@@ -106,9 +106,9 @@ fn parse_header(source: usize, obj: &DefaultDicomObject, byte_len: u64) -> Heade
 
 /// Refuses more frames than a file of `byte_len` bytes can hold, before a geometry record is built for each: a
 /// frame takes at least its own size in native pixel data, at least an 8-byte fragment item when encapsulated,
-/// and a deflated data set inflates at most 1032-fold. (A 2 KB file claiming 20 million frames made the header
-/// reader allocate 2.9 GB; the pixel data are checked against the files' size again before the volume is
-/// allocated, in [`check_files_can_hold`].)
+/// and a deflated data set inflates at most 1032-fold. (Without it a 2 KB file claiming 20 million frames makes
+/// the header reader allocate 2.9 GB; the pixel data are checked against the files' size again before the volume
+/// is allocated, in [`super::check_files_can_hold`].)
 fn check_frame_count(
     fmt: &PixelFormat,
     byte_len: u64,

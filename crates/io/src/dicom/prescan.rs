@@ -32,9 +32,9 @@ pub(super) fn check_lengths(data: &[u8]) -> std::result::Result<Checked, (bool, 
     // File meta group, explicit VR little endian. As dicom-rs reads it (dicom-object `meta.rs`):
     // (0002,0000) with a 4-byte group length first, then elements of any group until that many
     // bytes are consumed. (A walk that stopped at the first element outside group 0002 would
-    // leave elements that dicom-rs still reads unchecked: a fuzzer found a 1 KB file whose meta
-    // group length covered a (0003,0012) element, so that the data set dicom-rs inflated, unlike
-    // ours, declared a 3 GB element.)
+    // leave elements that dicom-rs still reads unchecked: a meta group length that covers a
+    // (0003,0012) element makes dicom-rs inflate from another byte than ours, into a data set
+    // that can declare a 3 GB element in a 1 KB file.)
     let (tag, len, header) = w.header(4)?;
     if tag != (0x0002, 0x0000) || len != 4 || header != 8 {
         return Err((
@@ -64,8 +64,8 @@ pub(super) fn check_lengths(data: &[u8]) -> std::result::Result<Checked, (bool, 
     }
     match TransferSyntax::from_uid(&ts) {
         Some(TransferSyntax::DeflatedExplicitVrLittleEndian) => {
-            // dicom-rs inflates the data set and then trusts its lengths (a fuzzer found a 5 KB
-            // file claiming a 1.9 GB element). Inflate it here, bounded by deflate's largest
+            // dicom-rs inflates the data set and then trusts its lengths (a 5 KB file can claim a
+            // 1.9 GB element). Inflate it here, bounded by deflate's largest
             // expansion, and walk the result, so no length can claim more than the data holds.
             let cap = (data.len() as u64).saturating_mul(1032).saturating_add(1024);
             let mut inflated = Vec::new();
