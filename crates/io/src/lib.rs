@@ -20,7 +20,6 @@ pub mod dicom_write;
 pub mod error;
 pub mod geometry;
 pub mod itk_tfm;
-pub mod jpegls;
 pub mod landmarks;
 pub mod nifti;
 pub mod nrrd;
@@ -33,6 +32,8 @@ use std::io::Read;
 use std::path::Path;
 
 pub use atomic::write_atomic;
+/// The DICOM reader's JPEG-LS decoder, which benches and tests also call on its own.
+pub use dicom::jpegls;
 pub use error::{Error, ErrorKind, Result};
 pub use options::{LoadOptions, Progress};
 pub use series::SeriesSummary;

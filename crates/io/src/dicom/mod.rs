@@ -29,7 +29,7 @@
 //! 4. **Pixels.** Files are decoded one at a time (in sorted order) into one preallocated buffer
 //!    of the stored type, then dropped, so the peak is about the voxel data plus one file.
 //!    Native syntaxes are read straight from the PixelData element; RLE is decoded here, JPEG-LS
-//!    by [`crate::jpegls`] (each frame's size checked against Rows/Columns first);
+//!    by [`jpegls`] (each frame's size checked against Rows/Columns first);
 //!    JPEG and JPEG 2000 go through `dicom-pixeldata`'s pure-Rust codecs after their frame
 //!    headers are checked against Rows/Columns (a mismatch would make the codec adapters panic).
 //!    Stored bits are masked to BitsStored and sign-extended for signed data. No LUT or window
@@ -43,7 +43,7 @@
 //!    value in i16 → i16, else in u16 → u16, else f32.
 //!
 //! Transfer syntaxes decoded: [`SUPPORTED_TRANSFER_SYNTAXES`], classified once per file as a [`TransferSyntax`]. JPEG-LS (which dicom-rs decodes
-//! only through the C++ CharLS library) uses our own pure-Rust decoder, [`crate::jpegls`].
+//! only through the C++ CharLS library) uses our own pure-Rust decoder, [`jpegls`].
 
 //!
 //! # Modules, by stage
@@ -54,12 +54,14 @@
 //! - [`geometry`]: each slice's placement and the sorted slice plan with `lps_from_index`, step 3;
 //! - [`pixels`]: decoding the files into one buffer and the rescale, steps 4 and 5;
 //! - [`codecs`]: RLE and the JPEG-LS glue, and the frame-header checks run before dicom-pixeldata's codecs;
-//! - [`transfer_syntax`]: the [`TransferSyntax`] enum.
+//! - [`transfer_syntax`]: the [`TransferSyntax`] enum;
+//! - [`jpegls`]: our pure-Rust JPEG-LS decoder (also at `warpbench_io::jpegls`).
 
 mod codecs;
 mod geometry;
 mod header;
 mod input;
+pub mod jpegls;
 mod pixels;
 mod prescan;
 mod series;
