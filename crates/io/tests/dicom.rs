@@ -809,6 +809,20 @@ fn deflated_data_set_is_not_read_past_pixel_data() {
     assert_eq!(v.dims, [512, 512, 1]);
 }
 
+/// Found by cargo-fuzz: a 3 KB file whose private element (0019,1042) SS declares 589 bytes, not a whole number of
+/// 2-byte values. dicom-rs reads 294 values and parses the next element one byte early, as a UN element that declares
+/// 3.5 GB, which it reserved before reading. The length check refuses the odd value first.
+#[test]
+fn a_numeric_value_that_is_not_a_whole_number_of_values_is_refused_before_dicom_rs_misreads_it() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/bad/odd_value_length.dcm");
+    let err = dicom::read_files(std::slice::from_ref(&corpus), &mut LoadOptions::new()).expect_err("hostile file");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("odd_value_length.dcm") && msg.contains("(0019,1042) SS") && msg.contains("589 bytes"),
+        "{msg}"
+    );
+}
+
 /// Found by cargo-fuzz: a 1 KB deflated file whose file meta group length, (0002,0000), covers an element outside
 /// group 0002, (0003,0012). dicom-rs reads the meta group by its length, so it inflated the data set from a later
 /// byte than the length check did, and met an element declaring 3 GB, which it reserved before reading. The check

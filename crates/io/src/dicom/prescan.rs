@@ -167,6 +167,47 @@ impl Walker<'_> {
         Ok(start..end)
     }
 
+    /// The VR dicom-rs reads the element at `pos` with: the one written (explicit VR), or the dictionary's, relaxed
+    /// as dicom-rs's implicit decoder relaxes it (unknown tags are UN).
+    fn value_vr(&self, pos: usize, tag: (u16, u16)) -> Option<[u8; 2]> {
+        if self.explicit || tag.0 == 0x0002 {
+            self.data.get(pos + 4..pos + 6).map(|b| [b[0], b[1]])
+        } else {
+            use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry};
+            let vr = dicom_dictionary_std::StandardDataDictionary
+                .by_tag(Tag(tag.0, tag.1))
+                .map_or(dicom_core::VR::UN, |e| e.vr().relaxed());
+            Some(vr.to_bytes())
+        }
+    }
+
+    /// Refuses a binary numeric value whose length is not a whole number of values. dicom-rs reads such a value as
+    /// `len / size` values and leaves the remaining bytes unread, so it would parse the next element from a
+    /// different byte than this walk, where any length can appear (an odd-length SS element made it reserve
+    /// 3.5 GB). The top-level PixelData is exempt: it is the last element dicom-rs is given.
+    fn check_value_size(&self, pos: usize, tag: (u16, u16), len: u32) -> WalkResult<()> {
+        let Some(vr) = self.value_vr(pos, tag) else { return Ok(()) };
+        let size: u32 = match &vr {
+            b"US" | b"SS" | b"OW" => 2,
+            b"AT" | b"FL" | b"OF" | b"SL" | b"UL" | b"OL" => 4,
+            b"FD" | b"OD" | b"SV" | b"UV" | b"OV" => 8,
+            _ => return Ok(()),
+        };
+        if len % size == 0 {
+            return Ok(());
+        }
+        Err((
+            false,
+            format!(
+                "element ({:04X},{:04X}) {} at byte {} has {len} bytes, not a whole number of {size}-byte values",
+                tag.0,
+                tag.1,
+                String::from_utf8_lossy(&vr),
+                pos + 128
+            ),
+        ))
+    }
+
     fn is_sequence(&self, pos: usize, tag: (u16, u16)) -> bool {
         if self.explicit {
             self.data.get(pos + 4..pos + 6) == Some(b"SQ")
@@ -202,6 +243,9 @@ impl Walker<'_> {
                 pos = self.items(start, end, depth + 1, tag == (0x7FE0, 0x0010))?;
             } else {
                 let value = self.value_range(tag, start, len, end)?;
+                if !(depth == 0 && tag == (0x7FE0, 0x0010)) {
+                    self.check_value_size(pos, tag, len)?;
+                }
                 if self.is_sequence(pos, tag) {
                     self.defined_items(value.clone(), depth + 1)?;
                 }
