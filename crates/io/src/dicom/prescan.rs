@@ -193,7 +193,7 @@ impl Walker<'_> {
             b"FD" | b"OD" | b"SV" | b"UV" | b"OV" => 8,
             _ => return Ok(()),
         };
-        if len % size == 0 {
+        if len.is_multiple_of(size) {
             return Ok(());
         }
         Err((
