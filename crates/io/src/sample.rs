@@ -1,6 +1,6 @@
 //! Stored samples, shared by every reader and writer: [`StoredType`] names a sample type as a file stores it
 //! (NIfTI's `datatype`, NRRD's `type`, DICOM's BitsAllocated and PixelRepresentation), [`Stored`] is the Rust
-//! type of each, decoded from bytes of either order, and [`with_stored_type!`] is the one dispatch from the
+//! type of each, decoded from bytes of either order, and `with_stored_type!` is the one dispatch from the
 //! first to the second. The volume's own sample types ([`SampleType`]) are a subset, chosen by the rules of
 //! `docs/fixture-manifest.md`: [`StoredType::unscaled`] without a rescale, [`rescaled_type`] with one.
 

@@ -7,7 +7,7 @@
 //!    files without the `DICM` preamble, DICOMDIR files and objects without Rows (0028,0010)
 //!    are skipped; a file that has the preamble but does not parse is an error naming it.
 //! 2. **Series.** Files are grouped by SeriesInstanceUID (0020,000E). More than one series and no
-//!    [`LoadOptions::series_instance_uid`] gives [`ErrorKind::MultipleSeries`].
+//!    [`LoadOptions::series_instance_uid`] gives [`crate::ErrorKind::MultipleSeries`].
 //! 3. **Geometry** (the rule of `docs/fixture-manifest.md`). Each slice (a file, or a frame of a
 //!    multi-frame object) has a position p = ImagePositionPatient (0020,0032), an orientation
 //!    (r, c) = ImageOrientationPatient (0020,0037) and PixelSpacing (0028,0030) = (Δrow, Δcol).
@@ -35,7 +35,7 @@
 //!    Stored bits are masked to BitsStored and sign-extended for signed data. No LUT or window
 //!    is applied. The file's bytes, the volume, the decoded RLE / JPEG-LS frames (and the JPEG-LS
 //!    decoder's samples) and a rescaled copy are allocated fallibly ([`volume::try_with_capacity`]):
-//!    memory the system refuses is an [`ErrorKind::OutOfMemory`] naming the file and the size, never
+//!    memory the system refuses is an [`crate::ErrorKind::OutOfMemory`] naming the file and the size, never
 //!    an abort. (Buffers that dicom-rs and dicom-pixeldata allocate while parsing and decoding JPEG /
 //!    JPEG 2000 are theirs.)
 //! 5. **Rescale.** value = RescaleSlope × stored + RescaleIntercept, per slice, in f64. Identity:
@@ -47,14 +47,14 @@
 
 //!
 //! # Modules, by stage
-//! - [`input`]: where an object's bytes come from (a file, a buffer, a folder's files), and opening it with
-//!   dicom-rs after [`prescan`] has walked its element lengths;
-//! - [`header`]: the header of one image object (pixel format, identifiers), step 1;
-//! - [`series`]: grouping by series and choosing one, step 2;
-//! - [`geometry`]: each slice's placement and the sorted slice plan with `lps_from_index`, step 3;
-//! - [`pixels`]: decoding the files into one buffer and the rescale, steps 4 and 5;
-//! - [`codecs`]: RLE and the JPEG-LS glue, and the frame-header checks run before dicom-pixeldata's codecs;
-//! - [`transfer_syntax`]: the [`TransferSyntax`] enum;
+//! - `input`: where an object's bytes come from (a file, a buffer, a folder's files), and opening it with
+//!   dicom-rs after `prescan` has walked its element lengths;
+//! - `header`: the header of one image object (pixel format, identifiers), step 1;
+//! - `series`: grouping by series and choosing one, step 2;
+//! - `geometry`: each slice's placement and the sorted slice plan with `lps_from_index`, step 3;
+//! - `pixels`: decoding the files into one buffer and the rescale, steps 4 and 5;
+//! - `codecs`: RLE and the JPEG-LS glue, and the frame-header checks run before dicom-pixeldata's codecs;
+//! - `transfer_syntax`: the [`TransferSyntax`] enum;
 //! - [`jpegls`]: our pure-Rust JPEG-LS decoder (also at `warpbench_io::jpegls`).
 
 mod codecs;

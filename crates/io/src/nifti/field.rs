@@ -32,13 +32,13 @@ pub struct DisplacementField {
     pub dims: [usize; 3],
     pub lps_from_index: Transform<Lps, Index>,
     pub geometry_source: GeometrySource,
-    /// The displacement at each voxel centre in LPS mm, i fastest (as [`Volume::data`]).
+    /// The displacement at each voxel centre in LPS mm, i fastest (as [`crate::Volume::data`]).
     pub displacements_lps: Vec<[f32; 3]>,
 }
 
 /// Writes a displacement field as NIfTI-1 (`.nii`, or gzip when the name ends in `.gz`), atomically: float32,
 /// `dim = [5, X, Y, Z, 1, 3, 1, 1]`, `intent_code` 1006 (`NIFTI_INTENT_DISPVECT`), the grid's sform and qform as
-/// [`write()`] writes them, and the vectors in **RAS** (the first two components of each LPS vector negated), the
+/// [`super::write()`] writes them, and the vectors in **RAS** (the first two components of each LPS vector negated), the
 /// component planes one after the other (all x, then all y, then all z). See the module docs, "Displacement fields".
 pub fn write_displacement_field(
     path: &Path,

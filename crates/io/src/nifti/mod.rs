@@ -37,7 +37,7 @@
 //!   This is the spec's method, not nibabel's centred fallback.
 //!
 //! We keep patient space in LPS, so `lps_from_index = lps_from_ras · ras_from_index` with
-//! `lps_from_ras = diag(−1, −1, 1)`, and record which method was used in [`GeometrySource`].
+//! `lps_from_ras = diag(−1, −1, 1)`, and record which method was used in [`crate::GeometrySource`].
 //! A non-finite or zero spacing used by the geometry, or a non-finite or singular matrix, is an error.
 //!
 //! When both codes are set, the sform is used (as nibabel does) but ITK and SimpleITK use the qform, so a file
@@ -59,7 +59,7 @@
 //!   else u16 likewise, else f32.
 //!
 //! A 4-D file gives one frame, chosen by [`LoadOptions::frame`]; dims beyond the 4th must be 1. Without a
-//! frame, a file of several frames is [`ErrorKind::FrameRequired`] with the frame count, which each front end
+//! frame, a file of several frames is [`crate::ErrorKind::FrameRequired`] with the frame count, which each front end
 //! words for its own way of choosing (the CLI's `--frame`).
 //!
 //! # Robustness and memory
@@ -68,7 +68,7 @@
 //! validated before anything is allocated from it; sizes are checked with [`volume::check_allocation`]
 //! (the [`LoadOptions::max_voxel_bytes`] cap), and for an uncompressed file against the file length. Sample
 //! buffers are allocated fallibly ([`volume::try_with_capacity`]): memory the system refuses is an
-//! [`ErrorKind::OutOfMemory`] naming the file and the size, never an abort. A gzip
+//! [`crate::ErrorKind::OutOfMemory`] naming the file and the size, never an abort. A gzip
 //! stream is decompressed straight into the final buffer, reading exactly the bytes needed. With no
 //! rescale the samples are decoded chunk by chunk into the output (peak ≈ 1× the output); with a
 //! rescale the raw frame is read first, then converted (peak ≤ 2×).
@@ -120,9 +120,9 @@
 //! (`data-scripts/check_field_sitk.py`; `tests/data/PROVENANCE.md`, "ITK displacement-field reference").
 //!
 //! # Modules
-//! [`header`] parses the fixed header of either version; [`layout`] checks the grid, the stored type and the data
-//! span (shared with displacement fields); [`geometry`] builds `lps_from_index` (and, for the writer, the qform of
-//! a matrix); [`samples`] decodes and rescales the samples; [`write`] writes volumes; [`field`] reads and writes
+//! `header` parses the fixed header of either version; `layout` checks the grid, the stored type and the data
+//! span (shared with displacement fields); `geometry` builds `lps_from_index` (and, for the writer, the qform of
+//! a matrix); `samples` decodes and rescales the samples; `write` writes volumes; `field` reads and writes
 //! displacement fields. This module holds the byte sources and the volume reader that runs those stages.
 
 mod field;

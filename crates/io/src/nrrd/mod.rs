@@ -29,8 +29,8 @@
 //!
 //! - Geometry: `lps_from_index = [d_0 d_1 d_2 | o]` with the space directions `d_a` as columns
 //!   and the origin `o`, both converted to LPS from the `space` field (RAS negates x and y, LAS
-//!   negates y) → [`GeometrySource::NrrdSpace`]. Without a space, `spacings` give an
-//!   axis-aligned diagonal with origin 0 → [`GeometrySource::NrrdSpacings`] (unit spacing, with a
+//!   negates y) → [`crate::GeometrySource::NrrdSpace`]. Without a space, `spacings` give an
+//!   axis-aligned diagonal with origin 0 → [`crate::GeometrySource::NrrdSpacings`] (unit spacing, with a
 //!   warning, when even those are missing).
 //! - Dimension 3, or 4 with one non-spatial axis of size 1 (anywhere), which is dropped; real
 //!   vector or time-series data are refused.
@@ -50,8 +50,8 @@
 //!   gzip-compressed unless asked otherwise, through [`crate::write_atomic`].
 //!
 //! # Modules
-//! [`header`] reads and parses the text header, [`geometry`] turns it into `lps_from_index`, [`data`] finds and
-//! decodes the samples (raw, gzip, ASCII, hex), [`write`] writes NRRD0004.
+//! `header` reads and parses the text header, `geometry` turns it into `lps_from_index`, `data` finds and
+//! decodes the samples (raw, gzip, ASCII, hex), `write` writes NRRD0004.
 
 mod data;
 mod geometry;
