@@ -2,6 +2,11 @@
 //! 1 internal error; 3 an accuracy gate failed (used by `eval`). [`Failure::Cancelled`] (130, as for an interrupted
 //! command) comes only from the in-memory cores when their caller (the window's cancel button) stops them; no
 //! subcommand cancels.
+//!
+//! [`Failure`] belongs to `main.rs` and the subcommands. The modules they share with the window (`inputs`, `scene`,
+//! `fit`) return `anyhow` errors that name the file and the problem; every one of those is about the input, and the
+//! subcommands wrap it as [`Failure::BadInput`]. (`inputs`' output checks return a [`Failure::BadInput`] themselves,
+//! as the window's export chains them with `warp::check_outputs`.)
 
 use std::process::ExitCode;
 
