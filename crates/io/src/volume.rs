@@ -369,6 +369,14 @@ pub fn try_with_capacity<T>(path: &Path, n: usize, what: &str) -> Result<Vec<T>>
     Ok(v)
 }
 
+/// `n` zeros, allocated fallibly ([`try_with_capacity`]): `vec![0; n]` would abort the process when
+/// the memory cannot be had.
+pub(crate) fn try_zeros<T: Copy + Default>(path: &Path, n: usize, what: &str) -> Result<Vec<T>> {
+    let mut v = try_with_capacity(path, n, what)?;
+    v.resize(n, T::default());
+    Ok(v)
+}
+
 /// Default cap on the bytes of decoded voxel data that a reader allocates (see [`crate::LoadOptions`]).
 pub const DEFAULT_MAX_VOXEL_BYTES: u64 = 16 << 30;
 

@@ -7,8 +7,8 @@ use std::path::Path;
 
 use super::header::PixelFormat;
 use super::jpegls;
-use super::pixels::try_zeros;
 use crate::error::{Error, ErrorKind, Result};
+use crate::volume::try_zeros;
 
 /// Decodes RLE Lossless (PS3.5 Annex G): one fragment per frame, 64-byte header, one PackBits
 /// segment per byte of the sample, most significant first. Output is little-endian.

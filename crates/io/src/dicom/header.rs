@@ -1,5 +1,6 @@
 //! The header of one image object (step 1 of [`super`]): identifiers, the transfer syntax's UID, the pixel format
-//! and, through [`super::geometry::parse_geometry`], one placement per frame.
+//! and one placement per frame ([`parse_geometry`]: position, orientation, spacing and rescale, from the per-frame
+//! functional groups, the shared ones or the top level).
 
 use std::path::Path;
 
@@ -7,9 +8,9 @@ use dicom_core::Tag;
 use dicom_dictionary_std::tags;
 use dicom_object::mem::InMemElement;
 use dicom_object::{DefaultDicomObject, InMemDicomObject};
+use nalgebra::Vector3;
 
 use super::TransferSyntax;
-use super::geometry::{SliceGeom, parse_geometry};
 use super::input::Source;
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
@@ -212,4 +213,150 @@ pub(super) fn parse_pixel_format(obj: &InMemDicomObject) -> std::result::Result<
         high_bit,
         signed,
     })
+}
+
+/// Position, orientation, spacing and rescale of one slice (a file or one frame).
+#[derive(Clone, Debug)]
+pub(super) struct SliceGeom {
+    pub(super) ipp: [f64; 3],
+    pub(super) iop: [f64; 6],
+    /// PixelSpacing: (between rows, between columns) in mm.
+    pub(super) pixel_spacing: [f64; 2],
+    /// SpacingBetweenSlices, else SliceThickness: used only for a single slice.
+    pub(super) slice_step_mm: Option<f64>,
+    pub(super) slope: f64,
+    pub(super) intercept: f64,
+    /// A geometry tag that was missing (defaults used); an error unless the series is one slice.
+    pub(super) missing: Option<String>,
+}
+
+/// The first item of sequence `seq` in `item`.
+fn first_item(item: Option<&InMemDicomObject>, seq: Tag) -> Option<&InMemDicomObject> {
+    item?.get(seq)?.items()?.first()
+}
+
+/// Looks up `tag` for one frame: per-frame functional group, then shared, then the top level.
+fn frame_elem<'a>(
+    obj: &'a InMemDicomObject,
+    per_frame: Option<&'a InMemDicomObject>,
+    shared: Option<&'a InMemDicomObject>,
+    seq: Tag,
+    tag: Tag,
+) -> Option<&'a InMemElement> {
+    first_item(per_frame, seq)
+        .and_then(|i| i.get(tag))
+        .or_else(|| first_item(shared, seq).and_then(|i| i.get(tag)))
+        .or_else(|| obj.get(tag))
+}
+
+pub(super) fn parse_geometry(
+    obj: &InMemDicomObject,
+    frames: usize,
+    notes: &mut Vec<String>,
+) -> std::result::Result<Vec<SliceGeom>, String> {
+    let per_frame_items = obj.get(tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE).and_then(|e| e.items());
+    let shared = obj.get(tags::SHARED_FUNCTIONAL_GROUPS_SEQUENCE).and_then(|e| e.items()).and_then(|i| i.first());
+    let enhanced = per_frame_items.is_some() || shared.is_some();
+    let geom_frames = if enhanced { frames } else { 1 };
+    let mut out = Vec::with_capacity(geom_frames.min(65_536));
+    for f in 0..geom_frames {
+        let per = per_frame_items.and_then(|items| items.get(f));
+        let find = |seq: Tag, tag: Tag| frame_elem(obj, per, shared, seq, tag);
+        let need = |seq: Tag, tag: Tag, name: &str, n: usize| -> std::result::Result<Vec<f64>, String> {
+            let e = find(seq, tag).ok_or_else(|| {
+                let frame = if enhanced { format!(" for frame {}", f + 1) } else { String::new() };
+                format!("{} is missing{frame}", tag_label(name, tag))
+            })?;
+            elem_f64s(e, name, n)
+        };
+        // A single classic slice without geometry (e.g. a secondary capture) gets the identity
+        // placement; `plan_geometry` rejects that for series of more than one slice.
+        let mut missing = None;
+        let mut need_or = |seq: Tag, tag: Tag, name: &str, default: &[f64]| {
+            if !enhanced && frames == 1 && find(seq, tag).is_none() {
+                missing.get_or_insert_with(|| format!("{} is missing", tag_label(name, tag)));
+                return Ok(default.to_vec());
+            }
+            need(seq, tag, name, default.len())
+        };
+        let ipp =
+            need_or(tags::PLANE_POSITION_SEQUENCE, tags::IMAGE_POSITION_PATIENT, "ImagePositionPatient", &[0.0; 3])?;
+        let iop = need_or(
+            tags::PLANE_ORIENTATION_SEQUENCE,
+            tags::IMAGE_ORIENTATION_PATIENT,
+            "ImageOrientationPatient",
+            &[1.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+        )?;
+        let ps = need_or(tags::PIXEL_MEASURES_SEQUENCE, tags::PIXEL_SPACING, "PixelSpacing", &[1.0, 1.0])?;
+        if ps.iter().any(|&s| s <= 0.0) {
+            return Err(format!("{} must be positive: {ps:?}", tag_label("PixelSpacing", tags::PIXEL_SPACING)));
+        }
+        let step = |tag: Tag| {
+            find(tags::PIXEL_MEASURES_SEQUENCE, tag)
+                .and_then(|e| e.value().to_float64().ok())
+                .filter(|s| s.is_finite() && *s > 0.0)
+        };
+        let slice_step_mm = step(tags::SPACING_BETWEEN_SLICES).or_else(|| step(tags::SLICE_THICKNESS));
+        let number = |tag: Tag, name: &str| -> std::result::Result<Option<f64>, String> {
+            match find(tags::PIXEL_VALUE_TRANSFORMATION_SEQUENCE, tag) {
+                None => Ok(None),
+                Some(e) if e.value().primitive().is_some_and(|p| p.to_str().trim().is_empty()) => Ok(None),
+                Some(e) => elem_f64s(e, name, 1).map(|v| Some(v[0])),
+            }
+        };
+        let slope = number(tags::RESCALE_SLOPE, "RescaleSlope")?.unwrap_or(1.0);
+        let intercept = number(tags::RESCALE_INTERCEPT, "RescaleIntercept")?.unwrap_or(0.0);
+        let iop: [f64; 6] = std::array::from_fn(|i| iop[i]);
+        check_orientation(&iop)?;
+        out.push(SliceGeom {
+            ipp: [ipp[0], ipp[1], ipp[2]],
+            iop,
+            pixel_spacing: [ps[0], ps[1]],
+            slice_step_mm,
+            slope,
+            intercept,
+            missing,
+        });
+    }
+    if !enhanced && frames > 1 {
+        // Classic multi-frame: one position for all frames; stack them along the normal.
+        let g = out[0].clone();
+        let step = g.slice_step_mm.ok_or_else(|| {
+            format!(
+                "multi-frame object with {frames} frames has no per-frame positions (no {}) and no {} or {}",
+                tag_label("PerFrameFunctionalGroupsSequence", tags::PER_FRAME_FUNCTIONAL_GROUPS_SEQUENCE),
+                tag_label("SpacingBetweenSlices", tags::SPACING_BETWEEN_SLICES),
+                tag_label("SliceThickness", tags::SLICE_THICKNESS)
+            )
+        })?;
+        let n = normal(&g.iop);
+        notes.push(format!(
+            "multi-frame object without per-frame positions: frames placed {step} mm apart along the slice normal"
+        ));
+        out = (0..frames)
+            .map(|f| {
+                let t = step * f as f64;
+                SliceGeom { ipp: [g.ipp[0] + t * n[0], g.ipp[1] + t * n[1], g.ipp[2] + t * n[2]], ..g.clone() }
+            })
+            .collect();
+    }
+    Ok(out)
+}
+
+fn check_orientation(iop: &[f64; 6]) -> std::result::Result<(), String> {
+    let r = Vector3::new(iop[0], iop[1], iop[2]);
+    let c = Vector3::new(iop[3], iop[4], iop[5]);
+    if (r.norm() - 1.0).abs() > 1e-2 || (c.norm() - 1.0).abs() > 1e-2 || r.dot(&c).abs() > 1e-2 {
+        return Err(format!(
+            "{} is not two orthogonal unit vectors: {iop:?}",
+            tag_label("ImageOrientationPatient", tags::IMAGE_ORIENTATION_PATIENT)
+        ));
+    }
+    Ok(())
+}
+
+/// n = row × col.
+pub(super) fn normal(iop: &[f64; 6]) -> [f64; 3] {
+    let n = Vector3::new(iop[0], iop[1], iop[2]).cross(&Vector3::new(iop[3], iop[4], iop[5]));
+    [n[0], n[1], n[2]]
 }

@@ -17,7 +17,7 @@ use super::transfer_syntax::{Codec, TransferSyntax};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
 use crate::sample::{Stored, StoredType, rescaled_type};
-use crate::volume::{self, Rescale, SampleType, VoxelData};
+use crate::volume::{self, Rescale, SampleType, VoxelData, try_zeros};
 
 /// The stored type of `fmt`'s samples: BitsAllocated 8, 16 or 32, signed when PixelRepresentation is 1.
 pub(super) fn stored_type(path: &Path, fmt: &PixelFormat) -> Result<StoredType> {
@@ -32,14 +32,6 @@ pub(super) fn stored_type(path: &Path, fmt: &PixelFormat) -> Result<StoredType> 
             return Err(Error::unsupported(path, format!("BitsAllocated (0028,0100) {b} (only 8, 16 and 32)")));
         }
     })
-}
-
-/// `n` zeros, allocated fallibly ([`volume::try_with_capacity`]): `vec![0; n]` would abort the process when
-/// the memory cannot be had.
-pub(super) fn try_zeros<T: Copy + Default>(path: &Path, n: usize, what: &str) -> Result<Vec<T>> {
-    let mut v = volume::try_with_capacity(path, n, what)?;
-    v.resize(n, T::default());
-    Ok(v)
 }
 
 /// `f(i, v[i])` for every sample, into a buffer allocated fallibly. When `S` and `T` have the same layout, std

@@ -273,3 +273,11 @@ pub fn write_landmark_pairs(path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
         write_bigwarp_csv(path, pairs)
     }
 }
+
+/// The error for a BigWarp file read as a Slicer point list.
+fn bigwarp_not_slicer(path: &Path) -> Error {
+    Error::unsupported(
+        path,
+        "a BigWarp landmarks file (pairs of points), not a Slicer point list: read it as a file of pairs",
+    )
+}

@@ -6,8 +6,7 @@ use serde_json::{Value, json};
 
 use super::bigwarp_csv::{axis, check_finite};
 use super::bigwarp_json::{bigwarp_table, json_keys, parse_gson_json};
-use super::slicer_pair::bigwarp_not_slicer;
-use super::{MARKUPS_SCHEMA, SlicerPoint, landmark_error, read_text, strip_bom};
+use super::{MARKUPS_SCHEMA, SlicerPoint, bigwarp_not_slicer, landmark_error, read_text, strip_bom};
 use crate::error::{Error, Result};
 use crate::geometry::Point3;
 

@@ -5,18 +5,11 @@ use std::path::Path;
 use super::bigwarp_csv::{BigWarpCsvOptions, parse_bigwarp_csv};
 use super::fcsv::{parse_fcsv, to_fcsv};
 use super::mrk_json::{parse_mrk_json, to_mrk_json};
-use super::{LandmarkFileFormat, LandmarkPair, SlicerPoint, detect_landmark_format, read_text};
+use super::{LandmarkFileFormat, LandmarkPair, SlicerPoint, bigwarp_not_slicer, detect_landmark_format, read_text};
 use crate::error::{Error, Result};
 
 fn is_fcsv(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("fcsv"))
-}
-
-pub(super) fn bigwarp_not_slicer(path: &Path) -> Error {
-    Error::unsupported(
-        path,
-        "a BigWarp landmarks file (pairs of points), not a Slicer point list: read it as a file of pairs",
-    )
 }
 
 /// Reads one Slicer point list, `.mrk.json` or `.fcsv`, told apart by content ([`detect_landmark_format`]); a

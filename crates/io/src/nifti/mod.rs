@@ -269,7 +269,7 @@ fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut L
     }
 
     let data = match scale {
-        None => read_identity(src, &l, h.big_endian, &mut progress)?,
+        None => read_identity(src, l.datatype, l.dims, l.frame_bytes, h.big_endian, &mut progress)?,
         Some(slope_inter) => {
             let mut raw = volume::try_with_capacity(path, l.frame_bytes, "the stored samples before rescaling")?;
             raw.resize(l.frame_bytes, 0);

@@ -5,7 +5,6 @@ use std::io::Read;
 use std::path::Path;
 
 use super::header::Header;
-use super::layout::Layout;
 use super::{Reporter, fill};
 use crate::error::{Error, Result};
 use crate::sample::{self, Stored, StoredType, rescaled_type};
@@ -93,18 +92,19 @@ pub(super) fn stream_chunks(
 /// ([`StoredType::unscaled`]), decoded chunk by chunk into the output.
 pub(super) fn read_identity(
     r: &mut impl Read,
-    l: &Layout,
+    stored: StoredType,
+    dims: [usize; 3],
+    frame_bytes: usize,
     big_endian: bool,
     progress: &mut Reporter,
 ) -> Result<VoxelData> {
-    let output = l.datatype.unscaled();
-    if output.bytes() > l.datatype.bytes() {
+    let output = stored.unscaled();
+    if output.bytes() > stored.bytes() {
         // A widening (i8 to i16): the output is larger than the stored bytes checked so far.
-        volume::check_allocation(progress.path, l.dims, output.bytes(), progress.opts.max_voxel_bytes)?;
+        volume::check_allocation(progress.path, dims, output.bytes(), progress.opts.max_voxel_bytes)?;
     }
-    let n = l.frame_bytes / l.datatype.bytes();
-    let mut data = VoxelData::try_empty(progress.path, output, n, "the voxel samples")?;
-    sample::with_stored_type!(l.datatype, T => stream_chunks(r, l.frame_bytes, progress, |chunk| {
+    let mut data = VoxelData::try_empty(progress.path, output, frame_bytes / stored.bytes(), "the voxel samples")?;
+    sample::with_stored_type!(stored, T => stream_chunks(r, frame_bytes, progress, |chunk| {
         data.extend_from(sample::decode::<T>(chunk, big_endian));
     }))?;
     Ok(data)
