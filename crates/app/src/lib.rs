@@ -17,6 +17,8 @@
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
 //!   of them (control texture, TPS, B-spline lattice), for the subcommands, the window and the drag bench.
 //! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
+//! - [`settings`]: the named choices (blend, warp method, probe, shading, preset) shared by the window, the sessions
+//!   and the command line.
 //! - [`gui`]: the workbench window (eframe): the deformed pair in a 3-D view and three slice views, the warp method
 //!   and view settings, the landmark table; the demo pair when no files are given.
 //! - [`exit`]: the exit-code convention shared by every subcommand; the shared modules (`inputs`, `scene`, `fit`)
@@ -32,4 +34,5 @@ pub mod inputs;
 pub mod progress;
 pub mod render;
 pub mod scene;
+pub mod settings;
 pub mod warp;

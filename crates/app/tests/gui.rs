@@ -41,6 +41,11 @@ fn wait_for_failure(harness: &mut Harness<'_, Workbench>) {
 /// A window of `size` on the MRI fixture as fixed and moving, with the five pairs of [`pairs`] and an autosave in
 /// `dir`, stepped until the pair is shown.
 fn open_mri_pair(dir: &Path, size: egui::Vec2) -> Harness<'static, Workbench> {
+    open_mri_pair_at(dir, size, 1.0)
+}
+
+/// [`open_mri_pair`] drawn at `pixels_per_point`.
+fn open_mri_pair_at(dir: &Path, size: egui::Vec2, pixels_per_point: f32) -> Harness<'static, Workbench> {
     let opts = GuiOptions {
         fixed: Some(mri()),
         moving: Some(mri()),
@@ -48,7 +53,11 @@ fn open_mri_pair(dir: &Path, size: egui::Vec2) -> Harness<'static, Workbench> {
         autosave: Some(dir.join("autosave.warpbench.json")),
         ..GuiOptions::default()
     };
-    let mut harness = Harness::builder().with_size(size).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = Harness::builder()
+        .with_size(size)
+        .with_pixels_per_point(pixels_per_point)
+        .wgpu()
+        .build_eframe(|cc| Workbench::new(cc, opts));
     wait_until_shown(&mut harness);
     harness
 }
@@ -89,14 +98,12 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     harness.get_by_label("difference").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(warpbench_gpu::BlendMode::ALL[ready.settings.blend].name(), "difference");
+    assert_eq!(ready.document.settings.blend.name(), "difference");
 
     // Undo (the button) brings the mix blend back, redo (Ctrl+Shift+Z) the difference again, Ctrl+Z undoes again.
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
-    let blend = |h: &Harness<'_, Workbench>| {
-        warpbench_gpu::BlendMode::ALL[h.state().ready().expect("loaded").settings.blend].name()
-    };
+    let blend = |h: &Harness<'_, Workbench>| h.state().ready().expect("loaded").document.settings.blend.name();
     assert_eq!(blend(&harness), "mix");
     let key = |h: &mut Harness<'_, Workbench>, modifiers: egui::Modifiers| {
         for pressed in [true, false] {
@@ -121,12 +128,12 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     harness.get_by_label("Use Pt-2").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    assert!(!ready.loaded.pairs[2].active);
+    assert!(!ready.document.pairs[2].active);
     assert_eq!(ready.fitted_pairs(), 4);
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    assert!(ready.loaded.pairs[2].active, "undo switches the pair back on");
+    assert!(ready.document.pairs[2].active, "undo switches the pair back on");
     assert_eq!(ready.fitted_pairs(), 5, "and refits");
     harness.get_by_label("Redo").click();
     harness.run_steps(2);
@@ -137,7 +144,7 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     harness.get_by_label("rigid").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.settings.method().to_string(), "rigid");
+    assert_eq!(ready.document.settings.method().to_string(), "rigid");
     assert_eq!(ready.fitted_pairs(), 4, "{:?}", ready.fit_error);
 }
 
@@ -184,15 +191,15 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     let rect = harness.get_by_label("Axial slice").rect();
     click_at(&mut harness, rect.center());
     assert!(
-        matches!(harness.state().ready().expect("loaded").placing, warpbench_app::gui::Placing::Target { .. }),
+        matches!(harness.state().ready().expect("loaded").placing(), warpbench_app::gui::Placing::Target { .. }),
         "the first click places the source"
     );
     click_at(&mut harness, rect.center() + egui::vec2(rect.width() * 0.1, 0.0));
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.placing, warpbench_app::gui::Placing::Idle);
-    assert_eq!(ready.loaded.pairs.len(), 6, "a sixth pair");
+    assert_eq!(ready.placing(), warpbench_app::gui::Placing::Idle);
+    assert_eq!(ready.document.pairs.len(), 6, "a sixth pair");
     assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit_error);
-    let pair = ready.loaded.pairs.last().expect("pair");
+    let pair = ready.document.pairs.last().expect("pair");
     let (p, q) = (pair.moving.expect("source").coords(), pair.fixed.expect("target").coords());
     // Both clicks lie on the axial plane of the fixed grid (voxel centres, 2 mm apart); the source went through the
     // pull-back, which moves it by a few mm at most.
@@ -201,7 +208,7 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     // The new pair is on disk at once, without another frame (the autosave follows every change of the document).
     let autosave = dir.path().join("autosave.warpbench.json");
     let start = Instant::now();
-    let on_disk = |path: &Path| warpbench_app::gui::session::load(path).map_or(0, |s| s.landmarks.len());
+    let on_disk = |path: &Path| warpbench_app::gui::session::load(path).map_or(0, |s| s.document.pairs.len());
     while on_disk(&autosave) != 6 {
         assert!(start.elapsed() < Duration::from_secs(5), "the sixth pair was not autosaved within 5 s");
         std::thread::sleep(Duration::from_millis(20));
@@ -215,8 +222,8 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     click_at(&mut harness, view.center());
     let ready = harness.state().ready().expect("loaded");
     assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
-    assert_eq!(ready.loaded.pairs.len(), 7, "a seventh pair from the 3-D view");
-    let pair = ready.loaded.pairs.last().expect("pair");
+    assert_eq!(ready.document.pairs.len(), 7, "a seventh pair from the 3-D view");
+    let pair = ready.document.pairs.last().expect("pair");
     let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
     assert!(inside(pair.moving.expect("source").coords()) && inside(pair.fixed.expect("target").coords()));
 }
@@ -251,9 +258,9 @@ fn suspicious_and_degenerate_pairs_are_named_by_their_rows_in_the_table() {
     // Row 1 off (so the fit's own numbering differs from the table's), and row 6 repeats row 3.
     {
         let ready = harness.state_mut().ready_mut().expect("loaded");
-        ready.loaded.pairs[0].active = false;
-        let again = ready.loaded.pairs[2].clone();
-        ready.loaded.pairs.push(warpbench_io::landmarks::LandmarkPair { name: "again".into(), ..again });
+        ready.document.pairs[0].active = false;
+        let again = ready.document.pairs[2].clone();
+        ready.document.pairs.push(warpbench_io::landmarks::LandmarkPair { name: "again".into(), ..again });
         ready.refit();
     }
     harness.run_steps(2);
@@ -265,7 +272,7 @@ fn suspicious_and_degenerate_pairs_are_named_by_their_rows_in_the_table() {
     // Row 6 now sends row 3's moving point elsewhere: no warp does that; the status bar says which rows.
     {
         let ready = harness.state_mut().ready_mut().expect("loaded");
-        ready.loaded.pairs[5].fixed = Some(warpbench_io::geometry::Point3::new(5.0, 5.0, 5.0));
+        ready.document.pairs[5].fixed = Some(warpbench_io::geometry::Point3::new(5.0, 5.0, 5.0));
         ready.refit();
     }
     harness.run_steps(2);
@@ -322,9 +329,10 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
     // Change things: the method, a pair switched off, the camera; then save the session.
     {
         let ready = harness.state_mut().ready_mut().expect("loaded");
-        ready.settings.method = 4; // rigid
-        ready.settings.oblique[1] = warpbench_app::gui::panels::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
-        ready.loaded.pairs[1].active = false;
+        ready.document.settings.method = warpbench_app::settings::MethodKind::Rigid;
+        ready.document.settings.oblique[1] =
+            warpbench_app::gui::document::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
+        ready.document.pairs[1].active = false;
         ready.camera.azimuth_rad = 1.0;
         ready.refit();
     }
@@ -359,11 +367,8 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
     harness.run_steps(2);
     wait_until_shown(&mut harness);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(
-        ready.loaded.pairs,
-        saved.landmarks.iter().map(warpbench_app::gui::session::SessionPair::to_pair).collect::<Vec<_>>()
-    );
-    assert_eq!(ready.settings.method().to_string(), "rigid");
+    assert_eq!(ready.document.pairs, saved.document.pairs);
+    assert_eq!(ready.document.settings.method().to_string(), "rigid");
 }
 
 #[test]
@@ -379,8 +384,8 @@ fn a_folding_warp_is_flagged_with_its_location() {
     {
         let ready = harness.state_mut().ready_mut().expect("loaded");
         let pt = |x: f64| warpbench_io::geometry::Point3::new(x, 18.0, 30.0);
-        ready.loaded.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x1", pt(13.0), pt(0.0)));
-        ready.loaded.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x2", pt(-7.0), pt(6.0)));
+        ready.document.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x1", pt(13.0), pt(0.0)));
+        ready.document.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x2", pt(-7.0), pt(6.0)));
         ready.refit();
     }
     harness.run_steps(2);
@@ -455,23 +460,23 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     harness.run_steps(2);
     wait_for_reads(&mut harness);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.loaded.moving_path.as_deref(), Some(folder.as_path()));
+    assert_eq!(ready.document.moving.as_deref(), Some(folder.as_path()));
     assert_eq!(ready.loaded.moving.modality, warpbench_io::Modality::Mr);
     assert!(ready.loaded.title.contains("mixed_ct5n_mr_small"), "{}", ready.loaded.title);
     // The landmarks stay (patient space), and the warp is fitted again against the new volume.
-    assert_eq!(ready.loaded.pairs.len(), 5);
+    assert_eq!(ready.document.pairs.len(), 5);
     // Opening a volume is an undo step: undo shows the MRI again, redo the DICOM series.
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.loaded.moving_path.as_deref(), Some(mri().as_path()));
+    assert_eq!(ready.document.moving.as_deref(), Some(mri().as_path()));
     assert_eq!(ready.loaded.moving.dims, [91, 109, 91]);
     assert!(!ready.loaded.title.contains("mixed_ct5n_mr_small"), "{}", ready.loaded.title);
     assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
     harness.get_by_label("Redo").click();
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.loaded.moving_path.as_deref(), Some(folder.as_path()));
+    assert_eq!(ready.document.moving.as_deref(), Some(folder.as_path()));
     assert_ne!(ready.loaded.moving.dims, [91, 109, 91]);
 
     // Two volumes dropped together: the first is the fixed one, the second the moving one.
@@ -479,8 +484,8 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     drop_files(&mut harness, &[ct.clone(), mri()]);
     wait_for_reads(&mut harness);
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.loaded.fixed_path.as_deref(), Some(ct.as_path()));
-    assert_eq!(ready.loaded.moving_path.as_deref(), Some(mri().as_path()));
+    assert_eq!(ready.document.fixed.as_deref(), Some(ct.as_path()));
+    assert_eq!(ready.document.moving.as_deref(), Some(mri().as_path()));
     assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
 }
 
@@ -500,17 +505,17 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
     harness.run_steps(2);
     harness.get_by_label("Name of pair 1").type_text("nasion");
     harness.run_steps(2);
-    assert!(harness.state().ready().expect("loaded").loaded.pairs[0].name.contains("nasion"));
+    assert!(harness.state().ready().expect("loaded").document.pairs[0].name.contains("nasion"));
     // The typed text arrived in one frame: one undo step.
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
-    assert_eq!(harness.state().ready().expect("loaded").loaded.pairs[0].name, "Pt-0");
+    assert_eq!(harness.state().ready().expect("loaded").document.pairs[0].name, "Pt-0");
 
     // Drag Pt-1's fixed point 30 points to the right within the axial slice through it.
     harness.get_by_label("Go to Pt-1").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    let q = ready.loaded.pairs[1].fixed.expect("fixed").coords();
+    let q = ready.document.pairs[1].fixed.expect("fixed").coords();
     let plane = ready.slice_plane(0);
     let rect = harness.get_by_label("Axial slice").rect();
     let scale = rect.width() / plane.size.0 as f32;
@@ -532,12 +537,12 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
         harness.step();
     }
     let during = harness.state().ready().expect("loaded");
-    assert!(during.drag.is_some(), "the press grabbed the glyph");
+    assert!(during.drag().is_some(), "the press grabbed the glyph");
     harness.input_mut().events.push(button(end, false));
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    assert!(ready.drag.is_none());
-    let moved = ready.loaded.pairs[1].fixed.expect("fixed").coords();
+    assert!(ready.drag().is_none());
+    let moved = ready.document.pairs[1].fixed.expect("fixed").coords();
     let expected = plane.ref_from_pixel(px[0] + f64::from(30.0 / scale), px[1]);
     for a in 0..3 {
         assert!((moved[a] - expected[a]).abs() < 1.0, "dragged to {moved:?}, expected {expected:?}");
@@ -549,7 +554,7 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
     // One drag is one undo step.
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
-    let back = harness.state().ready().expect("loaded").loaded.pairs[1].fixed.expect("fixed").coords();
+    let back = harness.state().ready().expect("loaded").document.pairs[1].fixed.expect("fixed").coords();
     assert_eq!(back.map(f64::to_bits), q.map(f64::to_bits), "undo puts the point back exactly");
 }
 
@@ -564,7 +569,7 @@ fn an_oblique_slice_turns_about_the_crosshair() {
     harness.get_by_label("Axial oblique").click();
     harness.run_steps(2);
     harness.get_by_label("Axial tilt");
-    harness.state_mut().ready_mut().expect("loaded").settings.oblique[0].tilt_deg = 30.0;
+    harness.state_mut().ready_mut().expect("loaded").document.settings.oblique[0].tilt_deg = 30.0;
     harness.state_mut().ready_mut().expect("loaded").invalidate();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
@@ -705,7 +710,7 @@ fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
         .viewer
         .render_view(
             &ready.camera,
-            &ready.settings.render_settings(),
+            &ready.document.settings.render_settings(),
             warpbench_gpu::Quality::Full,
             (full_w, full_h),
             &ready.glyphs(),
@@ -725,7 +730,7 @@ fn keyboard_shortcuts_add_cancel_delete_and_reset() {
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
-    let placing = |h: &Harness<'_, Workbench>| h.state().ready().expect("ready").placing;
+    let placing = |h: &Harness<'_, Workbench>| h.state().ready().expect("ready").placing();
     // Space starts adding a pair, Esc cancels it.
     harness.key_press(egui::Key::Space);
     harness.run_steps(2);
@@ -740,7 +745,7 @@ fn keyboard_shortcuts_add_cancel_delete_and_reset() {
     harness.key_press(egui::Key::Delete);
     harness.run_steps(3);
     let names = |h: &Harness<'_, Workbench>| -> Vec<String> {
-        h.state().ready().expect("ready").loaded.pairs.iter().map(|p| p.name.clone()).collect()
+        h.state().ready().expect("ready").document.pairs.iter().map(|p| p.name.clone()).collect()
     };
     assert_eq!(names(&harness), ["Pt-0", "Pt-2", "Pt-3", "Pt-4"]);
     assert_eq!(harness.state().ready().expect("ready").fitted_pairs(), 4);
@@ -773,9 +778,10 @@ fn snapshot_of_the_pair() {
     if no_adapter() {
         return;
     }
-    // The MRI pair with its five landmarks; the status bar (adapter name, frame time) is masked.
+    // The MRI pair with its five landmarks; the status bar (adapter name, frame time) is masked. The 900×600 window
+    // is drawn at 0.28 pixels per point, so that the golden image stays within 256² (252×168).
     let dir = tempfile::tempdir().expect("tempdir");
-    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 600.0));
+    let mut harness = open_mri_pair_at(dir.path(), egui::vec2(900.0, 600.0), 0.28);
     let status = harness.get_by_label_contains("last frame").rect();
     harness.mask(egui::Rect::from_x_y_ranges(0.0..=900.0, (status.top() - 4.0)..=600.0));
     harness.snapshot("mri_pair");
@@ -791,7 +797,7 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     let rect = harness.get_by_label("3-D view").rect();
     let ready = harness.state().ready().expect("loaded");
     // Where pair 3's fixed point is drawn: the camera's projection onto the view's rect.
-    let q = ready.loaded.pairs[3].fixed.expect("fixed").coords();
+    let q = ready.document.pairs[3].fixed.expect("fixed").coords();
     let clip = ready.camera.clip_from_ref(rect.width() / rect.height())
         * warpbench_gpu::glam::Vec3::from_array(q.map(|v| v as f32)).extend(1.0);
     let (x, y) = (clip.x / clip.w, clip.y / clip.w);
@@ -812,13 +818,13 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
         harness.step();
     }
     let during = harness.state().ready().expect("loaded");
-    assert_eq!(during.drag.map(|d| (d.pair, d.end)), Some((3, warpbench_app::gui::End::Fixed)), "grabbed");
+    assert_eq!(during.drag().map(|d| (d.pair, d.end)), Some((3, warpbench_app::gui::End::Fixed)), "grabbed");
     harness.input_mut().events.push(button(end, false));
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
     assert!((ready.camera.azimuth_rad - camera_before).abs() < 1e-6, "a landmark drag does not orbit the camera");
-    let moved = ready.loaded.pairs[3].fixed.expect("fixed").coords();
+    let moved = ready.document.pairs[3].fixed.expect("fixed").coords();
     // The pointer went down the screen: the point moved, to the visible surface (picked on the fixed volume), and
     // stays inside the head.
     let d: f64 = (0..3).map(|a| (moved[a] - q[a]).powi(2)).sum::<f64>().sqrt();
@@ -845,11 +851,10 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
     let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
     for method in ["tps", "hbspline"] {
         let ready = harness.state_mut().ready_mut().expect("loaded");
-        ready.settings.method =
-            warpbench_app::gui::panels::METHODS.iter().position(|m| *m == method).expect("a method");
+        ready.document.settings.method = method.parse().expect("a method");
         // The CPU's texels: the same fit and grid, sampled by the solver (f64), as the window's CPU path uploads them.
         let (fixed, moving): (Vec<_>, Vec<_>) = ready
-            .loaded
+            .document
             .pairs
             .iter()
             .map(|p| {
@@ -863,9 +868,10 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
             warpbench_app::inputs::volume_box(&ready.loaded.fixed),
             warpbench_app::inputs::volume_box(&ready.loaded.moving),
         );
-        let n = ready.settings.grid_n;
+        let n = ready.document.settings.grid_n;
         let (fitted, _) =
-            warpbench_app::gui::fit_warp(&ready.settings.method(), &fixed, &moving, boxes, n, true).expect("fit");
+            warpbench_app::gui::fit_warp(&ready.document.settings.method(), &fixed, &moving, boxes, n, true)
+                .expect("fit");
         let (_, texture) = warpbench_app::scene::control_texture(fitted.pullback.as_ref(), boxes.0, n).expect("sample");
         let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
         // The GPU's: evaluated into the window's control texture.
@@ -890,4 +896,65 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
         harness.run_steps(2);
         assert!(harness.state().ready().expect("loaded").fit_error.is_none());
     }
+}
+
+#[test]
+fn undo_of_every_command_gives_the_document_back_and_view_commands_leave_it() {
+    use warpbench_app::gui::Command;
+    use warpbench_app::gui::panels::FileAction;
+    use warpbench_io::geometry::Point3;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
+    let imported = dir.path().join("three.csv");
+    common::write_pairs_csv(&imported, &[([1.0, 2.0, 3.0], [4.0, 5.0, 6.0]); 3]);
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    let mut settings = ready.document.settings.clone();
+    settings.method = warpbench_app::settings::MethodKind::Rigid;
+    settings.blend = warpbench_app::settings::Blend::Difference;
+    settings.oblique[2].on = true;
+    let mut looks = ready.document.layers;
+    (looks[1].visible, looks[0].window_high) = (false, looks[0].window_high + 10.0);
+    let edits = [
+        Command::AddPair { moving: Point3::new(1.0, 10.0, 20.0), fixed: Point3::new(2.0, 10.0, 20.0) },
+        Command::MovePoint { pair: 0, end: warpbench_app::gui::End::Fixed, to: [1.0, 2.0, 3.0], settled: true },
+        Command::MovePoint { pair: 1, end: warpbench_app::gui::End::Moving, to: [4.0, 5.0, 6.0], settled: false },
+        Command::DeletePair(2),
+        Command::RenamePair(0, "renamed".into()),
+        Command::SetActive(1, false),
+        Command::SetSettings(settings),
+        Command::SetLooks(looks),
+        Command::File(FileAction::ImportLandmarks(imported)),
+    ];
+    for command in edits {
+        let before = ready.document.clone();
+        ready.apply(command.clone());
+        ready.settle(false);
+        let after = ready.document.clone();
+        assert_ne!(after, before, "{command:?} changes the document");
+        ready.apply(Command::Undo);
+        assert_eq!(ready.document, before, "undo of {command:?}");
+        ready.apply(Command::Redo);
+        assert_eq!(ready.document, after, "redo of {command:?}");
+    }
+    let views = [
+        Command::ToggleAdding,
+        Command::Cancel,
+        Command::Select(1),
+        Command::JumpTo(0),
+        Command::MoveSlice(1, 12.0),
+        Command::CentreSlices([1.0, 2.0, 3.0]),
+        Command::ResetCamera,
+    ];
+    for command in views {
+        let before = ready.document.clone();
+        ready.apply(command.clone());
+        ready.settle(false);
+        assert_eq!(ready.document, before, "{command:?} leaves the document");
+    }
+    // None of the view commands was an undo step: undo goes back to before the import.
+    ready.apply(Command::Undo);
+    assert_eq!(ready.document.pairs.len(), 5, "{:?}", ready.document.pairs);
 }

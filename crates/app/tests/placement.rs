@@ -53,13 +53,13 @@ fn ready<'h>(harness: &'h Harness<'_, Workbench>) -> &'h Ready {
 /// checking each stored point against the status bar's reading at that position.
 fn add_pair_in_slices(harness: &mut Harness<'_, Workbench>, source: egui::Pos2, target: egui::Pos2, what: &str) {
     eprintln!("{what}: source at {source:?}, target at {target:?}");
-    let before = ready(harness).loaded.pairs.len();
+    let before = ready(harness).document.pairs.len();
     harness.get_by_label("Add pair").click();
     harness.run_steps(2);
     hover(harness, source);
     let (_, moving_shown) = shown(harness);
     click_at(harness, source);
-    let Placing::Target { moving } = ready(harness).placing else {
+    let Placing::Target { moving } = ready(harness).placing() else {
         panic!("{what}: the source click was not taken: {:?}", ready(harness).notice);
     };
     assert_shown(moving.coords(), moving_shown, &format!("{what}, moving point"));
@@ -67,9 +67,9 @@ fn add_pair_in_slices(harness: &mut Harness<'_, Workbench>, source: egui::Pos2, 
     let (fixed_shown, _) = shown(harness);
     click_at(harness, target);
     let r = ready(harness);
-    assert_eq!(r.placing, Placing::Idle, "{what}: {:?}", r.notice);
-    assert_eq!(r.loaded.pairs.len(), before + 1, "{what}: a pair was added");
-    let pair = r.loaded.pairs.last().expect("pair");
+    assert_eq!(r.placing(), Placing::Idle, "{what}: {:?}", r.notice);
+    assert_eq!(r.document.pairs.len(), before + 1, "{what}: a pair was added");
+    let pair = r.document.pairs.last().expect("pair");
     assert_shown(pair.moving.expect("moving").coords(), moving_shown, &format!("{what}, stored moving point"));
     assert_shown(pair.fixed.expect("fixed").coords(), fixed_shown, &format!("{what}, stored fixed point"));
 }
@@ -93,8 +93,8 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
                 harness.get_by_label(&format!("{name} oblique")).click();
                 harness.run_steps(2);
                 let r = harness.state_mut().ready_mut().expect("loaded");
-                r.settings.oblique[a].tilt_deg = 20.0;
-                r.settings.oblique[a].spin_deg = -15.0;
+                r.document.settings.oblique[a].tilt_deg = 20.0;
+                r.document.settings.oblique[a].spin_deg = -15.0;
                 r.invalidate();
                 harness.run_steps(2);
             }
@@ -108,13 +108,13 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
     }
 
     // A drag within the axial slice: the fixed point follows the pointer and ends where the status bar says.
-    let i = ready(&harness).loaded.pairs.len() - 6;
-    harness.get_by_label(&format!("Go to {}", ready(&harness).loaded.pairs[i].name)).click();
+    let i = ready(&harness).document.pairs.len() - 6;
+    harness.get_by_label(&format!("Go to {}", ready(&harness).document.pairs[i].name)).click();
     harness.run_steps(2);
     harness.run_steps(2);
     let r = ready(&harness);
     let plane = r.slice_plane(0);
-    let q = r.loaded.pairs[i].fixed.expect("fixed").coords();
+    let q = r.document.pairs[i].fixed.expect("fixed").coords();
     let rect = harness.get_by_label("Axial slice").rect();
     let scale = rect.width() / plane.size.0 as f32;
     let px = plane.pixel_from_ref(q).expect("on the plane");
@@ -128,12 +128,12 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
         harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
         harness.step();
     }
-    assert!(ready(&harness).drag.is_some(), "the press grabbed the glyph");
+    assert!(ready(&harness).drag().is_some(), "the press grabbed the glyph");
     harness.step();
     let (fixed_shown, _) = shown(&harness);
     harness.input_mut().events.push(button(end, false));
     harness.run_steps(3);
-    let moved = ready(&harness).loaded.pairs[i].fixed.expect("fixed").coords();
+    let moved = ready(&harness).document.pairs[i].fixed.expect("fixed").coords();
     assert_shown(moved, fixed_shown, "the dragged fixed point");
     assert!((moved[0] - q[0]).abs() > 5.0, "it moved: {q:?} -> {moved:?}");
     harness.run_steps(2);
@@ -147,52 +147,55 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
     let pixel = [(at.x - view.min.x) / view.width() * w as f32, (at.y - view.min.y) / view.height() * h as f32];
     let pick = |harness: &Harness<'_, Workbench>, target| {
         let r = ready(harness);
-        let settings = r.settings.render_settings();
-        r.viewer.pick(&r.camera, &settings, (w, h), pixel, target, r.settings.probe()).expect("pick").expect("a hit")
+        let settings = r.document.settings.render_settings();
+        r.viewer
+            .pick(&r.camera, &settings, (w, h), pixel, target, r.document.settings.probe())
+            .expect("pick")
+            .expect("a hit")
     };
     let moving_hit = pick(&harness, PickTarget::Moving);
     click_at(&mut harness, at);
-    let Placing::Target { moving } = ready(&harness).placing else { panic!("the 3-D source click was not taken") };
+    let Placing::Target { moving } = ready(&harness).placing() else { panic!("the 3-D source click was not taken") };
     assert_shown(moving.coords(), moving_hit.p_lps.map(f64::from), "3-D moving point");
     let fixed_hit = pick(&harness, PickTarget::Fixed);
     click_at(&mut harness, at);
-    let pair = ready(&harness).loaded.pairs.last().expect("pair").clone();
-    assert_eq!(ready(&harness).placing, Placing::Idle);
+    let pair = ready(&harness).document.pairs.last().expect("pair").clone();
+    assert_eq!(ready(&harness).placing(), Placing::Idle);
     assert_shown(pair.fixed.expect("fixed").coords(), fixed_hit.x_ref.map(f64::from), "3-D fixed point");
     harness.run_steps(2);
 
     // Off its volume. The axial slice tilted by 60°: its top and bottom rows leave the CT (162 mm high).
     let r = harness.state_mut().ready_mut().expect("loaded");
-    r.settings.oblique[0].tilt_deg = 60.0;
-    r.settings.oblique[0].spin_deg = 0.0;
+    r.document.settings.oblique[0].tilt_deg = 60.0;
+    r.document.settings.oblique[0].spin_deg = 0.0;
     r.invalidate();
     harness.run_steps(2);
     // Near the left edge of the CT's slice the moving point the warp shows lies beyond the MRI (180 mm wide, the CT
     // 245 mm): refused, nothing stored, still waiting for the source.
-    let n = ready(&harness).loaded.pairs.len();
+    let n = ready(&harness).document.pairs.len();
     let rect = harness.get_by_label("Axial slice").rect();
     let edge = egui::pos2(rect.min.x + 0.04 * rect.width(), rect.center().y);
     harness.get_by_label("Add pair").click();
     harness.run_steps(2);
     click_at(&mut harness, edge);
     let r = ready(&harness);
-    assert_eq!(r.placing, Placing::Source, "the source off the moving volume was refused");
+    assert_eq!(r.placing(), Placing::Source, "the source off the moving volume was refused");
     let notice = r.notice.clone().expect("a message");
     assert!(notice.contains("outside the moving volume"), "{notice}");
-    assert_eq!(r.loaded.pairs.len(), n);
+    assert_eq!(r.document.pairs.len(), n);
     harness.run_steps(2);
     harness.get_by_label(&notice);
     // A source inside, then a target on the top row, outside the CT: refused.
     click_at(&mut harness, rect.center());
-    assert!(matches!(ready(&harness).placing, Placing::Target { .. }), "{:?}", ready(&harness).notice);
+    assert!(matches!(ready(&harness).placing(), Placing::Target { .. }), "{:?}", ready(&harness).notice);
     click_at(&mut harness, egui::pos2(rect.center().x, rect.min.y + 2.0));
     let r = ready(&harness);
-    assert!(matches!(r.placing, Placing::Target { .. }), "the target off the fixed volume was refused");
+    assert!(matches!(r.placing(), Placing::Target { .. }), "the target off the fixed volume was refused");
     assert!(r.notice.as_deref().is_some_and(|m| m.contains("outside the fixed volume")), "{:?}", r.notice);
-    assert_eq!(r.loaded.pairs.len(), n);
+    assert_eq!(r.document.pairs.len(), n);
     // Every stored pair lies in its volumes, as the command line checks them.
     let r = ready(&harness);
-    for (k, p) in r.loaded.pairs.iter().enumerate() {
+    for (k, p) in r.document.pairs.iter().enumerate() {
         let (m, f) = (p.moving.expect("moving").coords(), p.fixed.expect("fixed").coords());
         assert!(warpbench_app::gui::placement::contains(&r.loaded.moving, m), "pair {}: moving {m:?}", k + 1);
         assert!(warpbench_app::gui::placement::contains(&r.loaded.fixed, f), "pair {}: fixed {f:?}", k + 1);

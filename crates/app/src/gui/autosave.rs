@@ -151,37 +151,20 @@ mod tests {
 
     /// A session with `n` pairs.
     fn session(n: usize) -> SessionFile {
-        let layer = session::SessionLayer { preset: "ct".into(), window_low: 0.0, window_high: 1.0, visible: true };
-        SessionFile {
-            schema: session::SCHEMA.to_owned(),
-            fixed: None,
-            moving: None,
-            landmarks: (0..n)
-                .map(|i| session::SessionPair {
-                    name: format!("Pt-{}", i + 1),
-                    active: true,
-                    moving_lps: Some([i as f64, 0.0, 0.0]),
-                    fixed_lps: Some([0.0, i as f64, 0.0]),
-                })
-                .collect(),
-            settings: session::SessionSettings {
-                blend: "mix".into(),
-                mix_weight: 0.5,
-                checker_mm: 10.0,
-                shading: "none".into(),
-                samples_per_voxel: 1.0,
-                method: "tps".into(),
-                stiffness: 0.0,
-                bspline_levels: 4,
-                control_texels: 32,
-                show_landmarks: true,
-                oblique: Default::default(),
-            },
-            layers: [layer.clone(), layer],
-            camera: session::SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] },
-            slice_mm: [0.0; 3],
-            clean_exit: false,
-        }
+        let volume = crate::gui::demo::phantom(4, 1.0, [0.0; 3], false);
+        let pairs = (0..n)
+            .map(|i| {
+                let (m, f) = (i as f64, i as f64);
+                warpbench_io::landmarks::LandmarkPair::new(
+                    format!("Pt-{}", i + 1),
+                    warpbench_io::geometry::Point3::new(m, 0.0, 0.0),
+                    warpbench_io::geometry::Point3::new(0.0, f, 0.0),
+                )
+            })
+            .collect();
+        let document = crate::gui::document::Document::new([None, None], [&volume, &volume], pairs);
+        let camera = session::SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
+        SessionFile::new(document, session::View { camera, slice_mm: [0.0; 3] }, false)
     }
 
     fn on_disk(path: &Path) -> Option<SessionFile> {
@@ -204,14 +187,14 @@ mod tests {
         // Once the time is up it is sent.
         assert_eq!(autosave.observe(t0 + COALESCE, &session(2), true), None);
         autosave.write_and_wait(&session(2));
-        assert_eq!(on_disk(&path).expect("written").landmarks.len(), 2);
+        assert_eq!(on_disk(&path).expect("written").document.pairs.len(), 2);
         // Without the pointer held a change goes out at once, however soon after the last.
         assert_eq!(autosave.observe(t0 + COALESCE, &session(0), false), None);
         let mut last = session(0);
         last.clean_exit = true;
         autosave.finish(&last);
         let written = on_disk(&path).expect("written");
-        assert!(written.clean_exit && written.landmarks.is_empty());
+        assert!(written.clean_exit && written.document.pairs.is_empty());
         assert_eq!(autosave.error(), None);
     }
 

@@ -1,50 +1,30 @@
-//! Undo and redo over everything the user changes: the landmark pairs, the view and warp settings, each volume's
-//! preset, window and visibility, and which volume each side shows (opening another one is a step too).
+//! Undo and redo over everything the user changes: the [`Document`] (the landmark pairs, the view and warp settings,
+//! each volume's look and path) and which volume each side shows (opening another one is a step too).
 //!
 //! The window records a [`Snapshot`] once a change has settled (no pointer button held, so a slider drag is one
 //! step, not one per frame). [`History::undo`] and [`History::redo`] walk back and forth; a new change after an undo
 //! drops the redo branch, as every editor does.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
-use warpbench_gpu::{Preset, Window};
 use warpbench_io::Volume;
-use warpbench_io::landmarks::LandmarkPair;
 
-use super::panels::ViewSettings;
+use super::document::Document;
 
-/// One volume's look.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LayerLook {
-    pub preset: Preset,
-    pub window: Window,
-    pub visible: bool,
-}
-
-/// The volume one side shows, and where it was read from (`None`: the demo pair). Two are equal when they are the
-/// same read (the same `Arc`), not merely equal voxels: undo then swaps volumes without comparing their data. The
-/// history keeps a replaced volume in memory for as long as a step refers to it.
+/// Everything undo restores: the document, and the volumes its paths were read into. Two are equal when their
+/// documents are and they show the same reads (the same `Arc`s), not merely equal voxels: undo then swaps volumes
+/// without comparing their data. The history keeps a replaced volume in memory for as long as a step refers to it.
 #[derive(Clone, Debug)]
-pub struct VolumeRef {
-    pub volume: Arc<Volume>,
-    pub path: Option<PathBuf>,
-}
-
-impl PartialEq for VolumeRef {
-    fn eq(&self, other: &Self) -> bool {
-        Arc::ptr_eq(&self.volume, &other.volume) && self.path == other.path
-    }
-}
-
-/// Everything undo restores.
-#[derive(Clone, Debug, PartialEq)]
 pub struct Snapshot {
-    pub pairs: Vec<LandmarkPair>,
-    pub settings: ViewSettings,
-    pub layers: [LayerLook; 2],
+    pub document: Document,
     /// Fixed, moving.
-    pub volumes: [VolumeRef; 2],
+    pub volumes: [Arc<Volume>; 2],
+}
+
+impl PartialEq for Snapshot {
+    fn eq(&self, other: &Self) -> bool {
+        self.document == other.document && self.volumes.iter().zip(&other.volumes).all(|(a, b)| Arc::ptr_eq(a, b))
+    }
 }
 
 /// Past and future snapshots around the current one.
@@ -107,32 +87,31 @@ impl History {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
+    use warpbench_io::geometry::Point3;
+    use warpbench_io::landmarks::LandmarkPair;
 
-    fn volume() -> VolumeRef {
-        VolumeRef { volume: Arc::new(crate::gui::demo::phantom(4, 1.0, [0.0; 3], false)), path: None }
+    fn volume() -> Arc<Volume> {
+        Arc::new(crate::gui::demo::phantom(4, 1.0, [0.0; 3], false))
     }
 
-    fn snapshot_with(n: usize, volumes: [VolumeRef; 2]) -> Snapshot {
-        let look = LayerLook { preset: Preset::GreyRamp, window: Window::from_range(0.0, 1.0), visible: true };
-        Snapshot {
-            pairs: (0..n)
-                .map(|i| {
-                    let p = warpbench_io::geometry::Point3::new(i as f64, 0.0, 0.0);
-                    LandmarkPair::new(format!("p{i}"), p, p)
-                })
-                .collect(),
-            settings: ViewSettings::default(),
-            layers: [look; 2],
-            volumes,
-        }
+    fn snapshot_with(n: usize, volumes: [Arc<Volume>; 2], moving: Option<PathBuf>) -> Snapshot {
+        let pairs = (0..n)
+            .map(|i| {
+                let p = Point3::new(i as f64, 0.0, 0.0);
+                LandmarkPair::new(format!("p{i}"), p, p)
+            })
+            .collect();
+        let document = Document::new([None, moving], [&volumes[0], &volumes[1]], pairs);
+        Snapshot { document, volumes }
     }
 
     thread_local! {
-        static PAIR: [VolumeRef; 2] = [volume(), volume()];
+        static PAIR: [Arc<Volume>; 2] = [volume(), volume()];
     }
 
     fn snapshot(n: usize) -> Snapshot {
-        snapshot_with(n, PAIR.with(Clone::clone))
+        snapshot_with(n, PAIR.with(Clone::clone), None)
     }
 
     #[test]
@@ -140,14 +119,14 @@ mod tests {
         let mut h = History::new(snapshot(0));
         assert!(!h.record(&snapshot(0)), "no change, no step");
         assert!(h.record(&snapshot(1)) && h.record(&snapshot(2)));
-        assert_eq!(h.undo().map(|s| s.pairs.len()), Some(1));
-        assert_eq!(h.undo().map(|s| s.pairs.len()), Some(0));
+        assert_eq!(h.undo().map(|s| s.document.pairs.len()), Some(1));
+        assert_eq!(h.undo().map(|s| s.document.pairs.len()), Some(0));
         assert!(h.undo().is_none() && !h.can_undo());
-        assert_eq!(h.redo().map(|s| s.pairs.len()), Some(1));
+        assert_eq!(h.redo().map(|s| s.document.pairs.len()), Some(1));
         assert!(h.can_redo());
         assert!(h.record(&snapshot(5)), "a new change after an undo");
         assert!(!h.can_redo(), "drops the redo branch");
-        assert_eq!(h.undo().map(|s| s.pairs.len()), Some(1));
+        assert_eq!(h.undo().map(|s| s.document.pairs.len()), Some(1));
     }
 
     #[test]
@@ -155,15 +134,16 @@ mod tests {
         let mut h = History::new(snapshot(1));
         // Equal voxels, another read: a change (a file reopened is a step, as in an editor).
         let [fixed, moving] = PAIR.with(Clone::clone);
-        let reread = VolumeRef { volume: Arc::new((*moving.volume).clone()), path: None };
-        assert_eq!(reread.volume.dims, moving.volume.dims);
-        assert!(h.record(&snapshot_with(1, [fixed.clone(), reread.clone()])));
+        let reread = Arc::new((*moving).clone());
+        assert_eq!(reread.dims, moving.dims);
+        assert!(h.record(&snapshot_with(1, [fixed.clone(), reread.clone()], None)));
         // The same read from another path is a change too; the same read and path is not.
-        let elsewhere = VolumeRef { path: Some(PathBuf::from("/data/mr.nii")), ..reread.clone() };
-        assert!(h.record(&snapshot_with(1, [fixed.clone(), elsewhere.clone()])));
-        assert!(!h.record(&snapshot_with(1, [fixed.clone(), elsewhere])));
-        let back = h.undo().expect("a step").volumes[1].clone();
-        assert!(back == reread && back != moving);
-        assert!(h.undo().expect("a step").volumes[1] == moving);
+        let elsewhere = Some(PathBuf::from("/data/mr.nii"));
+        assert!(h.record(&snapshot_with(1, [fixed.clone(), reread.clone()], elsewhere.clone())));
+        assert!(!h.record(&snapshot_with(1, [fixed.clone(), reread.clone()], elsewhere)));
+        let back = h.undo().expect("a step").clone();
+        assert!(Arc::ptr_eq(&back.volumes[1], &reread) && !Arc::ptr_eq(&back.volumes[1], &moving));
+        assert!(back.document.moving.is_none());
+        assert!(Arc::ptr_eq(&h.undo().expect("a step").volumes[1], &moving));
     }
 }

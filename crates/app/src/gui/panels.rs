@@ -1,51 +1,13 @@
-//! The side panel's sections, each a `*_ui(ui, …)` function over plain state, so each can be tested alone. Every
-//! widget carries a label that egui_kittest (and screen readers) can find.
+//! The side panel's sections, each a `*_ui(ui, …)` function over plain state that returns what it asks for as
+//! [`Command`]s, so each can be tested alone. Every widget carries a label that egui_kittest (and screen readers) can
+//! find.
 
 use eframe::egui;
-use warpbench_gpu::{BlendMode, Preset, Probe, RenderSettings, Shading, ShadingMode};
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_solver::bspline::BSplineParams;
-use warpbench_solver::linear::LinearKind;
-use warpbench_solver::method::Method;
 
-use super::viewer::Layer;
-use crate::scene::PRESET_NAMES;
-
-/// The warp families the method switch offers.
-pub const METHODS: [&str; 5] = ["tps", "hbspline", "affine", "similarity", "rigid"];
-
-/// What the view and the warp look like.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ViewSettings {
-    /// Index into [`BlendMode::ALL`].
-    pub blend: usize,
-    pub mix_weight: f32,
-    pub checker_mm: f32,
-    pub shading: ShadingMode,
-    pub samples_per_voxel: f32,
-    /// Index into [`METHODS`].
-    pub method: usize,
-    pub stiffness: f64,
-    pub bspline_levels: usize,
-    /// Control-texture texels per axis.
-    pub grid_n: usize,
-    pub show_landmarks: bool,
-    /// Per slice view (axial, coronal, sagittal): oblique, and its tilt (about the image's horizontal axis) and
-    /// spin (about its vertical axis), degrees, around the crosshair.
-    pub oblique: [Oblique; 3],
-    /// Index into [`PROBES`]: how a click in the 3-D view finds its point.
-    pub pick_probe: usize,
-    /// The probe's threshold: opacity (0..1), gradient magnitude (value units per mm) or accumulated opacity.
-    pub pick_threshold: f32,
-}
-
-/// A slice view's oblique mode.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Oblique {
-    pub on: bool,
-    pub tilt_deg: f32,
-    pub spin_deg: f32,
-}
+use super::Command;
+use super::document::{Look, OBLIQUE_MAX_DEG, Oblique, ViewSettings};
+use crate::settings::{Blend, MethodKind, Preset, Probe, Shading};
 
 /// A slice view's oblique controls (labelled "NAME oblique", "NAME tilt", "NAME spin"). Returns whether they
 /// changed.
@@ -58,7 +20,8 @@ pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
         on.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, o.on, &on_name));
         if o.on {
             for (value, what) in [(&mut o.tilt_deg, "tilt"), (&mut o.spin_deg, "spin")] {
-                let slider = ui.add(egui::Slider::new(value, -75.0..=75.0).suffix(" deg").text(what));
+                let range = -OBLIQUE_MAX_DEG..=OBLIQUE_MAX_DEG;
+                let slider = ui.add(egui::Slider::new(value, range).suffix(" deg").text(what));
                 let label = format!("{name} {what}");
                 slider.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, &label));
             }
@@ -67,116 +30,31 @@ pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
     *o != before
 }
 
-/// The picking probes (`warpbench_gpu::Probe`), by name.
-pub const PROBES: [&str; 3] = ["accumulated opacity", "opacity", "gradient"];
-
-impl Default for ViewSettings {
-    fn default() -> Self {
-        Self {
-            blend: 0,
-            mix_weight: 0.5,
-            checker_mm: 16.0,
-            shading: ShadingMode::Dvr,
-            samples_per_voxel: 1.0,
-            method: 0,
-            stiffness: 0.0,
-            bspline_levels: BSplineParams::default().levels,
-            grid_n: 48,
-            show_landmarks: true,
-            oblique: [Oblique::default(); 3],
-            pick_probe: 0,
-            pick_threshold: 0.95,
-        }
-    }
-}
-
-impl ViewSettings {
-    #[must_use]
-    pub fn blend_mode(&self) -> BlendMode {
-        match BlendMode::ALL[self.blend.min(BlendMode::ALL.len() - 1)] {
-            BlendMode::Mix { .. } => BlendMode::Mix { moving_weight: self.mix_weight },
-            BlendMode::Checkerboard { .. } => BlendMode::Checkerboard { cell_mm: self.checker_mm },
-            other => other,
-        }
-    }
-
-    #[must_use]
-    pub fn render_settings(&self) -> RenderSettings {
-        RenderSettings {
-            blend: self.blend_mode(),
-            samples_per_voxel: self.samples_per_voxel,
-            shading: Shading::with_mode(self.shading),
-            ..Default::default()
-        }
-    }
-
-    #[must_use]
-    pub fn probe(&self) -> Probe {
-        match self.pick_probe {
-            1 => Probe::Opacity { threshold: self.pick_threshold },
-            2 => Probe::Gradient { threshold: self.pick_threshold },
-            _ => Probe::Accumulated { level: self.pick_threshold },
-        }
-    }
-
-    #[must_use]
-    pub fn method(&self) -> Method {
-        match METHODS[self.method.min(METHODS.len() - 1)] {
-            "tps" => Method::Tps { stiffness: self.stiffness },
-            "hbspline" => Method::BSpline(BSplineParams { levels: self.bspline_levels, ..BSplineParams::default() }),
-            "affine" => Method::Linear(LinearKind::Affine),
-            "similarity" => Method::Linear(LinearKind::Similarity),
-            _ => Method::Linear(LinearKind::Rigid),
-        }
-    }
-}
-
-/// What a panel changed.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct Change {
-    /// The picture changed: render again.
-    pub redraw: bool,
-    /// The warp changed: fit again (and render).
-    pub refit: bool,
-}
-
-/// Blend, shading, sample rate and warp method.
-pub fn settings_ui(ui: &mut egui::Ui, s: &mut ViewSettings) -> Change {
-    let before = s.clone();
+/// Blend, shading, sample rate, warp method and picking; the settings as changed, if they were.
+pub fn settings_ui(ui: &mut egui::Ui, settings: &ViewSettings) -> Option<Command> {
+    let s = &mut settings.clone();
     ui.label("View");
-    egui::ComboBox::from_label("Blend mode").selected_text(BlendMode::ALL[s.blend].name()).show_ui(ui, |ui| {
-        for (i, mode) in BlendMode::ALL.iter().enumerate() {
-            ui.selectable_value(&mut s.blend, i, mode.name());
-        }
-    });
-    match BlendMode::ALL[s.blend] {
-        BlendMode::Mix { .. } => {
+    choice_ui(ui, "Blend mode", &mut s.blend, Blend::ALL);
+    match s.blend {
+        Blend::Mix => {
             ui.add(egui::Slider::new(&mut s.mix_weight, 0.0..=1.0).text("Moving weight"));
         }
-        BlendMode::Checkerboard { .. } => {
+        Blend::Checkerboard => {
             ui.add(egui::Slider::new(&mut s.checker_mm, 2.0..=60.0).text("Checker cell (mm)"));
         }
         _ => {}
     }
-    egui::ComboBox::from_label("Shading").selected_text(s.shading.name()).show_ui(ui, |ui| {
-        for mode in ShadingMode::ALL {
-            ui.selectable_value(&mut s.shading, mode, mode.name());
-        }
-    });
+    choice_ui(ui, "Shading", &mut s.shading, Shading::ALL);
     ui.add(egui::Slider::new(&mut s.samples_per_voxel, 0.25..=4.0).logarithmic(true).text("Samples per voxel"));
     ui.checkbox(&mut s.show_landmarks, "Show landmarks");
     ui.separator();
     ui.label("Warp");
-    egui::ComboBox::from_label("Method").selected_text(METHODS[s.method]).show_ui(ui, |ui| {
-        for (i, name) in METHODS.iter().enumerate() {
-            ui.selectable_value(&mut s.method, i, *name);
-        }
-    });
-    match METHODS[s.method] {
-        "tps" => {
+    choice_ui(ui, "Method", &mut s.method, MethodKind::ALL);
+    match s.method {
+        MethodKind::Tps => {
             ui.add(egui::Slider::new(&mut s.stiffness, 0.0..=50.0).text("Stiffness (lambda)"));
         }
-        "hbspline" => {
+        MethodKind::BSpline => {
             ui.add(egui::Slider::new(&mut s.bspline_levels, 1..=6).text("B-spline levels"));
         }
         _ => {}
@@ -185,60 +63,49 @@ pub fn settings_ui(ui: &mut egui::Ui, s: &mut ViewSettings) -> Change {
     ui.separator();
     ui.label("Picking (3-D view)");
     let probe_before = s.pick_probe;
-    egui::ComboBox::from_label("Pick probe").selected_text(PROBES[s.pick_probe]).show_ui(ui, |ui| {
-        for (i, name) in PROBES.iter().enumerate() {
-            ui.selectable_value(&mut s.pick_probe, i, *name);
-        }
-    });
+    choice_ui(ui, "Pick probe", &mut s.pick_probe, Probe::ALL);
     if s.pick_probe != probe_before {
-        s.pick_threshold = match s.pick_probe {
-            1 => 0.5,
-            2 => 50.0,
-            _ => 0.95,
-        };
+        s.pick_threshold = s.pick_probe.default_threshold();
     }
-    let range = if s.pick_probe == 2 { 0.0..=2000.0 } else { 0.0..=1.0 };
-    ui.add(egui::Slider::new(&mut s.pick_threshold, range).text("Pick threshold"));
-    let refit = s.method != before.method
-        || s.stiffness.to_bits() != before.stiffness.to_bits()
-        || s.bspline_levels != before.bspline_levels
-        || s.grid_n != before.grid_n;
-    let redraw =
-        ViewSettings { pick_probe: before.pick_probe, pick_threshold: before.pick_threshold, ..s.clone() } != before;
-    Change { redraw, refit }
+    ui.add(egui::Slider::new(&mut s.pick_threshold, s.pick_probe.threshold_range()).text("Pick threshold"));
+    (s != settings).then(|| Command::SetSettings(s.clone()))
 }
 
-/// Per volume: visibility and transfer-function preset. Returns whether anything changed.
-pub fn layers_ui(ui: &mut egui::Ui, fixed: &mut Layer, moving: &mut Layer) -> bool {
+/// A combo box labelled `label` over `all`, each entry shown by its name.
+pub fn choice_ui<T: Copy + PartialEq + std::fmt::Display>(ui: &mut egui::Ui, label: &str, value: &mut T, all: &[T]) {
+    egui::ComboBox::from_label(label).selected_text(value.to_string()).show_ui(ui, |ui| {
+        for &c in all {
+            ui.selectable_value(value, c, c.to_string());
+        }
+    });
+}
+
+/// Per volume: visibility, transfer-function preset and window; the looks as changed, if they were.
+pub fn layers_ui(ui: &mut egui::Ui, looks: &[Look; 2]) -> Option<Command> {
     let mut changed = false;
-    for (name, layer) in [("Fixed", fixed), ("Moving", moving)] {
+    let mut edited = *looks;
+    for (name, layer) in ["Fixed", "Moving"].into_iter().zip(&mut edited) {
         ui.horizontal(|ui| {
             changed |= ui.checkbox(&mut layer.visible, format!("{name} visible")).changed();
         });
-        let index = Preset::ALL.iter().position(|p| *p == layer.preset).unwrap_or(0);
-        let mut chosen = index;
-        egui::ComboBox::from_label(format!("{name} preset")).selected_text(PRESET_NAMES[index]).show_ui(ui, |ui| {
-            for (i, preset_name) in PRESET_NAMES.iter().enumerate() {
-                ui.selectable_value(&mut chosen, i, *preset_name);
-            }
-        });
-        if chosen != index {
-            layer.preset = Preset::ALL[chosen];
-            if let Some(w) = layer.preset.default_window() {
-                layer.window = w;
+        let shown = layer.preset;
+        choice_ui(ui, &format!("{name} preset"), &mut layer.preset, Preset::ALL);
+        if layer.preset != shown {
+            if let Some(w) = layer.preset.gpu().default_window() {
+                *layer = Look { visible: layer.visible, ..Look::new(layer.preset, w) };
             }
             changed = true;
         }
-        let (mut low, mut high) = (layer.window.low(), layer.window.low() + layer.window.width);
+        let (mut low, mut high) = (layer.window_low, layer.window_high);
         let span = (high - low).abs().max(1.0);
         let range = (low - span)..=(high + span);
         changed |= ui.add(egui::Slider::new(&mut low, range.clone()).text(format!("{name} window low"))).changed();
         changed |= ui.add(egui::Slider::new(&mut high, range).text(format!("{name} window high"))).changed();
         if high > low {
-            layer.window = warpbench_gpu::Window::from_range(low, high);
+            (layer.window_low, layer.window_high) = (low, high);
         }
     }
-    changed
+    changed.then_some(Command::SetLooks(edited))
 }
 
 /// A pair's errors after a fit (mm).
@@ -248,19 +115,6 @@ pub struct PairErrors {
     pub residual_mm: f64,
     /// The error at pᵢ of the warp refitted without pair i; `None` when the refit fails (too few pairs left).
     pub leave_one_out_mm: Option<f64>,
-}
-
-/// What the landmark table asks for.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LandmarkAction {
-    None,
-    /// A pair was switched on or off: fit again.
-    Refit,
-    Delete(usize),
-    /// Centre the views on pair i (and select it).
-    Jump(usize),
-    /// Select pair i (highlighted in the views).
-    Select(usize),
 }
 
 /// Green below 1 mm, amber below 3 mm, red above: how far a pair disagrees with the others.
@@ -296,10 +150,10 @@ pub fn volume_warnings_ui(ui: &mut egui::Ui, fixed: &warpbench_io::Volume, movin
 /// and delete it. `selected` is highlighted.
 pub fn landmarks_ui(
     ui: &mut egui::Ui,
-    pairs: &mut [LandmarkPair],
+    pairs: &[LandmarkPair],
     errors: &[Option<PairErrors>],
     selected: Option<usize>,
-) -> LandmarkAction {
+) -> Vec<Command> {
     ui.label(format!("Landmarks ({} pairs)", pairs.len()));
     let fmt = |p: Option<warpbench_io::geometry::Point3<warpbench_io::geometry::Lps>>| {
         p.map_or_else(
@@ -310,31 +164,36 @@ pub fn landmarks_ui(
             },
         )
     };
-    let mut action = LandmarkAction::None;
+    let mut commands = Vec::new();
     egui::Grid::new("landmarks").striped(true).show(ui, |ui| {
         for heading in ["on", "name", "moving (mm)", "fixed (mm)", "resid.", "LOO", "", ""] {
             ui.label(heading);
         }
         ui.end_row();
-        for (i, pair) in pairs.iter_mut().enumerate() {
+        for (i, pair) in pairs.iter().enumerate() {
             // Compact widgets, with full names for screen readers and tests.
             let shown_name = pair.name.clone();
             let label = |what: &str| format!("{what} {shown_name}");
-            let active = ui.checkbox(&mut pair.active, "").on_hover_text("In the fit");
+            let mut on = pair.active;
+            let active = ui.checkbox(&mut on, "").on_hover_text("In the fit");
             let active_name = label("Use");
-            active.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, pair.active, &active_name));
+            active.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, on, &active_name));
             if active.changed() {
-                action = LandmarkAction::Refit;
+                commands.push(Command::SetActive(i, on));
             }
             let name_name = format!("Name of pair {}", i + 1);
-            let name = ui.add_sized([84.0, 18.0], egui::TextEdit::singleline(&mut pair.name));
+            let mut text = pair.name.clone();
+            let name = ui.add_sized([84.0, 18.0], egui::TextEdit::singleline(&mut text));
             name.widget_info(|| egui::WidgetInfo::labeled(egui::Role::TextInput, true, &name_name));
+            if text != pair.name {
+                commands.push(Command::RenamePair(i, text));
+            }
             let position = ui.selectable_label(selected == Some(i), fmt(pair.moving));
             if position.clicked() {
-                action = LandmarkAction::Select(i);
+                commands.push(Command::Select(i));
             }
             if ui.selectable_label(selected == Some(i), fmt(pair.fixed)).clicked() {
-                action = LandmarkAction::Select(i);
+                commands.push(Command::Select(i));
             }
             if let Some(e) = errors.get(i).copied().flatten() {
                 ui.colored_label(error_colour(e.residual_mm), format!("{:.2}", e.residual_mm));
@@ -350,18 +209,18 @@ pub fn landmarks_ui(
             let go_name = label("Go to");
             go.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, &go_name));
             if go.clicked() {
-                action = LandmarkAction::Jump(i);
+                commands.push(Command::JumpTo(i));
             }
             let delete = ui.small_button("x").on_hover_text("Delete this pair");
             let delete_name = label("Delete");
             delete.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Button, true, &delete_name));
             if delete.clicked() {
-                action = LandmarkAction::Delete(i);
+                commands.push(Command::DeletePair(i));
             }
             ui.end_row();
         }
     });
-    action
+    commands
 }
 
 /// The leave-one-out errors of the pairs that have one, largest first, with the pair's index.
@@ -440,10 +299,9 @@ pub struct FileFields {
     pub screenshot: String,
 }
 
-/// What the file section asks for.
+/// What the file section or the File menu asks for.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FileAction {
-    None,
     SaveSession(std::path::PathBuf),
     ImportLandmarks(std::path::PathBuf),
     ExportLandmarks(std::path::PathBuf),
@@ -455,30 +313,30 @@ pub enum FileAction {
 }
 
 /// Session and landmark files: a path field and its buttons each.
-pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> FileAction {
-    let mut action = FileAction::None;
+pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction> {
+    let mut action = None;
     let path = |s: &str| std::path::PathBuf::from(s.trim());
     ui.label("Files");
     ui.add(egui::TextEdit::singleline(&mut fields.session).hint_text("session.warpbench.json"))
         .labelled_by(ui.label("Session file").id);
     if ui.add_enabled(!fields.session.trim().is_empty(), egui::Button::new("Save session")).clicked() {
-        action = FileAction::SaveSession(path(&fields.session));
+        action = Some(FileAction::SaveSession(path(&fields.session)));
     }
     ui.add(egui::TextEdit::singleline(&mut fields.landmarks).hint_text("pairs.csv, pairs.json, or moving.fcsv"))
         .labelled_by(ui.label("Landmark file").id);
     ui.horizontal(|ui| {
         let enabled = !fields.landmarks.trim().is_empty();
         if ui.add_enabled(enabled, egui::Button::new("Import landmarks")).clicked() {
-            action = FileAction::ImportLandmarks(path(&fields.landmarks));
+            action = Some(FileAction::ImportLandmarks(path(&fields.landmarks)));
         }
         if ui.add_enabled(enabled, egui::Button::new("Export landmarks")).clicked() {
-            action = FileAction::ExportLandmarks(path(&fields.landmarks));
+            action = Some(FileAction::ExportLandmarks(path(&fields.landmarks)));
         }
     });
     ui.add(egui::TextEdit::singleline(&mut fields.screenshot).hint_text("screenshot.png"))
         .labelled_by(ui.label("Screenshot file").id);
     if ui.add_enabled(!fields.screenshot.trim().is_empty(), egui::Button::new("Save screenshot")).clicked() {
-        action = FileAction::Screenshot(path(&fields.screenshot));
+        action = Some(FileAction::Screenshot(path(&fields.screenshot)));
     }
     action
 }

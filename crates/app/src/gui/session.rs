@@ -1,6 +1,6 @@
-//! Sessions: `.warpbench.json` project files (schema `warpbench-session/1`) with the input paths, the landmark pairs,
-//! the warp and view settings, each volume's look, the camera and the slice positions; and the autosave that keeps
-//! every placed landmark across a crash.
+//! Sessions: `.warpbench.json` project files (schema `warpbench-session/1`): the [`Document`] (the input paths, the
+//! landmark pairs, the warp and view settings, each volume's look) and the [`View`] (the camera and the slice
+//! positions); and where the autosave that keeps every placed landmark across a crash goes.
 //!
 //! The window autosaves every 30 s and on exit to [`autosave_path`], with `clean_exit` false while it runs and true
 //! after a normal exit. A start that finds an autosave with `clean_exit` false offers to recover it. Every file is
@@ -8,80 +8,13 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context as _, anyhow, bail};
+use anyhow::{Context as _, bail};
 use serde::{Deserialize, Serialize};
-use warpbench_io::geometry::Point3;
-use warpbench_io::landmarks::LandmarkPair;
+
+use super::document::Document;
 
 /// The schema name written into every session file; a file with another one is refused.
 pub const SCHEMA: &str = "warpbench-session/1";
-
-/// One pair, LPS mm.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SessionPair {
-    pub name: String,
-    pub active: bool,
-    pub moving_lps: Option<[f64; 3]>,
-    pub fixed_lps: Option<[f64; 3]>,
-}
-
-impl SessionPair {
-    #[must_use]
-    pub fn from_pair(p: &LandmarkPair) -> Self {
-        Self {
-            name: p.name.clone(),
-            active: p.active,
-            moving_lps: p.moving.map(|m| m.coords()),
-            fixed_lps: p.fixed.map(|f| f.coords()),
-        }
-    }
-
-    #[must_use]
-    pub fn to_pair(&self) -> LandmarkPair {
-        LandmarkPair {
-            name: self.name.clone(),
-            active: self.active,
-            moving: self.moving_lps.map(Point3::from_array),
-            fixed: self.fixed_lps.map(Point3::from_array),
-        }
-    }
-}
-
-/// The view and warp settings, by name (stable across versions of the menus).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SessionSettings {
-    pub blend: String,
-    pub mix_weight: f32,
-    pub checker_mm: f32,
-    pub shading: String,
-    pub samples_per_voxel: f32,
-    pub method: String,
-    pub stiffness: f64,
-    pub bspline_levels: usize,
-    pub control_texels: usize,
-    pub show_landmarks: bool,
-    /// Per slice view (axial, coronal, sagittal): oblique or not, tilt and spin in degrees. Optional: files written
-    /// before it existed open with straight slices.
-    #[serde(default)]
-    pub oblique: [SessionOblique; 3],
-}
-
-/// A slice view's oblique mode.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct SessionOblique {
-    pub on: bool,
-    pub tilt_deg: f32,
-    pub spin_deg: f32,
-}
-
-/// One volume's look.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SessionLayer {
-    pub preset: String,
-    pub window_low: f32,
-    pub window_high: f32,
-    pub visible: bool,
-}
 
 /// The camera: orbit angles in degrees, zoom, and the point it looks at (ref mm).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -92,22 +25,31 @@ pub struct SessionCamera {
     pub target_lps: [f32; 3],
 }
 
-/// A whole session.
+/// Where the views look: not part of the document (undo leaves it), but kept by a session.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct SessionFile {
-    pub schema: String,
-    /// `None` with `moving` `None`: the demo pair.
-    pub fixed: Option<PathBuf>,
-    pub moving: Option<PathBuf>,
-    pub landmarks: Vec<SessionPair>,
-    pub settings: SessionSettings,
-    /// Fixed, then moving.
-    pub layers: [SessionLayer; 2],
+pub struct View {
     pub camera: SessionCamera,
     /// Axial (S), coronal (P) and sagittal (L) slice positions, mm.
     pub slice_mm: [f64; 3],
+}
+
+/// A whole session: the document and the view, flat in one JSON object.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SessionFile {
+    pub schema: String,
+    #[serde(flatten)]
+    pub document: Document,
+    #[serde(flatten)]
+    pub view: View,
     /// False while the window that wrote it runs (an autosave); true after a normal exit or for a saved project.
     pub clean_exit: bool,
+}
+
+impl SessionFile {
+    #[must_use]
+    pub fn new(document: Document, view: View, clean_exit: bool) -> Self {
+        Self { schema: SCHEMA.to_owned(), document, view, clean_exit }
+    }
 }
 
 /// Writes `session` to `path` atomically, as pretty JSON.
@@ -127,16 +69,9 @@ pub fn load(path: &Path) -> anyhow::Result<SessionFile> {
         Some(other) => bail!("{}: session schema {other:?}; this version reads {SCHEMA:?}", path.display()),
         None => bail!("{}: no \"schema\": not a warpbench session", path.display()),
     }
-    let session: SessionFile =
+    let mut session: SessionFile =
         serde_json::from_value(value).with_context(|| format!("{}: malformed session", path.display()))?;
-    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
-    if let Some(i) = session
-        .landmarks
-        .iter()
-        .position(|p| !p.moving_lps.is_none_or(|m| finite(&m)) || !p.fixed_lps.is_none_or(|f| finite(&f)))
-    {
-        return Err(anyhow!("{}: landmark {} has a coordinate that is not a number", path.display(), i + 1));
-    }
+    session.view.camera.zoom = session.view.camera.zoom.clamp(0.2, 20.0);
     Ok(session)
 }
 
@@ -168,6 +103,51 @@ pub fn save_creating_folder(path: &Path, session: &SessionFile) -> anyhow::Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gui::document::{Look, Oblique};
+    use crate::settings::{Blend, MethodKind, Preset, Probe};
+    use warpbench_io::geometry::Point3;
+    use warpbench_io::landmarks::LandmarkPair;
+
+    /// A document with something other than a default in every field.
+    fn document() -> Document {
+        let volume = crate::gui::demo::phantom(8, 2.0, [0.0; 3], true);
+        let mut d = Document::new(
+            [Some(PathBuf::from("/data/ct.nii.gz")), Some(PathBuf::from("/data/mr dir"))],
+            [&volume, &volume],
+            vec![
+                LandmarkPair::new("nasion", Point3::new(1.0, -2.5, 3.25), Point3::new(0.0, 4.0, -1e-3)),
+                LandmarkPair {
+                    active: false,
+                    fixed: None,
+                    ..LandmarkPair::new("half", Point3::new(9.0, 8.0, 7.0), Point3::new(0.0, 0.0, 0.0))
+                },
+            ],
+        );
+        let s = &mut d.settings;
+        (s.blend, s.mix_weight, s.checker_mm, s.samples_per_voxel) = (Blend::Checkerboard, 0.3, 7.5, 2.0);
+        (s.method, s.stiffness, s.bspline_levels, s.grid_n) = (MethodKind::BSpline, 1.5, 3, 33);
+        (s.show_landmarks, s.pick_probe, s.pick_threshold) = (false, Probe::Gradient, 120.0);
+        s.shading = crate::settings::Shading::Iso;
+        s.oblique[2] = Oblique { on: true, tilt_deg: 12.5, spin_deg: -30.0 };
+        d.layers[1] = Look { preset: Preset::CtSoftTissue, window_low: -100.0, window_high: 300.0, visible: false };
+        d
+    }
+
+    fn view() -> View {
+        View {
+            camera: SessionCamera { azimuth_deg: 30.0, elevation_deg: 10.0, zoom: 1.5, target_lps: [1.0, 2.0, 3.0] },
+            slice_mm: [4.0, -5.0, 6.0],
+        }
+    }
+
+    #[test]
+    fn a_saved_session_opens_equal() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("s.warpbench.json");
+        let file = SessionFile::new(document(), view(), true);
+        save(&path, &file).expect("save");
+        assert_eq!(load(&path).expect("load"), file);
+    }
 
     #[test]
     fn refuses_other_schemas_bad_json_and_nan_landmarks_naming_the_file() {
@@ -178,50 +158,72 @@ mod tests {
         assert!(err.contains("s.warpbench.json") && err.contains("warpbench-session/99"), "{err}");
         std::fs::write(&path, "not json").expect("write");
         assert!(format!("{:#}", load(&path).expect_err("json")).contains("not a JSON session"));
-        let pair =
-            SessionPair { name: "a".into(), active: true, moving_lps: Some([f64::NAN, 0.0, 0.0]), fixed_lps: None };
-        let mut v = serde_json::json!({"schema": SCHEMA});
-        v["landmarks"] = serde_json::to_value([&pair]).expect("pair");
-        std::fs::write(&path, v.to_string()).expect("write");
-        // NaN is not valid JSON (serde writes null), so the pair is refused as malformed or non-finite.
+        let text = serde_json::to_string(&SessionFile::new(document(), view(), true)).expect("json");
+        // The second pair's moving point is (9, 8, 7).
+        assert!(text.contains("[9.0,8.0,7.0]"), "{text}");
+        std::fs::write(&path, text.replacen("[9.0,8.0,7.0]", "[1e999,8.0,7.0]", 1)).expect("write");
+        // Out of range for f64: refused as malformed or as not a number, never read as infinity.
         assert!(load(&path).is_err());
     }
 
+    /// A session as this version wrote it before the probe was kept and before oblique slices: every key it had,
+    /// with the names it used.
+    const OLDER: &str = r#"{
+        "schema": "warpbench-session/1", "fixed": "/data/ct.nii.gz", "moving": null,
+        "landmarks": [{"name": "a", "active": true, "moving_lps": [1.0, 2.0, 3.0], "fixed_lps": null}],
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "similarity", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 999, "show_landmarks": true},
+        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true},
+                   {"preset": "no-such-preset", "window_low": 5.0, "window_high": 6.0, "visible": false}],
+        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [1.0, 2.0, 3.0], "clean_exit": false
+    }"#;
+
     #[test]
-    fn oblique_slices_round_trip_and_older_files_open_with_straight_slices() {
+    fn older_files_open_with_straight_slices_the_default_probe_and_known_names() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("s.warpbench.json");
-        let layer = SessionLayer { preset: "mr-t1".into(), window_low: 0.0, window_high: 100.0, visible: true };
-        let mut file = SessionFile {
-            schema: SCHEMA.into(),
-            fixed: None,
-            moving: None,
-            landmarks: Vec::new(),
-            settings: SessionSettings {
-                blend: "mix".into(),
-                mix_weight: 0.5,
-                checker_mm: 16.0,
-                shading: "dvr".into(),
-                samples_per_voxel: 1.0,
-                method: "tps".into(),
-                stiffness: 0.0,
-                bspline_levels: 4,
-                control_texels: 48,
-                show_landmarks: true,
-                oblique: [SessionOblique::default(); 3],
-            },
-            layers: [layer.clone(), layer],
-            camera: SessionCamera { azimuth_deg: 30.0, elevation_deg: 10.0, zoom: 1.0, target_lps: [0.0; 3] },
-            slice_mm: [0.0; 3],
-            clean_exit: true,
-        };
-        file.settings.oblique[2] = SessionOblique { on: true, tilt_deg: 12.5, spin_deg: -30.0 };
-        save(&path, &file).expect("save");
-        assert_eq!(load(&path).expect("load"), file);
-        // A file from before oblique slices: no `oblique` key.
-        let mut v: serde_json::Value = serde_json::to_value(&file).expect("json");
-        v["settings"].as_object_mut().expect("settings").remove("oblique");
-        std::fs::write(&path, v.to_string()).expect("write");
-        assert_eq!(load(&path).expect("older file").settings.oblique, [SessionOblique::default(); 3]);
+        std::fs::write(&path, OLDER).expect("write");
+        let file = load(&path).expect("an older file");
+        let d = &file.document;
+        assert_eq!((d.fixed.as_deref(), d.moving.as_deref()), (Some(std::path::Path::new("/data/ct.nii.gz")), None));
+        assert_eq!(
+            d.pairs,
+            [LandmarkPair {
+                fixed: None,
+                ..LandmarkPair::new("a", Point3::new(1.0, 2.0, 3.0), Point3::new(0.0, 0.0, 0.0))
+            }]
+        );
+        let s = &d.settings;
+        assert_eq!(
+            (s.blend, s.shading, s.method),
+            (Blend::RedCyan, crate::settings::Shading::Iso, MethodKind::Similarity)
+        );
+        assert_eq!(s.oblique, [Oblique::default(); 3]);
+        assert_eq!((s.pick_probe, s.pick_threshold), (Probe::Accumulated, 0.95));
+        assert_eq!(
+            (d.layers[0].preset, d.layers[1].preset),
+            (Preset::MrT1, Preset::default()),
+            "an unknown name reads as the default"
+        );
+        assert!(!d.layers[1].visible && !file.clean_exit);
+        assert!((file.view.camera.zoom - 20.0).abs() < 1e-6, "the zoom is clamped to what the window offers");
+        // What the window offers: the control texture is clamped when the document is opened on its volumes.
+        let volume = crate::gui::demo::phantom(4, 1.0, [0.0; 3], false);
+        let mut d = d.clone();
+        d.clamp([&volume, &volume]);
+        assert_eq!(d.settings.grid_n, 256);
+        // Saved again, it keeps every key it had, with the same names.
+        let again = serde_json::to_value(&file).expect("json");
+        let older: serde_json::Value = serde_json::from_str(OLDER).expect("json");
+        for key in older.as_object().expect("object").keys() {
+            assert!(again.get(key).is_some(), "{key}");
+        }
+        for key in older["settings"].as_object().expect("object").keys() {
+            assert!(again["settings"].get(key).is_some(), "settings.{key}");
+        }
+        assert_eq!(again["settings"]["method"], "similarity");
+        assert_eq!(again["landmarks"][0]["moving_lps"], serde_json::json!([1.0, 2.0, 3.0]));
     }
 }

@@ -10,10 +10,10 @@ use warpbench_gpu::{
     GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget,
     PrefilterPass, PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Quality,
     RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget,
-    Window,
 };
 use warpbench_io::Volume;
 
+use super::document::Look;
 use crate::scene;
 
 /// What preparing a volume for the GPU needs to know about the device: plain values, so that the preparation can
@@ -47,8 +47,8 @@ pub struct LayerData {
     prepared: PreparedVolume,
     /// Made on the CPU for a CPU driver; `None`: the GPU pass makes it at upload.
     prefiltered: Option<PrefilteredTexels>,
-    preset: Preset,
-    window: Window,
+    /// The volume's automatic look ([`Look::auto`]).
+    pub look: Look,
 }
 
 impl LayerData {
@@ -58,19 +58,15 @@ impl LayerData {
         let prepared =
             PreparedVolume::prepare(&scene::volume_desc(v), facts.capabilities, facts.budget).map_err(gpu_error)?;
         let prefiltered = facts.cpu_driver.then(|| PrefilteredTexels::from_volume(&prepared, PREFILTER));
-        let (preset, window) = scene::auto_style(v, None);
-        Ok(Self { prepared, prefiltered, preset, window })
+        Ok(Self { prepared, prefiltered, look: Look::auto(v) })
     }
 }
 
-/// One volume on the GPU with how it is drawn.
+/// One volume on the GPU.
 #[derive(Debug)]
 pub struct Layer {
     pub volume: GpuVolume,
     pub prefiltered: GpuPrefiltered,
-    pub preset: Preset,
-    pub window: Window,
-    pub visible: bool,
 }
 
 impl Layer {
@@ -82,17 +78,19 @@ impl Layer {
             None => pass.run(ctx, &volume, PREFILTER),
         }
         .map_err(gpu_error)?;
-        Ok(Self { volume, prefiltered, preset: data.preset, window: data.window, visible: true })
+        Ok(Self { volume, prefiltered })
     }
+}
 
-    fn style(&self, tf_row: u32) -> LayerStyle {
-        LayerStyle {
-            window: self.window,
-            tf_row,
-            opacity_scale: 1.0,
-            visible: self.visible,
-            iso_value: self.window.low() + 0.3 * self.window.width,
-        }
+/// How a volume with `look` is drawn, its transfer function in row `tf_row`.
+fn style(look: &Look, tf_row: u32) -> LayerStyle {
+    let window = look.window();
+    LayerStyle {
+        window,
+        tf_row,
+        opacity_scale: 1.0,
+        visible: look.visible,
+        iso_value: window.low() + 0.3 * window.width,
     }
 }
 
@@ -114,7 +112,10 @@ pub struct Viewer {
     pool: TexturePool,
     pub fixed: Layer,
     pub moving: Layer,
+    /// The looks the frames are drawn with (fixed, moving), set by [`Self::set_looks`].
+    looks: [Look; 2],
     tfs: GpuTransferFunctions,
+    /// The presets `tfs` holds, fixed then moving.
     tf_presets: [Preset; 2],
     pub control: Option<GpuControlTexture>,
     /// Evaluates TPS pull-backs straight into the control texture, made on first use.
@@ -145,15 +146,16 @@ impl Viewer {
     }
 
     /// Uploads two prepared volumes to `ctx`'s device.
-    pub fn from_layers(ctx: GpuContext, fixed: &LayerData, moving: &LayerData) -> anyhow::Result<Self> {
+    pub fn from_layers(ctx: GpuContext, fixed_data: &LayerData, moving_data: &LayerData) -> anyhow::Result<Self> {
         let renderer = RaycastRenderer::new(&ctx).map_err(gpu_error)?;
         let glyphs = GlyphRenderer::new(&ctx).map_err(gpu_error)?;
         let prefilter = PrefilterPass::new(&ctx).map_err(gpu_error)?;
         let picker = PickPass::new(&ctx, &renderer).map_err(gpu_error)?;
         let pool = TexturePool::new(&ctx.device);
-        let fixed = Layer::upload(&ctx, &prefilter, fixed)?;
-        let moving = Layer::upload(&ctx, &prefilter, moving)?;
-        let tf_presets = [fixed.preset, moving.preset];
+        let fixed = Layer::upload(&ctx, &prefilter, fixed_data)?;
+        let moving = Layer::upload(&ctx, &prefilter, moving_data)?;
+        let looks = [fixed_data.look, moving_data.look];
+        let tf_presets = looks.map(|l| l.preset.gpu());
         let tfs = GpuTransferFunctions::upload(&ctx, &tf_presets.map(Preset::transfer_function));
         Ok(Self {
             ctx,
@@ -164,6 +166,7 @@ impl Viewer {
             pool,
             fixed,
             moving,
+            looks,
             tfs,
             tf_presets,
             control: None,
@@ -179,9 +182,10 @@ impl Viewer {
         Ok(())
     }
 
-    /// Re-uploads the transfer functions when a layer's preset changed.
-    pub fn sync_presets(&mut self) {
-        let wanted = [self.fixed.preset, self.moving.preset];
+    /// Draws the next frames with `looks` (fixed, moving), uploading the transfer functions when a preset changed.
+    pub fn set_looks(&mut self, looks: &[Look; 2]) {
+        self.looks = *looks;
+        let wanted = looks.map(|l| l.preset.gpu());
         if wanted != self.tf_presets {
             self.tfs = GpuTransferFunctions::upload(&self.ctx, &wanted.map(Preset::transfer_function));
             self.tf_presets = wanted;
@@ -194,13 +198,13 @@ impl Viewer {
                 volume: &self.fixed.volume,
                 control: None,
                 prefiltered: Some(&self.fixed.prefiltered),
-                style: self.fixed.style(0),
+                style: style(&self.looks[0], 0),
             },
             moving: GpuLayer {
                 volume: &self.moving.volume,
                 control: self.control.as_ref(),
                 prefiltered: Some(&self.moving.prefiltered),
-                style: self.moving.style(1),
+                style: style(&self.looks[1], 1),
             },
             tfs: &self.tfs,
         }

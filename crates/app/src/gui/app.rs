@@ -1,0 +1,504 @@
+//! The eframe app: the window's phases (loading, failed, a pair shown), the volume reads for File > Open and drops,
+//! the open dialogs, the recovery offer, the autosave, and the frame once a pair is shown (keyboard, side panel,
+//! status bar, slices, 3-D view, then the undo step).
+
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, TryRecvError};
+
+use anyhow::{Context as _, anyhow};
+use eframe::egui;
+use warpbench_gpu::{OrbitCamera, Projection};
+use warpbench_io::Volume;
+
+use super::document::Document;
+use super::history::{History, Snapshot};
+use super::load::{Loaded, LoadedPair, Opened};
+use super::viewer::{DeviceFacts, LayerData, Viewer};
+use super::{
+    Command, ControlEval, GuiOptions, Images, Interaction, Ready, autosave, export, open, pacing, panels, save_png,
+    session, side_panel, status, views,
+};
+
+/// A volume read (and maybe prepared) for one side while the other is still being read.
+#[derive(Debug)]
+struct Pending {
+    volume: Arc<Volume>,
+    path: PathBuf,
+    layer: Option<LayerData>,
+}
+
+#[derive(Debug)]
+enum Phase {
+    Loading { rx: Receiver<anyhow::Result<LoadedPair>>, watch: Arc<open::Watch> },
+    Failed(String),
+    Ready(Box<Ready>),
+}
+
+/// The eframe app.
+pub struct Workbench {
+    phase: Phase,
+    /// Every change of the document reaches the autosave file ([`autosave`]).
+    autosave: autosave::Autosave,
+    /// A copy of the autosave a crashed window left, offered for recovery.
+    pub recovery: Option<PathBuf>,
+    render_state: Option<eframe::egui_wgpu::RenderState>,
+    screenshot: Option<PathBuf>,
+    exit_after_frames: Option<u32>,
+    ready_frames: u32,
+    screenshot_requested: bool,
+    /// Volumes being read for File > Open and drops.
+    jobs: Vec<open::VolumeJob>,
+    /// Volumes read while no pair is shown, waiting for the other side.
+    pending: [Option<Pending>; 2],
+    /// The window's device, as the loading threads prepare volumes for it.
+    facts: Option<DeviceFacts>,
+    /// The open dialogs: error, series chooser, dropped volume, native dialog.
+    pub dialogs: open::OpenDialogs,
+}
+
+impl std::fmt::Debug for Workbench {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Workbench")
+            .field("phase", &self.phase)
+            .field("ready_frames", &self.ready_frames)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Workbench {
+    /// Starts loading `opts` on a worker thread.
+    #[must_use]
+    pub fn new(cc: &eframe::CreationContext<'_>, opts: GuiOptions) -> Self {
+        let autosave_path = opts.autosave.clone().unwrap_or_else(session::autosave_path);
+        // A crashed window's autosave is copied aside before this window's first autosave replaces it.
+        let recovery = session::load(&autosave_path).ok().filter(|s| !s.clean_exit).and_then(|_| {
+            let copy = autosave_path.with_file_name("autosave.recovered.warpbench.json");
+            let bytes = std::fs::read(&autosave_path).ok()?;
+            warpbench_io::atomic::write_atomic(&copy, |w| std::io::Write::write_all(w, &bytes)).ok().map(|()| copy)
+        });
+        let facts = cc.wgpu_render_state.as_ref().map(|rs| DeviceFacts::of(&Viewer::context(rs)));
+        Self {
+            phase: Self::start_loading(&cc.egui_ctx, opts.clone(), facts),
+            facts,
+            autosave: autosave::Autosave::new(autosave_path),
+            recovery,
+            render_state: cc.wgpu_render_state.clone(),
+            screenshot: opts.screenshot,
+            exit_after_frames: opts.exit_after_frames,
+            ready_frames: 0,
+            screenshot_requested: false,
+            jobs: Vec::new(),
+            pending: [None, None],
+            dialogs: open::OpenDialogs::default(),
+        }
+    }
+
+    fn start_loading(ctx: &egui::Context, opts: GuiOptions, facts: Option<DeviceFacts>) -> Phase {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let ctx = ctx.clone();
+        let watch = Arc::new(open::Watch::default());
+        let worker_watch = Arc::clone(&watch);
+        std::thread::spawn(move || {
+            let _ = tx.send(LoadedPair::load(&opts, &worker_watch, facts));
+            ctx.request_repaint();
+        });
+        Phase::Loading { rx, watch }
+    }
+
+    /// Saves the session to the autosave file now and waits until it is on disk (`clean_exit`: this is the last
+    /// save of a normal exit).
+    pub fn autosave_now(&mut self, clean_exit: bool) {
+        let Phase::Ready(ready) = &self.phase else { return };
+        let file = ready.to_session(clean_exit);
+        self.autosave.write_and_wait(&file);
+    }
+
+    /// The autosave's last write error, if it failed.
+    #[must_use]
+    pub fn autosave_error(&self) -> Option<String> {
+        self.autosave.error()
+    }
+
+    /// Hands the document as it is at the end of this frame to the autosave.
+    fn autosave_changes(&mut self, ctx: &egui::Context) {
+        if let Phase::Ready(ready) = &self.phase {
+            autosave_changes(&mut self.autosave, ctx, ready);
+        }
+    }
+
+    /// The state once loaded (for tests).
+    #[must_use]
+    pub fn ready(&self) -> Option<&Ready> {
+        match &self.phase {
+            Phase::Ready(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    /// The state once loaded, to change it (for tests).
+    pub fn ready_mut(&mut self) -> Option<&mut Ready> {
+        match &mut self.phase {
+            Phase::Ready(r) => Some(r),
+            _ => None,
+        }
+    }
+
+    /// The loading error, if loading failed.
+    #[must_use]
+    pub fn failure(&self) -> Option<&str> {
+        match &self.phase {
+            Phase::Failed(e) => Some(e),
+            _ => None,
+        }
+    }
+
+    fn poll_loading(&mut self, ctx: &egui::Context) {
+        let Phase::Loading { rx, .. } = &self.phase else { return };
+        let loaded = match rx.try_recv() {
+            Ok(result) => result,
+            Err(TryRecvError::Empty) => return,
+            Err(TryRecvError::Disconnected) => Err(anyhow!("the loading thread stopped")),
+        };
+        self.phase = match loaded.and_then(|l| self.upload(ctx, l)) {
+            Ok(ready) => Phase::Ready(Box::new(ready)),
+            Err(e) => Phase::Failed(format!("{e:#}")),
+        };
+    }
+
+    /// Starts reading a volume for one side of the pair (File > Open, a drop, the series chooser); a read already
+    /// running for that side is cancelled.
+    pub fn open_volume(&mut self, ctx: &egui::Context, side: open::Side, path: PathBuf, series: Option<String>) {
+        for job in self.jobs.iter().filter(|j| j.side == side) {
+            job.watch.cancel();
+        }
+        self.jobs.retain(|j| j.side != side);
+        self.jobs.push(open::VolumeJob::start(ctx, side, path, series, self.facts));
+    }
+
+    /// The volume reads still running (for tests).
+    #[must_use]
+    pub fn reading(&self) -> usize {
+        self.jobs.len()
+    }
+
+    /// Takes finished reads: a volume replaces its side of the shown pair, or waits for the other side when no
+    /// pair is shown; a failure opens the error dialog or the series chooser.
+    fn poll_volume_jobs(&mut self, ctx: &egui::Context) {
+        let mut finished = Vec::new();
+        self.jobs.retain(|job| match job.poll() {
+            Some(result) => {
+                finished.push((job.side, job.path.clone(), result));
+                false
+            }
+            None => true,
+        });
+        for (side, path, result) in finished {
+            let (volume, layer) = match result {
+                Ok(open::ReadVolume { layer: Some(Err(e)), .. }) => {
+                    self.dialogs.error = Some(format!("{}: {e:#}", path.display()));
+                    continue;
+                }
+                Ok(open::ReadVolume { volume, layer }) => (Arc::new(volume), layer.and_then(Result::ok)),
+                Err(e) => {
+                    self.dialogs.failed(side, &path, &e);
+                    continue;
+                }
+            };
+            if let Phase::Ready(ready) = &mut self.phase {
+                if let Err(e) = ready.replace_volume(side, volume, layer, path) {
+                    self.dialogs.error = Some(format!("{e:#}"));
+                }
+                continue;
+            }
+            self.pending[side as usize] = Some(Pending { volume, path, layer });
+            if let [Some(_), Some(_)] = &self.pending {
+                let [Some(fixed), Some(moving)] = std::mem::take(&mut self.pending) else { continue };
+                let layers = fixed.layer.zip(moving.layer).map(|(f, m)| [f, m]);
+                let title = format!("{} -> {}", open::file_name(&fixed.path), open::file_name(&moving.path));
+                let paths = [Some(fixed.path), Some(moving.path)];
+                let document = Document::new(paths, [&fixed.volume, &moving.volume], Vec::new());
+                let loaded = Loaded { title, fixed: fixed.volume, moving: moving.volume };
+                let opened = Opened { loaded, document, view: None };
+                self.phase = match self.upload(ctx, LoadedPair { opened, layers }) {
+                    Ok(ready) => Phase::Ready(Box::new(ready)),
+                    Err(e) => Phase::Failed(format!("{e:#}")),
+                };
+            }
+        }
+    }
+
+    /// Acts on what the menu, a dialog, a drop or a chooser asked for.
+    fn handle(&mut self, ctx: &egui::Context, event: open::OpenEvent) {
+        use open::{OpenEvent, Purpose};
+        match event {
+            OpenEvent::Volume { side, path, series } => self.open_volume(ctx, side, path, series),
+            OpenEvent::OpenSession(path) => {
+                self.phase =
+                    Self::start_loading(ctx, GuiOptions { session: Some(path), ..GuiOptions::default() }, self.facts);
+            }
+            OpenEvent::Demo => self.phase = Self::start_loading(ctx, GuiOptions::default(), self.facts),
+            OpenEvent::Dialog(purpose) => self.dialogs.dialog = Some(open::DialogJob::start(ctx, purpose)),
+            OpenEvent::ImportLandmarks(path) => match &mut self.phase {
+                Phase::Ready(ready) => ready.apply(Command::File(panels::FileAction::ImportLandmarks(path))),
+                _ => self.dialogs.error = Some("Open a pair of volumes before importing landmarks.".into()),
+            },
+            OpenEvent::Save(purpose, path) => {
+                let Phase::Ready(ready) = &mut self.phase else { return };
+                let action = match purpose {
+                    Purpose::SaveSession => panels::FileAction::SaveSession(path),
+                    Purpose::ExportLandmarks => panels::FileAction::ExportLandmarks(path),
+                    Purpose::Screenshot => panels::FileAction::Screenshot(path),
+                    Purpose::ExportWarped => panels::FileAction::ExportWarped(path),
+                    Purpose::ExportField => panels::FileAction::ExportField(path),
+                    Purpose::OpenFile(_) | Purpose::OpenFolder(_) | Purpose::OpenSession | Purpose::ImportLandmarks => {
+                        return;
+                    }
+                };
+                ready.apply(Command::File(action));
+            }
+        }
+    }
+
+    fn upload(&self, ctx: &egui::Context, pair: LoadedPair) -> anyhow::Result<Ready> {
+        let rs = self.render_state.as_ref().context("the window has no wgpu renderer")?;
+        let LoadedPair { opened: Opened { loaded, document, view }, layers } = pair;
+        let gpu = Viewer::context(rs);
+        let viewer = match layers {
+            Some([fixed, moving]) => Viewer::from_layers(gpu, &fixed, &moving)?,
+            None => Viewer::with_context(gpu, &loaded.fixed, &loaded.moving)?,
+        };
+        let (lo, hi) = viewer.scene_box();
+        // Placed by `reset_camera` below.
+        let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
+        let mid = (lo + hi) * 0.5;
+        let first = Snapshot { document: document.clone(), volumes: [&loaded.fixed, &loaded.moving].map(Arc::clone) };
+        let mut ready = Ready {
+            loaded,
+            document,
+            viewer,
+            camera,
+            slice_mm: [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)],
+            images: Images::default(),
+            fitted: None,
+            fit_error: None,
+            last_render_ms: 0.0,
+            frame_rate: pacing::FrameRate::default(),
+            interaction: Interaction::Idle,
+            errors: Vec::new(),
+            files: panels::FileFields::default(),
+            file_message: None,
+            jacobian: None,
+            cursor: None,
+            notice: None,
+            fit_pending: false,
+            fit_warnings: Vec::new(),
+            selected: None,
+            export: None,
+            export_fields: export::ExportFields::default(),
+            control_eval: ControlEval::Auto,
+            history: History::new(first),
+            ctx: ctx.clone(),
+        };
+        ready.reset_camera();
+        if let Some(view) = &view {
+            ready.apply_view(view);
+        }
+        ready.refit();
+        Ok(ready)
+    }
+}
+
+impl eframe::App for Workbench {
+    fn on_exit(&mut self) {
+        if let Phase::Ready(ready) = &self.phase {
+            let file = ready.to_session(true);
+            self.autosave.finish(&file);
+        }
+    }
+
+    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let ctx = ui.ctx().clone();
+        self.poll_loading(&ctx);
+        self.poll_volume_jobs(&ctx);
+        let mut events = Vec::new();
+        egui::Panel::top("menu").show(ui, |ui| {
+            egui::MenuBar::new().ui(ui, |ui| {
+                let ready = matches!(self.phase, Phase::Ready(_));
+                events.extend(open::file_menu(ui, ready, self.dialogs.dialog.is_some()));
+            });
+        });
+        if !self.jobs.is_empty() {
+            egui::Panel::top("reading").show(ui, |ui| {
+                for job in &self.jobs {
+                    ui.label(format!("Opening {} as the {} volume", open::file_name(&job.path), job.side.name()));
+                    open::progress_ui(ui, &job.watch);
+                }
+            });
+        }
+        events.extend(self.dialogs.take_dropped(&ctx));
+        events.extend(self.dialogs.ui(&ctx));
+        for event in events {
+            self.handle(&ctx, event);
+        }
+        if let (Some(path), Phase::Ready(_)) = (self.recovery.clone(), &self.phase) {
+            let mut choice = None;
+            egui::Panel::top("recovery").show(ui, |ui| {
+                ui.horizontal(|ui| {
+                    ui.label("The last session did not end normally.");
+                    if ui.button("Recover the last session").clicked() {
+                        choice = Some(true);
+                    }
+                    if ui.button("Discard it").clicked() {
+                        choice = Some(false);
+                    }
+                });
+            });
+            match choice {
+                Some(true) => {
+                    self.recovery = None;
+                    let opts = GuiOptions { session: Some(path), ..GuiOptions::default() };
+                    self.phase = Self::start_loading(&ctx, opts, self.facts);
+                }
+                Some(false) => self.recovery = None,
+                None => {}
+            }
+        }
+        let render_state = self.render_state.clone();
+        let mut open_demo = false;
+        match &mut self.phase {
+            Phase::Loading { watch, .. } => {
+                egui::CentralPanel::default().show(ui, |ui| {
+                    ui.label("Loading the volumes...");
+                    open::progress_ui(ui, watch);
+                });
+            }
+            Phase::Failed(message) => {
+                egui::CentralPanel::default().show(ui, |ui| {
+                    ui.heading("No volumes are open");
+                    ui.label(message.as_str());
+                    ui.label("Open a fixed and a moving volume from the File menu, drop them on the window, or:");
+                    open_demo = ui.button("Open the demo pair").clicked();
+                });
+            }
+            Phase::Ready(ready) => {
+                workbench_ui(ui, ready, render_state.as_ref(), &mut self.autosave);
+                self.ready_frames += 1;
+            }
+        }
+        if open_demo {
+            self.phase = Self::start_loading(&ctx, GuiOptions::default(), self.facts);
+        }
+        self.autosave_changes(&ctx);
+        if let Phase::Ready(ready) = &mut self.phase
+            && ready.fit_if_pending()
+        {
+            ctx.request_repaint();
+        }
+        // Counted once the views are rendered fully (on a CPU driver the 3-D view is refined over many frames).
+        let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render());
+        if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
+            && self.ready_frames >= n
+            && rendered
+        {
+            self.screenshot_requested = true;
+            if let Some(path) = self.screenshot.clone() {
+                let ctx = ui.ctx().clone();
+                ui.ctx().request_screenshot(move |image| {
+                    if let Err(e) = save_png(&path, &image) {
+                        eprintln!("warpbench: {e:#}");
+                    }
+                    ctx.send_viewport_cmd(egui::ViewportCommand::Close);
+                    ctx.request_repaint();
+                });
+            } else {
+                ui.ctx().send_viewport_cmd(egui::ViewportCommand::Close);
+            }
+        }
+        if matches!(self.phase, Phase::Loading { .. })
+            || !self.jobs.is_empty()
+            || self.dialogs.dialog.is_some()
+            || self.exit_after_frames.is_some()
+        {
+            ui.ctx().request_repaint();
+        }
+    }
+}
+
+/// Hands the document as it is now to the autosave ([`autosave::Autosave::observe`]), coalescing while the pointer
+/// is held.
+fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, ready: &Ready) {
+    let file = ready.to_session(false);
+    let held = ctx.input(|i| i.pointer.any_down()) || ready.drag().is_some();
+    if let Some(wait) = autosave.observe(std::time::Instant::now(), &file, held) {
+        ctx.request_repaint_after(wait);
+    }
+}
+
+/// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo,
+/// Space starts or stops adding a pair, Esc cancels it (or clears the selection), Delete removes the selected pair,
+/// R resets the camera. The single keys only act while no text field has the keyboard.
+fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
+    let mut commands = Vec::new();
+    // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
+    let redo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z);
+    let undo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND, egui::Key::Z);
+    if ui.input_mut(|i| i.consume_shortcut(&redo)) {
+        commands.push(Command::Redo);
+    } else if ui.input_mut(|i| i.consume_shortcut(&undo)) {
+        commands.push(Command::Undo);
+    }
+    if ui.ctx().egui_wants_keyboard_input() {
+        return commands;
+    }
+    let key = |ui: &mut egui::Ui, k: egui::Key| ui.input_mut(|i| i.consume_key(egui::Modifiers::NONE, k));
+    if key(ui, egui::Key::Space) {
+        commands.push(Command::ToggleAdding);
+    }
+    if key(ui, egui::Key::Escape) {
+        commands.push(Command::Cancel);
+    }
+    if (key(ui, egui::Key::Delete) || key(ui, egui::Key::Backspace))
+        && let Some(i) = ready.selected
+    {
+        commands.push(Command::DeletePair(i));
+    }
+    if key(ui, egui::Key::R) {
+        commands.push(Command::ResetCamera);
+    }
+    commands
+}
+
+/// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
+fn workbench_ui(
+    ui: &mut egui::Ui,
+    ready: &mut Ready,
+    render_state: Option<&eframe::egui_wgpu::RenderState>,
+    autosave: &mut autosave::Autosave,
+) {
+    ready.frame_rate.tick(std::time::Instant::now());
+    if let Some(job) = &ready.export {
+        match job.poll() {
+            Some(result) => {
+                ready.file_message = Some(result.unwrap_or_else(|e| e));
+                ready.export = None;
+            }
+            None => ui.ctx().request_repaint_after(std::time::Duration::from_millis(100)),
+        }
+    }
+    let mut commands = keyboard(ui, ready);
+    commands.extend(side_panel::side_panel(ui, ready));
+    for command in commands {
+        ready.apply(command);
+    }
+    status::status_bar(ui, ready);
+    views::slices::slice_strip(ui, ready);
+    // What the panels changed reaches the disk before the 3-D view renders (a second on a CPU driver).
+    autosave_changes(autosave, ui.ctx(), ready);
+    views::view3d::view3d(ui, ready, render_state);
+    // A change becomes an undo step once it has settled (a slider drag is one step).
+    ready.settle(ui.input(|i| i.pointer.any_down()));
+    if ready.needs_render() {
+        ui.ctx().request_repaint();
+    }
+}

@@ -1,0 +1,365 @@
+//! Commands: what the panels, the views, the keyboard and the File menu ask for, as values. The UI code returns
+//! them; [`Ready::apply`] is the one place that carries them out on the document and the view, marks what must be
+//! fitted or rendered again, and walks the undo history.
+//!
+//! Undo restores snapshots: a change becomes an undo step once it has settled ([`Ready::settle`]: no pointer button
+//! held, so a slider drag or a landmark drag is one step), whatever command made it. The autosave sees the document
+//! at the end of every frame ([`super::autosave`]), so every command reaches the disk without saying so.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use warpbench_gpu::OrbitCamera;
+use warpbench_gpu::glam::Vec3;
+use warpbench_io::geometry::Point3;
+use warpbench_io::landmarks::LandmarkPair;
+
+use super::document::{Look, ViewSettings};
+use super::history::Snapshot;
+use super::interaction::{End, Placing};
+use super::panels::FileAction;
+use super::{Ready, export, open, panels, save_png, session};
+
+/// One thing asked of the window once a pair is shown.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Command {
+    /// Ctrl+Z.
+    Undo,
+    /// Ctrl+Shift+Z.
+    Redo,
+    /// The whole fixed volume in view, from the front-left, slightly above.
+    ResetCamera,
+    /// Orbit the camera by a drag of this many points (right: about the superior axis, down: towards the feet).
+    Orbit(eframe::egui::Vec2),
+    /// Zoom the camera by a wheel scroll of this many points.
+    Zoom(f32),
+    /// Select pair i and centre the camera and the slices on its fixed point.
+    JumpTo(usize),
+    /// Highlight pair i in the table and the views.
+    Select(usize),
+    /// Esc: stop adding a pair, or clear the selection.
+    Cancel,
+    /// Start adding a pair (the next pick is its moving point), or stop.
+    ToggleAdding,
+    /// Append a completed pair, active.
+    AddPair {
+        moving: Point3<warpbench_io::geometry::Lps>,
+        fixed: Point3<warpbench_io::geometry::Lps>,
+    },
+    /// Put one point of pair `pair` at `to` (LPS mm); `settled`: the last move of a drag, fitted with diagnostics.
+    MovePoint {
+        pair: usize,
+        end: End,
+        to: [f64; 3],
+        settled: bool,
+    },
+    DeletePair(usize),
+    RenamePair(usize, String),
+    /// Switch pair i into or out of the fit.
+    SetActive(usize, bool),
+    SetSettings(ViewSettings),
+    /// Fixed, moving.
+    SetLooks([Look; 2]),
+    /// Move slice view `a` (0 axial, 1 coronal, 2 sagittal) to `mm` along its axis.
+    MoveSlice(usize, f64),
+    /// Move the three slices through ref point `x_ref` (linked navigation).
+    CentreSlices([f64; 3]),
+    File(FileAction),
+    Export(export::ExportKind, PathBuf),
+}
+
+/// What a settings change costs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Effect {
+    None,
+    Slices,
+    Render,
+    Refit,
+}
+
+/// The cost of going from `old` to `new` settings: the warp's parameters refit, the probe is only read by the next
+/// click, the oblique planes move only the slices, and the rest changes the picture.
+fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
+    let refit = old.method != new.method
+        || old.stiffness.to_bits() != new.stiffness.to_bits()
+        || old.bspline_levels != new.bspline_levels
+        || old.grid_n != new.grid_n;
+    let without = |s: &ViewSettings, oblique| ViewSettings {
+        pick_probe: new.pick_probe,
+        pick_threshold: new.pick_threshold,
+        oblique,
+        ..s.clone()
+    };
+    if refit {
+        Effect::Refit
+    } else if without(old, new.oblique) != *new {
+        Effect::Render
+    } else if old.oblique != new.oblique {
+        Effect::Slices
+    } else {
+        Effect::None
+    }
+}
+
+impl Ready {
+    /// Carries out `command`.
+    pub fn apply(&mut self, command: Command) {
+        match command {
+            Command::Undo => {
+                if let Some(s) = self.history.undo().cloned() {
+                    self.restore(&s);
+                }
+            }
+            Command::Redo => {
+                if let Some(s) = self.history.redo().cloned() {
+                    self.restore(&s);
+                }
+            }
+            Command::ResetCamera => self.reset_camera(),
+            Command::Orbit(drag) => {
+                self.camera.azimuth_rad -= drag.x * 0.01;
+                self.camera.elevation_rad = (self.camera.elevation_rad + drag.y * 0.01).clamp(-1.5, 1.5);
+                self.invalidate_view();
+            }
+            Command::Zoom(scroll) => {
+                self.camera.zoom = (self.camera.zoom * (1.0 + scroll * 0.002)).clamp(0.2, 20.0);
+                self.invalidate_view();
+            }
+            Command::JumpTo(i) => self.jump_to(i),
+            Command::Select(i) => {
+                self.selected = Some(i);
+                self.invalidate();
+            }
+            Command::Cancel => {
+                if !self.interaction.stop_adding() {
+                    self.selected = None;
+                }
+                self.invalidate();
+            }
+            Command::ToggleAdding => self.interaction.toggle_adding(),
+            Command::AddPair { moving, fixed } => {
+                let name = format!("Pt-{}", self.document.pairs.len() + 1);
+                self.document.pairs.push(LandmarkPair::new(name, moving, fixed));
+                self.refit_soon();
+            }
+            Command::MovePoint { pair, end, to, settled } => {
+                let Some(p) = self.document.pairs.get_mut(pair) else { return };
+                match end {
+                    End::Fixed => p.fixed = Some(Point3::from_array(to)),
+                    End::Moving => p.moving = Some(Point3::from_array(to)),
+                }
+                if settled { self.refit_soon() } else { self.refit_interactive() }
+            }
+            Command::DeletePair(i) => {
+                if i < self.document.pairs.len() {
+                    self.document.pairs.remove(i);
+                    self.selected = None;
+                    self.refit_soon();
+                }
+            }
+            Command::RenamePair(i, name) => {
+                if let Some(p) = self.document.pairs.get_mut(i) {
+                    p.name = name;
+                }
+            }
+            Command::SetActive(i, active) => {
+                if let Some(p) = self.document.pairs.get_mut(i) {
+                    p.active = active;
+                    self.refit_soon();
+                }
+            }
+            Command::SetSettings(new) => {
+                let effect = effect(&self.document.settings, &new);
+                self.document.settings = new;
+                match effect {
+                    Effect::None => {}
+                    Effect::Slices => self.invalidate_slices(),
+                    Effect::Render => self.invalidate(),
+                    Effect::Refit => self.refit_soon(),
+                }
+            }
+            Command::SetLooks(looks) => {
+                self.document.layers = looks;
+                self.invalidate();
+            }
+            Command::MoveSlice(a, mm) => {
+                if let Some(s) = self.slice_mm.get_mut(a) {
+                    *s = mm;
+                    self.invalidate_slices();
+                }
+            }
+            Command::CentreSlices(x_ref) => {
+                self.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
+                self.invalidate_slices();
+            }
+            Command::File(action) => self.file_action(action),
+            Command::Export(kind, out) => self.start_export(kind, out),
+        }
+    }
+
+    /// Records the document as an undo step once a change has settled: nothing being placed and no pointer button
+    /// held (`pointer_down`).
+    pub fn settle(&mut self, pointer_down: bool) {
+        if self.placing() == Placing::Idle && !pointer_down {
+            let now = self.snapshot();
+            self.history.record(&now);
+        }
+    }
+
+    /// Carries out a file action of the side panel or the File menu; the outcome goes to `file_message`.
+    fn file_action(&mut self, action: FileAction) {
+        match action {
+            FileAction::SaveSession(path) => {
+                let file = self.to_session(true);
+                self.file_message = Some(match session::save(&path, &file) {
+                    Ok(()) => format!("saved {}", path.display()),
+                    Err(e) => format!("{e:#}"),
+                });
+            }
+            FileAction::ExportLandmarks(path) => {
+                self.file_message = Some(match panels::export_landmarks(&path, &self.document.pairs) {
+                    Ok(()) => format!("wrote {}", path.display()),
+                    Err(e) => format!("{e:#}"),
+                });
+            }
+            FileAction::Screenshot(path) => {
+                // The window as it is drawn this frame, saved when the integration hands the pixels over.
+                self.ctx.request_screenshot(move |image| {
+                    if let Err(e) = save_png(&path, &image) {
+                        eprintln!("warpbench: {e:#}");
+                    }
+                });
+                self.file_message = Some("screenshot requested".into());
+            }
+            FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
+                Ok(pairs) => {
+                    self.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
+                    self.document.pairs = pairs;
+                    self.refit_soon();
+                }
+                Err(e) => self.file_message = Some(format!("{e:#}")),
+            },
+            FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
+            FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
+        }
+    }
+
+    /// Starts exporting the warped moving volume or the displacement field to `out` on a worker thread (one
+    /// export at a time), with the current pairs and method.
+    fn start_export(&mut self, kind: export::ExportKind, out: PathBuf) {
+        if self.export.is_some() {
+            self.file_message = Some("an export is running: wait for it or cancel it".into());
+            return;
+        }
+        let input = export::ExportInput {
+            fixed: Arc::clone(&self.loaded.fixed),
+            moving: Arc::clone(&self.loaded.moving),
+            fixed_path: self.document.fixed.clone(),
+            moving_path: self.document.moving.clone(),
+            pairs: self.document.pairs.clone(),
+            method: self.document.settings.method(),
+        };
+        match export::ExportJob::start(&self.ctx, kind, out, input) {
+            Ok(job) => {
+                self.file_message = None;
+                self.export = Some(job);
+            }
+            Err(e) => self.file_message = Some(e),
+        }
+    }
+
+    /// Puts the camera back: the whole fixed volume in view, from the front-left, slightly above.
+    pub fn reset_camera(&mut self) {
+        let (lo, hi) = self.viewer.scene_box();
+        self.camera = OrbitCamera::fit(lo, hi, self.camera.projection);
+        self.camera.azimuth_rad = 0.6;
+        self.camera.elevation_rad = 0.25;
+        self.invalidate_view();
+    }
+
+    /// Centres the camera and the three slices on pair `i`'s fixed point.
+    fn jump_to(&mut self, i: usize) {
+        let Some(q) = self.document.pairs.get(i).and_then(|p| p.fixed) else { return };
+        self.selected = Some(i);
+        let c = q.coords();
+        self.slice_mm = [c[2], c[1], c[0]];
+        self.camera.target_ref = Vec3::from_array(c.map(|v| v as f32));
+        self.camera.pan_mm = warpbench_gpu::glam::Vec2::ZERO;
+        self.invalidate();
+    }
+
+    /// The session as it is now: the document and where the views look.
+    #[must_use]
+    pub fn to_session(&self, clean_exit: bool) -> session::SessionFile {
+        let camera = session::SessionCamera {
+            azimuth_deg: self.camera.azimuth_rad.to_degrees(),
+            elevation_deg: self.camera.elevation_rad.to_degrees(),
+            zoom: self.camera.zoom,
+            target_lps: self.camera.target_ref.to_array(),
+        };
+        let view = session::View { camera, slice_mm: self.slice_mm };
+        session::SessionFile::new(self.document.clone(), view, clean_exit)
+    }
+
+    /// Points the camera and the slices where a session's views looked.
+    pub fn apply_view(&mut self, v: &session::View) {
+        self.camera.azimuth_rad = v.camera.azimuth_deg.to_radians();
+        self.camera.elevation_rad = v.camera.elevation_deg.to_radians();
+        self.camera.zoom = v.camera.zoom;
+        self.camera.target_ref = Vec3::from_array(v.camera.target_lps);
+        self.slice_mm = v.slice_mm;
+        self.invalidate();
+    }
+
+    /// What undo restores, as it is now.
+    #[must_use]
+    pub fn snapshot(&self) -> Snapshot {
+        Snapshot { document: self.document.clone(), volumes: [&self.loaded.fixed, &self.loaded.moving].map(Arc::clone) }
+    }
+
+    /// Puts `s` back: the volumes (prepared again for the GPU when they differ) and the document; fits the warp
+    /// again.
+    fn restore(&mut self, s: &Snapshot) {
+        let paths = [s.document.fixed.clone(), s.document.moving.clone()];
+        let now = [(&self.loaded.fixed, &self.document.fixed), (&self.loaded.moving, &self.document.moving)]
+            .map(|(v, p)| (Arc::clone(v), p.clone()));
+        for (side, ((volume, path), (now_volume, now_path))) in
+            [open::Side::Fixed, open::Side::Moving].into_iter().zip(s.volumes.iter().zip(paths).zip(now))
+        {
+            if (!Arc::ptr_eq(volume, &now_volume) || path != now_path)
+                && let Err(e) = self.swap_volume(side, Arc::clone(volume), path, None)
+            {
+                self.file_message = Some(format!("restoring the {} volume: {e:#}", side.name()));
+            }
+        }
+        self.document = s.document.clone();
+        self.interaction.stop_adding();
+        self.refit_soon();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::settings::{Blend, MethodKind, Probe};
+
+    #[test]
+    fn a_setting_costs_a_refit_a_render_the_slices_or_nothing() {
+        let old = ViewSettings::default();
+        let with = |f: fn(&mut ViewSettings)| {
+            let mut s = old.clone();
+            f(&mut s);
+            effect(&old, &s)
+        };
+        assert_eq!(with(|_| {}), Effect::None);
+        assert_eq!(with(|s| s.method = MethodKind::Rigid), Effect::Refit);
+        assert_eq!(with(|s| s.stiffness = 2.0), Effect::Refit);
+        assert_eq!(with(|s| s.bspline_levels += 1), Effect::Refit);
+        assert_eq!(with(|s| s.grid_n = 20), Effect::Refit);
+        assert_eq!(with(|s| s.blend = Blend::Difference), Effect::Render);
+        assert_eq!(with(|s| s.show_landmarks = false), Effect::Render);
+        assert_eq!(with(|s| s.oblique[1].on = true), Effect::Slices);
+        assert_eq!(with(|s| (s.pick_probe, s.pick_threshold) = (Probe::Gradient, 50.0)), Effect::None);
+        assert_eq!(with(|s| (s.oblique[0].tilt_deg, s.mix_weight) = (5.0, 0.1)), Effect::Render);
+    }
+}

@@ -1,0 +1,228 @@
+//! The document: everything the user edits and a session keeps. The volumes' paths and looks, the landmark pairs,
+//! and the warp and view settings.
+//!
+//! One value serves three purposes: the undo history snapshots it ([`super::history`]), a session file is it plus
+//! the camera and the slice positions ([`super::session::SessionFile`]), and the autosave writes that file. Its serde
+//! form is the session's (schema `warpbench-session/1`): the choices by name, the pairs as `landmarks` with
+//! `moving_lps`/`fixed_lps`, each look's window as `window_low`/`window_high`; fields added later read their
+//! defaults from files written before them.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+use warpbench_gpu::{BlendMode, RenderSettings};
+use warpbench_io::Volume;
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::bspline::BSplineParams;
+use warpbench_solver::method::Method;
+
+use crate::settings::{Blend, MethodKind, Preset, Probe, Shading, or_default};
+
+/// What the user edits: the pair's paths and looks, the landmark pairs, the warp and view settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Document {
+    /// `None` with `moving` `None`: the demo pair.
+    pub fixed: Option<PathBuf>,
+    pub moving: Option<PathBuf>,
+    /// LPS mm; the table's rows in order.
+    #[serde(rename = "landmarks", with = "pairs_lps")]
+    pub pairs: Vec<LandmarkPair>,
+    pub settings: ViewSettings,
+    /// Fixed, then moving.
+    pub layers: [Look; 2],
+}
+
+impl Document {
+    /// A document on the volumes read from `fixed` and `moving` (`None`: the demo pair) with `pairs`, the default
+    /// settings and each volume's automatic look.
+    #[must_use]
+    pub fn new(paths: [Option<PathBuf>; 2], volumes: [&Volume; 2], pairs: Vec<LandmarkPair>) -> Self {
+        let [fixed, moving] = paths;
+        Self { fixed, moving, pairs, settings: ViewSettings::default(), layers: volumes.map(Look::auto) }
+    }
+
+    /// Keeps what a hand-edited or older file may hold within what the window offers: the control texture's size,
+    /// the oblique angles; a look whose window is empty or inverted takes the volume's automatic one.
+    pub fn clamp(&mut self, volumes: [&Volume; 2]) {
+        self.settings.clamp();
+        for (look, v) in self.layers.iter_mut().zip(volumes) {
+            if look.window_high.partial_cmp(&look.window_low) != Some(std::cmp::Ordering::Greater) {
+                let auto = Look::auto(v);
+                (look.window_low, look.window_high) = (auto.window_low, auto.window_high);
+            }
+        }
+    }
+}
+
+/// One volume's look: its transfer function, its window (value range mapped onto the transfer function) and
+/// whether it is drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Look {
+    #[serde(deserialize_with = "or_default")]
+    pub preset: Preset,
+    pub window_low: f32,
+    pub window_high: f32,
+    pub visible: bool,
+}
+
+impl Look {
+    /// The look a volume opens with ([`crate::scene::auto_style`]: a CT or an MR preset from its values).
+    #[must_use]
+    pub fn auto(v: &Volume) -> Self {
+        let (preset, window) = crate::scene::auto_style(v, None);
+        Self::new(Preset::of(preset), window)
+    }
+
+    #[must_use]
+    pub fn new(preset: Preset, window: warpbench_gpu::Window) -> Self {
+        Self { preset, window_low: window.low(), window_high: window.low() + window.width, visible: true }
+    }
+
+    /// The renderer's window.
+    #[must_use]
+    pub fn window(&self) -> warpbench_gpu::Window {
+        warpbench_gpu::Window::from_range(self.window_low, self.window_high)
+    }
+}
+
+/// What the view and the warp look like.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ViewSettings {
+    #[serde(deserialize_with = "or_default")]
+    pub blend: Blend,
+    pub mix_weight: f32,
+    pub checker_mm: f32,
+    #[serde(deserialize_with = "or_default")]
+    pub shading: Shading,
+    pub samples_per_voxel: f32,
+    #[serde(deserialize_with = "or_default")]
+    pub method: MethodKind,
+    pub stiffness: f64,
+    pub bspline_levels: usize,
+    /// Control-texture texels per axis.
+    #[serde(rename = "control_texels")]
+    pub grid_n: usize,
+    pub show_landmarks: bool,
+    /// Per slice view (axial, coronal, sagittal): oblique, and its tilt (about the image's horizontal axis) and
+    /// spin (about its vertical axis), degrees, around the crosshair.
+    #[serde(default)]
+    pub oblique: [Oblique; 3],
+    /// How a click in the 3-D view finds its point.
+    #[serde(default, deserialize_with = "or_default")]
+    pub pick_probe: Probe,
+    /// The probe's threshold: opacity (0..1), gradient magnitude (value units per mm) or accumulated opacity.
+    #[serde(default = "default_pick_threshold")]
+    pub pick_threshold: f32,
+}
+
+fn default_pick_threshold() -> f32 {
+    Probe::default().default_threshold()
+}
+
+/// A slice view's oblique mode.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Oblique {
+    pub on: bool,
+    pub tilt_deg: f32,
+    pub spin_deg: f32,
+}
+
+/// The oblique controls' range of tilt and spin, degrees.
+pub const OBLIQUE_MAX_DEG: f32 = 75.0;
+
+impl Default for ViewSettings {
+    fn default() -> Self {
+        Self {
+            blend: Blend::Mix,
+            mix_weight: 0.5,
+            checker_mm: 16.0,
+            shading: Shading::Dvr,
+            samples_per_voxel: 1.0,
+            method: MethodKind::Tps,
+            stiffness: 0.0,
+            bspline_levels: BSplineParams::default().levels,
+            grid_n: 48,
+            show_landmarks: true,
+            oblique: [Oblique::default(); 3],
+            pick_probe: Probe::Accumulated,
+            pick_threshold: default_pick_threshold(),
+        }
+    }
+}
+
+impl ViewSettings {
+    #[must_use]
+    pub fn blend_mode(&self) -> BlendMode {
+        self.blend.mode(self.mix_weight, self.checker_mm)
+    }
+
+    #[must_use]
+    pub fn render_settings(&self) -> RenderSettings {
+        RenderSettings {
+            blend: self.blend_mode(),
+            samples_per_voxel: self.samples_per_voxel,
+            shading: warpbench_gpu::Shading::with_mode(self.shading.mode()),
+            ..Default::default()
+        }
+    }
+
+    #[must_use]
+    pub fn probe(&self) -> warpbench_gpu::Probe {
+        self.pick_probe.with_threshold(self.pick_threshold)
+    }
+
+    #[must_use]
+    pub fn method(&self) -> Method {
+        self.method.method(self.stiffness, self.bspline_levels)
+    }
+
+    /// See [`Document::clamp`].
+    pub fn clamp(&mut self) {
+        self.grid_n = self.grid_n.clamp(2, 256);
+        for o in &mut self.oblique {
+            o.tilt_deg = o.tilt_deg.clamp(-OBLIQUE_MAX_DEG, OBLIQUE_MAX_DEG);
+            o.spin_deg = o.spin_deg.clamp(-OBLIQUE_MAX_DEG, OBLIQUE_MAX_DEG);
+        }
+    }
+}
+
+/// The pairs as a session stores them: `{name, active, moving_lps, fixed_lps}` each.
+mod pairs_lps {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+    use warpbench_io::geometry::Point3;
+    use warpbench_io::landmarks::LandmarkPair;
+
+    #[derive(Serialize, Deserialize)]
+    struct Wire {
+        name: String,
+        active: bool,
+        moving_lps: Option<[f64; 3]>,
+        fixed_lps: Option<[f64; 3]>,
+    }
+
+    pub fn serialize<S: Serializer>(pairs: &[LandmarkPair], s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(pairs.iter().map(|p| Wire {
+            name: p.name.clone(),
+            active: p.active,
+            moving_lps: p.moving.map(|m| m.coords()),
+            fixed_lps: p.fixed.map(|f| f.coords()),
+        }))
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<LandmarkPair>, D::Error> {
+        let wire = Vec::<Wire>::deserialize(d)?;
+        let finite = |p: Option<[f64; 3]>| p.is_none_or(|c| c.iter().all(|x| x.is_finite()));
+        if let Some(i) = wire.iter().position(|w| !finite(w.moving_lps) || !finite(w.fixed_lps)) {
+            return Err(serde::de::Error::custom(format!("landmark {} has a coordinate that is not a number", i + 1)));
+        }
+        Ok(wire
+            .into_iter()
+            .map(|w| LandmarkPair {
+                name: w.name,
+                active: w.active,
+                moving: w.moving_lps.map(Point3::from_array),
+                fixed: w.fixed_lps.map(Point3::from_array),
+            })
+            .collect())
+    }
+}

@@ -1,0 +1,292 @@
+//! What the pointer is doing in the views: adding a pair (with the half already placed) or dragging one point of a
+//! pair, and which view the drag belongs to.
+
+use eframe::egui;
+use warpbench_gpu::PickTarget;
+use warpbench_io::geometry::{Lps, Point3};
+
+use super::{Command, Ready, placement};
+
+/// Adding a pair: the source is picked on the (deformed) moving volume, then the target on the fixed one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Placing {
+    Idle,
+    /// The next click picks the source (a point of the moving volume, in moving LPS).
+    Source,
+    /// The next click picks the target; the source is placed.
+    Target {
+        moving: Point3<Lps>,
+    },
+}
+
+/// Which point of a pair.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum End {
+    /// The source, on the moving volume (drawn where the warp shows it).
+    Moving,
+    /// The target, on the fixed volume.
+    Fixed,
+}
+
+/// Where a landmark is being dragged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DragView {
+    /// Along the visible surface of the 3-D view (a pick per drag event).
+    ThreeD,
+    /// Within the plane of slice view 0 (axial), 1 (coronal) or 2 (sagittal).
+    Slice(usize),
+}
+
+/// A landmark point being dragged.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DragPoint {
+    pub pair: usize,
+    pub end: End,
+    pub view: DragView,
+}
+
+/// How close (points) a press must be to a landmark glyph to grab it.
+pub const GRAB_RADIUS: f32 = 8.0;
+
+/// How far (mm) from a slice plane a landmark is still drawn on, and grabbed from, that slice.
+pub const SLICE_SLAB_MM: f64 = 3.0;
+
+/// What the pointer is doing in the views. Only the transitions below write it, so a new tool (a brush, a lens, a
+/// suggested landmark to accept) is a new variant with its own transitions, not another flag.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum Interaction {
+    #[default]
+    Idle,
+    /// Adding a pair: the next click places its moving point, or (`moving` placed) its fixed point.
+    Adding { moving: Option<Point3<Lps>> },
+    /// One point of a pair follows the pointer in a view.
+    Dragging(DragPoint),
+}
+
+impl Interaction {
+    /// The step of adding a pair.
+    #[must_use]
+    pub fn placing(&self) -> Placing {
+        match *self {
+            Self::Adding { moving: None } => Placing::Source,
+            Self::Adding { moving: Some(moving) } => Placing::Target { moving },
+            Self::Idle | Self::Dragging(_) => Placing::Idle,
+        }
+    }
+
+    /// The point being dragged.
+    #[must_use]
+    pub fn drag(&self) -> Option<DragPoint> {
+        match *self {
+            Self::Dragging(d) => Some(d),
+            Self::Idle | Self::Adding { .. } => None,
+        }
+    }
+
+    /// Space or the Add pair button: starts adding a pair, or stops (a placed moving point is dropped). A drag
+    /// goes on.
+    pub fn toggle_adding(&mut self) {
+        *self = match *self {
+            Self::Idle => Self::Adding { moving: None },
+            Self::Adding { .. } => Self::Idle,
+            drag @ Self::Dragging(_) => drag,
+        };
+    }
+
+    /// Stops adding a pair (Esc, undo); returns whether one was being added.
+    pub fn stop_adding(&mut self) -> bool {
+        let adding = matches!(self, Self::Adding { .. });
+        if adding {
+            *self = Self::Idle;
+        }
+        adding
+    }
+
+    /// The pair's moving point is placed at `moving`: its fixed point is next.
+    pub fn placed_moving(&mut self, moving: Point3<Lps>) {
+        if let Self::Adding { moving: None } = self {
+            *self = Self::Adding { moving: Some(moving) };
+        }
+    }
+
+    /// The pair's fixed point is placed: the pair is complete.
+    pub fn placed_fixed(&mut self) {
+        if let Self::Adding { moving: Some(_) } = self {
+            *self = Self::Idle;
+        }
+    }
+
+    /// A press on a glyph grabs its point, unless a pair is being added or another point dragged; returns whether
+    /// it did.
+    pub fn grab(&mut self, point: DragPoint) -> bool {
+        let idle = *self == Self::Idle;
+        if idle {
+            *self = Self::Dragging(point);
+        }
+        idle
+    }
+
+    /// The drag in `view` ends; returns the point that was dragged there.
+    pub fn release(&mut self, view: DragView) -> Option<DragPoint> {
+        let drag = self.drag().filter(|d| d.view == view)?;
+        *self = Self::Idle;
+        Some(drag)
+    }
+}
+
+/// The pointer's work on the views: grabbing and dragging glyphs, placing the points of a new pair.
+impl Ready {
+    /// The landmark glyph nearest `pointer` within [`GRAB_RADIUS`], given where each glyph lands on screen
+    /// (`screen`: ref mm to screen points, `None` when not shown there).
+    pub(crate) fn grab(
+        &self,
+        pointer: egui::Pos2,
+        screen: impl Fn([f64; 3]) -> Option<egui::Pos2>,
+    ) -> Option<(usize, End)> {
+        let mut best: Option<(f32, usize, End)> = None;
+        for i in 0..self.document.pairs.len() {
+            for end in [End::Fixed, End::Moving] {
+                let Some(at) = self.glyph_ref(i, end).and_then(&screen) else { continue };
+                let d = at.distance(pointer);
+                if d <= GRAB_RADIUS && best.is_none_or(|(b, ..)| d < b) {
+                    best = Some((d, i, end));
+                }
+            }
+        }
+        best.map(|(_, i, end)| (i, end))
+    }
+
+    /// Moves the dragged point so that it is shown at `x_ref`: the fixed point to x_ref, the moving point to
+    /// u(x_ref) (the moving point the warp shows there) unless a pick gives it (`moving_lps`). Refits interactively.
+    pub(crate) fn drag_to(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
+        let Some(drag) = self.interaction.drag() else { return };
+        let moving = moving_lps.unwrap_or_else(|| self.moving_shown_at(x_ref));
+        let (volume, p) = match drag.end {
+            End::Fixed => (&self.loaded.fixed, x_ref),
+            End::Moving => (&self.loaded.moving, moving),
+        };
+        // Off its volume the point stays where it was.
+        if let Some(message) = placement::outside_message(drag.end, volume, p) {
+            self.notice = Some(message);
+            return;
+        }
+        self.notice = None;
+        self.apply(Command::MovePoint { pair: drag.pair, end: drag.end, to: p, settled: false });
+    }
+
+    /// Ends a drag in `view`: the full fit with its diagnostics.
+    pub(crate) fn end_drag(&mut self, view: DragView) {
+        if self.interaction.release(view).is_some() {
+            self.refit_soon();
+        }
+    }
+
+    /// The step of adding a pair.
+    #[must_use]
+    pub fn placing(&self) -> Placing {
+        self.interaction.placing()
+    }
+
+    /// The landmark point being dragged.
+    #[must_use]
+    pub fn drag(&self) -> Option<DragPoint> {
+        self.interaction.drag()
+    }
+
+    /// A drag event in the 3-D view at framebuffer point `pixel`: the dragged point follows the surface under the
+    /// pointer (the volume it belongs to, picked with the current probe); off the volume it stays.
+    pub(crate) fn drag_in_view(&mut self, pixel: [f32; 2]) {
+        let Some(drag) = self.interaction.drag() else { return };
+        let Some(size) = self.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let target = match drag.end {
+            End::Moving => PickTarget::Moving,
+            End::Fixed => PickTarget::Fixed,
+        };
+        let settings = self.document.settings.render_settings();
+        match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.document.settings.probe()) {
+            Ok(Some(hit)) => {
+                let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
+                self.drag_to(hit.x_ref.map(f64::from), moving);
+            }
+            Ok(None) => {}
+            Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
+        }
+    }
+
+    /// Places the point at ref position `x_ref` (a click in a slice, or a pick in the 3-D view, already in ref
+    /// space): the source through the warp's pull-back (the moving volume's point shown there) unless the pick gives
+    /// it (`moving_lps`), the target as is. A completed pair is appended, active, and the warp is fitted again.
+    ///
+    /// A point outside its volume is refused: nothing is stored, the step stays, and [`Self::notice`] says why.
+    pub fn place_at_ref(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
+        match self.placing() {
+            Placing::Idle => {}
+            Placing::Source => {
+                let p = moving_lps.unwrap_or_else(|| self.moving_shown_at(x_ref));
+                if let Some(message) = placement::outside_message(End::Moving, &self.loaded.moving, p) {
+                    self.notice = Some(message);
+                    return;
+                }
+                self.notice = None;
+                self.interaction.placed_moving(Point3::from_array(p));
+            }
+            Placing::Target { moving } => {
+                if let Some(message) = placement::outside_message(End::Fixed, &self.loaded.fixed, x_ref) {
+                    self.notice = Some(message);
+                    return;
+                }
+                self.notice = None;
+                self.interaction.placed_fixed();
+                self.apply(Command::AddPair { moving, fixed: Point3::from_array(x_ref) });
+            }
+        }
+        self.invalidate();
+    }
+
+    /// A click at framebuffer point `pixel` of the 3-D view: picks the volume the placing step asks for.
+    pub(crate) fn pick_in_view(&mut self, pixel: [f32; 2]) {
+        let target = match self.placing() {
+            Placing::Idle => return,
+            Placing::Source => PickTarget::Moving,
+            Placing::Target { .. } => PickTarget::Fixed,
+        };
+        let Some(size) = self.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let settings = self.document.settings.render_settings();
+        match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.document.settings.probe()) {
+            Ok(Some(hit)) => {
+                let x_ref = hit.x_ref.map(f64::from);
+                let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
+                self.place_at_ref(x_ref, moving);
+            }
+            Ok(None) => self.fit_error = Some("the click hit nothing: try another point or probe".into()),
+            Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    pub(crate) fn adding_a_pair_steps_through_its_two_points_and_a_drag_waits_for_idle() {
+        let mut i = Interaction::default();
+        let m = Point3::new(1.0, 2.0, 3.0);
+        i.toggle_adding();
+        assert_eq!(i.placing(), Placing::Source);
+        let point = DragPoint { pair: 0, end: End::Fixed, view: DragView::ThreeD };
+        assert!(!i.grab(point), "no drag while adding");
+        i.placed_moving(m);
+        assert_eq!(i.placing(), Placing::Target { moving: m });
+        i.placed_fixed();
+        assert_eq!(i, Interaction::Idle);
+        i.toggle_adding();
+        assert!(i.stop_adding() && !i.stop_adding());
+        assert!(i.grab(point) && i.drag() == Some(point));
+        i.toggle_adding();
+        assert_eq!(i.drag(), Some(point), "Space does not end a drag");
+        assert_eq!(i.release(DragView::Slice(0)), None, "a drag ends in its own view");
+        assert_eq!(i.release(DragView::ThreeD), Some(point));
+        assert_eq!(i, Interaction::Idle);
+    }
+}

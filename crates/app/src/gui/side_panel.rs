@@ -1,0 +1,61 @@
+//! The side panel once a pair is shown: history and camera buttons, the view and warp settings, the looks, adding
+//! pairs, the landmark table and its warnings, the accuracy panel, files and export. It returns what was asked for
+//! as [`Command`]s; only its own text fields (paths being typed) change in place.
+
+use eframe::egui;
+
+use super::{Command, Placing, Ready, export, panels};
+
+/// Draws the side panel; returns the commands its widgets gave this frame.
+pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
+    let mut commands = Vec::new();
+    egui::Panel::left("settings").resizable(true).default_size(260.0).show(ui, |ui| {
+        egui::ScrollArea::vertical().show(ui, |ui| {
+            ui.heading(ready.loaded.title.as_str());
+            ui.horizontal(|ui| {
+                let undo = egui::Button::new("Undo");
+                if ui.add_enabled(ready.history.can_undo(), undo).on_hover_text("Ctrl+Z").clicked() {
+                    commands.push(Command::Undo);
+                }
+                let redo = egui::Button::new("Redo");
+                if ui.add_enabled(ready.history.can_redo(), redo).on_hover_text("Ctrl+Shift+Z").clicked() {
+                    commands.push(Command::Redo);
+                }
+                if ui.button("Reset camera").on_hover_text("R").clicked() {
+                    commands.push(Command::ResetCamera);
+                }
+            });
+            commands.extend(panels::settings_ui(ui, &ready.document.settings));
+            ui.separator();
+            commands.extend(panels::layers_ui(ui, &ready.document.layers));
+            panels::volume_warnings_ui(ui, &ready.loaded.fixed, &ready.loaded.moving);
+            ui.separator();
+            ui.horizontal(|ui| {
+                let adding = ready.placing() != Placing::Idle;
+                if ui.selectable_label(adding, "Add pair").on_hover_text("Space; Esc cancels").clicked() {
+                    commands.push(Command::ToggleAdding);
+                }
+                match ready.placing() {
+                    Placing::Idle => ui.label(""),
+                    Placing::Source => ui.label("click the point on the moving volume"),
+                    Placing::Target { .. } => ui.label("click its partner on the fixed volume"),
+                };
+            });
+            commands.extend(panels::landmarks_ui(ui, &ready.document.pairs, &ready.errors, ready.selected));
+            for w in &ready.fit_warnings {
+                ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Warning: {w}"));
+            }
+            ui.separator();
+            commands.extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.errors).map(Command::JumpTo));
+            ui.separator();
+            commands.extend(panels::files_ui(ui, &mut ready.files).map(Command::File));
+            ui.separator();
+            let asked = export::export_ui(ui, &mut ready.export_fields, ready.export.as_ref());
+            commands.extend(asked.map(|(kind, out)| Command::Export(kind, out)));
+            if let Some(m) = &ready.file_message {
+                ui.label(m.as_str());
+            }
+        });
+    });
+    commands
+}

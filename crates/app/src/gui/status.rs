@@ -1,0 +1,63 @@
+//! The status bar: the GPU, the last frame's time and the frame rate, the refinement of the 3-D view, the point
+//! under the pointer, why a point was refused, folding, and what the warp is fitted on or why it is off.
+
+use eframe::egui;
+
+use super::Ready;
+
+/// Draws the status bar at the bottom of the window.
+pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
+    egui::Panel::bottom("status").show(ui, |ui| {
+        ui.horizontal(|ui| {
+            ui.label(format!("GPU: {}", ready.viewer.ctx.describe()));
+            ui.separator();
+            ui.label(format!("last frame {:.0} ms", ready.last_render_ms))
+                .on_hover_text("What the views took to render in the last frame that rendered them");
+            ui.separator();
+            ui.label(ready.frame_rate.fps().map_or_else(|| "idle".to_owned(), |f| format!("{f:.0} fps")))
+                .on_hover_text("Frames the window drew in the last second (none while nothing changes)");
+            // An idle window draws nothing: one more frame once this second is over shows it idle.
+            if let Some(wait) = ready.frame_rate.redraw_to_idle_in(std::time::Instant::now()) {
+                ui.ctx().request_repaint_after(wait);
+            }
+            ui.separator();
+            if let Some(done) = ready.view_refine_progress() {
+                ui.label(format!("refining the 3-D view: {:.0} %", 100.0 * done));
+                ui.separator();
+            }
+            if let Some(c) = ready.cursor {
+                let ([l, p, s], [ml, mp, ms]) = (c.fixed_lps, c.moving_lps);
+                ui.label(format!(
+                    "cursor LPS fixed ({l:.1}, {p:.1}, {s:.1}) mm, moving ({ml:.1}, {mp:.1}, {ms:.1}) mm"
+                ))
+                .on_hover_text("The fixed point under the pointer, and the moving point the warp shows there");
+                ui.separator();
+            }
+            if let Some(n) = &ready.notice {
+                ui.colored_label(egui::Color32::from_rgb(240, 200, 80), n.as_str());
+                ui.separator();
+            }
+            if let Some(j) = ready.jacobian.as_ref().filter(|j| j.min_det <= 0.0) {
+                let at = j.min_at;
+                ui.colored_label(
+                    egui::Color32::from_rgb(235, 90, 80),
+                    format!(
+                        "the warp folds: {:.2} % of the box, det {:.2} at ({:.0}, {:.0}, {:.0}) mm",
+                        100.0 * j.fraction_folded,
+                        j.min_det,
+                        at[0],
+                        at[1],
+                        at[2]
+                    ),
+                );
+                ui.separator();
+            }
+            match &ready.fit_error {
+                Some(e) => ui.colored_label(egui::Color32::LIGHT_RED, format!("warp off: {e}")),
+                None => {
+                    ui.label(format!("{} fitted on {} pairs", ready.document.settings.method, ready.fitted_pairs()))
+                }
+            };
+        });
+    });
+}

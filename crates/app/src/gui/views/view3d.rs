@@ -1,0 +1,84 @@
+//! The 3-D view: the fixed and the deformed moving volume rendered at the view's pixels (reduced while interacting),
+//! with the landmark glyphs. A click picks the point being added on the surface; a press on a glyph drags it along
+//! the surface; elsewhere a drag orbits the camera and the wheel zooms.
+
+use eframe::egui;
+use warpbench_gpu::glam::Vec3;
+
+use crate::gui::{Command, DragPoint, DragView, Ready};
+
+/// Renders what changed and draws the 3-D view in the central panel.
+pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
+    egui::CentralPanel::default().show(ui, |ui| {
+        let avail = ui.available_size();
+        let ppp = ui.ctx().pixels_per_point();
+        // A GPU renders the view at the screen's pixels; a CPU driver (about 1 Mpixel·step per second) at most at
+        // 1024² so that its reduced view (a quarter per side at least) still fits the frame budget.
+        let cap = if ready.viewer.ctx.is_cpu_driver() { 1024.0 } else { 8192.0 };
+        let px = (avail * ppp).min(egui::vec2(cap, cap)).max(egui::vec2(32.0, 32.0));
+        let view_px = (px.x as u32, px.y as u32);
+        let interacting = ui.input(|i| i.pointer.any_down()) || ready.drag().is_some();
+        if let Some(rs) = render_state
+            && let Err(e) = ready.render(rs, view_px, interacting)
+        {
+            ready.fit_error = Some(format!("rendering: {e:#}"));
+        }
+        if let Some(shown) = &ready.images.view {
+            let response = ui.add(
+                egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, avail))
+                    .sense(egui::Sense::click_and_drag()),
+            );
+            response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "3-D view"));
+            let (w, h) = (shown.target.width as f32, shown.target.height as f32);
+            let to_pixel = |pos: egui::Pos2| {
+                let f = (pos - response.rect.min) / response.rect.size();
+                [f.x * w, f.y * h]
+            };
+            if response.clicked()
+                && let Some(pos) = response.interact_pointer_pos()
+            {
+                ready.pick_in_view(to_pixel(pos));
+            }
+            // A press on a landmark glyph drags it along the surface; elsewhere a drag orbits the camera.
+            let clip_from_ref = ready.camera.clip_from_ref(w / h);
+            let rect = response.rect;
+            let on_screen = |p_ref: [f64; 3]| {
+                let c = clip_from_ref * Vec3::from_array(p_ref.map(|v| v as f32)).extend(1.0);
+                (c.w > 0.0).then(|| {
+                    let (x, y) = (c.x / c.w, c.y / c.w);
+                    rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height())
+                })
+            };
+            if response.drag_started()
+                && let Some(press) = ui.input(|i| i.pointer.press_origin())
+                && let Some((pair, end)) = ready.grab(press, on_screen)
+                && ready.interaction.grab(DragPoint { pair, end, view: DragView::ThreeD })
+            {
+                ready.selected = Some(pair);
+            }
+            let landmark_drag = ready.drag().is_some_and(|d| d.view == DragView::ThreeD);
+            if landmark_drag
+                && response.dragged()
+                && response.drag_delta() != egui::Vec2::ZERO
+                && let Some(pos) = response.interact_pointer_pos()
+            {
+                ready.drag_in_view(to_pixel(pos));
+            }
+            let drag = if landmark_drag { egui::Vec2::ZERO } else { response.drag_delta() };
+            if drag != egui::Vec2::ZERO {
+                ready.apply(Command::Orbit(drag));
+            }
+            if response.drag_stopped() {
+                ready.end_drag(DragView::ThreeD);
+                // Back to the full sample rate once the drag ends.
+                ready.invalidate_view();
+            }
+            if response.hovered() {
+                let scroll = ui.input(|i| i.smooth_scroll_delta.y);
+                if scroll != 0.0 {
+                    ready.apply(Command::Zoom(scroll));
+                }
+            }
+        }
+    });
+}
