@@ -170,7 +170,7 @@ pub struct Field {
     pub pairs: usize,
     /// For the linear methods, the same pull-back x ↦ A x + b as an ITK affine (what `--tfm` writes); else `None`.
     pub affine: Option<ItkAffine>,
-    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`](crate::fit::fit_warnings)).
+    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`]).
     pub warnings: Vec<String>,
 }
 

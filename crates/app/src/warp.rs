@@ -162,7 +162,7 @@ pub struct Resampled {
     pub outside_value: f64,
     /// Why [`Backend::Auto`] resampled on the CPU, when a GPU was tried and not used (the CLI prints it as a note).
     pub cpu_fallback: Option<String>,
-    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`](crate::fit::fit_warnings)).
+    /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`]).
     pub warnings: Vec<String>,
     /// Wall-clock seconds of the fit (landmark checks, fit, control texture) and of the resampling.
     pub fit_seconds: f64,

@@ -7,7 +7,7 @@
 //! changed, at the interaction sample rate while the camera is being dragged ([`warpbench_gpu::Quality`]).
 //!
 //! How it is built:
-//! - [`app`]: the eframe app ([`Workbench`]): loading ([`load`]), the volume reads and dialogs ([`open`]), the
+//! - [`app`]: the eframe app ([`Workbench`]): loading ([`load`](mod@load)), the volume reads and dialogs ([`open`]), the
 //!   autosave ([`autosave`]) and, once a pair is shown, the frame: keyboard, [`side_panel`], [`status`], the
 //!   [`views`], then the undo step.
 //! - [`document`]: what the user edits ([`document::Document`]); [`history`] snapshots it, [`session`] saves it
