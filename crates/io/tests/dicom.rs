@@ -823,6 +823,21 @@ fn a_numeric_value_that_is_not_a_whole_number_of_values_is_refused_before_dicom_
     );
 }
 
+/// Found by cargo-fuzz: a 640-byte implicit-VR file with a (0002,0000) element in its data set. dicom-rs reads it as
+/// implicit VR like every element there; the length check read group 0002 as explicit VR (as in the file meta group),
+/// so the two walks parted, and dicom-rs met a (0000,0000) UL declaring 2 GB, which it reserved before reading. The
+/// check now reads the data set in its transfer syntax, group 0002 included, and refuses that length.
+#[test]
+fn a_group_0002_element_in_an_implicit_vr_data_set_is_walked_as_dicom_rs_reads_it() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/bad/implicit_group2_element.dcm");
+    let err = dicom::read_files(std::slice::from_ref(&corpus), &mut LoadOptions::new()).expect_err("hostile file");
+    let msg = err.to_string();
+    assert!(
+        msg.contains("implicit_group2_element.dcm") && msg.contains("(0000,0000)") && msg.contains("2147483707 bytes"),
+        "{msg}"
+    );
+}
+
 /// Found by cargo-fuzz: a 1 KB deflated file whose file meta group length, (0002,0000), covers an element outside
 /// group 0002, (0003,0012). dicom-rs reads the meta group by its length, so it inflated the data set from a later
 /// byte than the length check did, and met an element declaring 3 GB, which it reserved before reading. The check

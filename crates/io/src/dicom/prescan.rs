@@ -134,10 +134,13 @@ impl Walker<'_> {
 
     /// Reads an element or item header at `pos`: (tag, length, header size).
     fn header(&self, pos: usize) -> WalkResult<((u16, u16), u32, usize)> {
-        // The file meta group is always little endian.
-        let le = !self.big_endian || self.u16_at(pos, true)? == 0x0002;
+        // In the data set every element is read in the transfer syntax, group 0002 included, as dicom-rs's decoders
+        // read it (treating a group 0002 element there as explicit little endian, as the file meta group is, let an
+        // implicit-VR file hide a 2 GB length from this walk). The meta group is walked with `explicit` set and
+        // `big_endian` clear.
+        let le = !self.big_endian;
         let tag = (self.u16_at(pos, le)?, self.u16_at(pos + 2, le)?);
-        let explicit = self.explicit || tag.0 == 0x0002;
+        let explicit = self.explicit;
         if tag.0 == 0xFFFE || !explicit {
             return Ok((tag, self.u32_at(pos + 4, le)?, 8));
         }
@@ -170,7 +173,7 @@ impl Walker<'_> {
     /// The VR dicom-rs reads the element at `pos` with: the one written (explicit VR), or the dictionary's, relaxed
     /// as dicom-rs's implicit decoder relaxes it (unknown tags are UN).
     fn value_vr(&self, pos: usize, tag: (u16, u16)) -> Option<[u8; 2]> {
-        if self.explicit || tag.0 == 0x0002 {
+        if self.explicit {
             self.data.get(pos + 4..pos + 6).map(|b| [b[0], b[1]])
         } else {
             use dicom_core::dictionary::{DataDictionary, DataDictionaryEntry};
