@@ -1,8 +1,7 @@
 //! Displacement fields (`NIFTI_INTENT_DISPVECT`) as ITK, ANTs and 3D Slicer store them, with RAS vectors in the
 //! file and LPS vectors inside (see [`super`], "Displacement fields").
 
-use std::fs::File;
-use std::io::{self, BufReader, Read, Seek, SeekFrom};
+use std::io::{self, Read};
 use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
@@ -83,17 +82,8 @@ pub fn write_displacement_field(
 /// Reads a displacement field written by [`write_displacement_field`] or by ITK, ANTs or Slicer: NIfTI-1 or -2,
 /// intent 1006, shape [X, Y, Z, 1, 3], float32 or float64, RAS vectors (returned in LPS). Errors name the file.
 pub fn read_displacement_field(path: &Path) -> Result<DisplacementField> {
-    crate::check_regular_file(path)?;
-    let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-    let mut magic = [0u8; 2];
-    let n = crate::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
-    file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
-    if n == 2 && magic == GZIP_MAGIC {
-        read_field_source(path, &mut MultiGzDecoder::new(BufReader::new(file)), Extent::Gzip(file_len))
-    } else {
-        read_field_source(path, &mut BufReader::new(file), Extent::Exact(file_len))
-    }
+    let (mut src, extent) = super::open_file(path)?;
+    read_field_source(path, &mut src, extent)
 }
 
 /// [`read_displacement_field`] from memory (gzip detected by the magic bytes); `name` is used in errors.

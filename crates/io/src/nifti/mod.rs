@@ -168,19 +168,50 @@ enum Extent {
 /// Deflate's largest expansion: 258-byte matches coded in about 2 bits give about 1032:1.
 const MAX_DEFLATE_RATIO: u64 = 1032;
 
-/// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content).
-pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
+/// A NIfTI file opened for reading: buffered, and through a gzip decoder when it starts with gzip's magic bytes.
+enum FileSource {
+    Plain(BufReader<File>),
+    Gzip(MultiGzDecoder<BufReader<File>>),
+}
+
+impl Read for FileSource {
+    fn read(&mut self, buf: &mut [u8]) -> io::Result<usize> {
+        match self {
+            Self::Plain(r) => r.read(buf),
+            Self::Gzip(r) => r.read(buf),
+        }
+    }
+}
+
+impl Source for FileSource {
+    fn seek_forward(&mut self, n: u64) -> io::Result<bool> {
+        match self {
+            Self::Plain(r) => r.seek_forward(n),
+            Self::Gzip(r) => r.seek_forward(n),
+        }
+    }
+}
+
+/// Opens the regular file at `path` as a NIfTI source (gzip detected by content) with the bound on what it can
+/// deliver. Shared by the volume and the displacement-field readers.
+fn open_file(path: &Path) -> Result<(FileSource, Extent)> {
     crate::check_regular_file(path)?;
     let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut magic = [0u8; 2];
     let n = crate::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
     file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
-    if n == 2 && magic == GZIP_MAGIC {
-        read_source(path, &mut MultiGzDecoder::new(BufReader::new(file)), Extent::Gzip(file_len), opts)
+    Ok(if n == 2 && magic == GZIP_MAGIC {
+        (FileSource::Gzip(MultiGzDecoder::new(BufReader::new(file))), Extent::Gzip(file_len))
     } else {
-        read_source(path, &mut BufReader::new(file), Extent::Exact(file_len), opts)
-    }
+        (FileSource::Plain(BufReader::new(file)), Extent::Exact(file_len))
+    })
+}
+
+/// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content).
+pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
+    let (mut src, extent) = open_file(path)?;
+    read_source(path, &mut src, extent, opts)
 }
 
 /// Reads a NIfTI-1/2 volume from memory (gzip detected by the magic bytes 1f 8b); `name` is used in errors.
