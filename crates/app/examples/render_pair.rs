@@ -16,10 +16,11 @@
 use anyhow::{Context, Result, bail};
 use warpbench_app::gui::demo;
 use warpbench_app::scene;
+use warpbench_app::settings::Blend;
 use warpbench_gpu::{
     GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera,
     PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData,
-    RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, Window,
+    RaycastRenderer, RenderSettings, RenderTarget, Shading, VolumeBudget, Window,
 };
 use warpbench_io::geometry::Point3;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
@@ -28,14 +29,11 @@ use warpbench_solver::tps::Tps;
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let Some(out) = args.first() else { bail!("usage: render_pair OUT.png [blend] [size]") };
-    let blend = warpbench_app::render::parse_blend(args.get(1).map_or("mix", String::as_str), 0.5, 12.0)
-        .map_err(|f| anyhow::anyhow!("{:#}", f.error()))?;
+    let blend: Blend = args.get(1).map_or("mix", String::as_str).parse()?;
+    let blend = blend.mode(0.5, 12.0);
     let size: u32 = args.get(2).map_or(Ok(512), |s| s.parse()).context("size")?;
     let shading_name = args.get(3).map_or("dvr", String::as_str);
-    let shading = ShadingMode::ALL
-        .into_iter()
-        .find(|m| m.name() == shading_name)
-        .with_context(|| format!("unknown shading {shading_name:?}; one of none, dvr, iso"))?;
+    let shading = shading_name.parse::<warpbench_app::settings::Shading>()?.mode();
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
     let ct = warpbench_io::open(root.join("tests/data/nifti/cranium_ct.nii.gz")).context("reading the CT")?;
     let mr = warpbench_io::open(root.join("tests/data/nifti/ch2.nii.gz")).context("reading the MR")?;

@@ -5,8 +5,7 @@
 //!
 //! [`Failure`] belongs to `main.rs` and the subcommands. The modules they share with the window (`inputs`, `scene`,
 //! `fit`) return `anyhow` errors that name the file and the problem; every one of those is about the input, and the
-//! subcommands wrap it as [`Failure::BadInput`]. (`inputs`' output checks return a [`Failure::BadInput`] themselves,
-//! as the window's export chains them with `warp::check_outputs`.)
+//! subcommands wrap it as [`Failure::BadInput`].
 
 use std::process::ExitCode;
 

@@ -86,7 +86,7 @@ pub struct FieldSummary {
 /// `--json`.
 pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
     let input_paths = opts.inputs.paths();
-    opts.out.check(&input_paths)?;
+    opts.out.check(&input_paths).map_err(Failure::BadInput)?;
     let method = opts.inputs.method().map_err(Failure::BadInput)?;
     if let Some(tfm) = &opts.tfm
         && !matches!(method, Method::Linear(_))
@@ -101,7 +101,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         if tfm == &opts.out.path {
             return Err(Failure::BadInput(anyhow!("{}: --tfm and --out are the same file", tfm.display())));
         }
-        inputs::check_output(tfm, &input_paths, opts.out.force)?;
+        inputs::check_output(tfm, &input_paths, opts.out.force).map_err(Failure::BadInput)?;
     }
 
     let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet).map_err(Failure::BadInput)?;

@@ -9,9 +9,8 @@
 //! method): its errors and warnings name the landmark file and number the pairs as the file does (1-based, inactive
 //! and incomplete pairs counted), not as the fit saw them ([`Correspondences::file_number`]).
 //!
-//! Errors are `anyhow` errors that name the file and the problem; every one is about the input, so the
-//! subcommands exit with 2 on them. The output checks ([`check_output`], [`OutputFile::check`]) return the CLI's
-//! [`Failure`] still, as the window's export chains them with `warp::check_outputs`.
+//! Errors are `anyhow` errors that name the file and the problem; every one is about the input (the output checks,
+//! [`check_output`] and [`OutputFile::check`], included), so the subcommands exit with 2 on them.
 
 use std::path::{Path, PathBuf};
 
@@ -23,8 +22,8 @@ use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 
-use crate::exit::Failure;
 use crate::progress::Bar;
+use crate::settings::MethodKind;
 
 /// Loads a volume (any format `io` reads), with a progress bar unless `quiet`.
 pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
@@ -115,8 +114,7 @@ pub struct PairInputs {
     pub fixed: PathBuf,
     pub moving: PathBuf,
     pub landmarks: LandmarkSource,
-    /// `tps`, `hbspline`, `affine`, `similarity` or `rigid`.
-    pub method: String,
+    pub method: MethodKind,
     pub stiffness: f64,
     pub levels: Option<usize>,
     /// The output grid, when not the fixed volume's.
@@ -143,7 +141,7 @@ impl PairInputs {
 
     /// The method the options name, checked ([`method_from_args`]).
     pub fn method(&self) -> Result<Method> {
-        method_from_args(&self.method, self.stiffness, self.levels)
+        method_from_args(self.method, self.stiffness, self.levels)
     }
 
     /// What messages call the inputs, and `out`.
@@ -271,17 +269,11 @@ pub fn check_pairs(
 }
 
 /// `--method` (with `--stiffness` for TPS and `--levels` for the hierarchical B-spline) as a [`Method`].
-pub fn method_from_args(name: &str, stiffness: f64, levels: Option<usize>) -> Result<Method> {
-    let method = Method::from_name(name)
-        .ok_or_else(|| anyhow!("unknown --method {name:?}; use tps, hbspline, affine, similarity or rigid"))?;
+pub fn method_from_args(kind: MethodKind, stiffness: f64, levels: Option<usize>) -> Result<Method> {
     if !(stiffness.is_finite() && stiffness >= 0.0) {
         return Err(anyhow!("--stiffness {stiffness} must be a number ≥ 0"));
     }
-    Ok(match method {
-        Method::Tps { .. } => Method::Tps { stiffness },
-        Method::BSpline(p) => Method::BSpline(BSplineParams { levels: levels.unwrap_or(p.levels), ..p }),
-        other @ Method::Linear(_) => other,
-    })
+    Ok(kind.method(stiffness, levels.unwrap_or(BSplineParams::default().levels)))
 }
 
 /// The minimum number of pairs each method needs: the solver's ([`Method::needs`]; 4 for TPS, the hierarchical
@@ -300,21 +292,21 @@ pub struct OutputFile {
 
 impl OutputFile {
     /// Refuses to write over an input, or over an existing file without `force`.
-    pub fn check(&self, inputs: &[&Path]) -> std::result::Result<(), Failure> {
+    pub fn check(&self, inputs: &[&Path]) -> Result<()> {
         check_output(&self.path, inputs, self.force)
     }
 }
 
 /// Refuses to write `out` over an input, or over an existing file without `force`.
-pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> std::result::Result<(), Failure> {
+pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
     let canonical = |p: &Path| std::fs::canonicalize(p).ok();
     if let Some(out_c) = canonical(out)
         && inputs.iter().any(|i| canonical(i).as_ref() == Some(&out_c))
     {
-        return Err(Failure::BadInput(anyhow!("{}: refusing to overwrite an input", out.display())));
+        return Err(anyhow!("{}: refusing to overwrite an input", out.display()));
     }
     if out.exists() && !force {
-        return Err(Failure::BadInput(anyhow!("{}: exists; use --force to overwrite it", out.display())));
+        return Err(anyhow!("{}: exists; use --force to overwrite it", out.display()));
     }
     Ok(())
 }

@@ -10,8 +10,8 @@ use warpbench_app::gui::{self, GuiOptions};
 use warpbench_app::info::{self, InfoOptions};
 use warpbench_app::inputs::{LandmarkSource, OutputFile, PairInputs};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
+use warpbench_app::settings::{Blend, MethodKind, Preset, Shading};
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpOptions};
-use warpbench_gpu::ShadingMode;
 use warpbench_gpu::export::Interpolation;
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
@@ -162,9 +162,9 @@ struct PairArgs {
     /// Slicer point list of the fixed points, matched to --moving-points by order.
     #[arg(long)]
     fixed_points: Option<PathBuf>,
-    /// The warp: tps, hbspline, affine, similarity or rigid.
-    #[arg(long, default_value = "tps")]
-    method: String,
+    /// The warp.
+    #[arg(long, value_enum, default_value_t)]
+    method: MethodKind,
     /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
     #[arg(long, default_value_t = 0.0)]
     stiffness: f64,
@@ -290,13 +290,6 @@ fn run_warp(a: WarpArgs) -> Result<(), Failure> {
     Ok(())
 }
 
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum ShadingArg {
-    None,
-    Dvr,
-    Iso,
-}
-
 #[derive(Debug, clap::Args)]
 #[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 struct RenderArgs {
@@ -311,24 +304,24 @@ struct RenderArgs {
     /// Control-texture texels per axis over the fixed box (2..=256).
     #[arg(long, default_value_t = 64)]
     grid: usize,
-    /// mix, additive, difference, checkerboard, red-cyan, fixed-only or moving-only.
-    #[arg(long, default_value = "mix")]
-    blend: String,
+    /// How the fixed and the deformed moving volume combine.
+    #[arg(long, value_enum, default_value_t)]
+    blend: Blend,
     /// Moving weight of the mix blend (0..1).
     #[arg(long, default_value_t = 0.5)]
     mix_weight: f32,
     /// Checkerboard cell size (mm).
     #[arg(long, default_value_t = 12.0)]
     checker_mm: f32,
-    /// Fixed volume preset: ct-bone, ct-soft-tissue, mr-t1 or grey-ramp (default: from the data).
-    #[arg(long)]
-    preset: Option<String>,
+    /// Fixed volume preset (default: from the data).
+    #[arg(long, value_enum)]
+    preset: Option<Preset>,
     /// Moving volume preset (default: from the data).
-    #[arg(long)]
-    moving_preset: Option<String>,
+    #[arg(long, value_enum)]
+    moving_preset: Option<Preset>,
     /// Lighting: none, dvr (shaded volume rendering) or iso (first surface).
-    #[arg(long, value_enum, default_value = "dvr")]
-    shading: ShadingArg,
+    #[arg(long, value_enum, default_value_t)]
+    shading: Shading,
     /// Camera as az,el or az,el,dist: degrees about the superior axis and above the horizon, distance in mm.
     #[arg(long)]
     camera: Option<CameraSpec>,
@@ -426,11 +419,7 @@ fn run_render(a: RenderArgs) -> Result<(), Failure> {
         checker_mm: a.checker_mm,
         preset: a.preset,
         moving_preset: a.moving_preset,
-        shading: match a.shading {
-            ShadingArg::None => ShadingMode::None,
-            ShadingArg::Dvr => ShadingMode::Dvr,
-            ShadingArg::Iso => ShadingMode::Iso,
-        },
+        shading: a.shading,
         camera: a.camera,
         perspective: a.perspective,
         size: a.size,
@@ -469,9 +458,9 @@ struct EvalArgs {
     /// Landmark pairs N.
     #[arg(long, default_value_t = 50)]
     landmarks: usize,
-    /// The fitted warp: tps, hbspline, affine, similarity or rigid.
-    #[arg(long, default_value = "tps")]
-    method: String,
+    /// The fitted warp.
+    #[arg(long, value_enum, default_value_t)]
+    method: MethodKind,
     /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
     #[arg(long, default_value_t = 0.0)]
     stiffness: f64,
@@ -511,9 +500,9 @@ struct EvalArgs {
     /// Suite landmark counts (comma-separated; default 10,20,50,100,200).
     #[arg(long, value_delimiter = ',', requires = "suite")]
     suite_n: Option<Vec<usize>>,
-    /// Suite methods (comma-separated; default tps,hbspline,affine,similarity,rigid).
-    #[arg(long, value_delimiter = ',', requires = "suite")]
-    suite_methods: Option<Vec<String>>,
+    /// Suite methods (comma-separated; default all five).
+    #[arg(long, value_enum, value_delimiter = ',', requires = "suite")]
+    suite_methods: Option<Vec<MethodKind>>,
     /// Markdown file whose generated suite section is replaced (default: print the section).
     #[arg(long, requires = "suite")]
     suite_md: Option<PathBuf>,

@@ -15,7 +15,7 @@ use warpbench_gpu::{
     BlendMode, GlyphDrawData, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, GpuContext,
     GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PrefilterPass,
     PrefilterSettings, PreparedControl, PreparedVolume, Preset, Projection, RaycastDrawData, RaycastRenderer,
-    RenderSettings, RenderTarget, Shading, ShadingMode, SlicePlane, VolumeBudget, pair_glyphs,
+    RenderSettings, RenderTarget, Shading, SlicePlane, VolumeBudget, pair_glyphs,
 };
 use warpbench_io::Volume;
 use warpbench_solver::method::FittedWarp;
@@ -24,7 +24,7 @@ use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
 use crate::inputs::{self, LandmarkSource, OutputFile};
-use crate::{fit, scene};
+use crate::{fit, scene, settings};
 
 /// Which slice of the fixed grid `--slice` asks for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -90,38 +90,25 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     }
 }
 
-/// `--blend`.
-pub fn parse_blend(s: &str, weight: f32, cell_mm: f32) -> Result<BlendMode, Failure> {
-    BlendMode::ALL
-        .into_iter()
-        .find(|b| b.name() == s)
-        .map(|b| match b {
-            BlendMode::Mix { .. } => BlendMode::Mix { moving_weight: weight.clamp(0.0, 1.0) },
-            BlendMode::Checkerboard { .. } => BlendMode::Checkerboard { cell_mm: cell_mm.max(0.1) },
-            other => other,
-        })
-        .ok_or_else(|| {
-            let names: Vec<&str> = BlendMode::ALL.iter().map(|b| b.name()).collect();
-            Failure::BadInput(anyhow!("unknown --blend {s:?}; use one of {}", names.join(", ")))
-        })
-}
-
 /// Options of `warpbench render`.
 #[derive(Clone, Debug)]
 pub struct RenderOptions {
     pub fixed: PathBuf,
     pub moving: Option<PathBuf>,
     pub landmarks: Option<LandmarkSource>,
-    pub method: String,
+    pub method: settings::MethodKind,
     pub stiffness: f64,
     pub levels: Option<usize>,
     pub grid: usize,
-    pub blend: String,
+    pub blend: settings::Blend,
+    /// The moving weight of [`settings::Blend::Mix`], clamped to 0..1.
     pub mix_weight: f32,
+    /// The cell of [`settings::Blend::Checkerboard`] (mm, at least 0.1).
     pub checker_mm: f32,
-    pub preset: Option<String>,
-    pub moving_preset: Option<String>,
-    pub shading: ShadingMode,
+    /// The presets; `None`: chosen from the data ([`scene::auto_style`]).
+    pub preset: Option<settings::Preset>,
+    pub moving_preset: Option<settings::Preset>,
+    pub shading: settings::Shading,
     pub camera: Option<CameraSpec>,
     pub perspective: bool,
     pub size: (u32, u32),
@@ -188,7 +175,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     if let Some(l) = &opts.landmarks {
         inputs_paths.extend(l.paths());
     }
-    opts.out.check(&inputs_paths)?;
+    opts.out.check(&inputs_paths).map_err(Failure::BadInput)?;
     if opts.landmarks.is_some() && opts.moving.is_none() {
         return Err(Failure::BadInput(anyhow!("landmarks need a moving volume (--moving)")));
     }
@@ -198,7 +185,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
 
     // The warp and the glyphs, when there are landmarks.
-    let method = inputs::method_from_args(&opts.method, opts.stiffness, opts.levels).map_err(Failure::BadInput)?;
+    let method = inputs::method_from_args(opts.method, opts.stiffness, opts.levels).map_err(Failure::BadInput)?;
     let mut pullback: Option<FittedWarp<Moving, Fixed>> = None;
     let mut glyph_pairs = Vec::new();
     if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
@@ -228,12 +215,11 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let ctx = GpuContext::headless().map_err(gpu_failure)?;
     let renderer = RaycastRenderer::new(&ctx).map_err(gpu_failure)?;
     let prefilter = match opts.shading {
-        ShadingMode::None => None,
+        settings::Shading::None => None,
         _ => Some(PrefilterPass::new(&ctx).map_err(gpu_failure)?),
     };
-    let preset = opts.preset.as_deref().map(scene::preset_from_name).transpose().map_err(Failure::BadInput)?;
-    let moving_preset =
-        opts.moving_preset.as_deref().map(scene::preset_from_name).transpose().map_err(Failure::BadInput)?;
+    let preset = opts.preset.map(settings::Preset::gpu);
+    let moving_preset = opts.moving_preset.map(settings::Preset::gpu);
     let (fixed_layer, fixed_preset) = upload(&ctx, &fixed, preset, 0, prefilter.as_ref(), opts.quiet)?;
     let moving_layer = match &moving {
         Some(m) => Some(upload(&ctx, m, moving_preset, 1, prefilter.as_ref(), opts.quiet)?),
@@ -269,7 +255,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         None => GpuLayer { style: LayerStyle { visible: false, ..fixed_layer.style }, ..fixed_gpu },
     };
     let blend = if moving.is_some() {
-        parse_blend(&opts.blend, opts.mix_weight, opts.checker_mm)?
+        opts.blend.mode(opts.mix_weight.clamp(0.0, 1.0), opts.checker_mm.max(0.1))
     } else {
         BlendMode::FixedOnly
     };
@@ -277,7 +263,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let settings = RenderSettings {
         blend,
         samples_per_voxel: opts.samples_per_voxel,
-        shading: Shading::with_mode(opts.shading),
+        shading: Shading::with_mode(opts.shading.mode()),
         ..Default::default()
     };
     let glyph_renderer = GlyphRenderer::new(&ctx).map_err(gpu_failure)?;

@@ -43,19 +43,6 @@ pub fn export_samples(data: &VoxelData) -> ExportSamples<'_> {
     }
 }
 
-/// The preset names the CLI and the app accept.
-pub const PRESET_NAMES: [&str; 4] = ["ct-bone", "ct-soft-tissue", "mr-t1", "grey-ramp"];
-
-/// A preset by name ([`PRESET_NAMES`]).
-pub fn preset_from_name(name: &str) -> Result<Preset> {
-    Preset::ALL
-        .into_iter()
-        .zip(PRESET_NAMES)
-        .find(|(_, n)| *n == name)
-        .map(|(p, _)| p)
-        .ok_or_else(|| anyhow!("unknown preset {name:?}; use one of {}", PRESET_NAMES.join(", ")))
-}
-
 /// Whether `v` looks like a CT: DICOM says so, or its values reach into air (below −500, Hounsfield units).
 #[must_use]
 pub fn looks_like_ct(v: &Volume) -> bool {

@@ -201,15 +201,15 @@ fn check_pullback_mode(method: &Method, pullback: PullBackMode) -> Result<(), Fa
 
 /// Refuses outputs `warp` cannot write: `out` not `.nii`/`.nii.gz`, or `out_dicom` an existing folder that is not
 /// empty. (Whether `out` may be replaced is [`OutputFile::check`]'s business.)
-pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> Result<(), Failure> {
+pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> anyhow::Result<()> {
     if !is_nifti_name(out) {
-        return Err(Failure::BadInput(anyhow!("{}: --out must end in .nii or .nii.gz", out.display())));
+        return Err(anyhow!("{}: --out must end in .nii or .nii.gz", out.display()));
     }
     if let Some(dir) = out_dicom
         && dir.exists()
-        && std::fs::read_dir(dir).map_err(|e| Failure::BadInput(anyhow!("{}: {e}", dir.display())))?.next().is_some()
+        && std::fs::read_dir(dir).map_err(|e| anyhow!("{}: {e}", dir.display()))?.next().is_some()
     {
-        return Err(Failure::BadInput(anyhow!("{}: --out-dicom must be a new or empty folder", dir.display())));
+        return Err(anyhow!("{}: --out-dicom must be a new or empty folder", dir.display()));
     }
     Ok(())
 }
@@ -389,8 +389,8 @@ impl Fitted {
 /// Runs `warpbench warp`: loads, fits, resamples, writes (atomically), and reports. The work between loading and
 /// writing is [`resample`]'s.
 pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
-    opts.out.check(&opts.inputs.paths())?;
-    check_outputs(&opts.out.path, opts.out_dicom.as_deref())?;
+    opts.out.check(&opts.inputs.paths()).map_err(Failure::BadInput)?;
+    check_outputs(&opts.out.path, opts.out_dicom.as_deref()).map_err(Failure::BadInput)?;
     let method = opts.inputs.method().map_err(Failure::BadInput)?;
     check_pullback_mode(&method, opts.pullback)?;
     let settings = WarpSettings {

@@ -194,7 +194,7 @@ fn bad_input_exits_2_with_a_message_naming_the_problem() {
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (vec!["--kind", "wobble"], "unknown synthetic warp \"wobble\""),
         (vec!["--landmarks", "4", "--method", "tps"], "--landmarks 4 is too few for tps"),
-        (vec!["--method", "spline"], "unknown --method \"spline\""),
+        (vec!["--method", "spline"], "invalid value 'spline' for '--method <METHOD>'"),
         (vec!["--held-out", "10"], "--held-out 10 is below the minimum of 1000"),
         (vec!["--amplitude-mm", "500"], "amplitude 500 mm is too large"),
         (vec!["--volume", utf8(&missing)], "missing.nii"),

@@ -113,7 +113,7 @@ fn refuses_bad_landmarks_and_unsafe_outputs() {
     expect_bad(&["render", "--fixed", f, "--quiet", "--out", f], "refusing to overwrite an input");
     expect_bad(
         &["render", "--fixed", f, "--blend", "sideways", "--moving", f, "--quiet", "--out", o],
-        "unknown --blend",
+        "invalid value 'sideways' for '--blend <BLEND>'",
     );
     expect_bad(&["render", "--fixed", f, "--landmarks", l, "--quiet", "--out", o], "landmarks need a moving volume");
     std::fs::write(&out_png, b"keep me").expect("write");

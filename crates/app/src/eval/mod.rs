@@ -61,6 +61,7 @@ use warpbench_solver::warp::{Parallelism, Warp};
 pub use report::{EvalReport, SUITE_BEGIN, SUITE_END, SuiteReport};
 
 use crate::exit::Failure;
+use crate::settings::MethodKind;
 use crate::{fit, inputs, scene};
 use sampling::SplitMix64;
 
@@ -114,8 +115,8 @@ pub struct SuiteOptions {
     pub kinds: Vec<String>,
     /// Landmark counts (`--suite-n`).
     pub landmark_counts: Vec<usize>,
-    /// Method names (`--suite-methods`).
-    pub methods: Vec<String>,
+    /// Methods (`--suite-methods`), each with the evaluation's `stiffness` and `levels`.
+    pub methods: Vec<MethodKind>,
     /// The markdown file whose generated section is replaced (created, or appended to, when absent); `None` prints
     /// the section to the output.
     pub markdown: Option<PathBuf>,
@@ -130,7 +131,7 @@ impl SuiteOptions {
         Self {
             kinds: SyntheticKind::ALL.iter().map(|k| k.name().to_owned()).collect(),
             landmark_counts: vec![10, 20, 50, 100, 200],
-            methods: ["tps", "hbspline", "affine", "similarity", "rigid"].map(str::to_owned).to_vec(),
+            methods: MethodKind::ALL.to_vec(),
             markdown: None,
             machine: None,
         }
@@ -146,8 +147,8 @@ pub struct EvalOptions {
     pub amplitude_mm: f64,
     /// N (single evaluation).
     pub landmarks: usize,
-    /// Method by name, with `stiffness` (TPS) and `levels` (hierarchical B-spline).
-    pub method: String,
+    /// The method, with `stiffness` (TPS) and `levels` (hierarchical B-spline).
+    pub method: MethodKind,
     pub stiffness: f64,
     pub levels: Option<usize>,
     pub seed: u64,
@@ -176,7 +177,7 @@ impl EvalOptions {
             kind: "sine".into(),
             amplitude_mm: 10.0,
             landmarks: 50,
-            method: "tps".into(),
+            method: MethodKind::Tps,
             stiffness: 0.0,
             levels: None,
             seed: 1,
@@ -201,7 +202,7 @@ fn bad(message: String) -> Failure {
 pub fn run(opts: &EvalOptions, out: &mut dyn Write) -> Result<(), Failure> {
     let plan = Plan::from_options(opts)?;
     if let Some(json) = &opts.json {
-        inputs::check_output(json, &[&opts.volume], opts.force)?;
+        inputs::check_output(json, &[&opts.volume], opts.force).map_err(Failure::BadInput)?;
     }
     let started = Instant::now();
     let subject = Subject::load(&opts.volume, opts.quiet)?;
@@ -294,9 +295,9 @@ struct Plan {
 
 impl Plan {
     fn from_options(opts: &EvalOptions) -> Result<Self, Failure> {
-        let (kinds, counts, methods): (Vec<String>, Vec<usize>, Vec<String>) = match &opts.suite {
+        let (kinds, counts, methods): (Vec<String>, Vec<usize>, Vec<MethodKind>) = match &opts.suite {
             Some(s) => (s.kinds.clone(), s.landmark_counts.clone(), s.methods.clone()),
-            None => (vec![opts.kind.clone()], vec![opts.landmarks], vec![opts.method.clone()]),
+            None => (vec![opts.kind.clone()], vec![opts.landmarks], vec![opts.method]),
         };
         if opts.suite.is_some() && opts.max_tre_mm.is_some() {
             return Err(bad("--max-tre-mm gates a single evaluation; it cannot be combined with --suite".into()));
@@ -310,7 +311,7 @@ impl Plan {
             .collect::<Result<Vec<_>, _>>()?;
         let methods = methods
             .iter()
-            .map(|m| inputs::method_from_args(m, opts.stiffness, opts.levels))
+            .map(|&m| inputs::method_from_args(m, opts.stiffness, opts.levels))
             .collect::<Result<Vec<_>, _>>()
             .map_err(Failure::BadInput)?;
         for &n in &counts {

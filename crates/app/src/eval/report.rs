@@ -240,7 +240,7 @@ impl SuiteReport {
             control_grid: opts.grid,
             kinds: suite.kinds.clone(),
             landmark_counts: suite.landmark_counts.clone(),
-            methods: suite.methods.clone(),
+            methods: suite.methods.iter().map(|m| m.name().to_owned()).collect(),
             date: utc_date(std::time::SystemTime::now()),
             machine: suite.machine.clone().unwrap_or_else(|| format!("machine with {threads} threads")),
             elapsed_s,

@@ -64,7 +64,7 @@ impl ExportJob {
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
         warp::check_outputs(&out, dicom)
             .and_then(|()| inputs::check_output(&out, &inputs, true))
-            .map_err(|e| format!("{:#}", e.error()))?;
+            .map_err(|e| format!("{e:#}"))?;
         let watch = Arc::new(Watch::default());
         let (tx, rx) = std::sync::mpsc::channel();
         let (worker_watch, worker_kind, worker_out, ctx) = (Arc::clone(&watch), kind.clone(), out.clone(), ctx.clone());
