@@ -70,11 +70,11 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
     let ready = harness.state().ready().expect("loaded");
-    assert_eq!(ready.fitted_pairs(), 5, "the TPS is fitted on the five pairs: {:?}", ready.fit_error);
-    assert!(ready.fit_error.is_none());
+    assert_eq!(ready.fitted_pairs(), 5, "the TPS is fitted on the five pairs: {:?}", ready.fit.error);
+    assert!(ready.fit.error.is_none());
 
     // The table's errors: TPS interpolates (residual ~0); every pair has a leave-one-out error.
-    for (i, e) in ready.errors.iter().enumerate() {
+    for (i, e) in ready.fit.pair_errors.iter().enumerate() {
         let e = e.expect("errors for an active pair");
         assert!(e.residual_mm < 1e-6, "pair {i}: residual {}", e.residual_mm);
         assert!(e.leave_one_out_mm.is_some_and(|l| l > 0.0 && l < 50.0), "pair {i}: {e:?}");
@@ -145,7 +145,7 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.document.settings.method().to_string(), "rigid");
-    assert_eq!(ready.fitted_pairs(), 4, "{:?}", ready.fit_error);
+    assert_eq!(ready.fitted_pairs(), 4, "{:?}", ready.fit.error);
 }
 
 #[test]
@@ -198,7 +198,7 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.placing(), warpbench_app::gui::Placing::Idle);
     assert_eq!(ready.document.pairs.len(), 6, "a sixth pair");
-    assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit_error);
+    assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit.error);
     let pair = ready.document.pairs.last().expect("pair");
     let (p, q) = (pair.moving.expect("source").coords(), pair.fixed.expect("target").coords());
     // Both clicks lie on the axial plane of the fixed grid (voxel centres, 2 mm apart); the source went through the
@@ -221,7 +221,7 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     click_at(&mut harness, view.center());
     click_at(&mut harness, view.center());
     let ready = harness.state().ready().expect("loaded");
-    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     assert_eq!(ready.document.pairs.len(), 7, "a seventh pair from the 3-D view");
     let pair = ready.document.pairs.last().expect("pair");
     let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
@@ -265,9 +265,9 @@ fn suspicious_and_degenerate_pairs_are_named_by_their_rows_in_the_table() {
     }
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    assert!(ready.fit_error.is_none(), "a repeated pair still fits: {:?}", ready.fit_error);
-    assert_eq!(ready.fit_warnings.len(), 1, "{:?}", ready.fit_warnings);
-    assert!(ready.fit_warnings[0].contains("landmarks 3 and 6 are the same pair"), "{:?}", ready.fit_warnings);
+    assert!(ready.fit.error.is_none(), "a repeated pair still fits: {:?}", ready.fit.error);
+    assert_eq!(ready.fit.warnings.len(), 1, "{:?}", ready.fit.warnings);
+    assert!(ready.fit.warnings[0].contains("landmarks 3 and 6 are the same pair"), "{:?}", ready.fit.warnings);
     harness.get_by_label_contains("Warning: landmarks 3 and 6 are the same pair");
     // Row 6 now sends row 3's moving point elsewhere: no warp does that; the status bar says which rows.
     {
@@ -277,7 +277,7 @@ fn suspicious_and_degenerate_pairs_are_named_by_their_rows_in_the_table() {
     }
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    let e = ready.fit_error.clone().expect("refused");
+    let e = ready.fit.error.clone().expect("refused");
     assert!(e.contains("landmarks 3 and 6") && e.contains("moving point"), "{e}");
     assert!(!e.contains("source") && !e.contains("target"), "one vocabulary: {e}");
     harness.get_by_label_contains("warp off:");
@@ -378,7 +378,7 @@ fn a_folding_warp_is_flagged_with_its_location() {
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 700.0));
-    assert!(harness.state().ready().expect("loaded").jacobian.is_some_and(|j| j.min_det > 0.0), "no folding yet");
+    assert!(harness.state().ready().expect("loaded").fit.jacobian.is_some_and(|j| j.min_det > 0.0), "no folding yet");
     assert!(harness.query_by_label_contains("the warp folds").is_none());
     // Two pairs 6 mm apart whose sources cross over (each moves 10 mm past the other): the pull-back folds there.
     {
@@ -389,7 +389,7 @@ fn a_folding_warp_is_flagged_with_its_location() {
         ready.refit();
     }
     harness.run_steps(2);
-    let j = harness.state().ready().expect("loaded").jacobian.expect("a fit");
+    let j = harness.state().ready().expect("loaded").fit.jacobian.expect("a fit");
     assert!(j.min_det <= 0.0 && j.fraction_folded > 0.0, "{j:?}");
     // The minimum lies between the crossing pairs.
     assert!((j.min_at[0] - 3.0).abs() < 15.0 && (j.min_at[2] - 30.0).abs() < 15.0, "{j:?}");
@@ -472,7 +472,7 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert_eq!(ready.document.moving.as_deref(), Some(mri().as_path()));
     assert_eq!(ready.loaded.moving.dims, [91, 109, 91]);
     assert!(!ready.loaded.title.contains("mixed_ct5n_mr_small"), "{}", ready.loaded.title);
-    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     harness.get_by_label("Redo").click();
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
@@ -486,7 +486,7 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.document.fixed.as_deref(), Some(ct.as_path()));
     assert_eq!(ready.document.moving.as_deref(), Some(mri().as_path()));
-    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
 }
 
 #[test]
@@ -550,7 +550,7 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
     assert!((moved[0] - q[0]).abs() > 10.0, "it moved: {q:?} -> {moved:?}");
     // The drag refitted the warp and, once released, the diagnostics.
     assert_eq!(ready.fitted_pairs(), 5);
-    assert!(ready.errors[1].is_some_and(|e| e.leave_one_out_mm.is_some()));
+    assert!(ready.fit.pair_errors[1].is_some_and(|e| e.leave_one_out_mm.is_some()));
     // One drag is one undo step.
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
@@ -573,7 +573,7 @@ fn an_oblique_slice_turns_about_the_crosshair() {
     harness.state_mut().ready_mut().expect("loaded").invalidate();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     let turned = ready.slice_plane(0);
     let dot: f64 = (0..3).map(|i| straight.normal_ref().expect("n")[i] * turned.normal_ref().expect("n")[i]).sum();
     assert!((dot.abs() - 30f64.to_radians().cos()).abs() < 1e-6, "normals at {} deg", dot.abs().acos().to_degrees());
@@ -587,13 +587,13 @@ fn an_oblique_slice_turns_about_the_crosshair() {
 /// Steps until the window's export finishes (or 2 min pass); returns the message it left.
 fn wait_for_export(harness: &mut Harness<'_, Workbench>) -> String {
     let start = Instant::now();
-    while harness.state().ready().expect("loaded").export.is_some() {
+    while harness.state().ready().expect("loaded").files.export.is_some() {
         harness.step();
         assert!(start.elapsed() < Duration::from_mins(2), "the export did not finish");
         std::thread::sleep(Duration::from_millis(20));
     }
     harness.run_steps(2);
-    harness.state().ready().expect("loaded").file_message.clone().unwrap_or_default()
+    harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default()
 }
 
 #[test]
@@ -613,12 +613,12 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     harness.run_steps(2);
     harness.get_by_label("Export warped volume").click();
     harness.run_steps(2);
-    let message = harness.state().ready().expect("loaded").file_message.clone().unwrap_or_default();
+    let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
     assert!(message.contains(".nii"), "{message}");
     assert!(!dir.path().join("warped.txt").exists());
 
     let warped = dir.path().join("warped.nii.gz");
-    harness.state_mut().ready_mut().expect("loaded").export_fields.out = warped.display().to_string();
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = warped.display().to_string();
     harness.run_steps(2);
     harness.get_by_label("Export warped volume").click();
     harness.run_steps(1);
@@ -626,7 +626,7 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     assert!(message.starts_with("wrote ") && message.contains("5 pairs"), "{message}");
 
     let field_out = dir.path().join("field.nii.gz");
-    harness.state_mut().ready_mut().expect("loaded").export_fields.out = field_out.display().to_string();
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = field_out.display().to_string();
     harness.run_steps(2);
     harness.get_by_label("Export displacement field").scroll_to_me();
     harness.run_steps(3);
@@ -822,7 +822,7 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     harness.input_mut().events.push(button(end, false));
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    assert!(ready.fit_error.is_none(), "{:?}", ready.fit_error);
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     assert!((ready.camera.azimuth_rad - camera_before).abs() < 1e-6, "a landmark drag does not orbit the camera");
     let moved = ready.document.pairs[3].fixed.expect("fixed").coords();
     // The pointer went down the screen: the point moved, to the visible surface (picked on the fixed volume), and
@@ -877,7 +877,7 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
         // The GPU's: evaluated into the window's control texture.
         ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
         ready.refit();
-        assert!(ready.fit_error.is_none(), "{method}: {:?}", ready.fit_error);
+        assert!(ready.fit.error.is_none(), "{method}: {:?}", ready.fit.error);
         assert!(ready.viewer.control_made_on_gpu(), "{method}: the texture was not evaluated on the GPU");
         let control = ready.viewer.control.as_ref().expect("a control texture");
         assert_eq!(control.info.dims.map(|d| d as usize), [n; 3]);
@@ -894,7 +894,7 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
             "{method}: worst texel difference {worst} mm (largest displacement {largest} mm)"
         );
         harness.run_steps(2);
-        assert!(harness.state().ready().expect("loaded").fit_error.is_none());
+        assert!(harness.state().ready().expect("loaded").fit.error.is_none());
     }
 }
 

@@ -16,8 +16,8 @@ use super::history::{History, Snapshot};
 use super::load::{Loaded, LoadedPair, Opened};
 use super::viewer::{DeviceFacts, LayerData, Viewer};
 use super::{
-    Command, ControlEval, GuiOptions, Images, Interaction, Ready, autosave, export, open, pacing, panels, save_png,
-    session, side_panel, status, views,
+    Command, ControlEval, Files, FitState, GuiOptions, Images, Interaction, Ready, autosave, open, pacing, panels,
+    save_png, session, side_panel, status, views,
 };
 
 /// A volume read (and maybe prepared) for one side while the other is still being read.
@@ -280,22 +280,14 @@ impl Workbench {
             camera,
             slice_mm: [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)],
             images: Images::default(),
-            fitted: None,
-            fit_error: None,
+            fit: FitState::default(),
             last_render_ms: 0.0,
             frame_rate: pacing::FrameRate::default(),
             interaction: Interaction::Idle,
-            errors: Vec::new(),
-            files: panels::FileFields::default(),
-            file_message: None,
-            jacobian: None,
+            files: Files::default(),
             cursor: None,
             notice: None,
-            fit_pending: false,
-            fit_warnings: Vec::new(),
             selected: None,
-            export: None,
-            export_fields: export::ExportFields::default(),
             control_eval: ControlEval::Auto,
             history: History::new(first),
             ctx: ctx.clone(),
@@ -477,11 +469,11 @@ fn workbench_ui(
     autosave: &mut autosave::Autosave,
 ) {
     ready.frame_rate.tick(std::time::Instant::now());
-    if let Some(job) = &ready.export {
+    if let Some(job) = &ready.files.export {
         match job.poll() {
             Some(result) => {
-                ready.file_message = Some(result.unwrap_or_else(|e| e));
-                ready.export = None;
+                ready.files.message = Some(result.unwrap_or_else(|e| e));
+                ready.files.export = None;
             }
             None => ui.ctx().request_repaint_after(std::time::Duration::from_millis(100)),
         }

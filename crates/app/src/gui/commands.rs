@@ -211,13 +211,13 @@ impl Ready {
         match action {
             FileAction::SaveSession(path) => {
                 let file = self.to_session(true);
-                self.file_message = Some(match session::save(&path, &file) {
+                self.files.message = Some(match session::save(&path, &file) {
                     Ok(()) => format!("saved {}", path.display()),
                     Err(e) => format!("{e:#}"),
                 });
             }
             FileAction::ExportLandmarks(path) => {
-                self.file_message = Some(match panels::export_landmarks(&path, &self.document.pairs) {
+                self.files.message = Some(match panels::export_landmarks(&path, &self.document.pairs) {
                     Ok(()) => format!("wrote {}", path.display()),
                     Err(e) => format!("{e:#}"),
                 });
@@ -229,15 +229,15 @@ impl Ready {
                         eprintln!("warpbench: {e:#}");
                     }
                 });
-                self.file_message = Some("screenshot requested".into());
+                self.files.message = Some("screenshot requested".into());
             }
             FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
                 Ok(pairs) => {
-                    self.file_message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
+                    self.files.message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
                     self.document.pairs = pairs;
                     self.refit_soon();
                 }
-                Err(e) => self.file_message = Some(format!("{e:#}")),
+                Err(e) => self.files.message = Some(format!("{e:#}")),
             },
             FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
             FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
@@ -247,8 +247,8 @@ impl Ready {
     /// Starts exporting the warped moving volume or the displacement field to `out` on a worker thread (one
     /// export at a time), with the current pairs and method.
     fn start_export(&mut self, kind: export::ExportKind, out: PathBuf) {
-        if self.export.is_some() {
-            self.file_message = Some("an export is running: wait for it or cancel it".into());
+        if self.files.export.is_some() {
+            self.files.message = Some("an export is running: wait for it or cancel it".into());
             return;
         }
         let input = export::ExportInput {
@@ -261,10 +261,10 @@ impl Ready {
         };
         match export::ExportJob::start(&self.ctx, kind, out, input) {
             Ok(job) => {
-                self.file_message = None;
-                self.export = Some(job);
+                self.files.message = None;
+                self.files.export = Some(job);
             }
-            Err(e) => self.file_message = Some(e),
+            Err(e) => self.files.message = Some(e),
         }
     }
 
@@ -329,7 +329,7 @@ impl Ready {
             if (!Arc::ptr_eq(volume, &now_volume) || path != now_path)
                 && let Err(e) = self.swap_volume(side, Arc::clone(volume), path, None)
             {
-                self.file_message = Some(format!("restoring the {} volume: {e:#}", side.name()));
+                self.files.message = Some(format!("restoring the {} volume: {e:#}", side.name()));
             }
         }
         self.document = s.document.clone();

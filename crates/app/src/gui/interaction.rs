@@ -209,7 +209,7 @@ impl Ready {
                 self.drag_to(hit.x_ref.map(f64::from), moving);
             }
             Ok(None) => {}
-            Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
+            Err(e) => self.fit.error = Some(format!("picking: {e:#}")),
         }
     }
 
@@ -258,8 +258,8 @@ impl Ready {
                 let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
                 self.place_at_ref(x_ref, moving);
             }
-            Ok(None) => self.fit_error = Some("the click hit nothing: try another point or probe".into()),
-            Err(e) => self.fit_error = Some(format!("picking: {e:#}")),
+            Ok(None) => self.fit.error = Some("the click hit nothing: try another point or probe".into()),
+            Err(e) => self.fit.error = Some(format!("picking: {e:#}")),
         }
     }
 }

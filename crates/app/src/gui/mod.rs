@@ -90,6 +90,36 @@ pub enum ControlEval {
     Gpu,
 }
 
+/// The fitted warp of the window and what its fit found, for the views, the table and the status bar.
+#[derive(Debug, Default)]
+pub struct FitState {
+    fitted: Option<Fitted>,
+    /// The problem of the last fit (or of the last pick or frame), shown in the status bar.
+    pub error: Option<String>,
+    /// Per pair (aligned with `document.pairs`): the fit's residual and leave-one-out error, for the active pairs.
+    pub pair_errors: Vec<Option<panels::PairErrors>>,
+    /// The pull-back's Jacobian over the fixed box after the last fit (folding where det ≤ 0).
+    pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
+    /// What the last fit found suspicious in the pairs (a pair given twice, a nearly flat set), numbered as the
+    /// table's rows.
+    pub warnings: Vec<String>,
+    /// A change asked for a fit at the end of the frame ([`Ready::refit_soon`]).
+    pending: bool,
+}
+
+/// The side panel's file and export section.
+#[derive(Debug, Default)]
+pub struct Files {
+    /// The session, landmark and screenshot paths typed in.
+    pub fields: panels::FileFields,
+    /// The last message of a file action (saved, or the error).
+    pub message: Option<String>,
+    /// The export section's fields.
+    pub export_fields: export::ExportFields,
+    /// The export running on a worker thread.
+    pub export: Option<export::ExportJob>,
+}
+
 /// The window's state once the pair is on the GPU.
 #[derive(Debug)]
 pub struct Ready {
@@ -102,9 +132,8 @@ pub struct Ready {
     pub slice_mm: [f64; 3],
     /// The rendered images and what needs rendering again.
     images: Images,
-    fitted: Option<Fitted>,
-    /// The last fit's problem, shown in the status bar.
-    pub fit_error: Option<String>,
+    /// The fitted warp and what the fit found.
+    pub fit: FitState,
     pub last_render_ms: f64,
     /// The window's frame rate, for the status bar.
     frame_rate: pacing::FrameRate,
@@ -112,14 +141,8 @@ pub struct Ready {
     interaction: Interaction,
     /// Undo and redo.
     pub history: History,
-    /// Per pair (aligned with `document.pairs`): the fit's residual and leave-one-out error, for the active pairs.
-    pub errors: Vec<Option<panels::PairErrors>>,
-    /// The session and landmark file fields of the side panel.
-    pub files: panels::FileFields,
-    /// The last message of a file action (saved, or the error), shown in the side panel.
-    pub file_message: Option<String>,
-    /// The pull-back's Jacobian over the fixed box after the last fit (folding where det ≤ 0).
-    pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
+    /// The side panel's file and export section: its fields, its last message and the running export.
+    pub files: Files,
     /// What the pointer is over in a slice view (the fixed point and the moving point shown there), for the status
     /// bar; a click there stores exactly these points ([`placement`]).
     pub cursor: Option<placement::Cursor>,
@@ -128,17 +151,8 @@ pub struct Ready {
     pub notice: Option<String>,
     /// The pair selected in the table or by clicking its glyph.
     pub selected: Option<usize>,
-    /// The export running on a worker thread.
-    pub export: Option<export::ExportJob>,
-    /// The export section's fields.
-    pub export_fields: export::ExportFields,
     /// Where the control texture is made.
     pub control_eval: ControlEval,
-    /// A change asked for a fit at the end of the frame ([`Self::refit_soon`]).
-    fit_pending: bool,
-    /// What the last fit found suspicious in the pairs (a pair given twice, a nearly flat set), numbered as the
-    /// table's rows.
-    pub fit_warnings: Vec<String>,
     /// The window's egui context, for work that reports back to it (screenshots, exports).
     ctx: egui::Context,
 }
@@ -148,20 +162,20 @@ impl Ready {
     /// than the method needs, the moving volume is shown unwarped and the status bar says why. Then the diagnostics:
     /// residuals, leave-one-out errors and folding.
     pub fn refit(&mut self) {
-        self.fit(true);
+        self.fit_now(true);
     }
 
     /// Fits again once this frame is over ([`Self::refit`]): a change of the document reaches the autosave
     /// before the fit and its diagnostics (many fits on a CPU) run, so what a crash can take is only the time of
     /// the write.
     pub fn refit_soon(&mut self) {
-        self.fit_pending = true;
+        self.fit.pending = true;
         self.invalidate();
     }
 
     /// Runs the fit [`Self::refit_soon`] asked for; true when there was one.
     pub fn fit_if_pending(&mut self) -> bool {
-        let pending = std::mem::take(&mut self.fit_pending);
+        let pending = std::mem::take(&mut self.fit.pending);
         if pending {
             self.refit();
         }
@@ -171,10 +185,10 @@ impl Ready {
     /// The fit of [`Self::refit`] without leave-one-out and folding (N more fits and a Jacobian grid): what a drag
     /// event runs, so that the warp follows the pointer; the diagnostics follow when the drag ends.
     pub fn refit_interactive(&mut self) {
-        self.fit(false);
+        self.fit_now(false);
     }
 
-    fn fit(&mut self, diagnostics: bool) {
+    fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
         let method = self.document.settings.method();
         let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
@@ -193,21 +207,21 @@ impl Ready {
             })
             .unzip();
         if diagnostics {
-            self.errors = vec![None; self.document.pairs.len()];
+            self.fit.pair_errors = vec![None; self.document.pairs.len()];
         }
         // The pairs are checked once here, so that refusals and warnings number them as the table does (the
         // fits below check them again, numbered among the pairs they get).
         let row = |n: usize| used.get(n.wrapping_sub(1)).map_or(n, |&i| i + 1);
         match method.check(&fixed, &moving) {
             Ok(warnings) => {
-                self.fit_warnings = warnings.into_iter().map(|w| w.renumber(row).to_string()).collect();
+                self.fit.warnings = warnings.into_iter().map(|w| w.renumber(row).to_string()).collect();
             }
             Err(e) => {
                 self.viewer.set_control(None);
-                self.fitted = None;
-                self.jacobian = None;
-                self.fit_warnings.clear();
-                self.fit_error = Some(format!("{method}: {}", e.renumber(row)));
+                self.fit.fitted = None;
+                self.fit.jacobian = None;
+                self.fit.warnings.clear();
+                self.fit.error = Some(format!("{method}: {}", e.renumber(row)));
                 return;
             }
         }
@@ -230,9 +244,9 @@ impl Ready {
         match result {
             Ok(fitted) if !diagnostics => {
                 // Keep the last diagnostics until the drag ends.
-                self.errors.resize(self.document.pairs.len(), None);
-                self.fitted = Some(fitted);
-                self.fit_error = None;
+                self.fit.pair_errors.resize(self.document.pairs.len(), None);
+                self.fit.fitted = Some(fitted);
+                self.fit.error = None;
             }
             Ok(fitted) => {
                 // Residuals of the pull-back at the targets, and leave-one-out errors (refits without each pair).
@@ -240,19 +254,19 @@ impl Ready {
                 // TPS in closed form from the one fit; the other methods refit without each pair.
                 let loo = method.leave_one_out(&fixed, &moving, fixed_box, Parallelism::Rayon);
                 for ((&i, r), l) in used.iter().zip(residuals).zip(loo) {
-                    self.errors[i] = Some(panels::PairErrors { residual_mm: r, leave_one_out_mm: l });
+                    self.fit.pair_errors[i] = Some(panels::PairErrors { residual_mm: r, leave_one_out_mm: l });
                 }
                 // Folding: det ∇u on a 32³ grid of cells over the fixed volume's box.
-                self.jacobian =
+                self.fit.jacobian =
                     Some(jacobian_determinants(fitted.pullback.as_ref(), &fixed_box, [32; 3], Parallelism::Rayon));
-                self.fitted = Some(fitted);
-                self.fit_error = None;
+                self.fit.fitted = Some(fitted);
+                self.fit.error = None;
             }
             Err(e) => {
                 self.viewer.set_control(None);
-                self.fitted = None;
-                self.jacobian = None;
-                self.fit_error = Some(format!("{e:#}"));
+                self.fit.fitted = None;
+                self.fit.jacobian = None;
+                self.fit.error = Some(format!("{e:#}"));
             }
         }
     }
@@ -312,7 +326,7 @@ impl Ready {
         let p = self.document.pairs.get(i)?;
         match end {
             End::Fixed => p.fixed.map(|q| q.coords()),
-            End::Moving => p.moving.map(|m| match &self.fitted {
+            End::Moving => p.moving.map(|m| match &self.fit.fitted {
                 Some(f) => f.forward.apply(as_moving(m)).coords(),
                 None => m.coords(),
             }),
@@ -322,7 +336,7 @@ impl Ready {
     /// Number of pairs the current warp was fitted on.
     #[must_use]
     pub fn fitted_pairs(&self) -> usize {
-        self.fitted.as_ref().map_or(0, |f| f.pairs)
+        self.fit.fitted.as_ref().map_or(0, |f| f.pairs)
     }
 
     /// The landmark glyphs drawn over the views (none when landmarks are hidden).
@@ -338,7 +352,7 @@ impl Ready {
             .iter()
             .enumerate()
             .map(|(i, p)| GlyphPair {
-                moving_ref: p.moving.map(|m| match &self.fitted {
+                moving_ref: p.moving.map(|m| match &self.fit.fitted {
                     Some(f) => to_vec(f.forward.apply(as_moving(m)).coords()),
                     None => to_vec(m.coords()),
                 }),
@@ -380,7 +394,7 @@ impl Ready {
     /// warp is fitted).
     #[must_use]
     pub fn moving_shown_at(&self, x_ref: [f64; 3]) -> [f64; 3] {
-        match &self.fitted {
+        match &self.fit.fitted {
             Some(f) => f.pullback.apply_raw(x_ref),
             None => x_ref,
         }

@@ -41,18 +41,19 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
                     Placing::Target { .. } => ui.label("click its partner on the fixed volume"),
                 };
             });
-            commands.extend(panels::landmarks_ui(ui, &ready.document.pairs, &ready.errors, ready.selected));
-            for w in &ready.fit_warnings {
+            commands.extend(panels::landmarks_ui(ui, &ready.document.pairs, &ready.fit.pair_errors, ready.selected));
+            for w in &ready.fit.warnings {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Warning: {w}"));
             }
             ui.separator();
-            commands.extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.errors).map(Command::JumpTo));
+            commands
+                .extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors).map(Command::JumpTo));
             ui.separator();
-            commands.extend(panels::files_ui(ui, &mut ready.files).map(Command::File));
+            commands.extend(panels::files_ui(ui, &mut ready.files.fields).map(Command::File));
             ui.separator();
-            let asked = export::export_ui(ui, &mut ready.export_fields, ready.export.as_ref());
+            let asked = export::export_ui(ui, &mut ready.files.export_fields, ready.files.export.as_ref());
             commands.extend(asked.map(|(kind, out)| Command::Export(kind, out)));
-            if let Some(m) = &ready.file_message {
+            if let Some(m) = &ready.files.message {
                 ui.label(m.as_str());
             }
         });

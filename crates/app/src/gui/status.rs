@@ -37,7 +37,7 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), n.as_str());
                 ui.separator();
             }
-            if let Some(j) = ready.jacobian.as_ref().filter(|j| j.min_det <= 0.0) {
+            if let Some(j) = ready.fit.jacobian.as_ref().filter(|j| j.min_det <= 0.0) {
                 let at = j.min_at;
                 ui.colored_label(
                     egui::Color32::from_rgb(235, 90, 80),
@@ -52,7 +52,7 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                 );
                 ui.separator();
             }
-            match &ready.fit_error {
+            match &ready.fit.error {
                 Some(e) => ui.colored_label(egui::Color32::LIGHT_RED, format!("warp off: {e}")),
                 None => {
                     ui.label(format!("{} fitted on {} pairs", ready.document.settings.method, ready.fitted_pairs()))

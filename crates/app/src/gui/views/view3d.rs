@@ -21,7 +21,7 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
         if let Some(rs) = render_state
             && let Err(e) = ready.render(rs, view_px, interacting)
         {
-            ready.fit_error = Some(format!("rendering: {e:#}"));
+            ready.fit.error = Some(format!("rendering: {e:#}"));
         }
         if let Some(shown) = &ready.images.view {
             let response = ui.add(
