@@ -1,5 +1,8 @@
-//! TPS benchmarks: fit at N = 100 and N = 1000, single-threaded evaluation of a 64³ grid for N = 100, and the
-//! leave-one-out errors at N = 200, in closed form (one solve) and by the N refits it replaces.
+//! TPS benchmarks: fit at N = 100 and N = 1000, single-threaded evaluation of a 64³ grid for N = 100, the
+//! leave-one-out errors at N = 200 (closed form and the N refits it replaces) and N = 1000 (closed form), and one
+//! landmark drag at N = 1000 with the window's 48³ control texture ([`warpbench_solver::tps_drag`]): one event of
+//! a moving point, one of a fixed point, the drag's start, and the full refit of both directions plus the texture
+//! that an event cost before.
 //!
 //! `cargo bench -p warpbench-solver --bench tps -- --warm-up-time 1 --measurement-time 3`
 
@@ -9,9 +12,11 @@ use criterion::{Criterion, criterion_group, criterion_main};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use warpbench_io::geometry::Point3;
+use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::diagnostics::leave_one_out as refit_leave_one_out;
-use warpbench_solver::tps::{Regularisation, Tps, fit_pullback, leave_one_out};
-use warpbench_solver::{Fixed, Moving, Parallelism};
+use warpbench_solver::tps::{Regularisation, Tps, fit_forward, fit_pullback, leave_one_out};
+use warpbench_solver::tps_drag::{DraggedEnd, PairDrag};
+use warpbench_solver::{Aabb, Fixed, Moving, Parallelism};
 
 /// N landmark pairs in a 200 mm box with a smooth ~10 mm displacement.
 fn landmarks(n: usize, seed: u64) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
@@ -75,7 +80,46 @@ fn bench_leave_one_out(c: &mut Criterion) {
         });
     });
     group.finish();
+    let (moving, fixed) = landmarks(1000, 13);
+    c.bench_function("tps_leave_one_out_n1000_closed_form", |b| {
+        b.iter(|| leave_one_out(black_box(&fixed), black_box(&moving), reg).expect("leave-one-out"));
+    });
 }
 
-criterion_group!(benches, bench_fit, bench_eval, bench_leave_one_out);
+/// One drag event at N = 1000 with a 48³ texture over a 240 mm box: the fast paths and the full refit they replace.
+fn bench_drag(c: &mut Criterion) {
+    let (moving, fixed) = landmarks(1000, 17);
+    let reg = Regularisation::Smoothing(0.0);
+    let grid = ControlGrid::cube(48, Aabb::new(Point3::new(-120.0, -120.0, -120.0), Point3::new(120.0, 120.0, 120.0)))
+        .expect("grid");
+    let pair = 0;
+    let mut texels = vec![[0.0f32; 4]; grid.texel_count()];
+    for (end, name) in [(DraggedEnd::Moving, "moving"), (DraggedEnd::Fixed, "fixed")] {
+        let drag = PairDrag::new(&fixed, &moving, pair, end, reg, grid).expect("drag");
+        let start = if end == DraggedEnd::Moving { moving[pair].coords() } else { fixed[pair].coords() };
+        let mut e = 0;
+        c.bench_function(&format!("tps_drag_event_{name}_point_n1000_48cubed"), |b| {
+            b.iter(|| {
+                e += 1;
+                let to = [start[0] + 0.5 * f64::from(e % 7), start[1], start[2]];
+                drag.step(black_box(to), &mut texels).expect("step")
+            });
+        });
+    }
+    let mut group = c.benchmark_group("slow");
+    group.sample_size(10);
+    group.bench_function("tps_drag_start_n1000_48cubed", |b| {
+        b.iter(|| PairDrag::new(black_box(&fixed), &moving, pair, DraggedEnd::Fixed, reg, grid).expect("drag"));
+    });
+    group.bench_function("tps_refit_both_and_texture_n1000_48cubed", |b| {
+        b.iter(|| {
+            let u = fit_pullback(black_box(&moving), black_box(&fixed), reg).expect("fit");
+            let d = fit_forward(black_box(&moving), black_box(&fixed), reg).expect("fit");
+            (ControlTexture::sample(&u, grid), d)
+        });
+    });
+    group.finish();
+}
+
+criterion_group!(benches, bench_fit, bench_eval, bench_leave_one_out, bench_drag);
 criterion_main!(benches);

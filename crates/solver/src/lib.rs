@@ -7,6 +7,7 @@
 //! Every function says which direction it computes; the types say it too ([`spaces`]).
 //!
 //! - [`tps`]: thin-plate spline with the 3-D kernel U(r) = r and a stiffness λ.
+//! - [`tps_drag`]: one landmark of a TPS pair dragged in O(N²) per event (factorisation kept, rank-2 updates).
 //! - [`bspline`]: hierarchical (multilevel) cubic B-spline approximation (Lee, Wolberg & Shin 1997).
 //! - [`linear`]: affine, similarity and rigid least-squares fits (Umeyama 1991) and the predicted TRE.
 //! - [`invert`]: an approximate inverse of a forward warp by scattered-data interpolation.
@@ -28,6 +29,7 @@ pub mod pairs;
 pub mod spaces;
 pub mod synthetic;
 pub mod tps;
+pub mod tps_drag;
 pub mod warp;
 
 pub use error::{Result, SolverError};

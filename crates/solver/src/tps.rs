@@ -199,11 +199,11 @@ pub fn fit_pullback(
 }
 
 /// Points as raw LPS coordinates, in the order of the pairs.
-type RawPoints = Vec<[f64; 3]>;
+pub(crate) type RawPoints = Vec<[f64; 3]>;
 
 /// What every TPS entry point checks first (the regularisation, the pairs by [`pairs::validate`], the size limit),
 /// and the distinct pairs as raw coordinates (a repeated pair counts once).
-fn checked_pairs<To: Space, From: Space>(
+pub(crate) fn checked_pairs<To: Space, From: Space>(
     src: &[Point3<From>],
     dst: &[Point3<To>],
     regularisation: Regularisation,
@@ -338,7 +338,13 @@ impl<To: Space, From: Space> Tps<To, From> {
         Ok(Self::from_raw(&p, weights, a, b, Regularisation::Interpolate))
     }
 
-    fn from_raw(p: &[[f64; 3]], w: &[[f64; 3]], a: Matrix3<f64>, b: [f64; 3], regularisation: Regularisation) -> Self {
+    pub(crate) fn from_raw(
+        p: &[[f64; 3]],
+        w: &[[f64; 3]],
+        a: Matrix3<f64>,
+        b: [f64; 3],
+        regularisation: Regularisation,
+    ) -> Self {
         let mut blocks = vec![Block::default(); p.len().div_ceil(LANES)];
         for (i, (pi, wi)) in p.iter().zip(w).enumerate() {
             let (blk, l) = (&mut blocks[i / LANES], i % LANES);
@@ -466,7 +472,7 @@ impl<To: Space, From: Space> Tps<To, From> {
     }
 
     /// Checks the fitted system: finite coefficients, and a small backward error of f(pᵢ) + λwᵢ = qᵢ.
-    fn check_solution(&self, p: &[[f64; 3]], q: &[[f64; 3]], s: &Solution) -> Result<()> {
+    pub(crate) fn check_solution(&self, p: &[[f64; 3]], q: &[[f64; 3]], s: &Solution) -> Result<()> {
         let coeffs_finite = s.w.iter().flatten().chain(self.a.iter()).chain(&self.b).all(|v| v.is_finite());
         if !coeffs_finite {
             return Err(SolverError::Degenerate("the TPS system gave non-finite coefficients".into()));
@@ -522,7 +528,7 @@ impl<To: Space, From: Space> Warp<To, From> for Tps<To, From> {
 
 /// The centroid and RMS radius of `p`, which scale the affine block. [`pairs::validate`] has refused coincident,
 /// collinear and coplanar sets, so the radius is positive; it is checked anyway, as the solve divides by it.
-fn centre_and_scale(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
+pub(crate) fn centre_and_scale(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
     let n = p.len() as f64;
     let mut c = [0.0; 3];
     for pi in p {
@@ -540,29 +546,29 @@ fn centre_and_scale(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
 }
 
 /// The solved coefficients: weights per centre and the affine part in raw mm.
-struct Solution {
-    w: Vec<[f64; 3]>,
-    a: Matrix3<f64>,
-    b: [f64; 3],
+pub(crate) struct Solution {
+    pub(crate) w: Vec<[f64; 3]>,
+    pub(crate) a: Matrix3<f64>,
+    pub(crate) b: [f64; 3],
     /// Largest source extent (bounding-box diagonal), mm; scales the residual check.
-    diameter: f64,
+    pub(crate) diameter: f64,
 }
 
 /// A Householder reflector H = I − τ v vᵀ (v zero above its pivot).
-struct Reflector {
+pub(crate) struct Reflector {
     v: DVector<f64>,
     tau: f64,
 }
 
 impl Reflector {
     /// Applies H from the left to every column of `m`.
-    fn apply_left(&self, m: &mut DMatrix<f64>) {
+    pub(crate) fn apply_left(&self, m: &mut DMatrix<f64>) {
         let vt_m = self.v.transpose() * &*m;
         m.ger(-self.tau, &self.v, &vt_m.transpose(), 1.0);
     }
 
     /// S ← H S H for symmetric S, as the rank-2 update S − v zᵀ − z vᵀ with z = τ S v − (τ² vᵀSv / 2) v.
-    fn apply_both(&self, s: &mut DMatrix<f64>) {
+    pub(crate) fn apply_both(&self, s: &mut DMatrix<f64>) {
         let u = &*s * &self.v;
         let gamma = self.v.dot(&u);
         let z = u * self.tau - &self.v * (0.5 * self.tau * self.tau * gamma);
@@ -572,7 +578,7 @@ impl Reflector {
 }
 
 /// Householder QR of the N×4 matrix P̂ (in place): returns the 4 reflectors and R (4×4, upper).
-fn householder_qr(p_hat: &mut DMatrix<f64>) -> Result<(Vec<Reflector>, nalgebra::Matrix4<f64>)> {
+pub(crate) fn householder_qr(p_hat: &mut DMatrix<f64>) -> Result<(Vec<Reflector>, nalgebra::Matrix4<f64>)> {
     let n = p_hat.nrows();
     let mut reflectors = Vec::with_capacity(4);
     for k in 0..4 {
@@ -694,7 +700,7 @@ fn solve(
 /// it positive definite (Cholesky of M) or indefinite (LU with partial pivoting). Each factor is checked by
 /// its pivot ratio ([`PIVOT_RTOL`]) and by an estimate of 1/cond(M) from one solve with a fixed ±1 probe
 /// (‖v‖ / (‖M‖_F ‖M⁻¹v‖) ≥ 1/(√n·cond₂), [`RCOND_MIN`]).
-fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result<(DMatrix<f64>, Factor)> {
+pub(crate) fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result<(DMatrix<f64>, Factor)> {
     let pivot_ratio = |diag: &DVector<f64>, power: i32| {
         let (lo, hi) = diag.iter().fold((f64::INFINITY, 0.0_f64), |(lo, hi), d| (lo.min(d.abs()), hi.max(d.abs())));
         if hi > 0.0 { (lo / hi).powi(power) } else { 0.0 }
@@ -747,7 +753,7 @@ fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64) -> Result
 }
 
 /// A factorisation of the reduced matrix M = Q₂ᵀ(K + dI)Q₂ ([`solve_symmetric`]).
-enum Factor {
+pub(crate) enum Factor {
     /// −M = L Lᵀ.
     NegCholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
     Cholesky(nalgebra::Cholesky<f64, nalgebra::Dyn>),
@@ -756,7 +762,7 @@ enum Factor {
 
 impl Factor {
     /// X ← M⁻¹ X; false when the LU factor is singular.
-    fn solve_in_place<S>(&self, x: &mut nalgebra::Matrix<f64, nalgebra::Dyn, nalgebra::Dyn, S>) -> bool
+    pub(crate) fn solve_in_place<S>(&self, x: &mut nalgebra::Matrix<f64, nalgebra::Dyn, nalgebra::Dyn, S>) -> bool
     where
         S: nalgebra::StorageMut<f64, nalgebra::Dyn, nalgebra::Dyn>,
     {

@@ -1,0 +1,161 @@
+//! The drag fast path of `tps_drag` against the slow path it replaces: both warps refitted in full with the dragged
+//! point moved, and the control texture sampled again from the refitted pull-back.
+
+use nalgebra::DMatrix;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use warpbench_io::geometry::Point3;
+use warpbench_solver::control::{ControlGrid, ControlTexture};
+use warpbench_solver::tps::{Regularisation, Tps};
+use warpbench_solver::tps_drag::{DraggedEnd, FactoredTps, PairDrag};
+use warpbench_solver::{Aabb, Fixed, Moving, Warp};
+
+/// Largest accepted difference between a fast-path warp and the full refit, mm (the bound).
+const WARP_TOL_MM: f64 = 1e-6;
+
+/// N pairs in a 200 mm box, the moving points a smooth ~10 mm displacement of the fixed ones.
+fn pairs(n: usize, seed: u64) -> (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let fixed: Vec<Point3<Fixed>> = (0..n)
+        .map(|_| {
+            Point3::new(
+                rng.random_range(-100.0..100.0),
+                rng.random_range(-100.0..100.0),
+                rng.random_range(-100.0..100.0),
+            )
+        })
+        .collect();
+    let moving = fixed
+        .iter()
+        .map(|q| {
+            let [x, y, z] = q.coords();
+            Point3::new(x + 10.0 * (y / 40.0).sin(), y + 10.0 * (z / 50.0).cos(), z + 8.0 * (x / 60.0).sin())
+        })
+        .collect();
+    (fixed, moving)
+}
+
+fn grid() -> ControlGrid {
+    ControlGrid::cube(24, Aabb::new(Point3::new(-120.0, -110.0, -115.0), Point3::new(118.0, 112.0, 109.0)))
+        .expect("grid")
+}
+
+fn probes(count: usize, seed: u64) -> Vec<[f64; 3]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    (0..count).map(|_| std::array::from_fn(|_| rng.random_range(-130.0..130.0))).collect()
+}
+
+fn worst<To: warpbench_io::geometry::Space, From: warpbench_io::geometry::Space>(
+    a: &Tps<To, From>,
+    b: &Tps<To, From>,
+    at: &[[f64; 3]],
+) -> f64 {
+    at.iter()
+        .map(|x| {
+            let (u, v) = (a.apply_raw(*x), b.apply_raw(*x));
+            (0..3).map(|k| (u[k] - v[k]).abs()).fold(0.0, f64::max)
+        })
+        .fold(0.0, f64::max)
+}
+
+/// Drags pair `pair`'s `end` through `steps` and compares every event with the full refits.
+fn check_drag(n: usize, seed: u64, end: DraggedEnd, regularisation: Regularisation) {
+    let (mut fixed, mut moving) = pairs(n, seed);
+    let pair = n / 3;
+    let g = grid();
+    let drag = PairDrag::new(&fixed, &moving, pair, end, regularisation, g).expect("drag state");
+    let at = probes(400, seed + 1);
+    let mut texels = vec![[0.0f32; 4]; g.texel_count()];
+    let (start_q, start_p) = (fixed[pair].coords(), moving[pair].coords());
+    for (e, step) in [[0.5, 0.0, 0.0], [3.0, -2.0, 1.0], [-8.0, 5.5, 12.0], [0.01, 0.02, -0.03]].iter().enumerate() {
+        let start = if end == DraggedEnd::Moving { start_p } else { start_q };
+        let to = [start[0] + step[0], start[1] + step[1], start[2] + step[2]];
+        match end {
+            DraggedEnd::Moving => moving[pair] = Point3::new(to[0], to[1], to[2]),
+            DraggedEnd::Fixed => fixed[pair] = Point3::new(to[0], to[1], to[2]),
+        }
+        let fast = drag.step(to, &mut texels).expect("fast step");
+        let pullback = Tps::<Moving, Fixed>::fit_regularised(&fixed, &moving, regularisation).expect("refit u");
+        let forward = Tps::<Fixed, Moving>::fit_regularised(&moving, &fixed, regularisation).expect("refit d");
+        let (du, dd) = (worst(&fast.pullback, &pullback, &at), worst(&fast.forward, &forward, &at));
+        assert!(du <= WARP_TOL_MM, "N = {n}, {end:?} event {e}: pull-back differs by {du:e} mm");
+        assert!(dd <= WARP_TOL_MM, "N = {n}, {end:?} event {e}: forward warp differs by {dd:e} mm");
+        // The texture against a full re-sample of the refitted pull-back: f32 texels, so within a few f32 steps of
+        // the displacements' size.
+        let full = ControlTexture::sample(&pullback, g);
+        let (mut diff, mut size) = (0.0f32, 0.0f32);
+        for (a, b) in texels.iter().zip(&full.texels) {
+            for k in 0..4 {
+                diff = diff.max((a[k] - b[k]).abs());
+                size = size.max(b[k].abs());
+            }
+        }
+        let tol = 8.0 * f32::EPSILON * size;
+        assert!(diff <= tol, "N = {n}, {end:?} event {e}: texture differs by {diff:e} mm (tolerance {tol:e})");
+    }
+}
+
+#[test]
+fn moving_point_drags_match_full_refits() {
+    check_drag(50, 3, DraggedEnd::Moving, Regularisation::Smoothing(0.0));
+    check_drag(300, 4, DraggedEnd::Moving, Regularisation::Smoothing(0.0));
+}
+
+#[test]
+fn fixed_point_drags_match_full_refits() {
+    check_drag(50, 5, DraggedEnd::Fixed, Regularisation::Smoothing(0.0));
+    check_drag(300, 6, DraggedEnd::Fixed, Regularisation::Smoothing(0.0));
+}
+
+#[test]
+fn smoothing_drags_match_full_refits() {
+    check_drag(50, 7, DraggedEnd::Moving, Regularisation::Smoothing(2.0));
+    check_drag(50, 8, DraggedEnd::Fixed, Regularisation::Smoothing(2.0));
+}
+
+/// L x = b for the explicitly assembled L = [K + dI, P; Pᵀ, 0] (raw coordinates: P̂ spans the same columns, so the
+/// weights agree and the kernel rows of the residual must vanish).
+#[test]
+fn solve_inverts_the_assembled_system() {
+    let (fixed, moving) = pairs(40, 9);
+    let reg = Regularisation::Smoothing(0.5);
+    let sys = FactoredTps::<Moving, Fixed>::fit(&fixed, &moving, reg).expect("fit");
+    let n = fixed.len();
+    let q: Vec<[f64; 3]> = fixed.iter().map(Point3::coords).collect();
+    let mut rng = ChaCha8Rng::seed_from_u64(10);
+    let mut rhs = DMatrix::<f64>::from_fn(n + 4, 2, |i, _| if i < n { rng.random_range(-1.0..1.0) } else { 0.0 });
+    let b = rhs.clone();
+    assert!(sys.solve_in_place(&mut rhs));
+    // Kernel rows: Σⱼ (K + dI)ᵢⱼ wⱼ + affine(qᵢ) = bᵢ; constraint rows: Σ wⱼ = 0, Σ wⱼ qⱼ = 0.
+    // Kernel rows: (K + dI) W + P̂ Â = B, and P̂ spans the columns of P = [qᵢᵀ 1], so B − (K + dI) W must lie in
+    // that span; constraint rows: Pᵀ W = 0.
+    let k = DMatrix::from_fn(n, n, |i, j| {
+        if i == j { reg.k_diagonal() } else { (0..3).map(|a| (q[i][a] - q[j][a]).powi(2)).sum::<f64>().sqrt() }
+    });
+    let p = DMatrix::from_fn(n, 4, |i, a| if a < 3 { q[i][a] } else { 1.0 });
+    let w = rhs.rows(0, n).clone_owned();
+    let target = b.rows(0, n) - &k * &w;
+    let coef = (p.transpose() * &p).lu().solve(&(p.transpose() * &target)).expect("normal equations");
+    let off_span = (target - &p * coef).amax();
+    let constraint = (p.transpose() * &w).amax();
+    assert!(off_span < 1e-9, "kernel rows: residual {off_span:e}");
+    assert!(constraint < 1e-9, "constraint rows: residual {constraint:e}");
+}
+
+#[test]
+fn a_point_dragged_onto_another_is_refused() {
+    let (fixed, moving) = pairs(30, 11);
+    let g = grid();
+    let mut texels = vec![[0.0f32; 4]; g.texel_count()];
+    let drag = PairDrag::new(&fixed, &moving, 2, DraggedEnd::Fixed, Regularisation::Interpolate, g).expect("drag");
+    assert!(drag.step(fixed[5].coords(), &mut texels).is_err());
+    assert!(drag.step([f64::NAN, 0.0, 0.0], &mut texels).is_err());
+    let drag = PairDrag::new(&fixed, &moving, 2, DraggedEnd::Moving, Regularisation::Interpolate, g).expect("drag");
+    assert!(drag.step(moving[7].coords(), &mut texels).is_err());
+    assert!(drag.step(moving[2].coords(), &mut texels).is_ok(), "no move at all is fine");
+    // Pairs given twice cannot be dragged apart by the fast path.
+    let (mut f2, mut m2) = (fixed.clone(), moving.clone());
+    f2.push(fixed[0]);
+    m2.push(moving[0]);
+    assert!(PairDrag::new(&f2, &m2, 0, DraggedEnd::Fixed, Regularisation::Interpolate, g).is_err());
+}
