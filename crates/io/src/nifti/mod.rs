@@ -168,10 +168,11 @@ enum Extent {
 /// Deflate's largest expansion: 258-byte matches coded in about 2 bits give about 1032:1.
 const MAX_DEFLATE_RATIO: u64 = 1032;
 
-/// A NIfTI file opened for reading: buffered, and through a gzip decoder when it starts with gzip's magic bytes.
+/// A NIfTI file opened for reading: buffered, and through a gzip decoder when it starts with gzip's magic bytes
+/// (boxed: zlib-rs's inflate state is a few hundred bytes).
 enum FileSource {
     Plain(BufReader<File>),
-    Gzip(MultiGzDecoder<BufReader<File>>),
+    Gzip(Box<MultiGzDecoder<BufReader<File>>>),
 }
 
 impl Read for FileSource {
@@ -202,7 +203,7 @@ fn open_file(path: &Path) -> Result<(FileSource, Extent)> {
     let n = crate::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
     file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
     Ok(if n == 2 && magic == GZIP_MAGIC {
-        (FileSource::Gzip(MultiGzDecoder::new(BufReader::new(file))), Extent::Gzip(file_len))
+        (FileSource::Gzip(Box::new(MultiGzDecoder::new(BufReader::new(file)))), Extent::Gzip(file_len))
     } else {
         (FileSource::Plain(BufReader::new(file)), Extent::Exact(file_len))
     })
