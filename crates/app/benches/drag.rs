@@ -4,15 +4,21 @@
 //! with the landmark glyphs ([`warpbench_app::gui::viewer::Viewer`]), waiting for the GPU to finish.
 //!
 //! The pair is the demo pair (the Colin27 MRI as fixed, the Cranium CT as moving, from `tests/data/nifti`), with N
-//! seeded pairs in the central 80 % of the fixed box and a smooth 5 mm displacement; each event moves one fixed point
-//! by 0.5 mm, as a drag does. Reports the mean and best event time and its parts (fit + texture, upload + frame).
+//! seeded pairs in the central 80 % of the fixed box and a smooth 5 mm displacement; each event moves pair 0's fixed
+//! point (or, with `--end moving`, its moving point) by 0.5 mm, as a drag does. With a TPS and the texture on the CPU
+//! the events go through [`warpbench_app::fit::DragFit`] as the window's do: its start (both directions factorised
+//! and the drag's texture) is timed once, then each event is its O(N²) step; `--full-refit` times today's full
+//! [`warpbench_app::fit::fit_warp`] per event instead. Reports the mean and best event time and its parts (fit +
+//! texture, upload + frame).
 //!
 //! ```sh
 //! cargo bench -p warpbench-app --bench drag
 //! cargo bench -p warpbench-app --bench drag -- --size 1920x1080 --pairs 100 --events 20
+//! cargo bench -p warpbench-app --bench drag -- --pairs 1000 --events 10 --end moving
 //! ```
 //!
-//! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--method NAME` (tps; also
+//! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--end fixed|moving` (fixed),
+//! `--full-refit` (no drag fast path), `--method NAME` (tps; also
 //! hbspline, affine, similarity, rigid; `--gpu-eval` takes tps and hbspline), `--grid N` (control texture
 //! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
 //! texture evaluated on the GPU by `fit::fit_warp_on_gpu`, as the window does on a real GPU), `--gpu-prefilter`
@@ -25,7 +31,7 @@
 
 use std::time::{Duration, Instant};
 
-use warpbench_app::fit::{self, fit_warp, fit_warp_on_gpu};
+use warpbench_app::fit::{self, DragFit, fit_warp, fit_warp_on_gpu};
 use warpbench_app::gui::demo;
 use warpbench_app::gui::pacing::{Bands, interactive_size};
 use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
@@ -37,6 +43,7 @@ use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::tps_drag::DraggedEnd;
 use warpbench_solver::warp::Warp;
 
 struct Options {
@@ -49,6 +56,17 @@ struct Options {
     refine: bool,
     method: Method,
     gpu_prefilter: bool,
+    end: DraggedEnd,
+    event_fit: EventFit,
+}
+
+/// How a TPS drag event fits, the texture on the CPU.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum EventFit {
+    /// Through [`DragFit`], as the window does.
+    DragFastPath,
+    /// [`fit_warp`] on every event (`--full-refit`), as the window did before.
+    FullRefit,
 }
 
 fn options() -> Result<Options, String> {
@@ -62,6 +80,8 @@ fn options() -> Result<Options, String> {
         refine: false,
         method: Method::Tps { stiffness: 0.0 },
         gpu_prefilter: false,
+        end: DraggedEnd::Fixed,
+        event_fit: EventFit::DragFastPath,
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -82,6 +102,14 @@ fn options() -> Result<Options, String> {
             "--gpu-eval" => o.gpu_eval = true,
             "--refine" => o.refine = true,
             "--gpu-prefilter" => o.gpu_prefilter = true,
+            "--full-refit" => o.event_fit = EventFit::FullRefit,
+            "--end" => {
+                o.end = match value()?.as_str() {
+                    "fixed" => DraggedEnd::Fixed,
+                    "moving" => DraggedEnd::Moving,
+                    v => return Err(format!("--end {v}: fixed or moving")),
+                }
+            }
             "--method" => {
                 let v = value()?;
                 o.method = Method::from_name(v).ok_or_else(|| format!("--method {v}: tps, hbspline, affine, ...?"))?;
@@ -175,16 +203,31 @@ fn main() {
     let method = o.method;
     let boxes =
         (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));
-    let (mut q, p) = pairs(&fixed, o.pairs);
-    let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
+    let (mut q, mut p) = pairs(&fixed, o.pairs);
+    let fast = !o.gpu_eval && o.event_fit == EventFit::DragFastPath && matches!(method, Method::Tps { .. });
+    let (mut drag, mut drag_start) = (None::<DragFit>, Duration::ZERO);
+    let (q0, p0) = (q[0].coords(), p[0].coords());
 
     let mut event = |e: usize| -> (Duration, Duration) {
-        // The drag: pair 0's fixed point moves 0.5 mm along L.
-        let c = q[0].coords();
-        q[0] = Point3::new(c[0] + 0.5 * (e % 7) as f64, c[1], c[2]);
+        // The drag: pair 0's point moves 0.5 mm along L.
+        match o.end {
+            DraggedEnd::Fixed => q[0] = Point3::new(q0[0] + 0.5 * (e % 7) as f64, q0[1], q0[2]),
+            DraggedEnd::Moving => p[0] = Point3::new(p0[0] + 0.5 * (e % 7) as f64, p0[1], p0[2]),
+        }
         let t0 = Instant::now();
         let fixed_pts: Vec<_> = q.iter().copied().map(as_fixed).collect();
-        let fitted = if o.gpu_eval {
+        let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
+        if fast && drag.is_none() {
+            // The drag's first event, as the window starts it.
+            let start = DragFit::start(&method, &fixed_pts, &moving_pts, boxes.0, o.grid, (0, o.end));
+            drag = Some(start.expect("a TPS").unwrap_or_else(|e| panic!("{e:#}")));
+            drag_start = t0.elapsed();
+        }
+        let fitted = if let Some(drag) = &drag {
+            let (fitted, prepared) = drag.event(&fixed_pts, &moving_pts, filterable).expect("the drag's fast path");
+            viewer.set_control(Some(&prepared));
+            Ok(fitted)
+        } else if o.gpu_eval {
             fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer)
         } else {
             fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable).map(|(fitted, prepared)| {
@@ -225,6 +268,7 @@ fn main() {
     }
     // The two fits alone: with --gpu-eval, what a drag event leaves on the CPU besides the pick.
     let fixed_pts: Vec<_> = q.iter().copied().map(as_fixed).collect();
+    let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
     let fits = (0..o.events.max(5))
         .map(|_| {
             let t = Instant::now();
@@ -264,6 +308,14 @@ fn main() {
         ms(fit_sum / n),
         ms(frame_sum / n)
     );
+    if fast {
+        println!(
+            "drag fast path ({} point, fit::DragFit): started once in {:.1} ms (both directions factorised and the \
+             drag's texture), then each event above is its step",
+            if o.end == DraggedEnd::Fixed { "fixed" } else { "moving" },
+            ms(drag_start)
+        );
+    }
     println!("the two fits alone (pull-back and forward, CPU): best {:.2} ms", ms(fits));
     if o.refine {
         refine(&viewer, &camera, &settings, o.size);

@@ -11,6 +11,8 @@
 //! - The CLI's pair subcommands fit pairs checked against the volumes ([`Correspondences`]): [`pullback_of`] and
 //!   [`forward_of`], whose errors read `<landmark file>: fitting the <method> warp: <problem>` with the pairs
 //!   numbered as in the file ([`fit_error`]), and [`fit_warnings`].
+//! - A landmark drag with a TPS: [`DragFit`] keeps both directions factorised from the drag's first event and gives
+//!   each further event in O(N²) ([`warpbench_solver::tps_drag`]), the same warps as [`fit_warp`] to 1e-6 mm.
 //! - What the GPU takes: [`control_texture`] (the pull-back sampled over a box; a B-spline through its lattice's
 //!   separable sampler), [`TpsParts`] (a TPS, evaluated exactly per voxel by the export or into a control texture by
 //!   the GPU), [`lattice_desc`] (a B-spline's lattice) and [`control_grid_desc`].
@@ -25,7 +27,8 @@ use warpbench_solver::bspline::HierarchicalBSpline;
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
-use warpbench_solver::tps::Tps;
+use warpbench_solver::tps::{Regularisation, Tps};
+use warpbench_solver::tps_drag::{DraggedEnd, PairDrag};
 
 use crate::gui::viewer::Viewer;
 use crate::inputs::{self, Correspondences};
@@ -61,6 +64,9 @@ pub struct Fitted {
     pub forward: FittedWarp<Fixed, Moving>,
     /// How many pairs both were fitted on.
     pub pairs: usize,
+    /// The pairs both were fitted on, for telling which point a drag moves ([`moved_point`]).
+    pub fixed: Vec<Point3<Fixed>>,
+    pub moving: Vec<Point3<Moving>>,
 }
 
 impl fmt::Debug for Fitted {
@@ -89,7 +95,106 @@ pub fn fit_warp(
     let (grid, texture) = control_texture(&pullback, fixed_box, grid_n)?;
     let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
         .map_err(|e| anyhow!("{e}"))?;
-    Ok((Fitted { pullback, forward, pairs: moving.len() }, prepared))
+    Ok((Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() }, prepared))
+}
+
+/// The one point in which the pairs (`fixed`, `moving`) differ from (`fixed_before`, `moving_before`): its pair
+/// (0-based) and end; `None` when the lists differ in length or in anything else.
+#[must_use]
+pub fn moved_point(
+    (fixed_before, moving_before): (&[Point3<Fixed>], &[Point3<Moving>]),
+    fixed: &[Point3<Fixed>],
+    moving: &[Point3<Moving>],
+) -> Option<(usize, DraggedEnd)> {
+    if fixed.len() != fixed_before.len() || moving.len() != moving_before.len() || fixed.len() != moving.len() {
+        return None;
+    }
+    let mut moved = None;
+    for i in 0..fixed.len() {
+        for (end, same) in
+            [(DraggedEnd::Fixed, fixed[i] == fixed_before[i]), (DraggedEnd::Moving, moving[i] == moving_before[i])]
+        {
+            if !same {
+                if moved.is_some() {
+                    return None;
+                }
+                moved = Some((i, end));
+            }
+        }
+    }
+    moved
+}
+
+/// A TPS landmark drag in progress: both directions factorised on the pairs of the drag's first event, so that each
+/// further event costs O(N²) and one texture pass ([`PairDrag`]) instead of two fits and a texture. Only the dragged
+/// point may change; the release refits in full ([`fit_warp`]), so the diagnostics never see the fast path.
+#[derive(Debug)]
+pub struct DragFit {
+    drag: PairDrag,
+    fixed: Vec<Point3<Fixed>>,
+    moving: Vec<Point3<Moving>>,
+}
+
+impl DragFit {
+    /// Starts the drag of pair `pair`'s `end` (0-based among `fixed`/`moving`) for a TPS `method` (`None` for any
+    /// other method: it keeps the full fit), with the control texture of [`fit_warp`] (`grid_n`³ over the fixed box).
+    ///
+    /// # Errors
+    /// A fit that fails (the caller refits in full, whose error names the pairs), or a texture grid that cannot be
+    /// made.
+    #[must_use]
+    pub fn start(
+        method: &Method,
+        fixed: &[Point3<Fixed>],
+        moving: &[Point3<Moving>],
+        fixed_box: Aabb<Fixed>,
+        grid_n: usize,
+        (pair, end): (usize, DraggedEnd),
+    ) -> Option<anyhow::Result<Self>> {
+        let Method::Tps { stiffness } = *method else { return None };
+        Some((|| {
+            enough_pairs(method, moving.len())?;
+            let grid = scene::control_grid(fixed_box, grid_n)?;
+            let drag = PairDrag::new(fixed, moving, pair, end, Regularisation::Smoothing(stiffness), grid)
+                .map_err(|e| anyhow!("{method}: {e}"))?;
+            Ok(Self { drag, fixed: fixed.to_vec(), moving: moving.to_vec() })
+        })())
+    }
+
+    /// Both warps and the prepared control texture for the pairs (`fixed`, `moving`), as [`fit_warp`] gives them;
+    /// `None` when they differ from the drag's start in anything but the dragged point, or the fast path refuses (a
+    /// point landing on another): then refit with [`fit_warp`].
+    #[must_use]
+    pub fn event(
+        &self,
+        fixed: &[Point3<Fixed>],
+        moving: &[Point3<Moving>],
+        float32_filterable: bool,
+    ) -> Option<(Fitted, PreparedControl)> {
+        let (pair, end) = (self.drag.pair(), self.drag.end());
+        match moved_point((&self.fixed, &self.moving), fixed, moving) {
+            Some((i, e)) if (i, e) == (pair, end) => {}
+            None if fixed == self.fixed.as_slice() && moving == self.moving.as_slice() => {}
+            _ => return None,
+        }
+        let to = match end {
+            DraggedEnd::Fixed => fixed[pair].coords(),
+            DraggedEnd::Moving => moving[pair].coords(),
+        };
+        let mut texels = vec![[0.0f32; 4]; self.drag.grid().texel_count()];
+        let step = self.drag.step(to, &mut texels).ok()?;
+        let texture = self.drag.texture(texels);
+        let prepared =
+            PreparedControl::prepare(&scene::control_desc(self.drag.grid(), &texture), float32_filterable).ok()?;
+        let fitted = Fitted {
+            pullback: FittedWarp::Tps(step.pullback),
+            forward: FittedWarp::Tps(step.forward),
+            pairs: moving.len(),
+            fixed: fixed.to_vec(),
+            moving: moving.to_vec(),
+        };
+        Some((fitted, prepared))
+    }
 }
 
 /// Refuses fewer pairs than `method` needs, in the window's words.
@@ -139,7 +244,7 @@ pub fn fit_warp_on_gpu(
         }
         FittedWarp::Linear(_) => return Err(not_on_gpu(method)),
     }
-    Ok(Fitted { pullback, forward, pairs: moving.len() })
+    Ok(Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() })
 }
 
 /// The message for a fit of `c` that failed with `e`: `<landmark file>: fitting the <method> warp: <problem>`, the
@@ -236,5 +341,75 @@ impl TpsParts {
             linear: self.linear,
             translation: self.translation,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use warpbench_solver::warp::Warp;
+
+    fn pairs(n: usize) -> (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) {
+        let h = |i: usize, s: u64| {
+            let x = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ s.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            ((x ^ (x >> 29)).wrapping_mul(0x94D0_49BB_1331_11EB) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let fixed: Vec<Point3<Fixed>> = (0..n)
+            .map(|i| Point3::new(160.0 * h(i, 1) - 80.0, 160.0 * h(i, 2) - 80.0, 160.0 * h(i, 3) - 80.0))
+            .collect();
+        let moving = fixed
+            .iter()
+            .map(|q| {
+                let [x, y, z] = q.coords();
+                Point3::new(x + 4.0 * (y / 30.0).sin(), y + 3.0 * (z / 25.0).cos(), z - 2.0)
+            })
+            .collect();
+        (fixed, moving)
+    }
+
+    fn boxes() -> (Aabb<Fixed>, Aabb<Moving>) {
+        (
+            Aabb::new(Point3::new(-100.0, -100.0, -100.0), Point3::new(100.0, 100.0, 100.0)),
+            Aabb::new(Point3::new(-110.0, -110.0, -110.0), Point3::new(110.0, 110.0, 110.0)),
+        )
+    }
+
+    /// Each drag event through [`DragFit`] gives the warps of the full [`fit_warp`] (to 1e-6 mm at probe points), and
+    /// a change of any other point leaves the fast path.
+    #[test]
+    fn drag_events_match_the_full_fit() {
+        let method = Method::Tps { stiffness: 0.0 };
+        let (mut fixed, mut moving) = pairs(40);
+        for end in [DraggedEnd::Fixed, DraggedEnd::Moving] {
+            let drag =
+                DragFit::start(&method, &fixed, &moving, boxes().0, 16, (7, end)).expect("a TPS").expect("start");
+            for step in [0.5, 2.0, -6.0] {
+                match end {
+                    DraggedEnd::Fixed => fixed[7] = Point3::new(fixed[7].coords()[0] + step, 1.0, 2.0),
+                    DraggedEnd::Moving => moving[7] = Point3::new(moving[7].coords()[0] - step, 3.0, -1.0),
+                }
+                let (fast, _) = drag.event(&fixed, &moving, false).expect("the fast path");
+                let (full, _) = fit_warp(&method, &fixed, &moving, boxes(), 16, false).expect("full fit");
+                for i in 0..50 {
+                    let x = [f64::from(i) * 3.7 - 90.0, 40.0 - f64::from(i) * 1.3, f64::from(i % 7) * 11.0 - 30.0];
+                    let (a, b) = (fast.pullback.apply_raw(x), full.pullback.apply_raw(x));
+                    let (c, d) = (fast.forward.apply_raw(x), full.forward.apply_raw(x));
+                    for k in 0..3 {
+                        assert!((a[k] - b[k]).abs() <= 1e-6 && (c[k] - d[k]).abs() <= 1e-6, "{end:?} {step}: {x:?}");
+                    }
+                }
+            }
+            let mut other = fixed.clone();
+            other[3] = Point3::new(0.0, 0.0, 0.0);
+            assert!(drag.event(&other, &moving, false).is_none(), "another point moved: refit");
+        }
+        assert_eq!(moved_point((&fixed, &moving), &fixed, &moving), None);
+        let mut two = fixed.clone();
+        two[1] = Point3::new(1.0, 1.0, 1.0);
+        assert_eq!(moved_point((&fixed, &moving), &two, &moving), Some((1, DraggedEnd::Fixed)));
+        two[2] = Point3::new(1.0, 2.0, 1.0);
+        assert_eq!(moved_point((&fixed, &moving), &two, &moving), None);
+        let other = Method::Linear(warpbench_solver::linear::LinearKind::Affine);
+        assert!(DragFit::start(&other, &fixed, &moving, boxes().0, 16, (0, DraggedEnd::Fixed)).is_none());
     }
 }

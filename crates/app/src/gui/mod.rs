@@ -50,6 +50,7 @@ use warpbench_solver::diagnostics::{jacobian_determinants, residuals};
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::{Parallelism, Warp};
 
+use crate::fit;
 pub use crate::fit::{Fitted, fit_warp, fit_warp_on_gpu, gpu_evaluates};
 use crate::inputs::{self, LandmarkSource};
 pub use app::Workbench;
@@ -105,6 +106,8 @@ pub struct FitState {
     pub warnings: Vec<String>,
     /// A change asked for a fit at the end of the frame ([`Ready::refit_soon`]).
     pending: bool,
+    /// The TPS drag in progress, from its first event until the full refit of its release ([`fit::DragFit`]).
+    drag: Option<crate::fit::DragFit>,
 }
 
 /// The side panel's file and export section.
@@ -183,13 +186,41 @@ impl Ready {
     }
 
     /// The fit of [`Self::refit`] without leave-one-out and folding (N more fits and a Jacobian grid): what a drag
-    /// event runs, so that the warp follows the pointer; the diagnostics follow when the drag ends.
+    /// event runs, so that the warp follows the pointer; the diagnostics follow when the drag ends. With a TPS and
+    /// the control texture on the CPU, the first event that moves one point starts a [`fit::DragFit`] and the
+    /// further events of that point take its O(N²) path.
     pub fn refit_interactive(&mut self) {
         self.fit_now(false);
     }
 
+    /// The drag's fast path for the pairs (`fixed`, `moving`): the drag in progress when only its point moved, else a
+    /// new drag when exactly one point moved since the last fit; `None` (and no drag kept) otherwise.
+    fn drag_event(
+        &mut self,
+        method: &warpbench_solver::Method,
+        fixed: &[warpbench_io::geometry::Point3<Fixed>],
+        moving: &[warpbench_io::geometry::Point3<Moving>],
+        fixed_box: warpbench_solver::Aabb<Fixed>,
+    ) -> Option<(Fitted, warpbench_gpu::PreparedControl)> {
+        let filterable = self.viewer.ctx.capabilities.float32_filterable;
+        if let Some(result) = self.fit.drag.as_ref().and_then(|d| d.event(fixed, moving, filterable)) {
+            return Some(result);
+        }
+        self.fit.drag = None;
+        let before = self.fit.fitted.as_ref()?;
+        let moved = fit::moved_point((&before.fixed, &before.moving), fixed, moving)?;
+        let grid_n = self.document.settings.grid_n;
+        let drag = fit::DragFit::start(method, fixed, moving, fixed_box, grid_n, moved)?.ok()?;
+        let result = drag.event(fixed, moving, filterable);
+        self.fit.drag = Some(drag);
+        result
+    }
+
     fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
+        if diagnostics {
+            self.fit.drag = None;
+        }
         let method = self.document.settings.method();
         let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
         let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
@@ -232,7 +263,11 @@ impl Ready {
                 ControlEval::Cpu => false,
                 ControlEval::Gpu => true,
             };
-        let result = if on_gpu {
+        let fast = if diagnostics || on_gpu { None } else { self.drag_event(&method, &fixed, &moving, fixed_box) };
+        let result = if let Some((fitted, prepared)) = fast {
+            self.viewer.set_control(Some(&prepared));
+            Ok(fitted)
+        } else if on_gpu {
             fit_warp_on_gpu(&method, &fixed, &moving, boxes, self.document.settings.grid_n, &mut self.viewer)
         } else {
             let filterable = self.viewer.ctx.capabilities.float32_filterable;
