@@ -45,6 +45,17 @@ struct VolumeUniforms {
     iso_value: f32,
 }
 
+// The Rust twin is `EmptySpaceUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
+struct EmptySpaceUniforms {
+    // ref-space corner of brick (0, 0, 0)
+    min_ref: vec3<f32>,
+    // 0: skip nothing (empty_space_tex is a placeholder)
+    enabled: u32,
+    dims: vec3<u32>,
+    // brick edge, ref mm
+    brick_mm: f32,
+}
+
 // The Rust twin is `RaycastUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
 struct RaycastUniforms {
     ref_from_clip: mat4x4<f32>,
@@ -72,6 +83,7 @@ struct RaycastUniforms {
     moving: VolumeUniforms,
     // Slices only: ref from framebuffer coordinates (pixel centres at i + 1/2).
     ref_from_frag_px: mat4x4<f32>,
+    empty_space: EmptySpaceUniforms,
 }
 
 // VolumeUniforms.flags
@@ -92,6 +104,10 @@ const MIN_GRADIENT_SQ: f32 = 1e-12;
 
 // RaycastUniforms.flags
 const RAYCAST_JITTER: u32 = 1u;
+
+// empty_space_tex cells: the volume may be non-transparent in the brick (crates/gpu/src/empty_space.rs).
+const OCCUPIED_FIXED: u32 = 1u;
+const OCCUPIED_MOVING: u32 = 2u;
 
 // RaycastUniforms.blend_mode
 const BLEND_MIX: u32 = 0u;
@@ -122,6 +138,9 @@ const NO_HIT_DEPTH: f32 = 2.0;
 // Prefiltered copies (R32Float, layer = z; a 1×1×1 placeholder without VOLUME_HAS_PREFILTER), filtered by hand.
 @group(0) @binding(8) var fixed_pf_tex: texture_2d_array<f32>;
 @group(0) @binding(9) var moving_pf_tex: texture_2d_array<f32>;
+// Empty-space grid: one cell (OCCUPIED_* bits) per ref-space brick; a 1×1×1 "all occupied" placeholder when
+// u.empty_space.enabled is 0.
+@group(0) @binding(10) var empty_space_tex: texture_3d<u32>;
 
 struct VertexOutput {
     @builtin(position) position: vec4<f32>,
@@ -190,6 +209,33 @@ fn sample_layers(vol: texture_2d_array<f32>, p_tex: vec3<f32>) -> f32 {
     let x01 = mix(c001, c101, f.x);
     let x11 = mix(c011, c111, f.x);
     return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
+}
+
+// Empty-space skipping (crates/gpu/src/empty_space.rs). Sample k of the lattice t_k = t_enter + (k + jitter)·step
+// lies at x_ref. When its brick is empty for every volume in `mask`, returns the index of the next sample to take:
+// the last one before the brick's exit (at least k + 1, at most max_steps), so every skipped sample lies inside the
+// brick (the grid's bricks are grown by a margin for the rounding) and those taken are the same as without
+// skipping. Returns k when there is nothing to skip.
+fn skip_empty(k: u32, x_ref: vec3<f32>, origin: vec3<f32>, dir: vec3<f32>, t_enter: f32, jitter: f32, mask: u32) -> u32 {
+    let e = u.empty_space;
+    if e.enabled == 0u {
+        return k;
+    }
+    let c = (x_ref - e.min_ref) / e.brick_mm;
+    if any(c < vec3<f32>(0.0)) || any(c >= vec3<f32>(e.dims)) {
+        return k;
+    }
+    let b = vec3<i32>(floor(c));
+    if (textureLoad(empty_space_tex, b, 0).r & mask) != 0u {
+        return k;
+    }
+    let lo = e.min_ref + vec3<f32>(b) * e.brick_mm;
+    let exit_plane = select(lo, lo + vec3<f32>(e.brick_mm), dir > vec3<f32>(0.0));
+    let crosses = abs(dir) > vec3<f32>(1e-20);
+    let t_axis = select(vec3<f32>(3.0e38), (exit_plane - origin) / select(vec3<f32>(1.0), dir, crosses), crosses);
+    let t_exit = min(min(t_axis.x, t_axis.y), t_axis.z);
+    let k_last = floor((t_exit - t_enter) / u.step_mm - jitter);
+    return u32(clamp(k_last, f32(k + 1u), f32(u.max_steps)));
 }
 
 // tex(u(x_ref)): the volume's texture coordinates of ref point x_ref, through the warp when there is one.
@@ -460,12 +506,25 @@ fn fs_raycast(in: VertexOutput) -> RaycastOutput {
 
     var acc = vec4<f32>(0.0);
     var hit_depth = NO_HIT_DEPTH;
+    var mask = 0u;
+    if use_fixed {
+        mask |= OCCUPIED_FIXED;
+    }
+    if use_moving {
+        mask |= OCCUPIED_MOVING;
+    }
     for (var k = 0u; k < u.max_steps; k++) {
         let t = t_enter + (f32(k) + jitter) * u.step_mm;
         if t >= t_far {
             break;
         }
         let x_ref = origin_ref + t * dir_ref;
+        // Samples in empty bricks would add premultiplied zero: jump over them, staying on the lattice.
+        let next = skip_empty(k, x_ref, origin_ref, dir_ref, t_enter, jitter, mask);
+        if next > k {
+            k = next - 1u;
+            continue;
+        }
         var f = vec4<f32>(0.0);
         var m = vec4<f32>(0.0);
         if use_fixed {
@@ -611,10 +670,27 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
     }
     var t_prev = -1.0;
     var acc = 0.0;
+    // Empty-space skipping as the frame does, in the target volume's bricks: where its opacity is zero, neither the
+    // opacity nor the accumulated probe (threshold > 0) can fire and the accumulated opacity does not change. The
+    // gradient probe does not depend on the transfer function and skips nothing.
+    var mask = OCCUPIED_MOVING;
+    if pick.target_volume == TARGET_FIXED {
+        mask = OCCUPIED_FIXED;
+    }
+    let may_skip = pick.probe != PROBE_GRADIENT && pick.threshold > 0.0;
     for (var k = 0u; k < u.max_steps; k++) {
         let t = t_enter + f32(k) * u.step_mm;
         if t >= t_far {
             break;
+        }
+        if may_skip {
+            let next = skip_empty(k, origin + t * dir, origin, dir, t_enter, 0.0, mask);
+            if next > k {
+                // The previous sample for the bisection is the last one skipped, as without skipping.
+                t_prev = t_enter + f32(next - 1u) * u.step_mm;
+                k = next - 1u;
+                continue;
+            }
         }
         let q = pick_quantity(vol, ctrl, pf, v, origin + t * dir);
         var found = false;

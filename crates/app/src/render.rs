@@ -228,15 +228,15 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let moving_preset = moving_layer.as_ref().map_or(fixed_preset, |(_, p)| *p);
     let tfs =
         GpuTransferFunctions::upload(&ctx, &[fixed_preset.transfer_function(), moving_preset.transfer_function()]);
-    let control = match &pullback {
+    let prepared_control = match &pullback {
         Some(warp) => {
             let (grid, texture) = fit::control_texture(warp, fixed_box, opts.grid).map_err(Failure::BadInput)?;
             let desc = scene::control_desc(&grid, &texture);
-            let prepared = PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).map_err(gpu_failure)?;
-            Some(GpuControlTexture::upload(&ctx, &prepared))
+            Some(PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).map_err(gpu_failure)?)
         }
         None => None,
     };
+    let control = prepared_control.as_ref().map(|p| GpuControlTexture::upload(&ctx, p));
 
     let fixed_gpu = GpuLayer {
         volume: &fixed_layer.gpu,
@@ -298,7 +298,17 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
             }
         }
         camera.pan_mm = Vec2::ZERO;
-        let data = RaycastDrawData::new(&ctx, &renderer, &frame, &camera, &settings, opts.size);
+        // Empty-space skipping: the same image, fewer samples.
+        let empty_space = frame.empty_space(&ctx, frame.proxy_box_ref(), [None, prepared_control.as_ref()]);
+        let data = RaycastDrawData::new_with_empty_space(
+            &ctx,
+            &renderer,
+            &frame,
+            &camera,
+            &settings,
+            opts.size,
+            Some(&empty_space),
+        );
         let target = RenderTarget::new(&ctx, opts.size.0, opts.size.1);
         renderer.render(&ctx, &data, &target).map_err(gpu_failure)?;
         (target, GlyphUniforms::for_view(&camera, opts.size, &GlyphSettings::default()), true)

@@ -10,7 +10,10 @@
 //! 5. **deformed + shaded, interactive**: as 3 at the interaction sample rate ([`warpbench_gpu::Quality`], 0.5
 //!    samples per voxel);
 //! 6. **pick** (three probes): click to result for one ray through the centre pixel into the deformed moving volume
-//!    ([`warpbench_gpu::PickPass`]: upload, dispatch, read back).
+//!    ([`warpbench_gpu::PickPass`]: upload, dispatch, read back);
+//! 7. **empty-space skipping** ([`warpbench_gpu::empty_space`]): cases 2 and 3 again with the frame skipping the
+//!    bricks its grid marks empty, the grid's build time (once per change of look), the frame-time ratio
+//!    without / with, and a check that both images are the same bytes.
 //!
 //! A frame is submit + wait + readback of the RGBA8 image (wall clock; warm-up frames, which also compile the
 //! pipelines, are excluded). It prints ms/frame (mean and best) and the deformation overhead deformed/undeformed.
@@ -18,16 +21,20 @@
 //! ```sh
 //! cargo bench -p warpbench-gpu --bench frame
 //! cargo bench -p warpbench-gpu --bench frame -- --size 1920x1080 --dims 512x512x300 --frames 20
+//! cargo bench -p warpbench-gpu --bench frame -- --demo --size 1024x768
 //! ```
 //!
 //! Options: `--size WxH` (image), `--dims N` or `--dims NXxNYxNZ` (both volumes), `--ctrl N` (control texture
-//! edge), `--frames N` (timed frames per case), `--spv S` (samples per voxel). The adapter is wgpu's default, or the
+//! edge), `--frames N` (timed frames per case), `--spv S` (samples per voxel), `--demo` (instead of the procedural
+//! volumes, the window's demo pair from `tests/data/nifti`: the head CT as fixed (CT bone, its HU window) and the
+//! head MRI as moving (MR T1, windowed from its foreground's 2nd to 99th percentile, as the window's automatic
+//! look), the control texture moving the MRI's centre of mass onto the CT's plus the smooth warp). The adapter is wgpu's default, or the
 //! one `WGPU_BACKEND` / `WGPU_ADAPTER_NAME` choose. It only runs when `--bench` is among the arguments (as
 //! `cargo bench` passes), so `cargo test --benches` does not run it.
 
 use std::time::{Duration, Instant};
 
-use glam::{DVec3, Vec3};
+use glam::DVec3;
 use warpbench_gpu::{
     BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions,
     GpuVolume, LayerStyle, OrbitCamera, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
@@ -44,6 +51,7 @@ struct Options {
     ctrl: usize,
     frames: usize,
     samples_per_voxel: f32,
+    demo: bool,
 }
 
 fn parse_pair(s: &str) -> Option<Vec<usize>> {
@@ -51,7 +59,7 @@ fn parse_pair(s: &str) -> Option<Vec<usize>> {
 }
 
 fn options() -> Result<Options, String> {
-    let mut o = Options { size: (512, 512), dims: [256; 3], ctrl: 64, frames: 5, samples_per_voxel: 1.0 };
+    let mut o = Options { size: (512, 512), dims: [256; 3], ctrl: 64, frames: 5, samples_per_voxel: 1.0, demo: false };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -69,6 +77,7 @@ fn options() -> Result<Options, String> {
             "--ctrl" => o.ctrl = value()?.parse().map_err(|e| format!("--ctrl: {e}"))?,
             "--frames" => o.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
             "--spv" => o.samples_per_voxel = value()?.parse().map_err(|e| format!("--spv: {e}"))?,
+            "--demo" => o.demo = true,
             _ => {} // --bench and whatever else cargo passes
         }
     }
@@ -144,8 +153,8 @@ fn grid(dims: [usize; 3], centre: DVec3, angle_rad: f64) -> [[f64; 4]; 4] {
     m
 }
 
-/// `[dx, dy, dz, 0]` of a smooth warp of a few mm at the texel centres of an n³ grid over `[lo, hi]`.
-fn control_texels(n: usize, lo: DVec3, hi: DVec3) -> Vec<f32> {
+/// `[dx, dy, dz, 0]` of a smooth warp of a few mm (plus `offset`) at the texel centres of an n³ grid over `[lo, hi]`.
+fn control_texels(n: usize, lo: DVec3, hi: DVec3, offset: DVec3) -> Vec<f32> {
     let mut out = Vec::with_capacity(4 * n * n * n);
     for c in 0..n {
         for b in 0..n {
@@ -153,11 +162,66 @@ fn control_texels(n: usize, lo: DVec3, hi: DVec3) -> Vec<f32> {
                 let f = DVec3::new(a as f64 + 0.5, b as f64 + 0.5, c as f64 + 0.5) / n as f64;
                 let x = lo + f * (hi - lo);
                 let s = (x / 40.0).map(f64::sin);
-                out.extend([(4.0 + 3.0 * s.y) as f32, (-3.0 + 2.5 * s.z) as f32, (2.0 + 2.0 * s.x) as f32, 0.0]);
+                let d = offset + DVec3::new(4.0 + 3.0 * s.y, -3.0 + 2.5 * s.z, 2.0 + 2.0 * s.x);
+                out.extend([d.x as f32, d.y as f32, d.z as f32, 0.0]);
             }
         }
     }
     out
+}
+
+/// The demo pair's file (`tests/data/nifti/<name>`), read by `warpbench_io`.
+fn demo_volume(name: &str) -> warpbench_io::Volume {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti").join(name);
+    warpbench_io::open(&path).unwrap_or_else(|e| panic!("demo volume {}: {e}", path.display()))
+}
+
+fn demo_desc(v: &warpbench_io::Volume) -> VolumeDesc<'_> {
+    use warpbench_io::VoxelData;
+    let samples = match &v.data {
+        VoxelData::U8(d) => VolumeSamples::U8(d),
+        VoxelData::I16(d) => VolumeSamples::I16(d),
+        VoxelData::U16(d) => VolumeSamples::U16(d),
+        VoxelData::F32(d) => VolumeSamples::F32(d),
+    };
+    VolumeDesc { dims: v.dims, samples, lps_from_index: v.lps_from_index.rows() }
+}
+
+/// The values of `v` (every voxel), sorted.
+fn sorted_values(v: &warpbench_io::Volume) -> Vec<f64> {
+    let mut values: Vec<f64> = (0..v.data.len()).map(|i| v.data.get_f64(i)).filter(|x| x.is_finite()).collect();
+    values.sort_by(f64::total_cmp);
+    values
+}
+
+/// The window's automatic MR window: the foreground's (values above 5 % of the 99th percentile) 2nd to 99th
+/// percentile.
+fn mr_window(v: &warpbench_io::Volume) -> Window {
+    let values = sorted_values(v);
+    let q = |vals: &[f64], p: f64| vals[((vals.len() - 1) as f64 * p) as usize];
+    let lo = values[0];
+    let p99 = q(&values, 0.99);
+    let floor = lo + 0.05 * (p99 - lo);
+    let fg: Vec<f64> = values.iter().copied().filter(|&x| x > floor).collect();
+    let (low, high) = (q(&fg, 0.02), q(&fg, 0.99));
+    Window::from_range(low as f32, high as f32)
+}
+
+/// The LPS centroid of the voxels of `v` above `threshold` (every 2nd voxel).
+fn centroid_above(v: &warpbench_io::Volume, threshold: f64) -> DVec3 {
+    let (mut sum, mut n) = (DVec3::ZERO, 0.0);
+    let m = glam::DMat4::from_cols_array_2d(&v.lps_from_index.rows()).transpose();
+    for k in (0..v.dims[2]).step_by(2) {
+        for j in (0..v.dims[1]).step_by(2) {
+            for i in (0..v.dims[0]).step_by(2) {
+                if v.data.get_f64(i + v.dims[0] * (j + v.dims[1] * k)) > threshold {
+                    sum += m.transform_point3(DVec3::new(i as f64, j as f64, k as f64));
+                    n += 1.0;
+                }
+            }
+        }
+    }
+    if n > 0.0 { sum / n } else { DVec3::ZERO }
 }
 
 /// Mean and best of `frames` timed calls of `frame` after `warmup` untimed ones.
@@ -214,26 +278,41 @@ fn main() {
     );
 
     let t = Instant::now();
-    let ct_samples = generate(o.dims, ct);
-    let mr_samples = generate(o.dims, mr);
     let budget = VolumeBudget::for_device(&ctx.limits);
-    let fixed_desc = VolumeDesc {
-        dims: o.dims,
-        samples: VolumeSamples::I16(&ct_samples),
-        lps_from_index: grid(o.dims, DVec3::ZERO, 0.0),
+    let demo = o.demo.then(|| (demo_volume("cranium_ct.nii.gz"), demo_volume("ch2.nii.gz")));
+    let (ct_samples, mr_samples) =
+        if demo.is_some() { (Vec::new(), Vec::new()) } else { (generate(o.dims, ct), generate(o.dims, mr)) };
+    let (fixed_desc, moving_desc) = match &demo {
+        Some((f, m)) => {
+            println!("demo pair: CT {:?}, MR {:?}", f.dims, m.dims);
+            (demo_desc(f), demo_desc(m))
+        }
+        None => (
+            VolumeDesc {
+                dims: o.dims,
+                samples: VolumeSamples::I16(&ct_samples),
+                lps_from_index: grid(o.dims, DVec3::ZERO, 0.0),
+            },
+            VolumeDesc {
+                dims: o.dims,
+                samples: VolumeSamples::U8(&mr_samples),
+                lps_from_index: grid(o.dims, DVec3::new(4.0, -3.0, 2.0), 10f64.to_radians()),
+            },
+        ),
     };
-    let moving_desc = VolumeDesc {
-        dims: o.dims,
-        samples: VolumeSamples::U8(&mr_samples),
-        lps_from_index: grid(o.dims, DVec3::new(4.0, -3.0, 2.0), 10f64.to_radians()),
-    };
+    let moving_window = demo.as_ref().map_or(Window::from_range(0.0, 220.0), |(_, m)| mr_window(m));
+    // The demo's MRI is not in the CT's place: the warp moves it there (centres of mass, as its landmarks do).
+    let offset = demo.as_ref().map_or(DVec3::ZERO, |(f, m)| {
+        let (lo, hi) = sorted_values(m).first().zip(sorted_values(m).last()).map_or((0.0, 1.0), |(a, b)| (*a, *b));
+        centroid_above(m, lo + 0.25 * (hi - lo)) - centroid_above(f, 300.0)
+    });
     let fixed = PreparedVolume::prepare(&fixed_desc, ctx.capabilities, budget).expect("fixed");
     let moving = PreparedVolume::prepare(&moving_desc, ctx.capabilities, budget).expect("moving");
     for w in fixed.warnings.iter().chain(&moving.warnings) {
         println!("warning: {w}");
     }
     let (lo, hi) = (fixed.info.box_min_lps, fixed.info.box_max_lps);
-    let texels = control_texels(o.ctrl, lo, hi);
+    let texels = control_texels(o.ctrl, lo, hi, offset);
     let cdesc =
         ControlDesc { dims: [o.ctrl; 3], texels: &texels, box_min_ref: lo.to_array(), box_max_ref: hi.to_array() };
     let control = PreparedControl::prepare(&cdesc, ctx.capabilities.float32_filterable).expect("control");
@@ -257,15 +336,11 @@ fn main() {
         visible: true,
         iso_value: 300.0,
     };
-    let moving_style = LayerStyle {
-        window: Window::from_range(0.0, 220.0),
-        tf_row: 1,
-        opacity_scale: 1.0,
-        visible: true,
-        iso_value: 110.0,
-    };
+    let moving_style =
+        LayerStyle { window: moving_window, tf_row: 1, opacity_scale: 1.0, visible: true, iso_value: 110.0 };
     let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
-    let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, target_ref: Vec3::ZERO, ..cam };
+    let centre = (0.5 * (lo + hi)).as_vec3();
+    let cam = OrbitCamera { azimuth_rad: 0.6, elevation_rad: 0.25, target_ref: centre, ..cam };
     let target = RenderTarget::new(&ctx, o.size.0, o.size.1);
     let undeformed = GpuFrame {
         fixed: layer(&fixed_gpu, None, None, fixed_style),
@@ -323,6 +398,41 @@ fn main() {
     });
     results.push(("deformed + shaded + prefilter", mean, best));
 
+    // Empty-space skipping: the grid of the frame's look (built once per change of look), then cases 2 and 3 again.
+    let t = Instant::now();
+    let empty_space = shaded.empty_space(&ctx, box_ref, [None, Some(&control)]);
+    ctx.wait_idle().expect("wait");
+    let grid_ms = ms(t.elapsed());
+    let draw_skipping = |frame: &GpuFrame<'_>, mode| {
+        let data = RaycastDrawData::new_with_empty_space(
+            &ctx,
+            &renderer,
+            frame,
+            &cam,
+            &settings(mode),
+            o.size,
+            Some(&empty_space),
+        );
+        assert_eq!(data.uniforms.empty_space.enabled, 1, "the grid fits the frame");
+        renderer.render(&ctx, &data, &target).expect("render");
+        target.read_back(&ctx).expect("read back")
+    };
+    let (mean, best) = time(o.frames, 1, || {
+        std::hint::black_box(draw_skipping(&deformed, ShadingMode::None));
+    });
+    results.push(("deformed, skipping", mean, best));
+    let (mean, best) = time(o.frames, 1, || {
+        std::hint::black_box(draw_skipping(&shaded, ShadingMode::Dvr));
+    });
+    results.push(("deformed + shaded, skipping", mean, best));
+    let same = |frame: &GpuFrame<'_>, mode| {
+        let with = draw_skipping(frame, mode);
+        let data = RaycastDrawData::new(&ctx, &renderer, frame, &cam, &settings(mode), o.size);
+        renderer.render(&ctx, &data, &target).expect("render");
+        with == target.read_back(&ctx).expect("read back")
+    };
+    let identical = [same(&deformed, ShadingMode::None), same(&shaded, ShadingMode::Dvr)];
+
     // Picking: click to result (upload one ray, dispatch, read back) on the deformed frame.
     let pick_pass = PickPass::new(&ctx, &renderer).expect("pick pass");
     let data = RaycastDrawData::new(&ctx, &renderer, &deformed, &cam, &settings(ShadingMode::None), o.size);
@@ -346,6 +456,20 @@ fn main() {
     }
     let ratio = ms(results[1].1) / ms(results[0].1);
     println!("deformation overhead (deformed / undeformed, means): {ratio:.2}×");
+    let mean_of = |name: &str| results.iter().find(|r| r.0 == name).map_or(f64::NAN, |r| ms(r.1));
+    println!(
+        "empty-space grid: {:?} bricks of {:.2} mm, {:.0} % empty, built in {grid_ms:.1} ms",
+        empty_space.lattice.dims,
+        empty_space.lattice.brick_mm,
+        100.0 * empty_space.empty_fraction
+    );
+    println!(
+        "empty-space skipping (without / with, means): deformed {:.2}×, deformed + shaded (DVR) {:.2}×; images \
+         identical: {}",
+        mean_of("deformed") / mean_of("deformed, skipping"),
+        mean_of("deformed + shaded") / mean_of("deformed + shaded, skipping"),
+        if identical.iter().all(|&b| b) { "yes" } else { "NO" }
+    );
     if let Err(e) = ctx.check_errors() {
         println!("wgpu errors: {e}");
     }

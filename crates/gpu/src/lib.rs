@@ -62,6 +62,7 @@ pub mod control;
 pub mod control_eval;
 pub mod cpu_reference;
 pub mod device;
+pub mod empty_space;
 pub mod error;
 pub mod export;
 pub mod glyph;
@@ -87,6 +88,7 @@ pub use camera::{OrbitCamera, Projection};
 pub use control::{ControlDesc, ControlInfo, GpuControlTexture, PreparedControl};
 pub use control_eval::{ControlEvalPass, ControlGridDesc, PendingControl};
 pub use device::{Capabilities, FeatureRequest, GpuContext};
+pub use empty_space::{EmptySpaceGrid, GpuEmptySpace, OccupancyLayer};
 pub use error::{GpuError, Result};
 pub use export::{
     ExportPass, ExportRequest, ExportSamples, ExportedSamples, ExportedVolume, Interpolation, OutputType, Progress,
@@ -103,5 +105,5 @@ pub use raycast::{GpuFrame, GpuLayer, RaycastDrawData, RaycastRenderer, RaycastU
 pub use settings::{BlendMode, LayerParams, LayerStyle, Quality, RenderSettings, Shading, ShadingMode};
 pub use slice::SlicePlane;
 pub use target::RenderTarget;
-pub use transfer::{GpuTransferFunctions, Preset, TransferFunction, Window};
-pub use volume::{GpuVolume, PreparedVolume, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};
+pub use transfer::{GpuTransferFunctions, OpacityTable, Preset, TransferFunction, Window};
+pub use volume::{GpuVolume, PreparedVolume, VolumeBricks, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};

@@ -28,15 +28,19 @@ use bytemuck::{Pod, Zeroable};
 use glam::{DVec3, Mat4};
 
 use crate::camera::{OrbitCamera, Projection};
-use crate::control::GpuControlTexture;
+use crate::control::{GpuControlTexture, PreparedControl};
 use crate::device::GpuContext;
+use crate::empty_space::{
+    BrickLattice, DEFAULT_REF_BRICK_VOXELS, EmptySpaceGrid, EmptySpaceKey, GpuEmptySpace, OCCUPIED_FIXED,
+    OCCUPIED_MOVING, OccupancyLayer,
+};
 use crate::error::{GpuError, Result};
 use crate::prefilter::GpuPrefiltered;
-use crate::settings::{BlendMode, LayerParams, LayerStyle, RenderSettings, Shading, ShadingMode};
+use crate::settings::{BlendMode, LayerParams, LayerStyle, RenderSettings, Shading, ShadingMode, proxy_box_ref};
 use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, WgslConstant, layout};
 use crate::slice::SlicePlane;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH, RenderTarget};
-use crate::transfer::GpuTransferFunctions;
+use crate::transfer::{GpuTransferFunctions, OpacityTable};
 use crate::volume::GpuVolume;
 
 /// `VolumeUniforms.flags`, the WGSL constants of the same names ([`INTERFACE`]).
@@ -68,6 +72,29 @@ pub struct VolumeUniforms {
     pub iso_value: f32,
 }
 const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 160);
+
+/// The empty-space grid a frame skips by ([`crate::empty_space`]): `EmptySpaceUniforms` in shaders/raycast.wgsl
+/// ([`INTERFACE`]).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct EmptySpaceUniforms {
+    /// The ref-space corner of brick (0, 0, 0).
+    pub min_ref: [f32; 3],
+    /// 1: skip the bricks the grid marks empty; 0: skip nothing (the grid bound is a placeholder).
+    pub enabled: u32,
+    pub dims: [u32; 3],
+    /// Brick edge, ref mm.
+    pub brick_mm: f32,
+}
+const _: () = assert!(std::mem::size_of::<EmptySpaceUniforms>() == 32);
+
+impl EmptySpaceUniforms {
+    /// Skipping by a grid on `lattice`.
+    #[must_use]
+    pub fn on(lattice: &BrickLattice) -> Self {
+        Self { min_ref: lattice.min_ref.to_array(), enabled: 1, dims: lattice.dims, brick_mm: lattice.brick_mm }
+    }
+}
 
 /// The frame's uniforms: `RaycastUniforms` in shaders/raycast.wgsl ([`INTERFACE`]).
 #[repr(C)]
@@ -101,8 +128,10 @@ pub struct RaycastUniforms {
     /// Slices only (`fs_slice`): ref from framebuffer coordinates, x_ref = ref_from_frag_px · (x, y, 0, 1) with pixel
     /// centres at (px + ½, py + ½) ([`crate::SlicePlane::ref_from_frag_px`]); the identity for 3-D frames.
     pub ref_from_frag_px: [[f32; 4]; 4],
+    /// Empty-space skipping: off unless the frame binds a grid ([`RaycastDrawData::with_empty_space`]).
+    pub empty_space: EmptySpaceUniforms,
 }
-const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 544);
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 576);
 
 impl VolumeUniforms {
     /// The uniforms of `layer`, whose transfer function is a row of a texture of `tf_rows` rows.
@@ -148,10 +177,7 @@ impl RaycastUniforms {
         tf_rows: u32,
     ) -> Self {
         let (w, h) = (size_px.0.max(1), size_px.1.max(1));
-        let (box_min, box_max) = settings.box_override_ref.unwrap_or_else(|| {
-            let (a, b) = (fixed.box_ref(), moving.box_ref());
-            (a.0.min(b.0).as_vec3(), a.1.max(b.1).as_vec3())
-        });
+        let (box_min, box_max) = settings.box_override_ref.unwrap_or_else(|| proxy_box_ref(fixed, moving));
         let visible: Vec<&LayerParams> = match settings.blend {
             BlendMode::FixedOnly => vec![fixed],
             BlendMode::MovingOnly => vec![moving],
@@ -189,6 +215,7 @@ impl RaycastUniforms {
             fixed: VolumeUniforms::new(fixed, tf_rows),
             moving: VolumeUniforms::new(moving, tf_rows),
             ref_from_frag_px: Mat4::IDENTITY.to_cols_array_2d(),
+            empty_space: EmptySpaceUniforms::default(),
         }
     }
 
@@ -246,6 +273,8 @@ pub const SLOT_LINEAR_SAMPLER: BindSlot = BindSlot::new(FRAME_GROUP, 7, "linear_
 /// The fixed volume's prefiltered copy (a placeholder without one).
 pub const SLOT_FIXED_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 8, "fixed_pf_tex");
 pub const SLOT_MOVING_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 9, "moving_pf_tex");
+/// The empty-space grid ([`crate::empty_space`]; a placeholder marking everything occupied without one).
+pub const SLOT_EMPTY_SPACE: BindSlot = BindSlot::new(FRAME_GROUP, 10, "empty_space_tex");
 
 /// The ray caster's part of `shaders/raycast.wgsl` (the picking pass declares its own, [`crate::pick::INTERFACE`]).
 pub const INTERFACE: ShaderInterface = ShaderInterface {
@@ -264,6 +293,7 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
             flags,
             iso_value
         }),
+        layout!(EmptySpaceUniforms { min_ref, enabled, dims, brick_mm }),
         layout!(RaycastUniforms {
             ref_from_clip,
             box_min_ref,
@@ -286,7 +316,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
             shininess,
             fixed,
             moving,
-            ref_from_frag_px
+            ref_from_frag_px,
+            empty_space
         }),
     ],
     slots: &[
@@ -300,6 +331,7 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         SLOT_LINEAR_SAMPLER,
         SLOT_FIXED_PREFILTERED,
         SLOT_MOVING_PREFILTERED,
+        SLOT_EMPTY_SPACE,
     ],
     constants: &[
         WgslConstant::u32("VOLUME_VISIBLE", VOLUME_VISIBLE),
@@ -307,6 +339,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
         WgslConstant::u32("VOLUME_HAS_PREFILTER", VOLUME_HAS_PREFILTER),
         WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
+        WgslConstant::u32("OCCUPIED_FIXED", OCCUPIED_FIXED),
+        WgslConstant::u32("OCCUPIED_MOVING", OCCUPIED_MOVING),
         WgslConstant::f32("EARLY_EXIT_ALPHA", EARLY_EXIT_ALPHA),
         WgslConstant::f32("HIT_OPACITY", HIT_OPACITY),
         WgslConstant::f32("NO_HIT_DEPTH", NO_HIT_DEPTH),
@@ -332,6 +366,7 @@ pub struct RaycastRenderer {
     linear_sampler: wgpu::Sampler,
     placeholder_control: wgpu::TextureView,
     placeholder_prefiltered: wgpu::TextureView,
+    placeholder_empty_space: wgpu::TextureView,
     volumes_filterable: bool,
 }
 
@@ -341,7 +376,7 @@ impl RaycastRenderer {
     pub const OPTIONAL_FEATURES: wgpu::Features =
         wgpu::Features::TEXTURE_FORMAT_16BIT_NORM.union(wgpu::Features::FLOAT32_FILTERABLE);
     /// Sampled textures and samplers per fragment stage this pass binds.
-    pub const SAMPLED_TEXTURES: u32 = 7;
+    pub const SAMPLED_TEXTURES: u32 = 8;
     pub const SAMPLERS: u32 = 2;
     /// The slice fragment entry point in `shaders/raycast.wgsl`.
     pub const SLICE_ENTRY_POINT: &'static str = "fs_slice";
@@ -398,6 +433,14 @@ impl RaycastRenderer {
                 sampler(SLOT_LINEAR_SAMPLER, wgpu::SamplerBindingType::Filtering),
                 layers(SLOT_FIXED_PREFILTERED),
                 layers(SLOT_MOVING_PREFILTERED),
+                SLOT_EMPTY_SPACE.layout_entry(
+                    FRAME_STAGES,
+                    wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Uint,
+                        view_dimension: wgpu::TextureViewDimension::D3,
+                        multisampled: false,
+                    },
+                ),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -428,6 +471,7 @@ impl RaycastRenderer {
         });
         let placeholder_control = GpuControlTexture::placeholder(ctx);
         let placeholder_prefiltered = GpuPrefiltered::placeholder(ctx);
+        let placeholder_empty_space = GpuEmptySpace::placeholder(ctx);
         ctx.check_errors()?;
         let renderer = Self {
             device: device.clone(),
@@ -440,6 +484,7 @@ impl RaycastRenderer {
             linear_sampler,
             placeholder_control,
             placeholder_prefiltered,
+            placeholder_empty_space,
             volumes_filterable,
         };
         // The unlit pipeline now, so that shader errors surface here; the lit ones on first use.
@@ -637,6 +682,74 @@ pub struct GpuFrame<'a> {
     pub tfs: &'a GpuTransferFunctions,
 }
 
+impl GpuFrame<'_> {
+    /// The key of an empty-space grid on `lattice` for this frame's layers.
+    #[must_use]
+    pub fn empty_space_key(&self, lattice: BrickLattice) -> EmptySpaceKey {
+        let (f, m) = (self.fixed.params(), self.moving.params());
+        EmptySpaceKey::new(&f, &m, [self.opacity(&f), self.opacity(&m)], lattice)
+    }
+
+    /// The automatic proxy box of this frame ([`proxy_box_ref`]).
+    #[must_use]
+    pub fn proxy_box_ref(&self) -> (glam::Vec3, glam::Vec3) {
+        proxy_box_ref(&self.fixed.params(), &self.moving.params())
+    }
+
+    fn opacity(&self, layer: &LayerParams) -> &OpacityTable {
+        let row = layer.style.tf_row.min(self.tfs.rows.max(1) - 1) as usize;
+        &self.tfs.opacity[row]
+    }
+
+    /// Classifies the bricks of `box_ref` (bricks of [`DEFAULT_REF_BRICK_VOXELS`] voxels of the finer volume) for
+    /// this frame's layers and uploads the grid. `control_texels`: the (fixed, moving) control textures' texels when
+    /// the CPU has them, for per-brick displacement bounds; without them the textures' global bounds are used.
+    #[must_use]
+    pub fn empty_space(
+        &self,
+        ctx: &GpuContext,
+        box_ref: (glam::Vec3, glam::Vec3),
+        control_texels: [Option<&PreparedControl>; 2],
+    ) -> GpuEmptySpace {
+        self.empty_space_on(ctx, self.default_lattice(box_ref), control_texels)
+    }
+
+    /// The bricks [`Self::empty_space`] classifies: [`DEFAULT_REF_BRICK_VOXELS`] voxels of the finer volume (at
+    /// most [`crate::empty_space::MAX_REF_BRICKS_PER_AXIS`] per axis) over `box_ref`.
+    #[must_use]
+    pub fn default_lattice(&self, box_ref: (glam::Vec3, glam::Vec3)) -> BrickLattice {
+        let (f, m) = (self.fixed.params(), self.moving.params());
+        let finest = [f, m].iter().flat_map(|l| l.volume.spacing_mm).fold(f64::INFINITY, f64::min);
+        let finest = if finest.is_finite() { finest as f32 } else { 1.0 };
+        BrickLattice::covering(box_ref, DEFAULT_REF_BRICK_VOXELS * finest)
+    }
+
+    /// As [`Self::empty_space`] on the bricks of `lattice`.
+    #[must_use]
+    pub fn empty_space_on(
+        &self,
+        ctx: &GpuContext,
+        lattice: BrickLattice,
+        control_texels: [Option<&PreparedControl>; 2],
+    ) -> GpuEmptySpace {
+        let (f, m) = (self.fixed.params(), self.moving.params());
+        let fixed = OccupancyLayer {
+            params: f,
+            bricks: &self.fixed.volume.bricks,
+            control_texels: control_texels[0],
+            opacity: self.opacity(&f),
+        };
+        let moving = OccupancyLayer {
+            params: m,
+            bricks: &self.moving.volume.bricks,
+            control_texels: control_texels[1],
+            opacity: self.opacity(&m),
+        };
+        let grid = EmptySpaceGrid::build(&fixed, &moving, lattice);
+        GpuEmptySpace::upload(ctx, &grid)
+    }
+}
+
 /// One frame's resources: the uniform buffer and the bind group over both layers and the transfer functions.
 #[derive(Debug)]
 pub struct RaycastDrawData {
@@ -662,6 +775,22 @@ impl RaycastDrawData {
         Self::with_uniforms(ctx, renderer, frame, uniforms)
     }
 
+    /// As [`Self::new`], skipping the bricks `empty_space` marks empty (see [`Self::with_empty_space`]).
+    #[must_use]
+    pub fn new_with_empty_space(
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        frame: &GpuFrame<'_>,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        size_px: (u32, u32),
+        empty_space: Option<&GpuEmptySpace>,
+    ) -> Self {
+        let (fixed, moving) = (frame.fixed.params(), frame.moving.params());
+        let uniforms = RaycastUniforms::new(camera, settings, size_px, &fixed, &moving, frame.tfs.rows);
+        Self::with_empty_space(ctx, renderer, frame, uniforms, empty_space)
+    }
+
     /// A slice through `plane` ([`crate::slice`]), drawn with [`RaycastRenderer::render_slice`] into a target of
     /// `plane.size`.
     #[must_use]
@@ -685,6 +814,24 @@ impl RaycastDrawData {
         frame: &GpuFrame<'_>,
         uniforms: RaycastUniforms,
     ) -> Self {
+        Self::with_empty_space(ctx, renderer, frame, uniforms, None)
+    }
+
+    /// As [`Self::with_uniforms`], skipping the bricks `empty_space` marks empty ([`crate::empty_space`]) when it
+    /// was built for this frame's layers ([`GpuEmptySpace::key`] equals [`GpuFrame::empty_space_key`]); otherwise
+    /// (or with `None`) skipping nothing. The image is the same either way.
+    #[must_use]
+    pub fn with_empty_space(
+        ctx: &GpuContext,
+        renderer: &RaycastRenderer,
+        frame: &GpuFrame<'_>,
+        mut uniforms: RaycastUniforms,
+        empty_space: Option<&GpuEmptySpace>,
+    ) -> Self {
+        let empty_space = empty_space.filter(|e| e.key == frame.empty_space_key(e.lattice));
+        uniforms.empty_space =
+            empty_space.map_or_else(EmptySpaceUniforms::default, |e| EmptySpaceUniforms::on(&e.lattice));
+        let empty_space_view = empty_space.map_or(&renderer.placeholder_empty_space, |e| &e.view);
         let GpuFrame { fixed, moving, tfs } = frame;
         let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("raycast uniforms"),
@@ -712,6 +859,7 @@ impl RaycastDrawData {
                 SLOT_LINEAR_SAMPLER.entry(wgpu::BindingResource::Sampler(&renderer.linear_sampler)),
                 SLOT_FIXED_PREFILTERED.entry(wgpu::BindingResource::TextureView(fixed_pf)),
                 SLOT_MOVING_PREFILTERED.entry(wgpu::BindingResource::TextureView(moving_pf)),
+                SLOT_EMPTY_SPACE.entry(wgpu::BindingResource::TextureView(empty_space_view)),
             ],
         });
         Self { uniforms, _uniform_buffer: buffer, bind_group }

@@ -240,6 +240,14 @@ impl LayerParams {
     }
 }
 
+/// The automatic proxy box of a frame: the union of both layers' [`LayerParams::box_ref`] (what
+/// [`RenderSettings::box_override_ref`] replaces).
+#[must_use]
+pub fn proxy_box_ref(fixed: &LayerParams, moving: &LayerParams) -> (glam::Vec3, glam::Vec3) {
+    let (a, b) = (fixed.box_ref(), moving.box_ref());
+    (a.0.min(b.0).as_vec3(), a.1.max(b.1).as_vec3())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

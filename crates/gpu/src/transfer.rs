@@ -158,6 +158,8 @@ pub struct GpuTransferFunctions {
     pub texture: wgpu::Texture,
     pub view: wgpu::TextureView,
     pub rows: u32,
+    /// Which entries of each row have non-zero opacity, for empty-space skipping ([`crate::empty_space`]).
+    pub opacity: Vec<OpacityTable>,
 }
 
 impl GpuTransferFunctions {
@@ -188,7 +190,42 @@ impl GpuTransferFunctions {
             size,
         );
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        Self { texture, view, rows: n }
+        let mut opacity: Vec<OpacityTable> = rows.iter().map(|tf| OpacityTable::new(&tf.entries)).collect();
+        opacity.resize(n as usize, OpacityTable::new(&[[0; 4]; TF_ENTRIES]));
+        Self { texture, view, rows: n, opacity }
+    }
+}
+
+/// Which transfer-function entries have non-zero opacity, with prefix counts for O(1) range queries.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OpacityTable {
+    /// `prefix[i]`: the number of entries below i with non-zero opacity (`TF_ENTRIES + 1` counts).
+    prefix: Vec<u16>,
+}
+
+impl OpacityTable {
+    /// The table of one transfer function's entries (straight RGBA8).
+    #[must_use]
+    pub fn new(entries: &[[u8; 4]]) -> Self {
+        let mut prefix = Vec::with_capacity(entries.len() + 1);
+        let mut n = 0u16;
+        prefix.push(0);
+        for e in entries {
+            n += u16::from(e[3] > 0);
+            prefix.push(n);
+        }
+        Self { prefix }
+    }
+
+    /// Whether any entry in `lo ..= hi` (clamped to the table) has non-zero opacity.
+    #[must_use]
+    pub fn any_opaque(&self, lo: i64, hi: i64) -> bool {
+        let last = self.prefix.len() as i64 - 2;
+        if last < 0 || hi < lo || hi < 0 || lo > last {
+            return false;
+        }
+        let (lo, hi) = (lo.clamp(0, last) as usize, hi.clamp(0, last) as usize);
+        hi >= lo && self.prefix[hi + 1] > self.prefix[lo]
     }
 }
 

@@ -339,6 +339,8 @@ fn box_downsample(desc: &VolumeDesc<'_>, f: [usize; 3]) -> ([usize; 3], Vec<f64>
 #[derive(Debug)]
 pub struct GpuVolume {
     pub info: VolumeInfo,
+    /// Min/max of the texels per brick, for empty-space skipping ([`crate::empty_space`]).
+    pub bricks: VolumeBricks,
     pub texture: wgpu::Texture,
     pub view: wgpu::TextureView,
 }
@@ -373,7 +375,73 @@ impl GpuVolume {
             size,
         );
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
-        Ok(Self { info: prepared.info, texture, view })
+        Ok(Self { info: prepared.info, bricks: VolumeBricks::of(prepared), texture, view })
+    }
+}
+
+/// Edge of a volume brick ([`VolumeBricks`]), voxels.
+pub const BRICK_VOXELS: usize = 8;
+
+/// Min/max of a volume's normalised texels per brick of [`BRICK_VOXELS`]³ voxels, in its index space.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VolumeBricks {
+    /// Voxels per axis.
+    pub voxel_dims: [u32; 3],
+    /// Bricks per axis, ⌈voxel_dims / BRICK_VOXELS⌉.
+    pub dims: [u32; 3],
+    /// `[min, max]` per brick, x fastest.
+    pub ranges: Vec<[f32; 2]>,
+}
+
+impl VolumeBricks {
+    /// The bricks of `volume`'s texels, as uploaded (after any downsampling).
+    #[must_use]
+    pub fn of(volume: &PreparedVolume) -> Self {
+        let voxel_dims = volume.info.dims;
+        let [nx, ny, nz] = voxel_dims.map(|d| d as usize);
+        let dims = voxel_dims.map(|d| (d as usize).div_ceil(BRICK_VOXELS) as u32);
+        let [bx, by, _] = dims.map(|d| d as usize);
+        let mut ranges = vec![[f32::INFINITY, f32::NEG_INFINITY]; dims.iter().map(|&d| d as usize).product()];
+        for k in 0..nz {
+            for j in 0..ny {
+                let row = nx * (j + ny * k);
+                let brick_row = bx * (j / BRICK_VOXELS + by * (k / BRICK_VOXELS));
+                for (b, range) in ranges[brick_row..brick_row + bx].iter_mut().enumerate() {
+                    let (lo, hi) = (row + b * BRICK_VOXELS, row + ((b + 1) * BRICK_VOXELS).min(nx));
+                    for i in lo..hi {
+                        let t = volume.texels.normalised(i);
+                        range[0] = range[0].min(t);
+                        range[1] = range[1].max(t);
+                    }
+                }
+            }
+        }
+        Self { voxel_dims, dims, ranges }
+    }
+
+    /// Min/max of the texels with indices in `lo ..= hi` (clamped to the volume), or `None` for an empty range.
+    #[must_use]
+    pub fn range(&self, lo: [i64; 3], hi: [i64; 3]) -> Option<[f32; 2]> {
+        let mut b0 = [0usize; 3];
+        let mut b1 = [0usize; 3];
+        for a in 0..3 {
+            let last = i64::from(self.voxel_dims[a]) - 1;
+            let (l, h) = (lo[a].clamp(0, last), hi[a].clamp(0, last));
+            if l > h {
+                return None;
+            }
+            (b0[a], b1[a]) = (l as usize / BRICK_VOXELS, h as usize / BRICK_VOXELS);
+        }
+        let [bx, by, _] = self.dims.map(|d| d as usize);
+        let mut out = [f32::INFINITY, f32::NEG_INFINITY];
+        for k in b0[2]..=b1[2] {
+            for j in b0[1]..=b1[1] {
+                for r in &self.ranges[bx * (j + by * k) + b0[0]..=bx * (j + by * k) + b1[0]] {
+                    out = [out[0].min(r[0]), out[1].max(r[1])];
+                }
+            }
+        }
+        Some(out)
     }
 }
 

@@ -6,7 +6,7 @@ use eframe::egui_wgpu;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     BSplineDesc, Capabilities, ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer,
-    GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
+    GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuEmptySpace, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget,
     PrefilterPass, PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Quality,
     RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget,
@@ -122,6 +122,11 @@ pub struct Viewer {
     control_eval: Option<ControlEvalPass>,
     /// `control` came from `control_eval` (so it can be written again in place).
     control_from_eval: bool,
+    /// The texels of an uploaded `control` (not of one evaluated on the GPU), for the empty-space grid's
+    /// per-brick displacement bounds.
+    control_texels: Option<PreparedControl>,
+    /// The empty-space grid of the current looks, volumes and warp, rebuilt when they change ([`Self::frame_data`]).
+    empty_space: std::sync::Mutex<Option<GpuEmptySpace>>,
 }
 
 fn gpu_error(e: warpbench_gpu::GpuError) -> anyhow::Error {
@@ -172,6 +177,8 @@ impl Viewer {
             control: None,
             control_eval: None,
             control_from_eval: false,
+            control_texels: None,
+            empty_space: std::sync::Mutex::new(None),
         })
     }
 
@@ -179,6 +186,8 @@ impl Viewer {
     pub fn replace_layer(&mut self, fixed: bool, data: &LayerData) -> anyhow::Result<()> {
         let layer = Layer::upload(&self.ctx, &self.prefilter, data)?;
         *(if fixed { &mut self.fixed } else { &mut self.moving }) = layer;
+        // The new volume may share the old one's geometry and look: its grid is not the old one's.
+        self.forget_empty_space();
         Ok(())
     }
 
@@ -233,7 +242,33 @@ impl Viewer {
         quality: Quality,
         size_px: (u32, u32),
     ) -> RaycastDrawData {
-        RaycastDrawData::new(&self.ctx, &self.renderer, &self.frame(), camera, &settings.at(quality), size_px)
+        self.frame_data(camera, &settings.at(quality), size_px)
+    }
+
+    /// A 3-D frame's draw data, skipping empty space by the grid of the current looks (built here when they, the
+    /// volumes or the warp changed; the image is the same as without it).
+    fn frame_data(&self, camera: &OrbitCamera, settings: &RenderSettings, size_px: (u32, u32)) -> RaycastDrawData {
+        let frame = self.frame();
+        let box_ref = frame.proxy_box_ref();
+        let key = frame.empty_space_key(frame.default_lattice(box_ref));
+        let mut grid = self.empty_space.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if grid.as_ref().is_none_or(|g| g.key != key) {
+            *grid = Some(frame.empty_space(&self.ctx, box_ref, [None, self.control_texels.as_ref()]));
+        }
+        RaycastDrawData::new_with_empty_space(
+            &self.ctx,
+            &self.renderer,
+            &frame,
+            camera,
+            settings,
+            size_px,
+            grid.as_ref(),
+        )
+    }
+
+    /// Drops the empty-space grid, so that the next frame builds one.
+    fn forget_empty_space(&mut self) {
+        *self.empty_space.get_mut().unwrap_or_else(std::sync::PoisonError::into_inner) = None;
     }
 
     /// A render target for the 3-D view at `size_px`, from the pool.
@@ -301,8 +336,8 @@ impl Viewer {
         target: PickTarget,
         probe: Probe,
     ) -> anyhow::Result<Option<PickHit>> {
-        let frame = self.frame();
-        let data = RaycastDrawData::new(&self.ctx, &self.renderer, &frame, camera, settings, size_px);
+        // The same grid as the frame's: the pick marches the samples the frame shows, skipping the same bricks.
+        let data = self.frame_data(camera, settings, size_px);
         let ray = PickRay::from_pixel(&data.uniforms, pixel).map_err(gpu_error)?;
         let hits = self.picker.pick(&self.ctx, &data, &PickRequest::new(target, probe), &[ray]).map_err(gpu_error)?;
         Ok(hits.first().and_then(PickHit::found).copied())
@@ -339,8 +374,11 @@ impl Viewer {
         let Some(pass) = &self.control_eval else { unreachable!("made just above") };
         // An uploaded texture has other usages: only a texture the pass made is written again in place.
         let reuse = self.control.take().filter(|_| self.control_from_eval);
+        self.control_texels = None;
         self.control = Some(evaluate(pass, &self.ctx, reuse).map_err(gpu_error)?);
         self.control_from_eval = true;
+        // Written in place: its info (the grid's key) may be unchanged while the displacements are not.
+        self.forget_empty_space();
         Ok(())
     }
 
@@ -353,7 +391,9 @@ impl Viewer {
     /// Uploads a control texture (or removes the warp with `None`).
     pub fn set_control(&mut self, prepared: Option<&PreparedControl>) {
         self.control = prepared.map(|p| GpuControlTexture::upload(&self.ctx, p));
+        self.control_texels = prepared.cloned();
         self.control_from_eval = false;
+        self.forget_empty_space();
     }
 
     /// Marks a new UI frame for the texture pool, freeing targets idle for a few frames.
