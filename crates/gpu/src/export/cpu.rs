@@ -3,6 +3,10 @@
 //! affine maps as ((m₃ + j·m₁) + k·m₂) + i·m₀, lerps as a + f·(b − a), Catmull-Rom sums left to right, the TPS's
 //! terms in order (a block of voxels at a time, lane by lane, which keeps each voxel's order and lets the compiler
 //! use SIMD; see [`tps_row`]).
+//!
+//! The output is not zeroed first: each row is built in a per-thread buffer and copied into the output's
+//! uninitialised capacity, so its pages are first touched by the thread that fills them (no single-threaded memset
+//! and page-fault storm before the parallel work).
 
 #![allow(
     clippy::inline_always,
@@ -13,7 +17,7 @@ use rayon::prelude::*;
 
 use super::plan::{Plan, PlanPullBack, report};
 use super::request::{ExportRequest, ExportedSamples, ExportedVolume, Interpolation, OutputType, Progress};
-use super::sample::{Acc, Sample, try_zeroed, with_samples};
+use super::sample::{Acc, Sample, try_reserved, with_samples};
 use crate::error::Result;
 use crate::pullback::TpsLocal;
 
@@ -44,20 +48,31 @@ fn run_typed<S: Sample>(
 }
 
 fn run<S: Sample, O: Sample>(plan: &Plan, source: &[S], progress: &mut dyn FnMut(Progress) -> bool) -> Result<Vec<O>> {
-    let mut out = try_zeroed::<O>(plan.output_len)?;
+    let mut out = try_reserved::<O>(plan.output_len)?;
     let [nx, ny, nz] = plan.target_dims;
     let slab = plan.slab_slices.unwrap_or_else(default_slab_slices).clamp(1, nz);
     let outside = O::from_f64(plan.outside_value);
     let isa = Isa::detect();
-    for (s, chunk) in out.chunks_mut(slab * nx * ny).enumerate() {
+    let spare = &mut out.spare_capacity_mut()[..plan.output_len];
+    for (s, chunk) in spare.chunks_mut(slab * nx * ny).enumerate() {
         chunk.par_chunks_mut(nx * ny).enumerate().for_each(|(dk, slice)| {
             let k = s * slab + dk;
             let mut scratch = RowScratch::new(nx);
-            for (j, row) in slice.chunks_mut(nx).enumerate() {
-                fill_row(isa, plan, source, &mut scratch, row, [j, k], outside);
+            let mut row = vec![outside; nx];
+            for (j, dst) in slice.chunks_mut(nx).enumerate() {
+                fill_row(isa, plan, source, &mut scratch, &mut row, [j, k], outside);
+                dst.write_copy_of_slice(&row);
             }
         });
         report(progress, ((s + 1) * slab).min(nz), nz)?;
+    }
+    #[allow(unsafe_code, reason = "the output is filled in place, without zeroing it first (module docs)")]
+    // SAFETY: `spare` is the first `output_len` elements of the capacity, `try_reserved` reserved at least that many,
+    // and the loop above wrote every one of them: the slabs' chunks tile `spare`, each chunk's slices tile the chunk,
+    // and each slice's rows tile the slice (output_len = nx·ny·nz). A cancelled export returns before this with
+    // `out` still empty.
+    unsafe {
+        out.set_len(plan.output_len);
     }
     Ok(out)
 }

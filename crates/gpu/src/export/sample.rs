@@ -130,6 +130,13 @@ impl Sample for f64 {
 
 /// `len` default values, or an error instead of an abort when the memory is not there.
 pub(crate) fn try_zeroed<T: Sample>(len: usize) -> Result<Vec<T>> {
+    let mut v = try_reserved(len)?;
+    v.resize(len, T::default());
+    Ok(v)
+}
+
+/// An empty `Vec` with room for `len` output samples, or [`GpuError::InvalidInput`] when the system refuses it.
+pub(crate) fn try_reserved<T: Sample>(len: usize) -> Result<Vec<T>> {
     let mut v = Vec::new();
     v.try_reserve_exact(len).map_err(|e| {
         GpuError::InvalidInput(format!(
@@ -137,7 +144,6 @@ pub(crate) fn try_zeroed<T: Sample>(len: usize) -> Result<Vec<T>> {
             std::mem::size_of::<T>()
         ))
     })?;
-    v.resize(len, T::default());
     Ok(v)
 }
 
