@@ -84,6 +84,7 @@
 use std::marker::PhantomData;
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix4x3};
+use rayon::prelude::*;
 use warpbench_io::geometry::{Point3, Space, Transform};
 
 use crate::pairs::{self, Needs, PairWarning, Spread};
@@ -237,7 +238,8 @@ pub(crate) fn checked_pairs<To: Space, From: Space>(
 ///
 /// the radial-basis form of Rippa (1999) for the augmented system, valid for any diagonal d = ±λ. The kernel block
 /// of L⁻¹ is G = Q₂ (Q₂ᵀ K̃ Q₂)⁻¹ Q₂ᵀ (W = G Y), so (L⁻¹)ᵢᵢ = Gᵢᵢ comes from the reduced factor the fit already
-/// has: one inverse of the (N−4)² matrix and four reflections, O(N³) once, where N refits cost O(N⁴).
+/// has: one inverse of the (N−4)² matrix and four reflections, O(N³) once, where N refits cost O(N⁴). The triangular
+/// solve for the diagonal of G runs in column blocks on rayon's pool.
 ///
 /// # Which pairs get `None`
 ///
@@ -659,9 +661,19 @@ fn solve(
             for h in &reflectors {
                 h.apply_left(&mut k_mat);
             }
-            let mut q2_t = k_mat.rows_mut(4, m);
-            ch.l_dirty().solve_lower_triangular_unchecked_mut(&mut q2_t);
-            Some(q2_t.column_iter().map(|column| -column.norm_squared()).collect())
+            // The columns are independent: solved in blocks on rayon's pool.
+            let q2_t = k_mat.rows(4, m);
+            let block = n.div_ceil(2 * rayon::current_num_threads().max(1)).max(1);
+            let starts: Vec<usize> = (0..n).step_by(block).collect();
+            let blocks: Vec<Vec<f64>> = starts
+                .par_iter()
+                .map(|&start| {
+                    let mut x = q2_t.columns(start, block.min(n - start)).clone_owned();
+                    ch.l_dirty().solve_lower_triangular_unchecked_mut(&mut x);
+                    x.column_iter().map(|column| -column.norm_squared()).collect()
+                })
+                .collect();
+            Some(blocks.concat())
         }
         (true, factor) => {
             k_mat.fill(0.0);
