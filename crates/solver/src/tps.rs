@@ -602,6 +602,19 @@ pub(crate) fn householder_qr(p_hat: &mut DMatrix<f64>) -> Result<(Vec<Reflector>
     Ok((reflectors, r))
 }
 
+/// The length of the diagonal of the axis-aligned box around `p`.
+pub(crate) fn bounding_diagonal(p: &[[f64; 3]]) -> f64 {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for pi in p {
+        for k in 0..3 {
+            lo[k] = lo[k].min(pi[k]);
+            hi[k] = hi[k].max(pi[k]);
+        }
+    }
+    ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt()
+}
+
 /// Solves L [W; Â] = [Y; 0] by eliminating the affine block (module docs, "Solve"). With `kernel_diagonal`, also
 /// returns the diagonal of the kernel block of L⁻¹, G = Q₂ M₂₂⁻¹ Q₂ᵀ (see [`leave_one_out`]).
 fn solve(
@@ -612,15 +625,7 @@ fn solve(
     kernel_diagonal: bool,
 ) -> Result<(Solution, Option<Vec<f64>>)> {
     let n = p.len();
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for pi in p {
-        for k in 0..3 {
-            lo[k] = lo[k].min(pi[k]);
-            hi[k] = hi[k].max(pi[k]);
-        }
-    }
-    let diameter = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
+    let diameter = bounding_diagonal(p);
 
     // K̃ = K + dI (d = ±λ), symmetric.
     let mut k_mat = DMatrix::<f64>::zeros(n, n);

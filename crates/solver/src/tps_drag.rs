@@ -148,7 +148,7 @@ impl<To: Space, From: Space> FactoredTps<To, From> {
         }
         let (w, a, b) = this.parts(&c);
         let tps = Tps::from_raw(&p, &w, a, b, regularisation);
-        let diameter = bounding_diagonal(&p);
+        let diameter = tps::bounding_diagonal(&p);
         tps.check_solution(&p, &q, &Solution { w, a, b, diameter })?;
         this.coefficients = c;
         this.tps = tps;
@@ -237,7 +237,7 @@ impl<To: Space, From: Space> FactoredTps<To, From> {
         if !z.iter().all(|v| v.is_finite()) {
             return Err(SolverError::NonFinite { pair: k + 1 });
         }
-        let tol = SAME_POSITION_RTOL * bounding_diagonal(points).max(1.0);
+        let tol = SAME_POSITION_RTOL * tps::bounding_diagonal(points).max(1.0);
         if let Some(j) = points.iter().enumerate().position(|(j, p)| j != k && distance(*p, z) <= tol) {
             return Err(SolverError::Degenerate(format!(
                 "dragged point {} lands on point {}; refit to check the pairs",
@@ -315,18 +315,6 @@ struct CentreUpdate {
     coefficients: DMatrix<f64>,
     h: DVector<f64>,
     t: [[f64; 3]; 2],
-}
-
-fn bounding_diagonal(p: &[[f64; 3]]) -> f64 {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for pi in p {
-        for k in 0..3 {
-            lo[k] = lo[k].min(pi[k]);
-            hi[k] = hi[k].max(pi[k]);
-        }
-    }
-    distance(lo, hi)
 }
 
 /// Which point of the pair a drag moves.
