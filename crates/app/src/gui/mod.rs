@@ -107,7 +107,7 @@ pub struct FitState {
     /// A change asked for a fit at the end of the frame ([`Ready::refit_soon`]).
     pending: bool,
     /// The TPS drag in progress, from its first event until the full refit of its release ([`fit::DragFit`]).
-    drag: Option<crate::fit::DragFit>,
+    drag: Option<fit::DragFit>,
 }
 
 /// The side panel's file and export section.
