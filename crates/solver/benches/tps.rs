@@ -2,13 +2,15 @@
 //! leave-one-out errors at N = 200 (closed form and the N refits it replaces) and N = 1000 (closed form), and one
 //! landmark drag at N = 1000 with the window's 48³ control texture ([`warpbench_solver::tps_drag`]): one event of
 //! a moving point, one of a fixed point, the drag's start, and the full refit of both directions plus the texture
-//! that an event cost before.
+//! that an event cost before; and, for the profile of the leave-one-out, its two O(N³) kernels at N = 1000
+//! ([`warpbench_solver::dense`]) on rayon's pool and on one thread, beside nalgebra's unblocked Cholesky.
 //!
 //! `cargo bench -p warpbench-solver --bench tps -- --warm-up-time 1 --measurement-time 3`
 
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
+use nalgebra::DMatrix;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use warpbench_io::geometry::Point3;
@@ -16,7 +18,7 @@ use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::diagnostics::leave_one_out as refit_leave_one_out;
 use warpbench_solver::tps::{Regularisation, Tps, fit_forward, fit_pullback, leave_one_out};
 use warpbench_solver::tps_drag::{DraggedEnd, PairDrag};
-use warpbench_solver::{Aabb, Fixed, Moving, Parallelism};
+use warpbench_solver::{Aabb, Fixed, Moving, Parallelism, dense};
 
 /// N landmark pairs in a 200 mm box with a smooth ~10 mm displacement.
 fn landmarks(n: usize, seed: u64) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
@@ -121,5 +123,31 @@ fn bench_drag(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_fit, bench_eval, bench_leave_one_out, bench_drag);
+/// The two O(N³) kernels under the closed-form leave-one-out at N = 1000 (the reduced matrix is (N − 4)²), for the
+/// profile: the blocked Cholesky factorisation and the inverse of its factor, on rayon's pool and on one thread.
+fn bench_dense(c: &mut Criterion) {
+    let m = 996;
+    let mut rng = ChaCha8Rng::seed_from_u64(19);
+    let b = DMatrix::<f64>::from_fn(m, m, |_, _| rng.random_range(-1.0..1.0));
+    let a = &b * b.transpose() + DMatrix::identity(m, m) * m as f64;
+    let mut l = a.clone();
+    dense::cholesky_in_place(&mut l, dense::BLOCK, Parallelism::Rayon).expect("SPD");
+    for (parallelism, name) in [(Parallelism::Rayon, "rayon"), (Parallelism::Sequential, "1thread")] {
+        c.bench_function(&format!("dense_cholesky_n{m}_{name}"), |bench| {
+            bench.iter(|| {
+                let mut f = black_box(&a).clone();
+                dense::cholesky_in_place(&mut f, dense::BLOCK, parallelism).expect("SPD");
+                f
+            });
+        });
+        c.bench_function(&format!("dense_lower_triangular_inverse_n{m}_{name}"), |bench| {
+            bench.iter(|| dense::lower_triangular_inverse(black_box(&l), dense::BLOCK, parallelism).expect("inverse"));
+        });
+    }
+    c.bench_function(&format!("nalgebra_cholesky_n{m}"), |bench| {
+        bench.iter(|| black_box(&a).clone().cholesky().expect("SPD"));
+    });
+}
+
+criterion_group!(benches, bench_fit, bench_eval, bench_leave_one_out, bench_drag, bench_dense);
 criterion_main!(benches);

@@ -7,6 +7,7 @@
 //! Every function says which direction it computes; the types say it too ([`spaces`]).
 //!
 //! - [`tps`]: thin-plate spline with the 3-D kernel U(r) = r and a stiffness λ.
+//! - [`dense`]: the blocked Cholesky factorisation and triangular inverse under the TPS solve.
 //! - [`tps_drag`]: one landmark of a TPS pair dragged in O(N²) per event (factorisation kept, rank-2 updates).
 //! - [`bspline`]: hierarchical (multilevel) cubic B-spline approximation (Lee, Wolberg & Shin 1997).
 //! - [`linear`]: affine, similarity and rigid least-squares fits (Umeyama 1991) and the predicted TRE.
@@ -20,6 +21,7 @@
 
 pub mod bspline;
 pub mod control;
+pub mod dense;
 pub mod diagnostics;
 pub mod error;
 pub mod invert;

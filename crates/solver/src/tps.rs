@@ -49,7 +49,9 @@
 //! Coordinates are centred and scaled for the affine block (P̂ rows ((pᵢ − c)/s, 1)), which spans the
 //! same functions. With the Householder QR P̂ = Q [R; 0], Q = [Q₁ Q₂], the constraint P̂ᵀW = 0 is W = Q₂Ω,
 //! and Ω solves the symmetric (N−4)² system Q₂ᵀ(K ± λI)Q₂ Ω = Q₂ᵀY (Cholesky of its negation; ITK
-//! stiffness falls back to Cholesky or LU), then R [Aᵀ; bᵀ]̂ = Q₁ᵀ(Y − (K ± λI)W). Every fit checks the
+//! stiffness falls back to Cholesky or LU), then R [Aᵀ; bᵀ]̂ = Q₁ᵀ(Y − (K ± λI)W). The four reflections act on
+//! K ± λI at once (compact WY form) and the Cholesky factorisation is blocked ([`crate::dense`]), both in matrix
+//! products on rayon's pool: ~N³/3 flops for a fit. Every fit checks the
 //! factor's pivot ratio ([`PIVOT_RTOL`]) and estimated condition ([`RCOND_MIN`]) and the backward error of the full system ([`RESIDUAL_RTOL`]),
 //! and never returns non-finite coefficients.
 //!
@@ -83,12 +85,12 @@
 
 use std::marker::PhantomData;
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix4x3};
+use nalgebra::{DMatrix, DMatrixViewMut, DVector, Matrix3, Matrix4x3};
 use rayon::prelude::*;
 use warpbench_io::geometry::{Point3, Space, Transform};
 
 use crate::pairs::{self, Needs, PairWarning, Spread};
-use crate::{Fixed, Moving, Result, SolverError, Warp};
+use crate::{Fixed, Moving, Parallelism, Result, SolverError, Warp, dense};
 
 pub use crate::pairs::{FLAT_RTOL, SAME_POSITION_RTOL};
 
@@ -238,8 +240,8 @@ pub(crate) fn checked_pairs<To: Space, From: Space>(
 ///
 /// the radial-basis form of Rippa (1999) for the augmented system, valid for any diagonal d = ±λ. The kernel block
 /// of L⁻¹ is G = Q₂ (Q₂ᵀ K̃ Q₂)⁻¹ Q₂ᵀ (W = G Y), so (L⁻¹)ᵢᵢ = Gᵢᵢ comes from the reduced factor the fit already
-/// has: one inverse of the (N−4)² matrix and four reflections, O(N³) once, where N refits cost O(N⁴). The triangular
-/// solve for the diagonal of G runs in column blocks on rayon's pool.
+/// has: the inverse of its triangular factor and four reflections, O(N³) once, where N refits cost O(N⁴). The
+/// factorisation and the inverse are the blocked kernels of [`crate::dense`] on rayon's pool, ~2N³/3 flops in all.
 ///
 /// # Which pairs get `None`
 ///
@@ -579,6 +581,62 @@ impl Reflector {
     }
 }
 
+/// S ← Qᵀ S Q for symmetric n×n S and Q = H₁H₂…Hₖ, in two passes over S where k calls of [`Reflector::apply_both`]
+/// take 5k. With the compact WY form Q = I − V T Vᵀ (V = [v₁ … vₖ], T upper triangular: Schreiber & Van Loan 1989,
+/// LAPACK `dlarft`) and W = S V,
+///
+/// ```text
+/// Qᵀ S Q = S − V Zᵀ − Z Vᵀ,     Z = W T − ½ V (Tᵀ Vᵀ W T),
+/// ```
+///
+/// one product S V and one rank-2k update, both in column blocks on rayon's pool.
+pub(crate) fn apply_qt_s_q(s: &mut DMatrix<f64>, reflectors: &[Reflector]) {
+    let (n, k) = (s.nrows(), reflectors.len());
+    let v = DMatrix::from_fn(n, k, |i, j| reflectors[j].v[i]);
+    let mut t = DMatrix::<f64>::zeros(k, k);
+    for (i, h) in reflectors.iter().enumerate() {
+        let column = t.view((0, 0), (i, i)) * v.columns(0, i).tr_mul(&h.v) * -h.tau;
+        t.view_mut((0, i), (i, 1)).copy_from(&column);
+        t[(i, i)] = h.tau;
+    }
+    // Row r of W = S V is Vᵀ times column r of S (S is symmetric).
+    let mut w_t = DMatrix::<f64>::zeros(k, n);
+    let s_view = &*s;
+    w_t.as_mut_slice().par_chunks_mut(k).enumerate().with_min_len(64).for_each(|(r, out)| {
+        out.copy_from_slice(v.tr_mul(&s_view.column(r)).as_slice());
+    });
+    let w = w_t.transpose();
+    let z = &w * &t - &v * ((t.transpose() * v.tr_mul(&w) * &t) * 0.5);
+    let mut left = DMatrix::<f64>::zeros(n, 2 * k);
+    left.columns_mut(0, k).copy_from(&v);
+    left.columns_mut(k, k).copy_from(&z);
+    let mut right_t = DMatrix::<f64>::zeros(2 * k, n);
+    right_t.rows_mut(0, k).copy_from(&z.transpose());
+    right_t.rows_mut(k, k).copy_from(&v.transpose());
+    let block = dense::BLOCK;
+    s.as_mut_slice().par_chunks_mut(block * n.max(1)).enumerate().for_each(|(c, columns)| {
+        let width = columns.len() / n;
+        let mut target = DMatrixViewMut::from_slice(columns, n, width);
+        target.gemm(-1.0, &left, &right_t.columns(c * block, width), 1.0);
+    });
+}
+
+/// K̃ = K + dI for the centres `p` (Kᵢⱼ = ‖pᵢ − pⱼ‖), by columns on rayon's pool. ‖pᵢ − pⱼ‖ and ‖pⱼ − pᵢ‖ round
+/// alike, so K̃ is exactly symmetric.
+pub(crate) fn kernel_matrix(p: &[[f64; 3]], k_diagonal: f64) -> DMatrix<f64> {
+    let n = p.len();
+    // One coordinate per array, so that the loop over a column vectorises.
+    let [xs, ys, zs]: [Vec<f64>; 3] = std::array::from_fn(|c| p.iter().map(|pi| pi[c]).collect());
+    let mut k = DMatrix::<f64>::zeros(n, n);
+    k.as_mut_slice().par_chunks_mut(n.max(1)).zip(p).enumerate().for_each(|(j, (column, pj))| {
+        for (((kij, x), y), z) in column.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
+            *kij = ((x - pj[0]).powi(2) + (y - pj[1]).powi(2) + (z - pj[2]).powi(2)).sqrt();
+        }
+        column[j] = k_diagonal;
+    });
+    k
+}
+
 /// Householder QR of the N×4 matrix P̂ (in place): returns the 4 reflectors and R (4×4, upper).
 pub(crate) fn householder_qr(p_hat: &mut DMatrix<f64>) -> Result<(Vec<Reflector>, nalgebra::Matrix4<f64>)> {
     let n = p_hat.nrows();
@@ -628,21 +686,13 @@ fn solve(
     let diameter = bounding_diagonal(p);
 
     // K̃ = K + dI (d = ±λ), symmetric.
-    let mut k_mat = DMatrix::<f64>::zeros(n, n);
-    for j in 0..n {
-        k_mat[(j, j)] = k_diagonal;
-        for i in j + 1..n {
-            let r = ((p[i][0] - p[j][0]).powi(2) + (p[i][1] - p[j][1]).powi(2) + (p[i][2] - p[j][2]).powi(2)).sqrt();
-            k_mat[(i, j)] = r;
-            k_mat[(j, i)] = r;
-        }
-    }
+    let mut k_mat = kernel_matrix(p, k_diagonal);
     let mut p_hat = DMatrix::<f64>::from_fn(n, 4, |i, k| if k < 3 { (p[i][k] - c[k]) / s } else { 1.0 });
     let mut y = DMatrix::<f64>::from_fn(n, 3, |i, k| q[i][k]);
 
     let (reflectors, r) = householder_qr(&mut p_hat)?;
+    apply_qt_s_q(&mut k_mat, &reflectors);
     for h in &reflectors {
-        h.apply_both(&mut k_mat);
         h.apply_left(&mut y);
     }
     // Now k_mat = Qᵀ K̃ Q and y = Qᵀ Y; W = Q [0; Ω] with M₂₂ Ω = y₂.
@@ -656,30 +706,12 @@ fn solve(
     };
     // R Â = y₁ − M₁₂ Ω.
     let rhs1 = y.rows(0, 4) - k_mat.view((0, 4), (4, m)) * &omega;
-    // G = Q [0 0; 0 M₂₂⁻¹] Qᵀ, in K̃'s storage (no longer needed): the reflectors applied on both sides in reverse.
+    // diag G, G = Q [0 0; 0 M₂₂⁻¹] Qᵀ: from the inverse of a Cholesky factor, or (LU, and N = 4) by forming G in K̃'s
+    // storage (no longer needed) with the reflectors applied on both sides in reverse.
     let g_diagonal = match (kernel_diagonal, factor) {
         (false, _) => None,
-        (true, Some(Factor::NegCholesky(ch))) => {
-            // M = −L Lᵀ, so Gᵢᵢ = −‖L⁻¹ Q₂ᵀ eᵢ‖²: one triangular solve with the N columns of Q₂ᵀ (the rows 4.. of
-            // Qᵀ = H₄H₃H₂H₁), half the work of forming M⁻¹.
-            k_mat.fill_with_identity();
-            for h in &reflectors {
-                h.apply_left(&mut k_mat);
-            }
-            // The columns are independent: solved in blocks on rayon's pool.
-            let q2_t = k_mat.rows(4, m);
-            let block = n.div_ceil(2 * rayon::current_num_threads().max(1)).max(1);
-            let starts: Vec<usize> = (0..n).step_by(block).collect();
-            let blocks: Vec<Vec<f64>> = starts
-                .par_iter()
-                .map(|&start| {
-                    let mut x = q2_t.columns(start, block.min(n - start)).clone_owned();
-                    ch.l_dirty().solve_lower_triangular_unchecked_mut(&mut x);
-                    x.column_iter().map(|column| -column.norm_squared()).collect()
-                })
-                .collect();
-            Some(blocks.concat())
-        }
+        (true, Some(Factor::NegCholesky(ch))) => Some(kernel_inverse_diagonal(ch.l_dirty(), &reflectors, -1.0)?),
+        (true, Some(Factor::Cholesky(ch))) => Some(kernel_inverse_diagonal(ch.l_dirty(), &reflectors, 1.0)?),
         (true, factor) => {
             k_mat.fill(0.0);
             if let Some(factor) = factor {
@@ -711,6 +743,56 @@ fn solve(
     Ok((Solution { w, a, b, diameter }, g_diagonal))
 }
 
+/// The diagonal of G = Q₂ M⁻¹ Q₂ᵀ ([`leave_one_out`]) from the Cholesky factor of M = `sign`·L Lᵀ and the
+/// reflectors of Q = H₁H₂H₃H₄, in O(N³/3) after the factorisation.
+///
+/// With X = L⁻¹ ([`dense::lower_triangular_inverse`]), M⁻¹ = `sign`·XᵀX, so Gᵢᵢ = `sign`·‖X Q₂ᵀ eᵢ‖². Since
+/// Q₂ᵀ = [0 I] Qᵀ, X Q₂ᵀ = F H₄H₃H₂H₁ with F = [0 X] (m × N). Applying the reflectors one by one from the right keeps
+/// the product in the form F − Σₖ aₖ vₖᵀ: with R = F − Σₖ aₖ vₖᵀ, R H = R − τ (R v) vᵀ and R v = F v − Σₖ aₖ (vₖ·v),
+/// where F v = X v₄.. (the four products in one pass over X). Column i of it is F eᵢ − Σₖ aₖ vₖ,ᵢ, where F eᵢ is
+/// column i − 4 of X (0 for i < 4): a second pass over X gives all N squared norms.
+fn kernel_inverse_diagonal(l: &DMatrix<f64>, reflectors: &[Reflector], sign: f64) -> Result<Vec<f64>> {
+    let m = l.nrows();
+    let n = m + 4;
+    let x = dense::lower_triangular_inverse(l, dense::BLOCK, Parallelism::Rayon)
+        .ok_or_else(|| SolverError::Degenerate("the TPS system could not be inverted".into()))?;
+    let [h1, h2, h3, h4] = reflectors else {
+        unreachable!("P̂ has 4 columns, so its QR has 4 reflectors");
+    };
+    // In the order they apply from the right: H₄ first.
+    let order = [h4, h3, h2, h1];
+    // F vₖ = X (vₖ)₄.. for the four at once, in one pass over the lower triangle of X.
+    let mut a_rows = vec![[0.0; 4]; m];
+    for (c, column) in x.as_slice().chunks_exact(m.max(1)).enumerate() {
+        let v_c: [f64; 4] = std::array::from_fn(|k| order[k].v[4 + c]);
+        for (a_r, x_rc) in a_rows[c..].iter_mut().zip(&column[c..]) {
+            for k in 0..4 {
+                a_r[k] += x_rc * v_c[k];
+            }
+        }
+    }
+    // aₖ = τₖ (F vₖ − Σ_{j<k} aⱼ (vⱼ·vₖ)), row by row.
+    let dots: [[f64; 4]; 4] = std::array::from_fn(|j| std::array::from_fn(|k| order[j].v.dot(&order[k].v)));
+    for a_r in &mut a_rows {
+        for k in 0..4 {
+            let earlier: f64 = (0..k).map(|j| a_r[j] * dots[j][k]).sum();
+            a_r[k] = order[k].tau * (a_r[k] - earlier);
+        }
+    }
+    let zeros = vec![0.0; m];
+    let squared_norm = |i: usize| {
+        let c: [f64; 4] = std::array::from_fn(|k| order[k].v[i]);
+        let f = if i >= 4 { &x.as_slice()[(i - 4) * m..(i - 3) * m] } else { &zeros[..] };
+        let mut sum = 0.0;
+        for (f_r, a_r) in f.iter().zip(&a_rows) {
+            let t = f_r - (a_r[0] * c[0] + a_r[1] * c[1] + a_r[2] * c[2] + a_r[3] * c[3]);
+            sum += t * t;
+        }
+        sign * sum
+    };
+    Ok((0..n).into_par_iter().map(squared_norm).collect())
+}
+
 /// Solves M Ω = Y for the symmetric reduced matrix M = Q₂ᵀ(K + dI)Q₂.
 ///
 /// M is negative definite for d ≤ μ_min (always for d ≤ 0): Cholesky of −M. ITK stiffness d > 0 may make
@@ -736,12 +818,17 @@ pub(crate) fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64
     };
     let norm_m = m.norm();
     // The pivots of LDLᵀ are L_ii², so the ratio of squared diagonals is comparable to an LU pivot ratio.
-    let (factor, ratio) = if let Some(ch) = (-&m).cholesky() {
+    let cholesky = |mut a: DMatrix<f64>| {
+        dense::cholesky_in_place(&mut a, dense::BLOCK, Parallelism::Rayon)
+            .ok()
+            .map(|()| nalgebra::Cholesky::pack_dirty(a))
+    };
+    let (factor, ratio) = if let Some(ch) = cholesky(-&m) {
         let r = pivot_ratio(&ch.l_dirty().diagonal(), 2);
         (Factor::NegCholesky(ch), r)
     } else if k_diagonal <= 0.0 {
         return Err(singular("Cholesky failed, pivot ratio", 0.0));
-    } else if let Some(ch) = m.clone().cholesky() {
+    } else if let Some(ch) = cholesky(m.clone()) {
         let r = pivot_ratio(&ch.l_dirty().diagonal(), 2);
         (Factor::Cholesky(ch), r)
     } else {

@@ -78,21 +78,6 @@ impl<To: Space, From: Space> fmt::Debug for FactoredTps<To, From> {
     }
 }
 
-/// K̃ = K + dI for the centres `p`.
-fn kernel_matrix(p: &[[f64; 3]], k_diagonal: f64) -> DMatrix<f64> {
-    let n = p.len();
-    let mut k = DMatrix::<f64>::zeros(n, n);
-    for j in 0..n {
-        k[(j, j)] = k_diagonal;
-        for i in j + 1..n {
-            let r = distance(p[i], p[j]);
-            k[(i, j)] = r;
-            k[(j, i)] = r;
-        }
-    }
-    k
-}
-
 #[inline]
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
@@ -111,12 +96,12 @@ impl<To: Space, From: Space> FactoredTps<To, From> {
         let (centre, scale) = tps::centre_and_scale(&p)?;
         let d = regularisation.k_diagonal();
         let n = p.len();
-        let mut k_mat = kernel_matrix(&p, d);
+        let mut k_mat = tps::kernel_matrix(&p, d);
         let mut p_hat = DMatrix::<f64>::from_fn(n, 4, |i, k| if k < 3 { (p[i][k] - centre[k]) / scale } else { 1.0 });
         let (reflectors, r) = tps::householder_qr(&mut p_hat)?;
         let mut y = DMatrix::<f64>::from_fn(n, 3, |i, k| q[i][k]);
+        tps::apply_qt_s_q(&mut k_mat, &reflectors);
         for h in &reflectors {
-            h.apply_both(&mut k_mat);
             h.apply_left(&mut y);
         }
         let m = n - 4;

@@ -575,6 +575,51 @@ fn leave_one_out_in_closed_form_equals_refits() {
     }
 }
 
+/// f for the pairs (`p`, `q`) and K̃ = K + dI, from nalgebra's LU of the whole augmented system [K̃ P; Pᵀ 0] in raw
+/// coordinates: an oracle that shares no step with the solver (no QR, no reduction, no Cholesky).
+fn lu_fit(p: &[[f64; 3]], q: &[[f64; 3]], d: f64) -> impl Fn([f64; 3]) -> [f64; 3] + use<> {
+    let n = p.len();
+    let l = DMatrix::from_fn(n + 4, n + 4, |i, j| match (i < n, j < n) {
+        (true, true) => dist(p[i], p[j]) + if i == j { d } else { 0.0 },
+        (true, false) => p[i].get(j - n).copied().unwrap_or(1.0),
+        (false, true) => p[j].get(i - n).copied().unwrap_or(1.0),
+        (false, false) => 0.0,
+    });
+    let b = DMatrix::from_fn(n + 4, 3, |i, k| if i < n { q[i][k] } else { 0.0 });
+    let c = l.lu().solve(&b).expect("the augmented system is regular");
+    let p = p.to_vec();
+    move |x: [f64; 3]| {
+        std::array::from_fn(|k| {
+            let kernel: f64 = p.iter().enumerate().map(|(j, pj)| c[(j, k)] * dist(x, *pj)).sum();
+            kernel + (0..3).map(|a| c[(n + a, k)] * x[a]).sum::<f64>() + c[(n + 3, k)]
+        })
+    }
+}
+
+/// The closed form at N = 300, where the reduced matrix spans several blocks of the blocked Cholesky and triangular
+/// inverse (`dense::BLOCK`), against refits of some pairs by the LU oracle above; ITK stiffness 10⁶ makes M positive
+/// definite (the other Cholesky).
+#[test]
+fn leave_one_out_in_closed_form_equals_lu_refits_at_n300() {
+    let n = 300;
+    assert!(n - 4 > 4 * warpbench_solver::dense::BLOCK, "the test must cross block boundaries");
+    let mut rng = ChaCha8Rng::seed_from_u64(43);
+    let p = random_points(&mut rng, n, 100.0);
+    let q: Vec<[f64; 3]> = p.iter().map(|v| smooth(*v)).collect();
+    let src: Vec<Point3<Src>> = p.iter().copied().map(pt).collect();
+    let dst: Vec<Point3<Dst>> = q.iter().copied().map(pt).collect();
+    for reg in [Regularisation::Interpolate, Regularisation::Smoothing(3.0), Regularisation::ItkStiffness(1e6)] {
+        let closed = leave_one_out(&src, &dst, reg).expect("closed form");
+        for i in [0, 131, 299] {
+            let keep = |v: &[[f64; 3]]| -> Vec<[f64; 3]> { [&v[..i], &v[i + 1..]].concat() };
+            let refit = lu_fit(&keep(&p), &keep(&q), reg.k_diagonal());
+            let oracle = dist(refit(p[i]), q[i]);
+            let c = closed[i].expect("every refit of well spread points fits");
+            assert!((c - oracle).abs() <= REFIT_TOL_MM, "{reg:?}, pair {i}: closed form {c} mm, LU refit {oracle} mm");
+        }
+    }
+}
+
 #[test]
 fn leave_one_out_in_closed_form_handles_repeats_and_refits_that_go_flat() {
     let mut rng = ChaCha8Rng::seed_from_u64(42);
