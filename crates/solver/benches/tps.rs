@@ -1,5 +1,5 @@
-//! TPS benchmarks: fit at N = 100 and N = 1000, single-threaded evaluation of a 64³ grid for N = 100, the
-//! leave-one-out errors at N = 200 (closed form and the N refits it replaces) and N = 1000 (closed form), and one
+//! TPS benchmarks: fit at N = 100, 300 and 1000, single-threaded evaluation of a 64³ grid for N = 100, the
+//! leave-one-out errors in closed form at N = 100, 300 and 1000 and by the N refits it replaces at N = 200, and one
 //! landmark drag at N = 1000 with the window's 48³ control texture ([`warpbench_solver::tps_drag`]): one event of
 //! a moving point, one of a fixed point, the drag's start, and the full refit of both directions plus the texture
 //! that an event cost before; and, for the profile of the leave-one-out, its two O(N³) kernels at N = 1000
@@ -43,7 +43,7 @@ fn landmarks(n: usize, seed: u64) -> (Vec<Point3<Moving>>, Vec<Point3<Fixed>>) {
 }
 
 fn bench_fit(c: &mut Criterion) {
-    for n in [100, 1000] {
+    for n in [100, 300, 1000] {
         let (moving, fixed) = landmarks(n, 7);
         c.bench_function(&format!("tps_fit_n{n}"), |b| {
             b.iter(|| fit_pullback(black_box(&moving), black_box(&fixed), 0.0).expect("fit"));
@@ -82,10 +82,12 @@ fn bench_leave_one_out(c: &mut Criterion) {
         });
     });
     group.finish();
-    let (moving, fixed) = landmarks(1000, 13);
-    c.bench_function("tps_leave_one_out_n1000_closed_form", |b| {
-        b.iter(|| leave_one_out(black_box(&fixed), black_box(&moving), reg).expect("leave-one-out"));
-    });
+    for n in [100, 300, 1000] {
+        let (moving, fixed) = landmarks(n, 13);
+        c.bench_function(&format!("tps_leave_one_out_n{n}_closed_form"), |b| {
+            b.iter(|| leave_one_out(black_box(&fixed), black_box(&moving), reg).expect("leave-one-out"));
+        });
+    }
 }
 
 /// One drag event at N = 1000 with a 48³ texture over a 240 mm box: the fast paths and the full refit they replace.

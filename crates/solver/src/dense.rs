@@ -11,9 +11,11 @@
 //!     [A₂₁ A₂₂]
 //! ```
 //!
-//! and go on with the updated A₂₂. The panel [L₁₁; L₂₁] is factored column by column (`dpotf2`, O(n·b²) per panel);
-//! the trailing update, where the n³/3 flops are, is a product of the panel with its transpose (`dsyrk`), done in
-//! column blocks of its lower triangle through nalgebra's `gemm` (the `matrixmultiply` kernels). A pivot that is not
+//! and go on with the updated A₂₂. The b×b block L₁₁ is factored column by column (`dpotf2`), L₂₁ is the product of
+//! A₂₁ with the transposed inverse of L₁₁ (b³/3 flops for the inverse, then a product in column blocks, where
+//! `dtrsm` would substitute), and the trailing update, where the n³/3 flops are, is a product of the panel with its
+//! transpose (`dsyrk`), done in column blocks of its lower triangle. Every product is nalgebra's `gemm` (the
+//! `matrixmultiply` kernels). A pivot that is not
 //! positive (or not finite) stops the factorisation, as in nalgebra's `Cholesky::new`.
 //!
 //! [`lower_triangular_inverse`] solves L X = I by block columns: with Dᵢ = Lᵢᵢ⁻¹ (one small substitution per
@@ -27,8 +29,8 @@
 //!
 //! # Parallelism
 //!
-//! Each kernel takes a [`Parallelism`]: with [`Parallelism::Rayon`] the column blocks of the trailing update and of
-//! X are split over rayon's pool; [`Parallelism::Sequential`] stays on the calling thread. The column blocks are the
+//! Each kernel takes a [`Parallelism`]: with [`Parallelism::Rayon`] the column blocks of the panel, of the trailing
+//! update and of X are split over rayon's pool; [`Parallelism::Sequential`] stays on the calling thread. The column blocks are the
 //! same either way, so both give the same bits.
 
 use nalgebra::{DMatrix, DMatrixView, DMatrixViewMut};
@@ -39,6 +41,21 @@ use crate::Parallelism;
 /// Columns per block: the panel's 64 columns stay in L2 while it is factored and give the trailing products an inner
 /// dimension long enough for `matrixmultiply` (measured on the bench at N = 1000: 48 to 128 are within a few percent).
 pub const BLOCK: usize = 64;
+
+/// Runs `f` on every (index, chunk) of `data` cut into chunks of `chunk_len` elements (the last may be shorter): on the
+/// calling thread in order, or on rayon's pool one chunk per task.
+pub(crate) fn for_each_chunk<F>(data: &mut [f64], chunk_len: usize, parallelism: Parallelism, f: F)
+where
+    F: Fn((usize, &mut [f64])) + Sync + Send,
+{
+    match parallelism {
+        Parallelism::Sequential => data.chunks_mut(chunk_len).enumerate().for_each(f),
+        Parallelism::Rayon => data.par_chunks_mut(chunk_len).enumerate().with_max_len(1).for_each(f),
+    }
+}
+
+/// Tasks per panel of the Cholesky factorisation (its columns split evenly), enough for 2 to 4 threads.
+const PANEL_TASKS: usize = 4;
 
 /// The Cholesky factorisation met a pivot that is not positive: the matrix is not (numerically) positive definite.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
@@ -66,25 +83,34 @@ pub fn cholesky_in_place(
     let data = a.as_mut_slice();
     for k0 in (0..n).step_by(block) {
         let t0 = (k0 + block).min(n);
-        factor_panel(data, n, k0, t0)?;
-        if t0 == n {
+        let (kb, r) = (t0 - k0, n - t0);
+        factor_diagonal_block(data, n, k0, t0)?;
+        if r == 0 {
             break;
         }
-        // A₂₂ ← A₂₂ − L₂₁ L₂₁ᵀ on the lower triangle, in column blocks of `block` (the panel is left of `right`).
-        let r = n - t0;
         let (left, right) = data.split_at_mut(t0 * n);
-        let l21 = DMatrixView::from_slice_with_strides(&left[k0 * n + t0..], r, t0 - k0, 1, n);
-        let l21_t = DMatrixView::from_slice_with_strides(&left[k0 * n + t0..], t0 - k0, r, n, 1);
-        let update = |(c, columns): (usize, &mut [f64])| {
+        // L₂₁ = A₂₁ L₁₁⁻ᵀ, by columns of the panel, from a copy of A₂₁ and the small inverse of L₁₁.
+        let panel = &mut left[k0 * n..];
+        let l11_inv_t = DMatrixView::from_slice_with_strides(&panel[k0..], kb, kb, 1, n)
+            .solve_lower_triangular(&DMatrix::identity(kb, kb))
+            .ok_or(NotPositiveDefinite { column: k0, pivot: 0.0 })?
+            .transpose();
+        let a21 = DMatrixView::from_slice_with_strides(&panel[t0..], r, kb, 1, n).clone_owned();
+        let panel_width = kb.div_ceil(PANEL_TASKS);
+        for_each_chunk(panel, panel_width * n, parallelism, |(c, columns)| {
+            let (j0, width) = (c * panel_width, columns.len() / n);
+            let mut target = DMatrixViewMut::from_slice_with_strides_mut(&mut columns[t0..], r, width, 1, n);
+            target.gemm(1.0, &a21, &l11_inv_t.columns(j0, width), 0.0);
+        });
+        // A₂₂ ← A₂₂ − L₂₁ L₂₁ᵀ on the lower triangle, in column blocks of `block` (the panel is left of `right`).
+        let l21 = DMatrixView::from_slice_with_strides(&left[k0 * n + t0..], r, kb, 1, n);
+        let l21_t = DMatrixView::from_slice_with_strides(&left[k0 * n + t0..], kb, r, n, 1);
+        for_each_chunk(right, block * n, parallelism, |(c, columns)| {
             let (j0, width) = (c * block, columns.len() / n);
             let rows = r - j0;
             let mut target = DMatrixViewMut::from_slice_with_strides_mut(&mut columns[t0 + j0..], rows, width, 1, n);
             target.gemm(-1.0, &l21.rows(j0, rows), &l21_t.columns(j0, width), 1.0);
-        };
-        match parallelism {
-            Parallelism::Sequential => right.chunks_mut(block * n).enumerate().for_each(update),
-            Parallelism::Rayon => right.par_chunks_mut(block * n).enumerate().with_max_len(1).for_each(update),
-        }
+        });
     }
     for j in 1..n {
         a.view_mut((0, j), (j, 1)).fill(0.0);
@@ -92,15 +118,14 @@ pub fn cholesky_in_place(
     Ok(())
 }
 
-/// Factors the panel of columns k0..t0 (rows k0..n) of the column-major n×n `data`, whose trailing part already holds
-/// the updates of every earlier panel: column j minus its products with the panel's earlier columns, then scaled by
-/// the square root of its pivot.
-fn factor_panel(data: &mut [f64], n: usize, k0: usize, t0: usize) -> Result<(), NotPositiveDefinite> {
+/// Factors the diagonal block k0..t0 of the column-major n×n `data`, which already holds the updates of every earlier
+/// panel: column j minus its products with the block's earlier columns, then scaled by the square root of its pivot.
+fn factor_diagonal_block(data: &mut [f64], n: usize, k0: usize, t0: usize) -> Result<(), NotPositiveDefinite> {
     for j in k0..t0 {
         let (before, after) = data.split_at_mut(j * n);
-        let column = &mut after[j..n];
+        let column = &mut after[j..t0];
         for p in k0..j {
-            let earlier = &before[p * n + j..p * n + n];
+            let earlier = &before[p * n + j..p * n + t0];
             let l_jp = earlier[0];
             for (x, l) in column.iter_mut().zip(earlier) {
                 *x -= l_jp * l;
@@ -153,12 +178,7 @@ pub fn lower_triangular_inverse(l: &DMatrix<f64>, block: usize, parallelism: Par
         }
     };
     // The first block columns hold most of the work: one task each, so that rayon balances them.
-    match parallelism {
-        Parallelism::Sequential => x.as_mut_slice().chunks_mut(block * n).enumerate().for_each(block_column),
-        Parallelism::Rayon => {
-            x.as_mut_slice().par_chunks_mut(block * n).enumerate().with_max_len(1).for_each(block_column);
-        }
-    }
+    for_each_chunk(x.as_mut_slice(), block * n, parallelism, block_column);
     Some(x)
 }
 

@@ -530,6 +530,16 @@ impl<To: Space, From: Space> Warp<To, From> for Tps<To, From> {
     }
 }
 
+/// Smallest N whose solve runs on rayon's pool. Below it the O(N³) steps take a few milliseconds on one core, and
+/// handing each block to the pool can cost more than it saves (2-core VM at load average 4–6: the N = 300 fit took
+/// 3.2 ms on the calling thread, 4.1 ms on the pool).
+pub const PARALLEL_MIN_LANDMARKS: usize = 400;
+
+/// How a solve of N centres runs its blocked steps ([`PARALLEL_MIN_LANDMARKS`]).
+pub(crate) fn solve_parallelism(n: usize) -> Parallelism {
+    if n >= PARALLEL_MIN_LANDMARKS { Parallelism::Rayon } else { Parallelism::Sequential }
+}
+
 /// The centroid and RMS radius of `p`, which scale the affine block. [`pairs::validate`] has refused coincident,
 /// collinear and coplanar sets, so the radius is positive; it is checked anyway, as the solve divides by it.
 pub(crate) fn centre_and_scale(p: &[[f64; 3]]) -> Result<([f64; 3], f64)> {
@@ -589,8 +599,8 @@ impl Reflector {
 /// Qᵀ S Q = S − V Zᵀ − Z Vᵀ,     Z = W T − ½ V (Tᵀ Vᵀ W T),
 /// ```
 ///
-/// one product S V and one rank-2k update, both in column blocks on rayon's pool.
-pub(crate) fn apply_qt_s_q(s: &mut DMatrix<f64>, reflectors: &[Reflector]) {
+/// one product S V and one rank-2k update, both in column blocks.
+pub(crate) fn apply_qt_s_q(s: &mut DMatrix<f64>, reflectors: &[Reflector], parallelism: Parallelism) {
     let (n, k) = (s.nrows(), reflectors.len());
     let v = DMatrix::from_fn(n, k, |i, j| reflectors[j].v[i]);
     let mut t = DMatrix::<f64>::zeros(k, k);
@@ -602,8 +612,10 @@ pub(crate) fn apply_qt_s_q(s: &mut DMatrix<f64>, reflectors: &[Reflector]) {
     // Row r of W = S V is Vᵀ times column r of S (S is symmetric).
     let mut w_t = DMatrix::<f64>::zeros(k, n);
     let s_view = &*s;
-    w_t.as_mut_slice().par_chunks_mut(k).enumerate().with_min_len(64).for_each(|(r, out)| {
-        out.copy_from_slice(v.tr_mul(&s_view.column(r)).as_slice());
+    let block = dense::BLOCK;
+    dense::for_each_chunk(w_t.as_mut_slice(), k * block, parallelism, |(c, out)| {
+        let columns = s_view.columns(c * block, out.len() / k.max(1));
+        out.copy_from_slice(v.tr_mul(&columns).as_slice());
     });
     let w = w_t.transpose();
     let z = &w * &t - &v * ((t.transpose() * v.tr_mul(&w) * &t) * 0.5);
@@ -613,26 +625,29 @@ pub(crate) fn apply_qt_s_q(s: &mut DMatrix<f64>, reflectors: &[Reflector]) {
     let mut right_t = DMatrix::<f64>::zeros(2 * k, n);
     right_t.rows_mut(0, k).copy_from(&z.transpose());
     right_t.rows_mut(k, k).copy_from(&v.transpose());
-    let block = dense::BLOCK;
-    s.as_mut_slice().par_chunks_mut(block * n.max(1)).enumerate().for_each(|(c, columns)| {
+    dense::for_each_chunk(s.as_mut_slice(), block * n.max(1), parallelism, |(c, columns)| {
         let width = columns.len() / n;
         let mut target = DMatrixViewMut::from_slice(columns, n, width);
         target.gemm(-1.0, &left, &right_t.columns(c * block, width), 1.0);
     });
 }
 
-/// K̃ = K + dI for the centres `p` (Kᵢⱼ = ‖pᵢ − pⱼ‖), by columns on rayon's pool. ‖pᵢ − pⱼ‖ and ‖pⱼ − pᵢ‖ round
-/// alike, so K̃ is exactly symmetric.
-pub(crate) fn kernel_matrix(p: &[[f64; 3]], k_diagonal: f64) -> DMatrix<f64> {
+/// K̃ = K + dI for the centres `p` (Kᵢⱼ = ‖pᵢ − pⱼ‖), in blocks of columns. ‖pᵢ − pⱼ‖ and ‖pⱼ − pᵢ‖ round alike, so
+/// K̃ is exactly symmetric.
+pub(crate) fn kernel_matrix(p: &[[f64; 3]], k_diagonal: f64, parallelism: Parallelism) -> DMatrix<f64> {
     let n = p.len();
     // One coordinate per array, so that the loop over a column vectorises.
     let [xs, ys, zs]: [Vec<f64>; 3] = std::array::from_fn(|c| p.iter().map(|pi| pi[c]).collect());
     let mut k = DMatrix::<f64>::zeros(n, n);
-    k.as_mut_slice().par_chunks_mut(n.max(1)).zip(p).enumerate().for_each(|(j, (column, pj))| {
-        for (((kij, x), y), z) in column.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
-            *kij = ((x - pj[0]).powi(2) + (y - pj[1]).powi(2) + (z - pj[2]).powi(2)).sqrt();
+    let block = dense::BLOCK;
+    dense::for_each_chunk(k.as_mut_slice(), block * n.max(1), parallelism, |(c, columns)| {
+        for (j, column) in (c * block..).zip(columns.chunks_exact_mut(n)) {
+            let pj = p[j];
+            for (((kij, x), y), z) in column.iter_mut().zip(&xs).zip(&ys).zip(&zs) {
+                *kij = ((x - pj[0]).powi(2) + (y - pj[1]).powi(2) + (z - pj[2]).powi(2)).sqrt();
+            }
+            column[j] = k_diagonal;
         }
-        column[j] = k_diagonal;
     });
     k
 }
@@ -686,12 +701,13 @@ fn solve(
     let diameter = bounding_diagonal(p);
 
     // K̃ = K + dI (d = ±λ), symmetric.
-    let mut k_mat = kernel_matrix(p, k_diagonal);
+    let parallelism = solve_parallelism(n);
+    let mut k_mat = kernel_matrix(p, k_diagonal, parallelism);
     let mut p_hat = DMatrix::<f64>::from_fn(n, 4, |i, k| if k < 3 { (p[i][k] - c[k]) / s } else { 1.0 });
     let mut y = DMatrix::<f64>::from_fn(n, 3, |i, k| q[i][k]);
 
     let (reflectors, r) = householder_qr(&mut p_hat)?;
-    apply_qt_s_q(&mut k_mat, &reflectors);
+    apply_qt_s_q(&mut k_mat, &reflectors, parallelism);
     for h in &reflectors {
         h.apply_left(&mut y);
     }
@@ -754,7 +770,8 @@ fn solve(
 fn kernel_inverse_diagonal(l: &DMatrix<f64>, reflectors: &[Reflector], sign: f64) -> Result<Vec<f64>> {
     let m = l.nrows();
     let n = m + 4;
-    let x = dense::lower_triangular_inverse(l, dense::BLOCK, Parallelism::Rayon)
+    let parallelism = solve_parallelism(n);
+    let x = dense::lower_triangular_inverse(l, dense::BLOCK, parallelism)
         .ok_or_else(|| SolverError::Degenerate("the TPS system could not be inverted".into()))?;
     let [h1, h2, h3, h4] = reflectors else {
         unreachable!("P̂ has 4 columns, so its QR has 4 reflectors");
@@ -790,7 +807,10 @@ fn kernel_inverse_diagonal(l: &DMatrix<f64>, reflectors: &[Reflector], sign: f64
         }
         sign * sum
     };
-    Ok((0..n).into_par_iter().map(squared_norm).collect())
+    Ok(match parallelism {
+        Parallelism::Sequential => (0..n).map(squared_norm).collect(),
+        Parallelism::Rayon => (0..n).into_par_iter().with_min_len(dense::BLOCK).map(squared_norm).collect(),
+    })
 }
 
 /// Solves M Ω = Y for the symmetric reduced matrix M = Q₂ᵀ(K + dI)Q₂.
@@ -819,9 +839,8 @@ pub(crate) fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64
     let norm_m = m.norm();
     // The pivots of LDLᵀ are L_ii², so the ratio of squared diagonals is comparable to an LU pivot ratio.
     let cholesky = |mut a: DMatrix<f64>| {
-        dense::cholesky_in_place(&mut a, dense::BLOCK, Parallelism::Rayon)
-            .ok()
-            .map(|()| nalgebra::Cholesky::pack_dirty(a))
+        let parallelism = solve_parallelism(a.nrows() + 4);
+        dense::cholesky_in_place(&mut a, dense::BLOCK, parallelism).ok().map(|()| nalgebra::Cholesky::pack_dirty(a))
     };
     let (factor, ratio) = if let Some(ch) = cholesky(-&m) {
         let r = pivot_ratio(&ch.l_dirty().diagonal(), 2);

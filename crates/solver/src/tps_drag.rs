@@ -96,11 +96,12 @@ impl<To: Space, From: Space> FactoredTps<To, From> {
         let (centre, scale) = tps::centre_and_scale(&p)?;
         let d = regularisation.k_diagonal();
         let n = p.len();
-        let mut k_mat = tps::kernel_matrix(&p, d);
+        let parallelism = tps::solve_parallelism(n);
+        let mut k_mat = tps::kernel_matrix(&p, d, parallelism);
         let mut p_hat = DMatrix::<f64>::from_fn(n, 4, |i, k| if k < 3 { (p[i][k] - centre[k]) / scale } else { 1.0 });
         let (reflectors, r) = tps::householder_qr(&mut p_hat)?;
         let mut y = DMatrix::<f64>::from_fn(n, 3, |i, k| q[i][k]);
-        tps::apply_qt_s_q(&mut k_mat, &reflectors);
+        tps::apply_qt_s_q(&mut k_mat, &reflectors, parallelism);
         for h in &reflectors {
             h.apply_left(&mut y);
         }
