@@ -33,7 +33,7 @@ use std::time::{Duration, Instant};
 
 use warpbench_app::fit::{self, DragFit, fit_warp, fit_warp_on_gpu};
 use warpbench_app::gui::demo;
-use warpbench_app::gui::pacing::{Bands, interactive_size};
+use warpbench_app::gui::pacing::{BAND_ALIGN_ROWS, Bands, RefineJob, interactive_size};
 use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
@@ -199,7 +199,8 @@ fn main() {
     drop(layers);
     let (lo, hi) = viewer.scene_box();
     let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
-    let settings = RenderSettings::default();
+    // The window's own defaults (shaded DVR at one sample per voxel, the mix blend).
+    let settings = warpbench_app::gui::document::ViewSettings::default().render_settings();
     let method = o.method;
     let boxes =
         (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));
@@ -347,12 +348,13 @@ fn refine(viewer: &Viewer, camera: &OrbitCamera, settings: &RenderSettings, size
         small.1,
         ms(reduced)
     );
+    refine_thread(viewer, camera, settings, size, per_px);
     for (label, view_cost) in [("cost unknown (first view)", None), ("cost measured", Some(per_px))] {
         let target = viewer.view_target(size);
         let mut bands = Bands::new(size.0, size.1);
         let mut times = Vec::new();
         while !bands.done() {
-            let band = bands.next(view_cost);
+            let band = bands.next_aligned(view_cost, BAND_ALIGN_ROWS);
             let t = Instant::now();
             viewer
                 .render_view_rows(camera, settings, Quality::Full, &target, band.clone())
@@ -372,6 +374,21 @@ fn refine(viewer: &Viewer, camera: &OrbitCamera, settings: &RenderSettings, size
             total
         );
     }
+}
+
+/// The window's refinement thread ([`RefineJob`]) for the same view: the time until it hands the view back.
+fn refine_thread(viewer: &Viewer, camera: &OrbitCamera, settings: &RenderSettings, size: (u32, u32), per_px: f64) {
+    let work = viewer.refine_work(camera, settings, viewer.view_target(size), Some(per_px));
+    let (wake, woken) = std::sync::mpsc::channel();
+    let t = Instant::now();
+    let job = RefineJob::start(work, move || {
+        wake.send(()).ok();
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    woken.recv().unwrap_or_else(|e| panic!("{e}"));
+    let elapsed = t.elapsed();
+    job.poll().expect("done").unwrap_or_else(|e| panic!("{e}"));
+    println!("bands on the refinement thread: {:.0} ms", elapsed.as_secs_f64() * 1e3);
 }
 
 /// The three slice views through the fixed grid's centre, as the window renders them after a change (without

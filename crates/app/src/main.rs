@@ -48,6 +48,10 @@ struct GuiArgs {
     /// Close the window after this many frames with the volumes shown, once they are fully rendered (smoke tests).
     #[arg(long)]
     exit_after_frames: Option<u32>,
+    /// Write one tab-separated line per window frame here (seconds since the window opened, the phase, what the 3-D
+    /// view shows, whether a pointer button was released, the frame's UI work in ms): for measuring the window.
+    #[arg(long, value_name = "FILE")]
+    frame_log: Option<PathBuf>,
 }
 
 fn run_gui(a: GuiArgs) -> Result<(), Failure> {
@@ -59,6 +63,7 @@ fn run_gui(a: GuiArgs) -> Result<(), Failure> {
         screenshot: a.screenshot,
         session: a.session,
         autosave: None,
+        frame_log: a.frame_log,
     };
     gui::run(opts).map_err(Failure::Internal)
 }

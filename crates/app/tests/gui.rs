@@ -690,7 +690,7 @@ fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
         assert!(!full && size.0 <= full_w && size.1 <= full_h, "{size:?} full {full}");
         assert!(ready.needs_render(), "nothing left to refine");
     }
-    // Each frame adds a band until the full view is shown.
+    // A thread adds bands until the full view is shown.
     let mut progress = vec![ready.view_refine_progress().unwrap_or(0.0)];
     let start = Instant::now();
     while harness.state().ready().is_some_and(Ready::needs_render) {
@@ -701,7 +701,7 @@ fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
         assert!(start.elapsed() < Duration::from_mins(1), "not refined within a minute");
     }
     eprintln!("refined in {} frames: {progress:?}", progress.len());
-    assert!(progress.windows(2).all(|w| w[1] > w[0]), "a band did not advance: {progress:?}");
+    assert!(progress.windows(2).all(|w| w[1] >= w[0]), "the progress went back: {progress:?}");
     let ready = harness.state().ready().expect("ready");
     assert_eq!(ready.view_shown(), Some(((full_w, full_h), true)));
     // The refined image is the one-pass full-quality render, glyphs included, bit for bit.

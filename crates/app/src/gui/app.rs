@@ -55,6 +55,8 @@ pub struct Workbench {
     facts: Option<DeviceFacts>,
     /// The open dialogs: error, series chooser, dropped volume, native dialog.
     pub dialogs: open::OpenDialogs,
+    /// `--frame-log`: one line per frame.
+    frame_log: Option<super::frame_log::FrameLog>,
 }
 
 impl std::fmt::Debug for Workbench {
@@ -91,7 +93,15 @@ impl Workbench {
             jobs: Vec::new(),
             pending: [None, None],
             dialogs: open::OpenDialogs::default(),
+            frame_log: None,
         }
+    }
+
+    /// Writes one line per frame to `log` ([`super::frame_log`]).
+    #[must_use]
+    pub fn with_frame_log(mut self, log: Option<super::frame_log::FrameLog>) -> Self {
+        self.frame_log = log;
+        self
     }
 
     fn start_loading(ctx: &egui::Context, opts: GuiOptions, facts: Option<DeviceFacts>) -> Phase {
@@ -310,6 +320,24 @@ impl eframe::App for Workbench {
     }
 
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+        let started = std::time::Instant::now();
+        self.frame(ui);
+        if let Some(log) = &mut self.frame_log {
+            let (phase, view) = match &self.phase {
+                Phase::Loading { .. } => ("loading", "none".to_owned()),
+                Phase::Failed(_) => ("failed", "none".to_owned()),
+                Phase::Ready(ready) => ("ready", ready.view_state_name()),
+            };
+            let released = ui.input(|i| i.pointer.any_released());
+            let ui_ms = started.elapsed().as_secs_f64() * 1e3;
+            log.frame(&super::frame_log::FrameLine { started, phase, view, released, ui_ms });
+        }
+    }
+}
+
+impl Workbench {
+    /// One frame of the window ([`eframe::App::ui`]).
+    fn frame(&mut self, ui: &mut egui::Ui) {
         let ctx = ui.ctx().clone();
         self.poll_loading(&ctx);
         self.poll_volume_jobs(&ctx);
@@ -410,7 +438,8 @@ impl eframe::App for Workbench {
         if matches!(self.phase, Phase::Loading { .. })
             || !self.jobs.is_empty()
             || self.dialogs.dialog.is_some()
-            || self.exit_after_frames.is_some()
+            || (self.exit_after_frames.is_some()
+                && !matches!(&self.phase, Phase::Ready(r) if r.refining_in_background()))
         {
             ui.ctx().request_repaint();
         }
@@ -490,7 +519,14 @@ fn workbench_ui(
     views::view3d::view3d(ui, ready, render_state);
     // A change becomes an undo step once it has settled (a slider drag is one step).
     ready.settle(ui.input(|i| i.pointer.any_down()));
-    if ready.needs_render() {
+    if ready.refining_in_background() {
+        // The refining thread wakes the window when the view is done; until then only the progress changes.
+        ui.ctx().request_repaint_after(REFINE_PROGRESS_EVERY);
+    } else if ready.needs_render() {
         ui.ctx().request_repaint();
     }
 }
+
+/// How often the status bar's refinement progress is drawn while a thread refines the 3-D view: on a CPU driver
+/// each frame of the window takes the CPU from the refinement.
+const REFINE_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(1);

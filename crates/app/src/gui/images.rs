@@ -5,7 +5,7 @@ use anyhow::{Context as _, anyhow};
 use warpbench_gpu::Quality;
 
 use super::Ready;
-use super::pacing::{self, Refine, interactive_size};
+use super::pacing::{self, RefineJob, interactive_size};
 use super::viewer::{self, Shown};
 
 /// Where the 3-D view's image stands. Only [`Ready::render`], [`Ready::refine_band`] and [`Ready::invalidate_view`]
@@ -17,8 +17,9 @@ pub(crate) enum ViewImage {
     Stale { full_shown: bool },
     /// Shown at the interaction rate and size; a full one is to follow.
     Reduced,
-    /// On a CPU driver, the full view being rendered band by band ([`pacing`]) while the reduced one is shown.
-    Refining(Box<Refine>),
+    /// On a CPU driver, the full view being rendered band by band on a thread ([`pacing`]) while the reduced one is
+    /// shown.
+    Refining(RefineJob),
     /// Shown at full quality and size.
     Full,
 }
@@ -63,10 +64,12 @@ impl Ready {
     ///
     /// On a GPU a changed view is drawn again at once: at the interaction sample rate while the user interacts
     /// (`interacting`: a button is held), fully otherwise. On a CPU driver a changed view is drawn reduced (the
-    /// interaction rate, at a size that renders in about [`pacing::INTERACTIVE_BUDGET_MS`]), and then each frame
-    /// renders one band of the full view until it is done and shown ([`pacing`]).
+    /// interaction rate, at a size that renders in about [`pacing::INTERACTIVE_BUDGET_MS`]), and then a thread
+    /// renders the full view band by band ([`pacing::RefineJob`]); the frame after it is done shows it. `egui` is
+    /// woken by that thread.
     pub(crate) fn render(
         &mut self,
+        egui: &eframe::egui::Context,
         rs: &eframe::egui_wgpu::RenderState,
         view_px: (u32, u32),
         interacting: bool,
@@ -80,7 +83,8 @@ impl Ready {
             ViewImage::Full => shown_size != Some(view_px),
             ViewImage::Reduced => false,
         };
-        let refine = reduced && (cpu || !interacting);
+        // Not while the pointer is held: on a CPU driver a refinement would take the CPU from the next reduced view.
+        let refine = reduced && !interacting;
         if !stale && !refine && !self.images.slices_dirty {
             return Ok(());
         }
@@ -104,7 +108,7 @@ impl Ready {
             self.images.view = Some(viewer::show(rs, target, self.images.view.take()));
             self.images.view_state = ViewImage::Full;
         } else if refine {
-            self.refine_band(rs, view_px, &settings, &glyphs)?;
+            self.refine_in_background(egui, rs, view_px, &settings, &glyphs)?;
         }
         if self.images.slices_dirty {
             let planes = self.slice_planes();
@@ -119,33 +123,32 @@ impl Ready {
         Ok(())
     }
 
-    /// Renders the next band of the full 3-D view on a CPU driver, waits for it (so that it is measured and the UI
-    /// frame does not queue behind more than one band), and shows the view once the last band is done.
-    pub(crate) fn refine_band(
+    /// On a CPU driver: starts the thread that renders the full 3-D view band by band, or shows its view once it is
+    /// done (a failure starts it again at the next frame).
+    pub(crate) fn refine_in_background(
         &mut self,
+        egui: &eframe::egui::Context,
         rs: &eframe::egui_wgpu::RenderState,
         view_px: (u32, u32),
         settings: &warpbench_gpu::RenderSettings,
         glyphs: &[warpbench_gpu::GlyphInstance],
     ) -> anyhow::Result<()> {
-        if !matches!(self.images.view_state, ViewImage::Refining(_)) {
-            self.images.view_state = ViewImage::Refining(Box::new(Refine::new(self.viewer.view_target(view_px))));
-        }
-        let ViewImage::Refining(refine) = &mut self.images.view_state else { return Ok(()) };
-        let band = refine.bands.next(self.images.view_ms_per_px);
-        let band_start = std::time::Instant::now();
-        self.viewer.render_view_rows(&self.camera, settings, Quality::Full, &refine.target, band.clone())?;
-        self.viewer.ctx.wait_idle().map_err(|e| anyhow!("{e}"))?;
-        refine.bands.rendered(&band, band_start.elapsed().as_secs_f64() * 1e3);
-        // Done: back to the reduced state until the full image is shown (a failure here starts the bands again).
-        if refine.bands.done()
-            && let ViewImage::Refining(done) = std::mem::replace(&mut self.images.view_state, ViewImage::Reduced)
-        {
-            self.images.view_ms_per_px = done.bands.ms_per_px();
-            self.viewer.draw_view_glyphs(&self.camera, &done.target, glyphs)?;
-            self.images.view = Some(viewer::show(rs, done.target, self.images.view.take()));
-            self.images.view_state = ViewImage::Full;
-        }
+        let ViewImage::Refining(job) = &self.images.view_state else {
+            let target = self.viewer.view_target(view_px);
+            let work = self.viewer.refine_work(&self.camera, settings, target, self.images.view_ms_per_px);
+            let egui = egui.clone();
+            let job = RefineJob::start(work, move || egui.request_repaint())
+                .context("starting the thread that refines the 3-D view")?;
+            self.images.view_state = ViewImage::Refining(job);
+            return Ok(());
+        };
+        let Some(result) = job.poll() else { return Ok(()) };
+        self.images.view_state = ViewImage::Reduced;
+        let done = result.map_err(|e| anyhow!(e))?;
+        self.images.view_ms_per_px = done.ms_per_px;
+        self.viewer.draw_view_glyphs(&self.camera, &done.target, glyphs)?;
+        self.images.view = Some(viewer::show(rs, done.target, self.images.view.take()));
+        self.images.view_state = ViewImage::Full;
         Ok(())
     }
 
@@ -153,8 +156,20 @@ impl Ready {
     #[must_use]
     pub fn view_refine_progress(&self) -> Option<f32> {
         match &self.images.view_state {
-            ViewImage::Refining(r) => Some(r.bands.progress()),
+            ViewImage::Refining(job) => Some(job.progress()),
             _ => None,
+        }
+    }
+
+    /// What the 3-D view shows, for the frame log ([`super::frame_log`]): `stale`, `reduced`, `refining <fraction>`
+    /// or `full`.
+    #[must_use]
+    pub fn view_state_name(&self) -> String {
+        match &self.images.view_state {
+            ViewImage::Stale { .. } => "stale".into(),
+            ViewImage::Reduced => "reduced".into(),
+            ViewImage::Refining(job) => format!("refining {:.2}", job.progress()),
+            ViewImage::Full => "full".into(),
         }
     }
 
@@ -192,5 +207,12 @@ impl Ready {
     #[must_use]
     pub fn needs_render(&self) -> bool {
         self.images.slices_dirty || !matches!(self.images.view_state, ViewImage::Full)
+    }
+
+    /// Whether the only thing that waits is the full 3-D view a thread is rendering: it wakes the window when done,
+    /// so the window need not draw frames meanwhile.
+    #[must_use]
+    pub fn refining_in_background(&self) -> bool {
+        !self.images.slices_dirty && matches!(self.images.view_state, ViewImage::Refining(_))
     }
 }

@@ -24,6 +24,7 @@ pub mod commands;
 pub mod demo;
 pub mod document;
 pub mod export;
+pub mod frame_log;
 pub mod history;
 mod images;
 pub mod interaction;
@@ -77,6 +78,8 @@ pub struct GuiOptions {
     pub session: Option<PathBuf>,
     /// Where to autosave (`None`: [`session::autosave_path`]).
     pub autosave: Option<PathBuf>,
+    /// Write one line per frame here ([`frame_log`]).
+    pub frame_log: Option<PathBuf>,
 }
 
 /// Where the window makes the control texture after a fit.
@@ -473,14 +476,19 @@ fn save_png(path: &std::path::Path, image: &egui::ColorImage) -> anyhow::Result<
 
 /// Opens the window and runs until it is closed.
 pub fn run(opts: GuiOptions) -> anyhow::Result<()> {
+    let frame_log = opts.frame_log.as_deref().map(frame_log::FrameLog::create).transpose()?;
     let native = eframe::NativeOptions {
         viewport: egui::ViewportBuilder::default().with_inner_size([1280.0, 860.0]).with_title("warpbench"),
         renderer: eframe::Renderer::Wgpu,
         wgpu_options: wgpu_options(),
         ..Default::default()
     };
-    eframe::run_native("warpbench", native, Box::new(move |cc| Ok(Box::new(Workbench::new(cc, opts)))))
-        .map_err(|e| anyhow!("the window: {e}"))
+    eframe::run_native(
+        "warpbench",
+        native,
+        Box::new(move |cc| Ok(Box::new(Workbench::new(cc, opts).with_frame_log(frame_log)))),
+    )
+    .map_err(|e| anyhow!("the window: {e}"))
 }
 
 /// eframe's wgpu set-up with the adapter's own limits and the optional features the renderer uses (the defaults

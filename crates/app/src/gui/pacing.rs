@@ -4,10 +4,10 @@
 //! llvmpipe) takes seconds for a full-quality view, and egui shares its queue, so a whole frame at once would freeze
 //! the window. There the view is paced:
 //! - when it changes, a reduced view (the interaction sample rate, at [`interactive_size`]) is shown at once;
-//! - then the full-quality view is rendered in bands of rows ([`band_rows`]), one band per UI frame, each sized to
-//!   about [`INTERACTIVE_BUDGET_MS`] from the measured cost per pixel, into a target of its own ([`Refine`]), and
-//!   shown once its last band is done. Bands give exactly the one-pass image (each ray depends on its pixel only), so
-//!   the result does not depend on timing: only how many frames it takes does.
+//! - then the full-quality view is rendered in bands of rows ([`band_rows`]), back to back on a thread of its own
+//!   ([`RefineJob`]), each sized to about [`INTERACTIVE_BUDGET_MS`] from the measured cost per pixel, into a target
+//!   of its own, and shown once its last band is done. Bands give exactly the one-pass image (each ray depends on
+//!   its pixel only), so the result does not depend on timing: only how long it takes does.
 
 use warpbench_gpu::RenderTarget;
 
@@ -19,14 +19,18 @@ pub const INTERACTIVE_BUDGET_MS: f64 = 60.0;
 /// 2 cores of this project's machine: about 4 µs; see `docs/benchmarks.md`).
 pub const CPU_GUESS_MS_PER_PX: f64 = 4e-3;
 
+/// The smallest scale per side of the 3-D view while interacting: shaded DVR of two volumes on lavapipe can cost
+/// 10 µs per pixel, and a coarse view that follows the pointer serves better than a sharp one that lags it.
+pub const MIN_INTERACTIVE_SCALE: f64 = 0.125;
+
 /// The 3-D view's size while interacting: `full` on a GPU (`ms_per_px` unknown); on a CPU driver scaled down so that
 /// `ms_per_px` (measured at full quality; the interaction rate halves it again) gives about
-/// [`INTERACTIVE_BUDGET_MS`], at most 4× smaller per side.
+/// [`INTERACTIVE_BUDGET_MS`], at most [`MIN_INTERACTIVE_SCALE`] smaller per side.
 #[must_use]
 pub fn interactive_size(full: (u32, u32), ms_per_px: Option<f64>) -> (u32, u32) {
     let Some(per_px) = ms_per_px.filter(|v| *v > 0.0) else { return full };
     let pixels = f64::from(full.0) * f64::from(full.1);
-    let scale = (INTERACTIVE_BUDGET_MS / (0.5 * per_px * pixels)).sqrt().clamp(0.25, 1.0);
+    let scale = (INTERACTIVE_BUDGET_MS / (0.5 * per_px * pixels)).sqrt().clamp(MIN_INTERACTIVE_SCALE, 1.0);
     let shrink = |n: u32| ((f64::from(n) * scale).round() as u32).max(16);
     (shrink(full.0), shrink(full.1))
 }
@@ -73,6 +77,16 @@ impl Bands {
         self.rows_done..self.rows_done.saturating_add(rows).min(self.height)
     }
 
+    /// [`Self::next`] with the band's end rounded up to a multiple of `align` rows (or the last row), so that bands
+    /// started at row 0 all start and end on multiples of `align`.
+    #[must_use]
+    pub fn next_aligned(&self, view_ms_per_px: Option<f64>, align: u32) -> std::ops::Range<u32> {
+        let band = self.next(view_ms_per_px);
+        let align = align.max(1);
+        let end = band.end.div_ceil(align).saturating_mul(align).min(self.height);
+        band.start..end.max(band.end)
+    }
+
     /// Records that `band` (from [`Self::next`]) took `ms`.
     pub fn rendered(&mut self, band: &std::ops::Range<u32>, ms: f64) {
         let rows = band.end.saturating_sub(band.start);
@@ -102,25 +116,117 @@ impl Bands {
     }
 }
 
-/// A full-quality 3-D view being rendered band by band into a target of its own, while the window still shows the
-/// reduced one.
+/// The rows of the bands a refinement thread starts at: llvmpipe shades 4×4 pixel blocks, so a band of one row
+/// costs about as much as four, and bands start and end on multiples of this.
+pub const BAND_ALIGN_ROWS: u32 = 4;
+
+/// A full-quality 3-D view being rendered band by band into a target of its own, on a thread of its own, while the
+/// window shows the reduced one and stays responsive.
+///
+/// The bands run back to back on the thread, each waited for, so that a UI frame queues behind at most one band
+/// ([`INTERACTIVE_BUDGET_MS`]). The UI thread does not draw a frame per band: on a CPU driver egui's own frame costs
+/// about as much as a band (it is drawn by the same CPU), so a frame per band would double the time to the full
+/// view. It only looks in for the progress now and then, and the thread wakes it when the view is done.
 #[derive(Debug)]
-pub struct Refine {
-    pub target: RenderTarget,
-    pub bands: Bands,
+pub struct RefineJob {
+    size: (u32, u32),
+    /// Rows rendered so far.
+    rows_done: std::sync::Arc<std::sync::atomic::AtomicU32>,
+    cancel: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    done: std::sync::mpsc::Receiver<Result<Refined, String>>,
 }
 
-impl Refine {
-    #[must_use]
-    pub fn new(target: RenderTarget) -> Self {
-        let bands = Bands::new(target.width, target.height);
-        Self { target, bands }
+/// What a finished [`RefineJob`] hands back.
+#[derive(Debug)]
+pub struct Refined {
+    pub target: RenderTarget,
+    /// The view's average cost per pixel, ms.
+    pub ms_per_px: Option<f64>,
+}
+
+/// What a refinement thread renders with: the device, the ray caster and the frame's draw data.
+#[derive(Debug)]
+pub struct RefineWork {
+    pub ctx: std::sync::Arc<warpbench_gpu::GpuContext>,
+    pub renderer: std::sync::Arc<warpbench_gpu::RaycastRenderer>,
+    pub data: warpbench_gpu::RaycastDrawData,
+    pub target: RenderTarget,
+    /// The last whole view's cost per pixel, ms, for the first band's size.
+    pub view_ms_per_px: Option<f64>,
+}
+
+impl RefineJob {
+    /// Starts rendering `work`'s frame band by band on a new thread, which calls `wake` when it is done.
+    ///
+    /// # Errors
+    /// When the thread cannot be started.
+    pub fn start(work: RefineWork, wake: impl FnOnce() + Send + 'static) -> std::io::Result<Self> {
+        use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+        let size = (work.target.width, work.target.height);
+        let rows_done = std::sync::Arc::new(AtomicU32::new(0));
+        let cancel = std::sync::Arc::new(AtomicBool::new(false));
+        let (send, done) = std::sync::mpsc::channel();
+        let (rows, stop) = (rows_done.clone(), cancel.clone());
+        std::thread::Builder::new().name("refine 3-D view".into()).spawn(move || {
+            let RefineWork { ctx, renderer, data, target, view_ms_per_px } = work;
+            let mut bands = Bands::new(target.width, target.height);
+            let result = loop {
+                if stop.load(Ordering::Relaxed) {
+                    // Nobody waits for the image any more.
+                    return;
+                }
+                if bands.done() {
+                    break Ok(Refined { ms_per_px: bands.ms_per_px(), target });
+                }
+                let band = bands.next_aligned(view_ms_per_px, BAND_ALIGN_ROWS);
+                let start = std::time::Instant::now();
+                let rendered = renderer
+                    .render_rows(&ctx, &data, &target, band.clone())
+                    .and_then(|()| ctx.wait_idle())
+                    .map_err(|e| format!("rendering the 3-D view: {e}"));
+                if let Err(e) = rendered {
+                    break Err(e);
+                }
+                bands.rendered(&band, start.elapsed().as_secs_f64() * 1e3);
+                rows.store(bands.rows_done, Ordering::Relaxed);
+            };
+            // The receiver is gone when the view changed meanwhile: nothing to hand back.
+            if send.send(result).is_ok() {
+                wake();
+            }
+        })?;
+        Ok(Self { size, rows_done, cancel, done })
     }
 
     /// The size of the view it renders.
     #[must_use]
     pub fn size(&self) -> (u32, u32) {
-        (self.target.width, self.target.height)
+        self.size
+    }
+
+    /// The rendered fraction, 0..=1.
+    #[must_use]
+    pub fn progress(&self) -> f32 {
+        self.rows_done.load(std::sync::atomic::Ordering::Relaxed) as f32 / self.size.1.max(1) as f32
+    }
+
+    /// The finished view, once the thread is done (`None` while it runs).
+    #[must_use]
+    pub fn poll(&self) -> Option<Result<Refined, String>> {
+        match self.done.try_recv() {
+            Ok(result) => Some(result),
+            Err(std::sync::mpsc::TryRecvError::Empty) => None,
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                Some(Err("the thread refining the 3-D view stopped".into()))
+            }
+        }
+    }
+}
+
+impl Drop for RefineJob {
+    /// A view that changed or closed stops its thread after the band in flight.
+    fn drop(&mut self) {
+        self.cancel.store(true, std::sync::atomic::Ordering::Relaxed);
     }
 }
 
@@ -220,8 +326,8 @@ mod tests {
         let cost = 0.5 * per_px * f64::from(w) * f64::from(h);
         assert!(w < 1000 && (cost - INTERACTIVE_BUDGET_MS).abs() < 0.1 * INTERACTIVE_BUDGET_MS, "{w}x{h}: {cost} ms");
         assert!((f64::from(w) / f64::from(h) - 2.0).abs() < 0.05, "aspect kept: {w}x{h}");
-        // Never below a quarter per side (lavapipe's 4 s for this view would ask for less).
-        assert_eq!(interactive_size(full, Some(4000.0 / 500_000.0)), (250, 125));
+        // Never below an eighth per side (lavapipe's 16 s for this view would ask for less).
+        assert_eq!(interactive_size(full, Some(16_000.0 / 500_000.0)), (125, 63));
     }
 
     #[test]
@@ -241,6 +347,23 @@ mod tests {
         let rows = band_rows(640, 480, per_px);
         let cost = |r: u32| per_px * 640.0 * f64::from(r);
         assert!(cost(rows) <= INTERACTIVE_BUDGET_MS && cost(rows + 1) > INTERACTIVE_BUDGET_MS, "{rows} rows");
+    }
+
+    #[test]
+    fn aligned_bands_start_and_end_on_the_alignment_and_cover_the_view_once() {
+        // A cost that gives bands of 1 to 7 rows: each is widened to a multiple of 4, the last ends at the bottom.
+        let mut bands = Bands::new(100, 103);
+        let mut covered = 0;
+        while !bands.done() {
+            let band = bands.next_aligned(Some(60.0 / (100.0 * f64::from(1 + covered % 7))), BAND_ALIGN_ROWS);
+            assert_eq!(band.start, covered, "contiguous");
+            assert!(band.start.is_multiple_of(BAND_ALIGN_ROWS), "{band:?} starts off the alignment");
+            assert!(band.end.is_multiple_of(BAND_ALIGN_ROWS) || band.end == 103, "{band:?} ends off the alignment");
+            assert!(band.len() >= 3, "{band:?} is narrower than the alignment");
+            bands.rendered(&band, 1.0);
+            covered = band.end;
+        }
+        assert_eq!(covered, 103);
     }
 
     #[test]

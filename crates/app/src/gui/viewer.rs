@@ -104,8 +104,9 @@ pub struct Shown {
 /// The renderer and the scene's GPU resources.
 #[derive(Debug)]
 pub struct Viewer {
-    pub ctx: GpuContext,
-    renderer: RaycastRenderer,
+    /// Shared with the thread that refines the 3-D view on a CPU driver ([`super::pacing::RefineJob`]).
+    pub ctx: std::sync::Arc<GpuContext>,
+    renderer: std::sync::Arc<RaycastRenderer>,
     glyphs: GlyphRenderer,
     picker: PickPass,
     prefilter: PrefilterPass,
@@ -163,8 +164,8 @@ impl Viewer {
         let tf_presets = looks.map(|l| l.preset.gpu());
         let tfs = GpuTransferFunctions::upload(&ctx, &tf_presets.map(Preset::transfer_function));
         Ok(Self {
-            ctx,
-            renderer,
+            ctx: std::sync::Arc::new(ctx),
+            renderer: std::sync::Arc::new(renderer),
             glyphs,
             picker,
             prefilter,
@@ -289,6 +290,25 @@ impl Viewer {
     ) -> anyhow::Result<()> {
         let data = self.view_data(camera, settings, quality, (target.width, target.height));
         self.renderer.render_rows(&self.ctx, &data, target, rows).map_err(gpu_error)
+    }
+
+    /// What a thread needs to render the full-quality 3-D view into `target` band by band
+    /// ([`super::pacing::RefineJob`]).
+    pub fn refine_work(
+        &self,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        target: RenderTarget,
+        view_ms_per_px: Option<f64>,
+    ) -> super::pacing::RefineWork {
+        let data = self.view_data(camera, settings, Quality::Full, (target.width, target.height));
+        super::pacing::RefineWork {
+            ctx: self.ctx.clone(),
+            renderer: self.renderer.clone(),
+            data,
+            target,
+            view_ms_per_px,
+        }
     }
 
     /// Draws `glyphs` over a rendered 3-D view, hidden where the volume's first hit is nearer.

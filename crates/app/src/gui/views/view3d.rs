@@ -19,7 +19,7 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
         let view_px = (px.x as u32, px.y as u32);
         let interacting = ui.input(|i| i.pointer.any_down()) || ready.drag().is_some();
         if let Some(rs) = render_state
-            && let Err(e) = ready.render(rs, view_px, interacting)
+            && let Err(e) = ready.render(ui.ctx(), rs, view_px, interacting)
         {
             ready.fit.error = Some(format!("rendering: {e:#}"));
         }
