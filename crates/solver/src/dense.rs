@@ -33,7 +33,7 @@
 //! update and of X are split over rayon's pool; [`Parallelism::Sequential`] stays on the calling thread. The column blocks are the
 //! same either way, so both give the same bits.
 
-use nalgebra::{DMatrix, DMatrixView, DMatrixViewMut};
+use nalgebra::{DMatrix, DMatrixView, DMatrixViewMut, Dyn, Matrix, Storage};
 use rayon::prelude::*;
 
 use crate::Parallelism;
@@ -81,6 +81,8 @@ pub fn cholesky_in_place(
     assert_eq!(n, a.ncols(), "cholesky_in_place: the matrix is not square");
     assert!(block > 0, "cholesky_in_place: block must be positive");
     let data = a.as_mut_slice();
+    // Up to two blocks, the inverse of L₁₁ would cost more than the substitution it replaces: column by column.
+    let block = if n <= 2 * block { n.max(1) } else { block };
     for k0 in (0..n).step_by(block) {
         let t0 = (k0 + block).min(n);
         let (kb, r) = (t0 - k0, n - t0);
@@ -91,8 +93,7 @@ pub fn cholesky_in_place(
         let (left, right) = data.split_at_mut(t0 * n);
         // L₂₁ = A₂₁ L₁₁⁻ᵀ, by columns of the panel, from a copy of A₂₁ and the small inverse of L₁₁.
         let panel = &mut left[k0 * n..];
-        let l11_inv_t = DMatrixView::from_slice_with_strides(&panel[k0..], kb, kb, 1, n)
-            .solve_lower_triangular(&DMatrix::identity(kb, kb))
+        let l11_inv_t = small_lower_inverse(&DMatrixView::from_slice_with_strides(&panel[k0..], kb, kb, 1, n))
             .ok_or(NotPositiveDefinite { column: k0, pivot: 0.0 })?
             .transpose();
         let a21 = DMatrixView::from_slice_with_strides(&panel[t0..], r, kb, 1, n).clone_owned();
@@ -144,6 +145,28 @@ fn factor_diagonal_block(data: &mut [f64], n: usize, k0: usize, t0: usize) -> Re
     Ok(())
 }
 
+/// L⁻¹ of a small lower-triangular block by column-oriented substitution on the columns of I, skipping the zeros
+/// above each column's diagonal (b³/6 multiply-adds); `None` when a diagonal entry is zero.
+fn small_lower_inverse<S: Storage<f64, Dyn, Dyn>>(l: &Matrix<f64, Dyn, Dyn, S>) -> Option<DMatrix<f64>> {
+    let b = l.nrows();
+    let mut x = DMatrix::<f64>::zeros(b, b);
+    for (c, mut column) in x.column_iter_mut().enumerate() {
+        column[c] = 1.0;
+        for j in c..b {
+            let l_jj = l[(j, j)];
+            if l_jj == 0.0 {
+                return None;
+            }
+            let x_j = column[j] / l_jj;
+            column[j] = x_j;
+            for (x_i, l_ij) in column.rows_range_mut(j + 1..).iter_mut().zip(l.view_range(j + 1.., j).iter()) {
+                *x_i -= x_j * l_ij;
+            }
+        }
+    }
+    Some(x)
+}
+
 /// X = L⁻¹ for lower-triangular L (only its lower triangle is read), by block columns of `block`; the strict upper
 /// triangle of X is zero. `None` when a diagonal entry of L is zero.
 ///
@@ -157,7 +180,7 @@ pub fn lower_triangular_inverse(l: &DMatrix<f64>, block: usize, parallelism: Par
     let span = |i: usize| (i * block, block.min(n - i * block));
     let diagonal_inverse = |i: usize| {
         let (i0, ib) = span(i);
-        l.view((i0, i0), (ib, ib)).solve_lower_triangular(&DMatrix::identity(ib, ib))
+        small_lower_inverse(&l.view((i0, i0), (ib, ib)))
     };
     let blocks = n.div_ceil(block);
     let d: Vec<DMatrix<f64>> = match parallelism {
