@@ -149,17 +149,17 @@ fn factor_diagonal_block(data: &mut [f64], n: usize, k0: usize, t0: usize) -> Re
 /// above each column's diagonal (b³/6 multiply-adds); `None` when a diagonal entry is zero.
 fn small_lower_inverse<S: Storage<f64, Dyn, Dyn>>(l: &Matrix<f64, Dyn, Dyn, S>) -> Option<DMatrix<f64>> {
     let b = l.nrows();
+    let l = l.clone_owned();
     let mut x = DMatrix::<f64>::zeros(b, b);
-    for (c, mut column) in x.column_iter_mut().enumerate() {
+    for (c, column) in x.as_mut_slice().chunks_exact_mut(b.max(1)).enumerate() {
         column[c] = 1.0;
-        for j in c..b {
-            let l_jj = l[(j, j)];
-            if l_jj == 0.0 {
+        for (j, l_j) in l.as_slice().chunks_exact(b).enumerate().skip(c) {
+            if l_j[j] == 0.0 {
                 return None;
             }
-            let x_j = column[j] / l_jj;
+            let x_j = column[j] / l_j[j];
             column[j] = x_j;
-            for (x_i, l_ij) in column.rows_range_mut(j + 1..).iter_mut().zip(l.view_range(j + 1.., j).iter()) {
+            for (x_i, l_ij) in column[j + 1..].iter_mut().zip(&l_j[j + 1..]) {
                 *x_i -= x_j * l_ij;
             }
         }

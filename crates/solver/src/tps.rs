@@ -632,6 +632,17 @@ pub(crate) fn apply_qt_s_q(s: &mut DMatrix<f64>, reflectors: &[Reflector], paral
     });
 }
 
+/// The block of `a` from row and column `start` on, copied column by column (a strided view's `clone_owned` goes
+/// element by element).
+pub(crate) fn trailing_block(a: &DMatrix<f64>, start: usize) -> DMatrix<f64> {
+    let (n, m) = (a.nrows(), a.nrows() - start);
+    let mut data = Vec::with_capacity(m * m);
+    for column in a.as_slice().chunks_exact(n.max(1)).skip(start) {
+        data.extend_from_slice(&column[start..]);
+    }
+    DMatrix::from_vec(m, m, data)
+}
+
 /// K̃ = K + dI for the centres `p` (Kᵢⱼ = ‖pᵢ − pⱼ‖), in blocks of columns. ‖pᵢ − pⱼ‖ and ‖pⱼ − pᵢ‖ round alike, so
 /// K̃ is exactly symmetric.
 pub(crate) fn kernel_matrix(p: &[[f64; 3]], k_diagonal: f64, parallelism: Parallelism) -> DMatrix<f64> {
@@ -716,8 +727,7 @@ fn solve(
     let (omega, factor) = if m == 0 {
         (DMatrix::<f64>::zeros(0, 3), None)
     } else {
-        let m22 = k_mat.view((4, 4), (m, m)).clone_owned();
-        let (omega, factor) = solve_symmetric(m22, &y.rows(4, m).clone_owned(), k_diagonal)?;
+        let (omega, factor) = solve_symmetric(trailing_block(&k_mat, 4), &y.rows(4, m).clone_owned(), k_diagonal)?;
         (omega, Some(factor))
     };
     // R Â = y₁ − M₁₂ Ω.
@@ -842,7 +852,9 @@ pub(crate) fn solve_symmetric(m: DMatrix<f64>, y: &DMatrix<f64>, k_diagonal: f64
         let parallelism = solve_parallelism(a.nrows() + 4);
         dense::cholesky_in_place(&mut a, dense::BLOCK, parallelism).ok().map(|()| nalgebra::Cholesky::pack_dirty(a))
     };
-    let (factor, ratio) = if let Some(ch) = cholesky(-&m) {
+    let mut neg_m = m.clone();
+    neg_m.neg_mut();
+    let (factor, ratio) = if let Some(ch) = cholesky(neg_m) {
         let r = pivot_ratio(&ch.l_dirty().diagonal(), 2);
         (Factor::NegCholesky(ch), r)
     } else if k_diagonal <= 0.0 {

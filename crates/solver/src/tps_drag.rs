@@ -109,8 +109,7 @@ impl<To: Space, From: Space> FactoredTps<To, From> {
         let factor = if m == 0 {
             None
         } else {
-            let m22 = k_mat.view((4, 4), (m, m)).clone_owned();
-            Some(tps::solve_symmetric(m22, &y.rows(4, m).clone_owned(), d)?.1)
+            Some(tps::solve_symmetric(tps::trailing_block(&k_mat, 4), &y.rows(4, m).clone_owned(), d)?.1)
         };
         let r_inv =
             r.try_inverse().ok_or_else(|| SolverError::Degenerate("the TPS affine block P is singular".into()))?;
