@@ -10,6 +10,24 @@
 //! Entries hold **straight (non-premultiplied)** colour and opacity. The ray caster interpolates straight RGBA,
 //! applies the opacity correction to α, and premultiplies afterwards; the CPU reference
 //! ([`TransferFunction::sample`]) does the same.
+//!
+//! **Pre-integration** ([`PreIntegrationTable`]; Engel, Kraus & Ertl 2001, "High-quality pre-integrated volume
+//! rendering using hardware-accelerated pixel shading"; Real-Time Volume Graphics §4.5): for one transfer function,
+//! opacity scale and ray step, a 256×256 table T(t_f, t_b) of the premultiplied colour and opacity of a ray segment
+//! one step long along which the TF coordinate goes linearly from t_f (front sample) to t_b (back sample):
+//!
+//! α(t_f, t_b) = 1 − exp(−∫₀^Δ τ(t(x)) dx),  C(t_f, t_b) = ∫₀^Δ c(t(x)) τ(t(x)) exp(−∫₀^x τ) dx,
+//!
+//! with τ the extinction of the opacity-corrected TF: a straight segment at constant t has opacity
+//! 1 − (1 − α_TF(t)·scale)^(Δ/ref_step), exactly what per-sample classification gives it. The table is built on the
+//! CPU by compositing the segment front to back in one sub-step per transfer-function entry it crosses, each at the
+//! midpoint of its entry interval (where the TF is linear) with the opacity correction to the sub-step's length, and
+//! the constant segment (t_f = t_b, the diagonal) in one step: so the diagonal is per-sample classification exactly,
+//! a segment through zero-opacity entries only is exactly transparent (what empty-space skipping relies on), and
+//! the rest converges to the integral as the entries get finer. The ray caster looks it up bilinearly by hand
+//! between entries, as it does the TF. Rows are the back entry: texel (f, b) at `texels[b · 256 + f]`.
+
+use rayon::prelude::*;
 
 use crate::device::GpuContext;
 
@@ -160,6 +178,8 @@ pub struct GpuTransferFunctions {
     pub rows: u32,
     /// Which entries of each row have non-zero opacity, for empty-space skipping ([`crate::empty_space`]).
     pub opacity: Vec<OpacityTable>,
+    /// The rows as uploaded, for the pre-integration tables made from them ([`PreIntegrationTable`]).
+    pub functions: Vec<TransferFunction>,
 }
 
 impl GpuTransferFunctions {
@@ -192,8 +212,163 @@ impl GpuTransferFunctions {
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
         let mut opacity: Vec<OpacityTable> = rows.iter().map(|tf| OpacityTable::new(&tf.entries)).collect();
         opacity.resize(n as usize, OpacityTable::new(&[[0; 4]; TF_ENTRIES]));
-        Self { texture, view, rows: n, opacity }
+        let mut functions = rows.to_vec();
+        functions
+            .resize(n as usize, TransferFunction { name: "transparent".into(), entries: vec![[0; 4]; TF_ENTRIES] });
+        Self { texture, view, rows: n, opacity, functions }
     }
+}
+
+/// What a [`PreIntegrationTable`] is made from: a transfer function's entries, its opacity scale and the ray step in
+/// reference steps (`step_mm / ref_step_mm`). Two frames with equal keys share a table.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PreIntegrationKey {
+    entries: Vec<[u8; 4]>,
+    /// f32 bits.
+    opacity_scale: u32,
+    /// f32 bits.
+    step_ratio: u32,
+}
+
+impl PreIntegrationKey {
+    #[must_use]
+    pub fn new(tf: &TransferFunction, opacity_scale: f32, step_ratio: f32) -> Self {
+        Self { entries: tf.entries.clone(), opacity_scale: opacity_scale.to_bits(), step_ratio: step_ratio.to_bits() }
+    }
+
+    #[must_use]
+    pub fn opacity_scale(&self) -> f32 {
+        f32::from_bits(self.opacity_scale)
+    }
+
+    #[must_use]
+    pub fn step_ratio(&self) -> f32 {
+        f32::from_bits(self.step_ratio)
+    }
+}
+
+/// The segment integrals of one transfer function for one step (module docs): premultiplied RGBA of the segment
+/// from front entry f to back entry b at `texels[b * TF_ENTRIES + f]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PreIntegrationTable {
+    pub texels: Vec<[f32; 4]>,
+}
+
+impl PreIntegrationTable {
+    /// The table of `tf` with opacities multiplied by `opacity_scale` (then clamped to \[0, 1\], as the ray caster
+    /// does), for segments of `step_ratio` reference steps. Rows in parallel on rayon's pool.
+    #[must_use]
+    pub fn build(tf: &TransferFunction, opacity_scale: f32, step_ratio: f32) -> Self {
+        let n = TF_ENTRIES;
+        // Straight colour and log2(1 − α) (the opacity correction's exponent base) at t.
+        let classify = |t: f32| {
+            let s = tf.sample(t);
+            let alpha = (s[3] * opacity_scale).clamp(0.0, 1.0);
+            ([s[0], s[1], s[2]], (1.0 - alpha).max(1e-7).log2())
+        };
+        let at_entry: Vec<([f32; 3], f32)> = (0..n).map(|i| classify(i as f32 / (n - 1) as f32)).collect();
+        // Midpoints of the intervals between entries i and i + 1.
+        let at_mid: Vec<([f32; 3], f32)> = (0..n - 1).map(|i| classify((i as f32 + 0.5) / (n - 1) as f32)).collect();
+        let mut texels = vec![[0.0f32; 4]; n * n];
+        texels.par_chunks_mut(n).enumerate().for_each(|(back, row)| {
+            for (front, texel) in row.iter_mut().enumerate() {
+                *texel = if front == back {
+                    let (rgb, log_transparency) = at_entry[front];
+                    let alpha = 1.0 - (step_ratio * log_transparency).exp2();
+                    [rgb[0] * alpha, rgb[1] * alpha, rgb[2] * alpha, alpha]
+                } else {
+                    let crossed = front.abs_diff(back);
+                    let sub_ratio = step_ratio / crossed as f32;
+                    let mut acc = [0.0f32; 4];
+                    for m in 0..crossed {
+                        // The m-th interval from the front: [front + m, front + m + 1] or [front − m − 1, front − m].
+                        let interval = if back > front { front + m } else { front - m - 1 };
+                        let (rgb, log_transparency) = at_mid[interval];
+                        let alpha = 1.0 - (sub_ratio * log_transparency).exp2();
+                        let w = (1.0 - acc[3]) * alpha;
+                        for c in 0..3 {
+                            acc[c] += w * rgb[c];
+                        }
+                        acc[3] += w;
+                    }
+                    acc
+                };
+            }
+        });
+        Self { texels }
+    }
+
+    /// Premultiplied RGBA of the segment from TF coordinate `t_front` to `t_back` (each clamped to \[0, 1\]),
+    /// interpolated bilinearly between entries: the shader's `sample_preintegrated`.
+    #[must_use]
+    pub fn sample(&self, t_front: f32, t_back: f32) -> [f32; 4] {
+        let last = TF_ENTRIES - 1;
+        let cell = |t: f32| {
+            let x = t.clamp(0.0, 1.0) * last as f32;
+            let i0 = (x.floor() as usize).min(last);
+            (i0, (i0 + 1).min(last), x - i0 as f32)
+        };
+        let ((f0, f1, wf), (b0, b1, wb)) = (cell(t_front), cell(t_back));
+        let at = |f: usize, b: usize| self.texels[b * TF_ENTRIES + f];
+        let (p, q, r, s) = (at(f0, b0), at(f1, b0), at(f0, b1), at(f1, b1));
+        std::array::from_fn(|c| {
+            let lo = p[c] + wf * (q[c] - p[c]);
+            let hi = r[c] + wf * (s[c] - r[c]);
+            lo + wb * (hi - lo)
+        })
+    }
+}
+
+/// A [`PreIntegrationTable`] as a 256×256 `Rgba32Float` texture (read with `textureLoad`, filtered by hand), with
+/// the key it was made from.
+#[derive(Debug)]
+pub struct GpuPreIntegration {
+    pub texture: wgpu::Texture,
+    pub view: wgpu::TextureView,
+    pub key: PreIntegrationKey,
+}
+
+impl GpuPreIntegration {
+    /// Builds the table of `key` ([`PreIntegrationTable::build`], ~10 ms of CPU) and uploads it.
+    #[must_use]
+    pub fn build(ctx: &GpuContext, tf: &TransferFunction, key: PreIntegrationKey) -> Self {
+        let table = PreIntegrationTable::build(tf, key.opacity_scale(), key.step_ratio());
+        let (texture, view) = rgba32f_texture(ctx, "pre-integration table", TF_ENTRIES as u32, &table.texels);
+        Self { texture, view, key }
+    }
+
+    /// A 1×1 transparent table, bound where a frame does not pre-integrate.
+    #[must_use]
+    pub(crate) fn placeholder(ctx: &GpuContext) -> wgpu::TextureView {
+        rgba32f_texture(ctx, "pre-integration placeholder", 1, &[[0.0; 4]]).1
+    }
+}
+
+fn rgba32f_texture(
+    ctx: &GpuContext,
+    label: &str,
+    edge: u32,
+    texels: &[[f32; 4]],
+) -> (wgpu::Texture, wgpu::TextureView) {
+    let size = wgpu::Extent3d { width: edge, height: edge, depth_or_array_layers: 1 };
+    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size,
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: wgpu::TextureFormat::Rgba32Float,
+        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        view_formats: &[],
+    });
+    ctx.queue.write_texture(
+        texture.as_image_copy(),
+        bytemuck::cast_slice(texels),
+        wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(16 * edge), rows_per_image: Some(edge) },
+        size,
+    );
+    let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+    (texture, view)
 }
 
 /// Which transfer-function entries have non-zero opacity, with prefix counts for O(1) range queries.
@@ -252,6 +427,102 @@ mod tests {
         assert!((mid[3] - 0.5 * f32::from(tf.entries[1][3]) / 255.0).abs() < 1e-5);
         for p in Preset::ALL {
             assert_eq!(p.transfer_function().entries[0][3], 0, "{p:?}: zero opacity at the bottom");
+        }
+    }
+
+    /// Premultiplied RGBA of a segment of `step_ratio` reference steps along which t goes linearly from `t_front` to
+    /// `t_back`, by brute force: `n` equal sub-steps, each classified at its midpoint through [`TransferFunction::sample`]
+    /// and opacity-corrected to its length.
+    fn brute_force_segment(tf: &TransferFunction, scale: f32, step_ratio: f32, t_front: f32, t_back: f32) -> [f64; 4] {
+        let n = 20_000;
+        let mut acc = [0.0f64; 4];
+        for m in 0..n {
+            let t = t_front + (m as f32 + 0.5) / n as f32 * (t_back - t_front);
+            let s = tf.sample(t);
+            let alpha = f64::from((s[3] * scale).clamp(0.0, 1.0));
+            let alpha = 1.0 - (1.0 - alpha).max(1e-7).powf(f64::from(step_ratio) / f64::from(n));
+            let w = (1.0 - acc[3]) * alpha;
+            for c in 0..3 {
+                acc[c] += w * f64::from(s[c]);
+            }
+            acc[3] += w;
+        }
+        acc
+    }
+
+    /// The diagonal (a constant segment) is per-sample classification: rgb·α', α' = 1 − (1 − α·scale)^step_ratio.
+    #[test]
+    fn constant_segments_are_per_sample_classification() {
+        let tf = Preset::MrT1.transfer_function();
+        for (scale, ratio) in [(1.0f32, 1.0f32), (0.6, 0.5), (2.0, 2.0)] {
+            let table = PreIntegrationTable::build(&tf, scale, ratio);
+            for i in [0usize, 60, 128, 200, 255] {
+                let s = tf.sample(i as f32 / 255.0);
+                let alpha = 1.0 - (1.0 - (s[3] * scale).clamp(0.0, 1.0)).max(1e-7).powf(ratio);
+                let texel = table.texels[i * TF_ENTRIES + i];
+                for c in 0..3 {
+                    assert!((texel[c] - s[c] * alpha).abs() < 1e-5, "{scale} {ratio} entry {i}: {texel:?}");
+                }
+                assert!((texel[3] - alpha).abs() < 1e-5, "{scale} {ratio} entry {i}: {texel:?} vs α {alpha}");
+            }
+        }
+    }
+
+    /// Every entry is within 2/255 of the segment integral by brute force (20 000 sub-steps), and the lookup between
+    /// entries within 4/255 of the brute-force integral of the segment it is asked for (the table is linear in
+    /// between, the integral is not); opacity does not depend on the direction of the segment.
+    #[test]
+    fn the_table_is_the_segment_integral() {
+        let scale = 1.0;
+        for preset in [Preset::MrT1, Preset::CtBone, Preset::CtSoftTissue] {
+            let tf = preset.transfer_function();
+            for ratio in [1.0f32, 0.5] {
+                let table = PreIntegrationTable::build(&tf, scale, ratio);
+                let mut worst = 0.0f64;
+                for (f, b) in [(0usize, 255usize), (255, 0), (40, 120), (120, 40), (100, 101), (180, 90), (60, 64)] {
+                    let exact = brute_force_segment(&tf, scale, ratio, f as f32 / 255.0, b as f32 / 255.0);
+                    let texel = table.texels[b * TF_ENTRIES + f];
+                    for c in 0..4 {
+                        worst = worst.max((f64::from(texel[c]) - exact[c]).abs());
+                    }
+                    let reverse = table.texels[f * TF_ENTRIES + b];
+                    assert!((reverse[3] - texel[3]).abs() < 1e-5, "{preset:?}: α({f}, {b}) ≠ α({b}, {f})");
+                }
+                assert!(worst < 2.0 / 255.0, "{preset:?} ratio {ratio}: entries off by {worst}");
+                let mut worst = 0.0f64;
+                for (tf_, tb) in [(0.13f32, 0.77f32), (0.5, 0.5013), (0.91, 0.2), (0.33, 0.331), (0.6, 0.45)] {
+                    let exact = brute_force_segment(&tf, scale, ratio, tf_, tb);
+                    let got = table.sample(tf_, tb);
+                    for c in 0..4 {
+                        worst = worst.max((f64::from(got[c]) - exact[c]).abs());
+                    }
+                }
+                assert!(worst < 4.0 / 255.0, "{preset:?} ratio {ratio}: lookups off by {worst}");
+            }
+        }
+    }
+
+    /// A segment whose values cross only zero-opacity entries is exactly transparent (empty-space skipping relies
+    /// on it), and a flat TF gives every segment the constant segment's opacity.
+    #[test]
+    fn transparent_ranges_stay_exactly_transparent() {
+        let tf = Preset::MrT1.transfer_function();
+        let first_opaque = tf.entries.iter().position(|e| e[3] > 0).expect("an opaque entry");
+        let table = PreIntegrationTable::build(&tf, 1.0, 1.0);
+        for f in 0..first_opaque {
+            for b in 0..first_opaque {
+                let texel = table.texels[b * TF_ENTRIES + f];
+                assert!(texel.iter().all(|c| c.to_bits() == 0), "({f}, {b}): {texel:?} is not exactly zero");
+            }
+        }
+        // Up to the first opaque entry, the last interval is not transparent.
+        assert!(table.texels[first_opaque * TF_ENTRIES][3] > 0.0);
+        let flat = TransferFunction { name: "flat".into(), entries: vec![[200, 100, 50, 40]; TF_ENTRIES] };
+        let table = PreIntegrationTable::build(&flat, 1.0, 1.0);
+        let alpha = 40.0f32 / 255.0;
+        for (f, b) in [(0usize, 255usize), (3, 9), (200, 10)] {
+            let texel = table.texels[b * TF_ENTRIES + f];
+            assert!((texel[3] - alpha).abs() < 1e-5 && (texel[0] - alpha * 200.0 / 255.0).abs() < 1e-5, "{texel:?}");
         }
     }
 }
