@@ -104,6 +104,7 @@ const MIN_GRADIENT_SQ: f32 = 1e-12;
 
 // RaycastUniforms.flags
 const RAYCAST_JITTER: u32 = 1u;
+const RAYCAST_PREINTEGRATED: u32 = 2u;
 
 // empty_space_tex cells: the volume may be non-transparent in the brick (crates/gpu/src/empty_space.rs).
 const OCCUPIED_FIXED: u32 = 1u;
@@ -141,6 +142,11 @@ const NO_HIT_DEPTH: f32 = 2.0;
 // Empty-space grid: one cell (OCCUPIED_* bits) per ref-space brick; a 1×1×1 "all occupied" placeholder when
 // u.empty_space.enabled is 0.
 @group(0) @binding(10) var empty_space_tex: texture_3d<u32>;
+// Pre-integration tables (crates/gpu/src/transfer.rs, PreIntegrationTable): Rgba32Float 256×256, texel (front entry,
+// back entry) the premultiplied colour and opacity of a segment one step long; 1×1 placeholders unless
+// RAYCAST_PREINTEGRATED.
+@group(0) @binding(11) var fixed_preint_tex: texture_2d<f32>;
+@group(0) @binding(12) var moving_preint_tex: texture_2d<f32>;
 
 struct VertexOutput {
     @builtin(position) position: vec4<f32>,
@@ -217,25 +223,47 @@ fn sample_layers(vol: texture_2d_array<f32>, p_tex: vec3<f32>) -> f32 {
 // brick (the grid's bricks are grown by a margin for the rounding) and those taken are the same as without
 // skipping. Returns k when there is nothing to skip.
 fn skip_empty(k: u32, x_ref: vec3<f32>, origin: vec3<f32>, dir: vec3<f32>, t_enter: f32, jitter: f32, mask: u32) -> u32 {
+    let t_exit = empty_brick_exit(x_ref, origin, dir, mask);
+    if t_exit < 0.0 {
+        return k;
+    }
+    let k_last = floor((t_exit - t_enter) / u.step_mm - jitter);
+    return u32(clamp(k_last, f32(k + 1u), f32(u.max_steps)));
+}
+
+// Pre-integration's skip: the index of the last lattice sample in sample k's brick when the brick is empty for every
+// volume in `mask`, else k. The segments between samples k and that one lie in the brick, where every value a
+// lookup can read has zero opacity, so each is exactly transparent (both ends' TF coordinates lie in the brick's
+// zero-opacity range, and so does every entry the table integrated between them).
+fn last_in_empty_brick(k: u32, x_ref: vec3<f32>, origin: vec3<f32>, dir: vec3<f32>, t_enter: f32, jitter: f32, mask: u32) -> u32 {
+    let t_exit = empty_brick_exit(x_ref, origin, dir, mask);
+    if t_exit < 0.0 {
+        return k;
+    }
+    let k_last = floor((t_exit - t_enter) / u.step_mm - jitter);
+    return u32(clamp(k_last, f32(k), f32(u.max_steps)));
+}
+
+// Where the ray origin + t·dir leaves the brick of x_ref, when that brick is empty for every volume in `mask`;
+// -1 when it is not (or skipping is off, or x_ref is outside the grid).
+fn empty_brick_exit(x_ref: vec3<f32>, origin: vec3<f32>, dir: vec3<f32>, mask: u32) -> f32 {
     let e = u.empty_space;
     if e.enabled == 0u {
-        return k;
+        return -1.0;
     }
     let c = (x_ref - e.min_ref) / e.brick_mm;
     if any(c < vec3<f32>(0.0)) || any(c >= vec3<f32>(e.dims)) {
-        return k;
+        return -1.0;
     }
     let b = vec3<i32>(floor(c));
     if (textureLoad(empty_space_tex, b, 0).r & mask) != 0u {
-        return k;
+        return -1.0;
     }
     let lo = e.min_ref + vec3<f32>(b) * e.brick_mm;
     let exit_plane = select(lo, lo + vec3<f32>(e.brick_mm), dir > vec3<f32>(0.0));
     let crosses = abs(dir) > vec3<f32>(1e-20);
     let t_axis = select(vec3<f32>(3.0e38), (exit_plane - origin) / select(vec3<f32>(1.0), dir, crosses), crosses);
-    let t_exit = min(min(t_axis.x, t_axis.y), t_axis.z);
-    let k_last = floor((t_exit - t_enter) / u.step_mm - jitter);
-    return u32(clamp(k_last, f32(k + 1u), f32(u.max_steps)));
+    return max(min(min(t_axis.x, t_axis.y), t_axis.z), 0.0);
 }
 
 // tex(u(x_ref)): the volume's texture coordinates of ref point x_ref, through the warp when there is one.
@@ -322,6 +350,106 @@ fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f3
         rgb = shade(rgb, warped_gradient(vol, ctrl, pf, v, x_ref), light);
     }
     return vec4<f32>(rgb * alpha_corrected, alpha_corrected);
+}
+
+// Pre-integration (crates/gpu/src/transfer.rs): the TF coordinate of one volume at x_ref, or -1 outside its texture
+// box (a segment with an end outside is transparent, as per-sample classification makes the sample there).
+fn tf_coord_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> f32 {
+    let p_tex = warp_to_tex(ctrl, v, x_ref);
+    if outside_tex(p_tex) {
+        return -1.0;
+    }
+    return clamp((volume_value(vol, v, p_tex) - v.window_low) / v.window_width, 0.0, 1.0);
+}
+
+// The table's premultiplied RGBA of the segment from TF coordinate t_front to t_back, bilinear between entries by
+// hand (texel (i, j) at t = (i/255, j/255)), as sample_tf.
+fn sample_preintegrated(table: texture_2d<f32>, t_front: f32, t_back: f32) -> vec4<f32> {
+    let x = clamp(vec2<f32>(t_front, t_back), vec2<f32>(0.0), vec2<f32>(1.0)) * 255.0;
+    let i0 = min(vec2<u32>(floor(x)), vec2<u32>(255u));
+    let i1 = min(i0 + vec2<u32>(1u), vec2<u32>(255u));
+    let f = x - vec2<f32>(i0);
+    let a = textureLoad(table, vec2<u32>(i0.x, i0.y), 0);
+    let b = textureLoad(table, vec2<u32>(i1.x, i0.y), 0);
+    let c = textureLoad(table, vec2<u32>(i0.x, i1.y), 0);
+    let d = textureLoad(table, vec2<u32>(i1.x, i1.y), 0);
+    return mix(mix(a, b, f.x), mix(c, d, f.x), f.y);
+}
+
+// One volume's pre-integrated segment between TF coordinates t_front and t_back: premultiplied RGBA from its table,
+// transparent when an end is outside the volume's box; in DVR mode the segment's straight colour C/α is lit with
+// the gradient at x_shade (the segment's midpoint) and premultiplied again.
+fn classify_segment(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, table: texture_2d<f32>, v: VolumeUniforms, t_front: f32, t_back: f32, x_shade: vec3<f32>, light: vec3<f32>) -> vec4<f32> {
+    if t_front < 0.0 || t_back < 0.0 {
+        return vec4<f32>(0.0);
+    }
+    let c = sample_preintegrated(table, t_front, t_back);
+    if SHADING == SHADING_DVR && c.a > 0.0 {
+        let rgb = shade(c.rgb / c.a, warped_gradient(vol, ctrl, pf, v, x_shade), light);
+        return vec4<f32>(rgb * c.a, c.a);
+    }
+    return c;
+}
+
+// The DVR march with pre-integrated classification: the same sample lattice as per-sample classification; sample
+// k (k ≥ 1) closes the segment from sample k − 1, which is classified from the table of each volume, blended at its
+// midpoint and composited "over" at sample k (its depth for the first hit). Empty bricks are jumped over as
+// `last_in_empty_brick` says, the front of the next segment re-sampled where the jump lands, so the image is the
+// same as without skipping.
+fn march_preintegrated(near_h: vec4<f32>, far_h: vec4<f32>, origin: vec3<f32>, dir: vec3<f32>, t_enter: f32, t_far: f32, jitter: f32, use_fixed: bool, use_moving: bool, mask: u32, light: vec3<f32>) -> RaycastOutput {
+    var acc = vec4<f32>(0.0);
+    var hit_depth = NO_HIT_DEPTH;
+    // The front sample's TF coordinates (-1: outside the volume's box).
+    var front_f = -1.0;
+    var front_m = -1.0;
+    for (var k = 0u; k < u.max_steps; k++) {
+        let t = t_enter + (f32(k) + jitter) * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        let x_ref = origin + t * dir;
+        var back_f = -1.0;
+        var back_m = -1.0;
+        if use_fixed {
+            back_f = tf_coord_at(fixed_tex, fixed_ctrl_tex, u.fixed, x_ref);
+        }
+        if use_moving {
+            back_m = tf_coord_at(moving_tex, moving_ctrl_tex, u.moving, x_ref);
+        }
+        if k > 0u {
+            let x_mid = x_ref - (0.5 * u.step_mm) * dir;
+            var f = vec4<f32>(0.0);
+            var m = vec4<f32>(0.0);
+            if use_fixed {
+                f = classify_segment(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, fixed_preint_tex, u.fixed, front_f, back_f, x_mid, light);
+            }
+            if use_moving {
+                m = classify_segment(moving_tex, moving_ctrl_tex, moving_pf_tex, moving_preint_tex, u.moving, front_m, back_m, x_mid, light);
+            }
+            let c = blend(f, m, x_mid);
+            acc += (1.0 - acc.a) * c;
+            if hit_depth == NO_HIT_DEPTH && acc.a >= HIT_OPACITY {
+                hit_depth = ndc_depth(near_h, far_h, origin, dir, t);
+            }
+            if acc.a > EARLY_EXIT_ALPHA {
+                break;
+            }
+        }
+        front_f = back_f;
+        front_m = back_m;
+        let last = last_in_empty_brick(k, x_ref, origin, dir, t_enter, jitter, mask);
+        if last > k {
+            let x_last = origin + (t_enter + (f32(last) + jitter) * u.step_mm) * dir;
+            if use_fixed {
+                front_f = tf_coord_at(fixed_tex, fixed_ctrl_tex, u.fixed, x_last);
+            }
+            if use_moving {
+                front_m = tf_coord_at(moving_tex, moving_ctrl_tex, u.moving, x_last);
+            }
+            k = last;
+        }
+    }
+    return RaycastOutput(acc, bitcast<u32>(hit_depth));
 }
 
 // The value at x_ref, or -inf outside the volume's texture box (never a hit).
@@ -512,6 +640,9 @@ fn fs_raycast(in: VertexOutput) -> RaycastOutput {
     }
     if use_moving {
         mask |= OCCUPIED_MOVING;
+    }
+    if (u.flags & RAYCAST_PREINTEGRATED) != 0u {
+        return march_preintegrated(near_h, far_h, origin_ref, dir_ref, t_enter, t_far, jitter, use_fixed, use_moving, mask, light);
     }
     for (var k = 0u; k < u.max_steps; k++) {
         let t = t_enter + (f32(k) + jitter) * u.step_mm;
@@ -742,6 +873,99 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
     return out;
 }
 
+// PROBE_ACCUMULATED when the frame pre-integrates (RAYCAST_PREINTEGRATED): the frame's own compositing, segment by
+// segment. Sample k (k ≥ 1) closes the segment from sample k − 1 with the table's opacity α(s_{k−1}, s_k), so
+// A(s_k) = A_prev + (1 − A_prev)·α(s_{k−1}, s_k); inside the segment that first reaches the level, the partial
+// segment from t_prev to s has A(s) = A_prev + (1 − A_prev)·(1 − (1 − α(s_{k−1}, s(s)))^((s − t_prev)/step)): the
+// table's segment is one step long, and a segment's optical depth scales with its length for the same values. The
+// same samples, bisection and empty-space jumps as the frame (`march_preintegrated`).
+fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: texture_2d<f32>, v: VolumeUniforms, ray: PickRay) -> PickHit {
+    var out: PickHit;
+    out.hit = 0u;
+    out.target_volume = pick.target_volume;
+    let origin = ray.origin_ref;
+    let dir = ray.dir_ref;
+    let inv_dir = 1.0 / dir;
+    let t0 = (u.box_min_ref - origin) * inv_dir;
+    let t1 = (u.box_max_ref - origin) * inv_dir;
+    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
+    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
+    let t_enter = max(t_near, 0.0);
+    if !(t_far > t_enter) {
+        return out;
+    }
+    var mask = OCCUPIED_MOVING;
+    if pick.target_volume == TARGET_FIXED {
+        mask = OCCUPIED_FIXED;
+    }
+    let may_skip = pick.threshold > 0.0;
+    var acc = 0.0;
+    var t_prev = t_enter;
+    var front = -1.0;
+    for (var k = 0u; k < u.max_steps; k++) {
+        let t = t_enter + f32(k) * u.step_mm;
+        if t >= t_far {
+            break;
+        }
+        let back = tf_coord_at(vol, ctrl, v, origin + t * dir);
+        if k > 0u {
+            var alpha = 0.0;
+            if front >= 0.0 && back >= 0.0 {
+                alpha = sample_preintegrated(table, front, back).a;
+            }
+            if acc + (1.0 - acc) * alpha >= pick.threshold {
+                var lo = t_prev;
+                var hi = t;
+                for (var b = 0u; b < pick.bisection_steps; b++) {
+                    let mid = 0.5 * (lo + hi);
+                    let s_mid = tf_coord_at(vol, ctrl, v, origin + mid * dir);
+                    var alpha_part = 0.0;
+                    if front >= 0.0 && s_mid >= 0.0 {
+                        let a = sample_preintegrated(table, front, s_mid).a;
+                        alpha_part = 1.0 - exp2((mid - t_prev) / u.step_mm * log2(max(1.0 - a, 1e-7)));
+                    }
+                    if acc + (1.0 - acc) * alpha_part >= pick.threshold {
+                        hi = mid;
+                    } else {
+                        lo = mid;
+                    }
+                }
+                return pick_hit_at(vol, ctrl, v, origin, dir, 0.5 * (lo + hi));
+            }
+            acc += (1.0 - acc) * alpha;
+        }
+        front = back;
+        t_prev = t;
+        if may_skip {
+            let last = last_in_empty_brick(k, origin + t * dir, origin, dir, t_enter, 0.0, mask);
+            if last > k {
+                t_prev = t_enter + f32(last) * u.step_mm;
+                front = tf_coord_at(vol, ctrl, v, origin + t_prev * dir);
+                k = last;
+            }
+        }
+    }
+    return out;
+}
+
+// The hit at t_hit along the ray: x_ref, its pull-back into the volume's LPS space and the value there.
+fn pick_hit_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_hit: f32) -> PickHit {
+    var out: PickHit;
+    let x_ref = origin + t_hit * dir;
+    var p_lps = x_ref;
+    if (v.flags & VOLUME_HAS_WARP) != 0u {
+        let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
+        p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
+    }
+    out.hit = 1u;
+    out.target_volume = pick.target_volume;
+    out.x_ref = x_ref;
+    out.t_mm = t_hit;
+    out.p_lps = p_lps;
+    out.value = volume_value(vol, v, (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz);
+    return out;
+}
+
 @compute @workgroup_size(64)
 fn cs_pick(@builtin(global_invocation_id) id: vec3<u32>) {
     let i = id.x;
@@ -749,6 +973,14 @@ fn cs_pick(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let ray = pick_rays[i];
+    if (u.flags & RAYCAST_PREINTEGRATED) != 0u && pick.probe == PROBE_ACCUMULATED {
+        if pick.target_volume == TARGET_FIXED {
+            pick_hits[i] = pick_march_preintegrated(fixed_tex, fixed_ctrl_tex, fixed_preint_tex, u.fixed, ray);
+        } else {
+            pick_hits[i] = pick_march_preintegrated(moving_tex, moving_ctrl_tex, moving_preint_tex, u.moving, ray);
+        }
+        return;
+    }
     if pick.target_volume == TARGET_FIXED {
         pick_hits[i] = pick_march(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, ray);
     } else {

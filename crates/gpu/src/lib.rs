@@ -102,7 +102,7 @@ pub use pool::{PoolStats, TextureKey, TexturePool};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
 pub use pullback::{BSplineDesc, LatticeDesc, TpsDesc, TpsLocal};
 pub use raycast::{GpuFrame, GpuLayer, RaycastDrawData, RaycastRenderer, RaycastUniforms, VolumeUniforms};
-pub use settings::{BlendMode, LayerParams, LayerStyle, Quality, RenderSettings, Shading, ShadingMode};
+pub use settings::{BlendMode, Classification, LayerParams, LayerStyle, Quality, RenderSettings, Shading, ShadingMode};
 pub use slice::SlicePlane;
 pub use target::RenderTarget;
 pub use transfer::{GpuTransferFunctions, OpacityTable, Preset, TransferFunction, Window};

@@ -9,6 +9,16 @@
 //! α' = 1 − (1 − α)^(step/ref_step) with ref_step one voxel of the finest visible spacing; blend; "over"
 //! compositing of premultiplied colour, stopping at α > 0.99. The output is premultiplied RGBA8.
 //!
+//! **Pre-integrated classification** ([`Classification::PreIntegrated`], DVR only; Engel, Kraus & Ertl 2001): the same
+//! sample lattice, but each sample k ≥ 1 closes the segment from sample k − 1, classified by looking up the layer's
+//! [`crate::transfer::PreIntegrationTable`] at (TF coordinate of sample k − 1, of sample k): the exact segment
+//! integral of colour and opacity for a value going linearly between them (opacity correction included); a segment
+//! with an end outside the volume's box is transparent. DVR lights the segment's straight colour C/α with the
+//! gradient at the segment's midpoint. The tables (256×256 `Rgba32Float`, one per layer) are built on the CPU for the
+//! layer's TF row, opacity scale and the frame's step, and cached by the [`RaycastRenderer`] (the last few), so a
+//! frame pays for them only when its look or sample rate changes. Empty-space skipping jumps over the segments that
+//! lie inside an empty brick and re-samples the front of the next one, so the image is the same as without it.
+//!
 //! **Shading** ([`Shading`], [`ShadingMode`]; Brunet et al. 2006 §3.4, Westermann & Rezk-Salama 2001 §3.3): the
 //! gradient at a ref-space sample x is taken by central differences in ref space *through the warp*,
 //! gᵢ(x) = \[v_pf(tex(u(x + h·eᵢ))) − v_pf(tex(u(x − h·eᵢ)))\] / 2h, of the layer's prefiltered copy v_pf
@@ -36,11 +46,13 @@ use crate::empty_space::{
 };
 use crate::error::{GpuError, Result};
 use crate::prefilter::GpuPrefiltered;
-use crate::settings::{BlendMode, LayerParams, LayerStyle, RenderSettings, Shading, ShadingMode, proxy_box_ref};
+use crate::settings::{
+    BlendMode, Classification, LayerParams, LayerStyle, RenderSettings, Shading, ShadingMode, proxy_box_ref,
+};
 use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, WgslConstant, layout};
 use crate::slice::SlicePlane;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH, RenderTarget};
-use crate::transfer::{GpuTransferFunctions, OpacityTable};
+use crate::transfer::{GpuPreIntegration, GpuTransferFunctions, OpacityTable, PreIntegrationKey};
 use crate::volume::GpuVolume;
 
 /// `VolumeUniforms.flags`, the WGSL constants of the same names ([`INTERFACE`]).
@@ -51,6 +63,12 @@ pub const VOLUME_MANUAL_FILTER: u32 = 4;
 pub const VOLUME_HAS_PREFILTER: u32 = 8;
 /// `RaycastUniforms.flags`.
 pub const RAYCAST_JITTER: u32 = 1;
+/// DVR composites pre-integrated segments ([`Classification::PreIntegrated`]) from the layers' tables
+/// ([`SLOT_FIXED_PREINTEGRATION`], [`SLOT_MOVING_PREINTEGRATION`]).
+pub const RAYCAST_PREINTEGRATED: u32 = 2;
+/// Pre-integration tables a renderer keeps for reuse ([`RaycastRenderer`]): two layers at the full and the interactive
+/// rate.
+const PREINTEGRATION_CACHE: usize = 4;
 /// Early ray termination threshold.
 pub const EARLY_EXIT_ALPHA: f32 = 0.99;
 
@@ -186,6 +204,10 @@ impl RaycastUniforms {
         let finest_mm =
             visible.iter().filter(|l| l.style.visible).flat_map(|l| l.volume.spacing_mm).fold(f64::INFINITY, f64::min);
         let finest_mm = if finest_mm.is_finite() { finest_mm as f32 } else { 1.0 };
+        let mut flags = if settings.jitter_seed.is_some() { RAYCAST_JITTER } else { 0 };
+        if settings.classification == Classification::PreIntegrated && settings.shading.mode != ShadingMode::Iso {
+            flags |= RAYCAST_PREINTEGRATED;
+        }
         let (blend_weight, checker_cell_mm) = match settings.blend {
             BlendMode::Mix { moving_weight } => (moving_weight, 1.0),
             BlendMode::Checkerboard { cell_mm } => (0.5, cell_mm.max(1e-3)),
@@ -199,7 +221,7 @@ impl RaycastUniforms {
             ref_step_mm: finest_mm,
             viewport_px: [w as f32, h as f32],
             blend_mode: settings.blend.code(),
-            flags: if settings.jitter_seed.is_some() { RAYCAST_JITTER } else { 0 },
+            flags,
             blend_weight,
             checker_cell_mm,
             max_steps: settings.max_steps,
@@ -233,7 +255,12 @@ impl RaycastUniforms {
         let (w, h) = plane.size;
         let centre = DVec3::from_array(plane.ref_from_pixel(f64::from(w) / 2.0, f64::from(h) / 2.0)).as_vec3();
         let camera = OrbitCamera::fit(centre - glam::Vec3::ONE, centre + glam::Vec3::ONE, Projection::Orthographic);
-        let settings = RenderSettings { shading: Shading::default(), jitter_seed: None, ..*settings };
+        let settings = RenderSettings {
+            shading: Shading::default(),
+            jitter_seed: None,
+            classification: Classification::PerSample,
+            ..*settings
+        };
         Self {
             ref_from_frag_px: plane.ref_from_frag_px().to_cols_array_2d(),
             ..Self::new(&camera, &settings, (w, h), fixed, moving, tf_rows)
@@ -275,6 +302,10 @@ pub const SLOT_FIXED_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 8, "fixe
 pub const SLOT_MOVING_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 9, "moving_pf_tex");
 /// The empty-space grid ([`crate::empty_space`]; a placeholder marking everything occupied without one).
 pub const SLOT_EMPTY_SPACE: BindSlot = BindSlot::new(FRAME_GROUP, 10, "empty_space_tex");
+/// The fixed layer's pre-integration table ([`crate::transfer::PreIntegrationTable`]; a placeholder unless the frame
+/// pre-integrates).
+pub const SLOT_FIXED_PREINTEGRATION: BindSlot = BindSlot::new(FRAME_GROUP, 11, "fixed_preint_tex");
+pub const SLOT_MOVING_PREINTEGRATION: BindSlot = BindSlot::new(FRAME_GROUP, 12, "moving_preint_tex");
 
 /// The ray caster's part of `shaders/raycast.wgsl` (the picking pass declares its own, [`crate::pick::INTERFACE`]).
 pub const INTERFACE: ShaderInterface = ShaderInterface {
@@ -332,6 +363,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         SLOT_FIXED_PREFILTERED,
         SLOT_MOVING_PREFILTERED,
         SLOT_EMPTY_SPACE,
+        SLOT_FIXED_PREINTEGRATION,
+        SLOT_MOVING_PREINTEGRATION,
     ],
     constants: &[
         WgslConstant::u32("VOLUME_VISIBLE", VOLUME_VISIBLE),
@@ -339,6 +372,7 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
         WgslConstant::u32("VOLUME_HAS_PREFILTER", VOLUME_HAS_PREFILTER),
         WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
+        WgslConstant::u32("RAYCAST_PREINTEGRATED", RAYCAST_PREINTEGRATED),
         WgslConstant::u32("OCCUPIED_FIXED", OCCUPIED_FIXED),
         WgslConstant::u32("OCCUPIED_MOVING", OCCUPIED_MOVING),
         WgslConstant::f32("EARLY_EXIT_ALPHA", EARLY_EXIT_ALPHA),
@@ -367,6 +401,9 @@ pub struct RaycastRenderer {
     placeholder_control: wgpu::TextureView,
     placeholder_prefiltered: wgpu::TextureView,
     placeholder_empty_space: wgpu::TextureView,
+    placeholder_preintegration: wgpu::TextureView,
+    /// The pre-integration tables of recent frames, most recently used last ([`Self::preintegration`]).
+    preintegration: std::sync::Mutex<Vec<std::sync::Arc<GpuPreIntegration>>>,
     volumes_filterable: bool,
 }
 
@@ -376,7 +413,7 @@ impl RaycastRenderer {
     pub const OPTIONAL_FEATURES: wgpu::Features =
         wgpu::Features::TEXTURE_FORMAT_16BIT_NORM.union(wgpu::Features::FLOAT32_FILTERABLE);
     /// Sampled textures and samplers per fragment stage this pass binds.
-    pub const SAMPLED_TEXTURES: u32 = 8;
+    pub const SAMPLED_TEXTURES: u32 = 10;
     pub const SAMPLERS: u32 = 2;
     /// The slice fragment entry point in `shaders/raycast.wgsl`.
     pub const SLICE_ENTRY_POINT: &'static str = "fs_slice";
@@ -441,6 +478,9 @@ impl RaycastRenderer {
                         multisampled: false,
                     },
                 ),
+                // Rgba32Float, read with textureLoad.
+                SLOT_FIXED_PREINTEGRATION.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2, false)),
+                SLOT_MOVING_PREINTEGRATION.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2, false)),
             ],
         });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
@@ -472,6 +512,7 @@ impl RaycastRenderer {
         let placeholder_control = GpuControlTexture::placeholder(ctx);
         let placeholder_prefiltered = GpuPrefiltered::placeholder(ctx);
         let placeholder_empty_space = GpuEmptySpace::placeholder(ctx);
+        let placeholder_preintegration = GpuPreIntegration::placeholder(ctx);
         ctx.check_errors()?;
         let renderer = Self {
             device: device.clone(),
@@ -485,6 +526,8 @@ impl RaycastRenderer {
             placeholder_control,
             placeholder_prefiltered,
             placeholder_empty_space,
+            placeholder_preintegration,
+            preintegration: std::sync::Mutex::new(Vec::new()),
             volumes_filterable,
         };
         // The unlit pipeline now, so that shader errors surface here; the lit ones on first use.
@@ -501,6 +544,28 @@ impl RaycastRenderer {
             let fragment = SHADER.entry_point(Stage::Fragment);
             self.create_pipeline("raycast", fragment, &[("SHADING", f64::from(code))], true)
         })
+    }
+
+    /// The pre-integration table of `tf` for `key`: from the renderer's cache of the last [`PREINTEGRATION_CACHE`]
+    /// tables, or built ([`GpuPreIntegration::build`], CPU work of a few ms) and cached.
+    fn preintegration(
+        &self,
+        ctx: &GpuContext,
+        tf: &crate::transfer::TransferFunction,
+        key: PreIntegrationKey,
+    ) -> std::sync::Arc<GpuPreIntegration> {
+        let mut cache = self.preintegration.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(i) = cache.iter().position(|t| t.key == key) {
+            let table = cache.remove(i);
+            cache.push(table.clone());
+            return table;
+        }
+        let table = std::sync::Arc::new(GpuPreIntegration::build(ctx, tf, key));
+        if cache.len() >= PREINTEGRATION_CACHE {
+            cache.remove(0);
+        }
+        cache.push(table.clone());
+        table
     }
 
     /// The slice pipeline: the same module, layout and vertex stage, fragment entry point [`Self::SLICE_ENTRY_POINT`].
@@ -756,6 +821,8 @@ pub struct RaycastDrawData {
     pub uniforms: RaycastUniforms,
     /// The buffer of [`Self::uniforms`], held as long as the bind group that binds it.
     _uniform_buffer: wgpu::Buffer,
+    /// The (fixed, moving) pre-integration tables the bind group binds, when the frame pre-integrates.
+    _preintegration: Option<[std::sync::Arc<GpuPreIntegration>; 2]>,
     bind_group: wgpu::BindGroup,
 }
 
@@ -845,6 +912,17 @@ impl RaycastDrawData {
         let fixed_pf = fixed.prefiltered.map_or(&renderer.placeholder_prefiltered, |p| &p.view);
         let moving_pf = moving.prefiltered.map_or(&renderer.placeholder_prefiltered, |p| &p.view);
         debug_assert!(renderer.volumes_filterable != fixed.volume.info.manual_filter);
+        let preintegration = (uniforms.flags & RAYCAST_PREINTEGRATED != 0).then(|| {
+            let step_ratio = uniforms.step_mm / uniforms.ref_step_mm;
+            [&uniforms.fixed, &uniforms.moving].map(|v| {
+                let tf = &tfs.functions[(v.tf_row as usize).min(tfs.functions.len() - 1)];
+                renderer.preintegration(ctx, tf, PreIntegrationKey::new(tf, v.opacity_scale, step_ratio))
+            })
+        });
+        let [fixed_preint, moving_preint] = match &preintegration {
+            Some([f, m]) => [&f.view, &m.view],
+            None => [&renderer.placeholder_preintegration; 2],
+        };
         let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("raycast"),
             layout: &renderer.layout,
@@ -860,9 +938,11 @@ impl RaycastDrawData {
                 SLOT_FIXED_PREFILTERED.entry(wgpu::BindingResource::TextureView(fixed_pf)),
                 SLOT_MOVING_PREFILTERED.entry(wgpu::BindingResource::TextureView(moving_pf)),
                 SLOT_EMPTY_SPACE.entry(wgpu::BindingResource::TextureView(empty_space_view)),
+                SLOT_FIXED_PREINTEGRATION.entry(wgpu::BindingResource::TextureView(fixed_preint)),
+                SLOT_MOVING_PREINTEGRATION.entry(wgpu::BindingResource::TextureView(moving_preint)),
             ],
         });
-        Self { uniforms, _uniform_buffer: buffer, bind_group }
+        Self { uniforms, _uniform_buffer: buffer, _preintegration: preintegration, bind_group }
     }
 
     /// The frame's bind group (group 0 of the ray caster and of the picking pass).

@@ -14,8 +14,8 @@ use glam::{DVec3, Vec3};
 use warpbench_gpu::cpu_reference::{self, CpuLayer};
 use warpbench_gpu::empty_space::{BrickLattice, OCCUPIED_FIXED, OCCUPIED_MOVING};
 use warpbench_gpu::{
-    BlendMode, FeatureRequest, GpuContext, GpuEmptySpace, GpuFrame, GpuLayer, LayerStyle, OrbitCamera, PickPass,
-    PickRay, PickRequest, PickTarget, PrefilterSettings, Probe, Projection, RaycastDrawData, RaycastUniforms,
+    BlendMode, Classification, FeatureRequest, GpuContext, GpuEmptySpace, GpuFrame, GpuLayer, LayerStyle, OrbitCamera,
+    PickPass, PickRay, PickRequest, PickTarget, PrefilterSettings, Probe, Projection, RaycastDrawData, RaycastUniforms,
     RenderSettings, RenderTarget, Shading, ShadingMode, TransferFunction, VolumeDesc, VolumeSamples, Window,
 };
 
@@ -132,16 +132,24 @@ fn skipping_keeps_the_image_bit_exact_through_a_warp() {
         100.0 * grid.empty_fraction
     );
     assert!(grid.empty_fraction > 0.2, "the scene has empty space to skip: {}", grid.empty_fraction);
+    let mix = BlendMode::Mix { moving_weight: 0.5 };
+    let (per_sample, preintegrated) = (Classification::PerSample, Classification::PreIntegrated);
     let cases = [
-        ("mix, unlit", BlendMode::Mix { moving_weight: 0.5 }, ShadingMode::None, None, 0.5),
-        ("mix, DVR, jitter", BlendMode::Mix { moving_weight: 0.5 }, ShadingMode::Dvr, Some(7), 1.1),
-        ("moving only, DVR", BlendMode::MovingOnly, ShadingMode::Dvr, None, -2.0),
-        ("fixed only, unlit", BlendMode::FixedOnly, ShadingMode::None, Some(3), 2.5),
-        ("checkerboard", BlendMode::Checkerboard { cell_mm: 12.0 }, ShadingMode::None, None, 1.9),
-        ("difference", BlendMode::Difference, ShadingMode::None, None, 0.2),
+        ("mix, unlit", mix, ShadingMode::None, None, 0.5, per_sample),
+        ("mix, DVR, jitter", mix, ShadingMode::Dvr, Some(7), 1.1, per_sample),
+        ("moving only, DVR", BlendMode::MovingOnly, ShadingMode::Dvr, None, -2.0, per_sample),
+        ("fixed only, unlit", BlendMode::FixedOnly, ShadingMode::None, Some(3), 2.5, per_sample),
+        ("checkerboard", BlendMode::Checkerboard { cell_mm: 12.0 }, ShadingMode::None, None, 1.9, per_sample),
+        ("difference", BlendMode::Difference, ShadingMode::None, None, 0.2, per_sample),
+        ("pre-integrated, mix, unlit", mix, ShadingMode::None, None, 0.5, preintegrated),
+        ("pre-integrated, mix, DVR, jitter", mix, ShadingMode::Dvr, Some(7), 1.1, preintegrated),
+        ("pre-integrated, moving only, DVR", BlendMode::MovingOnly, ShadingMode::Dvr, None, -2.0, preintegrated),
+        ("pre-integrated, fixed only, unlit", BlendMode::FixedOnly, ShadingMode::None, Some(3), 2.5, preintegrated),
+        ("pre-integrated, red-cyan", BlendMode::RedCyan, ShadingMode::None, None, 1.9, preintegrated),
     ];
-    for (label, blend, mode, jitter_seed, azimuth) in cases {
-        let settings = RenderSettings { blend, jitter_seed, shading: Shading::with_mode(mode), ..Default::default() };
+    for (label, blend, mode, jitter_seed, azimuth, classification) in cases {
+        let shading = Shading::with_mode(mode);
+        let settings = RenderSettings { blend, jitter_seed, shading, classification, ..Default::default() };
         let u = scene.uniforms(&camera(azimuth, 1.0), &settings, SIZE);
         let (plain, plain_depth) = render(&ctx, &gpu, &scene, &u, None);
         let (skipped, skipped_depth) = render(&ctx, &gpu, &scene, &u, Some(&grid));
@@ -253,24 +261,27 @@ fn picking_through_the_grid_returns_the_same_hits() {
     let gpu = GpuScene::new(&ctx, &scene);
     let grid = grid(&ctx, &gpu, &scene);
     let pass = PickPass::new(&ctx, &gpu.renderer).expect("pick pass");
-    let u = scene.uniforms(&camera(0.7, 1.0), &RenderSettings::default(), SIZE);
-    let rays: Vec<PickRay> = (0..16 * 16)
-        .map(|i| {
-            let p = [(i % 16) as f32 * 4.0 + 2.0, (i / 16) as f32 * 4.0 + 2.0];
-            PickRay::from_pixel(&u, p).expect("ray")
-        })
-        .collect();
-    let plain = RaycastDrawData::with_empty_space(&ctx, &gpu.renderer, &frame(&gpu, &scene), u, None);
-    let skipping = RaycastDrawData::with_empty_space(&ctx, &gpu.renderer, &frame(&gpu, &scene), u, Some(&grid));
-    assert_eq!(skipping.uniforms.empty_space.enabled, 1);
-    for target in [PickTarget::Fixed, PickTarget::Moving] {
-        for probe in [Probe::Opacity { threshold: 0.05 }, Probe::DEFAULT, Probe::Gradient { threshold: 5.0 }] {
-            let request = PickRequest::new(target, probe);
-            let a = pass.pick(&ctx, &plain, &request, &rays).expect("pick");
-            let b = pass.pick(&ctx, &skipping, &request, &rays).expect("pick");
-            let hits = a.iter().filter(|h| h.found().is_some()).count();
-            assert!(hits > 10, "{target:?} {probe:?}: {hits} hits");
-            assert_eq!(a, b, "{target:?} {probe:?}: skipping changed a hit");
+    for classification in Classification::ALL {
+        let settings = RenderSettings { classification, ..Default::default() };
+        let u = scene.uniforms(&camera(0.7, 1.0), &settings, SIZE);
+        let rays: Vec<PickRay> = (0..16 * 16)
+            .map(|i| {
+                let p = [(i % 16) as f32 * 4.0 + 2.0, (i / 16) as f32 * 4.0 + 2.0];
+                PickRay::from_pixel(&u, p).expect("ray")
+            })
+            .collect();
+        let plain = RaycastDrawData::with_empty_space(&ctx, &gpu.renderer, &frame(&gpu, &scene), u, None);
+        let skipping = RaycastDrawData::with_empty_space(&ctx, &gpu.renderer, &frame(&gpu, &scene), u, Some(&grid));
+        assert_eq!(skipping.uniforms.empty_space.enabled, 1);
+        for target in [PickTarget::Fixed, PickTarget::Moving] {
+            for probe in [Probe::Opacity { threshold: 0.05 }, Probe::DEFAULT, Probe::Gradient { threshold: 5.0 }] {
+                let request = PickRequest::new(target, probe);
+                let a = pass.pick(&ctx, &plain, &request, &rays).expect("pick");
+                let b = pass.pick(&ctx, &skipping, &request, &rays).expect("pick");
+                let hits = a.iter().filter(|h| h.found().is_some()).count();
+                assert!(hits > 10, "{classification:?} {target:?} {probe:?}: {hits} hits");
+                assert_eq!(a, b, "{classification:?} {target:?} {probe:?}: skipping changed a hit");
+            }
         }
     }
 }

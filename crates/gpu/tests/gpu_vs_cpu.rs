@@ -10,8 +10,8 @@ mod common;
 
 use common::*;
 use warpbench_gpu::{
-    BlendMode, FeatureRequest, OrbitCamera, PrefilterPass, PrefilterSettings, PrefilteredTexels, Projection,
-    RenderSettings, Shading, ShadingMode,
+    BlendMode, Classification, FeatureRequest, OrbitCamera, PrefilterPass, PrefilterSettings, PrefilteredTexels,
+    Projection, RenderSettings, Shading, ShadingMode,
 };
 
 const SIZE: (u32, u32) = (64, 64);
@@ -26,7 +26,7 @@ fn camera() -> OrbitCamera {
     OrbitCamera { azimuth_rad: 0.5, elevation_rad: 0.3, ..cam }
 }
 
-fn compare(request: FeatureRequest, label: &str, modes: &[BlendMode]) {
+fn compare(request: FeatureRequest, label: &str, modes: &[BlendMode], classification: Classification) {
     let Some(ctx) = context(request) else { return };
     let phantoms = Phantoms::new();
     let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
@@ -36,7 +36,7 @@ fn compare(request: FeatureRequest, label: &str, modes: &[BlendMode]) {
         let scene = Scene::new(&ctx, &phantoms, warped.then_some(&warp[..]), 16);
         let gpu = GpuScene::new(&ctx, &scene);
         for &blend in modes {
-            let settings = RenderSettings { blend, ..Default::default() };
+            let settings = RenderSettings { blend, classification, ..Default::default() };
             let u = scene.uniforms(&camera(), &settings, SIZE);
             let g = gpu.render(&ctx, &scene, &u);
             let c = scene.cpu(&u);
@@ -57,7 +57,17 @@ fn compare(request: FeatureRequest, label: &str, modes: &[BlendMode]) {
 
 #[test]
 fn gpu_matches_cpu_reference_for_every_blend_mode() {
-    compare(FeatureRequest::default(), "all features", &BlendMode::ALL);
+    compare(FeatureRequest::default(), "all features", &BlendMode::ALL, Classification::PerSample);
+}
+
+/// Pre-integrated classification ([`Classification::PreIntegrated`]): the same tables on both sides
+/// ([`warpbench_gpu::transfer::PreIntegrationTable`], looked up by hand in f32), so the same tolerance.
+#[test]
+fn gpu_matches_cpu_reference_when_preintegrated() {
+    let modes = [BlendMode::Mix { moving_weight: 0.5 }, BlendMode::FixedOnly, BlendMode::MovingOnly];
+    compare(FeatureRequest::default(), "pre-integrated", &modes, Classification::PreIntegrated);
+    let cases = [(ShadingMode::Dvr, MIX), (ShadingMode::Dvr, BlendMode::MovingOnly)];
+    compare_shaded(FeatureRequest::default(), "pre-integrated", &cases, Classification::PreIntegrated);
 }
 
 /// Without TEXTURE_FORMAT_16BIT_NORM and FLOAT32_FILTERABLE: volumes are R32Float filtered by hand in the shader,
@@ -70,6 +80,7 @@ fn gpu_matches_cpu_reference_without_optional_features() {
         request,
         "no features",
         &[BlendMode::Mix { moving_weight: 0.5 }, BlendMode::Checkerboard { cell_mm: 12.0 }],
+        Classification::PerSample,
     );
 }
 
@@ -92,7 +103,12 @@ fn pixels_over(a: &[u8], b: &[u8], limit: u8) -> usize {
 /// pixels can differ by anything. Measured on lavapipe (Mesa 22.3.6, llvmpipe LLVM 15): DVR max 2/255; iso max 3/255
 /// outside ≤ 0.12% outlier pixels with hardware filtering (5 of 4096), none on the manual-filter path; the same on
 /// `WGPU_BACKEND=gl` (llvmpipe GL 4.5, no FLOAT32_FILTERABLE).
-fn compare_shaded(request: FeatureRequest, label: &str, cases: &[(ShadingMode, BlendMode)]) {
+fn compare_shaded(
+    request: FeatureRequest,
+    label: &str,
+    cases: &[(ShadingMode, BlendMode)],
+    classification: Classification,
+) {
     const SHADED_TOLERANCE: u8 = 4;
     const ISO_OUTLIERS: f32 = 0.005;
     let Some(ctx) = context(request) else { return };
@@ -110,7 +126,8 @@ fn compare_shaded(request: FeatureRequest, label: &str, cases: &[(ShadingMode, B
     let pass = PrefilterPass::new(&ctx).expect("prefilter pass");
     gpu.moving_pf = Some(pass.run(&ctx, &gpu.moving, half).expect("prefilter"));
     for &(mode, blend) in cases {
-        let settings = RenderSettings { blend, shading: Shading::with_mode(mode), ..Default::default() };
+        let settings =
+            RenderSettings { blend, shading: Shading::with_mode(mode), classification, ..Default::default() };
         let u = scene.uniforms(&camera(), &settings, SIZE);
         let g = gpu.render(&ctx, &scene, &u);
         let c = scene.cpu(&u);
@@ -147,11 +164,16 @@ fn gpu_matches_cpu_reference_when_shaded() {
         (ShadingMode::Iso, MIX),
         (ShadingMode::Iso, BlendMode::Checkerboard { cell_mm: 12.0 }),
     ];
-    compare_shaded(FeatureRequest::default(), "all features", &cases);
+    compare_shaded(FeatureRequest::default(), "all features", &cases, Classification::PerSample);
 }
 
 #[test]
 fn gpu_matches_cpu_reference_when_shaded_without_optional_features() {
     let request = FeatureRequest { allow_norm16: false, allow_float32_filterable: false };
-    compare_shaded(request, "no features", &[(ShadingMode::Dvr, MIX), (ShadingMode::Iso, MIX)]);
+    compare_shaded(
+        request,
+        "no features",
+        &[(ShadingMode::Dvr, MIX), (ShadingMode::Iso, MIX)],
+        Classification::PerSample,
+    );
 }

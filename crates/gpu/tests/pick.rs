@@ -24,8 +24,9 @@ use common::*;
 use glam::{DVec3, Mat4, Vec3};
 use warpbench_gpu::cpu_reference::{self, CpuLayer};
 use warpbench_gpu::{
-    BlendMode, ControlDesc, FeatureRequest, GpuContext, GpuFrame, GpuLayer, OrbitCamera, PickHit, PickPass, PickRay,
-    PickRequest, PickTarget, PreparedControl, Probe, Projection, RaycastDrawData, RaycastUniforms, RenderSettings,
+    BlendMode, Classification, ControlDesc, FeatureRequest, GpuContext, GpuFrame, GpuLayer, OrbitCamera, PickHit,
+    PickPass, PickRay, PickRequest, PickTarget, PreparedControl, Probe, Projection, RaycastDrawData, RaycastUniforms,
+    RenderSettings,
 };
 
 const SIZE: (u32, u32) = (64, 64);
@@ -64,7 +65,11 @@ fn moving_scene(ctx: &GpuContext, value: impl Fn(f32) -> f32 + Copy, window: (f3
 }
 
 fn uniforms(scene: &Scene, blend: BlendMode) -> RaycastUniforms {
-    let settings = RenderSettings { blend, samples_per_voxel: SAMPLES_PER_VOXEL, ..Default::default() };
+    uniforms_with(scene, blend, Classification::default())
+}
+
+fn uniforms_with(scene: &Scene, blend: BlendMode, classification: Classification) -> RaycastUniforms {
+    let settings = RenderSettings { blend, samples_per_voxel: SAMPLES_PER_VOXEL, classification, ..Default::default() };
     scene.uniforms(&camera(), &settings, SIZE)
 }
 
@@ -98,7 +103,11 @@ fn pick_both(
     let hits = pass.pick(ctx, &data, request, rays).expect("pick");
     let fc = CpuLayer { volume: &scene.fixed, control: None, prefiltered: None };
     let mc = CpuLayer { volume: &scene.moving, control: scene.control.as_ref(), prefiltered: None };
-    let cpu = rays.iter().map(|r| cpu_reference::pick(u, &fc, &mc, &scene.tfs, request, r)).collect();
+    let tables = cpu_reference::preintegration_tables(u, &scene.tfs);
+    let cpu = rays
+        .iter()
+        .map(|r| cpu_reference::pick_with_tables(u, &fc, &mc, &scene.tfs, tables.as_ref(), request, r))
+        .collect();
     (hits, cpu)
 }
 
@@ -169,17 +178,24 @@ fn opacity_probe_finds_the_analytic_sphere() {
 #[test]
 fn a_warped_feature_is_picked_where_it_is_drawn_and_maps_back() {
     let Some(ctx) = context(FeatureRequest::default()) else { return };
-    let scene = moving_scene(&ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
-    let u = uniforms(&scene, BlendMode::MovingOnly);
+    for classification in Classification::ALL {
+        picked_where_drawn(&ctx, classification);
+    }
+}
+
+/// The frame's compositing and the accumulated probe agree for `classification` (per sample, or segment by segment).
+fn picked_where_drawn(ctx: &GpuContext, classification: Classification) {
+    let scene = moving_scene(ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
+    let u = uniforms_with(&scene, BlendMode::MovingOnly, classification);
     let rays = pixel_rays(&u, 2);
     let just_rays: Vec<PickRay> = rays.iter().map(|(_, r)| *r).collect();
     // The frame's own first hit: accumulated opacity ½ at the first sample.
-    let gpu_scene = GpuScene::new(&ctx, &scene);
-    let target = gpu_scene.render_target(&ctx, &gpu_scene.renderer, &scene, &u);
-    let drawn = target.read_hit_depth(&ctx).expect("hit depth");
+    let gpu_scene = GpuScene::new(ctx, &scene);
+    let target = gpu_scene.render_target(ctx, &gpu_scene.renderer, &scene, &u);
+    let drawn = target.read_hit_depth(ctx).expect("hit depth");
     let request = PickRequest::new(PickTarget::Moving, Probe::Accumulated { level: 0.5 });
-    let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &just_rays);
-    let hits = assert_agree("accumulated ½, warped moving ball", &gpu, &cpu);
+    let (gpu, cpu) = pick_both(ctx, &scene, &u, &request, &just_rays);
+    let hits = assert_agree(&format!("accumulated ½, warped moving ball, {}", classification.name()), &gpu, &cpu);
     assert!(hits > 300, "too few hits: {hits}");
 
     let ref_from_clip = Mat4::from_cols_array_2d(&u.ref_from_clip);
@@ -227,12 +243,18 @@ fn gradient_and_accumulated_probes_match_the_cpu_march() {
         } else {
             (PickTarget::Fixed, BlendMode::FixedOnly, Vec3::ZERO)
         };
-        let u = uniforms(&scene, blend);
-        let rays: Vec<PickRay> = pixel_rays(&u, 3).into_iter().map(|(_, r)| r).collect();
-        for probe in [Probe::Gradient { threshold: 167.0 }, Probe::Accumulated { level: 0.95 }] {
+        let per_sample = uniforms(&scene, blend);
+        let preintegrated = uniforms_with(&scene, blend, Classification::PreIntegrated);
+        let rays: Vec<PickRay> = pixel_rays(&per_sample, 3).into_iter().map(|(_, r)| r).collect();
+        for (probe, u) in [
+            (Probe::Gradient { threshold: 167.0 }, per_sample),
+            (Probe::Accumulated { level: 0.95 }, per_sample),
+            (Probe::Accumulated { level: 0.95 }, preintegrated),
+        ] {
             let request = PickRequest::new(target, probe);
             let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &rays);
-            let hits = assert_agree(&format!("{probe:?}, warped {warped}"), &gpu, &cpu);
+            let label = format!("{probe:?}, warped {warped}, pre-integrated {}", u.flags & warpbench_gpu::raycast::RAYCAST_PREINTEGRATED != 0);
+            let hits = assert_agree(&label, &gpu, &cpu);
             assert!(hits > 100, "{probe:?}: too few hits ({hits})");
             // Half the peak gradient is reached outside the surface, where sech²((R − r)/3) = ½: r = R + 2.6 mm,
             // widened by the central differences; the accumulated probe stops just inside the window's middle.
