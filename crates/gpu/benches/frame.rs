@@ -25,7 +25,8 @@
 //! ```
 //!
 //! Options: `--size WxH` (image), `--dims N` or `--dims NXxNYxNZ` (both volumes), `--ctrl N` (control texture
-//! edge), `--frames N` (timed frames per case), `--spv S` (samples per voxel), `--demo` (instead of the procedural
+//! edge), `--frames N` (timed frames per case), `--spv S` (samples per voxel), `--preintegrated` (pre-integrated
+//! classification, [`warpbench_gpu::Classification`], in every case), `--demo` (instead of the procedural
 //! volumes, the window's demo pair from `tests/data/nifti`: the head CT as fixed (CT bone, its HU window) and the
 //! head MRI as moving (MR T1, windowed from its foreground's 2nd to 99th percentile, as the window's automatic
 //! look), the control texture moving the MRI's centre of mass onto the CT's plus the smooth warp). The adapter is wgpu's default, or the
@@ -36,10 +37,11 @@ use std::time::{Duration, Instant};
 
 use glam::DVec3;
 use warpbench_gpu::{
-    BlendMode, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered, GpuTransferFunctions,
-    GpuVolume, LayerStyle, OrbitCamera, PickPass, PickRay, PickRequest, PickTarget, PrefilterPass, PrefilterSettings,
-    PreparedControl, PreparedVolume, Preset, Probe, Projection, Quality, RaycastDrawData, RaycastRenderer,
-    RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    BlendMode, Classification, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
+    GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickPass, PickRay, PickRequest, PickTarget,
+    PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Probe, Projection, Quality,
+    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, VolumeDesc,
+    VolumeSamples, Window,
 };
 
 /// Edge of both volumes' box, mm (whatever the dims).
@@ -52,6 +54,7 @@ struct Options {
     frames: usize,
     samples_per_voxel: f32,
     demo: bool,
+    classification: Classification,
 }
 
 fn parse_pair(s: &str) -> Option<Vec<usize>> {
@@ -59,7 +62,15 @@ fn parse_pair(s: &str) -> Option<Vec<usize>> {
 }
 
 fn options() -> Result<Options, String> {
-    let mut o = Options { size: (512, 512), dims: [256; 3], ctrl: 64, frames: 5, samples_per_voxel: 1.0, demo: false };
+    let mut o = Options {
+        size: (512, 512),
+        dims: [256; 3],
+        ctrl: 64,
+        frames: 5,
+        samples_per_voxel: 1.0,
+        demo: false,
+        classification: Classification::PerSample,
+    };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -78,6 +89,7 @@ fn options() -> Result<Options, String> {
             "--frames" => o.frames = value()?.parse().map_err(|e| format!("--frames: {e}"))?,
             "--spv" => o.samples_per_voxel = value()?.parse().map_err(|e| format!("--spv: {e}"))?,
             "--demo" => o.demo = true,
+            "--preintegrated" => o.classification = Classification::PreIntegrated,
             _ => {} // --bench and whatever else cargo passes
         }
     }
@@ -269,10 +281,11 @@ fn main() {
     println!("adapter: {} {:?}", ctx.describe(), ctx.capabilities);
     println!(
         "volumes {nx}×{ny}×{nz} (CT i16, MR u8, {BOX_MM} mm boxes), control {c}³, image {}×{}, {} sample(s)/voxel, \
-         {} timed frames per case",
+         {} classification, {} timed frames per case",
         o.size.0,
         o.size.1,
         o.samples_per_voxel,
+        o.classification.name(),
         o.frames,
         c = o.ctrl
     );
@@ -365,6 +378,7 @@ fn main() {
         box_override_ref: Some(box_ref),
         samples_per_voxel: o.samples_per_voxel,
         shading: Shading::with_mode(mode),
+        classification: o.classification,
         ..Default::default()
     };
     let draw_at = |frame: &GpuFrame<'_>, mode, quality| {
