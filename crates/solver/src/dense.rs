@@ -39,7 +39,8 @@ use rayon::prelude::*;
 use crate::Parallelism;
 
 /// Columns per block: the panel's 64 columns stay in L2 while it is factored and give the trailing products an inner
-/// dimension long enough for `matrixmultiply` (measured on the bench at N = 1000: 48 to 128 are within a few percent).
+/// dimension long enough for `matrixmultiply` (the leave-one-out at N = 1000 on a 2-core VM: 48 and 64 cost the same
+/// CPU time, 96 and 128 some 5–10% more).
 pub const BLOCK: usize = 64;
 
 /// Runs `f` on every (index, chunk) of `data` cut into chunks of `chunk_len` elements (the last may be shorter): on the
