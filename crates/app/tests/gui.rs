@@ -10,7 +10,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use common::{data, mri};
-use window::{click_at, no_adapter, wait_until_shown};
+use window::{click_at, no_adapter, wait_until_rendered, wait_until_shown};
 
 use eframe::egui;
 use egui_kittest::Harness;
@@ -389,6 +389,8 @@ fn a_folding_warp_is_flagged_with_its_location() {
         ready.refit();
     }
     harness.run_steps(2);
+    // The folding check follows the fit on a thread of its own.
+    wait_until_rendered(&mut harness);
     let j = harness.state().ready().expect("loaded").fit.jacobian.expect("a fit");
     assert!(j.min_det <= 0.0 && j.fraction_folded > 0.0, "{j:?}");
     // The minimum lies between the crossing pairs.
@@ -540,6 +542,7 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
     assert!(during.drag().is_some(), "the press grabbed the glyph");
     harness.input_mut().events.push(button(end, false));
     harness.run_steps(3);
+    wait_until_rendered(&mut harness);
     let ready = harness.state().ready().expect("loaded");
     assert!(ready.drag().is_none());
     let moved = ready.document.pairs[1].fixed.expect("fixed").coords();

@@ -322,6 +322,10 @@ impl eframe::App for Workbench {
     fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
         let started = std::time::Instant::now();
         self.frame(ui);
+        // The frame's work is done (egui paints next): the refinement may go on.
+        if let Phase::Ready(ready) = &self.phase {
+            ready.hold_refinement(false);
+        }
         if let Some(log) = &mut self.frame_log {
             let (phase, view) = match &self.phase {
                 Phase::Loading { .. } => ("loading", "none".to_owned()),
@@ -416,7 +420,7 @@ impl Workbench {
             ctx.request_repaint();
         }
         // Counted once the views are rendered fully (on a CPU driver the 3-D view is refined over many frames).
-        let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render());
+        let rendered = matches!(&self.phase, Phase::Ready(r) if !r.needs_render() && !r.diagnostics_pending());
         if let (Some(n), false) = (self.exit_after_frames, self.screenshot_requested)
             && self.ready_frames >= n
             && rendered
@@ -498,6 +502,9 @@ fn workbench_ui(
     autosave: &mut autosave::Autosave,
 ) {
     ready.frame_rate.tick(std::time::Instant::now());
+    // No refinement band starts while this frame is worked on (the window answers its input first).
+    ready.hold_refinement(true);
+    ready.poll_diagnostics();
     if let Some(job) = &ready.files.export {
         match job.poll() {
             Some(result) => {

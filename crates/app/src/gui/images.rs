@@ -139,6 +139,8 @@ impl Ready {
             let egui = egui.clone();
             let job = RefineJob::start(work, move || egui.request_repaint())
                 .context("starting the thread that refines the 3-D view")?;
+            // Until this frame's work is done ([`Self::hold_refinement`]).
+            job.hold(true);
             self.images.view_state = ViewImage::Refining(job);
             return Ok(());
         };
@@ -207,6 +209,14 @@ impl Ready {
     #[must_use]
     pub fn needs_render(&self) -> bool {
         self.images.slices_dirty || !matches!(self.images.view_state, ViewImage::Full)
+    }
+
+    /// Holds the thread refining the 3-D view back from its next band while `held` (set for the time of a frame's
+    /// work on the UI thread, [`RefineJob::hold`]).
+    pub fn hold_refinement(&self, held: bool) {
+        if let ViewImage::Refining(job) = &self.images.view_state {
+            job.hold(held);
+        }
     }
 
     /// Whether the only thing that waits is the full 3-D view a thread is rendering: it wakes the window when done,

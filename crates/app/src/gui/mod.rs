@@ -22,6 +22,7 @@ pub mod app;
 pub mod autosave;
 pub mod commands;
 pub mod demo;
+pub mod diagnostics;
 pub mod document;
 pub mod export;
 pub mod frame_log;
@@ -47,9 +48,8 @@ use eframe::egui;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, SlicePlane, pair_glyphs};
 use warpbench_io::Volume;
-use warpbench_solver::diagnostics::{jacobian_determinants, residuals};
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
-use warpbench_solver::warp::{Parallelism, Warp};
+use warpbench_solver::warp::Warp;
 
 use crate::fit;
 pub use crate::fit::{Fitted, fit_warp, fit_warp_on_gpu, gpu_evaluates};
@@ -111,6 +111,8 @@ pub struct FitState {
     pending: bool,
     /// The TPS drag in progress, from its first event until the full refit of its release ([`fit::DragFit`]).
     drag: Option<fit::DragFit>,
+    /// The last fit's diagnostics being computed ([`diagnostics`]); `pair_errors` and `jacobian` wait for them.
+    diagnostics: Option<diagnostics::DiagnosticsJob>,
 }
 
 /// The side panel's file and export section.
@@ -171,6 +173,32 @@ impl Ready {
         self.fit_now(true);
     }
 
+    /// Shows the last fit's diagnostics once its thread has them ([`diagnostics`]); call once per frame.
+    pub fn poll_diagnostics(&mut self) {
+        let Some(result) = self.fit.diagnostics.as_ref().and_then(diagnostics::DiagnosticsJob::poll) else { return };
+        self.fit.diagnostics = None;
+        match result {
+            Some(d) => self.take_diagnostics(Some(d)),
+            None => self.fit.error = Some("the fit's diagnostics stopped (a bug): fit again to retry".into()),
+        }
+    }
+
+    /// Whether the last fit's diagnostics are still being computed.
+    #[must_use]
+    pub fn diagnostics_pending(&self) -> bool {
+        self.fit.diagnostics.is_some()
+    }
+
+    fn take_diagnostics(&mut self, d: Option<diagnostics::Diagnostics>) {
+        let Some(d) = d else { return };
+        for (row, errors) in d.pair_errors {
+            if let Some(slot) = self.fit.pair_errors.get_mut(row) {
+                *slot = Some(errors);
+            }
+        }
+        self.fit.jacobian = Some(d.jacobian);
+    }
+
     /// Fits again once this frame is over ([`Self::refit`]): a change of the document reaches the autosave
     /// before the fit and its diagnostics (many fits on a CPU) run, so what a crash can take is only the time of
     /// the write.
@@ -221,6 +249,8 @@ impl Ready {
 
     fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
+        // Whatever a running job finds describes the document before this change.
+        self.fit.diagnostics = None;
         if diagnostics {
             self.fit.drag = None;
         }
@@ -242,6 +272,7 @@ impl Ready {
             .unzip();
         if diagnostics {
             self.fit.pair_errors = vec![None; self.document.pairs.len()];
+            self.fit.jacobian = None;
         }
         // The pairs are checked once here, so that refusals and warnings number them as the table does (the
         // fits below check them again, numbered among the pairs they get).
@@ -287,16 +318,21 @@ impl Ready {
                 self.fit.error = None;
             }
             Ok(fitted) => {
-                // Residuals of the pull-back at the targets, and leave-one-out errors (refits without each pair).
-                let residuals = residuals(fitted.pullback.as_ref(), &fixed, &moving);
-                // TPS in closed form from the one fit; the other methods refit without each pair.
-                let loo = method.leave_one_out(&fixed, &moving, fixed_box, Parallelism::Rayon);
-                for ((&i, r), l) in used.iter().zip(residuals).zip(loo) {
-                    self.fit.pair_errors[i] = Some(panels::PairErrors { residual_mm: r, leave_one_out_mm: l });
+                // Residuals, leave-one-out and folding follow on a thread of their own ([`diagnostics`]).
+                let input = diagnostics::DiagnosticsInput {
+                    method,
+                    rows: used,
+                    fixed,
+                    moving,
+                    fixed_box,
+                    pullback: fitted.pullback.clone(),
+                };
+                let egui = self.ctx.clone();
+                match diagnostics::DiagnosticsJob::start(input.clone(), move || egui.request_repaint()) {
+                    Ok(job) => self.fit.diagnostics = Some(job),
+                    // Without a thread, on this one.
+                    Err(_) => self.take_diagnostics(Some(input.compute())),
                 }
-                // Folding: det ∇u on a 32³ grid of cells over the fixed volume's box.
-                self.fit.jacobian =
-                    Some(jacobian_determinants(fitted.pullback.as_ref(), &fixed_box, [32; 3], Parallelism::Rayon));
                 self.fit.fitted = Some(fitted);
                 self.fit.error = None;
             }

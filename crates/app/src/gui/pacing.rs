@@ -56,12 +56,14 @@ pub struct Bands {
     last_ms_per_px: Option<f64>,
     /// The time spent on the bands so far, ms.
     spent_ms: f64,
+    /// The last band's rows.
+    last_rows: Option<u32>,
 }
 
 impl Bands {
     #[must_use]
     pub fn new(width: u32, height: u32) -> Self {
-        Self { width, height, rows_done: 0, last_ms_per_px: None, spent_ms: 0.0 }
+        Self { width, height, rows_done: 0, last_ms_per_px: None, spent_ms: 0.0, last_rows: None }
     }
 
     /// The next band, sized by [`band_rows`] from the higher of the last whole view's average cost per pixel
@@ -77,14 +79,27 @@ impl Bands {
         self.rows_done..self.rows_done.saturating_add(rows).min(self.height)
     }
 
-    /// [`Self::next`] with the band's end rounded up to a multiple of `align` rows (or the last row), so that bands
-    /// started at row 0 all start and end on multiples of `align`.
+    /// [`Self::next`] for the refinement thread: the first band is `align` rows, each later one at most twice the
+    /// last, or half of it after a band over the budget (a row's cost is only known once rows near it are measured:
+    /// the head's rows cost 30 times those above it, and one band sized by the cheap rows would hold the queue for
+    /// seconds), and the end is rounded up to a
+    /// multiple of `align` rows (or the last row), so that bands all start and end on multiples of `align`.
     #[must_use]
     pub fn next_aligned(&self, view_ms_per_px: Option<f64>, align: u32) -> std::ops::Range<u32> {
         let band = self.next(view_ms_per_px);
         let align = align.max(1);
-        let end = band.end.div_ceil(align).saturating_mul(align).min(self.height);
-        band.start..end.max(band.end)
+        let limit = match (self.last_rows, self.last_ms_per_px) {
+            (Some(rows), Some(per_px)) => {
+                // Over the budget: the cost rises along the rows, and the band's last rows cost more than its mean.
+                let over = per_px * f64::from(self.width) * f64::from(rows) > INTERACTIVE_BUDGET_MS;
+                if over { rows / 2 } else { rows.saturating_mul(2) }
+            }
+            _ => align,
+        }
+        .max(align);
+        let end = band.end.min(band.start.saturating_add(limit));
+        let end = end.div_ceil(align).saturating_mul(align).min(self.height);
+        band.start..end.max(band.start.saturating_add(1)).min(self.height)
     }
 
     /// Records that `band` (from [`Self::next`]) took `ms`.
@@ -93,6 +108,7 @@ impl Bands {
         let pixels = f64::from(self.width) * f64::from(rows);
         self.rows_done = band.end.max(self.rows_done);
         self.last_ms_per_px = Some(ms / pixels.max(1.0));
+        self.last_rows = Some(rows);
         self.spent_ms += ms;
     }
 
@@ -133,6 +149,8 @@ pub struct RefineJob {
     /// Rows rendered so far.
     rows_done: std::sync::Arc<std::sync::atomic::AtomicU32>,
     cancel: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    /// Set while the UI thread works on a frame ([`Self::hold`]): no band starts then.
+    held: std::sync::Arc<std::sync::atomic::AtomicBool>,
     done: std::sync::mpsc::Receiver<Result<Refined, String>>,
 }
 
@@ -166,11 +184,17 @@ impl RefineJob {
         let rows_done = std::sync::Arc::new(AtomicU32::new(0));
         let cancel = std::sync::Arc::new(AtomicBool::new(false));
         let (send, done) = std::sync::mpsc::channel();
-        let (rows, stop) = (rows_done.clone(), cancel.clone());
+        let held = std::sync::Arc::new(AtomicBool::new(false));
+        let (rows, stop, hold) = (rows_done.clone(), cancel.clone(), held.clone());
         std::thread::Builder::new().name("refine 3-D view".into()).spawn(move || {
             let RefineWork { ctx, renderer, data, target, view_ms_per_px } = work;
             let mut bands = Bands::new(target.width, target.height);
             let result = loop {
+                // On two cores a band beside the UI thread's frame (layout, the autosave, a fit) would make the
+                // window answer its input late: the band waits for the frame.
+                while hold.load(Ordering::Acquire) && !stop.load(Ordering::Relaxed) {
+                    std::thread::sleep(std::time::Duration::from_millis(2));
+                }
                 if stop.load(Ordering::Relaxed) {
                     // Nobody waits for the image any more.
                     return;
@@ -195,7 +219,7 @@ impl RefineJob {
                 wake();
             }
         })?;
-        Ok(Self { size, rows_done, cancel, done })
+        Ok(Self { size, rows_done, cancel, held, done })
     }
 
     /// The size of the view it renders.
@@ -208,6 +232,11 @@ impl RefineJob {
     #[must_use]
     pub fn progress(&self) -> f32 {
         self.rows_done.load(std::sync::atomic::Ordering::Relaxed) as f32 / self.size.1.max(1) as f32
+    }
+
+    /// Holds the next band back while `held` (the UI thread sets it for the time of its frame's work).
+    pub fn hold(&self, held: bool) {
+        self.held.store(held, std::sync::atomic::Ordering::Release);
     }
 
     /// The finished view, once the thread is done (`None` while it runs).
@@ -364,6 +393,31 @@ mod tests {
             covered = band.end;
         }
         assert_eq!(covered, 103);
+
+        // A head below empty rows, as lavapipe renders it (the first view, its cost unknown): 0.6 µs per pixel
+        // above row 200, rising over 50 rows to 30 µs inside. The bands start at 4 rows, at most double, and the
+        // one that meets the rise holds the queue for at most a few budgets, where one band sized by the cheap rows
+        // alone would hold it for seconds.
+        let width = 500;
+        let us_per_px = |r: u32| 0.6 + 29.4 * (f64::from(r.saturating_sub(200)) / 50.0).min(1.0);
+        let row_ms = |r: u32| us_per_px(r) * 1e-3 * f64::from(width);
+        let mut bands = Bands::new(width, 600);
+        let (mut worst, mut last, mut count) = (0.0_f64, 0, 0);
+        while !bands.done() {
+            let band = bands.next_aligned(None, BAND_ALIGN_ROWS);
+            if last == 0 {
+                assert_eq!(band.len(), 4, "the first band is the alignment");
+            } else {
+                assert!(band.len() <= 2 * last, "{band:?} more than doubles {last} rows");
+            }
+            let ms: f64 = band.clone().map(row_ms).sum();
+            worst = worst.max(ms);
+            bands.rendered(&band, ms);
+            (last, count) = (band.len(), count + 1);
+        }
+        assert!(worst <= 3.0 * INTERACTIVE_BUDGET_MS, "a band took {worst:.0} ms");
+        let one_band: f64 = (0..600).map(row_ms).sum();
+        assert!(count < 150 && one_band > 50.0 * INTERACTIVE_BUDGET_MS, "{count} bands for {one_band:.0} ms");
     }
 
     #[test]

@@ -25,6 +25,11 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                 ui.label(format!("refining the 3-D view: {:.0} %", 100.0 * done));
                 ui.separator();
             }
+            if ready.diagnostics_pending() {
+                ui.label("checking the fit: leave-one-out, folding")
+                    .on_hover_text("The table's errors and the folding check follow the fit on a thread of their own");
+                ui.separator();
+            }
             if let Some(c) = ready.cursor {
                 let ([l, p, s], [ml, mp, ms]) = (c.fixed_lps, c.moving_lps);
                 ui.label(format!(

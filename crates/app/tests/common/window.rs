@@ -5,7 +5,7 @@ use std::time::{Duration, Instant};
 
 use eframe::egui;
 use egui_kittest::Harness;
-use warpbench_app::gui::{Ready, Workbench};
+use warpbench_app::gui::Workbench;
 
 /// Steps the harness until the pair is loaded and drawn at full quality (or fails, or three minutes pass: the demo
 /// pair on a loaded 2-core machine).
@@ -27,11 +27,11 @@ pub fn wait_until_shown(harness: &mut Harness<'_, Workbench>) {
     }
 }
 
-/// Steps the harness until the views are rendered fully (on a CPU driver the 3-D view is refined band by band over
-/// several frames), or three minutes pass.
+/// Steps the harness until the views are rendered fully (on a CPU driver the 3-D view is refined band by band on a
+/// thread) and the fit's diagnostics are shown (they follow on a thread too), or three minutes pass.
 pub fn wait_until_rendered(harness: &mut Harness<'_, Workbench>) {
     let start = Instant::now();
-    while harness.state().ready().is_some_and(Ready::needs_render) {
+    while harness.state().ready().is_some_and(|r| r.needs_render() || r.diagnostics_pending()) {
         harness.step();
         assert!(start.elapsed() < Duration::from_mins(3), "the views were not rendered within three minutes");
     }
