@@ -28,6 +28,7 @@
 use std::time::{Duration, Instant};
 
 use glam::DVec3;
+use warpbench_gpu::transfer::PreIntegrationTable;
 use warpbench_gpu::{
     BlendMode, Classification, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuTransferFunctions,
     GpuVolume, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset,
@@ -162,6 +163,8 @@ struct Method {
     name: &'static str,
     samples_per_voxel: f32,
     classification: Classification,
+    /// Per-pixel jittered ray starts (the window's fixed hash of pixel and seed; no flicker between frames).
+    jitter_seed: Option<u32>,
 }
 
 #[allow(clippy::too_many_lines, reason = "one linear benchmark script")]
@@ -225,13 +228,50 @@ fn main() {
     let target = RenderTarget::new(&ctx, o.size, o.size);
 
     let methods = [
-        Method { name: "plain 1 spv", samples_per_voxel: 1.0, classification: Classification::PerSample },
-        Method { name: "pre-integrated 1 spv", samples_per_voxel: 1.0, classification: Classification::PreIntegrated },
-        Method { name: "plain 2 spv", samples_per_voxel: 2.0, classification: Classification::PerSample },
-        Method { name: "pre-integrated 2 spv", samples_per_voxel: 2.0, classification: Classification::PreIntegrated },
+        Method {
+            name: "plain 1 spv, jitter",
+            samples_per_voxel: 1.0,
+            classification: Classification::PerSample,
+            jitter_seed: Some(1),
+        },
+        Method {
+            name: "plain 1 spv",
+            samples_per_voxel: 1.0,
+            classification: Classification::PerSample,
+            jitter_seed: None,
+        },
+        Method {
+            name: "pre-integrated 1 spv",
+            samples_per_voxel: 1.0,
+            classification: Classification::PreIntegrated,
+            jitter_seed: None,
+        },
+        Method {
+            name: "plain 2 spv",
+            samples_per_voxel: 2.0,
+            classification: Classification::PerSample,
+            jitter_seed: None,
+        },
+        Method {
+            name: "pre-integrated 2 spv",
+            samples_per_voxel: 2.0,
+            classification: Classification::PreIntegrated,
+            jitter_seed: None,
+        },
     ];
-    let reference =
-        Method { name: "reference", samples_per_voxel: o.reference_spv, classification: Classification::PerSample };
+    let reference = Method {
+        name: "reference",
+        samples_per_voxel: o.reference_spv,
+        classification: Classification::PerSample,
+        jitter_seed: None,
+    };
+    let t = Instant::now();
+    let table = PreIntegrationTable::build(&Preset::MrT1.transfer_function(), 1.0, 1.0);
+    println!(
+        "a pre-integration table ({} entries, MR T1, on the CPU): {:.1} ms",
+        table.texels.len(),
+        t.elapsed().as_secs_f64() * 1e3
+    );
     println!(
         "image {0}×{0}, front view; reference: plain classification at {1} samples/voxel; mean |diff| over the head \
          (grey levels of 8-bit RGB), PSNR over the image",
@@ -279,6 +319,7 @@ fn main() {
                         blend,
                         samples_per_voxel: m.samples_per_voxel,
                         classification: m.classification,
+                        jitter_seed: m.jitter_seed,
                         shading: Shading::with_mode(mode),
                         ..Default::default()
                     };
