@@ -141,7 +141,7 @@ pub fn classify(
 }
 
 /// The (fixed, moving) pre-integration tables the GPU binds for frame `u` (each layer's TF row, opacity scale and
-/// the frame's step), or `None` when the frame does not pre-integrate. Building one takes ~10 ms (optimised).
+/// the frame's step), or `None` when the frame does not pre-integrate. Building one takes tens of ms (optimised).
 #[must_use]
 pub fn preintegration_tables(u: &RaycastUniforms, tfs: &[TransferFunction]) -> Option<[PreIntegrationTable; 2]> {
     if u.flags & RAYCAST_PREINTEGRATED == 0 {

@@ -547,7 +547,7 @@ impl RaycastRenderer {
     }
 
     /// The pre-integration table of `tf` for `key`: from the renderer's cache of the last [`PREINTEGRATION_CACHE`]
-    /// tables, or built ([`GpuPreIntegration::build`], CPU work of a few ms) and cached.
+    /// tables, or built ([`GpuPreIntegration::build`], tens of ms of CPU) and cached.
     fn preintegration(
         &self,
         ctx: &GpuContext,
