@@ -329,7 +329,8 @@ pub struct GpuPreIntegration {
 }
 
 impl GpuPreIntegration {
-    /// Builds the table of `key` ([`PreIntegrationTable::build`], ~5.6 M sub-steps: 76 ms on two busy cores, `benches/quality.rs`) and uploads it.
+    /// Builds the table of `key` ([`PreIntegrationTable::build`], ~5.6 M sub-steps: 76 ms on two busy cores in
+    /// `benches/quality.rs`) and uploads it.
     #[must_use]
     pub fn build(ctx: &GpuContext, tf: &TransferFunction, key: PreIntegrationKey) -> Self {
         let table = PreIntegrationTable::build(tf, key.opacity_scale(), key.step_ratio());
