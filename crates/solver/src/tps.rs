@@ -51,7 +51,8 @@
 //! and Ω solves the symmetric (N−4)² system Q₂ᵀ(K ± λI)Q₂ Ω = Q₂ᵀY (Cholesky of its negation; ITK
 //! stiffness falls back to Cholesky or LU), then R [Aᵀ; bᵀ]̂ = Q₁ᵀ(Y − (K ± λI)W). The four reflections act on
 //! K ± λI at once (compact WY form) and the Cholesky factorisation is blocked ([`crate::dense`]), both in matrix
-//! products on rayon's pool: ~N³/3 flops for a fit. Every fit checks the
+//! products: ~N³/3 flops for a fit, on rayon's global pool from [`PARALLEL_MIN_LANDMARKS`] centres on (on the calling
+//! thread below). Every fit checks the
 //! factor's pivot ratio ([`PIVOT_RTOL`]) and estimated condition ([`RCOND_MIN`]) and the backward error of the full system ([`RESIDUAL_RTOL`]),
 //! and never returns non-finite coefficients.
 //!
@@ -307,7 +308,8 @@ impl<To: Space, From: Space> Tps<To, From> {
         Self::fit_regularised(src, dst, Regularisation::Smoothing(lambda))
     }
 
-    /// Fits f(`src[i]`) ≈ `dst[i]` with the given regularisation.
+    /// Fits f(`src[i]`) ≈ `dst[i]` with the given regularisation. From [`PARALLEL_MIN_LANDMARKS`] pairs on, the
+    /// O(N³) steps run on rayon's global pool (module docs, "Solve").
     pub fn fit_regularised(src: &[Point3<From>], dst: &[Point3<To>], regularisation: Regularisation) -> Result<Self> {
         let (checked, p, q) = checked_pairs(src, dst, regularisation)?;
         let (centre, scale) = centre_and_scale(&p)?;
