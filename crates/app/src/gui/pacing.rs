@@ -82,8 +82,8 @@ impl Bands {
     /// [`Self::next`] for the refinement thread: the first band is `align` rows, each later one at most twice the
     /// last, or half of it after a band over the budget (a row's cost is only known once rows near it are measured:
     /// the head's rows cost 30 times those above it, and one band sized by the cheap rows would hold the queue for
-    /// seconds), and the end is rounded up to a
-    /// multiple of `align` rows (or the last row), so that bands all start and end on multiples of `align`.
+    /// seconds), and the end is rounded up to a multiple of `align` rows (or the last row), so that bands all start
+    /// and end on multiples of `align`.
     #[must_use]
     pub fn next_aligned(&self, view_ms_per_px: Option<f64>, align: u32) -> std::ops::Range<u32> {
         let band = self.next(view_ms_per_px);
