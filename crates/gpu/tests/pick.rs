@@ -253,7 +253,10 @@ fn gradient_and_accumulated_probes_match_the_cpu_march() {
         ] {
             let request = PickRequest::new(target, probe);
             let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &rays);
-            let label = format!("{probe:?}, warped {warped}, pre-integrated {}", u.flags & warpbench_gpu::raycast::RAYCAST_PREINTEGRATED != 0);
+            let label = format!(
+                "{probe:?}, warped {warped}, pre-integrated {}",
+                u.flags & warpbench_gpu::raycast::RAYCAST_PREINTEGRATED != 0
+            );
             let hits = assert_agree(&label, &gpu, &cpu);
             assert!(hits > 100, "{probe:?}: too few hits ({hits})");
             // Half the peak gradient is reached outside the surface, where sech²((R − r)/3) = ½: r = R + 2.6 mm,
