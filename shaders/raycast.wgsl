@@ -554,6 +554,17 @@ fn blend(f: vec4<f32>, m: vec4<f32>, x_ref: vec3<f32>) -> vec4<f32> {
     }
 }
 
+// The ray's span through the proxy box by the slab test: (t_enter, t_far), t_enter clamped to the ray's start at
+// 0 (the near plane); empty where t_far ≤ t_enter. The frame and both picking marches enter the box the same way.
+fn proxy_box_span(origin: vec3<f32>, dir: vec3<f32>) -> vec2<f32> {
+    let inv_dir = 1.0 / dir;
+    let t0 = (u.box_min_ref - origin) * inv_dir;
+    let t1 = (u.box_max_ref - origin) * inv_dir;
+    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
+    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
+    return vec2<f32>(max(t_near, 0.0), t_far);
+}
+
 struct RaycastOutput {
     @location(0) colour: vec4<f32>,
     // The f32 depth's bits: R32Uint is colour-renderable everywhere (R32Float is not on GLES).
@@ -580,13 +591,9 @@ fn fs_raycast(in: VertexOutput) -> RaycastOutput {
     let origin_ref = near_h.xyz / near_h.w;
     let dir_ref = normalize(far_h.xyz / far_h.w - origin_ref);
 
-    // Slab intersection with the proxy box.
-    let inv_dir = 1.0 / dir_ref;
-    let t0 = (u.box_min_ref - origin_ref) * inv_dir;
-    let t1 = (u.box_max_ref - origin_ref) * inv_dir;
-    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
-    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
-    let t_enter = max(t_near, 0.0);
+    let span = proxy_box_span(origin_ref, dir_ref);
+    let t_enter = span.x;
+    let t_far = span.y;
     if t_far <= t_enter {
         return no_hit(vec4<f32>(0.0));
     }
@@ -790,12 +797,9 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
     out.target_volume = pick.target_volume;
     let origin = ray.origin_ref;
     let dir = ray.dir_ref;
-    let inv_dir = 1.0 / dir;
-    let t0 = (u.box_min_ref - origin) * inv_dir;
-    let t1 = (u.box_max_ref - origin) * inv_dir;
-    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
-    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
-    let t_enter = max(t_near, 0.0);
+    let span = proxy_box_span(origin, dir);
+    let t_enter = span.x;
+    let t_far = span.y;
     if !(t_far > t_enter) {
         return out;
     }
@@ -885,12 +889,9 @@ fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: 
     out.target_volume = pick.target_volume;
     let origin = ray.origin_ref;
     let dir = ray.dir_ref;
-    let inv_dir = 1.0 / dir;
-    let t0 = (u.box_min_ref - origin) * inv_dir;
-    let t1 = (u.box_max_ref - origin) * inv_dir;
-    let t_near = max(max(min(t0.x, t1.x), min(t0.y, t1.y)), min(t0.z, t1.z));
-    let t_far = min(min(max(t0.x, t1.x), max(t0.y, t1.y)), max(t0.z, t1.z));
-    let t_enter = max(t_near, 0.0);
+    let span = proxy_box_span(origin, dir);
+    let t_enter = span.x;
+    let t_far = span.y;
     if !(t_far > t_enter) {
         return out;
     }
