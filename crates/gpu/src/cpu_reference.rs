@@ -545,13 +545,7 @@ pub fn pick_with_tables(
                 }
                 t_hit = 0.5 * (lo + hi);
             }
-            let x_ref = origin + t_hit * dir;
-            let p_lps = match (v.flags & VOLUME_HAS_WARP != 0, layer.control) {
-                (true, Some(c)) => x_ref + c.displacement(x_ref),
-                _ => x_ref,
-            };
-            let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps);
-            return PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, p_tex));
+            return hit_at(layer, v, request, origin + t_hit * dir, t_hit);
         }
         if accumulated {
             acc = accumulate(acc, q, u.step_mm);
@@ -559,6 +553,16 @@ pub fn pick_with_tables(
         t_prev = t;
     }
     miss
+}
+
+/// The hit at `x_ref` (ray parameter `t_hit`): the point pulled back into the volume's LPS space and its value there.
+fn hit_at(layer: &CpuLayer<'_>, v: &VolumeUniforms, request: &PickRequest, x_ref: Vec3, t_hit: f32) -> PickHit {
+    let p_lps = match (v.flags & VOLUME_HAS_WARP != 0, layer.control) {
+        (true, Some(c)) => x_ref + c.displacement(x_ref),
+        _ => x_ref,
+    };
+    let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps);
+    PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, p_tex))
 }
 
 /// The shader's `pick_march_preintegrated`: the accumulated probe, segment by segment as the frame composites.
@@ -599,13 +603,7 @@ fn pick_preintegrated(
                     }
                 }
                 let t_hit = 0.5 * (lo + hi);
-                let x_ref = origin + t_hit * dir;
-                let p_lps = match (v.flags & VOLUME_HAS_WARP != 0, layer.control) {
-                    (true, Some(c)) => x_ref + c.displacement(x_ref),
-                    _ => x_ref,
-                };
-                let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps);
-                return PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, p_tex));
+                return hit_at(layer, v, request, origin + t_hit * dir, t_hit);
             }
             acc += (1.0 - acc) * alpha;
         }
