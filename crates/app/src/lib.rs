@@ -21,9 +21,11 @@
 //!   and the command line.
 //! - [`gui`]: the workbench window (eframe): the deformed pair in a 3-D view and three slice views, the warp method
 //!   and view settings, the landmark table; the demo pair when no files are given.
+//! - [`args`]: the command-line arguments several subcommands share (the landmarks and the warp method).
 //! - [`exit`]: the exit-code convention shared by every subcommand; the shared modules (`inputs`, `scene`, `fit`)
 //!   return `anyhow` errors, which the subcommands classify.
 
+pub mod args;
 pub mod eval;
 pub mod exit;
 pub mod field;

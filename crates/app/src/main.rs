@@ -4,11 +4,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
+use warpbench_app::args::PairArgs;
 use warpbench_app::exit::Failure;
 use warpbench_app::field::{self, FieldOptions};
 use warpbench_app::gui::{self, GuiOptions};
 use warpbench_app::info::{self, InfoOptions};
-use warpbench_app::inputs::{LandmarkSource, OutputFile, PairInputs};
+use warpbench_app::inputs::{LandmarkSource, OutputFile};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
 use warpbench_app::settings::{Blend, MethodKind, Preset, Shading};
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpOptions};
@@ -153,57 +154,6 @@ enum BackendArg {
     Auto,
     Cpu,
     Gpu,
-}
-
-/// The landmarks and the warp method, shared by `warp`, `field` and `render`.
-#[derive(Debug, clap::Args)]
-struct PairArgs {
-    /// Landmark pairs: BigWarp CSV or BigWarp JSON (.json, also a BigWarp settings file), moving then fixed, LPS mm.
-    #[arg(long)]
-    landmarks: Option<PathBuf>,
-    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
-    #[arg(long)]
-    moving_points: Option<PathBuf>,
-    /// Slicer point list of the fixed points, matched to --moving-points by order.
-    #[arg(long)]
-    fixed_points: Option<PathBuf>,
-    /// The warp.
-    #[arg(long, value_enum, default_value_t)]
-    method: MethodKind,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
-    #[arg(long, default_value_t = 0.0)]
-    stiffness: f64,
-    /// Hierarchical B-spline levels.
-    #[arg(long)]
-    levels: Option<usize>,
-}
-
-impl PairArgs {
-    /// The landmark source, if any was given.
-    fn source(&self) -> Result<Option<LandmarkSource>, Failure> {
-        LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
-            .map_err(Failure::BadInput)
-    }
-
-    /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.
-    fn inputs(self, fixed: PathBuf, moving: PathBuf, reference: Option<PathBuf>) -> Result<PairInputs, Failure> {
-        Ok(PairInputs {
-            landmarks: self.required_source()?,
-            fixed,
-            moving,
-            method: self.method,
-            stiffness: self.stiffness,
-            levels: self.levels,
-            reference,
-        })
-    }
-
-    /// The landmark source, which this subcommand needs.
-    fn required_source(&self) -> Result<LandmarkSource, Failure> {
-        self.source()?.ok_or_else(|| {
-            Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
-        })
-    }
 }
 
 #[derive(Debug, clap::Args)]

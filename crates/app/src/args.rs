@@ -1,0 +1,58 @@
+//! Command-line arguments that several subcommands share (clap), so each subcommand's module can take them.
+
+use std::path::PathBuf;
+
+use crate::exit::Failure;
+use crate::inputs::{LandmarkSource, PairInputs};
+use crate::settings::MethodKind;
+
+/// The landmarks and the warp method, shared by `warp`, `field` and `render`.
+#[derive(Debug, clap::Args)]
+pub struct PairArgs {
+    /// Landmark pairs: BigWarp CSV or BigWarp JSON (.json, also a BigWarp settings file), moving then fixed, LPS mm.
+    #[arg(long)]
+    pub landmarks: Option<PathBuf>,
+    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
+    #[arg(long)]
+    pub moving_points: Option<PathBuf>,
+    /// Slicer point list of the fixed points, matched to --moving-points by order.
+    #[arg(long)]
+    pub fixed_points: Option<PathBuf>,
+    /// The warp.
+    #[arg(long, value_enum, default_value_t)]
+    pub method: MethodKind,
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
+    #[arg(long, default_value_t = 0.0)]
+    pub stiffness: f64,
+    /// Hierarchical B-spline levels.
+    #[arg(long)]
+    pub levels: Option<usize>,
+}
+
+impl PairArgs {
+    /// The landmark source, if any was given.
+    pub fn source(&self) -> Result<Option<LandmarkSource>, Failure> {
+        LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
+            .map_err(Failure::BadInput)
+    }
+
+    /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.
+    pub fn inputs(self, fixed: PathBuf, moving: PathBuf, reference: Option<PathBuf>) -> Result<PairInputs, Failure> {
+        Ok(PairInputs {
+            landmarks: self.required_source()?,
+            fixed,
+            moving,
+            method: self.method,
+            stiffness: self.stiffness,
+            levels: self.levels,
+            reference,
+        })
+    }
+
+    /// The landmark source, which this subcommand needs.
+    pub fn required_source(&self) -> Result<LandmarkSource, Failure> {
+        self.source()?.ok_or_else(|| {
+            Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
+        })
+    }
+}
