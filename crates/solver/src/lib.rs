@@ -13,6 +13,8 @@
 //! - [`linear`]: affine, similarity and rigid least-squares fits (Umeyama 1991) and the predicted TRE.
 //! - [`invert`]: an approximate inverse of a forward warp by scattered-data interpolation.
 //! - [`control`]: sampling a pull-back into a control texture for the GPU.
+//! - [`field`]: a warp given as a sampled displacement field (ITK's `DisplacementFieldTransform`: trilinear inside
+//!   the grid, zero displacement outside).
 //! - [`method`]: [`Method`], fitting any of the above by name, in either direction, into a [`FittedWarp`] (the
 //!   closed set of fitted kinds, a [`Warp`] by delegation).
 //! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
@@ -24,6 +26,7 @@ pub mod control;
 pub mod dense;
 pub mod diagnostics;
 pub mod error;
+pub mod field;
 pub mod invert;
 pub mod linear;
 pub mod method;
