@@ -12,6 +12,8 @@
 //!   leave-one-out, inverse consistency, folding, NCC/RMSE, an accuracy gate (exit 3), and the `--suite` grid.
 //! - [`field`]: `warpbench field`, the pull-back as a NIfTI displacement field (ITK/ANTs/Slicer convention) and,
 //!   for linear warps, an ITK `.tfm`.
+//! - [`landmarks`](mod@landmarks): `warpbench landmarks`, landmark pairs converted between BigWarp CSV/JSON, a Slicer
+//!   pair and plain CSV, or listed (`--json`).
 //! - [`inputs`]: loading the pair, reading landmarks and checking them against the volumes (shared by the pair
 //!   subcommands).
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
@@ -33,6 +35,7 @@ pub mod fit;
 pub mod gui;
 pub mod info;
 pub mod inputs;
+pub mod landmarks;
 pub mod progress;
 pub mod render;
 pub mod scene;

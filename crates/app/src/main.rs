@@ -140,6 +140,19 @@ enum Command {
     ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method rigid --tfm rigid.tfm --out rigid_field.nii.gz
     #[command(verbatim_doc_comment)]
     Field(Box<FieldArgs>),
+    /// Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
+    /// fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
+    ///
+    /// Without --out (or --out-moving/--out-fixed) and --json it prints the pairs as a table. The coordinate system
+    /// comes from the file where it says it (Slicer files, the plain CSV's header); BigWarp files are LPS unless
+    /// --ras (input) or --out-ras (output). Examples:
+    ///
+    ///     warpbench landmarks pairs.csv --json
+    ///     warpbench landmarks pairs.csv --out pairs.json
+    ///     warpbench landmarks pairs.json --out-moving case_moving.mrk.json --out-fixed case_fixed.mrk.json
+    ///     warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv
+    #[command(verbatim_doc_comment)]
+    Landmarks(Box<warpbench_app::landmarks::LandmarksArgs>),
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -582,6 +595,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => run_eval(*args),
         Command::Render(args) => run_render(*args),
         Command::Field(args) => run_field(*args),
+        Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

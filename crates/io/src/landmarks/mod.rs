@@ -62,6 +62,7 @@ mod bigwarp_csv;
 mod bigwarp_json;
 mod fcsv;
 mod mrk_json;
+mod plain_csv;
 mod slicer_pair;
 
 pub use bigwarp_csv::{
@@ -74,6 +75,10 @@ pub use bigwarp_json::{
 };
 pub use fcsv::{parse_fcsv, read_fcsv, to_fcsv, write_fcsv};
 pub use mrk_json::{parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
+pub use plain_csv::{
+    CsvCoordinates, looks_like_plain_csv, parse_plain_csv, plain_csv_header, read_plain_csv, to_plain_csv,
+    write_plain_csv,
+};
 pub use slicer_pair::{read_slicer_pair, read_slicer_points, write_slicer_pair};
 
 /// The schema URL written into `.mrk.json` files.
@@ -197,20 +202,35 @@ pub enum LandmarkFileFormat {
     SlicerMarkupsJson,
     /// A Slicer `.fcsv`: the points of one volume.
     SlicerFcsv,
+    /// A plain CSV with a header naming its columns and coordinate system ([`read_plain_csv`]): pairs.
+    PlainCsv,
 }
 
 impl LandmarkFileFormat {
     /// Whether the file holds pairs (BigWarp) rather than one side (Slicer).
     #[must_use]
     pub fn holds_pairs(self) -> bool {
-        matches!(self, Self::BigWarpCsv | Self::BigWarpJson)
+        matches!(self, Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv)
+    }
+
+    /// The format's name in messages and in `warpbench landmarks --json`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::BigWarpCsv => "bigwarp-csv",
+            Self::BigWarpJson => "bigwarp-json",
+            Self::SlicerMarkupsJson => "slicer-mrk-json",
+            Self::SlicerFcsv => "slicer-fcsv",
+            Self::PlainCsv => "plain-csv",
+        }
     }
 }
 
 /// Tells the landmark format of `text` by its content, not its name: JSON (after one BOM and white space, an
 /// `{` or `[`) is BigWarp when it holds a BigWarp landmark table (see [`parse_bigwarp_json`]), Slicer when it has
 /// a `markups` list, and refused otherwise with what was expected; text whose first line starts with `#` is a
-/// Slicer `.fcsv` (BigWarp's CSV quotes every field, so its lines start with `"`); anything else is BigWarp CSV.
+/// Slicer `.fcsv`, and text whose first line's first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes
+/// every field, so its lines start with `"`); anything else is BigWarp CSV.
 pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFormat> {
     let body = strip_bom(text).trim_start();
     if body.starts_with(['{', '[']) {
@@ -226,6 +246,9 @@ pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFor
     if body.starts_with('#') {
         return Ok(LandmarkFileFormat::SlicerFcsv);
     }
+    if looks_like_plain_csv(body) {
+        return Ok(LandmarkFileFormat::PlainCsv);
+    }
     Ok(LandmarkFileFormat::BigWarpCsv)
 }
 
@@ -234,7 +257,7 @@ pub fn detect_landmark_file(path: &Path) -> Result<LandmarkFileFormat> {
     detect_landmark_format(path, &read_text(path)?)
 }
 
-/// Reads one file of landmark pairs, BigWarp CSV or BigWarp JSON, told apart by content; LPS mm.
+/// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON or plain CSV, told apart by content; LPS mm.
 ///
 /// A Slicer point list (`.mrk.json`, `.fcsv`) holds the points of one volume only, and is refused here with a
 /// message that says so: read it with its partner through [`read_slicer_pair`].
@@ -242,12 +265,14 @@ pub fn read_landmark_pairs(path: &Path) -> Result<Vec<LandmarkPair>> {
     read_landmark_pairs_with(path, BigWarpCsvOptions::default())
 }
 
-/// [`read_landmark_pairs`] with `options` for the BigWarp formats.
+/// [`read_landmark_pairs`] with `options` for the BigWarp formats (a plain CSV's header states its own coordinate
+/// system).
 pub fn read_landmark_pairs_with(path: &Path, options: BigWarpCsvOptions) -> Result<Vec<LandmarkPair>> {
     let text = read_text(path)?;
     match detect_landmark_format(path, &text)? {
         LandmarkFileFormat::BigWarpCsv => parse_bigwarp_csv(path, &text, options),
         LandmarkFileFormat::BigWarpJson => parse_bigwarp_json(path, &text, options),
+        LandmarkFileFormat::PlainCsv => parse_plain_csv(path, &text).map(|(pairs, _)| pairs),
         LandmarkFileFormat::SlicerMarkupsJson | LandmarkFileFormat::SlicerFcsv => Err(slicer_one_side(path)),
     }
 }

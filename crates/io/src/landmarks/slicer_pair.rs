@@ -23,6 +23,11 @@ pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
     match detect_landmark_format(path, &text) {
         Ok(LandmarkFileFormat::SlicerFcsv) => parse_fcsv(path, &text),
         Ok(LandmarkFileFormat::BigWarpJson) => Err(bigwarp_not_slicer(path)),
+        Ok(LandmarkFileFormat::PlainCsv) => Err(Error::unsupported(
+            path,
+            "a plain CSV of landmark pairs (its header names moving and fixed columns), not a Slicer point list: \
+             read it as a file of pairs",
+        )),
         Ok(LandmarkFileFormat::BigWarpCsv)
             if parse_bigwarp_csv(path, &text, BigWarpCsvOptions::default()).is_ok_and(|p| !p.is_empty()) =>
         {

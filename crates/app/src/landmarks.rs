@@ -1,0 +1,386 @@
+//! `warpbench landmarks`: reads landmark pairs in any format warpbench knows and lists them (`--json`) or writes
+//! them in another: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (`NAME_moving.mrk.json` + `NAME_fixed.mrk.json`, or
+//! `.fcsv`) ↔ plain CSV ([`warpbench_io::landmarks`] has each format's conventions).
+//!
+//! Inside, every point is LPS mm; a file is converted at reading and writing only. The coordinate system of a file
+//! is taken from the file where it says it (Slicer's `coordinateSystem` and `CoordinateSystem`, the plain CSV's
+//! column names) and from `--ras` / `--out-ras` for BigWarp's files, which have no such field (LPS by default, as
+//! everywhere in warpbench). Slicer files are written in LPS, which they declare.
+//!
+//! Every output is checked before anything is read (not an input, not an existing file without `--force`) and
+//! written atomically; a Slicer pair is rendered in full before either file is written.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, anyhow};
+use serde::Serialize;
+use warpbench_io::landmarks::{
+    self, BigWarpCsvOptions, CsvCoordinates, LandmarkFileFormat, LandmarkPair, read_landmark_pairs_with,
+    read_slicer_pair, write_bigwarp_csv_with, write_bigwarp_json_with, write_plain_csv, write_slicer_pair,
+};
+
+use crate::exit::Failure;
+use crate::inputs;
+
+/// The `--json` schema name.
+pub const SCHEMA: &str = "warpbench-landmarks/1";
+
+/// The formats of a single file of pairs that `--to` names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum PairFileFormat {
+    /// BigWarp's landmarks CSV (no header; name, active, moving x y z, fixed x y z).
+    BigwarpCsv,
+    /// BigWarp's landmarks JSON (`"type": "BigWarpLandmarks"`).
+    BigwarpJson,
+    /// A CSV with a header naming its columns and coordinate system.
+    PlainCsv,
+}
+
+impl PairFileFormat {
+    /// The format of an output named `path` when `--to` is not given: `.json` is BigWarp JSON, `.csv` BigWarp CSV.
+    fn from_name(path: &Path) -> Result<Self, Failure> {
+        let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+        if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") {
+            return Err(Failure::BadInput(anyhow!(
+                "{}: a Slicer point list holds one side of the pairs; write the two lists with --out-moving and \
+                 --out-fixed",
+                path.display()
+            )));
+        }
+        match Path::new(&lower).extension().and_then(|e| e.to_str()) {
+            Some("json") => Ok(Self::BigwarpJson),
+            Some("csv") => Ok(Self::BigwarpCsv),
+            _ => Err(Failure::BadInput(anyhow!(
+                "{}: cannot tell the format from the name; end it in .csv (BigWarp CSV) or .json (BigWarp JSON), or \
+                 give --to bigwarp-csv, bigwarp-json or plain-csv",
+                path.display()
+            ))),
+        }
+    }
+}
+
+/// What to write.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum LandmarkOutput {
+    /// One file of pairs.
+    Pairs { path: PathBuf, format: PairFileFormat },
+    /// A Slicer pair: the moving and the fixed list (`.mrk.json` or `.fcsv` each).
+    SlicerPair { moving: PathBuf, fixed: PathBuf },
+}
+
+impl LandmarkOutput {
+    fn paths(&self) -> Vec<&Path> {
+        match self {
+            Self::Pairs { path, .. } => vec![path],
+            Self::SlicerPair { moving, fixed } => vec![moving, fixed],
+        }
+    }
+}
+
+/// Options of `warpbench landmarks`.
+#[derive(Clone, Debug)]
+pub struct LandmarksOptions {
+    /// The pairs to read.
+    pub input: inputs::LandmarkSource,
+    /// The input BigWarp file's coordinates are RAS (BigWarp files say nothing about it).
+    pub ras: bool,
+    /// Where to write, if anywhere.
+    pub output: Option<LandmarkOutput>,
+    /// Write BigWarp and plain-CSV output in RAS.
+    pub out_ras: bool,
+    /// Print the pairs as JSON (schema [`SCHEMA`]) to the output.
+    pub json: bool,
+    /// Overwrite existing outputs.
+    pub force: bool,
+    pub quiet: bool,
+}
+
+/// One pair in the `--json` listing, LPS mm.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ListedPair {
+    /// 1-based, in file order.
+    pub number: usize,
+    pub name: String,
+    pub active: bool,
+    /// The point on the moving volume, or null when not placed.
+    pub moving: Option<[f64; 3]>,
+    /// The point on the fixed volume, or null when not placed.
+    pub fixed: Option<[f64; 3]>,
+}
+
+/// The `--json` document, schema `warpbench-landmarks/1` (docs/cli.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct LandmarksListing {
+    pub schema: &'static str,
+    /// The files read.
+    pub inputs: Vec<String>,
+    /// Their format: `bigwarp-csv`, `bigwarp-json`, `plain-csv`, or `slicer-pair`.
+    pub format: String,
+    /// Always `LPS`: the listing's coordinate system, whatever the file's.
+    pub coordinate_system: &'static str,
+    /// Always `mm`.
+    pub units: &'static str,
+    /// Pairs in the file; active ones; ones with both points; active ones with both points (what a warp uses).
+    pub count: usize,
+    pub active: usize,
+    pub complete: usize,
+    pub usable: usize,
+    pub pairs: Vec<ListedPair>,
+    /// The files written, if any.
+    pub written: Vec<String>,
+}
+
+/// Runs `warpbench landmarks`: checks the outputs, reads, writes, and prints the listing (`--json`) or a table (when
+/// nothing is written) to `out`.
+pub fn run(opts: &LandmarksOptions, out: &mut dyn Write) -> Result<LandmarksListing, Failure> {
+    let input_paths = opts.input.paths();
+    if let Some(output) = &opts.output {
+        let paths = output.paths();
+        if paths.len() == 2 && paths[0] == paths[1] {
+            return Err(Failure::BadInput(anyhow!(
+                "{}: --out-moving and --out-fixed are the same file",
+                paths[0].display()
+            )));
+        }
+        for p in &paths {
+            inputs::check_output(p, &input_paths, opts.force).map_err(Failure::BadInput)?;
+        }
+        if let LandmarkOutput::SlicerPair { moving, fixed } = output {
+            for p in [moving, fixed] {
+                check_slicer_name(p)?;
+            }
+            if opts.out_ras {
+                return Err(Failure::BadInput(anyhow!(
+                    "--out-ras: Slicer point lists are written in LPS and say so (coordinateSystem / CoordinateSystem), \
+                     so Slicer reads them right; --out-ras is for BigWarp and plain CSV output"
+                )));
+            }
+        }
+    }
+    let (pairs, format) = read_pairs(&opts.input, opts.ras)?;
+    let mut written = Vec::new();
+    if let Some(output) = &opts.output {
+        write_pairs(output, &pairs, opts.out_ras)?;
+        written = output.paths().iter().map(|p| p.display().to_string()).collect();
+    }
+    let listing = listing(&opts.input, format, &pairs, written);
+    if opts.json {
+        serde_json::to_writer_pretty(&mut *out, &listing)
+            .map_err(std::io::Error::from)
+            .and_then(|()| writeln!(out))
+            .context("writing the JSON listing")
+            .map_err(Failure::Internal)?;
+    } else if opts.output.is_none() {
+        write_table(&listing, out).context("writing the listing").map_err(Failure::Internal)?;
+    }
+    Ok(listing)
+}
+
+/// A Slicer output must be named `.mrk.json` or `.fcsv`: the name picks the format.
+fn check_slicer_name(path: &Path) -> Result<(), Failure> {
+    let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") {
+        Ok(())
+    } else {
+        Err(Failure::BadInput(anyhow!(
+            "{}: a Slicer point list is named .mrk.json (Slicer 5 markups) or .fcsv (legacy)",
+            path.display()
+        )))
+    }
+}
+
+/// Reads the pairs and names their format.
+fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<LandmarkPair>, String), Failure> {
+    match input {
+        inputs::LandmarkSource::Pairs(path) => {
+            let format = landmarks::detect_landmark_file(path).map_err(|e| Failure::BadInput(e.into()))?;
+            if !format.holds_pairs() {
+                return Err(Failure::BadInput(anyhow!(
+                    "{}: a Slicer point list holds one side of the pairs; give the moving and the fixed list with \
+                     --moving-points and --fixed-points",
+                    path.display()
+                )));
+            }
+            if ras && format == LandmarkFileFormat::PlainCsv {
+                return Err(Failure::BadInput(anyhow!(
+                    "{}: --ras is for BigWarp files; a plain CSV's header states its coordinate system (moving_l/p/s \
+                     for LPS, moving_r/a/s for RAS)",
+                    path.display()
+                )));
+            }
+            let pairs =
+                read_landmark_pairs_with(path, BigWarpCsvOptions { ras }).map_err(|e| Failure::BadInput(e.into()))?;
+            Ok((pairs, format.name().to_string()))
+        }
+        inputs::LandmarkSource::SlicerPair { moving, fixed } => {
+            if ras {
+                return Err(Failure::BadInput(anyhow!(
+                    "--ras is for BigWarp files; a Slicer point list states its own coordinate system"
+                )));
+            }
+            let pairs = read_slicer_pair(moving, fixed).map_err(|e| Failure::BadInput(e.into()))?;
+            Ok((pairs, "slicer-pair".to_string()))
+        }
+    }
+}
+
+fn write_pairs(output: &LandmarkOutput, pairs: &[LandmarkPair], out_ras: bool) -> Result<(), Failure> {
+    let bigwarp = BigWarpCsvOptions { ras: out_ras };
+    let result = match output {
+        LandmarkOutput::Pairs { path, format: PairFileFormat::BigwarpCsv } => {
+            write_bigwarp_csv_with(path, pairs, bigwarp)
+        }
+        LandmarkOutput::Pairs { path, format: PairFileFormat::BigwarpJson } => {
+            write_bigwarp_json_with(path, pairs, bigwarp)
+        }
+        LandmarkOutput::Pairs { path, format: PairFileFormat::PlainCsv } => {
+            write_plain_csv(path, pairs, if out_ras { CsvCoordinates::Ras } else { CsvCoordinates::Lps })
+        }
+        LandmarkOutput::SlicerPair { moving, fixed } => write_slicer_pair(moving, fixed, pairs),
+    };
+    result.map_err(|e| Failure::BadInput(e.into()))
+}
+
+fn listing(
+    input: &inputs::LandmarkSource,
+    format: String,
+    pairs: &[LandmarkPair],
+    written: Vec<String>,
+) -> LandmarksListing {
+    let listed: Vec<ListedPair> = pairs
+        .iter()
+        .enumerate()
+        .map(|(i, p)| ListedPair {
+            number: i + 1,
+            name: p.name.clone(),
+            active: p.active,
+            moving: p.moving.map(|m| m.coords()),
+            fixed: p.fixed.map(|f| f.coords()),
+        })
+        .collect();
+    LandmarksListing {
+        schema: SCHEMA,
+        inputs: input.paths().iter().map(|p| p.display().to_string()).collect(),
+        format,
+        coordinate_system: "LPS",
+        units: "mm",
+        count: pairs.len(),
+        active: pairs.iter().filter(|p| p.active).count(),
+        complete: pairs.iter().filter(|p| p.is_complete()).count(),
+        usable: pairs.iter().filter(|p| p.active && p.is_complete()).count(),
+        pairs: listed,
+        written,
+    }
+}
+
+/// The listing as a table for people: one line per pair, LPS mm.
+fn write_table(l: &LandmarksListing, out: &mut dyn Write) -> std::io::Result<()> {
+    writeln!(
+        out,
+        "{} ({}): {} pairs, {} active, {} with both points, {} used by a warp; LPS mm",
+        l.inputs.join(" + "),
+        l.format,
+        l.count,
+        l.active,
+        l.complete,
+        l.usable
+    )?;
+    let point = |p: Option<[f64; 3]>| match p {
+        Some([x, y, z]) => format!("({x:.3}, {y:.3}, {z:.3})"),
+        None => "(not placed)".to_string(),
+    };
+    for p in &l.pairs {
+        writeln!(
+            out,
+            "{:>5}  {:<20} {:<8} moving {}  fixed {}",
+            p.number,
+            p.name,
+            if p.active { "active" } else { "inactive" },
+            point(p.moving),
+            point(p.fixed)
+        )?;
+    }
+    Ok(())
+}
+
+/// The command line of `warpbench landmarks`.
+#[derive(Debug, clap::Args)]
+#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
+pub struct LandmarksArgs {
+    /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file) or plain CSV, told apart by
+    /// content. For a Slicer pair give --moving-points and --fixed-points instead.
+    #[arg(required_unless_present = "moving_points")]
+    pub input: Option<PathBuf>,
+    /// The moving volume's Slicer point list (.mrk.json or .fcsv), with --fixed-points; paired by order.
+    #[arg(long, requires = "fixed_points", conflicts_with = "input")]
+    pub moving_points: Option<PathBuf>,
+    /// The fixed volume's Slicer point list, with --moving-points.
+    #[arg(long, requires = "moving_points")]
+    pub fixed_points: Option<PathBuf>,
+    /// The input BigWarp file's coordinates are RAS (default LPS; Slicer and plain CSV files say it themselves).
+    #[arg(long)]
+    pub ras: bool,
+    /// Write the pairs to this file: BigWarp CSV for .csv, BigWarp JSON for .json, or as --to says.
+    #[arg(long, conflicts_with_all = ["out_moving", "out_fixed"])]
+    pub out: Option<PathBuf>,
+    /// The format of --out when its name does not say it (a plain CSV is a .csv too).
+    #[arg(long, value_enum, requires = "out")]
+    pub to: Option<PairFileFormat>,
+    /// Write the moving points as a Slicer point list (.mrk.json or .fcsv), with --out-fixed.
+    #[arg(long, requires = "out_fixed")]
+    pub out_moving: Option<PathBuf>,
+    /// Write the fixed points as a Slicer point list, with --out-moving.
+    #[arg(long, requires = "out_moving")]
+    pub out_fixed: Option<PathBuf>,
+    /// Write BigWarp or plain-CSV output in RAS (default LPS).
+    #[arg(long)]
+    pub out_ras: bool,
+    /// Print the pairs as JSON (schema warpbench-landmarks/1, LPS mm) to stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    pub force: bool,
+    /// No messages.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// Runs `warpbench landmarks` from its command line, printing to stdout and a line per file written to stderr.
+pub fn run_cli(a: LandmarksArgs) -> Result<(), Failure> {
+    let input = inputs::LandmarkSource::from_args(a.input, a.moving_points, a.fixed_points)
+        .map_err(Failure::BadInput)?
+        .ok_or_else(|| Failure::BadInput(anyhow!("give a file of pairs, or --moving-points with --fixed-points")))?;
+    let output = match (a.out, a.out_moving, a.out_fixed) {
+        (Some(path), None, None) => {
+            let format = match a.to {
+                Some(f) => f,
+                None => PairFileFormat::from_name(&path)?,
+            };
+            Some(LandmarkOutput::Pairs { path, format })
+        }
+        (None, Some(moving), Some(fixed)) => Some(LandmarkOutput::SlicerPair { moving, fixed }),
+        (None, None, None) => None,
+        _ => return Err(Failure::BadInput(anyhow!("give --out, or --out-moving with --out-fixed"))),
+    };
+    if output.is_none() && a.out_ras {
+        return Err(Failure::BadInput(anyhow!("--out-ras applies to --out")));
+    }
+    let opts = LandmarksOptions {
+        input,
+        ras: a.ras,
+        output,
+        out_ras: a.out_ras,
+        json: a.json,
+        force: a.force,
+        quiet: a.quiet,
+    };
+    let listing = run(&opts, &mut std::io::stdout().lock())?;
+    if !opts.quiet && !opts.json {
+        for w in &listing.written {
+            eprintln!("wrote {w} ({} pairs)", listing.count);
+        }
+    }
+    Ok(())
+}
