@@ -17,6 +17,7 @@ pub mod atomic;
 pub mod dicom;
 pub mod dicom_source;
 pub mod dicom_write;
+pub mod displacement;
 pub mod error;
 pub mod geometry;
 pub mod itk_tfm;

@@ -1,5 +1,7 @@
-//! Displacement fields (`NIFTI_INTENT_DISPVECT`) as ITK, ANTs and 3D Slicer store them, with RAS vectors in the
-//! file and LPS vectors inside (see [`super`], "Displacement fields").
+//! Displacement fields as ITK, ANTs and 3D Slicer store them in NIfTI (see [`super`], "Displacement fields"):
+//! `NIFTI_INTENT_DISPVECT` (1006) with RAS vectors in the file, as ITK ≥ 5.3 and Slicer read and write it, and
+//! `NIFTI_INTENT_VECTOR` (1007) with LPS vectors, what ITK's writer makes of any vector image and so what ANTs'
+//! `*Warp.nii.gz` files are. Inside, the vectors are always LPS.
 
 use std::io::{self, Read};
 use std::path::Path;
@@ -12,6 +14,7 @@ use super::layout::{Span, data_span, grid, stored_type};
 use super::samples::{datatype_code, scaling, stream_chunks};
 use super::write::{Nifti1Content, nifti1_header_for, write_file};
 use super::{Extent, GZIP_MAGIC, Reporter, Source};
+use crate::displacement::first_non_finite;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::options::LoadOptions;
@@ -21,8 +24,54 @@ use crate::volume::{self, GeometrySource, SampleType};
 /// `NIFTI_INTENT_DISPVECT` (nifti1.h): each voxel holds a displacement vector.
 pub const NIFTI_INTENT_DISPVECT: i16 = 1006;
 
+/// `NIFTI_INTENT_VECTOR` (nifti1.h): each voxel holds a vector; ITK writes every vector image with it.
+pub const NIFTI_INTENT_VECTOR: i16 = 1007;
+
 /// The sign that takes a vector component between LPS (inside) and RAS (in the file), either way.
 const LPS_RAS_SIGN: [f32; 3] = [-1.0, -1.0, 1.0];
+
+/// The two NIfTI conventions for a displacement field: which intent the header carries, and so in which frame ITK's
+/// reader takes the vectors.
+///
+/// ITK 5.4's `NiftiImageIO` negates the first two components of a `DISPVECT` image on read and on write
+/// (`m_ConvertRASDisplacementVectors`, on by default) and leaves a `VECTOR` image's components alone. Its writer gives
+/// a vector image intent `VECTOR` unless the image's metadata asks for 1006, which ANTs' writers do not: checked with
+/// the `itk` 5.4.7 wheel (`itk.imwrite` of an `Image[Vector[F,3],3]` gives intent 1007, dim `[5, X, Y, Z, 1, 3, 1, 1]`
+/// and the components as they were; a 1006 copy of the same bytes reads back with x and y negated).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NiftiVectorIntent {
+    /// Intent 1006, RAS vectors in the file: ITK ≥ 5.3 and 3D Slicer (`--format itk`).
+    DispvectRas,
+    /// Intent 1007, LPS vectors in the file: ANTs' `*Warp.nii.gz`, and ITK's default for any vector image
+    /// (`--format ants`).
+    VectorLps,
+}
+
+impl NiftiVectorIntent {
+    /// The header's `intent_code`.
+    #[must_use]
+    pub const fn intent_code(self) -> i16 {
+        match self {
+            Self::DispvectRas => NIFTI_INTENT_DISPVECT,
+            Self::VectorLps => NIFTI_INTENT_VECTOR,
+        }
+    }
+
+    /// The signs that take a component between LPS (inside) and the file's frame, either way.
+    const fn signs(self) -> [f32; 3] {
+        match self {
+            Self::DispvectRas => LPS_RAS_SIGN,
+            Self::VectorLps => [1.0, 1.0, 1.0],
+        }
+    }
+
+    const fn frame(self) -> &'static str {
+        match self {
+            Self::DispvectRas => "RAS",
+            Self::VectorLps => "LPS",
+        }
+    }
+}
 
 /// A displacement field read by [`read_displacement_field`]: one vector per voxel of a grid.
 #[derive(Clone, Debug, PartialEq)]
@@ -45,6 +94,19 @@ pub fn write_displacement_field(
     lps_from_index: &Transform<Lps, Index>,
     displacements_lps: &[[f32; 3]],
 ) -> Result<()> {
+    write_vector_field(path, dims, lps_from_index, displacements_lps, NiftiVectorIntent::DispvectRas)
+}
+
+/// Writes a displacement field as NIfTI-1 with either intent ([`NiftiVectorIntent`]), atomically: as
+/// [`write_displacement_field`] for [`NiftiVectorIntent::DispvectRas`]; for [`NiftiVectorIntent::VectorLps`]
+/// intent 1007 and the LPS vectors as they are (ANTs' layout). Non-finite vectors are refused.
+pub fn write_vector_field(
+    path: &Path,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+    intent: NiftiVectorIntent,
+) -> Result<()> {
     let n = volume::checked_voxel_count(path, dims)?;
     if displacements_lps.len() != n {
         return Err(Error::invalid(path, format!("{} displacements for dims {dims:?}", displacements_lps.len())));
@@ -60,13 +122,13 @@ pub fn write_displacement_field(
     }
     let what = Nifti1Content {
         type_code: datatype_code(SampleType::F32),
-        descrip: b"warpbench displacement field u(x) - x, RAS mm".to_vec(),
-        vector: Some((NIFTI_INTENT_DISPVECT, 3)),
+        descrip: format!("warpbench displacement field, {} mm", intent.frame()).into_bytes(),
+        vector: Some((intent.intent_code(), 3)),
     };
     let header = nifti1_header_for(path, dims, lps_from_index, &what)?;
     write_file(path, &header, |w| {
         let mut buf = Vec::with_capacity(64 << 10);
-        for (c, sign) in LPS_RAS_SIGN.into_iter().enumerate() {
+        for (c, sign) in intent.signs().into_iter().enumerate() {
             for chunk in displacements_lps.chunks(16 << 10) {
                 buf.clear();
                 for d in chunk {
@@ -83,27 +145,68 @@ pub fn write_displacement_field(
 /// intent 1006, shape [X, Y, Z, 1, 3], float32 or float64, RAS vectors (returned in LPS). Errors name the file.
 pub fn read_displacement_field(path: &Path) -> Result<DisplacementField> {
     let (mut src, extent) = super::open_file(path)?;
-    read_field_source(path, &mut src, extent)
+    read_field_source(path, &mut src, extent, false).map(|(field, _)| field)
 }
 
 /// [`read_displacement_field`] from memory (gzip detected by the magic bytes); `name` is used in errors.
 pub fn read_displacement_field_bytes(name: &Path, bytes: &[u8]) -> Result<DisplacementField> {
+    read_vector_field_bytes_with(name, bytes, false).map(|(field, _)| field)
+}
+
+/// Reads a displacement field of either intent ([`NiftiVectorIntent`]): 1006 with RAS vectors (ITK ≥ 5.3, Slicer,
+/// `warpbench field --format itk`) or 1007 with LPS vectors (ANTs, `--format ants`), shape [X, Y, Z, 1, 3], float32
+/// or float64; the vectors are returned in LPS, with the intent found. Non-finite vectors are refused, naming the
+/// voxel.
+pub fn read_vector_field(path: &Path) -> Result<(DisplacementField, NiftiVectorIntent)> {
+    let (mut src, extent) = super::open_file(path)?;
+    read_field_source(path, &mut src, extent, true)
+}
+
+/// [`read_vector_field`] from memory (gzip detected by the magic bytes); `name` is used in errors.
+pub fn read_vector_field_bytes(name: &Path, bytes: &[u8]) -> Result<(DisplacementField, NiftiVectorIntent)> {
+    read_vector_field_bytes_with(name, bytes, true)
+}
+
+fn read_vector_field_bytes_with(
+    name: &Path,
+    bytes: &[u8],
+    vector_too: bool,
+) -> Result<(DisplacementField, NiftiVectorIntent)> {
     if bytes.starts_with(&GZIP_MAGIC) {
-        read_field_source(name, &mut MultiGzDecoder::new(bytes), Extent::Gzip(bytes.len() as u64))
+        read_field_source(name, &mut MultiGzDecoder::new(bytes), Extent::Gzip(bytes.len() as u64), vector_too)
     } else {
         let mut src = bytes;
-        read_field_source(name, &mut src, Extent::Exact(bytes.len() as u64))
+        read_field_source(name, &mut src, Extent::Exact(bytes.len() as u64), vector_too)
     }
 }
 
-fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Result<DisplacementField> {
+/// Reads the field; `vector_too` accepts intent 1007 (LPS vectors) besides 1006.
+fn read_field_source<S: Source>(
+    path: &Path,
+    src: &mut S,
+    extent: Extent,
+    vector_too: bool,
+) -> Result<(DisplacementField, NiftiVectorIntent)> {
     let h = read_header(path, src)?;
-    if h.intent_code != i32::from(NIFTI_INTENT_DISPVECT) {
-        return Err(Error::invalid(
-            path,
-            format!("intent_code is {}, not NIFTI_INTENT_DISPVECT (1006): not a displacement field", h.intent_code),
-        ));
-    }
+    let intent = match h.intent_code {
+        c if c == i32::from(NIFTI_INTENT_DISPVECT) => NiftiVectorIntent::DispvectRas,
+        c if c == i32::from(NIFTI_INTENT_VECTOR) && vector_too => NiftiVectorIntent::VectorLps,
+        c if vector_too => {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "intent_code is {c}, neither NIFTI_INTENT_DISPVECT (1006, ITK and Slicer) nor \
+                     NIFTI_INTENT_VECTOR (1007, ANTs): not a displacement field"
+                ),
+            ));
+        }
+        c => {
+            return Err(Error::invalid(
+                path,
+                format!("intent_code is {c}, not NIFTI_INTENT_DISPVECT (1006): not a displacement field"),
+            ));
+        }
+    };
     if h.dim[0] != 5 || h.dim[4] != 1 || h.dim[5] != 3 || h.dim[1..4].iter().any(|&d| d < 1) {
         return Err(Error::invalid(
             path,
@@ -144,7 +247,7 @@ fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Res
     let mut progress = Reporter { path, opts: &mut opts, done: 0, total: 3 * plane_bytes as u64 };
     let mut displacements_lps = volume::try_with_capacity(path, n, "the displacement vectors")?;
     displacements_lps.resize(n, [0.0f32; 3]);
-    for (c, sign) in LPS_RAS_SIGN.into_iter().enumerate() {
+    for (c, sign) in intent.signs().into_iter().enumerate() {
         let mut plane: Vec<f32> = volume::try_with_capacity(path, n, "the voxel samples")?;
         sample::with_stored_type!(datatype, T => stream_chunks(src, plane_bytes, &mut progress, |chunk| {
             plane.extend(sample::decode::<T>(chunk, h.big_endian).map(T::as_f32));
@@ -153,7 +256,10 @@ fn read_field_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Res
             d[c] = sign * v;
         }
     }
-    Ok(DisplacementField { dims, lps_from_index, geometry_source, displacements_lps })
+    if let Some(ijk) = first_non_finite(dims, &displacements_lps) {
+        return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
+    }
+    Ok((DisplacementField { dims, lps_from_index, geometry_source, displacements_lps }, intent))
 }
 
 #[cfg(test)]

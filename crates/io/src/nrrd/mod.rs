@@ -54,6 +54,7 @@
 //! decodes the samples (raw, gzip, ASCII, hex), `write` writes NRRD0004.
 
 mod data;
+pub mod field;
 mod geometry;
 mod header;
 mod write;

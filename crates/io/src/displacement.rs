@@ -1,0 +1,383 @@
+//! Displacement fields in the three flavours neighbouring tools read and write, behind one reader that tells them
+//! apart by content ([`read_field`]) and one writer ([`write_field`]).
+//!
+//! A field D on a grid holds one vector per voxel centre x, in LPS mm inside warpbench. Which map it samples is the
+//! writer's choice ([`FieldDirection`]): a pull-back field holds u(x) − x (ITK's `DisplacementFieldTransform`:
+//! the output point x reads the input at x + D(x)), a forward field d(y) − y (a point y moves to y + D(y)).
+//!
+//! | flavour | file | intent / kinds | vectors in the file | who reads it |
+//! |---|---|---|---|---|
+//! | [`FieldFormat::Itk`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | `intent_code` 1006 `DISPVECT` | RAS | ITK ≥ 5.3 (SimpleITK ≥ 2.3), 3D Slicer ≥ 5.2 |
+//! | [`FieldFormat::Ants`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | `intent_code` 1007 `VECTOR` | LPS | ANTs (`antsApplyTransforms`, `*Warp.nii.gz`), every ITK |
+//! | [`FieldFormat::Nrrd`] | NRRD0004 `.nrrd`, float, sizes `3 X Y Z` | `kinds: vector domain domain domain` | LPS (`space: left-posterior-superior`) | 3D Slicer, ITK's `NrrdImageIO` |
+//!
+//! The component planes of the NIfTI flavours follow one another (all x, then all y, then all z); NRRD interleaves
+//! them. See [`crate::nifti`] ("Displacement fields") and [`crate::nrrd::field`] for the exact layouts and the ITK
+//! behaviour they rest on.
+//!
+//! [`read_field`] detects the flavour from the bytes, not the name: a NRRD magic is [`FieldFormat::Nrrd`]; a NIfTI
+//! header (plain or gzip) with intent 1006 is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]; anything else
+//! is refused. It returns LPS vectors whatever the flavour.
+
+use std::path::Path;
+
+use crate::error::{Error, Result};
+use crate::geometry::{Index, Lps, Transform};
+use crate::nifti::{self, DisplacementField, NiftiVectorIntent};
+use crate::nrrd::field::{self as nrrd_field, NrrdFieldType};
+
+/// A displacement-field flavour (module docs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum FieldFormat {
+    /// NIfTI, intent `DISPVECT` (1006), RAS vectors: ITK ≥ 5.3 and 3D Slicer.
+    Itk,
+    /// NIfTI, intent `VECTOR` (1007), LPS vectors: ANTs.
+    Ants,
+    /// NRRD, `kinds: vector domain domain domain`, LPS vectors: 3D Slicer.
+    Nrrd,
+}
+
+impl FieldFormat {
+    /// Every flavour, in the order the CLI lists them.
+    pub const ALL: [Self; 3] = [Self::Itk, Self::Ants, Self::Nrrd];
+
+    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Itk => "itk",
+            Self::Ants => "ants",
+            Self::Nrrd => "nrrd",
+        }
+    }
+
+    /// The container the name of `path` implies: `Some(Nrrd)` for `.nrrd` / `.nhdr`, `Some(Itk)` for `.nii` /
+    /// `.nii.gz` (NIfTI, which is `itk` or `ants`: see [`Self::container_matches`]), `None` for any other name.
+    #[must_use]
+    #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
+    pub fn from_extension(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+        if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
+            Some(Self::Nrrd)
+        } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+            Some(Self::Itk)
+        } else {
+            None
+        }
+    }
+
+    /// Whether a file named `path` can hold this flavour: NIfTI names for `itk` and `ants`, NRRD names for `nrrd`;
+    /// a name of neither kind fits either.
+    #[must_use]
+    pub fn container_matches(self, path: &Path) -> bool {
+        match Self::from_extension(path) {
+            None => true,
+            Some(Self::Nrrd) => self == Self::Nrrd,
+            Some(Self::Itk | Self::Ants) => self != Self::Nrrd,
+        }
+    }
+}
+
+impl std::fmt::Display for FieldFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Which map a displacement field samples.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum FieldDirection {
+    /// D(x) = u(x) − x on the output (fixed) grid, u = moving_from_fixed: ITK's resampling convention.
+    #[default]
+    Pullback,
+    /// D(y) = d(y) − y on the moving grid, d = fixed_from_moving: a point y of the moving volume moves to y + D(y).
+    Forward,
+}
+
+impl FieldDirection {
+    /// `pullback` or `forward`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Pullback => "pullback",
+            Self::Forward => "forward",
+        }
+    }
+}
+
+impl std::fmt::Display for FieldDirection {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// What [`read_field_info`] found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReadField {
+    /// The grid and the vectors, LPS.
+    pub field: DisplacementField,
+    pub format: FieldFormat,
+    /// The direction the file states, where it can: a NRRD field's `displacement field type` (resampling is the
+    /// pull-back, modeling the forward map); `None` when the file says nothing (NIfTI never does; readers then take
+    /// it as a pull-back, ITK's convention).
+    pub direction: Option<FieldDirection>,
+}
+
+/// Reads a displacement field of any flavour, told apart by content (module docs); the vectors are LPS.
+/// Errors name the file: a wrong intent, wrong dims, non-float samples, non-finite vectors, a field too large for
+/// memory.
+pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldFormat)> {
+    read_field_info(path).map(|r| (r.field, r.format))
+}
+
+/// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
+pub fn read_field_info(path: &Path) -> Result<ReadField> {
+    crate::check_regular_file(path)?;
+    let mut head = [0u8; 4];
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let n = crate::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
+    drop(f);
+    let head = &head[..n];
+    if head.starts_with(b"NRRD") {
+        let (field, kind) = nrrd_field::read_displacement_field(path)?;
+        let direction = kind.map(|k| match k {
+            NrrdFieldType::Resampling => FieldDirection::Pullback,
+            NrrdFieldType::Modeling => FieldDirection::Forward,
+        });
+        return Ok(ReadField { field, format: FieldFormat::Nrrd, direction });
+    }
+    if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
+        let (field, intent) = nifti::read_vector_field(path)?;
+        let format = match intent {
+            NiftiVectorIntent::DispvectRas => FieldFormat::Itk,
+            NiftiVectorIntent::VectorLps => FieldFormat::Ants,
+        };
+        return Ok(ReadField { field, format, direction: None });
+    }
+    Err(Error::unsupported(path, "not a displacement field: neither NIfTI (intent 1006 or 1007) nor NRRD"))
+}
+
+/// Writes a pull-back displacement field (`displacements_lps`, LPS mm, i fastest, one per voxel of the grid `dims`,
+/// `lps_from_index`) in `format`, atomically. Same as [`write_field_with`] with [`FieldDirection::Pullback`].
+pub fn write_field(
+    path: &Path,
+    format: FieldFormat,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<()> {
+    write_field_with(path, format, FieldDirection::Pullback, dims, lps_from_index, displacements_lps)
+}
+
+/// Writes a displacement field in `format`, atomically. `direction` is what the vectors sample: the NRRD flavour
+/// records it (`displacement field type:=resampling` or `modeling`, which Slicer reads); NIfTI has nowhere to say
+/// it. A name that is not the flavour's container (`.nrrd` for `nrrd`; `.nii`, `.nii.gz` for `itk` and `ants`) is
+/// refused, and so is a detached NRRD header (`.nhdr`), which would need a second data file; non-finite vectors
+/// are refused, naming the voxel.
+pub fn write_field_with(
+    path: &Path,
+    format: FieldFormat,
+    direction: FieldDirection,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<()> {
+    check_output_name(path, format)?;
+    match format {
+        FieldFormat::Itk | FieldFormat::Ants => {
+            let intent =
+                if format == FieldFormat::Itk { NiftiVectorIntent::DispvectRas } else { NiftiVectorIntent::VectorLps };
+            nifti::write_vector_field(path, dims, lps_from_index, displacements_lps, intent)
+        }
+        FieldFormat::Nrrd => {
+            let kind = match direction {
+                FieldDirection::Pullback => NrrdFieldType::Resampling,
+                FieldDirection::Forward => NrrdFieldType::Modeling,
+            };
+            nrrd_field::write_displacement_field(path, dims, lps_from_index, displacements_lps, kind)
+        }
+    }
+}
+
+/// Refuses an output name that cannot hold `format` (see [`write_field_with`]), before anything is computed.
+pub fn check_output_name(path: &Path, format: FieldFormat) -> Result<()> {
+    if !format.container_matches(path) {
+        let wants = if format == FieldFormat::Nrrd { "a .nrrd name" } else { "a .nii or .nii.gz name" };
+        return Err(Error::invalid(path, format!("the {format} field flavour is written to {wants}")));
+    }
+    let detached = path.file_name().is_some_and(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".nhdr"));
+    if detached {
+        return Err(Error::unsupported(
+            path,
+            "a detached NRRD header (.nhdr) needs a second data file; write the field to a .nrrd file",
+        ));
+    }
+    Ok(())
+}
+
+/// The index (i, j, k) of the first voxel whose vector is not finite, if any; the readers' and writers' check.
+pub(crate) fn first_non_finite(dims: [usize; 3], displacements: &[[f32; 3]]) -> Option<[usize; 3]> {
+    let n = displacements.iter().position(|d| !d.iter().all(|v| v.is_finite()))?;
+    let per_slice = (dims[0] * dims[1]).max(1);
+    Some([n % dims[0].max(1), (n % per_slice) / dims[0].max(1), n / per_slice])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix3;
+
+    /// A small oblique grid and a field whose components differ in every voxel.
+    fn sample_field() -> ([usize; 3], Transform<Lps, Index>, Vec<[f32; 3]>) {
+        let (s, c) = 0.3f64.sin_cos();
+        let linear = Matrix3::new(c * 1.5, -s * 2.0, 0.0, s * 1.5, c * 2.0, 0.0, 0.0, 0.0, 2.5);
+        let lps_from_index = Transform::from_linear_translation(linear, [-30.0, 12.5, 7.25]);
+        let dims = [3, 4, 2];
+        let field = (0..24).map(|i| [i as f32 * 0.25 - 3.0, 1.0 - i as f32 * 0.125, (i * i) as f32 * 0.01]).collect();
+        (dims, lps_from_index, field)
+    }
+
+    fn bits(v: &[[f32; 3]]) -> Vec<u32> {
+        v.iter().flat_map(|d| d.map(|x| (x + 0.0).to_bits())).collect()
+    }
+
+    #[test]
+    fn every_flavour_round_trips_and_is_told_apart_by_content() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (dims, lps_from_index, field) = sample_field();
+        for (format, name, direction) in [
+            (FieldFormat::Itk, "f.nii.gz", None),
+            (FieldFormat::Itk, "f.nii", None),
+            (FieldFormat::Ants, "a.nii.gz", None),
+            (FieldFormat::Ants, "a.nii", None),
+            (FieldFormat::Nrrd, "n.nrrd", Some(FieldDirection::Pullback)),
+        ] {
+            let path = dir.path().join(name);
+            write_field(&path, format, dims, &lps_from_index, &field).expect("write");
+            // The name says nothing to the reader: a copy under a neutral name reads the same.
+            let neutral = dir.path().join(format!("{name}.bin"));
+            std::fs::copy(&path, &neutral).expect("copy");
+            for p in [&path, &neutral] {
+                let r = read_field_info(p).expect("read back");
+                assert_eq!((r.format, r.direction), (format, direction), "{name}");
+                assert_eq!(r.field.dims, dims);
+                assert!(r.field.lps_from_index.max_abs_diff(&lps_from_index) < 1e-4, "{name}");
+                assert_eq!(bits(&r.field.displacements_lps), bits(&field), "{name}: LPS vectors bit for bit");
+            }
+        }
+        let forward = dir.path().join("forward.nrrd");
+        write_field_with(&forward, FieldFormat::Nrrd, FieldDirection::Forward, dims, &lps_from_index, &field)
+            .expect("write");
+        assert_eq!(read_field_info(&forward).expect("read").direction, Some(FieldDirection::Forward));
+        let text = std::fs::read(&forward).expect("read");
+        let header = String::from_utf8_lossy(&text[..text.windows(2).position(|w| w == b"\n\n").expect("blank")]);
+        for line in [
+            "type: float",
+            "dimension: 4",
+            "space: left-posterior-superior",
+            "sizes: 3 3 4 2",
+            "kinds: vector domain domain domain",
+            "encoding: gzip",
+            "displacement field type:=modeling",
+        ] {
+            assert!(header.lines().any(|l| l == line), "{line:?} missing from\n{header}");
+        }
+        assert!(header.lines().any(|l| l.starts_with("space directions: none (")), "{header}");
+    }
+
+    #[test]
+    fn the_ants_flavour_is_intent_vector_with_lps_planes() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (dims, lps_from_index, field) = sample_field();
+        let (itk, ants) = (dir.path().join("itk.nii"), dir.path().join("ants.nii"));
+        write_field(&itk, FieldFormat::Itk, dims, &lps_from_index, &field).expect("write");
+        write_field(&ants, FieldFormat::Ants, dims, &lps_from_index, &field).expect("write");
+        let (itk, ants) = (std::fs::read(itk).expect("read"), std::fs::read(ants).expect("read"));
+        let i16_at = |b: &[u8], o: usize| i16::from_le_bytes([b[o], b[o + 1]]);
+        let f32_at = |b: &[u8], o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+        assert_eq!((i16_at(&itk, 68), i16_at(&ants, 68)), (1006, 1007));
+        for b in [&itk, &ants] {
+            assert_eq!((0..8).map(|i| i16_at(b, 40 + 2 * i)).collect::<Vec<_>>(), [5, 3, 4, 2, 1, 3, 1, 1]);
+        }
+        // The same header otherwise, except the intent and the description.
+        let differ: Vec<usize> = (0..352).filter(|&o| itk[o] != ants[o]).collect();
+        assert!(differ.iter().all(|&o| (68..70).contains(&o) || (148..228).contains(&o)), "{differ:?}");
+        for (c, sign) in [(0, -1.0f32), (1, -1.0), (2, 1.0)] {
+            for v in [0, 7, 23] {
+                let o = 352 + 4 * (c * 24 + v);
+                assert_eq!(f32_at(&ants, o).to_bits(), field[v][c].to_bits(), "ants: LPS");
+                assert_eq!(f32_at(&itk, o).to_bits(), (sign * field[v][c]).to_bits(), "itk: RAS");
+            }
+        }
+    }
+
+    #[test]
+    fn bad_fields_are_refused_naming_the_file() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let (dims, lps_from_index, field) = sample_field();
+        let nii = dir.path().join("f.nii");
+        write_field(&nii, FieldFormat::Ants, dims, &lps_from_index, &field).expect("write");
+        let raw = std::fs::read(&nii).expect("read");
+        let put = |name: &str, bytes: &[u8]| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, bytes).expect("write");
+            p
+        };
+        let refused = |p: &Path, needle: &str| {
+            let e = read_field(p).expect_err("refused");
+            let text = e.to_string();
+            assert!(text.starts_with(&format!("{}: ", p.display())) && text.contains(needle), "{text}");
+        };
+        let mut intent = raw.clone();
+        intent[68..70].copy_from_slice(&1005i16.to_le_bytes());
+        refused(&put("intent.nii", &intent), "intent_code is 1005");
+        let mut four_d = raw.clone();
+        four_d[40..42].copy_from_slice(&4i16.to_le_bytes());
+        four_d[48..50].copy_from_slice(&3i16.to_le_bytes());
+        four_d[50..52].copy_from_slice(&1i16.to_le_bytes());
+        refused(&put("four_d.nii", &four_d), "[5, X, Y, Z, 1, 3");
+        let mut nan = raw.clone();
+        let o = 352 + 4 * (24 + 5); // the y component of voxel 5 = (2, 1, 0)
+        nan[o..o + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        refused(&put("nan.nii", &nan), "voxel [2, 1, 0]");
+        let mut huge = raw.clone();
+        for a in 0..3 {
+            huge[42 + 2 * a..44 + 2 * a].copy_from_slice(&32000i16.to_le_bytes());
+        }
+        let e = read_field(&put("huge.nii", &huge)).expect_err("too large");
+        assert!(matches!(e.kind, crate::ErrorKind::TooLarge { .. } | crate::ErrorKind::Truncated(_)), "{e}");
+        refused(&put("text.nii", b"hello"), "not a displacement field");
+
+        let nrrd = dir.path().join("f.nrrd");
+        write_field(&nrrd, FieldFormat::Nrrd, dims, &lps_from_index, &field).expect("write");
+        let text = std::fs::read(&nrrd).expect("read");
+        let swap = |from: &str, to: &str| {
+            let s = String::from_utf8_lossy(&text).into_owned();
+            let at = text.windows(2).position(|w| w == b"\n\n").expect("blank") + 2;
+            let mut b = s[..at].replacen(from, to, 1).into_bytes();
+            b.extend_from_slice(&text[at..]);
+            b
+        };
+        refused(&put("ras.nrrd", &swap("left-posterior-superior", "right-anterior-superior")), "left-posterior");
+        refused(&put("kinds.nrrd", &swap("kinds: vector", "kinds: domain")), "kinds");
+        refused(&put("type.nrrd", &swap("type: float", "type: short")), "integer samples");
+        refused(&put("sizes.nrrd", &swap("sizes: 3 ", "sizes: 2 ")), "2 components");
+        refused(&put("dft.nrrd", &swap(":=resampling", ":=sideways")), "resampling and modeling");
+        let mut nan_field = field.clone();
+        nan_field[9][2] = f32::INFINITY;
+        for format in FieldFormat::ALL {
+            let p =
+                dir.path().join(format!("nan_{format}.{}", if format == FieldFormat::Nrrd { "nrrd" } else { "nii" }));
+            let e = write_field(&p, format, dims, &lps_from_index, &nan_field).expect_err("not finite");
+            assert!(e.to_string().contains("voxel"), "{e}");
+            assert!(!p.exists());
+        }
+        for (format, name) in
+            [(FieldFormat::Nrrd, "x.nii.gz"), (FieldFormat::Itk, "x.nrrd"), (FieldFormat::Nrrd, "x.nhdr")]
+        {
+            let p = dir.path().join(name);
+            assert!(write_field(&p, format, dims, &lps_from_index, &field).is_err(), "{format} to {name}");
+            assert!(!p.exists());
+        }
+    }
+}
