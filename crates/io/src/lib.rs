@@ -8,7 +8,7 @@
 //! - [`nifti`], [`nrrd`], [`dicom`]: the format modules, with their writers.
 //! - [`landmarks`]: landmark pairs, BigWarp CSV and Slicer `.mrk.json` / `.fcsv`.
 //! - [`geometry`]: points, vectors and transforms that carry their space in the type.
-//! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one affine transform.
+//! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one transform: affine, thin-plate spline or cubic B-spline.
 //!
 //! Every error names the file and the problem ([`Error`]); bad input never panics, sizes are
 //! checked before allocating, and writers replace their output atomically ([`write_atomic`]).
