@@ -39,6 +39,7 @@ pub enum PairFileFormat {
 
 impl PairFileFormat {
     /// The format of an output named `path` when `--to` is not given: `.json` is BigWarp JSON, `.csv` BigWarp CSV.
+    #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     fn from_name(path: &Path) -> Result<Self, Failure> {
         let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
         if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") {
@@ -80,6 +81,7 @@ impl LandmarkOutput {
 
 /// Options of `warpbench landmarks`.
 #[derive(Clone, Debug)]
+#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 pub struct LandmarksOptions {
     /// The pairs to read.
     pub input: inputs::LandmarkSource,
@@ -178,6 +180,7 @@ pub fn run(opts: &LandmarksOptions, out: &mut dyn Write) -> Result<LandmarksList
 }
 
 /// A Slicer output must be named `.mrk.json` or `.fcsv`: the name picks the format.
+#[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
 fn check_slicer_name(path: &Path) -> Result<(), Failure> {
     let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") {

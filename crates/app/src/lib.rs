@@ -14,6 +14,8 @@
 //!   for linear warps, an ITK `.tfm`.
 //! - [`landmarks`](mod@landmarks): `warpbench landmarks`, landmark pairs converted between BigWarp CSV/JSON, a Slicer
 //!   pair and plain CSV, or listed (`--json`).
+//! - [`points`]: `warpbench points`, a point list (CSV, Slicer, BigWarp) mapped through the warp: from the moving
+//!   volume by d = fixed_from_moving, from the fixed one by u = moving_from_fixed, written in the input's format.
 //! - [`inputs`]: loading the pair, reading landmarks and checking them against the volumes (shared by the pair
 //!   subcommands).
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
@@ -36,6 +38,7 @@ pub mod gui;
 pub mod info;
 pub mod inputs;
 pub mod landmarks;
+pub mod points;
 pub mod progress;
 pub mod render;
 pub mod scene;

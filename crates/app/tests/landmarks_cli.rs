@@ -39,9 +39,12 @@ fn point(v: &Value) -> Option<[f64; 3]> {
     v.as_array().map(|a| std::array::from_fn(|k| a[k].as_f64().expect("a number")))
 }
 
+/// (name, active, moving, fixed) as the test reads a row.
+type HandRow = (String, bool, Option<[f64; 3]>, Option<[f64; 3]>);
+
 /// BigWarp's CSV as opencsv writes it, read with nothing but string splitting: (name, active, moving, fixed), where
 /// `Infinity` ×3 is a missing half.
-fn bigwarp_csv_by_hand(path: &Path) -> Vec<(String, bool, Option<[f64; 3]>, Option<[f64; 3]>)> {
+fn bigwarp_csv_by_hand(path: &Path) -> Vec<HandRow> {
     std::fs::read_to_string(path)
         .expect("read")
         .lines()

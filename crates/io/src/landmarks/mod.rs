@@ -63,6 +63,7 @@ mod bigwarp_json;
 mod fcsv;
 mod mrk_json;
 mod plain_csv;
+mod point_list;
 mod slicer_pair;
 
 pub use bigwarp_csv::{
@@ -78,6 +79,11 @@ pub use mrk_json::{parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
 pub use plain_csv::{
     CsvCoordinates, looks_like_plain_csv, parse_plain_csv, plain_csv_header, read_plain_csv, to_plain_csv,
     write_plain_csv,
+};
+pub use point_list::{
+    ListedPoint, PointColumn, PointFile, PointFileFormat, PointFileOptions, PointList, SlicerList, detect_point_format,
+    parse_point_file, parse_point_list, read_point_file, read_point_list, to_point_list, write_point_file,
+    write_point_list,
 };
 pub use slicer_pair::{read_slicer_pair, read_slicer_points, write_slicer_pair};
 

@@ -232,6 +232,11 @@ pub fn write_plain_csv(path: &Path, pairs: &[LandmarkPair], coordinates: CsvCoor
 }
 
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::float_cmp,
+    reason = "tests: a panic is the failure, and the values compared are exact"
+)]
 mod tests {
     use super::*;
 

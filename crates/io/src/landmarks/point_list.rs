@@ -110,6 +110,7 @@ impl PointFileFormat {
     /// The format a file name says, by its ending: `.mrk.json`, `.fcsv`, `.json` (BigWarp JSON), `.csv` (a plain
     /// point list or a BigWarp CSV, which share it); `None` for any other name.
     #[must_use]
+    #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn named_by(path: &Path) -> Option<&'static [Self]> {
         let lower = path.file_name()?.to_string_lossy().to_ascii_lowercase();
         if lower.ends_with(".mrk.json") {
@@ -662,6 +663,11 @@ fn rewrite_fcsv(name: &Path, text: &str, points: &[SlicerPoint]) -> Result<Strin
 }
 
 #[cfg(test)]
+#[allow(
+    clippy::unwrap_used,
+    clippy::float_cmp,
+    reason = "tests: a panic is the failure, and the values compared are exact"
+)]
 mod tests {
     use super::*;
 
