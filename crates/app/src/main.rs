@@ -141,7 +141,7 @@ enum Command {
     #[command(verbatim_doc_comment)]
     Field(Box<FieldArgs>),
     /// Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
-    /// in the input's format (CSV point list x,y,z[,name], Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
+    /// in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
     ///
     /// Say which volume the points are in, and that is all: --from moving maps a point p of the moving volume by
     /// d = fixed_from_moving to where the warped volume (`warpbench warp`) shows it; --from fixed maps a point x of

@@ -98,7 +98,7 @@ pub struct PointsArgs {
     /// (mapped by u = moving_from_fixed into the moving space).
     #[arg(long, value_enum)]
     pub from: Side,
-    /// The points: a CSV point list (x,y,z[,name]), a Slicer .mrk.json or .fcsv, or a BigWarp CSV or JSON of pairs
+    /// The points: a CSV point list (x,y,z and an optional name), a Slicer .mrk.json or .fcsv, or a BigWarp CSV or JSON of pairs
     /// (the --from side is read, the other side replaced).
     #[arg(long = "in", value_name = "FILE")]
     pub input: PathBuf,

@@ -1,5 +1,5 @@
 //! ITK transform files (`.tfm`, "Insight Transform File V1.0") holding one transform: an affine map, a thin-plate
-//! spline or a cubic B-spline ([`ItkTransform`]); [`write`], [`read`], [`parse`], and for callers that want only an
+//! spline or a cubic B-spline ([`ItkTransform`]); [`write()`], [`read`], [`parse`], and for callers that want only an
 //! affine [`write_affine`], [`read_affine`], [`parse_affine`].
 //!
 //! # The format
