@@ -107,19 +107,7 @@ pub fn write_vector_field(
     displacements_lps: &[[f32; 3]],
     intent: NiftiVectorIntent,
 ) -> Result<()> {
-    let n = volume::checked_voxel_count(path, dims)?;
-    if displacements_lps.len() != n {
-        return Err(Error::invalid(path, format!("{} displacements for dims {dims:?}", displacements_lps.len())));
-    }
-    if !lps_from_index.is_valid_affine() {
-        return Err(Error::invalid(path, "the voxel-to-patient matrix is singular or not finite"));
-    }
-    if let Some(i) = displacements_lps.iter().position(|d| !d.iter().all(|v| v.is_finite())) {
-        return Err(Error::invalid(
-            path,
-            format!("the displacement at voxel {i} is not finite: {:?}", displacements_lps[i]),
-        ));
-    }
+    crate::displacement::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
     let what = Nifti1Content {
         type_code: datatype_code(SampleType::F32),
         descrip: format!("warpbench displacement field, {} mm", intent.frame()).into_bytes(),
@@ -368,7 +356,7 @@ mod tests {
         let mut nan = field.clone();
         nan[3][1] = f32::NAN;
         let e = write_displacement_field(&bad, dims, &lps_from_index, &nan).expect_err("NaN");
-        assert!(e.to_string().contains("voxel 3"), "{e}");
+        assert!(e.to_string().contains("voxel [0, 1, 0] (i, j, k)"), "{e}");
         assert!(!bad.exists());
     }
 }

@@ -202,16 +202,7 @@ pub fn write_displacement_field(
     displacements_lps: &[[f32; 3]],
     field_type: NrrdFieldType,
 ) -> Result<()> {
-    let n = volume::checked_voxel_count(path, dims)?;
-    if displacements_lps.len() != n {
-        return Err(Error::invalid(path, format!("{} displacements for dims {dims:?}", displacements_lps.len())));
-    }
-    if !lps_from_index.is_valid_affine() {
-        return Err(Error::invalid(path, "the voxel-to-patient matrix is singular or not finite"));
-    }
-    if let Some(ijk) = first_non_finite(dims, displacements_lps) {
-        return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
-    }
+    crate::displacement::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
     let header = header_text(dims, lps_from_index, field_type);
     crate::write_atomic(path, |w| {
         w.write_all(header.as_bytes())?;
