@@ -16,6 +16,8 @@
 //!   pair and plain CSV, or listed (`--json`).
 //! - [`points`]: `warpbench points`, a point list (CSV, Slicer, BigWarp) mapped through the warp: from the moving
 //!   volume by d = fixed_from_moving, from the fixed one by u = moving_from_fixed, written in the input's format.
+//! - [`transform`]: `warpbench transform` (and `field --tfm`), the pull-back as the ITK transform file that holds it
+//!   exactly (thin-plate spline, B-spline, affine).
 //! - [`inputs`]: loading the pair, reading landmarks and checking them against the volumes (shared by the pair
 //!   subcommands).
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
@@ -43,4 +45,5 @@ pub mod progress;
 pub mod render;
 pub mod scene;
 pub mod settings;
+pub mod transform;
 pub mod warp;

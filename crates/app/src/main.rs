@@ -159,6 +159,18 @@ enum Command {
     /// lesion_ct.csv then holds the lesion where it lies in the CT (and in mr_in_ct.nii.gz from `warpbench warp`).
     #[command(verbatim_doc_comment)]
     Points(Box<warpbench_app::points::PointsArgs>),
+    /// Write the landmark warp as an ITK transform file (.tfm), the exact transform instead of a sampled field: TPS
+    /// as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
+    /// B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
+    /// identity outside it), affine, similarity and rigid as AffineTransform_double_3_3.
+    ///
+    /// The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): what ITK's ResampleImageFilter,
+    /// antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
+    /// and B-spline files; Slicer reads all three (Data > Add data, then apply the transform to the moving volume).
+    ///
+    ///     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
+    #[command(verbatim_doc_comment)]
+    Transform(Box<warpbench_app::transform::TransformArgs>),
     /// Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
     /// fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
     ///
@@ -615,6 +627,9 @@ fn main() -> ExitCode {
         Command::Render(args) => run_render(*args),
         Command::Field(args) => run_field(*args),
         Command::Points(args) => warpbench_app::points::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
+        Command::Transform(args) => {
+            warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ())
+        }
         Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
     };
     match result {

@@ -1,0 +1,176 @@
+//! `warpbench transform` (and `field --tfm`): the pull-back u = `moving_from_fixed` as an ITK transform file, the
+//! transform itself rather than a sampled field.
+//!
+//! ITK applies a transform file in LPS mm, our patient space, and a transform used for resampling maps output
+//! (fixed) points to input (moving) points: u, as `warpbench warp` and `field` use it. [`itk_transform_of`] writes
+//! each method as the ITK class that holds it exactly:
+//!
+//! - **TPS** → `ThinPlateSplineKernelTransform_double_3_3`, source landmarks = the spline's centres (the fixed
+//!   points), target landmarks = u(centres). ITK's 3-D kernel is G(r) = r·I and its spline is affine + Σ wᵢ r, the
+//!   same family as ours (U(r) = r), and ITK solves the interpolating system
+//!
+//!   ```text
+//!   [K  P] [w]   [u(c)]
+//!   [Pᵀ 0] [a] = [ 0  ]
+//!   ```
+//!
+//!   on reading. With λ = 0, u(cᵢ) = pᵢ and this is our system. With λ > 0 our smoothing spline solves
+//!   (K + λI) w + P a = p, Pᵀ w = 0, so its values at the centres are u(c) = K w + P a = p − λ w: the same (w, a)
+//!   solve the interpolating system through u(c), which has one solution. So the file is the same transform for every
+//!   stiffness; what ITK cannot hold is λ itself and the moving landmarks pᵢ (a stiffness in ITK's `SetStiffness`
+//!   is not written to a file), so an ITK user who edits the landmarks gets an interpolating spline again.
+//! - **Hierarchical B-spline** → one `BSplineTransform_double_3_3`: the solver already keeps the hierarchy as one
+//!   refined lattice (each coarser level is refined into the finest exactly, and the affine initial approximation is
+//!   reproduced by the cubic basis exactly), so the file holds the finest lattice's coefficients: grid size = cells +
+//!   3, grid origin = domain min − one spacing, identity direction. Inside the lattice's domain (the fixed volume's
+//!   voxel-edge box) ITK's evaluation is ours; outside it ITK's `BSplineTransform` is the identity, while warpbench
+//!   holds the displacement at the box's edge (it clamps): the two differ only outside the fixed volume, where
+//!   `warp` and `field` never sample.
+//! - **Affine, similarity, rigid** → `AffineTransform_double_3_3` (centre 0, translation = offset).
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Context;
+use serde::Serialize;
+use warpbench_io::geometry::Point3;
+use warpbench_io::itk_tfm::{self, ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
+use warpbench_solver::method::FittedWarp;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Warp;
+
+use crate::args::PairArgs;
+use crate::exit::Failure;
+use crate::fit;
+use crate::inputs::{self, OutputFile};
+
+/// The `--json` schema name.
+pub const SCHEMA: &str = "warpbench-transform/1";
+
+/// The pull-back `moving_from_fixed` as the ITK transform that holds it exactly (module docs).
+#[must_use]
+pub fn itk_transform_of(moving_from_fixed: &FittedWarp<Moving, Fixed>) -> ItkTransform {
+    match moving_from_fixed {
+        FittedWarp::Linear(warp) => ItkTransform::Affine(ItkAffine::from_offset(warp.linear(), warp.translation())),
+        FittedWarp::Tps(tps) => {
+            let source_lps: Vec<[f64; 3]> = tps.centres().iter().map(Point3::coords).collect();
+            let mut target_lps = vec![[0.0; 3]; source_lps.len()];
+            tps.apply_batch_raw(&source_lps, &mut target_lps);
+            ItkTransform::ThinPlateSpline(ItkThinPlateSpline { source_lps, target_lps })
+        }
+        FittedWarp::BSpline(spline) => {
+            let lattice = spline.lattice();
+            let spacing = lattice.spacing_mm();
+            let min = lattice.min_mm();
+            ItkTransform::BSpline(ItkBSpline {
+                grid_size: lattice.dims(),
+                grid_origin_lps: std::array::from_fn(|a| min[a] - spacing[a]),
+                grid_spacing_mm: spacing,
+                grid_direction: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                coefficients_mm: lattice.coefficients().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            })
+        }
+    }
+}
+
+/// The arguments of `warpbench transform`.
+#[derive(Debug, clap::Args)]
+pub struct TransformArgs {
+    /// The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and is the B-spline's
+    /// domain.
+    #[arg(long)]
+    pub fixed: PathBuf,
+    /// The moving volume: its box checks the landmarks.
+    #[arg(long)]
+    pub moving: PathBuf,
+    #[command(flatten)]
+    pub pairs: PairArgs,
+    /// The ITK transform file to write (.tfm or .txt).
+    #[arg(long, value_name = "FILE")]
+    pub out: PathBuf,
+    /// Print a JSON summary (schema warpbench-transform/1, see docs/cli.md) to stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Overwrite --out if it exists.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bars or messages.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
+/// What was written: the `--json` document, schema `warpbench-transform/1` (docs/cli.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct TransformSummary {
+    pub schema: &'static str,
+    pub out: String,
+    /// The ITK class on the file's `Transform:` line.
+    pub itk_class: &'static str,
+    /// The method as fitted, e.g. `tps`, `tps(λ=0.5)`, `hbspline(4 levels)`, `affine`.
+    pub method: String,
+    /// Landmark pairs used (active, with both points).
+    pub pairs: usize,
+    /// `moving_from_fixed`: the file maps fixed points to moving points (LPS mm), as ITK's resampler uses it.
+    pub map: &'static str,
+    /// For a B-spline, the box (LPS mm, min then max) outside which ITK applies the identity; else null.
+    pub domain_lps: Option<[[f64; 3]; 2]>,
+    /// What the fit found suspicious in the pairs, as printed on stderr.
+    pub warnings: Vec<String>,
+}
+
+/// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
+/// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`.
+pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
+    let TransformArgs { fixed, moving, pairs, out: out_path, json, force, quiet } = args;
+    let inputs = pairs.inputs(fixed, moving, None)?;
+    OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
+    let method = inputs.method().map_err(Failure::BadInput)?;
+    let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
+    let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;
+    let c = inputs::check_pairs(
+        &inputs.landmarks.describe(),
+        &landmark_pairs,
+        &volumes.moving,
+        &volumes.fixed,
+        inputs::min_pairs(&method),
+    )
+    .map_err(Failure::BadInput)?;
+    let warnings = fit::fit_warnings(&method, &c);
+    if !quiet {
+        for w in &warnings {
+            eprintln!("warpbench: warning: {w}");
+        }
+    }
+    let moving_from_fixed =
+        fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed)).map_err(Failure::BadInput)?;
+    let transform = itk_transform_of(&moving_from_fixed);
+    itk_tfm::write(&out_path, &transform)?;
+
+    let domain_lps = match &moving_from_fixed {
+        FittedWarp::BSpline(spline) => Some([spline.lattice().min_mm(), spline.lattice().max_mm()]),
+        FittedWarp::Tps(_) | FittedWarp::Linear(_) => None,
+    };
+    let summary = TransformSummary {
+        schema: SCHEMA,
+        out: out_path.display().to_string(),
+        itk_class: transform.type_name(),
+        method: method.to_string(),
+        pairs: c.moving.len(),
+        map: "moving_from_fixed",
+        domain_lps,
+        warnings,
+    };
+    if json {
+        serde_json::to_writer_pretty(&mut *out, &summary)
+            .map_err(std::io::Error::from)
+            .and_then(|()| writeln!(out))
+            .context("writing the JSON summary")
+            .map_err(Failure::Internal)?;
+    } else if !quiet {
+        eprintln!(
+            "wrote {} ({}, {}, {} landmark pairs; maps fixed points to moving points, LPS mm)",
+            summary.out, summary.itk_class, summary.method, summary.pairs
+        );
+    }
+    Ok(summary)
+}

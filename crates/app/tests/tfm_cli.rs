@@ -1,0 +1,219 @@
+//! `warpbench transform` end to end, against ITK's own reading of the files it writes.
+//!
+//! `tests/data/itk/tfm_reference.json` (made by `data-scripts/itk_tfm_ref.py`, provenance in that folder's README)
+//! holds, for an affine, two thin-plate splines (λ = 0 and λ = 2) and a hierarchical B-spline fitted on
+//! `field_pairs.csv`, what ITK 5.4.7 / SimpleITK 2.5.7 map 300 points of the fixed box to through the `.tfm`
+//! (`ReadTransform` + `TransformPoint`; the TPS through `ThinPlateSplineKernelTransform` given the file's parameters).
+//! The script checked 10 000 points against `warpbench points --from fixed`. Here, for each case:
+//!
+//! - warpbench's pull-back (`points --from fixed`) at the recorded points equals ITK's outputs within 1e-4 mm;
+//! - the file written now says the same: evaluated by ITK's rules (the affine's matrix and offset, the B-spline's
+//!   `TransformPoint` rule, an interpolating U = r spline through the TPS file's landmarks) it gives ITK's outputs;
+//! - and the refusals exit 2, name the file and write nothing.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{assert_ok, data, mri, utf8, warpbench};
+use serde_json::Value;
+use warpbench_io::geometry::Point3;
+use warpbench_io::itk_tfm::{self, ItkTransform};
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::tps::Tps;
+use warpbench_solver::warp::Warp;
+
+const TOLERANCE_MM: f64 = 1e-4;
+
+fn reference() -> Value {
+    let text = std::fs::read_to_string(data("itk/tfm_reference.json")).expect("read the reference");
+    serde_json::from_str(&text).expect("the reference is JSON")
+}
+
+fn points_of(v: &Value) -> Vec<[f64; 3]> {
+    v.as_array()
+        .expect("a list of points")
+        .iter()
+        .map(|p| std::array::from_fn(|k| p[k].as_f64().expect("a number")))
+        .collect()
+}
+
+fn strings(v: &Value) -> Vec<String> {
+    v.as_array().expect("a list").iter().map(|s| s.as_str().expect("a string").to_string()).collect()
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+}
+
+/// The common arguments of the reference: the MRI as fixed and moving, the field pairs.
+fn pair_args() -> Vec<String> {
+    let (f, l) = (mri(), data("itk/field_pairs.csv"));
+    ["--fixed", utf8(&f), "--moving", utf8(&f), "--landmarks", utf8(&l)].map(str::to_string).to_vec()
+}
+
+/// The file evaluated by ITK's rule for its class.
+fn itk_rule(t: &ItkTransform, x: [f64; 3]) -> [f64; 3] {
+    match t {
+        ItkTransform::Affine(a) => a.apply(x),
+        ItkTransform::BSpline(b) => b.apply(x),
+        ItkTransform::ThinPlateSpline(s) => {
+            let src: Vec<Point3<Fixed>> = s.source_lps.iter().map(|&p| Point3::from_array(p)).collect();
+            let dst: Vec<Point3<Moving>> = s.target_lps.iter().map(|&p| Point3::from_array(p)).collect();
+            Tps::fit(&src, &dst, 0.0).expect("an interpolating spline through the file's landmarks").apply_raw(x)
+        }
+    }
+}
+
+#[test]
+fn itk_reads_every_method_as_warpbench_s_pullback() {
+    let reference = reference();
+    let recorded_points = points_of(&reference["points_lps"]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let points_csv = dir.path().join("points.csv");
+    let lines: Vec<String> = recorded_points.iter().map(|p| format!("{},{},{}", p[0], p[1], p[2])).collect();
+    let text = lines.join("\n") + "\n";
+    std::fs::write(&points_csv, text).expect("write points");
+
+    let cases = reference["cases"].as_array().expect("cases");
+    assert_eq!(cases.len(), 4);
+    for case in cases {
+        let name = case["name"].as_str().expect("a name");
+        let flags = strings(&case["flags"]);
+        let itk_outputs = points_of(&case["itk_outputs_lps"]);
+        assert_eq!(itk_outputs.len(), recorded_points.len());
+
+        // The file, written now.
+        let tfm = dir.path().join(format!("{name}.tfm"));
+        let mut args: Vec<String> = vec!["transform".into()];
+        args.extend(pair_args());
+        args.extend(flags.iter().cloned());
+        args.extend(["--out".into(), utf8(&tfm).into(), "--json".into(), "--quiet".into()]);
+        let out = warpbench(&args);
+        assert_ok(&out);
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("the summary is JSON");
+        assert_eq!(summary["schema"], "warpbench-transform/1");
+        assert_eq!(summary["itk_class"], case["itk_class"], "{name}");
+        assert_eq!(summary["map"], "moving_from_fixed");
+        assert_eq!(summary["pairs"], 8);
+        let first_line = std::fs::read_to_string(&tfm).expect("read the file");
+        assert!(first_line.starts_with("#Insight Transform File V1.0\n"), "{name}");
+        let t = itk_tfm::read(&tfm).expect("the file reads back");
+        assert_eq!(t.type_name(), case["itk_class"].as_str().expect("a class"));
+        for (k, (&x, &want)) in recorded_points.iter().zip(&itk_outputs).enumerate() {
+            let got = itk_rule(&t, x);
+            assert!(dist(got, want) <= TOLERANCE_MM, "{name}: point {}: the file gives {got:?}, ITK {want:?}", k + 1);
+        }
+
+        // warpbench's pull-back at the same points.
+        let mapped = dir.path().join(format!("{name}_u.csv"));
+        let mut args: Vec<String> = vec!["points".into()];
+        args.extend(pair_args());
+        args.extend(flags.iter().cloned());
+        args.extend(
+            ["--from", "fixed", "--in", utf8(&points_csv), "--out", utf8(&mapped), "--quiet"].map(String::from),
+        );
+        assert_ok(&warpbench(&args));
+        let ours: Vec<[f64; 3]> = std::fs::read_to_string(&mapped)
+            .expect("read")
+            .lines()
+            .map(|l| {
+                let f: Vec<f64> = l.split(',').map(|v| v.parse().expect("a number")).collect();
+                [f[0], f[1], f[2]]
+            })
+            .collect();
+        assert_eq!(ours.len(), itk_outputs.len());
+        let mut moved = 0.0f64;
+        for (k, ((&u, &want), &x)) in ours.iter().zip(&itk_outputs).zip(&recorded_points).enumerate() {
+            assert!(dist(u, want) <= TOLERANCE_MM, "{name}: point {}: u = {u:?}, ITK {want:?}", k + 1);
+            moved = moved.max(dist(u, x));
+        }
+        assert!(moved > 1.0, "{name}: the warp moves points ({moved} mm), so agreement means something");
+    }
+}
+
+#[test]
+fn the_stiff_spline_is_the_same_transform_as_the_interpolating_one_through_its_values() {
+    // λ > 0: the file holds the centres and u(centres), not λ; the interpolating spline through them is u (module
+    // docs of warpbench_app::transform). Its targets are not the moving landmarks, so λ did change the file.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let read = |stiffness: &str| -> Vec<[f64; 3]> {
+        let tfm = dir.path().join(format!("tps_{stiffness}.tfm"));
+        let mut args: Vec<String> = vec!["transform".into()];
+        args.extend(pair_args());
+        args.extend(["--stiffness", stiffness, "--out", utf8(&tfm), "--quiet"].map(String::from));
+        assert_ok(&warpbench(&args));
+        match itk_tfm::read(&tfm).expect("read") {
+            ItkTransform::ThinPlateSpline(s) => s.target_lps,
+            other => panic!("a thin-plate spline, not {}", other.type_name()),
+        }
+    };
+    let (exact, stiff) = (read("0"), read("2"));
+    let moving: Vec<[f64; 3]> = std::fs::read_to_string(data("itk/field_pairs.csv"))
+        .expect("read")
+        .lines()
+        .map(|l| {
+            let f: Vec<f64> =
+                l.trim_matches('"').split("\",\"").skip(2).take(3).map(|v| v.parse().expect("num")).collect();
+            [f[0], f[1], f[2]]
+        })
+        .collect();
+    for (k, (e, m)) in exact.iter().zip(&moving).enumerate() {
+        assert!(dist(*e, *m) < 1e-9, "λ = 0: target {} is the moving landmark: {e:?} vs {m:?}", k + 1);
+    }
+    let shift = exact.iter().zip(&stiff).map(|(a, b)| dist(*a, *b)).fold(0.0, f64::max);
+    assert!(shift > 0.01, "λ = 2 smooths: the targets move by {shift} mm");
+}
+
+#[test]
+fn refusals_exit_2_naming_the_file_and_write_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let run = |extra: &[&str]| {
+        let mut args: Vec<String> = vec!["transform".into()];
+        args.extend(pair_args());
+        args.extend(extra.iter().map(ToString::to_string));
+        warpbench(&args)
+    };
+    let stderr = |o: &std::process::Output| String::from_utf8_lossy(&o.stderr).into_owned();
+
+    let taken: PathBuf = dir.path().join("taken.tfm");
+    std::fs::write(&taken, "keep me").expect("write");
+    let o = run(&["--out", utf8(&taken)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("taken.tfm") && stderr(&o).contains("--force"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(&taken).expect("read"), "keep me");
+
+    let pairs = data("itk/field_pairs.csv");
+    let before = std::fs::read(&pairs).expect("read");
+    let o = run(&["--out", utf8(&pairs), "--force"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("field_pairs.csv"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&pairs).expect("read"), before, "the input is unchanged");
+
+    let out = dir.path().join("negative.tfm");
+    let o = run(&["--stiffness=-1", "--out", utf8(&out)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("stiffness"), "{}", stderr(&o));
+    assert!(!out.exists());
+
+    let three = dir.path().join("three.csv");
+    let lines: Vec<&str> = std::str::from_utf8(&before).expect("utf8").lines().take(3).collect();
+    std::fs::write(&three, lines.join("\n") + "\n").expect("write");
+    let out = dir.path().join("three.tfm");
+    let f = mri();
+    let o = warpbench(&[
+        "transform",
+        "--fixed",
+        utf8(&f),
+        "--moving",
+        utf8(&f),
+        "--landmarks",
+        utf8(&three),
+        "--out",
+        utf8(&out),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("three.csv"), "{}", stderr(&o));
+    assert!(!out.exists());
+    assert!(!Path::new(&out).with_extension("tfm.tmp").exists());
+}
