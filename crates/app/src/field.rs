@@ -9,12 +9,20 @@
 //!
 //! evaluated exactly (not through a control texture), slice by slice on every core. This is the convention of ITK's
 //! `DisplacementFieldTransform` as `ResampleImageFilter` uses it: the output (fixed) point x is read from the input
-//! (moving) point x + D(x). The file is NIfTI-1 float32 with intent `NIFTI_INTENT_DISPVECT`, shape [X, Y, Z, 1, 3]
-//! and the vectors in RAS, written by [`warpbench_io::nifti::write_displacement_field`], whose module docs quote the
-//! lines of ITK's NIfTI reader that flip them back to LPS.
+//! (moving) point x + D(x). `--direction forward` writes instead, on the moving volume's grid (or `--reference`'s),
 //!
-//! `--tfm` (affine, similarity, rigid) writes the same pull-back x ↦ A x + b as an ITK `AffineTransform_double_3_3`
-//! ([`warpbench_io::itk_tfm`]), which ITK applies in LPS, like our patient space.
+//! ```text
+//! D(y) = d(y) − y,    d = fixed_from_moving, fitted on the pairs over the moving volume's box
+//! ```
+//!
+//! for users who move points or meshes with a field (a point y of the moving volume goes to y + D(y)).
+//!
+//! `--format` picks the flavour ([`FieldFormat`], written by [`warpbench_io::displacement::write_field_with`]):
+//! `itk`, NIfTI-1 float32 intent `DISPVECT` with RAS vectors (ITK ≥ 5.3, Slicer); `ants`, NIfTI intent `VECTOR`
+//! with LPS vectors (`antsApplyTransforms`); `nrrd`, Slicer's NRRD field, which also records the direction.
+//!
+//! `--tfm` writes the pull-back itself as an ITK transform file ([`crate::transform::itk_transform_of`]: a thin-plate
+//! spline, a B-spline or an affine, each exact), which ITK applies in LPS, like our patient space.
 //!
 //! [`run`] loads the files, calls the in-memory core [`displacement_field`] (the pairs checked, the fit, the
 //! sampling, with a progress callback that can cancel) and writes with [`write_field`]; the window exports through
@@ -28,11 +36,12 @@ use std::sync::{Mutex, PoisonError};
 
 use anyhow::{Context, anyhow};
 use serde::Serialize;
-use warpbench_io::geometry::{Index, Lps, Transform};
-use warpbench_io::itk_tfm::{self, ItkAffine};
+use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_io::geometry::{Index, Lps, Space, Transform};
+use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_io::{Progress, Volume, nifti, volume};
-use warpbench_solver::method::{FittedWarp, Method};
+use warpbench_io::{Progress, Volume, volume};
+use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
@@ -49,9 +58,14 @@ pub const SCHEMA: &str = "warpbench-field/1";
 pub struct FieldOptions {
     /// The pair, landmarks, method, and the output grid (`reference`, else the fixed volume's).
     pub inputs: PairInputs,
-    /// The displacement field (`.nii` or `.nii.gz`); `force` applies to `tfm` too.
+    /// The displacement field (`.nii` or `.nii.gz`, `.nrrd` for [`FieldFormat::Nrrd`]); `force` applies to `tfm`
+    /// too.
     pub out: OutputFile,
-    /// The ITK transform file, for the linear methods.
+    /// The flavour of the field file.
+    pub format: FieldFormat,
+    /// The pull-back on the fixed grid, or the forward map on the moving grid.
+    pub direction: FieldDirection,
+    /// The ITK transform file (the pull-back, exact), for every method; not with [`FieldDirection::Forward`].
     pub tfm: Option<PathBuf>,
     /// Print the summary as JSON (schema [`SCHEMA`]) to the output.
     pub json: bool,
@@ -68,8 +82,12 @@ pub struct FieldSummary {
     pub dims: [usize; 3],
     pub spacing_mm: [f64; 3],
     pub lps_from_index: [[f64; 4]; 4],
-    /// `"fixed"` or `"reference"`: whose grid the field is sampled on.
+    /// `"fixed"`, `"moving"` (`--direction forward`) or `"reference"`: whose grid the field is sampled on.
     pub grid: &'static str,
+    /// The flavour written: `itk`, `ants` or `nrrd`.
+    pub format: &'static str,
+    /// `pullback` (D = u(x) − x) or `forward` (D = d(y) − y).
+    pub direction: &'static str,
     /// The method as fitted, e.g. `tps`, `tps(λ=0.5)`, `hbspline(4 levels)`, `affine`.
     pub method: String,
     /// Landmark pairs used (active, with both points).
@@ -78,6 +96,8 @@ pub struct FieldSummary {
     pub max_displacement_mm: f64,
     /// The ITK transform file written, or null.
     pub tfm: Option<String>,
+    /// Its ITK class (e.g. `ThinPlateSplineKernelTransform_double_3_3`), or null.
+    pub tfm_class: Option<&'static str>,
     /// What the fit found suspicious in the pairs, as printed on stderr.
     pub warnings: Vec<String>,
 }
@@ -87,13 +107,14 @@ pub struct FieldSummary {
 pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
     let input_paths = opts.inputs.paths();
     opts.out.check(&input_paths).map_err(Failure::BadInput)?;
+    displacement::check_output_name(&opts.out.path, opts.format)?;
     let method = opts.inputs.method().map_err(Failure::BadInput)?;
     if let Some(tfm) = &opts.tfm
-        && !matches!(method, Method::Linear(_))
+        && opts.direction == FieldDirection::Forward
     {
         return Err(Failure::BadInput(anyhow!(
-            "{}: an ITK transform file holds a linear warp; --method {method} is not one (use affine, similarity or \
-             rigid, or only the displacement field)",
+            "{}: an ITK transform file holds the pull-back (ITK's resampling direction), not the forward map that \
+             --direction forward samples; write it in a run without --direction forward, or with warpbench transform",
             tfm.display()
         )));
     }
@@ -107,10 +128,15 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet).map_err(Failure::BadInput)?;
     let pairs = opts.inputs.landmarks.read().map_err(Failure::BadInput)?;
     let names = opts.inputs.names(&opts.out.path);
-    let grid = reference.as_ref().unwrap_or(&fixed);
+    let (grid, grid_name) = match (&reference, opts.direction) {
+        (Some(r), _) => (r, "reference"),
+        (None, FieldDirection::Pullback) => (&fixed, "fixed"),
+        (None, FieldDirection::Forward) => (&moving, "moving"),
+    };
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;
-    let field = displacement_field(grid, &fixed, &moving, &pairs, &names, &method, &mut |done, total| {
+    let inputs = FieldInputs { fixed: &fixed, moving: &moving, pairs: &pairs, names: &names, method: &method };
+    let field = sample_field(grid, &inputs, opts.direction, &mut |done, total| {
         let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
             stage: "sampling the field",
             done,
@@ -127,7 +153,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
             eprintln!("warpbench: warning: {w}");
         }
     }
-    write_field(&field, &opts.out.path, opts.tfm.as_deref())?;
+    write_field(&field, &opts.out.path, opts.format, opts.tfm.as_deref())?;
 
     let summary = FieldSummary {
         schema: SCHEMA,
@@ -135,11 +161,14 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         dims: field.dims,
         spacing_mm: field.spacing_mm,
         lps_from_index: field.lps_from_index.rows(),
-        grid: if reference.is_some() { "reference" } else { "fixed" },
+        grid: grid_name,
+        format: opts.format.name(),
+        direction: field.direction.name(),
         method: field.method,
         pairs: field.pairs,
         max_displacement_mm: field.max_displacement_mm,
         tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
+        tfm_class: opts.tfm.as_ref().and(field.transform.as_ref()).map(ItkTransform::type_name),
         warnings: field.warnings.clone(),
     };
     if opts.json {
@@ -152,32 +181,34 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     Ok(summary)
 }
 
-/// The pull-back's displacement field on an output grid, and what the summary says about it: what
-/// [`displacement_field`] returns and [`write_field`] writes.
+/// A displacement field on an output grid (the pull-back's, or the forward map's), and what the summary says about
+/// it: what [`displacement_field`] and [`sample_field`] return and [`write_field`] writes.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Field {
     /// The output grid: voxels along i, j, k, spacing and `lps_from_index`.
     pub dims: [usize; 3],
     pub spacing_mm: [f64; 3],
     pub lps_from_index: Transform<Lps, Index>,
-    /// u(x) − x at each voxel centre, LPS mm, i fastest.
+    /// u(x) − x (or d(y) − y) at each voxel centre, LPS mm, i fastest.
     pub displacements_lps: Vec<[f32; 3]>,
-    /// The largest |u(x) − x| over the grid, mm.
+    /// Which map the vectors sample.
+    pub direction: FieldDirection,
+    /// The largest |D| over the grid, mm.
     pub max_displacement_mm: f64,
     /// The method as fitted, e.g. `tps`, `affine`.
     pub method: String,
     /// Landmark pairs used (active, with both points).
     pub pairs: usize,
-    /// For the linear methods, the same pull-back x ↦ A x + b as an ITK affine (what `--tfm` writes); else `None`.
-    pub affine: Option<ItkAffine>,
+    /// The pull-back as the ITK transform that holds it exactly (what `--tfm` writes); `None` for a forward field.
+    pub transform: Option<ItkTransform>,
     /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`]).
     pub warnings: Vec<String>,
 }
 
-/// The displacement field `warpbench field` writes, in memory: `method` fitted on `pairs` (raw, as read: checked
-/// against `moving` and `fixed` here, by [`inputs::check_pairs`]) over the fixed volume's box, and sampled exactly
-/// at every voxel centre of `grid` (the fixed volume, or `--reference`; only its geometry is read). `names` name the
-/// inputs and the output in messages.
+/// The pull-back's displacement field `warpbench field` writes, in memory: `method` fitted on `pairs` (raw, as read:
+/// checked against `moving` and `fixed` here, by [`inputs::check_pairs`]) over the fixed volume's box, and sampled
+/// exactly at every voxel centre of `grid` (the fixed volume, or `--reference`; only its geometry is read). `names`
+/// name the inputs and the output in messages. [`sample_field`] with [`FieldDirection::Pullback`].
 ///
 /// `progress(done, total)` is called after slices of the grid are sampled (module docs); returning `false` stops
 /// the sampling with [`Failure::Cancelled`] and no field.
@@ -190,54 +221,95 @@ pub fn displacement_field(
     method: &Method,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
+    let inputs = FieldInputs { fixed, moving, pairs, names, method };
+    sample_field(grid, &inputs, FieldDirection::Pullback, progress)
+}
+
+/// What a field is made from: the pair, its landmark pairs (raw, as read), what messages call them, the method.
+#[derive(Clone, Copy, Debug)]
+pub struct FieldInputs<'a> {
+    pub fixed: &'a Volume,
+    pub moving: &'a Volume,
+    pub pairs: &'a [LandmarkPair],
+    pub names: &'a Names,
+    pub method: &'a Method,
+}
+
+/// The displacement field of `direction` on `grid`: the pull-back u fitted over the fixed box, D(x) = u(x) − x, or
+/// the forward map d fitted over the moving box, D(y) = d(y) − y (module docs), sampled exactly at every voxel centre
+/// of `grid` (only its geometry is read). The pairs are checked here ([`inputs::check_pairs`]).
+pub fn sample_field(
+    grid: &Volume,
+    inputs: &FieldInputs,
+    direction: FieldDirection,
+    progress: &mut dyn FnMut(u64, u64) -> bool,
+) -> Result<Field, Failure> {
+    let FieldInputs { fixed, moving, pairs, names, method } = *inputs;
     let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(method))
         .map_err(Failure::BadInput)?;
-    // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
-    let moving_from_fixed =
-        fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed)).map_err(Failure::BadInput)?;
-
     let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
-    volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-    let sampled = sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress)
-        .ok_or_else(|| Failure::Cancelled(anyhow!("sampling the displacement field: cancelled")))?;
+    let cancelled = || Failure::Cancelled(anyhow!("sampling the displacement field: cancelled"));
+    let (sampled, transform) = match direction {
+        FieldDirection::Pullback => {
+            // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
+            let moving_from_fixed =
+                fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed)).map_err(Failure::BadInput)?;
+            volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+            let sampled =
+                sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
+            (sampled, Some(crate::transform::itk_transform_of(&moving_from_fixed)))
+        }
+        FieldDirection::Forward => {
+            // Fitted over the moving box, as `points --from moving` fits it.
+            let fixed_from_moving =
+                fit::forward_of(method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
+            volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+            let sampled =
+                sample_displacements(&fixed_from_moving, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
+            (sampled, None)
+        }
+    };
     let Some(max_displacement_mm) = sampled.max_norm_mm else {
         return Err(Failure::Internal(anyhow!("the {method} warp is not finite somewhere in the output grid")));
-    };
-    // The affine for `.tfm` is `moving_from_fixed` itself when the method is linear.
-    let affine = match &moving_from_fixed {
-        FittedWarp::Linear(warp) => Some(ItkAffine::from_offset(warp.linear(), warp.translation())),
-        FittedWarp::Tps(_) | FittedWarp::BSpline(_) => None,
     };
     Ok(Field {
         dims,
         spacing_mm: grid.spacing_mm(),
         lps_from_index,
         displacements_lps: sampled.displacements_lps,
+        direction,
         max_displacement_mm,
         method: method.to_string(),
         pairs: c.moving.len(),
-        affine,
+        transform,
         warnings: fit::fit_warnings(method, &c),
     })
 }
 
-/// Writes `field` as `warpbench field` does: the NIfTI displacement field at `out` and, when `tfm` is given, the
-/// ITK transform file (linear methods only). Each write is atomic.
-pub fn write_field(field: &Field, out: &Path, tfm: Option<&Path>) -> Result<(), Failure> {
-    let tfm = match (tfm, &field.affine) {
+/// Writes `field` as `warpbench field` does: the displacement field at `out` in `format` and, when `tfm` is given,
+/// the pull-back as an ITK transform file. Each write is atomic.
+pub fn write_field(field: &Field, out: &Path, format: FieldFormat, tfm: Option<&Path>) -> Result<(), Failure> {
+    let tfm = match (tfm, &field.transform) {
         (None, _) => None,
-        (Some(path), Some(affine)) => Some((path, affine)),
+        (Some(path), Some(transform)) => Some((path, transform)),
         (Some(path), None) => {
             return Err(Failure::BadInput(anyhow!(
-                "{}: an ITK transform file holds a linear warp; the {} warp is not one",
+                "{}: an ITK transform file holds the pull-back; this field samples the {} map",
                 path.display(),
-                field.method
+                field.direction
             )));
         }
     };
-    nifti::write_displacement_field(out, field.dims, &field.lps_from_index, &field.displacements_lps)?;
-    if let Some((path, affine)) = tfm {
-        itk_tfm::write_affine(path, affine)?;
+    displacement::write_field_with(
+        out,
+        format,
+        field.direction,
+        field.dims,
+        &field.lps_from_index,
+        &field.displacements_lps,
+    )?;
+    if let Some((path, transform)) = tfm {
+        itk_tfm::write(path, transform)?;
     }
     Ok(())
 }
@@ -245,26 +317,27 @@ pub fn write_field(field: &Field, out: &Path, tfm: Option<&Path>) -> Result<(), 
 /// A sampled displacement field.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SampledField {
-    /// u(x) − x at each voxel centre, LPS mm, i fastest.
+    /// w(x) − x at each voxel centre, LPS mm, i fastest.
     pub displacements_lps: Vec<[f32; 3]>,
-    /// The largest |u(x) − x| (mm, before rounding to f32), or `None` when some value is not finite.
+    /// The largest |w(x) − x| (mm, before rounding to f32), or `None` when some value is not finite.
     pub max_norm_mm: Option<f64>,
 }
 
-/// Evaluates `moving_from_fixed` at every voxel centre of the grid (`dims`, `lps_from_index`) and stores u(x) − x.
+/// Evaluates `warp` (w: From → To, e.g. the pull-back u = `moving_from_fixed`) at every voxel centre x of the grid
+/// (`dims`, `lps_from_index`) and stores w(x) − x.
 ///
 /// Slices (constant k) are handed out one at a time to one worker per core (`std::thread::scope`); each slice is one
 /// [`Warp::apply_batch_raw`] call. `progress(done, total)` is called on the calling thread, which works too, after
 /// each slice it evaluates, with the number of slices finished by all workers. When it returns `false` no worker
 /// takes another slice, and the result is `None`.
-pub fn sample_displacements(
-    moving_from_fixed: &dyn Warp<Moving, Fixed>,
+pub fn sample_displacements<To: Space, From: Space>(
+    warp: &dyn Warp<To, From>,
     dims: [usize; 3],
     lps_from_index: &Transform<Lps, Index>,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Option<SampledField> {
     let [nx, ny, nz] = dims;
-    let slice = Slices { moving_from_fixed, nx, per_slice: nx * ny, nz, lps_from_index: lps_from_index.rows() };
+    let slice = Slices { warp, nx, per_slice: nx * ny, nz, lps_from_index: lps_from_index.rows() };
     let mut displacements_lps = vec![[0.0f32; 3]; slice.per_slice * nz];
     let queue = Mutex::new(displacements_lps.chunks_mut(slice.per_slice.max(1)).enumerate());
     let shared = Shared { queue, finished: AtomicU64::new(0), cancelled: AtomicBool::new(false) };
@@ -286,8 +359,8 @@ pub fn sample_displacements(
 }
 
 /// What each worker of [`sample_displacements`] needs.
-struct Slices<'w> {
-    moving_from_fixed: &'w dyn Warp<Moving, Fixed>,
+struct Slices<'w, To: Space, From: Space> {
+    warp: &'w dyn Warp<To, From>,
     nx: usize,
     per_slice: usize,
     nz: usize,
@@ -304,7 +377,7 @@ struct Shared<'a> {
     cancelled: AtomicBool,
 }
 
-impl Slices<'_> {
+impl<To: Space, From: Space> Slices<'_, To, From> {
     /// Takes slices from the queue until it is empty or the work is cancelled (`progress` returned `false`, here or
     /// on another worker); returns the largest |d| seen and whether every value was finite.
     fn run(&self, shared: &Shared, progress: &mut dyn FnMut(u64, u64) -> bool) -> (f64, bool) {
@@ -321,7 +394,7 @@ impl Slices<'_> {
                 let ijk = [(n % self.nx) as f64, (n / self.nx) as f64, k as f64];
                 *x_lps = std::array::from_fn(|r| m[r][0] * ijk[0] + m[r][1] * ijk[1] + m[r][2] * ijk[2] + m[r][3]);
             }
-            self.moving_from_fixed.apply_batch_raw(&xs, &mut us);
+            self.warp.apply_batch_raw(&xs, &mut us);
             for ((d, x), u) in slice.iter_mut().zip(&xs).zip(&us) {
                 let d_mm = [u[0] - x[0], u[1] - x[1], u[2] - x[2]];
                 let norm = d_mm.iter().map(|v| v * v).sum::<f64>().sqrt();

@@ -14,6 +14,7 @@ use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
 use warpbench_app::settings::{Blend, MethodKind, Preset, Shading};
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpOptions};
 use warpbench_gpu::export::Interpolation;
+use warpbench_io::displacement::{FieldDirection, FieldFormat};
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
 ///
@@ -129,15 +130,23 @@ enum Command {
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
     #[command(verbatim_doc_comment)]
     Render(Box<RenderArgs>),
-    /// Write the pull-back as a displacement field (NIfTI, intent DISPVECT) that ITK, ANTs and 3D Slicer read, and
-    /// for linear warps also as an ITK transform file.
+    /// Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
+    /// transform as an ITK transform file.
     ///
-    /// At each voxel centre x of the fixed grid (or --reference's) the field holds u(x) − x, u = moving_from_fixed
-    /// fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform maps fixed point x to moving
-    /// point x + D(x). Vectors are stored in RAS, as ITK's NIfTI reader expects. Examples:
+    /// --direction pullback (default): at each voxel centre x of the fixed grid (or --reference's) the field holds
+    /// u(x) − x, u = moving_from_fixed fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform
+    /// maps fixed point x to moving point x + D(x), what resampling the moving volume needs. --direction forward: on
+    /// the moving grid (or --reference's), d(y) − y, d = fixed_from_moving: a moving point y goes to y + D(y), what
+    /// moving points or meshes needs.
+    ///
+    /// --format itk (default): NIfTI intent DISPVECT (1006), vectors in RAS, as ITK ≥ 5.3 and Slicer read it;
+    /// --format ants: NIfTI intent VECTOR (1007), vectors in LPS, what antsApplyTransforms reads; --format nrrd: a NRRD
+    /// vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling).
+    /// Examples:
     ///
     ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
-    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method rigid --tfm rigid.tfm --out rigid_field.nii.gz
+    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
+    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm
     #[command(verbatim_doc_comment)]
     Field(Box<FieldArgs>),
     /// Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
@@ -364,10 +373,16 @@ struct FieldArgs {
     /// Sample the field on this volume's grid instead of the fixed volume's.
     #[arg(long)]
     reference: Option<PathBuf>,
-    /// Also write the warp as an ITK transform file (affine, similarity and rigid only).
+    /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform).
     #[arg(long)]
     tfm: Option<PathBuf>,
-    /// The displacement field to write (.nii or .nii.gz).
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
+    #[arg(long, value_enum, default_value = "itk")]
+    format: FieldFormatArg,
+    /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
+    #[arg(long, value_enum, default_value = "pullback")]
+    direction: FieldDirectionArg,
+    /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd).
     #[arg(long)]
     out: PathBuf,
     /// Print a JSON summary (schema warpbench-field/1, see docs/cli.md) to stdout.
@@ -381,10 +396,32 @@ struct FieldArgs {
     quiet: bool,
 }
 
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum FieldFormatArg {
+    Itk,
+    Ants,
+    Nrrd,
+}
+
+#[derive(Debug, Clone, Copy, ValueEnum)]
+enum FieldDirectionArg {
+    Pullback,
+    Forward,
+}
+
 fn run_field(a: FieldArgs) -> Result<(), Failure> {
     let opts = FieldOptions {
         inputs: a.pairs.inputs(a.fixed, a.moving, a.reference)?,
         out: OutputFile { path: a.out, force: a.force },
+        format: match a.format {
+            FieldFormatArg::Itk => FieldFormat::Itk,
+            FieldFormatArg::Ants => FieldFormat::Ants,
+            FieldFormatArg::Nrrd => FieldFormat::Nrrd,
+        },
+        direction: match a.direction {
+            FieldDirectionArg::Pullback => FieldDirection::Pullback,
+            FieldDirectionArg::Forward => FieldDirection::Forward,
+        },
         tfm: a.tfm,
         json: a.json,
         quiet: a.quiet,
@@ -393,8 +430,8 @@ fn run_field(a: FieldArgs) -> Result<(), Failure> {
     if !opts.quiet && !opts.json {
         let d = done.dims;
         eprintln!(
-            "wrote {} ({}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
-            done.out, d[0], d[1], d[2], done.pairs, done.method, done.max_displacement_mm
+            "wrote {} ({} {} field, {}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
+            done.out, done.format, done.direction, d[0], d[1], d[2], done.pairs, done.method, done.max_displacement_mm
         );
         if let Some(tfm) = &done.tfm {
             eprintln!("wrote {tfm}");
@@ -627,9 +664,7 @@ fn main() -> ExitCode {
         Command::Render(args) => run_render(*args),
         Command::Field(args) => run_field(*args),
         Command::Points(args) => warpbench_app::points::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Transform(args) => {
-            warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ())
-        }
+        Command::Transform(args) => warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
         Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
     };
     match result {

@@ -20,6 +20,7 @@ use common::{assert_ok, deformed_pairs as write_pairs, mri as fixture, utf8, war
 use warpbench_app::exit::Failure;
 use warpbench_app::field;
 use warpbench_app::inputs::Names;
+use warpbench_io::displacement::{FieldDirection, FieldFormat};
 use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 use warpbench_io::itk_tfm;
 use warpbench_io::landmarks::read_bigwarp_csv;
@@ -290,8 +291,44 @@ fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
     let l = utf8(&good);
     let tfm = dir.path().join("x.tfm");
     expect_bad(
-        &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--tfm", utf8(&tfm), "--quiet", "--out", o],
-        "x.tfm: an ITK transform file holds a linear warp; --method tps is not one",
+        &[
+            "field",
+            "--fixed",
+            f,
+            "--moving",
+            f,
+            "--landmarks",
+            l,
+            "--direction",
+            "forward",
+            "--tfm",
+            utf8(&tfm),
+            "--quiet",
+            "--out",
+            o,
+        ],
+        "x.tfm: an ITK transform file holds the pull-back",
+    );
+    expect_bad(
+        &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--format", "nrrd", "--quiet", "--out", o],
+        "x.nii.gz: invalid: the nrrd field flavour is written to a .nrrd name",
+    );
+    expect_bad(
+        &[
+            "field",
+            "--fixed",
+            f,
+            "--moving",
+            f,
+            "--landmarks",
+            l,
+            "--format",
+            "ants",
+            "--quiet",
+            "--out",
+            &format!("{o}.nrrd"),
+        ],
+        "x.nii.gz.nrrd: invalid: the ants field flavour is written to a .nii or .nii.gz name",
     );
     expect_bad(
         &["field", "--fixed", f, "--moving", f, "--landmarks", utf8(&outside), "--quiet", "--out", o],
@@ -382,7 +419,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
         )
         .expect("the field in memory");
         assert_eq!(last.1, 91, "progress counts the slices");
-        field::write_field(&sampled, &core_out, linear.then_some(core_tfm.as_path())).expect("write");
+        field::write_field(&sampled, &core_out, FieldFormat::Itk, linear.then_some(core_tfm.as_path())).expect("write");
         let read = |p: &Path| std::fs::read(p).expect("read a written file");
         assert!(read(&cli_out) == read(&core_out), "{name}: the core's field differs from the command's");
         assert_eq!(linear, core_tfm.exists());
@@ -403,19 +440,20 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
         assert_eq!(json["lps_from_index"], serde_json::json!(sampled.lps_from_index.rows()));
     }
 
-    // A .tfm of a warp that is not linear is refused before anything is written.
-    let tps = field::displacement_field(
-        &volume,
-        &volume,
-        &volume,
-        &pairs,
-        &names(&f, &csv, Path::new("unused.nii")),
-        &Method::Tps { stiffness: 0.0 },
-        &mut |_, _| true,
-    )
-    .expect("the field in memory");
+    // A .tfm holds the pull-back: with a forward field it is refused before anything is written.
+    let names = names(&f, &csv, Path::new("unused.nii"));
+    let inputs = field::FieldInputs {
+        fixed: &volume,
+        moving: &volume,
+        pairs: &pairs,
+        names: &names,
+        method: &Method::Tps { stiffness: 0.0 },
+    };
+    let forward =
+        field::sample_field(&volume, &inputs, FieldDirection::Forward, &mut |_, _| true).expect("the field in memory");
+    assert!(forward.transform.is_none());
     let (out, tfm) = (dir.path().join("refused.nii"), dir.path().join("refused.tfm"));
-    assert!(matches!(field::write_field(&tps, &out, Some(&tfm)), Err(Failure::BadInput(_))));
+    assert!(matches!(field::write_field(&forward, &out, FieldFormat::Itk, Some(&tfm)), Err(Failure::BadInput(_))));
     assert!(!out.exists() && !tfm.exists(), "a refused write wrote something");
 }
 

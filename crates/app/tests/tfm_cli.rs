@@ -217,3 +217,28 @@ fn refusals_exit_2_naming_the_file_and_write_nothing() {
     assert!(!out.exists());
     assert!(!Path::new(&out).with_extension("tfm.tmp").exists());
 }
+
+#[test]
+fn field_tfm_writes_the_file_transform_writes() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for method in ["tps", "hbspline"] {
+        let (a, b, field) = (dir.path().join("a.tfm"), dir.path().join("b.tfm"), dir.path().join("f.nii.gz"));
+        let mut args: Vec<String> = vec!["transform".into()];
+        args.extend(pair_args());
+        args.extend(["--method", method, "--levels", "2", "--out", utf8(&a), "--quiet", "--force"].map(String::from));
+        assert_ok(&warpbench(&args));
+        let mut args: Vec<String> = vec!["field".into()];
+        args.extend(pair_args());
+        args.extend(
+            ["--method", method, "--levels", "2", "--tfm", utf8(&b), "--out", utf8(&field), "--json", "--force"]
+                .map(String::from),
+        );
+        let out = warpbench(&args);
+        assert_ok(&out);
+        let summary: Value = serde_json::from_slice(&out.stdout).expect("JSON");
+        let class =
+            if method == "tps" { "ThinPlateSplineKernelTransform_double_3_3" } else { "BSplineTransform_double_3_3" };
+        assert_eq!(summary["tfm_class"], class);
+        assert_eq!(std::fs::read(&a).expect("read"), std::fs::read(&b).expect("read"), "{method}");
+    }
+}

@@ -133,7 +133,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             };
             let f =
                 field::displacement_field(fixed, fixed, moving, &input.pairs, &names, &input.method, &mut progress)?;
-            field::write_field(&f, out, None)?;
+            field::write_field(&f, out, warpbench_io::displacement::FieldFormat::Itk, None)?;
             Ok(format!(
                 "wrote {}: {} displacement field of {} pairs, largest {:.1} mm",
                 out.display(),

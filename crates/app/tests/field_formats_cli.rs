@@ -1,0 +1,292 @@
+//! `warpbench field --format itk|ants|nrrd --direction pullback|forward` end to end, each flavour read by a reader
+//! written here from its published layout (not warpbench_io's), and compared with what its own tool read:
+//!
+//! - `tests/data/itk/field_formats_reference.json` (made by `data-scripts/field_formats_ref.py`, provenance in that
+//!   folder's README) holds SimpleITK 2.5.7's and nibabel's vectors (LPS mm) at 80 voxels of each flavour written
+//!   from the MRI fixture and `field_pairs.csv`; the script checked them against warpbench's exact maps;
+//! - here the files are written again and read by hand: the NIfTI-1 header (`dim`, `intent_code`, `datatype`,
+//!   `vox_offset`, `srow_*`) and its component planes, RAS (intent 1006, ITK's DISPVECT) or LPS (intent 1007, the 5-D
+//!   warp file ANTs documents); the NRRD header (`kinds`, `space`, `space directions`, `displacement field type`) and
+//!   its interleaved gzip samples. Every reading must equal the recorded one;
+//! - the forward field obeys its law: a moving point y goes to y + D(y), which `points --from fixed` brings back to y
+//!   within the warp's inverse consistency.
+
+mod common;
+
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use common::{assert_ok, data, mri, utf8, warpbench};
+use serde_json::Value;
+use warpbench_app::fit;
+use warpbench_app::inputs::volume_box;
+use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::warp::Warp;
+
+/// Both readings are of the same float32 numbers.
+const TOLERANCE_MM: f64 = 1e-6;
+
+fn reference() -> Value {
+    let text = std::fs::read_to_string(data("itk/field_formats_reference.json")).expect("read the reference");
+    serde_json::from_str(&text).expect("JSON")
+}
+
+fn vectors(v: &Value) -> Vec<[f64; 3]> {
+    v.as_array().expect("a list").iter().map(|p| std::array::from_fn(|k| p[k].as_f64().expect("a number"))).collect()
+}
+
+fn gunzip(bytes: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    flate2::read::MultiGzDecoder::new(bytes).read_to_end(&mut out).expect("gzip");
+    out
+}
+
+/// What the test reads from a NIfTI-1 vector field (little-endian, as warpbench writes).
+struct Nifti {
+    dim: [i16; 8],
+    intent_code: i16,
+    datatype: i16,
+    sform_code: i16,
+    /// srow_x, srow_y, srow_z: RAS mm from the voxel index.
+    srow: [[f32; 4]; 3],
+    /// Component planes: [c][voxel], voxel = i + X (j + Y k).
+    planes: [Vec<f32>; 3],
+}
+
+fn read_nifti(path: &Path) -> Nifti {
+    let raw = std::fs::read(path).expect("read");
+    let bytes = if raw.starts_with(&[0x1f, 0x8b]) { gunzip(&raw) } else { raw };
+    let i16_at = |o: usize| i16::from_le_bytes([bytes[o], bytes[o + 1]]);
+    let f32_at = |o: usize| f32::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3]]);
+    assert_eq!(i32::from_le_bytes([bytes[0], bytes[1], bytes[2], bytes[3]]), 348, "sizeof_hdr");
+    assert_eq!(&bytes[344..348], b"n+1\0", "a single-file NIfTI-1");
+    let dim: [i16; 8] = std::array::from_fn(|k| i16_at(40 + 2 * k));
+    let vox_offset = f32_at(108) as usize;
+    let voxels = (dim[1] as usize) * (dim[2] as usize) * (dim[3] as usize);
+    let planes = std::array::from_fn(|c| (0..voxels).map(|n| f32_at(vox_offset + 4 * (c * voxels + n))).collect());
+    Nifti {
+        dim,
+        intent_code: i16_at(68),
+        datatype: i16_at(70),
+        sform_code: i16_at(254),
+        srow: std::array::from_fn(|r| std::array::from_fn(|c| f32_at(280 + 16 * r + 4 * c))),
+        planes,
+    }
+}
+
+/// What the test reads from a NRRD vector field: the header's fields and key/value pairs, and the samples.
+struct Nrrd {
+    fields: Vec<(String, String)>,
+    samples: Vec<f32>,
+}
+
+impl Nrrd {
+    fn field(&self, key: &str) -> &str {
+        self.fields.iter().find(|(k, _)| k == key).map_or_else(|| panic!("no {key:?} in the header"), |(_, v)| v)
+    }
+}
+
+fn read_nrrd(path: &Path) -> Nrrd {
+    let bytes = std::fs::read(path).expect("read");
+    let end = bytes.windows(2).position(|w| w == b"\n\n").expect("a blank line ends the header");
+    let header = std::str::from_utf8(&bytes[..end]).expect("text");
+    assert!(header.starts_with("NRRD000"), "{header}");
+    let fields = header
+        .lines()
+        .skip(1)
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| {
+            let (k, v) = l.split_once(":=").or_else(|| l.split_once(": ")).expect("key: value");
+            (k.to_string(), v.trim().to_string())
+        })
+        .collect();
+    let nrrd = Nrrd { fields, samples: Vec::new() };
+    assert_eq!(nrrd.field("encoding"), "gzip");
+    assert_eq!(nrrd.field("endian"), "little");
+    let body = gunzip(&bytes[end + 2..]);
+    let samples = body.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    Nrrd { samples, ..nrrd }
+}
+
+/// `warpbench field` on the MRI fixture and the field pairs with `flags`, into `out`.
+fn write(out: &Path, flags: &[&str]) {
+    let (f, l) = (mri(), data("itk/field_pairs.csv"));
+    let mut args = vec!["field", "--fixed", utf8(&f), "--moving", utf8(&f), "--landmarks", utf8(&l)];
+    args.extend_from_slice(flags);
+    args.extend(["--out", utf8(out), "--quiet"]);
+    assert_ok(&warpbench(&args));
+}
+
+fn indices(reference: &Value) -> Vec<[usize; 3]> {
+    reference["indices"]
+        .as_array()
+        .expect("indices")
+        .iter()
+        .map(|v| std::array::from_fn(|k| v[k].as_u64().expect("an index") as usize))
+        .collect()
+}
+
+fn flavour<'a>(reference: &'a Value, name: &str) -> &'a Value {
+    reference["flavours"].as_array().expect("flavours").iter().find(|f| f["name"] == name).expect("the flavour")
+}
+
+fn assert_close(got: &[[f64; 3]], want: &[[f64; 3]], what: &str) {
+    assert_eq!(got.len(), want.len());
+    for (n, (g, w)) in got.iter().zip(want).enumerate() {
+        let err = (0..3).map(|k| (g[k] - w[k]).abs()).fold(0.0, f64::max);
+        assert!(err <= TOLERANCE_MM, "{what}: voxel {}: {g:?} vs {w:?}", n + 1);
+    }
+}
+
+/// The MRI fixture's dims (91 × 109 × 91).
+const DIMS: [usize; 3] = [91, 109, 91];
+
+fn voxel(ijk: [usize; 3]) -> usize {
+    ijk[0] + DIMS[0] * (ijk[1] + DIMS[1] * ijk[2])
+}
+
+#[test]
+fn the_nifti_flavours_read_by_hand_equal_simpleitk_and_nibabel() {
+    let reference = reference();
+    let idx = indices(&reference);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let volume = warpbench_io::open(mri()).expect("the fixture");
+    let m = volume.lps_from_index.rows();
+    for (name, flags, intent, ras) in
+        [("itk", ["--format", "itk"], 1006, true), ("ants", ["--format", "ants"], 1007, false)]
+    {
+        let path = dir.path().join(format!("{name}.nii.gz"));
+        write(&path, &flags);
+        let n = read_nifti(&path);
+        assert_eq!(n.dim, [5, 91, 109, 91, 1, 3, 1, 1], "{name}: vectors in the 5th dimension");
+        assert_eq!(n.intent_code, intent, "{name}");
+        assert_eq!(n.datatype, 16, "{name}: float32");
+        assert!(n.sform_code > 0, "{name}: the sform holds the geometry");
+        // The sform is RAS: the LPS matrix with its first two rows negated.
+        for r in 0..3 {
+            let sign = if r < 2 { -1.0 } else { 1.0 };
+            for c in 0..4 {
+                let want = sign * m[r][c];
+                assert!((f64::from(n.srow[r][c]) - want).abs() < 1e-4, "{name}: srow[{r}][{c}]");
+            }
+        }
+        let lps: Vec<[f64; 3]> = idx
+            .iter()
+            .map(|&ijk| {
+                let v = n.planes.each_ref().map(|p| f64::from(p[voxel(ijk)]));
+                if ras { [-v[0], -v[1], v[2]] } else { v }
+            })
+            .collect();
+        let f = flavour(&reference, name);
+        assert_eq!(f["nibabel"]["intent_code"], intent);
+        assert_close(&lps, &vectors(&f["sitk_vectors_lps"]), &format!("{name} vs SimpleITK"));
+        assert_close(&lps, &vectors(&f["nibabel_vectors_lps"]), &format!("{name} vs nibabel"));
+        assert!(lps.iter().flatten().any(|v| v.abs() > 1.0), "{name}: the field is not zero");
+    }
+}
+
+#[test]
+fn the_nrrd_flavour_read_by_hand_equals_simpleitk_and_states_its_direction() {
+    let reference = reference();
+    let idx = indices(&reference);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let volume = warpbench_io::open(mri()).expect("the fixture");
+    let path = dir.path().join("field.nrrd");
+    write(&path, &["--format", "nrrd"]);
+    let nrrd = read_nrrd(&path);
+    assert_eq!(nrrd.field("type"), "float");
+    assert_eq!(nrrd.field("dimension"), "4");
+    assert_eq!(nrrd.field("sizes"), "3 91 109 91");
+    assert_eq!(nrrd.field("kinds"), "vector domain domain domain");
+    assert_eq!(nrrd.field("space"), "left-posterior-superior");
+    assert_eq!(nrrd.field("displacement field type"), "resampling");
+    // space directions: none, then the columns of the LPS matrix; origin its translation.
+    let m = volume.lps_from_index.rows();
+    let numbers = |s: &str| -> Vec<f64> {
+        s.split(|c: char| "(), ".contains(c))
+            .filter(|t| !t.is_empty() && *t != "none")
+            .map(|t| t.parse().expect("num"))
+            .collect()
+    };
+    let directions = numbers(nrrd.field("space directions"));
+    assert!(nrrd.field("space directions").starts_with("none"));
+    for c in 0..3 {
+        for r in 0..3 {
+            assert!((directions[3 * c + r] - m[r][c]).abs() < 1e-9, "space directions column {c}");
+        }
+    }
+    let origin = numbers(nrrd.field("space origin"));
+    for r in 0..3 {
+        assert!((origin[r] - m[r][3]).abs() < 1e-9, "space origin");
+    }
+    assert_eq!(nrrd.samples.len(), 3 * 91 * 109 * 91);
+    let lps: Vec<[f64; 3]> =
+        idx.iter().map(|&ijk| std::array::from_fn(|c| f64::from(nrrd.samples[3 * voxel(ijk) + c]))).collect();
+    assert_close(&lps, &vectors(&flavour(&reference, "nrrd")["sitk_vectors_lps"]), "nrrd vs SimpleITK");
+
+    // The forward field says so.
+    let forward = dir.path().join("forward.nrrd");
+    write(&forward, &["--format", "nrrd", "--direction", "forward"]);
+    assert_eq!(read_nrrd(&forward).field("displacement field type"), "modeling");
+}
+
+#[test]
+fn a_moving_point_moved_by_the_forward_field_comes_back_by_the_pullback() {
+    let reference = reference();
+    let idx = indices(&reference);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("forward.nii.gz");
+    write(&path, &["--format", "itk", "--direction", "forward"]);
+    let n = read_nifti(&path);
+    let forward: Vec<[f64; 3]> = idx
+        .iter()
+        .map(|&ijk| {
+            let v = n.planes.each_ref().map(|p| f64::from(p[voxel(ijk)]));
+            [-v[0], -v[1], v[2]]
+        })
+        .collect();
+    assert_close(&forward, &vectors(&flavour(&reference, "itk_forward")["sitk_vectors_lps"]), "forward vs SimpleITK");
+
+    // y + D(y), then u: back at y within the inverse consistency of this mild TPS (measured: well under 0.1 mm).
+    let volume = warpbench_io::open(mri()).expect("the fixture");
+    let ys: Vec<[f64; 3]> = idx
+        .iter()
+        .map(|&ijk| {
+            volume
+                .lps_from_index
+                .apply_point(warpbench_io::geometry::Point3::new(ijk[0] as f64, ijk[1] as f64, ijk[2] as f64))
+                .coords()
+        })
+        .collect();
+    let moved: PathBuf = dir.path().join("moved.csv");
+    let lines: Vec<String> =
+        ys.iter().zip(&forward).map(|(y, d)| format!("{},{},{}", y[0] + d[0], y[1] + d[1], y[2] + d[2])).collect();
+    std::fs::write(&moved, lines.join("\n") + "\n").expect("write");
+    let back = dir.path().join("back.csv");
+    let (f, l) = (mri(), data("itk/field_pairs.csv"));
+    let args = ["points", "--fixed", utf8(&f), "--moving", utf8(&f), "--landmarks", utf8(&l), "--from", "fixed"];
+    let mut args = args.to_vec();
+    args.extend(["--in", utf8(&moved), "--out", utf8(&back), "--quiet"]);
+    assert_ok(&warpbench(&args));
+    // What the solver says u(d(y)) is, fitted as the commands fit (TPS over the volume's box, both ways).
+    let pairs = warpbench_io::landmarks::read_bigwarp_csv(&l).expect("pairs");
+    let fixed: Vec<_> = pairs.iter().map(|p| as_fixed(p.fixed.expect("fixed"))).collect();
+    let moving: Vec<_> = pairs.iter().map(|p| as_moving(p.moving.expect("moving"))).collect();
+    let method = Method::Tps { stiffness: 0.0 };
+    let d = fit::forward(&method, &fixed, &moving, volume_box::<Moving>(&volume)).expect("d");
+    let u = fit::pullback(&method, &fixed, &moving, volume_box::<Fixed>(&volume)).expect("u");
+    let text = std::fs::read_to_string(&back).expect("read");
+    let (mut worst, mut consistency, mut moved_most) = (0.0f64, 0.0f64, 0.0f64);
+    for ((line, y), dy) in text.lines().zip(&ys).zip(&forward) {
+        let p: Vec<f64> = line.split(',').map(|v| v.parse().expect("a number")).collect();
+        let want = u.apply_raw(d.apply_raw(*y));
+        worst = worst.max((0..3).map(|k| (p[k] - want[k]).powi(2)).sum::<f64>().sqrt());
+        consistency = consistency.max((0..3).map(|k| (want[k] - y[k]).powi(2)).sum::<f64>().sqrt());
+        moved_most = moved_most.max(dy.iter().map(|v| v * v).sum::<f64>().sqrt());
+    }
+    assert!(moved_most > 3.0, "the forward field moves points ({moved_most} mm)");
+    // The field is float32: D(y) is rounded by < 1e-6 mm, and u does not stretch that much.
+    assert!(worst < 1e-5, "u(y + D(y)) is {worst} mm from the solver's u(d(y)) (inverse consistency {consistency} mm)");
+    assert!(consistency < 0.5, "a mild TPS is nearly inverse-consistent: {consistency} mm");
+}
