@@ -12,7 +12,7 @@ use warpbench_app::info::{self, InfoOptions};
 use warpbench_app::inputs::{LandmarkSource, OutputFile};
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
 use warpbench_app::settings::{Blend, MethodKind, Preset, Shading};
-use warpbench_app::warp::{self, Backend, PullBackMode, WarpOptions};
+use warpbench_app::warp::{self, Backend, PullBackMode, WarpInputs, WarpOptions};
 use warpbench_gpu::export::Interpolation;
 use warpbench_io::displacement::{FieldDirection, FieldFormat};
 
@@ -96,14 +96,17 @@ enum Command {
         #[arg(long, short)]
         quiet: bool,
     },
-    /// Resample the moving volume into the fixed volume's grid through the landmark warp, and write a NIfTI
-    /// (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
+    /// Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
+    /// field (--field), and write a NIfTI (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
     ///
     /// The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
-    /// app shows), or evaluated exactly per voxel with --exact (TPS). Examples:
+    /// app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
+    /// any flavour warpbench field writes (ITK NIfTI DISPVECT, ANTs NIfTI VECTOR, Slicer NRRD): u(x) = x + D(x),
+    /// D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. Examples:
     ///
     ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
     ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
+    ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --exact --out mr_in_ct.nii.gz
     #[command(verbatim_doc_comment)]
     Warp(Box<WarpArgs>),
     /// Measure how well a landmark warp recovers a known synthetic deformation of a real volume: TRE at held-out
@@ -122,12 +125,14 @@ enum Command {
     /// headless, with the app's renderer.
     ///
     /// With --moving and landmarks the moving volume is pulled back through the fitted warp and the landmark pairs
-    /// are drawn (fixed points blue, moving points orange where the warp shows them). --slice draws a slice of
-    /// the fixed grid instead of the 3-D view. Examples:
+    /// are drawn (fixed points blue, moving points orange where the warp shows them); with --field instead, through
+    /// that pull-back displacement field, without glyphs. --slice draws a slice of the fixed grid instead of the
+    /// 3-D view. Examples:
     ///
     ///     warpbench render --fixed ct.nii.gz --out ct.png
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --blend checkerboard --out pair.png
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
+    ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --slice axial --out ax.png
     #[command(verbatim_doc_comment)]
     Render(Box<RenderArgs>),
     /// Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
@@ -220,10 +225,13 @@ struct WarpArgs {
     moving: PathBuf,
     #[command(flatten)]
     pairs: PairArgs,
+    /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "levels"])]
+    field: Option<PathBuf>,
     /// Control-texture texels per axis over the output grid (2..=256).
     #[arg(long, default_value_t = 64, conflicts_with = "exact")]
     grid: usize,
-    /// Evaluate the pull-back exactly at every voxel (TPS, and the linear warps) instead of a control texture.
+    /// Evaluate the pull-back exactly at every voxel (TPS, the linear warps, a field) instead of a control texture.
     #[arg(long)]
     exact: bool,
     /// Interpolation: nearest, linear (trilinear) or cubic (Catmull-Rom).
@@ -260,7 +268,7 @@ struct WarpArgs {
 
 fn run_warp(a: WarpArgs) -> Result<(), Failure> {
     let opts = WarpOptions {
-        inputs: a.pairs.inputs(a.fixed, a.moving, a.reference)?,
+        inputs: WarpInputs::from_args(a.pairs, a.field, a.fixed, a.moving, a.reference)?,
         pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
         interpolation: match a.interp {
             InterpArg::Nearest => Interpolation::Nearest,
@@ -283,16 +291,13 @@ fn run_warp(a: WarpArgs) -> Result<(), Failure> {
         let text = serde_json::to_string_pretty(&report).map_err(|e| Failure::Internal(e.into()))?;
         println!("{text}");
     } else if !opts.quiet {
+        let warp = match &report.field {
+            Some(field) => format!("field {field}"),
+            None => format!("{} pairs", report.pairs),
+        };
         eprintln!(
-            "wrote {} ({}×{}×{} {}, {} pairs, {}, {})",
-            report.out,
-            report.dims[0],
-            report.dims[1],
-            report.dims[2],
-            report.dtype,
-            report.pairs,
-            report.pullback,
-            report.backend
+            "wrote {} ({}×{}×{} {}, {warp}, {}, {})",
+            report.out, report.dims[0], report.dims[1], report.dims[2], report.dtype, report.pullback, report.backend
         );
     }
     Ok(())
@@ -309,6 +314,10 @@ struct RenderArgs {
     moving: Option<PathBuf>,
     #[command(flatten)]
     pairs: PairArgs,
+    /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
+    /// or NRRD); no glyphs are drawn.
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "levels"])]
+    field: Option<PathBuf>,
     /// Control-texture texels per axis over the fixed box (2..=256).
     #[arg(long, default_value_t = 64)]
     grid: usize,
@@ -446,6 +455,7 @@ fn run_render(a: RenderArgs) -> Result<(), Failure> {
         fixed: a.fixed,
         moving: a.moving,
         landmarks,
+        field: a.field,
         method: a.pairs.method,
         stiffness: a.pairs.stiffness,
         levels: a.pairs.levels,
@@ -467,14 +477,11 @@ fn run_render(a: RenderArgs) -> Result<(), Failure> {
     };
     let done = render::run(&opts)?;
     if !opts.quiet {
-        eprintln!(
-            "wrote {} ({}×{}, {} landmark pairs, {})",
-            opts.out.path.display(),
-            done.size.0,
-            done.size.1,
-            done.pairs,
-            done.adapter
-        );
+        let warp = match &opts.field {
+            Some(field) => format!("field {}", field.display()),
+            None => format!("{} landmark pairs", done.pairs),
+        };
+        eprintln!("wrote {} ({}×{}, {warp}, {})", opts.out.path.display(), done.size.0, done.size.1, done.adapter);
     }
     Ok(())
 }

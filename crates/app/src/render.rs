@@ -4,8 +4,10 @@
 //! Without `--moving` only the fixed volume is drawn. With `--moving` and landmarks, the moving volume is pulled
 //! back through the fitted warp (a control texture of `--grid`³ texels over the fixed box) and the landmark glyphs
 //! are drawn: each fixed (target) point qᵢ in blue, each moving (source) point where the warp shows it, d(pᵢ), in
-//! orange, and a line between them (the residual; zero length for an interpolating warp). `--slice` draws a slice of
-//! the fixed grid instead of the 3-D view.
+//! orange, and a line between them (the residual; zero length for an interpolating warp). With `--field F` instead of
+//! landmarks, the moving volume is pulled back through the displacement field (u(x) = x + D(x), read by
+//! [`crate::warp::read_pullback_field`]) sampled into the same control texture, and no glyphs are drawn. `--slice`
+//! draws a slice of the fixed grid instead of the 3-D view.
 
 use std::path::{Path, PathBuf};
 
@@ -18,7 +20,7 @@ use warpbench_gpu::{
     RenderSettings, RenderTarget, Shading, SlicePlane, VolumeBudget, pair_glyphs,
 };
 use warpbench_io::Volume;
-use warpbench_solver::method::FittedWarp;
+use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
@@ -96,6 +98,8 @@ pub struct RenderOptions {
     pub fixed: PathBuf,
     pub moving: Option<PathBuf>,
     pub landmarks: Option<LandmarkSource>,
+    /// A pull-back displacement field to show the moving volume through, instead of landmarks.
+    pub field: Option<PathBuf>,
     pub method: settings::MethodKind,
     pub stiffness: f64,
     pub levels: Option<usize>,
@@ -175,18 +179,32 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     if let Some(l) = &opts.landmarks {
         inputs_paths.extend(l.paths());
     }
+    inputs_paths.extend(opts.field.as_deref());
     opts.out.check(&inputs_paths).map_err(Failure::BadInput)?;
+    if opts.landmarks.is_some() && opts.field.is_some() {
+        return Err(Failure::BadInput(anyhow!(
+            "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
+        )));
+    }
     if opts.landmarks.is_some() && opts.moving.is_none() {
         return Err(Failure::BadInput(anyhow!("landmarks need a moving volume (--moving)")));
     }
+    if opts.field.is_some() && opts.moving.is_none() {
+        return Err(Failure::BadInput(anyhow!("--field needs a moving volume (--moving)")));
+    }
+    // Read before the volumes: a field `render` refuses costs no loading.
+    let field = opts.field.as_deref().map(crate::warp::read_pullback_field).transpose()?;
     let fixed = inputs::load_volume(&opts.fixed, opts.quiet).map_err(Failure::BadInput)?;
     let moving =
         opts.moving.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose().map_err(Failure::BadInput)?;
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
 
-    // The warp and the glyphs, when there are landmarks.
+    // The warp's control texture, and the glyphs when there are landmarks.
     let method = inputs::method_from_args(opts.method, opts.stiffness, opts.levels).map_err(Failure::BadInput)?;
-    let mut pullback: Option<FittedWarp<Moving, Fixed>> = None;
+    let mut sampled: Option<(ControlGrid, ControlTexture)> = None;
+    if let Some(field) = &field {
+        sampled = Some(scene::control_texture(field, fixed_box, opts.grid).map_err(Failure::BadInput)?);
+    }
     let mut glyph_pairs = Vec::new();
     if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
         let pairs = source.read().map_err(Failure::BadInput)?;
@@ -197,7 +215,8 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        pullback = Some(fit::pullback_of(&method, &c, fixed_box).map_err(Failure::BadInput)?);
+        let pullback = fit::pullback_of(&method, &c, fixed_box).map_err(Failure::BadInput)?;
+        sampled = Some(fit::control_texture(&pullback, fixed_box, opts.grid).map_err(Failure::BadInput)?);
         let forward = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
         glyph_pairs = c
             .moving
@@ -228,10 +247,9 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let moving_preset = moving_layer.as_ref().map_or(fixed_preset, |(_, p)| *p);
     let tfs =
         GpuTransferFunctions::upload(&ctx, &[fixed_preset.transfer_function(), moving_preset.transfer_function()]);
-    let prepared_control = match &pullback {
-        Some(warp) => {
-            let (grid, texture) = fit::control_texture(warp, fixed_box, opts.grid).map_err(Failure::BadInput)?;
-            let desc = scene::control_desc(&grid, &texture);
+    let prepared_control = match &sampled {
+        Some((grid, texture)) => {
+            let desc = scene::control_desc(grid, texture);
             Some(PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).map_err(gpu_failure)?)
         }
         None => None,

@@ -10,14 +10,23 @@
 //! there is an adapter and the samples fit f32 exactly (`auto`); both give the same result
 //! (`warpbench_gpu::export`).
 //!
+//! With `--field F` ([`WarpInputs::Field`]) the pull-back is a displacement field read from a file instead of one
+//! fitted on landmarks: u(x) = x + D(x), D interpolated trilinearly in the field's grid and zero outside it, as ITK's
+//! `DisplacementFieldTransform` maps points ([`warpbench_solver::field::SampledField`]). Any flavour
+//! [`warpbench_io::displacement::read_field_info`] reads will do (ITK's DISPVECT NIfTI, ANTs' VECTOR NIfTI, Slicer's
+//! NRRD); a field that says it is the forward map (NRRD `displacement field type:=modeling`) is refused. `--grid N`
+//! samples the field into the control texture like any other pull-back; `--exact` evaluates it at every voxel
+//! centre of the output grid (a control texture laid texel on voxel, see `VoxelTexture`).
+//!
 //! [`run`] loads the files, calls the in-memory core [`resample`] (the pairs checked, the fit, the export, with a
 //! progress callback that can cancel) and writes with [`write_outputs`]; the window exports through the same three.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anyhow::anyhow;
+use anyhow::{Context, anyhow};
 use serde::Serialize;
+use warpbench_gpu::ControlDesc;
 use warpbench_gpu::export::{
     ExportPass, ExportRequest, ExportedSamples, Interpolation, OutputType, Progress, PullBack, SourceVolume,
     TargetGrid, export_cpu,
@@ -25,14 +34,18 @@ use warpbench_gpu::export::{
 use warpbench_gpu::{GpuContext, GpuError};
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::dicom_write::{self, DicomSeriesOptions};
+use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, nifti};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
+use warpbench_solver::field::SampledField;
 use warpbench_solver::method::{FittedWarp, Method};
-use warpbench_solver::spaces::Fixed;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Warp;
 
+use crate::args::PairArgs;
 use crate::exit::Failure;
 use crate::fit::{self, TpsParts};
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
@@ -59,11 +72,120 @@ pub enum PullBackMode {
     Exact,
 }
 
+/// What `warp` pulls the moving volume back through: landmark pairs fitted with a method, or a displacement field.
+#[derive(Clone, Debug)]
+pub enum WarpInputs {
+    /// The pair, landmarks, method, and the output grid (`reference`, else the fixed volume's).
+    Pairs(PairInputs),
+    /// The pair, a pull-back displacement field (`--field`), and the output grid.
+    Field(FieldInputs),
+}
+
+/// The inputs of `warp --field`.
+#[derive(Clone, Debug)]
+pub struct FieldInputs {
+    pub fixed: PathBuf,
+    pub moving: PathBuf,
+    /// The displacement field: u(x) = x + D(x), u = moving_from_fixed.
+    pub field: PathBuf,
+    /// The output grid, when not the fixed volume's.
+    pub reference: Option<PathBuf>,
+}
+
+impl WarpInputs {
+    /// From the command line: `--field` or the landmarks of `pairs`, exactly one of them.
+    pub fn from_args(
+        pairs: PairArgs,
+        field: Option<PathBuf>,
+        fixed: PathBuf,
+        moving: PathBuf,
+        reference: Option<PathBuf>,
+    ) -> Result<Self, Failure> {
+        match (field, pairs.source()?) {
+            (Some(field), None) => Ok(Self::Field(FieldInputs { fixed, moving, field, reference })),
+            (None, Some(_)) => Ok(Self::Pairs(pairs.inputs(fixed, moving, reference)?)),
+            (Some(_), Some(_)) => Err(Failure::BadInput(anyhow!(
+                "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
+            ))),
+            (None, None) => Err(Failure::BadInput(anyhow!(
+                "give the warp: --landmarks, or --moving-points with --fixed-points, or --field"
+            ))),
+        }
+    }
+
+    #[must_use]
+    pub fn fixed(&self) -> &Path {
+        match self {
+            Self::Pairs(p) => &p.fixed,
+            Self::Field(f) => &f.fixed,
+        }
+    }
+
+    #[must_use]
+    pub fn moving(&self) -> &Path {
+        match self {
+            Self::Pairs(p) => &p.moving,
+            Self::Field(f) => &f.moving,
+        }
+    }
+
+    #[must_use]
+    pub fn reference(&self) -> Option<&Path> {
+        match self {
+            Self::Pairs(p) => p.reference.as_deref(),
+            Self::Field(f) => f.reference.as_deref(),
+        }
+    }
+
+    /// Every input file, which no output may be.
+    #[must_use]
+    pub fn paths(&self) -> Vec<&Path> {
+        match self {
+            Self::Pairs(p) => p.paths(),
+            Self::Field(f) => [&f.fixed, &f.moving, &f.field]
+                .into_iter()
+                .map(PathBuf::as_path)
+                .chain(f.reference.as_deref())
+                .collect(),
+        }
+    }
+
+    /// What messages call the inputs, and `out` (for a field, [`Names::landmarks`] is the field's path).
+    #[must_use]
+    pub fn names(&self, out: &Path) -> Names {
+        match self {
+            Self::Pairs(p) => p.names(out),
+            Self::Field(f) => Names {
+                moving: f.moving.display().to_string(),
+                landmarks: f.field.display().to_string(),
+                out: out.to_owned(),
+            },
+        }
+    }
+}
+
+/// Reads a displacement field of any flavour ([`displacement::read_field_info`]) as the pull-back
+/// u = moving_from_fixed, u(x) = x + D(x). A field whose file says it is the forward map (NRRD's
+/// `displacement field type:=modeling`) is refused: resampling needs the pull-back. Errors name the file.
+pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, Failure> {
+    let read = displacement::read_field_info(path)?;
+    if read.direction == Some(FieldDirection::Forward) {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: a forward displacement field (displacement field type: modeling, fixed_from_moving); warping \
+             resamples through the pull-back: give the pull-back (resampling) field, e.g. from \
+             `warpbench field --direction pullback`",
+            path.display()
+        )));
+    }
+    SampledField::from_displacement_field(read.field).map_err(|e| Failure::BadInput(anyhow!("{}: {e}", path.display())))
+}
+
 /// Options of `warpbench warp`.
 #[derive(Clone, Debug)]
 pub struct WarpOptions {
-    /// The pair, landmarks, method, and the output grid (`reference`, else the fixed volume's).
-    pub inputs: PairInputs,
+    /// The pair, the warp (landmarks and method, or a field), and the output grid (`reference`, else the fixed
+    /// volume's).
+    pub inputs: WarpInputs,
     pub pullback: PullBackMode,
     pub interpolation: Interpolation,
     pub backend: Backend,
@@ -85,8 +207,12 @@ pub struct WarpReport {
     pub dims: [usize; 3],
     pub spacing_mm: [f64; 3],
     pub dtype: &'static str,
+    /// The method as fitted (`tps`, `affine`, …), or `field` with `--field`.
     pub method: String,
+    /// Landmark pairs used; 0 with `--field`.
     pub pairs: usize,
+    /// The displacement field applied (`--field`), as given; `null` with landmarks.
+    pub field: Option<String>,
     /// `grid N` or `exact`.
     pub pullback: String,
     pub interpolation: &'static str,
@@ -249,10 +375,38 @@ pub fn write_outputs(
     Ok(())
 }
 
+/// [`WarpSettings`] less the method: how the export runs, whatever the pull-back.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct ExportSettings {
+    pullback: PullBackMode,
+    interpolation: Interpolation,
+    float: bool,
+    backend: Backend,
+    outside_value: Option<f64>,
+}
+
+impl From<&WarpSettings> for ExportSettings {
+    fn from(s: &WarpSettings) -> Self {
+        Self {
+            pullback: s.pullback,
+            interpolation: s.interpolation,
+            float: s.float,
+            backend: s.backend,
+            outside_value: s.outside_value,
+        }
+    }
+}
+
+/// The outside value given, or −1024 for a CT and 0 otherwise.
+fn outside_value(given: Option<f64>, moving: &Volume) -> f64 {
+    given.unwrap_or(if scene::looks_like_ct(moving) { -1024.0 } else { 0.0 })
+}
+
 /// The pull-back as the export takes it, owned.
 enum ExportPullBack {
     Tps(TpsParts),
     Control(ControlGrid, ControlTexture),
+    Voxels(VoxelTexture),
 }
 
 impl ExportPullBack {
@@ -260,15 +414,134 @@ impl ExportPullBack {
         match self {
             Self::Tps(parts) => PullBack::Tps(parts.desc()),
             Self::Control(grid, texture) => PullBack::Control(scene::control_desc(grid, texture)),
+            Self::Voxels(v) => PullBack::Control(v.desc()),
         }
     }
 }
 
-/// The first half of [`resample`]: the pairs checked, the warp fitted, and what the export needs besides the moving
-/// volume's samples. It holds only the output grid's geometry, so `run` frees the fixed and reference voxels before
-/// the output is allocated.
+/// A pull-back evaluated exactly at every voxel centre of the output grid, held as a control texture laid texel
+/// on voxel: how `--exact` applies a displacement field, through the export's control-texture path.
+///
+/// The export looks a control texture up in an axis-aligned box of the target grid's space. To put texel (i, j, k)
+/// on voxel (i, j, k) of any grid, oblique or flipped too, the texture lives in the grid's index space scaled by its
+/// spacings, r = o + S·(i, j, k) with S = diag(spacing_mm) and o the first voxel's centre; the export is given
+/// `ref_from_index` (that map) as the target's geometry, and each texel stores u(x) − r at the voxel's LPS point
+/// x = lps_from_index·(i, j, k), so that the export's r + texel is u(x), to the f32 rounding of the texel. For an
+/// axis-aligned grid with positive spacings r is x itself. The texture holds 16 bytes per output voxel.
+struct VoxelTexture {
+    dims: [usize; 3],
+    /// `[dx, dy, dz, 0]` per voxel, i fastest.
+    texels: Vec<f32>,
+    ref_from_index: [[f64; 4]; 4],
+    box_min_ref: [f64; 3],
+    box_max_ref: [f64; 3],
+}
+
+impl VoxelTexture {
+    /// Refuses (before allocating) a texture over [`warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES`]; `field` names
+    /// the field in that message.
+    fn sample<W: Warp<Moving, Fixed> + ?Sized>(
+        moving_from_fixed: &W,
+        grid: &Volume,
+        field: &Path,
+    ) -> anyhow::Result<Self> {
+        let dims = grid.dims;
+        let m = grid.lps_from_index.rows();
+        let spacing = grid.spacing_mm();
+        let origin = [m[0][3], m[1][3], m[2][3]];
+        let mut ref_from_index = [[0.0; 4]; 4];
+        for a in 0..3 {
+            ref_from_index[a][a] = spacing[a];
+            ref_from_index[a][3] = origin[a];
+        }
+        ref_from_index[3][3] = 1.0;
+        let box_min_ref = std::array::from_fn(|a| origin[a] - 0.5 * spacing[a]);
+        let box_max_ref = std::array::from_fn(|a| origin[a] + (dims[a] as f64 - 0.5) * spacing[a]);
+        let [nx, ny, nz] = dims;
+        let voxels =
+            warpbench_io::volume::check_allocation(field, dims, 16, warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES)
+                .context("evaluating the field at every output voxel (--exact); --grid N needs far less memory")?;
+        let mut texels: Vec<f32> =
+            warpbench_io::volume::try_with_capacity(field, 4 * voxels, "the per-voxel field texture")?;
+        let mut xs = vec![[0.0; 3]; nx];
+        let mut us = vec![[0.0; 3]; nx];
+        for k in 0..nz {
+            for j in 0..ny {
+                for (i, x) in xs.iter_mut().enumerate() {
+                    let ijk = [i as f64, j as f64, k as f64];
+                    *x = std::array::from_fn(|a| m[a][0] * ijk[0] + m[a][1] * ijk[1] + m[a][2] * ijk[2] + m[a][3]);
+                }
+                moving_from_fixed.apply_batch_raw(&xs, &mut us);
+                for (i, u) in us.iter().enumerate() {
+                    let r = [
+                        origin[0] + spacing[0] * i as f64,
+                        origin[1] + spacing[1] * j as f64,
+                        origin[2] + spacing[2] * k as f64,
+                    ];
+                    texels.extend([(u[0] - r[0]) as f32, (u[1] - r[1]) as f32, (u[2] - r[2]) as f32, 0.0]);
+                }
+            }
+        }
+        Ok(Self { dims, texels, ref_from_index, box_min_ref, box_max_ref })
+    }
+
+    fn desc(&self) -> ControlDesc<'_> {
+        ControlDesc {
+            dims: self.dims,
+            texels: &self.texels,
+            box_min_ref: self.box_min_ref,
+            box_max_ref: self.box_max_ref,
+        }
+    }
+}
+
+/// The pull-back [`Fitted`] is made from: fitted on landmark pairs, or read as a displacement field.
+#[derive(Clone, Copy)]
+enum Source<'a> {
+    Fitted(&'a FittedWarp<Moving, Fixed>),
+    /// The field and its file, which messages name.
+    Field(&'a SampledField<Moving, Fixed>, &'a Path),
+}
+
+/// The pull-back `source` as the export evaluates it on `grid` (the output grid) for `mode`, with the target grid
+/// to give the export: `grid` itself, or for [`VoxelTexture`] its texture space.
+fn export_pullback(
+    source: Source<'_>,
+    mode: PullBackMode,
+    grid: &Volume,
+) -> anyhow::Result<(ExportPullBack, TargetGrid)> {
+    let target = TargetGrid { dims: grid.dims, lps_from_index: grid.lps_from_index.rows() };
+    let target_box = inputs::volume_box::<Fixed>(grid);
+    Ok(match (source, mode) {
+        (Source::Fitted(FittedWarp::Tps(t)), PullBackMode::Exact) => (ExportPullBack::Tps(TpsParts::new(t)), target),
+        (Source::Field(field, field_path), PullBackMode::Exact) => {
+            let voxels = VoxelTexture::sample(field, grid, field_path)?;
+            let target = TargetGrid { dims: grid.dims, lps_from_index: voxels.ref_from_index };
+            (ExportPullBack::Voxels(voxels), target)
+        }
+        (Source::Fitted(warp), mode) => {
+            let grid_n = match mode {
+                PullBackMode::Grid(n) => n,
+                // Linear warps: trilinear interpolation of an affine map is exact, so 2³ texels suffice.
+                PullBackMode::Exact => 2,
+            };
+            let (grid, texture) = fit::control_texture(warp, target_box, grid_n)?;
+            (ExportPullBack::Control(grid, texture), target)
+        }
+        (Source::Field(field, _), PullBackMode::Grid(n)) => {
+            let (grid, texture) = scene::control_texture(field, target_box, n)?;
+            (ExportPullBack::Control(grid, texture), target)
+        }
+    })
+}
+
+/// The first half of [`resample`]: the pairs checked, the warp fitted (or the field given), and what the export
+/// needs besides the moving volume's samples. It holds only the output grid's geometry, so `run` frees the fixed and
+/// reference voxels before the output is allocated.
 struct Fitted {
-    settings: WarpSettings,
+    settings: ExportSettings,
+    /// The method's name for the report: as fitted, or `field`.
+    method: String,
     pairs: usize,
     pullback: ExportPullBack,
     target: TargetGrid,
@@ -294,28 +567,42 @@ impl Fitted {
             .map_err(Failure::BadInput)?;
         let target_box = inputs::volume_box::<Fixed>(grid);
         let pullback = fit::pullback_of(&method, &c, target_box).map_err(Failure::BadInput)?;
-        let pullback = match (&pullback, settings.pullback) {
-            (FittedWarp::Tps(t), PullBackMode::Exact) => ExportPullBack::Tps(TpsParts::new(t)),
-            (_, mode) => {
-                let grid_n = match mode {
-                    PullBackMode::Grid(n) => n,
-                    // Linear warps: trilinear interpolation of an affine map is exact, so 2³ texels suffice.
-                    PullBackMode::Exact => 2,
-                };
-                let (grid, texture) = fit::control_texture(&pullback, target_box, grid_n).map_err(Failure::BadInput)?;
-                ExportPullBack::Control(grid, texture)
-            }
-        };
-        let outside_value = settings.outside_value.unwrap_or(if scene::looks_like_ct(moving) { -1024.0 } else { 0.0 });
+        let (pullback, target) =
+            export_pullback(Source::Fitted(&pullback), settings.pullback, grid).map_err(Failure::BadInput)?;
         Ok(Self {
-            settings: *settings,
+            settings: ExportSettings::from(settings),
+            method: method.to_string(),
             pairs: c.moving.len(),
             pullback,
-            target: TargetGrid { dims: grid.dims, lps_from_index: grid.lps_from_index.rows() },
+            target,
             grid_lps_from_index: grid.lps_from_index,
-            outside_value,
+            outside_value: outside_value(settings.outside_value, moving),
             fit_seconds: start.elapsed().as_secs_f64(),
             warnings: fit::fit_warnings(&method, &c),
+        })
+    }
+
+    /// [`Self::new`] for a displacement field.
+    fn from_field(
+        grid: &Volume,
+        moving: &Volume,
+        field: &SampledField<Moving, Fixed>,
+        field_path: &Path,
+        settings: &ExportSettings,
+    ) -> Result<Self, Failure> {
+        let start = Instant::now();
+        let (pullback, target) =
+            export_pullback(Source::Field(field, field_path), settings.pullback, grid).map_err(Failure::BadInput)?;
+        Ok(Self {
+            settings: *settings,
+            method: "field".into(),
+            pairs: 0,
+            pullback,
+            target,
+            grid_lps_from_index: grid.lps_from_index,
+            outside_value: outside_value(settings.outside_value, moving),
+            fit_seconds: start.elapsed().as_secs_f64(),
+            warnings: Vec::new(),
         })
     }
 
@@ -369,7 +656,7 @@ impl Fitted {
         volume.modality = moving.modality.clone();
         Ok(Resampled {
             volume,
-            method: settings.method.to_string(),
+            method: self.method.clone(),
             pairs: self.pairs,
             pullback: match settings.pullback {
                 PullBackMode::Grid(n) => format!("grid {n}"),
@@ -391,17 +678,21 @@ impl Fitted {
 /// of `data-scripts/compare_itk_warp.py` loaded as both, on a busy 2-core machine: 0.76 s, against 1.03 s one after
 /// the other with the bars). With progress bars they load one after the other, so that the bars do not interleave.
 /// Errors come in the same order either way: the fixed volume's first.
-fn load_volumes(inputs: &PairInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
-    if !quiet {
-        return inputs.load_volumes(quiet);
+fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
+    if let (WarpInputs::Pairs(pairs), false) = (inputs, quiet) {
+        return pairs.load_volumes(quiet);
     }
-    let (fixed, moving) = std::thread::scope(|s| {
-        let moving = s.spawn(|| inputs::load_volume(&inputs.moving, true));
-        let fixed = inputs::load_volume(&inputs.fixed, true);
-        (fixed, moving.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)))
-    });
+    let (fixed, moving) = if quiet {
+        std::thread::scope(|s| {
+            let moving = s.spawn(|| inputs::load_volume(inputs.moving(), true));
+            let fixed = inputs::load_volume(inputs.fixed(), true);
+            (fixed, moving.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)))
+        })
+    } else {
+        (inputs::load_volume(inputs.fixed(), false), inputs::load_volume(inputs.moving(), false))
+    };
     let (fixed, moving) = (fixed?, moving?);
-    let reference = inputs.reference.as_deref().map(|p| inputs::load_volume(p, true)).transpose()?;
+    let reference = inputs.reference().map(|p| inputs::load_volume(p, quiet)).transpose()?;
     Ok(PairVolumes { fixed, moving, reference })
 }
 
@@ -410,10 +701,7 @@ fn load_volumes(inputs: &PairInputs, quiet: bool) -> anyhow::Result<PairVolumes>
 pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     opts.out.check(&opts.inputs.paths()).map_err(Failure::BadInput)?;
     check_outputs(&opts.out.path, opts.out_dicom.as_deref()).map_err(Failure::BadInput)?;
-    let method = opts.inputs.method().map_err(Failure::BadInput)?;
-    check_pullback_mode(&method, opts.pullback)?;
-    let settings = WarpSettings {
-        method,
+    let export = ExportSettings {
         pullback: opts.pullback,
         interpolation: opts.interpolation,
         float: opts.float,
@@ -423,18 +711,44 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     let names = opts.inputs.names(&opts.out.path);
 
     let start = Instant::now();
-    let mut lap = Lap(start);
+    // A field is read before the volumes, so that a field `warp` refuses costs no volume loading; its time counts
+    // as the fit's.
+    let given = match &opts.inputs {
+        WarpInputs::Pairs(pairs) => {
+            let method = pairs.method().map_err(Failure::BadInput)?;
+            check_pullback_mode(&method, opts.pullback)?;
+            Given::Pairs(method, &pairs.landmarks)
+        }
+        WarpInputs::Field(f) => Given::Field(Box::new(read_pullback_field(&f.field)?), &f.field),
+    };
+    let field_seconds = start.elapsed().as_secs_f64();
+    let mut lap = Lap(Instant::now());
     let mut seconds = WarpSeconds::default();
     let PairVolumes { fixed, moving, reference } = load_volumes(&opts.inputs, opts.quiet).map_err(Failure::BadInput)?;
     seconds.load = lap.next();
-    let pairs = opts.inputs.landmarks.read().map_err(Failure::BadInput)?;
     // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
     // the output is allocated (peak memory: the moving volume and the output).
-    let fitted = Fitted::new(reference.as_ref().unwrap_or(&fixed), &fixed, &moving, &pairs, &names, &settings)?;
+    let grid = reference.as_ref().unwrap_or(&fixed);
+    let fitted = match &given {
+        Given::Pairs(method, landmarks) => {
+            let pairs = landmarks.read().map_err(Failure::BadInput)?;
+            let settings = WarpSettings {
+                method: *method,
+                pullback: export.pullback,
+                interpolation: export.interpolation,
+                float: export.float,
+                backend: export.backend,
+                outside_value: export.outside_value,
+            };
+            Fitted::new(grid, &fixed, &moving, &pairs, &names, &settings)?
+        }
+        Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
+    };
+    drop(given);
     drop(reference);
     drop(fixed);
 
-    seconds.fit = lap.next();
+    seconds.fit = lap.next() + field_seconds;
     let bar = crate::progress::Bar::new(opts.quiet);
     let resampled = fitted.resample(&moving, &names, &mut |p: Progress| {
         bar.set("resampling", p.slices_done as u64, p.slices_total as u64);
@@ -455,13 +769,13 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     seconds.resample = lap.next();
 
     let volume = &resampled.volume;
-    let description = series_description(&resampled.method, &opts.inputs.moving);
+    let description = series_description(&resampled.method, opts.inputs.moving());
     write_outputs(
         volume,
         &opts.out.path,
         opts.out_dicom.as_deref(),
         &description,
-        Some((&opts.inputs.moving, &moving)),
+        Some((opts.inputs.moving(), &moving)),
     )?;
     seconds.write = lap.next();
     seconds.total = start.elapsed().as_secs_f64();
@@ -474,6 +788,10 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         dtype: volume.sample_type().name(),
         method: resampled.method.clone(),
         pairs: resampled.pairs,
+        field: match &opts.inputs {
+            WarpInputs::Field(f) => Some(f.field.display().to_string()),
+            WarpInputs::Pairs(_) => None,
+        },
         pullback: resampled.pullback.clone(),
         interpolation: resampled.interpolation,
         backend: resampled.backend.clone(),
@@ -481,6 +799,14 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         warnings: resampled.warnings.clone(),
         seconds,
     })
+}
+
+/// The warp [`run`] applies, checked before any volume is loaded.
+enum Given<'a> {
+    /// A method, to fit on the pairs of a landmark source.
+    Pairs(Method, &'a inputs::LandmarkSource),
+    /// A pull-back field, read, and its file.
+    Field(Box<SampledField<Moving, Fixed>>, &'a Path),
 }
 
 /// Seconds since the previous lap.

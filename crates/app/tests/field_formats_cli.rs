@@ -164,11 +164,10 @@ fn the_nifti_flavours_read_by_hand_equal_simpleitk_and_nibabel() {
         assert_eq!(n.datatype, 16, "{name}: float32");
         assert!(n.sform_code > 0, "{name}: the sform holds the geometry");
         // The sform is RAS: the LPS matrix with its first two rows negated.
-        for r in 0..3 {
+        for (r, (srow, lps_row)) in n.srow.iter().zip(&m).enumerate() {
             let sign = if r < 2 { -1.0 } else { 1.0 };
-            for c in 0..4 {
-                let want = sign * m[r][c];
-                assert!((f64::from(n.srow[r][c]) - want).abs() < 1e-4, "{name}: srow[{r}][{c}]");
+            for (c, (&got, &lps)) in srow.iter().zip(lps_row).enumerate() {
+                assert!((f64::from(got) - sign * lps).abs() < 1e-4, "{name}: srow[{r}][{c}]");
             }
         }
         let lps: Vec<[f64; 3]> = idx

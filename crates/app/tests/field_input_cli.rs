@@ -1,0 +1,339 @@
+//! `warpbench warp --field` and `render --field` end to end: a displacement field as the warp, in each flavour.
+//!
+//! Oracle: `tests/data/itk/field_input_reference.json`, made by `data-scripts/field_input_sitk.py` (SimpleITK 2.5.7,
+//! ITK 5.4): `Resample(moving, fixed, DisplacementFieldTransform(field), sitkLinear, 0.0, sitkFloat32)` at every voxel
+//! of the fixed grid, through an oblique 9×8×7 DISPVECT field smaller than the fixed grid (so part of the output lies
+//! outside the field, where ITK's displacement is zero). The same field written here as ANTs' VECTOR NIfTI and as
+//! Slicer's NRRD must give the same output; a forward ("modeling") field, both or neither of --field and landmarks
+//! are refused (exit 2).
+//!
+//! The render test needs a GPU adapter (lavapipe will do); without one it skips, unless REQUIRE_GPU_ADAPTER=1.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use common::{assert_ok, data, utf8 as s, warpbench};
+use warpbench_io::Volume;
+use warpbench_io::displacement::{FieldDirection, FieldFormat, read_field, write_field, write_field_with};
+use warpbench_io::geometry::{Index, Point3, Transform};
+use warpbench_io::volume::{GeometrySource, VoxelData};
+use warpbench_solver::field::SampledField;
+use warpbench_solver::{Fixed, Moving, Warp};
+
+/// The solver's tolerance against ITK's `TransformPoint` on this field (`crates/solver/tests/field_itk.rs`): ITK
+/// evaluates in f64 from the same f32 vectors, the geometry goes through the file's f32 sform.
+const ITK_TOL_MM: f64 = 1e-4;
+
+fn fixture(name: &str) -> PathBuf {
+    data(&format!("itk/field_input_{name}"))
+}
+
+fn reference() -> serde_json::Value {
+    let text = std::fs::read_to_string(fixture("reference.json")).expect("the reference");
+    serde_json::from_str(&text).expect("JSON")
+}
+
+fn f32_samples(path: &Path) -> (Vec<f32>, [usize; 3]) {
+    let v = warpbench_io::open(path).expect("read the output");
+    match v.data {
+        VoxelData::F32(d) => (d, v.dims),
+        other => panic!("{}: {:?} samples, not f32", path.display(), other.sample_type()),
+    }
+}
+
+/// The value tolerance that [`ITK_TOL_MM`] of point error allows: the moving volume's trilinear interpolant changes
+/// by at most Σₐ max |Δₐ v| / spacingₐ per mm of displacement, plus the f32 rounding of the output (4 ulp).
+fn value_tolerance(expected: &[f64]) -> f64 {
+    let moving = warpbench_io::open(fixture("moving.nii.gz")).expect("moving");
+    let VoxelData::F32(v) = &moving.data else { panic!("the moving fixture is f32") };
+    let [nx, ny, nz] = moving.dims;
+    let spacing = moving.spacing_mm();
+    let mut slope = [0.0f64; 3];
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let at = |i: usize, j: usize, k: usize| f64::from(v[i + nx * (j + ny * k)]);
+                let here = at(i, j, k);
+                let steps = [(i + 1 < nx, (i + 1, j, k)), (j + 1 < ny, (i, j + 1, k)), (k + 1 < nz, (i, j, k + 1))];
+                for (a, (ok, (ii, jj, kk))) in steps.into_iter().enumerate() {
+                    if ok {
+                        slope[a] = slope[a].max((at(ii, jj, kk) - here).abs() / spacing[a]);
+                    }
+                }
+            }
+        }
+    }
+    let largest = expected.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    slope.iter().sum::<f64>() * ITK_TOL_MM + 4.0 * largest * f64::from(f32::EPSILON)
+}
+
+/// Runs `warp --field FIELD --exact` (plus `extra`) on the fixtures into `out`; the `--json` report.
+fn warp_field(field: &Path, out: &Path, extra: &[&str]) -> (Output, Option<serde_json::Value>) {
+    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
+    let mut args = vec!["warp", "--fixed", s(&fixed), "--moving", s(&moving), "--field", s(field)];
+    args.extend(extra);
+    args.extend(["--quiet", "--json", "--out", s(out)]);
+    let run = warpbench(&args);
+    let report = serde_json::from_slice(&run.stdout).ok();
+    (run, report)
+}
+
+/// Compares `out` with SimpleITK's resampling voxel by voxel; the largest difference.
+fn assert_matches_itk(out: &Path, what: &str) -> f64 {
+    let reference = reference();
+    let expected: Vec<f64> =
+        reference["values"].as_array().expect("values").iter().map(|v| v.as_f64().expect("a number")).collect();
+    let dims: Vec<usize> =
+        reference["dims"].as_array().expect("dims").iter().map(|d| d.as_u64().expect("a size") as usize).collect();
+    let (got, got_dims) = f32_samples(out);
+    assert_eq!(got_dims.to_vec(), dims, "{what}: output grid");
+    assert_eq!(got.len(), expected.len(), "{what}");
+    let tolerance = value_tolerance(&expected);
+    let mut worst = (0.0f64, 0usize);
+    for (n, (g, e)) in got.iter().zip(&expected).enumerate() {
+        let d = (f64::from(*g) - e).abs();
+        if d > worst.0 {
+            worst = (d, n);
+        }
+    }
+    assert!(
+        worst.0 <= tolerance,
+        "{what}: voxel {} differs from SimpleITK by {} (tolerance {tolerance}): {} vs {}",
+        worst.1,
+        worst.0,
+        got[worst.1],
+        expected[worst.1]
+    );
+    worst.0
+}
+
+#[test]
+fn exact_field_warp_matches_simpleitk_in_every_flavour() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The ITK flavour as committed (DISPVECT, RAS vectors), on the CPU.
+    let itk_out = dir.path().join("itk.nii.gz");
+    let (run, report) = warp_field(&fixture("field.nii.gz"), &itk_out, &["--exact", "--backend", "cpu"]);
+    assert_ok(&run);
+    let report = report.expect("the --json report");
+    assert_eq!(report["schema"], "warpbench-warp/1");
+    assert_eq!(report["method"], "field");
+    assert_eq!(report["pairs"], 0);
+    assert_eq!(report["pullback"], "exact");
+    assert_eq!(report["field"], s(&fixture("field.nii.gz")));
+    assert_matches_itk(&itk_out, "itk flavour");
+
+    // The reference really reaches outside the field's grid: the output there is the moving volume unwarped, and
+    // the field's trilinear interpolation inside. (Both count, or the comparison would test only one rule.)
+    let inside = reference()["fixed_voxels_inside_field"].as_u64().expect("count");
+    let total: u64 =
+        reference()["dims"].as_array().expect("dims").iter().map(|d| d.as_u64().expect("a size")).product();
+    assert!(inside > 100 && total - inside > 100, "{inside} of {total} voxels inside the field");
+
+    // The same field as ANTs writes it (VECTOR, LPS) and as Slicer's NRRD (resampling), written by warpbench.
+    let (field, format) = read_field(&fixture("field.nii.gz")).expect("read the field");
+    assert_eq!(format, FieldFormat::Itk);
+    let itk_values = f32_samples(&itk_out).0;
+    for (format, name) in [(FieldFormat::Ants, "ants1Warp.nii.gz"), (FieldFormat::Nrrd, "field.nrrd")] {
+        let path = dir.path().join(name);
+        write_field(&path, format, field.dims, &field.lps_from_index, &field.displacements_lps).expect("write");
+        assert_eq!(read_field(&path).expect("read back").1, format, "{name} reads as its flavour");
+        let out = dir.path().join(format!("{format}.nii.gz"));
+        let (run, _) = warp_field(&path, &out, &["--exact", "--backend", "cpu"]);
+        assert_ok(&run);
+        assert_matches_itk(&out, name);
+        // The vectors and the grid are the same numbers in every flavour: so is the output, to the f32 geometry.
+        let values = f32_samples(&out).0;
+        let most = values.iter().zip(&itk_values).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+        assert!(f64::from(most) <= value_tolerance(&[300.0]), "{name}: {most} from the ITK flavour's output");
+    }
+
+    // The GPU export evaluates the same per-voxel texture (where there is an adapter).
+    let gpu_out = dir.path().join("gpu.nii.gz");
+    let (run, _) = warp_field(&fixture("field.nii.gz"), &gpu_out, &["--exact", "--backend", "gpu"]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    if run.status.code() == Some(1) && stderr.contains("no GPU adapter") {
+        assert!(std::env::var_os("REQUIRE_GPU_ADAPTER").is_none(), "no GPU adapter: {stderr}");
+    } else {
+        assert_ok(&run);
+        assert_matches_itk(&gpu_out, "gpu backend");
+    }
+}
+
+/// Trilinear interpolation of `v` at the continuous index `c` (every tap inside the grid).
+fn trilinear(v: &[f32], dims: [usize; 3], c: [f64; 3]) -> f64 {
+    let base: [usize; 3] = std::array::from_fn(|a| (c[a].floor() as usize).min(dims[a] - 2));
+    let mut sum = 0.0;
+    for corner in 0..8 {
+        let mut w = 1.0;
+        let mut ijk = [0; 3];
+        for a in 0..3 {
+            let f = c[a] - base[a] as f64;
+            let up = corner >> a & 1 == 1;
+            w *= if up { f } else { 1.0 - f };
+            ijk[a] = base[a] + usize::from(up);
+        }
+        sum += w * f64::from(v[ijk[0] + dims[0] * (ijk[1] + dims[1] * ijk[2])]);
+    }
+    sum
+}
+
+#[test]
+fn exact_field_warp_on_an_oblique_flipped_output_grid() {
+    // `--exact` lays the texture texel on voxel in the output grid's own axes: an output grid that is oblique (the
+    // field's own directions) and runs backwards along j checks that, against a brute-force oracle written here (the
+    // field's pull-back at each voxel centre, then trilinear interpolation of the moving volume in f64).
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (field, _) = read_field(&fixture("field.nii.gz")).expect("read the field");
+    let field_index_from_index: Transform<Index, Index> =
+        Transform::from_scale_translation([0.8, -0.8, 0.8], [1.0, 6.0, 1.0]);
+    let lps_from_index = field.lps_from_index * field_index_from_index;
+    let dims = [8, 7, 6];
+    let reference = dir.path().join("oblique.nii.gz");
+    let grid = Volume::new(
+        &reference,
+        dims,
+        VoxelData::U8(vec![0; dims.iter().product()]),
+        lps_from_index,
+        GeometrySource::NiftiSform { code: 1 },
+    )
+    .expect("grid");
+    warpbench_io::nifti::write(&reference, &grid).expect("write the grid");
+    let grid = warpbench_io::open(&reference).expect("read the grid back");
+    let out = dir.path().join("oblique_out.nii.gz");
+    let (run, _) =
+        warp_field(&fixture("field.nii.gz"), &out, &["--exact", "--backend", "cpu", "--reference", s(&reference)]);
+    assert_ok(&run);
+    let (got, got_dims) = f32_samples(&out);
+    assert_eq!(got_dims, dims);
+
+    let pullback = SampledField::<Moving, Fixed>::from_displacement_field(field).expect("field");
+    let moving = warpbench_io::open(fixture("moving.nii.gz")).expect("moving");
+    let VoxelData::F32(values) = &moving.data else { panic!("the moving fixture is f32") };
+    let moving_index_from_lps = moving.lps_from_index.inverse().expect("invertible");
+    let mut expected = Vec::new();
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let x = grid.lps_from_index.apply_point(Point3::new(i as f64, j as f64, k as f64)).coords();
+                assert!(pullback.displacement_raw(x).is_some(), "voxel ({i}, {j}, {k}) lies inside the field");
+                let u = pullback.apply_raw(x);
+                let c = moving_index_from_lps.apply_point(Point3::from_array(u)).coords();
+                assert!((0..3).all(|a| c[a] >= 0.0 && c[a] <= (moving.dims[a] - 1) as f64), "inside the moving volume");
+                expected.push(trilinear(values, moving.dims, c));
+            }
+        }
+    }
+    let tolerance = value_tolerance(&expected);
+    for (n, (g, e)) in got.iter().zip(&expected).enumerate() {
+        assert!((f64::from(*g) - e).abs() <= tolerance, "voxel {n}: warpbench {g}, oracle {e} (tolerance {tolerance})");
+    }
+}
+
+#[test]
+fn grid_field_warp_samples_the_field_into_the_control_texture() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("grid.nii.gz");
+    let (run, report) = warp_field(&fixture("field.nii.gz"), &out, &["--grid", "64", "--backend", "cpu"]);
+    assert_ok(&run);
+    assert_eq!(report.expect("report")["pullback"], "grid 64");
+    let expected: Vec<f64> =
+        reference()["values"].as_array().expect("values").iter().map(|v| v.as_f64().expect("number")).collect();
+    let got = f32_samples(&out).0;
+    // The texture interpolates across the field's edge, where ITK's displacement jumps to zero, so voxels near the
+    // edge differ; most voxels lie a texel or more from it and agree to the texture's interpolation error.
+    let mut diffs: Vec<f64> = got.iter().zip(&expected).map(|(g, e)| (f64::from(*g) - e).abs()).collect();
+    diffs.sort_by(f64::total_cmp);
+    let median = diffs[diffs.len() / 2];
+    assert!(median < 0.05, "median difference from SimpleITK {median}");
+    let exact = dir.path().join("exact.nii.gz");
+    assert_ok(&warp_field(&fixture("field.nii.gz"), &exact, &["--exact", "--backend", "cpu"]).0);
+    assert_ne!(f32_samples(&exact).0, got, "--grid and --exact are different evaluations");
+}
+
+#[test]
+fn refuses_a_forward_field_both_warps_and_none() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
+    let (field, _) = read_field(&fixture("field.nii.gz")).expect("read the field");
+    let forward = dir.path().join("forward.nrrd");
+    write_field_with(
+        &forward,
+        FieldFormat::Nrrd,
+        FieldDirection::Forward,
+        field.dims,
+        &field.lps_from_index,
+        &field.displacements_lps,
+    )
+    .expect("write");
+    let csv = dir.path().join("pairs.csv");
+    common::write_pairs_csv(&csv, &[([0.0; 3], [0.0; 3]); 4]);
+    let out = dir.path().join("out.nii.gz");
+    let itk_field = fixture("field.nii.gz");
+    let base = ["--fixed", s(&fixed), "--moving", s(&moving), "--quiet", "--out", s(&out)];
+    let expect_bad = |commands: &[&str], extra: &[&str], needles: &[&str]| {
+        for command in commands {
+            let mut args = vec![*command];
+            args.extend(base);
+            args.extend(extra);
+            let run = warpbench(&args);
+            let stderr = String::from_utf8_lossy(&run.stderr);
+            assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
+            for needle in needles {
+                assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
+            }
+            assert!(!out.exists(), "a refused run wrote {}", out.display());
+        }
+    };
+    let both = ["warp", "render"];
+    expect_bad(&both, &["--field", s(&forward)], &["forward.nrrd", "forward displacement field", "give the pull-back"]);
+    let landmarks_too = ["--field", s(&itk_field), "--landmarks", s(&csv)];
+    expect_bad(&both, &landmarks_too, &["'--field <FIELD>'", "'--landmarks <LANDMARKS>'"]);
+    expect_bad(&both, &["--field", s(&itk_field), "--method", "affine"], &["'--field <FIELD>'", "'--method <METHOD>'"]);
+    // Without a warp, render draws the volumes as they are; warp refuses.
+    expect_bad(&["warp"], &[], &["give the warp", "--landmarks", "--moving-points", "--field"]);
+    let not_a_field = fixture("moving.nii.gz");
+    expect_bad(&both, &["--field", s(&not_a_field)], &["field_input_moving.nii.gz"]);
+}
+
+/// Whether the run failed only for want of a GPU (then the test is skipped, outside CI).
+fn no_adapter(out: &Output) -> bool {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    if out.status.code() == Some(1) && stderr.contains("no GPU adapter") {
+        assert!(std::env::var_os("REQUIRE_GPU_ADAPTER").is_none(), "no GPU adapter: {stderr}");
+        eprintln!("skipped: {stderr}");
+        return true;
+    }
+    false
+}
+
+#[test]
+fn render_shows_the_moving_volume_through_the_field() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    // The moving volume as both, so that without a warp the two coincide: the field is what makes them differ.
+    let moving = fixture("moving.nii.gz");
+    let render = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["render", "--fixed", s(&moving), "--moving", s(&moving), "--blend", "moving-only"];
+        args.extend(["--slice", "axial", "--quiet", "--out", s(out)]);
+        args.extend(extra);
+        warpbench(&args)
+    };
+    let plain = dir.path().join("plain.png");
+    let run = render(&plain, &[]);
+    if no_adapter(&run) {
+        return;
+    }
+    assert_ok(&run);
+    let warped = dir.path().join("warped.png");
+    assert_ok(&render(&warped, &["--field", s(&fixture("field.nii.gz"))]));
+    let (a, b) = (image::open(&plain).expect("png").to_rgba8(), image::open(&warped).expect("png").to_rgba8());
+    assert_eq!(a.dimensions(), (16, 16), "an axial slice of the 16³ grid");
+    assert_eq!(a.dimensions(), b.dimensions());
+    let differing = a.pixels().zip(b.pixels()).filter(|(p, q)| p != q).count();
+    // The field covers the middle of the slice (its oblique 27 × 24 × 21 mm grid about (1, −1, 2) mm, in the moving
+    // volume's 40 mm box) and leaves the border as it is.
+    assert!(differing > 16 && differing < 16 * 16, "{differing} of 256 pixels differ with the field");
+    let same_corner = a.get_pixel(0, 0) == b.get_pixel(0, 0);
+    assert!(same_corner, "outside the field's grid the warp is the identity");
+}
