@@ -11,7 +11,10 @@
 //! - each flavour, interpolated trilinearly here from the hand-read vectors, moves 12 off-grid points where ITK's
 //!   `DisplacementFieldTransform` (the class ANTs and Slicer apply fields with) moved them, to 1e-4 mm;
 //! - the forward field obeys its law: a moving point y goes to y + D(y), which `points --from fixed` brings back to y
-//!   within the warp's inverse consistency.
+//!   within the warp's inverse consistency;
+//! - on a pair whose grids differ (a small flipped moving volume), the forward field lies on the moving grid (or
+//!   `--reference`'s) and holds the solver's d(y) − y at every voxel; the `--json` summary names its grid, format and
+//!   direction; and the defaults are `--format itk --direction pullback` on the fixed grid, byte for byte.
 
 mod common;
 
@@ -364,4 +367,131 @@ fn every_flavour_read_by_hand_moves_off_grid_points_as_itks_displacement_field_t
             moved.iter().zip(&points_lps).map(|(m, p)| (0..3).map(|k| (m[k] - p[k]).abs()).fold(0.0, f64::max));
         assert!(moved_most.fold(0.0, f64::max) > 1.0, "{name}: the points move");
     }
+}
+
+/// A small moving volume on its own grid (20×18×16, 2.5 × 2 × 3 mm, j flipped), six pairs inside it and inside the
+/// MRI (the fixed volume), in `dir`: (moving volume, landmark CSV).
+fn small_moving_pair(dir: &Path) -> (PathBuf, PathBuf) {
+    let moving = dir.join("small_moving.nii.gz");
+    let dims = [20, 18, 16];
+    let lps_from_index =
+        warpbench_io::geometry::Transform::from_scale_translation([2.5, -2.0, 3.0], [-24.0, 17.0, -22.0]);
+    let samples = (0..dims.iter().product::<usize>()).map(|n| (n % 97) as f32).collect();
+    let volume = warpbench_io::Volume::new(
+        &moving,
+        dims,
+        warpbench_io::VoxelData::F32(samples),
+        lps_from_index,
+        warpbench_io::GeometrySource::NiftiSform { code: 1 },
+    )
+    .expect("volume");
+    warpbench_io::nifti::write(&moving, &volume).expect("write the moving volume");
+    let fixed_points: [[f64; 3]; 6] = [
+        [-12.0, 10.0, 8.0],
+        [12.0, 10.0, -8.0],
+        [-12.0, -10.0, -8.0],
+        [12.0, -10.0, 8.0],
+        [0.0, 0.0, 14.0],
+        [0.0, 0.0, 0.0],
+    ];
+    let local =
+        [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.5, 0.0, 1.0], [0.0, 0.0, -2.0], [1.0, 1.0, 0.0], [0.0, 0.0, 0.0]];
+    let pairs: Vec<([f64; 3], [f64; 3])> = fixed_points
+        .iter()
+        .zip(local)
+        .map(|(q, l)| ([q[0] + 2.0 + l[0], q[1] - 1.0 + l[1], q[2] + 1.5 + l[2]], *q))
+        .collect();
+    let landmarks = dir.join("small_pairs.csv");
+    common::write_pairs_csv(&landmarks, &pairs);
+    (moving, landmarks)
+}
+
+/// `warpbench field` on the MRI (fixed) and the small moving volume with `flags`, `--json`: the summary.
+fn write_small(moving: &Path, landmarks: &Path, out: &Path, flags: &[&str]) -> Value {
+    let f = mri();
+    let mut args = vec!["field", "--fixed", utf8(&f), "--moving", utf8(moving), "--landmarks", utf8(landmarks)];
+    args.extend_from_slice(flags);
+    args.extend(["--json", "--quiet", "--out", utf8(out)]);
+    let run = warpbench(&args);
+    assert_ok(&run);
+    serde_json::from_slice(&run.stdout).expect("the JSON summary")
+}
+
+#[test]
+fn the_forward_field_lies_on_the_moving_grid_and_holds_d_of_y_minus_y() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (moving_path, landmarks) = small_moving_pair(dir.path());
+    let out = dir.path().join("forward_ants.nii.gz");
+    let json = write_small(&moving_path, &landmarks, &out, &["--format", "ants", "--direction", "forward"]);
+    let moving = warpbench_io::open(&moving_path).expect("the moving volume");
+    assert_eq!(
+        (json["schema"].as_str(), json["grid"].as_str(), json["format"].as_str(), json["direction"].as_str()),
+        (Some("warpbench-field/1"), Some("moving"), Some("ants"), Some("forward"))
+    );
+    assert_eq!(json["dims"], serde_json::json!([20, 18, 16]));
+    assert_eq!(json["lps_from_index"], serde_json::json!(moving.lps_from_index.rows()));
+
+    // Read by hand: the moving grid, in ANTs' layout, and at every voxel centre y the vector d(y) − y.
+    let n = read_nifti(&out);
+    assert_eq!(n.dim, [5, 20, 18, 16, 1, 3, 1, 1]);
+    assert_eq!(n.intent_code, 1007);
+    let pairs = warpbench_io::landmarks::read_bigwarp_csv(&landmarks).expect("pairs");
+    let fixed_points: Vec<_> = pairs.iter().map(|p| as_fixed(p.fixed.expect("fixed"))).collect();
+    let moving_points: Vec<_> = pairs.iter().map(|p| as_moving(p.moving.expect("moving"))).collect();
+    let d = fit::forward(&Method::Tps { stiffness: 0.0 }, &fixed_points, &moving_points, volume_box::<Moving>(&moving))
+        .expect("d");
+    let (mut worst, mut largest) = (0.0f64, 0.0f64);
+    for k in 0..16 {
+        for j in 0..18 {
+            for i in 0..20 {
+                let y = moving
+                    .lps_from_index
+                    .apply_point(warpbench_io::geometry::Point3::new(i as f64, j as f64, k as f64))
+                    .coords();
+                let dy = d.apply_raw(y);
+                let voxel = i + 20 * (j + 18 * k);
+                for c in 0..3 {
+                    let want = dy[c] - y[c];
+                    worst = worst.max((f64::from(n.planes[c][voxel]) - want).abs());
+                    largest = largest.max(want.abs());
+                }
+            }
+        }
+    }
+    // float32 of a few mm: rounding under 1e-6 mm.
+    assert!(worst < 1e-5, "the forward field is {worst} mm from d(y) − y");
+    assert!(largest > 1.0, "the field moves points ({largest} mm)");
+
+    // --reference sets the forward field's grid too.
+    let on_mri = dir.path().join("forward_on_mri.nrrd");
+    let mri_path = mri();
+    let json = write_small(
+        &moving_path,
+        &landmarks,
+        &on_mri,
+        &["--format", "nrrd", "--direction", "forward", "--reference", utf8(&mri_path)],
+    );
+    assert_eq!((json["grid"].as_str(), &json["dims"]), (Some("reference"), &serde_json::json!(DIMS)));
+    assert_eq!(read_nrrd(&on_mri).field("displacement field type"), "modeling");
+}
+
+#[test]
+fn the_defaults_are_the_itk_flavour_and_the_pullback_on_the_fixed_grid() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (moving, landmarks) = small_moving_pair(dir.path());
+    // The small volume as the grid keeps the files small; the fit is the same (over the fixed box).
+    let (default, explicit) = (dir.path().join("default.nii.gz"), dir.path().join("explicit.nii.gz"));
+    let reference = ["--reference", utf8(&moving)];
+    let json = write_small(&moving, &landmarks, &default, &reference);
+    let mut flags = reference.to_vec();
+    flags.extend(["--format", "itk", "--direction", "pullback"]);
+    let explicit_json = write_small(&moving, &landmarks, &explicit, &flags);
+    assert_eq!((json["format"].as_str(), json["direction"].as_str()), (Some("itk"), Some("pullback")));
+    assert_eq!(json["max_displacement_mm"], explicit_json["max_displacement_mm"]);
+    let bytes = std::fs::read(&default).expect("read");
+    assert!(bytes == std::fs::read(&explicit).expect("read"), "the default is --format itk --direction pullback");
+    assert_eq!(read_nifti(&default).intent_code, 1006);
+    // Without --reference the pull-back lies on the fixed grid.
+    let json = write_small(&moving, &landmarks, &dir.path().join("on_fixed.nii.gz"), &[]);
+    assert_eq!((json["grid"].as_str(), &json["dims"]), (Some("fixed"), &serde_json::json!(DIMS)));
 }
