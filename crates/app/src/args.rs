@@ -29,6 +29,21 @@ pub struct PairArgs {
     pub levels: Option<usize>,
 }
 
+/// The flags of a subcommand that writes files and reports what it did: shared by `points`, `transform` and
+/// `landmarks`.
+#[derive(Clone, Copy, Debug, clap::Args)]
+pub struct ReportArgs {
+    /// Print a JSON report to stdout (its schema is in docs/cli.md).
+    #[arg(long)]
+    pub json: bool,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bars or messages.
+    #[arg(long, short)]
+    pub quiet: bool,
+}
+
 impl PairArgs {
     /// The landmark source, if any was given.
     pub fn source(&self) -> Result<Option<LandmarkSource>, Failure> {

@@ -20,6 +20,7 @@ use warpbench_io::landmarks::{
     read_slicer_pair, write_bigwarp_csv_with, write_bigwarp_json_with, write_plain_csv, write_slicer_pair,
 };
 
+use crate::args::ReportArgs;
 use crate::exit::Failure;
 use crate::inputs;
 
@@ -339,15 +340,8 @@ pub struct LandmarksArgs {
     /// Write BigWarp or plain-CSV output in RAS (default LPS).
     #[arg(long)]
     pub out_ras: bool,
-    /// Print the pairs as JSON (schema warpbench-landmarks/1, LPS mm) to stdout.
-    #[arg(long)]
-    pub json: bool,
-    /// Overwrite existing outputs.
-    #[arg(long)]
-    pub force: bool,
-    /// No messages.
-    #[arg(long, short)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub report: ReportArgs,
 }
 
 /// Runs `warpbench landmarks` from its command line, printing to stdout and a line per file written to stderr.
@@ -375,9 +369,9 @@ pub fn run_cli(a: LandmarksArgs) -> Result<(), Failure> {
         ras: a.ras,
         output,
         out_ras: a.out_ras,
-        json: a.json,
-        force: a.force,
-        quiet: a.quiet,
+        json: a.report.json,
+        force: a.report.force,
+        quiet: a.report.quiet,
     };
     let listing = run(&opts, &mut std::io::stdout().lock())?;
     if !opts.quiet && !opts.json {

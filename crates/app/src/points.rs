@@ -36,7 +36,7 @@ use warpbench_io::landmarks::{PointFile, PointFileFormat, PointFileOptions, read
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
-use crate::args::PairArgs;
+use crate::args::{PairArgs, ReportArgs};
 use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, OutputFile, PairVolumes};
@@ -108,15 +108,8 @@ pub struct PointsArgs {
     /// The CSV point list or BigWarp file is in RAS mm (x and y negated), not LPS; Slicer files say it themselves.
     #[arg(long)]
     pub ras: bool,
-    /// Print a JSON report (schema warpbench-points/1, see docs/cli.md) to stdout.
-    #[arg(long)]
-    pub json: bool,
-    /// Overwrite --out if it exists.
-    #[arg(long)]
-    pub force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub report: ReportArgs,
 }
 
 /// The `--json` document, schema `warpbench-points/1` (docs/cli.md).
@@ -164,7 +157,8 @@ pub struct MappedPoint {
 /// Runs `warpbench points`: checks the output, reads the points, loads the pair, fits, maps, writes; prints the
 /// JSON report to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failure> {
-    let PointsArgs { fixed, moving, pairs, from, input, out: out_path, ras, json, force, quiet } = args;
+    let PointsArgs { fixed, moving, pairs, from, input, out: out_path, ras, report: ReportArgs { json, force, quiet } } =
+        args;
     let inputs = pairs.inputs(fixed, moving, None)?;
     let mut input_paths = inputs.paths();
     input_paths.push(&input);

@@ -39,7 +39,7 @@ use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
-use crate::args::PairArgs;
+use crate::args::{PairArgs, ReportArgs};
 use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, OutputFile};
@@ -88,15 +88,8 @@ pub struct TransformArgs {
     /// The ITK transform file to write (.tfm or .txt).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
-    /// Print a JSON summary (schema warpbench-transform/1, see docs/cli.md) to stdout.
-    #[arg(long)]
-    pub json: bool,
-    /// Overwrite --out if it exists.
-    #[arg(long)]
-    pub force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    pub quiet: bool,
+    #[command(flatten)]
+    pub report: ReportArgs,
 }
 
 /// What was written: the `--json` document, schema `warpbench-transform/1` (docs/cli.md).
@@ -121,7 +114,7 @@ pub struct TransformSummary {
 /// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
 /// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
-    let TransformArgs { fixed, moving, pairs, out: out_path, json, force, quiet } = args;
+    let TransformArgs { fixed, moving, pairs, out: out_path, report: ReportArgs { json, force, quiet } } = args;
     let inputs = pairs.inputs(fixed, moving, None)?;
     OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
     let method = inputs.method().map_err(Failure::BadInput)?;
