@@ -14,7 +14,8 @@
 //! fitted on landmarks: u(x) = x + D(x), D interpolated trilinearly in the field's grid and zero outside it, as ITK's
 //! `DisplacementFieldTransform` maps points ([`warpbench_solver::field::SampledField`]). Any flavour
 //! [`warpbench_io::displacement::read_field_info`] reads will do (ITK's DISPVECT NIfTI, ANTs' VECTOR NIfTI, Slicer's
-//! NRRD); a field that says it is the forward map (NRRD `displacement field type:=modeling`) is refused. `--grid N`
+//! NRRD). A field that says it is the forward map d (NRRD `displacement field type:=modeling`) is inverted by
+//! scattered-data interpolation ([`warpbench_solver::invert`]) and its inverse is the pull-back. `--grid N`
 //! samples the field into the control texture like any other pull-back; `--exact` evaluates it at every voxel
 //! centre of the output grid (a control texture laid texel on voxel, see `VoxelTexture`).
 //!
@@ -41,6 +42,7 @@ use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, nifti};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::field::SampledField;
+use warpbench_solver::invert;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
@@ -164,20 +166,51 @@ impl WarpInputs {
     }
 }
 
-/// Reads a displacement field of any flavour ([`displacement::read_field_info`]) as the pull-back
-/// u = moving_from_fixed, u(x) = x + D(x). A field whose file says it is the forward map (NRRD's
-/// `displacement field type:=modeling`) is refused: resampling needs the pull-back. Errors name the file.
-pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, Failure> {
+/// A displacement field read for `warp --field`: the pull-back u = moving_from_fixed, or the forward map d =
+/// fixed_from_moving, which `warp` inverts.
+#[derive(Clone, Debug)]
+pub enum WarpField {
+    /// u(x) = x + D(x) on the field's grid (ITK's convention, and what a NIfTI field is taken to be).
+    Pullback(SampledField<Moving, Fixed>),
+    /// d(y) = y + D(y): a NRRD field whose `displacement field type` is `modeling`.
+    Forward(SampledField<Fixed, Moving>),
+}
+
+/// Reads a displacement field of any flavour ([`displacement::read_field_info`]): a pull-back unless the file
+/// says it is the forward map (NRRD's `displacement field type:=modeling`). Errors name the file.
+pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
     let read = displacement::read_field_info(path)?;
-    if read.direction == Some(FieldDirection::Forward) {
-        return Err(Failure::BadInput(anyhow!(
-            "{}: a forward displacement field (displacement field type: modeling, fixed_from_moving); warping \
-             resamples through the pull-back: give the pull-back (resampling) field, e.g. from \
-             `warpbench field --direction pullback`",
+    let bad = |e: warpbench_solver::SolverError| Failure::BadInput(anyhow!("{}: {e}", path.display()));
+    Ok(match read.direction {
+        Some(FieldDirection::Forward) => {
+            WarpField::Forward(SampledField::from_displacement_field(read.field).map_err(bad)?)
+        }
+        Some(FieldDirection::Pullback) | None => {
+            WarpField::Pullback(SampledField::from_displacement_field(read.field).map_err(bad)?)
+        }
+    })
+}
+
+/// [`read_warp_field`] for `render --field`, which takes the pull-back only: a forward field is refused.
+pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, Failure> {
+    match read_warp_field(path)? {
+        WarpField::Pullback(field) => Ok(field),
+        WarpField::Forward(_) => Err(Failure::BadInput(anyhow!(
+            "{}: a forward displacement field (displacement field type: modeling, fixed_from_moving); render \
+             shows the moving volume through the pull-back: give the pull-back (resampling) field, e.g. from \
+             `warpbench field --direction pullback`, or resample it with `warpbench warp --field`, which inverts it",
             path.display()
-        )));
+        ))),
     }
-    SampledField::from_displacement_field(read.field).map_err(|e| Failure::BadInput(anyhow!("{}: {e}", path.display())))
+}
+
+/// How well an inverted forward field is undone, ‖d(u(y)) − y‖ over a grid of the output box (`--json`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct InverseConsistency {
+    pub rms_mm: f64,
+    pub max_mm: f64,
+    /// Points of the check grid.
+    pub points: usize,
 }
 
 /// Options of `warpbench warp`.
@@ -213,6 +246,8 @@ pub struct WarpReport {
     pub pairs: usize,
     /// The displacement field applied (`--field`), as given; `null` with landmarks.
     pub field: Option<String>,
+    /// With a forward `--field`: how well its inverse, the pull-back used, undoes it; else `null`.
+    pub inverse_consistency_mm: Option<InverseConsistency>,
     /// `grid N` or `exact`.
     pub pullback: String,
     pub interpolation: &'static str,
@@ -290,6 +325,8 @@ pub struct Resampled {
     pub cpu_fallback: Option<String>,
     /// What the fit found suspicious in the pairs, `<landmark file>: <warning>` ([`fit::fit_warnings`]).
     pub warnings: Vec<String>,
+    /// When the pull-back is the inverse of a forward field: its inverse consistency.
+    pub inverse_consistency: Option<InverseConsistency>,
     /// Wall-clock seconds of the fit (landmark checks, fit, control texture) and of the resampling.
     pub fit_seconds: f64,
     pub resample_seconds: f64,
@@ -499,8 +536,8 @@ impl VoxelTexture {
 #[derive(Clone, Copy)]
 enum Source<'a> {
     Fitted(&'a FittedWarp<Moving, Fixed>),
-    /// The field and its file, which messages name.
-    Field(&'a SampledField<Moving, Fixed>, &'a Path),
+    /// A pull-back field (or a forward field's inverse) and the field's file, which messages name.
+    Field(&'a dyn Warp<Moving, Fixed>, &'a Path),
 }
 
 /// The pull-back `source` as the export evaluates it on `grid` (the output grid) for `mode`, with the target grid
@@ -549,6 +586,7 @@ struct Fitted {
     outside_value: f64,
     fit_seconds: f64,
     warnings: Vec<String>,
+    inverse_consistency: Option<InverseConsistency>,
 }
 
 impl Fitted {
@@ -579,20 +617,53 @@ impl Fitted {
             outside_value: outside_value(settings.outside_value, moving),
             fit_seconds: start.elapsed().as_secs_f64(),
             warnings: fit::fit_warnings(&method, &c),
+            inverse_consistency: None,
         })
     }
 
-    /// [`Self::new`] for a displacement field.
+    /// [`Self::new`] for a displacement field. A forward field d is inverted first by scattered-data interpolation
+    /// ([`warpbench_solver::invert`], Brunet et al. 2006 §3.3) over the output grid's box, from samples of d over
+    /// the moving volume's box; the inverse (a hierarchical B-spline) is the pull-back.
     fn from_field(
         grid: &Volume,
         moving: &Volume,
-        field: &SampledField<Moving, Fixed>,
+        field: &WarpField,
         field_path: &Path,
         settings: &ExportSettings,
     ) -> Result<Self, Failure> {
         let start = Instant::now();
-        let (pullback, target) =
-            export_pullback(Source::Field(field, field_path), settings.pullback, grid).map_err(Failure::BadInput)?;
+        let inverted;
+        let (moving_from_fixed, inverse_consistency): (&dyn Warp<Moving, Fixed>, _) = match field {
+            WarpField::Pullback(u) => (u, None),
+            WarpField::Forward(fixed_from_moving) => {
+                // The field is zero outside its grid (ITK's rule), so d jumps back to the identity there; the
+                // inverse is fitted where every preimage lies on the grid: the output box less the largest
+                // displacement and a voxel's margin on each side (beyond it the B-spline holds its edge values).
+                let margin =
+                    fixed_from_moving.max_displacement_mm() + moving.spacing_mm().iter().copied().fold(0.0, f64::max);
+                let out_box = inputs::volume_box::<Fixed>(grid);
+                let (lo, hi) = (out_box.min.coords(), out_box.max.coords());
+                let target_box = warpbench_solver::spaces::Aabb::new(
+                    warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| lo[a] + margin)),
+                    warpbench_io::geometry::Point3::from_array(std::array::from_fn(|a| hi[a] - margin)),
+                );
+                let (inverse, report) = invert::invert(
+                    fixed_from_moving,
+                    inputs::volume_box::<Moving>(moving),
+                    target_box,
+                    &invert::InvertParams::default(),
+                )
+                .map_err(|e| {
+                    Failure::BadInput(anyhow!("{}: inverting the forward field: {e}", field_path.display()))
+                })?;
+                inverted = inverse;
+                let consistency =
+                    InverseConsistency { rms_mm: report.rms_mm, max_mm: report.max_mm, points: report.check_points };
+                (&inverted, Some(consistency))
+            }
+        };
+        let (pullback, target) = export_pullback(Source::Field(moving_from_fixed, field_path), settings.pullback, grid)
+            .map_err(Failure::BadInput)?;
         Ok(Self {
             settings: *settings,
             method: "field".into(),
@@ -603,6 +674,7 @@ impl Fitted {
             outside_value: outside_value(settings.outside_value, moving),
             fit_seconds: start.elapsed().as_secs_f64(),
             warnings: Vec::new(),
+            inverse_consistency,
         })
     }
 
@@ -667,6 +739,7 @@ impl Fitted {
             outside_value: self.outside_value,
             cpu_fallback,
             warnings: self.warnings.clone(),
+            inverse_consistency: self.inverse_consistency,
             fit_seconds: self.fit_seconds,
             resample_seconds,
         })
@@ -719,7 +792,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
             check_pullback_mode(&method, opts.pullback)?;
             Given::Pairs(method, &pairs.landmarks)
         }
-        WarpInputs::Field(f) => Given::Field(Box::new(read_pullback_field(&f.field)?), &f.field),
+        WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();
     let mut lap = Lap(Instant::now());
@@ -792,6 +865,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
             WarpInputs::Field(f) => Some(f.field.display().to_string()),
             WarpInputs::Pairs(_) => None,
         },
+        inverse_consistency_mm: resampled.inverse_consistency,
         pullback: resampled.pullback.clone(),
         interpolation: resampled.interpolation,
         backend: resampled.backend.clone(),
@@ -805,8 +879,8 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
 enum Given<'a> {
     /// A method, to fit on the pairs of a landmark source.
     Pairs(Method, &'a inputs::LandmarkSource),
-    /// A pull-back field, read, and its file.
-    Field(Box<SampledField<Moving, Fixed>>, &'a Path),
+    /// A displacement field, read, and its file.
+    Field(Box<WarpField>, &'a Path),
 }
 
 /// Seconds since the previous lap.

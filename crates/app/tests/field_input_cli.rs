@@ -253,7 +253,7 @@ fn grid_field_warp_samples_the_field_into_the_control_texture() {
 }
 
 #[test]
-fn refuses_a_forward_field_both_warps_and_none() {
+fn render_refuses_a_forward_field_and_both_refuse_both_warps_and_none() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
     let (field, _) = read_field(&fixture("field.nii.gz")).expect("read the field");
@@ -287,7 +287,12 @@ fn refuses_a_forward_field_both_warps_and_none() {
         }
     };
     let both = ["warp", "render"];
-    expect_bad(&both, &["--field", s(&forward)], &["forward.nrrd", "forward displacement field", "give the pull-back"]);
+    // warp inverts a forward field (tests/field_input_cli.rs, `a_forward_field_is_inverted…`); render refuses it.
+    expect_bad(
+        &["render"],
+        &["--field", s(&forward)],
+        &["forward.nrrd", "forward displacement field", "give the pull-back"],
+    );
     let landmarks_too = ["--field", s(&itk_field), "--landmarks", s(&csv)];
     expect_bad(&both, &landmarks_too, &["'--field <FIELD>'", "'--landmarks <LANDMARKS>'"]);
     expect_bad(&both, &["--field", s(&itk_field), "--method", "affine"], &["'--field <FIELD>'", "'--method <METHOD>'"]);
@@ -336,4 +341,137 @@ fn render_shows_the_moving_volume_through_the_field() {
     assert!(differing > 16 && differing < 16 * 16, "{differing} of 256 pixels differ with the field");
     let same_corner = a.get_pixel(0, 0) == b.get_pixel(0, 0);
     assert!(same_corner, "outside the field's grid the warp is the identity");
+}
+
+/// A forward field (`field --direction forward`, NRRD `modeling`) is inverted by `warp` (scattered-data
+/// interpolation, `solver::invert`) into the pull-back ũ it resamples with. Resampling the ramps v(x) = 500 + x_a
+/// (one per axis a) is exact under trilinear interpolation, so the three outputs give ũ(x) itself at every voxel;
+/// the forward map d (`points --from moving`, exact) must bring ũ(x) back to x within what the report's inverse
+/// consistency ‖d(ũ(y)) − y‖ and the field's own interpolation of d (2 mm voxels) allow.
+#[test]
+fn a_forward_field_is_inverted_into_the_pullback_and_its_consistency_reported() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fixed = common::mri();
+    let pairs = common::data("itk/field_pairs.csv");
+    let mri = warpbench_io::open(&fixed).expect("the MRI");
+    let [nx, ny, nz] = mri.dims;
+    let centre = |i: usize, j: usize, k: usize| {
+        mri.lps_from_index.apply_point(warpbench_io::geometry::Point3::new(i as f64, j as f64, k as f64)).coords()
+    };
+    let ramp = |axis: usize| -> PathBuf {
+        let mut samples = Vec::with_capacity(nx * ny * nz);
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    samples.push((500.0 + centre(i, j, k)[axis]) as f32);
+                }
+            }
+        }
+        let path = dir.path().join(format!("ramp{axis}.nii"));
+        let v = warpbench_io::Volume::new(
+            &path,
+            mri.dims,
+            warpbench_io::VoxelData::F32(samples),
+            mri.lps_from_index,
+            warpbench_io::GeometrySource::NiftiSform { code: 1 },
+        )
+        .expect("volume");
+        warpbench_io::nifti::write(&path, &v).expect("write the ramp");
+        path
+    };
+    let ramps = [ramp(0), ramp(1), ramp(2)];
+
+    let forward = dir.path().join("forward.nrrd");
+    let run = warpbench(&[
+        "field",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&ramps[0]),
+        "--landmarks",
+        s(&pairs),
+        "--direction",
+        "forward",
+        "--format",
+        "nrrd",
+        "--out",
+        s(&forward),
+        "--quiet",
+    ]);
+    assert_eq!(run.status.code(), Some(0), "{}", String::from_utf8_lossy(&run.stderr));
+    let mut consistency_max = 0.0;
+    let mut u_tilde: Vec<Vec<f32>> = Vec::new();
+    for (axis, moving) in ramps.iter().enumerate() {
+        let out = dir.path().join(format!("out{axis}.nii"));
+        let args = [
+            "warp",
+            "--fixed",
+            s(&fixed),
+            "--moving",
+            s(moving),
+            "--field",
+            s(&forward),
+            "--exact",
+            "--float",
+            "--backend",
+            "cpu",
+            "--json",
+            "--quiet",
+            "--out",
+            s(&out),
+        ];
+        let run = warpbench(&args);
+        assert_eq!(run.status.code(), Some(0), "{}", String::from_utf8_lossy(&run.stderr));
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("the report");
+        let c = &report["inverse_consistency_mm"];
+        consistency_max = c["max_mm"].as_f64().expect("max_mm");
+        assert!(c["rms_mm"].as_f64().expect("rms_mm") <= consistency_max && consistency_max < 0.05, "{c}");
+        assert!(c["points"].as_u64().expect("points") > 1000);
+        u_tilde.push(f32_samples(&out).0.into_iter().map(|v| v - 500.0).collect());
+    }
+    // ũ(x) at every 6th voxel of the inner region (20 mm from the box's faces), then d(ũ(x)) by `points`.
+    let (mut xs, mut us) = (Vec::new(), Vec::new());
+    for k in (10..nz - 10).step_by(6) {
+        for j in (10..ny - 10).step_by(6) {
+            for i in (10..nx - 10).step_by(6) {
+                let v = i + nx * (j + ny * k);
+                xs.push(centre(i, j, k));
+                us.push([0, 1, 2].map(|a| f64::from(u_tilde[a][v])));
+            }
+        }
+    }
+    let list = dir.path().join("u.csv");
+    let lines: Vec<String> = us.iter().map(|u| format!("{},{},{}", u[0], u[1], u[2])).collect();
+    std::fs::write(&list, lines.join("\n") + "\n").expect("write");
+    let back = dir.path().join("d_of_u.csv");
+    let run = warpbench(&[
+        "points",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&ramps[0]),
+        "--landmarks",
+        s(&pairs),
+        "--from",
+        "moving",
+        "--in",
+        s(&list),
+        "--out",
+        s(&back),
+        "--quiet",
+    ]);
+    assert_eq!(run.status.code(), Some(0), "{}", String::from_utf8_lossy(&run.stderr));
+    let text = std::fs::read_to_string(&back).expect("read");
+    let (mut worst, mut moved) = (0.0f64, 0.0f64);
+    for ((line, x), u) in text.lines().zip(&xs).zip(&us) {
+        let y: Vec<f64> = line.split(',').map(|v| v.parse().expect("a number")).collect();
+        worst = worst.max((0..3).map(|a| (y[a] - x[a]).powi(2)).sum::<f64>().sqrt());
+        moved = moved.max((0..3).map(|a| (u[a] - x[a]).powi(2)).sum::<f64>().sqrt());
+    }
+    assert_eq!(text.lines().count(), xs.len());
+    assert!(moved > 3.0, "the inverse moves points ({moved} mm)");
+    // The field holds d sampled on 2 mm voxels and interpolated linearly (3e-3 mm on these pairs,
+    // data-scripts/field_formats_ref.py); f32 outputs of ~500 add 1e-4 mm.
+    let bound = consistency_max + 0.01;
+    assert!(worst <= bound, "d(ũ(x)) is {worst} mm from x (bound {bound} mm)");
 }
