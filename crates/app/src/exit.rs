@@ -7,7 +7,10 @@
 //! `fit`) return `anyhow` errors that name the file and the problem; every one of those is about the input, and the
 //! subcommands wrap it as [`Failure::BadInput`].
 
+use std::io::Write;
 use std::process::ExitCode;
+
+use anyhow::Context;
 
 /// A failure that knows which exit code it maps to.
 #[derive(Debug)]
@@ -38,6 +41,16 @@ impl Failure {
             Self::BadInput(e) | Self::Internal(e) | Self::AccuracyGate(e) | Self::Cancelled(e) => e,
         }
     }
+}
+
+/// Prints `value` as pretty JSON and a newline to `out`: a subcommand's `--json` report (`what` names it in the error,
+/// e.g. "the JSON summary"). A failure to write is internal (exit code 1).
+pub fn print_json(out: &mut dyn Write, value: &impl serde::Serialize, what: &str) -> Result<(), Failure> {
+    serde_json::to_writer_pretty(&mut *out, value)
+        .map_err(std::io::Error::from)
+        .and_then(|()| writeln!(out))
+        .with_context(|| format!("writing {what}"))
+        .map_err(Failure::Internal)
 }
 
 /// A reader or writer error is about the input (exit code 2): it names the file and the problem.

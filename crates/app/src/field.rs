@@ -34,7 +34,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Mutex, PoisonError};
 
-use anyhow::{Context, anyhow};
+use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::geometry::{Index, Lps, Space, Transform};
@@ -172,11 +172,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         warnings: field.warnings.clone(),
     };
     if opts.json {
-        serde_json::to_writer_pretty(&mut *out, &summary)
-            .map_err(std::io::Error::from)
-            .and_then(|()| writeln!(out))
-            .context("writing the JSON summary")
-            .map_err(Failure::Internal)?;
+        crate::exit::print_json(out, &summary, "the JSON summary")?;
     }
     Ok(summary)
 }

@@ -169,11 +169,7 @@ pub fn run(opts: &LandmarksOptions, out: &mut dyn Write) -> Result<LandmarksList
     }
     let listing = listing(&opts.input, format, &pairs, written);
     if opts.json {
-        serde_json::to_writer_pretty(&mut *out, &listing)
-            .map_err(std::io::Error::from)
-            .and_then(|()| writeln!(out))
-            .context("writing the JSON listing")
-            .map_err(Failure::Internal)?;
+        crate::exit::print_json(out, &listing, "the JSON listing")?;
     } else if opts.output.is_none() {
         write_table(&listing, out).context("writing the listing").map_err(Failure::Internal)?;
     }

@@ -28,7 +28,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, anyhow};
+use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
@@ -266,11 +266,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
         warnings,
     };
     if json {
-        serde_json::to_writer_pretty(&mut *out, &report)
-            .map_err(std::io::Error::from)
-            .and_then(|()| writeln!(out))
-            .context("writing the JSON report")
-            .map_err(Failure::Internal)?;
+        crate::exit::print_json(out, &report, "the JSON report")?;
     } else if !quiet {
         eprintln!(
             "wrote {} ({} points, {} → {} by {}, {}, {} landmark pairs)",

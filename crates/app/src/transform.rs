@@ -31,7 +31,6 @@
 use std::io::Write;
 use std::path::PathBuf;
 
-use anyhow::Context;
 use serde::Serialize;
 use warpbench_io::geometry::Point3;
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
@@ -154,11 +153,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         warnings,
     };
     if json {
-        serde_json::to_writer_pretty(&mut *out, &summary)
-            .map_err(std::io::Error::from)
-            .and_then(|()| writeln!(out))
-            .context("writing the JSON summary")
-            .map_err(Failure::Internal)?;
+        crate::exit::print_json(out, &summary, "the JSON summary")?;
     } else if !quiet {
         eprintln!(
             "wrote {} ({}, {}, {} landmark pairs; maps fixed points to moving points, LPS mm)",

@@ -302,17 +302,6 @@ fn render_refuses_a_forward_field_and_both_refuse_both_warps_and_none() {
     expect_bad(&both, &["--field", s(&not_a_field)], &["field_input_moving.nii.gz"]);
 }
 
-/// Whether the run failed only for want of a GPU (then the test is skipped, outside CI).
-fn no_adapter(out: &Output) -> bool {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    if out.status.code() == Some(1) && stderr.contains("no GPU adapter") {
-        assert!(std::env::var_os("REQUIRE_GPU_ADAPTER").is_none(), "no GPU adapter: {stderr}");
-        eprintln!("skipped: {stderr}");
-        return true;
-    }
-    false
-}
-
 #[test]
 fn render_shows_the_moving_volume_through_the_field() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -326,7 +315,7 @@ fn render_shows_the_moving_volume_through_the_field() {
     };
     let plain = dir.path().join("plain.png");
     let run = render(&plain, &[]);
-    if no_adapter(&run) {
+    if common::failed_for_want_of_a_gpu(&run) {
         return;
     }
     assert_ok(&run);

@@ -6,20 +6,8 @@
 mod common;
 
 use std::path::Path;
-use std::process::Output;
 
 use common::{assert_ok, deformed_pairs as write_pairs, mri as fixture, warpbench};
-
-/// Whether the run failed only for want of a GPU (then the test is skipped, outside CI).
-fn no_adapter(out: &Output) -> bool {
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    if out.status.code() == Some(1) && stderr.contains("no GPU adapter") {
-        assert!(std::env::var_os("REQUIRE_GPU_ADAPTER").is_none(), "no GPU adapter: {stderr}");
-        eprintln!("skipped: {stderr}");
-        return true;
-    }
-    false
-}
 
 fn read_png(path: &Path) -> image::RgbaImage {
     image::open(path).expect("a PNG").to_rgba8()
@@ -44,7 +32,7 @@ fn renders_a_volume_alone_and_a_pair_with_glyphs() {
             .chain([alone.to_str().expect("utf8")])
             .collect::<Vec<_>>(),
     );
-    if no_adapter(&out) {
+    if common::failed_for_want_of_a_gpu(&out) {
         return;
     }
     assert_ok(&out);

@@ -70,3 +70,15 @@ pub fn deformed_pairs(dir: &Path, outside_third: bool) -> PathBuf {
     write_pairs_csv(&path, &pairs);
     path
 }
+
+/// Whether a run of the binary failed only for want of a GPU adapter (then the test is skipped, outside CI, where
+/// `REQUIRE_GPU_ADAPTER` makes it a failure).
+pub fn failed_for_want_of_a_gpu(out: &Output) -> bool {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    if out.status.code() == Some(1) && stderr.contains("no GPU adapter") {
+        assert!(std::env::var_os("REQUIRE_GPU_ADAPTER").is_none(), "no GPU adapter: {stderr}");
+        eprintln!("skipped: {stderr}");
+        return true;
+    }
+    false
+}
