@@ -4,7 +4,9 @@
 // volume's own patient space, `tex` [0,1]^3 texture coordinates, `ctrl_tex` the control texture's.
 // Every sample x_ref is mapped through the volume's pull-back u (Brunet et al. 2006 §3.2):
 //   u(x) = x + disp(ctrl_tex_from_ref · x)     (or u(x) = x on the identity fast path)
-// then sampled at tex_from_lps · u(x), classified with the volume's transfer function and blended.
+// then through the volume's procedural deformation p, computed here per sample (§3.3; crates/gpu/src/procedural.rs;
+// the identity when its kind is PROCEDURAL_NONE), sampled at tex_from_lps · p(u(x)), classified with the volume's
+// transfer function and blended.
 //
 // Shading (Brunet et al. 2006 §3.4; Westermann & Rezk-Salama 2001 §3.3): the gradient at x_ref is taken by central
 // differences *in ref space, through the warp*, of the prefiltered copy v_pf (or the volume when there is none):
@@ -27,6 +29,34 @@
 //
 // The CPU reference in crates/gpu/src/cpu_reference.rs implements the same math: keep the two in sync.
 
+// A deformation of a volume's data computed per sample (crates/gpu/src/procedural.rs gives the formulas). The Rust
+// twin is `ProceduralUniforms` in crates/gpu/src/procedural.rs (tests/shaders.rs compares the layouts).
+struct ProceduralUniforms {
+    // sine: the origin o; twist, bend, bump: the centre c
+    centre_mm: vec3<f32>,
+    // PROCEDURAL_*
+    kind: u32,
+    // shift: the offset t; bump: the vector w
+    vector_mm: vec3<f32>,
+    // sine: A
+    amplitude_mm: f32,
+    // sine: k
+    wavenumber_per_mm: vec3<f32>,
+    // twist: rad/mm; bend: the curvature, 1/mm
+    rate_per_mm: f32,
+    // sine: φ
+    phase_rad: vec3<f32>,
+    // bump: σ
+    sigma_mm: f32,
+    // twist: the axis; bend: the axial axis
+    axis: u32,
+    // bend: the normal axis
+    normal_axis: u32,
+    // bend: ±1, the direction of n
+    normal_sign: f32,
+    _pad0: u32,
+}
+
 // The Rust twin is `VolumeUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
 struct VolumeUniforms {
     tex_from_lps: mat4x4<f32>,
@@ -43,6 +73,7 @@ struct VolumeUniforms {
     flags: u32,
     // iso-surface threshold, value units
     iso_value: f32,
+    procedural: ProceduralUniforms,
 }
 
 // The Rust twin is `EmptySpaceUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
@@ -91,6 +122,14 @@ const VOLUME_VISIBLE: u32 = 1u;
 const VOLUME_HAS_WARP: u32 = 2u;
 const VOLUME_MANUAL_FILTER: u32 = 4u;
 const VOLUME_HAS_PREFILTER: u32 = 8u;
+
+// ProceduralUniforms.kind
+const PROCEDURAL_NONE: u32 = 0u;
+const PROCEDURAL_SHIFT: u32 = 1u;
+const PROCEDURAL_SINE: u32 = 2u;
+const PROCEDURAL_TWIST: u32 = 3u;
+const PROCEDURAL_BEND: u32 = 4u;
+const PROCEDURAL_BUMP: u32 = 5u;
 
 // RaycastUniforms.shading_mode. The pipeline is specialised on it: SHADING is set to the same value at pipeline
 // creation, so each mode's pipeline compiles only its own code.
@@ -266,14 +305,87 @@ fn empty_brick_exit(x_ref: vec3<f32>, origin: vec3<f32>, dir: vec3<f32>, mask: u
     return max(min(min(t_axis.x, t_axis.y), t_axis.z), 0.0);
 }
 
-// tex(u(x_ref)): the volume's texture coordinates of ref point x_ref, through the warp when there is one.
-fn warp_to_tex(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+// The displacement p(y) − y of a procedural deformation at y (the volume's LPS, mm); written as a displacement so
+// that a zero amplitude adds exactly 0. The CPU twin is ProceduralUniforms::displacement (same order of operations).
+fn procedural_displacement(q: ProceduralUniforms, y: vec3<f32>) -> vec3<f32> {
+    switch q.kind {
+        case PROCEDURAL_SHIFT: {
+            return q.vector_mm;
+        }
+        case PROCEDURAL_SINE: {
+            let r = y - q.centre_mm;
+            let arg = q.wavenumber_per_mm * r.yzx + q.phase_rad;
+            return q.amplitude_mm * sin(arg);
+        }
+        case PROCEDURAL_TWIST: {
+            let a = q.axis % 3u;
+            let ua = (a + 1u) % 3u;
+            let va = (a + 2u) % 3u;
+            let theta = q.rate_per_mm * (y[a] - q.centre_mm[a]);
+            let du = y[ua] - q.centre_mm[ua];
+            let dv = y[va] - q.centre_mm[va];
+            let s = sin(theta);
+            let half = sin(0.5 * theta);
+            let cos_minus_one = -2.0 * half * half;
+            var d = vec3<f32>(0.0);
+            d[ua] = du * cos_minus_one - dv * s;
+            d[va] = du * s + dv * cos_minus_one;
+            return d;
+        }
+        case PROCEDURAL_BEND: {
+            let k = q.rate_per_mm;
+            if k == 0.0 {
+                return vec3<f32>(0.0);
+            }
+            let a = q.axis % 3u;
+            let b = q.normal_axis % 3u;
+            let s = y[a] - q.centre_mm[a];
+            let n = q.normal_sign * (y[b] - q.centre_mm[b]);
+            let phi = k * s;
+            let sn = sin(phi);
+            let half = sin(0.5 * phi);
+            let s1 = sn / k - n * sn;
+            let n1 = 2.0 * half * half / k + n * cos(phi);
+            var d = vec3<f32>(0.0);
+            d[a] = s1 - s;
+            d[b] = q.normal_sign * (n1 - n);
+            return d;
+        }
+        case PROCEDURAL_BUMP: {
+            let r = y - q.centre_mm;
+            let g = exp(-dot(r, r) / (2.0 * q.sigma_mm * q.sigma_mm));
+            return g * q.vector_mm;
+        }
+        default: {
+            return vec3<f32>(0.0);
+        }
+    }
+}
+
+// u(x_ref): the pull-back of ref point x_ref into the volume's LPS space, through its control texture when it has
+// one. This is the point a landmark records (picking reports it); the data is read at p(u(x)).
+fn pullback_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
     var p_lps = x_ref;
     if (v.flags & VOLUME_HAS_WARP) != 0u {
         let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
         p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
     }
+    return p_lps;
+}
+
+// tex(p(y)): the volume's texture coordinates of its LPS point y, through its procedural deformation when it has one.
+fn data_tex(v: VolumeUniforms, y_lps: vec3<f32>) -> vec3<f32> {
+    var p_lps = y_lps;
+    if v.procedural.kind != PROCEDURAL_NONE {
+        p_lps = y_lps + procedural_displacement(v.procedural, y_lps);
+    }
     return (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
+}
+
+// tex(p(u(x_ref))): the volume's texture coordinates of ref point x_ref, through the warp and the procedural
+// deformation when there are.
+fn warp_to_tex(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+    return data_tex(v, pullback_lps(ctrl, v, x_ref));
 }
 
 fn outside_tex(p_tex: vec3<f32>) -> bool {
@@ -856,18 +968,7 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
                 }
                 t_hit = 0.5 * (lo + hi);
             }
-            let x_ref = origin + t_hit * dir;
-            var p_lps = x_ref;
-            if (v.flags & VOLUME_HAS_WARP) != 0u {
-                let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
-                p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
-            }
-            out.hit = 1u;
-            out.x_ref = x_ref;
-            out.t_mm = t_hit;
-            out.p_lps = p_lps;
-            out.value = volume_value(vol, v, (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz);
-            return out;
+            return pick_hit_at(vol, ctrl, v, origin, dir, t_hit);
         }
         if pick.probe == PROBE_ACCUMULATED {
             acc = accumulate(acc, q, u.step_mm);
@@ -949,21 +1050,18 @@ fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: 
     return out;
 }
 
-// The hit at t_hit along the ray: x_ref, its pull-back into the volume's LPS space and the value there.
+// The hit at t_hit along the ray: x_ref, its pull-back u(x_ref) into the volume's LPS space and the value there
+// (read at p(u(x_ref)) under a procedural deformation).
 fn pick_hit_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_hit: f32) -> PickHit {
     var out: PickHit;
     let x_ref = origin + t_hit * dir;
-    var p_lps = x_ref;
-    if (v.flags & VOLUME_HAS_WARP) != 0u {
-        let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
-        p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
-    }
+    let p_lps = pullback_lps(ctrl, v, x_ref);
     out.hit = 1u;
     out.target_volume = pick.target_volume;
     out.x_ref = x_ref;
     out.t_mm = t_hit;
     out.p_lps = p_lps;
-    out.value = volume_value(vol, v, (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz);
+    out.value = volume_value(vol, v, data_tex(v, p_lps));
     return out;
 }
 

@@ -257,7 +257,7 @@ fn layer<'a>(
     prefiltered: Option<&'a GpuPrefiltered>,
     style: LayerStyle,
 ) -> GpuLayer<'a> {
-    GpuLayer { volume, control, prefiltered, style }
+    GpuLayer { volume, control, prefiltered, style, procedural: None }
 }
 
 fn ms(d: Duration) -> f64 {

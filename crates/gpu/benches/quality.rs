@@ -293,18 +293,32 @@ fn main() {
                             control: warped.then_some(&fixed_ctrl),
                             prefiltered: Some(&fixed_pf),
                             style: fixed_style,
+                            procedural: None,
                         },
-                        GpuLayer { volume: &moving_gpu, control: None, prefiltered: None, style: hidden(moving_style) },
+                        GpuLayer {
+                            volume: &moving_gpu,
+                            control: None,
+                            prefiltered: None,
+                            style: hidden(moving_style),
+                            procedural: None,
+                        },
                         BlendMode::FixedOnly,
                     )
                 } else {
                     (
-                        GpuLayer { volume: &fixed_gpu, control: None, prefiltered: None, style: hidden(fixed_style) },
+                        GpuLayer {
+                            volume: &fixed_gpu,
+                            control: None,
+                            prefiltered: None,
+                            style: hidden(fixed_style),
+                            procedural: None,
+                        },
                         GpuLayer {
                             volume: &moving_gpu,
                             control: warped.then_some(&moving_ctrl),
                             prefiltered: Some(&moving_pf),
                             style: moving_style,
+                            procedural: None,
                         },
                         BlendMode::MovingOnly,
                     )

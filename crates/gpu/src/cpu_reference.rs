@@ -17,6 +17,7 @@ use crate::glyph::{
 };
 use crate::pick::{PickHit, PickRay, PickRequest, PickTarget, Probe};
 use crate::prefilter::PrefilteredTexels;
+use crate::procedural::PROCEDURAL_NONE;
 use crate::raycast::{
     EARLY_EXIT_ALPHA, RAYCAST_JITTER, RAYCAST_PREINTEGRATED, RaycastUniforms, VOLUME_HAS_PREFILTER, VOLUME_HAS_WARP,
     VOLUME_VISIBLE, VolumeUniforms,
@@ -52,18 +53,30 @@ fn tf_sample(tfs: &[TransferFunction], row: u32, t: f32) -> Vec4 {
     tfs.get(row as usize).map_or(Vec4::ZERO, |tf| Vec4::from_array(tf.sample(t)))
 }
 
-/// The shader's `warp_to_tex`: tex(u(x_ref)).
+/// The shader's `pullback_lps`: u(x_ref) in the volume's LPS space (the point a landmark records).
 #[must_use]
-pub fn warp_to_tex(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
-    let mut p_lps = x_ref;
+pub fn pullback_lps(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
     if v.flags & VOLUME_HAS_WARP != 0
         && let Some(ctrl) = layer.control
     {
         let c_tex = Mat4::from_cols_array_2d(&v.ctrl_tex_from_ref).transform_point3(x_ref);
         let d = trilinear(ctrl.info.dims, c_tex, |i| Vec4::from_array(ctrl.texels[i]));
-        p_lps = x_ref + d.truncate();
+        return x_ref + d.truncate();
     }
+    x_ref
+}
+
+/// The shader's `data_tex`: tex(p(y)) of the volume's LPS point y, through its procedural deformation.
+#[must_use]
+pub fn data_tex(v: &VolumeUniforms, y_lps: Vec3) -> Vec3 {
+    let p_lps = if v.procedural.kind == PROCEDURAL_NONE { y_lps } else { y_lps + v.procedural.displacement(y_lps) };
     Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps)
+}
+
+/// The shader's `warp_to_tex`: tex(p(u(x_ref))).
+#[must_use]
+pub fn warp_to_tex(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
+    data_tex(v, pullback_lps(layer, v, x_ref))
 }
 
 fn outside_tex(p_tex: Vec3) -> bool {
@@ -557,12 +570,8 @@ pub fn pick_with_tables(
 
 /// The hit at `x_ref` (ray parameter `t_hit`): the point pulled back into the volume's LPS space and its value there.
 fn hit_at(layer: &CpuLayer<'_>, v: &VolumeUniforms, request: &PickRequest, x_ref: Vec3, t_hit: f32) -> PickHit {
-    let p_lps = match (v.flags & VOLUME_HAS_WARP != 0, layer.control) {
-        (true, Some(c)) => x_ref + c.displacement(x_ref),
-        _ => x_ref,
-    };
-    let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps);
-    PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, p_tex))
+    let p_lps = pullback_lps(layer, v, x_ref);
+    PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, data_tex(v, p_lps)))
 }
 
 /// The shader's `pick_march_preintegrated`: the accumulated probe, segment by segment as the frame composites.
@@ -806,7 +815,8 @@ mod tests {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 128, 0, 26])]; // α = 26/255 ≈ 0.102 per mm
         let alpha = 26.0f32 / 255.0;
-        let layer = LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false };
+        let layer =
+            LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false, procedural: None };
         let hidden = LayerParams { style: style(false), ..layer };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         for spv in [1.0f32, 2.0, 4.0] {
@@ -825,7 +835,8 @@ mod tests {
     fn interactive_frames_sample_coarser_with_the_same_opacity() {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 128, 0, 26])];
-        let layer = LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false };
+        let layer =
+            LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false, procedural: None };
         let hidden = LayerParams { style: style(false), ..layer };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
@@ -847,7 +858,8 @@ mod tests {
     fn outside_the_box_is_transparent_and_early_exit_stops_at_099() {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 255, 255, 255])];
-        let layer = LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false };
+        let layer =
+            LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false, procedural: None };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
         let u = RaycastUniforms::new(&cam, &settings, (16, 16), &layer, &layer, 1);
@@ -878,7 +890,13 @@ mod tests {
         let ctrl = PreparedControl::prepare(&cdesc, true).expect("prepare");
         let tfs = [TransferFunction::from_points("ramp", &[(0.0, [0.0, 0.0, 0.0, 1.0]), (1.0, [1.0, 1.0, 1.0, 1.0])])];
         let st = LayerStyle { window: Window::from_range(0.0, 7.0), ..style(true) };
-        let params = LayerParams { volume: vol.info, control: Some(ctrl.info), style: st, has_prefilter: false };
+        let params = LayerParams {
+            volume: vol.info,
+            control: Some(ctrl.info),
+            style: st,
+            has_prefilter: false,
+            procedural: None,
+        };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
         let layer = CpuLayer { volume: &vol, control: Some(&ctrl), prefiltered: None };
@@ -907,8 +925,13 @@ mod tests {
             box_max_ref: [4.0; 3],
         };
         let ctrl = PreparedControl::prepare(&cdesc, true).expect("prepare");
-        let params =
-            LayerParams { volume: vol.info, control: Some(ctrl.info), style: style(true), has_prefilter: false };
+        let params = LayerParams {
+            volume: vol.info,
+            control: Some(ctrl.info),
+            style: style(true),
+            has_prefilter: false,
+            procedural: None,
+        };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
         assert!((u.gradient_step_mm - 1.0).abs() < 1e-6, "h defaults to one voxel");
@@ -955,7 +978,7 @@ mod tests {
         );
         let tfs = [band];
         let st = LayerStyle { window: Window::from_range(0.0, 15.0), ..style(true) };
-        let layer = LayerParams { volume: vol.info, control: None, style: st, has_prefilter: false };
+        let layer = LayerParams { volume: vol.info, control: None, style: st, has_prefilter: false, procedural: None };
         let hidden = LayerParams { style: style(false), ..layer };
         let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
         let pixel = |classification, spv: f32, shift_mm: f32| {

@@ -7,7 +7,8 @@
 //!    changes): a grid of bricks over the proxy box of ref space. For each ref brick B (grown by a margin) and each
 //!    volume, the pull-back image u(B) is bounded by the box B + \[d_min, d_max\], d the displacements of the control
 //!    texels whose trilinear support meets B (per texel with [`PreparedControl`]'s texels, else the texture's global
-//!    bounds [`ControlInfo::disp_min_mm`] / `disp_max_mm`); its bounding box in the volume's index space gives the
+//!    bounds [`ControlInfo::disp_min_mm`] / `disp_max_mm`), then, under a procedural deformation p of the layer's data,
+//!    by p's image of that box ([`crate::procedural::Procedural::image_box`]); its bounding box in the volume's index space gives the
 //!    voxels a trilinear lookup there can read (the 8 around each point, clamped to the edge), hence the volume bricks
 //!    it can reach and a value range \[v_min, v_max\]. The volume is **empty** in B when u(B) lies wholly outside its
 //!    texture box (transparent there), or when the transfer function's opacity is zero on every entry the lookups of
@@ -231,6 +232,8 @@ fn layer_may_be_opaque(layer: &OccupancyLayer<'_>, lo: DVec3, hi: DVec3) -> bool
         }
         None => (lo, hi),
     };
+    // Then through the procedural deformation of the layer's data: p(u(B)) lies in p's image of that box.
+    let (p_lo, p_hi) = layer.params.procedural.map_or((p_lo, p_hi), |p| p.image_box(p_lo, p_hi));
     // The box's bounding box in texture coordinates.
     let tex_from_lps = v.tex_from_lps.as_dmat4();
     let (mut t_lo, mut t_hi) = (DVec3::INFINITY, DVec3::NEG_INFINITY);

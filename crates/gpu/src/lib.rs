@@ -17,6 +17,8 @@
 //! - [`settings`]: what a frame is drawn with, as plain data: [`RenderSettings`] ([`BlendMode`], [`Quality`],
 //!   [`Shading`] with its [`ShadingMode`]: unlit, lit DVR, lit iso-surface; gradients through the warp), and per
 //!   volume [`LayerStyle`] and [`LayerParams`].
+//! - [`procedural`]: [`Procedural`] deformations (shift, sine, twist, bend, bump) the shader computes per sample on a
+//!   layer's data, with the bounds the proxy box and empty-space skipping need and their control-texture sampling.
 //! - [`raycast`]: the ray caster, [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), with its
 //!   uniforms ([`RaycastUniforms`], [`VolumeUniforms`]), its shader and its bind slots.
 //! - [`target`]: [`RenderTarget`], the image and the first-hit depth the passes draw into.
@@ -70,6 +72,7 @@ pub mod headless;
 pub mod pick;
 pub mod pool;
 pub mod prefilter;
+pub mod procedural;
 pub mod pullback;
 pub mod raycast;
 pub mod sampling;
@@ -100,6 +103,7 @@ pub use glyph::{
 pub use pick::{PickHit, PickPass, PickRay, PickRequest, PickTarget, Probe};
 pub use pool::{PoolStats, TextureKey, TexturePool};
 pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, PrefilteredTexels};
+pub use procedural::{Axis, Procedural, ProceduralUniforms};
 pub use pullback::{BSplineDesc, LatticeDesc, TpsDesc, TpsLocal};
 pub use raycast::{GpuFrame, GpuLayer, RaycastDrawData, RaycastRenderer, RaycastUniforms, VolumeUniforms};
 pub use settings::{BlendMode, Classification, LayerParams, LayerStyle, Quality, RenderSettings, Shading, ShadingMode};

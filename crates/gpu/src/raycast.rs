@@ -46,6 +46,10 @@ use crate::empty_space::{
 };
 use crate::error::{GpuError, Result};
 use crate::prefilter::GpuPrefiltered;
+use crate::procedural::{
+    PROCEDURAL_BEND, PROCEDURAL_BUMP, PROCEDURAL_NONE, PROCEDURAL_SHIFT, PROCEDURAL_SINE, PROCEDURAL_TWIST, Procedural,
+    ProceduralUniforms,
+};
 use crate::settings::{
     BlendMode, Classification, LayerParams, LayerStyle, RenderSettings, Shading, ShadingMode, proxy_box_ref,
 };
@@ -88,8 +92,10 @@ pub struct VolumeUniforms {
     pub flags: u32,
     /// Iso-surface threshold, value units.
     pub iso_value: f32,
+    /// The deformation of the layer's data the shader computes after the pull-back ([`crate::procedural`]).
+    pub procedural: ProceduralUniforms,
 }
-const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 160);
+const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 240);
 
 /// The empty-space grid a frame skips by ([`crate::empty_space`]): `EmptySpaceUniforms` in shaders/raycast.wgsl
 /// ([`INTERFACE`]).
@@ -149,7 +155,7 @@ pub struct RaycastUniforms {
     /// Empty-space skipping: off unless the frame binds a grid ([`RaycastDrawData::with_empty_space`]).
     pub empty_space: EmptySpaceUniforms,
 }
-const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 576);
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 736);
 
 impl VolumeUniforms {
     /// The uniforms of `layer`, whose transfer function is a row of a texture of `tf_rows` rows.
@@ -179,6 +185,7 @@ impl VolumeUniforms {
             opacity_scale: layer.style.opacity_scale,
             flags,
             iso_value: layer.style.iso_value,
+            procedural: ProceduralUniforms::of(layer.procedural.as_ref()),
         }
     }
 }
@@ -322,7 +329,21 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
             tf_row,
             opacity_scale,
             flags,
-            iso_value
+            iso_value,
+            procedural
+        }),
+        layout!(ProceduralUniforms {
+            centre_mm,
+            kind,
+            vector_mm,
+            amplitude_mm,
+            wavenumber_per_mm,
+            rate_per_mm,
+            phase_rad,
+            sigma_mm,
+            axis,
+            normal_axis,
+            normal_sign
         }),
         layout!(EmptySpaceUniforms { min_ref, enabled, dims, brick_mm }),
         layout!(RaycastUniforms {
@@ -372,6 +393,12 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
         WgslConstant::u32("VOLUME_HAS_PREFILTER", VOLUME_HAS_PREFILTER),
         WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
+        WgslConstant::u32("PROCEDURAL_NONE", PROCEDURAL_NONE),
+        WgslConstant::u32("PROCEDURAL_SHIFT", PROCEDURAL_SHIFT),
+        WgslConstant::u32("PROCEDURAL_SINE", PROCEDURAL_SINE),
+        WgslConstant::u32("PROCEDURAL_TWIST", PROCEDURAL_TWIST),
+        WgslConstant::u32("PROCEDURAL_BEND", PROCEDURAL_BEND),
+        WgslConstant::u32("PROCEDURAL_BUMP", PROCEDURAL_BUMP),
         WgslConstant::u32("RAYCAST_PREINTEGRATED", RAYCAST_PREINTEGRATED),
         WgslConstant::u32("OCCUPIED_FIXED", OCCUPIED_FIXED),
         WgslConstant::u32("OCCUPIED_MOVING", OCCUPIED_MOVING),
@@ -725,6 +752,8 @@ pub struct GpuLayer<'a> {
     /// The [`crate::PrefilterPass`] output of `volume`, for shading gradients; without it they come from `volume`.
     pub prefiltered: Option<&'a GpuPrefiltered>,
     pub style: LayerStyle,
+    /// A deformation of the layer's data computed in the shader ([`LayerParams::procedural`]).
+    pub procedural: Option<Procedural>,
 }
 
 impl GpuLayer<'_> {
@@ -735,6 +764,7 @@ impl GpuLayer<'_> {
             control: self.control.map(|c| c.info),
             style: self.style,
             has_prefilter: self.prefiltered.is_some(),
+            procedural: self.procedural,
         }
     }
 }

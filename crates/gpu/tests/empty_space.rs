@@ -31,12 +31,19 @@ fn camera(azimuth_rad: f32, zoom: f32) -> OrbitCamera {
 
 fn frame<'a>(gpu: &'a GpuScene, s: &Scene) -> GpuFrame<'a> {
     GpuFrame {
-        fixed: GpuLayer { volume: &gpu.fixed, control: None, prefiltered: gpu.fixed_pf.as_ref(), style: s.fixed_style },
+        fixed: GpuLayer {
+            volume: &gpu.fixed,
+            control: None,
+            prefiltered: gpu.fixed_pf.as_ref(),
+            style: s.fixed_style,
+            procedural: None,
+        },
         moving: GpuLayer {
             volume: &gpu.moving,
             control: gpu.control.as_ref(),
             prefiltered: gpu.moving_pf.as_ref(),
             style: s.moving_style,
+            procedural: s.moving_procedural,
         },
         tfs: &gpu.tfs,
     }
@@ -166,6 +173,41 @@ fn skipping_keeps_the_image_bit_exact_through_a_warp() {
     assert!(empty > 0);
 }
 
+/// Through a procedural deformation of the moving layer's data ([`warpbench_gpu::procedural`]), on top of the warp:
+/// the bricks are classified through the deformation's image bounds, and skipping still changes nothing.
+#[test]
+fn skipping_keeps_the_image_bit_exact_through_procedural_deformations() {
+    use warpbench_gpu::{Axis, Procedural};
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let phantoms = Phantoms::new();
+    let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
+    let mut scene = Scene::new(&ctx, &phantoms, Some(&warp), 16);
+    let gpu = GpuScene::new(&ctx, &scene);
+    let c = v3(4.0, -3.0, 2.0);
+    for p in [
+        Procedural::Twist { centre_mm: c, axis: Axis::Y, rate_rad_per_mm: 0.004 },
+        Procedural::bend(c, Axis::Z, Axis::X, false, 0.003),
+        Procedural::Bump { centre_mm: c, sigma_mm: 25.0, vector_mm: v3(12.0, -6.0, 4.0) },
+    ] {
+        scene.moving_procedural = Some(p);
+        let grid = grid(&ctx, &gpu, &scene);
+        for (blend, mode) in [(BlendMode::MovingOnly, ShadingMode::None), (BlendMode::Difference, ShadingMode::Dvr)] {
+            let settings = RenderSettings { blend, shading: Shading::with_mode(mode), ..Default::default() };
+            let u = scene.uniforms(&camera(0.7, 1.0), &settings, SIZE);
+            let (plain, plain_depth) = render(&ctx, &gpu, &scene, &u, None);
+            let (skipped, skipped_depth) = render(&ctx, &gpu, &scene, &u, Some(&grid));
+            let label = format!("{} {} {}", p.name(), blend.name(), mode.name());
+            assert!(coverage(&plain) > 0.2, "{label}: something to see");
+            assert!(plain == skipped, "{label}: skipping changed {} channels", max_diff(&plain, &skipped, 0).1);
+            assert!(plain_depth == skipped_depth, "{label}: skipping changed the first-hit depth");
+        }
+        let u = scene.uniforms(&camera(0.7, 1.0), &RenderSettings::default(), SIZE);
+        let empty = check_empty_bricks_are_transparent(&scene, &gpu, &grid, &u);
+        eprintln!("{}: {:.0} % of bricks empty, {empty} (brick, volume) pairs", p.name(), 100.0 * grid.empty_fraction);
+        assert!(grid.empty_fraction > 0.1, "{}: nothing to skip", p.name());
+    }
+}
+
 /// A grid built for other looks is not used: the frame skips nothing rather than skipping wrongly.
 #[test]
 fn a_grid_for_another_look_is_ignored() {
@@ -222,6 +264,7 @@ fn slab_scene(ctx: &GpuContext, slab_x: &[usize]) -> Scene {
         prefilter: None,
         fixed_pf: None,
         moving_pf: None,
+        moving_procedural: None,
     }
 }
 

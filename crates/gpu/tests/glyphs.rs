@@ -222,9 +222,20 @@ fn slice_glyphs_are_cut_by_the_slab() {
         GlyphInstance::point(beyond, 6.0, FIXED),
     ];
     let u = scene.slice_uniforms(&plane, &settings());
-    let f = warpbench_gpu::GpuLayer { volume: &gpu.fixed, control: None, prefiltered: None, style: scene.fixed_style };
-    let m =
-        warpbench_gpu::GpuLayer { volume: &gpu.moving, control: None, prefiltered: None, style: scene.moving_style };
+    let f = warpbench_gpu::GpuLayer {
+        volume: &gpu.fixed,
+        control: None,
+        prefiltered: None,
+        style: scene.fixed_style,
+        procedural: None,
+    };
+    let m = warpbench_gpu::GpuLayer {
+        volume: &gpu.moving,
+        control: None,
+        prefiltered: None,
+        style: scene.moving_style,
+        procedural: None,
+    };
     let frame = warpbench_gpu::GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
     let data = RaycastDrawData::with_uniforms(&ctx, &renderer, &frame, u);
     let target = RenderTarget::new(&ctx, SIZE.0, SIZE.1);

@@ -94,9 +94,15 @@ fn pick_both(
     rays: &[PickRay],
 ) -> (Vec<PickHit>, Vec<PickHit>) {
     let gpu = GpuScene::new(ctx, scene);
-    let f = GpuLayer { volume: &gpu.fixed, control: None, prefiltered: None, style: scene.fixed_style };
-    let m =
-        GpuLayer { volume: &gpu.moving, control: gpu.control.as_ref(), prefiltered: None, style: scene.moving_style };
+    let f =
+        GpuLayer { volume: &gpu.fixed, control: None, prefiltered: None, style: scene.fixed_style, procedural: None };
+    let m = GpuLayer {
+        volume: &gpu.moving,
+        control: gpu.control.as_ref(),
+        prefiltered: None,
+        style: scene.moving_style,
+        procedural: scene.moving_procedural,
+    };
     let frame = GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
     let data = RaycastDrawData::with_uniforms(ctx, &gpu.renderer, &frame, *u);
     let pass = PickPass::new(ctx, &gpu.renderer).expect("pick pass");
@@ -230,6 +236,71 @@ fn picked_where_drawn(ctx: &GpuContext, classification: Classification) {
     );
 }
 
+/// Picking marches through the layer's procedural deformation as the frame draws it
+/// ([`warpbench_gpu::procedural`]): under a shift by t the ball is drawn, and picked, at −t; the hit reports the
+/// point of the deformed volume's own space (u(x) = x without a warp) and the value read at p(x), ~0 on the surface.
+/// Under a bend the GPU and the CPU march agree, and the frame's first hit lies within a step behind each pick.
+#[test]
+fn picks_march_through_a_procedural_deformation() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let mut scene = ball_scene(&ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
+    std::mem::swap(&mut scene.fixed_style.visible, &mut scene.moving_style.visible);
+    let t = Vec3::new(5.0, -3.5, 2.5);
+    scene.moving_procedural = Some(warpbench_gpu::Procedural::Shift { offset_mm: t });
+    let u = uniforms(&scene, BlendMode::MovingOnly);
+    let rays: Vec<PickRay> = pixel_rays(&u, 2).into_iter().map(|(_, r)| r).collect();
+    let request = PickRequest::new(PickTarget::Moving, Probe::Opacity { threshold: 0.5 });
+    let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &rays);
+    assert_agree("opacity probe, shifted ball", &gpu, &cpu);
+    let (mut checked, mut worst) = (0, 0.0f32);
+    for (ray, hit) in rays.iter().zip(&gpu) {
+        let (origin, dir) = (Vec3::from_array(ray.origin_ref), Vec3::from_array(ray.dir_ref));
+        let o = origin + t;
+        if (o - o.dot(dir) * dir).length() > RADIUS_MM - 1.0 {
+            continue;
+        }
+        let t_surface = sphere_entry(origin, dir, -t, RADIUS_MM).expect("enters");
+        let hit = hit.found().expect("a ray through the shifted ball hits it");
+        worst = worst.max((hit.t_mm - t_surface).abs());
+        assert!(hit.x_ref.iter().zip(&hit.p_lps).all(|(a, b)| a.to_bits() == b.to_bits()), "u is the identity");
+        assert!(hit.value.abs() < 0.05, "value {} at the surface", hit.value);
+        checked += 1;
+    }
+    eprintln!("{checked} rays through the shifted ball: |t_hit − t_surface| ≤ {worst:.4} mm");
+    assert!(checked > 200 && worst <= 0.25 * VOXEL_MM, "{checked} rays, worst {worst} mm");
+
+    // A bend through the warp: the pick and the picture agree.
+    let mut scene = moving_scene(&ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
+    let centre = DVec3::from_array(MOVING_CENTRE).as_vec3();
+    scene.moving_procedural =
+        Some(warpbench_gpu::Procedural::bend(centre, warpbench_gpu::Axis::Z, warpbench_gpu::Axis::X, true, 0.01));
+    let u = uniforms(&scene, BlendMode::MovingOnly);
+    let pixels = pixel_rays(&u, 2);
+    let rays: Vec<PickRay> = pixels.iter().map(|(_, r)| *r).collect();
+    let request = PickRequest::new(PickTarget::Moving, Probe::Accumulated { level: 0.5 });
+    let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &rays);
+    assert!(assert_agree("accumulated ½, bent warped ball", &gpu, &cpu) > 300);
+    let gpu_scene = GpuScene::new(&ctx, &scene);
+    let drawn = gpu_scene.render_target(&ctx, &gpu_scene.renderer, &scene, &u).read_hit_depth(&ctx).expect("depth");
+    let ref_from_clip = Mat4::from_cols_array_2d(&u.ref_from_clip);
+    let mut worst_drawn = (0.0f32, 0.0f32);
+    for ((px, ray), hit) in pixels.iter().zip(&gpu) {
+        let Some(hit) = hit.found() else { continue };
+        let z = drawn[(px[1] * SIZE.0 + px[0]) as usize];
+        assert!(z <= 1.0, "pixel {px:?}: picked but the frame shows nothing");
+        let ndc = glam::Vec2::new(
+            (px[0] as f32 + 0.5) / SIZE.0 as f32 * 2.0 - 1.0,
+            1.0 - (px[1] as f32 + 0.5) / SIZE.1 as f32 * 2.0,
+        );
+        let near = ref_from_clip.project_point3(ndc.extend(0.0));
+        let d = ref_from_clip.project_point3(ndc.extend(z)).distance(near)
+            - Vec3::from_array(hit.x_ref).distance(Vec3::from_array(ray.origin_ref));
+        worst_drawn = (worst_drawn.0.min(d), worst_drawn.1.max(d));
+    }
+    eprintln!("bent ball: drawn − picked in [{:.4}, {:.4}] mm (step {} mm)", worst_drawn.0, worst_drawn.1, u.step_mm);
+    assert!(worst_drawn.0 >= -0.01 && worst_drawn.1 <= u.step_mm + 0.01, "picks are not where the frame draws");
+}
+
 #[test]
 fn gradient_and_accumulated_probes_match_the_cpu_march() {
     let Some(ctx) = context(FeatureRequest::default()) else { return };
@@ -291,7 +362,7 @@ fn empty_and_oversized_requests() {
     assert!(gpu[0].found().is_none() && cpu[0].found().is_none());
     let bad = PickRequest::new(PickTarget::Fixed, Probe::Opacity { threshold: f32::NAN });
     let g = GpuScene::new(&ctx, &scene);
-    let f = GpuLayer { volume: &g.fixed, control: None, prefiltered: None, style: scene.fixed_style };
+    let f = GpuLayer { volume: &g.fixed, control: None, prefiltered: None, style: scene.fixed_style, procedural: None };
     let frame = GpuFrame { fixed: f, moving: f, tfs: &g.tfs };
     let data = RaycastDrawData::with_uniforms(&ctx, &g.renderer, &frame, u);
     let pass = PickPass::new(&ctx, &g.renderer).expect("pass");

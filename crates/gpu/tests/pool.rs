@@ -18,13 +18,19 @@ fn targets_reuse_pooled_textures_by_descriptor() {
     let expected = gpu.render(&ctx, &scene, &u);
 
     let render_into = |target: &RenderTarget| {
-        let f =
-            warpbench_gpu::GpuLayer { volume: &gpu.fixed, control: None, prefiltered: None, style: scene.fixed_style };
+        let f = warpbench_gpu::GpuLayer {
+            volume: &gpu.fixed,
+            control: None,
+            prefiltered: None,
+            style: scene.fixed_style,
+            procedural: None,
+        };
         let m = warpbench_gpu::GpuLayer {
             volume: &gpu.moving,
             control: None,
             prefiltered: None,
             style: scene.moving_style,
+            procedural: None,
         };
         let frame = warpbench_gpu::GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
         let data = warpbench_gpu::RaycastDrawData::with_uniforms(&ctx, &gpu.renderer, &frame, u);

@@ -9,8 +9,9 @@ use warpbench_gpu::headless::headless_or_skip;
 use warpbench_gpu::{
     ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings,
-    PrefilteredTexels, PreparedControl, PreparedVolume, Preset, RaycastDrawData, RaycastRenderer, RaycastUniforms,
-    RenderSettings, RenderTarget, SlicePlane, TransferFunction, VolumeBudget, VolumeDesc, VolumeSamples, Window,
+    PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Procedural, RaycastDrawData, RaycastRenderer,
+    RaycastUniforms, RenderSettings, RenderTarget, SlicePlane, TransferFunction, VolumeBudget, VolumeDesc,
+    VolumeSamples, Window,
 };
 
 pub const N: usize = 64;
@@ -146,6 +147,8 @@ pub struct Scene {
     pub prefilter: Option<PrefilterSettings>,
     pub fixed_pf: Option<PrefilteredTexels>,
     pub moving_pf: Option<PrefilteredTexels>,
+    /// The moving layer's procedural deformation ([`warpbench_gpu::procedural`]).
+    pub moving_procedural: Option<Procedural>,
 }
 
 impl Scene {
@@ -182,6 +185,7 @@ impl Scene {
             prefilter: None,
             fixed_pf: None,
             moving_pf: None,
+            moving_procedural: None,
         }
     }
 
@@ -200,12 +204,14 @@ impl Scene {
                 control: None,
                 style: self.fixed_style,
                 has_prefilter: self.fixed_pf.is_some(),
+                procedural: None,
             },
             LayerParams {
                 volume: self.moving.info,
                 control: self.control.as_ref().map(|c| c.info),
                 style: self.moving_style,
                 has_prefilter: self.moving_pf.is_some(),
+                procedural: self.moving_procedural,
             },
         )
     }
@@ -306,9 +312,15 @@ impl GpuScene {
         s: &Scene,
         u: &RaycastUniforms,
     ) -> Vec<u8> {
-        let f = GpuLayer { volume: &self.fixed, control: None, prefiltered: None, style: s.fixed_style };
-        let m =
-            GpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: None, style: s.moving_style };
+        let f =
+            GpuLayer { volume: &self.fixed, control: None, prefiltered: None, style: s.fixed_style, procedural: None };
+        let m = GpuLayer {
+            volume: &self.moving,
+            control: self.control.as_ref(),
+            prefiltered: None,
+            style: s.moving_style,
+            procedural: s.moving_procedural,
+        };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
         let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
         let target = RenderTarget::new(ctx, u.viewport_px[0] as u32, u.viewport_px[1] as u32);
@@ -358,13 +370,19 @@ impl GpuScene {
         s: &Scene,
         u: &RaycastUniforms,
     ) -> RaycastDrawData {
-        let f =
-            GpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref(), style: s.fixed_style };
+        let f = GpuLayer {
+            volume: &self.fixed,
+            control: None,
+            prefiltered: self.fixed_pf.as_ref(),
+            style: s.fixed_style,
+            procedural: None,
+        };
         let m = GpuLayer {
             volume: &self.moving,
             control: self.control.as_ref(),
             prefiltered: self.moving_pf.as_ref(),
             style: s.moving_style,
+            procedural: s.moving_procedural,
         };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
         RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u)
@@ -448,6 +466,7 @@ pub fn ball_scene(ctx: &GpuContext, value: impl Fn(f32) -> f32, window: (f32, f3
         prefilter: None,
         fixed_pf: None,
         moving_pf: None,
+        moving_procedural: None,
     }
 }
 

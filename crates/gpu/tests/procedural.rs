@@ -1,0 +1,316 @@
+//! Procedural deformations computed in the shader ([`warpbench_gpu::procedural`]): the identities the renderer
+//! states (a zero amplitude is the undeformed frame bit for bit; a shift is the volume translated), every kind
+//! against the CPU reference in frames and slices, and the shader against a control texture of the same deformation.
+//! Picking through a procedural deformation is in `pick.rs`, empty-space skipping in `empty_space.rs`.
+//!
+//! Tolerances:
+//! - GPU vs CPU: `gpu_vs_cpu.rs`'s and `slices.rs`'s 4/255 (their docs say why); the shader's sin, cos and exp may
+//!   differ from Rust's f32 ones by a few ulps, which moves a sample by < 10⁻⁴ mm here.
+//! - A shift against the translated volume: the same texture coordinates up to f32 rounding of y + t against
+//!   (y − (−t)) folded into the matrix; measured 0–1/255, allowed 2/255.
+//! - Shader against a 64³ control texture: trilinear interpolation of a sine of wavenumber k and amplitude A along
+//!   one axis errs by at most h²/8·A·k² (h the texel spacing along that axis); on a linear ramp v(y) = g·y the value
+//!   then errs by at most Σₐ |gₐ|·h²/8·A·kₐ², plus the f32 storage and the sampler's 8-bit weights of lavapipe
+//!   (A·k·h/256 per component), plus one grey level of rounding on each side.
+
+mod common;
+
+use common::*;
+use glam::{DVec3, Vec3};
+use warpbench_gpu::{
+    Axis, BlendMode, ControlDesc, FeatureRequest, OrbitCamera, PrefilterSettings, PreparedControl, PreparedVolume,
+    Procedural, Projection, RenderSettings, Shading, ShadingMode, SlicePlane, TransferFunction, VolumeBudget,
+    VolumeDesc, VolumeSamples, Window,
+};
+
+const SIZE: (u32, u32) = (64, 64);
+/// GPU against the CPU reference, per channel.
+const TOLERANCE: u8 = 4;
+
+fn camera() -> OrbitCamera {
+    let cam =
+        OrbitCamera::fit(v3(-70.0, -70.0, -70.0), v3(70.0, 70.0, 70.0), Projection::Perspective { fov_y_rad: 0.6 });
+    OrbitCamera { azimuth_rad: 0.5, elevation_rad: 0.3, ..cam }
+}
+
+/// One deformation of each kind whose largest displacement over the phantoms' ±100 mm is about `amplitude_mm`.
+fn kinds(amplitude_mm: f32) -> Vec<Procedural> {
+    let c = Vec3::new(4.0, -3.0, 2.0);
+    let a = amplitude_mm;
+    vec![
+        Procedural::Shift { offset_mm: Vec3::new(0.7, -0.45, 0.55) * a },
+        Procedural::Sine {
+            origin_mm: c,
+            amplitude_mm: a,
+            wavenumber_per_mm: Vec3::splat(std::f32::consts::TAU / 190.0),
+            phase_rad: Vec3::new(0.3, 1.7, 4.0),
+        },
+        // θ·R ≈ 2A at the far faces (R ≈ 90 mm from the axis, 96 mm along it).
+        Procedural::Twist { centre_mm: c, axis: Axis::X, rate_rad_per_mm: 2.0 * a / (90.0 * 96.0) },
+        // κ s²/2 ≈ A at s = 96 mm.
+        Procedural::bend(c, Axis::Y, Axis::X, true, 2.0 * a / (96.0 * 96.0)),
+        Procedural::Bump {
+            centre_mm: c + Vec3::new(15.0, 0.0, 10.0),
+            sigma_mm: 30.0,
+            vector_mm: Vec3::new(0.8, -0.36, 0.48) * a,
+        },
+    ]
+}
+
+fn warped_scene(ctx: &warpbench_gpu::GpuContext, phantoms: &Phantoms, warp: &[f32]) -> Scene {
+    Scene::new(ctx, phantoms, Some(warp), 16)
+}
+
+/// A zero amplitude of every kind gives the undeformed frame bit for bit (colour and first-hit depth, unlit and lit
+/// through the landmark warp's control texture, with the same proxy box), and the same slices bit for bit.
+#[test]
+fn a_zero_amplitude_gives_the_undeformed_frame_exactly() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let phantoms = Phantoms::new();
+    let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
+    let mut scene = warped_scene(&ctx, &phantoms, &warp);
+    let gpu = GpuScene::new(&ctx, &scene);
+    let plane = SlicePlane::oblique([5.0, -3.0, 8.0], [1.0, 2.0, 3.0], [0.0, 0.0, 1.0], 2.2, (64, 64)).expect("plane");
+    let mut expected = Vec::new();
+    let box_ref = scene.params().1.box_ref();
+    let box_override_ref = Some((box_ref.0.as_vec3() - Vec3::splat(20.0), box_ref.1.as_vec3() + Vec3::splat(20.0)));
+    let looks: Vec<RenderSettings> = [ShadingMode::None, ShadingMode::Dvr, ShadingMode::Iso]
+        .into_iter()
+        .map(|mode| RenderSettings { shading: Shading::with_mode(mode), box_override_ref, ..Default::default() })
+        .collect();
+    for settings in &looks {
+        let u = scene.uniforms(&camera(), settings, SIZE);
+        let target = gpu.render_target(&ctx, &gpu.renderer, &scene, &u);
+        expected.push((target.read_back(&ctx).expect("colour"), target.read_hit_depth(&ctx).expect("depth")));
+    }
+    let slice =
+        gpu.render_slice(&ctx, &gpu.renderer, &scene, &scene.slice_uniforms(&plane, &RenderSettings::default()));
+    assert!(coverage(&expected[0].0) > 0.2 && coverage(&slice) > 0.3, "something to see");
+    for p in kinds(0.0) {
+        scene.moving_procedural = Some(p);
+        for (settings, (colour, depth)) in looks.iter().zip(&expected) {
+            let u = scene.uniforms(&camera(), settings, SIZE);
+            let target = gpu.render_target(&ctx, &gpu.renderer, &scene, &u);
+            let mode = settings.shading.mode.name();
+            assert!(&target.read_back(&ctx).expect("colour") == colour, "{} {mode}: the colour changed", p.name());
+            let d = target.read_hit_depth(&ctx).expect("depth");
+            assert!(
+                d.iter().zip(depth).all(|(a, b)| a.to_bits() == b.to_bits()),
+                "{} {mode}: the depth changed",
+                p.name()
+            );
+        }
+        let u = scene.slice_uniforms(&plane, &RenderSettings::default());
+        assert!(gpu.render_slice(&ctx, &gpu.renderer, &scene, &u) == slice, "{}: the slice changed", p.name());
+    }
+}
+
+/// Every kind through the landmark warp's control texture: the GPU frame (unlit; lit DVR and iso for two kinds, with
+/// gradients from the prefiltered copies as `gpu_vs_cpu.rs` compares them, and its allowance of 0.5 % of iso
+/// silhouette pixels) and slice match the CPU reference, and the deformation visibly changes the unlit frame.
+#[test]
+fn every_kind_matches_the_cpu_reference() {
+    const ISO_OUTLIERS: f32 = 0.005;
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let phantoms = Phantoms::new();
+    let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
+    let mut scene = warped_scene(&ctx, &phantoms, &warp).with_prefilter(PrefilterSettings::default());
+    let gpu = GpuScene::new(&ctx, &scene);
+    let plane = SlicePlane::axial(&phantoms.ct_lps_from_index, [N; 3], 10.0);
+    let slice_settings = RenderSettings { blend: BlendMode::MovingOnly, ..Default::default() };
+    let undeformed_slice = scene.cpu_slice(&scene.slice_uniforms(&plane, &slice_settings));
+    let undeformed_frame = scene.cpu(&scene.uniforms(&camera(), &RenderSettings::default(), SIZE));
+    let (mut report, mut failures) = (Vec::new(), Vec::new());
+    for p in kinds(6.0) {
+        scene.moving_procedural = Some(p);
+        // Channels the deformation moves in the frames (by > 2) and the slice (by > 8): none if it were ignored.
+        let mut frame_moved = 0;
+        let mut looks = vec![ShadingMode::None];
+        if matches!(p, Procedural::Bend { .. }) {
+            looks.push(ShadingMode::Dvr);
+        }
+        if matches!(p, Procedural::Twist { .. }) {
+            looks.push(ShadingMode::Iso);
+        }
+        for mode in looks {
+            let settings = RenderSettings { shading: Shading::with_mode(mode), ..Default::default() };
+            let u = scene.uniforms(&camera(), &settings, SIZE);
+            let (g, c) = (gpu.render(&ctx, &scene, &u), scene.cpu(&u));
+            let (max, above) = max_diff(&g, &c, 2);
+            let outliers = pixels_over(&g, &c, TOLERANCE) as f32 / (SIZE.0 * SIZE.1) as f32;
+            let (_, moved) = max_diff(&c, &undeformed_frame, 2);
+            report.push(format!(
+                "{} {}: max {max}/255, {above} channels > 2, {:.2} % pixels > {TOLERANCE}; {moved} channels moved by \
+                 > 2 by the deformation",
+                p.name(),
+                mode.name(),
+                100.0 * outliers
+            ));
+            frame_moved = frame_moved.max(moved);
+            let ok = if mode == ShadingMode::Iso { outliers <= ISO_OUTLIERS } else { max <= TOLERANCE };
+            if !ok || coverage(&c) < 0.2 {
+                failures.push(report.last().cloned().unwrap_or_default());
+            }
+        }
+        let u = scene.slice_uniforms(&plane, &slice_settings);
+        let (g, c) = (gpu.render_slice(&ctx, &gpu.renderer, &scene, &u), scene.cpu_slice(&u));
+        let (max, _) = max_diff(&g, &c, 2);
+        let (_, moved) = max_diff(&c, &undeformed_slice, 8);
+        report.push(format!("{} slice: max {max}/255; {moved} channels moved by > 8 by the deformation", p.name()));
+        if max > TOLERANCE || frame_moved + moved < 40 {
+            failures.push(report.last().cloned().unwrap_or_default());
+        }
+    }
+    eprintln!("{}", report.join("\n"));
+    assert!(failures.is_empty(), "procedural deformations:\n{}", failures.join("\n"));
+}
+
+/// Pixels whose largest channel difference is above `limit`.
+fn pixels_over(a: &[u8], b: &[u8], limit: u8) -> usize {
+    a.chunks_exact(4)
+        .zip(b.chunks_exact(4))
+        .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > limit))
+        .count()
+}
+
+/// A shift by t shows the volume translated by −t: the same frame and slice as the undeformed volume whose
+/// `lps_from_index` is moved by −t (an independent path: the geometry, not the shader's deformation).
+#[test]
+fn a_shift_is_the_volume_translated() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let phantoms = Phantoms::new();
+    let t = DVec3::new(9.0, -6.0, 4.5);
+    let mut shifted = Scene::new(&ctx, &phantoms, None, 16);
+    shifted.moving_procedural = Some(Procedural::Shift { offset_mm: t.as_vec3() });
+    let mut moved = Phantoms::new();
+    for (row, offset) in t.to_array().into_iter().enumerate() {
+        moved.mr_lps_from_index[row][3] -= offset;
+    }
+    let translated = Scene::new(&ctx, &moved, None, 16);
+    let (a, b) = (GpuScene::new(&ctx, &shifted), GpuScene::new(&ctx, &translated));
+    // The proxy boxes agree but for the procedural bound's slack: draw both in the same box.
+    let (lo, hi) = shifted.params().1.box_ref();
+    let settings = RenderSettings {
+        blend: BlendMode::MovingOnly,
+        box_override_ref: Some((lo.as_vec3(), hi.as_vec3())),
+        ..Default::default()
+    };
+    let (translated_lo, translated_hi) = translated.params().1.box_ref();
+    assert!((lo - translated_lo).abs().max_element() <= 0.011 && (hi - translated_hi).abs().max_element() <= 0.011);
+    let (ua, ub) = (shifted.uniforms(&camera(), &settings, SIZE), translated.uniforms(&camera(), &settings, SIZE));
+    let (fa, fb) = (a.render(&ctx, &shifted, &ua), b.render_by(&ctx, &a.renderer, &translated, &ub));
+    let (frame_max, _) = max_diff(&fa, &fb, 0);
+    let plane = SlicePlane::coronal(&phantoms.ct_lps_from_index, [N; 3], -5.0);
+    let (sa, sb) = (shifted.slice_uniforms(&plane, &settings), translated.slice_uniforms(&plane, &settings));
+    let (ga, gb) =
+        (a.render_slice(&ctx, &a.renderer, &shifted, &sa), b.render_slice(&ctx, &a.renderer, &translated, &sb));
+    let (slice_max, _) = max_diff(&ga, &gb, 0);
+    let unshifted = Scene::new(&ctx, &phantoms, None, 16);
+    let su = unshifted.slice_uniforms(&plane, &settings);
+    let (_, changed) = max_diff(&a.render_slice(&ctx, &a.renderer, &unshifted, &su), &ga, 8);
+    eprintln!("shift against translation: frame max {frame_max}/255, slice max {slice_max}/255; {changed} moved");
+    assert!(coverage(&fa) > 0.2 && changed > 300, "the shift should visibly move the volume");
+    assert!(frame_max <= 2 && slice_max <= 2, "frame {frame_max}/255, slice {slice_max}/255");
+}
+
+/// A linear ramp v(y) = g·y (mm → value) on a 32³ grid of 3 mm, centred on 0.
+fn ramp_volume(ctx: &warpbench_gpu::GpuContext, g: DVec3) -> PreparedVolume {
+    let n = 32;
+    let lps_from_index = grid_lps_from_index(n, 3.0, [0.0; 3], 0.0);
+    let values: Vec<f32> = (0..n * n * n)
+        .map(|i| {
+            let idx = [(i % n) as f64, ((i / n) % n) as f64, (i / n / n) as f64];
+            let y: [f64; 3] = std::array::from_fn(|r| {
+                (0..3).map(|c| lps_from_index[r][c] * idx[c]).sum::<f64>() + lps_from_index[r][3]
+            });
+            g.dot(DVec3::from_array(y)) as f32
+        })
+        .collect();
+    let desc = VolumeDesc { dims: [n; 3], samples: VolumeSamples::F32(&values), lps_from_index };
+    PreparedVolume::prepare(&desc, ctx.capabilities, VolumeBudget::for_device(&ctx.limits)).expect("ramp")
+}
+
+/// Brunet et al.'s comparison as a law: the sine computed in the shader and the same sine sampled into a 64³ control
+/// texture give slices of a linear ramp that differ by no more than the texture's interpolation error (module docs),
+/// while the deformation itself moves them by much more.
+#[test]
+fn the_shader_and_a_control_texture_agree_within_its_sampling_error() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let g = DVec3::new(1.0, 0.5, -0.25);
+    let ramp = ramp_volume(&ctx, g);
+    let (a_mm, k_per_mm) = (5.0f32, std::f32::consts::TAU / 40.0);
+    let sine = Procedural::Sine {
+        origin_mm: Vec3::ZERO,
+        amplitude_mm: a_mm,
+        wavenumber_per_mm: Vec3::splat(k_per_mm),
+        phase_rad: Vec3::new(0.4, 1.1, 2.3),
+    };
+    let phantoms = Phantoms::new();
+    let mut shader = Scene::new(&ctx, &phantoms, None, 16);
+    shader.fixed = ramp.clone();
+    shader.moving = ramp;
+    shader.tfs =
+        vec![TransferFunction::from_points("grey", &[(0.0, [0.0, 0.0, 0.0, 1.0]), (1.0, [1.0, 1.0, 1.0, 1.0])])];
+    let window = 80.0;
+    shader.moving_style = warpbench_gpu::LayerStyle {
+        window: Window::from_range(-window / 2.0, window / 2.0),
+        tf_row: 0,
+        ..shader.moving_style
+    };
+    shader.fixed_style = shader.moving_style;
+    let plain = Scene { control: None, ..clone_scene(&shader) };
+    shader.moving_procedural = Some(sine);
+    // The same deformation through a 64³ control texture over the ramp's preimage box.
+    let (lo, hi) = shader.params().1.box_ref();
+    let n = 64;
+    let texels = sine.control_texels([n; 3], lo.to_array(), hi.to_array());
+    let desc = ControlDesc { dims: [n; 3], texels: &texels, box_min_ref: lo.to_array(), box_max_ref: hi.to_array() };
+    let texture = Scene {
+        control: Some(PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).expect("control")),
+        ..clone_scene(&plain)
+    };
+    let (gs, gt, gp) = (GpuScene::new(&ctx, &shader), GpuScene::new(&ctx, &texture), GpuScene::new(&ctx, &plain));
+    // Planes well inside the ramp (±48 mm) so that every pixel reads it on both paths.
+    let settings = RenderSettings { blend: BlendMode::MovingOnly, ..Default::default() };
+    let h = (hi - lo) / f64::from(n as u32);
+    let k = f64::from(k_per_mm);
+    let interpolation =
+        (0..3).map(|a| g[a].abs() * h[(a + 1) % 3].powi(2) / 8.0 * f64::from(a_mm) * k * k).sum::<f64>();
+    let sampler = (0..3).map(|a| g[a].abs() * f64::from(a_mm) * k * h[(a + 1) % 3] / 256.0).sum::<f64>();
+    let grey_per_value = 255.0 / f64::from(window);
+    let allowed = ((interpolation + sampler) * grey_per_value).ceil() as u8 + 2;
+    for (name, plane) in [
+        ("axial", SlicePlane::oblique([0.0, 0.0, 3.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], 1.0, (64, 64))),
+        ("oblique", SlicePlane::oblique([2.0, -1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.3, 1.0], 1.0, (64, 64))),
+    ] {
+        let plane = plane.expect("plane");
+        let u = |s: &Scene| s.slice_uniforms(&plane, &settings);
+        let a = gs.render_slice(&ctx, &gs.renderer, &shader, &u(&shader));
+        let b = gt.render_slice(&ctx, &gs.renderer, &texture, &u(&texture));
+        let c = gp.render_slice(&ctx, &gs.renderer, &plain, &u(&plain));
+        let (max, _) = max_diff(&a, &b, 0);
+        let (moved, _) = max_diff(&a, &c, 0);
+        eprintln!(
+            "{name}: shader vs 64³ texture max {max}/255 (bound {allowed}: interpolation {interpolation:.4}, sampler \
+             {sampler:.4} value units); the deformation moves it by up to {moved}/255"
+        );
+        assert!(a.chunks_exact(4).all(|p| p[3] == 255) && b.chunks_exact(4).all(|p| p[3] == 255), "{name}: all inside");
+        assert!(max <= allowed, "{name}: shader and control texture differ by {max}/255 > {allowed}");
+        assert!(moved >= 3 * allowed, "{name}: the deformation moves the slice by only {moved}/255");
+    }
+}
+
+fn clone_scene(s: &Scene) -> Scene {
+    Scene {
+        fixed: s.fixed.clone(),
+        moving: s.moving.clone(),
+        control: s.control.clone(),
+        tfs: s.tfs.clone(),
+        fixed_style: s.fixed_style,
+        moving_style: s.moving_style,
+        prefilter: s.prefilter,
+        fixed_pf: s.fixed_pf.clone(),
+        moving_pf: s.moving_pf.clone(),
+        moving_procedural: s.moving_procedural,
+    }
+}
