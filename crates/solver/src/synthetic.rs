@@ -258,6 +258,21 @@ impl Bend {
     }
 }
 
+/// The parameters of a kind whose forward map has a closed form a renderer can evaluate per sample (`sine`, `twist`,
+/// `bend`, `bump`), in the module docs' formulas; the random spline kinds have none ([`SyntheticWarp::closed_form`]).
+/// Axes are 0, 1, 2 for x, y, z; lengths in mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ClosedForm {
+    /// dₐ(x) = xₐ + a sin(kₐ (x_b − o_b) + φₐ), b = a + 1 mod 3.
+    Sine { origin: [f64; 3], wavenumber_per_mm: [f64; 3], phase_rad: [f64; 3], amp_mm: f64 },
+    /// A rotation about the line through `centre` along `axis` by θ = rate · (x_axis − centre_axis).
+    Twist { centre: [f64; 3], axis: usize, rate_rad_per_mm: f64 },
+    /// The bend with s = x_axial − c_axial, n = `normal_sign` · (x_normal − c_normal).
+    Bend { centre: [f64; 3], axial: usize, normal: usize, normal_sign: f64, curvature_per_mm: f64 },
+    /// d(x) = x + exp(−‖x − c‖²/2σ²) w.
+    Bump { centre: [f64; 3], sigma_mm: f64, vector_mm: [f64; 3] },
+}
+
 /// A seeded synthetic forward warp d = `fixed_from_moving` over a moving-space box (module docs).
 #[derive(Clone, Debug)]
 pub struct SyntheticWarp {
@@ -429,6 +444,34 @@ impl SyntheticWarp {
             Field::Tps(tps) => Some(tps.weights().iter().map(|w| norm(*w)).sum()),
             Field::BSpline(lattice) => Some(lattice_lipschitz(lattice)),
             Field::Twist { .. } | Field::Bend(_) => None,
+        }
+    }
+
+    /// The kind's closed-form parameters, for a renderer that evaluates d per sample (`None` for `tps-random` and
+    /// `bspline-random`).
+    #[must_use]
+    pub fn closed_form(&self) -> Option<ClosedForm> {
+        match &self.field {
+            Field::Sine { origin, wavenumber_per_mm, phase_rad, amp_mm } => Some(ClosedForm::Sine {
+                origin: *origin,
+                wavenumber_per_mm: *wavenumber_per_mm,
+                phase_rad: *phase_rad,
+                amp_mm: *amp_mm,
+            }),
+            Field::Twist { centre, axis, rate_rad_per_mm } => {
+                Some(ClosedForm::Twist { centre: *centre, axis: *axis, rate_rad_per_mm: *rate_rad_per_mm })
+            }
+            Field::Bend(b) => Some(ClosedForm::Bend {
+                centre: b.centre,
+                axial: b.axial,
+                normal: b.normal,
+                normal_sign: b.sign,
+                curvature_per_mm: b.curvature_per_mm,
+            }),
+            Field::Bump { centre, sigma_mm, vector_mm } => {
+                Some(ClosedForm::Bump { centre: *centre, sigma_mm: *sigma_mm, vector_mm: *vector_mm })
+            }
+            Field::Tps(_) | Field::BSpline(_) => None,
         }
     }
 
