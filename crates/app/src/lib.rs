@@ -41,6 +41,7 @@ pub mod info;
 pub mod inputs;
 pub mod landmarks;
 pub mod points;
+pub mod procedural;
 pub mod progress;
 pub mod render;
 pub mod scene;

@@ -10,8 +10,9 @@ use warpbench_app::field::{self, FieldOptions};
 use warpbench_app::gui::{self, GuiOptions};
 use warpbench_app::info::{self, InfoOptions};
 use warpbench_app::inputs::{LandmarkSource, OutputFile};
+use warpbench_app::procedural::ProceduralSpec;
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
-use warpbench_app::settings::{Blend, MethodKind, Preset, Shading};
+use warpbench_app::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading};
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpInputs, WarpOptions};
 use warpbench_gpu::export::Interpolation;
 use warpbench_io::displacement::{FieldDirection, FieldFormat};
@@ -355,6 +356,17 @@ struct RenderArgs {
     /// (e.g. axial:40; default the centre).
     #[arg(long)]
     slice: Option<SliceSpec>,
+    /// Deform the moving volume in the shader: eval's synthetic warp of this kind (sine, twist, bend, bump) over the
+    /// moving volume's box, or a shift; read at p(u(x)) after the landmark warp u. --moving V --fixed V shows the
+    /// volume eval --kind K --amplitude-mm A --seed S tests.
+    #[arg(long, value_enum)]
+    procedural: Option<ProceduralKind>,
+    /// The procedural deformation's largest displacement over the moving volume's box (mm), as eval's --amplitude-mm.
+    #[arg(long, default_value_t = 5.0, requires = "procedural")]
+    procedural_amplitude_mm: f64,
+    /// The procedural deformation's seed, as eval's --seed.
+    #[arg(long, default_value_t = 1, requires = "procedural")]
+    procedural_seed: u64,
     /// Leave out the landmark glyphs.
     #[arg(long)]
     no_glyphs: bool,
@@ -471,6 +483,11 @@ fn run_render(a: RenderArgs) -> Result<(), Failure> {
         size: a.size,
         samples_per_voxel: a.samples_per_voxel,
         slice: a.slice,
+        procedural: a.procedural.map(|kind| ProceduralSpec {
+            kind,
+            amplitude_mm: a.procedural_amplitude_mm,
+            seed: a.procedural_seed,
+        }),
         glyphs: !a.no_glyphs,
         out: OutputFile { path: a.out, force: a.force },
         quiet: a.quiet,

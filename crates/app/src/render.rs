@@ -7,7 +7,8 @@
 //! orange, and a line between them (the residual; zero length for an interpolating warp). With `--field F` instead of
 //! landmarks, the moving volume is pulled back through the displacement field (u(x) = x + D(x), read by
 //! [`crate::warp::read_pullback_field`]) sampled into the same control texture, and no glyphs are drawn. `--slice`
-//! draws a slice of the fixed grid instead of the 3-D view.
+//! draws a slice of the fixed grid instead of the 3-D view. `--procedural KIND` deforms the moving volume in the shader
+//! by `eval`'s synthetic warp of that kind ([`crate::procedural`]), read at p(u(x)) after the warp.
 
 use std::path::{Path, PathBuf};
 
@@ -26,6 +27,7 @@ use warpbench_solver::warp::Warp;
 
 use crate::exit::Failure;
 use crate::inputs::{self, LandmarkSource, OutputFile};
+use crate::procedural::ProceduralSpec;
 use crate::{fit, scene, settings};
 
 /// Which slice of the fixed grid `--slice` asks for.
@@ -118,6 +120,8 @@ pub struct RenderOptions {
     pub size: (u32, u32),
     pub samples_per_voxel: f32,
     pub slice: Option<SliceSpec>,
+    /// The moving volume's procedural deformation ([`crate::procedural`]).
+    pub procedural: Option<ProceduralSpec>,
     pub glyphs: bool,
     pub out: OutputFile,
     pub quiet: bool,
@@ -192,12 +196,25 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     if opts.field.is_some() && opts.moving.is_none() {
         return Err(Failure::BadInput(anyhow!("--field needs a moving volume (--moving)")));
     }
+    if opts.procedural.is_some() && opts.moving.is_none() {
+        return Err(Failure::BadInput(anyhow!(
+            "--procedural deforms the moving volume: give --moving (the --fixed file itself shows the volume eval tests)"
+        )));
+    }
     // Read before the volumes: a field `render` refuses costs no loading.
     let field = opts.field.as_deref().map(crate::warp::read_pullback_field).transpose()?;
     let fixed = inputs::load_volume(&opts.fixed, opts.quiet).map_err(Failure::BadInput)?;
     let moving =
         opts.moving.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose().map_err(Failure::BadInput)?;
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
+    let procedural = match (&opts.procedural, &moving) {
+        (Some(spec), Some(m)) => Some(
+            spec.build(inputs::volume_box::<Moving>(m))
+                .with_context(|| format!("{}", opts.moving.as_deref().unwrap_or(Path::new("")).display()))
+                .map_err(Failure::BadInput)?,
+        ),
+        _ => None,
+    };
 
     // The warp's control texture, and the glyphs when there are landmarks.
     let method = inputs::method_from_args(opts.method, opts.stiffness, opts.levels).map_err(Failure::BadInput)?;
@@ -261,6 +278,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         control: None,
         prefiltered: fixed_layer.prefiltered.as_ref(),
         style: fixed_layer.style,
+        procedural: None,
     };
     let moving_gpu = match &moving_layer {
         Some((layer, _)) => GpuLayer {
@@ -268,6 +286,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
             control: control.as_ref(),
             prefiltered: layer.prefiltered.as_ref(),
             style: layer.style,
+            procedural,
         },
         // Without a moving volume the fixed one fills the slot, hidden.
         None => GpuLayer { style: LayerStyle { visible: false, ..fixed_layer.style }, ..fixed_gpu },

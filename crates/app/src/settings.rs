@@ -1,6 +1,6 @@
 //! The choices a user makes by name: how the two volumes blend ([`Blend`]), the warp family ([`MethodKind`]), how a
-//! click in the 3-D view finds its point ([`Probe`]), the lighting ([`Shading`]) and a volume's transfer function
-//! ([`Preset`]).
+//! click in the 3-D view finds its point ([`Probe`]), the lighting ([`Shading`]), a volume's transfer function
+//! ([`Preset`]) and the procedural deformation of the moving volume ([`ProceduralKind`]).
 //!
 //! Each is an enum with `ALL` (menu order), `name()` (the stable name sessions store and the command line takes),
 //! `FromStr` and `Display` by that name, serde as that name, and `clap::ValueEnum`, so that the window, the session
@@ -233,6 +233,23 @@ impl Shading {
             Self::Dvr => S::Dvr,
             Self::Iso => S::Iso,
         }
+    }
+}
+
+choice! {
+    /// A deformation of the moving volume the renderer computes per sample ([`crate::procedural`]); the closed-form
+    /// synthetic warps of `eval` and a shift.
+    ProceduralKind, "procedural deformation", default Sine {
+        /// A constant offset.
+        Shift = "shift",
+        /// A shear of sines, one wavelength across the volume.
+        Sine = "sine",
+        /// A rotation about an axis by an angle growing along it.
+        Twist = "twist",
+        /// The axis bent into an arc.
+        Bend = "bend",
+        /// A Gaussian bump.
+        Bump = "bump",
     }
 }
 

@@ -209,12 +209,14 @@ impl Viewer {
                 control: None,
                 prefiltered: Some(&self.fixed.prefiltered),
                 style: style(&self.looks[0], 0),
+                procedural: None,
             },
             moving: GpuLayer {
                 volume: &self.moving.volume,
                 control: self.control.as_ref(),
                 prefiltered: Some(&self.moving.prefiltered),
                 style: style(&self.looks[1], 1),
+                procedural: None,
             },
             tfs: &self.tfs,
         }
