@@ -361,5 +361,6 @@ mod tests {
         assert_eq!(with(|s| s.oblique[1].on = true), Effect::Slices);
         assert_eq!(with(|s| (s.pick_probe, s.pick_threshold) = (Probe::Gradient, 50.0)), Effect::None);
         assert_eq!(with(|s| (s.oblique[0].tilt_deg, s.mix_weight) = (5.0, 0.1)), Effect::Render);
+        assert_eq!(with(|s| s.procedural = Some(crate::procedural::ProceduralSpec::default())), Effect::Render);
     }
 }

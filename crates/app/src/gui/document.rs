@@ -16,6 +16,7 @@ use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 
+use crate::procedural::ProceduralSpec;
 use crate::settings::{Blend, MethodKind, Preset, Probe, Shading, or_default};
 
 /// What the user edits: the pair's paths and looks, the landmark pairs, the warp and view settings.
@@ -113,6 +114,10 @@ pub struct ViewSettings {
     /// The probe's threshold: opacity (0..1), gradient magnitude (value units per mm) or accumulated opacity.
     #[serde(default = "default_pick_threshold")]
     pub pick_threshold: f32,
+    /// A procedural deformation of the moving volume, computed in the shader ([`crate::procedural`]): a view of a
+    /// known synthetic deformation (eval's), which the exports leave out.
+    #[serde(default)]
+    pub procedural: Option<ProceduralSpec>,
 }
 
 fn default_pick_threshold() -> f32 {
@@ -126,6 +131,9 @@ pub struct Oblique {
     pub tilt_deg: f32,
     pub spin_deg: f32,
 }
+
+/// The largest procedural amplitude the window offers, mm.
+pub const PROCEDURAL_MAX_MM: f64 = 40.0;
 
 /// The oblique controls' range of tilt and spin, degrees.
 pub const OBLIQUE_MAX_DEG: f32 = 75.0;
@@ -146,6 +154,7 @@ impl Default for ViewSettings {
             oblique: [Oblique::default(); 3],
             pick_probe: Probe::Accumulated,
             pick_threshold: default_pick_threshold(),
+            procedural: None,
         }
     }
 }
@@ -179,6 +188,10 @@ impl ViewSettings {
     /// See [`Document::clamp`].
     pub fn clamp(&mut self) {
         self.grid_n = self.grid_n.clamp(2, 256);
+        if let Some(p) = &mut self.procedural {
+            p.amplitude_mm =
+                if p.amplitude_mm.is_finite() { p.amplitude_mm.clamp(0.0, PROCEDURAL_MAX_MM) } else { 0.0 };
+        }
         for o in &mut self.oblique {
             o.tilt_deg = o.tilt_deg.clamp(-OBLIQUE_MAX_DEG, OBLIQUE_MAX_DEG);
             o.spin_deg = o.spin_deg.clamp(-OBLIQUE_MAX_DEG, OBLIQUE_MAX_DEG);

@@ -91,6 +91,7 @@ impl Ready {
         let start = std::time::Instant::now();
         self.viewer.begin_frame();
         self.viewer.set_looks(&self.document.layers);
+        self.viewer.set_procedural(self.procedural().ok().flatten());
         let glyphs = self.glyphs();
         let settings = self.document.settings.render_settings();
         if stale {

@@ -407,6 +407,14 @@ impl Ready {
         }
     }
 
+    /// The moving volume's procedural deformation over its box, as the settings ask for it (`Ok(None)`: none); an
+    /// amplitude the kind cannot take over this volume is the error, for the panel to say.
+    pub fn procedural(&self) -> Result<Option<warpbench_gpu::Procedural>, String> {
+        let Some(spec) = &self.document.settings.procedural else { return Ok(None) };
+        let domain = crate::inputs::volume_box::<warpbench_solver::spaces::Moving>(&self.loaded.moving);
+        spec.build(domain).map(Some).map_err(|e| format!("{e:#}"))
+    }
+
     /// Number of pairs the current warp was fitted on.
     #[must_use]
     pub fn fitted_pairs(&self) -> usize {

@@ -6,8 +6,9 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::Command;
-use super::document::{Look, OBLIQUE_MAX_DEG, Oblique, ViewSettings};
-use crate::settings::{Blend, MethodKind, Preset, Probe, Shading};
+use super::document::{Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, ViewSettings};
+use crate::procedural::ProceduralSpec;
+use crate::settings::{Blend, MethodKind, Preset, Probe, ProceduralKind, Shading};
 
 /// A slice view's oblique controls (labelled "NAME oblique", "NAME tilt", "NAME spin"). Returns whether they
 /// changed.
@@ -68,6 +69,37 @@ pub fn settings_ui(ui: &mut egui::Ui, settings: &ViewSettings) -> Option<Command
         s.pick_threshold = s.pick_probe.default_threshold();
     }
     ui.add(egui::Slider::new(&mut s.pick_threshold, s.pick_probe.threshold_range()).text("Pick threshold"));
+    (s != settings).then(|| Command::SetSettings(s.clone()))
+}
+
+/// The procedural deformation of the moving volume ([`crate::procedural`]): on or off ("Deform the moving volume"),
+/// its kind ("Deformation"), amplitude ("Deformation amplitude (mm)") and seed ("Deformation seed"); `problem` is why
+/// the current one cannot be drawn (an amplitude the kind cannot take over this volume). The settings as changed, if
+/// they were.
+pub fn deformation_ui(ui: &mut egui::Ui, settings: &ViewSettings, problem: Option<&str>) -> Option<Command> {
+    let s = &mut settings.clone();
+    ui.label("Synthetic deformation (view only)");
+    let mut on = s.procedural.is_some();
+    ui.checkbox(&mut on, "Deform the moving volume")
+        .on_hover_text("eval's known warps, computed in the shader; exports use the volume as opened");
+    if on != s.procedural.is_some() {
+        s.procedural = on.then(ProceduralSpec::default);
+    }
+    if let Some(p) = &mut s.procedural {
+        choice_ui(ui, "Deformation", &mut p.kind, ProceduralKind::ALL);
+        // Clamping only edits: showing the panel never changes the document.
+        let amplitude =
+            egui::Slider::new(&mut p.amplitude_mm, 0.0..=PROCEDURAL_MAX_MM).clamping(egui::SliderClamping::Edits);
+        ui.add(amplitude.text("Deformation amplitude (mm)"));
+        ui.horizontal(|ui| {
+            let seed = ui.add(egui::DragValue::new(&mut p.seed).range(0..=u64::from(u32::MAX)));
+            seed.widget_info(|| egui::WidgetInfo::labeled(egui::Role::SpinButton, true, "Deformation seed"));
+            ui.label("seed");
+        });
+        if let Some(problem) = problem {
+            ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Not drawn: {problem}"));
+        }
+    }
     (s != settings).then(|| Command::SetSettings(s.clone()))
 }
 

@@ -129,6 +129,11 @@ mod tests {
         (s.show_landmarks, s.pick_probe, s.pick_threshold) = (false, Probe::Gradient, 120.0);
         s.shading = crate::settings::Shading::Iso;
         s.oblique[2] = Oblique { on: true, tilt_deg: 12.5, spin_deg: -30.0 };
+        s.procedural = Some(crate::procedural::ProceduralSpec {
+            kind: crate::settings::ProceduralKind::Bend,
+            amplitude_mm: 7.5,
+            seed: 42,
+        });
         d.layers[1] = Look { preset: Preset::CtSoftTissue, window_low: -100.0, window_high: 300.0, visible: false };
         d
     }
@@ -181,7 +186,7 @@ mod tests {
     }"#;
 
     #[test]
-    fn older_files_open_with_straight_slices_the_default_probe_and_known_names() {
+    fn older_files_open_with_straight_slices_the_default_probe_no_deformation_and_known_names() {
         let dir = tempfile::tempdir().expect("tempdir");
         let path = dir.path().join("s.warpbench.json");
         std::fs::write(&path, OLDER).expect("write");
@@ -202,6 +207,7 @@ mod tests {
         );
         assert_eq!(s.oblique, [Oblique::default(); 3]);
         assert_eq!((s.pick_probe, s.pick_threshold), (Probe::Accumulated, 0.95));
+        assert_eq!(s.procedural, None, "no procedural deformation");
         assert_eq!(
             (d.layers[0].preset, d.layers[1].preset),
             (Preset::MrT1, Preset::default()),

@@ -1,4 +1,5 @@
-//! The side panel once a pair is shown: history and camera buttons, the view and warp settings, the looks, adding
+//! The side panel once a pair is shown: history and camera buttons, the view and warp settings, the looks, the
+//! procedural deformation, adding
 //! pairs, the landmark table and its warnings, the accuracy panel, files and export. It returns what was asked for
 //! as [`Command`]s; only its own text fields (paths being typed) change in place.
 
@@ -29,6 +30,9 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
             ui.separator();
             commands.extend(panels::layers_ui(ui, &ready.document.layers));
             panels::volume_warnings_ui(ui, &ready.loaded.fixed, &ready.loaded.moving);
+            ui.separator();
+            let problem = ready.procedural().err();
+            commands.extend(panels::deformation_ui(ui, &ready.document.settings, problem.as_deref()));
             ui.separator();
             ui.horizontal(|ui| {
                 let adding = ready.placing() != Placing::Idle;

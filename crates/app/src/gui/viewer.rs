@@ -8,8 +8,9 @@ use warpbench_gpu::{
     BSplineDesc, Capabilities, ControlEvalPass, ControlGridDesc, GlyphDrawData, GlyphInstance, GlyphRenderer,
     GlyphSettings, GlyphUniforms, GpuContext, GpuControlTexture, GpuEmptySpace, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget,
-    PrefilterPass, PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Quality,
-    RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc, VolumeBudget,
+    PrefilterPass, PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Procedural,
+    Quality, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc,
+    VolumeBudget,
 };
 use warpbench_io::Volume;
 
@@ -118,6 +119,8 @@ pub struct Viewer {
     tfs: GpuTransferFunctions,
     /// The presets `tfs` holds, fixed then moving.
     tf_presets: [Preset; 2],
+    /// The moving volume's procedural deformation ([`crate::procedural`]), set by [`Self::set_procedural`].
+    procedural: Option<Procedural>,
     pub control: Option<GpuControlTexture>,
     /// Evaluates TPS pull-backs straight into the control texture, made on first use.
     control_eval: Option<ControlEvalPass>,
@@ -175,6 +178,7 @@ impl Viewer {
             looks,
             tfs,
             tf_presets,
+            procedural: None,
             control: None,
             control_eval: None,
             control_from_eval: false,
@@ -202,6 +206,12 @@ impl Viewer {
         }
     }
 
+    /// Draws and picks the next frames with the moving volume deformed by `procedural` (`None`: undeformed). The
+    /// empty-space grid follows by its key.
+    pub fn set_procedural(&mut self, procedural: Option<Procedural>) {
+        self.procedural = procedural;
+    }
+
     fn frame(&self) -> GpuFrame<'_> {
         GpuFrame {
             fixed: GpuLayer {
@@ -210,13 +220,15 @@ impl Viewer {
                 prefiltered: Some(&self.fixed.prefiltered),
                 style: style(&self.looks[0], 0),
                 procedural: None,
+                view: None,
             },
             moving: GpuLayer {
                 volume: &self.moving.volume,
                 control: self.control.as_ref(),
                 prefiltered: Some(&self.moving.prefiltered),
                 style: style(&self.looks[1], 1),
-                procedural: None,
+                procedural: self.procedural,
+                view: None,
             },
             tfs: &self.tfs,
         }
