@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU benchmarks of issue 15 (target 5) in one run, for a machine with a real GPU: the frame, control-eval,
+# The GPU benchmarks of issue 15 (target 5) and issue 17 (shader vs texture) in one run, for a machine with a real GPU: the frame, control-eval,
 # export and drag benches at 1920×1080 with 512×512×300 volumes where the bench takes a size. A GPU machine may have
 # neither a Rust toolchain nor the network, so it is two steps:
 #
@@ -80,6 +80,8 @@ run | smoke)
     }
     if [ "$1" = run ]; then
         run_one frame frame --size 1920x1080 --dims 512x512x300 --frames 20
+        # Issue 17: Brunet et al. 2006's Table 1, the same deformation in the shader and through a 64³ texture.
+        run_one frame_procedural frame --procedural --size 1920x1080 --dims 256x256x192 --frames 20
         run_one control_eval control_eval --iterations 50
         run_one control_eval_n1000 control_eval --n 1000 --iterations 50
         run_one export export --dims 512 --repeats 3
@@ -87,6 +89,7 @@ run | smoke)
         run_one drag_n1000 drag --size 1920x1080 --pairs 1000 --events 20 --gpu-eval
     else
         run_one frame frame --size 64x64 --dims 32x32x32 --frames 1
+        run_one frame_procedural frame --procedural --size 64x64 --dims 32x32x32 --frames 1
         run_one control_eval control_eval --iterations 1
         run_one export export --dims 32 --tps-dims 8 --gpu-tps-dims 8 --ctrl 8 --repeats 1
         run_one drag drag --size 64x64 --pairs 20 --events 1

@@ -15,6 +15,14 @@
 //!    bricks its grid marks empty, the grid's build time (once per change of look), the frame-time ratio
 //!    without / with, and a check that both images are the same bytes.
 //!
+//! With `--procedural`, instead, Brunet, Nowak & Gleicher 2006's Table 1: the moving volume alone under the same
+//! deformation computed **in the shader** ([`warpbench_gpu::procedural`]: shift, sine, twist, bend, bump) and
+//! **through a control texture** (`--ctrl`³, default 64³, sampled from the same deformation over the layer's proxy
+//! box), in their two cases: 1, a transfer function alone (unlit); 2, gradients and diffuse shading (lit DVR from
+//! prefiltered copies). It prints ms/frame for both paths, the ratio texture / shader (above 1: the shader is
+//! faster; frames of the two paths alternate and the medians are compared), and the images' difference (mean and
+//! largest per channel, /255).
+//!
 //! A frame is submit + wait + readback of the RGBA8 image (wall clock; warm-up frames, which also compile the
 //! pipelines, are excluded). It prints ms/frame (mean and best) and the deformation overhead deformed/undeformed.
 //!
@@ -22,6 +30,7 @@
 //! cargo bench -p warpbench-gpu --bench frame
 //! cargo bench -p warpbench-gpu --bench frame -- --size 1920x1080 --dims 512x512x300 --frames 20
 //! cargo bench -p warpbench-gpu --bench frame -- --demo --size 1024x768
+//! cargo bench -p warpbench-gpu --bench frame -- --procedural --dims 256x256x192
 //! ```
 //!
 //! Options: `--size WxH` (image), `--dims N` or `--dims NXxNYxNZ` (both volumes), `--ctrl N` (control texture
@@ -35,11 +44,11 @@
 
 use std::time::{Duration, Instant};
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 use warpbench_gpu::{
-    BlendMode, Classification, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
+    Axis, BlendMode, Classification, ControlDesc, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickPass, PickRay, PickRequest, PickTarget,
-    PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Probe, Projection, Quality,
+    PrefilterPass, PrefilterSettings, PreparedControl, PreparedVolume, Preset, Probe, Procedural, Projection, Quality,
     RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, Shading, ShadingMode, VolumeBudget, VolumeDesc,
     VolumeSamples, Window,
 };
@@ -55,6 +64,7 @@ struct Options {
     samples_per_voxel: f32,
     demo: bool,
     classification: Classification,
+    procedural: bool,
 }
 
 fn parse_pair(s: &str) -> Option<Vec<usize>> {
@@ -70,6 +80,7 @@ fn options() -> Result<Options, String> {
         samples_per_voxel: 1.0,
         demo: false,
         classification: Classification::PerSample,
+        procedural: false,
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -90,6 +101,7 @@ fn options() -> Result<Options, String> {
             "--spv" => o.samples_per_voxel = value()?.parse().map_err(|e| format!("--spv: {e}"))?,
             "--demo" => o.demo = true,
             "--preintegrated" => o.classification = Classification::PreIntegrated,
+            "--procedural" => o.procedural = true,
             _ => {} // --bench and whatever else cargo passes
         }
     }
@@ -257,7 +269,7 @@ fn layer<'a>(
     prefiltered: Option<&'a GpuPrefiltered>,
     style: LayerStyle,
 ) -> GpuLayer<'a> {
-    GpuLayer { volume, control, prefiltered, style, procedural: None }
+    GpuLayer { volume, control, prefiltered, style, procedural: None, view: None }
 }
 
 fn ms(d: Duration) -> f64 {
@@ -388,6 +400,11 @@ fn main() {
     };
     let draw = |frame: &GpuFrame<'_>, mode| draw_at(frame, mode, Quality::Full);
 
+    if o.procedural {
+        procedural_table(&ctx, &renderer, &tfs, (&moving, &moving_gpu, &moving_pf, moving_style), &cam, &target, &o);
+        return;
+    }
+
     let mut results: Vec<(&str, Duration, Duration)> = Vec::new();
     let (mean, best) = time(o.frames, 1, || draw(&undeformed, ShadingMode::None));
     results.push(("undeformed", mean, best));
@@ -484,6 +501,121 @@ fn main() {
         mean_of("deformed + shaded") / mean_of("deformed + shaded, skipping"),
         if identical.iter().all(|&b| b) { "yes" } else { "NO" }
     );
+    if let Err(e) = ctx.check_errors() {
+        println!("wgpu errors: {e}");
+    }
+}
+
+/// The median ms of `frames` frames of `a` and of `b`, timed alternately (a, b, a, b, …) after one warm-up each.
+fn alternating_medians<T>(frames: usize, mut a: impl FnMut() -> T, mut b: impl FnMut() -> T) -> (f64, f64) {
+    std::hint::black_box((a(), b()));
+    let (mut ta, mut tb) = (Vec::with_capacity(frames), Vec::with_capacity(frames));
+    for _ in 0..frames {
+        for (f, times) in [(&mut a as &mut dyn FnMut() -> T, &mut ta), (&mut b, &mut tb)] {
+            let t = Instant::now();
+            std::hint::black_box(f());
+            times.push(ms(t.elapsed()));
+        }
+    }
+    let median = |mut v: Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    (median(ta), median(tb))
+}
+
+/// Brunet et al. 2006's Table 1 (module docs): each deformation in the shader and through a control texture, unlit
+/// and lit, the moving volume alone; ms/frame, the ratio and the images' difference.
+fn procedural_table(
+    ctx: &GpuContext,
+    renderer: &RaycastRenderer,
+    tfs: &GpuTransferFunctions,
+    (moving, moving_gpu, moving_pf, style): (&PreparedVolume, &GpuVolume, &GpuPrefiltered, LayerStyle),
+    cam: &OrbitCamera,
+    target: &RenderTarget,
+    o: &Options,
+) {
+    let (lo, hi) = (moving.info.box_min_lps, moving.info.box_max_lps);
+    let (c, size) = ((0.5 * (lo + hi)).as_vec3(), (hi - lo).as_vec3());
+    let a = 0.03 * size.min_element();
+    // Amplitudes of 3 % of the box: a shift, a sine of one wavelength across it, a twist and a bend whose far faces
+    // move by about that much, a bump of a fifth of the box.
+    let deformations = [
+        Procedural::Shift { offset_mm: Vec3::new(0.6, -0.64, 0.48) * a },
+        Procedural::Sine {
+            origin_mm: lo.as_vec3(),
+            amplitude_mm: a,
+            wavenumber_per_mm: Vec3::splat(std::f32::consts::TAU) / Vec3::new(size.y, size.z, size.x),
+            phase_rad: Vec3::new(0.3, 1.7, 4.0),
+        },
+        Procedural::Twist { centre_mm: c, axis: Axis::Z, rate_rad_per_mm: 2.0 * a / (size.x * size.z) },
+        Procedural::bend(c, Axis::Z, Axis::X, true, 8.0 * a / (size.z * size.z)),
+        Procedural::Bump { centre_mm: c, sigma_mm: size.min_element() / 5.0, vector_mm: Vec3::new(0.6, 0.0, 0.8) * a },
+    ];
+    println!(
+        "shader vs {n}³ control texture (Brunet et al. 2006 Table 1), moving volume alone, {} timed frames each",
+        o.frames,
+        n = o.ctrl
+    );
+    println!(
+        "{:<7} {:<10} {:>12} {:>12} {:>16} {:>14} {:>12}",
+        "case", "kind", "shader ms", "texture ms", "texture/shader", "mean |Δ|/255", "max |Δ|/255"
+    );
+    for (case, mode) in [("1 unlit", ShadingMode::None), ("2 lit", ShadingMode::Dvr)] {
+        for p in deformations {
+            let shader = GpuLayer {
+                volume: moving_gpu,
+                control: None,
+                prefiltered: Some(moving_pf),
+                style,
+                procedural: Some(p),
+                view: None,
+            };
+            let box_ref = shader.params().box_ref();
+            let texels = p.control_texels([o.ctrl; 3], box_ref.0.to_array(), box_ref.1.to_array());
+            let desc = ControlDesc {
+                dims: [o.ctrl; 3],
+                texels: &texels,
+                box_min_ref: box_ref.0.to_array(),
+                box_max_ref: box_ref.1.to_array(),
+            };
+            let prepared = PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).expect("control");
+            let control = GpuControlTexture::upload(ctx, &prepared);
+            let texture = GpuLayer { control: Some(&control), procedural: None, ..shader };
+            let settings = RenderSettings {
+                blend: BlendMode::MovingOnly,
+                box_override_ref: Some((box_ref.0.as_vec3(), box_ref.1.as_vec3())),
+                samples_per_voxel: o.samples_per_voxel,
+                shading: Shading::with_mode(mode),
+                classification: o.classification,
+                ..Default::default()
+            };
+            let draw = |layer: GpuLayer<'_>| {
+                let frame = GpuFrame {
+                    fixed: GpuLayer { style: LayerStyle { visible: false, ..style }, ..layer },
+                    moving: layer,
+                    tfs,
+                };
+                let data = RaycastDrawData::new(ctx, renderer, &frame, cam, &settings, o.size);
+                renderer.render(ctx, &data, target).expect("render");
+                target.read_back(ctx).expect("read back")
+            };
+            // Alternating frames, medians: a drift of the machine's load falls on both paths alike.
+            let (shader_ms, texture_ms) = alternating_medians(o.frames, || draw(shader), || draw(texture));
+            let (a, b) = (draw(shader), draw(texture));
+            let diffs = a.iter().zip(&b).map(|(x, y)| f64::from(x.abs_diff(*y)));
+            let (sum, max) = diffs.fold((0.0, 0.0f64), |(s, m), d| (s + d, m.max(d)));
+            println!(
+                "{case:<7} {:<10} {:>12.1} {:>12.1} {:>15.2}× {:>14.3} {:>12.0}",
+                p.name(),
+                shader_ms,
+                texture_ms,
+                texture_ms / shader_ms,
+                sum / a.len() as f64,
+                max
+            );
+        }
+    }
     if let Err(e) = ctx.check_errors() {
         println!("wgpu errors: {e}");
     }
