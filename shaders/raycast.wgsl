@@ -6,7 +6,8 @@
 //   u(x) = x + disp(ctrl_tex_from_ref · x)     (or u(x) = x on the identity fast path)
 // then through the volume's procedural deformation p, computed here per sample (§3.3; crates/gpu/src/procedural.rs;
 // the identity when its kind is PROCEDURAL_NONE), sampled at tex_from_lps · p(u(x)), classified with the volume's
-// transfer function and blended.
+// transfer function and blended. A view deformation w (a lens or widget, §5.2–5.3; crates/gpu/src/view_deformation.rs)
+// acts before the pull-back: the sample is read at p(u(w(x))).
 //
 // Shading (Brunet et al. 2006 §3.4; Westermann & Rezk-Salama 2001 §3.3): the gradient at x_ref is taken by central
 // differences *in ref space, through the warp*, of the prefiltered copy v_pf (or the volume when there is none):
@@ -57,6 +58,22 @@ struct ProceduralUniforms {
     _pad0: u32,
 }
 
+// A deformation of the view a volume is drawn through, applied to x_ref before its pull-back
+// (crates/gpu/src/view_deformation.rs gives the formulas). The Rust twin is `ViewDeformationUniforms` in
+// crates/gpu/src/view_deformation.rs (tests/shaders.rs compares the layouts).
+struct ViewDeformationUniforms {
+    // fish-eye: the lens's centre
+    centre_ref: vec3<f32>,
+    // VIEW_*
+    kind: u32,
+    // fish-eye: R
+    radius_mm: f32,
+    // fish-eye: a
+    amplitude: f32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
 // The Rust twin is `VolumeUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
 struct VolumeUniforms {
     tex_from_lps: mat4x4<f32>,
@@ -74,6 +91,7 @@ struct VolumeUniforms {
     // iso-surface threshold, value units
     iso_value: f32,
     procedural: ProceduralUniforms,
+    view: ViewDeformationUniforms,
 }
 
 // The Rust twin is `EmptySpaceUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
@@ -130,6 +148,10 @@ const PROCEDURAL_SINE: u32 = 2u;
 const PROCEDURAL_TWIST: u32 = 3u;
 const PROCEDURAL_BEND: u32 = 4u;
 const PROCEDURAL_BUMP: u32 = 5u;
+
+// ViewDeformationUniforms.kind
+const VIEW_NONE: u32 = 0u;
+const VIEW_FISH_EYE: u32 = 1u;
 
 // RaycastUniforms.shading_mode. The pipeline is specialised on it: SHADING is set to the same value at pipeline
 // creation, so each mode's pipeline compiles only its own code.
@@ -362,13 +384,31 @@ fn procedural_displacement(q: ProceduralUniforms, y: vec3<f32>) -> vec3<f32> {
     }
 }
 
-// u(x_ref): the pull-back of ref point x_ref into the volume's LPS space, through its control texture when it has
-// one. This is the point a landmark records (picking reports it); the data is read at p(u(x)).
+// w(x_ref): the view deformation the volume is drawn through (the identity for VIEW_NONE); the fish-eye written as a
+// displacement, so that a zero amplitude leaves x exactly. The CPU twin is ViewDeformationUniforms::pullback.
+fn view_pullback(w: ViewDeformationUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+    if w.kind == VIEW_FISH_EYE {
+        let d = x_ref - w.centre_ref;
+        let r = length(d);
+        if r < w.radius_mm {
+            let q = 1.0 - r / w.radius_mm;
+            return x_ref - d * (w.amplitude * q * q);
+        }
+    }
+    return x_ref;
+}
+
+// u(w(x_ref)): ref point x_ref through the volume's view deformation, then its pull-back into the volume's LPS space
+// (through its control texture when it has one). This is the point a landmark records (picking reports it); the
+// data is read at p(u(w(x))).
 fn pullback_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
     var p_lps = x_ref;
+    if v.view.kind != VIEW_NONE {
+        p_lps = view_pullback(v.view, x_ref);
+    }
     if (v.flags & VOLUME_HAS_WARP) != 0u {
-        let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(x_ref, 1.0)).xyz;
-        p_lps = x_ref + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
+        let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(p_lps, 1.0)).xyz;
+        p_lps = p_lps + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
     }
     return p_lps;
 }
@@ -382,8 +422,8 @@ fn data_tex(v: VolumeUniforms, y_lps: vec3<f32>) -> vec3<f32> {
     return (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
 }
 
-// tex(p(u(x_ref))): the volume's texture coordinates of ref point x_ref, through the warp and the procedural
-// deformation when there are.
+// tex(p(u(w(x_ref)))): the volume's texture coordinates of ref point x_ref, through its view deformation, its warp
+// and its procedural deformation when it has them.
 fn warp_to_tex(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
     return data_tex(v, pullback_lps(ctrl, v, x_ref));
 }
@@ -1050,8 +1090,8 @@ fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: 
     return out;
 }
 
-// The hit at t_hit along the ray: x_ref, its pull-back u(x_ref) into the volume's LPS space and the value there
-// (read at p(u(x_ref)) under a procedural deformation).
+// The hit at t_hit along the ray: x_ref, its pull-back u(w(x_ref)) into the volume's LPS space and the value there
+// (read at p(u(w(x_ref))) under a procedural deformation).
 fn pick_hit_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_hit: f32) -> PickHit {
     var out: PickHit;
     let x_ref = origin + t_hit * dir;

@@ -81,6 +81,7 @@ fn main() -> Result<()> {
         prefiltered: Some(&fixed_pf),
         style: LayerStyle { window: ct_window, tf_row: 0, opacity_scale: 0.6, visible: true, iso_value: 300.0 },
         procedural: None,
+        view: None,
     };
     let moving_layer = GpuLayer {
         volume: &moving_gpu,
@@ -94,6 +95,7 @@ fn main() -> Result<()> {
             iso_value: mr_window.low() + 0.3 * mr_window.width,
         },
         procedural: None,
+        view: None,
     };
     let cam = OrbitCamera::fit(lo.as_vec3(), hi.as_vec3(), Projection::Perspective { fov_y_rad: 0.6 });
     // Aimed at the fixed landmarks' centre.

@@ -279,6 +279,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         prefiltered: fixed_layer.prefiltered.as_ref(),
         style: fixed_layer.style,
         procedural: None,
+        view: None,
     };
     let moving_gpu = match &moving_layer {
         Some((layer, _)) => GpuLayer {
@@ -287,6 +288,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
             prefiltered: layer.prefiltered.as_ref(),
             style: layer.style,
             procedural,
+            view: None,
         },
         // Without a moving volume the fixed one fills the slot, hidden.
         None => GpuLayer { style: LayerStyle { visible: false, ..fixed_layer.style }, ..fixed_gpu },

@@ -294,6 +294,7 @@ fn main() {
                             prefiltered: Some(&fixed_pf),
                             style: fixed_style,
                             procedural: None,
+                            view: None,
                         },
                         GpuLayer {
                             volume: &moving_gpu,
@@ -301,6 +302,7 @@ fn main() {
                             prefiltered: None,
                             style: hidden(moving_style),
                             procedural: None,
+                            view: None,
                         },
                         BlendMode::FixedOnly,
                     )
@@ -312,6 +314,7 @@ fn main() {
                             prefiltered: None,
                             style: hidden(fixed_style),
                             procedural: None,
+                            view: None,
                         },
                         GpuLayer {
                             volume: &moving_gpu,
@@ -319,6 +322,7 @@ fn main() {
                             prefiltered: Some(&moving_pf),
                             style: moving_style,
                             procedural: None,
+                            view: None,
                         },
                         BlendMode::MovingOnly,
                     )

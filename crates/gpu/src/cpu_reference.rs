@@ -26,6 +26,7 @@ use crate::sampling::trilinear;
 use crate::settings::ShadingMode;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH};
 use crate::transfer::{PreIntegrationTable, TransferFunction};
+use crate::view_deformation::VIEW_NONE;
 use crate::volume::PreparedVolume;
 
 /// One volume on the CPU side: its texels, optional control texture and optional prefiltered copy.
@@ -53,17 +54,18 @@ fn tf_sample(tfs: &[TransferFunction], row: u32, t: f32) -> Vec4 {
     tfs.get(row as usize).map_or(Vec4::ZERO, |tf| Vec4::from_array(tf.sample(t)))
 }
 
-/// The shader's `pullback_lps`: u(x_ref) in the volume's LPS space (the point a landmark records).
+/// The shader's `pullback_lps`: u(w(x_ref)) in the volume's LPS space (the point a landmark records).
 #[must_use]
 pub fn pullback_lps(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
+    let y = if v.view.kind == VIEW_NONE { x_ref } else { v.view.pullback(x_ref) };
     if v.flags & VOLUME_HAS_WARP != 0
         && let Some(ctrl) = layer.control
     {
-        let c_tex = Mat4::from_cols_array_2d(&v.ctrl_tex_from_ref).transform_point3(x_ref);
+        let c_tex = Mat4::from_cols_array_2d(&v.ctrl_tex_from_ref).transform_point3(y);
         let d = trilinear(ctrl.info.dims, c_tex, |i| Vec4::from_array(ctrl.texels[i]));
-        return x_ref + d.truncate();
+        return y + d.truncate();
     }
-    x_ref
+    y
 }
 
 /// The shader's `data_tex`: tex(p(y)) of the volume's LPS point y, through its procedural deformation.
@@ -73,7 +75,7 @@ pub fn data_tex(v: &VolumeUniforms, y_lps: Vec3) -> Vec3 {
     Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps)
 }
 
-/// The shader's `warp_to_tex`: tex(p(u(x_ref))).
+/// The shader's `warp_to_tex`: tex(p(u(w(x_ref)))).
 #[must_use]
 pub fn warp_to_tex(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
     data_tex(v, pullback_lps(layer, v, x_ref))
@@ -815,8 +817,14 @@ mod tests {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 128, 0, 26])]; // α = 26/255 ≈ 0.102 per mm
         let alpha = 26.0f32 / 255.0;
-        let layer =
-            LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false, procedural: None };
+        let layer = LayerParams {
+            volume: vol.info,
+            control: None,
+            style: style(true),
+            has_prefilter: false,
+            procedural: None,
+            view: None,
+        };
         let hidden = LayerParams { style: style(false), ..layer };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         for spv in [1.0f32, 2.0, 4.0] {
@@ -835,8 +843,14 @@ mod tests {
     fn interactive_frames_sample_coarser_with_the_same_opacity() {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 128, 0, 26])];
-        let layer =
-            LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false, procedural: None };
+        let layer = LayerParams {
+            volume: vol.info,
+            control: None,
+            style: style(true),
+            has_prefilter: false,
+            procedural: None,
+            view: None,
+        };
         let hidden = LayerParams { style: style(false), ..layer };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
@@ -858,8 +872,14 @@ mod tests {
     fn outside_the_box_is_transparent_and_early_exit_stops_at_099() {
         let vol = constant_volume(8, 0.5);
         let tfs = [flat_tf([255, 255, 255, 255])];
-        let layer =
-            LayerParams { volume: vol.info, control: None, style: style(true), has_prefilter: false, procedural: None };
+        let layer = LayerParams {
+            volume: vol.info,
+            control: None,
+            style: style(true),
+            has_prefilter: false,
+            procedural: None,
+            view: None,
+        };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
         let u = RaycastUniforms::new(&cam, &settings, (16, 16), &layer, &layer, 1);
@@ -896,6 +916,7 @@ mod tests {
             style: st,
             has_prefilter: false,
             procedural: None,
+            view: None,
         };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
@@ -931,6 +952,7 @@ mod tests {
             style: style(true),
             has_prefilter: false,
             procedural: None,
+            view: None,
         };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
@@ -978,7 +1000,14 @@ mod tests {
         );
         let tfs = [band];
         let st = LayerStyle { window: Window::from_range(0.0, 15.0), ..style(true) };
-        let layer = LayerParams { volume: vol.info, control: None, style: st, has_prefilter: false, procedural: None };
+        let layer = LayerParams {
+            volume: vol.info,
+            control: None,
+            style: st,
+            has_prefilter: false,
+            procedural: None,
+            view: None,
+        };
         let hidden = LayerParams { style: style(false), ..layer };
         let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
         let pixel = |classification, spv: f32, shift_mm: f32| {

@@ -5,7 +5,8 @@
 //!    texels over bricks of [`crate::volume::BRICK_VOXELS`]³ voxels.
 //! 2. **Per frame's look** ([`EmptySpaceGrid::build`], only when a transfer function, window, opacity, volume or warp
 //!    changes): a grid of bricks over the proxy box of ref space. For each ref brick B (grown by a margin) and each
-//!    volume, the pull-back image u(B) is bounded by the box B + \[d_min, d_max\], d the displacements of the control
+//!    volume, the pull-back image u(B) (u(w(B)) under a view deformation w, its image box of B first,
+//!    [`crate::view_deformation::ViewDeformation::image_box`]) is bounded by the box B + \[d_min, d_max\], d the displacements of the control
 //!    texels whose trilinear support meets B (per texel with [`PreparedControl`]'s texels, else the texture's global
 //!    bounds [`ControlInfo::disp_min_mm`] / `disp_max_mm`), then, under a procedural deformation p of the layer's data,
 //!    by p's image of that box ([`crate::procedural::Procedural::image_box`]); its bounding box in the volume's index space gives the
@@ -225,6 +226,8 @@ fn displacement_bounds(
 /// Whether `layer` can be non-transparent anywhere in the ref box \[lo, hi\].
 fn layer_may_be_opaque(layer: &OccupancyLayer<'_>, lo: DVec3, hi: DVec3) -> bool {
     let v = &layer.params.volume;
+    // The view deformation first: w(B) lies in its image box of the brick.
+    let (lo, hi) = layer.params.view.map_or((lo, hi), |w| w.image_box(lo, hi));
     let (p_lo, p_hi) = match &layer.params.control {
         Some(c) => {
             let (d_lo, d_hi) = displacement_bounds(c, layer.control_texels, lo, hi);

@@ -19,6 +19,8 @@
 //!   volume [`LayerStyle`] and [`LayerParams`].
 //! - [`procedural`]: [`Procedural`] deformations (shift, sine, twist, bend, bump) the shader computes per sample on a
 //!   layer's data, with the bounds the proxy box and empty-space skipping need and their control-texture sampling.
+//! - [`view_deformation`]: [`ViewDeformation`]s of the view a layer is drawn through (the fish-eye attention lens),
+//!   applied before its pull-back, so picks through them land in the undeformed volume.
 //! - [`raycast`]: the ray caster, [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), with its
 //!   uniforms ([`RaycastUniforms`], [`VolumeUniforms`]), its shader and its bind slots.
 //! - [`target`]: [`RenderTarget`], the image and the first-hit depth the passes draw into.
@@ -82,6 +84,7 @@ pub mod shaders;
 pub mod slice;
 pub mod target;
 pub mod transfer;
+pub mod view_deformation;
 pub mod volume;
 
 /// The glam version of this crate's API (matrices and vectors), re-exported for callers.
@@ -110,4 +113,5 @@ pub use settings::{BlendMode, Classification, LayerParams, LayerStyle, Quality, 
 pub use slice::SlicePlane;
 pub use target::RenderTarget;
 pub use transfer::{GpuTransferFunctions, OpacityTable, Preset, TransferFunction, Window};
+pub use view_deformation::{ViewDeformation, ViewDeformationUniforms};
 pub use volume::{GpuVolume, PreparedVolume, VolumeBricks, VolumeBudget, VolumeDesc, VolumeInfo, VolumeSamples};

@@ -57,6 +57,7 @@ use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, WgslConstant
 use crate::slice::SlicePlane;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH, RenderTarget};
 use crate::transfer::{GpuPreIntegration, GpuTransferFunctions, OpacityTable, PreIntegrationKey};
+use crate::view_deformation::{VIEW_FISH_EYE, VIEW_NONE, ViewDeformation, ViewDeformationUniforms};
 use crate::volume::GpuVolume;
 
 /// `VolumeUniforms.flags`, the WGSL constants of the same names ([`INTERFACE`]).
@@ -94,8 +95,10 @@ pub struct VolumeUniforms {
     pub iso_value: f32,
     /// The deformation of the layer's data the shader computes after the pull-back ([`crate::procedural`]).
     pub procedural: ProceduralUniforms,
+    /// The deformation of the view the layer is drawn through, before the pull-back ([`crate::view_deformation`]).
+    pub view: ViewDeformationUniforms,
 }
-const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 240);
+const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 272);
 
 /// The empty-space grid a frame skips by ([`crate::empty_space`]): `EmptySpaceUniforms` in shaders/raycast.wgsl
 /// ([`INTERFACE`]).
@@ -155,7 +158,7 @@ pub struct RaycastUniforms {
     /// Empty-space skipping: off unless the frame binds a grid ([`RaycastDrawData::with_empty_space`]).
     pub empty_space: EmptySpaceUniforms,
 }
-const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 736);
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 800);
 
 impl VolumeUniforms {
     /// The uniforms of `layer`, whose transfer function is a row of a texture of `tf_rows` rows.
@@ -186,6 +189,7 @@ impl VolumeUniforms {
             flags,
             iso_value: layer.style.iso_value,
             procedural: ProceduralUniforms::of(layer.procedural.as_ref()),
+            view: ViewDeformationUniforms::of(layer.view.as_ref()),
         }
     }
 }
@@ -330,8 +334,10 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
             opacity_scale,
             flags,
             iso_value,
-            procedural
+            procedural,
+            view
         }),
+        layout!(ViewDeformationUniforms { centre_ref, kind, radius_mm, amplitude }),
         layout!(ProceduralUniforms {
             centre_mm,
             kind,
@@ -393,6 +399,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
         WgslConstant::u32("VOLUME_HAS_PREFILTER", VOLUME_HAS_PREFILTER),
         WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
+        WgslConstant::u32("VIEW_NONE", VIEW_NONE),
+        WgslConstant::u32("VIEW_FISH_EYE", VIEW_FISH_EYE),
         WgslConstant::u32("PROCEDURAL_NONE", PROCEDURAL_NONE),
         WgslConstant::u32("PROCEDURAL_SHIFT", PROCEDURAL_SHIFT),
         WgslConstant::u32("PROCEDURAL_SINE", PROCEDURAL_SINE),
@@ -754,6 +762,8 @@ pub struct GpuLayer<'a> {
     pub style: LayerStyle,
     /// A deformation of the layer's data computed in the shader ([`LayerParams::procedural`]).
     pub procedural: Option<Procedural>,
+    /// A deformation of the view the layer is drawn through ([`LayerParams::view`]).
+    pub view: Option<ViewDeformation>,
 }
 
 impl GpuLayer<'_> {
@@ -765,6 +775,7 @@ impl GpuLayer<'_> {
             style: self.style,
             has_prefilter: self.prefiltered.is_some(),
             procedural: self.procedural,
+            view: self.view,
         }
     }
 }

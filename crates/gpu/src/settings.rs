@@ -8,6 +8,7 @@ use glam::DVec3;
 use crate::control::ControlInfo;
 use crate::procedural::Procedural;
 use crate::transfer::Window;
+use crate::view_deformation::ViewDeformation;
 use crate::volume::VolumeInfo;
 
 /// How the two classified samples combine (`RaycastUniforms.blend_mode`, `BLEND_*` in the shader).
@@ -263,6 +264,9 @@ pub struct LayerParams {
     /// A deformation of the layer's data computed in the shader, after the pull-back: the frame reads the volume at
     /// p(u(x)) ([`crate::procedural`]); `None` reads it at u(x).
     pub procedural: Option<Procedural>,
+    /// A deformation of the view the layer is drawn through, before its pull-back: the frame reads the volume at
+    /// p(u(w(x))) ([`crate::view_deformation`]); `None` is w(x) = x.
+    pub view: Option<ViewDeformation>,
 }
 
 impl LayerParams {
@@ -270,15 +274,18 @@ impl LayerParams {
     /// only where p(u(x)) lies in its LPS box [lo, hi] (p the identity without a [`Self::procedural`]), so u(x) lies
     /// in p's preimage box [lo', hi'] ([`Procedural::preimage_box`]); and u(x) = x + d(x) with d(x) componentwise in
     /// [`ControlInfo::disp_min_mm`, `ControlInfo::disp_max_mm`] everywhere (trilinear, clamp-to-edge), so
-    /// x ∈ [lo' − d_max, hi' − d_min]. Exact for the identity and for a constant displacement; conservative otherwise.
+    /// x ∈ [lo' − d_max, hi' − d_min]; under a [`Self::view`] deformation w, x lies in w's preimage box of that
+    /// ([`ViewDeformation::preimage_box`]). Exact for the identity and for a constant displacement; conservative
+    /// otherwise.
     #[must_use]
     pub fn box_ref(&self) -> (DVec3, DVec3) {
         let (lo, hi) = (self.volume.box_min_lps, self.volume.box_max_lps);
         let (lo, hi) = self.procedural.map_or((lo, hi), |p| p.preimage_box(lo, hi));
-        match self.control {
+        let (lo, hi) = match self.control {
             Some(c) => (lo - c.disp_max_mm.as_dvec3(), hi - c.disp_min_mm.as_dvec3()),
             None => (lo, hi),
-        }
+        };
+        self.view.map_or((lo, hi), |w| w.preimage_box(lo, hi))
     }
 }
 
@@ -316,7 +323,8 @@ mod tests {
             visible: true,
             iso_value: 0.5,
         };
-        let plain = LayerParams { volume: vol.info, control: None, style, has_prefilter: false, procedural: None };
+        let plain =
+            LayerParams { volume: vol.info, control: None, style, has_prefilter: false, procedural: None, view: None };
         let warped = LayerParams { control: Some(ctrl.info), ..plain };
         assert_eq!(plain.box_ref(), (DVec3::splat(-0.5), DVec3::splat(1.5)));
         let (lo, hi) = warped.box_ref();

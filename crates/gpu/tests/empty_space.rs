@@ -37,6 +37,7 @@ fn frame<'a>(gpu: &'a GpuScene, s: &Scene) -> GpuFrame<'a> {
             prefiltered: gpu.fixed_pf.as_ref(),
             style: s.fixed_style,
             procedural: None,
+            view: s.view,
         },
         moving: GpuLayer {
             volume: &gpu.moving,
@@ -44,6 +45,7 @@ fn frame<'a>(gpu: &'a GpuScene, s: &Scene) -> GpuFrame<'a> {
             prefiltered: gpu.moving_pf.as_ref(),
             style: s.moving_style,
             procedural: s.moving_procedural,
+            view: s.view,
         },
         tfs: &gpu.tfs,
     }
@@ -173,8 +175,9 @@ fn skipping_keeps_the_image_bit_exact_through_a_warp() {
     assert!(empty > 0);
 }
 
-/// Through a procedural deformation of the moving layer's data ([`warpbench_gpu::procedural`]), on top of the warp:
-/// the bricks are classified through the deformation's image bounds, and skipping still changes nothing.
+/// Through a procedural deformation of the moving layer's data ([`warpbench_gpu::procedural`]), on top of the warp,
+/// and through the fish-eye lens on both layers: the bricks are classified through the deformations' image bounds,
+/// and skipping still changes nothing.
 #[test]
 fn skipping_keeps_the_image_bit_exact_through_procedural_deformations() {
     use warpbench_gpu::{Axis, Procedural};
@@ -190,6 +193,12 @@ fn skipping_keeps_the_image_bit_exact_through_procedural_deformations() {
         Procedural::Bump { centre_mm: c, sigma_mm: 25.0, vector_mm: v3(12.0, -6.0, 4.0) },
     ] {
         scene.moving_procedural = Some(p);
+        // The bump under the fish-eye lens too: a view deformation of both layers on top.
+        scene.view = matches!(p, Procedural::Bump { .. }).then_some(warpbench_gpu::ViewDeformation::FishEye {
+            centre_ref: v3(30.0, -65.0, 20.0),
+            radius_mm: 35.0,
+            amplitude: 0.7,
+        });
         let grid = grid(&ctx, &gpu, &scene);
         for (blend, mode) in [(BlendMode::MovingOnly, ShadingMode::None), (BlendMode::Difference, ShadingMode::Dvr)] {
             let settings = RenderSettings { blend, shading: Shading::with_mode(mode), ..Default::default() };
@@ -265,6 +274,7 @@ fn slab_scene(ctx: &GpuContext, slab_x: &[usize]) -> Scene {
         fixed_pf: None,
         moving_pf: None,
         moving_procedural: None,
+        view: None,
     }
 }
 

@@ -228,6 +228,7 @@ fn slice_glyphs_are_cut_by_the_slab() {
         prefiltered: None,
         style: scene.fixed_style,
         procedural: None,
+        view: None,
     };
     let m = warpbench_gpu::GpuLayer {
         volume: &gpu.moving,
@@ -235,6 +236,7 @@ fn slice_glyphs_are_cut_by_the_slab() {
         prefiltered: None,
         style: scene.moving_style,
         procedural: None,
+        view: None,
     };
     let frame = warpbench_gpu::GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
     let data = RaycastDrawData::with_uniforms(&ctx, &renderer, &frame, u);

@@ -94,14 +94,21 @@ fn pick_both(
     rays: &[PickRay],
 ) -> (Vec<PickHit>, Vec<PickHit>) {
     let gpu = GpuScene::new(ctx, scene);
-    let f =
-        GpuLayer { volume: &gpu.fixed, control: None, prefiltered: None, style: scene.fixed_style, procedural: None };
+    let f = GpuLayer {
+        volume: &gpu.fixed,
+        control: None,
+        prefiltered: None,
+        style: scene.fixed_style,
+        procedural: None,
+        view: scene.view,
+    };
     let m = GpuLayer {
         volume: &gpu.moving,
         control: gpu.control.as_ref(),
         prefiltered: None,
         style: scene.moving_style,
         procedural: scene.moving_procedural,
+        view: scene.view,
     };
     let frame = GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
     let data = RaycastDrawData::with_uniforms(ctx, &gpu.renderer, &frame, *u);
@@ -301,6 +308,51 @@ fn picks_march_through_a_procedural_deformation() {
     assert!(worst_drawn.0 >= -0.01 && worst_drawn.1 <= u.step_mm + 0.01, "picks are not where the frame draws");
 }
 
+/// Picking marches through a view deformation as the frame draws it ([`warpbench_gpu::view_deformation`]): through
+/// the fish-eye lens centred on the fixed ball, the ball is drawn, and hit, magnified at the radius r with ρ(r) = R
+/// (ρ(r) = r (1 − a (1 − r/L)²)), while the hit's point of the volume, w(x), lies on the undeformed ball's surface:
+/// what a landmark stores. GPU and CPU agree.
+#[test]
+fn a_pick_through_the_lens_lands_on_the_undeformed_ball() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let mut scene = ball_scene(&ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
+    let (lens_mm, a) = (30.0f64, 0.5f64);
+    scene.view = Some(warpbench_gpu::ViewDeformation::FishEye {
+        centre_ref: Vec3::ZERO,
+        radius_mm: lens_mm as f32,
+        amplitude: a as f32,
+    });
+    let rho = |r: f64| r * (1.0 - a * (1.0 - r / lens_mm).powi(2));
+    let (mut lo, mut hi) = (0.0, lens_mm);
+    for _ in 0..60 {
+        let mid = 0.5 * (lo + hi);
+        if rho(mid) < f64::from(RADIUS_MM) { lo = mid } else { hi = mid }
+    }
+    let shown_mm = (0.5 * (lo + hi)) as f32;
+    let u = uniforms(&scene, BlendMode::FixedOnly);
+    let rays: Vec<PickRay> = pixel_rays(&u, 2).into_iter().map(|(_, r)| r).collect();
+    let request = PickRequest::new(PickTarget::Fixed, Probe::Opacity { threshold: 0.5 });
+    let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &rays);
+    assert_agree("opacity probe, ball through the lens", &gpu, &cpu);
+    let (mut checked, mut worst_shown, mut worst_stored) = (0, 0.0f32, 0.0f32);
+    for (ray, hit) in rays.iter().zip(&gpu) {
+        let (origin, dir) = (Vec3::from_array(ray.origin_ref), Vec3::from_array(ray.dir_ref));
+        if (origin - origin.dot(dir) * dir).length() > shown_mm - 1.5 {
+            continue;
+        }
+        let hit = hit.found().expect("a ray through the magnified ball hits it");
+        worst_shown = worst_shown.max((Vec3::from_array(hit.x_ref).length() - shown_mm).abs());
+        worst_stored = worst_stored.max((Vec3::from_array(hit.p_lps).length() - RADIUS_MM).abs());
+        checked += 1;
+    }
+    eprintln!(
+        "{checked} rays: hits {worst_shown:.3} mm from the magnified radius {shown_mm:.2} mm, stored points \
+         {worst_stored:.3} mm from the ball's {RADIUS_MM} mm"
+    );
+    assert!(checked > 200, "{checked} rays");
+    assert!(worst_shown <= 0.5 * VOXEL_MM && worst_stored <= 0.25 * VOXEL_MM, "{worst_shown} / {worst_stored} mm");
+}
+
 #[test]
 fn gradient_and_accumulated_probes_match_the_cpu_march() {
     let Some(ctx) = context(FeatureRequest::default()) else { return };
@@ -362,7 +414,14 @@ fn empty_and_oversized_requests() {
     assert!(gpu[0].found().is_none() && cpu[0].found().is_none());
     let bad = PickRequest::new(PickTarget::Fixed, Probe::Opacity { threshold: f32::NAN });
     let g = GpuScene::new(&ctx, &scene);
-    let f = GpuLayer { volume: &g.fixed, control: None, prefiltered: None, style: scene.fixed_style, procedural: None };
+    let f = GpuLayer {
+        volume: &g.fixed,
+        control: None,
+        prefiltered: None,
+        style: scene.fixed_style,
+        procedural: None,
+        view: None,
+    };
     let frame = GpuFrame { fixed: f, moving: f, tfs: &g.tfs };
     let data = RaycastDrawData::with_uniforms(&ctx, &g.renderer, &frame, u);
     let pass = PickPass::new(&ctx, &g.renderer).expect("pass");

@@ -24,6 +24,7 @@ fn targets_reuse_pooled_textures_by_descriptor() {
             prefiltered: None,
             style: scene.fixed_style,
             procedural: None,
+            view: None,
         };
         let m = warpbench_gpu::GpuLayer {
             volume: &gpu.moving,
@@ -31,6 +32,7 @@ fn targets_reuse_pooled_textures_by_descriptor() {
             prefiltered: None,
             style: scene.moving_style,
             procedural: None,
+            view: None,
         };
         let frame = warpbench_gpu::GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
         let data = warpbench_gpu::RaycastDrawData::with_uniforms(&ctx, &gpu.renderer, &frame, u);

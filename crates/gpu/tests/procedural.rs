@@ -1,7 +1,9 @@
-//! Procedural deformations computed in the shader ([`warpbench_gpu::procedural`]): the identities the renderer
+//! Deformations computed in the shader: procedural deformations of a layer's data ([`warpbench_gpu::procedural`])
+//! and deformations of the view ([`warpbench_gpu::view_deformation`], the fish-eye lens). The identities the renderer
 //! states (a zero amplitude is the undeformed frame bit for bit; a shift is the volume translated), every kind
-//! against the CPU reference in frames and slices, and the shader against a control texture of the same deformation.
-//! Picking through a procedural deformation is in `pick.rs`, empty-space skipping in `empty_space.rs`.
+//! against the CPU reference in frames and slices, the shader against a control texture of the same deformation, and
+//! the lens against its formula evaluated by the test. Picking through them is in `pick.rs`, empty-space skipping in
+//! `empty_space.rs`.
 //!
 //! Tolerances:
 //! - GPU vs CPU: `gpu_vs_cpu.rs`'s and `slices.rs`'s 4/255 (their docs say why); the shader's sin, cos and exp may
@@ -19,8 +21,8 @@ use common::*;
 use glam::{DVec3, Vec3};
 use warpbench_gpu::{
     Axis, BlendMode, ControlDesc, FeatureRequest, OrbitCamera, PrefilterSettings, PreparedControl, PreparedVolume,
-    Procedural, Projection, RenderSettings, Shading, ShadingMode, SlicePlane, TransferFunction, VolumeBudget,
-    VolumeDesc, VolumeSamples, Window,
+    Procedural, Projection, RenderSettings, Shading, ShadingMode, SlicePlane, TransferFunction, ViewDeformation,
+    VolumeBudget, VolumeDesc, VolumeSamples, Window,
 };
 
 const SIZE: (u32, u32) = (64, 64);
@@ -103,6 +105,19 @@ fn a_zero_amplitude_gives_the_undeformed_frame_exactly() {
         let u = scene.slice_uniforms(&plane, &RenderSettings::default());
         assert!(gpu.render_slice(&ctx, &gpu.renderer, &scene, &u) == slice, "{}: the slice changed", p.name());
     }
+    // The lens at zero amplitude, on both layers.
+    scene.moving_procedural = None;
+    scene.view =
+        Some(ViewDeformation::FishEye { centre_ref: Vec3::new(10.0, 0.0, 5.0), radius_mm: 40.0, amplitude: 0.0 });
+    for (settings, (colour, depth)) in looks.iter().zip(&expected) {
+        let u = scene.uniforms(&camera(), settings, SIZE);
+        let target = gpu.render_target(&ctx, &gpu.renderer, &scene, &u);
+        assert!(&target.read_back(&ctx).expect("colour") == colour, "lens {}: colour", settings.shading.mode.name());
+        let d = target.read_hit_depth(&ctx).expect("depth");
+        assert!(d.iter().zip(depth).all(|(a, b)| a.to_bits() == b.to_bits()), "lens: the depth changed");
+    }
+    let u = scene.slice_uniforms(&plane, &RenderSettings::default());
+    assert!(gpu.render_slice(&ctx, &gpu.renderer, &scene, &u) == slice, "lens: the slice changed");
 }
 
 /// Every kind through the landmark warp's control texture: the GPU frame (unlit; lit DVR and iso for two kinds, with
@@ -280,7 +295,7 @@ fn the_shader_and_a_control_texture_agree_within_its_sampling_error() {
     let grey_per_value = 255.0 / f64::from(window);
     let allowed = ((interpolation + sampler) * grey_per_value).ceil() as u8 + 2;
     for (name, plane) in [
-        ("axial", SlicePlane::oblique([0.0, 0.0, 3.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], 1.0, (64, 64))),
+        ("sagittal", SlicePlane::oblique([0.0, 0.0, 3.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], 1.0, (64, 64))),
         ("oblique", SlicePlane::oblique([2.0, -1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.3, 1.0], 1.0, (64, 64))),
     ] {
         let plane = plane.expect("plane");
@@ -312,5 +327,86 @@ fn clone_scene(s: &Scene) -> Scene {
         fixed_pf: s.fixed_pf.clone(),
         moving_pf: s.moving_pf.clone(),
         moving_procedural: s.moving_procedural,
+        view: s.view,
     }
+}
+
+/// The fish-eye lens on both layers, through the warp: the GPU frame (unlit and lit) and slice match the CPU
+/// reference, and the lens visibly magnifies.
+#[test]
+fn the_fish_eye_lens_matches_the_cpu_reference() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let phantoms = Phantoms::new();
+    let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
+    let mut scene = warped_scene(&ctx, &phantoms, &warp).with_prefilter(PrefilterSettings::default());
+    let gpu = GpuScene::new(&ctx, &scene);
+    let plane = SlicePlane::axial(&phantoms.ct_lps_from_index, [N; 3], 10.0);
+    let settings = RenderSettings::default();
+    let plain_frame = scene.cpu(&scene.uniforms(&camera(), &settings, SIZE));
+    let plain_slice = scene.cpu_slice(&scene.slice_uniforms(&plane, &settings));
+    // On the skull, facing the camera: the shell is what an unlit frame shows.
+    scene.view =
+        Some(ViewDeformation::FishEye { centre_ref: Vec3::new(30.0, -65.0, 20.0), radius_mm: 35.0, amplitude: 0.6 });
+    for mode in [ShadingMode::None, ShadingMode::Dvr] {
+        let settings = RenderSettings { shading: Shading::with_mode(mode), ..Default::default() };
+        let u = scene.uniforms(&camera(), &settings, SIZE);
+        let (g, c) = (gpu.render(&ctx, &scene, &u), scene.cpu(&u));
+        let (max, _) = max_diff(&g, &c, 2);
+        eprintln!("lens {}: max {max}/255 from the CPU reference", mode.name());
+        assert!(max <= TOLERANCE, "lens {}: {max}/255", mode.name());
+        if mode == ShadingMode::None {
+            let (most, moved) = max_diff(&c, &plain_frame, 2);
+            eprintln!("the lens moves the unlit frame by up to {most}/255, {moved} channels by > 2");
+            assert!(moved > 100, "the lens moved only {moved} channels of the frame");
+        }
+    }
+    let u = scene.slice_uniforms(&plane, &settings);
+    let (g, c) = (gpu.render_slice(&ctx, &gpu.renderer, &scene, &u), scene.cpu_slice(&u));
+    let (max, _) = max_diff(&g, &c, 2);
+    let (_, moved) = max_diff(&c, &plain_slice, 8);
+    eprintln!("lens slice: max {max}/255, {moved} channels moved by > 8");
+    assert!(max <= TOLERANCE && moved > 100, "lens slice: max {max}/255, {moved} moved");
+}
+
+/// The lens's formula, evaluated by the test in f64: on a linear ramp v(x) = g·x (grey window [−W/2, W/2]), the
+/// slice pixel at x shows g·w(x) with w(x) = x − (x − c)·a (1 − r/R)² inside the ball, within the grey rounding.
+#[test]
+fn the_fish_eye_lens_shows_its_formula() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let g = DVec3::new(1.0, 0.5, -0.25);
+    let ramp = ramp_volume(&ctx, g);
+    let phantoms = Phantoms::new();
+    let mut scene = Scene::new(&ctx, &phantoms, None, 16);
+    scene.fixed = ramp.clone();
+    scene.moving = ramp;
+    scene.tfs =
+        vec![TransferFunction::from_points("grey", &[(0.0, [0.0, 0.0, 0.0, 1.0]), (1.0, [1.0, 1.0, 1.0, 1.0])])];
+    let window = 80.0f64;
+    scene.fixed_style = warpbench_gpu::LayerStyle {
+        window: Window::from_range(-window as f32 / 2.0, window as f32 / 2.0),
+        tf_row: 0,
+        ..scene.fixed_style
+    };
+    let (c, radius, a) = (DVec3::new(3.0, -2.0, 1.5), 25.0f64, 0.7f64);
+    scene.view =
+        Some(ViewDeformation::FishEye { centre_ref: c.as_vec3(), radius_mm: radius as f32, amplitude: a as f32 });
+    let gpu = GpuScene::new(&ctx, &scene);
+    let plane = SlicePlane::oblique(c.to_array(), [1.0, 0.2, 0.0], [0.0, 0.1, 1.0], 1.0, (64, 64)).expect("plane");
+    let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
+    let image = gpu.render_slice(&ctx, &gpu.renderer, &scene, &scene.slice_uniforms(&plane, &settings));
+    let (mut worst, mut inside) = (0.0f64, 0);
+    for py in 0..64u32 {
+        for px in 0..64u32 {
+            let x = DVec3::from_array(plane.ref_from_pixel(f64::from(px) + 0.5, f64::from(py) + 0.5));
+            let r = (x - c).length();
+            let w = if r < radius { x - (x - c) * (a * (1.0 - r / radius).powi(2)) } else { x };
+            inside += usize::from(r < radius);
+            let expected = ((g.dot(w) + window / 2.0) / window).clamp(0.0, 1.0) * 255.0;
+            let shown = f64::from(image[4 * (py * 64 + px) as usize]);
+            worst = worst.max((shown - expected).abs());
+        }
+    }
+    eprintln!("lens on a ramp: worst |grey − formula| {worst:.2} over 4096 pixels ({inside} in the lens)");
+    assert!(inside > 1000, "the plane should cross the lens");
+    assert!(worst <= 1.0, "the lens's slice is {worst} grey levels off its formula");
 }

@@ -106,7 +106,8 @@ fn axial_slice_through_voxel_centres_reproduces_the_volume() {
         let plane = SlicePlane::axial(&phantoms.ct_lps_from_index, [N; 3], position_mm);
         assert!((plane.ref_from_pixel(0.0, 0.0)[2] - (3.0 * k as f64 - 94.5)).abs() < 1e-9);
         let u = scene.slice_uniforms(&plane, &settings);
-        let layer = |volume, style| GpuLayer { volume, control: None, prefiltered: None, style, procedural: None };
+        let layer =
+            |volume, style| GpuLayer { volume, control: None, prefiltered: None, style, procedural: None, view: None };
         let frame = GpuFrame {
             fixed: layer(&gpu.fixed, scene.fixed_style),
             moving: layer(&gpu.moving, scene.moving_style),

@@ -10,8 +10,8 @@ use warpbench_gpu::{
     ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
     GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings,
     PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Procedural, RaycastDrawData, RaycastRenderer,
-    RaycastUniforms, RenderSettings, RenderTarget, SlicePlane, TransferFunction, VolumeBudget, VolumeDesc,
-    VolumeSamples, Window,
+    RaycastUniforms, RenderSettings, RenderTarget, SlicePlane, TransferFunction, ViewDeformation, VolumeBudget,
+    VolumeDesc, VolumeSamples, Window,
 };
 
 pub const N: usize = 64;
@@ -149,6 +149,8 @@ pub struct Scene {
     pub moving_pf: Option<PrefilteredTexels>,
     /// The moving layer's procedural deformation ([`warpbench_gpu::procedural`]).
     pub moving_procedural: Option<Procedural>,
+    /// The view deformation both layers are drawn through ([`warpbench_gpu::view_deformation`]).
+    pub view: Option<ViewDeformation>,
 }
 
 impl Scene {
@@ -186,6 +188,7 @@ impl Scene {
             fixed_pf: None,
             moving_pf: None,
             moving_procedural: None,
+            view: None,
         }
     }
 
@@ -205,6 +208,7 @@ impl Scene {
                 style: self.fixed_style,
                 has_prefilter: self.fixed_pf.is_some(),
                 procedural: None,
+                view: self.view,
             },
             LayerParams {
                 volume: self.moving.info,
@@ -212,6 +216,7 @@ impl Scene {
                 style: self.moving_style,
                 has_prefilter: self.moving_pf.is_some(),
                 procedural: self.moving_procedural,
+                view: self.view,
             },
         )
     }
@@ -312,14 +317,21 @@ impl GpuScene {
         s: &Scene,
         u: &RaycastUniforms,
     ) -> Vec<u8> {
-        let f =
-            GpuLayer { volume: &self.fixed, control: None, prefiltered: None, style: s.fixed_style, procedural: None };
+        let f = GpuLayer {
+            volume: &self.fixed,
+            control: None,
+            prefiltered: None,
+            style: s.fixed_style,
+            procedural: None,
+            view: s.view,
+        };
         let m = GpuLayer {
             volume: &self.moving,
             control: self.control.as_ref(),
             prefiltered: None,
             style: s.moving_style,
             procedural: s.moving_procedural,
+            view: s.view,
         };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
         let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
@@ -376,6 +388,7 @@ impl GpuScene {
             prefiltered: self.fixed_pf.as_ref(),
             style: s.fixed_style,
             procedural: None,
+            view: s.view,
         };
         let m = GpuLayer {
             volume: &self.moving,
@@ -383,6 +396,7 @@ impl GpuScene {
             prefiltered: self.moving_pf.as_ref(),
             style: s.moving_style,
             procedural: s.moving_procedural,
+            view: s.view,
         };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
         RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u)
@@ -467,6 +481,7 @@ pub fn ball_scene(ctx: &GpuContext, value: impl Fn(f32) -> f32, window: (f32, f3
         fixed_pf: None,
         moving_pf: None,
         moving_procedural: None,
+        view: None,
     }
 }
 
