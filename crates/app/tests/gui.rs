@@ -950,6 +950,8 @@ fn undo_of_every_command_gives_the_document_back_and_view_commands_leave_it() {
         Command::MoveSlice(1, 12.0),
         Command::CentreSlices([1.0, 2.0, 3.0]),
         Command::ResetCamera,
+        Command::ShowWorstPair,
+        Command::TogglePulse,
     ];
     for command in views {
         let before = ready.document.clone();
@@ -1021,4 +1023,64 @@ fn a_procedural_deformation_is_switched_on_drawn_and_undone() {
     }
     wait_until_rendered(&mut harness);
     assert!(frame(&harness) == undeformed, "undo did not give the undeformed view back");
+}
+
+/// The attention lens (issue 17, item 2): "Show the worst pair" selects the pair with the largest leave-one-out error,
+/// centres the views on it and pulses the fish-eye lens about its fixed point in the 3-D view; the lens magnifies
+/// there and changes neither the slices nor the document; the checkbox switches it off.
+#[test]
+fn the_worst_pair_is_shown_by_a_pulsing_lens() {
+    use std::time::Instant;
+    use warpbench_app::gui::panels::loo_ranking;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(640.0, 480.0));
+    wait_until_rendered(&mut harness);
+    let before = harness.state().ready().expect("ready").document.clone();
+    let worst = {
+        let ready = harness.state().ready().expect("ready");
+        loo_ranking(&ready.document.pairs, &ready.fit.pair_errors)[0].1
+    };
+    harness.get_by_label("Show the worst pair").click_accesskit();
+    harness.run_steps(3);
+    let ready = harness.state_mut().ready_mut().expect("ready");
+    assert_eq!(ready.selected, Some(worst));
+    assert!(ready.attention.is_on(), "the lens pulses");
+    let q = ready.document.pairs[worst].fixed.expect("a fixed point").coords();
+    assert!((ready.slice_mm[0] - q[2]).abs() < 1e-9 && (ready.slice_mm[2] - q[0]).abs() < 1e-9, "the views go there");
+    let Some(warpbench_gpu::ViewDeformation::FishEye { centre_ref, radius_mm, .. }) = ready.view_lens(Instant::now())
+    else {
+        panic!("a lens about the worst pair")
+    };
+    assert!(centre_ref.distance(warpbench_gpu::glam::Vec3::from_array(q.map(|v| v as f32))) < 1e-6);
+
+    // At its peak the lens magnifies about the pair: the 3-D view changes, the slices do not.
+    let peak = warpbench_gpu::ViewDeformation::FishEye {
+        centre_ref,
+        radius_mm,
+        amplitude: warpbench_app::gui::attention::PEAK_AMPLITUDE,
+    };
+    let settings = ready.document.settings.render_settings();
+    let view = |ready: &mut Ready, lens| {
+        ready.viewer.set_view_deformation(lens);
+        let t = ready.viewer.render_view(&ready.camera, &settings, warpbench_gpu::Quality::Full, (64, 64), &[]);
+        let slice = ready.viewer.render_slice(&ready.slice_plane(0), &settings, &[]).expect("slice");
+        (
+            t.expect("view").read_back(&ready.viewer.ctx).expect("read"),
+            slice.read_back(&ready.viewer.ctx).expect("read"),
+        )
+    };
+    let (plain, plain_slice) = view(ready, None);
+    let (lensed, lensed_slice) = view(ready, Some(peak));
+    let differ = plain.chunks(4).zip(lensed.chunks(4)).filter(|(a, b)| a != b).count();
+    assert!(differ > 50, "the lens changed {differ} pixels of the view");
+    assert!(plain_slice == lensed_slice, "the lens must not touch the slices");
+    assert_eq!(ready.document, before, "the lens is not part of the document");
+
+    harness.get_by_label("Pulse the selected pair").click_accesskit();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("ready");
+    assert!(!ready.attention.is_on() && ready.view_lens(Instant::now()).is_none(), "switched off");
 }

@@ -197,9 +197,11 @@ pub struct PickHit {
     pub x_ref: [f32; 3],
     /// Its distance along the ray from the ray's origin (mm).
     pub t_mm: f32,
-    /// The same point in the hit volume's own LPS space: u(x_ref) through its warp (x_ref without one).
+    /// The same point in the hit volume's own LPS space: u(w(x_ref)) through its view deformation and its warp
+    /// (x_ref without them): the point a landmark records. Under a procedural deformation p of the volume's data, the
+    /// value is read at p(p_lps).
     pub p_lps: [f32; 3],
-    /// The volume's value at p_lps (value units: HU for CT).
+    /// The volume's value there (value units: HU for CT).
     pub value: f32,
     /// 1 for a hit, 0 for none (the other fields are then meaningless).
     pub hit: u32,
@@ -230,6 +232,12 @@ impl PickHit {
             _pad0: 0,
             _pad1: 0,
         }
+    }
+
+    /// The volume marched.
+    #[must_use]
+    pub fn target(&self) -> PickTarget {
+        if self.target_volume == PickTarget::Fixed.code() { PickTarget::Fixed } else { PickTarget::Moving }
     }
 
     /// No hit.

@@ -298,6 +298,7 @@ impl Workbench {
             cursor: None,
             notice: None,
             selected: None,
+            attention: super::attention::Attention::Off,
             control_eval: ControlEval::Auto,
             history: History::new(first),
             ctx: ctx.clone(),
@@ -462,7 +463,8 @@ fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, read
 
 /// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo,
 /// Space starts or stops adding a pair, Esc cancels it (or clears the selection), Delete removes the selected pair,
-/// R resets the camera. The single keys only act while no text field has the keyboard.
+/// R resets the camera, P pulses the attention lens about the selected pair, W shows the worst pair. The single keys
+/// only act while no text field has the keyboard.
 fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     let mut commands = Vec::new();
     // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
@@ -490,6 +492,12 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     }
     if key(ui, egui::Key::R) {
         commands.push(Command::ResetCamera);
+    }
+    if key(ui, egui::Key::P) {
+        commands.push(Command::TogglePulse);
+    }
+    if key(ui, egui::Key::W) {
+        commands.push(Command::ShowWorstPair);
     }
     commands
 }
@@ -523,6 +531,10 @@ fn workbench_ui(
     views::slices::slice_strip(ui, ready);
     // What the panels changed reaches the disk before the 3-D view renders (a second on a CPU driver).
     autosave_changes(autosave, ui.ctx(), ready);
+    // The attention lens moves every frame: the 3-D view is drawn again at the display's rate while it pulses.
+    if ready.view_lens(std::time::Instant::now()).is_some() {
+        ready.invalidate_view();
+    }
     views::view3d::view3d(ui, ready, render_state);
     // A change becomes an undo step once it has settled (a slider drag is one step).
     ready.settle(ui.input(|i| i.pointer.any_down()));

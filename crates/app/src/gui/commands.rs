@@ -66,6 +66,10 @@ pub enum Command {
     CentreSlices([f64; 3]),
     File(FileAction),
     Export(export::ExportKind, PathBuf),
+    /// Start or stop pulsing the attention lens about the selected pair in the 3-D view ([`super::attention`]).
+    TogglePulse,
+    /// Select the pair with the largest leave-one-out error, centre the views on it and pulse the lens there.
+    ShowWorstPair,
 }
 
 /// What a settings change costs.
@@ -194,6 +198,17 @@ impl Ready {
             }
             Command::File(action) => self.file_action(action),
             Command::Export(kind, out) => self.start_export(kind, out),
+            Command::TogglePulse => {
+                self.attention = self.attention.toggled(std::time::Instant::now());
+                self.invalidate_view();
+            }
+            Command::ShowWorstPair => match panels::loo_ranking(&self.document.pairs, &self.fit.pair_errors).first() {
+                Some(&(_, i)) => {
+                    self.jump_to(i);
+                    self.attention = self.attention.on(std::time::Instant::now());
+                }
+                None => self.notice = Some("no leave-one-out errors yet: the worst pair needs a fit of 5 pairs".into()),
+            },
         }
     }
 

@@ -92,7 +92,10 @@ impl Ready {
         self.viewer.begin_frame();
         self.viewer.set_looks(&self.document.layers);
         self.viewer.set_procedural(self.procedural().ok().flatten());
-        let glyphs = self.glyphs();
+        let lens = self.view_lens(std::time::Instant::now());
+        self.viewer.set_view_deformation(lens);
+        let glyphs = self.glyphs_through(lens.as_ref());
+        let slice_glyphs = self.glyphs();
         let settings = self.document.settings.render_settings();
         if stale {
             let (quality, px) = if interacting || cpu {
@@ -114,7 +117,7 @@ impl Ready {
         if self.images.slices_dirty {
             let planes = self.slice_planes();
             for (slot, plane) in self.images.slices.iter_mut().zip(planes) {
-                let target = self.viewer.render_slice(&plane, &settings, &glyphs)?;
+                let target = self.viewer.render_slice(&plane, &settings, &slice_glyphs)?;
                 *slot = Some(viewer::show(rs, target, slot.take()));
             }
             self.images.slices_dirty = false;

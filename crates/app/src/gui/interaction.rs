@@ -206,7 +206,7 @@ impl Ready {
         match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.document.settings.probe()) {
             Ok(Some(hit)) => {
                 let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
-                self.drag_to(hit.x_ref.map(f64::from), moving);
+                self.drag_to(picked_ref(&hit), moving);
             }
             Ok(None) => {}
             Err(e) => self.fit.error = Some(format!("picking: {e:#}")),
@@ -254,13 +254,22 @@ impl Ready {
         let settings = self.document.settings.render_settings();
         match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.document.settings.probe()) {
             Ok(Some(hit)) => {
-                let x_ref = hit.x_ref.map(f64::from);
                 let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
-                self.place_at_ref(x_ref, moving);
+                self.place_at_ref(picked_ref(&hit), moving);
             }
             Ok(None) => self.fit.error = Some("the click hit nothing: try another point or probe".into()),
             Err(e) => self.fit.error = Some(format!("picking: {e:#}")),
         }
+    }
+}
+
+/// The ref point a 3-D pick stands for: for the fixed volume its point (w(x) through a view deformation, x
+/// without one: the fixed volume is not warped), for the moving volume the ray's point x, whose moving point the
+/// pick gives.
+fn picked_ref(hit: &warpbench_gpu::PickHit) -> [f64; 3] {
+    match hit.target() {
+        PickTarget::Fixed => hit.p_lps.map(f64::from),
+        PickTarget::Moving => hit.x_ref.map(f64::from),
     }
 }
 

@@ -19,6 +19,7 @@
 //! - [`views`]: the slice strip and the 3-D view; [`panels`]: the side panel's sections; [`viewer`]: the GPU side.
 
 pub mod app;
+pub mod attention;
 pub mod autosave;
 pub mod commands;
 pub mod demo;
@@ -159,6 +160,9 @@ pub struct Ready {
     pub notice: Option<String>,
     /// The pair selected in the table or by clicking its glyph.
     pub selected: Option<usize>,
+    /// Whether the 3-D view pulses the attention lens about the selected pair ([`attention`]): a view state beside
+    /// the camera, never part of the document.
+    pub attention: attention::Attention,
     /// Where the control texture is made.
     pub control_eval: ControlEval,
     /// The window's egui context, for work that reports back to it (screenshots, exports).
@@ -421,13 +425,33 @@ impl Ready {
         self.fit.fitted.as_ref().map_or(0, |f| f.pairs)
     }
 
-    /// The landmark glyphs drawn over the views (none when landmarks are hidden).
+    /// The attention lens of the 3-D view at `now` ([`attention`]): about the selected pair's fixed point while the
+    /// pulse is on.
+    #[must_use]
+    pub fn view_lens(&self, now: std::time::Instant) -> Option<warpbench_gpu::ViewDeformation> {
+        let centre = self.selected.and_then(|i| self.document.pairs.get(i)).and_then(|p| p.fixed);
+        let centre = centre.map(|q| Vec3::from_array(q.coords().map(|v| v as f32)));
+        let f = &self.viewer.fixed.volume.info;
+        let shortest = (f.box_max_lps - f.box_min_lps).min_element() as f32;
+        self.attention.lens(centre, shortest, now)
+    }
+
+    /// The landmark glyphs drawn over the slices (none when landmarks are hidden).
     #[must_use]
     pub fn glyphs(&self) -> Vec<GlyphInstance> {
+        self.glyphs_through(None)
+    }
+
+    /// The landmark glyphs drawn over the 3-D view through `lens`: each point where the lens shows it, w⁻¹(x).
+    #[must_use]
+    pub fn glyphs_through(&self, lens: Option<&warpbench_gpu::ViewDeformation>) -> Vec<GlyphInstance> {
         if !self.document.settings.show_landmarks {
             return Vec::new();
         }
-        let to_vec = |c: [f64; 3]| Vec3::from_array(c.map(|v| v as f32));
+        let to_vec = |c: [f64; 3]| {
+            let x = Vec3::from_array(c.map(|v| v as f32));
+            lens.map_or(x, |w| w.forward(x))
+        };
         let pairs: Vec<GlyphPair> = self
             .document
             .pairs

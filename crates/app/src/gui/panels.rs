@@ -355,6 +355,24 @@ pub fn accuracy_ui(ui: &mut egui::Ui, pairs: &[LandmarkPair], errors: &[Option<P
     chosen
 }
 
+/// The attention lens ([`super::attention`]): "Pulse the selected pair" (P) switches the 3-D view's pulsing lens
+/// about the selected pair on or off; "Show the worst pair" (W) selects the pair with the largest leave-one-out
+/// error, centres the views on it and pulses there (offered once there are leave-one-out errors).
+pub fn attention_ui(ui: &mut egui::Ui, pulsing: bool, has_loo: bool) -> Option<Command> {
+    let mut command = None;
+    ui.horizontal_wrapped(|ui| {
+        let mut on = pulsing;
+        if ui.checkbox(&mut on, "Pulse the selected pair").on_hover_text("P; a lens in the 3-D view only").changed() {
+            command = Some(Command::TogglePulse);
+        }
+        let worst = egui::Button::new("Show the worst pair");
+        if ui.add_enabled(has_loo, worst).on_hover_text("W").clicked() {
+            command = Some(Command::ShowWorstPair);
+        }
+    });
+    command
+}
+
 /// The paths typed into the side panel's file section.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct FileFields {

@@ -10,7 +10,7 @@ use warpbench_gpu::{
     GpuTransferFunctions, GpuVolume, LayerStyle, OrbitCamera, PickHit, PickPass, PickRay, PickRequest, PickTarget,
     PrefilterPass, PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Probe, Procedural,
     Quality, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane, TexturePool, TpsDesc,
-    VolumeBudget,
+    ViewDeformation, VolumeBudget,
 };
 use warpbench_io::Volume;
 
@@ -121,6 +121,9 @@ pub struct Viewer {
     tf_presets: [Preset; 2],
     /// The moving volume's procedural deformation ([`crate::procedural`]), set by [`Self::set_procedural`].
     procedural: Option<Procedural>,
+    /// The view deformation the 3-D view is drawn and picked through (the attention lens), set by
+    /// [`Self::set_view_deformation`]; the slices are drawn without it.
+    view_deformation: Option<ViewDeformation>,
     pub control: Option<GpuControlTexture>,
     /// Evaluates TPS pull-backs straight into the control texture, made on first use.
     control_eval: Option<ControlEvalPass>,
@@ -179,6 +182,7 @@ impl Viewer {
             tfs,
             tf_presets,
             procedural: None,
+            view_deformation: None,
             control: None,
             control_eval: None,
             control_from_eval: false,
@@ -212,7 +216,28 @@ impl Viewer {
         self.procedural = procedural;
     }
 
+    /// Draws and picks the next 3-D frames through `view` (both volumes; `None`: undeformed). The slices are drawn
+    /// without it.
+    pub fn set_view_deformation(&mut self, view: Option<ViewDeformation>) {
+        self.view_deformation = view;
+    }
+
+    /// The view deformation the 3-D view was last drawn through.
+    #[must_use]
+    pub fn view_deformation(&self) -> Option<ViewDeformation> {
+        self.view_deformation
+    }
+
+    /// The 3-D view's frame: both volumes through the view deformation.
     fn frame(&self) -> GpuFrame<'_> {
+        let mut frame = self.slice_frame();
+        frame.fixed.view = self.view_deformation;
+        frame.moving.view = self.view_deformation;
+        frame
+    }
+
+    /// The slices' frame: no view deformation.
+    fn slice_frame(&self) -> GpuFrame<'_> {
         GpuFrame {
             fixed: GpuLayer {
                 volume: &self.fixed.volume,
@@ -347,7 +372,7 @@ impl Viewer {
         settings: &RenderSettings,
         glyphs: &[GlyphInstance],
     ) -> anyhow::Result<RenderTarget> {
-        let frame = self.frame();
+        let frame = self.slice_frame();
         let data = RaycastDrawData::for_slice(&self.ctx, &self.renderer, &frame, plane, settings);
         let target = RenderTarget::from_pool(&self.pool, plane.size.0, plane.size.1);
         self.renderer.render_slice(&self.ctx, &data, &target).map_err(gpu_error)?;
