@@ -1,0 +1,89 @@
+//! The window's tools on the demo pair, drawn headlessly through egui_kittest (wgpu: the GPU, or Mesa's CPU driver)
+//! and written as the screenshots of `docs/user-guide.md`:
+//!
+//! ```text
+//! cargo run --release -p warpbench-app --example tool_screenshots -- docs/images
+//! ```
+//!
+//! - `procedural.png`: the synthetic deformation, the MRI alone bent by 20 mm (seed 2), seen from the left.
+//! - `attention.png`: "Show the worst pair": the attention lens pulsing about the pair with the largest leave-one-out
+//!   error, taken when the pulse is near its peak. On a CPU driver a pulsing view is drawn at the interaction size.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result, bail};
+use eframe::egui;
+use egui_kittest::Harness;
+use warpbench_app::gui::attention::PEAK_AMPLITUDE;
+use warpbench_app::gui::{Command, GuiOptions, Workbench};
+use warpbench_app::procedural::ProceduralSpec;
+use warpbench_app::settings::{Blend, ProceduralKind};
+
+/// Steps until the views are drawn fully and the fit's diagnostics are in (or `limit` passes).
+fn settle(harness: &mut Harness<'_, Workbench>, limit: Duration) -> Result<()> {
+    let start = Instant::now();
+    loop {
+        harness.step();
+        if let Some(e) = harness.state().failure() {
+            bail!("loading failed: {e}");
+        }
+        if harness.state().ready().is_some_and(|r| !r.needs_render() && !r.diagnostics_pending()) {
+            harness.run_steps(2);
+            return Ok(());
+        }
+        if start.elapsed() > limit {
+            bail!("the window did not settle within {limit:?}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn save(harness: &mut Harness<'_, Workbench>, out: &Path, name: &str) -> Result<()> {
+    let image = harness.render().map_err(|e| anyhow::anyhow!("rendering the window: {e}"))?;
+    let path = out.join(name);
+    image.save(&path).with_context(|| format!("writing {}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let Some(out) = std::env::args().nth(1).map(PathBuf::from) else { bail!("usage: tool_screenshots OUT_DIR") };
+    let state = tempfile::tempdir().context("a temporary folder for the autosave")?;
+    let opts = GuiOptions { autosave: Some(state.path().join("autosave.warpbench.json")), ..GuiOptions::default() };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1280.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    settle(&mut harness, Duration::from_mins(10))?;
+
+    // The synthetic deformation.
+    let ready = harness.state_mut().ready_mut().context("the demo pair")?;
+    let plain = ready.document.settings.clone();
+    let mut settings = plain.clone();
+    settings.blend = Blend::MovingOnly;
+    settings.procedural = Some(ProceduralSpec { kind: ProceduralKind::Bend, amplitude_mm: 20.0, seed: 2 });
+    ready.apply(Command::SetSettings(settings));
+    ready.camera.azimuth_rad = std::f32::consts::FRAC_PI_2;
+    ready.camera.elevation_rad = 0.17;
+    ready.invalidate();
+    settle(&mut harness, Duration::from_mins(10))?;
+    save(&mut harness, &out, "procedural.png")?;
+
+    // The attention lens about the worst pair, near its peak.
+    let ready = harness.state_mut().ready_mut().context("the demo pair")?;
+    ready.apply(Command::SetSettings(plain));
+    ready.apply(Command::ResetCamera);
+    ready.apply(Command::ShowWorstPair);
+    let start = Instant::now();
+    loop {
+        harness.step();
+        let ready = harness.state().ready().context("the demo pair")?;
+        if ready.attention.amplitude(Instant::now()) > 0.8 * PEAK_AMPLITUDE {
+            break;
+        }
+        if start.elapsed() > Duration::from_mins(1) {
+            bail!("the lens did not pulse");
+        }
+    }
+    save(&mut harness, &out, "attention.png")?;
+    Ok(())
+}
