@@ -62,16 +62,18 @@ struct ProceduralUniforms {
 // (crates/gpu/src/view_deformation.rs gives the formulas). The Rust twin is `ViewDeformationUniforms` in
 // crates/gpu/src/view_deformation.rs (tests/shaders.rs compares the layouts).
 struct ViewDeformationUniforms {
-    // fish-eye: the lens's centre
+    // fish-eye: the lens's centre; leafer: a point of the hinge line
     centre_ref: vec3<f32>,
     // VIEW_*
     kind: u32,
+    // leafer: the unit direction the book opens towards
+    front: vec3<f32>,
     // fish-eye: R
     radius_mm: f32,
-    // fish-eye: a
+    // leafer: the cut plane's unit normal
+    normal: vec3<f32>,
+    // fish-eye: a; leafer: the opening θ, radians
     amplitude: f32,
-    _pad0: u32,
-    _pad1: u32,
 }
 
 // The Rust twin is `VolumeUniforms` in crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
@@ -152,6 +154,9 @@ const PROCEDURAL_BUMP: u32 = 5u;
 // ViewDeformationUniforms.kind
 const VIEW_NONE: u32 = 0u;
 const VIEW_FISH_EYE: u32 = 1u;
+const VIEW_LEAFER: u32 = 2u;
+// What a view deformation reads where it shows nothing (the leafer's opening): a point no volume contains.
+const VIEW_EMPTY: f32 = -1.0e30;
 
 // RaycastUniforms.shading_mode. The pipeline is specialised on it: SHADING is set to the same value at pipeline
 // creation, so each mode's pipeline compiles only its own code.
@@ -384,8 +389,8 @@ fn procedural_displacement(q: ProceduralUniforms, y: vec3<f32>) -> vec3<f32> {
     }
 }
 
-// w(x_ref): the view deformation the volume is drawn through (the identity for VIEW_NONE); the fish-eye written as a
-// displacement, so that a zero amplitude leaves x exactly. The CPU twin is ViewDeformationUniforms::pullback.
+// w(x_ref): the view deformation the volume is drawn through (the identity for VIEW_NONE); written as displacements,
+// so that a zero amplitude or angle leaves x exactly. The CPU twin is ViewDeformationUniforms::pullback.
 fn view_pullback(w: ViewDeformationUniforms, x_ref: vec3<f32>) -> vec3<f32> {
     if w.kind == VIEW_FISH_EYE {
         let d = x_ref - w.centre_ref;
@@ -394,6 +399,25 @@ fn view_pullback(w: ViewDeformationUniforms, x_ref: vec3<f32>) -> vec3<f32> {
             let q = 1.0 - r / w.radius_mm;
             return x_ref - d * (w.amplitude * q * q);
         }
+    } else if w.kind == VIEW_LEAFER {
+        // (u, v) in the plane across the hinge; the n half (φ ≥ θ) turns back by −θ, the other by +θ, and the
+        // opening between them shows nothing.
+        let r = x_ref - w.centre_ref;
+        let u = dot(r, w.front);
+        let v = dot(r, w.normal);
+        let theta = w.amplitude;
+        let phi = atan2(v, u);
+        if abs(phi) < theta {
+            return vec3<f32>(VIEW_EMPTY);
+        }
+        var sigma = -1.0;
+        if phi >= 0.0 {
+            sigma = 1.0;
+        }
+        let s = sigma * sin(theta);
+        let half = sin(0.5 * theta);
+        let c1 = -2.0 * half * half;
+        return x_ref + w.front * (u * c1 + v * s) + w.normal * (v * c1 - u * s);
     }
     return x_ref;
 }
@@ -988,6 +1012,7 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
         }
         if found {
             var t_hit = t;
+            var t_inside = t;
             if t_prev >= 0.0 {
                 var lo = t_prev;
                 var hi = t;
@@ -1007,8 +1032,9 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
                     }
                 }
                 t_hit = 0.5 * (lo + hi);
+                t_inside = hi;
             }
-            return pick_hit_at(vol, ctrl, v, origin, dir, t_hit);
+            return pick_hit_at(vol, ctrl, v, origin, dir, t_hit, t_inside);
         }
         if pick.probe == PROBE_ACCUMULATED {
             acc = accumulate(acc, q, u.step_mm);
@@ -1072,7 +1098,7 @@ fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: 
                         lo = mid;
                     }
                 }
-                return pick_hit_at(vol, ctrl, v, origin, dir, 0.5 * (lo + hi));
+                return pick_hit_at(vol, ctrl, v, origin, dir, 0.5 * (lo + hi), hi);
             }
             acc += (1.0 - acc) * alpha;
         }
@@ -1091,15 +1117,21 @@ fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: 
 }
 
 // The hit at t_hit along the ray: x_ref, its pull-back u(w(x_ref)) into the volume's LPS space and the value there
-// (read at p(u(w(x_ref))) under a procedural deformation).
-fn pick_hit_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_hit: f32) -> PickHit {
+// (read at p(u(w(x_ref))) under a procedural deformation). t_inside is the nearest point known to satisfy the probe
+// (the bisection's upper end): where a view deformation shows nothing at t_hit (the leafer's opening, whose edge is a
+// face of the volume) the hit is reported there instead, on the face.
+fn pick_hit_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_hit: f32, t_inside: f32) -> PickHit {
     var out: PickHit;
-    let x_ref = origin + t_hit * dir;
+    var t = t_hit;
+    if v.view.kind != VIEW_NONE && view_pullback(v.view, origin + t_hit * dir).x == VIEW_EMPTY {
+        t = t_inside;
+    }
+    let x_ref = origin + t * dir;
     let p_lps = pullback_lps(ctrl, v, x_ref);
     out.hit = 1u;
     out.target_volume = pick.target_volume;
     out.x_ref = x_ref;
-    out.t_mm = t_hit;
+    out.t_mm = t;
     out.p_lps = p_lps;
     out.value = volume_value(vol, v, data_tex(v, p_lps));
     return out;

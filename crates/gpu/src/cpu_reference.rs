@@ -26,7 +26,7 @@ use crate::sampling::trilinear;
 use crate::settings::ShadingMode;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH};
 use crate::transfer::{PreIntegrationTable, TransferFunction};
-use crate::view_deformation::VIEW_NONE;
+use crate::view_deformation::{VIEW_EMPTY, VIEW_NONE};
 use crate::volume::PreparedVolume;
 
 /// One volume on the CPU side: its texels, optional control texture and optional prefiltered copy.
@@ -544,7 +544,7 @@ pub fn pick_with_tables(
         let q = quantity(origin + t * dir);
         let found = if accumulated { accumulate(acc, q, u.step_mm) >= threshold } else { q >= threshold };
         if found {
-            let mut t_hit = t;
+            let (mut t_hit, mut t_inside) = (t, t);
             if t_prev >= 0.0 {
                 let (mut lo, mut hi) = (t_prev, t);
                 for _ in 0..request.bisection_steps.min(32) {
@@ -558,9 +558,9 @@ pub fn pick_with_tables(
                         lo = mid;
                     }
                 }
-                t_hit = 0.5 * (lo + hi);
+                (t_hit, t_inside) = (0.5 * (lo + hi), hi);
             }
-            return hit_at(layer, v, request, origin + t_hit * dir, t_hit);
+            return hit_at(layer, v, request, (origin, dir), t_hit, t_inside);
         }
         if accumulated {
             acc = accumulate(acc, q, u.step_mm);
@@ -570,10 +570,22 @@ pub fn pick_with_tables(
     miss
 }
 
-/// The hit at `x_ref` (ray parameter `t_hit`): the point pulled back into the volume's LPS space and its value there.
-fn hit_at(layer: &CpuLayer<'_>, v: &VolumeUniforms, request: &PickRequest, x_ref: Vec3, t_hit: f32) -> PickHit {
+/// The shader's `pick_hit_at`: the hit at ray parameter `t_hit` of the ray (origin, direction), the point pulled back
+/// into the volume's LPS space and its value there; where a view deformation shows nothing at `t_hit` (the leafer's
+/// opening), at `t_inside` instead (the bisection's upper end, on the face).
+fn hit_at(
+    layer: &CpuLayer<'_>,
+    v: &VolumeUniforms,
+    request: &PickRequest,
+    (origin, dir): (Vec3, Vec3),
+    t_hit: f32,
+    t_inside: f32,
+) -> PickHit {
+    let empty = v.view.kind != VIEW_NONE && v.view.pullback(origin + t_hit * dir).x == VIEW_EMPTY;
+    let t = if empty { t_inside } else { t_hit };
+    let x_ref = origin + t * dir;
     let p_lps = pullback_lps(layer, v, x_ref);
-    PickHit::new(request.target, x_ref, t_hit, p_lps, volume_value(layer, v, data_tex(v, p_lps)))
+    PickHit::new(request.target, x_ref, t, p_lps, volume_value(layer, v, data_tex(v, p_lps)))
 }
 
 /// The shader's `pick_march_preintegrated`: the accumulated probe, segment by segment as the frame composites.
@@ -613,8 +625,7 @@ fn pick_preintegrated(
                         lo = mid;
                     }
                 }
-                let t_hit = 0.5 * (lo + hi);
-                return hit_at(layer, v, request, origin + t_hit * dir, t_hit);
+                return hit_at(layer, v, request, (origin, dir), 0.5 * (lo + hi), hi);
             }
             acc += (1.0 - acc) * alpha;
         }

@@ -57,7 +57,9 @@ use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, WgslConstant
 use crate::slice::SlicePlane;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH, RenderTarget};
 use crate::transfer::{GpuPreIntegration, GpuTransferFunctions, OpacityTable, PreIntegrationKey};
-use crate::view_deformation::{VIEW_FISH_EYE, VIEW_NONE, ViewDeformation, ViewDeformationUniforms};
+use crate::view_deformation::{
+    VIEW_EMPTY, VIEW_FISH_EYE, VIEW_LEAFER, VIEW_NONE, ViewDeformation, ViewDeformationUniforms,
+};
 use crate::volume::GpuVolume;
 
 /// `VolumeUniforms.flags`, the WGSL constants of the same names ([`INTERFACE`]).
@@ -98,7 +100,7 @@ pub struct VolumeUniforms {
     /// The deformation of the view the layer is drawn through, before the pull-back ([`crate::view_deformation`]).
     pub view: ViewDeformationUniforms,
 }
-const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 272);
+const _: () = assert!(std::mem::size_of::<VolumeUniforms>() == 288);
 
 /// The empty-space grid a frame skips by ([`crate::empty_space`]): `EmptySpaceUniforms` in shaders/raycast.wgsl
 /// ([`INTERFACE`]).
@@ -158,7 +160,7 @@ pub struct RaycastUniforms {
     /// Empty-space skipping: off unless the frame binds a grid ([`RaycastDrawData::with_empty_space`]).
     pub empty_space: EmptySpaceUniforms,
 }
-const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 800);
+const _: () = assert!(std::mem::size_of::<RaycastUniforms>() == 832);
 
 impl VolumeUniforms {
     /// The uniforms of `layer`, whose transfer function is a row of a texture of `tf_rows` rows.
@@ -337,7 +339,7 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
             procedural,
             view
         }),
-        layout!(ViewDeformationUniforms { centre_ref, kind, radius_mm, amplitude }),
+        layout!(ViewDeformationUniforms { centre_ref, kind, front, radius_mm, normal, amplitude }),
         layout!(ProceduralUniforms {
             centre_mm,
             kind,
@@ -401,6 +403,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
         WgslConstant::u32("VIEW_NONE", VIEW_NONE),
         WgslConstant::u32("VIEW_FISH_EYE", VIEW_FISH_EYE),
+        WgslConstant::u32("VIEW_LEAFER", VIEW_LEAFER),
+        WgslConstant::f32("VIEW_EMPTY", VIEW_EMPTY),
         WgslConstant::u32("PROCEDURAL_NONE", PROCEDURAL_NONE),
         WgslConstant::u32("PROCEDURAL_SHIFT", PROCEDURAL_SHIFT),
         WgslConstant::u32("PROCEDURAL_SINE", PROCEDURAL_SINE),

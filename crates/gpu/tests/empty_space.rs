@@ -37,7 +37,7 @@ fn frame<'a>(gpu: &'a GpuScene, s: &Scene) -> GpuFrame<'a> {
             prefiltered: gpu.fixed_pf.as_ref(),
             style: s.fixed_style,
             procedural: None,
-            view: s.view,
+            view: s.views[0],
         },
         moving: GpuLayer {
             volume: &gpu.moving,
@@ -45,7 +45,7 @@ fn frame<'a>(gpu: &'a GpuScene, s: &Scene) -> GpuFrame<'a> {
             prefiltered: gpu.moving_pf.as_ref(),
             style: s.moving_style,
             procedural: s.moving_procedural,
-            view: s.view,
+            view: s.views[1],
         },
         tfs: &gpu.tfs,
     }
@@ -176,7 +176,7 @@ fn skipping_keeps_the_image_bit_exact_through_a_warp() {
 }
 
 /// Through a procedural deformation of the moving layer's data ([`warpbench_gpu::procedural`]), on top of the warp,
-/// and through the fish-eye lens on both layers: the bricks are classified through the deformations' image bounds,
+/// through the fish-eye lens on both layers and the leafer on one: the bricks are classified through the deformations' image bounds,
 /// and skipping still changes nothing.
 #[test]
 fn skipping_keeps_the_image_bit_exact_through_procedural_deformations() {
@@ -193,12 +193,28 @@ fn skipping_keeps_the_image_bit_exact_through_procedural_deformations() {
         Procedural::Bump { centre_mm: c, sigma_mm: 25.0, vector_mm: v3(12.0, -6.0, 4.0) },
     ] {
         scene.moving_procedural = Some(p);
-        // The bump under the fish-eye lens too: a view deformation of both layers on top.
-        scene.view = matches!(p, Procedural::Bump { .. }).then_some(warpbench_gpu::ViewDeformation::FishEye {
-            centre_ref: v3(30.0, -65.0, 20.0),
-            radius_mm: 35.0,
-            amplitude: 0.7,
-        });
+        // The bump under the fish-eye lens too (a view deformation of both layers on top), the bend with the moving
+        // layer opened by a leafer.
+        scene.views = match p {
+            Procedural::Bump { .. } => {
+                [Some(warpbench_gpu::ViewDeformation::FishEye {
+                    centre_ref: v3(30.0, -65.0, 20.0),
+                    radius_mm: 35.0,
+                    amplitude: 0.7,
+                }); 2]
+            }
+            Procedural::Bend { .. } => [
+                None,
+                warpbench_gpu::ViewDeformation::leafer(
+                    v3(4.0, -3.0, 2.0),
+                    v3(0.6, -1.0, 0.3),
+                    v3(0.0, 0.0, 1.0),
+                    80.0,
+                    0.5,
+                ),
+            ],
+            _ => [None; 2],
+        };
         let grid = grid(&ctx, &gpu, &scene);
         for (blend, mode) in [(BlendMode::MovingOnly, ShadingMode::None), (BlendMode::Difference, ShadingMode::Dvr)] {
             let settings = RenderSettings { blend, shading: Shading::with_mode(mode), ..Default::default() };
@@ -274,7 +290,7 @@ fn slab_scene(ctx: &GpuContext, slab_x: &[usize]) -> Scene {
         fixed_pf: None,
         moving_pf: None,
         moving_procedural: None,
-        view: None,
+        views: [None; 2],
     }
 }
 

@@ -100,7 +100,7 @@ fn pick_both(
         prefiltered: None,
         style: scene.fixed_style,
         procedural: None,
-        view: scene.view,
+        view: scene.views[0],
     };
     let m = GpuLayer {
         volume: &gpu.moving,
@@ -108,7 +108,7 @@ fn pick_both(
         prefiltered: None,
         style: scene.moving_style,
         procedural: scene.moving_procedural,
-        view: scene.view,
+        view: scene.views[1],
     };
     let frame = GpuFrame { fixed: f, moving: m, tfs: &gpu.tfs };
     let data = RaycastDrawData::with_uniforms(ctx, &gpu.renderer, &frame, *u);
@@ -317,11 +317,11 @@ fn a_pick_through_the_lens_lands_on_the_undeformed_ball() {
     let Some(ctx) = context(FeatureRequest::default()) else { return };
     let mut scene = ball_scene(&ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
     let (lens_mm, a) = (30.0f64, 0.5f64);
-    scene.view = Some(warpbench_gpu::ViewDeformation::FishEye {
+    scene.views = [Some(warpbench_gpu::ViewDeformation::FishEye {
         centre_ref: Vec3::ZERO,
         radius_mm: lens_mm as f32,
         amplitude: a as f32,
-    });
+    }); 2];
     let rho = |r: f64| r * (1.0 - a * (1.0 - r / lens_mm).powi(2));
     let (mut lo, mut hi) = (0.0, lens_mm);
     for _ in 0..60 {
@@ -351,6 +351,56 @@ fn a_pick_through_the_lens_lands_on_the_undeformed_ball() {
     );
     assert!(checked > 200, "{checked} rays");
     assert!(worst_shown <= 0.5 * VOXEL_MM && worst_stored <= 0.25 * VOXEL_MM, "{worst_shown} / {worst_stored} mm");
+}
+
+/// Picking marches through the leafer as the frame draws it: with the ball cut through its centre and opened
+/// towards the camera, rays into the opening hit a cut face, and what they store is the point of the undeformed
+/// ball on the cut plane (inside the ball). GPU and CPU agree, and the frame's first hit lies within a step behind
+/// each pick.
+#[test]
+fn a_pick_through_the_leafer_lands_on_the_cut_plane() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let mut scene = ball_scene(&ctx, |r| RADIUS_MM - r, (-2.0, 2.0));
+    let u0 = uniforms(&scene, BlendMode::FixedOnly);
+    let ref_from_clip = Mat4::from_cols_array_2d(&u0.ref_from_clip);
+    let (near, far) = (ref_from_clip.project_point3(Vec3::ZERO), ref_from_clip.project_point3(Vec3::Z));
+    let up = ref_from_clip.project_point3(Vec3::new(0.0, 0.5, 0.0)) - near;
+    let leafer = warpbench_gpu::ViewDeformation::leafer(Vec3::ZERO, near - far, up, 30.0, 0.45).expect("a leafer");
+    let warpbench_gpu::ViewDeformation::Leafer { hinge_ref, normal, .. } = leafer else { unreachable!() };
+    scene.views = [Some(leafer), None];
+    let u = uniforms(&scene, BlendMode::FixedOnly);
+    let pixels = pixel_rays(&u, 2);
+    let rays: Vec<PickRay> = pixels.iter().map(|(_, r)| *r).collect();
+    let request = PickRequest::new(PickTarget::Fixed, Probe::Accumulated { level: 0.5 });
+    let (gpu, cpu) = pick_both(&ctx, &scene, &u, &request, &rays);
+    assert!(assert_agree("accumulated ½, ball through the leafer", &gpu, &cpu) > 200);
+    let gpu_scene = GpuScene::new(&ctx, &scene);
+    let drawn = gpu_scene.render_target(&ctx, &gpu_scene.renderer, &scene, &u).read_hit_depth(&ctx).expect("depth");
+    let (mut on_cut, mut worst_drawn) = (0, (0.0f32, 0.0f32));
+    for ((px, ray), hit) in pixels.iter().zip(&gpu) {
+        let Some(hit) = hit.found() else { continue };
+        let p = Vec3::from_array(hit.p_lps);
+        assert!(p.length() <= RADIUS_MM + 0.5, "a stored point {p} off the ball");
+        if (p - hinge_ref).dot(normal).abs() < 0.05 && p.length() < RADIUS_MM - 1.0 {
+            on_cut += 1; // inside the ball, on the cut plane: a hit on a cut face
+        }
+        let z = drawn[(px[1] * SIZE.0 + px[0]) as usize];
+        assert!(z <= 1.0, "pixel {px:?}: picked but the frame shows nothing");
+        let ndc = glam::Vec2::new(
+            (px[0] as f32 + 0.5) / SIZE.0 as f32 * 2.0 - 1.0,
+            1.0 - (px[1] as f32 + 0.5) / SIZE.1 as f32 * 2.0,
+        );
+        let n = ref_from_clip.project_point3(ndc.extend(0.0));
+        let d = ref_from_clip.project_point3(ndc.extend(z)).distance(n)
+            - Vec3::from_array(hit.x_ref).distance(Vec3::from_array(ray.origin_ref));
+        worst_drawn = (worst_drawn.0.min(d), worst_drawn.1.max(d));
+    }
+    eprintln!(
+        "leafer: {on_cut} picks on the cut faces; drawn − picked in [{:.4}, {:.4}] mm",
+        worst_drawn.0, worst_drawn.1
+    );
+    assert!(on_cut > 40, "only {on_cut} picks landed on the cut faces");
+    assert!(worst_drawn.0 >= -0.01 && worst_drawn.1 <= u.step_mm + 0.01, "picks are not where the frame draws");
 }
 
 #[test]

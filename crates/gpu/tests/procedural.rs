@@ -107,8 +107,8 @@ fn a_zero_amplitude_gives_the_undeformed_frame_exactly() {
     }
     // The lens at zero amplitude, on both layers.
     scene.moving_procedural = None;
-    scene.view =
-        Some(ViewDeformation::FishEye { centre_ref: Vec3::new(10.0, 0.0, 5.0), radius_mm: 40.0, amplitude: 0.0 });
+    scene.views =
+        [Some(ViewDeformation::FishEye { centre_ref: Vec3::new(10.0, 0.0, 5.0), radius_mm: 40.0, amplitude: 0.0 }); 2];
     for (settings, (colour, depth)) in looks.iter().zip(&expected) {
         let u = scene.uniforms(&camera(), settings, SIZE);
         let target = gpu.render_target(&ctx, &gpu.renderer, &scene, &u);
@@ -118,6 +118,18 @@ fn a_zero_amplitude_gives_the_undeformed_frame_exactly() {
     }
     let u = scene.slice_uniforms(&plane, &RenderSettings::default());
     assert!(gpu.render_slice(&ctx, &gpu.renderer, &scene, &u) == slice, "lens: the slice changed");
+    // The leafer closed, on both layers.
+    let closed = ViewDeformation::leafer(Vec3::new(5.0, 0.0, 0.0), Vec3::new(0.3, -1.0, 0.2), Vec3::Z, 50.0, 0.0);
+    scene.views = [closed; 2];
+    for (settings, (colour, depth)) in looks.iter().zip(&expected) {
+        let u = scene.uniforms(&camera(), settings, SIZE);
+        let target = gpu.render_target(&ctx, &gpu.renderer, &scene, &u);
+        assert!(&target.read_back(&ctx).expect("colour") == colour, "leafer {}: colour", settings.shading.mode.name());
+        let d = target.read_hit_depth(&ctx).expect("depth");
+        assert!(d.iter().zip(depth).all(|(a, b)| a.to_bits() == b.to_bits()), "leafer: the depth changed");
+    }
+    let u = scene.slice_uniforms(&plane, &RenderSettings::default());
+    assert!(gpu.render_slice(&ctx, &gpu.renderer, &scene, &u) == slice, "leafer: the slice changed");
 }
 
 /// Every kind through the landmark warp's control texture: the GPU frame (unlit; lit DVR and iso for two kinds, with
@@ -327,7 +339,7 @@ fn clone_scene(s: &Scene) -> Scene {
         fixed_pf: s.fixed_pf.clone(),
         moving_pf: s.moving_pf.clone(),
         moving_procedural: s.moving_procedural,
-        view: s.view,
+        views: s.views,
     }
 }
 
@@ -345,8 +357,9 @@ fn the_fish_eye_lens_matches_the_cpu_reference() {
     let plain_frame = scene.cpu(&scene.uniforms(&camera(), &settings, SIZE));
     let plain_slice = scene.cpu_slice(&scene.slice_uniforms(&plane, &settings));
     // On the skull, facing the camera: the shell is what an unlit frame shows.
-    scene.view =
-        Some(ViewDeformation::FishEye { centre_ref: Vec3::new(30.0, -65.0, 20.0), radius_mm: 35.0, amplitude: 0.6 });
+    scene.views =
+        [Some(ViewDeformation::FishEye { centre_ref: Vec3::new(30.0, -65.0, 20.0), radius_mm: 35.0, amplitude: 0.6 });
+            2];
     for mode in [ShadingMode::None, ShadingMode::Dvr] {
         let settings = RenderSettings { shading: Shading::with_mode(mode), ..Default::default() };
         let u = scene.uniforms(&camera(), &settings, SIZE);
@@ -388,8 +401,8 @@ fn the_fish_eye_lens_shows_its_formula() {
         ..scene.fixed_style
     };
     let (c, radius, a) = (DVec3::new(3.0, -2.0, 1.5), 25.0f64, 0.7f64);
-    scene.view =
-        Some(ViewDeformation::FishEye { centre_ref: c.as_vec3(), radius_mm: radius as f32, amplitude: a as f32 });
+    scene.views =
+        [Some(ViewDeformation::FishEye { centre_ref: c.as_vec3(), radius_mm: radius as f32, amplitude: a as f32 }); 2];
     let gpu = GpuScene::new(&ctx, &scene);
     let plane = SlicePlane::oblique(c.to_array(), [1.0, 0.2, 0.0], [0.0, 0.1, 1.0], 1.0, (64, 64)).expect("plane");
     let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
@@ -397,7 +410,7 @@ fn the_fish_eye_lens_shows_its_formula() {
     let (mut worst, mut inside) = (0.0f64, 0);
     for py in 0..64u32 {
         for px in 0..64u32 {
-            let x = DVec3::from_array(plane.ref_from_pixel(f64::from(px) + 0.5, f64::from(py) + 0.5));
+            let x = DVec3::from_array(plane.ref_from_pixel(f64::from(px), f64::from(py)));
             let r = (x - c).length();
             let w = if r < radius { x - (x - c) * (a * (1.0 - r / radius).powi(2)) } else { x };
             inside += usize::from(r < radius);
@@ -409,4 +422,133 @@ fn the_fish_eye_lens_shows_its_formula() {
     eprintln!("lens on a ramp: worst |grey − formula| {worst:.2} over 4096 pixels ({inside} in the lens)");
     assert!(inside > 1000, "the plane should cross the lens");
     assert!(worst <= 1.0, "the lens's slice is {worst} grey levels off its formula");
+}
+
+/// The camera's ray towards the scene centre and its up vector, for a leafer that opens towards the viewer.
+fn towards_viewer(camera: &OrbitCamera) -> (Vec3, Vec3) {
+    let clip_from_ref = camera.clip_from_ref(1.0);
+    let ref_from_clip = clip_from_ref.inverse();
+    let near = ref_from_clip.project_point3(Vec3::new(0.0, 0.0, 0.0));
+    let far = ref_from_clip.project_point3(Vec3::new(0.0, 0.0, 1.0));
+    let up = ref_from_clip.project_point3(Vec3::new(0.0, 0.5, 0.0)) - near;
+    (near - far, up)
+}
+
+/// The leafer on the moving layer only, opened towards the camera through the warp: the GPU frame (unlit and lit)
+/// and slice match the CPU reference, the frame shows the opening, and the fixed layer is untouched.
+#[test]
+fn the_leafer_matches_the_cpu_reference() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let phantoms = Phantoms::new();
+    let warp = sample_control(16, CTRL_MIN, CTRL_MAX, smooth_displacement);
+    let mut scene = warped_scene(&ctx, &phantoms, &warp).with_prefilter(PrefilterSettings::default());
+    let gpu = GpuScene::new(&ctx, &scene);
+    let (towards, up) = towards_viewer(&camera());
+    let leafer = ViewDeformation::leafer(Vec3::new(4.0, -3.0, 2.0), towards, up, 90.0, 0.5).expect("a leafer");
+    let moving_only = RenderSettings { blend: BlendMode::MovingOnly, ..Default::default() };
+    let closed = scene.cpu(&scene.uniforms(&camera(), &moving_only, SIZE));
+    scene.views = [None, Some(leafer)];
+    // The same proxy box with and without the leafer, so that the fixed layer's samples are the same.
+    let (lo, hi) = scene.params().1.box_ref();
+    let (f_lo, f_hi) = scene.params().0.box_ref();
+    let box_override_ref = Some((lo.min(f_lo).as_vec3(), hi.max(f_hi).as_vec3()));
+    let fixed_only = RenderSettings { blend: BlendMode::FixedOnly, box_override_ref, ..Default::default() };
+    let fixed_before = {
+        let plain = Scene { views: [None; 2], ..clone_scene(&scene) };
+        plain.cpu(&plain.uniforms(&camera(), &fixed_only, SIZE))
+    };
+    assert!(scene.cpu(&scene.uniforms(&camera(), &fixed_only, SIZE)) == fixed_before, "the fixed layer is untouched");
+    for mode in [ShadingMode::None, ShadingMode::Dvr] {
+        let settings = RenderSettings { shading: Shading::with_mode(mode), ..moving_only };
+        let u = scene.uniforms(&camera(), &settings, SIZE);
+        let (g, c) = (gpu.render(&ctx, &scene, &u), scene.cpu(&u));
+        let (max, _) = max_diff(&g, &c, 2);
+        let outliers = pixels_over(&g, &c, TOLERANCE);
+        eprintln!("leafer {}: max {max}/255, {outliers} pixels > {TOLERANCE} from the CPU reference", mode.name());
+        // The opening's edges are threshold decisions (atan2 against θ) of the shader's and Rust's f32: allow a few
+        // silhouette pixels there, as for iso-surfaces.
+        assert!(outliers <= 20, "leafer {}: {outliers} pixels differ", mode.name());
+        if mode == ShadingMode::None {
+            let (_, opened) = max_diff(&c, &closed, 8);
+            assert!(opened > 500, "the opening changed only {opened} channels");
+        }
+    }
+    let plane = SlicePlane::axial(&phantoms.ct_lps_from_index, [N; 3], 10.0);
+    let u = scene.slice_uniforms(&plane, &moving_only);
+    let (g, c) = (gpu.render_slice(&ctx, &gpu.renderer, &scene, &u), scene.cpu_slice(&u));
+    let outliers = pixels_over(&g, &c, TOLERANCE);
+    assert!(outliers <= 20, "leafer slice: {outliers} pixels differ");
+}
+
+/// The leafer's formula, evaluated by the test in f64: on a linear ramp, a plane across the hinge shows g·w(x) with
+/// each half turned back about the hinge, and nothing (transparent) in the opening |φ| < θ.
+#[test]
+fn the_leafer_shows_its_formula() {
+    let Some(ctx) = context(FeatureRequest::default()) else { return };
+    let g = DVec3::new(1.0, 0.5, -0.25);
+    let ramp = ramp_volume(&ctx, g);
+    let phantoms = Phantoms::new();
+    let mut scene = Scene::new(&ctx, &phantoms, None, 16);
+    scene.fixed = ramp.clone();
+    scene.moving = ramp;
+    scene.tfs =
+        vec![TransferFunction::from_points("grey", &[(0.0, [0.0, 0.0, 0.0, 1.0]), (1.0, [1.0, 1.0, 1.0, 1.0])])];
+    let window = 80.0f64;
+    scene.fixed_style = warpbench_gpu::LayerStyle {
+        window: Window::from_range(-window as f32 / 2.0, window as f32 / 2.0),
+        tf_row: 0,
+        ..scene.fixed_style
+    };
+    // Hinge along S through (0, 30, 0), opening towards −P (anterior), 25° each way.
+    let (hinge, front, normal, theta) =
+        (DVec3::new(0.0, 30.0, 0.0), DVec3::new(0.0, -1.0, 0.0), DVec3::X, 25f64.to_radians());
+    let leafer = ViewDeformation::leafer(Vec3::new(0.0, -10.0, 0.0), front.as_vec3(), Vec3::Z, 40.0, theta as f32)
+        .expect("a leafer");
+    let Some(ViewDeformation::Leafer { hinge_ref, normal: n, .. }) = Some(leafer) else { unreachable!() };
+    assert!((hinge_ref.as_dvec3() - hinge).length() < 1e-5 && (n.as_dvec3() - normal).length() < 1e-6, "{leafer:?}");
+    scene.views = [Some(leafer); 2];
+    let gpu = GpuScene::new(&ctx, &scene);
+    // An axial plane (across the vertical hinge) through z = 3.
+    let plane = SlicePlane::oblique([0.0, 5.0, 3.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0], 1.0, (64, 64)).expect("plane");
+    let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
+    let image = gpu.render_slice(&ctx, &gpu.renderer, &scene, &scene.slice_uniforms(&plane, &settings));
+    let (mut worst, mut empty, mut turned, mut edge) = (0.0f64, 0, 0, 0);
+    for py in 0..64u32 {
+        for px in 0..64u32 {
+            let x = DVec3::from_array(plane.ref_from_pixel(f64::from(px), f64::from(py)));
+            let r = x - hinge;
+            let (u, v) = (r.dot(front), r.dot(normal));
+            let phi = v.atan2(u);
+            let alpha = image[4 * (py * 64 + px) as usize + 3];
+            if (phi.abs() - theta).abs() < 1e-3 {
+                edge += 1;
+                continue;
+            }
+            if phi.abs() < theta {
+                assert_eq!(
+                    alpha,
+                    0,
+                    "pixel ({px}, {py}) at {x}, φ {:.3}°, in the opening shows something",
+                    phi.to_degrees()
+                );
+                empty += 1;
+                continue;
+            }
+            let turn = if phi >= 0.0 { -theta } else { theta };
+            let (s, c) = turn.sin_cos();
+            let w = x + front * (u * (c - 1.0) - v * s) + normal * (u * s + v * (c - 1.0));
+            if w.abs().max_element() > 46.0 {
+                continue; // turned out of the ramp's box (±48 mm)
+            }
+            let expected = ((g.dot(w) + window / 2.0) / window).clamp(0.0, 1.0) * 255.0;
+            worst = worst.max((f64::from(image[4 * (py * 64 + px) as usize]) - expected).abs());
+            assert_eq!(alpha, 255, "pixel ({px}, {py}) reads the ramp at {w}");
+            turned += 1;
+        }
+    }
+    eprintln!(
+        "leafer on a ramp: {empty} pixels in the opening, {turned} turned, {edge} on its edges; worst {worst:.2}"
+    );
+    assert!(empty > 300 && turned > 2000, "{empty} open, {turned} turned");
+    assert!(worst <= 1.0, "the leafer's slice is {worst} grey levels off its formula");
 }

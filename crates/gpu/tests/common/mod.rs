@@ -149,8 +149,8 @@ pub struct Scene {
     pub moving_pf: Option<PrefilteredTexels>,
     /// The moving layer's procedural deformation ([`warpbench_gpu::procedural`]).
     pub moving_procedural: Option<Procedural>,
-    /// The view deformation both layers are drawn through ([`warpbench_gpu::view_deformation`]).
-    pub view: Option<ViewDeformation>,
+    /// The view deformations the (fixed, moving) layers are drawn through ([`warpbench_gpu::view_deformation`]).
+    pub views: [Option<ViewDeformation>; 2],
 }
 
 impl Scene {
@@ -188,7 +188,7 @@ impl Scene {
             fixed_pf: None,
             moving_pf: None,
             moving_procedural: None,
-            view: None,
+            views: [None; 2],
         }
     }
 
@@ -208,7 +208,7 @@ impl Scene {
                 style: self.fixed_style,
                 has_prefilter: self.fixed_pf.is_some(),
                 procedural: None,
-                view: self.view,
+                view: self.views[0],
             },
             LayerParams {
                 volume: self.moving.info,
@@ -216,7 +216,7 @@ impl Scene {
                 style: self.moving_style,
                 has_prefilter: self.moving_pf.is_some(),
                 procedural: self.moving_procedural,
-                view: self.view,
+                view: self.views[1],
             },
         )
     }
@@ -323,7 +323,7 @@ impl GpuScene {
             prefiltered: None,
             style: s.fixed_style,
             procedural: None,
-            view: s.view,
+            view: s.views[0],
         };
         let m = GpuLayer {
             volume: &self.moving,
@@ -331,7 +331,7 @@ impl GpuScene {
             prefiltered: None,
             style: s.moving_style,
             procedural: s.moving_procedural,
-            view: s.view,
+            view: s.views[1],
         };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
         let data = RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u);
@@ -388,7 +388,7 @@ impl GpuScene {
             prefiltered: self.fixed_pf.as_ref(),
             style: s.fixed_style,
             procedural: None,
-            view: s.view,
+            view: s.views[0],
         };
         let m = GpuLayer {
             volume: &self.moving,
@@ -396,7 +396,7 @@ impl GpuScene {
             prefiltered: self.moving_pf.as_ref(),
             style: s.moving_style,
             procedural: s.moving_procedural,
-            view: s.view,
+            view: s.views[1],
         };
         let frame = GpuFrame { fixed: f, moving: m, tfs: &self.tfs };
         RaycastDrawData::with_uniforms(ctx, renderer, &frame, *u)
@@ -481,7 +481,7 @@ pub fn ball_scene(ctx: &GpuContext, value: impl Fn(f32) -> f32, window: (f32, f3
         fixed_pf: None,
         moving_pf: None,
         moving_procedural: None,
-        view: None,
+        views: [None; 2],
     }
 }
 
