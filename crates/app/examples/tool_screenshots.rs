@@ -8,6 +8,7 @@
 //! - `procedural.png`: the synthetic deformation, the MRI alone bent by 20 mm (seed 2), seen from the left.
 //! - `attention.png`: "Show the worst pair": the attention lens pulsing about the pair with the largest leave-one-out
 //!   error, taken when the pulse is near its peak. On a CPU driver a pulsing view is drawn at the interaction size.
+//! - `leafer.png`: the moving volume (the MRI, alone) opened by the leafer, 35° each way, seen from the front.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -16,6 +17,8 @@ use anyhow::{Context, Result, bail};
 use eframe::egui;
 use egui_kittest::Harness;
 use warpbench_app::gui::attention::PEAK_AMPLITUDE;
+use warpbench_app::gui::leafer::Leafer;
+use warpbench_app::gui::open::Side;
 use warpbench_app::gui::{Command, GuiOptions, Workbench};
 use warpbench_app::procedural::ProceduralSpec;
 use warpbench_app::settings::{Blend, ProceduralKind};
@@ -85,5 +88,18 @@ fn main() -> Result<()> {
         }
     }
     save(&mut harness, &out, "attention.png")?;
+
+    // The leafer on the MRI, seen from the front.
+    let ready = harness.state_mut().ready_mut().context("the demo pair")?;
+    ready.apply(Command::TogglePulse);
+    let mut settings = ready.document.settings.clone();
+    settings.blend = Blend::MovingOnly;
+    ready.apply(Command::SetSettings(settings));
+    ready.apply(Command::ResetCamera);
+    ready.camera.azimuth_rad = 0.0;
+    ready.camera.elevation_rad = 0.1;
+    ready.apply(Command::SetLeafer(Leafer::Open { side: Side::Moving, angle_deg: 35.0 }));
+    settle(&mut harness, Duration::from_mins(10))?;
+    save(&mut harness, &out, "leafer.png")?;
     Ok(())
 }

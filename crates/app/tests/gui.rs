@@ -1064,7 +1064,7 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     };
     let settings = ready.document.settings.render_settings();
     let view = |ready: &mut Ready, lens| {
-        ready.viewer.set_view_deformation(lens);
+        ready.viewer.set_view_deformations([lens; 2]);
         let t = ready.viewer.render_view(&ready.camera, &settings, warpbench_gpu::Quality::Full, (64, 64), &[]);
         let slice = ready.viewer.render_slice(&ready.slice_plane(0), &settings, &[]).expect("slice");
         (
@@ -1083,4 +1083,72 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
     assert!(!ready.attention.is_on() && ready.view_lens(Instant::now()).is_none(), "switched off");
+}
+
+/// The leafer (issue 17, item 3): opened on the moving volume through the side panel, it cuts the 3-D view along the
+/// line of sight through the crosshair and opens it towards the viewer; a click on the opened volume picks through
+/// the same deformation the frame draws, and what the pair stores is the point of the undeformed moving volume,
+/// u(w(x)), which the warp shows at w(x). It is not part of the document.
+#[test]
+fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
+    use warpbench_app::gui::Placing;
+    use warpbench_app::gui::leafer::Leafer;
+    use warpbench_app::gui::open::Side;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 700.0));
+    let before = harness.state().ready().expect("ready").document.clone();
+    harness.get_by_label("Open with a leafer").click_accesskit();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.leafer, Leafer::Open { side: Side::Moving, angle_deg: 30.0 });
+    let [None, Some(leafer @ warpbench_gpu::ViewDeformation::Leafer { .. })] =
+        ready.view_deformations(std::time::Instant::now())
+    else {
+        panic!("the leafer on the moving volume")
+    };
+    wait_until_rendered(&mut harness);
+
+    // The pick the click makes, through the leafer: its point x_ref on the ray is shown turned, w(x) ≠ x, and what
+    // it reports is the undeformed moving volume's point u(w(x)), which the warp shows at w(x).
+    let offset = 0.2;
+    let ready = harness.state().ready().expect("ready");
+    let (size, _) = ready.view_shown().expect("a view");
+    let pixel = [size.0 as f32 * (0.5 + offset), size.1 as f32 * 0.5];
+    let settings = ready.document.settings.render_settings();
+    let probe = ready.document.settings.probe();
+    let hit = ready
+        .viewer
+        .pick(&ready.camera, &settings, size, pixel, warpbench_gpu::PickTarget::Moving, probe)
+        .expect("pick")
+        .expect("a hit on the opened moving volume");
+    let x = warpbench_gpu::glam::Vec3::from_array(hit.x_ref);
+    let w = leafer.pullback(x);
+    let shown = warpbench_gpu::glam::DVec3::from_array(ready.shown_at(hit.p_lps.map(f64::from)));
+    eprintln!("picked at {x}, turned back to {w}; the stored point is shown at {shown}");
+    assert!(w.distance(x) > 5.0, "the hit is on a turned half: moved {} mm", w.distance(x));
+    assert!(
+        shown.distance(w.as_dvec3()) < 1.0,
+        "the stored point is shown {} mm from w(x)",
+        shown.distance(w.as_dvec3())
+    );
+
+    // Placing a pair by the same click stores that point.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    let view = harness.get_by_label("3-D view").rect();
+    click_at(&mut harness, view.center() + egui::vec2(view.width() * offset, 0.0));
+    let ready = harness.state().ready().expect("ready");
+    let Placing::Target { moving } = ready.placing() else {
+        panic!("the click placed no source: {:?} {:?}", ready.fit.error, ready.notice)
+    };
+    let stored = warpbench_gpu::glam::DVec3::from_array(moving.coords());
+    assert!(stored.distance(warpbench_gpu::glam::Vec3::from_array(hit.p_lps).as_dvec3()) < 1e-3, "{stored}");
+    assert_eq!(ready.document, before, "the leafer is not part of the document");
+
+    harness.get_by_label("Open with a leafer").click_accesskit();
+    harness.run_steps(3);
+    assert_eq!(harness.state().ready().expect("ready").leafer, Leafer::Closed);
 }

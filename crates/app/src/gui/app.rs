@@ -299,6 +299,7 @@ impl Workbench {
             notice: None,
             selected: None,
             attention: super::attention::Attention::Off,
+            leafer: super::leafer::Leafer::Closed,
             control_eval: ControlEval::Auto,
             history: History::new(first),
             ctx: ctx.clone(),

@@ -70,6 +70,8 @@ pub enum Command {
     TogglePulse,
     /// Select the pair with the largest leave-one-out error, centre the views on it and pulse the lens there.
     ShowWorstPair,
+    /// Open a volume in the 3-D view with the leafer, change its opening, or close it ([`super::leafer`]).
+    SetLeafer(super::leafer::Leafer),
 }
 
 /// What a settings change costs.
@@ -190,11 +192,13 @@ impl Ready {
                 if let Some(s) = self.slice_mm.get_mut(a) {
                     *s = mm;
                     self.invalidate_slices();
+                    self.crosshair_moved();
                 }
             }
             Command::CentreSlices(x_ref) => {
                 self.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
                 self.invalidate_slices();
+                self.crosshair_moved();
             }
             Command::File(action) => self.file_action(action),
             Command::Export(kind, out) => self.start_export(kind, out),
@@ -209,6 +213,17 @@ impl Ready {
                 }
                 None => self.notice = Some("no leave-one-out errors yet: the worst pair needs a fit of 5 pairs".into()),
             },
+            Command::SetLeafer(leafer) => {
+                self.leafer = leafer;
+                self.invalidate_view();
+            }
+        }
+    }
+
+    /// The crosshair moved: the leafer's cut goes through it, so an open leafer redraws the 3-D view.
+    fn crosshair_moved(&mut self) {
+        if self.leafer.is_open() {
+            self.invalidate_view();
         }
     }
 

@@ -92,9 +92,9 @@ impl Ready {
         self.viewer.begin_frame();
         self.viewer.set_looks(&self.document.layers);
         self.viewer.set_procedural(self.procedural().ok().flatten());
-        let lens = self.view_lens(std::time::Instant::now());
-        self.viewer.set_view_deformation(lens);
-        let glyphs = self.glyphs_through(lens.as_ref());
+        let views = self.view_deformations(std::time::Instant::now());
+        self.viewer.set_view_deformations(views);
+        let glyphs = self.glyphs_through(views);
         let slice_glyphs = self.glyphs();
         let settings = self.document.settings.render_settings();
         if stale {

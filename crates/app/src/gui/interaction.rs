@@ -137,16 +137,16 @@ impl Interaction {
 /// The pointer's work on the views: grabbing and dragging glyphs, placing the points of a new pair.
 impl Ready {
     /// The landmark glyph nearest `pointer` within [`GRAB_RADIUS`], given where each glyph lands on screen
-    /// (`screen`: ref mm to screen points, `None` when not shown there).
+    /// (`screen`: ref mm of a glyph of that end to screen points, `None` when not shown there).
     pub(crate) fn grab(
         &self,
         pointer: egui::Pos2,
-        screen: impl Fn([f64; 3]) -> Option<egui::Pos2>,
+        screen: impl Fn([f64; 3], End) -> Option<egui::Pos2>,
     ) -> Option<(usize, End)> {
         let mut best: Option<(f32, usize, End)> = None;
         for i in 0..self.document.pairs.len() {
             for end in [End::Fixed, End::Moving] {
-                let Some(at) = self.glyph_ref(i, end).and_then(&screen) else { continue };
+                let Some(at) = self.glyph_ref(i, end).and_then(|p| screen(p, end)) else { continue };
                 let d = at.distance(pointer);
                 if d <= GRAB_RADIUS && best.is_none_or(|(b, ..)| d < b) {
                     best = Some((d, i, end));

@@ -30,6 +30,7 @@ pub mod frame_log;
 pub mod history;
 mod images;
 pub mod interaction;
+pub mod leafer;
 pub mod load;
 pub mod open;
 pub mod pacing;
@@ -163,6 +164,8 @@ pub struct Ready {
     /// Whether the 3-D view pulses the attention lens about the selected pair ([`attention`]): a view state beside
     /// the camera, never part of the document.
     pub attention: attention::Attention,
+    /// Whether the 3-D view opens a volume with the leafer ([`leafer`]): a view state beside the camera.
+    pub leafer: leafer::Leafer,
     /// Where the control texture is made.
     pub control_eval: ControlEval,
     /// The window's egui context, for work that reports back to it (screenshots, exports).
@@ -404,10 +407,18 @@ impl Ready {
         let p = self.document.pairs.get(i)?;
         match end {
             End::Fixed => p.fixed.map(|q| q.coords()),
-            End::Moving => p.moving.map(|m| match &self.fit.fitted {
-                Some(f) => f.forward.apply(as_moving(m)).coords(),
-                None => m.coords(),
-            }),
+            End::Moving => p.moving.map(|m| self.shown_at(m.coords())),
+        }
+    }
+
+    /// Where the view shows the moving volume's point `moving_lps`: d(p) through the forward warp (p itself before a
+    /// fit).
+    #[must_use]
+    pub fn shown_at(&self, moving_lps: [f64; 3]) -> [f64; 3] {
+        let m = warpbench_io::geometry::Point3::<warpbench_io::geometry::Lps>::from_array(moving_lps);
+        match &self.fit.fitted {
+            Some(f) => f.forward.apply(as_moving(m)).coords(),
+            None => moving_lps,
         }
     }
 
@@ -425,10 +436,25 @@ impl Ready {
         self.fit.fitted.as_ref().map_or(0, |f| f.pairs)
     }
 
+    /// The view deformations of the 3-D view's (fixed, moving) layers at `now`: the leafer on its volume while it is
+    /// open ([`leafer`]), else the attention lens on both while it pulses.
+    #[must_use]
+    pub fn view_deformations(&self, now: std::time::Instant) -> [Option<warpbench_gpu::ViewDeformation>; 2] {
+        if self.leafer.is_open() {
+            let crosshair = Vec3::new(self.slice_mm[2] as f32, self.slice_mm[1] as f32, self.slice_mm[0] as f32);
+            let f = &self.viewer.fixed.volume.info;
+            return self.leafer.views(&self.camera, crosshair, (f.box_min_lps, f.box_max_lps));
+        }
+        [self.view_lens(now); 2]
+    }
+
     /// The attention lens of the 3-D view at `now` ([`attention`]): about the selected pair's fixed point while the
-    /// pulse is on.
+    /// pulse is on and the leafer is closed.
     #[must_use]
     pub fn view_lens(&self, now: std::time::Instant) -> Option<warpbench_gpu::ViewDeformation> {
+        if self.leafer.is_open() {
+            return None;
+        }
         let centre = self.selected.and_then(|i| self.document.pairs.get(i)).and_then(|p| p.fixed);
         let centre = centre.map(|q| Vec3::from_array(q.coords().map(|v| v as f32)));
         let f = &self.viewer.fixed.volume.info;
@@ -439,18 +465,19 @@ impl Ready {
     /// The landmark glyphs drawn over the slices (none when landmarks are hidden).
     #[must_use]
     pub fn glyphs(&self) -> Vec<GlyphInstance> {
-        self.glyphs_through(None)
+        self.glyphs_through([None; 2])
     }
 
-    /// The landmark glyphs drawn over the 3-D view through `lens`: each point where the lens shows it, w⁻¹(x).
+    /// The landmark glyphs drawn over the 3-D view through its (fixed, moving) view deformations: each fixed point
+    /// where the first shows it and each moving point where the second does, w⁻¹(x).
     #[must_use]
-    pub fn glyphs_through(&self, lens: Option<&warpbench_gpu::ViewDeformation>) -> Vec<GlyphInstance> {
+    pub fn glyphs_through(&self, views: [Option<warpbench_gpu::ViewDeformation>; 2]) -> Vec<GlyphInstance> {
         if !self.document.settings.show_landmarks {
             return Vec::new();
         }
-        let to_vec = |c: [f64; 3]| {
+        let shown = |c: [f64; 3], view: Option<warpbench_gpu::ViewDeformation>| {
             let x = Vec3::from_array(c.map(|v| v as f32));
-            lens.map_or(x, |w| w.forward(x))
+            view.map_or(x, |w| w.forward(x))
         };
         let pairs: Vec<GlyphPair> = self
             .document
@@ -458,11 +485,8 @@ impl Ready {
             .iter()
             .enumerate()
             .map(|(i, p)| GlyphPair {
-                moving_ref: p.moving.map(|m| match &self.fit.fitted {
-                    Some(f) => to_vec(f.forward.apply(as_moving(m)).coords()),
-                    None => to_vec(m.coords()),
-                }),
-                fixed_ref: p.fixed.map(|q| to_vec(q.coords())),
+                moving_ref: p.moving.map(|m| shown(self.shown_at(m.coords()), views[1])),
+                fixed_ref: p.fixed.map(|q| shown(q.coords(), views[0])),
                 selected: self.selected == Some(i),
                 active: p.active,
             })

@@ -7,6 +7,8 @@ use warpbench_io::landmarks::LandmarkPair;
 
 use super::Command;
 use super::document::{Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, ViewSettings};
+use super::leafer::{DEFAULT_ANGLE_DEG, Leafer, MAX_ANGLE_DEG};
+use super::open::Side;
 use crate::procedural::ProceduralSpec;
 use crate::settings::{Blend, MethodKind, Preset, Probe, ProceduralKind, Shading};
 
@@ -371,6 +373,35 @@ pub fn attention_ui(ui: &mut egui::Ui, pulsing: bool, has_loo: bool) -> Option<C
         }
     });
     command
+}
+
+/// The leafer ([`super::leafer`]): "Open with a leafer" opens the chosen volume ("Leafer on the fixed volume" /
+/// "Leafer on the moving volume") in the 3-D view by "Leafer opening (deg)" on each side of the cut through the
+/// crosshair along the line of sight.
+pub fn leafer_ui(ui: &mut egui::Ui, leafer: Leafer) -> Option<Command> {
+    let mut edited = leafer;
+    ui.label("Leafer (3-D view only)");
+    let mut open = leafer.is_open();
+    ui.checkbox(&mut open, "Open with a leafer")
+        .on_hover_text("cut along the line of sight through the crosshair and opened like a book, to pick inside");
+    if open != leafer.is_open() {
+        edited = if open { Leafer::Open { side: Side::Moving, angle_deg: DEFAULT_ANGLE_DEG } } else { Leafer::Closed };
+    }
+    if let Leafer::Open { side, angle_deg } = &mut edited {
+        ui.horizontal(|ui| {
+            for (choice, label) in
+                [(Side::Fixed, "Leafer on the fixed volume"), (Side::Moving, "Leafer on the moving volume")]
+            {
+                let shown = ui.radio(*side == choice, choice.name());
+                shown.widget_info(|| egui::WidgetInfo::selected(egui::Role::RadioButton, true, *side == choice, label));
+                if shown.clicked() {
+                    *side = choice;
+                }
+            }
+        });
+        ui.add(egui::Slider::new(angle_deg, 0.0..=MAX_ANGLE_DEG).text("Leafer opening (deg)"));
+    }
+    (edited != leafer).then_some(Command::SetLeafer(edited))
 }
 
 /// The paths typed into the side panel's file section.

@@ -1,6 +1,7 @@
 //! The side panel once a pair is shown: history and camera buttons, the view and warp settings, the looks, the
 //! procedural deformation, adding
-//! pairs, the landmark table and its warnings, the accuracy panel with the attention lens, files and export. It returns what was asked for
+//! pairs, the landmark table and its warnings, the accuracy panel with the attention lens, the leafer, files and
+//! export. It returns what was asked for
 //! as [`Command`]s; only its own text fields (paths being typed) change in place.
 
 use eframe::egui;
@@ -54,6 +55,8 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
                 .extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors).map(Command::JumpTo));
             let has_loo = !panels::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
             commands.extend(panels::attention_ui(ui, ready.attention.is_on(), has_loo));
+            ui.separator();
+            commands.extend(panels::leafer_ui(ui, ready.leafer));
             ui.separator();
             commands.extend(panels::files_ui(ui, &mut ready.files.fields).map(Command::File));
             ui.separator();

@@ -121,9 +121,9 @@ pub struct Viewer {
     tf_presets: [Preset; 2],
     /// The moving volume's procedural deformation ([`crate::procedural`]), set by [`Self::set_procedural`].
     procedural: Option<Procedural>,
-    /// The view deformation the 3-D view is drawn and picked through (the attention lens), set by
-    /// [`Self::set_view_deformation`]; the slices are drawn without it.
-    view_deformation: Option<ViewDeformation>,
+    /// The view deformations the 3-D view's (fixed, moving) layers are drawn and picked through (the attention lens,
+    /// the leafer), set by [`Self::set_view_deformations`]; the slices are drawn without them.
+    view_deformations: [Option<ViewDeformation>; 2],
     pub control: Option<GpuControlTexture>,
     /// Evaluates TPS pull-backs straight into the control texture, made on first use.
     control_eval: Option<ControlEvalPass>,
@@ -182,7 +182,7 @@ impl Viewer {
             tfs,
             tf_presets,
             procedural: None,
-            view_deformation: None,
+            view_deformations: [None; 2],
             control: None,
             control_eval: None,
             control_from_eval: false,
@@ -216,23 +216,22 @@ impl Viewer {
         self.procedural = procedural;
     }
 
-    /// Draws and picks the next 3-D frames through `view` (both volumes; `None`: undeformed). The slices are drawn
-    /// without it.
-    pub fn set_view_deformation(&mut self, view: Option<ViewDeformation>) {
-        self.view_deformation = view;
+    /// Draws and picks the next 3-D frames of the (fixed, moving) volumes through `views` (`None`: undeformed). The
+    /// slices are drawn without them.
+    pub fn set_view_deformations(&mut self, views: [Option<ViewDeformation>; 2]) {
+        self.view_deformations = views;
     }
 
-    /// The view deformation the 3-D view was last drawn through.
+    /// The view deformations the 3-D view was last drawn through (fixed, moving).
     #[must_use]
-    pub fn view_deformation(&self) -> Option<ViewDeformation> {
-        self.view_deformation
+    pub fn view_deformations(&self) -> [Option<ViewDeformation>; 2] {
+        self.view_deformations
     }
 
-    /// The 3-D view's frame: both volumes through the view deformation.
+    /// The 3-D view's frame: each volume through its view deformation.
     fn frame(&self) -> GpuFrame<'_> {
         let mut frame = self.slice_frame();
-        frame.fixed.view = self.view_deformation;
-        frame.moving.view = self.view_deformation;
+        [frame.fixed.view, frame.moving.view] = self.view_deformations;
         frame
     }
 

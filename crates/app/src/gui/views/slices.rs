@@ -53,7 +53,7 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                     }
                     // Dragging a landmark within this plane: grab the glyph under the press.
                     let plane = planes[a];
-                    let on_screen = |p_ref: [f64; 3]| {
+                    let on_screen = |p_ref: [f64; 3], _end| {
                         plane
                             .pixel_from_ref(p_ref)
                             .filter(|q| q[2].abs() <= SLICE_SLAB_MM)

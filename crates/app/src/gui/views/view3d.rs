@@ -5,7 +5,7 @@
 use eframe::egui;
 use warpbench_gpu::glam::Vec3;
 
-use crate::gui::{Command, DragPoint, DragView, Ready};
+use crate::gui::{Command, DragPoint, DragView, End, Ready};
 
 /// Renders what changed and draws the 3-D view in the central panel.
 pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
@@ -42,11 +42,15 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             // A press on a landmark glyph drags it along the surface; elsewhere a drag orbits the camera.
             let clip_from_ref = ready.camera.clip_from_ref(w / h);
             let rect = response.rect;
-            // Where the view shows a point: through the attention lens it was drawn with.
-            let lens = ready.viewer.view_deformation();
-            let on_screen = |p_ref: [f64; 3]| {
+            // Where the view shows a point: through the view deformation its volume was drawn with.
+            let views = ready.viewer.view_deformations();
+            let on_screen = |p_ref: [f64; 3], end: End| {
                 let x = Vec3::from_array(p_ref.map(|v| v as f32));
-                let c = clip_from_ref * lens.map_or(x, |w| w.forward(x)).extend(1.0);
+                let view = match end {
+                    End::Fixed => views[0],
+                    End::Moving => views[1],
+                };
+                let c = clip_from_ref * view.map_or(x, |w| w.forward(x)).extend(1.0);
                 (c.w > 0.0).then(|| {
                     let (x, y) = (c.x / c.w, c.y / c.w);
                     rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height())
