@@ -158,6 +158,13 @@ const VIEW_LEAFER: u32 = 2u;
 // What a view deformation reads where it shows nothing (the leafer's opening): a point no volume contains.
 const VIEW_EMPTY: f32 = -1.0e30;
 
+// Which deformations computed in the shader a pipeline carries (DEFORM_* bits). The pipelines are specialised on it
+// (crates/gpu/src/raycast.rs, RaycastUniforms::deformations): a frame without a procedural or a view deformation runs
+// a pipeline that compiles none of their code. Every bit by default, for validation.
+override DEFORMATIONS: u32 = 3u;
+const DEFORM_PROCEDURAL: u32 = 1u;
+const DEFORM_VIEW: u32 = 2u;
+
 // RaycastUniforms.shading_mode. The pipeline is specialised on it: SHADING is set to the same value at pipeline
 // creation, so each mode's pipeline compiles only its own code.
 override SHADING: u32 = 0u;
@@ -427,7 +434,7 @@ fn view_pullback(w: ViewDeformationUniforms, x_ref: vec3<f32>) -> vec3<f32> {
 // data is read at p(u(w(x))).
 fn pullback_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
     var p_lps = x_ref;
-    if v.view.kind != VIEW_NONE {
+    if (DEFORMATIONS & DEFORM_VIEW) != 0u && v.view.kind != VIEW_NONE {
         p_lps = view_pullback(v.view, x_ref);
     }
     if (v.flags & VOLUME_HAS_WARP) != 0u {
@@ -440,7 +447,7 @@ fn pullback_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> v
 // tex(p(y)): the volume's texture coordinates of its LPS point y, through its procedural deformation when it has one.
 fn data_tex(v: VolumeUniforms, y_lps: vec3<f32>) -> vec3<f32> {
     var p_lps = y_lps;
-    if v.procedural.kind != PROCEDURAL_NONE {
+    if (DEFORMATIONS & DEFORM_PROCEDURAL) != 0u && v.procedural.kind != PROCEDURAL_NONE {
         p_lps = y_lps + procedural_displacement(v.procedural, y_lps);
     }
     return (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
@@ -1123,7 +1130,7 @@ fn pick_march_preintegrated(vol: texture_3d<f32>, ctrl: texture_3d<f32>, table: 
 fn pick_hit_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origin: vec3<f32>, dir: vec3<f32>, t_hit: f32, t_inside: f32) -> PickHit {
     var out: PickHit;
     var t = t_hit;
-    if v.view.kind != VIEW_NONE && view_pullback(v.view, origin + t_hit * dir).x == VIEW_EMPTY {
+    if (DEFORMATIONS & DEFORM_VIEW) != 0u && v.view.kind != VIEW_NONE && view_pullback(v.view, origin + t_hit * dir).x == VIEW_EMPTY {
         t = t_inside;
     }
     let x_ref = origin + t * dir;

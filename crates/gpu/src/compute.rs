@@ -53,6 +53,18 @@ pub(crate) fn pipeline(
     entry_point: Option<&str>,
     layouts: &[&wgpu::BindGroupLayout],
 ) -> wgpu::ComputePipeline {
+    pipeline_with(device, label, module, entry_point, layouts, &[])
+}
+
+/// [`pipeline`] with the WGSL overrides `constants` set.
+pub(crate) fn pipeline_with(
+    device: &wgpu::Device,
+    label: &str,
+    module: &wgpu::ShaderModule,
+    entry_point: Option<&str>,
+    layouts: &[&wgpu::BindGroupLayout],
+    constants: &[(&str, f64)],
+) -> wgpu::ComputePipeline {
     let bind_group_layouts: Vec<Option<&wgpu::BindGroupLayout>> = layouts.iter().copied().map(Some).collect();
     let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
         label: Some(label),
@@ -64,7 +76,7 @@ pub(crate) fn pipeline(
         layout: Some(&pipeline_layout),
         module,
         entry_point,
-        compilation_options: wgpu::PipelineCompilationOptions::default(),
+        compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
         cache: None,
     })
 }

@@ -251,8 +251,12 @@ impl PickHit {
 /// group 1 (uniforms, rays, hits).
 #[derive(Debug)]
 pub struct PickPass {
-    pipeline: wgpu::ComputePipeline,
+    /// One per set of deformations computed in the shader ([`RaycastUniforms::deformations`]), created on first use.
+    pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; 4],
     layout: wgpu::BindGroupLayout,
+    device: wgpu::Device,
+    module: wgpu::ShaderModule,
+    frame_layout: wgpu::BindGroupLayout,
 }
 
 impl PickPass {
@@ -274,12 +278,34 @@ impl PickPass {
                 binding(SLOT_HITS, storage(false, None)),
             ],
         );
-        // The layouts in group order: the ray caster's frame, then the rays and hits.
-        let entry_point = raycast::SHADER.entry_point(Stage::Compute);
-        let pipeline =
-            compute::pipeline(device, "pick", renderer.module(), entry_point, &[renderer.bind_group_layout(), &layout]);
+        let pass = Self {
+            pipelines: Default::default(),
+            layout,
+            device: device.clone(),
+            module: renderer.module().clone(),
+            frame_layout: renderer.bind_group_layout().clone(),
+        };
+        // The pipeline without deformations now, so that shader errors surface here; the others on first use.
+        pass.pipeline(0);
         ctx.check_errors()?;
-        Ok(Self { pipeline, layout })
+        Ok(pass)
+    }
+
+    /// The pipeline for `deformations` (the WGSL override `DEFORMATIONS`), created on first use.
+    fn pipeline(&self, deformations: u32) -> &wgpu::ComputePipeline {
+        let deformations = deformations & (raycast::DEFORM_PROCEDURAL | raycast::DEFORM_VIEW);
+        self.pipelines[deformations as usize].get_or_init(|| {
+            // The layouts in group order: the ray caster's frame, then the rays and hits.
+            let entry_point = raycast::SHADER.entry_point(Stage::Compute);
+            compute::pipeline_with(
+                &self.device,
+                "pick",
+                &self.module,
+                entry_point,
+                &[&self.frame_layout, &self.layout],
+                &[("DEFORMATIONS", f64::from(deformations))],
+            )
+        })
     }
 
     /// Marches `rays` through the frame `frame` (its uniforms set the box and the step) and returns one
@@ -338,7 +364,7 @@ impl PickPass {
         {
             let mut pass = encoder
                 .begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some("pick"), timestamp_writes: None });
-            pass.set_pipeline(&self.pipeline);
+            pass.set_pipeline(self.pipeline(frame.uniforms.deformations()));
             pass.set_bind_group(FRAME_GROUP, frame.bind_group(), &[]);
             pass.set_bind_group(PICK_GROUP, &bind_group, &[]);
             pass.dispatch_workgroups(count.div_ceil(Self::WORKGROUP), 1, 1);

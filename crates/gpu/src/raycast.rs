@@ -26,7 +26,8 @@
 //! lighting follows the deformation. h defaults to one voxel of the finest visible spacing. DVR lights every sample
 //! with opacity > 0; iso mode takes, per layer, the first sample with value ≥ [`LayerStyle::iso_value`], refines it
 //! by bisection, lights it opaque, and blends the two layers' hits once by the [`BlendMode`] (the checkerboard cell
-//! is chosen at the nearer hit). Each shading mode has its own pipeline (WGSL override `SHADING`), created on first
+//! is chosen at the nearer hit). Each shading mode (and each set of deformations computed in the shader,
+//! [`RaycastUniforms::deformations`]) has its own pipeline (WGSL overrides `SHADING`, `DEFORMATIONS`), created on first
 //! use, so the unlit pass compiles none of the lighting code and pays nothing for it.
 //!
 //! Types: [`RaycastRenderer`] (long-lived: pipeline, layout, samplers) and [`RaycastDrawData`] (one frame: bind
@@ -73,6 +74,13 @@ pub const RAYCAST_JITTER: u32 = 1;
 /// DVR composites pre-integrated segments ([`Classification::PreIntegrated`]) from the layers' tables
 /// ([`SLOT_FIXED_PREINTEGRATION`], [`SLOT_MOVING_PREINTEGRATION`]).
 pub const RAYCAST_PREINTEGRATED: u32 = 2;
+/// [`RaycastUniforms::deformations`] bits, the WGSL constants `DEFORM_*`: a layer has a procedural deformation, a layer
+/// has a view deformation. The pipelines are specialised on them (WGSL override `DEFORMATIONS`).
+pub const DEFORM_PROCEDURAL: u32 = 1;
+pub const DEFORM_VIEW: u32 = 2;
+/// Pipeline variants per shading mode: every combination of the `DEFORM_*` bits.
+const DEFORMATION_VARIANTS: usize = 4;
+
 /// Pre-integration tables a renderer keeps for reuse ([`RaycastRenderer`]): two layers at the full and the interactive
 /// rate.
 const PREINTEGRATION_CACHE: usize = 4;
@@ -254,6 +262,22 @@ impl RaycastUniforms {
         }
     }
 
+    /// The deformations computed in the shader that this frame uses ([`DEFORM_PROCEDURAL`], [`DEFORM_VIEW`]): the
+    /// pipeline it runs carries only their code.
+    #[must_use]
+    pub fn deformations(&self) -> u32 {
+        let mut bits = 0;
+        for v in [&self.fixed, &self.moving] {
+            if v.procedural.kind != PROCEDURAL_NONE {
+                bits |= DEFORM_PROCEDURAL;
+            }
+            if v.view.kind != VIEW_NONE {
+                bits |= DEFORM_VIEW;
+            }
+        }
+        bits
+    }
+
     /// The uniforms of a slice ([`crate::slice`]) through `plane`, drawn with [`RaycastRenderer::render_slice`]:
     /// the viewport is `plane.size`; of `settings` only the blend mode matters (slices are unlit, one sample per
     /// pixel).
@@ -401,6 +425,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
         WgslConstant::u32("VOLUME_HAS_PREFILTER", VOLUME_HAS_PREFILTER),
         WgslConstant::u32("RAYCAST_JITTER", RAYCAST_JITTER),
+        WgslConstant::u32("DEFORM_PROCEDURAL", DEFORM_PROCEDURAL),
+        WgslConstant::u32("DEFORM_VIEW", DEFORM_VIEW),
         WgslConstant::u32("VIEW_NONE", VIEW_NONE),
         WgslConstant::u32("VIEW_FISH_EYE", VIEW_FISH_EYE),
         WgslConstant::u32("VIEW_LEAFER", VIEW_LEAFER),
@@ -430,10 +456,11 @@ pub struct RaycastRenderer {
     device: wgpu::Device,
     module: wgpu::ShaderModule,
     pipeline_layout: wgpu::PipelineLayout,
-    /// One per [`ShadingMode`], created on first use ([`Self::pipeline`]).
-    pipelines: [std::sync::OnceLock<wgpu::RenderPipeline>; 3],
-    /// The slice pipeline (`fs_slice`), created on first use.
-    slice_pipeline: std::sync::OnceLock<wgpu::RenderPipeline>,
+    /// One per [`ShadingMode`] and deformations ([`RaycastUniforms::deformations`]), created on first use
+    /// ([`Self::pipeline`]).
+    pipelines: [[std::sync::OnceLock<wgpu::RenderPipeline>; DEFORMATION_VARIANTS]; 3],
+    /// The slice pipelines (`fs_slice`), one per deformations, created on first use.
+    slice_pipelines: [std::sync::OnceLock<wgpu::RenderPipeline>; DEFORMATION_VARIANTS],
     layout: wgpu::BindGroupLayout,
     volume_sampler: wgpu::Sampler,
     linear_sampler: wgpu::Sampler,
@@ -558,7 +585,7 @@ impl RaycastRenderer {
             module,
             pipeline_layout,
             pipelines: Default::default(),
-            slice_pipeline: std::sync::OnceLock::new(),
+            slice_pipelines: Default::default(),
             layout,
             volume_sampler,
             linear_sampler,
@@ -569,19 +596,22 @@ impl RaycastRenderer {
             preintegration: std::sync::Mutex::new(Vec::new()),
             volumes_filterable,
         };
-        // The unlit pipeline now, so that shader errors surface here; the lit ones on first use.
-        renderer.pipeline(ShadingMode::None.code());
+        // The unlit pipeline now, so that shader errors surface here; the others on first use.
+        renderer.pipeline(ShadingMode::None.code(), 0);
         ctx.check_errors()?;
         Ok(renderer)
     }
 
-    /// The pipeline specialised for shading mode `code` (the WGSL override `SHADING`), created on first use: each
-    /// mode compiles only its own code, so the unlit pass carries none of the lighting.
-    fn pipeline(&self, code: u32) -> &wgpu::RenderPipeline {
+    /// The pipeline specialised for shading mode `code` (the WGSL override `SHADING`) and the deformations
+    /// `deformations` (`DEFORMATIONS`), created on first use: each compiles only its own code, so the unlit pass
+    /// carries none of the lighting, and a frame without deformations computed in the shader none of theirs.
+    fn pipeline(&self, code: u32, deformations: u32) -> &wgpu::RenderPipeline {
         let code = code.min(ShadingMode::Iso.code());
-        self.pipelines[code as usize].get_or_init(|| {
+        let deformations = deformations & (DEFORM_PROCEDURAL | DEFORM_VIEW);
+        self.pipelines[code as usize][deformations as usize].get_or_init(|| {
             let fragment = SHADER.entry_point(Stage::Fragment);
-            self.create_pipeline("raycast", fragment, &[("SHADING", f64::from(code))], true)
+            let constants = [("SHADING", f64::from(code)), ("DEFORMATIONS", f64::from(deformations))];
+            self.create_pipeline("raycast", fragment, &constants, true)
         })
     }
 
@@ -608,8 +638,12 @@ impl RaycastRenderer {
     }
 
     /// The slice pipeline: the same module, layout and vertex stage, fragment entry point [`Self::SLICE_ENTRY_POINT`].
-    fn slice_pipeline(&self) -> &wgpu::RenderPipeline {
-        self.slice_pipeline.get_or_init(|| self.create_pipeline("slice", Some(Self::SLICE_ENTRY_POINT), &[], false))
+    fn slice_pipeline(&self, deformations: u32) -> &wgpu::RenderPipeline {
+        let deformations = deformations & (DEFORM_PROCEDURAL | DEFORM_VIEW);
+        self.slice_pipelines[deformations as usize].get_or_init(|| {
+            let constants = [("DEFORMATIONS", f64::from(deformations))];
+            self.create_pipeline("slice", Some(Self::SLICE_ENTRY_POINT), &constants, false)
+        })
     }
 
     /// `with_hit_depth`: the fragment stage also writes the first-hit depth (`fs_raycast`; slices do not).
@@ -670,7 +704,7 @@ impl RaycastRenderer {
     /// Records the pass's draw into `pass`, whose colour attachments must be [`RenderTarget::COLOUR_FORMAT`] and
     /// [`RenderTarget::HIT_DEPTH_FORMAT`] ([`RenderTarget::colour_attachments`]).
     pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
-        pass.set_pipeline(self.pipeline(data.uniforms.shading_mode));
+        pass.set_pipeline(self.pipeline(data.uniforms.shading_mode, data.uniforms.deformations()));
         pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
         pass.draw(0..3, 0..1);
     }
@@ -678,7 +712,7 @@ impl RaycastRenderer {
     /// Records a slice draw ([`crate::slice`]; `data` built from [`RaycastUniforms::for_slice`]) into `pass`, whose
     /// one colour attachment is [`RenderTarget::COLOUR_FORMAT`].
     pub fn draw_slice(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
-        pass.set_pipeline(self.slice_pipeline());
+        pass.set_pipeline(self.slice_pipeline(data.uniforms.deformations()));
         pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
         pass.draw(0..3, 0..1);
     }
