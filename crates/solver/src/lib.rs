@@ -12,6 +12,8 @@
 //! - [`bspline`]: hierarchical (multilevel) cubic B-spline approximation (Lee, Wolberg & Shin 1997).
 //! - [`linear`]: affine, similarity and rigid least-squares fits (Umeyama 1991) and the predicted TRE.
 //! - [`invert`]: an approximate inverse of a forward warp by scattered-data interpolation.
+//! - [`brush`]: the local displacement brush, a forward warp of the fixed space made of strokes with a B-spline
+//!   falloff, and its inverse through [`invert`].
 //! - [`control`]: sampling a pull-back into a control texture for the GPU.
 //! - [`field`]: a warp given as a sampled displacement field (ITK's `DisplacementFieldTransform`: trilinear inside
 //!   the grid, zero displacement outside).
@@ -21,6 +23,7 @@
 //! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
 //! - [`synthetic`]: seeded known warps for accuracy tests.
 
+pub mod brush;
 pub mod bspline;
 pub mod control;
 pub mod dense;

@@ -67,3 +67,21 @@ impl<To: Space, From: Space, W: Warp<To, From> + ?Sized> Warp<To, From> for Box<
         (**self).jacobian_raw(x)
     }
 }
+
+/// The composition `second ∘ first`: first `first` (From → Mid), then `second` (Mid → To). Its Jacobian is the chain
+/// rule, ∇second(first(x)) · ∇first(x).
+#[allow(missing_debug_implementations, reason = "it borrows two trait objects, which need not be Debug")]
+pub struct Composed<'a, To: Space, Mid: Space, From: Space> {
+    pub first: &'a dyn Warp<Mid, From>,
+    pub second: &'a dyn Warp<To, Mid>,
+}
+
+impl<To: Space, Mid: Space, From: Space> Warp<To, From> for Composed<'_, To, Mid, From> {
+    fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        self.second.apply_raw(self.first.apply_raw(x))
+    }
+
+    fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
+        self.second.jacobian_raw(self.first.apply_raw(x)) * self.first.jacobian_raw(x)
+    }
+}
