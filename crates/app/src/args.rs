@@ -4,11 +4,17 @@ use std::path::PathBuf;
 
 use crate::exit::Failure;
 use crate::inputs::{LandmarkSource, PairInputs};
+use warpbench_solver::brush::BrushStroke;
+
 use crate::settings::MethodKind;
 
 /// The landmarks and the warp method, shared by `warp`, `field` and `render`.
 #[derive(Debug, clap::Args)]
 pub struct PairArgs {
+    /// A window session (.warpbench.json): its landmark pairs, its warp method and its brush strokes, instead of
+    /// --landmarks and the method flags.
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "levels"])]
+    pub session: Option<PathBuf>,
     /// Landmark pairs: BigWarp CSV or BigWarp JSON (.json, also a BigWarp settings file), moving then fixed, LPS mm.
     #[arg(long)]
     pub landmarks: Option<PathBuf>,
@@ -45,29 +51,65 @@ pub struct ReportArgs {
 }
 
 impl PairArgs {
-    /// The landmark source, if any was given.
+    /// The landmark source, if any was given (a session's pairs with `--session`).
     pub fn source(&self) -> Result<Option<LandmarkSource>, Failure> {
+        if let Some(session) = &self.session {
+            return Ok(Some(LandmarkSource::Session(session.clone())));
+        }
         LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
             .map_err(Failure::BadInput)
     }
 
+    /// The warp: the method flags, or with `--session` the session's method and its brush strokes (read here, so a
+    /// session that cannot be read is refused before any volume is loaded).
+    pub fn warp(&self) -> Result<PairWarp, Failure> {
+        let Some(path) = &self.session else {
+            return Ok(PairWarp {
+                method: self.method,
+                stiffness: self.stiffness,
+                levels: self.levels,
+                brush: Vec::new(),
+            });
+        };
+        let session = crate::gui::session::load(path).map_err(Failure::BadInput)?;
+        let s = &session.document.settings;
+        Ok(PairWarp {
+            method: s.method,
+            stiffness: s.stiffness,
+            levels: Some(s.bspline_levels),
+            brush: session.document.brush,
+        })
+    }
+
     /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.
     pub fn inputs(self, fixed: PathBuf, moving: PathBuf, reference: Option<PathBuf>) -> Result<PairInputs, Failure> {
+        let PairWarp { method, stiffness, levels, brush } = self.warp()?;
         Ok(PairInputs {
             landmarks: self.required_source()?,
             fixed,
             moving,
-            method: self.method,
-            stiffness: self.stiffness,
-            levels: self.levels,
+            method,
+            stiffness,
+            levels,
             reference,
+            brush,
         })
     }
 
     /// The landmark source, which this subcommand needs.
     pub fn required_source(&self) -> Result<LandmarkSource, Failure> {
         self.source()?.ok_or_else(|| {
-            Failure::BadInput(anyhow::anyhow!("give --landmarks, or --moving-points with --fixed-points"))
+            Failure::BadInput(anyhow::anyhow!("give --landmarks, --moving-points with --fixed-points, or --session"))
         })
     }
+}
+
+/// The warp [`PairArgs`] ask for: the method and its parameters, and the brush strokes on top (a session's; none
+/// from the method flags).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairWarp {
+    pub method: MethodKind,
+    pub stiffness: f64,
+    pub levels: Option<usize>,
+    pub brush: Vec<BrushStroke>,
 }

@@ -45,10 +45,12 @@ use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
+use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::progress::Bar;
+use crate::warp::InverseConsistency;
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-field/1";
@@ -100,6 +102,8 @@ pub struct FieldSummary {
     pub tfm_class: Option<&'static str>,
     /// What the fit found suspicious in the pairs, as printed on stderr.
     pub warnings: Vec<String>,
+    /// With a session's brush: how well its fitted inverse undoes it (the pull-back is u ∘ b⁻¹), or null.
+    pub inverse_consistency_mm: Option<InverseConsistency>,
 }
 
 /// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
@@ -133,9 +137,23 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
+    let brushed = opts.inputs.brushed().map_err(Failure::BadInput)?;
+    if let (Some(tfm), Some(_)) = (&opts.tfm, &brushed) {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: the session's brush strokes have no exact ITK transform; write the displacement field alone",
+            tfm.display()
+        )));
+    }
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;
-    let inputs = FieldInputs { fixed: &fixed, moving: &moving, pairs: &pairs, names: &names, method: &method };
+    let inputs = FieldInputs {
+        fixed: &fixed,
+        moving: &moving,
+        pairs: &pairs,
+        names: &names,
+        method: &method,
+        brush: brushed.as_ref(),
+    };
     let field = sample_field(grid, &inputs, opts.direction, &mut |done, total| {
         let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
             stage: "sampling the field",
@@ -170,6 +188,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
         tfm_class: opts.tfm.as_ref().and(field.transform.as_ref()).map(ItkTransform::type_name),
         warnings: field.warnings.clone(),
+        inverse_consistency_mm: brushed.as_ref().map(Brushed::consistency),
     };
     if opts.json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
@@ -212,16 +231,17 @@ pub fn displacement_field(
     grid: &Volume,
     fixed: &Volume,
     moving: &Volume,
-    pairs: &[LandmarkPair],
+    (pairs, brush): (&[LandmarkPair], Option<&Brushed>),
     names: &Names,
     method: &Method,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let inputs = FieldInputs { fixed, moving, pairs, names, method };
+    let inputs = FieldInputs { fixed, moving, pairs, names, method, brush };
     sample_field(grid, &inputs, FieldDirection::Pullback, progress)
 }
 
-/// What a field is made from: the pair, its landmark pairs (raw, as read), what messages call them, the method.
+/// What a field is made from: the pair, its landmark pairs (raw, as read), what messages call them, the method, and
+/// the brush on top ([`crate::brushed`]).
 #[derive(Clone, Copy, Debug)]
 pub struct FieldInputs<'a> {
     pub fixed: &'a Volume,
@@ -229,6 +249,7 @@ pub struct FieldInputs<'a> {
     pub pairs: &'a [LandmarkPair],
     pub names: &'a Names,
     pub method: &'a Method,
+    pub brush: Option<&'a Brushed>,
 }
 
 /// The displacement field of `direction` on `grid`: the pull-back u fitted over the fixed box, D(x) = u(x) − x, or
@@ -240,7 +261,7 @@ pub fn sample_field(
     direction: FieldDirection,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let FieldInputs { fixed, moving, pairs, names, method } = *inputs;
+    let FieldInputs { fixed, moving, pairs, names, method, brush } = *inputs;
     let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(method))
         .map_err(Failure::BadInput)?;
     let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
@@ -251,18 +272,27 @@ pub fn sample_field(
             let moving_from_fixed =
                 fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed)).map_err(Failure::BadInput)?;
             volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-            let sampled =
-                sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
-            (sampled, Some(crate::transform::itk_transform_of(&moving_from_fixed)))
+            if let Some(b) = brush {
+                // u ∘ b⁻¹: no ITK transform holds it exactly.
+                let brushed = b.pullback(&moving_from_fixed);
+                (sample_displacements(&brushed, dims, &lps_from_index, progress).ok_or_else(cancelled)?, None)
+            } else {
+                let sampled =
+                    sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
+                (sampled, Some(crate::transform::itk_transform_of(&moving_from_fixed)))
+            }
         }
         FieldDirection::Forward => {
             // Fitted over the moving box, as `points --from moving` fits it.
             let fixed_from_moving =
                 fit::forward_of(method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
             volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-            let sampled =
-                sample_displacements(&fixed_from_moving, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
-            (sampled, None)
+            let sampled = match brush {
+                // b ∘ d: the brush moves where a moving point appears.
+                Some(b) => sample_displacements(&b.forward(&fixed_from_moving), dims, &lps_from_index, progress),
+                None => sample_displacements(&fixed_from_moving, dims, &lps_from_index, progress),
+            };
+            (sampled.ok_or_else(cancelled)?, None)
         }
     };
     let Some(max_displacement_mm) = sampled.max_norm_mm else {
@@ -275,7 +305,7 @@ pub fn sample_field(
         displacements_lps: sampled.displacements_lps,
         direction,
         max_displacement_mm,
-        method: method.to_string(),
+        method: crate::brushed::describe(&method, brush),
         pairs: c.moving.len(),
         transform,
         warnings: fit::fit_warnings(method, &c),

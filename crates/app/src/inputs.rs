@@ -18,6 +18,7 @@ use anyhow::{Result, anyhow};
 use warpbench_io::geometry::{Lps, Point3, Space};
 use warpbench_io::landmarks::{self, LandmarkPair};
 use warpbench_io::{LoadOptions, Volume};
+use warpbench_solver::brush::BrushStroke;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
@@ -55,6 +56,8 @@ pub enum LandmarkSource {
     Pairs(PathBuf),
     /// Two Slicer point lists (`.mrk.json` or `.fcsv`), moving then fixed, matched by order.
     SlicerPair { moving: PathBuf, fixed: PathBuf },
+    /// A window session's pairs (`--session`).
+    Session(PathBuf),
 }
 
 impl LandmarkSource {
@@ -77,7 +80,7 @@ impl LandmarkSource {
     #[must_use]
     pub fn paths(&self) -> Vec<&Path> {
         match self {
-            Self::Pairs(p) => vec![p],
+            Self::Pairs(p) | Self::Session(p) => vec![p],
             Self::SlicerPair { moving, fixed } => vec![moving, fixed],
         }
     }
@@ -103,6 +106,7 @@ impl LandmarkSource {
                 }
             }
             Self::SlicerPair { moving, fixed } => Ok(landmarks::read_slicer_pair(moving, fixed)?),
+            Self::Session(path) => Ok(crate::gui::session::load(path)?.document.pairs),
         }
     }
 }
@@ -119,6 +123,8 @@ pub struct PairInputs {
     pub levels: Option<usize>,
     /// The output grid, when not the fixed volume's.
     pub reference: Option<PathBuf>,
+    /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
+    pub brush: Vec<BrushStroke>,
 }
 
 /// The volumes of [`PairInputs`], loaded.
@@ -142,6 +148,11 @@ impl PairInputs {
     /// The method the options name, checked ([`method_from_args`]).
     pub fn method(&self) -> Result<Method> {
         method_from_args(self.method, self.stiffness, self.levels)
+    }
+
+    /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.
+    pub fn brushed(&self) -> Result<Option<crate::brushed::Brushed>> {
+        crate::brushed::Brushed::new(&self.brush, &self.landmarks.describe())
     }
 
     /// What messages call the inputs, and `out`.

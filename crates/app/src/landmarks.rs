@@ -213,6 +213,10 @@ fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Landmark
                 read_landmark_pairs_with(path, BigWarpCsvOptions { ras }).map_err(|e| Failure::BadInput(e.into()))?;
             Ok((pairs, format.name().to_string()))
         }
+        inputs::LandmarkSource::Session(path) => {
+            let pairs = crate::gui::session::load(path).map_err(Failure::BadInput)?.document.pairs;
+            Ok((pairs, "warpbench session".to_string()))
+        }
         inputs::LandmarkSource::SlicerPair { moving, fixed } => {
             if ras {
                 return Err(Failure::BadInput(anyhow!(

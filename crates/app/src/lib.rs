@@ -32,6 +32,7 @@
 //!   return `anyhow` errors, which the subcommands classify.
 
 pub mod args;
+pub mod brushed;
 pub mod eval;
 pub mod exit;
 pub mod field;

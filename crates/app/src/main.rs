@@ -227,7 +227,7 @@ struct WarpArgs {
     #[command(flatten)]
     pairs: PairArgs,
     /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "levels"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels"])]
     field: Option<PathBuf>,
     /// Control-texture texels per axis over the output grid (2..=256).
     #[arg(long, default_value_t = 64, conflicts_with = "exact")]
@@ -317,7 +317,7 @@ struct RenderArgs {
     pairs: PairArgs,
     /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
     /// or NRRD); no glyphs are drawn.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "levels"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels"])]
     field: Option<PathBuf>,
     /// Control-texture texels per axis over the fixed box (2..=256).
     #[arg(long, default_value_t = 64)]
@@ -463,14 +463,16 @@ fn run_field(a: FieldArgs) -> Result<(), Failure> {
 
 fn run_render(a: RenderArgs) -> Result<(), Failure> {
     let landmarks = a.pairs.source()?;
+    let warp = a.pairs.warp()?;
     let opts = RenderOptions {
         fixed: a.fixed,
         moving: a.moving,
         landmarks,
         field: a.field,
-        method: a.pairs.method,
-        stiffness: a.pairs.stiffness,
-        levels: a.pairs.levels,
+        method: warp.method,
+        stiffness: warp.stiffness,
+        levels: warp.levels,
+        brush: warp.brush,
         grid: a.grid,
         blend: a.blend,
         mix_weight: a.mix_weight,

@@ -182,17 +182,25 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
 
     let xs: Vec<[f64; 3]> = sources.iter().filter_map(|(_, p)| p.map(|p| p.coords())).collect();
     let mut ys = vec![[0.0; 3]; xs.len()];
+    // A session's brush acts on top: b ∘ d from the moving side, u ∘ b⁻¹ from the fixed side.
+    let brushed = inputs.brushed().map_err(Failure::BadInput)?;
     let (source_volume, source_path) = match from {
         Side::Moving => {
             let fixed_from_moving =
                 fit::forward_of(&method, &c, inputs::volume_box::<Moving>(&moving)).map_err(Failure::BadInput)?;
-            fixed_from_moving.apply_batch_raw(&xs, &mut ys);
+            match &brushed {
+                Some(b) => b.forward(&fixed_from_moving).apply_batch_raw(&xs, &mut ys),
+                None => fixed_from_moving.apply_batch_raw(&xs, &mut ys),
+            }
             (&moving, &inputs.moving)
         }
         Side::Fixed => {
             let moving_from_fixed =
                 fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&fixed)).map_err(Failure::BadInput)?;
-            moving_from_fixed.apply_batch_raw(&xs, &mut ys);
+            match &brushed {
+                Some(b) => b.pullback(&moving_from_fixed).apply_batch_raw(&xs, &mut ys),
+                None => moving_from_fixed.apply_batch_raw(&xs, &mut ys),
+            }
             (&fixed, &inputs.fixed)
         }
     };

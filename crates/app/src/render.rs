@@ -25,6 +25,7 @@ use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
+use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::inputs::{self, LandmarkSource, OutputFile};
 use crate::procedural::ProceduralSpec;
@@ -105,6 +106,8 @@ pub struct RenderOptions {
     pub method: settings::MethodKind,
     pub stiffness: f64,
     pub levels: Option<usize>,
+    /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
+    pub brush: Vec<warpbench_solver::brush::BrushStroke>,
     pub grid: usize,
     pub blend: settings::Blend,
     /// The moving weight of [`settings::Blend::Mix`], clamped to 0..1.
@@ -233,14 +236,29 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
             }
         }
         let pullback = fit::pullback_of(&method, &c, fixed_box).map_err(Failure::BadInput)?;
-        sampled = Some(fit::control_texture(&pullback, fixed_box, opts.grid).map_err(Failure::BadInput)?);
         let forward = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
+        let brushed = Brushed::new(&opts.brush, &source.describe()).map_err(Failure::BadInput)?;
+        // With a brush on top: u ∘ b⁻¹ into the texture, and the moving glyphs at b(d(p)).
+        if let Some(b) = &brushed {
+            sampled =
+                Some(scene::control_texture(&b.pullback(&pullback), fixed_box, opts.grid).map_err(Failure::BadInput)?);
+            if !opts.quiet {
+                let c = b.consistency();
+                eprintln!("brush: its inverse undoes it within {:.4} mm (max; rms {:.5} mm)", c.max_mm, c.rms_mm);
+            }
+        } else {
+            sampled = Some(fit::control_texture(&pullback, fixed_box, opts.grid).map_err(Failure::BadInput)?);
+        }
+        let shown = |p: &warpbench_io::geometry::Point3<Moving>| match &brushed {
+            Some(b) => b.forward(&forward).apply(*p).coords(),
+            None => forward.apply(*p).coords(),
+        };
         glyph_pairs = c
             .moving
             .iter()
             .zip(&c.fixed)
             .map(|(p, q)| GlyphPair {
-                moving_ref: Some(Vec3::from_array(forward.apply(*p).coords().map(|v| v as f32))),
+                moving_ref: Some(Vec3::from_array(shown(p).map(|v| v as f32))),
                 fixed_ref: Some(Vec3::from_array(q.coords().map(|v| v as f32))),
                 selected: false,
                 active: true,

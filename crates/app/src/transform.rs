@@ -116,6 +116,12 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let TransformArgs { fixed, moving, pairs, out: out_path, report: ReportArgs { json, force, quiet } } = args;
     let inputs = pairs.inputs(fixed, moving, None)?;
     OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
+    if !inputs.brush.is_empty() {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench field --session`",
+            inputs.landmarks.describe()
+        )));
+    }
     let method = inputs.method().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
     let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;

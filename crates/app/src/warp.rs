@@ -48,6 +48,7 @@ use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
 use crate::args::PairArgs;
+use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit::{self, TpsParts};
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
@@ -204,7 +205,8 @@ pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, F
     }
 }
 
-/// How well an inverted forward field is undone, ‖d(u(y)) − y‖ over a grid of the output box (`--json`).
+/// How well an inverted forward map is undone, ‖d(u(y)) − y‖ over a grid of where it was inverted (`--json`): a
+/// forward field over the output box, or the brush over its reach.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct InverseConsistency {
     pub rms_mm: f64,
@@ -333,8 +335,9 @@ pub struct Resampled {
 }
 
 /// Resamples `moving` on `grid`'s geometry through the pull-back fitted on `pairs` (raw, as read: checked against
-/// `moving` and `fixed` here, by [`inputs::check_pairs`]); the volume `warpbench warp` writes, which is this
-/// function's result. `grid` is the output grid: the fixed volume, or `--reference`; only its geometry is read.
+/// `moving` and `fixed` here, by [`inputs::check_pairs`]), with `brush` on top (u ∘ b⁻¹, [`Brushed::pullback`]:
+/// through a control texture for `--grid`, evaluated at every voxel for `--exact`); the volume `warpbench warp`
+/// writes, which is this function's result. `grid` is the output grid: the fixed volume, or `--reference`; only its geometry is read.
 /// `names` name the inputs in messages.
 ///
 /// `progress` is called after each slab of output slices; returning `false` stops the resampling with
@@ -343,12 +346,12 @@ pub fn resample(
     grid: &Volume,
     fixed: &Volume,
     moving: &Volume,
-    pairs: &[LandmarkPair],
+    (pairs, brush): (&[LandmarkPair], Option<&Brushed>),
     names: &Names,
     settings: &WarpSettings,
     progress: &mut dyn FnMut(Progress) -> bool,
 ) -> Result<Resampled, Failure> {
-    let fitted = Fitted::new(grid, fixed, moving, pairs, names, settings)?;
+    let fitted = Fitted::new(grid, fixed, moving, (pairs, brush), names, settings)?;
     fitted.resample(moving, names, progress)
 }
 
@@ -594,22 +597,31 @@ impl Fitted {
         grid: &Volume,
         fixed: &Volume,
         moving: &Volume,
-        pairs: &[LandmarkPair],
+        (pairs, brush): (&[LandmarkPair], Option<&Brushed>),
         names: &Names,
         settings: &WarpSettings,
     ) -> Result<Self, Failure> {
         let start = Instant::now();
         let method = settings.method;
-        check_pullback_mode(&method, settings.pullback)?;
+        if brush.is_none() {
+            check_pullback_mode(&method, settings.pullback)?;
+        }
         let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(&method))
             .map_err(Failure::BadInput)?;
         let target_box = inputs::volume_box::<Fixed>(grid);
         let pullback = fit::pullback_of(&method, &c, target_box).map_err(Failure::BadInput)?;
-        let (pullback, target) =
-            export_pullback(Source::Fitted(&pullback), settings.pullback, grid).map_err(Failure::BadInput)?;
+        let (pullback, target) = match brush {
+            // u ∘ b⁻¹ has no exact GPU form: through a control texture, or one texel per voxel for --exact.
+            Some(b) => {
+                let composed = b.pullback(&pullback);
+                export_pullback(Source::Field(&composed, Path::new(&names.landmarks)), settings.pullback, grid)
+            }
+            None => export_pullback(Source::Fitted(&pullback), settings.pullback, grid),
+        }
+        .map_err(Failure::BadInput)?;
         Ok(Self {
             settings: ExportSettings::from(settings),
-            method: method.to_string(),
+            method: crate::brushed::describe(&method, brush),
             pairs: c.moving.len(),
             pullback,
             target,
@@ -617,7 +629,7 @@ impl Fitted {
             outside_value: outside_value(settings.outside_value, moving),
             fit_seconds: start.elapsed().as_secs_f64(),
             warnings: fit::fit_warnings(&method, &c),
-            inverse_consistency: None,
+            inverse_consistency: brush.map(Brushed::consistency),
         })
     }
 
@@ -789,8 +801,11 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     let given = match &opts.inputs {
         WarpInputs::Pairs(pairs) => {
             let method = pairs.method().map_err(Failure::BadInput)?;
-            check_pullback_mode(&method, opts.pullback)?;
-            Given::Pairs(method, &pairs.landmarks)
+            let brushed = pairs.brushed().map_err(Failure::BadInput)?.map(Box::new);
+            if brushed.is_none() {
+                check_pullback_mode(&method, opts.pullback)?;
+            }
+            Given::Pairs(method, &pairs.landmarks, brushed)
         }
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
@@ -803,7 +818,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
     let fitted = match &given {
-        Given::Pairs(method, landmarks) => {
+        Given::Pairs(method, landmarks, brushed) => {
             let pairs = landmarks.read().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method: *method,
@@ -813,7 +828,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
                 backend: export.backend,
                 outside_value: export.outside_value,
             };
-            Fitted::new(grid, &fixed, &moving, &pairs, &names, &settings)?
+            Fitted::new(grid, &fixed, &moving, (&pairs, brushed.as_deref()), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
     };
@@ -877,8 +892,8 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
 
 /// The warp [`run`] applies, checked before any volume is loaded.
 enum Given<'a> {
-    /// A method, to fit on the pairs of a landmark source.
-    Pairs(Method, &'a inputs::LandmarkSource),
+    /// A method, to fit on the pairs of a landmark source, and a brush on top.
+    Pairs(Method, &'a inputs::LandmarkSource, Option<Box<Brushed>>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
 }

@@ -408,7 +408,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
             &volume,
             &volume,
             &volume,
-            &pairs,
+            (&pairs, None),
             &names(&f, &csv, &core_out),
             &method,
             &mut |done, total| {
@@ -448,6 +448,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
         pairs: &pairs,
         names: &names,
         method: &Method::Tps { stiffness: 0.0 },
+        brush: None,
     };
     let forward =
         field::sample_field(&volume, &inputs, FieldDirection::Forward, &mut |_, _| true).expect("the field in memory");
@@ -470,7 +471,7 @@ fn the_in_memory_core_stops_when_progress_says_so() {
             &volume,
             &volume,
             &volume,
-            &pairs,
+            (&pairs, None),
             &names(&f, &csv, &dir.path().join("never.nii")),
             &Method::Tps { stiffness: 0.0 },
             &mut |_, _| {

@@ -307,7 +307,7 @@ fn the_in_memory_core_makes_the_file_the_command_writes() {
             &volume,
             &volume,
             &volume,
-            &pairs,
+            (&pairs, None),
             &names(&mri, &csv, &from_core),
             settings,
             &mut |p: Progress| {
@@ -361,7 +361,7 @@ fn the_in_memory_core_stops_when_progress_says_so() {
             &volume,
             &volume,
             &volume,
-            &pairs,
+            (&pairs, None),
             &names(&mri, &csv, &dir.path().join("never.nii")),
             &settings,
             &mut |_: Progress| {
@@ -403,4 +403,147 @@ fn a_4d_input_is_refused_in_the_words_of_a_command_without_frame() {
     // `warp` has no --frame option; the library's neutral wording is not what the user sees either.
     assert!(!err.contains("choose one frame to read") && !err.contains("with --frame N (N"), "{err}");
     assert!(!out.exists());
+}
+
+/// Runs `points` on `xs` with the pair and `source` (`--landmarks L` or `--session S`), from `side`; the mapped points.
+fn map_points(dir: &Path, source: [&str; 2], side: &str, xs: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let input = dir.join(format!("in_{side}_{}.csv", source[0].trim_start_matches('-')));
+    let lines: Vec<String> = xs.iter().enumerate().map(|(i, x)| format!("{},{},{},p{i}\n", x[0], x[1], x[2])).collect();
+    std::fs::write(&input, lines.concat()).expect("write points");
+    let out = dir.join(format!("out_{side}_{}.csv", source[0].trim_start_matches('-')));
+    let run = warpbench(&[
+        "points",
+        "--fixed",
+        s(&mri),
+        "--moving",
+        s(&mri),
+        source[0],
+        source[1],
+        "--from",
+        side,
+        "--in",
+        s(&input),
+        "--out",
+        s(&out),
+        "--json",
+        "--force",
+        "--quiet",
+    ]);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("points JSON");
+    report["points"]
+        .as_array()
+        .expect("points")
+        .iter()
+        .map(|p| std::array::from_fn(|a| p["output_lps"][a].as_f64().expect("a coordinate")))
+        .collect()
+}
+
+/// A window session's brush (issue 17, item 4) acts on top of the landmark warp wherever `--session` is taken:
+/// `points` maps fixed points through u ∘ b⁻¹ and moving points through b ∘ d (checked against the solver's exact
+/// pointwise inverse of the same strokes and its forward map, around the landmark-only mapping); `warp` resamples
+/// through u ∘ b⁻¹ (the brushed volume at x is the landmark-only one at b⁻¹(x)) and its `--json` reports how well the
+/// fitted inverse undoes the brush; `transform` refuses a brush it cannot write.
+#[test]
+fn a_sessions_brush_acts_on_top_of_the_landmarks() {
+    use warpbench_app::gui::document::Document;
+    use warpbench_app::gui::session::{self, SessionCamera, SessionFile, View};
+    use warpbench_solver::brush::{Brush, BrushStroke};
+    use warpbench_solver::warp::Warp;
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let csv = deformed_pairs(dir.path());
+    let volume = warpbench_io::open(&mri).expect("fixture");
+    let pairs = read_bigwarp_csv(&csv).expect("pairs");
+    let stroke = BrushStroke { centre_mm: [10.0, 0.0, 30.0], displacement_mm: [0.0, 8.0, 0.0], radius_mm: 30.0 };
+    let mut document = Document::new([Some(mri.clone()), Some(mri.clone())], [&volume, &volume], pairs);
+    document.brush = vec![stroke];
+    let camera = SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
+    let session_path = dir.path().join("brushed.warpbench.json");
+    session::save(&session_path, &SessionFile::new(document, View { camera, slice_mm: [0.0; 3] }, true))
+        .expect("save the session");
+    let brush = Brush::new(vec![stroke]).expect("brush");
+    let (landmarks, session) = (["--landmarks", s(&csv)], ["--session", s(&session_path)]);
+
+    // From the fixed side: u(b⁻¹(x)) against the landmark-only u at the exact b⁻¹(x).
+    let xs = [[10.0, 8.0, 30.0], [20.0, 0.0, 25.0], [-5.0, 15.0, 40.0], [60.0, -60.0, -30.0]];
+    let exact: Vec<[f64; 3]> = xs.iter().map(|&x| brush.invert_point(x)).collect();
+    let (brushed, plain) =
+        (map_points(dir.path(), session, "fixed", &xs), map_points(dir.path(), landmarks, "fixed", &exact));
+    let worst = brushed
+        .iter()
+        .zip(&plain)
+        .map(|(a, b)| (0..3).map(|k| (a[k] - b[k]).abs()).fold(0.0, f64::max))
+        .fold(0.0, f64::max);
+    eprintln!("u(b⁻¹(x)) within {worst:.4} mm of u at the exact inverse");
+    assert!(worst < 0.05, "{brushed:?} against {plain:?}");
+    // From the moving side: b(d(p)).
+    let ps = [[13.0, -2.0, 31.5], [0.0, 0.0, 0.0], [40.0, 30.0, 10.0]];
+    let (brushed, plain) =
+        (map_points(dir.path(), session, "moving", &ps), map_points(dir.path(), landmarks, "moving", &ps));
+    for (b, p) in brushed.iter().zip(&plain) {
+        let expected = brush.apply_raw(*p);
+        assert!((0..3).all(|k| (b[k] - expected[k]).abs() < 1e-6), "b(d(p)) = {b:?}, expected {expected:?}");
+    }
+
+    // warp: the brushed volume at x is the landmark-only one at b⁻¹(x), around the stroke.
+    let (out_plain, out_brushed) = (dir.path().join("plain.nii"), dir.path().join("brushed.nii"));
+    let base = ["warp", "--fixed", s(&mri), "--moving", s(&mri), "--grid", "48", "--backend", "cpu", "--quiet"];
+    assert_ok(&warpbench(&[&base[..], &landmarks[..], &["--out", s(&out_plain)]].concat()));
+    let run = warpbench(&[&base[..], &session[..], &["--out", s(&out_brushed), "--json"]].concat());
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("warp JSON");
+    let max_mm = report["inverse_consistency_mm"]["max_mm"].as_f64().expect("the inverse's consistency");
+    assert!(max_mm < 0.05, "{report}");
+    assert!(report["method"].as_str().is_some_and(|m| m.contains("tps + brush (1 stroke)")), "{report}");
+    let (plain, brushed) =
+        (warpbench_io::open(&out_plain).expect("plain"), warpbench_io::open(&out_brushed).expect("brushed"));
+    let index_from_lps = plain.lps_from_index.inverse().expect("invertible");
+    let at = |v: &warpbench_io::Volume, x: [f64; 3]| {
+        trilinear(v, index_from_lps.apply_point(warpbench_io::geometry::Point3::from_array(x)).coords())
+    };
+    let (mut shown, mut expected, mut unmoved) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 0..brushed.dims[2] {
+        for j in 0..brushed.dims[1] {
+            for i in 0..brushed.dims[0] {
+                let x = brushed.voxel_lps(i, j, k).coords();
+                if (0..3).map(|a| (x[a] - [10.0, 8.0, 30.0][a]).powi(2)).sum::<f64>().sqrt() > 20.0 {
+                    continue;
+                }
+                let (Some(e), Some(u)) = (at(&plain, brush.invert_point(x)), at(&plain, x)) else { continue };
+                shown.push(brushed.data.get_f64(brushed.offset(i, j, k)));
+                expected.push(e);
+                unmoved.push(u);
+            }
+        }
+    }
+    let ncc = |a: &[f64], b: &[f64]| {
+        let (ma, mb) = (a.iter().sum::<f64>() / a.len() as f64, b.iter().sum::<f64>() / b.len() as f64);
+        let cov: f64 = a.iter().zip(b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+        let (va, vb): (f64, f64) = (a.iter().map(|x| (x - ma).powi(2)).sum(), b.iter().map(|y| (y - mb).powi(2)).sum());
+        cov / (va * vb).sqrt()
+    };
+    let rms =
+        |a: &[f64], b: &[f64]| (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
+    let (with_brush, without) = (rms(&shown, &expected), rms(&shown, &unmoved));
+    eprintln!(
+        "{} voxels by the stroke: RMS difference from the plain volume at b⁻¹(x) {with_brush:.2}, at x {without:.2} \
+         (NCC {:.4})",
+        shown.len(),
+        ncc(&shown, &expected)
+    );
+    assert!(shown.len() > 1000 && with_brush < 0.25 * without, "{with_brush} / {without}");
+
+    let run = warpbench(
+        &[
+            &["transform", "--fixed", s(&mri), "--moving", s(&mri)][..],
+            &session[..],
+            &["--out", s(&dir.path().join("t.tfm"))],
+        ]
+        .concat(),
+    );
+    assert_eq!(run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("brush strokes have no exact ITK transform"));
 }
