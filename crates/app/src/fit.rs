@@ -29,6 +29,7 @@ use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::tps::{Regularisation, Tps};
 use warpbench_solver::tps_drag::{DraggedEnd, PairDrag};
+use warpbench_solver::warp::{Composed, Warp};
 
 use crate::gui::viewer::Viewer;
 use crate::inputs::{self, Correspondences};
@@ -93,6 +94,29 @@ pub fn fit_warp(
     let pullback = pullback(method, fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
     let forward = forward(method, fixed, moving, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
     let (grid, texture) = control_texture(&pullback, fixed_box, grid_n)?;
+    let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
+        .map_err(|e| anyhow!("{e}"))?;
+    Ok((Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() }, prepared))
+}
+
+/// [`fit_warp`] with a brush on top ([`crate::brushed`]): both directions fitted on the pairs, and the pull-back
+/// u ∘ b⁻¹ sampled into the control texture, `brush_inverse` being b⁻¹ (fitted by scattered-data interpolation once
+/// a stroke has settled, or undone point by point while it is dragged).
+///
+/// # Errors
+/// As [`fit_warp`].
+pub fn fit_warp_brushed(
+    method: &Method,
+    (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
+    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
+    (grid_n, float32_filterable): (usize, bool),
+    brush_inverse: &dyn Warp<Fixed, Fixed>,
+) -> anyhow::Result<(Fitted, PreparedControl)> {
+    enough_pairs(method, moving.len())?;
+    let pullback = pullback(method, fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let forward = forward(method, fixed, moving, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let brushed = Composed { first: brush_inverse, second: &pullback };
+    let (grid, texture) = scene::control_texture(&brushed, fixed_box, grid_n)?;
     let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
         .map_err(|e| anyhow!("{e}"))?;
     Ok((Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() }, prepared))

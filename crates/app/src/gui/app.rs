@@ -464,8 +464,8 @@ fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, read
 
 /// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo,
 /// Space starts or stops adding a pair, Esc cancels it (or clears the selection), Delete removes the selected pair,
-/// R resets the camera, P pulses the attention lens about the selected pair, W shows the worst pair. The single keys
-/// only act while no text field has the keyboard.
+/// R resets the camera, P pulses the attention lens about the selected pair, W shows the worst pair, B takes or
+/// leaves the brush. The single keys only act while no text field has the keyboard.
 fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     let mut commands = Vec::new();
     // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
@@ -499,6 +499,9 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     }
     if key(ui, egui::Key::W) {
         commands.push(Command::ShowWorstPair);
+    }
+    if key(ui, egui::Key::B) {
+        commands.push(Command::ToggleSculpting);
     }
     commands
 }

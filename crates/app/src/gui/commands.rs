@@ -13,6 +13,7 @@ use warpbench_gpu::OrbitCamera;
 use warpbench_gpu::glam::Vec3;
 use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::brush::BrushStroke;
 
 use super::document::{Look, ViewSettings};
 use super::history::Snapshot;
@@ -72,6 +73,18 @@ pub enum Command {
     ShowWorstPair,
     /// Open a volume in the 3-D view with the leafer, change its opening, or close it ([`super::leafer`]).
     SetLeafer(super::leafer::Leafer),
+    /// The brush becomes the tool, or stops being it (B).
+    ToggleSculpting,
+    /// Append a brush stroke to the document's brush (the first move of a drag with the brush).
+    AddStroke(BrushStroke),
+    /// Replace the last brush stroke (the stroke being dragged); `settled`: the drag's end, fitted with the brush's
+    /// inverse by scattered-data interpolation.
+    MoveStroke {
+        stroke: BrushStroke,
+        settled: bool,
+    },
+    /// Remove every brush stroke.
+    ClearBrush,
 }
 
 /// What a settings change costs.
@@ -83,8 +96,8 @@ enum Effect {
     Refit,
 }
 
-/// The cost of going from `old` to `new` settings: the warp's parameters refit, the probe is only read by the next
-/// click, the oblique planes move only the slices, and the rest changes the picture.
+/// The cost of going from `old` to `new` settings: the warp's parameters refit, the probe and the brush's radius are
+/// only read by the next click, the oblique planes move only the slices, and the rest changes the picture.
 fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
     let refit = old.method != new.method
         || old.stiffness.to_bits() != new.stiffness.to_bits()
@@ -93,6 +106,7 @@ fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
     let without = |s: &ViewSettings, oblique| ViewSettings {
         pick_probe: new.pick_probe,
         pick_threshold: new.pick_threshold,
+        brush_radius_mm: new.brush_radius_mm,
         oblique,
         ..s.clone()
     };
@@ -217,6 +231,22 @@ impl Ready {
                 self.leafer = leafer;
                 self.invalidate_view();
             }
+            Command::ToggleSculpting => self.interaction.toggle_sculpting(),
+            Command::AddStroke(stroke) => {
+                self.document.brush.push(stroke.clamped());
+                self.refit_interactive();
+            }
+            Command::MoveStroke { stroke, settled } => {
+                let Some(last) = self.document.brush.last_mut() else { return };
+                *last = stroke.clamped();
+                if settled { self.refit_soon() } else { self.refit_interactive() }
+            }
+            Command::ClearBrush => {
+                if !self.document.brush.is_empty() {
+                    self.document.brush.clear();
+                    self.refit_soon();
+                }
+            }
         }
     }
 
@@ -288,6 +318,7 @@ impl Ready {
             moving_path: self.document.moving.clone(),
             pairs: self.document.pairs.clone(),
             method: self.document.settings.method(),
+            brush: self.document.brush.clone(),
         };
         match export::ExportJob::start(&self.ctx, kind, out, input) {
             Ok(job) => {
@@ -390,6 +421,7 @@ mod tests {
         assert_eq!(with(|s| s.show_landmarks = false), Effect::Render);
         assert_eq!(with(|s| s.oblique[1].on = true), Effect::Slices);
         assert_eq!(with(|s| (s.pick_probe, s.pick_threshold) = (Probe::Gradient, 50.0)), Effect::None);
+        assert_eq!(with(|s| s.brush_radius_mm = 35.0), Effect::None);
         assert_eq!(with(|s| (s.oblique[0].tilt_deg, s.mix_weight) = (5.0, 0.1)), Effect::Render);
         assert_eq!(with(|s| s.procedural = Some(crate::procedural::ProceduralSpec::default())), Effect::Render);
     }

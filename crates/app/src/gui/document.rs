@@ -13,6 +13,7 @@ use serde::{Deserialize, Serialize};
 use warpbench_gpu::{BlendMode, RenderSettings};
 use warpbench_io::Volume;
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::brush::BrushStroke;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 
@@ -31,6 +32,10 @@ pub struct Document {
     pub settings: ViewSettings,
     /// Fixed, then moving.
     pub layers: [Look; 2],
+    /// The displacement brush's strokes on top of the landmark warp, in the order they were made
+    /// ([`warpbench_solver::brush`], [`crate::brushed`]).
+    #[serde(default)]
+    pub brush: Vec<BrushStroke>,
 }
 
 impl Document {
@@ -39,7 +44,14 @@ impl Document {
     #[must_use]
     pub fn new(paths: [Option<PathBuf>; 2], volumes: [&Volume; 2], pairs: Vec<LandmarkPair>) -> Self {
         let [fixed, moving] = paths;
-        Self { fixed, moving, pairs, settings: ViewSettings::default(), layers: volumes.map(Look::auto) }
+        Self {
+            fixed,
+            moving,
+            pairs,
+            settings: ViewSettings::default(),
+            layers: volumes.map(Look::auto),
+            brush: Vec::new(),
+        }
     }
 
     /// Keeps what a hand-edited or older file may hold within what the window offers: the control texture's size,
@@ -118,6 +130,13 @@ pub struct ViewSettings {
     /// known synthetic deformation (eval's), which the exports leave out.
     #[serde(default)]
     pub procedural: Option<ProceduralSpec>,
+    /// The displacement brush's radius for new strokes, mm.
+    #[serde(default = "default_brush_radius")]
+    pub brush_radius_mm: f64,
+}
+
+fn default_brush_radius() -> f64 {
+    20.0
 }
 
 fn default_pick_threshold() -> f32 {
@@ -131,6 +150,9 @@ pub struct Oblique {
     pub tilt_deg: f32,
     pub spin_deg: f32,
 }
+
+/// The largest brush radius the window offers, mm.
+pub const BRUSH_MAX_RADIUS_MM: f64 = 80.0;
 
 /// The largest procedural amplitude the window offers, mm.
 pub const PROCEDURAL_MAX_MM: f64 = 40.0;
@@ -155,6 +177,7 @@ impl Default for ViewSettings {
             pick_probe: Probe::Accumulated,
             pick_threshold: default_pick_threshold(),
             procedural: None,
+            brush_radius_mm: default_brush_radius(),
         }
     }
 }
@@ -188,6 +211,8 @@ impl ViewSettings {
     /// See [`Document::clamp`].
     pub fn clamp(&mut self) {
         self.grid_n = self.grid_n.clamp(2, 256);
+        self.brush_radius_mm =
+            if self.brush_radius_mm.is_finite() { self.brush_radius_mm.clamp(2.0, BRUSH_MAX_RADIUS_MM) } else { 20.0 };
         if let Some(p) = &mut self.procedural {
             p.amplitude_mm =
                 if p.amplitude_mm.is_finite() { p.amplitude_mm.clamp(0.0, PROCEDURAL_MAX_MM) } else { 0.0 };

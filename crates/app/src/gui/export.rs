@@ -40,6 +40,8 @@ pub struct ExportInput {
     pub moving_path: Option<PathBuf>,
     pub pairs: Vec<LandmarkPair>,
     pub method: Method,
+    /// The brush's strokes on top of the landmark warp ([`crate::brushed`]).
+    pub brush: Vec<warpbench_solver::brush::BrushStroke>,
 }
 
 /// An export running on a worker thread.
@@ -93,6 +95,12 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
     let names =
         Names { moving: moving_name.clone(), landmarks: "the window's landmarks".into(), out: out.to_path_buf() };
     let (fixed, moving) = (input.fixed.as_ref(), input.moving.as_ref());
+    let brushed = crate::brushed::Brushed::new(&input.brush, "the window's brush").map_err(Failure::BadInput)?;
+    let consistency = brushed.as_ref().map_or_else(String::new, |b| {
+        let c = b.consistency();
+        format!("; the brush's inverse undoes it within {:.3} mm (max; rms {:.4} mm)", c.max_mm, c.rms_mm)
+    });
+    let pairs_and_brush = (input.pairs.as_slice(), brushed.as_ref());
     match kind {
         ExportKind::Warped { dicom } => {
             let settings = WarpSettings {
@@ -112,13 +120,13 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 watch.report(&file_name(out), Progress { stage: "resampling slices", done, total });
                 !watch.cancelled()
             };
-            let resampled = warp::resample(fixed, fixed, moving, &input.pairs, &names, &settings, &mut progress)?;
+            let resampled = warp::resample(fixed, fixed, moving, pairs_and_brush, &names, &settings, &mut progress)?;
             let description = warp::series_description(&resampled.method, Path::new(&moving_name));
             let source = input.moving_path.as_deref().map(|p| (p, moving));
             warp::write_outputs(&resampled.volume, out, dicom.as_deref(), &description, source)?;
             let also = dicom.as_ref().map_or_else(String::new, |d| format!(" and a DICOM series in {}", d.display()));
             Ok(format!(
-                "wrote {}{also}: {} warp of {} pairs, {}, {}",
+                "wrote {}{also}: {} warp of {} pairs, {}, {}{consistency}",
                 out.display(),
                 resampled.method,
                 resampled.pairs,
@@ -132,10 +140,10 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 !watch.cancelled()
             };
             let f =
-                field::displacement_field(fixed, fixed, moving, &input.pairs, &names, &input.method, &mut progress)?;
+                field::displacement_field(fixed, fixed, moving, pairs_and_brush, &names, &input.method, &mut progress)?;
             field::write_field(&f, out, warpbench_io::displacement::FieldFormat::Itk, None)?;
             Ok(format!(
-                "wrote {}: {} displacement field of {} pairs, largest {:.1} mm",
+                "wrote {}: {} displacement field of {} pairs, largest {:.1} mm{consistency}",
                 out.display(),
                 f.method,
                 f.pairs,

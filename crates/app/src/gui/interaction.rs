@@ -1,9 +1,10 @@
-//! What the pointer is doing in the views: adding a pair (with the half already placed) or dragging one point of a
-//! pair, and which view the drag belongs to.
+//! What the pointer is doing in the views: adding a pair (with the half already placed), dragging one point of a
+//! pair, or sculpting with the displacement brush, and which view the drag belongs to.
 
 use eframe::egui;
 use warpbench_gpu::PickTarget;
 use warpbench_io::geometry::{Lps, Point3};
+use warpbench_solver::brush::BrushStroke;
 
 use super::{Command, Ready, placement};
 
@@ -45,6 +46,16 @@ pub struct DragPoint {
     pub view: DragView,
 }
 
+/// A drag of the displacement brush ([`warpbench_solver::brush`]): pressed at `from_ref` (a point of the deformed
+/// moving volume as shown) in `view`; once the pointer has moved, the stroke is the last of the document's brush.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SculptDrag {
+    pub view: DragView,
+    pub from_ref: [f64; 3],
+    /// The stroke was added to the document (the pointer moved).
+    pub added: bool,
+}
+
 /// How close (points) a press must be to a landmark glyph to grab it.
 pub const GRAB_RADIUS: f32 = 8.0;
 
@@ -61,6 +72,8 @@ pub enum Interaction {
     Adding { moving: Option<Point3<Lps>> },
     /// One point of a pair follows the pointer in a view.
     Dragging(DragPoint),
+    /// The brush is the tool: a press and drag on the moving volume displaces it (`drag`: the stroke being made).
+    Sculpting { drag: Option<SculptDrag> },
 }
 
 impl Interaction {
@@ -70,7 +83,7 @@ impl Interaction {
         match *self {
             Self::Adding { moving: None } => Placing::Source,
             Self::Adding { moving: Some(moving) } => Placing::Target { moving },
-            Self::Idle | Self::Dragging(_) => Placing::Idle,
+            Self::Idle | Self::Dragging(_) | Self::Sculpting { .. } => Placing::Idle,
         }
     }
 
@@ -79,27 +92,75 @@ impl Interaction {
     pub fn drag(&self) -> Option<DragPoint> {
         match *self {
             Self::Dragging(d) => Some(d),
-            Self::Idle | Self::Adding { .. } => None,
+            Self::Idle | Self::Adding { .. } | Self::Sculpting { .. } => None,
         }
+    }
+
+    /// Whether the brush is the tool.
+    #[must_use]
+    pub fn sculpting(&self) -> bool {
+        matches!(self, Self::Sculpting { .. })
+    }
+
+    /// The brush stroke being made.
+    #[must_use]
+    pub fn sculpt_drag(&self) -> Option<SculptDrag> {
+        match *self {
+            Self::Sculpting { drag } => drag,
+            _ => None,
+        }
+    }
+
+    /// The brush button or B: the brush becomes the tool (instead of nothing or adding a pair), or stops being it.
+    /// A drag (of a point or a stroke) goes on.
+    pub fn toggle_sculpting(&mut self) {
+        *self = match *self {
+            Self::Idle | Self::Adding { .. } => Self::Sculpting { drag: None },
+            Self::Sculpting { drag: None } => Self::Idle,
+            other => other,
+        };
+    }
+
+    /// A press with the brush at `from_ref` in `view` starts a stroke; returns whether it did.
+    pub fn start_stroke(&mut self, view: DragView, from_ref: [f64; 3]) -> bool {
+        let idle = *self == Self::Sculpting { drag: None };
+        if idle {
+            *self = Self::Sculpting { drag: Some(SculptDrag { view, from_ref, added: false }) };
+        }
+        idle
+    }
+
+    /// The stroke being made was added to the document.
+    pub fn stroke_added(&mut self) {
+        if let Self::Sculpting { drag: Some(d) } = self {
+            d.added = true;
+        }
+    }
+
+    /// The stroke in `view` ends; returns it.
+    pub fn end_stroke(&mut self, view: DragView) -> Option<SculptDrag> {
+        let drag = self.sculpt_drag().filter(|d| d.view == view)?;
+        *self = Self::Sculpting { drag: None };
+        Some(drag)
     }
 
     /// Space or the Add pair button: starts adding a pair, or stops (a placed moving point is dropped). A drag
     /// goes on.
     pub fn toggle_adding(&mut self) {
         *self = match *self {
-            Self::Idle => Self::Adding { moving: None },
+            Self::Idle | Self::Sculpting { drag: None } => Self::Adding { moving: None },
             Self::Adding { .. } => Self::Idle,
-            drag @ Self::Dragging(_) => drag,
+            other => other,
         };
     }
 
-    /// Stops adding a pair (Esc, undo); returns whether one was being added.
+    /// Stops adding a pair or sculpting between strokes (Esc, undo); returns whether either was the tool.
     pub fn stop_adding(&mut self) -> bool {
-        let adding = matches!(self, Self::Adding { .. });
-        if adding {
+        let stopped = matches!(self, Self::Adding { .. } | Self::Sculpting { drag: None });
+        if stopped {
             *self = Self::Idle;
         }
-        adding
+        stopped
     }
 
     /// The pair's moving point is placed at `moving`: its fixed point is next.
@@ -193,6 +254,18 @@ impl Ready {
         self.interaction.drag()
     }
 
+    /// Whether the brush is the tool.
+    #[must_use]
+    pub fn sculpting(&self) -> bool {
+        self.interaction.sculpting()
+    }
+
+    /// The brush stroke being made.
+    #[must_use]
+    pub fn sculpt_drag(&self) -> Option<SculptDrag> {
+        self.interaction.sculpt_drag()
+    }
+
     /// A drag event in the 3-D view at framebuffer point `pixel`: the dragged point follows the surface under the
     /// pointer (the volume it belongs to, picked with the current probe); off the volume it stays.
     pub(crate) fn drag_in_view(&mut self, pixel: [f32; 2]) {
@@ -243,6 +316,21 @@ impl Ready {
         self.invalidate();
     }
 
+    /// The point of the deformed moving volume shown at framebuffer point `pixel` of the 3-D view (a pick with the
+    /// current probe), in ref space; `None` where the ray hits nothing (or the pick failed: the status bar says so).
+    pub(crate) fn pick_moving_at(&mut self, pixel: [f32; 2]) -> Option<[f64; 3]> {
+        let size = self.images.view.as_ref().map(|v| (v.target.width, v.target.height))?;
+        let settings = self.document.settings.render_settings();
+        let probe = self.document.settings.probe();
+        match self.viewer.pick(&self.camera, &settings, size, pixel, PickTarget::Moving, probe) {
+            Ok(hit) => hit.map(|h| h.x_ref.map(f64::from)),
+            Err(e) => {
+                self.fit.error = Some(format!("picking: {e:#}"));
+                None
+            }
+        }
+    }
+
     /// A click at framebuffer point `pixel` of the 3-D view: picks the volume the placing step asks for.
     pub(crate) fn pick_in_view(&mut self, pixel: [f32; 2]) {
         let target = match self.placing() {
@@ -259,6 +347,46 @@ impl Ready {
             }
             Ok(None) => self.fit.error = Some("the click hit nothing: try another point or probe".into()),
             Err(e) => self.fit.error = Some(format!("picking: {e:#}")),
+        }
+    }
+}
+
+/// The brush's pointer work.
+impl Ready {
+    /// A press with the brush at ref point `from_ref` in `view` (in the 3-D view the deformed moving volume picked
+    /// under the pointer, in a slice the point of the plane): the stroke starts there.
+    pub(crate) fn sculpt_press(&mut self, view: DragView, from_ref: [f64; 3]) {
+        self.interaction.start_stroke(view, from_ref);
+    }
+
+    /// The brush dragged to `to_ref`: the stroke moves its start by to − from (within its radius's limit), added to
+    /// the document at the first move, then replaced, each time fitted interactively.
+    pub(crate) fn sculpt_to(&mut self, to_ref: [f64; 3]) {
+        let Some(drag) = self.interaction.sculpt_drag() else { return };
+        let displacement_mm: [f64; 3] = std::array::from_fn(|a| to_ref[a] - drag.from_ref[a]);
+        if displacement_mm.iter().all(|v| v.abs() < 1e-9) && !drag.added {
+            return;
+        }
+        let stroke = BrushStroke {
+            centre_mm: drag.from_ref,
+            displacement_mm,
+            radius_mm: self.document.settings.brush_radius_mm,
+        };
+        if drag.added {
+            self.apply(Command::MoveStroke { stroke, settled: false });
+        } else {
+            self.interaction.stroke_added();
+            self.apply(Command::AddStroke(stroke));
+        }
+    }
+
+    /// The brush released in `view`: the stroke settles (the brush's inverse is fitted again).
+    pub(crate) fn sculpt_release(&mut self, view: DragView) {
+        if let Some(drag) = self.interaction.end_stroke(view)
+            && drag.added
+            && let Some(&stroke) = self.document.brush.last()
+        {
+            self.apply(Command::MoveStroke { stroke, settled: true });
         }
     }
 }
@@ -297,5 +425,28 @@ mod tests {
         assert_eq!(i.release(DragView::Slice(0)), None, "a drag ends in its own view");
         assert_eq!(i.release(DragView::ThreeD), Some(point));
         assert_eq!(i, Interaction::Idle);
+    }
+
+    #[test]
+    fn the_brush_is_a_tool_whose_strokes_end_in_their_own_view() {
+        let mut i = Interaction::default();
+        i.toggle_sculpting();
+        assert!(i.sculpting() && i.placing() == Placing::Idle && i.drag().is_none());
+        let point = DragPoint { pair: 0, end: End::Fixed, view: DragView::ThreeD };
+        assert!(!i.grab(point), "no landmark drag while sculpting");
+        assert!(i.start_stroke(DragView::Slice(1), [1.0, 2.0, 3.0]));
+        assert!(!i.start_stroke(DragView::ThreeD, [0.0; 3]), "one stroke at a time");
+        i.toggle_sculpting();
+        i.toggle_adding();
+        assert!(i.sculpt_drag().is_some(), "neither B nor Space ends a stroke");
+        i.stroke_added();
+        assert_eq!(i.end_stroke(DragView::ThreeD), None, "a stroke ends in its own view");
+        let d = i.end_stroke(DragView::Slice(1)).expect("the stroke");
+        assert!(d.added && d.from_ref.iter().zip([1.0, 2.0, 3.0]).all(|(a, b)| (a - b).abs() < 1e-12));
+        assert_eq!(i, Interaction::Sculpting { drag: None });
+        i.toggle_adding();
+        assert_eq!(i.placing(), Placing::Source, "Space switches to adding a pair");
+        i.toggle_sculpting();
+        assert!(i.stop_adding() && i == Interaction::Idle, "Esc leaves the brush");
     }
 }

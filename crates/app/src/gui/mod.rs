@@ -61,7 +61,7 @@ pub use commands::Command;
 use document::Document;
 use history::History;
 use images::Images;
-pub use interaction::{DragPoint, DragView, End, GRAB_RADIUS, Interaction, Placing, SLICE_SLAB_MM};
+pub use interaction::{DragPoint, DragView, End, GRAB_RADIUS, Interaction, Placing, SLICE_SLAB_MM, SculptDrag};
 pub use load::{Loaded, LoadedPair, Opened, load};
 use viewer::{DeviceFacts, LayerData, Viewer};
 
@@ -115,6 +115,11 @@ pub struct FitState {
     drag: Option<fit::DragFit>,
     /// The last fit's diagnostics being computed ([`diagnostics`]); `pair_errors` and `jacobian` wait for them.
     diagnostics: Option<diagnostics::DiagnosticsJob>,
+    /// The document's brush as a warp b of the fixed space, on top of the fitted warp ([`crate::brushed`]): the
+    /// moving glyphs are drawn at b(d(p)), a slice click stores u(b⁻¹(x)).
+    pub brush: Option<warpbench_solver::brush::Brush>,
+    /// How well the brush's inverse, fitted by scattered-data interpolation when its last stroke settled, undoes it.
+    pub brush_consistency: Option<crate::warp::InverseConsistency>,
 }
 
 /// The side panel's file and export section.
@@ -298,20 +303,60 @@ impl Ready {
             }
         }
         let boxes = (fixed_box, moving_box);
-        let on_gpu = gpu_evaluates(&method)
+        // The brush on top: its strokes as a warp, inverted by scattered-data interpolation once a stroke has settled
+        // (with a full fit), point by point while one is dragged.
+        let brush = match warpbench_solver::brush::Brush::new(self.document.brush.clone()) {
+            Ok(b) if b.is_empty() => None,
+            Ok(b) => Some(b),
+            Err(e) => {
+                self.fit.error = Some(format!("the brush: {e}"));
+                None
+            }
+        };
+        let brushed = match (&brush, diagnostics) {
+            (Some(_), true) => match crate::brushed::Brushed::new(&self.document.brush, "the brush") {
+                Ok(b) => b,
+                Err(e) => {
+                    self.fit.error = Some(format!("{e:#}"));
+                    None
+                }
+            },
+            _ => None,
+        };
+        if diagnostics {
+            self.fit.brush_consistency = brushed.as_ref().map(crate::brushed::Brushed::consistency);
+        }
+        self.fit.brush.clone_from(&brush);
+        let on_gpu = brush.is_none()
+            && gpu_evaluates(&method)
             && match self.control_eval {
                 ControlEval::Auto => !self.viewer.ctx.is_cpu_driver(),
                 ControlEval::Cpu => false,
                 ControlEval::Gpu => true,
             };
-        let fast = if diagnostics || on_gpu { None } else { self.drag_event(&method, &fixed, &moving, fixed_box) };
-        let result = if let Some((fitted, prepared)) = fast {
+        let fast = if diagnostics || on_gpu || brush.is_some() {
+            None
+        } else {
+            self.drag_event(&method, &fixed, &moving, fixed_box)
+        };
+        let filterable = self.viewer.ctx.capabilities.float32_filterable;
+        let result = if let Some(b) = &brush {
+            let pointwise = warpbench_solver::brush::PointwiseInverse(b);
+            let inverse: &dyn warpbench_solver::Warp<Fixed, Fixed> = match &brushed {
+                Some(fitted) => fitted.inverse(),
+                None => &pointwise,
+            };
+            let texture = (self.document.settings.grid_n, filterable);
+            fit::fit_warp_brushed(&method, (&fixed, &moving), boxes, texture, inverse).map(|(f, prepared)| {
+                self.viewer.set_control(Some(&prepared));
+                f
+            })
+        } else if let Some((fitted, prepared)) = fast {
             self.viewer.set_control(Some(&prepared));
             Ok(fitted)
         } else if on_gpu {
             fit_warp_on_gpu(&method, &fixed, &moving, boxes, self.document.settings.grid_n, &mut self.viewer)
         } else {
-            let filterable = self.viewer.ctx.capabilities.float32_filterable;
             fit_warp(&method, &fixed, &moving, boxes, self.document.settings.grid_n, filterable).map(|(f, prepared)| {
                 self.viewer.set_control(Some(&prepared));
                 f
@@ -416,10 +461,11 @@ impl Ready {
     #[must_use]
     pub fn shown_at(&self, moving_lps: [f64; 3]) -> [f64; 3] {
         let m = warpbench_io::geometry::Point3::<warpbench_io::geometry::Lps>::from_array(moving_lps);
-        match &self.fit.fitted {
+        let shown = match &self.fit.fitted {
             Some(f) => f.forward.apply(as_moving(m)).coords(),
             None => moving_lps,
-        }
+        };
+        self.fit.brush.as_ref().map_or(shown, |b| b.apply_raw(shown))
     }
 
     /// The moving volume's procedural deformation over its box, as the settings ask for it (`Ok(None)`: none); an
@@ -524,9 +570,10 @@ impl Ready {
     /// warp is fitted).
     #[must_use]
     pub fn moving_shown_at(&self, x_ref: [f64; 3]) -> [f64; 3] {
+        let x = self.fit.brush.as_ref().map_or(x_ref, |b| b.invert_point(x_ref));
         match &self.fit.fitted {
-            Some(f) => f.pullback.apply_raw(x_ref),
-            None => x_ref,
+            Some(f) => f.pullback.apply_raw(x),
+            None => x,
         }
     }
 

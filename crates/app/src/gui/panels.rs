@@ -6,7 +6,7 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::Command;
-use super::document::{Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, ViewSettings};
+use super::document::{BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, ViewSettings};
 use super::leafer::{DEFAULT_ANGLE_DEG, Leafer, MAX_ANGLE_DEG};
 use super::open::Side;
 use crate::procedural::ProceduralSpec;
@@ -402,6 +402,45 @@ pub fn leafer_ui(ui: &mut egui::Ui, leafer: Leafer) -> Option<Command> {
         ui.add(egui::Slider::new(angle_deg, 0.0..=MAX_ANGLE_DEG).text("Leafer opening (deg)"));
     }
     (edited != leafer).then_some(Command::SetLeafer(edited))
+}
+
+/// The displacement brush ([`warpbench_solver::brush`]): "Brush" (B) makes it the tool, "Brush radius (mm)" sets new
+/// strokes' reach, "Clear the brush" removes every stroke, and once a stroke has settled the fitted inverse's
+/// consistency is shown ("Brush inverse: …").
+pub fn brush_ui(ui: &mut egui::Ui, settings: &ViewSettings, (sculpting, strokes): (bool, usize)) -> Option<Command> {
+    let mut command = None;
+    ui.label("Displacement brush (on top of the warp)");
+    ui.horizontal(|ui| {
+        let tool = ui.selectable_label(sculpting, "Brush").on_hover_text("B; drag the deformed moving volume");
+        if tool.clicked() {
+            command = Some(Command::ToggleSculpting);
+        }
+        if sculpting {
+            ui.label("drag the moving volume in the 3-D view or a slice");
+        } else {
+            ui.label(format!("{strokes} strokes"));
+        }
+    });
+    let mut radius = settings.brush_radius_mm;
+    let slider = egui::Slider::new(&mut radius, 2.0..=BRUSH_MAX_RADIUS_MM).text("Brush radius (mm)");
+    if ui.add(slider).changed() {
+        command = Some(Command::SetSettings(ViewSettings { brush_radius_mm: radius, ..settings.clone() }));
+    }
+    if ui.add_enabled(strokes > 0, egui::Button::new("Clear the brush")).clicked() {
+        command = Some(Command::ClearBrush);
+    }
+    command
+}
+
+/// The accuracy section's line on an inversion the warp needed (the brush's, fitted by scattered-data
+/// interpolation): how closely the fitted inverse undoes the forward map.
+pub fn inverse_consistency_ui(ui: &mut egui::Ui, consistency: Option<&crate::warp::InverseConsistency>) {
+    if let Some(c) = consistency {
+        ui.label(format!(
+            "Brush inverse: its fit undoes the brush within {:.3} mm (max; rms {:.4} mm, {} points over its reach)",
+            c.max_mm, c.rms_mm, c.points
+        ));
+    }
 }
 
 /// The paths typed into the side panel's file section.

@@ -1,7 +1,7 @@
 //! The side panel once a pair is shown: history and camera buttons, the view and warp settings, the looks, the
 //! procedural deformation, adding
-//! pairs, the landmark table and its warnings, the accuracy panel with the attention lens, the leafer, files and
-//! export. It returns what was asked for
+//! pairs, the landmark table and its warnings, the accuracy panel with the attention lens, the leafer, the brush,
+//! files and export. It returns what was asked for
 //! as [`Command`]s; only its own text fields (paths being typed) change in place.
 
 use eframe::egui;
@@ -32,9 +32,6 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
             commands.extend(panels::layers_ui(ui, &ready.document.layers));
             panels::volume_warnings_ui(ui, &ready.loaded.fixed, &ready.loaded.moving);
             ui.separator();
-            let problem = ready.procedural().err();
-            commands.extend(panels::deformation_ui(ui, &ready.document.settings, problem.as_deref()));
-            ui.separator();
             ui.horizontal(|ui| {
                 let adding = ready.placing() != Placing::Idle;
                 if ui.selectable_label(adding, "Add pair").on_hover_text("Space; Esc cancels").clicked() {
@@ -53,10 +50,18 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
             ui.separator();
             commands
                 .extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors).map(Command::JumpTo));
+            panels::inverse_consistency_ui(ui, ready.fit.brush_consistency.as_ref());
             let has_loo = !panels::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
             commands.extend(panels::attention_ui(ui, ready.attention.is_on(), has_loo));
             ui.separator();
             commands.extend(panels::leafer_ui(ui, ready.leafer));
+            ui.separator();
+            // The tools that deform what is shown come after the landmarks, the registration's own work.
+            let problem = ready.procedural().err();
+            commands.extend(panels::deformation_ui(ui, &ready.document.settings, problem.as_deref()));
+            ui.separator();
+            let tool = (ready.interaction.sculpting(), ready.document.brush.len());
+            commands.extend(panels::brush_ui(ui, &ready.document.settings, tool));
             ui.separator();
             commands.extend(panels::files_ui(ui, &mut ready.files.fields).map(Command::File));
             ui.separator();

@@ -77,6 +77,22 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                     if response.drag_stopped() {
                         ready.end_drag(DragView::Slice(a));
                     }
+                    // The brush: a press on the image starts a stroke there, the drag displaces within the plane.
+                    if ready.interaction.sculpting() {
+                        if response.drag_started()
+                            && let Some(from) = col.input(|i| i.pointer.press_origin()).and_then(to_ref)
+                        {
+                            ready.sculpt_press(DragView::Slice(a), from);
+                        }
+                        if response.dragged()
+                            && let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref)
+                        {
+                            ready.sculpt_to(x_ref);
+                        }
+                        if response.drag_stopped() {
+                            ready.sculpt_release(DragView::Slice(a));
+                        }
+                    }
                     if response.clicked()
                         && let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref)
                     {

@@ -63,6 +63,38 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             {
                 ready.selected = Some(pair);
             }
+            // The brush: a press on the deformed moving volume starts a stroke at the point picked there; the drag
+            // moves it within the plane through that point facing the camera.
+            if ready.interaction.sculpting() {
+                if response.drag_started()
+                    && let Some(press) = ui.input(|i| i.pointer.press_origin())
+                    && let Some(from) = ready.pick_moving_at(to_pixel(press))
+                {
+                    ready.sculpt_press(DragView::ThreeD, from);
+                }
+                if let Some(stroke) = ready.interaction.sculpt_drag().filter(|d| d.view == DragView::ThreeD)
+                    && response.dragged()
+                    && let Some(pos) = response.interact_pointer_pos()
+                {
+                    let px = to_pixel(pos);
+                    let ndc = Vec3::new(px[0] / w * 2.0 - 1.0, 1.0 - px[1] / h * 2.0, 0.0);
+                    let ref_from_clip = ready.camera.ref_from_clip(w / h);
+                    let near = ref_from_clip.project_point3(ndc);
+                    let far = ref_from_clip.project_point3(Vec3::new(ndc.x, ndc.y, 1.0));
+                    let dir = (far - near).normalize_or_zero();
+                    let view_dir = (ref_from_clip.project_point3(Vec3::Z) - ref_from_clip.project_point3(Vec3::ZERO))
+                        .normalize_or_zero();
+                    let from = Vec3::from_array(stroke.from_ref.map(|v| v as f32));
+                    let along = dir.dot(view_dir);
+                    if along.abs() > 1e-6 {
+                        let to = near + dir * ((from - near).dot(view_dir) / along);
+                        ready.sculpt_to(to.to_array().map(f64::from));
+                    }
+                }
+                if response.drag_stopped() {
+                    ready.sculpt_release(DragView::ThreeD);
+                }
+            }
             let landmark_drag = ready.drag().is_some_and(|d| d.view == DragView::ThreeD);
             if landmark_drag
                 && response.dragged()
@@ -71,7 +103,8 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             {
                 ready.drag_in_view(to_pixel(pos));
             }
-            let drag = if landmark_drag { egui::Vec2::ZERO } else { response.drag_delta() };
+            let stroking = ready.interaction.sculpt_drag().is_some();
+            let drag = if landmark_drag || stroking { egui::Vec2::ZERO } else { response.drag_delta() };
             if drag != egui::Vec2::ZERO {
                 ready.apply(Command::Orbit(drag));
             }
