@@ -28,8 +28,10 @@
 //! - **Image agreement**: the recovered volume R(x) = M(u(x)) (M exported through u sampled into a `--grid`³
 //!   control texture over Ω, exactly as the renderer shows it) against the ground truth V, over V's foreground
 //!   voxels: NCC = Σ(R − R̄)(V − V̄) / √(Σ(R − R̄)² Σ(V − V̄)²) and RMSE = √(mean (R − V)²) in V's units. For
-//!   scale, the same numbers for M itself (before registration) and for M(u_true(x)) through the same control grid
-//!   (the best any warp can do after two interpolations).
+//!   scale, the same numbers for M itself (before registration) and for M(ũ(x)) through the same control grid
+//!   (the best any warp can do after two interpolations), ũ ≈ d⁻¹ fitted by scattered-data interpolation
+//!   ([`warpbench_solver::invert`], as the product inverts every forward-only deformation), with its inverse
+//!   consistency ‖d(ũ(y)) − y‖ over a 32³ grid of Ω.
 //!
 //! `--max-tre-mm X` is an accuracy gate: when the TRE statistic `--gate-statistic` (default the 95th percentile) is
 //! above X, the report is still printed and written, and the exit code is 3.
@@ -53,6 +55,7 @@ use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::diagnostics::{ErrorStats, jacobian_determinants};
+use warpbench_solver::invert::{InvertParams, invert};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::synthetic::{SyntheticKind, SyntheticWarp};
@@ -62,6 +65,7 @@ pub use report::{EvalReport, SUITE_BEGIN, SUITE_END, SuiteReport};
 
 use crate::exit::Failure;
 use crate::settings::MethodKind;
+use crate::warp::InverseConsistency;
 use crate::{fit, inputs, scene};
 use sampling::SplitMix64;
 
@@ -460,7 +464,10 @@ struct Truth {
     /// u_true(x_j) = d⁻¹(x_j).
     u_true: Vec<Point3<Moving>>,
     before: report::Agreement,
+    /// M(ũ(x)), ũ ≈ d⁻¹ fitted by scattered-data interpolation, through the control grid.
     ideal: report::Agreement,
+    /// ‖d(ũ(y)) − y‖ over the fixed box.
+    inverse_consistency: InverseConsistency,
 }
 
 impl Truth {
@@ -506,10 +513,20 @@ impl Truth {
             u_true.push(Point3::from_array(inverse.point));
         }
         let before = subject.agreement(&moving);
-        let control =
-            scene::control_texture(&warp.pullback(), subject.box_fixed, opts.grid).map_err(Failure::BadInput)?;
+        // For the picture, d is what a forward-only deformation is to the renderer (a brush, a forward field): its
+        // pull-back comes from scattered-data interpolation (`solver::invert`, Brunet et al. 2006 §3.3), sampled
+        // into the control texture, and how well that inverse undoes d is reported with the image it gives.
+        let (inverse, inverse_report) =
+            invert(&warp, subject.box_moving(), subject.box_fixed, &InvertParams::default())
+                .map_err(|e| bad(format!("{path}: inverting the {kind} warp of {} mm: {e}", opts.amplitude_mm)))?;
+        let control = scene::control_texture(&inverse, subject.box_fixed, opts.grid).map_err(Failure::BadInput)?;
         let ideal = subject.agreement(&subject.recover(&moving, &control)?);
-        Ok(Self { warp, moving, moving_foreground, x_fixed, u_true, before, ideal })
+        let inverse_consistency = InverseConsistency {
+            rms_mm: inverse_report.rms_mm,
+            max_mm: inverse_report.max_mm,
+            points: inverse_report.check_points,
+        };
+        Ok(Self { warp, moving, moving_foreground, x_fixed, u_true, before, ideal, inverse_consistency })
     }
 
     /// N landmark pairs (p_i in M's foreground, q_i = d(p_i) inside Ω).
@@ -649,6 +666,7 @@ fn evaluate(
             recovered: after,
             before: truth.before,
             true_warp: truth.ideal,
+            true_warp_inverse_consistency_mm: truth.inverse_consistency,
         },
         gate: None,
     })

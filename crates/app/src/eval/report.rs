@@ -88,8 +88,10 @@ pub struct ImageSummary {
     pub recovered: Agreement,
     /// M itself (no registration).
     pub before: Agreement,
-    /// M(u_true(x)) through the same control grid.
+    /// M(ũ(x)) through the same control grid, ũ ≈ d⁻¹ fitted by scattered-data interpolation.
     pub true_warp: Agreement,
+    /// ‖d(ũ(y)) − y‖ of that fitted inverse over the fixed box.
+    pub true_warp_inverse_consistency_mm: crate::warp::InverseConsistency,
 }
 
 /// The accuracy gate of `--max-tre-mm`.
@@ -190,6 +192,12 @@ impl EvalReport {
             out,
             "           before registration NCC {:.4}, RMSE {:.3}; through the true warp NCC {:.4}, RMSE {:.3}",
             i.before.ncc, i.before.rmse, i.true_warp.ncc, i.true_warp.rmse
+        );
+        let c = &i.true_warp_inverse_consistency_mm;
+        let _ = writeln!(
+            out,
+            "           (the true warp inverted by scattered-data interpolation: max {:.4} mm, RMS {:.5} mm)",
+            c.max_mm, c.rms_mm
         );
         if let Some(g) = &self.gate {
             let verdict = if g.passed { "passed" } else { "FAILED" };
