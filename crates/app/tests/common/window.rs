@@ -1,11 +1,15 @@
-//! Helpers for the tests that drive the window headlessly through egui_kittest (`gui.rs`, `placement.rs`).
+//! Helpers for the tests that drive the window headlessly through egui_kittest (`gui*.rs`, `placement.rs`).
 #![allow(dead_code, reason = "each test binary uses a subset")]
 
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use eframe::egui;
 use egui_kittest::Harness;
-use warpbench_app::gui::Workbench;
+use warpbench_app::gui::{GuiOptions, Workbench};
+use warpbench_app::inputs::LandmarkSource;
+
+use crate::common::mri;
 
 /// Steps the harness until the pair is loaded and drawn at full quality (or fails, or three minutes pass: the demo
 /// pair on a loaded 2-core machine).
@@ -63,4 +67,48 @@ pub fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
     harness.step();
     harness.input_mut().events.push(button(pos, false));
     harness.run_steps(2);
+}
+
+/// Five pairs on the MRI, the moving points shifted by a few mm.
+pub fn pairs(dir: &Path) -> PathBuf {
+    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
+    let pairs: Vec<([f64; 3], [f64; 3])> =
+        q.iter().enumerate().map(|(i, q)| ([q[0] + 3.0, q[1] - 2.0 + i as f64, q[2] + 1.5], *q)).collect();
+    let path = dir.join("pairs.csv");
+    crate::common::write_pairs_csv(&path, &pairs);
+    path
+}
+
+/// Steps until loading has failed (or 20 s pass).
+pub fn wait_for_failure(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    while harness.state().failure().is_none() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// A window of `size` on the MRI fixture as fixed and moving, with the five pairs of [`pairs`] and an autosave in
+/// `dir`, stepped until the pair is shown.
+pub fn open_mri_pair(dir: &Path, size: egui::Vec2) -> Harness<'static, Workbench> {
+    open_mri_pair_at(dir, size, 1.0)
+}
+
+/// [`open_mri_pair`] drawn at `pixels_per_point`.
+pub fn open_mri_pair_at(dir: &Path, size: egui::Vec2, pixels_per_point: f32) -> Harness<'static, Workbench> {
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir))),
+        autosave: Some(dir.join("autosave.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness = Harness::builder()
+        .with_size(size)
+        .with_pixels_per_point(pixels_per_point)
+        .wgpu()
+        .build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    harness
 }

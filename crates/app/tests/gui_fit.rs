@@ -1,0 +1,279 @@
+//! The window's document and fit through egui_kittest: sessions and crash recovery, undo, folding, the GPU control
+//! texture and the 3-D view's progressive refinement.
+
+mod common;
+#[path = "common/window.rs"]
+mod window;
+
+use std::time::{Duration, Instant};
+
+use common::mri;
+use window::{no_adapter, open_mri_pair, pairs, wait_until_rendered, wait_until_shown};
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use warpbench_app::gui::{GuiOptions, Ready, Workbench};
+use warpbench_app::inputs::LandmarkSource;
+
+#[test]
+fn sessions_save_and_reopen_and_a_crash_is_recovered() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(pairs(dir.path()))),
+        autosave: Some(autosave.clone()),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    assert!(harness.state().recovery.is_none(), "no crashed session to offer");
+    // Change things: the method, a pair switched off, the camera; then save the session.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.document.settings.method = warpbench_app::settings::MethodKind::Rigid;
+        ready.document.settings.oblique[1] =
+            warpbench_app::gui::document::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
+        ready.document.pairs[1].active = false;
+        ready.camera.azimuth_rad = 1.0;
+        ready.refit();
+    }
+    let saved = harness.state().ready().expect("loaded").to_session(true);
+    let session_path = dir.path().join("project.warpbench.json");
+    warpbench_app::gui::session::save(&session_path, &saved).expect("save");
+    // The window autosaves, then "crashes" (no clean exit).
+    harness.state_mut().autosave_now(false);
+    drop(harness);
+
+    // Reopening the project restores it.
+    let opts = GuiOptions {
+        session: Some(session_path),
+        autosave: Some(dir.path().join("other-autosave.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.to_session(true), saved, "the reopened session is the saved one");
+    assert_eq!(ready.fitted_pairs(), 4);
+    drop(harness);
+
+    // A new window on the crashed autosave offers recovery, and recovering brings the pairs back.
+    let opts = GuiOptions { autosave: Some(autosave), ..GuiOptions::default() };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    assert!(harness.state().recovery.is_some(), "a crashed session is offered");
+    wait_until_shown(&mut harness);
+    harness.get_by_label("Recover the last session").click();
+    harness.run_steps(2);
+    wait_until_shown(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.document.pairs, saved.document.pairs);
+    assert_eq!(ready.document.settings.method().to_string(), "rigid");
+}
+
+#[test]
+fn a_folding_warp_is_flagged_with_its_location() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 700.0));
+    assert!(harness.state().ready().expect("loaded").fit.jacobian.is_some_and(|j| j.min_det > 0.0), "no folding yet");
+    assert!(harness.query_by_label_contains("the warp folds").is_none());
+    // Two pairs 6 mm apart whose sources cross over (each moves 10 mm past the other): the pull-back folds there.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        let pt = |x: f64| warpbench_io::geometry::Point3::new(x, 18.0, 30.0);
+        ready.document.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x1", pt(13.0), pt(0.0)));
+        ready.document.pairs.push(warpbench_io::landmarks::LandmarkPair::new("x2", pt(-7.0), pt(6.0)));
+        ready.refit();
+    }
+    harness.run_steps(2);
+    // The folding check follows the fit on a thread of its own.
+    wait_until_rendered(&mut harness);
+    let j = harness.state().ready().expect("loaded").fit.jacobian.expect("a fit");
+    assert!(j.min_det <= 0.0 && j.fraction_folded > 0.0, "{j:?}");
+    // The minimum lies between the crossing pairs.
+    assert!((j.min_at[0] - 3.0).abs() < 15.0 && (j.min_at[2] - 30.0).abs() < 15.0, "{j:?}");
+    harness.get_by_label_contains("the warp folds");
+}
+
+#[test]
+fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
+    for method in ["tps", "hbspline"] {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.document.settings.method = method.parse().expect("a method");
+        // The CPU's texels: the same fit and grid, sampled by the solver (f64), as the window's CPU path uploads them.
+        let (fixed, moving): (Vec<_>, Vec<_>) = ready
+            .document
+            .pairs
+            .iter()
+            .map(|p| {
+                (
+                    warpbench_solver::spaces::as_fixed(p.fixed.expect("fixed")),
+                    warpbench_solver::spaces::as_moving(p.moving.expect("moving")),
+                )
+            })
+            .unzip();
+        let boxes = (
+            warpbench_app::inputs::volume_box(&ready.loaded.fixed),
+            warpbench_app::inputs::volume_box(&ready.loaded.moving),
+        );
+        let n = ready.document.settings.grid_n;
+        let (fitted, _) =
+            warpbench_app::gui::fit_warp(&ready.document.settings.method(), &fixed, &moving, boxes, n, true)
+                .expect("fit");
+        let (_, texture) = warpbench_app::scene::control_texture(fitted.pullback.as_ref(), boxes.0, n).expect("sample");
+        let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
+        // The GPU's: evaluated into the window's control texture.
+        ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
+        ready.refit();
+        assert!(ready.fit.error.is_none(), "{method}: {:?}", ready.fit.error);
+        assert!(ready.viewer.control_made_on_gpu(), "{method}: the texture was not evaluated on the GPU");
+        let control = ready.viewer.control.as_ref().expect("a control texture");
+        assert_eq!(control.info.dims.map(|d| d as usize), [n; 3]);
+        let gpu = warpbench_gpu::control_eval::read_back_texels(&ready.viewer.ctx, control).expect("read back");
+        assert_eq!(gpu.len(), cpu.len());
+        let largest = cpu.iter().flat_map(|t| t[..3].iter()).fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(largest > 1.0, "{method}: the warp moves things: {largest} mm");
+        let worst =
+            cpu.iter().zip(&gpu).flat_map(|(a, b)| (0..3).map(move |i| (a[i] - b[i]).abs())).fold(0.0f32, f32::max);
+        // The same function on the same grid: f64 on the CPU against f32 on the GPU (a TPS about the box centre),
+        // and f16 storage where float32 textures do not filter.
+        assert!(
+            worst < 0.01 + 1e-3 * largest,
+            "{method}: worst texel difference {worst} mm (largest displacement {largest} mm)"
+        );
+        harness.run_steps(2);
+        assert!(harness.state().ready().expect("loaded").fit.error.is_none());
+    }
+}
+
+#[test]
+fn undo_of_every_command_gives_the_document_back_and_view_commands_leave_it() {
+    use warpbench_app::gui::Command;
+    use warpbench_app::gui::panels::FileAction;
+    use warpbench_io::geometry::Point3;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
+    let imported = dir.path().join("three.csv");
+    common::write_pairs_csv(&imported, &[([1.0, 2.0, 3.0], [4.0, 5.0, 6.0]); 3]);
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    let mut settings = ready.document.settings.clone();
+    settings.method = warpbench_app::settings::MethodKind::Rigid;
+    settings.blend = warpbench_app::settings::Blend::Difference;
+    settings.oblique[2].on = true;
+    let mut looks = ready.document.layers;
+    (looks[1].visible, looks[0].window_high) = (false, looks[0].window_high + 10.0);
+    let edits = [
+        Command::AddPair { moving: Point3::new(1.0, 10.0, 20.0), fixed: Point3::new(2.0, 10.0, 20.0) },
+        Command::MovePoint { pair: 0, end: warpbench_app::gui::End::Fixed, to: [1.0, 2.0, 3.0], settled: true },
+        Command::MovePoint { pair: 1, end: warpbench_app::gui::End::Moving, to: [4.0, 5.0, 6.0], settled: false },
+        Command::DeletePair(2),
+        Command::RenamePair(0, "renamed".into()),
+        Command::SetActive(1, false),
+        Command::SetSettings(settings),
+        Command::SetLooks(looks),
+        Command::File(FileAction::ImportLandmarks(imported)),
+    ];
+    for command in edits {
+        let before = ready.document.clone();
+        ready.apply(command.clone());
+        ready.settle(false);
+        let after = ready.document.clone();
+        assert_ne!(after, before, "{command:?} changes the document");
+        ready.apply(Command::Undo);
+        assert_eq!(ready.document, before, "undo of {command:?}");
+        ready.apply(Command::Redo);
+        assert_eq!(ready.document, after, "redo of {command:?}");
+    }
+    let views = [
+        Command::ToggleAdding,
+        Command::Cancel,
+        Command::Select(1),
+        Command::JumpTo(0),
+        Command::MoveSlice(1, 12.0),
+        Command::CentreSlices([1.0, 2.0, 3.0]),
+        Command::ResetCamera,
+        Command::ShowWorstPair,
+        Command::TogglePulse,
+    ];
+    for command in views {
+        let before = ready.document.clone();
+        ready.apply(command.clone());
+        ready.settle(false);
+        assert_eq!(ready.document, before, "{command:?} leaves the document");
+    }
+    // None of the view commands was an undo step: undo goes back to before the import.
+    ready.apply(Command::Undo);
+    assert_eq!(ready.document.pairs.len(), 5, "{:?}", ready.document.pairs);
+}
+
+#[test]
+fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 600.0));
+    let cpu = harness.state().ready().expect("ready").viewer.ctx.is_cpu_driver();
+    let ((full_w, full_h), full) = harness.state().ready().and_then(Ready::view_shown).expect("a view");
+    assert!(full, "the view is not refined after loading");
+    harness.get_by_label("Reset camera").click();
+    harness.step();
+    harness.step();
+    let ready = harness.state().ready().expect("ready");
+    let (size, full) = ready.view_shown().expect("a view");
+    if cpu {
+        // The camera moved: a reduced view at once, the full one still to come.
+        assert!(!full && size.0 <= full_w && size.1 <= full_h, "{size:?} full {full}");
+        assert!(ready.needs_render(), "nothing left to refine");
+    }
+    // A thread adds bands until the full view is shown.
+    let mut progress = vec![ready.view_refine_progress().unwrap_or(0.0)];
+    let start = Instant::now();
+    while harness.state().ready().is_some_and(Ready::needs_render) {
+        harness.step();
+        if let Some(p) = harness.state().ready().and_then(Ready::view_refine_progress) {
+            progress.push(p);
+        }
+        assert!(start.elapsed() < Duration::from_mins(1), "not refined within a minute");
+    }
+    eprintln!("refined in {} frames: {progress:?}", progress.len());
+    assert!(progress.windows(2).all(|w| w[1] >= w[0]), "the progress went back: {progress:?}");
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.view_shown(), Some(((full_w, full_h), true)));
+    // The refined image is the one-pass full-quality render, glyphs included, bit for bit.
+    let shown = ready.read_view().expect("read the view");
+    let once = ready
+        .viewer
+        .render_view(
+            &ready.camera,
+            &ready.document.settings.render_settings(),
+            warpbench_gpu::Quality::Full,
+            (full_w, full_h),
+            &ready.glyphs(),
+        )
+        .expect("render at once");
+    let once = once.read_back(&ready.viewer.ctx).expect("read back");
+    let alpha = shown.chunks(4).filter(|p| p[3] > 0).count();
+    assert!(alpha * 10 > shown.len() / 4, "the view is mostly empty: {alpha} px");
+    let differ = shown.iter().zip(&once).filter(|(a, b)| a != b).count();
+    assert_eq!(differ, 0, "the refined view differs from the one-pass view in {differ} channels");
+}

@@ -1,0 +1,316 @@
+//! The window's landmark work through egui_kittest: adding pairs in a slice and in 3-D, renaming, dragging,
+//! ranking, the keyboard and oblique slices.
+
+mod common;
+#[path = "common/window.rs"]
+mod window;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use window::{click_at, no_adapter, open_mri_pair, wait_until_rendered};
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use warpbench_app::gui::{Placing, Workbench};
+
+#[test]
+fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    let axial_mm = harness.state().ready().expect("loaded").slice_mm[0];
+
+    // Without Add pair, a click in a slice moves the other two slices through the clicked point (linked views).
+    let rect = harness.get_by_label("Axial slice").rect();
+    let before = harness.state().ready().expect("loaded").slice_mm;
+    click_at(&mut harness, rect.center() + egui::vec2(rect.width() * 0.2, -rect.height() * 0.1));
+    let after = harness.state().ready().expect("loaded").slice_mm;
+    assert!((after[0] - before[0]).abs() < 1e-9, "the axial plane stays: {before:?} -> {after:?}");
+    assert!(after[2] > before[2] + 5.0, "the sagittal plane moves to the right (+L): {before:?} -> {after:?}");
+    // Rows follow the fixed grid's j axis (here P decreases with j), so a click above the centre is more posterior.
+    assert!(after[1] > before[1] + 2.0, "the coronal plane moves with the click: {before:?} -> {after:?}");
+    harness.run_steps(2);
+    harness.get_by_label_contains("cursor LPS");
+
+    // In a slice: the source at the centre of the axial slice, the target a little to its right.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    let rect = harness.get_by_label("Axial slice").rect();
+    click_at(&mut harness, rect.center());
+    assert!(
+        matches!(harness.state().ready().expect("loaded").placing(), warpbench_app::gui::Placing::Target { .. }),
+        "the first click places the source"
+    );
+    click_at(&mut harness, rect.center() + egui::vec2(rect.width() * 0.1, 0.0));
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.placing(), warpbench_app::gui::Placing::Idle);
+    assert_eq!(ready.document.pairs.len(), 6, "a sixth pair");
+    assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit.error);
+    let pair = ready.document.pairs.last().expect("pair");
+    let (p, q) = (pair.moving.expect("source").coords(), pair.fixed.expect("target").coords());
+    // Both clicks lie on the axial plane of the fixed grid (voxel centres, 2 mm apart); the source went through the
+    // pull-back, which moves it by a few mm at most.
+    assert!((q[2] - axial_mm).abs() <= 1.0, "target S {} vs slice {axial_mm}", q[2]);
+    assert!((p[2] - q[2]).abs() < 10.0 && p[0] < q[0], "source {p:?}, target {q:?}");
+    // The new pair is on disk at once, without another frame (the autosave follows every change of the document).
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let start = Instant::now();
+    let on_disk = |path: &Path| warpbench_app::gui::session::load(path).map_or(0, |s| s.document.pairs.len());
+    while on_disk(&autosave) != 6 {
+        assert!(start.elapsed() < Duration::from_secs(5), "the sixth pair was not autosaved within 5 s");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+
+    // In the 3-D view: the brain at the centre of the view is hit on both volumes.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    let view = harness.get_by_label("3-D view").rect();
+    click_at(&mut harness, view.center());
+    click_at(&mut harness, view.center());
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    assert_eq!(ready.document.pairs.len(), 7, "a seventh pair from the 3-D view");
+    let pair = ready.document.pairs.last().expect("pair");
+    let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
+    assert!(inside(pair.moving.expect("source").coords()) && inside(pair.fixed.expect("target").coords()));
+}
+
+#[test]
+fn suspicious_and_degenerate_pairs_are_named_by_their_rows_in_the_table() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    // Row 1 off (so the fit's own numbering differs from the table's), and row 6 repeats row 3.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.document.pairs[0].active = false;
+        let again = ready.document.pairs[2].clone();
+        ready.document.pairs.push(warpbench_io::landmarks::LandmarkPair { name: "again".into(), ..again });
+        ready.refit();
+    }
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit.error.is_none(), "a repeated pair still fits: {:?}", ready.fit.error);
+    assert_eq!(ready.fit.warnings.len(), 1, "{:?}", ready.fit.warnings);
+    assert!(ready.fit.warnings[0].contains("landmarks 3 and 6 are the same pair"), "{:?}", ready.fit.warnings);
+    harness.get_by_label_contains("Warning: landmarks 3 and 6 are the same pair");
+    // Row 6 now sends row 3's moving point elsewhere: no warp does that; the status bar says which rows.
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.document.pairs[5].fixed = Some(warpbench_io::geometry::Point3::new(5.0, 5.0, 5.0));
+        ready.refit();
+    }
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    let e = ready.fit.error.clone().expect("refused");
+    assert!(e.contains("landmarks 3 and 6") && e.contains("moving point"), "{e}");
+    assert!(!e.contains("source") && !e.contains("target"), "one vocabulary: {e}");
+    harness.get_by_label_contains("warp off:");
+}
+
+#[test]
+fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    // The accuracy panel: a histogram and the worst pairs.
+    harness.get_by_label("Leave-one-out histogram");
+    harness.get_by_label_contains("Leave-one-out error: mean");
+
+    // Rename pair 1; undo brings the old name back.
+    harness.get_by_label("Name of pair 1").focus();
+    harness.run_steps(2);
+    harness.get_by_label("Name of pair 1").type_text("nasion");
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").document.pairs[0].name.contains("nasion"));
+    // The typed text arrived in one frame: one undo step.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").document.pairs[0].name, "Pt-0");
+
+    // Drag Pt-1's fixed point 30 points to the right within the axial slice through it.
+    harness.get_by_label("Go to Pt-1").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    let q = ready.document.pairs[1].fixed.expect("fixed").coords();
+    let plane = ready.slice_plane(0);
+    let rect = harness.get_by_label("Axial slice").rect();
+    let scale = rect.width() / plane.size.0 as f32;
+    let px = plane.pixel_from_ref(q).expect("on the plane");
+    assert!(px[2].abs() < 1.0, "the axial slice goes through the pair: {px:?}");
+    let start = rect.min + egui::vec2((px[0] as f32 + 0.5) * scale, (px[1] as f32 + 0.5) * scale);
+    let end = start + egui::vec2(30.0, 0.0);
+    let button = |pos, pressed| egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Primary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    };
+    harness.input_mut().events.push(egui::Event::PointerMoved(start));
+    harness.input_mut().events.push(button(start, true));
+    harness.step();
+    for t in [0.25f32, 0.5, 0.75, 1.0] {
+        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
+        harness.step();
+    }
+    let during = harness.state().ready().expect("loaded");
+    assert!(during.drag().is_some(), "the press grabbed the glyph");
+    harness.input_mut().events.push(button(end, false));
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.drag().is_none());
+    let moved = ready.document.pairs[1].fixed.expect("fixed").coords();
+    let expected = plane.ref_from_pixel(px[0] + f64::from(30.0 / scale), px[1]);
+    for a in 0..3 {
+        assert!((moved[a] - expected[a]).abs() < 1.0, "dragged to {moved:?}, expected {expected:?}");
+    }
+    assert!((moved[0] - q[0]).abs() > 10.0, "it moved: {q:?} -> {moved:?}");
+    // The drag refitted the warp and, once released, the diagnostics.
+    assert_eq!(ready.fitted_pairs(), 5);
+    assert!(ready.fit.pair_errors[1].is_some_and(|e| e.leave_one_out_mm.is_some()));
+    // One drag is one undo step.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let back = harness.state().ready().expect("loaded").document.pairs[1].fixed.expect("fixed").coords();
+    assert_eq!(back.map(f64::to_bits), q.map(f64::to_bits), "undo puts the point back exactly");
+}
+
+#[test]
+fn keyboard_shortcuts_add_cancel_delete_and_reset() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    let placing = |h: &Harness<'_, Workbench>| h.state().ready().expect("ready").placing();
+    // Space starts adding a pair, Esc cancels it.
+    harness.key_press(egui::Key::Space);
+    harness.run_steps(2);
+    assert_eq!(placing(&harness), Placing::Source);
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
+    assert_eq!(placing(&harness), Placing::Idle);
+    // Delete removes the selected pair (here Pt-1, the second, selected by its Go to button); Ctrl+Z brings it back.
+    harness.get_by_label("Go to Pt-1").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("ready").selected, Some(1));
+    harness.key_press(egui::Key::Delete);
+    harness.run_steps(3);
+    let names = |h: &Harness<'_, Workbench>| -> Vec<String> {
+        h.state().ready().expect("ready").document.pairs.iter().map(|p| p.name.clone()).collect()
+    };
+    assert_eq!(names(&harness), ["Pt-0", "Pt-2", "Pt-3", "Pt-4"]);
+    assert_eq!(harness.state().ready().expect("ready").fitted_pairs(), 4);
+    harness.key_press_modifiers(egui::Modifiers::COMMAND, egui::Key::Z);
+    harness.run_steps(3);
+    assert_eq!(names(&harness), ["Pt-0", "Pt-1", "Pt-2", "Pt-3", "Pt-4"]);
+    // With nothing selected, Delete deletes nothing.
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("ready").selected, None);
+    harness.key_press(egui::Key::Delete);
+    harness.run_steps(2);
+    assert_eq!(names(&harness).len(), 5);
+    // R puts a turned camera back.
+    harness.state_mut().ready_mut().expect("ready").camera.azimuth_rad = 2.0;
+    harness.key_press(egui::Key::R);
+    harness.run_steps(2);
+    assert!((harness.state().ready().expect("ready").camera.azimuth_rad - 0.6).abs() < 1e-6);
+    // A single key typed into a text field stays there: R into a pair's name does not reset the camera.
+    harness.state_mut().ready_mut().expect("ready").camera.azimuth_rad = 2.0;
+    harness.get_by_label("Name of pair 1").click();
+    harness.run_steps(2);
+    harness.key_press(egui::Key::R);
+    harness.run_steps(2);
+    assert!((harness.state().ready().expect("ready").camera.azimuth_rad - 2.0).abs() < 1e-6, "R reset the camera");
+}
+
+#[test]
+fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    let rect = harness.get_by_label("3-D view").rect();
+    let ready = harness.state().ready().expect("loaded");
+    // Where pair 3's fixed point is drawn: the camera's projection onto the view's rect.
+    let q = ready.document.pairs[3].fixed.expect("fixed").coords();
+    let clip = ready.camera.clip_from_ref(rect.width() / rect.height())
+        * warpbench_gpu::glam::Vec3::from_array(q.map(|v| v as f32)).extend(1.0);
+    let (x, y) = (clip.x / clip.w, clip.y / clip.w);
+    let start = rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height());
+    let end = start + egui::vec2(0.0, 25.0);
+    let camera_before = ready.camera.azimuth_rad;
+    let button = |pos, pressed| egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Primary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    };
+    harness.input_mut().events.push(egui::Event::PointerMoved(start));
+    harness.input_mut().events.push(button(start, true));
+    harness.step();
+    for t in [0.3f32, 0.6, 1.0] {
+        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
+        harness.step();
+    }
+    let during = harness.state().ready().expect("loaded");
+    assert_eq!(during.drag().map(|d| (d.pair, d.end)), Some((3, warpbench_app::gui::End::Fixed)), "grabbed");
+    harness.input_mut().events.push(button(end, false));
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    assert!((ready.camera.azimuth_rad - camera_before).abs() < 1e-6, "a landmark drag does not orbit the camera");
+    let moved = ready.document.pairs[3].fixed.expect("fixed").coords();
+    // The pointer went down the screen: the point moved, to the visible surface (picked on the fixed volume), and
+    // stays inside the head.
+    let d: f64 = (0..3).map(|a| (moved[a] - q[a]).powi(2)).sum::<f64>().sqrt();
+    assert!(d > 5.0, "moved {d} mm: {q:?} -> {moved:?}");
+    assert!(moved[2] < q[2], "down the screen is inferior here: {q:?} -> {moved:?}");
+    let inside = |c: [f64; 3]| c[0].abs() < 91.0 && (-91.0..127.0).contains(&c[1]) && (-73.0..109.0).contains(&c[2]);
+    assert!(inside(moved), "{moved:?}");
+    assert_eq!(ready.fitted_pairs(), 5);
+
+    // Orbit away, then Reset camera brings the starting view back.
+    harness.state_mut().ready_mut().expect("loaded").camera.azimuth_rad = 2.5;
+    harness.get_by_label("Reset camera").click();
+    harness.run_steps(2);
+    let camera = harness.state().ready().expect("loaded").camera;
+    assert!((camera.azimuth_rad - 0.6).abs() < 1e-6 && (camera.elevation_rad - 0.25).abs() < 1e-6, "{camera:?}");
+}
+
+#[test]
+fn an_oblique_slice_turns_about_the_crosshair() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
+    let straight = harness.state().ready().expect("loaded").slice_plane(0);
+    harness.get_by_label("Axial oblique").click();
+    harness.run_steps(2);
+    harness.get_by_label("Axial tilt");
+    harness.state_mut().ready_mut().expect("loaded").document.settings.oblique[0].tilt_deg = 30.0;
+    harness.state_mut().ready_mut().expect("loaded").invalidate();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    let turned = ready.slice_plane(0);
+    let dot: f64 = (0..3).map(|i| straight.normal_ref().expect("n")[i] * turned.normal_ref().expect("n")[i]).sum();
+    assert!((dot.abs() - 30f64.to_radians().cos()).abs() < 1e-6, "normals at {} deg", dot.abs().acos().to_degrees());
+    // It turns about the crosshair: the crosshair point lies on the turned plane.
+    let s = ready.slice_mm;
+    let d = turned.pixel_from_ref([s[2], s[1], s[0]]).expect("plane")[2];
+    assert!(d.abs() < 1e-6, "crosshair {d} mm off the plane");
+    assert_eq!(turned.size, straight.size);
+}
