@@ -536,6 +536,21 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     );
     assert!(shown.len() > 1000 && with_brush < 0.25 * without, "{with_brush} / {without}");
 
+    // field: the same brushed pull-back, with the inverse's consistency in its report.
+    let field_out = dir.path().join("field.nii.gz");
+    let run = warpbench(
+        &[
+            &["field", "--fixed", s(&mri), "--moving", s(&mri), "--quiet", "--json"][..],
+            &session[..],
+            &["--out", s(&field_out)],
+        ]
+        .concat(),
+    );
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("field JSON");
+    assert!(report["inverse_consistency_mm"]["max_mm"].as_f64().is_some_and(|m| m < 0.05), "{report}");
+    assert!(report["method"].as_str().is_some_and(|m| m.contains("+ brush (1 stroke)")), "{report}");
+
     let run = warpbench(
         &[
             &["transform", "--fixed", s(&mri), "--moving", s(&mri)][..],
