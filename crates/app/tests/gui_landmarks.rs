@@ -8,7 +8,7 @@ mod window;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use window::{click_at, no_adapter, open_mri_pair, wait_until_rendered};
+use window::{button, click_at, no_adapter, open_mri_pair, press_and_drag, wait_until_rendered};
 
 use eframe::egui;
 use egui_kittest::Harness;
@@ -148,19 +148,7 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
     assert!(px[2].abs() < 1.0, "the axial slice goes through the pair: {px:?}");
     let start = rect.min + egui::vec2((px[0] as f32 + 0.5) * scale, (px[1] as f32 + 0.5) * scale);
     let end = start + egui::vec2(30.0, 0.0);
-    let button = |pos, pressed| egui::Event::PointerButton {
-        pos,
-        button: egui::PointerButton::Primary,
-        pressed,
-        modifiers: egui::Modifiers::default(),
-    };
-    harness.input_mut().events.push(egui::Event::PointerMoved(start));
-    harness.input_mut().events.push(button(start, true));
-    harness.step();
-    for t in [0.25f32, 0.5, 0.75, 1.0] {
-        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
-        harness.step();
-    }
+    press_and_drag(&mut harness, start, end, &[0.25, 0.5, 0.75, 1.0]);
     let during = harness.state().ready().expect("loaded");
     assert!(during.drag().is_some(), "the press grabbed the glyph");
     harness.input_mut().events.push(button(end, false));
@@ -251,19 +239,7 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     let start = rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height());
     let end = start + egui::vec2(0.0, 25.0);
     let camera_before = ready.camera.azimuth_rad;
-    let button = |pos, pressed| egui::Event::PointerButton {
-        pos,
-        button: egui::PointerButton::Primary,
-        pressed,
-        modifiers: egui::Modifiers::default(),
-    };
-    harness.input_mut().events.push(egui::Event::PointerMoved(start));
-    harness.input_mut().events.push(button(start, true));
-    harness.step();
-    for t in [0.3f32, 0.6, 1.0] {
-        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
-        harness.step();
-    }
+    press_and_drag(&mut harness, start, end, &[0.3, 0.6, 1.0]);
     let during = harness.state().ready().expect("loaded");
     assert_eq!(during.drag().map(|d| (d.pair, d.end)), Some((3, warpbench_app::gui::End::Fixed)), "grabbed");
     harness.input_mut().events.push(button(end, false));

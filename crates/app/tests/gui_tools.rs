@@ -7,7 +7,7 @@ mod window;
 
 use std::time::{Duration, Instant};
 
-use window::{click_at, no_adapter, open_mri_pair, wait_until_rendered};
+use window::{button, click_at, no_adapter, open_mri_pair, press_and_drag, wait_until_rendered};
 
 use eframe::egui;
 use egui_kittest::Harness;
@@ -219,19 +219,7 @@ fn the_brush_drags_the_moving_volume_in_a_slice() {
     assert!(harness.state().ready().expect("ready").sculpting());
     let rect = harness.get_by_label("Axial slice").rect();
     let (start, end) = (rect.center(), rect.center() + egui::vec2(rect.width() * 0.08, 0.0));
-    let button = |pos, pressed| egui::Event::PointerButton {
-        pos,
-        button: egui::PointerButton::Primary,
-        pressed,
-        modifiers: egui::Modifiers::default(),
-    };
-    harness.input_mut().events.push(egui::Event::PointerMoved(start));
-    harness.input_mut().events.push(button(start, true));
-    harness.step();
-    for t in [0.25f32, 0.5, 0.75, 1.0] {
-        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
-        harness.step();
-    }
+    press_and_drag(&mut harness, start, end, &[0.25, 0.5, 0.75, 1.0]);
     assert!(harness.state().ready().expect("ready").sculpt_drag().is_some(), "a stroke is being made");
     harness.input_mut().events.push(button(end, false));
     harness.run_steps(3);

@@ -13,7 +13,7 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable};
 use warpbench_app::gui::{GuiOptions, Placing, Ready, Workbench};
 use warpbench_gpu::PickTarget;
-use window::{button, click_at, no_adapter, wait_until_shown};
+use window::{button, click_at, no_adapter, press_and_drag, wait_until_shown};
 
 /// Moves the pointer to `pos` and lets the status bar show what is under it.
 fn hover(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
@@ -121,13 +121,7 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
     assert!(px[2].abs() < 1.0, "the axial slice goes through the pair: {px:?}");
     let start = rect.min + egui::vec2((px[0] as f32 + 0.5) * scale, (px[1] as f32 + 0.5) * scale);
     let end = start + egui::vec2(-25.0, 12.0);
-    harness.input_mut().events.push(egui::Event::PointerMoved(start));
-    harness.input_mut().events.push(button(start, true));
-    harness.step();
-    for t in [0.25f32, 0.5, 0.75, 1.0] {
-        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * t));
-        harness.step();
-    }
+    press_and_drag(&mut harness, start, end, &[0.25, 0.5, 0.75, 1.0]);
     assert!(ready(&harness).drag().is_some(), "the press grabbed the glyph");
     harness.step();
     let (fixed_shown, _) = shown(&harness);

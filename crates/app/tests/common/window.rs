@@ -60,6 +60,18 @@ pub fn button(pos: egui::Pos2, pressed: bool) -> egui::Event {
     }
 }
 
+/// Presses the primary button at `start` and moves the pointer towards `end` through the fractions `steps` of the
+/// way, a frame each, leaving the button held (release it with [`button`]`(end, false)`).
+pub fn press_and_drag(harness: &mut Harness<'_, Workbench>, start: egui::Pos2, end: egui::Pos2, steps: &[f32]) {
+    harness.input_mut().events.push(egui::Event::PointerMoved(start));
+    harness.input_mut().events.push(button(start, true));
+    harness.step();
+    for t in steps {
+        harness.input_mut().events.push(egui::Event::PointerMoved(start + (end - start) * *t));
+        harness.step();
+    }
+}
+
 /// A primary-button click at `pos` (window points): press, then release on the next frame.
 pub fn click_at(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
     harness.input_mut().events.push(egui::Event::PointerMoved(pos));
