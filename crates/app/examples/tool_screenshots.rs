@@ -9,6 +9,8 @@
 //! - `attention.png`: "Show the worst pair": the attention lens pulsing about the pair with the largest leave-one-out
 //!   error, taken when the pulse is near its peak. On a CPU driver a pulsing view is drawn at the interaction size.
 //! - `leafer.png`: the moving volume (the MRI, alone) opened by the leafer, 35° each way, seen from the front.
+//! - `brush.png`: the displacement brush on, one stroke of radius 40 mm at the crosshair pushing the MRI (alone) 12 mm
+//!   to the patient's left on top of the landmark warp, settled (its inverse fitted), in a window 1 500 pixels tall.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -22,6 +24,7 @@ use warpbench_app::gui::open::Side;
 use warpbench_app::gui::{Command, GuiOptions, Workbench};
 use warpbench_app::procedural::ProceduralSpec;
 use warpbench_app::settings::{Blend, ProceduralKind};
+use warpbench_solver::brush::BrushStroke;
 
 /// Steps until the views are drawn fully and the fit's diagnostics are in (or `limit` passes).
 fn settle(harness: &mut Harness<'_, Workbench>, limit: Duration) -> Result<()> {
@@ -73,6 +76,7 @@ fn main() -> Result<()> {
 
     // The attention lens about the worst pair, near its peak.
     let ready = harness.state_mut().ready_mut().context("the demo pair")?;
+    let plain_look = plain.clone();
     ready.apply(Command::SetSettings(plain));
     ready.apply(Command::ResetCamera);
     ready.apply(Command::ShowWorstPair);
@@ -101,5 +105,22 @@ fn main() -> Result<()> {
     ready.apply(Command::SetLeafer(Leafer::Open { side: Side::Moving, angle_deg: 35.0 }));
     settle(&mut harness, Duration::from_mins(10))?;
     save(&mut harness, &out, "leafer.png")?;
+
+    // The brush: one settled stroke at the crosshair.
+    let ready = harness.state_mut().ready_mut().context("the demo pair")?;
+    ready.apply(Command::SetLeafer(Leafer::Closed));
+    let mut settings = plain_look;
+    settings.blend = Blend::MovingOnly;
+    ready.apply(Command::SetSettings(settings));
+    ready.apply(Command::ResetCamera);
+    ready.apply(Command::ToggleSculpting);
+    let centre_mm = [ready.slice_mm[2], ready.slice_mm[1], ready.slice_mm[0]];
+    let stroke = BrushStroke { centre_mm, displacement_mm: [12.0, 0.0, 0.0], radius_mm: 40.0 };
+    ready.apply(Command::AddStroke(stroke));
+    ready.apply(Command::MoveStroke { stroke, settled: true });
+    // Taller, so that the side panel shows the brush's section and the accuracy section's inverse consistency.
+    harness.set_size(egui::vec2(1280.0, 1500.0));
+    settle(&mut harness, Duration::from_mins(10))?;
+    save(&mut harness, &out, "brush.png")?;
     Ok(())
 }
