@@ -21,6 +21,7 @@
 //!   closed set of fitted kinds, a [`Warp`] by delegation).
 //! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
 //! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
+//! - [`stiffness`]: the TPS stiffness chosen automatically, by the leave-one-out error.
 //! - [`synthetic`]: seeded known warps for accuracy tests.
 
 pub mod brush;
@@ -35,6 +36,7 @@ pub mod linear;
 pub mod method;
 pub mod pairs;
 pub mod spaces;
+pub mod stiffness;
 pub mod synthetic;
 pub mod tps;
 pub mod tps_drag;
