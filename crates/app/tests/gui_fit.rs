@@ -277,3 +277,80 @@ fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
     let differ = shown.iter().zip(&once).filter(|(a, b)| a != b).count();
     assert_eq!(differ, 0, "the refined view differs from the one-pass view in {differ} channels");
 }
+
+/// "Auto" by the stiffness slider: with five pairs, whose refits are affine whatever λ is, it stays at 0; with twenty
+/// noisy pairs it sets the λ the solver's
+/// `choose_stiffness` gives for the document's pairs (called here on the points as the table lists them), shows its
+/// figures while they hold, and is one undo step.
+#[test]
+fn auto_stiffness_sets_the_leave_one_out_choice() {
+    use warpbench_io::geometry::Point3;
+    use warpbench_solver::spaces::{Fixed, Moving};
+
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 900.0));
+    harness.get_by_label("Auto").click();
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    let choice = ready.current_stiffness_choice().expect("the choice");
+    assert!(ready.document.settings.stiffness == 0.0 && choice.lambda == 0.0, "{choice:?}");
+    drop(harness);
+
+    // Twenty pairs: a smooth deformation plus about 1.5 mm of deterministic "localisation noise".
+    let noisy: Vec<([f64; 3], [f64; 3])> = (0..20)
+        .map(|i| {
+            let f = f64::from(i);
+            let q =
+                [f64::from((i * 37) % 120) - 60.0, f64::from((i * 53) % 150) - 90.0, f64::from((i * 71) % 120) - 50.0];
+            let p = [
+                q[0] + 3.0 * (q[1] / 40.0).sin() + 1.5 * (1.7 * f).sin(),
+                q[1] + 2.0 * (q[0] / 50.0).cos() + 1.5 * (2.3 * f).cos(),
+                q[2] + 1.5 + 1.5 * (3.1 * f).sin(),
+            ];
+            (p, q)
+        })
+        .collect();
+    let csv = dir.path().join("noisy.csv");
+    common::write_pairs_csv(&csv, &noisy);
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        landmarks: Some(LandmarkSource::Pairs(csv)),
+        autosave: Some(dir.path().join("autosave2.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    harness.get_by_label("Auto").click();
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    let fixed: Vec<Point3<Fixed>> =
+        ready.document.pairs.iter().map(|p| Point3::from_array(p.fixed.expect("fixed").coords())).collect();
+    let moving: Vec<Point3<Moving>> =
+        ready.document.pairs.iter().map(|p| Point3::from_array(p.moving.expect("moving").coords())).collect();
+    let expected = warpbench_solver::stiffness::choose_stiffness(&fixed, &moving).expect("a choice");
+    eprintln!(
+        "auto stiffness {:.3}: LOO RMS {:.3} mm, {:.3} at 0",
+        expected.lambda, expected.loo_rms_mm, expected.loo_rms_interpolating_mm
+    );
+    assert!(expected.lambda > 0.0 && expected.loo_rms_mm < expected.loo_rms_interpolating_mm, "{expected:?}");
+    assert!(
+        ready.document.settings.stiffness.to_bits() == expected.lambda.to_bits(),
+        "{}",
+        ready.document.settings.stiffness
+    );
+    assert_eq!(ready.current_stiffness_choice(), Some(&expected));
+    assert!(ready.fit.error.is_none() && ready.fitted_pairs() == 20, "{:?}", ready.fit.error);
+    harness.get_by_label_contains("Auto: leave-one-out RMS");
+
+    harness.get_by_label("Undo").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert!(ready.document.settings.stiffness == 0.0, "undo gives lambda 0 back");
+    assert!(ready.current_stiffness_choice().is_none());
+}

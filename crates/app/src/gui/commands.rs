@@ -85,6 +85,9 @@ pub enum Command {
     },
     /// Remove every brush stroke.
     ClearBrush,
+    /// Set the TPS stiffness to the λ that minimises the leave-one-out error of the pairs in the fit
+    /// ([`warpbench_solver::stiffness`]).
+    AutoStiffness,
 }
 
 /// What a settings change costs.
@@ -247,6 +250,22 @@ impl Ready {
                     self.refit_soon();
                 }
             }
+            Command::AutoStiffness => self.auto_stiffness(),
+        }
+    }
+
+    /// Chooses the stiffness by the leave-one-out error of the pull-back's pairs (fixed → moving, the errors the
+    /// table shows), sets it and fits again; a set of pairs it cannot judge is reported in the status bar.
+    fn auto_stiffness(&mut self) {
+        let (_, pairs) = self.fit_pairs();
+        match warpbench_solver::stiffness::choose_stiffness(&pairs.0, &pairs.1) {
+            Ok(choice) => {
+                self.document.settings.stiffness = choice.lambda;
+                self.fit.stiffness_choice = Some(super::StiffnessChoiceOn { choice, pairs });
+                self.notice = None;
+                self.refit_soon();
+            }
+            Err(e) => self.notice = Some(format!("Auto stiffness: {e}")),
         }
     }
 

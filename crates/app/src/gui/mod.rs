@@ -50,6 +50,7 @@ use eframe::egui;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, SlicePlane, pair_glyphs};
 use warpbench_io::Volume;
+use warpbench_io::geometry::Point3;
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 use warpbench_solver::warp::Warp;
 
@@ -120,7 +121,21 @@ pub struct FitState {
     pub brush: Option<warpbench_solver::brush::Brush>,
     /// How well the brush's inverse, fitted by scattered-data interpolation when its last stroke settled, undoes it.
     pub brush_consistency: Option<crate::warp::InverseConsistency>,
+    /// The last automatic stiffness ([`Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider
+    /// while the stiffness and the pairs are still those.
+    pub stiffness_choice: Option<StiffnessChoiceOn>,
 }
+
+/// A stiffness chosen by the leave-one-out error ([`warpbench_solver::stiffness`]) and the pairs (fixed, moving)
+/// it was chosen on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StiffnessChoiceOn {
+    pub choice: warpbench_solver::stiffness::StiffnessChoice,
+    pub pairs: FitPoints,
+}
+
+/// The fixed and the moving points of the pairs a fit uses, in the same order.
+pub type FitPoints = (Vec<Point3<Fixed>>, Vec<Point3<Moving>>);
 
 /// The side panel's file and export section.
 #[derive(Debug, Default)]
@@ -259,6 +274,36 @@ impl Ready {
         result
     }
 
+    /// The pairs a fit uses (active, both points placed): their rows, and their fixed and moving points.
+    #[must_use]
+    pub fn fit_pairs(&self) -> (Vec<usize>, FitPoints) {
+        let used: Vec<usize> = (0..self.document.pairs.len())
+            .filter(|&i| {
+                let p = &self.document.pairs[i];
+                p.active && p.moving.is_some() && p.fixed.is_some()
+            })
+            .collect();
+        let points = used
+            .iter()
+            .filter_map(|&i| {
+                let p = &self.document.pairs[i];
+                Some((as_fixed(p.fixed?), as_moving(p.moving?)))
+            })
+            .unzip();
+        (used, points)
+    }
+
+    /// The automatic stiffness shown by the slider: the last choice, while the stiffness and the pairs are the ones
+    /// it was made for.
+    #[must_use]
+    pub fn current_stiffness_choice(&self) -> Option<&warpbench_solver::stiffness::StiffnessChoice> {
+        let c = self.fit.stiffness_choice.as_ref()?;
+        let current = c.choice.lambda.to_bits() == self.document.settings.stiffness.to_bits()
+            && self.document.settings.method == crate::settings::MethodKind::Tps
+            && self.fit_pairs().1 == c.pairs;
+        current.then_some(&c.choice)
+    }
+
     fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
         // Whatever a running job finds describes the document before this change.
@@ -269,19 +314,7 @@ impl Ready {
         let method = self.document.settings.method();
         let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
         let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
-        let used: Vec<usize> = (0..self.document.pairs.len())
-            .filter(|&i| {
-                let p = &self.document.pairs[i];
-                p.active && p.moving.is_some() && p.fixed.is_some()
-            })
-            .collect();
-        let (moving, fixed): (Vec<_>, Vec<_>) = used
-            .iter()
-            .filter_map(|&i| {
-                let p = &self.document.pairs[i];
-                Some((as_moving(p.moving?), as_fixed(p.fixed?)))
-            })
-            .unzip();
+        let (used, (fixed, moving)) = self.fit_pairs();
         if diagnostics {
             self.fit.pair_errors = vec![None; self.document.pairs.len()];
             self.fit.jacobian = None;

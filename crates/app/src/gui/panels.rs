@@ -33,9 +33,18 @@ pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
     *o != before
 }
 
-/// Blend, shading, sample rate, warp method and picking; the settings as changed, if they were.
-pub fn settings_ui(ui: &mut egui::Ui, settings: &ViewSettings) -> Option<Command> {
+/// The stiffness slider's largest λ, mm: the largest the automatic choice tries.
+pub const STIFFNESS_MAX: f64 = warpbench_solver::stiffness::LAMBDA_MAX;
+
+/// Blend, shading, sample rate, warp method (with "Auto" by the stiffness slider, and the last automatic choice
+/// while it holds) and picking; the settings as changed, if they were, or [`Command::AutoStiffness`].
+pub fn settings_ui(
+    ui: &mut egui::Ui,
+    settings: &ViewSettings,
+    stiffness_choice: Option<&warpbench_solver::stiffness::StiffnessChoice>,
+) -> Option<Command> {
     let s = &mut settings.clone();
+    let mut auto = false;
     ui.label("View");
     choice_ui(ui, "Blend mode", &mut s.blend, Blend::ALL);
     match s.blend {
@@ -55,7 +64,21 @@ pub fn settings_ui(ui: &mut egui::Ui, settings: &ViewSettings) -> Option<Command
     choice_ui(ui, "Method", &mut s.method, MethodKind::ALL);
     match s.method {
         MethodKind::Tps => {
-            ui.add(egui::Slider::new(&mut s.stiffness, 0.0..=50.0).text("Stiffness (lambda)"));
+            ui.horizontal(|ui| {
+                let slider = egui::Slider::new(&mut s.stiffness, 0.0..=STIFFNESS_MAX)
+                    .logarithmic(true)
+                    .smallest_positive(0.01)
+                    .text("Stiffness (lambda)");
+                ui.add(slider);
+                let button = ui.button("Auto").on_hover_text("choose lambda by the pairs' leave-one-out error");
+                auto = button.clicked();
+            });
+            if let Some(c) = stiffness_choice {
+                ui.label(format!(
+                    "Auto: leave-one-out RMS {:.2} mm ({:.2} mm at lambda 0) over {} pairs",
+                    c.loo_rms_mm, c.loo_rms_interpolating_mm, c.pairs
+                ));
+            }
         }
         MethodKind::BSpline => {
             ui.add(egui::Slider::new(&mut s.bspline_levels, 1..=6).text("B-spline levels"));
@@ -71,6 +94,9 @@ pub fn settings_ui(ui: &mut egui::Ui, settings: &ViewSettings) -> Option<Command
         s.pick_threshold = s.pick_probe.default_threshold();
     }
     ui.add(egui::Slider::new(&mut s.pick_threshold, s.pick_probe.threshold_range()).text("Pick threshold"));
+    if auto {
+        return Some(Command::AutoStiffness);
+    }
     (s != settings).then(|| Command::SetSettings(s.clone()))
 }
 
