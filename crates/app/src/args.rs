@@ -6,7 +6,7 @@ use crate::exit::Failure;
 use crate::inputs::{LandmarkSource, PairInputs};
 use warpbench_solver::brush::BrushStroke;
 
-use crate::settings::MethodKind;
+use crate::settings::{MethodKind, Stiffness};
 
 /// The landmarks and the warp method, shared by `warp`, `field` and `render`.
 #[derive(Debug, clap::Args)]
@@ -27,9 +27,10 @@ pub struct PairArgs {
     /// The warp.
     #[arg(long, value_enum, default_value_t)]
     pub method: MethodKind,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
-    #[arg(long, default_value_t = 0.0)]
-    pub stiffness: f64,
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks), or auto: the λ that minimises the pairs' leave-one-out
+    /// error.
+    #[arg(long, default_value_t)]
+    pub stiffness: Stiffness,
     /// Hierarchical B-spline levels.
     #[arg(long)]
     pub levels: Option<usize>,
@@ -75,7 +76,7 @@ impl PairArgs {
         let s = &session.document.settings;
         Ok(PairWarp {
             method: s.method,
-            stiffness: s.stiffness,
+            stiffness: Stiffness::Value(s.stiffness),
             levels: Some(s.bspline_levels),
             brush: session.document.brush,
         })
@@ -109,7 +110,7 @@ impl PairArgs {
 #[derive(Clone, Debug, PartialEq)]
 pub struct PairWarp {
     pub method: MethodKind,
-    pub stiffness: f64,
+    pub stiffness: Stiffness,
     pub levels: Option<usize>,
     pub brush: Vec<BrushStroke>,
 }

@@ -24,7 +24,7 @@ use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 
 use crate::progress::Bar;
-use crate::settings::MethodKind;
+use crate::settings::{MethodKind, Stiffness};
 
 /// Loads a volume (any format `io` reads), with a progress bar unless `quiet`.
 pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
@@ -119,7 +119,7 @@ pub struct PairInputs {
     pub moving: PathBuf,
     pub landmarks: LandmarkSource,
     pub method: MethodKind,
-    pub stiffness: f64,
+    pub stiffness: Stiffness,
     pub levels: Option<usize>,
     /// The output grid, when not the fixed volume's.
     pub reference: Option<PathBuf>,
@@ -145,9 +145,9 @@ impl PairInputs {
         paths
     }
 
-    /// The method the options name, checked ([`method_from_args`]).
+    /// The method the options name, checked ([`resolve_method`]; `--stiffness auto` reads the pairs).
     pub fn method(&self) -> Result<Method> {
-        method_from_args(self.method, self.stiffness, self.levels)
+        resolve_method(self.method, self.stiffness, self.levels, Some(&self.landmarks))
     }
 
     /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.
@@ -277,6 +277,36 @@ pub fn check_pairs(
         ));
     }
     Ok(out)
+}
+
+/// `--method` with `--stiffness` and `--levels` as a [`Method`]; `--stiffness auto` chooses λ by the leave-one-out
+/// error of the pull-back's pairs (fixed → moving; the active pairs with both points of `landmarks`), so the method
+/// names the λ chosen (`tps(λ=…)`) wherever it is reported.
+pub fn resolve_method(
+    kind: MethodKind,
+    stiffness: Stiffness,
+    levels: Option<usize>,
+    landmarks: Option<&LandmarkSource>,
+) -> Result<Method> {
+    let lambda = match stiffness {
+        Stiffness::Value(v) => v,
+        Stiffness::Auto => {
+            if kind != MethodKind::Tps {
+                return Err(anyhow!("--stiffness auto chooses the TPS's λ: it needs --method tps, not {kind}"));
+            }
+            let source = landmarks.ok_or_else(|| anyhow!("--stiffness auto needs landmark pairs to choose from"))?;
+            let pairs = source.read()?;
+            let (fixed, moving): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) = pairs
+                .iter()
+                .filter(|p| p.active)
+                .filter_map(|p| Some((as_fixed(p.fixed?), as_moving(p.moving?))))
+                .unzip();
+            warpbench_solver::stiffness::choose_stiffness(&fixed, &moving)
+                .map_err(|e| anyhow!("{}: --stiffness auto: {e}", source.describe()))?
+                .lambda
+        }
+    };
+    method_from_args(kind, lambda, levels)
 }
 
 /// `--method` (with `--stiffness` for TPS and `--levels` for the hierarchical B-spline) as a [`Method`].

@@ -104,7 +104,7 @@ pub struct RenderOptions {
     /// A pull-back displacement field to show the moving volume through, instead of landmarks.
     pub field: Option<PathBuf>,
     pub method: settings::MethodKind,
-    pub stiffness: f64,
+    pub stiffness: crate::settings::Stiffness,
     pub levels: Option<usize>,
     /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
     pub brush: Vec<warpbench_solver::brush::BrushStroke>,
@@ -220,7 +220,8 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     };
 
     // The warp's control texture, and the glyphs when there are landmarks.
-    let method = inputs::method_from_args(opts.method, opts.stiffness, opts.levels).map_err(Failure::BadInput)?;
+    let method = inputs::resolve_method(opts.method, opts.stiffness, opts.levels, opts.landmarks.as_ref())
+        .map_err(Failure::BadInput)?;
     let mut sampled: Option<(ControlGrid, ControlTexture)> = None;
     if let Some(field) = &field {
         sampled = Some(scene::control_texture(field, fixed_box, opts.grid).map_err(Failure::BadInput)?);

@@ -154,6 +154,43 @@ choice! {
     }
 }
 
+/// `--stiffness`: the TPS's λ (≥ 0; 0 interpolates), or `auto`, the λ that minimises the pairs' leave-one-out error
+/// ([`warpbench_solver::stiffness`]), chosen once the pairs are read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Stiffness {
+    Value(f64),
+    Auto,
+}
+
+impl Default for Stiffness {
+    fn default() -> Self {
+        Self::Value(0.0)
+    }
+}
+
+impl fmt::Display for Stiffness {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Value(v) => write!(f, "{v}"),
+            Self::Auto => write!(f, "auto"),
+        }
+    }
+}
+
+impl FromStr for Stiffness {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if s.trim().eq_ignore_ascii_case("auto") {
+            return Ok(Self::Auto);
+        }
+        match s.trim().parse::<f64>() {
+            Ok(v) if v.is_finite() && v >= 0.0 => Ok(Self::Value(v)),
+            _ => Err(format!("{s:?} is not a stiffness: give a number ≥ 0, or auto")),
+        }
+    }
+}
+
 impl MethodKind {
     /// The method of this kind with its parameters: the TPS stiffness (λ), the B-spline's levels.
     #[must_use]

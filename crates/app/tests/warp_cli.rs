@@ -600,3 +600,54 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("brush strokes have no exact ITK transform"));
 }
+
+/// `--stiffness auto`: the λ that minimises the pairs' leave-one-out error, the same as the solver's
+/// `choose_stiffness` on the file's pairs (fixed → moving, the pull-back), named in the report's method; refused with
+/// another method or a stiffness that is not a number ≥ 0.
+#[test]
+fn stiffness_auto_chooses_by_leave_one_out() {
+    use warpbench_io::geometry::Point3;
+    use warpbench_solver::spaces::{Fixed, Moving};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    // Twenty pairs: a smooth deformation plus about 1.5 mm of deterministic "localisation noise".
+    let noisy: Vec<([f64; 3], [f64; 3])> = (0..20)
+        .map(|i| {
+            let f = f64::from(i);
+            let q =
+                [f64::from((i * 37) % 120) - 60.0, f64::from((i * 53) % 150) - 90.0, f64::from((i * 71) % 120) - 50.0];
+            let p = [
+                q[0] + 3.0 * (q[1] / 40.0).sin() + 1.5 * (1.7 * f).sin(),
+                q[1] + 2.0 * (q[0] / 50.0).cos() + 1.5 * (2.3 * f).cos(),
+                q[2] + 1.5 + 1.5 * (3.1 * f).sin(),
+            ];
+            (p, q)
+        })
+        .collect();
+    let csv = dir.path().join("noisy.csv");
+    write_pairs(&csv, &noisy);
+    let pairs = read_bigwarp_csv(&csv).expect("pairs");
+    let fixed: Vec<Point3<Fixed>> = pairs.iter().map(|p| Point3::from_array(p.fixed.expect("q").coords())).collect();
+    let moving: Vec<Point3<Moving>> = pairs.iter().map(|p| Point3::from_array(p.moving.expect("p").coords())).collect();
+    let expected = warpbench_solver::stiffness::choose_stiffness(&fixed, &moving).expect("a choice");
+    assert!(expected.lambda > 0.0, "{expected:?}");
+
+    let out = dir.path().join("auto.nii");
+    let base = ["warp", "--fixed", s(&mri), "--moving", s(&mri), "--landmarks", s(&csv), "--quiet"];
+    let run =
+        warpbench(&[&base[..], &["--stiffness", "auto", "--backend", "cpu", "--json", "--out", s(&out)]].concat());
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("warp JSON");
+    assert_eq!(report["method"].as_str(), Some(format!("tps(λ={})", expected.lambda).as_str()), "{report}");
+
+    let never = dir.path().join("never.nii");
+    let refused = warpbench(&[&base[..], &["--stiffness", "auto", "--method", "affine", "--out", s(&never)]].concat());
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("--stiffness auto chooses the TPS's λ"));
+    for bad in ["--stiffness=-1", "--stiffness=soft"] {
+        let refused = warpbench(&[&base[..], &[bad, "--out", s(&never)]].concat());
+        assert_eq!(refused.status.code(), Some(2), "{bad}");
+        assert!(String::from_utf8_lossy(&refused.stderr).contains("not a stiffness"), "{bad}");
+    }
+}
