@@ -354,3 +354,66 @@ fn auto_stiffness_sets_the_leave_one_out_choice() {
     assert!(ready.document.settings.stiffness == 0.0, "undo gives lambda 0 back");
     assert!(ready.current_stiffness_choice().is_none());
 }
+
+/// The status bar's read-out under the pointer in a slice: |u(x) − x| of the two points it shows, det ∇u against
+/// central differences of the shown pull-back (h = 0.05 mm), and the nearest pair found by brute force with its
+/// leave-one-out error, all in the label the bar shows.
+#[test]
+fn the_status_bar_reads_out_the_warp_under_the_pointer() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    let start = Instant::now();
+    while harness.state().ready().expect("loaded").diagnostics_pending() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(1), "the diagnostics did not come");
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    let rect = harness.get_by_label("Axial slice").rect();
+    let pos = rect.center() + egui::vec2(0.1 * rect.width(), -0.05 * rect.height());
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    let c = ready.cursor.expect("the pointer is over the slice");
+    let d: f64 = (0..3).map(|a| (c.moving_lps[a] - c.fixed_lps[a]).powi(2)).sum::<f64>().sqrt();
+    assert!((c.displacement_mm() - d).abs() < 1e-12 && d > 0.5, "{d}");
+
+    let h = 0.05;
+    let mut j = [[0.0; 3]; 3];
+    for a in 0..3 {
+        let (mut plus, mut minus) = (c.fixed_lps, c.fixed_lps);
+        plus[a] += h;
+        minus[a] -= h;
+        let (up, down) = (ready.moving_shown_at(plus), ready.moving_shown_at(minus));
+        for (r, row) in j.iter_mut().enumerate() {
+            row[a] = (up[r] - down[r]) / (2.0 * h);
+        }
+    }
+    let det = j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1]) - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0])
+        + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0]);
+    let shown = c.det_jacobian.expect("a warp is fitted");
+    eprintln!("det {shown:.6} against central differences {det:.6}");
+    assert!((shown - det).abs() < 1e-4, "{shown} vs {det}");
+
+    let (index, distance) = ready
+        .document
+        .pairs
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let q = p.fixed.expect("fixed").coords();
+            (i, (0..3).map(|a| (q[a] - c.fixed_lps[a]).powi(2)).sum::<f64>().sqrt())
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .expect("pairs");
+    let nearest = c.nearest.expect("a nearest pair");
+    assert_eq!(nearest.index, index);
+    assert!((nearest.distance_mm - distance).abs() < 1e-9);
+    let loo = ready.fit.pair_errors[index].and_then(|e| e.leave_one_out_mm);
+    assert!(loo.is_some() && nearest.leave_one_out_mm == loo, "{nearest:?} vs {loo:?}");
+    let label = c.readout(&ready.document.pairs[index].name);
+    assert!(label.contains("det ") && label.contains("leave-one-out"), "{label}");
+    harness.get_by_label(&label);
+}

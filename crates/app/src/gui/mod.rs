@@ -610,10 +610,39 @@ impl Ready {
         }
     }
 
-    /// What the status bar shows for ref point `x_ref` under the pointer.
+    /// What the status bar shows for ref point `x_ref` under the pointer: the two points, det ∇u there and the nearest
+    /// pair.
     #[must_use]
     pub fn cursor_at(&self, x_ref: [f64; 3]) -> placement::Cursor {
-        placement::Cursor { fixed_lps: x_ref, moving_lps: self.moving_shown_at(x_ref) }
+        placement::Cursor {
+            fixed_lps: x_ref,
+            moving_lps: self.moving_shown_at(x_ref),
+            det_jacobian: self.pullback_det_at(x_ref),
+            nearest: self.nearest_pair(x_ref),
+        }
+    }
+
+    /// det ∇u at `x_ref` for the pull-back shown, u ∘ b⁻¹ with a brush: det ∇u(b⁻¹(x)) / det ∇b(b⁻¹(x)).
+    fn pullback_det_at(&self, x_ref: [f64; 3]) -> Option<f64> {
+        let f = self.fit.fitted.as_ref()?;
+        let Some(b) = &self.fit.brush else { return Some(f.pullback.jacobian_raw(x_ref).determinant()) };
+        let y = b.invert_point(x_ref);
+        Some(f.pullback.jacobian_raw(y).determinant() / b.jacobian_raw(y).determinant())
+    }
+
+    /// The pair whose fixed point is nearest `x_ref`, with its leave-one-out error.
+    fn nearest_pair(&self, x_ref: [f64; 3]) -> Option<placement::NearestPair> {
+        let distance =
+            |q: [f64; 3]| ((q[0] - x_ref[0]).powi(2) + (q[1] - x_ref[1]).powi(2) + (q[2] - x_ref[2]).powi(2)).sqrt();
+        let (index, distance_mm) = self
+            .document
+            .pairs
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| Some((i, distance(p.fixed?.coords()))))
+            .min_by(|a, b| a.1.total_cmp(&b.1))?;
+        let leave_one_out_mm = self.fit.pair_errors.get(index).copied().flatten().and_then(|e| e.leave_one_out_mm);
+        Some(placement::NearestPair { index, distance_mm, leave_one_out_mm })
     }
 }
 

@@ -20,6 +20,46 @@ use super::End;
 pub struct Cursor {
     pub fixed_lps: [f64; 3],
     pub moving_lps: [f64; 3],
+    /// det ∇u at the fixed point, u the pull-back shown (the brush's inverse included); `None` without a warp.
+    pub det_jacobian: Option<f64>,
+    /// The pair whose fixed point is nearest the fixed point, if any pair has one.
+    pub nearest: Option<NearestPair>,
+}
+
+/// The pair nearest the pointer ([`Cursor::nearest`]): its row, how far its fixed point is, and its leave-one-out
+/// error (how much the warp there leans on it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NearestPair {
+    /// 0-based row of the table.
+    pub index: usize,
+    pub distance_mm: f64,
+    pub leave_one_out_mm: Option<f64>,
+}
+
+impl Cursor {
+    /// |u(x) − x|: how far the warp moves the point under the pointer, mm.
+    #[must_use]
+    pub fn displacement_mm(&self) -> f64 {
+        let d: [f64; 3] = std::array::from_fn(|a| self.moving_lps[a] - self.fixed_lps[a]);
+        (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+    }
+
+    /// The status bar's read-out: the displacement, det ∇u and the nearest pair (named `nearest_name`).
+    #[must_use]
+    pub fn readout(&self, nearest_name: &str) -> String {
+        use std::fmt::Write as _;
+        let mut out = format!("|u(x) - x| {:.2} mm", self.displacement_mm());
+        if let Some(det) = self.det_jacobian {
+            let _ = write!(out, ", det {det:.3}");
+        }
+        if let Some(n) = self.nearest {
+            let _ = write!(out, ", nearest pair {nearest_name} {:.1} mm away", n.distance_mm);
+            if let Some(loo) = n.leave_one_out_mm {
+                let _ = write!(out, " (leave-one-out {loo:.2} mm)");
+            }
+        }
+        out
+    }
 }
 
 impl Cursor {

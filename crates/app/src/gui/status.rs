@@ -1,5 +1,5 @@
 //! The status bar: the GPU, the last frame's time and the frame rate, the refinement of the 3-D view, the point
-//! under the pointer, why a point was refused, folding, and what the warp is fitted on or why it is off.
+//! under the pointer with the warp's displacement and Jacobian there and the nearest pair, why a point was refused, folding, and what the warp is fitted on or why it is off.
 
 use eframe::egui;
 
@@ -36,6 +36,12 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                     "cursor LPS fixed ({l:.1}, {p:.1}, {s:.1}) mm, moving ({ml:.1}, {mp:.1}, {ms:.1}) mm"
                 ))
                 .on_hover_text("The fixed point under the pointer, and the moving point the warp shows there");
+                let name = c.nearest.and_then(|n| ready.document.pairs.get(n.index)).map_or("", |p| p.name.as_str());
+                let readout = c.readout(name);
+                ui.label(readout).on_hover_text(
+                    "How far the warp moves this point, det of its Jacobian (below 0 it folds, below 1 it shrinks), and \
+                     the nearest pair with its leave-one-out error",
+                );
                 ui.separator();
             }
             if let Some(n) = &ready.notice {
