@@ -611,20 +611,7 @@ fn stiffness_auto_chooses_by_leave_one_out() {
 
     let dir = tempfile::tempdir().expect("tempdir");
     let mri = data("nifti/avg152T1_LR_nifti.nii");
-    // Twenty pairs: a smooth deformation plus about 1.5 mm of deterministic "localisation noise".
-    let noisy: Vec<([f64; 3], [f64; 3])> = (0..20)
-        .map(|i| {
-            let f = f64::from(i);
-            let q =
-                [f64::from((i * 37) % 120) - 60.0, f64::from((i * 53) % 150) - 90.0, f64::from((i * 71) % 120) - 50.0];
-            let p = [
-                q[0] + 3.0 * (q[1] / 40.0).sin() + 1.5 * (1.7 * f).sin(),
-                q[1] + 2.0 * (q[0] / 50.0).cos() + 1.5 * (2.3 * f).cos(),
-                q[2] + 1.5 + 1.5 * (3.1 * f).sin(),
-            ];
-            (p, q)
-        })
-        .collect();
+    let noisy = common::noisy_mri_pairs();
     let csv = dir.path().join("noisy.csv");
     write_pairs(&csv, &noisy);
     let pairs = read_bigwarp_csv(&csv).expect("pairs");

@@ -6,8 +6,9 @@
 
 #![allow(clippy::approx_constant, reason = "3.14 mm is a measured TRE bound, not π")]
 
-use std::path::Path;
+mod common;
 
+use common::volume_box;
 use warpbench_io::geometry::Point3;
 use warpbench_solver::Parallelism;
 use warpbench_solver::bspline::BSplineParams;
@@ -20,19 +21,6 @@ use warpbench_solver::{Aabb, Fixed, Method, Moving, Warp};
 
 const AMPLITUDE_MM: f64 = 10.0;
 const HELD_OUT: usize = 1000;
-
-/// The box spanned by a fixture volume's voxel centres, in its LPS space.
-fn volume_box(rel: &str) -> Aabb<Moving> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(rel);
-    let v = warpbench_io::open(&path).expect("fixture volume");
-    let corners: Vec<Point3<Moving>> = (0..8)
-        .map(|c| {
-            let ijk = [0, 1, 2].map(|a| if c >> a & 1 == 1 { (v.dims[a] - 1) as f64 } else { 0.0 });
-            Point3::from_array(v.lps_from_index.apply_point(Point3::from_array(ijk)).coords())
-        })
-        .collect();
-    Aabb::around(&corners, 0.0).expect("eight corners")
-}
 
 fn methods() -> Vec<Method> {
     vec![

@@ -5,7 +5,7 @@
 
 #![allow(clippy::float_cmp, reason = "the noise levels are exact literals, and λ = 0 is the exact fallback")]
 
-use std::path::Path;
+mod common;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -20,15 +20,7 @@ const HELD_OUT: usize = 1000;
 
 /// The box of the MRI fixture's voxel centres (a head, 180 × 216 × 180 mm).
 fn head_box() -> Aabb<Moving> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii");
-    let v = warpbench_io::open(&path).expect("fixture volume");
-    let corners: Vec<Point3<Moving>> = (0..8)
-        .map(|c| {
-            let ijk = [0, 1, 2].map(|a| if c >> a & 1 == 1 { (v.dims[a] - 1) as f64 } else { 0.0 });
-            Point3::from_array(v.lps_from_index.apply_point(Point3::from_array(ijk)).coords())
-        })
-        .collect();
-    Aabb::around(&corners, 0.0).expect("eight corners")
+    common::volume_box("nifti/avg152T1_LR_nifti.nii")
 }
 
 /// `points` moved by isotropic Gaussian noise whose 3-D RMS is `fle_mm` (σ = FLE/√3 per axis; Box–Muller).
