@@ -290,3 +290,56 @@ fn an_oblique_slice_turns_about_the_crosshair() {
     assert!(d.abs() < 1e-6, "crosshair {d} mm off the plane");
     assert_eq!(turned.size, straight.size);
 }
+
+/// The views keep their place while the warp changes: adding and moving a pair refits the warp but leaves the camera
+/// and the slices where they were. With "Follow the pair being edited" ticked, the slices centre on the pair added,
+/// on the pair moved (once the move settles) and on the pair selected in the table.
+#[test]
+#[allow(clippy::float_cmp, reason = "the slices are set to the pair's coordinates, copied, or not touched at all")]
+fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
+    use warpbench_app::gui::{Command, End};
+    use warpbench_io::geometry::Point3;
+
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 900.0));
+    let ready = harness.state().ready().expect("loaded");
+    let (slices, camera) = (ready.slice_mm, ready.camera);
+    let (moving, fixed) = (Point3::from_array([22.0, -10.0, 35.0]), Point3::from_array([20.0, -12.0, 33.0]));
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    ready.apply(Command::AddPair { moving, fixed });
+    ready.apply(Command::MovePoint { pair: 0, end: End::Fixed, to: [2.0, 20.0, 16.0], settled: true });
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit.error);
+    assert!(ready.slice_mm == slices && ready.camera == camera, "the views moved without being asked");
+
+    harness.get_by_label("Follow the pair being edited").click();
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").document.settings.follow_pair);
+    let centred_on = |harness: &Harness<'_, Workbench>, q: [f64; 3]| {
+        let s = harness.state().ready().expect("loaded").slice_mm;
+        assert!(s == [q[2], q[1], q[0]], "slices at {s:?} (S, P, L), the pair's fixed point at {q:?} (L, P, S)");
+    };
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    ready.apply(Command::AddPair {
+        moving: Point3::from_array([-20.0, 5.0, 10.0]),
+        fixed: Point3::from_array([-22.0, 4.0, 9.0]),
+    });
+    centred_on(&harness, [-22.0, 4.0, 9.0]);
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    ready.apply(Command::MovePoint { pair: 1, end: End::Fixed, to: [41.0, 17.0, 19.0], settled: false });
+    assert!(harness.state().ready().expect("loaded").slice_mm == [9.0, 4.0, -22.0], "a drag in progress moves nothing");
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    ready.apply(Command::MovePoint { pair: 1, end: End::Fixed, to: [42.0, 18.0, 20.0], settled: true });
+    centred_on(&harness, [42.0, 18.0, 20.0]);
+    harness.run_steps(2);
+    // Selecting pair 3 by its fixed position in the table.
+    let q = harness.state().ready().expect("loaded").document.pairs[2].fixed.expect("fixed").coords();
+    harness.get_by_label(&format!("{:.1}, {:.1}, {:.1}", q[0], q[1], q[2])).click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").selected, Some(2));
+    centred_on(&harness, q);
+}

@@ -110,6 +110,7 @@ fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
         pick_probe: new.pick_probe,
         pick_threshold: new.pick_threshold,
         brush_radius_mm: new.brush_radius_mm,
+        follow_pair: new.follow_pair,
         oblique,
         ..s.clone()
     };
@@ -152,6 +153,7 @@ impl Ready {
             Command::Select(i) => {
                 self.selected = Some(i);
                 self.invalidate();
+                self.follow(i);
             }
             Command::Cancel => {
                 if !self.interaction.stop_adding() {
@@ -164,6 +166,7 @@ impl Ready {
                 let name = format!("Pt-{}", self.document.pairs.len() + 1);
                 self.document.pairs.push(LandmarkPair::new(name, moving, fixed));
                 self.refit_soon();
+                self.follow(self.document.pairs.len() - 1);
             }
             Command::MovePoint { pair, end, to, settled } => {
                 let Some(p) = self.document.pairs.get_mut(pair) else { return };
@@ -171,7 +174,12 @@ impl Ready {
                     End::Fixed => p.fixed = Some(Point3::from_array(to)),
                     End::Moving => p.moving = Some(Point3::from_array(to)),
                 }
-                if settled { self.refit_soon() } else { self.refit_interactive() }
+                if settled {
+                    self.refit_soon();
+                    self.follow(pair);
+                } else {
+                    self.refit_interactive();
+                }
             }
             Command::DeletePair(i) => {
                 if i < self.document.pairs.len() {
@@ -267,6 +275,19 @@ impl Ready {
             }
             Err(e) => self.notice = Some(format!("Auto stiffness: {e}")),
         }
+    }
+
+    /// With "Follow the pair being edited" on, centres the slices on pair `i`'s fixed point; otherwise nothing moves:
+    /// the camera and the slices stay where the user put them whatever the warp does.
+    fn follow(&mut self, i: usize) {
+        if !self.document.settings.follow_pair {
+            return;
+        }
+        let Some(q) = self.document.pairs.get(i).and_then(|p| p.fixed) else { return };
+        let c = q.coords();
+        self.slice_mm = [c[2], c[1], c[0]];
+        self.invalidate_slices();
+        self.crosshair_moved();
     }
 
     /// The crosshair moved: the leafer's cut goes through it, so an open leafer redraws the 3-D view.

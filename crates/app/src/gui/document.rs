@@ -133,6 +133,9 @@ pub struct ViewSettings {
     /// The displacement brush's radius for new strokes, mm.
     #[serde(default = "default_brush_radius")]
     pub brush_radius_mm: f64,
+    /// Centre the slices on the pair being edited (added, moved, selected); off, the views keep their place.
+    #[serde(default)]
+    pub follow_pair: bool,
 }
 
 fn default_brush_radius() -> f64 {
@@ -178,6 +181,7 @@ impl Default for ViewSettings {
             pick_threshold: default_pick_threshold(),
             procedural: None,
             brush_radius_mm: default_brush_radius(),
+            follow_pair: false,
         }
     }
 }

@@ -58,7 +58,11 @@ pub fn settings_ui(
     }
     choice_ui(ui, "Shading", &mut s.shading, Shading::ALL);
     ui.add(egui::Slider::new(&mut s.samples_per_voxel, 0.25..=4.0).logarithmic(true).text("Samples per voxel"));
-    ui.checkbox(&mut s.show_landmarks, "Show landmarks");
+    ui.horizontal(|ui| {
+        ui.checkbox(&mut s.show_landmarks, "Show landmarks");
+        ui.checkbox(&mut s.follow_pair, "Follow the pair being edited")
+            .on_hover_text("Centre the slices on a pair when it is added, moved or selected");
+    });
     ui.separator();
     ui.label("Warp");
     choice_ui(ui, "Method", &mut s.method, MethodKind::ALL);
