@@ -31,6 +31,7 @@
 //! - [`exit`]: the exit-code convention shared by every subcommand; the shared modules (`inputs`, `scene`, `fit`)
 //!   return `anyhow` errors, which the subcommands classify.
 
+pub mod align;
 pub mod args;
 pub mod brushed;
 pub mod eval;

@@ -199,6 +199,18 @@ enum Command {
     ///     warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv
     #[command(verbatim_doc_comment)]
     Landmarks(Box<warpbench_app::landmarks::LandmarksArgs>),
+    /// Align the moving volume to the fixed one automatically, by intensities, and write the result as an ITK
+    /// transform file.
+    ///
+    /// Rigid (6 parameters), or with --affine rigid then affine (12), maximising the Mattes mutual information of the
+    /// two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1), from their centres of mass.
+    /// The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
+    /// writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. Examples:
+    ///
+    ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
+    ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json
+    #[command(verbatim_doc_comment)]
+    Align(Box<warpbench_app::align::AlignArgs>),
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -692,6 +704,7 @@ fn main() -> ExitCode {
         Command::Points(args) => warpbench_app::points::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
         Command::Transform(args) => warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
         Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
+        Command::Align(args) => warpbench_app::align::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -242,3 +242,64 @@ fn field_tfm_writes_the_file_transform_writes() {
         assert_eq!(std::fs::read(&a).expect("read"), std::fs::read(&b).expect("read"), "{method}");
     }
 }
+
+/// `warpbench align` finds a known rigid transform of the MRI fixture (the moving file is the same voxels with the
+/// transform put into its header, so m(T(x)) = f(x) exactly), writes it as an ITK affine that the reader gives back,
+/// reports it in `--json`, and refuses to overwrite its output or to read a file that is not a volume.
+#[test]
+fn align_writes_the_known_rigid_transform_as_an_itk_affine() {
+    use nalgebra::{Rotation3, Unit, Vector3};
+    use warpbench_io::geometry::Transform;
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fixed = mri();
+    let mut moving = warpbench_io::open(&fixed).expect("read the fixture");
+    let rotation =
+        Rotation3::from_axis_angle(&Unit::new_normalize(Vector3::new(0.3, -0.5, 1.0)), 12f64.to_radians()).into_inner();
+    let truth: Transform<warpbench_io::geometry::Lps, warpbench_io::geometry::Lps> =
+        Transform::from_linear_translation(rotation, [14.0, -9.0, 6.0]);
+    moving.lps_from_index = truth * moving.lps_from_index;
+    let moving_path = dir.path().join("moved.nii");
+    warpbench_io::nifti::write(&moving_path, &moving).expect("write the moved fixture");
+    let out = dir.path().join("align.tfm");
+    let args = ["align", "--fixed", utf8(&fixed), "--moving", utf8(&moving_path), "--out-tfm", utf8(&out), "--json"];
+    let run = warpbench(&args);
+    assert_ok(&run);
+    let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+    assert_eq!(report["schema"], "warpbench-align/1");
+    assert_eq!(report["kind"], "rigid");
+    assert!((report["rotation_deg"].as_f64().expect("rotation") - 12.0).abs() < 0.2, "{report}");
+    let Ok(ItkTransform::Affine(affine)) = itk_tfm::read(&out) else { panic!("an affine in {}", out.display()) };
+    // Over the fixed volume's box, the file maps like the truth within half a millimetre.
+    let volume = warpbench_io::open(&fixed).expect("fixture");
+    let mut worst: f64 = 0.0;
+    for c in 0..8 {
+        let ijk = [0, 1, 2].map(|a| if c >> a & 1 == 1 { (volume.dims[a] - 1) as f64 } else { 0.0 });
+        let x = volume.lps_from_index.apply_point(Point3::from_array(ijk)).coords();
+        let got = affine.apply(x);
+        let want = truth.apply_point(Point3::from_array(x)).coords();
+        worst = worst.max((0..3).map(|a| (got[a] - want[a]).powi(2)).sum::<f64>().sqrt());
+    }
+    assert!(worst < 0.5, "{worst} mm at a corner of the fixed box");
+    // The moving_from_fixed rows in the report are the file's map.
+    let rows = &report["moving_from_fixed"];
+    let x = [10.0, -20.0, 30.0];
+    let from_rows: Vec<f64> = (0..3)
+        .map(|r| {
+            (0..3).map(|c| rows[r][c].as_f64().expect("entry") * x[c]).sum::<f64>() + rows[r][3].as_f64().expect("t")
+        })
+        .collect();
+    let from_file = affine.apply(x);
+    assert!((0..3).all(|a| (from_rows[a] - from_file[a]).abs() < 1e-9));
+
+    // Refusals: an existing output without --force, and a moving file that is not a volume.
+    let again = warpbench(&args);
+    assert_eq!(again.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("align.tfm"), "{}", String::from_utf8_lossy(&again.stderr));
+    let not_a_volume = data("nifti/not-nifti.nii");
+    let out2 = dir.path().join("never.tfm");
+    let bad = warpbench(&["align", "--fixed", utf8(&fixed), "--moving", utf8(&not_a_volume), "--out-tfm", utf8(&out2)]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("not-nifti.nii"), "{}", String::from_utf8_lossy(&bad.stderr));
+    assert!(!out2.exists());
+}

@@ -55,6 +55,8 @@ pub enum SolverError {
     Degenerate(String),
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
+    #[error("{0}")]
+    Image(String),
 }
 
 /// What a set that is `shape` lacks, for [`SolverError::Flat`].

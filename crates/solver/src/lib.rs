@@ -6,6 +6,7 @@
 //! the renderer and the exporter compute v'(x) = v_moving(u(x)) (Brunet, Nowak & Gleicher 2006 §3).
 //! Every function says which direction it computes; the types say it too ([`spaces`]).
 //!
+//! - [`align`]: automatic initial alignment, rigid or affine, by Mattes mutual information, multi-resolution.
 //! - [`tps`]: thin-plate spline with the 3-D kernel U(r) = r and a stiffness λ.
 //! - [`dense`]: the blocked Cholesky factorisation and triangular inverse under the TPS solve.
 //! - [`tps_drag`]: one landmark of a TPS pair dragged in O(N²) per event (factorisation kept, rank-2 updates).
@@ -17,6 +18,7 @@
 //! - [`control`]: sampling a pull-back into a control texture for the GPU.
 //! - [`field`]: a warp given as a sampled displacement field (ITK's `DisplacementFieldTransform`: trilinear inside
 //!   the grid, zero displacement outside).
+//! - [`image`]: scalar images in a patient space: trilinear samples with their gradient in mm, a pyramid.
 //! - [`method`]: [`Method`], fitting any of the above by name, in either direction, into a [`FittedWarp`] (the
 //!   closed set of fitted kinds, a [`Warp`] by delegation).
 //! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
@@ -24,6 +26,7 @@
 //! - [`stiffness`]: the TPS stiffness chosen automatically, by the leave-one-out error.
 //! - [`synthetic`]: seeded known warps for accuracy tests.
 
+pub mod align;
 pub mod brush;
 pub mod bspline;
 pub mod control;
@@ -31,6 +34,7 @@ pub mod dense;
 pub mod diagnostics;
 pub mod error;
 pub mod field;
+pub mod image;
 pub mod invert;
 pub mod linear;
 pub mod method;

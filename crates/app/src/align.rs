@@ -1,0 +1,140 @@
+//! `warpbench align`: the automatic initial alignment ([`warpbench_solver::align`], Mattes mutual information,
+//! rigid or affine, multi-resolution, from the centres of mass) written as an ITK transform file.
+//!
+//! The file holds the pull-back T = `moving_from_fixed` as `AffineTransform_double_3_3` (LPS mm, fixed points to
+//! moving points), as ITK's registration writes its result and as `warpbench transform` writes a linear fit, so
+//! SimpleITK, ANTs and Slicer apply it to the moving volume directly.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use serde::Serialize;
+use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
+use warpbench_solver::align::{AlignKind, AlignParams, LevelReport, align, rotation_angle_deg};
+use warpbench_solver::image::Image;
+use warpbench_solver::spaces::{Fixed, Moving};
+
+use crate::args::ReportArgs;
+use crate::exit::Failure;
+use crate::inputs::{OutputFile, load_volume};
+
+/// The `--json` schema name.
+pub const SCHEMA: &str = "warpbench-align/1";
+
+/// The arguments of `warpbench align`.
+#[derive(Debug, clap::Args)]
+pub struct AlignArgs {
+    /// The fixed volume (NIfTI, NRRD or a DICOM series folder).
+    #[arg(long)]
+    pub fixed: PathBuf,
+    /// The moving volume: any modality (mutual information needs no common intensity scale).
+    #[arg(long)]
+    pub moving: PathBuf,
+    /// The ITK transform file to write (.tfm or .txt): the pull-back, fixed points to moving points.
+    #[arg(long, value_name = "FILE")]
+    pub out_tfm: PathBuf,
+    /// Refine the rigid result to an affine one (12 parameters) at the finest level.
+    #[arg(long)]
+    pub affine: bool,
+    /// Fixed sample points per resolution level.
+    #[arg(long, default_value_t = AlignParams::default().samples)]
+    pub samples: usize,
+    /// Histogram bins per image.
+    #[arg(long, default_value_t = AlignParams::default().bins)]
+    pub bins: usize,
+    /// Shrink factors of the resolution levels, coarse to fine, comma-separated.
+    #[arg(long, value_delimiter = ',', default_value = "4,2,1")]
+    pub shrink: Vec<usize>,
+    /// The seed of the sample points (the same seed gives the same result).
+    #[arg(long, default_value_t = AlignParams::default().seed)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub report: ReportArgs,
+}
+
+/// What was found: the `--json` document, schema `warpbench-align/1` (docs/cli.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct AlignSummary {
+    pub schema: &'static str,
+    pub out: String,
+    pub kind: AlignKind,
+    /// The result, rows of the 4×4 matrix (LPS mm): fixed points to moving points.
+    pub moving_from_fixed: [[f64; 4]; 4],
+    /// The centre-of-mass start, likewise.
+    pub initial_moving_from_fixed: [[f64; 4]; 4],
+    /// The rotation's angle (of the polar factor for an affine result), degrees.
+    pub rotation_deg: f64,
+    /// How far the transform moves the fixed volume's centre, mm.
+    pub centre_shift_mm: f64,
+    /// The final Mattes mutual information, nats.
+    pub mutual_information: f64,
+    pub levels: Vec<LevelReport>,
+    /// Wall time of the alignment itself (reading excluded), seconds.
+    pub align_s: f64,
+}
+
+/// Runs `warpbench align`: checks the output, loads both volumes, aligns, writes the file atomically; prints the JSON
+/// summary to `out` with `--json`, else a line on stderr unless `--quiet`.
+pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure> {
+    let AlignArgs { fixed, moving, out_tfm, affine, samples, bins, shrink, seed, report } = args;
+    let ReportArgs { json, force, quiet } = report;
+    OutputFile { path: out_tfm.clone(), force }.check(&[&fixed, &moving]).map_err(Failure::BadInput)?;
+    let params = AlignParams {
+        kind: if affine { AlignKind::Affine } else { AlignKind::Rigid },
+        bins,
+        shrink_factors: shrink,
+        samples,
+        seed,
+        ..AlignParams::default()
+    };
+    let fixed_volume = load_volume(&fixed, quiet).map_err(Failure::BadInput)?;
+    let moving_volume = load_volume(&moving, quiet).map_err(Failure::BadInput)?;
+    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume)
+        .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", fixed.display())))?;
+    let moving_image = Image::<Moving>::from_volume(&moving_volume)
+        .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", moving.display())))?;
+    drop((fixed_volume, moving_volume));
+    let started = Instant::now();
+    let result = align(&fixed_image, &moving_image, &params)
+        .map_err(|e| Failure::BadInput(anyhow::anyhow!("aligning {} to {}: {e}", moving.display(), fixed.display())))?;
+    let align_s = started.elapsed().as_secs_f64();
+    let t = &result.moving_from_fixed;
+    itk_tfm::write(&out_tfm, &ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation())))?;
+
+    let dims = fixed_image.dims();
+    let centre = warpbench_io::geometry::Point3::<Fixed>::from_array(
+        fixed_image
+            .space_from_index()
+            .apply_point(warpbench_io::geometry::Point3::from_array(dims.map(|d| (d - 1) as f64 / 2.0)))
+            .coords(),
+    );
+    let moved = t.apply_point(centre);
+    let summary = AlignSummary {
+        schema: SCHEMA,
+        out: out_tfm.display().to_string(),
+        kind: params.kind,
+        moving_from_fixed: t.rows(),
+        initial_moving_from_fixed: result.initial_moving_from_fixed.rows(),
+        rotation_deg: rotation_angle_deg(&t.linear()),
+        centre_shift_mm: (0..3).map(|a| (moved.coords()[a] - centre.coords()[a]).powi(2)).sum::<f64>().sqrt(),
+        mutual_information: result.mutual_information,
+        levels: result.levels,
+        align_s,
+    };
+    if json {
+        crate::exit::print_json(out, &summary, "the JSON summary")?;
+    } else if !quiet {
+        eprintln!(
+            "wrote {} ({} alignment: rotation {:.2}°, the fixed volume's centre moved {:.2} mm, mutual information \
+             {:.4}, {:.2} s; maps fixed points to moving points, LPS mm)",
+            summary.out,
+            summary.kind,
+            summary.rotation_deg,
+            summary.centre_shift_mm,
+            summary.mutual_information,
+            align_s
+        );
+    }
+    Ok(summary)
+}

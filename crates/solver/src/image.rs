@@ -1,0 +1,341 @@
+//! Scalar images placed in a patient space, for the intensity-based parts of the solver ([`crate::align`] and
+//! [`crate::suggest`]): trilinear samples and their gradient at any point in mm, and a resolution pyramid.
+//!
+//! An [`Image<S>`] holds f32 values (the volume's rescale applied) on a grid with `space_from_index` (ITK's
+//! convention: index 0 is the centre of the first voxel). Trilinear interpolation is
+//!
+//! v(x) = Σ_{c ∈ {0,1}³} Π_a w_a(c_a) · v[⌊ξ⌋ + c],  ξ = index_from_space · x,  w_a(0) = 1 − (ξ_a − ⌊ξ_a⌋), w_a(1) = ξ_a − ⌊ξ_a⌋,
+//!
+//! defined for ξ in [0, dims − 1] on every axis (no extrapolation: a point outside reads as `None`), and its
+//! gradient in mm is ∇v(x) = (index_from_space)ᵀ · ∂v/∂ξ, the exact derivative of the interpolant inside a cell.
+
+use nalgebra::{Matrix3, Vector3};
+use warpbench_io::Volume;
+use warpbench_io::geometry::{Index, Point3, Space, Transform};
+
+use crate::{Result, SolverError};
+
+/// How far (in voxels) outside the outer voxel centres a point still reads the edge value: rounding in the
+/// index map, not extrapolation.
+pub const EDGE_TOLERANCE_VOX: f64 = 1e-6;
+
+/// A scalar image in space `S`.
+#[derive(Clone, Debug)]
+pub struct Image<S: Space> {
+    dims: [usize; 3],
+    values: Vec<f32>,
+    space_from_index: Transform<S, Index>,
+    /// The inverse map's linear part and translation, raw for the kernels.
+    index_from_space_linear: Matrix3<f64>,
+    index_from_space_translation: Vector3<f64>,
+}
+
+/// Reserves `n` values or says why not.
+fn try_vec(n: usize, what: &str) -> Result<Vec<f32>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(n).map_err(|_| SolverError::Image(format!("no memory for {what} ({n} values)")))?;
+    Ok(v)
+}
+
+impl<S: Space> Image<S> {
+    /// An image of `values` (i fastest) on `dims` placed by `space_from_index`.
+    ///
+    /// # Errors
+    /// [`SolverError::Image`] when the counts disagree, a side has fewer than 2 voxels or the geometry is singular.
+    pub fn new(dims: [usize; 3], values: Vec<f32>, space_from_index: Transform<S, Index>) -> Result<Self> {
+        let n = dims.iter().try_fold(1usize, |acc, &d| acc.checked_mul(d));
+        if n != Some(values.len()) {
+            return Err(SolverError::Image(format!("{} values for a {dims:?} grid", values.len())));
+        }
+        if dims.iter().any(|&d| d < 2) {
+            return Err(SolverError::Image(format!(
+                "the {} image is {}×{}×{} voxels: intensity matching needs at least 2 along every axis",
+                S::NAME,
+                dims[0],
+                dims[1],
+                dims[2]
+            )));
+        }
+        let index_from_space =
+            space_from_index.inverse().filter(|_| space_from_index.is_valid_affine()).ok_or_else(|| {
+                SolverError::Image(format!("the {} image's voxel-to-patient matrix is singular", S::NAME))
+            })?;
+        Ok(Self {
+            dims,
+            values,
+            space_from_index,
+            index_from_space_linear: index_from_space.linear(),
+            index_from_space_translation: Vector3::from(index_from_space.translation()),
+        })
+    }
+
+    /// The volume's samples as f32 with its rescale applied, in space `S` (the volume's LPS, tagged).
+    ///
+    /// # Errors
+    /// As [`Self::new`], or when there is no memory for the copy.
+    pub fn from_volume(volume: &Volume) -> Result<Self> {
+        let n = volume.data.len();
+        let mut values = try_vec(n, "the image's f32 copy")?;
+        let rescale = volume.rescale;
+        let (slope, intercept) = if rescale.applied { (1.0, 0.0) } else { (rescale.slope, rescale.intercept) };
+        values.extend((0..n).map(|i| (slope * volume.data.get_f64(i) + intercept) as f32));
+        Self::new(volume.dims, values, Transform::from_matrix(*volume.lps_from_index.matrix()))
+    }
+
+    #[must_use]
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// The values, i fastest.
+    #[must_use]
+    pub fn values(&self) -> &[f32] {
+        &self.values
+    }
+
+    #[must_use]
+    pub fn space_from_index(&self) -> &Transform<S, Index> {
+        &self.space_from_index
+    }
+
+    /// The voxel spacing along i, j and k, in mm.
+    #[must_use]
+    pub fn spacing_mm(&self) -> [f64; 3] {
+        let l = self.space_from_index.linear();
+        std::array::from_fn(|a| l.column(a).norm())
+    }
+
+    /// The centre of voxel (i, j, k), in mm.
+    #[must_use]
+    pub fn voxel_point(&self, i: usize, j: usize, k: usize) -> [f64; 3] {
+        self.space_from_index.apply_point(Point3::new(i as f64, j as f64, k as f64)).coords()
+    }
+
+    /// The continuous index of `x_mm`.
+    #[must_use]
+    pub fn index_of(&self, x_mm: [f64; 3]) -> [f64; 3] {
+        let xi = self.index_from_space_linear * Vector3::from(x_mm) + self.index_from_space_translation;
+        [xi[0], xi[1], xi[2]]
+    }
+
+    /// The value at voxel (i, j, k).
+    #[must_use]
+    pub fn at(&self, i: usize, j: usize, k: usize) -> f32 {
+        self.values[i + self.dims[0] * (j + self.dims[1] * k)]
+    }
+
+    /// The lower corner of the cell holding continuous index `xi` and the fractions in it; `None` outside
+    /// [0, dims − 1].
+    #[inline]
+    fn cell(&self, xi: [f64; 3]) -> Option<([usize; 3], [f64; 3])> {
+        let mut base = [0usize; 3];
+        let mut frac = [0.0; 3];
+        for a in 0..3 {
+            let top = (self.dims[a] - 1) as f64;
+            // A point on the outer voxel centres' plane, up to rounding in the index map, is inside.
+            if !(xi[a] >= -EDGE_TOLERANCE_VOX && xi[a] <= top + EDGE_TOLERANCE_VOX) {
+                return None;
+            }
+            let x = xi[a].clamp(0.0, top);
+            // The last voxel's plane belongs to the cell below it, so that base + 1 stays inside.
+            let b = (x.floor() as usize).min(self.dims[a] - 2);
+            base[a] = b;
+            frac[a] = x - b as f64;
+        }
+        Some((base, frac))
+    }
+
+    /// The eight corner values of the cell at `base`, ordered by (c_k, c_j, c_i) bits.
+    #[inline]
+    fn corners(&self, base: [usize; 3]) -> [f64; 8] {
+        let [nx, ny, _] = self.dims;
+        let o = base[0] + nx * (base[1] + ny * base[2]);
+        let (sj, sk) = (nx, nx * ny);
+        let v = &self.values;
+        [
+            f64::from(v[o]),
+            f64::from(v[o + 1]),
+            f64::from(v[o + sj]),
+            f64::from(v[o + sj + 1]),
+            f64::from(v[o + sk]),
+            f64::from(v[o + sk + 1]),
+            f64::from(v[o + sk + sj]),
+            f64::from(v[o + sk + sj + 1]),
+        ]
+    }
+
+    /// The trilinear value at continuous index `xi`, or `None` outside the grid.
+    #[must_use]
+    #[inline]
+    pub fn sample_index(&self, xi: [f64; 3]) -> Option<f64> {
+        let (base, [fx, fy, fz]) = self.cell(xi)?;
+        let c = self.corners(base);
+        let x00 = c[0] + fx * (c[1] - c[0]);
+        let x10 = c[2] + fx * (c[3] - c[2]);
+        let x01 = c[4] + fx * (c[5] - c[4]);
+        let x11 = c[6] + fx * (c[7] - c[6]);
+        let y0 = x00 + fy * (x10 - x00);
+        let y1 = x01 + fy * (x11 - x01);
+        Some(y0 + fz * (y1 - y0))
+    }
+
+    /// The trilinear value at `x_mm`, or `None` outside the grid.
+    #[must_use]
+    #[inline]
+    pub fn sample(&self, x_mm: [f64; 3]) -> Option<f64> {
+        self.sample_index(self.index_of(x_mm))
+    }
+
+    /// The trilinear value at `x_mm` and its gradient in mm⁻¹ (value units per mm), or `None` outside the grid.
+    #[must_use]
+    #[inline]
+    pub fn sample_with_gradient(&self, x_mm: [f64; 3]) -> Option<(f64, [f64; 3])> {
+        let (base, [fx, fy, fz]) = self.cell(self.index_of(x_mm))?;
+        let c = self.corners(base);
+        let x00 = c[0] + fx * (c[1] - c[0]);
+        let x10 = c[2] + fx * (c[3] - c[2]);
+        let x01 = c[4] + fx * (c[5] - c[4]);
+        let x11 = c[6] + fx * (c[7] - c[6]);
+        let y0 = x00 + fy * (x10 - x00);
+        let y1 = x01 + fy * (x11 - x01);
+        let value = y0 + fz * (y1 - y0);
+        // ∂/∂ξ_i: the i-differences blended over j and k; likewise for j and k.
+        let di = {
+            let d00 = c[1] - c[0];
+            let d10 = c[3] - c[2];
+            let d01 = c[5] - c[4];
+            let d11 = c[7] - c[6];
+            let e0 = d00 + fy * (d10 - d00);
+            let e1 = d01 + fy * (d11 - d01);
+            e0 + fz * (e1 - e0)
+        };
+        let dj = (x10 - x00) + fz * ((x11 - x01) - (x10 - x00));
+        let dk = y1 - y0;
+        let g = self.index_from_space_linear.transpose() * Vector3::new(di, dj, dk);
+        Some((value, [g[0], g[1], g[2]]))
+    }
+
+    /// The smallest and largest finite value, or `None` when none is finite.
+    #[must_use]
+    pub fn value_range(&self) -> Option<(f64, f64)> {
+        let (lo, hi) = self
+            .values
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        (lo <= hi).then_some((f64::from(lo), f64::from(hi)))
+    }
+
+    /// The image shrunk by `factor` along every axis whose size allows it: each new voxel is the mean of a
+    /// `factor`-wide block (a box filter, then subsampling), placed at the block's centre, so that the shrunk image
+    /// covers the same box in mm. An axis with fewer than 2 · `factor` voxels keeps its size.
+    ///
+    /// # Errors
+    /// When there is no memory for the result.
+    pub fn shrink(&self, factor: usize) -> Result<Self> {
+        if factor <= 1 {
+            return Ok(self.clone());
+        }
+        let f: [usize; 3] = std::array::from_fn(|a| if self.dims[a] >= 2 * factor { factor } else { 1 });
+        let dims: [usize; 3] = std::array::from_fn(|a| self.dims[a] / f[a]);
+        let n = dims[0] * dims[1] * dims[2];
+        let mut values = try_vec(n, "a shrunk image")?;
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                for i in 0..dims[0] {
+                    let mut sum = 0.0f64;
+                    let mut count = 0u32;
+                    for dk in 0..f[2] {
+                        for dj in 0..f[1] {
+                            for di in 0..f[0] {
+                                let v = self.at(i * f[0] + di, j * f[1] + dj, k * f[2] + dk);
+                                if v.is_finite() {
+                                    sum += f64::from(v);
+                                    count += 1;
+                                }
+                            }
+                        }
+                    }
+                    values.push(if count == 0 { f32::NAN } else { (sum / f64::from(count)) as f32 });
+                }
+            }
+        }
+        // New index i' sits at old index f·i' + (f − 1)/2.
+        let scale = Matrix3::from_diagonal(&Vector3::new(f[0] as f64, f[1] as f64, f[2] as f64));
+        let shift: [f64; 3] = std::array::from_fn(|a| (f[a] as f64 - 1.0) / 2.0);
+        let old_from_new: Transform<Index, Index> = Transform::from_linear_translation(scale, shift);
+        Self::new(dims, values, self.space_from_index * old_from_new)
+    }
+
+    /// The same image tagged as another space (both are the same LPS millimetres).
+    #[must_use]
+    pub fn retag<T: Space>(self) -> Image<T> {
+        Image {
+            dims: self.dims,
+            values: self.values,
+            space_from_index: Transform::from_matrix(*self.space_from_index.matrix()),
+            index_from_space_linear: self.index_from_space_linear,
+            index_from_space_translation: self.index_from_space_translation,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spaces::Fixed;
+
+    /// A linear function of the index on an oblique grid: trilinear interpolation reproduces it, and its gradient
+    /// in mm is (linearᵀ)⁻¹ applied to the index gradient.
+    #[test]
+    fn trilinear_reproduces_a_linear_function_and_its_gradient_in_mm() {
+        let dims = [5, 6, 7];
+        let a = [0.5, -1.25, 2.0];
+        let values: Vec<f32> = (0..dims[2])
+            .flat_map(|k| (0..dims[1]).flat_map(move |j| (0..dims[0]).map(move |i| (i, j, k))))
+            .map(|(i, j, k)| (a[0] * i as f64 + a[1] * j as f64 + a[2] * k as f64) as f32)
+            .collect();
+        let rot = nalgebra::Rotation3::from_euler_angles(0.3, -0.2, 0.5).into_inner();
+        let linear = rot * Matrix3::from_diagonal(&Vector3::new(1.5, 0.8, 2.5));
+        let image: Image<Fixed> =
+            Image::new(dims, values, Transform::from_linear_translation(linear, [10.0, -4.0, 3.0]))
+                .expect("in the test");
+        let xi = [1.3, 2.7, 5.9];
+        let x = image.space_from_index.apply_point(Point3::new(xi[0], xi[1], xi[2])).coords();
+        let (v, g) = image.sample_with_gradient(x).expect("in the test");
+        let expect = a[0] * xi[0] + a[1] * xi[1] + a[2] * xi[2];
+        assert!((v - expect).abs() < 1e-4, "{v} vs {expect}");
+        assert!((image.sample(x).expect("in the test") - v).abs() < 1e-12);
+        // v(x) = aᵀ · index_from_space · x, so ∇v = (index_from_space linear)ᵀ a.
+        let expect_g = linear.try_inverse().expect("in the test").transpose() * Vector3::from(a);
+        for c in 0..3 {
+            assert!((g[c] - expect_g[c]).abs() < 1e-6, "{g:?} vs {expect_g:?}");
+        }
+        // Outside the grid: nothing.
+        let outside = image.space_from_index.apply_point(Point3::new(-0.01, 2.0, 2.0)).coords();
+        assert!(image.sample(outside).is_none());
+        // The last voxel plane is inside.
+        let last = image.space_from_index.apply_point(Point3::new(4.0, 5.0, 6.0)).coords();
+        assert!((image.sample(last).expect("in the test") - f64::from(image.at(4, 5, 6))).abs() < 1e-4);
+    }
+
+    /// Shrinking keeps the box: a linear function keeps its values at the same mm positions.
+    #[test]
+    fn shrinking_keeps_a_linear_function_in_place() {
+        let dims = [8, 9, 10];
+        let values: Vec<f32> = (0..dims[2])
+            .flat_map(|k| (0..dims[1]).flat_map(move |j| (0..dims[0]).map(move |i| (i, j, k))))
+            .map(|(i, j, k)| (3.0 * i as f64 - 2.0 * j as f64 + 0.5 * k as f64) as f32)
+            .collect();
+        let image: Image<Fixed> =
+            Image::new(dims, values, Transform::from_scale_translation([1.0, 2.0, 0.5], [1.0, 2.0, 3.0]))
+                .expect("in the test");
+        let small = image.shrink(2).expect("in the test");
+        assert_eq!(small.dims(), [4, 4, 5]);
+        for (i, j, k) in [(0, 0, 0), (3, 3, 4), (1, 2, 3)] {
+            let x = small.voxel_point(i, j, k);
+            let want = image.sample(x).expect("in the test");
+            assert!((f64::from(small.at(i, j, k)) - want).abs() < 1e-4, "{i} {j} {k}");
+        }
+    }
+}
