@@ -24,6 +24,8 @@
 //! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
 //! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
 //! - [`stiffness`]: the TPS stiffness chosen automatically, by the leave-one-out error.
+//! - [`suggest`]: suggested targets: the fixed point matching a moving point, from the current warp's prediction
+//!   refined by a local normalised-gradient-field search, with a confidence.
 //! - [`synthetic`]: seeded known warps for accuracy tests.
 
 pub mod align;
@@ -41,6 +43,7 @@ pub mod method;
 pub mod pairs;
 pub mod spaces;
 pub mod stiffness;
+pub mod suggest;
 pub mod synthetic;
 pub mod tps;
 pub mod tps_drag;
