@@ -229,9 +229,9 @@ fn main() {
             viewer.set_control(Some(&prepared));
             Ok(fitted)
         } else if o.gpu_eval {
-            fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer)
+            fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, None)
         } else {
-            fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable).map(|(fitted, prepared)| {
+            fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, None).map(|(fitted, prepared)| {
                 viewer.set_control(Some(&prepared));
                 fitted
             })

@@ -34,6 +34,11 @@ pub struct PairArgs {
     /// Hierarchical B-spline levels.
     #[arg(long)]
     pub levels: Option<usize>,
+    /// A starting transform under the landmark warp: an ITK affine .tfm mapping fixed points to moving points (LPS
+    /// mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it
+    /// alone is the warp.
+    #[arg(long, value_name = "TFM", conflicts_with = "session")]
+    pub initial: Option<PathBuf>,
 }
 
 /// The flags of a subcommand that writes files and reports what it did: shared by `points`, `transform` and
@@ -70,21 +75,33 @@ impl PairArgs {
                 stiffness: self.stiffness,
                 levels: self.levels,
                 brush: Vec::new(),
+                initial: self.initial.clone(),
+                session_start: None,
             });
         };
         let session = crate::gui::session::load(path).map_err(Failure::BadInput)?;
+        let session_start = session
+            .document
+            .start
+            .as_ref()
+            .map(|s| {
+                s.start().map(Box::new).map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e:#}", path.display())))
+            })
+            .transpose()?;
         let s = &session.document.settings;
         Ok(PairWarp {
             method: s.method,
             stiffness: Stiffness::Value(s.stiffness),
             levels: Some(s.bspline_levels),
             brush: session.document.brush,
+            initial: None,
+            session_start,
         })
     }
 
     /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.
     pub fn inputs(self, fixed: PathBuf, moving: PathBuf, reference: Option<PathBuf>) -> Result<PairInputs, Failure> {
-        let PairWarp { method, stiffness, levels, brush } = self.warp()?;
+        let PairWarp { method, stiffness, levels, brush, initial, session_start } = self.warp()?;
         Ok(PairInputs {
             landmarks: self.required_source()?,
             fixed,
@@ -94,6 +111,8 @@ impl PairArgs {
             levels,
             reference,
             brush,
+            initial,
+            session_start,
         })
     }
 
@@ -113,4 +132,8 @@ pub struct PairWarp {
     pub stiffness: Stiffness,
     pub levels: Option<usize>,
     pub brush: Vec<BrushStroke>,
+    /// The starting transform's file (`--initial`), read when the warp is fitted ([`crate::start::Start::read`]).
+    pub initial: Option<PathBuf>,
+    /// A session's starting transform (its Auto-align), read with the session.
+    pub session_start: Option<Box<crate::start::Start>>,
 }

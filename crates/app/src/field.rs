@@ -50,6 +50,7 @@ use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::progress::Bar;
+use crate::start::Start;
 use crate::warp::InverseConsistency;
 
 /// The `--json` schema name.
@@ -146,6 +147,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     }
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;
+    let start = opts.inputs.start().map_err(Failure::BadInput)?;
     let inputs = FieldInputs {
         fixed: &fixed,
         moving: &moving,
@@ -153,6 +155,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         names: &names,
         method: &method,
         brush: brushed.as_ref(),
+        start: start.as_ref(),
     };
     let field = sample_field(grid, &inputs, opts.direction, &mut |done, total| {
         let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
@@ -231,12 +234,12 @@ pub fn displacement_field(
     grid: &Volume,
     fixed: &Volume,
     moving: &Volume,
-    (pairs, brush): (&[LandmarkPair], Option<&Brushed>),
+    (pairs, brush, start): (&[LandmarkPair], Option<&Brushed>, Option<&Start>),
     names: &Names,
     method: &Method,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let inputs = FieldInputs { fixed, moving, pairs, names, method, brush };
+    let inputs = FieldInputs { fixed, moving, pairs, names, method, brush, start };
     sample_field(grid, &inputs, FieldDirection::Pullback, progress)
 }
 
@@ -250,6 +253,8 @@ pub struct FieldInputs<'a> {
     pub names: &'a Names,
     pub method: &'a Method,
     pub brush: Option<&'a Brushed>,
+    /// The starting transform under the landmark warp ([`crate::start`]).
+    pub start: Option<&'a Start>,
 }
 
 /// The displacement field of `direction` on `grid`: the pull-back u fitted over the fixed box, D(x) = u(x) − x, or
@@ -261,8 +266,8 @@ pub fn sample_field(
     direction: FieldDirection,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let FieldInputs { fixed, moving, pairs, names, method, brush } = *inputs;
-    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(method))
+    let FieldInputs { fixed, moving, pairs, names, method, brush, start } = *inputs;
+    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, crate::start::min_pairs(method, start))
         .map_err(Failure::BadInput)?;
     let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
     let cancelled = || Failure::Cancelled(anyhow!("sampling the displacement field: cancelled"));
@@ -270,7 +275,7 @@ pub fn sample_field(
         FieldDirection::Pullback => {
             // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
             let moving_from_fixed =
-                fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed)).map_err(Failure::BadInput)?;
+                fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed), start).map_err(Failure::BadInput)?;
             volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
             if let Some(b) = brush {
                 // u ∘ b⁻¹: no ITK transform holds it exactly.
@@ -285,7 +290,7 @@ pub fn sample_field(
         FieldDirection::Forward => {
             // Fitted over the moving box, as `points --from moving` fits it.
             let fixed_from_moving =
-                fit::forward_of(method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
+                fit::forward_of(method, &c, inputs::volume_box::<Moving>(moving), start).map_err(Failure::BadInput)?;
             volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
             let sampled = match brush {
                 // b ∘ d: the brush moves where a moving point appears.

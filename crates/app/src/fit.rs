@@ -34,6 +34,7 @@ use warpbench_solver::warp::{Composed, Warp};
 use crate::gui::viewer::Viewer;
 use crate::inputs::{self, Correspondences};
 use crate::scene;
+use crate::start::Start;
 
 /// The pull-back u = `moving_from_fixed` fitted on the reversed pairs (`fixed[i]` → `moving[i]`) over `fixed_box`.
 pub fn pullback(
@@ -89,10 +90,9 @@ pub fn fit_warp(
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
     grid_n: usize,
     float32_filterable: bool,
+    start: Option<&Start>,
 ) -> anyhow::Result<(Fitted, PreparedControl)> {
-    enough_pairs(method, moving.len())?;
-    let pullback = pullback(method, fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
-    let forward = forward(method, fixed, moving, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
     let (grid, texture) = control_texture(&pullback, fixed_box, grid_n)?;
     let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
         .map_err(|e| anyhow!("{e}"))?;
@@ -111,10 +111,9 @@ pub fn fit_warp_brushed(
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
     (grid_n, float32_filterable): (usize, bool),
     brush_inverse: &dyn Warp<Fixed, Fixed>,
+    start: Option<&Start>,
 ) -> anyhow::Result<(Fitted, PreparedControl)> {
-    enough_pairs(method, moving.len())?;
-    let pullback = pullback(method, fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
-    let forward = forward(method, fixed, moving, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
     let brushed = Composed { first: brush_inverse, second: &pullback };
     let (grid, texture) = scene::control_texture(&brushed, fixed_box, grid_n)?;
     let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
@@ -222,6 +221,24 @@ impl DragFit {
 }
 
 /// Refuses fewer pairs than `method` needs, in the window's words.
+/// Both directions fitted on the pairs, on top of the starting transform when there is one ([`crate::start`]): with
+/// it, too few pairs give the starting transform alone; without it they are an error.
+fn fit_both(
+    method: &Method,
+    (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
+    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
+    start: Option<&Start>,
+) -> anyhow::Result<(FittedWarp<Moving, Fixed>, FittedWarp<Fixed, Moving>)> {
+    let fitted = if let Some(s) = start {
+        crate::start::pullback(s, method, fixed, moving, fixed_box)
+            .and_then(|u| Ok((u, crate::start::forward(s, method, fixed, moving, moving_box)?)))
+    } else {
+        enough_pairs(method, moving.len())?;
+        pullback(method, fixed, moving, fixed_box).and_then(|u| Ok((u, forward(method, fixed, moving, moving_box)?)))
+    };
+    fitted.map_err(|e| anyhow!("{method}: {e}"))
+}
+
 fn enough_pairs(method: &Method, pairs: usize) -> anyhow::Result<()> {
     let need = inputs::min_pairs(method);
     if pairs < need {
@@ -253,14 +270,13 @@ pub fn fit_warp_on_gpu(
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
     grid_n: usize,
     viewer: &mut Viewer,
+    start: Option<&Start>,
 ) -> anyhow::Result<Fitted> {
     if !gpu_evaluates(method) {
         return Err(not_on_gpu(method));
     }
-    enough_pairs(method, moving.len())?;
     let desc = control_grid_desc(&scene::control_grid(fixed_box, grid_n)?);
-    let forward = forward(method, fixed, moving, moving_box).map_err(|e| anyhow!("{method}: {e}"))?;
-    let pullback = pullback(method, fixed, moving, fixed_box).map_err(|e| anyhow!("{method}: {e}"))?;
+    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
     match &pullback {
         FittedWarp::Tps(tps) => viewer.evaluate_control_tps(&TpsParts::new(tps).desc(), &desc)?,
         FittedWarp::BSpline(spline) => {
@@ -293,22 +309,34 @@ pub fn fit_warnings(method: &Method, c: &Correspondences) -> Vec<String> {
         .collect()
 }
 
-/// [`pullback`] on checked pairs, its error in the CLI's words ([`fit_error`]).
+/// [`pullback`] on checked pairs, on top of the starting transform when there is one ([`crate::start::pullback`]),
+/// its error in the CLI's words ([`fit_error`]).
 pub fn pullback_of(
     method: &Method,
     c: &Correspondences,
     fixed_box: Aabb<Fixed>,
+    start: Option<&Start>,
 ) -> anyhow::Result<FittedWarp<Moving, Fixed>> {
-    pullback(method, &c.fixed, &c.moving, fixed_box).map_err(|e| fit_error(method, c, e))
+    match start {
+        Some(s) => crate::start::pullback(s, method, &c.fixed, &c.moving, fixed_box),
+        None => pullback(method, &c.fixed, &c.moving, fixed_box),
+    }
+    .map_err(|e| fit_error(method, c, e))
 }
 
-/// [`forward`] on checked pairs, its error in the CLI's words ([`fit_error`]).
+/// [`forward`] on checked pairs, on top of the starting transform when there is one ([`crate::start::forward`]),
+/// its error in the CLI's words ([`fit_error`]).
 pub fn forward_of(
     method: &Method,
     c: &Correspondences,
     moving_box: Aabb<Moving>,
+    start: Option<&Start>,
 ) -> anyhow::Result<FittedWarp<Fixed, Moving>> {
-    forward(method, &c.fixed, &c.moving, moving_box).map_err(|e| fit_error(method, c, e))
+    match start {
+        Some(s) => crate::start::forward(s, method, &c.fixed, &c.moving, moving_box),
+        None => forward(method, &c.fixed, &c.moving, moving_box),
+    }
+    .map_err(|e| fit_error(method, c, e))
 }
 
 /// A fitted pull-back sampled into the n³ control texture of [`scene::control_grid`] over `fixed_box`: a
@@ -413,7 +441,7 @@ mod tests {
                     DraggedEnd::Moving => moving[7] = Point3::new(moving[7].coords()[0] - step, 3.0, -1.0),
                 }
                 let (fast, _) = drag.event(&fixed, &moving, false).expect("the fast path");
-                let (full, _) = fit_warp(&method, &fixed, &moving, boxes(), 16, false).expect("full fit");
+                let (full, _) = fit_warp(&method, &fixed, &moving, boxes(), 16, false, None).expect("full fit");
                 for i in 0..50 {
                     let x = [f64::from(i) * 3.7 - 90.0, 40.0 - f64::from(i) * 1.3, f64::from(i % 7) * 11.0 - 30.0];
                     let (a, b) = (fast.pullback.apply_raw(x), full.pullback.apply_raw(x));

@@ -125,6 +125,10 @@ pub struct PairInputs {
     pub reference: Option<PathBuf>,
     /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
     pub brush: Vec<BrushStroke>,
+    /// The starting transform's file under the landmark warp (`--initial`, [`crate::start`]).
+    pub initial: Option<PathBuf>,
+    /// A session's starting transform (`--session`), instead of a file.
+    pub session_start: Option<Box<crate::start::Start>>,
 }
 
 /// The volumes of [`PairInputs`], loaded.
@@ -142,7 +146,16 @@ impl PairInputs {
         let mut paths: Vec<&Path> = vec![&self.fixed, &self.moving];
         paths.extend(self.landmarks.paths());
         paths.extend(self.reference.as_deref());
+        paths.extend(self.initial.as_deref());
         paths
+    }
+
+    /// The starting transform under the landmark warp, read (`None` without `--initial`).
+    pub fn start(&self) -> Result<Option<crate::start::Start>> {
+        if let Some(s) = &self.session_start {
+            return Ok(Some((**s).clone()));
+        }
+        self.initial.as_deref().map(crate::start::Start::read).transpose()
     }
 
     /// The method the options name, checked ([`resolve_method`]; `--stiffness auto` reads the pairs).

@@ -48,5 +48,6 @@ pub mod progress;
 pub mod render;
 pub mod scene;
 pub mod settings;
+pub mod start;
 pub mod transform;
 pub mod warp;

@@ -239,7 +239,7 @@ struct WarpArgs {
     #[command(flatten)]
     pairs: PairArgs,
     /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     field: Option<PathBuf>,
     /// Control-texture texels per axis over the output grid (2..=256).
     #[arg(long, default_value_t = 64, conflicts_with = "exact")]
@@ -329,7 +329,7 @@ struct RenderArgs {
     pairs: PairArgs,
     /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
     /// or NRRD); no glyphs are drawn.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     field: Option<PathBuf>,
     /// Control-texture texels per axis over the fixed box (2..=256).
     #[arg(long, default_value_t = 64)]
@@ -485,6 +485,8 @@ fn run_render(a: RenderArgs) -> Result<(), Failure> {
         stiffness: warp.stiffness,
         levels: warp.levels,
         brush: warp.brush,
+        initial: warp.initial,
+        session_start: warp.session_start,
         grid: a.grid,
         blend: a.blend,
         mix_weight: a.mix_weight,

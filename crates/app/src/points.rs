@@ -164,6 +164,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     input_paths.push(&input);
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     let method = inputs.method().map_err(Failure::BadInput)?;
+    let start = inputs.start().map_err(Failure::BadInput)?;
 
     let options = PointFileOptions { ras };
     let mut file = read_point_file(&input, options)?;
@@ -175,9 +176,14 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
 
     let PairVolumes { fixed, moving, .. } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
     let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;
-    let c =
-        inputs::check_pairs(&inputs.landmarks.describe(), &landmark_pairs, &moving, &fixed, inputs::min_pairs(&method))
-            .map_err(Failure::BadInput)?;
+    let c = inputs::check_pairs(
+        &inputs.landmarks.describe(),
+        &landmark_pairs,
+        &moving,
+        &fixed,
+        crate::start::min_pairs(&method, start.as_ref()),
+    )
+    .map_err(Failure::BadInput)?;
     let mut warnings = fit::fit_warnings(&method, &c);
 
     let xs: Vec<[f64; 3]> = sources.iter().filter_map(|(_, p)| p.map(|p| p.coords())).collect();
@@ -186,8 +192,8 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     let brushed = inputs.brushed().map_err(Failure::BadInput)?;
     let (source_volume, source_path) = match from {
         Side::Moving => {
-            let fixed_from_moving =
-                fit::forward_of(&method, &c, inputs::volume_box::<Moving>(&moving)).map_err(Failure::BadInput)?;
+            let fixed_from_moving = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(&moving), start.as_ref())
+                .map_err(Failure::BadInput)?;
             match &brushed {
                 Some(b) => b.forward(&fixed_from_moving).apply_batch_raw(&xs, &mut ys),
                 None => fixed_from_moving.apply_batch_raw(&xs, &mut ys),
@@ -195,8 +201,8 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
             (&moving, &inputs.moving)
         }
         Side::Fixed => {
-            let moving_from_fixed =
-                fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&fixed)).map_err(Failure::BadInput)?;
+            let moving_from_fixed = fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&fixed), start.as_ref())
+                .map_err(Failure::BadInput)?;
             match &brushed {
                 Some(b) => b.pullback(&moving_from_fixed).apply_batch_raw(&xs, &mut ys),
                 None => moving_from_fixed.apply_batch_raw(&xs, &mut ys),
@@ -267,7 +273,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
         from,
         to: from.other(),
         map: from.map(),
-        method: method.to_string(),
+        method: crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()),
         pairs: c.moving.len(),
         points,
         outside,

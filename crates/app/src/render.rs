@@ -108,6 +108,10 @@ pub struct RenderOptions {
     pub levels: Option<usize>,
     /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
     pub brush: Vec<warpbench_solver::brush::BrushStroke>,
+    /// The starting transform's file under the landmark warp (`--initial`, [`crate::start`]).
+    pub initial: Option<std::path::PathBuf>,
+    /// A session's starting transform (`--session`), instead of a file.
+    pub session_start: Option<Box<crate::start::Start>>,
     pub grid: usize,
     pub blend: settings::Blend,
     /// The moving weight of [`settings::Blend::Mix`], clamped to 0..1.
@@ -187,7 +191,15 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         inputs_paths.extend(l.paths());
     }
     inputs_paths.extend(opts.field.as_deref());
+    inputs_paths.extend(opts.initial.as_deref());
     opts.out.check(&inputs_paths).map_err(Failure::BadInput)?;
+    if let (Some(initial), None) = (&opts.initial, &opts.landmarks) {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: --initial starts a landmark warp: give landmarks too (a file with no pairs shows the starting \
+             transform alone)",
+            initial.display()
+        )));
+    }
     if opts.landmarks.is_some() && opts.field.is_some() {
         return Err(Failure::BadInput(anyhow!(
             "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
@@ -229,15 +241,21 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let mut glyph_pairs = Vec::new();
     if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
         let pairs = source.read().map_err(Failure::BadInput)?;
-        let c = inputs::correspondences(source, &pairs, moving, &fixed, inputs::min_pairs(&method))
-            .map_err(Failure::BadInput)?;
+        let start = match &opts.session_start {
+            Some(s) => Some((**s).clone()),
+            None => opts.initial.as_deref().map(crate::start::Start::read).transpose().map_err(Failure::BadInput)?,
+        };
+        let c =
+            inputs::correspondences(source, &pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
+                .map_err(Failure::BadInput)?;
         if !opts.quiet {
             for w in fit::fit_warnings(&method, &c) {
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        let pullback = fit::pullback_of(&method, &c, fixed_box).map_err(Failure::BadInput)?;
-        let forward = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(moving)).map_err(Failure::BadInput)?;
+        let pullback = fit::pullback_of(&method, &c, fixed_box, start.as_ref()).map_err(Failure::BadInput)?;
+        let forward = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(moving), start.as_ref())
+            .map_err(Failure::BadInput)?;
         let brushed = Brushed::new(&opts.brush, &source.describe()).map_err(Failure::BadInput)?;
         // With a brush on top: u ∘ b⁻¹ into the texture, and the moving glyphs at b(d(p)).
         if let Some(b) = &brushed {

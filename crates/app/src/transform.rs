@@ -123,6 +123,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         )));
     }
     let method = inputs.method().map_err(Failure::BadInput)?;
+    let start = inputs.start().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
     let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;
     let c = inputs::check_pairs(
@@ -130,7 +131,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         &landmark_pairs,
         &volumes.moving,
         &volumes.fixed,
-        inputs::min_pairs(&method),
+        crate::start::min_pairs(&method, start.as_ref()),
     )
     .map_err(Failure::BadInput)?;
     let warnings = fit::fit_warnings(&method, &c);
@@ -139,8 +140,8 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             eprintln!("warpbench: warning: {w}");
         }
     }
-    let moving_from_fixed =
-        fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed)).map_err(Failure::BadInput)?;
+    let moving_from_fixed = fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed), start.as_ref())
+        .map_err(Failure::BadInput)?;
     let transform = itk_transform_of(&moving_from_fixed);
     itk_tfm::write(&out_path, &transform)?;
 
@@ -152,7 +153,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         schema: SCHEMA,
         out: out_path.display().to_string(),
         itk_class: transform.type_name(),
-        method: method.to_string(),
+        method: crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()),
         pairs: c.moving.len(),
         map: "moving_from_fixed",
         domain_lps,

@@ -53,6 +53,7 @@ use crate::exit::Failure;
 use crate::fit::{self, TpsParts};
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::scene;
+use crate::start::Start;
 
 /// Where the resampling runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -346,12 +347,12 @@ pub fn resample(
     grid: &Volume,
     fixed: &Volume,
     moving: &Volume,
-    (pairs, brush): (&[LandmarkPair], Option<&Brushed>),
+    layers: (&[LandmarkPair], Option<&Brushed>, Option<&Start>),
     names: &Names,
     settings: &WarpSettings,
     progress: &mut dyn FnMut(Progress) -> bool,
 ) -> Result<Resampled, Failure> {
-    let fitted = Fitted::new(grid, fixed, moving, (pairs, brush), names, settings)?;
+    let fitted = Fitted::new(grid, fixed, moving, layers, names, settings)?;
     fitted.resample(moving, names, progress)
 }
 
@@ -597,7 +598,7 @@ impl Fitted {
         grid: &Volume,
         fixed: &Volume,
         moving: &Volume,
-        (pairs, brush): (&[LandmarkPair], Option<&Brushed>),
+        (pairs, brush, initial): (&[LandmarkPair], Option<&Brushed>, Option<&Start>),
         names: &Names,
         settings: &WarpSettings,
     ) -> Result<Self, Failure> {
@@ -606,10 +607,10 @@ impl Fitted {
         if brush.is_none() {
             check_pullback_mode(&method, settings.pullback)?;
         }
-        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, inputs::min_pairs(&method))
+        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, crate::start::min_pairs(&method, initial))
             .map_err(Failure::BadInput)?;
         let target_box = inputs::volume_box::<Fixed>(grid);
-        let pullback = fit::pullback_of(&method, &c, target_box).map_err(Failure::BadInput)?;
+        let pullback = fit::pullback_of(&method, &c, target_box, initial).map_err(Failure::BadInput)?;
         let (pullback, target) = match brush {
             // u ∘ b⁻¹ has no exact GPU form: through a control texture, or one texel per voxel for --exact.
             Some(b) => {
@@ -621,7 +622,10 @@ impl Fitted {
         .map_err(Failure::BadInput)?;
         Ok(Self {
             settings: ExportSettings::from(settings),
-            method: crate::brushed::describe(&method, brush),
+            method: crate::brushed::describe(
+                &crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), initial),
+                brush,
+            ),
             pairs: c.moving.len(),
             pullback,
             target,
@@ -805,7 +809,8 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
             if brushed.is_none() {
                 check_pullback_mode(&method, opts.pullback)?;
             }
-            Given::Pairs(method, &pairs.landmarks, brushed)
+            let start = pairs.start().map_err(Failure::BadInput)?.map(Box::new);
+            Given::Pairs(method, &pairs.landmarks, brushed, start)
         }
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
@@ -818,7 +823,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
     let fitted = match &given {
-        Given::Pairs(method, landmarks, brushed) => {
+        Given::Pairs(method, landmarks, brushed, start) => {
             let pairs = landmarks.read().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method: *method,
@@ -828,7 +833,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
                 backend: export.backend,
                 outside_value: export.outside_value,
             };
-            Fitted::new(grid, &fixed, &moving, (&pairs, brushed.as_deref()), &names, &settings)?
+            Fitted::new(grid, &fixed, &moving, (&pairs, brushed.as_deref(), start.as_deref()), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
     };
@@ -892,8 +897,8 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
 
 /// The warp [`run`] applies, checked before any volume is loaded.
 enum Given<'a> {
-    /// A method, to fit on the pairs of a landmark source, and a brush on top.
-    Pairs(Method, &'a inputs::LandmarkSource, Option<Box<Brushed>>),
+    /// A method, to fit on the pairs of a landmark source, a brush on top and a starting transform under it.
+    Pairs(Method, &'a inputs::LandmarkSource, Option<Box<Brushed>>, Option<Box<Start>>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
 }

@@ -408,7 +408,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None),
+            (&pairs, None, None),
             &names(&f, &csv, &core_out),
             &method,
             &mut |done, total| {
@@ -449,6 +449,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
         names: &names,
         method: &Method::Tps { stiffness: 0.0 },
         brush: None,
+        start: None,
     };
     let forward =
         field::sample_field(&volume, &inputs, FieldDirection::Forward, &mut |_, _| true).expect("the field in memory");
@@ -471,7 +472,7 @@ fn the_in_memory_core_stops_when_progress_says_so() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None),
+            (&pairs, None, None),
             &names(&f, &csv, &dir.path().join("never.nii")),
             &Method::Tps { stiffness: 0.0 },
             &mut |_, _| {

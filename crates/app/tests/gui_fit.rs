@@ -134,7 +134,7 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
         );
         let n = ready.document.settings.grid_n;
         let (fitted, _) =
-            warpbench_app::gui::fit_warp(&ready.document.settings.method(), &fixed, &moving, boxes, n, true)
+            warpbench_app::gui::fit_warp(&ready.document.settings.method(), &fixed, &moving, boxes, n, true, None)
                 .expect("fit");
         let (_, texture) = warpbench_app::scene::control_texture(fitted.pullback.as_ref(), boxes.0, n).expect("sample");
         let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
@@ -403,4 +403,112 @@ fn the_status_bar_reads_out_the_warp_under_the_pointer() {
     let label = c.readout(&ready.document.pairs[index].name);
     assert!(label.contains("det ") && label.contains("leave-one-out"), "{label}");
     harness.get_by_label(&label);
+}
+
+/// Auto-align (issue 18 item 1): on a pair whose moving volume is the fixed one moved by a known rigid transform,
+/// "Auto-align" puts the alignment under the landmark warp as the document's starting transform (within half a
+/// millimetre of the truth over the fixed box), which with no pairs is the warp shown; it is one undo step, it reaches
+/// the autosave, the command line's `--session` takes it, and "Clear alignment" takes it away.
+#[test]
+fn auto_align_puts_the_alignment_under_the_landmark_warp() {
+    use warpbench_io::geometry::{Lps, Point3, Transform};
+
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut moving = warpbench_io::open(mri()).expect("the fixture");
+    let rotation = nalgebra::Rotation3::from_axis_angle(
+        &nalgebra::Unit::new_normalize(nalgebra::Vector3::new(0.2, 1.0, -0.3)),
+        10f64.to_radians(),
+    )
+    .into_inner();
+    let truth: Transform<Lps, Lps> = Transform::from_linear_translation(rotation, [6.0, -12.0, 9.0]);
+    moving.lps_from_index = truth * moving.lps_from_index;
+    let moved = dir.path().join("moved.nii");
+    warpbench_io::nifti::write(&moved, &moving).expect("write the moved fixture");
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(moved.clone()),
+        autosave: Some(autosave.clone()),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    harness.get_by_label_contains("Starting transform: none");
+    harness.get_by_label("Auto-align").click();
+    let start = Instant::now();
+    harness.run_steps(2);
+    while harness.state().ready().is_some_and(Ready::aligning) {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(3), "Auto-align did not finish within three minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    let found = ready.document.start.clone().expect("a starting transform");
+    assert!(found.origin.starts_with("Auto-align (rigid"), "{}", found.origin);
+    harness.get_by_label_contains("Starting transform: Auto-align (rigid");
+    // With no pairs the warp is the starting transform: the moving point shown at x is T0(x), near the truth.
+    let volume = warpbench_io::open(mri()).expect("fixture");
+    for c in 0..8 {
+        let ijk = [0, 1, 2].map(|a| if c >> a & 1 == 1 { (volume.dims[a] - 1) as f64 } else { 0.0 });
+        let x = volume.lps_from_index.apply_point(Point3::from_array(ijk)).coords();
+        let shown = ready.moving_shown_at(x);
+        let m = &found.moving_from_fixed;
+        let by_rows: [f64; 3] = std::array::from_fn(|r| m[r][0] * x[0] + m[r][1] * x[1] + m[r][2] * x[2] + m[r][3]);
+        let want = truth.apply_point(Point3::from_array(x)).coords();
+        for a in 0..3 {
+            assert!((shown[a] - by_rows[a]).abs() < 1e-6, "shown {shown:?}, T0 {by_rows:?}");
+            assert!((shown[a] - want[a]).abs() < 0.5, "corner {c}: shown {shown:?}, truth {want:?}");
+        }
+    }
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    // The autosave holds it, and the command line reads it from the session.
+    let saved = warpbench_app::gui::session::load(&autosave).expect("the autosave");
+    assert_eq!(saved.document.start.as_ref(), Some(&found));
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, "10,-20,15,a\n").expect("write a point");
+    let mapped = dir.path().join("mapped.csv");
+    let out = common::warpbench(&[
+        "points",
+        "--fixed",
+        common::utf8(&mri()),
+        "--moving",
+        common::utf8(&moved),
+        "--session",
+        common::utf8(&autosave),
+        "--from",
+        "fixed",
+        "--in",
+        common::utf8(&targets),
+        "--out",
+        common::utf8(&mapped),
+    ]);
+    common::assert_ok(&out);
+    let line = std::fs::read_to_string(&mapped).expect("mapped");
+    let got: Vec<f64> = line
+        .lines()
+        .find(|l| !l.starts_with('#'))
+        .expect("a line")
+        .split(',')
+        .take(3)
+        .map(|v| v.trim().parse().expect("number"))
+        .collect();
+    let want = ready.moving_shown_at([10.0, -20.0, 15.0]);
+    assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs {want:?}");
+
+    // One undo step; then "Clear alignment".
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").document.start.is_none());
+    harness.get_by_label("Redo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").document.start.as_ref(), Some(&found));
+    harness.get_by_label("Clear alignment").click();
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").document.start.is_none());
 }

@@ -303,3 +303,145 @@ fn align_writes_the_known_rigid_transform_as_an_itk_affine() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("not-nifti.nii"), "{}", String::from_utf8_lossy(&bad.stderr));
     assert!(!out2.exists());
 }
+
+/// `--initial` puts `warpbench align`'s result under the landmark warp: with fewer pairs than the method needs it
+/// alone is the warp (`points` maps by its affine exactly; `warp` gives back the fixed volume from a moving volume
+/// moved by a known rigid transform), with enough pairs the landmark warp refines it (the TPS hits its pairs and
+/// `transform` writes it as one TPS), and a file that is not an affine is refused by name.
+#[test]
+fn initial_puts_the_alignment_under_the_landmark_warp() {
+    use nalgebra::{Rotation3, Unit, Vector3};
+    use warpbench_io::geometry::{Lps, Transform};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fixed = mri();
+    let fixed_volume = warpbench_io::open(&fixed).expect("read the fixture");
+    let mut moving = fixed_volume.clone();
+    let rotation =
+        Rotation3::from_axis_angle(&Unit::new_normalize(Vector3::new(-0.4, 0.2, 1.0)), 9f64.to_radians()).into_inner();
+    let truth: Transform<Lps, Lps> = Transform::from_linear_translation(rotation, [-8.0, 11.0, 4.0]);
+    moving.lps_from_index = truth * moving.lps_from_index;
+    let moving_path = dir.path().join("moved.nii");
+    warpbench_io::nifti::write(&moving_path, &moving).expect("write the moved fixture");
+    let tfm = dir.path().join("start.tfm");
+    assert_ok(&warpbench(&[
+        "align",
+        "--fixed",
+        utf8(&fixed),
+        "--moving",
+        utf8(&moving_path),
+        "--out-tfm",
+        utf8(&tfm),
+        "--quiet",
+    ]));
+    let Ok(ItkTransform::Affine(start)) = itk_tfm::read(&tfm) else { panic!("an affine") };
+
+    // Two pairs (too few for a TPS): the start alone.
+    let fixed_points = [
+        [10.0, -20.0, 15.0],
+        [-30.0, 5.0, 0.0],
+        [25.0, 30.0, -10.0],
+        [0.0, -40.0, 30.0],
+        [-15.0, 10.0, -25.0],
+        [5.0, 5.0, 5.0],
+    ];
+    let bump = |q: [f64; 3], i: usize| {
+        let p = start.apply(q);
+        [p[0] + if i == 5 { 2.0 } else { 0.0 }, p[1], p[2]]
+    };
+    let pairs: Vec<([f64; 3], [f64; 3])> = fixed_points.iter().enumerate().map(|(i, q)| (bump(*q, i), *q)).collect();
+    let two = dir.path().join("two.csv");
+    common::write_pairs_csv(&two, &pairs[..2]);
+    let six = dir.path().join("six.csv");
+    common::write_pairs_csv(&six, &pairs);
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, "12,-7,20,a\n-35,22,-14,b\n").expect("write points");
+    let mapped = dir.path().join("mapped.csv");
+    let base = ["--fixed", utf8(&fixed), "--moving", utf8(&moving_path), "--initial", utf8(&tfm)];
+    let run = warpbench(
+        &[
+            &["points"][..],
+            &base,
+            &["--landmarks", utf8(&two), "--from", "fixed", "--in", utf8(&targets), "--out", utf8(&mapped), "--json"],
+        ]
+        .concat(),
+    );
+    assert_ok(&run);
+    let report: Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert!(report["method"].as_str().expect("method").contains("alone (2 pairs; tps needs 4)"), "{report}");
+    let text = std::fs::read_to_string(&mapped).expect("read the mapped points");
+    for (line, x) in
+        text.lines().filter(|l| !l.starts_with('#') && !l.is_empty()).zip([[12.0, -7.0, 20.0], [-35.0, 22.0, -14.0]])
+    {
+        let got: Vec<f64> = line.split(',').take(3).map(|v| v.trim().parse().expect("number")).collect();
+        let want = start.apply(x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs {want:?}");
+    }
+
+    // warp through the start alone gives back the fixed volume (the moving one is the fixed one, moved).
+    let warped = dir.path().join("warped.nii");
+    assert_ok(&warpbench(
+        &[&["warp"][..], &base, &["--landmarks", utf8(&two), "--exact", "--float", "--out", utf8(&warped), "--quiet"]]
+            .concat(),
+    ));
+    let out = warpbench_io::open(&warped).expect("read the output");
+    let (mut sum_sq, mut count) = (0.0, 0usize);
+    let (mut diff_sq, mut range) = (0.0, 0.0f64);
+    for k in 4..fixed_volume.dims[2] - 4 {
+        for j in 4..fixed_volume.dims[1] - 4 {
+            for i in 4..fixed_volume.dims[0] - 4 {
+                let o = fixed_volume.offset(i, j, k);
+                let (a, b) = (fixed_volume.data.get_f64(o), out.data.get_f64(o));
+                diff_sq += (a - b).powi(2);
+                sum_sq += a * a;
+                range = range.max(a.abs());
+                count += 1;
+            }
+        }
+    }
+    let rms = (diff_sq / count as f64).sqrt();
+    assert!(
+        rms < 0.02 * range,
+        "RMS difference {rms} against a range of {range} (signal RMS {})",
+        (sum_sq / count as f64).sqrt()
+    );
+
+    // Six pairs: a TPS on top of the start hits every pair, and `transform` writes one TPS.
+    let out_tfm = dir.path().join("tps.tfm");
+    let run = warpbench(
+        &[&["transform"][..], &base, &["--landmarks", utf8(&six), "--out", utf8(&out_tfm), "--json"]].concat(),
+    );
+    assert_ok(&run);
+    let report: Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert!(report["method"].as_str().expect("method").starts_with("tps on "), "{report}");
+    let Ok(ItkTransform::ThinPlateSpline(spline)) = itk_tfm::read(&out_tfm) else { panic!("a TPS file") };
+    let source: Vec<Point3<Fixed>> = spline.source_lps.iter().map(|p| Point3::from_array(*p)).collect();
+    let target: Vec<Point3<Moving>> = spline.target_lps.iter().map(|p| Point3::from_array(*p)).collect();
+    let tps = Tps::fit(&source, &target, 0.0).expect("ITK's interpolating spline");
+    for (p, q) in &pairs {
+        let got = tps.apply(Point3::<Fixed>::from_array(*q)).coords();
+        assert!((0..3).all(|a| (got[a] - p[a]).abs() < 1e-6), "{got:?} vs {p:?}");
+    }
+
+    // A file that is not an affine.
+    let run = warpbench(
+        &[
+            &["points"][..],
+            &["--fixed", utf8(&fixed), "--moving", utf8(&moving_path), "--initial", utf8(&out_tfm)],
+            &[
+                "--landmarks",
+                utf8(&six),
+                "--from",
+                "fixed",
+                "--in",
+                utf8(&targets),
+                "--out",
+                utf8(&dir.path().join("never.csv")),
+            ],
+        ]
+        .concat(),
+    );
+    assert_eq!(run.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("tps.tfm") && stderr.contains("affine"), "{stderr}");
+}

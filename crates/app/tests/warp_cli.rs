@@ -307,7 +307,7 @@ fn the_in_memory_core_makes_the_file_the_command_writes() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None),
+            (&pairs, None, None),
             &names(&mri, &csv, &from_core),
             settings,
             &mut |p: Progress| {
@@ -361,7 +361,7 @@ fn the_in_memory_core_stops_when_progress_says_so() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None),
+            (&pairs, None, None),
             &names(&mri, &csv, &dir.path().join("never.nii")),
             &settings,
             &mut |_: Progress| {

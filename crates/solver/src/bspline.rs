@@ -1268,6 +1268,47 @@ impl HierarchicalBSpline<Moving, Fixed> {
     }
 }
 
+impl<Mid: Space, From: Space> HierarchicalBSpline<Mid, From> {
+    /// The warp followed by the affine map `then`: then ∘ w. With w(x) = x + D(x) and then(y) = L y + t,
+    /// then(w(x)) = x + D'(x), D'(x) = (L − I) x + t + L D(x); the uniform cubic basis reproduces affine functions
+    /// exactly (control point k of an axis sits at min + (k − 1) h), so D' is a lattice of the same size with
+    /// coefficients c'_k = (L − I) x_k + t + L c_k. Inside the domain it is exact; outside it the lattice clamps, as
+    /// every lattice here does.
+    #[must_use]
+    pub fn followed_by<To: Space>(&self, then: &crate::linear::AffineWarp<To, Mid>) -> HierarchicalBSpline<To, From> {
+        let l = then.linear();
+        let t = nalgebra::Vector3::from(then.translation());
+        let m = l - Matrix3::identity();
+        let mut lattice = self.lattice.clone();
+        let [n0, n1, n2] = lattice.dims();
+        let h = lattice.spacing_mm();
+        let min = lattice.min_mm;
+        let coefficients = lattice.coefficients_mut();
+        for kz in 0..n2 {
+            for ky in 0..n1 {
+                for kx in 0..n0 {
+                    let o = ((kz * n1 + ky) * n0 + kx) * 3;
+                    let x = nalgebra::Vector3::new(
+                        min[0] + (kx as f64 - 1.0) * h[0],
+                        min[1] + (ky as f64 - 1.0) * h[1],
+                        min[2] + (kz as f64 - 1.0) * h[2],
+                    );
+                    let c = nalgebra::Vector3::new(coefficients[o], coefficients[o + 1], coefficients[o + 2]);
+                    let c2 = m * x + t + l * c;
+                    coefficients[o..o + 3].copy_from_slice(&[c2[0], c2[1], c2[2]]);
+                }
+            }
+        }
+        HierarchicalBSpline {
+            lattice,
+            domain: self.domain,
+            report: self.report,
+            warnings: self.warnings.clone(),
+            spaces: PhantomData,
+        }
+    }
+}
+
 impl<To: Space, From: Space> Warp<To, From> for HierarchicalBSpline<To, From> {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
         let d = self.lattice.eval(x);

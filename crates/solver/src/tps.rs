@@ -505,6 +505,41 @@ impl<To: Space, From: Space> Tps<To, From> {
     }
 }
 
+impl<Mid: Space, From: Space> Tps<Mid, From> {
+    /// The spline followed by the affine map `then`: then ∘ f. A TPS again, with the same centres: then(f(x)) =
+    /// L A x + (L b + t) + Σᵢ (L wᵢ) ‖x − pᵢ‖ for then(y) = L y + t. A starting transform composed after the landmark
+    /// warp (issue 18) keeps the spline's form, so the GPU, the exporters and the ITK transform file take it as any TPS.
+    #[must_use]
+    pub fn followed_by<To: Space>(&self, then: &crate::linear::AffineWarp<To, Mid>) -> Tps<To, From> {
+        let l = then.linear();
+        let t = then.translation();
+        let b = l * nalgebra::Vector3::from(self.b);
+        let blocks = self
+            .blocks
+            .iter()
+            .map(|blk| {
+                let mut out = *blk;
+                for lane in 0..LANES {
+                    let w = l * nalgebra::Vector3::new(blk.wx[lane], blk.wy[lane], blk.wz[lane]);
+                    out.wx[lane] = w[0];
+                    out.wy[lane] = w[1];
+                    out.wz[lane] = w[2];
+                }
+                out
+            })
+            .collect();
+        Tps {
+            n: self.n,
+            blocks,
+            a: l * self.a,
+            b: [b[0] + t[0], b[1] + t[1], b[2] + t[2]],
+            regularisation: self.regularisation,
+            warnings: self.warnings.clone(),
+            spaces: PhantomData,
+        }
+    }
+}
+
 impl<To: Space, From: Space> Warp<To, From> for Tps<To, From> {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
         self.eval_point(x)

@@ -517,6 +517,7 @@ fn workbench_ui(
     // No refinement band starts while this frame is worked on (the window answers its input first).
     ready.hold_refinement(true);
     ready.poll_diagnostics();
+    ready.poll_alignment();
     if let Some(job) = &ready.files.export {
         match job.poll() {
             Some(result) => {

@@ -15,7 +15,7 @@ use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::brush::BrushStroke;
 
-use super::document::{Look, ViewSettings};
+use super::document::{Look, StartingTransform, ViewSettings};
 use super::history::Snapshot;
 use super::interaction::{End, Placing};
 use super::panels::FileAction;
@@ -88,6 +88,11 @@ pub enum Command {
     /// Set the TPS stiffness to the λ that minimises the leave-one-out error of the pairs in the fit
     /// ([`warpbench_solver::stiffness`]).
     AutoStiffness,
+    /// Align the moving volume to the fixed one by mutual information on a thread of its own; the result arrives as
+    /// [`Command::SetStart`] ([`super::alignment`]).
+    AutoAlign(warpbench_solver::align::AlignKind),
+    /// Put a starting transform under the landmark warp, or take it away (`None`).
+    SetStart(Option<StartingTransform>),
 }
 
 /// What a settings change costs.
@@ -259,6 +264,13 @@ impl Ready {
                 }
             }
             Command::AutoStiffness => self.auto_stiffness(),
+            Command::AutoAlign(kind) => self.start_alignment(kind),
+            Command::SetStart(start) => {
+                if self.document.start != start {
+                    self.document.start = start;
+                    self.refit_soon();
+                }
+            }
         }
     }
 
@@ -359,6 +371,7 @@ impl Ready {
             pairs: self.document.pairs.clone(),
             method: self.document.settings.method(),
             brush: self.document.brush.clone(),
+            start: self.document.start.clone(),
         };
         match export::ExportJob::start(&self.ctx, kind, out, input) {
             Ok(job) => {

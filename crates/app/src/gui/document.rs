@@ -36,6 +36,44 @@ pub struct Document {
     /// ([`warpbench_solver::brush`], [`crate::brushed`]).
     #[serde(default)]
     pub brush: Vec<BrushStroke>,
+    /// The starting transform under the landmark warp (Auto-align, [`crate::start`]); `None`: the landmark warp alone.
+    #[serde(default)]
+    pub start: Option<StartingTransform>,
+}
+
+/// A starting transform as the document keeps it: T₀ = `moving_from_fixed` (fixed → moving, LPS mm) and what found it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StartingTransform {
+    /// The rows of [L | t]: T₀(x) = L x + t.
+    pub moving_from_fixed: [[f64; 4]; 3],
+    /// How the window and the reports name it, e.g. `Auto-align (rigid)`.
+    pub origin: String,
+}
+
+impl StartingTransform {
+    /// The transform `moving_from_fixed` (L, t) named `origin`.
+    #[must_use]
+    pub fn new(linear: nalgebra::Matrix3<f64>, translation: [f64; 3], origin: String) -> Self {
+        Self {
+            moving_from_fixed: std::array::from_fn(|r| {
+                [linear[(r, 0)], linear[(r, 1)], linear[(r, 2)], translation[r]]
+            }),
+            origin,
+        }
+    }
+
+    /// As the fits take it.
+    ///
+    /// # Errors
+    /// When it is not finite or not invertible (a hand-edited session).
+    pub fn start(&self) -> anyhow::Result<crate::start::Start> {
+        let m = &self.moving_from_fixed;
+        let linear = nalgebra::Matrix3::from_fn(|r, c| m[r][c]);
+        crate::start::Start::new(
+            warpbench_solver::linear::AffineWarp::new(linear, [m[0][3], m[1][3], m[2][3]]),
+            &self.origin,
+        )
+    }
 }
 
 impl Document {
@@ -51,6 +89,7 @@ impl Document {
             settings: ViewSettings::default(),
             layers: volumes.map(Look::auto),
             brush: Vec::new(),
+            start: None,
         }
     }
 

@@ -18,6 +18,7 @@
 //! - `images`: the rendered images and the 3-D view's state (stale, reduced, refining, full), with [`pacing`].
 //! - [`views`]: the slice strip and the 3-D view; [`panels`]: the side panel's sections; [`viewer`]: the GPU side.
 
+pub mod alignment;
 pub mod app;
 pub mod attention;
 pub mod autosave;
@@ -116,6 +117,8 @@ pub struct FitState {
     drag: Option<fit::DragFit>,
     /// The last fit's diagnostics being computed ([`diagnostics`]); `pair_errors` and `jacobian` wait for them.
     diagnostics: Option<diagnostics::DiagnosticsJob>,
+    /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
+    aligning: Option<alignment::AlignJob>,
     /// The document's brush as a warp b of the fixed space, on top of the fitted warp ([`crate::brushed`]): the
     /// moving glyphs are drawn at b(d(p)), a slice click stores u(b⁻¹(x)).
     pub brush: Option<warpbench_solver::brush::Brush>,
@@ -207,6 +210,43 @@ impl Ready {
         match result {
             Some(d) => self.take_diagnostics(Some(d)),
             None => self.fit.error = Some("the fit's diagnostics stopped (a bug): fit again to retry".into()),
+        }
+    }
+
+    /// Takes Auto-align's result once its thread has it: the document's starting transform (one undo step), or the
+    /// problem in the status bar; call once per frame.
+    pub fn poll_alignment(&mut self) {
+        let Some(result) = self.fit.aligning.as_ref().and_then(alignment::AlignJob::poll) else { return };
+        self.fit.aligning = None;
+        match result {
+            Ok(start) => {
+                self.notice = None;
+                self.apply(commands::Command::SetStart(Some(start)));
+            }
+            Err(e) => self.notice = Some(e),
+        }
+    }
+
+    /// Whether Auto-align is running.
+    #[must_use]
+    pub fn aligning(&self) -> bool {
+        self.fit.aligning.is_some()
+    }
+
+    /// Starts Auto-align on the pair as loaded, unless it is running; its result arrives through
+    /// [`Self::poll_alignment`].
+    fn start_alignment(&mut self, kind: warpbench_solver::align::AlignKind) {
+        if self.fit.aligning.is_some() {
+            return;
+        }
+        let egui = self.ctx.clone();
+        let (fixed, moving) = (Arc::clone(&self.loaded.fixed), Arc::clone(&self.loaded.moving));
+        match alignment::AlignJob::start(fixed, moving, kind, move || egui.request_repaint()) {
+            Ok(job) => {
+                self.fit.aligning = Some(job);
+                self.notice = Some(format!("Auto-align ({kind}): aligning the moving volume to the fixed one"));
+            }
+            Err(e) => self.notice = Some(format!("Auto-align: could not start its thread: {e}")),
         }
     }
 
@@ -322,7 +362,16 @@ impl Ready {
         // The pairs are checked once here, so that refusals and warnings number them as the table does (the
         // fits below check them again, numbered among the pairs they get).
         let row = |n: usize| used.get(n.wrapping_sub(1)).map_or(n, |&i| i + 1);
-        match method.check(&fixed, &moving) {
+        // The starting transform under the landmark warp (Auto-align); with too few pairs it alone is the warp.
+        let start = match self.document.start.as_ref().map(document::StartingTransform::start).transpose() {
+            Ok(s) => s,
+            Err(e) => {
+                self.fit.error = Some(format!("{e:#}"));
+                None
+            }
+        };
+        let alone = start.is_some() && !crate::start::refines(&method, moving.len());
+        match if alone { Ok(Vec::new()) } else { method.check(&fixed, &moving) } {
             Ok(warnings) => {
                 self.fit.warnings = warnings.into_iter().map(|w| w.renumber(row).to_string()).collect();
             }
@@ -361,13 +410,15 @@ impl Ready {
         }
         self.fit.brush.clone_from(&brush);
         let on_gpu = brush.is_none()
+            && !alone
             && gpu_evaluates(&method)
             && match self.control_eval {
                 ControlEval::Auto => !self.viewer.ctx.is_cpu_driver(),
                 ControlEval::Cpu => false,
                 ControlEval::Gpu => true,
             };
-        let fast = if diagnostics || on_gpu || brush.is_some() {
+        // A drag's O(N²) updates know the pairs alone, not a starting transform under them.
+        let fast = if diagnostics || on_gpu || brush.is_some() || start.is_some() {
             None
         } else {
             self.drag_event(&method, &fixed, &moving, fixed_box)
@@ -380,23 +431,35 @@ impl Ready {
                 None => &pointwise,
             };
             let texture = (self.document.settings.grid_n, filterable);
-            fit::fit_warp_brushed(&method, (&fixed, &moving), boxes, texture, inverse).map(|(f, prepared)| {
-                self.viewer.set_control(Some(&prepared));
-                f
-            })
+            fit::fit_warp_brushed(&method, (&fixed, &moving), boxes, texture, inverse, start.as_ref()).map(
+                |(f, prepared)| {
+                    self.viewer.set_control(Some(&prepared));
+                    f
+                },
+            )
         } else if let Some((fitted, prepared)) = fast {
             self.viewer.set_control(Some(&prepared));
             Ok(fitted)
         } else if on_gpu {
-            fit_warp_on_gpu(&method, &fixed, &moving, boxes, self.document.settings.grid_n, &mut self.viewer)
+            fit_warp_on_gpu(
+                &method,
+                &fixed,
+                &moving,
+                boxes,
+                self.document.settings.grid_n,
+                &mut self.viewer,
+                start.as_ref(),
+            )
         } else {
-            fit_warp(&method, &fixed, &moving, boxes, self.document.settings.grid_n, filterable).map(|(f, prepared)| {
-                self.viewer.set_control(Some(&prepared));
-                f
-            })
+            fit_warp(&method, &fixed, &moving, boxes, self.document.settings.grid_n, filterable, start.as_ref()).map(
+                |(f, prepared)| {
+                    self.viewer.set_control(Some(&prepared));
+                    f
+                },
+            )
         };
         match result {
-            Ok(fitted) if !diagnostics => {
+            Ok(fitted) if !diagnostics || alone => {
                 // Keep the last diagnostics until the drag ends.
                 self.fit.pair_errors.resize(self.document.pairs.len(), None);
                 self.fit.fitted = Some(fitted);

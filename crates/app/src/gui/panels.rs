@@ -6,7 +6,9 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::Command;
-use super::document::{BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, ViewSettings};
+use super::document::{
+    BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, StartingTransform, ViewSettings,
+};
 use super::leafer::{DEFAULT_ANGLE_DEG, Leafer, MAX_ANGLE_DEG};
 use super::open::Side;
 use crate::procedural::ProceduralSpec;
@@ -432,6 +434,33 @@ pub fn leafer_ui(ui: &mut egui::Ui, leafer: Leafer) -> Option<Command> {
         ui.add(egui::Slider::new(angle_deg, 0.0..=MAX_ANGLE_DEG).text("Leafer opening (deg)"));
     }
     (edited != leafer).then_some(Command::SetLeafer(edited))
+}
+
+/// The starting transform under the landmark warp ([`crate::start`]): "Auto-align" (rigid) and "Auto-align affine"
+/// align the moving volume to the fixed one by mutual information ([`super::alignment`]), "Clear alignment" takes the
+/// starting transform away; the line below says what it is, or that the alignment is running.
+pub fn alignment_ui(ui: &mut egui::Ui, start: Option<&StartingTransform>, aligning: bool) -> Option<Command> {
+    use warpbench_solver::align::AlignKind;
+    let mut command = None;
+    ui.horizontal(|ui| {
+        let hover = "align the moving volume to the fixed one by mutual information (MR to CT works)";
+        if ui.add_enabled(!aligning, egui::Button::new("Auto-align")).on_hover_text(hover).clicked() {
+            command = Some(Command::AutoAlign(AlignKind::Rigid));
+        }
+        let affine = egui::Button::new("Auto-align affine");
+        if ui.add_enabled(!aligning, affine).on_hover_text("rigid, then 12 parameters").clicked() {
+            command = Some(Command::AutoAlign(AlignKind::Affine));
+        }
+        if ui.add_enabled(start.is_some() && !aligning, egui::Button::new("Clear alignment")).clicked() {
+            command = Some(Command::SetStart(None));
+        }
+    });
+    ui.label(match (aligning, start) {
+        (true, _) => "Starting transform: aligning...".to_owned(),
+        (false, Some(s)) => format!("Starting transform: {}; the landmarks refine it", s.origin),
+        (false, None) => "Starting transform: none (the landmark warp alone)".to_owned(),
+    });
+    command
 }
 
 /// The displacement brush ([`warpbench_solver::brush`]): "Brush" (B) makes it the tool, "Brush radius (mm)" sets new

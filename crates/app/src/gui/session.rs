@@ -135,6 +135,10 @@ mod tests {
             seed: 42,
         });
         d.layers[1] = Look { preset: Preset::CtSoftTissue, window_low: -100.0, window_high: 300.0, visible: false };
+        d.start = Some(crate::gui::document::StartingTransform {
+            moving_from_fixed: [[0.9, -0.1, 0.05, 12.5], [0.1, 0.99, 0.0, -3.0], [0.0, 0.02, 1.01, 7.25]],
+            origin: "Auto-align (rigid)".into(),
+        });
         d
     }
 

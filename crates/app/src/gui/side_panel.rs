@@ -48,6 +48,8 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Warning: {w}"));
             }
             ui.separator();
+            commands.extend(panels::alignment_ui(ui, ready.document.start.as_ref(), ready.aligning()));
+            ui.separator();
             commands
                 .extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors).map(Command::JumpTo));
             panels::inverse_consistency_ui(ui, ready.fit.brush_consistency.as_ref());

@@ -63,12 +63,17 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                 );
                 ui.separator();
             }
-            match &ready.fit.error {
-                Some(e) => ui.colored_label(egui::Color32::LIGHT_RED, format!("warp off: {e}")),
-                None => {
-                    ui.label(format!("{} fitted on {} pairs", ready.document.settings.method, ready.fitted_pairs()))
-                }
-            };
+            if let Some(e) = &ready.fit.error {
+                ui.colored_label(egui::Color32::LIGHT_RED, format!("warp off: {e}"));
+            } else {
+                let method = ready.document.settings.method();
+                let (n, needs) = (ready.fitted_pairs(), crate::inputs::min_pairs(&method));
+                ui.label(match &ready.document.start {
+                    Some(_) if n < needs => format!("the starting transform alone ({n} pairs; {method} needs {needs})"),
+                    Some(_) => format!("{method} fitted on {n} pairs over the starting transform"),
+                    None => format!("{} fitted on {n} pairs", ready.document.settings.method),
+                });
+            }
         });
     });
 }

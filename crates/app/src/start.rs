@@ -1,0 +1,195 @@
+//! The starting transform of a registration (issue 18, item 1): an affine pull-back T₀ = `moving_from_fixed`, found
+//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`), that the landmark warp refines.
+//!
+//! With pairs (pᵢ moving, qᵢ fixed) the landmark warp is fitted on top of T₀ in each direction, in the frame where
+//! T₀ has already acted, and put after it:
+//!
+//! - pull-back: u = T₀ ∘ r, r fitted on qᵢ → T₀⁻¹(pᵢ) over the fixed box (so u(qᵢ) ≈ pᵢ);
+//! - forward: d = T₀⁻¹ ∘ s, s fitted on pᵢ → T₀(qᵢ) over the moving box (so d(pᵢ) ≈ qᵢ).
+//!
+//! Each is the fitted warp followed by an affine map, which stays in the method's family
+//! ([`FittedWarp::followed_by`]): the GPU, the exporters and the ITK transform file take it as any fit. For a rigid
+//! T₀ the TPS and the linear fits are the same warps as without T₀ (they are equivariant under rigid maps); what T₀
+//! changes is everything else: with fewer pairs than the method needs, T₀ alone is the warp (u = T₀, d = T₀⁻¹), and
+//! the hierarchical B-spline and a smoothing TPS refine the aligned volumes instead of undoing the whole offset.
+
+use std::path::Path;
+
+use anyhow::{Context, anyhow};
+use warpbench_io::geometry::Point3;
+use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
+use warpbench_solver::linear::AffineWarp;
+use warpbench_solver::method::{FittedWarp, Method};
+use warpbench_solver::spaces::{Aabb, Fixed, Moving};
+use warpbench_solver::warp::Warp;
+
+/// A starting transform and where it came from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Start {
+    moving_from_fixed: AffineWarp<Moving, Fixed>,
+    fixed_from_moving: AffineWarp<Fixed, Moving>,
+    /// How messages and reports name it: the file's path, or the window's "Auto-align (rigid)".
+    pub origin: String,
+}
+
+impl Start {
+    /// T₀ = `moving_from_fixed`, named `origin`.
+    ///
+    /// # Errors
+    /// When T₀ is not finite or not invertible.
+    pub fn new(moving_from_fixed: AffineWarp<Moving, Fixed>, origin: &str) -> anyhow::Result<Self> {
+        let finite =
+            moving_from_fixed.linear().iter().chain(moving_from_fixed.translation().iter()).all(|v| v.is_finite());
+        let fixed_from_moving = moving_from_fixed
+            .inverse()
+            .ok()
+            .filter(|_| finite)
+            .ok_or_else(|| anyhow!("{origin}: the starting transform is not invertible"))?;
+        Ok(Self { moving_from_fixed, fixed_from_moving, origin: origin.to_owned() })
+    }
+
+    /// Reads an ITK affine transform file (`AffineTransform_double_3_3`, as `warpbench align` and `transform` write
+    /// it): fixed points to moving points, LPS mm.
+    ///
+    /// # Errors
+    /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let name = path.display().to_string();
+        let transform = itk_tfm::read(path).with_context(|| format!("--initial {name}"))?;
+        let ItkTransform::Affine(affine) = transform else {
+            return Err(anyhow!(
+                "{name}: --initial takes an affine transform (AffineTransform_double_3_3, as `warpbench align` writes \
+                 it); this file holds a {}",
+                transform.type_name()
+            ));
+        };
+        Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name)
+    }
+
+    /// T₀ as the ITK affine it came from (centre 0).
+    #[must_use]
+    pub fn itk(&self) -> ItkAffine {
+        ItkAffine::from_offset(self.moving_from_fixed.linear(), self.moving_from_fixed.translation())
+    }
+
+    /// T₀: fixed → moving.
+    #[must_use]
+    pub fn moving_from_fixed(&self) -> &AffineWarp<Moving, Fixed> {
+        &self.moving_from_fixed
+    }
+
+    /// T₀⁻¹: moving → fixed.
+    #[must_use]
+    pub fn fixed_from_moving(&self) -> &AffineWarp<Fixed, Moving> {
+        &self.fixed_from_moving
+    }
+}
+
+/// The fewest pairs a fit needs: the method's without a starting transform, none with one (T₀ alone is the warp).
+#[must_use]
+pub fn min_pairs(method: &Method, start: Option<&Start>) -> usize {
+    if start.is_some() { 0 } else { crate::inputs::min_pairs(method) }
+}
+
+/// Whether `pairs` pairs are enough for `method` to refine the starting transform.
+#[must_use]
+pub fn refines(method: &Method, pairs: usize) -> bool {
+    pairs >= crate::inputs::min_pairs(method)
+}
+
+/// The pull-back u = T₀ ∘ r (module docs); T₀ alone when there are too few pairs for `method`.
+///
+/// # Errors
+/// The fit's, as [`Method::fit`].
+pub fn pullback(
+    start: &Start,
+    method: &Method,
+    fixed: &[Point3<Fixed>],
+    moving: &[Point3<Moving>],
+    fixed_box: Aabb<Fixed>,
+) -> Result<FittedWarp<Moving, Fixed>, warpbench_solver::SolverError> {
+    if !refines(method, moving.len()) {
+        return Ok(FittedWarp::Linear(start.moving_from_fixed));
+    }
+    let aligned: Vec<Point3<Fixed>> = moving.iter().map(|p| start.fixed_from_moving.apply(*p)).collect();
+    let residual: FittedWarp<Fixed, Fixed> = method.fit(fixed, &aligned, fixed_box)?;
+    Ok(residual.followed_by(&start.moving_from_fixed))
+}
+
+/// The forward map d = T₀⁻¹ ∘ s (module docs); T₀⁻¹ alone when there are too few pairs for `method`.
+///
+/// # Errors
+/// The fit's, as [`Method::fit`].
+pub fn forward(
+    start: &Start,
+    method: &Method,
+    fixed: &[Point3<Fixed>],
+    moving: &[Point3<Moving>],
+    moving_box: Aabb<Moving>,
+) -> Result<FittedWarp<Fixed, Moving>, warpbench_solver::SolverError> {
+    if !refines(method, moving.len()) {
+        return Ok(FittedWarp::Linear(start.fixed_from_moving));
+    }
+    let aligned: Vec<Point3<Moving>> = fixed.iter().map(|q| start.moving_from_fixed.apply(*q)).collect();
+    let residual: FittedWarp<Moving, Moving> = method.fit(moving, &aligned, moving_box)?;
+    Ok(residual.followed_by(&start.fixed_from_moving))
+}
+
+/// The warp's name in reports: `method`, `method on <origin>` with a starting transform it refines, or
+/// `<origin> alone (N pairs; method needs K)` when the pairs are too few.
+#[must_use]
+pub fn describe(method: &dyn std::fmt::Display, needs: usize, pairs: usize, start: Option<&Start>) -> String {
+    match start {
+        None => method.to_string(),
+        Some(s) if pairs >= needs => format!("{method} on {}", s.origin),
+        Some(s) => format!("{} alone ({pairs} pairs; {method} needs {needs})", s.origin),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Rotation3};
+    use warpbench_solver::linear::LinearKind;
+
+    fn start() -> Start {
+        let r = Rotation3::from_euler_angles(0.1, -0.2, 0.15).into_inner() * Matrix3::from_diagonal_element(1.02);
+        Start::new(AffineWarp::new(r, [5.0, -3.0, 8.0]), "test").expect("invertible")
+    }
+
+    /// With too few pairs the warp is T₀ itself; with enough, u hits every pair (interpolating TPS) and d does too.
+    #[test]
+    fn the_landmark_warp_refines_the_start_and_hits_the_pairs() {
+        let s = start();
+        let fixed: Vec<Point3<Fixed>> =
+            [[0.0, 0.0, 0.0], [40.0, 5.0, -3.0], [-20.0, 30.0, 10.0], [5.0, -25.0, 30.0], [10.0, 10.0, -35.0]]
+                .map(Point3::from_array)
+                .to_vec();
+        let moving: Vec<Point3<Moving>> = fixed
+            .iter()
+            .enumerate()
+            .map(|(i, q)| {
+                let p = s.moving_from_fixed().apply(*q).coords();
+                Point3::new(p[0] + i as f64, p[1] - 0.5 * i as f64, p[2] + 2.0)
+            })
+            .collect();
+        let fixed_box = Aabb::new(Point3::new(-60.0, -60.0, -60.0), Point3::new(60.0, 60.0, 60.0));
+        let moving_box = Aabb::new(Point3::new(-70.0, -70.0, -70.0), Point3::new(70.0, 70.0, 70.0));
+        let tps = Method::Tps { stiffness: 0.0 };
+        let alone = pullback(&s, &tps, &fixed[..3], &moving[..3], fixed_box).expect("T0");
+        let x = [3.0, 4.0, 5.0];
+        let want = s.moving_from_fixed().apply_raw(x);
+        let got = alone.as_ref().apply_raw(x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-12), "{got:?} vs {want:?}");
+        let u = pullback(&s, &tps, &fixed, &moving, fixed_box).expect("fit");
+        let d = forward(&s, &tps, &fixed, &moving, moving_box).expect("fit");
+        for (q, p) in fixed.iter().zip(&moving) {
+            assert!(u.as_ref().apply(*q).distance(p) < 1e-8);
+            assert!(d.as_ref().apply(*p).distance(q) < 1e-8);
+        }
+        // A rigid fit on top of T0 (rigid residual r) is T0 ∘ r, not the rigid fit of the raw pairs.
+        let rigid = Method::Linear(LinearKind::Rigid);
+        assert_eq!(describe(&rigid, 3, 2, Some(&s)), "test alone (2 pairs; rigid needs 3)");
+        assert_eq!(describe(&rigid, 3, 5, Some(&s)), "rigid on test");
+    }
+}
