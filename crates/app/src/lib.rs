@@ -49,5 +49,6 @@ pub mod render;
 pub mod scene;
 pub mod settings;
 pub mod start;
+pub mod suggest;
 pub mod transform;
 pub mod warp;

@@ -211,6 +211,20 @@ enum Command {
     ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json
     #[command(verbatim_doc_comment)]
     Align(Box<warpbench_app::align::AlignArgs>),
+    /// Suggest the fixed point of each moving point of a list: the current warp's prediction, refined by a local
+    /// search for the best match of the moving point's surroundings (normalised gradient fields, so an MRI point
+    /// finds its CT target), with a confidence.
+    ///
+    /// The current warp is the landmarks' (--landmarks or --session, with --method and --initial as for warp),
+    /// the starting transform alone (--initial), or the identity. The output is a BigWarp file of pairs (moving
+    /// point, suggested fixed point); a suggestion of low confidence is written inactive, one that failed (a patch
+    /// outside a volume) without a fixed point. --json gives each point's suggestion, prediction, confidence and
+    /// search radius. Examples:
+    ///
+    ///     warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --points mr_points.csv --out suggested.csv --json
+    ///     warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --points mr_points.csv --out suggested.csv
+    #[command(verbatim_doc_comment)]
+    Suggest(Box<warpbench_app::suggest::SuggestArgs>),
 }
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
@@ -707,6 +721,7 @@ fn main() -> ExitCode {
         Command::Transform(args) => warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
         Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
         Command::Align(args) => warpbench_app::align::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
+        Command::Suggest(args) => warpbench_app::suggest::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

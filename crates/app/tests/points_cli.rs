@@ -395,3 +395,106 @@ fn refusals_exit_2_naming_the_file_and_write_nothing() {
 
     assert_eq!(std::fs::read(&dots).expect("read"), before, "the input is unchanged");
 }
+
+/// `warpbench suggest` (issue 18 item 2): the moving MRI is the fixed one moved by a known rigid T (in its header, so
+/// the true fixed point of a moving point p is T⁻¹(p)); from a starting transform 2.5 mm off, the suggestions for
+/// points on strong edges land near the truth (the prediction's error cut), the output pairs them in BigWarp CSV
+/// (low-confidence ones inactive), and a point whose patch leaves the volume is reported, not guessed.
+#[test]
+fn suggest_finds_the_targets_of_a_known_rigid_transform() {
+    use warpbench_io::itk_tfm::{self, ItkAffine};
+    use warpbench_io::landmarks::read_bigwarp_csv;
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fixed_path = common::mri();
+    let fixed = warpbench_io::open(&fixed_path).expect("the fixture");
+    let (c, s) = (8f64.to_radians().cos(), 8f64.to_radians().sin());
+    let rotation = nalgebra::Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
+    let truth: Transform<Lps, Lps> = Transform::from_linear_translation(rotation, [5.0, -7.0, 3.0]);
+    let mut moving = fixed.clone();
+    moving.lps_from_index = truth * moving.lps_from_index;
+    let moving_path = dir.path().join("moved.nii");
+    nifti::write(&moving_path, &moving).expect("write the moved fixture");
+    // The starting transform (fixed → moving), 2.5 mm off the truth.
+    let t = truth.translation();
+    let start = ItkAffine::from_offset(rotation, [t[0] + 2.0, t[1] - 1.5, t[2]]);
+    let tfm = dir.path().join("start.tfm");
+    itk_tfm::write_affine(&tfm, &start).expect("write the start");
+
+    // Fixed points on strong edges, at least 12 mm inside the volume, 15 mm apart; their moving points T(x).
+    let [nx, ny, nz] = fixed.dims;
+    let at = |i: usize, j: usize, k: usize| fixed.data.get_f64(fixed.offset(i, j, k));
+    let mut edges: Vec<(f64, [usize; 3])> = Vec::new();
+    for k in (7..nz - 7).step_by(2) {
+        for j in (7..ny - 7).step_by(2) {
+            for i in (7..nx - 7).step_by(2) {
+                let g = [
+                    at(i + 1, j, k) - at(i - 1, j, k),
+                    at(i, j + 1, k) - at(i, j - 1, k),
+                    at(i, j, k + 1) - at(i, j, k - 1),
+                ];
+                edges.push((g.iter().map(|v| v * v).sum::<f64>(), [i, j, k]));
+            }
+        }
+    }
+    edges.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut chosen: Vec<[f64; 3]> = Vec::new();
+    for (_, [i, j, k]) in edges {
+        let x = fixed.voxel_lps(i, j, k).coords();
+        if chosen.iter().all(|y| (0..3).map(|a| (x[a] - y[a]).powi(2)).sum::<f64>() > 225.0) {
+            chosen.push(x);
+        }
+        if chosen.len() == 12 {
+            break;
+        }
+    }
+    let moving_points: Vec<[f64; 3]> =
+        chosen.iter().map(|x| truth.apply_point(Point3::from_array(*x)).coords()).collect();
+    let mut lines: Vec<String> =
+        moving_points.iter().enumerate().map(|(n, p)| format!("{},{},{},edge{n}", p[0], p[1], p[2])).collect();
+    lines.push("500,500,500,outside".into());
+    let list = lines.join("\n") + "\n";
+    let points = dir.path().join("moving_points.csv");
+    std::fs::write(&points, list).expect("write the points");
+    let out = dir.path().join("suggested.csv");
+    let run = warpbench(&[
+        "suggest",
+        "--fixed",
+        utf8(&fixed_path),
+        "--moving",
+        utf8(&moving_path),
+        "--initial",
+        utf8(&tfm),
+        "--points",
+        utf8(&points),
+        "--out",
+        utf8(&out),
+        "--json",
+    ]);
+    assert_ok(&run);
+    let report: Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert_eq!(report["schema"], "warpbench-suggest/1");
+    assert_eq!(report["failed"], 1, "{report}");
+    let rows = report["points"].as_array().expect("points");
+    assert_eq!(rows.len(), 13);
+    assert!(rows[12]["problem"].as_str().expect("a reason").contains("point 13"), "{}", rows[12]);
+    let inverse = truth.inverse().expect("invertible");
+    let mut errors: Vec<f64> = Vec::new();
+    for (row, p) in rows.iter().zip(&moving_points) {
+        let got: Vec<f64> =
+            row["fixed_lps"].as_array().expect("a suggestion").iter().map(|v| v.as_f64().expect("mm")).collect();
+        let want = inverse.apply_point(Point3::from_array(*p)).coords();
+        errors.push((0..3).map(|a| (got[a] - want[a]).powi(2)).sum::<f64>().sqrt());
+    }
+    errors.sort_by(f64::total_cmp);
+    let median = errors[errors.len() / 2];
+    eprintln!("suggest on a 2 mm MRI from a start 2.5 mm off: errors {errors:.2?} mm");
+    assert!(median < 1.0, "median {median} mm (the prediction is 2.5 mm off)");
+    // The file pairs each moving point with its suggestion; low confidence is inactive.
+    let pairs = read_bigwarp_csv(&out).expect("BigWarp CSV");
+    assert_eq!(pairs.len(), 13);
+    for (pair, row) in pairs.iter().zip(rows) {
+        assert_eq!(pair.active, !row["low_confidence"].as_bool().expect("flag"));
+    }
+    assert!(pairs[12].fixed.is_none() && !pairs[12].active);
+}
