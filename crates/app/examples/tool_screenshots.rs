@@ -12,8 +12,13 @@
 //! - `brush.png`: the displacement brush on, one stroke of radius 40 mm at the crosshair pushing the MRI (alone) 12 mm
 //!   to the patient's left on top of the landmark warp, settled (its inverse fitted), in a window 1 500 pixels tall.
 
-use std::path::{Path, PathBuf};
+#[path = "shots/mod.rs"]
+mod shots;
+
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
+
+use shots::{save, settle};
 
 use anyhow::{Context, Result, bail};
 use eframe::egui;
@@ -25,33 +30,6 @@ use warpbench_app::gui::{Command, GuiOptions, Workbench};
 use warpbench_app::procedural::ProceduralSpec;
 use warpbench_app::settings::{Blend, ProceduralKind};
 use warpbench_solver::brush::BrushStroke;
-
-/// Steps until the views are drawn fully and the fit's diagnostics are in (or `limit` passes).
-fn settle(harness: &mut Harness<'_, Workbench>, limit: Duration) -> Result<()> {
-    let start = Instant::now();
-    loop {
-        harness.step();
-        if let Some(e) = harness.state().failure() {
-            bail!("loading failed: {e}");
-        }
-        if harness.state().ready().is_some_and(|r| !r.needs_render() && !r.diagnostics_pending()) {
-            harness.run_steps(2);
-            return Ok(());
-        }
-        if start.elapsed() > limit {
-            bail!("the window did not settle within {limit:?}");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-}
-
-fn save(harness: &mut Harness<'_, Workbench>, out: &Path, name: &str) -> Result<()> {
-    let image = harness.render().map_err(|e| anyhow::anyhow!("rendering the window: {e}"))?;
-    let path = out.join(name);
-    image.save(&path).with_context(|| format!("writing {}", path.display()))?;
-    eprintln!("wrote {}", path.display());
-    Ok(())
-}
 
 fn main() -> Result<()> {
     let Some(out) = std::env::args().nth(1).map(PathBuf::from) else { bail!("usage: tool_screenshots OUT_DIR") };

@@ -343,3 +343,100 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     assert_eq!(harness.state().ready().expect("loaded").selected, Some(2));
     centred_on(&harness, q);
 }
+
+/// Two points on strong edges of the MRI fixture, at least 12 mm inside it and 20 mm apart (LPS mm).
+fn edge_points() -> [[f64; 3]; 2] {
+    let v = warpbench_io::open(common::mri()).expect("the fixture");
+    let [nx, ny, nz] = v.dims;
+    let at = |i: usize, j: usize, k: usize| v.data.get_f64(v.offset(i, j, k));
+    let mut edges: Vec<(f64, [usize; 3])> = Vec::new();
+    for k in 7..nz - 7 {
+        for j in 7..ny - 7 {
+            for i in 7..nx - 7 {
+                let g = [
+                    at(i + 1, j, k) - at(i - 1, j, k),
+                    at(i, j + 1, k) - at(i, j - 1, k),
+                    at(i, j, k + 1) - at(i, j, k - 1),
+                ];
+                edges.push((g.iter().map(|x| x * x).sum(), [i, j, k]));
+            }
+        }
+    }
+    edges.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let first = v.voxel_lps(edges[0].1[0], edges[0].1[1], edges[0].1[2]).coords();
+    let second = edges
+        .iter()
+        .map(|(_, [i, j, k])| v.voxel_lps(*i, *j, *k).coords())
+        .find(|x| (0..3).map(|a| (x[a] - first[a]).powi(2)).sum::<f64>() > 400.0)
+        .expect("a second edge");
+    [first, second]
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
+/// Suggested targets (issue 18 item 2): both volumes are the MRI fixture and the five pairs shift it by about 3.6 mm,
+/// so the warp predicts a moving point p's target about 3.6 mm from its true one, p itself. Once the source is
+/// placed the ghost suggestion lies within a millimetre of p; Enter takes it as the target; Esc drops a suggestion
+/// and then stops adding; Refine pair moves a target placed 2 mm off back to within a millimetre (one undo step).
+#[test]
+fn suggested_targets_are_taken_dropped_and_refined() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 900.0));
+    let [p, p2] = edge_points();
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(1);
+    harness.state_mut().ready_mut().expect("ready").place_at_ref(p, Some(p));
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("ready");
+    let s = ready.suggestion().expect("a suggestion");
+    eprintln!(
+        "suggestion {:.2} mm from the truth (prediction {:.2} mm, confidence {:.2})",
+        distance(s.fixed_lps, p),
+        distance(s.predicted_lps, p),
+        s.confidence
+    );
+    assert!(distance(s.predicted_lps, p) > 2.0, "the prediction is already right: {:?}", s.predicted_lps);
+    assert!(distance(s.fixed_lps, p) < 1.0, "{:?} vs {p:?}", s.fixed_lps);
+    assert!(!ready.glyphs().is_empty());
+    harness.get_by_label_contains("Enter takes it, Esc drops it");
+    harness.key_press(egui::Key::Enter);
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!((ready.document.pairs.len(), ready.placing()), (6, Placing::Idle));
+    let added = ready.document.pairs[5].fixed.expect("its target").coords();
+    assert!(distance(added, s.fixed_lps) < 1e-9);
+
+    // Esc drops the suggestion (the target is then clicked by hand), a second Esc stops adding.
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(1);
+    harness.state_mut().ready_mut().expect("ready").place_at_ref(p2, Some(p2));
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("ready").suggestion().is_some());
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("ready");
+    assert!(ready.suggestion().is_none() && matches!(ready.placing(), Placing::Target { .. }));
+    // The target by hand, 2 mm off along x.
+    let off = [p2[0] + 2.0, p2[1], p2[2]];
+    harness.state_mut().ready_mut().expect("ready").place_at_ref(off, None);
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    assert_eq!(harness.state().ready().expect("ready").document.pairs.len(), 7);
+    harness.state_mut().ready_mut().expect("ready").selected = Some(6);
+    harness.run_steps(1);
+    harness.get_by_label("Refine pair").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("ready");
+    let refined = ready.document.pairs[6].fixed.expect("its target").coords();
+    eprintln!("refined {:.2} mm from the truth: {:?}", distance(refined, p2), ready.notice);
+    assert!(distance(refined, p2) < 1.0, "{refined:?} vs {p2:?}: {:?}", ready.notice);
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let back = harness.state().ready().expect("ready").document.pairs[6].fixed.expect("its target").coords();
+    assert!(distance(back, off) < 1e-9, "{back:?}");
+}

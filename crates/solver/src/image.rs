@@ -19,6 +19,28 @@ use crate::{Result, SolverError};
 /// index map, not extrapolation.
 pub const EDGE_TOLERANCE_VOX: f64 = 1e-6;
 
+/// The partial blends of a cell's eight corners (ordered by (c_k, c_j, c_i) bits) at fractions (fx, fy, fz): along i
+/// (`x_jk`), then j (`y_k`); the value is y0 + fz (y1 − y0).
+struct Lerps {
+    x00: f64,
+    x10: f64,
+    x01: f64,
+    x11: f64,
+    y0: f64,
+    y1: f64,
+}
+
+impl Lerps {
+    #[inline]
+    fn of(c: &[f64; 8], [fx, fy, _]: [f64; 3]) -> Self {
+        let x00 = c[0] + fx * (c[1] - c[0]);
+        let x10 = c[2] + fx * (c[3] - c[2]);
+        let x01 = c[4] + fx * (c[5] - c[4]);
+        let x11 = c[6] + fx * (c[7] - c[6]);
+        Self { x00, x10, x01, x11, y0: x00 + fy * (x10 - x00), y1: x01 + fy * (x11 - x01) }
+    }
+}
+
 /// A scalar image in space `S`.
 #[derive(Clone, Debug)]
 pub struct Image<S: Space> {
@@ -168,15 +190,9 @@ impl<S: Space> Image<S> {
     #[must_use]
     #[inline]
     pub fn sample_index(&self, xi: [f64; 3]) -> Option<f64> {
-        let (base, [fx, fy, fz]) = self.cell(xi)?;
-        let c = self.corners(base);
-        let x00 = c[0] + fx * (c[1] - c[0]);
-        let x10 = c[2] + fx * (c[3] - c[2]);
-        let x01 = c[4] + fx * (c[5] - c[4]);
-        let x11 = c[6] + fx * (c[7] - c[6]);
-        let y0 = x00 + fy * (x10 - x00);
-        let y1 = x01 + fy * (x11 - x01);
-        Some(y0 + fz * (y1 - y0))
+        let (base, f) = self.cell(xi)?;
+        let l = Lerps::of(&self.corners(base), f);
+        Some(l.y0 + f[2] * (l.y1 - l.y0))
     }
 
     /// The trilinear value at `x_mm`, or `None` outside the grid.
@@ -190,14 +206,10 @@ impl<S: Space> Image<S> {
     #[must_use]
     #[inline]
     pub fn sample_with_gradient(&self, x_mm: [f64; 3]) -> Option<(f64, [f64; 3])> {
-        let (base, [fx, fy, fz]) = self.cell(self.index_of(x_mm))?;
+        let (base, f) = self.cell(self.index_of(x_mm))?;
+        let [_, fy, fz] = f;
         let c = self.corners(base);
-        let x00 = c[0] + fx * (c[1] - c[0]);
-        let x10 = c[2] + fx * (c[3] - c[2]);
-        let x01 = c[4] + fx * (c[5] - c[4]);
-        let x11 = c[6] + fx * (c[7] - c[6]);
-        let y0 = x00 + fy * (x10 - x00);
-        let y1 = x01 + fy * (x11 - x01);
+        let Lerps { x00, x10, x01, x11, y0, y1 } = Lerps::of(&c, f);
         let value = y0 + fz * (y1 - y0);
         // ∂/∂ξ_i: the i-differences blended over j and k; likewise for j and k.
         let di = {

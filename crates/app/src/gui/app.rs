@@ -303,6 +303,7 @@ impl Workbench {
             control_eval: ControlEval::Auto,
             history: History::new(first),
             ctx: ctx.clone(),
+            matching: super::suggestion::Matching::default(),
         };
         ready.reset_camera();
         if let Some(view) = &view {
@@ -485,6 +486,9 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     }
     if key(ui, egui::Key::Escape) {
         commands.push(Command::Cancel);
+    }
+    if key(ui, egui::Key::Enter) && ready.suggestion().is_some() {
+        commands.push(Command::AcceptSuggestion);
     }
     if (key(ui, egui::Key::Delete) || key(ui, egui::Key::Backspace))
         && let Some(i) = ready.selected

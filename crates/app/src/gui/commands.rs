@@ -93,6 +93,11 @@ pub enum Command {
     AutoAlign(warpbench_solver::align::AlignKind),
     /// Put a starting transform under the landmark warp, or take it away (`None`).
     SetStart(Option<StartingTransform>),
+    /// Take the suggested target of the pair being added as its fixed point (Enter; [`super::suggestion`]).
+    AcceptSuggestion,
+    /// Search again for pair `i`'s target from its moving point and the current warp, and move its fixed point there
+    /// unless the search is unsure.
+    RefinePair(usize),
 }
 
 /// What a settings change costs.
@@ -161,7 +166,8 @@ impl Ready {
                 self.follow(i);
             }
             Command::Cancel => {
-                if !self.interaction.stop_adding() {
+                // Esc drops a suggested target first (the partner is then clicked by hand), then stops adding.
+                if !self.interaction.reject_suggestion() && !self.interaction.stop_adding() {
                     self.selected = None;
                 }
                 self.invalidate();
@@ -271,6 +277,12 @@ impl Ready {
                     self.refit_soon();
                 }
             }
+            Command::AcceptSuggestion => {
+                if let Some(s) = self.interaction.suggestion() {
+                    self.place_at_ref(s.fixed_lps, None);
+                }
+            }
+            Command::RefinePair(i) => self.refine_pair(i),
         }
     }
 
@@ -286,6 +298,36 @@ impl Ready {
                 self.refit_soon();
             }
             Err(e) => self.notice = Some(format!("Auto stiffness: {e}")),
+        }
+    }
+
+    /// Runs the target search again for pair `i` ([`super::suggestion`]): its fixed point moves to the suggestion
+    /// (one undo step) unless the search is unsure or fails, which the status bar says.
+    fn refine_pair(&mut self, i: usize) {
+        let Some(p) = self.document.pairs.get(i).and_then(|p| p.moving) else {
+            self.notice = Some(format!("Refine pair: pair {} has no moving point", i + 1));
+            return;
+        };
+        match self.suggestion_for(p) {
+            Ok(s) if s.low_confidence => {
+                self.notice = Some(format!(
+                    "Refine pair {}: the search is unsure (confidence {:.2}); the pair is left as it was",
+                    i + 1,
+                    s.confidence
+                ));
+            }
+            Ok(s) => {
+                let before = self.document.pairs[i].fixed.map(|q| q.coords());
+                let moved = before.map_or(0.0, |q| (0..3).map(|a| (q[a] - s.fixed_lps[a]).powi(2)).sum::<f64>().sqrt());
+                self.document.pairs[i].fixed = Some(Point3::from_array(s.fixed_lps));
+                self.notice = Some(format!(
+                    "Refine pair {}: its fixed point moved {moved:.2} mm (confidence {:.2})",
+                    i + 1,
+                    s.confidence
+                ));
+                self.refit_soon();
+            }
+            Err(e) => self.notice = Some(format!("Refine pair {}: {e}", i + 1)),
         }
     }
 

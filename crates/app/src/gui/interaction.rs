@@ -6,6 +6,7 @@ use warpbench_gpu::PickTarget;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_solver::brush::BrushStroke;
 
+use super::suggestion::Suggested;
 use super::{Command, Ready, placement};
 
 /// Adding a pair: the source is picked on the (deformed) moving volume, then the target on the fixed one.
@@ -68,8 +69,9 @@ pub const SLICE_SLAB_MM: f64 = 3.0;
 pub enum Interaction {
     #[default]
     Idle,
-    /// Adding a pair: the next click places its moving point, or (`moving` placed) its fixed point.
-    Adding { moving: Option<Point3<Lps>> },
+    /// Adding a pair: the next click places its moving point, or (`moving` placed) its fixed point; `suggestion`:
+    /// the target suggested for the placed moving point ([`super::suggestion`]), which Enter takes.
+    Adding { moving: Option<Point3<Lps>>, suggestion: Option<Suggested> },
     /// One point of a pair follows the pointer in a view.
     Dragging(DragPoint),
     /// The brush is the tool: a press and drag on the moving volume displaces it (`drag`: the stroke being made).
@@ -81,8 +83,8 @@ impl Interaction {
     #[must_use]
     pub fn placing(&self) -> Placing {
         match *self {
-            Self::Adding { moving: None } => Placing::Source,
-            Self::Adding { moving: Some(moving) } => Placing::Target { moving },
+            Self::Adding { moving: None, .. } => Placing::Source,
+            Self::Adding { moving: Some(moving), .. } => Placing::Target { moving },
             Self::Idle | Self::Dragging(_) | Self::Sculpting { .. } => Placing::Idle,
         }
     }
@@ -148,7 +150,7 @@ impl Interaction {
     /// goes on.
     pub fn toggle_adding(&mut self) {
         *self = match *self {
-            Self::Idle | Self::Sculpting { drag: None } => Self::Adding { moving: None },
+            Self::Idle | Self::Sculpting { drag: None } => Self::Adding { moving: None, suggestion: None },
             Self::Adding { .. } => Self::Idle,
             other => other,
         };
@@ -165,15 +167,42 @@ impl Interaction {
 
     /// The pair's moving point is placed at `moving`: its fixed point is next.
     pub fn placed_moving(&mut self, moving: Point3<Lps>) {
-        if let Self::Adding { moving: None } = self {
-            *self = Self::Adding { moving: Some(moving) };
+        if let Self::Adding { moving: None, .. } = self {
+            *self = Self::Adding { moving: Some(moving), suggestion: None };
         }
     }
 
     /// The pair's fixed point is placed: the pair is complete.
     pub fn placed_fixed(&mut self) {
-        if let Self::Adding { moving: Some(_) } = self {
+        if let Self::Adding { moving: Some(_), .. } = self {
             *self = Self::Idle;
+        }
+    }
+
+    /// The target suggested for the placed moving point, while a pair is being added.
+    #[must_use]
+    pub fn suggestion(&self) -> Option<Suggested> {
+        match *self {
+            Self::Adding { moving: Some(_), suggestion } => suggestion,
+            _ => None,
+        }
+    }
+
+    /// Shows `suggestion` for the placed moving point (nothing when no moving point waits for its target).
+    pub fn suggest(&mut self, suggestion: Suggested) {
+        if let Self::Adding { moving: Some(_), suggestion: slot } = self {
+            *slot = Some(suggestion);
+        }
+    }
+
+    /// Esc with a suggestion shown: drops it (the target is then clicked by hand); returns whether there was one.
+    pub fn reject_suggestion(&mut self) -> bool {
+        match self {
+            Self::Adding { moving: Some(_), suggestion: slot @ Some(_) } => {
+                *slot = None;
+                true
+            }
+            _ => false,
         }
     }
 
@@ -248,6 +277,12 @@ impl Ready {
         self.interaction.placing()
     }
 
+    /// The target suggested for the pair being added ([`super::suggestion`]).
+    #[must_use]
+    pub fn suggestion(&self) -> Option<Suggested> {
+        self.interaction.suggestion()
+    }
+
     /// The landmark point being dragged.
     #[must_use]
     pub fn drag(&self) -> Option<DragPoint> {
@@ -302,6 +337,11 @@ impl Ready {
                 }
                 self.notice = None;
                 self.interaction.placed_moving(Point3::from_array(p));
+                // The suggested target, shown as a ghost that Enter takes.
+                match self.suggestion_for(Point3::from_array(p)) {
+                    Ok(s) => self.interaction.suggest(s),
+                    Err(e) => self.notice = Some(e),
+                }
             }
             Placing::Target { moving } => {
                 if let Some(message) = placement::outside_message(End::Fixed, &self.loaded.fixed, x_ref) {
@@ -425,6 +465,30 @@ mod tests {
         assert_eq!(i.release(DragView::Slice(0)), None, "a drag ends in its own view");
         assert_eq!(i.release(DragView::ThreeD), Some(point));
         assert_eq!(i, Interaction::Idle);
+    }
+
+    /// A suggested target belongs to the placed moving point: it is shown only while that point waits for its
+    /// target, Esc drops it and leaves the step as it was, and placing the target ends it with the pair.
+    #[test]
+    fn a_suggested_target_lives_while_its_moving_point_waits() {
+        let s =
+            Suggested { fixed_lps: [1.0, 2.0, 3.0], predicted_lps: [0.0; 3], confidence: 0.8, low_confidence: false };
+        let mut i = Interaction::default();
+        i.suggest(s);
+        assert_eq!(i.suggestion(), None, "no moving point: nothing to suggest for");
+        i.toggle_adding();
+        i.suggest(s);
+        assert_eq!(i.suggestion(), None);
+        let m = Point3::new(4.0, 5.0, 6.0);
+        i.placed_moving(m);
+        i.suggest(s);
+        assert_eq!(i.suggestion(), Some(s));
+        assert!(i.reject_suggestion());
+        assert_eq!((i.suggestion(), i.placing()), (None, Placing::Target { moving: m }));
+        assert!(!i.reject_suggestion());
+        i.suggest(s);
+        i.placed_fixed();
+        assert_eq!((i.suggestion(), i.placing()), (None, Placing::Idle));
     }
 
     #[test]

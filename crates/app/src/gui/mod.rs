@@ -40,6 +40,7 @@ pub mod placement;
 pub mod session;
 pub mod side_panel;
 pub mod status;
+pub mod suggestion;
 pub mod viewer;
 pub mod views;
 
@@ -193,6 +194,8 @@ pub struct Ready {
     pub control_eval: ControlEval,
     /// The window's egui context, for work that reports back to it (screenshots, exports).
     ctx: egui::Context,
+    /// The images the suggested targets' search reads ([`suggestion`]), made when first needed.
+    matching: suggestion::Matching,
 }
 
 impl Ready {
@@ -518,6 +521,7 @@ impl Ready {
         path: Option<PathBuf>,
         layer: Option<LayerData>,
     ) -> anyhow::Result<document::Look> {
+        self.matching.reset();
         let layer = match layer {
             Some(layer) => layer,
             None => LayerData::prepare(&volume, DeviceFacts::of(&self.viewer.ctx))?,
@@ -633,7 +637,43 @@ impl Ready {
                 active: p.active,
             })
             .collect();
-        pair_glyphs(&pairs, &GlyphStyle::default())
+        let mut glyphs = pair_glyphs(&pairs, &GlyphStyle::default());
+        // The suggested target of the pair being added: a ghost point, joined to its moving point as shown.
+        if let (Some(s), Placing::Target { moving }) = (self.interaction.suggestion(), self.placing()) {
+            let style = GlyphStyle::default();
+            let colour = if s.low_confidence { suggestion::GHOST_LOW_COLOUR } else { suggestion::GHOST_COLOUR };
+            let ghost = shown(s.fixed_lps, views[0]);
+            glyphs.push(GlyphInstance::line(
+                shown(self.shown_at(moving.coords()), views[1]),
+                ghost,
+                style.line_width_px,
+                colour,
+            ));
+            glyphs.push(GlyphInstance::point(ghost, 1.3 * style.point_radius_px, colour));
+        }
+        glyphs
+    }
+
+    /// The suggested target of moving point `p` ([`suggestion`]): predicted by the current warp's forward map (with
+    /// the brush on top; the starting transform alone, or the identity, before there is a fit) and refined by the
+    /// local similarity search.
+    ///
+    /// # Errors
+    /// The search's, in the window's words.
+    pub fn suggestion_for(&mut self, p: Point3<warpbench_io::geometry::Lps>) -> Result<suggestion::Suggested, String> {
+        let identity = warpbench_solver::linear::AffineWarp::<Fixed, Moving>::identity();
+        let start = self.document.start.as_ref().and_then(|s| s.start().ok());
+        let fitted: &dyn warpbench_solver::Warp<Fixed, Moving> = match (&self.fit.fitted, &start) {
+            (Some(f), _) => f.forward.as_ref(),
+            (None, Some(s)) => s.fixed_from_moving(),
+            (None, None) => &identity,
+        };
+        let brushed = self.fit.brush.as_ref().map(|b| warpbench_solver::warp::Composed { first: fitted, second: b });
+        let forward: &dyn warpbench_solver::Warp<Fixed, Moving> = match &brushed {
+            Some(b) => b,
+            None => fitted,
+        };
+        self.matching.suggest((&self.loaded.fixed, &self.loaded.moving), forward, p)
     }
 
     /// Slice view `a`'s plane (0 axial, 1 coronal, 2 sagittal).

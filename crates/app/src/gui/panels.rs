@@ -463,6 +463,23 @@ pub fn alignment_ui(ui: &mut egui::Ui, start: Option<&StartingTransform>, aligni
     command
 }
 
+/// "Refine pair": the target search ([`super::suggestion`]) again for `selected`, the pair selected while no pair is
+/// being added.
+pub fn refine_ui(ui: &mut egui::Ui, selected: Option<usize>) -> Option<Command> {
+    let mut command = None;
+    ui.horizontal(|ui| {
+        let hover = "search again for the selected pair's target around where the warp puts its moving point";
+        if ui.add_enabled(selected.is_some(), egui::Button::new("Refine pair")).on_hover_text(hover).clicked() {
+            command = selected.map(Command::RefinePair);
+        }
+        ui.label(match selected {
+            Some(i) => format!("the target of pair {}", i + 1),
+            None => "select a pair to refine its target".to_owned(),
+        });
+    });
+    command
+}
+
 /// The displacement brush ([`warpbench_solver::brush`]): "Brush" (B) makes it the tool, "Brush radius (mm)" sets new
 /// strokes' reach, "Clear the brush" removes every stroke, and once a stroke has settled the fitted inverse's
 /// consistency is shown ("Brush inverse: …").

@@ -49,6 +49,8 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
             }
             ui.separator();
             commands.extend(panels::alignment_ui(ui, ready.document.start.as_ref(), ready.aligning()));
+            let can_refine = (ready.placing() == Placing::Idle).then_some(ready.selected).flatten();
+            commands.extend(panels::refine_ui(ui, can_refine));
             ui.separator();
             commands
                 .extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors).map(Command::JumpTo));

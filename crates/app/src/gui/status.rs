@@ -44,6 +44,21 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                 );
                 ui.separator();
             }
+            if let Some(s) = ready.suggestion() {
+                let (colour, what) = if s.low_confidence {
+                    (egui::Color32::from_rgb(255, 190, 64), "amber ghost, unsure")
+                } else {
+                    (egui::Color32::from_rgb(140, 255, 140), "green ghost")
+                };
+                ui.colored_label(
+                    colour,
+                    format!(
+                        "Suggested target ({what}, confidence {:.2}): Enter takes it, Esc drops it",
+                        s.confidence
+                    ),
+                );
+                ui.separator();
+            }
             if let Some(n) = &ready.notice {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), n.as_str());
                 ui.separator();
