@@ -7,8 +7,8 @@
 //!
 //! - `auto-align.png`: after **Auto-align affine** (MRI to CT by mutual information), the MRI shown through the
 //!   starting transform alone, blended with the CT.
-//! - `suggested-target.png`: **Add pair**, the moving point placed where the aligned MRI shows the top of the scalp
-//!   above the CT's centre, and the suggested target drawn as a ghost, waiting for Enter.
+//! - `suggested-target.png`: **Add pair**, the moving point placed where the aligned MRI shows the scalp at the side of
+//!   the head level with the CT's centre, and the suggested target drawn as a ghost, waiting for Enter.
 
 #[path = "shots/mod.rs"]
 mod shots;
@@ -46,21 +46,21 @@ fn main() -> Result<()> {
     eprintln!("{}", start.origin);
     save(&mut harness, &out, "auto-align.png")?;
 
-    // A new pair: the moving point where the aligned MRI shows the scalp above the CT's centre, and its suggestion.
+    // A new pair: the moving point where the aligned MRI shows the scalp beside the CT's centre, and its suggestion.
     let ready = harness.state_mut().ready_mut().context("the pair")?;
     let fixed = std::sync::Arc::clone(&ready.loaded.fixed);
     let centre = [fixed.dims[0] / 2, fixed.dims[1] / 2, fixed.dims[2] / 2];
-    // Up the superior axis from the centre until the CT reads air: the top of the scalp.
+    // Along the i axis from the centre until the CT reads air: the scalp at the side of the head.
     let mut top = None;
-    for k in centre[2]..fixed.dims[2] {
+    for i in centre[0]..fixed.dims[0] {
         let v =
-            fixed.data.get_f64(fixed.offset(centre[0], centre[1], k)) * fixed.rescale.slope + fixed.rescale.intercept;
+            fixed.data.get_f64(fixed.offset(i, centre[1], centre[2])) * fixed.rescale.slope + fixed.rescale.intercept;
         if v < -500.0 {
-            top = Some(fixed.voxel_lps(centre[0], centre[1], k.saturating_sub(2)).coords());
+            top = Some(fixed.voxel_lps(i.saturating_sub(2), centre[1], centre[2]).coords());
             break;
         }
     }
-    let x_ref = top.context("no scalp above the CT's centre")?;
+    let x_ref = top.context("no scalp beside the CT's centre")?;
     ready.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
     ready.apply(Command::ToggleAdding);
     ready.place_at_ref(x_ref, None);

@@ -403,6 +403,24 @@ fn the_status_bar_reads_out_the_warp_under_the_pointer() {
     let label = c.readout(&ready.document.pairs[index].name);
     assert!(label.contains("det ") && label.contains("leave-one-out"), "{label}");
     harness.get_by_label(&label);
+
+    // In the 3-D view: once the pointer rests, the point picked under it is read out, and it lies under the pointer.
+    let view = harness.get_by_label("3-D view").rect();
+    let pos = view.center() + egui::vec2(0.05 * view.width(), 0.03 * view.height());
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.run_steps(2);
+    std::thread::sleep(warpbench_app::gui::hover::REST + Duration::from_millis(50));
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("loaded");
+    let c = ready.cursor.expect("the pointer rests over the head in the 3-D view");
+    let x = warpbench_gpu::glam::Vec3::from_array(c.fixed_lps.map(|v| v as f32));
+    let clip = ready.camera.clip_from_ref(view.width() / view.height()) * x.extend(1.0);
+    let on_screen = view.min
+        + egui::vec2((clip.x / clip.w * 0.5 + 0.5) * view.width(), (0.5 - clip.y / clip.w * 0.5) * view.height());
+    assert!((on_screen - pos).length() < 3.0, "picked {:?} shows at {on_screen:?}, pointer at {pos:?}", c.fixed_lps);
+    assert!(c.det_jacobian.is_some_and(f64::is_finite));
+    let name = c.nearest.map_or(String::new(), |n| ready.document.pairs[n.index].name.clone());
+    harness.get_by_label(&c.readout(&name));
 }
 
 /// Auto-align (issue 18 item 1): on a pair whose moving volume is the fixed one moved by a known rigid transform,

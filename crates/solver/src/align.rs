@@ -313,18 +313,24 @@ impl Metric<'_> {
             a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
             a
         };
-        let gradient = match self.parallelism {
-            Parallelism::Rayon => hits
-                .par_iter()
-                .zip(self.samples.par_iter())
-                .with_min_len(1024)
-                .fold(|| vec![0.0; params], accumulate)
-                .reduce(|| vec![0.0; params], add),
-            Parallelism::Sequential => hits.iter().zip(self.samples.iter()).fold(vec![0.0; params], accumulate),
+        // Fixed chunks summed in their order, so that the result does not depend on how the threads share the work
+        // (the same inputs and seed give the same alignment, bit for bit).
+        let chunk_sum = |(h, s): (&[Hit], &[Sample])| h.iter().zip(s).fold(vec![0.0; params], accumulate);
+        let partial: Vec<Vec<f64>> = match self.parallelism {
+            Parallelism::Rayon => {
+                hits.par_chunks(GRADIENT_CHUNK).zip(self.samples.par_chunks(GRADIENT_CHUNK)).map(chunk_sum).collect()
+            }
+            Parallelism::Sequential => {
+                hits.chunks(GRADIENT_CHUNK).zip(self.samples.chunks(GRADIENT_CHUNK)).map(chunk_sum).collect()
+            }
         };
+        let gradient = partial.into_iter().fold(vec![0.0; params], add);
         Some(Evaluation { mutual_information: mi, gradient, inside })
     }
 }
+
+/// Samples per chunk of the gradient's sum (the unit of its parallel work, summed in order).
+const GRADIENT_CHUNK: usize = 2048;
 
 /// Fewer fixed samples than this inside the moving image and the images are taken not to overlap.
 pub const MIN_SAMPLES_INSIDE: usize = 500;

@@ -304,6 +304,7 @@ impl Workbench {
             history: History::new(first),
             ctx: ctx.clone(),
             matching: super::suggestion::Matching::default(),
+            hover: super::hover::HoverPick::default(),
         };
         ready.reset_camera();
         if let Some(view) = &view {

@@ -29,6 +29,7 @@ pub mod document;
 pub mod export;
 pub mod frame_log;
 pub mod history;
+pub mod hover;
 mod images;
 pub mod interaction;
 pub mod leafer;
@@ -120,6 +121,8 @@ pub struct FitState {
     diagnostics: Option<diagnostics::DiagnosticsJob>,
     /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
     aligning: Option<alignment::AlignJob>,
+    /// Counts the fits, so that what was picked under a resting pointer is known to be stale ([`hover`]).
+    pub generation: u64,
     /// The document's brush as a warp b of the fixed space, on top of the fitted warp ([`crate::brushed`]): the
     /// moving glyphs are drawn at b(d(p)), a slice click stores u(b⁻¹(x)).
     pub brush: Option<warpbench_solver::brush::Brush>,
@@ -196,6 +199,8 @@ pub struct Ready {
     ctx: egui::Context,
     /// The images the suggested targets' search reads ([`suggestion`]), made when first needed.
     matching: suggestion::Matching,
+    /// The pick under the pointer resting on the 3-D view, for the status bar's read-out ([`hover`]).
+    pub hover: hover::HoverPick,
 }
 
 impl Ready {
@@ -349,6 +354,7 @@ impl Ready {
 
     fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
+        self.fit.generation += 1;
         // Whatever a running job finds describes the document before this change.
         self.fit.diagnostics = None;
         if diagnostics {

@@ -113,6 +113,24 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
                 // Back to the full sample rate once the drag ends.
                 ready.invalidate_view();
             }
+            // The read-out under a resting pointer: one pick once it has rested ([`crate::gui::hover`]).
+            let resting = response.hover_pos().filter(|_| !ui.input(|i| i.pointer.any_down()) && !interacting);
+            let key = crate::gui::hover::ViewKey {
+                camera: ready.camera,
+                fit_generation: ready.fit.generation,
+                settings: ready.document.settings.clone(),
+            };
+            match ready.hover.step(resting, &key, std::time::Instant::now()) {
+                crate::gui::hover::HoverStep::Pick(pos) => {
+                    let hit = ready.pick_moving_at(to_pixel(pos));
+                    ready.hover.picked(pos, key.clone(), hit);
+                }
+                crate::gui::hover::HoverStep::Wait(after) => ui.ctx().request_repaint_after(after),
+                crate::gui::hover::HoverStep::Idle => {}
+            }
+            if let Some(x_ref) = ready.hover.hit(resting, &key) {
+                ready.cursor = Some(ready.cursor_at(x_ref));
+            }
             if response.hovered() {
                 let scroll = ui.input(|i| i.smooth_scroll_delta.y);
                 if scroll != 0.0 {
