@@ -26,7 +26,7 @@
 //!
 //! T(x) = R (x − c) + c + t with c the fixed image's centre of mass, starting at R = I, t = c_m − c_f (the two
 //! centres of mass over intensities above each image's minimum). The rotation is updated on the left,
-//! R ← exp([δω]×) R, so ∂T/∂δω · ∇m = r × ∇m with r = R (x − c); affine alignment replaces R by a free A, with
+//! R ← exp(\[δω\]×) R, so ∂T/∂δω · ∇m = r × ∇m with r = R (x − c); affine alignment replaces R by a free A, with
 //! ∂T/∂A_rc · ∇m = ∇m_r (x − c)_c. Parameters are scaled so a unit step moves a point at the samples' RMS radius ρ
 //! from c by about 1 mm (δω̃ = ρ δω, Ã = ρ A, as ITK's `SetOptimizerScalesFromPhysicalShift`).
 //!
