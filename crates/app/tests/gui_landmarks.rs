@@ -13,7 +13,7 @@ use window::{button, click_at, no_adapter, open_mri_pair, press_and_drag, wait_u
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use warpbench_app::gui::{Placing, Workbench};
+use warpbench_app::gui::{Command, Placing, Workbench};
 
 #[test]
 fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
@@ -344,8 +344,8 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     centred_on(&harness, q);
 }
 
-/// Two points on strong edges of the MRI fixture, at least 12 mm inside it and 20 mm apart (LPS mm).
-fn edge_points() -> [[f64; 3]; 2] {
+/// Three points on strong edges of the MRI fixture, at least 12 mm inside it and 20 mm apart (LPS mm).
+fn edge_points() -> [[f64; 3]; 3] {
     let v = warpbench_io::open(common::mri()).expect("the fixture");
     let [nx, ny, nz] = v.dims;
     let at = |i: usize, j: usize, k: usize| v.data.get_f64(v.offset(i, j, k));
@@ -363,13 +363,17 @@ fn edge_points() -> [[f64; 3]; 2] {
         }
     }
     edges.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let first = v.voxel_lps(edges[0].1[0], edges[0].1[1], edges[0].1[2]).coords();
-    let second = edges
-        .iter()
-        .map(|(_, [i, j, k])| v.voxel_lps(*i, *j, *k).coords())
-        .find(|x| (0..3).map(|a| (x[a] - first[a]).powi(2)).sum::<f64>() > 400.0)
-        .expect("a second edge");
-    [first, second]
+    let mut chosen: Vec<[f64; 3]> = Vec::new();
+    for (_, [i, j, k]) in edges {
+        let x = v.voxel_lps(i, j, k).coords();
+        if chosen.iter().all(|y| (0..3).map(|a| (x[a] - y[a]).powi(2)).sum::<f64>() > 400.0) {
+            chosen.push(x);
+        }
+        if chosen.len() == 3 {
+            break;
+        }
+    }
+    [chosen[0], chosen[1], chosen[2]]
 }
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -387,7 +391,7 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 900.0));
-    let [p, p2] = edge_points();
+    let [p, p2, p3] = edge_points();
     harness.get_by_label("Add pair").click();
     harness.run_steps(1);
     harness.state_mut().ready_mut().expect("ready").place_at_ref(p, Some(p));
@@ -439,4 +443,31 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     harness.run_steps(2);
     let back = harness.state().ready().expect("ready").document.pairs[6].fixed.expect("its target").coords();
     assert!(distance(back, off) < 1e-9, "{back:?}");
+
+    // Dragging the ghost takes it and moves the new pair's target with the pointer (here in the axial slice).
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(1);
+    harness.state_mut().ready_mut().expect("ready").place_at_ref(p3, Some(p3));
+    harness.run_steps(1);
+    let s = harness.state().ready().expect("ready").suggestion().expect("a suggestion");
+    harness.state_mut().ready_mut().expect("ready").apply(Command::MoveSlice(0, s.fixed_lps[2]));
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("ready");
+    let plane = ready.slice_plane(0);
+    let rect = harness.get_by_label("Axial slice").rect();
+    let scale = rect.width() / plane.size.0 as f32;
+    let px = plane.pixel_from_ref(s.fixed_lps).expect("on the plane");
+    let start = rect.min + egui::vec2((px[0] as f32 + 0.5) * scale, (px[1] as f32 + 0.5) * scale);
+    let end = start + egui::vec2(20.0, 0.0);
+    press_and_drag(&mut harness, start, end, &[0.5, 1.0]);
+    assert!(harness.state().ready().expect("ready").drag().is_some(), "the press on the ghost grabbed it");
+    harness.input_mut().events.push(button(end, false));
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!((ready.document.pairs.len(), ready.placing()), (8, Placing::Idle));
+    let moved = ready.document.pairs[7].fixed.expect("its target").coords();
+    let expected = plane.ref_from_pixel(px[0] + f64::from(20.0 / scale), px[1]);
+    assert!(distance(moved, expected) < 1.0, "dragged to {moved:?}, expected {expected:?}");
 }

@@ -35,6 +35,8 @@
 //! [`AlignParams::min_step_vox`] voxels of the level or [`AlignParams::max_iterations`]. The levels shrink both
 //! images by box-averaging ([`Image::shrink`]), coarse to fine, each starting where the last one stopped.
 
+use std::borrow::Cow;
+
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -432,8 +434,9 @@ pub fn align(fixed: &Image<Fixed>, moving: &Image<Moving>, params: &AlignParams)
     let mut levels = Vec::new();
     let mut mutual_information = 0.0;
     for (level, &shrink) in params.shrink_factors.iter().enumerate() {
-        let fixed_level = fixed.shrink(shrink)?;
-        let moving_level = moving.shrink(shrink)?;
+        // The finest level reads the images themselves: no copy of a full volume.
+        let fixed_level = if shrink == 1 { Cow::Borrowed(fixed) } else { Cow::Owned(fixed.shrink(shrink)?) };
+        let moving_level = if shrink == 1 { Cow::Borrowed(moving) } else { Cow::Owned(moving.shrink(shrink)?) };
         let (moving_min, moving_max) = moving_level.value_range().ok_or_else(|| no_mass("moving"))?;
         if moving_max <= moving_min {
             return Err(no_mass("moving"));

@@ -246,6 +246,25 @@ impl Ready {
         best.map(|(_, i, end)| (i, end))
     }
 
+    /// A press on the suggested target's ghost ([`super::suggestion`]) within [`GRAB_RADIUS`] of where `screen` shows
+    /// it takes the suggestion (the pair is completed there) and grabs its fixed point in `view`, so that the drag
+    /// which follows adjusts it; returns the pair.
+    pub(crate) fn grab_ghost(
+        &mut self,
+        pointer: egui::Pos2,
+        screen: impl Fn([f64; 3], End) -> Option<egui::Pos2>,
+        view: DragView,
+    ) -> Option<usize> {
+        let s = self.interaction.suggestion()?;
+        if screen(s.fixed_lps, End::Fixed)?.distance(pointer) > GRAB_RADIUS {
+            return None;
+        }
+        let pair = self.document.pairs.len();
+        self.apply(Command::AcceptSuggestion);
+        (self.document.pairs.len() == pair + 1 && self.interaction.grab(DragPoint { pair, end: End::Fixed, view }))
+            .then_some(pair)
+    }
+
     /// Moves the dragged point so that it is shown at `x_ref`: the fixed point to x_ref, the moving point to
     /// u(x_ref) (the moving point the warp shows there) unless a pick gives it (`moving_lps`). Refits interactively.
     pub(crate) fn drag_to(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {

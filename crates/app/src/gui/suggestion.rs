@@ -1,9 +1,9 @@
 //! Suggested targets in the window (issue 18, item 2): when the source of a new pair is placed, the fixed point the
 //! current warp predicts for it, refined by the local similarity search of [`warpbench_solver::suggest`], is shown
-//! as a ghost glyph; Enter takes it as the pair's target, Esc drops it (then a click places the target by hand), and
-//! *Refine pair* runs the search again for a pair that exists (its fixed point moves to the suggestion, one undo
-//! step). The images the search reads are made from the loaded volumes once, on the first suggestion, and again
-//! after a volume is replaced.
+//! as a ghost glyph; Enter takes it as the pair's target, a press on the ghost takes it and drags its fixed point, Esc
+//! drops it (then a click places the target by hand), and *Refine pair* runs the search again for a pair that exists
+//! (its fixed point moves to the suggestion, one undo step). The images the search reads are made from the loaded
+//! volumes once, on the first suggestion, and again after a volume is replaced.
 
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};

@@ -59,6 +59,13 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                             .filter(|q| q[2].abs() <= SLICE_SLAB_MM)
                             .map(|q| placement::slice_screen(image_rect, scale, q))
                     };
+                    // A press on a suggested target's ghost takes it and drags its fixed point.
+                    if response.drag_started()
+                        && let Some(press) = col.input(|i| i.pointer.press_origin())
+                        && let Some(pair) = ready.grab_ghost(press, on_screen, DragView::Slice(a))
+                    {
+                        ready.selected = Some(pair);
+                    }
                     if response.drag_started()
                         && let Some(press) = col.input(|i| i.pointer.press_origin())
                         && let Some((pair, end)) = ready.grab(press, on_screen)

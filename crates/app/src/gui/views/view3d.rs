@@ -56,6 +56,13 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
                     rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height())
                 })
             };
+            // A press on a suggested target's ghost takes it and drags its fixed point along the surface.
+            if response.drag_started()
+                && let Some(press) = ui.input(|i| i.pointer.press_origin())
+                && let Some(pair) = ready.grab_ghost(press, on_screen, DragView::ThreeD)
+            {
+                ready.selected = Some(pair);
+            }
             if response.drag_started()
                 && let Some(press) = ui.input(|i| i.pointer.press_origin())
                 && let Some((pair, end)) = ready.grab(press, on_screen)
