@@ -152,10 +152,7 @@ impl PairInputs {
 
     /// The starting transform under the landmark warp, read (`None` without `--initial`).
     pub fn start(&self) -> Result<Option<crate::start::Start>> {
-        if let Some(s) = &self.session_start {
-            return Ok(Some((**s).clone()));
-        }
-        self.initial.as_deref().map(crate::start::Start::read).transpose()
+        crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
     }
 
     /// The method the options name, checked ([`resolve_method`]; `--stiffness auto` reads the pairs).

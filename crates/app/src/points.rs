@@ -311,7 +311,7 @@ fn check_out_name(out: &Path, input: &Path, format: PointFileFormat) -> Result<(
 }
 
 /// Each point of the file: its name and its `from`-side position (LPS mm), in file order.
-fn input_points(file: &PointFile, from: Side) -> Vec<(String, Option<Point3<Lps>>)> {
+pub(crate) fn input_points(file: &PointFile, from: Side) -> Vec<(String, Option<Point3<Lps>>)> {
     match file {
         PointFile::List(list) => list.points.iter().map(|p| (p.name.clone(), Some(p.position))).collect(),
         PointFile::BigWarp { pairs, .. } => {

@@ -241,10 +241,8 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let mut glyph_pairs = Vec::new();
     if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
         let pairs = source.read().map_err(Failure::BadInput)?;
-        let start = match &opts.session_start {
-            Some(s) => Some((**s).clone()),
-            None => opts.initial.as_deref().map(crate::start::Start::read).transpose().map_err(Failure::BadInput)?,
-        };
+        let start =
+            crate::start::resolve(opts.session_start.as_deref(), opts.initial.as_deref()).map_err(Failure::BadInput)?;
         let c =
             inputs::correspondences(source, &pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
                 .map_err(Failure::BadInput)?;

@@ -17,7 +17,7 @@ use std::path::Path;
 
 use anyhow::{Context, anyhow};
 use warpbench_io::geometry::Point3;
-use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
+use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -66,12 +66,6 @@ impl Start {
         Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name)
     }
 
-    /// T₀ as the ITK affine it came from (centre 0).
-    #[must_use]
-    pub fn itk(&self) -> ItkAffine {
-        ItkAffine::from_offset(self.moving_from_fixed.linear(), self.moving_from_fixed.translation())
-    }
-
     /// T₀: fixed → moving.
     #[must_use]
     pub fn moving_from_fixed(&self) -> &AffineWarp<Moving, Fixed> {
@@ -82,6 +76,17 @@ impl Start {
     #[must_use]
     pub fn fixed_from_moving(&self) -> &AffineWarp<Fixed, Moving> {
         &self.fixed_from_moving
+    }
+}
+
+/// The starting transform a subcommand was given: a session's (already read with it), else `--initial`'s file, read.
+///
+/// # Errors
+/// As [`Start::read`].
+pub fn resolve(session: Option<&Start>, initial: Option<&Path>) -> anyhow::Result<Option<Start>> {
+    match session {
+        Some(s) => Ok(Some(s.clone())),
+        None => initial.map(Start::read).transpose(),
     }
 }
 

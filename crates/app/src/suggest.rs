@@ -15,7 +15,7 @@ use std::path::PathBuf;
 use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::geometry::{Lps, Point3};
-use warpbench_io::landmarks::{LandmarkPair, PointFile, PointFileOptions, read_point_file, write_landmark_pairs};
+use warpbench_io::landmarks::{LandmarkPair, PointFileOptions, read_point_file, write_landmark_pairs};
 use warpbench_solver::image::Image;
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::FittedWarp;
@@ -110,16 +110,13 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
              them"
         )));
     }
-    let start = match &warp.session_start {
-        Some(s) => Some((**s).clone()),
-        None => initial_path.as_deref().map(crate::start::Start::read).transpose().map_err(Failure::BadInput)?,
-    };
+    let start =
+        crate::start::resolve(warp.session_start.as_deref(), initial_path.as_deref()).map_err(Failure::BadInput)?;
     let file = read_point_file(&points, PointFileOptions { ras })?;
-    let moving_points: Vec<(String, Point3<Lps>)> = match &file {
-        PointFile::List(list) => list.points.iter().map(|p| (p.name.clone(), p.position)).collect(),
-        PointFile::BigWarp { pairs, .. } => pairs.iter().filter_map(|p| Some((p.name.clone(), p.moving?))).collect(),
-        PointFile::Slicer(list) => list.points.iter().filter_map(|p| Some((p.label.clone(), p.position?))).collect(),
-    };
+    let moving_points: Vec<(String, Point3<Lps>)> = crate::points::input_points(&file, crate::points::Side::Moving)
+        .into_iter()
+        .filter_map(|(name, p)| Some((name, p?)))
+        .collect();
     if moving_points.is_empty() {
         return Err(Failure::BadInput(anyhow!("{}: no moving points to suggest targets for", points.display())));
     }

@@ -344,35 +344,9 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     centred_on(&harness, q);
 }
 
-/// Three points on strong edges of the MRI fixture, at least 12 mm inside it and 20 mm apart (LPS mm).
+/// Three points on strong edges of the MRI fixture, at least 7 voxels inside it and 20 mm apart (LPS mm).
 fn edge_points() -> [[f64; 3]; 3] {
-    let v = warpbench_io::open(common::mri()).expect("the fixture");
-    let [nx, ny, nz] = v.dims;
-    let at = |i: usize, j: usize, k: usize| v.data.get_f64(v.offset(i, j, k));
-    let mut edges: Vec<(f64, [usize; 3])> = Vec::new();
-    for k in 7..nz - 7 {
-        for j in 7..ny - 7 {
-            for i in 7..nx - 7 {
-                let g = [
-                    at(i + 1, j, k) - at(i - 1, j, k),
-                    at(i, j + 1, k) - at(i, j - 1, k),
-                    at(i, j, k + 1) - at(i, j, k - 1),
-                ];
-                edges.push((g.iter().map(|x| x * x).sum(), [i, j, k]));
-            }
-        }
-    }
-    edges.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let mut chosen: Vec<[f64; 3]> = Vec::new();
-    for (_, [i, j, k]) in edges {
-        let x = v.voxel_lps(i, j, k).coords();
-        if chosen.iter().all(|y| (0..3).map(|a| (x[a] - y[a]).powi(2)).sum::<f64>() > 400.0) {
-            chosen.push(x);
-        }
-        if chosen.len() == 3 {
-            break;
-        }
-    }
+    let chosen = common::edge_points(&warpbench_io::open(common::mri()).expect("the fixture"), 3, 20.0);
     [chosen[0], chosen[1], chosen[2]]
 }
 

@@ -421,33 +421,8 @@ fn suggest_finds_the_targets_of_a_known_rigid_transform() {
     let tfm = dir.path().join("start.tfm");
     itk_tfm::write_affine(&tfm, &start).expect("write the start");
 
-    // Fixed points on strong edges, at least 12 mm inside the volume, 15 mm apart; their moving points T(x).
-    let [nx, ny, nz] = fixed.dims;
-    let at = |i: usize, j: usize, k: usize| fixed.data.get_f64(fixed.offset(i, j, k));
-    let mut edges: Vec<(f64, [usize; 3])> = Vec::new();
-    for k in (7..nz - 7).step_by(2) {
-        for j in (7..ny - 7).step_by(2) {
-            for i in (7..nx - 7).step_by(2) {
-                let g = [
-                    at(i + 1, j, k) - at(i - 1, j, k),
-                    at(i, j + 1, k) - at(i, j - 1, k),
-                    at(i, j, k + 1) - at(i, j, k - 1),
-                ];
-                edges.push((g.iter().map(|v| v * v).sum::<f64>(), [i, j, k]));
-            }
-        }
-    }
-    edges.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let mut chosen: Vec<[f64; 3]> = Vec::new();
-    for (_, [i, j, k]) in edges {
-        let x = fixed.voxel_lps(i, j, k).coords();
-        if chosen.iter().all(|y| (0..3).map(|a| (x[a] - y[a]).powi(2)).sum::<f64>() > 225.0) {
-            chosen.push(x);
-        }
-        if chosen.len() == 12 {
-            break;
-        }
-    }
+    // Fixed points on strong edges, at least 7 voxels (14 mm) inside the volume, 15 mm apart; their moving points T(x).
+    let chosen = common::edge_points(&fixed, 12, 15.0);
     let moving_points: Vec<[f64; 3]> =
         chosen.iter().map(|x| truth.apply_point(Point3::from_array(*x)).coords()).collect();
     let mut lines: Vec<String> =

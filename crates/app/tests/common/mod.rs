@@ -100,3 +100,36 @@ pub fn noisy_mri_pairs() -> Vec<([f64; 3], [f64; 3])> {
         })
         .collect()
 }
+
+/// `count` voxel centres (LPS mm) of `v` with the largest central-difference gradient magnitude, at least 7 voxels from
+/// every face and more than `apart_mm` from each other, strongest first: points on strong edges, where a similarity
+/// search has something to find.
+pub fn edge_points(v: &warpbench_io::Volume, count: usize, apart_mm: f64) -> Vec<[f64; 3]> {
+    let [nx, ny, nz] = v.dims;
+    let at = |i: usize, j: usize, k: usize| v.data.get_f64(v.offset(i, j, k));
+    let mut edges: Vec<(f64, [usize; 3])> = Vec::new();
+    for k in 7..nz - 7 {
+        for j in 7..ny - 7 {
+            for i in 7..nx - 7 {
+                let g = [
+                    at(i + 1, j, k) - at(i - 1, j, k),
+                    at(i, j + 1, k) - at(i, j - 1, k),
+                    at(i, j, k + 1) - at(i, j, k - 1),
+                ];
+                edges.push((g.iter().map(|x| x * x).sum(), [i, j, k]));
+            }
+        }
+    }
+    edges.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut chosen: Vec<[f64; 3]> = Vec::new();
+    for (_, [i, j, k]) in edges {
+        let x = v.voxel_lps(i, j, k).coords();
+        if chosen.iter().all(|y| (0..3).map(|a| (x[a] - y[a]).powi(2)).sum::<f64>() > apart_mm * apart_mm) {
+            chosen.push(x);
+        }
+        if chosen.len() == count {
+            break;
+        }
+    }
+    chosen
+}
