@@ -359,8 +359,9 @@ pub struct SampledField {
 ///
 /// Slices (constant k) are handed out one at a time to one worker per core (`std::thread::scope`); each slice is one
 /// [`Warp::apply_batch_raw`] call. `progress(done, total)` is called on the calling thread, which works too, after
-/// each slice it evaluates, with the number of slices finished by all workers. When it returns `false` no worker
-/// takes another slice, and the result is `None`.
+/// each slice it evaluates, with the number of slices finished by all workers, and once more with `(total, total)`
+/// if the helpers finished the last ones. When it returns `false` no worker takes another slice, and the result is
+/// `None`.
 pub fn sample_displacements<To: Space, From: Space>(
     warp: &dyn Warp<To, From>,
     dims: [usize; 3],
@@ -373,15 +374,24 @@ pub fn sample_displacements<To: Space, From: Space>(
     let queue = Mutex::new(displacements_lps.chunks_mut(slice.per_slice.max(1)).enumerate());
     let shared = Shared { queue, finished: AtomicU64::new(0), cancelled: AtomicBool::new(false) };
     let workers = std::thread::available_parallelism().map_or(1, NonZeroUsize::get).min(nz.max(1));
+    let mut last_reported = 0u64;
     let results: Vec<(f64, bool)> = std::thread::scope(|s| {
         let helpers: Vec<_> =
             (1..workers).map(|_| s.spawn(|| slice.run(&shared, &mut |_: u64, _: u64| true))).collect();
-        let mut all = vec![slice.run(&shared, progress)];
+        let mut all = vec![slice.run(&shared, &mut |done, total| {
+            last_reported = done;
+            progress(done, total)
+        })];
         // A helper that panicked (a bug in a warp) makes the field not finite: reported as an internal error.
         all.extend(helpers.into_iter().map(|h| h.join().unwrap_or((f64::NAN, false))));
         all
     });
     if shared.cancelled.load(Ordering::Relaxed) {
+        return None;
+    }
+    // The helpers may have finished the last slices (or all of them) after the calling thread's last report: the
+    // caller still hears that the work reached its end.
+    if last_reported < nz as u64 && !progress(nz as u64, nz as u64) {
         return None;
     }
     let finite = results.iter().all(|&(_, f)| f);
@@ -492,5 +502,6 @@ mod tests {
         assert!((reported - max_mm).abs() < 1e-9, "{reported} vs {max_mm}");
         assert!(!reports.is_empty() && reports.iter().all(|&(d, t)| t == 9 && (1..=9).contains(&d)));
         assert!(reports.windows(2).all(|w| w[0].0 < w[1].0), "progress goes forward: {reports:?}");
+        assert_eq!(reports.last(), Some(&(9, 9)), "progress reaches the end: {reports:?}");
     }
 }
