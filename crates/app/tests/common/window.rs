@@ -91,12 +91,12 @@ pub fn pairs(dir: &Path) -> PathBuf {
     path
 }
 
-/// Steps until loading has failed (or 20 s pass).
+/// Steps until loading has failed (or a minute passes: a guard against a hang on a loaded machine, not a timing).
 pub fn wait_for_failure(harness: &mut Harness<'_, Workbench>) {
     let start = Instant::now();
     while harness.state().failure().is_none() {
         harness.step();
-        assert!(start.elapsed() < Duration::from_secs(20), "no error shown");
+        assert!(start.elapsed() < Duration::from_mins(1), "no error shown");
         std::thread::sleep(Duration::from_millis(10));
     }
 }
