@@ -380,7 +380,19 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     );
     assert!(distance(s.predicted_lps, p) > 2.0, "the prediction is already right: {:?}", s.predicted_lps);
     assert!(distance(s.fixed_lps, p) < 1.0, "{:?} vs {p:?}", s.fixed_lps);
-    assert!(!ready.glyphs().is_empty());
+    // The ghost: a point at the suggestion in the suggestion's colour, joined by a line to the placed source.
+    let colour = if s.low_confidence {
+        warpbench_app::gui::suggestion::GHOST_LOW_COLOUR
+    } else {
+        warpbench_app::gui::suggestion::GHOST_COLOUR
+    };
+    let glyphs = ready.glyphs();
+    let ghost = s.fixed_lps.map(|v| v as f32);
+    let near = |a: [f32; 3]| (0..3).all(|i| (a[i] - ghost[i]).abs() < 1e-4);
+    let ghosts: Vec<_> = glyphs.iter().filter(|g| g.colour.map(f32::to_bits) == colour.map(f32::to_bits)).collect();
+    assert_eq!(ghosts.len(), 2, "a ghost point and its line: {glyphs:?}");
+    assert!(ghosts.iter().any(|g| g.kind == warpbench_gpu::glyph::KIND_POINT && near(g.a_ref)), "{ghosts:?}");
+    assert!(ghosts.iter().any(|g| g.kind == warpbench_gpu::glyph::KIND_LINE && near(g.b_ref)), "{ghosts:?}");
     harness.get_by_label_contains("Enter takes it, Esc drops it");
     harness.key_press(egui::Key::Enter);
     harness.run_steps(2);
