@@ -14,10 +14,11 @@ use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_solver::align::{AlignKind, AlignParams, LevelReport, align, rotation_angle_deg};
 use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Parallelism;
 
 use crate::args::ReportArgs;
 use crate::exit::Failure;
-use crate::inputs::{OutputFile, load_volume};
+use crate::inputs::{OutputFile, load_pair};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-align/1";
@@ -88,11 +89,10 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
         seed,
         ..AlignParams::default()
     };
-    let fixed_volume = load_volume(&fixed, quiet).map_err(Failure::BadInput)?;
-    let moving_volume = load_volume(&moving, quiet).map_err(Failure::BadInput)?;
-    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume)
+    let (fixed_volume, moving_volume) = load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", fixed.display())))?;
-    let moving_image = Image::<Moving>::from_volume(&moving_volume)
+    let moving_image = Image::<Moving>::from_volume(&moving_volume, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", moving.display())))?;
     drop((fixed_volume, moving_volume));
     let started = Instant::now();

@@ -21,6 +21,7 @@ use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::{Fixed, Moving, as_moving};
 use warpbench_solver::suggest::{SuggestParams, suggest};
+use warpbench_solver::warp::Parallelism;
 
 use crate::args::{PairArgs, ReportArgs};
 use crate::exit::Failure;
@@ -120,8 +121,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     if moving_points.is_empty() {
         return Err(Failure::BadInput(anyhow!("{}: no moving points to suggest targets for", points.display())));
     }
-    let fixed_volume = inputs::load_volume(&fixed, quiet).map_err(Failure::BadInput)?;
-    let moving_volume = inputs::load_volume(&moving, quiet).map_err(Failure::BadInput)?;
+    let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
 
     // The current warp's forward map.
     let (forward, prediction): (FittedWarp<Fixed, Moving>, String) = match &source {
@@ -146,9 +146,9 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
             None => (FittedWarp::Linear(AffineWarp::identity()), "identity (no landmarks, no --initial)".to_owned()),
         },
     };
-    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume)
+    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", fixed.display())))?;
-    let moving_image = Image::<Moving>::from_volume(&moving_volume)
+    let moving_image = Image::<Moving>::from_volume(&moving_volume, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", moving.display())))?;
     drop((fixed_volume, moving_volume));
 

@@ -762,25 +762,9 @@ impl Fitted {
     }
 }
 
-/// [`PairInputs::load_volumes`], but with `quiet` the fixed and moving volumes load on two threads: inflating and
-/// decoding a file is one thread's work, so the two take about the time of the slower one (the 176×256×256 head MRI
-/// of `data-scripts/compare_itk_warp.py` loaded as both, on a busy 2-core machine: 0.76 s, against 1.03 s one after
-/// the other with the bars). With progress bars they load one after the other, so that the bars do not interleave.
-/// Errors come in the same order either way: the fixed volume's first.
+/// The fixed, moving and reference volumes of `inputs` ([`inputs::load_pair`], then the reference).
 fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
-    if let (WarpInputs::Pairs(pairs), false) = (inputs, quiet) {
-        return pairs.load_volumes(quiet);
-    }
-    let (fixed, moving) = if quiet {
-        std::thread::scope(|s| {
-            let moving = s.spawn(|| inputs::load_volume(inputs.moving(), true));
-            let fixed = inputs::load_volume(inputs.fixed(), true);
-            (fixed, moving.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)))
-        })
-    } else {
-        (inputs::load_volume(inputs.fixed(), false), inputs::load_volume(inputs.moving(), false))
-    };
-    let (fixed, moving) = (fixed?, moving?);
+    let (fixed, moving) = inputs::load_pair(inputs.fixed(), inputs.moving(), quiet)?;
     let reference = inputs.reference().map(|p| inputs::load_volume(p, quiet)).transpose()?;
     Ok(PairVolumes { fixed, moving, reference })
 }

@@ -238,17 +238,27 @@ impl Metric<'_> {
             Parallelism::Rayon => hits.par_iter_mut().zip(self.samples.par_iter()).with_min_len(1024).for_each(fill),
             Parallelism::Sequential => hits.iter_mut().zip(self.samples.iter()).for_each(fill),
         }
-        // Pass 1: the joint histogram.
-        let mut joint = vec![0.0f64; b * b];
-        let mut inside = 0usize;
-        for h in hits.iter().filter(|h| h.inside) {
-            inside += 1;
-            let row = &mut joint[h.fixed_bin * b..(h.fixed_bin + 1) * b];
-            let k0 = h.moving_bin.floor() as usize;
-            for (k, bin) in row.iter_mut().enumerate().skip(k0 - 1).take(4) {
-                *bin += bspline3(k as f64 - h.moving_bin);
+        // Pass 1: the joint histogram, a partial one per chunk, added in the chunks' order.
+        let histogram = |(hits, _): (&[Hit], &[Sample])| {
+            let mut joint = vec![0.0f64; b * b];
+            let mut inside = 0usize;
+            for h in hits.iter().filter(|h| h.inside) {
+                inside += 1;
+                let row = &mut joint[h.fixed_bin * b..(h.fixed_bin + 1) * b];
+                let k0 = h.moving_bin.floor() as usize;
+                for (k, bin) in row.iter_mut().enumerate().skip(k0 - 1).take(4) {
+                    *bin += bspline3(k as f64 - h.moving_bin);
+                }
             }
-        }
+            (joint, inside)
+        };
+        let (mut joint, inside) = self.by_chunks(hits, histogram).into_iter().fold(
+            (vec![0.0f64; b * b], 0usize),
+            |(mut joint, inside), (part, n)| {
+                joint.iter_mut().zip(part).for_each(|(x, y)| *x += y);
+                (joint, inside + n)
+            },
+        );
         if inside < MIN_SAMPLES_INSIDE {
             return None;
         }
@@ -315,35 +325,45 @@ impl Metric<'_> {
             a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
             a
         };
-        // Fixed chunks summed in their order, so that the result does not depend on how the threads share the work
-        // (the same inputs and seed give the same alignment, bit for bit).
+        // Fixed chunks summed in their order ([`Self::by_chunks`]).
         let chunk_sum = |(h, s): (&[Hit], &[Sample])| h.iter().zip(s).fold(vec![0.0; params], accumulate);
-        let partial: Vec<Vec<f64>> = match self.parallelism {
+        let gradient = self.by_chunks(hits, chunk_sum).into_iter().fold(vec![0.0; params], add);
+        Some(Evaluation { mutual_information: mi, gradient, inside })
+    }
+
+    /// `f` of each chunk of [`GRADIENT_CHUNK`] hits and their samples, in the chunks' order (computed on the threads
+    /// `parallelism` allows): a sum over the results in this order does not depend on how the threads shared the
+    /// work, so the same inputs and seed give the same alignment, bit for bit.
+    fn by_chunks<T: Send>(&self, hits: &[Hit], f: impl Fn((&[Hit], &[Sample])) -> T + Sync + Send) -> Vec<T> {
+        match self.parallelism {
             Parallelism::Rayon => {
-                hits.par_chunks(GRADIENT_CHUNK).zip(self.samples.par_chunks(GRADIENT_CHUNK)).map(chunk_sum).collect()
+                hits.par_chunks(GRADIENT_CHUNK).zip(self.samples.par_chunks(GRADIENT_CHUNK)).map(f).collect()
             }
             Parallelism::Sequential => {
-                hits.chunks(GRADIENT_CHUNK).zip(self.samples.chunks(GRADIENT_CHUNK)).map(chunk_sum).collect()
+                hits.chunks(GRADIENT_CHUNK).zip(self.samples.chunks(GRADIENT_CHUNK)).map(f).collect()
             }
-        };
-        let gradient = partial.into_iter().fold(vec![0.0; params], add);
-        Some(Evaluation { mutual_information: mi, gradient, inside })
+        }
     }
 }
 
-/// Samples per chunk of the gradient's sum (the unit of its parallel work, summed in order).
+/// Samples per chunk of the histogram's and the gradient's sums (the unit of their parallel work, summed in order).
 const GRADIENT_CHUNK: usize = 2048;
 
 /// Fewer fixed samples than this inside the moving image and the images are taken not to overlap.
 pub const MIN_SAMPLES_INSIDE: usize = 500;
 
 /// The intensity-weighted centre of mass over values above the image's minimum, in mm.
-fn centre_of_mass<S: warpbench_io::geometry::Space>(image: &Image<S>) -> Option<Vector3<f64>> {
-    let (lo, _) = image.value_range()?;
+fn centre_of_mass<S: warpbench_io::geometry::Space>(
+    image: &Image<S>,
+    parallelism: Parallelism,
+) -> Option<Vector3<f64>> {
+    let (lo, _) = image.value_range(parallelism)?;
     let [nx, ny, nz] = image.dims();
-    let mut sum = Vector3::zeros();
-    let mut mass = 0.0;
-    for k in 0..nz {
+    // Each slice (constant k) is summed on its own (in parallel where allowed); the slices' sums are added in
+    // order, so the centre is the same to the bit on every run and either way.
+    let slice = |k: usize| {
+        let mut sum = Vector3::zeros();
+        let mut mass = 0.0;
         for j in 0..ny {
             for i in 0..nx {
                 let v = f64::from(image.at(i, j, k));
@@ -354,7 +374,13 @@ fn centre_of_mass<S: warpbench_io::geometry::Space>(image: &Image<S>) -> Option<
                 }
             }
         }
-    }
+        (sum, mass)
+    };
+    let slices: Vec<(Vector3<f64>, f64)> = match parallelism {
+        Parallelism::Sequential => (0..nz).map(slice).collect(),
+        Parallelism::Rayon => (0..nz).into_par_iter().map(slice).collect(),
+    };
+    let (sum, mass) = slices.iter().fold((Vector3::zeros(), 0.0), |(s, m), (ds, dm)| (s + ds, m + dm));
     (mass > 0.0).then(|| sum / mass)
 }
 
@@ -426,8 +452,8 @@ pub fn align(fixed: &Image<Fixed>, moving: &Image<Moving>, params: &AlignParams)
         )));
     }
     let no_mass = |name: &str| SolverError::Image(format!("the {name} image has a single value: nothing to align"));
-    let c_fixed = centre_of_mass(fixed).ok_or_else(|| no_mass("fixed"))?;
-    let c_moving = centre_of_mass(moving).ok_or_else(|| no_mass("moving"))?;
+    let c_fixed = centre_of_mass(fixed, params.parallelism).ok_or_else(|| no_mass("fixed"))?;
+    let c_moving = centre_of_mass(moving, params.parallelism).ok_or_else(|| no_mass("moving"))?;
     let mut pose = Pose { linear: Matrix3::identity(), translation: c_moving - c_fixed, centre: c_fixed };
     let initial = pose.transform();
 
@@ -435,9 +461,11 @@ pub fn align(fixed: &Image<Fixed>, moving: &Image<Moving>, params: &AlignParams)
     let mut mutual_information = 0.0;
     for (level, &shrink) in params.shrink_factors.iter().enumerate() {
         // The finest level reads the images themselves: no copy of a full volume.
-        let fixed_level = if shrink == 1 { Cow::Borrowed(fixed) } else { Cow::Owned(fixed.shrink(shrink)?) };
-        let moving_level = if shrink == 1 { Cow::Borrowed(moving) } else { Cow::Owned(moving.shrink(shrink)?) };
-        let (moving_min, moving_max) = moving_level.value_range().ok_or_else(|| no_mass("moving"))?;
+        let fixed_level =
+            if shrink == 1 { Cow::Borrowed(fixed) } else { Cow::Owned(fixed.shrink(shrink, params.parallelism)?) };
+        let moving_level =
+            if shrink == 1 { Cow::Borrowed(moving) } else { Cow::Owned(moving.shrink(shrink, params.parallelism)?) };
+        let (moving_min, moving_max) = moving_level.value_range(params.parallelism).ok_or_else(|| no_mass("moving"))?;
         if moving_max <= moving_min {
             return Err(no_mass("moving"));
         }
@@ -607,7 +635,7 @@ mod tests {
         for remap in [(|v| v) as fn(f64) -> f64, |v: f64| (v - 50.0).abs().sqrt()] {
             let moving: Image<Moving> = blobs(remap);
             let (samples, _) = draw_samples(&fixed, 4000, 32, 7).expect("samples");
-            let (lo, hi) = moving.value_range().expect("range");
+            let (lo, hi) = moving.value_range(Parallelism::Sequential).expect("range");
             let metric = Metric {
                 moving: &moving,
                 samples,

@@ -10,9 +10,11 @@
 //! gradient in mm is ∇v(x) = (index_from_space)ᵀ · ∂v/∂ξ, the exact derivative of the interpolant inside a cell.
 
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Index, Point3, Space, Transform};
 
+use crate::warp::Parallelism;
 use crate::{Result, SolverError};
 
 /// How far (in voxels) outside the outer voxel centres a point still reads the edge value: rounding in the
@@ -51,6 +53,9 @@ pub struct Image<S: Space> {
     index_from_space_linear: Matrix3<f64>,
     index_from_space_translation: Vector3<f64>,
 }
+
+/// Values per task of [`Image::from_volume`]'s conversion and [`Image::value_range`].
+const CHUNK: usize = 1 << 16;
 
 /// Reserves `n` values or says why not.
 fn try_vec(n: usize, what: &str) -> Result<Vec<f32>> {
@@ -91,16 +96,27 @@ impl<S: Space> Image<S> {
         })
     }
 
-    /// The volume's samples as f32 with its rescale applied, in space `S` (the volume's LPS, tagged).
+    /// The volume's samples as f32 with its rescale applied, in space `S` (the volume's LPS, tagged), converted on
+    /// the threads `parallelism` allows.
     ///
     /// # Errors
     /// As [`Self::new`], or when there is no memory for the copy.
-    pub fn from_volume(volume: &Volume) -> Result<Self> {
+    pub fn from_volume(volume: &Volume, parallelism: Parallelism) -> Result<Self> {
         let n = volume.data.len();
         let mut values = try_vec(n, "the image's f32 copy")?;
         let rescale = volume.rescale;
         let (slope, intercept) = if rescale.applied { (1.0, 0.0) } else { (rescale.slope, rescale.intercept) };
-        values.extend((0..n).map(|i| (slope * volume.data.get_f64(i) + intercept) as f32));
+        // Within the reserved capacity: no reallocation. Converted in parallel blocks (each value on its own).
+        values.resize(n, 0.0);
+        let convert = |(c, block): (usize, &mut [f32])| {
+            for (o, v) in block.iter_mut().enumerate() {
+                *v = (slope * volume.data.get_f64(c * CHUNK + o) + intercept) as f32;
+            }
+        };
+        match parallelism {
+            Parallelism::Sequential => values.chunks_mut(CHUNK).enumerate().for_each(convert),
+            Parallelism::Rayon => values.par_chunks_mut(CHUNK).enumerate().for_each(convert),
+        }
         Self::new(volume.dims, values, Transform::from_matrix(*volume.lps_from_index.matrix()))
     }
 
@@ -227,24 +243,34 @@ impl<S: Space> Image<S> {
         Some((value, [g[0], g[1], g[2]]))
     }
 
-    /// The smallest and largest finite value, or `None` when none is finite.
+    /// The smallest and largest finite value, or `None` when none is finite; read on the threads `parallelism`
+    /// allows.
     #[must_use]
-    pub fn value_range(&self) -> Option<(f64, f64)> {
-        let (lo, hi) = self
-            .values
-            .iter()
-            .filter(|v| v.is_finite())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+    pub fn value_range(&self, parallelism: Parallelism) -> Option<(f64, f64)> {
+        let range = |block: &[f32]| {
+            block
+                .iter()
+                .filter(|v| v.is_finite())
+                .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)))
+        };
+        let both = |a: (f32, f32), b: (f32, f32)| (a.0.min(b.0), a.1.max(b.1));
+        let empty = (f32::INFINITY, f32::NEG_INFINITY);
+        // The smallest and the largest do not depend on the order the blocks are combined in.
+        let (lo, hi) = match parallelism {
+            Parallelism::Sequential => range(&self.values),
+            Parallelism::Rayon => self.values.par_chunks(CHUNK).map(range).reduce(|| empty, both),
+        };
         (lo <= hi).then_some((f64::from(lo), f64::from(hi)))
     }
 
     /// The image shrunk by `factor` along every axis whose size allows it: each new voxel is the mean of a
     /// `factor`-wide block (a box filter, then subsampling), placed at the block's centre, so that the shrunk image
-    /// covers the same box in mm. An axis with fewer than 2 · `factor` voxels keeps its size.
+    /// covers the same box in mm. An axis with fewer than 2 · `factor` voxels keeps its size. The new slices are
+    /// computed on the threads `parallelism` allows.
     ///
     /// # Errors
     /// When there is no memory for the result.
-    pub fn shrink(&self, factor: usize) -> Result<Self> {
+    pub fn shrink(&self, factor: usize, parallelism: Parallelism) -> Result<Self> {
         if factor <= 1 {
             return Ok(self.clone());
         }
@@ -252,25 +278,31 @@ impl<S: Space> Image<S> {
         let dims: [usize; 3] = std::array::from_fn(|a| self.dims[a] / f[a]);
         let n = dims[0] * dims[1] * dims[2];
         let mut values = try_vec(n, "a shrunk image")?;
-        for k in 0..dims[2] {
-            for j in 0..dims[1] {
-                for i in 0..dims[0] {
-                    let mut sum = 0.0f64;
-                    let mut count = 0u32;
-                    for dk in 0..f[2] {
-                        for dj in 0..f[1] {
-                            for di in 0..f[0] {
-                                let v = self.at(i * f[0] + di, j * f[1] + dj, k * f[2] + dk);
-                                if v.is_finite() {
-                                    sum += f64::from(v);
-                                    count += 1;
-                                }
+        values.resize(n, 0.0);
+        // One new slice (constant k) per task; each voxel is its own block's mean.
+        let slice_of = |(k, slice): (usize, &mut [f32])| {
+            for (n, out) in slice.iter_mut().enumerate() {
+                let (i, j) = (n % dims[0], n / dims[0]);
+                let mut sum = 0.0f64;
+                let mut count = 0u32;
+                for dk in 0..f[2] {
+                    for dj in 0..f[1] {
+                        for di in 0..f[0] {
+                            let v = self.at(i * f[0] + di, j * f[1] + dj, k * f[2] + dk);
+                            if v.is_finite() {
+                                sum += f64::from(v);
+                                count += 1;
                             }
                         }
                     }
-                    values.push(if count == 0 { f32::NAN } else { (sum / f64::from(count)) as f32 });
                 }
+                *out = if count == 0 { f32::NAN } else { (sum / f64::from(count)) as f32 };
             }
+        };
+        let plane = dims[0] * dims[1];
+        match parallelism {
+            Parallelism::Sequential => values.chunks_mut(plane).enumerate().for_each(slice_of),
+            Parallelism::Rayon => values.par_chunks_mut(plane).enumerate().for_each(slice_of),
         }
         // New index i' sits at old index f·i' + (f − 1)/2.
         let scale = Matrix3::from_diagonal(&Vector3::new(f[0] as f64, f[1] as f64, f[2] as f64));
@@ -332,6 +364,35 @@ mod tests {
     }
 
     /// Shrinking keeps the box: a linear function keeps its values at the same mm positions.
+    /// The rescale is applied (CT's slope and intercept), values beyond a block of the conversion land in place,
+    /// and rayon's pool gives the same image as the calling thread.
+    #[test]
+    fn a_volume_becomes_its_rescaled_values_on_either_parallelism() {
+        let dims = [300, 250, 2];
+        let n = dims[0] * dims[1] * dims[2];
+        assert!(n > 2 * CHUNK, "the conversion crosses blocks");
+        let stored: Vec<i16> = (0..n).map(|i| (i % 4001) as i16 - 1000).collect();
+        let mut volume = Volume::new(
+            std::path::Path::new("test.nii"),
+            dims,
+            warpbench_io::volume::VoxelData::I16(stored.clone()),
+            Transform::from_scale_translation([0.5, 0.7, 2.0], [-10.0, 5.0, 0.0]),
+            warpbench_io::volume::GeometrySource::NiftiPixdim,
+        )
+        .expect("in the test");
+        volume.rescale = warpbench_io::volume::Rescale { slope: 2.0, intercept: -1024.0, applied: false };
+        let sequential: Image<Fixed> = Image::from_volume(&volume, Parallelism::Sequential).expect("in the test");
+        let pooled: Image<Fixed> = Image::from_volume(&volume, Parallelism::Rayon).expect("in the test");
+        for (i, &v) in stored.iter().enumerate() {
+            let want = (2.0 * f64::from(v) - 1024.0) as f32;
+            assert_eq!(sequential.values()[i].to_bits(), want.to_bits(), "value {i}");
+            assert_eq!(pooled.values()[i].to_bits(), want.to_bits(), "value {i}");
+        }
+        // Stored −1000 to 3000: −3024 to 4976 after the rescale, read alike either way.
+        assert_eq!(sequential.value_range(Parallelism::Sequential), Some((-3024.0, 4976.0)));
+        assert_eq!(pooled.value_range(Parallelism::Rayon), Some((-3024.0, 4976.0)));
+    }
+
     #[test]
     fn shrinking_keeps_a_linear_function_in_place() {
         let dims = [8, 9, 10];
@@ -342,12 +403,16 @@ mod tests {
         let image: Image<Fixed> =
             Image::new(dims, values, Transform::from_scale_translation([1.0, 2.0, 0.5], [1.0, 2.0, 3.0]))
                 .expect("in the test");
-        let small = image.shrink(2).expect("in the test");
+        let small = image.shrink(2, Parallelism::Sequential).expect("in the test");
         assert_eq!(small.dims(), [4, 4, 5]);
         for (i, j, k) in [(0, 0, 0), (3, 3, 4), (1, 2, 3)] {
             let x = small.voxel_point(i, j, k);
             let want = image.sample(x).expect("in the test");
             assert!((f64::from(small.at(i, j, k)) - want).abs() < 1e-4, "{i} {j} {k}");
         }
+        // On rayon's pool each voxel is computed the same way: the same values to the bit.
+        let pooled = image.shrink(2, Parallelism::Rayon).expect("in the test");
+        assert_eq!(pooled.dims(), small.dims());
+        assert!(pooled.values().iter().zip(small.values()).all(|(a, b)| a.to_bits() == b.to_bits()));
     }
 }

@@ -10,12 +10,16 @@ use warpbench_io::geometry::{Index, Point3, Transform};
 use warpbench_solver::align::{AlignKind, AlignParams, align};
 use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Parallelism;
 
 /// Colin27 (1 mm, 181×217×181, uint8) shrunk by `shrink`, as the fixed image.
 fn colin(shrink: usize) -> Image<Fixed> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/ch2.nii.gz");
     let volume = warpbench_io::open(&path).expect("Colin27 fixture");
-    Image::<Fixed>::from_volume(&volume).expect("image").shrink(shrink).expect("shrunk")
+    Image::<Fixed>::from_volume(&volume, Parallelism::Rayon)
+        .expect("image")
+        .shrink(shrink, Parallelism::Rayon)
+        .expect("shrunk")
 }
 
 /// The moving image m(y) = g(f(T⁻¹(y))) on its own grid (spacing `spacing_mm`, axis-aligned, covering T's image of

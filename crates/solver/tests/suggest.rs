@@ -15,6 +15,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use warpbench_io::geometry::Point3;
 use warpbench_solver::image::Image;
+use warpbench_solver::warp::Parallelism;
 use warpbench_solver::suggest::{PatchMatcher, SuggestParams, Suggestion, suggest};
 use warpbench_solver::tps::{Tps, fit_forward};
 use warpbench_solver::{Fixed, Moving};
@@ -126,7 +127,7 @@ fn fixture() -> &'static Fixture {
         let t = Instant::now();
         let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/ch2.nii.gz");
         let volume = warpbench_io::open(&path).expect("ch2 fixture");
-        let moving: Image<Moving> = Image::from_volume(&volume).expect("image");
+        let moving: Image<Moving> = Image::from_volume(&volume, Parallelism::Rayon).expect("image");
         let dims = moving.dims();
         let centre = {
             let a = moving.voxel_point(0, 0, 0);
@@ -146,7 +147,7 @@ fn fixture() -> &'static Fixture {
                 }
             }
         });
-        let (_, max) = moving.value_range().expect("finite values");
+        let (_, max) = moving.value_range(Parallelism::Rayon).expect("finite values");
         // A second modality: v ↦ |v − c|^0.7, c at 40 % of the range (between the CSF and the grey matter's
         // intensities): contrast folds over at c, so that the CSF turns brighter than the grey matter.
         let c = 0.4 * max;
@@ -179,7 +180,7 @@ fn fixture() -> &'static Fixture {
 /// `n` seeded random in-head voxel centres among the top gradient-magnitude quantile, away from the faces.
 fn strong_gradient_points(image: &Image<Moving>, n: usize, seed: u64) -> Vec<[f64; 3]> {
     let dims = image.dims();
-    let (_, max) = image.value_range().expect("finite values");
+    let (_, max) = image.value_range(Parallelism::Rayon).expect("finite values");
     let mut candidates: Vec<(f64, [usize; 3])> = Vec::new();
     for k in BORDER_VOX..dims[2] - BORDER_VOX {
         for j in BORDER_VOX..dims[1] - BORDER_VOX {

@@ -9,6 +9,7 @@ use warpbench_io::Volume;
 use warpbench_solver::align::{AlignKind, AlignParams, align, rotation_angle_deg};
 use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::Parallelism;
 
 use super::document::StartingTransform;
 
@@ -23,8 +24,10 @@ pub struct AlignJob {
 /// # Errors
 /// The solver's, in the window's words.
 pub fn align_pair(fixed: &Volume, moving: &Volume, kind: AlignKind) -> Result<StartingTransform, String> {
-    let fixed = Image::<Fixed>::from_volume(fixed).map_err(|e| format!("Auto-align: the fixed volume: {e}"))?;
-    let moving = Image::<Moving>::from_volume(moving).map_err(|e| format!("Auto-align: the moving volume: {e}"))?;
+    let fixed = Image::<Fixed>::from_volume(fixed, Parallelism::Rayon)
+        .map_err(|e| format!("Auto-align: the fixed volume: {e}"))?;
+    let moving = Image::<Moving>::from_volume(moving, Parallelism::Rayon)
+        .map_err(|e| format!("Auto-align: the moving volume: {e}"))?;
     let result = align(&fixed, &moving, &AlignParams { kind, ..AlignParams::default() })
         .map_err(|e| format!("Auto-align: {e}"))?;
     let t = result.moving_from_fixed;

@@ -10,6 +10,7 @@ use warpbench_io::geometry::{Lps, Point3};
 use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving, as_moving};
 use warpbench_solver::suggest::{SuggestParams, suggest};
+use warpbench_solver::warp::Parallelism;
 use warpbench_solver::warp::Warp;
 
 /// A suggested target: the fixed point (LPS mm) and how sure the search is.
@@ -53,9 +54,10 @@ impl Matching {
         p: Point3<Lps>,
     ) -> Result<Suggested, String> {
         if self.images.is_none() {
-            let f = Image::<Fixed>::from_volume(fixed).map_err(|e| format!("no suggestion: the fixed volume: {e}"))?;
-            let m =
-                Image::<Moving>::from_volume(moving).map_err(|e| format!("no suggestion: the moving volume: {e}"))?;
+            let f = Image::<Fixed>::from_volume(fixed, Parallelism::Rayon)
+                .map_err(|e| format!("no suggestion: the fixed volume: {e}"))?;
+            let m = Image::<Moving>::from_volume(moving, Parallelism::Rayon)
+                .map_err(|e| format!("no suggestion: the moving volume: {e}"))?;
             self.images = Some((f, m));
         }
         let Some((f, m)) = &self.images else { return Err("no suggestion: no images".into()) };
