@@ -352,7 +352,7 @@ fn an_idle_window_says_so_in_the_status_bar() {
         if delay == Duration::MAX {
             break;
         }
-        assert!(start.elapsed() < Duration::from_secs(20), "the window never went idle");
+        assert!(start.elapsed() < Duration::from_mins(1), "the window never went idle");
         std::thread::sleep(delay.min(Duration::from_secs(2)));
         harness.step();
     }

@@ -237,7 +237,7 @@ fn the_brush_drags_the_moving_volume_in_a_slice() {
     let autosave = dir.path().join("autosave.warpbench.json");
     let start_wait = Instant::now();
     while warpbench_app::gui::session::load(&autosave).map_or(0, |s| s.document.brush.len()) != 1 {
-        assert!(start_wait.elapsed() < Duration::from_secs(5), "the stroke was not autosaved");
+        assert!(start_wait.elapsed() < Duration::from_secs(30), "the stroke was not autosaved within 30 s");
         std::thread::sleep(Duration::from_millis(20));
     }
 
