@@ -13,6 +13,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::anyhow;
+use rayon::prelude::*;
 use serde::Serialize;
 use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::{LandmarkPair, PointFileOptions, read_point_file, write_landmark_pairs};
@@ -152,8 +153,10 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
         .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", moving.display())))?;
     drop((fixed_volume, moving_volume));
 
+    // Each point's search is its own (one thread each): the points are shared out over rayon's pool, the results
+    // kept in their order.
     let suggested: Vec<SuggestedPoint> = moving_points
-        .iter()
+        .par_iter()
         .enumerate()
         .map(|(i, (name, p))| {
             let p = as_moving(*p);
