@@ -331,23 +331,23 @@ impl Metric<'_> {
         Some(Evaluation { mutual_information: mi, gradient, inside })
     }
 
-    /// `f` of each chunk of [`GRADIENT_CHUNK`] hits and their samples, in the chunks' order (computed on the threads
+    /// `f` of each chunk of [`SAMPLE_CHUNK`] hits and their samples, in the chunks' order (computed on the threads
     /// `parallelism` allows): a sum over the results in this order does not depend on how the threads shared the
     /// work, so the same inputs and seed give the same alignment, bit for bit.
     fn by_chunks<T: Send>(&self, hits: &[Hit], f: impl Fn((&[Hit], &[Sample])) -> T + Sync + Send) -> Vec<T> {
         match self.parallelism {
             Parallelism::Rayon => {
-                hits.par_chunks(GRADIENT_CHUNK).zip(self.samples.par_chunks(GRADIENT_CHUNK)).map(f).collect()
+                hits.par_chunks(SAMPLE_CHUNK).zip(self.samples.par_chunks(SAMPLE_CHUNK)).map(f).collect()
             }
             Parallelism::Sequential => {
-                hits.chunks(GRADIENT_CHUNK).zip(self.samples.chunks(GRADIENT_CHUNK)).map(f).collect()
+                hits.chunks(SAMPLE_CHUNK).zip(self.samples.chunks(SAMPLE_CHUNK)).map(f).collect()
             }
         }
     }
 }
 
 /// Samples per chunk of the histogram's and the gradient's sums (the unit of their parallel work, summed in order).
-const GRADIENT_CHUNK: usize = 2048;
+const SAMPLE_CHUNK: usize = 2048;
 
 /// Fewer fixed samples than this inside the moving image and the images are taken not to overlap.
 pub const MIN_SAMPLES_INSIDE: usize = 500;

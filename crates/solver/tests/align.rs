@@ -159,17 +159,22 @@ fn a_flat_image_is_refused_with_a_reason() {
     assert!(err.to_string().contains("moving image has a single value"), "{err}");
 }
 
-/// The same inputs and seed give the same transform to the bit, whatever the threads do.
+/// The same inputs and seed give the same transform to the bit, whatever the threads do: two runs on rayon's pool
+/// and one on the calling thread alone agree.
 #[test]
 fn the_alignment_is_reproducible_to_the_bit() {
     let fixed = colin(4);
     let truth = rigid(&fixed, [0.3, 0.4, 1.0], 7.0, [5.0, -4.0, 6.0]);
     let moving = moving_through(&fixed, &truth, 4.4, second_modality);
-    let params = AlignParams { kind: AlignKind::Affine, ..AlignParams::default() };
-    let a = align(&fixed, &moving, &params).expect("alignment");
-    let b = align(&fixed, &moving, &params).expect("alignment");
+    let params = AlignParams { kind: AlignKind::Affine, parallelism: Parallelism::Rayon, ..AlignParams::default() };
+    let bits = |params: &AlignParams| {
+        align(&fixed, &moving, params).expect("alignment").moving_from_fixed.rows().map(|r| r.map(f64::to_bits))
+    };
+    let pooled = bits(&params);
+    assert_eq!(pooled, bits(&params), "two runs on the pool");
     assert_eq!(
-        a.moving_from_fixed.rows().map(|r| r.map(f64::to_bits)),
-        b.moving_from_fixed.rows().map(|r| r.map(f64::to_bits))
+        pooled,
+        bits(&AlignParams { parallelism: Parallelism::Sequential, ..params.clone() }),
+        "the calling thread"
     );
 }
