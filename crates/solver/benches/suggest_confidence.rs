@@ -56,20 +56,24 @@ fn main() {
         spearman(&all),
     );
 
-    // Error by confidence quartile, pooled.
-    all.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Error by confidence band [lo, hi), pooled: the flagged ones, two bands between, and full confidence (the
+    // confidence saturates at 1, so quantiles of it would split equal values arbitrarily).
+    let flag_below = params.low_confidence_below;
+    let bands: [(&str, f64, f64); 4] = [
+        ("flagged", f64::NEG_INFINITY, flag_below),
+        ("low", flag_below, 0.7),
+        ("high", 0.7, 1.0),
+        ("full (1)", 1.0, f64::INFINITY),
+    ];
     println!();
-    println!("| confidence quartile | confidence | median error (mm) | P90 (mm) | max (mm) | > {WRONG_MM} mm |");
-    println!("|---|---|---|---|---|---|");
-    let n = all.len();
-    for q in 0..4 {
-        let part = &all[q * n / 4..(q + 1) * n / 4];
-        let errors: Vec<f64> = part.iter().map(|a| a.1).collect();
+    println!("| confidence | range | suggestions | median error (mm) | P90 (mm) | max (mm) | > {WRONG_MM} mm |");
+    println!("|---|---|---|---|---|---|---|");
+    for (name, lo, hi) in bands {
+        let errors: Vec<f64> = all.iter().filter(|a| a.0 >= lo && a.0 < hi).map(|a| a.1).collect();
         println!(
-            "| {} | {:.3}–{:.3} | {:.2} | {:.2} | {:.2} | {} |",
-            ["lowest", "second", "third", "highest"][q],
-            part.first().map_or(f64::NAN, |a| a.0),
-            part.last().map_or(f64::NAN, |a| a.0),
+            "| {name} | {} | {} | {:.2} | {:.2} | {:.2} | {} |",
+            if hi.is_infinite() { "1".to_owned() } else { format!("{:.2}–{hi:.2}", lo.max(0.0)) },
+            errors.len(),
             quantile(&errors, 0.5),
             quantile(&errors, 0.9),
             errors.iter().copied().fold(0.0, f64::max),
@@ -84,21 +88,28 @@ fn main() {
     );
 }
 
-/// Spearman's rank correlation of the first two fields (ties ranked by position; confidences and errors are
-/// continuous).
+/// Spearman's rank correlation of the first two fields, equal values sharing their mean rank (the confidence is
+/// often exactly 1).
 fn spearman(v: &[(f64, f64, bool)]) -> f64 {
     let ranks = |key: &dyn Fn(&(f64, f64, bool)) -> f64| {
         let mut order: Vec<usize> = (0..v.len()).collect();
         order.sort_by(|&a, &b| key(&v[a]).total_cmp(&key(&v[b])));
         let mut rank = vec![0.0; v.len()];
-        for (r, &i) in order.iter().enumerate() {
-            rank[i] = r as f64;
+        let mut start = 0;
+        while start < order.len() {
+            let value = key(&v[order[start]]);
+            let end = start + order[start..].iter().take_while(|&&i| key(&v[i]).total_cmp(&value).is_eq()).count();
+            for &i in &order[start..end] {
+                rank[i] = (start + end - 1) as f64 / 2.0;
+            }
+            start = end;
         }
         rank
     };
     let (a, b) = (ranks(&|x| x.0), ranks(&|x| x.1));
-    let mean = (v.len() as f64 - 1.0) / 2.0;
-    let cov: f64 = a.iter().zip(&b).map(|(x, y)| (x - mean) * (y - mean)).sum();
-    let var: f64 = a.iter().map(|x| (x - mean).powi(2)).sum();
-    cov / var
+    let mean = |r: &[f64]| r.iter().sum::<f64>() / r.len() as f64;
+    let (ma, mb) = (mean(&a), mean(&b));
+    let cov: f64 = a.iter().zip(&b).map(|(x, y)| (x - ma) * (y - mb)).sum();
+    let var = |r: &[f64], m: f64| r.iter().map(|x| (x - m).powi(2)).sum::<f64>();
+    cov / (var(&a, ma) * var(&b, mb)).sqrt()
 }
