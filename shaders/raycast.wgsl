@@ -1,4 +1,8 @@
-// Ray casting of the fixed and the (deformed) moving volume together, in one full-screen pass.
+// Ray casting of the fixed and the (deformed) moving volume together, in one compute pass: one invocation per pixel
+// (cs_raycast, 8×8 pixels a workgroup), writing the image and the first-hit depth to storage textures. A compute
+// shader rather than a fragment shader because data-centre GPUs run fragment shaders on a few of their processors
+// only (an NVIDIA H200 gave the same per-pixel loop 1/26 of the throughput as a fragment shader); on desktop GPUs
+// and CPU drivers the two run alike.
 //
 // Space names follow STYLE.md: `ref` is the shared render space (the fixed volume's LPS, mm), `lps` a
 // volume's own patient space, `tex` [0,1]^3 texture coordinates, `ctrl_tex` the control texture's.
@@ -18,11 +22,11 @@
 // whose value ≥ iso_value, refines it by bisection between the last two samples, shades it opaque, and blends the two
 // volumes' hits once by the blend mode.
 //
-// Slices (fs_slice, crates/gpu/src/slice.rs): one sample per pixel at x_ref = origin + (px + 1/2)·u + (py + 1/2)·v
+// Slices (cs_slice, crates/gpu/src/slice.rs): one sample per pixel at x_ref = origin + (px + 1/2)·u + (py + 1/2)·v
 // (ref_from_frag_px), the same warp, sampling, window and transfer function; each volume contributes its TF colour
 // with opacity 1 inside its texture box (transparent outside); blended by the blend mode; no shading, no compositing.
 //
-// First hit (fs_raycast's second output, for depth-testing landmark glyphs, crates/gpu/src/glyph.rs): the NDC depth
+// First hit (cs_raycast's second output, for depth-testing landmark glyphs, crates/gpu/src/glyph.rs): the NDC depth
 // (0 near … 1 far) of the first sample where the accumulated opacity reaches HIT_OPACITY (DVR) or of the nearer
 // iso-surface hit; NO_HIT_DEPTH where the ray hits nothing. A point at distance t along the ray (from the near-plane
 // point o, direction r) has NDC depth z = t·n_w / (k − t·d_w), where n = ref_from_clip·(ndc, 0, 1), d =
@@ -221,18 +225,32 @@ const NO_HIT_DEPTH: f32 = 2.0;
 @group(0) @binding(11) var fixed_preint_tex: texture_2d<f32>;
 @group(0) @binding(12) var moving_preint_tex: texture_2d<f32>;
 
-struct VertexOutput {
-    @builtin(position) position: vec4<f32>,
+// The pass's own bindings in group 1 (picking's are bindings 0–2 of the same group, crates/gpu/src/pick.rs): the band
+// of rows a dispatch covers and the two images it writes. The Rust twin is `BandUniforms` in
+// crates/gpu/src/raycast.rs (tests/shaders.rs compares the layouts).
+struct BandUniforms {
+    // The first row (from the top) of the band and the row after its last.
+    first_row: u32,
+    end_row: u32,
+    _pad0: u32,
+    _pad1: u32,
 }
 
-// One triangle covering the viewport: (-1,-1), (3,-1), (-1,3).
-@vertex
-fn vs_fullscreen(@builtin(vertex_index) vertex_index: u32) -> VertexOutput {
-    let x = f32((vertex_index << 1u) & 2u) * 2.0 - 1.0;
-    let y = f32(vertex_index & 2u) * 2.0 - 1.0;
-    var out: VertexOutput;
-    out.position = vec4<f32>(x, y, 0.0, 1.0);
-    return out;
+@group(1) @binding(3) var<uniform> band: BandUniforms;
+// Premultiplied RGBA8 (crates/gpu/src/target.rs, RenderTarget::COLOUR_FORMAT).
+@group(1) @binding(4) var out_colour: texture_storage_2d<rgba8unorm, write>;
+// The first hit's NDC depth as f32 bits (RenderTarget::HIT_DEPTH_FORMAT), what the glyph pass depth-tests against.
+@group(1) @binding(5) var out_hit_depth: texture_storage_2d<r32uint, write>;
+
+// Pixels per workgroup along x and y (`WORKGROUP_EDGE` in crates/gpu/src/raycast.rs): 8×8 neighbouring rays, which
+// march alike and stop at about the same sample.
+const WORKGROUP_EDGE: u32 = 8u;
+
+// The pixel of invocation `id` in the band, or false when it lies outside the image or the band.
+fn band_pixel(id: vec3<u32>) -> vec3<u32> {
+    let px = vec2<u32>(id.x, id.y + band.first_row);
+    let inside = px.x < u32(u.viewport_px.x) && px.y < band.end_row;
+    return vec3<u32>(px, select(0u, 1u, inside));
 }
 
 // PCG hash (Jarzynski & Olano 2020): a reproducible per-pixel jitter.
@@ -242,28 +260,38 @@ fn pcg_hash(v: u32) -> u32 {
     return (word >> 22u) ^ word;
 }
 
-// Trilinear interpolation by hand (8 textureLoad), clamp-to-edge, texel centres at (i + ½)/n:
-// used when the volume format is not filterable on this device.
-fn sample_manual(vol: texture_3d<f32>, p_tex: vec3<f32>) -> f32 {
+// Picks filter every lookup by hand (the pipeline sets EXACT_FILTER, crates/gpu/src/pick.rs): a device's hardware
+// filter may round its weights to as little as 4 bits (Vulkan's subTexelPrecisionBits; 8 on NVIDIA), which moves a
+// threshold crossing by a fraction of a voxel; by hand the weights are exact f32 on every device, so a pick lands
+// where the CPU reference says. Frames filter in hardware.
+override EXACT_FILTER: bool = false;
+
+// Trilinear interpolation by hand (8 textureLoad), clamp-to-edge, texel centres at (i + ½)/n, exact f32 weights.
+fn load_trilinear(vol: texture_3d<f32>, p_tex: vec3<f32>) -> vec4<f32> {
     let dims = vec3<i32>(textureDimensions(vol));
     let n = vec3<f32>(dims);
     let c = clamp(p_tex * n - vec3<f32>(0.5), vec3<f32>(0.0), n - vec3<f32>(1.0));
     let i0 = vec3<i32>(floor(c));
     let f = c - floor(c);
     let i1 = min(i0 + vec3<i32>(1), dims - vec3<i32>(1));
-    let c000 = textureLoad(vol, vec3<i32>(i0.x, i0.y, i0.z), 0).r;
-    let c100 = textureLoad(vol, vec3<i32>(i1.x, i0.y, i0.z), 0).r;
-    let c010 = textureLoad(vol, vec3<i32>(i0.x, i1.y, i0.z), 0).r;
-    let c110 = textureLoad(vol, vec3<i32>(i1.x, i1.y, i0.z), 0).r;
-    let c001 = textureLoad(vol, vec3<i32>(i0.x, i0.y, i1.z), 0).r;
-    let c101 = textureLoad(vol, vec3<i32>(i1.x, i0.y, i1.z), 0).r;
-    let c011 = textureLoad(vol, vec3<i32>(i0.x, i1.y, i1.z), 0).r;
-    let c111 = textureLoad(vol, vec3<i32>(i1.x, i1.y, i1.z), 0).r;
+    let c000 = textureLoad(vol, vec3<i32>(i0.x, i0.y, i0.z), 0);
+    let c100 = textureLoad(vol, vec3<i32>(i1.x, i0.y, i0.z), 0);
+    let c010 = textureLoad(vol, vec3<i32>(i0.x, i1.y, i0.z), 0);
+    let c110 = textureLoad(vol, vec3<i32>(i1.x, i1.y, i0.z), 0);
+    let c001 = textureLoad(vol, vec3<i32>(i0.x, i0.y, i1.z), 0);
+    let c101 = textureLoad(vol, vec3<i32>(i1.x, i0.y, i1.z), 0);
+    let c011 = textureLoad(vol, vec3<i32>(i0.x, i1.y, i1.z), 0);
+    let c111 = textureLoad(vol, vec3<i32>(i1.x, i1.y, i1.z), 0);
     let x00 = mix(c000, c100, f.x);
     let x10 = mix(c010, c110, f.x);
     let x01 = mix(c001, c101, f.x);
     let x11 = mix(c011, c111, f.x);
     return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
+}
+
+// A scalar volume filtered by hand: when its format is not filterable on this device, and in picks.
+fn sample_manual(vol: texture_3d<f32>, p_tex: vec3<f32>) -> f32 {
+    return load_trilinear(vol, p_tex).r;
 }
 
 // Trilinear interpolation by hand of a 2-D array texture read as a volume (layer = z), clamp-to-edge, texel centres
@@ -439,7 +467,11 @@ fn pullback_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> v
     }
     if (v.flags & VOLUME_HAS_WARP) != 0u {
         let c_tex = (v.ctrl_tex_from_ref * vec4<f32>(p_lps, 1.0)).xyz;
-        p_lps = p_lps + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
+        if EXACT_FILTER {
+            p_lps = p_lps + load_trilinear(ctrl, c_tex).xyz;
+        } else {
+            p_lps = p_lps + textureSampleLevel(ctrl, linear_sampler, c_tex, 0.0).xyz;
+        }
     }
     return p_lps;
 }
@@ -466,7 +498,7 @@ fn outside_tex(p_tex: vec3<f32>) -> bool {
 // The volume's value (value units) at p_tex.
 fn volume_value(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
     var texel: f32;
-    if (v.flags & VOLUME_MANUAL_FILTER) != 0u {
+    if EXACT_FILTER || (v.flags & VOLUME_MANUAL_FILTER) != 0u {
         texel = sample_manual(vol, p_tex);
     } else {
         texel = textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
@@ -479,7 +511,7 @@ fn gradient_source(vol: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUni
     if (v.flags & VOLUME_HAS_PREFILTER) != 0u {
         return sample_layers(pf, p_tex);
     }
-    if (v.flags & VOLUME_MANUAL_FILTER) != 0u {
+    if EXACT_FILTER || (v.flags & VOLUME_MANUAL_FILTER) != 0u {
         return sample_manual(vol, p_tex);
     }
     return textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
@@ -749,9 +781,9 @@ fn proxy_box_span(origin: vec3<f32>, dir: vec3<f32>) -> vec2<f32> {
 }
 
 struct RaycastOutput {
-    @location(0) colour: vec4<f32>,
-    // The f32 depth's bits: R32Uint is colour-renderable everywhere (R32Float is not on GLES).
-    @location(1) hit_depth: u32,
+    colour: vec4<f32>,
+    // The f32 depth's bits, as out_hit_depth stores them.
+    hit_depth: u32,
 }
 
 fn no_hit(colour: vec4<f32>) -> RaycastOutput {
@@ -765,10 +797,22 @@ fn ndc_depth(near_h: vec4<f32>, far_h: vec4<f32>, origin_ref: vec3<f32>, dir_ref
     return t * near_h.w / (k - t * d.w);
 }
 
-@fragment
-fn fs_raycast(in: VertexOutput) -> RaycastOutput {
+@compute @workgroup_size(WORKGROUP_EDGE, WORKGROUP_EDGE)
+fn cs_raycast(@builtin(global_invocation_id) id: vec3<u32>) {
+    let px = band_pixel(id);
+    if px.z == 0u {
+        return;
+    }
+    let out = raycast_pixel(px.xy);
+    textureStore(out_colour, px.xy, out.colour);
+    textureStore(out_hit_depth, px.xy, vec4<u32>(out.hit_depth, 0u, 0u, 0u));
+}
+
+// The colour and first hit of pixel `px` (its centre at px + ½, y down).
+fn raycast_pixel(px: vec2<u32>) -> RaycastOutput {
     // Pixel centre → NDC (y up) → a ray in ref space between the near and the far plane.
-    let ndc = vec2<f32>(in.position.x / u.viewport_px.x * 2.0 - 1.0, 1.0 - in.position.y / u.viewport_px.y * 2.0);
+    let centre = vec2<f32>(px) + vec2<f32>(0.5);
+    let ndc = vec2<f32>(centre.x / u.viewport_px.x * 2.0 - 1.0, 1.0 - centre.y / u.viewport_px.y * 2.0);
     let near_h = u.ref_from_clip * vec4<f32>(ndc, 0.0, 1.0);
     let far_h = u.ref_from_clip * vec4<f32>(ndc, 1.0, 1.0);
     let origin_ref = near_h.xyz / near_h.w;
@@ -783,7 +827,6 @@ fn fs_raycast(in: VertexOutput) -> RaycastOutput {
 
     var jitter = 0.0;
     if (u.flags & RAYCAST_JITTER) != 0u {
-        let px = vec2<u32>(in.position.xy);
         let h = pcg_hash(px.x + pcg_hash(px.y + pcg_hash(u.jitter_seed)));
         jitter = f32(h >> 8u) / 16777216.0;
     }
@@ -878,9 +921,19 @@ fn slice_sample(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, 
     return vec4<f32>(sample_tf(v.tf_row, t).rgb, 1.0);
 }
 
-@fragment
-fn fs_slice(in: VertexOutput) -> @location(0) vec4<f32> {
-    let x_ref = (u.ref_from_frag_px * vec4<f32>(in.position.xy, 0.0, 1.0)).xyz;
+@compute @workgroup_size(WORKGROUP_EDGE, WORKGROUP_EDGE)
+fn cs_slice(@builtin(global_invocation_id) id: vec3<u32>) {
+    let px = band_pixel(id);
+    if px.z == 0u {
+        return;
+    }
+    textureStore(out_colour, px.xy, slice_pixel(px.xy));
+}
+
+// The slice's colour at pixel `px` (its centre at px + ½).
+fn slice_pixel(px: vec2<u32>) -> vec4<f32> {
+    let centre = vec2<f32>(px) + vec2<f32>(0.5);
+    let x_ref = (u.ref_from_frag_px * vec4<f32>(centre, 0.0, 1.0)).xyz;
     var f = vec4<f32>(0.0);
     var m = vec4<f32>(0.0);
     if is_visible(u.fixed) && u.blend_mode != BLEND_MOVING_ONLY {

@@ -22,20 +22,51 @@ use crate::raycast::{
     EARLY_EXIT_ALPHA, RAYCAST_JITTER, RAYCAST_PREINTEGRATED, RaycastUniforms, VOLUME_HAS_PREFILTER, VOLUME_HAS_WARP,
     VOLUME_VISIBLE, VolumeUniforms,
 };
-use crate::sampling::trilinear;
+use crate::sampling::{FilterPrecision, trilinear, trilinear_with};
 use crate::settings::ShadingMode;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH};
 use crate::transfer::{PreIntegrationTable, TransferFunction};
 use crate::view_deformation::{VIEW_EMPTY, VIEW_NONE};
 use crate::volume::PreparedVolume;
 
-/// One volume on the CPU side: its texels, optional control texture and optional prefiltered copy.
+/// One volume on the CPU side: its texels, optional control texture and optional prefiltered copy, and the
+/// precision of the hardware filter the GPU reads them with.
 #[derive(Clone, Copy, Debug)]
 pub struct CpuLayer<'a> {
     pub volume: &'a PreparedVolume,
     pub control: Option<&'a PreparedControl>,
     /// Used where the uniforms say `VOLUME_HAS_PREFILTER`.
     pub prefiltered: Option<&'a PrefilteredTexels>,
+    /// The lookups the shader leaves to the hardware filter, as the device filters them: the control texture's,
+    /// and the volume's unless it is filtered by hand (`VolumeInfo::manual_filter`). [`FilterPrecision::EXACT`] is
+    /// the exact reference; picks are always exact, as the GPU's are ([`crate::pick`]).
+    pub filtering: FilterPrecision,
+}
+
+impl<'a> CpuLayer<'a> {
+    /// A layer read with exact weights.
+    #[must_use]
+    pub fn new(
+        volume: &'a PreparedVolume,
+        control: Option<&'a PreparedControl>,
+        prefiltered: Option<&'a PrefilteredTexels>,
+    ) -> Self {
+        Self { volume, control, prefiltered, filtering: FilterPrecision::EXACT }
+    }
+
+    /// The same layer read with hardware weights of `filtering`.
+    #[must_use]
+    pub fn with_filtering(self, filtering: FilterPrecision) -> Self {
+        Self { filtering, ..self }
+    }
+
+    /// The volume's normalised texel at `p_tex` as the GPU filters it: exact when the shader filters it by hand.
+    fn volume_texel(&self, p_tex: Vec3) -> f32 {
+        let vol = self.volume;
+        let filtering = if vol.info.manual_filter { FilterPrecision::EXACT } else { self.filtering };
+        let texel = |i| Vec4::splat(vol.texels.normalised(i));
+        filtering.result(vol.texels.format(), trilinear_with(filtering.weights, vol.info.dims, p_tex, texel).x)
+    }
 }
 
 /// Below this squared gradient length the normal is undefined and |n·l| = 1 (the shader's `MIN_GRADIENT_SQ`).
@@ -62,7 +93,7 @@ pub fn pullback_lps(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Ve
         && let Some(ctrl) = layer.control
     {
         let c_tex = Mat4::from_cols_array_2d(&v.ctrl_tex_from_ref).transform_point3(y);
-        let d = trilinear(ctrl.info.dims, c_tex, |i| Vec4::from_array(ctrl.texels[i]));
+        let d = trilinear_with(layer.filtering.weights, ctrl.info.dims, c_tex, |i| Vec4::from_array(ctrl.texels[i]));
         return y + d.truncate();
     }
     y
@@ -87,9 +118,7 @@ fn outside_tex(p_tex: Vec3) -> bool {
 
 /// The shader's `volume_value`.
 fn volume_value(layer: &CpuLayer<'_>, v: &VolumeUniforms, p_tex: Vec3) -> f32 {
-    let vol = layer.volume;
-    let texel = trilinear(vol.info.dims, p_tex, |i| Vec4::splat(vol.texels.normalised(i))).x;
-    v.value_offset + v.value_scale * texel
+    v.value_offset + v.value_scale * layer.volume_texel(p_tex)
 }
 
 /// The shader's `gradient_source`: the prefiltered copy's (or else the volume's) normalised texel at `p_tex`.
@@ -99,8 +128,7 @@ fn gradient_source(layer: &CpuLayer<'_>, v: &VolumeUniforms, p_tex: Vec3) -> f32
     {
         return trilinear(pf.dims, p_tex, |i| Vec4::splat(pf.texels[i])).x;
     }
-    let vol = layer.volume;
-    trilinear(vol.info.dims, p_tex, |i| Vec4::splat(vol.texels.normalised(i))).x
+    layer.volume_texel(p_tex)
 }
 
 /// The shader's `warped_gradient`: central differences of the (prefiltered) volume in ref space through the warp,
@@ -510,6 +538,8 @@ pub fn pick_with_tables(
         PickTarget::Fixed => (fixed, &u.fixed, tables.map(|t| &t[0])),
         PickTarget::Moving => (moving, &u.moving, tables.map(|t| &t[1])),
     };
+    // A pick filters every lookup by hand, with exact weights, on the GPU too.
+    let layer = &layer.with_filtering(FilterPrecision::EXACT);
     let threshold = request.probe.threshold();
     let accumulated = matches!(request.probe, Probe::Accumulated { .. });
     if accumulated
@@ -753,7 +783,7 @@ pub fn slice_sample(layer: &CpuLayer<'_>, v: &VolumeUniforms, tfs: &[TransferFun
     tf_sample(tfs, v.tf_row, t).truncate().extend(1.0)
 }
 
-/// The shader's `fs_slice`: premultiplied RGBA (not yet quantised) of the slice pixel whose centre is at
+/// The shader's `slice_pixel` (`cs_slice`): premultiplied RGBA (not yet quantised) of the slice pixel whose centre is at
 /// `pixel_centre` (framebuffer coordinates, (px + ½, py + ½)), with `u` from [`RaycastUniforms::for_slice`].
 #[must_use]
 pub fn slice_pixel(
@@ -841,7 +871,7 @@ mod tests {
         for spv in [1.0f32, 2.0, 4.0] {
             let settings = RenderSettings { blend: BlendMode::FixedOnly, samples_per_voxel: spv, ..Default::default() };
             let u = RaycastUniforms::new(&cam, &settings, (9, 9), &layer, &hidden, 1);
-            let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
+            let cpu = CpuLayer::new(&vol, None, None);
             // The centre ray crosses the whole 8 mm cube along +y: 8·spv samples of step 1/spv mm.
             let c = shade_pixel(&u, &cpu, &cpu, &tfs, [4.5, 4.5]);
             let expected = 1.0 - (1.0 - alpha).powf(8.0);
@@ -864,7 +894,7 @@ mod tests {
         };
         let hidden = LayerParams { style: style(false), ..layer };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
-        let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
+        let cpu = CpuLayer::new(&vol, None, None);
         let settings = RenderSettings { blend: BlendMode::FixedOnly, samples_per_voxel: 2.0, ..Default::default() };
         let frame = |quality| {
             let u = RaycastUniforms::new(&cam, &settings.at(quality), (9, 9), &layer, &hidden, 1);
@@ -894,7 +924,7 @@ mod tests {
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let settings = RenderSettings { blend: BlendMode::FixedOnly, ..Default::default() };
         let u = RaycastUniforms::new(&cam, &settings, (16, 16), &layer, &layer, 1);
-        let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
+        let cpu = CpuLayer::new(&vol, None, None);
         let img = render(&u, &cpu, &cpu, &tfs);
         // The view is 2·radius = 8√3 mm wide: the corner pixel misses the 8 mm cube.
         assert_eq!(&img[0..4], &[0, 0, 0, 0]);
@@ -931,7 +961,7 @@ mod tests {
         };
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
-        let layer = CpuLayer { volume: &vol, control: Some(&ctrl), prefiltered: None };
+        let layer = CpuLayer::new(&vol, Some(&ctrl), None);
         let x = Vec3::new(-0.5, 0.0, 0.0); // index 3 → value 3; warped to x = 1.5 → index 5
         let c = classify(&layer, &u, &u.fixed, &tfs, x, Vec3::Y);
         assert!((c.x - 5.0 / 7.0).abs() < 0.01, "{c}");
@@ -968,7 +998,7 @@ mod tests {
         let cam = OrbitCamera::fit(Vec3::splat(-4.0), Vec3::splat(4.0), Projection::Orthographic);
         let u = RaycastUniforms::new(&cam, &RenderSettings::default(), (8, 8), &params, &params, 1);
         assert!((u.gradient_step_mm - 1.0).abs() < 1e-6, "h defaults to one voxel");
-        let layer = CpuLayer { volume: &vol, control: Some(&ctrl), prefiltered: None };
+        let layer = CpuLayer::new(&vol, Some(&ctrl), None);
         let g = warped_gradient(&layer, &u, &u.fixed, Vec3::new(0.2, 0.1, -0.3));
         assert!((g - Vec3::new(1.5, 0.0, 0.0)).abs().max_element() < 1e-4, "{g}");
         let plain = CpuLayer { control: None, ..layer };
@@ -1020,7 +1050,7 @@ mod tests {
             view: None,
         };
         let hidden = LayerParams { style: style(false), ..layer };
-        let cpu = CpuLayer { volume: &vol, control: None, prefiltered: None };
+        let cpu = CpuLayer::new(&vol, None, None);
         let pixel = |classification, spv: f32, shift_mm: f32| {
             let cam = OrbitCamera::fit(Vec3::splat(-8.0), Vec3::splat(8.0), Projection::Orthographic);
             let cam = OrbitCamera { azimuth_rad: std::f32::consts::FRAC_PI_2, ..cam };

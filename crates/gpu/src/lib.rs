@@ -21,7 +21,8 @@
 //!   layer's data, with the bounds the proxy box and empty-space skipping need and their control-texture sampling.
 //! - [`view_deformation`]: [`ViewDeformation`]s of the view a layer is drawn through (the fish-eye attention lens),
 //!   applied before its pull-back, so picks through them land in the undeformed volume.
-//! - [`raycast`]: the ray caster, [`RaycastRenderer`] (pipelines) and [`RaycastDrawData`] (one frame), with its
+//! - [`raycast`]: the ray caster (a compute pass, one invocation per pixel), [`RaycastRenderer`] (pipelines) and
+//!   [`RaycastDrawData`] (one frame), with its
 //!   uniforms ([`RaycastUniforms`], [`VolumeUniforms`]), its shader and its bind slots.
 //! - [`target`]: [`RenderTarget`], the image and the first-hit depth the passes draw into.
 //! - [`slice`](mod@slice): [`SlicePlane`] (axial/coronal/sagittal planes of the fixed grid, oblique planes,
@@ -39,7 +40,8 @@
 //! - [`shader`]: what a pass declares about its WGSL (its [`shader::ShaderSource`], the layouts of its uniform
 //!   structs and its [`shader::BindSlot`]s); [`shaders`]: the registry that lists every file and every pass's
 //!   declaration, which `tests/shaders.rs` checks against naga's reading of the WGSL.
-//! - [`sampling`]: the GPU's trilinear lookup on the CPU, shared by [`control`] and [`cpu_reference`].
+//! - [`sampling`]: the GPU's trilinear lookup on the CPU, shared by [`control`] and [`cpu_reference`], and the model
+//!   of a device's filtering precision ([`FilterPrecision`]); [`filter_probe`]: [`FilterProbe`] measures it.
 //! - [`cpu_reference`]: the same math in f32 on the CPU, the oracle of the GPU tests.
 //!
 //! # Imports
@@ -69,6 +71,7 @@ pub mod device;
 pub mod empty_space;
 pub mod error;
 pub mod export;
+pub mod filter_probe;
 pub mod glyph;
 pub mod headless;
 pub mod pick;
@@ -100,6 +103,7 @@ pub use export::{
     ExportPass, ExportRequest, ExportSamples, ExportedSamples, ExportedVolume, Interpolation, OutputType, Progress,
     PullBack, SampleType, SourceVolume, TargetGrid, export_cpu,
 };
+pub use filter_probe::{FilterProbe, MeasuredFiltering};
 pub use glyph::{
     GlyphDrawData, GlyphInstance, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, pair_glyphs,
 };
@@ -109,6 +113,7 @@ pub use prefilter::{GpuPrefiltered, PrefilterPass, PrefilterSettings, Prefiltere
 pub use procedural::{Axis, Procedural, ProceduralUniforms};
 pub use pullback::{BSplineDesc, LatticeDesc, TpsDesc, TpsLocal};
 pub use raycast::{GpuFrame, GpuLayer, RaycastDrawData, RaycastRenderer, RaycastUniforms, VolumeUniforms};
+pub use sampling::{FilterPrecision, WeightPrecision, WeightRounding};
 pub use settings::{BlendMode, Classification, LayerParams, LayerStyle, Quality, RenderSettings, Shading, ShadingMode};
 pub use slice::SlicePlane;
 pub use target::RenderTarget;

@@ -15,7 +15,10 @@
 //!
 //! The first sample that satisfies the probe is refined by bisection between it and the previous sample
 //! ([`PickRequest::bisection_steps`]; each halves the error, from one step), so hits are finer than the sample
-//! spacing and the render resolution. A hit ([`PickHit`]) gives x_ref (ref = fixed LPS, mm), its distance along the
+//! spacing and the render resolution. Every lookup of a pick (volume, control texture) is filtered by hand with exact
+//! f32 weights, where the frame uses the device's hardware filter: a filter may round its weights to 8 bits (NVIDIA)
+//! or even 4 (Vulkan's least), which moves a threshold crossing by a fraction of a voxel, and a pick must land where
+//! the CPU reference says on any device. A pick is one ray, so the 8 loads a lookup costs do not matter. A hit ([`PickHit`]) gives x_ref (ref = fixed LPS, mm), its distance along the
 //! ray, the same point in the hit volume's own LPS space pulled back through its warp, p_lps = u(x_ref) (what a
 //! landmark stores: a source point on the moving volume is p_lps, a target point on the fixed one is x_ref = p_lps),
 //! and the value there.
@@ -29,7 +32,7 @@ use crate::compute::{self, binding, storage, uniform};
 use crate::device::GpuContext;
 use crate::error::{GpuError, Result};
 use crate::raycast::{self, FRAME_GROUP, RaycastDrawData, RaycastRenderer, RaycastUniforms};
-use crate::shader::{BindSlot, ShaderInterface, Stage, layout};
+use crate::shader::{BindSlot, ShaderInterface, layout};
 
 /// The pass's own bind group, after the frame's ([`FRAME_GROUP`]).
 pub const PICK_GROUP: u32 = 1;
@@ -178,7 +181,7 @@ impl PickRay {
     }
 
     /// The ray through framebuffer point `pixel` (x right, y down; pixel centres at i + ½) of the frame `u`: the same
-    /// ray `fs_raycast` marches there, from the near plane.
+    /// ray `cs_raycast` marches there, from the near plane.
     pub fn from_pixel(u: &RaycastUniforms, pixel: [f32; 2]) -> Result<Self> {
         let ref_from_clip = Mat4::from_cols_array_2d(&u.ref_from_clip);
         let ndc = [pixel[0] / u.viewport_px[0] * 2.0 - 1.0, 1.0 - pixel[1] / u.viewport_px[1] * 2.0];
@@ -263,6 +266,8 @@ impl PickPass {
     /// Rays per pick call (a click is one; a drag along a surface or a test may send more).
     pub const MAX_RAYS: usize = 65_536;
     const WORKGROUP: u32 = 64;
+    /// The pass's entry point in `shaders/raycast.wgsl`.
+    pub const ENTRY_POINT: &'static str = "cs_pick";
 
     pub fn new(ctx: &GpuContext, renderer: &RaycastRenderer) -> Result<Self> {
         if ctx.limits.max_storage_buffers_per_shader_stage < 2 {
@@ -296,14 +301,14 @@ impl PickPass {
         let deformations = deformations & (raycast::DEFORM_PROCEDURAL | raycast::DEFORM_VIEW);
         self.pipelines[deformations as usize].get_or_init(|| {
             // The layouts in group order: the ray caster's frame, then the rays and hits.
-            let entry_point = raycast::SHADER.entry_point(Stage::Compute);
             compute::pipeline_with(
                 &self.device,
                 "pick",
                 &self.module,
-                entry_point,
+                Some(Self::ENTRY_POINT),
                 &[&self.frame_layout, &self.layout],
-                &[("DEFORMATIONS", f64::from(deformations))],
+                // Every lookup filtered by hand, exact on any device (shaders/raycast.wgsl, EXACT_FILTER).
+                &[("DEFORMATIONS", f64::from(deformations)), ("EXACT_FILTER", 1.0)],
             )
         })
     }

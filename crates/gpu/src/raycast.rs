@@ -1,6 +1,9 @@
-//! The ray caster: one full-screen pass that samples the fixed and the (deformed) moving volume at the same points
+//! The ray caster: one compute pass, an invocation per pixel, that samples the fixed and the (deformed) moving volume at the same points
 //! of ref space (Brunet et al. 2006 §4.3: both volumes share one proxy geometry), classifies each with its transfer
-//! function, combines them by a [`BlendMode`] and composites front to back.
+//! function, combines them by a [`BlendMode`] and composites front to back. It writes the image and the first-hit
+//! depth into the [`RenderTarget`]'s storage textures (`cs_raycast`, slices `cs_slice`), 8×8 pixels a workgroup. A
+//! compute shader, not a fragment shader: data-centre GPUs run fragment shaders on a few of their processors only
+//! (`docs/benchmarks.md`, Real GPU), while desktop GPUs and CPU drivers run both alike.
 //!
 //! Per pixel: a ray from the near to the far plane (`ref_from_clip`), clipped to the proxy box (the ref-space box
 //! where either volume can appear after its warp, [`LayerParams::box_ref`]); samples at t_k = t_enter + (k + j)·step with j = 0, or a fixed
@@ -305,17 +308,16 @@ impl RaycastUniforms {
     }
 }
 
-/// `shaders/raycast.wgsl`: `vs_fullscreen` + `fs_raycast` (the 3-D view), `fs_slice` ([`crate::slice`]) and
-/// `cs_pick` ([`crate::pick`]).
+/// `shaders/raycast.wgsl`: `cs_raycast` (the 3-D view), `cs_slice` ([`crate::slice`]) and `cs_pick`
+/// ([`crate::pick`]).
 pub const SHADER: ShaderSource = ShaderSource {
     name: "raycast",
     path: "shaders/raycast.wgsl",
     source: include_str!("../../../shaders/raycast.wgsl"),
     entry_points: &[
-        ("vs_fullscreen", Stage::Vertex),
-        ("fs_raycast", Stage::Fragment),
-        (RaycastRenderer::SLICE_ENTRY_POINT, Stage::Fragment),
-        ("cs_pick", Stage::Compute),
+        (RaycastRenderer::ENTRY_POINT, Stage::Compute),
+        (RaycastRenderer::SLICE_ENTRY_POINT, Stage::Compute),
+        (crate::pick::PickPass::ENTRY_POINT, Stage::Compute),
     ],
 };
 
@@ -343,6 +345,41 @@ pub const SLOT_EMPTY_SPACE: BindSlot = BindSlot::new(FRAME_GROUP, 10, "empty_spa
 /// pre-integrates).
 pub const SLOT_FIXED_PREINTEGRATION: BindSlot = BindSlot::new(FRAME_GROUP, 11, "fixed_preint_tex");
 pub const SLOT_MOVING_PREINTEGRATION: BindSlot = BindSlot::new(FRAME_GROUP, 12, "moving_preint_tex");
+
+/// The ray caster's own bind group: the band of rows and the images it writes ([`RaycastRenderer::render_rows`]).
+/// The picking pass's group has the same number, with bindings 0–2 ([`crate::pick`]); the two never share a
+/// pipeline.
+pub const OUTPUT_GROUP: u32 = 1;
+/// [`BandUniforms`].
+pub const SLOT_BAND: BindSlot = BindSlot::new(OUTPUT_GROUP, 3, "band");
+/// The image, [`RenderTarget::COLOUR_FORMAT`], written as a storage texture.
+pub const SLOT_OUT_COLOUR: BindSlot = BindSlot::new(OUTPUT_GROUP, 4, "out_colour");
+/// The first-hit depth, [`RenderTarget::HIT_DEPTH_FORMAT`] (3-D frames only; slices leave it as it was).
+pub const SLOT_OUT_HIT_DEPTH: BindSlot = BindSlot::new(OUTPUT_GROUP, 5, "out_hit_depth");
+/// Pixels per workgroup along x and y: `WORKGROUP_EDGE` in shaders/raycast.wgsl.
+pub const WORKGROUP_EDGE: u32 = 8;
+const _: () = assert!(FRAME_GROUP == 0 && OUTPUT_GROUP == 1, "RaycastRenderer::new lists the layouts in group order");
+
+/// The rows one dispatch covers: `BandUniforms` in shaders/raycast.wgsl ([`INTERFACE`]).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Pod, Zeroable)]
+pub struct BandUniforms {
+    /// The band's first row, from the top.
+    pub first_row: u32,
+    /// The row after the band's last.
+    pub end_row: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+const _: () = assert!(std::mem::size_of::<BandUniforms>() == 16);
+
+impl BandUniforms {
+    /// The rows `rows`.
+    #[must_use]
+    pub fn new(rows: std::ops::Range<u32>) -> Self {
+        Self { first_row: rows.start, end_row: rows.end, _pad0: 0, _pad1: 0 }
+    }
+}
 
 /// The ray caster's part of `shaders/raycast.wgsl` (the picking pass declares its own, [`crate::pick::INTERFACE`]).
 pub const INTERFACE: ShaderInterface = ShaderInterface {
@@ -378,6 +415,7 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
             normal_sign
         }),
         layout!(EmptySpaceUniforms { min_ref, enabled, dims, brick_mm }),
+        layout!(BandUniforms { first_row, end_row }),
         layout!(RaycastUniforms {
             ref_from_clip,
             box_min_ref,
@@ -418,8 +456,12 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         SLOT_EMPTY_SPACE,
         SLOT_FIXED_PREINTEGRATION,
         SLOT_MOVING_PREINTEGRATION,
+        SLOT_BAND,
+        SLOT_OUT_COLOUR,
+        SLOT_OUT_HIT_DEPTH,
     ],
     constants: &[
+        WgslConstant::u32("WORKGROUP_EDGE", WORKGROUP_EDGE),
         WgslConstant::u32("VOLUME_VISIBLE", VOLUME_VISIBLE),
         WgslConstant::u32("VOLUME_HAS_WARP", VOLUME_HAS_WARP),
         WgslConstant::u32("VOLUME_MANUAL_FILTER", VOLUME_MANUAL_FILTER),
@@ -446,9 +488,9 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
     ],
 };
 
-/// The stages that see the frame's bind group: the ray caster's fragment stage and the picking pass
-/// ([`crate::pick`]), which marches the same samples in a compute shader.
-const FRAME_STAGES: wgpu::ShaderStages = wgpu::ShaderStages::FRAGMENT.union(wgpu::ShaderStages::COMPUTE);
+/// The stages that see the frame's bind group: the ray caster and the picking pass ([`crate::pick`]), which marches
+/// the same samples, are both compute shaders.
+const FRAME_STAGES: wgpu::ShaderStages = wgpu::ShaderStages::COMPUTE;
 
 /// The long-lived part of the ray caster: pipeline, bind group layout, samplers and the placeholder control texture.
 #[derive(Debug)]
@@ -458,10 +500,13 @@ pub struct RaycastRenderer {
     pipeline_layout: wgpu::PipelineLayout,
     /// One per [`ShadingMode`] and deformations ([`RaycastUniforms::deformations`]), created on first use
     /// ([`Self::pipeline`]).
-    pipelines: [[std::sync::OnceLock<wgpu::RenderPipeline>; DEFORMATION_VARIANTS]; 3],
-    /// The slice pipelines (`fs_slice`), one per deformations, created on first use.
-    slice_pipelines: [std::sync::OnceLock<wgpu::RenderPipeline>; DEFORMATION_VARIANTS],
+    pipelines: [[std::sync::OnceLock<wgpu::ComputePipeline>; DEFORMATION_VARIANTS]; 3],
+    /// The slice pipelines (`cs_slice`), one per deformations, created on first use.
+    slice_pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; DEFORMATION_VARIANTS],
+    /// The frame's bind group (group [`FRAME_GROUP`]), shared with the picking pass.
     layout: wgpu::BindGroupLayout,
+    /// The output's bind group (group [`OUTPUT_GROUP`]).
+    output_layout: wgpu::BindGroupLayout,
     volume_sampler: wgpu::Sampler,
     linear_sampler: wgpu::Sampler,
     placeholder_control: wgpu::TextureView,
@@ -478,23 +523,30 @@ impl RaycastRenderer {
     /// [`crate::control`]).
     pub const OPTIONAL_FEATURES: wgpu::Features =
         wgpu::Features::TEXTURE_FORMAT_16BIT_NORM.union(wgpu::Features::FLOAT32_FILTERABLE);
-    /// Sampled textures and samplers per fragment stage this pass binds.
+    /// Sampled textures, samplers and storage textures per compute stage this pass binds.
     pub const SAMPLED_TEXTURES: u32 = 10;
     pub const SAMPLERS: u32 = 2;
-    /// The slice fragment entry point in `shaders/raycast.wgsl`.
-    pub const SLICE_ENTRY_POINT: &'static str = "fs_slice";
+    pub const STORAGE_TEXTURES: u32 = 2;
+    /// The 3-D view's entry point in `shaders/raycast.wgsl`.
+    pub const ENTRY_POINT: &'static str = "cs_raycast";
+    /// The slice entry point in `shaders/raycast.wgsl`.
+    pub const SLICE_ENTRY_POINT: &'static str = "cs_slice";
 
     pub fn new(ctx: &GpuContext) -> Result<Self> {
         let l = &ctx.limits;
         if l.max_sampled_textures_per_shader_stage < Self::SAMPLED_TEXTURES
             || l.max_samplers_per_shader_stage < Self::SAMPLERS
+            || l.max_storage_textures_per_shader_stage < Self::STORAGE_TEXTURES
         {
             return Err(GpuError::Unsupported(format!(
-                "the ray caster binds {} textures and {} samplers per stage; the device allows {} and {}",
+                "the ray caster binds {} textures, {} samplers and {} storage textures per stage; the device allows \
+                 {}, {} and {}",
                 Self::SAMPLED_TEXTURES,
                 Self::SAMPLERS,
+                Self::STORAGE_TEXTURES,
                 l.max_sampled_textures_per_shader_stage,
-                l.max_samplers_per_shader_stage
+                l.max_samplers_per_shader_stage,
+                l.max_storage_textures_per_shader_stage
             )));
         }
         let device = &ctx.device;
@@ -549,9 +601,34 @@ impl RaycastRenderer {
                 SLOT_MOVING_PREINTEGRATION.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2, false)),
             ],
         });
+        let storage = |slot: BindSlot, format| {
+            slot.layout_entry(
+                FRAME_STAGES,
+                wgpu::BindingType::StorageTexture {
+                    access: wgpu::StorageTextureAccess::WriteOnly,
+                    format,
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                },
+            )
+        };
+        let output_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("raycast output"),
+            entries: &[
+                SLOT_BAND.layout_entry(
+                    FRAME_STAGES,
+                    wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Uniform,
+                        has_dynamic_offset: false,
+                        min_binding_size: wgpu::BufferSize::new(std::mem::size_of::<BandUniforms>() as u64),
+                    },
+                ),
+                storage(SLOT_OUT_COLOUR, RenderTarget::COLOUR_FORMAT),
+                storage(SLOT_OUT_HIT_DEPTH, RenderTarget::HIT_DEPTH_FORMAT),
+            ],
+        });
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("raycast"),
-            bind_group_layouts: &[Some(&layout)],
+            bind_group_layouts: &[Some(&layout), Some(&output_layout)],
             immediate_size: 0,
         });
         let module = SHADER.create_module(device);
@@ -587,6 +664,7 @@ impl RaycastRenderer {
             pipelines: Default::default(),
             slice_pipelines: Default::default(),
             layout,
+            output_layout,
             volume_sampler,
             linear_sampler,
             placeholder_control,
@@ -605,13 +683,12 @@ impl RaycastRenderer {
     /// The pipeline specialised for shading mode `code` (the WGSL override `SHADING`) and the deformations
     /// `deformations` (`DEFORMATIONS`), created on first use: each compiles only its own code, so the unlit pass
     /// carries none of the lighting, and a frame without deformations computed in the shader none of theirs.
-    fn pipeline(&self, code: u32, deformations: u32) -> &wgpu::RenderPipeline {
+    fn pipeline(&self, code: u32, deformations: u32) -> &wgpu::ComputePipeline {
         let code = code.min(ShadingMode::Iso.code());
         let deformations = deformations & (DEFORM_PROCEDURAL | DEFORM_VIEW);
         self.pipelines[code as usize][deformations as usize].get_or_init(|| {
-            let fragment = SHADER.entry_point(Stage::Fragment);
             let constants = [("SHADING", f64::from(code)), ("DEFORMATIONS", f64::from(deformations))];
-            self.create_pipeline("raycast", fragment, &constants, true)
+            self.create_pipeline("raycast", Self::ENTRY_POINT, &constants)
         })
     }
 
@@ -637,54 +714,22 @@ impl RaycastRenderer {
         table
     }
 
-    /// The slice pipeline: the same module, layout and vertex stage, fragment entry point [`Self::SLICE_ENTRY_POINT`].
-    fn slice_pipeline(&self, deformations: u32) -> &wgpu::RenderPipeline {
+    /// The slice pipeline: the same module and layout, entry point [`Self::SLICE_ENTRY_POINT`].
+    fn slice_pipeline(&self, deformations: u32) -> &wgpu::ComputePipeline {
         let deformations = deformations & (DEFORM_PROCEDURAL | DEFORM_VIEW);
         self.slice_pipelines[deformations as usize].get_or_init(|| {
             let constants = [("DEFORMATIONS", f64::from(deformations))];
-            self.create_pipeline("slice", Some(Self::SLICE_ENTRY_POINT), &constants, false)
+            self.create_pipeline("slice", Self::SLICE_ENTRY_POINT, &constants)
         })
     }
 
-    /// `with_hit_depth`: the fragment stage also writes the first-hit depth (`fs_raycast`; slices do not).
-    fn create_pipeline(
-        &self,
-        label: &str,
-        fragment: Option<&str>,
-        constants: &[(&str, f64)],
-        with_hit_depth: bool,
-    ) -> wgpu::RenderPipeline {
-        let colour = Some(wgpu::ColorTargetState {
-            format: RenderTarget::COLOUR_FORMAT,
-            blend: None,
-            write_mask: wgpu::ColorWrites::ALL,
-        });
-        let hit_depth = Some(wgpu::ColorTargetState {
-            format: RenderTarget::HIT_DEPTH_FORMAT,
-            blend: None,
-            write_mask: wgpu::ColorWrites::ALL,
-        });
-        let targets = [colour, hit_depth];
-        let targets = if with_hit_depth { &targets[..] } else { &targets[..1] };
-        self.device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+    fn create_pipeline(&self, label: &str, entry_point: &str, constants: &[(&str, f64)]) -> wgpu::ComputePipeline {
+        self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(label),
             layout: Some(&self.pipeline_layout),
-            vertex: wgpu::VertexState {
-                module: &self.module,
-                entry_point: SHADER.entry_point(Stage::Vertex),
-                compilation_options: wgpu::PipelineCompilationOptions::default(),
-                buffers: &[],
-            },
-            primitive: wgpu::PrimitiveState::default(),
-            depth_stencil: None,
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &self.module,
-                entry_point: fragment,
-                compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
-                targets,
-            }),
-            multiview_mask: None,
+            module: &self.module,
+            entry_point: Some(entry_point),
+            compilation_options: wgpu::PipelineCompilationOptions { constants, ..Default::default() },
             cache: None,
         })
     }
@@ -701,37 +746,24 @@ impl RaycastRenderer {
         &self.module
     }
 
-    /// Records the pass's draw into `pass`, whose colour attachments must be [`RenderTarget::COLOUR_FORMAT`] and
-    /// [`RenderTarget::HIT_DEPTH_FORMAT`] ([`RenderTarget::colour_attachments`]).
-    pub fn draw(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
-        pass.set_pipeline(self.pipeline(data.uniforms.shading_mode, data.uniforms.deformations()));
-        pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
-        pass.draw(0..3, 0..1);
-    }
-
-    /// Records a slice draw ([`crate::slice`]; `data` built from [`RaycastUniforms::for_slice`]) into `pass`, whose
-    /// one colour attachment is [`RenderTarget::COLOUR_FORMAT`].
-    pub fn draw_slice(&self, pass: &mut wgpu::RenderPass<'_>, data: &RaycastDrawData) {
-        pass.set_pipeline(self.slice_pipeline(data.uniforms.deformations()));
-        pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
-        pass.draw(0..3, 0..1);
-    }
-
-    /// Renders the slice `data` ([`RaycastUniforms::for_slice`]) into `target` (the plane's size, cleared to
-    /// transparent) and submits.
+    /// Renders the slice `data` ([`RaycastUniforms::for_slice`]) into `target` (the plane's size; every pixel is
+    /// written, the hit depth is left as it was) and submits.
     pub fn render_slice(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        Self::render_with(ctx, target, false, LoadOp::Clear, |pass| self.draw_slice(pass, data))
+        let pipeline = self.slice_pipeline(data.uniforms.deformations());
+        self.dispatch(ctx, pipeline, data, target, 0..target.height, "slice")
     }
 
-    /// Renders `data` into `target` (cleared to transparent) and submits.
+    /// Renders `data` into `target` (every pixel is written) and submits.
     pub fn render(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        Self::render_with(ctx, target, true, LoadOp::Clear, |pass| self.draw(pass, data))
+        let pipeline = self.pipeline(data.uniforms.shading_mode, data.uniforms.deformations());
+        self.dispatch(ctx, pipeline, data, target, 0..target.height, "raycast")
     }
 
     /// Renders the rows `rows` of `data`'s frame (a band across the whole width, rows counted from the top) into
     /// `target` and submits, so that a frame too slow for one UI frame (on a CPU driver) is rendered over several.
-    /// A band from row 0 clears the whole target first; a later band keeps what earlier bands drew. Every pixel's ray
-    /// depends only on the pixel, so bands covering all rows give exactly the image of [`Self::render`].
+    /// A band from row 0 clears the whole target first (transparent, no hit); a later band keeps what earlier bands
+    /// drew. Every pixel's ray depends only on the pixel, so bands covering all rows give exactly the image of
+    /// [`Self::render`].
     pub fn render_rows(
         &self,
         ctx: &GpuContext,
@@ -743,51 +775,56 @@ impl RaycastRenderer {
         if rows.is_empty() {
             return Ok(());
         }
-        let load = if rows.start == 0 { LoadOp::Clear } else { LoadOp::Keep };
-        Self::render_with(ctx, target, true, load, |pass| {
-            pass.set_scissor_rect(0, rows.start, target.width, rows.end - rows.start);
-            self.draw(pass, data);
-        })
+        if rows.start == 0 && rows.end < target.height {
+            target.clear(ctx);
+        }
+        let pipeline = self.pipeline(data.uniforms.shading_mode, data.uniforms.deformations());
+        self.dispatch(ctx, pipeline, data, target, rows, "raycast")
     }
 
-    fn render_with(
+    /// Runs `pipeline` over the rows `rows` of `target` (one invocation per pixel) and submits.
+    fn dispatch(
+        &self,
         ctx: &GpuContext,
+        pipeline: &wgpu::ComputePipeline,
+        data: &RaycastDrawData,
         target: &RenderTarget,
-        with_hit_depth: bool,
-        load: LoadOp,
-        record: impl FnOnce(&mut wgpu::RenderPass<'_>),
+        rows: std::ops::Range<u32>,
+        label: &str,
     ) -> Result<()> {
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("raycast") });
+        let band = BandUniforms::new(rows.clone());
+        let band_buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("raycast band"),
+            size: std::mem::size_of::<BandUniforms>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        ctx.queue.write_buffer(&band_buffer, 0, bytemuck::bytes_of(&band));
+        let output = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("raycast output"),
+            layout: &self.output_layout,
+            entries: &[
+                SLOT_BAND.entry(band_buffer.as_entire_binding()),
+                SLOT_OUT_COLOUR.entry(wgpu::BindingResource::TextureView(&target.view)),
+                SLOT_OUT_HIT_DEPTH.entry(wgpu::BindingResource::TextureView(&target.hit_depth_view)),
+            ],
+        });
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
         {
-            let mut attachments = target.colour_attachments();
-            if load == LoadOp::Keep {
-                for a in attachments.iter_mut().flatten() {
-                    a.ops.load = wgpu::LoadOp::Load;
-                }
-            }
-            let attachments = if with_hit_depth { &attachments[..] } else { &attachments[..1] };
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("raycast"),
-                color_attachments: attachments,
-                depth_stencil_attachment: None,
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            record(&mut pass);
+            let mut pass =
+                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes: None });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(FRAME_GROUP, &data.bind_group, &[]);
+            pass.set_bind_group(OUTPUT_GROUP, &output, &[]);
+            pass.dispatch_workgroups(
+                target.width.div_ceil(WORKGROUP_EDGE),
+                (rows.end - rows.start).div_ceil(WORKGROUP_EDGE),
+                1,
+            );
         }
         ctx.queue.submit([encoder.finish()]);
         ctx.check_errors()
     }
-}
-
-/// What a ray-casting pass does with the target's contents before drawing.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum LoadOp {
-    /// Clear to transparent and no hit.
-    Clear,
-    /// Keep them (a later band of [`RaycastRenderer::render_rows`]).
-    Keep,
 }
 
 /// One volume with its optional control texture and prefiltered copy, as bound for a frame.

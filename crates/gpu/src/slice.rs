@@ -11,8 +11,8 @@
 //! texture box (so a slice shows the windowed image whatever the 3-D opacity ramp) and is transparent outside it; no
 //! opacity correction, no compositing, no shading. The output is premultiplied RGBA8 like the 3-D view's.
 //!
-//! The GPU side is the `fs_slice` entry point of `shaders/raycast.wgsl` (the same per-sample functions as
-//! `fs_raycast`), drawn by [`crate::RaycastRenderer::render_slice`] with uniforms from
+//! The GPU side is the `cs_slice` entry point of `shaders/raycast.wgsl` (the same per-sample functions as
+//! `cs_raycast`), drawn by [`crate::RaycastRenderer::render_slice`] with uniforms from
 //! [`crate::RaycastUniforms::for_slice`]; the CPU reference is [`crate::cpu_reference::render_slice`].
 
 use glam::{DMat3, DVec3, Mat4, Vec4};

@@ -12,7 +12,8 @@ pub const HIT_OPACITY: f32 = 0.5;
 /// shaders/glyph.wgsl (checked by `tests/shaders.rs`).
 pub const NO_HIT_DEPTH: f32 = 2.0;
 
-/// An `Rgba8Unorm` render target the app can show (`TEXTURE_BINDING`) and tests can read back (`COPY_SRC`), with
+/// An `Rgba8Unorm` image the ray caster writes (`STORAGE_BINDING`), the glyph pass draws over
+/// (`RENDER_ATTACHMENT`), the app can show (`TEXTURE_BINDING`) and tests can read back (`COPY_SRC`), with
 /// the ray caster's first-hit depth beside it (NDC depth as f32 bits in R32Uint, [`NO_HIT_DEPTH`] where nothing was
 /// hit), which the glyph pass ([`crate::glyph`]) depth-tests against.
 #[derive(Debug)]
@@ -31,10 +32,12 @@ impl RenderTarget {
     /// The format of the image: premultiplied RGBA8.
     pub const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
     /// The format of the first-hit depth, the ray caster's second output ([`Self::hit_depth`]): the bits of an f32
-    /// NDC depth, because R32Float is not colour-renderable on GLES (wgpu's GL backend) and R32Uint is.
+    /// NDC depth, because R32Float is not colour-renderable on GLES (wgpu's GL backend), where the glyph pass reads
+    /// it, and R32Uint is.
     pub const HIT_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
     /// The usages of both textures.
     pub const USAGE: wgpu::TextureUsages = wgpu::TextureUsages::RENDER_ATTACHMENT
+        .union(wgpu::TextureUsages::STORAGE_BINDING)
         .union(wgpu::TextureUsages::TEXTURE_BINDING)
         .union(wgpu::TextureUsages::COPY_SRC);
 
@@ -58,9 +61,24 @@ impl RenderTarget {
         Self { texture, view, hit_depth, hit_depth_view, width, height, pool: Some(pool.clone()) }
     }
 
-    /// The two attachments of a ray-casting pass, cleared to transparent and to [`NO_HIT_DEPTH`].
+    /// Clears the image to transparent and the hit depth to [`NO_HIT_DEPTH`] (submitted at once).
+    pub fn clear(&self, ctx: &GpuContext) {
+        let mut encoder =
+            ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("clear target") });
+        drop(encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("clear target"),
+            color_attachments: &self.colour_attachments(),
+            depth_stencil_attachment: None,
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        }));
+        ctx.queue.submit([encoder.finish()]);
+    }
+
+    /// The two textures as colour attachments, cleared to transparent and to [`NO_HIT_DEPTH`].
     #[must_use]
-    pub fn colour_attachments(&self) -> [Option<wgpu::RenderPassColorAttachment<'_>>; 2] {
+    fn colour_attachments(&self) -> [Option<wgpu::RenderPassColorAttachment<'_>>; 2] {
         let clear = |view, value| {
             Some(wgpu::RenderPassColorAttachment {
                 view,

@@ -78,8 +78,8 @@ fn render(
 fn check_empty_bricks_are_transparent(s: &Scene, gpu: &GpuScene, grid: &GpuEmptySpace, u: &RaycastUniforms) -> usize {
     let cells = grid_cells(s, gpu, grid);
     let lattice = grid.lattice;
-    let f = CpuLayer { volume: &s.fixed, control: None, prefiltered: None };
-    let m = CpuLayer { volume: &s.moving, control: s.control.as_ref(), prefiltered: None };
+    let f = CpuLayer::new(&s.fixed, None, None);
+    let m = CpuLayer::new(&s.moving, s.control.as_ref(), None);
     let mut empty = 0;
     let [nx, ny, nz] = lattice.dims;
     for k in 0..nz {

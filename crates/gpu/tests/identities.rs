@@ -163,16 +163,6 @@ fn content_warped_outside_the_fixed_box_is_drawn() {
     assert!(max <= 2, "max {max}");
 }
 
-/// A 64³ f32 ball of radius 45 mm (values 1 inside, 0 outside, edge ≈ 2 voxels) with a smaller bump on its side, on
-/// the fixed grid (3 mm, centred at 0).
-/// Pixels whose largest channel difference is above `limit`.
-fn pixels_over(a: &[u8], b: &[u8], limit: u8) -> usize {
-    a.chunks_exact(4)
-        .zip(b.chunks_exact(4))
-        .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > limit))
-        .count()
-}
-
 fn ball(p: &Phantoms) -> Vec<f32> {
     let m = p.ct_lps_from_index;
     let mut out = Vec::with_capacity(N * N * N);

@@ -114,8 +114,8 @@ fn pick_both(
     let data = RaycastDrawData::with_uniforms(ctx, &gpu.renderer, &frame, *u);
     let pass = PickPass::new(ctx, &gpu.renderer).expect("pick pass");
     let hits = pass.pick(ctx, &data, request, rays).expect("pick");
-    let fc = CpuLayer { volume: &scene.fixed, control: None, prefiltered: None };
-    let mc = CpuLayer { volume: &scene.moving, control: scene.control.as_ref(), prefiltered: None };
+    let fc = CpuLayer::new(&scene.fixed, None, None);
+    let mc = CpuLayer::new(&scene.moving, scene.control.as_ref(), None);
     let tables = cpu_reference::preintegration_tables(u, &scene.tfs);
     let cpu = rays
         .iter()

@@ -192,14 +192,6 @@ fn every_kind_matches_the_cpu_reference() {
     assert!(failures.is_empty(), "procedural deformations:\n{}", failures.join("\n"));
 }
 
-/// Pixels whose largest channel difference is above `limit`.
-fn pixels_over(a: &[u8], b: &[u8], limit: u8) -> usize {
-    a.chunks_exact(4)
-        .zip(b.chunks_exact(4))
-        .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > limit))
-        .count()
-}
-
 /// A shift by t shows the volume translated by −t: the same frame and slice as the undeformed volume whose
 /// `lps_from_index` is moved by −t (an independent path: the geometry, not the shader's deformation).
 #[test]

@@ -177,12 +177,12 @@ fn every_interface_matches_its_shader_and_every_binding_has_a_pass() {
 #[test]
 fn a_broken_shader_is_rejected_with_a_readable_message() {
     let mut broken = warpbench_gpu::shaders::RAYCAST;
-    broken.source = "@fragment fn fs_raycast() -> @location(0) vec4<f32> { return vec4<f32>(1.0, 2.0); }";
+    broken.source = "@compute @workgroup_size(1) fn cs_raycast() { let c = vec4<f32>(1.0, 2.0); }";
     let failures = check(&broken);
     assert!(failures.iter().any(|f| f.contains("shaders/raycast.wgsl")), "{failures:?}");
     let mut renamed = warpbench_gpu::shaders::RAYCAST;
-    renamed.entry_points = &[("fs_missing", Stage::Fragment)];
-    assert!(check(&renamed).iter().any(|f| f.contains("fs_missing")));
+    renamed.entry_points = &[("cs_missing", Stage::Compute)];
+    assert!(check(&renamed).iter().any(|f| f.contains("cs_missing")));
 }
 
 #[test]

@@ -1,4 +1,4 @@
-//! Slicing planes ([`warpbench_gpu::slice`]): the GPU slice (`fs_slice`) against the CPU reference, an axial slice
+//! Slicing planes ([`warpbench_gpu::slice`]): the GPU slice (`cs_slice`) against the CPU reference, an axial slice
 //! through voxel centres against the volume itself, and a translation warp against a pixel shift. 64³ volumes,
 //! images ≤ 96².
 //!

@@ -7,11 +7,11 @@ use glam::{DVec3, Vec3};
 use warpbench_gpu::cpu_reference::{self, CpuLayer};
 use warpbench_gpu::headless::headless_or_skip;
 use warpbench_gpu::{
-    ControlDesc, FeatureRequest, GpuContext, GpuControlTexture, GpuFrame, GpuLayer, GpuPrefiltered,
-    GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass, PrefilterSettings,
-    PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Procedural, RaycastDrawData, RaycastRenderer,
-    RaycastUniforms, RenderSettings, RenderTarget, SlicePlane, TransferFunction, ViewDeformation, VolumeBudget,
-    VolumeDesc, VolumeSamples, Window,
+    ControlDesc, FeatureRequest, FilterPrecision, FilterProbe, GpuContext, GpuControlTexture, GpuFrame, GpuLayer,
+    GpuPrefiltered, GpuTransferFunctions, GpuVolume, LayerParams, LayerStyle, OrbitCamera, PrefilterPass,
+    PrefilterSettings, PrefilteredTexels, PreparedControl, PreparedVolume, Preset, Procedural, RaycastDrawData,
+    RaycastRenderer, RaycastUniforms, RenderSettings, RenderTarget, SlicePlane, TransferFunction, ViewDeformation,
+    VolumeBudget, VolumeDesc, VolumeSamples, Window,
 };
 
 pub const N: usize = 64;
@@ -21,6 +21,91 @@ pub fn context(request: FeatureRequest) -> Option<GpuContext> {
     let ctx = headless_or_skip(request)?;
     eprintln!("GPU: {} {:?}", ctx.describe(), ctx.capabilities);
     Some(ctx)
+}
+
+/// This device's hardware filter as [`FilterProbe`] measures it: the fractional bits of its weights (the fewest
+/// among the formats the ray caster filters in hardware here; [`FilterProbe::RESOLVED_BITS`] when finer than it
+/// resolves) and whether 8-bit volumes come back on their 255 steps. The GPU tests derive their tolerances from it
+/// ([`Allowance`]).
+#[derive(Clone, Copy, Debug)]
+pub struct DeviceFilter {
+    pub bits: u32,
+    pub unorm8_results: bool,
+}
+
+impl DeviceFilter {
+    pub fn measure(ctx: &GpuContext) -> Self {
+        let measured = FilterProbe::new(ctx).and_then(|p| p.measure(ctx)).expect("filter probe");
+        eprintln!("{}", measured.describe());
+        Self { bits: measured.bits(), unorm8_results: measured.unorm8_results() }
+    }
+
+    /// The models a conformant device like this one may follow ([`FilterPrecision::family`]).
+    pub fn family(self) -> [FilterPrecision; 3] {
+        FilterPrecision::family(self.bits, self.unorm8_results)
+    }
+}
+
+/// How far a conformant device may be from the exact CPU reference of one image: the reference computed with the
+/// hardware lookups' weights rounded down, to nearest and up at the device's bits ([`FilterPrecision::family`]),
+/// beside the exact one. What remains beyond it is f32 evaluation order and the 8-bit rounding of the result, which
+/// [`BASE_TOLERANCE`] covers.
+pub struct Allowance {
+    pub filter: DeviceFilter,
+    pub exact: Vec<u8>,
+    pub rounded: Vec<Vec<u8>>,
+}
+
+/// Per channel, beyond the filter's rounding: 1/255 because the GPU and the CPU each round their result to 8 bits
+/// and may round values an ulp apart to different sides, and 1/255 for f32 evaluation order (exp2/log2, matrix
+/// products, fused multiply-adds), accumulated over the ≤ 100 composited samples of a ray.
+pub const BASE_TOLERANCE: u8 = 2;
+
+impl Allowance {
+    /// The exact image and its rounded variants, each from `render` with the hardware lookups at a precision.
+    pub fn new(filter: DeviceFilter, render: impl Fn(FilterPrecision) -> Vec<u8>) -> Self {
+        let exact = render(FilterPrecision::EXACT);
+        let rounded = filter.family().iter().map(|&p| render(p)).collect();
+        Self { filter, exact, rounded }
+    }
+
+    /// The largest channel difference between the exact image and a rounded one.
+    pub fn filter_spread(&self) -> u8 {
+        self.rounded.iter().map(|r| max_diff(&self.exact, r, 0).0).max().unwrap_or(0)
+    }
+
+    /// The largest channel difference a conformant device may show against the exact image:
+    /// [`BASE_TOLERANCE`] + [`Self::filter_spread`].
+    pub fn tolerance(&self) -> u8 {
+        BASE_TOLERANCE.saturating_add(self.filter_spread())
+    }
+
+    /// The fraction of pixels that a rounded variant moves by more than `bound` in some channel from the exact image
+    /// (the largest over the variants): where a threshold decision (an iso hit, a glyph's depth test) flips under
+    /// the filter's rounding.
+    pub fn fraction_over(&self, bound: u8) -> f32 {
+        let pixels = (self.exact.len() / 4).max(1) as f32;
+        self.rounded.iter().map(|r| pixels_over(&self.exact, r, bound) as f32 / pixels).fold(0.0, f32::max)
+    }
+
+    /// "filter b bits: spread s/255, tolerance t/255".
+    pub fn describe(&self) -> String {
+        let unorm8 = if self.filter.unorm8_results { ", 8-bit results" } else { "" };
+        format!(
+            "filter {} bits{unorm8}: spread {}/255, tolerance {}/255",
+            self.filter.bits,
+            self.filter_spread(),
+            self.tolerance()
+        )
+    }
+}
+
+/// Pixels whose largest channel difference is above `limit`.
+pub fn pixels_over(a: &[u8], b: &[u8], limit: u8) -> usize {
+    a.chunks_exact(4)
+        .zip(b.chunks_exact(4))
+        .filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > limit))
+        .count()
 }
 
 /// Row-major `lps_from_index` for an n³ grid of `spacing` mm, centred on `centre`, rotated by `angle_rad` about z.
@@ -234,21 +319,31 @@ impl Scene {
 
     /// The CPU reference's slice (single-threaded: slices are one sample per pixel).
     pub fn cpu_slice(&self, u: &RaycastUniforms) -> Vec<u8> {
-        let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: None };
-        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: None };
+        let f = CpuLayer::new(&self.fixed, None, None);
+        let m = CpuLayer::new(&self.moving, self.control.as_ref(), None);
         cpu_reference::render_slice(u, &f, &m, &self.tfs)
     }
 
     /// The CPU reference's first-hit depth image (single-threaded).
     pub fn cpu_hit_depth(&self, u: &RaycastUniforms) -> Vec<f32> {
-        let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref() };
-        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: self.moving_pf.as_ref() };
+        let f = CpuLayer::new(&self.fixed, None, self.fixed_pf.as_ref());
+        let m = CpuLayer::new(&self.moving, self.control.as_ref(), self.moving_pf.as_ref());
         cpu_reference::render_hit_depth(u, &f, &m, &self.tfs)
     }
 
     pub fn cpu(&self, u: &RaycastUniforms) -> Vec<u8> {
-        let f = CpuLayer { volume: &self.fixed, control: None, prefiltered: self.fixed_pf.as_ref() };
-        let m = CpuLayer { volume: &self.moving, control: self.control.as_ref(), prefiltered: self.moving_pf.as_ref() };
+        self.cpu_with(u, FilterPrecision::EXACT)
+    }
+
+    /// What a conformant device with `bits` of filter precision may draw for `u` ([`Allowance`]).
+    pub fn allowance(&self, u: &RaycastUniforms, filter: DeviceFilter) -> Allowance {
+        Allowance::new(filter, |p| self.cpu_with(u, p))
+    }
+
+    /// [`Self::cpu`] with the hardware lookups' weights at `filtering`.
+    pub fn cpu_with(&self, u: &RaycastUniforms, filtering: FilterPrecision) -> Vec<u8> {
+        let f = CpuLayer::new(&self.fixed, None, self.fixed_pf.as_ref()).with_filtering(filtering);
+        let m = CpuLayer::new(&self.moving, self.control.as_ref(), self.moving_pf.as_ref()).with_filtering(filtering);
         // Split the rows over threads: the reference is single-threaded and slow in debug builds.
         let h = u.viewport_px[1] as u32;
         let threads = std::thread::available_parallelism().map_or(1, std::num::NonZero::get).min(8) as u32;
