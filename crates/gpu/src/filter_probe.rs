@@ -91,6 +91,20 @@ impl MeasuredFiltering {
         self.formats.iter().filter(|f| !f.unorm8_results).map(|f| f.bits).min().unwrap_or(FilterProbe::RESOLVED_BITS)
     }
 
+    /// The device's own filter, when the probe resolved it: the same bits and rounding for every format whose
+    /// weights it sees, coarser than it resolves.
+    #[must_use]
+    pub fn model(&self) -> Option<FilterPrecision> {
+        let mut resolved = self.formats.iter().filter(|f| !f.unorm8_results);
+        let first = resolved.next()?;
+        let rounding = first.rounding?;
+        let same = resolved.all(|f| f.bits == first.bits && f.rounding == Some(rounding));
+        (same && first.bits < FilterProbe::RESOLVED_BITS).then_some(FilterPrecision {
+            weights: WeightPrecision::Fixed { bits: first.bits, rounding },
+            unorm8_results: self.unorm8_results(),
+        })
+    }
+
     /// Whether 8-bit unorm volumes come back on their format's steps.
     #[must_use]
     pub fn unorm8_results(&self) -> bool {
@@ -122,6 +136,7 @@ impl MeasuredFiltering {
                     WeightRounding::Down => "rounded down",
                     WeightRounding::Nearest => "rounded to nearest",
                     WeightRounding::Up => "rounded up",
+                    WeightRounding::Scattered => "rounded down or up",
                 });
                 format!("{:?} {bits} ({rounding})", f.format)
             })
@@ -290,7 +305,7 @@ pub fn analyse(format: wgpu::TextureFormat, values: &[f32]) -> FormatPrecision {
         // rounding can be told.
         return FormatPrecision { format, bits: FilterProbe::RESOLVED_BITS, rounding: None, unorm8_results };
     };
-    let rounding = WeightRounding::ALL.into_iter().find(|&rounding| {
+    let rounding = WeightRounding::DEVICE.into_iter().find(|&rounding| {
         let model = WeightPrecision::Fixed { bits, rounding };
         values.iter().enumerate().all(|(k, v)| (model.weight(k as f32 / n) - v).abs() <= 1e-4)
     });
@@ -323,9 +338,9 @@ mod tests {
     fn the_analysis_recovers_the_bits_and_rounding_that_made_the_values() {
         let n = FilterProbe::SAMPLES as usize;
         for bits in [4, 8] {
-            for model in FilterPrecision::family(bits, false) {
-                let values: Vec<f32> = (0..n).map(|k| model.weights.weight(k as f32 / n as f32)).collect();
-                let WeightPrecision::Fixed { rounding, .. } = model.weights else { unreachable!() };
+            for rounding in WeightRounding::DEVICE {
+                let model = WeightPrecision::Fixed { bits, rounding };
+                let values: Vec<f32> = (0..n).map(|k| model.weight(k as f32 / n as f32)).collect();
                 let found = analyse(wgpu::TextureFormat::R16Unorm, &values);
                 assert_eq!((found.bits, found.rounding), (bits, Some(rounding)), "{model:?}");
                 assert!(

@@ -28,10 +28,15 @@ pub enum WeightRounding {
     Down,
     Nearest,
     Up,
+    /// Down or up, by a hash of the weight: a direction that changes from lookup to lookup, as rounding to nearest
+    /// does, with a full step's error. Rounding every weight the same way makes the errors of a ray's samples
+    /// partly cancel (a rising and a falling edge move apart); a device whose direction varies does not.
+    Scattered,
 }
 
 impl WeightRounding {
-    pub const ALL: [Self; 3] = [Self::Down, Self::Nearest, Self::Up];
+    /// The directions a device may round in ([`Self::Scattered`] is a model, not a device's rule).
+    pub const DEVICE: [Self; 3] = [Self::Down, Self::Nearest, Self::Up];
 }
 
 impl WeightPrecision {
@@ -46,6 +51,10 @@ impl WeightPrecision {
                     WeightRounding::Down => (f * scale).floor(),
                     WeightRounding::Nearest => (f * scale).round(),
                     WeightRounding::Up => (f * scale).ceil(),
+                    WeightRounding::Scattered => {
+                        let h = f.to_bits().wrapping_mul(0x9E37_79B9);
+                        if h >> 31 == 0 { (f * scale).floor() } else { (f * scale).ceil() }
+                    }
                 };
                 steps / scale
             }
@@ -66,13 +75,15 @@ impl FilterPrecision {
     /// Exact f32 weights and results: what the shaders' manual filtering computes.
     pub const EXACT: Self = Self { weights: WeightPrecision::Exact, unorm8_results: false };
 
-    /// The models of every device whose filter weights have `bits` fractional bits, whatever the direction of their
-    /// rounding (down, to nearest, up), with 8-bit unorm results as `unorm8_results` says. A conformant device's
-    /// lookups are one of these per sample, so the images of the family span how far such a device may be from the
-    /// exact reference.
+    /// The models that span every device whose filter weights have `bits` fractional bits, whatever the direction
+    /// of their rounding, with 8-bit unorm results as `unorm8_results` says: every weight rounded down, every one
+    /// up (the largest error of one lookup, either sign), and each down or up as it falls ([`WeightRounding::Scattered`],
+    /// the errors of a ray's lookups adding up instead of cancelling). Rounding to nearest errs by half a step, within
+    /// these. The images of the family span how far such a device may be from the exact reference.
     #[must_use]
     pub fn family(bits: u32, unorm8_results: bool) -> [Self; 3] {
-        WeightRounding::ALL.map(|rounding| Self { weights: WeightPrecision::Fixed { bits, rounding }, unorm8_results })
+        [WeightRounding::Down, WeightRounding::Up, WeightRounding::Scattered]
+            .map(|rounding| Self { weights: WeightPrecision::Fixed { bits, rounding }, unorm8_results })
     }
 
     /// A filtered normalised value of a texture of `format` as the device returns it: an 8-bit unorm result on the
@@ -137,11 +148,18 @@ mod tests {
     fn fixed_point_weights_round_as_named_and_exact_ones_do_not() {
         let f = 0.3f32;
         assert_eq!(WeightPrecision::Exact.weight(f).to_bits(), f.to_bits());
-        let [down, nearest, up] = FilterPrecision::family(4, false).map(|p| p.weights.weight(f));
+        let fixed = |bits, rounding| WeightPrecision::Fixed { bits, rounding }.weight(f);
         // 0.3 · 16 = 4.8: 4/16 down, 5/16 to nearest and up.
+        let [down, nearest, up] = WeightRounding::DEVICE.map(|r| fixed(4, r));
         assert_eq!((down, nearest, up), (0.25, 0.3125, 0.3125));
-        let [down, nearest, up] = FilterPrecision::family(8, false).map(|p| p.weights.weight(f));
+        let [down, nearest, up] = WeightRounding::DEVICE.map(|r| fixed(8, r));
         assert_eq!((down, nearest, up), (76.0 / 256.0, 77.0 / 256.0, 77.0 / 256.0));
+        // Scattered: each weight down or up, both directions taken over many weights.
+        let scattered: Vec<f32> = (0..64).map(|k| 0.01 + k as f32 / 67.0).collect();
+        let rounded = |f: f32| WeightPrecision::Fixed { bits: 4, rounding: WeightRounding::Scattered }.weight(f);
+        let on_a_side = |f: f32| [(f * 16.0).floor(), (f * 16.0).ceil()].map(|s| (s / 16.0).to_bits());
+        assert!(scattered.iter().all(|&f| on_a_side(f).contains(&rounded(f).to_bits())));
+        assert!(scattered.iter().any(|&f| rounded(f) < f) && scattered.iter().any(|&f| rounded(f) > f));
         // 8-bit unorm results on their 255 steps, other formats as they are.
         let rounded = FilterPrecision { unorm8_results: true, ..FilterPrecision::EXACT };
         assert_eq!(rounded.result(wgpu::TextureFormat::R8Unorm, 0.3).to_bits(), (77.0f32 / 255.0).to_bits());
@@ -149,7 +167,8 @@ mod tests {
         // Between texel centres 1 and 3 at weight 0.3: 1.6 exactly, 1.5 with 4-bit weights rounded down.
         let values = [Vec4::splat(1.0), Vec4::splat(3.0)];
         let p = Vec3::new(f32::midpoint(0.5, f), 0.5, 0.5);
-        let quantised = trilinear_with(FilterPrecision::family(4, false)[0].weights, [2, 1, 1], p, |i| values[i]).x;
+        let down = WeightPrecision::Fixed { bits: 4, rounding: WeightRounding::Down };
+        let quantised = trilinear_with(down, [2, 1, 1], p, |i| values[i]).x;
         assert!((trilinear([2, 1, 1], p, |i| values[i]).x - 1.6).abs() < 1e-6);
         assert!((quantised - 1.5).abs() < 1e-6, "{quantised}");
     }

@@ -12,8 +12,11 @@
 //! - GPU vs CPU hit depth: the same samples, so equal to f32 noise (1e-3 mm) except where the GPU's sampler and the
 //!   CPU disagree on which side of ½ a sample falls (a step, 0.5 mm): at most 2 % of the pixels.
 //! - GPU vs CPU glyph images: glyph coverage, rim and blending are the same f32 formulas, quantised once per glyph
-//!   write: measured max 1/255 on lavapipe and llvmpipe GL (Mesa 22.3.6), 2/255 allowed; pixels where a depth-test
-//!   decision differs (a hit depth a step off at a glyph's edge) may differ more: at most 8 channels.
+//!   write, so within [`BASE_TOLERANCE`]. Where a depth-test decision differs (a hit depth a step off at a glyph's
+//!   edge, because the device's filter rounds its weights) a pixel may differ more. How many may is derived from the
+//!   device's filter ([`DeviceFilter`]): the CPU composite over the exact hit depths against the composites over the
+//!   hit depths with the weights rounded down, up and either way at the device's bits; the channels any of those
+//!   moves past [`BASE_TOLERANCE`], plus one pixel's four channels for the f32 order of the hit depth.
 
 mod common;
 
@@ -22,8 +25,8 @@ use glam::{Mat4, Vec2, Vec3};
 use warpbench_gpu::cpu_reference::composite_glyphs;
 use warpbench_gpu::target::NO_HIT_DEPTH;
 use warpbench_gpu::{
-    BlendMode, FeatureRequest, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings, GlyphUniforms, OrbitCamera,
-    Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane,
+    BlendMode, FeatureRequest, FilterPrecision, GlyphDrawData, GlyphInstance, GlyphRenderer, GlyphSettings,
+    GlyphUniforms, OrbitCamera, Projection, RaycastDrawData, RaycastRenderer, RenderSettings, RenderTarget, SlicePlane,
 };
 
 const SIZE: (u32, u32) = (96, 96);
@@ -135,12 +138,12 @@ fn glyph_points(camera: &OrbitCamera) -> (Vec3, Vec3, Vec3) {
 }
 
 /// Renders the ball with `glyphs` over it (GPU), returns (frame without glyphs, frame with glyphs, CPU reference of
-/// the latter).
+/// the latter, the channels past [`BASE_TOLERANCE`] that a device's filter rounding may cause in it).
 fn render_with_glyphs(
     ctx: &warpbench_gpu::GpuContext,
     glyphs: &[GlyphInstance],
     glyph_settings: &GlyphSettings,
-) -> (Vec<u8>, Vec<u8>, Vec<u8>) {
+) -> (Vec<u8>, Vec<u8>, Vec<u8>, usize) {
     let scene = ball_scene(ctx);
     let gpu = GpuScene::new(ctx, &scene);
     let camera = camera();
@@ -153,9 +156,21 @@ fn render_with_glyphs(
     glyph_renderer.render(ctx, &data, &target).expect("glyphs");
     let after = target.read_back(ctx).expect("frame with glyphs");
 
-    let mut cpu = scene.cpu(&u);
-    composite_glyphs(&gu, glyphs, &scene.cpu_hit_depth(&u), &mut cpu);
-    (before, after, cpu)
+    let composite = |filtering| {
+        let mut cpu = scene.cpu_with(&u, filtering);
+        composite_glyphs(&gu, glyphs, &scene.cpu_hit_depth_with(&u, filtering), &mut cpu);
+        cpu
+    };
+    let cpu = composite(FilterPrecision::EXACT);
+    // A device may round each lookup either way: the union of the channels the variants move.
+    let mut moved = vec![false; cpu.len()];
+    for filtering in DeviceFilter::measure(ctx).family() {
+        for (m, (a, b)) in moved.iter_mut().zip(cpu.iter().zip(composite(filtering))) {
+            *m |= a.abs_diff(b) > BASE_TOLERANCE;
+        }
+    }
+    let flips = moved.iter().filter(|&&m| m).count();
+    (before, after, cpu, flips)
 }
 
 #[test]
@@ -170,11 +185,15 @@ fn glyphs_are_depth_tested_against_the_first_hit() {
         GlyphInstance::point(beside, 4.0, MOVING),
     ];
     let ghost = GlyphSettings { occluded_alpha: 0.25, ..Default::default() };
-    let (_, after, cpu) = render_with_glyphs(&ctx, &glyphs, &ghost);
+    let (_, after, cpu, flips) = render_with_glyphs(&ctx, &glyphs, &ghost);
 
-    let (max, above) = max_diff(&after, &cpu, 2);
-    eprintln!("glyphs over the ball: GPU vs CPU max {max}/255, {above} channels > 2");
-    assert!(above <= 8, "GPU and CPU glyph images differ in {above} channels (max {max})");
+    let (max, above) = max_diff(&after, &cpu, BASE_TOLERANCE);
+    let allowed = flips + 4;
+    eprintln!(
+        "glyphs over the ball: GPU vs CPU max {max}/255, {above} channels > {BASE_TOLERANCE} (allowed {allowed}: the \
+         filter's rounding moves {flips})"
+    );
+    assert!(above <= allowed, "GPU and CPU glyph images differ in {above} channels (max {max})");
 
     let clip_from_ref = camera.clip_from_ref(1.0);
     let opaque = |c: [f32; 4]| c.map(|v| (v * 255.0).round() as u8);
@@ -182,7 +201,7 @@ fn glyphs_are_depth_tested_against_the_first_hit() {
     assert_eq!(rgba(&after, pixel_of(clip_from_ref, visible)), opaque(MOVING), "visible point");
     assert_eq!(rgba(&after, pixel_of(clip_from_ref, beside)), opaque(MOVING), "point beside the ball");
     // Alone, the hidden point is a ghost: a quarter of its colour over the surface.
-    let (before, after, _) = render_with_glyphs(&ctx, &glyphs[2..3], &ghost);
+    let (before, after, _, _) = render_with_glyphs(&ctx, &glyphs[2..3], &ghost);
     let p = pixel_of(clip_from_ref, hidden);
     let (b, a) = (rgba(&before, p), rgba(&after, p));
     let expected: Vec<u8> = (0..4)
@@ -197,7 +216,8 @@ fn glyphs_are_depth_tested_against_the_first_hit() {
     }
 
     // With occluded_alpha = 0 the hidden point (and the hidden part of the line) leaves the frame as it was.
-    let (before, after, _) = render_with_glyphs(&ctx, &glyphs[2..3], &GlyphSettings { occluded_alpha: 0.0, ..ghost });
+    let (before, after, _, _) =
+        render_with_glyphs(&ctx, &glyphs[2..3], &GlyphSettings { occluded_alpha: 0.0, ..ghost });
     assert_eq!(before, after, "a fully occluded glyph changed the frame");
 }
 

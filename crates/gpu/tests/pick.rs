@@ -13,10 +13,12 @@
 //!   within 0.5 voxel (the bound; the same error sources as above), and the hit is where the frame draws the
 //!   surface: the render's first hit (the first *sample* with accumulated opacity ≥ ½) lies within one step behind
 //!   the pick (the same samples, refined).
-//! - GPU vs CPU: the same samples and the same formulas in f32; lavapipe's hardware trilinear filter has 8-bit
-//!   weights, so values differ by up to ~2⁻⁸ of a voxel-to-voxel difference, which moves a threshold crossing by
-//!   < 0.02 mm on these volumes (gradient ≈ 1 value unit per mm, or ≥ 60 per mm for the tanh ball near its
-//!   threshold). Bound: 0.05 mm, and the same hit/miss for all but 1 % of the rays (grazing rays).
+//! - GPU vs CPU: the same samples and the same formulas in f32, and a pick filters every lookup by hand with exact
+//!   weights on the GPU as on the CPU, whatever the device's hardware filter (`shaders/raycast.wgsl`,
+//!   EXACT_FILTER). What remains is f32 evaluation order (a few ulps of a value, which moves a threshold crossing by
+//!   < 10⁻³ mm on these volumes: gradient ≈ 1 value unit per mm, ≥ 60 per mm for the tanh ball near its threshold)
+//!   and the bisection's last step, step/2⁹ = 0.004 mm, when the two sides take a different last branch. Bound:
+//!   0.05 mm, and the same hit/miss for all but 1 % of the rays (grazing rays).
 
 mod common;
 

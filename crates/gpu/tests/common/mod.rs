@@ -31,23 +31,28 @@ pub fn context(request: FeatureRequest) -> Option<GpuContext> {
 pub struct DeviceFilter {
     pub bits: u32,
     pub unorm8_results: bool,
+    /// The device's own rounding, when the probe resolved it.
+    pub model: Option<FilterPrecision>,
 }
 
 impl DeviceFilter {
     pub fn measure(ctx: &GpuContext) -> Self {
         let measured = FilterProbe::new(ctx).and_then(|p| p.measure(ctx)).expect("filter probe");
         eprintln!("{}", measured.describe());
-        Self { bits: measured.bits(), unorm8_results: measured.unorm8_results() }
+        Self { bits: measured.bits(), unorm8_results: measured.unorm8_results(), model: measured.model() }
     }
 
-    /// The models a conformant device like this one may follow ([`FilterPrecision::family`]).
-    pub fn family(self) -> [FilterPrecision; 3] {
-        FilterPrecision::family(self.bits, self.unorm8_results)
+    /// The models a conformant device like this one may follow ([`FilterPrecision::family`]), and this device's own
+    /// when the probe resolved it.
+    pub fn family(self) -> Vec<FilterPrecision> {
+        let mut family = FilterPrecision::family(self.bits, self.unorm8_results).to_vec();
+        family.extend(self.model.filter(|m| !family.contains(m)));
+        family
     }
 }
 
 /// How far a conformant device may be from the exact CPU reference of one image: the reference computed with the
-/// hardware lookups' weights rounded down, to nearest and up at the device's bits ([`FilterPrecision::family`]),
+/// hardware lookups' weights rounded down, up, and each either way, at the device's bits ([`FilterPrecision::family`]),
 /// beside the exact one. What remains beyond it is f32 evaluation order and the 8-bit rounding of the result, which
 /// [`BASE_TOLERANCE`] covers.
 pub struct Allowance {
@@ -80,12 +85,71 @@ impl Allowance {
         BASE_TOLERANCE.saturating_add(self.filter_spread())
     }
 
-    /// The fraction of pixels that a rounded variant moves by more than `bound` in some channel from the exact image
-    /// (the largest over the variants): where a threshold decision (an iso hit, a glyph's depth test) flips under
-    /// the filter's rounding.
+    /// The fraction of pixels that some rounded variant moves by more than `bound` in some channel from the exact
+    /// image: where a threshold decision (an iso hit, a glyph's depth test) may flip under the filter's rounding. A
+    /// device may round each lookup either way, so a pixel that any variant flips may flip on it: the union.
     pub fn fraction_over(&self, bound: u8) -> f32 {
+        self.flipped(bound).iter().filter(|&&f| f).count() as f32 / (self.exact.len() / 4).max(1) as f32
+    }
+
+    /// Per pixel, whether some rounded variant moves it by more than `bound` in some channel.
+    pub fn flipped(&self, bound: u8) -> Vec<bool> {
+        let mut flipped = vec![false; self.exact.len() / 4];
+        for r in &self.rounded {
+            for (i, (p, q)) in self.exact.chunks_exact(4).zip(r.chunks_exact(4)).enumerate() {
+                flipped[i] |= p.iter().zip(q).any(|(x, y)| x.abs_diff(*y) > bound);
+            }
+        }
+        flipped
+    }
+
+    /// An iso image's per-pixel bound: [`BASE_TOLERANCE`] plus the largest difference between the exact and a
+    /// rounded reference over the pixels where the rounding flips no hit. A rounded weight moves a hit along its ray
+    /// by a fraction of a voxel, which changes its shade by a few /255 at most (the value there is the iso value, the
+    /// normal comes from the same prefiltered texels a fraction of a voxel away); a difference of 16/255 or more is
+    /// a flip: a hit on another surface, in another checkerboard cell, or none. Pixels past the bound are then
+    /// counted against [`Self::fraction_over`] it, plus [`GRAZING_F32`].
+    pub fn iso_bound(&self) -> u8 {
+        const FLIP: u8 = 16;
+        let spread = self
+            .rounded
+            .iter()
+            .flat_map(|r| {
+                self.exact.chunks_exact(4).zip(r.chunks_exact(4)).filter_map(|(p, q)| {
+                    let d = p.iter().zip(q).map(|(x, y)| x.abs_diff(*y)).max().unwrap_or(0);
+                    (d < FLIP).then_some(d)
+                })
+            })
+            .max()
+            .unwrap_or(0);
+        BASE_TOLERANCE.saturating_add(spread)
+    }
+
+    /// Whether `gpu`, a device's render of the image, is one a conformant device with this filter may draw, and a
+    /// line saying how far it is. [`Look::Smooth`]: every channel within [`Self::tolerance`]. [`Look::Thresholded`]
+    /// (iso-surfaces): all but [`Self::fraction_over`] + [`GRAZING_F32`] of the pixels within [`Self::iso_bound`].
+    pub fn judge(&self, gpu: &[u8], look: Look) -> (bool, String) {
         let pixels = (self.exact.len() / 4).max(1) as f32;
-        self.rounded.iter().map(|r| pixels_over(&self.exact, r, bound) as f32 / pixels).fold(0.0, f32::max)
+        match look {
+            Look::Smooth => {
+                let tolerance = self.tolerance();
+                let (max, above) = max_diff(gpu, &self.exact, BASE_TOLERANCE);
+                let line = format!("max {max}/255 ({above} channels > {BASE_TOLERANCE}); {}", self.describe());
+                (max <= tolerance, line)
+            }
+            Look::Thresholded => {
+                let bound = self.iso_bound();
+                let over = pixels_over(gpu, &self.exact, bound) as f32 / pixels;
+                let allowed = self.fraction_over(bound) + GRAZING_F32;
+                let line = format!(
+                    "{:.2}% of the pixels > {bound}/255 (allowed {:.2}%); {}",
+                    100.0 * over,
+                    100.0 * allowed,
+                    self.describe()
+                );
+                (over <= allowed, line)
+            }
+        }
     }
 
     /// "filter b bits: spread s/255, tolerance t/255".
@@ -99,6 +163,25 @@ impl Allowance {
         )
     }
 }
+
+/// What an image's pixels depend on, for [`Allowance::judge`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Look {
+    /// Colours that move smoothly with the filtered values (unlit and DVR frames, slices).
+    Smooth,
+    /// Threshold decisions (iso-surface hits), which a rounded weight can flip.
+    Thresholded,
+}
+
+impl Look {
+    pub fn of(mode: warpbench_gpu::ShadingMode) -> Self {
+        if mode == warpbench_gpu::ShadingMode::Iso { Self::Thresholded } else { Self::Smooth }
+    }
+}
+
+/// The share of an iso image's pixels whose hit the f32 order of the ray's setup alone may flip, whatever the
+/// filter: one in a thousand (four pixels of a 64² image).
+pub const GRAZING_F32: f32 = 0.001;
 
 /// Pixels whose largest channel difference is above `limit`.
 pub fn pixels_over(a: &[u8], b: &[u8], limit: u8) -> usize {
@@ -319,15 +402,30 @@ impl Scene {
 
     /// The CPU reference's slice (single-threaded: slices are one sample per pixel).
     pub fn cpu_slice(&self, u: &RaycastUniforms) -> Vec<u8> {
-        let f = CpuLayer::new(&self.fixed, None, None);
-        let m = CpuLayer::new(&self.moving, self.control.as_ref(), None);
+        self.cpu_slice_with(u, FilterPrecision::EXACT)
+    }
+
+    /// [`Self::cpu_slice`] with the hardware lookups' weights at `filtering`.
+    pub fn cpu_slice_with(&self, u: &RaycastUniforms, filtering: FilterPrecision) -> Vec<u8> {
+        let f = CpuLayer::new(&self.fixed, None, None).with_filtering(filtering);
+        let m = CpuLayer::new(&self.moving, self.control.as_ref(), None).with_filtering(filtering);
         cpu_reference::render_slice(u, &f, &m, &self.tfs)
+    }
+
+    /// What a conformant device with `filter` may draw for the slice `u` ([`Allowance`]).
+    pub fn slice_allowance(&self, u: &RaycastUniforms, filter: DeviceFilter) -> Allowance {
+        Allowance::new(filter, |p| self.cpu_slice_with(u, p))
     }
 
     /// The CPU reference's first-hit depth image (single-threaded).
     pub fn cpu_hit_depth(&self, u: &RaycastUniforms) -> Vec<f32> {
-        let f = CpuLayer::new(&self.fixed, None, self.fixed_pf.as_ref());
-        let m = CpuLayer::new(&self.moving, self.control.as_ref(), self.moving_pf.as_ref());
+        self.cpu_hit_depth_with(u, FilterPrecision::EXACT)
+    }
+
+    /// [`Self::cpu_hit_depth`] with the hardware lookups' weights at `filtering`.
+    pub fn cpu_hit_depth_with(&self, u: &RaycastUniforms, filtering: FilterPrecision) -> Vec<f32> {
+        let f = CpuLayer::new(&self.fixed, None, self.fixed_pf.as_ref()).with_filtering(filtering);
+        let m = CpuLayer::new(&self.moving, self.control.as_ref(), self.moving_pf.as_ref()).with_filtering(filtering);
         cpu_reference::render_hit_depth(u, &f, &m, &self.tfs)
     }
 
