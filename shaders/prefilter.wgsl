@@ -10,7 +10,16 @@
 // binds a 3-D storage texture as one layer (wgpu-hal 30 `ImageBinding`, layered = false), an array as all of them.
 // The ray caster reads it with textureLoad and filters by hand.
 //
-// The CPU reference is `cpu_prefilter` in crates/gpu/src/prefilter.rs: keep the two in sync.
+// A fourth pass (cs_gradient) turns the filtered copy into what the ray caster shades with: its gradient per texel by
+// central differences (clamp-to-edge), in normalised texel units per unit of texture coordinate,
+//   g_a[i] = (v[min(i + e_a, n − 1)] − v[max(i − e_a, 0)]) · n_a / 2,
+// written as Rgba16Float texels (pack2x16float of (g_x, g_y) and (g_z, 0)) into a storage buffer in the copy layout of
+// a z-slab (rows padded to 256 bytes), which the caller copies into the 3-D gradient texture: a storage buffer, as
+// a 3-D storage texture is bound as one layer on GL. The ray caster filters that texture in hardware, one lookup per
+// gradient.
+//
+// The CPU reference is `cpu_prefilter` and `PrefilteredTexels::gradients` in crates/gpu/src/prefilter.rs: keep them
+// in sync.
 
 // The Rust twin is `PrefilterUniforms` in crates/gpu/src/prefilter.rs (tests/shaders.rs compares the layouts).
 struct PrefilterUniforms {
@@ -89,4 +98,48 @@ fn cs_gaussian_from_layers(@builtin(global_invocation_id) id: vec3<u32>) {
         weight_sum += w;
     }
     textureStore(dst, id.xy, id.z, vec4<f32>(sum / weight_sum, 0.0, 0.0, 1.0));
+}
+
+// The Rust twin is `GradientUniforms` in crates/gpu/src/prefilter.rs (tests/shaders.rs compares the layouts).
+struct GradientUniforms {
+    // the filtered copy's dims
+    dims: vec3<u32>,
+    // the slab's first z
+    first_z: u32,
+    // u32 words per row of the copy layout (bytes_per_row / 4)
+    row_words: u32,
+    // z planes in the slab
+    slab_depth: u32,
+    _pad0: u32,
+    _pad1: u32,
+}
+
+@group(0) @binding(4) var<uniform> g: GradientUniforms;
+// The filtered copy (the z pass's output).
+@group(0) @binding(5) var filtered: texture_2d_array<f32>;
+@group(0) @binding(6) var<storage, read_write> gradient_out: array<u32>;
+
+fn filtered_at(q: vec3<i32>) -> f32 {
+    return textureLoad(filtered, q.xy, q.z, 0).r;
+}
+
+@compute @workgroup_size(4, 4, 4)
+fn cs_gradient(@builtin(global_invocation_id) id: vec3<u32>) {
+    let q = vec3<u32>(id.xy, id.z + g.first_z);
+    if any(q >= g.dims) || id.z >= g.slab_depth {
+        return;
+    }
+    let n = vec3<i32>(g.dims);
+    let i = vec3<i32>(q);
+    var grad = vec3<f32>(0.0);
+    for (var a = 0; a < 3; a++) {
+        var hi = i;
+        var lo = i;
+        hi[a] = min(i[a] + 1, n[a] - 1);
+        lo[a] = max(i[a] - 1, 0);
+        grad[a] = (filtered_at(hi) - filtered_at(lo)) * (0.5 * f32(n[a]));
+    }
+    let word = (id.z * g.dims.y + id.y) * g.row_words + 2u * id.x;
+    gradient_out[word] = pack2x16float(grad.xy);
+    gradient_out[word + 1u] = pack2x16float(vec2<f32>(grad.z, 0.0));
 }

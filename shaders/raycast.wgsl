@@ -13,10 +13,12 @@
 // transfer function and blended. A view deformation w (a lens or widget, §5.2–5.3; crates/gpu/src/view_deformation.rs)
 // acts before the pull-back: the sample is read at p(u(w(x))).
 //
-// Shading (Brunet et al. 2006 §3.4; Westermann & Rezk-Salama 2001 §3.3): the gradient at x_ref is taken by central
-// differences *in ref space, through the warp*, of the prefiltered copy v_pf (or the volume when there is none):
-//   g_i(x) = [v_pf(tex(u(x + h e_i))) − v_pf(tex(u(x − h e_i)))] / (2h)
-// i.e. the gradient of the deformed volume, so the lighting follows the deformation. Headlight l = −ray direction:
+// Shading (Brunet et al. 2006 §3.4; Westermann & Rezk-Salama 2001 §3.3): the gradient at x_ref is the gradient of the
+// deformed prefiltered copy v_pf, by the chain rule through Φ = p∘u∘w (warped_gradient_at):
+//   ∇(v_pf∘Φ)(x) = J_Φ(x)ᵀ ∇v_pf(Φ(x)),   J_Φ column i = [Φ(x + h e_i) − Φ(x − h e_i)] / (2h)
+// with ∇v_pf one hardware-filtered lookup of the copy's gradient texture (central differences per texel); without a
+// copy, central differences of the volume through the warp, g_i = [v(Φ(x + h e_i)) − v(Φ(x − h e_i))] / (2h). Either
+// way it is the gradient of the deformed volume, so the lighting follows the deformation. Headlight l = −ray direction:
 //   colour' = clamp(colour·(ambient + diffuse·|n·l|) + specular·|n·l|^shininess, 0, 1),  n = g/|g|
 // (|n·l| = 1 where |g| is ~0). DVR shades every sample with opacity > 0; iso mode finds, per volume, the first sample
 // whose value ≥ iso_value, refines it by bisection between the last two samples, shades it opaque, and blends the two
@@ -213,9 +215,10 @@ const NO_HIT_DEPTH: f32 = 2.0;
 @group(0) @binding(6) var volume_sampler: sampler;
 // Trilinear, clamp-to-edge: control textures.
 @group(0) @binding(7) var linear_sampler: sampler;
-// Prefiltered copies (R32Float, layer = z; a 1×1×1 placeholder without VOLUME_HAS_PREFILTER), filtered by hand.
-@group(0) @binding(8) var fixed_pf_tex: texture_2d_array<f32>;
-@group(0) @binding(9) var moving_pf_tex: texture_2d_array<f32>;
+// The gradients of the prefiltered copies (Rgba16Float, ∂v/∂tex per texel, crates/gpu/src/prefilter.rs; a 1×1×1
+// placeholder without VOLUME_HAS_PREFILTER), filtered in hardware through linear_sampler.
+@group(0) @binding(8) var fixed_grad_tex: texture_3d<f32>;
+@group(0) @binding(9) var moving_grad_tex: texture_3d<f32>;
 // Empty-space grid: one cell (OCCUPIED_* bits) per ref-space brick; a 1×1×1 "all occupied" placeholder when
 // u.empty_space.enabled is 0.
 @group(0) @binding(10) var empty_space_tex: texture_3d<u32>;
@@ -292,30 +295,6 @@ fn load_trilinear(vol: texture_3d<f32>, p_tex: vec3<f32>) -> vec4<f32> {
 // A scalar volume filtered by hand: when its format is not filterable on this device, and in picks.
 fn sample_manual(vol: texture_3d<f32>, p_tex: vec3<f32>) -> f32 {
     return load_trilinear(vol, p_tex).r;
-}
-
-// Trilinear interpolation by hand of a 2-D array texture read as a volume (layer = z), clamp-to-edge, texel centres
-// at (i + ½)/n: the prefiltered copies (R32Float, not filterable everywhere).
-fn sample_layers(vol: texture_2d_array<f32>, p_tex: vec3<f32>) -> f32 {
-    let dims = vec3<i32>(vec3<u32>(textureDimensions(vol), textureNumLayers(vol)));
-    let n = vec3<f32>(dims);
-    let c = clamp(p_tex * n - vec3<f32>(0.5), vec3<f32>(0.0), n - vec3<f32>(1.0));
-    let i0 = vec3<i32>(floor(c));
-    let f = c - floor(c);
-    let i1 = min(i0 + vec3<i32>(1), dims - vec3<i32>(1));
-    let c000 = textureLoad(vol, vec2<i32>(i0.x, i0.y), i0.z, 0).r;
-    let c100 = textureLoad(vol, vec2<i32>(i1.x, i0.y), i0.z, 0).r;
-    let c010 = textureLoad(vol, vec2<i32>(i0.x, i1.y), i0.z, 0).r;
-    let c110 = textureLoad(vol, vec2<i32>(i1.x, i1.y), i0.z, 0).r;
-    let c001 = textureLoad(vol, vec2<i32>(i0.x, i0.y), i1.z, 0).r;
-    let c101 = textureLoad(vol, vec2<i32>(i1.x, i0.y), i1.z, 0).r;
-    let c011 = textureLoad(vol, vec2<i32>(i0.x, i1.y), i1.z, 0).r;
-    let c111 = textureLoad(vol, vec2<i32>(i1.x, i1.y), i1.z, 0).r;
-    let x00 = mix(c000, c100, f.x);
-    let x10 = mix(c010, c110, f.x);
-    let x01 = mix(c001, c101, f.x);
-    let x11 = mix(c011, c111, f.x);
-    return mix(mix(x00, x10, f.y), mix(x01, x11, f.y), f.z);
 }
 
 // Empty-space skipping (crates/gpu/src/empty_space.rs). Sample k of the lattice t_k = t_enter + (k + jitter)·step
@@ -476,59 +455,118 @@ fn pullback_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> v
     return p_lps;
 }
 
-// tex(p(y)): the volume's texture coordinates of its LPS point y, through its procedural deformation when it has one.
-fn data_tex(v: VolumeUniforms, y_lps: vec3<f32>) -> vec3<f32> {
-    var p_lps = y_lps;
+// p(y): the volume's LPS point whose data its LPS point y shows, through its procedural deformation when it has one.
+fn procedural_lps(v: VolumeUniforms, y_lps: vec3<f32>) -> vec3<f32> {
     if (DEFORMATIONS & DEFORM_PROCEDURAL) != 0u && v.procedural.kind != PROCEDURAL_NONE {
-        p_lps = y_lps + procedural_displacement(v.procedural, y_lps);
+        return y_lps + procedural_displacement(v.procedural, y_lps);
     }
-    return (v.tex_from_lps * vec4<f32>(p_lps, 1.0)).xyz;
+    return y_lps;
 }
 
-// tex(p(u(w(x_ref)))): the volume's texture coordinates of ref point x_ref, through its view deformation, its warp
-// and its procedural deformation when it has them.
+// tex(p(y)): the volume's texture coordinates of its LPS point y, through its procedural deformation when it has one.
+fn data_tex(v: VolumeUniforms, y_lps: vec3<f32>) -> vec3<f32> {
+    return (v.tex_from_lps * vec4<f32>(procedural_lps(v, y_lps), 1.0)).xyz;
+}
+
+// Φ(x_ref) = p(u(w(x_ref))): the volume's LPS point whose data ref point x_ref shows, through its view deformation,
+// its warp and its procedural deformation when it has them.
+fn data_lps(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+    return procedural_lps(v, pullback_lps(ctrl, v, x_ref));
+}
+
+// tex(Φ(x_ref)): the volume's texture coordinates of ref point x_ref.
 fn warp_to_tex(ctrl: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
-    return data_tex(v, pullback_lps(ctrl, v, x_ref));
+    return (v.tex_from_lps * vec4<f32>(data_lps(ctrl, v, x_ref), 1.0)).xyz;
+}
+
+// Whether Φ is the identity for this volume: no warp, no view or procedural deformation.
+fn undeformed(v: VolumeUniforms) -> bool {
+    let view = (DEFORMATIONS & DEFORM_VIEW) != 0u && v.view.kind != VIEW_NONE;
+    let procedural = (DEFORMATIONS & DEFORM_PROCEDURAL) != 0u && v.procedural.kind != PROCEDURAL_NONE;
+    return (v.flags & VOLUME_HAS_WARP) == 0u && !view && !procedural;
 }
 
 fn outside_tex(p_tex: vec3<f32>) -> bool {
     return any(p_tex < vec3<f32>(0.0)) || any(p_tex > vec3<f32>(1.0));
 }
 
-// The volume's value (value units) at p_tex.
-fn volume_value(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
-    var texel: f32;
-    if EXACT_FILTER || (v.flags & VOLUME_MANUAL_FILTER) != 0u {
-        texel = sample_manual(vol, p_tex);
-    } else {
-        texel = textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
-    }
-    return v.value_offset + v.value_scale * texel;
-}
-
-// The normalised texel the gradient differentiates: the prefiltered copy, or the volume itself without one.
-fn gradient_source(vol: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
-    if (v.flags & VOLUME_HAS_PREFILTER) != 0u {
-        return sample_layers(pf, p_tex);
-    }
+// The volume's normalised texel at p_tex.
+fn volume_texel(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
     if EXACT_FILTER || (v.flags & VOLUME_MANUAL_FILTER) != 0u {
         return sample_manual(vol, p_tex);
     }
     return textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
 }
 
-// Central differences in ref space through the warp: the gradient of the deformed (prefiltered) volume at x_ref.
-fn warped_gradient(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+// The volume's value (value units) at p_tex.
+fn volume_value(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
+    return v.value_offset + v.value_scale * volume_texel(vol, v, p_tex);
+}
+
+// The gradient of the deformed volume at x_ref, ∇(v∘Φ)(x_ref), in normalised texel units per mm, whose data point
+// Φ(x_ref) is y_lps (the caller has it from the value's lookup).
+// With a prefiltered copy (VOLUME_HAS_PREFILTER): the chain rule, ∇(v∘Φ)(x) = J_Φ(x)ᵀ ∇v(Φ(x)). ∇v(y) is one
+// hardware-filtered lookup of the copy's gradient texture (∂v/∂tex), taken to LPS by tex_from_lps: ∂v/∂y_b =
+// Σ_a ∂tex_a/∂y_b · ∂v/∂tex_a. J_Φ is the identity for an undeformed volume, else central differences of Φ in ref
+// space, column i = [Φ(x + h e_i) − Φ(x − h e_i)] / 2h (one-sided where an end shows nothing, as in the leafer's
+// opening). So a lit sample costs 6 control-texture lookups and one gradient lookup on a warped volume, one gradient
+// lookup on an undeformed one.
+// Without a copy: central differences of the volume itself through the warp, g_i = [v(Φ(x + h e_i)) −
+// v(Φ(x − h e_i))] / 2h.
+fn warped_gradient_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>, y_lps: vec3<f32>) -> vec3<f32> {
     let h = u.gradient_step_mm;
+    if (v.flags & VOLUME_HAS_PREFILTER) == 0u {
+        var g = vec3<f32>(0.0);
+        for (var i = 0; i < 3; i++) {
+            var e = vec3<f32>(0.0);
+            e[i] = h;
+            let plus = volume_texel(vol, v, warp_to_tex(ctrl, v, x_ref + e));
+            let minus = volume_texel(vol, v, warp_to_tex(ctrl, v, x_ref - e));
+            g[i] = (plus - minus) / (2.0 * h);
+        }
+        return g;
+    }
+    let p_tex = (v.tex_from_lps * vec4<f32>(y_lps, 1.0)).xyz;
+    var g_tex: vec3<f32>;
+    if EXACT_FILTER {
+        g_tex = load_trilinear(grad, p_tex).xyz;
+    } else {
+        g_tex = textureSampleLevel(grad, linear_sampler, p_tex, 0.0).xyz;
+    }
+    let m = v.tex_from_lps;
+    let g_lps = vec3<f32>(dot(m[0].xyz, g_tex), dot(m[1].xyz, g_tex), dot(m[2].xyz, g_tex));
+    if undeformed(v) {
+        return g_lps;
+    }
     var g = vec3<f32>(0.0);
     for (var i = 0; i < 3; i++) {
         var e = vec3<f32>(0.0);
         e[i] = h;
-        let plus = gradient_source(vol, pf, v, warp_to_tex(ctrl, v, x_ref + e));
-        let minus = gradient_source(vol, pf, v, warp_to_tex(ctrl, v, x_ref - e));
-        g[i] = (plus - minus) / (2.0 * h);
+        // An end in a view deformation's empty part (VIEW_EMPTY, kept by the warp's small displacement) is replaced
+        // by x itself.
+        let plus_w = pullback_lps(ctrl, v, x_ref + e);
+        let minus_w = pullback_lps(ctrl, v, x_ref - e);
+        var plus = y_lps;
+        var minus = y_lps;
+        var span = 0.0;
+        if plus_w.x != VIEW_EMPTY {
+            plus = procedural_lps(v, plus_w);
+            span += h;
+        }
+        if minus_w.x != VIEW_EMPTY {
+            minus = procedural_lps(v, minus_w);
+            span += h;
+        }
+        if span > 0.0 {
+            g[i] = dot(plus - minus, g_lps) / span;
+        }
     }
     return g;
+}
+
+// warped_gradient_at x_ref, its data point looked up here.
+fn warped_gradient(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> vec3<f32> {
+    return warped_gradient_at(vol, ctrl, grad, v, x_ref, data_lps(ctrl, v, x_ref));
 }
 
 // Headlight shading of a straight colour with gradient g; `light` is the unit vector towards the eye.
@@ -549,8 +587,9 @@ fn shade(rgb: vec3<f32>, g: vec3<f32>, light: vec3<f32>) -> vec3<f32> {
 
 // One volume's classified sample at x_ref: premultiplied RGBA, opacity-corrected for the step, lit in DVR mode.
 // Transparent outside the volume's [0,1]^3 texture box.
-fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>, step_ratio: f32, light: vec3<f32>) -> vec4<f32> {
-    let p_tex = warp_to_tex(ctrl, v, x_ref);
+fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>, step_ratio: f32, light: vec3<f32>) -> vec4<f32> {
+    let y_lps = data_lps(ctrl, v, x_ref);
+    let p_tex = (v.tex_from_lps * vec4<f32>(y_lps, 1.0)).xyz;
     if outside_tex(p_tex) {
         return vec4<f32>(0.0);
     }
@@ -562,7 +601,7 @@ fn classify(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f3
     let alpha_corrected = 1.0 - exp2(step_ratio * log2(max(1.0 - alpha, 1e-7)));
     var rgb = rgba.rgb;
     if SHADING == SHADING_DVR && alpha_corrected > 0.0 {
-        rgb = shade(rgb, warped_gradient(vol, ctrl, pf, v, x_ref), light);
+        rgb = shade(rgb, warped_gradient_at(vol, ctrl, grad, v, x_ref, y_lps), light);
     }
     return vec4<f32>(rgb * alpha_corrected, alpha_corrected);
 }
@@ -594,13 +633,13 @@ fn sample_preintegrated(table: texture_2d<f32>, t_front: f32, t_back: f32) -> ve
 // One volume's pre-integrated segment between TF coordinates t_front and t_back: premultiplied RGBA from its table,
 // transparent when an end is outside the volume's box; in DVR mode the segment's straight colour C/α is lit with
 // the gradient at x_shade (the segment's midpoint) and premultiplied again.
-fn classify_segment(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, table: texture_2d<f32>, v: VolumeUniforms, t_front: f32, t_back: f32, x_shade: vec3<f32>, light: vec3<f32>) -> vec4<f32> {
+fn classify_segment(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, table: texture_2d<f32>, v: VolumeUniforms, t_front: f32, t_back: f32, x_shade: vec3<f32>, light: vec3<f32>) -> vec4<f32> {
     if t_front < 0.0 || t_back < 0.0 {
         return vec4<f32>(0.0);
     }
     let c = sample_preintegrated(table, t_front, t_back);
     if SHADING == SHADING_DVR && c.a > 0.0 {
-        let rgb = shade(c.rgb / c.a, warped_gradient(vol, ctrl, pf, v, x_shade), light);
+        let rgb = shade(c.rgb / c.a, warped_gradient(vol, ctrl, grad, v, x_shade), light);
         return vec4<f32>(rgb * c.a, c.a);
     }
     return c;
@@ -636,10 +675,10 @@ fn march_preintegrated(near_h: vec4<f32>, far_h: vec4<f32>, origin: vec3<f32>, d
             var f = vec4<f32>(0.0);
             var m = vec4<f32>(0.0);
             if use_fixed {
-                f = classify_segment(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, fixed_preint_tex, u.fixed, front_f, back_f, x_mid, light);
+                f = classify_segment(fixed_tex, fixed_ctrl_tex, fixed_grad_tex, fixed_preint_tex, u.fixed, front_f, back_f, x_mid, light);
             }
             if use_moving {
-                m = classify_segment(moving_tex, moving_ctrl_tex, moving_pf_tex, moving_preint_tex, u.moving, front_m, back_m, x_mid, light);
+                m = classify_segment(moving_tex, moving_ctrl_tex, moving_grad_tex, moving_preint_tex, u.moving, front_m, back_m, x_mid, light);
             }
             let c = blend(f, m, x_mid);
             acc += (1.0 - acc.a) * c;
@@ -707,11 +746,11 @@ fn iso_hit(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, origi
 }
 
 // Iso mode: the lit, opaque colour (premultiplied, α = 1) of a hit at x_ref: the TF colour of the value there.
-fn iso_colour(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>, light: vec3<f32>) -> vec4<f32> {
+fn iso_colour(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>, light: vec3<f32>) -> vec4<f32> {
     let p_tex = warp_to_tex(ctrl, v, x_ref);
     let value = volume_value(vol, v, p_tex);
     let t = clamp((value - v.window_low) / v.window_width, 0.0, 1.0);
-    let rgb = shade(sample_tf(v.tf_row, t).rgb, warped_gradient(vol, ctrl, pf, v, x_ref), light);
+    let rgb = shade(sample_tf(v.tf_row, t).rgb, warped_gradient(vol, ctrl, grad, v, x_ref), light);
     return vec4<f32>(rgb, 1.0);
 }
 
@@ -853,10 +892,10 @@ fn raycast_pixel(px: vec2<u32>) -> RaycastOutput {
         // The checkerboard picks its cell at the nearer hit.
         var t_near_hit = t_f;
         if t_f >= 0.0 {
-            f = iso_colour(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, origin_ref + t_f * dir_ref, light);
+            f = iso_colour(fixed_tex, fixed_ctrl_tex, fixed_grad_tex, u.fixed, origin_ref + t_f * dir_ref, light);
         }
         if t_m >= 0.0 {
-            m = iso_colour(moving_tex, moving_ctrl_tex, moving_pf_tex, u.moving, origin_ref + t_m * dir_ref, light);
+            m = iso_colour(moving_tex, moving_ctrl_tex, moving_grad_tex, u.moving, origin_ref + t_m * dir_ref, light);
             if t_f < 0.0 || t_m < t_f {
                 t_near_hit = t_m;
             }
@@ -892,10 +931,10 @@ fn raycast_pixel(px: vec2<u32>) -> RaycastOutput {
         var f = vec4<f32>(0.0);
         var m = vec4<f32>(0.0);
         if use_fixed {
-            f = classify(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, x_ref, step_ratio, light);
+            f = classify(fixed_tex, fixed_ctrl_tex, fixed_grad_tex, u.fixed, x_ref, step_ratio, light);
         }
         if use_moving {
-            m = classify(moving_tex, moving_ctrl_tex, moving_pf_tex, u.moving, x_ref, step_ratio, light);
+            m = classify(moving_tex, moving_ctrl_tex, moving_grad_tex, u.moving, x_ref, step_ratio, light);
         }
         let c = blend(f, m, x_ref);
         // Front-to-back "over" compositing of premultiplied colour.
@@ -1012,12 +1051,12 @@ fn pick_alpha(vol: texture_3d<f32>, ctrl: texture_3d<f32>, v: VolumeUniforms, x_
 
 // The probe's quantity at x_ref (opacity, or gradient magnitude in value units per mm); the accumulated probe uses
 // the opacity and composites it in cs_pick.
-fn pick_quantity(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> f32 {
+fn pick_quantity(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>) -> f32 {
     if pick.probe == PROBE_GRADIENT {
         if outside_tex(warp_to_tex(ctrl, v, x_ref)) {
             return 0.0;
         }
-        return abs(v.value_scale) * length(warped_gradient(vol, ctrl, pf, v, x_ref));
+        return abs(v.value_scale) * length(warped_gradient(vol, ctrl, grad, v, x_ref));
     }
     return pick_alpha(vol, ctrl, v, x_ref);
 }
@@ -1027,7 +1066,7 @@ fn accumulate(acc: f32, alpha: f32, len_mm: f32) -> f32 {
     return acc + (1.0 - acc) * (1.0 - exp2(len_mm / u.ref_step_mm * log2(max(1.0 - alpha, 1e-7))));
 }
 
-fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<f32>, v: VolumeUniforms, ray: PickRay) -> PickHit {
+fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, ray: PickRay) -> PickHit {
     var out: PickHit;
     out.hit = 0u;
     out.target_volume = pick.target_volume;
@@ -1063,7 +1102,7 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
                 continue;
             }
         }
-        let q = pick_quantity(vol, ctrl, pf, v, origin + t * dir);
+        let q = pick_quantity(vol, ctrl, grad, v, origin + t * dir);
         var found = false;
         if pick.probe == PROBE_ACCUMULATED {
             found = accumulate(acc, q, u.step_mm) >= pick.threshold;
@@ -1078,7 +1117,7 @@ fn pick_march(vol: texture_3d<f32>, ctrl: texture_3d<f32>, pf: texture_2d_array<
                 var hi = t;
                 for (var b = 0u; b < pick.bisection_steps; b++) {
                     let mid = 0.5 * (lo + hi);
-                    let qm = pick_quantity(vol, ctrl, pf, v, origin + mid * dir);
+                    let qm = pick_quantity(vol, ctrl, grad, v, origin + mid * dir);
                     var inside = false;
                     if pick.probe == PROBE_ACCUMULATED {
                         inside = accumulate(acc, qm, mid - t_prev) >= pick.threshold;
@@ -1213,8 +1252,8 @@ fn cs_pick(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     if pick.target_volume == TARGET_FIXED {
-        pick_hits[i] = pick_march(fixed_tex, fixed_ctrl_tex, fixed_pf_tex, u.fixed, ray);
+        pick_hits[i] = pick_march(fixed_tex, fixed_ctrl_tex, fixed_grad_tex, u.fixed, ray);
     } else {
-        pick_hits[i] = pick_march(moving_tex, moving_ctrl_tex, moving_pf_tex, u.moving, ray);
+        pick_hits[i] = pick_march(moving_tex, moving_ctrl_tex, moving_grad_tex, u.moving, ray);
     }
 }

@@ -22,7 +22,7 @@ use crate::raycast::{
     EARLY_EXIT_ALPHA, RAYCAST_JITTER, RAYCAST_PREINTEGRATED, RaycastUniforms, VOLUME_HAS_PREFILTER, VOLUME_HAS_WARP,
     VOLUME_VISIBLE, VolumeUniforms,
 };
-use crate::sampling::{FilterPrecision, trilinear, trilinear_with};
+use crate::sampling::{FilterPrecision, trilinear_with};
 use crate::settings::ShadingMode;
 use crate::target::{HIT_OPACITY, NO_HIT_DEPTH};
 use crate::transfer::{PreIntegrationTable, TransferFunction};
@@ -99,17 +99,33 @@ pub fn pullback_lps(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Ve
     y
 }
 
+/// The shader's `procedural_lps`: p(y), the volume's LPS point whose data its LPS point y shows.
+#[must_use]
+pub fn procedural_lps(v: &VolumeUniforms, y_lps: Vec3) -> Vec3 {
+    if v.procedural.kind == PROCEDURAL_NONE { y_lps } else { y_lps + v.procedural.displacement(y_lps) }
+}
+
 /// The shader's `data_tex`: tex(p(y)) of the volume's LPS point y, through its procedural deformation.
 #[must_use]
 pub fn data_tex(v: &VolumeUniforms, y_lps: Vec3) -> Vec3 {
-    let p_lps = if v.procedural.kind == PROCEDURAL_NONE { y_lps } else { y_lps + v.procedural.displacement(y_lps) };
-    Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(p_lps)
+    Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(procedural_lps(v, y_lps))
 }
 
-/// The shader's `warp_to_tex`: tex(p(u(w(x_ref)))).
+/// The shader's `data_lps`: Φ(x_ref) = p(u(w(x_ref))), the volume's LPS point whose data ref point x_ref shows.
+#[must_use]
+pub fn data_lps(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
+    procedural_lps(v, pullback_lps(layer, v, x_ref))
+}
+
+/// The shader's `warp_to_tex`: tex(Φ(x_ref)).
 #[must_use]
 pub fn warp_to_tex(layer: &CpuLayer<'_>, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
-    data_tex(v, pullback_lps(layer, v, x_ref))
+    Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(data_lps(layer, v, x_ref))
+}
+
+/// The shader's `undeformed`: Φ is the identity (no warp, no view or procedural deformation).
+fn undeformed(v: &VolumeUniforms) -> bool {
+    v.flags & VOLUME_HAS_WARP == 0 && v.view.kind == VIEW_NONE && v.procedural.kind == PROCEDURAL_NONE
 }
 
 fn outside_tex(p_tex: Vec3) -> bool {
@@ -121,30 +137,65 @@ fn volume_value(layer: &CpuLayer<'_>, v: &VolumeUniforms, p_tex: Vec3) -> f32 {
     v.value_offset + v.value_scale * layer.volume_texel(p_tex)
 }
 
-/// The shader's `gradient_source`: the prefiltered copy's (or else the volume's) normalised texel at `p_tex`.
-fn gradient_source(layer: &CpuLayer<'_>, v: &VolumeUniforms, p_tex: Vec3) -> f32 {
-    if v.flags & VOLUME_HAS_PREFILTER != 0
-        && let Some(pf) = layer.prefiltered
-    {
-        return trilinear(pf.dims, p_tex, |i| Vec4::splat(pf.texels[i])).x;
-    }
-    layer.volume_texel(p_tex)
-}
-
-/// The shader's `warped_gradient`: central differences of the (prefiltered) volume in ref space through the warp,
-/// i.e. the gradient of the deformed volume at `x_ref` (normalised texel units per mm).
+/// The shader's `warped_gradient_at`: the gradient of the deformed volume at `x_ref`, ∇(v∘Φ)(x_ref), in
+/// normalised texel units per mm, `y_lps` being Φ(x_ref). With a prefiltered copy, J_Φᵀ ∇v(Φ(x)) from the copy's
+/// gradient texels filtered as the hardware does ([`CpuLayer::filtering`]); without one, central differences of the
+/// volume through the warp (see `shaders/raycast.wgsl`).
 #[must_use]
-pub fn warped_gradient(layer: &CpuLayer<'_>, u: &RaycastUniforms, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
+pub fn warped_gradient_at(
+    layer: &CpuLayer<'_>,
+    u: &RaycastUniforms,
+    v: &VolumeUniforms,
+    x_ref: Vec3,
+    y_lps: Vec3,
+) -> Vec3 {
     let h = u.gradient_step_mm;
+    let prefiltered = layer.prefiltered.filter(|_| v.flags & VOLUME_HAS_PREFILTER != 0);
+    let Some(pf) = prefiltered else {
+        let mut g = Vec3::ZERO;
+        for i in 0..3 {
+            let mut e = Vec3::ZERO;
+            e[i] = h;
+            let plus = layer.volume_texel(warp_to_tex(layer, v, x_ref + e));
+            let minus = layer.volume_texel(warp_to_tex(layer, v, x_ref - e));
+            g[i] = (plus - minus) / (2.0 * h);
+        }
+        return g;
+    };
+    let m = Mat4::from_cols_array_2d(&v.tex_from_lps);
+    let p_tex = m.transform_point3(y_lps);
+    let g_tex =
+        trilinear_with(layer.filtering.weights, pf.dims, p_tex, |i| Vec4::from_array(pf.gradients[i])).truncate();
+    let g_lps =
+        Vec3::new(m.x_axis.truncate().dot(g_tex), m.y_axis.truncate().dot(g_tex), m.z_axis.truncate().dot(g_tex));
+    if undeformed(v) {
+        return g_lps;
+    }
     let mut g = Vec3::ZERO;
     for i in 0..3 {
         let mut e = Vec3::ZERO;
         e[i] = h;
-        let plus = gradient_source(layer, v, warp_to_tex(layer, v, x_ref + e));
-        let minus = gradient_source(layer, v, warp_to_tex(layer, v, x_ref - e));
-        g[i] = (plus - minus) / (2.0 * h);
+        let (plus_w, minus_w) = (pullback_lps(layer, v, x_ref + e), pullback_lps(layer, v, x_ref - e));
+        let (mut plus, mut minus, mut span) = (y_lps, y_lps, 0.0);
+        if plus_w.x != VIEW_EMPTY {
+            plus = procedural_lps(v, plus_w);
+            span += h;
+        }
+        if minus_w.x != VIEW_EMPTY {
+            minus = procedural_lps(v, minus_w);
+            span += h;
+        }
+        if span > 0.0 {
+            g[i] = (plus - minus).dot(g_lps) / span;
+        }
     }
     g
+}
+
+/// The shader's `warped_gradient`: [`warped_gradient_at`] with the data point looked up here.
+#[must_use]
+pub fn warped_gradient(layer: &CpuLayer<'_>, u: &RaycastUniforms, v: &VolumeUniforms, x_ref: Vec3) -> Vec3 {
+    warped_gradient_at(layer, u, v, x_ref, data_lps(layer, v, x_ref))
 }
 
 /// The shader's `shade`: headlight lighting of straight colour `rgb` with gradient `g`, `light` towards the eye.
@@ -166,7 +217,8 @@ pub fn classify(
     x_ref: Vec3,
     light: Vec3,
 ) -> Vec4 {
-    let p_tex = warp_to_tex(layer, v, x_ref);
+    let y_lps = data_lps(layer, v, x_ref);
+    let p_tex = Mat4::from_cols_array_2d(&v.tex_from_lps).transform_point3(y_lps);
     if outside_tex(p_tex) {
         return Vec4::ZERO;
     }
@@ -178,7 +230,7 @@ pub fn classify(
     let alpha_corrected = 1.0 - (step_ratio * (1.0 - alpha).max(1e-7).log2()).exp2();
     let mut rgb = rgba.truncate();
     if u.shading_mode == ShadingMode::Dvr.code() && alpha_corrected > 0.0 {
-        rgb = shade(u, rgb, warped_gradient(layer, u, v, x_ref), light);
+        rgb = shade(u, rgb, warped_gradient_at(layer, u, v, x_ref, y_lps), light);
     }
     (rgb * alpha_corrected).extend(alpha_corrected)
 }

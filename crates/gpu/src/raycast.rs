@@ -23,10 +23,12 @@
 //! lie inside an empty brick and re-samples the front of the next one, so the image is the same as without it.
 //!
 //! **Shading** ([`Shading`], [`ShadingMode`]; Brunet et al. 2006 §3.4, Westermann & Rezk-Salama 2001 §3.3): the
-//! gradient at a ref-space sample x is taken by central differences in ref space *through the warp*,
-//! gᵢ(x) = \[v_pf(tex(u(x + h·eᵢ))) − v_pf(tex(u(x − h·eᵢ)))\] / 2h, of the layer's prefiltered copy v_pf
-//! ([`crate::prefilter`]; the volume itself without one), so it is the gradient of the *deformed* volume and the
-//! lighting follows the deformation. h defaults to one voxel of the finest visible spacing. DVR lights every sample
+//! gradient at a ref-space sample x is the gradient of the *deformed* prefiltered copy v_pf ([`crate::prefilter`]) by
+//! the chain rule through Φ = p∘u∘w (view deformation, pull-back, procedural deformation), ∇(v_pf∘Φ)(x) =
+//! J_Φ(x)ᵀ ∇v_pf(Φ(x)): ∇v_pf is one hardware-filtered lookup of the copy's gradient texture, and J_Φ the identity
+//! for an undeformed volume, else central differences of Φ with step h, column i = \[Φ(x + h·eᵢ) − Φ(x − h·eᵢ)\]/2h,
+//! so the lighting follows the deformation. Without a copy, central differences of the volume itself through the
+//! warp, gᵢ(x) = \[v(Φ(x + h·eᵢ)) − v(Φ(x − h·eᵢ))\]/2h. h defaults to one voxel of the finest visible spacing. DVR lights every sample
 //! with opacity > 0; iso mode takes, per layer, the first sample with value ≥ [`LayerStyle::iso_value`], refines it
 //! by bisection, lights it opaque, and blends the two layers' hits once by the [`BlendMode`] (the checkerboard cell
 //! is chosen at the nearer hit). Each shading mode (and each set of deformations computed in the shader,
@@ -337,8 +339,8 @@ pub const SLOT_VOLUME_SAMPLER: BindSlot = BindSlot::new(FRAME_GROUP, 6, "volume_
 /// Always filtering: control textures and transfer functions.
 pub const SLOT_LINEAR_SAMPLER: BindSlot = BindSlot::new(FRAME_GROUP, 7, "linear_sampler");
 /// The fixed volume's prefiltered copy (a placeholder without one).
-pub const SLOT_FIXED_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 8, "fixed_pf_tex");
-pub const SLOT_MOVING_PREFILTERED: BindSlot = BindSlot::new(FRAME_GROUP, 9, "moving_pf_tex");
+pub const SLOT_FIXED_GRADIENT: BindSlot = BindSlot::new(FRAME_GROUP, 8, "fixed_grad_tex");
+pub const SLOT_MOVING_GRADIENT: BindSlot = BindSlot::new(FRAME_GROUP, 9, "moving_grad_tex");
 /// The empty-space grid ([`crate::empty_space`]; a placeholder marking everything occupied without one).
 pub const SLOT_EMPTY_SPACE: BindSlot = BindSlot::new(FRAME_GROUP, 10, "empty_space_tex");
 /// The fixed layer's pre-integration table ([`crate::transfer::PreIntegrationTable`]; a placeholder unless the frame
@@ -451,8 +453,8 @@ pub const INTERFACE: ShaderInterface = ShaderInterface {
         SLOT_TRANSFER_FUNCTIONS,
         SLOT_VOLUME_SAMPLER,
         SLOT_LINEAR_SAMPLER,
-        SLOT_FIXED_PREFILTERED,
-        SLOT_MOVING_PREFILTERED,
+        SLOT_FIXED_GRADIENT,
+        SLOT_MOVING_GRADIENT,
         SLOT_EMPTY_SPACE,
         SLOT_FIXED_PREINTEGRATION,
         SLOT_MOVING_PREINTEGRATION,
@@ -559,9 +561,6 @@ impl RaycastRenderer {
         let tex3d = |slot: BindSlot, filterable| {
             slot.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D3, filterable))
         };
-        // Prefiltered copies: R32Float 2-D arrays (layer = z), read with textureLoad.
-        let layers =
-            |slot: BindSlot| slot.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2Array, false));
         let sampler = |slot: BindSlot, kind| slot.layout_entry(FRAME_STAGES, wgpu::BindingType::Sampler(kind));
         let volume_sampling = if volumes_filterable {
             wgpu::SamplerBindingType::Filtering
@@ -586,8 +585,9 @@ impl RaycastRenderer {
                 SLOT_TRANSFER_FUNCTIONS.layout_entry(FRAME_STAGES, texture(wgpu::TextureViewDimension::D2, true)),
                 sampler(SLOT_VOLUME_SAMPLER, volume_sampling),
                 sampler(SLOT_LINEAR_SAMPLER, wgpu::SamplerBindingType::Filtering),
-                layers(SLOT_FIXED_PREFILTERED),
-                layers(SLOT_MOVING_PREFILTERED),
+                // The prefiltered copies' gradients: Rgba16Float, filterable everywhere.
+                tex3d(SLOT_FIXED_GRADIENT, true),
+                tex3d(SLOT_MOVING_GRADIENT, true),
                 SLOT_EMPTY_SPACE.layout_entry(
                     FRAME_STAGES,
                     wgpu::BindingType::Texture {
@@ -1051,8 +1051,8 @@ impl RaycastDrawData {
                 SLOT_TRANSFER_FUNCTIONS.entry(wgpu::BindingResource::TextureView(&tfs.view)),
                 SLOT_VOLUME_SAMPLER.entry(wgpu::BindingResource::Sampler(&renderer.volume_sampler)),
                 SLOT_LINEAR_SAMPLER.entry(wgpu::BindingResource::Sampler(&renderer.linear_sampler)),
-                SLOT_FIXED_PREFILTERED.entry(wgpu::BindingResource::TextureView(fixed_pf)),
-                SLOT_MOVING_PREFILTERED.entry(wgpu::BindingResource::TextureView(moving_pf)),
+                SLOT_FIXED_GRADIENT.entry(wgpu::BindingResource::TextureView(fixed_pf)),
+                SLOT_MOVING_GRADIENT.entry(wgpu::BindingResource::TextureView(moving_pf)),
                 SLOT_EMPTY_SPACE.entry(wgpu::BindingResource::TextureView(empty_space_view)),
                 SLOT_FIXED_PREINTEGRATION.entry(wgpu::BindingResource::TextureView(fixed_preint)),
                 SLOT_MOVING_PREINTEGRATION.entry(wgpu::BindingResource::TextureView(moving_preint)),

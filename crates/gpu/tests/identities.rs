@@ -258,7 +258,7 @@ fn shading_follows_the_deformation() {
     let mut prewarped = with_ball(None, PreparedVolume::prepare(&pre_desc, ctx.capabilities, budget).expect("pre"));
     // The pre-warped copy's texels are normalised like the ball's (both span [0, 1] or are raw f32).
     // Uploaded as it is: no GPU pass for this one.
-    prewarped.moving_pf = Some(PrefilteredTexels { dims: [N as u32; 3], texels: pre_pf });
+    prewarped.moving_pf = Some(PrefilteredTexels::new([N as u32; 3], pre_pf));
     prewarped.prefilter = None;
 
     let gpu_warped = GpuScene::new(&ctx, &warped);
