@@ -266,8 +266,6 @@ impl PickPass {
     /// Rays per pick call (a click is one; a drag along a surface or a test may send more).
     pub const MAX_RAYS: usize = 65_536;
     const WORKGROUP: u32 = 64;
-    /// The pass's entry point in `shaders/raycast.wgsl`.
-    pub const ENTRY_POINT: &'static str = "cs_pick";
 
     pub fn new(ctx: &GpuContext, renderer: &RaycastRenderer) -> Result<Self> {
         if ctx.limits.max_storage_buffers_per_shader_stage < 2 {
@@ -305,7 +303,7 @@ impl PickPass {
                 &self.device,
                 "pick",
                 &self.module,
-                Some(Self::ENTRY_POINT),
+                Some(raycast::PICK_ENTRY_POINT),
                 &[&self.frame_layout, &self.layout],
                 // Every lookup filtered by hand, exact on any device (shaders/raycast.wgsl, EXACT_FILTER).
                 &[("DEFORMATIONS", f64::from(deformations)), ("EXACT_FILTER", 1.0)],

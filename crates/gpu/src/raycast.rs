@@ -319,9 +319,12 @@ pub const SHADER: ShaderSource = ShaderSource {
     entry_points: &[
         (RaycastRenderer::ENTRY_POINT, Stage::Compute),
         (RaycastRenderer::SLICE_ENTRY_POINT, Stage::Compute),
-        (crate::pick::PickPass::ENTRY_POINT, Stage::Compute),
+        (PICK_ENTRY_POINT, Stage::Compute),
     ],
 };
+
+/// The picking pass's entry point ([`crate::pick`]), in this pass's shader.
+pub const PICK_ENTRY_POINT: &str = "cs_pick";
 
 /// The frame's bind group ([`RaycastDrawData::bind_group`]), group 0 of the ray caster and of the picking pass.
 pub const FRAME_GROUP: u32 = 0;
