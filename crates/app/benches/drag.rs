@@ -1,27 +1,30 @@
 //! Drag-event benchmark (issue 7): what the window does on one landmark drag event, headless, on the same code
-//! path: the pull-back and forward TPS fitted on N pairs and the pull-back sampled into the control texture
-//! ([`warpbench_app::fit::fit_warp`]), the texture uploaded, and the 3-D view rendered at the interaction sample rate
-//! with the landmark glyphs ([`warpbench_app::gui::viewer::Viewer`]), waiting for the GPU to finish.
+//! path: both warps of the moved pairs, the pull-back's control texture made the viewer's, the moving glyphs placed
+//! through the forward warp, and the 3-D view rendered at the interaction sample rate with the glyphs
+//! ([`warpbench_app::gui::viewer::Viewer`]), waiting for the GPU to finish.
 //!
 //! The pair is the demo pair (the Colin27 MRI as fixed, the Cranium CT as moving, from `tests/data/nifti`), with N
 //! seeded pairs in the central 80 % of the fixed box and a smooth 5 mm displacement; each event moves pair 0's fixed
-//! point (or, with `--end moving`, its moving point) by 0.5 mm, as a drag does. With a TPS and the texture on the CPU
-//! the events go through [`warpbench_app::fit::DragFit`] as the window's do: its start (both directions factorised
-//! and the drag's texture) is timed once, then each event is its O(N²) step; `--full-refit` times today's full
-//! [`warpbench_app::fit::fit_warp`] per event instead. Reports the mean and best event time and its parts (fit +
-//! texture, upload + frame).
+//! point (or, with `--end moving`, its moving point) by 0.5 mm, as a drag does. With a TPS the events go through
+//! [`warpbench_app::fit::DragFit`] as the window's do: its start (both directions factorised, and with the texture on
+//! the CPU the drag's texture sampled) is timed once, then each event is its O(N²) coefficient update and its
+//! texture, updated on the CPU and uploaded or, with `--gpu-eval`, the pull-back's centres and weights uploaded and
+//! evaluated by `ControlEvalPass` (issue 28). `--full-refit` times the full [`warpbench_app::fit::fit_warp`] (or
+//! [`warpbench_app::fit::fit_warp_on_gpu`]) per event instead, as before. Reports the mean and best event time and
+//! its parts: coefficient update (or the fits), control texture, glyphs, frame.
 //!
 //! ```sh
 //! cargo bench -p warpbench-app --bench drag
 //! cargo bench -p warpbench-app --bench drag -- --size 1920x1080 --pairs 100 --events 20
 //! cargo bench -p warpbench-app --bench drag -- --pairs 1000 --events 10 --end moving
+//! cargo bench -p warpbench-app --bench drag -- --size 320x240 --pairs 1000 --events 10 --gpu-eval
 //! ```
 //!
 //! Options: `--size WxH` (default 1920x1080), `--pairs N` (100), `--events N` (10), `--end fixed|moving` (fixed),
 //! `--full-refit` (no drag fast path), `--method NAME` (tps; also
 //! hbspline, affine, similarity, rigid; `--gpu-eval` takes tps and hbspline), `--grid N` (control texture
 //! edge, 48 as the window), `--full` (the full sample rate instead of the interaction one), `--gpu-eval` (the control
-//! texture evaluated on the GPU by `fit::fit_warp_on_gpu`, as the window does on a real GPU), `--gpu-prefilter`
+//! texture evaluated on the GPU by `ControlEvalPass`, as the window does on a real GPU), `--gpu-prefilter`
 //! (on a CPU driver, the prefilter as a compute pass at upload instead of on the CPU while preparing), `--refine`
 //! (after the events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the
 //! reduced view, then the full view band by band, once with the cost per pixel unknown and once with it measured; it
@@ -31,7 +34,7 @@
 
 use std::time::{Duration, Instant};
 
-use warpbench_app::fit::{self, DragFit, fit_warp, fit_warp_on_gpu};
+use warpbench_app::fit::{self, ControlRoute, DragFit, fit_warp, fit_warp_on_gpu};
 use warpbench_app::gui::demo;
 use warpbench_app::gui::pacing::{BAND_ALIGN_ROWS, Bands, RefineJob, interactive_size};
 use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
@@ -60,13 +63,32 @@ struct Options {
     event_fit: EventFit,
 }
 
-/// How a TPS drag event fits, the texture on the CPU.
+/// How a TPS drag event fits.
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum EventFit {
     /// Through [`DragFit`], as the window does.
     DragFastPath,
-    /// [`fit_warp`] on every event (`--full-refit`), as the window did before.
+    /// [`fit_warp`] (or, with `--gpu-eval`, [`fit_warp_on_gpu`]) on every event (`--full-refit`), as the window did
+    /// before.
     FullRefit,
+}
+
+/// The parts of one drag event, in order.
+struct Parts {
+    /// From the pairs to both warps (with a full refit and the texture on the GPU, the texture too).
+    fit: Duration,
+    /// The control texture made the viewer's.
+    texture: Duration,
+    /// The glyphs placed: the forward warp at the N moving points.
+    glyphs: Duration,
+    /// The 3-D view rendered, waiting for the GPU.
+    frame: Duration,
+}
+
+impl Parts {
+    fn total(&self) -> Duration {
+        self.fit + self.texture + self.glyphs + self.frame
+    }
 }
 
 fn options() -> Result<Options, String> {
@@ -205,11 +227,12 @@ fn main() {
     let boxes =
         (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));
     let (mut q, mut p) = pairs(&fixed, o.pairs);
-    let fast = !o.gpu_eval && o.event_fit == EventFit::DragFastPath && matches!(method, Method::Tps { .. });
+    let fast = o.event_fit == EventFit::DragFastPath && matches!(method, Method::Tps { .. });
+    let route = if o.gpu_eval { ControlRoute::Gpu } else { ControlRoute::Cpu };
     let (mut drag, mut drag_start) = (None::<DragFit>, Duration::ZERO);
     let (q0, p0) = (q[0].coords(), p[0].coords());
 
-    let mut event = |e: usize| -> (Duration, Duration) {
+    let mut event = |e: usize| -> Parts {
         // The drag: pair 0's point moves 0.5 mm along L.
         match o.end {
             DraggedEnd::Fixed => q[0] = Point3::new(q0[0] + 0.5 * (e % 7) as f64, q0[1], q0[2]),
@@ -220,24 +243,27 @@ fn main() {
         let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
         if fast && drag.is_none() {
             // The drag's first event, as the window starts it.
-            let start = DragFit::start(&method, &fixed_pts, &moving_pts, boxes.0, o.grid, (0, o.end));
+            let start = DragFit::start(&method, (&fixed_pts, &moving_pts), boxes.0, o.grid, (0, o.end), route);
             drag = Some(start.expect("a TPS").unwrap_or_else(|e| panic!("{e:#}")));
             drag_start = t0.elapsed();
         }
-        let fitted = if let Some(drag) = &drag {
-            let (fitted, prepared) = drag.event(&fixed_pts, &moving_pts, filterable).expect("the drag's fast path");
-            viewer.set_control(Some(&prepared));
-            Ok(fitted)
+        let (fitted, t1) = if let Some(drag) = &drag {
+            let event = drag.event(&fixed_pts, &moving_pts).expect("the drag's fast path");
+            let t1 = Instant::now();
+            drag.show(&event, &mut viewer).unwrap_or_else(|e| panic!("{e:#}"));
+            (event.into_fitted(), t1)
         } else if o.gpu_eval {
-            fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, None)
+            let fitted = fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, None);
+            (fitted.unwrap_or_else(|e| panic!("{e:#}")), Instant::now())
         } else {
-            fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, None).map(|(fitted, prepared)| {
-                viewer.set_control(Some(&prepared));
-                fitted
-            })
-        }
-        .unwrap_or_else(|e| panic!("{e:#}"));
-        let t1 = Instant::now();
+            let (fitted, prepared) = fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, None)
+                .unwrap_or_else(|e| panic!("{e:#}"));
+            let t1 = Instant::now();
+            viewer.set_control(Some(&prepared));
+            (fitted, t1)
+        };
+        let t2 = Instant::now();
+        // The moving glyphs where the window draws them: d(pᵢ) through the forward warp.
         let glyph_pairs: Vec<GlyphPair> = q
             .iter()
             .zip(&p)
@@ -249,24 +275,18 @@ fn main() {
             })
             .collect();
         let glyphs = pair_glyphs(&glyph_pairs, &GlyphStyle::default());
+        let t3 = Instant::now();
         let target =
             viewer.render_view(&camera, &settings, o.quality, o.size, &glyphs).unwrap_or_else(|e| panic!("{e:#}"));
         viewer.ctx.wait_idle().unwrap_or_else(|e| panic!("{e}"));
         drop(target);
-        (t1 - t0, t1.elapsed())
+        Parts { fit: t1 - t0, texture: t2 - t1, glyphs: t3 - t2, frame: t3.elapsed() }
     };
-    // Warm-up: pipelines compile, the pool fills.
+    // Warm-up: pipelines compile, the pool fills (and the drag starts).
     for e in 0..2 {
         event(e);
     }
-    let mut totals = Vec::new();
-    let (mut fit_sum, mut frame_sum) = (Duration::ZERO, Duration::ZERO);
-    for e in 0..o.events {
-        let (fit, frame) = event(e + 2);
-        fit_sum += fit;
-        frame_sum += frame;
-        totals.push(fit + frame);
-    }
+    let parts: Vec<Parts> = (0..o.events).map(|e| event(e + 2)).collect();
     // The two fits alone: with --gpu-eval, what a drag event leaves on the CPU besides the pick.
     let fixed_pts: Vec<_> = q.iter().copied().map(as_fixed).collect();
     let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
@@ -283,7 +303,8 @@ fn main() {
         .unwrap_or_default();
     let n = o.events as u32;
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
-    let best = totals.iter().min().copied().unwrap_or_default();
+    let mean = |part: fn(&Parts) -> Duration| ms(parts.iter().map(part).sum::<Duration>() / n);
+    let best = parts.iter().map(Parts::total).min().unwrap_or_default();
     println!(
         "drag bench: {adapter}; {}x{} view, {:?} quality, {} pairs ({method}), {}³ control texture on the {}, {} events",
         o.size.0,
@@ -302,19 +323,33 @@ fn main() {
         ms(upload),
         if facts.cpu_driver { "" } else { ", with the GPU prefilter" }
     );
+    let (fit_part, texture_part) = match (drag.is_some(), o.gpu_eval) {
+        (true, true) => ("coefficient update (DragFit::event, both directions)", "upload + GPU eval (DragFit::show)"),
+        (true, false) => {
+            ("coefficient update (DragFit::event, both directions)", "CPU texture + upload (DragFit::show)")
+        }
+        (false, true) => ("two fits + GPU eval (fit_warp_on_gpu)", "nothing more"),
+        (false, false) => ("two fits + CPU texture (fit_warp)", "upload"),
+    };
     println!(
-        "per drag event: mean {:.1} ms (best {:.1} ms) = fit + texture {:.1} ms + upload + frame {:.1} ms (with --gpu-eval the texture is in the first part)",
-        ms(totals.iter().sum::<Duration>() / n),
+        "per drag event: mean {:.2} ms (best {:.2} ms) = {fit_part} {:.2} ms + {texture_part} {:.2} ms + glyphs (d(p) \
+         of the {} moving points) {:.2} ms + frame (render, wait) {:.2} ms",
+        mean(Parts::total),
         ms(best),
-        ms(fit_sum / n),
-        ms(frame_sum / n)
+        mean(|t| t.fit),
+        mean(|t| t.texture),
+        o.pairs,
+        mean(|t| t.glyphs),
+        mean(|t| t.frame),
     );
     if fast {
         println!(
-            "drag fast path ({} point, fit::DragFit): started once in {:.1} ms (both directions factorised and the \
-             drag's texture), then each event above is its step",
+            "drag fast path ({} point, fit::DragFit, texture on the {}): started once in {:.1} ms (both directions \
+             factorised{}), then each event above is its step",
             if o.end == DraggedEnd::Fixed { "fixed" } else { "moving" },
-            ms(drag_start)
+            if o.gpu_eval { "GPU" } else { "CPU" },
+            ms(drag_start),
+            if o.gpu_eval { "" } else { " and the drag's texture sampled" }
         );
     }
     println!("the two fits alone (pull-back and forward, CPU): best {:.2} ms", ms(fits));

@@ -12,7 +12,9 @@
 //!   [`forward_of`], whose errors read `<landmark file>: fitting the <method> warp: <problem>` with the pairs
 //!   numbered as in the file ([`fit_error`]), and [`fit_warnings`].
 //! - A landmark drag with a TPS: [`DragFit`] keeps both directions factorised from the drag's first event and gives
-//!   each further event in O(N²) ([`warpbench_solver::tps_drag`]), the same warps as [`fit_warp`] to 1e-6 mm.
+//!   each further event's coefficients in O(N²) ([`warpbench_solver::tps_drag`]), the same warps as [`fit_warp`] to
+//!   1e-6 mm; its control texture is updated on the CPU or evaluated on the GPU from the new coefficients
+//!   ([`ControlRoute`]), never refitted.
 //! - What the GPU takes: [`control_texture`] (the pull-back sampled over a box; a B-spline through its lattice's
 //!   separable sampler), [`TpsParts`] (a TPS, evaluated exactly per voxel by the export or into a control texture by
 //!   the GPU), [`lattice_desc`] (a B-spline's lattice) and [`control_grid_desc`].
@@ -28,7 +30,7 @@ use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::tps::{Regularisation, Tps};
-use warpbench_solver::tps_drag::{DraggedEnd, PairDrag};
+use warpbench_solver::tps_drag::{DragStep, DragTexture, DraggedEnd, PairDrag};
 use warpbench_solver::warp::{Composed, Warp};
 
 use crate::gui::viewer::Viewer;
@@ -148,19 +150,76 @@ pub fn moved_point(
     moved
 }
 
+/// Where a landmark drag's control texture is made (the window's choice for the whole drag).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ControlRoute {
+    /// On the CPU: the solver's [`DragTexture`] (the drag start's texture, updated per event) uploaded to the viewer.
+    Cpu,
+    /// On the GPU: the pull-back's updated centres and weights uploaded and evaluated at every texel by
+    /// [`warpbench_gpu::ControlEvalPass`]; nothing sampled on the CPU.
+    Gpu,
+}
+
+/// How a [`DragFit`] makes its control texture.
+#[derive(Debug)]
+enum DragControl {
+    /// [`ControlRoute::Cpu`]: the drag start's texture and φₖ sampled once on the CPU.
+    Cpu(DragTexture),
+    /// [`ControlRoute::Gpu`]: the grid the GPU evaluates the pull-back on.
+    Gpu(ControlGridDesc),
+}
+
 /// A TPS landmark drag in progress: both directions factorised on the pairs of the drag's first event, so that each
-/// further event costs O(N²) and one texture pass ([`PairDrag`]) instead of two fits and a texture. Only the dragged
-/// point may change; the release refits in full ([`fit_warp`]), so the diagnostics never see the fast path.
+/// further event costs one O(N²) update of both warps' coefficients ([`PairDrag`]) instead of two fits, and its
+/// control texture costs one pass over the texels on the CPU ([`DragTexture`]) or one dispatch on the GPU. Only the
+/// dragged point may change; the release refits in full ([`fit_warp`], [`fit_warp_on_gpu`]), so the diagnostics
+/// never see the fast path.
 #[derive(Debug)]
 pub struct DragFit {
     drag: PairDrag,
+    control: DragControl,
     fixed: Vec<Point3<Fixed>>,
     moving: Vec<Point3<Moving>>,
 }
 
+/// One drag event's warps ([`DragFit::event`]), before its control texture is made ([`DragFit::show`]).
+#[derive(Debug)]
+pub struct DragEvent {
+    step: DragStep,
+    fixed: Vec<Point3<Fixed>>,
+    moving: Vec<Point3<Moving>>,
+}
+
+impl DragEvent {
+    /// The pull-back u = `moving_from_fixed` with the dragged point moved (what the control texture holds).
+    #[must_use]
+    pub fn pullback(&self) -> &Tps<Moving, Fixed> {
+        &self.step.pullback
+    }
+
+    /// The forward warp d = `fixed_from_moving` with the dragged point moved (where the moving glyphs are drawn).
+    #[must_use]
+    pub fn forward(&self) -> &Tps<Fixed, Moving> {
+        &self.step.forward
+    }
+
+    /// Both warps as [`fit_warp`] gives them.
+    #[must_use]
+    pub fn into_fitted(self) -> Fitted {
+        Fitted {
+            pairs: self.moving.len(),
+            pullback: FittedWarp::Tps(self.step.pullback),
+            forward: FittedWarp::Tps(self.step.forward),
+            fixed: self.fixed,
+            moving: self.moving,
+        }
+    }
+}
+
 impl DragFit {
     /// Starts the drag of pair `pair`'s `end` (0-based among `fixed`/`moving`) for a TPS `method` (`None` for any
-    /// other method: it keeps the full fit), with the control texture of [`fit_warp`] (`grid_n`³ over the fixed box).
+    /// other method: it keeps the full fit), with the control texture of [`fit_warp`] (`grid_n`³ over the fixed box)
+    /// made on `route`: both directions factorised, and on the CPU route the drag start's texture sampled.
     ///
     /// # Errors
     /// A fit that fails (the caller refits in full, whose error names the pairs), or a texture grid that cannot be
@@ -168,32 +227,40 @@ impl DragFit {
     #[must_use]
     pub fn start(
         method: &Method,
-        fixed: &[Point3<Fixed>],
-        moving: &[Point3<Moving>],
+        (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
         fixed_box: Aabb<Fixed>,
         grid_n: usize,
         (pair, end): (usize, DraggedEnd),
+        route: ControlRoute,
     ) -> Option<anyhow::Result<Self>> {
         let Method::Tps { stiffness } = *method else { return None };
         Some((|| {
             enough_pairs(method, moving.len())?;
             let grid = scene::control_grid(fixed_box, grid_n)?;
-            let drag = PairDrag::new(fixed, moving, pair, end, Regularisation::Smoothing(stiffness), grid)
+            let drag = PairDrag::new(fixed, moving, pair, end, Regularisation::Smoothing(stiffness))
                 .map_err(|e| anyhow!("{method}: {e}"))?;
-            Ok(Self { drag, fixed: fixed.to_vec(), moving: moving.to_vec() })
+            let control = match route {
+                ControlRoute::Cpu => DragControl::Cpu(DragTexture::new(&drag, grid)),
+                ControlRoute::Gpu => DragControl::Gpu(control_grid_desc(&grid)),
+            };
+            Ok(Self { drag, control, fixed: fixed.to_vec(), moving: moving.to_vec() })
         })())
     }
 
-    /// Both warps and the prepared control texture for the pairs (`fixed`, `moving`), as [`fit_warp`] gives them;
-    /// `None` when they differ from the drag's start in anything but the dragged point, or the fast path refuses (a
-    /// point landing on another): then refit with [`fit_warp`].
+    /// Where this drag makes its control texture.
     #[must_use]
-    pub fn event(
-        &self,
-        fixed: &[Point3<Fixed>],
-        moving: &[Point3<Moving>],
-        float32_filterable: bool,
-    ) -> Option<(Fitted, PreparedControl)> {
+    pub fn route(&self) -> ControlRoute {
+        match self.control {
+            DragControl::Cpu(_) => ControlRoute::Cpu,
+            DragControl::Gpu(_) => ControlRoute::Gpu,
+        }
+    }
+
+    /// Both warps for the pairs (`fixed`, `moving`), as [`fit_warp`] fits them, in O(N²); `None` when the pairs
+    /// differ from the drag's start in anything but the dragged point, or the fast path refuses (a point landing on
+    /// another): then refit in full.
+    #[must_use]
+    pub fn event(&self, fixed: &[Point3<Fixed>], moving: &[Point3<Moving>]) -> Option<DragEvent> {
         let (pair, end) = (self.drag.pair(), self.drag.end());
         match moved_point((&self.fixed, &self.moving), fixed, moving) {
             Some((i, e)) if (i, e) == (pair, end) => {}
@@ -204,19 +271,52 @@ impl DragFit {
             DraggedEnd::Fixed => fixed[pair].coords(),
             DraggedEnd::Moving => moving[pair].coords(),
         };
-        let mut texels = vec![[0.0f32; 4]; self.drag.grid().texel_count()];
-        let step = self.drag.step(to, &mut texels).ok()?;
-        let texture = self.drag.texture(texels);
-        let prepared =
-            PreparedControl::prepare(&scene::control_desc(self.drag.grid(), &texture), float32_filterable).ok()?;
-        let fitted = Fitted {
-            pullback: FittedWarp::Tps(step.pullback),
-            forward: FittedWarp::Tps(step.forward),
-            pairs: moving.len(),
-            fixed: fixed.to_vec(),
-            moving: moving.to_vec(),
-        };
-        Some((fitted, prepared))
+        let step = self.drag.step(to).ok()?;
+        Some(DragEvent { step, fixed: fixed.to_vec(), moving: moving.to_vec() })
+    }
+
+    /// On the CPU route, `event`'s control texture prepared for upload (`None` on the GPU route).
+    ///
+    /// # Errors
+    /// A texture the GPU cannot take (a displacement that is not finite).
+    #[must_use]
+    pub fn control_texture(
+        &self,
+        event: &DragEvent,
+        float32_filterable: bool,
+    ) -> Option<anyhow::Result<PreparedControl>> {
+        let DragControl::Cpu(texture) = &self.control else { return None };
+        Some(self.filled(texture, event, float32_filterable))
+    }
+
+    /// `texture` filled for `event` and prepared for upload.
+    fn filled(
+        &self,
+        texture: &DragTexture,
+        event: &DragEvent,
+        float32_filterable: bool,
+    ) -> anyhow::Result<PreparedControl> {
+        let mut texels = vec![[0.0f32; 4]; texture.grid().texel_count()];
+        texture.fill(&self.drag, &event.step, &mut texels);
+        let texture = texture.texture(texels);
+        PreparedControl::prepare(&scene::control_desc(&texture.grid, &texture), float32_filterable)
+            .map_err(|e| anyhow!("the drag's control texture: {e}"))
+    }
+
+    /// Makes `event`'s control texture the viewer's: on the CPU route filled and uploaded, on the GPU route the
+    /// pull-back's centres and weights uploaded and evaluated into the texture ([`Viewer::evaluate_control_tps`]).
+    ///
+    /// # Errors
+    /// The texture cannot be made (not finite) or the GPU pass fails.
+    pub fn show(&self, event: &DragEvent, viewer: &mut Viewer) -> anyhow::Result<()> {
+        match &self.control {
+            DragControl::Cpu(texture) => {
+                let prepared = self.filled(texture, event, viewer.ctx.capabilities.float32_filterable)?;
+                viewer.set_control(Some(&prepared));
+                Ok(())
+            }
+            DragControl::Gpu(grid) => viewer.evaluate_control_tps(&TpsParts::new(event.pullback()).desc(), grid),
+        }
     }
 }
 
@@ -432,16 +532,40 @@ mod tests {
     fn drag_events_match_the_full_fit() {
         let method = Method::Tps { stiffness: 0.0 };
         let (mut fixed, mut moving) = pairs(40);
-        for end in [DraggedEnd::Fixed, DraggedEnd::Moving] {
-            let drag =
-                DragFit::start(&method, &fixed, &moving, boxes().0, 16, (7, end)).expect("a TPS").expect("start");
+        for (end, route) in [
+            (DraggedEnd::Fixed, ControlRoute::Cpu),
+            (DraggedEnd::Moving, ControlRoute::Cpu),
+            (DraggedEnd::Fixed, ControlRoute::Gpu),
+        ] {
+            let drag = DragFit::start(&method, (&fixed, &moving), boxes().0, 16, (7, end), route)
+                .expect("a TPS")
+                .expect("start");
+            assert_eq!(drag.route(), route);
             for step in [0.5, 2.0, -6.0] {
                 match end {
                     DraggedEnd::Fixed => fixed[7] = Point3::new(fixed[7].coords()[0] + step, 1.0, 2.0),
                     DraggedEnd::Moving => moving[7] = Point3::new(moving[7].coords()[0] - step, 3.0, -1.0),
                 }
-                let (fast, _) = drag.event(&fixed, &moving, false).expect("the fast path");
-                let (full, _) = fit_warp(&method, &fixed, &moving, boxes(), 16, false, None).expect("full fit");
+                let event = drag.event(&fixed, &moving).expect("the fast path");
+                // Only the CPU route samples a texture on the CPU; the GPU route evaluates the coefficients.
+                let texture = drag.control_texture(&event, true);
+                assert_eq!(texture.is_some(), route == ControlRoute::Cpu, "{route:?}");
+                let (full, full_texture) =
+                    fit_warp(&method, &fixed, &moving, boxes(), 16, true, None).expect("full fit");
+                if let Some(texture) = texture {
+                    // f32 texels of the same displacements (tests/tps_drag.rs holds them within 8 ε of the largest).
+                    let texels = texture.expect("a texture").texels;
+                    let largest = full_texture.texels.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs()));
+                    let worst = texels
+                        .iter()
+                        .zip(&full_texture.texels)
+                        .flat_map(|(a, b)| (0..4).map(move |c| (a[c] - b[c]).abs()));
+                    assert!(
+                        worst.fold(0.0f32, f32::max) <= 8.0 * f32::EPSILON * largest,
+                        "{end:?}: the drag's texture"
+                    );
+                }
+                let fast = event.into_fitted();
                 for i in 0..50 {
                     let x = [f64::from(i) * 3.7 - 90.0, 40.0 - f64::from(i) * 1.3, f64::from(i % 7) * 11.0 - 30.0];
                     let (a, b) = (fast.pullback.apply_raw(x), full.pullback.apply_raw(x));
@@ -453,7 +577,8 @@ mod tests {
             }
             let mut other = fixed.clone();
             other[3] = Point3::new(0.0, 0.0, 0.0);
-            assert!(drag.event(&other, &moving, false).is_none(), "another point moved: refit");
+            assert!(drag.event(&other, &moving).is_none(), "another point moved: refit");
+            (fixed, moving) = pairs(40);
         }
         assert_eq!(moved_point((&fixed, &moving), &fixed, &moving), None);
         let mut two = fixed.clone();
@@ -462,6 +587,7 @@ mod tests {
         two[2] = Point3::new(1.0, 2.0, 1.0);
         assert_eq!(moved_point((&fixed, &moving), &two, &moving), None);
         let other = Method::Linear(warpbench_solver::linear::LinearKind::Affine);
-        assert!(DragFit::start(&other, &fixed, &moving, boxes().0, 16, (0, DraggedEnd::Fixed)).is_none());
+        let start = (0, DraggedEnd::Fixed);
+        assert!(DragFit::start(&other, (&fixed, &moving), boxes().0, 16, start, ControlRoute::Gpu).is_none());
     }
 }

@@ -1,5 +1,5 @@
 //! The window's document and fit through egui_kittest: sessions and crash recovery, undo, folding, the GPU control
-//! texture and the 3-D view's progressive refinement.
+//! texture (also through a drag, against the full refit) and the 3-D view's progressive refinement.
 
 mod common;
 #[path = "common/window.rs"]
@@ -13,8 +13,15 @@ use window::{no_adapter, open_mri_pair, pairs, wait_until_rendered, wait_until_s
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
-use warpbench_app::gui::{GuiOptions, Ready, Workbench};
+use warpbench_app::fit::ControlRoute;
+use warpbench_app::gui::{Command, End, GuiOptions, Ready, Workbench};
 use warpbench_app::inputs::LandmarkSource;
+use warpbench_io::geometry::Point3;
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::method::FittedWarp;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::tps::Tps;
+use warpbench_solver::warp::Warp;
 
 #[test]
 fn sessions_save_and_reopen_and_a_crash_is_recovered() {
@@ -159,6 +166,161 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
         );
         harness.run_steps(2);
         assert!(harness.state().ready().expect("loaded").fit.error.is_none());
+    }
+}
+
+/// The unit roundoff of f32.
+const F32_UNIT_ROUNDOFF: f64 = f32::EPSILON as f64 / 2.0;
+/// Relative error of one of the shader's terms wᵢ ‖x − pᵢ‖ in units of the f32 roundoff, to first order: the weight
+/// rounded to f32 (1), the differences x − pᵢ (1), the squares summed (3, so 1.5 on the root), the square root (4.5
+/// ULP = 9: Vulkan inherits sqrt's precision from 1/inverseSqrt, 2 ULP, and a division, 2.5 ULP; lavapipe is exact),
+/// the product (1).
+const TERM_ROUNDINGS: f64 = 1.0 + 1.0 + 1.5 + 9.0 + 1.0;
+/// The same for the affine part (A − I) x′ + (A o + b − o): inputs rounded to f32 (1), three products and three sums.
+const AFFINE_ROUNDINGS: f64 = 1.0 + 4.0;
+/// The drag's warps against the full refit's in f64 (the bound `crates/solver/tests/tps_drag.rs` holds them to).
+const WARP_TOL_MM: f64 = 1e-6;
+
+/// A first-order bound, per component, on the error of the GPU's f32 evaluation of the TPS pull-back `tps`'s
+/// displacement at the texel centre `x` (`cs_tps` in shaders/control_eval.wgsl, about the grid's centre `origin`):
+/// the affine part, then the N terms added in order, so with x′ = x − o, pᵢ′ = pᵢ − o and the partial sums Sₖ,
+///
+/// |d̂ − d| ≤ u (5 (|A − I| |x′| + |A o + b − o|) + Σᵢ |wᵢ| (14.5 ‖x′ − pᵢ′‖ + ‖pᵢ′‖) + Σₖ |Sₖ|),
+///
+/// the ‖pᵢ′‖ from the centres rounded to f32 and Σₖ |Sₖ| from rounding each sum.
+fn f32_evaluation_bound(tps: &Tps<Moving, Fixed>, origin: [f64; 3], x: [f64; 3]) -> [f64; 3] {
+    let (a, b, w) = (tps.linear(), tps.translation(), tps.weights());
+    let centres: Vec<[f64; 3]> =
+        tps.centres().iter().map(|p| std::array::from_fn(|k| p.coords()[k] - origin[k])).collect();
+    let x_local: [f64; 3] = std::array::from_fn(|k| x[k] - origin[k]);
+    std::array::from_fn(|r| {
+        let offset = (0..3).map(|c| a[(r, c)] * origin[c]).sum::<f64>() + b[r] - origin[r];
+        let lin = |c: usize| a[(r, c)] - if r == c { 1.0 } else { 0.0 };
+        let mut sum = (0..3).map(|c| lin(c) * x_local[c]).sum::<f64>() + offset;
+        let mut bound = AFFINE_ROUNDINGS * ((0..3).map(|c| (lin(c) * x_local[c]).abs()).sum::<f64>() + offset.abs());
+        for (p, w) in centres.iter().zip(&w) {
+            let dist = (0..3).map(|k| (x_local[k] - p[k]).powi(2)).sum::<f64>().sqrt();
+            let norm = (0..3).map(|k| p[k] * p[k]).sum::<f64>().sqrt();
+            sum += w[r] * dist;
+            bound += w[r].abs() * (TERM_ROUNDINGS * dist + norm) + sum.abs();
+        }
+        F32_UNIT_ROUNDOFF * bound
+    })
+}
+
+/// Half the spacing of the values the texture stores around `v`, mm: its rounding error at most (f16 where the
+/// device cannot filter f32 textures, as lavapipe; 0 for f32, whose rounding [`f32_evaluation_bound`] counts).
+fn storage_rounding(v: f32, half_floats: bool) -> f64 {
+    if !half_floats {
+        return 0.0;
+    }
+    // f16 keeps 10 bits after the leading one; below 2⁻¹⁴ its spacing is 2⁻²⁴.
+    let exponent = f64::from(v.abs()).log2().floor().max(-14.0);
+    0.5 * 2f64.powf(exponent - 10.0)
+}
+
+/// The window's TPS pull-back, its control texture read back, and whether the texture stores f16.
+fn shown_pullback(ready: &Ready) -> (Tps<Moving, Fixed>, Vec<[f32; 4]>, bool) {
+    let fitted = ready.fitted().expect("a fit");
+    let FittedWarp::Tps(tps) = &fitted.pullback else { panic!("a TPS") };
+    let control = ready.viewer.control.as_ref().expect("a control texture");
+    assert!(ready.viewer.control_made_on_gpu(), "the texture was evaluated on the GPU");
+    let texels = warpbench_gpu::control_eval::read_back_texels(&ready.viewer.ctx, control).expect("read back");
+    let half_floats = control.texture.format() == eframe::wgpu::TextureFormat::Rgba16Float;
+    (tps.clone(), texels, half_floats)
+}
+
+/// A drag on the real-GPU route (issue 28): every event updates both warps' coefficients in O(N²) and the GPU
+/// evaluates the pull-back into the control texture (no refit, no CPU texture); after a sequence of events that
+/// texture equals the one the release's full refit evaluates, within the f32 evaluation bound of both
+/// ([`f32_evaluation_bound`]), and the moving glyphs stand where the refit's forward warp puts them.
+#[test]
+fn a_drag_on_the_gpu_evaluates_the_updated_coefficients_as_a_full_refit_would() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
+    let ready = harness.state_mut().ready_mut().expect("loaded");
+    // 40 pairs in the central 60 % of the fixed box, the moving points a smooth ~6 mm displacement of them.
+    let fixed_box = warpbench_app::inputs::volume_box::<Fixed>(&ready.loaded.fixed);
+    let (lo, hi) = (fixed_box.min.coords(), fixed_box.max.coords());
+    let unit = |i: usize, axis: usize| {
+        let x =
+            (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (axis as u64 + 1).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        ((x ^ (x >> 29)).wrapping_mul(0x94D0_49BB_1331_11EB) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    ready.document.pairs = (0..40)
+        .map(|i| {
+            let q: [f64; 3] = std::array::from_fn(|a| lo[a] + (0.2 + 0.6 * unit(i, a)) * (hi[a] - lo[a]));
+            let p = [q[0] + 6.0 * (q[1] / 30.0).sin(), q[1] + 4.0 * (q[2] / 25.0).cos(), q[2] - 3.0];
+            LandmarkPair::new(format!("P{i}"), Point3::from_array(p), Point3::from_array(q))
+        })
+        .collect();
+    ready.document.settings.method = warpbench_app::settings::MethodKind::Tps;
+    ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
+    ready.refit();
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    let grid = warpbench_app::scene::control_grid(fixed_box, ready.document.settings.grid_n).expect("grid");
+    let (gmin, gmax) = (grid.domain.min.coords(), grid.domain.max.coords());
+    let origin: [f64; 3] = std::array::from_fn(|k| 0.5 * (gmin[k] + gmax[k]));
+    let centres: Vec<[f64; 3]> = (0..grid.texel_count())
+        .map(|i| {
+            grid.texel_centre([i % grid.dims[0], (i / grid.dims[0]) % grid.dims[1], i / (grid.dims[0] * grid.dims[1])])
+        })
+        .collect();
+
+    for (pair, end) in [(5, End::Fixed), (17, End::Moving)] {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        let (_, before, _) = shown_pullback(ready);
+        let start = match end {
+            End::Fixed => ready.document.pairs[pair].fixed,
+            End::Moving => ready.document.pairs[pair].moving,
+        }
+        .expect("placed")
+        .coords();
+        let mut to = start;
+        for step in [[0.5, 0.0, 0.0], [2.0, -1.0, 0.5], [4.0, -3.0, 2.0], [6.5, -2.0, 3.0]] {
+            to = std::array::from_fn(|k| start[k] + step[k]);
+            ready.apply(Command::MovePoint { pair, end, to, settled: false });
+            assert!(ready.fit.error.is_none(), "{end:?}: {:?}", ready.fit.error);
+            assert_eq!(ready.drag_route(), Some(ControlRoute::Gpu), "{end:?}: the drag's O(N²) path, on the GPU");
+        }
+        let (fast, during, f16_fast) = shown_pullback(ready);
+        let glyphs_during: Vec<[f64; 3]> = (0..40).map(|i| ready.glyph_ref(i, End::Moving).expect("placed")).collect();
+        // The release refits in full and evaluates that on the GPU.
+        ready.apply(Command::MovePoint { pair, end, to, settled: true });
+        assert!(ready.fit_if_pending(), "the release refits");
+        assert_eq!(ready.drag_route(), None, "the release ends the drag");
+        let (full, after, f16_full) = shown_pullback(ready);
+        for (i, glyph) in glyphs_during.iter().enumerate() {
+            let refit = ready.glyph_ref(i, End::Moving).expect("placed");
+            assert!(
+                (0..3).all(|k| (glyph[k] - refit[k]).abs() <= WARP_TOL_MM),
+                "{end:?}: glyph {i} at {glyph:?}, refit {refit:?}"
+            );
+        }
+        let (mut worst, mut moved, mut largest_f32_bound) = (0.0f64, 0.0f64, 0.0f64);
+        for (t, x) in centres.iter().enumerate() {
+            let (e_fast, e_full) = (f32_evaluation_bound(&fast, origin, *x), f32_evaluation_bound(&full, origin, *x));
+            let (u_fast, u_full) = (fast.apply_raw(*x), full.apply_raw(*x));
+            for k in 0..3 {
+                assert!((u_fast[k] - u_full[k]).abs() <= WARP_TOL_MM, "{end:?}: the warps differ at {x:?}");
+                // Both evaluated in f32 at the same texel centre, then stored (rounded to f16 on lavapipe).
+                let stored = storage_rounding(during[t][k], f16_fast) + storage_rounding(after[t][k], f16_full);
+                let tolerance = e_fast[k] + e_full[k] + WARP_TOL_MM + stored;
+                let diff = (f64::from(during[t][k]) - f64::from(after[t][k])).abs();
+                worst = worst.max(diff / tolerance);
+                largest_f32_bound = largest_f32_bound.max(e_fast[k] + e_full[k]);
+                moved = moved.max((f64::from(before[t][k]) - f64::from(after[t][k])).abs());
+            }
+        }
+        eprintln!(
+            "{end:?} drag: texel difference at most {worst:.2e} of its tolerance (f32 evaluation bound at most \
+             {largest_f32_bound:.2e} mm, f16 storage: {f16_full}); the drag moved texels by up to {moved:.3} mm"
+        );
+        assert!(worst <= 1.0, "{end:?}: the drag's texture differs from the refit's by {worst} times the f32 bound");
+        assert!(moved > 0.5, "{end:?}: the drag changed the warp ({moved} mm)");
     }
 }
 

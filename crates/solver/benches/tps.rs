@@ -1,7 +1,8 @@
 //! TPS benchmarks: fit at N = 100, 300 and 1000, single-threaded evaluation of a 64³ grid for N = 100, the
 //! leave-one-out errors in closed form at N = 100, 300 and 1000 and by the N refits it replaces at N = 200, and one
 //! landmark drag at N = 1000 with the window's 48³ control texture ([`warpbench_solver::tps_drag`]): one event of
-//! a moving point, one of a fixed point, the drag's start, and the full refit of both directions plus the texture
+//! a moving point, one of a fixed point (each with the texture on the CPU, and its coefficients alone, as on the
+//! GPU route), the drag's start, and the full refit of both directions plus the texture
 //! that an event cost before; and, for the profile of the leave-one-out, its two O(N³) kernels at N = 1000
 //! ([`warpbench_solver::dense`]) on rayon's pool and on one thread, beside nalgebra's unblocked Cholesky.
 //!
@@ -17,7 +18,7 @@ use warpbench_io::geometry::Point3;
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::diagnostics::leave_one_out as refit_leave_one_out;
 use warpbench_solver::tps::{Regularisation, Tps, fit_forward, fit_pullback, leave_one_out};
-use warpbench_solver::tps_drag::{DraggedEnd, PairDrag};
+use warpbench_solver::tps_drag::{DragTexture, DraggedEnd, PairDrag};
 use warpbench_solver::{Aabb, Fixed, Moving, Parallelism, dense};
 
 /// N landmark pairs in a 200 mm box with a smooth ~10 mm displacement.
@@ -99,21 +100,35 @@ fn bench_drag(c: &mut Criterion) {
     let pair = 0;
     let mut texels = vec![[0.0f32; 4]; grid.texel_count()];
     for (end, name) in [(DraggedEnd::Moving, "moving"), (DraggedEnd::Fixed, "fixed")] {
-        let drag = PairDrag::new(&fixed, &moving, pair, end, reg, grid).expect("drag");
+        let drag = PairDrag::new(&fixed, &moving, pair, end, reg).expect("drag");
+        let texture = DragTexture::new(&drag, grid);
         let start = if end == DraggedEnd::Moving { moving[pair].coords() } else { fixed[pair].coords() };
         let mut e = 0;
         c.bench_function(&format!("tps_drag_event_{name}_point_n1000_48cubed"), |b| {
             b.iter(|| {
                 e += 1;
                 let to = [start[0] + 0.5 * f64::from(e % 7), start[1], start[2]];
-                drag.step(black_box(to), &mut texels).expect("step")
+                let step = drag.step(black_box(to)).expect("step");
+                texture.fill(&drag, &step, &mut texels);
+                step
+            });
+        });
+        // The coefficients alone: what an event leaves on the CPU when the GPU evaluates the texture.
+        c.bench_function(&format!("tps_drag_coefficients_{name}_point_n1000"), |b| {
+            b.iter(|| {
+                e += 1;
+                drag.step(black_box([start[0] + 0.5 * f64::from(e % 7), start[1], start[2]])).expect("step")
             });
         });
     }
     let mut group = c.benchmark_group("slow");
     group.sample_size(10);
     group.bench_function("tps_drag_start_n1000_48cubed", |b| {
-        b.iter(|| PairDrag::new(black_box(&fixed), &moving, pair, DraggedEnd::Fixed, reg, grid).expect("drag"));
+        b.iter(|| {
+            let drag = PairDrag::new(black_box(&fixed), &moving, pair, DraggedEnd::Fixed, reg).expect("drag");
+            let texture = DragTexture::new(&drag, grid);
+            (drag, texture)
+        });
     });
     group.bench_function("tps_refit_both_and_texture_n1000_48cubed", |b| {
         b.iter(|| {

@@ -11,14 +11,22 @@
 //! - Datum yₖ → yₖ + Δ: only b changes, by eₖ Δᵀ, so c′ = c + gₖ Δᵀ with gₖ = L⁻¹ eₖ. The warp changes by
 //!   φₖ(x) Δ, where φₖ(x) = Σⱼ gₖⱼ U(‖x − cⱼ‖) + (affine part of gₖ)(x) is pair k's cardinal function (1 at
 //!   centre k, 0 at the others when interpolating). For the pull-back, the control texture changes by φₖ Δ, so
-//!   [`PairDrag`] samples φₖ on the grid once, when the drag starts, and each event is an axpy over the texels.
+//!   [`DragTexture`] samples φₖ on the grid once, when the drag starts, and each event is an axpy over the texels.
 //! - Centre cₖ → z: row and column k of L change by δ = κ(z) − κ(cₖ) with δₖ = 0 (κ(z) = [U(‖cⱼ − z‖)ⱼ; p̂(z)]),
 //!   so L′ = L + eₖ δᵀ + δ eₖᵀ, a rank-2 change. Woodbury's identity with U = [eₖ δ], V = [δ eₖ] gives
 //!   c′ = c − [gₖ h] S⁻¹ [δᵀ c; cₖ], h = L⁻¹ δ, S = I₂ + Vᵀ[gₖ h] = [1 + δ·gₖ, δ·h; gₖₖ, 1 + hₖ]: one O(N²)
 //!   solve per event. Each event starts from the kept factorisation (never from the previous event), so errors do not
-//!   accumulate. The pull-back's texture must then be evaluated again, N kernel terms per texel; [`PairDrag`]
-//!   evaluates only the change u′ − u (whose weights are small) in f32 SIMD over texels and adds it to the f64
-//!   texture of the drag's start, so the f32 sums lose nothing the f32 texture keeps.
+//!   accumulate. The pull-back's texture must then be evaluated again, N kernel terms per texel; [`DragTexture`]
+//!   evaluates only the change u′ − u (whose weights are small) in SIMD over texels, in f64 (an f32 sum lost
+//!   10⁻⁴ mm to cancelling weights), and adds it to the f64 texture of the drag's start.
+//!
+//! # Two parts
+//!
+//! [`PairDrag`] holds both directions factorised and gives each event's coefficients, hence both warps
+//! ([`PairDrag::step`], O(N²): one solve with the kept factorisation). What the renderer samples, the pull-back's
+//! control texture, is made by the caller: on the GPU from the new coefficients (the app's `ControlEvalPass` route),
+//! or on the CPU by [`DragTexture`], which samples the drag start's texture and φₖ once and updates them per event
+//! ([`DragTexture::fill`]) as above.
 //!
 //! # When the fast path refuses
 //!
@@ -311,9 +319,9 @@ pub enum DraggedEnd {
     Fixed,
 }
 
-/// One pair's drag: both directions kept factorised, and the pull-back's control texture at the drag's start.
-/// [`PairDrag::step`] gives both warps and the texture with the pair's point at a new position in O(N²) (moving
-/// point) or O(N² + N · texels) in f32 (fixed point). See the module docs.
+/// One pair's drag: both directions kept factorised, with pair k's unit responses gₖ = L⁻¹ eₖ. [`PairDrag::step`]
+/// gives both warps with the pair's point at a new position in O(N²) (module docs); the pull-back's control texture
+/// is the caller's ([`DragTexture`] on the CPU, or the GPU from the step's pull-back).
 #[derive(Debug)]
 pub struct PairDrag {
     pair: usize,
@@ -325,34 +333,49 @@ pub struct PairDrag {
     /// L⁻¹ eₖ of each.
     g_pullback: DVector<f64>,
     g_forward: DVector<f64>,
-    grid: ControlGrid,
-    /// u(x) − x at the texel centres at the drag's start, f64.
-    base: Vec<[f64; 3]>,
-    /// The pull-back's cardinal function φₖ at the texel centres, f64.
-    cardinal: Vec<f64>,
-    /// For a fixed-point drag, the pull-back's centres about the grid's centre in f32, for the f32 evaluation of
-    /// h's function; empty for a moving-point drag.
-    centres_psi: Vec<[PsiReal; 3]>,
 }
 
-/// Both warps and the control texture of one drag event.
+/// Both warps of one drag event, and how the pull-back changed (for [`DragTexture::fill`]).
 #[derive(Clone, Debug)]
 pub struct DragStep {
     pub pullback: Tps<Moving, Fixed>,
     pub forward: Tps<Fixed, Moving>,
+    /// The dragged pair and the number of pairs, so that a step is never filled into another drag's texture.
+    pair: usize,
+    pairs: usize,
+    change: PullbackChange,
+}
+
+/// How a drag event changed the pull-back u (module docs).
+#[derive(Clone, Debug)]
+enum PullbackChange {
+    /// Datum k moved by Δ: u′ = u + φₖ Δ.
+    Datum { delta: [f64; 3] },
+    /// Centre k moved to z.
+    Centre(CentreMove),
+}
+
+/// A moved pull-back centre: u′ − u = −t₀ φₖ − t₁ ψ + c′ₖ (U(‖x − z‖) − U(‖x − qₖ‖)), ψ being h's function.
+#[derive(Clone, Debug)]
+struct CentreMove {
+    z: [f64; 3],
+    h: DVector<f64>,
+    t: [[f64; 3]; 2],
+    c_k: [f64; 3],
 }
 
 impl PairDrag {
-    /// Fits both directions on the pairs (`fixed[i]` ↔ `moving[i]`, all distinct), kept factorised, and samples the
-    /// pull-back (and, for a moving point, pair `pair`'s cardinal function) on `grid`: the cost of two fits and
-    /// one texture, once per drag.
+    /// Fits both directions on the pairs (`fixed[i]` ↔ `moving[i]`, all distinct), kept factorised, and solves for
+    /// pair `pair`'s unit responses: the cost of two fits, once per drag.
+    ///
+    /// # Errors
+    /// `pair` out of range, pairs given twice, or a fit that fails ([`Tps::fit_regularised`]'s errors).
     pub fn new(
         fixed: &[Point3<Fixed>],
         moving: &[Point3<Moving>],
         pair: usize,
         end: DraggedEnd,
         regularisation: Regularisation,
-        grid: ControlGrid,
     ) -> Result<Self> {
         if pair >= moving.len() {
             return Err(SolverError::InvalidParameter(format!("dragged pair {} of {} pairs", pair + 1, moving.len())));
@@ -364,35 +387,7 @@ impl PairDrag {
         let (pullback, forward) = (pullback?, forward?);
         let g_pullback = pullback.unit_response(pair)?;
         let g_forward = forward.unit_response(pair)?;
-        let origin = grid_origin(&grid);
-        // One f64 pass: the pull-back's kernel sums (3 channels) and φₖ's (the fourth).
-        let centres: Vec<[f64; 3]> =
-            pullback.centres.iter().map(|c| std::array::from_fn(|a| c[a] - origin[a])).collect();
-        let n = pullback.len();
-        let weights: Vec<[f64; 4]> = (0..n)
-            .map(|j| {
-                let c = &pullback.coefficients;
-                [c[(j, 0)], c[(j, 1)], c[(j, 2)], g_pullback[j]]
-            })
-            .collect();
-        let mut sums = vec![[0.0f64; 4]; grid.texel_count()];
-        radial_grid(&grid, origin, &centres, &weights, &mut sums);
-        let t = pullback.tps();
-        let (a, b) = (t.linear(), t.translation());
-        let (ga, gb) = pullback.affine_of(&g_pullback);
-        let mut base = vec![[0.0; 3]; grid.texel_count()];
-        let mut cardinal = vec![0.0; grid.texel_count()];
-        for_texels(&grid, |i, x| {
-            let s = sums[i];
-            base[i] =
-                std::array::from_fn(|r| a[(r, 0)] * x[0] + a[(r, 1)] * x[1] + a[(r, 2)] * x[2] + b[r] + s[r] - x[r]);
-            cardinal[i] = ga[0] * x[0] + ga[1] * x[1] + ga[2] * x[2] + gb + s[3];
-        });
-        let centres_psi = match end {
-            DraggedEnd::Moving => Vec::new(),
-            DraggedEnd::Fixed => centres.iter().map(|c| c.map(PsiReal::from_f64)).collect(),
-        };
-        Ok(Self { pair, end, pullback, forward, g_pullback, g_forward, grid, base, cardinal, centres_psi })
+        Ok(Self { pair, end, pullback, forward, g_pullback, g_forward })
     }
 
     /// The dragged pair (0-based, in the pairs given to [`PairDrag::new`]).
@@ -407,12 +402,6 @@ impl PairDrag {
         self.end
     }
 
-    /// The control texture's grid.
-    #[must_use]
-    pub fn grid(&self) -> &ControlGrid {
-        &self.grid
-    }
-
     /// The fixed points qᵢ the drag started from (raw LPS mm).
     #[must_use]
     pub fn fixed_points(&self) -> &[[f64; 3]] {
@@ -425,14 +414,15 @@ impl PairDrag {
         &self.forward.centres
     }
 
-    /// Both warps with the dragged point at `to` (LPS mm, in its own volume's space), the other points where the
-    /// drag started, and the pull-back's control texture into `texels` (`grid().texel_count()` of them).
+    /// Both warps with the dragged point at `to` (LPS mm, in its own volume's space) and the other points where the
+    /// drag started: one datum update (an axpy) in one direction and one rank-2 update (one O(N²) solve) in the
+    /// other.
     ///
     /// # Errors
     /// [`SolverError::Degenerate`] or [`SolverError::NonFinite`] when the fast path refuses (module docs): refit.
-    pub fn step(&self, to: [f64; 3], texels: &mut [[f32; 4]]) -> Result<DragStep> {
-        assert_eq!(texels.len(), self.grid.texel_count(), "step: texels must match the grid");
+    pub fn step(&self, to: [f64; 3]) -> Result<DragStep> {
         let k = self.pair;
+        let pairs = self.pullback.len();
         match self.end {
             DraggedEnd::Moving => {
                 FactoredTps::<Fixed, Moving>::check_moved(&self.forward.centres, k, to)?;
@@ -440,18 +430,14 @@ impl PairDrag {
                 let c_d = self.forward.with_centre(&self.g_forward, k, to)?;
                 let mut moved = self.forward.centres.clone();
                 moved[k] = to;
-                let step = DragStep {
+                let p = self.pullback.data[k];
+                Ok(DragStep {
                     pullback: self.pullback.tps_with(&self.pullback.centres, &c_u),
                     forward: self.forward.tps_with(&moved, &c_d.coefficients),
-                };
-                let phi = &self.cardinal;
-                let p = self.pullback.data[k];
-                let delta = [to[0] - p[0], to[1] - p[1], to[2] - p[2]];
-                texels.par_iter_mut().zip(&self.base).zip(phi).for_each(|((t, b), f)| {
-                    *t =
-                        [(b[0] + f * delta[0]) as f32, (b[1] + f * delta[1]) as f32, (b[2] + f * delta[2]) as f32, 0.0];
-                });
-                Ok(step)
+                    pair: k,
+                    pairs,
+                    change: PullbackChange::Datum { delta: std::array::from_fn(|a| to[a] - p[a]) },
+                })
             }
             DraggedEnd::Fixed => {
                 FactoredTps::<Moving, Fixed>::check_moved(&self.pullback.centres, k, to)?;
@@ -459,29 +445,116 @@ impl PairDrag {
                 let c_d = self.forward.with_datum(&self.g_forward, k, to);
                 let mut moved = self.pullback.centres.clone();
                 moved[k] = to;
-                let step = DragStep {
+                let c_k = std::array::from_fn(|a| update.coefficients[(k, a)]);
+                Ok(DragStep {
                     pullback: self.pullback.tps_with(&moved, &update.coefficients),
                     forward: self.forward.tps_with(&self.forward.centres, &c_d),
-                };
-                self.fixed_texture(&update, to, texels);
-                Ok(step)
+                    pair: k,
+                    pairs,
+                    change: PullbackChange::Centre(CentreMove { z: to, h: update.h, t: update.t, c_k }),
+                })
             }
+        }
+    }
+}
+
+/// The pull-back's control texture through one drag, made on the CPU: the texture at the drag's start (u(x) − x at
+/// the texel centres, f64) and pair k's cardinal function φₖ there, sampled once ([`DragTexture::new`]); each event
+/// then adds the pull-back's change ([`DragTexture::fill`]): an axpy over the texels for a moving point, one f64 sum
+/// of N terms per texel for a fixed point (module docs).
+#[derive(Debug)]
+pub struct DragTexture {
+    grid: ControlGrid,
+    /// The drag this texture belongs to: its pair and number of pairs.
+    pair: usize,
+    pairs: usize,
+    /// u(x) − x at the texel centres at the drag's start, f64.
+    base: Vec<[f64; 3]>,
+    /// The pull-back's cardinal function φₖ at the texel centres, f64.
+    cardinal: Vec<f64>,
+    /// For a fixed-point drag, the pull-back's centres about the grid's centre, for the evaluation of h's function;
+    /// empty for a moving-point drag.
+    centres_psi: Vec<[PsiReal; 3]>,
+}
+
+impl DragTexture {
+    /// Samples `drag`'s pull-back and its cardinal function φₖ on `grid`: one pass of N kernel terms per texel, once
+    /// per drag.
+    #[must_use]
+    pub fn new(drag: &PairDrag, grid: ControlGrid) -> Self {
+        let pullback = &drag.pullback;
+        let origin = grid_origin(&grid);
+        // One f64 pass: the pull-back's kernel sums (3 channels) and φₖ's (the fourth).
+        let centres: Vec<[f64; 3]> =
+            pullback.centres.iter().map(|c| std::array::from_fn(|a| c[a] - origin[a])).collect();
+        let n = pullback.len();
+        let weights: Vec<[f64; 4]> = (0..n)
+            .map(|j| {
+                let c = &pullback.coefficients;
+                [c[(j, 0)], c[(j, 1)], c[(j, 2)], drag.g_pullback[j]]
+            })
+            .collect();
+        let mut sums = vec![[0.0f64; 4]; grid.texel_count()];
+        radial_grid(&grid, origin, &centres, &weights, &mut sums);
+        let t = pullback.tps();
+        let (a, b) = (t.linear(), t.translation());
+        let (ga, gb) = pullback.affine_of(&drag.g_pullback);
+        let mut base = vec![[0.0; 3]; grid.texel_count()];
+        let mut cardinal = vec![0.0; grid.texel_count()];
+        for_texels(&grid, |i, x| {
+            let s = sums[i];
+            base[i] =
+                std::array::from_fn(|r| a[(r, 0)] * x[0] + a[(r, 1)] * x[1] + a[(r, 2)] * x[2] + b[r] + s[r] - x[r]);
+            cardinal[i] = ga[0] * x[0] + ga[1] * x[1] + ga[2] * x[2] + gb + s[3];
+        });
+        let centres_psi = match drag.end {
+            DraggedEnd::Moving => Vec::new(),
+            DraggedEnd::Fixed => centres.iter().map(|c| c.map(PsiReal::from_f64)).collect(),
+        };
+        Self { grid, pair: drag.pair, pairs: n, base, cardinal, centres_psi }
+    }
+
+    /// The control texture's grid.
+    #[must_use]
+    pub fn grid(&self) -> &ControlGrid {
+        &self.grid
+    }
+
+    /// The pull-back's control texture for `step` (made by `drag`, the drag this texture was sampled for) into
+    /// `texels` (`grid().texel_count()` of them).
+    ///
+    /// # Panics
+    /// When `texels` does not match the grid or `step` comes from another drag (a bug of the caller).
+    pub fn fill(&self, drag: &PairDrag, step: &DragStep, texels: &mut [[f32; 4]]) {
+        assert_eq!(texels.len(), self.grid.texel_count(), "DragTexture::fill: texels must match the grid");
+        assert!(
+            (step.pair, step.pairs) == (self.pair, self.pairs)
+                && (drag.pair, drag.pullback.len()) == (self.pair, self.pairs),
+            "DragTexture::fill: the step and the drag must be the texture's own"
+        );
+        match &step.change {
+            PullbackChange::Datum { delta } => {
+                texels.par_iter_mut().zip(&self.base).zip(&self.cardinal).for_each(|((t, b), f)| {
+                    *t =
+                        [(b[0] + f * delta[0]) as f32, (b[1] + f * delta[1]) as f32, (b[2] + f * delta[2]) as f32, 0.0];
+                });
+            }
+            PullbackChange::Centre(moved) => self.fill_centre(drag, moved, texels),
         }
     }
 
     /// The texture for a moved pull-back centre z: the drag start's texels plus
     /// u′ − u = −t₀ φₖ − t₁ ψ + c′ₖ (U(‖x − z‖) − U(‖x − qₖ‖)), where ψ is h's function on the drag start's centres,
-    /// the one sum of N terms per texel (f32, about the grid's centre); the rest is f64.
-    fn fixed_texture(&self, update: &CentreUpdate, z: [f64; 3], texels: &mut [[f32; 4]]) {
-        let (k, n) = (self.pair, self.pullback.len());
+    /// the one sum of N terms per texel (about the grid's centre); the rest is f64.
+    fn fill_centre(&self, drag: &PairDrag, moved: &CentreMove, texels: &mut [[f32; 4]]) {
+        let CentreMove { z, ref h, t, c_k: ck } = *moved;
+        let n = self.pairs;
         let origin = grid_origin(&self.grid);
-        let h = &update.h;
         let weights: Vec<[PsiReal; 1]> = (0..n).map(|j| [PsiReal::from_f64(h[j])]).collect();
         let mut psi = vec![[PsiReal::default(); 1]; self.grid.texel_count()];
         radial_grid(&self.grid, origin, &self.centres_psi, &weights, &mut psi);
-        let (ha, hb) = self.pullback.affine_of(h);
-        let ck: [f64; 3] = std::array::from_fn(|a| update.coefficients[(k, a)]);
-        let (t, qk) = (update.t, self.pullback.centres[k]);
+        let (ha, hb) = drag.pullback.affine_of(h);
+        let qk = drag.pullback.centres[self.pair];
         let grid = self.grid;
         let [nx, ny, _] = grid.dims;
         texels.par_chunks_mut(nx).enumerate().for_each(|(row, out)| {
@@ -504,7 +577,7 @@ impl PairDrag {
         });
     }
 
-    /// A texture for `step`'s grid from `texels` (as [`PairDrag::step`] filled them).
+    /// A texture for this grid from `texels` (as [`DragTexture::fill`] filled them).
     #[must_use]
     pub fn texture(&self, texels: Vec<[f32; 4]>) -> ControlTexture {
         ControlTexture { grid: self.grid, texels }

@@ -292,34 +292,44 @@ impl Ready {
     }
 
     /// The fit of [`Self::refit`] without leave-one-out and folding (N more fits and a Jacobian grid): what a drag
-    /// event runs, so that the warp follows the pointer; the diagnostics follow when the drag ends. With a TPS and
-    /// the control texture on the CPU, the first event that moves one point starts a [`fit::DragFit`] and the
-    /// further events of that point take its O(N²) path.
+    /// event runs, so that the warp follows the pointer; the diagnostics follow when the drag ends. With a TPS, the
+    /// first event that moves one point starts a [`fit::DragFit`] and the further events of that point take its
+    /// O(N²) path, the control texture made where the window makes it ([`ControlEval`]): updated on the CPU, or
+    /// evaluated on the GPU from the new coefficients.
     pub fn refit_interactive(&mut self) {
         self.fit_now(false);
     }
 
-    /// The drag's fast path for the pairs (`fixed`, `moving`): the drag in progress when only its point moved, else a
-    /// new drag when exactly one point moved since the last fit; `None` (and no drag kept) otherwise.
+    /// Whether a landmark drag is in progress on the O(N²) path ([`fit::DragFit`]) and where it makes its control
+    /// texture.
+    #[must_use]
+    pub fn drag_route(&self) -> Option<fit::ControlRoute> {
+        self.fit.drag.as_ref().map(fit::DragFit::route)
+    }
+
+    /// The drag's fast path for the pairs (`fixed`, `moving`) with its texture on `route`: the drag in progress when
+    /// only its point moved, else a new drag when exactly one point moved since the last fit; `None` (and no drag
+    /// kept) otherwise.
     fn drag_event(
         &mut self,
         method: &warpbench_solver::Method,
         fixed: &[warpbench_io::geometry::Point3<Fixed>],
         moving: &[warpbench_io::geometry::Point3<Moving>],
         fixed_box: warpbench_solver::Aabb<Fixed>,
-    ) -> Option<(Fitted, warpbench_gpu::PreparedControl)> {
-        let filterable = self.viewer.ctx.capabilities.float32_filterable;
-        if let Some(result) = self.fit.drag.as_ref().and_then(|d| d.event(fixed, moving, filterable)) {
-            return Some(result);
+        route: fit::ControlRoute,
+    ) -> Option<fit::DragEvent> {
+        let current = self.fit.drag.as_ref().filter(|d| d.route() == route);
+        if let Some(event) = current.and_then(|d| d.event(fixed, moving)) {
+            return Some(event);
         }
         self.fit.drag = None;
         let before = self.fit.fitted.as_ref()?;
         let moved = fit::moved_point((&before.fixed, &before.moving), fixed, moving)?;
         let grid_n = self.document.settings.grid_n;
-        let drag = fit::DragFit::start(method, fixed, moving, fixed_box, grid_n, moved)?.ok()?;
-        let result = drag.event(fixed, moving, filterable);
+        let drag = fit::DragFit::start(method, (fixed, moving), fixed_box, grid_n, moved, route)?.ok()?;
+        let event = drag.event(fixed, moving);
         self.fit.drag = Some(drag);
-        result
+        event
     }
 
     /// The pairs a fit uses (active, both points placed): their rows, and their fixed and moving points.
@@ -427,10 +437,11 @@ impl Ready {
                 ControlEval::Gpu => true,
             };
         // A drag's O(N²) updates know the pairs alone, not a starting transform under them.
-        let fast = if diagnostics || on_gpu || brush.is_some() || start.is_some() {
+        let fast = if diagnostics || brush.is_some() || start.is_some() {
             None
         } else {
-            self.drag_event(&method, &fixed, &moving, fixed_box)
+            let route = if on_gpu { fit::ControlRoute::Gpu } else { fit::ControlRoute::Cpu };
+            self.drag_event(&method, &fixed, &moving, fixed_box, route)
         };
         let filterable = self.viewer.ctx.capabilities.float32_filterable;
         let result = if let Some(b) = &brush {
@@ -446,9 +457,8 @@ impl Ready {
                     f
                 },
             )
-        } else if let Some((fitted, prepared)) = fast {
-            self.viewer.set_control(Some(&prepared));
-            Ok(fitted)
+        } else if let (Some(event), Some(drag)) = (fast, &self.fit.drag) {
+            drag.show(&event, &mut self.viewer).map(|()| event.into_fitted())
         } else if on_gpu {
             fit_warp_on_gpu(
                 &method,
@@ -580,6 +590,13 @@ impl Ready {
         let Some(spec) = &self.document.settings.procedural else { return Ok(None) };
         let domain = crate::inputs::volume_box::<warpbench_solver::spaces::Moving>(&self.loaded.moving);
         spec.build(domain).map(Some).map_err(|e| format!("{e:#}"))
+    }
+
+    /// The warp shown (both directions and the pairs they were fitted on): `None` before a fit and after one that
+    /// failed.
+    #[must_use]
+    pub fn fitted(&self) -> Option<&Fitted> {
+        self.fit.fitted.as_ref()
     }
 
     /// Number of pairs the current warp was fitted on.
