@@ -140,9 +140,13 @@ run | smoke)
     }
     if [ "$mode" = run ]; then
         bench frame_big frame --size 1920x1080 --dims 512x512x300 --frames 20
+        # The same with half-float control textures: does a 64-bit texel make the pull-back cheaper here?
+        bench frame_big_ctrl_f16 frame --size 1920x1080 --dims 512x512x300 --frames 20 --ctrl-f16
         bench frame_procedural frame --procedural --size 1920x1080 --dims 256x256x192 --frames 20
         bench drag100 drag --size 1920x1080 --pairs 100 --events 20 --gpu-eval
         bench drag1000 drag --size 1920x1080 --pairs 1000 --events 20 --gpu-eval
+        # The same drag refitting in full at every event: the route before issue 28's drag path.
+        bench drag1000_refit drag --size 1920x1080 --pairs 1000 --events 10 --gpu-eval --full-refit
         bench control_eval control_eval --iterations 50
         bench export export --dims 512 --repeats 3
     else

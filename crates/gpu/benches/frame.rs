@@ -36,7 +36,8 @@
 //! ```
 //!
 //! Options: `--size WxH` (image), `--dims N` or `--dims NXxNYxNZ` (both volumes), `--ctrl N` (control texture
-//! edge), `--frames N` (timed frames per case), `--spv S` (samples per voxel), `--preintegrated` (pre-integrated
+//! edge), `--ctrl-f16` (control textures in `Rgba16Float`, as on devices without filterable `Rgba32Float`: half the
+//! bytes a texel; does it pay on this GPU?), `--frames N` (timed frames per case), `--spv S` (samples per voxel), `--preintegrated` (pre-integrated
 //! classification, [`warpbench_gpu::Classification`], in every case), `--demo` (instead of the procedural
 //! volumes, the window's demo pair from `tests/data/nifti`: the head CT as fixed (CT bone, its HU window) and the
 //! head MRI as moving (MR T1, windowed from its foreground's 2nd to 99th percentile, as the window's automatic
@@ -67,6 +68,9 @@ struct Options {
     demo: bool,
     classification: Classification,
     procedural: bool,
+    /// Control textures in `Rgba16Float` (half the bytes a texel, filtered at a higher rate on many GPUs) even where
+    /// `Rgba32Float` is filterable.
+    ctrl_f16: bool,
 }
 
 fn parse_pair(s: &str) -> Option<Vec<usize>> {
@@ -83,6 +87,7 @@ fn options() -> Result<Options, String> {
         demo: false,
         classification: Classification::PerSample,
         procedural: false,
+        ctrl_f16: false,
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -104,6 +109,7 @@ fn options() -> Result<Options, String> {
             "--demo" => o.demo = true,
             "--preintegrated" => o.classification = Classification::PreIntegrated,
             "--procedural" => o.procedural = true,
+            "--ctrl-f16" => o.ctrl_f16 = true,
             _ => {} // --bench and whatever else cargo passes
         }
     }
@@ -294,8 +300,9 @@ fn main() {
     let [nx, ny, nz] = o.dims;
     println!("adapter: {} {:?}", ctx.describe(), ctx.capabilities);
     println!(
-        "volumes {nx}×{ny}×{nz} (CT i16, MR u8, {BOX_MM} mm boxes), control {c}³, image {}×{}, {} sample(s)/voxel, \
+        "volumes {nx}×{ny}×{nz} (CT i16, MR u8, {BOX_MM} mm boxes), control {c}³ {}, image {}×{}, {} sample(s)/voxel, \
          {} classification, {} timed frames per case",
+        if o.ctrl_f16 || !ctx.capabilities.float32_filterable { "Rgba16Float" } else { "Rgba32Float" },
         o.size.0,
         o.size.1,
         o.samples_per_voxel,
@@ -342,7 +349,8 @@ fn main() {
     let texels = control_texels(o.ctrl, lo, hi, offset);
     let cdesc =
         ControlDesc { dims: [o.ctrl; 3], texels: &texels, box_min_ref: lo.to_array(), box_max_ref: hi.to_array() };
-    let control = PreparedControl::prepare(&cdesc, ctx.capabilities.float32_filterable).expect("control");
+    let control =
+        PreparedControl::prepare(&cdesc, ctx.capabilities.float32_filterable && !o.ctrl_f16).expect("control");
     let renderer = RaycastRenderer::new(&ctx).expect("renderer");
     let fixed_gpu = GpuVolume::upload(&ctx, &fixed).expect("upload");
     let moving_gpu = GpuVolume::upload(&ctx, &moving).expect("upload");
@@ -591,7 +599,8 @@ fn procedural_table(
                 box_min_ref: box_ref.0.to_array(),
                 box_max_ref: box_ref.1.to_array(),
             };
-            let prepared = PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable).expect("control");
+            let prepared =
+                PreparedControl::prepare(&desc, ctx.capabilities.float32_filterable && !o.ctrl_f16).expect("control");
             let control = GpuControlTexture::upload(ctx, &prepared);
             let texture = GpuLayer { control: Some(&control), procedural: None, ..shader };
             let settings = RenderSettings {
