@@ -155,16 +155,8 @@ impl GpuControlTexture {
 
     fn create(ctx: &GpuContext, info: ControlInfo, format: wgpu::TextureFormat, dims: [u32; 3], bytes: &[u8]) -> Self {
         let size = wgpu::Extent3d { width: dims[0], height: dims[1], depth_or_array_layers: dims[2] };
-        let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("control texture"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D3,
-            format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+        let texture = ctx.texture_3d("control texture", dims, format, usage);
         let texel_bytes = if format == wgpu::TextureFormat::Rgba32Float { 16 } else { 8 };
         ctx.queue.write_texture(
             texture.as_image_copy(),

@@ -138,6 +138,47 @@ impl GpuContext {
         self
     }
 
+    /// A buffer of `size` bytes for `usage`, not mapped.
+    #[must_use]
+    pub fn buffer(&self, label: &str, size: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
+    /// A uniform buffer holding `value` (its write queued).
+    #[must_use]
+    pub fn uniform_buffer<T: bytemuck::Pod>(&self, label: &str, value: &T) -> wgpu::Buffer {
+        let usage = wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST;
+        let buffer = self.buffer(label, std::mem::size_of::<T>() as u64, usage);
+        self.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(value));
+        buffer
+    }
+
+    /// A 3-D texture of `dims` texels of `format`, one mip level, for `usage`.
+    #[must_use]
+    pub fn texture_3d(
+        &self,
+        label: &str,
+        dims: [u32; 3],
+        format: wgpu::TextureFormat,
+        usage: wgpu::TextureUsages,
+    ) -> wgpu::Texture {
+        self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size: wgpu::Extent3d { width: dims[0], height: dims[1], depth_or_array_layers: dims[2] },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D3,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    }
+
     /// Errors reported since the last call; a message already returned once is not returned again.
     #[must_use]
     pub fn take_errors(&self) -> Vec<String> {

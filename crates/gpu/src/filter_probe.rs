@@ -219,16 +219,8 @@ impl FilterProbe {
     pub fn sample(&self, ctx: &GpuContext, format: wgpu::TextureFormat) -> Result<Vec<f32>> {
         let texels = two_texels(format)
             .ok_or_else(|| GpuError::InvalidInput(format!("the filter probe has no texels for {format:?}")))?;
-        let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("filter probe"),
-            size: wgpu::Extent3d { width: 2, height: 1, depth_or_array_layers: 1 },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D3,
-            format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+        let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST;
+        let texture = ctx.texture_3d("filter probe", [2, 1, 1], format, usage);
         ctx.queue.write_texture(
             texture.as_image_copy(),
             &texels,
@@ -241,26 +233,12 @@ impl FilterProbe {
         );
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
         let uniforms = ProbeUniforms { count: Self::SAMPLES, _pad0: 0, _pad1: 0, _pad2: 0 };
-        let uniform_buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("filter probe uniforms"),
-            size: std::mem::size_of::<ProbeUniforms>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        ctx.queue.write_buffer(&uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
+        let uniform_buffer = ctx.uniform_buffer("filter probe uniforms", &uniforms);
         let bytes = u64::from(Self::SAMPLES) * 4;
-        let output = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("filter probe output"),
-            size: bytes,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
-        let readback = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("filter probe readback"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let output =
+            ctx.buffer("filter probe output", bytes, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
+        let readback =
+            ctx.buffer("filter probe readback", bytes, wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
         let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("filter probe"),
             layout: &self.layout,

@@ -301,16 +301,8 @@ fn r32_layers(
 
 /// A [`GRADIENT_FORMAT`] 3-D texture of `dims`, and its view.
 fn gradient_texture(ctx: &GpuContext, label: &str, dims: [u32; 3]) -> (wgpu::Texture, wgpu::TextureView) {
-    let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
-        label: Some(label),
-        size: wgpu::Extent3d { width: dims[0], height: dims[1], depth_or_array_layers: dims[2] },
-        mip_level_count: 1,
-        sample_count: 1,
-        dimension: wgpu::TextureDimension::D3,
-        format: GRADIENT_FORMAT,
-        usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::COPY_SRC,
-        view_formats: &[],
-    });
+    let usage = wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST | wgpu::TextureUsages::COPY_SRC;
+    let texture = ctx.texture_3d(label, dims, GRADIENT_FORMAT, usage);
     let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
     (texture, view)
 }
@@ -479,13 +471,7 @@ impl PrefilterPass {
             let mut next_dims = cur_dims;
             next_dims[axis as usize] = out_dims[axis as usize];
             let (_texture, view) = r32_layers(ctx, "prefilter pass", next_dims, storage);
-            let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("prefilter uniforms"),
-                size: std::mem::size_of::<PrefilterUniforms>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            ctx.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&settings.uniforms(axis, next_dims)));
+            let buffer = ctx.uniform_buffer("prefilter uniforms", &settings.uniforms(axis, next_dims));
             let ((pipeline, layout), source_slot) = if axis == 0 {
                 (&self.from_volume, SLOT_SOURCE_VOLUME)
             } else {
@@ -546,12 +532,8 @@ impl PrefilterPass {
             )));
         }
         let slab_depth = u32::try_from(budget / plane_bytes).unwrap_or(u32::MAX).min(dims[2]).max(1);
-        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("prefilter gradient slab"),
-            size: plane_bytes * u64::from(slab_depth),
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
-            mapped_at_creation: false,
-        });
+        let usage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+        let buffer = ctx.buffer("prefilter gradient slab", plane_bytes * u64::from(slab_depth), usage);
         let (texture, view) = gradient_texture(ctx, "prefiltered gradient", dims);
         let (pipeline, layout) = &self.gradient;
         let mut first_z = 0;
@@ -559,13 +541,7 @@ impl PrefilterPass {
             let depth = slab_depth.min(dims[2] - first_z);
             let uniforms =
                 GradientUniforms { dims, first_z, row_words: row_bytes / 4, slab_depth: depth, _pad0: 0, _pad1: 0 };
-            let uniform_buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("prefilter gradient uniforms"),
-                size: std::mem::size_of::<GradientUniforms>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            });
-            ctx.queue.write_buffer(&uniform_buffer, 0, bytemuck::bytes_of(&uniforms));
+            let uniform_buffer = ctx.uniform_buffer("prefilter gradient uniforms", &uniforms);
             let bind_group = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("prefilter gradient"),
                 layout,

@@ -795,14 +795,7 @@ impl RaycastRenderer {
         rows: std::ops::Range<u32>,
         label: &str,
     ) -> Result<()> {
-        let band = BandUniforms::new(rows.clone());
-        let band_buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("raycast band"),
-            size: std::mem::size_of::<BandUniforms>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        ctx.queue.write_buffer(&band_buffer, 0, bytemuck::bytes_of(&band));
+        let band_buffer = ctx.uniform_buffer("raycast band", &BandUniforms::new(rows.clone()));
         let output = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("raycast output"),
             layout: &self.output_layout,
@@ -1019,13 +1012,7 @@ impl RaycastDrawData {
             empty_space.map_or_else(EmptySpaceUniforms::default, |e| EmptySpaceUniforms::on(&e.lattice));
         let empty_space_view = empty_space.map_or(&renderer.placeholder_empty_space, |e| &e.view);
         let GpuFrame { fixed, moving, tfs } = frame;
-        let buffer = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("raycast uniforms"),
-            size: std::mem::size_of::<RaycastUniforms>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        ctx.queue.write_buffer(&buffer, 0, bytemuck::bytes_of(&uniforms));
+        let buffer = ctx.uniform_buffer("raycast uniforms", &uniforms);
         let fixed_ctrl = fixed.control.map_or(&renderer.placeholder_control, |c| &c.view);
         let moving_ctrl = moving.control.map_or(&renderer.placeholder_control, |c| &c.view);
         let fixed_pf = fixed.prefiltered.map_or(&renderer.placeholder_prefiltered, |p| &p.view);

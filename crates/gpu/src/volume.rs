@@ -354,16 +354,12 @@ impl GpuVolume {
         }
         let [w, h, d] = prepared.info.dims;
         let size = wgpu::Extent3d { width: w, height: h, depth_or_array_layers: d };
-        let texture = ctx.device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("volume"),
-            size,
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D3,
+        let texture = ctx.texture_3d(
+            "volume",
+            prepared.info.dims,
             format,
-            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
-            view_formats: &[],
-        });
+            wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+        );
         ctx.queue.write_texture(
             texture.as_image_copy(),
             prepared.texels.bytes(),
