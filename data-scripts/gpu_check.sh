@@ -143,6 +143,7 @@ run | smoke)
         # The same with half-float control textures: does a 64-bit texel make the pull-back cheaper here?
         bench frame_big_ctrl_f16 frame --size 1920x1080 --dims 512x512x300 --frames 20 --ctrl-f16
         bench frame_procedural frame --procedural --size 1920x1080 --dims 256x256x192 --frames 20
+        bench frame_procedural_ctrl_f16 frame --procedural --size 1920x1080 --dims 256x256x192 --frames 20 --ctrl-f16
         bench drag100 drag --size 1920x1080 --pairs 100 --events 20 --gpu-eval
         bench drag1000 drag --size 1920x1080 --pairs 1000 --events 20 --gpu-eval
         # The same drag refitting in full at every event: the route before issue 28's drag path.
