@@ -315,8 +315,9 @@ fn main() {
     let small = TargetGrid { dims: [o.gpu_tps_dims; 3], lps_from_index: grid(o.gpu_tps_dims, 0.0) };
     let exact = ExportRequest::new(source, small, PullBack::Tps(tps));
     row(&gpu, &format!("exact TPS, N = {}", o.centres), "trilinear", o.gpu_tps_dims, run_gpu(&exact));
+    let slab_request = ExportRequest::new(source, target, PullBack::Control(control));
     println!(
         "\nslab: {} slices of {n}² per dispatch on this device",
-        ExportPass::slab_slices(&ctx, [n; 3], None).expect("slab")
+        ExportPass::slab_slices(&ctx, &slab_request).expect("slab")
     );
 }
