@@ -64,13 +64,24 @@
 //! and [`ExportPass::MAX_SOURCE_BYTES`]; larger sources are a [`crate::GpuError::Unsupported`] error naming the CPU
 //! path, which has no such limit. Outputs beyond [`ExportRequest::max_output_bytes`] (default
 //! [`DEFAULT_MAX_OUTPUT_BYTES`], 16 GiB) are refused before anything is allocated.
+//!
+//! # Which path
+//!
+//! [`choose_path`] says which of the two is expected to finish first for a request on this machine (the CPU without
+//! a hardware GPU, for small outputs and for cheap kernels on many threads; the GPU otherwise); `warpbench warp
+//! --backend auto` follows it.
 
+mod choice;
 mod cpu;
 mod gpu;
 mod plan;
 mod request;
 mod sample;
 
+pub use choice::{
+    CPU_KERNEL_NS, CPU_PULLBACK_NS, CPU_TPS_CENTRE_NS, ExportDevice, ExportPath, GPU_FIXED_MS, GPU_LINK_BYTES_PER_NS,
+    GPU_TPS_CENTRE_NS, GPU_VOXEL_NS, PathChoice, choose_path, cpu_estimate_ms, gpu_estimate_ms,
+};
 pub use cpu::export_cpu;
 pub use gpu::{ExportPass, ExportUniforms, INTERFACE, SHADER};
 pub use request::{
