@@ -1,8 +1,8 @@
 // Export of the warped moving volume: v'(x) = v(u(x)) resampled onto a target grid (usually the fixed volume's),
 // with u the pull-back ref → moving LPS (Brunet, Nowak & Gleicher 2006; resampling as a pull-back, as ITK's
-// ResampleImageFilter does). One invocation per output word of one z-slab: 1, 2 or 4 consecutive target voxels (x
-// fastest), rounded, clamped and packed into the output's own type here, so that the host copies bytes out and
-// converts nothing (crates/gpu/src/export/gpu.rs).
+// ResampleImageFilter does). One invocation per target voxel of one z-slab (x fastest), its value rounded, clamped and
+// packed into the output's own type here (8- and 16-bit types four and two to a word), so that the host copies
+// bytes out and converts nothing (crates/gpu/src/export/gpu.rs).
 //
 // Per voxel (i, j, k) of the target grid, with every affine map composed in f64 on the host:
 //   s = source_index_from_target_index · (i, j, k)                   (the pull-back's identity part)
@@ -38,7 +38,7 @@ struct ExportUniforms {
     centre_count: u32,
     // The outside value as the output stores it (the host rounded and clamped it), in the low bits.
     outside_stored: u32,
-    // Invocations along x of the dispatch: the word of invocation id is id.x + id.y · invocations_per_row.
+    // Invocations along x of the dispatch (a multiple of 64): the voxel of invocation id is id.x + id.y · this.
     invocations_per_row: u32,
     _pad0: u32,
     _pad1: u32,
@@ -279,20 +279,35 @@ fn voxel(v: u32) -> u32 {
     return u.outside_stored;
 }
 
+// One workgroup's stored voxels, packed into words by the first invocation of each word.
+var<workgroup> stored_bits: array<u32, 64>;
+
 @compute @workgroup_size(64, 1, 1)
-fn cs_export(@builtin(global_invocation_id) id: vec3<u32>) {
-    let word = id.x + id.y * u.invocations_per_row;
+fn cs_export(@builtin(global_invocation_id) id: vec3<u32>, @builtin(local_invocation_index) lane: u32) {
+    // The slab's voxel of this invocation; a workgroup's 64 voxels start at a multiple of 64 (invocations_per_row
+    // is a multiple of the workgroup size), so its words are whole.
+    let v = id.x + id.y * u.invocations_per_row;
+    var bits = 0u;
+    if v < u.slab_voxels {
+        bits = voxel(v);
+    }
     let per_word = voxels_per_word();
-    let first = word * per_word;
-    if first >= u.slab_voxels {
+    if per_word == 1u {
+        if v < u.slab_voxels {
+            slab[v] = bits;
+        }
         return;
     }
-    let bits = 32u / per_word;
-    var packed = 0u;
-    for (var p = 0u; p < per_word; p++) {
-        if first + p < u.slab_voxels {
-            packed |= voxel(first + p) << (p * bits);
+    // 8- and 16-bit outputs: one voxel per invocation (as many in flight as for 32-bit ones), packed little-endian
+    // through workgroup memory; voxels past the slab's end pack as 0 and are never read back.
+    stored_bits[lane] = bits;
+    workgroupBarrier();
+    if lane % per_word == 0u && v < u.slab_voxels {
+        let width = 32u / per_word;
+        var packed = 0u;
+        for (var p = 0u; p < per_word; p++) {
+            packed |= stored_bits[lane + p] << (p * width);
         }
+        slab[v / per_word] = packed;
     }
-    slab[word] = packed;
 }

@@ -8,13 +8,15 @@
 //! exact in f32, as `R32Float`: the one type converted on the way). The shader reads it with `textureLoad` and
 //! converts each tap to f32, which is exact for every accepted sample, so the interpolation is the f32 arithmetic
 //! of the CPU path (hardware filtering, with its 8-bit weights on many GPUs, is never used; integer textures cannot
-//! be filtered anyway). The rows are copied into mapped staging buffers on rayon's pool, a chunk of slices at a
-//! time, each chunk's copy to the texture submitted while the next chunk is filled.
+//! be filtered anyway). The volume is cut into pieces of about a MiB, each copied into a staging buffer of its own
+//! on rayon's pool, and the pieces' copies to the texture are submitted a few tens of MiB at a time, so the GPU
+//! copies one chunk while the next is filled.
 //!
 //! The shader also rounds and clamps into the output's type (WGSL's `round` is half to even, as the CPU's
-//! conversion) and packs 8- and 16-bit outputs four and two to a 32-bit word, so a slab's readback holds exactly the
-//! output's bytes, which the host copies into place on rayon's pool without converting them (f64 outputs, read as
-//! f32, are widened). The outside value is rounded and clamped on the host, once, by the CPU path's conversion.
+//! conversion) and packs 8- and 16-bit outputs four and two to a 32-bit word (one voxel per invocation, packed
+//! through workgroup memory), so a slab's readback holds exactly the output's bytes, which the host copies into
+//! place on rayon's pool without converting them (f64 outputs, read as f32, are widened). The outside value is
+//! rounded and clamped on the host, once, by the CPU path's conversion.
 //!
 //! # Slabs in flight
 //!
@@ -146,7 +148,7 @@ pub struct ExportUniforms {
     pub centre_count: u32,
     /// The outside value as the output stores it (rounded and clamped on the host), in the low bits.
     pub outside_stored: u32,
-    /// Invocations along x of the dispatch (word = id.x + id.y · this).
+    /// Invocations along x of the dispatch (voxel = id.x + id.y · this), a multiple of the workgroup size.
     pub invocations_per_row: u32,
     _pad0: u32,
     _pad1: u32,
@@ -395,8 +397,8 @@ impl ExportPass {
         let [nx, ny, nz] = plan.target_dims;
         let slice_voxels = (nx * ny) as u64;
         let slice_bytes = slice_voxels * Stored::of(plan.output).bytes();
-        // Whole words. At most 2²³ words is 2¹⁷ workgroups, well within a 2-D dispatch (65535² workgroups), and
-        // every voxel and word index of a slab fits the shader's u32.
+        // Whole words. At most 2²⁵ voxels (bytes, for 8-bit outputs) is 2¹⁹ workgroups, well within a 2-D
+        // dispatch (65535² workgroups), and every voxel and word index of a slab fits the shader's u32.
         let cap = Self::SLAB_BUDGET_BYTES.min(l.max_storage_buffer_binding_size).min(l.max_buffer_size) / 4 * 4;
         if slice_bytes.next_multiple_of(4) > cap {
             return Err(GpuError::Unsupported(format!(
@@ -652,7 +654,8 @@ fn read_slabs<O: Sample>(
             let slices = slab.min(nz - next_slice);
             let voxels = slices * nx * ny;
             let words = (voxels as u64 * stored.bytes()).div_ceil(4);
-            let groups = words.div_ceil(u64::from(WORKGROUP)) as u32;
+            // One invocation per voxel (the shader packs them into words).
+            let groups = (voxels as u64).div_ceil(u64::from(WORKGROUP)) as u32;
             let groups_x = groups.min(groups_limit);
             let groups_y = groups.div_ceil(groups_x);
             uniforms.slab_first_slice = next_slice as u32;
