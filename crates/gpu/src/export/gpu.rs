@@ -317,8 +317,9 @@ impl ExportPass {
     /// Storage buffers per compute stage and invocations per workgroup the pass needs.
     pub const STORAGE_BUFFERS: u32 = 2;
     pub const INVOCATIONS: u32 = WORKGROUP;
-    /// Most bytes of one slab's output (and of its readback copy).
-    pub const SLAB_BUDGET_BYTES: u64 = 32 << 20;
+    /// Most bytes of one slab's output (and of its readback copy): 16 slabs for a 512³ i16 output, so that all but
+    /// the first slab's compute and the last slab's copy overlap with other work.
+    pub const SLAB_BUDGET_BYTES: u64 = 16 << 20;
     /// Most work in one dispatch, in voxel-terms: voxels × (1 + TPS centres). With a TPS of 1000 centres that is one
     /// 512 × 512 slice per slab; it keeps each dispatch short (an operating system may reset a GPU whose dispatch runs
     /// for about two seconds) and each slab's wait bounded.
@@ -397,7 +398,7 @@ impl ExportPass {
         let [nx, ny, nz] = plan.target_dims;
         let slice_voxels = (nx * ny) as u64;
         let slice_bytes = slice_voxels * Stored::of(plan.output).bytes();
-        // Whole words. At most 2²⁵ voxels (bytes, for 8-bit outputs) is 2¹⁹ workgroups, well within a 2-D
+        // Whole words. At most 2²⁴ voxels (bytes, for 8-bit outputs) is 2¹⁸ workgroups, well within a 2-D
         // dispatch (65535² workgroups), and every voxel and word index of a slab fits the shader's u32.
         let cap = Self::SLAB_BUDGET_BYTES.min(l.max_storage_buffer_binding_size).min(l.max_buffer_size) / 4 * 4;
         if slice_bytes.next_multiple_of(4) > cap {
