@@ -16,9 +16,10 @@
 //!    + V · N · [`GPU_TPS_CENTRE_NS`] for an exact TPS of N centres.
 //!
 //! The fixed cost (a device of its own, the pipeline's compilation, the first submission) is what makes small
-//! exports faster on the CPU: below ≈ 10⁷ voxels the CPU path is done before a GPU device is ready. Above it, the
-//! GPU wins where the CPU's cost per voxel is high (Catmull-Rom, an exact TPS, few threads) and the CPU keeps the
-//! cheap kernels on many threads, where both are bound by moving the bytes.
+//! exports faster on the CPU: an export the CPU path finishes in under [`GPU_FIXED_MS`] never goes to a GPU (on one
+//! thread about 134³ voxels for Catmull-Rom through a control texture, 205³ for trilinear). Above it, the GPU wins
+//! where the CPU's cost per voxel is high (Catmull-Rom, an exact TPS with many centres, few threads) and the CPU
+//! keeps the cheap kernels on many threads, where both are bound by moving the bytes.
 //!
 //! The CPU figures are the export bench's CPU time per voxel and thread (`docs/benchmarks.md`), the smaller of two
 //! machines' for each term: the 2-vCPU EPYC VM (2026-11-22, 256³, every row at full size) and the NVIDIA H200
