@@ -4,6 +4,11 @@
 //! oracle written here from the formulas, slabs, progress and cancellation, concurrent exports, and bad input. GPU
 //! checks skip without an adapter unless REQUIRE_GPU_ADAPTER=1.
 //!
+//! No test here compares hardware-filtered output: the export reads texels with `textureLoad` and weights them in f32
+//! on every device (integer textures cannot be filtered at all), so the fixed-point sub-texel weights of hardware
+//! filtering (8 bits on NVIDIA, 4 allowed by Vulkan) never enter, and the tolerances below come from f32 round-off of
+//! positions alone ([`POSITION_TOLERANCE_VOX`]). The exact laws hold bit for bit on any conformant device.
+//!
 //! Every test runs under [`hang_guard`]: a test that has not finished after [`HANG_GUARD`] fails and names what its
 //! threads were doing (creating a device, which slab of an export, dropping the device), instead of stalling the
 //! whole test binary as two of these tests did on a shared NVIDIA H200 (issue 28).
