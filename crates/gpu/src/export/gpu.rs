@@ -24,8 +24,9 @@
 //! buffer: while slab k is mapped and copied out, slab k + 1 is computed and copied to its readback buffer. The host
 //! waits for slab k's own submission ([`wgpu::PollType::Wait`] with its index and a timeout), never for all work on
 //! the device, and never on a callback that no poll drives: every wait is a poll with a deadline
-//! ([`ExportPass::SLAB_WAIT_LIMIT`]) after which the slab is reported as stalled. On cancellation or an error the
-//! slabs still in flight are unmapped (a pending map is aborted) before their buffers are dropped.
+//! ([`ExportPass::SLAB_WAIT_LIMIT`]) after which the slab is reported as stalled. A cancelled export first lets the
+//! slabs still in flight arrive and unmaps them, so nothing is left mapped; a pending map is never aborted with
+//! `unmap`, which races with another thread's poll of a shared device (see `Ring`).
 //!
 //! Nothing needs an optional feature: this runs on lavapipe, on GL and on real GPUs.
 
@@ -608,18 +609,27 @@ struct InFlight {
     mapped: Receiver<std::result::Result<(), wgpu::BufferAsyncError>>,
 }
 
-/// The slabs in flight. Dropped with slabs still queued (cancelled, or an error), it unmaps their readback buffers:
-/// a map still pending is aborted (its callback is told so), one already done is released, so no buffer is left
-/// mapped and no callback is left waiting for a poll.
+/// The slabs in flight.
+///
+/// A queued slab's map is never cancelled with `unmap` while it may be pending: on a device that other threads poll
+/// too, one of their polls may be mapping that very buffer, and wgpu-core (30) marks a buffer idle while it maps it,
+/// so the unmap fails ("Buffer is not mapped", reported on the whole device) and the buffer ends up mapped anyway
+/// (found by `tests/export.rs`'s shared-device test, 1 run in 20). A cancelled export drains the queue instead
+/// ([`Ring::drain`]: each slab's map answered, then unmapped); after an error the buffers are only dropped, and wgpu
+/// releases each when its work is done.
 struct Ring {
     buffers: Vec<SlabBuffers>,
     queued: VecDeque<InFlight>,
 }
 
-impl Drop for Ring {
-    fn drop(&mut self) {
+impl Ring {
+    /// Waits (bounded, as every slab wait) for each queued slab's map to be answered and unmaps the mapped ones, so
+    /// that nothing is left mapped and no callback is left pending.
+    fn drain(&mut self, ctx: &GpuContext, slices_total: usize) {
         for slab in self.queued.drain(..) {
-            self.buffers[slab.buffers].readback.unmap();
+            if wait_mapped(ctx, &slab, slices_total).is_ok() {
+                self.buffers[slab.buffers].readback.unmap();
+            }
         }
     }
 }
@@ -711,7 +721,10 @@ fn read_slabs<O: Sample>(
         readback.unmap();
         written += voxels;
         ctx.check_errors()?;
-        report(progress, done.first_slice + done.slices, nz)?;
+        if let Err(cancelled) = report(progress, done.first_slice + done.slices, nz) {
+            ring.drain(ctx, nz);
+            return Err(cancelled);
+        }
     }
     #[allow(unsafe_code, reason = "the output is filled in place from the slabs, without zeroing it first")]
     // SAFETY: `try_reserved` reserved at least `output_len` elements, and the loop above wrote every one of them: the
