@@ -6,9 +6,8 @@
 //! The pull-back is sampled into a `--grid`³ control texture over the output grid's box (the renderer's texture,
 //! so the file shows what the app shows), or evaluated exactly at every voxel with `--exact` (TPS; affine,
 //! similarity and rigid warps are exact through any control texture, because trilinear interpolation reproduces an
-//! affine map). The resampling runs on the GPU (`--backend gpu`), on the CPU with rayon (`cpu`), or on the GPU when
-//! there is an adapter and the samples fit f32 exactly (`auto`); both give the same result
-//! (`warpbench_gpu::export`).
+//! affine map). The resampling runs on the GPU (`--backend gpu`), on the CPU with rayon (`cpu`), or where it is
+//! expected to finish first (`auto`, [`Backend::Auto`]); both give the same result (`warpbench_gpu::export`).
 //!
 //! With `--field F` ([`WarpInputs::Field`]) the pull-back is a displacement field read from a file instead of one
 //! fitted on landmarks: u(x) = x + D(x), D interpolated trilinearly in the field's grid and zero outside it, as ITK's
@@ -29,8 +28,8 @@ use anyhow::{Context, anyhow};
 use serde::Serialize;
 use warpbench_gpu::ControlDesc;
 use warpbench_gpu::export::{
-    ExportPass, ExportRequest, ExportedSamples, Interpolation, OutputType, Progress, PullBack, SourceVolume,
-    TargetGrid, export_cpu,
+    ExportDevice, ExportPass, ExportPath, ExportRequest, ExportedSamples, Interpolation, OutputType, Progress,
+    PullBack, SourceVolume, TargetGrid, choose_path, export_cpu,
 };
 use warpbench_gpu::{GpuContext, GpuError};
 use warpbench_io::dicom_source::DicomSource;
@@ -58,9 +57,10 @@ use crate::start::Start;
 /// Where the resampling runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum Backend {
-    /// The GPU when a hardware adapter is found and the samples are exact in f32, else the CPU. A CPU driver
-    /// (lavapipe, llvmpipe) is slower than the CPU path and holds the source again in host memory, so it is not
-    /// used.
+    /// Whichever of the two is expected to finish first: `warpbench_gpu::export::choose_path`'s rule. The CPU
+    /// without a hardware GPU (a CPU driver such as lavapipe or llvmpipe runs the same work on the same cores, more
+    /// slowly), for samples that f32 does not hold, and where the GPU's fixed cost (a device, a pipeline) is not
+    /// repaid: small outputs, and cheap kernels on many CPU threads. The GPU otherwise.
     #[default]
     Auto,
     Cpu,
@@ -717,14 +717,24 @@ impl Fitted {
         let mut cpu_fallback = None;
         let (exported, backend) = match settings.backend {
             Backend::Cpu => (export_cpu(&request, progress), "cpu".to_owned()),
-            Backend::Gpu | Backend::Auto => match gpu_export(&request, settings.backend == Backend::Auto, progress) {
+            Backend::Gpu => match GpuContext::headless().and_then(|ctx| gpu_export(&ctx, &request, progress)) {
                 Ok((v, adapter)) => (Ok(v), format!("gpu: {adapter}")),
-                // A cancelled GPU export is not retried on the CPU.
-                Err(e) if settings.backend == Backend::Auto && !matches!(e, GpuError::Cancelled { .. }) => {
-                    cpu_fallback = Some(e.to_string());
+                Err(e) => (Err(e), "gpu".to_owned()),
+            },
+            Backend::Auto => match auto_device(&request) {
+                AutoDevice::Cpu { note } => {
+                    cpu_fallback = note;
                     (export_cpu(&request, progress), "cpu".to_owned())
                 }
-                Err(e) => (Err(e), "gpu".to_owned()),
+                AutoDevice::Gpu(ctx) => match gpu_export(&ctx, &request, progress) {
+                    Ok((v, adapter)) => (Ok(v), format!("gpu: {adapter}")),
+                    // A cancelled GPU export is not retried on the CPU.
+                    Err(e) if !matches!(e, GpuError::Cancelled { .. }) => {
+                        cpu_fallback = Some(e.to_string());
+                        (export_cpu(&request, progress), "cpu".to_owned())
+                    }
+                    Err(e) => (Err(e), "gpu".to_owned()),
+                },
             },
         };
         let exported = exported.map_err(|e| match e {
@@ -909,17 +919,83 @@ fn file_name(p: &Path) -> String {
     p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into_owned())
 }
 
-/// The export on a headless GPU; the adapter's name with the result. `hardware_only` refuses CPU drivers.
+/// The export on `ctx`; the adapter's name with the result.
 fn gpu_export(
+    ctx: &GpuContext,
     request: &ExportRequest<'_>,
-    hardware_only: bool,
     progress: &mut dyn FnMut(Progress) -> bool,
 ) -> Result<(warpbench_gpu::export::ExportedVolume, String), GpuError> {
-    let ctx = GpuContext::headless()?;
-    if hardware_only && ctx.is_cpu_driver() {
-        return Err(GpuError::Unsupported(format!("the adapter is a CPU driver ({})", ctx.describe())));
-    }
-    let pass = ExportPass::new(&ctx)?;
-    let out = pass.run(&ctx, request, progress)?;
+    let pass = ExportPass::new(ctx)?;
+    let out = pass.run(ctx, request, progress)?;
     Ok((out, ctx.describe()))
+}
+
+/// Where [`Backend::Auto`] resamples.
+enum AutoDevice {
+    /// On the CPU; `note` says why when a GPU was tried (the CLI prints it).
+    Cpu { note: Option<String> },
+    /// On this GPU (boxed: a context is large).
+    Gpu(Box<GpuContext>),
+}
+
+/// [`Backend::Auto`]'s choice for `request`: where `choose_path` expects it to finish first. The rule is first
+/// asked as if a hardware GPU were there: when even that loses to the CPU (small outputs, cheap kernels on many
+/// threads), no GPU device is made and nothing is noted. Otherwise a device is made, and a CPU driver, or a device
+/// that cannot be made, sends the export to the CPU with a note.
+fn auto_device(request: &ExportRequest<'_>) -> AutoDevice {
+    let threads = rayon::current_num_threads();
+    if choose_path(request, threads, ExportDevice::Hardware).path == ExportPath::Cpu {
+        return AutoDevice::Cpu { note: None };
+    }
+    match GpuContext::headless() {
+        Err(e) => AutoDevice::Cpu { note: Some(e.to_string()) },
+        Ok(ctx) => {
+            let choice = choose_path(request, threads, ExportDevice::of(&ctx));
+            if choice.path == ExportPath::Cpu {
+                AutoDevice::Cpu { note: Some(format!("{} ({})", choice.reason, ctx.describe())) }
+            } else {
+                AutoDevice::Gpu(Box::new(ctx))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use warpbench_gpu::export::ExportSamples;
+
+    /// An n³ export of `samples` (i16) on a 1 mm grid, through the identity, with `kernel`.
+    fn request(samples: &[i16], n: usize, kernel: Interpolation) -> ExportRequest<'_> {
+        let mut lps_from_index = [[0.0; 4]; 4];
+        for (a, row) in lps_from_index.iter_mut().enumerate() {
+            row[a] = 1.0;
+        }
+        let source = SourceVolume { dims: [n; 3], samples: ExportSamples::I16(samples), lps_from_index };
+        let target = TargetGrid { dims: [n; 3], lps_from_index };
+        ExportRequest { interpolation: kernel, ..ExportRequest::new(source, target, PullBack::Identity) }
+    }
+
+    #[test]
+    fn auto_keeps_a_small_export_on_the_cpu_without_making_a_device() {
+        let samples = vec![0i16; 32 * 32 * 32];
+        let chosen = auto_device(&request(&samples, 32, Interpolation::CatmullRom));
+        assert!(matches!(chosen, AutoDevice::Cpu { note: None }), "a 32³ export made a device or a note");
+    }
+
+    #[test]
+    fn auto_sends_a_large_costly_export_to_a_hardware_gpu_only() {
+        // 256³ Catmull-Rom on one rayon thread: the rule expects a GPU to win, so it makes a device, and then keeps
+        // the export on the CPU unless the device is a hardware GPU.
+        let samples = vec![0i16; 256 * 256 * 256];
+        let r = request(&samples, 256, Interpolation::CatmullRom);
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().expect("one-thread pool");
+        match pool.install(|| auto_device(&r)) {
+            AutoDevice::Gpu(ctx) => assert!(!ctx.is_cpu_driver(), "{}", ctx.describe()),
+            AutoDevice::Cpu { note: Some(note) } => {
+                assert!(note.contains("CPU driver") || note.contains("no GPU adapter"), "{note}");
+            }
+            AutoDevice::Cpu { note: None } => panic!("the rule kept a 256³ Catmull-Rom export on one thread"),
+        }
+    }
 }

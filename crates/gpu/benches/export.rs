@@ -1,19 +1,20 @@
 //! Export benchmark: a procedural CT-like i16 head of `--dims` (256³ by default, 240 mm box, slightly
-//! rotated against the target) resampled onto an axis-aligned 256³ target grid through a TPS pull-back with
-//! `--centres` (100) centres:
+//! rotated against the target) resampled onto an axis-aligned target grid of the same size through a TPS pull-back
+//! with `--centres` (100) centres, every row on the full target (nothing is extrapolated):
 //!
 //! 1. CPU, through a `--ctrl`³ (64³) control texture sampled from the TPS (as the renderer uses it): nearest,
-//!    trilinear, Catmull-Rom; and the identity (resampling only);
-//! 2. CPU, exact TPS per voxel, on a `--tps-dims`³ target (48³ by default), extrapolated to the full target by the
-//!    per-voxel cost;
-//! 3. GPU (wgpu's default adapter, or the one `WGPU_BACKEND` chooses): control texture, full target; exact TPS on a
-//!    `--gpu-tps-dims`³ target (64³), extrapolated;
-//! 4. the memory-bandwidth floor: a plain copy of input + output bytes (i16 → i16: a memcpy of the source into a
-//!    buffer of the output's size), on one thread and on rayon's pool; ratio = export time / floor.
+//!    trilinear, Catmull-Rom; the identity (resampling only); the exact TPS per voxel;
+//! 2. GPU (wgpu's default adapter, or the one `WGPU_BACKEND` chooses): the same five cases, each run including the
+//!    source's upload (in its own type), every slab's readback and the output's allocation; and the GPU's fixed
+//!    cost, measured once: a new device, the export pass, and a first 8³ export (the pipeline's compilation);
+//! 3. the memory-bandwidth floor: a plain copy of input + output bytes (i16 → i16: a memcpy of the source into a
+//!    buffer of the output's size), on one thread and on rayon's pool; ratio = export time / floor;
+//! 4. `--backend auto`'s rule (`warpbench_gpu::export::choose_path`) for each case: its estimates beside the
+//!    measured times, and its choice, so that a run on a real GPU shows whether the rule's constants hold.
 //!
-//! Each case reports the best of `--repeats` (3) runs after one warm-up run, wall clock, including allocation of the
-//! output (and for the GPU the source upload and every slab's readback), and the process's CPU time per run (all
-//! threads; on a machine shared with other work, CPU time / threads estimates the wall time of an idle machine).
+//! Each case reports the best of `--repeats` (3) runs after one warm-up run, wall clock, and the process's CPU time
+//! per run (all threads; on a machine shared with other work, CPU time / threads estimates the wall time of an idle
+//! machine).
 //!
 //! ```sh
 //! cargo bench -p warpbench-gpu --bench export
@@ -26,6 +27,7 @@ use std::time::{Duration, Instant};
 
 use glam::DVec3;
 use rayon::prelude::*;
+use warpbench_gpu::export::{ExportDevice, ExportPath, choose_path, cpu_estimate_ms, gpu_estimate_ms};
 use warpbench_gpu::{
     ControlDesc, ExportPass, ExportRequest, ExportSamples, GpuContext, Interpolation, PullBack, SourceVolume,
     TargetGrid, TpsDesc, export_cpu,
@@ -38,14 +40,12 @@ struct Options {
     dims: usize,
     ctrl: usize,
     centres: usize,
-    tps_dims: usize,
-    gpu_tps_dims: usize,
     repeats: usize,
     gpu: bool,
 }
 
 fn options() -> Result<Options, String> {
-    let mut o = Options { dims: 256, ctrl: 64, centres: 100, tps_dims: 48, gpu_tps_dims: 64, repeats: 3, gpu: true };
+    let mut o = Options { dims: 256, ctrl: 64, centres: 100, repeats: 3, gpu: true };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
     while let Some(a) = it.next() {
@@ -57,14 +57,15 @@ fn options() -> Result<Options, String> {
             "--dims" => o.dims = value()?,
             "--ctrl" => o.ctrl = value()?,
             "--centres" => o.centres = value()?,
-            "--tps-dims" => o.tps_dims = value()?,
-            "--gpu-tps-dims" => o.gpu_tps_dims = value()?,
+            "--tps-dims" | "--gpu-tps-dims" => {
+                return Err(format!("{a} is gone: every row runs on the full --dims target, nothing is extrapolated"));
+            }
             "--repeats" => o.repeats = value()?,
             "--no-gpu" => o.gpu = false,
             _ => {} // --bench and whatever else cargo passes
         }
     }
-    if o.dims < 2 || o.ctrl < 2 || o.tps_dims < 2 || o.gpu_tps_dims < 2 {
+    if o.dims < 2 || o.ctrl < 2 {
         return Err("sizes must be at least 2".into());
     }
     o.repeats = o.repeats.max(1);
@@ -255,68 +256,107 @@ fn main() {
 
     println!("\n| path | pull-back | interpolation | target | wall (ms) | ns/voxel | × floor | CPU (ms) | load |");
     println!("|---|---|---|---|---|---|---|---|---|");
-    let row = |path: &str, pullback: &str, kernel: &str, dims: usize, (d, cpu): (Duration, Option<Duration>)| {
-        let scale = voxels as f64 / (dims * dims * dims) as f64;
-        let per_voxel = d.as_secs_f64() * 1e9 / (dims * dims * dims) as f64;
-        let full = ms(d) * scale;
-        let cpu = cpu.map_or_else(|| "?".into(), |c| format!("{:.0}", ms(c) * scale));
-        let note = if dims == n { String::new() } else { format!(" (from {dims}³)") };
+    let row = |path: &str, case: &str, kernel: &str, (d, cpu): (Duration, Option<Duration>)| {
+        let cpu = cpu.map_or_else(|| "?".into(), |c| format!("{:.0}", ms(c)));
         println!(
-            "| {path} | {pullback} | {kernel} | {n}³{note} | {full:.0} | {per_voxel:.1} | {:.0} | {cpu} | {} |",
-            full / ms(floor),
+            "| {path} | {case} | {kernel} | {n}³ | {:.0} | {:.1} | {:.0} | {cpu} | {} |",
+            ms(d),
+            d.as_secs_f64() * 1e9 / voxels as f64,
+            ms(d) / ms(floor),
             load_average()
         );
     };
-    let kernels = [
-        ("trilinear", Interpolation::Trilinear),
-        ("Catmull-Rom", Interpolation::CatmullRom),
-        ("nearest", Interpolation::Nearest),
+    let control_name = format!("control {}³", o.ctrl);
+    let tps_name = format!("exact TPS, N = {}", o.centres);
+    // The five cases, CPU and GPU alike: (pull-back, its name, kernel, its name).
+    let cases = [
+        (PullBack::Control(control), control_name.as_str(), Interpolation::Trilinear, "trilinear"),
+        (PullBack::Control(control), control_name.as_str(), Interpolation::CatmullRom, "Catmull-Rom"),
+        (PullBack::Control(control), control_name.as_str(), Interpolation::Nearest, "nearest"),
+        (PullBack::Identity, "identity", Interpolation::Trilinear, "trilinear"),
+        (PullBack::Tps(tps), tps_name.as_str(), Interpolation::Trilinear, "trilinear"),
     ];
+    let request =
+        |pullback, kernel| ExportRequest { interpolation: kernel, ..ExportRequest::new(source, target, pullback) };
     let run_cpu = |request: &ExportRequest<'_>| {
         std::hint::black_box(export_cpu(request, &mut |_| true).expect("warm-up CPU export"));
         best_of(o.repeats, || {
             std::hint::black_box(export_cpu(request, &mut |_| true).expect("CPU export"));
         })
     };
-    for (name, kernel) in kernels {
-        let request =
-            ExportRequest { interpolation: kernel, ..ExportRequest::new(source, target, PullBack::Control(control)) };
-        row("CPU", &format!("control {}³", o.ctrl), name, n, run_cpu(&request));
+    let mut cpu_ms = Vec::new();
+    for (pullback, name, kernel, kernel_name) in cases {
+        let measured = run_cpu(&request(pullback, kernel));
+        cpu_ms.push(ms(measured.0));
+        row("CPU", name, kernel_name, measured);
     }
-    let identity = ExportRequest::new(source, target, PullBack::Identity);
-    row("CPU", "identity", "trilinear", n, run_cpu(&identity));
-    let small = TargetGrid { dims: [o.tps_dims; 3], lps_from_index: grid(o.tps_dims, 0.0) };
-    let exact = ExportRequest::new(source, small, PullBack::Tps(tps));
-    row("CPU", &format!("exact TPS, N = {}", o.centres), "trilinear", o.tps_dims, run_cpu(&exact));
 
-    if !o.gpu {
-        return;
-    }
-    let ctx = match GpuContext::headless() {
-        Ok(ctx) => ctx,
-        Err(e) => {
-            println!("\nno GPU figures: {e}");
-            return;
+    let mut gpu_ms: Vec<Option<f64>> = vec![None; cases.len()];
+    let mut device = ExportDevice::None;
+    if o.gpu {
+        let cold = Instant::now();
+        match GpuContext::headless() {
+            Err(e) => println!("\nno GPU figures: {e}"),
+            Ok(ctx) => {
+                let device_ms = ms(cold.elapsed());
+                device = ExportDevice::of(&ctx);
+                let pass = ExportPass::new(&ctx).expect("export pass");
+                let tiny_samples = vec![0i16; 8 * 8 * 8];
+                let tiny = ExportRequest::new(
+                    SourceVolume {
+                        dims: [8; 3],
+                        samples: ExportSamples::I16(&tiny_samples),
+                        lps_from_index: grid(8, 0.0),
+                    },
+                    TargetGrid { dims: [8; 3], lps_from_index: grid(8, 0.0) },
+                    PullBack::Identity,
+                );
+                pass.run(&ctx, &tiny, &mut |_| true).expect("first GPU export");
+                let fixed_ms = ms(cold.elapsed());
+                let gpu = format!("GPU ({})", ctx.describe());
+                for (i, (pullback, name, kernel, kernel_name)) in cases.into_iter().enumerate() {
+                    let r = request(pullback, kernel);
+                    pass.run(&ctx, &r, &mut |_| true).expect("warm-up GPU export");
+                    let measured = best_of(o.repeats, || {
+                        std::hint::black_box(pass.run(&ctx, &r, &mut |_| true).expect("GPU export"));
+                    });
+                    gpu_ms[i] = Some(ms(measured.0));
+                    row(&gpu, name, kernel_name, measured);
+                }
+                println!(
+                    "\nGPU fixed cost: device {device_ms:.0} ms; device, export pass and a first 8³ export (one pipeline \
+                     compiled) {fixed_ms:.0} ms (the rule assumes {:.0} ms)",
+                    warpbench_gpu::export::GPU_FIXED_MS
+                );
+                let slab =
+                    ExportPass::slab_slices(&ctx, &request(PullBack::Control(control), Interpolation::Trilinear))
+                        .expect("slab");
+                println!("slab: {slab} slices of {n}² per dispatch (control texture, i16 output) on this device");
+            }
         }
-    };
-    let pass = ExportPass::new(&ctx).expect("export pass");
-    let run_gpu = |request: &ExportRequest<'_>| {
-        pass.run(&ctx, request, &mut |_| true).expect("warm-up GPU export");
-        best_of(o.repeats, || {
-            std::hint::black_box(pass.run(&ctx, request, &mut |_| true).expect("GPU export"));
-        })
-    };
-    let gpu = format!("GPU ({})", ctx.describe());
-    for (name, kernel) in &kernels[..2] {
-        let request =
-            ExportRequest { interpolation: *kernel, ..ExportRequest::new(source, target, PullBack::Control(control)) };
-        row(&gpu, &format!("control {}³", o.ctrl), name, n, run_gpu(&request));
     }
-    let small = TargetGrid { dims: [o.gpu_tps_dims; 3], lps_from_index: grid(o.gpu_tps_dims, 0.0) };
-    let exact = ExportRequest::new(source, small, PullBack::Tps(tps));
-    row(&gpu, &format!("exact TPS, N = {}", o.centres), "trilinear", o.gpu_tps_dims, run_gpu(&exact));
+
+    let threads = rayon::current_num_threads();
     println!(
-        "\nslab: {} slices of {n}² per dispatch on this device",
-        ExportPass::slab_slices(&ctx, [n; 3], None).expect("slab")
+        "\n`--backend auto`'s rule on {threads} threads ({device:?} device; a GPU estimate includes the fixed cost, the \
+         measured GPU times do not):"
     );
+    println!(
+        "\n| case | interpolation | CPU ms (rule) | GPU ms (rule) | CPU ms measured | GPU ms measured | rule picks |"
+    );
+    println!("|---|---|---|---|---|---|---|");
+    for (i, (pullback, name, kernel, kernel_name)) in cases.into_iter().enumerate() {
+        let r = request(pullback, kernel);
+        let pick = match choose_path(&r, threads, device).path {
+            ExportPath::Cpu => "CPU",
+            ExportPath::Gpu => "GPU",
+        };
+        let measured_gpu = gpu_ms[i].map_or_else(|| "–".to_owned(), |v| format!("{v:.0}"));
+        println!(
+            "| {name} | {kernel_name} | {:.0} | {:.0} | {:.0} | {measured_gpu} | {pick} |",
+            cpu_estimate_ms(&r, threads),
+            gpu_estimate_ms(&r),
+            cpu_ms[i]
+        );
+    }
 }

@@ -46,27 +46,42 @@
 //! # Output
 //!
 //! [`OutputType::F32`], or [`OutputType::Source`]: the source's sample type, the interpolated value rounded **half to
-//! even** (IEEE 754's default, WGSL's `round`, numpy's `rint`) and clamped to the type's range. Non-finite outside
-//! values are refused for integer outputs.
+//! even** (IEEE 754's default, WGSL's `round`, numpy's `rint`) and clamped to the type's range (on the GPU in the
+//! shader, from the same f32). Non-finite outside values are refused for integer outputs; the outside value is
+//! converted once, on the host, by the same rule.
 //!
 //! # Slabs and limits
 //!
 //! The target is processed in z-slabs ([`ExportRequest::slab_slices`], or automatic), and the progress callback is
 //! called after each slab with the slices done so far; returning `false` cancels with
-//! [`crate::GpuError::Cancelled`]. On the GPU each slab's f32 output buffer fits `max_storage_buffer_binding_size`
-//! and [`ExportPass::SLAB_BUDGET_BYTES`], so outputs much larger than one binding (a 512 × 512 × 1000 CT) work; one
-//! target slice must fit (4096 × 4096 does). The source is one `R32Float` 3-D texture: at most
-//! `max_texture_dimension_3d` (usually 2048) per axis and [`ExportPass::MAX_SOURCE_BYTES`]; larger sources are a
-//! [`crate::GpuError::Unsupported`] error naming the CPU path, which has no such limit. Outputs beyond
-//! [`ExportRequest::max_output_bytes`] (default [`DEFAULT_MAX_OUTPUT_BYTES`], 16 GiB) are refused before anything is
-//! allocated.
+//! [`crate::GpuError::Cancelled`]. On the GPU each slab's output, stored in the output's own type, fits
+//! `max_storage_buffer_binding_size` and [`ExportPass::SLAB_BUDGET_BYTES`], so outputs much larger than one binding
+//! (a 512 × 512 × 1000 CT) work, and its work fits [`ExportPass::WORK_BUDGET`], so no dispatch runs long; one target
+//! slice must fit (4096 × 4096 does). Up to [`ExportPass::SLABS_IN_FLIGHT`] slabs are queued at once, so the GPU
+//! computes the next slab while the host copies one out, and every wait for a slab is bounded
+//! ([`ExportPass::SLAB_WAIT_LIMIT`]): a stalled device is an error, never a hang. The source is one 3-D texture in
+//! its own type (`R16Sint` for i16, `R8Uint` for u8, …): at most `max_texture_dimension_3d` (usually 2048) per axis
+//! and [`ExportPass::MAX_SOURCE_BYTES`]; larger sources are a [`crate::GpuError::Unsupported`] error naming the CPU
+//! path, which has no such limit. Outputs beyond [`ExportRequest::max_output_bytes`] (default
+//! [`DEFAULT_MAX_OUTPUT_BYTES`], 16 GiB) are refused before anything is allocated.
+//!
+//! # Which path
+//!
+//! [`choose_path`] says which of the two is expected to finish first for a request on this machine (the CPU without
+//! a hardware GPU, for small outputs and for cheap kernels on many threads; the GPU otherwise); `warpbench warp
+//! --backend auto` follows it.
 
+mod choice;
 mod cpu;
 mod gpu;
 mod plan;
 mod request;
 mod sample;
 
+pub use choice::{
+    CPU_KERNEL_NS, CPU_PULLBACK_NS, CPU_TPS_CENTRE_NS, ExportDevice, ExportPath, GPU_FIXED_MS, GPU_LINK_BYTES_PER_NS,
+    GPU_TPS_CENTRE_NS, GPU_VOXEL_NS, PathChoice, choose_path, cpu_estimate_ms, gpu_estimate_ms,
+};
 pub use cpu::export_cpu;
 pub use gpu::{ExportPass, ExportUniforms, INTERFACE, SHADER};
 pub use request::{

@@ -5,12 +5,15 @@ use super::request::ExportedSamples;
 use crate::error::{GpuError, Result};
 
 /// A value of one of the export's sample types, and how an interpolated value becomes one.
-pub(crate) trait Sample: Copy + Default + Send + Sync + 'static {
+pub(crate) trait Sample: bytemuck::Pod + Default + Send + Sync + 'static {
     /// The accumulator of the interpolation on the CPU: f32, or f64 where f32 is not exact (u32, i32, f64).
     type Acc: Acc;
     fn acc(self) -> Self::Acc;
-    /// The f32 the GPU path uploads.
-    fn to_f32(self) -> f32;
+    /// Writes `src` as the texels the GPU path uploads (little-endian, as GPU buffers are): the samples' own bytes,
+    /// except f64, which the GPU reads as f32 (the GPU path takes f64 samples only when every one is exact in f32).
+    fn write_texels(mut dst: wgpu::WriteOnly<'_, [u8]>, src: &[Self]) {
+        dst.copy_from_slice(bytemuck::cast_slice(src));
+    }
     /// An interpolated value as this type: rounded half to even and clamped for integers.
     fn from_f64(v: f64) -> Self;
     fn wrap(samples: Vec<Self>) -> ExportedSamples;
@@ -68,10 +71,6 @@ macro_rules! integer_sample {
                 self as $acc
             }
             #[inline]
-            fn to_f32(self) -> f32 {
-                self as f32
-            }
-            #[inline]
             fn from_f64(v: f64) -> Self {
                 // NaN cannot occur (integer sources, finite outside values); `as` would give 0.
                 round_half_even(v).clamp(<$t>::MIN as f64, <$t>::MAX as f64) as $t
@@ -97,10 +96,6 @@ impl Sample for f32 {
         self
     }
     #[inline]
-    fn to_f32(self) -> f32 {
-        self
-    }
-    #[inline]
     fn from_f64(v: f64) -> Self {
         v as f32
     }
@@ -115,9 +110,8 @@ impl Sample for f64 {
     fn acc(self) -> f64 {
         self
     }
-    #[inline]
-    fn to_f32(self) -> f32 {
-        self as f32
+    fn write_texels(dst: wgpu::WriteOnly<'_, [u8]>, src: &[Self]) {
+        dst.write_iter(src.iter().flat_map(|&v| (v as f32).to_le_bytes()));
     }
     #[inline]
     fn from_f64(v: f64) -> Self {
@@ -126,13 +120,6 @@ impl Sample for f64 {
     fn wrap(samples: Vec<Self>) -> ExportedSamples {
         ExportedSamples::F64(samples)
     }
-}
-
-/// `len` default values, or an error instead of an abort when the memory is not there.
-pub(crate) fn try_zeroed<T: Sample>(len: usize) -> Result<Vec<T>> {
-    let mut v = try_reserved(len)?;
-    v.resize(len, T::default());
-    Ok(v)
 }
 
 /// An empty `Vec` with room for `len` output samples, or [`GpuError::InvalidInput`] when the system refuses it.
