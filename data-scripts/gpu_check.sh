@@ -91,15 +91,32 @@ run | smoke)
     export REQUIRE_GPU_ADAPTER=1 RUST_BACKTRACE=1
 
     # Tests: every binary at once (two threads each), as the first real-GPU run did: sharing the GPU is part of the
-    # check (a wait that never returns shows as a timeout). Each has 150 s.
+    # check (a wait that never returns shows as a timeout). Each has 150 s; one still running then has its threads'
+    # stacks written to its log (gdb or cuda-gdb, where the machine has one) before it is stopped.
     echo "== tests" >>"$summary"
+    debugger="$(command -v gdb || command -v cuda-gdb || true)"
     pids=()
     for t in "$work"/tests/*; do
         name="$(basename "$t")"
         (
             cd "$built_root/crates/gpu" 2>/dev/null || cd "$root/crates/gpu"
-            timeout 150 "$t" --test-threads 2 --nocapture >"$logs/test_$name.log" 2>&1
-            echo $? >"$logs/test_$name.rc"
+            log="$logs/test_$name.log"
+            "$t" --test-threads 2 --nocapture >"$log" 2>&1 &
+            pid=$!
+            for _ in $(seq 150); do
+                kill -0 "$pid" 2>/dev/null || break
+                sleep 1
+            done
+            if kill -0 "$pid" 2>/dev/null; then
+                echo "gpu_check.sh: still running after 150 s; the threads' stacks:" >>"$log"
+                [ -n "$debugger" ] && timeout 60 "$debugger" -batch -p "$pid" -ex 'thread apply all bt' >>"$log" 2>&1
+                kill -9 "$pid" 2>/dev/null
+                wait "$pid" 2>/dev/null
+                echo 124 >"$logs/test_$name.rc"
+            else
+                wait "$pid"
+                echo $? >"$logs/test_$name.rc"
+            fi
         ) &
         pids+=($!)
     done
@@ -114,8 +131,11 @@ run | smoke)
         [ "$rc" = 0 ] && passed=$((passed + 1)) || failed=$((failed + 1))
         [ "$rc" = 124 ] && result="TIMED OUT after 150 s (a wait that never returned?)"
         echo "-- $name (rc $rc): ${result:-no result line}" >>"$summary"
-        # Failures with their messages; the tests' own verdict lines (derived tolerances, measured distances).
-        grep -E '^test .* FAILED$|panicked at|has been running for over' "$log" | head -n 20 >>"$summary" || true
+        # Failures with their messages; the tests' own verdict lines (derived tolerances, measured distances); for a
+        # binary that timed out, where its threads were (the hang guards' phases, the stacks' warpbench frames).
+        grep -E '^test .* FAILED$|panicked at|has been running for over|hang guard|phase' "$log" | head -n 20 \
+            >>"$summary" || true
+        [ "$rc" = 124 ] && { grep -E '^Thread |warpbench|wgpu|vk[A-Z]' "$log" | head -n 40 >>"$summary" || true; }
         grep -A3 'panicked at' "$log" | grep -vE 'panicked at|^--$|stack backtrace|^ +[0-9]+:' | head -n 12 \
             >>"$summary" || true
         grep -E 'filter [0-9]+ bits|trilinear filter weights|hits on both|worst distance|allowed' "$log" |
@@ -155,7 +175,7 @@ run | smoke)
         bench frame_procedural frame --procedural --size 64x64 --dims 32x32x32 --frames 1
         bench drag100 drag --size 64x64 --pairs 20 --events 1 --gpu-eval
         bench control_eval control_eval --iterations 1
-        bench export export --dims 32 --tps-dims 8 --gpu-tps-dims 8 --ctrl 8 --repeats 1
+        bench export export --dims 32 --ctrl 8 --centres 20 --repeats 1
     fi
     echo "== $(($(date +%s) - started)) s in all" >>"$summary"
     tar -C "$work" -cf - logs | xz -6 >"$out/logs.tar.xz"

@@ -264,7 +264,8 @@ struct WarpArgs {
     /// Interpolation: nearest, linear (trilinear) or cubic (Catmull-Rom).
     #[arg(long, value_enum, default_value = "linear")]
     interp: InterpArg,
-    /// Where to resample: auto (GPU when available), cpu or gpu.
+    /// Where to resample: auto (the path expected to be faster for this size on this machine: the CPU without a
+    /// hardware GPU), cpu or gpu.
     #[arg(long, value_enum, default_value = "auto")]
     backend: BackendArg,
     /// Write f32 samples instead of the moving volume's type (rounded half to even and clamped).
