@@ -13,7 +13,7 @@
 // A fourth pass (cs_gradient) turns the filtered copy into what the ray caster shades with: its gradient per texel by
 // central differences (clamp-to-edge), in normalised texel units per unit of texture coordinate,
 //   g_a[i] = (v[min(i + e_a, n − 1)] − v[max(i − e_a, 0)]) · n_a / 2,
-// written as Rgba16Float texels (pack2x16float of (g_x, g_y) and (g_z, 0)) into a storage buffer in the copy layout of
+// written as Rgba16Float texels (the f16 bits of (g_x, g_y) and (g_z, 0) in two words) into a storage buffer in the copy layout of
 // a z-slab (rows padded to 256 bytes), which the caller copies into the 3-D gradient texture: a storage buffer, as
 // a 3-D storage texture is bound as one layer on GL. The ray caster filters that texture in hardware, one lookup per
 // gradient.
@@ -123,6 +123,25 @@ fn filtered_at(q: vec3<i32>) -> f32 {
     return textureLoad(filtered, q.xy, q.z, 0).r;
 }
 
+// IEEE binary16 bits of x, rounded to nearest, ties to even, as half::f16::from_f32 on the CPU side (by hand: the
+// pack2x16float builtin needs the SHADER_FLOAT16_IN_FLOAT32 capability, which a plain WebGPU device does not
+// promise; the same function as shaders/control_eval.wgsl's). |x| ≥ 65520 gives infinity.
+fn f16_bits(x: f32) -> u32 {
+    let bits = bitcast<u32>(x);
+    let sign = (bits >> 16u) & 0x8000u;
+    let a = bits & 0x7fffffffu;
+    if a >= 0x477ff000u {
+        return sign | 0x7c00u;
+    }
+    if a < 0x38800000u {
+        // Below 2⁻¹⁴: an f16 subnormal, k·2⁻²⁴ (round() rounds ties to even).
+        return sign | u32(round(bitcast<f32>(a) * 16777216.0));
+    }
+    // Rebias the exponent (127 → 15) and round the mantissa from 23 to 10 bits; a carry moves into the exponent.
+    let r = a - 0x38000000u;
+    return sign | ((r + 0x0fffu + ((r >> 13u) & 1u)) >> 13u);
+}
+
 @compute @workgroup_size(4, 4, 4)
 fn cs_gradient(@builtin(global_invocation_id) id: vec3<u32>) {
     let q = vec3<u32>(id.xy, id.z + g.first_z);
@@ -140,6 +159,6 @@ fn cs_gradient(@builtin(global_invocation_id) id: vec3<u32>) {
         grad[a] = (filtered_at(hi) - filtered_at(lo)) * (0.5 * f32(n[a]));
     }
     let word = (id.z * g.dims.y + id.y) * g.row_words + 2u * id.x;
-    gradient_out[word] = pack2x16float(grad.xy);
-    gradient_out[word + 1u] = pack2x16float(vec2<f32>(grad.z, 0.0));
+    gradient_out[word] = f16_bits(grad.x) | (f16_bits(grad.y) << 16u);
+    gradient_out[word + 1u] = f16_bits(grad.z);
 }

@@ -5,7 +5,7 @@
 //! Tolerance, per gradient component: the filtered texels agree within 1e-6 of their largest magnitude (the sums run
 //! in the same order on both sides; what differs is `exp` and fused multiply-adds: measured ≤ 4.2e-7 on normalised
 //! texels on lavapipe), so a central difference scaled by n/2 agrees within n·1e-6 of it; then each side rounds to
-//! f16, which WGSL's pack2x16float may do either way: one f16 step of the larger value more.
+//! f16 to nearest even, which moves values that close apart by at most one f16 step of the larger.
 
 mod common;
 
