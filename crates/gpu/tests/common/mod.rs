@@ -36,10 +36,20 @@ pub struct DeviceFilter {
 }
 
 impl DeviceFilter {
+    /// The device's filter as the probe measures it. `GPU_TEST_FILTER_BITS=b` makes it coarser, never finer: the
+    /// tolerances a device with b-bit weights would get, read off this one (how benchmarks.md's 8-bit figures on
+    /// lavapipe were made).
     pub fn measure(ctx: &GpuContext) -> Self {
         let measured = FilterProbe::new(ctx).and_then(|p| p.measure(ctx)).expect("filter probe");
         eprintln!("{}", measured.describe());
-        Self { bits: measured.bits(), unorm8_results: measured.unorm8_results(), model: measured.model() }
+        let device = Self { bits: measured.bits(), unorm8_results: measured.unorm8_results(), model: measured.model() };
+        match std::env::var("GPU_TEST_FILTER_BITS").ok().and_then(|b| b.parse::<u32>().ok()) {
+            Some(bits) if bits < device.bits => {
+                eprintln!("GPU_TEST_FILTER_BITS: tolerances for {bits}-bit filter weights");
+                Self { bits, ..device }
+            }
+            _ => device,
+        }
     }
 
     /// The models a conformant device like this one may follow ([`FilterPrecision::family`]), and this device's own
