@@ -123,24 +123,7 @@ fn filtered_at(q: vec3<i32>) -> f32 {
     return textureLoad(filtered, q.xy, q.z, 0).r;
 }
 
-// IEEE binary16 bits of x, rounded to nearest, ties to even, as half::f16::from_f32 on the CPU side (by hand: the
-// pack2x16float builtin needs the SHADER_FLOAT16_IN_FLOAT32 capability, which a plain WebGPU device does not
-// promise; the same function as shaders/control_eval.wgsl's). |x| ≥ 65520 gives infinity.
-fn f16_bits(x: f32) -> u32 {
-    let bits = bitcast<u32>(x);
-    let sign = (bits >> 16u) & 0x8000u;
-    let a = bits & 0x7fffffffu;
-    if a >= 0x477ff000u {
-        return sign | 0x7c00u;
-    }
-    if a < 0x38800000u {
-        // Below 2⁻¹⁴: an f16 subnormal, k·2⁻²⁴ (round() rounds ties to even).
-        return sign | u32(round(bitcast<f32>(a) * 16777216.0));
-    }
-    // Rebias the exponent (127 → 15) and round the mantissa from 23 to 10 bits; a carry moves into the exponent.
-    let r = a - 0x38000000u;
-    return sign | ((r + 0x0fffu + ((r >> 13u) & 1u)) >> 13u);
-}
+// f16_bits is in shaders/f16.wgsl, appended to this file.
 
 @compute @workgroup_size(4, 4, 4)
 fn cs_gradient(@builtin(global_invocation_id) id: vec3<u32>) {

@@ -63,7 +63,8 @@ use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, layout};
 pub const SHADER: ShaderSource = ShaderSource {
     name: "control_eval",
     path: "shaders/control_eval.wgsl",
-    source: include_str!("../../../shaders/control_eval.wgsl"),
+    // Followed by the f16 conversions it shares with another pass (appended: line numbers stay those of the file).
+    source: concat!(include_str!("../../../shaders/control_eval.wgsl"), include_str!("../../../shaders/f16.wgsl")),
     entry_points: &[(TPS_ENTRY_POINT, Stage::Compute), (BSPLINE_ENTRY_POINT, Stage::Compute)],
 };
 const TPS_ENTRY_POINT: &str = "cs_tps";

@@ -42,7 +42,8 @@ use crate::volume::{GpuVolume, PreparedVolume};
 pub const SHADER: ShaderSource = ShaderSource {
     name: "prefilter",
     path: "shaders/prefilter.wgsl",
-    source: include_str!("../../../shaders/prefilter.wgsl"),
+    // Followed by the f16 conversions it shares with another pass (appended: line numbers stay those of the file).
+    source: concat!(include_str!("../../../shaders/prefilter.wgsl"), include_str!("../../../shaders/f16.wgsl")),
     entry_points: &[(FROM_VOLUME, Stage::Compute), (FROM_LAYERS, Stage::Compute), (GRADIENT, Stage::Compute)],
 };
 /// The entry point of the x pass, which reads the volume's 3-D texture.
