@@ -22,7 +22,11 @@ for dp, _, fs in os.walk(root):
 def strip(src):
     src = re.sub(r'/\*.*?\*/', '', src, flags=re.S)
     src = re.sub(r'//[^\n]*', '', src)
-    src = re.sub(r'"(?:\\.|[^"\\])*"', '""', src)
+    # raw strings first (r"…", r#"…"#), then char literals that hold a quote, then ordinary strings, which may span
+    # lines and continue with `\` + newline (hence re.S: without it `\\.` does not match the newline)
+    src = re.sub(r'\br(#*)"(.*?)"\1', '""', src, flags=re.S)
+    src = re.sub(r"'(?:\\.|[^'\\\n])'", "' '", src)
+    src = re.sub(r'"(?:\\.|[^"\\])*"', '""', src, flags=re.S)
     return src
 def cfg_test_blocks(src):
     out, i = [], 0
@@ -44,12 +48,54 @@ def cfg_test_strip(src):
         i = j
     out.append(src[i:]); return ''.join(out)
 include_tests = '--tests' in sys.argv
-def resolve(cur, segs):
-    # longest prefix of segs that is a known module
+def resolve(cur, segs, seen=()):
+    # longest prefix of segs that is a known module; a name that module only re-exports (`pub use x::Y`) resolves to
+    # where Y is defined, since naming `crate::Result` depends on `error`, not on the crate root's code
     best = None
     for k in range(len(segs), -1, -1):
         if tuple(segs[:k]) in mods: best = tuple(segs[:k]); break
+    if best is not None and k < len(segs) and (best, segs[k]) in reexports and (best, segs[k]) not in seen:
+        return resolve(cur, list(reexports[(best, segs[k])]) + segs[k + 1:], seen + ((best, segs[k]),))
     return best
+def path_base(m, head):
+    if head in ('crate', '$crate'): return []
+    if head == 'super': return list(m[:-1])
+    if head == 'self': return list(m)
+    return list(m) + [head] if m + (head,) in mods else None  # a child module, or an outside crate (None)
+def use_leaves(prefix, body):
+    # `a::b::{C, d::E as F}` -> [(['a','b','C'], 'C'), (['a','b','d','E'], 'F')]
+    body = body.strip()
+    brace = body.find('{')
+    if brace < 0:
+        m_ = re.match(r'([\w:]+?)(?:\s+as\s+(\w+))?\s*$', body)
+        if not m_: return []
+        segs = [x for x in m_.group(1).split('::') if x]
+        if not segs or segs[-1] == 'self': segs = segs[:-1]
+        return [(prefix + segs, m_.group(2) or (segs[-1] if segs else None))] if segs else []
+    head = [x for x in body[:brace].split('::') if x]
+    inner = body[brace + 1:body.rfind('}')]
+    parts, d, cur_ = [], 0, ''
+    for ch in inner:
+        d += {'{': 1, '}': -1}.get(ch, 0)
+        if ch == ',' and d == 0: parts.append(cur_); cur_ = ''
+        else: cur_ += ch
+    parts.append(cur_)
+    out = []
+    for p_ in parts:
+        if p_.strip() == 'self': out.append((prefix + head, head[-1] if head else None))
+        elif p_.strip(): out += use_leaves(prefix + head, p_)
+    return out
+reexports = {}  # (module, name) -> path (list of segments, from the crate root) that the name stands for
+for m, f in mods.items():
+    src = cfg_test_strip(strip(open(f).read()))
+    for mt in re.finditer(r'\bpub(?:\([\w: ]+\))?\s+use\s+([^;]+);', src):
+        body = re.sub(r'\s+', ' ', mt.group(1)).strip()
+        first = re.match(r'(\$?\w+)', body).group(1)
+        base = path_base(m, first)
+        if base is None or first.startswith('$') and False: continue
+        rest = body[len(first):].lstrip(':')
+        for segs, name in use_leaves(base, rest):
+            if name and name != '*': reexports[(m, name)] = tuple(segs)
 edges = {m: set() for m in mods}
 def scan(m, src, super_base):
     # expand `use a::{b, c::{d}}` roughly: collect path heads
