@@ -35,9 +35,9 @@
 use std::time::{Duration, Instant};
 
 use warpbench_app::fit::{self, ControlRoute, DragFit, fit_warp, fit_warp_on_gpu};
-use warpbench_app::gui::demo;
 use warpbench_app::gui::pacing::{BAND_ALIGN_ROWS, Bands, RefineJob, interactive_size};
 use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
+use warpbench_app::project::demo;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, SlicePlane, pair_glyphs,
@@ -222,7 +222,7 @@ fn main() {
     let (lo, hi) = viewer.scene_box();
     let camera = OrbitCamera::fit(lo, hi, Projection::Perspective { fov_y_rad: 0.6 });
     // The window's own defaults (shaded DVR at one sample per voxel, the mix blend).
-    let settings = warpbench_app::gui::document::ViewSettings::default().render_settings();
+    let settings = warpbench_app::project::document::ViewSettings::default().render_settings();
     let method = o.method;
     let boxes =
         (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));

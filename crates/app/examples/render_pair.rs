@@ -8,13 +8,13 @@
 //! Shading (default `dvr`): both volumes are lit with gradients of their Gaussian-prefiltered copies (σ = 1.5 voxels,
 //! GPU prefilter pass), the MR's taken through the warp, with central differences over the coarsest spacing.
 //!
-//! The landmarks are the window's demo pairs (`gui::demo::demo_landmarks`): 10 pairs around each head's centre of
+//! The landmarks are the window's demo pairs (`project::demo::demo_landmarks`): 10 pairs around each head's centre of
 //! mass (a rigid offset between the two heads) plus a few mm of local deformation. A TPS pull-back u = moving_from_fixed is fitted on them
 //! (`Tps::<Moving, Fixed>::fit(q, p, 0)`), sampled into a 64³ control texture over the fixed volume's box, and the
 //! GPU pulls the MR through it at every ray sample.
 
 use anyhow::{Context, Result, bail};
-use warpbench_app::gui::demo;
+use warpbench_app::project::demo;
 use warpbench_app::scene;
 use warpbench_app::settings::Blend;
 use warpbench_gpu::{

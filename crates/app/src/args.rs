@@ -79,7 +79,7 @@ impl PairArgs {
                 session_start: None,
             });
         };
-        let session = crate::gui::session::load(path).map_err(Failure::BadInput)?;
+        let session = crate::project::session::load(path).map_err(Failure::BadInput)?;
         let session_start = session
             .document
             .start

@@ -9,12 +9,21 @@
 //! document; [`Brushed::pullback`] and [`Brushed::forward`] are the one composition they all use.
 
 use anyhow::anyhow;
+use serde::Serialize;
 use warpbench_solver::brush::{Brush, BrushInverse, BrushStroke};
 use warpbench_solver::invert::{InverseReport, InvertParams};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::{Composed, Warp};
 
-use crate::warp::InverseConsistency;
+/// How well an inverted forward map is undone, ‖d(u(y)) − y‖ over a grid of where it was inverted (`--json`): a
+/// forward field over the output box, or the brush over its reach.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct InverseConsistency {
+    pub rms_mm: f64,
+    pub max_mm: f64,
+    /// Points of the check grid.
+    pub points: usize,
+}
 
 /// A brush with its fitted inverse.
 #[derive(Clone, Debug)]

@@ -33,10 +33,28 @@ use warpbench_solver::tps::{Regularisation, Tps};
 use warpbench_solver::tps_drag::{DragStep, DragTexture, DraggedEnd, PairDrag};
 use warpbench_solver::warp::{Composed, Warp};
 
-use crate::gui::viewer::Viewer;
 use crate::inputs::{self, Correspondences};
 use crate::scene;
 use crate::start::Start;
+
+/// Where a fitted pull-back's control texture goes: the renderer that draws with it (the window's viewer, the drag
+/// bench's). It takes a texture sampled on the CPU, or evaluates a TPS or a B-spline into its texture on the GPU.
+pub trait ControlTarget {
+    /// Whether the device filters f32 textures (else the texture is uploaded as f16).
+    fn float32_filterable(&self) -> bool;
+    /// Uploads a control texture sampled on the CPU.
+    fn upload(&mut self, prepared: &PreparedControl);
+    /// Evaluates the TPS pull-back `tps` on `grid` into the texture on the GPU.
+    ///
+    /// # Errors
+    /// The GPU pass failing.
+    fn evaluate_tps(&mut self, tps: &TpsDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()>;
+    /// Evaluates the B-spline pull-back `bspline` on `grid` into the texture on the GPU.
+    ///
+    /// # Errors
+    /// The GPU pass failing.
+    fn evaluate_bspline(&mut self, bspline: &BSplineDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()>;
+}
 
 /// The pull-back u = `moving_from_fixed` fitted on the reversed pairs (`fixed[i]` → `moving[i]`) over `fixed_box`.
 pub fn pullback(
@@ -303,19 +321,19 @@ impl DragFit {
             .map_err(|e| anyhow!("the drag's control texture: {e}"))
     }
 
-    /// Makes `event`'s control texture the viewer's: on the CPU route filled and uploaded, on the GPU route the
-    /// pull-back's centres and weights uploaded and evaluated into the texture ([`Viewer::evaluate_control_tps`]).
+    /// Makes `event`'s control texture `target`'s: on the CPU route filled and uploaded, on the GPU route the
+    /// pull-back's centres and weights uploaded and evaluated into the texture ([`ControlTarget::evaluate_tps`]).
     ///
     /// # Errors
     /// The texture cannot be made (not finite) or the GPU pass fails.
-    pub fn show(&self, event: &DragEvent, viewer: &mut Viewer) -> anyhow::Result<()> {
+    pub fn show(&self, event: &DragEvent, target: &mut dyn ControlTarget) -> anyhow::Result<()> {
         match &self.control {
             DragControl::Cpu(texture) => {
-                let prepared = self.filled(texture, event, viewer.ctx.capabilities.float32_filterable)?;
-                viewer.set_control(Some(&prepared));
+                let prepared = self.filled(texture, event, target.float32_filterable())?;
+                target.upload(&prepared);
                 Ok(())
             }
-            DragControl::Gpu(grid) => viewer.evaluate_control_tps(&TpsParts::new(event.pullback()).desc(), grid),
+            DragControl::Gpu(grid) => target.evaluate_tps(&TpsParts::new(event.pullback()).desc(), grid),
         }
     }
 }
@@ -357,7 +375,7 @@ fn not_on_gpu(method: &Method) -> anyhow::Error {
     anyhow!("the GPU evaluates TPS and B-spline control textures only, not {method}")
 }
 
-/// [`fit_warp`] with the control texture evaluated on the GPU ([`warpbench_gpu::ControlEvalPass`], into `viewer`'s
+/// [`fit_warp`] with the control texture evaluated on the GPU ([`warpbench_gpu::ControlEvalPass`], into `target`'s
 /// texture) instead of sampled on the CPU and uploaded: the same grid, the same function (a TPS evaluated in f32
 /// about the box's centre, or the B-spline's refined lattice).
 ///
@@ -369,7 +387,7 @@ pub fn fit_warp_on_gpu(
     moving: &[Point3<Moving>],
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
     grid_n: usize,
-    viewer: &mut Viewer,
+    target: &mut dyn ControlTarget,
     start: Option<&Start>,
 ) -> anyhow::Result<Fitted> {
     if !gpu_evaluates(method) {
@@ -378,9 +396,9 @@ pub fn fit_warp_on_gpu(
     let desc = control_grid_desc(&scene::control_grid(fixed_box, grid_n)?);
     let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
     match &pullback {
-        FittedWarp::Tps(tps) => viewer.evaluate_control_tps(&TpsParts::new(tps).desc(), &desc)?,
+        FittedWarp::Tps(tps) => target.evaluate_tps(&TpsParts::new(tps).desc(), &desc)?,
         FittedWarp::BSpline(spline) => {
-            viewer.evaluate_control_bspline(&BSplineDesc { lattices: &[lattice_desc(spline)] }, &desc)?;
+            target.evaluate_bspline(&BSplineDesc { lattices: &[lattice_desc(spline)] }, &desc)?;
         }
         FittedWarp::Linear(_) => return Err(not_on_gpu(method)),
     }

@@ -124,7 +124,7 @@ impl LandmarkSource {
                 }
             }
             Self::SlicerPair { moving, fixed } => Ok(landmarks::read_slicer_pair(moving, fixed)?),
-            Self::Session(path) => Ok(crate::gui::session::load(path)?.document.pairs),
+            Self::Session(path) => Ok(crate::project::session::load(path)?.document.pairs),
         }
     }
 }

@@ -214,7 +214,7 @@ fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Landmark
             Ok((pairs, format.name().to_string()))
         }
         inputs::LandmarkSource::Session(path) => {
-            let pairs = crate::gui::session::load(path).map_err(Failure::BadInput)?.document.pairs;
+            let pairs = crate::project::session::load(path).map_err(Failure::BadInput)?.document.pairs;
             Ok((pairs, "warpbench session".to_string()))
         }
         inputs::LandmarkSource::SlicerPair { moving, fixed } => {

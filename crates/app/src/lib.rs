@@ -22,6 +22,7 @@
 //!   subcommands).
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
 //!   of them (control texture, TPS, B-spline lattice), for the subcommands, the window and the drag bench.
+//! - [`project`]: the model under the window and the command line: the document and its session file.
 //! - [`scene`]: volumes, presets, windows and control textures as the renderer takes them.
 //! - [`settings`]: the named choices (blend, warp method, probe, shading, preset) shared by the window, the sessions
 //!   and the command line.
@@ -45,6 +46,7 @@ pub mod landmarks;
 pub mod points;
 pub mod procedural;
 pub mod progress;
+pub mod project;
 pub mod render;
 pub mod scene;
 pub mod settings;

@@ -206,15 +206,7 @@ pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, F
     }
 }
 
-/// How well an inverted forward map is undone, ‖d(u(y)) − y‖ over a grid of where it was inverted (`--json`): a
-/// forward field over the output box, or the brush over its reach.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct InverseConsistency {
-    pub rms_mm: f64,
-    pub max_mm: f64,
-    /// Points of the check grid.
-    pub points: usize,
-}
+pub use crate::brushed::InverseConsistency;
 
 /// Options of `warpbench warp`.
 #[derive(Clone, Debug)]

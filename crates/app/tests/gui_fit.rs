@@ -46,14 +46,14 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
         let ready = harness.state_mut().ready_mut().expect("loaded");
         ready.document.settings.method = warpbench_app::settings::MethodKind::Rigid;
         ready.document.settings.oblique[1] =
-            warpbench_app::gui::document::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
+            warpbench_app::project::document::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
         ready.document.pairs[1].active = false;
         ready.camera.azimuth_rad = 1.0;
         ready.refit();
     }
     let saved = harness.state().ready().expect("loaded").to_session(true);
     let session_path = dir.path().join("project.warpbench.json");
-    warpbench_app::gui::session::save(&session_path, &saved).expect("save");
+    warpbench_app::project::session::save(&session_path, &saved).expect("save");
     // The window autosaves, then "crashes" (no clean exit).
     harness.state_mut().autosave_now(false);
     drop(harness);
@@ -648,7 +648,7 @@ fn auto_align_puts_the_alignment_under_the_landmark_warp() {
     }
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     // The autosave holds it, and the command line reads it from the session.
-    let saved = warpbench_app::gui::session::load(&autosave).expect("the autosave");
+    let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
     assert_eq!(saved.document.start.as_ref(), Some(&found));
     let targets = dir.path().join("targets.csv");
     std::fs::write(&targets, "10,-20,15,a\n").expect("write a point");

@@ -59,7 +59,7 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     // The new pair is on disk at once, without another frame (the autosave follows every change of the document).
     let autosave = dir.path().join("autosave.warpbench.json");
     let start = Instant::now();
-    let on_disk = |path: &Path| warpbench_app::gui::session::load(path).map_or(0, |s| s.document.pairs.len());
+    let on_disk = |path: &Path| warpbench_app::project::session::load(path).map_or(0, |s| s.document.pairs.len());
     while on_disk(&autosave) != 6 {
         assert!(start.elapsed() < Duration::from_secs(30), "the sixth pair was not autosaved within 30 s");
         std::thread::sleep(Duration::from_millis(20));

@@ -236,7 +236,7 @@ fn the_brush_drags_the_moving_volume_in_a_slice() {
     let moved = harness.state().ready().expect("ready").moving_shown_at(std::array::from_fn(|a| c[a] + t[a]));
     let autosave = dir.path().join("autosave.warpbench.json");
     let start_wait = Instant::now();
-    while warpbench_app::gui::session::load(&autosave).map_or(0, |s| s.document.brush.len()) != 1 {
+    while warpbench_app::project::session::load(&autosave).map_or(0, |s| s.document.brush.len()) != 1 {
         assert!(start_wait.elapsed() < Duration::from_secs(30), "the stroke was not autosaved within 30 s");
         std::thread::sleep(Duration::from_millis(20));
     }

@@ -447,8 +447,8 @@ fn map_points(dir: &Path, source: [&str; 2], side: &str, xs: &[[f64; 3]]) -> Vec
 /// fitted inverse undoes the brush; `transform` refuses a brush it cannot write.
 #[test]
 fn a_sessions_brush_acts_on_top_of_the_landmarks() {
-    use warpbench_app::gui::document::Document;
-    use warpbench_app::gui::session::{self, SessionCamera, SessionFile, View};
+    use warpbench_app::project::document::Document;
+    use warpbench_app::project::session::{self, SessionCamera, SessionFile, View};
     use warpbench_solver::brush::{Brush, BrushStroke};
     use warpbench_solver::warp::Warp;
 

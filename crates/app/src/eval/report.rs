@@ -8,7 +8,7 @@ use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_solver::diagnostics::ErrorStats;
 
-use super::{EvalOptions, SuiteOptions, TreStatistic};
+use super::options::{EvalOptions, SuiteOptions, TreStatistic};
 use crate::exit::Failure;
 
 /// Schema name of one evaluation.

@@ -1,6 +1,6 @@
 //! Auto-align in the window (issue 18, item 1): the automatic alignment of `warpbench align`
 //! ([`warpbench_solver::align`]) run on a thread of its own on the pair as loaded, whose result becomes the document's
-//! starting transform ([`super::document::StartingTransform`], one undo step) under the landmark warp.
+//! starting transform ([`crate::project::document::StartingTransform`], one undo step) under the landmark warp.
 
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, TryRecvError};
@@ -11,7 +11,7 @@ use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Parallelism;
 
-use super::document::StartingTransform;
+use crate::project::document::StartingTransform;
 
 /// An alignment being computed.
 #[derive(Debug)]

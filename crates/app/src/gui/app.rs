@@ -11,14 +11,15 @@ use eframe::egui;
 use warpbench_gpu::{OrbitCamera, Projection};
 use warpbench_io::Volume;
 
-use super::document::Document;
 use super::history::{History, Snapshot};
 use super::load::{Loaded, LoadedPair, Opened};
 use super::viewer::{DeviceFacts, LayerData, Viewer};
 use super::{
     Command, ControlEval, Files, FitState, GuiOptions, Images, Interaction, Ready, autosave, open, pacing, panels,
-    save_png, session, side_panel, status, views,
+    save_png, side_panel, status, views,
 };
+use crate::project::document::Document;
+use crate::project::session;
 
 /// A volume read (and maybe prepared) for one side while the other is still being read.
 #[derive(Debug)]

@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::session::{self, SessionFile};
+use crate::project::session::{self, SessionFile};
 
 /// The longest time a change waits for its write while the pointer is held.
 pub const COALESCE: Duration = Duration::from_secs(1);
@@ -151,7 +151,7 @@ mod tests {
 
     /// A session with `n` pairs.
     fn session(n: usize) -> SessionFile {
-        let volume = crate::gui::demo::phantom(4, 1.0, [0.0; 3], false);
+        let volume = crate::project::demo::phantom(4, 1.0, [0.0; 3], false);
         let pairs = (0..n)
             .map(|i| {
                 let (m, f) = (i as f64, i as f64);
@@ -162,7 +162,7 @@ mod tests {
                 )
             })
             .collect();
-        let document = crate::gui::document::Document::new([None, None], [&volume, &volume], pairs);
+        let document = crate::project::document::Document::new([None, None], [&volume, &volume], pairs);
         let camera = session::SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
         SessionFile::new(document, session::View { camera, slice_mm: [0.0; 3] }, false)
     }

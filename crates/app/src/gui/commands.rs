@@ -15,11 +15,12 @@ use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::brush::BrushStroke;
 
-use super::document::{Look, StartingTransform, ViewSettings};
 use super::history::Snapshot;
 use super::interaction::{End, Placing};
 use super::panels::FileAction;
-use super::{Ready, export, open, panels, save_png, session};
+use super::{Ready, export, open, panels, save_png};
+use crate::project::document::{Look, StartingTransform, ViewSettings};
+use crate::project::session;
 
 /// One thing asked of the window once a pair is shown.
 #[derive(Clone, Debug, PartialEq)]

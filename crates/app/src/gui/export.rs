@@ -43,7 +43,7 @@ pub struct ExportInput {
     /// The brush's strokes on top of the landmark warp ([`crate::brushed`]).
     pub brush: Vec<warpbench_solver::brush::BrushStroke>,
     /// The starting transform under the landmark warp (Auto-align, [`crate::start`]).
-    pub start: Option<super::document::StartingTransform>,
+    pub start: Option<crate::project::document::StartingTransform>,
 }
 
 /// An export running on a worker thread.
@@ -102,8 +102,12 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
         let c = b.consistency();
         format!("; the brush's inverse undoes it within {:.3} mm (max; rms {:.4} mm)", c.max_mm, c.rms_mm)
     });
-    let start =
-        input.start.as_ref().map(super::document::StartingTransform::start).transpose().map_err(Failure::BadInput)?;
+    let start = input
+        .start
+        .as_ref()
+        .map(crate::project::document::StartingTransform::start)
+        .transpose()
+        .map_err(Failure::BadInput)?;
     let pairs_and_brush = (input.pairs.as_slice(), brushed.as_ref(), start.as_ref());
     match kind {
         ExportKind::Warped { dicom } => {

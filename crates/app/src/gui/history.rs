@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use warpbench_io::Volume;
 
-use super::document::Document;
+use crate::project::document::Document;
 
 /// Everything undo restores: the document, and the volumes its paths were read into. Two are equal when their
 /// documents are and they show the same reads (the same `Arc`s), not merely equal voxels: undo then swaps volumes
@@ -92,7 +92,7 @@ mod tests {
     use warpbench_io::landmarks::LandmarkPair;
 
     fn volume() -> Arc<Volume> {
-        Arc::new(crate::gui::demo::phantom(4, 1.0, [0.0; 3], false))
+        Arc::new(crate::project::demo::phantom(4, 1.0, [0.0; 3], false))
     }
 
     fn snapshot_with(n: usize, volumes: [Arc<Volume>; 2], moving: Option<PathBuf>) -> Snapshot {

@@ -16,7 +16,7 @@ pub const REST: Duration = Duration::from_millis(250);
 pub struct ViewKey {
     pub camera: warpbench_gpu::OrbitCamera,
     pub fit_generation: u64,
-    pub settings: super::document::ViewSettings,
+    pub settings: crate::project::document::ViewSettings,
 }
 
 /// The hover pick's state: where the pointer rests since when, and the last hit.
@@ -86,7 +86,7 @@ mod tests {
             warpbench_gpu::Projection::Orthographic,
         );
         camera.zoom = zoom;
-        ViewKey { camera, fit_generation: 1, settings: super::super::document::ViewSettings::default() }
+        ViewKey { camera, fit_generation: 1, settings: crate::project::document::ViewSettings::default() }
     }
 
     /// A moving pointer picks nothing; one resting for [`REST`] picks once; the hit holds until the pointer or the

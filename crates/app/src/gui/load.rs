@@ -6,9 +6,11 @@ use std::sync::Arc;
 use anyhow::anyhow;
 use warpbench_io::Volume;
 
-use super::document::Document;
 use super::viewer::{DeviceFacts, LayerData};
-use super::{GuiOptions, demo, open, session};
+use super::{GuiOptions, open};
+use crate::project::demo;
+use crate::project::document::Document;
+use crate::project::session;
 
 /// The two volumes read, and the window's title for them.
 #[derive(Debug)]

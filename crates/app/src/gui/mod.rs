@@ -10,7 +10,7 @@
 //! - [`app`]: the eframe app ([`Workbench`]): loading ([`load`](mod@load)), the volume reads and dialogs ([`open`]), the
 //!   autosave ([`autosave`]) and, once a pair is shown, the frame: keyboard, [`side_panel`], [`status`], the
 //!   [`views`], then the undo step.
-//! - [`document`]: what the user edits ([`document::Document`]); [`history`] snapshots it, [`session`] saves it
+//! - [`crate::project`] holds what the user edits ([`crate::project::document::Document`]); [`history`] snapshots it, [`crate::project::session`] saves it
 //!   with the camera and slices.
 //! - [`commands`]: every change as a [`Command`]; [`Ready::apply`] is the one place that carries them out.
 //! - [`interaction`]: what the pointer is doing ([`Interaction`]: adding a pair, dragging a point), and the picking
@@ -23,9 +23,7 @@ pub mod app;
 pub mod attention;
 pub mod autosave;
 pub mod commands;
-pub mod demo;
 pub mod diagnostics;
-pub mod document;
 pub mod export;
 pub mod frame_log;
 pub mod history;
@@ -38,7 +36,6 @@ pub mod open;
 pub mod pacing;
 pub mod panels;
 pub mod placement;
-pub mod session;
 pub mod side_panel;
 pub mod status;
 pub mod suggestion;
@@ -60,9 +57,9 @@ use warpbench_solver::warp::Warp;
 use crate::fit;
 pub use crate::fit::{Fitted, fit_warp, fit_warp_on_gpu, gpu_evaluates};
 use crate::inputs::{self, LandmarkSource};
+use crate::project::document::{self, Document};
 pub use app::Workbench;
 pub use commands::Command;
-use document::Document;
 use history::History;
 use images::Images;
 pub use interaction::{DragPoint, DragView, End, GRAB_RADIUS, Interaction, Placing, SLICE_SLAB_MM, SculptDrag};
@@ -82,7 +79,7 @@ pub struct GuiOptions {
     pub exit_after_frames: Option<u32>,
     /// A `.warpbench.json` session to open (its volumes, landmarks and settings); overrides the fields above.
     pub session: Option<PathBuf>,
-    /// Where to autosave (`None`: [`session::autosave_path`]).
+    /// Where to autosave (`None`: [`crate::project::session::autosave_path`]).
     pub autosave: Option<PathBuf>,
     /// Write one line per frame here ([`frame_log`]).
     pub frame_log: Option<PathBuf>,

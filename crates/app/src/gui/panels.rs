@@ -6,12 +6,12 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::Command;
-use super::document::{
-    BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, StartingTransform, ViewSettings,
-};
 use super::leafer::{DEFAULT_ANGLE_DEG, Leafer, MAX_ANGLE_DEG};
 use super::open::Side;
 use crate::procedural::ProceduralSpec;
+use crate::project::document::{
+    BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, StartingTransform, ViewSettings,
+};
 use crate::settings::{Blend, MethodKind, Preset, Probe, ProceduralKind, Shading};
 
 /// A slice view's oblique controls (labelled "NAME oblique", "NAME tilt", "NAME spin"). Returns whether they

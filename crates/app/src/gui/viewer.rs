@@ -14,7 +14,7 @@ use warpbench_gpu::{
 };
 use warpbench_io::Volume;
 
-use super::document::Look;
+use crate::project::document::Look;
 use crate::scene;
 
 /// What preparing a volume for the GPU needs to know about the device: plain values, so that the preparation can
@@ -485,4 +485,23 @@ pub fn show(render_state: &egui_wgpu::RenderState, target: RenderTarget, previou
         None => renderer.register_native_texture(&render_state.device, &target.view, eframe::wgpu::FilterMode::Linear),
     };
     Shown { target, texture_id }
+}
+
+/// The fits make the viewer's control texture through this ([`crate::fit`] does not know the window).
+impl crate::fit::ControlTarget for Viewer {
+    fn float32_filterable(&self) -> bool {
+        self.ctx.capabilities.float32_filterable
+    }
+
+    fn upload(&mut self, prepared: &PreparedControl) {
+        self.set_control(Some(prepared));
+    }
+
+    fn evaluate_tps(&mut self, tps: &TpsDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()> {
+        self.evaluate_control_tps(tps, grid)
+    }
+
+    fn evaluate_bspline(&mut self, bspline: &BSplineDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()> {
+        self.evaluate_control_bspline(bspline, grid)
+    }
 }

@@ -103,14 +103,14 @@ pub fn save_creating_folder(path: &Path, session: &SessionFile) -> anyhow::Resul
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::gui::document::{Look, Oblique};
+    use crate::project::document::{Look, Oblique};
     use crate::settings::{Blend, MethodKind, Preset, Probe};
     use warpbench_io::geometry::Point3;
     use warpbench_io::landmarks::LandmarkPair;
 
     /// A document with something other than a default in every field.
     fn document() -> Document {
-        let volume = crate::gui::demo::phantom(8, 2.0, [0.0; 3], true);
+        let volume = crate::project::demo::phantom(8, 2.0, [0.0; 3], true);
         let mut d = Document::new(
             [Some(PathBuf::from("/data/ct.nii.gz")), Some(PathBuf::from("/data/mr dir"))],
             [&volume, &volume],
@@ -135,7 +135,7 @@ mod tests {
             seed: 42,
         });
         d.layers[1] = Look { preset: Preset::CtSoftTissue, window_low: -100.0, window_high: 300.0, visible: false };
-        d.start = Some(crate::gui::document::StartingTransform {
+        d.start = Some(crate::project::document::StartingTransform {
             moving_from_fixed: [[0.9, -0.1, 0.05, 12.5], [0.1, 0.99, 0.0, -3.0], [0.0, 0.02, 1.01, 7.25]],
             origin: "Auto-align (rigid)".into(),
         });
@@ -220,7 +220,7 @@ mod tests {
         assert!(!d.layers[1].visible && !file.clean_exit);
         assert!((file.view.camera.zoom - 20.0).abs() < 1e-6, "the zoom is clamped to what the window offers");
         // What the window offers: the control texture is clamped when the document is opened on its volumes.
-        let volume = crate::gui::demo::phantom(4, 1.0, [0.0; 3], false);
+        let volume = crate::project::demo::phantom(4, 1.0, [0.0; 3], false);
         let mut d = d.clone();
         d.clamp([&volume, &volume]);
         assert_eq!(d.settings.grid_n, 256);

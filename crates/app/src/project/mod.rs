@@ -1,0 +1,12 @@
+//! The model under the window and the command line: what a registration is, apart from how it is shown.
+//!
+//! - [`document`]: what the user edits (the pair's paths and looks, the landmark pairs, the warp and view settings,
+//!   the brush and the starting transform); the window's undo history snapshots it.
+//! - [`demo`]: the demo pair, which a document without volume paths stands for.
+//! - [`session`]: the `.warpbench.json` file that keeps a document and the view, and where the autosave goes.
+//!
+//! Nothing here imports the window ([`crate::gui`]); the subcommands read sessions through [`session::load`].
+
+pub mod demo;
+pub mod document;
+pub mod session;
