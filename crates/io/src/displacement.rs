@@ -132,10 +132,10 @@ pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldFormat)> {
 
 /// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
 pub fn read_field_info(path: &Path) -> Result<ReadField> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let mut head = [0u8; 4];
     let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let n = crate::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
+    let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
     drop(f);
     let head = &head[..n];
     if head.starts_with(b"NRRD") {

@@ -166,7 +166,7 @@ fn read_text(path: &Path) -> Result<String> {
             ),
         )
     };
-    let meta = crate::check_regular_file(path)?;
+    let meta = crate::files::check_regular_file(path)?;
     if meta.len() > MAX_LANDMARK_FILE_BYTES {
         return Err(too_big(meta.len()));
     }

@@ -197,11 +197,11 @@ impl Source for FileSource {
 /// Opens the regular file at `path` as a NIfTI source (gzip detected by content) with the bound on what it can
 /// deliver. Shared by the volume and the displacement-field readers.
 fn open_file(path: &Path) -> Result<(FileSource, Extent)> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let mut file = File::open(path).map_err(|e| Error::io(path, e))?;
     let file_len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let mut magic = [0u8; 2];
-    let n = crate::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
+    let n = crate::files::read_up_to(&mut file, &mut magic).map_err(|e| Error::io(path, e))?;
     file.seek(SeekFrom::Start(0)).map_err(|e| Error::io(path, e))?;
     Ok(if n == 2 && magic == GZIP_MAGIC {
         (FileSource::Gzip(Box::new(MultiGzDecoder::new(BufReader::new(file)))), Extent::Gzip(file_len))

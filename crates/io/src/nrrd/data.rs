@@ -141,7 +141,7 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
     while done < n {
         let count = (n - done).min(CHUNK_BYTES / size);
         let bytes = &mut buf[..count * size];
-        let got = crate::read_up_to(r, bytes).map_err(|e| data_error(path, e))?;
+        let got = crate::files::read_up_to(r, bytes).map_err(|e| data_error(path, e))?;
         if got < bytes.len() {
             let have = done as u64 * size as u64 + got as u64;
             return Err(Error::truncated(path, format!("the data end after {have} of {total} bytes")));

@@ -69,7 +69,7 @@ impl NrrdFieldType {
 /// left-posterior-superior, float or double. Returns the field (LPS vectors, as stored) and the
 /// `displacement field type` key when the header has one. Errors name the file.
 pub fn read_displacement_field(path: &Path) -> Result<(DisplacementField, Option<NrrdFieldType>)> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let base = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
@@ -106,7 +106,7 @@ fn read_from<R: BufRead>(
             return Err(Error::unsupported(name, format!("detached data file {df:?} cannot be read from memory")));
         };
         let data_path = base.join(df);
-        crate::check_regular_file(&data_path)?;
+        crate::files::check_regular_file(&data_path)?;
         let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
         let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
         decode_payload(&data_path, BufReader::new(file), len, &h, samples, need, &mut opts)?

@@ -82,7 +82,7 @@ const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// Reads the NRRD file (attached `.nrrd` or detached `.nhdr`) at `path`.
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let base = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
@@ -124,7 +124,7 @@ fn read_from<R: BufRead>(
         };
         let data_path = base.join(df);
         // A pipe would block and a device such as /dev/zero never ends: refused before it is opened.
-        crate::check_regular_file(&data_path)?;
+        crate::files::check_regular_file(&data_path)?;
         let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
         let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
         decode_payload(&data_path, BufReader::new(file), len, &h, n, need, opts)?
