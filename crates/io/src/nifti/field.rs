@@ -14,7 +14,7 @@ use super::layout::{Span, data_span, grid, stored_type};
 use super::samples::{datatype_code, scaling, stream_chunks};
 use super::write::{Nifti1Content, nifti1_header_for, write_file};
 use super::{Extent, GZIP_MAGIC, Reporter, Source};
-use crate::displacement::first_non_finite;
+use crate::displacement::check::first_non_finite;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::options::LoadOptions;
@@ -107,7 +107,7 @@ pub fn write_vector_field(
     displacements_lps: &[[f32; 3]],
     intent: NiftiVectorIntent,
 ) -> Result<()> {
-    crate::displacement::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
+    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
     let what = Nifti1Content {
         type_code: datatype_code(SampleType::F32),
         descrip: format!("warpbench displacement field, {} mm", intent.frame()).into_bytes(),

@@ -33,7 +33,7 @@ use flate2::write::GzEncoder;
 
 use super::data::{decode_payload, preflight_size};
 use super::header::{Header, SpaceKind, parse_header, read_header_lines};
-use crate::displacement::first_non_finite;
+use crate::displacement::check::first_non_finite;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::nifti::DisplacementField;
@@ -202,7 +202,7 @@ pub fn write_displacement_field(
     displacements_lps: &[[f32; 3]],
     field_type: NrrdFieldType,
 ) -> Result<()> {
-    crate::displacement::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
+    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
     let header = header_text(dims, lps_from_index, field_type);
     crate::write_atomic(path, |w| {
         w.write_all(header.as_bytes())?;
