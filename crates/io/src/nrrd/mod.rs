@@ -63,6 +63,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
+pub use header::MAX_HEADER_BYTES;
 pub use write::{NrrdWriteOptions, write, write_with};
 
 use crate::error::{Error, ErrorKind, Result};
@@ -70,15 +71,6 @@ use crate::options::LoadOptions;
 use crate::volume::{Metadata, Volume, check_allocation};
 use data::{decode_payload, preflight_size};
 use header::{parse_header, read_header_lines};
-
-/// Longest header accepted, in bytes, up to and including the blank line that ends it.
-pub const MAX_HEADER_BYTES: u64 = 1 << 20;
-
-/// Samples are decoded this many bytes at a time (a multiple of every sample size).
-const CHUNK_BYTES: usize = 1 << 20;
-
-/// Deflate cannot expand data by more than about 1032:1; a gzip payload claiming more is truncated.
-const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// Reads the NRRD file (attached `.nrrd` or detached `.nhdr`) at `path`.
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
