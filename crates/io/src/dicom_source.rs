@@ -260,7 +260,7 @@ fn checked_files(path: &Path, series_instance_uid: Option<&str>) -> Result<Vec<P
 /// True when the file carries the 128-byte preamble and `DICM` (as the reader requires in a folder).
 fn has_preamble(p: &Path) -> bool {
     let mut head = [0u8; 132];
-    std::fs::File::open(p).and_then(|mut f| crate::read_up_to(&mut f, &mut head)).is_ok_and(|n| n == 132)
+    std::fs::File::open(p).and_then(|mut f| crate::files::read_up_to(&mut f, &mut head)).is_ok_and(|n| n == 132)
         && &head[128..132] == b"DICM"
 }
 

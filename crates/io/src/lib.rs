@@ -19,6 +19,7 @@ pub mod dicom_source;
 pub mod dicom_write;
 pub mod displacement;
 pub mod error;
+mod files;
 pub mod geometry;
 pub mod itk_tfm;
 pub mod landmarks;
@@ -29,7 +30,6 @@ pub mod sample;
 pub mod series;
 pub mod volume;
 
-use std::io::Read;
 use std::path::Path;
 
 pub use atomic::write_atomic;
@@ -39,6 +39,8 @@ pub use error::{Error, ErrorKind, Result};
 pub use options::{LoadOptions, Progress};
 pub use series::SeriesSummary;
 pub use volume::{GeometrySource, Metadata, Modality, Rescale, SampleType, Volume, VoxelData};
+
+use files::{check_file_or_folder, read_up_to};
 
 /// A volume file format.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -81,65 +83,6 @@ impl Format {
             Err(Error::unsupported(path, "unknown file format (expected NIfTI, NRRD or DICOM)"))
         }
     }
-}
-
-/// Refuses `path` unless it is a regular file (following symbolic links), before anything opens it: a named
-/// pipe blocks in `open`, a device such as `/dev/zero` never ends. Returns the file's metadata (its length bounds
-/// every read and skip that follows).
-pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.is_file() {
-        return Ok(meta);
-    }
-    let what = if meta.is_dir() { "a folder" } else { special_kind(&meta) };
-    Err(Error::new(path, ErrorKind::NotARegularFile { what }))
-}
-
-/// [`check_regular_file`], but a folder (a DICOM series) is accepted too.
-pub(crate) fn check_file_or_folder(path: &Path) -> Result<std::fs::Metadata> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if meta.is_file() || meta.is_dir() {
-        return Ok(meta);
-    }
-    Err(Error::new(path, ErrorKind::NotARegularFile { what: special_kind(&meta) }))
-}
-
-/// What a file that is neither regular nor a folder is, in words.
-fn special_kind(meta: &std::fs::Metadata) -> &'static str {
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::FileTypeExt;
-        let t = meta.file_type();
-        if t.is_fifo() {
-            return "a named pipe (FIFO)";
-        }
-        if t.is_char_device() {
-            return "a character device";
-        }
-        if t.is_block_device() {
-            return "a block device";
-        }
-        if t.is_socket() {
-            return "a socket";
-        }
-    }
-    let _ = meta;
-    "a special file"
-}
-
-/// Reads as many bytes as are there, up to `buf.len()` (retrying interrupted reads); the shared
-/// helper of every reader that must tell a short file from a full one.
-pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut n = 0;
-    while n < buf.len() {
-        match r.read(&mut buf[n..]) {
-            Ok(0) => break,
-            Ok(k) => n += k,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(n)
 }
 
 /// Reads the volume at `path` with default options. Same as `LoadOptions::new().open(path)`.

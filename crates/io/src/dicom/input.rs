@@ -41,7 +41,7 @@ impl Source<'_> {
             Self::File(p) => {
                 let mut head = [0u8; 132];
                 let mut f = std::fs::File::open(p).map_err(|e| Error::io(p, e))?;
-                let n = crate::read_up_to(&mut f, &mut head).map_err(|e| Error::io(p, e))?;
+                let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(p, e))?;
                 Ok(n == 132 && &head[128..132] == b"DICM")
             }
             Self::Bytes(_, b) => Ok(b.len() >= 132 && &b[128..132] == b"DICM"),

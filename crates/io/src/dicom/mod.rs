@@ -102,7 +102,7 @@ pub fn read_files(paths: &[PathBuf], opts: &mut LoadOptions) -> Result<Volume> {
     let label =
         if paths.len() == 1 { first.clone() } else { first.parent().map(Path::to_path_buf).unwrap_or_default() };
     for p in paths {
-        crate::check_regular_file(p)?; // a pipe or a device would block or never end
+        crate::files::check_regular_file(p)?; // a pipe or a device would block or never end
     }
     let sources: Vec<Source> = paths.iter().map(|p| Source::File(p.clone())).collect();
     let headers = read_headers(&label, &sources, false, opts)?;

@@ -360,7 +360,7 @@ pub fn read_affine(path: &Path) -> Result<ItkAffine> {
 }
 
 fn read_text(path: &Path) -> Result<String> {
-    let len = crate::check_regular_file(path)?.len();
+    let len = crate::files::check_regular_file(path)?.len();
     // The largest file we read is a B-spline of MAX_BSPLINE_CONTROL_POINTS; a longer one is not read into memory.
     if len > MAX_FILE_BYTES {
         return Err(Error::invalid(path, format!("{len} bytes is too long for a transform file")));

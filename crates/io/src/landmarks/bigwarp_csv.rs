@@ -2,7 +2,9 @@
 
 use std::path::Path;
 
-use super::{LandmarkPair, flip_xy, landmark_error, num, read_text, strip_bom};
+use super::errors::landmark_error;
+use super::points::{LandmarkPair, flip_xy};
+use super::text::{num, read_text, strip_bom};
 use crate::error::{Error, Result};
 use crate::geometry::{Lps, Point3};
 

@@ -6,7 +6,9 @@ use std::path::Path;
 use serde_json::Value;
 
 use super::bigwarp_csv::{BigWarpCsvOptions, axis, check_finite, half_point, parse_java_double};
-use super::{LandmarkPair, flip_xy, landmark_error, num, read_text, strip_bom};
+use super::errors::landmark_error;
+use super::points::{LandmarkPair, flip_xy};
+use super::text::{num, read_text, strip_bom};
 use crate::error::{Error, Result};
 
 /// The `type` of BigWarp's landmark table in JSON (`LandmarkTableModel.toJson`).

@@ -4,7 +4,9 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::bigwarp_csv::{axis, check_finite};
-use super::{SlicerPoint, flip_xy, landmark_error, num, read_text, strip_bom};
+use super::errors::landmark_error;
+use super::points::{SlicerPoint, flip_xy};
+use super::text::{num, read_text, strip_bom};
 use crate::error::{Error, Result};
 use crate::geometry::Point3;
 

@@ -46,25 +46,32 @@
 //! Every reader accepts one leading UTF-8 byte-order mark (each `parse_*` function strips it).
 //!
 //! Points are stored in LPS; RAS files are converted at I/O (negate x and y). NaN coordinates are
-//! refused with [`ErrorKind::Landmark`], whose index is **1-based** (the n-th landmark in the
-//! file); the message also gives the landmark's name and, for text formats, its line. Writers go
-//! through [`crate::write_atomic`] and print coordinates with Rust's shortest round-trip
-//! formatting, so a write/read round trip is exact.
+//! refused with [`ErrorKind::Landmark`](crate::ErrorKind::Landmark), whose index is **1-based** (the
+//! n-th landmark in the file); the message also gives the landmark's name and, for text formats, its
+//! line. Writers go through [`crate::write_atomic`] and print coordinates with Rust's shortest
+//! round-trip formatting, so a write/read round trip is exact.
+//!
+//! # Modules
+//! One module per format: `bigwarp_csv`, `bigwarp_json`, `mrk_json`, `fcsv`, `plain_csv`, `point_list`, and
+//! `slicer_pair`, which pairs two Slicer lists. What they share lives in leaves beside them: `points` (the point
+//! types), `text` (a file's bounded text, the byte-order mark, numbers), `errors`, and `detect` (which format a
+//! text is). This module re-exports them and reads or writes one file of pairs in whichever format it is.
 
 use std::path::Path;
 
-use bigwarp_json::{bigwarp_table, not_bigwarp, parse_gson_json};
-
-use crate::error::{Error, ErrorKind, Result};
-use crate::geometry::{Lps, Point3};
+use crate::error::Result;
 
 mod bigwarp_csv;
 mod bigwarp_json;
+mod detect;
+mod errors;
 mod fcsv;
 mod mrk_json;
 mod plain_csv;
 mod point_list;
+mod points;
 mod slicer_pair;
+mod text;
 
 pub use bigwarp_csv::{
     BigWarpCsvOptions, parse_bigwarp_csv, read_bigwarp_csv, read_bigwarp_csv_with, to_bigwarp_csv, write_bigwarp_csv,
@@ -74,8 +81,9 @@ pub use bigwarp_json::{
     BIGWARP_LANDMARKS_TYPE, parse_bigwarp_json, read_bigwarp_json, read_bigwarp_json_with, to_bigwarp_json,
     write_bigwarp_json, write_bigwarp_json_with,
 };
+pub use detect::{LandmarkFileFormat, detect_landmark_file, detect_landmark_format};
 pub use fcsv::{parse_fcsv, read_fcsv, to_fcsv, write_fcsv};
-pub use mrk_json::{parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
+pub use mrk_json::{MARKUPS_SCHEMA, parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
 pub use plain_csv::{
     CsvCoordinates, looks_like_plain_csv, parse_plain_csv, plain_csv_header, read_plain_csv, to_plain_csv,
     write_plain_csv,
@@ -85,183 +93,12 @@ pub use point_list::{
     parse_point_file, parse_point_list, read_point_file, read_point_list, to_point_list, write_point_file,
     write_point_list,
 };
+pub use points::{LandmarkPair, SlicerPoint, complete_active_pairs};
 pub use slicer_pair::{read_slicer_pair, read_slicer_points, write_slicer_pair};
+pub use text::MAX_LANDMARK_FILE_BYTES;
 
-/// The schema URL written into `.mrk.json` files.
-pub const MARKUPS_SCHEMA: &str = "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json#";
-
-/// One landmark pair: a point on the moving volume and its match on the fixed volume.
-#[derive(Clone, Debug, PartialEq)]
-pub struct LandmarkPair {
-    /// Free text; may be empty or repeated.
-    pub name: String,
-    /// Whether the pair takes part in the warp (BigWarp "Active", Slicer "selected").
-    pub active: bool,
-    /// The point on the moving (source) volume, or `None` when not placed yet.
-    pub moving: Option<Point3<Lps>>,
-    /// The point on the fixed (target) volume, or `None` when not placed yet.
-    pub fixed: Option<Point3<Lps>>,
-}
-
-impl LandmarkPair {
-    /// An active pair with both halves.
-    #[must_use]
-    pub fn new(name: impl Into<String>, moving: Point3<Lps>, fixed: Point3<Lps>) -> Self {
-        Self { name: name.into(), active: true, moving: Some(moving), fixed: Some(fixed) }
-    }
-
-    /// True when both halves are placed.
-    #[must_use]
-    pub fn is_complete(&self) -> bool {
-        self.moving.is_some() && self.fixed.is_some()
-    }
-}
-
-/// The moving and fixed points of the active pairs that have both halves, in file order.
-#[must_use]
-pub fn complete_active_pairs(pairs: &[LandmarkPair]) -> (Vec<Point3<Lps>>, Vec<Point3<Lps>>) {
-    pairs.iter().filter(|p| p.active).filter_map(|p| Some((p.moving?, p.fixed?))).unzip()
-}
-
-/// One Slicer control point (one side of a pair).
-#[derive(Clone, Debug, PartialEq)]
-pub struct SlicerPoint {
-    pub label: String,
-    pub selected: bool,
-    /// `None` for a point whose position is not defined (`positionStatus` other than `defined`).
-    pub position: Option<Point3<Lps>>,
-}
-
-/// The most characters of a landmark's name that a message quotes; a longer name is cut with `…`.
-const MESSAGE_NAME_CHARS: usize = 60;
-
-fn landmark_error(path: &Path, index0: usize, name: &str, line: Option<u64>, problem: impl AsRef<str>) -> Error {
-    let at = line.map(|l| format!(", line {l}")).unwrap_or_default();
-    let cut;
-    let name = match name.char_indices().nth(MESSAGE_NAME_CHARS) {
-        Some((end, _)) => {
-            cut = format!("{}…", &name[..end]);
-            cut.as_str()
-        }
-        None => name,
-    };
-    Error::new(
-        path,
-        ErrorKind::Landmark { index: index0 + 1, problem: format!("(1-based, {name:?}{at}) {}", problem.as_ref()) },
-    )
-}
-
-/// The largest landmark file read, in bytes. BigWarp and Slicer files hold at most thousands of points (5 000
-/// pairs, the TPS limit, are about 1 MB of CSV), so a larger file is refused before it is read into memory.
-pub const MAX_LANDMARK_FILE_BYTES: u64 = 256 << 20;
-
-/// The text of the landmark file at `path`: a regular file (a named pipe would block, a device never end) of at
-/// most [`MAX_LANDMARK_FILE_BYTES`], checked before it is opened and bounded while it is read.
-fn read_text(path: &Path) -> Result<String> {
-    let too_big = |bytes: u64| {
-        Error::invalid(
-            path,
-            format!(
-                "the file has {bytes} bytes, more than the {MAX_LANDMARK_FILE_BYTES} bytes a landmark file may have"
-            ),
-        )
-    };
-    let meta = crate::check_regular_file(path)?;
-    if meta.len() > MAX_LANDMARK_FILE_BYTES {
-        return Err(too_big(meta.len()));
-    }
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut bytes = Vec::new();
-    std::io::Read::read_to_end(&mut std::io::Read::take(file, MAX_LANDMARK_FILE_BYTES + 1), &mut bytes)
-        .map_err(|e| Error::io(path, e))?;
-    if bytes.len() as u64 > MAX_LANDMARK_FILE_BYTES {
-        return Err(too_big(bytes.len() as u64));
-    }
-    String::from_utf8(bytes).map_err(|e| Error::invalid(path, format!("not UTF-8 text: {e}")))
-}
-
-/// `text` without one leading UTF-8 byte-order mark (U+FEFF), which Windows editors write and Slicer, BigWarp and
-/// spreadsheet programs accept. Every `parse_*` function of this module starts here, so every reader (file or text)
-/// accepts it; a second mark is content.
-fn strip_bom(text: &str) -> &str {
-    text.strip_prefix('\u{feff}').unwrap_or(text)
-}
-
-/// Shortest text that parses back to the same f64 (`1.0`, `-0.5`, `1e-7`).
-fn num(x: f64) -> String {
-    format!("{x:?}")
-}
-
-fn flip_xy(p: Point3<Lps>) -> Point3<Lps> {
-    let [x, y, z] = p.coords();
-    Point3::new(-x, -y, z)
-}
-
-/// The kinds of landmark file, as [`detect_landmark_format`] tells them apart.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LandmarkFileFormat {
-    /// BigWarp CSV: pairs.
-    BigWarpCsv,
-    /// BigWarp JSON (alone, under `landmarks`, or in a settings file): pairs.
-    BigWarpJson,
-    /// A Slicer `.mrk.json`: the points of one volume.
-    SlicerMarkupsJson,
-    /// A Slicer `.fcsv`: the points of one volume.
-    SlicerFcsv,
-    /// A plain CSV with a header naming its columns and coordinate system ([`read_plain_csv`]): pairs.
-    PlainCsv,
-}
-
-impl LandmarkFileFormat {
-    /// Whether the file holds pairs (BigWarp) rather than one side (Slicer).
-    #[must_use]
-    pub fn holds_pairs(self) -> bool {
-        matches!(self, Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv)
-    }
-
-    /// The format's name in messages and in `warpbench landmarks --json`.
-    #[must_use]
-    pub fn name(self) -> &'static str {
-        match self {
-            Self::BigWarpCsv => "bigwarp-csv",
-            Self::BigWarpJson => "bigwarp-json",
-            Self::SlicerMarkupsJson => "slicer-mrk-json",
-            Self::SlicerFcsv => "slicer-fcsv",
-            Self::PlainCsv => "plain-csv",
-        }
-    }
-}
-
-/// Tells the landmark format of `text` by its content, not its name: JSON (after one BOM and white space, an
-/// `{` or `[`) is BigWarp when it holds a BigWarp landmark table (see [`parse_bigwarp_json`]), Slicer when it has
-/// a `markups` list, and refused otherwise with what was expected; text whose first line starts with `#` is a
-/// Slicer `.fcsv`, and text whose first line's first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes
-/// every field, so its lines start with `"`); anything else is BigWarp CSV.
-pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFormat> {
-    let body = strip_bom(text).trim_start();
-    if body.starts_with(['{', '[']) {
-        let root = parse_gson_json(name, body)?;
-        return if bigwarp_table(&root).is_some() {
-            Ok(LandmarkFileFormat::BigWarpJson)
-        } else if root.get("markups").is_some() {
-            Ok(LandmarkFileFormat::SlicerMarkupsJson)
-        } else {
-            Err(not_bigwarp(name, &root))
-        };
-    }
-    if body.starts_with('#') {
-        return Ok(LandmarkFileFormat::SlicerFcsv);
-    }
-    if looks_like_plain_csv(body) {
-        return Ok(LandmarkFileFormat::PlainCsv);
-    }
-    Ok(LandmarkFileFormat::BigWarpCsv)
-}
-
-/// [`detect_landmark_format`] of the file at `path`.
-pub fn detect_landmark_file(path: &Path) -> Result<LandmarkFileFormat> {
-    detect_landmark_format(path, &read_text(path)?)
-}
+use errors::slicer_one_side;
+use text::read_text;
 
 /// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON or plain CSV, told apart by content; LPS mm.
 ///
@@ -283,14 +120,6 @@ pub fn read_landmark_pairs_with(path: &Path, options: BigWarpCsvOptions) -> Resu
     }
 }
 
-fn slicer_one_side(path: &Path) -> Error {
-    Error::unsupported(
-        path,
-        "a Slicer point list holds one side of the pairs (the points of one volume); give it together with the \
-         list of the other volume, which is paired with it by order",
-    )
-}
-
 /// Writes `pairs` to one file: BigWarp JSON for a `.json` name, BigWarp CSV otherwise. A Slicer name (`.mrk.json`,
 /// `.fcsv`) is refused, since a Slicer list holds one side: use [`write_slicer_pair`].
 pub fn write_landmark_pairs(path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
@@ -303,12 +132,4 @@ pub fn write_landmark_pairs(path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
     } else {
         write_bigwarp_csv(path, pairs)
     }
-}
-
-/// The error for a BigWarp file read as a Slicer point list.
-fn bigwarp_not_slicer(path: &Path) -> Error {
-    Error::unsupported(
-        path,
-        "a BigWarp landmarks file (pairs of points), not a Slicer point list: read it as a file of pairs",
-    )
 }

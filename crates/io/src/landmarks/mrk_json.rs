@@ -6,9 +6,14 @@ use serde_json::{Value, json};
 
 use super::bigwarp_csv::{axis, check_finite};
 use super::bigwarp_json::{bigwarp_table, json_keys, parse_gson_json};
-use super::{MARKUPS_SCHEMA, SlicerPoint, bigwarp_not_slicer, landmark_error, read_text, strip_bom};
+use super::errors::{bigwarp_not_slicer, landmark_error};
+use super::points::SlicerPoint;
+use super::text::{read_text, strip_bom};
 use crate::error::{Error, Result};
 use crate::geometry::Point3;
+
+/// The schema URL written into `.mrk.json` files.
+pub const MARKUPS_SCHEMA: &str = "https://raw.githubusercontent.com/slicer/slicer/master/Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json#";
 
 /// Reads the first fiducial (point) list of a Slicer `.mrk.json` file.
 pub fn read_mrk_json(path: &Path) -> Result<Vec<SlicerPoint>> {

@@ -32,12 +32,14 @@ use std::path::Path;
 
 use serde_json::Value;
 
-use super::bigwarp_csv::axis;
-use super::{
-    BigWarpCsvOptions, LandmarkFileFormat, LandmarkPair, SlicerPoint, detect_landmark_format, flip_xy, landmark_error,
-    num, parse_bigwarp_csv, parse_bigwarp_json, parse_fcsv, parse_mrk_json, read_text, strip_bom,
-    write_bigwarp_csv_with, write_bigwarp_json_with,
-};
+use super::bigwarp_csv::{BigWarpCsvOptions, axis, parse_bigwarp_csv, write_bigwarp_csv_with};
+use super::bigwarp_json::{parse_bigwarp_json, write_bigwarp_json_with};
+use super::detect::{LandmarkFileFormat, detect_landmark_format};
+use super::errors::landmark_error;
+use super::fcsv::parse_fcsv;
+use super::mrk_json::parse_mrk_json;
+use super::points::{LandmarkPair, SlicerPoint, flip_xy};
+use super::text::{num, read_text, strip_bom};
 use crate::error::{Error, Result};
 use crate::geometry::{Lps, Point3};
 

@@ -3,9 +3,12 @@
 use std::path::Path;
 
 use super::bigwarp_csv::{BigWarpCsvOptions, parse_bigwarp_csv};
+use super::detect::{LandmarkFileFormat, detect_landmark_format};
+use super::errors::bigwarp_not_slicer;
 use super::fcsv::{parse_fcsv, to_fcsv};
 use super::mrk_json::{parse_mrk_json, to_mrk_json};
-use super::{LandmarkFileFormat, LandmarkPair, SlicerPoint, bigwarp_not_slicer, detect_landmark_format, read_text};
+use super::points::{LandmarkPair, SlicerPoint};
+use super::text::read_text;
 use crate::error::{Error, Result};
 
 fn is_fcsv(path: &Path) -> bool {

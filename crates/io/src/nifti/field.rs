@@ -12,9 +12,9 @@ use super::geometry::lps_from_index;
 use super::header::read_header;
 use super::layout::{Span, data_span, grid, stored_type};
 use super::samples::{datatype_code, scaling, stream_chunks};
+use super::source::{Extent, GZIP_MAGIC, Reporter, Source, open_file};
 use super::write::{Nifti1Content, nifti1_header_for, write_file};
-use super::{Extent, GZIP_MAGIC, Reporter, Source};
-use crate::displacement::first_non_finite;
+use crate::displacement::check::first_non_finite;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::options::LoadOptions;
@@ -107,7 +107,7 @@ pub fn write_vector_field(
     displacements_lps: &[[f32; 3]],
     intent: NiftiVectorIntent,
 ) -> Result<()> {
-    crate::displacement::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
+    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
     let what = Nifti1Content {
         type_code: datatype_code(SampleType::F32),
         descrip: format!("warpbench displacement field, {} mm", intent.frame()).into_bytes(),
@@ -132,7 +132,7 @@ pub fn write_vector_field(
 /// Reads a displacement field written by [`write_displacement_field`] or by ITK, ANTs or Slicer: NIfTI-1 or -2,
 /// intent 1006, shape [X, Y, Z, 1, 3], float32 or float64, RAS vectors (returned in LPS). Errors name the file.
 pub fn read_displacement_field(path: &Path) -> Result<DisplacementField> {
-    let (mut src, extent) = super::open_file(path)?;
+    let (mut src, extent) = open_file(path)?;
     read_field_source(path, &mut src, extent, false).map(|(field, _)| field)
 }
 
@@ -146,7 +146,7 @@ pub fn read_displacement_field_bytes(name: &Path, bytes: &[u8]) -> Result<Displa
 /// or float64; the vectors are returned in LPS, with the intent found. Non-finite vectors are refused, naming the
 /// voxel.
 pub fn read_vector_field(path: &Path) -> Result<(DisplacementField, NiftiVectorIntent)> {
-    let (mut src, extent) = super::open_file(path)?;
+    let (mut src, extent) = open_file(path)?;
     read_field_source(path, &mut src, extent, true)
 }
 

@@ -4,7 +4,7 @@
 use std::io::Read;
 use std::path::Path;
 
-use super::fill;
+use super::source::fill;
 use crate::error::{Error, ErrorKind, Result};
 
 pub(super) const NIFTI1_HEADER_BYTES: usize = 348;

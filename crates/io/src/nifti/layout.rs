@@ -6,7 +6,7 @@ use std::path::Path;
 
 use super::header::Header;
 use super::samples::stored_type_of_code;
-use super::{Extent, MAX_DEFLATE_RATIO};
+use super::source::{Extent, MAX_DEFLATE_RATIO};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
 use crate::sample::StoredType;

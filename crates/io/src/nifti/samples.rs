@@ -5,7 +5,7 @@ use std::io::Read;
 use std::path::Path;
 
 use super::header::Header;
-use super::{Reporter, fill};
+use super::source::{Reporter, fill};
 use crate::error::{Error, Result};
 use crate::sample::{self, Stored, StoredType, rescaled_type};
 use crate::volume::{self, Rescale, SampleType, VoxelData};

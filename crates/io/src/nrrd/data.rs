@@ -7,11 +7,16 @@ use std::path::Path;
 use flate2::read::MultiGzDecoder;
 
 use super::header::{Encoding, Header};
-use super::{CHUNK_BYTES, MAX_DEFLATE_RATIO};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
 use crate::sample::{self, StoredType};
 use crate::volume::{SampleType, VoxelData};
+
+/// Samples are decoded this many bytes at a time (a multiple of every sample size).
+const CHUNK_BYTES: usize = 1 << 20;
+
+/// Deflate cannot expand data by more than about 1032:1; a gzip payload claiming more is truncated.
+const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// Refuses sizes whose byte count overflows even u128 (three huge `usize`s), which
 /// [`check_allocation`] cannot yet compute; everything else is left to it.
@@ -141,7 +146,7 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
     while done < n {
         let count = (n - done).min(CHUNK_BYTES / size);
         let bytes = &mut buf[..count * size];
-        let got = crate::read_up_to(r, bytes).map_err(|e| data_error(path, e))?;
+        let got = crate::files::read_up_to(r, bytes).map_err(|e| data_error(path, e))?;
         if got < bytes.len() {
             let have = done as u64 * size as u64 + got as u64;
             return Err(Error::truncated(path, format!("the data end after {have} of {total} bytes")));

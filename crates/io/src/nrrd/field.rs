@@ -33,7 +33,7 @@ use flate2::write::GzEncoder;
 
 use super::data::{decode_payload, preflight_size};
 use super::header::{Header, SpaceKind, parse_header, read_header_lines};
-use crate::displacement::first_non_finite;
+use crate::displacement::check::first_non_finite;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::nifti::DisplacementField;
@@ -69,7 +69,7 @@ impl NrrdFieldType {
 /// left-posterior-superior, float or double. Returns the field (LPS vectors, as stored) and the
 /// `displacement field type` key when the header has one. Errors name the file.
 pub fn read_displacement_field(path: &Path) -> Result<(DisplacementField, Option<NrrdFieldType>)> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let base = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
@@ -106,7 +106,7 @@ fn read_from<R: BufRead>(
             return Err(Error::unsupported(name, format!("detached data file {df:?} cannot be read from memory")));
         };
         let data_path = base.join(df);
-        crate::check_regular_file(&data_path)?;
+        crate::files::check_regular_file(&data_path)?;
         let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
         let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
         decode_payload(&data_path, BufReader::new(file), len, &h, samples, need, &mut opts)?
@@ -202,7 +202,7 @@ pub fn write_displacement_field(
     displacements_lps: &[[f32; 3]],
     field_type: NrrdFieldType,
 ) -> Result<()> {
-    crate::displacement::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
+    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
     let header = header_text(dims, lps_from_index, field_type);
     crate::write_atomic(path, |w| {
         w.write_all(header.as_bytes())?;

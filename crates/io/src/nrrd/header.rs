@@ -1,11 +1,13 @@
-//! The text header: its lines (capped at [`super::MAX_HEADER_BYTES`]), the magic, and the fields we use.
+//! The text header: its lines (capped at [`MAX_HEADER_BYTES`]), the magic, and the fields we use.
 
 use std::io::{BufRead, Read};
 use std::path::Path;
 
-use super::MAX_HEADER_BYTES;
 use crate::error::{Error, ErrorKind, Result};
 use crate::sample::StoredType;
+
+/// Longest header accepted, in bytes, up to and including the blank line that ends it.
+pub const MAX_HEADER_BYTES: u64 = 1 << 20;
 
 /// The stored type a NRRD `type` field names (any of teem's spellings, case and spacing ignored).
 fn parse_type(s: &str) -> Option<StoredType> {

@@ -63,6 +63,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
+pub use header::MAX_HEADER_BYTES;
 pub use write::{NrrdWriteOptions, write, write_with};
 
 use crate::error::{Error, ErrorKind, Result};
@@ -71,18 +72,9 @@ use crate::volume::{Metadata, Volume, check_allocation};
 use data::{decode_payload, preflight_size};
 use header::{parse_header, read_header_lines};
 
-/// Longest header accepted, in bytes, up to and including the blank line that ends it.
-pub const MAX_HEADER_BYTES: u64 = 1 << 20;
-
-/// Samples are decoded this many bytes at a time (a multiple of every sample size).
-const CHUNK_BYTES: usize = 1 << 20;
-
-/// Deflate cannot expand data by more than about 1032:1; a gzip payload claiming more is truncated.
-const MAX_DEFLATE_RATIO: u64 = 1032;
-
 /// Reads the NRRD file (attached `.nrrd` or detached `.nhdr`) at `path`.
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let file = File::open(path).map_err(|e| Error::io(path, e))?;
     let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
     let base = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
@@ -124,7 +116,7 @@ fn read_from<R: BufRead>(
         };
         let data_path = base.join(df);
         // A pipe would block and a device such as /dev/zero never ends: refused before it is opened.
-        crate::check_regular_file(&data_path)?;
+        crate::files::check_regular_file(&data_path)?;
         let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
         let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
         decode_payload(&data_path, BufReader::new(file), len, &h, n, need, opts)?

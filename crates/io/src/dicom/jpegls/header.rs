@@ -1,8 +1,9 @@
 //! The marker segments of a JPEG-LS stream (T.87 Annex C): SOI, the SOF55 frame header, LSE preset parameters, SOS,
 //! and the checks that refuse what the decoder does not support.
 
+use super::error::{Result, invalid, truncated, unsupported};
+use super::frame::Header;
 use super::scan::Params;
-use super::{Header, Result, invalid, truncated, unsupported};
 
 const SOI: u8 = 0xD8;
 pub(super) const EOI: u8 = 0xD9;

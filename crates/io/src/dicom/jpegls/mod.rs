@@ -58,85 +58,17 @@
 //! lossless image compression algorithm: principles and standardization into JPEG-LS", IEEE Trans.
 //! Image Processing 9(8), 1309–1324, 2000.
 
-use thiserror::Error;
-
+mod error;
+mod frame;
 mod header;
 mod scan;
 
+pub use error::JpegLsError;
+use error::{Result, invalid, truncated, unsupported};
+pub use frame::{FrameSpec, Header};
 pub use header::read_header;
 use header::{DNL, EOI, Parser};
 use scan::{BitReader, Params, decode_scan};
-
-/// Why a JPEG-LS stream could not be decoded.
-#[derive(Debug, Clone, PartialEq, Eq, Error)]
-pub enum JpegLsError {
-    /// The stream ends before the header or the scan is complete.
-    #[error("jpeg-ls stream is truncated: {0}")]
-    Truncated(String),
-    /// The stream breaks the standard (bad marker, bad parameter, bad code).
-    #[error("invalid jpeg-ls stream: {0}")]
-    Invalid(String),
-    /// A valid feature this decoder does not implement (colour, point transform, ...).
-    #[error("unsupported jpeg-ls stream: {0}")]
-    Unsupported(String),
-    /// The frame's size is not the one the caller expects.
-    #[error("jpeg-ls frame is {width}x{height}, but {expected_width}x{expected_height} was expected")]
-    SizeMismatch { width: usize, height: usize, expected_width: usize, expected_height: usize },
-    /// The memory for the frame's samples could not be allocated (the allocation is fallible, so this is an
-    /// error, not an abort).
-    #[error("not enough memory for the frame's samples: {bytes} bytes could not be allocated")]
-    OutOfMemory { bytes: u128 },
-}
-
-type Result<T> = std::result::Result<T, JpegLsError>;
-
-fn invalid<T>(msg: impl Into<String>) -> Result<T> {
-    Err(JpegLsError::Invalid(msg.into()))
-}
-
-fn unsupported<T>(msg: impl Into<String>) -> Result<T> {
-    Err(JpegLsError::Unsupported(msg.into()))
-}
-
-fn truncated<T>(msg: impl Into<String>) -> Result<T> {
-    Err(JpegLsError::Truncated(msg.into()))
-}
-
-/// What the caller expects of a frame (from DICOM Rows, Columns and BitsAllocated).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct FrameSpec {
-    /// Samples per line (X; DICOM Columns).
-    pub width: usize,
-    /// Lines (Y; DICOM Rows).
-    pub height: usize,
-    /// The largest sample precision P accepted (DICOM BitsAllocated, at most 16 here).
-    pub max_precision: u8,
-}
-
-/// The parameters of a frame and its scan, as read from the marker segments.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Header {
-    /// X: samples per line.
-    pub width: usize,
-    /// Y: lines.
-    pub height: usize,
-    /// P: sample precision in bits (2..=16).
-    pub precision: u8,
-    /// Nf: components in the frame (only 1 is decoded).
-    pub components: u8,
-    /// NEAR: the largest reconstruction error (0 = lossless).
-    pub near: u16,
-    /// ILV: the interleave mode of the scan.
-    pub interleave: u8,
-    /// MAXVAL: the largest sample value.
-    pub maxval: u16,
-    /// T1, T2, T3: the gradient quantisation thresholds in effect.
-    pub thresholds: [u16; 3],
-    /// RESET: the context counter limit.
-    pub reset: u16,
-    /// Offset of the first byte of entropy-coded data.
-    scan_start: usize,
-}
 
 /// Decodes one single-component JPEG-LS frame into samples (row by row, 0..=MAXVAL).
 ///

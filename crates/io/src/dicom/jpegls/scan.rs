@@ -1,7 +1,8 @@
 //! The entropy-coded scan (T.87 Annex A): the coding parameters, the bit reader with its unstuffing, the
 //! per-context adaptive state, and the regular- and run-mode decoding of every sample.
 
-use super::{Header, Result, invalid, truncated};
+use super::error::{Result, invalid, truncated};
+use super::frame::Header;
 
 /// The run-length order table J (A.7.1.2).
 const J: [u32; 32] =

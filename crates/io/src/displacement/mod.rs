@@ -19,6 +19,8 @@
 //! header (plain or gzip) with intent 1006 is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]; anything else
 //! is refused. It returns LPS vectors whatever the flavour.
 
+pub(crate) mod check;
+
 use std::path::Path;
 
 use crate::error::{Error, Result};
@@ -132,10 +134,10 @@ pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldFormat)> {
 
 /// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
 pub fn read_field_info(path: &Path) -> Result<ReadField> {
-    crate::check_regular_file(path)?;
+    crate::files::check_regular_file(path)?;
     let mut head = [0u8; 4];
     let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let n = crate::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
+    let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
     drop(f);
     let head = &head[..n];
     if head.starts_with(b"NRRD") {
@@ -213,34 +215,6 @@ pub fn check_output_name(path: &Path, format: FieldFormat) -> Result<()> {
         ));
     }
     Ok(())
-}
-
-/// The index (i, j, k) of the first voxel whose vector is not finite, if any; the readers' and writers' check.
-/// The checks every field writer makes before it writes anything: one vector per voxel of `dims`, an invertible and
-/// finite `lps_from_index`, and finite vectors (the first bad one named by its voxel i, j, k).
-pub(crate) fn check_field_to_write(
-    path: &Path,
-    dims: [usize; 3],
-    lps_from_index: &Transform<Lps, Index>,
-    displacements_lps: &[[f32; 3]],
-) -> Result<()> {
-    let n = crate::volume::checked_voxel_count(path, dims)?;
-    if displacements_lps.len() != n {
-        return Err(Error::invalid(path, format!("{} displacements for dims {dims:?}", displacements_lps.len())));
-    }
-    if !lps_from_index.is_valid_affine() {
-        return Err(Error::invalid(path, "the voxel-to-patient matrix is singular or not finite"));
-    }
-    if let Some(ijk) = first_non_finite(dims, displacements_lps) {
-        return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
-    }
-    Ok(())
-}
-
-pub(crate) fn first_non_finite(dims: [usize; 3], displacements: &[[f32; 3]]) -> Option<[usize; 3]> {
-    let n = displacements.iter().position(|d| !d.iter().all(|v| v.is_finite()))?;
-    let per_slice = (dims[0] * dims[1]).max(1);
-    Some([n % dims[0].max(1), (n % per_slice) / dims[0].max(1), n / per_slice])
 }
 
 #[cfg(test)]

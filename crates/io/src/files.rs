@@ -1,0 +1,66 @@
+//! The checks every reader makes on a path before it opens it (a regular file, or a folder for a DICOM series;
+//! never a pipe or a device), and [`read_up_to`], the short read that tells a short file from a full one.
+
+use std::io::Read;
+use std::path::Path;
+
+use crate::error::{Error, ErrorKind, Result};
+
+/// Refuses `path` unless it is a regular file (following symbolic links), before anything opens it: a named
+/// pipe blocks in `open`, a device such as `/dev/zero` never ends. Returns the file's metadata (its length bounds
+/// every read and skip that follows).
+pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_file() {
+        return Ok(meta);
+    }
+    let what = if meta.is_dir() { "a folder" } else { special_kind(&meta) };
+    Err(Error::new(path, ErrorKind::NotARegularFile { what }))
+}
+
+/// [`check_regular_file`], but a folder (a DICOM series) is accepted too.
+pub(crate) fn check_file_or_folder(path: &Path) -> Result<std::fs::Metadata> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if meta.is_file() || meta.is_dir() {
+        return Ok(meta);
+    }
+    Err(Error::new(path, ErrorKind::NotARegularFile { what: special_kind(&meta) }))
+}
+
+/// What a file that is neither regular nor a folder is, in words.
+fn special_kind(meta: &std::fs::Metadata) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        let t = meta.file_type();
+        if t.is_fifo() {
+            return "a named pipe (FIFO)";
+        }
+        if t.is_char_device() {
+            return "a character device";
+        }
+        if t.is_block_device() {
+            return "a block device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    let _ = meta;
+    "a special file"
+}
+
+/// Reads as many bytes as are there, up to `buf.len()` (retrying interrupted reads); the shared
+/// helper of every reader that must tell a short file from a full one.
+pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match r.read(&mut buf[n..]) {
+            Ok(0) => break,
+            Ok(k) => n += k,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(n)
+}

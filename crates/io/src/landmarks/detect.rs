@@ -1,0 +1,76 @@
+//! Which kind of landmark file a text is, told by its content ([`detect_landmark_format`]).
+
+use std::path::Path;
+
+use super::bigwarp_json::{bigwarp_table, not_bigwarp, parse_gson_json};
+use super::plain_csv::looks_like_plain_csv;
+use super::text::{read_text, strip_bom};
+use crate::error::Result;
+
+/// The kinds of landmark file, as [`detect_landmark_format`] tells them apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LandmarkFileFormat {
+    /// BigWarp CSV: pairs.
+    BigWarpCsv,
+    /// BigWarp JSON (alone, under `landmarks`, or in a settings file): pairs.
+    BigWarpJson,
+    /// A Slicer `.mrk.json`: the points of one volume.
+    SlicerMarkupsJson,
+    /// A Slicer `.fcsv`: the points of one volume.
+    SlicerFcsv,
+    /// A plain CSV with a header naming its columns and coordinate system
+    /// ([`read_plain_csv`](super::read_plain_csv)): pairs.
+    PlainCsv,
+}
+
+impl LandmarkFileFormat {
+    /// Whether the file holds pairs (BigWarp) rather than one side (Slicer).
+    #[must_use]
+    pub fn holds_pairs(self) -> bool {
+        matches!(self, Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv)
+    }
+
+    /// The format's name in messages and in `warpbench landmarks --json`.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::BigWarpCsv => "bigwarp-csv",
+            Self::BigWarpJson => "bigwarp-json",
+            Self::SlicerMarkupsJson => "slicer-mrk-json",
+            Self::SlicerFcsv => "slicer-fcsv",
+            Self::PlainCsv => "plain-csv",
+        }
+    }
+}
+
+/// Tells the landmark format of `text` by its content, not its name: JSON (after one BOM and white space, an
+/// `{` or `[`) is BigWarp when it holds a BigWarp landmark table (see
+/// [`parse_bigwarp_json`](super::parse_bigwarp_json)), Slicer when it has a `markups` list, and refused otherwise
+/// with what was expected; text whose first line starts with `#` is a Slicer `.fcsv`, and text whose first line's
+/// first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes every field, so its lines start with `"`);
+/// anything else is BigWarp CSV.
+pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFormat> {
+    let body = strip_bom(text).trim_start();
+    if body.starts_with(['{', '[']) {
+        let root = parse_gson_json(name, body)?;
+        return if bigwarp_table(&root).is_some() {
+            Ok(LandmarkFileFormat::BigWarpJson)
+        } else if root.get("markups").is_some() {
+            Ok(LandmarkFileFormat::SlicerMarkupsJson)
+        } else {
+            Err(not_bigwarp(name, &root))
+        };
+    }
+    if body.starts_with('#') {
+        return Ok(LandmarkFileFormat::SlicerFcsv);
+    }
+    if looks_like_plain_csv(body) {
+        return Ok(LandmarkFileFormat::PlainCsv);
+    }
+    Ok(LandmarkFileFormat::BigWarpCsv)
+}
+
+/// [`detect_landmark_format`] of the file at `path`.
+pub fn detect_landmark_file(path: &Path) -> Result<LandmarkFileFormat> {
+    detect_landmark_format(path, &read_text(path)?)
+}
