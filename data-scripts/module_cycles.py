@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """Import cycles among the modules of one crate.
 
-Usage: python3 data-scripts/module_cycles.py CRATE_SRC [--tests] [-v]
+Usage: python3 data-scripts/module_cycles.py CRATE_SRC [--tests] [--private MOD] [--skip MOD] [-v]
 
 Builds the module graph of CRATE_SRC (e.g. crates/gpu/src) from the `crate::`, `$crate::`, `super::` and `self::`
 paths of every file (comments and string literals left out; `#[cfg(test)]` modules only with --tests) and a parent's
 `use child::…`, then prints each strongly connected component of more than one module as `CYCLE: …` and a summary
-line. Exits 1 when there is a cycle. `-v` prints every edge. It reads paths as text, so an import written without a
+line. Exits 1 when there is a cycle. `--private MOD` also exits 1 when a module outside MOD's subtree imports anything in
+it (the crate root may declare it); `--skip MOD` leaves MOD's subtree out of the cycle search. A `main.rs` beside a
+`lib.rs` is its own crate (it reaches the library by name) and is not read. `-v` prints every edge. It reads paths as text, so an import written without a
 path (a glob from the prelude, a macro) is not seen; open the code at the names it prints before believing a cycle.
 """
 import os, re, sys
@@ -16,6 +18,7 @@ for dp, _, fs in os.walk(root):
     for f in fs:
         if not f.endswith('.rs'): continue
         rel = os.path.relpath(os.path.join(dp, f), root)[:-3].split(os.sep)
+        if rel == ['main'] and os.path.exists(os.path.join(root, 'lib.rs')): continue
         if rel in (['lib'], ['main']): rel = []
         elif rel[-1] == 'mod': rel = rel[:-1]
         mods[tuple(rel)] = os.path.join(dp, f)
@@ -150,6 +153,17 @@ for m, f in mods.items():
     for mt in re.finditer(r'\b(\w+)::\w', src):
         name = mt.group(1)
         if m + (name,) in mods and m + (name,) != m: edges[m].add(m + (name,))
+def opt(flag):
+    return tuple(sys.argv[sys.argv.index(flag) + 1].split('::')) if flag in sys.argv else None
+private, skip = opt('--private'), opt('--skip')
+within = lambda m, sub: m[:len(sub)] == sub
+leaks = []
+if private:
+    for m in sorted(edges):
+        if m != () and not within(m, private):
+            leaks += [(m, t) for t in sorted(edges[m]) if within(t, private)]
+if skip:
+    edges = {m: {t for t in e if not within(t, skip)} for m, e in edges.items() if not within(m, skip)}
 # Tarjan
 idx, low, st, on, out, n = {}, {}, [], set(), [], [0]
 sys.setrecursionlimit(10000)
@@ -171,5 +185,7 @@ cyc = [c for c in out if len(c) > 1]
 if '-v' in sys.argv:
     for m in sorted(edges): print(f'{name(m)} -> {", ".join(sorted(name(x) for x in edges[m]))}')
 for c in cyc: print('CYCLE:', ', '.join(sorted(name(m) for m in c)))
-print(f'{len(mods)} modules, {sum(len(e) for e in edges.values())} edges, {len(cyc)} cycle(s)')
-sys.exit(1 if cyc else 0)
+for m, t in leaks: print(f'PRIVATE: {name(m)} imports {name(t)}')
+print(f'{len(mods)} modules, {sum(len(e) for e in edges.values())} edges, {len(cyc)} cycle(s)'
+      + (f', {len(leaks)} import(s) of {name(private)} from outside it' if private else ''))
+sys.exit(1 if cyc or leaks else 0)
