@@ -2,7 +2,7 @@
 //! of the fixed grid, rendered by `warpbench_gpu` on eframe's own wgpu device, with the landmark glyphs, the warp
 //! method and the view settings in a side panel.
 //!
-//! Bare `warpbench` opens the demo pair ([`demo`]). Loading runs on a worker thread; the window stays responsive
+//! Bare `warpbench` opens the demo pair ([`crate::project::demo`]). Loading runs on a worker thread; the window stays responsive
 //! and shows an error (naming the file) instead of the views when it fails. Frames are rendered only when something
 //! changed, at the interaction sample rate while the camera is being dragged ([`warpbench_gpu::Quality`]).
 //!

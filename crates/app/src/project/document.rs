@@ -1,7 +1,7 @@
 //! The document: everything the user edits and a session keeps. The volumes' paths and looks, the landmark pairs,
 //! and the warp and view settings.
 //!
-//! One value serves three purposes: the undo history snapshots it ([`super::history`]), a session file is it plus
+//! One value serves three purposes: the window's undo history snapshots it, a session file is it plus
 //! the camera and the slice positions ([`super::session::SessionFile`]), and the autosave writes that file. Its serde
 //! form is the session's (schema `warpbench-session/1`): the choices by name, the pairs as `landmarks` with
 //! `moving_lps`/`fixed_lps`, each look's window as `window_low`/`window_high`; fields added later read their

@@ -5,8 +5,12 @@
 //! - [`demo`]: the demo pair, which a document without volume paths stands for.
 //! - [`session`]: the `.warpbench.json` file that keeps a document and the view, and where the autosave goes.
 //!
+//! - [`stack`]: the warp stack, the ordered layers that make the pull-back (a starting transform, a displacement
+//!   field, the landmark fit and the brush), fitted and evaluated in one place.
+//!
 //! Nothing here imports the window ([`crate::gui`]); the subcommands read sessions through [`session::load`].
 
 pub mod demo;
 pub mod document;
 pub mod session;
+pub mod stack;
