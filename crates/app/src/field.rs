@@ -50,7 +50,7 @@ use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
 use crate::progress::Bar;
-use crate::start::Start;
+use crate::project::stack::Layers;
 use crate::warp::InverseConsistency;
 
 /// The `--json` schema name.
@@ -148,15 +148,9 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;
     let start = opts.inputs.start().map_err(Failure::BadInput)?;
-    let inputs = FieldInputs {
-        fixed: &fixed,
-        moving: &moving,
-        pairs: &pairs,
-        names: &names,
-        method: &method,
-        brush: brushed.as_ref(),
-        start: start.as_ref(),
-    };
+    let layers = Layers::new(start, brushed);
+    let inputs =
+        FieldInputs { fixed: &fixed, moving: &moving, pairs: &pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field(grid, &inputs, opts.direction, &mut |done, total| {
         let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
             stage: "sampling the field",
@@ -191,7 +185,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
         tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
         tfm_class: opts.tfm.as_ref().and(field.transform.as_ref()).map(ItkTransform::type_name),
         warnings: field.warnings.clone(),
-        inverse_consistency_mm: brushed.as_ref().map(Brushed::consistency),
+        inverse_consistency_mm: layers.brushed().map(Brushed::consistency),
     };
     if opts.json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
@@ -234,17 +228,17 @@ pub fn displacement_field(
     grid: &Volume,
     fixed: &Volume,
     moving: &Volume,
-    (pairs, brush, start): (&[LandmarkPair], Option<&Brushed>, Option<&Start>),
+    (pairs, layers): (&[LandmarkPair], &Layers),
     names: &Names,
     method: &Method,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let inputs = FieldInputs { fixed, moving, pairs, names, method, brush, start };
+    let inputs = FieldInputs { fixed, moving, pairs, names, method, layers };
     sample_field(grid, &inputs, FieldDirection::Pullback, progress)
 }
 
 /// What a field is made from: the pair, its landmark pairs (raw, as read), what messages call them, the method, and
-/// the brush on top ([`crate::brushed`]).
+/// the layers of the warp stack around the landmark fit ([`crate::project::stack`]).
 #[derive(Clone, Copy, Debug)]
 pub struct FieldInputs<'a> {
     pub fixed: &'a Volume,
@@ -252,9 +246,7 @@ pub struct FieldInputs<'a> {
     pub pairs: &'a [LandmarkPair],
     pub names: &'a Names,
     pub method: &'a Method,
-    pub brush: Option<&'a Brushed>,
-    /// The starting transform under the landmark warp ([`crate::start`]).
-    pub start: Option<&'a Start>,
+    pub layers: &'a Layers,
 }
 
 /// The displacement field of `direction` on `grid`: the pull-back u fitted over the fixed box, D(x) = u(x) − x, or
@@ -266,7 +258,8 @@ pub fn sample_field(
     direction: FieldDirection,
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
-    let FieldInputs { fixed, moving, pairs, names, method, brush, start } = *inputs;
+    let FieldInputs { fixed, moving, pairs, names, method, layers } = *inputs;
+    let start = layers.start.as_ref();
     let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, crate::start::min_pairs(method, start))
         .map_err(Failure::BadInput)?;
     let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
@@ -274,29 +267,22 @@ pub fn sample_field(
     let (sampled, transform) = match direction {
         FieldDirection::Pullback => {
             // The warp is the same whatever the output grid: fitted over the fixed box, as `render` and `warp` fit it.
-            let moving_from_fixed =
-                fit::pullback_of(method, &c, inputs::volume_box::<Fixed>(fixed), start).map_err(Failure::BadInput)?;
+            let moving_from_fixed = fit::pullback_stack(method, &c, inputs::volume_box::<Fixed>(fixed), layers.clone())
+                .map_err(Failure::BadInput)?;
             volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-            if let Some(b) = brush {
-                // u ∘ b⁻¹: no ITK transform holds it exactly.
-                let brushed = b.pullback(&moving_from_fixed);
-                (sample_displacements(&brushed, dims, &lps_from_index, progress).ok_or_else(cancelled)?, None)
-            } else {
-                let sampled =
-                    sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
-                (sampled, Some(crate::transform::itk_transform_of(&moving_from_fixed)))
-            }
+            let sampled =
+                sample_displacements(&moving_from_fixed, dims, &lps_from_index, progress).ok_or_else(cancelled)?;
+            // With a brush (u ∘ b⁻¹) no ITK transform holds it exactly.
+            (sampled, moving_from_fixed.itk_transform().ok())
         }
         FieldDirection::Forward => {
-            // Fitted over the moving box, as `points --from moving` fits it.
+            // Fitted over the moving box, as `points --from moving` fits it; a brush moves where a moving point
+            // appears (b ∘ d).
             let fixed_from_moving =
-                fit::forward_of(method, &c, inputs::volume_box::<Moving>(moving), start).map_err(Failure::BadInput)?;
+                fit::forward_stack(method, &c, inputs::volume_box::<Moving>(moving), layers.clone())
+                    .map_err(Failure::BadInput)?;
             volume::check_allocation(&names.out, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-            let sampled = match brush {
-                // b ∘ d: the brush moves where a moving point appears.
-                Some(b) => sample_displacements(&b.forward(&fixed_from_moving), dims, &lps_from_index, progress),
-                None => sample_displacements(&fixed_from_moving, dims, &lps_from_index, progress),
-            };
+            let sampled = sample_displacements(&fixed_from_moving, dims, &lps_from_index, progress);
             (sampled.ok_or_else(cancelled)?, None)
         }
     };
@@ -310,7 +296,7 @@ pub fn sample_field(
         displacements_lps: sampled.displacements_lps,
         direction,
         max_displacement_mm,
-        method: crate::brushed::describe(&method, brush),
+        method: crate::brushed::describe(&method, layers.brushed()),
         pairs: c.moving.len(),
         transform,
         warnings: fit::fit_warnings(method, &c),

@@ -34,6 +34,7 @@ use warpbench_solver::tps_drag::{DragStep, DragTexture, DraggedEnd, PairDrag};
 use warpbench_solver::warp::{Composed, Warp};
 
 use crate::inputs::{self, Correspondences};
+use crate::project::stack::{Layers, StackForward, StackPullback};
 use crate::scene;
 use crate::start::Start;
 
@@ -455,6 +456,28 @@ pub fn forward_of(
         None => forward(method, &c.fixed, &c.moving, moving_box),
     }
     .map_err(|e| fit_error(method, c, e))
+}
+
+/// The pull-back of the warp stack on checked pairs ([`StackPullback::fit`]), its error in the CLI's words
+/// ([`fit_error`]).
+pub fn pullback_stack(
+    method: &Method,
+    c: &Correspondences,
+    fixed_box: Aabb<Fixed>,
+    layers: Layers,
+) -> anyhow::Result<StackPullback> {
+    StackPullback::fit(method, (&c.fixed, &c.moving), fixed_box, layers).map_err(|e| fit_error(method, c, e))
+}
+
+/// The forward map of the warp stack on checked pairs ([`StackForward::fit`]), its error in the CLI's words
+/// ([`fit_error`]).
+pub fn forward_stack(
+    method: &Method,
+    c: &Correspondences,
+    moving_box: Aabb<Moving>,
+    layers: Layers,
+) -> anyhow::Result<StackForward> {
+    StackForward::fit(method, (&c.fixed, &c.moving), moving_box, layers).map_err(|e| fit_error(method, c, e))
 }
 
 /// A fitted pull-back sampled into the n³ control texture of [`scene::control_grid`] over `fixed_box`: a

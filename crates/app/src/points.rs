@@ -188,25 +188,21 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
 
     let xs: Vec<[f64; 3]> = sources.iter().filter_map(|(_, p)| p.map(|p| p.coords())).collect();
     let mut ys = vec![[0.0; 3]; xs.len()];
-    // A session's brush acts on top: b ∘ d from the moving side, u ∘ b⁻¹ from the fixed side.
+    // The stack: a starting transform under the landmark fit, a session's brush on top (b ∘ d from the moving side,
+    // u ∘ b⁻¹ from the fixed side).
     let brushed = inputs.brushed().map_err(Failure::BadInput)?;
+    let layers = crate::project::stack::Layers::new(start.clone(), brushed);
     let (source_volume, source_path) = match from {
         Side::Moving => {
-            let fixed_from_moving = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(&moving), start.as_ref())
+            let fixed_from_moving = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving), layers)
                 .map_err(Failure::BadInput)?;
-            match &brushed {
-                Some(b) => b.forward(&fixed_from_moving).apply_batch_raw(&xs, &mut ys),
-                None => fixed_from_moving.apply_batch_raw(&xs, &mut ys),
-            }
+            fixed_from_moving.apply_batch_raw(&xs, &mut ys);
             (&moving, &inputs.moving)
         }
         Side::Fixed => {
-            let moving_from_fixed = fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&fixed), start.as_ref())
+            let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&fixed), layers)
                 .map_err(Failure::BadInput)?;
-            match &brushed {
-                Some(b) => b.pullback(&moving_from_fixed).apply_batch_raw(&xs, &mut ys),
-                None => moving_from_fixed.apply_batch_raw(&xs, &mut ys),
-            }
+            moving_from_fixed.apply_batch_raw(&xs, &mut ys);
             (&fixed, &inputs.fixed)
         }
     };

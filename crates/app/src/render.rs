@@ -29,6 +29,7 @@ use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::inputs::{self, LandmarkSource, OutputFile};
 use crate::procedural::ProceduralSpec;
+use crate::project::stack::Layers;
 use crate::{fit, scene, settings};
 
 /// Which slice of the fixed grid `--slice` asks for.
@@ -251,25 +252,18 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        let pullback = fit::pullback_of(&method, &c, fixed_box, start.as_ref()).map_err(Failure::BadInput)?;
-        let forward = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(moving), start.as_ref())
-            .map_err(Failure::BadInput)?;
         let brushed = Brushed::new(&opts.brush, &source.describe()).map_err(Failure::BadInput)?;
-        // With a brush on top: u ∘ b⁻¹ into the texture, and the moving glyphs at b(d(p)).
-        if let Some(b) = &brushed {
-            sampled =
-                Some(scene::control_texture(&b.pullback(&pullback), fixed_box, opts.grid).map_err(Failure::BadInput)?);
-            if !opts.quiet {
-                let c = b.consistency();
-                eprintln!("brush: its inverse undoes it within {:.4} mm (max; rms {:.5} mm)", c.max_mm, c.rms_mm);
-            }
-        } else {
-            sampled = Some(fit::control_texture(&pullback, fixed_box, opts.grid).map_err(Failure::BadInput)?);
+        if let (Some(b), false) = (&brushed, opts.quiet) {
+            let c = b.consistency();
+            eprintln!("brush: its inverse undoes it within {:.4} mm (max; rms {:.5} mm)", c.max_mm, c.rms_mm);
         }
-        let shown = |p: &warpbench_io::geometry::Point3<Moving>| match &brushed {
-            Some(b) => b.forward(&forward).apply(*p).coords(),
-            None => forward.apply(*p).coords(),
-        };
+        // The stack: u (with a brush, u ∘ b⁻¹) into the texture, and the moving glyphs at d(p) (b(d(p))).
+        let layers = Layers::new(start, brushed);
+        let pullback = fit::pullback_stack(&method, &c, fixed_box, layers.clone()).map_err(Failure::BadInput)?;
+        let forward =
+            fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(moving), layers).map_err(Failure::BadInput)?;
+        sampled = Some(pullback.control_texture(fixed_box, opts.grid).map_err(Failure::BadInput)?);
+        let shown = |p: &warpbench_io::geometry::Point3<Moving>| forward.apply(*p).coords();
         glyph_pairs = c
             .moving
             .iter()

@@ -42,6 +42,7 @@ use crate::args::{PairArgs, ReportArgs};
 use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, OutputFile};
+use crate::project::stack::Layers;
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-transform/1";
@@ -140,14 +141,15 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             eprintln!("warpbench: warning: {w}");
         }
     }
-    let moving_from_fixed = fit::pullback_of(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed), start.as_ref())
+    let layers = Layers::new(start.clone(), None);
+    let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed), layers)
         .map_err(Failure::BadInput)?;
-    let transform = itk_transform_of(&moving_from_fixed);
+    let transform = moving_from_fixed.itk_transform().map_err(Failure::BadInput)?;
     itk_tfm::write(&out_path, &transform)?;
 
-    let domain_lps = match &moving_from_fixed {
-        FittedWarp::BSpline(spline) => Some([spline.lattice().min_mm(), spline.lattice().max_mm()]),
-        FittedWarp::Tps(_) | FittedWarp::Linear(_) => None,
+    let domain_lps = match moving_from_fixed.as_fitted() {
+        Some(FittedWarp::BSpline(spline)) => Some([spline.lattice().min_mm(), spline.lattice().max_mm()]),
+        _ => None,
     };
     let summary = TransformSummary {
         schema: SCHEMA,

@@ -51,8 +51,8 @@ use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit::{self, TpsParts};
 use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
+use crate::project::stack::Layers;
 use crate::scene;
-use crate::start::Start;
 
 /// Where the resampling runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -328,8 +328,9 @@ pub struct Resampled {
 }
 
 /// Resamples `moving` on `grid`'s geometry through the pull-back fitted on `pairs` (raw, as read: checked against
-/// `moving` and `fixed` here, by [`inputs::check_pairs`]), with `brush` on top (u ∘ b⁻¹, [`Brushed::pullback`]:
-/// through a control texture for `--grid`, evaluated at every voxel for `--exact`); the volume `warpbench warp`
+/// `moving` and `fixed` here, by [`inputs::check_pairs`]) on the warp stack's other `layers` (a starting transform
+/// under it, a brush on top: u ∘ b⁻¹ goes through a control texture for `--grid` and is evaluated at every voxel for
+/// `--exact`; [`crate::project::stack`]); the volume `warpbench warp`
 /// writes, which is this function's result. `grid` is the output grid: the fixed volume, or `--reference`; only its geometry is read.
 /// `names` name the inputs in messages.
 ///
@@ -339,7 +340,7 @@ pub fn resample(
     grid: &Volume,
     fixed: &Volume,
     moving: &Volume,
-    layers: (&[LandmarkPair], Option<&Brushed>, Option<&Start>),
+    layers: (&[LandmarkPair], &Layers),
     names: &Names,
     settings: &WarpSettings,
     progress: &mut dyn FnMut(Progress) -> bool,
@@ -590,26 +591,25 @@ impl Fitted {
         grid: &Volume,
         fixed: &Volume,
         moving: &Volume,
-        (pairs, brush, initial): (&[LandmarkPair], Option<&Brushed>, Option<&Start>),
+        (pairs, layers): (&[LandmarkPair], &Layers),
         names: &Names,
         settings: &WarpSettings,
     ) -> Result<Self, Failure> {
         let start = Instant::now();
         let method = settings.method;
-        if brush.is_none() {
+        let (initial, brush) = (layers.start.as_ref(), layers.brushed());
+        if layers.brush.is_none() {
             check_pullback_mode(&method, settings.pullback)?;
         }
         let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, crate::start::min_pairs(&method, initial))
             .map_err(Failure::BadInput)?;
         let target_box = inputs::volume_box::<Fixed>(grid);
-        let pullback = fit::pullback_of(&method, &c, target_box, initial).map_err(Failure::BadInput)?;
-        let (pullback, target) = match brush {
-            // u ∘ b⁻¹ has no exact GPU form: through a control texture, or one texel per voxel for --exact.
-            Some(b) => {
-                let composed = b.pullback(&pullback);
-                export_pullback(Source::Field(&composed, Path::new(&names.landmarks)), settings.pullback, grid)
-            }
-            None => export_pullback(Source::Fitted(&pullback), settings.pullback, grid),
+        let pullback = fit::pullback_stack(&method, &c, target_box, layers.clone()).map_err(Failure::BadInput)?;
+        let (pullback, target) = match pullback.as_fitted() {
+            Some(u) => export_pullback(Source::Fitted(u), settings.pullback, grid),
+            // A stack with a brush has no exact GPU form: through a control texture, or one texel per voxel for
+            // --exact.
+            None => export_pullback(Source::Field(&pullback, Path::new(&names.landmarks)), settings.pullback, grid),
         }
         .map_err(Failure::BadInput)?;
         Ok(Self {
@@ -791,12 +791,12 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     let given = match &opts.inputs {
         WarpInputs::Pairs(pairs) => {
             let method = pairs.method().map_err(Failure::BadInput)?;
-            let brushed = pairs.brushed().map_err(Failure::BadInput)?.map(Box::new);
+            let brushed = pairs.brushed().map_err(Failure::BadInput)?;
             if brushed.is_none() {
                 check_pullback_mode(&method, opts.pullback)?;
             }
-            let start = pairs.start().map_err(Failure::BadInput)?.map(Box::new);
-            Given::Pairs(method, &pairs.landmarks, brushed, start)
+            let start = pairs.start().map_err(Failure::BadInput)?;
+            Given::Pairs(method, &pairs.landmarks, Box::new(Layers::new(start, brushed)))
         }
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
@@ -809,7 +809,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
     let fitted = match &given {
-        Given::Pairs(method, landmarks, brushed, start) => {
+        Given::Pairs(method, landmarks, layers) => {
             let pairs = landmarks.read().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method: *method,
@@ -819,7 +819,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
                 backend: export.backend,
                 outside_value: export.outside_value,
             };
-            Fitted::new(grid, &fixed, &moving, (&pairs, brushed.as_deref(), start.as_deref()), &names, &settings)?
+            Fitted::new(grid, &fixed, &moving, (&pairs, layers), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
     };
@@ -883,8 +883,9 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
 
 /// The warp [`run`] applies, checked before any volume is loaded.
 enum Given<'a> {
-    /// A method, to fit on the pairs of a landmark source, a brush on top and a starting transform under it.
-    Pairs(Method, &'a inputs::LandmarkSource, Option<Box<Brushed>>, Option<Box<Start>>),
+    /// A method, to fit on the pairs of a landmark source, and the stack's other layers (a starting transform under
+    /// it, a brush on top).
+    Pairs(Method, &'a inputs::LandmarkSource, Box<Layers>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
 }

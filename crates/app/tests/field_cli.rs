@@ -20,6 +20,7 @@ use common::{assert_ok, deformed_pairs as write_pairs, mri as fixture, utf8, war
 use warpbench_app::exit::Failure;
 use warpbench_app::field;
 use warpbench_app::inputs::Names;
+use warpbench_app::project::stack::Layers;
 use warpbench_io::displacement::{FieldDirection, FieldFormat};
 use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 use warpbench_io::itk_tfm;
@@ -408,7 +409,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None, None),
+            (&pairs, &Layers::default()),
             &names(&f, &csv, &core_out),
             &method,
             &mut |done, total| {
@@ -448,8 +449,7 @@ fn the_in_memory_core_writes_the_files_the_command_writes() {
         pairs: &pairs,
         names: &names,
         method: &Method::Tps { stiffness: 0.0 },
-        brush: None,
-        start: None,
+        layers: &Layers::default(),
     };
     let forward =
         field::sample_field(&volume, &inputs, FieldDirection::Forward, &mut |_, _| true).expect("the field in memory");
@@ -472,7 +472,7 @@ fn the_in_memory_core_stops_when_progress_says_so() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None, None),
+            (&pairs, &Layers::default()),
             &names(&f, &csv, &dir.path().join("never.nii")),
             &Method::Tps { stiffness: 0.0 },
             &mut |_, _| {

@@ -11,6 +11,7 @@ use common::{assert_ok, data, utf8 as s, warpbench, write_pairs_csv as write_pai
 
 use warpbench_app::exit::Failure;
 use warpbench_app::inputs::Names;
+use warpbench_app::project::stack::Layers;
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpSettings};
 use warpbench_gpu::export::{Interpolation, Progress};
 use warpbench_io::landmarks::read_bigwarp_csv;
@@ -307,7 +308,7 @@ fn the_in_memory_core_makes_the_file_the_command_writes() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None, None),
+            (&pairs, &Layers::default()),
             &names(&mri, &csv, &from_core),
             settings,
             &mut |p: Progress| {
@@ -361,7 +362,7 @@ fn the_in_memory_core_stops_when_progress_says_so() {
             &volume,
             &volume,
             &volume,
-            (&pairs, None, None),
+            (&pairs, &Layers::default()),
             &names(&mri, &csv, &dir.path().join("never.nii")),
             &settings,
             &mut |_: Progress| {

@@ -108,7 +108,8 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
         .map(crate::project::document::StartingTransform::start)
         .transpose()
         .map_err(Failure::BadInput)?;
-    let pairs_and_brush = (input.pairs.as_slice(), brushed.as_ref(), start.as_ref());
+    let layers = crate::project::stack::Layers::new(start, brushed);
+    let pairs_and_brush = (input.pairs.as_slice(), &layers);
     match kind {
         ExportKind::Warped { dicom } => {
             let settings = WarpSettings {

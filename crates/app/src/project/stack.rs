@@ -145,6 +145,21 @@ pub struct Layers {
 }
 
 impl Layers {
+    /// A starting transform and a fitted brush, as the subcommands read them from `--initial` and a session.
+    #[must_use]
+    pub fn new(start: Option<Start>, brushed: Option<Brushed>) -> Self {
+        Self { start, field: None, brush: brushed.map(|b| BrushLayer::Fitted(Arc::new(b))) }
+    }
+
+    /// The fitted brush on top, if there is one.
+    #[must_use]
+    pub fn brushed(&self) -> Option<&Brushed> {
+        match &self.brush {
+            Some(BrushLayer::Fitted(b)) => Some(b),
+            _ => None,
+        }
+    }
+
     /// B(x) = T₀(F(x)).
     fn base_raw(&self, x: [f64; 3]) -> [f64; 3] {
         let x = self.field.as_ref().map_or(x, |f| f.moving_from_fixed_raw(x));
