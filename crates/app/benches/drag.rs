@@ -38,6 +38,7 @@ use warpbench_app::fit::{self, ControlRoute, DragFit, fit_warp, fit_warp_on_gpu}
 use warpbench_app::gui::pacing::{BAND_ALIGN_ROWS, Bands, RefineJob, interactive_size};
 use warpbench_app::gui::viewer::{DeviceFacts, LayerData, Viewer};
 use warpbench_app::project::demo;
+use warpbench_app::project::stack::Layers;
 use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{
     GlyphPair, GlyphStyle, GpuContext, OrbitCamera, Projection, Quality, RenderSettings, SlicePlane, pair_glyphs,
@@ -253,11 +254,13 @@ fn main() {
             drag.show(&event, &mut viewer).unwrap_or_else(|e| panic!("{e:#}"));
             (event.into_fitted(), t1)
         } else if o.gpu_eval {
-            let fitted = fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, None);
+            let fitted =
+                fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, &Layers::default());
             (fitted.unwrap_or_else(|e| panic!("{e:#}")), Instant::now())
         } else {
-            let (fitted, prepared) = fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, None)
-                .unwrap_or_else(|e| panic!("{e:#}"));
+            let (fitted, prepared) =
+                fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, &Layers::default())
+                    .unwrap_or_else(|e| panic!("{e:#}"));
             let t1 = Instant::now();
             viewer.set_control(Some(&prepared));
             (fitted, t1)

@@ -21,7 +21,7 @@
 //! `itk`, NIfTI-1 float32 intent `DISPVECT` with RAS vectors (ITK ≥ 5.3, Slicer); `ants`, NIfTI intent `VECTOR`
 //! with LPS vectors (`antsApplyTransforms`); `nrrd`, Slicer's NRRD field, which also records the direction.
 //!
-//! `--tfm` writes the pull-back itself as an ITK transform file ([`crate::transform::itk_transform_of`]: a thin-plate
+//! `--tfm` writes the pull-back itself as an ITK transform file ([`crate::project::stack::itk_transform_of`]: a thin-plate
 //! spline, a B-spline or an affine, each exact), which ITK applies in LPS, like our patient space.
 //!
 //! [`run`] loads the files, calls the in-memory core [`displacement_field`] (the pairs checked, the fit, the
@@ -259,8 +259,7 @@ pub fn sample_field(
     progress: &mut dyn FnMut(u64, u64) -> bool,
 ) -> Result<Field, Failure> {
     let FieldInputs { fixed, moving, pairs, names, method, layers } = *inputs;
-    let start = layers.start.as_ref();
-    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, crate::start::min_pairs(method, start))
+    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, layers.min_pairs(method))
         .map_err(Failure::BadInput)?;
     let (dims, lps_from_index) = (grid.dims, grid.lps_from_index);
     let cancelled = || Failure::Cancelled(anyhow!("sampling the displacement field: cancelled"));

@@ -8,8 +8,8 @@
 //! - The window and the drag bench fit both directions on every landmark change: [`fit_warp`] samples the pull-back
 //!   into a control texture on the CPU, [`fit_warp_on_gpu`] has the GPU evaluate it. Their errors read
 //!   `N active pairs; <method> needs K` and `<method>: <problem>`.
-//! - The CLI's pair subcommands fit pairs checked against the volumes ([`Correspondences`]): [`pullback_of`] and
-//!   [`forward_of`], whose errors read `<landmark file>: fitting the <method> warp: <problem>` with the pairs
+//! - The CLI's pair subcommands fit pairs checked against the volumes ([`Correspondences`]) on the warp stack:
+//!   [`pullback_stack`] and [`forward_stack`], whose errors read `<landmark file>: fitting the <method> warp: <problem>` with the pairs
 //!   numbered as in the file ([`fit_error`]), and [`fit_warnings`].
 //! - A landmark drag with a TPS: [`DragFit`] keeps both directions factorised from the drag's first event and gives
 //!   each further event's coefficients in O(N²) ([`warpbench_solver::tps_drag`]), the same warps as [`fit_warp`] to
@@ -31,12 +31,10 @@ use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::tps::{Regularisation, Tps};
 use warpbench_solver::tps_drag::{DragStep, DragTexture, DraggedEnd, PairDrag};
-use warpbench_solver::warp::{Composed, Warp};
 
 use crate::inputs::{self, Correspondences};
 use crate::project::stack::{Layers, StackForward, StackPullback};
 use crate::scene;
-use crate::start::Start;
 
 /// Where a fitted pull-back's control texture goes: the renderer that draws with it (the window's viewer, the drag
 /// bench's). It takes a texture sampled on the CPU, or evaluates a TPS or a B-spline into its texture on the GPU.
@@ -45,6 +43,8 @@ pub trait ControlTarget {
     fn float32_filterable(&self) -> bool;
     /// Uploads a control texture sampled on the CPU.
     fn upload(&mut self, prepared: &PreparedControl);
+    /// Removes the warp: the moving volume is shown unwarped.
+    fn clear(&mut self);
     /// Evaluates the TPS pull-back `tps` on `grid` into the texture on the GPU.
     ///
     /// # Errors
@@ -78,13 +78,13 @@ pub fn forward(
     method.fit(moving, fixed, moving_box)
 }
 
-/// The warp fitted on the active pairs in both directions: the pull-back the renderer uses and the forward map that
-/// places the moving glyphs.
+/// The warp fitted on the active pairs in both directions, on the stack's other layers: the pull-back the renderer
+/// uses and the forward map that places the moving glyphs.
 pub struct Fitted {
     /// u = moving_from_fixed: where a point of the deformed view comes from in the moving volume.
-    pub pullback: FittedWarp<Moving, Fixed>,
+    pub pullback: StackPullback,
     /// d = fixed_from_moving.
-    pub forward: FittedWarp<Fixed, Moving>,
+    pub forward: StackForward,
     /// How many pairs both were fitted on.
     pub pairs: usize,
     /// The pairs both were fitted on, for telling which point a drag moves ([`moved_point`]).
@@ -99,8 +99,9 @@ impl fmt::Debug for Fitted {
 }
 
 /// What one landmark change costs before the frame: the pull-back and the forward warp fitted on the pairs
-/// (`fixed[i]` ↔ `moving[i]`), and the pull-back sampled into a `grid_n`³ control texture over the fixed box, ready to
-/// upload. The window runs this on every drag event; `benches/drag.rs` times it with the frame.
+/// (`fixed[i]` ↔ `moving[i]`) on the stack's other `layers` (a starting transform or a field under them, a brush on
+/// top; [`crate::project::stack`]), and the pull-back sampled into a `grid_n`³ control texture over the fixed box,
+/// ready to upload. The window runs this on every drag event; `benches/drag.rs` times it with the frame.
 ///
 /// # Errors
 /// Too few pairs for the method, a fit that fails (degenerate pairs), or a control texture that cannot be made.
@@ -111,32 +112,10 @@ pub fn fit_warp(
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
     grid_n: usize,
     float32_filterable: bool,
-    start: Option<&Start>,
+    layers: &Layers,
 ) -> anyhow::Result<(Fitted, PreparedControl)> {
-    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
-    let (grid, texture) = control_texture(&pullback, fixed_box, grid_n)?;
-    let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
-        .map_err(|e| anyhow!("{e}"))?;
-    Ok((Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() }, prepared))
-}
-
-/// [`fit_warp`] with a brush on top ([`crate::brushed`]): both directions fitted on the pairs, and the pull-back
-/// u ∘ b⁻¹ sampled into the control texture, `brush_inverse` being b⁻¹ (fitted by scattered-data interpolation once
-/// a stroke has settled, or undone point by point while it is dragged).
-///
-/// # Errors
-/// As [`fit_warp`].
-pub fn fit_warp_brushed(
-    method: &Method,
-    (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
-    (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
-    (grid_n, float32_filterable): (usize, bool),
-    brush_inverse: &dyn Warp<Fixed, Fixed>,
-    start: Option<&Start>,
-) -> anyhow::Result<(Fitted, PreparedControl)> {
-    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
-    let brushed = Composed { first: brush_inverse, second: &pullback };
-    let (grid, texture) = scene::control_texture(&brushed, fixed_box, grid_n)?;
+    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), layers)?;
+    let (grid, texture) = pullback.control_texture(fixed_box, grid_n)?;
     let prepared = PreparedControl::prepare(&scene::control_desc(&grid, &texture), float32_filterable)
         .map_err(|e| anyhow!("{e}"))?;
     Ok((Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() }, prepared))
@@ -227,8 +206,8 @@ impl DragEvent {
     pub fn into_fitted(self) -> Fitted {
         Fitted {
             pairs: self.moving.len(),
-            pullback: FittedWarp::Tps(self.step.pullback),
-            forward: FittedWarp::Tps(self.step.forward),
+            pullback: StackPullback::folded(FittedWarp::Tps(self.step.pullback)),
+            forward: StackForward::folded(FittedWarp::Tps(self.step.forward)),
             fixed: self.fixed,
             moving: self.moving,
         }
@@ -339,23 +318,20 @@ impl DragFit {
     }
 }
 
-/// Refuses fewer pairs than `method` needs, in the window's words.
-/// Both directions fitted on the pairs, on top of the starting transform when there is one ([`crate::start`]): with
-/// it, too few pairs give the starting transform alone; without it they are an error.
+/// Both directions fitted on the pairs on the stack's other `layers`: with a starting transform or a field under
+/// them, too few pairs give that base alone; without one they are an error, in the window's words.
 fn fit_both(
     method: &Method,
-    (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
+    pairs: (&[Point3<Fixed>], &[Point3<Moving>]),
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
-    start: Option<&Start>,
-) -> anyhow::Result<(FittedWarp<Moving, Fixed>, FittedWarp<Fixed, Moving>)> {
-    let fitted = if let Some(s) = start {
-        crate::start::pullback(s, method, fixed, moving, fixed_box)
-            .and_then(|u| Ok((u, crate::start::forward(s, method, fixed, moving, moving_box)?)))
-    } else {
-        enough_pairs(method, moving.len())?;
-        pullback(method, fixed, moving, fixed_box).and_then(|u| Ok((u, forward(method, fixed, moving, moving_box)?)))
-    };
-    fitted.map_err(|e| anyhow!("{method}: {e}"))
+    layers: &Layers,
+) -> anyhow::Result<(StackPullback, StackForward)> {
+    if layers.start.is_none() && layers.field.is_none() {
+        enough_pairs(method, pairs.1.len())?;
+    }
+    StackPullback::fit(method, pairs, fixed_box, layers.clone())
+        .and_then(|u| Ok((u, StackForward::fit(method, pairs, moving_box, layers.clone())?)))
+        .map_err(|e| anyhow!("{method}: {e}"))
 }
 
 fn enough_pairs(method: &Method, pairs: usize) -> anyhow::Result<()> {
@@ -389,19 +365,20 @@ pub fn fit_warp_on_gpu(
     (fixed_box, moving_box): (Aabb<Fixed>, Aabb<Moving>),
     grid_n: usize,
     target: &mut dyn ControlTarget,
-    start: Option<&Start>,
+    layers: &Layers,
 ) -> anyhow::Result<Fitted> {
     if !gpu_evaluates(method) {
         return Err(not_on_gpu(method));
     }
     let desc = control_grid_desc(&scene::control_grid(fixed_box, grid_n)?);
-    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), start)?;
-    match &pullback {
-        FittedWarp::Tps(tps) => target.evaluate_tps(&TpsParts::new(tps).desc(), &desc)?,
-        FittedWarp::BSpline(spline) => {
+    let (pullback, forward) = fit_both(method, (fixed, moving), (fixed_box, moving_box), layers)?;
+    match pullback.as_fitted() {
+        Some(FittedWarp::Tps(tps)) => target.evaluate_tps(&TpsParts::new(tps).desc(), &desc)?,
+        Some(FittedWarp::BSpline(spline)) => {
             target.evaluate_bspline(&BSplineDesc { lattices: &[lattice_desc(spline)] }, &desc)?;
         }
-        FittedWarp::Linear(_) => return Err(not_on_gpu(method)),
+        // A field or a brush in the stack, or a linear fit: sampled on the CPU instead.
+        Some(FittedWarp::Linear(_)) | None => return Err(not_on_gpu(method)),
     }
     Ok(Fitted { pullback, forward, pairs: moving.len(), fixed: fixed.to_vec(), moving: moving.to_vec() })
 }
@@ -426,36 +403,6 @@ pub fn fit_warnings(method: &Method, c: &Correspondences) -> Vec<String> {
         .into_iter()
         .map(|w| format!("{}: {}", c.origin, w.renumber(|n| c.file_number(n))))
         .collect()
-}
-
-/// [`pullback`] on checked pairs, on top of the starting transform when there is one ([`crate::start::pullback`]),
-/// its error in the CLI's words ([`fit_error`]).
-pub fn pullback_of(
-    method: &Method,
-    c: &Correspondences,
-    fixed_box: Aabb<Fixed>,
-    start: Option<&Start>,
-) -> anyhow::Result<FittedWarp<Moving, Fixed>> {
-    match start {
-        Some(s) => crate::start::pullback(s, method, &c.fixed, &c.moving, fixed_box),
-        None => pullback(method, &c.fixed, &c.moving, fixed_box),
-    }
-    .map_err(|e| fit_error(method, c, e))
-}
-
-/// [`forward`] on checked pairs, on top of the starting transform when there is one ([`crate::start::forward`]),
-/// its error in the CLI's words ([`fit_error`]).
-pub fn forward_of(
-    method: &Method,
-    c: &Correspondences,
-    moving_box: Aabb<Moving>,
-    start: Option<&Start>,
-) -> anyhow::Result<FittedWarp<Fixed, Moving>> {
-    match start {
-        Some(s) => crate::start::forward(s, method, &c.fixed, &c.moving, moving_box),
-        None => forward(method, &c.fixed, &c.moving, moving_box),
-    }
-    .map_err(|e| fit_error(method, c, e))
 }
 
 /// The pull-back of the warp stack on checked pairs ([`StackPullback::fit`]), its error in the CLI's words
@@ -592,7 +539,7 @@ mod tests {
                 let texture = drag.control_texture(&event, true);
                 assert_eq!(texture.is_some(), route == ControlRoute::Cpu, "{route:?}");
                 let (full, full_texture) =
-                    fit_warp(&method, &fixed, &moving, boxes(), 16, true, None).expect("full fit");
+                    fit_warp(&method, &fixed, &moving, boxes(), 16, true, &Layers::default()).expect("full fit");
                 if let Some(texture) = texture {
                     // f32 texels of the same displacements (tests/tps_drag.rs holds them within 8 ε of the largest).
                     let texels = texture.expect("a texture").texels;

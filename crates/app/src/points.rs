@@ -7,7 +7,7 @@
 //! --from fixed:   y = u(x),  u = moving_from_fixed, fitted on the pairs qᵢ → pᵢ over the fixed volume's box
 //! ```
 //!
-//! (pᵢ the moving, qᵢ the fixed landmarks; [`fit::forward_of`], [`fit::pullback_of`].) So a point on the moving
+//! (pᵢ the moving, qᵢ the fixed landmarks; [`fit::forward_stack`], [`fit::pullback_stack`].) So a point on the moving
 //! volume comes out where the warped volume (`warpbench warp`, v'(x) = v(u(x))) shows it, and a point on the fixed
 //! volume comes out at the moving point the warped volume shows there. d and u are fitted separately: u(d(p)) = p
 //! only to within the warp's inverse consistency. (ANTs's `antsApplyTransformsToPoints` takes the inverse of the

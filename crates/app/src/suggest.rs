@@ -22,12 +22,13 @@ use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::{Fixed, Moving, as_moving};
 use warpbench_solver::suggest::{SuggestParams, suggest};
-use warpbench_solver::warp::Parallelism;
+use warpbench_solver::warp::{Parallelism, Warp};
 
 use crate::args::{PairArgs, ReportArgs};
 use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, OutputFile};
+use crate::project::stack::StackForward;
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-suggest/1";
@@ -125,7 +126,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
 
     // The current warp's forward map.
-    let (forward, prediction): (FittedWarp<Fixed, Moving>, String) = match &source {
+    let (forward, prediction): (StackForward, String) = match &source {
         Some(landmarks) => {
             let method = inputs::resolve_method(warp.method, warp.stiffness, warp.levels, Some(landmarks))
                 .map_err(Failure::BadInput)?;
@@ -138,13 +139,19 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
                 crate::start::min_pairs(&method, start.as_ref()),
             )
             .map_err(Failure::BadInput)?;
-            let d = fit::forward_of(&method, &c, inputs::volume_box::<Moving>(&moving_volume), start.as_ref())
+            let layers = crate::project::stack::Layers::new(start.clone(), None);
+            let d = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving_volume), layers)
                 .map_err(Failure::BadInput)?;
             (d, crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()))
         }
         None => match &start {
-            Some(s) => (FittedWarp::Linear(*s.fixed_from_moving()), format!("{} alone", s.origin)),
-            None => (FittedWarp::Linear(AffineWarp::identity()), "identity (no landmarks, no --initial)".to_owned()),
+            Some(s) => {
+                (StackForward::folded(FittedWarp::Linear(*s.fixed_from_moving())), format!("{} alone", s.origin))
+            }
+            None => (
+                StackForward::folded(FittedWarp::Linear(AffineWarp::identity())),
+                "identity (no landmarks, no --initial)".to_owned(),
+            ),
         },
     };
     let fixed_image = Image::<Fixed>::from_volume(&fixed_volume, Parallelism::Rayon)
@@ -160,9 +167,9 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
         .enumerate()
         .map(|(i, (name, p))| {
             let p = as_moving(*p);
-            let predicted = forward.as_ref().apply(p).coords();
+            let predicted = forward.apply(p).coords();
             let name = if name.is_empty() { format!("Pt-{i}") } else { name.clone() };
-            match suggest(&moving_image, &fixed_image, forward.as_ref(), p, &params) {
+            match suggest(&moving_image, &fixed_image, &forward, p, &params) {
                 Ok(s) => SuggestedPoint {
                     name,
                     moving_lps: p.coords(),

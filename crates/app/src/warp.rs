@@ -597,11 +597,11 @@ impl Fitted {
     ) -> Result<Self, Failure> {
         let start = Instant::now();
         let method = settings.method;
-        let (initial, brush) = (layers.start.as_ref(), layers.brushed());
+        let brush = layers.brushed();
         if layers.brush.is_none() {
             check_pullback_mode(&method, settings.pullback)?;
         }
-        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, crate::start::min_pairs(&method, initial))
+        let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, layers.min_pairs(&method))
             .map_err(Failure::BadInput)?;
         let target_box = inputs::volume_box::<Fixed>(grid);
         let pullback = fit::pullback_stack(&method, &c, target_box, layers.clone()).map_err(Failure::BadInput)?;
@@ -614,10 +614,7 @@ impl Fitted {
         .map_err(Failure::BadInput)?;
         Ok(Self {
             settings: ExportSettings::from(settings),
-            method: crate::brushed::describe(
-                &crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), initial),
-                brush,
-            ),
+            method: layers.describe(&method, c.moving.len()),
             pairs: c.moving.len(),
             pullback,
             target,

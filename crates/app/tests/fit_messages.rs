@@ -191,7 +191,16 @@ fn a_repeated_pair_and_a_nearly_flat_set_give_warnings_naming_the_file_and_pairs
         assert!(warnings[0].starts_with(utf8(&csv)), "{method}: {warnings:?}");
         assert!(warnings[0].contains("landmarks 5 and 8 are the same pair"), "{method}: {warnings:?}");
         // It still fits, counting the pair once.
-        assert!(fit::pullback_of(&method, &c, inputs::volume_box(&volume), None).is_ok(), "{method}");
+        assert!(
+            fit::pullback_stack(
+                &method,
+                &c,
+                inputs::volume_box(&volume),
+                warpbench_app::project::stack::Layers::default()
+            )
+            .is_ok(),
+            "{method}"
+        );
     }
 
     // 0.2 mm thick over 80 mm: it fits, with a warning naming the side.

@@ -140,10 +140,17 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
             warpbench_app::inputs::volume_box(&ready.loaded.moving),
         );
         let n = ready.document.settings.grid_n;
-        let (fitted, _) =
-            warpbench_app::gui::fit_warp(&ready.document.settings.method(), &fixed, &moving, boxes, n, true, None)
-                .expect("fit");
-        let (_, texture) = warpbench_app::scene::control_texture(fitted.pullback.as_ref(), boxes.0, n).expect("sample");
+        let (fitted, _) = warpbench_app::gui::fit_warp(
+            &ready.document.settings.method(),
+            &fixed,
+            &moving,
+            boxes,
+            n,
+            true,
+            &warpbench_app::project::stack::Layers::default(),
+        )
+        .expect("fit");
+        let (_, texture) = warpbench_app::scene::control_texture(&fitted.pullback, boxes.0, n).expect("sample");
         let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
         // The GPU's: evaluated into the window's control texture.
         ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
@@ -222,7 +229,7 @@ fn storage_rounding(v: f32, half_floats: bool) -> f64 {
 /// The window's TPS pull-back, its control texture read back, and whether the texture stores f16.
 fn shown_pullback(ready: &Ready) -> (Tps<Moving, Fixed>, Vec<[f32; 4]>, bool) {
     let fitted = ready.fitted().expect("a fit");
-    let FittedWarp::Tps(tps) = &fitted.pullback else { panic!("a TPS") };
+    let Some(FittedWarp::Tps(tps)) = fitted.pullback.as_fitted() else { panic!("a TPS") };
     let control = ready.viewer.control.as_ref().expect("a control texture");
     assert!(ready.viewer.control_made_on_gpu(), "the texture was evaluated on the GPU");
     let texels = warpbench_gpu::control_eval::read_back_texels(&ready.viewer.ctx, control).expect("read back");
@@ -691,4 +698,99 @@ fn auto_align_puts_the_alignment_under_the_landmark_warp() {
     harness.get_by_label("Clear alignment").click();
     harness.run_steps(2);
     assert!(harness.state().ready().expect("loaded").document.start.is_none());
+}
+
+/// A displacement field under the landmarks (issue 29, item 2, as BigWarp's transform sequences): "Use field under
+/// landmarks" puts it in the document, the landmarks refine on top of it (the window's pull-back is the stack written
+/// out here: the field after a TPS fitted on the fixed points and the moving points taken back through the field), a
+/// session saved with it opens with it, and undo takes it away; a file that is not a field is refused in the panel
+/// and the document keeps none.
+#[test]
+fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
+    use warpbench_app::gui::panels::FileAction;
+    use warpbench_app::project::stack::FieldLayer;
+    use warpbench_io::displacement::{FieldFormat, write_field};
+    use warpbench_io::geometry::{Index, Lps, Transform};
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(800.0, 600.0));
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("ready");
+    let fixed_box = warpbench_app::inputs::volume_box::<Fixed>(&ready.loaded.fixed);
+    let (lo, hi) = (fixed_box.min.coords(), fixed_box.max.coords());
+    // A smooth field of up to 2 mm on a 12³ grid over the fixed box, written as ITK writes one.
+    let dims = [12usize; 3];
+    let step: [f64; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 11.0);
+    let grid = Transform::<Lps, Index>::from_linear_translation(
+        nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(step[0], step[1], step[2])),
+        lo,
+    );
+    let mut vectors = Vec::new();
+    for k in 0..12 {
+        for j in 0..12 {
+            for i in 0..12 {
+                let x = [lo[0] + step[0] * i as f64, lo[1] + step[1] * j as f64, lo[2] + step[2] * k as f64];
+                vectors.push([
+                    (2.0 * (x[1] / 30.0).sin()) as f32,
+                    (-1.5 * (x[2] / 25.0).cos()) as f32,
+                    (1.0 * (x[0] / 20.0).sin()) as f32,
+                ]);
+            }
+        }
+    }
+    let field_path = dir.path().join("field.nii.gz");
+    write_field(&field_path, FieldFormat::Itk, dims, &grid, &vectors).expect("field written");
+
+    let apply = |harness: &mut Harness<'_, Workbench>, command: Command| {
+        harness.state_mut().ready_mut().expect("ready").apply(command);
+        harness.run_steps(3);
+        wait_until_rendered(harness);
+    };
+    // Not a field: refused, said, nothing kept.
+    apply(&mut harness, Command::File(FileAction::UseField(dir.path().join("pairs.csv"))));
+    let ready = harness.state().ready().expect("ready");
+    assert!(ready.document.field.is_none());
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("pairs.csv"), "the refusal names the file: {message}");
+    let plain_at = |ready: &Ready, x: [f64; 3]| ready.fitted().expect("a fit").pullback.apply_raw(x);
+    let probes = [[0.0, 10.0, 20.0], [30.0, -20.0, 10.0], [-25.0, 40.0, -5.0]];
+    let before: Vec<[f64; 3]> = probes.iter().map(|&x| plain_at(ready, x)).collect();
+
+    apply(&mut harness, Command::File(FileAction::UseField(field_path.clone())));
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.document.field.as_deref(), Some(field_path.as_path()));
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    // The stack written out: u = F ∘ r, r fitted on qᵢ → F⁻¹(pᵢ).
+    let layer = FieldLayer::read(&field_path).expect("read");
+    let (_, (fixed, moving)) = ready.fit_pairs();
+    let unbased: Vec<Point3<Fixed>> =
+        moving.iter().map(|p| Point3::from_array(layer.fixed_from_moving_raw(p.coords()))).collect();
+    let method = ready.document.settings.method();
+    let r: FittedWarp<Fixed, Fixed> = method.fit(&fixed, &unbased, fixed_box).expect("r");
+    for &x in &probes {
+        let want = layer.moving_from_fixed_raw(r.as_ref().apply_raw(x));
+        let got = plain_at(ready, x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-9), "u({x:?}) = {got:?}, written out {want:?}");
+    }
+    for (q, p) in fixed.iter().zip(&moving) {
+        let u = plain_at(ready, q.coords());
+        assert!(u.iter().zip(p.coords()).all(|(a, b)| (a - b).abs() < 1e-5), "u({q:?}) = {u:?}, not {p:?}");
+    }
+
+    let session = dir.path().join("with_field.warpbench.json");
+    apply(&mut harness, Command::File(FileAction::SaveSession(session.clone())));
+    let saved = warpbench_app::project::session::load(&session).expect("saved");
+    assert_eq!(saved.document.field.as_deref(), Some(field_path.as_path()), "the session keeps the field");
+
+    harness.get_by_label("Undo").click();
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    let ready = harness.state().ready().expect("ready");
+    assert!(ready.document.field.is_none(), "undo takes the field away");
+    for (x, was) in probes.iter().zip(&before) {
+        let now = plain_at(ready, *x);
+        assert!((0..3).all(|a| (now[a] - was[a]).abs() < 1e-9), "u({x:?}) back to the landmarks alone");
+    }
 }

@@ -15,7 +15,7 @@ use super::history::{History, Snapshot};
 use super::load::{Loaded, LoadedPair, Opened};
 use super::viewer::{DeviceFacts, LayerData, Viewer};
 use super::{
-    Command, ControlEval, Files, FitState, GuiOptions, Images, Interaction, Ready, autosave, open, pacing, panels,
+    Command, ControlEval, Files, Fitter, GuiOptions, Images, Interaction, Ready, autosave, open, pacing, panels,
     save_png, side_panel, status, views,
 };
 use crate::project::document::Document;
@@ -291,7 +291,10 @@ impl Workbench {
             camera,
             slice_mm: [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)],
             images: Images::default(),
-            fit: FitState::default(),
+            fit: Fitter::default(),
+            fit_pending: false,
+            stiffness_choice: None,
+            aligning: None,
             last_render_ms: 0.0,
             frame_rate: pacing::FrameRate::default(),
             interaction: Interaction::Idle,

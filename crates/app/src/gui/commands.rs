@@ -294,7 +294,7 @@ impl Ready {
         match warpbench_solver::stiffness::choose_stiffness(&pairs.0, &pairs.1) {
             Ok(choice) => {
                 self.document.settings.stiffness = choice.lambda;
-                self.fit.stiffness_choice = Some(super::StiffnessChoiceOn { choice, pairs });
+                self.stiffness_choice = Some(super::StiffnessChoiceOn { choice, pairs });
                 self.notice = None;
                 self.refit_soon();
             }
@@ -396,6 +396,22 @@ impl Ready {
             },
             FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
             FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
+            // A field that cannot be read is refused here, so the document never holds one the fit would skip.
+            FileAction::UseField(path) => match self.fit.read_field(&path) {
+                Ok(()) => {
+                    self.files.message =
+                        Some(format!("{} is the displacement field under the landmarks", path.display()));
+                    self.document.field = Some(path);
+                    self.refit_soon();
+                }
+                Err(e) => self.files.message = Some(e),
+            },
+            FileAction::RemoveField => {
+                if self.document.field.take().is_some() {
+                    self.files.message = Some("the displacement field is removed".into());
+                    self.refit_soon();
+                }
+            }
         }
     }
 
@@ -415,6 +431,7 @@ impl Ready {
             method: self.document.settings.method(),
             brush: self.document.brush.clone(),
             start: self.document.start.clone(),
+            field: self.document.field.clone(),
         };
         match export::ExportJob::start(&self.ctx, kind, out, input) {
             Ok(job) => {

@@ -44,6 +44,8 @@ pub struct ExportInput {
     pub brush: Vec<warpbench_solver::brush::BrushStroke>,
     /// The starting transform under the landmark warp (Auto-align, [`crate::start`]).
     pub start: Option<crate::project::document::StartingTransform>,
+    /// The displacement field under the landmark warp ([`crate::project::stack::FieldLayer`]).
+    pub field: Option<PathBuf>,
 }
 
 /// An export running on a worker thread.
@@ -108,7 +110,14 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
         .map(crate::project::document::StartingTransform::start)
         .transpose()
         .map_err(Failure::BadInput)?;
-    let layers = crate::project::stack::Layers::new(start, brushed);
+    let mut layers = crate::project::stack::Layers::new(start, brushed);
+    layers.field = input
+        .field
+        .as_deref()
+        .map(crate::project::stack::FieldLayer::read)
+        .transpose()
+        .map_err(Failure::BadInput)?
+        .map(Arc::new);
     let pairs_and_brush = (input.pairs.as_slice(), &layers);
     match kind {
         ExportKind::Warped { dicom } => {

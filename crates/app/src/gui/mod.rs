@@ -23,7 +23,6 @@ pub mod app;
 pub mod attention;
 pub mod autosave;
 pub mod commands;
-pub mod diagnostics;
 pub mod export;
 pub mod frame_log;
 pub mod history;
@@ -51,13 +50,15 @@ use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, SlicePlane, pair_glyphs};
 use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
-use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
+use warpbench_solver::spaces::{Fixed, Moving, as_moving};
 use warpbench_solver::warp::Warp;
 
 use crate::fit;
 pub use crate::fit::{Fitted, fit_warp, fit_warp_on_gpu, gpu_evaluates};
-use crate::inputs::{self, LandmarkSource};
+use crate::inputs::LandmarkSource;
 use crate::project::document::{self, Document};
+pub use crate::project::fitter::Fitter;
+use crate::project::fitter::{Evaluation, Mode};
 pub use app::Workbench;
 pub use commands::Command;
 use history::History;
@@ -97,39 +98,6 @@ pub enum ControlEval {
     Gpu,
 }
 
-/// The fitted warp of the window and what its fit found, for the views, the table and the status bar.
-#[derive(Debug, Default)]
-pub struct FitState {
-    fitted: Option<Fitted>,
-    /// The problem of the last fit (or of the last pick or frame), shown in the status bar.
-    pub error: Option<String>,
-    /// Per pair (aligned with `document.pairs`): the fit's residual and leave-one-out error, for the active pairs.
-    pub pair_errors: Vec<Option<panels::PairErrors>>,
-    /// The pull-back's Jacobian over the fixed box after the last fit (folding where det ≤ 0).
-    pub jacobian: Option<warpbench_solver::diagnostics::JacobianReport>,
-    /// What the last fit found suspicious in the pairs (a pair given twice, a nearly flat set), numbered as the
-    /// table's rows.
-    pub warnings: Vec<String>,
-    /// A change asked for a fit at the end of the frame ([`Ready::refit_soon`]).
-    pending: bool,
-    /// The TPS drag in progress, from its first event until the full refit of its release ([`fit::DragFit`]).
-    drag: Option<fit::DragFit>,
-    /// The last fit's diagnostics being computed ([`diagnostics`]); `pair_errors` and `jacobian` wait for them.
-    diagnostics: Option<diagnostics::DiagnosticsJob>,
-    /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
-    aligning: Option<alignment::AlignJob>,
-    /// Counts the fits, so that what was picked under a resting pointer is known to be stale ([`hover`]).
-    pub generation: u64,
-    /// The document's brush as a warp b of the fixed space, on top of the fitted warp ([`crate::brushed`]): the
-    /// moving glyphs are drawn at b(d(p)), a slice click stores u(b⁻¹(x)).
-    pub brush: Option<warpbench_solver::brush::Brush>,
-    /// How well the brush's inverse, fitted by scattered-data interpolation when its last stroke settled, undoes it.
-    pub brush_consistency: Option<crate::warp::InverseConsistency>,
-    /// The last automatic stiffness ([`Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider
-    /// while the stiffness and the pairs are still those.
-    pub stiffness_choice: Option<StiffnessChoiceOn>,
-}
-
 /// A stiffness chosen by the leave-one-out error ([`warpbench_solver::stiffness`]) and the pairs (fixed, moving)
 /// it was chosen on.
 #[derive(Clone, Debug, PartialEq)]
@@ -138,8 +106,7 @@ pub struct StiffnessChoiceOn {
     pub pairs: FitPoints,
 }
 
-/// The fixed and the moving points of the pairs a fit uses, in the same order.
-pub type FitPoints = (Vec<Point3<Fixed>>, Vec<Point3<Moving>>);
+pub use crate::project::document::FitPoints;
 
 /// The side panel's file and export section.
 #[derive(Debug, Default)]
@@ -166,8 +133,15 @@ pub struct Ready {
     pub slice_mm: [f64; 3],
     /// The rendered images and what needs rendering again.
     images: Images,
-    /// The fitted warp and what the fit found.
-    pub fit: FitState,
+    /// The fitted warp and what the fit found ([`Fitter`]).
+    pub fit: Fitter,
+    /// A fit asked for at the end of the frame ([`Self::refit_soon`]).
+    fit_pending: bool,
+    /// The last automatic stiffness ([`Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider
+    /// while the stiffness and the pairs are still those.
+    pub stiffness_choice: Option<StiffnessChoiceOn>,
+    /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
+    aligning: Option<alignment::AlignJob>,
     pub last_render_ms: f64,
     /// The window's frame rate, for the status bar.
     frame_rate: pacing::FrameRate,
@@ -208,21 +182,16 @@ impl Ready {
         self.fit_now(true);
     }
 
-    /// Shows the last fit's diagnostics once its thread has them ([`diagnostics`]); call once per frame.
+    /// Shows the last fit's diagnostics once its thread has them; call once per frame.
     pub fn poll_diagnostics(&mut self) {
-        let Some(result) = self.fit.diagnostics.as_ref().and_then(diagnostics::DiagnosticsJob::poll) else { return };
-        self.fit.diagnostics = None;
-        match result {
-            Some(d) => self.take_diagnostics(Some(d)),
-            None => self.fit.error = Some("the fit's diagnostics stopped (a bug): fit again to retry".into()),
-        }
+        self.fit.poll_diagnostics();
     }
 
     /// Takes Auto-align's result once its thread has it: the document's starting transform (one undo step), or the
     /// problem in the status bar; call once per frame.
     pub fn poll_alignment(&mut self) {
-        let Some(result) = self.fit.aligning.as_ref().and_then(alignment::AlignJob::poll) else { return };
-        self.fit.aligning = None;
+        let Some(result) = self.aligning.as_ref().and_then(alignment::AlignJob::poll) else { return };
+        self.aligning = None;
         match result {
             Ok(start) => {
                 self.notice = None;
@@ -235,20 +204,20 @@ impl Ready {
     /// Whether Auto-align is running.
     #[must_use]
     pub fn aligning(&self) -> bool {
-        self.fit.aligning.is_some()
+        self.aligning.is_some()
     }
 
     /// Starts Auto-align on the pair as loaded, unless it is running; its result arrives through
     /// [`Self::poll_alignment`].
     fn start_alignment(&mut self, kind: warpbench_solver::align::AlignKind) {
-        if self.fit.aligning.is_some() {
+        if self.aligning.is_some() {
             return;
         }
         let egui = self.ctx.clone();
         let (fixed, moving) = (Arc::clone(&self.loaded.fixed), Arc::clone(&self.loaded.moving));
         match alignment::AlignJob::start(fixed, moving, kind, move || egui.request_repaint()) {
             Ok(job) => {
-                self.fit.aligning = Some(job);
+                self.aligning = Some(job);
                 self.notice = Some(format!("Auto-align ({kind}): aligning the moving volume to the fixed one"));
             }
             Err(e) => self.notice = Some(format!("Auto-align: could not start its thread: {e}")),
@@ -258,30 +227,20 @@ impl Ready {
     /// Whether the last fit's diagnostics are still being computed.
     #[must_use]
     pub fn diagnostics_pending(&self) -> bool {
-        self.fit.diagnostics.is_some()
-    }
-
-    fn take_diagnostics(&mut self, d: Option<diagnostics::Diagnostics>) {
-        let Some(d) = d else { return };
-        for (row, errors) in d.pair_errors {
-            if let Some(slot) = self.fit.pair_errors.get_mut(row) {
-                *slot = Some(errors);
-            }
-        }
-        self.fit.jacobian = Some(d.jacobian);
+        self.fit.diagnostics_pending()
     }
 
     /// Fits again once this frame is over ([`Self::refit`]): a change of the document reaches the autosave
     /// before the fit and its diagnostics (many fits on a CPU) run, so what a crash can take is only the time of
     /// the write.
     pub fn refit_soon(&mut self) {
-        self.fit.pending = true;
+        self.fit_pending = true;
         self.invalidate();
     }
 
     /// Runs the fit [`Self::refit_soon`] asked for; true when there was one.
     pub fn fit_if_pending(&mut self) -> bool {
-        let pending = std::mem::take(&mut self.fit.pending);
+        let pending = std::mem::take(&mut self.fit_pending);
         if pending {
             self.refit();
         }
@@ -301,58 +260,20 @@ impl Ready {
     /// texture.
     #[must_use]
     pub fn drag_route(&self) -> Option<fit::ControlRoute> {
-        self.fit.drag.as_ref().map(fit::DragFit::route)
-    }
-
-    /// The drag's fast path for the pairs (`fixed`, `moving`) with its texture on `route`: the drag in progress when
-    /// only its point moved, else a new drag when exactly one point moved since the last fit; `None` (and no drag
-    /// kept) otherwise.
-    fn drag_event(
-        &mut self,
-        method: &warpbench_solver::Method,
-        fixed: &[warpbench_io::geometry::Point3<Fixed>],
-        moving: &[warpbench_io::geometry::Point3<Moving>],
-        fixed_box: warpbench_solver::Aabb<Fixed>,
-        route: fit::ControlRoute,
-    ) -> Option<fit::DragEvent> {
-        let current = self.fit.drag.as_ref().filter(|d| d.route() == route);
-        if let Some(event) = current.and_then(|d| d.event(fixed, moving)) {
-            return Some(event);
-        }
-        self.fit.drag = None;
-        let before = self.fit.fitted.as_ref()?;
-        let moved = fit::moved_point((&before.fixed, &before.moving), fixed, moving)?;
-        let grid_n = self.document.settings.grid_n;
-        let drag = fit::DragFit::start(method, (fixed, moving), fixed_box, grid_n, moved, route)?.ok()?;
-        let event = drag.event(fixed, moving);
-        self.fit.drag = Some(drag);
-        event
+        self.fit.drag_route()
     }
 
     /// The pairs a fit uses (active, both points placed): their rows, and their fixed and moving points.
     #[must_use]
     pub fn fit_pairs(&self) -> (Vec<usize>, FitPoints) {
-        let used: Vec<usize> = (0..self.document.pairs.len())
-            .filter(|&i| {
-                let p = &self.document.pairs[i];
-                p.active && p.moving.is_some() && p.fixed.is_some()
-            })
-            .collect();
-        let points = used
-            .iter()
-            .filter_map(|&i| {
-                let p = &self.document.pairs[i];
-                Some((as_fixed(p.fixed?), as_moving(p.moving?)))
-            })
-            .unzip();
-        (used, points)
+        self.document.fit_pairs()
     }
 
     /// The automatic stiffness shown by the slider: the last choice, while the stiffness and the pairs are the ones
     /// it was made for.
     #[must_use]
     pub fn current_stiffness_choice(&self) -> Option<&warpbench_solver::stiffness::StiffnessChoice> {
-        let c = self.fit.stiffness_choice.as_ref()?;
+        let c = self.stiffness_choice.as_ref()?;
         let current = c.choice.lambda.to_bits() == self.document.settings.stiffness.to_bits()
             && self.document.settings.method == crate::settings::MethodKind::Tps
             && self.fit_pairs().1 == c.pairs;
@@ -361,152 +282,15 @@ impl Ready {
 
     fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
-        self.fit.generation += 1;
-        // Whatever a running job finds describes the document before this change.
-        self.fit.diagnostics = None;
-        if diagnostics {
-            self.fit.drag = None;
-        }
-        let method = self.document.settings.method();
-        let fixed_box = inputs::volume_box::<Fixed>(&self.loaded.fixed);
-        let moving_box = inputs::volume_box::<Moving>(&self.loaded.moving);
-        let (used, (fixed, moving)) = self.fit_pairs();
-        if diagnostics {
-            self.fit.pair_errors = vec![None; self.document.pairs.len()];
-            self.fit.jacobian = None;
-        }
-        // The pairs are checked once here, so that refusals and warnings number them as the table does (the
-        // fits below check them again, numbered among the pairs they get).
-        let row = |n: usize| used.get(n.wrapping_sub(1)).map_or(n, |&i| i + 1);
-        // The starting transform under the landmark warp (Auto-align); with too few pairs it alone is the warp.
-        let start = match self.document.start.as_ref().map(document::StartingTransform::start).transpose() {
-            Ok(s) => s,
-            Err(e) => {
-                self.fit.error = Some(format!("{e:#}"));
-                None
-            }
+        let mode = if diagnostics { Mode::Full } else { Mode::Interactive };
+        let evaluation = match self.control_eval {
+            ControlEval::Auto if !self.viewer.ctx.is_cpu_driver() => Evaluation::Gpu,
+            ControlEval::Gpu => Evaluation::Gpu,
+            ControlEval::Auto | ControlEval::Cpu => Evaluation::Cpu,
         };
-        let alone = start.is_some() && !crate::start::refines(&method, moving.len());
-        match if alone { Ok(Vec::new()) } else { method.check(&fixed, &moving) } {
-            Ok(warnings) => {
-                self.fit.warnings = warnings.into_iter().map(|w| w.renumber(row).to_string()).collect();
-            }
-            Err(e) => {
-                self.viewer.set_control(None);
-                self.fit.fitted = None;
-                self.fit.jacobian = None;
-                self.fit.warnings.clear();
-                self.fit.error = Some(format!("{method}: {}", e.renumber(row)));
-                return;
-            }
-        }
-        let boxes = (fixed_box, moving_box);
-        // The brush on top: its strokes as a warp, inverted by scattered-data interpolation once a stroke has settled
-        // (with a full fit), point by point while one is dragged.
-        let brush = match warpbench_solver::brush::Brush::new(self.document.brush.clone()) {
-            Ok(b) if b.is_empty() => None,
-            Ok(b) => Some(b),
-            Err(e) => {
-                self.fit.error = Some(format!("the brush: {e}"));
-                None
-            }
-        };
-        let brushed = match (&brush, diagnostics) {
-            (Some(_), true) => match crate::brushed::Brushed::new(&self.document.brush, "the brush") {
-                Ok(b) => b,
-                Err(e) => {
-                    self.fit.error = Some(format!("{e:#}"));
-                    None
-                }
-            },
-            _ => None,
-        };
-        if diagnostics {
-            self.fit.brush_consistency = brushed.as_ref().map(crate::brushed::Brushed::consistency);
-        }
-        self.fit.brush.clone_from(&brush);
-        let on_gpu = brush.is_none()
-            && !alone
-            && gpu_evaluates(&method)
-            && match self.control_eval {
-                ControlEval::Auto => !self.viewer.ctx.is_cpu_driver(),
-                ControlEval::Cpu => false,
-                ControlEval::Gpu => true,
-            };
-        // A drag's O(N²) updates know the pairs alone, not a starting transform under them.
-        let fast = if diagnostics || brush.is_some() || start.is_some() {
-            None
-        } else {
-            let route = if on_gpu { fit::ControlRoute::Gpu } else { fit::ControlRoute::Cpu };
-            self.drag_event(&method, &fixed, &moving, fixed_box, route)
-        };
-        let filterable = self.viewer.ctx.capabilities.float32_filterable;
-        let result = if let Some(b) = &brush {
-            let pointwise = warpbench_solver::brush::PointwiseInverse(b);
-            let inverse: &dyn warpbench_solver::Warp<Fixed, Fixed> = match &brushed {
-                Some(fitted) => fitted.inverse(),
-                None => &pointwise,
-            };
-            let texture = (self.document.settings.grid_n, filterable);
-            fit::fit_warp_brushed(&method, (&fixed, &moving), boxes, texture, inverse, start.as_ref()).map(
-                |(f, prepared)| {
-                    self.viewer.set_control(Some(&prepared));
-                    f
-                },
-            )
-        } else if let (Some(event), Some(drag)) = (fast, &self.fit.drag) {
-            drag.show(&event, &mut self.viewer).map(|()| event.into_fitted())
-        } else if on_gpu {
-            fit_warp_on_gpu(
-                &method,
-                &fixed,
-                &moving,
-                boxes,
-                self.document.settings.grid_n,
-                &mut self.viewer,
-                start.as_ref(),
-            )
-        } else {
-            fit_warp(&method, &fixed, &moving, boxes, self.document.settings.grid_n, filterable, start.as_ref()).map(
-                |(f, prepared)| {
-                    self.viewer.set_control(Some(&prepared));
-                    f
-                },
-            )
-        };
-        match result {
-            Ok(fitted) if !diagnostics || alone => {
-                // Keep the last diagnostics until the drag ends.
-                self.fit.pair_errors.resize(self.document.pairs.len(), None);
-                self.fit.fitted = Some(fitted);
-                self.fit.error = None;
-            }
-            Ok(fitted) => {
-                // Residuals, leave-one-out and folding follow on a thread of their own ([`diagnostics`]).
-                let input = diagnostics::DiagnosticsInput {
-                    method,
-                    rows: used,
-                    fixed,
-                    moving,
-                    fixed_box,
-                    pullback: fitted.pullback.clone(),
-                };
-                let egui = self.ctx.clone();
-                match diagnostics::DiagnosticsJob::start(input.clone(), move || egui.request_repaint()) {
-                    Ok(job) => self.fit.diagnostics = Some(job),
-                    // Without a thread, on this one.
-                    Err(_) => self.take_diagnostics(Some(input.compute())),
-                }
-                self.fit.fitted = Some(fitted);
-                self.fit.error = None;
-            }
-            Err(e) => {
-                self.viewer.set_control(None);
-                self.fit.fitted = None;
-                self.fit.jacobian = None;
-                self.fit.error = Some(format!("{e:#}"));
-            }
-        }
+        let egui = self.ctx.clone();
+        let volumes = (&*self.loaded.fixed, &*self.loaded.moving);
+        self.fit.fit(&self.document, volumes, (mode, evaluation), &mut self.viewer, move || egui.request_repaint());
     }
 
     /// Replaces one side of the pair with `volume` read from `path` (`layer`: prepared for the GPU on the reading
@@ -574,11 +358,11 @@ impl Ready {
     #[must_use]
     pub fn shown_at(&self, moving_lps: [f64; 3]) -> [f64; 3] {
         let m = warpbench_io::geometry::Point3::<warpbench_io::geometry::Lps>::from_array(moving_lps);
-        let shown = match &self.fit.fitted {
+        match self.fit.fitted() {
+            // With a brush on top, b(d(p)) (the stack's forward map).
             Some(f) => f.forward.apply(as_moving(m)).coords(),
-            None => moving_lps,
-        };
-        self.fit.brush.as_ref().map_or(shown, |b| b.apply_raw(shown))
+            None => self.fit.brush.as_ref().map_or(moving_lps, |b| b.apply_raw(moving_lps)),
+        }
     }
 
     /// The moving volume's procedural deformation over its box, as the settings ask for it (`Ok(None)`: none); an
@@ -593,13 +377,13 @@ impl Ready {
     /// failed.
     #[must_use]
     pub fn fitted(&self) -> Option<&Fitted> {
-        self.fit.fitted.as_ref()
+        self.fit.fitted()
     }
 
     /// Number of pairs the current warp was fitted on.
     #[must_use]
     pub fn fitted_pairs(&self) -> usize {
-        self.fit.fitted.as_ref().map_or(0, |f| f.pairs)
+        self.fit.fitted().map_or(0, |f| f.pairs)
     }
 
     /// The view deformations of the 3-D view's (fixed, moving) layers at `now`: the leafer on its volume while it is
@@ -683,15 +467,16 @@ impl Ready {
     pub fn suggestion_for(&mut self, p: Point3<warpbench_io::geometry::Lps>) -> Result<suggestion::Suggested, String> {
         let identity = warpbench_solver::linear::AffineWarp::<Fixed, Moving>::identity();
         let start = self.document.start.as_ref().and_then(|s| s.start().ok());
-        let fitted: &dyn warpbench_solver::Warp<Fixed, Moving> = match (&self.fit.fitted, &start) {
-            (Some(f), _) => f.forward.as_ref(),
-            (None, Some(s)) => s.fixed_from_moving(),
-            (None, None) => &identity,
+        let unfitted: &dyn warpbench_solver::Warp<Fixed, Moving> = match &start {
+            Some(s) => s.fixed_from_moving(),
+            None => &identity,
         };
-        let brushed = self.fit.brush.as_ref().map(|b| warpbench_solver::warp::Composed { first: fitted, second: b });
-        let forward: &dyn warpbench_solver::Warp<Fixed, Moving> = match &brushed {
-            Some(b) => b,
-            None => fitted,
+        let brushed = self.fit.brush.as_ref().map(|b| warpbench_solver::warp::Composed { first: unfitted, second: b });
+        // The stack's forward map has the brush on top already.
+        let forward: &dyn warpbench_solver::Warp<Fixed, Moving> = match (self.fit.fitted(), &brushed) {
+            (Some(f), _) => &f.forward,
+            (None, Some(b)) => b,
+            (None, None) => unfitted,
         };
         self.matching.suggest((&self.loaded.fixed, &self.loaded.moving), forward, p)
     }
@@ -726,10 +511,10 @@ impl Ready {
     /// warp is fitted).
     #[must_use]
     pub fn moving_shown_at(&self, x_ref: [f64; 3]) -> [f64; 3] {
-        let x = self.fit.brush.as_ref().map_or(x_ref, |b| b.invert_point(x_ref));
-        match &self.fit.fitted {
-            Some(f) => f.pullback.apply_raw(x),
-            None => x,
+        match self.fit.fitted() {
+            // With a brush on top, u(b⁻¹(x)), b⁻¹ solved at x.
+            Some(f) => f.pullback.apply_exact_raw(x_ref),
+            None => self.fit.brush.as_ref().map_or(x_ref, |b| b.invert_point(x_ref)),
         }
     }
 
@@ -747,10 +532,7 @@ impl Ready {
 
     /// det ∇u at `x_ref` for the pull-back shown, u ∘ b⁻¹ with a brush: det ∇u(b⁻¹(x)) / det ∇b(b⁻¹(x)).
     fn pullback_det_at(&self, x_ref: [f64; 3]) -> Option<f64> {
-        let f = self.fit.fitted.as_ref()?;
-        let Some(b) = &self.fit.brush else { return Some(f.pullback.jacobian_raw(x_ref).determinant()) };
-        let y = b.invert_point(x_ref);
-        Some(f.pullback.jacobian_raw(y).determinant() / b.jacobian_raw(y).determinant())
+        Some(self.fit.fitted()?.pullback.det_jacobian_at(x_ref))
     }
 
     /// The pair whose fixed point is nearest `x_ref`, with its leave-one-out error.

@@ -174,14 +174,7 @@ pub fn layers_ui(ui: &mut egui::Ui, looks: &[Look; 2]) -> Option<Command> {
     changed.then_some(Command::SetLooks(edited))
 }
 
-/// A pair's errors after a fit (mm).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PairErrors {
-    /// |u(qᵢ) − pᵢ|: zero for an interpolating warp.
-    pub residual_mm: f64,
-    /// The error at pᵢ of the warp refitted without pair i; `None` when the refit fails (too few pairs left).
-    pub leave_one_out_mm: Option<f64>,
-}
+pub use crate::project::diagnostics::PairErrors;
 
 /// Green below 1 mm, amber below 3 mm, red above: how far a pair disagrees with the others.
 #[must_use]
@@ -525,6 +518,8 @@ pub struct FileFields {
     pub session: String,
     pub landmarks: String,
     pub screenshot: String,
+    /// A displacement field to put under the landmarks.
+    pub field: String,
 }
 
 /// What the file section or the File menu asks for.
@@ -538,10 +533,15 @@ pub enum FileAction {
     ExportWarped(std::path::PathBuf),
     /// Export the displacement field (NIfTI), as `warpbench field` does.
     ExportField(std::path::PathBuf),
+    /// Put the displacement field read from this file (ITK or ANTs NIfTI, Slicer NRRD) under the landmarks.
+    UseField(std::path::PathBuf),
+    /// Take the displacement field away.
+    RemoveField,
 }
 
-/// Session and landmark files: a path field and its buttons each.
-pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction> {
+/// Session, landmark, screenshot and displacement-field files: a path field and its buttons each; `field` is the
+/// document's displacement field, if any.
+pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
     let mut action = None;
     let path = |s: &str| std::path::PathBuf::from(s.trim());
     ui.label("Files");
@@ -565,6 +565,19 @@ pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction
         .labelled_by(ui.label("Screenshot file").id);
     if ui.add_enabled(!fields.screenshot.trim().is_empty(), egui::Button::new("Save screenshot")).clicked() {
         action = Some(FileAction::Screenshot(path(&fields.screenshot)));
+    }
+    ui.add(egui::TextEdit::singleline(&mut fields.field).hint_text("field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)"))
+        .labelled_by(ui.label("Displacement field file").id);
+    ui.horizontal(|ui| {
+        if ui.add_enabled(!fields.field.trim().is_empty(), egui::Button::new("Use field under landmarks")).clicked() {
+            action = Some(FileAction::UseField(path(&fields.field)));
+        }
+        if ui.add_enabled(field.is_some(), egui::Button::new("Remove field")).clicked() {
+            action = Some(FileAction::RemoveField);
+        }
+    });
+    if let Some(f) = field {
+        ui.label(format!("Field under the landmarks: {}", f.display()));
     }
     action
 }

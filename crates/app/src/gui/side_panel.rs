@@ -67,7 +67,9 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
             let tool = (ready.interaction.sculpting(), ready.document.brush.len());
             commands.extend(panels::brush_ui(ui, &ready.document.settings, tool));
             ui.separator();
-            commands.extend(panels::files_ui(ui, &mut ready.files.fields).map(Command::File));
+            commands.extend(
+                panels::files_ui(ui, &mut ready.files.fields, ready.document.field.as_deref()).map(Command::File),
+            );
             ui.separator();
             let asked = export::export_ui(ui, &mut ready.files.export_fields, ready.files.export.as_ref());
             commands.extend(asked.map(|(kind, out)| Command::Export(kind, out)));

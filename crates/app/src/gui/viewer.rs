@@ -497,6 +497,10 @@ impl crate::fit::ControlTarget for Viewer {
         self.set_control(Some(prepared));
     }
 
+    fn clear(&mut self) {
+        self.set_control(None);
+    }
+
     fn evaluate_tps(&mut self, tps: &TpsDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()> {
         self.evaluate_control_tps(tps, grid)
     }

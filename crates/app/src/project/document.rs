@@ -12,10 +12,12 @@ use std::path::PathBuf;
 use serde::{Deserialize, Serialize};
 use warpbench_gpu::{BlendMode, RenderSettings};
 use warpbench_io::Volume;
+use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::brush::BrushStroke;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
+use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 
 use crate::procedural::ProceduralSpec;
 use crate::settings::{Blend, MethodKind, Preset, Probe, Shading, or_default};
@@ -39,7 +41,14 @@ pub struct Document {
     /// The starting transform under the landmark warp (Auto-align, [`crate::start`]); `None`: the landmark warp alone.
     #[serde(default)]
     pub start: Option<StartingTransform>,
+    /// A displacement field under the landmark warp (`--field`'s flavours: ITK or ANTs NIfTI, Slicer NRRD), read
+    /// from this file ([`super::stack::FieldLayer`]); `None`: none. Sessions written before it open without one.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub field: Option<PathBuf>,
 }
+
+/// The fixed and the moving points of the pairs a fit uses, in the same order.
+pub type FitPoints = (Vec<Point3<Fixed>>, Vec<Point3<Moving>>);
 
 /// A starting transform as the document keeps it: T₀ = `moving_from_fixed` (fixed → moving, LPS mm) and what found it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -90,7 +99,27 @@ impl Document {
             layers: volumes.map(Look::auto),
             brush: Vec::new(),
             start: None,
+            field: None,
         }
+    }
+
+    /// The pairs a fit uses (active, both points placed): their rows, and their fixed and moving points.
+    #[must_use]
+    pub fn fit_pairs(&self) -> (Vec<usize>, FitPoints) {
+        let used: Vec<usize> = (0..self.pairs.len())
+            .filter(|&i| {
+                let p = &self.pairs[i];
+                p.active && p.moving.is_some() && p.fixed.is_some()
+            })
+            .collect();
+        let points = used
+            .iter()
+            .filter_map(|&i| {
+                let p = &self.pairs[i];
+                Some((as_fixed(p.fixed?), as_moving(p.moving?)))
+            })
+            .unzip();
+        (used, points)
     }
 
     /// Keeps what a hand-edited or older file may hold within what the window offers: the control texture's size,

@@ -2,7 +2,10 @@
 //!
 //! - [`document`]: what the user edits (the pair's paths and looks, the landmark pairs, the warp and view settings,
 //!   the brush and the starting transform); the window's undo history snapshots it.
+//! - [`diagnostics`]: what follows a fit off the UI thread: residuals, leave-one-out errors, folding.
 //! - [`demo`]: the demo pair, which a document without volume paths stands for.
+//! - [`fitter`]: the one owner of fitting for the window ([`fitter::Fitter::fit`]): the stack fitted, its control
+//!   texture made on the CPU or the GPU, a TPS drag's fast path, the brush, the diagnostics job.
 //! - [`session`]: the `.warpbench.json` file that keeps a document and the view, and where the autosave goes.
 //!
 //! - [`stack`]: the warp stack, the ordered layers that make the pull-back (a starting transform, a displacement
@@ -11,6 +14,8 @@
 //! Nothing here imports the window ([`crate::gui`]); the subcommands read sessions through [`session::load`].
 
 pub mod demo;
+pub mod diagnostics;
 pub mod document;
+pub mod fitter;
 pub mod session;
 pub mod stack;

@@ -197,6 +197,7 @@ mod tests {
         let file = load(&path).expect("an older file");
         let d = &file.document;
         assert_eq!((d.fixed.as_deref(), d.moving.as_deref()), (Some(std::path::Path::new("/data/ct.nii.gz")), None));
+        assert!(d.field.is_none(), "no displacement field before there was one");
         assert_eq!(
             d.pairs,
             [LandmarkPair {

@@ -31,7 +31,7 @@ use anyhow::anyhow;
 use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::Point3;
 use warpbench_io::geometry::Space;
-use warpbench_io::itk_tfm::ItkTransform;
+use warpbench_io::itk_tfm::{ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
 use warpbench_solver::SolverError;
 use warpbench_solver::brush::{Brush, PointwiseInverse};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
@@ -160,6 +160,33 @@ impl Layers {
         }
     }
 
+    /// The fewest pairs a fit on these layers needs: the method's without a base under it, none with one (the base
+    /// alone is the warp).
+    #[must_use]
+    pub fn min_pairs(&self, method: &Method) -> usize {
+        if self.has_base() { 0 } else { method.needs().min_pairs }
+    }
+
+    /// The warp's name in reports: `method`, `method on <field> on <start>` with a base it refines, or
+    /// `<base> alone (N pairs; method needs K)` with too few pairs; `+ brush (N strokes)` with a brush on top.
+    /// Without a field, what [`crate::start::describe`] and [`crate::brushed::describe`] say.
+    #[must_use]
+    pub fn describe(&self, method: &Method, pairs: usize) -> String {
+        let needs = method.needs().min_pairs;
+        let base: Vec<&str> =
+            self.field.iter().map(|f| f.origin.as_str()).chain(self.start.iter().map(|s| s.origin.as_str())).collect();
+        let core = match (base.is_empty(), pairs >= needs) {
+            (true, _) => method.to_string(),
+            (false, true) => format!("{method} on {}", base.join(" on ")),
+            (false, false) => format!("{} alone ({pairs} pairs; {method} needs {needs})", base.join(" on ")),
+        };
+        match self.brush.as_ref().map(|b| b.brush().strokes().len()) {
+            Some(1) => format!("{core} + brush (1 stroke)"),
+            Some(n) => format!("{core} + brush ({n} strokes)"),
+            None => core,
+        }
+    }
+
     /// B(x) = T₀(F(x)).
     fn base_raw(&self, x: [f64; 3]) -> [f64; 3] {
         let x = self.field.as_ref().map_or(x, |f| f.moving_from_fixed_raw(x));
@@ -207,6 +234,44 @@ fn refines(method: &Method, pairs: usize) -> bool {
 }
 
 impl StackPullback {
+    /// u as one fitted warp of the method's family, on no other layer (a drag event's TPS).
+    #[must_use]
+    pub fn folded(u: FittedWarp<Moving, Fixed>) -> Self {
+        Self { layers: Layers::default(), core: Landmarks::Folded(u) }
+    }
+
+    /// u at one point with b⁻¹ solved there to rounding (not read off its fitted spline, which the control texture
+    /// and the exports sample): what the status bar shows and a click stores.
+    #[must_use]
+    pub fn apply_exact_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        self.core_raw(self.layers.brush.as_ref().map_or(x, |b| b.brush().invert_point(x)))
+    }
+
+    /// det ∇u at `x`: with a brush on top, det ∇(u ∘ b⁻¹)(x) = det ∇u(b⁻¹(x)) / det ∇b(b⁻¹(x)), from b's analytic
+    /// Jacobian and b⁻¹ solved at `x` rather than differences through an inverse.
+    #[must_use]
+    pub fn det_jacobian_at(&self, x: [f64; 3]) -> f64 {
+        let core = |y: [f64; 3]| match &self.core {
+            Landmarks::Folded(u) => u.as_ref().jacobian_raw(y).determinant(),
+            Landmarks::OnField(_) => Unbrushed(self).jacobian_raw(y).determinant(),
+        };
+        match &self.layers.brush {
+            None => core(x),
+            Some(b) => {
+                let y = b.brush().invert_point(x);
+                core(y) / b.brush().jacobian_raw(y).determinant()
+            }
+        }
+    }
+
+    /// u without the brush (B ∘ r).
+    fn core_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        match &self.core {
+            Landmarks::Folded(u) => u.as_ref().apply_raw(x),
+            Landmarks::OnField(r) => self.layers.base_raw(r.as_ref().map_or(x, |r| r.as_ref().apply_raw(x))),
+        }
+    }
+
     /// Fits u on the pairs (`fixed[i]` ↔ `moving[i]`) over `fixed_box`, on top of `layers`' base.
     ///
     /// # Errors
@@ -260,14 +325,14 @@ impl StackPullback {
         })
     }
 
-    /// u as the ITK transform file that holds it exactly ([`crate::transform::itk_transform_of`]).
+    /// u as the ITK transform file that holds it exactly ([`itk_transform_of`]).
     ///
     /// # Errors
     /// A field or a brush layer, which no ITK transform of a `.tfm` file holds exactly: the message says to write
     /// the warp as a displacement field instead.
     pub fn itk_transform(&self) -> anyhow::Result<ItkTransform> {
         if let Some(u) = self.as_fitted() {
-            return Ok(crate::transform::itk_transform_of(u));
+            return Ok(itk_transform_of(u));
         }
         let layer = match &self.layers.field {
             Some(f) => format!("the displacement field {}", f.origin),
@@ -282,15 +347,26 @@ impl StackPullback {
 
 impl Warp<Moving, Fixed> for StackPullback {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
-        let x = self.layers.brush.as_ref().map_or(x, |b| b.inverse_raw(x));
-        match &self.core {
-            Landmarks::Folded(u) => u.as_ref().apply_raw(x),
-            Landmarks::OnField(r) => self.layers.base_raw(r.as_ref().map_or(x, |r| r.as_ref().apply_raw(x))),
-        }
+        self.core_raw(self.layers.brush.as_ref().map_or(x, |b| b.inverse_raw(x)))
+    }
+}
+
+/// B ∘ r, the pull-back under the brush.
+struct Unbrushed<'a>(&'a StackPullback);
+
+impl Warp<Moving, Fixed> for Unbrushed<'_> {
+    fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        self.0.core_raw(x)
     }
 }
 
 impl StackForward {
+    /// d as one fitted warp of the method's family, on no other layer (a drag event's TPS).
+    #[must_use]
+    pub fn folded(d: FittedWarp<Fixed, Moving>) -> Self {
+        Self { layers: Layers::default(), core: Landmarks::Folded(d) }
+    }
+
     /// Fits d on the pairs (`moving[i]` ↔ `fixed[i]`) over `moving_box`, on top of `layers`' base.
     ///
     /// # Errors
@@ -360,6 +436,33 @@ impl FittedStack {
             forward: StackForward::fit(method, pairs, moving_box, layers)?,
             refined_on,
         })
+    }
+}
+
+/// The pull-back `moving_from_fixed` as the ITK transform that holds it exactly (a thin-plate spline by its centres and their images, a B-spline by its lattice, an affine
+/// by its matrix and offset).
+#[must_use]
+pub fn itk_transform_of(moving_from_fixed: &FittedWarp<Moving, Fixed>) -> ItkTransform {
+    match moving_from_fixed {
+        FittedWarp::Linear(warp) => ItkTransform::Affine(ItkAffine::from_offset(warp.linear(), warp.translation())),
+        FittedWarp::Tps(tps) => {
+            let source_lps: Vec<[f64; 3]> = tps.centres().iter().map(Point3::coords).collect();
+            let mut target_lps = vec![[0.0; 3]; source_lps.len()];
+            tps.apply_batch_raw(&source_lps, &mut target_lps);
+            ItkTransform::ThinPlateSpline(ItkThinPlateSpline { source_lps, target_lps })
+        }
+        FittedWarp::BSpline(spline) => {
+            let lattice = spline.lattice();
+            let spacing = lattice.spacing_mm();
+            let min = lattice.min_mm();
+            ItkTransform::BSpline(ItkBSpline {
+                grid_size: lattice.dims(),
+                grid_origin_lps: std::array::from_fn(|a| min[a] - spacing[a]),
+                grid_spacing_mm: spacing,
+                grid_direction: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+                coefficients_mm: lattice.coefficients().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            })
+        }
     }
 }
 
@@ -512,6 +615,14 @@ mod tests {
         }
         let err = FittedStack::fit(&method, (&fixed[..2], &moving[..2]), boxes(), Layers::default());
         assert!(err.is_err());
+
+        // Reports name the layers as the start's and the brush's own descriptions do.
+        let with_start = Layers { start: Some(s.clone()), ..Layers::default() };
+        assert_eq!(with_start.describe(&method, 7), crate::start::describe(&method, 4, 7, Some(&s)));
+        assert_eq!(with_start.describe(&method, 2), crate::start::describe(&method, 4, 2, Some(&s)));
+        let on_field = Layers { start: Some(s), field: Some(f), brush: None };
+        assert_eq!(on_field.describe(&method, 7), "tps on field.nii.gz on start.tfm");
+        assert_eq!((on_field.min_pairs(&method), Layers::default().min_pairs(&method)), (0, 4));
     }
 
     /// A field read as the forward map (F⁻¹ in the file) is the same layer as its pull-back, inverted.

@@ -9,11 +9,20 @@
 use warpbench_io::geometry::Point3;
 use warpbench_solver::Aabb;
 use warpbench_solver::diagnostics::{JacobianReport, jacobian_determinants, residuals};
-use warpbench_solver::method::{FittedWarp, Method};
+use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Parallelism;
 
-use super::panels::PairErrors;
+use super::stack::StackPullback;
+
+/// One pair's errors after a fit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairErrors {
+    /// |u(qᵢ) − pᵢ|: zero for an interpolating warp.
+    pub residual_mm: f64,
+    /// The error at pᵢ of the warp refitted without pair i; `None` when the refit fails (too few pairs left).
+    pub leave_one_out_mm: Option<f64>,
+}
 
 /// The grid over the fixed volume's box on which folding (det ∇u ≤ 0) is looked for.
 pub const JACOBIAN_GRID: [usize; 3] = [32; 3];
@@ -36,7 +45,7 @@ pub struct DiagnosticsInput {
     pub fixed: Vec<Point3<Fixed>>,
     pub moving: Vec<Point3<Moving>>,
     pub fixed_box: Aabb<Fixed>,
-    pub pullback: FittedWarp<Moving, Fixed>,
+    pub pullback: StackPullback,
 }
 
 impl DiagnosticsInput {
@@ -117,6 +126,7 @@ mod tests {
         let method = Method::Tps { stiffness: 0.0 };
         let fixed_box = Aabb::new(as_fixed(lps([-30.0; 3])), as_fixed(lps([30.0; 3])));
         let pullback = method.fit(&fixed, &moving, fixed_box).expect("fit");
+        let pullback = StackPullback::folded(pullback);
         DiagnosticsInput { method, rows: (0..9).map(|i| i * 2).collect(), fixed, moving, fixed_box, pullback }
     }
 
