@@ -61,7 +61,7 @@ fn main() -> Result<()> {
         }
     }
     let x_ref = top.context("no scalp beside the CT's centre")?;
-    ready.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
+    ready.view.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
     ready.apply(Command::ToggleAdding);
     ready.place_at_ref(x_ref, None);
     let suggestion = ready.suggestion().context("no suggestion (the status bar says why)")?;

@@ -46,8 +46,8 @@ fn main() -> Result<()> {
     settings.blend = Blend::MovingOnly;
     settings.procedural = Some(ProceduralSpec { kind: ProceduralKind::Bend, amplitude_mm: 20.0, seed: 2 });
     ready.apply(Command::SetSettings(settings));
-    ready.camera.azimuth_rad = std::f32::consts::FRAC_PI_2;
-    ready.camera.elevation_rad = 0.17;
+    ready.view.camera.azimuth_rad = std::f32::consts::FRAC_PI_2;
+    ready.view.camera.elevation_rad = 0.17;
     ready.invalidate();
     settle(&mut harness, Duration::from_mins(10))?;
     save(&mut harness, &out, "procedural.png")?;
@@ -62,7 +62,7 @@ fn main() -> Result<()> {
     loop {
         harness.step();
         let ready = harness.state().ready().context("the demo pair")?;
-        if ready.attention.amplitude(Instant::now()) > 0.8 * PEAK_AMPLITUDE {
+        if ready.view.attention.amplitude(Instant::now()) > 0.8 * PEAK_AMPLITUDE {
             break;
         }
         if start.elapsed() > Duration::from_mins(1) {
@@ -78,8 +78,8 @@ fn main() -> Result<()> {
     settings.blend = Blend::MovingOnly;
     ready.apply(Command::SetSettings(settings));
     ready.apply(Command::ResetCamera);
-    ready.camera.azimuth_rad = 0.0;
-    ready.camera.elevation_rad = 0.1;
+    ready.view.camera.azimuth_rad = 0.0;
+    ready.view.camera.elevation_rad = 0.1;
     ready.apply(Command::SetLeafer(Leafer::Open { side: Side::Moving, angle_deg: 35.0 }));
     settle(&mut harness, Duration::from_mins(10))?;
     save(&mut harness, &out, "leafer.png")?;
@@ -92,7 +92,7 @@ fn main() -> Result<()> {
     ready.apply(Command::SetSettings(settings));
     ready.apply(Command::ResetCamera);
     ready.apply(Command::ToggleSculpting);
-    let centre_mm = [ready.slice_mm[2], ready.slice_mm[1], ready.slice_mm[0]];
+    let centre_mm = [ready.view.slice_mm[2], ready.view.slice_mm[1], ready.view.slice_mm[0]];
     let stroke = BrushStroke { centre_mm, displacement_mm: [12.0, 0.0, 0.0], radius_mm: 40.0 };
     ready.apply(Command::AddStroke(stroke));
     ready.apply(Command::MoveStroke { stroke, settled: true });

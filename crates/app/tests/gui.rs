@@ -40,7 +40,11 @@ fn loads_a_pair_renders_it_and_follows_the_controls() {
     harness.get_by_label("Go to Pt-1").click();
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    assert!((ready.slice_mm[0] - 18.0).abs() < 1e-9 && (ready.slice_mm[2] - 40.0).abs() < 1e-9, "{:?}", ready.slice_mm);
+    assert!(
+        (ready.view.slice_mm[0] - 18.0).abs() < 1e-9 && (ready.view.slice_mm[2] - 40.0).abs() < 1e-9,
+        "{:?}",
+        ready.view.slice_mm
+    );
     // Delete a pair, and undo it.
     harness.get_by_label("Delete Pt-0").click();
     harness.run_steps(2);

@@ -48,7 +48,7 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
         ready.document.settings.oblique[1] =
             warpbench_app::project::document::Oblique { on: true, tilt_deg: 20.0, spin_deg: -10.0 };
         ready.document.pairs[1].active = false;
-        ready.camera.azimuth_rad = 1.0;
+        ready.view.camera.azimuth_rad = 1.0;
         ready.refit();
     }
     let saved = harness.state().ready().expect("loaded").to_session(true);
@@ -153,7 +153,7 @@ fn the_control_texture_made_on_the_gpu_equals_the_cpu_one() {
         let (_, texture) = warpbench_app::scene::control_texture(&fitted.pullback, boxes.0, n).expect("sample");
         let cpu: Vec<[f32; 4]> = texture.as_f32s().chunks_exact(4).map(|c| [c[0], c[1], c[2], c[3]]).collect();
         // The GPU's: evaluated into the window's control texture.
-        ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
+        ready.view.control_eval = warpbench_app::gui::ControlEval::Gpu;
         ready.refit();
         assert!(ready.fit.error.is_none(), "{method}: {:?}", ready.fit.error);
         assert!(ready.viewer.control_made_on_gpu(), "{method}: the texture was not evaluated on the GPU");
@@ -265,7 +265,7 @@ fn a_drag_on_the_gpu_evaluates_the_updated_coefficients_as_a_full_refit_would() 
         })
         .collect();
     ready.document.settings.method = warpbench_app::settings::MethodKind::Tps;
-    ready.control_eval = warpbench_app::gui::ControlEval::Gpu;
+    ready.view.control_eval = warpbench_app::gui::ControlEval::Gpu;
     ready.refit();
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     let grid = warpbench_app::scene::control_grid(fixed_box, ready.document.settings.grid_n).expect("grid");
@@ -433,7 +433,7 @@ fn the_3d_view_is_shown_reduced_at_once_then_refined_to_the_one_pass_image() {
     let once = ready
         .viewer
         .render_view(
-            &ready.camera,
+            &ready.view.camera,
             &ready.document.settings.render_settings(),
             warpbench_gpu::Quality::Full,
             (full_w, full_h),
@@ -532,7 +532,7 @@ fn the_status_bar_reads_out_the_warp_under_the_pointer() {
     harness.input_mut().events.push(egui::Event::PointerMoved(pos));
     harness.run_steps(2);
     let ready = harness.state().ready().expect("loaded");
-    let c = ready.cursor.expect("the pointer is over the slice");
+    let c = ready.pointer.cursor.expect("the pointer is over the slice");
     let d: f64 = (0..3).map(|a| (c.moving_lps[a] - c.fixed_lps[a]).powi(2)).sum::<f64>().sqrt();
     assert!((c.displacement_mm() - d).abs() < 1e-12 && d > 0.5, "{d}");
 
@@ -581,9 +581,9 @@ fn the_status_bar_reads_out_the_warp_under_the_pointer() {
     std::thread::sleep(warpbench_app::gui::hover::REST + Duration::from_millis(50));
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
-    let c = ready.cursor.expect("the pointer rests over the head in the 3-D view");
+    let c = ready.pointer.cursor.expect("the pointer rests over the head in the 3-D view");
     let x = warpbench_gpu::glam::Vec3::from_array(c.fixed_lps.map(|v| v as f32));
-    let clip = ready.camera.clip_from_ref(view.width() / view.height()) * x.extend(1.0);
+    let clip = ready.view.camera.clip_from_ref(view.width() / view.height()) * x.extend(1.0);
     let on_screen = view.min
         + egui::vec2((clip.x / clip.w * 0.5 + 0.5) * view.width(), (0.5 - clip.y / clip.w * 0.5) * view.height());
     assert!((on_screen - pos).length() < 3.0, "picked {:?} shows at {on_screen:?}, pointer at {pos:?}", c.fixed_lps);

@@ -22,13 +22,13 @@ fn adds_a_pair_by_clicking_a_slice_and_by_picking_in_3d() {
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
-    let axial_mm = harness.state().ready().expect("loaded").slice_mm[0];
+    let axial_mm = harness.state().ready().expect("loaded").view.slice_mm[0];
 
     // Without Add pair, a click in a slice moves the other two slices through the clicked point (linked views).
     let rect = harness.get_by_label("Axial slice").rect();
-    let before = harness.state().ready().expect("loaded").slice_mm;
+    let before = harness.state().ready().expect("loaded").view.slice_mm;
     click_at(&mut harness, rect.center() + egui::vec2(rect.width() * 0.2, -rect.height() * 0.1));
-    let after = harness.state().ready().expect("loaded").slice_mm;
+    let after = harness.state().ready().expect("loaded").view.slice_mm;
     assert!((after[0] - before[0]).abs() < 1e-9, "the axial plane stays: {before:?} -> {after:?}");
     assert!(after[2] > before[2] + 5.0, "the sagittal plane moves to the right (+L): {before:?} -> {after:?}");
     // Rows follow the fixed grid's j axis (here P decreases with j), so a click above the centre is more posterior.
@@ -190,7 +190,7 @@ fn keyboard_shortcuts_add_cancel_delete_and_reset() {
     // Delete removes the selected pair (here Pt-1, the second, selected by its Go to button); Ctrl+Z brings it back.
     harness.get_by_label("Go to Pt-1").click();
     harness.run_steps(2);
-    assert_eq!(harness.state().ready().expect("ready").selected, Some(1));
+    assert_eq!(harness.state().ready().expect("ready").pointer.selected, Some(1));
     harness.key_press(egui::Key::Delete);
     harness.run_steps(3);
     let names = |h: &Harness<'_, Workbench>| -> Vec<String> {
@@ -204,22 +204,22 @@ fn keyboard_shortcuts_add_cancel_delete_and_reset() {
     // With nothing selected, Delete deletes nothing.
     harness.key_press(egui::Key::Escape);
     harness.run_steps(2);
-    assert_eq!(harness.state().ready().expect("ready").selected, None);
+    assert_eq!(harness.state().ready().expect("ready").pointer.selected, None);
     harness.key_press(egui::Key::Delete);
     harness.run_steps(2);
     assert_eq!(names(&harness).len(), 5);
     // R puts a turned camera back.
-    harness.state_mut().ready_mut().expect("ready").camera.azimuth_rad = 2.0;
+    harness.state_mut().ready_mut().expect("ready").view.camera.azimuth_rad = 2.0;
     harness.key_press(egui::Key::R);
     harness.run_steps(2);
-    assert!((harness.state().ready().expect("ready").camera.azimuth_rad - 0.6).abs() < 1e-6);
+    assert!((harness.state().ready().expect("ready").view.camera.azimuth_rad - 0.6).abs() < 1e-6);
     // A single key typed into a text field stays there: R into a pair's name does not reset the camera.
-    harness.state_mut().ready_mut().expect("ready").camera.azimuth_rad = 2.0;
+    harness.state_mut().ready_mut().expect("ready").view.camera.azimuth_rad = 2.0;
     harness.get_by_label("Name of pair 1").click();
     harness.run_steps(2);
     harness.key_press(egui::Key::R);
     harness.run_steps(2);
-    assert!((harness.state().ready().expect("ready").camera.azimuth_rad - 2.0).abs() < 1e-6, "R reset the camera");
+    assert!((harness.state().ready().expect("ready").view.camera.azimuth_rad - 2.0).abs() < 1e-6, "R reset the camera");
 }
 
 #[test]
@@ -233,12 +233,12 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     let ready = harness.state().ready().expect("loaded");
     // Where pair 3's fixed point is drawn: the camera's projection onto the view's rect.
     let q = ready.document.pairs[3].fixed.expect("fixed").coords();
-    let clip = ready.camera.clip_from_ref(rect.width() / rect.height())
+    let clip = ready.view.camera.clip_from_ref(rect.width() / rect.height())
         * warpbench_gpu::glam::Vec3::from_array(q.map(|v| v as f32)).extend(1.0);
     let (x, y) = (clip.x / clip.w, clip.y / clip.w);
     let start = rect.min + egui::vec2((x * 0.5 + 0.5) * rect.width(), (0.5 - y * 0.5) * rect.height());
     let end = start + egui::vec2(0.0, 25.0);
-    let camera_before = ready.camera.azimuth_rad;
+    let camera_before = ready.view.camera.azimuth_rad;
     press_and_drag(&mut harness, start, end, &[0.3, 0.6, 1.0]);
     let during = harness.state().ready().expect("loaded");
     assert_eq!(during.drag().map(|d| (d.pair, d.end)), Some((3, warpbench_app::gui::End::Fixed)), "grabbed");
@@ -246,7 +246,7 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
-    assert!((ready.camera.azimuth_rad - camera_before).abs() < 1e-6, "a landmark drag does not orbit the camera");
+    assert!((ready.view.camera.azimuth_rad - camera_before).abs() < 1e-6, "a landmark drag does not orbit the camera");
     let moved = ready.document.pairs[3].fixed.expect("fixed").coords();
     // The pointer went down the screen: the point moved, to the visible surface (picked on the fixed volume), and
     // stays inside the head.
@@ -258,10 +258,10 @@ fn a_landmark_is_dragged_along_the_surface_in_the_3d_view() {
     assert_eq!(ready.fitted_pairs(), 5);
 
     // Orbit away, then Reset camera brings the starting view back.
-    harness.state_mut().ready_mut().expect("loaded").camera.azimuth_rad = 2.5;
+    harness.state_mut().ready_mut().expect("loaded").view.camera.azimuth_rad = 2.5;
     harness.get_by_label("Reset camera").click();
     harness.run_steps(2);
-    let camera = harness.state().ready().expect("loaded").camera;
+    let camera = harness.state().ready().expect("loaded").view.camera;
     assert!((camera.azimuth_rad - 0.6).abs() < 1e-6 && (camera.elevation_rad - 0.25).abs() < 1e-6, "{camera:?}");
 }
 
@@ -285,7 +285,7 @@ fn an_oblique_slice_turns_about_the_crosshair() {
     let dot: f64 = (0..3).map(|i| straight.normal_ref().expect("n")[i] * turned.normal_ref().expect("n")[i]).sum();
     assert!((dot.abs() - 30f64.to_radians().cos()).abs() < 1e-6, "normals at {} deg", dot.abs().acos().to_degrees());
     // It turns about the crosshair: the crosshair point lies on the turned plane.
-    let s = ready.slice_mm;
+    let s = ready.view.slice_mm;
     let d = turned.pixel_from_ref([s[2], s[1], s[0]]).expect("plane")[2];
     assert!(d.abs() < 1e-6, "crosshair {d} mm off the plane");
     assert_eq!(turned.size, straight.size);
@@ -306,7 +306,7 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 900.0));
     let ready = harness.state().ready().expect("loaded");
-    let (slices, camera) = (ready.slice_mm, ready.camera);
+    let (slices, camera) = (ready.view.slice_mm, ready.view.camera);
     let (moving, fixed) = (Point3::from_array([22.0, -10.0, 35.0]), Point3::from_array([20.0, -12.0, 33.0]));
     let ready = harness.state_mut().ready_mut().expect("loaded");
     ready.apply(Command::AddPair { moving, fixed });
@@ -314,13 +314,13 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit.error);
-    assert!(ready.slice_mm == slices && ready.camera == camera, "the views moved without being asked");
+    assert!(ready.view.slice_mm == slices && ready.view.camera == camera, "the views moved without being asked");
 
     harness.get_by_label("Follow the pair being edited").click();
     harness.run_steps(2);
     assert!(harness.state().ready().expect("loaded").document.settings.follow_pair);
     let centred_on = |harness: &Harness<'_, Workbench>, q: [f64; 3]| {
-        let s = harness.state().ready().expect("loaded").slice_mm;
+        let s = harness.state().ready().expect("loaded").view.slice_mm;
         assert!(s == [q[2], q[1], q[0]], "slices at {s:?} (S, P, L), the pair's fixed point at {q:?} (L, P, S)");
     };
     let ready = harness.state_mut().ready_mut().expect("loaded");
@@ -331,7 +331,10 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     centred_on(&harness, [-22.0, 4.0, 9.0]);
     let ready = harness.state_mut().ready_mut().expect("loaded");
     ready.apply(Command::MovePoint { pair: 1, end: End::Fixed, to: [41.0, 17.0, 19.0], settled: false });
-    assert!(harness.state().ready().expect("loaded").slice_mm == [9.0, 4.0, -22.0], "a drag in progress moves nothing");
+    assert!(
+        harness.state().ready().expect("loaded").view.slice_mm == [9.0, 4.0, -22.0],
+        "a drag in progress moves nothing"
+    );
     let ready = harness.state_mut().ready_mut().expect("loaded");
     ready.apply(Command::MovePoint { pair: 1, end: End::Fixed, to: [42.0, 18.0, 20.0], settled: true });
     centred_on(&harness, [42.0, 18.0, 20.0]);
@@ -340,7 +343,7 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     let q = harness.state().ready().expect("loaded").document.pairs[2].fixed.expect("fixed").coords();
     harness.get_by_label(&format!("{:.1}, {:.1}, {:.1}", q[0], q[1], q[2])).click();
     harness.run_steps(2);
-    assert_eq!(harness.state().ready().expect("loaded").selected, Some(2));
+    assert_eq!(harness.state().ready().expect("loaded").pointer.selected, Some(2));
     centred_on(&harness, q);
 }
 
@@ -417,14 +420,14 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     harness.run_steps(3);
     wait_until_rendered(&mut harness);
     assert_eq!(harness.state().ready().expect("ready").document.pairs.len(), 7);
-    harness.state_mut().ready_mut().expect("ready").selected = Some(6);
+    harness.state_mut().ready_mut().expect("ready").pointer.selected = Some(6);
     harness.run_steps(1);
     harness.get_by_label("Refine pair").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
     let refined = ready.document.pairs[6].fixed.expect("its target").coords();
-    eprintln!("refined {:.2} mm from the truth: {:?}", distance(refined, p2), ready.notice);
-    assert!(distance(refined, p2) < 1.0, "{refined:?} vs {p2:?}: {:?}", ready.notice);
+    eprintln!("refined {:.2} mm from the truth: {:?}", distance(refined, p2), ready.pointer.notice);
+    assert!(distance(refined, p2) < 1.0, "{refined:?} vs {p2:?}: {:?}", ready.pointer.notice);
     harness.get_by_label("Undo").click();
     harness.run_steps(2);
     let back = harness.state().ready().expect("ready").document.pairs[6].fixed.expect("its target").coords();

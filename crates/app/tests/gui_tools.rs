@@ -35,7 +35,7 @@ fn a_procedural_deformation_is_switched_on_drawn_and_undone() {
         };
         let target = ready
             .viewer
-            .render_view(&ready.camera, &settings, warpbench_gpu::Quality::Full, (64, 64), &[])
+            .render_view(&ready.view.camera, &settings, warpbench_gpu::Quality::Full, (64, 64), &[])
             .expect("render");
         target.read_back(&ready.viewer.ctx).expect("read back")
     };
@@ -81,7 +81,7 @@ fn a_procedural_deformation_is_switched_on_drawn_and_undone() {
 #[test]
 fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     use std::time::Instant;
-    use warpbench_app::gui::panels::loo_ranking;
+    use warpbench_app::gui::landmark_table::loo_ranking;
     if no_adapter() {
         return;
     }
@@ -96,10 +96,13 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     harness.get_by_label("Show the worst pair").click_accesskit();
     harness.run_steps(3);
     let ready = harness.state_mut().ready_mut().expect("ready");
-    assert_eq!(ready.selected, Some(worst));
-    assert!(ready.attention.is_on(), "the lens pulses");
+    assert_eq!(ready.pointer.selected, Some(worst));
+    assert!(ready.view.attention.is_on(), "the lens pulses");
     let q = ready.document.pairs[worst].fixed.expect("a fixed point").coords();
-    assert!((ready.slice_mm[0] - q[2]).abs() < 1e-9 && (ready.slice_mm[2] - q[0]).abs() < 1e-9, "the views go there");
+    assert!(
+        (ready.view.slice_mm[0] - q[2]).abs() < 1e-9 && (ready.view.slice_mm[2] - q[0]).abs() < 1e-9,
+        "the views go there"
+    );
     let Some(warpbench_gpu::ViewDeformation::FishEye { centre_ref, radius_mm, .. }) = ready.view_lens(Instant::now())
     else {
         panic!("a lens about the worst pair")
@@ -115,7 +118,7 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     let settings = ready.document.settings.render_settings();
     let view = |ready: &mut Ready, lens| {
         ready.viewer.set_view_deformations([lens; 2]);
-        let t = ready.viewer.render_view(&ready.camera, &settings, warpbench_gpu::Quality::Full, (64, 64), &[]);
+        let t = ready.viewer.render_view(&ready.view.camera, &settings, warpbench_gpu::Quality::Full, (64, 64), &[]);
         let slice = ready.viewer.render_slice(&ready.slice_plane(0), &settings, &[]).expect("slice");
         (
             t.expect("view").read_back(&ready.viewer.ctx).expect("read"),
@@ -132,7 +135,7 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     harness.get_by_label("Pulse the selected pair").click_accesskit();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
-    assert!(!ready.attention.is_on() && ready.view_lens(Instant::now()).is_none(), "switched off");
+    assert!(!ready.view.attention.is_on() && ready.view_lens(Instant::now()).is_none(), "switched off");
 }
 
 /// The leafer (issue 17, item 3): opened on the moving volume through the side panel, it cuts the 3-D view along the
@@ -153,7 +156,7 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
     harness.get_by_label("Open with a leafer").click_accesskit();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
-    assert_eq!(ready.leafer, Leafer::Open { side: Side::Moving, angle_deg: 30.0 });
+    assert_eq!(ready.view.leafer, Leafer::Open { side: Side::Moving, angle_deg: 30.0 });
     let [None, Some(leafer @ warpbench_gpu::ViewDeformation::Leafer { .. })] =
         ready.view_deformations(std::time::Instant::now())
     else {
@@ -171,7 +174,7 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
     let probe = ready.document.settings.probe();
     let hit = ready
         .viewer
-        .pick(&ready.camera, &settings, size, pixel, warpbench_gpu::PickTarget::Moving, probe)
+        .pick(&ready.view.camera, &settings, size, pixel, warpbench_gpu::PickTarget::Moving, probe)
         .expect("pick")
         .expect("a hit on the opened moving volume");
     let x = warpbench_gpu::glam::Vec3::from_array(hit.x_ref);
@@ -192,7 +195,7 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
     click_at(&mut harness, view.center() + egui::vec2(view.width() * offset, 0.0));
     let ready = harness.state().ready().expect("ready");
     let Placing::Target { moving } = ready.placing() else {
-        panic!("the click placed no source: {:?} {:?}", ready.fit.error, ready.notice)
+        panic!("the click placed no source: {:?} {:?}", ready.fit.error, ready.pointer.notice)
     };
     let stored = warpbench_gpu::glam::DVec3::from_array(moving.coords());
     assert!(stored.distance(warpbench_gpu::glam::Vec3::from_array(hit.p_lps).as_dvec3()) < 1e-3, "{stored}");
@@ -200,7 +203,7 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
 
     harness.get_by_label("Open with a leafer").click_accesskit();
     harness.run_steps(3);
-    assert_eq!(harness.state().ready().expect("ready").leafer, Leafer::Closed);
+    assert_eq!(harness.state().ready().expect("ready").view.leafer, Leafer::Closed);
 }
 
 /// The displacement brush (issue 17, item 4): with "Brush" as the tool, a drag in the axial slice adds one stroke at

@@ -60,14 +60,14 @@ fn add_pair_in_slices(harness: &mut Harness<'_, Workbench>, source: egui::Pos2, 
     let (_, moving_shown) = shown(harness);
     click_at(harness, source);
     let Placing::Target { moving } = ready(harness).placing() else {
-        panic!("{what}: the source click was not taken: {:?}", ready(harness).notice);
+        panic!("{what}: the source click was not taken: {:?}", ready(harness).pointer.notice);
     };
     assert_shown(moving.coords(), moving_shown, &format!("{what}, moving point"));
     hover(harness, target);
     let (fixed_shown, _) = shown(harness);
     click_at(harness, target);
     let r = ready(harness);
-    assert_eq!(r.placing(), Placing::Idle, "{what}: {:?}", r.notice);
+    assert_eq!(r.placing(), Placing::Idle, "{what}: {:?}", r.pointer.notice);
     assert_eq!(r.document.pairs.len(), before + 1, "{what}: a pair was added");
     let pair = r.document.pairs.last().expect("pair");
     assert_shown(pair.moving.expect("moving").coords(), moving_shown, &format!("{what}, stored moving point"));
@@ -143,7 +143,7 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
         let r = ready(harness);
         let settings = r.document.settings.render_settings();
         r.viewer
-            .pick(&r.camera, &settings, (w, h), pixel, target, r.document.settings.probe())
+            .pick(&r.view.camera, &settings, (w, h), pixel, target, r.document.settings.probe())
             .expect("pick")
             .expect("a hit")
     };
@@ -174,18 +174,22 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
     click_at(&mut harness, edge);
     let r = ready(&harness);
     assert_eq!(r.placing(), Placing::Source, "the source off the moving volume was refused");
-    let notice = r.notice.clone().expect("a message");
+    let notice = r.pointer.notice.clone().expect("a message");
     assert!(notice.contains("outside the moving volume"), "{notice}");
     assert_eq!(r.document.pairs.len(), n);
     harness.run_steps(2);
     harness.get_by_label(&notice);
     // A source inside, then a target on the top row, outside the CT: refused.
     click_at(&mut harness, rect.center());
-    assert!(matches!(ready(&harness).placing(), Placing::Target { .. }), "{:?}", ready(&harness).notice);
+    assert!(matches!(ready(&harness).placing(), Placing::Target { .. }), "{:?}", ready(&harness).pointer.notice);
     click_at(&mut harness, egui::pos2(rect.center().x, rect.min.y + 2.0));
     let r = ready(&harness);
     assert!(matches!(r.placing(), Placing::Target { .. }), "the target off the fixed volume was refused");
-    assert!(r.notice.as_deref().is_some_and(|m| m.contains("outside the fixed volume")), "{:?}", r.notice);
+    assert!(
+        r.pointer.notice.as_deref().is_some_and(|m| m.contains("outside the fixed volume")),
+        "{:?}",
+        r.pointer.notice
+    );
     assert_eq!(r.document.pairs.len(), n);
     // Every stored pair lies in its volumes, as the command line checks them.
     let r = ready(&harness);

@@ -14,10 +14,7 @@ use warpbench_io::Volume;
 use super::history::{History, Snapshot};
 use super::load::{Loaded, LoadedPair, Opened};
 use super::viewer::{DeviceFacts, LayerData, Viewer};
-use super::{
-    Command, ControlEval, Files, Fitter, GuiOptions, Images, Interaction, Ready, autosave, open, pacing, panels,
-    save_png, side_panel, status, views,
-};
+use super::{Command, Files, Fitter, GuiOptions, Ready, autosave, open, panels, save_png, side_panel, status, views};
 use crate::project::document::Document;
 use crate::project::session;
 
@@ -287,28 +284,14 @@ impl Workbench {
         let mut ready = Ready {
             loaded,
             document,
-            viewer,
-            camera,
-            slice_mm: [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)],
-            images: Images::default(),
-            fit: Fitter::default(),
-            fit_pending: false,
-            stiffness_choice: None,
-            aligning: None,
-            last_render_ms: 0.0,
-            frame_rate: pacing::FrameRate::default(),
-            interaction: Interaction::Idle,
-            files: Files::default(),
-            cursor: None,
-            notice: None,
-            selected: None,
-            attention: super::attention::Attention::Off,
-            leafer: super::leafer::Leafer::Closed,
-            control_eval: ControlEval::Auto,
             history: History::new(first),
+            viewer,
+            view: super::View::new(camera, [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)]),
+            fit: Fitter::default(),
+            pointer: super::Pointer::default(),
+            assist: super::Assist::default(),
+            files: Files::default(),
             ctx: ctx.clone(),
-            matching: super::suggestion::Matching::default(),
-            hover: super::hover::HoverPick::default(),
         };
         ready.reset_camera();
         if let Some(view) = &view {
@@ -496,7 +479,7 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
         commands.push(Command::AcceptSuggestion);
     }
     if (key(ui, egui::Key::Delete) || key(ui, egui::Key::Backspace))
-        && let Some(i) = ready.selected
+        && let Some(i) = ready.pointer.selected
     {
         commands.push(Command::DeletePair(i));
     }
@@ -522,7 +505,7 @@ fn workbench_ui(
     render_state: Option<&eframe::egui_wgpu::RenderState>,
     autosave: &mut autosave::Autosave,
 ) {
-    ready.frame_rate.tick(std::time::Instant::now());
+    ready.view.frame_rate.tick(std::time::Instant::now());
     // No refinement band starts while this frame is worked on (the window answers its input first).
     ready.hold_refinement(true);
     ready.poll_diagnostics();

@@ -152,28 +152,28 @@ impl Ready {
             }
             Command::ResetCamera => self.reset_camera(),
             Command::Orbit(drag) => {
-                self.camera.azimuth_rad -= drag.x * 0.01;
-                self.camera.elevation_rad = (self.camera.elevation_rad + drag.y * 0.01).clamp(-1.5, 1.5);
+                self.view.camera.azimuth_rad -= drag.x * 0.01;
+                self.view.camera.elevation_rad = (self.view.camera.elevation_rad + drag.y * 0.01).clamp(-1.5, 1.5);
                 self.invalidate_view();
             }
             Command::Zoom(scroll) => {
-                self.camera.zoom = (self.camera.zoom * (1.0 + scroll * 0.002)).clamp(0.2, 20.0);
+                self.view.camera.zoom = (self.view.camera.zoom * (1.0 + scroll * 0.002)).clamp(0.2, 20.0);
                 self.invalidate_view();
             }
             Command::JumpTo(i) => self.jump_to(i),
             Command::Select(i) => {
-                self.selected = Some(i);
+                self.pointer.selected = Some(i);
                 self.invalidate();
                 self.follow(i);
             }
             Command::Cancel => {
                 // Esc drops a suggested target first (the partner is then clicked by hand), then stops adding.
-                if !self.interaction.reject_suggestion() && !self.interaction.stop_adding() {
-                    self.selected = None;
+                if !self.pointer.interaction.reject_suggestion() && !self.pointer.interaction.stop_adding() {
+                    self.pointer.selected = None;
                 }
                 self.invalidate();
             }
-            Command::ToggleAdding => self.interaction.toggle_adding(),
+            Command::ToggleAdding => self.pointer.interaction.toggle_adding(),
             Command::AddPair { moving, fixed } => {
                 let name = format!("Pt-{}", self.document.pairs.len() + 1);
                 self.document.pairs.push(LandmarkPair::new(name, moving, fixed));
@@ -196,7 +196,7 @@ impl Ready {
             Command::DeletePair(i) => {
                 if i < self.document.pairs.len() {
                     self.document.pairs.remove(i);
-                    self.selected = None;
+                    self.pointer.selected = None;
                     self.refit_soon();
                 }
             }
@@ -226,35 +226,40 @@ impl Ready {
                 self.invalidate();
             }
             Command::MoveSlice(a, mm) => {
-                if let Some(s) = self.slice_mm.get_mut(a) {
+                if let Some(s) = self.view.slice_mm.get_mut(a) {
                     *s = mm;
                     self.invalidate_slices();
                     self.crosshair_moved();
                 }
             }
             Command::CentreSlices(x_ref) => {
-                self.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
+                self.view.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
                 self.invalidate_slices();
                 self.crosshair_moved();
             }
             Command::File(action) => self.file_action(action),
             Command::Export(kind, out) => self.start_export(kind, out),
             Command::TogglePulse => {
-                self.attention = self.attention.toggled(std::time::Instant::now());
+                self.view.attention = self.view.attention.toggled(std::time::Instant::now());
                 self.invalidate_view();
             }
-            Command::ShowWorstPair => match panels::loo_ranking(&self.document.pairs, &self.fit.pair_errors).first() {
-                Some(&(_, i)) => {
-                    self.jump_to(i);
-                    self.attention = self.attention.on(std::time::Instant::now());
+            Command::ShowWorstPair => {
+                match super::landmark_table::loo_ranking(&self.document.pairs, &self.fit.pair_errors).first() {
+                    Some(&(_, i)) => {
+                        self.jump_to(i);
+                        self.view.attention = self.view.attention.on(std::time::Instant::now());
+                    }
+                    None => {
+                        self.pointer.notice =
+                            Some("no leave-one-out errors yet: the worst pair needs a fit of 5 pairs".into());
+                    }
                 }
-                None => self.notice = Some("no leave-one-out errors yet: the worst pair needs a fit of 5 pairs".into()),
-            },
+            }
             Command::SetLeafer(leafer) => {
-                self.leafer = leafer;
+                self.view.leafer = leafer;
                 self.invalidate_view();
             }
-            Command::ToggleSculpting => self.interaction.toggle_sculpting(),
+            Command::ToggleSculpting => self.pointer.interaction.toggle_sculpting(),
             Command::AddStroke(stroke) => {
                 self.document.brush.push(stroke.clamped());
                 self.refit_interactive();
@@ -279,7 +284,7 @@ impl Ready {
                 }
             }
             Command::AcceptSuggestion => {
-                if let Some(s) = self.interaction.suggestion() {
+                if let Some(s) = self.pointer.interaction.suggestion() {
                     self.place_at_ref(s.fixed_lps, None);
                 }
             }
@@ -294,11 +299,11 @@ impl Ready {
         match warpbench_solver::stiffness::choose_stiffness(&pairs.0, &pairs.1) {
             Ok(choice) => {
                 self.document.settings.stiffness = choice.lambda;
-                self.stiffness_choice = Some(super::StiffnessChoiceOn { choice, pairs });
-                self.notice = None;
+                self.assist.stiffness_choice = Some(super::StiffnessChoiceOn { choice, pairs });
+                self.pointer.notice = None;
                 self.refit_soon();
             }
-            Err(e) => self.notice = Some(format!("Auto stiffness: {e}")),
+            Err(e) => self.pointer.notice = Some(format!("Auto stiffness: {e}")),
         }
     }
 
@@ -306,12 +311,12 @@ impl Ready {
     /// (one undo step) unless the search is unsure or fails, which the status bar says.
     fn refine_pair(&mut self, i: usize) {
         let Some(p) = self.document.pairs.get(i).and_then(|p| p.moving) else {
-            self.notice = Some(format!("Refine pair: pair {} has no moving point", i + 1));
+            self.pointer.notice = Some(format!("Refine pair: pair {} has no moving point", i + 1));
             return;
         };
         match self.suggestion_for(p) {
             Ok(s) if s.low_confidence => {
-                self.notice = Some(format!(
+                self.pointer.notice = Some(format!(
                     "Refine pair {}: the search is unsure (confidence {:.2}); the pair is left as it was",
                     i + 1,
                     s.confidence
@@ -321,14 +326,14 @@ impl Ready {
                 let before = self.document.pairs[i].fixed.map(|q| q.coords());
                 let moved = before.map_or(0.0, |q| (0..3).map(|a| (q[a] - s.fixed_lps[a]).powi(2)).sum::<f64>().sqrt());
                 self.document.pairs[i].fixed = Some(Point3::from_array(s.fixed_lps));
-                self.notice = Some(format!(
+                self.pointer.notice = Some(format!(
                     "Refine pair {}: its fixed point moved {moved:.2} mm (confidence {:.2})",
                     i + 1,
                     s.confidence
                 ));
                 self.refit_soon();
             }
-            Err(e) => self.notice = Some(format!("Refine pair {}: {e}", i + 1)),
+            Err(e) => self.pointer.notice = Some(format!("Refine pair {}: {e}", i + 1)),
         }
     }
 
@@ -340,14 +345,14 @@ impl Ready {
         }
         let Some(q) = self.document.pairs.get(i).and_then(|p| p.fixed) else { return };
         let c = q.coords();
-        self.slice_mm = [c[2], c[1], c[0]];
+        self.view.slice_mm = [c[2], c[1], c[0]];
         self.invalidate_slices();
         self.crosshair_moved();
     }
 
     /// The crosshair moved: the leafer's cut goes through it, so an open leafer redraws the 3-D view.
     fn crosshair_moved(&mut self) {
-        if self.leafer.is_open() {
+        if self.view.leafer.is_open() {
             self.invalidate_view();
         }
     }
@@ -445,20 +450,20 @@ impl Ready {
     /// Puts the camera back: the whole fixed volume in view, from the front-left, slightly above.
     pub fn reset_camera(&mut self) {
         let (lo, hi) = self.viewer.scene_box();
-        self.camera = OrbitCamera::fit(lo, hi, self.camera.projection);
-        self.camera.azimuth_rad = 0.6;
-        self.camera.elevation_rad = 0.25;
+        self.view.camera = OrbitCamera::fit(lo, hi, self.view.camera.projection);
+        self.view.camera.azimuth_rad = 0.6;
+        self.view.camera.elevation_rad = 0.25;
         self.invalidate_view();
     }
 
     /// Centres the camera and the three slices on pair `i`'s fixed point.
     fn jump_to(&mut self, i: usize) {
         let Some(q) = self.document.pairs.get(i).and_then(|p| p.fixed) else { return };
-        self.selected = Some(i);
+        self.pointer.selected = Some(i);
         let c = q.coords();
-        self.slice_mm = [c[2], c[1], c[0]];
-        self.camera.target_ref = Vec3::from_array(c.map(|v| v as f32));
-        self.camera.pan_mm = warpbench_gpu::glam::Vec2::ZERO;
+        self.view.slice_mm = [c[2], c[1], c[0]];
+        self.view.camera.target_ref = Vec3::from_array(c.map(|v| v as f32));
+        self.view.camera.pan_mm = warpbench_gpu::glam::Vec2::ZERO;
         self.invalidate();
     }
 
@@ -466,22 +471,22 @@ impl Ready {
     #[must_use]
     pub fn to_session(&self, clean_exit: bool) -> session::SessionFile {
         let camera = session::SessionCamera {
-            azimuth_deg: self.camera.azimuth_rad.to_degrees(),
-            elevation_deg: self.camera.elevation_rad.to_degrees(),
-            zoom: self.camera.zoom,
-            target_lps: self.camera.target_ref.to_array(),
+            azimuth_deg: self.view.camera.azimuth_rad.to_degrees(),
+            elevation_deg: self.view.camera.elevation_rad.to_degrees(),
+            zoom: self.view.camera.zoom,
+            target_lps: self.view.camera.target_ref.to_array(),
         };
-        let view = session::View { camera, slice_mm: self.slice_mm };
+        let view = session::View { camera, slice_mm: self.view.slice_mm };
         session::SessionFile::new(self.document.clone(), view, clean_exit)
     }
 
     /// Points the camera and the slices where a session's views looked.
     pub fn apply_view(&mut self, v: &session::View) {
-        self.camera.azimuth_rad = v.camera.azimuth_deg.to_radians();
-        self.camera.elevation_rad = v.camera.elevation_deg.to_radians();
-        self.camera.zoom = v.camera.zoom;
-        self.camera.target_ref = Vec3::from_array(v.camera.target_lps);
-        self.slice_mm = v.slice_mm;
+        self.view.camera.azimuth_rad = v.camera.azimuth_deg.to_radians();
+        self.view.camera.elevation_rad = v.camera.elevation_deg.to_radians();
+        self.view.camera.zoom = v.camera.zoom;
+        self.view.camera.target_ref = Vec3::from_array(v.camera.target_lps);
+        self.view.slice_mm = v.slice_mm;
         self.invalidate();
     }
 
@@ -507,7 +512,7 @@ impl Ready {
             }
         }
         self.document = s.document.clone();
-        self.interaction.stop_adding();
+        self.pointer.interaction.stop_adding();
         self.refit_soon();
     }
 }

@@ -75,9 +75,9 @@ impl Ready {
         interacting: bool,
     ) -> anyhow::Result<()> {
         let cpu = self.viewer.ctx.is_cpu_driver();
-        let shown_size = self.images.view.as_ref().map(|v| (v.target.width, v.target.height));
-        let reduced = !self.images.view_state.full_shown();
-        let stale = match &self.images.view_state {
+        let shown_size = self.view.images.view.as_ref().map(|v| (v.target.width, v.target.height));
+        let reduced = !self.view.images.view_state.full_shown();
+        let stale = match &self.view.images.view_state {
             ViewImage::Stale { .. } => true,
             ViewImage::Refining(r) => r.size() != view_px,
             ViewImage::Full => shown_size != Some(view_px),
@@ -85,7 +85,7 @@ impl Ready {
         };
         // Not while the pointer is held: on a CPU driver a refinement would take the CPU from the next reduced view.
         let refine = reduced && !interacting;
-        if !stale && !refine && !self.images.slices_dirty {
+        if !stale && !refine && !self.view.images.slices_dirty {
             return Ok(());
         }
         let start = std::time::Instant::now();
@@ -99,31 +99,31 @@ impl Ready {
         let settings = self.document.settings.render_settings();
         if stale {
             let (quality, px) = if interacting || cpu {
-                let measured = self.images.view_ms_per_px.or(Some(pacing::CPU_GUESS_MS_PER_PX));
+                let measured = self.view.images.view_ms_per_px.or(Some(pacing::CPU_GUESS_MS_PER_PX));
                 (Quality::Interactive, interactive_size(view_px, if cpu { measured } else { None }))
             } else {
                 (Quality::Full, view_px)
             };
-            let target = self.viewer.render_view(&self.camera, &settings, quality, px, &glyphs)?;
-            self.images.view = Some(viewer::show(rs, target, self.images.view.take()));
-            self.images.view_state = if quality == Quality::Full { ViewImage::Full } else { ViewImage::Reduced };
+            let target = self.viewer.render_view(&self.view.camera, &settings, quality, px, &glyphs)?;
+            self.view.images.view = Some(viewer::show(rs, target, self.view.images.view.take()));
+            self.view.images.view_state = if quality == Quality::Full { ViewImage::Full } else { ViewImage::Reduced };
         } else if refine && !cpu {
-            let target = self.viewer.render_view(&self.camera, &settings, Quality::Full, view_px, &glyphs)?;
-            self.images.view = Some(viewer::show(rs, target, self.images.view.take()));
-            self.images.view_state = ViewImage::Full;
+            let target = self.viewer.render_view(&self.view.camera, &settings, Quality::Full, view_px, &glyphs)?;
+            self.view.images.view = Some(viewer::show(rs, target, self.view.images.view.take()));
+            self.view.images.view_state = ViewImage::Full;
         } else if refine {
             self.refine_in_background(egui, rs, view_px, &settings, &glyphs)?;
         }
-        if self.images.slices_dirty {
+        if self.view.images.slices_dirty {
             let planes = self.slice_planes();
-            for (slot, plane) in self.images.slices.iter_mut().zip(planes) {
+            for (slot, plane) in self.view.images.slices.iter_mut().zip(planes) {
                 let target = self.viewer.render_slice(&plane, &settings, &slice_glyphs)?;
                 *slot = Some(viewer::show(rs, target, slot.take()));
             }
-            self.images.slices_dirty = false;
+            self.view.images.slices_dirty = false;
         }
         self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
-        self.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
+        self.view.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(())
     }
 
@@ -137,31 +137,31 @@ impl Ready {
         settings: &warpbench_gpu::RenderSettings,
         glyphs: &[warpbench_gpu::GlyphInstance],
     ) -> anyhow::Result<()> {
-        let ViewImage::Refining(job) = &self.images.view_state else {
+        let ViewImage::Refining(job) = &self.view.images.view_state else {
             let target = self.viewer.view_target(view_px);
-            let work = self.viewer.refine_work(&self.camera, settings, target, self.images.view_ms_per_px);
+            let work = self.viewer.refine_work(&self.view.camera, settings, target, self.view.images.view_ms_per_px);
             let egui = egui.clone();
             let job = RefineJob::start(work, move || egui.request_repaint())
                 .context("starting the thread that refines the 3-D view")?;
             // Until this frame's work is done ([`Self::hold_refinement`]).
             job.hold(true);
-            self.images.view_state = ViewImage::Refining(job);
+            self.view.images.view_state = ViewImage::Refining(job);
             return Ok(());
         };
         let Some(result) = job.poll() else { return Ok(()) };
-        self.images.view_state = ViewImage::Reduced;
+        self.view.images.view_state = ViewImage::Reduced;
         let done = result.map_err(|e| anyhow!(e))?;
-        self.images.view_ms_per_px = done.ms_per_px;
-        self.viewer.draw_view_glyphs(&self.camera, &done.target, glyphs)?;
-        self.images.view = Some(viewer::show(rs, done.target, self.images.view.take()));
-        self.images.view_state = ViewImage::Full;
+        self.view.images.view_ms_per_px = done.ms_per_px;
+        self.viewer.draw_view_glyphs(&self.view.camera, &done.target, glyphs)?;
+        self.view.images.view = Some(viewer::show(rs, done.target, self.view.images.view.take()));
+        self.view.images.view_state = ViewImage::Full;
         Ok(())
     }
 
     /// On a CPU driver, how much of the full 3-D view is rendered while it is rendered band by band (0..1).
     #[must_use]
     pub fn view_refine_progress(&self) -> Option<f32> {
-        match &self.images.view_state {
+        match &self.view.images.view_state {
             ViewImage::Refining(job) => Some(job.progress()),
             _ => None,
         }
@@ -171,7 +171,7 @@ impl Ready {
     /// or `full`.
     #[must_use]
     pub fn view_state_name(&self) -> String {
-        match &self.images.view_state {
+        match &self.view.images.view_state {
             ViewImage::Stale { .. } => "stale".into(),
             ViewImage::Reduced => "reduced".into(),
             ViewImage::Refining(job) => format!("refining {:.2}", job.progress()),
@@ -181,44 +181,44 @@ impl Ready {
 
     /// The 3-D view's image shown now, read back (premultiplied RGBA8, rows top to bottom).
     pub fn read_view(&self) -> anyhow::Result<Vec<u8>> {
-        let shown = self.images.view.as_ref().context("no 3-D view is shown")?;
+        let shown = self.view.images.view.as_ref().context("no 3-D view is shown")?;
         shown.target.read_back(&self.viewer.ctx).map_err(|e| anyhow!("{e}"))
     }
 
     /// The size of the 3-D view's image shown now, and whether it is the full-quality one.
     #[must_use]
     pub fn view_shown(&self) -> Option<((u32, u32), bool)> {
-        let v = self.images.view.as_ref()?;
-        Some(((v.target.width, v.target.height), self.images.view_state.full_shown()))
+        let v = self.view.images.view.as_ref()?;
+        Some(((v.target.width, v.target.height), self.view.images.view_state.full_shown()))
     }
 
     /// Marks the 3-D view and the slices for re-rendering.
     pub fn invalidate(&mut self) {
         self.invalidate_view();
-        self.images.slices_dirty = true;
+        self.view.images.slices_dirty = true;
     }
 
     /// Marks the 3-D view only (the camera moved).
     pub fn invalidate_view(&mut self) {
-        let full_shown = self.images.view_state.full_shown();
-        self.images.view_state = ViewImage::Stale { full_shown };
+        let full_shown = self.view.images.view_state.full_shown();
+        self.view.images.view_state = ViewImage::Stale { full_shown };
     }
 
     /// Marks the slices only (a slice moved or turned).
     pub fn invalidate_slices(&mut self) {
-        self.images.slices_dirty = true;
+        self.view.images.slices_dirty = true;
     }
 
     /// Whether something waits to be rendered.
     #[must_use]
     pub fn needs_render(&self) -> bool {
-        self.images.slices_dirty || !matches!(self.images.view_state, ViewImage::Full)
+        self.view.images.slices_dirty || !matches!(self.view.images.view_state, ViewImage::Full)
     }
 
     /// Holds the thread refining the 3-D view back from its next band while `held` (set for the time of a frame's
     /// work on the UI thread, [`RefineJob::hold`]).
     pub fn hold_refinement(&self, held: bool) {
-        if let ViewImage::Refining(job) = &self.images.view_state {
+        if let ViewImage::Refining(job) = &self.view.images.view_state {
             job.hold(held);
         }
     }
@@ -227,6 +227,6 @@ impl Ready {
     /// so the window need not draw frames meanwhile.
     #[must_use]
     pub fn refining_in_background(&self) -> bool {
-        !self.images.slices_dirty && matches!(self.images.view_state, ViewImage::Refining(_))
+        !self.view.images.slices_dirty && matches!(self.view.images.view_state, ViewImage::Refining(_))
     }
 }

@@ -255,20 +255,21 @@ impl Ready {
         screen: impl Fn([f64; 3], End) -> Option<egui::Pos2>,
         view: DragView,
     ) -> Option<usize> {
-        let s = self.interaction.suggestion()?;
+        let s = self.pointer.interaction.suggestion()?;
         if screen(s.fixed_lps, End::Fixed)?.distance(pointer) > GRAB_RADIUS {
             return None;
         }
         let pair = self.document.pairs.len();
         self.apply(Command::AcceptSuggestion);
-        (self.document.pairs.len() == pair + 1 && self.interaction.grab(DragPoint { pair, end: End::Fixed, view }))
-            .then_some(pair)
+        (self.document.pairs.len() == pair + 1
+            && self.pointer.interaction.grab(DragPoint { pair, end: End::Fixed, view }))
+        .then_some(pair)
     }
 
     /// Moves the dragged point so that it is shown at `x_ref`: the fixed point to x_ref, the moving point to
     /// u(x_ref) (the moving point the warp shows there) unless a pick gives it (`moving_lps`). Refits interactively.
     pub(crate) fn drag_to(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
-        let Some(drag) = self.interaction.drag() else { return };
+        let Some(drag) = self.pointer.interaction.drag() else { return };
         let moving = moving_lps.unwrap_or_else(|| self.moving_shown_at(x_ref));
         let (volume, p) = match drag.end {
             End::Fixed => (&self.loaded.fixed, x_ref),
@@ -276,16 +277,16 @@ impl Ready {
         };
         // Off its volume the point stays where it was.
         if let Some(message) = placement::outside_message(drag.end, volume, p) {
-            self.notice = Some(message);
+            self.pointer.notice = Some(message);
             return;
         }
-        self.notice = None;
+        self.pointer.notice = None;
         self.apply(Command::MovePoint { pair: drag.pair, end: drag.end, to: p, settled: false });
     }
 
     /// Ends a drag in `view`: the full fit with its diagnostics.
     pub(crate) fn end_drag(&mut self, view: DragView) {
-        if self.interaction.release(view).is_some() {
+        if self.pointer.interaction.release(view).is_some() {
             self.refit_soon();
         }
     }
@@ -293,44 +294,44 @@ impl Ready {
     /// The step of adding a pair.
     #[must_use]
     pub fn placing(&self) -> Placing {
-        self.interaction.placing()
+        self.pointer.interaction.placing()
     }
 
     /// The target suggested for the pair being added ([`super::suggestion`]).
     #[must_use]
     pub fn suggestion(&self) -> Option<Suggested> {
-        self.interaction.suggestion()
+        self.pointer.interaction.suggestion()
     }
 
     /// The landmark point being dragged.
     #[must_use]
     pub fn drag(&self) -> Option<DragPoint> {
-        self.interaction.drag()
+        self.pointer.interaction.drag()
     }
 
     /// Whether the brush is the tool.
     #[must_use]
     pub fn sculpting(&self) -> bool {
-        self.interaction.sculpting()
+        self.pointer.interaction.sculpting()
     }
 
     /// The brush stroke being made.
     #[must_use]
     pub fn sculpt_drag(&self) -> Option<SculptDrag> {
-        self.interaction.sculpt_drag()
+        self.pointer.interaction.sculpt_drag()
     }
 
     /// A drag event in the 3-D view at framebuffer point `pixel`: the dragged point follows the surface under the
     /// pointer (the volume it belongs to, picked with the current probe); off the volume it stays.
     pub(crate) fn drag_in_view(&mut self, pixel: [f32; 2]) {
-        let Some(drag) = self.interaction.drag() else { return };
-        let Some(size) = self.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let Some(drag) = self.pointer.interaction.drag() else { return };
+        let Some(size) = self.view.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
         let target = match drag.end {
             End::Moving => PickTarget::Moving,
             End::Fixed => PickTarget::Fixed,
         };
         let settings = self.document.settings.render_settings();
-        match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.document.settings.probe()) {
+        match self.viewer.pick(&self.view.camera, &settings, size, pixel, target, self.document.settings.probe()) {
             Ok(Some(hit)) => {
                 let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
                 self.drag_to(picked_ref(&hit), moving);
@@ -344,31 +345,31 @@ impl Ready {
     /// space): the source through the warp's pull-back (the moving volume's point shown there) unless the pick gives
     /// it (`moving_lps`), the target as is. A completed pair is appended, active, and the warp is fitted again.
     ///
-    /// A point outside its volume is refused: nothing is stored, the step stays, and [`Self::notice`] says why.
+    /// A point outside its volume is refused: nothing is stored, the step stays, and [`Pointer::notice`](super::Pointer::notice) says why.
     pub fn place_at_ref(&mut self, x_ref: [f64; 3], moving_lps: Option<[f64; 3]>) {
         match self.placing() {
             Placing::Idle => {}
             Placing::Source => {
                 let p = moving_lps.unwrap_or_else(|| self.moving_shown_at(x_ref));
                 if let Some(message) = placement::outside_message(End::Moving, &self.loaded.moving, p) {
-                    self.notice = Some(message);
+                    self.pointer.notice = Some(message);
                     return;
                 }
-                self.notice = None;
-                self.interaction.placed_moving(Point3::from_array(p));
+                self.pointer.notice = None;
+                self.pointer.interaction.placed_moving(Point3::from_array(p));
                 // The suggested target, shown as a ghost that Enter takes.
                 match self.suggestion_for(Point3::from_array(p)) {
-                    Ok(s) => self.interaction.suggest(s),
-                    Err(e) => self.notice = Some(e),
+                    Ok(s) => self.pointer.interaction.suggest(s),
+                    Err(e) => self.pointer.notice = Some(e),
                 }
             }
             Placing::Target { moving } => {
                 if let Some(message) = placement::outside_message(End::Fixed, &self.loaded.fixed, x_ref) {
-                    self.notice = Some(message);
+                    self.pointer.notice = Some(message);
                     return;
                 }
-                self.notice = None;
-                self.interaction.placed_fixed();
+                self.pointer.notice = None;
+                self.pointer.interaction.placed_fixed();
                 self.apply(Command::AddPair { moving, fixed: Point3::from_array(x_ref) });
             }
         }
@@ -378,10 +379,10 @@ impl Ready {
     /// The point of the deformed moving volume shown at framebuffer point `pixel` of the 3-D view (a pick with the
     /// current probe), in ref space; `None` where the ray hits nothing (or the pick failed: the status bar says so).
     pub(crate) fn pick_moving_at(&mut self, pixel: [f32; 2]) -> Option<[f64; 3]> {
-        let size = self.images.view.as_ref().map(|v| (v.target.width, v.target.height))?;
+        let size = self.view.images.view.as_ref().map(|v| (v.target.width, v.target.height))?;
         let settings = self.document.settings.render_settings();
         let probe = self.document.settings.probe();
-        match self.viewer.pick(&self.camera, &settings, size, pixel, PickTarget::Moving, probe) {
+        match self.viewer.pick(&self.view.camera, &settings, size, pixel, PickTarget::Moving, probe) {
             Ok(hit) => hit.map(|h| h.x_ref.map(f64::from)),
             Err(e) => {
                 self.fit.error = Some(format!("picking: {e:#}"));
@@ -397,9 +398,9 @@ impl Ready {
             Placing::Source => PickTarget::Moving,
             Placing::Target { .. } => PickTarget::Fixed,
         };
-        let Some(size) = self.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
+        let Some(size) = self.view.images.view.as_ref().map(|v| (v.target.width, v.target.height)) else { return };
         let settings = self.document.settings.render_settings();
-        match self.viewer.pick(&self.camera, &settings, size, pixel, target, self.document.settings.probe()) {
+        match self.viewer.pick(&self.view.camera, &settings, size, pixel, target, self.document.settings.probe()) {
             Ok(Some(hit)) => {
                 let moving = matches!(target, PickTarget::Moving).then(|| hit.p_lps.map(f64::from));
                 self.place_at_ref(picked_ref(&hit), moving);
@@ -415,13 +416,13 @@ impl Ready {
     /// A press with the brush at ref point `from_ref` in `view` (in the 3-D view the deformed moving volume picked
     /// under the pointer, in a slice the point of the plane): the stroke starts there.
     pub(crate) fn sculpt_press(&mut self, view: DragView, from_ref: [f64; 3]) {
-        self.interaction.start_stroke(view, from_ref);
+        self.pointer.interaction.start_stroke(view, from_ref);
     }
 
     /// The brush dragged to `to_ref`: the stroke moves its start by to − from (within its radius's limit), added to
     /// the document at the first move, then replaced, each time fitted interactively.
     pub(crate) fn sculpt_to(&mut self, to_ref: [f64; 3]) {
-        let Some(drag) = self.interaction.sculpt_drag() else { return };
+        let Some(drag) = self.pointer.interaction.sculpt_drag() else { return };
         let displacement_mm: [f64; 3] = std::array::from_fn(|a| to_ref[a] - drag.from_ref[a]);
         if displacement_mm.iter().all(|v| v.abs() < 1e-9) && !drag.added {
             return;
@@ -434,14 +435,14 @@ impl Ready {
         if drag.added {
             self.apply(Command::MoveStroke { stroke, settled: false });
         } else {
-            self.interaction.stroke_added();
+            self.pointer.interaction.stroke_added();
             self.apply(Command::AddStroke(stroke));
         }
     }
 
     /// The brush released in `view`: the stroke settles (the brush's inverse is fitted again).
     pub(crate) fn sculpt_release(&mut self, view: DragView) {
-        if let Some(drag) = self.interaction.end_stroke(view)
+        if let Some(drag) = self.pointer.interaction.end_stroke(view)
             && drag.added
             && let Some(&stroke) = self.document.brush.last()
         {

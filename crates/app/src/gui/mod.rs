@@ -29,6 +29,7 @@ pub mod history;
 pub mod hover;
 mod images;
 pub mod interaction;
+pub mod landmark_table;
 pub mod leafer;
 pub mod load;
 pub mod open;
@@ -36,6 +37,7 @@ pub mod pacing;
 pub mod panels;
 pub mod placement;
 pub mod side_panel;
+pub mod state;
 pub mod status;
 pub mod suggestion;
 pub mod viewer;
@@ -65,6 +67,7 @@ use history::History;
 use images::Images;
 pub use interaction::{DragPoint, DragView, End, GRAB_RADIUS, Interaction, Placing, SLICE_SLAB_MM, SculptDrag};
 pub use load::{Loaded, LoadedPair, Opened, load};
+pub use state::{Assist, Pointer, View};
 use viewer::{DeviceFacts, LayerData, Viewer};
 
 /// What the window opens with.
@@ -121,57 +124,29 @@ pub struct Files {
     pub export: Option<export::ExportJob>,
 }
 
-/// The window's state once the pair is on the GPU.
+/// The window's state once the pair is on the GPU: the open pair and its document with their history, the
+/// renderer, what the views show, the fit, what the pointer does, the assistants, the file section, and the egui
+/// context.
 #[derive(Debug)]
 pub struct Ready {
     pub loaded: Loaded,
     /// What the user edits; undo, sessions and the autosave keep it.
     pub document: Document,
-    pub viewer: Viewer,
-    pub camera: OrbitCamera,
-    /// Slice positions (mm along S, P, L through the fixed grid).
-    pub slice_mm: [f64; 3],
-    /// The rendered images and what needs rendering again.
-    images: Images,
-    /// The fitted warp and what the fit found ([`Fitter`]).
-    pub fit: Fitter,
-    /// A fit asked for at the end of the frame ([`Self::refit_soon`]).
-    fit_pending: bool,
-    /// The last automatic stiffness ([`Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider
-    /// while the stiffness and the pairs are still those.
-    pub stiffness_choice: Option<StiffnessChoiceOn>,
-    /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
-    aligning: Option<alignment::AlignJob>,
-    pub last_render_ms: f64,
-    /// The window's frame rate, for the status bar.
-    frame_rate: pacing::FrameRate,
-    /// What the pointer is doing in the views ([`Self::placing`], [`Self::drag`]).
-    interaction: Interaction,
     /// Undo and redo.
     pub history: History,
+    pub viewer: Viewer,
+    /// The camera, the slices, their images and the view tools.
+    pub view: View,
+    /// The fitted warp and what the fit found ([`Fitter`]).
+    pub fit: Fitter,
+    /// What the pointer is doing and what it is over.
+    pub pointer: Pointer,
+    /// Auto-align, the suggested targets' search and the automatic stiffness.
+    pub assist: Assist,
     /// The side panel's file and export section: its fields, its last message and the running export.
     pub files: Files,
-    /// What the pointer is over in a slice view (the fixed point and the moving point shown there), for the status
-    /// bar; a click there stores exactly these points ([`placement`]).
-    pub cursor: Option<placement::Cursor>,
-    /// Why the last click or drag did not place its point (outside its volume), shown in the status bar until the
-    /// next point is placed.
-    pub notice: Option<String>,
-    /// The pair selected in the table or by clicking its glyph.
-    pub selected: Option<usize>,
-    /// Whether the 3-D view pulses the attention lens about the selected pair ([`attention`]): a view state beside
-    /// the camera, never part of the document.
-    pub attention: attention::Attention,
-    /// Whether the 3-D view opens a volume with the leafer ([`leafer`]): a view state beside the camera.
-    pub leafer: leafer::Leafer,
-    /// Where the control texture is made.
-    pub control_eval: ControlEval,
     /// The window's egui context, for work that reports back to it (screenshots, exports).
     ctx: egui::Context,
-    /// The images the suggested targets' search reads ([`suggestion`]), made when first needed.
-    matching: suggestion::Matching,
-    /// The pick under the pointer resting on the 3-D view, for the status bar's read-out ([`hover`]).
-    pub hover: hover::HoverPick,
 }
 
 impl Ready {
@@ -190,37 +165,37 @@ impl Ready {
     /// Takes Auto-align's result once its thread has it: the document's starting transform (one undo step), or the
     /// problem in the status bar; call once per frame.
     pub fn poll_alignment(&mut self) {
-        let Some(result) = self.aligning.as_ref().and_then(alignment::AlignJob::poll) else { return };
-        self.aligning = None;
+        let Some(result) = self.assist.aligning.as_ref().and_then(alignment::AlignJob::poll) else { return };
+        self.assist.aligning = None;
         match result {
             Ok(start) => {
-                self.notice = None;
+                self.pointer.notice = None;
                 self.apply(commands::Command::SetStart(Some(start)));
             }
-            Err(e) => self.notice = Some(e),
+            Err(e) => self.pointer.notice = Some(e),
         }
     }
 
     /// Whether Auto-align is running.
     #[must_use]
     pub fn aligning(&self) -> bool {
-        self.aligning.is_some()
+        self.assist.aligning.is_some()
     }
 
     /// Starts Auto-align on the pair as loaded, unless it is running; its result arrives through
     /// [`Self::poll_alignment`].
     fn start_alignment(&mut self, kind: warpbench_solver::align::AlignKind) {
-        if self.aligning.is_some() {
+        if self.assist.aligning.is_some() {
             return;
         }
         let egui = self.ctx.clone();
         let (fixed, moving) = (Arc::clone(&self.loaded.fixed), Arc::clone(&self.loaded.moving));
         match alignment::AlignJob::start(fixed, moving, kind, move || egui.request_repaint()) {
             Ok(job) => {
-                self.aligning = Some(job);
-                self.notice = Some(format!("Auto-align ({kind}): aligning the moving volume to the fixed one"));
+                self.assist.aligning = Some(job);
+                self.pointer.notice = Some(format!("Auto-align ({kind}): aligning the moving volume to the fixed one"));
             }
-            Err(e) => self.notice = Some(format!("Auto-align: could not start its thread: {e}")),
+            Err(e) => self.pointer.notice = Some(format!("Auto-align: could not start its thread: {e}")),
         }
     }
 
@@ -234,13 +209,13 @@ impl Ready {
     /// before the fit and its diagnostics (many fits on a CPU) run, so what a crash can take is only the time of
     /// the write.
     pub fn refit_soon(&mut self) {
-        self.fit_pending = true;
+        self.fit.pending = true;
         self.invalidate();
     }
 
     /// Runs the fit [`Self::refit_soon`] asked for; true when there was one.
     pub fn fit_if_pending(&mut self) -> bool {
-        let pending = std::mem::take(&mut self.fit_pending);
+        let pending = std::mem::take(&mut self.fit.pending);
         if pending {
             self.refit();
         }
@@ -273,7 +248,7 @@ impl Ready {
     /// it was made for.
     #[must_use]
     pub fn current_stiffness_choice(&self) -> Option<&warpbench_solver::stiffness::StiffnessChoice> {
-        let c = self.stiffness_choice.as_ref()?;
+        let c = self.assist.stiffness_choice.as_ref()?;
         let current = c.choice.lambda.to_bits() == self.document.settings.stiffness.to_bits()
             && self.document.settings.method == crate::settings::MethodKind::Tps
             && self.fit_pairs().1 == c.pairs;
@@ -283,7 +258,7 @@ impl Ready {
     fn fit_now(&mut self, diagnostics: bool) {
         self.invalidate();
         let mode = if diagnostics { Mode::Full } else { Mode::Interactive };
-        let evaluation = match self.control_eval {
+        let evaluation = match self.view.control_eval {
             ControlEval::Auto if !self.viewer.ctx.is_cpu_driver() => Evaluation::Gpu,
             ControlEval::Gpu => Evaluation::Gpu,
             ControlEval::Auto | ControlEval::Cpu => Evaluation::Cpu,
@@ -318,7 +293,7 @@ impl Ready {
         path: Option<PathBuf>,
         layer: Option<LayerData>,
     ) -> anyhow::Result<document::Look> {
-        self.matching.reset();
+        self.assist.matching.reset();
         let layer = match layer {
             Some(layer) => layer,
             None => LayerData::prepare(&volume, DeviceFacts::of(&self.viewer.ctx))?,
@@ -332,13 +307,13 @@ impl Ready {
         self.loaded.title = format!("{} -> {}", name(&self.document.fixed), name(&self.document.moving));
         if side == open::Side::Fixed {
             let (lo, hi) = self.viewer.scene_box();
-            let (azimuth, elevation) = (self.camera.azimuth_rad, self.camera.elevation_rad);
-            self.camera = OrbitCamera::fit(lo, hi, self.camera.projection);
-            (self.camera.azimuth_rad, self.camera.elevation_rad) = (azimuth, elevation);
+            let (azimuth, elevation) = (self.view.camera.azimuth_rad, self.view.camera.elevation_rad);
+            self.view.camera = OrbitCamera::fit(lo, hi, self.view.camera.projection);
+            (self.view.camera.azimuth_rad, self.view.camera.elevation_rad) = (azimuth, elevation);
             let mid = (lo + hi) * 0.5;
-            self.slice_mm = [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)];
+            self.view.slice_mm = [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)];
         }
-        self.images = Images::default();
+        self.view.images = Images::default();
         Ok(layer.look)
     }
 
@@ -390,10 +365,11 @@ impl Ready {
     /// open ([`leafer`]), else the attention lens on both while it pulses.
     #[must_use]
     pub fn view_deformations(&self, now: std::time::Instant) -> [Option<warpbench_gpu::ViewDeformation>; 2] {
-        if self.leafer.is_open() {
-            let crosshair = Vec3::new(self.slice_mm[2] as f32, self.slice_mm[1] as f32, self.slice_mm[0] as f32);
+        if self.view.leafer.is_open() {
+            let crosshair =
+                Vec3::new(self.view.slice_mm[2] as f32, self.view.slice_mm[1] as f32, self.view.slice_mm[0] as f32);
             let f = &self.viewer.fixed.volume.info;
-            return self.leafer.views(&self.camera, crosshair, (f.box_min_lps, f.box_max_lps));
+            return self.view.leafer.views(&self.view.camera, crosshair, (f.box_min_lps, f.box_max_lps));
         }
         [self.view_lens(now); 2]
     }
@@ -402,14 +378,14 @@ impl Ready {
     /// pulse is on and the leafer is closed.
     #[must_use]
     pub fn view_lens(&self, now: std::time::Instant) -> Option<warpbench_gpu::ViewDeformation> {
-        if self.leafer.is_open() {
+        if self.view.leafer.is_open() {
             return None;
         }
-        let centre = self.selected.and_then(|i| self.document.pairs.get(i)).and_then(|p| p.fixed);
+        let centre = self.pointer.selected.and_then(|i| self.document.pairs.get(i)).and_then(|p| p.fixed);
         let centre = centre.map(|q| Vec3::from_array(q.coords().map(|v| v as f32)));
         let f = &self.viewer.fixed.volume.info;
         let shortest = (f.box_max_lps - f.box_min_lps).min_element() as f32;
-        self.attention.lens(centre, shortest, now)
+        self.view.attention.lens(centre, shortest, now)
     }
 
     /// The landmark glyphs drawn over the slices (none when landmarks are hidden).
@@ -437,13 +413,13 @@ impl Ready {
             .map(|(i, p)| GlyphPair {
                 moving_ref: p.moving.map(|m| shown(self.shown_at(m.coords()), views[1])),
                 fixed_ref: p.fixed.map(|q| shown(q.coords(), views[0])),
-                selected: self.selected == Some(i),
+                selected: self.pointer.selected == Some(i),
                 active: p.active,
             })
             .collect();
         let mut glyphs = pair_glyphs(&pairs, &GlyphStyle::default());
         // The suggested target of the pair being added: a ghost point, joined to its moving point as shown.
-        if let (Some(s), Placing::Target { moving }) = (self.interaction.suggestion(), self.placing()) {
+        if let (Some(s), Placing::Target { moving }) = (self.pointer.interaction.suggestion(), self.placing()) {
             let style = GlyphStyle::default();
             let colour = if s.low_confidence { suggestion::GHOST_LOW_COLOUR } else { suggestion::GHOST_COLOUR };
             let ghost = shown(s.fixed_lps, views[0]);
@@ -478,7 +454,7 @@ impl Ready {
             (None, Some(b)) => b,
             (None, None) => unfitted,
         };
-        self.matching.suggest((&self.loaded.fixed, &self.loaded.moving), forward, p)
+        self.assist.matching.suggest((&self.loaded.fixed, &self.loaded.moving), forward, p)
     }
 
     /// Slice view `a`'s plane (0 axial, 1 coronal, 2 sagittal).
@@ -493,11 +469,11 @@ impl Ready {
         let f = &self.loaded.fixed;
         let m = f.lps_from_index.rows();
         let grid = [
-            SlicePlane::axial(&m, f.dims, self.slice_mm[0]),
-            SlicePlane::coronal(&m, f.dims, self.slice_mm[1]),
-            SlicePlane::sagittal(&m, f.dims, self.slice_mm[2]),
+            SlicePlane::axial(&m, f.dims, self.view.slice_mm[0]),
+            SlicePlane::coronal(&m, f.dims, self.view.slice_mm[1]),
+            SlicePlane::sagittal(&m, f.dims, self.view.slice_mm[2]),
         ];
-        let crosshair = [self.slice_mm[2], self.slice_mm[1], self.slice_mm[0]];
+        let crosshair = [self.view.slice_mm[2], self.view.slice_mm[1], self.view.slice_mm[0]];
         std::array::from_fn(|a| {
             let (plane, o) = (grid[a], self.document.settings.oblique[a]);
             if !o.on {

@@ -43,28 +43,35 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
                     Placing::Target { .. } => ui.label("click its partner on the fixed volume"),
                 };
             });
-            commands.extend(panels::landmarks_ui(ui, &ready.document.pairs, &ready.fit.pair_errors, ready.selected));
+            commands.extend(super::landmark_table::landmarks_ui(
+                ui,
+                &ready.document.pairs,
+                &ready.fit.pair_errors,
+                ready.pointer.selected,
+            ));
             for w in &ready.fit.warnings {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Warning: {w}"));
             }
             ui.separator();
             commands.extend(panels::alignment_ui(ui, ready.document.start.as_ref(), ready.aligning()));
-            let can_refine = (ready.placing() == Placing::Idle).then_some(ready.selected).flatten();
+            let can_refine = (ready.placing() == Placing::Idle).then_some(ready.pointer.selected).flatten();
             commands.extend(panels::refine_ui(ui, can_refine));
             ui.separator();
-            commands
-                .extend(panels::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors).map(Command::JumpTo));
+            commands.extend(
+                super::landmark_table::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors)
+                    .map(Command::JumpTo),
+            );
             panels::inverse_consistency_ui(ui, ready.fit.brush_consistency.as_ref());
-            let has_loo = !panels::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
-            commands.extend(panels::attention_ui(ui, ready.attention.is_on(), has_loo));
+            let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
+            commands.extend(panels::attention_ui(ui, ready.view.attention.is_on(), has_loo));
             ui.separator();
-            commands.extend(panels::leafer_ui(ui, ready.leafer));
+            commands.extend(panels::leafer_ui(ui, ready.view.leafer));
             ui.separator();
             // The tools that deform what is shown come after the landmarks, the registration's own work.
             let problem = ready.procedural().err();
             commands.extend(panels::deformation_ui(ui, &ready.document.settings, problem.as_deref()));
             ui.separator();
-            let tool = (ready.interaction.sculpting(), ready.document.brush.len());
+            let tool = (ready.pointer.interaction.sculpting(), ready.document.brush.len());
             commands.extend(panels::brush_ui(ui, &ready.document.settings, tool));
             ui.separator();
             commands.extend(

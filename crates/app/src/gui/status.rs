@@ -11,13 +11,13 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
         ui.horizontal(|ui| {
             ui.label(format!("GPU: {}", ready.viewer.ctx.describe()));
             ui.separator();
-            ui.label(format!("last frame {:.0} ms", ready.last_render_ms))
+            ui.label(format!("last frame {:.0} ms", ready.view.last_render_ms))
                 .on_hover_text("What the views took to render in the last frame that rendered them");
             ui.separator();
-            ui.label(ready.frame_rate.fps().map_or_else(|| "idle".to_owned(), |f| format!("{f:.0} fps")))
+            ui.label(ready.view.frame_rate.fps().map_or_else(|| "idle".to_owned(), |f| format!("{f:.0} fps")))
                 .on_hover_text("Frames the window drew in the last second (none while nothing changes)");
             // An idle window draws nothing: one more frame once this second is over shows it idle.
-            if let Some(wait) = ready.frame_rate.redraw_to_idle_in(std::time::Instant::now()) {
+            if let Some(wait) = ready.view.frame_rate.redraw_to_idle_in(std::time::Instant::now()) {
                 ui.ctx().request_repaint_after(wait);
             }
             ui.separator();
@@ -30,7 +30,7 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                     .on_hover_text("The table's errors and the folding check follow the fit on a thread of their own");
                 ui.separator();
             }
-            if let Some(c) = ready.cursor {
+            if let Some(c) = ready.pointer.cursor {
                 let ([l, p, s], [ml, mp, ms]) = (c.fixed_lps, c.moving_lps);
                 ui.label(format!(
                     "cursor LPS fixed ({l:.1}, {p:.1}, {s:.1}) mm, moving ({ml:.1}, {mp:.1}, {ms:.1}) mm"
@@ -59,7 +59,7 @@ pub fn status_bar(ui: &mut egui::Ui, ready: &Ready) {
                 );
                 ui.separator();
             }
-            if let Some(n) = &ready.notice {
+            if let Some(n) = &ready.pointer.notice {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), n.as_str());
                 ui.separator();
             }

@@ -64,6 +64,8 @@ pub struct Fitter {
     drag: Option<DragFit>,
     /// The last fit's diagnostics being computed; `pair_errors` and `jacobian` wait for them.
     diagnostics: Option<DiagnosticsJob>,
+    /// A fit asked for at the end of the frame (the window's `refit_soon`).
+    pub pending: bool,
     /// The document's displacement field, read once per path (or why it could not be).
     field: Option<(PathBuf, Result<Arc<FieldLayer>, String>)>,
 }

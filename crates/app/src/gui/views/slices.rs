@@ -11,25 +11,25 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
     let planes = ready.slice_planes();
     let slices_height = (ui.available_height() * 0.4).max(160.0);
     egui::Panel::bottom("slices").exact_size(slices_height).show(ui, |ui| {
-        ready.cursor = None;
+        ready.pointer.cursor = None;
         ui.columns(3, |columns| {
             let names = ["Axial", "Coronal", "Sagittal"];
             for (a, col) in columns.iter_mut().enumerate() {
                 col.label(names[a]);
-                let mut mm = ready.slice_mm[a];
+                let mut mm = ready.view.slice_mm[a];
                 // Narrow columns: the slider leaves room for its value field; its name is for screen readers.
                 col.spacing_mut().slider_width = (col.available_width() - 64.0).max(40.0);
                 let slider = col.add(egui::Slider::new(&mut mm, -150.0..=150.0).suffix(" mm"));
                 let slider_name = format!("{} position", names[a]);
                 slider.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, &slider_name));
-                if (mm - ready.slice_mm[a]).abs() > f64::EPSILON {
+                if (mm - ready.view.slice_mm[a]).abs() > f64::EPSILON {
                     ready.apply(Command::MoveSlice(a, mm));
                 }
                 let mut settings = ready.document.settings.clone();
                 if panels::oblique_ui(col, names[a], &mut settings.oblique[a]) {
                     ready.apply(Command::SetSettings(settings));
                 }
-                if let Some(shown) = &ready.images.slices[a] {
+                if let Some(shown) = &ready.view.images.slices[a] {
                     let avail = col.available_size();
                     let (w, h) = (shown.target.width as f32, shown.target.height as f32);
                     let scale = (avail.x / w).min(avail.y.max(64.0) / h);
@@ -49,7 +49,7 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                     let image_rect = response.rect;
                     let to_ref = |pos: egui::Pos2| placement::slice_point(&planes[a], image_rect, scale, pos);
                     if let Some(x_ref) = response.hover_pos().and_then(to_ref) {
-                        ready.cursor = Some(ready.cursor_at(x_ref));
+                        ready.pointer.cursor = Some(ready.cursor_at(x_ref));
                     }
                     // Dragging a landmark within this plane: grab the glyph under the press.
                     let plane = planes[a];
@@ -64,14 +64,14 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                         && let Some(press) = col.input(|i| i.pointer.press_origin())
                         && let Some(pair) = ready.grab_ghost(press, on_screen, DragView::Slice(a))
                     {
-                        ready.selected = Some(pair);
+                        ready.pointer.selected = Some(pair);
                     }
                     if response.drag_started()
                         && let Some(press) = col.input(|i| i.pointer.press_origin())
                         && let Some((pair, end)) = ready.grab(press, on_screen)
-                        && ready.interaction.grab(DragPoint { pair, end, view: DragView::Slice(a) })
+                        && ready.pointer.interaction.grab(DragPoint { pair, end, view: DragView::Slice(a) })
                     {
-                        ready.selected = Some(pair);
+                        ready.pointer.selected = Some(pair);
                     }
                     let dragging_here = ready.drag().is_some_and(|d| d.view == DragView::Slice(a));
                     // Off the image the point stays where it was.
@@ -85,7 +85,7 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                         ready.end_drag(DragView::Slice(a));
                     }
                     // The brush: a press on the image starts a stroke there, the drag displaces within the plane.
-                    if ready.interaction.sculpting() {
+                    if ready.pointer.interaction.sculpting() {
                         if response.drag_started()
                             && let Some(from) = col.input(|i| i.pointer.press_origin()).and_then(to_ref)
                         {
@@ -111,7 +111,7 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                         }
                     }
                     // The crosshair: where the other two planes cut this one.
-                    let centre = [ready.slice_mm[2], ready.slice_mm[1], ready.slice_mm[0]];
+                    let centre = [ready.view.slice_mm[2], ready.view.slice_mm[1], ready.view.slice_mm[0]];
                     if let Some(q) = planes[a].pixel_from_ref(centre) {
                         let p = placement::slice_screen(image_rect, scale, q);
                         let stroke = egui::Stroke::new(1.0, egui::Color32::from_rgba_unmultiplied(255, 230, 90, 160));

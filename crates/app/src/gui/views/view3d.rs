@@ -23,7 +23,7 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
         {
             ready.fit.error = Some(format!("rendering: {e:#}"));
         }
-        if let Some(shown) = &ready.images.view {
+        if let Some(shown) = &ready.view.images.view {
             let response = ui.add(
                 egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, avail))
                     .sense(egui::Sense::click_and_drag()),
@@ -40,7 +40,7 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
                 ready.pick_in_view(to_pixel(pos));
             }
             // A press on a landmark glyph drags it along the surface; elsewhere a drag orbits the camera.
-            let clip_from_ref = ready.camera.clip_from_ref(w / h);
+            let clip_from_ref = ready.view.camera.clip_from_ref(w / h);
             let rect = response.rect;
             // Where the view shows a point: through the view deformation its volume was drawn with.
             let views = ready.viewer.view_deformations();
@@ -61,31 +61,31 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
                 && let Some(press) = ui.input(|i| i.pointer.press_origin())
                 && let Some(pair) = ready.grab_ghost(press, on_screen, DragView::ThreeD)
             {
-                ready.selected = Some(pair);
+                ready.pointer.selected = Some(pair);
             }
             if response.drag_started()
                 && let Some(press) = ui.input(|i| i.pointer.press_origin())
                 && let Some((pair, end)) = ready.grab(press, on_screen)
-                && ready.interaction.grab(DragPoint { pair, end, view: DragView::ThreeD })
+                && ready.pointer.interaction.grab(DragPoint { pair, end, view: DragView::ThreeD })
             {
-                ready.selected = Some(pair);
+                ready.pointer.selected = Some(pair);
             }
             // The brush: a press on the deformed moving volume starts a stroke at the point picked there; the drag
             // moves it within the plane through that point facing the camera.
-            if ready.interaction.sculpting() {
+            if ready.pointer.interaction.sculpting() {
                 if response.drag_started()
                     && let Some(press) = ui.input(|i| i.pointer.press_origin())
                     && let Some(from) = ready.pick_moving_at(to_pixel(press))
                 {
                     ready.sculpt_press(DragView::ThreeD, from);
                 }
-                if let Some(stroke) = ready.interaction.sculpt_drag().filter(|d| d.view == DragView::ThreeD)
+                if let Some(stroke) = ready.pointer.interaction.sculpt_drag().filter(|d| d.view == DragView::ThreeD)
                     && response.dragged()
                     && let Some(pos) = response.interact_pointer_pos()
                 {
                     let px = to_pixel(pos);
                     let ndc = Vec3::new(px[0] / w * 2.0 - 1.0, 1.0 - px[1] / h * 2.0, 0.0);
-                    let ref_from_clip = ready.camera.ref_from_clip(w / h);
+                    let ref_from_clip = ready.view.camera.ref_from_clip(w / h);
                     let near = ref_from_clip.project_point3(ndc);
                     let far = ref_from_clip.project_point3(Vec3::new(ndc.x, ndc.y, 1.0));
                     let dir = (far - near).normalize_or_zero();
@@ -110,7 +110,7 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             {
                 ready.drag_in_view(to_pixel(pos));
             }
-            let stroking = ready.interaction.sculpt_drag().is_some();
+            let stroking = ready.pointer.interaction.sculpt_drag().is_some();
             let drag = if landmark_drag || stroking { egui::Vec2::ZERO } else { response.drag_delta() };
             if drag != egui::Vec2::ZERO {
                 ready.apply(Command::Orbit(drag));
@@ -123,20 +123,20 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             // The read-out under a resting pointer: one pick once it has rested ([`crate::gui::hover`]).
             let resting = response.hover_pos().filter(|_| !ui.input(|i| i.pointer.any_down()) && !interacting);
             let key = crate::gui::hover::ViewKey {
-                camera: ready.camera,
+                camera: ready.view.camera,
                 fit_generation: ready.fit.generation,
                 settings: ready.document.settings.clone(),
             };
-            match ready.hover.step(resting, &key, std::time::Instant::now()) {
+            match ready.view.hover.step(resting, &key, std::time::Instant::now()) {
                 crate::gui::hover::HoverStep::Pick(pos) => {
                     let hit = ready.pick_moving_at(to_pixel(pos));
-                    ready.hover.picked(pos, key.clone(), hit);
+                    ready.view.hover.picked(pos, key.clone(), hit);
                 }
                 crate::gui::hover::HoverStep::Wait(after) => ui.ctx().request_repaint_after(after),
                 crate::gui::hover::HoverStep::Idle => {}
             }
-            if let Some(x_ref) = ready.hover.hit(resting, &key) {
-                ready.cursor = Some(ready.cursor_at(x_ref));
+            if let Some(x_ref) = ready.view.hover.hit(resting, &key) {
+                ready.pointer.cursor = Some(ready.cursor_at(x_ref));
             }
             if response.hovered() {
                 let scroll = ui.input(|i| i.smooth_scroll_delta.y);

@@ -1,0 +1,76 @@
+//! The parts of the window's state besides the document and the fit ([`super::Ready`]): what the views show, what
+//! the pointer does, and the assistants' jobs.
+
+use warpbench_gpu::OrbitCamera;
+
+use super::images::Images;
+use super::{
+    ControlEval, Interaction, StiffnessChoiceOn, alignment, attention, hover, leafer, pacing, placement, suggestion,
+};
+
+/// What the views show: the camera, the slice positions, the rendered images and their pacing, and the view tools
+/// that change only the picture (never the document).
+#[derive(Debug)]
+pub struct View {
+    pub camera: OrbitCamera,
+    /// Slice positions (mm along S, P, L through the fixed grid).
+    pub slice_mm: [f64; 3],
+    /// The rendered images and what needs rendering again.
+    pub(super) images: Images,
+    pub last_render_ms: f64,
+    /// The window's frame rate, for the status bar.
+    pub(super) frame_rate: pacing::FrameRate,
+    /// Whether the 3-D view pulses the attention lens about the selected pair ([`attention`]).
+    pub attention: attention::Attention,
+    /// Whether the 3-D view opens a volume with the leafer ([`leafer`]).
+    pub leafer: leafer::Leafer,
+    /// Where the control texture is made.
+    pub control_eval: ControlEval,
+    /// The pick under the pointer resting on the 3-D view, for the status bar's read-out ([`hover`]).
+    pub hover: hover::HoverPick,
+}
+
+impl View {
+    /// The views of a pair whose fixed volume fills `camera`, with the slices through `slice_mm`.
+    #[must_use]
+    pub fn new(camera: OrbitCamera, slice_mm: [f64; 3]) -> Self {
+        Self {
+            camera,
+            slice_mm,
+            images: Images::default(),
+            last_render_ms: 0.0,
+            frame_rate: pacing::FrameRate::default(),
+            attention: attention::Attention::default(),
+            leafer: leafer::Leafer::default(),
+            control_eval: ControlEval::default(),
+            hover: hover::HoverPick::default(),
+        }
+    }
+}
+
+/// What the pointer is doing in the views and what it is over.
+#[derive(Debug, Default)]
+pub struct Pointer {
+    /// The tool's state ([`super::Ready::placing`], [`super::Ready::drag`]).
+    pub(super) interaction: Interaction,
+    /// What the pointer is over in a slice view (the fixed point and the moving point shown there), for the status
+    /// bar; a click there stores exactly these points ([`placement`]).
+    pub cursor: Option<placement::Cursor>,
+    /// Why the last click or drag did not place its point (outside its volume), shown in the status bar until the
+    /// next point is placed.
+    pub notice: Option<String>,
+    /// The pair selected in the table or by clicking its glyph.
+    pub selected: Option<usize>,
+}
+
+/// The assistants' state: Auto-align's job, the suggested targets' images, and the last automatic stiffness.
+#[derive(Debug, Default)]
+pub struct Assist {
+    /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
+    pub(super) aligning: Option<alignment::AlignJob>,
+    /// The images the suggested targets' search reads ([`suggestion`]), made when first needed.
+    pub(super) matching: suggestion::Matching,
+    /// The last automatic stiffness ([`super::Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider
+    /// while the stiffness and the pairs are still those.
+    pub stiffness_choice: Option<StiffnessChoiceOn>,
+}
