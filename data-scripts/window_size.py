@@ -19,10 +19,13 @@ for dp, _, fs in os.walk(root):
         longest = max(longest, (n, path))
         if n > MAX_LINES:
             bad.append(f'{path}: {n} lines (at most {MAX_LINES})')
-src = open(os.path.join(root, 'mod.rs'), encoding='utf-8').read()
-m = re.search(r'pub struct Ready \{(.*?)\n\}', src, re.S)
+m = None
+for dp, _, fs in os.walk(root):
+    for f in fs:
+        if f.endswith('.rs') and not m:
+            m = re.search(r'pub struct Ready \{(.*?)\n\}', open(os.path.join(dp, f), encoding='utf-8').read(), re.S)
 if not m:
-    bad.append(f'{root}/mod.rs: no `pub struct Ready` found')
+    bad.append(f'{root}: no `pub struct Ready` found')
     fields = []
 else:
     body = re.sub(r'//[^\n]*', '', m.group(1))

@@ -334,7 +334,7 @@ fn a_drag_on_the_gpu_evaluates_the_updated_coefficients_as_a_full_refit_would() 
 #[test]
 fn undo_of_every_command_gives_the_document_back_and_view_commands_leave_it() {
     use warpbench_app::gui::Command;
-    use warpbench_app::gui::panels::FileAction;
+    use warpbench_app::gui::files::FileAction;
     use warpbench_io::geometry::Point3;
     if no_adapter() {
         return;
@@ -707,7 +707,7 @@ fn auto_align_puts_the_alignment_under_the_landmark_warp() {
 /// and the document keeps none.
 #[test]
 fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
-    use warpbench_app::gui::panels::FileAction;
+    use warpbench_app::gui::files::FileAction;
     use warpbench_app::project::stack::FieldLayer;
     use warpbench_io::displacement::{FieldFormat, write_field};
     use warpbench_io::geometry::{Index, Lps, Transform};

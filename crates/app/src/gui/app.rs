@@ -11,10 +11,11 @@ use eframe::egui;
 use warpbench_gpu::{OrbitCamera, Projection};
 use warpbench_io::Volume;
 
+use super::files::{Files, save_png};
 use super::history::{History, Snapshot};
 use super::load::{Loaded, LoadedPair, Opened};
 use super::viewer::{DeviceFacts, LayerData, Viewer};
-use super::{Command, Files, Fitter, GuiOptions, Ready, autosave, open, panels, save_png, side_panel, status, views};
+use super::{Command, Fitter, GuiOptions, Ready, autosave, files, open, side_panel, status, views};
 use crate::project::document::Document;
 use crate::project::session;
 
@@ -248,17 +249,17 @@ impl Workbench {
             OpenEvent::Demo => self.phase = Self::start_loading(ctx, GuiOptions::default(), self.facts),
             OpenEvent::Dialog(purpose) => self.dialogs.dialog = Some(open::DialogJob::start(ctx, purpose)),
             OpenEvent::ImportLandmarks(path) => match &mut self.phase {
-                Phase::Ready(ready) => ready.apply(Command::File(panels::FileAction::ImportLandmarks(path))),
+                Phase::Ready(ready) => ready.apply(Command::File(files::FileAction::ImportLandmarks(path))),
                 _ => self.dialogs.error = Some("Open a pair of volumes before importing landmarks.".into()),
             },
             OpenEvent::Save(purpose, path) => {
                 let Phase::Ready(ready) = &mut self.phase else { return };
                 let action = match purpose {
-                    Purpose::SaveSession => panels::FileAction::SaveSession(path),
-                    Purpose::ExportLandmarks => panels::FileAction::ExportLandmarks(path),
-                    Purpose::Screenshot => panels::FileAction::Screenshot(path),
-                    Purpose::ExportWarped => panels::FileAction::ExportWarped(path),
-                    Purpose::ExportField => panels::FileAction::ExportField(path),
+                    Purpose::SaveSession => files::FileAction::SaveSession(path),
+                    Purpose::ExportLandmarks => files::FileAction::ExportLandmarks(path),
+                    Purpose::Screenshot => files::FileAction::Screenshot(path),
+                    Purpose::ExportWarped => files::FileAction::ExportWarped(path),
+                    Purpose::ExportField => files::FileAction::ExportField(path),
                     Purpose::OpenFile(_) | Purpose::OpenFolder(_) | Purpose::OpenSession | Purpose::ImportLandmarks => {
                         return;
                     }

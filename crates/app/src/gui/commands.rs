@@ -15,10 +15,10 @@ use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::brush::BrushStroke;
 
+use super::files::{FileAction, save_png};
 use super::history::Snapshot;
-use super::interaction::{End, Placing};
-use super::panels::FileAction;
-use super::{Ready, export, open, panels, save_png};
+use super::tool::{End, Placing};
+use super::{Ready, export, files, open};
 use crate::project::document::{Look, StartingTransform, ViewSettings};
 use crate::project::session;
 
@@ -244,7 +244,7 @@ impl Ready {
                 self.invalidate_view();
             }
             Command::ShowWorstPair => {
-                match super::landmark_table::loo_ranking(&self.document.pairs, &self.fit.pair_errors).first() {
+                match crate::project::diagnostics::loo_ranking(&self.document.pairs, &self.fit.pair_errors).first() {
                     Some(&(_, i)) => {
                         self.jump_to(i);
                         self.view.attention = self.view.attention.on(std::time::Instant::now());
@@ -377,7 +377,7 @@ impl Ready {
                 });
             }
             FileAction::ExportLandmarks(path) => {
-                self.files.message = Some(match panels::export_landmarks(&path, &self.document.pairs) {
+                self.files.message = Some(match files::export_landmarks(&path, &self.document.pairs) {
                     Ok(()) => format!("wrote {}", path.display()),
                     Err(e) => format!("{e:#}"),
                 });
@@ -391,7 +391,7 @@ impl Ready {
                 });
                 self.files.message = Some("screenshot requested".into());
             }
-            FileAction::ImportLandmarks(path) => match panels::import_landmarks(&path) {
+            FileAction::ImportLandmarks(path) => match files::import_landmarks(&path) {
                 Ok(pairs) => {
                     self.files.message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
                     self.document.pairs = pairs;
@@ -514,6 +514,23 @@ impl Ready {
         self.document = s.document.clone();
         self.pointer.interaction.stop_adding();
         self.refit_soon();
+    }
+}
+
+/// Auto-align's result becomes a command.
+impl Ready {
+    /// Takes Auto-align's result once its thread has it: the document's starting transform (one undo step), or the
+    /// problem in the status bar; call once per frame.
+    pub fn poll_alignment(&mut self) {
+        let Some(result) = self.assist.aligning.as_ref().and_then(super::alignment::AlignJob::poll) else { return };
+        self.assist.aligning = None;
+        match result {
+            Ok(start) => {
+                self.pointer.notice = None;
+                self.apply(Command::SetStart(Some(start)));
+            }
+            Err(e) => self.pointer.notice = Some(e),
+        }
     }
 }
 

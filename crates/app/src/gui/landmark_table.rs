@@ -6,7 +6,7 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::Command;
-pub use crate::project::diagnostics::PairErrors;
+pub use crate::project::diagnostics::{PairErrors, loo_ranking};
 
 /// Rows of the landmark table shown at once; a longer table scrolls, and only its visible rows are laid out (a
 /// thousand pairs cost what fifteen do).
@@ -128,19 +128,6 @@ fn landmark_row(
         commands.push(Command::DeletePair(i));
     }
     commands
-}
-
-/// The leave-one-out errors of the pairs that have one, largest first, with the pair's index.
-#[must_use]
-pub fn loo_ranking(pairs: &[LandmarkPair], errors: &[Option<PairErrors>]) -> Vec<(f64, usize)> {
-    let mut loo: Vec<(f64, usize)> = errors
-        .iter()
-        .enumerate()
-        .take(pairs.len())
-        .filter_map(|(i, e)| Some((e.as_ref()?.leave_one_out_mm?, i)))
-        .collect();
-    loo.sort_by(|a, b| b.0.total_cmp(&a.0));
-    loo
 }
 
 /// Histogram bins of `values` (mm): `bins` equal bins from 0 to the largest value (at least 1 mm), as (bin

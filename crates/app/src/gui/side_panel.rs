@@ -75,7 +75,7 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
             commands.extend(panels::brush_ui(ui, &ready.document.settings, tool));
             ui.separator();
             commands.extend(
-                panels::files_ui(ui, &mut ready.files.fields, ready.document.field.as_deref()).map(Command::File),
+                super::files::files_ui(ui, &mut ready.files.fields, ready.document.field.as_deref()).map(Command::File),
             );
             ui.separator();
             let asked = export::export_ui(ui, &mut ready.files.export_fields, ready.files.export.as_ref());

@@ -4,9 +4,10 @@
 use warpbench_gpu::OrbitCamera;
 
 use super::images::Images;
-use super::{
-    ControlEval, Interaction, StiffnessChoiceOn, alignment, attention, hover, leafer, pacing, placement, suggestion,
-};
+use super::options::ControlEval;
+use super::tool::Interaction;
+use super::{alignment, attention, hover, leafer, pacing, placement, suggestion};
+use crate::project::document::FitPoints;
 
 /// What the views show: the camera, the slice positions, the rendered images and their pacing, and the view tools
 /// that change only the picture (never the document).
@@ -73,4 +74,12 @@ pub struct Assist {
     /// The last automatic stiffness ([`super::Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider
     /// while the stiffness and the pairs are still those.
     pub stiffness_choice: Option<StiffnessChoiceOn>,
+}
+
+/// A stiffness chosen by the leave-one-out error ([`warpbench_solver::stiffness`]) and the pairs (fixed, moving)
+/// it was chosen on.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StiffnessChoiceOn {
+    pub choice: warpbench_solver::stiffness::StiffnessChoice,
+    pub pairs: FitPoints,
 }

@@ -7,6 +7,7 @@
 //! results would describe an older document.
 
 use warpbench_io::geometry::Point3;
+use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::Aabb;
 use warpbench_solver::diagnostics::{JacobianReport, jacobian_determinants, residuals};
 use warpbench_solver::method::Method;
@@ -22,6 +23,19 @@ pub struct PairErrors {
     pub residual_mm: f64,
     /// The error at pᵢ of the warp refitted without pair i; `None` when the refit fails (too few pairs left).
     pub leave_one_out_mm: Option<f64>,
+}
+
+/// The leave-one-out errors of the pairs that have one, largest first, with the pair's index.
+#[must_use]
+pub fn loo_ranking(pairs: &[LandmarkPair], errors: &[Option<PairErrors>]) -> Vec<(f64, usize)> {
+    let mut loo: Vec<(f64, usize)> = errors
+        .iter()
+        .enumerate()
+        .take(pairs.len())
+        .filter_map(|(i, e)| Some((e.as_ref()?.leave_one_out_mm?, i)))
+        .collect();
+    loo.sort_by(|a, b| b.0.total_cmp(&a.0));
+    loo
 }
 
 /// The grid over the fixed volume's box on which folding (det ∇u ≤ 0) is looked for.

@@ -1,0 +1,177 @@
+//! The side panel's file section and what it does with files: the session, landmark, screenshot and
+//! displacement-field paths typed in, landmark files read and written in every format the window offers, and
+//! screenshots written as PNG.
+
+use anyhow::Context as _;
+use eframe::egui;
+use warpbench_io::landmarks::LandmarkPair;
+
+use super::export;
+
+/// The side panel's file and export section.
+#[derive(Debug, Default)]
+pub struct Files {
+    /// The session, landmark and screenshot paths typed in.
+    pub fields: FileFields,
+    /// The last message of a file action (saved, or the error).
+    pub message: Option<String>,
+    /// The export section's fields.
+    pub export_fields: export::ExportFields,
+    /// The export running on a worker thread.
+    pub export: Option<export::ExportJob>,
+}
+
+/// The paths typed into the side panel's file section.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct FileFields {
+    pub session: String,
+    pub landmarks: String,
+    pub screenshot: String,
+    /// A displacement field to put under the landmarks.
+    pub field: String,
+}
+
+/// What the file section or the File menu asks for.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum FileAction {
+    SaveSession(std::path::PathBuf),
+    ImportLandmarks(std::path::PathBuf),
+    ExportLandmarks(std::path::PathBuf),
+    Screenshot(std::path::PathBuf),
+    /// Export the warped moving volume (NIfTI `.nii`/`.nii.gz`), as `warpbench warp` does.
+    ExportWarped(std::path::PathBuf),
+    /// Export the displacement field (NIfTI), as `warpbench field` does.
+    ExportField(std::path::PathBuf),
+    /// Put the displacement field read from this file (ITK or ANTs NIfTI, Slicer NRRD) under the landmarks.
+    UseField(std::path::PathBuf),
+    /// Take the displacement field away.
+    RemoveField,
+}
+
+/// Session, landmark, screenshot and displacement-field files: a path field and its buttons each; `field` is the
+/// document's displacement field, if any.
+pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
+    let mut action = None;
+    let path = |s: &str| std::path::PathBuf::from(s.trim());
+    ui.label("Files");
+    ui.add(egui::TextEdit::singleline(&mut fields.session).hint_text("session.warpbench.json"))
+        .labelled_by(ui.label("Session file").id);
+    if ui.add_enabled(!fields.session.trim().is_empty(), egui::Button::new("Save session")).clicked() {
+        action = Some(FileAction::SaveSession(path(&fields.session)));
+    }
+    ui.add(egui::TextEdit::singleline(&mut fields.landmarks).hint_text("pairs.csv, pairs.json, or moving.fcsv"))
+        .labelled_by(ui.label("Landmark file").id);
+    ui.horizontal(|ui| {
+        let enabled = !fields.landmarks.trim().is_empty();
+        if ui.add_enabled(enabled, egui::Button::new("Import landmarks")).clicked() {
+            action = Some(FileAction::ImportLandmarks(path(&fields.landmarks)));
+        }
+        if ui.add_enabled(enabled, egui::Button::new("Export landmarks")).clicked() {
+            action = Some(FileAction::ExportLandmarks(path(&fields.landmarks)));
+        }
+    });
+    ui.add(egui::TextEdit::singleline(&mut fields.screenshot).hint_text("screenshot.png"))
+        .labelled_by(ui.label("Screenshot file").id);
+    if ui.add_enabled(!fields.screenshot.trim().is_empty(), egui::Button::new("Save screenshot")).clicked() {
+        action = Some(FileAction::Screenshot(path(&fields.screenshot)));
+    }
+    ui.add(egui::TextEdit::singleline(&mut fields.field).hint_text("field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)"))
+        .labelled_by(ui.label("Displacement field file").id);
+    ui.horizontal(|ui| {
+        if ui.add_enabled(!fields.field.trim().is_empty(), egui::Button::new("Use field under landmarks")).clicked() {
+            action = Some(FileAction::UseField(path(&fields.field)));
+        }
+        if ui.add_enabled(field.is_some(), egui::Button::new("Remove field")).clicked() {
+            action = Some(FileAction::RemoveField);
+        }
+    });
+    if let Some(f) = field {
+        ui.label(format!("Field under the landmarks: {}", f.display()));
+    }
+    action
+}
+
+/// Writes the pairs as BigWarp JSON (`.json`) or BigWarp CSV (any other name), or as a Slicer pair of point lists
+/// for `.mrk.json` / `.fcsv`:
+/// `NAME.mrk.json` becomes `NAME_moving.mrk.json` and `NAME_fixed.mrk.json`.
+pub fn export_landmarks(path: &std::path::Path, pairs: &[LandmarkPair]) -> anyhow::Result<()> {
+    match slicer_pair_paths(path) {
+        Some((moving, fixed)) => warpbench_io::landmarks::write_slicer_pair(&moving, &fixed, pairs)?,
+        None => warpbench_io::landmarks::write_landmark_pairs(path, pairs)?,
+    }
+    Ok(())
+}
+
+/// Reads pairs from a BigWarp CSV or JSON (told apart by content), or from the `_moving` / `_fixed` Slicer lists
+/// named like [`export_landmarks`] writes them.
+pub fn import_landmarks(path: &std::path::Path) -> anyhow::Result<Vec<LandmarkPair>> {
+    Ok(match slicer_pair_paths(path) {
+        Some((moving, fixed)) => warpbench_io::landmarks::read_slicer_pair(&moving, &fixed)?,
+        None => warpbench_io::landmarks::read_landmark_pairs(path)?,
+    })
+}
+
+/// For a Slicer name (`.mrk.json` or `.fcsv`), the moving and fixed list paths.
+fn slicer_pair_paths(path: &std::path::Path) -> Option<(std::path::PathBuf, std::path::PathBuf)> {
+    let name = path.file_name()?.to_str()?;
+    let lower = name.to_ascii_lowercase();
+    let ext = [".mrk.json", ".fcsv"].into_iter().find(|e| lower.ends_with(e))?;
+    let stem = &name[..name.len() - ext.len()];
+    let with = |side: &str| path.with_file_name(format!("{stem}_{side}{}", &name[name.len() - ext.len()..]));
+    Some((with("moving"), with("fixed")))
+}
+
+/// Writes `image` as a PNG at `path`, atomically.
+pub(crate) fn save_png(path: &std::path::Path, image: &egui::ColorImage) -> anyhow::Result<()> {
+    let [w, h] = image.size;
+    let rgba: Vec<u8> = image.pixels.iter().flat_map(egui::Color32::to_array).collect();
+    let mut png = Vec::new();
+    image::write_buffer_with_format(
+        &mut std::io::Cursor::new(&mut png),
+        &rgba,
+        w as u32,
+        h as u32,
+        image::ExtendedColorType::Rgba8,
+        image::ImageFormat::Png,
+    )
+    .context("encoding the screenshot")?;
+    warpbench_io::atomic::write_atomic(path, |out| out.write_all(&png))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use warpbench_io::geometry::Point3;
+
+    #[test]
+    fn landmarks_round_trip_through_bigwarp_csv_and_a_slicer_pair() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let pairs = vec![
+            LandmarkPair::new("a", Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)),
+            LandmarkPair {
+                active: false,
+                ..LandmarkPair::new("b", Point3::new(-1.5, 0.0, 2.25), Point3::new(0.0, 1.0, 0.0))
+            },
+        ];
+        for name in ["pairs.csv", "pairs.json", "pairs.mrk.json", "pairs.fcsv"] {
+            let path = dir.path().join(name);
+            export_landmarks(&path, &pairs).expect("export");
+            let back = import_landmarks(&path).expect("import");
+            assert_eq!(back.len(), 2, "{name}");
+            for (a, b) in back.iter().zip(&pairs) {
+                let close = |x: Option<Point3<warpbench_io::geometry::Lps>>,
+                             y: Option<Point3<warpbench_io::geometry::Lps>>| {
+                    x.zip(y).is_some_and(|(x, y)| x.distance(&y) < 1e-6)
+                };
+                assert!(close(a.moving, b.moving) && close(a.fixed, b.fixed), "{name}: {a:?} vs {b:?}");
+            }
+        }
+        assert!(dir.path().join("pairs_moving.mrk.json").is_file() && dir.path().join("pairs_fixed.fcsv").is_file());
+        // `.json` is BigWarp's JSON, which BigWarp's Load landmarks reads.
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("pairs.json")).expect("read")).expect("JSON");
+        assert_eq!(json["landmarks"]["type"], "BigWarpLandmarks", "{json}");
+        assert!(import_landmarks(&dir.path().join("missing.csv")).is_err());
+    }
+}
