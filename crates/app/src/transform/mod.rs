@@ -32,11 +32,9 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use serde::Serialize;
-use warpbench_io::geometry::Point3;
-use warpbench_io::itk_tfm::{self, ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
+use warpbench_io::itk_tfm;
 use warpbench_solver::method::FittedWarp;
-use warpbench_solver::spaces::{Fixed, Moving};
-use warpbench_solver::warp::Warp;
+use warpbench_solver::spaces::Fixed;
 
 use crate::args::{PairArgs, ReportArgs};
 use crate::exit::Failure;
@@ -44,34 +42,12 @@ use crate::fit;
 use crate::inputs::{self, OutputFile};
 use crate::project::stack::Layers;
 
+mod itk;
+
+pub use itk::itk_transform_of;
+
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-transform/1";
-
-/// The pull-back `moving_from_fixed` as the ITK transform that holds it exactly (module docs).
-#[must_use]
-pub fn itk_transform_of(moving_from_fixed: &FittedWarp<Moving, Fixed>) -> ItkTransform {
-    match moving_from_fixed {
-        FittedWarp::Linear(warp) => ItkTransform::Affine(ItkAffine::from_offset(warp.linear(), warp.translation())),
-        FittedWarp::Tps(tps) => {
-            let source_lps: Vec<[f64; 3]> = tps.centres().iter().map(Point3::coords).collect();
-            let mut target_lps = vec![[0.0; 3]; source_lps.len()];
-            tps.apply_batch_raw(&source_lps, &mut target_lps);
-            ItkTransform::ThinPlateSpline(ItkThinPlateSpline { source_lps, target_lps })
-        }
-        FittedWarp::BSpline(spline) => {
-            let lattice = spline.lattice();
-            let spacing = lattice.spacing_mm();
-            let min = lattice.min_mm();
-            ItkTransform::BSpline(ItkBSpline {
-                grid_size: lattice.dims(),
-                grid_origin_lps: std::array::from_fn(|a| min[a] - spacing[a]),
-                grid_spacing_mm: spacing,
-                grid_direction: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
-                coefficients_mm: lattice.coefficients().chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-            })
-        }
-    }
-}
 
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
