@@ -131,7 +131,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     }
 
     let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet).map_err(Failure::BadInput)?;
-    let pairs = opts.inputs.landmarks.read().map_err(Failure::BadInput)?;
+    let pairs = opts.inputs.pairs().map_err(Failure::BadInput)?;
     let names = opts.inputs.names(&opts.out.path);
     let (grid, grid_name) = match (&reference, opts.direction) {
         (Some(r), _) => (r, "reference"),
@@ -149,8 +149,7 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     let mut bar: Option<Bar> = None;
     let start = opts.inputs.start().map_err(Failure::BadInput)?;
     let layers = Layers::new(start, brushed);
-    let inputs =
-        FieldInputs { fixed: &fixed, moving: &moving, pairs: &pairs, names: &names, method: &method, layers: &layers };
+    let inputs = FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field(grid, &inputs, opts.direction, &mut |done, total| {
         let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
             stage: "sampling the field",

@@ -4,12 +4,12 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use warpbench_app::args::PairArgs;
+use warpbench_app::args::{PairArgs, VolumePairArgs};
 use warpbench_app::exit::Failure;
 use warpbench_app::field::{self, FieldOptions};
 use warpbench_app::gui::{self, GuiOptions};
 use warpbench_app::info::{self, InfoOptions};
-use warpbench_app::inputs::{LandmarkSource, OutputFile};
+use warpbench_app::inputs::{LandmarkSource, LandmarkWarp, OutputFile, PairInputs};
 use warpbench_app::procedural::ProceduralSpec;
 use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
 use warpbench_app::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading};
@@ -296,7 +296,12 @@ struct WarpArgs {
 
 fn run_warp(a: WarpArgs) -> Result<(), Failure> {
     let opts = WarpOptions {
-        inputs: WarpInputs::from_args(a.pairs, a.field, a.fixed, a.moving, a.reference)?,
+        inputs: WarpInputs::from_args(
+            VolumePairArgs { fixed: a.fixed, moving: a.moving },
+            a.pairs,
+            a.field,
+            a.reference,
+        )?,
         pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
         interpolation: match a.interp {
             InterpArg::Nearest => Interpolation::Nearest,
@@ -459,7 +464,8 @@ enum FieldDirectionArg {
 
 fn run_field(a: FieldArgs) -> Result<(), Failure> {
     let opts = FieldOptions {
-        inputs: a.pairs.inputs(a.fixed, a.moving, a.reference)?,
+        inputs: PairInputs::new(VolumePairArgs { fixed: a.fixed, moving: a.moving }, a.pairs, a.reference)
+            .map_err(Failure::BadInput)?,
         out: OutputFile { path: a.out, force: a.force },
         format: match a.format {
             FieldFormatArg::Itk => FieldFormat::Itk,
@@ -489,19 +495,11 @@ fn run_field(a: FieldArgs) -> Result<(), Failure> {
 }
 
 fn run_render(a: RenderArgs) -> Result<(), Failure> {
-    let landmarks = a.pairs.source()?;
-    let warp = a.pairs.warp()?;
     let opts = RenderOptions {
         fixed: a.fixed,
         moving: a.moving,
-        landmarks,
+        pairs: LandmarkWarp::try_from(a.pairs).map_err(Failure::BadInput)?,
         field: a.field,
-        method: warp.method,
-        stiffness: warp.stiffness,
-        levels: warp.levels,
-        brush: warp.brush,
-        initial: warp.initial,
-        session_start: warp.session_start,
         grid: a.grid,
         blend: a.blend,
         mix_weight: a.mix_weight,

@@ -36,10 +36,10 @@ use warpbench_io::landmarks::{PointFile, PointFileFormat, PointFileOptions, read
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
-use crate::args::{PairArgs, ReportArgs};
+use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::fit;
-use crate::inputs::{self, OutputFile, PairVolumes};
+use crate::inputs::{self, OutputFile, PairInputs, PairVolumes};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-points/1";
@@ -83,15 +83,13 @@ impl Side {
 
 /// The arguments of `warpbench points`.
 #[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and, with --from fixed, the points"),
+    ("moving", "The moving volume: its box checks the landmarks and, with --from moving, the points"),
+])))]
 pub struct PointsArgs {
-    /// The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and, with --from
-    /// fixed, the points.
-    #[arg(long)]
-    pub fixed: PathBuf,
-    /// The moving volume: its box checks the landmarks and, with --from moving, the points.
-    #[arg(long)]
-    pub moving: PathBuf,
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
     /// The volume the points are in: moving (mapped by d = fixed_from_moving into the fixed space) or fixed
@@ -157,9 +155,9 @@ pub struct MappedPoint {
 /// Runs `warpbench points`: checks the output, reads the points, loads the pair, fits, maps, writes; prints the
 /// JSON report to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failure> {
-    let PointsArgs { fixed, moving, pairs, from, input, out: out_path, ras, report: ReportArgs { json, force, quiet } } =
+    let PointsArgs { volumes, pairs, from, input, out: out_path, ras, report: ReportArgs { json, force, quiet } } =
         args;
-    let inputs = pairs.inputs(fixed, moving, None)?;
+    let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
     let mut input_paths = inputs.paths();
     input_paths.push(&input);
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
@@ -175,10 +173,9 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     }
 
     let PairVolumes { fixed, moving, .. } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
-    let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;
     let c = inputs::check_pairs(
         &inputs.landmarks.describe(),
-        &landmark_pairs,
+        inputs.pairs().map_err(Failure::BadInput)?,
         &moving,
         &fixed,
         crate::start::min_pairs(&method, start.as_ref()),
@@ -197,13 +194,13 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
             let fixed_from_moving = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving), layers)
                 .map_err(Failure::BadInput)?;
             fixed_from_moving.apply_batch_raw(&xs, &mut ys);
-            (&moving, &inputs.moving)
+            (&moving, &inputs.volumes.moving)
         }
         Side::Fixed => {
             let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&fixed), layers)
                 .map_err(Failure::BadInput)?;
             moving_from_fixed.apply_batch_raw(&xs, &mut ys);
-            (&fixed, &inputs.fixed)
+            (&fixed, &inputs.volumes.fixed)
         }
     };
     if let Some(k) = ys.iter().position(|y| !y.iter().all(|v| v.is_finite())) {

@@ -27,7 +27,7 @@ use warpbench_solver::warp::Warp;
 
 use crate::brushed::Brushed;
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkSource, OutputFile};
+use crate::inputs::{self, LandmarkWarp, OutputFile};
 use crate::procedural::ProceduralSpec;
 use crate::project::stack::Layers;
 use crate::{fit, scene, settings};
@@ -101,18 +101,10 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 pub struct RenderOptions {
     pub fixed: PathBuf,
     pub moving: Option<PathBuf>,
-    pub landmarks: Option<LandmarkSource>,
+    /// The landmarks, if any, and the warp around them.
+    pub pairs: LandmarkWarp,
     /// A pull-back displacement field to show the moving volume through, instead of landmarks.
     pub field: Option<PathBuf>,
-    pub method: settings::MethodKind,
-    pub stiffness: crate::settings::Stiffness,
-    pub levels: Option<usize>,
-    /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
-    pub brush: Vec<warpbench_solver::brush::BrushStroke>,
-    /// The starting transform's file under the landmark warp (`--initial`, [`crate::start`]).
-    pub initial: Option<std::path::PathBuf>,
-    /// A session's starting transform (`--session`), instead of a file.
-    pub session_start: Option<Box<crate::start::Start>>,
     pub grid: usize,
     pub blend: settings::Blend,
     /// The moving weight of [`settings::Blend::Mix`], clamped to 0..1.
@@ -188,25 +180,25 @@ fn gpu_failure(e: warpbench_gpu::GpuError) -> Failure {
 pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     let mut inputs_paths: Vec<&Path> = vec![&opts.fixed];
     inputs_paths.extend(opts.moving.as_deref());
-    if let Some(l) = &opts.landmarks {
-        inputs_paths.extend(l.paths());
+    if let Some(l) = &opts.pairs.landmarks {
+        inputs_paths.extend(l.source.paths());
     }
     inputs_paths.extend(opts.field.as_deref());
-    inputs_paths.extend(opts.initial.as_deref());
+    inputs_paths.extend(opts.pairs.warp.initial.as_deref());
     opts.out.check(&inputs_paths).map_err(Failure::BadInput)?;
-    if let (Some(initial), None) = (&opts.initial, &opts.landmarks) {
+    if let (Some(initial), None) = (&opts.pairs.warp.initial, &opts.pairs.landmarks) {
         return Err(Failure::BadInput(anyhow!(
             "{}: --initial starts a landmark warp: give landmarks too (a file with no pairs shows the starting \
              transform alone)",
             initial.display()
         )));
     }
-    if opts.landmarks.is_some() && opts.field.is_some() {
+    if opts.pairs.landmarks.is_some() && opts.field.is_some() {
         return Err(Failure::BadInput(anyhow!(
             "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
         )));
     }
-    if opts.landmarks.is_some() && opts.moving.is_none() {
+    if opts.pairs.landmarks.is_some() && opts.moving.is_none() {
         return Err(Failure::BadInput(anyhow!("landmarks need a moving volume (--moving)")));
     }
     if opts.field.is_some() && opts.moving.is_none() {
@@ -233,26 +225,25 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     };
 
     // The warp's control texture, and the glyphs when there are landmarks.
-    let method = inputs::resolve_method(opts.method, opts.stiffness, opts.levels, opts.landmarks.as_ref())
-        .map_err(Failure::BadInput)?;
+    let method = opts.pairs.method().map_err(Failure::BadInput)?;
     let mut sampled: Option<(ControlGrid, ControlTexture)> = None;
     if let Some(field) = &field {
         sampled = Some(scene::control_texture(field, fixed_box, opts.grid).map_err(Failure::BadInput)?);
     }
     let mut glyph_pairs = Vec::new();
-    if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
-        let pairs = source.read().map_err(Failure::BadInput)?;
-        let start =
-            crate::start::resolve(opts.session_start.as_deref(), opts.initial.as_deref()).map_err(Failure::BadInput)?;
+    if let (Some(landmarks), Some(moving)) = (&opts.pairs.landmarks, &moving) {
+        let pairs = landmarks.pairs().map_err(Failure::BadInput)?;
+        let start = opts.pairs.warp.start().map_err(Failure::BadInput)?;
+        let source = &landmarks.source;
         let c =
-            inputs::correspondences(source, &pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
+            inputs::correspondences(source, pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
                 .map_err(Failure::BadInput)?;
         if !opts.quiet {
             for w in fit::fit_warnings(&method, &c) {
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        let brushed = Brushed::new(&opts.brush, &source.describe()).map_err(Failure::BadInput)?;
+        let brushed = Brushed::new(&opts.pairs.warp.brush, &source.describe()).map_err(Failure::BadInput)?;
         if let (Some(b), false) = (&brushed, opts.quiet) {
             let c = b.consistency();
             eprintln!("brush: its inverse undoes it within {:.4} mm (max; rms {:.5} mm)", c.max_mm, c.rms_mm);

@@ -46,11 +46,11 @@ use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
-use crate::args::PairArgs;
+use crate::args::{PairArgs, VolumePairArgs};
 use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit::{self, TpsParts};
-use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
+use crate::inputs::{self, LandmarkWarp, Names, OutputFile, PairInputs, PairVolumes};
 use crate::project::stack::Layers;
 use crate::scene;
 
@@ -88,8 +88,7 @@ pub enum WarpInputs {
 /// The inputs of `warp --field`.
 #[derive(Clone, Debug)]
 pub struct FieldInputs {
-    pub fixed: PathBuf,
-    pub moving: PathBuf,
+    pub volumes: VolumePairArgs,
     /// The displacement field: u(x) = x + D(x), u = moving_from_fixed.
     pub field: PathBuf,
     /// The output grid, when not the fixed volume's.
@@ -99,15 +98,15 @@ pub struct FieldInputs {
 impl WarpInputs {
     /// From the command line: `--field` or the landmarks of `pairs`, exactly one of them.
     pub fn from_args(
+        volumes: VolumePairArgs,
         pairs: PairArgs,
         field: Option<PathBuf>,
-        fixed: PathBuf,
-        moving: PathBuf,
         reference: Option<PathBuf>,
     ) -> Result<Self, Failure> {
-        match (field, pairs.source()?) {
-            (Some(field), None) => Ok(Self::Field(FieldInputs { fixed, moving, field, reference })),
-            (None, Some(_)) => Ok(Self::Pairs(pairs.inputs(fixed, moving, reference)?)),
+        let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+        match (field, given.landmarks) {
+            (Some(field), None) => Ok(Self::Field(FieldInputs { volumes, field, reference })),
+            (None, Some(landmarks)) => Ok(Self::Pairs(PairInputs { volumes, landmarks, warp: given.warp, reference })),
             (Some(_), Some(_)) => Err(Failure::BadInput(anyhow!(
                 "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
             ))),
@@ -117,19 +116,12 @@ impl WarpInputs {
         }
     }
 
+    /// The fixed and the moving volume.
     #[must_use]
-    pub fn fixed(&self) -> &Path {
+    pub fn volumes(&self) -> &VolumePairArgs {
         match self {
-            Self::Pairs(p) => &p.fixed,
-            Self::Field(f) => &f.fixed,
-        }
-    }
-
-    #[must_use]
-    pub fn moving(&self) -> &Path {
-        match self {
-            Self::Pairs(p) => &p.moving,
-            Self::Field(f) => &f.moving,
+            Self::Pairs(p) => &p.volumes,
+            Self::Field(f) => &f.volumes,
         }
     }
 
@@ -146,7 +138,7 @@ impl WarpInputs {
     pub fn paths(&self) -> Vec<&Path> {
         match self {
             Self::Pairs(p) => p.paths(),
-            Self::Field(f) => [&f.fixed, &f.moving, &f.field]
+            Self::Field(f) => [&f.volumes.fixed, &f.volumes.moving, &f.field]
                 .into_iter()
                 .map(PathBuf::as_path)
                 .chain(f.reference.as_deref())
@@ -160,7 +152,7 @@ impl WarpInputs {
         match self {
             Self::Pairs(p) => p.names(out),
             Self::Field(f) => Names {
-                moving: f.moving.display().to_string(),
+                moving: f.volumes.moving.display().to_string(),
                 landmarks: f.field.display().to_string(),
                 out: out.to_owned(),
             },
@@ -766,7 +758,7 @@ impl Fitted {
 
 /// The fixed, moving and reference volumes of `inputs` ([`inputs::load_pair`], then the reference).
 fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
-    let (fixed, moving) = inputs::load_pair(inputs.fixed(), inputs.moving(), quiet)?;
+    let (fixed, moving) = inputs::load_pair(&inputs.volumes().fixed, &inputs.volumes().moving, quiet)?;
     let reference = inputs.reference().map(|p| inputs::load_volume(p, quiet)).transpose()?;
     Ok(PairVolumes { fixed, moving, reference })
 }
@@ -796,7 +788,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
                 check_pullback_mode(&method, opts.pullback)?;
             }
             let start = pairs.start().map_err(Failure::BadInput)?;
-            Given::Pairs(method, &pairs.landmarks, Box::new(Layers::new(start, brushed)))
+            Given::Pairs(method, pairs, Box::new(Layers::new(start, brushed)))
         }
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
@@ -809,8 +801,8 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
     let fitted = match &given {
-        Given::Pairs(method, landmarks, layers) => {
-            let pairs = landmarks.read().map_err(Failure::BadInput)?;
+        Given::Pairs(method, inputs, layers) => {
+            let pairs = inputs.pairs().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method: *method,
                 pullback: export.pullback,
@@ -819,7 +811,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
                 backend: export.backend,
                 outside_value: export.outside_value,
             };
-            Fitted::new(grid, &fixed, &moving, (&pairs, layers), &names, &settings)?
+            Fitted::new(grid, &fixed, &moving, (pairs, layers), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
     };
@@ -848,14 +840,9 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     seconds.resample = lap.next();
 
     let volume = &resampled.volume;
-    let description = series_description(&resampled.method, opts.inputs.moving());
-    write_outputs(
-        volume,
-        &opts.out.path,
-        opts.out_dicom.as_deref(),
-        &description,
-        Some((opts.inputs.moving(), &moving)),
-    )?;
+    let moving_path = &opts.inputs.volumes().moving;
+    let description = series_description(&resampled.method, moving_path);
+    write_outputs(volume, &opts.out.path, opts.out_dicom.as_deref(), &description, Some((moving_path, &moving)))?;
     seconds.write = lap.next();
     seconds.total = start.elapsed().as_secs_f64();
     Ok(WarpReport {
@@ -883,9 +870,9 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
 
 /// The warp [`run`] applies, checked before any volume is loaded.
 enum Given<'a> {
-    /// A method, to fit on the pairs of a landmark source, and the stack's other layers (a starting transform under
-    /// it, a brush on top).
-    Pairs(Method, &'a inputs::LandmarkSource, Box<Layers>),
+    /// A method, to fit on the pairs of the inputs' landmarks (read once: `--stiffness auto` may have read them),
+    /// and the stack's other layers (a starting transform under it, a brush on top).
+    Pairs(Method, &'a PairInputs, Box<Layers>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
 }

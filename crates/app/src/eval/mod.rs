@@ -196,7 +196,7 @@ impl Plan {
             .collect::<Result<Vec<_>, _>>()?;
         let methods = methods
             .iter()
-            .map(|&m| inputs::method_from_args(m, opts.stiffness, opts.levels))
+            .map(|&m| inputs::checked_method(m, opts.stiffness, opts.levels))
             .collect::<Result<Vec<_>, _>>()
             .map_err(Failure::BadInput)?;
         for &n in &counts {
