@@ -1,6 +1,7 @@
 //! The command-line argument groups that several subcommands share (clap), one per concept, each flattened into the
 //! subcommands' own `Args` structs: the volume pair ([`VolumePairArgs`]), the landmarks and the warp around them
-//! ([`PairArgs`], with the method, [`MethodArgs`]) and the report flags ([`ReportArgs`]).
+//! ([`PairArgs`], with the method, [`MethodArgs`]), the report flags ([`ReportArgs`]) and the render settings
+//! ([`RenderSettingsArgs`]).
 //!
 //! This module declares flags and parses values only; [`crate::inputs`] turns the groups into the model's types
 //! (`TryFrom<PairArgs>`), once, at the start of a subcommand. A subcommand that describes a shared flag in its own
@@ -9,7 +10,8 @@
 
 use std::path::PathBuf;
 
-use crate::settings::{MethodKind, Stiffness};
+use crate::procedural::ProceduralSpec;
+use crate::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading, Stiffness};
 
 /// Sets the help text of the arguments named in `texts` (`(id, text)`): for a subcommand that describes flags of a
 /// shared group in its own words, as `#[command(mut_args(help(&[("fixed", "…")])))]` on its `Args` struct. (In
@@ -93,4 +95,134 @@ pub struct ReportArgs {
     /// No progress bars or messages.
     #[arg(long, short)]
     pub quiet: bool,
+}
+
+/// How `render` draws its frame: the blend, the looks, the camera or the slice, the procedural deformation and the
+/// glyphs.
+#[derive(Clone, Copy, Debug, clap::Args)]
+pub struct RenderSettingsArgs {
+    /// How the fixed and the deformed moving volume combine.
+    #[arg(long, value_enum, default_value_t)]
+    pub blend: Blend,
+    /// Moving weight of the mix blend (0..1).
+    #[arg(long, default_value_t = 0.5)]
+    pub mix_weight: f32,
+    /// Checkerboard cell size (mm).
+    #[arg(long, default_value_t = 12.0)]
+    pub checker_mm: f32,
+    /// Fixed volume preset (default: from the data).
+    #[arg(long, value_enum)]
+    pub preset: Option<Preset>,
+    /// Moving volume preset (default: from the data).
+    #[arg(long, value_enum)]
+    pub moving_preset: Option<Preset>,
+    /// Lighting: none, dvr (shaded volume rendering) or iso (first surface).
+    #[arg(long, value_enum, default_value_t)]
+    pub shading: Shading,
+    /// Camera as az,el or az,el,dist: degrees about the superior axis and above the horizon, distance in mm.
+    #[arg(long)]
+    pub camera: Option<CameraSpec>,
+    /// Perspective projection (default orthographic).
+    #[arg(long)]
+    pub perspective: bool,
+    /// Image size WxH (3-D view; a slice has its grid's size).
+    #[arg(long, default_value = "512x512", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Samples per voxel along each ray.
+    #[arg(long, default_value_t = 1.0)]
+    pub samples_per_voxel: f32,
+    /// A slice of the fixed grid instead of the 3-D view: axial, coronal or sagittal, optionally with :POS in mm
+    /// (e.g. axial:40; default the centre).
+    #[arg(long)]
+    pub slice: Option<SliceSpec>,
+    /// Deform the moving volume in the shader: eval's synthetic warp of this kind (sine, twist, bend, bump) over the
+    /// moving volume's box, or a shift; read at p(u(x)) after the landmark warp u. --moving V --fixed V shows the
+    /// volume eval --kind K --amplitude-mm A --seed S tests.
+    #[arg(long, value_enum)]
+    pub procedural: Option<ProceduralKind>,
+    /// The procedural deformation's largest displacement over the moving volume's box (mm), as eval's --amplitude-mm.
+    #[arg(long, default_value_t = 5.0, requires = "procedural")]
+    pub procedural_amplitude_mm: f64,
+    /// The procedural deformation's seed, as eval's --seed.
+    #[arg(long, default_value_t = 1, requires = "procedural")]
+    pub procedural_seed: u64,
+    /// Leave out the landmark glyphs.
+    #[arg(long)]
+    pub no_glyphs: bool,
+}
+
+impl RenderSettingsArgs {
+    /// The moving volume's procedural deformation: `--procedural` with its amplitude and seed.
+    #[must_use]
+    pub fn procedural_spec(&self) -> Option<ProceduralSpec> {
+        self.procedural.map(|kind| ProceduralSpec {
+            kind,
+            amplitude_mm: self.procedural_amplitude_mm,
+            seed: self.procedural_seed,
+        })
+    }
+}
+
+/// Which slice of the fixed grid `--slice` asks for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SliceSpec {
+    Axial(f64),
+    Coronal(f64),
+    Sagittal(f64),
+}
+
+impl std::str::FromStr for SliceSpec {
+    type Err = String;
+    /// `axial:POS`, `coronal:POS` or `sagittal:POS`, POS in mm along S, P or L; a bare name is the centre.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, pos) = s.split_once(':').unwrap_or((s, "nan"));
+        let pos: f64 = if pos == "nan" {
+            f64::NAN
+        } else {
+            pos.parse().map_err(|_| format!("slice position {pos:?} is not a number (mm)"))?
+        };
+        match name {
+            "axial" => Ok(Self::Axial(pos)),
+            "coronal" => Ok(Self::Coronal(pos)),
+            "sagittal" => Ok(Self::Sagittal(pos)),
+            _ => Err(format!("slice {name:?}: use axial, coronal or sagittal, optionally with :POS in mm")),
+        }
+    }
+}
+
+/// `--camera az,el[,dist]`: azimuth and elevation in degrees, distance from the target in mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraSpec {
+    pub azimuth_deg: f32,
+    pub elevation_deg: f32,
+    pub distance_mm: Option<f32>,
+}
+
+impl std::str::FromStr for CameraSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let parts: Vec<f32> = s
+            .split(',')
+            .map(|p| p.trim().parse::<f32>().map_err(|_| format!("camera value {p:?} is not a number")))
+            .collect::<Result<_, _>>()?;
+        match parts[..] {
+            [az, el] if az.is_finite() && el.is_finite() => {
+                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: None })
+            }
+            [az, el, d] if az.is_finite() && el.is_finite() && d.is_finite() && d > 0.0 => {
+                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: Some(d) })
+            }
+            _ => Err(format!("--camera {s:?}: give az,el or az,el,dist (degrees, degrees, mm > 0)")),
+        }
+    }
+}
+
+/// `--size WxH`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("--size {s:?}: use WxH, e.g. 512x512"))?;
+    let parse = |v: &str| v.parse::<u32>().ok().filter(|n| (1..=8192).contains(n));
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("--size {s:?}: width and height must be 1..8192")),
+    }
 }

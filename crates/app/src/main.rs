@@ -3,19 +3,11 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand, ValueEnum};
-use warpbench_app::args::{PairArgs, VolumePairArgs};
+use clap::{Parser, Subcommand};
 use warpbench_app::exit::Failure;
-use warpbench_app::field::{self, FieldOptions};
 use warpbench_app::gui::{self, GuiOptions};
-use warpbench_app::info::{self, InfoOptions};
-use warpbench_app::inputs::{LandmarkSource, LandmarkWarp, OutputFile, PairInputs};
-use warpbench_app::procedural::ProceduralSpec;
-use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
-use warpbench_app::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading};
-use warpbench_app::warp::{self, Backend, PullBackMode, WarpInputs, WarpOptions};
-use warpbench_gpu::export::Interpolation;
-use warpbench_io::displacement::{FieldDirection, FieldFormat};
+use warpbench_app::inputs::LandmarkSource;
+use warpbench_app::{align, eval, field, info, landmarks, points, render, suggest, transform, warp};
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
 ///
@@ -81,22 +73,7 @@ enum Command {
     ///
     ///     warpbench info tests/data/nifti/ch2.nii.gz --json
     #[command(verbatim_doc_comment)]
-    Info {
-        /// A volume file or a DICOM series folder.
-        path: PathBuf,
-        /// Machine-readable output (schema warpbench-info/1, see docs/cli.md).
-        #[arg(long)]
-        json: bool,
-        /// For a 4-D NIfTI: the frame (t index) to read.
-        #[arg(long)]
-        frame: Option<usize>,
-        /// For a folder with several DICOM series: the SeriesInstanceUID to read.
-        #[arg(long)]
-        series: Option<String>,
-        /// No progress bar.
-        #[arg(long, short)]
-        quiet: bool,
-    },
+    Info(info::InfoArgs),
     /// Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
     /// field (--field), and write a NIfTI (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
     ///
@@ -109,7 +86,7 @@ enum Command {
     ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
     ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --exact --out mr_in_ct.nii.gz
     #[command(verbatim_doc_comment)]
-    Warp(Box<WarpArgs>),
+    Warp(Box<warp::WarpArgs>),
     /// Measure how well a landmark warp recovers a known synthetic deformation of a real volume: TRE at held-out
     /// foreground points, leave-one-out, inverse consistency, folding, and NCC/RMSE against the ground truth.
     ///
@@ -121,7 +98,7 @@ enum Command {
     ///     warpbench eval --volume mr.nii.gz --kind bump --landmarks 20 --on-features --max-tre-mm 2 --json eval.json
     ///     warpbench eval --volume mr.nii.gz --suite --suite-md docs/accuracy.md --json suite.json
     #[command(verbatim_doc_comment)]
-    Eval(Box<EvalArgs>),
+    Eval(Box<eval::EvalArgs>),
     /// Render one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to PNG,
     /// headless, with the app's renderer.
     ///
@@ -135,7 +112,7 @@ enum Command {
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
     ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --slice axial --out ax.png
     #[command(verbatim_doc_comment)]
-    Render(Box<RenderArgs>),
+    Render(Box<render::RenderArgs>),
     /// Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
     /// transform as an ITK transform file.
     ///
@@ -154,7 +131,7 @@ enum Command {
     ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
     ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm
     #[command(verbatim_doc_comment)]
-    Field(Box<FieldArgs>),
+    Field(Box<field::FieldArgs>),
     /// Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
     /// in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
     ///
@@ -173,7 +150,7 @@ enum Command {
     ///
     /// lesion_ct.csv then holds the lesion where it lies in the CT (and in mr_in_ct.nii.gz from `warpbench warp`).
     #[command(verbatim_doc_comment)]
-    Points(Box<warpbench_app::points::PointsArgs>),
+    Points(Box<points::PointsArgs>),
     /// Write the landmark warp as an ITK transform file (.tfm), the exact transform instead of a sampled field: TPS
     /// as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
     /// B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
@@ -185,7 +162,7 @@ enum Command {
     ///
     ///     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
     #[command(verbatim_doc_comment)]
-    Transform(Box<warpbench_app::transform::TransformArgs>),
+    Transform(Box<transform::TransformArgs>),
     /// Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
     /// fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
     ///
@@ -198,7 +175,7 @@ enum Command {
     ///     warpbench landmarks pairs.json --out-moving case_moving.mrk.json --out-fixed case_fixed.mrk.json
     ///     warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv
     #[command(verbatim_doc_comment)]
-    Landmarks(Box<warpbench_app::landmarks::LandmarksArgs>),
+    Landmarks(Box<landmarks::LandmarksArgs>),
     /// Align the moving volume to the fixed one automatically, by intensities, and write the result as an ITK
     /// transform file.
     ///
@@ -210,7 +187,7 @@ enum Command {
     ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
     ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json
     #[command(verbatim_doc_comment)]
-    Align(Box<warpbench_app::align::AlignArgs>),
+    Align(Box<align::AlignArgs>),
     /// Suggest the fixed point of each moving point of a list: the current warp's prediction, refined by a local
     /// search for the best match of the moving point's surroundings (normalised gradient fields, so an MRI point
     /// finds its CT target), with a confidence.
@@ -224,417 +201,7 @@ enum Command {
     ///     warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --points mr_points.csv --out suggested.csv --json
     ///     warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --points mr_points.csv --out suggested.csv
     #[command(verbatim_doc_comment)]
-    Suggest(Box<warpbench_app::suggest::SuggestArgs>),
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum InterpArg {
-    Nearest,
-    Linear,
-    Cubic,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum BackendArg {
-    Auto,
-    Cpu,
-    Gpu,
-}
-
-#[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct WarpArgs {
-    /// The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume, resampled.
-    #[arg(long)]
-    moving: PathBuf,
-    #[command(flatten)]
-    pairs: PairArgs,
-    /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
-    field: Option<PathBuf>,
-    /// Control-texture texels per axis over the output grid (2..=256).
-    #[arg(long, default_value_t = 64, conflicts_with = "exact")]
-    grid: usize,
-    /// Evaluate the pull-back exactly at every voxel (TPS, the linear warps, a field) instead of a control texture.
-    #[arg(long)]
-    exact: bool,
-    /// Interpolation: nearest, linear (trilinear) or cubic (Catmull-Rom).
-    #[arg(long, value_enum, default_value = "linear")]
-    interp: InterpArg,
-    /// Where to resample: auto (the path expected to be faster for this size on this machine: the CPU without a
-    /// hardware GPU), cpu or gpu.
-    #[arg(long, value_enum, default_value = "auto")]
-    backend: BackendArg,
-    /// Write f32 samples instead of the moving volume's type (rounded half to even and clamped).
-    #[arg(long)]
-    float: bool,
-    /// Another volume whose grid the output takes instead of the fixed volume's.
-    #[arg(long)]
-    reference: Option<PathBuf>,
-    /// The value of voxels that map outside the moving volume (default −1024 for a CT, else 0).
-    #[arg(long, allow_hyphen_values = true)]
-    outside: Option<f64>,
-    /// The NIfTI to write (.nii or .nii.gz).
-    #[arg(long)]
-    out: PathBuf,
-    /// Also write the result as a DICOM series (new UIDs) into this new folder.
-    #[arg(long)]
-    out_dicom: Option<PathBuf>,
-    /// Print a JSON report (schema warpbench-warp/1) to stdout.
-    #[arg(long)]
-    json: bool,
-    /// Overwrite --out if it exists.
-    #[arg(long)]
-    force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-fn run_warp(a: WarpArgs) -> Result<(), Failure> {
-    let opts = WarpOptions {
-        inputs: WarpInputs::from_args(
-            VolumePairArgs { fixed: a.fixed, moving: a.moving },
-            a.pairs,
-            a.field,
-            a.reference,
-        )?,
-        pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
-        interpolation: match a.interp {
-            InterpArg::Nearest => Interpolation::Nearest,
-            InterpArg::Linear => Interpolation::Trilinear,
-            InterpArg::Cubic => Interpolation::CatmullRom,
-        },
-        backend: match a.backend {
-            BackendArg::Auto => Backend::Auto,
-            BackendArg::Cpu => Backend::Cpu,
-            BackendArg::Gpu => Backend::Gpu,
-        },
-        float: a.float,
-        outside_value: a.outside,
-        out: OutputFile { path: a.out, force: a.force },
-        out_dicom: a.out_dicom,
-        quiet: a.quiet,
-    };
-    let report = warp::run(&opts)?;
-    if a.json {
-        let text = serde_json::to_string_pretty(&report).map_err(|e| Failure::Internal(e.into()))?;
-        println!("{text}");
-    } else if !opts.quiet {
-        let warp = match &report.field {
-            Some(field) => format!("field {field}"),
-            None => format!("{} pairs", report.pairs),
-        };
-        eprintln!(
-            "wrote {} ({}×{}×{} {}, {warp}, {}, {})",
-            report.out, report.dims[0], report.dims[1], report.dims[2], report.dtype, report.pullback, report.backend
-        );
-    }
-    Ok(())
-}
-
-#[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct RenderArgs {
-    /// The fixed volume (the render space): NIfTI, NRRD or a DICOM series folder.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume, shown deformed by the landmark warp.
-    #[arg(long)]
-    moving: Option<PathBuf>,
-    #[command(flatten)]
-    pairs: PairArgs,
-    /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
-    /// or NRRD); no glyphs are drawn.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
-    field: Option<PathBuf>,
-    /// Control-texture texels per axis over the fixed box (2..=256).
-    #[arg(long, default_value_t = 64)]
-    grid: usize,
-    /// How the fixed and the deformed moving volume combine.
-    #[arg(long, value_enum, default_value_t)]
-    blend: Blend,
-    /// Moving weight of the mix blend (0..1).
-    #[arg(long, default_value_t = 0.5)]
-    mix_weight: f32,
-    /// Checkerboard cell size (mm).
-    #[arg(long, default_value_t = 12.0)]
-    checker_mm: f32,
-    /// Fixed volume preset (default: from the data).
-    #[arg(long, value_enum)]
-    preset: Option<Preset>,
-    /// Moving volume preset (default: from the data).
-    #[arg(long, value_enum)]
-    moving_preset: Option<Preset>,
-    /// Lighting: none, dvr (shaded volume rendering) or iso (first surface).
-    #[arg(long, value_enum, default_value_t)]
-    shading: Shading,
-    /// Camera as az,el or az,el,dist: degrees about the superior axis and above the horizon, distance in mm.
-    #[arg(long)]
-    camera: Option<CameraSpec>,
-    /// Perspective projection (default orthographic).
-    #[arg(long)]
-    perspective: bool,
-    /// Image size WxH (3-D view; a slice has its grid's size).
-    #[arg(long, default_value = "512x512", value_parser = render::parse_size)]
-    size: (u32, u32),
-    /// Samples per voxel along each ray.
-    #[arg(long, default_value_t = 1.0)]
-    samples_per_voxel: f32,
-    /// A slice of the fixed grid instead of the 3-D view: axial, coronal or sagittal, optionally with :POS in mm
-    /// (e.g. axial:40; default the centre).
-    #[arg(long)]
-    slice: Option<SliceSpec>,
-    /// Deform the moving volume in the shader: eval's synthetic warp of this kind (sine, twist, bend, bump) over the
-    /// moving volume's box, or a shift; read at p(u(x)) after the landmark warp u. --moving V --fixed V shows the
-    /// volume eval --kind K --amplitude-mm A --seed S tests.
-    #[arg(long, value_enum)]
-    procedural: Option<ProceduralKind>,
-    /// The procedural deformation's largest displacement over the moving volume's box (mm), as eval's --amplitude-mm.
-    #[arg(long, default_value_t = 5.0, requires = "procedural")]
-    procedural_amplitude_mm: f64,
-    /// The procedural deformation's seed, as eval's --seed.
-    #[arg(long, default_value_t = 1, requires = "procedural")]
-    procedural_seed: u64,
-    /// Leave out the landmark glyphs.
-    #[arg(long)]
-    no_glyphs: bool,
-    /// The PNG to write.
-    #[arg(long)]
-    out: PathBuf,
-    /// Overwrite --out if it exists.
-    #[arg(long)]
-    force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-#[derive(Debug, clap::Args)]
-struct FieldArgs {
-    /// The fixed volume: its grid is the field's grid unless --reference is given.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume (landmarks are checked against it).
-    #[arg(long)]
-    moving: PathBuf,
-    #[command(flatten)]
-    pairs: PairArgs,
-    /// Sample the field on this volume's grid instead of the fixed volume's.
-    #[arg(long)]
-    reference: Option<PathBuf>,
-    /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform).
-    #[arg(long)]
-    tfm: Option<PathBuf>,
-    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
-    #[arg(long, value_enum, default_value = "itk")]
-    format: FieldFormatArg,
-    /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
-    #[arg(long, value_enum, default_value = "pullback")]
-    direction: FieldDirectionArg,
-    /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd).
-    #[arg(long)]
-    out: PathBuf,
-    /// Print a JSON summary (schema warpbench-field/1, see docs/cli.md) to stdout.
-    #[arg(long)]
-    json: bool,
-    /// Overwrite --out (and --tfm) if they exist.
-    #[arg(long)]
-    force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum FieldFormatArg {
-    Itk,
-    Ants,
-    Nrrd,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum FieldDirectionArg {
-    Pullback,
-    Forward,
-}
-
-fn run_field(a: FieldArgs) -> Result<(), Failure> {
-    let opts = FieldOptions {
-        inputs: PairInputs::new(VolumePairArgs { fixed: a.fixed, moving: a.moving }, a.pairs, a.reference)
-            .map_err(Failure::BadInput)?,
-        out: OutputFile { path: a.out, force: a.force },
-        format: match a.format {
-            FieldFormatArg::Itk => FieldFormat::Itk,
-            FieldFormatArg::Ants => FieldFormat::Ants,
-            FieldFormatArg::Nrrd => FieldFormat::Nrrd,
-        },
-        direction: match a.direction {
-            FieldDirectionArg::Pullback => FieldDirection::Pullback,
-            FieldDirectionArg::Forward => FieldDirection::Forward,
-        },
-        tfm: a.tfm,
-        json: a.json,
-        quiet: a.quiet,
-    };
-    let done = field::run(&opts, &mut std::io::stdout().lock())?;
-    if !opts.quiet && !opts.json {
-        let d = done.dims;
-        eprintln!(
-            "wrote {} ({} {} field, {}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
-            done.out, done.format, done.direction, d[0], d[1], d[2], done.pairs, done.method, done.max_displacement_mm
-        );
-        if let Some(tfm) = &done.tfm {
-            eprintln!("wrote {tfm}");
-        }
-    }
-    Ok(())
-}
-
-fn run_render(a: RenderArgs) -> Result<(), Failure> {
-    let opts = RenderOptions {
-        fixed: a.fixed,
-        moving: a.moving,
-        pairs: LandmarkWarp::try_from(a.pairs).map_err(Failure::BadInput)?,
-        field: a.field,
-        grid: a.grid,
-        blend: a.blend,
-        mix_weight: a.mix_weight,
-        checker_mm: a.checker_mm,
-        preset: a.preset,
-        moving_preset: a.moving_preset,
-        shading: a.shading,
-        camera: a.camera,
-        perspective: a.perspective,
-        size: a.size,
-        samples_per_voxel: a.samples_per_voxel,
-        slice: a.slice,
-        procedural: a.procedural.map(|kind| ProceduralSpec {
-            kind,
-            amplitude_mm: a.procedural_amplitude_mm,
-            seed: a.procedural_seed,
-        }),
-        glyphs: !a.no_glyphs,
-        out: OutputFile { path: a.out, force: a.force },
-        quiet: a.quiet,
-    };
-    let done = render::run(&opts)?;
-    if !opts.quiet {
-        let warp = match &opts.field {
-            Some(field) => format!("field {}", field.display()),
-            None => format!("{} landmark pairs", done.pairs),
-        };
-        eprintln!("wrote {} ({}×{}, {warp}, {})", opts.out.path.display(), done.size.0, done.size.1, done.adapter);
-    }
-    Ok(())
-}
-
-#[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct EvalArgs {
-    /// The real volume to deform (NIfTI, NRRD or a DICOM series folder); it is also the ground truth.
-    #[arg(long)]
-    volume: PathBuf,
-    /// The synthetic warp: sine, twist, bend, bump, tps-random or bspline-random.
-    #[arg(long, default_value = "sine")]
-    kind: String,
-    /// The warp's largest displacement, mm.
-    #[arg(long, default_value_t = 10.0)]
-    amplitude_mm: f64,
-    /// Landmark pairs N.
-    #[arg(long, default_value_t = 50)]
-    landmarks: usize,
-    /// The fitted warp.
-    #[arg(long, value_enum, default_value_t)]
-    method: MethodKind,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
-    #[arg(long, default_value_t = 0.0)]
-    stiffness: f64,
-    /// Hierarchical B-spline levels.
-    #[arg(long)]
-    levels: Option<usize>,
-    /// Seed of the warp, the landmarks and the held-out points.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Place landmarks on strong-gradient voxels (at least a spacing apart) instead of at random.
-    #[arg(long)]
-    on_features: bool,
-    /// Held-out foreground points for the TRE (at least 1000).
-    #[arg(long, default_value_t = warpbench_app::eval::MIN_HELD_OUT)]
-    held_out: usize,
-    /// Control-texture texels per axis for the recovered volume (2..=256).
-    #[arg(long, default_value_t = 64)]
-    grid: usize,
-    /// Write the report as JSON (schema warpbench-eval/1, or warpbench-eval-suite/1 with --suite; docs/cli.md).
-    #[arg(long)]
-    json: Option<PathBuf>,
-    /// Overwrite --json if it exists.
-    #[arg(long)]
-    force: bool,
-    /// Exit with code 3 when the TRE statistic (--gate-statistic) exceeds this, mm.
-    #[arg(long)]
-    max_tre_mm: Option<f64>,
-    /// The TRE statistic --max-tre-mm gates: mean, median, p95 or max.
-    #[arg(long, default_value = "p95")]
-    gate_statistic: warpbench_app::eval::TreStatistic,
-    /// Run the grid kinds × N × methods instead of one evaluation.
-    #[arg(long)]
-    suite: bool,
-    /// Suite kinds (comma-separated; default all six).
-    #[arg(long, value_delimiter = ',', requires = "suite")]
-    suite_kinds: Option<Vec<String>>,
-    /// Suite landmark counts (comma-separated; default 10,20,50,100,200).
-    #[arg(long, value_delimiter = ',', requires = "suite")]
-    suite_n: Option<Vec<usize>>,
-    /// Suite methods (comma-separated; default all five).
-    #[arg(long, value_enum, value_delimiter = ',', requires = "suite")]
-    suite_methods: Option<Vec<MethodKind>>,
-    /// Markdown file whose generated suite section is replaced (default: print the section).
-    #[arg(long, requires = "suite")]
-    suite_md: Option<PathBuf>,
-    /// How the suite's markdown describes the machine (default: the thread count).
-    #[arg(long, requires = "suite")]
-    machine: Option<String>,
-    /// No progress bars.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-fn run_eval(a: EvalArgs) -> Result<(), Failure> {
-    use warpbench_app::eval::{self, EvalOptions, SuiteOptions};
-    let suite = a.suite.then(|| {
-        let standard = SuiteOptions::standard();
-        SuiteOptions {
-            kinds: a.suite_kinds.unwrap_or(standard.kinds),
-            landmark_counts: a.suite_n.unwrap_or(standard.landmark_counts),
-            methods: a.suite_methods.unwrap_or(standard.methods),
-            markdown: a.suite_md,
-            machine: a.machine,
-        }
-    });
-    let opts = EvalOptions {
-        volume: a.volume,
-        kind: a.kind,
-        amplitude_mm: a.amplitude_mm,
-        landmarks: a.landmarks,
-        method: a.method,
-        stiffness: a.stiffness,
-        levels: a.levels,
-        seed: a.seed,
-        on_features: a.on_features,
-        held_out: a.held_out,
-        grid: a.grid,
-        json: a.json,
-        force: a.force,
-        max_tre_mm: a.max_tre_mm,
-        gate_statistic: a.gate_statistic,
-        suite,
-        quiet: a.quiet,
-    };
-    eval::run(&opts, &mut std::io::stdout().lock())
+    Suggest(Box<suggest::SuggestArgs>),
 }
 
 /// The failure's message for stderr: the error and its causes joined with ": ", each once. (An error that shows
@@ -708,19 +275,18 @@ fn main() -> ExitCode {
     quiet_headless_gpu_probe();
     #[cfg(unix)]
     remove_temporaries_on_signals();
+    let stdout = &mut std::io::stdout().lock();
     let result = match command {
-        Command::Info { path, json, frame, series, quiet } => {
-            info::run(&InfoOptions { path, json, frame, series, quiet }, &mut std::io::stdout().lock())
-        }
-        Command::Warp(args) => run_warp(*args),
-        Command::Eval(args) => run_eval(*args),
-        Command::Render(args) => run_render(*args),
-        Command::Field(args) => run_field(*args),
-        Command::Points(args) => warpbench_app::points::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Transform(args) => warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
-        Command::Align(args) => warpbench_app::align::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Suggest(args) => warpbench_app::suggest::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
+        Command::Info(args) => info::run(&args, stdout),
+        Command::Warp(args) => warp::run(*args, stdout).map(|_| ()),
+        Command::Eval(args) => eval::run(&args, stdout),
+        Command::Render(args) => render::run(*args).map(|_| ()),
+        Command::Field(args) => field::run(*args, stdout).map(|_| ()),
+        Command::Points(args) => points::run(*args, stdout).map(|_| ()),
+        Command::Transform(args) => transform::run(*args, stdout).map(|_| ()),
+        Command::Landmarks(args) => landmarks::run(*args, stdout).map(|_| ()),
+        Command::Align(args) => align::run(*args, stdout).map(|_| ()),
+        Command::Suggest(args) => suggest::run(*args, stdout).map(|_| ()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
