@@ -23,8 +23,23 @@ use crate::inputs::{OutputFile, load_pair};
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-align/1";
 
+/// What `warpbench align --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Align the moving volume to the fixed one automatically, by intensities, and write the result as an ITK
+transform file.
+
+Rigid (6 parameters), or with --affine rigid then affine (12), maximising the Mattes mutual information of the
+two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1), from their centres of mass.
+The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
+writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. Examples:
+
+    warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
+    warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json";
+
 /// The arguments of `warpbench align`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder)"),
     ("moving", "The moving volume: any modality (mutual information needs no common intensity scale)"),

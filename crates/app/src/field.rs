@@ -57,8 +57,30 @@ use crate::warp::InverseConsistency;
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-field/1";
 
+/// What `warpbench field --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
+transform as an ITK transform file.
+
+--direction pullback (default): at each voxel centre x of the fixed grid (or --reference's) the field holds
+u(x) − x, u = moving_from_fixed fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform
+maps fixed point x to moving point x + D(x), what resampling the moving volume needs. --direction forward: on
+the moving grid (or --reference's), d(y) − y, d = fixed_from_moving: a moving point y goes to y + D(y), what
+moving points or meshes needs.
+
+--format itk (default): NIfTI intent DISPVECT (1006), vectors in RAS, as ITK ≥ 5.3 and Slicer read it;
+--format ants: NIfTI intent VECTOR (1007), vectors in LPS, what antsApplyTransforms reads; --format nrrd: a NRRD
+vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling).
+Examples:
+
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm";
+
 /// The arguments of `warpbench field`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume: its grid is the field's grid unless --reference is given"),
     ("moving", "The moving volume (landmarks are checked against it)"),

@@ -13,8 +13,20 @@ use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, Modality, Ser
 use crate::exit::Failure;
 use crate::progress::Bar;
 
+/// What `warpbench info --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype, value range,
+modality and series.
+
+Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), a DICOM series folder or one DICOM file.
+A folder with several series lists them. Example:
+
+    warpbench info tests/data/nifti/ch2.nii.gz --json";
+
 /// The arguments of `warpbench info`.
 #[derive(Clone, Debug, Default, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 pub struct InfoArgs {
     /// A volume file or a DICOM series folder.
     pub path: PathBuf,

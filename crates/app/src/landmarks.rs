@@ -324,8 +324,24 @@ fn write_table(l: &LandmarksListing, out: &mut dyn Write) -> std::io::Result<()>
     Ok(())
 }
 
+/// What `warpbench landmarks --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
+fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
+
+Without --out (or --out-moving/--out-fixed) and --json it prints the pairs as a table. The coordinate system
+comes from the file where it says it (Slicer files, the plain CSV's header); BigWarp files are LPS unless
+--ras (input) or --out-ras (output). Examples:
+
+    warpbench landmarks pairs.csv --json
+    warpbench landmarks pairs.csv --out pairs.json
+    warpbench landmarks pairs.json --out-moving case_moving.mrk.json --out-fixed case_fixed.mrk.json
+    warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv";
+
 /// The command line of `warpbench landmarks`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 pub struct LandmarksArgs {
     /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file) or plain CSV, told apart by

@@ -81,8 +81,30 @@ impl Side {
     }
 }
 
+/// What `warpbench points --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
+in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
+
+Say which volume the points are in, and that is all: --from moving maps a point p of the moving volume by
+d = fixed_from_moving to where the warped volume (`warpbench warp`) shows it; --from fixed maps a point x of
+the fixed volume by u = moving_from_fixed to the moving point the warped volume shows at x. (ANTs's
+antsApplyTransformsToPoints needs the inverse of the transform that resamples the image; here there is none
+to choose.) d and u are fitted separately, so u(d(p)) = p only to within the warp's inverse consistency.
+Points outside their volume's box are mapped by extrapolation, with a warning. CSV point lists and BigWarp
+files are LPS mm unless --ras; Slicer files say their own coordinate system, which the output keeps. In a
+BigWarp file of pairs the --from side is read and the other side replaced by its image. Example: a lesion
+marked at (12.5, -30, 8) mm LPS on the moving MRI, line `12.5,-30,8,lesion` of lesion_mr.csv:
+
+    warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from moving --in lesion_mr.csv --out lesion_ct.csv
+    warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from fixed --in targets_ct.mrk.json --out targets_mr.mrk.json --json
+
+lesion_ct.csv then holds the lesion where it lies in the CT (and in mr_in_ct.nii.gz from `warpbench warp`).";
+
 /// The arguments of `warpbench points`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and, with --from fixed, the points"),
     ("moving", "The moving volume: its box checks the landmarks and, with --from moving, the points"),

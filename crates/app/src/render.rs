@@ -32,8 +32,25 @@ use crate::inputs::{self, LandmarkWarp, OutputFile};
 use crate::project::stack::Layers;
 use crate::{fit, scene, settings};
 
+/// What `warpbench render --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Render one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to PNG,
+headless, with the app's renderer.
+
+With --moving and landmarks the moving volume is pulled back through the fitted warp and the landmark pairs
+are drawn (fixed points blue, moving points orange where the warp shows them); with --field instead, through
+that pull-back displacement field, without glyphs. --slice draws a slice of the fixed grid instead of the
+3-D view. Examples:
+
+    warpbench render --fixed ct.nii.gz --out ct.png
+    warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --blend checkerboard --out pair.png
+    warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
+    warpbench render --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --slice axial --out ax.png";
+
 /// The arguments of `warpbench render`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 pub struct RenderArgs {
     /// The fixed volume (the render space): NIfTI, NRRD or a DICOM series folder.
     #[arg(long)]

@@ -32,8 +32,25 @@ use crate::inputs::{self, LandmarkWarp, OutputFile};
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-suggest/1";
 
+/// What `warpbench suggest --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Suggest the fixed point of each moving point of a list: the current warp's prediction, refined by a local
+search for the best match of the moving point's surroundings (normalised gradient fields, so an MRI point
+finds its CT target), with a confidence.
+
+The current warp is the landmarks' (--landmarks or --session, with --method and --initial as for warp),
+the starting transform alone (--initial), or the identity. The output is a BigWarp file of pairs (moving
+point, suggested fixed point); a suggestion of low confidence is written inactive, one that failed (a patch
+outside a volume) without a fixed point. --json gives each point's suggestion, prediction, confidence and
+search radius. Examples:
+
+    warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --points mr_points.csv --out suggested.csv --json
+    warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --points mr_points.csv --out suggested.csv";
+
 /// The arguments of `warpbench suggest`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder), where the targets are searched"),
     ("moving", "The moving volume, where the points are"),

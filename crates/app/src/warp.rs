@@ -201,8 +201,24 @@ pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, F
 
 pub use crate::brushed::InverseConsistency;
 
+/// What `warpbench warp --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
+field (--field), and write a NIfTI (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
+
+The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
+app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
+any flavour warpbench field writes (ITK NIfTI DISPVECT, ANTs NIfTI VECTOR, Slicer NRRD): u(x) = x + D(x),
+D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. Examples:
+
+    warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
+    warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
+    warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --exact --out mr_in_ct.nii.gz";
+
 /// The arguments of `warpbench warp`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder"),
     ("moving", "The moving volume, resampled"),

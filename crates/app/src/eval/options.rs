@@ -71,8 +71,23 @@ impl SuiteOptions {
     }
 }
 
+/// What `warpbench eval --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Measure how well a landmark warp recovers a known synthetic deformation of a real volume: TRE at held-out
+foreground points, leave-one-out, inverse consistency, folding, and NCC/RMSE against the ground truth.
+
+The volume is deformed by a seeded synthetic warp, landmark pairs are sampled in its foreground, the warp is
+fitted, and the fit is compared with the truth (docs/accuracy.md has the definitions). --max-tre-mm gates
+the result (exit 3); --suite runs the grid kinds × N × methods. Examples:
+
+    warpbench eval --volume tests/data/nifti/avg152T1_LR_nifti.nii --kind sine --amplitude-mm 5 --landmarks 50
+    warpbench eval --volume mr.nii.gz --kind bump --landmarks 20 --on-features --max-tre-mm 2 --json eval.json
+    warpbench eval --volume mr.nii.gz --suite --suite-md docs/accuracy.md --json suite.json";
+
 /// The arguments of `warpbench eval`, which the evaluation takes as they are.
 #[derive(Clone, Debug, PartialEq, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 pub struct EvalArgs {
     /// The real volume to deform (NIfTI, NRRD or a DICOM series folder); it is also the ground truth.

@@ -49,8 +49,23 @@ pub use itk::itk_transform_of;
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-transform/1";
 
+/// What `warpbench transform --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Write the landmark warp as an ITK transform file (.tfm), the exact transform instead of a sampled field: TPS
+as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
+B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
+identity outside it), affine, similarity and rigid as AffineTransform_double_3_3.
+
+The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): what ITK's ResampleImageFilter,
+antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
+and B-spline files; Slicer reads all three (Data > Add data, then apply the transform to the moving volume).
+
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm";
+
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and is the B-spline's domain"),
     ("moving", "The moving volume: its box checks the landmarks"),
