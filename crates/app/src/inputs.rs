@@ -177,49 +177,44 @@ impl Landmarks {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MethodChoice {
     Given(Method),
-    /// `--stiffness auto`: the TPS whose λ minimises the leave-one-out error of the pull-back's pairs (fixed →
-    /// moving; the active pairs with both points), chosen when they are read ([`MethodChoice::method`]).
-    AutoTps,
+    /// `--stiffness auto` with the `--method` given: the TPS whose λ minimises the leave-one-out error of the
+    /// pull-back's pairs (fixed → moving; the active pairs with both points), chosen when they are read
+    /// ([`MethodChoice::method`]). Another method is refused there, where a method is needed (`suggest` without
+    /// landmarks needs none).
+    Auto(MethodKind),
 }
 
-impl TryFrom<&MethodArgs> for MethodChoice {
-    type Error = anyhow::Error;
-
-    /// Refuses `--stiffness auto` with another method than TPS. (A stiffness given as a number is checked where
-    /// it is parsed, [`Stiffness`]'s `FromStr`.)
-    fn try_from(args: &MethodArgs) -> Result<Self> {
+impl From<&MethodArgs> for MethodChoice {
+    /// A stiffness given as a number was checked where it was parsed ([`Stiffness`]'s `FromStr`).
+    fn from(args: &MethodArgs) -> Self {
         match args.stiffness {
-            Stiffness::Value(stiffness) => {
-                Ok(Self::Given(args.method.method(stiffness, levels_or_default(args.levels))))
-            }
-            Stiffness::Auto if args.method == MethodKind::Tps => Ok(Self::AutoTps),
-            Stiffness::Auto => {
-                Err(anyhow!("--stiffness auto chooses the TPS's λ: it needs --method tps, not {}", args.method))
-            }
+            Stiffness::Value(stiffness) => Self::Given(args.method.method(stiffness, levels_or_default(args.levels))),
+            Stiffness::Auto => Self::Auto(args.method),
         }
     }
 }
 
 impl MethodChoice {
-    /// The method. [`MethodChoice::AutoTps`] reads the pairs of `landmarks` (kept there for the fit) and names the
-    /// λ chosen (`tps(λ=…)`) wherever the method is reported.
+    /// The method. [`MethodChoice::Auto`] reads the pairs of `landmarks` (kept there for the fit) and names the λ
+    /// chosen (`tps(λ=…)`) wherever the method is reported.
     pub fn method(self, landmarks: Option<&Landmarks>) -> Result<Method> {
-        match self {
-            Self::Given(method) => Ok(method),
-            Self::AutoTps => {
-                let landmarks =
-                    landmarks.ok_or_else(|| anyhow!("--stiffness auto needs landmark pairs to choose from"))?;
-                let (fixed, moving): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) = landmarks
-                    .pairs()?
-                    .iter()
-                    .filter(|p| p.active)
-                    .filter_map(|p| Some((as_fixed(p.fixed?), as_moving(p.moving?))))
-                    .unzip();
-                let choice = warpbench_solver::stiffness::choose_stiffness(&fixed, &moving)
-                    .map_err(|e| anyhow!("{}: --stiffness auto: {e}", landmarks.describe()))?;
-                Ok(Method::Tps { stiffness: choice.lambda })
-            }
+        let kind = match self {
+            Self::Given(method) => return Ok(method),
+            Self::Auto(kind) => kind,
+        };
+        if kind != MethodKind::Tps {
+            return Err(anyhow!("--stiffness auto chooses the TPS's λ: it needs --method tps, not {kind}"));
         }
+        let landmarks = landmarks.ok_or_else(|| anyhow!("--stiffness auto needs landmark pairs to choose from"))?;
+        let (fixed, moving): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) = landmarks
+            .pairs()?
+            .iter()
+            .filter(|p| p.active)
+            .filter_map(|p| Some((as_fixed(p.fixed?), as_moving(p.moving?))))
+            .unzip();
+        let choice = warpbench_solver::stiffness::choose_stiffness(&fixed, &moving)
+            .map_err(|e| anyhow!("{}: --stiffness auto: {e}", landmarks.describe()))?;
+        Ok(Method::Tps { stiffness: choice.lambda })
     }
 }
 
@@ -263,7 +258,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
             return Ok(Self {
                 landmarks: source.map(Landmarks::new),
                 warp: PairWarp {
-                    method: MethodChoice::try_from(&args.method)?,
+                    method: MethodChoice::from(&args.method),
                     brush: Vec::new(),
                     initial: args.initial,
                     session_start: None,
