@@ -16,22 +16,37 @@ use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Parallelism;
 
-use crate::args::ReportArgs;
+use crate::args::{ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::inputs::{OutputFile, load_pair};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-align/1";
 
+/// What `warpbench align --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Align the moving volume to the fixed one automatically, by intensities, and write the result as an ITK
+transform file.
+
+Rigid (6 parameters), or with --affine rigid then affine (12), maximising the Mattes mutual information of the
+two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1), from their centres of mass.
+The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
+writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. Examples:
+
+    warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
+    warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json";
+
 /// The arguments of `warpbench align`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder)"),
+    ("moving", "The moving volume: any modality (mutual information needs no common intensity scale)"),
+])))]
 pub struct AlignArgs {
-    /// The fixed volume (NIfTI, NRRD or a DICOM series folder).
-    #[arg(long)]
-    pub fixed: PathBuf,
-    /// The moving volume: any modality (mutual information needs no common intensity scale).
-    #[arg(long)]
-    pub moving: PathBuf,
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
     /// The ITK transform file to write (.tfm or .txt): the pull-back, fixed points to moving points.
     #[arg(long, value_name = "FILE")]
     pub out_tfm: PathBuf,
@@ -78,7 +93,8 @@ pub struct AlignSummary {
 /// Runs `warpbench align`: checks the output, loads both volumes, aligns, writes the file atomically; prints the JSON
 /// summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure> {
-    let AlignArgs { fixed, moving, out_tfm, affine, samples, bins, shrink, seed, report } = args;
+    let AlignArgs { volumes: VolumePairArgs { fixed, moving }, out_tfm, affine, samples, bins, shrink, seed, report } =
+        args;
     let ReportArgs { json, force, quiet } = report;
     OutputFile { path: out_tfm.clone(), force }.check(&[&fixed, &moving]).map_err(Failure::BadInput)?;
     let params = AlignParams {

@@ -1,15 +1,48 @@
-//! Command-line arguments that several subcommands share (clap), so each subcommand's module can take them.
+//! The command-line argument groups that several subcommands share (clap), one per concept, each flattened into the
+//! subcommands' own `Args` structs: the volume pair ([`VolumePairArgs`]), the landmarks and the warp around them
+//! ([`PairArgs`], with the method, [`MethodArgs`]), the report flags ([`ReportArgs`]) and the render settings
+//! ([`RenderSettingsArgs`]).
+//!
+//! This module declares flags and parses values only; [`crate::inputs`] turns the groups into the model's types
+//! (`TryFrom<PairArgs>`), once, at the start of a subcommand. A subcommand that describes a shared flag in its own
+//! words (what its `--fixed` is for) says so with [`help`] in a `#[command(mut_args(…))]` attribute, and its help
+//! text, the `--help` page, comes from [`summary`] of one string beside its `Args` struct.
 
 use std::path::PathBuf;
 
-use crate::exit::Failure;
-use crate::inputs::{LandmarkSource, PairInputs};
-use warpbench_solver::brush::BrushStroke;
+use crate::procedural::ProceduralSpec;
+use crate::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading, Stiffness};
 
-use crate::settings::{MethodKind, Stiffness};
+/// Sets the help text of the arguments named in `texts` (`(id, text)`): for a subcommand that describes flags of a
+/// shared group in its own words, as `#[command(mut_args(help(&[("fixed", "…")])))]` on its `Args` struct. (In
+/// place: `Command::mut_arg` would move the argument to the end of the usage line.)
+pub fn help(texts: &'static [(&'static str, &'static str)]) -> impl FnMut(clap::Arg) -> clap::Arg {
+    move |arg| match texts.iter().find(|(id, _)| arg.get_id() == *id) {
+        Some((_, text)) => arg.help(*text),
+        None => arg,
+    }
+}
 
-/// The landmarks and the warp method, shared by `warp`, `field` and `render`.
-#[derive(Debug, clap::Args)]
+/// The first paragraph of a subcommand's help text (its `long_about`): what `-h` and the list of subcommands show.
+#[must_use]
+pub fn summary(help: &'static str) -> &'static str {
+    help.split_once("\n\n").map_or(help, |(first, _)| first)
+}
+
+/// `--fixed` and `--moving`: the pair of volumes a pair subcommand reads (NIfTI, NRRD or a DICOM series folder).
+/// Each subcommand describes them in its own words ([`help`]).
+#[derive(Clone, Debug, PartialEq, Eq, clap::Args)]
+pub struct VolumePairArgs {
+    /// The fixed volume.
+    #[arg(long)]
+    pub fixed: PathBuf,
+    /// The moving volume.
+    #[arg(long)]
+    pub moving: PathBuf,
+}
+
+/// The landmarks and the warp around them, shared by `warp`, `field`, `render`, `points`, `transform` and `suggest`.
+#[derive(Clone, Debug, clap::Args)]
 pub struct PairArgs {
     /// A window session (.warpbench.json): its landmark pairs, its warp method and its brush strokes, instead of
     /// --landmarks and the method flags.
@@ -24,6 +57,19 @@ pub struct PairArgs {
     /// Slicer point list of the fixed points, matched to --moving-points by order.
     #[arg(long)]
     pub fixed_points: Option<PathBuf>,
+    #[command(flatten)]
+    pub method: MethodArgs,
+    /// A starting transform under the landmark warp: an ITK affine .tfm mapping fixed points to moving points (LPS
+    /// mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it
+    /// alone is the warp.
+    #[arg(long, value_name = "TFM", conflicts_with = "session")]
+    pub initial: Option<PathBuf>,
+}
+
+/// `--method` with its parameters, parsed once into a [`warpbench_solver::method::Method`]
+/// ([`crate::inputs::MethodChoice`]).
+#[derive(Clone, Copy, Debug, PartialEq, clap::Args)]
+pub struct MethodArgs {
     /// The warp.
     #[arg(long, value_enum, default_value_t)]
     pub method: MethodKind,
@@ -34,15 +80,10 @@ pub struct PairArgs {
     /// Hierarchical B-spline levels.
     #[arg(long)]
     pub levels: Option<usize>,
-    /// A starting transform under the landmark warp: an ITK affine .tfm mapping fixed points to moving points (LPS
-    /// mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it
-    /// alone is the warp.
-    #[arg(long, value_name = "TFM", conflicts_with = "session")]
-    pub initial: Option<PathBuf>,
 }
 
-/// The flags of a subcommand that writes files and reports what it did: shared by `points`, `transform` and
-/// `landmarks`.
+/// The flags of a subcommand that writes files and reports what it did: shared by `warp`, `field`, `points`,
+/// `transform`, `landmarks`, `align` and `suggest`.
 #[derive(Clone, Copy, Debug, clap::Args)]
 pub struct ReportArgs {
     /// Print a JSON report to stdout (its schema is in docs/cli.md).
@@ -56,84 +97,132 @@ pub struct ReportArgs {
     pub quiet: bool,
 }
 
-impl PairArgs {
-    /// The landmark source, if any was given (a session's pairs with `--session`).
-    pub fn source(&self) -> Result<Option<LandmarkSource>, Failure> {
-        if let Some(session) = &self.session {
-            return Ok(Some(LandmarkSource::Session(session.clone())));
-        }
-        LandmarkSource::from_args(self.landmarks.clone(), self.moving_points.clone(), self.fixed_points.clone())
-            .map_err(Failure::BadInput)
-    }
+/// How `render` draws its frame: the blend, the looks, the camera or the slice, the procedural deformation and the
+/// glyphs.
+#[derive(Clone, Copy, Debug, clap::Args)]
+pub struct RenderSettingsArgs {
+    /// How the fixed and the deformed moving volume combine.
+    #[arg(long, value_enum, default_value_t)]
+    pub blend: Blend,
+    /// Moving weight of the mix blend (0..1).
+    #[arg(long, default_value_t = 0.5)]
+    pub mix_weight: f32,
+    /// Checkerboard cell size (mm).
+    #[arg(long, default_value_t = 12.0)]
+    pub checker_mm: f32,
+    /// Fixed volume preset (default: from the data).
+    #[arg(long, value_enum)]
+    pub preset: Option<Preset>,
+    /// Moving volume preset (default: from the data).
+    #[arg(long, value_enum)]
+    pub moving_preset: Option<Preset>,
+    /// Lighting: none, dvr (shaded volume rendering) or iso (first surface).
+    #[arg(long, value_enum, default_value_t)]
+    pub shading: Shading,
+    /// Camera as az,el or az,el,dist: degrees about the superior axis and above the horizon, distance in mm.
+    #[arg(long)]
+    pub camera: Option<CameraSpec>,
+    /// Perspective projection (default orthographic).
+    #[arg(long)]
+    pub perspective: bool,
+    /// Image size WxH (3-D view; a slice has its grid's size).
+    #[arg(long, default_value = "512x512", value_parser = parse_size)]
+    pub size: (u32, u32),
+    /// Samples per voxel along each ray.
+    #[arg(long, default_value_t = 1.0)]
+    pub samples_per_voxel: f32,
+    /// A slice of the fixed grid instead of the 3-D view: axial, coronal or sagittal, optionally with :POS in mm
+    /// (e.g. axial:40; default the centre).
+    #[arg(long)]
+    pub slice: Option<SliceSpec>,
+    /// Deform the moving volume in the shader: eval's synthetic warp of this kind (sine, twist, bend, bump) over the
+    /// moving volume's box, or a shift; read at p(u(x)) after the landmark warp u. --moving V --fixed V shows the
+    /// volume eval --kind K --amplitude-mm A --seed S tests.
+    #[arg(long, value_enum)]
+    pub procedural: Option<ProceduralKind>,
+    /// The procedural deformation's largest displacement over the moving volume's box (mm), as eval's --amplitude-mm.
+    #[arg(long, default_value_t = 5.0, requires = "procedural")]
+    pub procedural_amplitude_mm: f64,
+    /// The procedural deformation's seed, as eval's --seed.
+    #[arg(long, default_value_t = 1, requires = "procedural")]
+    pub procedural_seed: u64,
+    /// Leave out the landmark glyphs.
+    #[arg(long)]
+    pub no_glyphs: bool,
+}
 
-    /// The warp: the method flags, or with `--session` the session's method and its brush strokes (read here, so a
-    /// session that cannot be read is refused before any volume is loaded).
-    pub fn warp(&self) -> Result<PairWarp, Failure> {
-        let Some(path) = &self.session else {
-            return Ok(PairWarp {
-                method: self.method,
-                stiffness: self.stiffness,
-                levels: self.levels,
-                brush: Vec::new(),
-                initial: self.initial.clone(),
-                session_start: None,
-            });
-        };
-        let session = crate::project::session::load(path).map_err(Failure::BadInput)?;
-        let session_start = session
-            .document
-            .start
-            .as_ref()
-            .map(|s| {
-                s.start().map(Box::new).map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e:#}", path.display())))
-            })
-            .transpose()?;
-        let s = &session.document.settings;
-        Ok(PairWarp {
-            method: s.method,
-            stiffness: Stiffness::Value(s.stiffness),
-            levels: Some(s.bspline_levels),
-            brush: session.document.brush,
-            initial: None,
-            session_start,
-        })
-    }
-
-    /// The inputs of `warp` and `field`: these landmarks and method with the pair and the reference grid.
-    pub fn inputs(self, fixed: PathBuf, moving: PathBuf, reference: Option<PathBuf>) -> Result<PairInputs, Failure> {
-        let PairWarp { method, stiffness, levels, brush, initial, session_start } = self.warp()?;
-        Ok(PairInputs {
-            landmarks: self.required_source()?,
-            fixed,
-            moving,
-            method,
-            stiffness,
-            levels,
-            reference,
-            brush,
-            initial,
-            session_start,
-        })
-    }
-
-    /// The landmark source, which this subcommand needs.
-    pub fn required_source(&self) -> Result<LandmarkSource, Failure> {
-        self.source()?.ok_or_else(|| {
-            Failure::BadInput(anyhow::anyhow!("give --landmarks, --moving-points with --fixed-points, or --session"))
+impl RenderSettingsArgs {
+    /// The moving volume's procedural deformation: `--procedural` with its amplitude and seed.
+    #[must_use]
+    pub fn procedural_spec(&self) -> Option<ProceduralSpec> {
+        self.procedural.map(|kind| ProceduralSpec {
+            kind,
+            amplitude_mm: self.procedural_amplitude_mm,
+            seed: self.procedural_seed,
         })
     }
 }
 
-/// The warp [`PairArgs`] ask for: the method and its parameters, and the brush strokes on top (a session's; none
-/// from the method flags).
-#[derive(Clone, Debug, PartialEq)]
-pub struct PairWarp {
-    pub method: MethodKind,
-    pub stiffness: Stiffness,
-    pub levels: Option<usize>,
-    pub brush: Vec<BrushStroke>,
-    /// The starting transform's file (`--initial`), read when the warp is fitted ([`crate::start::Start::read`]).
-    pub initial: Option<PathBuf>,
-    /// A session's starting transform (its Auto-align), read with the session.
-    pub session_start: Option<Box<crate::start::Start>>,
+/// Which slice of the fixed grid `--slice` asks for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SliceSpec {
+    Axial(f64),
+    Coronal(f64),
+    Sagittal(f64),
+}
+
+impl std::str::FromStr for SliceSpec {
+    type Err = String;
+    /// `axial:POS`, `coronal:POS` or `sagittal:POS`, POS in mm along S, P or L; a bare name is the centre.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (name, pos) = s.split_once(':').unwrap_or((s, "nan"));
+        let pos: f64 = if pos == "nan" {
+            f64::NAN
+        } else {
+            pos.parse().map_err(|_| format!("slice position {pos:?} is not a number (mm)"))?
+        };
+        match name {
+            "axial" => Ok(Self::Axial(pos)),
+            "coronal" => Ok(Self::Coronal(pos)),
+            "sagittal" => Ok(Self::Sagittal(pos)),
+            _ => Err(format!("slice {name:?}: use axial, coronal or sagittal, optionally with :POS in mm")),
+        }
+    }
+}
+
+/// `--camera az,el[,dist]`: azimuth and elevation in degrees, distance from the target in mm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CameraSpec {
+    pub azimuth_deg: f32,
+    pub elevation_deg: f32,
+    pub distance_mm: Option<f32>,
+}
+
+impl std::str::FromStr for CameraSpec {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let parts: Vec<f32> = s
+            .split(',')
+            .map(|p| p.trim().parse::<f32>().map_err(|_| format!("camera value {p:?} is not a number")))
+            .collect::<Result<_, _>>()?;
+        match parts[..] {
+            [az, el] if az.is_finite() && el.is_finite() => {
+                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: None })
+            }
+            [az, el, d] if az.is_finite() && el.is_finite() && d.is_finite() && d > 0.0 => {
+                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: Some(d) })
+            }
+            _ => Err(format!("--camera {s:?}: give az,el or az,el,dist (degrees, degrees, mm > 0)")),
+        }
+    }
+}
+
+/// `--size WxH`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("--size {s:?}: use WxH, e.g. 512x512"))?;
+    let parse = |v: &str| v.parse::<u32>().ok().filter(|n| (1..=8192).contains(n));
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("--size {s:?}: width and height must be 1..8192")),
+    }
 }

@@ -41,6 +41,24 @@ impl Failure {
             Self::BadInput(e) | Self::Internal(e) | Self::AccuracyGate(e) | Self::Cancelled(e) => e,
         }
     }
+
+    /// The message for stderr: the error and its causes joined with ": ", each once. (An error that shows its
+    /// source in its own text, as an I/O error does with the OS error, would otherwise print it twice.)
+    #[must_use]
+    pub fn message(&self) -> String {
+        let mut text = String::new();
+        for cause in self.error().chain() {
+            let part = cause.to_string();
+            if text.contains(&part) {
+                continue;
+            }
+            if !text.is_empty() {
+                text.push_str(": ");
+            }
+            text.push_str(&part);
+        }
+        text
+    }
 }
 
 /// Prints `value` as pretty JSON and a newline to `out`: a subcommand's `--json` report (`what` names it in the error,

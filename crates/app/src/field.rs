@@ -45,6 +45,7 @@ use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
+use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit;
@@ -56,23 +57,92 @@ use crate::warp::InverseConsistency;
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-field/1";
 
-/// Options of `warpbench field`.
-#[derive(Clone, Debug)]
-pub struct FieldOptions {
-    /// The pair, landmarks, method, and the output grid (`reference`, else the fixed volume's).
-    pub inputs: PairInputs,
-    /// The displacement field (`.nii` or `.nii.gz`, `.nrrd` for [`FieldFormat::Nrrd`]); `force` applies to `tfm`
-    /// too.
-    pub out: OutputFile,
-    /// The flavour of the field file.
-    pub format: FieldFormat,
-    /// The pull-back on the fixed grid, or the forward map on the moving grid.
-    pub direction: FieldDirection,
-    /// The ITK transform file (the pull-back, exact), for every method; not with [`FieldDirection::Forward`].
+/// What `warpbench field --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
+transform as an ITK transform file.
+
+--direction pullback (default): at each voxel centre x of the fixed grid (or --reference's) the field holds
+u(x) − x, u = moving_from_fixed fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform
+maps fixed point x to moving point x + D(x), what resampling the moving volume needs. --direction forward: on
+the moving grid (or --reference's), d(y) − y, d = fixed_from_moving: a moving point y goes to y + D(y), what
+moving points or meshes needs.
+
+--format itk (default): NIfTI intent DISPVECT (1006), vectors in RAS, as ITK ≥ 5.3 and Slicer read it;
+--format ants: NIfTI intent VECTOR (1007), vectors in LPS, what antsApplyTransforms reads; --format nrrd: a NRRD
+vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling).
+Examples:
+
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm";
+
+/// The arguments of `warpbench field`.
+#[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume: its grid is the field's grid unless --reference is given"),
+    ("moving", "The moving volume (landmarks are checked against it)"),
+    ("json", "Print a JSON summary (schema warpbench-field/1, see docs/cli.md) to stdout"),
+    ("force", "Overwrite --out (and --tfm) if they exist"),
+])))]
+pub struct FieldArgs {
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
+    #[command(flatten)]
+    pub pairs: PairArgs,
+    /// Sample the field on this volume's grid instead of the fixed volume's.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+    /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform).
+    #[arg(long)]
     pub tfm: Option<PathBuf>,
-    /// Print the summary as JSON (schema [`SCHEMA`]) to the output.
-    pub json: bool,
-    pub quiet: bool,
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
+    #[arg(long, value_enum, default_value = "itk")]
+    pub format: FormatArg,
+    /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
+    #[arg(long, value_enum, default_value = "pullback")]
+    pub direction: DirectionArg,
+    /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd).
+    #[arg(long)]
+    pub out: PathBuf,
+    #[command(flatten)]
+    pub report: ReportArgs,
+}
+
+/// `--format`: [`FieldFormat`] by its command-line name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum FormatArg {
+    Itk,
+    Ants,
+    Nrrd,
+}
+
+impl From<FormatArg> for FieldFormat {
+    fn from(arg: FormatArg) -> Self {
+        match arg {
+            FormatArg::Itk => Self::Itk,
+            FormatArg::Ants => Self::Ants,
+            FormatArg::Nrrd => Self::Nrrd,
+        }
+    }
+}
+
+/// `--direction`: [`FieldDirection`] by its command-line name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DirectionArg {
+    Pullback,
+    Forward,
+}
+
+impl From<DirectionArg> for FieldDirection {
+    fn from(arg: DirectionArg) -> Self {
+        match arg {
+            DirectionArg::Pullback => Self::Pullback,
+            DirectionArg::Forward => Self::Forward,
+        }
+    }
 }
 
 /// What was written: the `--json` document, schema `warpbench-field/1` (docs/cli.md).
@@ -108,14 +178,19 @@ pub struct FieldSummary {
 }
 
 /// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
-/// `--json`.
-pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
-    let input_paths = opts.inputs.paths();
-    opts.out.check(&input_paths).map_err(Failure::BadInput)?;
-    displacement::check_output_name(&opts.out.path, opts.format)?;
-    let method = opts.inputs.method().map_err(Failure::BadInput)?;
-    if let Some(tfm) = &opts.tfm
-        && opts.direction == FieldDirection::Forward
+/// `--json`, else what it wrote on stderr unless `--quiet`.
+pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
+    let FieldArgs { volumes, pairs, reference, tfm, format, direction, out: out_path, report } = args;
+    let ReportArgs { json, force, quiet } = report;
+    let (format, direction) = (FieldFormat::from(format), FieldDirection::from(direction));
+    let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
+    let output = OutputFile { path: out_path, force };
+    let input_paths = inputs.paths();
+    output.check(&input_paths).map_err(Failure::BadInput)?;
+    displacement::check_output_name(&output.path, format)?;
+    let method = inputs.method().map_err(Failure::BadInput)?;
+    if let Some(tfm) = &tfm
+        && direction == FieldDirection::Forward
     {
         return Err(Failure::BadInput(anyhow!(
             "{}: an ITK transform file holds the pull-back (ITK's resampling direction), not the forward map that \
@@ -123,23 +198,23 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
             tfm.display()
         )));
     }
-    if let Some(tfm) = &opts.tfm {
-        if tfm == &opts.out.path {
+    if let Some(tfm) = &tfm {
+        if tfm == &output.path {
             return Err(Failure::BadInput(anyhow!("{}: --tfm and --out are the same file", tfm.display())));
         }
-        inputs::check_output(tfm, &input_paths, opts.out.force).map_err(Failure::BadInput)?;
+        inputs::check_output(tfm, &input_paths, output.force).map_err(Failure::BadInput)?;
     }
 
-    let PairVolumes { fixed, moving, reference } = opts.inputs.load_volumes(opts.quiet).map_err(Failure::BadInput)?;
-    let pairs = opts.inputs.landmarks.read().map_err(Failure::BadInput)?;
-    let names = opts.inputs.names(&opts.out.path);
-    let (grid, grid_name) = match (&reference, opts.direction) {
+    let PairVolumes { fixed, moving, reference } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
+    let pairs = inputs.pairs().map_err(Failure::BadInput)?;
+    let names = inputs.names(&output.path);
+    let (grid, grid_name) = match (&reference, direction) {
         (Some(r), _) => (r, "reference"),
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
-    let brushed = opts.inputs.brushed().map_err(Failure::BadInput)?;
-    if let (Some(tfm), Some(_)) = (&opts.tfm, &brushed) {
+    let brushed = inputs.brushed().map_err(Failure::BadInput)?;
+    if let (Some(tfm), Some(_)) = (&tfm, &brushed) {
         return Err(Failure::BadInput(anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; write the displacement field alone",
             tfm.display()
@@ -147,48 +222,62 @@ pub fn run(opts: &FieldOptions, out: &mut dyn Write) -> Result<FieldSummary, Fai
     }
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;
-    let start = opts.inputs.start().map_err(Failure::BadInput)?;
+    let start = inputs.start().map_err(Failure::BadInput)?;
     let layers = Layers::new(start, brushed);
-    let inputs =
-        FieldInputs { fixed: &fixed, moving: &moving, pairs: &pairs, names: &names, method: &method, layers: &layers };
-    let field = sample_field(grid, &inputs, opts.direction, &mut |done, total| {
-        let _ = bar.get_or_insert_with(|| Bar::new(opts.quiet)).update(Progress {
-            stage: "sampling the field",
-            done,
-            total,
-        });
+    let made_of =
+        FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
+    let field = sample_field(grid, &made_of, direction, &mut |done, total| {
+        let _ =
+            bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress { stage: "sampling the field", done, total });
         true
     });
     if let Some(bar) = bar {
         bar.finish();
     }
     let field = field?;
-    if !opts.quiet {
+    if !quiet {
         for w in &field.warnings {
             eprintln!("warpbench: warning: {w}");
         }
     }
-    write_field(&field, &opts.out.path, opts.format, opts.tfm.as_deref())?;
+    write_field(&field, &output.path, format, tfm.as_deref())?;
 
     let summary = FieldSummary {
         schema: SCHEMA,
-        out: opts.out.path.display().to_string(),
+        out: output.path.display().to_string(),
         dims: field.dims,
         spacing_mm: field.spacing_mm,
         lps_from_index: field.lps_from_index.rows(),
         grid: grid_name,
-        format: opts.format.name(),
+        format: format.name(),
         direction: field.direction.name(),
         method: field.method,
         pairs: field.pairs,
         max_displacement_mm: field.max_displacement_mm,
-        tfm: opts.tfm.as_ref().map(|p| p.display().to_string()),
-        tfm_class: opts.tfm.as_ref().and(field.transform.as_ref()).map(ItkTransform::type_name),
+        tfm: tfm.as_ref().map(|p| p.display().to_string()),
+        tfm_class: tfm.as_ref().and(field.transform.as_ref()).map(ItkTransform::type_name),
         warnings: field.warnings.clone(),
         inverse_consistency_mm: layers.brushed().map(Brushed::consistency),
     };
-    if opts.json {
+    if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
+    } else if !quiet {
+        let d = summary.dims;
+        eprintln!(
+            "wrote {} ({} {} field, {}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
+            summary.out,
+            summary.format,
+            summary.direction,
+            d[0],
+            d[1],
+            d[2],
+            summary.pairs,
+            summary.method,
+            summary.max_displacement_mm
+        );
+        if let Some(tfm) = &summary.tfm {
+            eprintln!("wrote {tfm}");
+        }
     }
     Ok(summary)
 }

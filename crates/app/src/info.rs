@@ -13,15 +13,34 @@ use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, Modality, Ser
 use crate::exit::Failure;
 use crate::progress::Bar;
 
-/// Options of `warpbench info`.
-#[derive(Clone, Debug, Default)]
-pub struct InfoOptions {
+/// What `warpbench info --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype, value range,
+modality and series.
+
+Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), a DICOM series folder or one DICOM file.
+A folder with several series lists them. Example:
+
+    warpbench info tests/data/nifti/ch2.nii.gz --json";
+
+/// The arguments of `warpbench info`.
+#[derive(Clone, Debug, Default, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+pub struct InfoArgs {
+    /// A volume file or a DICOM series folder.
     pub path: PathBuf,
+    /// Machine-readable output (schema warpbench-info/1, see docs/cli.md).
+    #[arg(long)]
     pub json: bool,
-    /// 4-D NIfTI: the frame to read.
+    /// For a 4-D NIfTI: the frame (t index) to read.
+    #[arg(long)]
     pub frame: Option<usize>,
-    /// DICOM folder with several series: the SeriesInstanceUID to read.
+    /// For a folder with several DICOM series: the SeriesInstanceUID to read.
+    #[arg(long)]
     pub series: Option<String>,
+    /// No progress bar.
+    #[arg(long, short)]
     pub quiet: bool,
 }
 
@@ -159,7 +178,7 @@ fn cli_error(e: warpbench_io::Error) -> Failure {
 }
 
 /// Loads `opts.path` and describes it.
-pub fn inspect(opts: &InfoOptions) -> Result<InfoJson, Failure> {
+pub fn inspect(opts: &InfoArgs) -> Result<InfoJson, Failure> {
     let path = &opts.path;
     let format = Format::detect(path)?;
     let mut bar = Bar::new(opts.quiet);
@@ -181,7 +200,7 @@ pub fn inspect(opts: &InfoOptions) -> Result<InfoJson, Failure> {
 
 /// Runs `warpbench info`, writing to `out`. The volume's warnings also go to stderr, where they are seen
 /// when `out` is a pipe or a `--json` document.
-pub fn run(opts: &InfoOptions, out: &mut dyn Write) -> Result<(), Failure> {
+pub fn run(opts: &InfoArgs, out: &mut dyn Write) -> Result<(), Failure> {
     let info = inspect(opts)?;
     if let InfoContent::Volume(v) = &info.content {
         for w in &v.warnings {

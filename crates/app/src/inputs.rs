@@ -1,5 +1,10 @@
-//! What every pair subcommand (`render`, `warp`, `field`) reads first: the fixed and moving volumes, the landmark
-//! pairs, and the warp fitted on them.
+//! What every pair subcommand (`warp`, `field`, `render`, `points`, `transform`, `suggest`) reads first: the fixed
+//! and moving volumes, the landmark pairs, and the warp fitted on them.
+//!
+//! The shared argument groups ([`crate::args`]) are parsed here once into these types: [`PairArgs`] into a
+//! [`LandmarkWarp`] (the landmarks, if any, and the warp around them; a session is read once, pairs and all), its
+//! [`MethodArgs`] into a [`MethodChoice`], and with the volume pair into [`PairInputs`] where landmarks are required.
+//! A landmark file is read at most once ([`Landmarks`]): `--stiffness auto` chooses λ on the pairs the fit then takes.
 //!
 //! Landmarks are checked against the volumes before anything is fitted: a pair whose moving point lies outside the
 //! moving volume's box (of voxel edges), or whose fixed point lies outside the fixed volume's, is bad input, named by
@@ -12,6 +17,7 @@
 //! Errors are `anyhow` errors that name the file and the problem; every one is about the input (the output checks,
 //! [`check_output`] and [`OutputFile::check`], included), so the subcommands exit with 2 on them.
 
+use std::cell::OnceCell;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Result, anyhow};
@@ -23,6 +29,7 @@ use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 
+use crate::args::{MethodArgs, PairArgs, VolumePairArgs};
 use crate::progress::Bar;
 use crate::settings::{MethodKind, Stiffness};
 
@@ -129,24 +136,184 @@ impl LandmarkSource {
     }
 }
 
-/// The inputs `warpbench warp` and `warpbench field` share: the pair, its landmarks, the method, and the grid to
-/// sample on when it is not the fixed volume's.
+/// A landmark source and its pairs, read at most once: on the first [`Landmarks::pairs`] (`--stiffness auto` reads
+/// them to choose λ before any volume is loaded, and the fit takes the same pairs), or with a session.
 #[derive(Clone, Debug)]
-pub struct PairInputs {
-    pub fixed: PathBuf,
-    pub moving: PathBuf,
-    pub landmarks: LandmarkSource,
-    pub method: MethodKind,
-    pub stiffness: Stiffness,
-    pub levels: Option<usize>,
-    /// The output grid, when not the fixed volume's.
-    pub reference: Option<PathBuf>,
+pub struct Landmarks {
+    pub source: LandmarkSource,
+    pairs: OnceCell<Vec<LandmarkPair>>,
+}
+
+impl Landmarks {
+    /// The pairs of `source`, not read yet.
+    #[must_use]
+    pub fn new(source: LandmarkSource) -> Self {
+        Self { source, pairs: OnceCell::new() }
+    }
+
+    /// The pairs of `source`, already read (a session's, read with its warp).
+    #[must_use]
+    pub fn read_from(source: LandmarkSource, pairs: Vec<LandmarkPair>) -> Self {
+        Self { source, pairs: OnceCell::from(pairs) }
+    }
+
+    /// The pairs as the file holds them ([`LandmarkSource::read`] the first time).
+    pub fn pairs(&self) -> Result<&[LandmarkPair]> {
+        if let Some(pairs) = self.pairs.get() {
+            return Ok(pairs);
+        }
+        let pairs = self.source.read()?;
+        Ok(self.pairs.get_or_init(|| pairs))
+    }
+
+    /// The paths joined by ` + `, as messages name the pairs' origin ([`LandmarkSource::describe`]).
+    #[must_use]
+    pub fn describe(&self) -> String {
+        self.source.describe()
+    }
+}
+
+/// The warp method the arguments name ([`MethodArgs`]), parsed: a method, or the TPS whose λ the pairs choose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum MethodChoice {
+    Given(Method),
+    /// `--stiffness auto` with the `--method` given: the TPS whose λ minimises the leave-one-out error of the
+    /// pull-back's pairs (fixed → moving; the active pairs with both points), chosen when they are read
+    /// ([`MethodChoice::method`]). Another method is refused there, where a method is needed (`suggest` without
+    /// landmarks needs none).
+    Auto(MethodKind),
+}
+
+impl From<&MethodArgs> for MethodChoice {
+    /// A stiffness given as a number was checked where it was parsed ([`Stiffness`]'s `FromStr`).
+    fn from(args: &MethodArgs) -> Self {
+        match args.stiffness {
+            Stiffness::Value(stiffness) => Self::Given(args.method.method(stiffness, levels_or_default(args.levels))),
+            Stiffness::Auto => Self::Auto(args.method),
+        }
+    }
+}
+
+impl MethodChoice {
+    /// The method. [`MethodChoice::Auto`] reads the pairs of `landmarks` (kept there for the fit) and names the λ
+    /// chosen (`tps(λ=…)`) wherever the method is reported.
+    pub fn method(self, landmarks: Option<&Landmarks>) -> Result<Method> {
+        let kind = match self {
+            Self::Given(method) => return Ok(method),
+            Self::Auto(kind) => kind,
+        };
+        if kind != MethodKind::Tps {
+            return Err(anyhow!("--stiffness auto chooses the TPS's λ: it needs --method tps, not {kind}"));
+        }
+        let landmarks = landmarks.ok_or_else(|| anyhow!("--stiffness auto needs landmark pairs to choose from"))?;
+        let (fixed, moving): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) = landmarks
+            .pairs()?
+            .iter()
+            .filter(|p| p.active)
+            .filter_map(|p| Some((as_fixed(p.fixed?), as_moving(p.moving?))))
+            .unzip();
+        let choice = warpbench_solver::stiffness::choose_stiffness(&fixed, &moving)
+            .map_err(|e| anyhow!("{}: --stiffness auto: {e}", landmarks.describe()))?;
+        Ok(Method::Tps { stiffness: choice.lambda })
+    }
+}
+
+/// The warp [`PairArgs`] ask for around the landmarks: the method, and the warp stack's other layers (a session's
+/// brush strokes on top, a starting transform under the landmark fit).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairWarp {
+    pub method: MethodChoice,
     /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
     pub brush: Vec<BrushStroke>,
-    /// The starting transform's file under the landmark warp (`--initial`, [`crate::start`]).
+    /// The starting transform's file under the landmark warp (`--initial`, read when the warp is fitted,
+    /// [`crate::start::Start::read`]).
     pub initial: Option<PathBuf>,
-    /// A session's starting transform (`--session`), instead of a file.
+    /// A session's starting transform (its Auto-align), read with the session.
     pub session_start: Option<Box<crate::start::Start>>,
+}
+
+impl PairWarp {
+    /// The starting transform under the landmark warp, read (`None` without `--initial` or a session's).
+    pub fn start(&self) -> Result<Option<crate::start::Start>> {
+        crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
+    }
+}
+
+/// [`PairArgs`] parsed once: the landmarks, if any were given, and the warp around them.
+#[derive(Clone, Debug)]
+pub struct LandmarkWarp {
+    pub landmarks: Option<Landmarks>,
+    pub warp: PairWarp,
+}
+
+impl TryFrom<PairArgs> for LandmarkWarp {
+    type Error = anyhow::Error;
+
+    /// The landmark files and the method flags, or with `--session` the session's pairs, method, brush strokes and
+    /// starting transform (the session is read here, once, so one that cannot be read is refused before any volume
+    /// is loaded).
+    fn try_from(args: PairArgs) -> Result<Self> {
+        let Some(path) = args.session else {
+            let source = LandmarkSource::from_args(args.landmarks, args.moving_points, args.fixed_points)?;
+            return Ok(Self {
+                landmarks: source.map(Landmarks::new),
+                warp: PairWarp {
+                    method: MethodChoice::from(&args.method),
+                    brush: Vec::new(),
+                    initial: args.initial,
+                    session_start: None,
+                },
+            });
+        };
+        let session = crate::project::session::load(&path)?;
+        let session_start = session
+            .document
+            .start
+            .as_ref()
+            .map(|s| s.start().map(Box::new).map_err(|e| anyhow!("{}: {e:#}", path.display())))
+            .transpose()?;
+        let s = &session.document.settings;
+        let method = checked_method(s.method, s.stiffness, Some(s.bspline_levels))?;
+        let document = session.document;
+        Ok(Self {
+            landmarks: Some(Landmarks::read_from(LandmarkSource::Session(path), document.pairs)),
+            warp: PairWarp { method: MethodChoice::Given(method), brush: document.brush, initial: None, session_start },
+        })
+    }
+}
+
+impl LandmarkWarp {
+    /// The landmarks, which the subcommand needs, and the warp around them.
+    pub fn require(self) -> Result<(Landmarks, PairWarp)> {
+        let landmarks = self
+            .landmarks
+            .ok_or_else(|| anyhow!("give --landmarks, --moving-points with --fixed-points, or --session"))?;
+        Ok((landmarks, self.warp))
+    }
+
+    /// The method ([`MethodChoice::method`] on these landmarks).
+    pub fn method(&self) -> Result<Method> {
+        self.warp.method.method(self.landmarks.as_ref())
+    }
+
+    /// Every input file of the warp: the landmarks' and the starting transform's.
+    #[must_use]
+    pub fn paths(&self) -> Vec<&Path> {
+        let mut paths = self.landmarks.as_ref().map_or_else(Vec::new, |l| l.source.paths());
+        paths.extend(self.warp.initial.as_deref());
+        paths
+    }
+}
+
+/// What the pair subcommands (`warp`, `field`, `points`, `transform`) read: the volume pair, its landmarks, the warp
+/// around them, and the grid to sample on when it is not the fixed volume's.
+#[derive(Clone, Debug)]
+pub struct PairInputs {
+    pub volumes: VolumePairArgs,
+    pub landmarks: Landmarks,
+    pub warp: PairWarp,
+    /// The output grid, when not the fixed volume's.
+    pub reference: Option<PathBuf>,
 }
 
 /// The volumes of [`PairInputs`], loaded.
@@ -158,41 +325,57 @@ pub struct PairVolumes {
 }
 
 impl PairInputs {
+    /// Parses the arguments once ([`LandmarkWarp`]); landmarks are required.
+    pub fn new(volumes: VolumePairArgs, pairs: PairArgs, reference: Option<PathBuf>) -> Result<Self> {
+        let (landmarks, warp) = LandmarkWarp::try_from(pairs)?.require()?;
+        Ok(Self { volumes, landmarks, warp, reference })
+    }
+
     /// Every input file, which no output may be.
     #[must_use]
     pub fn paths(&self) -> Vec<&Path> {
-        let mut paths: Vec<&Path> = vec![&self.fixed, &self.moving];
-        paths.extend(self.landmarks.paths());
+        let mut paths: Vec<&Path> = vec![&self.volumes.fixed, &self.volumes.moving];
+        paths.extend(self.landmarks.source.paths());
         paths.extend(self.reference.as_deref());
-        paths.extend(self.initial.as_deref());
+        paths.extend(self.warp.initial.as_deref());
         paths
     }
 
     /// The starting transform under the landmark warp, read (`None` without `--initial`).
     pub fn start(&self) -> Result<Option<crate::start::Start>> {
-        crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
+        self.warp.start()
     }
 
-    /// The method the options name, checked ([`resolve_method`]; `--stiffness auto` reads the pairs).
+    /// The method ([`MethodChoice::method`]; `--stiffness auto` reads the pairs, and [`PairInputs::pairs`] gives
+    /// the same ones).
     pub fn method(&self) -> Result<Method> {
-        resolve_method(self.method, self.stiffness, self.levels, Some(&self.landmarks))
+        self.warp.method.method(Some(&self.landmarks))
+    }
+
+    /// The landmark pairs as read, once ([`Landmarks::pairs`]).
+    pub fn pairs(&self) -> Result<&[LandmarkPair]> {
+        self.landmarks.pairs()
     }
 
     /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.
     pub fn brushed(&self) -> Result<Option<crate::brushed::Brushed>> {
-        crate::brushed::Brushed::new(&self.brush, &self.landmarks.describe())
+        crate::brushed::Brushed::new(&self.warp.brush, &self.landmarks.describe())
     }
 
     /// What messages call the inputs, and `out`.
     #[must_use]
     pub fn names(&self, out: &Path) -> Names {
-        Names { moving: self.moving.display().to_string(), landmarks: self.landmarks.describe(), out: out.to_owned() }
+        Names {
+            moving: self.volumes.moving.display().to_string(),
+            landmarks: self.landmarks.describe(),
+            out: out.to_owned(),
+        }
     }
 
     /// Loads the fixed, moving and reference volumes ([`load_pair`], then the reference; with progress bars unless
     /// `quiet`).
     pub fn load_volumes(&self, quiet: bool) -> Result<PairVolumes> {
-        let (fixed, moving) = load_pair(&self.fixed, &self.moving, quiet)?;
+        let (fixed, moving) = load_pair(&self.volumes.fixed, &self.volumes.moving, quiet)?;
         let reference = self.reference.as_deref().map(|p| load_volume(p, quiet)).transpose()?;
         Ok(PairVolumes { fixed, moving, reference })
     }
@@ -306,42 +489,18 @@ pub fn check_pairs(
     Ok(out)
 }
 
-/// `--method` with `--stiffness` and `--levels` as a [`Method`]; `--stiffness auto` chooses λ by the leave-one-out
-/// error of the pull-back's pairs (fixed → moving; the active pairs with both points of `landmarks`), so the method
-/// names the λ chosen (`tps(λ=…)`) wherever it is reported.
-pub fn resolve_method(
-    kind: MethodKind,
-    stiffness: Stiffness,
-    levels: Option<usize>,
-    landmarks: Option<&LandmarkSource>,
-) -> Result<Method> {
-    let lambda = match stiffness {
-        Stiffness::Value(v) => v,
-        Stiffness::Auto => {
-            if kind != MethodKind::Tps {
-                return Err(anyhow!("--stiffness auto chooses the TPS's λ: it needs --method tps, not {kind}"));
-            }
-            let source = landmarks.ok_or_else(|| anyhow!("--stiffness auto needs landmark pairs to choose from"))?;
-            let pairs = source.read()?;
-            let (fixed, moving): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>) = pairs
-                .iter()
-                .filter(|p| p.active)
-                .filter_map(|p| Some((as_fixed(p.fixed?), as_moving(p.moving?))))
-                .unzip();
-            warpbench_solver::stiffness::choose_stiffness(&fixed, &moving)
-                .map_err(|e| anyhow!("{}: --stiffness auto: {e}", source.describe()))?
-                .lambda
-        }
-    };
-    method_from_args(kind, lambda, levels)
-}
-
-/// `--method` (with `--stiffness` for TPS and `--levels` for the hierarchical B-spline) as a [`Method`].
-pub fn method_from_args(kind: MethodKind, stiffness: f64, levels: Option<usize>) -> Result<Method> {
+/// A method of `kind` with a stiffness and levels that no parser has checked (a session's settings, `eval`'s
+/// flags): the stiffness must be a number ≥ 0.
+pub fn checked_method(kind: MethodKind, stiffness: f64, levels: Option<usize>) -> Result<Method> {
     if !(stiffness.is_finite() && stiffness >= 0.0) {
         return Err(anyhow!("--stiffness {stiffness} must be a number ≥ 0"));
     }
-    Ok(kind.method(stiffness, levels.unwrap_or(BSplineParams::default().levels)))
+    Ok(kind.method(stiffness, levels_or_default(levels)))
+}
+
+/// `--levels`, or the hierarchical B-spline's default.
+fn levels_or_default(levels: Option<usize>) -> usize {
+    levels.unwrap_or(BSplineParams::default().levels)
 }
 
 /// The minimum number of pairs each method needs: the solver's ([`Method::needs`]; 4 for TPS, the hierarchical

@@ -80,25 +80,6 @@ impl LandmarkOutput {
     }
 }
 
-/// Options of `warpbench landmarks`.
-#[derive(Clone, Debug)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-pub struct LandmarksOptions {
-    /// The pairs to read.
-    pub input: inputs::LandmarkSource,
-    /// The input BigWarp file's coordinates are RAS (BigWarp files say nothing about it).
-    pub ras: bool,
-    /// Where to write, if anywhere.
-    pub output: Option<LandmarkOutput>,
-    /// Write BigWarp and plain-CSV output in RAS.
-    pub out_ras: bool,
-    /// Print the pairs as JSON (schema [`SCHEMA`]) to the output.
-    pub json: bool,
-    /// Overwrite existing outputs.
-    pub force: bool,
-    pub quiet: bool,
-}
-
 /// One pair in the `--json` listing, LPS mm.
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct ListedPair {
@@ -135,10 +116,40 @@ pub struct LandmarksListing {
 }
 
 /// Runs `warpbench landmarks`: checks the outputs, reads, writes, and prints the listing (`--json`) or a table (when
-/// nothing is written) to `out`.
-pub fn run(opts: &LandmarksOptions, out: &mut dyn Write) -> Result<LandmarksListing, Failure> {
-    let input_paths = opts.input.paths();
-    if let Some(output) = &opts.output {
+/// nothing is written) to `out`, and a line per file written to stderr unless `--json` or `--quiet`.
+pub fn run(args: LandmarksArgs, out: &mut dyn Write) -> Result<LandmarksListing, Failure> {
+    let LandmarksArgs {
+        input,
+        moving_points,
+        fixed_points,
+        ras,
+        out: out_path,
+        to,
+        out_moving,
+        out_fixed,
+        out_ras,
+        report: ReportArgs { json, force, quiet },
+    } = args;
+    let input = inputs::LandmarkSource::from_args(input, moving_points, fixed_points)
+        .map_err(Failure::BadInput)?
+        .ok_or_else(|| Failure::BadInput(anyhow!("give a file of pairs, or --moving-points with --fixed-points")))?;
+    let output = match (out_path, out_moving, out_fixed) {
+        (Some(path), None, None) => {
+            let format = match to {
+                Some(f) => f,
+                None => PairFileFormat::from_name(&path)?,
+            };
+            Some(LandmarkOutput::Pairs { path, format })
+        }
+        (None, Some(moving), Some(fixed)) => Some(LandmarkOutput::SlicerPair { moving, fixed }),
+        (None, None, None) => None,
+        _ => return Err(Failure::BadInput(anyhow!("give --out, or --out-moving with --out-fixed"))),
+    };
+    if output.is_none() && out_ras {
+        return Err(Failure::BadInput(anyhow!("--out-ras applies to --out")));
+    }
+    let input_paths = input.paths();
+    if let Some(output) = &output {
         let paths = output.paths();
         if paths.len() == 2 && paths[0] == paths[1] {
             return Err(Failure::BadInput(anyhow!(
@@ -147,13 +158,13 @@ pub fn run(opts: &LandmarksOptions, out: &mut dyn Write) -> Result<LandmarksList
             )));
         }
         for p in &paths {
-            inputs::check_output(p, &input_paths, opts.force).map_err(Failure::BadInput)?;
+            inputs::check_output(p, &input_paths, force).map_err(Failure::BadInput)?;
         }
         if let LandmarkOutput::SlicerPair { moving, fixed } = output {
             for p in [moving, fixed] {
                 check_slicer_name(p)?;
             }
-            if opts.out_ras {
+            if out_ras {
                 return Err(Failure::BadInput(anyhow!(
                     "--out-ras: Slicer point lists are written in LPS and say so (coordinateSystem / CoordinateSystem), \
                      so Slicer reads them right; --out-ras is for BigWarp and plain CSV output"
@@ -161,17 +172,22 @@ pub fn run(opts: &LandmarksOptions, out: &mut dyn Write) -> Result<LandmarksList
             }
         }
     }
-    let (pairs, format) = read_pairs(&opts.input, opts.ras)?;
+    let (pairs, format) = read_pairs(&input, ras)?;
     let mut written = Vec::new();
-    if let Some(output) = &opts.output {
-        write_pairs(output, &pairs, opts.out_ras)?;
+    if let Some(output) = &output {
+        write_pairs(output, &pairs, out_ras)?;
         written = output.paths().iter().map(|p| p.display().to_string()).collect();
     }
-    let listing = listing(&opts.input, format, &pairs, written);
-    if opts.json {
+    let listing = listing(&input, format, &pairs, written);
+    if json {
         crate::exit::print_json(out, &listing, "the JSON listing")?;
-    } else if opts.output.is_none() {
+    } else if output.is_none() {
         write_table(&listing, out).context("writing the listing").map_err(Failure::Internal)?;
+    }
+    if !quiet && !json {
+        for w in &listing.written {
+            eprintln!("wrote {w} ({} pairs)", listing.count);
+        }
     }
     Ok(listing)
 }
@@ -308,8 +324,24 @@ fn write_table(l: &LandmarksListing, out: &mut dyn Write) -> std::io::Result<()>
     Ok(())
 }
 
+/// What `warpbench landmarks --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
+fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
+
+Without --out (or --out-moving/--out-fixed) and --json it prints the pairs as a table. The coordinate system
+comes from the file where it says it (Slicer files, the plain CSV's header); BigWarp files are LPS unless
+--ras (input) or --out-ras (output). Examples:
+
+    warpbench landmarks pairs.csv --json
+    warpbench landmarks pairs.csv --out pairs.json
+    warpbench landmarks pairs.json --out-moving case_moving.mrk.json --out-fixed case_fixed.mrk.json
+    warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv";
+
 /// The command line of `warpbench landmarks`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 pub struct LandmarksArgs {
     /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file) or plain CSV, told apart by
@@ -342,42 +374,4 @@ pub struct LandmarksArgs {
     pub out_ras: bool,
     #[command(flatten)]
     pub report: ReportArgs,
-}
-
-/// Runs `warpbench landmarks` from its command line, printing to stdout and a line per file written to stderr.
-pub fn run_cli(a: LandmarksArgs) -> Result<(), Failure> {
-    let input = inputs::LandmarkSource::from_args(a.input, a.moving_points, a.fixed_points)
-        .map_err(Failure::BadInput)?
-        .ok_or_else(|| Failure::BadInput(anyhow!("give a file of pairs, or --moving-points with --fixed-points")))?;
-    let output = match (a.out, a.out_moving, a.out_fixed) {
-        (Some(path), None, None) => {
-            let format = match a.to {
-                Some(f) => f,
-                None => PairFileFormat::from_name(&path)?,
-            };
-            Some(LandmarkOutput::Pairs { path, format })
-        }
-        (None, Some(moving), Some(fixed)) => Some(LandmarkOutput::SlicerPair { moving, fixed }),
-        (None, None, None) => None,
-        _ => return Err(Failure::BadInput(anyhow!("give --out, or --out-moving with --out-fixed"))),
-    };
-    if output.is_none() && a.out_ras {
-        return Err(Failure::BadInput(anyhow!("--out-ras applies to --out")));
-    }
-    let opts = LandmarksOptions {
-        input,
-        ras: a.ras,
-        output,
-        out_ras: a.out_ras,
-        json: a.report.json,
-        force: a.report.force,
-        quiet: a.report.quiet,
-    };
-    let listing = run(&opts, &mut std::io::stdout().lock())?;
-    if !opts.quiet && !opts.json {
-        for w in &listing.written {
-            eprintln!("wrote {w} ({} pairs)", listing.count);
-        }
-    }
-    Ok(())
 }

@@ -1,7 +1,8 @@
 //! # warpbench-app
 //!
-//! The `warpbench` binary's library. `main.rs` only parses arguments; each subcommand lives here
-//! as a function that takes parsed options and writes to the given output, so tests can call it.
+//! The `warpbench` binary's library. `main.rs` only parses arguments and dispatches; each subcommand lives here as a
+//! module that owns its clap `Args` (its flags, their help, its `--help` text) and a `run` that takes them and writes
+//! to the given output, so tests can call it.
 //!
 //! - [`info`]: `warpbench info <file-or-dir> [--json]`, what a volume holds and where it sits in LPS.
 //! - [`render`]: `warpbench render`, one frame (3-D view or slice) of the fixed and the deformed moving volume, with
@@ -28,7 +29,8 @@
 //!   and the command line.
 //! - [`gui`]: the workbench window (eframe): the deformed pair in a 3-D view and three slice views, the warp method
 //!   and view settings, the landmark table; the demo pair when no files are given.
-//! - [`args`]: the command-line arguments several subcommands share (the landmarks and the warp method).
+//! - [`args`]: the command-line argument groups several subcommands share (the volume pair, the landmarks, the warp
+//!   method, the report flags, the render settings), parsed once into the model's types by [`inputs`].
 //! - [`exit`]: the exit-code convention shared by every subcommand; the shared modules (`inputs`, `scene`, `fit`)
 //!   return `anyhow` errors, which the subcommands classify.
 

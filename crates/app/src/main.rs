@@ -1,21 +1,11 @@
 //! `warpbench`: parses arguments and hands them to the library (see `warpbench_app`).
 
-use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand, ValueEnum};
-use warpbench_app::args::PairArgs;
+use clap::{Parser, Subcommand};
 use warpbench_app::exit::Failure;
-use warpbench_app::field::{self, FieldOptions};
-use warpbench_app::gui::{self, GuiOptions};
-use warpbench_app::info::{self, InfoOptions};
-use warpbench_app::inputs::{LandmarkSource, OutputFile};
-use warpbench_app::procedural::ProceduralSpec;
-use warpbench_app::render::{self, CameraSpec, RenderOptions, SliceSpec};
-use warpbench_app::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading};
-use warpbench_app::warp::{self, Backend, PullBackMode, WarpInputs, WarpOptions};
-use warpbench_gpu::export::Interpolation;
-use warpbench_io::displacement::{FieldDirection, FieldFormat};
+use warpbench_app::gui::{self, GuiArgs};
+use warpbench_app::{align, eval, field, info, landmarks, points, render, suggest, transform, warp};
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
 ///
@@ -30,630 +20,24 @@ struct Cli {
     gui: GuiArgs,
 }
 
-/// The window's options (no subcommand).
-#[derive(Debug, clap::Args)]
-struct GuiArgs {
-    /// The fixed volume to open (with --moving).
-    #[arg(long, requires = "moving")]
-    fixed: Option<PathBuf>,
-    /// The moving volume to open (with --fixed).
-    #[arg(long, requires = "fixed")]
-    moving: Option<PathBuf>,
-    /// Landmark pairs (BigWarp CSV or BigWarp JSON, also a BigWarp settings file) to open with them.
-    #[arg(long, requires = "fixed")]
-    landmarks: Option<PathBuf>,
-    /// A saved session (.warpbench.json) to open: its volumes, landmarks and settings.
-    #[arg(long, conflicts_with_all = ["fixed", "moving", "landmarks"])]
-    session: Option<PathBuf>,
-    /// Save a screenshot of the window here, then close (with --exit-after-frames).
-    #[arg(long)]
-    screenshot: Option<PathBuf>,
-    /// Close the window after this many frames with the volumes shown, once they are fully rendered (smoke tests).
-    #[arg(long)]
-    exit_after_frames: Option<u32>,
-    /// Write one tab-separated line per window frame here (seconds since the window opened, the phase, what the 3-D
-    /// view shows, whether a pointer button was released, the frame's UI work in ms): for measuring the window.
-    #[arg(long, value_name = "FILE")]
-    frame_log: Option<PathBuf>,
-}
-
+/// Opens the workbench window (a screenshot closes it after 5 frames unless --exit-after-frames says otherwise).
 fn run_gui(a: GuiArgs) -> Result<(), Failure> {
-    let opts = GuiOptions {
-        fixed: a.fixed,
-        moving: a.moving,
-        landmarks: a.landmarks.map(LandmarkSource::Pairs),
-        exit_after_frames: a.exit_after_frames.or(a.screenshot.is_some().then_some(5)),
-        screenshot: a.screenshot,
-        session: a.session,
-        autosave: None,
-        frame_log: a.frame_log,
-    };
-    gui::run(opts).map_err(Failure::Internal)
+    gui::run(a.into()).map_err(Failure::Internal)
 }
 
+/// The headless subcommands: each module's `Args` says what it takes and holds its help.
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype, value range,
-    /// modality and series.
-    ///
-    /// Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), a DICOM series folder or one DICOM file.
-    /// A folder with several series lists them. Example:
-    ///
-    ///     warpbench info tests/data/nifti/ch2.nii.gz --json
-    #[command(verbatim_doc_comment)]
-    Info {
-        /// A volume file or a DICOM series folder.
-        path: PathBuf,
-        /// Machine-readable output (schema warpbench-info/1, see docs/cli.md).
-        #[arg(long)]
-        json: bool,
-        /// For a 4-D NIfTI: the frame (t index) to read.
-        #[arg(long)]
-        frame: Option<usize>,
-        /// For a folder with several DICOM series: the SeriesInstanceUID to read.
-        #[arg(long)]
-        series: Option<String>,
-        /// No progress bar.
-        #[arg(long, short)]
-        quiet: bool,
-    },
-    /// Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
-    /// field (--field), and write a NIfTI (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
-    ///
-    /// The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
-    /// app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
-    /// any flavour warpbench field writes (ITK NIfTI DISPVECT, ANTs NIfTI VECTOR, Slicer NRRD): u(x) = x + D(x),
-    /// D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. Examples:
-    ///
-    ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
-    ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
-    ///     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --exact --out mr_in_ct.nii.gz
-    #[command(verbatim_doc_comment)]
-    Warp(Box<WarpArgs>),
-    /// Measure how well a landmark warp recovers a known synthetic deformation of a real volume: TRE at held-out
-    /// foreground points, leave-one-out, inverse consistency, folding, and NCC/RMSE against the ground truth.
-    ///
-    /// The volume is deformed by a seeded synthetic warp, landmark pairs are sampled in its foreground, the warp is
-    /// fitted, and the fit is compared with the truth (docs/accuracy.md has the definitions). --max-tre-mm gates
-    /// the result (exit 3); --suite runs the grid kinds × N × methods. Examples:
-    ///
-    ///     warpbench eval --volume tests/data/nifti/avg152T1_LR_nifti.nii --kind sine --amplitude-mm 5 --landmarks 50
-    ///     warpbench eval --volume mr.nii.gz --kind bump --landmarks 20 --on-features --max-tre-mm 2 --json eval.json
-    ///     warpbench eval --volume mr.nii.gz --suite --suite-md docs/accuracy.md --json suite.json
-    #[command(verbatim_doc_comment)]
-    Eval(Box<EvalArgs>),
-    /// Render one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to PNG,
-    /// headless, with the app's renderer.
-    ///
-    /// With --moving and landmarks the moving volume is pulled back through the fitted warp and the landmark pairs
-    /// are drawn (fixed points blue, moving points orange where the warp shows them); with --field instead, through
-    /// that pull-back displacement field, without glyphs. --slice draws a slice of the fixed grid instead of the
-    /// 3-D view. Examples:
-    ///
-    ///     warpbench render --fixed ct.nii.gz --out ct.png
-    ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --blend checkerboard --out pair.png
-    ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
-    ///     warpbench render --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --slice axial --out ax.png
-    #[command(verbatim_doc_comment)]
-    Render(Box<RenderArgs>),
-    /// Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
-    /// transform as an ITK transform file.
-    ///
-    /// --direction pullback (default): at each voxel centre x of the fixed grid (or --reference's) the field holds
-    /// u(x) − x, u = moving_from_fixed fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform
-    /// maps fixed point x to moving point x + D(x), what resampling the moving volume needs. --direction forward: on
-    /// the moving grid (or --reference's), d(y) − y, d = fixed_from_moving: a moving point y goes to y + D(y), what
-    /// moving points or meshes needs.
-    ///
-    /// --format itk (default): NIfTI intent DISPVECT (1006), vectors in RAS, as ITK ≥ 5.3 and Slicer read it;
-    /// --format ants: NIfTI intent VECTOR (1007), vectors in LPS, what antsApplyTransforms reads; --format nrrd: a NRRD
-    /// vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling).
-    /// Examples:
-    ///
-    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
-    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
-    ///     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm
-    #[command(verbatim_doc_comment)]
-    Field(Box<FieldArgs>),
-    /// Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
-    /// in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
-    ///
-    /// Say which volume the points are in, and that is all: --from moving maps a point p of the moving volume by
-    /// d = fixed_from_moving to where the warped volume (`warpbench warp`) shows it; --from fixed maps a point x of
-    /// the fixed volume by u = moving_from_fixed to the moving point the warped volume shows at x. (ANTs's
-    /// antsApplyTransformsToPoints needs the inverse of the transform that resamples the image; here there is none
-    /// to choose.) d and u are fitted separately, so u(d(p)) = p only to within the warp's inverse consistency.
-    /// Points outside their volume's box are mapped by extrapolation, with a warning. CSV point lists and BigWarp
-    /// files are LPS mm unless --ras; Slicer files say their own coordinate system, which the output keeps. In a
-    /// BigWarp file of pairs the --from side is read and the other side replaced by its image. Example: a lesion
-    /// marked at (12.5, -30, 8) mm LPS on the moving MRI, line `12.5,-30,8,lesion` of lesion_mr.csv:
-    ///
-    ///     warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from moving --in lesion_mr.csv --out lesion_ct.csv
-    ///     warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from fixed --in targets_ct.mrk.json --out targets_mr.mrk.json --json
-    ///
-    /// lesion_ct.csv then holds the lesion where it lies in the CT (and in mr_in_ct.nii.gz from `warpbench warp`).
-    #[command(verbatim_doc_comment)]
-    Points(Box<warpbench_app::points::PointsArgs>),
-    /// Write the landmark warp as an ITK transform file (.tfm), the exact transform instead of a sampled field: TPS
-    /// as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
-    /// B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
-    /// identity outside it), affine, similarity and rigid as AffineTransform_double_3_3.
-    ///
-    /// The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): what ITK's ResampleImageFilter,
-    /// antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
-    /// and B-spline files; Slicer reads all three (Data > Add data, then apply the transform to the moving volume).
-    ///
-    ///     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
-    #[command(verbatim_doc_comment)]
-    Transform(Box<warpbench_app::transform::TransformArgs>),
-    /// Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
-    /// fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
-    ///
-    /// Without --out (or --out-moving/--out-fixed) and --json it prints the pairs as a table. The coordinate system
-    /// comes from the file where it says it (Slicer files, the plain CSV's header); BigWarp files are LPS unless
-    /// --ras (input) or --out-ras (output). Examples:
-    ///
-    ///     warpbench landmarks pairs.csv --json
-    ///     warpbench landmarks pairs.csv --out pairs.json
-    ///     warpbench landmarks pairs.json --out-moving case_moving.mrk.json --out-fixed case_fixed.mrk.json
-    ///     warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv
-    #[command(verbatim_doc_comment)]
-    Landmarks(Box<warpbench_app::landmarks::LandmarksArgs>),
-    /// Align the moving volume to the fixed one automatically, by intensities, and write the result as an ITK
-    /// transform file.
-    ///
-    /// Rigid (6 parameters), or with --affine rigid then affine (12), maximising the Mattes mutual information of the
-    /// two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1), from their centres of mass.
-    /// The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
-    /// writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. Examples:
-    ///
-    ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
-    ///     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json
-    #[command(verbatim_doc_comment)]
-    Align(Box<warpbench_app::align::AlignArgs>),
-    /// Suggest the fixed point of each moving point of a list: the current warp's prediction, refined by a local
-    /// search for the best match of the moving point's surroundings (normalised gradient fields, so an MRI point
-    /// finds its CT target), with a confidence.
-    ///
-    /// The current warp is the landmarks' (--landmarks or --session, with --method and --initial as for warp),
-    /// the starting transform alone (--initial), or the identity. The output is a BigWarp file of pairs (moving
-    /// point, suggested fixed point); a suggestion of low confidence is written inactive, one that failed (a patch
-    /// outside a volume) without a fixed point. --json gives each point's suggestion, prediction, confidence and
-    /// search radius. Examples:
-    ///
-    ///     warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --points mr_points.csv --out suggested.csv --json
-    ///     warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --points mr_points.csv --out suggested.csv
-    #[command(verbatim_doc_comment)]
-    Suggest(Box<warpbench_app::suggest::SuggestArgs>),
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum InterpArg {
-    Nearest,
-    Linear,
-    Cubic,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum BackendArg {
-    Auto,
-    Cpu,
-    Gpu,
-}
-
-#[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct WarpArgs {
-    /// The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume, resampled.
-    #[arg(long)]
-    moving: PathBuf,
-    #[command(flatten)]
-    pairs: PairArgs,
-    /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
-    field: Option<PathBuf>,
-    /// Control-texture texels per axis over the output grid (2..=256).
-    #[arg(long, default_value_t = 64, conflicts_with = "exact")]
-    grid: usize,
-    /// Evaluate the pull-back exactly at every voxel (TPS, the linear warps, a field) instead of a control texture.
-    #[arg(long)]
-    exact: bool,
-    /// Interpolation: nearest, linear (trilinear) or cubic (Catmull-Rom).
-    #[arg(long, value_enum, default_value = "linear")]
-    interp: InterpArg,
-    /// Where to resample: auto (the path expected to be faster for this size on this machine: the CPU without a
-    /// hardware GPU), cpu or gpu.
-    #[arg(long, value_enum, default_value = "auto")]
-    backend: BackendArg,
-    /// Write f32 samples instead of the moving volume's type (rounded half to even and clamped).
-    #[arg(long)]
-    float: bool,
-    /// Another volume whose grid the output takes instead of the fixed volume's.
-    #[arg(long)]
-    reference: Option<PathBuf>,
-    /// The value of voxels that map outside the moving volume (default −1024 for a CT, else 0).
-    #[arg(long, allow_hyphen_values = true)]
-    outside: Option<f64>,
-    /// The NIfTI to write (.nii or .nii.gz).
-    #[arg(long)]
-    out: PathBuf,
-    /// Also write the result as a DICOM series (new UIDs) into this new folder.
-    #[arg(long)]
-    out_dicom: Option<PathBuf>,
-    /// Print a JSON report (schema warpbench-warp/1) to stdout.
-    #[arg(long)]
-    json: bool,
-    /// Overwrite --out if it exists.
-    #[arg(long)]
-    force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-fn run_warp(a: WarpArgs) -> Result<(), Failure> {
-    let opts = WarpOptions {
-        inputs: WarpInputs::from_args(a.pairs, a.field, a.fixed, a.moving, a.reference)?,
-        pullback: if a.exact { PullBackMode::Exact } else { PullBackMode::Grid(a.grid) },
-        interpolation: match a.interp {
-            InterpArg::Nearest => Interpolation::Nearest,
-            InterpArg::Linear => Interpolation::Trilinear,
-            InterpArg::Cubic => Interpolation::CatmullRom,
-        },
-        backend: match a.backend {
-            BackendArg::Auto => Backend::Auto,
-            BackendArg::Cpu => Backend::Cpu,
-            BackendArg::Gpu => Backend::Gpu,
-        },
-        float: a.float,
-        outside_value: a.outside,
-        out: OutputFile { path: a.out, force: a.force },
-        out_dicom: a.out_dicom,
-        quiet: a.quiet,
-    };
-    let report = warp::run(&opts)?;
-    if a.json {
-        let text = serde_json::to_string_pretty(&report).map_err(|e| Failure::Internal(e.into()))?;
-        println!("{text}");
-    } else if !opts.quiet {
-        let warp = match &report.field {
-            Some(field) => format!("field {field}"),
-            None => format!("{} pairs", report.pairs),
-        };
-        eprintln!(
-            "wrote {} ({}×{}×{} {}, {warp}, {}, {})",
-            report.out, report.dims[0], report.dims[1], report.dims[2], report.dtype, report.pullback, report.backend
-        );
-    }
-    Ok(())
-}
-
-#[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct RenderArgs {
-    /// The fixed volume (the render space): NIfTI, NRRD or a DICOM series folder.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume, shown deformed by the landmark warp.
-    #[arg(long)]
-    moving: Option<PathBuf>,
-    #[command(flatten)]
-    pairs: PairArgs,
-    /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
-    /// or NRRD); no glyphs are drawn.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
-    field: Option<PathBuf>,
-    /// Control-texture texels per axis over the fixed box (2..=256).
-    #[arg(long, default_value_t = 64)]
-    grid: usize,
-    /// How the fixed and the deformed moving volume combine.
-    #[arg(long, value_enum, default_value_t)]
-    blend: Blend,
-    /// Moving weight of the mix blend (0..1).
-    #[arg(long, default_value_t = 0.5)]
-    mix_weight: f32,
-    /// Checkerboard cell size (mm).
-    #[arg(long, default_value_t = 12.0)]
-    checker_mm: f32,
-    /// Fixed volume preset (default: from the data).
-    #[arg(long, value_enum)]
-    preset: Option<Preset>,
-    /// Moving volume preset (default: from the data).
-    #[arg(long, value_enum)]
-    moving_preset: Option<Preset>,
-    /// Lighting: none, dvr (shaded volume rendering) or iso (first surface).
-    #[arg(long, value_enum, default_value_t)]
-    shading: Shading,
-    /// Camera as az,el or az,el,dist: degrees about the superior axis and above the horizon, distance in mm.
-    #[arg(long)]
-    camera: Option<CameraSpec>,
-    /// Perspective projection (default orthographic).
-    #[arg(long)]
-    perspective: bool,
-    /// Image size WxH (3-D view; a slice has its grid's size).
-    #[arg(long, default_value = "512x512", value_parser = render::parse_size)]
-    size: (u32, u32),
-    /// Samples per voxel along each ray.
-    #[arg(long, default_value_t = 1.0)]
-    samples_per_voxel: f32,
-    /// A slice of the fixed grid instead of the 3-D view: axial, coronal or sagittal, optionally with :POS in mm
-    /// (e.g. axial:40; default the centre).
-    #[arg(long)]
-    slice: Option<SliceSpec>,
-    /// Deform the moving volume in the shader: eval's synthetic warp of this kind (sine, twist, bend, bump) over the
-    /// moving volume's box, or a shift; read at p(u(x)) after the landmark warp u. --moving V --fixed V shows the
-    /// volume eval --kind K --amplitude-mm A --seed S tests.
-    #[arg(long, value_enum)]
-    procedural: Option<ProceduralKind>,
-    /// The procedural deformation's largest displacement over the moving volume's box (mm), as eval's --amplitude-mm.
-    #[arg(long, default_value_t = 5.0, requires = "procedural")]
-    procedural_amplitude_mm: f64,
-    /// The procedural deformation's seed, as eval's --seed.
-    #[arg(long, default_value_t = 1, requires = "procedural")]
-    procedural_seed: u64,
-    /// Leave out the landmark glyphs.
-    #[arg(long)]
-    no_glyphs: bool,
-    /// The PNG to write.
-    #[arg(long)]
-    out: PathBuf,
-    /// Overwrite --out if it exists.
-    #[arg(long)]
-    force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-#[derive(Debug, clap::Args)]
-struct FieldArgs {
-    /// The fixed volume: its grid is the field's grid unless --reference is given.
-    #[arg(long)]
-    fixed: PathBuf,
-    /// The moving volume (landmarks are checked against it).
-    #[arg(long)]
-    moving: PathBuf,
-    #[command(flatten)]
-    pairs: PairArgs,
-    /// Sample the field on this volume's grid instead of the fixed volume's.
-    #[arg(long)]
-    reference: Option<PathBuf>,
-    /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform).
-    #[arg(long)]
-    tfm: Option<PathBuf>,
-    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
-    #[arg(long, value_enum, default_value = "itk")]
-    format: FieldFormatArg,
-    /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
-    #[arg(long, value_enum, default_value = "pullback")]
-    direction: FieldDirectionArg,
-    /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd).
-    #[arg(long)]
-    out: PathBuf,
-    /// Print a JSON summary (schema warpbench-field/1, see docs/cli.md) to stdout.
-    #[arg(long)]
-    json: bool,
-    /// Overwrite --out (and --tfm) if they exist.
-    #[arg(long)]
-    force: bool,
-    /// No progress bars or messages.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum FieldFormatArg {
-    Itk,
-    Ants,
-    Nrrd,
-}
-
-#[derive(Debug, Clone, Copy, ValueEnum)]
-enum FieldDirectionArg {
-    Pullback,
-    Forward,
-}
-
-fn run_field(a: FieldArgs) -> Result<(), Failure> {
-    let opts = FieldOptions {
-        inputs: a.pairs.inputs(a.fixed, a.moving, a.reference)?,
-        out: OutputFile { path: a.out, force: a.force },
-        format: match a.format {
-            FieldFormatArg::Itk => FieldFormat::Itk,
-            FieldFormatArg::Ants => FieldFormat::Ants,
-            FieldFormatArg::Nrrd => FieldFormat::Nrrd,
-        },
-        direction: match a.direction {
-            FieldDirectionArg::Pullback => FieldDirection::Pullback,
-            FieldDirectionArg::Forward => FieldDirection::Forward,
-        },
-        tfm: a.tfm,
-        json: a.json,
-        quiet: a.quiet,
-    };
-    let done = field::run(&opts, &mut std::io::stdout().lock())?;
-    if !opts.quiet && !opts.json {
-        let d = done.dims;
-        eprintln!(
-            "wrote {} ({} {} field, {}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
-            done.out, done.format, done.direction, d[0], d[1], d[2], done.pairs, done.method, done.max_displacement_mm
-        );
-        if let Some(tfm) = &done.tfm {
-            eprintln!("wrote {tfm}");
-        }
-    }
-    Ok(())
-}
-
-fn run_render(a: RenderArgs) -> Result<(), Failure> {
-    let landmarks = a.pairs.source()?;
-    let warp = a.pairs.warp()?;
-    let opts = RenderOptions {
-        fixed: a.fixed,
-        moving: a.moving,
-        landmarks,
-        field: a.field,
-        method: warp.method,
-        stiffness: warp.stiffness,
-        levels: warp.levels,
-        brush: warp.brush,
-        initial: warp.initial,
-        session_start: warp.session_start,
-        grid: a.grid,
-        blend: a.blend,
-        mix_weight: a.mix_weight,
-        checker_mm: a.checker_mm,
-        preset: a.preset,
-        moving_preset: a.moving_preset,
-        shading: a.shading,
-        camera: a.camera,
-        perspective: a.perspective,
-        size: a.size,
-        samples_per_voxel: a.samples_per_voxel,
-        slice: a.slice,
-        procedural: a.procedural.map(|kind| ProceduralSpec {
-            kind,
-            amplitude_mm: a.procedural_amplitude_mm,
-            seed: a.procedural_seed,
-        }),
-        glyphs: !a.no_glyphs,
-        out: OutputFile { path: a.out, force: a.force },
-        quiet: a.quiet,
-    };
-    let done = render::run(&opts)?;
-    if !opts.quiet {
-        let warp = match &opts.field {
-            Some(field) => format!("field {}", field.display()),
-            None => format!("{} landmark pairs", done.pairs),
-        };
-        eprintln!("wrote {} ({}×{}, {warp}, {})", opts.out.path.display(), done.size.0, done.size.1, done.adapter);
-    }
-    Ok(())
-}
-
-#[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
-struct EvalArgs {
-    /// The real volume to deform (NIfTI, NRRD or a DICOM series folder); it is also the ground truth.
-    #[arg(long)]
-    volume: PathBuf,
-    /// The synthetic warp: sine, twist, bend, bump, tps-random or bspline-random.
-    #[arg(long, default_value = "sine")]
-    kind: String,
-    /// The warp's largest displacement, mm.
-    #[arg(long, default_value_t = 10.0)]
-    amplitude_mm: f64,
-    /// Landmark pairs N.
-    #[arg(long, default_value_t = 50)]
-    landmarks: usize,
-    /// The fitted warp.
-    #[arg(long, value_enum, default_value_t)]
-    method: MethodKind,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks).
-    #[arg(long, default_value_t = 0.0)]
-    stiffness: f64,
-    /// Hierarchical B-spline levels.
-    #[arg(long)]
-    levels: Option<usize>,
-    /// Seed of the warp, the landmarks and the held-out points.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
-    /// Place landmarks on strong-gradient voxels (at least a spacing apart) instead of at random.
-    #[arg(long)]
-    on_features: bool,
-    /// Held-out foreground points for the TRE (at least 1000).
-    #[arg(long, default_value_t = warpbench_app::eval::MIN_HELD_OUT)]
-    held_out: usize,
-    /// Control-texture texels per axis for the recovered volume (2..=256).
-    #[arg(long, default_value_t = 64)]
-    grid: usize,
-    /// Write the report as JSON (schema warpbench-eval/1, or warpbench-eval-suite/1 with --suite; docs/cli.md).
-    #[arg(long)]
-    json: Option<PathBuf>,
-    /// Overwrite --json if it exists.
-    #[arg(long)]
-    force: bool,
-    /// Exit with code 3 when the TRE statistic (--gate-statistic) exceeds this, mm.
-    #[arg(long)]
-    max_tre_mm: Option<f64>,
-    /// The TRE statistic --max-tre-mm gates: mean, median, p95 or max.
-    #[arg(long, default_value = "p95")]
-    gate_statistic: warpbench_app::eval::TreStatistic,
-    /// Run the grid kinds × N × methods instead of one evaluation.
-    #[arg(long)]
-    suite: bool,
-    /// Suite kinds (comma-separated; default all six).
-    #[arg(long, value_delimiter = ',', requires = "suite")]
-    suite_kinds: Option<Vec<String>>,
-    /// Suite landmark counts (comma-separated; default 10,20,50,100,200).
-    #[arg(long, value_delimiter = ',', requires = "suite")]
-    suite_n: Option<Vec<usize>>,
-    /// Suite methods (comma-separated; default all five).
-    #[arg(long, value_enum, value_delimiter = ',', requires = "suite")]
-    suite_methods: Option<Vec<MethodKind>>,
-    /// Markdown file whose generated suite section is replaced (default: print the section).
-    #[arg(long, requires = "suite")]
-    suite_md: Option<PathBuf>,
-    /// How the suite's markdown describes the machine (default: the thread count).
-    #[arg(long, requires = "suite")]
-    machine: Option<String>,
-    /// No progress bars.
-    #[arg(long, short)]
-    quiet: bool,
-}
-
-fn run_eval(a: EvalArgs) -> Result<(), Failure> {
-    use warpbench_app::eval::{self, EvalOptions, SuiteOptions};
-    let suite = a.suite.then(|| {
-        let standard = SuiteOptions::standard();
-        SuiteOptions {
-            kinds: a.suite_kinds.unwrap_or(standard.kinds),
-            landmark_counts: a.suite_n.unwrap_or(standard.landmark_counts),
-            methods: a.suite_methods.unwrap_or(standard.methods),
-            markdown: a.suite_md,
-            machine: a.machine,
-        }
-    });
-    let opts = EvalOptions {
-        volume: a.volume,
-        kind: a.kind,
-        amplitude_mm: a.amplitude_mm,
-        landmarks: a.landmarks,
-        method: a.method,
-        stiffness: a.stiffness,
-        levels: a.levels,
-        seed: a.seed,
-        on_features: a.on_features,
-        held_out: a.held_out,
-        grid: a.grid,
-        json: a.json,
-        force: a.force,
-        max_tre_mm: a.max_tre_mm,
-        gate_statistic: a.gate_statistic,
-        suite,
-        quiet: a.quiet,
-    };
-    eval::run(&opts, &mut std::io::stdout().lock())
-}
-
-/// The failure's message for stderr: the error and its causes joined with ": ", each once. (An error that shows
-/// its source in its own text, as an I/O error does with the OS error, would otherwise print it twice.)
-fn message(error: &anyhow::Error) -> String {
-    let mut text = String::new();
-    for cause in error.chain() {
-        let part = cause.to_string();
-        if text.contains(&part) {
-            continue;
-        }
-        if !text.is_empty() {
-            text.push_str(": ");
-        }
-        text.push_str(&part);
-    }
-    text
+    Info(info::InfoArgs),
+    Warp(Box<warp::WarpArgs>),
+    Eval(Box<eval::EvalArgs>),
+    Render(Box<render::RenderArgs>),
+    Field(Box<field::FieldArgs>),
+    Points(Box<points::PointsArgs>),
+    Transform(Box<transform::TransformArgs>),
+    Landmarks(Box<landmarks::LandmarksArgs>),
+    Align(Box<align::AlignArgs>),
+    Suggest(Box<suggest::SuggestArgs>),
 }
 
 /// Keeps a headless command's GPU probe quiet. Mesa's Vulkan device-select layer (an implicit layer the Vulkan
@@ -671,7 +55,7 @@ fn quiet_headless_gpu_probe() {
         absolute("XDG_RUNTIME_DIR") || absolute("WAYLAND_DISPLAY") || var("WAYLAND_SOCKET").is_some();
     let user_chose = ["NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "DRI_PRIME"].into_iter().any(|v| var(v).is_some());
     if !compositor_reachable && !user_chose {
-        // SAFETY: called from `main` after parsing the arguments and before anything else: no other thread exists
+        // SAFETY: called from `run` after parsing the arguments and before anything else: no other thread exists
         // yet, so nothing reads or writes the environment at the same time.
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
@@ -698,37 +82,35 @@ fn remove_temporaries_on_signals() {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let Some(command) = cli.command else {
-        return match run_gui(cli.gui) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(f) => {
-                eprintln!("warpbench: {}", message(f.error()));
-                f.code()
-            }
-        };
-    };
-    quiet_headless_gpu_probe();
-    #[cfg(unix)]
-    remove_temporaries_on_signals();
-    let result = match command {
-        Command::Info { path, json, frame, series, quiet } => {
-            info::run(&InfoOptions { path, json, frame, series, quiet }, &mut std::io::stdout().lock())
-        }
-        Command::Warp(args) => run_warp(*args),
-        Command::Eval(args) => run_eval(*args),
-        Command::Render(args) => run_render(*args),
-        Command::Field(args) => run_field(*args),
-        Command::Points(args) => warpbench_app::points::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Transform(args) => warpbench_app::transform::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Landmarks(args) => warpbench_app::landmarks::run_cli(*args),
-        Command::Align(args) => warpbench_app::align::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
-        Command::Suggest(args) => warpbench_app::suggest::run(*args, &mut std::io::stdout().lock()).map(|_| ()),
+    let result = match cli.command {
+        None => run_gui(cli.gui),
+        Some(command) => run(command),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
-            eprintln!("warpbench: {}", message(f.error()));
+            eprintln!("warpbench: {}", f.message());
             f.code()
         }
+    }
+}
+
+/// Runs a headless subcommand, its output on stdout.
+fn run(command: Command) -> Result<(), Failure> {
+    quiet_headless_gpu_probe();
+    #[cfg(unix)]
+    remove_temporaries_on_signals();
+    let stdout = &mut std::io::stdout().lock();
+    match command {
+        Command::Info(args) => info::run(&args, stdout),
+        Command::Warp(args) => warp::run(*args, stdout).map(|_| ()),
+        Command::Eval(args) => eval::run(&args, stdout),
+        Command::Render(args) => render::run(*args).map(|_| ()),
+        Command::Field(args) => field::run(*args, stdout).map(|_| ()),
+        Command::Points(args) => points::run(*args, stdout).map(|_| ()),
+        Command::Transform(args) => transform::run(*args, stdout).map(|_| ()),
+        Command::Landmarks(args) => landmarks::run(*args, stdout).map(|_| ()),
+        Command::Align(args) => align::run(*args, stdout).map(|_| ()),
+        Command::Suggest(args) => suggest::run(*args, stdout).map(|_| ()),
     }
 }

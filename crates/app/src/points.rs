@@ -36,10 +36,10 @@ use warpbench_io::landmarks::{PointFile, PointFileFormat, PointFileOptions, read
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
-use crate::args::{PairArgs, ReportArgs};
+use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::fit;
-use crate::inputs::{self, OutputFile, PairVolumes};
+use crate::inputs::{self, OutputFile, PairInputs, PairVolumes};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-points/1";
@@ -81,17 +81,37 @@ impl Side {
     }
 }
 
+/// What `warpbench points --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
+in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
+
+Say which volume the points are in, and that is all: --from moving maps a point p of the moving volume by
+d = fixed_from_moving to where the warped volume (`warpbench warp`) shows it; --from fixed maps a point x of
+the fixed volume by u = moving_from_fixed to the moving point the warped volume shows at x. (ANTs's
+antsApplyTransformsToPoints needs the inverse of the transform that resamples the image; here there is none
+to choose.) d and u are fitted separately, so u(d(p)) = p only to within the warp's inverse consistency.
+Points outside their volume's box are mapped by extrapolation, with a warning. CSV point lists and BigWarp
+files are LPS mm unless --ras; Slicer files say their own coordinate system, which the output keeps. In a
+BigWarp file of pairs the --from side is read and the other side replaced by its image. Example: a lesion
+marked at (12.5, -30, 8) mm LPS on the moving MRI, line `12.5,-30,8,lesion` of lesion_mr.csv:
+
+    warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from moving --in lesion_mr.csv --out lesion_ct.csv
+    warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from fixed --in targets_ct.mrk.json --out targets_mr.mrk.json --json
+
+lesion_ct.csv then holds the lesion where it lies in the CT (and in mr_in_ct.nii.gz from `warpbench warp`).";
+
 /// The arguments of `warpbench points`.
 #[derive(Debug, clap::Args)]
-#[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and, with --from fixed, the points"),
+    ("moving", "The moving volume: its box checks the landmarks and, with --from moving, the points"),
+])))]
 pub struct PointsArgs {
-    /// The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and, with --from
-    /// fixed, the points.
-    #[arg(long)]
-    pub fixed: PathBuf,
-    /// The moving volume: its box checks the landmarks and, with --from moving, the points.
-    #[arg(long)]
-    pub moving: PathBuf,
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
     /// The volume the points are in: moving (mapped by d = fixed_from_moving into the fixed space) or fixed
@@ -157,9 +177,9 @@ pub struct MappedPoint {
 /// Runs `warpbench points`: checks the output, reads the points, loads the pair, fits, maps, writes; prints the
 /// JSON report to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failure> {
-    let PointsArgs { fixed, moving, pairs, from, input, out: out_path, ras, report: ReportArgs { json, force, quiet } } =
+    let PointsArgs { volumes, pairs, from, input, out: out_path, ras, report: ReportArgs { json, force, quiet } } =
         args;
-    let inputs = pairs.inputs(fixed, moving, None)?;
+    let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
     let mut input_paths = inputs.paths();
     input_paths.push(&input);
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
@@ -175,10 +195,9 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     }
 
     let PairVolumes { fixed, moving, .. } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
-    let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;
     let c = inputs::check_pairs(
         &inputs.landmarks.describe(),
-        &landmark_pairs,
+        inputs.pairs().map_err(Failure::BadInput)?,
         &moving,
         &fixed,
         crate::start::min_pairs(&method, start.as_ref()),
@@ -197,13 +216,13 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
             let fixed_from_moving = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving), layers)
                 .map_err(Failure::BadInput)?;
             fixed_from_moving.apply_batch_raw(&xs, &mut ys);
-            (&moving, &inputs.moving)
+            (&moving, &inputs.volumes.moving)
         }
         Side::Fixed => {
             let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&fixed), layers)
                 .map_err(Failure::BadInput)?;
             moving_from_fixed.apply_batch_raw(&xs, &mut ys);
-            (&fixed, &inputs.fixed)
+            (&fixed, &inputs.volumes.fixed)
         }
     };
     if let Some(k) = ys.iter().position(|y| !y.iter().all(|v| v.is_finite())) {

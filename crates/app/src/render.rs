@@ -25,113 +25,58 @@ use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
+use crate::args::{PairArgs, RenderSettingsArgs, SliceSpec};
 use crate::brushed::Brushed;
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkSource, OutputFile};
-use crate::procedural::ProceduralSpec;
+use crate::inputs::{self, LandmarkWarp, OutputFile};
 use crate::project::stack::Layers;
 use crate::{fit, scene, settings};
 
-/// Which slice of the fixed grid `--slice` asks for.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum SliceSpec {
-    Axial(f64),
-    Coronal(f64),
-    Sagittal(f64),
-}
+/// What `warpbench render --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Render one frame of the fixed volume, or of the fixed and the deformed moving volume blended, to PNG,
+headless, with the app's renderer.
 
-impl std::str::FromStr for SliceSpec {
-    type Err = String;
-    /// `axial:POS`, `coronal:POS` or `sagittal:POS`, POS in mm along S, P or L; a bare name is the centre.
-    fn from_str(s: &str) -> Result<Self, String> {
-        let (name, pos) = s.split_once(':').unwrap_or((s, "nan"));
-        let pos: f64 = if pos == "nan" {
-            f64::NAN
-        } else {
-            pos.parse().map_err(|_| format!("slice position {pos:?} is not a number (mm)"))?
-        };
-        match name {
-            "axial" => Ok(Self::Axial(pos)),
-            "coronal" => Ok(Self::Coronal(pos)),
-            "sagittal" => Ok(Self::Sagittal(pos)),
-            _ => Err(format!("slice {name:?}: use axial, coronal or sagittal, optionally with :POS in mm")),
-        }
-    }
-}
+With --moving and landmarks the moving volume is pulled back through the fitted warp and the landmark pairs
+are drawn (fixed points blue, moving points orange where the warp shows them); with --field instead, through
+that pull-back displacement field, without glyphs. --slice draws a slice of the fixed grid instead of the
+3-D view. Examples:
 
-/// `--camera az,el[,dist]`: azimuth and elevation in degrees, distance from the target in mm.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CameraSpec {
-    pub azimuth_deg: f32,
-    pub elevation_deg: f32,
-    pub distance_mm: Option<f32>,
-}
+    warpbench render --fixed ct.nii.gz --out ct.png
+    warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --blend checkerboard --out pair.png
+    warpbench render --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --slice axial:40 --out ax.png
+    warpbench render --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --slice axial --out ax.png";
 
-impl std::str::FromStr for CameraSpec {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        let parts: Vec<f32> = s
-            .split(',')
-            .map(|p| p.trim().parse::<f32>().map_err(|_| format!("camera value {p:?} is not a number")))
-            .collect::<Result<_, _>>()?;
-        match parts[..] {
-            [az, el] if az.is_finite() && el.is_finite() => {
-                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: None })
-            }
-            [az, el, d] if az.is_finite() && el.is_finite() && d.is_finite() && d > 0.0 => {
-                Ok(Self { azimuth_deg: az, elevation_deg: el, distance_mm: Some(d) })
-            }
-            _ => Err(format!("--camera {s:?}: give az,el or az,el,dist (degrees, degrees, mm > 0)")),
-        }
-    }
-}
-
-/// `--size WxH`.
-pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
-    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("--size {s:?}: use WxH, e.g. 512x512"))?;
-    let parse = |v: &str| v.parse::<u32>().ok().filter(|n| (1..=8192).contains(n));
-    match (parse(w), parse(h)) {
-        (Some(w), Some(h)) => Ok((w, h)),
-        _ => Err(format!("--size {s:?}: width and height must be 1..8192")),
-    }
-}
-
-/// Options of `warpbench render`.
-#[derive(Clone, Debug)]
-pub struct RenderOptions {
+/// The arguments of `warpbench render`.
+#[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+pub struct RenderArgs {
+    /// The fixed volume (the render space): NIfTI, NRRD or a DICOM series folder.
+    #[arg(long)]
     pub fixed: PathBuf,
+    /// The moving volume, shown deformed by the landmark warp.
+    #[arg(long)]
     pub moving: Option<PathBuf>,
-    pub landmarks: Option<LandmarkSource>,
-    /// A pull-back displacement field to show the moving volume through, instead of landmarks.
+    #[command(flatten)]
+    pub pairs: PairArgs,
+    /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
+    /// or NRRD); no glyphs are drawn.
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     pub field: Option<PathBuf>,
-    pub method: settings::MethodKind,
-    pub stiffness: crate::settings::Stiffness,
-    pub levels: Option<usize>,
-    /// Brush strokes on top of the landmark warp (a session's, [`crate::brushed`]).
-    pub brush: Vec<warpbench_solver::brush::BrushStroke>,
-    /// The starting transform's file under the landmark warp (`--initial`, [`crate::start`]).
-    pub initial: Option<std::path::PathBuf>,
-    /// A session's starting transform (`--session`), instead of a file.
-    pub session_start: Option<Box<crate::start::Start>>,
+    /// Control-texture texels per axis over the fixed box (2..=256).
+    #[arg(long, default_value_t = 64)]
     pub grid: usize,
-    pub blend: settings::Blend,
-    /// The moving weight of [`settings::Blend::Mix`], clamped to 0..1.
-    pub mix_weight: f32,
-    /// The cell of [`settings::Blend::Checkerboard`] (mm, at least 0.1).
-    pub checker_mm: f32,
-    /// The presets; `None`: chosen from the data ([`scene::auto_style`]).
-    pub preset: Option<settings::Preset>,
-    pub moving_preset: Option<settings::Preset>,
-    pub shading: settings::Shading,
-    pub camera: Option<CameraSpec>,
-    pub perspective: bool,
-    pub size: (u32, u32),
-    pub samples_per_voxel: f32,
-    pub slice: Option<SliceSpec>,
-    /// The moving volume's procedural deformation ([`crate::procedural`]).
-    pub procedural: Option<ProceduralSpec>,
-    pub glyphs: bool,
-    pub out: OutputFile,
+    #[command(flatten)]
+    pub settings: RenderSettingsArgs,
+    /// The PNG to write.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Overwrite --out if it exists.
+    #[arg(long)]
+    pub force: bool,
+    /// No progress bars or messages.
+    #[arg(long, short)]
     pub quiet: bool,
 }
 
@@ -184,76 +129,90 @@ fn gpu_failure(e: warpbench_gpu::GpuError) -> Failure {
     Failure::Internal(anyhow::Error::from(e).context("GPU"))
 }
 
-/// Renders and writes the PNG. Loads, fits, renders, then writes atomically.
-pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
-    let mut inputs_paths: Vec<&Path> = vec![&opts.fixed];
-    inputs_paths.extend(opts.moving.as_deref());
-    if let Some(l) = &opts.landmarks {
-        inputs_paths.extend(l.paths());
+/// Renders and writes the PNG. Loads, fits, renders, then writes atomically; says what it wrote on stderr unless
+/// `--quiet`.
+pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
+    let RenderArgs {
+        fixed: fixed_path,
+        moving: moving_path,
+        pairs,
+        field: field_path,
+        grid: grid_n,
+        settings: view,
+        out,
+        force,
+        quiet,
+    } = args;
+    let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+    let output = OutputFile { path: out, force };
+    let procedural_spec = view.procedural_spec();
+    let mut inputs_paths: Vec<&Path> = vec![&fixed_path];
+    inputs_paths.extend(moving_path.as_deref());
+    if let Some(l) = &given.landmarks {
+        inputs_paths.extend(l.source.paths());
     }
-    inputs_paths.extend(opts.field.as_deref());
-    inputs_paths.extend(opts.initial.as_deref());
-    opts.out.check(&inputs_paths).map_err(Failure::BadInput)?;
-    if let (Some(initial), None) = (&opts.initial, &opts.landmarks) {
+    inputs_paths.extend(field_path.as_deref());
+    inputs_paths.extend(given.warp.initial.as_deref());
+    output.check(&inputs_paths).map_err(Failure::BadInput)?;
+    if let (Some(initial), None) = (&given.warp.initial, &given.landmarks) {
         return Err(Failure::BadInput(anyhow!(
             "{}: --initial starts a landmark warp: give landmarks too (a file with no pairs shows the starting \
              transform alone)",
             initial.display()
         )));
     }
-    if opts.landmarks.is_some() && opts.field.is_some() {
+    if given.landmarks.is_some() && field_path.is_some() {
         return Err(Failure::BadInput(anyhow!(
             "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
         )));
     }
-    if opts.landmarks.is_some() && opts.moving.is_none() {
+    if given.landmarks.is_some() && moving_path.is_none() {
         return Err(Failure::BadInput(anyhow!("landmarks need a moving volume (--moving)")));
     }
-    if opts.field.is_some() && opts.moving.is_none() {
+    if field_path.is_some() && moving_path.is_none() {
         return Err(Failure::BadInput(anyhow!("--field needs a moving volume (--moving)")));
     }
-    if opts.procedural.is_some() && opts.moving.is_none() {
+    if procedural_spec.is_some() && moving_path.is_none() {
         return Err(Failure::BadInput(anyhow!(
             "--procedural deforms the moving volume: give --moving (the --fixed file itself shows the volume eval tests)"
         )));
     }
     // Read before the volumes: a field `render` refuses costs no loading.
-    let field = opts.field.as_deref().map(crate::warp::read_pullback_field).transpose()?;
-    let fixed = inputs::load_volume(&opts.fixed, opts.quiet).map_err(Failure::BadInput)?;
+    let field = field_path.as_deref().map(crate::warp::read_pullback_field).transpose()?;
+    let fixed = inputs::load_volume(&fixed_path, quiet).map_err(Failure::BadInput)?;
     let moving =
-        opts.moving.as_deref().map(|p| inputs::load_volume(p, opts.quiet)).transpose().map_err(Failure::BadInput)?;
+        moving_path.as_deref().map(|p| inputs::load_volume(p, quiet)).transpose().map_err(Failure::BadInput)?;
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
-    let procedural = match (&opts.procedural, &moving) {
+    let procedural = match (&procedural_spec, &moving) {
         (Some(spec), Some(m)) => Some(
             spec.build(inputs::volume_box::<Moving>(m))
-                .with_context(|| format!("{}", opts.moving.as_deref().unwrap_or(Path::new("")).display()))
+                .with_context(|| format!("{}", moving_path.as_deref().unwrap_or(Path::new("")).display()))
                 .map_err(Failure::BadInput)?,
         ),
         _ => None,
     };
 
     // The warp's control texture, and the glyphs when there are landmarks.
-    let method = inputs::resolve_method(opts.method, opts.stiffness, opts.levels, opts.landmarks.as_ref())
-        .map_err(Failure::BadInput)?;
+    let method = given.method().map_err(Failure::BadInput)?;
     let mut sampled: Option<(ControlGrid, ControlTexture)> = None;
     if let Some(field) = &field {
-        sampled = Some(scene::control_texture(field, fixed_box, opts.grid).map_err(Failure::BadInput)?);
+        sampled = Some(scene::control_texture(field, fixed_box, grid_n).map_err(Failure::BadInput)?);
     }
     let mut glyph_pairs = Vec::new();
-    if let (Some(source), Some(moving)) = (&opts.landmarks, &moving) {
-        let pairs = source.read().map_err(Failure::BadInput)?;
-        let start =
-            crate::start::resolve(opts.session_start.as_deref(), opts.initial.as_deref()).map_err(Failure::BadInput)?;
+    if let (Some(landmarks), Some(moving)) = (&given.landmarks, &moving) {
+        let pairs = landmarks.pairs().map_err(Failure::BadInput)?;
+        let start = given.warp.start().map_err(Failure::BadInput)?;
+        let source = &landmarks.source;
         let c =
-            inputs::correspondences(source, &pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
+            inputs::correspondences(source, pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
                 .map_err(Failure::BadInput)?;
-        if !opts.quiet {
+        if !quiet {
             for w in fit::fit_warnings(&method, &c) {
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        let brushed = Brushed::new(&opts.brush, &source.describe()).map_err(Failure::BadInput)?;
-        if let (Some(b), false) = (&brushed, opts.quiet) {
+        let brushed = Brushed::new(&given.warp.brush, &source.describe()).map_err(Failure::BadInput)?;
+        if let (Some(b), false) = (&brushed, quiet) {
             let c = b.consistency();
             eprintln!("brush: its inverse undoes it within {:.4} mm (max; rms {:.5} mm)", c.max_mm, c.rms_mm);
         }
@@ -262,7 +221,7 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         let pullback = fit::pullback_stack(&method, &c, fixed_box, layers.clone()).map_err(Failure::BadInput)?;
         let forward =
             fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(moving), layers).map_err(Failure::BadInput)?;
-        sampled = Some(pullback.control_texture(fixed_box, opts.grid).map_err(Failure::BadInput)?);
+        sampled = Some(pullback.control_texture(fixed_box, grid_n).map_err(Failure::BadInput)?);
         let shown = |p: &warpbench_io::geometry::Point3<Moving>| forward.apply(*p).coords();
         glyph_pairs = c
             .moving
@@ -279,15 +238,15 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
 
     let ctx = GpuContext::headless().map_err(gpu_failure)?;
     let renderer = RaycastRenderer::new(&ctx).map_err(gpu_failure)?;
-    let prefilter = match opts.shading {
+    let prefilter = match view.shading {
         settings::Shading::None => None,
         _ => Some(PrefilterPass::new(&ctx).map_err(gpu_failure)?),
     };
-    let preset = opts.preset.map(settings::Preset::gpu);
-    let moving_preset = opts.moving_preset.map(settings::Preset::gpu);
-    let (fixed_layer, fixed_preset) = upload(&ctx, &fixed, preset, 0, prefilter.as_ref(), opts.quiet)?;
+    let preset = view.preset.map(settings::Preset::gpu);
+    let moving_preset = view.moving_preset.map(settings::Preset::gpu);
+    let (fixed_layer, fixed_preset) = upload(&ctx, &fixed, preset, 0, prefilter.as_ref(), quiet)?;
     let moving_layer = match &moving {
-        Some(m) => Some(upload(&ctx, m, moving_preset, 1, prefilter.as_ref(), opts.quiet)?),
+        Some(m) => Some(upload(&ctx, m, moving_preset, 1, prefilter.as_ref(), quiet)?),
         None => None,
     };
     let moving_preset = moving_layer.as_ref().map_or(fixed_preset, |(_, p)| *p);
@@ -323,21 +282,21 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         None => GpuLayer { style: LayerStyle { visible: false, ..fixed_layer.style }, ..fixed_gpu },
     };
     let blend = if moving.is_some() {
-        opts.blend.mode(opts.mix_weight.clamp(0.0, 1.0), opts.checker_mm.max(0.1))
+        view.blend.mode(view.mix_weight.clamp(0.0, 1.0), view.checker_mm.max(0.1))
     } else {
         BlendMode::FixedOnly
     };
     let frame = GpuFrame { fixed: fixed_gpu, moving: moving_gpu, tfs: &tfs };
     let settings = RenderSettings {
         blend,
-        samples_per_voxel: opts.samples_per_voxel,
-        shading: Shading::with_mode(opts.shading.mode()),
+        samples_per_voxel: view.samples_per_voxel,
+        shading: Shading::with_mode(view.shading.mode()),
         ..Default::default()
     };
     let glyph_renderer = GlyphRenderer::new(&ctx).map_err(gpu_failure)?;
-    let glyphs = if opts.glyphs { pair_glyphs(&glyph_pairs, &GlyphStyle::default()) } else { Vec::new() };
+    let glyphs = if view.no_glyphs { Vec::new() } else { pair_glyphs(&glyph_pairs, &GlyphStyle::default()) };
 
-    let (target, glyph_uniforms, hit_depth) = if let Some(spec) = opts.slice {
+    let (target, glyph_uniforms, hit_depth) = if let Some(spec) = view.slice {
         let m = fixed.lps_from_index.rows();
         let mid = |a: usize| 0.5 * (fixed_box.min.coords()[a] + fixed_box.max.coords()[a]);
         let pos = |p: f64, a| if p.is_nan() { mid(a) } else { p };
@@ -356,9 +315,9 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
         let lo = Vec3::from_array(lo.map(|v| v as f32));
         let hi = Vec3::from_array(hi.map(|v| v as f32));
         let projection =
-            if opts.perspective { Projection::Perspective { fov_y_rad: 0.6 } } else { Projection::Orthographic };
+            if view.perspective { Projection::Perspective { fov_y_rad: 0.6 } } else { Projection::Orthographic };
         let mut camera = OrbitCamera::fit(lo, hi, projection);
-        if let Some(c) = opts.camera {
+        if let Some(c) = view.camera {
             camera.azimuth_rad = c.azimuth_deg.to_radians();
             camera.elevation_rad = c.elevation_deg.to_radians();
             if let Some(d) = c.distance_mm {
@@ -374,12 +333,12 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
             &frame,
             &camera,
             &settings,
-            opts.size,
+            view.size,
             Some(&empty_space),
         );
-        let target = RenderTarget::new(&ctx, opts.size.0, opts.size.1);
+        let target = RenderTarget::new(&ctx, view.size.0, view.size.1);
         renderer.render(&ctx, &data, &target).map_err(gpu_failure)?;
-        (target, GlyphUniforms::for_view(&camera, opts.size, &GlyphSettings::default()), true)
+        (target, GlyphUniforms::for_view(&camera, view.size, &GlyphSettings::default()), true)
     };
     if !glyphs.is_empty() {
         let view = hit_depth.then_some(&target.hit_depth_view);
@@ -391,8 +350,17 @@ pub fn run(opts: &RenderOptions) -> Result<Rendered, Failure> {
     for px in rgba.chunks_exact_mut(4) {
         px[3] = 255;
     }
-    write_png(&opts.out.path, &rgba, target.width, target.height)?;
-    Ok(Rendered { size: (target.width, target.height), adapter: ctx.describe(), pairs: glyph_pairs.len() })
+    write_png(&output.path, &rgba, target.width, target.height)?;
+    let rendered = Rendered { size: (target.width, target.height), adapter: ctx.describe(), pairs: glyph_pairs.len() };
+    if !quiet {
+        let warp = match &field_path {
+            Some(field) => format!("field {}", field.display()),
+            None => format!("{} landmark pairs", rendered.pairs),
+        };
+        let (width, height) = rendered.size;
+        eprintln!("wrote {} ({width}×{height}, {warp}, {})", output.path.display(), rendered.adapter);
+    }
+    Ok(rendered)
 }
 
 /// Encodes RGBA8 as PNG and writes it atomically.

@@ -24,24 +24,41 @@ use warpbench_solver::spaces::{Fixed, Moving, as_moving};
 use warpbench_solver::suggest::{SuggestParams, suggest};
 use warpbench_solver::warp::{Parallelism, Warp};
 
-use crate::args::{PairArgs, ReportArgs};
+use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::fit;
-use crate::inputs::{self, OutputFile};
+use crate::inputs::{self, LandmarkWarp, OutputFile};
 use crate::project::stack::StackForward;
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-suggest/1";
 
+/// What `warpbench suggest --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Suggest the fixed point of each moving point of a list: the current warp's prediction, refined by a local
+search for the best match of the moving point's surroundings (normalised gradient fields, so an MRI point
+finds its CT target), with a confidence.
+
+The current warp is the landmarks' (--landmarks or --session, with --method and --initial as for warp),
+the starting transform alone (--initial), or the identity. The output is a BigWarp file of pairs (moving
+point, suggested fixed point); a suggestion of low confidence is written inactive, one that failed (a patch
+outside a volume) without a fixed point. --json gives each point's suggestion, prediction, confidence and
+search radius. Examples:
+
+    warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --points mr_points.csv --out suggested.csv --json
+    warpbench suggest --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --points mr_points.csv --out suggested.csv";
+
 /// The arguments of `warpbench suggest`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder), where the targets are searched"),
+    ("moving", "The moving volume, where the points are"),
+])))]
 pub struct SuggestArgs {
-    /// The fixed volume (NIfTI, NRRD or a DICOM series folder), where the targets are searched.
-    #[arg(long)]
-    pub fixed: PathBuf,
-    /// The moving volume, where the points are.
-    #[arg(long)]
-    pub moving: PathBuf,
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
     /// The moving points: a CSV point list (x,y,z and an optional name; LPS mm, or RAS with --ras), a Slicer
@@ -94,27 +111,21 @@ pub struct SuggestReport {
 
 /// Runs `warpbench suggest`.
 pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Failure> {
-    let SuggestArgs { fixed, moving, pairs, points, out: out_path, search_radius_mm, ras, report } = args;
+    let SuggestArgs { volumes, pairs, points, out: out_path, search_radius_mm, ras, report } = args;
     let ReportArgs { json, force, quiet } = report;
     let params = SuggestParams { search_radius_mm, ..SuggestParams::default() };
     params.validate().map_err(|e| Failure::BadInput(anyhow!("--search-radius-mm: {e}")))?;
-    let source = pairs.source()?;
-    let warp = pairs.warp()?;
-    let initial_path = warp.initial.clone();
-    let mut input_paths = vec![fixed.as_path(), moving.as_path(), points.as_path()];
-    if let Some(s) = &source {
-        input_paths.extend(s.paths());
-    }
-    input_paths.extend(initial_path.as_deref());
+    let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+    let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path(), points.as_path()];
+    input_paths.extend(given.paths());
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
-    if !warp.brush.is_empty() {
+    if !given.warp.brush.is_empty() {
         return Err(Failure::BadInput(anyhow!(
             "the session's brush strokes: suggest predicts from the landmark warp alone; save the session without \
              them"
         )));
     }
-    let start =
-        crate::start::resolve(warp.session_start.as_deref(), initial_path.as_deref()).map_err(Failure::BadInput)?;
+    let start = given.warp.start().map_err(Failure::BadInput)?;
     let file = read_point_file(&points, PointFileOptions { ras })?;
     let moving_points: Vec<(String, Point3<Lps>)> = crate::points::input_points(&file, crate::points::Side::Moving)
         .into_iter()
@@ -123,17 +134,16 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     if moving_points.is_empty() {
         return Err(Failure::BadInput(anyhow!("{}: no moving points to suggest targets for", points.display())));
     }
+    let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
 
     // The current warp's forward map.
-    let (forward, prediction): (StackForward, String) = match &source {
+    let (forward, prediction): (StackForward, String) = match &given.landmarks {
         Some(landmarks) => {
-            let method = inputs::resolve_method(warp.method, warp.stiffness, warp.levels, Some(landmarks))
-                .map_err(Failure::BadInput)?;
-            let landmark_pairs = landmarks.read().map_err(Failure::BadInput)?;
+            let method = given.method().map_err(Failure::BadInput)?;
             let c = inputs::correspondences(
-                landmarks,
-                &landmark_pairs,
+                &landmarks.source,
+                landmarks.pairs().map_err(Failure::BadInput)?,
                 &moving_volume,
                 &fixed_volume,
                 crate::start::min_pairs(&method, start.as_ref()),

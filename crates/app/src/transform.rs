@@ -36,25 +36,39 @@ use warpbench_io::itk_tfm;
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
-use crate::args::{PairArgs, ReportArgs};
+use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::fit;
-use crate::inputs::{self, OutputFile};
+use crate::inputs::{self, OutputFile, PairInputs};
 use crate::project::stack::Layers;
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-transform/1";
 
+/// What `warpbench transform --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Write the landmark warp as an ITK transform file (.tfm), the exact transform instead of a sampled field: TPS
+as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
+B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
+identity outside it), affine, similarity and rigid as AffineTransform_double_3_3.
+
+The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): what ITK's ResampleImageFilter,
+antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
+and B-spline files; Slicer reads all three (Data > Add data, then apply the transform to the moving volume).
+
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm";
+
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and is the B-spline's domain"),
+    ("moving", "The moving volume: its box checks the landmarks"),
+])))]
 pub struct TransformArgs {
-    /// The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and is the B-spline's
-    /// domain.
-    #[arg(long)]
-    pub fixed: PathBuf,
-    /// The moving volume: its box checks the landmarks.
-    #[arg(long)]
-    pub moving: PathBuf,
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
     /// The ITK transform file to write (.tfm or .txt).
@@ -86,10 +100,10 @@ pub struct TransformSummary {
 /// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
 /// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
-    let TransformArgs { fixed, moving, pairs, out: out_path, report: ReportArgs { json, force, quiet } } = args;
-    let inputs = pairs.inputs(fixed, moving, None)?;
+    let TransformArgs { volumes, pairs, out: out_path, report: ReportArgs { json, force, quiet } } = args;
+    let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
     OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
-    if !inputs.brush.is_empty() {
+    if !inputs.warp.brush.is_empty() {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench field --session`",
             inputs.landmarks.describe()
@@ -98,10 +112,9 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let method = inputs.method().map_err(Failure::BadInput)?;
     let start = inputs.start().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
-    let landmark_pairs = inputs.landmarks.read().map_err(Failure::BadInput)?;
     let c = inputs::check_pairs(
         &inputs.landmarks.describe(),
-        &landmark_pairs,
+        inputs.pairs().map_err(Failure::BadInput)?,
         &volumes.moving,
         &volumes.fixed,
         crate::start::min_pairs(&method, start.as_ref()),

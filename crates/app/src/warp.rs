@@ -21,6 +21,7 @@
 //! [`run`] loads the files, calls the in-memory core [`resample`] (the pairs checked, the fit, the export, with a
 //! progress callback that can cancel) and writes with [`write_outputs`]; the window exports through the same three.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -46,11 +47,11 @@ use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
-use crate::args::PairArgs;
+use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit::{self, TpsParts};
-use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
+use crate::inputs::{self, LandmarkWarp, Names, OutputFile, PairInputs, PairVolumes};
 use crate::project::stack::Layers;
 use crate::scene;
 
@@ -88,8 +89,7 @@ pub enum WarpInputs {
 /// The inputs of `warp --field`.
 #[derive(Clone, Debug)]
 pub struct FieldInputs {
-    pub fixed: PathBuf,
-    pub moving: PathBuf,
+    pub volumes: VolumePairArgs,
     /// The displacement field: u(x) = x + D(x), u = moving_from_fixed.
     pub field: PathBuf,
     /// The output grid, when not the fixed volume's.
@@ -99,15 +99,15 @@ pub struct FieldInputs {
 impl WarpInputs {
     /// From the command line: `--field` or the landmarks of `pairs`, exactly one of them.
     pub fn from_args(
+        volumes: VolumePairArgs,
         pairs: PairArgs,
         field: Option<PathBuf>,
-        fixed: PathBuf,
-        moving: PathBuf,
         reference: Option<PathBuf>,
     ) -> Result<Self, Failure> {
-        match (field, pairs.source()?) {
-            (Some(field), None) => Ok(Self::Field(FieldInputs { fixed, moving, field, reference })),
-            (None, Some(_)) => Ok(Self::Pairs(pairs.inputs(fixed, moving, reference)?)),
+        let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+        match (field, given.landmarks) {
+            (Some(field), None) => Ok(Self::Field(FieldInputs { volumes, field, reference })),
+            (None, Some(landmarks)) => Ok(Self::Pairs(PairInputs { volumes, landmarks, warp: given.warp, reference })),
             (Some(_), Some(_)) => Err(Failure::BadInput(anyhow!(
                 "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
             ))),
@@ -117,19 +117,12 @@ impl WarpInputs {
         }
     }
 
+    /// The fixed and the moving volume.
     #[must_use]
-    pub fn fixed(&self) -> &Path {
+    pub fn volumes(&self) -> &VolumePairArgs {
         match self {
-            Self::Pairs(p) => &p.fixed,
-            Self::Field(f) => &f.fixed,
-        }
-    }
-
-    #[must_use]
-    pub fn moving(&self) -> &Path {
-        match self {
-            Self::Pairs(p) => &p.moving,
-            Self::Field(f) => &f.moving,
+            Self::Pairs(p) => &p.volumes,
+            Self::Field(f) => &f.volumes,
         }
     }
 
@@ -146,7 +139,7 @@ impl WarpInputs {
     pub fn paths(&self) -> Vec<&Path> {
         match self {
             Self::Pairs(p) => p.paths(),
-            Self::Field(f) => [&f.fixed, &f.moving, &f.field]
+            Self::Field(f) => [&f.volumes.fixed, &f.volumes.moving, &f.field]
                 .into_iter()
                 .map(PathBuf::as_path)
                 .chain(f.reference.as_deref())
@@ -160,7 +153,7 @@ impl WarpInputs {
         match self {
             Self::Pairs(p) => p.names(out),
             Self::Field(f) => Names {
-                moving: f.moving.display().to_string(),
+                moving: f.volumes.moving.display().to_string(),
                 landmarks: f.field.display().to_string(),
                 out: out.to_owned(),
             },
@@ -208,22 +201,104 @@ pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, F
 
 pub use crate::brushed::InverseConsistency;
 
-/// Options of `warpbench warp`.
-#[derive(Clone, Debug)]
-pub struct WarpOptions {
-    /// The pair, the warp (landmarks and method, or a field), and the output grid (`reference`, else the fixed
-    /// volume's).
-    pub inputs: WarpInputs,
-    pub pullback: PullBackMode,
-    pub interpolation: Interpolation,
-    pub backend: Backend,
-    /// f32 output instead of the moving volume's sample type.
+/// What `warpbench warp --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
+field (--field), and write a NIfTI (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
+
+The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
+app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
+any flavour warpbench field writes (ITK NIfTI DISPVECT, ANTs NIfTI VECTOR, Slicer NRRD): u(x) = x + D(x),
+D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. Examples:
+
+    warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
+    warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
+    warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --exact --out mr_in_ct.nii.gz";
+
+/// The arguments of `warpbench warp`.
+#[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume: its grid is the output grid. NIfTI, NRRD or a DICOM series folder"),
+    ("moving", "The moving volume, resampled"),
+    ("json", "Print a JSON report (schema warpbench-warp/1) to stdout"),
+    ("force", "Overwrite --out if it exists"),
+])))]
+pub struct WarpArgs {
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
+    #[command(flatten)]
+    pub pairs: PairArgs,
+    /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
+    pub field: Option<PathBuf>,
+    /// Control-texture texels per axis over the output grid (2..=256).
+    #[arg(long, default_value_t = 64, conflicts_with = "exact")]
+    pub grid: usize,
+    /// Evaluate the pull-back exactly at every voxel (TPS, the linear warps, a field) instead of a control texture.
+    #[arg(long)]
+    pub exact: bool,
+    /// Interpolation: nearest, linear (trilinear) or cubic (Catmull-Rom).
+    #[arg(long, value_enum, default_value = "linear")]
+    pub interp: InterpArg,
+    /// Where to resample: auto (the path expected to be faster for this size on this machine: the CPU without a
+    /// hardware GPU), cpu or gpu.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub backend: BackendArg,
+    /// Write f32 samples instead of the moving volume's type (rounded half to even and clamped).
+    #[arg(long)]
     pub float: bool,
-    /// The value of output voxels that map outside the moving volume; `None`: −1024 for a CT, else 0.
-    pub outside_value: Option<f64>,
-    pub out: OutputFile,
+    /// Another volume whose grid the output takes instead of the fixed volume's.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
+    /// The value of voxels that map outside the moving volume (default −1024 for a CT, else 0).
+    #[arg(long, allow_hyphen_values = true)]
+    pub outside: Option<f64>,
+    /// The NIfTI to write (.nii or .nii.gz).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write the result as a DICOM series (new UIDs) into this new folder.
+    #[arg(long)]
     pub out_dicom: Option<PathBuf>,
-    pub quiet: bool,
+    #[command(flatten)]
+    pub report: ReportArgs,
+}
+
+/// `--interp`: the export's interpolation by its command-line name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum InterpArg {
+    Nearest,
+    Linear,
+    Cubic,
+}
+
+impl From<InterpArg> for Interpolation {
+    fn from(arg: InterpArg) -> Self {
+        match arg {
+            InterpArg::Nearest => Self::Nearest,
+            InterpArg::Linear => Self::Trilinear,
+            InterpArg::Cubic => Self::CatmullRom,
+        }
+    }
+}
+
+/// `--backend`: [`Backend`] by its command-line name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendArg {
+    Auto,
+    Cpu,
+    Gpu,
+}
+
+impl From<BackendArg> for Backend {
+    fn from(arg: BackendArg) -> Self {
+        match arg {
+            BackendArg::Auto => Self::Auto,
+            BackendArg::Cpu => Self::Cpu,
+            BackendArg::Gpu => Self::Gpu,
+        }
+    }
 }
 
 /// What `warp` did (`--json`, schema `warpbench-warp/1`).
@@ -285,7 +360,7 @@ fn interpolation_name(i: Interpolation) -> &'static str {
     }
 }
 
-/// Everything `warp` needs besides files: the settings of [`WarpOptions`] without paths.
+/// Everything `warp` needs besides files: the method, and how the export runs ([`WarpArgs`] without paths).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WarpSettings {
     /// The warp model, as fitted on the landmark pairs.
@@ -763,51 +838,68 @@ impl Fitted {
 
 /// The fixed, moving and reference volumes of `inputs` ([`inputs::load_pair`], then the reference).
 fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
-    let (fixed, moving) = inputs::load_pair(inputs.fixed(), inputs.moving(), quiet)?;
+    let (fixed, moving) = inputs::load_pair(&inputs.volumes().fixed, &inputs.volumes().moving, quiet)?;
     let reference = inputs.reference().map(|p| inputs::load_volume(p, quiet)).transpose()?;
     Ok(PairVolumes { fixed, moving, reference })
 }
 
-/// Runs `warpbench warp`: loads, fits, resamples, writes (atomically), and reports. The work between loading and
-/// writing is [`resample`]'s.
-pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
-    opts.out.check(&opts.inputs.paths()).map_err(Failure::BadInput)?;
-    check_outputs(&opts.out.path, opts.out_dicom.as_deref()).map_err(Failure::BadInput)?;
+/// Runs `warpbench warp`: loads, fits, resamples, writes (atomically), and reports: the JSON report to `out` with
+/// `--json`, else a line on stderr unless `--quiet`. The work between loading and writing is [`resample`]'s.
+pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
+    let WarpArgs {
+        volumes,
+        pairs,
+        field,
+        grid,
+        exact,
+        interp,
+        backend,
+        float,
+        reference,
+        outside,
+        out: out_path,
+        out_dicom,
+        report: ReportArgs { json, force, quiet },
+    } = args;
+    let inputs = WarpInputs::from_args(volumes, pairs, field, reference)?;
+    let output = OutputFile { path: out_path, force };
+    output.check(&inputs.paths()).map_err(Failure::BadInput)?;
+    check_outputs(&output.path, out_dicom.as_deref()).map_err(Failure::BadInput)?;
     let export = ExportSettings {
-        pullback: opts.pullback,
-        interpolation: opts.interpolation,
-        float: opts.float,
-        backend: opts.backend,
-        outside_value: opts.outside_value,
+        pullback: if exact { PullBackMode::Exact } else { PullBackMode::Grid(grid) },
+        interpolation: interp.into(),
+        float,
+        backend: backend.into(),
+        outside_value: outside,
     };
-    let names = opts.inputs.names(&opts.out.path);
+    let names = inputs.names(&output.path);
 
     let start = Instant::now();
     // A field is read before the volumes, so that a field `warp` refuses costs no volume loading; its time counts
     // as the fit's.
-    let given = match &opts.inputs {
+    let given = match &inputs {
         WarpInputs::Pairs(pairs) => {
             let method = pairs.method().map_err(Failure::BadInput)?;
             let brushed = pairs.brushed().map_err(Failure::BadInput)?;
             if brushed.is_none() {
-                check_pullback_mode(&method, opts.pullback)?;
+                check_pullback_mode(&method, export.pullback)?;
             }
             let start = pairs.start().map_err(Failure::BadInput)?;
-            Given::Pairs(method, &pairs.landmarks, Box::new(Layers::new(start, brushed)))
+            Given::Pairs(method, pairs, Box::new(Layers::new(start, brushed)))
         }
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();
     let mut lap = Lap(Instant::now());
     let mut seconds = WarpSeconds::default();
-    let PairVolumes { fixed, moving, reference } = load_volumes(&opts.inputs, opts.quiet).map_err(Failure::BadInput)?;
+    let PairVolumes { fixed, moving, reference } = load_volumes(&inputs, quiet).map_err(Failure::BadInput)?;
     seconds.load = lap.next();
     // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
     let fitted = match &given {
-        Given::Pairs(method, landmarks, layers) => {
-            let pairs = landmarks.read().map_err(Failure::BadInput)?;
+        Given::Pairs(method, inputs, layers) => {
+            let pairs = inputs.pairs().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method: *method,
                 pullback: export.pullback,
@@ -816,7 +908,7 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
                 backend: export.backend,
                 outside_value: export.outside_value,
             };
-            Fitted::new(grid, &fixed, &moving, (&pairs, layers), &names, &settings)?
+            Fitted::new(grid, &fixed, &moving, (pairs, layers), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
     };
@@ -825,46 +917,41 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
     drop(fixed);
 
     seconds.fit = lap.next() + field_seconds;
-    let bar = crate::progress::Bar::new(opts.quiet);
+    let bar = crate::progress::Bar::new(quiet);
     let resampled = fitted.resample(&moving, &names, &mut |p: Progress| {
         bar.set("resampling", p.slices_done as u64, p.slices_total as u64);
         true
     });
     bar.finish();
     let resampled = resampled?;
-    if !opts.quiet {
+    if !quiet {
         for w in &resampled.warnings {
             eprintln!("warpbench: warning: {w}");
         }
     }
     if let Some(reason) = &resampled.cpu_fallback
-        && !opts.quiet
+        && !quiet
     {
         eprintln!("note: resampling on the CPU ({reason})");
     }
     seconds.resample = lap.next();
 
     let volume = &resampled.volume;
-    let description = series_description(&resampled.method, opts.inputs.moving());
-    write_outputs(
-        volume,
-        &opts.out.path,
-        opts.out_dicom.as_deref(),
-        &description,
-        Some((opts.inputs.moving(), &moving)),
-    )?;
+    let moving_path = &inputs.volumes().moving;
+    let description = series_description(&resampled.method, moving_path);
+    write_outputs(volume, &output.path, out_dicom.as_deref(), &description, Some((moving_path, &moving)))?;
     seconds.write = lap.next();
     seconds.total = start.elapsed().as_secs_f64();
-    Ok(WarpReport {
+    let report = WarpReport {
         schema: "warpbench-warp/1",
-        out: opts.out.path.display().to_string(),
-        out_dicom: opts.out_dicom.as_ref().map(|d| d.display().to_string()),
+        out: output.path.display().to_string(),
+        out_dicom: out_dicom.as_ref().map(|d| d.display().to_string()),
         dims: volume.dims,
         spacing_mm: volume.spacing_mm(),
         dtype: volume.sample_type().name(),
         method: resampled.method.clone(),
         pairs: resampled.pairs,
-        field: match &opts.inputs {
+        field: match &inputs {
             WarpInputs::Field(f) => Some(f.field.display().to_string()),
             WarpInputs::Pairs(_) => None,
         },
@@ -875,14 +962,27 @@ pub fn run(opts: &WarpOptions) -> Result<WarpReport, Failure> {
         outside_value: resampled.outside_value,
         warnings: resampled.warnings.clone(),
         seconds,
-    })
+    };
+    if json {
+        crate::exit::print_json(out, &report, "the JSON report")?;
+    } else if !quiet {
+        let warp = match &report.field {
+            Some(field) => format!("field {field}"),
+            None => format!("{} pairs", report.pairs),
+        };
+        eprintln!(
+            "wrote {} ({}×{}×{} {}, {warp}, {}, {})",
+            report.out, report.dims[0], report.dims[1], report.dims[2], report.dtype, report.pullback, report.backend
+        );
+    }
+    Ok(report)
 }
 
 /// The warp [`run`] applies, checked before any volume is loaded.
 enum Given<'a> {
-    /// A method, to fit on the pairs of a landmark source, and the stack's other layers (a starting transform under
-    /// it, a brush on top).
-    Pairs(Method, &'a inputs::LandmarkSource, Box<Layers>),
+    /// A method, to fit on the pairs of the inputs' landmarks (read once: `--stiffness auto` may have read them),
+    /// and the stack's other layers (a starting transform under it, a brush on top).
+    Pairs(Method, &'a PairInputs, Box<Layers>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
 }

@@ -62,7 +62,7 @@ use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::synthetic::{SyntheticKind, SyntheticWarp};
 use warpbench_solver::warp::{Parallelism, Warp};
 
-pub use options::{EvalOptions, MIN_HELD_OUT, SuiteOptions, TreStatistic};
+pub use options::{EvalArgs, MIN_HELD_OUT, SuiteArgs, SuiteOptions, TreStatistic};
 pub use report::{EvalReport, SUITE_BEGIN, SUITE_END, SuiteReport};
 
 use crate::exit::Failure;
@@ -84,8 +84,9 @@ fn bad(message: String) -> Failure {
 }
 
 /// Runs `warpbench eval` (a single evaluation, or the suite), writing the text report to `out`.
-pub fn run(opts: &EvalOptions, out: &mut dyn Write) -> Result<(), Failure> {
-    let plan = Plan::from_options(opts)?;
+pub fn run(opts: &EvalArgs, out: &mut dyn Write) -> Result<(), Failure> {
+    let suite = opts.suite.options();
+    let plan = Plan::new(opts, suite.as_ref())?;
     if let Some(json) = &opts.json {
         inputs::check_output(json, &[&opts.volume], opts.force).map_err(Failure::BadInput)?;
     }
@@ -111,7 +112,7 @@ pub fn run(opts: &EvalOptions, out: &mut dyn Write) -> Result<(), Failure> {
     }
     bar.finish_and_clear();
     let write_err = |e: std::io::Error| Failure::Internal(anyhow!("writing the report: {e}"));
-    if let Some(suite) = &opts.suite {
+    if let Some(suite) = &suite {
         let report = SuiteReport::new(opts, suite, &subject.summary(), reports, started.elapsed().as_secs_f64());
         let section = report.markdown(suite.markdown.as_deref());
         match &suite.markdown {
@@ -179,12 +180,13 @@ struct Plan {
 }
 
 impl Plan {
-    fn from_options(opts: &EvalOptions) -> Result<Self, Failure> {
-        let (kinds, counts, methods): (Vec<String>, Vec<usize>, Vec<MethodKind>) = match &opts.suite {
+    /// The cases of `opts`: one, or the grid of `suite` (`--suite`).
+    fn new(opts: &EvalArgs, suite: Option<&SuiteOptions>) -> Result<Self, Failure> {
+        let (kinds, counts, methods): (Vec<String>, Vec<usize>, Vec<MethodKind>) = match suite {
             Some(s) => (s.kinds.clone(), s.landmark_counts.clone(), s.methods.clone()),
             None => (vec![opts.kind.clone()], vec![opts.landmarks], vec![opts.method]),
         };
-        if opts.suite.is_some() && opts.max_tre_mm.is_some() {
+        if suite.is_some() && opts.max_tre_mm.is_some() {
             return Err(bad("--max-tre-mm gates a single evaluation; it cannot be combined with --suite".into()));
         }
         if kinds.is_empty() || counts.is_empty() || methods.is_empty() {
@@ -196,7 +198,7 @@ impl Plan {
             .collect::<Result<Vec<_>, _>>()?;
         let methods = methods
             .iter()
-            .map(|&m| inputs::method_from_args(m, opts.stiffness, opts.levels))
+            .map(|&m| inputs::checked_method(m, opts.stiffness, opts.levels))
             .collect::<Result<Vec<_>, _>>()
             .map_err(Failure::BadInput)?;
         for &n in &counts {
@@ -352,7 +354,7 @@ struct Truth {
 }
 
 impl Truth {
-    fn new(subject: &Subject, kind: SyntheticKind, opts: &EvalOptions) -> Result<Self, Failure> {
+    fn new(subject: &Subject, kind: SyntheticKind, opts: &EvalArgs) -> Result<Self, Failure> {
         let path = subject.path.display();
         let warp = SyntheticWarp::new(kind, subject.box_moving(), opts.amplitude_mm, opts.seed)
             .map_err(|e| bad(format!("{path}: --kind {kind} --amplitude-mm {}: {e}", opts.amplitude_mm)))?;
@@ -411,7 +413,7 @@ impl Truth {
     }
 
     /// N landmark pairs (p_i in M's foreground, q_i = d(p_i) inside Ω).
-    fn landmarks(&self, subject: &Subject, n: usize, opts: &EvalOptions) -> Result<Pairs, Failure> {
+    fn landmarks(&self, subject: &Subject, n: usize, opts: &EvalArgs) -> Result<Pairs, Failure> {
         let mut rng = SplitMix64::new(opts.seed, LANDMARK_STREAM + n as u64);
         let inside = |p: [f64; 3]| subject.box_fixed.contains(&Point3::from_array(self.warp.apply_raw(p)));
         let points = if opts.on_features {
@@ -478,7 +480,7 @@ fn evaluate(
     truth: &Truth,
     pairs: &Pairs,
     method: &Method,
-    opts: &EvalOptions,
+    opts: &EvalArgs,
     progress: &(dyn Fn(&'static str, Option<(usize, usize)>) + Sync),
 ) -> Result<EvalReport, Failure> {
     let stage = |what: &'static str| progress(what, None);
@@ -588,7 +590,7 @@ mod tests {
     #[test]
     fn an_evaluation_reports_its_stages_and_the_tps_leave_one_out_matches_refits() {
         let s = subject();
-        let mut opts = EvalOptions::new(s.path.clone());
+        let mut opts = EvalArgs::new(s.path.clone());
         opts.grid = 4;
         opts.landmarks = 30;
         let truth = Truth::new(&s, SyntheticKind::Sine, &opts).expect("truth");
@@ -643,7 +645,7 @@ mod tests {
     #[test]
     fn the_moving_volume_is_the_volume_pulled_through_d() {
         let s = subject();
-        let mut opts = EvalOptions::new(s.path.clone());
+        let mut opts = EvalArgs::new(s.path.clone());
         opts.grid = 4;
         let truth = Truth::new(&s, SyntheticKind::Twist, &opts).expect("truth");
         let index_from_lps = s.volume.lps_from_index.inverse().expect("invertible");

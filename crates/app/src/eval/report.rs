@@ -8,7 +8,7 @@ use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_solver::diagnostics::ErrorStats;
 
-use super::options::{EvalOptions, SuiteOptions, TreStatistic};
+use super::options::{EvalArgs, SuiteOptions, TreStatistic};
 use crate::exit::Failure;
 
 /// Schema name of one evaluation.
@@ -231,7 +231,7 @@ pub struct SuiteReport {
 impl SuiteReport {
     #[must_use]
     pub fn new(
-        opts: &EvalOptions,
+        opts: &EvalArgs,
         suite: &SuiteOptions,
         volume: &VolumeSummary,
         cases: Vec<EvalReport>,

@@ -56,7 +56,7 @@ pub use crate::project::fitter::Fitter;
 pub use app::Workbench;
 pub use commands::Command;
 pub use load::{Loaded, LoadedPair, Opened, load};
-pub use options::{ControlEval, GuiOptions};
+pub use options::{ControlEval, GuiArgs, GuiOptions};
 pub use ready::Ready;
 pub use state::{Assist, Pointer, StiffnessChoiceOn, View};
 pub use tool::{DragPoint, DragView, End, GRAB_RADIUS, Interaction, Placing, SLICE_SLAB_MM, SculptDrag};

@@ -1,4 +1,4 @@
-//! What the window opens with, and where it makes the control texture.
+//! What the window opens with (from its command line, [`GuiArgs`]), and where it makes the control texture.
 
 use std::path::PathBuf;
 
@@ -33,4 +33,48 @@ pub enum ControlEval {
     Cpu,
     /// A TPS or a B-spline on the GPU whatever the adapter (the linear methods on the CPU).
     Gpu,
+}
+
+/// The window's options (no subcommand).
+#[derive(Debug, clap::Args)]
+pub struct GuiArgs {
+    /// The fixed volume to open (with --moving).
+    #[arg(long, requires = "moving")]
+    pub fixed: Option<PathBuf>,
+    /// The moving volume to open (with --fixed).
+    #[arg(long, requires = "fixed")]
+    pub moving: Option<PathBuf>,
+    /// Landmark pairs (BigWarp CSV or BigWarp JSON, also a BigWarp settings file) to open with them.
+    #[arg(long, requires = "fixed")]
+    pub landmarks: Option<PathBuf>,
+    /// A saved session (.warpbench.json) to open: its volumes, landmarks and settings.
+    #[arg(long, conflicts_with_all = ["fixed", "moving", "landmarks"])]
+    pub session: Option<PathBuf>,
+    /// Save a screenshot of the window here, then close (with --exit-after-frames).
+    #[arg(long)]
+    pub screenshot: Option<PathBuf>,
+    /// Close the window after this many frames with the volumes shown, once they are fully rendered (smoke tests).
+    #[arg(long)]
+    pub exit_after_frames: Option<u32>,
+    /// Write one tab-separated line per window frame here (seconds since the window opened, the phase, what the 3-D
+    /// view shows, whether a pointer button was released, the frame's UI work in ms): for measuring the window.
+    #[arg(long, value_name = "FILE")]
+    pub frame_log: Option<PathBuf>,
+}
+
+impl From<GuiArgs> for GuiOptions {
+    /// The window's options from its command line: a screenshot closes the window after 5 frames unless
+    /// `--exit-after-frames` says otherwise.
+    fn from(a: GuiArgs) -> Self {
+        Self {
+            fixed: a.fixed,
+            moving: a.moving,
+            landmarks: a.landmarks.map(LandmarkSource::Pairs),
+            exit_after_frames: a.exit_after_frames.or(a.screenshot.is_some().then_some(5)),
+            screenshot: a.screenshot,
+            session: a.session,
+            autosave: None,
+            frame_log: a.frame_log,
+        }
+    }
 }
