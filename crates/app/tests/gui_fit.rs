@@ -289,14 +289,14 @@ fn a_drag_on_the_gpu_evaluates_the_updated_coefficients_as_a_full_refit_would() 
         let mut to = start;
         for step in [[0.5, 0.0, 0.0], [2.0, -1.0, 0.5], [4.0, -3.0, 2.0], [6.5, -2.0, 3.0]] {
             to = std::array::from_fn(|k| start[k] + step[k]);
-            ready.apply(Command::MovePoint { pair, end, to, settled: false });
+            ready.apply(Command::MovePoint { pair, end, to: Point3::from_array(to), settled: false });
             assert!(ready.fit.error.is_none(), "{end:?}: {:?}", ready.fit.error);
             assert_eq!(ready.drag_route(), Some(ControlRoute::Gpu), "{end:?}: the drag's O(N²) path, on the GPU");
         }
         let (fast, during, f16_fast) = shown_pullback(ready);
         let glyphs_during: Vec<[f64; 3]> = (0..40).map(|i| ready.glyph_ref(i, End::Moving).expect("placed")).collect();
         // The release refits in full and evaluates that on the GPU.
-        ready.apply(Command::MovePoint { pair, end, to, settled: true });
+        ready.apply(Command::MovePoint { pair, end, to: Point3::from_array(to), settled: true });
         assert!(ready.fit_if_pending(), "the release refits");
         assert_eq!(ready.drag_route(), None, "the release ends the drag");
         let (full, after, f16_full) = shown_pullback(ready);
@@ -352,8 +352,18 @@ fn undo_of_every_command_gives_the_document_back_and_view_commands_leave_it() {
     (looks[1].visible, looks[0].window_high) = (false, looks[0].window_high + 10.0);
     let edits = [
         Command::AddPair { moving: Point3::new(1.0, 10.0, 20.0), fixed: Point3::new(2.0, 10.0, 20.0) },
-        Command::MovePoint { pair: 0, end: warpbench_app::gui::End::Fixed, to: [1.0, 2.0, 3.0], settled: true },
-        Command::MovePoint { pair: 1, end: warpbench_app::gui::End::Moving, to: [4.0, 5.0, 6.0], settled: false },
+        Command::MovePoint {
+            pair: 0,
+            end: warpbench_app::gui::End::Fixed,
+            to: Point3::from_array([1.0, 2.0, 3.0]),
+            settled: true,
+        },
+        Command::MovePoint {
+            pair: 1,
+            end: warpbench_app::gui::End::Moving,
+            to: Point3::from_array([4.0, 5.0, 6.0]),
+            settled: false,
+        },
         Command::DeletePair(2),
         Command::RenamePair(0, "renamed".into()),
         Command::SetActive(1, false),

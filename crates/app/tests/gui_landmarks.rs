@@ -310,7 +310,12 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     let (moving, fixed) = (Point3::from_array([22.0, -10.0, 35.0]), Point3::from_array([20.0, -12.0, 33.0]));
     let ready = harness.state_mut().ready_mut().expect("loaded");
     ready.apply(Command::AddPair { moving, fixed });
-    ready.apply(Command::MovePoint { pair: 0, end: End::Fixed, to: [2.0, 20.0, 16.0], settled: true });
+    ready.apply(Command::MovePoint {
+        pair: 0,
+        end: End::Fixed,
+        to: Point3::from_array([2.0, 20.0, 16.0]),
+        settled: true,
+    });
     harness.run_steps(3);
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.fitted_pairs(), 6, "{:?}", ready.fit.error);
@@ -330,13 +335,23 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     });
     centred_on(&harness, [-22.0, 4.0, 9.0]);
     let ready = harness.state_mut().ready_mut().expect("loaded");
-    ready.apply(Command::MovePoint { pair: 1, end: End::Fixed, to: [41.0, 17.0, 19.0], settled: false });
+    ready.apply(Command::MovePoint {
+        pair: 1,
+        end: End::Fixed,
+        to: Point3::from_array([41.0, 17.0, 19.0]),
+        settled: false,
+    });
     assert!(
         harness.state().ready().expect("loaded").view.slice_mm == [9.0, 4.0, -22.0],
         "a drag in progress moves nothing"
     );
     let ready = harness.state_mut().ready_mut().expect("loaded");
-    ready.apply(Command::MovePoint { pair: 1, end: End::Fixed, to: [42.0, 18.0, 20.0], settled: true });
+    ready.apply(Command::MovePoint {
+        pair: 1,
+        end: End::Fixed,
+        to: Point3::from_array([42.0, 18.0, 20.0]),
+        settled: true,
+    });
     centred_on(&harness, [42.0, 18.0, 20.0]);
     harness.run_steps(2);
     // Selecting pair 3 by its fixed position in the table.

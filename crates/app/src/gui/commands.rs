@@ -11,7 +11,7 @@ use std::sync::Arc;
 
 use warpbench_gpu::OrbitCamera;
 use warpbench_gpu::glam::Vec3;
-use warpbench_io::geometry::Point3;
+use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::brush::BrushStroke;
 
@@ -45,14 +45,14 @@ pub enum Command {
     ToggleAdding,
     /// Append a completed pair, active.
     AddPair {
-        moving: Point3<warpbench_io::geometry::Lps>,
-        fixed: Point3<warpbench_io::geometry::Lps>,
+        moving: Point3<Lps>,
+        fixed: Point3<Lps>,
     },
-    /// Put one point of pair `pair` at `to` (LPS mm); `settled`: the last move of a drag, fitted with diagnostics.
+    /// Put one point of pair `pair` at `to`; `settled`: the last move of a drag, fitted with diagnostics.
     MovePoint {
         pair: usize,
         end: End,
-        to: [f64; 3],
+        to: Point3<Lps>,
         settled: bool,
     },
     DeletePair(usize),
@@ -183,8 +183,8 @@ impl Ready {
             Command::MovePoint { pair, end, to, settled } => {
                 let Some(p) = self.document.pairs.get_mut(pair) else { return };
                 match end {
-                    End::Fixed => p.fixed = Some(Point3::from_array(to)),
-                    End::Moving => p.moving = Some(Point3::from_array(to)),
+                    End::Fixed => p.fixed = Some(to),
+                    End::Moving => p.moving = Some(to),
                 }
                 if settled {
                     self.refit_soon();

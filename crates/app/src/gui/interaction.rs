@@ -67,7 +67,7 @@ impl Ready {
             return;
         }
         self.pointer.notice = None;
-        self.apply(Command::MovePoint { pair: drag.pair, end: drag.end, to: p, settled: false });
+        self.apply(Command::MovePoint { pair: drag.pair, end: drag.end, to: Point3::from_array(p), settled: false });
     }
 
     /// Ends a drag in `view`: the full fit with its diagnostics.
