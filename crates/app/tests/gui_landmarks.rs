@@ -475,3 +475,101 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     let expected = plane.ref_from_pixel(px[0] + f64::from(20.0 / scale), px[1]);
     assert!(distance(moved, expected) < 1.0, "dragged to {moved:?}, expected {expected:?}");
 }
+
+/// Slice habits (issue 30, item 4): over a slice the wheel steps one slice of the fixed grid and shift + wheel ten, a
+/// right drag sets the fixed volume's window and level (one undo step, the document's look), and a shift-click moves
+/// every view, the 3-D camera too, to the clicked point.
+#[test]
+fn the_wheel_steps_slices_and_a_right_drag_sets_window_and_level() {
+    use warpbench_app::gui::slice_habits::slice_step;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 700.0));
+    wait_until_rendered(&mut harness);
+    let rect = harness.get_by_label("Axial slice").rect();
+    let (step, (lo, hi)) = slice_step(&harness.state().ready().expect("ready").loaded.fixed, 0);
+    assert!(step > 0.0 && hi > lo + 20.0 * step, "a grid of many slices: {step} mm over {lo}..{hi}");
+    let wheel = |harness: &mut Harness<'_, Workbench>, notches: f32, shift: bool| {
+        let modifiers = egui::Modifiers { shift, ..egui::Modifiers::default() };
+        harness.input_mut().events.push(egui::Event::PointerMoved(rect.center()));
+        harness.input_mut().events.push(egui::Event::MouseWheel {
+            unit: egui::MouseWheelUnit::Line,
+            delta: egui::vec2(0.0, notches),
+            phase: egui::TouchPhase::Move,
+            source: egui::MouseWheelSource::Unknown,
+            modifiers,
+        });
+        harness.input_mut().events.push(egui::Event::ModifiersChanged(modifiers));
+        harness.run_steps(2);
+        harness.input_mut().events.push(egui::Event::ModifiersChanged(egui::Modifiers::default()));
+        harness.state().ready().expect("ready").view.slice_mm[0]
+    };
+    let start = harness.state().ready().expect("ready").view.slice_mm[0];
+    let one = wheel(&mut harness, 1.0, false);
+    assert!((one - start - step).abs() < 1e-9, "one notch, one slice: {start} -> {one} (step {step})");
+    let back = wheel(&mut harness, -1.0, false);
+    assert!((back - start).abs() < 1e-9, "and back: {back}");
+    let ten = wheel(&mut harness, -1.0, true);
+    assert!((ten - (start - 10.0 * step)).abs() < 1e-9, "shift: ten slices: {start} -> {ten}");
+
+    // A right drag: right widens the fixed volume's window, up brightens; the moving volume's look stays.
+    let looks = harness.state().ready().expect("ready").document.layers;
+    let secondary = |pos: egui::Pos2, pressed: bool| egui::Event::PointerButton {
+        pos,
+        button: egui::PointerButton::Secondary,
+        pressed,
+        modifiers: egui::Modifiers::default(),
+    };
+    let from = rect.center();
+    harness.input_mut().events.push(egui::Event::PointerMoved(from));
+    harness.input_mut().events.push(secondary(from, true));
+    harness.step();
+    for t in [0.25, 0.5, 0.75, 1.0] {
+        harness.input_mut().events.push(egui::Event::PointerMoved(from + egui::vec2(60.0, -20.0) * t));
+        harness.step();
+    }
+    harness.input_mut().events.push(secondary(from + egui::vec2(60.0, -20.0), false));
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("ready");
+    let (before, after) = (looks[0], ready.document.layers[0]);
+    let width = |l: &warpbench_app::project::document::Look| l.window_high - l.window_low;
+    let level = |l: &warpbench_app::project::document::Look| 0.5 * (l.window_high + l.window_low);
+    assert!(width(&after) > 1.1 * width(&before), "wider: {before:?} -> {after:?}");
+    assert!(level(&after) < level(&before), "brighter (lower level): {before:?} -> {after:?}");
+    assert_eq!(ready.document.layers[1], looks[1], "the moving volume's look stays");
+    assert!(ready.pointer.selected.is_none() && ready.drag().is_none(), "a right drag grabs nothing");
+
+    // Shift-click: every view moves to the point, the 3-D camera's target too.
+    let target_before = harness.state().ready().expect("ready").view.camera.target_ref;
+    let at = rect.center() + egui::vec2(rect.width() * 0.2, 0.0);
+    let shift = egui::Modifiers { shift: true, ..egui::Modifiers::default() };
+    harness.input_mut().events.push(egui::Event::ModifiersChanged(shift));
+    harness.input_mut().events.push(egui::Event::PointerMoved(at));
+    harness.input_mut().events.push(egui::Event::PointerButton {
+        pos: at,
+        button: egui::PointerButton::Primary,
+        pressed: true,
+        modifiers: shift,
+    });
+    harness.step();
+    harness.input_mut().events.push(egui::Event::PointerButton {
+        pos: at,
+        button: egui::PointerButton::Primary,
+        pressed: false,
+        modifiers: shift,
+    });
+    harness.run_steps(2);
+    harness.input_mut().events.push(egui::Event::ModifiersChanged(egui::Modifiers::default()));
+    let ready = harness.state().ready().expect("ready");
+    let s = ready.view.slice_mm;
+    let t = ready.view.camera.target_ref;
+    assert!(t != target_before, "the camera moved");
+    assert!(
+        (f64::from(t.x) - s[2]).abs() < 1e-3
+            && (f64::from(t.y) - s[1]).abs() < 1e-3
+            && (f64::from(t.z) - s[0]).abs() < 1e-3,
+        "the camera looks at the crosshair: {t:?} vs {s:?}"
+    );
+}

@@ -66,6 +66,9 @@ pub enum Command {
     MoveSlice(usize, f64),
     /// Move the three slices through ref point `x_ref` (linked navigation).
     CentreSlices([f64; 3]),
+    /// Move every view to ref point `x_ref`: the three slices through it and the 3-D view's camera onto it (the
+    /// linked crosshair, a shift-click).
+    CentreViews([f64; 3]),
     File(FileAction),
     Export(export::ExportKind, PathBuf),
     /// Start or stop pulsing the attention lens about the selected pair in the 3-D view ([`super::attention`]).
@@ -236,6 +239,13 @@ impl Ready {
                 self.view.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
                 self.invalidate_slices();
                 self.crosshair_moved();
+            }
+            Command::CentreViews(x_ref) => {
+                self.view.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
+                self.view.camera.target_ref = Vec3::from_array(x_ref.map(|v| v as f32));
+                self.view.camera.pan_mm = warpbench_gpu::glam::Vec2::ZERO;
+                self.crosshair_moved();
+                self.invalidate();
             }
             Command::File(action) => self.file_action(action),
             Command::Export(kind, out) => self.start_export(kind, out),

@@ -41,6 +41,7 @@ pub mod placement;
 pub mod ready;
 mod rendering;
 pub mod side_panel;
+pub mod slice_habits;
 pub mod state;
 pub mod status;
 pub mod suggestion;

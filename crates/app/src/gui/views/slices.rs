@@ -4,7 +4,8 @@
 
 use eframe::egui;
 
-use crate::gui::{Command, DragPoint, DragView, Placing, Ready, SLICE_SLAB_MM, panels, placement};
+use crate::gui::{Command, DragPoint, DragView, Placing, Ready, SLICE_SLAB_MM, panels, placement, slice_habits};
+use crate::settings::Blend;
 
 /// Draws the slice strip at the bottom of the window.
 pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
@@ -60,13 +61,14 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                             .map(|q| placement::slice_screen(image_rect, scale, q))
                     };
                     // A press on a suggested target's ghost takes it and drags its fixed point.
-                    if response.drag_started()
+                    let primary = egui::PointerButton::Primary;
+                    if response.drag_started_by(primary)
                         && let Some(press) = col.input(|i| i.pointer.press_origin())
                         && let Some(pair) = ready.grab_ghost(press, on_screen, DragView::Slice(a))
                     {
                         ready.pointer.selected = Some(pair);
                     }
-                    if response.drag_started()
+                    if response.drag_started_by(primary)
                         && let Some(press) = col.input(|i| i.pointer.press_origin())
                         && let Some((pair, end)) = ready.grab(press, on_screen)
                         && ready.pointer.interaction.grab(DragPoint { pair, end, view: DragView::Slice(a) })
@@ -76,39 +78,85 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                     let dragging_here = ready.drag().is_some_and(|d| d.view == DragView::Slice(a));
                     // Off the image the point stays where it was.
                     if dragging_here
-                        && response.dragged()
+                        && response.dragged_by(primary)
                         && let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref)
                     {
                         ready.drag_to(x_ref, None);
                     }
-                    if response.drag_stopped() {
+                    if response.drag_stopped_by(primary) {
                         ready.end_drag(DragView::Slice(a));
                     }
                     // The brush: a press on the image starts a stroke there, the drag displaces within the plane.
                     if ready.pointer.interaction.sculpting() {
-                        if response.drag_started()
+                        if response.drag_started_by(primary)
                             && let Some(from) = col.input(|i| i.pointer.press_origin()).and_then(to_ref)
                         {
                             ready.sculpt_press(DragView::Slice(a), from);
                         }
-                        if response.dragged()
+                        if response.dragged_by(primary)
                             && let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref)
                         {
                             ready.sculpt_to(x_ref);
                         }
-                        if response.drag_stopped() {
+                        if response.drag_stopped_by(primary) {
                             ready.sculpt_release(DragView::Slice(a));
                         }
                     }
                     if response.clicked()
                         && let Some(x_ref) = response.interact_pointer_pos().and_then(to_ref)
                     {
-                        if ready.placing() == Placing::Idle {
+                        if col.input(|i| i.modifiers.shift) {
+                            // The linked crosshair: every view, the 3-D view's camera too, moves to the point.
+                            ready.apply(Command::CentreViews(x_ref));
+                        } else if ready.placing() == Placing::Idle {
                             // Linked navigation: the other two slices move through the clicked point.
                             ready.apply(Command::CentreSlices(x_ref));
                         } else {
                             ready.place_at_ref(x_ref, None);
                         }
+                    }
+                    // The wheel steps one slice (shift: ten) while the pointer is over the image.
+                    if response.hovered() {
+                        let notches = wheel_notches(col, response.id);
+                        if notches != 0 {
+                            let shift = col.input(|i| i.modifiers.shift);
+                            let to =
+                                slice_habits::stepped(&ready.loaded.fixed, a, ready.view.slice_mm[a], notches, shift);
+                            ready.apply(Command::MoveSlice(a, to));
+                        }
+                    }
+                    // A right drag sets the window and level of the volume the views show (the fixed one unless
+                    // the moving one is shown alone), its values written over the image meanwhile.
+                    let side = slice_habits::window_side(ready.document.settings.blend == Blend::MovingOnly);
+                    if response.dragged_by(egui::PointerButton::Secondary) {
+                        let d = response.drag_delta();
+                        if d != egui::Vec2::ZERO {
+                            let mut looks = ready.document.layers;
+                            looks[side] = slice_habits::window_level_dragged(looks[side], d.x, d.y);
+                            ready.apply(Command::SetLooks(looks));
+                        }
+                        let text = slice_habits::window_level_text(&ready.document.layers[side]);
+                        col.painter_at(response.rect).text(
+                            response.rect.left_bottom() + egui::vec2(4.0, -4.0),
+                            egui::Align2::LEFT_BOTTOM,
+                            text,
+                            egui::FontId::proportional(12.0),
+                            egui::Color32::from_rgb(255, 230, 90),
+                        );
+                    }
+                    // The patient's sides at the image's edges.
+                    let [left, right, top, bottom] = slice_habits::edge_labels(&planes[a]);
+                    let painter = col.painter_at(response.rect);
+                    let r = response.rect;
+                    let font = egui::FontId::proportional(12.0);
+                    let colour = egui::Color32::from_rgb(120, 220, 255);
+                    for (pos, align, side) in [
+                        (r.left_center() + egui::vec2(3.0, 0.0), egui::Align2::LEFT_CENTER, left),
+                        (r.right_center() - egui::vec2(3.0, 0.0), egui::Align2::RIGHT_CENTER, right),
+                        (r.center_top() + egui::vec2(0.0, 2.0), egui::Align2::CENTER_TOP, top),
+                        (r.center_bottom() - egui::vec2(0.0, 2.0), egui::Align2::CENTER_BOTTOM, bottom),
+                    ] {
+                        painter.text(pos, align, side, font.clone(), colour);
                     }
                     // The crosshair: where the other two planes cut this one.
                     let centre = [ready.view.slice_mm[2], ready.view.slice_mm[1], ready.view.slice_mm[0]];
@@ -123,4 +171,26 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
             }
         });
     });
+}
+
+/// Whole wheel notches this frame over the widget `id` (a trackpad's points carried between frames in egui's memory).
+fn wheel_notches(ui: &egui::Ui, id: egui::Id) -> i32 {
+    let (delta, lines) = ui.input(|i| {
+        i.events.iter().fold((0.0f32, true), |(sum, lines), e| match e {
+            egui::Event::MouseWheel { unit, delta, modifiers, .. } => {
+                // Shift + wheel arrives as a horizontal scroll on some systems.
+                let d = if modifiers.shift && delta.y == 0.0 { delta.x } else { delta.y };
+                (sum + d, lines && *unit != egui::MouseWheelUnit::Point)
+            }
+            _ => (sum, lines),
+        })
+    });
+    if delta == 0.0 {
+        return 0;
+    }
+    let key = id.with("wheel carry");
+    let carry = ui.data(|d| d.get_temp::<f32>(key).unwrap_or(0.0));
+    let (notches, left) = slice_habits::notches(carry, delta, lines);
+    ui.data_mut(|d| d.insert_temp(key, left));
+    notches
 }
