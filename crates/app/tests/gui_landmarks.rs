@@ -573,3 +573,50 @@ fn the_wheel_steps_slices_and_a_right_drag_sets_window_and_level() {
         "the camera looks at the crosshair: {t:?} vs {s:?}"
     );
 }
+
+/// "Exclude outliers" (issue 30, item 2): with one pair moved by 8 mm among 20 that follow a smooth warp (seeded),
+/// the button deactivates exactly that pair, says which in the status bar, and is one undo step.
+#[test]
+fn exclude_outliers_deactivates_exactly_the_injected_outlier() {
+    use warpbench_app::gui::GuiOptions;
+    use warpbench_app::inputs::LandmarkSource;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let h = |i: usize, s: u64| {
+        let x = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ s.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        ((x ^ (x >> 29)).wrapping_mul(0x94D0_49BB_1331_11EB) >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let smooth = |q: [f64; 3]| [q[0] + 2.0 * (q[1] / 30.0).sin(), q[1] - 1.5 * (q[2] / 25.0).cos(), q[2] + 1.0];
+    let mut pairs: Vec<([f64; 3], [f64; 3])> = (0..21)
+        .map(|i| {
+            let q = [80.0 * h(i, 1) - 40.0, 80.0 * h(i, 2) - 25.0, 45.0 * h(i, 3) - 5.0];
+            (smooth(q), q)
+        })
+        .collect();
+    pairs[13].0[0] += 8.0;
+    let csv = dir.path().join("outlier.csv");
+    common::write_pairs_csv(&csv, &pairs);
+    let opts = GuiOptions {
+        fixed: Some(common::mri()),
+        moving: Some(common::mri()),
+        landmarks: Some(LandmarkSource::Pairs(csv)),
+        autosave: Some(dir.path().join("autosave.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    window::wait_until_shown(&mut harness);
+    assert_eq!(harness.state().ready().expect("ready").fitted_pairs(), 21);
+    harness.get_by_label("Exclude outliers").click_accesskit();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("ready");
+    let inactive: Vec<usize> = (0..21).filter(|&i| !ready.document.pairs[i].active).collect();
+    assert_eq!(inactive, vec![13], "exactly the moved pair");
+    let notice = ready.pointer.notice.clone().unwrap_or_default();
+    assert!(notice.contains("Pt-13"), "the status bar names it: {notice}");
+    harness.get_by_label("Undo").click();
+    harness.run_steps(3);
+    assert!(harness.state().ready().expect("ready").document.pairs.iter().all(|p| p.active), "one undo step");
+}

@@ -59,6 +59,9 @@ pub enum Command {
     RenamePair(usize, String),
     /// Switch pair i into or out of the fit.
     SetActive(usize, bool),
+    /// Switch out of the fit the pairs whose leave-one-out error is far above the rest
+    /// ([`crate::project::diagnostics::outliers`]), as one change.
+    ExcludeOutliers,
     SetSettings(ViewSettings),
     /// Fixed, moving.
     SetLooks([Look; 2]),
@@ -253,6 +256,7 @@ impl Ready {
                 self.view.attention = self.view.attention.toggled(std::time::Instant::now());
                 self.invalidate_view();
             }
+            Command::ExcludeOutliers => self.exclude_outliers(),
             Command::ShowWorstPair => {
                 match crate::project::diagnostics::loo_ranking(&self.document.pairs, &self.fit.pair_errors).first() {
                     Some(&(_, i)) => {
@@ -467,6 +471,25 @@ impl Ready {
     }
 
     /// Centres the camera and the three slices on pair `i`'s fixed point.
+    /// [`Command::ExcludeOutliers`]: the outliers among the pairs in the fit switched off, and the status bar says
+    /// which (or that there were none).
+    fn exclude_outliers(&mut self) {
+        let (rows, (fixed, moving)) = self.document.fit_pairs();
+        let method = self.document.settings.method();
+        let fixed_box = crate::inputs::volume_box(&self.loaded.fixed);
+        let out = crate::project::diagnostics::outliers(&method, &fixed, &moving, fixed_box);
+        if out.is_empty() {
+            self.pointer.notice = Some(format!("No outliers among the {} pairs in the fit.", rows.len()));
+            return;
+        }
+        let names: Vec<String> = out.iter().map(|&k| self.document.pairs[rows[k]].name.clone()).collect();
+        for &k in &out {
+            self.document.pairs[rows[k]].active = false;
+        }
+        self.pointer.notice = Some(format!("Excluded {} outlier(s): {}", names.len(), names.join(", ")));
+        self.refit_soon();
+    }
+
     fn jump_to(&mut self, i: usize) {
         let Some(q) = self.document.pairs.get(i).and_then(|p| p.fixed) else { return };
         self.pointer.selected = Some(i);

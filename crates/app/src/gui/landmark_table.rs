@@ -130,6 +130,15 @@ fn landmark_row(
     commands
 }
 
+/// "Exclude outliers", with the rule it applies said beside it.
+pub fn outliers_ui(ui: &mut egui::Ui, pairs_in_fit: usize) -> Option<Command> {
+    let rule = crate::project::diagnostics::OUTLIER_RULE;
+    let button = egui::Button::new("Exclude outliers");
+    let clicked = ui.add_enabled(pairs_in_fit >= 6, button).on_hover_text(rule).clicked();
+    ui.small(format!("Outliers: {rule}."));
+    clicked.then_some(Command::ExcludeOutliers)
+}
+
 /// Histogram bins of `values` (mm): `bins` equal bins from 0 to the largest value (at least 1 mm), as (bin
 /// centre, width, count).
 #[must_use]

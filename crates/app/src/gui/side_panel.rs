@@ -61,6 +61,7 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
                 super::landmark_table::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors)
                     .map(Command::JumpTo),
             );
+            commands.extend(super::landmark_table::outliers_ui(ui, ready.fit_pairs().0.len()));
             panels::inverse_consistency_ui(ui, ready.fit.brush_consistency.as_ref());
             let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
             commands.extend(panels::attention_ui(ui, ready.view.attention.is_on(), has_loo));

@@ -38,6 +38,62 @@ pub fn loo_ranking(pairs: &[LandmarkPair], errors: &[Option<PairErrors>]) -> Vec
     loo
 }
 
+/// The rule of "Exclude outliers": a pair is an outlier when its leave-one-out error is far above the others', by the
+/// modified z-score of Iglewicz & Hoaglin (1993), 0.6745 · (e − median) / MAD > [`OUTLIER_Z`], and above
+/// [`OUTLIER_FLOOR_MM`] (so that a tight set does not lose pairs to sub-millimetre noise). The worst such pair is
+/// dropped and the errors of the rest computed again without it, until none is left or a quarter of the pairs is
+/// gone: one wrong pair inflates its neighbours' errors, which fall back once it is out.
+pub const OUTLIER_Z: f64 = 3.5;
+/// The smallest leave-one-out error that can make a pair an outlier, mm.
+pub const OUTLIER_FLOOR_MM: f64 = 1.0;
+
+/// The rule of [`OUTLIER_Z`] in words, for the window to show beside the button.
+pub const OUTLIER_RULE: &str = "leave-one-out error above 1 mm and more than 3.5 robust deviations above the median \
+    (modified z-score, Iglewicz & Hoaglin), worst first, refitting after each";
+
+/// Which of the pairs (`fixed[i]` ↔ `moving[i]`) are outliers by [`OUTLIER_Z`]'s rule for `method` over `fixed_box`,
+/// as indices into the lists, worst first.
+#[must_use]
+pub fn outliers(
+    method: &Method,
+    fixed: &[Point3<Fixed>],
+    moving: &[Point3<Moving>],
+    fixed_box: Aabb<Fixed>,
+) -> Vec<usize> {
+    let mut kept: Vec<usize> = (0..fixed.len()).collect();
+    let mut out = Vec::new();
+    let most = fixed.len() / 4;
+    while out.len() < most && kept.len() > method.needs().min_pairs + 1 {
+        let f: Vec<Point3<Fixed>> = kept.iter().map(|&i| fixed[i]).collect();
+        let m: Vec<Point3<Moving>> = kept.iter().map(|&i| moving[i]).collect();
+        let errors = method.leave_one_out(&f, &m, fixed_box, Parallelism::Rayon);
+        let known: Vec<(usize, f64)> = errors.iter().enumerate().filter_map(|(k, e)| Some((k, (*e)?))).collect();
+        let Some(&(worst, e)) = known.iter().max_by(|a, b| a.1.total_cmp(&b.1)) else { break };
+        let values: Vec<f64> = known.iter().map(|&(_, e)| e).collect();
+        let median = median(&values);
+        let mad = median_of(values.iter().map(|v| (v - median).abs()).collect());
+        let z = if mad > 0.0 { 0.6745 * (e - median) / mad } else { f64::INFINITY };
+        if e <= OUTLIER_FLOOR_MM || z <= OUTLIER_Z {
+            break;
+        }
+        out.push(kept.remove(worst));
+    }
+    out
+}
+
+fn median(values: &[f64]) -> f64 {
+    median_of(values.to_vec())
+}
+
+fn median_of(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
+}
+
 /// The grid over the fixed volume's box on which folding (det ∇u ≤ 0) is looked for.
 pub const JACOBIAN_GRID: [usize; 3] = [32; 3];
 
@@ -159,5 +215,26 @@ mod tests {
         .expect("thread");
         woken.recv().expect("woken");
         assert_eq!(job.poll(), Some(Some(here)));
+    }
+
+    /// One pair moved by 8 mm among 20 that follow a smooth warp is found, and only it; the consistent set alone has
+    /// none.
+    #[test]
+    fn the_one_wrong_pair_is_the_only_outlier() {
+        let h = |i: usize, s: u64| {
+            let x = (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ s.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            ((x ^ (x >> 29)).wrapping_mul(0x94D0_49BB_1331_11EB) >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let fixed: Vec<Point3<Fixed>> = (0..21)
+            .map(|i| as_fixed(lps([120.0 * h(i, 1) - 60.0, 120.0 * h(i, 2) - 60.0, 120.0 * h(i, 3) - 60.0])))
+            .collect();
+        let smooth = |q: [f64; 3]| [q[0] + 3.0 * (q[1] / 40.0).sin(), q[1] - 2.0 * (q[2] / 35.0).cos(), q[2] + 1.5];
+        let mut moving: Vec<Point3<Moving>> = fixed.iter().map(|q| as_moving(lps(smooth(q.coords())))).collect();
+        let method = Method::Tps { stiffness: 0.0 };
+        let fixed_box = Aabb::new(as_fixed(lps([-70.0; 3])), as_fixed(lps([70.0; 3])));
+        assert!(outliers(&method, &fixed, &moving, fixed_box).is_empty(), "a consistent set has no outlier");
+        let c = moving[13].coords();
+        moving[13] = as_moving(lps([c[0] + 8.0, c[1], c[2]]));
+        assert_eq!(outliers(&method, &fixed, &moving, fixed_box), vec![13]);
     }
 }
