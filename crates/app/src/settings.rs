@@ -250,6 +250,19 @@ impl Probe {
 }
 
 choice! {
+    /// What the slices draw over the images to show the warp itself.
+    Overlay, "warp overlay", default None {
+        None = "none",
+        /// det ∇u: diverging colours around 1, folding (det ≤ 0) in a colour of its own.
+        Jacobian = "jacobian",
+        /// |u(x) − x|, mm.
+        Displacement = "displacement",
+        /// The slice's grid moved by the warp's displacement within the plane.
+        Grid = "grid",
+    }
+}
+
+choice! {
     /// How samples are lit ([`warpbench_gpu::ShadingMode`]).
     Shading, "shading", default Dvr {
         /// The transfer function's colour as it is.

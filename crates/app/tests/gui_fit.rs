@@ -804,3 +804,67 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
         assert!((0..3).all(|a| (now[a] - was[a]).abs() < 1e-9), "u({x:?}) back to the landmarks alone");
     }
 }
+
+/// Warp overlays (issue 30, item 5): chosen by label, each slice draws det ∇u or |u(x) − x| over its image, and the
+/// overlay's value at sampled pixels is what the status bar reads out there; the deformed grid's lines move by the
+/// in-plane displacement; "none" takes them away.
+#[test]
+fn the_warp_overlays_show_the_status_bars_values() {
+    use warpbench_app::settings::Overlay;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 800.0));
+    wait_until_rendered(&mut harness);
+    harness.get_by_label("Warp overlay").click_accesskit();
+    harness.run_steps(2);
+    harness.get_by_label("jacobian").click_accesskit();
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    for overlay in [Overlay::Jacobian, Overlay::Displacement] {
+        if overlay == Overlay::Displacement {
+            let ready = harness.state_mut().ready_mut().expect("ready");
+            let settings =
+                warpbench_app::project::document::ViewSettings { overlay, ..ready.document.settings.clone() };
+            ready.apply(Command::SetSettings(settings));
+            harness.run_steps(3);
+            wait_until_rendered(&mut harness);
+        }
+        let ready = harness.state().ready().expect("ready");
+        assert_eq!(ready.document.settings.overlay, overlay);
+        for a in 0..3 {
+            let o = ready.view.overlays[a].as_ref().expect("an overlay on every slice");
+            assert_eq!(o.key.overlay, overlay);
+            let plane = ready.slice_plane(a);
+            let mut finite = 0;
+            for (i, j) in [(0, 0), (o.samples.0 / 2, o.samples.1 / 3), (o.samples.0 - 1, o.samples.1 - 1), (7, 11)] {
+                let [px, py] = o.pixel_of(i, j);
+                let cursor = ready.cursor_at(plane.ref_from_pixel(px, py));
+                let value = o.values[(j * o.samples.0 + i) as usize];
+                let read_out = match overlay {
+                    Overlay::Jacobian => cursor.det_jacobian.expect("a warp"),
+                    _ => cursor.displacement_mm(),
+                };
+                assert_eq!(value.to_bits(), read_out.to_bits(), "{overlay:?} slice {a} sample ({i}, {j})");
+                finite += usize::from(value.is_finite());
+            }
+            assert_eq!(finite, 4, "{overlay:?}: values everywhere on slice {a}");
+        }
+    }
+    // The deformed grid: lines whose points moved by the in-plane displacement (the pairs move by a few mm).
+    let ready = harness.state_mut().ready_mut().expect("ready");
+    let settings =
+        warpbench_app::project::document::ViewSettings { overlay: Overlay::Grid, ..ready.document.settings.clone() };
+    ready.apply(Command::SetSettings(settings));
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("ready");
+    let o = ready.view.overlays[0].as_ref().expect("a grid");
+    assert!(o.lines.len() > 4 && o.lines.iter().all(|l| l.len() >= 2), "{} lines", o.lines.len());
+    let ready = harness.state_mut().ready_mut().expect("ready");
+    let settings =
+        warpbench_app::project::document::ViewSettings { overlay: Overlay::None, ..ready.document.settings.clone() };
+    ready.apply(Command::SetSettings(settings));
+    harness.run_steps(3);
+    assert!(harness.state().ready().expect("ready").view.overlays.iter().all(Option::is_none));
+}

@@ -123,19 +123,20 @@ fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
         || old.stiffness.to_bits() != new.stiffness.to_bits()
         || old.bspline_levels != new.bspline_levels
         || old.grid_n != new.grid_n;
-    let without = |s: &ViewSettings, oblique| ViewSettings {
+    let without = |s: &ViewSettings, oblique, overlay| ViewSettings {
         pick_probe: new.pick_probe,
         pick_threshold: new.pick_threshold,
         brush_radius_mm: new.brush_radius_mm,
         follow_pair: new.follow_pair,
         oblique,
+        overlay,
         ..s.clone()
     };
     if refit {
         Effect::Refit
-    } else if without(old, new.oblique) != *new {
+    } else if without(old, new.oblique, new.overlay) != *new {
         Effect::Render
-    } else if old.oblique != new.oblique {
+    } else if old.oblique != new.oblique || old.overlay != new.overlay {
         Effect::Slices
     } else {
         Effect::None

@@ -35,6 +35,7 @@ pub mod leafer;
 pub mod load;
 pub mod open;
 pub mod options;
+pub mod overlay;
 pub mod pacing;
 pub mod panels;
 pub mod placement;

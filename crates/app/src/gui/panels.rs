@@ -11,7 +11,7 @@ use crate::procedural::ProceduralSpec;
 use crate::project::document::{
     BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, StartingTransform, ViewSettings,
 };
-use crate::settings::{Blend, MethodKind, Preset, Probe, ProceduralKind, Shading};
+use crate::settings::{Blend, MethodKind, Overlay, Preset, Probe, ProceduralKind, Shading};
 
 /// A slice view's oblique controls (labelled "NAME oblique", "NAME tilt", "NAME spin"). Returns whether they
 /// changed.
@@ -64,6 +64,7 @@ pub fn settings_ui(
         ui.checkbox(&mut s.follow_pair, "Follow the pair being edited")
             .on_hover_text("Centre the slices on a pair when it is added, moved or selected");
     });
+    choice_ui(ui, "Warp overlay", &mut s.overlay, Overlay::ALL);
     ui.separator();
     ui.label("Warp");
     choice_ui(ui, "Method", &mut s.method, MethodKind::ALL);

@@ -29,6 +29,8 @@ pub struct View {
     pub control_eval: ControlEval,
     /// The pick under the pointer resting on the 3-D view, for the status bar's read-out ([`hover`]).
     pub hover: hover::HoverPick,
+    /// Each slice's warp overlay, kept until the warp, the plane or the choice changes ([`super::overlay`]).
+    pub overlays: [Option<super::overlay::SliceOverlay>; 3],
 }
 
 impl View {
@@ -45,6 +47,7 @@ impl View {
             leafer: leafer::Leafer::default(),
             control_eval: ControlEval::default(),
             hover: hover::HoverPick::default(),
+            overlays: [None, None, None],
         }
     }
 }

@@ -20,7 +20,7 @@ use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 
 use crate::procedural::ProceduralSpec;
-use crate::settings::{Blend, MethodKind, Preset, Probe, Shading, or_default};
+use crate::settings::{Blend, MethodKind, Overlay, Preset, Probe, Shading, or_default};
 
 /// What the user edits: the pair's paths and looks, the landmark pairs, the warp and view settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -204,6 +204,9 @@ pub struct ViewSettings {
     /// Centre the slices on the pair being edited (added, moved, selected); off, the views keep their place.
     #[serde(default)]
     pub follow_pair: bool,
+    /// What the slices draw over their images to show the warp ([`crate::settings::Overlay`]).
+    #[serde(default, deserialize_with = "or_default")]
+    pub overlay: Overlay,
 }
 
 fn default_brush_radius() -> f64 {
@@ -250,6 +253,7 @@ impl Default for ViewSettings {
             procedural: None,
             brush_radius_mm: default_brush_radius(),
             follow_pair: false,
+            overlay: Overlay::None,
         }
     }
 }

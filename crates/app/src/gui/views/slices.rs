@@ -4,7 +4,9 @@
 
 use eframe::egui;
 
-use crate::gui::{Command, DragPoint, DragView, Placing, Ready, SLICE_SLAB_MM, panels, placement, slice_habits};
+use crate::gui::{
+    Command, DragPoint, DragView, Placing, Ready, SLICE_SLAB_MM, overlay, panels, placement, slice_habits,
+};
 use crate::settings::Blend;
 
 /// Draws the slice strip at the bottom of the window.
@@ -44,6 +46,10 @@ pub fn slice_strip(ui: &mut egui::Ui, ready: &mut Ready) {
                         })
                         .inner;
                     egui::Image::new(egui::load::SizedTexture::new(shown.texture_id, size)).paint_at(col, rect);
+                    let ctx = col.ctx().clone();
+                    if let Some(o) = ready.slice_overlay(&ctx, a, &planes[a]) {
+                        overlay::draw(col, o, rect, scale);
+                    }
                     let label = format!("{} slice", names[a]);
                     response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, &label));
                     // The ref point under a window position, only when it is over the image ([`placement`]).

@@ -1,0 +1,285 @@
+//! Pictures of the warp itself over the slices, as BigWarp and Slicer users read it: det ∇u on diverging colours
+//! about 1 (folding, det ≤ 0, in a colour of its own), |u(x) − x| in mm, or the slice's grid moved by the warp, each
+//! with a legend giving its scale.
+//!
+//! The values are the status bar's: each sample is [`Ready::cursor_at`] at its point, the same det ∇u and the same
+//! moving point the read-out shows under the pointer. They are sampled on a coarser grid than the slice's pixels
+//! (at most [`MAX_SAMPLES`] a side) and computed again only when the warp, the plane or the choice changes.
+
+use eframe::egui;
+use warpbench_gpu::SlicePlane;
+
+use super::Ready;
+use crate::settings::Overlay;
+
+/// The most samples along a side of a slice's overlay.
+pub const MAX_SAMPLES: u32 = 96;
+/// The det ∇u range the diverging colours span (log scale, 1 in the middle).
+pub const JACOBIAN_RANGE: (f64, f64) = (0.5, 2.0);
+/// The colour of folding, det ∇u ≤ 0.
+pub const FOLDING: egui::Color32 = egui::Color32::from_rgb(200, 0, 255);
+/// The spacing of the deformed grid's lines, mm.
+pub const GRID_MM: f64 = 10.0;
+
+/// What an overlay was computed for: the choice, the fit and the plane.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OverlayKey {
+    pub overlay: Overlay,
+    pub fit_generation: u64,
+    pub origin_ref: [f64; 3],
+    pub u_ref: [f64; 3],
+    pub v_ref: [f64; 3],
+    pub size: (u32, u32),
+}
+
+impl OverlayKey {
+    #[must_use]
+    pub fn new(overlay: Overlay, fit_generation: u64, plane: &SlicePlane) -> Self {
+        Self {
+            overlay,
+            fit_generation,
+            origin_ref: plane.origin_ref,
+            u_ref: plane.u_ref,
+            v_ref: plane.v_ref,
+            size: plane.size,
+        }
+    }
+}
+
+/// One slice's overlay: its samples' values and, for the colour maps, the image drawn over the slice.
+#[derive(Clone)]
+pub struct SliceOverlay {
+    pub key: OverlayKey,
+    /// Samples along the slice's x and y.
+    pub samples: (u32, u32),
+    /// One value per sample, row by row (det ∇u, or |u − x| mm; `NaN` without a warp); the deformed grid keeps the
+    /// displaced points of its lines instead ([`Self::lines`]).
+    pub values: Vec<f64>,
+    /// The deformed grid: polylines in slice pixels.
+    pub lines: Vec<Vec<[f64; 2]>>,
+    /// The largest |u − x| (mm), for the displacement legend.
+    pub max_mm: f64,
+    texture: Option<egui::TextureHandle>,
+}
+
+impl std::fmt::Debug for SliceOverlay {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SliceOverlay").field("key", &self.key).field("samples", &self.samples).finish_non_exhaustive()
+    }
+}
+
+impl SliceOverlay {
+    /// The slice pixel (fractional) of sample (i, j): the centres of an even grid over the image.
+    #[must_use]
+    pub fn pixel_of(&self, i: u32, j: u32) -> [f64; 2] {
+        let (w, h) = (self.key.size.0 as f64, self.key.size.1 as f64);
+        let (sx, sy) = (f64::from(self.samples.0), f64::from(self.samples.1));
+        [(f64::from(i) + 0.5) * w / sx - 0.5, (f64::from(j) + 0.5) * h / sy - 0.5]
+    }
+}
+
+/// The samples a side of `size` pixels gets.
+fn samples_of(size: (u32, u32)) -> (u32, u32) {
+    let longest = size.0.max(size.1).max(1);
+    let scale = (f64::from(MAX_SAMPLES) / f64::from(longest)).min(1.0);
+    let n = |s: u32| ((f64::from(s) * scale).round() as u32).max(2);
+    (n(size.0), n(size.1))
+}
+
+/// The colour of det ∇u = `det`: blue below 1, white at 1, red above, on a log scale over [`JACOBIAN_RANGE`];
+/// [`FOLDING`] at or below 0.
+#[must_use]
+pub fn jacobian_colour(det: f64) -> egui::Color32 {
+    if det.is_nan() {
+        return egui::Color32::TRANSPARENT;
+    }
+    if det <= 0.0 {
+        return FOLDING;
+    }
+    let (lo, hi) = JACOBIAN_RANGE;
+    let t = (det.ln() / if det < 1.0 { -lo.ln() } else { hi.ln() }).clamp(-1.0, 1.0);
+    let fade = |c: f64| (255.0 * c) as u8;
+    if t < 0.0 {
+        egui::Color32::from_rgb(fade(1.0 + t), fade(1.0 + 0.6 * t), 255)
+    } else {
+        egui::Color32::from_rgb(255, fade(1.0 - 0.6 * t), fade(1.0 - t))
+    }
+}
+
+/// The colour of a displacement of `mm` out of `max_mm`: dark blue through green to yellow.
+#[must_use]
+pub fn displacement_colour(mm: f64, max_mm: f64) -> egui::Color32 {
+    if mm.is_nan() {
+        return egui::Color32::TRANSPARENT;
+    }
+    let t = if max_mm > 0.0 { (mm / max_mm).clamp(0.0, 1.0) } else { 0.0 };
+    let c = |a: f64, b: f64, c: f64| {
+        let v = if t < 0.5 { a + (b - a) * 2.0 * t } else { b + (c - b) * (2.0 * t - 1.0) };
+        (255.0 * v) as u8
+    };
+    egui::Color32::from_rgb(c(0.27, 0.13, 0.99), c(0.0, 0.57, 0.91), c(0.33, 0.55, 0.14))
+}
+
+impl Ready {
+    /// Slice view `a`'s overlay for `plane`, computed again when the choice, the fit or the plane changed; `None`
+    /// with no overlay chosen.
+    pub(crate) fn slice_overlay(&mut self, ctx: &egui::Context, a: usize, plane: &SlicePlane) -> Option<&SliceOverlay> {
+        let overlay = self.document.settings.overlay;
+        if overlay == Overlay::None {
+            self.view.overlays[a] = None;
+            return None;
+        }
+        let key = OverlayKey::new(overlay, self.fit.generation, plane);
+        if self.view.overlays[a].as_ref().is_none_or(|o| o.key != key) {
+            // A drag keeps the last overlay until the pointer lets go: the samples cost a few fits' worth.
+            if self.drag().is_some() && self.view.overlays[a].is_some() {
+                return self.view.overlays[a].as_ref();
+            }
+            let computed = self.compute_overlay(ctx, a, key, plane);
+            self.view.overlays[a] = Some(computed);
+        }
+        self.view.overlays[a].as_ref()
+    }
+
+    fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {
+        let samples = samples_of(plane.size);
+        let mut overlay =
+            SliceOverlay { key, samples, values: Vec::new(), lines: Vec::new(), max_mm: 0.0, texture: None };
+        let fitted = self.fitted().is_some();
+        match overlay.key.overlay {
+            Overlay::None => {}
+            Overlay::Jacobian | Overlay::Displacement => {
+                let jacobian = overlay.key.overlay == Overlay::Jacobian;
+                for j in 0..samples.1 {
+                    for i in 0..samples.0 {
+                        let [px, py] = overlay.pixel_of(i, j);
+                        let cursor = self.cursor_at(plane.ref_from_pixel(px, py));
+                        let value = match (jacobian, fitted) {
+                            (_, false) => f64::NAN,
+                            (true, true) => cursor.det_jacobian.unwrap_or(f64::NAN),
+                            (false, true) => cursor.displacement_mm(),
+                        };
+                        overlay.values.push(value);
+                    }
+                }
+                overlay.max_mm = overlay.values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
+                let pixels: Vec<egui::Color32> = overlay
+                    .values
+                    .iter()
+                    .map(|&v| if jacobian { jacobian_colour(v) } else { displacement_colour(v, overlay.max_mm) })
+                    .map(|c| c.gamma_multiply(0.55))
+                    .collect();
+                let image = egui::ColorImage::new([samples.0 as usize, samples.1 as usize], pixels);
+                overlay.texture =
+                    Some(ctx.load_texture(format!("warp overlay {a}"), image, egui::TextureOptions::LINEAR));
+            }
+            Overlay::Grid => overlay.lines = self.deformed_grid(plane),
+        }
+        overlay
+    }
+
+    /// The lines of a [`GRID_MM`] grid over `plane`, each point x moved to where the warp takes it within the plane
+    /// (the in-plane part of u(x) − x), in slice pixels.
+    fn deformed_grid(&self, plane: &SlicePlane) -> Vec<Vec<[f64; 2]>> {
+        let len = |d: [f64; 3]| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let (du, dv) = (len(plane.u_ref).max(f64::MIN_POSITIVE), len(plane.v_ref).max(f64::MIN_POSITIVE));
+        let (w, h) = (f64::from(plane.size.0), f64::from(plane.size.1));
+        let moved = |px: f64, py: f64| {
+            let x = plane.ref_from_pixel(px, py);
+            let m = self.moving_shown_at(x);
+            let d = [m[0] - x[0], m[1] - x[1], m[2] - x[2]];
+            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            [px + dot(d, plane.u_ref) / (du * du), py + dot(d, plane.v_ref) / (dv * dv)]
+        };
+        let step_u = GRID_MM / du;
+        let step_v = GRID_MM / dv;
+        // Points every few pixels along a line of `n` pixels.
+        let along = |n: f64| {
+            let count = (n / 4.0).ceil().clamp(2.0, 64.0);
+            (0..=count as usize).map(move |k| k as f64 * n / count)
+        };
+        let mut lines = Vec::new();
+        let mut py = 0.0;
+        while py <= h {
+            lines.push(along(w).map(|px| moved(px - 0.5, py - 0.5)).collect());
+            py += step_v;
+        }
+        let mut px = 0.0;
+        while px <= w {
+            lines.push(along(h).map(|py| moved(px - 0.5, py - 0.5)).collect());
+            px += step_u;
+        }
+        lines
+    }
+}
+
+/// Draws `overlay` over the slice image at `rect` (`scale` screen points a slice pixel) with its legend.
+pub fn draw(ui: &egui::Ui, overlay: &SliceOverlay, rect: egui::Rect, scale: f32) {
+    let painter = ui.painter_at(rect);
+    if let Some(texture) = &overlay.texture {
+        let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+        painter.image(texture.id(), rect, uv, egui::Color32::WHITE);
+    }
+    let to_screen = |p: [f64; 2]| rect.min + egui::vec2((p[0] as f32 + 0.5) * scale, (p[1] as f32 + 0.5) * scale);
+    let stroke = egui::Stroke::new(1.0, egui::Color32::from_rgba_unmultiplied(255, 200, 60, 200));
+    for line in &overlay.lines {
+        painter.add(egui::Shape::line(line.iter().map(|&p| to_screen(p)).collect(), stroke));
+    }
+    // The legend: a colour bar with its ends, at the top right.
+    let bar = egui::Rect::from_min_size(rect.right_top() + egui::vec2(-92.0, 4.0), egui::vec2(80.0, 8.0));
+    let font = egui::FontId::proportional(11.0);
+    let text = egui::Color32::from_rgb(230, 230, 230);
+    let steps = 16;
+    let (left, right, colour): (String, String, Box<dyn Fn(f64) -> egui::Color32>) = match overlay.key.overlay {
+        Overlay::Jacobian => {
+            let (lo, hi) = JACOBIAN_RANGE;
+            (format!("{lo}"), format!("{hi} det"), Box::new(move |t| jacobian_colour(lo * (hi / lo).powf(t))))
+        }
+        Overlay::Displacement => {
+            let max = overlay.max_mm;
+            ("0".to_owned(), format!("{max:.1} mm"), Box::new(move |t| displacement_colour(t * max, max)))
+        }
+        Overlay::Grid => {
+            painter.text(bar.left_top(), egui::Align2::LEFT_TOP, format!("grid {GRID_MM} mm"), font, text);
+            return;
+        }
+        Overlay::None => return,
+    };
+    for k in 0..steps {
+        let t = (f64::from(k) + 0.5) / f64::from(steps);
+        let x0 = bar.left() + bar.width() * k as f32 / steps as f32;
+        let cell = egui::Rect::from_min_max(
+            egui::pos2(x0, bar.top()),
+            egui::pos2(x0 + bar.width() / steps as f32, bar.bottom()),
+        );
+        painter.rect_filled(cell, 0.0, colour(t));
+    }
+    painter.text(bar.left_bottom() + egui::vec2(0.0, 1.0), egui::Align2::LEFT_TOP, left, font.clone(), text);
+    painter.text(bar.right_bottom() + egui::vec2(0.0, 1.0), egui::Align2::RIGHT_TOP, right, font.clone(), text);
+    if overlay.key.overlay == Overlay::Jacobian {
+        let swatch = egui::Rect::from_min_size(bar.left_bottom() + egui::vec2(0.0, 14.0), egui::vec2(8.0, 8.0));
+        painter.rect_filled(swatch, 0.0, FOLDING);
+        painter.text(swatch.right_center() + egui::vec2(3.0, 0.0), egui::Align2::LEFT_CENTER, "folding", font, text);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_colour_maps_centre_on_no_change_and_mark_folding() {
+        assert_eq!(jacobian_colour(1.0), egui::Color32::from_rgb(255, 255, 255), "no change: white");
+        assert_eq!(jacobian_colour(0.0), FOLDING);
+        assert_eq!(jacobian_colour(-0.3), FOLDING);
+        let shrink = jacobian_colour(0.5);
+        let grow = jacobian_colour(2.0);
+        assert!(shrink.b() == 255 && shrink.r() < 10, "shrinking: blue {shrink:?}");
+        assert!(grow.r() == 255 && grow.b() < 10, "growing: red {grow:?}");
+        assert_eq!(jacobian_colour(0.25), shrink, "clamped at the range's end");
+        assert_eq!(jacobian_colour(f64::NAN), egui::Color32::TRANSPARENT);
+        assert_ne!(displacement_colour(0.0, 5.0), displacement_colour(5.0, 5.0));
+        assert_eq!(samples_of((256, 128)), (96, 48));
+        assert_eq!(samples_of((40, 30)), (40, 30));
+    }
+}
