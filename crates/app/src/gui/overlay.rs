@@ -2,14 +2,13 @@
 //! about 1 (folding, det ≤ 0, in a colour of its own), |u(x) − x| in mm, or the slice's grid moved by the warp, each
 //! with a legend giving its scale.
 //!
-//! The values are the status bar's: each sample is [`Ready::cursor_at`] at its point, the same det ∇u and the same
+//! The values are the status bar's: each sample is [`super::Ready::cursor_at`] at its point, the same det ∇u and the same
 //! moving point the read-out shows under the pointer. They are sampled on a coarser grid than the slice's pixels
 //! (at most [`MAX_SAMPLES`] a side) and computed again only when the warp, the plane or the choice changes.
 
 use eframe::egui;
 use warpbench_gpu::SlicePlane;
 
-use super::Ready;
 use crate::settings::Overlay;
 
 /// The most samples along a side of a slice's overlay.
@@ -59,7 +58,7 @@ pub struct SliceOverlay {
     pub lines: Vec<Vec<[f64; 2]>>,
     /// The largest |u − x| (mm), for the displacement legend.
     pub max_mm: f64,
-    texture: Option<egui::TextureHandle>,
+    pub(crate) texture: Option<egui::TextureHandle>,
 }
 
 impl std::fmt::Debug for SliceOverlay {
@@ -79,7 +78,7 @@ impl SliceOverlay {
 }
 
 /// The samples a side of `size` pixels gets.
-fn samples_of(size: (u32, u32)) -> (u32, u32) {
+pub(crate) fn samples_of(size: (u32, u32)) -> (u32, u32) {
     let longest = size.0.max(size.1).max(1);
     let scale = (f64::from(MAX_SAMPLES) / f64::from(longest)).min(1.0);
     let n = |s: u32| ((f64::from(s) * scale).round() as u32).max(2);
@@ -118,99 +117,6 @@ pub fn displacement_colour(mm: f64, max_mm: f64) -> egui::Color32 {
         (255.0 * v) as u8
     };
     egui::Color32::from_rgb(c(0.27, 0.13, 0.99), c(0.0, 0.57, 0.91), c(0.33, 0.55, 0.14))
-}
-
-impl Ready {
-    /// Slice view `a`'s overlay for `plane`, computed again when the choice, the fit or the plane changed; `None`
-    /// with no overlay chosen.
-    pub(crate) fn slice_overlay(&mut self, ctx: &egui::Context, a: usize, plane: &SlicePlane) -> Option<&SliceOverlay> {
-        let overlay = self.document.settings.overlay;
-        if overlay == Overlay::None {
-            self.view.overlays[a] = None;
-            return None;
-        }
-        let key = OverlayKey::new(overlay, self.fit.generation, plane);
-        if self.view.overlays[a].as_ref().is_none_or(|o| o.key != key) {
-            // A drag keeps the last overlay until the pointer lets go: the samples cost a few fits' worth.
-            if self.drag().is_some() && self.view.overlays[a].is_some() {
-                return self.view.overlays[a].as_ref();
-            }
-            let computed = self.compute_overlay(ctx, a, key, plane);
-            self.view.overlays[a] = Some(computed);
-        }
-        self.view.overlays[a].as_ref()
-    }
-
-    fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {
-        let samples = samples_of(plane.size);
-        let mut overlay =
-            SliceOverlay { key, samples, values: Vec::new(), lines: Vec::new(), max_mm: 0.0, texture: None };
-        let fitted = self.fitted().is_some();
-        match overlay.key.overlay {
-            Overlay::None => {}
-            Overlay::Jacobian | Overlay::Displacement => {
-                let jacobian = overlay.key.overlay == Overlay::Jacobian;
-                for j in 0..samples.1 {
-                    for i in 0..samples.0 {
-                        let [px, py] = overlay.pixel_of(i, j);
-                        let cursor = self.cursor_at(plane.ref_from_pixel(px, py));
-                        let value = match (jacobian, fitted) {
-                            (_, false) => f64::NAN,
-                            (true, true) => cursor.det_jacobian.unwrap_or(f64::NAN),
-                            (false, true) => cursor.displacement_mm(),
-                        };
-                        overlay.values.push(value);
-                    }
-                }
-                overlay.max_mm = overlay.values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
-                let pixels: Vec<egui::Color32> = overlay
-                    .values
-                    .iter()
-                    .map(|&v| if jacobian { jacobian_colour(v) } else { displacement_colour(v, overlay.max_mm) })
-                    .map(|c| c.gamma_multiply(0.55))
-                    .collect();
-                let image = egui::ColorImage::new([samples.0 as usize, samples.1 as usize], pixels);
-                overlay.texture =
-                    Some(ctx.load_texture(format!("warp overlay {a}"), image, egui::TextureOptions::LINEAR));
-            }
-            Overlay::Grid => overlay.lines = self.deformed_grid(plane),
-        }
-        overlay
-    }
-
-    /// The lines of a [`GRID_MM`] grid over `plane`, each point x moved to where the warp takes it within the plane
-    /// (the in-plane part of u(x) − x), in slice pixels.
-    fn deformed_grid(&self, plane: &SlicePlane) -> Vec<Vec<[f64; 2]>> {
-        let len = |d: [f64; 3]| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-        let (du, dv) = (len(plane.u_ref).max(f64::MIN_POSITIVE), len(plane.v_ref).max(f64::MIN_POSITIVE));
-        let (w, h) = (f64::from(plane.size.0), f64::from(plane.size.1));
-        let moved = |px: f64, py: f64| {
-            let x = plane.ref_from_pixel(px, py);
-            let m = self.moving_shown_at(x);
-            let d = [m[0] - x[0], m[1] - x[1], m[2] - x[2]];
-            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-            [px + dot(d, plane.u_ref) / (du * du), py + dot(d, plane.v_ref) / (dv * dv)]
-        };
-        let step_u = GRID_MM / du;
-        let step_v = GRID_MM / dv;
-        // Points every few pixels along a line of `n` pixels.
-        let along = |n: f64| {
-            let count = (n / 4.0).ceil().clamp(2.0, 64.0);
-            (0..=count as usize).map(move |k| k as f64 * n / count)
-        };
-        let mut lines = Vec::new();
-        let mut py = 0.0;
-        while py <= h {
-            lines.push(along(w).map(|px| moved(px - 0.5, py - 0.5)).collect());
-            py += step_v;
-        }
-        let mut px = 0.0;
-        while px <= w {
-            lines.push(along(h).map(|py| moved(px - 0.5, py - 0.5)).collect());
-            px += step_u;
-        }
-        lines
-    }
 }
 
 /// Draws `overlay` over the slice image at `rect` (`scale` screen points a slice pixel) with its legend.

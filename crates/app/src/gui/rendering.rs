@@ -1,14 +1,17 @@
 //! Rendering the 3-D view's and the slices' images ([`super::images`]), and what must be rendered again: on a GPU a
 //! changed view is drawn again at once; on a CPU driver it is drawn reduced and then refined band by band
-//! ([`super::pacing`]).
+//! ([`super::pacing`]); and the slices' warp overlays ([`super::overlay`]).
 
 use anyhow::{Context as _, anyhow};
-use warpbench_gpu::Quality;
+use eframe::egui;
+use warpbench_gpu::{Quality, SlicePlane};
 
 use super::Ready;
 use super::images::ViewImage;
+use super::overlay::{GRID_MM, OverlayKey, SliceOverlay, displacement_colour, jacobian_colour, samples_of};
 use super::pacing::{self, RefineJob, interactive_size};
 use super::viewer;
+use crate::settings::Overlay;
 
 impl Ready {
     /// Renders what changed (the 3-D view at `view_px`, the slices) and hands the images to egui.
@@ -179,5 +182,99 @@ impl Ready {
     #[must_use]
     pub fn refining_in_background(&self) -> bool {
         !self.view.images.slices_dirty && matches!(self.view.images.view_state, ViewImage::Refining(_))
+    }
+}
+
+/// The slices' warp overlays ([`super::overlay`]), computed from the status bar's read-outs.
+impl Ready {
+    /// Slice view `a`'s overlay for `plane`, computed again when the choice, the fit or the plane changed; `None`
+    /// with no overlay chosen.
+    pub(crate) fn slice_overlay(&mut self, ctx: &egui::Context, a: usize, plane: &SlicePlane) -> Option<&SliceOverlay> {
+        let overlay = self.document.settings.overlay;
+        if overlay == Overlay::None {
+            self.view.overlays[a] = None;
+            return None;
+        }
+        let key = OverlayKey::new(overlay, self.fit.generation, plane);
+        if self.view.overlays[a].as_ref().is_none_or(|o| o.key != key) {
+            // A drag keeps the last overlay until the pointer lets go: the samples cost a few fits' worth.
+            if self.drag().is_some() && self.view.overlays[a].is_some() {
+                return self.view.overlays[a].as_ref();
+            }
+            let computed = self.compute_overlay(ctx, a, key, plane);
+            self.view.overlays[a] = Some(computed);
+        }
+        self.view.overlays[a].as_ref()
+    }
+
+    fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {
+        let samples = samples_of(plane.size);
+        let mut overlay =
+            SliceOverlay { key, samples, values: Vec::new(), lines: Vec::new(), max_mm: 0.0, texture: None };
+        let fitted = self.fitted().is_some();
+        match overlay.key.overlay {
+            Overlay::None => {}
+            Overlay::Jacobian | Overlay::Displacement => {
+                let jacobian = overlay.key.overlay == Overlay::Jacobian;
+                for j in 0..samples.1 {
+                    for i in 0..samples.0 {
+                        let [px, py] = overlay.pixel_of(i, j);
+                        let cursor = self.cursor_at(plane.ref_from_pixel(px, py));
+                        let value = match (jacobian, fitted) {
+                            (_, false) => f64::NAN,
+                            (true, true) => cursor.det_jacobian.unwrap_or(f64::NAN),
+                            (false, true) => cursor.displacement_mm(),
+                        };
+                        overlay.values.push(value);
+                    }
+                }
+                overlay.max_mm = overlay.values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
+                let pixels: Vec<egui::Color32> = overlay
+                    .values
+                    .iter()
+                    .map(|&v| if jacobian { jacobian_colour(v) } else { displacement_colour(v, overlay.max_mm) })
+                    .map(|c| c.gamma_multiply(0.55))
+                    .collect();
+                let image = egui::ColorImage::new([samples.0 as usize, samples.1 as usize], pixels);
+                overlay.texture =
+                    Some(ctx.load_texture(format!("warp overlay {a}"), image, egui::TextureOptions::LINEAR));
+            }
+            Overlay::Grid => overlay.lines = self.deformed_grid(plane),
+        }
+        overlay
+    }
+
+    /// The lines of a [`GRID_MM`] grid over `plane`, each point x moved to where the warp takes it within the plane
+    /// (the in-plane part of u(x) − x), in slice pixels.
+    fn deformed_grid(&self, plane: &SlicePlane) -> Vec<Vec<[f64; 2]>> {
+        let len = |d: [f64; 3]| (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+        let (du, dv) = (len(plane.u_ref).max(f64::MIN_POSITIVE), len(plane.v_ref).max(f64::MIN_POSITIVE));
+        let (w, h) = (f64::from(plane.size.0), f64::from(plane.size.1));
+        let moved = |px: f64, py: f64| {
+            let x = plane.ref_from_pixel(px, py);
+            let m = self.moving_shown_at(x);
+            let d = [m[0] - x[0], m[1] - x[1], m[2] - x[2]];
+            let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+            [px + dot(d, plane.u_ref) / (du * du), py + dot(d, plane.v_ref) / (dv * dv)]
+        };
+        let step_u = GRID_MM / du;
+        let step_v = GRID_MM / dv;
+        // Points every few pixels along a line of `n` pixels.
+        let along = |n: f64| {
+            let count = (n / 4.0).ceil().clamp(2.0, 64.0);
+            (0..=count as usize).map(move |k| k as f64 * n / count)
+        };
+        let mut lines = Vec::new();
+        let mut py = 0.0;
+        while py <= h {
+            lines.push(along(w).map(|px| moved(px - 0.5, py - 0.5)).collect());
+            py += step_v;
+        }
+        let mut px = 0.0;
+        while px <= w {
+            lines.push(along(h).map(|py| moved(px - 0.5, py - 0.5)).collect());
+            px += step_u;
+        }
+        lines
     }
 }
