@@ -15,12 +15,11 @@ use warpbench_io::geometry::{Lps, Point3};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::brush::BrushStroke;
 
-use super::files::{FileAction, save_png};
+use super::files::FileAction;
 use super::history::Snapshot;
 use super::tool::{End, Placing};
-use super::{Ready, export, files, open};
+use super::{Ready, export, open};
 use crate::project::document::{Look, StartingTransform, ViewSettings};
-use crate::project::session;
 
 /// One thing asked of the window once a pair is shown.
 #[derive(Clone, Debug, PartialEq)]
@@ -381,87 +380,6 @@ impl Ready {
         }
     }
 
-    /// Carries out a file action of the side panel or the File menu; the outcome goes to `file_message`.
-    fn file_action(&mut self, action: FileAction) {
-        match action {
-            FileAction::SaveSession(path) => {
-                let file = self.to_session(true);
-                self.files.message = Some(match session::save(&path, &file) {
-                    Ok(()) => format!("saved {}", path.display()),
-                    Err(e) => format!("{e:#}"),
-                });
-            }
-            FileAction::ExportLandmarks(path) => {
-                self.files.message = Some(match files::export_landmarks(&path, &self.document.pairs) {
-                    Ok(()) => format!("wrote {}", path.display()),
-                    Err(e) => format!("{e:#}"),
-                });
-            }
-            FileAction::Screenshot(path) => {
-                // The window as it is drawn this frame, saved when the integration hands the pixels over.
-                self.ctx.request_screenshot(move |image| {
-                    if let Err(e) = save_png(&path, &image) {
-                        eprintln!("warpbench: {e:#}");
-                    }
-                });
-                self.files.message = Some("screenshot requested".into());
-            }
-            FileAction::ImportLandmarks(path) => match files::import_landmarks(&path) {
-                Ok(pairs) => {
-                    self.files.message = Some(format!("read {} pairs from {}", pairs.len(), path.display()));
-                    self.document.pairs = pairs;
-                    self.refit_soon();
-                }
-                Err(e) => self.files.message = Some(format!("{e:#}")),
-            },
-            FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
-            FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
-            // A field that cannot be read is refused here, so the document never holds one the fit would skip.
-            FileAction::UseField(path) => match self.fit.read_field(&path) {
-                Ok(()) => {
-                    self.files.message =
-                        Some(format!("{} is the displacement field under the landmarks", path.display()));
-                    self.document.field = Some(path);
-                    self.refit_soon();
-                }
-                Err(e) => self.files.message = Some(e),
-            },
-            FileAction::RemoveField => {
-                if self.document.field.take().is_some() {
-                    self.files.message = Some("the displacement field is removed".into());
-                    self.refit_soon();
-                }
-            }
-        }
-    }
-
-    /// Starts exporting the warped moving volume or the displacement field to `out` on a worker thread (one
-    /// export at a time), with the current pairs and method.
-    fn start_export(&mut self, kind: export::ExportKind, out: PathBuf) {
-        if self.files.export.is_some() {
-            self.files.message = Some("an export is running: wait for it or cancel it".into());
-            return;
-        }
-        let input = export::ExportInput {
-            fixed: Arc::clone(&self.loaded.fixed),
-            moving: Arc::clone(&self.loaded.moving),
-            fixed_path: self.document.fixed.clone(),
-            moving_path: self.document.moving.clone(),
-            pairs: self.document.pairs.clone(),
-            method: self.document.settings.method(),
-            brush: self.document.brush.clone(),
-            start: self.document.start.clone(),
-            field: self.document.field.clone(),
-        };
-        match export::ExportJob::start(&self.ctx, kind, out, input) {
-            Ok(job) => {
-                self.files.message = None;
-                self.files.export = Some(job);
-            }
-            Err(e) => self.files.message = Some(e),
-        }
-    }
-
     /// Puts the camera back: the whole fixed volume in view, from the front-left, slightly above.
     pub fn reset_camera(&mut self) {
         let (lo, hi) = self.viewer.scene_box();
@@ -498,29 +416,6 @@ impl Ready {
         self.view.slice_mm = [c[2], c[1], c[0]];
         self.view.camera.target_ref = Vec3::from_array(c.map(|v| v as f32));
         self.view.camera.pan_mm = warpbench_gpu::glam::Vec2::ZERO;
-        self.invalidate();
-    }
-
-    /// The session as it is now: the document and where the views look.
-    #[must_use]
-    pub fn to_session(&self, clean_exit: bool) -> session::SessionFile {
-        let camera = session::SessionCamera {
-            azimuth_deg: self.view.camera.azimuth_rad.to_degrees(),
-            elevation_deg: self.view.camera.elevation_rad.to_degrees(),
-            zoom: self.view.camera.zoom,
-            target_lps: self.view.camera.target_ref.to_array(),
-        };
-        let view = session::View { camera, slice_mm: self.view.slice_mm };
-        session::SessionFile::new(self.document.clone(), view, clean_exit)
-    }
-
-    /// Points the camera and the slices where a session's views looked.
-    pub fn apply_view(&mut self, v: &session::View) {
-        self.view.camera.azimuth_rad = v.camera.azimuth_deg.to_radians();
-        self.view.camera.elevation_rad = v.camera.elevation_deg.to_radians();
-        self.view.camera.zoom = v.camera.zoom;
-        self.view.camera.target_ref = Vec3::from_array(v.camera.target_lps);
-        self.view.slice_mm = v.slice_mm;
         self.invalidate();
     }
 

@@ -24,6 +24,7 @@ pub mod attention;
 pub mod autosave;
 pub mod commands;
 pub mod export;
+pub mod file_actions;
 pub mod files;
 pub mod frame_log;
 pub mod history;
