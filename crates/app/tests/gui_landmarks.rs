@@ -572,6 +572,42 @@ fn the_wheel_steps_slices_and_a_right_drag_sets_window_and_level() {
             && (f64::from(t.z) - s[0]).abs() < 1e-3,
         "the camera looks at the crosshair: {t:?} vs {s:?}"
     );
+
+    // Shift-click in the 3-D view: every view moves to the surface point under the click.
+    let view = harness.get_by_label("3-D view").rect();
+    let at = view.center() + egui::vec2(-0.05 * view.width(), 0.05 * view.height());
+    let before = harness.state().ready().expect("ready").view.slice_mm;
+    harness.input_mut().events.push(egui::Event::ModifiersChanged(shift));
+    harness.input_mut().events.push(egui::Event::PointerMoved(at));
+    harness.input_mut().events.push(egui::Event::PointerButton {
+        pos: at,
+        button: egui::PointerButton::Primary,
+        pressed: true,
+        modifiers: shift,
+    });
+    harness.step();
+    harness.input_mut().events.push(egui::Event::PointerButton {
+        pos: at,
+        button: egui::PointerButton::Primary,
+        pressed: false,
+        modifiers: shift,
+    });
+    harness.run_steps(2);
+    harness.input_mut().events.push(egui::Event::ModifiersChanged(egui::Modifiers::default()));
+    harness.run_steps(1);
+    let ready = harness.state().ready().expect("ready");
+    let (s, t) = (ready.view.slice_mm, ready.view.camera.target_ref);
+    assert!(
+        (0..3).any(|k| (s[k] - before[k]).abs() > 1e-6),
+        "the slices moved to the picked point: {before:?} -> {s:?}"
+    );
+    assert!(ready.document.pairs.len() == 5 && ready.placing() == Placing::Idle, "nothing was placed");
+    assert!(
+        (f64::from(t.x) - s[2]).abs() < 1e-3
+            && (f64::from(t.y) - s[1]).abs() < 1e-3
+            && (f64::from(t.z) - s[0]).abs() < 1e-3,
+        "the camera looks at the crosshair: {t:?} vs {s:?}"
+    );
 }
 
 /// "Exclude outliers" (issue 30, item 2): with one pair moved by 8 mm among 20 that follow a smooth warp (seeded),

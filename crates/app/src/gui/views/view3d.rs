@@ -37,7 +37,14 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             if response.clicked()
                 && let Some(pos) = response.interact_pointer_pos()
             {
-                ready.pick_in_view(to_pixel(pos));
+                if ui.input(|i| i.modifiers.shift) {
+                    // The linked crosshair: every view moves to the surface point under the click.
+                    if let Some(x_ref) = ready.pick_moving_at(to_pixel(pos)) {
+                        ready.apply(Command::CentreViews(x_ref));
+                    }
+                } else {
+                    ready.pick_in_view(to_pixel(pos));
+                }
             }
             // A press on a landmark glyph drags it along the surface; elsewhere a drag orbits the camera.
             let clip_from_ref = ready.view.camera.clip_from_ref(w / h);
