@@ -544,24 +544,7 @@ fn the_wheel_steps_slices_and_a_right_drag_sets_window_and_level() {
     // Shift-click: every view moves to the point, the 3-D camera's target too.
     let target_before = harness.state().ready().expect("ready").view.camera.target_ref;
     let at = rect.center() + egui::vec2(rect.width() * 0.2, 0.0);
-    let shift = egui::Modifiers { shift: true, ..egui::Modifiers::default() };
-    harness.input_mut().events.push(egui::Event::ModifiersChanged(shift));
-    harness.input_mut().events.push(egui::Event::PointerMoved(at));
-    harness.input_mut().events.push(egui::Event::PointerButton {
-        pos: at,
-        button: egui::PointerButton::Primary,
-        pressed: true,
-        modifiers: shift,
-    });
-    harness.step();
-    harness.input_mut().events.push(egui::Event::PointerButton {
-        pos: at,
-        button: egui::PointerButton::Primary,
-        pressed: false,
-        modifiers: shift,
-    });
-    harness.run_steps(2);
-    harness.input_mut().events.push(egui::Event::ModifiersChanged(egui::Modifiers::default()));
+    shift_click(&mut harness, at);
     let ready = harness.state().ready().expect("ready");
     let s = ready.view.slice_mm;
     let t = ready.view.camera.target_ref;
@@ -577,23 +560,7 @@ fn the_wheel_steps_slices_and_a_right_drag_sets_window_and_level() {
     let view = harness.get_by_label("3-D view").rect();
     let at = view.center() + egui::vec2(-0.05 * view.width(), 0.05 * view.height());
     let before = harness.state().ready().expect("ready").view.slice_mm;
-    harness.input_mut().events.push(egui::Event::ModifiersChanged(shift));
-    harness.input_mut().events.push(egui::Event::PointerMoved(at));
-    harness.input_mut().events.push(egui::Event::PointerButton {
-        pos: at,
-        button: egui::PointerButton::Primary,
-        pressed: true,
-        modifiers: shift,
-    });
-    harness.step();
-    harness.input_mut().events.push(egui::Event::PointerButton {
-        pos: at,
-        button: egui::PointerButton::Primary,
-        pressed: false,
-        modifiers: shift,
-    });
-    harness.run_steps(2);
-    harness.input_mut().events.push(egui::Event::ModifiersChanged(egui::Modifiers::default()));
+    shift_click(&mut harness, at);
     harness.run_steps(1);
     let ready = harness.state().ready().expect("ready");
     let (s, t) = (ready.view.slice_mm, ready.view.camera.target_ref);
@@ -655,4 +622,18 @@ fn exclude_outliers_deactivates_exactly_the_injected_outlier() {
     harness.get_by_label("Undo").click();
     harness.run_steps(3);
     assert!(harness.state().ready().expect("ready").document.pairs.iter().all(|p| p.active), "one undo step");
+}
+
+/// A primary click at `pos` with shift held.
+fn shift_click(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) {
+    let shift = egui::Modifiers { shift: true, ..egui::Modifiers::default() };
+    let press =
+        |pressed| egui::Event::PointerButton { pos, button: egui::PointerButton::Primary, pressed, modifiers: shift };
+    harness.input_mut().events.push(egui::Event::ModifiersChanged(shift));
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.input_mut().events.push(press(true));
+    harness.step();
+    harness.input_mut().events.push(press(false));
+    harness.run_steps(2);
+    harness.input_mut().events.push(egui::Event::ModifiersChanged(egui::Modifiers::default()));
 }
