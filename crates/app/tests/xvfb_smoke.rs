@@ -82,7 +82,8 @@ fn a_pair_added_a_second_before_a_kill_is_recovered() {
     let dir = tempfile::tempdir().expect("tempdir");
     let state = dir.path();
     // Positions in the default layout of a 1280 × 900 window on the demo pair: a point of the axial slice, the
-    // Add pair button, and two points of the axial slice 7 px apart. The clicks before the last are 3 s apart: on
+    // Add pair button (its place moves with the side panel's rows above it), and two points of the axial slice 7 px
+    // apart. The clicks before the last are 3 s apart: on
     // CPU rendering a frame can take over a second, and clicks that queue up within one frame can be lost (this
     // failed twice with 1.5 s on a loaded 2-core machine); the last click is still one second before the kill.
     let script = r#"
@@ -94,7 +95,7 @@ i=0; until saved "len(s['landmarks']) == 10"; do i=$((i+1)); [ $i -gt 1500 ] && 
 # The window takes clicks once this one (linked navigation: the other slices move) reaches the autosave.
 xdotool mousemove 700 700 click 1
 i=0; until saved "s['slice_mm'][2] != 0.0"; do i=$((i+1)); [ $i -gt 1500 ] && exit 11; sleep 0.2; done
-xdotool mousemove 40 588 click 1; sleep 3
+xdotool mousemove 40 611 click 1; sleep 3
 xdotool mousemove 690 650 click 1; sleep 3
 xdotool mousemove 697 650 click 1; sleep 1
 kill -9 $pid
