@@ -11,7 +11,7 @@
 //! - [`stack`]: the warp stack, the ordered layers that make the pull-back (a starting transform, a displacement
 //!   field, the landmark fit and the brush), fitted and evaluated in one place.
 //!
-//! Nothing here imports the window ([`crate::gui`]); the subcommands read sessions through [`session::load`].
+//! Nothing here imports the window (`gui/`); the subcommands read sessions through [`session::load`].
 
 pub mod demo;
 pub mod diagnostics;
