@@ -250,6 +250,18 @@ impl Probe {
 }
 
 choice! {
+    /// How the views share the window.
+    Layout, "layout", default FourUp {
+        /// The 3-D view and the three slices in equal panes.
+        FourUp = "four-up",
+        /// The 3-D view alone.
+        ThreeD = "3-d",
+        /// The three slices side by side.
+        Slices = "slices",
+    }
+}
+
+choice! {
     /// What the slices draw over the images to show the warp itself.
     Overlay, "warp overlay", default None {
         None = "none",

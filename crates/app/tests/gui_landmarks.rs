@@ -437,7 +437,7 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     assert_eq!(harness.state().ready().expect("ready").document.pairs.len(), 7);
     harness.state_mut().ready_mut().expect("ready").pointer.selected = Some(6);
     harness.run_steps(1);
-    harness.get_by_label("Refine pair").click();
+    harness.get_by_label("Refine pair").click_accesskit();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
     let refined = ready.document.pairs[6].fixed.expect("its target").coords();

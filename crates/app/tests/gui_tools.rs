@@ -166,17 +166,19 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
 
     // The pick the click makes, through the leafer: its point x_ref on the ray is shown turned, w(x) ≠ x, and what
     // it reports is the undeformed moving volume's point u(w(x)), which the warp shows at w(x).
-    let offset = 0.2;
+    // The pixel: right of the centre, past the gap the opened halves leave (its width depends on the view's size),
+    // a little into the right half.
     let ready = harness.state().ready().expect("ready");
     let (size, _) = ready.view_shown().expect("a view");
-    let pixel = [size.0 as f32 * (0.5 + offset), size.1 as f32 * 0.5];
     let settings = ready.document.settings.render_settings();
     let probe = ready.document.settings.probe();
-    let hit = ready
-        .viewer
-        .pick(&ready.view.camera, &settings, size, pixel, warpbench_gpu::PickTarget::Moving, probe)
-        .expect("pick")
-        .expect("a hit on the opened moving volume");
+    let pick = |offset: f32| {
+        let pixel = [size.0 as f32 * (0.5 + offset), size.1 as f32 * 0.5];
+        ready.viewer.pick(&ready.view.camera, &settings, size, pixel, warpbench_gpu::PickTarget::Moving, probe)
+    };
+    let edge = (1..25).map(|k| k as f32 * 0.02).find(|&o| pick(o).expect("pick").is_some());
+    let offset = edge.expect("the right half of the opened moving volume in the view") + 0.06;
+    let hit = pick(offset).expect("pick").expect("a hit on the opened moving volume");
     let x = warpbench_gpu::glam::Vec3::from_array(hit.x_ref);
     let w = leafer.pullback(x);
     let shown = warpbench_gpu::glam::DVec3::from_array(ready.shown_at(hit.p_lps.map(f64::from)));

@@ -98,9 +98,10 @@ fn every_click_and_drag_stores_the_point_under_the_pointer_and_refuses_points_of
                 r.invalidate();
                 harness.run_steps(2);
             }
-            // The part of the image inside the window (a turned slice's controls can push it past the edge).
+            // The image lies inside its pane, with its controls above it, turned or not.
             let window = egui::Rect::from_min_size(egui::Pos2::ZERO, egui::vec2(1280.0, 900.0));
-            let rect = harness.get_by_label(&format!("{name} slice")).rect().intersect(window);
+            let rect = harness.get_by_label(&format!("{name} slice")).rect();
+            assert!(window.contains_rect(rect), "{name} (oblique: {oblique}): {rect:?} lies in the window");
             let source = rect.center() + egui::vec2(-0.08 * rect.width(), 0.05 * rect.height());
             let target = rect.center() + egui::vec2(0.06 * rect.width(), -0.04 * rect.height());
             add_pair_in_slices(&mut harness, source, target, &format!("{name} (oblique: {oblique})"));

@@ -463,8 +463,15 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     document.brush = vec![stroke];
     let camera = SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
     let session_path = dir.path().join("brushed.warpbench.json");
-    session::save(&session_path, &SessionFile::new(document, View { camera, slice_mm: [0.0; 3] }, true))
-        .expect("save the session");
+    session::save(
+        &session_path,
+        &SessionFile::new(
+            document,
+            View { camera, slice_mm: [0.0; 3], layout: warpbench_app::settings::Layout::FourUp },
+            true,
+        ),
+    )
+    .expect("save the session");
     let brush = Brush::new(vec![stroke]).expect("brush");
     let (landmarks, session) = (["--landmarks", s(&csv)], ["--session", s(&session_path)]);
 

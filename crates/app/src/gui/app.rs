@@ -526,14 +526,13 @@ fn workbench_ui(
         ready.apply(command);
     }
     status::status_bar(ui, ready);
-    views::slices::slice_strip(ui, ready);
     // What the panels changed reaches the disk before the 3-D view renders (a second on a CPU driver).
     autosave_changes(autosave, ui.ctx(), ready);
     // The attention lens moves every frame: the 3-D view is drawn again at the display's rate while it pulses.
     if ready.view_lens(std::time::Instant::now()).is_some() {
         ready.invalidate_view();
     }
-    views::view3d::view3d(ui, ready, render_state);
+    views::panes::show(ui, ready, render_state);
     // A change becomes an undo step once it has settled (a slider drag is one step).
     ready.settle(ui.input(|i| i.pointer.any_down()));
     if ready.refining_in_background() {

@@ -68,6 +68,10 @@ pub enum Command {
     MoveSlice(usize, f64),
     /// Move the three slices through ref point `x_ref` (linked navigation).
     CentreSlices([f64; 3]),
+    /// Lay the views out as `layout` (and show every pane again).
+    SetLayout(crate::settings::Layout),
+    /// Show `pane` alone, or the layout again when it already is (a double click on a pane's title).
+    ToggleMaximise(super::layout::Pane),
     /// Move every view to ref point `x_ref`: the three slices through it and the 3-D view's camera onto it (the
     /// linked crosshair, a shift-click).
     CentreViews([f64; 3]),
@@ -242,6 +246,14 @@ impl Ready {
                 self.view.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];
                 self.invalidate_slices();
                 self.crosshair_moved();
+            }
+            Command::SetLayout(layout) => {
+                (self.view.layout, self.view.maximised) = (layout, None);
+                self.invalidate();
+            }
+            Command::ToggleMaximise(pane) => {
+                self.view.maximised = super::layout::toggled(self.view.maximised, pane);
+                self.invalidate();
             }
             Command::CentreViews(x_ref) => {
                 self.view.slice_mm = [x_ref[2], x_ref[1], x_ref[0]];

@@ -102,7 +102,7 @@ impl Ready {
             zoom: self.view.camera.zoom,
             target_lps: self.view.camera.target_ref.to_array(),
         };
-        let view = session::View { camera, slice_mm: self.view.slice_mm };
+        let view = session::View { camera, slice_mm: self.view.slice_mm, layout: self.view.layout };
         session::SessionFile::new(self.document.clone(), view, clean_exit)
     }
 
@@ -113,6 +113,8 @@ impl Ready {
         self.view.camera.zoom = v.camera.zoom;
         self.view.camera.target_ref = Vec3::from_array(v.camera.target_lps);
         self.view.slice_mm = v.slice_mm;
+        self.view.layout = v.layout;
+        self.view.maximised = None;
         self.invalidate();
     }
 }

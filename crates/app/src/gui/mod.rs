@@ -32,6 +32,7 @@ pub mod hover;
 mod images;
 pub mod interaction;
 pub mod landmark_table;
+pub mod layout;
 pub mod leafer;
 pub mod load;
 pub mod open;

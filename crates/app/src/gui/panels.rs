@@ -11,14 +11,21 @@ use crate::procedural::ProceduralSpec;
 use crate::project::document::{
     BRUSH_MAX_RADIUS_MM, Look, OBLIQUE_MAX_DEG, Oblique, PROCEDURAL_MAX_MM, StartingTransform, ViewSettings,
 };
-use crate::settings::{Blend, MethodKind, Overlay, Preset, Probe, ProceduralKind, Shading};
+use crate::settings::{Blend, Layout, MethodKind, Overlay, Preset, Probe, ProceduralKind, Shading};
+
+/// The layout of the views (four-up, the 3-D view alone, the slices alone), as a choice labelled "Layout".
+pub fn layout_ui(ui: &mut egui::Ui, layout: Layout) -> Option<Command> {
+    let mut chosen = layout;
+    choice_ui(ui, "Layout", &mut chosen, Layout::ALL);
+    (chosen != layout).then_some(Command::SetLayout(chosen))
+}
 
 /// A slice view's oblique controls (labelled "NAME oblique", "NAME tilt", "NAME spin"). Returns whether they
 /// changed.
 pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
     let before = *o;
     ui.horizontal_wrapped(|ui| {
-        ui.spacing_mut().slider_width = (ui.available_width() - 110.0).max(40.0);
+        ui.spacing_mut().slider_width = (ui.available_width() - 150.0).max(40.0);
         let on = ui.checkbox(&mut o.on, "oblique");
         let on_name = format!("{name} oblique");
         on.widget_info(|| egui::WidgetInfo::selected(egui::Role::CheckBox, true, o.on, &on_name));

@@ -27,6 +27,7 @@ pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
                     commands.push(Command::ResetCamera);
                 }
             });
+            commands.extend(panels::layout_ui(ui, ready.view.layout));
             commands.extend(panels::settings_ui(ui, &ready.document.settings, ready.current_stiffness_choice()));
             ui.separator();
             commands.extend(panels::layers_ui(ui, &ready.document.layers));

@@ -31,7 +31,16 @@ pub struct View {
     pub hover: hover::HoverPick,
     /// Each slice's warp overlay, kept until the warp, the plane or the choice changes ([`super::overlay`]).
     pub overlays: [Option<super::overlay::SliceOverlay>; 3],
+    /// How the views share the window (saved in the session).
+    pub layout: crate::settings::Layout,
+    /// The pane shown alone, if one is maximised.
+    pub maximised: Option<super::layout::Pane>,
+    /// The panes' tiles, made for the layout and the maximised pane they hold.
+    pub(super) tiles: Option<(PaneKey, egui_tiles::Tree<super::layout::Pane>)>,
 }
+
+/// What the panes' tiles were made for: the layout and the maximised pane.
+pub(super) type PaneKey = (crate::settings::Layout, Option<super::layout::Pane>);
 
 impl View {
     /// The views of a pair whose fixed volume fills `camera`, with the slices through `slice_mm`.
@@ -48,6 +57,9 @@ impl View {
             control_eval: ControlEval::default(),
             hover: hover::HoverPick::default(),
             overlays: [None, None, None],
+            layout: crate::settings::Layout::FourUp,
+            maximised: None,
+            tiles: None,
         }
     }
 }

@@ -31,6 +31,9 @@ pub struct View {
     pub camera: SessionCamera,
     /// Axial (S), coronal (P) and sagittal (L) slice positions, mm.
     pub slice_mm: [f64; 3],
+    /// How the views share the window; sessions written before it open four-up.
+    #[serde(default, deserialize_with = "crate::settings::or_default")]
+    pub layout: crate::settings::Layout,
 }
 
 /// A whole session: the document and the view, flat in one JSON object.
@@ -146,6 +149,7 @@ mod tests {
         View {
             camera: SessionCamera { azimuth_deg: 30.0, elevation_deg: 10.0, zoom: 1.5, target_lps: [1.0, 2.0, 3.0] },
             slice_mm: [4.0, -5.0, 6.0],
+            layout: crate::settings::Layout::Slices,
         }
     }
 
@@ -198,6 +202,7 @@ mod tests {
         let d = &file.document;
         assert_eq!((d.fixed.as_deref(), d.moving.as_deref()), (Some(std::path::Path::new("/data/ct.nii.gz")), None));
         assert!(d.field.is_none(), "no displacement field before there was one");
+        assert_eq!(file.view.layout, crate::settings::Layout::FourUp, "four-up before there were layouts");
         assert_eq!(
             d.pairs,
             [LandmarkPair {

@@ -7,9 +7,9 @@ use warpbench_gpu::glam::Vec3;
 
 use crate::gui::{Command, DragPoint, DragView, End, Ready};
 
-/// Renders what changed and draws the 3-D view in the central panel.
+/// Renders what changed and draws the 3-D view in its pane.
 pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::egui_wgpu::RenderState>) {
-    egui::CentralPanel::default().show(ui, |ui| {
+    {
         let avail = ui.available_size();
         let ppp = ui.ctx().pixels_per_point();
         // A GPU renders the view at the screen's pixels; a CPU driver (about 1 Mpixel·step per second) at most at
@@ -152,5 +152,5 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
                 }
             }
         }
-    });
+    }
 }
