@@ -260,6 +260,7 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     let csv = dir.path().join("pairs.csv");
 
     // A bad name is refused before anything runs. (The export section is at the bottom of the side panel.)
+    window::open_section(&mut harness, "Files");
     harness.get_by_label("Export file").scroll_to_me();
     harness.run_steps(3);
     harness.get_by_label("Export file").focus();
@@ -360,5 +361,5 @@ fn an_idle_window_says_so_in_the_status_bar() {
         std::thread::sleep(delay.min(Duration::from_secs(2)));
         harness.step();
     }
-    harness.get_by_label("idle");
+    harness.get_by_label_contains("| idle");
 }

@@ -122,6 +122,7 @@ fn landmarks_are_renamed_dragged_within_a_slice_and_ranked() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 820.0));
     // The accuracy panel: a histogram and the worst pairs.
+    window::open_section(&mut harness, "Accuracy");
     harness.get_by_label("Leave-one-out histogram");
     harness.get_by_label_contains("Leave-one-out error: mean");
 
@@ -354,9 +355,10 @@ fn the_views_keep_their_place_unless_asked_to_follow_the_pair() {
     });
     centred_on(&harness, [42.0, 18.0, 20.0]);
     harness.run_steps(2);
-    // Selecting pair 3 by its fixed position in the table.
-    let q = harness.state().ready().expect("loaded").document.pairs[2].fixed.expect("fixed").coords();
-    harness.get_by_label(&format!("{:.1}, {:.1}, {:.1}", q[0], q[1], q[2])).click();
+    // Selecting pair 3 by its number in the landmark panel.
+    let pair = harness.state().ready().expect("loaded").document.pairs[2].clone();
+    let q = pair.fixed.expect("fixed").coords();
+    harness.get_by_label(&format!("Select {}", pair.name)).click();
     harness.run_steps(2);
     assert_eq!(harness.state().ready().expect("loaded").pointer.selected, Some(2));
     centred_on(&harness, q);
@@ -437,7 +439,7 @@ fn suggested_targets_are_taken_dropped_and_refined() {
     assert_eq!(harness.state().ready().expect("ready").document.pairs.len(), 7);
     harness.state_mut().ready_mut().expect("ready").pointer.selected = Some(6);
     harness.run_steps(1);
-    harness.get_by_label("Refine pair").click_accesskit();
+    harness.get_by_label("Suggest").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
     let refined = ready.document.pairs[6].fixed.expect("its target").coords();

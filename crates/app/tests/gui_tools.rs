@@ -93,6 +93,7 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
         let ready = harness.state().ready().expect("ready");
         loo_ranking(&ready.document.pairs, &ready.fit.pair_errors)[0].1
     };
+    window::open_section(&mut harness, "Assist");
     harness.get_by_label("Show the worst pair").click_accesskit();
     harness.run_steps(3);
     let ready = harness.state_mut().ready_mut().expect("ready");
@@ -132,7 +133,7 @@ fn the_worst_pair_is_shown_by_a_pulsing_lens() {
     assert!(plain_slice == lensed_slice, "the lens must not touch the slices");
     assert_eq!(ready.document, before, "the lens is not part of the document");
 
-    harness.get_by_label("Pulse the selected pair").click_accesskit();
+    harness.get_by_label("Lens").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
     assert!(!ready.view.attention.is_on() && ready.view_lens(Instant::now()).is_none(), "switched off");
@@ -153,7 +154,7 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 700.0));
     let before = harness.state().ready().expect("ready").document.clone();
-    harness.get_by_label("Open with a leafer").click_accesskit();
+    harness.get_by_label("Leafer").click();
     harness.run_steps(3);
     let ready = harness.state().ready().expect("ready");
     assert_eq!(ready.view.leafer, Leafer::Open { side: Side::Moving, angle_deg: 30.0 });
@@ -203,7 +204,7 @@ fn a_landmark_is_placed_inside_the_volume_through_the_leafer() {
     assert!(stored.distance(warpbench_gpu::glam::Vec3::from_array(hit.p_lps).as_dvec3()) < 1e-3, "{stored}");
     assert_eq!(ready.document, before, "the leafer is not part of the document");
 
-    harness.get_by_label("Open with a leafer").click_accesskit();
+    harness.get_by_label("Leafer").click();
     harness.run_steps(3);
     assert_eq!(harness.state().ready().expect("ready").view.leafer, Leafer::Closed);
 }
@@ -237,6 +238,7 @@ fn the_brush_drags_the_moving_volume_in_a_slice() {
     assert!(t[0].abs() > 3.0 && t[1].abs() < 0.5 && t[2].abs() < 1e-6, "dragged to the right within the plane: {t:?}");
     let consistency = ready.fit.brush_consistency.expect("the settled brush's inverse");
     assert!(consistency.max_mm < 0.05, "{consistency:?}");
+    window::open_section(&mut harness, "Accuracy");
     harness.get_by_label_contains("Brush inverse:");
     let moved = harness.state().ready().expect("ready").moving_shown_at(std::array::from_fn(|a| c[a] + t[a]));
     let autosave = dir.path().join("autosave.warpbench.json");

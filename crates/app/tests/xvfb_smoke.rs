@@ -81,9 +81,8 @@ fn a_pair_added_a_second_before_a_kill_is_recovered() {
     }
     let dir = tempfile::tempdir().expect("tempdir");
     let state = dir.path();
-    // Positions in the default layout of a 1280 × 900 window on the demo pair: a point of the axial slice, the
-    // Add pair button (its place moves with the side panel's rows above it), and two points of the axial slice 7 px
-    // apart. The clicks before the last are 3 s apart: on
+    // Positions in the default layout (four-up) of a 1280 × 900 screen on the demo pair: a point of the axial slice
+    // (the top-right pane), the toolbar's Add pair, and two points of the axial slice 7 px apart. The clicks before the last are 3 s apart: on
     // CPU rendering a frame can take over a second, and clicks that queue up within one frame can be lost (this
     // failed twice with 1.5 s on a loaded 2-core machine); the last click is still one second before the kill.
     let script = r#"
@@ -93,11 +92,11 @@ pid=$!
 saved() { python3 -c "import json,sys; s=json.load(open('$STATE/autosave.warpbench.json')); sys.exit(0 if $1 else 1)" 2>/dev/null; }
 i=0; until saved "len(s['landmarks']) == 10"; do i=$((i+1)); [ $i -gt 1500 ] && exit 10; sleep 0.2; done
 # The window takes clicks once this one (linked navigation: the other slices move) reaches the autosave.
-xdotool mousemove 700 700 click 1
+xdotool mousemove 700 300 click 1
 i=0; until saved "s['slice_mm'][2] != 0.0"; do i=$((i+1)); [ $i -gt 1500 ] && exit 11; sleep 0.2; done
-xdotool mousemove 40 611 click 1; sleep 3
-xdotool mousemove 690 650 click 1; sleep 3
-xdotool mousemove 697 650 click 1; sleep 1
+xdotool mousemove 125 37 click 1; sleep 3
+xdotool mousemove 740 330 click 1; sleep 3
+xdotool mousemove 747 330 click 1; sleep 1
 kill -9 $pid
 "#;
     let out = Command::new("xvfb-run")

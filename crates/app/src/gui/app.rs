@@ -15,7 +15,9 @@ use super::files::{Files, save_png};
 use super::history::{History, Snapshot};
 use super::load::{Loaded, LoadedPair, Opened};
 use super::viewer::{DeviceFacts, LayerData, Viewer};
-use super::{Command, Fitter, GuiOptions, Ready, autosave, files, open, side_panel, status, views};
+use super::{
+    Command, Fitter, GuiOptions, Ready, autosave, files, landmark_panel, open, side_panel, status, toolbar, views,
+};
 use crate::project::document::Document;
 use crate::project::session;
 
@@ -452,11 +454,11 @@ fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, read
     }
 }
 
-/// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo,
-/// Space starts or stops adding a pair, Esc cancels it (or clears the selection), Delete removes the selected pair,
-/// R resets the camera, P pulses the attention lens about the selected pair, W shows the worst pair, B takes or
-/// leaves the brush. The single keys only act while no text field has the keyboard.
-fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
+/// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo, the
+/// tools' keys ([`toolbar::Tool::key`]: Esc cancels adding, drops a suggestion or clears the selection, Space adds a
+/// pair, B brush, L leafer, P lens, T suggest, A auto-align), Enter takes a suggestion, Delete removes the selected
+/// pair, R resets the camera, W shows the worst pair. The single keys only act while no text field has the keyboard.
+fn keyboard(ui: &mut egui::Ui, ready: &Ready, tools: &toolbar::ToolStates) -> Vec<Command> {
     let mut commands = Vec::new();
     // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
     let redo = egui::KeyboardShortcut::new(egui::Modifiers::COMMAND | egui::Modifiers::SHIFT, egui::Key::Z);
@@ -469,13 +471,8 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     if ui.ctx().egui_wants_keyboard_input() {
         return commands;
     }
+    commands.extend(toolbar::shortcut_commands(ui, tools));
     let key = |ui: &mut egui::Ui, k: egui::Key| ui.input_mut(|i| i.consume_key(egui::Modifiers::NONE, k));
-    if key(ui, egui::Key::Space) {
-        commands.push(Command::ToggleAdding);
-    }
-    if key(ui, egui::Key::Escape) {
-        commands.push(Command::Cancel);
-    }
     if key(ui, egui::Key::Enter) && ready.suggestion().is_some() {
         commands.push(Command::AcceptSuggestion);
     }
@@ -487,19 +484,13 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready) -> Vec<Command> {
     if key(ui, egui::Key::R) {
         commands.push(Command::ResetCamera);
     }
-    if key(ui, egui::Key::P) {
-        commands.push(Command::TogglePulse);
-    }
     if key(ui, egui::Key::W) {
         commands.push(Command::ShowWorstPair);
-    }
-    if key(ui, egui::Key::B) {
-        commands.push(Command::ToggleSculpting);
     }
     commands
 }
 
-/// The window once the pair is loaded: side panel, status bar, slice strip and the 3-D view.
+/// The window once the pair is loaded: toolbar, status bar, settings and landmark panels, and the views' panes.
 fn workbench_ui(
     ui: &mut egui::Ui,
     ready: &mut Ready,
@@ -520,12 +511,25 @@ fn workbench_ui(
             None => ui.ctx().request_repaint_after(std::time::Duration::from_millis(100)),
         }
     }
-    let mut commands = keyboard(ui, ready);
-    commands.extend(side_panel::side_panel(ui, ready));
+    // The toolbar and the status bar span the window's width; the settings and landmark panels take its sides.
+    let tools = toolbar::ToolStates::of(ready);
+    let mut commands = keyboard(ui, ready, &tools);
+    commands.extend(toolbar::toolbar_ui(ui, &tools));
     for command in commands {
         ready.apply(command);
     }
     status::status_bar(ui, ready);
+    let mut commands = side_panel::side_panel(ui, ready);
+    let panel_input = landmark_panel::PanelInput {
+        pairs: &ready.document.pairs,
+        errors: &ready.fit.pair_errors,
+        selected: ready.pointer.selected,
+        pairs_in_fit: ready.fit_pairs().0.len(),
+    };
+    commands.extend(landmark_panel::landmark_panel(ui, &panel_input, &mut ready.view.landmarks));
+    for command in commands {
+        ready.apply(command);
+    }
     // What the panels changed reaches the disk before the 3-D view renders (a second on a CPU driver).
     autosave_changes(autosave, ui.ctx(), ready);
     // The attention lens moves every frame: the 3-D view is drawn again at the display's rate while it pulses.

@@ -42,6 +42,8 @@ pub enum Command {
     Cancel,
     /// Start adding a pair (the next pick is its moving point), or stop.
     ToggleAdding,
+    /// The Select tool: stop adding a pair or brushing (between strokes); the selection stays.
+    UseSelect,
     /// Append a completed pair, active.
     AddPair {
         moving: Point3<Lps>,
@@ -184,6 +186,10 @@ impl Ready {
                 self.invalidate();
             }
             Command::ToggleAdding => self.pointer.interaction.toggle_adding(),
+            Command::UseSelect => {
+                self.pointer.interaction.stop_adding();
+                self.invalidate();
+            }
             Command::AddPair { moving, fixed } => {
                 let name = format!("Pt-{}", self.document.pairs.len() + 1);
                 self.document.pairs.push(LandmarkPair::new(name, moving, fixed));

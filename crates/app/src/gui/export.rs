@@ -184,10 +184,14 @@ pub fn export_ui(
         super::open::progress_ui(ui, &job.watch);
         return None;
     }
-    ui.add(egui::TextEdit::singleline(&mut fields.out).hint_text("warped.nii.gz"))
+    ui.add(egui::TextEdit::singleline(&mut fields.out).desired_width(ui.available_width()).hint_text("warped.nii.gz"))
         .labelled_by(ui.label("Export file").id);
-    ui.add(egui::TextEdit::singleline(&mut fields.dicom).hint_text("optional: a new folder"))
-        .labelled_by(ui.label("DICOM series folder").id);
+    ui.add(
+        egui::TextEdit::singleline(&mut fields.dicom)
+            .desired_width(ui.available_width())
+            .hint_text("optional: a new folder"),
+    )
+    .labelled_by(ui.label("DICOM series folder").id);
     let path = PathBuf::from(fields.out.trim());
     let enabled = !fields.out.trim().is_empty();
     let mut asked = None;

@@ -48,19 +48,25 @@ pub enum FileAction {
     RemoveField,
 }
 
-/// Session, landmark, screenshot and displacement-field files: a path field and its buttons each; `field` is the
-/// document's displacement field, if any.
-pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
+/// Session, landmark and screenshot files: a path field and its buttons each.
+pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction> {
     let mut action = None;
     let path = |s: &str| std::path::PathBuf::from(s.trim());
-    ui.label("Files");
-    ui.add(egui::TextEdit::singleline(&mut fields.session).hint_text("session.warpbench.json"))
-        .labelled_by(ui.label("Session file").id);
+    ui.add(
+        egui::TextEdit::singleline(&mut fields.session)
+            .desired_width(ui.available_width())
+            .hint_text("session.warpbench.json"),
+    )
+    .labelled_by(ui.label("Session file").id);
     if ui.add_enabled(!fields.session.trim().is_empty(), egui::Button::new("Save session")).clicked() {
         action = Some(FileAction::SaveSession(path(&fields.session)));
     }
-    ui.add(egui::TextEdit::singleline(&mut fields.landmarks).hint_text("pairs.csv, pairs.json, or moving.fcsv"))
-        .labelled_by(ui.label("Landmark file").id);
+    ui.add(
+        egui::TextEdit::singleline(&mut fields.landmarks)
+            .desired_width(ui.available_width())
+            .hint_text("pairs.csv, pairs.json, or moving.fcsv"),
+    )
+    .labelled_by(ui.label("Landmark file").id);
     ui.horizontal(|ui| {
         let enabled = !fields.landmarks.trim().is_empty();
         if ui.add_enabled(enabled, egui::Button::new("Import landmarks")).clicked() {
@@ -70,13 +76,29 @@ pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::
             action = Some(FileAction::ExportLandmarks(path(&fields.landmarks)));
         }
     });
-    ui.add(egui::TextEdit::singleline(&mut fields.screenshot).hint_text("screenshot.png"))
-        .labelled_by(ui.label("Screenshot file").id);
+    ui.add(
+        egui::TextEdit::singleline(&mut fields.screenshot)
+            .desired_width(ui.available_width())
+            .hint_text("screenshot.png"),
+    )
+    .labelled_by(ui.label("Screenshot file").id);
     if ui.add_enabled(!fields.screenshot.trim().is_empty(), egui::Button::new("Save screenshot")).clicked() {
         action = Some(FileAction::Screenshot(path(&fields.screenshot)));
     }
-    ui.add(egui::TextEdit::singleline(&mut fields.field).hint_text("field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)"))
-        .labelled_by(ui.label("Displacement field file").id);
+    action
+}
+
+/// The displacement field under the landmarks: its file's path field, "Use field under landmarks" and "Remove
+/// field"; `field` is the document's displacement field, if any.
+pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
+    let mut action = None;
+    let path = |s: &str| std::path::PathBuf::from(s.trim());
+    ui.add(
+        egui::TextEdit::singleline(&mut fields.field)
+            .desired_width(ui.available_width())
+            .hint_text("field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)"),
+    )
+    .labelled_by(ui.label("Displacement field file").id);
     ui.horizontal(|ui| {
         if ui.add_enabled(!fields.field.trim().is_empty(), egui::Button::new("Use field under landmarks")).clicked() {
             action = Some(FileAction::UseField(path(&fields.field)));

@@ -75,7 +75,17 @@ pub fn panes(layout: Layout, maximised: Option<Pane>) -> Vec<Pane> {
 pub fn tree(layout: Layout, maximised: Option<Pane>) -> egui_tiles::Tree<Pane> {
     let id = egui::Id::unique("warpbench views");
     let panes = panes(layout, maximised);
-    if panes.len() == 4 { egui_tiles::Tree::new_grid(id, panes) } else { egui_tiles::Tree::new_horizontal(id, panes) }
+    if panes.len() == 4 {
+        // Two columns whatever the window's shape (egui_tiles' automatic grid stacks narrow areas in one column).
+        let mut tiles = egui_tiles::Tiles::default();
+        let children = panes.into_iter().map(|p| tiles.insert_pane(p)).collect();
+        let mut grid = egui_tiles::Grid::new(children);
+        grid.layout = egui_tiles::GridLayout::Columns(2);
+        let root = tiles.insert_container(grid);
+        egui_tiles::Tree::new(id, root, tiles)
+    } else {
+        egui_tiles::Tree::new_horizontal(id, panes)
+    }
 }
 
 /// Which pane a double click on `pane`'s title leaves maximised: `pane` itself, or none when it already was.

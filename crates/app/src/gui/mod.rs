@@ -31,6 +31,8 @@ pub mod history;
 pub mod hover;
 mod images;
 pub mod interaction;
+pub mod landmark_panel;
+pub mod landmark_rows;
 pub mod landmark_table;
 pub mod layout;
 pub mod leafer;
@@ -49,6 +51,7 @@ pub mod state;
 pub mod status;
 pub mod suggestion;
 pub mod tool;
+pub mod toolbar;
 pub mod viewer;
 pub mod views;
 

@@ -5,7 +5,7 @@
 use eframe::egui;
 
 use super::Command;
-use super::leafer::{DEFAULT_ANGLE_DEG, Leafer, MAX_ANGLE_DEG};
+use super::leafer::{Leafer, MAX_ANGLE_DEG};
 use super::open::Side;
 use crate::procedural::ProceduralSpec;
 use crate::project::document::{
@@ -44,16 +44,10 @@ pub fn oblique_ui(ui: &mut egui::Ui, name: &str, o: &mut Oblique) -> bool {
 /// The stiffness slider's largest λ, mm: the largest the automatic choice tries.
 pub const STIFFNESS_MAX: f64 = warpbench_solver::stiffness::LAMBDA_MAX;
 
-/// Blend, shading, sample rate, warp method (with "Auto" by the stiffness slider, and the last automatic choice
-/// while it holds) and picking; the settings as changed, if they were, or [`Command::AutoStiffness`].
-pub fn settings_ui(
-    ui: &mut egui::Ui,
-    settings: &ViewSettings,
-    stiffness_choice: Option<&warpbench_solver::stiffness::StiffnessChoice>,
-) -> Option<Command> {
+/// The View section: blend, shading, sample rate, landmarks shown, following the pair, the warp overlay and the 3-D
+/// view's picking; the settings as changed, if they were.
+pub fn view_ui(ui: &mut egui::Ui, settings: &ViewSettings) -> Option<Command> {
     let s = &mut settings.clone();
-    let mut auto = false;
-    ui.label("View");
     choice_ui(ui, "Blend mode", &mut s.blend, Blend::ALL);
     match s.blend {
         Blend::Mix => {
@@ -66,14 +60,31 @@ pub fn settings_ui(
     }
     choice_ui(ui, "Shading", &mut s.shading, Shading::ALL);
     ui.add(egui::Slider::new(&mut s.samples_per_voxel, 0.25..=4.0).logarithmic(true).text("Samples per voxel"));
-    ui.horizontal(|ui| {
+    ui.horizontal_wrapped(|ui| {
         ui.checkbox(&mut s.show_landmarks, "Show landmarks");
         ui.checkbox(&mut s.follow_pair, "Follow the pair being edited")
             .on_hover_text("Centre the slices on a pair when it is added, moved or selected");
     });
     choice_ui(ui, "Warp overlay", &mut s.overlay, Overlay::ALL);
-    ui.separator();
-    ui.label("Warp");
+    let probe_before = s.pick_probe;
+    choice_ui(ui, "Pick probe", &mut s.pick_probe, Probe::ALL);
+    if s.pick_probe != probe_before {
+        s.pick_threshold = s.pick_probe.default_threshold();
+    }
+    ui.add(egui::Slider::new(&mut s.pick_threshold, s.pick_probe.threshold_range()).text("Pick threshold"));
+    (s != settings).then(|| Command::SetSettings(s.clone()))
+}
+
+/// The Warp section's method: the method, with "Auto" by the stiffness slider (and the last automatic choice while
+/// it holds), the B-spline levels and the control texture's size; the settings as changed, if they were, or
+/// [`Command::AutoStiffness`].
+pub fn method_ui(
+    ui: &mut egui::Ui,
+    settings: &ViewSettings,
+    stiffness_choice: Option<&warpbench_solver::stiffness::StiffnessChoice>,
+) -> Option<Command> {
+    let s = &mut settings.clone();
+    let mut auto = false;
     choice_ui(ui, "Method", &mut s.method, MethodKind::ALL);
     match s.method {
         MethodKind::Tps => {
@@ -81,8 +92,8 @@ pub fn settings_ui(
                 let slider = egui::Slider::new(&mut s.stiffness, 0.0..=STIFFNESS_MAX)
                     .logarithmic(true)
                     .smallest_positive(0.01)
-                    .text("Stiffness (lambda)");
-                ui.add(slider);
+                    .text("Stiffness");
+                ui.add(slider).on_hover_text("lambda, mm: 0 interpolates the pairs, more smooths the warp");
                 let button = ui.button("Auto").on_hover_text("choose lambda by the pairs' leave-one-out error");
                 auto = button.clicked();
             });
@@ -99,14 +110,6 @@ pub fn settings_ui(
         _ => {}
     }
     ui.add(egui::Slider::new(&mut s.grid_n, 8..=128).text("Control texture texels"));
-    ui.separator();
-    ui.label("Picking (3-D view)");
-    let probe_before = s.pick_probe;
-    choice_ui(ui, "Pick probe", &mut s.pick_probe, Probe::ALL);
-    if s.pick_probe != probe_before {
-        s.pick_threshold = s.pick_probe.default_threshold();
-    }
-    ui.add(egui::Slider::new(&mut s.pick_threshold, s.pick_probe.threshold_range()).text("Pick threshold"));
     if auto {
         return Some(Command::AutoStiffness);
     }
@@ -119,7 +122,7 @@ pub fn settings_ui(
 /// they were.
 pub fn deformation_ui(ui: &mut egui::Ui, settings: &ViewSettings, problem: Option<&str>) -> Option<Command> {
     let s = &mut settings.clone();
-    ui.label("Synthetic deformation (view only)");
+    ui.label("Synthetic deformation (view only)").on_hover_text("eval's known warps, computed in the shader");
     let mut on = s.procedural.is_some();
     ui.checkbox(&mut on, "Deform the moving volume")
         .on_hover_text("eval's known warps, computed in the shader; exports use the volume as opened");
@@ -197,64 +200,45 @@ pub fn volume_warnings_ui(ui: &mut egui::Ui, fixed: &warpbench_io::Volume, movin
     }
 }
 
-/// The attention lens ([`super::attention`]): "Pulse the selected pair" (P) switches the 3-D view's pulsing lens
-/// about the selected pair on or off; "Show the worst pair" (W) selects the pair with the largest leave-one-out
-/// error, centres the views on it and pulses there (offered once there are leave-one-out errors).
-pub fn attention_ui(ui: &mut egui::Ui, pulsing: bool, has_loo: bool) -> Option<Command> {
-    let mut command = None;
-    ui.horizontal_wrapped(|ui| {
-        let mut on = pulsing;
-        if ui.checkbox(&mut on, "Pulse the selected pair").on_hover_text("P; a lens in the 3-D view only").changed() {
-            command = Some(Command::TogglePulse);
-        }
-        let worst = egui::Button::new("Show the worst pair");
-        if ui.add_enabled(has_loo, worst).on_hover_text("W").clicked() {
-            command = Some(Command::ShowWorstPair);
-        }
-    });
-    command
+/// "Show the worst pair" (W): selects the pair with the largest leave-one-out error, centres the views on it and
+/// pulses the lens there (offered once there are leave-one-out errors). The lens itself is a tool of the toolbar.
+pub fn worst_pair_ui(ui: &mut egui::Ui, has_loo: bool) -> Option<Command> {
+    let worst = egui::Button::new("Show the worst pair");
+    ui.add_enabled(has_loo, worst).on_hover_text("W").clicked().then_some(Command::ShowWorstPair)
 }
 
-/// The leafer ([`super::leafer`]): "Open with a leafer" opens the chosen volume ("Leafer on the fixed volume" /
-/// "Leafer on the moving volume") in the 3-D view by "Leafer opening (deg)" on each side of the cut through the
-/// crosshair along the line of sight.
+/// The leafer's settings while it is open (the toolbar's Leafer opens it, [`super::leafer`]): which volume it opens
+/// ("Leafer on the fixed volume" / "Leafer on the moving volume") and by how much ("Leafer opening (deg)") on each
+/// side of the cut through the crosshair along the line of sight.
 pub fn leafer_ui(ui: &mut egui::Ui, leafer: Leafer) -> Option<Command> {
     let mut edited = leafer;
-    ui.label("Leafer (3-D view only)");
-    let mut open = leafer.is_open();
-    ui.checkbox(&mut open, "Open with a leafer")
-        .on_hover_text("cut along the line of sight through the crosshair and opened like a book, to pick inside");
-    if open != leafer.is_open() {
-        edited = if open { Leafer::Open { side: Side::Moving, angle_deg: DEFAULT_ANGLE_DEG } } else { Leafer::Closed };
-    }
-    if let Leafer::Open { side, angle_deg } = &mut edited {
-        ui.horizontal(|ui| {
-            for (choice, label) in
-                [(Side::Fixed, "Leafer on the fixed volume"), (Side::Moving, "Leafer on the moving volume")]
-            {
-                let shown = ui.radio(*side == choice, choice.name());
-                shown.widget_info(|| egui::WidgetInfo::selected(egui::Role::RadioButton, true, *side == choice, label));
-                if shown.clicked() {
-                    *side = choice;
-                }
+    let Leafer::Open { side, angle_deg } = &mut edited else {
+        ui.label("Leafer: closed (L opens the 3-D view like a book)");
+        return None;
+    };
+    ui.horizontal(|ui| {
+        for (choice, label) in
+            [(Side::Fixed, "Leafer on the fixed volume"), (Side::Moving, "Leafer on the moving volume")]
+        {
+            let shown = ui.radio(*side == choice, choice.name());
+            shown.widget_info(|| egui::WidgetInfo::selected(egui::Role::RadioButton, true, *side == choice, label));
+            if shown.clicked() {
+                *side = choice;
             }
-        });
-        ui.add(egui::Slider::new(angle_deg, 0.0..=MAX_ANGLE_DEG).text("Leafer opening (deg)"));
-    }
+        }
+    });
+    ui.add(egui::Slider::new(angle_deg, 0.0..=MAX_ANGLE_DEG).text("Leafer opening (deg)"));
     (edited != leafer).then_some(Command::SetLeafer(edited))
 }
 
-/// The starting transform under the landmark warp ([`crate::start`]): "Auto-align" (rigid) and "Auto-align affine"
-/// align the moving volume to the fixed one by mutual information ([`super::alignment`]), "Clear alignment" takes the
-/// starting transform away; the line below says what it is, or that the alignment is running.
+/// The starting transform under the landmark warp ([`crate::start`]): "Auto-align affine" aligns the moving volume to
+/// the fixed one by mutual information, rigidly then with 12 parameters ([`super::alignment`]; the rigid one is the
+/// toolbar's Auto-align), "Clear alignment" takes the starting transform away; the line below says what it is, or
+/// that the alignment is running.
 pub fn alignment_ui(ui: &mut egui::Ui, start: Option<&StartingTransform>, aligning: bool) -> Option<Command> {
     use warpbench_solver::align::AlignKind;
     let mut command = None;
     ui.horizontal(|ui| {
-        let hover = "align the moving volume to the fixed one by mutual information (MR to CT works)";
-        if ui.add_enabled(!aligning, egui::Button::new("Auto-align")).on_hover_text(hover).clicked() {
-            command = Some(Command::AutoAlign(AlignKind::Rigid));
-        }
         let affine = egui::Button::new("Auto-align affine");
         if ui.add_enabled(!aligning, affine).on_hover_text("rigid, then 12 parameters").clicked() {
             command = Some(Command::AutoAlign(AlignKind::Affine));
@@ -271,40 +255,11 @@ pub fn alignment_ui(ui: &mut egui::Ui, start: Option<&StartingTransform>, aligni
     command
 }
 
-/// "Refine pair": the target search ([`super::suggestion`]) again for `selected`, the pair selected while no pair is
-/// being added.
-pub fn refine_ui(ui: &mut egui::Ui, selected: Option<usize>) -> Option<Command> {
+/// The displacement brush's settings ([`warpbench_solver::brush`]; the toolbar's Brush makes it the tool): "Brush
+/// radius (mm)" sets new strokes' reach and "Clear the brush" removes every stroke.
+pub fn brush_ui(ui: &mut egui::Ui, settings: &ViewSettings, strokes: usize) -> Option<Command> {
     let mut command = None;
-    ui.horizontal(|ui| {
-        let hover = "search again for the selected pair's target around where the warp puts its moving point";
-        if ui.add_enabled(selected.is_some(), egui::Button::new("Refine pair")).on_hover_text(hover).clicked() {
-            command = selected.map(Command::RefinePair);
-        }
-        ui.label(match selected {
-            Some(i) => format!("the target of pair {}", i + 1),
-            None => "select a pair to refine its target".to_owned(),
-        });
-    });
-    command
-}
-
-/// The displacement brush ([`warpbench_solver::brush`]): "Brush" (B) makes it the tool, "Brush radius (mm)" sets new
-/// strokes' reach, "Clear the brush" removes every stroke, and once a stroke has settled the fitted inverse's
-/// consistency is shown ("Brush inverse: …").
-pub fn brush_ui(ui: &mut egui::Ui, settings: &ViewSettings, (sculpting, strokes): (bool, usize)) -> Option<Command> {
-    let mut command = None;
-    ui.label("Displacement brush (on top of the warp)");
-    ui.horizontal(|ui| {
-        let tool = ui.selectable_label(sculpting, "Brush").on_hover_text("B; drag the deformed moving volume");
-        if tool.clicked() {
-            command = Some(Command::ToggleSculpting);
-        }
-        if sculpting {
-            ui.label("drag the moving volume in the 3-D view or a slice");
-        } else {
-            ui.label(format!("{strokes} strokes"));
-        }
-    });
+    ui.label(format!("Displacement brush (on top of the warp): {strokes} strokes"));
     let mut radius = settings.brush_radius_mm;
     let slider = egui::Slider::new(&mut radius, 2.0..=BRUSH_MAX_RADIUS_MM).text("Brush radius (mm)");
     if ui.add(slider).changed() {

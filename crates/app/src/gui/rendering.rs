@@ -31,10 +31,13 @@ impl Ready {
         let cpu = self.viewer.ctx.is_cpu_driver();
         let shown_size = self.view.images.view.as_ref().map(|v| (v.target.width, v.target.height));
         let reduced = !self.view.images.view_state.full_shown();
+        // A pane's size can jitter by a pixel from one frame to the next as egui settles its layout: the view is drawn
+        // again only when it changed by more (the image is stretched over its pane either way).
+        let resized = |size: (u32, u32)| size.0.abs_diff(view_px.0) > 2 || size.1.abs_diff(view_px.1) > 2;
         let stale = match &self.view.images.view_state {
             ViewImage::Stale { .. } => true,
-            ViewImage::Refining(r) => r.size() != view_px,
-            ViewImage::Full => shown_size != Some(view_px),
+            ViewImage::Refining(r) => resized(r.size()),
+            ViewImage::Full => shown_size.is_none_or(resized),
             ViewImage::Reduced => false,
         };
         // Not while the pointer is held: on a CPU driver a refinement would take the CPU from the next reduced view.
@@ -69,15 +72,45 @@ impl Ready {
             self.refine_in_background(egui, rs, view_px, &settings, &glyphs)?;
         }
         if self.view.images.slices_dirty {
-            let planes = self.slice_planes();
-            for (slot, plane) in self.view.images.slices.iter_mut().zip(planes) {
-                let target = self.viewer.render_slice(&plane, &settings, &slice_glyphs)?;
-                *slot = Some(viewer::show(rs, target, slot.take()));
-            }
-            self.view.images.slices_dirty = false;
+            self.render_slice_images(rs, &settings, &slice_glyphs)?;
         }
         self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
         self.view.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    }
+
+    /// Renders the slices if they changed, for a layout without the 3-D view (which otherwise renders them with
+    /// itself, [`Self::render`]).
+    pub(crate) fn render_slices(&mut self, rs: &eframe::egui_wgpu::RenderState) -> anyhow::Result<()> {
+        if !self.view.images.slices_dirty {
+            return Ok(());
+        }
+        let start = std::time::Instant::now();
+        self.viewer.begin_frame();
+        self.viewer.set_looks(&self.document.layers);
+        self.viewer.set_procedural(self.procedural().ok().flatten());
+        let views = self.view_deformations(std::time::Instant::now());
+        self.viewer.set_view_deformations(views);
+        let settings = self.document.settings.render_settings();
+        self.render_slice_images(rs, &settings, &self.glyphs())?;
+        self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
+        self.view.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
+        Ok(())
+    }
+
+    /// The three slices rendered and handed to egui.
+    fn render_slice_images(
+        &mut self,
+        rs: &eframe::egui_wgpu::RenderState,
+        settings: &warpbench_gpu::RenderSettings,
+        glyphs: &[warpbench_gpu::GlyphInstance],
+    ) -> anyhow::Result<()> {
+        let planes = self.slice_planes();
+        for (slot, plane) in self.view.images.slices.iter_mut().zip(planes) {
+            let target = self.viewer.render_slice(&plane, settings, glyphs)?;
+            *slot = Some(viewer::show(rs, target, slot.take()));
+        }
+        self.view.images.slices_dirty = false;
         Ok(())
     }
 
@@ -166,7 +199,9 @@ impl Ready {
     /// Whether something waits to be rendered.
     #[must_use]
     pub fn needs_render(&self) -> bool {
-        self.view.images.slices_dirty || !matches!(self.view.images.view_state, ViewImage::Full)
+        let view_shown =
+            super::layout::panes(self.view.layout, self.view.maximised).contains(&super::layout::Pane::View3d);
+        self.view.images.slices_dirty || (view_shown && !matches!(self.view.images.view_state, ViewImage::Full))
     }
 
     /// Holds the thread refining the 3-D view back from its next band while `held` (set for the time of a frame's

@@ -1,91 +1,108 @@
-//! The side panel once a pair is shown: history and camera buttons, the view and warp settings, the looks, the
-//! procedural deformation, adding
-//! pairs, the landmark table and its warnings, the accuracy panel with the attention lens, the leafer, the brush,
-//! files and export. It returns what was asked for
-//! as [`Command`]s; only its own text fields (paths being typed) change in place.
+//! The side panel once a pair is shown: the settings only, in collapsible sections (the tools are in the toolbar
+//! and the landmarks in their own panel): View, Volumes, Warp (the method, a displacement field under the landmarks,
+//! the brush's settings and the synthetic deformation), Assist (the alignment, the worst pair, the leafer's
+//! settings), Accuracy, and Files (session, landmarks, screenshot, export). The readers' warnings stay above the
+//! sections. It returns what was asked for as [`Command`]s; only its own text fields (paths being typed) change in
+//! place.
 
 use eframe::egui;
 
-use super::{Command, Placing, Ready, export, panels};
+use super::{Command, Ready, export, panels};
+
+/// A section of the side panel: its title, and whether it is open when the window starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Section {
+    View,
+    Volumes,
+    Warp,
+    Assist,
+    Accuracy,
+    Files,
+}
+
+impl Section {
+    pub const ALL: [Self; 6] = [Self::View, Self::Volumes, Self::Warp, Self::Assist, Self::Accuracy, Self::Files];
+
+    #[must_use]
+    pub fn title(self) -> &'static str {
+        match self {
+            Self::View => "View",
+            Self::Volumes => "Volumes",
+            Self::Warp => "Warp",
+            Self::Assist => "Assist",
+            Self::Accuracy => "Accuracy",
+            Self::Files => "Files",
+        }
+    }
+
+    /// View and Warp start open: what a session changes most; the others start closed so that the panel fits a
+    /// 720-pixel-high window without scrolling.
+    #[must_use]
+    pub fn open_at_start(self) -> bool {
+        matches!(self, Self::View | Self::Warp)
+    }
+}
 
 /// Draws the side panel; returns the commands its widgets gave this frame.
 pub fn side_panel(ui: &mut egui::Ui, ready: &mut Ready) -> Vec<Command> {
     let mut commands = Vec::new();
-    egui::Panel::left("settings").resizable(true).default_size(260.0).show(ui, |ui| {
+    egui::Panel::left("settings").resizable(true).default_size(270.0).show(ui, |ui| {
         egui::ScrollArea::vertical().show(ui, |ui| {
             ui.heading(ready.loaded.title.as_str());
-            ui.horizontal(|ui| {
-                let undo = egui::Button::new("Undo");
-                if ui.add_enabled(ready.history.can_undo(), undo).on_hover_text("Ctrl+Z").clicked() {
-                    commands.push(Command::Undo);
-                }
-                let redo = egui::Button::new("Redo");
-                if ui.add_enabled(ready.history.can_redo(), redo).on_hover_text("Ctrl+Shift+Z").clicked() {
-                    commands.push(Command::Redo);
-                }
-                if ui.button("Reset camera").on_hover_text("R").clicked() {
-                    commands.push(Command::ResetCamera);
-                }
-            });
-            commands.extend(panels::layout_ui(ui, ready.view.layout));
-            commands.extend(panels::settings_ui(ui, &ready.document.settings, ready.current_stiffness_choice()));
-            ui.separator();
-            commands.extend(panels::layers_ui(ui, &ready.document.layers));
             panels::volume_warnings_ui(ui, &ready.loaded.fixed, &ready.loaded.moving);
-            ui.separator();
-            ui.horizontal(|ui| {
-                let adding = ready.placing() != Placing::Idle;
-                if ui.selectable_label(adding, "Add pair").on_hover_text("Space; Esc cancels").clicked() {
-                    commands.push(Command::ToggleAdding);
-                }
-                match ready.placing() {
-                    Placing::Idle => ui.label(""),
-                    Placing::Source => ui.label("click the point on the moving volume"),
-                    Placing::Target { .. } => ui.label("click its partner on the fixed volume"),
-                };
-            });
-            commands.extend(super::landmark_table::landmarks_ui(
-                ui,
-                &ready.document.pairs,
-                &ready.fit.pair_errors,
-                ready.pointer.selected,
-            ));
             for w in &ready.fit.warnings {
                 ui.colored_label(egui::Color32::from_rgb(240, 200, 80), format!("Warning: {w}"));
             }
+            for section in Section::ALL {
+                egui::CollapsingHeader::new(section.title()).default_open(section.open_at_start()).show(ui, |ui| {
+                    commands.extend(section_ui(ui, section, ready));
+                });
+            }
+        });
+    });
+    commands
+}
+
+/// The widgets of one section.
+fn section_ui(ui: &mut egui::Ui, section: Section, ready: &mut Ready) -> Vec<Command> {
+    let mut commands = Vec::new();
+    match section {
+        Section::View => commands.extend(panels::view_ui(ui, &ready.document.settings)),
+        Section::Volumes => commands.extend(panels::layers_ui(ui, &ready.document.layers)),
+        Section::Warp => {
+            commands.extend(panels::method_ui(ui, &ready.document.settings, ready.current_stiffness_choice()));
             ui.separator();
+            commands.extend(
+                super::files::field_ui(ui, &mut ready.files.fields, ready.document.field.as_deref()).map(Command::File),
+            );
+            ui.separator();
+            commands.extend(panels::brush_ui(ui, &ready.document.settings, ready.document.brush.len()));
+            ui.separator();
+            let problem = ready.procedural().err();
+            commands.extend(panels::deformation_ui(ui, &ready.document.settings, problem.as_deref()));
+        }
+        Section::Assist => {
             commands.extend(panels::alignment_ui(ui, ready.document.start.as_ref(), ready.aligning()));
-            let can_refine = (ready.placing() == Placing::Idle).then_some(ready.pointer.selected).flatten();
-            commands.extend(panels::refine_ui(ui, can_refine));
-            ui.separator();
+            let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
+            commands.extend(panels::worst_pair_ui(ui, has_loo));
+            commands.extend(panels::leafer_ui(ui, ready.view.leafer));
+        }
+        Section::Accuracy => {
             commands.extend(
                 super::landmark_table::accuracy_ui(ui, &ready.document.pairs, &ready.fit.pair_errors)
                     .map(Command::JumpTo),
             );
-            commands.extend(super::landmark_table::outliers_ui(ui, ready.fit_pairs().0.len()));
             panels::inverse_consistency_ui(ui, ready.fit.brush_consistency.as_ref());
-            let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
-            commands.extend(panels::attention_ui(ui, ready.view.attention.is_on(), has_loo));
-            ui.separator();
-            commands.extend(panels::leafer_ui(ui, ready.view.leafer));
-            ui.separator();
-            // The tools that deform what is shown come after the landmarks, the registration's own work.
-            let problem = ready.procedural().err();
-            commands.extend(panels::deformation_ui(ui, &ready.document.settings, problem.as_deref()));
-            ui.separator();
-            let tool = (ready.pointer.interaction.sculpting(), ready.document.brush.len());
-            commands.extend(panels::brush_ui(ui, &ready.document.settings, tool));
-            ui.separator();
-            commands.extend(
-                super::files::files_ui(ui, &mut ready.files.fields, ready.document.field.as_deref()).map(Command::File),
-            );
+        }
+        Section::Files => {
+            commands.extend(super::files::files_ui(ui, &mut ready.files.fields).map(Command::File));
             ui.separator();
             let asked = export::export_ui(ui, &mut ready.files.export_fields, ready.files.export.as_ref());
             commands.extend(asked.map(|(kind, out)| Command::Export(kind, out)));
             if let Some(m) = &ready.files.message {
                 ui.label(m.as_str());
             }
-        });
-    });
+        }
+    }
     commands
 }

@@ -35,6 +35,8 @@ pub struct View {
     pub layout: crate::settings::Layout,
     /// The pane shown alone, if one is maximised.
     pub maximised: Option<super::layout::Pane>,
+    /// The landmark panel's sorting, filter, colour threshold and marked rows.
+    pub landmarks: super::landmark_rows::LandmarkPanel,
     /// The panes' tiles, made for the layout and the maximised pane they hold.
     pub(super) tiles: Option<(PaneKey, egui_tiles::Tree<super::layout::Pane>)>,
 }
@@ -59,6 +61,7 @@ impl View {
             overlays: [None, None, None],
             layout: crate::settings::Layout::FourUp,
             maximised: None,
+            landmarks: super::landmark_rows::LandmarkPanel::default(),
             tiles: None,
         }
     }

@@ -6,6 +6,7 @@ use std::time::{Duration, Instant};
 
 use eframe::egui;
 use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
 use warpbench_app::gui::{GuiOptions, Workbench};
 use warpbench_app::inputs::LandmarkSource;
 
@@ -123,4 +124,11 @@ pub fn open_mri_pair_at(dir: &Path, size: egui::Vec2, pixels_per_point: f32) -> 
         .build_eframe(|cc| Workbench::new(cc, opts));
     wait_until_shown(&mut harness);
     harness
+}
+
+/// Opens the side panel's section titled `title` (View and Warp are open at the start, the others closed).
+pub fn open_section(harness: &mut Harness<'_, Workbench>, title: &str) {
+    harness.get_by_label(title).click_accesskit();
+    // The section opens over a few frames.
+    harness.run_steps(12);
 }

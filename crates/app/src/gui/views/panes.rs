@@ -17,7 +17,11 @@ struct Panes<'a> {
 impl egui_tiles::Behavior<Pane> for Panes<'_> {
     fn pane_ui(&mut self, ui: &mut egui::Ui, _tile_id: egui_tiles::TileId, pane: &mut Pane) -> egui_tiles::UiResponse {
         let title = ui
-            .add(egui::Label::new(egui::RichText::new(pane.title()).strong()).sense(egui::Sense::click()))
+            .add(
+                egui::Label::new(egui::RichText::new(pane.title()).strong())
+                    .selectable(false)
+                    .sense(egui::Sense::click()),
+            )
             .on_hover_text("Double-click to maximise this view, again to restore the layout");
         if title.double_clicked() {
             self.ready.apply(Command::ToggleMaximise(*pane));
@@ -46,6 +50,12 @@ pub fn show(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe::
         _ => layout::tree(key.0, key.1),
     };
     ready.pointer.cursor = None;
+    if !layout::panes(key.0, key.1).contains(&Pane::View3d)
+        && let Some(rs) = render_state
+        && let Err(e) = ready.render_slices(rs)
+    {
+        ready.fit.error = Some(format!("rendering: {e:#}"));
+    }
     let planes = ready.slice_planes();
     egui::CentralPanel::default().show(ui, |ui| {
         let mut panes = Panes { ready, render_state, planes };

@@ -49,7 +49,7 @@ pub fn slice_pane(ui: &mut egui::Ui, ready: &mut Ready, axis: SliceAxis, planes:
         if let Some(o) = ready.slice_overlay(&ctx, a, &planes[a]) {
             overlay::draw(ui, o, rect, scale);
         }
-        let label = format!("{} slice", name);
+        let label = format!("{name} slice");
         response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, &label));
         // The ref point under a window position, only when it is over the image ([`placement`]).
         let image_rect = response.rect;

@@ -1,0 +1,247 @@
+//! The workstation window (issue 30): the panes' layout chosen, maximised by a double click and saved in the session;
+//! the toolbar's tools with their shortcuts; the landmark panel's sorting, filter and marked rows; and nothing cut
+//! off at 1280 × 720 and 1920 × 1080.
+
+mod common;
+#[path = "common/window.rs"]
+mod window;
+
+use std::time::{Duration, Instant};
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::{NodeT, Queryable};
+use warpbench_app::gui::{GuiOptions, Placing, Ready, Workbench};
+use warpbench_app::settings::Layout;
+use window::{no_adapter, open_mri_pair, wait_until_rendered, wait_until_shown};
+
+fn ready<'h>(harness: &'h Harness<'_, Workbench>) -> &'h Ready {
+    harness.state().ready().expect("loaded")
+}
+
+/// Which of the four views are shown.
+fn views_shown(harness: &Harness<'_, Workbench>) -> [bool; 4] {
+    ["3-D view", "Axial slice", "Coronal slice", "Sagittal slice"].map(|v| harness.query_by_label(v).is_some())
+}
+
+/// A double click on the pane titled `title`.
+fn double_click(harness: &mut Harness<'_, Workbench>, title: &str) {
+    // Two clicks a frame apart (a quarter of a second in the harness's time; a double click is within 0.3 s).
+    let pos = harness.get_by_label(title).rect().center();
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.step();
+    for _ in 0..2 {
+        harness.input_mut().events.push(window::button(pos, true));
+        harness.input_mut().events.push(window::button(pos, false));
+        harness.step();
+    }
+    harness.run_steps(3);
+}
+
+#[test]
+fn the_layout_is_chosen_maximised_by_a_double_click_and_saved_in_the_session() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1280.0, 800.0));
+    assert_eq!(views_shown(&harness), [true; 4], "four-up at first");
+
+    double_click(&mut harness, "Axial");
+    assert_eq!(views_shown(&harness), [false, true, false, false], "the axial pane alone");
+    double_click(&mut harness, "Axial");
+    assert_eq!(views_shown(&harness), [true; 4], "the layout again");
+
+    harness.get_by_label("Layout").click();
+    harness.run_steps(2);
+    harness.get_by_label("slices").click();
+    harness.run_steps(3);
+    assert_eq!(ready(&harness).view.layout, Layout::Slices);
+    assert_eq!(views_shown(&harness), [false, true, true, true], "the slices alone");
+
+    // The autosave holds it (it is written once the change has settled), and a window opened on it shows it.
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let start = Instant::now();
+    loop {
+        harness.run_steps(2);
+        let text = std::fs::read_to_string(&autosave).unwrap_or_default();
+        if text.contains("\"layout\": \"slices\"") {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_mins(1), "the layout never reached the autosave: {text}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let session = dir.path().join("saved.warpbench.json");
+    std::fs::copy(&autosave, &session).expect("copy the session");
+    drop(harness);
+    let opts = GuiOptions { session: Some(session), ..GuiOptions::default() };
+    let mut reopened =
+        Harness::builder().with_size(egui::vec2(1280.0, 800.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut reopened);
+    assert_eq!(ready(&reopened).view.layout, Layout::Slices, "restored from the session");
+    assert_eq!(views_shown(&reopened), [false, true, true, true]);
+}
+
+#[test]
+fn the_toolbar_shows_the_active_tool_and_its_keys_choose_the_same_tools() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1280.0, 800.0));
+    let toggled = |harness: &Harness<'_, Workbench>, tool: &str| {
+        harness.get_by_label(tool).accesskit_node().toggled() == Some(egui::accesskit::Toggled::True)
+    };
+    assert!(toggled(&harness, "Select") && !toggled(&harness, "Add pair"));
+
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    assert_eq!(ready(&harness).placing(), Placing::Source);
+    assert!(toggled(&harness, "Add pair") && !toggled(&harness, "Select"), "the active tool is shown");
+    harness.get_by_label("Select").click();
+    harness.run_steps(2);
+    assert_eq!(ready(&harness).placing(), Placing::Idle);
+
+    // The tooltip gives the shortcut.
+    harness.get_by_label("Leafer").hover();
+    // Tooltips wait for the pointer to rest.
+    for _ in 0..10 {
+        harness.run_steps(6);
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    harness.get_by_label_contains("open it like a book (L)");
+
+    // The keys choose the same tools.
+    harness.key_press(egui::Key::L);
+    harness.run_steps(2);
+    assert!(ready(&harness).view.leafer.is_open() && toggled(&harness, "Leafer"));
+    harness.key_press(egui::Key::L);
+    harness.run_steps(2);
+    assert!(!ready(&harness).view.leafer.is_open());
+    harness.key_press(egui::Key::B);
+    harness.run_steps(2);
+    assert!(ready(&harness).sculpting() && toggled(&harness, "Brush"));
+    harness.key_press(egui::Key::Space);
+    harness.run_steps(2);
+    assert_eq!(ready(&harness).placing(), Placing::Source, "Add pair takes over from the brush");
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
+    assert!(toggled(&harness, "Select"));
+
+    // Suggest needs a selected pair: without one neither its button nor T does anything.
+    harness.key_press(egui::Key::T);
+    harness.run_steps(2);
+    assert!(ready(&harness).pointer.notice.is_none(), "{:?}", ready(&harness).pointer.notice);
+    harness.key_press(egui::Key::P);
+    harness.run_steps(2);
+    assert!(ready(&harness).view.attention.is_on() && toggled(&harness, "Lens"));
+}
+
+/// The pairs' table rows in the order shown, top to bottom (their numbers' "Select NAME" buttons).
+fn rows_shown(harness: &Harness<'_, Workbench>) -> Vec<usize> {
+    let names: Vec<String> = ready(harness).document.pairs.iter().map(|p| p.name.clone()).collect();
+    let mut rows: Vec<(f32, usize)> = names
+        .iter()
+        .enumerate()
+        .filter_map(|(i, n)| harness.query_by_label(&format!("Select {n}")).map(|node| (node.rect().top(), i)))
+        .collect();
+    rows.sort_by(|a, b| a.0.total_cmp(&b.0));
+    rows.into_iter().map(|(_, i)| i).collect()
+}
+
+#[test]
+fn the_landmark_panel_sorts_filters_and_switches_marked_pairs_off_in_one_step() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1280.0, 800.0));
+    wait_until_rendered(&mut harness);
+    let loo: Vec<f64> = ready(&harness)
+        .fit
+        .pair_errors
+        .iter()
+        .map(|e| e.and_then(|e| e.leave_one_out_mm).expect("a leave-one-out error per pair"))
+        .collect();
+    assert_eq!(rows_shown(&harness), [0, 1, 2, 3, 4], "in placing order at first");
+
+    // Sorted by leave-one-out, then reversed: largest first.
+    harness.get_by_label("Sort by leave-one-out").click();
+    harness.run_steps(2);
+    harness.get_by_label("Sort by leave-one-out").click();
+    harness.run_steps(2);
+    let mut by_loo: Vec<usize> = (0..loo.len()).collect();
+    by_loo.sort_by(|&a, &b| loo[b].total_cmp(&loo[a]));
+    assert_eq!(rows_shown(&harness), by_loo, "largest leave-one-out first: {loo:?}");
+
+    // The filter at the colour threshold (2 mm): only the pairs above it.
+    harness.get_by_label("Only LOO above").click();
+    harness.run_steps(2);
+    let above: Vec<usize> = by_loo.iter().copied().filter(|&i| loo[i] > 2.0).collect();
+    assert_eq!(rows_shown(&harness), above, "{loo:?}");
+    harness.get_by_label("Only LOO above").click();
+    harness.run_steps(2);
+
+    // Two rows marked (a click, then Ctrl+click) are switched off together, and one undo brings both back.
+    let names: Vec<String> = ready(&harness).document.pairs.iter().map(|p| p.name.clone()).collect();
+    harness.get_by_label(&format!("Select {}", names[1])).click();
+    harness.run_steps(2);
+    harness.get_by_label(&format!("Select {}", names[3])).click_modifiers(egui::Modifiers::COMMAND);
+    harness.run_steps(2);
+    harness.get_by_label_contains("2 marked");
+    harness.get_by_label("Deactivate marked").click();
+    harness.run_steps(3);
+    let active: Vec<bool> = ready(&harness).document.pairs.iter().map(|p| p.active).collect();
+    assert_eq!(active, [true, false, true, false, true]);
+    wait_until_rendered(&mut harness);
+    harness.get_by_label("Undo").click();
+    harness.run_steps(3);
+    assert!(ready(&harness).document.pairs.iter().all(|p| p.active), "one undo step");
+}
+
+/// Every widget of the window on the demo pair at `size`: none extends past the window, and none crosses the
+/// border of the settings panel or of the landmark panel (where its text would be cut).
+fn assert_nothing_cut_off(size: egui::Vec2) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let opts = GuiOptions { autosave: Some(dir.path().join("autosave.warpbench.json")), ..GuiOptions::default() };
+    let mut harness = Harness::builder().with_size(size).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    // Something long in the status bar: the pointer over a slice (the point, the warp there and the nearest pair).
+    let axial = harness.get_by_label("Axial slice").rect();
+    harness.input_mut().events.push(egui::Event::PointerMoved(axial.center()));
+    harness.run_steps(3);
+    harness.get_by_label_contains("cursor LPS fixed");
+    let window = egui::Rect::from_min_size(egui::Pos2::ZERO, size).expand(0.5);
+    // The panels' borders: where the panes begin and where the landmark panel begins.
+    let left_border = harness.get_by_label("3-D").rect().left() - 4.0;
+    let right_border = harness.get_by_label_contains("Landmarks (").rect().left() - 4.0;
+    let mut checked = 0;
+    for node in harness.root().children_recursive() {
+        let Some(b) = node.accesskit_node().bounding_box() else { continue };
+        let rect = egui::Rect::from_min_max(egui::pos2(b.x0 as f32, b.y0 as f32), egui::pos2(b.x1 as f32, b.y1 as f32));
+        if !rect.is_positive() {
+            continue;
+        }
+        let what = format!("{:?} {:?} at {rect:?}", node.accesskit_node().role(), node.accesskit_node().label());
+        assert!(window.contains_rect(rect), "{size:?}: {what} extends past the window");
+        let x = rect.center().x;
+        if x < left_border {
+            assert!(rect.right() <= left_border + 4.0, "{size:?}: {what} crosses the settings panel's border");
+        }
+        if x > right_border {
+            assert!(rect.left() >= right_border, "{size:?}: {what} crosses the landmark panel's border");
+        }
+        checked += 1;
+    }
+    assert!(checked > 100, "{checked} widgets checked");
+    eprintln!("{size:?}: {checked} widgets inside the window and their panels");
+}
+
+#[test]
+fn nothing_is_cut_off_at_1280_by_720_and_1920_by_1080() {
+    if no_adapter() {
+        return;
+    }
+    assert_nothing_cut_off(egui::vec2(1280.0, 720.0));
+    assert_nothing_cut_off(egui::vec2(1920.0, 1080.0));
+}
