@@ -20,7 +20,8 @@ pub fn slice_pane(ui: &mut egui::Ui, ready: &mut Ready, axis: SliceAxis, planes:
     let pane = ui.available_rect_before_wrap();
     let mut mm = ready.view.slice_mm[a];
     // The slider leaves room for its value field; its name is for screen readers.
-    ui.spacing_mut().slider_width = (ui.available_width() - 64.0).max(40.0);
+    // (room for "-123.45 mm").
+    ui.spacing_mut().slider_width = (ui.available_width() - 100.0).max(40.0);
     let slider = ui.add(egui::Slider::new(&mut mm, -150.0..=150.0).suffix(" mm"));
     let slider_name = format!("{name} position");
     slider.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Slider, true, &slider_name));
