@@ -207,18 +207,9 @@ fn landmark_row(ui: &mut egui::Ui, row: &Row<'_>, marked: bool, threshold_mm: f6
 
 #[cfg(test)]
 mod tests {
+    use super::super::landmark_rows::tests::pairs;
     use super::*;
     use egui_kittest::kittest::Queryable as _;
-    use warpbench_io::geometry::Point3;
-
-    fn pairs(n: usize) -> Vec<LandmarkPair> {
-        (0..n)
-            .map(|i| {
-                let x = i as f64;
-                LandmarkPair::new(format!("Pt-{i}"), Point3::new(x, 0.0, 0.0), Point3::new(x, 1.0, 0.0))
-            })
-            .collect()
-    }
 
     #[test]
     fn thresholds_colour_the_errors() {

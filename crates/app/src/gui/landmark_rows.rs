@@ -129,11 +129,12 @@ impl LandmarkPanel {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use warpbench_io::geometry::Point3;
 
-    fn pairs(n: usize) -> Vec<LandmarkPair> {
+    /// `n` pairs named Pt-0, Pt-1, … along x.
+    pub(crate) fn pairs(n: usize) -> Vec<LandmarkPair> {
         (0..n)
             .map(|i| {
                 let x = i as f64;

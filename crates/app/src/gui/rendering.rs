@@ -46,11 +46,7 @@ impl Ready {
             return Ok(());
         }
         let start = std::time::Instant::now();
-        self.viewer.begin_frame();
-        self.viewer.set_looks(&self.document.layers);
-        self.viewer.set_procedural(self.procedural().ok().flatten());
-        let views = self.view_deformations(std::time::Instant::now());
-        self.viewer.set_view_deformations(views);
+        let views = self.begin_viewer_frame();
         let glyphs = self.glyphs_through(views);
         let slice_glyphs = self.glyphs();
         let settings = self.document.settings.render_settings();
@@ -86,16 +82,23 @@ impl Ready {
             return Ok(());
         }
         let start = std::time::Instant::now();
-        self.viewer.begin_frame();
-        self.viewer.set_looks(&self.document.layers);
-        self.viewer.set_procedural(self.procedural().ok().flatten());
-        let views = self.view_deformations(std::time::Instant::now());
-        self.viewer.set_view_deformations(views);
+        self.begin_viewer_frame();
         let settings = self.document.settings.render_settings();
         self.render_slice_images(rs, &settings, &self.glyphs())?;
         self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
         self.view.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(())
+    }
+
+    /// Starts the viewer's frame with the document's looks, the synthetic deformation and the view deformations (lens,
+    /// leafer) of this instant, which it returns.
+    fn begin_viewer_frame(&mut self) -> [Option<warpbench_gpu::ViewDeformation>; 2] {
+        self.viewer.begin_frame();
+        self.viewer.set_looks(&self.document.layers);
+        self.viewer.set_procedural(self.procedural().ok().flatten());
+        let views = self.view_deformations(std::time::Instant::now());
+        self.viewer.set_view_deformations(views);
+        views
     }
 
     /// The three slices rendered and handed to egui.
