@@ -258,6 +258,9 @@ choice! {
         ThreeD = "3-d",
         /// The three slices side by side.
         Slices = "slices",
+        /// The fixed volume and the warped moving volume side by side in the same axial plane, linked (as BigWarp's
+        /// two viewers).
+        SideBySide = "side by side",
     }
 }
 

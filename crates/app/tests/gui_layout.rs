@@ -263,3 +263,72 @@ fn nothing_is_cut_off_at_1280_by_720_and_1920_by_1080() {
     assert_nothing_cut_off(egui::vec2(1280.0, 720.0));
     assert_nothing_cut_off(egui::vec2(1920.0, 1080.0));
 }
+
+/// The fixed point the status bar reads out with the pointer at `pos`.
+fn fixed_point_under(harness: &mut Harness<'_, Workbench>, pos: egui::Pos2) -> Vec<f64> {
+    harness.input_mut().events.push(egui::Event::PointerMoved(pos));
+    harness.run_steps(3);
+    let node = harness.get_by_label_contains("cursor LPS fixed");
+    let label = node.accesskit_node().label().filter(|l| !l.is_empty());
+    let bar = label.or_else(|| node.value()).unwrap_or_default();
+    let item = bar
+        .split(" | ")
+        .find(|i| i.starts_with("cursor LPS fixed"))
+        .unwrap_or_else(|| panic!("the read-out in {bar:?}"))
+        .to_owned();
+    let fixed = item.split("mm,").next().expect("the fixed point");
+    fixed
+        .split(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-'))
+        .filter(|s| !s.is_empty() && *s != "-")
+        .map(|s| s.parse().expect("a number"))
+        .collect()
+}
+
+#[test]
+fn side_by_side_shows_the_fixed_and_the_warped_moving_volume_in_one_linked_plane() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1280.0, 800.0));
+    harness.get_by_label("Layout").click();
+    harness.run_steps(2);
+    harness.get_by_label("side by side").click();
+    harness.run_steps(3);
+    wait_until_rendered(&mut harness);
+    assert_eq!(views_shown(&harness), [false; 4], "the two panes alone");
+    let fixed = harness.get_by_label("Fixed axial slice").rect();
+    let moving = harness.get_by_label("Moving axial slice").rect();
+    assert!(fixed.right() <= moving.left(), "side by side: {fixed:?} | {moving:?}");
+
+    // The same place in each pane is the same point: one plane, one read-out.
+    let at = |r: egui::Rect| r.min + r.size() * egui::vec2(0.4, 0.55);
+    let in_fixed = fixed_point_under(&mut harness, at(fixed));
+    let in_moving = fixed_point_under(&mut harness, at(moving));
+    assert_eq!(in_fixed, in_moving, "linked panes");
+
+    // The wheel over one pane moves the plane of both.
+    let before = ready(&harness).view.slice_mm[0];
+    harness.input_mut().events.push(egui::Event::MouseWheel {
+        unit: egui::MouseWheelUnit::Line,
+        delta: egui::vec2(0.0, 1.0),
+        modifiers: egui::Modifiers::NONE,
+        phase: egui::TouchPhase::Move,
+        source: egui::MouseWheelSource::Wheel,
+    });
+    harness.run_steps(3);
+    let after = ready(&harness).view.slice_mm[0];
+    assert!((after - before).abs() > 0.5, "one slice: {before} -> {after}");
+    let value = |h: &Harness<'_, Workbench>, label: &str| h.get_by_label(label).accesskit_node().numeric_value();
+    assert_eq!(value(&harness, "Fixed axial position"), Some(after));
+    assert_eq!(value(&harness, "Moving axial position"), Some(after));
+
+    // A pair placed across the panes: its moving point in the warped moving volume, its partner in the fixed one.
+    let n = ready(&harness).document.pairs.len();
+    harness.get_by_label("Add pair").click();
+    harness.run_steps(2);
+    window::click_at(&mut harness, at(moving));
+    assert!(matches!(ready(&harness).placing(), Placing::Target { .. }), "{:?}", ready(&harness).pointer.notice);
+    window::click_at(&mut harness, at(fixed));
+    assert_eq!(ready(&harness).document.pairs.len(), n + 1, "{:?}", ready(&harness).pointer.notice);
+}

@@ -37,6 +37,8 @@ pub(crate) struct Images {
     pub(crate) view: Option<Shown>,
     pub(crate) view_state: ViewImage,
     pub(crate) slices: [Option<Shown>; 3],
+    /// The axial plane with the fixed volume alone and the warped moving volume alone, for the side-by-side layout.
+    pub(crate) compare: [Option<Shown>; 2],
     pub(crate) slices_dirty: bool,
     /// Measured cost of the 3-D view on a CPU driver (ms per pixel, full quality), for the interaction size and the
     /// bands.
@@ -49,6 +51,7 @@ impl Default for Images {
             view: None,
             view_state: ViewImage::Stale { full_shown: true },
             slices: [None, None, None],
+            compare: [None, None],
             slices_dirty: true,
             view_ms_per_px: None,
         }

@@ -1,10 +1,11 @@
 //! How the views share the window: panes of [`egui_tiles`] (as rerun lays out its views), four-up by default (the
-//! 3-D view and the axial, coronal and sagittal slices in equal panes), the 3-D view alone or the slices alone
-//! ([`Layout`]), any pane maximised by a double click on its title and restored by another. The panes can be
+//! 3-D view and the axial, coronal and sagittal slices in equal panes), the 3-D view alone, the slices alone, or the
+//! fixed and the warped moving volume side by side in one linked axial plane ([`Layout`]), any pane maximised by a double click on its title and restored by another. The panes can be
 //! resized by their borders. The layout is saved in the session; the maximised pane is not.
 
 use eframe::egui;
 
+use super::open::Side;
 use crate::settings::Layout;
 
 /// One pane of the layout.
@@ -12,6 +13,8 @@ use crate::settings::Layout;
 pub enum Pane {
     View3d,
     Slice(SliceAxis),
+    /// One volume alone (the moving one warped) in the axial plane, beside the other.
+    Compare(Side),
 }
 
 /// A slice view's plane through the fixed grid.
@@ -52,6 +55,8 @@ impl Pane {
         match self {
             Self::View3d => "3-D",
             Self::Slice(s) => s.name(),
+            Self::Compare(Side::Fixed) => "Fixed",
+            Self::Compare(Side::Moving) => "Moving, warped",
         }
     }
 }
@@ -67,6 +72,7 @@ pub fn panes(layout: Layout, maximised: Option<Pane>) -> Vec<Pane> {
         Layout::FourUp => [Pane::View3d].into_iter().chain(slices).collect(),
         Layout::ThreeD => vec![Pane::View3d],
         Layout::Slices => slices.to_vec(),
+        Layout::SideBySide => vec![Pane::Compare(Side::Fixed), Pane::Compare(Side::Moving)],
     }
 }
 
@@ -103,6 +109,7 @@ mod tests {
         assert_eq!(panes(Layout::FourUp, None).len(), 4);
         assert_eq!(panes(Layout::ThreeD, None), vec![Pane::View3d]);
         assert_eq!(panes(Layout::Slices, None), SliceAxis::ALL.map(Pane::Slice).to_vec());
+        assert_eq!(panes(Layout::SideBySide, None), [Side::Fixed, Side::Moving].map(Pane::Compare).to_vec());
         let axial = Pane::Slice(SliceAxis::Axial);
         assert_eq!(panes(Layout::FourUp, Some(axial)), vec![axial]);
         assert_eq!(toggled(None, axial), Some(axial));

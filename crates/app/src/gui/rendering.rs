@@ -113,6 +113,17 @@ impl Ready {
             let target = self.viewer.render_slice(&plane, settings, glyphs)?;
             *slot = Some(viewer::show(rs, target, slot.take()));
         }
+        let panes = super::layout::panes(self.view.layout, self.view.maximised);
+        if panes.iter().any(|p| matches!(p, super::layout::Pane::Compare(_))) {
+            let s = &self.document.settings;
+            let alone = [crate::settings::Blend::FixedOnly, crate::settings::Blend::MovingOnly];
+            for (slot, blend) in self.view.images.compare.iter_mut().zip(alone) {
+                let settings =
+                    warpbench_gpu::RenderSettings { blend: blend.mode(s.mix_weight, s.checker_mm), ..*settings };
+                let target = self.viewer.render_slice(&planes[0], &settings, glyphs)?;
+                *slot = Some(viewer::show(rs, target, slot.take()));
+            }
+        }
         self.view.images.slices_dirty = false;
         Ok(())
     }

@@ -4,7 +4,7 @@
 use eframe::egui;
 
 use super::{slices, view3d};
-use crate::gui::layout::{self, Pane};
+use crate::gui::layout::{self, Pane, SliceAxis};
 use crate::gui::{Command, Ready};
 
 /// What the panes draw with: the window's state, the renderer's wgpu state and this frame's slice planes.
@@ -28,7 +28,8 @@ impl egui_tiles::Behavior<Pane> for Panes<'_> {
         }
         match *pane {
             Pane::View3d => view3d::view3d(ui, self.ready, self.render_state),
-            Pane::Slice(axis) => slices::slice_pane(ui, self.ready, axis, &self.planes),
+            Pane::Slice(axis) => slices::slice_pane(ui, self.ready, axis, &self.planes, None),
+            Pane::Compare(side) => slices::slice_pane(ui, self.ready, SliceAxis::Axial, &self.planes, Some(side)),
         }
         egui_tiles::UiResponse::None
     }

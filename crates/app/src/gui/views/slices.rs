@@ -7,15 +7,31 @@ use eframe::egui;
 use warpbench_gpu::SlicePlane;
 
 use crate::gui::layout::SliceAxis;
+use crate::gui::open::Side;
 use crate::gui::{
     Command, DragPoint, DragView, Placing, Ready, SLICE_SLAB_MM, overlay, panels, placement, slice_habits,
 };
 use crate::settings::Blend;
 
 /// Draws slice view `axis` in its pane: its position slider and oblique controls, then the image with its
-/// overlays, landmarks and crosshair. `planes` are the three slice planes of this frame.
-pub fn slice_pane(ui: &mut egui::Ui, ready: &mut Ready, axis: SliceAxis, planes: &[SlicePlane; 3]) {
-    let (a, name) = (axis.index(), axis.name());
+/// overlays, landmarks and crosshair. `planes` are the three slice planes of this frame. `alone`: the pane shows
+/// that volume alone (the moving one warped), beside the other in the side-by-side layout; the two share the plane,
+/// the crosshair and the pointer's read-out.
+pub fn slice_pane(
+    ui: &mut egui::Ui,
+    ready: &mut Ready,
+    axis: SliceAxis,
+    planes: &[SlicePlane; 3],
+    alone: Option<Side>,
+) {
+    let a = axis.index();
+    let name = match alone {
+        None => axis.name().to_owned(),
+        Some(side) => {
+            format!("{} {}", if side == Side::Fixed { "Fixed" } else { "Moving" }, axis.name().to_lowercase())
+        }
+    };
+    let name = name.as_str();
     // The pane's own rect: the image fits in what its controls leave of it, even where a control is wider.
     let pane = ui.available_rect_before_wrap();
     let mut mm = ready.view.slice_mm[a];
@@ -32,7 +48,12 @@ pub fn slice_pane(ui: &mut egui::Ui, ready: &mut Ready, axis: SliceAxis, planes:
     if panels::oblique_ui(ui, name, &mut settings.oblique[a]) {
         ready.apply(Command::SetSettings(settings));
     }
-    if let Some(shown) = &ready.view.images.slices[a] {
+    let image = match alone {
+        None => &ready.view.images.slices[a],
+        Some(Side::Fixed) => &ready.view.images.compare[0],
+        Some(Side::Moving) => &ready.view.images.compare[1],
+    };
+    if let Some(shown) = image {
         let avail = pane.max - ui.cursor().min;
         let (w, h) = (shown.target.width as f32, shown.target.height as f32);
         let scale = (avail.x / w).min(avail.y.max(64.0) / h);
