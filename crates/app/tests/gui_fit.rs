@@ -852,6 +852,41 @@ fn the_warp_overlays_show_the_status_bars_values() {
             }
             assert_eq!(finite, 4, "{overlay:?}: values everywhere on slice {a}");
         }
+        // The 3-D view: each sample is the read-out at the point a click at its pixel picks (one pick each here,
+        // against the overlay's one dispatch of all), transparent where the ray misses the head.
+        let o = ready.view.view_overlay.as_ref().expect("an overlay on the 3-D view");
+        assert_eq!(o.key.overlay, overlay);
+        let (size, _) = ready.view_shown().expect("a view");
+        assert_eq!(o.key.size, size, "computed for the view as shown");
+        let settings = ready.document.settings.render_settings();
+        let probe = ready.document.settings.probe();
+        let (mut hits, mut misses) = (0, 0);
+        for j in (0..o.samples.1).step_by(5) {
+            for i in (0..o.samples.0).step_by(5) {
+                let pixel = o.pixel_of(i, j);
+                let k = (j * o.samples.0 + i) as usize;
+                let picked = ready
+                    .viewer
+                    .pick(&ready.view.camera, &settings, size, pixel, warpbench_gpu::PickTarget::Moving, probe)
+                    .expect("pick");
+                let point = picked.map(|h| h.x_ref.map(f64::from));
+                assert_eq!(o.points[k], point, "{overlay:?}: the 3-D sample ({i}, {j}) is the click's pick");
+                let value = o.values[k];
+                if let Some(x) = point {
+                    let cursor = ready.cursor_at(x);
+                    let read_out = match overlay {
+                        Overlay::Jacobian => cursor.det_jacobian.expect("a warp"),
+                        _ => cursor.displacement_mm(),
+                    };
+                    assert_eq!(value.to_bits(), read_out.to_bits(), "{overlay:?} 3-D sample ({i}, {j})");
+                    hits += 1;
+                } else {
+                    assert!(value.is_nan(), "nothing drawn where the ray misses");
+                    misses += 1;
+                }
+            }
+        }
+        assert!(hits > 3 && misses > 3, "{overlay:?}: {hits} samples on the head, {misses} beside it");
     }
     // The deformed grid: lines whose points moved by the in-plane displacement (the pairs move by a few mm).
     let ready = harness.state_mut().ready_mut().expect("ready");

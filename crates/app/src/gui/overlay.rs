@@ -119,16 +119,99 @@ pub fn displacement_colour(mm: f64, max_mm: f64) -> egui::Color32 {
     egui::Color32::from_rgb(c(0.27, 0.13, 0.99), c(0.0, 0.57, 0.91), c(0.33, 0.55, 0.14))
 }
 
+/// The 3-D view's samples a side at most: one pick ray each, all in one dispatch.
+pub const VIEW_SAMPLES: u32 = 48;
+
+/// What the 3-D view's overlay was computed for: the choice, the fit, the camera and the view's size in pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ViewOverlayKey {
+    pub overlay: Overlay,
+    pub fit_generation: u64,
+    pub camera: warpbench_gpu::OrbitCamera,
+    pub size: (u32, u32),
+}
+
+/// The 3-D view's overlay: the status bar's read-out at the visible surface of the deformed moving volume, picked
+/// at an even grid of the view's pixels (as a click there would pick it); `NaN` where the ray hits nothing.
+pub struct ViewOverlay {
+    pub key: ViewOverlayKey,
+    pub samples: (u32, u32),
+    /// The picked point of each sample, row by row (ref mm), `None` where the ray hits nothing.
+    pub points: Vec<Option<[f64; 3]>>,
+    /// One value per sample (det ∇u, or |u − x| mm) at its point.
+    pub values: Vec<f64>,
+    /// The largest |u − x| (mm), for the displacement legend.
+    pub max_mm: f64,
+    pub(crate) texture: Option<egui::TextureHandle>,
+}
+
+impl std::fmt::Debug for ViewOverlay {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ViewOverlay").field("key", &self.key).field("samples", &self.samples).finish_non_exhaustive()
+    }
+}
+
+impl ViewOverlay {
+    /// The view pixel (fractional, pixel centres at i + ½) of sample (i, j): the centres of an even grid.
+    #[must_use]
+    pub fn pixel_of(&self, i: u32, j: u32) -> [f32; 2] {
+        let (w, h) = (self.key.size.0 as f32, self.key.size.1 as f32);
+        let (sx, sy) = (self.samples.0 as f32, self.samples.1 as f32);
+        [(i as f32 + 0.5) * w / sx, (j as f32 + 0.5) * h / sy]
+    }
+}
+
+/// The samples a 3-D view of `size` pixels gets: [`VIEW_SAMPLES`] along its longer side.
+pub(crate) fn view_samples_of(size: (u32, u32)) -> (u32, u32) {
+    let longest = size.0.max(size.1).max(1);
+    let scale = (f64::from(VIEW_SAMPLES) / f64::from(longest)).min(1.0);
+    let n = |s: u32| ((f64::from(s) * scale).round() as u32).max(2);
+    (n(size.0), n(size.1))
+}
+
+/// The colour of sample `value` of `overlay` (half transparent over the image).
+pub(crate) fn colour_of(overlay: Overlay, value: f64, max_mm: f64) -> egui::Color32 {
+    let c = if overlay == Overlay::Jacobian { jacobian_colour(value) } else { displacement_colour(value, max_mm) };
+    c.gamma_multiply(0.55)
+}
+
+/// Draws the 3-D view's `overlay` over the view's image at `rect` with its legend (the deformed grid is drawn in the
+/// slices only: its legend says so).
+pub fn draw_view(ui: &egui::Ui, overlay: &ViewOverlay, rect: egui::Rect) {
+    if overlay.key.overlay == Overlay::Grid {
+        let at = rect.right_top() + egui::vec2(-4.0, 4.0);
+        let (font, text) = (egui::FontId::proportional(11.0), egui::Color32::from_rgb(230, 230, 230));
+        ui.painter_at(rect).text(at, egui::Align2::RIGHT_TOP, "deformed grid: in the slices", font, text);
+        return;
+    }
+    let lines = [];
+    draw_parts(ui, overlay.key.overlay, overlay.texture.as_ref(), &lines, overlay.max_mm, rect, 1.0);
+}
+
 /// Draws `overlay` over the slice image at `rect` (`scale` screen points a slice pixel) with its legend.
 pub fn draw(ui: &egui::Ui, overlay: &SliceOverlay, rect: egui::Rect, scale: f32) {
+    let kind = overlay.key.overlay;
+    draw_parts(ui, kind, overlay.texture.as_ref(), &overlay.lines, overlay.max_mm, rect, scale);
+}
+
+/// Draws an overlay's colour image and grid lines over `rect` with its legend.
+fn draw_parts(
+    ui: &egui::Ui,
+    kind: Overlay,
+    texture: Option<&egui::TextureHandle>,
+    lines: &[Vec<[f64; 2]>],
+    max_mm: f64,
+    rect: egui::Rect,
+    scale: f32,
+) {
     let painter = ui.painter_at(rect);
-    if let Some(texture) = &overlay.texture {
+    if let Some(texture) = texture {
         let uv = egui::Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
         painter.image(texture.id(), rect, uv, egui::Color32::WHITE);
     }
     let to_screen = |p: [f64; 2]| rect.min + egui::vec2((p[0] as f32 + 0.5) * scale, (p[1] as f32 + 0.5) * scale);
     let stroke = egui::Stroke::new(1.0, egui::Color32::from_rgba_unmultiplied(255, 200, 60, 200));
-    for line in &overlay.lines {
+    for line in lines {
         painter.add(egui::Shape::line(line.iter().map(|&p| to_screen(p)).collect(), stroke));
     }
     // The legend: a colour bar with its ends, at the top right.
@@ -136,13 +219,13 @@ pub fn draw(ui: &egui::Ui, overlay: &SliceOverlay, rect: egui::Rect, scale: f32)
     let font = egui::FontId::proportional(11.0);
     let text = egui::Color32::from_rgb(230, 230, 230);
     let steps = 16;
-    let (left, right, colour): (String, String, Box<dyn Fn(f64) -> egui::Color32>) = match overlay.key.overlay {
+    let (left, right, colour): (String, String, Box<dyn Fn(f64) -> egui::Color32>) = match kind {
         Overlay::Jacobian => {
             let (lo, hi) = JACOBIAN_RANGE;
             (format!("{lo}"), format!("{hi} det"), Box::new(move |t| jacobian_colour(lo * (hi / lo).powf(t))))
         }
         Overlay::Displacement => {
-            let max = overlay.max_mm;
+            let max = max_mm;
             ("0".to_owned(), format!("{max:.1} mm"), Box::new(move |t| displacement_colour(t * max, max)))
         }
         Overlay::Grid => {
@@ -162,7 +245,7 @@ pub fn draw(ui: &egui::Ui, overlay: &SliceOverlay, rect: egui::Rect, scale: f32)
     }
     painter.text(bar.left_bottom() + egui::vec2(0.0, 1.0), egui::Align2::LEFT_TOP, left, font.clone(), text);
     painter.text(bar.right_bottom() + egui::vec2(0.0, 1.0), egui::Align2::RIGHT_TOP, right, font.clone(), text);
-    if overlay.key.overlay == Overlay::Jacobian {
+    if kind == Overlay::Jacobian {
         let swatch = egui::Rect::from_min_size(bar.left_bottom() + egui::vec2(0.0, 14.0), egui::vec2(8.0, 8.0));
         painter.rect_filled(swatch, 0.0, FOLDING);
         painter.text(swatch.right_center() + egui::vec2(3.0, 0.0), egui::Align2::LEFT_CENTER, "folding", font, text);

@@ -4,11 +4,13 @@
 
 use anyhow::{Context as _, anyhow};
 use eframe::egui;
-use warpbench_gpu::{Quality, SlicePlane};
+use warpbench_gpu::{PickTarget, Quality, SlicePlane};
 
 use super::Ready;
 use super::images::ViewImage;
-use super::overlay::{GRID_MM, OverlayKey, SliceOverlay, displacement_colour, jacobian_colour, samples_of};
+use super::overlay::{
+    GRID_MM, OverlayKey, SliceOverlay, ViewOverlay, ViewOverlayKey, displacement_colour, jacobian_colour, samples_of,
+};
 use super::pacing::{self, RefineJob, interactive_size};
 use super::viewer;
 use crate::settings::Overlay;
@@ -254,6 +256,68 @@ impl Ready {
             self.view.overlays[a] = Some(computed);
         }
         self.view.overlays[a].as_ref()
+    }
+
+    /// The 3-D view's overlay for the view as shown, computed again when the choice, the fit, the camera or the
+    /// view's size changed (kept while the pointer is held: an orbit would pick every frame); `None` with no
+    /// overlay chosen or no view shown.
+    pub(crate) fn view_overlay(&mut self, ctx: &egui::Context, held: bool) -> Option<&ViewOverlay> {
+        let overlay = self.document.settings.overlay;
+        let Some((size, _)) = self.view_shown().filter(|_| overlay != Overlay::None) else {
+            self.view.view_overlay = None;
+            return None;
+        };
+        let key = ViewOverlayKey { overlay, fit_generation: self.fit.generation, camera: self.view.camera, size };
+        let stale = self.view.view_overlay.as_ref().is_none_or(|o| o.key != key);
+        if stale && !(held && self.view.view_overlay.is_some()) {
+            match self.compute_view_overlay(ctx, key) {
+                Ok(o) => self.view.view_overlay = Some(o),
+                Err(e) => {
+                    self.fit.error = Some(format!("the 3-D view's overlay: {e:#}"));
+                    self.view.view_overlay = None;
+                }
+            }
+        }
+        self.view.view_overlay.as_ref()
+    }
+
+    fn compute_view_overlay(&self, ctx: &egui::Context, key: ViewOverlayKey) -> anyhow::Result<ViewOverlay> {
+        let samples = super::overlay::view_samples_of(key.size);
+        let mut overlay =
+            ViewOverlay { key, samples, points: Vec::new(), values: Vec::new(), max_mm: 0.0, texture: None };
+        if key.overlay == Overlay::Grid {
+            return Ok(overlay);
+        }
+        let pixels: Vec<[f32; 2]> = (0..samples.1)
+            .flat_map(|j| (0..samples.0).map(move |i| (i, j)))
+            .map(|(i, j)| overlay.pixel_of(i, j))
+            .collect();
+        let settings = self.document.settings.render_settings();
+        let probe = self.document.settings.probe();
+        overlay.points =
+            self.viewer.pick_points(&key.camera, &settings, key.size, &pixels, PickTarget::Moving, probe)?;
+        let fitted = self.fitted().is_some();
+        overlay.values = overlay
+            .points
+            .iter()
+            .map(|p| match (p, fitted) {
+                (Some(x), true) => {
+                    let cursor = self.cursor_at(*x);
+                    if key.overlay == Overlay::Jacobian {
+                        cursor.det_jacobian.unwrap_or(f64::NAN)
+                    } else {
+                        cursor.displacement_mm()
+                    }
+                }
+                _ => f64::NAN,
+            })
+            .collect();
+        overlay.max_mm = overlay.values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
+        let pixels: Vec<egui::Color32> =
+            overlay.values.iter().map(|&v| super::overlay::colour_of(key.overlay, v, overlay.max_mm)).collect();
+        let image = egui::ColorImage::new([samples.0 as usize, samples.1 as usize], pixels);
+        overlay.texture = Some(ctx.load_texture("3-D warp overlay", image, egui::TextureOptions::LINEAR));
+        Ok(overlay)
     }
 
     fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {

@@ -31,6 +31,8 @@ pub struct View {
     pub hover: hover::HoverPick,
     /// Each slice's warp overlay, kept until the warp, the plane or the choice changes ([`super::overlay`]).
     pub overlays: [Option<super::overlay::SliceOverlay>; 3],
+    /// The 3-D view's warp overlay, kept until the warp, the camera, the view's size or the choice changes.
+    pub view_overlay: Option<super::overlay::ViewOverlay>,
     /// How the views share the window (saved in the session).
     pub layout: crate::settings::Layout,
     /// The pane shown alone, if one is maximised.
@@ -59,6 +61,7 @@ impl View {
             control_eval: ControlEval::default(),
             hover: hover::HoverPick::default(),
             overlays: [None, None, None],
+            view_overlay: None,
             layout: crate::settings::Layout::FourUp,
             maximised: None,
             landmarks: super::landmark_rows::LandmarkPanel::default(),

@@ -401,6 +401,27 @@ impl Viewer {
         Ok(hits.first().and_then(PickHit::found).copied())
     }
 
+    /// The first hits of `probe` in the `target` volume along the rays through framebuffer points `pixels` of the 3-D
+    /// view, all in one dispatch, as [`Self::pick`] picks one: the hit's point x_ref, or `None` where a ray hits
+    /// nothing.
+    pub fn pick_points(
+        &self,
+        camera: &OrbitCamera,
+        settings: &RenderSettings,
+        size_px: (u32, u32),
+        pixels: &[[f32; 2]],
+        target: PickTarget,
+        probe: Probe,
+    ) -> anyhow::Result<Vec<Option<[f64; 3]>>> {
+        let data = self.frame_data(camera, settings, size_px);
+        let rays = pixels
+            .iter()
+            .map(|&p| PickRay::from_pixel(&data.uniforms, p).map_err(gpu_error))
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        let hits = self.picker.pick(&self.ctx, &data, &PickRequest::new(target, probe), &rays).map_err(gpu_error)?;
+        Ok(hits.iter().map(|h| h.found().map(|h| h.x_ref.map(f64::from))).collect())
+    }
+
     /// Evaluates the TPS pull-back `tps` into the control texture on `grid` on the GPU (reusing the current
     /// texture when it has the same size), instead of sampling it on the CPU and uploading it.
     pub fn evaluate_control_tps(&mut self, tps: &TpsDesc<'_>, grid: &ControlGridDesc) -> anyhow::Result<()> {

@@ -30,6 +30,10 @@ pub fn view3d(ui: &mut egui::Ui, ready: &mut Ready, render_state: Option<&eframe
             );
             response.widget_info(|| egui::WidgetInfo::labeled(egui::Role::Image, true, "3-D view"));
             let (w, h) = (shown.target.width as f32, shown.target.height as f32);
+            let ctx = ui.ctx().clone();
+            if let Some(o) = ready.view_overlay(&ctx, interacting) {
+                crate::gui::overlay::draw_view(ui, o, response.rect);
+            }
             let to_pixel = |pos: egui::Pos2| {
                 let f = (pos - response.rect.min) / response.rect.size();
                 [f.x * w, f.y * h]
