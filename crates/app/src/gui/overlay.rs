@@ -77,10 +77,11 @@ impl SliceOverlay {
     }
 }
 
-/// The samples a side of `size` pixels gets.
-pub(crate) fn samples_of(size: (u32, u32)) -> (u32, u32) {
+/// The samples an image of `size` pixels gets: `most` along its longer side, one a pixel when it is smaller
+/// ([`MAX_SAMPLES`] for a slice, [`VIEW_SAMPLES`] for the 3-D view).
+pub(crate) fn samples_of(size: (u32, u32), most: u32) -> (u32, u32) {
     let longest = size.0.max(size.1).max(1);
-    let scale = (f64::from(MAX_SAMPLES) / f64::from(longest)).min(1.0);
+    let scale = (f64::from(most) / f64::from(longest)).min(1.0);
     let n = |s: u32| ((f64::from(s) * scale).round() as u32).max(2);
     (n(size.0), n(size.1))
 }
@@ -159,14 +160,6 @@ impl ViewOverlay {
         let (sx, sy) = (self.samples.0 as f32, self.samples.1 as f32);
         [(i as f32 + 0.5) * w / sx, (j as f32 + 0.5) * h / sy]
     }
-}
-
-/// The samples a 3-D view of `size` pixels gets: [`VIEW_SAMPLES`] along its longer side.
-pub(crate) fn view_samples_of(size: (u32, u32)) -> (u32, u32) {
-    let longest = size.0.max(size.1).max(1);
-    let scale = (f64::from(VIEW_SAMPLES) / f64::from(longest)).min(1.0);
-    let n = |s: u32| ((f64::from(s) * scale).round() as u32).max(2);
-    (n(size.0), n(size.1))
 }
 
 /// The colour of sample `value` of `overlay` (half transparent over the image).
@@ -268,7 +261,8 @@ mod tests {
         assert_eq!(jacobian_colour(0.25), shrink, "clamped at the range's end");
         assert_eq!(jacobian_colour(f64::NAN), egui::Color32::TRANSPARENT);
         assert_ne!(displacement_colour(0.0, 5.0), displacement_colour(5.0, 5.0));
-        assert_eq!(samples_of((256, 128)), (96, 48));
-        assert_eq!(samples_of((40, 30)), (40, 30));
+        assert_eq!(samples_of((256, 128), MAX_SAMPLES), (96, 48));
+        assert_eq!(samples_of((480, 240), VIEW_SAMPLES), (48, 24));
+        assert_eq!(samples_of((40, 30), MAX_SAMPLES), (40, 30));
     }
 }

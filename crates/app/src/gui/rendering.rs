@@ -282,7 +282,7 @@ impl Ready {
     }
 
     fn compute_view_overlay(&self, ctx: &egui::Context, key: ViewOverlayKey) -> anyhow::Result<ViewOverlay> {
-        let samples = super::overlay::view_samples_of(key.size);
+        let samples = samples_of(key.size, super::overlay::VIEW_SAMPLES);
         let mut overlay =
             ViewOverlay { key, samples, points: Vec::new(), values: Vec::new(), max_mm: 0.0, texture: None };
         if key.overlay == Overlay::Grid {
@@ -321,7 +321,7 @@ impl Ready {
     }
 
     fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {
-        let samples = samples_of(plane.size);
+        let samples = samples_of(plane.size, super::overlay::MAX_SAMPLES);
         let mut overlay =
             SliceOverlay { key, samples, values: Vec::new(), lines: Vec::new(), max_mm: 0.0, texture: None };
         let fitted = self.fitted().is_some();
