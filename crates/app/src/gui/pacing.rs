@@ -152,6 +152,8 @@ pub struct RefineJob {
     /// Set while the UI thread works on a frame ([`Self::hold`]): no band starts then.
     held: std::sync::Arc<std::sync::atomic::AtomicBool>,
     done: std::sync::mpsc::Receiver<Result<Refined, String>>,
+    /// The thread, joined when the job is dropped so that no band outlives its view (nor the device, at exit).
+    thread: Option<std::thread::JoinHandle<()>>,
 }
 
 /// What a finished [`RefineJob`] hands back.
@@ -186,7 +188,7 @@ impl RefineJob {
         let (send, done) = std::sync::mpsc::channel();
         let held = std::sync::Arc::new(AtomicBool::new(false));
         let (rows, stop, hold) = (rows_done.clone(), cancel.clone(), held.clone());
-        std::thread::Builder::new().name("refine 3-D view".into()).spawn(move || {
+        let thread = std::thread::Builder::new().name("refine 3-D view".into()).spawn(move || {
             let RefineWork { ctx, renderer, data, target, view_ms_per_px } = work;
             let mut bands = Bands::new(target.width, target.height);
             let result = loop {
@@ -219,7 +221,7 @@ impl RefineJob {
                 wake();
             }
         })?;
-        Ok(Self { size, rows_done, cancel, held, done })
+        Ok(Self { size, rows_done, cancel, held, done, thread: Some(thread) })
     }
 
     /// The size of the view it renders.
@@ -253,9 +255,15 @@ impl RefineJob {
 }
 
 impl Drop for RefineJob {
-    /// A view that changed or closed stops its thread after the band in flight.
+    /// A view that changed or closed stops its thread after the band in flight (a band is sized to a frame's
+    /// budget), and waits for it: a band still rendering when the window closes would use the device as the process
+    /// tears it down.
     fn drop(&mut self) {
         self.cancel.store(true, std::sync::atomic::Ordering::Relaxed);
+        if let Some(thread) = self.thread.take() {
+            // A thread that panicked has nothing left to stop.
+            let _ = thread.join();
+        }
     }
 }
 
