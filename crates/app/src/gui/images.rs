@@ -36,6 +36,8 @@ impl ViewImage {
 pub(crate) struct Images {
     pub(crate) view: Option<Shown>,
     pub(crate) view_state: ViewImage,
+    /// How many 3-D views have been shown: what the 3-D view's overlay follows.
+    pub(crate) view_generation: u64,
     pub(crate) slices: [Option<Shown>; 3],
     /// The axial plane with the fixed volume alone and the warped moving volume alone, for the side-by-side layout.
     pub(crate) compare: [Option<Shown>; 2],
@@ -50,6 +52,7 @@ impl Default for Images {
         Self {
             view: None,
             view_state: ViewImage::Stale { full_shown: true },
+            view_generation: 0,
             slices: [None, None, None],
             compare: [None, None],
             slices_dirty: true,

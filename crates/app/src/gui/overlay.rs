@@ -123,11 +123,14 @@ pub fn displacement_colour(mm: f64, max_mm: f64) -> egui::Color32 {
 /// The 3-D view's samples a side at most: one pick ray each, all in one dispatch.
 pub const VIEW_SAMPLES: u32 = 48;
 
-/// What the 3-D view's overlay was computed for: the choice, the fit, the camera and the view's size in pixels.
+/// What the 3-D view's overlay was computed for: the choice, the fit, the view image shown (whatever changed it:
+/// the looks, a view deformation, a refinement), the pick probe, and the camera and size the picks are made with.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ViewOverlayKey {
     pub overlay: Overlay,
     pub fit_generation: u64,
+    pub view_generation: u64,
+    pub probe: warpbench_gpu::Probe,
     pub camera: warpbench_gpu::OrbitCamera,
     pub size: (u32, u32),
 }

@@ -8,9 +8,7 @@ use warpbench_gpu::{PickTarget, Quality, SlicePlane};
 
 use super::Ready;
 use super::images::ViewImage;
-use super::overlay::{
-    GRID_MM, OverlayKey, SliceOverlay, ViewOverlay, ViewOverlayKey, displacement_colour, jacobian_colour, samples_of,
-};
+use super::overlay::{GRID_MM, OverlayKey, SliceOverlay, ViewOverlay, ViewOverlayKey, colour_of, samples_of};
 use super::pacing::{self, RefineJob, interactive_size};
 use super::viewer;
 use crate::settings::Overlay;
@@ -60,11 +58,11 @@ impl Ready {
                 (Quality::Full, view_px)
             };
             let target = self.viewer.render_view(&self.view.camera, &settings, quality, px, &glyphs)?;
-            self.view.images.view = Some(viewer::show(rs, target, self.view.images.view.take()));
+            self.show_view(rs, target);
             self.view.images.view_state = if quality == Quality::Full { ViewImage::Full } else { ViewImage::Reduced };
         } else if refine && !cpu {
             let target = self.viewer.render_view(&self.view.camera, &settings, Quality::Full, view_px, &glyphs)?;
-            self.view.images.view = Some(viewer::show(rs, target, self.view.images.view.take()));
+            self.show_view(rs, target);
             self.view.images.view_state = ViewImage::Full;
         } else if refine {
             self.refine_in_background(egui, rs, view_px, &settings, &glyphs)?;
@@ -90,6 +88,12 @@ impl Ready {
         self.viewer.ctx.check_errors().map_err(|e| anyhow!("{e}"))?;
         self.view.last_render_ms = start.elapsed().as_secs_f64() * 1e3;
         Ok(())
+    }
+
+    /// Hands a rendered 3-D view to egui as the one shown, counting it ([`super::images::Images::view_generation`]).
+    fn show_view(&mut self, rs: &eframe::egui_wgpu::RenderState, target: warpbench_gpu::RenderTarget) {
+        self.view.images.view = Some(viewer::show(rs, target, self.view.images.view.take()));
+        self.view.images.view_generation += 1;
     }
 
     /// Starts the viewer's frame with the document's looks, the synthetic deformation and the view deformations (lens,
@@ -156,7 +160,7 @@ impl Ready {
         let done = result.map_err(|e| anyhow!(e))?;
         self.view.images.view_ms_per_px = done.ms_per_px;
         self.viewer.draw_view_glyphs(&self.view.camera, &done.target, glyphs)?;
-        self.view.images.view = Some(viewer::show(rs, done.target, self.view.images.view.take()));
+        self.show_view(rs, done.target);
         self.view.images.view_state = ViewImage::Full;
         Ok(())
     }
@@ -267,7 +271,14 @@ impl Ready {
             self.view.view_overlay = None;
             return None;
         };
-        let key = ViewOverlayKey { overlay, fit_generation: self.fit.generation, camera: self.view.camera, size };
+        let key = ViewOverlayKey {
+            overlay,
+            fit_generation: self.fit.generation,
+            view_generation: self.view.images.view_generation,
+            probe: self.document.settings.probe(),
+            camera: self.view.camera,
+            size,
+        };
         let stale = self.view.view_overlay.as_ref().is_none_or(|o| o.key != key);
         if stale && !(held && self.view.view_overlay.is_some()) {
             match self.compute_view_overlay(ctx, key) {
@@ -293,17 +304,53 @@ impl Ready {
             .map(|(i, j)| overlay.pixel_of(i, j))
             .collect();
         let settings = self.document.settings.render_settings();
-        let probe = self.document.settings.probe();
         overlay.points =
-            self.viewer.pick_points(&key.camera, &settings, key.size, &pixels, PickTarget::Moving, probe)?;
+            self.viewer.pick_points(&key.camera, &settings, key.size, &pixels, PickTarget::Moving, key.probe)?;
+        let (values, max_mm, texture) = self.read_outs(ctx, "3-D warp overlay", key.overlay, samples, &overlay.points);
+        (overlay.values, overlay.max_mm, overlay.texture) = (values, max_mm, Some(texture));
+        Ok(overlay)
+    }
+
+    fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {
+        let samples = samples_of(plane.size, super::overlay::MAX_SAMPLES);
+        let mut overlay =
+            SliceOverlay { key, samples, values: Vec::new(), lines: Vec::new(), max_mm: 0.0, texture: None };
+        match overlay.key.overlay {
+            Overlay::None => {}
+            kind @ (Overlay::Jacobian | Overlay::Displacement) => {
+                let points: Vec<Option<[f64; 3]>> = (0..samples.1)
+                    .flat_map(|j| (0..samples.0).map(move |i| (i, j)))
+                    .map(|(i, j)| {
+                        let [px, py] = overlay.pixel_of(i, j);
+                        Some(plane.ref_from_pixel(px, py))
+                    })
+                    .collect();
+                let (values, max_mm, texture) =
+                    self.read_outs(ctx, &format!("warp overlay {a}"), kind, samples, &points);
+                (overlay.values, overlay.max_mm, overlay.texture) = (values, max_mm, Some(texture));
+            }
+            Overlay::Grid => overlay.lines = self.deformed_grid(plane),
+        }
+        overlay
+    }
+
+    /// The status bar's read-out of `kind` (det ∇u, or |u(x) − x| mm) at each of `points` (`NaN` at none, and without
+    /// a warp), their largest displacement, and their colours as an image of `samples` named `name`.
+    fn read_outs(
+        &self,
+        ctx: &egui::Context,
+        name: &str,
+        kind: Overlay,
+        samples: (u32, u32),
+        points: &[Option<[f64; 3]>],
+    ) -> (Vec<f64>, f64, egui::TextureHandle) {
         let fitted = self.fitted().is_some();
-        overlay.values = overlay
-            .points
+        let values: Vec<f64> = points
             .iter()
             .map(|p| match (p, fitted) {
                 (Some(x), true) => {
                     let cursor = self.cursor_at(*x);
-                    if key.overlay == Overlay::Jacobian {
+                    if kind == Overlay::Jacobian {
                         cursor.det_jacobian.unwrap_or(f64::NAN)
                     } else {
                         cursor.displacement_mm()
@@ -312,49 +359,10 @@ impl Ready {
                 _ => f64::NAN,
             })
             .collect();
-        overlay.max_mm = overlay.values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
-        let pixels: Vec<egui::Color32> =
-            overlay.values.iter().map(|&v| super::overlay::colour_of(key.overlay, v, overlay.max_mm)).collect();
+        let max_mm = values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
+        let pixels: Vec<egui::Color32> = values.iter().map(|&v| colour_of(kind, v, max_mm)).collect();
         let image = egui::ColorImage::new([samples.0 as usize, samples.1 as usize], pixels);
-        overlay.texture = Some(ctx.load_texture("3-D warp overlay", image, egui::TextureOptions::LINEAR));
-        Ok(overlay)
-    }
-
-    fn compute_overlay(&self, ctx: &egui::Context, a: usize, key: OverlayKey, plane: &SlicePlane) -> SliceOverlay {
-        let samples = samples_of(plane.size, super::overlay::MAX_SAMPLES);
-        let mut overlay =
-            SliceOverlay { key, samples, values: Vec::new(), lines: Vec::new(), max_mm: 0.0, texture: None };
-        let fitted = self.fitted().is_some();
-        match overlay.key.overlay {
-            Overlay::None => {}
-            Overlay::Jacobian | Overlay::Displacement => {
-                let jacobian = overlay.key.overlay == Overlay::Jacobian;
-                for j in 0..samples.1 {
-                    for i in 0..samples.0 {
-                        let [px, py] = overlay.pixel_of(i, j);
-                        let cursor = self.cursor_at(plane.ref_from_pixel(px, py));
-                        let value = match (jacobian, fitted) {
-                            (_, false) => f64::NAN,
-                            (true, true) => cursor.det_jacobian.unwrap_or(f64::NAN),
-                            (false, true) => cursor.displacement_mm(),
-                        };
-                        overlay.values.push(value);
-                    }
-                }
-                overlay.max_mm = overlay.values.iter().copied().filter(|v| v.is_finite()).fold(0.0, f64::max);
-                let pixels: Vec<egui::Color32> = overlay
-                    .values
-                    .iter()
-                    .map(|&v| if jacobian { jacobian_colour(v) } else { displacement_colour(v, overlay.max_mm) })
-                    .map(|c| c.gamma_multiply(0.55))
-                    .collect();
-                let image = egui::ColorImage::new([samples.0 as usize, samples.1 as usize], pixels);
-                overlay.texture =
-                    Some(ctx.load_texture(format!("warp overlay {a}"), image, egui::TextureOptions::LINEAR));
-            }
-            Overlay::Grid => overlay.lines = self.deformed_grid(plane),
-        }
-        overlay
+        (values, max_mm, ctx.load_texture(name, image, egui::TextureOptions::LINEAR))
     }
 
     /// The lines of a [`GRID_MM`] grid over `plane`, each point x moved to where the warp takes it within the plane
