@@ -68,7 +68,7 @@ impl std::fmt::Display for AlignKind {
 }
 
 /// Histogram padding bins on each side, so that β³'s support (±2 bins) stays inside.
-const PAD_BINS: usize = 2;
+pub(crate) const PAD_BINS: usize = 2;
 
 /// How the alignment runs. [`Default`] suits head MRI and CT of about 1 mm.
 #[derive(Clone, Debug, PartialEq)]
@@ -155,9 +155,9 @@ impl Pose {
 
 /// One fixed sample: its position and its fixed histogram bin.
 #[derive(Clone, Copy, Debug)]
-struct Sample {
-    x: Vector3<f64>,
-    bin: usize,
+pub(crate) struct Sample {
+    pub(crate) x: Vector3<f64>,
+    pub(crate) bin: usize,
 }
 
 /// Per sample, what pass 2 needs from pass 1.
@@ -171,7 +171,7 @@ struct Hit {
 }
 
 /// The cubic B-spline β³(u), support (−2, 2).
-fn bspline3(u: f64) -> f64 {
+pub(crate) fn bspline3(u: f64) -> f64 {
     let a = u.abs();
     if a < 1.0 {
         (4.0 - 6.0 * a * a + 3.0 * a * a * a) / 6.0
@@ -184,7 +184,7 @@ fn bspline3(u: f64) -> f64 {
 }
 
 /// dβ³/du.
-fn bspline3_derivative(u: f64) -> f64 {
+pub(crate) fn bspline3_derivative(u: f64) -> f64 {
     let a = u.abs();
     let d = if a < 1.0 {
         -2.0 * a + 1.5 * a * a
@@ -347,7 +347,7 @@ impl Metric<'_> {
 }
 
 /// Samples per chunk of the histogram's and the gradient's sums (the unit of their parallel work, summed in order).
-const SAMPLE_CHUNK: usize = 2048;
+pub(crate) const SAMPLE_CHUNK: usize = 2048;
 
 /// Fewer fixed samples than this inside the moving image and the images are taken not to overlap.
 pub const MIN_SAMPLES_INSIDE: usize = 500;
@@ -385,7 +385,7 @@ fn centre_of_mass<S: warpbench_io::geometry::Space>(
 }
 
 /// Seeded fixed samples: random voxels of `fixed`, jittered uniformly inside their voxel, with their box bin.
-fn draw_samples(
+pub(crate) fn draw_samples(
     fixed: &Image<Fixed>,
     count: usize,
     bins: usize,
@@ -415,7 +415,7 @@ fn draw_samples(
     }
     let (lo, hi) = values.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
     if hi <= lo || !hi.is_finite() {
-        return Err(SolverError::Image("the fixed image has a single value: nothing to align".into()));
+        return Err(SolverError::Image("the fixed image has a single value: nothing to match".into()));
     }
     let width = (hi - lo) / (bins - 2 * PAD_BINS - 1) as f64;
     let samples = points

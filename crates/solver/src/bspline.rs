@@ -281,6 +281,14 @@ impl ControlLattice {
         (i, u - i as f64, inside)
     }
 
+    /// The control points that D(x) reads: the first storage index per axis (the 4 × 4 × 4 block starts there) and
+    /// the basis weights B_a along each axis, as [`Self::eval_into`] uses them (x clamped to the domain).
+    #[inline]
+    pub(crate) fn footprint(&self, x: [f64; 3]) -> ([usize; 3], [[f64; 4]; 3]) {
+        let located: [(usize, f64, bool); 3] = std::array::from_fn(|a| self.locate(x[a], a));
+        (located.map(|l| l.0), located.map(|l| basis(l.1)))
+    }
+
     /// Evaluates the displacement D(x) (mm) into `out`; no allocation.
     #[inline]
     pub fn eval_into(&self, x: [f64; 3], out: &mut [f64; 3]) {

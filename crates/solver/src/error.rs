@@ -57,6 +57,8 @@ pub enum SolverError {
     InvalidParameter(String),
     #[error("{0}")]
     Image(String),
+    #[error("cancelled")]
+    Cancelled,
 }
 
 /// What a set that is `shape` lacks, for [`SolverError::Flat`].

@@ -22,6 +22,8 @@
 //! - [`method`]: [`Method`], fitting any of the above by name, in either direction, into a [`FittedWarp`] (the
 //!   closed set of fitted kinds, a [`Warp`] by delegation).
 //! - [`pairs`]: the one validation of landmark pairs that every fit runs first: refusals and warnings.
+//! - [`register`]: registration by intensities under the landmarks: a B-spline free-form deformation composed under
+//!   the current pull-back, minimising −MI + bending + the pairs' squared distances, multi-resolution, by L-BFGS.
 //! - [`diagnostics`]: Jacobian determinant (folding), residuals and leave-one-out errors.
 //! - [`stiffness`]: the TPS stiffness chosen automatically, by the leave-one-out error.
 //! - [`suggest`]: suggested targets: the fixed point matching a moving point, from the current warp's prediction
@@ -41,6 +43,7 @@ pub mod invert;
 pub mod linear;
 pub mod method;
 pub mod pairs;
+pub mod register;
 pub mod spaces;
 pub mod stiffness;
 pub mod suggest;

@@ -1,0 +1,220 @@
+//! Mattes mutual information between the fixed image and the pulled-back moving image under a free-form
+//! deformation, with its gradient in the lattice's coefficients (the module docs of [`super`] give the formulas).
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use crate::align::{PAD_BINS, Sample, bspline3, bspline3_derivative};
+use crate::bspline::ControlLattice;
+use crate::image::Image;
+use crate::spaces::Fixed;
+use crate::warp::Parallelism;
+
+/// Where a sample reads the lattice: the first control index per axis and the basis weights (fixed for a level,
+/// since the samples and the lattice's cells are).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Footprint {
+    start: [usize; 3],
+    weights: [[f64; 4]; 3],
+}
+
+impl Footprint {
+    pub(super) fn of(lattice: &ControlLattice, x: [f64; 3]) -> Self {
+        let (start, weights) = lattice.footprint(x);
+        Self { start, weights }
+    }
+
+    /// D(x) = Σ B_a B_b B_c φ over the 4 × 4 × 4 block.
+    #[inline]
+    pub(super) fn displacement(&self, phi: &[f64], dims: [usize; 3]) -> [f64; 3] {
+        let [bx, by, bz] = &self.weights;
+        let mut acc = [0.0; 3];
+        for (c, wz) in bz.iter().enumerate() {
+            for (b, wy) in by.iter().enumerate() {
+                let wzy = wz * wy;
+                let row = (((self.start[2] + c) * dims[1] + self.start[1] + b) * dims[0] + self.start[0]) * 3;
+                let coef = &phi[row..row + 12];
+                for (a, wx) in bx.iter().enumerate() {
+                    let w = wzy * wx;
+                    acc[0] += w * coef[3 * a];
+                    acc[1] += w * coef[3 * a + 1];
+                    acc[2] += w * coef[3 * a + 2];
+                }
+            }
+        }
+        acc
+    }
+
+    /// Adds B_a B_b B_c · `v` to the gradient of each control point of the block.
+    #[inline]
+    pub(super) fn scatter(&self, v: [f64; 3], dims: [usize; 3], gradient: &mut [f64]) {
+        let [bx, by, bz] = &self.weights;
+        for (c, wz) in bz.iter().enumerate() {
+            for (b, wy) in by.iter().enumerate() {
+                let wzy = wz * wy;
+                let row = (((self.start[2] + c) * dims[1] + self.start[1] + b) * dims[0] + self.start[0]) * 3;
+                let out = &mut gradient[row..row + 12];
+                for (a, wx) in bx.iter().enumerate() {
+                    let w = wzy * wx;
+                    out[3 * a] += w * v[0];
+                    out[3 * a + 1] += w * v[1];
+                    out[3 * a + 2] += w * v[2];
+                }
+            }
+        }
+    }
+}
+
+/// Per sample, what the gradient pass needs from the histogram pass.
+#[derive(Clone, Copy, Debug, Default)]
+struct Hit {
+    inside: bool,
+    /// m̃(x + D(x)), in bins.
+    moving_bin: f64,
+    gradient: Vector3<f64>,
+}
+
+/// The metric over one level's fixed samples.
+#[derive(Debug)]
+pub(super) struct Metric<'a> {
+    /// The moving image pulled back by the start u₀ onto the level's fixed grid (NaN where u₀ leaves it).
+    pub(super) warped: &'a Image<Fixed>,
+    pub(super) samples: Vec<Sample>,
+    pub(super) footprints: Vec<Footprint>,
+    pub(super) bins: usize,
+    pub(super) moving_min: f64,
+    pub(super) moving_bin_width: f64,
+    pub(super) parallelism: Parallelism,
+}
+
+/// MI, its gradient in the coefficients, and the samples that stayed inside the warped image.
+#[derive(Debug)]
+pub(super) struct Evaluation {
+    pub(super) mutual_information: f64,
+    pub(super) gradient: Vec<f64>,
+    pub(super) inside: usize,
+}
+
+/// The sums are split into this many chunks whatever the number of threads, and the chunks' partial sums are added in
+/// their order: the same inputs give the same bits on any machine.
+const CHUNKS: usize = 16;
+
+impl Metric<'_> {
+    fn hit(&self, s: &Sample, f: &Footprint, phi: &[f64], dims: [usize; 3]) -> Hit {
+        let d = f.displacement(phi, dims);
+        let y = [s.x[0] + d[0], s.x[1] + d[1], s.x[2] + d[2]];
+        match self.warped.sample_with_gradient(y) {
+            Some((m, g)) if m.is_finite() && g.iter().all(|v| v.is_finite()) => Hit {
+                inside: true,
+                moving_bin: ((m - self.moving_min) / self.moving_bin_width + PAD_BINS as f64)
+                    .clamp(PAD_BINS as f64, (self.bins - PAD_BINS - 1) as f64),
+                gradient: Vector3::from(g),
+            },
+            _ => Hit::default(),
+        }
+    }
+
+    fn chunk_len(&self) -> usize {
+        self.samples.len().div_ceil(CHUNKS).max(1)
+    }
+
+    /// MI at the lattice `phi` (coefficients of a lattice shaped `dims`) and ∂MI/∂φ; `None` when fewer than
+    /// [`crate::align::MIN_SAMPLES_INSIDE`] samples land inside the warped image.
+    pub(super) fn evaluate(&self, phi: &[f64], dims: [usize; 3]) -> Option<Evaluation> {
+        let b = self.bins;
+        let n = self.samples.len();
+        let mut hits = vec![Hit::default(); n];
+        let fill = |((h, s), f): ((&mut Hit, &Sample), &Footprint)| *h = self.hit(s, f, phi, dims);
+        match self.parallelism {
+            Parallelism::Rayon => hits
+                .par_iter_mut()
+                .zip(self.samples.par_iter())
+                .zip(self.footprints.par_iter())
+                .with_min_len(1024)
+                .for_each(fill),
+            Parallelism::Sequential => {
+                hits.iter_mut().zip(self.samples.iter()).zip(self.footprints.iter()).for_each(fill);
+            }
+        }
+        let chunk = self.chunk_len();
+        let histogram = |(hits, samples): (&[Hit], &[Sample])| {
+            let mut joint = vec![0.0f64; b * b];
+            let mut inside = 0usize;
+            for (h, s) in hits.iter().zip(samples).filter(|(h, _)| h.inside) {
+                inside += 1;
+                let row = &mut joint[s.bin * b..(s.bin + 1) * b];
+                let k0 = h.moving_bin.floor() as usize;
+                for (k, bin) in row.iter_mut().enumerate().skip(k0 - 1).take(4) {
+                    *bin += bspline3(k as f64 - h.moving_bin);
+                }
+            }
+            (joint, inside)
+        };
+        let parts: Vec<(Vec<f64>, usize)> = match self.parallelism {
+            Parallelism::Rayon => hits.par_chunks(chunk).zip(self.samples.par_chunks(chunk)).map(histogram).collect(),
+            Parallelism::Sequential => hits.chunks(chunk).zip(self.samples.chunks(chunk)).map(histogram).collect(),
+        };
+        let (mut joint, inside) = parts.into_iter().fold((vec![0.0f64; b * b], 0usize), |(mut j, i), (p, n)| {
+            j.iter_mut().zip(p).for_each(|(x, y)| *x += y);
+            (j, i + n)
+        });
+        if inside < crate::align::MIN_SAMPLES_INSIDE {
+            return None;
+        }
+        let norm = 1.0 / inside as f64;
+        for p in &mut joint {
+            *p *= norm;
+        }
+        let (mut p_fixed, mut p_moving) = (vec![0.0; b], vec![0.0; b]);
+        for i in 0..b {
+            for k in 0..b {
+                p_fixed[i] += joint[i * b + k];
+                p_moving[k] += joint[i * b + k];
+            }
+        }
+        let mut mi = 0.0;
+        let mut log_ratio = vec![0.0; b * b];
+        for i in 0..b {
+            for k in 0..b {
+                let p = joint[i * b + k];
+                if p > 0.0 {
+                    mi += p * (p / (p_fixed[i] * p_moving[k])).ln();
+                    log_ratio[i * b + k] = (p / p_moving[k]).ln();
+                }
+            }
+        }
+        // ∂MI/∂φ_c = −(1/(n Δm)) Σ_x [Σ_κ β³′(κ − m̃) log(p(ι_x, κ)/p_m(κ))] ∇m'(x + D(x)) B_c(x).
+        let scale = -norm / self.moving_bin_width;
+        let len = phi.len();
+        let gradient_of = |((hits, samples), footprints): ((&[Hit], &[Sample]), &[Footprint])| {
+            let mut g = vec![0.0; len];
+            for ((h, s), f) in hits.iter().zip(samples).zip(footprints).filter(|((h, _), _)| h.inside) {
+                let row = &log_ratio[s.bin * b..(s.bin + 1) * b];
+                let k0 = h.moving_bin.floor() as usize;
+                let w: f64 = (k0 - 1..=k0 + 2).map(|k| bspline3_derivative(k as f64 - h.moving_bin) * row[k]).sum();
+                let v = h.gradient * (w * scale);
+                f.scatter([v[0], v[1], v[2]], dims, &mut g);
+            }
+            g
+        };
+        let parts: Vec<Vec<f64>> = match self.parallelism {
+            Parallelism::Rayon => hits
+                .par_chunks(chunk)
+                .zip(self.samples.par_chunks(chunk))
+                .zip(self.footprints.par_chunks(chunk))
+                .map(gradient_of)
+                .collect(),
+            Parallelism::Sequential => hits
+                .chunks(chunk)
+                .zip(self.samples.chunks(chunk))
+                .zip(self.footprints.chunks(chunk))
+                .map(gradient_of)
+                .collect(),
+        };
+        let mut gradient = vec![0.0; len];
+        for part in parts {
+            gradient.iter_mut().zip(part).for_each(|(x, y)| *x += y);
+        }
+        Some(Evaluation { mutual_information: mi, gradient, inside })
+    }
+}

@@ -1,0 +1,617 @@
+//! # Registration by intensities under the landmarks
+//!
+//! A deformable refinement of a pull-back u₀ (`moving_from_fixed`: the start, the landmark fit and any field under
+//! it) that matches the images' intensities while it keeps the landmark pairs.
+//!
+//! ## Model
+//!
+//! A cubic B-spline free-form deformation T(x) = x + D(x) of the fixed space ([`FreeFormDeformation`], the lattice of
+//! [`crate::bspline`] over the fixed image's box), composed *under* the current pull-back:
+//!
+//! u(x) = u₀(T(x)) = u₀(x + D(x)).
+//!
+//! Composition (not addition) keeps whatever u₀ already is, however it was made; D = 0 gives u₀ back.
+//!
+//! ## Objective
+//!
+//! Over the lattice coefficients φ, minimise
+//!
+//! E(φ) = −MI(φ) + α · B(φ) + β · Σᵢ |u(qᵢ) − pᵢ|²,
+//!
+//! with (pᵢ moving, qᵢ fixed) the active pairs, α the bending weight and β the landmark weight (per mm²):
+//!
+//! - **MI** is the Mattes mutual information of [`crate::align`] between the fixed image f and the moving image
+//!   pulled back by u₀, m'(y) = m(u₀(y)), sampled at seeded fixed points x as m'(x + D(x)). The pull-back m' is
+//!   resampled once per level onto the level's fixed grid (trilinear; NaN where u₀ leaves the moving image, and a
+//!   sample there is dropped), so that an evaluation costs one trilinear read per sample whatever u₀ is. Its
+//!   gradient is the one of [`crate::align`] with ∂T/∂φ_c = B_c(x) I:
+//!   ∂MI/∂φ_c = −(1/(n Δm)) Σ_x [Σ_κ β³′(κ − m̃) log(p(ι_x, κ)/p_m(κ))] ∇m'(x + D(x)) B_c(x).
+//! - **B** is the thin-plate bending energy of D per unit volume, exact (`bending`), so α does not depend on the
+//!   box's size.
+//! - **The landmark term** reads u₀ at the displaced fixed points exactly (not through m'):
+//!   ∂/∂φ_c β|u₀(qᵢ + D(qᵢ)) − pᵢ|² = 2β B_c(qᵢ) J_{u₀}(qᵢ + D(qᵢ))ᵀ (u₀(qᵢ + D(qᵢ)) − pᵢ).
+//!
+//! ## Optimiser and levels
+//!
+//! Each level runs L-BFGS (Nocedal & Wright 2006, Algorithm 7.5) with a Moré–Thuente line search (`argmin`), on
+//! parameters scaled so that the first step moves a control point by at most one voxel of the level. Levels go
+//! coarse to fine: level ℓ of L shrinks both images by 2^(L−1−ℓ) ([`Image::shrink`]) and has a lattice of 2^ℓ times
+//! the coarsest cells per axis, the coarsest chosen so that the finest spacing is at most
+//! [`RegisterParams::grid_mm`]. A level starts from the previous one's lattice refined exactly
+//! ([`ControlLattice::refine`]).
+//!
+//! ## Reproducibility
+//!
+//! The samples are drawn from a seeded stream, and every sum over samples is split into a fixed number of chunks
+//! whose partial sums are added in order; u₀ and the pulled-back image are evaluated point by point. The same inputs
+//! and seed give the same lattice, bit for bit, on any number of threads (tested).
+
+mod bending;
+mod lbfgs;
+mod metric;
+
+use std::borrow::Cow;
+use std::cell::{Cell, RefCell};
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+use warpbench_io::geometry::{Point3, Space};
+
+use crate::align::{MIN_SAMPLES_INSIDE, PAD_BINS, draw_samples};
+use crate::bspline::ControlLattice;
+use crate::diagnostics::{JacobianReport, jacobian_determinants};
+use crate::image::Image;
+use crate::spaces::{Aabb, Fixed, Moving};
+use crate::warp::{Composed, Parallelism, Warp};
+use crate::{Result, SolverError};
+use bending::Bending;
+use metric::{Footprint, Metric};
+
+/// The similarity measure.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Similarity {
+    /// Mattes mutual information: any two modalities (MR–CT, T1–T2).
+    #[default]
+    Mi,
+}
+
+impl std::fmt::Display for Similarity {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Mi => "mi",
+        })
+    }
+}
+
+/// How the registration runs. [`Default`] suits head MR–CT and MR–MR of about 1 mm.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RegisterParams {
+    pub similarity: Similarity,
+    /// The finest control-point spacing, mm (at most; the lattice divides the fixed box evenly).
+    pub grid_mm: f64,
+    /// Resolution levels, coarse to fine (each halves the control spacing and the image shrink).
+    pub levels: usize,
+    /// β: the weight of the squared landmark distances, per mm².
+    pub landmark_weight: f64,
+    /// α: the weight of the bending energy (mm²).
+    pub bending_weight: f64,
+    /// Histogram bins per image, padding included.
+    pub bins: usize,
+    /// Fixed sample points per level (fewer when the level has fewer voxels).
+    pub samples: usize,
+    /// L-BFGS iterations per level, at most.
+    pub max_iterations: usize,
+    /// The seed of the sample points.
+    pub seed: u64,
+    pub parallelism: Parallelism,
+}
+
+impl Default for RegisterParams {
+    fn default() -> Self {
+        Self {
+            similarity: Similarity::Mi,
+            grid_mm: 10.0,
+            levels: 3,
+            landmark_weight: 1.0,
+            bending_weight: 100.0,
+            bins: 32,
+            samples: 50_000,
+            max_iterations: 100,
+            seed: 1,
+            parallelism: Parallelism::Rayon,
+        }
+    }
+}
+
+/// One landmark pair the registration keeps: pᵢ in the moving volume, qᵢ in the fixed one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegisterPair {
+    pub moving: Point3<Moving>,
+    pub fixed: Point3<Fixed>,
+}
+
+/// What one resolution level did.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct LevelReport {
+    /// The images' shrink factor.
+    pub shrink: usize,
+    /// The control spacing along each axis, mm.
+    pub control_spacing_mm: [f64; 3],
+    /// Control points (each with 3 coefficients).
+    pub control_points: usize,
+    pub samples: usize,
+    /// Samples inside the pulled-back moving image at the end.
+    pub samples_inside: usize,
+    pub iterations: usize,
+    /// Evaluations of the objective and its gradient.
+    pub evaluations: usize,
+    /// The mutual information at the level's start and end, nats.
+    pub mutual_information_start: f64,
+    pub mutual_information: f64,
+    /// B(φ) at the end, mm⁻².
+    pub bending_energy: f64,
+    /// The RMS of |u(qᵢ) − pᵢ| at the end, mm; 0 without pairs.
+    pub landmark_rms_mm: f64,
+    /// Wall time, seconds.
+    pub seconds: f64,
+}
+
+/// Where a registration is, for a progress bar.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RegisterProgress {
+    /// 0-based, coarse to fine.
+    pub level: usize,
+    pub levels: usize,
+    /// Evaluations so far in this level, and the most it may take.
+    pub evaluation: usize,
+    pub max_evaluations: usize,
+    pub mutual_information: f64,
+}
+
+impl RegisterProgress {
+    /// The fraction done, 0..1, counting each level as an equal share.
+    #[must_use]
+    pub fn fraction(&self) -> f64 {
+        let within = (self.evaluation as f64 / self.max_evaluations.max(1) as f64).min(1.0);
+        (self.level as f64 + within) / self.levels.max(1) as f64
+    }
+}
+
+/// T(x) = x + D(x) over the fixed space: the deformation a registration found, to compose under the pull-back it
+/// started from (`u = u₀ ∘ T`, [`Self::pullback`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FreeFormDeformation {
+    lattice: ControlLattice,
+}
+
+impl FreeFormDeformation {
+    /// The deformation of a lattice of displacements over the fixed box.
+    #[must_use]
+    pub fn new(lattice: ControlLattice) -> Self {
+        Self { lattice }
+    }
+
+    /// Its control lattice (mm displacements).
+    #[must_use]
+    pub fn lattice(&self) -> &ControlLattice {
+        &self.lattice
+    }
+
+    /// The registered pull-back u = u₀ ∘ T.
+    #[must_use]
+    pub fn pullback<'a>(&'a self, start: &'a dyn Warp<Moving, Fixed>) -> Composed<'a, Moving, Fixed, Fixed> {
+        Composed { first: self, second: start }
+    }
+}
+
+impl Warp<Fixed, Fixed> for FreeFormDeformation {
+    fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        let d = self.lattice.eval(x);
+        [x[0] + d[0], x[1] + d[1], x[2] + d[2]]
+    }
+
+    fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
+        let mut j = [[0.0; 3]; 3];
+        self.lattice.jacobian_into(x, &mut j);
+        Matrix3::from_fn(|r, c| j[r][c] + if r == c { 1.0 } else { 0.0 })
+    }
+}
+
+/// The result of [`register`].
+#[derive(Clone, Debug)]
+pub struct Registration {
+    pub deformation: FreeFormDeformation,
+    pub levels: Vec<LevelReport>,
+}
+
+/// Registers `moving` to `fixed` under the pull-back `start` (u₀) while keeping `pairs` (module docs): the
+/// deformation T with u = u₀ ∘ T. `progress` hears after each evaluation; [`ControlFlow::Break`] stops the work with
+/// [`SolverError::Cancelled`].
+///
+/// # Errors
+/// [`SolverError::InvalidParameter`] for unusable parameters; [`SolverError::NonFinite`] for a pair with a
+/// coordinate that is not a number (1-based); [`SolverError::Image`] when an image has a single value or the images
+/// do not overlap under u₀ (fewer than [`MIN_SAMPLES_INSIDE`] samples inside the moving image);
+/// [`SolverError::Cancelled`].
+pub fn register(
+    fixed: &Image<Fixed>,
+    moving: &Image<Moving>,
+    start: &dyn Warp<Moving, Fixed>,
+    pairs: &[RegisterPair],
+    params: &RegisterParams,
+    progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
+) -> Result<Registration> {
+    check(params)?;
+    if let Some(n) = pairs.iter().position(|p| !(p.moving.is_finite() && p.fixed.is_finite())) {
+        return Err(SolverError::NonFinite { pair: n + 1 });
+    }
+    let domain = image_box(fixed);
+    let mut lattice = ControlLattice::zeros(coarsest_cells(&domain, params), domain.min.coords(), domain.max.coords())?;
+    let mut levels = Vec::with_capacity(params.levels);
+    for level in 0..params.levels {
+        if level > 0 {
+            lattice = lattice.refine()?;
+        }
+        let started = Instant::now();
+        let shrink = 1usize << (params.levels - 1 - level);
+        let par = params.parallelism;
+        // The finest level reads the fixed image itself: no copy of a full volume.
+        let fixed_level = if shrink == 1 { Cow::Borrowed(fixed) } else { Cow::Owned(fixed.shrink(shrink, par)?) };
+        let warped = {
+            let moving_level =
+                if shrink == 1 { Cow::Borrowed(moving) } else { Cow::Owned(moving.shrink(shrink, par)?) };
+            pulled_back(&fixed_level, &moving_level, start, par)?
+        };
+        let no_overlap = || {
+            SolverError::Image(
+                "the images do not overlap under the starting warp: the fixed image's samples fall outside the \
+                 moving image"
+                    .into(),
+            )
+        };
+        let (moving_min, moving_max) = warped.value_range(par).ok_or_else(no_overlap)?;
+        if moving_max <= moving_min {
+            return Err(SolverError::Image(
+                "the moving image has a single value where it overlaps the fixed image: nothing to match".into(),
+            ));
+        }
+        let (samples, _) =
+            draw_samples(&fixed_level, params.samples, params.bins, params.seed.wrapping_add(level as u64))?;
+        let footprints = samples.iter().map(|s| Footprint::of(&lattice, [s.x[0], s.x[1], s.x[2]])).collect();
+        let metric = Metric {
+            warped: &warped,
+            samples,
+            footprints,
+            bins: params.bins,
+            moving_min,
+            moving_bin_width: (moving_max - moving_min) / (params.bins - 2 * PAD_BINS - 1) as f64,
+            parallelism: par,
+        };
+        let pins = pairs
+            .iter()
+            .map(|p| {
+                let q = p.fixed.coords();
+                Pin { fixed: q, moving: p.moving.coords(), footprint: Footprint::of(&lattice, q) }
+            })
+            .collect();
+        let objective = Objective {
+            metric,
+            bending: Bending::new(&lattice),
+            pins,
+            start,
+            dims: lattice.dims(),
+            params,
+            evaluations: Cell::new(0),
+            level,
+            progress: RefCell::new(progress),
+        };
+        let voxel_mm = fixed_level.spacing_mm().into_iter().fold(f64::INFINITY, f64::min);
+        let report = objective.optimise(&mut lattice, voxel_mm).map_err(|stop| match stop {
+            Stop::Cancelled => SolverError::Cancelled,
+            Stop::NoOverlap => no_overlap(),
+        })?;
+        levels.push(LevelReport { shrink, seconds: started.elapsed().as_secs_f64(), ..report });
+    }
+    Ok(Registration { deformation: FreeFormDeformation::new(lattice), levels })
+}
+
+/// det ∇u of the registered pull-back u = u₀ ∘ T at the centres of a `dims` grid over the fixed image's box.
+#[must_use]
+pub fn folding(
+    registration: &Registration,
+    start: &dyn Warp<Moving, Fixed>,
+    fixed: &Image<Fixed>,
+    dims: [usize; 3],
+    parallelism: Parallelism,
+) -> JacobianReport {
+    jacobian_determinants(&registration.deformation.pullback(start), &image_box(fixed), dims, parallelism)
+}
+
+fn check(params: &RegisterParams) -> Result<()> {
+    let bad = |what: String| Err(SolverError::InvalidParameter(what));
+    if !(params.grid_mm.is_finite() && params.grid_mm > 0.0) {
+        return bad(format!("control spacing {} mm (must be positive)", params.grid_mm));
+    }
+    if params.levels == 0 || params.levels > 8 {
+        return bad(format!("{} levels (1 to 8)", params.levels));
+    }
+    if !(params.landmark_weight.is_finite() && params.landmark_weight >= 0.0) {
+        return bad(format!("landmark weight {} (must be ≥ 0)", params.landmark_weight));
+    }
+    if !(params.bending_weight.is_finite() && params.bending_weight >= 0.0) {
+        return bad(format!("bending weight {} (must be ≥ 0)", params.bending_weight));
+    }
+    if params.bins < 2 * PAD_BINS + 4 || params.bins > 1024 {
+        return bad(format!("{} histogram bins (8 to 1024)", params.bins));
+    }
+    if params.samples < MIN_SAMPLES_INSIDE {
+        return bad(format!("{} samples (at least {MIN_SAMPLES_INSIDE})", params.samples));
+    }
+    Ok(())
+}
+
+/// The box of the fixed image's voxel centres (the bounding box of its 8 corner centres).
+fn image_box<S: Space>(image: &Image<S>) -> Aabb<S> {
+    let d = image.dims().map(|n| (n - 1) as f64);
+    let corners: Vec<Point3<S>> = (0..8)
+        .map(|c| {
+            let ijk = [d[0] * (c & 1) as f64, d[1] * ((c >> 1) & 1) as f64, d[2] * ((c >> 2) & 1) as f64];
+            Point3::from_array(image.space_from_index().apply_point(Point3::from_array(ijk)).coords())
+        })
+        .collect();
+    Aabb::around(&corners, 0.0).unwrap_or_else(|| Aabb::new(corners[0], corners[0]))
+}
+
+/// Cells per axis of the coarsest lattice: the finest (2^(levels − 1) times as many) is at most `grid_mm` apart.
+fn coarsest_cells(domain: &Aabb<Fixed>, params: &RegisterParams) -> [usize; 3] {
+    let size = domain.size();
+    let factor = (1usize << (params.levels - 1)) as f64;
+    std::array::from_fn(|a| ((size[a] / params.grid_mm / factor).ceil() as usize).max(1))
+}
+
+/// The moving image pulled back by u₀ onto `grid`'s voxels: m(u₀(y)), NaN where u₀(y) leaves the moving image.
+fn pulled_back(
+    grid: &Image<Fixed>,
+    moving: &Image<Moving>,
+    start: &dyn Warp<Moving, Fixed>,
+    parallelism: Parallelism,
+) -> Result<Image<Fixed>> {
+    let [nx, ny, nz] = grid.dims();
+    let plane = nx * ny;
+    let mut values = vec![0.0f32; plane * nz];
+    let slice = |(k, out): (usize, &mut [f32])| {
+        let xs: Vec<[f64; 3]> = (0..plane).map(|n| grid.voxel_point(n % nx, n / nx, k)).collect();
+        let mut ys = vec![[0.0; 3]; plane];
+        start.apply_batch_raw(&xs, &mut ys);
+        for (o, y) in out.iter_mut().zip(&ys) {
+            *o = moving.sample(*y).map_or(f32::NAN, |v| v as f32);
+        }
+    };
+    match parallelism {
+        Parallelism::Sequential => values.chunks_mut(plane).enumerate().for_each(slice),
+        Parallelism::Rayon => values.par_chunks_mut(plane).enumerate().for_each(slice),
+    }
+    Image::new(grid.dims(), values, *grid.space_from_index())
+}
+
+/// One landmark pair as the objective reads it.
+#[derive(Clone, Copy, Debug)]
+struct Pin {
+    fixed: [f64; 3],
+    moving: [f64; 3],
+    footprint: Footprint,
+}
+
+/// Why a level stopped early.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stop {
+    Cancelled,
+    /// Too few samples inside the pulled-back moving image at the level's start.
+    NoOverlap,
+}
+
+/// What hears [`register`]'s progress.
+type ProgressFn<'p> = dyn FnMut(&RegisterProgress) -> ControlFlow<()> + 'p;
+
+/// E(φ) at one level (module docs).
+struct Objective<'a, 'p> {
+    metric: Metric<'a>,
+    bending: Bending,
+    pins: Vec<Pin>,
+    start: &'a dyn Warp<Moving, Fixed>,
+    dims: [usize; 3],
+    params: &'a RegisterParams,
+    evaluations: Cell<usize>,
+    level: usize,
+    progress: RefCell<&'p mut ProgressFn<'p>>,
+}
+
+/// The terms of E at one φ.
+#[derive(Clone, Copy, Debug, Default)]
+struct Parts {
+    mutual_information: f64,
+    bending_energy: f64,
+    /// Σ |u(qᵢ) − pᵢ|², mm².
+    landmark_sum_sq: f64,
+    inside: usize,
+}
+
+impl Objective<'_, '_> {
+    /// E(φ) and ∂E/∂φ, or `None` when too few samples stay inside.
+    fn evaluate(&self, phi: &[f64]) -> Option<(f64, Vec<f64>, Parts)> {
+        let mi = self.metric.evaluate(phi, self.dims)?;
+        let mut gradient = mi.gradient;
+        for g in &mut gradient {
+            *g = -*g;
+        }
+        let alpha = self.params.bending_weight;
+        let bending_energy = self.bending.energy_adding_gradient(phi, alpha, &mut gradient);
+        let beta = self.params.landmark_weight;
+        let mut landmark_sum_sq = 0.0;
+        for pin in &self.pins {
+            let d = pin.footprint.displacement(phi, self.dims);
+            let y = [pin.fixed[0] + d[0], pin.fixed[1] + d[1], pin.fixed[2] + d[2]];
+            let u = self.start.apply_raw(y);
+            let r = nalgebra::Vector3::from(std::array::from_fn::<f64, 3, _>(|a| u[a] - pin.moving[a]));
+            landmark_sum_sq += r.norm_squared();
+            if beta > 0.0 {
+                let v = self.start.jacobian_raw(y).transpose() * r * (2.0 * beta);
+                pin.footprint.scatter([v[0], v[1], v[2]], self.dims, &mut gradient);
+            }
+        }
+        let cost = -mi.mutual_information + alpha * bending_energy + beta * landmark_sum_sq;
+        let parts =
+            Parts { mutual_information: mi.mutual_information, bending_energy, landmark_sum_sq, inside: mi.inside };
+        Some((cost, gradient, parts))
+    }
+
+    /// Minimises E from `lattice`'s coefficients by L-BFGS ([`lbfgs`]) and leaves the result in it. `voxel_mm` is the
+    /// level's voxel: the first step moves the largest coefficient by one voxel, and no step by more than 2.
+    fn optimise(&self, lattice: &mut ControlLattice, voxel_mm: f64) -> std::result::Result<LevelReport, Stop> {
+        let phi0 = lattice.coefficients().to_vec();
+        let Some((cost0, gradient0, parts0)) = self.evaluate(&phi0) else { return Err(Stop::NoOverlap) };
+        let settings = lbfgs::Settings {
+            max_iterations: self.params.max_iterations,
+            first_step: voxel_mm,
+            max_step: 2.0 * voxel_mm,
+            tolerance: COST_TOLERANCE,
+        };
+        let mut parts = parts0;
+        let minimum = lbfgs::minimise(phi0, (cost0, gradient0), &settings, &mut |phi| {
+            let n = self.evaluations.get() + 1;
+            self.evaluations.set(n);
+            let Some((cost, gradient, at)) = self.evaluate(phi) else { return lbfgs::Value::Undefined };
+            let report = RegisterProgress {
+                level: self.level,
+                levels: self.params.levels,
+                evaluation: n,
+                max_evaluations: 2 * self.params.max_iterations,
+                mutual_information: at.mutual_information,
+            };
+            if (self.progress.borrow_mut())(&report).is_break() {
+                return lbfgs::Value::Stop;
+            }
+            parts = at;
+            lbfgs::Value::At(cost, gradient)
+        });
+        if minimum.end == lbfgs::End::Stopped {
+            return Err(Stop::Cancelled);
+        }
+        // The last evaluation may be a rejected trial step: the parts of the point kept are evaluated again.
+        let parts = self.evaluate(&minimum.x).map_or(parts, |(_, _, p)| p);
+        lattice.coefficients_mut().copy_from_slice(&minimum.x);
+        let pins = self.pins.len().max(1) as f64;
+        Ok(LevelReport {
+            shrink: 0,
+            control_spacing_mm: lattice.spacing_mm(),
+            control_points: lattice.dims().iter().product(),
+            samples: self.metric.samples.len(),
+            samples_inside: parts.inside,
+            iterations: minimum.iterations,
+            evaluations: self.evaluations.get(),
+            mutual_information_start: parts0.mutual_information,
+            mutual_information: parts.mutual_information,
+            bending_energy: parts.bending_energy,
+            landmark_rms_mm: (parts.landmark_sum_sq / pins).sqrt(),
+            seconds: 0.0,
+        })
+    }
+}
+
+/// A level stops when E decreases by less than this fraction over an iteration.
+const COST_TOLERANCE: f64 = 1e-6;
+
+#[cfg(test)]
+mod tests {
+    use warpbench_io::geometry::{Index, Transform};
+
+    use super::*;
+    use crate::linear::AffineWarp;
+
+    /// A smooth 24³ image of Gaussian blobs, 3 mm voxels, in space S.
+    fn blobs<S: Space>(shift: f64) -> Image<S> {
+        let n = 24;
+        let centres =
+            [[20.0, 30.0, 35.0, 1.0], [45.0, 40.0, 25.0, -0.7], [30.0, 50.0, 45.0, 0.5], [50.0, 20.0, 50.0, 0.8]];
+        let values = (0..n * n * n)
+            .map(|o| {
+                let x = [(o % n) as f64 * 3.0, ((o / n) % n) as f64 * 3.0, (o / (n * n)) as f64 * 3.0];
+                centres
+                    .iter()
+                    .map(|c| {
+                        c[3] * (-((x[0] - c[0] - shift).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2))
+                            / 200.0)
+                            .exp()
+                    })
+                    .sum::<f64>() as f32
+            })
+            .collect();
+        Image::new([n, n, n], values, Transform::<S, Index>::from_scale_translation([3.0; 3], [0.0; 3]))
+            .expect("test input")
+    }
+
+    #[test]
+    fn the_gradient_is_the_derivative_of_the_objective() {
+        let fixed = blobs::<Fixed>(0.0);
+        let moving = blobs::<Moving>(2.0);
+        let start = AffineWarp::<Moving, Fixed>::new(
+            Matrix3::new(1.01, 0.02, 0.0, -0.01, 0.99, 0.0, 0.0, 0.03, 1.0),
+            [0.5, -0.3, 0.2],
+        );
+        let params =
+            RegisterParams { samples: 5_000, bending_weight: 50.0, landmark_weight: 0.3, ..RegisterParams::default() };
+        let domain = image_box(&fixed);
+        let mut lattice =
+            ControlLattice::zeros([3, 3, 3], domain.min.coords(), domain.max.coords()).expect("test input");
+        for (n, c) in lattice.coefficients_mut().iter_mut().enumerate() {
+            *c = ((n * 37 % 11) as f64 - 5.0) * 0.2;
+        }
+        let warped = pulled_back(&fixed, &moving, &start, Parallelism::Sequential).expect("test input");
+        let (lo, hi) = warped.value_range(Parallelism::Sequential).expect("test input");
+        let (samples, _) = draw_samples(&fixed, params.samples, params.bins, 1).expect("test input");
+        let footprints = samples.iter().map(|s| Footprint::of(&lattice, [s.x[0], s.x[1], s.x[2]])).collect();
+        let metric = Metric {
+            warped: &warped,
+            samples,
+            footprints,
+            bins: params.bins,
+            moving_min: lo,
+            moving_bin_width: (hi - lo) / (params.bins - 2 * PAD_BINS - 1) as f64,
+            parallelism: Parallelism::Sequential,
+        };
+        let pins = [[20.0, 25.0, 30.0], [40.0, 45.0, 35.0]]
+            .map(|q| Pin { fixed: q, moving: [q[0] + 1.0, q[1], q[2] - 0.5], footprint: Footprint::of(&lattice, q) })
+            .to_vec();
+        let mut progress = |_: &RegisterProgress| ControlFlow::Continue(());
+        let objective = Objective {
+            metric,
+            bending: Bending::new(&lattice),
+            pins,
+            start: &start,
+            dims: lattice.dims(),
+            params: &params,
+            evaluations: Cell::new(0),
+            level: 0,
+            progress: RefCell::new(&mut progress),
+        };
+        let phi = lattice.coefficients().to_vec();
+        let (_, gradient, _) = objective.evaluate(&phi).expect("test input");
+        for index in (0..phi.len()).step_by(23) {
+            let h = 1e-5;
+            let mut p = phi.clone();
+            p[index] += h;
+            let up = objective.evaluate(&p).expect("test input").0;
+            p[index] -= 2.0 * h;
+            let down = objective.evaluate(&p).expect("test input").0;
+            let numeric = (up - down) / (2.0 * h);
+            assert!(
+                (numeric - gradient[index]).abs() < 5e-3 * gradient[index].abs() + 1e-10,
+                "{index}: {numeric} vs {}",
+                gradient[index]
+            );
+        }
+    }
+}
