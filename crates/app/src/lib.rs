@@ -19,6 +19,8 @@
 //!   volume by d = fixed_from_moving, from the fixed one by u = moving_from_fixed, written in the input's format.
 //! - [`transform`]: `warpbench transform` (and `field --tfm`), the pull-back as the ITK transform file that holds it
 //!   exactly (thin-plate spline, B-spline, affine).
+//! - [`register`](mod@register): `warpbench register`, a deformable registration by intensities under the landmarks,
+//!   written as a displacement field (and the warped volume).
 //! - [`inputs`]: loading the pair, reading landmarks and checking them against the volumes (shared by the pair
 //!   subcommands).
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
@@ -49,6 +51,7 @@ pub mod points;
 pub mod procedural;
 pub mod progress;
 pub mod project;
+pub mod register;
 pub mod render;
 pub mod scene;
 pub mod settings;

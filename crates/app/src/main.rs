@@ -5,7 +5,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use warpbench_app::exit::Failure;
 use warpbench_app::gui::{self, GuiArgs};
-use warpbench_app::{align, eval, field, info, landmarks, points, render, suggest, transform, warp};
+use warpbench_app::{align, eval, field, info, landmarks, points, register, render, suggest, transform, warp};
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
 ///
@@ -38,6 +38,7 @@ enum Command {
     Landmarks(Box<landmarks::LandmarksArgs>),
     Align(Box<align::AlignArgs>),
     Suggest(Box<suggest::SuggestArgs>),
+    Register(Box<register::RegisterArgs>),
 }
 
 /// Keeps a headless command's GPU probe quiet. Mesa's Vulkan device-select layer (an implicit layer the Vulkan
@@ -112,5 +113,6 @@ fn run(command: Command) -> Result<(), Failure> {
         Command::Landmarks(args) => landmarks::run(*args, stdout).map(|_| ()),
         Command::Align(args) => align::run(*args, stdout).map(|_| ()),
         Command::Suggest(args) => suggest::run(*args, stdout).map(|_| ()),
+        Command::Register(args) => register::run(*args, stdout).map(|_| ()),
     }
 }

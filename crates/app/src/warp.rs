@@ -424,6 +424,28 @@ pub fn resample(
     fitted.resample(moving, names, progress)
 }
 
+/// Resamples `moving` on `grid` through a pull-back field sampled on that grid, exactly at every voxel (`--exact`),
+/// trilinear, in the moving volume's sample type, on the CPU: what `warpbench register --out` writes. `field_path`
+/// names the field in messages.
+pub fn resample_through_field(
+    grid: &Volume,
+    moving: &Volume,
+    field: SampledField<Moving, Fixed>,
+    field_path: &Path,
+    names: &Names,
+    progress: &mut dyn FnMut(Progress) -> bool,
+) -> Result<Resampled, Failure> {
+    let settings = ExportSettings {
+        pullback: PullBackMode::Exact,
+        interpolation: Interpolation::Trilinear,
+        float: false,
+        backend: Backend::Cpu,
+        outside_value: None,
+    };
+    let fitted = Fitted::from_field(grid, moving, &WarpField::Pullback(field), field_path, &settings)?;
+    fitted.resample(moving, names, progress)
+}
+
 /// Refuses `--exact` with the hierarchical B-spline (it is evaluated through a control texture only).
 fn check_pullback_mode(method: &Method, pullback: PullBackMode) -> Result<(), Failure> {
     if pullback == PullBackMode::Exact && matches!(method, Method::BSpline(_)) {

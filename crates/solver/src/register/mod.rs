@@ -330,6 +330,16 @@ pub fn folding(
     jacobian_determinants(&registration.deformation.pullback(start), &image_box(fixed), dims, parallelism)
 }
 
+impl RegisterParams {
+    /// Refuses unusable parameters, naming them.
+    ///
+    /// # Errors
+    /// [`SolverError::InvalidParameter`].
+    pub fn validate(&self) -> Result<()> {
+        check(self)
+    }
+}
+
 fn check(params: &RegisterParams) -> Result<()> {
     let bad = |what: String| Err(SolverError::InvalidParameter(what));
     if !(params.grid_mm.is_finite() && params.grid_mm > 0.0) {

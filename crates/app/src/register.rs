@@ -1,0 +1,431 @@
+//! `warpbench register`: a deformable registration by intensities under the landmarks
+//! ([`warpbench_solver::register`]): a B-spline free-form deformation composed under the current pull-back (the
+//! landmarks' warp on `--initial` or a session's start, or the identity), which maximises the Mattes mutual information
+//! of the two volumes while it keeps the pairs.
+//!
+//! It writes the registered pull-back u = u₀ ∘ T as a displacement field in the flavours of `warpbench field`
+//! (default ITK's NIfTI `DISPVECT`), sampled exactly at every voxel of the fixed grid, and with `--out` the moving
+//! volume resampled through it. `--json` reports each level (mutual information, iterations, time), the pairs'
+//! residuals and the smallest det ∇u.
+
+use std::io::Write;
+use std::ops::ControlFlow;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::anyhow;
+use serde::Serialize;
+use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_solver::diagnostics::JacobianReport;
+use warpbench_solver::field::SampledField;
+use warpbench_solver::image::Image;
+use warpbench_solver::linear::AffineWarp;
+use warpbench_solver::register::{LevelReport, RegisterPair, RegisterParams, Similarity, folding, register};
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::warp::{Parallelism, Warp};
+
+use crate::args::{MethodArgs, PairArgs, ReportArgs, VolumePairArgs, help};
+use crate::exit::Failure;
+use crate::field::{FormatArg, sample_displacements};
+use crate::fit;
+use crate::inputs::{self, LandmarkWarp, Names, OutputFile};
+use crate::progress::Bar;
+use crate::project::stack::{Layers, StackPullback};
+use crate::settings::{MethodKind, Stiffness};
+
+/// The `--json` schema name.
+pub const SCHEMA: &str = "warpbench-register/1";
+
+/// What `warpbench register --help` says above the options; its first paragraph is the summary that `-h` and
+/// `warpbench --help` show.
+const HELP: &str = "\
+Register the moving volume to the fixed one by intensities, under the landmarks: a deformable refinement that
+keeps the pairs, written as a displacement field (and optionally the warped volume).
+
+The warp starts from the landmarks' (--landmarks or --session, with --method and --initial as for warp), the
+starting transform alone (--initial), or the identity, and a cubic B-spline deformation under it maximises the
+Mattes mutual information of the two volumes (so an MRI registers to a CT) while the pairs' squared distances
+(--landmark-weight) and the bending energy keep it honest, over --levels resolution levels down to a control
+spacing of --grid-mm. The field holds u(x) − x at each voxel of the fixed grid, as `warpbench field` writes it
+(ITK maps fixed point x to moving point x + D(x)); `warpbench warp --field` applies it again. Examples:
+
+    warpbench register --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out-field field.nii.gz
+    warpbench register --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --out-field field.nii.gz --out mr_in_ct.nii.gz --json";
+
+/// The arguments of `warpbench register`.
+#[derive(Debug, clap::Args)]
+#[command(about = crate::args::summary(HELP), long_about = HELP)]
+#[command(mut_args(help(&[
+    ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): the field's grid"),
+    ("moving", "The moving volume: any modality (mutual information needs no common intensity scale)"),
+    ("json", "Print a JSON summary (schema warpbench-register/1, see docs/cli.md) to stdout"),
+    ("force", "Overwrite --out-field (and --out) if they exist"),
+])))]
+pub struct RegisterArgs {
+    #[command(flatten)]
+    pub volumes: VolumePairArgs,
+    #[command(flatten)]
+    pub pairs: RegisterPairArgs,
+    /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
+    /// .nrrd for --format nrrd).
+    #[arg(long, value_name = "FILE")]
+    pub out_field: PathBuf,
+    /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii or .nii.gz).
+    #[arg(long, value_name = "FILE")]
+    pub out: Option<PathBuf>,
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
+    #[arg(long, value_enum, default_value = "itk")]
+    pub format: FormatArg,
+    /// The similarity measure: mi (Mattes mutual information, any two modalities).
+    #[arg(long, value_enum, default_value = "mi")]
+    pub metric: MetricArg,
+    /// The finest control-point spacing, mm.
+    #[arg(long, default_value_t = RegisterParams::default().grid_mm)]
+    pub grid_mm: f64,
+    /// Resolution levels, coarse to fine: each halves the control spacing and the image shrink.
+    #[arg(long, default_value_t = RegisterParams::default().levels)]
+    pub levels: usize,
+    /// The weight of the pairs' squared distances |u(q) − p|², per mm² (0: the pairs only start the warp).
+    #[arg(long, default_value_t = RegisterParams::default().landmark_weight)]
+    pub landmark_weight: f64,
+    /// The weight of the bending energy (smoothness).
+    #[arg(long, default_value_t = RegisterParams::default().bending_weight)]
+    pub bending_weight: f64,
+    /// Fixed sample points per level.
+    #[arg(long, default_value_t = RegisterParams::default().samples)]
+    pub samples: usize,
+    /// Optimiser iterations per level, at most.
+    #[arg(long, default_value_t = RegisterParams::default().max_iterations)]
+    pub iterations: usize,
+    /// The seed of the sample points (the same seed gives the same result, bit for bit).
+    #[arg(long, default_value_t = RegisterParams::default().seed)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub report: ReportArgs,
+}
+
+/// The landmarks and the warp the registration starts from: [`PairArgs`] less the hierarchical B-spline's `--levels`
+/// (here `--levels` are the registration's), which a B-spline start takes at its default.
+#[derive(Clone, Debug, clap::Args)]
+pub struct RegisterPairArgs {
+    /// A window session (.warpbench.json): its landmark pairs, its warp method, its starting transform and its brush
+    /// strokes, instead of --landmarks and the method flags.
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "initial"])]
+    pub session: Option<PathBuf>,
+    /// Landmark pairs: BigWarp CSV or BigWarp JSON (.json, also a BigWarp settings file), moving then fixed, LPS mm.
+    #[arg(long)]
+    pub landmarks: Option<PathBuf>,
+    /// Slicer point list (.mrk.json or .fcsv) of the moving points; with --fixed-points.
+    #[arg(long)]
+    pub moving_points: Option<PathBuf>,
+    /// Slicer point list of the fixed points, matched to --moving-points by order.
+    #[arg(long)]
+    pub fixed_points: Option<PathBuf>,
+    /// The landmark warp the registration starts from.
+    #[arg(long, value_enum, default_value_t)]
+    pub method: MethodKind,
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks), or auto: the λ that minimises the pairs' leave-one-out
+    /// error.
+    #[arg(long, default_value_t)]
+    pub stiffness: Stiffness,
+    /// A starting transform under the landmark warp: an ITK affine .tfm mapping fixed points to moving points (LPS
+    /// mm), as `warpbench align` writes it.
+    #[arg(long, value_name = "TFM")]
+    pub initial: Option<PathBuf>,
+}
+
+impl From<RegisterPairArgs> for PairArgs {
+    fn from(a: RegisterPairArgs) -> Self {
+        Self {
+            session: a.session,
+            landmarks: a.landmarks,
+            moving_points: a.moving_points,
+            fixed_points: a.fixed_points,
+            method: MethodArgs { method: a.method, stiffness: a.stiffness, levels: None },
+            initial: a.initial,
+        }
+    }
+}
+
+/// `--metric`: [`Similarity`] by its command-line name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MetricArg {
+    Mi,
+}
+
+impl From<MetricArg> for Similarity {
+    fn from(arg: MetricArg) -> Self {
+        match arg {
+            MetricArg::Mi => Self::Mi,
+        }
+    }
+}
+
+/// One pair after the registration.
+#[derive(Clone, Debug, Serialize)]
+pub struct PairResidual {
+    /// 1-based, as in the landmark file.
+    pub index: usize,
+    pub name: String,
+    /// |u(q) − p|, mm.
+    pub residual_mm: f64,
+}
+
+/// The settings the registration ran with.
+#[derive(Clone, Debug, Serialize)]
+pub struct RegisterSettings {
+    pub metric: Similarity,
+    pub grid_mm: f64,
+    pub levels: usize,
+    pub landmark_weight: f64,
+    pub bending_weight: f64,
+    pub samples: usize,
+    pub iterations: usize,
+    pub seed: u64,
+}
+
+/// What was found and written: the `--json` document, schema `warpbench-register/1` (docs/cli.md).
+#[derive(Clone, Debug, Serialize)]
+pub struct RegisterSummary {
+    pub schema: &'static str,
+    pub out_field: String,
+    pub out: Option<String>,
+    /// The field's flavour: `itk`, `ants` or `nrrd`.
+    pub format: &'static str,
+    /// The warp the registration started from, e.g. `tps`, `tps on start.tfm`, `identity`.
+    pub start: String,
+    pub settings: RegisterSettings,
+    /// Pairs kept (active, with both points).
+    pub pairs: usize,
+    pub levels: Vec<LevelReport>,
+    /// Each pair's distance after the registration.
+    pub residuals: Vec<PairResidual>,
+    /// det ∇u of the registered pull-back at 64³ points over the fixed volume's box.
+    pub jacobian: JacobianSummary,
+    /// The largest |u(x) − x| over the fixed grid, mm.
+    pub max_displacement_mm: f64,
+    /// Wall time of the registration itself (reading and writing excluded), seconds.
+    pub register_s: f64,
+}
+
+/// The folding check of the result.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct JacobianSummary {
+    pub min_det: f64,
+    pub max_det: f64,
+    /// The fraction of points with det ≤ 0.
+    pub fraction_folded: f64,
+    pub points: usize,
+}
+
+impl From<JacobianReport> for JacobianSummary {
+    fn from(r: JacobianReport) -> Self {
+        Self { min_det: r.min_det, max_det: r.max_det, fraction_folded: r.fraction_folded, points: r.points }
+    }
+}
+
+/// The pull-back the registration starts from.
+enum Start {
+    Stack(Box<StackPullback>),
+    Linear(AffineWarp<Moving, Fixed>),
+}
+
+impl Start {
+    fn warp(&self) -> &dyn Warp<Moving, Fixed> {
+        match self {
+            Self::Stack(s) => s.as_ref(),
+            Self::Linear(a) => a,
+        }
+    }
+}
+
+/// Runs `warpbench register`: checks the outputs, loads, fits the start, registers, writes the field (and the warped
+/// volume) atomically; prints the JSON summary to `out` with `--json`, else what it wrote on stderr unless `--quiet`.
+pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, Failure> {
+    let RegisterArgs {
+        volumes,
+        pairs,
+        out_field,
+        out: out_volume,
+        format,
+        metric,
+        grid_mm,
+        levels,
+        landmark_weight,
+        bending_weight,
+        samples,
+        iterations,
+        seed,
+        report,
+    } = args;
+    let ReportArgs { json, force, quiet } = report;
+    let format = FieldFormat::from(format);
+    let params = RegisterParams {
+        similarity: metric.into(),
+        grid_mm,
+        levels,
+        landmark_weight,
+        bending_weight,
+        samples,
+        max_iterations: iterations,
+        seed,
+        parallelism: Parallelism::Rayon,
+        ..RegisterParams::default()
+    };
+    let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
+    let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path()];
+    input_paths.extend(given.paths());
+    OutputFile { path: out_field.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
+    displacement::check_output_name(&out_field, format)?;
+    if let Some(path) = &out_volume {
+        if path == &out_field {
+            return Err(Failure::BadInput(anyhow!("{}: --out and --out-field are the same file", path.display())));
+        }
+        inputs::check_output(path, &input_paths, force).map_err(Failure::BadInput)?;
+        crate::warp::check_outputs(path, None).map_err(Failure::BadInput)?;
+    }
+    params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
+    let start_transform = given.warp.start().map_err(Failure::BadInput)?;
+    let VolumePairArgs { fixed, moving } = volumes;
+    let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+
+    // The start u₀ and the pairs the registration keeps.
+    let (start, start_name, kept) = if let Some(landmarks) = &given.landmarks {
+        let method = given.method().map_err(Failure::BadInput)?;
+        let c = inputs::correspondences(
+            &landmarks.source,
+            landmarks.pairs().map_err(Failure::BadInput)?,
+            &moving_volume,
+            &fixed_volume,
+            crate::start::min_pairs(&method, start_transform.as_ref()),
+        )
+        .map_err(Failure::BadInput)?;
+        let brushed =
+            crate::brushed::Brushed::new(&given.warp.brush, &landmarks.describe()).map_err(Failure::BadInput)?;
+        let layers = Layers::new(start_transform.clone(), brushed);
+        let name = layers.describe(&method, c.moving.len());
+        let u = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&fixed_volume), layers)
+            .map_err(Failure::BadInput)?;
+        (Start::Stack(Box::new(u)), name, c)
+    } else {
+        let (warp, name) = match &start_transform {
+            Some(s) => (*s.moving_from_fixed(), format!("{} alone", s.origin)),
+            None => (AffineWarp::identity(), "identity (no landmarks, no --initial)".to_owned()),
+        };
+        let none = inputs::Correspondences {
+            moving: Vec::new(),
+            fixed: Vec::new(),
+            labels: Vec::new(),
+            origin: String::new(),
+        };
+        (Start::Linear(warp), name, none)
+    };
+    let register_pairs: Vec<RegisterPair> =
+        kept.fixed.iter().zip(&kept.moving).map(|(&fixed, &moving)| RegisterPair { fixed, moving }).collect();
+    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume, Parallelism::Rayon)
+        .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", fixed.display())))?;
+    let moving_image = Image::<Moving>::from_volume(&moving_volume, Parallelism::Rayon)
+        .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", moving.display())))?;
+
+    let started = Instant::now();
+    let bar = Bar::new(quiet);
+    let registration = register(&fixed_image, &moving_image, start.warp(), &register_pairs, &params, &mut |p| {
+        bar.set("registering", (p.fraction() * 1000.0) as u64, 1000);
+        ControlFlow::Continue(())
+    })
+    .map_err(|e| Failure::BadInput(anyhow!("registering {} to {}: {e}", moving.display(), fixed.display())))?;
+    let register_s = started.elapsed().as_secs_f64();
+    let jacobian = folding(&registration, start.warp(), &fixed_image, [64; 3], Parallelism::Rayon);
+    drop((fixed_image, moving_image));
+    let u = registration.deformation.pullback(start.warp());
+    let residuals = kept
+        .fixed
+        .iter()
+        .zip(&kept.moving)
+        .zip(&kept.labels)
+        .map(|((q, p), (index, name))| {
+            let (a, b) = (u.apply_raw(q.coords()), p.coords());
+            let residual_mm = (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+            PairResidual { index: *index, name: name.clone(), residual_mm }
+        })
+        .collect();
+
+    let (dims, lps_from_index) = (fixed_volume.dims, fixed_volume.lps_from_index);
+    warpbench_io::volume::check_allocation(&out_field, dims, 12, warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let sampled = sample_displacements(&u, dims, &lps_from_index, &mut |done, total| {
+        bar.set("sampling the field", done, total);
+        true
+    })
+    .ok_or_else(|| Failure::Internal(anyhow!("sampling the field stopped")))?;
+    let Some(max_displacement_mm) = sampled.max_norm_mm else {
+        return Err(Failure::Internal(anyhow!("the registered warp is not finite somewhere in the fixed grid")));
+    };
+    displacement::write_field_with(
+        &out_field,
+        format,
+        FieldDirection::Pullback,
+        dims,
+        &lps_from_index,
+        &sampled.displacements_lps,
+    )?;
+    if let Some(path) = &out_volume {
+        let field = SampledField::<Moving, Fixed>::new(dims, lps_from_index, sampled.displacements_lps)
+            .map_err(|e| Failure::Internal(anyhow!("{}: {e}", out_field.display())))?;
+        let names = Names { moving: moving.display().to_string(), landmarks: start_name.clone(), out: path.to_owned() };
+        let resampled =
+            crate::warp::resample_through_field(&fixed_volume, &moving_volume, field, &out_field, &names, &mut |p| {
+                bar.set("resampling", p.slices_done as u64, p.slices_total as u64);
+                true
+            })?;
+        let description = crate::warp::series_description("registered", &moving);
+        crate::warp::write_outputs(&resampled.volume, path, None, &description, None)?;
+    }
+    bar.finish();
+
+    let summary = RegisterSummary {
+        schema: SCHEMA,
+        out_field: out_field.display().to_string(),
+        out: out_volume.as_ref().map(|p| p.display().to_string()),
+        format: format.name(),
+        start: start_name,
+        settings: RegisterSettings {
+            metric: params.similarity,
+            grid_mm,
+            levels,
+            landmark_weight,
+            bending_weight,
+            samples,
+            iterations,
+            seed,
+        },
+        pairs: register_pairs.len(),
+        levels: registration.levels,
+        residuals,
+        jacobian: jacobian.into(),
+        max_displacement_mm,
+        register_s,
+    };
+    if json {
+        crate::exit::print_json(out, &summary, "the JSON summary")?;
+    } else if !quiet {
+        let last = summary.levels.last();
+        let worst = summary.residuals.iter().map(|r| r.residual_mm).fold(0.0, f64::max);
+        eprintln!(
+            "wrote {} ({} field; registered from {} under {} pairs (worst {:.2} mm), mutual information {:.4}, min \
+             det ∇u {:.3}, max |D| {:.2} mm, {:.1} s)",
+            summary.out_field,
+            summary.format,
+            summary.start,
+            summary.pairs,
+            worst,
+            last.map_or(0.0, |l| l.mutual_information),
+            summary.jacobian.min_det,
+            summary.max_displacement_mm,
+            register_s
+        );
+        if let Some(path) = &summary.out {
+            eprintln!("wrote {path}");
+        }
+    }
+    Ok(summary)
+}

@@ -1,0 +1,238 @@
+//! `warpbench register` end to end (issue 31, item 2): on the MRI fixture pulled back through a known smooth warp,
+//! with its intensities remapped as a second modality's, under 6 pairs of the truth. The field it writes is closer
+//! to the truth than the TPS through the pairs, keeps the pairs, does not fold, and is what `warpbench warp --field`
+//! applies to the same bytes; bad input exits 2, names the file and writes nothing.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{assert_ok, mri, utf8, warpbench, write_pairs_csv};
+use serde_json::Value;
+use warpbench_io::Volume;
+use warpbench_io::displacement::read_field_info;
+use warpbench_io::geometry::Point3;
+use warpbench_solver::field::SampledField;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::tps::Tps;
+use warpbench_solver::warp::Warp;
+
+/// The known pull-back: u(x) = x + Σ bumps, two Gaussian bumps of 5 and 4 mm (σ 20 mm) inside the head.
+fn truth(x: [f64; 3]) -> [f64; 3] {
+    let bumps = [([10.0, 10.0, 20.0], [3.0, -4.0, 0.0]), ([-25.0, -20.0, 10.0], [0.0, 2.0, 3.5])];
+    let mut y = x;
+    for (c, w) in bumps {
+        let r2: f64 = (0..3).map(|a| (x[a] - c[a]).powi(2)).sum();
+        let g = (-r2 / (2.0 * 20.0 * 20.0)).exp();
+        for a in 0..3 {
+            y[a] += g * w[a];
+        }
+    }
+    y
+}
+
+/// Trilinear sample of a volume's values at an LPS point (0 outside).
+fn sample(v: &Volume, x: [f64; 3]) -> f64 {
+    let index = v.lps_from_index.inverse().expect("invertible").apply_point(Point3::from_array(x)).coords();
+    let mut sum = 0.0;
+    let base = index.map(f64::floor);
+    for c in 0..8 {
+        let corner: [f64; 3] = std::array::from_fn(|a| base[a] + f64::from((c >> a) & 1));
+        if (0..3).any(|a| corner[a] < 0.0 || corner[a] > (v.dims[a] - 1) as f64) {
+            continue;
+        }
+        let w: f64 = (0..3).map(|a| 1.0 - (index[a] - corner[a]).abs()).product();
+        let [i, j, k] = corner.map(|c| c as usize);
+        sum += w * v.data.get_f64(i + v.dims[0] * (j + v.dims[1] * k));
+    }
+    sum
+}
+
+/// The case's files in `dir`: the fixed volume (the fixture through the truth), the moving volume (the fixture with
+/// its contrast inverted), and 6 pairs of the truth.
+fn case(dir: &Path) -> (PathBuf, PathBuf, PathBuf, Vec<[f64; 3]>) {
+    let base = warpbench_io::open(mri()).expect("fixture");
+    let mut fixed = base.clone();
+    let [nx, ny, nz] = base.dims;
+    let values: Vec<f32> = (0..nx * ny * nz)
+        .map(|o| {
+            let ijk = [(o % nx) as f64, ((o / nx) % ny) as f64, (o / (nx * ny)) as f64];
+            sample(&base, truth(base.lps_from_index.apply_point(Point3::from_array(ijk)).coords())) as f32
+        })
+        .collect();
+    fixed.data = warpbench_io::VoxelData::F32(values);
+    let mut moving = base.clone();
+    let inverted: Vec<f32> = (0..nx * ny * nz).map(|o| (300.0 - base.data.get_f64(o)) as f32).collect();
+    moving.data = warpbench_io::VoxelData::F32(inverted);
+    let (f, m) = (dir.join("fixed.nii"), dir.join("moving.nii"));
+    warpbench_io::nifti::write(&f, &fixed).expect("write fixed");
+    warpbench_io::nifti::write(&m, &moving).expect("write moving");
+    let qs = [
+        [30.0, 10.0, 20.0],
+        [-30.0, 0.0, 30.0],
+        [0.0, 50.0, 10.0],
+        [0.0, -60.0, 20.0],
+        [10.0, 0.0, 55.0],
+        [-5.0, 10.0, -15.0],
+    ];
+    let pairs: Vec<([f64; 3], [f64; 3])> = qs.iter().map(|&q| (truth(q), q)).collect();
+    let l = dir.join("pairs.csv");
+    write_pairs_csv(&l, &pairs);
+    (f, m, l, qs.to_vec())
+}
+
+/// Points inside the head (the fixture above a third of its range), on a coarse grid of the fixed box.
+fn head_points(v: &Volume) -> Vec<[f64; 3]> {
+    let mut out = Vec::new();
+    for k in (10..v.dims[2] - 10).step_by(6) {
+        for j in (10..v.dims[1] - 10).step_by(6) {
+            for i in (10..v.dims[0] - 10).step_by(6) {
+                if v.data.get_f64(i + v.dims[0] * (j + v.dims[1] * k)) > 30.0 {
+                    out.push(v.lps_from_index.apply_point(Point3::new(i as f64, j as f64, k as f64)).coords());
+                }
+            }
+        }
+    }
+    out
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn the_registered_field_beats_the_tps_keeps_the_pairs_and_is_what_warp_applies() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, qs) = case(dir.path());
+    let (field, warped) = (dir.path().join("field.nii.gz"), dir.path().join("warped.nii.gz"));
+    let run = warpbench(&[
+        "register",
+        "--fixed",
+        utf8(&fixed),
+        "--moving",
+        utf8(&moving),
+        "--landmarks",
+        utf8(&pairs),
+        "--out-field",
+        utf8(&field),
+        "--out",
+        utf8(&warped),
+        "--grid-mm",
+        "20",
+        "--levels",
+        "2",
+        "--json",
+    ]);
+    assert_ok(&run);
+    let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+    assert_eq!(report["schema"], "warpbench-register/1");
+    assert_eq!(report["start"], "tps");
+    assert_eq!(report["pairs"], 6);
+    let levels = report["levels"].as_array().expect("levels");
+    assert_eq!(levels.len(), 2);
+    for level in levels {
+        let (start, end) = (level["mutual_information_start"].as_f64(), level["mutual_information"].as_f64());
+        assert!(end > start, "the mutual information rises at every level: {level}");
+    }
+    for r in report["residuals"].as_array().expect("residuals") {
+        assert!(r["residual_mm"].as_f64().expect("residual") < 0.5, "{r}");
+    }
+    assert_eq!(report["jacobian"]["fraction_folded"], 0.0, "{report}");
+    assert!(report["jacobian"]["min_det"].as_f64().expect("min det") > 0.0);
+
+    // The field holds u(x) − x: closer to the truth inside the head than the TPS through the same pairs.
+    let read = read_field_info(&field).expect("read the field");
+    let u = SampledField::<Moving, Fixed>::from_displacement_field(read.field).expect("a field");
+    let volume = warpbench_io::open(mri()).expect("fixture");
+    let points = head_points(&volume);
+    let q: Vec<Point3<Fixed>> = qs.iter().map(|&q| Point3::from_array(q)).collect();
+    let p: Vec<Point3<Moving>> = qs.iter().map(|&q| Point3::from_array(truth(q))).collect();
+    let tps = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).expect("tps");
+    let mean = |w: &dyn Warp<Moving, Fixed>| {
+        points.iter().map(|&x| distance(w.apply_raw(x), truth(x))).sum::<f64>() / points.len() as f64
+    };
+    let (registered, through_pairs) = (mean(&u), mean(&tps));
+    eprintln!("mean TRE over {} head points: registered {registered:.3} mm, TPS {through_pairs:.3} mm", points.len());
+    assert!(registered < 0.7 * through_pairs, "registered {registered:.3} mm, TPS {through_pairs:.3} mm");
+
+    // `--out` is the moving volume through that field, as `warpbench warp --field --exact` resamples it.
+    let again = dir.path().join("again.nii.gz");
+    let warp = warpbench(&[
+        "warp",
+        "--fixed",
+        utf8(&fixed),
+        "--moving",
+        utf8(&moving),
+        "--field",
+        utf8(&field),
+        "--exact",
+        "--backend",
+        "cpu",
+        "--out",
+        utf8(&again),
+        "--quiet",
+    ]);
+    assert_ok(&warp);
+    let (a, b) = (warpbench_io::open(&warped).expect("warped"), warpbench_io::open(&again).expect("again"));
+    assert_eq!(a.dims, b.dims);
+    let same_bits = (0..a.data.len()).all(|i| a.data.get_f64(i).to_bits() == b.data.get_f64(i).to_bits());
+    assert!(same_bits, "the same voxels");
+}
+
+#[test]
+fn bad_input_exits_2_names_the_file_and_writes_nothing() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, _, _) = case(dir.path());
+    let field = dir.path().join("never.nii.gz");
+    let register = |extra: &[&str]| {
+        let mut args = vec!["register", "--fixed", utf8(&fixed), "--out-field", utf8(&field), "--levels", "1"];
+        args.extend_from_slice(extra);
+        warpbench(&args)
+    };
+    let refused = |out: &std::process::Output, names: &[&str]| {
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{stderr}");
+        for name in names {
+            assert!(stderr.contains(name), "{name} in: {stderr}");
+        }
+        assert!(!field.exists(), "nothing written");
+    };
+
+    // A pair outside the moving volume: the landmark file and the pair, 1-based.
+    let outside = dir.path().join("outside.csv");
+    write_pairs_csv(&outside, &[([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), ([500.0, 0.0, 0.0], [10.0, 0.0, 0.0])]);
+    refused(
+        &register(&["--moving", utf8(&moving), "--landmarks", utf8(&outside)]),
+        &["outside.csv", "landmark 2", "outside the moving volume"],
+    );
+
+    // No overlap: a starting transform that maps the fixed volume far from the moving one.
+    let far = dir.path().join("far.tfm");
+    std::fs::write(
+        &far,
+        "#Insight Transform File V1.0\n#Transform 0\nTransform: AffineTransform_double_3_3\n\
+         Parameters: 1 0 0 0 1 0 0 0 1 600 0 0\nFixedParameters: 0 0 0\n",
+    )
+    .expect("write the tfm");
+    refused(
+        &register(&["--moving", utf8(&moving), "--initial", utf8(&far)]),
+        &["moving.nii", "fixed.nii", "do not overlap"],
+    );
+
+    // One value: a moving volume with nothing to match.
+    let mut flat = warpbench_io::open(&moving).expect("moving");
+    flat.data = warpbench_io::VoxelData::F32(vec![5.0; flat.data.len()]);
+    let flat_path = dir.path().join("flat.nii");
+    warpbench_io::nifti::write(&flat_path, &flat).expect("write flat");
+    refused(&register(&["--moving", utf8(&flat_path)]), &["flat.nii", "single value"]);
+
+    // Unusable settings, and an output that exists.
+    refused(&register(&["--moving", utf8(&moving), "--grid-mm", "0"]), &["control spacing"]);
+    let exists = dir.path().join("exists.nii.gz");
+    std::fs::write(&exists, b"keep").expect("write");
+    let out =
+        warpbench(&["register", "--fixed", utf8(&fixed), "--moving", utf8(&moving), "--out-field", utf8(&exists)]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("exists.nii.gz"));
+    assert_eq!(std::fs::read(&exists).expect("read"), b"keep", "the file is untouched");
+}
