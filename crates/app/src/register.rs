@@ -15,20 +15,26 @@ use std::time::Instant;
 
 use anyhow::anyhow;
 use serde::Serialize;
+use warpbench_io::Volume;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_io::landmarks::LandmarkPair;
+use warpbench_solver::SolverError;
 use warpbench_solver::diagnostics::JacobianReport;
 use warpbench_solver::field::SampledField;
 use warpbench_solver::image::Image;
 use warpbench_solver::linear::AffineWarp;
-use warpbench_solver::register::{LevelReport, RegisterPair, RegisterParams, Similarity, folding, register};
+use warpbench_solver::method::Method;
+use warpbench_solver::register::{
+    LevelReport, RegisterPair, RegisterParams, RegisterProgress, Registration, Similarity, folding, register,
+};
 use warpbench_solver::spaces::{Fixed, Moving};
-use warpbench_solver::warp::{Parallelism, Warp};
+use warpbench_solver::warp::{Composed, Parallelism, Warp};
 
 use crate::args::{MethodArgs, PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::field::{FormatArg, sample_displacements};
 use crate::fit;
-use crate::inputs::{self, LandmarkWarp, Names, OutputFile};
+use crate::inputs::{self, Correspondences, LandmarkWarp, Names, OutputFile};
 use crate::progress::Bar;
 use crate::project::stack::{Layers, StackPullback};
 use crate::settings::{MethodKind, Stiffness};
@@ -225,6 +231,7 @@ impl From<JacobianReport> for JacobianSummary {
 }
 
 /// The pull-back the registration starts from.
+#[derive(Debug)]
 enum Start {
     Stack(Box<StackPullback>),
     Linear(AffineWarp<Moving, Fixed>),
@@ -237,6 +244,109 @@ impl Start {
             Self::Linear(a) => a,
         }
     }
+}
+
+/// What a registration is made from, as the command line and the window hand it over.
+#[derive(Clone, Copy, Debug)]
+pub struct RefineInputs<'a> {
+    pub fixed: &'a Volume,
+    pub moving: &'a Volume,
+    /// What messages call the two volumes: their paths, or the window's names.
+    pub names: [&'a str; 2],
+    /// The landmark pairs as read (checked here against the volumes).
+    pub pairs: &'a [LandmarkPair],
+    /// What messages call the pairs: the landmark file, or the window's table.
+    pub origin: &'a str,
+    pub method: &'a Method,
+}
+
+/// A registration and what it started from: the one result the command line writes and the window keeps.
+#[derive(Debug)]
+pub struct Refinement {
+    start: Start,
+    /// The warp it started from, e.g. `tps`, `tps on start.tfm`, `identity`.
+    pub start_name: String,
+    /// The pairs it kept (active, with both points, inside their volumes).
+    pub kept: Correspondences,
+    pub registration: Registration,
+    /// det ∇u of the result at 64³ points over the fixed volume's box.
+    pub jacobian: JacobianReport,
+    /// Wall time of the registration itself, seconds.
+    pub register_s: f64,
+}
+
+impl Refinement {
+    /// The registered pull-back u = u₀ ∘ T.
+    #[must_use]
+    pub fn pullback(&self) -> Composed<'_, Moving, Fixed, Fixed> {
+        self.registration.deformation.pullback(self.start.warp())
+    }
+
+    /// Each kept pair's distance |u(q) − p| after the registration.
+    #[must_use]
+    pub fn residuals(&self) -> Vec<PairResidual> {
+        let u = self.pullback();
+        let k = &self.kept;
+        k.fixed
+            .iter()
+            .zip(&k.moving)
+            .zip(&k.labels)
+            .map(|((q, p), (index, name))| {
+                let (a, b) = (u.apply_raw(q.coords()), p.coords());
+                let residual_mm = (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
+                PairResidual { index: *index, name: name.clone(), residual_mm }
+            })
+            .collect()
+    }
+}
+
+/// Registers `inputs.moving` to `inputs.fixed` under the pairs (module docs). The start u₀ is the warp stack of
+/// `layers` with the landmark fit when there are pairs enough for the method or a base under it, else the identity;
+/// the active pairs inside their volumes are kept by the registration either way. `progress` hears after each
+/// evaluation; [`ControlFlow::Break`] stops the work with [`Failure::Cancelled`].
+///
+/// # Errors
+/// [`Failure::BadInput`] for a pair outside its volume, a volume with one value, volumes that do not overlap, or
+/// settings out of range, naming the inputs; [`Failure::Cancelled`].
+pub fn refine(
+    inputs: RefineInputs<'_>,
+    layers: Layers,
+    params: &RegisterParams,
+    progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
+) -> Result<Refinement, Failure> {
+    let RefineInputs { fixed, moving, names: [fixed_name, moving_name], pairs, origin, method } = inputs;
+    params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
+    let kept = inputs::check_pairs(origin, pairs, moving, fixed, 0).map_err(Failure::BadInput)?;
+    let (start, start_name) = if layers.has_base() || kept.moving.len() >= method.needs().min_pairs {
+        let name = layers.describe(method, kept.moving.len());
+        let u = fit::pullback_stack(method, &kept, inputs::volume_box::<Fixed>(fixed), layers)
+            .map_err(Failure::BadInput)?;
+        (Start::Stack(Box::new(u)), name)
+    } else {
+        let name = match kept.moving.len() {
+            0 => "identity".to_owned(),
+            n => format!("identity ({n} pairs; {method} needs {})", method.needs().min_pairs),
+        };
+        (Start::Linear(AffineWarp::identity()), name)
+    };
+    let register_pairs: Vec<RegisterPair> =
+        kept.fixed.iter().zip(&kept.moving).map(|(&fixed, &moving)| RegisterPair { fixed, moving }).collect();
+    let fixed_image = Image::<Fixed>::from_volume(fixed, Parallelism::Rayon)
+        .map_err(|e| Failure::BadInput(anyhow!("{fixed_name}: {e}")))?;
+    let moving_image = Image::<Moving>::from_volume(moving, Parallelism::Rayon)
+        .map_err(|e| Failure::BadInput(anyhow!("{moving_name}: {e}")))?;
+    let started = Instant::now();
+    let registration = register(&fixed_image, &moving_image, start.warp(), &register_pairs, params, progress).map_err(
+        |e| match e {
+            SolverError::Cancelled => {
+                Failure::Cancelled(anyhow!("registering {moving_name} to {fixed_name}: cancelled"))
+            }
+            e => Failure::BadInput(anyhow!("registering {moving_name} to {fixed_name}: {e}")),
+        },
+    )?;
+    let register_s = started.elapsed().as_secs_f64();
+    let jacobian = folding(&registration, start.warp(), &fixed_image, [64; 3], Parallelism::Rayon);
+    Ok(Refinement { start, start_name, kept, registration, jacobian, register_s })
 }
 
 /// Runs `warpbench register`: checks the outputs, loads, fits the start, registers, writes the field (and the warped
@@ -288,67 +398,31 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let start_transform = given.warp.start().map_err(Failure::BadInput)?;
     let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
-
-    // The start u₀ and the pairs the registration keeps.
-    let (start, start_name, kept) = if let Some(landmarks) = &given.landmarks {
-        let method = given.method().map_err(Failure::BadInput)?;
-        let c = inputs::correspondences(
-            &landmarks.source,
-            landmarks.pairs().map_err(Failure::BadInput)?,
-            &moving_volume,
-            &fixed_volume,
-            crate::start::min_pairs(&method, start_transform.as_ref()),
-        )
-        .map_err(Failure::BadInput)?;
-        let brushed =
-            crate::brushed::Brushed::new(&given.warp.brush, &landmarks.describe()).map_err(Failure::BadInput)?;
-        let layers = Layers::new(start_transform.clone(), brushed);
-        let name = layers.describe(&method, c.moving.len());
-        let u = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&fixed_volume), layers)
-            .map_err(Failure::BadInput)?;
-        (Start::Stack(Box::new(u)), name, c)
-    } else {
-        let (warp, name) = match &start_transform {
-            Some(s) => (*s.moving_from_fixed(), format!("{} alone", s.origin)),
-            None => (AffineWarp::identity(), "identity (no landmarks, no --initial)".to_owned()),
-        };
-        let none = inputs::Correspondences {
-            moving: Vec::new(),
-            fixed: Vec::new(),
-            labels: Vec::new(),
-            origin: String::new(),
-        };
-        (Start::Linear(warp), name, none)
+    let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
+    let (pairs, origin, method, brushed) = match &given.landmarks {
+        Some(landmarks) => {
+            let brushed =
+                crate::brushed::Brushed::new(&given.warp.brush, &landmarks.describe()).map_err(Failure::BadInput)?;
+            (landmarks.pairs().map_err(Failure::BadInput)?, landmarks.describe(), given.method(), brushed)
+        }
+        None => (&[][..], String::new(), given.method(), None),
     };
-    let register_pairs: Vec<RegisterPair> =
-        kept.fixed.iter().zip(&kept.moving).map(|(&fixed, &moving)| RegisterPair { fixed, moving }).collect();
-    let fixed_image = Image::<Fixed>::from_volume(&fixed_volume, Parallelism::Rayon)
-        .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", fixed.display())))?;
-    let moving_image = Image::<Moving>::from_volume(&moving_volume, Parallelism::Rayon)
-        .map_err(|e| Failure::BadInput(anyhow!("{}: {e}", moving.display())))?;
-
-    let started = Instant::now();
+    let method = method.map_err(Failure::BadInput)?;
+    let inputs = RefineInputs {
+        fixed: &fixed_volume,
+        moving: &moving_volume,
+        names: [&fixed_name, &moving_name],
+        pairs,
+        origin: &origin,
+        method: &method,
+    };
     let bar = Bar::new(quiet);
-    let registration = register(&fixed_image, &moving_image, start.warp(), &register_pairs, &params, &mut |p| {
+    let refinement = refine(inputs, Layers::new(start_transform, brushed), &params, &mut |p| {
         bar.set("registering", (p.fraction() * 1000.0) as u64, 1000);
         ControlFlow::Continue(())
-    })
-    .map_err(|e| Failure::BadInput(anyhow!("registering {} to {}: {e}", moving.display(), fixed.display())))?;
-    let register_s = started.elapsed().as_secs_f64();
-    let jacobian = folding(&registration, start.warp(), &fixed_image, [64; 3], Parallelism::Rayon);
-    drop((fixed_image, moving_image));
-    let u = registration.deformation.pullback(start.warp());
-    let residuals = kept
-        .fixed
-        .iter()
-        .zip(&kept.moving)
-        .zip(&kept.labels)
-        .map(|((q, p), (index, name))| {
-            let (a, b) = (u.apply_raw(q.coords()), p.coords());
-            let residual_mm = (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt();
-            PairResidual { index: *index, name: name.clone(), residual_mm }
-        })
-        .collect();
+    })?;
+    let u = refinement.pullback();
+    let residuals = refinement.residuals();
 
     let (dims, lps_from_index) = (fixed_volume.dims, fixed_volume.lps_from_index);
     warpbench_io::volume::check_allocation(&out_field, dims, 12, warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES)?;
@@ -371,7 +445,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     if let Some(path) = &out_volume {
         let field = SampledField::<Moving, Fixed>::new(dims, lps_from_index, sampled.displacements_lps)
             .map_err(|e| Failure::Internal(anyhow!("{}: {e}", out_field.display())))?;
-        let names = Names { moving: moving.display().to_string(), landmarks: start_name.clone(), out: path.to_owned() };
+        let names =
+            Names { moving: moving_name.clone(), landmarks: refinement.start_name.clone(), out: path.to_owned() };
         let resampled =
             crate::warp::resample_through_field(&fixed_volume, &moving_volume, field, &out_field, &names, &mut |p| {
                 bar.set("resampling", p.slices_done as u64, p.slices_total as u64);
@@ -387,7 +462,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         out_field: out_field.display().to_string(),
         out: out_volume.as_ref().map(|p| p.display().to_string()),
         format: format.name(),
-        start: start_name,
+        start: refinement.start_name.clone(),
         settings: RegisterSettings {
             metric: params.similarity,
             grid_mm,
@@ -398,12 +473,12 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
             iterations,
             seed,
         },
-        pairs: register_pairs.len(),
-        levels: registration.levels,
+        pairs: refinement.kept.moving.len(),
+        levels: refinement.registration.levels.clone(),
         residuals,
-        jacobian: jacobian.into(),
+        jacobian: refinement.jacobian.into(),
         max_displacement_mm,
-        register_s,
+        register_s: refinement.register_s,
     };
     if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
@@ -421,7 +496,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
             last.map_or(0.0, |l| l.mutual_information),
             summary.jacobian.min_det,
             summary.max_displacement_mm,
-            register_s
+            summary.register_s
         );
         if let Some(path) = &summary.out {
             eprintln!("wrote {path}");

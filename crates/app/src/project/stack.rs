@@ -199,7 +199,9 @@ impl Layers {
         self.field.as_ref().map_or(p, |f| f.fixed_from_moving_raw(p))
     }
 
-    fn has_base(&self) -> bool {
+    /// Whether a starting transform or a field lies under the landmark fit (then the fit may have no pairs).
+    #[must_use]
+    pub fn has_base(&self) -> bool {
         self.start.is_some() || self.field.is_some()
     }
 }
