@@ -222,8 +222,8 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     }
     // The bar appears with the first slice, after the checks and the fit.
     let mut bar: Option<Bar> = None;
-    let start = inputs.start().map_err(Failure::BadInput)?;
-    let layers = Layers::new(start, brushed);
+    let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
+    layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field(grid, &made_of, direction, &mut |done, total| {

@@ -230,12 +230,30 @@ pub struct PairWarp {
     pub initial: Option<PathBuf>,
     /// A session's starting transform (its Auto-align), read with the session.
     pub session_start: Option<Box<crate::start::Start>>,
+    /// A session's displacement field under the landmark fit (one chosen in the window, or Refine by intensities'),
+    /// read when the warp is fitted ([`PairWarp::field`]).
+    pub session_field: Option<PathBuf>,
 }
 
 impl PairWarp {
     /// The starting transform under the landmark warp, read (`None` without `--initial` or a session's).
     pub fn start(&self) -> Result<Option<crate::start::Start>> {
         crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
+    }
+
+    /// The session's displacement field under the landmark fit, read (`None` without one); errors name the file.
+    pub fn field(&self) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
+        self.session_field
+            .as_deref()
+            .map(|p| crate::project::stack::FieldLayer::read(p).map(std::sync::Arc::new))
+            .transpose()
+    }
+
+    /// The stack's layers around the landmark fit: the starting transform, the session's field and `brushed` on top.
+    pub fn layers(&self, brushed: Option<crate::brushed::Brushed>) -> Result<crate::project::stack::Layers> {
+        let mut layers = crate::project::stack::Layers::new(self.start()?, brushed);
+        layers.field = self.field()?;
+        Ok(layers)
     }
 }
 
@@ -262,6 +280,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                     brush: Vec::new(),
                     initial: args.initial,
                     session_start: None,
+                    session_field: None,
                 },
             });
         };
@@ -277,7 +296,13 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         let document = session.document;
         Ok(Self {
             landmarks: Some(Landmarks::read_from(LandmarkSource::Session(path), document.pairs)),
-            warp: PairWarp { method: MethodChoice::Given(method), brush: document.brush, initial: None, session_start },
+            warp: PairWarp {
+                method: MethodChoice::Given(method),
+                brush: document.brush,
+                initial: None,
+                session_start,
+                session_field: document.field,
+            },
         })
     }
 }
@@ -301,6 +326,7 @@ impl LandmarkWarp {
     pub fn paths(&self) -> Vec<&Path> {
         let mut paths = self.landmarks.as_ref().map_or_else(Vec::new, |l| l.source.paths());
         paths.extend(self.warp.initial.as_deref());
+        paths.extend(self.warp.session_field.as_deref());
         paths
     }
 }
@@ -338,6 +364,7 @@ impl PairInputs {
         paths.extend(self.landmarks.source.paths());
         paths.extend(self.reference.as_deref());
         paths.extend(self.warp.initial.as_deref());
+        paths.extend(self.warp.session_field.as_deref());
         paths
     }
 
@@ -355,6 +382,11 @@ impl PairInputs {
     /// The landmark pairs as read, once ([`Landmarks::pairs`]).
     pub fn pairs(&self) -> Result<&[LandmarkPair]> {
         self.landmarks.pairs()
+    }
+
+    /// The stack's layers around the landmark fit ([`PairWarp::layers`]) with the brush on top.
+    pub fn layers(&self) -> Result<crate::project::stack::Layers> {
+        self.warp.layers(self.brushed()?)
     }
 
     /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.

@@ -417,7 +417,9 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         method: &method,
     };
     let bar = Bar::new(quiet);
-    let refinement = refine(inputs, Layers::new(start_transform, brushed), &params, &mut |p| {
+    let mut layers = Layers::new(start_transform, brushed);
+    layers.field = given.warp.field().map_err(Failure::BadInput)?;
+    let refinement = refine(inputs, layers, &params, &mut |p| {
         bar.set("registering", (p.fraction() * 1000.0) as u64, 1000);
         ControlFlow::Continue(())
     })?;

@@ -217,7 +217,8 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
             eprintln!("brush: its inverse undoes it within {:.4} mm (max; rms {:.5} mm)", c.max_mm, c.rms_mm);
         }
         // The stack: u (with a brush, u ∘ b⁻¹) into the texture, and the moving glyphs at d(p) (b(d(p))).
-        let layers = Layers::new(start, brushed);
+        let mut layers = Layers::new(start, brushed);
+        layers.field = given.warp.field().map_err(Failure::BadInput)?;
         let pullback = fit::pullback_stack(&method, &c, fixed_box, layers.clone()).map_err(Failure::BadInput)?;
         let forward =
             fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(moving), layers).map_err(Failure::BadInput)?;

@@ -149,7 +149,8 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
                 crate::start::min_pairs(&method, start.as_ref()),
             )
             .map_err(Failure::BadInput)?;
-            let layers = crate::project::stack::Layers::new(start.clone(), None);
+            let mut layers = crate::project::stack::Layers::new(start.clone(), None);
+            layers.field = given.warp.field().map_err(Failure::BadInput)?;
             let d = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving_volume), layers)
                 .map_err(Failure::BadInput)?;
             (d, crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()))

@@ -126,7 +126,8 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             eprintln!("warpbench: warning: {w}");
         }
     }
-    let layers = Layers::new(start.clone(), None);
+    let mut layers = Layers::new(start.clone(), None);
+    layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
     let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed), layers)
         .map_err(Failure::BadInput)?;
     let transform = moving_from_fixed.itk_transform().map_err(Failure::BadInput)?;

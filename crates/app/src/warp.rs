@@ -906,8 +906,8 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             if brushed.is_none() {
                 check_pullback_mode(&method, export.pullback)?;
             }
-            let start = pairs.start().map_err(Failure::BadInput)?;
-            Given::Pairs(method, pairs, Box::new(Layers::new(start, brushed)))
+            let layers = pairs.warp.layers(brushed).map_err(Failure::BadInput)?;
+            Given::Pairs(method, pairs, Box::new(layers))
         }
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };

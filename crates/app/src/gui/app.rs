@@ -292,7 +292,7 @@ impl Workbench {
             view: super::View::new(camera, [f64::from(mid.z), f64::from(mid.y), f64::from(mid.x)]),
             fit: Fitter::default(),
             pointer: super::Pointer::default(),
-            assist: super::Assist::default(),
+            assist: super::Assist { refined_dir: self.autosave.path().with_file_name("refined"), ..Default::default() },
             files: Files::default(),
             ctx: ctx.clone(),
         };
@@ -502,6 +502,7 @@ fn workbench_ui(
     ready.hold_refinement(true);
     ready.poll_diagnostics();
     ready.poll_alignment();
+    ready.poll_intensities();
     if let Some(job) = &ready.files.export {
         match job.poll() {
             Some(result) => {

@@ -105,6 +105,11 @@ pub enum Command {
     AutoAlign(warpbench_solver::align::AlignKind),
     /// Put a starting transform under the landmark warp, or take it away (`None`).
     SetStart(Option<StartingTransform>),
+    /// Register the pair by intensities under the landmarks on a thread of its own; the result becomes the
+    /// document's displacement field ([`super::intensity`]).
+    RefineByIntensities,
+    /// Stop the refinement by intensities; the warp stays as it was.
+    CancelRefineByIntensities,
     /// Take the suggested target of the pair being added as its fixed point (Enter; [`super::suggestion`]).
     AcceptSuggestion,
     /// Search again for pair `i`'s target from its moving point and the current warp, and move its fixed point there
@@ -315,6 +320,12 @@ impl Ready {
                     self.refit_soon();
                 }
             }
+            Command::RefineByIntensities => self.start_intensities(),
+            Command::CancelRefineByIntensities => {
+                if let Some(job) = &self.assist.refining {
+                    job.cancel();
+                }
+            }
             Command::AcceptSuggestion => {
                 if let Some(s) = self.pointer.interaction.suggestion() {
                     self.place_at_ref(s.fixed_lps, None);
@@ -464,7 +475,7 @@ impl Ready {
     }
 }
 
-/// Auto-align's result becomes a command.
+/// Auto-align's and the refinement's results become the document's.
 impl Ready {
     /// Takes Auto-align's result once its thread has it: the document's starting transform (one undo step), or the
     /// problem in the status bar; call once per frame.
@@ -475,6 +486,23 @@ impl Ready {
             Ok(start) => {
                 self.pointer.notice = None;
                 self.apply(Command::SetStart(Some(start)));
+            }
+            Err(e) => self.pointer.notice = Some(e),
+        }
+    }
+
+    /// Takes the refinement's result once its thread has it: the document's displacement field under the landmarks
+    /// (one undo step), or the problem (a cancel) in the status bar; call once per frame.
+    pub fn poll_intensities(&mut self) {
+        let Some(result) = self.assist.refining.as_ref().and_then(super::intensity::IntensityJob::poll) else { return };
+        self.assist.refining = None;
+        match result {
+            Ok(refined) => {
+                self.pointer.notice = Some(refined.summary.clone());
+                self.document.field = Some(refined.field.clone());
+                let (_, pairs) = self.fit_pairs();
+                self.assist.refined = Some(super::intensity::RefinedOn { refined, pairs });
+                self.refit_soon();
             }
             Err(e) => self.pointer.notice = Some(e),
         }

@@ -30,6 +30,7 @@ pub mod frame_log;
 pub mod history;
 pub mod hover;
 mod images;
+pub mod intensity;
 pub mod interaction;
 pub mod landmark_panel;
 pub mod landmark_rows;

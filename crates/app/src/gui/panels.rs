@@ -255,6 +255,43 @@ pub fn alignment_ui(ui: &mut egui::Ui, start: Option<&StartingTransform>, aligni
     command
 }
 
+/// Refine by intensities ([`super::intensity`]): the button that registers the pair under the landmarks, its progress
+/// and Cancel while it runs, and what the last refinement did, with the offer to run it again once the pairs moved.
+pub fn intensity_ui(
+    ui: &mut egui::Ui,
+    running: Option<&super::intensity::IntensityJob>,
+    last: Option<&super::intensity::RefinedOn>,
+    pairs_moved: bool,
+) -> Option<Command> {
+    let mut command = None;
+    if let Some(job) = running {
+        ui.horizontal(|ui| {
+            let fraction = job.fraction();
+            ui.add(
+                egui::ProgressBar::new(fraction)
+                    .desired_width(140.0)
+                    .text(format!("Refining {:.0} %", fraction * 100.0)),
+            );
+            if ui.button("Cancel").clicked() {
+                command = Some(Command::CancelRefineByIntensities);
+            }
+        });
+        return command;
+    }
+    let label = if last.is_some() && pairs_moved { "Re-run refinement" } else { "Refine by intensities" };
+    let hover = "Register the pair by its intensities (mutual information, so MR to CT works) under the landmarks:                  the pairs stay put, the images decide between them. The result is the field under the landmarks.";
+    if ui.button(label).on_hover_text(hover).clicked() {
+        command = Some(Command::RefineByIntensities);
+    }
+    if let Some(last) = last {
+        if pairs_moved {
+            ui.label("The pairs moved since the last refinement: run it again to follow them.");
+        }
+        ui.add(egui::Label::new(last.refined.summary.as_str()).wrap());
+    }
+    command
+}
+
 /// The displacement brush's settings ([`warpbench_solver::brush`]; the toolbar's Brush makes it the tool): "Brush
 /// radius (mm)" sets new strokes' reach and "Clear the brush" removes every stroke.
 pub fn brush_ui(ui: &mut egui::Ui, settings: &ViewSettings, strokes: usize) -> Option<Command> {

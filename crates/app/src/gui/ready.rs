@@ -88,6 +88,38 @@ impl Ready {
         }
     }
 
+    /// The refinement by intensities running, if one is.
+    #[must_use]
+    pub fn refining(&self) -> Option<&super::intensity::IntensityJob> {
+        self.assist.refining.as_ref()
+    }
+
+    /// Starts refining by intensities on the pair as loaded from the document's stack under the brush, unless one is
+    /// running; its result arrives through [`Self::poll_intensities`].
+    pub(super) fn start_intensities(&mut self) {
+        if self.assist.refining.is_some() {
+            return;
+        }
+        let millis = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_millis());
+        let input = super::intensity::RefineInput {
+            fixed: Arc::clone(&self.loaded.fixed),
+            moving: Arc::clone(&self.loaded.moving),
+            pairs: self.document.pairs.clone(),
+            method: self.document.settings.method(),
+            start: self.document.start.clone(),
+            field: self.document.field.clone(),
+            out: self.assist.refined_dir.join(format!("refined-{millis}.nii.gz")),
+        };
+        let egui = self.ctx.clone();
+        match super::intensity::IntensityJob::start(input, move || egui.request_repaint()) {
+            Ok(job) => {
+                self.assist.refining = Some(job);
+                self.pointer.notice = Some("Refine by intensities: registering the pair under the landmarks".into());
+            }
+            Err(e) => self.pointer.notice = Some(format!("Refine by intensities: could not start its thread: {e}")),
+        }
+    }
+
     /// Whether the last fit's diagnostics are still being computed.
     #[must_use]
     pub fn diagnostics_pending(&self) -> bool {

@@ -83,6 +83,11 @@ fn section_ui(ui: &mut egui::Ui, section: Section, ready: &mut Ready) -> Vec<Com
         }
         Section::Assist => {
             commands.extend(panels::alignment_ui(ui, ready.document.start.as_ref(), ready.aligning()));
+            ui.separator();
+            let last = ready.assist.refined.as_ref();
+            let moved = last.is_some_and(|l| l.pairs != ready.fit_pairs().1);
+            commands.extend(panels::intensity_ui(ui, ready.refining(), last, moved));
+            ui.separator();
             let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
             commands.extend(panels::worst_pair_ui(ui, has_loo));
             commands.extend(panels::leafer_ui(ui, ready.view.leafer));

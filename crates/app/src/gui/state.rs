@@ -6,7 +6,7 @@ use warpbench_gpu::OrbitCamera;
 use super::images::Images;
 use super::options::ControlEval;
 use super::tool::Interaction;
-use super::{alignment, attention, hover, leafer, pacing, placement, suggestion};
+use super::{alignment, attention, hover, intensity, leafer, pacing, placement, suggestion};
 use crate::project::document::FitPoints;
 
 /// What the views show: the camera, the slice positions, the rendered images and their pacing, and the view tools
@@ -85,11 +85,18 @@ pub struct Pointer {
     pub selected: Option<usize>,
 }
 
-/// The assistants' state: Auto-align's job, the suggested targets' images, and the last automatic stiffness.
+/// The assistants' state: Auto-align's job, the refinement by intensities, the suggested targets' images, and the last
+/// automatic stiffness.
 #[derive(Debug, Default)]
 pub struct Assist {
     /// Auto-align running on its thread ([`alignment`]); its result becomes the document's starting transform.
     pub(super) aligning: Option<alignment::AlignJob>,
+    /// Refine by intensities running on its thread ([`intensity`]); its result becomes the document's field.
+    pub(super) refining: Option<intensity::IntensityJob>,
+    /// The last refinement and the pairs it was made on: the Assist section offers to run it again once they moved.
+    pub refined: Option<intensity::RefinedOn>,
+    /// Where refinements write their fields: beside the autosave.
+    pub refined_dir: std::path::PathBuf,
     /// The images the suggested targets' search reads ([`suggestion`]), made when first needed.
     pub(super) matching: suggestion::Matching,
     /// The last automatic stiffness ([`super::Command::AutoStiffness`]) with the pairs it was chosen on: shown by the slider

@@ -1,0 +1,178 @@
+//! Refine by intensities in the window (issue 31, item 3) through egui_kittest, on the registration's test case (the
+//! MRI fixture through two known bumps against its inverted contrast, 6 pairs of the truth): the button runs on a
+//! worker with a progress bar and Cancel; its result is the document's field under the landmarks, shown live (closer
+//! to the truth than the TPS through the pairs, the pairs kept), one undo step, in the autosave where the command line
+//! reads it; a pair moved afterwards offers to run it again; Cancel leaves the warp as it was.
+
+mod common;
+#[path = "common/register_case.rs"]
+mod register_case;
+#[path = "common/window.rs"]
+mod window;
+
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+use register_case::{case, head_points, truth};
+use window::{no_adapter, open_section, wait_until_rendered, wait_until_shown};
+
+use eframe::egui;
+use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
+use warpbench_app::gui::{Command, End, GuiOptions, Ready, Workbench};
+use warpbench_app::inputs::LandmarkSource;
+use warpbench_io::geometry::Point3;
+use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::tps::Tps;
+use warpbench_solver::warp::Warp;
+
+fn open(dir: &Path) -> (Harness<'static, Workbench>, Vec<[f64; 3]>) {
+    let (fixed, moving, pairs, qs) = case(dir);
+    let opts = GuiOptions {
+        fixed: Some(fixed),
+        moving: Some(moving),
+        landmarks: Some(LandmarkSource::Pairs(pairs)),
+        autosave: Some(dir.join("autosave.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    open_section(&mut harness, "Assist");
+    (harness, qs)
+}
+
+/// Steps until no refinement runs (or five minutes pass: a guard against a hang, not a timing).
+fn wait_for_refinement(harness: &mut Harness<'_, Workbench>) {
+    let start = Instant::now();
+    while harness.state().ready().is_some_and(|r| r.refining().is_some()) {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(5), "the refinement did not finish within five minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    harness.run_steps(3);
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
+#[test]
+fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_offers_a_rerun() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut harness, qs) = open(dir.path());
+    let before = harness.state().ready().expect("ready").document.clone();
+    assert!(before.field.is_none());
+    harness.get_by_label("Refine by intensities").click();
+    harness.run_steps(2);
+    // Running: a progress bar and Cancel in its place.
+    assert!(harness.state().ready().expect("ready").refining().is_some(), "a worker runs it");
+    harness.get_by_label("Cancel");
+    wait_for_refinement(&mut harness);
+    wait_until_rendered(&mut harness);
+
+    let ready = harness.state().ready().expect("ready");
+    let field = ready.document.field.clone().expect("the refinement is the document's field");
+    assert!(field.starts_with(dir.path()) && field.exists(), "{} beside the autosave", field.display());
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    // The section and the status bar say what it did.
+    assert!(harness.query_all_by_label_contains("Refined by intensities from tps").next().is_some());
+
+    // Shown live: the warp the views show is closer to the truth than the TPS through the pairs, and keeps them.
+    let volume = warpbench_io::open(common::mri()).expect("fixture");
+    let points = head_points(&volume);
+    let q: Vec<Point3<Fixed>> = qs.iter().map(|&q| Point3::from_array(q)).collect();
+    let p: Vec<Point3<Moving>> = qs.iter().map(|&q| Point3::from_array(truth(q))).collect();
+    let tps = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).expect("tps");
+    let mean = |f: &dyn Fn([f64; 3]) -> [f64; 3]| {
+        points.iter().map(|&x| distance(f(x), truth(x))).sum::<f64>() / points.len() as f64
+    };
+    let shown = mean(&|x| ready.moving_shown_at(x));
+    let through_pairs = mean(&|x| tps.apply_raw(x));
+    eprintln!("mean TRE: shown {shown:.3} mm, TPS {through_pairs:.3} mm");
+    assert!(shown < 0.7 * through_pairs, "shown {shown:.3} mm, TPS {through_pairs:.3} mm");
+    for &q in &qs {
+        assert!(distance(ready.moving_shown_at(q), truth(q)) < 0.5, "pair at {q:?}");
+    }
+
+    // In the autosave, where the command line reads it: `points --session` maps as the window shows.
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
+    assert_eq!(saved.document.field.as_deref(), Some(field.as_path()));
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, "10,-20,15,a\n").expect("write a point");
+    let mapped = dir.path().join("mapped.csv");
+    let (f, m) = (dir.path().join("fixed.nii"), dir.path().join("moving.nii"));
+    let out = common::warpbench(&[
+        "points",
+        "--fixed",
+        common::utf8(&f),
+        "--moving",
+        common::utf8(&m),
+        "--session",
+        common::utf8(&autosave),
+        "--from",
+        "fixed",
+        "--in",
+        common::utf8(&targets),
+        "--out",
+        common::utf8(&mapped),
+    ]);
+    common::assert_ok(&out);
+    let text = std::fs::read_to_string(&mapped).expect("mapped");
+    let got: Vec<f64> = text
+        .lines()
+        .find(|l| !l.starts_with('#'))
+        .expect("a line")
+        .split(',')
+        .take(3)
+        .map(|v| v.trim().parse().expect("number"))
+        .collect();
+    let want = ready.moving_shown_at([10.0, -20.0, 15.0]);
+    assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs {want:?}");
+
+    // A pair moved afterwards: the section offers to run the refinement again.
+    let q0 = qs[0];
+    harness.state_mut().ready_mut().expect("ready").apply(Command::MovePoint {
+        pair: 0,
+        end: End::Fixed,
+        to: Point3::new(q0[0] + 2.0, q0[1], q0[2]),
+        settled: true,
+    });
+    harness.run_steps(3);
+    harness.get_by_label("Re-run refinement");
+    harness.get_by_label_contains("The pairs moved since the last refinement");
+
+    // One undo step each: the move, then the refinement.
+    for _ in 0..2 {
+        harness.get_by_label("Undo").click();
+        harness.run_steps(3);
+    }
+    assert_eq!(harness.state().ready().expect("ready").document, before, "undo gives the document back");
+    harness.get_by_label("Redo").click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().ready().expect("ready").document.field.as_deref(), Some(field.as_path()));
+}
+
+#[test]
+fn cancel_leaves_the_warp_as_it_was() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut harness, _) = open(dir.path());
+    let before = harness.state().ready().expect("ready").document.clone();
+    harness.get_by_label("Refine by intensities").click();
+    harness.run_steps(2);
+    harness.get_by_label("Cancel").click();
+    wait_for_refinement(&mut harness);
+    let ready: &Ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.document, before, "nothing changed");
+    assert!(harness.query_all_by_label_contains("cancelled; the warp is as it was").next().is_some());
+    let refined = dir.path().join("refined");
+    let written = std::fs::read_dir(&refined).map_or(0, Iterator::count);
+    assert_eq!(written, 0, "no field written");
+}
