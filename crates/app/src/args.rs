@@ -73,8 +73,8 @@ pub struct MethodArgs {
     /// The warp.
     #[arg(long, value_enum, default_value_t)]
     pub method: MethodKind,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks), or auto: the λ that minimises the pairs' leave-one-out
-    /// error.
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks), or auto: the λ under which the pairs are most likely
+    /// (generalised maximum likelihood).
     #[arg(long, default_value_t)]
     pub stiffness: Stiffness,
     /// Hierarchical B-spline levels.

@@ -177,9 +177,9 @@ impl Landmarks {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum MethodChoice {
     Given(Method),
-    /// `--stiffness auto` with the `--method` given: the TPS whose λ minimises the leave-one-out error of the
-    /// pull-back's pairs (fixed → moving; the active pairs with both points), chosen when they are read
-    /// ([`MethodChoice::method`]). Another method is refused there, where a method is needed (`suggest` without
+    /// `--stiffness auto` with the `--method` given: the TPS whose λ the pull-back's pairs make most likely
+    /// (generalised maximum likelihood, [`warpbench_solver::stiffness`]; fixed → moving, the active pairs with both
+    /// points), chosen when they are read ([`MethodChoice::method`]). Another method is refused there, where a method is needed (`suggest` without
     /// landmarks needs none).
     Auto(MethodKind),
 }

@@ -130,8 +130,8 @@ pub struct RegisterPairArgs {
     /// The landmark warp the registration starts from.
     #[arg(long, value_enum, default_value_t)]
     pub method: MethodKind,
-    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks), or auto: the λ that minimises the pairs' leave-one-out
-    /// error.
+    /// TPS stiffness λ ≥ 0 (0 interpolates the landmarks), or auto: the λ under which the pairs are most likely
+    /// (generalised maximum likelihood).
     #[arg(long, default_value_t)]
     pub stiffness: Stiffness,
     /// A starting transform under the landmark warp: an ITK affine .tfm mapping fixed points to moving points (LPS

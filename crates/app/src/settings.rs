@@ -154,7 +154,7 @@ choice! {
     }
 }
 
-/// `--stiffness`: the TPS's λ (≥ 0; 0 interpolates), or `auto`, the λ that minimises the pairs' leave-one-out error
+/// `--stiffness`: the TPS's λ (≥ 0; 0 interpolates), or `auto`, the λ under which the pairs are most likely
 /// ([`warpbench_solver::stiffness`]), chosen once the pairs are read.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Stiffness {

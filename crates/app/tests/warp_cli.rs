@@ -609,11 +609,11 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("brush strokes have no exact ITK transform"));
 }
 
-/// `--stiffness auto`: the λ that minimises the pairs' leave-one-out error, the same as the solver's
+/// `--stiffness auto`: the λ the pairs make most likely, the same as the solver's
 /// `choose_stiffness` on the file's pairs (fixed → moving, the pull-back), named in the report's method; refused with
 /// another method or a stiffness that is not a number ≥ 0.
 #[test]
-fn stiffness_auto_chooses_by_leave_one_out() {
+fn stiffness_auto_is_the_solvers_choice() {
     use warpbench_io::geometry::Point3;
     use warpbench_solver::spaces::{Fixed, Moving};
 

@@ -133,3 +133,47 @@ fn a_choice_leave_one_out_cannot_make_stays_at_zero() {
     let choice = choose_stiffness(&q, &p).expect("a choice");
     assert!(choice.lambda == 0.0 && choice.loo_rms_mm == choice.loo_rms_interpolating_mm, "{choice:?}");
 }
+
+/// Cases the choice was not designed on (issue 31, item 4): six warp families, three seeds each, N = 50 and 2 mm of
+/// noise on both sides. The TRE at the chosen λ against the best of the fine grid: measured 2026-12-05, mean 1.034,
+/// median 1.014, worst 1.253 (a single local bump, seed 13, where little of the warp reaches the pairs); the
+/// leave-one-out choice used before gave mean 1.042, median 1.022, worst 1.350 on the same cases.
+#[test]
+fn on_cases_it_was_not_made_on_the_chosen_stiffness_stays_near_the_best() {
+    let domain = head_box();
+    let fine: Vec<f64> = std::iter::once(0.0).chain((-16..=40).map(|k| 10f64.powf(f64::from(k) / 8.0))).collect();
+    let mut ratios = Vec::new();
+    let kinds = [
+        SyntheticKind::Bump,
+        SyntheticKind::BSplineRandom,
+        SyntheticKind::Twist,
+        SyntheticKind::Bend,
+        SyntheticKind::TpsRandom,
+        SyntheticKind::Sine,
+    ];
+    for kind in kinds {
+        for seed in [11u64, 12, 13] {
+            let warp = SyntheticWarp::new(kind, domain, AMPLITUDE_MM, seed).expect("warp");
+            let held_out = held_out_pairs(&warp, domain, HELD_OUT, seed);
+            let (p, q) = sample_pairs(&warp, domain, 50, seed);
+            let mut rng = ChaCha8Rng::seed_from_u64(seed * 77);
+            let (p, q) = (jitter(&p, 2.0, &mut rng), jitter(&q, 2.0, &mut rng));
+            let choice = choose_stiffness(&p, &q).expect("a choice");
+            let chosen = tre_rms(&p, &q, choice.lambda, &held_out);
+            let best = fine.iter().map(|&l| tre_rms(&p, &q, l, &held_out)).fold(f64::INFINITY, f64::min);
+            eprintln!(
+                "{} seed {seed}: auto {chosen:.3} (λ {:.1}), best {best:.3}: {:.3}",
+                kind.name(),
+                choice.lambda,
+                chosen / best
+            );
+            ratios.push(chosen / best);
+        }
+    }
+    ratios.sort_by(f64::total_cmp);
+    let mean = ratios.iter().sum::<f64>() / ratios.len() as f64;
+    let (median, worst) = (ratios[ratios.len() / 2], ratios[ratios.len() - 1]);
+    eprintln!("mean {mean:.3}, median {median:.3}, worst {worst:.3}");
+    assert!(mean <= 1.05 && median <= 1.03, "mean {mean:.3}, median {median:.3}");
+    assert!(worst <= 1.3, "worst {worst:.3}");
+}

@@ -97,7 +97,7 @@ pub enum Command {
     },
     /// Remove every brush stroke.
     ClearBrush,
-    /// Set the TPS stiffness to the λ that minimises the leave-one-out error of the pairs in the fit
+    /// Set the TPS stiffness to the λ under which the pairs in the fit are most likely (generalised maximum likelihood)
     /// ([`warpbench_solver::stiffness`]).
     AutoStiffness,
     /// Align the moving volume to the fixed one by mutual information on a thread of its own; the result arrives as

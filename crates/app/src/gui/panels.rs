@@ -94,7 +94,9 @@ pub fn method_ui(
                     .smallest_positive(0.01)
                     .text("Stiffness");
                 ui.add(slider).on_hover_text("lambda, mm: 0 interpolates the pairs, more smooths the warp");
-                let button = ui.button("Auto").on_hover_text("choose lambda by the pairs' leave-one-out error");
+                let button = ui
+                    .button("Auto")
+                    .on_hover_text("choose lambda by the pairs: the smoothing under which they are most likely");
                 auto = button.clicked();
             });
             if let Some(c) = stiffness_choice {
