@@ -9,6 +9,8 @@
 //!   starting transform alone, blended with the CT.
 //! - `suggested-target.png`: **Add pair**, the moving point placed where the aligned MRI shows the scalp at the side of
 //!   the head level with the CT's centre, and the suggested target drawn as a ghost, waiting for Enter.
+//! - `refine-by-intensities.png`: that pair given up (Esc), then **Refine by intensities** from the alignment: the MRI
+//!   registered to the CT deformably by mutual information, the *Assist* section saying what it did.
 
 #[path = "shots/mod.rs"]
 mod shots;
@@ -19,6 +21,7 @@ use std::time::Duration;
 use anyhow::{Context, Result, bail};
 use eframe::egui;
 use egui_kittest::Harness;
+use egui_kittest::kittest::Queryable;
 use shots::{save, settle};
 use warpbench_app::gui::{Command, GuiOptions, Workbench};
 use warpbench_solver::align::AlignKind;
@@ -69,5 +72,16 @@ fn main() -> Result<()> {
     ready.invalidate();
     settle(&mut harness, Duration::from_mins(10))?;
     save(&mut harness, &out, "suggested-target.png")?;
+
+    // Refine by intensities from the alignment (no pairs), with the Assist section open to show what it did.
+    let ready = harness.state_mut().ready_mut().context("the pair")?;
+    ready.apply(Command::Cancel);
+    ready.apply(Command::RefineByIntensities);
+    harness.get_by_label("Assist").click_accesskit();
+    settle(&mut harness, Duration::from_mins(10))?;
+    let ready = harness.state().ready().context("the pair")?;
+    let refined = ready.assist.refined.as_ref().context("the refinement gave no field (the status bar says why)")?;
+    eprintln!("{}", refined.refined.summary);
+    save(&mut harness, &out, "refine-by-intensities.png")?;
     Ok(())
 }

@@ -8,7 +8,8 @@ use anyhow::{Context, Result, bail};
 use egui_kittest::Harness;
 use warpbench_app::gui::Workbench;
 
-/// Steps until the views are drawn fully, the fit's diagnostics are in and no Auto-align runs (or `limit` passes).
+/// Steps until the views are drawn fully, the fit's diagnostics are in and no Auto-align or refinement by intensities
+/// runs (or `limit` passes).
 pub fn settle(harness: &mut Harness<'_, Workbench>, limit: Duration) -> Result<()> {
     let start = Instant::now();
     loop {
@@ -16,7 +17,10 @@ pub fn settle(harness: &mut Harness<'_, Workbench>, limit: Duration) -> Result<(
         if let Some(e) = harness.state().failure() {
             bail!("loading failed: {e}");
         }
-        if harness.state().ready().is_some_and(|r| !r.needs_render() && !r.diagnostics_pending() && !r.aligning()) {
+        let idle = |r: &warpbench_app::gui::Ready| {
+            !r.needs_render() && !r.diagnostics_pending() && !r.aligning() && r.refining().is_none()
+        };
+        if harness.state().ready().is_some_and(idle) {
             harness.run_steps(2);
             return Ok(());
         }

@@ -100,7 +100,8 @@ pub struct RegisterParams {
     pub bending_weight: f64,
     /// Histogram bins per image, padding included.
     pub bins: usize,
-    /// Fixed sample points per level (fewer when the level has fewer voxels).
+    /// Fixed sample points per level, at least; a level draws [`SAMPLES_PER_COEFFICIENT`] per lattice coefficient when
+    /// that is more, and fewer when it has fewer voxels.
     pub samples: usize,
     /// L-BFGS iterations per level, at most.
     pub max_iterations: usize,
@@ -113,7 +114,7 @@ impl Default for RegisterParams {
     fn default() -> Self {
         Self {
             similarity: Similarity::Mi,
-            grid_mm: 10.0,
+            grid_mm: 16.0,
             levels: 3,
             landmark_weight: 1.0,
             bending_weight: 100.0,
@@ -278,8 +279,8 @@ pub fn register(
                 "the moving image has a single value where it overlaps the fixed image: nothing to match".into(),
             ));
         }
-        let (samples, _) =
-            draw_samples(&fixed_level, params.samples, params.bins, params.seed.wrapping_add(level as u64))?;
+        let wanted = params.samples.max(SAMPLES_PER_COEFFICIENT * lattice.coefficients().len());
+        let (samples, _) = draw_samples(&fixed_level, wanted, params.bins, params.seed.wrapping_add(level as u64))?;
         let footprints = samples.iter().map(|s| Footprint::of(&lattice, [s.x[0], s.x[1], s.x[2]])).collect();
         let metric = Metric {
             warped: &warped,
@@ -406,6 +407,10 @@ fn pulled_back(
     }
     Image::new(grid.dims(), values, *grid.space_from_index())
 }
+
+/// Each level draws at least this many samples per lattice coefficient (fewer when the level has fewer voxels): with
+/// fewer, the deformation has the freedom to fit the images' noise.
+pub const SAMPLES_PER_COEFFICIENT: usize = 10;
 
 /// One landmark pair as the objective reads it.
 #[derive(Clone, Copy, Debug)]
