@@ -76,7 +76,10 @@ fn main() -> Result<()> {
     // Refine by intensities from the alignment (no pairs), with the Assist section open to show what it did.
     let ready = harness.state_mut().ready_mut().context("the pair")?;
     ready.apply(Command::Cancel);
+    ready.apply(Command::UseSelect);
     ready.apply(Command::RefineByIntensities);
+    // Warp closed and Assist open, so the section's summary fits the panel.
+    harness.get_by_label("Warp").click_accesskit();
     harness.get_by_label("Assist").click_accesskit();
     settle(&mut harness, Duration::from_mins(10))?;
     let ready = harness.state().ready().context("the pair")?;

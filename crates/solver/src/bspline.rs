@@ -289,6 +289,15 @@ impl ControlLattice {
         (located.map(|l| l.0), located.map(|l| basis(l.1)))
     }
 
+    /// [`Self::footprint`] with the derivative weights dB_a/dx along each axis (mm⁻¹) beside the basis weights.
+    #[inline]
+    pub(crate) fn footprint_with_derivatives(&self, x: [f64; 3]) -> ([usize; 3], [[f64; 4]; 3], [[f64; 4]; 3]) {
+        let h = self.spacing_mm();
+        let located: [(usize, f64, bool); 3] = std::array::from_fn(|a| self.locate(x[a], a));
+        let derivatives = std::array::from_fn(|a| basis_derivative(located[a].1).map(|v| v / h[a]));
+        (located.map(|l| l.0), located.map(|l| basis(l.1)), derivatives)
+    }
+
     /// Evaluates the displacement D(x) (mm) into `out`; no allocation.
     #[inline]
     pub fn eval_into(&self, x: [f64; 3], out: &mut [f64; 3]) {

@@ -245,3 +245,25 @@ fn a_cancel_stops_the_work_and_bad_inputs_are_refused() {
         assert!(matches!(register(&base, &moving, &*IDENTITY, &[], &bad, go), Err(SolverError::InvalidParameter(_))));
     }
 }
+
+/// Pairs that ask for a fold (two points 20 mm apart each pulled 15 mm past the other) under a heavy weight: the
+/// deformation goes as far as it can without folding, and det ∇u stays positive over the whole box.
+#[test]
+fn pairs_that_ask_for_a_fold_do_not_get_one() {
+    let base = colin();
+    let moving = second_modality(&base);
+    let c = head_points(&base, 1, 40.0, 21)[0];
+    let pairs = [
+        RegisterPair { fixed: Point3::new(c[0] - 10.0, c[1], c[2]), moving: Point3::new(c[0] + 5.0, c[1], c[2]) },
+        RegisterPair { fixed: Point3::new(c[0] + 10.0, c[1], c[2]), moving: Point3::new(c[0] - 5.0, c[1], c[2]) },
+    ];
+    let params = RegisterParams { landmark_weight: 100.0, bending_weight: 0.0, ..params() };
+    let result = run(&base, &moving, &pairs, &params);
+    let fold = folding(&result, &*IDENTITY, &base, [64; 3], Parallelism::Rayon);
+    eprintln!(
+        "min det ∇u {:.3} at {:?}; pairs RMS {:.2} mm",
+        fold.min_det, fold.min_at, result.levels[1].landmark_rms_mm
+    );
+    assert!(fold.min_det > 0.0, "min det ∇u {} at {:?}", fold.min_det, fold.min_at);
+    assert!(result.levels[1].landmark_rms_mm > 1.0, "the pairs cannot be met without a fold");
+}

@@ -194,14 +194,16 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
     progress(1.0);
     let last = refinement.registration.levels.last();
     let worst = refinement.residuals().iter().map(|r| r.residual_mm).fold(0.0, f64::max);
+    let pairs = match refinement.kept.moving.len() {
+        0 => "no pairs".to_owned(),
+        n => format!("{n} pairs within {worst:.2} mm"),
+    };
     let summary = format!(
-        "Refined by intensities from {}: mutual information {:.3} to {:.3}, {} pairs within {:.2} mm, smallest \
-         Jacobian determinant {:.2}, {:.1} s",
+        "Refined by intensities from {}: mutual information {:.3} to {:.3}, {pairs}, smallest Jacobian determinant \
+         {:.2}, {:.1} s",
         refinement.start_name,
         refinement.registration.levels.first().map_or(0.0, |l| l.mutual_information_start),
         last.map_or(0.0, |l| l.mutual_information),
-        refinement.kept.moving.len(),
-        worst,
         refinement.jacobian.min_det,
         refinement.register_s
     );

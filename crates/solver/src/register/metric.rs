@@ -65,6 +65,45 @@ impl Footprint {
     }
 }
 
+/// A point where the deformation's Jacobian determinant is checked: its block of control points and the basis
+/// weights and their derivatives there.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct JacobianPoint {
+    start: [usize; 3],
+    weights: [[f64; 4]; 3],
+    derivatives: [[f64; 4]; 3],
+}
+
+impl JacobianPoint {
+    pub(super) fn of(lattice: &ControlLattice, x: [f64; 3]) -> Self {
+        let (start, weights, derivatives) = lattice.footprint_with_derivatives(x);
+        Self { start, weights, derivatives }
+    }
+
+    /// det(I + ∇D) at the point.
+    pub(super) fn determinant(&self, phi: &[f64], dims: [usize; 3]) -> f64 {
+        let ([bx, by, bz], [dx, dy, dz]) = (&self.weights, &self.derivatives);
+        let mut j = [[0.0; 3]; 3];
+        for c in 0..4 {
+            for b in 0..4 {
+                let row = (((self.start[2] + c) * dims[1] + self.start[1] + b) * dims[0] + self.start[0]) * 3;
+                for a in 0..4 {
+                    let g = [dx[a] * by[b] * bz[c], bx[a] * dy[b] * bz[c], bx[a] * by[b] * dz[c]];
+                    let coef = &phi[row + 3 * a..row + 3 * a + 3];
+                    for (r, &v) in coef.iter().enumerate() {
+                        for (col, &w) in g.iter().enumerate() {
+                            j[r][col] += w * v;
+                        }
+                    }
+                }
+            }
+        }
+        let m = |r: usize, c: usize| j[r][c] + if r == c { 1.0 } else { 0.0 };
+        m(0, 0) * (m(1, 1) * m(2, 2) - m(1, 2) * m(2, 1)) - m(0, 1) * (m(1, 0) * m(2, 2) - m(1, 2) * m(2, 0))
+            + m(0, 2) * (m(1, 0) * m(2, 1) - m(1, 1) * m(2, 0))
+    }
+}
+
 /// Per sample, what the gradient pass needs from the histogram pass.
 #[derive(Clone, Copy, Debug, Default)]
 struct Hit {

@@ -33,12 +33,21 @@
 //!
 //! ## Optimiser and levels
 //!
-//! Each level runs L-BFGS (Nocedal & Wright 2006, Algorithm 7.5) with a Moré–Thuente line search (`argmin`), on
-//! parameters scaled so that the first step moves a control point by at most one voxel of the level. Levels go
+//! Each level runs L-BFGS (Nocedal & Wright 2006, Algorithm 7.5) with a backtracking line search (`lbfgs`: it skips
+//! the curvature pairs MI's kinks spoil), whose first step moves the largest coefficient by one voxel of the level and
+//! no step by more than two. Each level draws at least [`SAMPLES_PER_COEFFICIENT`] samples per lattice coefficient, so
+//! that the deformation cannot fit the images' noise. Levels go
 //! coarse to fine: level ℓ of L shrinks both images by 2^(L−1−ℓ) ([`Image::shrink`]) and has a lattice of 2^ℓ times
 //! the coarsest cells per axis, the coarsest chosen so that the finest spacing is at most
 //! [`RegisterParams::grid_mm`]. A level starts from the previous one's lattice refined exactly
 //! ([`ControlLattice::refine`]).
+//!
+//! ## No folding
+//!
+//! Where the bending energy alone would let the deformation fold (two volumes of different heads, say), the objective
+//! is not defined: a φ whose det(I + ∇D) falls below [`MIN_DETERMINANT`] at any of 2 × 2 × 2 points per lattice cell
+//! counts as a step too far, and the line search backs off. So T stays invertible, and u = u₀ ∘ T folds only where
+//! u₀ does.
 //!
 //! ## Reproducibility
 //!
@@ -67,7 +76,7 @@ use crate::spaces::{Aabb, Fixed, Moving};
 use crate::warp::{Composed, Parallelism, Warp};
 use crate::{Result, SolverError};
 use bending::Bending;
-use metric::{Footprint, Metric};
+use metric::{Footprint, JacobianPoint, Metric};
 
 /// The similarity measure.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -250,7 +259,9 @@ pub fn register(
         return Err(SolverError::NonFinite { pair: n + 1 });
     }
     let domain = image_box(fixed);
-    let mut lattice = ControlLattice::zeros(coarsest_cells(&domain, params), domain.min.coords(), domain.max.coords())?;
+    let coarsest = coarsest_cells(&domain, params);
+    let finest = coarsest.map(|c| c << (params.levels - 1));
+    let mut lattice = ControlLattice::zeros(coarsest, domain.min.coords(), domain.max.coords())?;
     let mut levels = Vec::with_capacity(params.levels);
     for level in 0..params.levels {
         if level > 0 {
@@ -300,6 +311,7 @@ pub fn register(
             .collect();
         let objective = Objective {
             metric,
+            checks: jacobian_points(&lattice, finest),
             bending: Bending::new(&lattice),
             pins,
             start,
@@ -428,12 +440,35 @@ enum Stop {
     NoOverlap,
 }
 
+/// A deformation whose det(I + ∇D) falls below this at a check point is refused (module docs).
+pub const MIN_DETERMINANT: f64 = 0.1;
+
+/// The points where det(I + ∇D) of `lattice` is checked: 2 × 2 × 2 per cell of the finest level's lattice (`finest`
+/// cells per axis), at its quarter points; the same points at every level.
+fn jacobian_points(lattice: &ControlLattice, finest: [usize; 3]) -> Vec<JacobianPoint> {
+    let (lo, hi) = (lattice.min_mm(), lattice.max_mm());
+    let cells = finest;
+    let h: [f64; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / cells[a] as f64);
+    let mut out = Vec::with_capacity(8 * cells.iter().product::<usize>());
+    for k in 0..2 * cells[2] {
+        for j in 0..2 * cells[1] {
+            for i in 0..2 * cells[0] {
+                let x = [i, j, k].map(|n| (n as f64 + 0.5) / 2.0);
+                out.push(JacobianPoint::of(lattice, std::array::from_fn(|a| lo[a] + x[a] * h[a])));
+            }
+        }
+    }
+    out
+}
+
 /// What hears [`register`]'s progress.
 type ProgressFn<'p> = dyn FnMut(&RegisterProgress) -> ControlFlow<()> + 'p;
 
 /// E(φ) at one level (module docs).
 struct Objective<'a, 'p> {
     metric: Metric<'a>,
+    /// Where det(I + ∇D) must stay above [`MIN_DETERMINANT`].
+    checks: Vec<JacobianPoint>,
     bending: Bending,
     pins: Vec<Pin>,
     start: &'a dyn Warp<Moving, Fixed>,
@@ -455,8 +490,22 @@ struct Parts {
 }
 
 impl Objective<'_, '_> {
-    /// E(φ) and ∂E/∂φ, or `None` when too few samples stay inside.
-    fn evaluate(&self, phi: &[f64]) -> Option<(f64, Vec<f64>, Parts)> {
+    /// The smallest det(I + ∇D) over the check points (the order the minimum is taken in does not change it).
+    fn min_determinant(&self, phi: &[f64]) -> f64 {
+        let dims = self.dims;
+        let det = |p: &JacobianPoint| p.determinant(phi, dims);
+        match self.metric.parallelism {
+            Parallelism::Sequential => self.checks.iter().map(det).fold(f64::INFINITY, f64::min),
+            Parallelism::Rayon => self.checks.par_iter().with_min_len(256).map(det).reduce(|| f64::INFINITY, f64::min),
+        }
+    }
+
+    /// E(φ) and ∂E/∂φ, or `None` where E is not defined: too few samples inside, or (`check`) a deformation that
+    /// (nearly) folds.
+    fn evaluate(&self, phi: &[f64], check: bool) -> Option<(f64, Vec<f64>, Parts)> {
+        if check && !(self.min_determinant(phi) >= MIN_DETERMINANT) {
+            return None;
+        }
         let mi = self.metric.evaluate(phi, self.dims)?;
         let mut gradient = mi.gradient;
         for g in &mut gradient {
@@ -487,7 +536,8 @@ impl Objective<'_, '_> {
     /// level's voxel: the first step moves the largest coefficient by one voxel, and no step by more than 2.
     fn optimise(&self, lattice: &mut ControlLattice, voxel_mm: f64) -> std::result::Result<LevelReport, Stop> {
         let phi0 = lattice.coefficients().to_vec();
-        let Some((cost0, gradient0, parts0)) = self.evaluate(&phi0) else { return Err(Stop::NoOverlap) };
+        // Where the last level left φ is accepted as it is: the check is for steps.
+        let Some((cost0, gradient0, parts0)) = self.evaluate(&phi0, false) else { return Err(Stop::NoOverlap) };
         let settings = lbfgs::Settings {
             max_iterations: self.params.max_iterations,
             first_step: voxel_mm,
@@ -498,7 +548,7 @@ impl Objective<'_, '_> {
         let minimum = lbfgs::minimise(phi0, (cost0, gradient0), &settings, &mut |phi| {
             let n = self.evaluations.get() + 1;
             self.evaluations.set(n);
-            let Some((cost, gradient, at)) = self.evaluate(phi) else { return lbfgs::Value::Undefined };
+            let Some((cost, gradient, at)) = self.evaluate(phi, true) else { return lbfgs::Value::Undefined };
             let report = RegisterProgress {
                 level: self.level,
                 levels: self.params.levels,
@@ -516,7 +566,7 @@ impl Objective<'_, '_> {
             return Err(Stop::Cancelled);
         }
         // The last evaluation may be a rejected trial step: the parts of the point kept are evaluated again.
-        let parts = self.evaluate(&minimum.x).map_or(parts, |(_, _, p)| p);
+        let parts = self.evaluate(&minimum.x, false).map_or(parts, |(_, _, p)| p);
         lattice.coefficients_mut().copy_from_slice(&minimum.x);
         let pins = self.pins.len().max(1) as f64;
         Ok(LevelReport {
@@ -603,6 +653,7 @@ mod tests {
         let mut progress = |_: &RegisterProgress| ControlFlow::Continue(());
         let objective = Objective {
             metric,
+            checks: jacobian_points(&lattice, lattice.cells()),
             bending: Bending::new(&lattice),
             pins,
             start: &start,
@@ -613,14 +664,14 @@ mod tests {
             progress: RefCell::new(&mut progress),
         };
         let phi = lattice.coefficients().to_vec();
-        let (_, gradient, _) = objective.evaluate(&phi).expect("test input");
+        let (_, gradient, _) = objective.evaluate(&phi, true).expect("test input");
         for index in (0..phi.len()).step_by(23) {
             let h = 1e-5;
             let mut p = phi.clone();
             p[index] += h;
-            let up = objective.evaluate(&p).expect("test input").0;
+            let up = objective.evaluate(&p, true).expect("test input").0;
             p[index] -= 2.0 * h;
-            let down = objective.evaluate(&p).expect("test input").0;
+            let down = objective.evaluate(&p, true).expect("test input").0;
             let numeric = (up - down) / (2.0 * h);
             assert!(
                 (numeric - gradient[index]).abs() < 5e-3 * gradient[index].abs() + 1e-10,
