@@ -453,7 +453,7 @@ fn jacobian_points(lattice: &ControlLattice, finest: [usize; 3]) -> Vec<Jacobian
     for k in 0..2 * cells[2] {
         for j in 0..2 * cells[1] {
             for i in 0..2 * cells[0] {
-                let x = [i, j, k].map(|n| (n as f64 + 0.5) / 2.0);
+                let x = [i, j, k].map(|n| 0.5 * n as f64 + 0.25);
                 out.push(JacobianPoint::of(lattice, std::array::from_fn(|a| lo[a] + x[a] * h[a])));
             }
         }
@@ -503,8 +503,11 @@ impl Objective<'_, '_> {
     /// E(φ) and ∂E/∂φ, or `None` where E is not defined: too few samples inside, or (`check`) a deformation that
     /// (nearly) folds.
     fn evaluate(&self, phi: &[f64], check: bool) -> Option<(f64, Vec<f64>, Parts)> {
-        if check && !(self.min_determinant(phi) >= MIN_DETERMINANT) {
-            return None;
+        if check {
+            let det = self.min_determinant(phi);
+            if det.is_nan() || det < MIN_DETERMINANT {
+                return None;
+            }
         }
         let mi = self.metric.evaluate(phi, self.dims)?;
         let mut gradient = mi.gradient;
