@@ -668,34 +668,7 @@ fn auto_align_puts_the_alignment_under_the_landmark_warp() {
     // The autosave holds it, and the command line reads it from the session.
     let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
     assert_eq!(saved.document.start.as_ref(), Some(&found));
-    let targets = dir.path().join("targets.csv");
-    std::fs::write(&targets, "10,-20,15,a\n").expect("write a point");
-    let mapped = dir.path().join("mapped.csv");
-    let out = common::warpbench(&[
-        "points",
-        "--fixed",
-        common::utf8(&mri()),
-        "--moving",
-        common::utf8(&moved),
-        "--session",
-        common::utf8(&autosave),
-        "--from",
-        "fixed",
-        "--in",
-        common::utf8(&targets),
-        "--out",
-        common::utf8(&mapped),
-    ]);
-    common::assert_ok(&out);
-    let line = std::fs::read_to_string(&mapped).expect("mapped");
-    let got: Vec<f64> = line
-        .lines()
-        .find(|l| !l.starts_with('#'))
-        .expect("a line")
-        .split(',')
-        .take(3)
-        .map(|v| v.trim().parse().expect("number"))
-        .collect();
+    let got = common::map_through_session(dir.path(), [&mri(), &moved, &autosave], [10.0, -20.0, 15.0]);
     let want = ready.moving_shown_at([10.0, -20.0, 15.0]);
     assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs {want:?}");
 

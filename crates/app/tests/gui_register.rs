@@ -102,35 +102,8 @@ fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_
     let autosave = dir.path().join("autosave.warpbench.json");
     let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
     assert_eq!(saved.document.field.as_deref(), Some(field.as_path()));
-    let targets = dir.path().join("targets.csv");
-    std::fs::write(&targets, "10,-20,15,a\n").expect("write a point");
-    let mapped = dir.path().join("mapped.csv");
     let (f, m) = (dir.path().join("fixed.nii"), dir.path().join("moving.nii"));
-    let out = common::warpbench(&[
-        "points",
-        "--fixed",
-        common::utf8(&f),
-        "--moving",
-        common::utf8(&m),
-        "--session",
-        common::utf8(&autosave),
-        "--from",
-        "fixed",
-        "--in",
-        common::utf8(&targets),
-        "--out",
-        common::utf8(&mapped),
-    ]);
-    common::assert_ok(&out);
-    let text = std::fs::read_to_string(&mapped).expect("mapped");
-    let got: Vec<f64> = text
-        .lines()
-        .find(|l| !l.starts_with('#'))
-        .expect("a line")
-        .split(',')
-        .take(3)
-        .map(|v| v.trim().parse().expect("number"))
-        .collect();
+    let got = common::map_through_session(dir.path(), [&f, &m, &autosave], [10.0, -20.0, 15.0]);
     let want = ready.moving_shown_at([10.0, -20.0, 15.0]);
     assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs {want:?}");
 

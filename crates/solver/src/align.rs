@@ -263,29 +263,7 @@ impl Metric<'_> {
             return None;
         }
         let norm = 1.0 / inside as f64;
-        for p in &mut joint {
-            *p *= norm;
-        }
-        let mut p_fixed = vec![0.0; b];
-        let mut p_moving = vec![0.0; b];
-        for i in 0..b {
-            for k in 0..b {
-                p_fixed[i] += joint[i * b + k];
-                p_moving[k] += joint[i * b + k];
-            }
-        }
-        let mut mi = 0.0;
-        // log(p / p_m), where p > 0: the weights of pass 2.
-        let mut log_ratio = vec![0.0; b * b];
-        for i in 0..b {
-            for k in 0..b {
-                let p = joint[i * b + k];
-                if p > 0.0 {
-                    mi += p * (p / (p_fixed[i] * p_moving[k])).ln();
-                    log_ratio[i * b + k] = (p / p_moving[k]).ln();
-                }
-            }
-        }
+        let (mi, log_ratio) = mutual_information(&mut joint, b, norm);
         // Pass 2: one weight per sample, then the chain rule through T.
         let params = match kind {
             AlignKind::Rigid => 6,
@@ -344,6 +322,33 @@ impl Metric<'_> {
             }
         }
     }
+}
+
+/// MI of the joint histogram `joint` (b × b counts, fixed-major) scaled by `norm` (1/n) into probabilities in place,
+/// and log(p(ι, κ) / p_m(κ)) where p > 0 (0 elsewhere): the per-bin weights of the gradient's pass (module docs).
+pub(crate) fn mutual_information(joint: &mut [f64], b: usize, norm: f64) -> (f64, Vec<f64>) {
+    for p in joint.iter_mut() {
+        *p *= norm;
+    }
+    let (mut p_fixed, mut p_moving) = (vec![0.0; b], vec![0.0; b]);
+    for i in 0..b {
+        for k in 0..b {
+            p_fixed[i] += joint[i * b + k];
+            p_moving[k] += joint[i * b + k];
+        }
+    }
+    let mut mi = 0.0;
+    let mut log_ratio = vec![0.0; b * b];
+    for i in 0..b {
+        for k in 0..b {
+            let p = joint[i * b + k];
+            if p > 0.0 {
+                mi += p * (p / (p_fixed[i] * p_moving[k])).ln();
+                log_ratio[i * b + k] = (p / p_moving[k]).ln();
+            }
+        }
+    }
+    (mi, log_ratio)
 }
 
 /// Samples per chunk of the histogram's and the gradient's sums (the unit of their parallel work, summed in order).

@@ -298,6 +298,21 @@ impl ControlLattice {
         (located.map(|l| l.0), located.map(|l| basis(l.1)), derivatives)
     }
 
+    /// The warp x + D(x), mm.
+    #[must_use]
+    pub fn warp_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        let d = self.eval(x);
+        [x[0] + d[0], x[1] + d[1], x[2] + d[2]]
+    }
+
+    /// The warp's Jacobian I + ∂D/∂x (analytic, [`Self::jacobian_into`]).
+    #[must_use]
+    pub fn warp_jacobian(&self, x: [f64; 3]) -> Matrix3<f64> {
+        let mut j = [[0.0; 3]; 3];
+        self.jacobian_into(x, &mut j);
+        Matrix3::from_fn(|r, c| j[r][c] + if r == c { 1.0 } else { 0.0 })
+    }
+
     /// Evaluates the displacement D(x) (mm) into `out`; no allocation.
     #[inline]
     pub fn eval_into(&self, x: [f64; 3], out: &mut [f64; 3]) {
@@ -1328,14 +1343,11 @@ impl<Mid: Space, From: Space> HierarchicalBSpline<Mid, From> {
 
 impl<To: Space, From: Space> Warp<To, From> for HierarchicalBSpline<To, From> {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
-        let d = self.lattice.eval(x);
-        [x[0] + d[0], x[1] + d[1], x[2] + d[2]]
+        self.lattice.warp_raw(x)
     }
 
     /// Analytic: I + ∂D/∂x from the B-spline derivative.
     fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
-        let mut j = [[0.0; 3]; 3];
-        self.lattice.jacobian_into(x, &mut j);
-        Matrix3::from_fn(|r, c| j[r][c] + if r == c { 1.0 } else { 0.0 })
+        self.lattice.warp_jacobian(x)
     }
 }

@@ -133,3 +133,38 @@ pub fn edge_points(v: &warpbench_io::Volume, count: usize, apart_mm: f64) -> Vec
     }
     chosen
 }
+
+/// The moving point `warpbench points --from fixed --session session` maps the fixed point `x` to (the pair given as
+/// `fixed` and `moving`), through files in `dir`.
+pub fn map_through_session(dir: &Path, [fixed, moving, session]: [&Path; 3], x: [f64; 3]) -> [f64; 3] {
+    let targets = dir.join("targets.csv");
+    std::fs::write(&targets, format!("{},{},{},a\n", x[0], x[1], x[2])).expect("write a point");
+    let mapped = dir.join("mapped.csv");
+    let out = warpbench(&[
+        "points",
+        "--fixed",
+        utf8(fixed),
+        "--moving",
+        utf8(moving),
+        "--session",
+        utf8(session),
+        "--from",
+        "fixed",
+        "--in",
+        utf8(&targets),
+        "--out",
+        utf8(&mapped),
+        "--force",
+    ]);
+    assert_ok(&out);
+    let text = std::fs::read_to_string(&mapped).expect("mapped");
+    let got: Vec<f64> = text
+        .lines()
+        .find(|l| !l.starts_with('#'))
+        .expect("a line")
+        .split(',')
+        .take(3)
+        .map(|v| v.trim().parse().expect("number"))
+        .collect();
+    [got[0], got[1], got[2]]
+}

@@ -201,27 +201,7 @@ impl Metric<'_> {
             return None;
         }
         let norm = 1.0 / inside as f64;
-        for p in &mut joint {
-            *p *= norm;
-        }
-        let (mut p_fixed, mut p_moving) = (vec![0.0; b], vec![0.0; b]);
-        for i in 0..b {
-            for k in 0..b {
-                p_fixed[i] += joint[i * b + k];
-                p_moving[k] += joint[i * b + k];
-            }
-        }
-        let mut mi = 0.0;
-        let mut log_ratio = vec![0.0; b * b];
-        for i in 0..b {
-            for k in 0..b {
-                let p = joint[i * b + k];
-                if p > 0.0 {
-                    mi += p * (p / (p_fixed[i] * p_moving[k])).ln();
-                    log_ratio[i * b + k] = (p / p_moving[k]).ln();
-                }
-            }
-        }
+        let (mi, log_ratio) = crate::align::mutual_information(&mut joint, b, norm);
         // ∂MI/∂φ_c = −(1/(n Δm)) Σ_x [Σ_κ β³′(κ − m̃) log(p(ι_x, κ)/p_m(κ))] ∇m'(x + D(x)) B_c(x).
         let scale = -norm / self.moving_bin_width;
         let len = phi.len();

@@ -219,14 +219,11 @@ impl FreeFormDeformation {
 
 impl Warp<Fixed, Fixed> for FreeFormDeformation {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
-        let d = self.lattice.eval(x);
-        [x[0] + d[0], x[1] + d[1], x[2] + d[2]]
+        self.lattice.warp_raw(x)
     }
 
     fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
-        let mut j = [[0.0; 3]; 3];
-        self.lattice.jacobian_into(x, &mut j);
-        Matrix3::from_fn(|r, c| j[r][c] + if r == c { 1.0 } else { 0.0 })
+        self.lattice.warp_jacobian(x)
     }
 }
 
