@@ -241,6 +241,14 @@ impl PairWarp {
         crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
     }
 
+    /// The fewest pairs a fit of `method` needs on this warp: none over a starting transform or a session's field
+    /// (the base alone is the warp then), the method's own otherwise.
+    #[must_use]
+    pub fn min_pairs(&self, method: &Method) -> usize {
+        let base = self.initial.is_some() || self.session_start.is_some() || self.session_field.is_some();
+        if base { 0 } else { method.needs().min_pairs }
+    }
+
     /// The session's displacement field under the landmark fit, read (`None` without one); errors name the file.
     pub fn field(&self) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
         self.session_field

@@ -200,7 +200,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
         inputs.pairs().map_err(Failure::BadInput)?,
         &moving,
         &fixed,
-        crate::start::min_pairs(&method, start.as_ref()),
+        inputs.warp.min_pairs(&method),
     )
     .map_err(Failure::BadInput)?;
     let mut warnings = fit::fit_warnings(&method, &c);

@@ -203,9 +203,8 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         let pairs = landmarks.pairs().map_err(Failure::BadInput)?;
         let start = given.warp.start().map_err(Failure::BadInput)?;
         let source = &landmarks.source;
-        let c =
-            inputs::correspondences(source, pairs, moving, &fixed, crate::start::min_pairs(&method, start.as_ref()))
-                .map_err(Failure::BadInput)?;
+        let c = inputs::correspondences(source, pairs, moving, &fixed, given.warp.min_pairs(&method))
+            .map_err(Failure::BadInput)?;
         if !quiet {
             for w in fit::fit_warnings(&method, &c) {
                 eprintln!("warpbench: warning: {w}");

@@ -90,12 +90,6 @@ pub fn resolve(session: Option<&Start>, initial: Option<&Path>) -> anyhow::Resul
     }
 }
 
-/// The fewest pairs a fit needs: the method's without a starting transform, none with one (T₀ alone is the warp).
-#[must_use]
-pub fn min_pairs(method: &Method, start: Option<&Start>) -> usize {
-    if start.is_some() { 0 } else { method.needs().min_pairs }
-}
-
 /// Whether `pairs` pairs are enough for `method` to refine the starting transform.
 #[must_use]
 pub fn refines(method: &Method, pairs: usize) -> bool {

@@ -146,7 +146,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
                 landmarks.pairs().map_err(Failure::BadInput)?,
                 &moving_volume,
                 &fixed_volume,
-                crate::start::min_pairs(&method, start.as_ref()),
+                given.warp.min_pairs(&method),
             )
             .map_err(Failure::BadInput)?;
             let mut layers = crate::project::stack::Layers::new(start.clone(), None);

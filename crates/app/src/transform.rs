@@ -117,7 +117,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         inputs.pairs().map_err(Failure::BadInput)?,
         &volumes.moving,
         &volumes.fixed,
-        crate::start::min_pairs(&method, start.as_ref()),
+        inputs.warp.min_pairs(&method),
     )
     .map_err(Failure::BadInput)?;
     let warnings = fit::fit_warnings(&method, &c);

@@ -646,3 +646,46 @@ fn stiffness_auto_is_the_solvers_choice() {
         assert!(String::from_utf8_lossy(&refused.stderr).contains("not a stiffness"), "{bad}");
     }
 }
+
+/// A session's displacement field (one chosen in the window, or Refine by intensities') is a base under the landmark
+/// fit for the command line as for the window: with fewer pairs than the method needs, the field alone is the warp, so
+/// `points --session` maps a fixed point x to F(x) instead of refusing the pairs.
+#[test]
+fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
+    use warpbench_app::project::document::Document;
+    use warpbench_app::project::session::{self, SessionCamera, SessionFile, View};
+    use warpbench_app::project::stack::FieldLayer;
+    use warpbench_io::displacement::{FieldFormat, write_field};
+    use warpbench_io::geometry::{Index, Lps, Transform};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let volume = warpbench_io::open(&mri).expect("fixture");
+    // A smooth field of up to 3 mm on a 10³ grid over the fixed volume's box.
+    let (lo, step) = ([-90.0, -126.0, -72.0], [20.0, 24.0, 18.0]);
+    let grid = Transform::<Lps, Index>::from_scale_translation(step, lo);
+    let vectors: Vec<[f32; 3]> = (0..1000)
+        .map(|n| {
+            let x = [lo[0] + step[0] * (n % 10) as f64, lo[1] + step[1] * ((n / 10) % 10) as f64];
+            [(3.0 * (x[1] / 40.0).sin()) as f32, (2.0 * (x[0] / 30.0).cos()) as f32, 1.0]
+        })
+        .collect();
+    let field_path = dir.path().join("field.nii.gz");
+    write_field(&field_path, FieldFormat::Itk, [10; 3], &grid, &vectors).expect("field written");
+    let pairs = read_bigwarp_csv(&deformed_pairs(dir.path())).expect("pairs");
+    let mut document = Document::new([Some(mri.clone()), Some(mri.clone())], [&volume, &volume], pairs[..2].to_vec());
+    document.field = Some(field_path.clone());
+    let camera = SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
+    let view = View { camera, slice_mm: [0.0; 3], layout: warpbench_app::settings::Layout::FourUp };
+    let session_path = dir.path().join("field.warpbench.json");
+    session::save(&session_path, &SessionFile::new(document, view, true)).expect("save the session");
+
+    let xs = [[10.0, 8.0, 30.0], [-20.0, 40.0, -10.0]];
+    let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &xs);
+    let layer = FieldLayer::read(&field_path).expect("read the field");
+    for (x, got) in xs.iter().zip(&mapped) {
+        let want = layer.moving_from_fixed_raw(*x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "F({x:?}) = {want:?}, mapped {got:?}");
+        assert!((0..3).any(|a| (got[a] - x[a]).abs() > 0.5), "the field moves {x:?}");
+    }
+}
