@@ -43,8 +43,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -53,6 +51,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from compare_sitk_align import machine
 
 ROOT = Path(__file__).resolve().parent.parent
 T1 = ROOT / "tests/data/nifti/ch2.nii.gz"
@@ -184,12 +184,6 @@ def field_transform(path: Path):
     import SimpleITK as sitk
 
     return sitk.DisplacementFieldTransform(sitk.Cast(sitk.ReadImage(str(path)), sitk.sitkVectorFloat64))
-
-
-def machine() -> str:
-    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                  if line.startswith("model name")), platform.processor())
-    return f"{os.cpu_count()} cores, {model}, {platform.system()} {platform.machine()}"
 
 
 def main() -> None:

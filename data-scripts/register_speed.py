@@ -19,8 +19,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -29,6 +27,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from compare_sitk_align import machine
 
 ROOT = Path(__file__).resolve().parent.parent
 T1 = ROOT / "tests/data/nifti/ch2.nii.gz"
@@ -52,12 +52,6 @@ def make_pair(tmp: Path) -> tuple[Path, Path]:
     sitk.WriteImage(grid, str(fixed_path))
     sitk.WriteImage(moving, str(moving_path))
     return fixed_path, moving_path
-
-
-def machine() -> str:
-    model = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                  if line.startswith("model name")), platform.processor())
-    return f"{os.cpu_count()} cores, {model}, {platform.system()} {platform.machine()}"
 
 
 def main() -> None:

@@ -104,6 +104,14 @@ impl JacobianPoint {
     }
 }
 
+/// The refusal of images that do not overlap under the starting warp.
+pub(super) fn no_overlap() -> crate::SolverError {
+    crate::SolverError::Image(
+        "the images do not overlap under the starting warp: the fixed image's samples fall outside the moving image"
+            .into(),
+    )
+}
+
 /// Per sample, what the gradient pass needs from the histogram pass.
 #[derive(Clone, Copy, Debug, Default)]
 struct Hit {
@@ -138,7 +146,37 @@ pub(super) struct Evaluation {
 /// their order: the same inputs give the same bits on any machine.
 const CHUNKS: usize = 16;
 
-impl Metric<'_> {
+impl<'a> Metric<'a> {
+    /// The metric of `samples` (with their footprints in `lattice`) against `warped`, its histogram spanning the
+    /// finite values of `warped`.
+    ///
+    /// # Errors
+    /// [`crate::SolverError::Image`] when `warped` has no finite value (the images do not overlap) or a single one.
+    pub(super) fn new(
+        warped: &'a Image<Fixed>,
+        samples: Vec<Sample>,
+        lattice: &ControlLattice,
+        bins: usize,
+        parallelism: Parallelism,
+    ) -> crate::Result<Self> {
+        let Some((moving_min, moving_max)) = warped.value_range(parallelism) else { return Err(no_overlap()) };
+        if moving_max <= moving_min {
+            return Err(crate::SolverError::Image(
+                "the moving image has a single value where it overlaps the fixed image: nothing to match".into(),
+            ));
+        }
+        let footprints = samples.iter().map(|s| Footprint::of(lattice, [s.x[0], s.x[1], s.x[2]])).collect();
+        Ok(Self {
+            warped,
+            samples,
+            footprints,
+            bins,
+            moving_min,
+            moving_bin_width: (moving_max - moving_min) / (bins - 2 * PAD_BINS - 1) as f64,
+            parallelism,
+        })
+    }
+
     fn hit(&self, s: &Sample, f: &Footprint, phi: &[f64], dims: [usize; 3]) -> Hit {
         let d = f.displacement(phi, dims);
         let y = [s.x[0] + d[0], s.x[1] + d[1], s.x[2] + d[2]];

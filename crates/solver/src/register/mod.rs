@@ -274,31 +274,9 @@ pub fn register(
                 if shrink == 1 { Cow::Borrowed(moving) } else { Cow::Owned(moving.shrink(shrink, par)?) };
             pulled_back(&fixed_level, &moving_level, start, par)?
         };
-        let no_overlap = || {
-            SolverError::Image(
-                "the images do not overlap under the starting warp: the fixed image's samples fall outside the \
-                 moving image"
-                    .into(),
-            )
-        };
-        let (moving_min, moving_max) = warped.value_range(par).ok_or_else(no_overlap)?;
-        if moving_max <= moving_min {
-            return Err(SolverError::Image(
-                "the moving image has a single value where it overlaps the fixed image: nothing to match".into(),
-            ));
-        }
         let wanted = params.samples.max(SAMPLES_PER_COEFFICIENT * lattice.coefficients().len());
         let (samples, _) = draw_samples(&fixed_level, wanted, params.bins, params.seed.wrapping_add(level as u64))?;
-        let footprints = samples.iter().map(|s| Footprint::of(&lattice, [s.x[0], s.x[1], s.x[2]])).collect();
-        let metric = Metric {
-            warped: &warped,
-            samples,
-            footprints,
-            bins: params.bins,
-            moving_min,
-            moving_bin_width: (moving_max - moving_min) / (params.bins - 2 * PAD_BINS - 1) as f64,
-            parallelism: par,
-        };
+        let metric = Metric::new(&warped, samples, &lattice, params.bins, par)?;
         let pins = pairs
             .iter()
             .map(|p| {
@@ -321,7 +299,7 @@ pub fn register(
         let voxel_mm = fixed_level.spacing_mm().into_iter().fold(f64::INFINITY, f64::min);
         let report = objective.optimise(&mut lattice, voxel_mm).map_err(|stop| match stop {
             Stop::Cancelled => SolverError::Cancelled,
-            Stop::NoOverlap => no_overlap(),
+            Stop::NoOverlap => metric::no_overlap(),
         })?;
         levels.push(LevelReport { shrink, seconds: started.elapsed().as_secs_f64(), ..report });
     }
@@ -635,18 +613,8 @@ mod tests {
             *c = ((n * 37 % 11) as f64 - 5.0) * 0.2;
         }
         let warped = pulled_back(&fixed, &moving, &start, Parallelism::Sequential).expect("test input");
-        let (lo, hi) = warped.value_range(Parallelism::Sequential).expect("test input");
         let (samples, _) = draw_samples(&fixed, params.samples, params.bins, 1).expect("test input");
-        let footprints = samples.iter().map(|s| Footprint::of(&lattice, [s.x[0], s.x[1], s.x[2]])).collect();
-        let metric = Metric {
-            warped: &warped,
-            samples,
-            footprints,
-            bins: params.bins,
-            moving_min: lo,
-            moving_bin_width: (hi - lo) / (params.bins - 2 * PAD_BINS - 1) as f64,
-            parallelism: Parallelism::Sequential,
-        };
+        let metric = Metric::new(&warped, samples, &lattice, params.bins, Parallelism::Sequential).expect("test input");
         let pins = [[20.0, 25.0, 30.0], [40.0, 45.0, 35.0]]
             .map(|q| Pin { fixed: q, moving: [q[0] + 1.0, q[1], q[2] - 0.5], footprint: Footprint::of(&lattice, q) })
             .to_vec();
