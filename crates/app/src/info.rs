@@ -19,7 +19,8 @@ const HELP: &str = "\
 Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype, value range,
 modality and series.
 
-Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), a DICOM series folder or one DICOM file.
+Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd), a DICOM series folder or
+one DICOM file.
 A folder with several series lists them. Example:
 
     warpbench info tests/data/nifti/ch2.nii.gz --json";
@@ -33,7 +34,7 @@ pub struct InfoArgs {
     /// Machine-readable output (schema warpbench-info/1, see docs/cli.md).
     #[arg(long)]
     pub json: bool,
-    /// For a 4-D NIfTI: the frame (t index) to read.
+    /// For a 4-D NIfTI or MetaImage: the frame (t index) to read.
     #[arg(long)]
     pub frame: Option<usize>,
     /// For a folder with several DICOM series: the SeriesInstanceUID to read.
@@ -89,7 +90,7 @@ pub struct VolumeInfo {
 
 #[derive(Debug, Serialize)]
 pub struct GeometrySourceJson {
-    /// One of sform, qform, pixdim, dicom, nrrd_space, nrrd_spacings, assumed.
+    /// One of sform, qform, pixdim, dicom, nrrd_space, nrrd_spacings, metaimage, assumed.
     pub kind: &'static str,
     /// The NIfTI sform/qform code, when there is one.
     pub code: Option<i32>,
@@ -111,6 +112,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::DicomPatient => ("dicom", None),
             GeometrySource::NrrdSpace => ("nrrd_space", None),
             GeometrySource::NrrdSpacings => ("nrrd_spacings", None),
+            GeometrySource::MetaImage => ("metaimage", None),
             GeometrySource::Assumed => ("assumed", None),
         };
         Self { kind, code }
@@ -131,6 +133,7 @@ fn format_name(f: Format) -> &'static str {
         Format::Nifti => "nifti",
         Format::Nrrd => "nrrd",
         Format::Dicom => "dicom",
+        Format::MetaImage => "metaimage",
     }
 }
 

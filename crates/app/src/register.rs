@@ -76,7 +76,8 @@ pub struct RegisterArgs {
     /// .nrrd for --format nrrd).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
-    /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii or .nii.gz).
+    /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
+    /// .mha or .mhd).
     #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).

@@ -1,7 +1,7 @@
 //! `warpbench warp`: resample the moving volume into the fixed volume's grid (or `--reference`'s) through the
 //! landmark warp's pull-back, v′(x) = v(u(x)) with u = moving_from_fixed (as ITK's ResampleImageFilter does with a
-//! transform that maps output points to input points), and write a NIfTI with the output grid's geometry, and
-//! optionally a DICOM series.
+//! transform that maps output points to input points), and write a volume with the output grid's geometry (NIfTI,
+//! NRRD or MetaImage, by the output's name: [`warpbench_io::write_volume`]), and optionally a DICOM series.
 //!
 //! The pull-back is sampled into a `--grid`³ control texture over the output grid's box (the renderer's texture,
 //! so the file shows what the app shows), or evaluated exactly at every voxel with `--exact` (TPS; affine,
@@ -39,7 +39,7 @@ use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::volume::{GeometrySource, VoxelData};
-use warpbench_io::{Volume, nifti};
+use warpbench_io::{Volume, VolumeFileKind};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::field::SampledField;
 use warpbench_solver::invert;
@@ -205,7 +205,8 @@ pub use crate::brushed::InverseConsistency;
 /// `warpbench --help` show.
 const HELP: &str = "\
 Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
-field (--field), and write a NIfTI (and, with --out-dicom, a DICOM series) with the fixed grid's geometry.
+field (--field), and write a volume (NIfTI, NRRD or MetaImage, by --out's name; and, with --out-dicom, a DICOM
+series) with the fixed grid's geometry.
 
 The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
 app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
@@ -255,7 +256,7 @@ pub struct WarpArgs {
     /// The value of voxels that map outside the moving volume (default −1024 for a CT, else 0).
     #[arg(long, allow_hyphen_values = true)]
     pub outside: Option<f64>,
-    /// The NIfTI to write (.nii or .nii.gz).
+    /// The volume to write: NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha; .mhd with a .raw beside it).
     #[arg(long)]
     pub out: PathBuf,
     /// Also write the result as a DICOM series (new UIDs) into this new folder.
@@ -456,11 +457,16 @@ fn check_pullback_mode(method: &Method, pullback: PullBackMode) -> Result<(), Fa
     Ok(())
 }
 
-/// Refuses outputs `warp` cannot write: `out` not `.nii`/`.nii.gz`, or `out_dicom` an existing folder that is not
-/// empty. (Whether `out` may be replaced is [`OutputFile::check`]'s business.)
+/// Refuses outputs `warp` cannot write: `out` not named as a volume [`warpbench_io::write_volume`] writes (`.nii`,
+/// `.nii.gz`, `.nrrd`, `.mha`, `.mhd`), or `out_dicom` an existing folder that is not empty. (Whether `out` may be
+/// replaced is [`OutputFile::check`]'s business.)
 pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> anyhow::Result<()> {
-    if !is_nifti_name(out) {
-        return Err(anyhow!("{}: --out must end in .nii or .nii.gz", out.display()));
+    if VolumeFileKind::of(out).is_none() {
+        return Err(anyhow!(
+            "{}: --out must end in .nii, .nii.gz, .nrrd, .mha or .mhd ({})",
+            out.display(),
+            VolumeFileKind::EXPECTED
+        ));
     }
     if let Some(dir) = out_dicom
         && dir.exists()
@@ -477,7 +483,8 @@ pub fn series_description(method: &str, moving: &Path) -> String {
     format!("warpbench {method} warp of {}", file_name(moving))
 }
 
-/// Writes `volume` as `warp` does: a NIfTI at `out` and, when `out_dicom` is given, a DICOM series in that folder
+/// Writes `volume` as `warp` does: a volume at `out` in the format its name says ([`warpbench_io::write_volume`]:
+/// NIfTI, NRRD or MetaImage) and, when `out_dicom` is given, a DICOM series in that folder
 /// (new or empty) with `series_description` and the volume's modality. Each write is atomic. With the moving
 /// volume's path (`moving`: the volume read from it), a DICOM moving series is the series' source: its patient,
 /// study, equipment and acquisition attributes are copied and its images referenced.
@@ -493,7 +500,7 @@ pub fn write_outputs(
         (Some(_), Some((path, moving))) => DicomSource::for_volume(path, moving)?,
         _ => None,
     };
-    nifti::write(out, volume)?;
+    warpbench_io::write_volume(out, volume)?;
     if let Some(dir) = out_dicom {
         let dicom_opts = DicomSeriesOptions {
             modality: volume.modality.clone(),
@@ -1019,12 +1026,6 @@ impl Lap {
         self.0 = now;
         seconds
     }
-}
-
-/// `.nii` or `.nii.gz`, in any case.
-fn is_nifti_name(p: &Path) -> bool {
-    let name = p.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-    [".nii", ".nii.gz"].iter().any(|ext| name.len() > ext.len() && name.ends_with(ext))
 }
 
 fn file_name(p: &Path) -> String {

@@ -223,7 +223,7 @@ fn writes_a_dicom_series_and_refuses_bad_requests() {
     );
     expect_bad(
         &["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", s(&dir.path().join("x.png"))],
-        ".nii",
+        "--out must end in .nii, .nii.gz, .nrrd, .mha or .mhd",
     );
     expect_bad(&["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", s(&out)], "exists; use --force");
     expect_bad(
@@ -236,6 +236,52 @@ fn writes_a_dicom_series_and_refuses_bad_requests() {
         "new or empty folder",
     );
     assert!(!fresh.exists(), "a refused run wrote its output");
+}
+
+#[test]
+fn writes_the_volume_in_the_format_its_name_says() {
+    // The same warp written as NIfTI, NRRD and MetaImage (.mha with its samples compressed, .mhd with a .raw) reads
+    // back to the same voxels and geometry; and a MetaImage input is read like any other.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
+    let pairs: Vec<_> = q.iter().map(|q| ([q[0] + 2.0, q[1] - 1.0, q[2] + 3.0], *q)).collect();
+    let csv = dir.path().join("shift.csv");
+    write_pairs(&csv, &pairs);
+    let warp_to = |moving: &Path, out: &Path| {
+        assert_ok(&warpbench(&[
+            "warp",
+            "--fixed",
+            s(&mri),
+            "--moving",
+            s(moving),
+            "--landmarks",
+            s(&csv),
+            "--method",
+            "affine",
+            "--backend",
+            "cpu",
+            "--quiet",
+            "--out",
+            s(out),
+        ]));
+        warpbench_io::open(out).expect("read the output")
+    };
+    let reference = warp_to(&mri, &dir.path().join("out.nii.gz"));
+    for name in ["out.mha", "out.mhd", "out.nrrd", "OUT.MHA"] {
+        let out = dir.path().join(name);
+        let v = warp_to(&mri, &out);
+        assert_eq!(v.data, reference.data, "{name}");
+        assert!(v.lps_from_index.max_abs_diff(&reference.lps_from_index) < 1e-4, "{name}: geometry");
+    }
+    assert!(dir.path().join("out.raw").is_file(), "the .mhd's data file");
+    let header = std::fs::read_to_string(dir.path().join("out.mhd")).expect("header");
+    assert!(header.ends_with("ElementDataFile = out.raw\n"), "{header}");
+
+    // The warped volume as the moving one, read from MetaImage: the same as from NIfTI.
+    let from_mha = warp_to(&dir.path().join("out.mha"), &dir.path().join("again.nii.gz"));
+    let from_nii = warp_to(&dir.path().join("out.nii.gz"), &dir.path().join("again2.nii.gz"));
+    assert_eq!(from_mha.data, from_nii.data);
 }
 
 /// Pairs on the MRI fixture: fixed points inside the brain, moving points shifted by (2, −1, 3) mm plus a few mm of

@@ -3,12 +3,15 @@
 //! Readers and writers for the volumes and landmarks that warpbench registers, all placed in one
 //! patient space: **LPS, in mm** (see `docs/spaces.md`).
 //!
-//! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, `.nhdr`)
-//!   file, a DICOM series folder or a single DICOM file into a [`Volume`].
-//! - [`nifti`], [`nrrd`], [`dicom`]: the format modules, with their writers.
-//! - [`landmarks`]: landmark pairs, BigWarp CSV and Slicer `.mrk.json` / `.fcsv`.
+//! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, `.nhdr`) or
+//!   MetaImage (`.mha`, `.mhd`) file, a DICOM series folder or a single DICOM file into a [`Volume`];
+//!   [`write_volume`] writes one in the format its name says.
+//! - [`nifti`], [`nrrd`], [`metaimage`], [`dicom`]: the format modules, with their writers.
+//! - [`landmarks`]: landmark pairs and point lists: BigWarp CSV and JSON, Slicer `.mrk.json` / `.fcsv`, elastix
+//!   point files.
 //! - [`geometry`]: points, vectors and transforms that carry their space in the type.
-//! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one transform: affine, thin-plate spline or cubic B-spline.
+//! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one transform: affine, thin-plate spline or cubic B-spline;
+//!   and the ANTs / ITK MATLAB affine (`.mat`).
 //!
 //! Every error names the file and the problem ([`Error`]); bad input never panics, sizes are
 //! checked before allocating, and writers replace their output atomically ([`write_atomic`]).
@@ -23,6 +26,7 @@ mod files;
 pub mod geometry;
 pub mod itk_tfm;
 pub mod landmarks;
+pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
@@ -49,10 +53,13 @@ pub enum Format {
     Nrrd,
     /// A DICOM series folder, or one DICOM file (possibly enhanced multi-frame).
     Dicom,
+    /// MetaImage: `.mha`, or a `.mhd` header with its data file.
+    MetaImage,
 }
 
 impl Format {
-    /// Detects the format of `path`: folders are DICOM series; files by extension, then by magic bytes.
+    /// Detects the format of `path`: folders are DICOM series; files by extension, then by magic bytes (`NRRD`,
+    /// `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage).
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn detect(path: &Path) -> Result<Self> {
         if check_file_or_folder(path)?.is_dir() {
@@ -69,6 +76,9 @@ impl Format {
         if name.ends_with(".dcm") {
             return Ok(Self::Dicom);
         }
+        if name.ends_with(".mha") || name.ends_with(".mhd") {
+            return Ok(Self::MetaImage);
+        }
         let mut head = [0u8; 132];
         let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
         let n = read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
@@ -79,8 +89,10 @@ impl Format {
             Ok(Self::Dicom)
         } else if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
             Ok(Self::Nifti)
+        } else if metaimage::looks_like_metaimage(head) {
+            Ok(Self::MetaImage)
         } else {
-            Err(Error::unsupported(path, "unknown file format (expected NIfTI, NRRD or DICOM)"))
+            Err(Error::unsupported(path, "unknown file format (expected NIfTI, NRRD, MetaImage or DICOM)"))
         }
     }
 }
@@ -99,9 +111,55 @@ impl LoadOptions<'_> {
             Format::Nrrd => nrrd::read(path, self),
             Format::Dicom if path.is_dir() => dicom::read_folder(path, self),
             Format::Dicom => dicom::read_files(&[path.to_path_buf()], self),
+            Format::MetaImage => metaimage::read(path, self),
         }?;
         // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
         volume.note_geometry_warnings();
         Ok(volume)
+    }
+}
+
+/// Writes `volume` in the format its name says: NIfTI-1 for `.nii` and `.nii.gz` ([`nifti::write`]), NRRD for `.nrrd`
+/// ([`nrrd::write`]), MetaImage for `.mha` and `.mhd` ([`metaimage::write`]); any other name is an error that lists
+/// these. Atomic, as every writer.
+pub fn write_volume(path: &Path, volume: &Volume) -> Result<()> {
+    match VolumeFileKind::of(path) {
+        Some(VolumeFileKind::Nifti) => nifti::write(path, volume),
+        Some(VolumeFileKind::Nrrd) => nrrd::write(path, volume),
+        Some(VolumeFileKind::MetaImage) => metaimage::write(path, volume),
+        None => Err(Error::unsupported(path, VolumeFileKind::EXPECTED)),
+    }
+}
+
+/// The volume formats [`write_volume`] writes, by the output's name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VolumeFileKind {
+    /// `.nii`, `.nii.gz`.
+    Nifti,
+    /// `.nrrd` (attached, gzip).
+    Nrrd,
+    /// `.mha`, `.mhd`.
+    MetaImage,
+}
+
+impl VolumeFileKind {
+    /// What a volume output may be named, for messages.
+    pub const EXPECTED: &str =
+        "a volume is written as NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, or .mhd with a .raw)";
+
+    /// The format `path`'s name says (case ignored), if it is one [`write_volume`] writes.
+    #[must_use]
+    #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
+    pub fn of(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
+        if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+            Some(Self::Nifti)
+        } else if name.ends_with(".nrrd") {
+            Some(Self::Nrrd)
+        } else if name.ends_with(".mha") || name.ends_with(".mhd") {
+            Some(Self::MetaImage)
+        } else {
+            None
+        }
     }
 }

@@ -178,6 +178,8 @@ pub enum GeometrySource {
     NrrdSpace,
     /// NRRD without a space: `spacings` only, axis-aligned, origin 0.
     NrrdSpacings,
+    /// MetaImage `TransformMatrix`, `ElementSpacing` and `Offset` (ITK's LPS; MetaIO's defaults where missing).
+    MetaImage,
     /// The file carries no geometry (e.g. a DICOM Secondary Capture without ImagePositionPatient,
     /// ImageOrientationPatient and PixelSpacing): identity directions, unit spacing, origin 0.
     /// Readers add a warning to the metadata when they assume it.

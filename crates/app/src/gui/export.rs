@@ -13,7 +13,7 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 
 use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_io::{Progress, Volume};
+use warpbench_io::{Progress, Volume, VolumeFileKind};
 use warpbench_solver::method::Method;
 
 use super::open::{Watch, file_name};
@@ -25,7 +25,8 @@ use crate::warp::{self, Backend, PullBackMode, WarpSettings};
 /// What to export.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum ExportKind {
-    /// The warped moving volume as NIfTI, and as a DICOM series in this (new or empty) folder when given.
+    /// The warped moving volume as NIfTI, NRRD or MetaImage (by the name), and as a DICOM series in this (new or
+    /// empty) folder when given.
     Warped { dicom: Option<PathBuf> },
     /// The pull-back as a displacement field (NIfTI, ITK/ANTs/Slicer convention).
     Field,
@@ -61,13 +62,17 @@ impl ExportJob {
     /// Checks the output path and starts the export; a bad path is refused at once.
     ///
     /// # Errors
-    /// The output does not end in `.nii`/`.nii.gz`, is one of the inputs, or the DICOM folder is not empty.
+    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`; a field `.nii`/`.nii.gz`
+    /// only), is one of the inputs, or the DICOM folder is not empty.
     pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
         let dicom = match &kind {
             ExportKind::Warped { dicom } => dicom.as_deref(),
             ExportKind::Field => None,
         };
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
+        if kind == ExportKind::Field && VolumeFileKind::of(&out) != Some(VolumeFileKind::Nifti) {
+            return Err(format!("{}: a displacement field is exported as NIfTI (.nii or .nii.gz)", out.display()));
+        }
         warp::check_outputs(&out, dicom)
             .and_then(|()| inputs::check_output(&out, &inputs, true))
             .map_err(|e| format!("{e:#}"))?;

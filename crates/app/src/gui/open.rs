@@ -166,7 +166,7 @@ impl VolumeJob {
 /// What a native file dialog is for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Purpose {
-    /// A volume file (NIfTI, NRRD) for one side.
+    /// A volume file (NIfTI, NRRD, MetaImage) for one side.
     OpenFile(Side),
     /// A DICOM series folder for one side.
     OpenFolder(Side),
@@ -183,7 +183,8 @@ impl Purpose {
     fn dialog(self) -> rfd::FileDialog {
         let d = rfd::FileDialog::new();
         let volumes = |d: rfd::FileDialog| {
-            d.add_filter("Volumes (NIfTI, NRRD)", &["nii", "gz", "nrrd", "nhdr"]).add_filter("All files", &["*"])
+            d.add_filter("Volumes (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "nhdr", "mha", "mhd"])
+                .add_filter("All files", &["*"])
         };
         match self {
             Self::OpenFile(side) => volumes(d.set_title(format!("Open the {} volume", side.name()))),
@@ -192,7 +193,8 @@ impl Purpose {
             Self::ImportLandmarks | Self::ExportLandmarks => {
                 d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
             }
-            Self::ExportWarped | Self::ExportField => d.add_filter("NIfTI", &["nii", "gz"]),
+            Self::ExportWarped => d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"]),
+            Self::ExportField => d.add_filter("NIfTI", &["nii", "gz"]),
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
         }
     }
