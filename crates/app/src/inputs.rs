@@ -496,6 +496,17 @@ pub fn check_pairs(
     fixed: &Volume,
     min_pairs: usize,
 ) -> Result<Correspondences> {
+    collect_pairs(origin, pairs, Some((moving, fixed)), min_pairs)
+}
+
+/// [`check_pairs`], with the volumes' boxes checked only when `within` (moving, fixed) is given: the Python
+/// package fits pairs with no volumes at hand.
+pub fn collect_pairs(
+    origin: &str,
+    pairs: &[LandmarkPair],
+    within: Option<(&Volume, &Volume)>,
+    min_pairs: usize,
+) -> Result<Correspondences> {
     let mut out =
         Correspondences { moving: Vec::new(), fixed: Vec::new(), labels: Vec::new(), origin: origin.to_owned() };
     let bad = |i: usize, pair: &LandmarkPair, what: &str| {
@@ -510,11 +521,13 @@ pub fn check_pairs(
         if !p.coords().iter().chain(&q.coords()).all(|c| c.is_finite()) {
             return Err(bad(i, pair, "has a coordinate that is not a number"));
         }
-        if !inside(moving, p) {
-            return Err(bad(i, pair, &format!("is outside the moving volume (at {:?} mm LPS)", p.coords())));
-        }
-        if !inside(fixed, q) {
-            return Err(bad(i, pair, &format!("is outside the fixed volume (at {:?} mm LPS)", q.coords())));
+        if let Some((moving, fixed)) = within {
+            if !inside(moving, p) {
+                return Err(bad(i, pair, &format!("is outside the moving volume (at {:?} mm LPS)", p.coords())));
+            }
+            if !inside(fixed, q) {
+                return Err(bad(i, pair, &format!("is outside the fixed volume (at {:?} mm LPS)", q.coords())));
+            }
         }
         out.moving.push(as_moving(p));
         out.fixed.push(as_fixed(q));

@@ -41,7 +41,7 @@ pub enum PairFileFormat {
 impl PairFileFormat {
     /// The format of an output named `path` when `--to` is not given: `.json` is BigWarp JSON, `.csv` BigWarp CSV.
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
-    fn from_name(path: &Path) -> Result<Self, Failure> {
+    pub fn from_name(path: &Path) -> Result<Self, Failure> {
         let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
         if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") {
             return Err(Failure::BadInput(anyhow!(
@@ -206,8 +206,8 @@ fn check_slicer_name(path: &Path) -> Result<(), Failure> {
     }
 }
 
-/// Reads the pairs and names their format.
-fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<LandmarkPair>, String), Failure> {
+/// Reads the pairs as `warpbench landmarks` does (BigWarp files in RAS with `ras`) and names their format.
+pub fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<LandmarkPair>, String), Failure> {
     match input {
         inputs::LandmarkSource::Pairs(path) => {
             let format = landmarks::detect_landmark_file(path).map_err(|e| Failure::BadInput(e.into()))?;
@@ -245,7 +245,8 @@ fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Landmark
     }
 }
 
-fn write_pairs(output: &LandmarkOutput, pairs: &[LandmarkPair], out_ras: bool) -> Result<(), Failure> {
+/// Writes `pairs` as `warpbench landmarks --out` does (BigWarp and plain CSV in RAS with `out_ras`), atomically.
+pub fn write_pairs(output: &LandmarkOutput, pairs: &[LandmarkPair], out_ras: bool) -> Result<(), Failure> {
     let bigwarp = BigWarpCsvOptions { ras: out_ras };
     let result = match output {
         LandmarkOutput::Pairs { path, format: PairFileFormat::BigwarpCsv } => {

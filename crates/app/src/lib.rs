@@ -31,6 +31,8 @@
 //!   and the command line.
 //! - [`gui`]: the workbench window (eframe): the deformed pair in a 3-D view and three slice views, the warp method
 //!   and view settings, the landmark table; the demo pair when no files are given.
+//! - [`cli`]: the headless subcommands as one enum ([`cli::Command`]) and one dispatch ([`cli::run`]), shared by the
+//!   binary and the Python package.
 //! - [`args`]: the command-line argument groups several subcommands share (the volume pair, the landmarks, the warp
 //!   method, the report flags, the render settings), parsed once into the model's types by [`inputs`].
 //! - [`exit`]: the exit-code convention shared by every subcommand; the shared modules (`inputs`, `scene`, `fit`)
@@ -39,10 +41,12 @@
 pub mod align;
 pub mod args;
 pub mod brushed;
+pub mod cli;
 pub mod eval;
 pub mod exit;
 pub mod field;
 pub mod fit;
+#[cfg(feature = "window")]
 pub mod gui;
 pub mod info;
 pub mod inputs;

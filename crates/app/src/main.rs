@@ -2,10 +2,10 @@
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::Parser;
+use warpbench_app::cli::{self, Command};
 use warpbench_app::exit::Failure;
 use warpbench_app::gui::{self, GuiArgs};
-use warpbench_app::{align, eval, field, info, landmarks, points, register, render, suggest, transform, warp};
 
 /// Landmark-based registration of two 3D medical volumes (MRI, CT), live on the GPU.
 ///
@@ -23,22 +23,6 @@ struct Cli {
 /// Opens the workbench window (a screenshot closes it after 5 frames unless --exit-after-frames says otherwise).
 fn run_gui(a: GuiArgs) -> Result<(), Failure> {
     gui::run(a.into()).map_err(Failure::Internal)
-}
-
-/// The headless subcommands: each module's `Args` says what it takes and holds its help.
-#[derive(Debug, Subcommand)]
-enum Command {
-    Info(info::InfoArgs),
-    Warp(Box<warp::WarpArgs>),
-    Eval(Box<eval::EvalArgs>),
-    Render(Box<render::RenderArgs>),
-    Field(Box<field::FieldArgs>),
-    Points(Box<points::PointsArgs>),
-    Transform(Box<transform::TransformArgs>),
-    Landmarks(Box<landmarks::LandmarksArgs>),
-    Align(Box<align::AlignArgs>),
-    Suggest(Box<suggest::SuggestArgs>),
-    Register(Box<register::RegisterArgs>),
 }
 
 /// Keeps a headless command's GPU probe quiet. Mesa's Vulkan device-select layer (an implicit layer the Vulkan
@@ -101,18 +85,5 @@ fn run(command: Command) -> Result<(), Failure> {
     quiet_headless_gpu_probe();
     #[cfg(unix)]
     remove_temporaries_on_signals();
-    let stdout = &mut std::io::stdout().lock();
-    match command {
-        Command::Info(args) => info::run(&args, stdout),
-        Command::Warp(args) => warp::run(*args, stdout).map(|_| ()),
-        Command::Eval(args) => eval::run(&args, stdout),
-        Command::Render(args) => render::run(*args).map(|_| ()),
-        Command::Field(args) => field::run(*args, stdout).map(|_| ()),
-        Command::Points(args) => points::run(*args, stdout).map(|_| ()),
-        Command::Transform(args) => transform::run(*args, stdout).map(|_| ()),
-        Command::Landmarks(args) => landmarks::run(*args, stdout).map(|_| ()),
-        Command::Align(args) => align::run(*args, stdout).map(|_| ()),
-        Command::Suggest(args) => suggest::run(*args, stdout).map(|_| ()),
-        Command::Register(args) => register::run(*args, stdout).map(|_| ()),
-    }
+    cli::run(command, &mut std::io::stdout().lock())
 }
