@@ -1,0 +1,67 @@
+"""A cohort on a Dask LocalCluster of 2 workers: per-case status, timing and accuracy; a bad case fails alone; a
+rerun skips complete cases."""
+
+from __future__ import annotations
+
+import csv
+
+import pytest
+
+import warpbench as wb
+from conftest import PAIRS, T1, run_cli
+
+pytest.importorskip("dask.distributed")
+
+from warpbench.batch import Case, run_cohort  # noqa: E402
+
+
+def test_a_cohort_runs_case_by_case_and_a_rerun_skips_what_is_complete(tmp_path):
+    pairs = wb.read_landmarks(PAIRS)
+    bad = wb.Pairs(pairs.moving.copy(), pairs.fixed.copy(), names=list(pairs.names))
+    bad.fixed[4] = [900.0, 0.0, 0.0]
+    wb.write_landmarks(tmp_path / "bad.csv", bad)
+    cases = [
+        Case("s01", T1, T1, PAIRS, out=tmp_path / "out" / "s01.nii.gz", out_field=tmp_path / "out" / "s01_field.nii.gz"),
+        Case("s02", T1, T1, PAIRS, out=tmp_path / "out" / "s02.nii.gz", method="affine"),
+        Case("s03", T1, T1, tmp_path / "bad.csv", out=tmp_path / "out" / "s03.nii.gz"),
+    ]
+    from dask.distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(
+        cluster
+    ) as client:
+        first = run_cohort(cases, client=client, table=tmp_path / "results.csv")
+        assert [r.status for r in first] == ["ok", "ok", "failed"]
+        s01, s02, s03 = first
+        assert s01.method == "tps" and s02.method == "affine" and s01.pairs == 8
+        # The accuracy recorded is the fit's leave-one-out, as Warp.leave_one_out gives it.
+        warp = wb.fit(pairs, fixed=wb.read_volume(T1), moving=wb.read_volume(T1))
+        assert s01.leave_one_out_mm == pytest.approx(warp.leave_one_out()["mean_mm"])
+        assert s01.min_det > 0 and s01.seconds > 0
+        # The bad case's error names its file and the landmark (1-based); nothing was written for it.
+        assert "bad.csv: landmark 5 (Pt-4) is outside the fixed volume" in s03.error
+        assert not (tmp_path / "out" / "s03.nii.gz").exists()
+        # The outputs are what the CLI writes for the same case.
+        run_cli("warp", "--fixed", T1, "--moving", T1, "--landmarks", PAIRS, "--backend", "cpu", "--out",
+                tmp_path / "cli.nii.gz", "--quiet")
+        assert (tmp_path / "out" / "s01.nii.gz").read_bytes() == (tmp_path / "cli.nii.gz").read_bytes()
+        with open(tmp_path / "results.csv") as f:
+            table = list(csv.DictReader(f))
+        assert [row["status"] for row in table] == ["ok", "ok", "failed"]
+
+        stamps = {p: p.stat().st_mtime_ns for p in (tmp_path / "out").iterdir()}
+        again = run_cohort(cases, client=client)
+        assert [r.status for r in again] == ["skipped", "skipped", "failed"]
+        assert again[0].leave_one_out_mm == s01.leave_one_out_mm
+        assert {p: p.stat().st_mtime_ns for p in (tmp_path / "out").iterdir()} == stamps
+
+        # A removed output makes its case run again.
+        (tmp_path / "out" / "s02.nii.gz").unlink()
+        third = run_cohort(cases, client=client)
+        assert [r.status for r in third] == ["skipped", "ok", "failed"]
+
+
+def test_case_names_must_differ(tmp_path):
+    c = Case("same", T1, T1, PAIRS, out=tmp_path / "a.nii")
+    with pytest.raises(ValueError, match="name"):
+        run_cohort([c, c], client=object())
