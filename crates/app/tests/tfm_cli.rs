@@ -445,3 +445,75 @@ fn initial_puts_the_alignment_under_the_landmark_warp() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(stderr.contains("tps.tfm") && stderr.contains("affine"), "{stderr}");
 }
+
+/// ANTs' `.mat` wherever a `.tfm` goes: `align` and `transform` write the same affine to either name (the same
+/// numbers, bit for bit), `--initial` reads either to the same warp, and a `.mat` is refused for a TPS.
+#[test]
+fn the_ants_mat_is_the_tfms_affine_in_and_out() {
+    use nalgebra::{Rotation3, Unit, Vector3};
+    use warpbench_io::geometry::{Lps, Transform};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let fixed = mri();
+    let mut moving = warpbench_io::open(&fixed).expect("read the fixture");
+    let rotation =
+        Rotation3::from_axis_angle(&Unit::new_normalize(Vector3::new(0.2, 0.5, 1.0)), 7f64.to_radians()).into_inner();
+    let truth: Transform<Lps, Lps> = Transform::from_linear_translation(rotation, [6.0, -4.0, 3.0]);
+    moving.lps_from_index = truth * moving.lps_from_index;
+    let moving_path = dir.path().join("moved.nii");
+    warpbench_io::nifti::write(&moving_path, &moving).expect("write the moved fixture");
+    let pair = ["--fixed", utf8(&fixed), "--moving", utf8(&moving_path)];
+    let affine_of = |path: &Path| match itk_tfm::read(path) {
+        Ok(ItkTransform::Affine(a)) => a,
+        other => panic!("{}: {other:?}", path.display()),
+    };
+    let bits = |a: &itk_tfm::ItkAffine| {
+        a.matrix.iter().chain(&a.translation).chain(&a.center).map(|v| v.to_bits()).collect::<Vec<_>>()
+    };
+
+    let (tfm, mat) = (dir.path().join("start.tfm"), dir.path().join("start.mat"));
+    for out in [&tfm, &mat] {
+        let args = [&["align"][..], &pair, &["--shrink", "4,2", "--out-tfm", utf8(out), "--quiet"]].concat();
+        assert_ok(&warpbench(&args));
+    }
+    assert_eq!(bits(&affine_of(&mat)), bits(&affine_of(&tfm)), "align: the same affine in both files");
+    assert_eq!(itk_tfm::to_mat_bytes(&affine_of(&tfm)), std::fs::read(&mat).expect("mat"));
+
+    let pairs = dir.path().join("pairs.csv");
+    let q = [[10.0, -20.0, 15.0], [-30.0, 5.0, 0.0], [25.0, 30.0, -10.0], [0.0, -40.0, 30.0], [-15.0, 10.0, -25.0]];
+    let p: Vec<([f64; 3], [f64; 3])> = q.iter().map(|q| ([q[0] + 1.0, q[1] - 2.0, q[2] + 0.5], *q)).collect();
+    common::write_pairs_csv(&pairs, &p);
+    let (lin_tfm, lin_mat) = (dir.path().join("affine.tfm"), dir.path().join("affine.mat"));
+    for out in [&lin_tfm, &lin_mat] {
+        let args =
+            [&["transform"][..], &pair, &["--landmarks", utf8(&pairs), "--method", "affine", "--out", utf8(out)]]
+                .concat();
+        assert_ok(&warpbench(&args));
+    }
+    assert_eq!(bits(&affine_of(&lin_mat)), bits(&affine_of(&lin_tfm)), "transform: the same affine");
+
+    // --initial: the same mapped points from either file.
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, "12,-7,20,a\n-35,22,-14,b\n").expect("write points");
+    let mapped = |initial: &Path, name: &str| {
+        let out = dir.path().join(name);
+        let args = [
+            &["points"][..],
+            &pair,
+            &["--initial", utf8(initial), "--landmarks", utf8(&pairs), "--from", "fixed"],
+            &["--in", utf8(&targets), "--out", utf8(&out), "--quiet"],
+        ]
+        .concat();
+        assert_ok(&warpbench(&args));
+        std::fs::read_to_string(&out).expect("mapped points")
+    };
+    assert_eq!(mapped(&mat, "via_mat.csv"), mapped(&tfm, "via_tfm.csv"));
+
+    // A TPS has no .mat: refused, nothing written.
+    let tps_mat = dir.path().join("tps.mat");
+    let run = warpbench(&[&["transform"][..], &pair, &["--landmarks", utf8(&pairs), "--out", utf8(&tps_mat)]].concat());
+    assert_eq!(run.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("tps.mat") && stderr.contains("holds an affine transform only"), "{stderr}");
+    assert!(!tps_mat.exists());
+}

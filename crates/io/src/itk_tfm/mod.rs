@@ -1,6 +1,9 @@
 //! ITK transform files (`.tfm`, "Insight Transform File V1.0") holding one transform: an affine map, a thin-plate
 //! spline or a cubic B-spline ([`ItkTransform`]); [`write()`], [`read`], [`parse`], and for callers that want only an
-//! affine [`write_affine`], [`read_affine`], [`parse_affine`].
+//! affine [`write_affine`], [`read_affine`], [`parse_affine`]. The same affine in the binary MATLAB v4 file that ANTs
+//! and ITK's `MatlabTransformIO` write (`.mat`, module `ants_mat`: [`parse_mat`], [`to_mat_bytes`]) goes through
+//! the same four functions: this module is the one entry for transform files, and it tells them apart by the name
+//! (`.mat`) and by the content.
 //!
 //! # The format
 //!
@@ -55,6 +58,18 @@
 //! Numbers are written with Rust's shortest round-trip formatting, so a written file reads back bit for bit.
 //! A float (`_float_3_3`) variant of each class is read too. Other transform types and files with several transforms
 //! (composites) are refused with an error that names the file and what it holds.
+//!
+//! # The ANTs / ITK `.mat`
+//!
+//! `antsRegistration`'s `*0GenericAffine.mat`, and what ITK writes for a transform file named `.mat`, hold one
+//! affine: a MATLAB v4 variable named after the class (`AffineTransform_double_3_3`, 12 numbers: A row by row, then
+//! t) and one named `fixed` (the centre c), the same numbers and the same meaning as the `.tfm` above. [`read`] and
+//! [`read_affine`] take such a file wherever they take a `.tfm` (the name `.mat`, or its first bytes, say which),
+//! and [`write()`] and [`write_affine`] write one for a name ending in `.mat` (an affine only: a thin-plate spline or
+//! a B-spline is refused there). Little-endian doubles, as SimpleITK writes them, so the same transform gives the
+//! same bytes; big-endian and float files are read. The layout is in `ants_mat`'s docs.
+
+mod ants_mat;
 
 use std::io::Write;
 use std::path::Path;
@@ -62,6 +77,8 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Error, ErrorKind, Result};
+
+pub use ants_mat::{parse_mat, to_mat_bytes};
 
 /// The first line of every ITK transform file.
 const MAGIC: &str = "#Insight Transform File V1.0";
@@ -332,10 +349,25 @@ fn cubic_basis(t: f64) -> [f64; 4] {
     [u * u * u / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0, (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0, t3 / 6.0]
 }
 
-/// Writes `transform` as an ITK transform file, atomically. A transform ITK cannot take (non-finite numbers,
-/// mismatched landmark counts, a grid too small for a cubic B-spline) is an error and nothing is written.
+/// Writes `transform` as an ITK transform file, atomically: a `.tfm` (any name but `.mat`), or for a name ending in
+/// `.mat` the MATLAB v4 file of ANTs and ITK (an affine only). A transform ITK cannot take (non-finite numbers,
+/// mismatched landmark counts, a grid too small for a cubic B-spline) or a `.mat` cannot hold is an error and nothing
+/// is written.
 pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
     transform.check(path)?;
+    if is_mat_name(path) {
+        let ItkTransform::Affine(affine) = transform else {
+            return Err(Error::unsupported(
+                path,
+                format!(
+                    "a .mat (ANTs, ITK's MatlabTransformIO) holds an affine transform only; write the {} as a .tfm",
+                    transform.type_name()
+                ),
+            ));
+        };
+        let bytes = to_mat_bytes(affine);
+        return crate::write_atomic(path, |w| w.write_all(&bytes));
+    }
     crate::write_atomic(path, |w| {
         let mut w = std::io::BufWriter::new(w);
         transform.write_text(&mut w)?;
@@ -343,30 +375,53 @@ pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
     })
 }
 
-/// Writes `affine` as an ITK transform file, atomically. A non-finite parameter is an error.
+/// Writes `affine` as an ITK transform file (`.tfm`, or `.mat` for a name ending so), atomically. A non-finite
+/// parameter is an error.
 pub fn write_affine(path: &Path, affine: &ItkAffine) -> Result<()> {
     write(path, &ItkTransform::Affine(*affine))
 }
 
-/// Reads a `.tfm` holding one transform of a class in the module docs. Only a regular file is read (a named pipe
-/// would block, a device never end).
+/// Reads a transform file holding one transform of a class in the module docs: a `.tfm`, or an affine `.mat`. Only a
+/// regular file is read (a named pipe would block, a device never end).
 pub fn read(path: &Path) -> Result<ItkTransform> {
-    parse(path, &read_text(path)?)
+    match read_file(path)? {
+        Contents::Mat(bytes) => parse_mat(path, &bytes).map(ItkTransform::Affine),
+        Contents::Text(text) => parse(path, &text),
+    }
 }
 
-/// Reads a `.tfm` holding one affine transform.
+/// Reads a transform file (`.tfm` or `.mat`) holding one affine transform.
 pub fn read_affine(path: &Path) -> Result<ItkAffine> {
-    parse_affine(path, &read_text(path)?)
+    match read_file(path)? {
+        Contents::Mat(bytes) => parse_mat(path, &bytes),
+        Contents::Text(text) => parse_affine(path, &text),
+    }
 }
 
-fn read_text(path: &Path) -> Result<String> {
+/// Whether `path` is named as a MATLAB `.mat` (any case).
+fn is_mat_name(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat"))
+}
+
+/// A transform file's contents: the text of a `.tfm`, or the bytes of a `.mat`.
+enum Contents {
+    Text(String),
+    Mat(Vec<u8>),
+}
+
+fn read_file(path: &Path) -> Result<Contents> {
     let len = crate::files::check_regular_file(path)?.len();
     // The largest file we read is a B-spline of MAX_BSPLINE_CONTROL_POINTS; a longer one is not read into memory.
     if len > MAX_FILE_BYTES {
         return Err(Error::invalid(path, format!("{len} bytes is too long for a transform file")));
     }
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    String::from_utf8(bytes).map_err(|_| Error::invalid(path, "the transform file is not UTF-8 text"))
+    if is_mat_name(path) || ants_mat::looks_like_mat(&bytes) {
+        return Ok(Contents::Mat(bytes));
+    }
+    String::from_utf8(bytes)
+        .map(Contents::Text)
+        .map_err(|_| Error::invalid(path, "the transform file is not UTF-8 text"))
 }
 
 /// The three lines of a one-transform file, numbers parsed but not yet counted.
