@@ -125,3 +125,27 @@ def test_the_gil_is_released_during_long_work():
     stop.set()
     t.join()
     assert during > 0
+
+
+def test_read_volume_places_the_volume_where_info_does():
+    info = cli_json("info", T1)
+    v = wb.read_volume(T1)
+    assert list(v.shape) == info["dims"]
+    np.testing.assert_array_equal(v.lps_from_index, np.array(info["lps_from_index"]))
+    np.testing.assert_array_equal(v.spacing, info["spacing_mm"])
+
+
+def test_suggest_returns_the_clis_report(tmp_path, shifted):
+    moved, turn = shifted
+    pairs = wb.read_landmarks(PAIRS)
+    q = pairs.fixed
+    p = (turn @ np.c_[q, np.ones(len(q))].T).T[:, :3]
+    wb.write_landmarks(tmp_path / "known.csv", wb.Pairs(p, q, names=pairs.names))
+    points = p[:2] + [1.0, 0.0, -1.0]
+    with open(tmp_path / "points.csv", "w") as f:
+        f.write("x,y,z\n" + "".join(f"{float(a)!r},{float(b)!r},{float(c)!r}\n" for a, b, c in points))
+    cli = cli_json("suggest", "--fixed", T1, "--moving", moved, "--landmarks", tmp_path / "known.csv", "--points",
+                   tmp_path / "points.csv", "--out", tmp_path / "cli.csv")
+    py = wb.suggest(T1, moved, points, tmp_path / "known.csv", out=tmp_path / "py.csv")
+    assert without_times(py) | {"out": "", "points": ""} == without_times(cli) | {"out": "", "points": ""}
+    assert (tmp_path / "py.csv").read_bytes() == (tmp_path / "cli.csv").read_bytes()

@@ -575,7 +575,7 @@ def suggest(
             with open(path, "w", encoding="utf-8") as f:
                 f.write("x,y,z\n")
                 for x, y, z in listed:
-                    f.write(f"{x!r},{y!r},{z!r}\n")
+                    f.write(f"{float(x)!r},{float(y)!r},{float(z)!r}\n")
             argv += ["--points", path]
         if landmarks is not None:
             argv += ["--landmarks", io.pairs(landmarks)]
