@@ -40,7 +40,7 @@ use crate::project::stack::{Layers, StackPullback};
 use crate::settings::{MethodKind, Stiffness};
 
 /// The `--json` schema name.
-pub const SCHEMA: &str = "warpbench-register/1";
+pub const SCHEMA: &str = "warpbench-register/2";
 
 /// What `warpbench register --help` says above the options; its first paragraph is the summary that `-h` and
 /// `warpbench --help` show.
@@ -64,7 +64,7 @@ spacing of --grid-mm. The field holds u(x) − x at each voxel of the fixed grid
 #[command(mut_args(help(&[
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): the field's grid"),
     ("moving", "The moving volume: any modality (mutual information needs no common intensity scale)"),
-    ("json", "Print a JSON summary (schema warpbench-register/1, see docs/cli.md) to stdout"),
+    ("json", "Print a JSON summary (schema warpbench-register/2, see docs/cli.md) to stdout"),
     ("force", "Overwrite --out-field (and --out) if they exist"),
 ])))]
 pub struct RegisterArgs {
@@ -158,12 +158,14 @@ impl From<RegisterPairArgs> for PairArgs {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum MetricArg {
     Mi,
+    Ngf,
 }
 
 impl From<MetricArg> for Similarity {
     fn from(arg: MetricArg) -> Self {
         match arg {
             MetricArg::Mi => Self::Mi,
+            MetricArg::Ngf => Self::Ngf,
         }
     }
 }
@@ -191,7 +193,7 @@ pub struct RegisterSettings {
     pub seed: u64,
 }
 
-/// What was found and written: the `--json` document, schema `warpbench-register/1` (docs/cli.md).
+/// What was found and written: the `--json` document, schema `warpbench-register/2` (docs/cli.md).
 #[derive(Clone, Debug, Serialize)]
 pub struct RegisterSummary {
     pub schema: &'static str,
@@ -489,14 +491,15 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         let last = summary.levels.last();
         let worst = summary.residuals.iter().map(|r| r.residual_mm).fold(0.0, f64::max);
         eprintln!(
-            "wrote {} ({} field; registered from {} under {} pairs (worst {:.2} mm), mutual information {:.4}, min \
-             det ∇u {:.3}, max |D| {:.2} mm, {:.1} s)",
+            "wrote {} ({} field; registered from {} under {} pairs (worst {:.2} mm), {} {:.4}, min det ∇u \
+             {:.3}, max |D| {:.2} mm, {:.1} s)",
             summary.out_field,
             summary.format,
             summary.start,
             summary.pairs,
             worst,
-            last.map_or(0.0, |l| l.mutual_information),
+            summary.settings.metric,
+            last.map_or(0.0, |l| l.similarity),
             summary.jacobian.min_det,
             summary.max_displacement_mm,
             summary.register_s

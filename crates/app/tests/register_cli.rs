@@ -46,14 +46,14 @@ fn the_registered_field_beats_the_tps_keeps_the_pairs_and_is_what_warp_applies()
     ]);
     assert_ok(&run);
     let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
-    assert_eq!(report["schema"], "warpbench-register/1");
+    assert_eq!(report["schema"], "warpbench-register/2");
     assert_eq!(report["start"], "tps");
     assert_eq!(report["pairs"], 6);
     let levels = report["levels"].as_array().expect("levels");
     assert_eq!(levels.len(), 2);
     for level in levels {
-        let (start, end) = (level["mutual_information_start"].as_f64(), level["mutual_information"].as_f64());
-        assert!(end > start, "the mutual information rises at every level: {level}");
+        let (start, end) = (level["similarity_start"].as_f64(), level["similarity"].as_f64());
+        assert!(end > start, "the similarity rises at every level: {level}");
     }
     for r in report["residuals"].as_array().expect("residuals") {
         assert!(r["residual_mm"].as_f64().expect("residual") < 0.5, "{r}");
@@ -156,4 +156,47 @@ fn bad_input_exits_2_names_the_file_and_writes_nothing() {
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("exists.nii.gz"));
     assert_eq!(std::fs::read(&exists).expect("read"), b"keep", "the file is untouched");
+}
+
+#[test]
+fn normalised_gradient_fields_are_a_metric_of_their_own() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, _) = case(dir.path());
+    let field = dir.path().join("field.nii.gz");
+    let run = warpbench(&[
+        "register",
+        "--fixed",
+        utf8(&fixed),
+        "--moving",
+        utf8(&moving),
+        "--landmarks",
+        utf8(&pairs),
+        "--out-field",
+        utf8(&field),
+        "--metric",
+        "ngf",
+        "--grid-mm",
+        "20",
+        "--levels",
+        "2",
+        "--json",
+    ]);
+    assert_ok(&run);
+    let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+    assert_eq!(report["settings"]["metric"], "ngf");
+    // A mean of squared cosines: in [0, 1]. The coarse level raises it; each level lowers the whole objective, whose
+    // landmark and bending terms may cost a finer level's similarity a little (levels read differently shrunk images,
+    // so their values are not compared with each other).
+    let levels = report["levels"].as_array().expect("levels");
+    let value = |l: &Value, key: &str| l[key].as_f64().expect("similarity");
+    for level in levels {
+        assert!((0.0..=1.0).contains(&value(level, "similarity_start")), "{level}");
+        assert!((0.0..=1.0).contains(&value(level, "similarity")), "{level}");
+    }
+    let first = levels.first().expect("a level");
+    assert!(value(first, "similarity") > value(first, "similarity_start"), "{levels:?}");
+    for r in report["residuals"].as_array().expect("residuals") {
+        assert!(r["residual_mm"].as_f64().expect("residual") < 0.5, "{r}");
+    }
+    assert!(report["jacobian"]["min_det"].as_f64().expect("min det") > 0.0);
 }

@@ -243,6 +243,28 @@ impl<S: Space> Image<S> {
         Some((value, [g[0], g[1], g[2]]))
     }
 
+    /// [`Self::sample_with_gradient`] and the Hessian in mm⁻² of the trilinear interpolant inside the cell: its
+    /// diagonal is 0, its mixed terms are the cell's mixed differences blended along the third axis.
+    #[must_use]
+    #[inline]
+    pub fn sample_with_hessian(&self, x_mm: [f64; 3]) -> Option<(f64, [f64; 3], [[f64; 3]; 3])> {
+        let (value, gradient) = self.sample_with_gradient(x_mm)?;
+        let (base, [fx, fy, fz]) = self.cell(self.index_of(x_mm))?;
+        let c = self.corners(base);
+        // Mixed differences in index space, (c_k, c_j, c_i) bit order.
+        let ij0 = (c[3] - c[2]) - (c[1] - c[0]);
+        let ij1 = (c[7] - c[6]) - (c[5] - c[4]);
+        let ik0 = (c[5] - c[4]) - (c[1] - c[0]);
+        let ik1 = (c[7] - c[6]) - (c[3] - c[2]);
+        let jk0 = (c[6] - c[4]) - (c[2] - c[0]);
+        let jk1 = (c[7] - c[5]) - (c[3] - c[1]);
+        let (hij, hik, hjk) = (ij0 + fz * (ij1 - ij0), ik0 + fy * (ik1 - ik0), jk0 + fx * (jk1 - jk0));
+        let h_index = Matrix3::new(0.0, hij, hik, hij, 0.0, hjk, hik, hjk, 0.0);
+        let a = &self.index_from_space_linear;
+        let h = a.transpose() * h_index * a;
+        Some((value, gradient, std::array::from_fn(|r| std::array::from_fn(|col| h[(r, col)]))))
+    }
+
     /// The smallest and largest finite value, or `None` when none is finite; read on the threads `parallelism`
     /// allows.
     #[must_use]
@@ -331,6 +353,40 @@ mod tests {
 
     /// A linear function of the index on an oblique grid: trilinear interpolation reproduces it, and its gradient
     /// in mm is (linearᵀ)⁻¹ applied to the index gradient.
+    #[test]
+    fn the_hessian_is_the_derivative_of_the_gradient_inside_a_cell() {
+        // An oblique, anisotropic grid of random values: within a cell the interpolant is trilinear, so central
+        // differences of its gradient are exact up to rounding.
+        let dims = [5, 4, 6];
+        let mut state = 7u64;
+        let values: Vec<f32> = (0..dims.iter().product::<usize>())
+            .map(|_| {
+                state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+                (state >> 40) as f32 / 1000.0
+            })
+            .collect();
+        let linear = Matrix3::new(0.9, -0.3, 0.1, 0.2, 1.4, 0.0, -0.1, 0.2, 2.1);
+        let image = Image::<Fixed>::new(dims, values, Transform::from_linear_translation(linear, [3.0, -2.0, 1.0]))
+            .expect("image");
+        let h = 1e-4;
+        for index in [[1.3, 1.6, 2.2], [0.4, 2.5, 4.7], [3.2, 0.3, 1.5]] {
+            let x = image.space_from_index().apply_point(Point3::from_array(index)).coords();
+            let (_, _, hessian) = image.sample_with_hessian(x).expect("inside");
+            for col in 0..3 {
+                let mut xp = x;
+                let mut xm = x;
+                xp[col] += h;
+                xm[col] -= h;
+                let gp = image.sample_with_gradient(xp).expect("inside").1;
+                let gm = image.sample_with_gradient(xm).expect("inside").1;
+                for r in 0..3 {
+                    let fd = (gp[r] - gm[r]) / (2.0 * h);
+                    assert!((hessian[r][col] - fd).abs() < 1e-6, "{index:?} H[{r}][{col}] {hessian:?} vs {fd}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn trilinear_reproduces_a_linear_function_and_its_gradient_in_mm() {
         let dims = [5, 6, 7];

@@ -202,8 +202,8 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         "Refined by intensities from {}: mutual information {:.3} to {:.3}, {pairs}, smallest Jacobian determinant \
          {:.2}, {:.1} s",
         refinement.start_name,
-        refinement.registration.levels.first().map_or(0.0, |l| l.mutual_information_start),
-        last.map_or(0.0, |l| l.mutual_information),
+        refinement.registration.levels.first().map_or(0.0, |l| l.similarity_start),
+        last.map_or(0.0, |l| l.similarity),
         refinement.jacobian.min_det,
         refinement.register_s
     );

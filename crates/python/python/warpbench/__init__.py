@@ -533,10 +533,10 @@ def register(
 ) -> Dict[str, Any]:
     """Deformable registration by intensities under the landmarks (``warpbench register``).
 
-    The options are the CLI's: ``session``, ``initial``, ``method``, ``stiffness``, ``metric``, ``grid_mm``,
+    The options are the CLI's: ``session``, ``initial``, ``method``, ``stiffness``, ``metric`` (``"mi"`` or ``"ngf"``), ``grid_mm``,
     ``levels``, ``landmark_weight``, ``bending_weight``, ``samples``, ``iterations``, ``seed``, ``format``,
     ``force``. ``out_field`` (the displacement field) and ``out`` (the warped volume) are written when given.
-    Returns the CLI's ``--json`` report (schema ``warpbench-register/1``)."""
+    Returns the CLI's ``--json`` report (schema ``warpbench-register/2``)."""
     with ExitStack() as stack:
         io = _Inputs(stack)
         argv = ["register", "--fixed", io.volume(fixed, "fixed"), "--moving", io.volume(moving, "moving")]

@@ -69,9 +69,9 @@ impl Footprint {
 /// weights and their derivatives there.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct JacobianPoint {
-    start: [usize; 3],
-    weights: [[f64; 4]; 3],
-    derivatives: [[f64; 4]; 3],
+    pub(super) start: [usize; 3],
+    pub(super) weights: [[f64; 4]; 3],
+    pub(super) derivatives: [[f64; 4]; 3],
 }
 
 impl JacobianPoint {
@@ -137,14 +137,15 @@ pub(super) struct Metric<'a> {
 /// MI, its gradient in the coefficients, and the samples that stayed inside the warped image.
 #[derive(Debug)]
 pub(super) struct Evaluation {
-    pub(super) mutual_information: f64,
+    /// The similarity: MI in nats here, the NGF measure in [`super::ngf`].
+    pub(super) similarity: f64,
     pub(super) gradient: Vec<f64>,
     pub(super) inside: usize,
 }
 
 /// The sums are split into this many chunks whatever the number of threads, and the chunks' partial sums are added in
 /// their order: the same inputs give the same bits on any machine.
-const CHUNKS: usize = 16;
+pub(super) const CHUNKS: usize = 16;
 
 impl<'a> Metric<'a> {
     /// The metric of `samples` (with their footprints in `lattice`) against `warped`, its histogram spanning the
@@ -272,6 +273,6 @@ impl<'a> Metric<'a> {
         for part in parts {
             gradient.iter_mut().zip(part).for_each(|(x, y)| *x += y);
         }
-        Some(Evaluation { mutual_information: mi, gradient, inside })
+        Some(Evaluation { similarity: mi, gradient, inside })
     }
 }
