@@ -51,13 +51,13 @@ fn every_fixture_reads_to_what_simpleitk_read() {
         let file = f["file"].as_str().expect("file");
         let path = data_dir().join(file);
         assert_eq!(Format::detect(&path).expect("detect"), Format::MetaImage, "{file}");
-        let size = numbers(&f["size"]);
-        let frames = size.get(3).map_or(1, |&t| t as usize);
-        let n = (size[0] * size[1] * size[2]) as usize;
+        let size: Vec<usize> = numbers(&f["size"]).into_iter().map(|s| s as usize).collect();
+        let frames = size.get(3).copied().unwrap_or(1);
+        let n = size[0] * size[1] * size[2];
         let all = numbers(&f["voxels"]);
         for frame in 0..frames {
             let v = open(&path, (frames > 1).then_some(frame)).unwrap_or_else(|e| panic!("{e}"));
-            assert_eq!(v.dims.map(|d| d as f64), [size[0], size[1], size[2]], "{file}");
+            assert_eq!(v.dims, [size[0], size[1], size[2]], "{file}");
             assert_eq!(v.geometry_source, GeometrySource::MetaImage);
             let pixel_type = f["pixel_type"].as_str().expect("type");
             assert_eq!(v.sample_type(), expected_type(pixel_type), "{file}");

@@ -1,5 +1,6 @@
 //! The affine transform as ANTs and ITK's `MatlabTransformIO` store it: a MATLAB v4 binary file (`.mat`) of two
-//! variables, the same numbers as an ITK `.tfm`'s `AffineTransform_double_3_3` ([`super::ItkAffine`]).
+//! variables, the same numbers as an ITK `.tfm`'s `AffineTransform_double_3_3` (the parent module turns them into
+//! its `ItkAffine`; this one knows only the twelve parameters and the centre, so that neither imports the other).
 //!
 //! # The format
 //!
@@ -30,10 +31,13 @@
 
 use std::path::Path;
 
-use nalgebra::Matrix3;
-
-use super::ItkAffine;
 use crate::error::{Error, ErrorKind, Result};
+
+/// The numbers of an affine `.mat`: the 12 parameters (A row by row, then t) and the centre c.
+pub(super) struct MatAffine {
+    pub(super) parameters: [f64; 12],
+    pub(super) center: [f64; 3],
+}
 
 /// The names the parameters' variable may have.
 const PARAMETER_NAMES: [&str; 4] = [
@@ -67,7 +71,7 @@ pub(super) fn looks_like_mat(bytes: &[u8]) -> bool {
 fn type_code(bytes: &[u8]) -> Option<(bool, usize)> {
     let word: [u8; 4] = bytes.get(..4)?.try_into().ok()?;
     for (big_endian, value) in [(false, i32::from_le_bytes(word)), (true, i32::from_be_bytes(word))] {
-        let m = if big_endian { 1 } else { 0 };
+        let m = i32::from(big_endian);
         match value - m * 1000 {
             0 => return Some((big_endian, 8)),
             10 => return Some((big_endian, 4)),
@@ -128,7 +132,7 @@ fn variable(name: &Path, bytes: &[u8], at: usize, index: usize) -> Result<(Varia
 }
 
 /// Parses the bytes of an affine `.mat` (module docs); `name` is used in errors.
-pub fn parse_mat(name: &Path, bytes: &[u8]) -> Result<ItkAffine> {
+pub(super) fn parse_mat_numbers(name: &Path, bytes: &[u8]) -> Result<MatAffine> {
     if !looks_like_mat(bytes) {
         let plausible = |v: i32| (0..5000).contains(&v);
         let detail = if bytes.len() < 20 {
@@ -195,11 +199,7 @@ pub fn parse_mat(name: &Path, bytes: &[u8]) -> Result<ItkAffine> {
     }
     let p = &parameters.values;
     let c = &fixed.values;
-    Ok(ItkAffine {
-        matrix: Matrix3::from_row_slice(&p[..9]),
-        translation: [p[9], p[10], p[11]],
-        center: [c[0], c[1], c[2]],
-    })
+    Ok(MatAffine { parameters: std::array::from_fn(|i| p[i]), center: [c[0], c[1], c[2]] })
 }
 
 /// The bytes of one little-endian variable of doubles, `n` × 1.
@@ -215,13 +215,10 @@ fn put_variable(out: &mut Vec<u8>, var_name: &str, values: &[f64]) {
     }
 }
 
-/// The `.mat` bytes of `affine` as SimpleITK writes an `AffineTransform_double_3_3` (module docs).
-#[must_use]
-pub fn to_mat_bytes(affine: &ItkAffine) -> Vec<u8> {
-    let m = &affine.matrix;
-    let parameters: Vec<f64> = (0..3).flat_map(|r| (0..3).map(move |c| m[(r, c)])).chain(affine.translation).collect();
+/// The `.mat` bytes of an affine as SimpleITK writes an `AffineTransform_double_3_3` (module docs).
+pub(super) fn mat_bytes(affine: &MatAffine) -> Vec<u8> {
     let mut out = Vec::with_capacity(256);
-    put_variable(&mut out, PARAMETER_NAMES[0], &parameters);
+    put_variable(&mut out, PARAMETER_NAMES[0], &affine.parameters);
     put_variable(&mut out, FIXED_NAME, &affine.center);
     out
 }

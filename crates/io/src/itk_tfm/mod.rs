@@ -78,7 +78,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Error, ErrorKind, Result};
 
-pub use ants_mat::{parse_mat, to_mat_bytes};
+use ants_mat::{MatAffine, mat_bytes, parse_mat_numbers};
 
 /// The first line of every ITK transform file.
 const MAGIC: &str = "#Insight Transform File V1.0";
@@ -347,6 +347,23 @@ fn cubic_basis(t: f64) -> [f64; 4] {
     let u = 1.0 - t;
     let (t2, t3) = (t * t, t * t * t);
     [u * u * u / 6.0, (3.0 * t3 - 6.0 * t2 + 4.0) / 6.0, (-3.0 * t3 + 3.0 * t2 + 3.0 * t + 1.0) / 6.0, t3 / 6.0]
+}
+
+/// Parses the bytes of an ANTs / ITK affine `.mat` (module docs, "The ANTs / ITK `.mat`"); `name` is used in errors.
+pub fn parse_mat(name: &Path, bytes: &[u8]) -> Result<ItkAffine> {
+    let MatAffine { parameters: p, center } = parse_mat_numbers(name, bytes)?;
+    Ok(ItkAffine { matrix: Matrix3::from_row_slice(&p[..9]), translation: [p[9], p[10], p[11]], center })
+}
+
+/// The bytes of `affine` as an ANTs / ITK `.mat`, what SimpleITK writes for it (module docs).
+#[must_use]
+pub fn to_mat_bytes(affine: &ItkAffine) -> Vec<u8> {
+    let m = &affine.matrix;
+    let mut parameters = [0.0; 12];
+    for (i, v) in (0..3).flat_map(|r| (0..3).map(move |c| m[(r, c)])).chain(affine.translation).enumerate() {
+        parameters[i] = v;
+    }
+    mat_bytes(&MatAffine { parameters, center: affine.center })
 }
 
 /// Writes `transform` as an ITK transform file, atomically: a `.tfm` (any name but `.mat`), or for a name ending in

@@ -21,7 +21,7 @@ const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// Which samples to decode: `n` of them (one frame), after `frame` frames of `n`, in a file of `frames` frames.
 #[derive(Clone, Copy, Debug)]
-pub(super) struct Frame {
+pub(super) struct FrameChoice {
     pub(super) n: usize,
     pub(super) frame: usize,
     pub(super) frames: usize,
@@ -34,7 +34,7 @@ pub(super) fn decode_payload<R: BufRead>(
     r: R,
     len: u64,
     h: &Header,
-    f: Frame,
+    f: FrameChoice,
     opts: &mut LoadOptions,
 ) -> Result<VoxelData> {
     let sample_bytes = h.stored.bytes() as u64;
@@ -43,7 +43,7 @@ pub(super) fn decode_payload<R: BufRead>(
     let mut r = r.take(len);
     if !h.compressed {
         let all = (f.frames as u64).saturating_mul(frame_bytes);
-        let start = match h.header_size {
+        let start = match h.byte_skip {
             Some(s) => s,
             None => len.checked_sub(all).ok_or_else(|| {
                 Error::truncated(path, format!("{len} bytes of data for the {all} bytes that HeaderSize = -1 needs"))
@@ -63,7 +63,7 @@ pub(super) fn decode_payload<R: BufRead>(
         skip_bytes(path, &mut r, start.saturating_add(before), "the bytes before the samples")?;
         return decode_binary(path, &mut r, h, f.n, opts);
     }
-    let header_size = h.header_size.unwrap_or(0);
+    let header_size = h.byte_skip.unwrap_or(0);
     let after = len
         .checked_sub(header_size)
         .ok_or_else(|| Error::truncated(path, format!("{len} bytes of data, fewer than HeaderSize = {header_size}")))?;

@@ -29,7 +29,7 @@ pub(super) struct Header {
     pub(super) compressed: bool,
     pub(super) compressed_size: Option<u64>,
     /// `HeaderSize`: bytes skipped before the samples; `None` for `-1` (the samples are the file's last bytes).
-    pub(super) header_size: Option<u64>,
+    pub(super) byte_skip: Option<u64>,
     /// `ElementSpacing` (else `ElementSize`), `NDims` values.
     pub(super) spacing: Option<Vec<f64>>,
     /// `Offset` / `Position` / `Origin`, `NDims` values.
@@ -40,9 +40,12 @@ pub(super) struct Header {
     pub(super) comment: Option<String>,
 }
 
+/// One header line: its 1-based number, key and value.
+pub(super) type Field = (usize, String, String);
+
 /// Reads the header lines up to and including `ElementDataFile` (the last field of every MetaImage header); returns
-/// the `(key, value)` pairs with their 1-based line numbers, and the bytes the header takes.
-pub(super) fn read_header_lines(name: &Path, r: &mut impl BufRead) -> Result<(Vec<(usize, String, String)>, u64)> {
+/// the fields and the bytes the header takes.
+pub(super) fn read_header_lines(name: &Path, r: &mut impl BufRead) -> Result<(Vec<Field>, u64)> {
     let mut used = 0u64;
     let mut fields = Vec::new();
     let mut buf = Vec::new();
@@ -111,7 +114,7 @@ fn parse_type(s: &str) -> Option<StoredType> {
 }
 
 /// The header's fields from its lines; `name` is used in errors.
-pub(super) fn parse_header(name: &Path, lines: &[(usize, String, String)]) -> Result<Header> {
+pub(super) fn parse_header(name: &Path, lines: &[Field]) -> Result<Header> {
     // Each field we use, with the other spellings MetaIO accepts for it.
     const SYNONYMS: [&[&str]; 4] = [
         &["TransformMatrix", "Rotation", "Orientation"],
@@ -250,14 +253,14 @@ pub(super) fn parse_header(name: &Path, lines: &[(usize, String, String)]) -> Re
         return Err(Error::invalid(name, "CompressedDataSize is given but CompressedData is not True"));
     }
 
-    let header_size = match get_one("HeaderSize") {
+    let byte_skip = match get_one("HeaderSize") {
         Some((_, v)) if v == "-1" => None,
         Some((l, v)) => Some(v.parse::<u64>().map_err(|_| {
             Error::invalid(name, format!("header line {l}: HeaderSize {v:?} is neither -1 nor a whole number of bytes"))
         })?),
         None => Some(0),
     };
-    if header_size.is_none() && compressed {
+    if byte_skip.is_none() && compressed {
         return Err(Error::invalid(name, "HeaderSize = -1 (the data are the file's last bytes) with compressed data"));
     }
 
@@ -306,7 +309,7 @@ pub(super) fn parse_header(name: &Path, lines: &[(usize, String, String)]) -> Re
         big_endian,
         compressed,
         compressed_size,
-        header_size,
+        byte_skip,
         spacing,
         offset,
         direction,

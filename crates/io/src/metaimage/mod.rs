@@ -72,7 +72,7 @@ pub use write::{MetaImageWriteOptions, write, write_with};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
 use crate::volume::{GeometrySource, Metadata, Volume, check_allocation};
-use data::{Frame, decode_payload};
+use data::{FrameChoice, decode_payload};
 use header::{DataFile, parse_header, read_header_lines};
 
 /// Reads the MetaImage file (`.mha`, or a `.mhd` header with its data file) at `path`.
@@ -111,7 +111,7 @@ fn read_from<R: BufRead>(
     // The stored samples may be wider than the output (f64 → f32): both must fit under the limit.
     check_allocation(name, g.dims, h.stored.bytes(), opts.max_voxel_bytes)?;
     let n = check_allocation(name, g.dims, out_type.bytes(), opts.max_voxel_bytes)?;
-    let f = Frame { n, frame, frames: g.frames };
+    let f = FrameChoice { n, frame, frames: g.frames };
 
     let data = match &h.data_file {
         DataFile::Local => decode_payload(name, r, total_len.saturating_sub(header_bytes), &h, f, opts)?,

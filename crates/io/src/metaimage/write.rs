@@ -94,6 +94,7 @@ fn compress(path: &Path, data: &VoxelData) -> Result<Vec<u8>> {
 
 /// `q` with `fl(q · s) == x` when one of q = x / s and its two neighbours gives it, so that the reader's
 /// `direction · spacing` is the volume's matrix entry bit for bit; else x / s.
+#[allow(clippy::float_cmp, reason = "the product must equal x exactly, bit for bit")]
 fn exact_quotient(x: f64, s: f64) -> f64 {
     let q = x / s;
     [q, q.next_up(), q.next_down()].into_iter().find(|c| c * s == x).unwrap_or(q)
