@@ -79,7 +79,8 @@ pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
 pub enum LandmarkSource {
     /// One file of pairs: BigWarp CSV or BigWarp JSON, told apart by content.
     Pairs(PathBuf),
-    /// Two Slicer point lists (`.mrk.json` or `.fcsv`), moving then fixed, matched by order.
+    /// Two one-side point lists, Slicer (`.mrk.json` or `.fcsv`) or elastix `point` files, moving then fixed, matched
+    /// by order.
     SlicerPair { moving: PathBuf, fixed: PathBuf },
     /// A window session's pairs (`--session`).
     Session(PathBuf),
@@ -116,16 +117,23 @@ impl LandmarkSource {
         self.paths().iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ")
     }
 
-    /// Reads the pairs. A single `.mrk.json`/`.fcsv` is refused with a hint: one Slicer list holds one side only.
+    /// Reads the pairs. A single `.mrk.json`/`.fcsv` or elastix point file is refused with a hint: it holds one side
+    /// only.
     pub fn read(&self) -> Result<Vec<LandmarkPair>> {
         match self {
             Self::Pairs(path) => {
-                if landmarks::detect_landmark_file(path)?.holds_pairs() {
+                let format = landmarks::detect_landmark_file(path)?;
+                if format.holds_pairs() {
                     Ok(landmarks::read_landmark_pairs(path)?)
                 } else {
+                    let what = if format == landmarks::LandmarkFileFormat::ElastixPoints {
+                        "an elastix point file"
+                    } else {
+                        "a Slicer point list"
+                    };
                     Err(anyhow!(
-                        "{}: a Slicer point list holds one side of the pairs; give the moving and the fixed list \
-                         with --moving-points and --fixed-points",
+                        "{}: {what} holds one side of the pairs; give the moving and the fixed list with \
+                         --moving-points and --fixed-points",
                         path.display()
                     ))
                 }

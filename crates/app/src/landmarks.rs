@@ -192,15 +192,17 @@ pub fn run(args: LandmarksArgs, out: &mut dyn Write) -> Result<LandmarksListing,
     Ok(listing)
 }
 
-/// A Slicer output must be named `.mrk.json` or `.fcsv`: the name picks the format.
+/// A one-side output must be named `.mrk.json` or `.fcsv` (Slicer), or `.txt` (an elastix point set): the name picks
+/// the format.
 #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
 fn check_slicer_name(path: &Path) -> Result<(), Failure> {
     let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-    if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") {
+    if lower.ends_with(".mrk.json") || lower.ends_with(".fcsv") || lower.ends_with(".txt") {
         Ok(())
     } else {
         Err(Failure::BadInput(anyhow!(
-            "{}: a Slicer point list is named .mrk.json (Slicer 5 markups) or .fcsv (legacy)",
+            "{}: a Slicer point list is named .mrk.json (Slicer 5 markups) or .fcsv (legacy), an elastix point set \
+             .txt",
             path.display()
         )))
     }
@@ -212,9 +214,14 @@ pub fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Land
         inputs::LandmarkSource::Pairs(path) => {
             let format = landmarks::detect_landmark_file(path).map_err(|e| Failure::BadInput(e.into()))?;
             if !format.holds_pairs() {
+                let what = if format == LandmarkFileFormat::ElastixPoints {
+                    "an elastix point file"
+                } else {
+                    "a Slicer point list"
+                };
                 return Err(Failure::BadInput(anyhow!(
-                    "{}: a Slicer point list holds one side of the pairs; give the moving and the fixed list with \
-                     --moving-points and --fixed-points",
+                    "{}: {what} holds one side of the pairs; give the moving and the fixed list with --moving-points \
+                     and --fixed-points",
                     path.display()
                 )));
             }
@@ -240,7 +247,10 @@ pub fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Land
                 )));
             }
             let pairs = read_slicer_pair(moving, fixed).map_err(|e| Failure::BadInput(e.into()))?;
-            Ok((pairs, "slicer-pair".to_string()))
+            let elastix =
+                |p: &Path| landmarks::detect_landmark_file(p).is_ok_and(|f| f == LandmarkFileFormat::ElastixPoints);
+            let format = if elastix(moving) && elastix(fixed) { "elastix-pair" } else { "slicer-pair" };
+            Ok((pairs, format.to_string()))
         }
     }
 }
@@ -329,7 +339,8 @@ fn write_table(l: &LandmarksListing, out: &mut dyn Write) -> std::io::Result<()>
 /// `warpbench --help` show.
 const HELP: &str = "\
 Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
-fixed) ↔ plain CSV; --json lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
+fixed) ↔ plain CSV ↔ elastix point sets (.txt, moving and fixed; transformix's outputpoints.txt in); --json
+lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
 
 Without --out (or --out-moving/--out-fixed) and --json it prints the pairs as a table. The coordinate system
 comes from the file where it says it (Slicer files, the plain CSV's header); BigWarp files are LPS unless
@@ -338,18 +349,21 @@ comes from the file where it says it (Slicer files, the plain CSV's header); Big
     warpbench landmarks pairs.csv --json
     warpbench landmarks pairs.csv --out pairs.json
     warpbench landmarks pairs.json --out-moving case_moving.mrk.json --out-fixed case_fixed.mrk.json
-    warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv";
+    warpbench landmarks --moving-points case_moving.fcsv --fixed-points case_fixed.fcsv --out pairs.csv --to plain-csv
+    warpbench landmarks pairs.csv --out-moving moving_points.txt --out-fixed fixed_points.txt";
 
 /// The command line of `warpbench landmarks`.
 #[derive(Debug, clap::Args)]
 #[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 pub struct LandmarksArgs {
-    /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file) or plain CSV, told apart by
-    /// content. For a Slicer pair give --moving-points and --fixed-points instead.
+    /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file), plain CSV or transformix's
+    /// outputpoints.txt, told apart by content. For a Slicer pair or elastix point sets give --moving-points and
+    /// --fixed-points instead.
     #[arg(required_unless_present = "moving_points")]
     pub input: Option<PathBuf>,
-    /// The moving volume's Slicer point list (.mrk.json or .fcsv), with --fixed-points; paired by order.
+    /// The moving volume's Slicer point list (.mrk.json or .fcsv) or elastix `point` file, with --fixed-points; paired
+    /// by order.
     #[arg(long, requires = "fixed_points", conflicts_with = "input")]
     pub moving_points: Option<PathBuf>,
     /// The fixed volume's Slicer point list, with --moving-points.
@@ -364,7 +378,8 @@ pub struct LandmarksArgs {
     /// The format of --out when its name does not say it (a plain CSV is a .csv too).
     #[arg(long, value_enum, requires = "out")]
     pub to: Option<PairFileFormat>,
-    /// Write the moving points as a Slicer point list (.mrk.json or .fcsv), with --out-fixed.
+    /// Write the moving points as a Slicer point list (.mrk.json or .fcsv), with --out-fixed; or, both named .txt, the
+    /// active pairs with both points as elastix point sets.
     #[arg(long, requires = "out_fixed")]
     pub out_moving: Option<PathBuf>,
     /// Write the fixed points as a Slicer point list, with --out-moving.

@@ -16,11 +16,12 @@
 //! by extrapolation (a TPS is affine far from its landmarks), with a warning.
 //!
 //! Point files ([`warpbench_io::landmarks::read_point_file`]): a plain CSV point list `x,y,z[,name]` (LPS mm, or
-//! RAS with `--ras`), a Slicer `.mrk.json` or `.fcsv` (in the coordinate system its header names), or a BigWarp
-//! CSV or JSON file of pairs (LPS, or RAS with `--ras`). The output has the input's format and coordinate
-//! convention. For pairs, the `--from` side is the input and the other side is replaced by its image: with
-//! `--from moving`, each pair's fixed point becomes d(moving point) (missing where the moving point is missing),
-//! names and active flags kept.
+//! RAS with `--ras`), a Slicer `.mrk.json` or `.fcsv` (in the coordinate system its header names), a BigWarp
+//! CSV or JSON file of pairs (LPS, or RAS with `--ras`), or an elastix point file (`point`: LPS mm; `index`: voxel
+//! indices of the `--from` volume in, written as voxel indices of the other volume). The output has the input's
+//! format and coordinate convention. For pairs, the `--from` side is the input and the other side is replaced by its
+//! image: with `--from moving`, each pair's fixed point becomes d(moving point) (missing where the moving point is
+//! missing), names and active flags kept.
 //!
 //! `--json` prints [`PointsReport`] (schema [`SCHEMA`]) to stdout. The output is written atomically, never over an
 //! input, and over an existing file only with `--force`.
@@ -32,7 +33,9 @@ use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::Volume;
 use warpbench_io::geometry::{Lps, Point3};
-use warpbench_io::landmarks::{PointFile, PointFileFormat, PointFileOptions, read_point_file, write_point_file};
+use warpbench_io::landmarks::{
+    ElastixPointKind, PointFile, PointFileFormat, PointFileOptions, read_point_file, write_point_file,
+};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
@@ -85,7 +88,8 @@ impl Side {
 /// `warpbench --help` show.
 const HELP: &str = "\
 Map a list of points through the landmark warp, from the volume they are in to the other one, and write them
-in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON).
+in the input's format (CSV point list: x,y,z and an optional name, Slicer .mrk.json/.fcsv, BigWarp CSV/JSON,
+elastix point file).
 
 Say which volume the points are in, and that is all: --from moving maps a point p of the moving volume by
 d = fixed_from_moving to where the warped volume (`warpbench warp`) shows it; --from fixed maps a point x of
@@ -93,8 +97,10 @@ the fixed volume by u = moving_from_fixed to the moving point the warped volume 
 antsApplyTransformsToPoints needs the inverse of the transform that resamples the image; here there is none
 to choose.) d and u are fitted separately, so u(d(p)) = p only to within the warp's inverse consistency.
 Points outside their volume's box are mapped by extrapolation, with a warning. CSV point lists and BigWarp
-files are LPS mm unless --ras; Slicer files say their own coordinate system, which the output keeps. In a
-BigWarp file of pairs the --from side is read and the other side replaced by its image. Example: a lesion
+files are LPS mm unless --ras; Slicer files say their own coordinate system, which the output keeps. An elastix
+`point` file is LPS mm; an elastix `index` file holds voxel indices of the --from volume and is written as voxel
+indices of the other one. In a BigWarp file of pairs the --from side is read and the other side replaced by its
+image. Example: a lesion
 marked at (12.5, -30, 8) mm LPS on the moving MRI, line `12.5,-30,8,lesion` of lesion_mr.csv:
 
     warpbench points --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --from moving --in lesion_mr.csv --out lesion_ct.csv
@@ -118,8 +124,9 @@ pub struct PointsArgs {
     /// (mapped by u = moving_from_fixed into the moving space).
     #[arg(long, value_enum)]
     pub from: Side,
-    /// The points: a CSV point list (x,y,z and an optional name), a Slicer .mrk.json or .fcsv, or a BigWarp CSV or JSON of pairs
-    /// (the --from side is read, the other side replaced).
+    /// The points: a CSV point list (x,y,z and an optional name), a Slicer .mrk.json or .fcsv, a BigWarp CSV or JSON of pairs
+    /// (the --from side is read, the other side replaced), or an elastix point file (point: LPS mm; index: voxel indices
+    /// of the --from volume).
     #[arg(long = "in", value_name = "FILE")]
     pub input: PathBuf,
     /// The mapped points, in the input's format and coordinate convention.
@@ -140,9 +147,11 @@ pub struct PointsReport {
     #[serde(rename = "in")]
     pub input: String,
     pub out: String,
-    /// `point-list`, `bigwarp-csv`, `bigwarp-json`, `slicer-mrk-json` or `slicer-fcsv`, both files'.
+    /// `point-list`, `bigwarp-csv`, `bigwarp-json`, `slicer-mrk-json`, `slicer-fcsv` or `elastix-points`, both
+    /// files'.
     pub format: &'static str,
-    /// `LPS` or `RAS`: the coordinates in both files (the JSON's are LPS always).
+    /// `LPS` or `RAS`: the coordinates in both files (the JSON's are LPS always); `index` for an elastix index file
+    /// (voxel indices of the --from volume in, of the other volume out).
     pub file_coordinates: &'static str,
     /// The volume the input points are in, and the one the output points are in.
     pub from: Side,
@@ -189,12 +198,16 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     let options = PointFileOptions { ras };
     let mut file = read_point_file(&input, options)?;
     check_out_name(&out_path, &input, file.format())?;
-    let sources = input_points(&file, from);
-    if sources.iter().all(|(_, p)| p.is_none()) {
+    if !has_points(&file, from) {
         return Err(Failure::BadInput(anyhow!("{}: no {} points to map", input.display(), from.name())));
     }
 
     let PairVolumes { fixed, moving, .. } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
+    let (from_volume, to_volume) = match from {
+        Side::Moving => (&moving, &fixed),
+        Side::Fixed => (&fixed, &moving),
+    };
+    let sources = input_points(&input, &file, from, Some(from_volume))?;
     let c = inputs::check_pairs(
         &inputs.landmarks.describe(),
         inputs.pairs().map_err(Failure::BadInput)?,
@@ -277,7 +290,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
         }
     }
 
-    set_outputs(&mut file, from, &points);
+    set_outputs(&out_path, &mut file, from, &points, to_volume)?;
     write_point_file(&out_path, &file, options)?;
 
     let report = PointsReport {
@@ -285,7 +298,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
         input: input.display().to_string(),
         out: out_path.display().to_string(),
         format: file.format().name(),
-        file_coordinates: if file_is_ras(&file, ras) { "RAS" } else { "LPS" },
+        file_coordinates: file_coordinates(&file, ras),
         from,
         to: from.other(),
         map: from.map(),
@@ -326,19 +339,50 @@ fn check_out_name(out: &Path, input: &Path, format: PointFileFormat) -> Result<(
     }
 }
 
-/// Each point of the file: its name and its `from`-side position (LPS mm), in file order.
-pub(crate) fn input_points(file: &PointFile, from: Side) -> Vec<(String, Option<Point3<Lps>>)> {
+/// Whether the file has a `from`-side point to map (read before any volume is loaded).
+fn has_points(file: &PointFile, from: Side) -> bool {
     match file {
+        PointFile::List(list) => !list.points.is_empty(),
+        PointFile::BigWarp { pairs, .. } => {
+            pairs.iter().any(|p| if from == Side::Moving { p.moving.is_some() } else { p.fixed.is_some() })
+        }
+        PointFile::Slicer(list) => list.points.iter().any(|p| p.position.is_some()),
+        PointFile::Elastix(e) => !e.rows.is_empty(),
+    }
+}
+
+/// A point of a file: its name and its position (LPS mm), if it has one.
+pub(crate) type NamedPoint = (String, Option<Point3<Lps>>);
+
+/// Each point of the file (`path`): its name and its `from`-side position (LPS mm), in file order. An elastix `index`
+/// file's voxel indices are placed by `volume` (the volume the points are in), and refused without one.
+pub(crate) fn input_points(
+    path: &Path,
+    file: &PointFile,
+    from: Side,
+    volume: Option<&Volume>,
+) -> Result<Vec<NamedPoint>, Failure> {
+    Ok(match file {
         PointFile::List(list) => list.points.iter().map(|p| (p.name.clone(), Some(p.position))).collect(),
         PointFile::BigWarp { pairs, .. } => {
             pairs.iter().map(|p| (p.name.clone(), if from == Side::Moving { p.moving } else { p.fixed })).collect()
         }
         PointFile::Slicer(list) => list.points.iter().map(|p| (p.label.clone(), p.position)).collect(),
-    }
+        PointFile::Elastix(e) => {
+            e.to_lps(path, volume.map(|v| &v.lps_from_index))?.into_iter().map(|p| (String::new(), Some(p))).collect()
+        }
+    })
 }
 
-/// Puts the images into the file: a list's and a Slicer file's positions are replaced; a pair's other side is.
-fn set_outputs(file: &mut PointFile, from: Side, points: &[MappedPoint]) {
+/// Puts the images into the file (`path`, the output): a list's and a Slicer file's positions are replaced; a pair's
+/// other side is; an elastix file's rows are, as voxel indices of `to_volume` for an `index` file.
+fn set_outputs(
+    path: &Path,
+    file: &mut PointFile,
+    from: Side,
+    points: &[MappedPoint],
+    to_volume: &Volume,
+) -> Result<(), Failure> {
     let image = |m: &MappedPoint| m.output_lps.map(Point3::from_array);
     match file {
         PointFile::List(list) => {
@@ -361,14 +405,24 @@ fn set_outputs(file: &mut PointFile, from: Side, points: &[MappedPoint]) {
                 p.position = image(m);
             }
         }
+        PointFile::Elastix(e) => {
+            let mapped: Vec<Point3<Lps>> = points.iter().filter_map(image).collect();
+            let index_from_lps = to_volume.lps_from_index.inverse();
+            e.set_lps(path, &mapped, index_from_lps.as_ref())?;
+        }
     }
+    Ok(())
 }
 
-fn file_is_ras(file: &PointFile, ras: bool) -> bool {
-    match file {
+/// What the report's `file_coordinates` says: `RAS` or `LPS`, `index` for an elastix index file.
+fn file_coordinates(file: &PointFile, ras: bool) -> &'static str {
+    let is_ras = match file {
         PointFile::Slicer(list) => list.ras,
+        PointFile::Elastix(e) if e.kind == ElastixPointKind::Index => return "index",
+        PointFile::Elastix(_) => false,
         PointFile::List(_) | PointFile::BigWarp { .. } => ras,
-    }
+    };
+    if is_ras { "RAS" } else { "LPS" }
 }
 
 /// Whether `p` lies in the voxel-edge box of `v`, in its index space (exact on oblique grids).

@@ -62,7 +62,8 @@ pub struct SuggestArgs {
     #[command(flatten)]
     pub pairs: PairArgs,
     /// The moving points: a CSV point list (x,y,z and an optional name; LPS mm, or RAS with --ras), a Slicer
-    /// .mrk.json or .fcsv, or a BigWarp file of pairs (its moving points are read).
+    /// .mrk.json or .fcsv, a BigWarp file of pairs (its moving points are read), or an elastix point file (point:
+    /// LPS mm; index: voxel indices of the moving volume).
     #[arg(long, value_name = "FILE")]
     pub points: PathBuf,
     /// The pairs (moving point, suggested fixed point) as BigWarp CSV, or BigWarp JSON for a .json name.
@@ -127,15 +128,16 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     }
     let start = given.warp.start().map_err(Failure::BadInput)?;
     let file = read_point_file(&points, PointFileOptions { ras })?;
-    let moving_points: Vec<(String, Point3<Lps>)> = crate::points::input_points(&file, crate::points::Side::Moving)
-        .into_iter()
-        .filter_map(|(name, p)| Some((name, p?)))
-        .collect();
+    let VolumePairArgs { fixed, moving } = volumes;
+    let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    let moving_points: Vec<(String, Point3<Lps>)> =
+        crate::points::input_points(&points, &file, crate::points::Side::Moving, Some(&moving_volume))?
+            .into_iter()
+            .filter_map(|(name, p)| Some((name, p?)))
+            .collect();
     if moving_points.is_empty() {
         return Err(Failure::BadInput(anyhow!("{}: no moving points to suggest targets for", points.display())));
     }
-    let VolumePairArgs { fixed, moving } = volumes;
-    let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
 
     // The current warp's forward map.
     let (forward, prediction): (StackForward, String) = match &given.landmarks {

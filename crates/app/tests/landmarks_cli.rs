@@ -178,6 +178,46 @@ fn every_conversion_gives_back_the_table_it_started_from() {
     );
 }
 
+/// A pair's moving and fixed points as a listing gives them.
+type PointPair = (Option<[f64; 3]>, Option<[f64; 3]>);
+
+/// elastix's point sets (`--out-moving m.txt --out-fixed f.txt`) hold the pairs a warp uses, the active ones with
+/// both points, in LPS mm, and read back (`--moving-points`, `--fixed-points`) to those points, in order.
+#[test]
+fn elastix_point_sets_hold_the_pairs_a_warp_uses() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for fixture in ["bigwarp_pairs.csv", "bigwarp_settings_landmarks.csv"] {
+        let start = landmarks(fixture);
+        let original = listing(&[utf8(&start)]);
+        let (m, f) = (dir.path().join(format!("{fixture}_m.txt")), dir.path().join(format!("{fixture}_f.txt")));
+        assert_ok(&warpbench(&["landmarks", utf8(&start), "--out-moving", utf8(&m), "--out-fixed", utf8(&f)]));
+        assert!(std::fs::read_to_string(&m).expect("read").starts_with("point\n"));
+        let back = listing(&["--moving-points", utf8(&m), "--fixed-points", utf8(&f)]);
+        assert_eq!(back["format"], "elastix-pair");
+        let used: Vec<PointPair> = original["pairs"]
+            .as_array()
+            .expect("pairs")
+            .iter()
+            .filter(|p| p["active"] == true && !p["moving"].is_null() && !p["fixed"].is_null())
+            .map(|p| (point(&p["moving"]), point(&p["fixed"])))
+            .collect();
+        let got: Vec<PointPair> = back["pairs"]
+            .as_array()
+            .expect("pairs")
+            .iter()
+            .map(|p| (point(&p["moving"]), point(&p["fixed"])))
+            .collect();
+        assert_eq!(got, used, "{fixture}");
+        assert_eq!(back["count"], original["usable"], "{fixture}");
+    }
+    // A file of one side given as a file of pairs names what it is.
+    let one = dir.path().join("bigwarp_pairs.csv_m.txt");
+    let out = warpbench(&["landmarks", utf8(&one), "--json"]);
+    assert_eq!(out.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("an elastix point file holds one side of the pairs"), "{stderr}");
+}
+
 /// The compiled markups schema (Slicer's `markups-schema-v1.0.3.json`, draft 7).
 fn markups_schema() -> (boon::Schemas, boon::SchemaIndex) {
     let path = landmarks("schema/markups-schema-v1.0.3.json");
@@ -264,6 +304,7 @@ fn refusals_write_nothing() {
     let out = dir.path().join("out.csv");
     let one_side = landmarks("slicer5_lps.mrk.json");
     let (m, f) = (dir.path().join("m.fcsv"), dir.path().join("f.fcsv"));
+    let f_txt = dir.path().join("f.txt");
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (vec![utf8(&start), "--out", utf8(&existing)], "exists"),
         (vec![utf8(&start), "--out", utf8(&start), "--force"], "input"),
@@ -271,7 +312,8 @@ fn refusals_write_nothing() {
         (vec![utf8(&start), "--out", "x_moving.mrk.json"], "one side"),
         (vec![utf8(&one_side), "--json"], "one side"),
         (vec![utf8(&bad), "--out", utf8(&out)], "landmark 2"),
-        (vec![utf8(&start), "--out-moving", utf8(&m), "--out-fixed", "f.txt"], ".mrk.json"),
+        (vec![utf8(&start), "--out-moving", utf8(&m), "--out-fixed", "f.png"], ".mrk.json"),
+        (vec![utf8(&start), "--out-moving", utf8(&m), "--out-fixed", utf8(&f_txt)], "both as Slicer lists"),
         (vec![utf8(&start), "--out-moving", utf8(&m), "--out-fixed", utf8(&f)], "Pt-2"),
         (vec![utf8(&start), "--out-moving", "m.mrk.json", "--out-fixed", "f.mrk.json", "--out-ras"], "LPS"),
     ];
@@ -282,7 +324,7 @@ fn refusals_write_nothing() {
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
         assert!(stderr.contains(needle), "{args:?}: {stderr}");
-        assert!(!out.exists() && !m.exists() && !f.exists(), "{args:?} wrote something");
+        assert!(!out.exists() && !m.exists() && !f.exists() && !f_txt.exists(), "{args:?} wrote something");
         assert!(!Path::new("m.mrk.json").exists() && !Path::new("x.txt").exists());
     }
     assert_eq!(std::fs::read_to_string(&existing).expect("read"), "keep me");

@@ -396,6 +396,139 @@ fn refusals_exit_2_naming_the_file_and_write_nothing() {
     assert_eq!(std::fs::read(&dots).expect("read"), before, "the input is unchanged");
 }
 
+/// An elastix point file's rows, after its word and count.
+fn read_elastix(path: &Path) -> (String, Vec<[f64; 3]>) {
+    let text = std::fs::read_to_string(path).expect("read the elastix file");
+    let mut lines = text.lines();
+    let word = lines.next().expect("the word").to_owned();
+    let count: usize = lines.next().expect("the count").parse().expect("a count");
+    let rows: Vec<[f64; 3]> = lines
+        .map(|l| {
+            let v: Vec<f64> = l.split_whitespace().map(|t| t.parse().expect("a number")).collect();
+            [v[0], v[1], v[2]]
+        })
+        .collect();
+    assert_eq!(rows.len(), count, "{text}");
+    (word, rows)
+}
+
+/// elastix point files in and out of `warpbench points`: a `point` file maps like a CSV list (LPS mm, bit for bit);
+/// an `index` file is read as voxel indices of the --from volume and written as voxel indices of the other one (here
+/// oblique, so a wrong volume or a transposed matrix shows); a count that disagrees with the rows, and --ras, are
+/// refused. And elastix's two point sets, or transformix's outputpoints.txt, give the pairs `--landmarks` gives.
+#[test]
+fn elastix_point_files_map_like_a_csv_list_and_index_files_through_their_volumes() {
+    use nalgebra::{Matrix3, Rotation3, Vector3};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let s = scene(dir.path());
+    // The moving volume on an oblique grid: 2.1 mm, turned 12° about S, centred on the origin.
+    let turn = Rotation3::from_axis_angle(&Vector3::z_axis(), 12f64.to_radians()).into_inner();
+    let linear: Matrix3<f64> = turn * 2.1;
+    let half = Vector3::from_element((N as f64 - 1.0) / 2.0);
+    let origin = -(linear * half);
+    let moving_lps_from_index = Transform::from_linear_translation(linear, [origin[0], origin[1], origin[2]]);
+    let moving = dir.path().join("moving_oblique.nii");
+    let v = Volume::new(
+        &moving,
+        [N; 3],
+        VoxelData::F32(vec![0.0; N * N * N]),
+        moving_lps_from_index,
+        GeometrySource::NiftiSform { code: 1 },
+    )
+    .expect("volume");
+    nifti::write(&moving, &v).expect("write");
+    let moving_lps_from_index = warpbench_io::open(&moving).expect("read").lps_from_index;
+
+    let targets = [[5.0, -3.0, 7.0], [-12.0, 10.0, 2.0], [20.5, 0.25, -9.0]];
+    let run = |landmarks: &[&str], input: &Path, out: &Path| -> Value {
+        let mut all = vec!["points", "--fixed", utf8(&s.fixed), "--moving", utf8(&moving)];
+        all.extend_from_slice(landmarks);
+        all.extend(["--from", "fixed", "--in", utf8(input), "--out", utf8(out), "--json", "--quiet"]);
+        let o = warpbench(&all);
+        assert_ok(&o);
+        serde_json::from_slice(&o.stdout).expect("JSON")
+    };
+    let given = ["--landmarks", utf8(&s.landmarks)];
+    let csv = dir.path().join("targets.csv");
+    write_point_csv(&csv, &targets);
+    run(&given, &csv, &dir.path().join("mapped.csv"));
+    let want: Vec<[f64; 3]> = read_point_csv(&dir.path().join("mapped.csv")).into_iter().map(|(p, _)| p).collect();
+
+    // `point`: LPS mm in and out, the same numbers as the CSV list.
+    let pts = dir.path().join("targets.txt");
+    let body: Vec<String> = targets.iter().map(|p| format!("{} {} {}", p[0], p[1], p[2])).collect();
+    std::fs::write(&pts, format!("point\n3\n{}\n", body.join("\n"))).expect("write");
+    let report = run(&given, &pts, &dir.path().join("mapped_pts.txt"));
+    assert_eq!(report["format"], "elastix-points");
+    assert_eq!(report["file_coordinates"], "LPS");
+    let (word, rows) = read_elastix(&dir.path().join("mapped_pts.txt"));
+    assert_eq!(word, "point");
+    assert_eq!(rows, want);
+
+    // `index`: voxel indices of the fixed volume in, of the (oblique) moving volume out.
+    let fixed_index_from_lps = lps_from_index().inverse().expect("invertible");
+    let idx: Vec<[f64; 3]> =
+        targets.iter().map(|&p| fixed_index_from_lps.apply_point(Point3::<Lps>::from_array(p)).coords()).collect();
+    let ind = dir.path().join("targets_index.txt");
+    let body: Vec<String> = idx.iter().map(|p| format!("{:?} {:?} {:?}", p[0], p[1], p[2])).collect();
+    std::fs::write(&ind, format!("index\n3\n{}\n", body.join("\n"))).expect("write");
+    let report = run(&given, &ind, &dir.path().join("mapped_index.txt"));
+    assert_eq!(report["file_coordinates"], "index");
+    let (word, rows) = read_elastix(&dir.path().join("mapped_index.txt"));
+    assert_eq!(word, "index");
+    for (r, w) in rows.iter().zip(&want) {
+        let lps = moving_lps_from_index.apply_point(Point3::from_array(*r)).coords();
+        assert!(dist(lps, *w) < 1e-9, "index {r:?} is {lps:?} mm, the CSV route {w:?}");
+        assert!((0..3).all(|a| r[a] > -1.0 && r[a] < N as f64), "{r:?} are indices of the moving volume");
+    }
+
+    // elastix's two point sets as the pairs, and transformix's outputpoints.txt: the same mapping.
+    let (m, f): (Vec<[f64; 3]>, Vec<[f64; 3]>) = pairs().into_iter().unzip();
+    let side = |name: &str, v: &[[f64; 3]]| {
+        let path = dir.path().join(name);
+        let rows: Vec<String> = v.iter().map(|p| format!("{} {} {}", p[0], p[1], p[2])).collect();
+        std::fs::write(&path, format!("point\n{}\n{}\n", v.len(), rows.join("\n"))).expect("write");
+        path
+    };
+    let (mp, fp) = (side("moving_points.txt", &m), side("fixed_points.txt", &f));
+    run(&["--moving-points", utf8(&mp), "--fixed-points", utf8(&fp)], &csv, &dir.path().join("via_sets.csv"));
+    let outputpoints = dir.path().join("outputpoints.txt");
+    let lines: Vec<String> = f
+        .iter()
+        .zip(&m)
+        .enumerate()
+        .map(|(n, (q, p))| {
+            format!(
+                "Point\t{n}\t; InputIndex = [ 0 0 0 ]\t; InputPoint = [ {} {} {} ]\t; OutputIndexFixed = [ 0 0 0 ]\t; \
+                 OutputPoint = [ {} {} {} ]\t; Deformation = [ 0 0 0 ]",
+                q[0], q[1], q[2], p[0], p[1], p[2]
+            )
+        })
+        .collect();
+    std::fs::write(&outputpoints, lines.join("\n") + "\n").expect("write");
+    run(&["--landmarks", utf8(&outputpoints)], &csv, &dir.path().join("via_transformix.csv"));
+    for name in ["via_sets.csv", "via_transformix.csv"] {
+        let got: Vec<[f64; 3]> = read_point_csv(&dir.path().join(name)).into_iter().map(|(p, _)| p).collect();
+        assert_eq!(got, want, "{name}");
+    }
+
+    // Refusals: a count that disagrees with the rows (named by its line and the file), --ras.
+    let short = dir.path().join("short.txt");
+    std::fs::write(&short, "point\n3\n1 2 3\n4 5 6\n").expect("write");
+    let mut all = vec!["points", "--fixed", utf8(&s.fixed), "--moving", utf8(&moving), "--landmarks"];
+    all.extend([utf8(&s.landmarks), "--from", "fixed", "--in", utf8(&short), "--out"]);
+    let out = dir.path().join("never.txt");
+    let o = warpbench(&[&all[..], &[utf8(&out)]].concat());
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("short.txt") && stderr.contains("line 2 says 3 points, but the file has 2"), "{stderr}");
+    let o = warpbench(&[&all[..10], &[utf8(&pts), "--out", utf8(&out), "--ras"]].concat());
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert_eq!(o.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("targets.txt") && stderr.contains("ITK's physical space"), "{stderr}");
+    assert!(!out.exists());
+}
+
 /// `warpbench suggest` (issue 18 item 2): the moving MRI is the fixed one moved by a known rigid T (in its header, so
 /// the true fixed point of a moving point p is T⁻¹(p)); from a starting transform 2.5 mm off, the suggestions for
 /// points on strong edges land near the truth (the prediction's error cut), the output pairs them in BigWarp CSV

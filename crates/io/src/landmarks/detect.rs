@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use super::bigwarp_json::{bigwarp_table, not_bigwarp, parse_gson_json};
+use super::elastix_points::{looks_like_elastix_points, looks_like_transformix_output};
 use super::plain_csv::looks_like_plain_csv;
 use super::text::{read_text, strip_bom};
 use crate::error::Result;
@@ -21,13 +22,17 @@ pub enum LandmarkFileFormat {
     /// A plain CSV with a header naming its columns and coordinate system
     /// ([`read_plain_csv`](super::read_plain_csv)): pairs.
     PlainCsv,
+    /// An elastix point file (`point` or `index`, the count, the points): the points of one image.
+    ElastixPoints,
+    /// transformix's `outputpoints.txt`: pairs (each input point, on the fixed image, and its image on the moving one).
+    TransformixOutput,
 }
 
 impl LandmarkFileFormat {
     /// Whether the file holds pairs (BigWarp) rather than one side (Slicer).
     #[must_use]
     pub fn holds_pairs(self) -> bool {
-        matches!(self, Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv)
+        matches!(self, Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv | Self::TransformixOutput)
     }
 
     /// The format's name in messages and in `warpbench landmarks --json`.
@@ -39,6 +44,8 @@ impl LandmarkFileFormat {
             Self::SlicerMarkupsJson => "slicer-mrk-json",
             Self::SlicerFcsv => "slicer-fcsv",
             Self::PlainCsv => "plain-csv",
+            Self::ElastixPoints => "elastix-points",
+            Self::TransformixOutput => "transformix-output",
         }
     }
 }
@@ -48,7 +55,9 @@ impl LandmarkFileFormat {
 /// [`parse_bigwarp_json`](super::parse_bigwarp_json)), Slicer when it has a `markups` list, and refused otherwise
 /// with what was expected; text whose first line starts with `#` is a Slicer `.fcsv`, and text whose first line's
 /// first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes every field, so its lines start with `"`);
-/// anything else is BigWarp CSV.
+/// text whose first word is `point` or `index` (or whose first line is a lone count) an elastix point file, and text
+/// whose first line is transformix's `Point 0 ; … ; OutputPoint = […]` its `outputpoints.txt`; anything else is
+/// BigWarp CSV.
 pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFormat> {
     let body = strip_bom(text).trim_start();
     if body.starts_with(['{', '[']) {
@@ -63,6 +72,12 @@ pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFor
     }
     if body.starts_with('#') {
         return Ok(LandmarkFileFormat::SlicerFcsv);
+    }
+    if looks_like_transformix_output(body) {
+        return Ok(LandmarkFileFormat::TransformixOutput);
+    }
+    if looks_like_elastix_points(body) {
+        return Ok(LandmarkFileFormat::ElastixPoints);
     }
     if looks_like_plain_csv(body) {
         return Ok(LandmarkFileFormat::PlainCsv);

@@ -39,6 +39,15 @@ pub(super) fn slicer_one_side(path: &Path) -> Error {
     )
 }
 
+/// The error for an elastix point file read as a file of pairs.
+pub(super) fn elastix_one_side(path: &Path) -> Error {
+    Error::unsupported(
+        path,
+        "an elastix point file holds the points of one image; give it together with the other image's file (elastix's \
+         fixed and moving point sets), which is paired with it by order",
+    )
+}
+
 /// The error for a BigWarp file read as a Slicer point list.
 pub(super) fn bigwarp_not_slicer(path: &Path) -> Error {
     Error::unsupported(

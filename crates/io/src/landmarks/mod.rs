@@ -1,4 +1,5 @@
-//! Landmark pairs and their files: BigWarp CSV and JSON, Slicer `.mrk.json` and Slicer `.fcsv`.
+//! Landmark pairs and their files: BigWarp CSV and JSON, Slicer `.mrk.json` and Slicer `.fcsv`, elastix point files
+//! and transformix's `outputpoints.txt`.
 //!
 //! A [`LandmarkPair`] joins a point on the **moving** volume (the source of the warp) to the
 //! matching point on the **fixed** volume (the target), both in LPS mm. Either half may be
@@ -32,14 +33,22 @@
 //!   and a file whose coordinate system cannot be determined is refused: the table is in
 //!   [`parse_fcsv`]. The columns line locates x, y, z, sel and label (other columns are ignored,
 //!   except the `positionStatus` that Slicer 5 appends). [`read_fcsv`], [`write_fcsv`].
+//! - **elastix point files** (`point` or `index`, the count, then `x y z` a line): the point sets of elastix's
+//!   `CorrespondingPointsEuclideanDistanceMetric` and of transformix. `point` rows are ITK physical coordinates, LPS
+//!   mm; `index` rows are voxel indices of an image, read and written only through that image's geometry.
+//!   [`read_elastix_points`], [`write_elastix_points`], [`ElastixPoints`].
+//! - **transformix's `outputpoints.txt`**: one `Point N ; InputIndex = […] ; InputPoint = […] ; … ; OutputPoint =
+//!   […]` line a point; read as pairs, `InputPoint` the fixed point and `OutputPoint` the moving one
+//!   ([`read_transformix_output`]).
 //!
-//! [`read_landmark_pairs`] reads one file of pairs, telling BigWarp CSV from BigWarp JSON by
-//! content ([`detect_landmark_format`]), and refuses a Slicer list (one side) or an unknown JSON
-//! with what it expected; [`write_landmark_pairs`] writes BigWarp JSON for `.json`, CSV otherwise.
+//! [`read_landmark_pairs`] reads one file of pairs (BigWarp CSV or JSON, plain CSV, transformix's output), telling
+//! them apart by content ([`detect_landmark_format`]), and refuses a Slicer list or an elastix point file (one side)
+//! or an unknown JSON with what it expected; [`write_landmark_pairs`] writes BigWarp JSON for `.json`, CSV otherwise.
 //!
-//! A Slicer file holds **one side**: [`read_slicer_pair`] reads a moving and a fixed list and
-//! pairs them by index (Slicer's Fiducial Registration Wizard and Landmark Registration do the
-//! same); the pair is active when both points are selected. [`write_slicer_pair`] writes both.
+//! A Slicer file, like an elastix point file, holds **one side**: [`read_slicer_pair`] reads a moving and a fixed
+//! list (either kind each) and pairs them by index (Slicer's Fiducial Registration Wizard and Landmark Registration
+//! do the same, and elastix's metric pairs its fixed and moving point sets so); the pair is active when both points
+//! are selected. [`write_slicer_pair`] writes both, a `.txt` name as an elastix `point` file.
 //!
 //! # Conventions
 //!
@@ -52,8 +61,9 @@
 //! round-trip formatting, so a write/read round trip is exact.
 //!
 //! # Modules
-//! One module per format: `bigwarp_csv`, `bigwarp_json`, `mrk_json`, `fcsv`, `plain_csv`, `point_list`, and
-//! `slicer_pair`, which pairs two Slicer lists. What they share lives in leaves beside them: `points` (the point
+//! One module per format: `bigwarp_csv`, `bigwarp_json`, `mrk_json`, `fcsv`, `plain_csv`, `point_list`,
+//! `elastix_points` (elastix's point files and transformix's result), and `slicer_pair`, which pairs two one-side
+//! lists. What they share lives in leaves beside them: `points` (the point
 //! types), `text` (a file's bounded text, the byte-order mark, numbers), `errors`, and `detect` (which format a
 //! text is). This module re-exports them and reads or writes one file of pairs in whichever format it is.
 
@@ -64,6 +74,7 @@ use crate::error::Result;
 mod bigwarp_csv;
 mod bigwarp_json;
 mod detect;
+mod elastix_points;
 mod errors;
 mod fcsv;
 mod mrk_json;
@@ -82,6 +93,11 @@ pub use bigwarp_json::{
     write_bigwarp_json, write_bigwarp_json_with,
 };
 pub use detect::{LandmarkFileFormat, detect_landmark_file, detect_landmark_format};
+pub use elastix_points::{
+    ElastixPointKind, ElastixPoints, TransformixPoint, looks_like_elastix_points, looks_like_transformix_output,
+    parse_elastix_points, parse_transformix_output, read_elastix_points, read_transformix_output, to_elastix_points,
+    transformix_pairs, write_elastix_points,
+};
 pub use fcsv::{parse_fcsv, read_fcsv, to_fcsv, write_fcsv};
 pub use mrk_json::{MARKUPS_SCHEMA, parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
 pub use plain_csv::{
@@ -97,13 +113,14 @@ pub use points::{LandmarkPair, SlicerPoint, complete_active_pairs};
 pub use slicer_pair::{read_slicer_pair, read_slicer_points, write_slicer_pair};
 pub use text::MAX_LANDMARK_FILE_BYTES;
 
-use errors::slicer_one_side;
+use errors::{elastix_one_side, slicer_one_side};
 use text::read_text;
 
-/// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON or plain CSV, told apart by content; LPS mm.
+/// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON, plain CSV or transformix's `outputpoints.txt`, told
+/// apart by content; LPS mm.
 ///
-/// A Slicer point list (`.mrk.json`, `.fcsv`) holds the points of one volume only, and is refused here with a
-/// message that says so: read it with its partner through [`read_slicer_pair`].
+/// A Slicer point list (`.mrk.json`, `.fcsv`) or an elastix point file holds the points of one volume only, and is
+/// refused here with a message that says so: read it with its partner through [`read_slicer_pair`].
 pub fn read_landmark_pairs(path: &Path) -> Result<Vec<LandmarkPair>> {
     read_landmark_pairs_with(path, BigWarpCsvOptions::default())
 }
@@ -116,7 +133,9 @@ pub fn read_landmark_pairs_with(path: &Path, options: BigWarpCsvOptions) -> Resu
         LandmarkFileFormat::BigWarpCsv => parse_bigwarp_csv(path, &text, options),
         LandmarkFileFormat::BigWarpJson => parse_bigwarp_json(path, &text, options),
         LandmarkFileFormat::PlainCsv => parse_plain_csv(path, &text).map(|(pairs, _)| pairs),
+        LandmarkFileFormat::TransformixOutput => transformix_pairs(path, &text),
         LandmarkFileFormat::SlicerMarkupsJson | LandmarkFileFormat::SlicerFcsv => Err(slicer_one_side(path)),
+        LandmarkFileFormat::ElastixPoints => Err(elastix_one_side(path)),
     }
 }
 

@@ -27,6 +27,9 @@
 //!   positions of the points that had one replaced, in the file's own coordinate system (and, for `.mrk.json`, its
 //!   units): every other field, the header and the line endings are kept. (`.mrk.json` is re-serialised: its keys
 //!   come out in alphabetical order.)
+//! - elastix point files ([`PointFile::Elastix`]) keep their rows as the file holds them, `point` (LPS mm) or `index`
+//!   (voxel indices of an image, which the caller converts through that image: [`ElastixPoints::to_lps`],
+//!   [`ElastixPoints::set_lps`]), and are written back with the same word.
 
 use std::path::Path;
 
@@ -35,6 +38,7 @@ use serde_json::Value;
 use super::bigwarp_csv::{BigWarpCsvOptions, axis, parse_bigwarp_csv, write_bigwarp_csv_with};
 use super::bigwarp_json::{parse_bigwarp_json, write_bigwarp_json_with};
 use super::detect::{LandmarkFileFormat, detect_landmark_format};
+use super::elastix_points::{ElastixPoints, looks_like_transformix_output, parse_elastix_points, to_elastix_points};
 use super::errors::landmark_error;
 use super::fcsv::parse_fcsv;
 use super::mrk_json::parse_mrk_json;
@@ -93,11 +97,13 @@ pub enum PointFileFormat {
     SlicerMarkupsJson,
     /// Slicer `.fcsv`: one list of points.
     SlicerFcsv,
+    /// An elastix point file (`point` or `index`): one list of points.
+    ElastixPoints,
 }
 
 impl PointFileFormat {
     /// A short name for messages and reports: `point-list`, `bigwarp-csv`, `bigwarp-json`, `slicer-mrk-json`,
-    /// `slicer-fcsv`.
+    /// `slicer-fcsv`, `elastix-points`.
     #[must_use]
     pub fn name(self) -> &'static str {
         match self {
@@ -106,11 +112,12 @@ impl PointFileFormat {
             Self::BigWarpJson => "bigwarp-json",
             Self::SlicerMarkupsJson => "slicer-mrk-json",
             Self::SlicerFcsv => "slicer-fcsv",
+            Self::ElastixPoints => "elastix-points",
         }
     }
 
     /// The format a file name says, by its ending: `.mrk.json`, `.fcsv`, `.json` (BigWarp JSON), `.csv` (a plain
-    /// point list or a BigWarp CSV, which share it); `None` for any other name.
+    /// point list or a BigWarp CSV, which share it), `.txt` (an elastix point file); `None` for any other name.
     #[must_use]
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn named_by(path: &Path) -> Option<&'static [Self]> {
@@ -123,6 +130,8 @@ impl PointFileFormat {
             Some(&[Self::BigWarpJson])
         } else if lower.ends_with(".csv") {
             Some(&[Self::PointList, Self::BigWarpCsv])
+        } else if lower.ends_with(".txt") {
+            Some(&[Self::ElastixPoints])
         } else {
             None
         }
@@ -153,6 +162,8 @@ pub enum PointFile {
     BigWarp { format: PointFileFormat, pairs: Vec<LandmarkPair> },
     /// A Slicer `.mrk.json` or `.fcsv`.
     Slicer(SlicerList),
+    /// An elastix point file.
+    Elastix(ElastixPoints),
 }
 
 impl PointFile {
@@ -163,6 +174,7 @@ impl PointFile {
             Self::List(_) => PointFileFormat::PointList,
             Self::BigWarp { format, .. } => *format,
             Self::Slicer(list) => list.format,
+            Self::Elastix(_) => PointFileFormat::ElastixPoints,
         }
     }
 }
@@ -170,13 +182,25 @@ impl PointFile {
 /// Tells the format of a point file by its content, not its name: JSON is a BigWarp or a Slicer file as
 /// [`detect_landmark_format`] tells them; text whose first line starts with `#` is a Slicer `.fcsv`; other text is
 /// CSV, a point list when its first non-blank line has 3 or 4 fields, a file of pairs when it has more (then
-/// [`detect_landmark_format`] names its format), and refused with its line otherwise. A name ending in `.fcsv` is
-/// always a Slicer `.fcsv`, so that its header errors are the ones reported.
+/// [`detect_landmark_format`] names its format), and refused with its line otherwise; text whose first word is `point`
+/// or `index` is an elastix point file. A name ending in `.fcsv` is always a Slicer `.fcsv`, so that its header
+/// errors are the ones reported.
 pub fn detect_point_format(name: &Path, text: &str) -> Result<PointFileFormat> {
     if name.extension().is_some_and(|e| e.eq_ignore_ascii_case("fcsv")) {
         return Ok(PointFileFormat::SlicerFcsv);
     }
     let body = strip_bom(text).trim_start();
+    if looks_like_transformix_output(body) {
+        return Err(Error::unsupported(
+            name,
+            "transformix's outputpoints.txt: its points are already mapped (OutputPoint = T(InputPoint)); read it as \
+             landmark pairs (InputPoint on the fixed image, OutputPoint on the moving one), or give the point file \
+             transformix read",
+        ));
+    }
+    if super::elastix_points::looks_like_elastix_points(body) {
+        return Ok(PointFileFormat::ElastixPoints);
+    }
     if body.starts_with('#') {
         return Ok(PointFileFormat::SlicerFcsv);
     }
@@ -200,12 +224,13 @@ pub fn detect_point_format(name: &Path, text: &str) -> Result<PointFileFormat> {
         LandmarkFileFormat::BigWarpCsv => Ok(PointFileFormat::BigWarpCsv),
         LandmarkFileFormat::BigWarpJson => Ok(PointFileFormat::BigWarpJson),
         LandmarkFileFormat::SlicerMarkupsJson => Ok(PointFileFormat::SlicerMarkupsJson),
+        LandmarkFileFormat::ElastixPoints => Ok(PointFileFormat::ElastixPoints),
         // Slicer's .fcsv is told above; any other kind of landmark file is not a point file (yet).
         other => Err(Error::unsupported(
             name,
             format!(
-                "a {other:?} landmark file: point files are plain x,y,z point lists, BigWarp CSV or JSON pairs, and \
-                 Slicer .mrk.json or .fcsv lists"
+                "a {other:?} landmark file: point files are plain x,y,z point lists, BigWarp CSV or JSON pairs, \
+                 Slicer .mrk.json or .fcsv lists and elastix point files"
             ),
         )),
     }
@@ -247,6 +272,16 @@ pub fn parse_point_file(name: &Path, text: &str, options: PointFileOptions) -> R
             let points = parse_fcsv(name, text)?;
             slicer(points, FcsvLayout::of(strip_bom(text)).ras)
         }
+        PointFileFormat::ElastixPoints => {
+            if options.ras {
+                return Err(Error::unsupported(
+                    name,
+                    "an elastix point file is in ITK's physical space, LPS mm (or voxel indices); the RAS option \
+                     applies to plain CSV point lists and BigWarp files only",
+                ));
+            }
+            Ok(PointFile::Elastix(parse_elastix_points(name, text)?))
+        }
     }
 }
 
@@ -267,6 +302,7 @@ pub fn write_point_file(path: &Path, file: &PointFile, options: PointFileOptions
             };
             if list.bom { format!("\u{feff}{body}") } else { body }
         }
+        PointFile::Elastix(points) => to_elastix_points(path, points)?,
     };
     crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
 }
