@@ -395,6 +395,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
             return Err(Failure::BadInput(anyhow!("{}: --out and --out-field are the same file", path.display())));
         }
         inputs::check_output(path, &input_paths, force).map_err(Failure::BadInput)?;
+        crate::warp::check_data_file(path, &input_paths, force).map_err(Failure::BadInput)?;
         crate::warp::check_outputs(path, None).map_err(Failure::BadInput)?;
     }
     params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;

@@ -457,9 +457,19 @@ fn check_pullback_mode(method: &Method, pullback: PullBackMode) -> Result<(), Fa
     Ok(())
 }
 
+/// Refuses a volume output, as [`OutputFile::check`] refuses `out` itself, when the data file a `.mhd` writes beside
+/// it (`.raw`) is an input or exists without `force`.
+pub fn check_data_file(out: &Path, inputs: &[&Path], force: bool) -> anyhow::Result<()> {
+    match warpbench_io::metaimage::detached_data_file(out) {
+        Some(raw) => crate::inputs::check_output(&raw, inputs, force)
+            .map_err(|e| anyhow!("{e:#} (the data file of {})", out.display())),
+        None => Ok(()),
+    }
+}
+
 /// Refuses outputs `warp` cannot write: `out` not named as a volume [`warpbench_io::write_volume`] writes (`.nii`,
 /// `.nii.gz`, `.nrrd`, `.mha`, `.mhd`), or `out_dicom` an existing folder that is not empty. (Whether `out` may be
-/// replaced is [`OutputFile::check`]'s business.)
+/// replaced is [`OutputFile::check`]'s business, and [`check_data_file`]'s for a `.mhd`'s data file.)
 pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> anyhow::Result<()> {
     if VolumeFileKind::of(out).is_none() {
         return Err(anyhow!(
@@ -893,6 +903,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
     let inputs = WarpInputs::from_args(volumes, pairs, field, reference)?;
     let output = OutputFile { path: out_path, force };
     output.check(&inputs.paths()).map_err(Failure::BadInput)?;
+    check_data_file(&output.path, &inputs.paths(), force).map_err(Failure::BadInput)?;
     check_outputs(&output.path, out_dicom.as_deref()).map_err(Failure::BadInput)?;
     let export = ExportSettings {
         pullback: if exact { PullBackMode::Exact } else { PullBackMode::Grid(grid) },

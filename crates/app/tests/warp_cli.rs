@@ -275,6 +275,27 @@ fn writes_the_volume_in_the_format_its_name_says() {
         assert!(v.lps_from_index.max_abs_diff(&reference.lps_from_index) < 1e-4, "{name}: geometry");
     }
     assert!(dir.path().join("out.raw").is_file(), "the .mhd's data file");
+    // A .mhd whose data file exists is refused without --force, like the header itself.
+    std::fs::write(dir.path().join("taken.raw"), "keep me").expect("write");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&mri),
+        "--moving",
+        s(&mri),
+        "--landmarks",
+        s(&csv),
+        "--method",
+        "affine",
+        "--quiet",
+        "--out",
+        s(&dir.path().join("taken.mhd")),
+    ]);
+    assert_eq!(run.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("taken.raw: exists; use --force") && stderr.contains("the data file of"), "{stderr}");
+    assert_eq!(std::fs::read_to_string(dir.path().join("taken.raw")).expect("read"), "keep me");
+    assert!(!dir.path().join("taken.mhd").exists());
     let header = std::fs::read_to_string(dir.path().join("out.mhd")).expect("header");
     assert!(header.ends_with("ElementDataFile = out.raw\n"), "{header}");
 

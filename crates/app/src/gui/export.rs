@@ -75,6 +75,7 @@ impl ExportJob {
         }
         warp::check_outputs(&out, dicom)
             .and_then(|()| inputs::check_output(&out, &inputs, true))
+            .and_then(|()| warp::check_data_file(&out, &inputs, true))
             .map_err(|e| format!("{e:#}"))?;
         let watch = Arc::new(Watch::default());
         let (tx, rx) = std::sync::mpsc::channel();

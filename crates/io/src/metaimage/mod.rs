@@ -67,7 +67,7 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 pub use header::{MAX_HEADER_BYTES, looks_like_metaimage};
-pub use write::{MetaImageWriteOptions, write, write_with};
+pub use write::{MetaImageWriteOptions, detached_data_file, write, write_with};
 
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;

@@ -33,6 +33,14 @@ fn is_mhd(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mhd"))
 }
 
+/// The data file that [`write()`] writes beside `path`: `<stem>.raw` for a `.mhd`, none for a `.mha`. Callers that
+/// refuse to overwrite a file check it as well as `path`.
+#[must_use]
+pub fn detached_data_file(path: &Path) -> Option<PathBuf> {
+    let options = MetaImageWriteOptions::for_path(path);
+    is_mhd(path).then(|| path.with_extension(if options.compressed { "zraw" } else { "raw" }))
+}
+
 /// Writes `volume` as MetaImage: `.mha` with zlib-compressed samples after the header, `.mhd` with an uncompressed
 /// `.raw` beside it ([`MetaImageWriteOptions::for_path`]).
 pub fn write(path: &Path, volume: &Volume) -> Result<()> {
