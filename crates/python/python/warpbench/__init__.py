@@ -221,9 +221,10 @@ class Pairs:
 
 
 def read_landmarks(path: PathLike, fixed_path: Optional[PathLike] = None, *, ras: bool = False) -> Pairs:
-    """Reads landmark pairs: BigWarp CSV or JSON, a plain CSV of pairs, a window session (``.warpbench.json``),
-    or with ``fixed_path`` a Slicer pair (``path`` the moving ``.mrk.json``/``.fcsv`` list). ``ras``: a BigWarp
-    file's coordinates are RAS (BigWarp on NIfTI)."""
+    """Reads landmark pairs: BigWarp CSV or JSON, a plain CSV of pairs, transformix's ``outputpoints.txt`` (the
+    input points fixed, the output points moving), a window session (``.warpbench.json``), or with ``fixed_path``
+    two point lists matched by order (``path`` the moving one): Slicer ``.mrk.json``/``.fcsv`` or elastix point
+    files (``point``, LPS mm). ``ras``: a BigWarp file's coordinates are RAS (BigWarp on NIfTI)."""
     moving, fixed, names, active, fmt = _warpbench.read_landmarks(
         os.fspath(path), None if fixed_path is None else os.fspath(fixed_path), ras
     )
@@ -240,8 +241,9 @@ def write_landmarks(
     ras: bool = False,
 ) -> None:
     """Writes pairs as ``warpbench landmarks --out`` does: BigWarp CSV (``.csv``) or JSON (``.json``), or
-    ``format`` (``"bigwarp-csv"``, ``"bigwarp-json"``, ``"plain-csv"``); with ``fixed_path`` a Slicer pair
-    (``path`` the moving list). ``ras``: BigWarp and plain CSV coordinates in RAS."""
+    ``format`` (``"bigwarp-csv"``, ``"bigwarp-json"``, ``"plain-csv"``); with ``fixed_path`` two point lists
+    (``path`` the moving one), each a Slicer ``.mrk.json``/``.fcsv`` or an elastix point file (``.txt``) by its
+    name. ``ras``: BigWarp and plain CSV coordinates in RAS."""
     moving, fixed, names, active = pairs._arrays()
     _warpbench.write_landmarks(
         os.fspath(path),
@@ -409,8 +411,8 @@ def fit(
         pairs: from :func:`read_landmarks`, or ``Pairs(moving, fixed)``.
         method: ``"tps"``, ``"hbspline"``, ``"affine"``, ``"similarity"`` or ``"rigid"``.
         stiffness: the TPS's λ ≥ 0 (0 interpolates), or ``"auto"``: the λ under which the pairs are most likely.
-        initial: an ITK affine ``.tfm`` (fixed points to moving points) under the landmark warp, as
-            ``warpbench align`` writes it.
+        initial: an ITK affine ``.tfm`` or ANTs ``.mat`` (fixed points to moving points) under the landmark warp,
+            as ``warpbench align`` writes it.
         fixed, moving: the volumes (only their grids are read). With them the pairs are checked to lie inside,
             and the fit's domains are their boxes, as on the command line; without them, the points' box grown by
             a tenth (it matters only to ``hbspline``).
@@ -509,7 +511,7 @@ def align(
 ) -> Dict[str, Any]:
     """Automatic initial alignment by Mattes mutual information (``warpbench align``): rigid, or ``affine``.
 
-    Writes the result to ``out_tfm`` (an ITK ``.tfm``) when given; the other options are the CLI's (``samples``,
+    Writes the result to ``out_tfm`` (an ITK ``.tfm``, or an ANTs ``.mat``) when given; the other options are the CLI's (``samples``,
     ``bins``, ``shrink``, ``seed``, ``force``). Returns the CLI's ``--json`` report (schema
     ``warpbench-align/1``), with ``moving_from_fixed`` as a 4×4 array."""
     with ExitStack() as stack:
