@@ -1,8 +1,9 @@
 //! The checks every reader makes on a path before it opens it (a regular file, or a folder for a DICOM series;
 //! never a pipe or a device), and [`read_up_to`], the short read that tells a short file from a full one.
 
-use std::io::Read;
-use std::path::Path;
+use std::fs::File;
+use std::io::{BufReader, Read};
+use std::path::{Path, PathBuf};
 
 use crate::error::{Error, ErrorKind, Result};
 
@@ -16,6 +17,19 @@ pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
     }
     let what = if meta.is_dir() { "a folder" } else { special_kind(&meta) };
     Err(Error::new(path, ErrorKind::NotARegularFile { what }))
+}
+
+/// Opens the regular file `path` and hands `read_from` its buffered reader, its length and its folder (where a
+/// header's detached data file is looked for): the entry point of the readers of headers with data beside them.
+pub(crate) fn read_header_file<T>(
+    path: &Path,
+    read_from: impl FnOnce(BufReader<File>, u64, &Path) -> Result<T>,
+) -> Result<T> {
+    check_regular_file(path)?;
+    let file = File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
+    let folder = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+    read_from(BufReader::new(file), len, &folder)
 }
 
 /// [`check_regular_file`], but a folder (a DICOM series) is accepted too.

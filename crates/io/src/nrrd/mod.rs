@@ -61,7 +61,7 @@ mod write;
 
 use std::fs::File;
 use std::io::{BufRead, BufReader};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 pub use header::MAX_HEADER_BYTES;
 pub use write::{NrrdWriteOptions, write, write_with};
@@ -74,11 +74,7 @@ use header::{parse_header, read_header_lines};
 
 /// Reads the NRRD file (attached `.nrrd` or detached `.nhdr`) at `path`.
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
-    crate::files::check_regular_file(path)?;
-    let file = File::open(path).map_err(|e| Error::io(path, e))?;
-    let len = file.metadata().map_err(|e| Error::io(path, e))?.len();
-    let base = path.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
-    read_from(path, BufReader::new(file), len, Some(&base), opts)
+    crate::files::read_header_file(path, |r, len, folder| read_from(path, r, len, Some(folder), opts))
 }
 
 /// Reads a NRRD file held in memory; `name` is used in errors. Detached data files are refused.
