@@ -6,14 +6,12 @@
 - SimpleITK writes an affine (with a centre) to `.mat` and to `.tfm`: `warpbench points --initial` with either
   (too few pairs to refine it, so it alone is the warp) maps points where SimpleITK's TransformPoint puts them.
 
-Needs SimpleITK and numpy, and the CLI binary: `WARPBENCH_BIN`, default `<repo>/target/debug/warpbench`
-(`cargo build -p warpbench-app`).
+Needs SimpleITK and numpy, and the CLI binary (`conftest.py`: `WARPBENCH_BIN`, default
+`<repo>/target/debug/warpbench`).
 """
 
 from __future__ import annotations
 
-import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -21,16 +19,7 @@ import pytest
 
 sitk = pytest.importorskip("SimpleITK")
 
-REPO = Path(__file__).resolve().parents[3]
-BIN = Path(os.environ.get("WARPBENCH_BIN", REPO / "target" / "debug" / "warpbench"))
-
-
-def warpbench(*args: object) -> subprocess.CompletedProcess:
-    if not BIN.exists():
-        pytest.fail(f"{BIN} is missing: build it with `cargo build -p warpbench-app` or set WARPBENCH_BIN")
-    done = subprocess.run([str(BIN), *map(str, args)], capture_output=True, text=True)
-    assert done.returncode == 0, f"warpbench {' '.join(map(str, args))}: exit {done.returncode}: {done.stderr}"
-    return done
+from conftest import run_cli as warpbench  # noqa: E402
 
 
 def blobs(path: Path) -> "sitk.Image":

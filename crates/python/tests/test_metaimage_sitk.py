@@ -6,8 +6,8 @@
 - SimpleITK writes: `.mha` (compressed or not) and `.mhd` of each pixel type; `warpbench info --json` reports the same
   dims, lps_from_index = [D diag(spacing) | origin] and voxels (their sha256 in warpbench's sample type, i fastest).
 
-Needs SimpleITK and numpy, and the CLI binary: `WARPBENCH_BIN`, default `<repo>/target/debug/warpbench`
-(`cargo build -p warpbench-app`).
+Needs SimpleITK and numpy, and the CLI binary (`conftest.py`: `WARPBENCH_BIN`, default
+`<repo>/target/debug/warpbench`).
 """
 
 from __future__ import annotations
@@ -15,8 +15,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -24,16 +22,7 @@ import pytest
 
 sitk = pytest.importorskip("SimpleITK")
 
-REPO = Path(__file__).resolve().parents[3]
-BIN = Path(os.environ.get("WARPBENCH_BIN", REPO / "target" / "debug" / "warpbench"))
-
-
-def warpbench(*args: object) -> subprocess.CompletedProcess:
-    if not BIN.exists():
-        pytest.fail(f"{BIN} is missing: build it with `cargo build -p warpbench-app` or set WARPBENCH_BIN")
-    done = subprocess.run([str(BIN), *map(str, args)], capture_output=True, text=True)
-    assert done.returncode == 0, f"warpbench {' '.join(map(str, args))}: exit {done.returncode}: {done.stderr}"
-    return done
+from conftest import run_cli as warpbench  # noqa: E402
 
 
 def direction() -> tuple:
