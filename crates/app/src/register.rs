@@ -92,7 +92,8 @@ pub struct RegisterArgs {
     /// Resolution levels, coarse to fine: each halves the control spacing and the image shrink.
     #[arg(long, default_value_t = RegisterParams::default().levels)]
     pub levels: usize,
-    /// The weight of the pairs' squared distances |u(q) − p|², per mm² (0: the pairs only start the warp).
+    /// The weight of the pairs' squared distances |u(q) − p|², per mm², at the coarsest level; each finer level takes
+    /// 1/8 of the one before (0: the pairs only start the warp).
     #[arg(long, default_value_t = RegisterParams::default().landmark_weight)]
     pub landmark_weight: f64,
     /// The weight of the bending energy (smoothness).
