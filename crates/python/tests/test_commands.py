@@ -104,8 +104,13 @@ def test_a_panic_is_a_runtime_error_and_the_interpreter_goes_on():
 
 
 def test_the_gil_is_released_during_long_work():
+    """A Python thread ticks while a long Rust call runs. Were the GIL held, it could not tick at all during the
+    call; the call is repeated (up to 5 times) so that a busy machine that never schedules the thread in one call
+    does not fail the test."""
     import threading
 
+    head = wb.read_volume(T1)
+    warp = wb.fit(wb.read_landmarks(PAIRS), fixed=head, moving=head)
     ticks = []
     stop = threading.Event()
 
@@ -115,16 +120,19 @@ def test_the_gil_is_released_during_long_work():
             stop.wait(0.001)
 
     t = threading.Thread(target=tick)
-    head = wb.read_volume(T1)
-    pairs = wb.read_landmarks(PAIRS)
-    warp = wb.fit(pairs, fixed=head, moving=head)
     t.start()
-    before = len(ticks)
-    warp.field(head)  # ~0.9 M exact TPS evaluations
-    during = len(ticks) - before
-    stop.set()
-    t.join()
-    assert during > 0
+    try:
+        during = []
+        for _ in range(5):
+            before = len(ticks)
+            warp.field(head)  # ~0.9 M exact TPS evaluations in Rust
+            during.append(len(ticks) - before)
+            if during[-1] > 0:
+                break
+    finally:
+        stop.set()
+        t.join()
+    assert max(during) > 0, during
 
 
 def test_read_volume_places_the_volume_where_info_does():
