@@ -9,6 +9,9 @@ mod register_case;
 
 use common::{assert_ok, mri, utf8, warpbench, write_pairs_csv};
 use register_case::{case, head_points, truth};
+use std::path::Path;
+use std::process::Output;
+
 use serde_json::Value;
 use warpbench_io::displacement::read_field_info;
 use warpbench_io::geometry::Point3;
@@ -16,6 +19,15 @@ use warpbench_solver::field::SampledField;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::Warp;
+
+/// `warpbench register` of the case with the landmarks into `field`, on 2 levels down to 20 mm, with `extra` flags and
+/// `--json`.
+fn register(fixed: &Path, moving: &Path, pairs: &Path, field: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["register", "--fixed", utf8(fixed), "--moving", utf8(moving), "--landmarks", utf8(pairs)];
+    args.extend(["--out-field", utf8(field), "--grid-mm", "20", "--levels", "2", "--json"]);
+    args.extend_from_slice(extra);
+    warpbench(&args)
+}
 
 fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
@@ -26,24 +38,7 @@ fn the_registered_field_beats_the_tps_keeps_the_pairs_and_is_what_warp_applies()
     let dir = tempfile::tempdir().expect("tempdir");
     let (fixed, moving, pairs, qs) = case(dir.path());
     let (field, warped) = (dir.path().join("field.nii.gz"), dir.path().join("warped.nii.gz"));
-    let run = warpbench(&[
-        "register",
-        "--fixed",
-        utf8(&fixed),
-        "--moving",
-        utf8(&moving),
-        "--landmarks",
-        utf8(&pairs),
-        "--out-field",
-        utf8(&field),
-        "--out",
-        utf8(&warped),
-        "--grid-mm",
-        "20",
-        "--levels",
-        "2",
-        "--json",
-    ]);
+    let run = register(&fixed, &moving, &pairs, &field, &["--out", utf8(&warped)]);
     assert_ok(&run);
     let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
     assert_eq!(report["schema"], "warpbench-register/2");
@@ -163,24 +158,7 @@ fn normalised_gradient_fields_are_a_metric_of_their_own() {
     let dir = tempfile::tempdir().expect("tempdir");
     let (fixed, moving, pairs, _) = case(dir.path());
     let field = dir.path().join("field.nii.gz");
-    let run = warpbench(&[
-        "register",
-        "--fixed",
-        utf8(&fixed),
-        "--moving",
-        utf8(&moving),
-        "--landmarks",
-        utf8(&pairs),
-        "--out-field",
-        utf8(&field),
-        "--metric",
-        "ngf",
-        "--grid-mm",
-        "20",
-        "--levels",
-        "2",
-        "--json",
-    ]);
+    let run = register(&fixed, &moving, &pairs, &field, &["--metric", "ngf"]);
     assert_ok(&run);
     let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
     assert_eq!(report["settings"]["metric"], "ngf");

@@ -162,14 +162,20 @@ fn a_rigid_landmark_set_reproduces_the_rigidly_resampled_ct() {
     assert!(worst <= 1.0, "the warp differs from the rigid resampling by {worst} HU");
 }
 
+/// Five pairs of a shift by (2, −1, 3) mm inside the MRI fixture, written as `shift.csv` in `dir`.
+fn shift_pairs(dir: &Path) -> PathBuf {
+    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
+    let pairs: Vec<_> = q.iter().map(|q| ([q[0] + 2.0, q[1] - 1.0, q[2] + 3.0], *q)).collect();
+    let csv = dir.join("shift.csv");
+    write_pairs(&csv, &pairs);
+    csv
+}
+
 #[test]
 fn writes_a_dicom_series_and_refuses_bad_requests() {
     let dir = tempfile::tempdir().expect("tempdir");
     let mri = data("nifti/avg152T1_LR_nifti.nii");
-    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
-    let pairs: Vec<_> = q.iter().map(|q| ([q[0] + 2.0, q[1] - 1.0, q[2] + 3.0], *q)).collect();
-    let csv = dir.path().join("shift.csv");
-    write_pairs(&csv, &pairs);
+    let csv = shift_pairs(dir.path());
     let out = dir.path().join("shift.nii");
     let dcm = dir.path().join("series");
     assert_ok(&warpbench(&[
@@ -244,10 +250,7 @@ fn writes_the_volume_in_the_format_its_name_says() {
     // back to the same voxels and geometry; and a MetaImage input is read like any other.
     let dir = tempfile::tempdir().expect("tempdir");
     let mri = data("nifti/avg152T1_LR_nifti.nii");
-    let q = [[0.0, 18.0, 18.0], [40.0, 18.0, 18.0], [-40.0, 30.0, 0.0], [0.0, 70.0, 40.0], [10.0, -40.0, 18.0]];
-    let pairs: Vec<_> = q.iter().map(|q| ([q[0] + 2.0, q[1] - 1.0, q[2] + 3.0], *q)).collect();
-    let csv = dir.path().join("shift.csv");
-    write_pairs(&csv, &pairs);
+    let csv = shift_pairs(dir.path());
     let warp_to = |moving: &Path, out: &Path| {
         assert_ok(&warpbench(&[
             "warp",
