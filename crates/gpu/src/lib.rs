@@ -37,6 +37,8 @@
 //!   3-D view, depth-tested against the ray caster's first hit ([`RenderTarget::hit_depth`]), and over slices.
 //! - [`export`]: the warped moving volume resampled onto a target grid, on the CPU ([`export_cpu`]) or the GPU
 //!   ([`ExportPass`]).
+//! - [`ffd_samples`]: [`FfdSamplesPass`], the per-sample work of an intensity registration under a B-spline
+//!   free-form deformation (displaced image values, and the weighted gradient gathered per control point).
 //! - [`shader`]: what a pass declares about its WGSL (its [`shader::ShaderSource`], the layouts of its uniform
 //!   structs and its [`shader::BindSlot`]s); [`shaders`]: the registry that lists every file and every pass's
 //!   declaration, which `tests/shaders.rs` checks against naga's reading of the WGSL.
@@ -71,6 +73,7 @@ pub mod device;
 pub mod empty_space;
 pub mod error;
 pub mod export;
+pub mod ffd_samples;
 pub mod filter_probe;
 pub mod glyph;
 pub mod headless;

@@ -3,7 +3,7 @@
 //! slots (see [`crate::shader`]); this module only lists them, and `tests/shaders.rs` validates every file with naga
 //! (no device) and checks every interface against it. Nothing in the crate imports this module.
 
-use crate::{control_eval, export, filter_probe, glyph, pick, prefilter, raycast};
+use crate::{control_eval, export, ffd_samples, filter_probe, glyph, pick, prefilter, raycast};
 
 pub use crate::shader::{BindSlot, ShaderInterface, ShaderSource, Stage, StructLayout, WgslConstant};
 
@@ -18,11 +18,14 @@ pub const CONTROL_EVAL: ShaderSource = control_eval::SHADER;
 /// The export of the warped volume ([`crate::export`]).
 pub const EXPORT: ShaderSource = export::SHADER;
 
+/// The registration's samples under a free-form deformation ([`crate::ffd_samples`]).
+pub const FFD_SAMPLES: ShaderSource = ffd_samples::SHADER;
+
 /// The filtering-precision probe ([`crate::filter_probe`]).
 pub const FILTER_PROBE: ShaderSource = filter_probe::SHADER;
 
 /// Every shader of the crate.
-pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER, GLYPH, CONTROL_EVAL, EXPORT, FILTER_PROBE];
+pub const ALL: &[ShaderSource] = &[RAYCAST, PREFILTER, GLYPH, CONTROL_EVAL, EXPORT, FFD_SAMPLES, FILTER_PROBE];
 
 /// Every pass's interface; together they claim every `@binding` of every shader in [`ALL`].
 pub const INTERFACES: &[ShaderInterface] = &[
@@ -32,5 +35,6 @@ pub const INTERFACES: &[ShaderInterface] = &[
     glyph::INTERFACE,
     control_eval::INTERFACE,
     export::INTERFACE,
+    ffd_samples::INTERFACE,
     filter_probe::INTERFACE,
 ];
