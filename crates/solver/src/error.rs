@@ -59,6 +59,9 @@ pub enum SolverError {
     Image(String),
     #[error("cancelled")]
     Cancelled,
+    /// A device the work was handed to (a GPU) failed; the message says which and why.
+    #[error("{0}")]
+    Device(String),
 }
 
 /// What a set that is `shape` lacks, for [`SolverError::Flat`].

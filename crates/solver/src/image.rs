@@ -156,6 +156,12 @@ impl<S: Space> Image<S> {
         [xi[0], xi[1], xi[2]]
     }
 
+    /// ∂index/∂mm: the linear part of [`Self::index_of`].
+    #[must_use]
+    pub fn index_from_space_linear(&self) -> Matrix3<f64> {
+        self.index_from_space_linear
+    }
+
     /// The value at voxel (i, j, k).
     #[must_use]
     pub fn at(&self, i: usize, j: usize, k: usize) -> f32 {

@@ -4,6 +4,7 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use super::device::{DeviceLevel, DeviceSample, DeviceSamples, SampleDevice};
 use crate::align::{PAD_BINS, Sample, bspline3, bspline3_derivative};
 use crate::bspline::ControlLattice;
 use crate::image::Image;
@@ -14,8 +15,8 @@ use crate::warp::Parallelism;
 /// since the samples and the lattice's cells are).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Footprint {
-    start: [usize; 3],
-    weights: [[f64; 4]; 3],
+    pub(super) start: [usize; 3],
+    pub(super) weights: [[f64; 4]; 3],
 }
 
 impl Footprint {
@@ -122,7 +123,6 @@ struct Hit {
 }
 
 /// The metric over one level's fixed samples.
-#[derive(Debug)]
 pub(super) struct Metric<'a> {
     /// The moving image pulled back by the start u₀ onto the level's fixed grid (NaN where u₀ leaves it).
     pub(super) warped: &'a Image<Fixed>,
@@ -132,6 +132,18 @@ pub(super) struct Metric<'a> {
     pub(super) moving_min: f64,
     pub(super) moving_bin_width: f64,
     pub(super) parallelism: Parallelism,
+    /// Where the samples are read when not on the CPU's threads ([`super::device`]).
+    device: Option<Box<dyn DeviceSamples + 'a>>,
+}
+
+impl std::fmt::Debug for Metric<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Metric")
+            .field("samples", &self.samples.len())
+            .field("bins", &self.bins)
+            .field("on_device", &self.device.is_some())
+            .finish_non_exhaustive()
+    }
 }
 
 /// MI, its gradient in the coefficients, and the samples that stayed inside the warped image.
@@ -151,14 +163,18 @@ impl<'a> Metric<'a> {
     /// The metric of `samples` (with their footprints in `lattice`) against `warped`, its histogram spanning the
     /// finite values of `warped`.
     ///
+    /// The samples are read on `device` when one is given.
+    ///
     /// # Errors
-    /// [`crate::SolverError::Image`] when `warped` has no finite value (the images do not overlap) or a single one.
+    /// [`crate::SolverError::Image`] when `warped` has no finite value (the images do not overlap) or a single one;
+    /// [`crate::SolverError::Device`] when the device cannot take the level.
     pub(super) fn new(
         warped: &'a Image<Fixed>,
         samples: Vec<Sample>,
         lattice: &ControlLattice,
         bins: usize,
         parallelism: Parallelism,
+        device: Option<&'a dyn SampleDevice>,
     ) -> crate::Result<Self> {
         let Some((moving_min, moving_max)) = warped.value_range(parallelism) else { return Err(no_overlap()) };
         if moving_max <= moving_min {
@@ -166,7 +182,24 @@ impl<'a> Metric<'a> {
                 "the moving image has a single value where it overlaps the fixed image: nothing to match".into(),
             ));
         }
-        let footprints = samples.iter().map(|s| Footprint::of(lattice, [s.x[0], s.x[1], s.x[2]])).collect();
+        let footprints: Vec<Footprint> =
+            samples.iter().map(|s| Footprint::of(lattice, [s.x[0], s.x[1], s.x[2]])).collect();
+        let device = match device {
+            None => None,
+            Some(d) => {
+                let points: Vec<DeviceSample> = samples
+                    .iter()
+                    .zip(&footprints)
+                    .map(|(s, f)| DeviceSample {
+                        index: warped.index_of([s.x[0], s.x[1], s.x[2]]),
+                        first: f.start,
+                        weights: f.weights,
+                    })
+                    .collect();
+                let level = DeviceLevel { image: warped, lattice_dims: lattice.dims(), samples: &points };
+                Some(d.prepare(&level).map_err(crate::SolverError::Device)?)
+            }
+        };
         Ok(Self {
             warped,
             samples,
@@ -175,6 +208,7 @@ impl<'a> Metric<'a> {
             moving_min,
             moving_bin_width: (moving_max - moving_min) / (bins - 2 * PAD_BINS - 1) as f64,
             parallelism,
+            device,
         })
     }
 
@@ -182,14 +216,17 @@ impl<'a> Metric<'a> {
         let d = f.displacement(phi, dims);
         let y = [s.x[0] + d[0], s.x[1] + d[1], s.x[2] + d[2]];
         match self.warped.sample_with_gradient(y) {
-            Some((m, g)) if m.is_finite() && g.iter().all(|v| v.is_finite()) => Hit {
-                inside: true,
-                moving_bin: ((m - self.moving_min) / self.moving_bin_width + PAD_BINS as f64)
-                    .clamp(PAD_BINS as f64, (self.bins - PAD_BINS - 1) as f64),
-                gradient: Vector3::from(g),
-            },
+            Some((m, g)) if m.is_finite() && g.iter().all(|v| v.is_finite()) => {
+                Hit { inside: true, moving_bin: self.moving_bin(m), gradient: Vector3::from(g) }
+            }
             _ => Hit::default(),
         }
+    }
+
+    /// The bin of a moving value, clamped into the histogram's unpadded range.
+    fn moving_bin(&self, m: f64) -> f64 {
+        ((m - self.moving_min) / self.moving_bin_width + PAD_BINS as f64)
+            .clamp(PAD_BINS as f64, (self.bins - PAD_BINS - 1) as f64)
     }
 
     fn chunk_len(&self) -> usize {
@@ -198,20 +235,34 @@ impl<'a> Metric<'a> {
 
     /// MI at the lattice `phi` (coefficients of a lattice shaped `dims`) and ∂MI/∂φ; `None` when fewer than
     /// [`crate::align::MIN_SAMPLES_INSIDE`] samples land inside the warped image.
-    pub(super) fn evaluate(&self, phi: &[f64], dims: [usize; 3]) -> Option<Evaluation> {
+    ///
+    /// # Errors
+    /// [`crate::SolverError::Device`] when the device fails.
+    pub(super) fn evaluate(&self, phi: &[f64], dims: [usize; 3]) -> crate::Result<Option<Evaluation>> {
         let b = self.bins;
         let n = self.samples.len();
         let mut hits = vec![Hit::default(); n];
-        let fill = |((h, s), f): ((&mut Hit, &Sample), &Footprint)| *h = self.hit(s, f, phi, dims);
-        match self.parallelism {
-            Parallelism::Rayon => hits
-                .par_iter_mut()
-                .zip(self.samples.par_iter())
-                .zip(self.footprints.par_iter())
-                .with_min_len(1024)
-                .for_each(fill),
-            Parallelism::Sequential => {
-                hits.iter_mut().zip(self.samples.iter()).zip(self.footprints.iter()).for_each(fill);
+        if let Some(device) = &self.device {
+            // Only the bins: the gradients stay on the device.
+            let mut values = vec![0.0; n];
+            device.values(phi, &mut values).map_err(crate::SolverError::Device)?;
+            for (h, &m) in hits.iter_mut().zip(&values) {
+                if m.is_finite() {
+                    *h = Hit { inside: true, moving_bin: self.moving_bin(m), gradient: Vector3::zeros() };
+                }
+            }
+        } else {
+            let fill = |((h, s), f): ((&mut Hit, &Sample), &Footprint)| *h = self.hit(s, f, phi, dims);
+            match self.parallelism {
+                Parallelism::Rayon => hits
+                    .par_iter_mut()
+                    .zip(self.samples.par_iter())
+                    .zip(self.footprints.par_iter())
+                    .with_min_len(1024)
+                    .for_each(fill),
+                Parallelism::Sequential => {
+                    hits.iter_mut().zip(self.samples.iter()).zip(self.footprints.iter()).for_each(fill);
+                }
             }
         }
         let chunk = self.chunk_len();
@@ -237,20 +288,30 @@ impl<'a> Metric<'a> {
             (j, i + n)
         });
         if inside < crate::align::MIN_SAMPLES_INSIDE {
-            return None;
+            return Ok(None);
         }
         let norm = 1.0 / inside as f64;
         let (mi, log_ratio) = crate::align::mutual_information(&mut joint, b, norm);
         // ∂MI/∂φ_c = −(1/(n Δm)) Σ_x [Σ_κ β³′(κ − m̃) log(p(ι_x, κ)/p_m(κ))] ∇m'(x + D(x)) B_c(x).
         let scale = -norm / self.moving_bin_width;
         let len = phi.len();
+        // The weight of sample s's gradient: scale · Σ_κ β³′(κ − m̃) log(p(ι, κ)/p_m(κ)).
+        let weight = |h: &Hit, s: &Sample| {
+            let row = &log_ratio[s.bin * b..(s.bin + 1) * b];
+            let k0 = h.moving_bin.floor() as usize;
+            scale * (k0 - 1..=k0 + 2).map(|k| bspline3_derivative(k as f64 - h.moving_bin) * row[k]).sum::<f64>()
+        };
+        if let Some(device) = &self.device {
+            let weights: Vec<f64> =
+                hits.iter().zip(&self.samples).map(|(h, s)| if h.inside { weight(h, s) } else { 0.0 }).collect();
+            let mut gradient = vec![0.0; len];
+            device.weighted_gradient(&weights, &mut gradient).map_err(crate::SolverError::Device)?;
+            return Ok(Some(Evaluation { similarity: mi, gradient, inside }));
+        }
         let gradient_of = |((hits, samples), footprints): ((&[Hit], &[Sample]), &[Footprint])| {
             let mut g = vec![0.0; len];
             for ((h, s), f) in hits.iter().zip(samples).zip(footprints).filter(|((h, _), _)| h.inside) {
-                let row = &log_ratio[s.bin * b..(s.bin + 1) * b];
-                let k0 = h.moving_bin.floor() as usize;
-                let w: f64 = (k0 - 1..=k0 + 2).map(|k| bspline3_derivative(k as f64 - h.moving_bin) * row[k]).sum();
-                let v = h.gradient * (w * scale);
+                let v = h.gradient * weight(h, s);
                 f.scatter([v[0], v[1], v[2]], dims, &mut g);
             }
             g
@@ -273,6 +334,6 @@ impl<'a> Metric<'a> {
         for part in parts {
             gradient.iter_mut().zip(part).for_each(|(x, y)| *x += y);
         }
-        Some(Evaluation { similarity: mi, gradient, inside })
+        Ok(Some(Evaluation { similarity: mi, gradient, inside }))
     }
 }

@@ -59,6 +59,7 @@
 //! and seed give the same lattice, bit for bit, on any number of threads (tested).
 
 mod bending;
+pub mod device;
 mod lbfgs;
 mod metric;
 pub mod ngf;
@@ -80,6 +81,7 @@ use crate::spaces::{Aabb, Fixed, Moving};
 use crate::warp::{Composed, Parallelism, Warp};
 use crate::{Result, SolverError};
 use bending::Bending;
+use device::SampleDevice;
 use metric::{Evaluation, Footprint, JacobianPoint, Metric};
 use ngf::Ngf;
 
@@ -263,6 +265,23 @@ pub fn register(
     params: &RegisterParams,
     progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
 ) -> Result<Registration> {
+    register_on(fixed, moving, start, pairs, params, None, progress)
+}
+
+/// [`register`], with the samples of the mutual information read on `device` when one is given ([`device`]; the
+/// normalised gradient fields always run on the CPU).
+///
+/// # Errors
+/// Those of [`register`], and [`SolverError::Device`] when the device fails.
+pub fn register_on(
+    fixed: &Image<Fixed>,
+    moving: &Image<Moving>,
+    start: &dyn Warp<Moving, Fixed>,
+    pairs: &[RegisterPair],
+    params: &RegisterParams,
+    device: Option<&dyn SampleDevice>,
+    progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
+) -> Result<Registration> {
     check(params)?;
     if let Some(n) = pairs.iter().position(|p| !(p.moving.is_finite() && p.fixed.is_finite())) {
         return Err(SolverError::NonFinite { pair: n + 1 });
@@ -289,7 +308,7 @@ pub fn register(
         let wanted = params.samples.max(SAMPLES_PER_COEFFICIENT * lattice.coefficients().len());
         let (samples, _) = draw_samples(&fixed_level, wanted, params.bins, params.seed.wrapping_add(level as u64))?;
         let metric = match params.similarity {
-            Similarity::Mi => LevelMetric::Mi(Metric::new(&warped, samples, &lattice, params.bins, par)?),
+            Similarity::Mi => LevelMetric::Mi(Metric::new(&warped, samples, &lattice, params.bins, par, device)?),
             Similarity::Ngf => LevelMetric::Ngf(Ngf::new(&fixed_level, &warped, &samples, &lattice, par)?),
         };
         let pins = pairs
@@ -310,11 +329,13 @@ pub fn register(
             evaluations: Cell::new(0),
             level,
             progress: RefCell::new(progress),
+            failure: RefCell::new(None),
         };
         let voxel_mm = fixed_level.spacing_mm().into_iter().fold(f64::INFINITY, f64::min);
         let report = objective.optimise(&mut lattice, voxel_mm).map_err(|stop| match stop {
             Stop::Cancelled => SolverError::Cancelled,
             Stop::NoOverlap => metric::no_overlap(),
+            Stop::Failed(e) => e,
         })?;
         levels.push(LevelReport { shrink, seconds: started.elapsed().as_secs_f64(), ..report });
     }
@@ -423,11 +444,13 @@ struct Pin {
 }
 
 /// Why a level stopped early.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Debug)]
 enum Stop {
     Cancelled,
     /// Too few samples inside the pulled-back moving image at the level's start.
     NoOverlap,
+    /// The device failed.
+    Failed(SolverError),
 }
 
 /// The landmark weight at `level` (0 the coarsest): β at the coarsest level, and 1/8 of the level before at each finer
@@ -473,10 +496,10 @@ enum LevelMetric<'a> {
 }
 
 impl LevelMetric<'_> {
-    fn evaluate(&self, phi: &[f64], dims: [usize; 3]) -> Option<Evaluation> {
+    fn evaluate(&self, phi: &[f64], dims: [usize; 3]) -> Result<Option<Evaluation>> {
         match self {
             Self::Mi(m) => m.evaluate(phi, dims),
-            Self::Ngf(m) => m.evaluate(phi, dims),
+            Self::Ngf(m) => Ok(m.evaluate(phi, dims)),
         }
     }
 
@@ -501,6 +524,8 @@ struct Objective<'a, 'p> {
     evaluations: Cell<usize>,
     level: usize,
     progress: RefCell<&'p mut ProgressFn<'p>>,
+    /// The device's error, when an evaluation failed (the optimiser is then stopped).
+    failure: RefCell<Option<SolverError>>,
 }
 
 /// The terms of E at one φ.
@@ -526,14 +551,14 @@ impl Objective<'_, '_> {
 
     /// E(φ) and ∂E/∂φ, or `None` where E is not defined: too few samples inside, or (`check`) a deformation that
     /// (nearly) folds.
-    fn evaluate(&self, phi: &[f64], check: bool) -> Option<(f64, Vec<f64>, Parts)> {
+    fn evaluate(&self, phi: &[f64], check: bool) -> Result<Option<(f64, Vec<f64>, Parts)>> {
         if check {
             let det = self.min_determinant(phi);
             if det.is_nan() || det < MIN_DETERMINANT {
-                return None;
+                return Ok(None);
             }
         }
-        let similar = self.metric.evaluate(phi, self.dims)?;
+        let Some(similar) = self.metric.evaluate(phi, self.dims)? else { return Ok(None) };
         let mut gradient = similar.gradient;
         for g in &mut gradient {
             *g = -*g;
@@ -555,7 +580,7 @@ impl Objective<'_, '_> {
         }
         let cost = -similar.similarity + alpha * bending_energy + beta * landmark_sum_sq;
         let parts = Parts { similarity: similar.similarity, bending_energy, landmark_sum_sq, inside: similar.inside };
-        Some((cost, gradient, parts))
+        Ok(Some((cost, gradient, parts)))
     }
 
     /// Minimises E from `lattice`'s coefficients by L-BFGS ([`lbfgs`]) and leaves the result in it. `voxel_mm` is the
@@ -563,7 +588,9 @@ impl Objective<'_, '_> {
     fn optimise(&self, lattice: &mut ControlLattice, voxel_mm: f64) -> std::result::Result<LevelReport, Stop> {
         let phi0 = lattice.coefficients().to_vec();
         // Where the last level left φ is accepted as it is: the check is for steps.
-        let Some((cost0, gradient0, parts0)) = self.evaluate(&phi0, false) else { return Err(Stop::NoOverlap) };
+        let Some((cost0, gradient0, parts0)) = self.evaluate(&phi0, false).map_err(Stop::Failed)? else {
+            return Err(Stop::NoOverlap);
+        };
         let settings = lbfgs::Settings {
             max_iterations: self.params.max_iterations,
             first_step: voxel_mm,
@@ -574,7 +601,14 @@ impl Objective<'_, '_> {
         let minimum = lbfgs::minimise(phi0, (cost0, gradient0), &settings, &mut |phi| {
             let n = self.evaluations.get() + 1;
             self.evaluations.set(n);
-            let Some((cost, gradient, at)) = self.evaluate(phi, true) else { return lbfgs::Value::Undefined };
+            let (cost, gradient, at) = match self.evaluate(phi, true) {
+                Ok(Some(value)) => value,
+                Ok(None) => return lbfgs::Value::Undefined,
+                Err(e) => {
+                    *self.failure.borrow_mut() = Some(e);
+                    return lbfgs::Value::Stop;
+                }
+            };
             let report = RegisterProgress {
                 level: self.level,
                 levels: self.params.levels,
@@ -589,10 +623,10 @@ impl Objective<'_, '_> {
             lbfgs::Value::At(cost, gradient)
         });
         if minimum.end == lbfgs::End::Stopped {
-            return Err(Stop::Cancelled);
+            return Err(self.failure.take().map_or(Stop::Cancelled, Stop::Failed));
         }
         // The last evaluation may be a rejected trial step: the parts of the point kept are evaluated again.
-        let parts = self.evaluate(&minimum.x, false).map_or(parts, |(_, _, p)| p);
+        let parts = self.evaluate(&minimum.x, false).map_err(Stop::Failed)?.map_or(parts, |(_, _, p)| p);
         lattice.coefficients_mut().copy_from_slice(&minimum.x);
         let pins = self.pins.len().max(1) as f64;
         Ok(LevelReport {
@@ -618,6 +652,7 @@ const COST_TOLERANCE: f64 = 1e-6;
 
 #[cfg(test)]
 mod tests {
+    use nalgebra::Vector3;
     use warpbench_io::geometry::{Index, Transform};
 
     use super::*;
@@ -672,7 +707,8 @@ mod tests {
         let (samples, _) = draw_samples(&fixed, params.samples, params.bins, 1).expect("test input");
         let metric = match similarity {
             Similarity::Mi => LevelMetric::Mi(
-                Metric::new(&warped, samples, &lattice, params.bins, Parallelism::Sequential).expect("test input"),
+                Metric::new(&warped, samples, &lattice, params.bins, Parallelism::Sequential, None)
+                    .expect("test input"),
             ),
             Similarity::Ngf => LevelMetric::Ngf(
                 Ngf::new(&fixed, &warped, &samples, &lattice, Parallelism::Sequential).expect("test input"),
@@ -693,15 +729,16 @@ mod tests {
             evaluations: Cell::new(0),
             level: 0,
             progress: RefCell::new(&mut progress),
+            failure: RefCell::new(None),
         };
         let phi = lattice.coefficients().to_vec();
-        let (_, gradient, _) = objective.evaluate(&phi, true).expect("test input");
+        let (_, gradient, _) = objective.evaluate(&phi, true).expect("test input").expect("test input");
         for index in (0..phi.len()).step_by(23) {
             let mut p = phi.clone();
             p[index] += h;
-            let up = objective.evaluate(&p, true).expect("test input").0;
+            let up = objective.evaluate(&p, true).expect("test input").expect("test input").0;
             p[index] -= 2.0 * h;
-            let down = objective.evaluate(&p, true).expect("test input").0;
+            let down = objective.evaluate(&p, true).expect("test input").expect("test input").0;
             let numeric = (up - down) / (2.0 * h);
             assert!(
                 // 0.5 %, plus the rounding of E (about 1e-16 of E ≈ 1, over 2h).
@@ -710,6 +747,151 @@ mod tests {
                 gradient[index]
             );
         }
+    }
+
+    /// A [`SampleDevice`] in f64 on the CPU, written from the trait's contract alone: the device path's plumbing
+    /// (the weights, the order of the samples, the signs) against the CPU path's.
+    struct F64Device;
+
+    struct F64Level {
+        image: Image<Fixed>,
+        lattice_dims: [usize; 3],
+        samples: Vec<device::DeviceSample>,
+        gradients: std::sync::Mutex<Vec<[f64; 3]>>,
+    }
+
+    impl SampleDevice for F64Device {
+        fn describe(&self) -> String {
+            "f64 test device".into()
+        }
+
+        fn prepare<'d>(
+            &'d self,
+            level: &device::DeviceLevel<'_>,
+        ) -> std::result::Result<Box<dyn device::DeviceSamples + 'd>, String> {
+            Ok(Box::new(F64Level {
+                image: level.image.clone(),
+                lattice_dims: level.lattice_dims,
+                samples: level.samples.to_vec(),
+                gradients: std::sync::Mutex::new(vec![[0.0; 3]; level.samples.len()]),
+            }))
+        }
+    }
+
+    impl device::DeviceSamples for F64Level {
+        fn values(&self, phi: &[f64], out: &mut [f64]) -> std::result::Result<(), String> {
+            let a = self.image.index_from_space_linear();
+            let space_from_index = *self.image.space_from_index();
+            let mut gradients = self.gradients.lock().map_err(|e| e.to_string())?;
+            for ((s, o), g) in self.samples.iter().zip(out.iter_mut()).zip(gradients.iter_mut()) {
+                let d = Footprint { start: s.first, weights: s.weights }.displacement(phi, self.lattice_dims);
+                let eta = Vector3::from(s.index) + a * Vector3::from(d);
+                let y = space_from_index.apply_point(Point3::new(eta[0], eta[1], eta[2])).coords();
+                match self.image.sample_with_gradient(y) {
+                    Some((v, grad)) if v.is_finite() => (*o, *g) = (v, grad),
+                    _ => (*o, *g) = (f64::NAN, [f64::NAN; 3]),
+                }
+            }
+            Ok(())
+        }
+
+        fn weighted_gradient(&self, weights: &[f64], out: &mut [f64]) -> std::result::Result<(), String> {
+            out.fill(0.0);
+            let gradients = self.gradients.lock().map_err(|e| e.to_string())?;
+            for ((s, &w), g) in self.samples.iter().zip(weights).zip(gradients.iter()) {
+                if w != 0.0 {
+                    let v = g.map(|c| c * w);
+                    Footprint { start: s.first, weights: s.weights }.scatter(v, self.lattice_dims, out);
+                }
+            }
+            Ok(())
+        }
+    }
+
+    /// A device that fails at its third evaluation.
+    struct FailingDevice(std::sync::atomic::AtomicUsize);
+
+    impl SampleDevice for FailingDevice {
+        fn describe(&self) -> String {
+            "failing test device".into()
+        }
+
+        fn prepare<'d>(
+            &'d self,
+            level: &device::DeviceLevel<'_>,
+        ) -> std::result::Result<Box<dyn device::DeviceSamples + 'd>, String> {
+            let inner = F64Device.prepare(level)?;
+            Ok(Box::new(Failing { inner, calls: &self.0 }))
+        }
+    }
+
+    struct Failing<'d> {
+        inner: Box<dyn device::DeviceSamples + 'd>,
+        calls: &'d std::sync::atomic::AtomicUsize,
+    }
+
+    impl device::DeviceSamples for Failing<'_> {
+        fn values(&self, phi: &[f64], out: &mut [f64]) -> std::result::Result<(), String> {
+            if self.calls.fetch_add(1, std::sync::atomic::Ordering::SeqCst) >= 2 {
+                return Err("the test device was lost".into());
+            }
+            self.inner.values(phi, out)
+        }
+
+        fn weighted_gradient(&self, weights: &[f64], out: &mut [f64]) -> std::result::Result<(), String> {
+            self.inner.weighted_gradient(weights, out)
+        }
+    }
+
+    #[test]
+    fn mutual_information_read_on_a_device_is_the_cpus() {
+        let fixed = blobs::<Fixed>(0.0);
+        let moving = blobs::<Moving>(2.0);
+        let start = AffineWarp::<Moving, Fixed>::new(
+            Matrix3::new(1.01, 0.02, 0.0, -0.01, 0.99, 0.0, 0.0, 0.03, 1.0),
+            [0.5, -0.3, 0.2],
+        );
+        let domain = image_box(&fixed);
+        let mut lattice =
+            ControlLattice::zeros([3, 3, 3], domain.min.coords(), domain.max.coords()).expect("test input");
+        for (n, c) in lattice.coefficients_mut().iter_mut().enumerate() {
+            *c = ((n * 37 % 11) as f64 - 5.0) * 0.4;
+        }
+        let warped = pulled_back(&fixed, &moving, &start, Parallelism::Sequential).expect("test input");
+        let (samples, _) = draw_samples(&fixed, 5_000, 32, 1).expect("test input");
+        let seq = Parallelism::Sequential;
+        let cpu = Metric::new(&warped, samples.clone(), &lattice, 32, seq, None).expect("test input");
+        let on_device = Metric::new(&warped, samples, &lattice, 32, seq, Some(&F64Device)).expect("test input");
+        let phi = lattice.coefficients();
+        let a = cpu.evaluate(phi, lattice.dims()).expect("cpu").expect("inside");
+        let b = on_device.evaluate(phi, lattice.dims()).expect("device").expect("inside");
+        assert_eq!(a.inside, b.inside);
+        assert!((a.similarity - b.similarity).abs() < 1e-12, "{} vs {}", a.similarity, b.similarity);
+        let largest = a.gradient.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+        assert!(largest > 1e-3, "a trivial gradient: {largest}");
+        for (i, (x, y)) in a.gradient.iter().zip(&b.gradient).enumerate() {
+            assert!((x - y).abs() <= 1e-10 * largest, "coefficient {i}: {x} vs {y}");
+        }
+    }
+
+    #[test]
+    fn a_device_that_fails_stops_the_registration_with_its_message() {
+        let fixed = blobs::<Fixed>(0.0);
+        let moving = blobs::<Moving>(2.0);
+        let params = RegisterParams { samples: 5_000, levels: 1, grid_mm: 30.0, ..RegisterParams::default() };
+        let device = FailingDevice(std::sync::atomic::AtomicUsize::new(0));
+        let mut progress = |_: &RegisterProgress| ControlFlow::Continue(());
+        let start = AffineWarp::<Moving, Fixed>::identity();
+        match register_on(&fixed, &moving, &start, &[], &params, Some(&device), &mut progress) {
+            Err(SolverError::Device(message)) => assert_eq!(message, "the test device was lost"),
+            other => panic!("expected the device's error, got {:?}", other.map(|r| r.levels)),
+        }
+        // And on the device, a registration that works converges like the CPU's.
+        let on_device = register_on(&fixed, &moving, &start, &[], &params, Some(&F64Device), &mut progress)
+            .expect("device registration");
+        let cpu = register(&fixed, &moving, &start, &[], &params, &mut progress).expect("cpu registration");
+        let (a, b) = (cpu.levels[0].similarity, on_device.levels[0].similarity);
+        assert!((a - b).abs() < 1e-6 * a.abs(), "MI {a} on the CPU, {b} on the device");
     }
 
     #[test]
