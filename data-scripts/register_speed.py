@@ -80,7 +80,7 @@ def main() -> None:
         for level in levels or []:
             print(f"  shrink {level['shrink']}: {level['control_points']} control points, {level['samples']} samples, "
                   f"{level['iterations']} iterations, {level['evaluations']} evaluations, {level['seconds']:.2f} s, "
-                  f"MI {level['mutual_information_start']:.3f} → {level['mutual_information']:.3f}")
+                  f"similarity {level['similarity_start']:.3f} → {level['similarity']:.3f}")
 
 
 if __name__ == "__main__":

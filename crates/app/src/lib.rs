@@ -23,6 +23,7 @@
 //!   written as a displacement field (and the warped volume).
 //! - [`inputs`]: loading the pair, reading landmarks and checking them against the volumes (shared by the pair
 //!   subcommands).
+//! - [`gpu_samples`]: the GPU as the reader of a registration's samples, and `--backend`'s rule for it.
 //! - [`fit`]: the one way to fit: pairs and a method give the pull-back and the forward warp, and what the GPU takes
 //!   of them (control texture, TPS, B-spline lattice), for the subcommands, the window and the drag bench.
 //! - [`project`]: the model under the window and the command line: the document and its session file.
@@ -46,6 +47,7 @@ pub mod eval;
 pub mod exit;
 pub mod field;
 pub mod fit;
+pub mod gpu_samples;
 #[cfg(feature = "window")]
 pub mod gui;
 pub mod info;

@@ -24,8 +24,9 @@ use warpbench_solver::field::SampledField;
 use warpbench_solver::image::Image;
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::Method;
+use warpbench_solver::register::device::SampleDevice;
 use warpbench_solver::register::{
-    LevelReport, RegisterPair, RegisterParams, RegisterProgress, Registration, Similarity, folding, register,
+    LevelReport, RegisterPair, RegisterParams, RegisterProgress, Registration, Similarity, folding, register_on,
 };
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::{Composed, Parallelism, Warp};
@@ -34,6 +35,7 @@ use crate::args::{MethodArgs, PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
 use crate::field::{FormatArg, sample_displacements};
 use crate::fit;
+use crate::gpu_samples::{GpuSamples, SampleDeviceChoice};
 use crate::inputs::{self, Correspondences, LandmarkWarp, Names, OutputFile};
 use crate::progress::Bar;
 use crate::project::stack::{Layers, StackPullback};
@@ -105,9 +107,13 @@ pub struct RegisterArgs {
     /// Optimiser iterations per level, at most.
     #[arg(long, default_value_t = RegisterParams::default().max_iterations)]
     pub iterations: usize,
-    /// The seed of the sample points (the same seed gives the same result, bit for bit).
+    /// The seed of the sample points (the same seed gives the same result, bit for bit, on one device).
     #[arg(long, default_value_t = RegisterParams::default().seed)]
     pub seed: u64,
+    /// Where the mutual information's samples are read: auto (a hardware GPU when there is one, else the CPU), cpu
+    /// or gpu.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub backend: crate::warp::BackendArg,
     #[command(flatten)]
     pub report: ReportArgs,
 }
@@ -216,6 +222,11 @@ pub struct RegisterSummary {
     pub max_displacement_mm: f64,
     /// Wall time of the registration itself (reading and writing excluded), seconds.
     pub register_s: f64,
+    /// Where the samples were read: `cpu`, or `gpu: ` and the adapter.
+    pub device: String,
+    /// Why `--backend auto` stayed on the CPU when it looked for a GPU.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cpu_fallback: Option<String>,
 }
 
 /// The folding check of the result.
@@ -307,15 +318,17 @@ impl Refinement {
 /// Registers `inputs.moving` to `inputs.fixed` under the pairs (module docs). The start u₀ is the warp stack of
 /// `layers` with the landmark fit when there are pairs enough for the method or a base under it, else the identity;
 /// the active pairs inside their volumes are kept by the registration either way. `progress` hears after each
-/// evaluation; [`ControlFlow::Break`] stops the work with [`Failure::Cancelled`].
+/// evaluation; [`ControlFlow::Break`] stops the work with [`Failure::Cancelled`]. The mutual information's samples
+/// are read on `device` when one is given ([`crate::gpu_samples`]).
 ///
 /// # Errors
 /// [`Failure::BadInput`] for a pair outside its volume, a volume with one value, volumes that do not overlap, or
-/// settings out of range, naming the inputs; [`Failure::Cancelled`].
+/// settings out of range, naming the inputs; [`Failure::Cancelled`]; [`Failure::Internal`] when the device fails.
 pub fn refine(
     inputs: RefineInputs<'_>,
     layers: Layers,
     params: &RegisterParams,
+    device: Option<&dyn SampleDevice>,
     progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
 ) -> Result<Refinement, Failure> {
     let RefineInputs { fixed, moving, names: [fixed_name, moving_name], pairs, origin, method } = inputs;
@@ -340,14 +353,18 @@ pub fn refine(
     let moving_image = Image::<Moving>::from_volume(moving, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{moving_name}: {e}")))?;
     let started = Instant::now();
-    let registration = register(&fixed_image, &moving_image, start.warp(), &register_pairs, params, progress).map_err(
-        |e| match e {
-            SolverError::Cancelled => {
-                Failure::Cancelled(anyhow!("registering {moving_name} to {fixed_name}: cancelled"))
-            }
-            e => Failure::BadInput(anyhow!("registering {moving_name} to {fixed_name}: {e}")),
-        },
-    )?;
+    let registration =
+        register_on(&fixed_image, &moving_image, start.warp(), &register_pairs, params, device, progress).map_err(
+            |e| match e {
+                SolverError::Cancelled => {
+                    Failure::Cancelled(anyhow!("registering {moving_name} to {fixed_name}: cancelled"))
+                }
+                SolverError::Device(message) => {
+                    Failure::Internal(anyhow!("registering {moving_name} to {fixed_name}: {message}"))
+                }
+                e => Failure::BadInput(anyhow!("registering {moving_name} to {fixed_name}: {e}")),
+            },
+        )?;
     let register_s = started.elapsed().as_secs_f64();
     let jacobian = folding(&registration, start.warp(), &fixed_image, [64; 3], Parallelism::Rayon);
     Ok(Refinement { start, start_name, kept, registration, jacobian, register_s })
@@ -370,6 +387,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         samples,
         iterations,
         seed,
+        backend,
         report,
     } = args;
     let ReportArgs { json, force, quiet } = report;
@@ -400,6 +418,20 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         crate::warp::check_outputs(path, None).map_err(Failure::BadInput)?;
     }
     params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
+    let choice = crate::gpu_samples::choose(backend.into(), params.similarity).map_err(|e| {
+        if params.similarity == Similarity::Ngf {
+            Failure::BadInput(anyhow!("{e}"))
+        } else {
+            Failure::Internal(anyhow!("--backend gpu: {e}"))
+        }
+    })?;
+    let (gpu, device, cpu_fallback) = match &choice {
+        SampleDeviceChoice::Cpu { note } => (None, "cpu".to_owned(), note.clone()),
+        SampleDeviceChoice::Gpu(ctx) => {
+            let gpu = GpuSamples::new(ctx).map_err(|e| Failure::Internal(anyhow!("registering on the GPU: {e}")))?;
+            (Some(gpu), format!("gpu: {}", ctx.describe()), None)
+        }
+    };
     let start_transform = given.warp.start().map_err(Failure::BadInput)?;
     let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
@@ -424,7 +456,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let bar = Bar::new(quiet);
     let mut layers = Layers::new(start_transform, brushed);
     layers.field = given.warp.field().map_err(Failure::BadInput)?;
-    let refinement = refine(inputs, layers, &params, &mut |p| {
+    let refinement = refine(inputs, layers, &params, gpu.as_ref().map(|g| g as &dyn SampleDevice), &mut |p| {
         bar.set("registering", (p.fraction() * 1000.0) as u64, 1000);
         ControlFlow::Continue(())
     })?;
@@ -486,6 +518,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         jacobian: refinement.jacobian.into(),
         max_displacement_mm,
         register_s: refinement.register_s,
+        device,
+        cpu_fallback,
     };
     if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;

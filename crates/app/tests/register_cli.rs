@@ -33,6 +33,23 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// The mean TRE over the head's points of the field in `field` and of the TPS through the pairs at `qs`, mm.
+fn mean_tre(field: &Path, qs: &[[f64; 3]]) -> (f64, f64) {
+    let read = read_field_info(field).expect("read the field");
+    let u = SampledField::<Moving, Fixed>::from_displacement_field(read.field).expect("a field");
+    let volume = warpbench_io::open(mri()).expect("fixture");
+    let points = head_points(&volume);
+    let q: Vec<Point3<Fixed>> = qs.iter().map(|&q| Point3::from_array(q)).collect();
+    let p: Vec<Point3<Moving>> = qs.iter().map(|&q| Point3::from_array(truth(q))).collect();
+    let tps = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).expect("tps");
+    let mean = |w: &dyn Warp<Moving, Fixed>| {
+        points.iter().map(|&x| distance(w.apply_raw(x), truth(x))).sum::<f64>() / points.len() as f64
+    };
+    let (registered, through_pairs) = (mean(&u), mean(&tps));
+    eprintln!("mean TRE over {} head points: registered {registered:.3} mm, TPS {through_pairs:.3} mm", points.len());
+    (registered, through_pairs)
+}
+
 #[test]
 fn the_registered_field_beats_the_tps_keeps_the_pairs_and_is_what_warp_applies() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -57,18 +74,7 @@ fn the_registered_field_beats_the_tps_keeps_the_pairs_and_is_what_warp_applies()
     assert!(report["jacobian"]["min_det"].as_f64().expect("min det") > 0.0);
 
     // The field holds u(x) − x: closer to the truth inside the head than the TPS through the same pairs.
-    let read = read_field_info(&field).expect("read the field");
-    let u = SampledField::<Moving, Fixed>::from_displacement_field(read.field).expect("a field");
-    let volume = warpbench_io::open(mri()).expect("fixture");
-    let points = head_points(&volume);
-    let q: Vec<Point3<Fixed>> = qs.iter().map(|&q| Point3::from_array(q)).collect();
-    let p: Vec<Point3<Moving>> = qs.iter().map(|&q| Point3::from_array(truth(q))).collect();
-    let tps = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).expect("tps");
-    let mean = |w: &dyn Warp<Moving, Fixed>| {
-        points.iter().map(|&x| distance(w.apply_raw(x), truth(x))).sum::<f64>() / points.len() as f64
-    };
-    let (registered, through_pairs) = (mean(&u), mean(&tps));
-    eprintln!("mean TRE over {} head points: registered {registered:.3} mm, TPS {through_pairs:.3} mm", points.len());
+    let (registered, through_pairs) = mean_tre(&field, &qs);
     assert!(registered < 0.7 * through_pairs, "registered {registered:.3} mm, TPS {through_pairs:.3} mm");
 
     // `--out` is the moving volume through that field, as `warpbench warp --field --exact` resamples it.
@@ -93,6 +99,38 @@ fn the_registered_field_beats_the_tps_keeps_the_pairs_and_is_what_warp_applies()
     assert_eq!(a.dims, b.dims);
     let same_bits = (0..a.data.len()).all(|i| a.data.get_f64(i).to_bits() == b.data.get_f64(i).to_bits());
     assert!(same_bits, "the same voxels");
+}
+
+/// `--backend gpu` (the mutual information's samples read on the GPU, in f32): the same laws as on the CPU, and the
+/// same field, byte for byte, when run again. Skipped without an adapter unless REQUIRE_GPU_ADAPTER=1.
+#[test]
+fn on_the_gpu_the_registration_keeps_its_laws_and_repeats_bit_for_bit() {
+    if warpbench_gpu::headless::headless_or_skip(warpbench_gpu::FeatureRequest::default()).is_none() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, qs) = case(dir.path());
+    let fields = [dir.path().join("gpu1.nii.gz"), dir.path().join("gpu2.nii.gz")];
+    let mut reports = Vec::new();
+    for field in &fields {
+        let run = register(&fixed, &moving, &pairs, field, &["--backend", "gpu"]);
+        assert_ok(&run);
+        reports.push(serde_json::from_slice::<Value>(&run.stdout).expect("JSON on stdout"));
+    }
+    let report = &reports[0];
+    assert!(report["device"].as_str().expect("device").starts_with("gpu: "), "{report}");
+    for level in report["levels"].as_array().expect("levels") {
+        let (start, end) = (level["similarity_start"].as_f64(), level["similarity"].as_f64());
+        assert!(end > start, "the similarity rises at every level: {level}");
+    }
+    for r in report["residuals"].as_array().expect("residuals") {
+        assert!(r["residual_mm"].as_f64().expect("residual") < 0.5, "{r}");
+    }
+    assert_eq!(report["jacobian"]["fraction_folded"], 0.0, "{report}");
+    let (registered, through_pairs) = mean_tre(&fields[0], &qs);
+    assert!(registered < 0.7 * through_pairs, "registered {registered:.3} mm, TPS {through_pairs:.3} mm");
+    let bytes = fields.map(|f| std::fs::read(f).expect("field"));
+    assert!(bytes[0] == bytes[1], "two runs on one GPU wrote different fields");
 }
 
 #[test]
@@ -144,6 +182,8 @@ fn bad_input_exits_2_names_the_file_and_writes_nothing() {
 
     // Unusable settings, and an output that exists.
     refused(&register(&["--moving", utf8(&moving), "--grid-mm", "0"]), &["control spacing"]);
+    // Normalised gradient fields have no GPU path.
+    refused(&register(&["--moving", utf8(&moving), "--metric", "ngf", "--backend", "gpu"]), &["--metric mi only"]);
     let exists = dir.path().join("exists.nii.gz");
     std::fs::write(&exists, b"keep").expect("write");
     let out =

@@ -177,7 +177,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         method: &input.method,
     };
     let params = RegisterParams::default();
-    let refinement = refine(inputs, layers, &params, &mut |p| {
+    let refinement = refine(inputs, layers, &params, None, &mut |p| {
         if progress(0.95 * p.fraction()) { ControlFlow::Continue(()) } else { ControlFlow::Break(()) }
     })
     .map_err(|e| match e {
