@@ -28,7 +28,10 @@ use warpbench_solver::register::RegisterParams;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
+use warpbench_solver::register::device::SampleDevice;
+
 use crate::exit::Failure;
+use crate::gpu_samples::GpuSamples;
 use crate::project::document::{FitPoints, StartingTransform};
 use crate::project::stack::{FieldLayer, Layers};
 use crate::register::{RefineInputs, refine};
@@ -47,6 +50,9 @@ pub struct RefineInput {
     pub field: Option<PathBuf>,
     /// Where to write the refined field.
     pub out: PathBuf,
+    /// The window's GPU, when it is a hardware one: the mutual information's samples are read there
+    /// ([`crate::gpu_samples`]; `register --backend auto`'s rule). A CPU driver is not passed.
+    pub gpu: Option<Arc<warpbench_gpu::GpuContext>>,
 }
 
 /// A finished refinement: the field to put under the landmarks and what to say about it.
@@ -177,7 +183,11 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         method: &input.method,
     };
     let params = RegisterParams::default();
-    let refinement = refine(inputs, layers, &params, None, &mut |p| {
+    // A GPU whose pass cannot be made leaves the work on the CPU, as `--backend auto` does.
+    let gpu = input.gpu.as_deref().and_then(|ctx| GpuSamples::new(ctx).ok());
+    let device = gpu.as_ref().map(|g| g as &dyn SampleDevice);
+    let on = if gpu.is_some() { "on the GPU" } else { "on the CPU" };
+    let refinement = refine(inputs, layers, &params, device, &mut |p| {
         if progress(0.95 * p.fraction()) { ControlFlow::Continue(()) } else { ControlFlow::Break(()) }
     })
     .map_err(|e| match e {
@@ -200,7 +210,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
     };
     let summary = format!(
         "Refined by intensities from {}: mutual information {:.3} to {:.3}, {pairs}, smallest Jacobian determinant \
-         {:.2}, {:.1} s",
+         {:.2}, {:.1} s {on}",
         refinement.start_name,
         refinement.registration.levels.first().map_or(0.0, |l| l.similarity_start),
         last.map_or(0.0, |l| l.similarity),

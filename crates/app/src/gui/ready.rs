@@ -109,6 +109,7 @@ impl Ready {
             start: self.document.start.clone(),
             field: self.document.field.clone(),
             out: self.assist.refined_dir.join(format!("refined-{millis}.nii.gz")),
+            gpu: (!self.viewer.ctx.is_cpu_driver()).then(|| Arc::clone(&self.viewer.ctx)),
         };
         let egui = self.ctx.clone();
         match super::intensity::IntensityJob::start(input, move || egui.request_repaint()) {
