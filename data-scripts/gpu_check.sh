@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The renderer checked on a real GPU in one run: every test of the gpu crate, then the frame, control-eval, export
-# and drag benches at the sizes of the issue's targets (1920×1080, two 512×512×300 volumes), with one summary. A GPU
+# and drag benches at the sizes of the issue's targets (1920×1080, two 512×512×300 volumes), and the registration
+# bench (a 256³ pair, the mutual information's samples on the CPU and on the GPU), with one summary. A GPU
 # machine may have neither a Rust toolchain nor the network, so it is two steps:
 #
 #   bash data-scripts/gpu_check.sh pack          # on the build machine: release test and bench binaries, stripped,
@@ -22,7 +23,7 @@ set -euo pipefail
 
 root="$(cd "$(dirname "$0")/.." && pwd)"
 pack="$root/data-cache/gpu-check.tar.xz"
-benches=(frame control_eval export drag)
+benches=(frame control_eval export drag register)
 # The pack's budget: it travels beside the checkout's tracked files, within 64 MiB together.
 max_pack_bytes=$((20 * 1024 * 1024))
 
@@ -33,11 +34,11 @@ pack)
     trap 'rm -rf "$stage"' EXIT
     mkdir -p "$stage/tests" "$stage/bin" "$root/data-cache"
     # The executables cargo built, from its JSON messages: every test target of the gpu crate (its unit tests too),
-    # and the four benches.
+    # and the five benches.
     {
         cargo test --release --no-run --locked -p warpbench-gpu --message-format=json 2>/dev/null
         cargo bench --no-run --locked -p warpbench-gpu --bench frame --bench control_eval --bench export \
-            -p warpbench-app --bench drag --message-format=json 2>/dev/null
+            -p warpbench-app --bench drag --bench register --message-format=json 2>/dev/null
     } | python3 -c '
 import json, sys
 for line in sys.stdin:
@@ -170,12 +171,14 @@ run | smoke)
         bench drag1000_refit drag --size 1920x1080 --pairs 1000 --events 10 --gpu-eval --full-refit
         bench control_eval control_eval --iterations 50
         bench export export --dims 512 --repeats 3
+        bench register register --size 256 --rounds 3
     else
         bench frame_big frame --size 64x64 --dims 32x32x32 --frames 1
         bench frame_procedural frame --procedural --size 64x64 --dims 32x32x32 --frames 1
         bench drag100 drag --size 64x64 --pairs 20 --events 1 --gpu-eval
         bench control_eval control_eval --iterations 1
         bench export export --dims 32 --ctrl 8 --centres 20 --repeats 1
+        bench register register --size 32 --rounds 1
     fi
     echo "== $(($(date +%s) - started)) s in all" >>"$summary"
     tar -C "$work" -cf - logs | xz -6 >"$out/logs.tar.xz"
