@@ -149,3 +149,30 @@ fn cancel_leaves_the_warp_as_it_was() {
     let written = std::fs::read_dir(&refined).map_or(0, Iterator::count);
     assert_eq!(written, 0, "no field written");
 }
+
+/// The window hands its GPU to the refinement when it is a hardware one (`Ready::start_intensities`); given a GPU,
+/// the refinement reads its samples there and says so. Here lavapipe stands in for it. Skipped without an adapter
+/// unless REQUIRE_GPU_ADAPTER=1.
+#[test]
+fn a_refinement_given_a_gpu_runs_there_and_says_so() {
+    let Some(ctx) = warpbench_gpu::headless::headless_or_skip(warpbench_gpu::FeatureRequest::default()) else {
+        return;
+    };
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, _, _) = case(dir.path());
+    let out = dir.path().join("refined.nii.gz");
+    let input = warpbench_app::gui::intensity::RefineInput {
+        fixed: std::sync::Arc::new(warpbench_io::open(&fixed).expect("fixed")),
+        moving: std::sync::Arc::new(warpbench_io::open(&moving).expect("moving")),
+        pairs: Vec::new(),
+        method: warpbench_solver::method::Method::from_name("tps").expect("tps"),
+        start: None,
+        field: None,
+        out: out.clone(),
+        gpu: Some(std::sync::Arc::new(ctx)),
+    };
+    let refined = warpbench_app::gui::intensity::refine_pair(&input, &mut |_| true).expect("the refinement");
+    assert!(refined.summary.ends_with("on the GPU"), "{}", refined.summary);
+    assert_eq!(refined.field, out);
+    assert!(out.exists(), "the field is written");
+}
