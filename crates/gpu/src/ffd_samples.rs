@@ -437,20 +437,7 @@ impl PreparedFfd {
         }
         let phi32: Vec<f32> = phi.iter().map(|&v| v as f32).collect();
         ctx.queue.write_buffer(&self.phi, 0, bytemuck::cast_slice(&phi32));
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("ffd") });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(VALUES_ENTRY_POINT),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.values_pipeline);
-            pass.set_bind_group(0, &self.values_group, &[]);
-            pass.dispatch_workgroups(self.sample_groups.x, self.sample_groups.y, 1);
-        }
-        encoder.copy_buffer_to_buffer(&self.values, 0, &self.values_read, 0, self.values.size());
-        ctx.queue.submit([encoder.finish()]);
-        ctx.map_read(&self.values_read, self.values_read.size(), |bytes| {
-            let sorted: &[f32] = bytemuck::cast_slice(bytes);
+        self.run(ctx, Entry::Values, |sorted| {
             for (&original, &v) in self.order.iter().zip(sorted) {
                 out[original as usize] = f64::from(v);
             }
@@ -472,23 +459,52 @@ impl PreparedFfd {
         }
         let sorted: Vec<f32> = self.order.iter().map(|&o| weights[o as usize] as f32).collect();
         ctx.queue.write_buffer(&self.sample_weights, 0, bytemuck::cast_slice(&sorted));
-        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("ffd") });
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(GRADIENT_ENTRY_POINT),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.gradient_pipeline);
-            pass.set_bind_group(0, &self.gradient_group, &[]);
-            pass.dispatch_workgroups(self.point_groups.x, self.point_groups.y, 1);
-        }
-        encoder.copy_buffer_to_buffer(&self.gradient, 0, &self.gradient_read, 0, self.gradient.size());
-        ctx.queue.submit([encoder.finish()]);
-        ctx.map_read(&self.gradient_read, self.gradient_read.size(), |bytes| {
-            let g: &[f32] = bytemuck::cast_slice(bytes);
+        self.run(ctx, Entry::Gradient, |g| {
             for (o, &v) in out.iter_mut().zip(g) {
                 *o = f64::from(v);
             }
         })
     }
+
+    /// Runs `entry`'s pass, waits for the GPU and hands its output (f32, in the pass's order) to `read`.
+    fn run(&self, ctx: &GpuContext, entry: Entry, read: impl FnOnce(&[f32])) -> Result<()> {
+        let (label, pipeline, group, groups, output, readback) = match entry {
+            Entry::Values => (
+                VALUES_ENTRY_POINT,
+                &self.values_pipeline,
+                &self.values_group,
+                self.sample_groups,
+                &self.values,
+                &self.values_read,
+            ),
+            Entry::Gradient => (
+                GRADIENT_ENTRY_POINT,
+                &self.gradient_pipeline,
+                &self.gradient_group,
+                self.point_groups,
+                &self.gradient,
+                &self.gradient_read,
+            ),
+        };
+        let mut encoder = ctx.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some(label) });
+        {
+            let mut pass =
+                encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(label), timestamp_writes: None });
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(groups.x, groups.y, 1);
+        }
+        encoder.copy_buffer_to_buffer(output, 0, readback, 0, output.size());
+        ctx.queue.submit([encoder.finish()]);
+        ctx.map_read(readback, readback.size(), |bytes| read(bytemuck::cast_slice(bytes)))
+    }
+}
+
+/// The two passes of a [`PreparedFfd`].
+#[derive(Clone, Copy, Debug)]
+enum Entry {
+    /// `cs_values`: one invocation per sample.
+    Values,
+    /// `cs_gradient`: one invocation per control point.
+    Gradient,
 }

@@ -106,6 +106,7 @@ pub use export::{
     ExportPass, ExportRequest, ExportSamples, ExportedSamples, ExportedVolume, Interpolation, OutputType, Progress,
     PullBack, SampleType, SourceVolume, TargetGrid, export_cpu,
 };
+pub use ffd_samples::{FfdSamplesPass, PreparedFfd};
 pub use filter_probe::{FilterProbe, MeasuredFiltering};
 pub use glyph::{
     GlyphDrawData, GlyphInstance, GlyphPair, GlyphRenderer, GlyphSettings, GlyphStyle, GlyphUniforms, pair_glyphs,
