@@ -14,12 +14,18 @@
 //! cargo bench -p warpbench-app --bench register -- --size 128 --rounds 1 --backends cpu
 //! ```
 //!
+//! The last round of each backend is broken down by level (control points, samples, evaluations, seconds), and on
+//! the GPU into the time in the device's calls (upload, value pass, gradient pass, each with its readback) and the
+//! CPU's share (histogram, optimiser, pyramid), so that a missed target shows what bounds it.
+//!
 //! Options: `--size N` (256), `--rounds N` (3), `--backends cpu,gpu` (both; the GPU is wgpu's default adapter, or the
 //! one `WGPU_BACKEND` chooses). It only runs when `--bench` is among the arguments (as `cargo bench` passes), so
 //! `cargo test --benches` does not run it.
 
 use std::ops::ControlFlow;
 use std::path::Path;
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
 
 use warpbench_app::gpu_samples::GpuSamples;
 use warpbench_app::project::stack::Layers;
@@ -29,8 +35,9 @@ use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::{GeometrySource, Volume, VoxelData};
 use warpbench_solver::image::Image;
 use warpbench_solver::method::Method;
+use warpbench_solver::register::LevelReport;
 use warpbench_solver::register::RegisterParams;
-use warpbench_solver::register::device::SampleDevice;
+use warpbench_solver::register::device::{DeviceLevel, DeviceSamples, SampleDevice};
 use warpbench_solver::spaces::Fixed;
 use warpbench_solver::warp::{Parallelism, Warp};
 
@@ -40,6 +47,78 @@ const SHIFT_MM: [f64; 3] = [2.0, -1.0, 1.0];
 enum Backend {
     Cpu,
     Gpu,
+}
+
+/// Time spent in one kind of device call, and how many.
+#[derive(Clone, Copy, Default)]
+struct CallTime {
+    calls: usize,
+    total: Duration,
+}
+
+impl CallTime {
+    fn add(&mut self, started: Instant) {
+        self.calls += 1;
+        self.total += started.elapsed();
+    }
+}
+
+/// Where a GPU refinement's time went on the device side: uploads, the value pass and the gradient pass, each with
+/// its dispatch, its wait and its readback (the device's calls return only when their results are on the CPU).
+#[derive(Clone, Copy, Default)]
+struct DeviceTimes {
+    prepare: CallTime,
+    values: CallTime,
+    gradient: CallTime,
+}
+
+/// A [`SampleDevice`] that times the calls of the one it wraps, so that a missed target shows whether the device or
+/// the CPU's share (histogram, optimiser, pyramid, fold check) bounds it.
+struct Timed<'a> {
+    inner: &'a dyn SampleDevice,
+    times: Mutex<DeviceTimes>,
+}
+
+impl Timed<'_> {
+    fn record(&self, f: impl FnOnce(&mut DeviceTimes) -> &mut CallTime, started: Instant) {
+        // A poisoned lock only means another call panicked; its counts are still the best there are.
+        let mut times = self.times.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        f(&mut times).add(started);
+    }
+}
+
+impl SampleDevice for Timed<'_> {
+    fn describe(&self) -> String {
+        self.inner.describe()
+    }
+
+    fn prepare<'d>(&'d self, level: &DeviceLevel<'_>) -> Result<Box<dyn DeviceSamples + 'd>, String> {
+        let started = Instant::now();
+        let inner = self.inner.prepare(level)?;
+        self.record(|t| &mut t.prepare, started);
+        Ok(Box::new(TimedLevel { timed: self, inner }))
+    }
+}
+
+struct TimedLevel<'d> {
+    timed: &'d Timed<'d>,
+    inner: Box<dyn DeviceSamples + 'd>,
+}
+
+impl DeviceSamples for TimedLevel<'_> {
+    fn values(&self, phi: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let started = Instant::now();
+        self.inner.values(phi, out)?;
+        self.timed.record(|t| &mut t.values, started);
+        Ok(())
+    }
+
+    fn weighted_gradient(&self, weights: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let started = Instant::now();
+        self.inner.weighted_gradient(weights, out)?;
+        self.timed.record(|t| &mut t.gradient, started);
+        Ok(())
+    }
 }
 
 struct Options {
@@ -125,15 +204,55 @@ struct Run {
     seconds: f64,
     similarity: f64,
     error_mm: f64,
+    levels: Vec<LevelReport>,
+    /// With a device: the time in its calls.
+    device: Option<DeviceTimes>,
+}
+
+impl Run {
+    /// Where the time went: each level, and with a device its calls against the CPU's share.
+    fn breakdown(&self) -> Vec<String> {
+        let mut lines: Vec<String> = self
+            .levels
+            .iter()
+            .map(|l| {
+                format!(
+                    "    shrink {}: {} control points, {} samples, {} evaluations, {:.3} s",
+                    l.shrink, l.control_points, l.samples, l.evaluations, l.seconds
+                )
+            })
+            .collect();
+        if let Some(d) = self.device {
+            let call = |name: &str, c: CallTime| {
+                let each = if c.calls == 0 { 0.0 } else { c.total.as_secs_f64() * 1e3 / c.calls as f64 };
+                format!("{name} {:.3} s ({} × {each:.2} ms)", c.total.as_secs_f64(), c.calls)
+            };
+            let on_device = (d.prepare.total + d.values.total + d.gradient.total).as_secs_f64();
+            lines.push(format!(
+                "    device calls {on_device:.3} s: {}, {}, {}; the CPU's share {:.3} s",
+                call("upload", d.prepare),
+                call("values", d.values),
+                call("gradient", d.gradient),
+                self.seconds - on_device
+            ));
+        }
+        lines
+    }
 }
 
 fn run(fixed: &Volume, moving: &Volume, device: Option<&dyn SampleDevice>) -> Run {
     let method = Method::from_name("tps").expect("tps");
     let inputs =
         RefineInputs { fixed, moving, names: ["fixed", "moving"], pairs: &[], origin: "no landmarks", method: &method };
-    let refinement =
-        refine(inputs, Layers::new(None, None), &RegisterParams::default(), device, &mut |_| ControlFlow::Continue(()))
-            .expect("the registration");
+    let timed = device.map(|inner| Timed { inner, times: Mutex::new(DeviceTimes::default()) });
+    let refinement = refine(
+        inputs,
+        Layers::new(None, None),
+        &RegisterParams::default(),
+        timed.as_ref().map(|t| t as &dyn SampleDevice),
+        &mut |_| ControlFlow::Continue(()),
+    )
+    .expect("the registration");
     let u = refinement.pullback();
     let image = Image::<Fixed>::from_volume(fixed, Parallelism::Rayon).expect("an image");
     let largest = image.values().iter().fold(0.0f32, |m, &v| m.max(v));
@@ -157,6 +276,8 @@ fn run(fixed: &Volume, moving: &Volume, device: Option<&dyn SampleDevice>) -> Ru
         seconds: refinement.register_s,
         similarity: refinement.registration.levels.last().map_or(0.0, |l| l.similarity),
         error_mm: sum / count.max(1) as f64,
+        levels: refinement.registration.levels.clone(),
+        device: timed.map(|t| t.times.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner)),
     }
 }
 
@@ -199,6 +320,12 @@ fn main() {
                 "  round {round} {backend:?}: {:.3} s, MI {:.4}, mean error {:.3} mm",
                 r.seconds, r.similarity, r.error_mm
             );
+            if round + 1 == o.rounds {
+                // The last round's split, so that a missed target shows what bounds it.
+                for line in r.breakdown() {
+                    println!("{line}");
+                }
+            }
             times.push(r.seconds);
         }
     }
