@@ -1,10 +1,10 @@
 //! Mattes mutual information between the fixed image and the pulled-back moving image under a free-form
 //! deformation, with its gradient in the lattice's coefficients (the module docs of [`super`] give the formulas).
 
-use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::device::{DeviceLevel, DeviceSample, DeviceSamples, SampleDevice};
+use super::device::SampleDevice;
+use super::samples::SampleReader;
 use crate::align::{PAD_BINS, Sample, bspline3, bspline3_derivative};
 use crate::bspline::ControlLattice;
 use crate::image::Image;
@@ -113,37 +113,17 @@ pub(super) fn no_overlap() -> crate::SolverError {
     )
 }
 
-/// Per sample, what the gradient pass needs from the histogram pass.
-#[derive(Clone, Copy, Debug, Default)]
-struct Hit {
-    inside: bool,
-    /// m̃(x + D(x)), in bins.
-    moving_bin: f64,
-    gradient: Vector3<f64>,
-}
-
 /// The metric over one level's fixed samples.
+#[derive(Debug)]
 pub(super) struct Metric<'a> {
-    /// The moving image pulled back by the start u₀ onto the level's fixed grid (NaN where u₀ leaves it).
-    pub(super) warped: &'a Image<Fixed>,
-    pub(super) samples: Vec<Sample>,
-    pub(super) footprints: Vec<Footprint>,
-    pub(super) bins: usize,
-    pub(super) moving_min: f64,
-    pub(super) moving_bin_width: f64,
-    pub(super) parallelism: Parallelism,
-    /// Where the samples are read when not on the CPU's threads ([`super::device`]).
-    device: Option<Box<dyn DeviceSamples + 'a>>,
-}
-
-impl std::fmt::Debug for Metric<'_> {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Metric")
-            .field("samples", &self.samples.len())
-            .field("bins", &self.bins)
-            .field("on_device", &self.device.is_some())
-            .finish_non_exhaustive()
-    }
+    /// The samples, read in the moving image pulled back by the start u₀ onto the level's fixed grid.
+    pub(super) reader: SampleReader<'a>,
+    /// Each sample's fixed bin.
+    fixed_bins: Vec<usize>,
+    bins: usize,
+    moving_min: f64,
+    moving_bin_width: f64,
+    parallelism: Parallelism,
 }
 
 /// MI, its gradient in the coefficients, and the samples that stayed inside the warped image.
@@ -170,7 +150,7 @@ impl<'a> Metric<'a> {
     /// [`crate::SolverError::Device`] when the device cannot take the level.
     pub(super) fn new(
         warped: &'a Image<Fixed>,
-        samples: Vec<Sample>,
+        samples: &[Sample],
         lattice: &ControlLattice,
         bins: usize,
         parallelism: Parallelism,
@@ -182,55 +162,21 @@ impl<'a> Metric<'a> {
                 "the moving image has a single value where it overlaps the fixed image: nothing to match".into(),
             ));
         }
-        let footprints: Vec<Footprint> =
-            samples.iter().map(|s| Footprint::of(lattice, [s.x[0], s.x[1], s.x[2]])).collect();
-        let device = match device {
-            None => None,
-            Some(d) => {
-                let points: Vec<DeviceSample> = samples
-                    .iter()
-                    .zip(&footprints)
-                    .map(|(s, f)| DeviceSample {
-                        index: warped.index_of([s.x[0], s.x[1], s.x[2]]),
-                        first: f.start,
-                        weights: f.weights,
-                    })
-                    .collect();
-                let level = DeviceLevel { image: warped, lattice_dims: lattice.dims(), samples: &points };
-                Some(d.prepare(&level).map_err(crate::SolverError::Device)?)
-            }
-        };
+        let points = samples.iter().map(|s| [s.x[0], s.x[1], s.x[2]]).collect();
         Ok(Self {
-            warped,
-            samples,
-            footprints,
+            reader: SampleReader::new(warped, points, lattice, parallelism, device)?,
+            fixed_bins: samples.iter().map(|s| s.bin).collect(),
             bins,
             moving_min,
             moving_bin_width: (moving_max - moving_min) / (bins - 2 * PAD_BINS - 1) as f64,
             parallelism,
-            device,
         })
-    }
-
-    fn hit(&self, s: &Sample, f: &Footprint, phi: &[f64], dims: [usize; 3]) -> Hit {
-        let d = f.displacement(phi, dims);
-        let y = [s.x[0] + d[0], s.x[1] + d[1], s.x[2] + d[2]];
-        match self.warped.sample_with_gradient(y) {
-            Some((m, g)) if m.is_finite() && g.iter().all(|v| v.is_finite()) => {
-                Hit { inside: true, moving_bin: self.moving_bin(m), gradient: Vector3::from(g) }
-            }
-            _ => Hit::default(),
-        }
     }
 
     /// The bin of a moving value, clamped into the histogram's unpadded range.
     fn moving_bin(&self, m: f64) -> f64 {
         ((m - self.moving_min) / self.moving_bin_width + PAD_BINS as f64)
             .clamp(PAD_BINS as f64, (self.bins - PAD_BINS - 1) as f64)
-    }
-
-    fn chunk_len(&self) -> usize {
-        self.samples.len().div_ceil(CHUNKS).max(1)
     }
 
     /// MI at the lattice `phi` (coefficients of a lattice shaped `dims`) and ∂MI/∂φ; `None` when fewer than
@@ -240,48 +186,29 @@ impl<'a> Metric<'a> {
     /// [`crate::SolverError::Device`] when the device fails.
     pub(super) fn evaluate(&self, phi: &[f64], dims: [usize; 3]) -> crate::Result<Option<Evaluation>> {
         let b = self.bins;
-        let n = self.samples.len();
-        let mut hits = vec![Hit::default(); n];
-        if let Some(device) = &self.device {
-            // Only the bins: the gradients stay on the device.
-            let mut values = vec![0.0; n];
-            device.values(phi, &mut values).map_err(crate::SolverError::Device)?;
-            for (h, &m) in hits.iter_mut().zip(&values) {
-                if m.is_finite() {
-                    *h = Hit { inside: true, moving_bin: self.moving_bin(m), gradient: Vector3::zeros() };
-                }
-            }
-        } else {
-            let fill = |((h, s), f): ((&mut Hit, &Sample), &Footprint)| *h = self.hit(s, f, phi, dims);
-            match self.parallelism {
-                Parallelism::Rayon => hits
-                    .par_iter_mut()
-                    .zip(self.samples.par_iter())
-                    .zip(self.footprints.par_iter())
-                    .with_min_len(1024)
-                    .for_each(fill),
-                Parallelism::Sequential => {
-                    hits.iter_mut().zip(self.samples.iter()).zip(self.footprints.iter()).for_each(fill);
-                }
-            }
-        }
-        let chunk = self.chunk_len();
-        let histogram = |(hits, samples): (&[Hit], &[Sample])| {
+        let reading = self.reader.read(phi, dims)?;
+        let chunk = self.reader.chunk_len();
+        let histogram = |(values, fixed_bins): (&[f64], &[usize])| {
             let mut joint = vec![0.0f64; b * b];
             let mut inside = 0usize;
-            for (h, s) in hits.iter().zip(samples).filter(|(h, _)| h.inside) {
+            for (&m, &fixed_bin) in values.iter().zip(fixed_bins).filter(|(m, _)| m.is_finite()) {
                 inside += 1;
-                let row = &mut joint[s.bin * b..(s.bin + 1) * b];
-                let k0 = h.moving_bin.floor() as usize;
+                let row = &mut joint[fixed_bin * b..(fixed_bin + 1) * b];
+                let moving_bin = self.moving_bin(m);
+                let k0 = moving_bin.floor() as usize;
                 for (k, bin) in row.iter_mut().enumerate().skip(k0 - 1).take(4) {
-                    *bin += bspline3(k as f64 - h.moving_bin);
+                    *bin += bspline3(k as f64 - moving_bin);
                 }
             }
             (joint, inside)
         };
         let parts: Vec<(Vec<f64>, usize)> = match self.parallelism {
-            Parallelism::Rayon => hits.par_chunks(chunk).zip(self.samples.par_chunks(chunk)).map(histogram).collect(),
-            Parallelism::Sequential => hits.chunks(chunk).zip(self.samples.chunks(chunk)).map(histogram).collect(),
+            Parallelism::Rayon => {
+                reading.values.par_chunks(chunk).zip(self.fixed_bins.par_chunks(chunk)).map(histogram).collect()
+            }
+            Parallelism::Sequential => {
+                reading.values.chunks(chunk).zip(self.fixed_bins.chunks(chunk)).map(histogram).collect()
+            }
         };
         let (mut joint, inside) = parts.into_iter().fold((vec![0.0f64; b * b], 0usize), |(mut j, i), (p, n)| {
             j.iter_mut().zip(p).for_each(|(x, y)| *x += y);
@@ -292,48 +219,23 @@ impl<'a> Metric<'a> {
         }
         let norm = 1.0 / inside as f64;
         let (mi, log_ratio) = crate::align::mutual_information(&mut joint, b, norm);
-        // ∂MI/∂φ_c = −(1/(n Δm)) Σ_x [Σ_κ β³′(κ − m̃) log(p(ι_x, κ)/p_m(κ))] ∇m'(x + D(x)) B_c(x).
+        // ∂MI/∂φ_c = −(1/(n Δm)) Σ_x [Σ_κ β³′(κ − m̃) log(p(ι_x, κ)/p_m(κ))] ∇m'(x + D(x)) B_c(x): each sample's
+        // weight is scale · Σ_κ β³′(κ − m̃) log(p(ι, κ)/p_m(κ)).
         let scale = -norm / self.moving_bin_width;
-        let len = phi.len();
-        // The weight of sample s's gradient: scale · Σ_κ β³′(κ − m̃) log(p(ι, κ)/p_m(κ)).
-        let weight = |h: &Hit, s: &Sample| {
-            let row = &log_ratio[s.bin * b..(s.bin + 1) * b];
-            let k0 = h.moving_bin.floor() as usize;
-            scale * (k0 - 1..=k0 + 2).map(|k| bspline3_derivative(k as f64 - h.moving_bin) * row[k]).sum::<f64>()
-        };
-        if let Some(device) = &self.device {
-            let weights: Vec<f64> =
-                hits.iter().zip(&self.samples).map(|(h, s)| if h.inside { weight(h, s) } else { 0.0 }).collect();
-            let mut gradient = vec![0.0; len];
-            device.weighted_gradient(&weights, &mut gradient).map_err(crate::SolverError::Device)?;
-            return Ok(Some(Evaluation { similarity: mi, gradient, inside }));
-        }
-        let gradient_of = |((hits, samples), footprints): ((&[Hit], &[Sample]), &[Footprint])| {
-            let mut g = vec![0.0; len];
-            for ((h, s), f) in hits.iter().zip(samples).zip(footprints).filter(|((h, _), _)| h.inside) {
-                let v = h.gradient * weight(h, s);
-                f.scatter([v[0], v[1], v[2]], dims, &mut g);
+        let weight = |(&m, &fixed_bin): (&f64, &usize)| {
+            if !m.is_finite() {
+                return 0.0;
             }
-            g
+            let moving_bin = self.moving_bin(m);
+            let row = &log_ratio[fixed_bin * b..(fixed_bin + 1) * b];
+            let k0 = moving_bin.floor() as usize;
+            scale * (k0 - 1..=k0 + 2).map(|k| bspline3_derivative(k as f64 - moving_bin) * row[k]).sum::<f64>()
         };
-        let parts: Vec<Vec<f64>> = match self.parallelism {
-            Parallelism::Rayon => hits
-                .par_chunks(chunk)
-                .zip(self.samples.par_chunks(chunk))
-                .zip(self.footprints.par_chunks(chunk))
-                .map(gradient_of)
-                .collect(),
-            Parallelism::Sequential => hits
-                .chunks(chunk)
-                .zip(self.samples.chunks(chunk))
-                .zip(self.footprints.chunks(chunk))
-                .map(gradient_of)
-                .collect(),
+        let weights: Vec<f64> = match self.parallelism {
+            Parallelism::Rayon => reading.values.par_iter().zip(self.fixed_bins.par_iter()).map(weight).collect(),
+            Parallelism::Sequential => reading.values.iter().zip(self.fixed_bins.iter()).map(weight).collect(),
         };
-        let mut gradient = vec![0.0; len];
-        for part in parts {
-            gradient.iter_mut().zip(part).for_each(|(x, y)| *x += y);
-        }
+        let gradient = self.reader.gather(&reading, &weights, dims, phi.len())?;
         Ok(Some(Evaluation { similarity: mi, gradient, inside }))
     }
 }

@@ -63,6 +63,7 @@ pub mod device;
 mod lbfgs;
 mod metric;
 pub mod ngf;
+mod samples;
 
 use std::borrow::Cow;
 use std::cell::{Cell, RefCell};
@@ -308,7 +309,7 @@ pub fn register_on(
         let wanted = params.samples.max(SAMPLES_PER_COEFFICIENT * lattice.coefficients().len());
         let (samples, _) = draw_samples(&fixed_level, wanted, params.bins, params.seed.wrapping_add(level as u64))?;
         let metric = match params.similarity {
-            Similarity::Mi => LevelMetric::Mi(Metric::new(&warped, samples, &lattice, params.bins, par, device)?),
+            Similarity::Mi => LevelMetric::Mi(Metric::new(&warped, &samples, &lattice, params.bins, par, device)?),
             Similarity::Ngf => LevelMetric::Ngf(Ngf::new(&fixed_level, &warped, &samples, &lattice, par)?),
         };
         let pins = pairs
@@ -505,7 +506,7 @@ impl LevelMetric<'_> {
 
     fn samples(&self) -> usize {
         match self {
-            Self::Mi(m) => m.samples.len(),
+            Self::Mi(m) => m.reader.len(),
             Self::Ngf(m) => m.samples(),
         }
     }
@@ -707,7 +708,7 @@ mod tests {
         let (samples, _) = draw_samples(&fixed, params.samples, params.bins, 1).expect("test input");
         let metric = match similarity {
             Similarity::Mi => LevelMetric::Mi(
-                Metric::new(&warped, samples, &lattice, params.bins, Parallelism::Sequential, None)
+                Metric::new(&warped, &samples, &lattice, params.bins, Parallelism::Sequential, None)
                     .expect("test input"),
             ),
             Similarity::Ngf => LevelMetric::Ngf(
@@ -860,8 +861,8 @@ mod tests {
         let warped = pulled_back(&fixed, &moving, &start, Parallelism::Sequential).expect("test input");
         let (samples, _) = draw_samples(&fixed, 5_000, 32, 1).expect("test input");
         let seq = Parallelism::Sequential;
-        let cpu = Metric::new(&warped, samples.clone(), &lattice, 32, seq, None).expect("test input");
-        let on_device = Metric::new(&warped, samples, &lattice, 32, seq, Some(&F64Device)).expect("test input");
+        let cpu = Metric::new(&warped, &samples, &lattice, 32, seq, None).expect("test input");
+        let on_device = Metric::new(&warped, &samples, &lattice, 32, seq, Some(&F64Device)).expect("test input");
         let phi = lattice.coefficients();
         let a = cpu.evaluate(phi, lattice.dims()).expect("cpu").expect("inside");
         let b = on_device.evaluate(phi, lattice.dims()).expect("device").expect("inside");

@@ -1,0 +1,180 @@
+//! The pulled-back moving image read at a level's fixed samples under a deformation, on the CPU's threads or on a
+//! [`SampleDevice`]: the values m'(x_s + D(x_s)), and, given a weight w_s per sample, the gathered gradient
+//! Σ_s w_s B_k(x_s) ∇m'(x_s + D(x_s)) per coefficient. Every similarity whose derivative in m' at each sample is a
+//! weight (mutual information, local correlation) is those two reads around its own formula, so it runs on a device
+//! as it does on the CPU.
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::device::{DeviceLevel, DeviceSample, DeviceSamples, SampleDevice};
+use super::metric::{CHUNKS, Footprint};
+use crate::bspline::ControlLattice;
+use crate::image::Image;
+use crate::spaces::Fixed;
+use crate::warp::Parallelism;
+
+/// The samples of one level and where they are read.
+pub(super) struct SampleReader<'a> {
+    /// The moving image pulled back by the start u₀ onto the level's fixed grid (NaN where u₀ leaves it).
+    warped: &'a Image<Fixed>,
+    points: Vec<[f64; 3]>,
+    footprints: Vec<Footprint>,
+    parallelism: Parallelism,
+    /// Where the samples are read when not on the CPU's threads.
+    device: Option<Box<dyn DeviceSamples + 'a>>,
+}
+
+impl std::fmt::Debug for SampleReader<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SampleReader")
+            .field("samples", &self.points.len())
+            .field("on_device", &self.device.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
+/// The samples read at one φ.
+#[derive(Debug)]
+pub(super) struct Reading {
+    /// m'(x_s + D(x_s)), NaN where the sample left the image.
+    pub(super) values: Vec<f64>,
+    /// ∇m' there, on the CPU (a device keeps its own).
+    gradients: Vec<Vector3<f64>>,
+}
+
+impl<'a> SampleReader<'a> {
+    /// The fixed `points` of a level (mm), their footprints in `lattice`, read in `warped`; uploaded to `device` when
+    /// one is given.
+    ///
+    /// # Errors
+    /// [`crate::SolverError::Device`] when the device cannot take the level.
+    pub(super) fn new(
+        warped: &'a Image<Fixed>,
+        points: Vec<[f64; 3]>,
+        lattice: &ControlLattice,
+        parallelism: Parallelism,
+        device: Option<&'a dyn SampleDevice>,
+    ) -> crate::Result<Self> {
+        let footprints: Vec<Footprint> = points.iter().map(|&x| Footprint::of(lattice, x)).collect();
+        let device = match device {
+            None => None,
+            Some(d) => {
+                let on_device: Vec<DeviceSample> = points
+                    .iter()
+                    .zip(&footprints)
+                    .map(|(&x, f)| DeviceSample { index: warped.index_of(x), first: f.start, weights: f.weights })
+                    .collect();
+                let level = DeviceLevel { image: warped, lattice_dims: lattice.dims(), samples: &on_device };
+                Some(d.prepare(&level).map_err(crate::SolverError::Device)?)
+            }
+        };
+        Ok(Self { warped, points, footprints, parallelism, device })
+    }
+
+    pub(super) fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// The length of the chunks every sum over the samples is split into ([`CHUNKS`]).
+    pub(super) fn chunk_len(&self) -> usize {
+        self.points.len().div_ceil(CHUNKS).max(1)
+    }
+
+    /// The values at the lattice `phi` (shaped `dims`). On the CPU a sample counts as inside where both its value
+    /// and its gradient are finite.
+    ///
+    /// # Errors
+    /// [`crate::SolverError::Device`] when the device fails.
+    pub(super) fn read(&self, phi: &[f64], dims: [usize; 3]) -> crate::Result<Reading> {
+        let n = self.points.len();
+        let mut values = vec![f64::NAN; n];
+        if let Some(device) = &self.device {
+            device.values(phi, &mut values).map_err(crate::SolverError::Device)?;
+            return Ok(Reading { values, gradients: Vec::new() });
+        }
+        let mut gradients = vec![Vector3::zeros(); n];
+        let fill = |(((v, g), x), f): (((&mut f64, &mut Vector3<f64>), &[f64; 3]), &Footprint)| {
+            let d = f.displacement(phi, dims);
+            let y = [x[0] + d[0], x[1] + d[1], x[2] + d[2]];
+            if let Some((m, grad)) = self.warped.sample_with_gradient(y)
+                && m.is_finite()
+                && grad.iter().all(|c| c.is_finite())
+            {
+                (*v, *g) = (m, Vector3::from(grad));
+            }
+        };
+        match self.parallelism {
+            Parallelism::Rayon => values
+                .par_iter_mut()
+                .zip(gradients.par_iter_mut())
+                .zip(self.points.par_iter())
+                .zip(self.footprints.par_iter())
+                .with_min_len(1024)
+                .for_each(fill),
+            Parallelism::Sequential => values
+                .iter_mut()
+                .zip(gradients.iter_mut())
+                .zip(self.points.iter())
+                .zip(self.footprints.iter())
+                .for_each(fill),
+        }
+        Ok(Reading { values, gradients })
+    }
+
+    /// Σ_s w_s B_k(x_s) ∇m'(x_s + D(x_s)) for each of the `len` coefficients (lattice shaped `dims`), at the φ of
+    /// `reading` (the last one read); a sample outside adds nothing, whatever its weight.
+    ///
+    /// # Errors
+    /// [`crate::SolverError::Device`] when the device fails.
+    pub(super) fn gather(
+        &self,
+        reading: &Reading,
+        weights: &[f64],
+        dims: [usize; 3],
+        len: usize,
+    ) -> crate::Result<Vec<f64>> {
+        if let Some(device) = &self.device {
+            let weights: Vec<f64> =
+                reading.values.iter().zip(weights).map(|(m, &w)| if m.is_finite() { w } else { 0.0 }).collect();
+            let mut gradient = vec![0.0; len];
+            device.weighted_gradient(&weights, &mut gradient).map_err(crate::SolverError::Device)?;
+            return Ok(gradient);
+        }
+        let chunk = self.chunk_len();
+        let gradient_of =
+            |(((values, gradients), weights), footprints): (((&[f64], &[Vector3<f64>]), &[f64]), &[Footprint])| {
+                let mut g = vec![0.0; len];
+                for (((_, grad), &w), f) in
+                    values.iter().zip(gradients).zip(weights).zip(footprints).filter(|(((m, _), _), _)| m.is_finite())
+                {
+                    let v = grad * w;
+                    f.scatter([v[0], v[1], v[2]], dims, &mut g);
+                }
+                g
+            };
+        let parts: Vec<Vec<f64>> = match self.parallelism {
+            Parallelism::Rayon => reading
+                .values
+                .par_chunks(chunk)
+                .zip(reading.gradients.par_chunks(chunk))
+                .zip(weights.par_chunks(chunk))
+                .zip(self.footprints.par_chunks(chunk))
+                .map(gradient_of)
+                .collect(),
+            Parallelism::Sequential => reading
+                .values
+                .chunks(chunk)
+                .zip(reading.gradients.chunks(chunk))
+                .zip(weights.chunks(chunk))
+                .zip(self.footprints.chunks(chunk))
+                .map(gradient_of)
+                .collect(),
+        };
+        let mut gradient = vec![0.0; len];
+        for part in parts {
+            gradient.iter_mut().zip(part).for_each(|(x, y)| *x += y);
+        }
+        Ok(gradient)
+    }
+}
