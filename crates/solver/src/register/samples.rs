@@ -87,38 +87,26 @@ impl<'a> SampleReader<'a> {
     /// # Errors
     /// [`crate::SolverError::Device`] when the device fails.
     pub(super) fn read(&self, phi: &[f64], dims: [usize; 3]) -> crate::Result<Reading> {
-        let n = self.points.len();
-        let mut values = vec![f64::NAN; n];
         if let Some(device) = &self.device {
+            let mut values = vec![f64::NAN; self.points.len()];
             device.values(phi, &mut values).map_err(crate::SolverError::Device)?;
             return Ok(Reading { values, gradients: Vec::new() });
         }
-        let mut gradients = vec![Vector3::zeros(); n];
-        let fill = |(((v, g), x), f): (((&mut f64, &mut Vector3<f64>), &[f64; 3]), &Footprint)| {
+        let read_one = |(x, f): (&[f64; 3], &Footprint)| {
             let d = f.displacement(phi, dims);
             let y = [x[0] + d[0], x[1] + d[1], x[2] + d[2]];
-            if let Some((m, grad)) = self.warped.sample_with_gradient(y)
-                && m.is_finite()
-                && grad.iter().all(|c| c.is_finite())
-            {
-                (*v, *g) = (m, Vector3::from(grad));
+            match self.warped.sample_with_gradient(y) {
+                Some((m, grad)) if m.is_finite() && grad.iter().all(|c| c.is_finite()) => (m, Vector3::from(grad)),
+                _ => (f64::NAN, Vector3::zeros()),
             }
         };
-        match self.parallelism {
-            Parallelism::Rayon => values
-                .par_iter_mut()
-                .zip(gradients.par_iter_mut())
-                .zip(self.points.par_iter())
-                .zip(self.footprints.par_iter())
-                .with_min_len(1024)
-                .for_each(fill),
-            Parallelism::Sequential => values
-                .iter_mut()
-                .zip(gradients.iter_mut())
-                .zip(self.points.iter())
-                .zip(self.footprints.iter())
-                .for_each(fill),
-        }
+        let read: Vec<(f64, Vector3<f64>)> = match self.parallelism {
+            Parallelism::Rayon => {
+                self.points.par_iter().zip(self.footprints.par_iter()).with_min_len(1024).map(read_one).collect()
+            }
+            Parallelism::Sequential => self.points.iter().zip(self.footprints.iter()).map(read_one).collect(),
+        };
+        let (values, gradients) = read.into_iter().unzip();
         Ok(Reading { values, gradients })
     }
 
@@ -141,35 +129,20 @@ impl<'a> SampleReader<'a> {
             device.weighted_gradient(&weights, &mut gradient).map_err(crate::SolverError::Device)?;
             return Ok(gradient);
         }
+        let n = self.points.len();
         let chunk = self.chunk_len();
-        let gradient_of =
-            |(((values, gradients), weights), footprints): (((&[f64], &[Vector3<f64>]), &[f64]), &[Footprint])| {
-                let mut g = vec![0.0; len];
-                for (((_, grad), &w), f) in
-                    values.iter().zip(gradients).zip(weights).zip(footprints).filter(|(((m, _), _), _)| m.is_finite())
-                {
-                    let v = grad * w;
-                    f.scatter([v[0], v[1], v[2]], dims, &mut g);
-                }
-                g
-            };
+        let chunks: Vec<std::ops::Range<usize>> = (0..n).step_by(chunk).map(|c| c..(c + chunk).min(n)).collect();
+        let gradient_of = |range: &std::ops::Range<usize>| {
+            let mut g = vec![0.0; len];
+            for s in range.clone().filter(|&s| reading.values[s].is_finite()) {
+                let v = reading.gradients[s] * weights[s];
+                self.footprints[s].scatter([v[0], v[1], v[2]], dims, &mut g);
+            }
+            g
+        };
         let parts: Vec<Vec<f64>> = match self.parallelism {
-            Parallelism::Rayon => reading
-                .values
-                .par_chunks(chunk)
-                .zip(reading.gradients.par_chunks(chunk))
-                .zip(weights.par_chunks(chunk))
-                .zip(self.footprints.par_chunks(chunk))
-                .map(gradient_of)
-                .collect(),
-            Parallelism::Sequential => reading
-                .values
-                .chunks(chunk)
-                .zip(reading.gradients.chunks(chunk))
-                .zip(weights.chunks(chunk))
-                .zip(self.footprints.chunks(chunk))
-                .map(gradient_of)
-                .collect(),
+            Parallelism::Rayon => chunks.par_iter().map(gradient_of).collect(),
+            Parallelism::Sequential => chunks.iter().map(gradient_of).collect(),
         };
         let mut gradient = vec![0.0; len];
         for part in parts {
