@@ -86,8 +86,8 @@ pub enum SampleDeviceChoice {
 }
 
 /// [`Backend`]'s rule for a registration with `similarity`: `cpu` never makes a device; `gpu` makes one or fails;
-/// `auto` takes a hardware GPU for mutual information, and the CPU otherwise (a CPU driver such as lavapipe runs the
-/// same passes on the same cores, more slowly; normalised gradient fields run on the CPU only).
+/// `auto` takes a hardware GPU for mutual information and local correlation, and the CPU otherwise (a CPU driver such
+/// as lavapipe runs the same passes on the same cores, more slowly; normalised gradient fields run on the CPU only).
 ///
 /// # Errors
 /// With `gpu`: no adapter, or normalised gradient fields (which have no GPU path).
@@ -95,12 +95,13 @@ pub fn choose(backend: Backend, similarity: Similarity) -> Result<SampleDeviceCh
     match (backend, similarity) {
         (Backend::Cpu, _) | (Backend::Auto, Similarity::Ngf) => Ok(SampleDeviceChoice::Cpu { note: None }),
         (Backend::Gpu, Similarity::Ngf) => {
-            Err("--backend gpu: the GPU reads the samples of --metric mi only; use --backend cpu or auto".into())
+            Err("--backend gpu: the GPU reads the samples of --metric mi and lncc only; use --backend cpu or auto"
+                .into())
         }
-        (Backend::Gpu, Similarity::Mi) => {
+        (Backend::Gpu, Similarity::Mi | Similarity::Lncc) => {
             GpuContext::headless().map(|ctx| SampleDeviceChoice::Gpu(Box::new(ctx))).map_err(|e| e.to_string())
         }
-        (Backend::Auto, Similarity::Mi) => Ok(match GpuContext::headless() {
+        (Backend::Auto, Similarity::Mi | Similarity::Lncc) => Ok(match GpuContext::headless() {
             Err(e) => SampleDeviceChoice::Cpu { note: Some(e.to_string()) },
             Ok(ctx) if ctx.is_cpu_driver() => {
                 SampleDeviceChoice::Cpu { note: Some(format!("{} is a CPU driver", ctx.describe())) }

@@ -85,7 +85,9 @@ pub struct RegisterArgs {
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
-    /// The similarity measure: mi (Mattes mutual information, any two modalities).
+    /// The similarity measure: mi (Mattes mutual information: any two modalities), ngf (normalised gradient fields: the
+    /// edges, whatever their contrast) or lncc (local normalised cross-correlation: one modality under a smooth gain
+    /// and offset, MR–MR).
     #[arg(long, value_enum, default_value = "mi")]
     pub metric: MetricArg,
     /// The finest control-point spacing, mm.
@@ -166,6 +168,7 @@ impl From<RegisterPairArgs> for PairArgs {
 pub enum MetricArg {
     Mi,
     Ngf,
+    Lncc,
 }
 
 impl From<MetricArg> for Similarity {
@@ -173,6 +176,7 @@ impl From<MetricArg> for Similarity {
         match arg {
             MetricArg::Mi => Self::Mi,
             MetricArg::Ngf => Self::Ngf,
+            MetricArg::Lncc => Self::Lncc,
         }
     }
 }

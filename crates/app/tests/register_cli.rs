@@ -183,7 +183,10 @@ fn bad_input_exits_2_names_the_file_and_writes_nothing() {
     // Unusable settings, and an output that exists.
     refused(&register(&["--moving", utf8(&moving), "--grid-mm", "0"]), &["control spacing"]);
     // Normalised gradient fields have no GPU path.
-    refused(&register(&["--moving", utf8(&moving), "--metric", "ngf", "--backend", "gpu"]), &["--metric mi only"]);
+    refused(
+        &register(&["--moving", utf8(&moving), "--metric", "ngf", "--backend", "gpu"]),
+        &["--metric mi and lncc only"],
+    );
     let exists = dir.path().join("exists.nii.gz");
     std::fs::write(&exists, b"keep").expect("write");
     let out =

@@ -535,9 +535,9 @@ def register(
 ) -> Dict[str, Any]:
     """Deformable registration by intensities under the landmarks (``warpbench register``).
 
-    The options are the CLI's: ``session``, ``initial``, ``method``, ``stiffness``, ``metric`` (``"mi"`` or ``"ngf"``), ``grid_mm``,
-    ``levels``, ``landmark_weight``, ``bending_weight``, ``samples``, ``iterations``, ``seed``, ``format``,
-    ``force``. ``out_field`` (the displacement field) and ``out`` (the warped volume) are written when given.
+    The options are the CLI's: ``session``, ``initial``, ``method``, ``stiffness``, ``metric`` (``"mi"``,
+    ``"ngf"`` or ``"lncc"``), ``grid_mm``, ``levels``, ``landmark_weight``, ``bending_weight``, ``samples``,
+    ``iterations``, ``seed``, ``format``, ``force``. ``out_field`` (the displacement field) and ``out`` (the warped volume) are written when given.
     Returns the CLI's ``--json`` report (schema ``warpbench-register/2``)."""
     with ExitStack() as stack:
         io = _Inputs(stack)

@@ -1,10 +1,11 @@
-//! The samples of a mutual-information level read on another device (a GPU), instead of the CPU's threads.
+//! The samples of a mutual-information or local-correlation level read on another device (a GPU), instead of the
+//! CPU's threads.
 //!
 //! Per evaluation the work that grows with the samples is two passes: the moving image's value at every displaced
-//! sample x + D(x), and, once the histogram has given each sample its weight w_s, the gradient gathered per control
-//! point, Σ_s w_s B_k(x_s) ∇m'(x_s + D(x_s)). A [`SampleDevice`] does those two; the histogram, the mutual
-//! information, the weights, the bending and landmark terms and the optimiser stay here, so both paths share every
-//! formula but the two passes. [`register_on`](super::register_on) takes the device; normalised gradient fields
+//! sample x + D(x), and, once the similarity has given each sample its weight w_s (the histogram's, or the patch
+//! correlation's derivative), the gradient gathered per control point, Σ_s w_s B_k(x_s) ∇m'(x_s + D(x_s)). A
+//! [`SampleDevice`] does those two; the histogram or the patches' sums, the weights, the bending and landmark terms
+//! and the optimiser stay here, so both paths share every formula but the two passes. [`register_on`](super::register_on) takes the device; normalised gradient fields
 //! always run on the CPU.
 //!
 //! A device computes in its own precision (a GPU in f32), so its result is not the CPU's bit for bit; it is

@@ -20,8 +20,9 @@
 //!
 //! with (pᵢ moving, qᵢ fixed) the active pairs, α the bending weight and β the landmark weight (per mm²; the given β
 //! at the coarsest level and 1/8 of the level before at each finer one, [`level_landmark_weight`]), and S the
-//! [`Similarity`]: MI below, or normalised gradient fields ([`ngf`]: the edges' alignment, whatever their contrast,
-//! read at the same samples of the same pulled-back image):
+//! [`Similarity`]: MI below, normalised gradient fields ([`ngf`]: the edges' alignment, whatever their contrast, read
+//! at the same samples of the same pulled-back image), or local normalised cross-correlation ([`lncc`]: over small
+//! patches of samples, for one modality under a smooth gain and offset):
 //!
 //! - **MI** is the Mattes mutual information of [`crate::align`] between the fixed image f and the moving image
 //!   pulled back by u₀, m'(y) = m(u₀(y)), sampled at seeded fixed points x as m'(x + D(x)). The pull-back m' is
@@ -61,6 +62,7 @@
 mod bending;
 pub mod device;
 mod lbfgs;
+pub mod lncc;
 mod metric;
 pub mod ngf;
 mod samples;
@@ -83,6 +85,7 @@ use crate::warp::{Composed, Parallelism, Warp};
 use crate::{Result, SolverError};
 use bending::Bending;
 use device::SampleDevice;
+use lncc::Lncc;
 use metric::{Evaluation, Footprint, JacobianPoint, Metric};
 use ngf::Ngf;
 
@@ -95,6 +98,9 @@ pub enum Similarity {
     Mi,
     /// Normalised gradient fields (Haber & Modersitzki 2006): edges aligned whatever their contrast ([`ngf`]).
     Ngf,
+    /// Local normalised cross-correlation over small patches ([`lncc`]): one modality under a smooth gain and offset
+    /// (MR–MR with different coils or bias fields).
+    Lncc,
 }
 
 impl std::fmt::Display for Similarity {
@@ -102,6 +108,7 @@ impl std::fmt::Display for Similarity {
         f.write_str(match self {
             Self::Mi => "mi",
             Self::Ngf => "ngf",
+            Self::Lncc => "lncc",
         })
     }
 }
@@ -269,8 +276,8 @@ pub fn register(
     register_on(fixed, moving, start, pairs, params, None, progress)
 }
 
-/// [`register`], with the samples of the mutual information read on `device` when one is given ([`device`]; the
-/// normalised gradient fields always run on the CPU).
+/// [`register`], with the samples of the mutual information or the local correlation read on `device` when one is
+/// given ([`device`]; the normalised gradient fields always run on the CPU).
 ///
 /// # Errors
 /// Those of [`register`], and [`SolverError::Device`] when the device fails.
@@ -307,10 +314,13 @@ pub fn register_on(
             pulled_back(&fixed_level, &moving_level, start, par)?
         };
         let wanted = params.samples.max(SAMPLES_PER_COEFFICIENT * lattice.coefficients().len());
-        let (samples, _) = draw_samples(&fixed_level, wanted, params.bins, params.seed.wrapping_add(level as u64))?;
+        // Local correlation draws patches of points around its samples.
+        let draws = if params.similarity == Similarity::Lncc { wanted.div_ceil(lncc::PATCH_POINTS) } else { wanted };
+        let (samples, _) = draw_samples(&fixed_level, draws, params.bins, params.seed.wrapping_add(level as u64))?;
         let metric = match params.similarity {
             Similarity::Mi => LevelMetric::Mi(Metric::new(&warped, &samples, &lattice, params.bins, par, device)?),
             Similarity::Ngf => LevelMetric::Ngf(Ngf::new(&fixed_level, &warped, &samples, &lattice, par)?),
+            Similarity::Lncc => LevelMetric::Lncc(Lncc::new(&fixed_level, &warped, &samples, &lattice, par, device)?),
         };
         let pins = pairs
             .iter()
@@ -494,6 +504,7 @@ type ProgressFn<'p> = dyn FnMut(&RegisterProgress) -> ControlFlow<()> + 'p;
 enum LevelMetric<'a> {
     Mi(Metric<'a>),
     Ngf(Ngf<'a>),
+    Lncc(Lncc<'a>),
 }
 
 impl LevelMetric<'_> {
@@ -501,6 +512,7 @@ impl LevelMetric<'_> {
         match self {
             Self::Mi(m) => m.evaluate(phi, dims),
             Self::Ngf(m) => Ok(m.evaluate(phi, dims)),
+            Self::Lncc(m) => m.evaluate(phi, dims),
         }
     }
 
@@ -508,6 +520,7 @@ impl LevelMetric<'_> {
         match self {
             Self::Mi(m) => m.reader.len(),
             Self::Ngf(m) => m.samples(),
+            Self::Lncc(m) => m.samples(),
         }
     }
 }
@@ -714,6 +727,12 @@ mod tests {
             Similarity::Ngf => LevelMetric::Ngf(
                 Ngf::new(&fixed, &warped, &samples, &lattice, Parallelism::Sequential).expect("test input"),
             ),
+            Similarity::Lncc => {
+                let (centres, _) = draw_samples(&fixed, 200, params.bins, 1).expect("test input");
+                LevelMetric::Lncc(
+                    Lncc::new(&fixed, &warped, &centres, &lattice, Parallelism::Sequential, None).expect("test input"),
+                )
+            }
         };
         let pins = [[20.0, 25.0, 30.0], [40.0, 45.0, 35.0]]
             .map(|q| Pin { fixed: q, moving: [q[0] + 1.0, q[1], q[2] - 0.5], footprint: Footprint::of(&lattice, q) })
@@ -876,6 +895,38 @@ mod tests {
     }
 
     #[test]
+    fn local_correlation_read_on_a_device_is_the_cpus() {
+        let fixed = blobs::<Fixed>(0.0);
+        let moving = blobs::<Moving>(2.0);
+        let start = AffineWarp::<Moving, Fixed>::new(
+            Matrix3::new(1.01, 0.02, 0.0, -0.01, 0.99, 0.0, 0.0, 0.03, 1.0),
+            [0.5, -0.3, 0.2],
+        );
+        let domain = image_box(&fixed);
+        let mut lattice =
+            ControlLattice::zeros([3, 3, 3], domain.min.coords(), domain.max.coords()).expect("test input");
+        for (n, c) in lattice.coefficients_mut().iter_mut().enumerate() {
+            *c = ((n * 37 % 11) as f64 - 5.0) * 0.4;
+        }
+        let warped = pulled_back(&fixed, &moving, &start, Parallelism::Sequential).expect("test input");
+        let (centres, _) = draw_samples(&fixed, 300, 32, 1).expect("test input");
+        let seq = Parallelism::Sequential;
+        let cpu = Lncc::new(&fixed, &warped, &centres, &lattice, seq, None).expect("test input");
+        let on_device = Lncc::new(&fixed, &warped, &centres, &lattice, seq, Some(&F64Device)).expect("test input");
+        let phi = lattice.coefficients();
+        let a = cpu.evaluate(phi, lattice.dims()).expect("cpu").expect("inside");
+        let b = on_device.evaluate(phi, lattice.dims()).expect("device").expect("inside");
+        assert_eq!(a.inside, b.inside);
+        assert!(a.similarity > 0.05 && a.similarity < 1.0, "LNCC {}", a.similarity);
+        assert!((a.similarity - b.similarity).abs() < 1e-12, "{} vs {}", a.similarity, b.similarity);
+        let largest = a.gradient.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+        assert!(largest > 1e-4, "a trivial gradient: {largest}");
+        for (i, (x, y)) in a.gradient.iter().zip(&b.gradient).enumerate() {
+            assert!((x - y).abs() <= 1e-10 * largest, "coefficient {i}: {x} vs {y}");
+        }
+    }
+
+    #[test]
     fn a_device_that_fails_stops_the_registration_with_its_message() {
         let fixed = blobs::<Fixed>(0.0);
         let moving = blobs::<Moving>(2.0);
@@ -903,5 +954,10 @@ mod tests {
     #[test]
     fn the_gradient_is_the_derivative_of_the_objective_with_normalised_gradient_fields() {
         check_gradient(Similarity::Ngf, 1e-4);
+    }
+
+    #[test]
+    fn the_gradient_is_the_derivative_of_the_objective_with_local_correlation() {
+        check_gradient(Similarity::Lncc, 1e-5);
     }
 }
