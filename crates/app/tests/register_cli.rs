@@ -221,3 +221,35 @@ fn normalised_gradient_fields_are_a_metric_of_their_own() {
     }
     assert!(report["jacobian"]["min_det"].as_f64().expect("min det") > 0.0);
 }
+
+/// `--metric lncc`: local correlation in [0, 1] that rises, the pairs kept, no fold, closer to the truth than the TPS;
+/// and its samples read on the GPU (`--backend gpu`, when an adapter is there) keep the same laws.
+#[test]
+fn local_correlation_is_a_metric_of_its_own_on_the_cpu_and_the_gpu() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, qs) = case(dir.path());
+    let gpu = warpbench_gpu::headless::headless_or_skip(warpbench_gpu::FeatureRequest::default()).is_some();
+    let backends: &[&str] = if gpu { &["cpu", "gpu"] } else { &["cpu"] };
+    for backend in backends {
+        let field = dir.path().join(format!("field-{backend}.nii.gz"));
+        let run = register(&fixed, &moving, &pairs, &field, &["--metric", "lncc", "--backend", backend]);
+        assert_ok(&run);
+        let report: Value = serde_json::from_slice(&run.stdout).expect("JSON on stdout");
+        assert_eq!(report["settings"]["metric"], "lncc");
+        assert!(report["device"].as_str().expect("device").starts_with(backend), "{report}");
+        for level in report["levels"].as_array().expect("levels") {
+            let (start, end) = (level["similarity_start"].as_f64(), level["similarity"].as_f64());
+            assert!((0.0..=1.0).contains(&start.expect("start")) && (0.0..=1.0).contains(&end.expect("end")));
+            assert!(end > start, "{backend}: the similarity rises at every level: {level}");
+        }
+        for r in report["residuals"].as_array().expect("residuals") {
+            assert!(r["residual_mm"].as_f64().expect("residual") < 0.5, "{backend}: {r}");
+        }
+        assert_eq!(report["jacobian"]["fraction_folded"], 0.0, "{report}");
+        let (registered, through_pairs) = mean_tre(&field, &qs);
+        assert!(
+            registered < 0.7 * through_pairs,
+            "{backend}: registered {registered:.3} mm, TPS {through_pairs:.3} mm"
+        );
+    }
+}
