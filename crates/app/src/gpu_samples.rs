@@ -85,6 +85,16 @@ pub enum SampleDeviceChoice {
     Gpu(Box<GpuContext>),
 }
 
+/// Whether a GPU reads the samples of `similarity` (mutual information and local correlation; normalised gradient
+/// fields run on the CPU only).
+#[must_use]
+pub fn reads(similarity: Similarity) -> bool {
+    match similarity {
+        Similarity::Mi | Similarity::Lncc => true,
+        Similarity::Ngf => false,
+    }
+}
+
 /// [`Backend`]'s rule for a registration with `similarity`: `cpu` never makes a device; `gpu` makes one or fails;
 /// `auto` takes a hardware GPU for mutual information and local correlation, and the CPU otherwise (a CPU driver such
 /// as lavapipe runs the same passes on the same cores, more slowly; normalised gradient fields run on the CPU only).

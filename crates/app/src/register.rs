@@ -89,7 +89,7 @@ pub struct RegisterArgs {
     /// edges, whatever their contrast) or lncc (local normalised cross-correlation: one modality under a smooth gain
     /// and offset, MR–MR).
     #[arg(long, value_enum, default_value = "mi")]
-    pub metric: MetricArg,
+    pub metric: crate::settings::Metric,
     /// The finest control-point spacing, mm.
     #[arg(long, default_value_t = RegisterParams::default().grid_mm)]
     pub grid_mm: f64,
@@ -159,24 +159,6 @@ impl From<RegisterPairArgs> for PairArgs {
             fixed_points: a.fixed_points,
             method: MethodArgs { method: a.method, stiffness: a.stiffness, levels: None },
             initial: a.initial,
-        }
-    }
-}
-
-/// `--metric`: [`Similarity`] by its command-line name.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum MetricArg {
-    Mi,
-    Ngf,
-    Lncc,
-}
-
-impl From<MetricArg> for Similarity {
-    fn from(arg: MetricArg) -> Self {
-        match arg {
-            MetricArg::Mi => Self::Mi,
-            MetricArg::Ngf => Self::Ngf,
-            MetricArg::Lncc => Self::Lncc,
         }
     }
 }
@@ -397,7 +379,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let ReportArgs { json, force, quiet } = report;
     let format = FieldFormat::from(format);
     let params = RegisterParams {
-        similarity: metric.into(),
+        similarity: metric.similarity(),
         grid_mm,
         levels,
         landmark_weight,

@@ -1,6 +1,7 @@
 //! The choices a user makes by name: how the two volumes blend ([`Blend`]), the warp family ([`MethodKind`]), how a
 //! click in the 3-D view finds its point ([`Probe`]), the lighting ([`Shading`]), a volume's transfer function
-//! ([`Preset`]) and the procedural deformation of the moving volume ([`ProceduralKind`]).
+//! ([`Preset`]), the procedural deformation of the moving volume ([`ProceduralKind`]) and what a registration by
+//! intensities matches ([`Metric`]).
 //!
 //! Each is an enum with `ALL` (menu order), `name()` (the stable name sessions store and the command line takes),
 //! `FromStr` and `Display` by that name, serde as that name, and `clap::ValueEnum`, so that the window, the session
@@ -13,6 +14,7 @@ use std::str::FromStr;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::linear::LinearKind;
 use warpbench_solver::method::Method;
+use warpbench_solver::register::Similarity;
 
 /// A name that is none of a choice's names.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -206,6 +208,51 @@ impl MethodKind {
 }
 
 choice! {
+    /// What a registration by intensities matches the volumes by ([`Similarity`]): `warpbench register --metric` and
+    /// the window's Refine by intensities.
+    Metric, "similarity measure", default Mi {
+        /// Mattes mutual information: any two modalities (MR–CT, T1–T2).
+        Mi = "mi",
+        /// Normalised gradient fields: the edges, whatever their contrast.
+        Ngf = "ngf",
+        /// Local normalised cross-correlation: one modality whose brightness varies across the volume.
+        Lncc = "lncc",
+    }
+}
+
+impl Metric {
+    /// The solver's measure.
+    #[must_use]
+    pub fn similarity(self) -> Similarity {
+        match self {
+            Self::Mi => Similarity::Mi,
+            Self::Ngf => Similarity::Ngf,
+            Self::Lncc => Similarity::Lncc,
+        }
+    }
+
+    /// What a menu shows.
+    #[must_use]
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Mi => "Mutual information (any modalities: MR to CT)",
+            Self::Ngf => "Edges (normalised gradient fields)",
+            Self::Lncc => "Local correlation (one modality, uneven brightness)",
+        }
+    }
+
+    /// What a summary calls the measure's value.
+    #[must_use]
+    pub fn measure(self) -> &'static str {
+        match self {
+            Self::Mi => "mutual information",
+            Self::Ngf => "edge alignment",
+            Self::Lncc => "local correlation",
+        }
+    }
+}
+
+choice! {
     /// What a click in the 3-D view counts as the surface it hits ([`warpbench_gpu::Probe`]).
     Probe, "pick probe", default Accumulated {
         /// Where the accumulated opacity reaches the threshold.
@@ -393,6 +440,7 @@ mod tests {
         laws(Probe::ALL);
         laws(Shading::ALL);
         laws(Preset::ALL);
+        laws(Metric::ALL);
     }
 
     #[test]
@@ -413,6 +461,10 @@ mod tests {
             assert_eq!(Method::from_name(m.name()).map(|x| x.to_string()), Some(method.to_string()));
         }
         assert_eq!(Probe::Opacity.with_threshold(0.25), warpbench_gpu::Probe::Opacity { threshold: 0.25 });
+        for &m in Metric::ALL {
+            // The solver's name of the measure, which `register --json` reports.
+            assert_eq!(m.name(), m.similarity().to_string());
+        }
     }
 
     #[test]

@@ -21,6 +21,7 @@ use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
 use warpbench_app::gui::{Command, End, GuiOptions, Ready, Workbench};
 use warpbench_app::inputs::LandmarkSource;
+use warpbench_app::settings::Metric;
 use warpbench_io::geometry::Point3;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::tps::Tps;
@@ -57,6 +58,26 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
 }
 
+/// The warp the window shows is closer to the truth, over the head, than the TPS through the pairs at `qs` (by 30 %),
+/// and keeps each pair within 0.5 mm.
+fn shown_beats_the_tps_and_keeps_the_pairs(ready: &Ready, qs: &[[f64; 3]]) {
+    let volume = warpbench_io::open(common::mri()).expect("fixture");
+    let points = head_points(&volume);
+    let q: Vec<Point3<Fixed>> = qs.iter().map(|&q| Point3::from_array(q)).collect();
+    let p: Vec<Point3<Moving>> = qs.iter().map(|&q| Point3::from_array(truth(q))).collect();
+    let tps = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).expect("tps");
+    let mean = |f: &dyn Fn([f64; 3]) -> [f64; 3]| {
+        points.iter().map(|&x| distance(f(x), truth(x))).sum::<f64>() / points.len() as f64
+    };
+    let shown = mean(&|x| ready.moving_shown_at(x));
+    let through_pairs = mean(&|x| tps.apply_raw(x));
+    eprintln!("mean TRE: shown {shown:.3} mm, TPS {through_pairs:.3} mm");
+    assert!(shown < 0.7 * through_pairs, "shown {shown:.3} mm, TPS {through_pairs:.3} mm");
+    for &q in qs {
+        assert!(distance(ready.moving_shown_at(q), truth(q)) < 0.5, "pair at {q:?}");
+    }
+}
+
 #[test]
 fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_offers_a_rerun() {
     if no_adapter() {
@@ -82,21 +103,7 @@ fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_
     assert!(harness.query_all_by_label_contains("Refined by intensities from tps").next().is_some());
 
     // Shown live: the warp the views show is closer to the truth than the TPS through the pairs, and keeps them.
-    let volume = warpbench_io::open(common::mri()).expect("fixture");
-    let points = head_points(&volume);
-    let q: Vec<Point3<Fixed>> = qs.iter().map(|&q| Point3::from_array(q)).collect();
-    let p: Vec<Point3<Moving>> = qs.iter().map(|&q| Point3::from_array(truth(q))).collect();
-    let tps = Tps::<Moving, Fixed>::fit(&q, &p, 0.0).expect("tps");
-    let mean = |f: &dyn Fn([f64; 3]) -> [f64; 3]| {
-        points.iter().map(|&x| distance(f(x), truth(x))).sum::<f64>() / points.len() as f64
-    };
-    let shown = mean(&|x| ready.moving_shown_at(x));
-    let through_pairs = mean(&|x| tps.apply_raw(x));
-    eprintln!("mean TRE: shown {shown:.3} mm, TPS {through_pairs:.3} mm");
-    assert!(shown < 0.7 * through_pairs, "shown {shown:.3} mm, TPS {through_pairs:.3} mm");
-    for &q in &qs {
-        assert!(distance(ready.moving_shown_at(q), truth(q)) < 0.5, "pair at {q:?}");
-    }
+    shown_beats_the_tps_and_keeps_the_pairs(ready, &qs);
 
     // In the autosave, where the command line reads it: `points --session` maps as the window shows.
     let autosave = dir.path().join("autosave.warpbench.json");
@@ -128,6 +135,43 @@ fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_
     harness.get_by_label("Redo").click();
     harness.run_steps(3);
     assert_eq!(harness.state().ready().expect("ready").document.field.as_deref(), Some(field.as_path()));
+}
+
+/// "Match by" chooses what the refinement matches: the choice is the document's (one undo step, in the autosave), and
+/// the next refinement uses it and says so.
+#[test]
+fn match_by_local_correlation_is_the_documents_and_the_refinement_uses_it() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut harness, qs) = open(dir.path());
+    harness.get_by_label("Match by").click();
+    harness.run_steps(3);
+    harness.get_by_label(Metric::Lncc.label()).click();
+    harness.run_steps(3);
+    assert_eq!(harness.state().ready().expect("ready").document.settings.refine_metric, Metric::Lncc);
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
+    assert_eq!(saved.document.settings.refine_metric, Metric::Lncc, "the choice reaches the autosave");
+    let metric = |h: &Harness<'_, Workbench>| h.state().ready().expect("ready").document.settings.refine_metric;
+    harness.get_by_label("Undo").click();
+    harness.run_steps(3);
+    assert_eq!(metric(&harness), Metric::Mi, "one undo step");
+    harness.get_by_label("Redo").click();
+    harness.run_steps(3);
+    assert_eq!(metric(&harness), Metric::Lncc);
+
+    harness.get_by_label("Refine by intensities").click();
+    harness.run_steps(2);
+    wait_for_refinement(&mut harness);
+    assert!(
+        harness.query_all_by_label_contains("Refined by intensities from tps: local correlation").next().is_some(),
+        "the summary names the measure"
+    );
+    let ready = harness.state().ready().expect("ready");
+    assert!(ready.document.field.is_some(), "{:?}", ready.fit.error);
+    shown_beats_the_tps_and_keeps_the_pairs(ready, &qs);
 }
 
 #[test]
@@ -170,6 +214,7 @@ fn a_refinement_given_a_gpu_runs_there_and_says_so() {
         field: None,
         out: out.clone(),
         gpu: Some(std::sync::Arc::new(ctx)),
+        metric: Metric::Mi,
     };
     let refined = warpbench_app::gui::intensity::refine_pair(&input, &mut |_| true).expect("the refinement");
     assert!(refined.summary.ends_with("on the GPU"), "{}", refined.summary);

@@ -126,8 +126,9 @@ enum Effect {
     Refit,
 }
 
-/// The cost of going from `old` to `new` settings: the warp's parameters refit, the probe and the brush's radius are
-/// only read by the next click, the oblique planes move only the slices, and the rest changes the picture.
+/// The cost of going from `old` to `new` settings: the warp's parameters refit, the probe, the brush's radius and the
+/// refinement's measure are only read by the next click, the oblique planes move only the slices, and the rest changes
+/// the picture.
 fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
     let refit = old.method != new.method
         || old.stiffness.to_bits() != new.stiffness.to_bits()
@@ -138,6 +139,7 @@ fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
         pick_threshold: new.pick_threshold,
         brush_radius_mm: new.brush_radius_mm,
         follow_pair: new.follow_pair,
+        refine_metric: new.refine_metric,
         oblique,
         overlay,
         ..s.clone()

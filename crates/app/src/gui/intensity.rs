@@ -35,6 +35,7 @@ use crate::gpu_samples::GpuSamples;
 use crate::project::document::{FitPoints, StartingTransform};
 use crate::project::stack::{FieldLayer, Layers};
 use crate::register::{RefineInputs, refine};
+use crate::settings::Metric;
 
 /// The refined field's grid has at most this many points along each axis.
 pub const FIELD_MAX_SIDE: usize = 128;
@@ -50,9 +51,11 @@ pub struct RefineInput {
     pub field: Option<PathBuf>,
     /// Where to write the refined field.
     pub out: PathBuf,
-    /// The window's GPU, when it is a hardware one: the mutual information's samples are read there
-    /// ([`crate::gpu_samples`]; `register --backend auto`'s rule). A CPU driver is not passed.
+    /// The window's GPU, when it is a hardware one: the samples of mutual information and local correlation are read
+    /// there ([`crate::gpu_samples`]; `register --backend auto`'s rule). A CPU driver is not passed.
     pub gpu: Option<Arc<warpbench_gpu::GpuContext>>,
+    /// What the volumes are matched by.
+    pub metric: Metric,
 }
 
 /// A finished refinement: the field to put under the landmarks and what to say about it.
@@ -182,9 +185,14 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         origin: "the landmark table",
         method: &input.method,
     };
-    let params = RegisterParams::default();
-    // A GPU whose pass cannot be made leaves the work on the CPU, as `--backend auto` does.
-    let gpu = input.gpu.as_deref().and_then(|ctx| GpuSamples::new(ctx).ok());
+    let params = RegisterParams { similarity: input.metric.similarity(), ..RegisterParams::default() };
+    // A GPU whose pass cannot be made, or a measure it does not read, leaves the work on the CPU, as `--backend auto`
+    // does.
+    let gpu = input
+        .gpu
+        .as_deref()
+        .filter(|_| crate::gpu_samples::reads(params.similarity))
+        .and_then(|ctx| GpuSamples::new(ctx).ok());
     let device = gpu.as_ref().map(|g| g as &dyn SampleDevice);
     let on = if gpu.is_some() { "on the GPU" } else { "on the CPU" };
     let refinement = refine(inputs, layers, &params, device, &mut |p| {
@@ -209,9 +217,9 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         n => format!("{n} pairs within {worst:.2} mm"),
     };
     let summary = format!(
-        "Refined by intensities from {}: mutual information {:.3} to {:.3}, {pairs}, smallest Jacobian determinant \
-         {:.2}, {:.1} s {on}",
+        "Refined by intensities from {}: {} {:.3} to {:.3}, {pairs}, smallest Jacobian determinant {:.2}, {:.1} s {on}",
         refinement.start_name,
+        input.metric.measure(),
         refinement.registration.levels.first().map_or(0.0, |l| l.similarity_start),
         last.map_or(0.0, |l| l.similarity),
         refinement.jacobian.min_det,

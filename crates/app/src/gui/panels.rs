@@ -257,10 +257,12 @@ pub fn alignment_ui(ui: &mut egui::Ui, start: Option<&StartingTransform>, aligni
     command
 }
 
-/// Refine by intensities ([`super::intensity`]): the button that registers the pair under the landmarks, its progress
-/// and Cancel while it runs, and what the last refinement did, with the offer to run it again once the pairs moved.
+/// Refine by intensities ([`super::intensity`]): what it matches the volumes by, the button that registers the pair
+/// under the landmarks, its progress and Cancel while it runs, and what the last refinement did, with the offer to run
+/// it again once the pairs moved.
 pub fn intensity_ui(
     ui: &mut egui::Ui,
+    settings: &ViewSettings,
     running: Option<&super::intensity::IntensityJob>,
     last: Option<&super::intensity::RefinedOn>,
     pairs_moved: bool,
@@ -280,8 +282,18 @@ pub fn intensity_ui(
         });
         return command;
     }
+    let mut metric = settings.refine_metric;
+    egui::ComboBox::from_label("Match by").selected_text(metric.label()).show_ui(ui, |ui| {
+        for &m in crate::settings::Metric::ALL {
+            ui.selectable_value(&mut metric, m, m.label());
+        }
+    });
+    if metric != settings.refine_metric {
+        command = Some(Command::SetSettings(ViewSettings { refine_metric: metric, ..settings.clone() }));
+    }
     let label = if last.is_some() && pairs_moved { "Re-run refinement" } else { "Refine by intensities" };
-    let hover = "Register the pair by its intensities (mutual information, so MR to CT works) under the landmarks:                  the pairs stay put, the images decide between them. The result is the field under the landmarks.";
+    let hover = "Register the pair by its intensities under the landmarks: the pairs stay put, the images decide \
+                 between them. The result is the field under the landmarks.";
     if ui.button(label).on_hover_text(hover).clicked() {
         command = Some(Command::RefineByIntensities);
     }

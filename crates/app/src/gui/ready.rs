@@ -110,6 +110,7 @@ impl Ready {
             field: self.document.field.clone(),
             out: self.assist.refined_dir.join(format!("refined-{millis}.nii.gz")),
             gpu: (!self.viewer.ctx.is_cpu_driver()).then(|| Arc::clone(&self.viewer.ctx)),
+            metric: self.document.settings.refine_metric,
         };
         let egui = self.ctx.clone();
         match super::intensity::IntensityJob::start(input, move || egui.request_repaint()) {

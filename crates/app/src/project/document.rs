@@ -20,7 +20,7 @@ use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving, as_fixed, as_moving};
 
 use crate::procedural::ProceduralSpec;
-use crate::settings::{Blend, MethodKind, Overlay, Preset, Probe, Shading, or_default};
+use crate::settings::{Blend, MethodKind, Metric, Overlay, Preset, Probe, Shading, or_default};
 
 /// What the user edits: the pair's paths and looks, the landmark pairs, the warp and view settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -207,6 +207,9 @@ pub struct ViewSettings {
     /// What the slices draw over their images to show the warp ([`crate::settings::Overlay`]).
     #[serde(default, deserialize_with = "or_default")]
     pub overlay: Overlay,
+    /// What Refine by intensities matches the volumes by.
+    #[serde(default, deserialize_with = "or_default")]
+    pub refine_metric: Metric,
 }
 
 fn default_brush_radius() -> f64 {
@@ -254,6 +257,7 @@ impl Default for ViewSettings {
             brush_radius_mm: default_brush_radius(),
             follow_pair: false,
             overlay: Overlay::None,
+            refine_metric: Metric::Mi,
         }
     }
 }
