@@ -19,7 +19,7 @@
 //! CPU's share (histogram, optimiser, pyramid), so that a missed target shows what bounds it.
 //!
 //! Options: `--size N` (256), `--rounds N` (3), `--backends cpu,gpu` (both; the GPU is wgpu's default adapter, or the
-//! one `WGPU_BACKEND` chooses). It only runs when `--bench` is among the arguments (as `cargo bench` passes), so
+//! one `WGPU_BACKEND` chooses), `--metric mi|lncc|ngf` (mi; ngf has no GPU path). It only runs when `--bench` is among the arguments (as `cargo bench` passes), so
 //! `cargo test --benches` does not run it.
 
 use std::ops::ControlFlow;
@@ -30,6 +30,7 @@ use std::time::{Duration, Instant};
 use warpbench_app::gpu_samples::GpuSamples;
 use warpbench_app::project::stack::Layers;
 use warpbench_app::register::{RefineInputs, refine};
+use warpbench_app::settings::Metric;
 use warpbench_gpu::GpuContext;
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::{GeometrySource, Volume, VoxelData};
@@ -125,16 +126,18 @@ struct Options {
     size: usize,
     rounds: usize,
     backends: Vec<Backend>,
+    metric: Metric,
 }
 
 fn options() -> Result<Options, String> {
-    let mut o = Options { size: 256, rounds: 3, backends: vec![Backend::Cpu, Backend::Gpu] };
+    let mut o = Options { size: 256, rounds: 3, backends: vec![Backend::Cpu, Backend::Gpu], metric: Metric::Mi };
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         let mut value = |name: &str| args.next().ok_or(format!("{name} needs a value"));
         match a.as_str() {
             "--size" => o.size = value("--size")?.parse().map_err(|e| format!("--size: {e}"))?,
             "--rounds" => o.rounds = value("--rounds")?.parse().map_err(|e| format!("--rounds: {e}"))?,
+            "--metric" => o.metric = value("--metric")?.parse().map_err(|e| format!("--metric: {e}"))?,
             "--backends" => {
                 o.backends = value("--backends")?
                     .split(',')
@@ -240,7 +243,7 @@ impl Run {
     }
 }
 
-fn run(fixed: &Volume, moving: &Volume, device: Option<&dyn SampleDevice>) -> Run {
+fn run(fixed: &Volume, moving: &Volume, metric: Metric, device: Option<&dyn SampleDevice>) -> Run {
     let method = Method::from_name("tps").expect("tps");
     let inputs =
         RefineInputs { fixed, moving, names: ["fixed", "moving"], pairs: &[], origin: "no landmarks", method: &method };
@@ -248,7 +251,7 @@ fn run(fixed: &Volume, moving: &Volume, device: Option<&dyn SampleDevice>) -> Ru
     let refinement = refine(
         inputs,
         Layers::new(None, None),
-        &RegisterParams::default(),
+        &RegisterParams { similarity: metric.similarity(), ..RegisterParams::default() },
         timed.as_ref().map(|t| t as &dyn SampleDevice),
         &mut |_| ControlFlow::Continue(()),
     )
@@ -301,8 +304,9 @@ fn main() {
     let ctx = o.backends.contains(&Backend::Gpu).then(|| GpuContext::headless().expect("a GPU adapter"));
     let gpu = ctx.as_ref().map(|c| GpuSamples::new(c).expect("the GPU pass"));
     println!(
-        "register bench: {n}³ pair (Colin27 against a remapped copy shifted by {SHIFT_MM:?} mm), defaults, from the \
-         identity; {} CPU threads{}",
+        "register bench: {n}³ pair (Colin27 against a remapped copy shifted by {SHIFT_MM:?} mm), --metric {}, \
+         defaults, from the identity; {} CPU threads{}",
+        o.metric,
         rayon::current_num_threads(),
         ctx.as_ref().map_or(String::new(), |c| format!("; GPU {}", c.describe())),
         n = o.size
@@ -315,7 +319,7 @@ fn main() {
                 Backend::Cpu => None,
                 Backend::Gpu => gpu.as_ref().map(|g| g as &dyn SampleDevice),
             };
-            let r = run(&fixed, &moving, device);
+            let r = run(&fixed, &moving, o.metric, device);
             println!(
                 "  round {round} {backend:?}: {:.3} s, MI {:.4}, mean error {:.3} mm",
                 r.seconds, r.similarity, r.error_mm

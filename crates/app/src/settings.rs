@@ -235,9 +235,19 @@ impl Metric {
     #[must_use]
     pub fn label(self) -> &'static str {
         match self {
-            Self::Mi => "Mutual information (any modalities: MR to CT)",
-            Self::Ngf => "Edges (normalised gradient fields)",
-            Self::Lncc => "Local correlation (one modality, uneven brightness)",
+            Self::Mi => "Mutual information",
+            Self::Ngf => "Edges (NGF)",
+            Self::Lncc => "Local correlation",
+        }
+    }
+
+    /// When to choose it, for a menu's hover text.
+    #[must_use]
+    pub fn hint(self) -> &'static str {
+        match self {
+            Self::Mi => "Any two modalities: an MRI to a CT, a T1 to a T2",
+            Self::Ngf => "The outlines (normalised gradient fields), whatever their contrast",
+            Self::Lncc => "One modality whose brightness varies across the volume (different coils, a bias field)",
         }
     }
 

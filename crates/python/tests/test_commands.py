@@ -69,6 +69,19 @@ def test_register_returns_the_clis_report_and_field(tmp_path, shifted):
     assert again["jacobian"]["min_det"] > 0
 
 
+def test_register_matches_by_the_metric_asked_for(tmp_path, shifted):
+    moved, _ = shifted
+    flags = dict(levels=1, iterations=4, samples=4000, grid_mm=32, method="affine")
+    report = wb.register(T1, moved, out_field=tmp_path / "lncc.nii.gz", metric="lncc", **flags)
+    assert report["settings"]["metric"] == "lncc"
+    level = report["levels"][0]
+    # Local correlation is a mean of squared correlations, and the registration raises it.
+    assert 0.0 <= level["similarity_start"] < level["similarity"] <= 1.0
+    with pytest.raises(ValueError, match="lncc"):
+        wb.register(T1, moved, out_field=tmp_path / "x.nii.gz", metric="xcorr", **flags)
+    assert not (tmp_path / "x.nii.gz").exists()
+
+
 def test_errors_are_python_exceptions_with_the_clis_message(tmp_path):
     # A file the system refuses is an OSError (here FileNotFoundError) naming it.
     with pytest.raises(FileNotFoundError) as e:

@@ -285,7 +285,7 @@ pub fn intensity_ui(
     let mut metric = settings.refine_metric;
     egui::ComboBox::from_label("Match by").selected_text(metric.label()).show_ui(ui, |ui| {
         for &m in crate::settings::Metric::ALL {
-            ui.selectable_value(&mut metric, m, m.label());
+            ui.selectable_value(&mut metric, m, m.label()).on_hover_text(m.hint());
         }
     });
     if metric != settings.refine_metric {
