@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The renderer checked on a real GPU in one run: every test of the gpu crate, then the frame, control-eval, export
 # and drag benches at the sizes of the targets (1920×1080, two 512×512×300 volumes), and the registration
-# bench (a 256³ pair, the mutual information's samples on the CPU and on the GPU), with one summary. A GPU
+# bench (a 256³ pair, the samples of mutual information and of local correlation on the CPU and on the GPU), with one
+# summary. A GPU
 # machine may have neither a Rust toolchain nor the network, so it is two steps:
 #
 #   bash data-scripts/gpu_check.sh pack          # on the build machine: release test and bench binaries, stripped,
@@ -172,6 +173,7 @@ run | smoke)
         bench control_eval control_eval --iterations 50
         bench export export --dims 512 --repeats 3
         bench register register --size 256 --rounds 3
+        bench register_lncc register --size 256 --rounds 1 --metric lncc
     else
         bench frame_big frame --size 64x64 --dims 32x32x32 --frames 1
         bench frame_procedural frame --procedural --size 64x64 --dims 32x32x32 --frames 1
@@ -179,6 +181,7 @@ run | smoke)
         bench control_eval control_eval --iterations 1
         bench export export --dims 32 --ctrl 8 --centres 20 --repeats 1
         bench register register --size 32 --rounds 1
+        bench register_lncc register --size 32 --rounds 1 --metric lncc
     fi
     echo "== $(($(date +%s) - started)) s in all" >>"$summary"
     tar -C "$work" -cf - logs | xz -6 >"$out/logs.tar.xz"

@@ -321,8 +321,11 @@ fn main() {
             };
             let r = run(&fixed, &moving, o.metric, device);
             println!(
-                "  round {round} {backend:?}: {:.3} s, MI {:.4}, mean error {:.3} mm",
-                r.seconds, r.similarity, r.error_mm
+                "  round {round} {backend:?}: {:.3} s, {} {:.4}, mean error {:.3} mm",
+                r.seconds,
+                o.metric.measure(),
+                r.similarity,
+                r.error_mm
             );
             if round + 1 == o.rounds {
                 // The last round's split, so that a missed target shows what bounds it.
