@@ -70,8 +70,8 @@ impl<'a> Lncc<'a> {
     /// `device` when one is given.
     ///
     /// # Errors
-    /// [`crate::SolverError::Image`] when either image is flat at the samples or no sample lands in `warped`;
-    /// [`crate::SolverError::Device`] when the device cannot take the level.
+    /// [`crate::SolverError::Image`] when the image is too small for a patch, either image is flat at the samples or
+    /// no sample lands in `warped`; [`crate::SolverError::Device`] when the device cannot take the level.
     pub(super) fn new(
         fixed: &Image<Fixed>,
         warped: &'a Image<Fixed>,
@@ -105,6 +105,13 @@ impl<'a> Lncc<'a> {
             } else {
                 patches.push(first..points.len());
             }
+        }
+        if patches.is_empty() {
+            return Err(crate::SolverError::Image(format!(
+                "the fixed image ({} voxels at this level) is too small for local correlation's patches ({PATCH_SIDE} \
+                 points a side, {PATCH_STEP} voxels apart): use mutual information, or fewer levels",
+                fixed.dims().map(|n| n.to_string()).join(" × ")
+            )));
         }
         let variance = |values: &mut dyn Iterator<Item = f64>| {
             let (n, sum, sum_sq) = values.fold((0usize, 0.0, 0.0), |(n, s, q), v| (n + 1, s + v, q + v * v));

@@ -927,6 +927,25 @@ mod tests {
     }
 
     #[test]
+    fn an_image_too_small_for_a_patch_is_refused_by_local_correlation() {
+        // 2 × 2 × 2 voxels: a patch's points are 2 voxels apart, so each keeps its centre alone.
+        let values = (0..8).map(|v| v as f32).collect();
+        let tiny = Image::<Fixed>::new(
+            [2, 2, 2],
+            values,
+            Transform::<Fixed, Index>::from_scale_translation([2.0; 3], [0.0; 3]),
+        )
+        .expect("test input");
+        let domain = image_box(&tiny);
+        let lattice = ControlLattice::zeros([1, 1, 1], domain.min.coords(), domain.max.coords()).expect("test input");
+        let (centres, _) = draw_samples(&tiny, 20, 32, 1).expect("test input");
+        match Lncc::new(&tiny, &tiny, &centres, &lattice, Parallelism::Sequential, None) {
+            Err(SolverError::Image(message)) => assert!(message.contains("too small"), "{message}"),
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
     fn a_device_that_fails_stops_the_registration_with_its_message() {
         let fixed = blobs::<Fixed>(0.0);
         let moving = blobs::<Moving>(2.0);
