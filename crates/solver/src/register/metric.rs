@@ -11,61 +11,6 @@ use crate::image::Image;
 use crate::spaces::Fixed;
 use crate::warp::Parallelism;
 
-/// Where a sample reads the lattice: the first control index per axis and the basis weights (fixed for a level,
-/// since the samples and the lattice's cells are).
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Footprint {
-    pub(super) start: [usize; 3],
-    pub(super) weights: [[f64; 4]; 3],
-}
-
-impl Footprint {
-    pub(super) fn of(lattice: &ControlLattice, x: [f64; 3]) -> Self {
-        let (start, weights) = lattice.footprint(x);
-        Self { start, weights }
-    }
-
-    /// D(x) = Σ B_a B_b B_c φ over the 4 × 4 × 4 block.
-    #[inline]
-    pub(super) fn displacement(&self, phi: &[f64], dims: [usize; 3]) -> [f64; 3] {
-        let [bx, by, bz] = &self.weights;
-        let mut acc = [0.0; 3];
-        for (c, wz) in bz.iter().enumerate() {
-            for (b, wy) in by.iter().enumerate() {
-                let wzy = wz * wy;
-                let row = (((self.start[2] + c) * dims[1] + self.start[1] + b) * dims[0] + self.start[0]) * 3;
-                let coef = &phi[row..row + 12];
-                for (a, wx) in bx.iter().enumerate() {
-                    let w = wzy * wx;
-                    acc[0] += w * coef[3 * a];
-                    acc[1] += w * coef[3 * a + 1];
-                    acc[2] += w * coef[3 * a + 2];
-                }
-            }
-        }
-        acc
-    }
-
-    /// Adds B_a B_b B_c · `v` to the gradient of each control point of the block.
-    #[inline]
-    pub(super) fn scatter(&self, v: [f64; 3], dims: [usize; 3], gradient: &mut [f64]) {
-        let [bx, by, bz] = &self.weights;
-        for (c, wz) in bz.iter().enumerate() {
-            for (b, wy) in by.iter().enumerate() {
-                let wzy = wz * wy;
-                let row = (((self.start[2] + c) * dims[1] + self.start[1] + b) * dims[0] + self.start[0]) * 3;
-                let out = &mut gradient[row..row + 12];
-                for (a, wx) in bx.iter().enumerate() {
-                    let w = wzy * wx;
-                    out[3 * a] += w * v[0];
-                    out[3 * a + 1] += w * v[1];
-                    out[3 * a + 2] += w * v[2];
-                }
-            }
-        }
-    }
-}
-
 /// A point where the deformation's Jacobian determinant is checked: its block of control points and the basis
 /// weights and their derivatives there.
 #[derive(Clone, Copy, Debug)]
@@ -134,10 +79,6 @@ pub(super) struct Evaluation {
     pub(super) gradient: Vec<f64>,
     pub(super) inside: usize,
 }
-
-/// The sums are split into this many chunks whatever the number of threads, and the chunks' partial sums are added in
-/// their order: the same inputs give the same bits on any machine.
-pub(super) const CHUNKS: usize = 16;
 
 impl<'a> Metric<'a> {
     /// The metric of `samples` (with their footprints in `lattice`) against `warped`, its histogram spanning the

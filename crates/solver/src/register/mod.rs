@@ -86,8 +86,9 @@ use crate::{Result, SolverError};
 use bending::Bending;
 use device::SampleDevice;
 use lncc::Lncc;
-use metric::{Evaluation, Footprint, JacobianPoint, Metric};
+use metric::{Evaluation, JacobianPoint, Metric};
 use ngf::Ngf;
+use samples::Footprint;
 
 /// The similarity measure.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]

@@ -20,7 +20,8 @@
 
 use rayon::prelude::*;
 
-use super::metric::{CHUNKS, Evaluation, JacobianPoint, no_overlap};
+use super::metric::{Evaluation, JacobianPoint, no_overlap};
+use super::samples::CHUNKS;
 use crate::align::Sample;
 use crate::bspline::ControlLattice;
 use crate::image::Image;
