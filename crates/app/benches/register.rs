@@ -245,8 +245,15 @@ impl Run {
 
 fn run(fixed: &Volume, moving: &Volume, metric: Metric, device: Option<&dyn SampleDevice>) -> Run {
     let method = Method::from_name("tps").expect("tps");
-    let inputs =
-        RefineInputs { fixed, moving, names: ["fixed", "moving"], pairs: &[], origin: "no landmarks", method: &method };
+    let inputs = RefineInputs {
+        fixed,
+        moving,
+        names: ["fixed", "moving"],
+        pairs: &[],
+        origin: "no landmarks",
+        method: &method,
+        fixed_mask: None,
+    };
     let timed = device.map(|inner| Timed { inner, times: Mutex::new(DeviceTimes::default()) });
     let refinement = refine(
         inputs,

@@ -19,6 +19,7 @@ use warpbench_io::Volume;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::SolverError;
+use warpbench_solver::align::MIN_SAMPLES_INSIDE;
 use warpbench_solver::diagnostics::JacobianReport;
 use warpbench_solver::field::SampledField;
 use warpbench_solver::image::Image;
@@ -112,8 +113,12 @@ pub struct RegisterArgs {
     /// The seed of the sample points (the same seed gives the same result, bit for bit, on one device).
     #[arg(long, default_value_t = RegisterParams::default().seed)]
     pub seed: u64,
-    /// Where the mutual information's samples are read: auto (a hardware GPU when there is one, else the CPU), cpu
-    /// or gpu.
+    /// Read the fixed volume only where this mask is not 0, as elastix's and ANTs' fixed masks do: leave out what has
+    /// no counterpart in the moving volume (a lesion, a resection, the scanner's table). Any volume in patient space;
+    /// each fixed voxel takes the mask voxel nearest to its centre, and none outside the mask's grid.
+    #[arg(long, value_name = "FILE")]
+    pub fixed_mask: Option<PathBuf>,
+    /// Where the samples of mi and lncc are read: auto (a hardware GPU when there is one, else the CPU), cpu or gpu.
     #[arg(long, value_enum, default_value = "auto")]
     pub backend: crate::warp::BackendArg,
     #[command(flatten)]
@@ -184,6 +189,8 @@ pub struct RegisterSettings {
     pub samples: usize,
     pub iterations: usize,
     pub seed: u64,
+    /// `--fixed-mask`, or null.
+    pub fixed_mask: Option<String>,
 }
 
 /// What was found and written: the `--json` document, schema `warpbench-register/2` (docs/cli.md).
@@ -259,6 +266,9 @@ pub struct RefineInputs<'a> {
     /// What messages call the pairs: the landmark file, or the window's table.
     pub origin: &'a str,
     pub method: &'a Method,
+    /// Where the fixed volume counts, and what messages call it: the registration reads the fixed volume only at
+    /// voxels whose nearest mask voxel is not 0 (elastix's and ANTs' fixed mask).
+    pub fixed_mask: Option<(&'a Volume, &'a str)>,
 }
 
 /// A registration and what it started from: the one result the command line writes and the window keeps.
@@ -317,7 +327,7 @@ pub fn refine(
     device: Option<&dyn SampleDevice>,
     progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
 ) -> Result<Refinement, Failure> {
-    let RefineInputs { fixed, moving, names: [fixed_name, moving_name], pairs, origin, method } = inputs;
+    let RefineInputs { fixed, moving, names: [fixed_name, moving_name], pairs, origin, method, fixed_mask } = inputs;
     params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
     let kept = inputs::check_pairs(origin, pairs, moving, fixed, 0).map_err(Failure::BadInput)?;
     let (start, start_name) = if layers.has_base() || kept.moving.len() >= method.needs().min_pairs {
@@ -336,6 +346,10 @@ pub fn refine(
         kept.fixed.iter().zip(&kept.moving).map(|(&fixed, &moving)| RegisterPair { fixed, moving }).collect();
     let fixed_image = Image::<Fixed>::from_volume(fixed, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{fixed_name}: {e}")))?;
+    let fixed_image = match fixed_mask {
+        None => fixed_image,
+        Some((mask, mask_name)) => masked(&fixed_image, mask, [mask_name, fixed_name])?,
+    };
     let moving_image = Image::<Moving>::from_volume(moving, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{moving_name}: {e}")))?;
     let started = Instant::now();
@@ -356,6 +370,25 @@ pub fn refine(
     Ok(Refinement { start, start_name, kept, registration, jacobian, register_s })
 }
 
+/// `fixed` read only inside `mask` ([`RefineInputs::fixed_mask`]); `names` are the mask's and the fixed volume's.
+///
+/// # Errors
+/// [`Failure::BadInput`] when the mask keeps fewer voxels than a registration samples at least.
+fn masked(fixed: &Image<Fixed>, mask: &Volume, [mask_name, fixed_name]: [&str; 2]) -> Result<Image<Fixed>, Failure> {
+    let mask_image = Image::<Fixed>::from_volume(mask, Parallelism::Rayon)
+        .map_err(|e| Failure::BadInput(anyhow!("{mask_name}: {e}")))?;
+    let (image, kept) = fixed
+        .keep_inside(&mask_image, Parallelism::Rayon)
+        .map_err(|e| Failure::BadInput(anyhow!("{mask_name}: {e}")))?;
+    if kept < MIN_SAMPLES_INSIDE {
+        return Err(Failure::BadInput(anyhow!(
+            "{mask_name}: the mask keeps {kept} voxels of {fixed_name} (nonzero mask voxels nearest to its voxel \
+             centres); the registration needs at least {MIN_SAMPLES_INSIDE}"
+        )));
+    }
+    Ok(image)
+}
+
 /// Runs `warpbench register`: checks the outputs, loads, fits the start, registers, writes the field (and the warped
 /// volume) atomically; prints the JSON summary to `out` with `--json`, else what it wrote on stderr unless `--quiet`.
 pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, Failure> {
@@ -373,6 +406,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         samples,
         iterations,
         seed,
+        fixed_mask,
         backend,
         report,
     } = args;
@@ -393,6 +427,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
     let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path()];
     input_paths.extend(given.paths());
+    input_paths.extend(fixed_mask.as_deref());
     OutputFile { path: out_field.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     displacement::check_output_name(&out_field, format)?;
     if let Some(path) = &out_volume {
@@ -422,6 +457,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
     let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
+    let mask = match &fixed_mask {
+        Some(path) => Some((inputs::load_volume(path, quiet).map_err(Failure::BadInput)?, path.display().to_string())),
+        None => None,
+    };
     let (pairs, origin, method, brushed) = match &given.landmarks {
         Some(landmarks) => {
             let brushed =
@@ -438,6 +477,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         pairs,
         origin: &origin,
         method: &method,
+        fixed_mask: mask.as_ref().map(|(volume, name)| (volume, name.as_str())),
     };
     let bar = Bar::new(quiet);
     let mut layers = Layers::new(start_transform, brushed);
@@ -497,6 +537,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
             samples,
             iterations,
             seed,
+            fixed_mask: fixed_mask.as_ref().map(|p| p.display().to_string()),
         },
         pairs: refinement.kept.moving.len(),
         levels: refinement.registration.levels.clone(),

@@ -253,3 +253,96 @@ fn local_correlation_is_a_metric_of_its_own_on_the_cpu_and_the_gpu() {
         );
     }
 }
+
+/// `--fixed-mask`: the registration reads the fixed volume only where the mask (on a grid of its own) is not 0. So
+/// what the fixed volume holds outside the mask does not change the field by a bit, while without the mask it does;
+/// inside a mask around the head the field still beats the TPS; a mask that keeps too little, or is no volume, exits
+/// 2 naming it and writes nothing.
+#[test]
+fn a_fixed_mask_leaves_out_what_the_fixed_volume_holds_outside_it() {
+    use warpbench_io::geometry::{Index, Lps, Transform};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, qs) = case(dir.path());
+    let fixed_volume = warpbench_io::open(&fixed).expect("fixed");
+    // The mask: 4 mm voxels over the fixed volume's box, 1 on the central 70 % of it along each axis.
+    let corner = |c: [f64; 3]| fixed_volume.lps_from_index.apply_point(Point3::from_array(c)).coords();
+    let last = fixed_volume.dims.map(|n| (n - 1) as f64);
+    let (a, b) = (corner([0.0; 3]), corner(last));
+    let (lo, hi): ([f64; 3], [f64; 3]) =
+        (std::array::from_fn(|i| a[i].min(b[i])), std::array::from_fn(|i| a[i].max(b[i])));
+    let dims: [usize; 3] = std::array::from_fn(|i| ((hi[i] - lo[i]) / 4.0) as usize + 1);
+    let mask_lps_from_index: Transform<Lps, Index> = Transform::from_scale_translation([4.0; 3], lo);
+    let in_core = |x: [f64; 3]| (0..3).all(|i| (x[i] - 0.5 * (lo[i] + hi[i])).abs() < 0.35 * (hi[i] - lo[i]));
+    let mask_values: Vec<u8> = (0..dims.iter().product::<usize>())
+        .map(|o| {
+            let ijk = [o % dims[0], (o / dims[0]) % dims[1], o / (dims[0] * dims[1])].map(|c| c as f64);
+            u8::from(in_core(mask_lps_from_index.apply_point(Point3::from_array(ijk)).coords()))
+        })
+        .collect();
+    let mask_volume = |name: &str, values: Vec<u8>| {
+        let path = dir.path().join(name);
+        let volume = warpbench_io::Volume::new(
+            &path,
+            dims,
+            warpbench_io::VoxelData::U8(values),
+            mask_lps_from_index,
+            warpbench_io::GeometrySource::NiftiSform { code: 1 },
+        )
+        .expect("mask");
+        warpbench_io::nifti::write(&path, &volume).expect("write mask");
+        path
+    };
+    let mask = mask_volume("mask.nii.gz", mask_values.clone());
+    // The fixed volume with noise wherever the mask's nearest voxel is 0 (the rule `--fixed-mask` documents).
+    let mask_index_from_lps = mask_lps_from_index.inverse().expect("invertible");
+    let [nx, ny, _] = fixed_volume.dims;
+    let mut noisy = fixed_volume.clone();
+    let mut state = 12_345u64;
+    let values: Vec<f32> = (0..fixed_volume.data.len())
+        .map(|o| {
+            let ijk = [o % nx, (o / nx) % ny, o / (nx * ny)].map(|c| c as f64);
+            let m = mask_index_from_lps.apply_point(Point3::from_array(corner(ijk))).coords().map(f64::round);
+            let inside = (0..3).all(|i| m[i] >= 0.0 && m[i] < dims[i] as f64)
+                && mask_values[m[0] as usize + dims[0] * (m[1] as usize + dims[1] * m[2] as usize)] != 0;
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            if inside {
+                fixed_volume.data.get_f64(o) as f32
+            } else {
+                (state >> 40) as f32 / (1u64 << 24) as f32 * 300.0
+            }
+        })
+        .collect();
+    noisy.data = warpbench_io::VoxelData::F32(values);
+    let noisy_path = dir.path().join("noisy.nii");
+    warpbench_io::nifti::write(&noisy_path, &noisy).expect("write noisy");
+
+    let field = |name: &str, fixed: &Path, extra: &[&str]| {
+        let path = dir.path().join(name);
+        let run = register(fixed, &moving, &pairs, &path, extra);
+        assert_ok(&run);
+        (std::fs::read(&path).expect("field"), serde_json::from_slice::<Value>(&run.stdout).expect("JSON"), path)
+    };
+    let masked = ["--fixed-mask", utf8(&mask)];
+    let (a, report, a_path) = field("masked.nii.gz", &fixed, &masked);
+    let (b, _, _) = field("masked-noisy.nii.gz", &noisy_path, &masked);
+    assert!(a == b, "the fixed volume outside the mask changed the field");
+    assert_eq!(report["settings"]["fixed_mask"], utf8(&mask));
+    let (c, _, _) = field("plain.nii.gz", &fixed, &[]);
+    let (d, _, _) = field("plain-noisy.nii.gz", &noisy_path, &[]);
+    assert!(c != d, "without the mask the noise is read (the law above is not vacuous)");
+    let (registered, through_pairs) = mean_tre(&a_path, &qs);
+    assert!(registered < 0.7 * through_pairs, "masked: registered {registered:.3} mm, TPS {through_pairs:.3} mm");
+
+    // A mask that keeps nothing, and a file that is no volume: exit 2, named, nothing written.
+    let empty = mask_volume("empty.nii.gz", vec![0; mask_values.len()]);
+    let not_a_volume = dir.path().join("mask.txt");
+    std::fs::write(&not_a_volume, "not a volume").expect("write");
+    for (bad, says) in [(&empty, "keeps 0 voxels"), (&not_a_volume, "mask.txt")] {
+        let out = dir.path().join("never.nii.gz");
+        let run = register(&fixed, &moving, &pairs, &out, &["--fixed-mask", utf8(bad)]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(utf8(bad)) && stderr.contains(says), "{stderr}");
+        assert!(!out.exists(), "nothing written");
+    }
+}

@@ -339,6 +339,45 @@ impl<S: Space> Image<S> {
         Self::new(dims, values, self.space_from_index * old_from_new)
     }
 
+    /// This image with no value (NaN) at every voxel whose centre is outside `mask`: the mask's voxel nearest to the
+    /// centre (its own grid, anywhere in the same space) holds 0 or no number, or there is no mask voxel there. The
+    /// second value is how many voxels keep theirs.
+    ///
+    /// # Errors
+    /// When there is no memory for the copy.
+    pub fn keep_inside(&self, mask: &Image<S>, parallelism: Parallelism) -> Result<(Self, usize)> {
+        let n = self.values.len();
+        let mut values = try_vec(n, "the masked image")?;
+        values.extend_from_slice(&self.values);
+        let [nx, ny, _] = self.dims;
+        let inside = |o: usize| {
+            let x = self.voxel_point(o % nx, (o / nx) % ny, o / (nx * ny));
+            let xi = mask.index_of(x);
+            let ijk: [f64; 3] = std::array::from_fn(|a| xi[a].round());
+            if (0..3).any(|a| !(ijk[a] >= 0.0 && ijk[a] < mask.dims[a] as f64)) {
+                return false;
+            }
+            let v = mask.at(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize);
+            v.is_finite() && v != 0.0
+        };
+        let clear = |(c, block): (usize, &mut [f32])| {
+            let mut kept = 0usize;
+            for (o, v) in block.iter_mut().enumerate() {
+                if inside(c * CHUNK + o) {
+                    kept += 1;
+                } else {
+                    *v = f32::NAN;
+                }
+            }
+            kept
+        };
+        let kept = match parallelism {
+            Parallelism::Sequential => values.chunks_mut(CHUNK).enumerate().map(clear).sum(),
+            Parallelism::Rayon => values.par_chunks_mut(CHUNK).enumerate().map(clear).sum(),
+        };
+        Ok((Self::new(self.dims, values, self.space_from_index)?, kept))
+    }
+
     /// The same image tagged as another space (both are the same LPS millimetres).
     #[must_use]
     pub fn retag<T: Space>(self) -> Image<T> {
@@ -356,6 +395,39 @@ impl<S: Space> Image<S> {
 mod tests {
     use super::*;
     use crate::spaces::Fixed;
+
+    #[test]
+    fn a_mask_on_its_own_grid_keeps_the_voxels_nearest_its_nonzero_ones() {
+        // The image: 10³ voxels of 1 mm from the origin. The mask: 5³ voxels of 2 mm, one of them 1 and one NaN.
+        let values: Vec<f32> = (0..1000).map(|v| v as f32).collect();
+        let image =
+            Image::<Fixed>::new([10; 3], values, Transform::from_scale_translation([1.0; 3], [0.0; 3])).expect("image");
+        let mut mask_values = vec![0.0f32; 125];
+        mask_values[2 + 5 * (2 + 5 * 2)] = 1.0;
+        mask_values[4 + 5 * (4 + 5 * 4)] = f32::NAN;
+        let mask = Image::<Fixed>::new([5; 3], mask_values, Transform::from_scale_translation([2.0; 3], [0.0; 3]))
+            .expect("mask");
+        let (masked, kept) = image.keep_inside(&mask, Parallelism::Rayon).expect("masked");
+        // Mask voxel 2 is nearest to the millimetres [3, 5) along each axis: image voxels 3 and 4.
+        assert_eq!(kept, 8);
+        for k in 0..10 {
+            for j in 0..10 {
+                for i in 0..10 {
+                    let v = masked.at(i, j, k);
+                    if [i, j, k].iter().all(|&c| c == 3 || c == 4) {
+                        assert_eq!(v.to_bits(), image.at(i, j, k).to_bits());
+                    } else {
+                        assert!(v.is_nan(), "voxel {i} {j} {k}: {v}");
+                    }
+                }
+            }
+        }
+        let (sequential, _) = image.keep_inside(&mask, Parallelism::Sequential).expect("masked");
+        assert_eq!(
+            sequential.values().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+            masked.values().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+        );
+    }
 
     /// A linear function of the index on an oblique grid: trilinear interpolation reproduces it, and its gradient
     /// in mm is (linearᵀ)⁻¹ applied to the index gradient.

@@ -184,6 +184,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         pairs: &input.pairs,
         origin: "the landmark table",
         method: &input.method,
+        fixed_mask: None,
     };
     let params = RegisterParams { similarity: input.metric.similarity(), ..RegisterParams::default() };
     // A GPU whose pass cannot be made, or a measure it does not read, leaves the work on the CPU, as `--backend auto`
