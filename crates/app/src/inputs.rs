@@ -278,6 +278,15 @@ impl PairWarp {
 pub struct LandmarkWarp {
     pub landmarks: Option<Landmarks>,
     pub warp: PairWarp,
+    /// A session's choices for Refine by intensities, which `register --session` takes unless told otherwise.
+    pub session_refine: Option<SessionRefine>,
+}
+
+/// What a session chose for Refine by intensities.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SessionRefine {
+    pub metric: crate::settings::Metric,
+    pub fixed_mask: Option<PathBuf>,
 }
 
 impl TryFrom<PairArgs> for LandmarkWarp {
@@ -298,6 +307,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                     session_start: None,
                     session_field: None,
                 },
+                session_refine: None,
             });
         };
         let session = crate::project::session::load(&path)?;
@@ -310,7 +320,10 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         let s = &session.document.settings;
         let method = checked_method(s.method, s.stiffness, Some(s.bspline_levels))?;
         let document = session.document;
+        let session_refine =
+            Some(SessionRefine { metric: document.settings.refine_metric, fixed_mask: document.fixed_mask });
         Ok(Self {
+            session_refine,
             landmarks: Some(Landmarks::read_from(LandmarkSource::Session(path), document.pairs)),
             warp: PairWarp {
                 method: MethodChoice::Given(method),

@@ -86,11 +86,11 @@ pub struct RegisterArgs {
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
-    /// The similarity measure: mi (Mattes mutual information: any two modalities), ngf (normalised gradient fields: the
-    /// edges, whatever their contrast) or lncc (local normalised cross-correlation: one modality under a smooth gain
-    /// and offset, MR–MR).
-    #[arg(long, value_enum, default_value = "mi")]
-    pub metric: crate::settings::Metric,
+    /// The similarity measure: mi (Mattes mutual information: any two modalities; the default), ngf (normalised
+    /// gradient fields: the edges, whatever their contrast) or lncc (local normalised cross-correlation: one modality
+    /// under a smooth gain and offset, MR–MR). With --session, the session's "Match by" unless given.
+    #[arg(long, value_enum)]
+    pub metric: Option<crate::settings::Metric>,
     /// The finest control-point spacing, mm.
     #[arg(long, default_value_t = RegisterParams::default().grid_mm)]
     pub grid_mm: f64,
@@ -115,7 +115,8 @@ pub struct RegisterArgs {
     pub seed: u64,
     /// Read the fixed volume only where this mask is not 0, as elastix's and ANTs' fixed masks do: leave out what has
     /// no counterpart in the moving volume (a lesion, a resection, the scanner's table). Any volume in patient space;
-    /// each fixed voxel takes the mask voxel nearest to its centre, and none outside the mask's grid.
+    /// each fixed voxel takes the mask voxel nearest to its centre, and none outside the mask's grid. With --session,
+    /// the session's fixed mask unless given.
     #[arg(long, value_name = "FILE")]
     pub fixed_mask: Option<PathBuf>,
     /// Where the samples of mi and lncc are read: auto (a hardware GPU when there is one, else the CPU), cpu or gpu.
@@ -412,6 +413,11 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     } = args;
     let ReportArgs { json, force, quiet } = report;
     let format = FieldFormat::from(format);
+    let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
+    // The session's choices for Refine by intensities, where the command line does not make them.
+    let session = given.session_refine.clone();
+    let metric = metric.or(session.as_ref().map(|s| s.metric)).unwrap_or_default();
+    let fixed_mask = fixed_mask.or(session.and_then(|s| s.fixed_mask));
     let params = RegisterParams {
         similarity: metric.similarity(),
         grid_mm,
@@ -424,7 +430,6 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         parallelism: Parallelism::Rayon,
         ..RegisterParams::default()
     };
-    let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
     let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path()];
     input_paths.extend(given.paths());
     input_paths.extend(fixed_mask.as_deref());

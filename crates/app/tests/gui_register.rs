@@ -174,6 +174,91 @@ fn match_by_local_correlation_is_the_documents_and_the_refinement_uses_it() {
     shown_beats_the_tps_and_keeps_the_pairs(ready, &qs);
 }
 
+/// A fixed mask chosen in Assist is the document's (in the autosave; a file that is no volume is refused), the
+/// refinement reads the fixed volume inside it and says so, and `warpbench register --session` takes the session's
+/// mask and Match by.
+#[test]
+fn a_fixed_mask_chosen_in_the_window_is_the_sessions_and_the_command_lines() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (mut harness, qs) = open(dir.path());
+    let (fixed, moving) = (dir.path().join("fixed.nii"), dir.path().join("moving.nii"));
+    // The mask: the fixed grid, 0 on its first ten slices and 1 elsewhere.
+    let mut mask_volume = warpbench_io::open(&fixed).expect("fixed");
+    let plane = mask_volume.dims[0] * mask_volume.dims[1];
+    let ones = (0..mask_volume.data.len()).map(|o| u8::from(o >= 10 * plane)).collect();
+    mask_volume.data = warpbench_io::VoxelData::U8(ones);
+    let mask = dir.path().join("mask.nii.gz");
+    warpbench_io::nifti::write(&mask, &mask_volume).expect("write the mask");
+    let fixed_mask = |h: &Harness<'_, Workbench>| h.state().ready().expect("ready").document.fixed_mask.clone();
+
+    let not_a_volume = dir.path().join("mask.txt");
+    std::fs::write(&not_a_volume, "no volume").expect("write");
+    for (path, kept) in [(&not_a_volume, None), (&mask, Some(mask.clone()))] {
+        harness.state_mut().ready_mut().expect("ready").files.fields.mask.clear();
+        harness.get_by_label("Fixed mask file").scroll_to_me();
+        harness.run_steps(2);
+        harness.get_by_label("Fixed mask file").focus();
+        harness.run_steps(2);
+        harness.get_by_label("Fixed mask file").type_text(&path.display().to_string());
+        harness.run_steps(2);
+        harness.get_by_label("Use as fixed mask").click();
+        harness.run_steps(3);
+        let notice = harness.state().ready().expect("ready").pointer.notice.clone().unwrap_or_default();
+        assert_eq!(fixed_mask(&harness), kept, "{}: {notice}", path.display());
+        let says =
+            if kept.is_some() { "reads the fixed volume where it is not 0" } else { "not used as the fixed mask" };
+        assert!(notice.contains(says), "{notice}");
+    }
+    harness.get_by_label_contains("Fixed mask: ");
+    // Local correlation as the session's Match by, for the command line below.
+    let ready = harness.state_mut().ready_mut().expect("ready");
+    let settings = warpbench_app::project::document::ViewSettings {
+        refine_metric: Metric::Lncc,
+        ..ready.document.settings.clone()
+    };
+    ready.apply(Command::SetSettings(settings));
+    harness.run_steps(2);
+
+    harness.get_by_label("Refine by intensities").click();
+    harness.run_steps(2);
+    wait_for_refinement(&mut harness);
+    assert!(
+        harness.query_all_by_label_contains("inside the fixed mask mask.nii.gz: local correlation").next().is_some(),
+        "the summary names the mask"
+    );
+    let ready = harness.state().ready().expect("ready");
+    assert!(ready.document.field.is_some(), "{:?}", ready.fit.error);
+    shown_beats_the_tps_and_keeps_the_pairs(ready, &qs);
+
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
+    assert_eq!(saved.document.fixed_mask.as_deref(), Some(mask.as_path()));
+    let field = dir.path().join("cli-field.nii.gz");
+    let out = common::warpbench(&[
+        "register",
+        "--fixed",
+        common::utf8(&fixed),
+        "--moving",
+        common::utf8(&moving),
+        "--session",
+        common::utf8(&autosave),
+        "--out-field",
+        common::utf8(&field),
+        "--grid-mm",
+        "20",
+        "--levels",
+        "2",
+        "--json",
+    ]);
+    common::assert_ok(&out);
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+    assert_eq!(report["settings"]["fixed_mask"], common::utf8(&mask));
+    assert_eq!(report["settings"]["metric"], "lncc");
+}
+
 #[test]
 fn cancel_leaves_the_warp_as_it_was() {
     if no_adapter() {
@@ -215,6 +300,7 @@ fn a_refinement_given_a_gpu_runs_there_and_says_so() {
         out: out.clone(),
         gpu: Some(std::sync::Arc::new(ctx)),
         metric: Metric::Mi,
+        fixed_mask: None,
     };
     let refined = warpbench_app::gui::intensity::refine_pair(&input, &mut |_| true).expect("the refinement");
     assert!(refined.summary.ends_with("on the GPU"), "{}", refined.summary);

@@ -57,6 +57,21 @@ impl Ready {
                 }
                 Err(e) => self.files.message = Some(e),
             },
+            // A mask that cannot be read is refused here, so a refinement never starts from one it cannot use.
+            FileAction::UseFixedMask(path) => match warpbench_io::open(&path) {
+                Ok(_) => {
+                    self.pointer.notice = Some(format!(
+                        "{}: Refine by intensities reads the fixed volume where it is not 0",
+                        path.display()
+                    ));
+                    self.document.fixed_mask = Some(path);
+                }
+                Err(e) => self.pointer.notice = Some(format!("not used as the fixed mask: {e}")),
+            },
+            FileAction::RemoveFixedMask => {
+                self.document.fixed_mask = None;
+                self.pointer.notice = Some("Refine by intensities reads the whole fixed volume".into());
+            }
             FileAction::RemoveField => {
                 if self.document.field.take().is_some() {
                     self.files.message = Some("the displacement field is removed".into());

@@ -29,6 +29,8 @@ pub struct FileFields {
     pub screenshot: String,
     /// A displacement field to put under the landmarks.
     pub field: String,
+    /// A mask of the fixed volume for Refine by intensities.
+    pub mask: String,
 }
 
 /// What the file section or the File menu asks for.
@@ -46,6 +48,10 @@ pub enum FileAction {
     UseField(std::path::PathBuf),
     /// Take the displacement field away.
     RemoveField,
+    /// Read the fixed volume only where this mask volume is not 0 when refining by intensities.
+    UseFixedMask(std::path::PathBuf),
+    /// Read the whole fixed volume again.
+    RemoveFixedMask,
 }
 
 /// Session, landmark and screenshot files: a path field and its buttons each.
@@ -88,29 +94,77 @@ pub fn files_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction
     action
 }
 
+/// What a row for one file the document names (a path field, a button to use it and one to take it away) shows.
+struct FileRow {
+    /// The path field's label.
+    label: &'static str,
+    hint: &'static str,
+    use_button: &'static str,
+    remove_button: &'static str,
+    /// What the line under the buttons says before the file's path.
+    current: &'static str,
+}
+
+/// What a [`FileRow`] asks for.
+enum RowChoice {
+    Use(std::path::PathBuf),
+    Remove,
+}
+
+/// One [`FileRow`] over `text`, with `current` the document's file, if any.
+fn file_row(
+    ui: &mut egui::Ui,
+    row: &FileRow,
+    text: &mut String,
+    current: Option<&std::path::Path>,
+) -> Option<RowChoice> {
+    let mut choice = None;
+    ui.add(egui::TextEdit::singleline(text).desired_width(ui.available_width()).hint_text(row.hint))
+        .labelled_by(ui.label(row.label).id);
+    ui.horizontal(|ui| {
+        if ui.add_enabled(!text.trim().is_empty(), egui::Button::new(row.use_button)).clicked() {
+            choice = Some(RowChoice::Use(std::path::PathBuf::from(text.trim())));
+        }
+        if ui.add_enabled(current.is_some(), egui::Button::new(row.remove_button)).clicked() {
+            choice = Some(RowChoice::Remove);
+        }
+    });
+    if let Some(f) = current {
+        ui.label(format!("{}: {}", row.current, f.display()));
+    }
+    choice
+}
+
 /// The displacement field under the landmarks: its file's path field, "Use field under landmarks" and "Remove
 /// field"; `field` is the document's displacement field, if any.
 pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
-    let mut action = None;
-    let path = |s: &str| std::path::PathBuf::from(s.trim());
-    ui.add(
-        egui::TextEdit::singleline(&mut fields.field)
-            .desired_width(ui.available_width())
-            .hint_text("field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)"),
-    )
-    .labelled_by(ui.label("Displacement field file").id);
-    ui.horizontal(|ui| {
-        if ui.add_enabled(!fields.field.trim().is_empty(), egui::Button::new("Use field under landmarks")).clicked() {
-            action = Some(FileAction::UseField(path(&fields.field)));
-        }
-        if ui.add_enabled(field.is_some(), egui::Button::new("Remove field")).clicked() {
-            action = Some(FileAction::RemoveField);
-        }
-    });
-    if let Some(f) = field {
-        ui.label(format!("Field under the landmarks: {}", f.display()));
-    }
-    action
+    let row = FileRow {
+        label: "Displacement field file",
+        hint: "field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)",
+        use_button: "Use field under landmarks",
+        remove_button: "Remove field",
+        current: "Field under the landmarks",
+    };
+    file_row(ui, &row, &mut fields.field, field).map(|c| match c {
+        RowChoice::Use(path) => FileAction::UseField(path),
+        RowChoice::Remove => FileAction::RemoveField,
+    })
+}
+
+/// The fixed volume's mask for Refine by intensities: its file's path field, "Use as fixed mask" and "Remove mask";
+/// `mask` is the document's, if any.
+pub fn mask_ui(ui: &mut egui::Ui, fields: &mut FileFields, mask: Option<&std::path::Path>) -> Option<FileAction> {
+    let row = FileRow {
+        label: "Fixed mask file",
+        hint: "mask.nii.gz: read the fixed volume where it is not 0",
+        use_button: "Use as fixed mask",
+        remove_button: "Remove mask",
+        current: "Fixed mask",
+    };
+    file_row(ui, &row, &mut fields.mask, mask).map(|c| match c {
+        RowChoice::Use(path) => FileAction::UseFixedMask(path),
+        RowChoice::Remove => FileAction::RemoveFixedMask,
+    })
 }
 
 /// Writes the pairs as BigWarp JSON (`.json`) or BigWarp CSV (any other name), or as a Slicer pair of point lists

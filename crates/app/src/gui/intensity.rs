@@ -56,6 +56,8 @@ pub struct RefineInput {
     pub gpu: Option<Arc<warpbench_gpu::GpuContext>>,
     /// What the volumes are matched by.
     pub metric: Metric,
+    /// Read the fixed volume only where this mask volume is not 0.
+    pub fixed_mask: Option<PathBuf>,
 }
 
 /// A finished refinement: the field to put under the landmarks and what to say about it.
@@ -175,6 +177,13 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         Some(path) => Some(Arc::new(FieldLayer::read(path).map_err(|e| format!("{e:#}"))?)),
         None => None,
     };
+    let mask = match &input.fixed_mask {
+        Some(path) => Some((
+            warpbench_io::open(path).map_err(|e| format!("Refine by intensities: the fixed mask: {e}"))?,
+            path.display().to_string(),
+        )),
+        None => None,
+    };
     let start_inverse = start.as_ref().map(|s| *s.fixed_from_moving());
     let layers = Layers { start, field, brush: None };
     let inputs = RefineInputs {
@@ -184,7 +193,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         pairs: &input.pairs,
         origin: "the landmark table",
         method: &input.method,
-        fixed_mask: None,
+        fixed_mask: mask.as_ref().map(|(volume, name)| (volume, name.as_str())),
     };
     let params = RegisterParams { similarity: input.metric.similarity(), ..RegisterParams::default() };
     // A GPU whose pass cannot be made, or a measure it does not read, leaves the work on the CPU, as `--backend auto`
@@ -218,8 +227,14 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         n => format!("{n} pairs within {worst:.2} mm"),
     };
     let summary = format!(
-        "Refined by intensities from {}: {} {:.3} to {:.3}, {pairs}, smallest Jacobian determinant {:.2}, {:.1} s {on}",
+        "Refined by intensities from {}{}: {} {:.3} to {:.3}, {pairs}, smallest Jacobian determinant {:.2}, {:.1} s \
+         {on}",
         refinement.start_name,
+        input
+            .fixed_mask
+            .as_deref()
+            .and_then(Path::file_name)
+            .map_or(String::new(), |m| format!(" inside the fixed mask {}", m.to_string_lossy())),
         input.metric.measure(),
         refinement.registration.levels.first().map_or(0.0, |l| l.similarity_start),
         last.map_or(0.0, |l| l.similarity),

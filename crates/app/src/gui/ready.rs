@@ -111,6 +111,7 @@ impl Ready {
             out: self.assist.refined_dir.join(format!("refined-{millis}.nii.gz")),
             gpu: (!self.viewer.ctx.is_cpu_driver()).then(|| Arc::clone(&self.viewer.ctx)),
             metric: self.document.settings.refine_metric,
+            fixed_mask: self.document.fixed_mask.clone(),
         };
         let egui = self.ctx.clone();
         match super::intensity::IntensityJob::start(input, move || egui.request_repaint()) {

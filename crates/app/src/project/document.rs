@@ -45,6 +45,10 @@ pub struct Document {
     /// from this file ([`super::stack::FieldLayer`]); `None`: none. Sessions written before it open without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field: Option<PathBuf>,
+    /// Where Refine by intensities reads the fixed volume: only where this mask volume is not 0 (`register
+    /// --fixed-mask`); `None`: everywhere.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fixed_mask: Option<PathBuf>,
 }
 
 /// The fixed and the moving points of the pairs a fit uses, in the same order.
@@ -100,6 +104,7 @@ impl Document {
             brush: Vec::new(),
             start: None,
             field: None,
+            fixed_mask: None,
         }
     }
 
