@@ -253,6 +253,7 @@ fn run(fixed: &Volume, moving: &Volume, metric: Metric, device: Option<&dyn Samp
         origin: "no landmarks",
         method: &method,
         fixed_mask: None,
+        moving_mask: None,
     };
     let timed = device.map(|inner| Timed { inner, times: Mutex::new(DeviceTimes::default()) });
     let refinement = refine(

@@ -287,6 +287,7 @@ pub struct LandmarkWarp {
 pub struct SessionRefine {
     pub metric: crate::settings::Metric,
     pub fixed_mask: Option<PathBuf>,
+    pub moving_mask: Option<PathBuf>,
 }
 
 impl TryFrom<PairArgs> for LandmarkWarp {
@@ -320,8 +321,11 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         let s = &session.document.settings;
         let method = checked_method(s.method, s.stiffness, Some(s.bspline_levels))?;
         let document = session.document;
-        let session_refine =
-            Some(SessionRefine { metric: document.settings.refine_metric, fixed_mask: document.fixed_mask });
+        let session_refine = Some(SessionRefine {
+            metric: document.settings.refine_metric,
+            fixed_mask: document.fixed_mask,
+            moving_mask: document.moving_mask,
+        });
         Ok(Self {
             session_refine,
             landmarks: Some(Landmarks::read_from(LandmarkSource::Session(path), document.pairs)),

@@ -17,6 +17,7 @@ use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::Volume;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_io::geometry::Space;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::SolverError;
 use warpbench_solver::align::MIN_SAMPLES_INSIDE;
@@ -119,6 +120,10 @@ pub struct RegisterArgs {
     /// the session's fixed mask unless given.
     #[arg(long, value_name = "FILE")]
     pub fixed_mask: Option<PathBuf>,
+    /// Likewise for the moving volume: a sample that lands where this mask is 0 counts as outside the moving volume.
+    /// With --session, the session's moving mask unless given.
+    #[arg(long, value_name = "FILE")]
+    pub moving_mask: Option<PathBuf>,
     /// Where the samples of mi and lncc are read: auto (a hardware GPU when there is one, else the CPU), cpu or gpu.
     #[arg(long, value_enum, default_value = "auto")]
     pub backend: crate::warp::BackendArg,
@@ -192,6 +197,8 @@ pub struct RegisterSettings {
     pub seed: u64,
     /// `--fixed-mask`, or null.
     pub fixed_mask: Option<String>,
+    /// `--moving-mask`, or null.
+    pub moving_mask: Option<String>,
 }
 
 /// What was found and written: the `--json` document, schema `warpbench-register/2` (docs/cli.md).
@@ -270,6 +277,9 @@ pub struct RefineInputs<'a> {
     /// Where the fixed volume counts, and what messages call it: the registration reads the fixed volume only at
     /// voxels whose nearest mask voxel is not 0 (elastix's and ANTs' fixed mask).
     pub fixed_mask: Option<(&'a Volume, &'a str)>,
+    /// The same for the moving volume (their moving mask): a sample that lands where the moving mask is 0 counts
+    /// as outside the moving volume.
+    pub moving_mask: Option<(&'a Volume, &'a str)>,
 }
 
 /// A registration and what it started from: the one result the command line writes and the window keeps.
@@ -328,7 +338,16 @@ pub fn refine(
     device: Option<&dyn SampleDevice>,
     progress: &mut dyn FnMut(&RegisterProgress) -> ControlFlow<()>,
 ) -> Result<Refinement, Failure> {
-    let RefineInputs { fixed, moving, names: [fixed_name, moving_name], pairs, origin, method, fixed_mask } = inputs;
+    let RefineInputs {
+        fixed,
+        moving,
+        names: [fixed_name, moving_name],
+        pairs,
+        origin,
+        method,
+        fixed_mask,
+        moving_mask,
+    } = inputs;
     params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
     let kept = inputs::check_pairs(origin, pairs, moving, fixed, 0).map_err(Failure::BadInput)?;
     let (start, start_name) = if layers.has_base() || kept.moving.len() >= method.needs().min_pairs {
@@ -353,6 +372,10 @@ pub fn refine(
     };
     let moving_image = Image::<Moving>::from_volume(moving, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{moving_name}: {e}")))?;
+    let moving_image = match moving_mask {
+        None => moving_image,
+        Some((mask, mask_name)) => masked(&moving_image, mask, [mask_name, moving_name])?,
+    };
     let started = Instant::now();
     let registration =
         register_on(&fixed_image, &moving_image, start.warp(), &register_pairs, params, device, progress).map_err(
@@ -371,19 +394,19 @@ pub fn refine(
     Ok(Refinement { start, start_name, kept, registration, jacobian, register_s })
 }
 
-/// `fixed` read only inside `mask` ([`RefineInputs::fixed_mask`]); `names` are the mask's and the fixed volume's.
+/// `image` read only inside `mask` ([`RefineInputs::fixed_mask`]); `names` are the mask's and the volume's.
 ///
 /// # Errors
 /// [`Failure::BadInput`] when the mask keeps fewer voxels than a registration samples at least.
-fn masked(fixed: &Image<Fixed>, mask: &Volume, [mask_name, fixed_name]: [&str; 2]) -> Result<Image<Fixed>, Failure> {
-    let mask_image = Image::<Fixed>::from_volume(mask, Parallelism::Rayon)
+fn masked<S: Space>(image: &Image<S>, mask: &Volume, [mask_name, volume_name]: [&str; 2]) -> Result<Image<S>, Failure> {
+    let mask_image = Image::<S>::from_volume(mask, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{mask_name}: {e}")))?;
-    let (image, kept) = fixed
+    let (image, kept) = image
         .keep_inside(&mask_image, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow!("{mask_name}: {e}")))?;
     if kept < MIN_SAMPLES_INSIDE {
         return Err(Failure::BadInput(anyhow!(
-            "{mask_name}: the mask keeps {kept} voxels of {fixed_name} (nonzero mask voxels nearest to its voxel \
+            "{mask_name}: the mask keeps {kept} voxels of {volume_name} (nonzero mask voxels nearest to its voxel \
              centres); the registration needs at least {MIN_SAMPLES_INSIDE}"
         )));
     }
@@ -408,6 +431,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         iterations,
         seed,
         fixed_mask,
+        moving_mask,
         backend,
         report,
     } = args;
@@ -417,7 +441,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     // The session's choices for Refine by intensities, where the command line does not make them.
     let session = given.session_refine.clone();
     let metric = metric.or(session.as_ref().map(|s| s.metric)).unwrap_or_default();
-    let fixed_mask = fixed_mask.or(session.and_then(|s| s.fixed_mask));
+    let fixed_mask = fixed_mask.or(session.as_ref().and_then(|s| s.fixed_mask.clone()));
+    let moving_mask = moving_mask.or(session.and_then(|s| s.moving_mask));
     let params = RegisterParams {
         similarity: metric.similarity(),
         grid_mm,
@@ -433,6 +458,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path()];
     input_paths.extend(given.paths());
     input_paths.extend(fixed_mask.as_deref());
+    input_paths.extend(moving_mask.as_deref());
     OutputFile { path: out_field.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     displacement::check_output_name(&out_field, format)?;
     if let Some(path) = &out_volume {
@@ -462,10 +488,12 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
     let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
-    let mask = match &fixed_mask {
-        Some(path) => Some((inputs::load_volume(path, quiet).map_err(Failure::BadInput)?, path.display().to_string())),
-        None => None,
+    let load_mask = |mask: &Option<PathBuf>| match mask {
+        Some(path) => inputs::load_volume(path, quiet).map(|v| Some((v, path.display().to_string()))),
+        None => Ok(None),
     };
+    let masks =
+        [load_mask(&fixed_mask).map_err(Failure::BadInput)?, load_mask(&moving_mask).map_err(Failure::BadInput)?];
     let (pairs, origin, method, brushed) = match &given.landmarks {
         Some(landmarks) => {
             let brushed =
@@ -482,7 +510,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         pairs,
         origin: &origin,
         method: &method,
-        fixed_mask: mask.as_ref().map(|(volume, name)| (volume, name.as_str())),
+        fixed_mask: masks[0].as_ref().map(|(volume, name)| (volume, name.as_str())),
+        moving_mask: masks[1].as_ref().map(|(volume, name)| (volume, name.as_str())),
     };
     let bar = Bar::new(quiet);
     let mut layers = Layers::new(start_transform, brushed);
@@ -543,6 +572,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
             iterations,
             seed,
             fixed_mask: fixed_mask.as_ref().map(|p| p.display().to_string()),
+            moving_mask: moving_mask.as_ref().map(|p| p.display().to_string()),
         },
         pairs: refinement.kept.moving.len(),
         levels: refinement.registration.levels.clone(),

@@ -197,7 +197,7 @@ fn a_fixed_mask_chosen_in_the_window_is_the_sessions_and_the_command_lines() {
     let not_a_volume = dir.path().join("mask.txt");
     std::fs::write(&not_a_volume, "no volume").expect("write");
     for (path, kept) in [(&not_a_volume, None), (&mask, Some(mask.clone()))] {
-        harness.state_mut().ready_mut().expect("ready").files.fields.mask.clear();
+        harness.state_mut().ready_mut().expect("ready").files.fields.masks[0].clear();
         harness.get_by_label("Fixed mask file").scroll_to_me();
         harness.run_steps(2);
         harness.get_by_label("Fixed mask file").focus();
@@ -301,6 +301,7 @@ fn a_refinement_given_a_gpu_runs_there_and_says_so() {
         gpu: Some(std::sync::Arc::new(ctx)),
         metric: Metric::Mi,
         fixed_mask: None,
+        moving_mask: None,
     };
     let refined = warpbench_app::gui::intensity::refine_pair(&input, &mut |_| true).expect("the refinement");
     assert!(refined.summary.ends_with("on the GPU"), "{}", refined.summary);

@@ -14,7 +14,7 @@ use std::process::Output;
 
 use serde_json::Value;
 use warpbench_io::displacement::read_field_info;
-use warpbench_io::geometry::Point3;
+use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 use warpbench_solver::field::SampledField;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::tps::Tps;
@@ -254,95 +254,127 @@ fn local_correlation_is_a_metric_of_its_own_on_the_cpu_and_the_gpu() {
     }
 }
 
-/// `--fixed-mask`: the registration reads the fixed volume only where the mask (on a grid of its own) is not 0. So
-/// what the fixed volume holds outside the mask does not change the field by a bit, while without the mask it does;
-/// inside a mask around the head the field still beats the TPS; a mask that keeps too little, or is no volume, exits
-/// 2 naming it and writes nothing.
-#[test]
-fn a_fixed_mask_leaves_out_what_the_fixed_volume_holds_outside_it() {
-    use warpbench_io::geometry::{Index, Lps, Transform};
-    let dir = tempfile::tempdir().expect("tempdir");
-    let (fixed, moving, pairs, qs) = case(dir.path());
-    let fixed_volume = warpbench_io::open(&fixed).expect("fixed");
-    // The mask: 4 mm voxels over the fixed volume's box, 1 on the central 70 % of it along each axis.
-    let corner = |c: [f64; 3]| fixed_volume.lps_from_index.apply_point(Point3::from_array(c)).coords();
-    let last = fixed_volume.dims.map(|n| (n - 1) as f64);
-    let (a, b) = (corner([0.0; 3]), corner(last));
-    let (lo, hi): ([f64; 3], [f64; 3]) =
-        (std::array::from_fn(|i| a[i].min(b[i])), std::array::from_fn(|i| a[i].max(b[i])));
-    let dims: [usize; 3] = std::array::from_fn(|i| ((hi[i] - lo[i]) / 4.0) as usize + 1);
-    let mask_lps_from_index: Transform<Lps, Index> = Transform::from_scale_translation([4.0; 3], lo);
-    let in_core = |x: [f64; 3]| (0..3).all(|i| (x[i] - 0.5 * (lo[i] + hi[i])).abs() < 0.35 * (hi[i] - lo[i]));
-    let mask_values: Vec<u8> = (0..dims.iter().product::<usize>())
-        .map(|o| {
-            let ijk = [o % dims[0], (o / dims[0]) % dims[1], o / (dims[0] * dims[1])].map(|c| c as f64);
-            u8::from(in_core(mask_lps_from_index.apply_point(Point3::from_array(ijk)).coords()))
-        })
-        .collect();
-    let mask_volume = |name: &str, values: Vec<u8>| {
-        let path = dir.path().join(name);
+/// A mask on a grid of its own: 4 mm voxels over `like`'s box, 1 on the central 70 % of it along each axis.
+struct CoreMask {
+    dims: [usize; 3],
+    lps_from_index: Transform<Lps, Index>,
+    values: Vec<u8>,
+}
+
+impl CoreMask {
+    fn over(like: &warpbench_io::Volume) -> Self {
+        let corner = |c: [f64; 3]| like.lps_from_index.apply_point(Point3::from_array(c)).coords();
+        let (a, b) = (corner([0.0; 3]), corner(like.dims.map(|n| (n - 1) as f64)));
+        let lo: [f64; 3] = std::array::from_fn(|i| a[i].min(b[i]));
+        let hi: [f64; 3] = std::array::from_fn(|i| a[i].max(b[i]));
+        let dims: [usize; 3] = std::array::from_fn(|i| ((hi[i] - lo[i]) / 4.0) as usize + 1);
+        let lps_from_index: Transform<Lps, Index> = Transform::from_scale_translation([4.0; 3], lo);
+        let in_core = |x: [f64; 3]| (0..3).all(|i| (x[i] - 0.5 * (lo[i] + hi[i])).abs() < 0.35 * (hi[i] - lo[i]));
+        let values = (0..dims.iter().product::<usize>())
+            .map(|o| {
+                let ijk = [o % dims[0], (o / dims[0]) % dims[1], o / (dims[0] * dims[1])].map(|c| c as f64);
+                u8::from(in_core(lps_from_index.apply_point(Point3::from_array(ijk)).coords()))
+            })
+            .collect();
+        Self { dims, lps_from_index, values }
+    }
+
+    /// Writes the mask, or one of its shape with `values`, as `path`.
+    fn write(&self, path: &Path, values: Vec<u8>) {
         let volume = warpbench_io::Volume::new(
-            &path,
-            dims,
+            path,
+            self.dims,
             warpbench_io::VoxelData::U8(values),
-            mask_lps_from_index,
+            self.lps_from_index,
             warpbench_io::GeometrySource::NiftiSform { code: 1 },
         )
         .expect("mask");
-        warpbench_io::nifti::write(&path, &volume).expect("write mask");
-        path
-    };
-    let mask = mask_volume("mask.nii.gz", mask_values.clone());
-    // The fixed volume with noise wherever the mask's nearest voxel is 0 (the rule `--fixed-mask` documents).
-    let mask_index_from_lps = mask_lps_from_index.inverse().expect("invertible");
-    let [nx, ny, _] = fixed_volume.dims;
-    let mut noisy = fixed_volume.clone();
-    let mut state = 12_345u64;
-    let values: Vec<f32> = (0..fixed_volume.data.len())
-        .map(|o| {
-            let ijk = [o % nx, (o / nx) % ny, o / (nx * ny)].map(|c| c as f64);
-            let m = mask_index_from_lps.apply_point(Point3::from_array(corner(ijk))).coords().map(f64::round);
-            let inside = (0..3).all(|i| m[i] >= 0.0 && m[i] < dims[i] as f64)
-                && mask_values[m[0] as usize + dims[0] * (m[1] as usize + dims[1] * m[2] as usize)] != 0;
-            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
-            if inside {
-                fixed_volume.data.get_f64(o) as f32
-            } else {
-                (state >> 40) as f32 / (1u64 << 24) as f32 * 300.0
-            }
-        })
-        .collect();
-    noisy.data = warpbench_io::VoxelData::F32(values);
-    let noisy_path = dir.path().join("noisy.nii");
-    warpbench_io::nifti::write(&noisy_path, &noisy).expect("write noisy");
+        warpbench_io::nifti::write(path, &volume).expect("write mask");
+    }
 
-    let field = |name: &str, fixed: &Path, extra: &[&str]| {
+    /// Whether the mask voxel nearest to `x` is 1 (the rule `--fixed-mask` documents).
+    fn keeps(&self, x: [f64; 3]) -> bool {
+        let m = self.lps_from_index.inverse().expect("invertible").apply_point(Point3::from_array(x)).coords();
+        let m = m.map(f64::round);
+        let d = self.dims;
+        (0..3).all(|i| m[i] >= 0.0 && m[i] < d[i] as f64)
+            && self.values[m[0] as usize + d[0] * (m[1] as usize + d[1] * m[2] as usize)] != 0
+    }
+
+    /// `volume` (read from `from`) with noise wherever the mask is 0, written as `to`.
+    fn noisy_outside(&self, from: &Path, to: &Path) {
+        let volume = warpbench_io::open(from).expect("volume");
+        let [nx, ny, _] = volume.dims;
+        let mut state = 12_345u64;
+        let values: Vec<f32> = (0..volume.data.len())
+            .map(|o| {
+                let ijk = [o % nx, (o / nx) % ny, o / (nx * ny)].map(|c| c as f64);
+                let x = volume.lps_from_index.apply_point(Point3::from_array(ijk)).coords();
+                state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+                if self.keeps(x) {
+                    volume.data.get_f64(o) as f32
+                } else {
+                    (state >> 40) as f32 / (1u64 << 24) as f32 * 300.0
+                }
+            })
+            .collect();
+        let mut noisy = volume;
+        noisy.data = warpbench_io::VoxelData::F32(values);
+        warpbench_io::nifti::write(to, &noisy).expect("write noisy");
+    }
+}
+
+/// `--fixed-mask` and `--moving-mask`: the registration reads each volume only where its mask (on a grid of its own)
+/// is not 0. So what a volume holds outside its mask does not change the field by a bit, while without the mask it
+/// does; inside masks around the head the field still beats the TPS; a mask that keeps too little, or is no volume,
+/// exits 2 naming it and writes nothing.
+#[test]
+fn a_mask_leaves_out_what_its_volume_holds_outside_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, qs) = case(dir.path());
+    let core = CoreMask::over(&warpbench_io::open(&fixed).expect("fixed"));
+    let mask = dir.path().join("mask.nii.gz");
+    core.write(&mask, core.values.clone());
+    let field = |name: &str, fixed: &Path, moving: &Path, extra: &[&str]| {
         let path = dir.path().join(name);
-        let run = register(fixed, &moving, &pairs, &path, extra);
+        let run = register(fixed, moving, &pairs, &path, extra);
         assert_ok(&run);
         (std::fs::read(&path).expect("field"), serde_json::from_slice::<Value>(&run.stdout).expect("JSON"), path)
     };
-    let masked = ["--fixed-mask", utf8(&mask)];
-    let (a, report, a_path) = field("masked.nii.gz", &fixed, &masked);
-    let (b, _, _) = field("masked-noisy.nii.gz", &noisy_path, &masked);
-    assert!(a == b, "the fixed volume outside the mask changed the field");
-    assert_eq!(report["settings"]["fixed_mask"], utf8(&mask));
-    let (c, _, _) = field("plain.nii.gz", &fixed, &[]);
-    let (d, _, _) = field("plain-noisy.nii.gz", &noisy_path, &[]);
-    assert!(c != d, "without the mask the noise is read (the law above is not vacuous)");
-    let (registered, through_pairs) = mean_tre(&a_path, &qs);
-    assert!(registered < 0.7 * through_pairs, "masked: registered {registered:.3} mm, TPS {through_pairs:.3} mm");
+    let (plain, _, _) = field("plain.nii.gz", &fixed, &moving, &[]);
+    for (flag, side) in [("--fixed-mask", "fixed"), ("--moving-mask", "moving")] {
+        let noisy = dir.path().join(format!("noisy-{side}.nii"));
+        core.noisy_outside(if side == "fixed" { &fixed } else { &moving }, &noisy);
+        let (f, m) = if side == "fixed" { (&noisy, &moving) } else { (&fixed, &noisy) };
+        let masked = [flag, utf8(&mask)];
+        let (a, report, a_path) = field(&format!("{side}-masked.nii.gz"), &fixed, &moving, &masked);
+        let (b, _, _) = field(&format!("{side}-masked-noisy.nii.gz"), f, m, &masked);
+        assert!(a == b, "the {side} volume outside its mask changed the field");
+        assert_eq!(report["settings"][&flag[2..].replace('-', "_")], utf8(&mask));
+        let (c, _, _) = field(&format!("{side}-plain-noisy.nii.gz"), f, m, &[]);
+        assert!(plain != c, "without the mask the {side} noise is read (the law above is not vacuous)");
+        let (registered, through_pairs) = mean_tre(&a_path, &qs);
+        assert!(
+            registered < 0.7 * through_pairs,
+            "{side} mask: registered {registered:.3} mm, TPS {through_pairs:.3} mm"
+        );
+    }
 
     // A mask that keeps nothing, and a file that is no volume: exit 2, named, nothing written.
-    let empty = mask_volume("empty.nii.gz", vec![0; mask_values.len()]);
+    let empty = dir.path().join("empty.nii.gz");
+    core.write(&empty, vec![0; core.values.len()]);
     let not_a_volume = dir.path().join("mask.txt");
     std::fs::write(&not_a_volume, "not a volume").expect("write");
-    for (bad, says) in [(&empty, "keeps 0 voxels"), (&not_a_volume, "mask.txt")] {
+    for (flag, bad, says) in [
+        ("--fixed-mask", &empty, "keeps 0 voxels"),
+        ("--moving-mask", &empty, "keeps 0 voxels"),
+        ("--fixed-mask", &not_a_volume, "mask.txt"),
+    ] {
         let out = dir.path().join("never.nii.gz");
-        let run = register(&fixed, &moving, &pairs, &out, &["--fixed-mask", utf8(bad)]);
+        let run = register(&fixed, &moving, &pairs, &out, &[flag, utf8(bad)]);
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert_eq!(run.status.code(), Some(2), "{stderr}");
-        assert!(stderr.contains(utf8(bad)) && stderr.contains(says), "{stderr}");
+        assert!(stderr.contains(utf8(bad)) && stderr.contains(says), "{flag}: {stderr}");
         assert!(!out.exists(), "nothing written");
     }
 }

@@ -11,6 +11,14 @@ use super::files::{self, FileAction, save_png};
 use super::{Ready, export};
 use crate::project::session;
 
+/// The document's mask of one volume for Refine by intensities.
+fn mask_of(document: &mut crate::project::document::Document, side: super::open::Side) -> &mut Option<PathBuf> {
+    match side {
+        super::open::Side::Fixed => &mut document.fixed_mask,
+        super::open::Side::Moving => &mut document.moving_mask,
+    }
+}
+
 impl Ready {
     /// Carries out a file action of the side panel or the File menu; the outcome goes to `file_message`.
     pub(super) fn file_action(&mut self, action: FileAction) {
@@ -58,19 +66,20 @@ impl Ready {
                 Err(e) => self.files.message = Some(e),
             },
             // A mask that cannot be read is refused here, so a refinement never starts from one it cannot use.
-            FileAction::UseFixedMask(path) => match warpbench_io::open(&path) {
+            FileAction::UseMask(side, path) => match warpbench_io::open(&path) {
                 Ok(_) => {
                     self.pointer.notice = Some(format!(
-                        "{}: Refine by intensities reads the fixed volume where it is not 0",
-                        path.display()
+                        "{}: Refine by intensities reads the {} volume where it is not 0",
+                        path.display(),
+                        side.name()
                     ));
-                    self.document.fixed_mask = Some(path);
+                    *mask_of(&mut self.document, side) = Some(path);
                 }
-                Err(e) => self.pointer.notice = Some(format!("not used as the fixed mask: {e}")),
+                Err(e) => self.pointer.notice = Some(format!("not used as the {} mask: {e}", side.name())),
             },
-            FileAction::RemoveFixedMask => {
-                self.document.fixed_mask = None;
-                self.pointer.notice = Some("Refine by intensities reads the whole fixed volume".into());
+            FileAction::RemoveMask(side) => {
+                *mask_of(&mut self.document, side) = None;
+                self.pointer.notice = Some(format!("Refine by intensities reads the whole {} volume", side.name()));
             }
             FileAction::RemoveField => {
                 if self.document.field.take().is_some() {

@@ -7,6 +7,7 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::export;
+use super::open::Side;
 
 /// The side panel's file and export section.
 #[derive(Debug, Default)]
@@ -29,8 +30,8 @@ pub struct FileFields {
     pub screenshot: String,
     /// A displacement field to put under the landmarks.
     pub field: String,
-    /// A mask of the fixed volume for Refine by intensities.
-    pub mask: String,
+    /// Masks of the fixed and the moving volume for Refine by intensities.
+    pub masks: [String; 2],
 }
 
 /// What the file section or the File menu asks for.
@@ -48,10 +49,10 @@ pub enum FileAction {
     UseField(std::path::PathBuf),
     /// Take the displacement field away.
     RemoveField,
-    /// Read the fixed volume only where this mask volume is not 0 when refining by intensities.
-    UseFixedMask(std::path::PathBuf),
-    /// Read the whole fixed volume again.
-    RemoveFixedMask,
+    /// Read one volume only where this mask volume is not 0 when refining by intensities.
+    UseMask(Side, std::path::PathBuf),
+    /// Read the whole volume again.
+    RemoveMask(Side),
 }
 
 /// Session, landmark and screenshot files: a path field and its buttons each.
@@ -151,19 +152,37 @@ pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::
     })
 }
 
-/// The fixed volume's mask for Refine by intensities: its file's path field, "Use as fixed mask" and "Remove mask";
-/// `mask` is the document's, if any.
-pub fn mask_ui(ui: &mut egui::Ui, fields: &mut FileFields, mask: Option<&std::path::Path>) -> Option<FileAction> {
-    let row = FileRow {
-        label: "Fixed mask file",
-        hint: "mask.nii.gz: read the fixed volume where it is not 0",
-        use_button: "Use as fixed mask",
-        remove_button: "Remove mask",
-        current: "Fixed mask",
+/// A volume's mask for Refine by intensities: its file's path field, "Use as fixed mask" (or moving) and "Remove
+/// fixed mask"; `mask` is the document's, if any.
+pub fn mask_ui(
+    ui: &mut egui::Ui,
+    fields: &mut FileFields,
+    side: Side,
+    mask: Option<&std::path::Path>,
+) -> Option<FileAction> {
+    let row = match side {
+        Side::Fixed => FileRow {
+            label: "Fixed mask file",
+            hint: "mask.nii.gz: read the fixed volume where it is not 0",
+            use_button: "Use as fixed mask",
+            remove_button: "Remove fixed mask",
+            current: "Fixed mask",
+        },
+        Side::Moving => FileRow {
+            label: "Moving mask file",
+            hint: "mask.nii.gz: read the moving volume where it is not 0",
+            use_button: "Use as moving mask",
+            remove_button: "Remove moving mask",
+            current: "Moving mask",
+        },
     };
-    file_row(ui, &row, &mut fields.mask, mask).map(|c| match c {
-        RowChoice::Use(path) => FileAction::UseFixedMask(path),
-        RowChoice::Remove => FileAction::RemoveFixedMask,
+    let text = match side {
+        Side::Fixed => &mut fields.masks[0],
+        Side::Moving => &mut fields.masks[1],
+    };
+    file_row(ui, &row, text, mask).map(|c| match c {
+        RowChoice::Use(path) => FileAction::UseMask(side, path),
+        RowChoice::Remove => FileAction::RemoveMask(side),
     })
 }
 

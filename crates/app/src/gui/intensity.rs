@@ -58,6 +58,8 @@ pub struct RefineInput {
     pub metric: Metric,
     /// Read the fixed volume only where this mask volume is not 0.
     pub fixed_mask: Option<PathBuf>,
+    /// Read the moving volume only where this mask volume is not 0.
+    pub moving_mask: Option<PathBuf>,
 }
 
 /// A finished refinement: the field to put under the landmarks and what to say about it.
@@ -177,13 +179,13 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         Some(path) => Some(Arc::new(FieldLayer::read(path).map_err(|e| format!("{e:#}"))?)),
         None => None,
     };
-    let mask = match &input.fixed_mask {
-        Some(path) => Some((
-            warpbench_io::open(path).map_err(|e| format!("Refine by intensities: the fixed mask: {e}"))?,
-            path.display().to_string(),
-        )),
-        None => None,
+    let read_mask = |mask: &Option<PathBuf>, side: &str| match mask {
+        Some(path) => warpbench_io::open(path)
+            .map(|v| Some((v, path.display().to_string())))
+            .map_err(|e| format!("Refine by intensities: the {side} mask: {e}")),
+        None => Ok(None),
     };
+    let masks = [read_mask(&input.fixed_mask, "fixed")?, read_mask(&input.moving_mask, "moving")?];
     let start_inverse = start.as_ref().map(|s| *s.fixed_from_moving());
     let layers = Layers { start, field, brush: None };
     let inputs = RefineInputs {
@@ -193,7 +195,8 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         pairs: &input.pairs,
         origin: "the landmark table",
         method: &input.method,
-        fixed_mask: mask.as_ref().map(|(volume, name)| (volume, name.as_str())),
+        fixed_mask: masks[0].as_ref().map(|(volume, name)| (volume, name.as_str())),
+        moving_mask: masks[1].as_ref().map(|(volume, name)| (volume, name.as_str())),
     };
     let params = RegisterParams { similarity: input.metric.similarity(), ..RegisterParams::default() };
     // A GPU whose pass cannot be made, or a measure it does not read, leaves the work on the CPU, as `--backend auto`
@@ -230,11 +233,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         "Refined by intensities from {}{}: {} {:.3} to {:.3}, {pairs}, smallest Jacobian determinant {:.2}, {:.1} s \
          {on}",
         refinement.start_name,
-        input
-            .fixed_mask
-            .as_deref()
-            .and_then(Path::file_name)
-            .map_or(String::new(), |m| format!(" inside the fixed mask {}", m.to_string_lossy())),
+        masks_said(input),
         input.metric.measure(),
         refinement.registration.levels.first().map_or(0.0, |l| l.similarity_start),
         last.map_or(0.0, |l| l.similarity),
@@ -242,6 +241,18 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         refinement.register_s
     );
     Ok(Refined { field: input.out.clone(), summary })
+}
+
+/// How a summary names the masks, e.g. " inside the fixed mask brain.nii.gz"; empty without one.
+fn masks_said(input: &RefineInput) -> String {
+    [("fixed", &input.fixed_mask), ("moving", &input.moving_mask)]
+        .into_iter()
+        .filter_map(|(side, mask)| {
+            let name = mask.as_deref()?.file_name()?.to_string_lossy().into_owned();
+            Some(format!(" inside the {side} mask {name}"))
+        })
+        .collect::<Vec<_>>()
+        .join(" and")
 }
 
 /// Writes the field (ITK's NIfTI `DISPVECT`), creating its folder.

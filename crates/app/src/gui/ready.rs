@@ -112,6 +112,7 @@ impl Ready {
             gpu: (!self.viewer.ctx.is_cpu_driver()).then(|| Arc::clone(&self.viewer.ctx)),
             metric: self.document.settings.refine_metric,
             fixed_mask: self.document.fixed_mask.clone(),
+            moving_mask: self.document.moving_mask.clone(),
         };
         let egui = self.ctx.clone();
         match super::intensity::IntensityJob::start(input, move || egui.request_repaint()) {

@@ -86,8 +86,13 @@ fn section_ui(ui: &mut egui::Ui, section: Section, ready: &mut Ready) -> Vec<Com
             ui.separator();
             let last = ready.assist.refined.as_ref();
             let moved = last.is_some_and(|l| l.pairs != ready.fit_pairs().1);
-            let mask = ready.document.fixed_mask.as_deref();
-            commands.extend(super::files::mask_ui(ui, &mut ready.files.fields, mask).map(Command::File));
+            for (side, mask) in [
+                (super::open::Side::Fixed, ready.document.fixed_mask.clone()),
+                (super::open::Side::Moving, ready.document.moving_mask.clone()),
+            ] {
+                let action = super::files::mask_ui(ui, &mut ready.files.fields, side, mask.as_deref());
+                commands.extend(action.map(Command::File));
+            }
             commands.extend(panels::intensity_ui(ui, &ready.document.settings, ready.refining(), last, moved));
             ui.separator();
             let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();

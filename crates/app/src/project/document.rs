@@ -49,6 +49,9 @@ pub struct Document {
     /// --fixed-mask`); `None`: everywhere.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fixed_mask: Option<PathBuf>,
+    /// The same for the moving volume (`register --moving-mask`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moving_mask: Option<PathBuf>,
 }
 
 /// The fixed and the moving points of the pairs a fit uses, in the same order.
@@ -105,6 +108,7 @@ impl Document {
             start: None,
             field: None,
             fixed_mask: None,
+            moving_mask: None,
         }
     }
 
