@@ -196,6 +196,8 @@ fn a_fixed_mask_chosen_in_the_window_is_the_sessions_and_the_command_lines() {
 
     let not_a_volume = dir.path().join("mask.txt");
     std::fs::write(&not_a_volume, "no volume").expect("write");
+    harness.get_by_label("Masks: none").click();
+    harness.run_steps(2);
     for (path, kept) in [(&not_a_volume, None), (&mask, Some(mask.clone()))] {
         harness.state_mut().ready_mut().expect("ready").files.fields.masks[0].clear();
         harness.get_by_label("Fixed mask file").scroll_to_me();
@@ -213,6 +215,9 @@ fn a_fixed_mask_chosen_in_the_window_is_the_sessions_and_the_command_lines() {
         assert!(notice.contains(says), "{notice}");
     }
     harness.get_by_label_contains("Fixed mask: ");
+    // Closed again, the section's title says which masks are set.
+    harness.get_by_label("Masks: fixed").click();
+    harness.run_steps(2);
     // Local correlation as the session's Match by, for the command line below.
     let ready = harness.state_mut().ready_mut().expect("ready");
     let settings = warpbench_app::project::document::ViewSettings {

@@ -86,13 +86,19 @@ fn section_ui(ui: &mut egui::Ui, section: Section, ready: &mut Ready) -> Vec<Com
             ui.separator();
             let last = ready.assist.refined.as_ref();
             let moved = last.is_some_and(|l| l.pairs != ready.fit_pairs().1);
-            for (side, mask) in [
+            let masks = [
                 (super::open::Side::Fixed, ready.document.fixed_mask.clone()),
                 (super::open::Side::Moving, ready.document.moving_mask.clone()),
-            ] {
-                let action = super::files::mask_ui(ui, &mut ready.files.fields, side, mask.as_deref());
-                commands.extend(action.map(Command::File));
-            }
+            ];
+            let set: Vec<&str> = masks.iter().filter(|(_, m)| m.is_some()).map(|(side, _)| side.name()).collect();
+            let title = if set.is_empty() { "Masks: none".to_owned() } else { format!("Masks: {}", set.join(", ")) };
+            // Closed by default (the id keeps it open or closed as its title changes), so the button stays in view.
+            egui::CollapsingHeader::new(title).id_salt("refine masks").show(ui, |ui| {
+                for (side, mask) in masks {
+                    let action = super::files::mask_ui(ui, &mut ready.files.fields, side, mask.as_deref());
+                    commands.extend(action.map(Command::File));
+                }
+            });
             commands.extend(panels::intensity_ui(ui, &ready.document.settings, ready.refining(), last, moved));
             ui.separator();
             let has_loo = !super::landmark_table::loo_ranking(&ready.document.pairs, &ready.fit.pair_errors).is_empty();
