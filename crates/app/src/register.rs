@@ -10,30 +10,32 @@
 
 use std::io::Write;
 use std::ops::ControlFlow;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::Volume;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
-use warpbench_io::geometry::Space;
+use warpbench_io::geometry::{Point3, Space};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::SolverError;
 use warpbench_solver::align::MIN_SAMPLES_INSIDE;
 use warpbench_solver::diagnostics::JacobianReport;
 use warpbench_solver::field::SampledField;
 use warpbench_solver::image::Image;
+use warpbench_solver::invert;
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::Method;
 use warpbench_solver::register::device::SampleDevice;
 use warpbench_solver::register::{
     LevelReport, RegisterPair, RegisterParams, RegisterProgress, Registration, Similarity, folding, register_on,
 };
-use warpbench_solver::spaces::{Fixed, Moving};
+use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::warp::{Composed, Parallelism, Warp};
 
 use crate::args::{MethodArgs, PairArgs, ReportArgs, VolumePairArgs, help};
+use crate::brushed::InverseConsistency;
 use crate::exit::Failure;
 use crate::field::{FormatArg, sample_displacements};
 use crate::fit;
@@ -84,6 +86,12 @@ pub struct RegisterArgs {
     /// .mha or .mhd).
     #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
+    /// Also write the inverse, d(y) − y on the moving grid with d = fixed_from_moving ≈ u⁻¹, as `warpbench field
+    /// --direction forward` writes it: a moving point y goes to y + D(y), what moving points and meshes need (ANTs'
+    /// InverseWarp). It is u inverted by scattered-data interpolation and fixed-point refinement; --json says how
+    /// closely it undoes u.
+    #[arg(long, value_name = "FILE")]
+    pub out_inverse_field: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
@@ -207,6 +215,11 @@ pub struct RegisterSummary {
     pub schema: &'static str,
     pub out_field: String,
     pub out: Option<String>,
+    /// `--out-inverse-field`, or null.
+    pub out_inverse_field: Option<String>,
+    /// How closely the inverse undoes the registered warp, ‖u(d(y)) − y‖ over a grid where it was fitted; null
+    /// without `--out-inverse-field`.
+    pub inverse_consistency: Option<InverseConsistency>,
     /// The field's flavour: `itk`, `ants` or `nrrd`.
     pub format: &'static str,
     /// The warp the registration started from, e.g. `tps`, `tps on start.tfm`, `identity`.
@@ -394,6 +407,63 @@ pub fn refine(
     Ok(Refinement { start, start_name, kept, registration, jacobian, register_s })
 }
 
+/// Inverts the registered pull-back `u` ([`warpbench_solver::invert`]) and writes d(y) − y on the moving grid to
+/// `path` ([`FieldDirection::Forward`]). The inverse is fitted and checked where u has preimages: the moving volume's
+/// box within the box of u over the fixed volume's, less a moving voxel on each side (beyond it the B-spline holds
+/// its edge values).
+///
+/// # Errors
+/// [`Failure::BadInput`] when u maps the fixed volume outside the moving one; the inversion's and the write's.
+fn write_inverse<W: Warp<Moving, Fixed>>(
+    u: &W,
+    [fixed, moving]: [&Volume; 2],
+    path: &Path,
+    format: FieldFormat,
+    bar: &Bar,
+) -> Result<InverseConsistency, Failure> {
+    let fixed_box = inputs::volume_box::<Fixed>(fixed);
+    let moving_box = inputs::volume_box::<Moving>(moving);
+    let (flo, fhi) = (fixed_box.min.coords(), fixed_box.max.coords());
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for n in 0..9 * 9 * 9 {
+        let t = [n % 9, (n / 9) % 9, n / 81].map(|c| c as f64 / 8.0);
+        let y = u.apply_raw(std::array::from_fn(|a| flo[a] + t[a] * (fhi[a] - flo[a])));
+        for a in 0..3 {
+            (lo[a], hi[a]) = (lo[a].min(y[a]), hi[a].max(y[a]));
+        }
+    }
+    let voxel = moving.spacing_mm().into_iter().fold(0.0, f64::max);
+    let (mlo, mhi) = (moving_box.min.coords(), moving_box.max.coords());
+    let lo: [f64; 3] = std::array::from_fn(|a| lo[a].max(mlo[a]) + voxel);
+    let hi: [f64; 3] = std::array::from_fn(|a| hi[a].min(mhi[a]) - voxel);
+    if (0..3).any(|a| lo[a] >= hi[a] || lo[a].is_nan() || hi[a].is_nan()) {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: the registered warp maps the fixed volume outside the moving volume: no inverse to write",
+            path.display()
+        )));
+    }
+    let target = Aabb::new(Point3::from_array(lo), Point3::from_array(hi));
+    bar.set("inverting the warp", 0, 1);
+    let (inverse, report) = invert::invert(u, fixed_box, target, &invert::InvertParams::default())
+        .map_err(|e| Failure::Internal(anyhow!("{}: inverting the registered warp: {e}", path.display())))?;
+    let (dims, lps_from_index) = (moving.dims, moving.lps_from_index);
+    warpbench_io::volume::check_allocation(path, dims, 12, warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let sampled = sample_displacements(&inverse, dims, &lps_from_index, &mut |done, total| {
+        bar.set("sampling the inverse", done, total);
+        true
+    })
+    .ok_or_else(|| Failure::Internal(anyhow!("sampling the inverse stopped")))?;
+    displacement::write_field_with(
+        path,
+        format,
+        FieldDirection::Forward,
+        dims,
+        &lps_from_index,
+        &sampled.displacements_lps,
+    )?;
+    Ok(InverseConsistency { rms_mm: report.rms_mm, max_mm: report.max_mm, points: report.check_points })
+}
+
 /// `image` read only inside `mask` ([`RefineInputs::fixed_mask`]); `names` are the mask's and the volume's.
 ///
 /// # Errors
@@ -421,6 +491,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         pairs,
         out_field,
         out: out_volume,
+        out_inverse_field,
         format,
         metric,
         grid_mm,
@@ -461,6 +532,13 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     input_paths.extend(moving_mask.as_deref());
     OutputFile { path: out_field.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     displacement::check_output_name(&out_field, format)?;
+    if let Some(path) = &out_inverse_field {
+        if path == &out_field || out_volume.as_ref() == Some(path) {
+            return Err(Failure::BadInput(anyhow!("{}: --out-inverse-field is another output too", path.display())));
+        }
+        OutputFile { path: path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
+        displacement::check_output_name(path, format)?;
+    }
     if let Some(path) = &out_volume {
         if path == &out_field {
             return Err(Failure::BadInput(anyhow!("{}: --out and --out-field are the same file", path.display())));
@@ -541,6 +619,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         &lps_from_index,
         &sampled.displacements_lps,
     )?;
+    let inverse_consistency = match &out_inverse_field {
+        Some(path) => Some(write_inverse(&u, [&fixed_volume, &moving_volume], path, format, &bar)?),
+        None => None,
+    };
     if let Some(path) = &out_volume {
         let field = SampledField::<Moving, Fixed>::new(dims, lps_from_index, sampled.displacements_lps)
             .map_err(|e| Failure::Internal(anyhow!("{}: {e}", out_field.display())))?;
@@ -560,6 +642,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         schema: SCHEMA,
         out_field: out_field.display().to_string(),
         out: out_volume.as_ref().map(|p| p.display().to_string()),
+        out_inverse_field: out_inverse_field.as_ref().map(|p| p.display().to_string()),
+        inverse_consistency,
         format: format.name(),
         start: refinement.start_name.clone(),
         settings: RegisterSettings {
