@@ -538,7 +538,8 @@ def register(
     The options are the CLI's: ``session``, ``initial``, ``method``, ``stiffness``, ``metric`` (``"mi"``,
     ``"ngf"`` or ``"lncc"``), ``fixed_mask`` and ``moving_mask`` (paths), ``grid_mm``, ``levels``,
     ``landmark_weight``, ``bending_weight``, ``samples``, ``iterations``, ``seed``, ``backend``, ``format``,
-    ``force``. ``out_field`` (the displacement field) and ``out`` (the warped volume) are written when given.
+    ``force``, ``out_inverse_field`` (a path: the inverse as a forward field on the moving grid). ``out_field``
+    (the displacement field) and ``out`` (the warped volume) are written when given.
     Returns the CLI's ``--json`` report (schema ``warpbench-register/2``)."""
     with ExitStack() as stack:
         io = _Inputs(stack)
