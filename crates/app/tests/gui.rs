@@ -290,7 +290,18 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     let message = wait_for_export(&mut harness);
     assert!(message.contains("displacement field"), "{message}");
 
-    // The same files as `warpbench warp --exact` and `warpbench field` write for the same inputs, byte for byte.
+    let inverse_out = dir.path().join("inverse.nii.gz");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = inverse_out.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("Export inverse field").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("Export inverse field").click();
+    harness.run_steps(1);
+    let message = wait_for_export(&mut harness);
+    assert!(message.contains("inverse (forward) displacement field"), "{message}");
+
+    // The same files as `warpbench warp --exact` and `warpbench field` (and `field --direction forward`) write for
+    // the same inputs, byte for byte.
     let cli = |args: &[&str]| {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run");
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -305,6 +316,9 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     cli(&[&["field"], &common[..], &["--out", field_arg.as_str()]].concat());
     assert!(std::fs::read(&warped).expect("window's") == std::fs::read(&cli_warped).expect("CLI's"), "warped volume");
     assert!(std::fs::read(&field_out).expect("window's") == std::fs::read(&cli_field).expect("CLI's"), "field");
+    let cli_inverse = dir.path().join("cli_inverse.nii.gz").display().to_string();
+    cli(&[&["field"], &common[..], &["--direction", "forward", "--out", cli_inverse.as_str()]].concat());
+    assert!(std::fs::read(&inverse_out).expect("window's") == std::fs::read(&cli_inverse).expect("CLI's"), "inverse");
 }
 
 #[test]

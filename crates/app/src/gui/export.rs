@@ -12,6 +12,7 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, TryRecvError};
 
 use eframe::egui;
+use warpbench_io::displacement::FieldDirection;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::{Progress, Volume, VolumeFileKind};
 use warpbench_solver::method::Method;
@@ -30,6 +31,9 @@ pub enum ExportKind {
     Warped { dicom: Option<PathBuf> },
     /// The pull-back as a displacement field (NIfTI, ITK/ANTs/Slicer convention).
     Field,
+    /// The inverse, the forward map as a displacement field on the moving grid (NIfTI), as `warpbench field
+    /// --direction forward` writes it: what moving points and meshes need.
+    InverseField,
 }
 
 /// The pair and the warp to export, as the window has them.
@@ -67,10 +71,11 @@ impl ExportJob {
     pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
         let dicom = match &kind {
             ExportKind::Warped { dicom } => dicom.as_deref(),
-            ExportKind::Field => None,
+            ExportKind::Field | ExportKind::InverseField => None,
         };
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
-        if kind == ExportKind::Field && VolumeFileKind::of(&out) != Some(VolumeFileKind::Nifti) {
+        let field = matches!(kind, ExportKind::Field | ExportKind::InverseField);
+        if field && VolumeFileKind::of(&out) != Some(VolumeFileKind::Nifti) {
             return Err(format!("{}: a displacement field is exported as NIfTI (.nii or .nii.gz)", out.display()));
         }
         warp::check_outputs(&out, dicom)
@@ -158,16 +163,27 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 resampled.backend
             ))
         }
-        ExportKind::Field => {
+        ExportKind::Field | ExportKind::InverseField => {
             let mut progress = |done: u64, total: u64| {
                 watch.report(&file_name(out), Progress { stage: "field slices", done, total });
                 !watch.cancelled()
             };
-            let f =
-                field::displacement_field(fixed, fixed, moving, pairs_and_brush, &names, &input.method, &mut progress)?;
+            let (direction, grid, what) = match kind {
+                ExportKind::InverseField => (FieldDirection::Forward, moving, "inverse (forward) displacement field"),
+                _ => (FieldDirection::Pullback, fixed, "displacement field"),
+            };
+            let made_of = field::FieldInputs {
+                fixed,
+                moving,
+                pairs: &input.pairs,
+                names: &names,
+                method: &input.method,
+                layers: &layers,
+            };
+            let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
             field::write_field(&f, out, warpbench_io::displacement::FieldFormat::Itk, None)?;
             Ok(format!(
-                "wrote {}: {} displacement field of {} pairs, largest {:.1} mm{consistency}",
+                "wrote {}: {} {what} of {} pairs, largest {:.1} mm{consistency}",
                 out.display(),
                 f.method,
                 f.pairs,
@@ -184,7 +200,7 @@ pub fn export_ui(
     fields: &mut ExportFields,
     running: Option<&ExportJob>,
 ) -> Option<(ExportKind, PathBuf)> {
-    ui.label("Export (fixed grid)");
+    ui.label("Export (fixed grid; the inverse field on the moving grid)");
     if let Some(job) = running {
         ui.label(format!("Exporting {}", file_name(&job.out)));
         super::open::progress_ui(ui, &job.watch);
@@ -210,6 +226,13 @@ pub fn export_ui(
             asked = Some((ExportKind::Field, path.clone()));
         }
     });
+    let inverse = ui.add_enabled(enabled, egui::Button::new("Export inverse field"));
+    if inverse
+        .on_hover_text("The forward map on the moving grid: where each moving point goes (points, meshes)")
+        .clicked()
+    {
+        asked = Some((ExportKind::InverseField, path.clone()));
+    }
     asked
 }
 
