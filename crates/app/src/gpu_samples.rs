@@ -102,16 +102,16 @@ pub fn reads(similarity: Similarity) -> bool {
 /// # Errors
 /// With `gpu`: no adapter, or normalised gradient fields (which have no GPU path).
 pub fn choose(backend: Backend, similarity: Similarity) -> Result<SampleDeviceChoice, String> {
-    match (backend, similarity) {
-        (Backend::Cpu, _) | (Backend::Auto, Similarity::Ngf) => Ok(SampleDeviceChoice::Cpu { note: None }),
-        (Backend::Gpu, Similarity::Ngf) => {
+    match (backend, reads(similarity)) {
+        (Backend::Cpu, _) | (Backend::Auto, false) => Ok(SampleDeviceChoice::Cpu { note: None }),
+        (Backend::Gpu, false) => {
             Err("--backend gpu: the GPU reads the samples of --metric mi and lncc only; use --backend cpu or auto"
                 .into())
         }
-        (Backend::Gpu, Similarity::Mi | Similarity::Lncc) => {
+        (Backend::Gpu, true) => {
             GpuContext::headless().map(|ctx| SampleDeviceChoice::Gpu(Box::new(ctx))).map_err(|e| e.to_string())
         }
-        (Backend::Auto, Similarity::Mi | Similarity::Lncc) => Ok(match GpuContext::headless() {
+        (Backend::Auto, true) => Ok(match GpuContext::headless() {
             Err(e) => SampleDeviceChoice::Cpu { note: Some(e.to_string()) },
             Ok(ctx) if ctx.is_cpu_driver() => {
                 SampleDeviceChoice::Cpu { note: Some(format!("{} is a CPU driver", ctx.describe())) }
