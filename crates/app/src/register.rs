@@ -549,7 +549,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     }
     params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
     let choice = crate::gpu_samples::choose(backend.into(), params.similarity).map_err(|e| {
-        if params.similarity == Similarity::Ngf {
+        if !crate::gpu_samples::reads(params.similarity) {
             Failure::BadInput(anyhow!("{e}"))
         } else {
             Failure::Internal(anyhow!("--backend gpu: {e}"))
