@@ -549,10 +549,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     }
     params.validate().map_err(|e| Failure::BadInput(anyhow!("{e}")))?;
     let choice = crate::gpu_samples::choose(backend.into(), params.similarity).map_err(|e| {
-        if !crate::gpu_samples::reads(params.similarity) {
-            Failure::BadInput(anyhow!("{e}"))
-        } else {
+        if crate::gpu_samples::reads(params.similarity) {
             Failure::Internal(anyhow!("--backend gpu: {e}"))
+        } else {
+            Failure::BadInput(anyhow!("{e}"))
         }
     })?;
     let (gpu, device, cpu_fallback) = match &choice {
