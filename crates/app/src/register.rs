@@ -1,12 +1,12 @@
 //! `warpbench register`: a deformable registration by intensities under the landmarks
 //! ([`warpbench_solver::register`]): a B-spline free-form deformation composed under the current pull-back (the
-//! landmarks' warp on `--initial` or a session's start, or the identity), which maximises the Mattes mutual information
-//! of the two volumes while it keeps the pairs.
+//! landmarks' warp on `--initial` or a session's start, or the identity), which maximises the similarity of the two
+//! volumes (`--metric`, inside the masks when given) while it keeps the pairs.
 //!
 //! It writes the registered pull-back u = u₀ ∘ T as a displacement field in the flavours of `warpbench field`
-//! (default ITK's NIfTI `DISPVECT`), sampled exactly at every voxel of the fixed grid, and with `--out` the moving
-//! volume resampled through it. `--json` reports each level (mutual information, iterations, time), the pairs'
-//! residuals and the smallest det ∇u.
+//! (default ITK's NIfTI `DISPVECT`), sampled exactly at every voxel of the fixed grid; with `--out-inverse-field` its
+//! inverse on the moving grid, and with `--out` the moving volume resampled through it. `--json` reports each level
+//! (the similarity, iterations, time), the pairs' residuals and the smallest det ∇u.
 
 use std::io::Write;
 use std::ops::ControlFlow;
@@ -56,10 +56,12 @@ keeps the pairs, written as a displacement field (and optionally the warped volu
 
 The warp starts from the landmarks' (--landmarks or --session, with --method and --initial as for warp), the
 starting transform alone (--initial), or the identity, and a cubic B-spline deformation under it maximises the
-Mattes mutual information of the two volumes (so an MRI registers to a CT) while the pairs' squared distances
+similarity of the two volumes (--metric: Mattes mutual information by default, so an MRI registers to a CT; local
+correlation or edges), read inside --fixed-mask and --moving-mask when given, while the pairs' squared distances
 (--landmark-weight) and the bending energy keep it honest, over --levels resolution levels down to a control
 spacing of --grid-mm. The field holds u(x) − x at each voxel of the fixed grid, as `warpbench field` writes it
-(ITK maps fixed point x to moving point x + D(x)); `warpbench warp --field` applies it again. Examples:
+(ITK maps fixed point x to moving point x + D(x)); `warpbench warp --field` applies it again, and
+--out-inverse-field writes its inverse on the moving grid. Examples:
 
     warpbench register --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out-field field.nii.gz
     warpbench register --fixed ct.nii.gz --moving mr.nii.gz --initial start.tfm --out-field field.nii.gz --out mr_in_ct.nii.gz --json";
