@@ -193,10 +193,31 @@ SIMPLEITK_FILES = [
     ("itk/ants_mat_reference.json", "ants_mat_sitk.py"),
 ]
 
+# Fixtures written by elastix's transformix (itk-elastix) from a transform our script makes up.
+ELASTIX_MADE = """
+## `metaimage/transformix_field*`: written by elastix's transformix from a synthetic transform
 
-def simpleitk_made(data: Path) -> str:
-    rows = [SIMPLEITK_MADE]
-    for rel, script in SIMPLEITK_FILES:
+Not downloaded: `data-scripts/elastix_field.py` builds a cubic B-spline transform parameter map from seeded random
+coefficients and has transformix (PyPI wheel `itk-elastix==0.25.4`, ITK 5.4.7, in `data-cache/elastix-venv`) write
+its deformation field (what `transformix -def all` writes as `deformationField.mhd`, through ITK's MetaImage writer:
+`.mhd` + `.raw`, and the same field as a compressed `.mha`) and transform the field's voxel centres as points
+(`outputpoints.txt`), recorded in `transformix_field_reference.json`. The values are the script's, so the files carry
+the licence of the code (MIT OR Apache-2.0). Deterministic: a rerun writes the same bytes.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+ELASTIX_FILES = [
+    "metaimage/transformix_field.mha",
+    "metaimage/transformix_field.mhd",
+    "metaimage/transformix_field.raw",
+    "metaimage/transformix_field_reference.json",
+]
+
+
+def script_made(data: Path, heading: str, files: list[tuple[str, str]]) -> str:
+    rows = [heading]
+    for rel, script in files:
         p = data / rel
         if not p.is_file():
             continue
@@ -236,7 +257,8 @@ def main() -> int:
                "`dicom/single/MR_small.dcm`, put together to make a folder with two series.\n")
     out.append(CRANIUM)
     out.append(LANDMARKS_UPSTREAM)
-    out.append(simpleitk_made(data))
+    out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
+    out.append(script_made(data, ELASTIX_MADE, [(rel, "elastix_field.py") for rel in ELASTIX_FILES]))
     text = "".join(out)
     tmp = data / "PROVENANCE.md.tmp"
     tmp.write_text(text)

@@ -335,3 +335,145 @@ fn sizes_are_checked_before_allocating() {
     let e = open(&path, None).expect_err("short");
     assert!(matches!(e.kind, ErrorKind::Truncated(_)), "{e}");
 }
+
+/// What `data-scripts/elastix_field.py` recorded: the grid as ITK reports it, voxel indices, their centres and
+/// where transformix's point transformation maps them.
+struct TransformixReference {
+    size: Vec<usize>,
+    lps_from_index: [[f64; 4]; 3],
+    indices: Vec<[usize; 3]>,
+    centres: Vec<[f64; 3]>,
+    mapped: Vec<[f64; 3]>,
+}
+
+fn transformix_reference() -> TransformixReference {
+    let path = data_dir().join("transformix_field_reference.json");
+    let v: Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("JSON");
+    let triples = |key: &str| -> Vec<[f64; 3]> {
+        v[key].as_array().expect("list").iter().map(|p| std::array::from_fn(|a| numbers(p)[a])).collect()
+    };
+    let (spacing, origin, direction) = (numbers(&v["spacing"]), numbers(&v["origin"]), numbers(&v["direction"]));
+    TransformixReference {
+        size: numbers(&v["size"]).into_iter().map(|s| s as usize).collect(),
+        // ITK's index-to-physical map: D · diag(spacing) · ijk + origin, D row-major as recorded.
+        lps_from_index: std::array::from_fn(|r| {
+            std::array::from_fn(|c| if c == 3 { origin[r] } else { direction[3 * r + c] * spacing[c] })
+        }),
+        indices: triples("indices").into_iter().map(|p| p.map(|x| x as usize)).collect(),
+        centres: triples("centres_lps"),
+        mapped: triples("transformix_points_lps"),
+    }
+}
+
+/// transformix's deformation field (`deformationField.mhd`, and the same field as a compressed `.mha`), read as a
+/// displacement field: its grid is the one ITK reports, and every recorded voxel centre x plus its vector lands where
+/// transformix's own point transformation puts x. The bound: the file holds float32 vectors of at most 1.6 mm
+/// (rounding ≤ 1.2e-7 mm a component) and transformix prints its points to about 1e-6 mm; the script measured
+/// 5.1e-7 mm.
+#[test]
+fn transformixs_deformation_field_reads_to_where_transformix_maps_the_points() {
+    use warpbench_io::displacement::{FieldFormat, read_field_info};
+    let r = transformix_reference();
+    let mut fields = Vec::new();
+    for file in ["transformix_field.mhd", "transformix_field.mha"] {
+        let read = read_field_info(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((read.format, read.direction), (FieldFormat::MetaImage, None), "{file}");
+        let field = read.field;
+        assert_eq!(field.dims.to_vec(), r.size, "{file}");
+        assert_eq!(field.geometry_source, GeometrySource::MetaImage);
+        let m = field.lps_from_index.matrix();
+        for (row, want) in r.lps_from_index.iter().enumerate() {
+            for (c, w) in want.iter().enumerate() {
+                assert!(
+                    (m[(row, c)] - w).abs() < 1e-12,
+                    "{file}: lps_from_index[{row}][{c}] {} vs ITK's {w}",
+                    m[(row, c)]
+                );
+            }
+        }
+        let mut worst = 0.0f64;
+        for ((ijk, centre), mapped) in r.indices.iter().zip(&r.centres).zip(&r.mapped) {
+            let x: [f64; 3] =
+                std::array::from_fn(|a| (0..3).map(|c| m[(a, c)] * ijk[c] as f64).sum::<f64>() + m[(a, 3)]);
+            assert!((0..3).all(|a| (x[a] - centre[a]).abs() < 1e-9), "{file}: voxel {ijk:?} at {x:?}, ITK {centre:?}");
+            let d = field.displacements_lps[ijk[0] + r.size[0] * (ijk[1] + r.size[1] * ijk[2])];
+            for a in 0..3 {
+                worst = worst.max((x[a] + f64::from(d[a]) - mapped[a]).abs());
+            }
+        }
+        assert!(worst < 1e-5, "{file}: x + D(x) is {worst} mm from transformix's point");
+        assert!(field.displacements_lps.iter().any(|d| d.iter().any(|c| c.abs() > 0.5)), "a field that moves");
+        fields.push(field);
+    }
+    assert_eq!(fields[0], fields[1], "the .mhd and the .mha hold one field");
+}
+
+/// Our MetaImage field is what ITK writes for it: SimpleITK's keys in its order with the same values, and the `.raw`
+/// byte for byte; the compressed `.mha` reads back bit for bit.
+#[test]
+fn our_field_file_has_itks_header_and_bytes() {
+    use warpbench_io::displacement::{FieldFormat, read_field, write_field};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let theirs = data_dir().join("transformix_field.mhd");
+    let (field, _) = read_field(&theirs).expect("read");
+    let ours = dir.path().join("ours.mhd");
+    write_field(&ours, FieldFormat::MetaImage, field.dims, &field.lps_from_index, &field.displacements_lps)
+        .expect("write");
+    let (a, b) =
+        (header_fields(&std::fs::read(&ours).expect("ours")), header_fields(&std::fs::read(&theirs).expect("theirs")));
+    let keys = |f: &[(String, String)]| f.iter().map(|(k, _)| k.clone()).collect::<Vec<_>>();
+    assert_eq!(keys(&a), keys(&b), "key order");
+    for ((k, x), (_, y)) in a.iter().zip(&b) {
+        assert!(same_value(k, x, y), "{k} = {x} (ours), {y} (ITK)");
+    }
+    assert_eq!(a.last().map(|(_, v)| v.as_str()), Some("ours.raw"));
+    assert_eq!(
+        std::fs::read(dir.path().join("ours.raw")).expect("our data"),
+        std::fs::read(data_dir().join("transformix_field.raw")).expect("ITK's data"),
+        "the interleaved float32 vectors, byte for byte"
+    );
+    let mha = dir.path().join("ours.mha");
+    write_field(&mha, FieldFormat::MetaImage, field.dims, &field.lps_from_index, &field.displacements_lps)
+        .expect("write");
+    assert_eq!(read_field(&mha).expect("read back").0, field);
+    assert!(header_fields(&std::fs::read(&mha).expect("read")).contains(&("CompressedData".into(), "True".into())));
+}
+
+/// Files that are not displacement fields, or bad ones, are refused naming the file; a field is not a volume.
+#[test]
+fn bad_metaimage_fields_are_refused_naming_the_file() {
+    use warpbench_io::displacement::read_field;
+    let dir = tempfile::tempdir().expect("tempdir");
+    let raw = std::fs::read(data_dir().join("transformix_field.raw")).expect("raw");
+    let header = String::from_utf8(std::fs::read(data_dir().join("transformix_field.mhd")).expect("mhd"))
+        .expect("text")
+        .replace("ElementDataFile = transformix_field.raw", "ElementDataFile = LOCAL");
+    let put = |name: &str, header: &str, data: &[u8]| write_file(dir.path(), name, header, data);
+    let refused = |p: &Path, needle: &str| {
+        let e = read_field(p).expect_err("refused");
+        let text = e.to_string();
+        assert!(text.starts_with(&format!("{}: ", p.display())) && text.contains(needle), "{needle:?} in {text}");
+    };
+    let whole = put("whole.mha", &header, &raw);
+    assert!(read_field(&whole).is_ok());
+    refused(&put("short.mha", &header, &raw[..raw.len() - 4]), "truncated");
+    refused(&put("two.mha", &header.replace("Channels = 3", "Channels = 2"), &raw), "ElementNumberOfChannels = 2");
+    refused(
+        &put("scalar.mha", &header.replace("ElementNumberOfChannels = 3\n", ""), &raw),
+        "ElementNumberOfChannels = 1",
+    );
+    refused(&put("short_type.mha", &header.replace("MET_FLOAT", "MET_SHORT"), &raw), "integer samples");
+    let mut nan = raw.clone();
+    let o = 12 * (1 + 9 * (2 + 8 * 3)) + 8; // the z component of voxel (1, 2, 3)
+    nan[o..o + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    refused(&put("nan.mha", &header, &nan), "voxel [1, 2, 3]");
+    refused(
+        &put("flat.mha", &header.replace("ElementSpacing = 1.5 2 2.5", "ElementSpacing = 1.5 0 2.5"), &raw),
+        "singular",
+    );
+    let e = open(&whole, None).expect_err("a field is not a volume");
+    assert!(
+        e.to_string().contains("ElementNumberOfChannels = 3") && e.to_string().contains("displacement field"),
+        "{e}"
+    );
+}

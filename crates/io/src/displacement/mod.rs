@@ -1,4 +1,4 @@
-//! Displacement fields in the three flavours neighbouring tools read and write, behind one reader that tells them
+//! Displacement fields in the four flavours neighbouring tools read and write, behind one reader that tells them
 //! apart by content ([`read_field`]) and one writer ([`write_field`]).
 //!
 //! A field D on a grid holds one vector per voxel centre x, in LPS mm inside warpbench. Which map it samples is the
@@ -10,14 +10,16 @@
 //! | [`FieldFormat::Itk`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | `intent_code` 1006 `DISPVECT` | RAS | ITK ≥ 5.3 (SimpleITK ≥ 2.3), 3D Slicer ≥ 5.2 |
 //! | [`FieldFormat::Ants`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | `intent_code` 1007 `VECTOR` | LPS | ANTs (`antsApplyTransforms`, `*Warp.nii.gz`), every ITK |
 //! | [`FieldFormat::Nrrd`] | NRRD0004 `.nrrd`, float, sizes `3 X Y Z` | `kinds: vector domain domain domain` | LPS (`space: left-posterior-superior`) | 3D Slicer, ITK's `NrrdImageIO` |
+//! | [`FieldFormat::MetaImage`] | MetaImage `.mha`, or `.mhd` + `.raw`, `MET_FLOAT` | `ElementNumberOfChannels = 3` | LPS | elastix and transformix (`deformationField.mhd`), every ITK |
 //!
-//! The component planes of the NIfTI flavours follow one another (all x, then all y, then all z); NRRD interleaves
-//! them. See [`crate::nifti`] ("Displacement fields") and [`crate::nrrd::field`] for the exact layouts and the ITK
-//! behaviour they rest on.
+//! The component planes of the NIfTI flavours follow one another (all x, then all y, then all z); NRRD and
+//! MetaImage interleave them. See [`crate::nifti`] ("Displacement fields"), [`crate::nrrd::field`] and
+//! [`crate::metaimage::read_displacement_field`] for the exact layouts and the ITK behaviour they rest on.
 //!
-//! [`read_field`] detects the flavour from the bytes, not the name: a NRRD magic is [`FieldFormat::Nrrd`]; a NIfTI
-//! header (plain or gzip) with intent 1006 is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]; anything else
-//! is refused. It returns LPS vectors whatever the flavour.
+//! [`read_field`] detects the flavour from the bytes, not the name: a NRRD magic is [`FieldFormat::Nrrd`]; a
+//! MetaImage header (`ObjectType = …`) is [`FieldFormat::MetaImage`]; a NIfTI header (plain or gzip) with intent 1006
+//! is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]; anything else is refused. It returns LPS vectors whatever
+//! the flavour.
 
 pub(crate) mod check;
 
@@ -37,30 +39,36 @@ pub enum FieldFormat {
     Ants,
     /// NRRD, `kinds: vector domain domain domain`, LPS vectors: 3D Slicer.
     Nrrd,
+    /// MetaImage, three channels, LPS vectors: elastix's transformix and every ITK.
+    MetaImage,
 }
 
 impl FieldFormat {
     /// Every flavour, in the order the CLI lists them.
-    pub const ALL: [Self; 3] = [Self::Itk, Self::Ants, Self::Nrrd];
+    pub const ALL: [Self; 4] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage];
 
-    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`.
+    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
             Self::Itk => "itk",
             Self::Ants => "ants",
             Self::Nrrd => "nrrd",
+            Self::MetaImage => "metaimage",
         }
     }
 
-    /// The container the name of `path` implies: `Some(Nrrd)` for `.nrrd` / `.nhdr`, `Some(Itk)` for `.nii` /
-    /// `.nii.gz` (NIfTI, which is `itk` or `ants`: see [`Self::container_matches`]), `None` for any other name.
+    /// The container the name of `path` implies: `Some(Nrrd)` for `.nrrd` / `.nhdr`, `Some(MetaImage)` for `.mha` /
+    /// `.mhd`, `Some(Itk)` for `.nii` / `.nii.gz` (NIfTI, which is `itk` or `ants`: see [`Self::container_matches`]),
+    /// `None` for any other name.
     #[must_use]
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn from_extension(path: &Path) -> Option<Self> {
         let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
         if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
             Some(Self::Nrrd)
+        } else if name.ends_with(".mha") || name.ends_with(".mhd") {
+            Some(Self::MetaImage)
         } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
             Some(Self::Itk)
         } else {
@@ -68,14 +76,34 @@ impl FieldFormat {
         }
     }
 
-    /// Whether a file named `path` can hold this flavour: NIfTI names for `itk` and `ants`, NRRD names for `nrrd`;
-    /// a name of neither kind fits either.
+    /// Whether a file named `path` can hold this flavour: NIfTI names for `itk` and `ants`, NRRD names for `nrrd`,
+    /// MetaImage names for `metaimage`; any other name fits every flavour but `metaimage`, whose writer needs the name
+    /// to know whether its data are detached.
     #[must_use]
     pub fn container_matches(self, path: &Path) -> bool {
         match Self::from_extension(path) {
-            None => true,
-            Some(Self::Nrrd) => self == Self::Nrrd,
-            Some(Self::Itk | Self::Ants) => self != Self::Nrrd,
+            None => matches!(self, Self::Itk | Self::Ants | Self::Nrrd),
+            Some(Self::Itk | Self::Ants) => matches!(self, Self::Itk | Self::Ants),
+            Some(container) => self == container,
+        }
+    }
+
+    /// The names a file of this flavour takes, for messages.
+    const fn names(self) -> &'static str {
+        match self {
+            Self::Itk | Self::Ants => "a .nii or .nii.gz name",
+            Self::Nrrd => "a .nrrd name",
+            Self::MetaImage => "a .mha name (or .mhd, with a .raw data file beside it)",
+        }
+    }
+
+    /// The flavour the name of `path` implies, `default` where it implies none or is NIfTI: what a window picks for
+    /// a name typed by a user who chose no flavour.
+    #[must_use]
+    pub fn for_name(path: &Path, default: Self) -> Self {
+        match Self::from_extension(path) {
+            Some(container @ (Self::Nrrd | Self::MetaImage)) => container,
+            _ => default,
         }
     }
 }
@@ -135,7 +163,7 @@ pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldFormat)> {
 /// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
 pub fn read_field_info(path: &Path) -> Result<ReadField> {
     crate::files::check_regular_file(path)?;
-    let mut head = [0u8; 4];
+    let mut head = [0u8; 64];
     let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
     drop(f);
@@ -148,6 +176,10 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
         });
         return Ok(ReadField { field, format: FieldFormat::Nrrd, direction });
     }
+    if crate::metaimage::looks_like_metaimage(head) {
+        let field = crate::metaimage::read_displacement_field(path)?;
+        return Ok(ReadField { field, format: FieldFormat::MetaImage, direction: None });
+    }
     if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
         let (field, intent) = nifti::read_vector_field(path)?;
         let format = match intent {
@@ -156,7 +188,7 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
         };
         return Ok(ReadField { field, format, direction: None });
     }
-    Err(Error::unsupported(path, "not a displacement field: neither NIfTI (intent 1006 or 1007) nor NRRD"))
+    Err(Error::unsupported(path, "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD nor MetaImage"))
 }
 
 /// Writes a pull-back displacement field (`displacements_lps`, LPS mm, i fastest, one per voxel of the grid `dims`,
@@ -172,10 +204,11 @@ pub fn write_field(
 }
 
 /// Writes a displacement field in `format`, atomically. `direction` is what the vectors sample: the NRRD flavour
-/// records it (`displacement field type:=resampling` or `modeling`, which Slicer reads); NIfTI has nowhere to say
-/// it. A name that is not the flavour's container (`.nrrd` for `nrrd`; `.nii`, `.nii.gz` for `itk` and `ants`) is
-/// refused, and so is a detached NRRD header (`.nhdr`), which would need a second data file; non-finite vectors
-/// are refused, naming the voxel.
+/// records it (`displacement field type:=resampling` or `modeling`, which Slicer reads); NIfTI and MetaImage have
+/// nowhere to say it. A name that is not the flavour's container (`.nrrd` for `nrrd`; `.nii`, `.nii.gz` for `itk`
+/// and `ants`; `.mha`, `.mhd` for `metaimage`) is refused, and so is a detached NRRD header (`.nhdr`), which would
+/// need a second data file; non-finite vectors are refused, naming the voxel. A `.mhd` writes its `.raw` beside it
+/// ([`crate::metaimage::detached_data_file`]), first.
 pub fn write_field_with(
     path: &Path,
     format: FieldFormat,
@@ -198,14 +231,16 @@ pub fn write_field_with(
             };
             nrrd_field::write_displacement_field(path, dims, lps_from_index, displacements_lps, kind)
         }
+        FieldFormat::MetaImage => {
+            crate::metaimage::write_displacement_field(path, dims, lps_from_index, displacements_lps)
+        }
     }
 }
 
 /// Refuses an output name that cannot hold `format` (see [`write_field_with`]), before anything is computed.
 pub fn check_output_name(path: &Path, format: FieldFormat) -> Result<()> {
     if !format.container_matches(path) {
-        let wants = if format == FieldFormat::Nrrd { "a .nrrd name" } else { "a .nii or .nii.gz name" };
-        return Err(Error::invalid(path, format!("the {format} field flavour is written to {wants}")));
+        return Err(Error::invalid(path, format!("the {format} field flavour is written to {}", format.names())));
     }
     let detached = path.file_name().is_some_and(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".nhdr"));
     if detached {
@@ -246,10 +281,13 @@ mod tests {
             (FieldFormat::Ants, "a.nii.gz", None),
             (FieldFormat::Ants, "a.nii", None),
             (FieldFormat::Nrrd, "n.nrrd", Some(FieldDirection::Pullback)),
+            (FieldFormat::MetaImage, "m.mha", None),
+            (FieldFormat::MetaImage, "m.mhd", None),
         ] {
             let path = dir.path().join(name);
             write_field(&path, format, dims, &lps_from_index, &field).expect("write");
             // The name says nothing to the reader: a copy under a neutral name reads the same.
+            // (A .mhd's header names its data file, which stays beside it.)
             let neutral = dir.path().join(format!("{name}.bin"));
             std::fs::copy(&path, &neutral).expect("copy");
             for p in [&path, &neutral] {
@@ -361,15 +399,24 @@ mod tests {
         let mut nan_field = field.clone();
         nan_field[9][2] = f32::INFINITY;
         for format in FieldFormat::ALL {
-            let p =
-                dir.path().join(format!("nan_{format}.{}", if format == FieldFormat::Nrrd { "nrrd" } else { "nii" }));
+            let extension = match format {
+                FieldFormat::Nrrd => "nrrd",
+                FieldFormat::MetaImage => "mha",
+                FieldFormat::Itk | FieldFormat::Ants => "nii",
+            };
+            let p = dir.path().join(format!("nan_{format}.{extension}"));
             let e = write_field(&p, format, dims, &lps_from_index, &nan_field).expect_err("not finite");
             assert!(e.to_string().contains("voxel"), "{e}");
             assert!(!p.exists());
         }
-        for (format, name) in
-            [(FieldFormat::Nrrd, "x.nii.gz"), (FieldFormat::Itk, "x.nrrd"), (FieldFormat::Nrrd, "x.nhdr")]
-        {
+        for (format, name) in [
+            (FieldFormat::Nrrd, "x.nii.gz"),
+            (FieldFormat::Itk, "x.nrrd"),
+            (FieldFormat::Nrrd, "x.nhdr"),
+            (FieldFormat::MetaImage, "x.nii"),
+            (FieldFormat::MetaImage, "x.field"),
+            (FieldFormat::Ants, "x.mha"),
+        ] {
             let p = dir.path().join(name);
             assert!(write_field(&p, format, dims, &lps_from_index, &field).is_err(), "{format} to {name}");
             assert!(!p.exists());

@@ -25,6 +25,8 @@ pub(super) struct Header {
     pub(super) ndims: usize,
     pub(super) dim_size: Vec<usize>,
     pub(super) stored: StoredType,
+    /// `ElementNumberOfChannels`: samples a voxel, interleaved (1 for a scalar volume, 3 for a displacement field).
+    pub(super) channels: usize,
     pub(super) big_endian: bool,
     pub(super) compressed: bool,
     pub(super) compressed_size: Option<u64>,
@@ -189,20 +191,14 @@ pub(super) fn parse_header(name: &Path, lines: &[Field]) -> Result<Header> {
         })?;
 
     let channels = match get_one("ElementNumberOfChannels") {
-        Some((l, v)) => v.parse::<usize>().map_err(|_| {
-            Error::invalid(name, format!("header line {l}: ElementNumberOfChannels {v:?} is not a whole number"))
+        Some((l, v)) => v.parse::<usize>().ok().filter(|&c| c > 0).ok_or_else(|| {
+            Error::invalid(
+                name,
+                format!("header line {l}: ElementNumberOfChannels {v:?} is not a positive whole number"),
+            )
         })?,
         None => 1,
     };
-    if channels != 1 {
-        return Err(Error::unsupported(
-            name,
-            format!(
-                "ElementNumberOfChannels = {channels}: a vector or colour image; only scalar volumes (one channel) are \
-                 read"
-            ),
-        ));
-    }
 
     let (type_line, type_s) =
         get_one("ElementType").ok_or_else(|| Error::invalid(name, "the header has no ElementType field"))?;
@@ -306,6 +302,7 @@ pub(super) fn parse_header(name: &Path, lines: &[Field]) -> Result<Header> {
         ndims,
         dim_size,
         stored,
+        channels,
         big_endian,
         compressed,
         compressed_size,

@@ -35,9 +35,10 @@
 //!   offset 0). `CenterOfRotation` and `AnatomicalOrientation` are ignored on reading, as ITK ignores them.
 //! - **Dimensions.** `NDims = 3`; or `NDims = 4`, whose 4th axis is frames: one frame is read, chosen with
 //!   [`LoadOptions::frame`] as for a 4-D NIfTI ([`crate::ErrorKind::FrameRequired`] without it when there are
-//!   several). Other dimensions, `ElementNumberOfChannels` other than 1 (vector and colour images), text samples
-//!   (`BinaryData = False`) and several data files (`ElementDataFile = LIST`, numbered file patterns) are refused
-//!   with an error that says so.
+//!   several). A 3-D image of three float channels is a displacement field, read by [`read_displacement_field`]
+//!   (transformix's `deformationField.mhd`; module `field`). Other dimensions, other channel counts as volumes
+//!   (vector and colour images), text samples (`BinaryData = False`) and several data files (`ElementDataFile =
+//!   LIST`, numbered file patterns) are refused with an error that says so.
 //! - **Sample types** (`ElementType`) follow `docs/fixture-manifest.md`: `MET_UCHAR` (u8), `MET_SHORT` (i16),
 //!   `MET_USHORT` (u16) and `MET_FLOAT` (f32) are kept; `MET_CHAR` becomes i16; `MET_INT`, `MET_UINT`, `MET_LONG`,
 //!   `MET_ULONG` (4 bytes in MetaIO), `MET_LONG_LONG`, `MET_ULONG_LONG` and `MET_DOUBLE` become f32. MetaImage has
@@ -55,9 +56,10 @@
 //!
 //! # Modules
 //! `header` reads and checks the text header, `geometry` turns it into `lps_from_index`, `data` finds, inflates and
-//! decodes the samples, `write` writes `.mha` and `.mhd`.
+//! decodes the samples, `write` writes `.mha` and `.mhd`, `field` reads and writes displacement fields.
 
 mod data;
+mod field;
 mod geometry;
 mod header;
 mod write;
@@ -66,6 +68,7 @@ use std::fs::File;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 
+pub use field::{read_displacement_field, read_displacement_field_bytes, write_displacement_field};
 pub use header::{MAX_HEADER_BYTES, looks_like_metaimage};
 pub use write::{MetaImageWriteOptions, detached_data_file, write, write_with};
 
@@ -94,6 +97,16 @@ fn read_from<R: BufRead>(
 ) -> Result<Volume> {
     let (lines, header_bytes) = read_header_lines(name, &mut r)?;
     let h = parse_header(name, &lines)?;
+    if h.channels != 1 {
+        return Err(Error::unsupported(
+            name,
+            format!(
+                "ElementNumberOfChannels = {}: a vector or colour image; only scalar volumes (one channel) are read \
+                 as volumes (a 3-channel float image is read as a displacement field)",
+                h.channels
+            ),
+        ));
+    }
     let g = geometry::geometry(name, &h)?;
     let frame = match (g.frames, opts.frame) {
         (1, None) => 0,
@@ -109,8 +122,27 @@ fn read_from<R: BufRead>(
     let n = check_allocation(name, g.dims, out_type.bytes(), opts.max_voxel_bytes)?;
     let f = FrameChoice { n, frame, frames: g.frames };
 
-    let data = match &h.data_file {
-        DataFile::Local => decode_payload(name, r, total_len.saturating_sub(header_bytes), &h, f, opts)?,
+    let data = samples(name, r, total_len.saturating_sub(header_bytes), base_dir, &h, f, opts)?;
+
+    let mut volume = Volume::new(name, g.dims, data, g.lps_from_index, GeometrySource::MetaImage)?;
+    let warnings = std::mem::take(&mut volume.metadata.warnings);
+    volume.metadata = Metadata { description: h.comment.clone(), warnings, ..Metadata::default() };
+    Ok(volume)
+}
+
+/// Decodes the samples `f` chooses: from `r` (the `len` bytes after the header of `name`) for `LOCAL` data, else from
+/// the detached data file in `base_dir` (none when the header was read from memory, which is refused).
+fn samples<R: BufRead>(
+    name: &Path,
+    r: R,
+    len: u64,
+    base_dir: Option<&Path>,
+    h: &header::Header,
+    f: FrameChoice,
+    opts: &mut LoadOptions,
+) -> Result<crate::volume::VoxelData> {
+    match &h.data_file {
+        DataFile::Local => decode_payload(name, r, len, h, f, opts),
         DataFile::Detached(file_name) => {
             let Some(base) = base_dir else {
                 return Err(Error::unsupported(
@@ -128,12 +160,7 @@ fn read_from<R: BufRead>(
             }
             let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
             let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
-            decode_payload(&data_path, BufReader::new(file), len, &h, f, opts)?
+            decode_payload(&data_path, BufReader::new(file), len, h, f, opts)
         }
-    };
-
-    let mut volume = Volume::new(name, g.dims, data, g.lps_from_index, GeometrySource::MetaImage)?;
-    let warnings = std::mem::take(&mut volume.metadata.warnings);
-    volume.metadata = Metadata { description: h.comment.clone(), warnings, ..Metadata::default() };
-    Ok(volume)
+    }
 }

@@ -10,7 +10,7 @@ use flate2::write::ZlibEncoder;
 
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
-use crate::volume::{SampleType, Volume, VoxelData};
+use crate::volume::{SampleType, Volume};
 
 /// Options for [`write_with`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -57,17 +57,45 @@ pub fn write_with(path: &Path, volume: &Volume, options: MetaImageWriteOptions) 
     if !volume.lps_from_index.is_valid_affine() {
         return Err(Error::invalid(path, "the voxel-to-patient matrix is singular or not finite"));
     }
+    let element_type = match volume.sample_type() {
+        SampleType::U8 => "MET_UCHAR",
+        SampleType::I16 => "MET_SHORT",
+        SampleType::U16 => "MET_USHORT",
+        SampleType::F32 => "MET_FLOAT",
+    };
+    let samples =
+        Samples { element_type, channels: 1, write_le: &|w| volume.data.try_for_each_le_chunk(|b| w.write_all(b)) };
+    write_image(path, volume.dims, &volume.lps_from_index, &samples, options)
+}
+
+/// What follows a header: the `ElementType`, the samples a voxel (`ElementNumberOfChannels`, interleaved) and a
+/// writer of all of them, little-endian, i fastest.
+pub(super) struct Samples<'a> {
+    pub(super) element_type: &'static str,
+    pub(super) channels: usize,
+    pub(super) write_le: &'a dyn Fn(&mut dyn Write) -> std::io::Result<()>,
+}
+
+/// Writes a header for the grid `dims`, `lps_from_index` and `samples` at `path` (`.mha`, or `.mhd` with its data
+/// file), atomically, the data file first.
+pub(super) fn write_image(
+    path: &Path,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    samples: &Samples<'_>,
+    options: MetaImageWriteOptions,
+) -> Result<()> {
     let mhd = is_mhd(path);
     if !mhd && !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mha")) {
         return Err(Error::invalid(path, "a MetaImage file is named .mha (one file) or .mhd (with a data file)"));
     }
     let data_path = mhd.then(|| data_file_for(path, options.compressed)).transpose()?;
-    let compressed = if options.compressed { Some(compress(path, &volume.data)?) } else { None };
+    let compressed = if options.compressed { Some(compress(path, samples.write_le)?) } else { None };
     let data_file = data_path.as_ref().map(|(_, name)| name.as_str());
-    let header = header_text(volume, compressed.as_ref().map(Vec::len), data_file);
+    let header = header_text(dims, lps_from_index, samples, compressed.as_ref().map(Vec::len), data_file);
     let write_data = |w: &mut dyn Write| match &compressed {
         Some(bytes) => w.write_all(bytes),
-        None => volume.data.try_for_each_le_chunk(|b| w.write_all(b)),
+        None => (samples.write_le)(w),
     };
     match &data_path {
         Some((data_path, _)) => {
@@ -94,9 +122,9 @@ fn data_file_for(path: &Path, compressed: bool) -> Result<(PathBuf, String)> {
 }
 
 /// The samples, little-endian, as one zlib stream.
-fn compress(path: &Path, data: &VoxelData) -> Result<Vec<u8>> {
+fn compress(path: &Path, write_le: &dyn Fn(&mut dyn Write) -> std::io::Result<()>) -> Result<Vec<u8>> {
     let mut z = ZlibEncoder::new(Vec::new(), Compression::default());
-    data.try_for_each_le_chunk(|b| z.write_all(b)).map_err(|e| Error::io(path, e))?;
+    write_le(&mut z).map_err(|e| Error::io(path, e))?;
     z.finish().map_err(|e| Error::io(path, e))
 }
 
@@ -142,31 +170,35 @@ fn anatomical_orientation(columns: &[[f64; 3]; 3]) -> Option<String> {
     Some(code)
 }
 
-/// The header, its keys in SimpleITK's order.
-fn header_text(volume: &Volume, compressed_size: Option<usize>, data_file: Option<&str>) -> String {
-    let (columns, spacing) = direction_spacing(&volume.lps_from_index);
+/// The header, its keys in SimpleITK's order (`ElementNumberOfChannels` only for several samples a voxel, as ITK
+/// writes it).
+fn header_text(
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    samples: &Samples<'_>,
+    compressed_size: Option<usize>,
+    data_file: Option<&str>,
+) -> String {
+    let (columns, spacing) = direction_spacing(lps_from_index);
     let join = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x.to_string()).collect::<Vec<_>>().join(" ");
-    let element_type = match volume.sample_type() {
-        SampleType::U8 => "MET_UCHAR",
-        SampleType::I16 => "MET_SHORT",
-        SampleType::U16 => "MET_USHORT",
-        SampleType::F32 => "MET_FLOAT",
-    };
-    let [nx, ny, nz] = volume.dims;
+    let [nx, ny, nz] = dims;
     let mut h = String::from("ObjectType = Image\nNDims = 3\nBinaryData = True\nBinaryDataByteOrderMSB = False\n");
     let _ = writeln!(h, "CompressedData = {}", if compressed_size.is_some() { "True" } else { "False" });
     if let Some(size) = compressed_size {
         let _ = writeln!(h, "CompressedDataSize = {size}");
     }
     let _ = writeln!(h, "TransformMatrix = {}", join(&mut columns.iter().flatten().copied()));
-    let _ = writeln!(h, "Offset = {}", join(&mut volume.lps_from_index.translation().into_iter()));
+    let _ = writeln!(h, "Offset = {}", join(&mut lps_from_index.translation().into_iter()));
     h.push_str("CenterOfRotation = 0 0 0\n");
     if let Some(code) = anatomical_orientation(&columns) {
         let _ = writeln!(h, "AnatomicalOrientation = {code}");
     }
     let _ = writeln!(h, "ElementSpacing = {}", join(&mut spacing.into_iter()));
     let _ = writeln!(h, "DimSize = {nx} {ny} {nz}");
-    let _ = writeln!(h, "ElementType = {element_type}");
+    if samples.channels != 1 {
+        let _ = writeln!(h, "ElementNumberOfChannels = {}", samples.channels);
+    }
+    let _ = writeln!(h, "ElementType = {}", samples.element_type);
     let _ = writeln!(h, "ElementDataFile = {}", data_file.unwrap_or("LOCAL"));
     h
 }
