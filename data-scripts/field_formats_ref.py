@@ -12,6 +12,8 @@ script has `warpbench field` write
   without any flip);
 - `--format nrrd` (LPS vectors, `kinds: vector domain domain domain`), read by SimpleITK's NRRD reader;
 - `--format itk --direction forward` (d(y) − y on the moving grid), read by SimpleITK;
+- `--format metaimage` (a MetaImage vector image, LPS vectors, as transformix writes its deformation field), read by
+  SimpleITK's MetaImage reader;
 
 and compares every reading, at the voxel centres of a sub-grid (every 26th voxel along each axis: 80 voxels), with
 warpbench's own maps at those points (`warpbench points --from fixed` for the pull-back u, `--from moving` for the
@@ -56,6 +58,7 @@ FLAVOURS = [
     ("ants", "field_ants.nii.gz", ["--format", "ants"]),
     ("nrrd", "field.nrrd", ["--format", "nrrd"]),
     ("itk_forward", "forward_itk.nii.gz", ["--format", "itk", "--direction", "forward"]),
+    ("metaimage", "field.mha", ["--format", "metaimage"]),
 ]
 
 

@@ -19,7 +19,9 @@
 //!
 //! `--format` picks the flavour ([`FieldFormat`], written by [`warpbench_io::displacement::write_field_with`]):
 //! `itk`, NIfTI-1 float32 intent `DISPVECT` with RAS vectors (ITK ≥ 5.3, Slicer); `ants`, NIfTI intent `VECTOR`
-//! with LPS vectors (`antsApplyTransforms`); `nrrd`, Slicer's NRRD field, which also records the direction.
+//! with LPS vectors (`antsApplyTransforms`); `nrrd`, Slicer's NRRD field, which also records the direction;
+//! `metaimage`, ITK's MetaImage vector image (`.mha`, `.mhd` + `.raw`), as elastix's transformix writes its
+//! `deformationField.mhd`.
 //!
 //! `--tfm` writes the pull-back itself as an ITK transform file ([`crate::project::stack::itk_transform_of`]: a thin-plate
 //! spline, a B-spline or an affine, each exact), which ITK applies in LPS, like our patient space.
@@ -71,12 +73,15 @@ moving points or meshes needs.
 
 --format itk (default): NIfTI intent DISPVECT (1006), vectors in RAS, as ITK ≥ 5.3 and Slicer read it;
 --format ants: NIfTI intent VECTOR (1007), vectors in LPS, what antsApplyTransforms reads; --format nrrd: a NRRD
-vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling).
+vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling);
+--format metaimage: a MetaImage vector image in LPS (.mha, or .mhd with a .raw beside it), what elastix's
+transformix writes as deformationField.mhd and every ITK reads.
 Examples:
 
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
-    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm";
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format metaimage --out deformationField.mhd";
 
 /// The arguments of `warpbench field`.
 #[derive(Debug, clap::Args)]
@@ -99,13 +104,15 @@ pub struct FieldArgs {
     /// .mat, ANTs' MATLAB file, for the linear methods).
     #[arg(long)]
     pub tfm: Option<PathBuf>,
-    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS)
+    /// or metaimage (elastix's and ITK's .mha/.mhd, LPS).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
     #[arg(long, value_enum, default_value = "pullback")]
     pub direction: DirectionArg,
-    /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd).
+    /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
+    /// metaimage).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -118,6 +125,7 @@ pub enum FormatArg {
     Itk,
     Ants,
     Nrrd,
+    Metaimage,
 }
 
 impl From<FormatArg> for FieldFormat {
@@ -126,6 +134,7 @@ impl From<FormatArg> for FieldFormat {
             FormatArg::Itk => Self::Itk,
             FormatArg::Ants => Self::Ants,
             FormatArg::Nrrd => Self::Nrrd,
+            FormatArg::Metaimage => Self::MetaImage,
         }
     }
 }
@@ -158,7 +167,7 @@ pub struct FieldSummary {
     pub lps_from_index: [[f64; 4]; 4],
     /// `"fixed"`, `"moving"` (`--direction forward`) or `"reference"`: whose grid the field is sampled on.
     pub grid: &'static str,
-    /// The flavour written: `itk`, `ants` or `nrrd`.
+    /// The flavour written: `itk`, `ants`, `nrrd` or `metaimage`.
     pub format: &'static str,
     /// `pullback` (D = u(x) − x) or `forward` (D = d(y) − y).
     pub direction: &'static str,
@@ -187,8 +196,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
     let output = OutputFile { path: out_path, force };
     let input_paths = inputs.paths();
-    output.check(&input_paths).map_err(Failure::BadInput)?;
-    displacement::check_output_name(&output.path, format)?;
+    check_field_output(&output, format, &input_paths)?;
     let method = inputs.method().map_err(Failure::BadInput)?;
     if let Some(tfm) = &tfm
         && direction == FieldDirection::Forward
@@ -390,6 +398,17 @@ pub fn sample_field(
         transform,
         warnings: fit::fit_warnings(method, &c),
     })
+}
+
+/// Refuses a field output before anything is computed: over an input or an existing file without `--force` (a
+/// `.mhd`'s `.raw` data file too), or under a name its flavour cannot take.
+pub fn check_field_output(output: &OutputFile, format: FieldFormat, inputs: &[&Path]) -> Result<(), Failure> {
+    output.check(inputs).map_err(Failure::BadInput)?;
+    if format == FieldFormat::MetaImage {
+        crate::warp::check_data_file(&output.path, inputs, output.force).map_err(Failure::BadInput)?;
+    }
+    displacement::check_output_name(&output.path, format)?;
+    Ok(())
 }
 
 /// Writes `field` as `warpbench field` does: the displacement field at `out` in `format` and, when `tfm` is given,

@@ -81,7 +81,7 @@ pub struct RegisterArgs {
     #[command(flatten)]
     pub pairs: RegisterPairArgs,
     /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
-    /// .nrrd for --format nrrd).
+    /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
@@ -94,7 +94,8 @@ pub struct RegisterArgs {
     /// closely it undoes u.
     #[arg(long, value_name = "FILE")]
     pub out_inverse_field: Option<PathBuf>,
-    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS) or nrrd (Slicer's NRRD, LPS).
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS)
+    /// or metaimage (elastix's and ITK's .mha/.mhd, LPS).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// The similarity measure: mi (Mattes mutual information: any two modalities; the default), ngf (normalised
@@ -532,14 +533,12 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     input_paths.extend(given.paths());
     input_paths.extend(fixed_mask.as_deref());
     input_paths.extend(moving_mask.as_deref());
-    OutputFile { path: out_field.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
-    displacement::check_output_name(&out_field, format)?;
+    crate::field::check_field_output(&OutputFile { path: out_field.clone(), force }, format, &input_paths)?;
     if let Some(path) = &out_inverse_field {
         if path == &out_field || out_volume.as_ref() == Some(path) {
             return Err(Failure::BadInput(anyhow!("{}: --out-inverse-field is another output too", path.display())));
         }
-        OutputFile { path: path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
-        displacement::check_output_name(path, format)?;
+        crate::field::check_field_output(&OutputFile { path: path.clone(), force }, format, &input_paths)?;
     }
     if let Some(path) = &out_volume {
         if path == &out_field {

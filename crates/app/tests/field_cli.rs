@@ -377,6 +377,27 @@ fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
     assert!(!dir.path().join("new.nii").exists());
     assert_ok(&warpbench(&["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--force", "--out", o]));
     assert!(read_displacement_field(&out).is_ok(), "--force replaced the file with a field");
+
+    // A MetaImage field's .mhd writes a .raw beside it: an existing one is left as it was without --force, and a
+    // NIfTI name is not a MetaImage one.
+    let (mhd, raw) = (dir.path().join("deformationField.mhd"), dir.path().join("deformationField.raw"));
+    std::fs::write(&raw, b"keep me three").expect("write");
+    let metaimage = ["field", "--fixed", f, "--moving", f, "--landmarks", l, "--format", "metaimage", "--quiet"];
+    let with = |more: &[&'static str], out: &Path| -> Vec<String> {
+        metaimage.iter().chain(more).map(|a| (*a).to_string()).chain(["--out".into(), utf8(out).into()]).collect()
+    };
+    let args = with(&[], &mhd);
+    expect_bad(&args.iter().map(String::as_str).collect::<Vec<_>>(), "deformationField.raw: exists; use --force");
+    assert!(!mhd.exists() && std::fs::read(&raw).expect("read") == b"keep me three");
+    let args = with(&[], &dir.path().join("field.nii.gz"));
+    expect_bad(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        "the metaimage field flavour is written to a .mha",
+    );
+    let args = with(&["--force"], &mhd);
+    assert_ok(&warpbench(&args.iter().map(String::as_str).collect::<Vec<_>>()));
+    assert!(std::fs::read(&raw).expect("read").len() == 12 * 91 * 109 * 91, "--force replaced the data file");
+    assert!(warpbench_io::displacement::read_field(&mhd).is_ok());
 }
 
 fn names(moving: &Path, csv: &Path, out: &Path) -> Names {

@@ -1,4 +1,4 @@
-//! `warpbench field --format itk|ants|nrrd --direction pullback|forward` end to end, each flavour read by a reader
+//! `warpbench field --format itk|ants|nrrd|metaimage --direction pullback|forward` end to end, each flavour read by a reader
 //! written here from its published layout (not warpbench_io's), and compared with what its own tool read:
 //!
 //! - `tests/data/itk/field_formats_reference.json` (made by `data-scripts/field_formats_ref.py`, provenance in that
@@ -7,7 +7,9 @@
 //! - here the files are written again and read by hand: the NIfTI-1 header (`dim`, `intent_code`, `datatype`,
 //!   `vox_offset`, `srow_*`) and its component planes, RAS (intent 1006, ITK's DISPVECT) or LPS (intent 1007, the 5-D
 //!   warp file ANTs documents); the NRRD header (`kinds`, `space`, `space directions`, `displacement field type`) and
-//!   its interleaved gzip samples. Every reading must equal the recorded one;
+//!   its interleaved gzip samples; the MetaImage header (`TransformMatrix`, `ElementSpacing`, `Offset`,
+//!   `ElementNumberOfChannels`) and its interleaved samples, zlib after the header (`.mha`) or raw beside it (`.mhd`).
+//!   Every reading must equal the recorded one;
 //! - each flavour, interpolated trilinearly here from the hand-read vectors, moves 12 off-grid points where ITK's
 //!   `DisplacementFieldTransform` (the class ANTs and Slicer apply fields with) moved them, to 1e-4 mm;
 //! - the forward field obeys its law: a moving point y goes to y + D(y), which `points --from fixed` brings back to y
@@ -112,6 +114,51 @@ fn read_nrrd(path: &Path) -> Nrrd {
     let body = gunzip(&bytes[end + 2..]);
     let samples = body.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
     Nrrd { samples, ..nrrd }
+}
+
+/// What the test reads from a MetaImage vector field: the header's `Key = Value` fields in order, and the samples
+/// (after the header in a `.mha`, zlib-compressed when it says so; else in the data file it names).
+struct MetaImage {
+    fields: Vec<(String, String)>,
+    samples: Vec<f32>,
+}
+
+impl MetaImage {
+    fn field(&self, key: &str) -> &str {
+        self.fields.iter().find(|(k, _)| k == key).map_or_else(|| panic!("no {key:?} in the header"), |(_, v)| v)
+    }
+
+    fn numbers(&self, key: &str) -> Vec<f64> {
+        self.field(key).split_whitespace().map(|t| t.parse().expect("a number")).collect()
+    }
+}
+
+fn read_metaimage(path: &Path) -> MetaImage {
+    let bytes = std::fs::read(path).expect("read");
+    let mut fields = Vec::new();
+    let mut at = 0;
+    while fields.last().is_none_or(|(k, _): &(String, String)| k != "ElementDataFile") {
+        let end = at + bytes[at..].iter().position(|&b| b == b'\n').expect("a header line");
+        let line = std::str::from_utf8(&bytes[at..end]).expect("text");
+        let (k, v) = line.split_once(" = ").expect("Key = Value");
+        fields.push((k.to_string(), v.to_string()));
+        at = end + 1;
+    }
+    let image = MetaImage { fields, samples: Vec::new() };
+    let data = match image.field("ElementDataFile") {
+        "LOCAL" => bytes[at..].to_vec(),
+        name => std::fs::read(path.with_file_name(name)).expect("the data file"),
+    };
+    let data = if image.field("CompressedData") == "True" {
+        assert_eq!(image.field("CompressedDataSize"), data.len().to_string());
+        let mut out = Vec::new();
+        flate2::read::ZlibDecoder::new(data.as_slice()).read_to_end(&mut out).expect("zlib");
+        out
+    } else {
+        data
+    };
+    let samples = data.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    MetaImage { samples, ..image }
 }
 
 /// `warpbench field` on the MRI fixture and the field pairs with `flags`, into `out`.
@@ -236,6 +283,46 @@ fn the_nrrd_flavour_read_by_hand_equals_simpleitk_and_states_its_direction() {
 }
 
 #[test]
+fn the_metaimage_flavour_read_by_hand_equals_simpleitk() {
+    let reference = reference();
+    let idx = indices(&reference);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let volume = warpbench_io::open(mri()).expect("the fixture");
+    let m = volume.lps_from_index.rows();
+    for (name, compressed, data_file) in [("field.mha", "True", "LOCAL"), ("field.mhd", "False", "field.raw")] {
+        let path = dir.path().join(name);
+        write(&path, &["--format", "metaimage"]);
+        let image = read_metaimage(&path);
+        for (key, want) in [
+            ("ObjectType", "Image"),
+            ("NDims", "3"),
+            ("BinaryData", "True"),
+            ("BinaryDataByteOrderMSB", "False"),
+            ("CompressedData", compressed),
+            ("DimSize", "91 109 91"),
+            ("ElementNumberOfChannels", "3"),
+            ("ElementType", "MET_FLOAT"),
+            ("ElementDataFile", data_file),
+        ] {
+            assert_eq!(image.field(key), want, "{name}: {key}");
+        }
+        // lps_from_index = [D · diag(spacing) | offset], D's columns in TransformMatrix one after another.
+        let (d, spacing, offset) =
+            (image.numbers("TransformMatrix"), image.numbers("ElementSpacing"), image.numbers("Offset"));
+        for r in 0..3 {
+            for c in 0..3 {
+                assert!((d[3 * c + r] * spacing[c] - m[r][c]).abs() < 1e-9, "{name}: column {c}");
+            }
+            assert!((offset[r] - m[r][3]).abs() < 1e-9, "{name}: offset");
+        }
+        assert_eq!(image.samples.len(), 3 * 91 * 109 * 91, "{name}: three interleaved components a voxel");
+        let lps: Vec<[f64; 3]> =
+            idx.iter().map(|&ijk| std::array::from_fn(|c| f64::from(image.samples[3 * voxel(ijk) + c]))).collect();
+        assert_close(&lps, &vectors(&flavour(&reference, "metaimage")["sitk_vectors_lps"]), name);
+    }
+}
+
+#[test]
 fn a_moving_point_moved_by_the_forward_field_comes_back_by_the_pullback() {
     let reference = reference();
     let idx = indices(&reference);
@@ -333,12 +420,17 @@ fn every_flavour_read_by_hand_moves_off_grid_points_as_itks_displacement_field_t
         ("ants", ["--format", "ants", "--direction", "pullback"]),
         ("nrrd", ["--format", "nrrd", "--direction", "pullback"]),
         ("itk_forward", ["--format", "itk", "--direction", "forward"]),
+        ("metaimage", ["--format", "metaimage", "--direction", "pullback"]),
     ] {
-        let extension = if name == "nrrd" { "nrrd" } else { "nii.gz" };
+        let extension = match name {
+            "nrrd" => "nrrd",
+            "metaimage" => "mha",
+            _ => "nii.gz",
+        };
         let path = dir.path().join(format!("{name}.{extension}"));
         write(&path, &flags);
-        let at: VectorAt = if name == "nrrd" {
-            let samples = read_nrrd(&path).samples;
+        let at: VectorAt = if name == "nrrd" || name == "metaimage" {
+            let samples = if name == "nrrd" { read_nrrd(&path).samples } else { read_metaimage(&path).samples };
             Box::new(move |ijk| std::array::from_fn(|c| f64::from(samples[3 * voxel(ijk) + c])))
         } else {
             let n = read_nifti(&path);

@@ -131,11 +131,16 @@ fn exact_field_warp_matches_simpleitk_in_every_flavour() {
         reference()["dims"].as_array().expect("dims").iter().map(|d| d.as_u64().expect("a size")).product();
     assert!(inside > 100 && total - inside > 100, "{inside} of {total} voxels inside the field");
 
-    // The same field as ANTs writes it (VECTOR, LPS) and as Slicer's NRRD (resampling), written by warpbench.
+    // The same field as ANTs writes it (VECTOR, LPS), as Slicer's NRRD (resampling) and as transformix's MetaImage
+    // (deformationField.mhd + .raw), written by warpbench.
     let (field, format) = read_field(&fixture("field.nii.gz")).expect("read the field");
     assert_eq!(format, FieldFormat::Itk);
     let itk_values = f32_samples(&itk_out).0;
-    for (format, name) in [(FieldFormat::Ants, "ants1Warp.nii.gz"), (FieldFormat::Nrrd, "field.nrrd")] {
+    for (format, name) in [
+        (FieldFormat::Ants, "ants1Warp.nii.gz"),
+        (FieldFormat::Nrrd, "field.nrrd"),
+        (FieldFormat::MetaImage, "deformationField.mhd"),
+    ] {
         let path = dir.path().join(name);
         write_field(&path, format, field.dims, &field.lps_from_index, &field.displacements_lps).expect("write");
         assert_eq!(read_field(&path).expect("read back").1, format, "{name} reads as its flavour");

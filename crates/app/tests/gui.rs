@@ -280,25 +280,35 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     let message = wait_for_export(&mut harness);
     assert!(message.starts_with("wrote ") && message.contains("5 pairs"), "{message}");
 
+    // A field's name picks its flavour: NIfTI is ITK's, .nrrd Slicer's (stating the direction), .mha MetaImage.
+    let mut export = |button: &str, out: &Path| {
+        harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = out.display().to_string();
+        harness.run_steps(2);
+        harness.get_by_label(button).scroll_to_me();
+        harness.run_steps(3);
+        harness.get_by_label(button).click();
+        harness.run_steps(1);
+        wait_for_export(&mut harness)
+    };
     let field_out = dir.path().join("field.nii.gz");
-    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = field_out.display().to_string();
+    let message = export("Export displacement field", &field_out);
+    assert!(message.contains("displacement field"), "{message}");
+    let metaimage_out = dir.path().join("field.mha");
+    let message = export("Export displacement field", &metaimage_out);
+    assert!(message.contains("displacement field"), "{message}");
+    let inverse_out = dir.path().join("inverse.nrrd");
+    let message = export("Export inverse field", &inverse_out);
+    assert!(message.contains("inverse (forward) displacement field"), "{message}");
+    let text = dir.path().join("field.txt");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = text.display().to_string();
     harness.run_steps(2);
     harness.get_by_label("Export displacement field").scroll_to_me();
     harness.run_steps(3);
     harness.get_by_label("Export displacement field").click();
-    harness.run_steps(1);
-    let message = wait_for_export(&mut harness);
-    assert!(message.contains("displacement field"), "{message}");
-
-    let inverse_out = dir.path().join("inverse.nii.gz");
-    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = inverse_out.display().to_string();
     harness.run_steps(2);
-    harness.get_by_label("Export inverse field").scroll_to_me();
-    harness.run_steps(3);
-    harness.get_by_label("Export inverse field").click();
-    harness.run_steps(1);
-    let message = wait_for_export(&mut harness);
-    assert!(message.contains("inverse (forward) displacement field"), "{message}");
+    let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
+    assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, .mhd)"), "{message}");
+    assert!(!text.exists());
 
     // The same files as `warpbench warp --exact` and `warpbench field` (and `field --direction forward`) write for
     // the same inputs, byte for byte.
@@ -316,9 +326,15 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     cli(&[&["field"], &common[..], &["--out", field_arg.as_str()]].concat());
     assert!(std::fs::read(&warped).expect("window's") == std::fs::read(&cli_warped).expect("CLI's"), "warped volume");
     assert!(std::fs::read(&field_out).expect("window's") == std::fs::read(&cli_field).expect("CLI's"), "field");
-    let cli_inverse = dir.path().join("cli_inverse.nii.gz").display().to_string();
-    cli(&[&["field"], &common[..], &["--direction", "forward", "--out", cli_inverse.as_str()]].concat());
+    let cli_metaimage = dir.path().join("cli_field.mha").display().to_string();
+    cli(&[&["field"], &common[..], &["--format", "metaimage", "--out", cli_metaimage.as_str()]].concat());
+    assert!(std::fs::read(&metaimage_out).expect("window's") == std::fs::read(&cli_metaimage).expect("CLI's"), "mha");
+    let cli_inverse = dir.path().join("cli_inverse.nrrd").display().to_string();
+    let forward = ["--direction", "forward", "--format", "nrrd", "--out", cli_inverse.as_str()];
+    cli(&[&["field"], &common[..], &forward[..]].concat());
     assert!(std::fs::read(&inverse_out).expect("window's") == std::fs::read(&cli_inverse).expect("CLI's"), "inverse");
+    let header = String::from_utf8_lossy(&std::fs::read(&inverse_out).expect("read")).into_owned();
+    assert!(header.contains("displacement field type:=modeling"), "the inverse says it is a forward map");
 }
 
 #[test]

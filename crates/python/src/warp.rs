@@ -248,7 +248,7 @@ impl Warp {
 
     /// The displacement field on `reference` (`(dims, lps_from_index)`): u(x) − x (`direction="pullback"`) or
     /// d(y) − y (`"forward"`) at every voxel centre, as a (ni, nj, nk, 3) float32 array of LPS vectors, written to
-    /// `path` in `format` (`itk`, `ants`, `nrrd`) when given, as `warpbench field` writes it.
+    /// `path` in `format` (`itk`, `ants`, `nrrd`, `metaimage`) when given, as `warpbench field` writes it.
     #[pyo3(signature = (reference, direction = "pullback", path = None, format = "itk"))]
     fn field(
         &self,
@@ -265,7 +265,7 @@ impl Warp {
                 .map_err(|_| PyValueError::new_err(format!("direction={direction:?}: give pullback or forward")))?;
         let format = <warpbench_app::field::FormatArg as clap::ValueEnum>::from_str(format, true)
             .map(FieldFormat::from)
-            .map_err(|_| PyValueError::new_err(format!("format={format:?}: give itk, ants or nrrd")))?;
+            .map_err(|_| PyValueError::new_err(format!("format={format:?}: give itk, ants, nrrd or metaimage")))?;
         let (dims, lps) = grid;
         let field = guarded(py, || match direction {
             FieldDirection::Pullback => self.sample(&self.pullback, dims, &lps, direction, path.as_deref(), format),

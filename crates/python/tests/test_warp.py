@@ -63,7 +63,9 @@ def test_the_pairs_are_honoured(warp, pairs):
     np.testing.assert_allclose(warp.forward(pairs.moving), pairs.fixed, atol=1e-6)
 
 
-@pytest.mark.parametrize("fmt,name", [("itk", "f.nii.gz"), ("ants", "f.nii.gz"), ("nrrd", "f.nrrd")])
+@pytest.mark.parametrize(
+    "fmt,name", [("itk", "f.nii.gz"), ("ants", "f.nii.gz"), ("nrrd", "f.nrrd"), ("metaimage", "f.mha")]
+)
 def test_field_writes_the_bytes_the_cli_writes(tmp_path, warp, head, fmt, name):
     (tmp_path / "cli").mkdir()
     run_cli("field", *PAIR_ARGS, "--format", fmt, "--out", tmp_path / "cli" / name, "--quiet")

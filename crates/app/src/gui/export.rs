@@ -12,9 +12,9 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, TryRecvError};
 
 use eframe::egui;
-use warpbench_io::displacement::FieldDirection;
+use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_io::{Progress, Volume, VolumeFileKind};
+use warpbench_io::{Progress, Volume};
 use warpbench_solver::method::Method;
 
 use super::open::{Watch, file_name};
@@ -66,8 +66,8 @@ impl ExportJob {
     /// Checks the output path and starts the export; a bad path is refused at once.
     ///
     /// # Errors
-    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`; a field `.nii`/`.nii.gz`
-    /// only), is one of the inputs, or the DICOM folder is not empty.
+    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`; a field's name picks its
+    /// flavour: [`field_format`]), is one of the inputs, or the DICOM folder is not empty.
     pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
         let dicom = match &kind {
             ExportKind::Warped { dicom } => dicom.as_deref(),
@@ -75,8 +75,8 @@ impl ExportJob {
         };
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
         let field = matches!(kind, ExportKind::Field | ExportKind::InverseField);
-        if field && VolumeFileKind::of(&out) != Some(VolumeFileKind::Nifti) {
-            return Err(format!("{}: a displacement field is exported as NIfTI (.nii or .nii.gz)", out.display()));
+        if field {
+            displacement::check_output_name(&out, field_format(&out)?).map_err(|e| e.to_string())?;
         }
         warp::check_outputs(&out, dicom)
             .and_then(|()| inputs::check_output(&out, &inputs, true))
@@ -181,7 +181,8 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 layers: &layers,
             };
             let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
-            field::write_field(&f, out, warpbench_io::displacement::FieldFormat::Itk, None)?;
+            let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
+            field::write_field(&f, out, format, None)?;
             Ok(format!(
                 "wrote {}: {} {what} of {} pairs, largest {:.1} mm{consistency}",
                 out.display(),
@@ -191,6 +192,21 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             ))
         }
     }
+}
+
+/// The flavour a field exported to `out` is written in, by its name: `.nii`, `.nii.gz` ITK's (NIfTI `DISPVECT`,
+/// what ITK, ANTs and Slicer read), `.nrrd` Slicer's (which also records the direction), `.mha`, `.mhd` MetaImage
+/// (elastix's and ITK's).
+///
+/// # Errors
+/// Any other name, in words for the status bar.
+pub fn field_format(out: &Path) -> Result<FieldFormat, String> {
+    FieldFormat::from_extension(out).ok_or_else(|| {
+        format!(
+            "{}: a displacement field is exported as NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, .mhd)",
+            out.display()
+        )
+    })
 }
 
 /// The export section of the side panel: the output fields and buttons, or the running export's progress bar and

@@ -194,7 +194,9 @@ impl Purpose {
                 d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
             }
             Self::ExportWarped => d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"]),
-            Self::ExportField => d.add_filter("NIfTI", &["nii", "gz"]),
+            Self::ExportField => {
+                d.add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
+            }
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
         }
     }

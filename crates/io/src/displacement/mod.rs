@@ -96,16 +96,6 @@ impl FieldFormat {
             Self::MetaImage => "a .mha name (or .mhd, with a .raw data file beside it)",
         }
     }
-
-    /// The flavour the name of `path` implies, `default` where it implies none or is NIfTI: what a window picks for
-    /// a name typed by a user who chose no flavour.
-    #[must_use]
-    pub fn for_name(path: &Path, default: Self) -> Self {
-        match Self::from_extension(path) {
-            Some(container @ (Self::Nrrd | Self::MetaImage)) => container,
-            _ => default,
-        }
-    }
 }
 
 impl std::fmt::Display for FieldFormat {
