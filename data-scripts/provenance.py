@@ -193,25 +193,36 @@ SIMPLEITK_FILES = [
     ("itk/ants_mat_reference.json", "ants_mat_sitk.py"),
 ]
 
-# Fixtures written by elastix's transformix (itk-elastix) from a transform our script makes up.
+# Fixtures written by elastix and transformix (itk-elastix) from data and transforms our scripts make up.
 ELASTIX_MADE = """
-## `metaimage/transformix_field*`: written by elastix's transformix from a synthetic transform
+## `metaimage/transformix_field*` and `elastix/`: written by elastix and transformix from synthetic data
 
-Not downloaded: `data-scripts/elastix_field.py` builds a cubic B-spline transform parameter map from seeded random
-coefficients and has transformix (PyPI wheel `itk-elastix==0.25.4`, ITK 5.4.7, in `data-cache/elastix-venv`) write
-its deformation field (what `transformix -def all` writes as `deformationField.mhd`, through ITK's MetaImage writer:
-`.mhd` + `.raw`, and the same field as a compressed `.mha`) and transform the field's voxel centres as points
-(`outputpoints.txt`), recorded in `transformix_field_reference.json`. The values are the script's, so the files carry
-the licence of the code (MIT OR Apache-2.0). Deterministic: a rerun writes the same bytes.
+Not downloaded: made by elastix 5 through the PyPI wheel `itk-elastix==0.25.4` (ITK 5.4.7, in
+`data-cache/elastix-venv`) from values our scripts make up, so they carry the licence of the code (MIT OR
+Apache-2.0). `data-scripts/elastix_field.py` builds a cubic B-spline transform parameter map from seeded random
+coefficients and has transformix write its deformation field (what `transformix -def all` writes as
+`deformationField.mhd`, through ITK's MetaImage writer: `.mhd` + `.raw`, and the same field as a compressed `.mha`)
+and transform the field's voxel centres as points (`outputpoints.txt`), recorded in
+`transformix_field_reference.json`. `data-scripts/elastix_transforms.py` has elastix register two synthetic volumes
+and write its transform parameter files (`elastix/rigid.txt`, `affine.txt` chained over it, `similarity.txt`,
+`translation.txt`; `rigid_zyx.txt` is `rigid.txt` with `ComputeZYX "true"`), and records in
+`elastix/transformix_reference.json` where transformix maps points through them and through the files `warpbench
+transform --format elastix` writes. Both scripts are deterministic: a rerun writes the same bytes.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
 """
 ELASTIX_FILES = [
-    "metaimage/transformix_field.mha",
-    "metaimage/transformix_field.mhd",
-    "metaimage/transformix_field.raw",
-    "metaimage/transformix_field_reference.json",
+    ("metaimage/transformix_field.mha", "elastix_field.py"),
+    ("metaimage/transformix_field.mhd", "elastix_field.py"),
+    ("metaimage/transformix_field.raw", "elastix_field.py"),
+    ("metaimage/transformix_field_reference.json", "elastix_field.py"),
+    ("elastix/affine.txt", "elastix_transforms.py"),
+    ("elastix/rigid.txt", "elastix_transforms.py"),
+    ("elastix/rigid_zyx.txt", "elastix_transforms.py"),
+    ("elastix/similarity.txt", "elastix_transforms.py"),
+    ("elastix/translation.txt", "elastix_transforms.py"),
+    ("elastix/transformix_reference.json", "elastix_transforms.py"),
 ]
 
 
@@ -258,7 +269,7 @@ def main() -> int:
     out.append(CRANIUM)
     out.append(LANDMARKS_UPSTREAM)
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
-    out.append(script_made(data, ELASTIX_MADE, [(rel, "elastix_field.py") for rel in ELASTIX_FILES]))
+    out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     text = "".join(out)
     tmp = data / "PROVENANCE.md.tmp"
     tmp.write_text(text)

@@ -17,6 +17,7 @@
 use std::path::Path;
 
 use anyhow::{Context, anyhow};
+use warpbench_io::elastix;
 use warpbench_io::geometry::Point3;
 use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_solver::linear::AffineWarp;
@@ -50,12 +51,17 @@ impl Start {
     }
 
     /// Reads an ITK affine transform file (`AffineTransform_double_3_3`, as `warpbench align` and `transform` write
-    /// it; a `.tfm`, or ANTs' MATLAB `.mat`): fixed points to moving points, LPS mm.
+    /// it; a `.tfm`, or ANTs' MATLAB `.mat`), or an elastix transform parameter file holding a linear transform (and
+    /// its chain of initial transforms, [`warpbench_io::elastix::read_affine`]): fixed points to moving points, LPS mm.
     ///
     /// # Errors
     /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let name = path.display().to_string();
+        if is_elastix(path) {
+            let affine = elastix::read_affine(path).with_context(|| format!("--initial {name}"))?;
+            return Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name);
+        }
         let transform = itk_tfm::read(path).with_context(|| format!("--initial {name}"))?;
         let ItkTransform::Affine(affine) = transform else {
             return Err(anyhow!(
@@ -78,6 +84,16 @@ impl Start {
     pub fn fixed_from_moving(&self) -> &AffineWarp<Fixed, Moving> {
         &self.fixed_from_moving
     }
+}
+
+/// Whether the file at `path` reads as an elastix transform parameter file (its first 4 KiB; a file that cannot be
+/// read is left to the ITK reader, which says why).
+fn is_elastix(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::metadata(path).is_ok_and(|m| m.is_file())
+        && std::fs::File::open(path).and_then(|f| f.take(4096).read_to_end(&mut head)).is_ok()
+        && elastix::looks_like_parameter_file(&head)
 }
 
 /// The starting transform a subcommand was given: a session's (already read with it), else `--initial`'s file, read.

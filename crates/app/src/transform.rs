@@ -32,6 +32,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use serde::Serialize;
+use warpbench_io::elastix::{self, ElastixGrid};
 use warpbench_io::itk_tfm;
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
@@ -71,11 +72,36 @@ pub struct TransformArgs {
     pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
-    /// The ITK transform file to write (.tfm or .txt; .mat, ANTs' MATLAB file, for the linear methods).
+    /// The ITK transform file to write (.tfm or .txt; .mat, ANTs' MATLAB file, for the linear methods), or with
+    /// --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
+    /// itk (default): an ITK transform file (or ANTs' .mat by its name); elastix: an elastix transform parameter
+    /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform).
+    #[arg(long, value_enum, default_value = "itk")]
+    pub format: TransformFormat,
     #[command(flatten)]
     pub report: ReportArgs,
+}
+
+/// `--format`: whose transform file `transform` writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TransformFormat {
+    /// ITK's `.tfm` (ANTs' `.mat` for a name ending so).
+    Itk,
+    /// elastix's transform parameter file.
+    Elastix,
+}
+
+impl TransformFormat {
+    /// `itk` or `elastix`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Itk => "itk",
+            Self::Elastix => "elastix",
+        }
+    }
 }
 
 /// What was written: the `--json` document, schema `warpbench-transform/1` (docs/cli.md).
@@ -83,8 +109,13 @@ pub struct TransformArgs {
 pub struct TransformSummary {
     pub schema: &'static str,
     pub out: String,
-    /// The ITK class on the file's `Transform:` line.
+    /// The ITK class that holds the transform (on a `.tfm`'s `Transform:` line).
     pub itk_class: &'static str,
+    /// `itk` or `elastix`: whose file was written.
+    pub format: &'static str,
+    /// With `--format elastix`, the file's `(Transform …)`: `SplineKernelTransform`, `BSplineTransform` or
+    /// `AffineTransform`; else null.
+    pub elastix_transform: Option<&'static str>,
     /// The method as fitted, e.g. `tps`, `tps(λ=0.5)`, `hbspline(4 levels)`, `affine`.
     pub method: String,
     /// Landmark pairs used (active, with both points).
@@ -100,9 +131,15 @@ pub struct TransformSummary {
 /// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
 /// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
-    let TransformArgs { volumes, pairs, out: out_path, report: ReportArgs { json, force, quiet } } = args;
+    let TransformArgs { volumes, pairs, out: out_path, format, report: ReportArgs { json, force, quiet } } = args;
     let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
     OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
+    if format == TransformFormat::Elastix && out_path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")) {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: an elastix transform parameter file is text, not a .mat; name it e.g. TransformParameters.0.txt",
+            out_path.display()
+        )));
+    }
     if !inputs.warp.brush.is_empty() {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench field --session`",
@@ -131,7 +168,17 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed), layers)
         .map_err(Failure::BadInput)?;
     let transform = moving_from_fixed.itk_transform().map_err(Failure::BadInput)?;
-    itk_tfm::write(&out_path, &transform)?;
+    let elastix_transform = match format {
+        TransformFormat::Itk => {
+            itk_tfm::write(&out_path, &transform)?;
+            None
+        }
+        TransformFormat::Elastix => {
+            let grid = ElastixGrid { dims: volumes.fixed.dims, lps_from_index: volumes.fixed.lps_from_index };
+            elastix::write(&out_path, &transform, &grid)?;
+            Some(elastix::transform_name(&transform))
+        }
+    };
 
     let domain_lps = match moving_from_fixed.as_fitted() {
         Some(FittedWarp::BSpline(spline)) => Some([spline.lattice().min_mm(), spline.lattice().max_mm()]),
@@ -141,6 +188,8 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         schema: SCHEMA,
         out: out_path.display().to_string(),
         itk_class: transform.type_name(),
+        format: format.name(),
+        elastix_transform,
         method: crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()),
         pairs: c.moving.len(),
         map: "moving_from_fixed",
@@ -152,7 +201,10 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     } else if !quiet {
         eprintln!(
             "wrote {} ({}, {}, {} landmark pairs; maps fixed points to moving points, LPS mm)",
-            summary.out, summary.itk_class, summary.method, summary.pairs
+            summary.out,
+            summary.elastix_transform.unwrap_or(summary.itk_class),
+            summary.method,
+            summary.pairs
         );
     }
     Ok(summary)

@@ -10,6 +10,10 @@
 //! - the file written now says the same: evaluated by ITK's rules (the affine's matrix and offset, the B-spline's
 //!   `TransformPoint` rule, an interpolating U = r spline through the TPS file's landmarks) it gives ITK's outputs;
 //! - and the refusals exit 2, name the file and write nothing.
+//!
+//! elastix: `tests/data/elastix/transformix_reference.json` (made by `data-scripts/elastix_transforms.py` with
+//! itk-elastix 0.25.4) holds where transformix maps points through the files `transform --format elastix` writes,
+//! and through linear files elastix itself wrote, which `--initial` reads.
 
 mod common;
 
@@ -516,4 +520,131 @@ fn the_ants_mat_is_the_tfms_affine_in_and_out() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(stderr.contains("tps.mat") && stderr.contains("holds an affine transform only"), "{stderr}");
     assert!(!tps_mat.exists());
+}
+
+fn elastix_reference() -> Value {
+    let text = std::fs::read_to_string(data("elastix/transformix_reference.json")).expect("read the reference");
+    serde_json::from_str(&text).expect("the reference is JSON")
+}
+
+/// `points --from fixed` on the MRI with `flags` (the landmark flags included) at `at`: warpbench's pull-back.
+fn pullback_at(dir: &Path, flags: &[&str], at: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let (input, output) = (dir.join("in.csv"), dir.join("out.csv"));
+    let lines: Vec<String> = at.iter().map(|p| format!("{:?},{:?},{:?}", p[0], p[1], p[2])).collect();
+    std::fs::write(&input, lines.join("\n") + "\n").expect("write");
+    let m = mri();
+    let mut args = vec!["points", "--fixed", utf8(&m), "--moving", utf8(&m), "--from", "fixed", "--quiet", "--force"];
+    args.extend_from_slice(flags);
+    args.extend(["--in", utf8(&input), "--out", utf8(&output)]);
+    assert_ok(&warpbench(&args));
+    let text = std::fs::read_to_string(&output).expect("read");
+    text.lines()
+        .map(|l| std::array::from_fn(|k| l.split(',').nth(k).expect("x,y,z").parse().expect("a number")))
+        .collect()
+}
+
+/// `transform --format elastix` writes, for each method, the very file `data-scripts/elastix_transforms.py` gave
+/// transformix (itk-elastix 0.25.4; same sha256), and warpbench's pull-back maps the recorded points where transformix
+/// mapped them through it: a SplineKernelTransform (interpolating, and λ = 5 through u's values at the centres), a
+/// cubic BSplineTransform on the hierarchy's finest lattice, an AffineTransform. transformix prints 6 decimals, so
+/// the bound is 1e-5 mm (the script measured 5e-7); the points move up to 6.7 mm.
+#[test]
+fn transformix_maps_points_through_our_elastix_file_as_warpbench_does() {
+    use sha2::Digest;
+    let r = elastix_reference();
+    let at = points_of(&r["warpbench_points_lps"]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (m, l) = (mri(), data("itk/field_pairs.csv"));
+    for case in r["warpbench_files"].as_array().expect("cases") {
+        let name = case["name"].as_str().expect("name");
+        let flags = strings(&case["flags"]);
+        let path = dir.path().join(format!("{name}.txt"));
+        let mut args = vec!["transform", "--fixed", utf8(&m), "--moving", utf8(&m), "--landmarks", utf8(&l)];
+        args.extend(flags.iter().map(String::as_str));
+        args.extend(["--format", "elastix", "--quiet", "--json", "--out", utf8(&path)]);
+        let run = warpbench(&args);
+        assert_ok(&run);
+        let summary: Value = serde_json::from_slice(&run.stdout).expect("JSON");
+        assert_eq!(summary["format"], "elastix");
+        let text = std::fs::read_to_string(&path).expect("read");
+        let class = summary["elastix_transform"].as_str().expect("a class");
+        assert!(text.lines().any(|line| line == format!("(Transform \"{class}\")")), "{name}: {class}");
+        let sha = format!("{:x}", sha2::Sha256::digest(text.as_bytes()));
+        assert_eq!(sha, case["sha256"].as_str().expect("sha256"), "{name}: the file transformix read");
+        let mut landmark_flags = vec!["--landmarks", utf8(&l)];
+        landmark_flags.extend(flags.iter().map(String::as_str));
+        let ours = pullback_at(dir.path(), &landmark_flags, &at);
+        for (n, (got, want)) in ours.iter().zip(points_of(&case["transformix_lps"])).enumerate() {
+            assert!(dist(*got, want) < 1e-5, "{name}: point {}: warpbench {got:?}, transformix {want:?}", n + 1);
+        }
+    }
+}
+
+/// `--initial` takes elastix's own linear files, a chain of them included (an affine over a rigid, as `elastix -p
+/// rigid -p affine` writes it): with too few pairs to refine it, the pull-back is the file's transform, which maps
+/// the recorded points where transformix did. A deformable elastix file, and `--format elastix` to a `.mat`, exit 2.
+#[test]
+fn initial_reads_elastix_linear_files_and_their_chain() {
+    let r = elastix_reference();
+    let at = points_of(&r["elastix_points_lps"]);
+    let dir = tempfile::tempdir().expect("tempdir");
+    let three = dir.path().join("three.csv");
+    let pairs = std::fs::read_to_string(data("itk/field_pairs.csv")).expect("pairs");
+    std::fs::write(&three, pairs.lines().take(3).collect::<Vec<_>>().join("\n") + "\n").expect("write");
+    for f in r["elastix_files"].as_array().expect("files") {
+        let file = data(&format!("elastix/{}", f["file"].as_str().expect("file")));
+        let ours = pullback_at(dir.path(), &["--landmarks", utf8(&three), "--initial", utf8(&file)], &at);
+        for (n, (got, want)) in ours.iter().zip(points_of(&f["transformix_lps"])).enumerate() {
+            assert!(dist(*got, want) < 1e-5, "{}: point {}: {got:?} vs {want:?}", file.display(), n + 1);
+        }
+    }
+    let m = mri();
+    let bspline = dir.path().join("bspline.txt");
+    let made = ["transform", "--fixed", utf8(&m), "--moving", utf8(&m), "--landmarks"];
+    let field_pairs = data("itk/field_pairs.csv");
+    let mut args = made.to_vec();
+    args.extend([
+        utf8(&field_pairs),
+        "--method",
+        "hbspline",
+        "--format",
+        "elastix",
+        "--quiet",
+        "--out",
+        utf8(&bspline),
+    ]);
+    assert_ok(&warpbench(&args));
+    let (input, output) = (dir.path().join("p.csv"), dir.path().join("o.csv"));
+    std::fs::write(&input, "1,2,3\n").expect("write");
+    let run = warpbench(&[
+        "points",
+        "--fixed",
+        utf8(&m),
+        "--moving",
+        utf8(&m),
+        "--landmarks",
+        utf8(&three),
+        "--initial",
+        utf8(&bspline),
+        "--from",
+        "fixed",
+        "--in",
+        utf8(&input),
+        "--out",
+        utf8(&output),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("bspline.txt") && stderr.contains("BSplineTransform is not a linear transform"),
+        "{stderr}"
+    );
+    assert!(!output.exists());
+    let mat = dir.path().join("t.mat");
+    let mut args = made.to_vec();
+    args.extend([utf8(&field_pairs), "--method", "affine", "--format", "elastix", "--quiet", "--out", utf8(&mat)]);
+    let run = warpbench(&args);
+    assert_eq!(run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("not a .mat"));
+    assert!(!mat.exists());
 }

@@ -21,6 +21,7 @@ pub mod dicom;
 pub mod dicom_source;
 pub mod dicom_write;
 pub mod displacement;
+pub mod elastix;
 pub mod error;
 mod files;
 pub mod geometry;

@@ -70,6 +70,7 @@ use std::path::Path;
 
 pub use field::{read_displacement_field, read_displacement_field_bytes, write_displacement_field};
 pub use header::{MAX_HEADER_BYTES, looks_like_metaimage};
+pub(crate) use write::direction_spacing;
 pub use write::{MetaImageWriteOptions, detached_data_file, write, write_with};
 
 use crate::error::{Error, ErrorKind, Result};

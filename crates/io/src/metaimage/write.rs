@@ -137,7 +137,7 @@ fn exact_quotient(x: f64, s: f64) -> f64 {
 }
 
 /// The direction (columns of unit length) and spacing of `lps_from_index`'s linear part.
-fn direction_spacing(lps_from_index: &Transform<Lps, Index>) -> ([[f64; 3]; 3], [f64; 3]) {
+pub(crate) fn direction_spacing(lps_from_index: &Transform<Lps, Index>) -> ([[f64; 3]; 3], [f64; 3]) {
     let l = lps_from_index.linear();
     let spacing: [f64; 3] = std::array::from_fn(|c| l.column(c).norm());
     let columns = std::array::from_fn(|c| std::array::from_fn(|r| exact_quotient(l[(r, c)], spacing[c])));
