@@ -59,9 +59,9 @@ pub struct PairArgs {
     pub fixed_points: Option<PathBuf>,
     #[command(flatten)]
     pub method: MethodArgs,
-    /// A starting transform under the landmark warp: an ITK affine .tfm, or the same affine as ANTs' .mat (e.g.
-    /// antsRegistration's 0GenericAffine.mat), mapping fixed points to moving points (LPS mm), as `warpbench align`
-    /// writes it. The landmark warp refines it; with fewer pairs than the method needs, it alone is the warp.
+    /// A starting transform under the landmark warp: an ITK affine .tfm, the same affine as ANTs' .mat (e.g.
+    /// antsRegistration's 0GenericAffine.mat), or elastix's linear TransformParameters.N.txt, mapping fixed points to
+    /// moving points (LPS mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it alone is the warp.
     #[arg(long, value_name = "TFM", conflicts_with = "session")]
     pub initial: Option<PathBuf>,
 }

@@ -166,8 +166,8 @@ pub struct RegisterPairArgs {
     /// (generalised maximum likelihood).
     #[arg(long, default_value_t)]
     pub stiffness: Stiffness,
-    /// A starting transform under the landmark warp: an ITK affine .tfm mapping fixed points to moving points (LPS
-    /// mm), as `warpbench align` writes it.
+    /// A starting transform under the landmark warp: an ITK affine .tfm (or ANTs' .mat, or elastix's linear
+    /// TransformParameters.N.txt) mapping fixed points to moving points (LPS mm), as `warpbench align` writes it.
     #[arg(long, value_name = "TFM")]
     pub initial: Option<PathBuf>,
 }

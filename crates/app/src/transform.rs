@@ -27,6 +27,10 @@
 //!   holds the displacement at the box's edge (it clamps): the two differ only outside the fixed volume, where
 //!   `warp` and `field` never sample.
 //! - **Affine, similarity, rigid** → `AffineTransform_double_3_3` (centre 0, translation = offset).
+//!
+//! `--format elastix` writes the same [`warpbench_io::itk_tfm::ItkTransform`] as an elastix transform parameter file
+//! ([`warpbench_io::elastix::write`]): `SplineKernelTransform`, `BSplineTransform` or `AffineTransform` over the fixed
+//! volume's grid.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -58,7 +62,11 @@ The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): wha
 antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
 and B-spline files; Slicer reads all three (Data > Add data, then apply the transform to the moving volume).
 
-    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm";
+--format elastix writes the same transform as an elastix transform parameter file instead, which transformix
+applies: SplineKernelTransform (ThinPlateSpline), BSplineTransform or AffineTransform.
+
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt";
 
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
