@@ -33,16 +33,18 @@
 //! volume's grid.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use serde::Serialize;
+use warpbench_io::Volume;
 use warpbench_io::elastix::{self, ElastixGrid};
-use warpbench_io::itk_tfm;
+use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
 use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
+use crate::field::FieldInputs;
 use crate::fit;
 use crate::inputs::{self, OutputFile, PairInputs};
 use crate::project::stack::Layers;
@@ -136,18 +138,94 @@ pub struct TransformSummary {
     pub warnings: Vec<String>,
 }
 
+/// The pull-back as the exact transform that holds it, with what the reports say of it.
+#[derive(Clone, Debug)]
+pub struct ExactTransform {
+    pub transform: ItkTransform,
+    /// The warp's name in reports (e.g. `tps on start.tfm`).
+    pub method: String,
+    /// Landmark pairs used.
+    pub pairs: usize,
+    /// What the fit found suspicious in the pairs.
+    pub warnings: Vec<String>,
+    /// For a B-spline, the box (LPS mm, min then max) outside which ITK and elastix apply the identity.
+    pub domain_lps: Option<[[f64; 3]; 2]>,
+}
+
+/// The core under `warpbench transform` and the window's transform export: checks the pairs, fits the pull-back over
+/// the fixed box on the stack of `inputs.layers`, and returns the transform that holds it exactly.
+///
+/// # Errors
+/// Bad pairs, a failed fit, or a stack no transform file holds (a field or a brush layer: the message says to write
+/// a displacement field instead).
+pub fn exact_transform(inputs: &FieldInputs) -> Result<ExactTransform, Failure> {
+    let FieldInputs { fixed, moving, pairs, names, method, layers } = *inputs;
+    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, layers.min_pairs(method))
+        .map_err(Failure::BadInput)?;
+    let warnings = fit::fit_warnings(method, &c);
+    let moving_from_fixed = fit::pullback_stack(method, &c, inputs::volume_box::<Fixed>(fixed), layers.clone())
+        .map_err(Failure::BadInput)?;
+    let transform = moving_from_fixed.itk_transform().map_err(Failure::BadInput)?;
+    let domain_lps = match moving_from_fixed.as_fitted() {
+        Some(FittedWarp::BSpline(spline)) => Some([spline.lattice().min_mm(), spline.lattice().max_mm()]),
+        _ => None,
+    };
+    Ok(ExactTransform {
+        transform,
+        method: layers.describe(method, c.moving.len()),
+        pairs: c.moving.len(),
+        warnings,
+        domain_lps,
+    })
+}
+
+/// Refuses a name `format` cannot be written to, before anything is computed: an elastix parameter file named `.mat`
+/// (ANTs' binary affine).
+///
+/// # Errors
+/// That name, in words.
+pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), Failure> {
+    if format == TransformFormat::Elastix && path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")) {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: an elastix transform parameter file is text, not a .mat; name it e.g. TransformParameters.0.txt",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Writes `transform` to `path` in `format`, atomically: an ITK `.tfm` (ANTs' `.mat` for a name ending so), or an
+/// elastix parameter file over `fixed`'s grid. Returns the elastix class written, if any.
+///
+/// # Errors
+/// What the writers refuse (a TPS or B-spline to `.mat`, a name that does not fit, numbers that are not finite).
+pub fn write_transform(
+    path: &Path,
+    transform: &ItkTransform,
+    format: TransformFormat,
+    fixed: &Volume,
+) -> Result<Option<&'static str>, Failure> {
+    check_transform_name(path, format)?;
+    Ok(match format {
+        TransformFormat::Itk => {
+            itk_tfm::write(path, transform)?;
+            None
+        }
+        TransformFormat::Elastix => {
+            let grid = ElastixGrid { dims: fixed.dims, lps_from_index: fixed.lps_from_index };
+            elastix::write(path, transform, &grid)?;
+            Some(elastix::transform_name(transform))
+        }
+    })
+}
+
 /// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
 /// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
     let TransformArgs { volumes, pairs, out: out_path, format, report: ReportArgs { json, force, quiet } } = args;
     let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
     OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
-    if format == TransformFormat::Elastix && out_path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")) {
-        return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: an elastix transform parameter file is text, not a .mat; name it e.g. TransformParameters.0.txt",
-            out_path.display()
-        )));
-    }
+    check_transform_name(&out_path, format)?;
     if !inputs.warp.brush.is_empty() {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench field --session`",
@@ -155,54 +233,37 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         )));
     }
     let method = inputs.method().map_err(Failure::BadInput)?;
-    let start = inputs.start().map_err(Failure::BadInput)?;
+    let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, None);
+    layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
-    let c = inputs::check_pairs(
-        &inputs.landmarks.describe(),
-        inputs.pairs().map_err(Failure::BadInput)?,
-        &volumes.moving,
-        &volumes.fixed,
-        inputs.warp.min_pairs(&method),
-    )
-    .map_err(Failure::BadInput)?;
-    let warnings = fit::fit_warnings(&method, &c);
+    let pairs = inputs.pairs().map_err(Failure::BadInput)?;
+    let names = inputs.names(&out_path);
+    let made_of = FieldInputs {
+        fixed: &volumes.fixed,
+        moving: &volumes.moving,
+        pairs,
+        names: &names,
+        method: &method,
+        layers: &layers,
+    };
+    let exact = exact_transform(&made_of)?;
     if !quiet {
-        for w in &warnings {
+        for w in &exact.warnings {
             eprintln!("warpbench: warning: {w}");
         }
     }
-    let mut layers = Layers::new(start.clone(), None);
-    layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
-    let moving_from_fixed = fit::pullback_stack(&method, &c, inputs::volume_box::<Fixed>(&volumes.fixed), layers)
-        .map_err(Failure::BadInput)?;
-    let transform = moving_from_fixed.itk_transform().map_err(Failure::BadInput)?;
-    let elastix_transform = match format {
-        TransformFormat::Itk => {
-            itk_tfm::write(&out_path, &transform)?;
-            None
-        }
-        TransformFormat::Elastix => {
-            let grid = ElastixGrid { dims: volumes.fixed.dims, lps_from_index: volumes.fixed.lps_from_index };
-            elastix::write(&out_path, &transform, &grid)?;
-            Some(elastix::transform_name(&transform))
-        }
-    };
-
-    let domain_lps = match moving_from_fixed.as_fitted() {
-        Some(FittedWarp::BSpline(spline)) => Some([spline.lattice().min_mm(), spline.lattice().max_mm()]),
-        _ => None,
-    };
+    let elastix_transform = write_transform(&out_path, &exact.transform, format, &volumes.fixed)?;
     let summary = TransformSummary {
         schema: SCHEMA,
         out: out_path.display().to_string(),
-        itk_class: transform.type_name(),
+        itk_class: exact.transform.type_name(),
         format: format.name(),
         elastix_transform,
-        method: crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()),
-        pairs: c.moving.len(),
+        method: exact.method,
+        pairs: exact.pairs,
         map: "moving_from_fixed",
-        domain_lps,
-        warnings,
+        domain_lps: exact.domain_lps,
+        warnings: exact.warnings,
     };
     if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;

@@ -251,7 +251,7 @@ fn wait_for_export(harness: &mut Harness<'_, Workbench>) -> String {
 }
 
 #[test]
-fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
+fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_does() {
     if no_adapter() {
         return;
     }
@@ -299,6 +299,12 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     let inverse_out = dir.path().join("inverse.nrrd");
     let message = export("Export inverse field", &inverse_out);
     assert!(message.contains("inverse (forward) displacement field"), "{message}");
+    let tfm_out = dir.path().join("moving_from_fixed.tfm");
+    let message = export("Export transform", &tfm_out);
+    assert!(message.contains("ThinPlateSplineKernelTransform_double_3_3 (5 pairs"), "{message}");
+    let elastix_out = dir.path().join("TransformParameters.0.txt");
+    let message = export("Export for elastix", &elastix_out);
+    assert!(message.contains("SplineKernelTransform (5 pairs"), "{message}");
     let text = dir.path().join("field.txt");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = text.display().to_string();
     harness.run_steps(2);
@@ -309,6 +315,14 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
     assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, .mhd)"), "{message}");
     assert!(!text.exists());
+    let tfm_for_elastix = dir.path().join("elastix.tfm");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = tfm_for_elastix.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("Export for elastix").click();
+    harness.run_steps(2);
+    let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
+    assert!(message.contains("an elastix transform parameter file is a .txt"), "{message}");
+    assert!(!tfm_for_elastix.exists());
 
     // The same files as `warpbench warp --exact` and `warpbench field` (and `field --direction forward`) write for
     // the same inputs, byte for byte.
@@ -333,6 +347,12 @@ fn exports_the_warped_volume_and_the_field_as_the_command_line_does() {
     let forward = ["--direction", "forward", "--format", "nrrd", "--out", cli_inverse.as_str()];
     cli(&[&["field"], &common[..], &forward[..]].concat());
     assert!(std::fs::read(&inverse_out).expect("window's") == std::fs::read(&cli_inverse).expect("CLI's"), "inverse");
+    let cli_tfm = dir.path().join("cli.tfm").display().to_string();
+    cli(&[&["transform"], &common[..], &["--out", cli_tfm.as_str()]].concat());
+    assert!(std::fs::read(&tfm_out).expect("window's") == std::fs::read(&cli_tfm).expect("CLI's"), "transform");
+    let cli_elastix = dir.path().join("cli_elastix.txt").display().to_string();
+    cli(&[&["transform"], &common[..], &["--format", "elastix", "--out", cli_elastix.as_str()]].concat());
+    assert!(std::fs::read(&elastix_out).expect("window's") == std::fs::read(&cli_elastix).expect("CLI's"), "elastix");
     let header = String::from_utf8_lossy(&std::fs::read(&inverse_out).expect("read")).into_owned();
     assert!(header.contains("displacement field type:=modeling"), "the inverse says it is a forward map");
 }

@@ -1,7 +1,8 @@
-//! Exporting from the window: the warped moving volume (NIfTI, and optionally a DICOM series) and the displacement
-//! field, on a worker thread with a progress bar and a cancel button, through the same code as `warpbench warp`
-//! ([`crate::warp::resample`], [`crate::warp::write_outputs`]) and `warpbench field`
-//! ([`crate::field::displacement_field`], [`crate::field::write_field`]).
+//! Exporting from the window: the warped moving volume (NIfTI, and optionally a DICOM series), the displacement
+//! field and the exact transform, on a worker thread with a progress bar and a cancel button, through the same code
+//! as `warpbench warp` ([`crate::warp::resample`], [`crate::warp::write_outputs`]), `warpbench field`
+//! ([`crate::field::displacement_field`], [`crate::field::write_field`]) and `warpbench transform`
+//! ([`crate::transform::exact_transform`], [`crate::transform::write_transform`]).
 //!
 //! The warped volume is resampled on the fixed grid with the window's method: exactly per voxel for TPS and the
 //! linear warps, through a 64³ control texture for the hierarchical B-spline (as the CLI's defaults do), trilinear,
@@ -21,6 +22,7 @@ use super::open::{Watch, file_name};
 use crate::exit::Failure;
 use crate::field;
 use crate::inputs::{self, Names};
+use crate::transform::{self, TransformFormat};
 use crate::warp::{self, Backend, PullBackMode, WarpSettings};
 
 /// What to export.
@@ -34,6 +36,9 @@ pub enum ExportKind {
     /// The inverse, the forward map as a displacement field on the moving grid (NIfTI), as `warpbench field
     /// --direction forward` writes it: what moving points and meshes need.
     InverseField,
+    /// The pull-back as the exact transform file of `format`, as `warpbench transform` writes it: ITK's `.tfm`
+    /// (ANTs' `.mat` for a linear warp named so), or elastix's parameter file.
+    Transform { format: TransformFormat },
 }
 
 /// The pair and the warp to export, as the window has them.
@@ -69,17 +74,17 @@ impl ExportJob {
     /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`; a field's name picks its
     /// flavour: [`field_format`]), is one of the inputs, or the DICOM folder is not empty.
     pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
-        let dicom = match &kind {
-            ExportKind::Warped { dicom } => dicom.as_deref(),
-            ExportKind::Field | ExportKind::InverseField => None,
-        };
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
-        let field = matches!(kind, ExportKind::Field | ExportKind::InverseField);
-        if field {
-            displacement::check_output_name(&out, field_format(&out)?).map_err(|e| e.to_string())?;
+        match &kind {
+            ExportKind::Warped { dicom } => {
+                warp::check_outputs(&out, dicom.as_deref()).map_err(|e| format!("{e:#}"))?;
+            }
+            ExportKind::Field | ExportKind::InverseField => {
+                displacement::check_output_name(&out, field_format(&out)?).map_err(|e| e.to_string())?;
+            }
+            ExportKind::Transform { format } => check_transform_output(&out, *format)?,
         }
-        warp::check_outputs(&out, dicom)
-            .and_then(|()| inputs::check_output(&out, &inputs, true))
+        inputs::check_output(&out, &inputs, true)
             .and_then(|()| warp::check_data_file(&out, &inputs, true))
             .map_err(|e| format!("{e:#}"))?;
         let watch = Arc::new(Watch::default());
@@ -163,6 +168,25 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 resampled.backend
             ))
         }
+        ExportKind::Transform { format } => {
+            let made_of = field::FieldInputs {
+                fixed,
+                moving,
+                pairs: &input.pairs,
+                names: &names,
+                method: &input.method,
+                layers: &layers,
+            };
+            let exact = transform::exact_transform(&made_of)?;
+            let class = transform::write_transform(out, &exact.transform, *format, fixed)?;
+            Ok(format!(
+                "wrote {}: {} as {} ({} pairs; maps fixed points to moving points, LPS mm)",
+                out.display(),
+                exact.method,
+                class.unwrap_or(exact.transform.type_name()),
+                exact.pairs
+            ))
+        }
         ExportKind::Field | ExportKind::InverseField => {
             let mut progress = |done: u64, total: u64| {
                 watch.report(&file_name(out), Progress { stage: "field slices", done, total });
@@ -192,6 +216,27 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             ))
         }
     }
+}
+
+/// Refuses a transform export's name, in words for the status bar: an ITK transform is a `.tfm`, `.txt` or `.mat`
+/// (ANTs'), an elastix parameter file a `.txt`.
+fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), String> {
+    let extension = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    let fits = match format {
+        TransformFormat::Itk => matches!(extension.as_str(), "tfm" | "txt" | "mat"),
+        TransformFormat::Elastix => extension == "txt",
+    };
+    if fits {
+        return transform::check_transform_name(out, format).map_err(|f| format!("{:#}", f.error()));
+    }
+    Err(match format {
+        TransformFormat::Itk => {
+            format!("{}: a transform is exported as ITK's .tfm (or .txt), or ANTs' .mat", out.display())
+        }
+        TransformFormat::Elastix => {
+            format!("{}: an elastix transform parameter file is a .txt (e.g. TransformParameters.0.txt)", out.display())
+        }
+    })
 }
 
 /// The flavour a field exported to `out` is written in, by its name: `.nii`, `.nii.gz` ITK's (NIfTI `DISPVECT`,
@@ -249,6 +294,21 @@ pub fn export_ui(
     {
         asked = Some((ExportKind::InverseField, path.clone()));
     }
+    ui.horizontal(|ui| {
+        let itk = ui.add_enabled(enabled, egui::Button::new("Export transform")).on_hover_text(
+            "The exact warp, not a sampled field: an ITK transform file (.tfm) for ITK, ANTs and Slicer; .mat for \
+             ANTs (linear methods)",
+        );
+        if itk.clicked() {
+            asked = Some((ExportKind::Transform { format: TransformFormat::Itk }, path.clone()));
+        }
+        let elastix = ui
+            .add_enabled(enabled, egui::Button::new("Export for elastix"))
+            .on_hover_text("The exact warp as an elastix transform parameter file (.txt) that transformix applies");
+        if elastix.clicked() {
+            asked = Some((ExportKind::Transform { format: TransformFormat::Elastix }, path.clone()));
+        }
+    });
     asked
 }
 
