@@ -23,6 +23,7 @@ use warpbench_app::settings::MethodKind;
 use warpbench_app::start::Start;
 use warpbench_app::warp::{self as warp_cmd, Backend, PullBackMode, WarpSettings};
 use warpbench_io::displacement::{FieldDirection, FieldFormat};
+use warpbench_io::elastix::{self, ElastixGrid};
 use warpbench_io::geometry::Space;
 use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 use warpbench_io::landmarks::LandmarkPair;
@@ -368,6 +369,22 @@ impl Warp {
         guarded(py, || {
             let transform = self.pullback.itk_transform().map_err(bad_input)?;
             itk_tfm::write(&path, &transform).map_err(io)
+        })
+    }
+
+    /// Writes the pull-back as the elastix transform parameter file that holds it exactly (`SplineKernelTransform`,
+    /// `BSplineTransform`, `AffineTransform`) over `reference`'s grid (where transformix resamples), as `warpbench
+    /// transform --format elastix` writes it.
+    fn to_elastix(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        reference: (Vec<usize>, PyReadonlyArray2<'_, f64>),
+    ) -> PyResult<()> {
+        let (dims, lps_from_index) = grid(Path::new("reference"), reference)?;
+        guarded(py, || {
+            let transform = self.pullback.itk_transform().map_err(bad_input)?;
+            elastix::write(&path, &transform, &ElastixGrid { dims, lps_from_index }).map_err(io)
         })
     }
 

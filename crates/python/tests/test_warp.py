@@ -92,6 +92,13 @@ def test_to_itk_tfm_writes_the_bytes_the_cli_writes(tmp_path, warp):
     assert (tmp_path / "py.tfm").read_bytes() == (tmp_path / "cli.tfm").read_bytes()
 
 
+def test_to_elastix_writes_the_bytes_the_cli_writes(tmp_path, warp):
+    run_cli("transform", *PAIR_ARGS, "--format", "elastix", "--out", tmp_path / "cli.txt", "--quiet")
+    warp.to_elastix(tmp_path / "py.txt")
+    assert (tmp_path / "py.txt").read_bytes() == (tmp_path / "cli.txt").read_bytes()
+    assert '(Transform "SplineKernelTransform")' in (tmp_path / "py.txt").read_text()
+
+
 def test_leave_one_out_equals_refits_without_each_pair(warp, pairs):
     loo = warp.leave_one_out()
     assert loo["rows"] == list(range(1, len(pairs) + 1))

@@ -349,6 +349,16 @@ class Warp:
         affine), as ``warpbench transform`` does."""
         self._native.to_itk_tfm(os.fspath(path))
 
+    def to_elastix(self, path: PathLike, reference: Optional["Volume"] = None) -> None:
+        """Writes the pull-back as the elastix transform parameter file that holds it exactly (``SplineKernelTransform``,
+        ``BSplineTransform``, ``AffineTransform``), naming ``reference``'s grid (default: the fixed volume's) as
+        where transformix resamples, as ``warpbench transform --format elastix`` does."""
+        if reference is None:
+            reference = self.fixed
+        if reference is None:
+            raise ValueError("to_elastix: give reference=, or fit the warp with fixed= and moving=")
+        self._native.to_elastix(os.fspath(path), reference._grid())
+
     def leave_one_out(self) -> Dict[str, Any]:
         """Each fitted pair's residual and leave-one-out error (the pair left out, the rest refitted, the distance
         at which its fixed point is mapped from its moving point), as the window's landmark table shows them.
