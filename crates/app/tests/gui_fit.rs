@@ -684,6 +684,78 @@ fn auto_align_puts_the_alignment_under_the_landmark_warp() {
     assert!(harness.state().ready().expect("loaded").document.start.is_none());
 }
 
+/// A starting transform from a file, as `--initial` takes it: an elastix parameter file (an affine chained over a
+/// rigid, as elastix writes them) typed into Assist becomes the document's starting transform, which with no pairs is
+/// the warp shown, equal to the file's map; it is one undo step, in the autosave, and the command line's `--session`
+/// maps as the window does. A file that holds no linear transform is refused in the panel, and the document keeps
+/// none.
+#[test]
+fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let opts = GuiOptions {
+        fixed: Some(mri()),
+        moving: Some(mri()),
+        autosave: Some(autosave.clone()),
+        ..GuiOptions::default()
+    };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    window::open_section(&mut harness, "Assist");
+    harness.get_by_label("Starting transform from a file").click();
+    harness.run_steps(2);
+    let not_a_transform = dir.path().join("start.txt");
+    std::fs::write(&not_a_transform, "no transform here").expect("write");
+    let elastix = common::data("elastix/affine.txt");
+    for path in [&not_a_transform, &elastix] {
+        harness.state_mut().ready_mut().expect("ready").files.fields.start.clear();
+        harness.get_by_label("Starting transform file").scroll_to_me();
+        harness.run_steps(2);
+        harness.get_by_label("Starting transform file").focus();
+        harness.run_steps(2);
+        harness.get_by_label("Starting transform file").type_text(&path.display().to_string());
+        harness.run_steps(2);
+        harness.get_by_label("Use as starting transform").click();
+        harness.run_steps(3);
+        let ready = harness.state().ready().expect("ready");
+        let message = ready.files.message.clone().unwrap_or_default();
+        if path == &not_a_transform {
+            assert!(
+                message.contains("not used as the starting transform") && message.contains("start.txt"),
+                "{message}"
+            );
+            assert!(ready.document.start.is_none());
+        } else {
+            assert!(message.contains("is the starting transform"), "{message}");
+        }
+    }
+    wait_until_rendered(&mut harness);
+    harness.get_by_label_contains("Starting transform: affine.txt");
+    let ready = harness.state().ready().expect("loaded");
+    let found = ready.document.start.clone().expect("a starting transform");
+    let affine = warpbench_io::elastix::read_affine(&elastix).expect("the file");
+    // With no pairs the warp is the starting transform: the moving point shown at x is the file's map of x.
+    for x in [[10.0, -20.0, 15.0], [-60.0, 40.0, -30.0], [0.0, 0.0, 0.0]] {
+        let (shown, want) = (ready.moving_shown_at(x), affine.apply(x));
+        assert!((0..3).all(|a| (shown[a] - want[a]).abs() < 1e-9), "shown {shown:?}, the file {want:?}");
+    }
+    let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
+    assert_eq!(saved.document.start.as_ref(), Some(&found));
+    let got = common::map_through_session(dir.path(), [&mri(), &mri(), &autosave], [10.0, -20.0, 15.0]);
+    let want = ready.moving_shown_at([10.0, -20.0, 15.0]);
+    assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs {want:?}");
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").document.start.is_none());
+    harness.get_by_label("Redo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").document.start.as_ref(), Some(&found));
+}
+
 /// A displacement field under the landmarks (issue 29, item 2, as BigWarp's transform sequences): "Use field under
 /// landmarks" puts it in the document, the landmarks refine on top of it (the window's pull-back is the stack written
 /// out here: the field after a TPS fitted on the fixed points and the moving points taken back through the field), a

@@ -9,6 +9,7 @@ use warpbench_gpu::glam::Vec3;
 
 use super::files::{self, FileAction, save_png};
 use super::{Ready, export};
+use crate::project::document::StartingTransform;
 use crate::project::session;
 
 /// The document's mask of one volume for Refine by intensities.
@@ -81,6 +82,23 @@ impl Ready {
                 *mask_of(&mut self.document, side) = None;
                 self.pointer.notice = Some(format!("Refine by intensities reads the whole {} volume", side.name()));
             }
+            // A file that holds no invertible linear transform is refused here, naming it; the document is unchanged.
+            FileAction::UseStart(path) => match crate::start::Start::read(&path) {
+                Ok(start) => {
+                    let t = start.moving_from_fixed();
+                    let origin = path
+                        .file_name()
+                        .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+                    let document_start = StartingTransform::new(t.linear(), t.translation(), origin);
+                    self.files.message =
+                        Some(format!("{} is the starting transform under the landmarks", path.display()));
+                    if self.document.start.as_ref() != Some(&document_start) {
+                        self.document.start = Some(document_start);
+                        self.refit_soon();
+                    }
+                }
+                Err(e) => self.files.message = Some(format!("not used as the starting transform: {e:#}")),
+            },
             FileAction::RemoveField => {
                 if self.document.field.take().is_some() {
                     self.files.message = Some("the displacement field is removed".into());

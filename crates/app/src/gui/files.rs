@@ -32,6 +32,8 @@ pub struct FileFields {
     pub field: String,
     /// Masks of the fixed and the moving volume for Refine by intensities.
     pub masks: [String; 2],
+    /// A starting transform's file to put under the landmarks.
+    pub start: String,
 }
 
 /// What the file section or the File menu asks for.
@@ -53,6 +55,9 @@ pub enum FileAction {
     UseMask(Side, std::path::PathBuf),
     /// Read the whole volume again.
     RemoveMask(Side),
+    /// Put the linear transform read from this file (ITK `.tfm`, ANTs `.mat`, elastix parameter file) under the
+    /// landmarks as the starting transform, as `--initial` does.
+    UseStart(std::path::PathBuf),
 }
 
 /// Session, landmark and screenshot files: a path field and its buttons each.
@@ -141,7 +146,7 @@ fn file_row(
 pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
     let row = FileRow {
         label: "Displacement field file",
-        hint: "field.nii.gz (ITK, ANTs) or field.nrrd (Slicer)",
+        hint: "field.nii.gz (ITK, ANTs), field.nrrd (Slicer) or deformationField.mhd (elastix)",
         use_button: "Use field under landmarks",
         remove_button: "Remove field",
         current: "Field under the landmarks",
@@ -150,6 +155,23 @@ pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::
         RowChoice::Use(path) => FileAction::UseField(path),
         RowChoice::Remove => FileAction::RemoveField,
     })
+}
+
+/// A starting transform from a file: its path field and "Use as starting transform" (Clear alignment, beside
+/// Auto-align, takes it away).
+pub fn start_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction> {
+    ui.add(
+        egui::TextEdit::singleline(&mut fields.start)
+            .desired_width(ui.available_width())
+            .hint_text("start.tfm, 0GenericAffine.mat (ANTs) or TransformParameters.0.txt (elastix)"),
+    )
+    .labelled_by(ui.label("Starting transform file").id);
+    let enabled = !fields.start.trim().is_empty();
+    let clicked = ui
+        .add_enabled(enabled, egui::Button::new("Use as starting transform"))
+        .on_hover_text("A linear transform, fixed to moving, as --initial takes it; the landmarks refine it")
+        .clicked();
+    clicked.then(|| FileAction::UseStart(std::path::PathBuf::from(fields.start.trim())))
 }
 
 /// A volume's mask for Refine by intensities: its file's path field, "Use as fixed mask" (or moving) and "Remove

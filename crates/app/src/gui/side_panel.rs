@@ -83,6 +83,10 @@ fn section_ui(ui: &mut egui::Ui, section: Section, ready: &mut Ready) -> Vec<Com
         }
         Section::Assist => {
             commands.extend(panels::alignment_ui(ui, ready.document.start.as_ref(), ready.aligning()));
+            // Closed by default, as the masks, so the Assist buttons stay in view.
+            egui::CollapsingHeader::new("Starting transform from a file").id_salt("start file").show(ui, |ui| {
+                commands.extend(super::files::start_ui(ui, &mut ready.files.fields).map(Command::File));
+            });
             ui.separator();
             let last = ready.assist.refined.as_ref();
             let moved = last.is_some_and(|l| l.pairs != ready.fit_pairs().1);

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{ParameterMap, read_file};
+use super::params::{ParameterMap, read_file};
 use crate::error::{Error, Result};
 use crate::itk_tfm::ItkAffine;
 

@@ -2,12 +2,13 @@
 //! against the file's length, inflated when `CompressedData = True`, and decoded into the output type a chunk at a
 //! time.
 
-use std::io::{self, BufRead, Read};
+use std::fs::File;
+use std::io::{self, BufRead, BufReader, Read};
 use std::path::Path;
 
 use flate2::bufread::ZlibDecoder;
 
-use super::header::Header;
+use super::header::{DataFile, Header};
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 use crate::sample;
@@ -140,4 +141,39 @@ fn decode_binary(path: &Path, r: &mut impl Read, h: &Header, n: usize, opts: &mu
         opts.report(path, "reading", (done * size) as u64, total)?;
     }
     Ok(out)
+}
+
+/// Decodes the samples `f` chooses: from `r` (the `len` bytes after the header of `name`) for `LOCAL` data, else from
+/// the detached data file in `base_dir` (none when the header was read from memory, which is refused).
+pub(super) fn samples<R: BufRead>(
+    name: &Path,
+    r: R,
+    len: u64,
+    base_dir: Option<&Path>,
+    h: &Header,
+    f: FrameChoice,
+    opts: &mut LoadOptions,
+) -> Result<VoxelData> {
+    match &h.data_file {
+        DataFile::Local => decode_payload(name, r, len, h, f, opts),
+        DataFile::Detached(file_name) => {
+            let Some(base) = base_dir else {
+                return Err(Error::unsupported(
+                    name,
+                    format!("the detached data file {file_name:?} cannot be read from memory"),
+                ));
+            };
+            let data_path = base.join(file_name);
+            // A pipe would block and a device such as /dev/zero never ends: refused before it is opened.
+            let meta = std::fs::metadata(&data_path).map_err(|e| {
+                Error::invalid(name, format!("its ElementDataFile {} cannot be read: {e}", data_path.display()))
+            })?;
+            if !meta.is_file() {
+                crate::files::check_regular_file(&data_path)?;
+            }
+            let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
+            let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
+            decode_payload(&data_path, BufReader::new(file), len, h, f, opts)
+        }
+    }
 }

@@ -74,7 +74,7 @@ fn read_from<R: BufRead>(name: &Path, mut r: R, total_len: u64, base_dir: Option
     volume::check_allocation(name, g.dims, 3 * h.stored.bytes(), limit)?;
     let f = FrameChoice { n: 3 * n, frame: 0, frames: 1 };
     let mut opts = LoadOptions::new();
-    let data = super::samples(name, r, total_len.saturating_sub(header_bytes), base_dir, &h, f, &mut opts)?;
+    let data = super::data::samples(name, r, total_len.saturating_sub(header_bytes), base_dir, &h, f, &mut opts)?;
     let VoxelData::F32(values) = data else {
         return Err(Error::invalid(name, "float samples did not decode to float"));
     };

@@ -64,8 +64,7 @@ mod geometry;
 mod header;
 mod write;
 
-use std::fs::File;
-use std::io::{BufRead, BufReader};
+use std::io::BufRead;
 use std::path::Path;
 
 pub use field::{read_displacement_field, read_displacement_field_bytes, write_displacement_field};
@@ -76,8 +75,8 @@ pub use write::{MetaImageWriteOptions, detached_data_file, write, write_with};
 use crate::error::{Error, ErrorKind, Result};
 use crate::options::LoadOptions;
 use crate::volume::{GeometrySource, Metadata, Volume, check_allocation};
-use data::{FrameChoice, decode_payload};
-use header::{DataFile, parse_header, read_header_lines};
+use data::FrameChoice;
+use header::{parse_header, read_header_lines};
 
 /// Reads the MetaImage file (`.mha`, or a `.mhd` header with its data file) at `path`.
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
@@ -123,45 +122,10 @@ fn read_from<R: BufRead>(
     let n = check_allocation(name, g.dims, out_type.bytes(), opts.max_voxel_bytes)?;
     let f = FrameChoice { n, frame, frames: g.frames };
 
-    let data = samples(name, r, total_len.saturating_sub(header_bytes), base_dir, &h, f, opts)?;
+    let data = data::samples(name, r, total_len.saturating_sub(header_bytes), base_dir, &h, f, opts)?;
 
     let mut volume = Volume::new(name, g.dims, data, g.lps_from_index, GeometrySource::MetaImage)?;
     let warnings = std::mem::take(&mut volume.metadata.warnings);
     volume.metadata = Metadata { description: h.comment.clone(), warnings, ..Metadata::default() };
     Ok(volume)
-}
-
-/// Decodes the samples `f` chooses: from `r` (the `len` bytes after the header of `name`) for `LOCAL` data, else from
-/// the detached data file in `base_dir` (none when the header was read from memory, which is refused).
-fn samples<R: BufRead>(
-    name: &Path,
-    r: R,
-    len: u64,
-    base_dir: Option<&Path>,
-    h: &header::Header,
-    f: FrameChoice,
-    opts: &mut LoadOptions,
-) -> Result<crate::volume::VoxelData> {
-    match &h.data_file {
-        DataFile::Local => decode_payload(name, r, len, h, f, opts),
-        DataFile::Detached(file_name) => {
-            let Some(base) = base_dir else {
-                return Err(Error::unsupported(
-                    name,
-                    format!("the detached data file {file_name:?} cannot be read from memory"),
-                ));
-            };
-            let data_path = base.join(file_name);
-            // A pipe would block and a device such as /dev/zero never ends: refused before it is opened.
-            let meta = std::fs::metadata(&data_path).map_err(|e| {
-                Error::invalid(name, format!("its ElementDataFile {} cannot be read: {e}", data_path.display()))
-            })?;
-            if !meta.is_file() {
-                crate::files::check_regular_file(&data_path)?;
-            }
-            let file = File::open(&data_path).map_err(|e| Error::io(&data_path, e))?;
-            let len = file.metadata().map_err(|e| Error::io(&data_path, e))?.len();
-            decode_payload(&data_path, BufReader::new(file), len, h, f, opts)
-        }
-    }
 }
