@@ -280,6 +280,23 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let message = wait_for_export(&mut harness);
     assert!(message.starts_with("wrote ") && message.contains("5 pairs"), "{message}");
 
+    // The File menu offers every export and every file the document can use, each through a native dialog.
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    for item in [
+        "Export inverse field...",
+        "Export transform...",
+        "Export for elastix...",
+        "Use starting transform...",
+        "Use displacement field...",
+        "Use fixed mask...",
+        "Use moving mask...",
+    ] {
+        use egui_kittest::kittest::NodeT as _;
+        assert!(!harness.get_by_label(item).accesskit_node().is_disabled(), "{item} is offered");
+    }
+    harness.key_press(egui::Key::Escape);
+    harness.run_steps(2);
     // A field's name picks its flavour: NIfTI is ITK's, .nrrd Slicer's (stating the direction), .mha MetaImage.
     let mut export = |button: &str, out: &Path| {
         harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = out.display().to_string();

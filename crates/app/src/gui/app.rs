@@ -241,7 +241,7 @@ impl Workbench {
 
     /// Acts on what the menu, a dialog, a drop or a chooser asked for.
     fn handle(&mut self, ctx: &egui::Context, event: open::OpenEvent) {
-        use open::{OpenEvent, Purpose};
+        use open::OpenEvent;
         match event {
             OpenEvent::Volume { side, path, series } => self.open_volume(ctx, side, path, series),
             OpenEvent::OpenSession(path) => {
@@ -254,19 +254,11 @@ impl Workbench {
                 Phase::Ready(ready) => ready.apply(Command::File(files::FileAction::ImportLandmarks(path))),
                 _ => self.dialogs.error = Some("Open a pair of volumes before importing landmarks.".into()),
             },
-            OpenEvent::Save(purpose, path) => {
+            OpenEvent::Chosen(purpose, path) => {
                 let Phase::Ready(ready) = &mut self.phase else { return };
-                let action = match purpose {
-                    Purpose::SaveSession => files::FileAction::SaveSession(path),
-                    Purpose::ExportLandmarks => files::FileAction::ExportLandmarks(path),
-                    Purpose::Screenshot => files::FileAction::Screenshot(path),
-                    Purpose::ExportWarped => files::FileAction::ExportWarped(path),
-                    Purpose::ExportField => files::FileAction::ExportField(path),
-                    Purpose::OpenFile(_) | Purpose::OpenFolder(_) | Purpose::OpenSession | Purpose::ImportLandmarks => {
-                        return;
-                    }
-                };
-                ready.apply(Command::File(action));
+                if let Some(action) = files::chosen(purpose, path) {
+                    ready.apply(Command::File(action));
+                }
             }
         }
     }

@@ -56,6 +56,10 @@ impl Ready {
             },
             FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
             FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
+            FileAction::ExportInverseField(path) => self.start_export(export::ExportKind::InverseField, path),
+            FileAction::ExportTransform(format, path) => {
+                self.start_export(export::ExportKind::Transform { format }, path);
+            }
             // A field that cannot be read is refused here, so the document never holds one the fit would skip.
             FileAction::UseField(path) => match self.fit.read_field(&path) {
                 Ok(()) => {

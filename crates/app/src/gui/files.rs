@@ -7,7 +7,7 @@ use eframe::egui;
 use warpbench_io::landmarks::LandmarkPair;
 
 use super::export;
-use super::open::Side;
+use super::open::{Purpose, Side};
 
 /// The side panel's file and export section.
 #[derive(Debug, Default)]
@@ -45,8 +45,12 @@ pub enum FileAction {
     Screenshot(std::path::PathBuf),
     /// Export the warped moving volume (NIfTI `.nii`/`.nii.gz`), as `warpbench warp` does.
     ExportWarped(std::path::PathBuf),
-    /// Export the displacement field (NIfTI), as `warpbench field` does.
+    /// Export the displacement field (its flavour by the name), as `warpbench field` does.
     ExportField(std::path::PathBuf),
+    /// Export the inverse (forward) field on the moving grid, as `warpbench field --direction forward` does.
+    ExportInverseField(std::path::PathBuf),
+    /// Export the exact transform, as `warpbench transform [--format elastix]` does.
+    ExportTransform(crate::transform::TransformFormat, std::path::PathBuf),
     /// Put the displacement field read from this file (ITK or ANTs NIfTI, Slicer NRRD) under the landmarks.
     UseField(std::path::PathBuf),
     /// Take the displacement field away.
@@ -58,6 +62,25 @@ pub enum FileAction {
     /// Put the linear transform read from this file (ITK `.tfm`, ANTs `.mat`, elastix parameter file) under the
     /// landmarks as the starting transform, as `--initial` does.
     UseStart(std::path::PathBuf),
+}
+
+/// The file action for the path a dialog of `purpose` returned; `None` for the purposes that open a volume, a
+/// session or landmarks (the window opens those itself).
+#[must_use]
+pub fn chosen(purpose: Purpose, path: std::path::PathBuf) -> Option<FileAction> {
+    Some(match purpose {
+        Purpose::SaveSession => FileAction::SaveSession(path),
+        Purpose::ExportLandmarks => FileAction::ExportLandmarks(path),
+        Purpose::Screenshot => FileAction::Screenshot(path),
+        Purpose::ExportWarped => FileAction::ExportWarped(path),
+        Purpose::ExportField => FileAction::ExportField(path),
+        Purpose::ExportInverseField => FileAction::ExportInverseField(path),
+        Purpose::ExportTransform(format) => FileAction::ExportTransform(format, path),
+        Purpose::UseStart => FileAction::UseStart(path),
+        Purpose::UseField => FileAction::UseField(path),
+        Purpose::UseMask(side) => FileAction::UseMask(side, path),
+        Purpose::OpenFile(_) | Purpose::OpenFolder(_) | Purpose::OpenSession | Purpose::ImportLandmarks => return None,
+    })
 }
 
 /// Session, landmark and screenshot files: a path field and its buttons each.
@@ -260,6 +283,35 @@ pub(crate) fn save_png(path: &std::path::Path, image: &egui::ColorImage) -> anyh
 mod tests {
     use super::*;
     use warpbench_io::geometry::Point3;
+
+    #[test]
+    fn a_path_chosen_in_a_dialog_is_the_file_action_of_its_purpose() {
+        use crate::transform::TransformFormat;
+        let p = std::path::PathBuf::from("/data/x");
+        let cases = [
+            (Purpose::ExportInverseField, FileAction::ExportInverseField(p.clone())),
+            (
+                Purpose::ExportTransform(TransformFormat::Elastix),
+                FileAction::ExportTransform(TransformFormat::Elastix, p.clone()),
+            ),
+            (
+                Purpose::ExportTransform(TransformFormat::Itk),
+                FileAction::ExportTransform(TransformFormat::Itk, p.clone()),
+            ),
+            (Purpose::UseStart, FileAction::UseStart(p.clone())),
+            (Purpose::UseField, FileAction::UseField(p.clone())),
+            (Purpose::UseMask(Side::Moving), FileAction::UseMask(Side::Moving, p.clone())),
+            (Purpose::ExportField, FileAction::ExportField(p.clone())),
+            (Purpose::SaveSession, FileAction::SaveSession(p.clone())),
+        ];
+        for (purpose, action) in cases {
+            assert_eq!(chosen(purpose, p.clone()), Some(action), "{purpose:?}");
+        }
+        // What opens a volume, a session or landmarks is the window's own business.
+        for purpose in [Purpose::OpenFile(Side::Fixed), Purpose::OpenSession, Purpose::ImportLandmarks] {
+            assert_eq!(chosen(purpose, p.clone()), None, "{purpose:?}");
+        }
+    }
 
     #[test]
     fn landmarks_round_trip_through_bigwarp_csv_and_a_slicer_pair() {

@@ -12,6 +12,7 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use super::viewer::{DeviceFacts, LayerData};
+use crate::transform::TransformFormat;
 use eframe::egui;
 use warpbench_io::error::ErrorKind;
 use warpbench_io::{LoadOptions, Progress, SeriesSummary, Volume};
@@ -176,7 +177,16 @@ pub enum Purpose {
     ExportLandmarks,
     ExportWarped,
     ExportField,
+    ExportInverseField,
+    /// The exact transform, in ITK's or elastix's format.
+    ExportTransform(TransformFormat),
     Screenshot,
+    /// A starting transform's file to put under the landmarks.
+    UseStart,
+    /// A displacement field to put under the landmarks.
+    UseField,
+    /// A mask of one volume for Refine by intensities.
+    UseMask(Side),
 }
 
 impl Purpose {
@@ -194,9 +204,19 @@ impl Purpose {
                 d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
             }
             Self::ExportWarped => d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"]),
-            Self::ExportField => {
+            Self::ExportField | Self::ExportInverseField | Self::UseField => {
                 d.add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
             }
+            Self::ExportTransform(TransformFormat::Itk) => {
+                d.add_filter("ITK or ANTs transform", &["tfm", "txt", "mat"])
+            }
+            Self::ExportTransform(TransformFormat::Elastix) => {
+                d.add_filter("elastix transform parameter file", &["txt"]).set_file_name("TransformParameters.0.txt")
+            }
+            Self::UseStart => d
+                .set_title("A linear transform to start from")
+                .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat"]),
+            Self::UseMask(side) => volumes(d.set_title(format!("A mask of the {} volume", side.name()))),
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
         }
     }
@@ -204,7 +224,13 @@ impl Purpose {
     fn saves(self) -> bool {
         matches!(
             self,
-            Self::SaveSession | Self::ExportLandmarks | Self::ExportWarped | Self::ExportField | Self::Screenshot
+            Self::SaveSession
+                | Self::ExportLandmarks
+                | Self::ExportWarped
+                | Self::ExportField
+                | Self::ExportInverseField
+                | Self::ExportTransform(_)
+                | Self::Screenshot
         )
     }
 }
@@ -281,8 +307,8 @@ pub enum OpenEvent {
     },
     OpenSession(PathBuf),
     ImportLandmarks(PathBuf),
-    /// A save dialog returned a path.
-    Save(Purpose, PathBuf),
+    /// A dialog for a file action (saving, exporting, a file to use) returned a path.
+    Chosen(Purpose, PathBuf),
     /// Start a native dialog.
     Dialog(Purpose),
     /// Open the demo pair.
@@ -366,7 +392,7 @@ impl OpenDialogs {
                     }
                     Purpose::OpenSession => OpenEvent::OpenSession(path),
                     Purpose::ImportLandmarks => OpenEvent::ImportLandmarks(path),
-                    other => OpenEvent::Save(other, path),
+                    other => OpenEvent::Chosen(other, path),
                 });
             }
         }
@@ -470,6 +496,16 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         ui.separator();
         item(ui, "Export warped volume...", ready, OpenEvent::Dialog(Purpose::ExportWarped));
         item(ui, "Export displacement field...", ready, OpenEvent::Dialog(Purpose::ExportField));
+        item(ui, "Export inverse field...", ready, OpenEvent::Dialog(Purpose::ExportInverseField));
+        item(ui, "Export transform...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Itk)));
+        item(ui, "Export for elastix...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Elastix)));
+        ui.separator();
+        item(ui, "Use starting transform...", ready, OpenEvent::Dialog(Purpose::UseStart));
+        item(ui, "Use displacement field...", ready, OpenEvent::Dialog(Purpose::UseField));
+        for side in [Side::Fixed, Side::Moving] {
+            item(ui, &format!("Use {} mask...", side.name()), ready, OpenEvent::Dialog(Purpose::UseMask(side)));
+        }
+        ui.separator();
         item(ui, "Save screenshot...", ready, OpenEvent::Dialog(Purpose::Screenshot));
     });
     event
