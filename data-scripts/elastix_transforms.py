@@ -87,30 +87,14 @@ def write_map(m, path: Path) -> None:
     itk.ParameterObject.WriteParameterFile(m, str(path))
 
 
-def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image) -> list[list[float]]:
-    """transformix's `OutputPoint` for `points` (LPS mm) through the chain that starts at `parameter_file`."""
+def transformix_points_through(objects: itk.ParameterObject, points: list[list[float]],
+                               image: itk.Image) -> list[list[float]]:
+    """transformix's `OutputPoint` for `points` (LPS mm) through the transforms of `objects`, first map first."""
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)
         inputs = tmp / "inputpoints.txt"
         inputs.write_text("point\n%d\n" % len(points) + "".join(" ".join(repr(float(v)) for v in p) + "\n"
                                                              for p in points))
-        po = itk.ParameterObject.New()
-        po.ReadParameterFile(str(parameter_file))
-        chain = [parameter_file]
-        while True:
-            initial = po.GetParameterMap(0)["InitialTransformParameterFileName"][0]
-            if initial in ("NoInitialTransform", ""):
-                break
-            chain.insert(0, parameter_file.parent / initial)
-            po = itk.ParameterObject.New()
-            po.ReadParameterFile(str(chain[0]))
-        objects = itk.ParameterObject.New()
-        for p in chain:
-            one = itk.ParameterObject.New()
-            one.ReadParameterFile(str(p))
-            m = one.GetParameterMap(0)
-            m["InitialTransformParameterFileName"] = ["NoInitialTransform"]
-            objects.AddParameterMap(m)
         f = itk.TransformixFilter.New(Input=image, TransformParameterObject=objects)
         f.SetFixedPointSetFileName(str(inputs))
         f.SetOutputDirectory(str(tmp))
@@ -120,6 +104,26 @@ def transformix_points(parameter_file: Path, points: list[list[float]], image: i
     out = [[float(v) for v in m.split()] for m in re.findall(r"OutputPoint = \[ ([^\]]*)\]", text)]
     assert len(out) == len(points)
     return out
+
+
+def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image) -> list[list[float]]:
+    """transformix's `OutputPoint` for `points` (LPS mm) through the chain that starts at `parameter_file`."""
+    chain = [parameter_file]
+    while True:
+        po = itk.ParameterObject.New()
+        po.ReadParameterFile(str(chain[0]))
+        initial = po.GetParameterMap(0)["InitialTransformParameterFileName"][0]
+        if initial in ("NoInitialTransform", ""):
+            break
+        chain.insert(0, chain[0].parent / initial)
+    objects = itk.ParameterObject.New()
+    for p in chain:
+        one = itk.ParameterObject.New()
+        one.ReadParameterFile(str(p))
+        m = one.GetParameterMap(0)
+        m["InitialTransformParameterFileName"] = ["NoInitialTransform"]
+        objects.AddParameterMap(m)
+    return transformix_points_through(objects, points, image)
 
 
 def run(exe: str, *args: str) -> None:

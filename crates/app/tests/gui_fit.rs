@@ -23,6 +23,11 @@ use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::tps::Tps;
 use warpbench_solver::warp::Warp;
 
+/// The window on `opts`, `size` points large, drawn with wgpu.
+fn workbench(opts: GuiOptions, size: egui::Vec2) -> Harness<'static, Workbench> {
+    Harness::builder().with_size(size).wgpu().build_eframe(|cc| Workbench::new(cc, opts))
+}
+
 #[test]
 fn sessions_save_and_reopen_and_a_crash_is_recovered() {
     if no_adapter() {
@@ -37,8 +42,7 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
         autosave: Some(autosave.clone()),
         ..GuiOptions::default()
     };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = workbench(opts, egui::vec2(900.0, 640.0));
     wait_until_shown(&mut harness);
     assert!(harness.state().recovery.is_none(), "no crashed session to offer");
     // Change things: the method, a pair switched off, the camera; then save the session.
@@ -64,8 +68,7 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
         autosave: Some(dir.path().join("other-autosave.json")),
         ..GuiOptions::default()
     };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = workbench(opts, egui::vec2(900.0, 640.0));
     wait_until_shown(&mut harness);
     let ready = harness.state().ready().expect("loaded");
     assert_eq!(ready.to_session(true), saved, "the reopened session is the saved one");
@@ -74,8 +77,7 @@ fn sessions_save_and_reopen_and_a_crash_is_recovered() {
 
     // A new window on the crashed autosave offers recovery, and recovering brings the pairs back.
     let opts = GuiOptions { autosave: Some(autosave), ..GuiOptions::default() };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = workbench(opts, egui::vec2(900.0, 640.0));
     assert!(harness.state().recovery.is_some(), "a crashed session is offered");
     wait_until_shown(&mut harness);
     harness.get_by_label("Recover the last session").click();
@@ -488,8 +490,7 @@ fn auto_stiffness_sets_the_leave_one_out_choice() {
         autosave: Some(dir.path().join("autosave2.warpbench.json")),
         ..GuiOptions::default()
     };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = workbench(opts, egui::vec2(1100.0, 900.0));
     wait_until_shown(&mut harness);
     harness.get_by_label("Auto").click();
     harness.run_steps(3);
@@ -631,8 +632,7 @@ fn auto_align_puts_the_alignment_under_the_landmark_warp() {
         autosave: Some(autosave.clone()),
         ..GuiOptions::default()
     };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = workbench(opts, egui::vec2(1100.0, 900.0));
     wait_until_shown(&mut harness);
     window::open_section(&mut harness, "Assist");
     harness.get_by_label_contains("Starting transform: none");
@@ -702,8 +702,7 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
         autosave: Some(autosave.clone()),
         ..GuiOptions::default()
     };
-    let mut harness =
-        Harness::builder().with_size(egui::vec2(1100.0, 900.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    let mut harness = workbench(opts, egui::vec2(1100.0, 900.0));
     wait_until_shown(&mut harness);
     window::open_section(&mut harness, "Assist");
     harness.get_by_label("Starting transform from a file").click();

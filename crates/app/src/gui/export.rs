@@ -135,6 +135,14 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
         .map_err(Failure::BadInput)?
         .map(Arc::new);
     let pairs_and_brush = (input.pairs.as_slice(), &layers);
+    let made_of = field::FieldInputs {
+        fixed,
+        moving,
+        pairs: &input.pairs,
+        names: &names,
+        method: &input.method,
+        layers: &layers,
+    };
     match kind {
         ExportKind::Warped { dicom } => {
             let settings = WarpSettings {
@@ -169,14 +177,6 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             ))
         }
         ExportKind::Transform { format } => {
-            let made_of = field::FieldInputs {
-                fixed,
-                moving,
-                pairs: &input.pairs,
-                names: &names,
-                method: &input.method,
-                layers: &layers,
-            };
             let exact = transform::exact_transform(&made_of)?;
             let class = transform::write_transform(out, &exact.transform, *format, fixed)?;
             Ok(format!(
@@ -195,14 +195,6 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             let (direction, grid, what) = match kind {
                 ExportKind::InverseField => (FieldDirection::Forward, moving, "inverse (forward) displacement field"),
                 _ => (FieldDirection::Pullback, fixed, "displacement field"),
-            };
-            let made_of = field::FieldInputs {
-                fixed,
-                moving,
-                pairs: &input.pairs,
-                names: &names,
-                method: &input.method,
-                layers: &layers,
             };
             let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
             let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
