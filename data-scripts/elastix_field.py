@@ -14,6 +14,8 @@ Files:
 - transformix_field.mhd + transformix_field.raw: the field as transformix writes `deformationField.mhd` (ITK's
   MetaImage writer, uncompressed, MET_FLOAT, ElementNumberOfChannels = 3);
 - transformix_field.mha: the same field in one zlib-compressed file;
+- ../elastix/bspline_oblique.txt: the transform parameter file transformix read (written by ITK's
+  `ParameterObject.WriteParameterFile`);
 - transformix_field_reference.json: the grid (size, spacing, origin, direction as ITK reports them), and for every
   other voxel along each axis (80, i fastest) its centre x, LPS mm, and T(x) as transformix's point transformation (`outputpoints.txt`, its
   `OutputPoint`) gives it: an independent path through elastix from the field's.
@@ -120,6 +122,8 @@ def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     itk.imwrite(field, str(OUT / "transformix_field.mhd"), compression=False)
     itk.imwrite(field, str(OUT / "transformix_field.mha"), compression=True)
+    itk.ParameterObject.WriteParameterFile(po.GetParameterMap(0), str(ROOT / "tests" / "data" / "elastix" /
+                                                                      "bspline_oblique.txt"))
 
     # Every other voxel along each axis (corners included): 5 × 4 × 4 of them.
     indices = [[i, j, k] for k in range(0, SIZE[2], 2) for j in range(0, SIZE[1], 2) for i in range(0, SIZE[0], 2)]

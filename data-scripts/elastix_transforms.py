@@ -13,8 +13,16 @@ Two parts, both run by elastix 5 through itk-elastix 0.25.4 (ITK 5.4.7):
    - `similarity.txt`: a `SimilarityTransform` (versor, translation, scale);
    - `affine.txt`: an `AffineTransform` whose InitialTransformParameterFileName is `rigid.txt` (composed: the
      affine applied after the rigid), as `elastix -p rigid -p affine` writes `TransformParameters.1.txt`;
-   - `translation.txt`: a `TranslationTransform`.
-   transformix maps 20 fixed points through each (`outputpoints.txt`, its `OutputPoint`), recorded per file.
+   - `translation.txt`: a `TranslationTransform`;
+   - `bspline.txt`: a cubic `BSplineTransform` (8 mm control grid) whose InitialTransformParameterFileName is
+     `affine.txt`, as `elastix -p rigid -p affine -p bspline` writes `TransformParameters.2.txt`: the three-stage
+     registration's first two stages are checked to be `rigid.txt` and `affine.txt`. Its coefficients are elastix's
+     plus a seeded bump (σ 1.5 mm), since two blobs leave an elastix B-spline little to do;
+   - `bspline_oblique.txt`: written by data-scripts/elastix_field.py (run it first): the B-spline over an oblique
+     grid whose transformix field is tests/data/metaimage/transformix_field.mhd.
+   transformix maps 20 fixed points through each (`outputpoints.txt`, its `OutputPoint`), recorded per file; for
+   `bspline.txt` also 12 points outside the fixed box (where the B-spline ends) and every third voxel centre of the
+   fixed grid (1 000), for the field warpbench samples from it.
 2. **Files warpbench writes** (`warpbench transform --format elastix`): on tests/data/nifti/avg152T1_LR_nifti.nii
    with the pairs tests/data/itk/field_pairs.csv, for `--method tps`, `tps --stiffness 5`, `hbspline` and `affine`,
    the script has warpbench write the file, has transformix map 100 points of the fixed box through it, and compares
@@ -106,8 +114,8 @@ def transformix_points_through(objects: itk.ParameterObject, points: list[list[f
     return out
 
 
-def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image) -> list[list[float]]:
-    """transformix's `OutputPoint` for `points` (LPS mm) through the chain that starts at `parameter_file`."""
+def chain_object(parameter_file: Path) -> itk.ParameterObject:
+    """The chain that starts at `parameter_file` as one parameter object, its initial transform first."""
     chain = [parameter_file]
     while True:
         po = itk.ParameterObject.New()
@@ -123,7 +131,12 @@ def transformix_points(parameter_file: Path, points: list[list[float]], image: i
         m = one.GetParameterMap(0)
         m["InitialTransformParameterFileName"] = ["NoInitialTransform"]
         objects.AddParameterMap(m)
-    return transformix_points_through(objects, points, image)
+    return objects
+
+
+def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image) -> list[list[float]]:
+    """transformix's `OutputPoint` for `points` (LPS mm) through the chain that starts at `parameter_file`."""
+    return transformix_points_through(chain_object(parameter_file), points, image)
 
 
 def run(exe: str, *args: str) -> None:
@@ -155,12 +168,52 @@ def main() -> None:
         m = register([(kind, extra)]).GetParameterMap(0)
         m["InitialTransformParameterFileName"] = ["NoInitialTransform"]
         write_map(m, OUT / name)
-    for name in ["rigid.txt", "rigid_zyx.txt", "similarity.txt", "affine.txt", "translation.txt"]:
+    staged = register([("rigid", {}), ("affine", {}),
+                       ("bspline", {"FinalGridSpacingInPhysicalUnits": "8", "NumberOfResolutions": "2"})])
+    for k, mine in [(0, rigid), (1, affine)]:
+        theirs = staged.GetParameterMap(k)
+        assert theirs["TransformParameters"] == mine["TransformParameters"], f"stage {k} differs"
+    bspline = staged.GetParameterMap(2)
+    bspline["InitialTransformParameterFileName"] = ["affine.txt"]
+    # Its own generator, so that the points drawn below are those of the files before it.
+    extra = np.random.default_rng(20261206)
+    bump = extra.standard_normal(len(bspline["TransformParameters"])) * 1.5
+    bspline["TransformParameters"] = [repr(float(v) + float(b)) for v, b in zip(bspline["TransformParameters"], bump)]
+    write_map(bspline, OUT / "bspline.txt")
+    for name in ["rigid.txt", "rigid_zyx.txt", "similarity.txt", "affine.txt", "translation.txt", "bspline.txt",
+                 "bspline_oblique.txt"]:
         mapped = transformix_points(OUT / name, small_points, grid)
         moved = max(float(np.linalg.norm(np.subtract(a, b))) for a, b in zip(mapped, small_points))
         print(f"{name}: transformix moves the points by up to {moved:.2f} mm")
-        reference["elastix_files"].append({"file": name, "transformix_lps": mapped})
+        one = itk.ParameterObject.New()
+        one.ReadParameterFile(str(OUT / name))
+        kind = one.GetParameterMap(0)["Transform"][0]
+        reference["elastix_files"].append({"file": name, "transform": kind, "linear": "BSpline" not in kind,
+                                           "transformix_lps": mapped})
     reference["elastix_points_lps"] = small_points
+    outside = extra.uniform([-40.0, -35.0, -35.0], [80.0, 80.0, 80.0], size=(40, 3))
+    box_lo, box_hi = np.array([-3.0, 2.0, 1.5]), np.array([-3.0, 2.0, 1.5]) + 27 * 1.5
+    outside = [p for p in outside.tolist() if np.any(np.array(p) < box_lo) or np.any(np.array(p) > box_hi)][:12]
+    indices = [[i, j, k] for k in range(0, 28, 3) for j in range(0, 28, 3) for i in range(0, 28, 3)]
+    centres = [list(grid.TransformIndexToPhysicalPoint(ijk)) for ijk in indices]
+    reference["bspline_chain"] = {
+        "file": "bspline.txt", "outside_lps": outside,
+        "transformix_outside_lps": transformix_points(OUT / "bspline.txt", outside, grid),
+        "indices": indices, "centres_lps": centres,
+        "transformix_centres_lps": transformix_points(OUT / "bspline.txt", centres, grid)}
+    moved = max(float(np.linalg.norm(np.subtract(a, b)))
+                for a, b in zip(reference["bspline_chain"]["transformix_centres_lps"], centres))
+    # transformix resamples the moving blobs through the chain, linearly, onto the fixed grid.
+    moving = blobs(np.array([2.2, -1.4, 0.9]), 9.0, 1.06)
+    objects = chain_object(OUT / "bspline.txt")
+    for k in range(objects.GetNumberOfParameterMaps()):
+        objects.SetParameter(k, "ResampleInterpolator", "FinalLinearInterpolator")
+        objects.SetParameter(k, "ResultImagePixelType", "float")
+    with tempfile.TemporaryDirectory() as tmp_name:
+        resampled = itk.transformix_filter(moving, objects, output_directory=tmp_name)
+    itk.imwrite(moving, str(OUT / "moving_blobs.nii.gz"), compression=True)
+    itk.imwrite(resampled, str(OUT / "transformix_bspline_result.nii.gz"), compression=True)
+    print(f"bspline.txt: transformix moves the voxel centres by up to {moved:.2f} mm")
 
     # 2. Files warpbench writes, read by transformix.
     fixed = itk.imread(str(VOLUME), itk.F)

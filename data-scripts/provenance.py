@@ -203,11 +203,14 @@ Apache-2.0). `data-scripts/elastix_field.py` builds a cubic B-spline transform p
 coefficients and has transformix write its deformation field (what `transformix -def all` writes as
 `deformationField.mhd`, through ITK's MetaImage writer: `.mhd` + `.raw`, and the same field as a compressed `.mha`)
 and transform the field's voxel centres as points (`outputpoints.txt`), recorded in
-`transformix_field_reference.json`. `data-scripts/elastix_transforms.py` has elastix register two synthetic volumes
-and write its transform parameter files (`elastix/rigid.txt`, `affine.txt` chained over it, `similarity.txt`,
-`translation.txt`; `rigid_zyx.txt` is `rigid.txt` with `ComputeZYX "true"`), and records in
-`elastix/transformix_reference.json` where transformix maps points through them and through the files `warpbench
-transform --format elastix` writes. Both scripts are deterministic: a rerun writes the same bytes.
+`transformix_field_reference.json`; the parameter map is `elastix/bspline_oblique.txt`.
+`data-scripts/elastix_transforms.py` has elastix register two synthetic volumes and write its transform parameter
+files (`elastix/rigid.txt`, `affine.txt` chained over it, `bspline.txt` chained over that with a seeded bump added
+to elastix's coefficients, `similarity.txt`, `translation.txt`; `rigid_zyx.txt` is `rigid.txt` with `ComputeZYX
+"true"`), has transformix resample the moving volume (`elastix/moving_blobs.nii.gz`) through `bspline.txt`
+(`transformix_bspline_result.nii.gz`), and records in `elastix/transformix_reference.json` where transformix maps
+points through them and through the files `warpbench transform --format elastix` writes. Both scripts are
+deterministic: a rerun writes the same bytes.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -217,7 +220,11 @@ ELASTIX_FILES = [
     ("metaimage/transformix_field.mhd", "elastix_field.py"),
     ("metaimage/transformix_field.raw", "elastix_field.py"),
     ("metaimage/transformix_field_reference.json", "elastix_field.py"),
+    ("elastix/bspline_oblique.txt", "elastix_field.py"),
     ("elastix/affine.txt", "elastix_transforms.py"),
+    ("elastix/bspline.txt", "elastix_transforms.py"),
+    ("elastix/moving_blobs.nii.gz", "elastix_transforms.py"),
+    ("elastix/transformix_bspline_result.nii.gz", "elastix_transforms.py"),
     ("elastix/rigid.txt", "elastix_transforms.py"),
     ("elastix/rigid_zyx.txt", "elastix_transforms.py"),
     ("elastix/similarity.txt", "elastix_transforms.py"),

@@ -113,6 +113,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::NrrdSpace => ("nrrd_space", None),
             GeometrySource::NrrdSpacings => ("nrrd_spacings", None),
             GeometrySource::MetaImage => ("metaimage", None),
+            GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::Assumed => ("assumed", None),
         };
         Self { kind, code }

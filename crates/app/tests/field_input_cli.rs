@@ -16,7 +16,7 @@ use std::process::Output;
 
 use common::{assert_ok, data, utf8 as s, warpbench};
 use warpbench_io::Volume;
-use warpbench_io::displacement::{FieldDirection, FieldFormat, read_field, write_field, write_field_with};
+use warpbench_io::displacement::{FieldDirection, FieldFormat, FieldSource, read_field, write_field, write_field_with};
 use warpbench_io::geometry::{Index, Point3, Transform};
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_solver::field::SampledField;
@@ -46,7 +46,13 @@ fn f32_samples(path: &Path) -> (Vec<f32>, [usize; 3]) {
 /// The value tolerance that [`ITK_TOL_MM`] of point error allows: the moving volume's trilinear interpolant changes
 /// by at most Σₐ max |Δₐ v| / spacingₐ per mm of displacement, plus the f32 rounding of the output (4 ulp).
 fn value_tolerance(expected: &[f64]) -> f64 {
-    let moving = warpbench_io::open(fixture("moving.nii.gz")).expect("moving");
+    tolerance_for(&fixture("moving.nii.gz"), ITK_TOL_MM, expected)
+}
+
+/// What `point_mm` of point error allows in values resampled from the f32 volume at `moving` (see
+/// [`value_tolerance`]).
+fn tolerance_for(moving: &Path, point_mm: f64, expected: &[f64]) -> f64 {
+    let moving = warpbench_io::open(moving).expect("moving");
     let VoxelData::F32(v) = &moving.data else { panic!("the moving fixture is f32") };
     let [nx, ny, nz] = moving.dims;
     let spacing = moving.spacing_mm();
@@ -66,7 +72,7 @@ fn value_tolerance(expected: &[f64]) -> f64 {
         }
     }
     let largest = expected.iter().fold(0.0f64, |m, x| m.max(x.abs()));
-    slope.iter().sum::<f64>() * ITK_TOL_MM + 4.0 * largest * f64::from(f32::EPSILON)
+    slope.iter().sum::<f64>() * point_mm + 4.0 * largest * f64::from(f32::EPSILON)
 }
 
 /// Runs `warp --field FIELD --exact` (plus `extra`) on the fixtures into `out`; the `--json` report.
@@ -134,7 +140,7 @@ fn exact_field_warp_matches_simpleitk_in_every_flavour() {
     // The same field as ANTs writes it (VECTOR, LPS), as Slicer's NRRD (resampling) and as transformix's MetaImage
     // (deformationField.mhd + .raw), written by warpbench.
     let (field, format) = read_field(&fixture("field.nii.gz")).expect("read the field");
-    assert_eq!(format, FieldFormat::Itk);
+    assert_eq!(format, FieldSource::Field(FieldFormat::Itk));
     let itk_values = f32_samples(&itk_out).0;
     for (format, name) in [
         (FieldFormat::Ants, "ants1Warp.nii.gz"),
@@ -143,7 +149,7 @@ fn exact_field_warp_matches_simpleitk_in_every_flavour() {
     ] {
         let path = dir.path().join(name);
         write_field(&path, format, field.dims, &field.lps_from_index, &field.displacements_lps).expect("write");
-        assert_eq!(read_field(&path).expect("read back").1, format, "{name} reads as its flavour");
+        assert_eq!(read_field(&path).expect("read back").1, FieldSource::Field(format), "{name} reads as its flavour");
         let out = dir.path().join(format!("{format}.nii.gz"));
         let (run, _) = warp_field(&path, &out, &["--exact", "--backend", "cpu"]);
         assert_ok(&run);
@@ -468,4 +474,47 @@ fn a_forward_field_is_inverted_into_the_pullback_and_its_consistency_reported() 
     // data-scripts/field_formats_ref.py); f32 outputs of ~500 add 1e-4 mm.
     let bound = consistency_max + 0.01;
     assert!(worst <= bound, "d(ũ(x)) is {worst} mm from x (bound {bound} mm)");
+}
+
+/// An elastix transform parameter file is a field too: `warp --field` on elastix's B-spline over its affine and rigid
+/// stages (`tests/data/elastix/bspline.txt`, made by `data-scripts/elastix_transforms.py` with itk-elastix 0.25.4)
+/// resamples the moving blobs onto the fixed grid as transformix did with linear interpolation
+/// (`transformix_bspline_result.nii.gz`). The field holds T(x) − x at the output's own voxel centres in f32, so the
+/// point error is f32's rounding of displacements up to 11 mm (1e-6 mm; allowed 1e-5).
+#[test]
+fn warp_takes_an_elastix_transform_file_as_transformix_applies_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let blobs = data("elastix/moving_blobs.nii.gz");
+    let transform = data("elastix/bspline.txt");
+    let out = dir.path().join("out.nii.gz");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&blobs),
+        "--moving",
+        s(&blobs),
+        "--field",
+        s(&transform),
+        "--exact",
+        "--quiet",
+        "--json",
+        "--out",
+        s(&out),
+    ]);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert_eq!(report["method"], "field");
+    assert_eq!(report["field"], s(&transform));
+    let theirs = warpbench_io::open(data("elastix/transformix_bspline_result.nii.gz")).expect("transformix's");
+    let VoxelData::F32(expected) = &theirs.data else { panic!("transformix wrote float") };
+    let expected: Vec<f64> = expected.iter().map(|v| f64::from(*v)).collect();
+    let (got, dims) = f32_samples(&out);
+    assert_eq!(dims, theirs.dims);
+    let tolerance = tolerance_for(&blobs, 1e-5, &expected);
+    let worst = got.iter().zip(&expected).map(|(g, e)| (f64::from(*g) - e).abs()).fold(0.0, f64::max);
+    assert!(worst <= tolerance, "{worst} from transformix's output (tolerance {tolerance})");
+    // Not the identity: the chain moves the blobs by millimetres.
+    let (unwarped, _) = f32_samples(&blobs);
+    let moved = unwarped.iter().zip(&expected).map(|(u, e)| (f64::from(*u) - e).abs()).fold(0.0, f64::max);
+    assert!(moved > 100.0 * tolerance, "the warp changes the image: {moved}");
 }

@@ -848,6 +848,41 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
         let now = plain_at(ready, *x);
         assert!((0..3).all(|a| (now[a] - was[a]).abs() < 1e-9), "u({x:?}) back to the landmarks alone");
     }
+
+    // An elastix transform parameter file is a field too: its chain sampled on its fixed grid, as transformix writes
+    // it. Here a B-spline over the MRI's grid, as `transform --format elastix` writes one.
+    let elastix_file = dir.path().join("TransformParameters.0.txt");
+    let pairs_file = common::data("itk/field_pairs.csv");
+    common::assert_ok(&common::warpbench(&[
+        "transform",
+        "--fixed",
+        common::utf8(&mri()),
+        "--moving",
+        common::utf8(&mri()),
+        "--landmarks",
+        common::utf8(&pairs_file),
+        "--method",
+        "hbspline",
+        "--format",
+        "elastix",
+        "--quiet",
+        "--out",
+        common::utf8(&elastix_file),
+    ]));
+    apply(&mut harness, Command::File(FileAction::UseField(elastix_file.clone())));
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.document.field.as_deref(), Some(elastix_file.as_path()));
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    let layer = FieldLayer::read(&elastix_file).expect("read");
+    let chain = warpbench_io::elastix::read_transform(&elastix_file).expect("the transform");
+    let grid = chain.grid.as_ref().expect("its grid").lps_from_index;
+    // At voxel centres the field is the transform, to f32's rounding of millimetres.
+    for ijk in [[45.0, 54.0, 45.0], [20.0, 70.0, 30.0], [60.0, 30.0, 60.0]] {
+        let x = grid.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+        let (got, want) = (layer.moving_from_fixed_raw(x), chain.apply(x));
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: {got:?}, elastix {want:?}");
+        assert!((0..3).any(|a| (want[a] - x[a]).abs() > 0.1), "the transform moves {x:?}");
+    }
 }
 
 /// Warp overlays (issue 30, item 5): chosen by label, each slice draws det ∇u or |u(x) − x| over its image, and the

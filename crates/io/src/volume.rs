@@ -180,6 +180,8 @@ pub enum GeometrySource {
     NrrdSpacings,
     /// MetaImage `TransformMatrix`, `ElementSpacing` and `Offset` (ITK's LPS; MetaIO's defaults where missing).
     MetaImage,
+    /// An elastix transform parameter file's fixed grid: `Size`, `Spacing`, `Origin` and `Direction`.
+    ElastixParameters,
     /// The file carries no geometry (e.g. a DICOM Secondary Capture without ImagePositionPatient,
     /// ImageOrientationPatient and PixelSpacing): identity directions, unit spacing, origin 0.
     /// Readers add a warning to the metadata when they assume it.

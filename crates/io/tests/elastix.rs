@@ -1,6 +1,7 @@
-//! elastix transform parameter files: the linear ones elastix wrote (`tests/data/elastix/`, made by
-//! `data-scripts/elastix_transforms.py` with itk-elastix 0.25.4) read to transforms that map points where transformix
-//! mapped them; bad files are refused naming the file and the problem.
+//! elastix transform parameter files: the ones elastix wrote (`tests/data/elastix/`, made by
+//! `data-scripts/elastix_transforms.py` and `elastix_field.py` with itk-elastix 0.25.4), linear and B-spline, read to
+//! transforms that map points where transformix mapped them, and to the displacement field transformix writes; bad
+//! files are refused naming the file and the problem.
 
 use std::path::{Path, PathBuf};
 
@@ -22,27 +23,38 @@ fn points(v: &Value) -> Vec<[f64; 3]> {
     v.as_array().expect("list").iter().map(|p| std::array::from_fn(|a| p[a].as_f64().expect("number"))).collect()
 }
 
-/// Every file elastix wrote (Euler both ways round, similarity, translation, and an affine over the rigid through
-/// InitialTransformParameterFileName) maps the recorded points where transformix did. transformix prints its points
+fn worst(got: &[[f64; 3]], want: &[[f64; 3]]) -> f64 {
+    assert_eq!(got.len(), want.len());
+    got.iter().zip(want).flat_map(|(g, w)| (0..3).map(move |a| (g[a] - w[a]).abs())).fold(0.0, f64::max)
+}
+
+/// Every file elastix wrote (Euler both ways round, similarity, translation, an affine over the rigid through
+/// InitialTransformParameterFileName, a B-spline over that affine, a B-spline on an oblique grid) maps the recorded
+/// points where transformix did, and the linear ones read as one affine that does too. transformix prints its points
 /// to 1e-6 mm, so the bound is 1e-5 mm; a wrong rotation order, versor, centre or composition order is off by
 /// millimetres (the points move up to 8 mm).
 #[test]
-fn every_linear_file_elastix_wrote_maps_points_where_transformix_did() {
+fn every_file_elastix_wrote_maps_points_where_transformix_did() {
     let r = reference();
     let inputs = points(&r["elastix_points_lps"]);
     let files = r["elastix_files"].as_array().expect("files");
-    assert_eq!(files.len(), 5);
+    assert_eq!(files.len(), 7);
     let mut read = Vec::new();
     for f in files {
         let file = f["file"].as_str().expect("file");
-        let affine = elastix::read_affine(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
         let want = points(&f["transformix_lps"]);
-        for (n, (x, w)) in inputs.iter().zip(&want).enumerate() {
-            let got = affine.apply(*x);
-            let err = (0..3).map(|a| (got[a] - w[a]).abs()).fold(0.0, f64::max);
-            assert!(err < 1e-5, "{file}: point {}: {got:?}, transformix {w:?}", n + 1);
+        let chain = elastix::read_transform(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
+        let got: Vec<_> = inputs.iter().map(|x| chain.apply(*x)).collect();
+        assert!(worst(&got, &want) < 1e-5, "{file}: {} mm from transformix", worst(&got, &want));
+        if f["linear"] == true {
+            let affine = elastix::read_affine(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
+            let got: Vec<_> = inputs.iter().map(|x| affine.apply(*x)).collect();
+            assert!(worst(&got, &want) < 1e-5, "{file} as one affine: {} mm", worst(&got, &want));
+            read.push((file, affine));
+        } else {
+            let e = elastix::read_affine(&data_dir().join(file)).expect_err("not linear").to_string();
+            assert!(e.contains("BSplineTransform is not a linear transform") && e.contains("--field"), "{e}");
         }
-        read.push((file, affine));
     }
     // The ZYX file differs from the rigid one only in the order of the angles (transformix: up to 0.031 mm apart,
     // 3000 times the bound); the chain differs from its rigid part.
@@ -68,9 +80,10 @@ fn bad_parameter_files_are_refused_naming_the_file_and_the_problem() {
         let e = elastix::read_affine(p).expect_err("refused").to_string();
         assert!(e.starts_with(&format!("{}: ", p.display())) && e.contains(needle), "{needle:?} in {e}");
     };
-    let bspline = write(dir.path(), "bspline.txt", &rigid.replace("\"EulerTransform\"", "\"BSplineTransform\""));
-    refused(&bspline, "BSplineTransform is not a linear transform");
-    refused(&bspline, "transformix -def all");
+    let other =
+        write(dir.path(), "other.txt", &rigid.replace("\"EulerTransform\"", "\"WeightedCombinationTransform\""));
+    refused(&other, "WeightedCombinationTransform is not read");
+    refused(&other, "transformix -def all");
     refused(
         &write(dir.path(), "few.txt", &rigid.replace("(NumberOfParameters 6)", "").replace(" 0.939309946573854)", ")")),
         "5 numbers, 6 expected",
@@ -147,4 +160,115 @@ fn a_written_affine_reads_back_and_names_the_grid() {
     let nan = dir.path().join("nan.txt");
     assert!(elastix::write(&nan, &ItkTransform::Affine(bad), &grid).is_err());
     assert!(!nan.exists());
+}
+
+/// A B-spline elastix fitted over its affine and rigid stages (`bspline.txt`, 9³ control points, its coefficients
+/// with a seeded bump added) maps where transformix maps: outside the fixed box, where the B-spline ends and the
+/// chain is affine, and at voxel centres, where the field it reads as holds T(x) − x in f32 (the bound adds f32's
+/// rounding of a displacement of up to 11 mm, 1e-6 mm, to transformix's printed 1e-6).
+#[test]
+fn a_bspline_over_its_affine_chain_maps_and_samples_where_transformix_does() {
+    let r = reference();
+    let case = &r["bspline_chain"];
+    let path = data_dir().join(case["file"].as_str().expect("file"));
+    let chain = elastix::read_transform(&path).expect("read");
+    let kinds: Vec<_> = chain.links.iter().map(|l| l.file.file_name().expect("name").to_string_lossy()).collect();
+    assert_eq!(kinds, ["rigid.txt", "affine.txt", "bspline.txt"], "the initial transform first");
+    let outside = points(&case["outside_lps"]);
+    let got: Vec<_> = outside.iter().map(|x| chain.apply(*x)).collect();
+    assert!(worst(&got, &points(&case["transformix_outside_lps"])) < 1e-5, "outside the fixed box");
+
+    let field = elastix::read_field(&path).expect("the field");
+    assert_eq!(field.dims, [28, 28, 28]);
+    let (d, g) = (&field.displacements_lps, &field.lps_from_index);
+    let indices = case["indices"].as_array().expect("indices");
+    let centres = points(&case["centres_lps"]);
+    let mut got = Vec::new();
+    for (ijk, x) in indices.iter().zip(&centres) {
+        let [i, j, k] = std::array::from_fn(|a| ijk[a].as_u64().expect("index") as usize);
+        let at = g.apply_point(warpbench_io::geometry::Point3::new(i as f64, j as f64, k as f64)).coords();
+        assert!((0..3).all(|a| (at[a] - x[a]).abs() < 1e-9), "voxel {ijk} is at {x:?}");
+        let v = d[(k * 28 + j) * 28 + i];
+        got.push([x[0] + f64::from(v[0]), x[1] + f64::from(v[1]), x[2] + f64::from(v[2])]);
+    }
+    let want = points(&case["transformix_centres_lps"]);
+    assert!(worst(&got, &want) < 1e-5, "the field: {} mm from transformix", worst(&got, &want));
+    let moved = centres.iter().zip(&want).map(|(x, y)| (0..3).map(|a| (y[a] - x[a]).abs()).fold(0.0, f64::max));
+    assert!(moved.fold(0.0, f64::max) > 5.0, "the chain moves the centres by millimetres");
+    let read = warpbench_io::displacement::read_field_info(&path).expect("read as any field");
+    assert_eq!(read.source, warpbench_io::displacement::FieldSource::ElastixTransform);
+    assert_eq!(read.field, field);
+}
+
+/// The B-spline over an oblique, anisotropic grid that `data-scripts/elastix_field.py` gave transformix reads as the
+/// very field transformix wrote for it (`tests/data/metaimage/transformix_field.mhd`): the same grid, and every
+/// vector within f32 rounding of both sides (|D| ≤ 1.6 mm, so 2e-7 mm each; bound 1e-6) — but on the image's first
+/// voxel along each axis. The control grid starts exactly one spacing before that voxel, so its centre lies on the
+/// edge of the region where the B-spline is defined, and transformix puts it on either side by rounding (D = 0 at
+/// some, the spline at others; warpbench takes the edge as inside, as exact arithmetic does): those 168 of 504
+/// voxels are a tie, not a test.
+#[test]
+fn an_oblique_bspline_reads_as_the_field_transformix_wrote_for_it() {
+    let ours = elastix::read_field(&data_dir().join("bspline_oblique.txt")).expect("read");
+    let (theirs, _) = warpbench_io::displacement::read_field(&data_dir().join("../metaimage/transformix_field.mhd"))
+        .expect("transformix's field");
+    assert_eq!(ours.dims, theirs.dims);
+    let (a, b) = (ours.lps_from_index.linear(), theirs.lps_from_index.linear());
+    assert!((a - b).abs().max() < 1e-12, "{a} vs {b}");
+    let (a, b) = (ours.lps_from_index.translation(), theirs.lps_from_index.translation());
+    assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-12), "{a:?} vs {b:?}");
+    let [nx, ny, _] = ours.dims;
+    let mut compared = 0;
+    let mut err = 0.0f64;
+    for (n, (p, q)) in ours.displacements_lps.iter().zip(&theirs.displacements_lps).enumerate() {
+        let [i, j, k] = [n % nx, (n / nx) % ny, n / (nx * ny)];
+        if i == 0 || j == 0 || k == 0 {
+            continue;
+        }
+        compared += 1;
+        err = (0..3).map(|c| f64::from((p[c] - q[c]).abs())).fold(err, f64::max);
+    }
+    assert_eq!(compared, 336);
+    assert!(err < 1e-6, "{err} mm from transformix's field");
+    let largest = theirs.displacements_lps.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(largest > 0.5, "the field is not nearly zero: {largest}");
+}
+
+/// Deformable files that cannot be read as elastix would apply them are refused, naming the file and the problem;
+/// a file without a fixed grid reads as a transform but not as a field.
+#[test]
+fn bad_deformable_files_are_refused_naming_the_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = std::fs::read_to_string(data_dir().join("bspline_oblique.txt")).expect("read");
+    let refused = |name: &str, text: &str, needle: &str| {
+        let p = write(dir.path(), name, text);
+        let e = elastix::read_field(&p).expect_err(needle).to_string();
+        assert!(e.starts_with(&format!("{}: ", p.display())) && e.contains(needle), "{needle:?} in {e}");
+    };
+    let quadratic = text.replace("(BSplineTransformSplineOrder 3)", "(BSplineTransformSplineOrder 2)");
+    refused("quadratic.txt", &quadratic, "only cubic (3) B-splines");
+    refused("cyclic.txt", &text.replace("(UseCyclicTransform \"false\")", "(UseCyclicTransform \"true\")"), "cyclic");
+    refused("index.txt", &text.replace("(GridIndex 0 0 0)", "(GridIndex 1 0 0)"), "GridIndex");
+    refused("small.txt", &text.replace("(GridSize 7 7 7)", "(GridSize 7 3 7)"), "whole numbers ≥ 4");
+    refused("count.txt", &text.replace("(GridSize 7 7 7)", "(GridSize 7 7 6)"), "1029 numbers, 882 expected");
+    refused("flat.txt", &text.replace("(GridSpacing 6.0 6.0 6.0)", "(GridSpacing 6.0 0 6.0)"), "not positive");
+    refused("size.txt", &text.replace("(Size 9 8 7)", "(Size 9 8 0.5)"), "positive whole numbers");
+    let no_grid = text.lines().filter(|l| !l.starts_with("(Size ")).collect::<Vec<_>>().join("\n") + "\n";
+    refused("no_grid.txt", &no_grid, "no fixed grid");
+    assert!(elastix::read_transform(&write(dir.path(), "grid.txt", &no_grid)).is_ok(), "a transform all the same");
+    let kernel = "(Transform \"SplineKernelTransform\")\n(SplineKernelType \"ElasticBodySpline\")\n\
+                  (FixedImageLandmarks 0 0 0 1 0 0 0 1 0 0 0 1)\n(TransformParameters 0 0 0 1 0 0 0 1 0 0 0 1)\n";
+    let p = write(dir.path(), "kernel.txt", kernel);
+    let e = elastix::read_transform(&p).expect_err("kernel").to_string();
+    assert!(e.contains("only the ThinPlateSpline kernel"), "{e}");
+    let p = write(dir.path(), "odd.txt", &kernel.replace("ElasticBodySpline", "ThinPlateSpline").replace(" 1)", ")"));
+    let e = elastix::read_transform(&p).expect_err("odd").to_string();
+    assert!(e.contains("not a multiple of 3"), "{e}");
+    // Four landmarks off one plane interpolate: each maps to its target.
+    let four = kernel
+        .replace("ElasticBodySpline", "ThinPlateSpline")
+        .replace("(TransformParameters 0 0 0 1 0 0 0 1 0 0 0 1)", "(TransformParameters 1 2 3 2 2 3 1 3 3 1 2 4)");
+    let t = elastix::read_transform(&write(dir.path(), "four.txt", &four)).expect("four landmarks");
+    let y = t.apply([0.5, 0.25, 0.125]);
+    assert!((0..3).all(|a| (y[a] - [1.5, 2.25, 3.125][a]).abs() < 1e-12), "a translation by (1, 2, 3): {y:?}");
 }

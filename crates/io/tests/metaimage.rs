@@ -372,12 +372,12 @@ fn transformix_reference() -> TransformixReference {
 /// 5.1e-7 mm.
 #[test]
 fn transformixs_deformation_field_reads_to_where_transformix_maps_the_points() {
-    use warpbench_io::displacement::{FieldFormat, read_field_info};
+    use warpbench_io::displacement::{FieldFormat, FieldSource, read_field_info};
     let r = transformix_reference();
     let mut fields = Vec::new();
     for file in ["transformix_field.mhd", "transformix_field.mha"] {
         let read = read_field_info(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!((read.format, read.direction), (FieldFormat::MetaImage, None), "{file}");
+        assert_eq!((read.source, read.direction), (FieldSource::Field(FieldFormat::MetaImage), None), "{file}");
         let field = read.field;
         assert_eq!(field.dims.to_vec(), r.size, "{file}");
         assert_eq!(field.geometry_source, GeometrySource::MetaImage);

@@ -169,7 +169,7 @@ fn file_row(
 pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
     let row = FileRow {
         label: "Displacement field file",
-        hint: "field.nii.gz (ITK, ANTs), field.nrrd (Slicer) or deformationField.mhd (elastix)",
+        hint: "field.nii.gz (ITK, ANTs), field.nrrd (Slicer), deformationField.mhd or TransformParameters.1.txt (elastix)",
         use_button: "Use field under landmarks",
         remove_button: "Remove field",
         current: "Field under the landmarks",

@@ -204,9 +204,13 @@ impl Purpose {
                 d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
             }
             Self::ExportWarped => d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"]),
-            Self::ExportField | Self::ExportInverseField | Self::UseField => {
+            Self::ExportField | Self::ExportInverseField => {
                 d.add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
             }
+            Self::UseField => d
+                .set_title("A displacement field, or an elastix transform, to put under the landmarks")
+                .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
+                .add_filter("elastix transform parameter file", &["txt"]),
             Self::ExportTransform(TransformFormat::Itk) => {
                 d.add_filter("ITK or ANTs transform", &["tfm", "txt", "mat"])
             }

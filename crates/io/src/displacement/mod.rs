@@ -18,8 +18,9 @@
 //!
 //! [`read_field`] detects the flavour from the bytes, not the name: a NRRD magic is [`FieldFormat::Nrrd`]; a
 //! MetaImage header (`ObjectType = …`) is [`FieldFormat::MetaImage`]; a NIfTI header (plain or gzip) with intent 1006
-//! is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]; anything else is refused. It returns LPS vectors whatever
-//! the flavour.
+//! is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]. An elastix transform parameter file (its first line
+//! opens with `(`) is read as the field transformix writes for it ([`crate::elastix::read_field`]): its whole chain
+//! sampled on its fixed grid. Anything else is refused. It returns LPS vectors whatever the flavour.
 
 pub(crate) mod check;
 
@@ -131,12 +132,21 @@ impl std::fmt::Display for FieldDirection {
     }
 }
 
+/// What a field was read from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldSource {
+    /// A displacement field file of a flavour.
+    Field(FieldFormat),
+    /// An elastix transform parameter file, sampled on its fixed grid as transformix does.
+    ElastixTransform,
+}
+
 /// What [`read_field_info`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReadField {
     /// The grid and the vectors, LPS.
     pub field: DisplacementField,
-    pub format: FieldFormat,
+    pub source: FieldSource,
     /// The direction the file states, where it can: a NRRD field's `displacement field type` (resampling is the
     /// pull-back, modeling the forward map); `None` when the file says nothing (NIfTI never does; readers then take
     /// it as a pull-back, ITK's convention).
@@ -146,8 +156,8 @@ pub struct ReadField {
 /// Reads a displacement field of any flavour, told apart by content (module docs); the vectors are LPS.
 /// Errors name the file: a wrong intent, wrong dims, non-float samples, non-finite vectors, a field too large for
 /// memory.
-pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldFormat)> {
-    read_field_info(path).map(|r| (r.field, r.format))
+pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldSource)> {
+    read_field_info(path).map(|r| (r.field, r.source))
 }
 
 /// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
@@ -164,11 +174,11 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
             NrrdFieldType::Resampling => FieldDirection::Pullback,
             NrrdFieldType::Modeling => FieldDirection::Forward,
         });
-        return Ok(ReadField { field, format: FieldFormat::Nrrd, direction });
+        return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Nrrd), direction });
     }
     if crate::metaimage::looks_like_metaimage(head) {
         let field = crate::metaimage::read_displacement_field(path)?;
-        return Ok(ReadField { field, format: FieldFormat::MetaImage, direction: None });
+        return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::MetaImage), direction: None });
     }
     if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
         let (field, intent) = nifti::read_vector_field(path)?;
@@ -176,9 +186,17 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
             NiftiVectorIntent::DispvectRas => FieldFormat::Itk,
             NiftiVectorIntent::VectorLps => FieldFormat::Ants,
         };
-        return Ok(ReadField { field, format, direction: None });
+        return Ok(ReadField { field, source: FieldSource::Field(format), direction: None });
     }
-    Err(Error::unsupported(path, "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD nor MetaImage"))
+    if crate::elastix::looks_like_parameter_file(head) {
+        let field = crate::elastix::read_field(path)?;
+        return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None });
+    }
+    Err(Error::unsupported(
+        path,
+        "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD, MetaImage nor an elastix transform \
+         parameter file",
+    ))
 }
 
 /// Writes a pull-back displacement field (`displacements_lps`, LPS mm, i fastest, one per voxel of the grid `dims`,
@@ -282,7 +300,7 @@ mod tests {
             std::fs::copy(&path, &neutral).expect("copy");
             for p in [&path, &neutral] {
                 let r = read_field_info(p).expect("read back");
-                assert_eq!((r.format, r.direction), (format, direction), "{name}");
+                assert_eq!((r.source, r.direction), (FieldSource::Field(format), direction), "{name}");
                 assert_eq!(r.field.dims, dims);
                 assert!(r.field.lps_from_index.max_abs_diff(&lps_from_index) < 1e-4, "{name}");
                 assert_eq!(bits(&r.field.displacements_lps), bits(&field), "{name}: LPS vectors bit for bit");

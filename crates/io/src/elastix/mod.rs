@@ -1,5 +1,7 @@
-//! elastix transform parameter files (`TransformParameters.0.txt`): [`read_affine`] reads the linear ones (a chain of
-//! them included) for `--initial`, [`write()`] writes every transform warpbench fits so that transformix applies it.
+//! elastix transform parameter files (`TransformParameters.0.txt`): [`read_transform`] reads one and the chain of
+//! initial transforms under it, [`read_affine`] a linear chain as one affine (for `--initial`), [`read_field`] a
+//! chain as the displacement field transformix writes for it (for `--field`), and [`write()`] writes every
+//! transform warpbench fits so that transformix applies it.
 //!
 //! # The format
 //!
@@ -39,17 +41,33 @@
 //! | `SplineKernelTransform` | the target landmarks (x y z each) | the thin-plate spline (kernel r) through `FixedImageLandmarks` → targets |
 //! | `BSplineTransform` | the control points' x displacements, then y, then z | x + cubic B-spline over `GridSize`, `GridOrigin`, `GridSpacing`, `GridDirection` |
 //!
+//! `BSplineTransform` (or `RecursiveBSplineTransform`) is read when cubic (`BSplineTransformSplineOrder 3`), not
+//! cyclic, its grid indexed from 0: as ITK's, it is x itself outside the region where all 4 × 4 × 4 of a point's
+//! control points exist. `SplineKernelTransform` is read with the `ThinPlateSpline` kernel, solved as ITK solves it,
+//! relaxed by `SplineRelaxationFactor` ([`ThinPlateKernel`]).
+//!
 //! `InitialTransformParameterFileName` names a file whose transform is applied first: with `HowToCombineTransforms
 //! "Compose"` (the default) the chain is T(x) = T₁(T₀(x)). The `elastix` executable writes the path it was given;
 //! it is looked for beside the file that names it, then as given.
 //!
+//! # As a displacement field
+//!
+//! [`read_field`] samples the whole chain at every voxel centre of the named file's fixed grid (`Size`, `Spacing`,
+//! `Origin`, `Direction`): D(x) = T(x) − x, the pull-back, f32, as `transformix -def all` writes
+//! `deformationField.mhd`. Resampling the moving image onto that grid through it is what transformix does at those
+//! centres; between them the field is trilinear, and outside the grid it is 0, as every displacement field.
+//!
 //! Checked against transformix (itk-elastix 0.25.4): the fixtures of `tests/data/elastix/` (elastix's own files, and
 //! warpbench's) map points where transformix maps them (`data-scripts/elastix_transforms.py`).
 
+mod field;
 mod params;
 mod read;
+mod transform;
 mod write;
 
+pub use field::{read_field, sample};
 pub use params::looks_like_parameter_file;
-pub use read::read_affine;
+pub use read::{read_affine, read_transform};
+pub use transform::{ElastixTransform, Link, MAX_KERNEL_LANDMARKS, Step, ThinPlateKernel};
 pub use write::{ElastixGrid, to_text, transform_name, write};

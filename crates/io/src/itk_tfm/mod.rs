@@ -296,15 +296,19 @@ impl ItkBSpline {
     }
 
     /// c = (D · diag(spacing))⁻¹ (x − origin), as ITK's `TransformPhysicalPointToContinuousIndex`; `None` when the
-    /// grid's axes are degenerate.
+    /// grid's axes are degenerate. A coordinate within [`SNAP_GRID_UNITS`] of a whole number is that number: the
+    /// transform jumps to the identity at the edge of its region, so a point on the edge (a voxel centre placed
+    /// there, as a grid one spacing before an image's first voxel does) must not land on either side by rounding.
+    /// Exact arithmetic puts it inside, and so does elastix's transformix on such grids.
     fn continuous_index(&self, x: [f64; 3]) -> Option<[f64; 3]> {
         let d = Matrix3::from_fn(|r, c| self.grid_direction[r][c] * self.grid_spacing_mm[c]);
         let index_from_lps = d.try_inverse()?;
         let v = Vector3::from(x) - Vector3::from(self.grid_origin_lps);
-        Some((index_from_lps * v).into())
+        let c: [f64; 3] = (index_from_lps * v).into();
+        Some(c.map(|c| if (c - c.round()).abs() <= SNAP_GRID_UNITS { c.round() } else { c }))
     }
 
-    fn check(&self, name: &Path) -> Result<()> {
+    pub(crate) fn check(&self, name: &Path) -> Result<()> {
         if self.grid_size.iter().any(|&n| n < 4) {
             return Err(Error::invalid(
                 name,
@@ -341,6 +345,10 @@ impl ItkBSpline {
         Ok(())
     }
 }
+
+/// How close to a whole number, in grid units, a B-spline's continuous index is taken as that number
+/// ([`ItkBSpline::apply`]): rounding in (D · diag(spacing))⁻¹ (x − origin) is about 1e-15 of the grid's extent.
+const SNAP_GRID_UNITS: f64 = 1e-9;
 
 /// The uniform cubic B-spline basis B₀..B₃ at t ∈ [0, 1) (ITK's `BSplineKernelFunction<3>` at t + 1, t, 1 − t, 2 − t).
 fn cubic_basis(t: f64) -> [f64; 4] {
