@@ -6,6 +6,7 @@
 //!
 //! - [`volume`]: volumes in and out, as numpy arrays in i-j-k order (the reader's vector becomes the array's buffer,
 //!   no copy) and their `lps_from_index`.
+//! - [`field`](mod@field): displacement fields in, in every flavour `--field` reads (elastix transforms too).
 //! - [`landmarks`](mod@landmarks): landmark pairs in and out in every format the CLI reads and writes.
 //! - [`warp`](mod@warp): `Warp`, a fit of landmark pairs (on a starting transform), and what it maps, samples,
 //!   resamples and writes.
@@ -20,6 +21,7 @@ use pyo3::prelude::*;
 
 pub mod command;
 pub mod errors;
+pub mod field;
 pub mod landmarks;
 pub mod volume;
 pub mod warp;
@@ -30,6 +32,7 @@ fn _warpbench(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(volume::read_volume, m)?)?;
     m.add_function(wrap_pyfunction!(volume::write_volume, m)?)?;
+    m.add_function(wrap_pyfunction!(field::read_field, m)?)?;
     m.add_function(wrap_pyfunction!(landmarks::read_landmarks, m)?)?;
     m.add_function(wrap_pyfunction!(landmarks::write_landmarks, m)?)?;
     m.add_function(wrap_pyfunction!(command::run_command, m)?)?;

@@ -42,8 +42,10 @@ __all__ = [
     "Volume",
     "Pairs",
     "Warp",
+    "Field",
     "read_volume",
     "write_volume",
+    "read_field",
     "read_landmarks",
     "write_landmarks",
     "fit",
@@ -184,6 +186,35 @@ def read_volume(path: PathLike, *, frame: Optional[int] = None) -> Volume:
 def write_volume(path: PathLike, volume: Volume) -> None:
     """``volume.write(path)``."""
     volume.write(path)
+
+
+@dataclass(frozen=True)
+class Field:
+    """A displacement field read from a file (:func:`read_field`).
+
+    ``array`` holds its vectors, LPS mm, shape ``(ni, nj, nk, 3)`` float32, at the voxel centres of the grid
+    ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``) or
+    ``"elastix"`` for a transform parameter file; ``direction`` is ``"pullback"`` or ``"forward"`` where the file says
+    (NRRD), else ``None``, and then it is a pull-back, as ITK takes it."""
+
+    array: np.ndarray
+    lps_from_index: np.ndarray
+    source: str
+    direction: Optional[str]
+
+    @property
+    def shape(self) -> Tuple[int, int, int]:
+        """The grid's voxels along i, j, k."""
+        return tuple(int(n) for n in self.array.shape[:3])  # type: ignore[return-value]
+
+
+def read_field(path: PathLike) -> Field:
+    """Reads a displacement field as ``warpbench warp --field`` reads it: ITK's or ANTs' NIfTI, Slicer's NRRD, a
+    MetaImage vector image (transformix's ``deformationField.mhd``), or an elastix transform parameter file
+    (``TransformParameters.N.txt`` and the files it names), sampled at every voxel centre of its fixed grid as
+    ``transformix -def all`` would write it."""
+    array, lps, source, direction = _warpbench.read_field(os.fspath(path))
+    return Field(array, lps, source, direction)
 
 
 @dataclass

@@ -1,0 +1,72 @@
+"""`read_field`: every flavour `--field` reads, against SimpleITK's reading of the same files and elastix's own.
+
+- transformix's field (`tests/data/metaimage/transformix_field.mhd`, written by itk-elastix 0.25.4) reads to the
+  array and grid SimpleITK reads from it (numpy's k-j-i order turned to i-j-k);
+- the elastix parameter file transformix made it from (`tests/data/elastix/bspline_oblique.txt`) reads, sampled on
+  its fixed grid, to the same field within f32 rounding (1e-6 mm), but for the voxels on the edge of the B-spline's
+  region, where transformix breaks a tie by rounding (`crates/io/tests/elastix.rs`);
+- a field written by `Warp.field` in each flavour reads back to the same vectors and names its flavour.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warpbench as wb
+from conftest import DATA, PAIRS, T1
+
+sitk = pytest.importorskip("SimpleITK")
+
+TRANSFORMIX = DATA / "metaimage" / "transformix_field.mhd"
+ELASTIX = DATA / "elastix" / "bspline_oblique.txt"
+
+
+def sitk_field(path):
+    image = sitk.ReadImage(str(path))
+    vectors = sitk.GetArrayFromImage(image).transpose(2, 1, 0, 3)  # k-j-i-c to i-j-k-c
+    direction = np.array(image.GetDirection()).reshape(3, 3)
+    lps = np.eye(4)
+    lps[:3, :3] = direction * np.array(image.GetSpacing())
+    lps[:3, 3] = image.GetOrigin()
+    return vectors, lps
+
+
+def test_transformix_field_reads_as_simpleitk_reads_it():
+    field = wb.read_field(TRANSFORMIX)
+    vectors, lps = sitk_field(TRANSFORMIX)
+    assert field.source == "metaimage" and field.direction is None
+    assert field.shape == vectors.shape[:3] and field.array.dtype == np.float32
+    np.testing.assert_array_equal(field.array, vectors)
+    np.testing.assert_allclose(field.lps_from_index, lps, atol=1e-12)
+
+
+def test_an_elastix_parameter_file_reads_as_the_field_transformix_wrote():
+    ours = wb.read_field(ELASTIX)
+    vectors, lps = sitk_field(TRANSFORMIX)
+    assert ours.source == "elastix" and ours.direction is None
+    np.testing.assert_allclose(ours.lps_from_index, lps, atol=1e-12)
+    inner = (slice(1, None), slice(1, None), slice(1, None))
+    np.testing.assert_allclose(ours.array[inner], vectors[inner], rtol=0, atol=1e-6)
+    assert np.abs(vectors).max() > 0.5
+
+
+def test_a_written_field_reads_back_in_every_flavour(tmp_path):
+    head = wb.read_volume(T1)
+    warp = wb.fit(wb.read_landmarks(PAIRS), "tps", fixed=head, moving=head)
+    for fmt, name in [("itk", "f.nii.gz"), ("ants", "a.nii.gz"), ("nrrd", "f.nrrd"), ("metaimage", "f.mha")]:
+        sampled = warp.field(path=tmp_path / name, format=fmt)
+        back = wb.read_field(tmp_path / name)
+        assert back.source == fmt
+        assert back.direction == ("pullback" if fmt == "nrrd" else None)
+        np.testing.assert_allclose(back.array, sampled, rtol=0, atol=1e-6 if fmt == "itk" else 0)
+        np.testing.assert_allclose(back.lps_from_index, head.lps_from_index, atol=1e-4)
+
+
+def test_what_is_not_a_field_is_a_value_error_naming_it(tmp_path):
+    bad = tmp_path / "notes.txt"
+    bad.write_text("hello\n")
+    with pytest.raises(ValueError, match="notes.txt"):
+        wb.read_field(bad)
+    with pytest.raises(OSError):
+        wb.read_field(tmp_path / "missing.nii.gz")
