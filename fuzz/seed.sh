@@ -14,6 +14,9 @@ seed nrrd bad '*.nrrd'
 seed dicom dicom '*'
 seed dicom bad '*.dcm'
 seed landmarks landmarks '*'
+seed metaimage metaimage '*.mh?'
+seed metaimage bad '*.mh?'
+seed elastix elastix '*.txt'
 
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {

@@ -269,6 +269,18 @@ fn bad_deformable_files_are_refused_naming_the_file() {
         .replace("ElasticBodySpline", "ThinPlateSpline")
         .replace("(TransformParameters 0 0 0 1 0 0 0 1 0 0 0 1)", "(TransformParameters 1 2 3 2 2 3 1 3 3 1 2 4)");
     let t = elastix::read_transform(&write(dir.path(), "four.txt", &four)).expect("four landmarks");
+    // From bytes (the fuzzing entry) a file reads as from disk, but a chain cannot be followed.
+    let rigid = data_dir().join("rigid.txt");
+    let bytes = std::fs::read(&rigid).expect("read");
+    assert_eq!(
+        elastix::parse_transform(&rigid, &bytes).expect("parse"),
+        elastix::read_transform(&rigid).expect("read")
+    );
+    let affine = data_dir().join("affine.txt");
+    let e = elastix::parse_transform(&affine, &std::fs::read(&affine).expect("read")).expect_err("a chain").to_string();
+    assert!(e.contains("names the initial transform \"rigid.txt\""), "{e}");
+    let e = elastix::parse_transform(&affine, &[0xff, 0xfe, b'(']).expect_err("not UTF-8").to_string();
+    assert!(e.contains("not UTF-8"), "{e}");
     let y = t.apply([0.5, 0.25, 0.125]);
     assert!((0..3).all(|a| (y[a] - [1.5, 2.25, 3.125][a]).abs() < 1e-12), "a translation by (1, 2, 3): {y:?}");
 }

@@ -68,6 +68,6 @@ mod write;
 
 pub use field::{read_field, sample};
 pub use params::looks_like_parameter_file;
-pub use read::{read_affine, read_transform};
+pub use read::{parse_transform, read_affine, read_transform};
 pub use transform::{ElastixTransform, Link, MAX_KERNEL_LANDMARKS, Step, ThinPlateKernel};
 pub use write::{ElastixGrid, to_text, transform_name, write};

@@ -147,8 +147,16 @@ pub(super) fn read_file(path: &Path) -> Result<ParameterMap> {
         return Err(Error::invalid(path, format!("{len} bytes is too long for a transform parameter file")));
     }
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let text = String::from_utf8(bytes).map_err(|_| Error::invalid(path, "the parameter file is not UTF-8 text"))?;
-    parse(path, &text)
+    parse_bytes(path, &bytes)
+}
+
+/// Parses a parameter file's bytes (at most [`MAX_FILE_BYTES`], UTF-8); `name` is used in errors.
+pub(super) fn parse_bytes(name: &Path, bytes: &[u8]) -> Result<ParameterMap> {
+    if bytes.len() as u64 > MAX_FILE_BYTES {
+        return Err(Error::invalid(name, format!("{} bytes is too long for a transform parameter file", bytes.len())));
+    }
+    let text = std::str::from_utf8(bytes).map_err(|_| Error::invalid(name, "the parameter file is not UTF-8 text"))?;
+    parse(name, text)
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Matrix4};
 
-use super::params::{ParameterMap, read_file};
+use super::params::{ParameterMap, parse_bytes, read_file};
 use super::transform::{ElastixTransform, Link, Step, ThinPlateKernel};
 use super::write::ElastixGrid;
 use crate::error::{Error, Result};
@@ -34,8 +34,9 @@ pub fn read_transform(path: &Path) -> Result<ElastixTransform> {
             grid = fixed_grid(&at, &map)?;
         }
         let (step, initial) = one_transform(&at, &map)?;
+        let next = initial.map(|file| find_initial(&at, &file)).transpose()?;
         links.push(Link { file: at.clone(), step });
-        match initial {
+        match next {
             Some(next) => at = next,
             None => break,
         }
@@ -43,6 +44,25 @@ pub fn read_transform(path: &Path) -> Result<ElastixTransform> {
     // Read from `path` down the chain, so the last read applies first.
     links.reverse();
     Ok(ElastixTransform { links, grid })
+}
+
+/// One parameter file's transform from its bytes (`name` is used in errors and as the link's file), as
+/// [`read_transform`] reads it, but alone: a file that names an initial transform is refused, as the chain can only
+/// be followed from a file. The entry point for fuzzing.
+///
+/// # Errors
+/// As [`read_transform`]; and a file that names an initial transform.
+pub fn parse_transform(name: &Path, bytes: &[u8]) -> Result<ElastixTransform> {
+    let map = parse_bytes(name, bytes)?;
+    let grid = fixed_grid(name, &map)?;
+    let (step, initial) = one_transform(name, &map)?;
+    if let Some(file) = initial {
+        return Err(Error::unsupported(
+            name,
+            format!("it names the initial transform {file:?}, which only a file beside it can give"),
+        ));
+    }
+    Ok(ElastixTransform { links: vec![Link { file: name.to_path_buf(), step }], grid })
 }
 
 /// [`read_transform`] for a chain of linear transforms only (`TranslationTransform`, `EulerTransform`,
@@ -103,8 +123,8 @@ fn fixed_grid(name: &Path, map: &ParameterMap) -> Result<Option<ElastixGrid>> {
     Ok(Some(ElastixGrid { dims, lps_from_index }))
 }
 
-/// The transform of one file, and the file of its initial transform if it names one.
-fn one_transform(name: &Path, map: &ParameterMap) -> Result<(Step, Option<PathBuf>)> {
+/// The transform of one file, and the initial transform's file as it names it, if it does.
+fn one_transform(name: &Path, map: &ParameterMap) -> Result<(Step, Option<String>)> {
     if let Some(d) = map.numbers(name, "FixedImageDimension")?
         && d != [3.0]
     {
@@ -190,7 +210,7 @@ fn one_transform(name: &Path, map: &ParameterMap) -> Result<(Step, Option<PathBu
                     ));
                 }
             }
-            Some(find_initial(name, file)?)
+            Some(file.to_owned())
         }
     };
     Ok((step, initial))

@@ -173,7 +173,14 @@ fn check_spans_space(name: &Path, sources: &[[f64; 3]]) -> Result<()> {
     }
     let mean = sources.iter().fold(Vector3::zeros(), |a, s| a + Vector3::from(*s)) / n as f64;
     let centred = DMatrix::from_fn(n, 3, |i, c| sources[i][c] - mean[c]);
-    let singular = centred.singular_values();
+    if !centred.iter().all(|v| v.is_finite()) {
+        return refuse("their coordinates are too large to solve for");
+    }
+    // A bounded number of sweeps: the 3 singular values of finite coordinates converge in a few.
+    let Some(svd) = centred.try_svd(false, false, f64::EPSILON, 1_000) else {
+        return refuse("their spread cannot be measured");
+    };
+    let singular = svd.singular_values;
     let (largest, smallest) = (singular.max(), singular.min());
     if smallest.is_nan() || smallest <= 1e-9 * largest {
         return refuse("they lie in one plane");
