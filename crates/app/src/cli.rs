@@ -6,7 +6,7 @@ use std::io::Write;
 use clap::Subcommand;
 
 use crate::exit::Failure;
-use crate::{align, eval, field, info, landmarks, points, register, render, suggest, transform, warp};
+use crate::{align, eval, field, info, jacobian, landmarks, points, register, render, suggest, transform, warp};
 
 /// The headless subcommands: each module's `Args` says what it takes and holds its help.
 #[derive(Debug, Subcommand)]
@@ -16,6 +16,7 @@ pub enum Command {
     Eval(Box<eval::EvalArgs>),
     Render(Box<render::RenderArgs>),
     Field(Box<field::FieldArgs>),
+    Jacobian(Box<jacobian::JacobianArgs>),
     Points(Box<points::PointsArgs>),
     Transform(Box<transform::TransformArgs>),
     Landmarks(Box<landmarks::LandmarksArgs>),
@@ -41,6 +42,7 @@ pub fn run(command: Command, out: &mut dyn Write) -> Result<(), Failure> {
         Command::Eval(args) => eval::run(&args, out),
         Command::Render(args) => render::run(*args).map(|_| ()),
         Command::Field(args) => field::run(*args, out).map(|_| ()),
+        Command::Jacobian(args) => jacobian::run(*args, out).map(|_| ()),
         Command::Points(args) => points::run(*args, out).map(|_| ()),
         Command::Transform(args) => transform::run(*args, out).map(|_| ()),
         Command::Landmarks(args) => landmarks::run(*args, out).map(|_| ()),

@@ -52,6 +52,7 @@ pub mod gpu_samples;
 pub mod gui;
 pub mod info;
 pub mod inputs;
+pub mod jacobian;
 pub mod landmarks;
 pub mod points;
 pub mod procedural;
