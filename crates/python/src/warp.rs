@@ -17,6 +17,7 @@ use pyo3::prelude::*;
 use warpbench_app::field::{self, Field};
 use warpbench_app::fit;
 use warpbench_app::inputs::{self, Correspondences, Names};
+use warpbench_app::jacobian;
 use warpbench_app::project::diagnostics::DiagnosticsInput;
 use warpbench_app::project::stack::{Layers, StackForward, StackPullback};
 use warpbench_app::settings::MethodKind;
@@ -279,6 +280,26 @@ impl Warp {
         let array = Array4::from_shape_vec((dims[0], dims[1], dims[2], 3).f(), flat)
             .map_err(|e| PyValueError::new_err(format!("field: {e}")))?;
         Ok(PyArray::from_owned_array(py, array).into_any().unbind())
+    }
+
+    /// `quantity` (`det`: det ∇u; `magnitude`: |u(x) − x|, mm) at every voxel centre of `reference` (`(dims,
+    /// lps_from_index)`), as a (ni, nj, nk) float32 array: what `warpbench jacobian` writes.
+    #[pyo3(signature = (reference, quantity = "det"))]
+    fn jacobian(
+        &self,
+        py: Python<'_>,
+        reference: (Vec<usize>, PyReadonlyArray2<'_, f64>),
+        quantity: &str,
+    ) -> PyResult<Py<PyAny>> {
+        let name = Path::new("reference");
+        let grid = grid(name, reference)?;
+        let quantity = <jacobian::Quantity as clap::ValueEnum>::from_str(quantity, true)
+            .map_err(|_| PyValueError::new_err(format!("quantity={quantity:?}: give det or magnitude")))?;
+        let volume = geometry_volume(name, &grid)?;
+        let map = guarded(py, || {
+            jacobian::sample_map(&self.pullback, quantity, &volume, Path::new("jacobian")).map_err(|f| to_py(&f))
+        })?;
+        samples_to_numpy(py, map.volume.dims, map.volume.data)
     }
 
     /// The moving volume (`array`, `lps_from_index`) resampled through the pull-back on `reference`'s grid (or the

@@ -340,6 +340,26 @@ class Warp:
             reference._grid(), direction, None if path is None else os.fspath(path), format
         )
 
+    def jacobian(
+        self,
+        reference: Optional[Volume] = None,
+        *,
+        quantity: str = "det",
+        path: Optional[PathLike] = None,
+    ) -> np.ndarray:
+        """A map of the pull-back on ``reference``'s grid (default: the fixed volume), as ``warpbench jacobian``
+        writes it: det ∇u (``quantity="det"``: below 1 the warp squeezes, at or below 0 it folds) or |u(x) − x| in mm
+        (``"magnitude"``) at every voxel centre, shape (ni, nj, nk), float32. With ``path`` it is also written as a
+        volume (``.nii``, ``.nii.gz``, ``.nrrd``, ``.mha``, ``.mhd``)."""
+        if reference is None:
+            reference = self.fixed
+        if reference is None:
+            raise ValueError("jacobian: give reference=, or fit the warp with fixed=")
+        array = self._native.jacobian(reference._grid(), quantity)
+        if path is not None:
+            Volume(array, reference.lps_from_index).write(path)
+        return array
+
     def resample(
         self,
         moving: Optional[Volume] = None,
