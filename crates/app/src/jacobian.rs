@@ -10,7 +10,7 @@
 //! ```
 //!
 //! These are the maps BigWarp shows as its Jacobian and warp-magnitude overlays and the window draws over its
-//! slices; ANTs writes the first with `CreateJacobianDeterminantImage`. ITK's
+//! slices (and exports through [`jacobian_map`]); ANTs writes the first with `CreateJacobianDeterminantImage`. ITK's
 //! `DisplacementFieldJacobianDeterminantFilter` computes det ∇u by central differences of a field's voxels; this is
 //! the derivative itself. The map is float32, in the format its name says (`.nii`, `.nii.gz`, `.nrrd`, `.mha`,
 //! `.mhd`), on the grid's geometry.
@@ -89,12 +89,12 @@ pub enum Quantity {
 }
 
 impl Quantity {
-    /// What a map of it is called in messages.
+    /// What a map of it is called in messages (the window's too, whose font has ASCII and Latin letters only).
     #[must_use]
     pub const fn describe(self) -> &'static str {
         match self {
-            Self::Det => "det ∇u",
-            Self::Magnitude => "|u(x) − x| (mm)",
+            Self::Det => "Jacobian determinant",
+            Self::Magnitude => "warp magnitude (mm)",
         }
     }
 

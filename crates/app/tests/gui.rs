@@ -285,6 +285,8 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     harness.run_steps(2);
     for item in [
         "Export inverse field...",
+        "Export Jacobian map...",
+        "Export warp magnitude...",
         "Export transform...",
         "Export for elastix...",
         "Use starting transform...",
@@ -322,6 +324,15 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let elastix_out = dir.path().join("TransformParameters.0.txt");
     let message = export("Export for elastix", &elastix_out);
     assert!(message.contains("SplineKernelTransform (5 pairs"), "{message}");
+    let det_out = dir.path().join("det.nii.gz");
+    let message = export("Export Jacobian map", &det_out);
+    assert!(
+        message.contains("Jacobian determinant map of the tps warp (5 pairs)") && message.contains("% folded"),
+        "{message}"
+    );
+    let magnitude_out = dir.path().join("moved.nrrd");
+    let message = export("Export warp magnitude", &magnitude_out);
+    assert!(message.contains("warp magnitude (mm) map"), "{message}");
     let text = dir.path().join("field.txt");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = text.display().to_string();
     harness.run_steps(2);
@@ -341,8 +352,8 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     assert!(message.contains("an elastix transform parameter file is a .txt"), "{message}");
     assert!(!tfm_for_elastix.exists());
 
-    // The same files as `warpbench warp --exact` and `warpbench field` (and `field --direction forward`) write for
-    // the same inputs, byte for byte.
+    // The same files as `warpbench warp --exact`, `warpbench field` (and `field --direction forward`), `transform`
+    // and `jacobian` write for the same inputs, byte for byte.
     let cli = |args: &[&str]| {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_warpbench")).args(args).output().expect("run");
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
@@ -370,6 +381,12 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let cli_elastix = dir.path().join("cli_elastix.txt").display().to_string();
     cli(&[&["transform"], &common[..], &["--format", "elastix", "--out", cli_elastix.as_str()]].concat());
     assert!(std::fs::read(&elastix_out).expect("window's") == std::fs::read(&cli_elastix).expect("CLI's"), "elastix");
+    for (quantity, window_out) in [("det", &det_out), ("magnitude", &magnitude_out)] {
+        let cli_map = dir.path().join(format!("cli_{}", window_out.file_name().expect("name").to_string_lossy()));
+        let cli_map_arg = cli_map.display().to_string();
+        cli(&[&["jacobian"], &common[..], &["--quantity", quantity, "--out", cli_map_arg.as_str()]].concat());
+        assert!(std::fs::read(window_out).expect("window's") == std::fs::read(&cli_map).expect("CLI's"), "{quantity}");
+    }
     let header = String::from_utf8_lossy(&std::fs::read(&inverse_out).expect("read")).into_owned();
     assert!(header.contains("displacement field type:=modeling"), "the inverse says it is a forward map");
 }

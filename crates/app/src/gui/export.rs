@@ -1,5 +1,5 @@
 //! Exporting from the window: the warped moving volume (NIfTI, and optionally a DICOM series), the displacement
-//! field and the exact transform, on a worker thread with a progress bar and a cancel button, through the same code
+//! field, the exact transform and the maps of det ∇u and |u(x) − x| (`warpbench jacobian`, [`crate::jacobian`]), on a worker thread with a progress bar and a cancel button, through the same code
 //! as `warpbench warp` ([`crate::warp::resample`], [`crate::warp::write_outputs`]), `warpbench field`
 //! ([`crate::field::displacement_field`], [`crate::field::write_field`]) and `warpbench transform`
 //! ([`crate::transform::exact_transform`], [`crate::transform::write_transform`]).
@@ -22,6 +22,7 @@ use super::open::{Watch, file_name};
 use crate::exit::Failure;
 use crate::field;
 use crate::inputs::{self, Names};
+use crate::jacobian::{self, Quantity};
 use crate::transform::{self, TransformFormat};
 use crate::warp::{self, Backend, PullBackMode, WarpSettings};
 
@@ -39,6 +40,9 @@ pub enum ExportKind {
     /// The pull-back as the exact transform file of `format`, as `warpbench transform` writes it: ITK's `.tfm`
     /// (ANTs' `.mat` for a linear warp named so), or elastix's parameter file.
     Transform { format: TransformFormat },
+    /// A map of the pull-back on the fixed grid (det ∇u, or |u(x) − x|) as a volume, as `warpbench jacobian`
+    /// writes it.
+    Map { quantity: Quantity },
 }
 
 /// The pair and the warp to export, as the window has them.
@@ -79,6 +83,7 @@ impl ExportJob {
             ExportKind::Warped { dicom } => {
                 warp::check_outputs(&out, dicom.as_deref()).map_err(|e| format!("{e:#}"))?;
             }
+            ExportKind::Map { .. } => warp::check_outputs(&out, None).map_err(|e| format!("{e:#}"))?,
             ExportKind::Field | ExportKind::InverseField => {
                 displacement::check_output_name(&out, field_format(&out)?).map_err(|e| e.to_string())?;
             }
@@ -187,6 +192,20 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 exact.pairs
             ))
         }
+        ExportKind::Map { quantity } => {
+            let map = jacobian::jacobian_map(fixed, &made_of, *quantity)?;
+            warpbench_io::write_volume(out, &map.volume)?;
+            let folded = map.fraction_folded.map_or_else(String::new, |f| format!(", {:.2} % folded", 100.0 * f));
+            Ok(format!(
+                "wrote {}: {} map of the {} warp ({} pairs), from {:.4} to {:.4}{folded}{consistency}",
+                out.display(),
+                quantity.describe(),
+                map.method,
+                map.pairs,
+                map.min,
+                map.max
+            ))
+        }
         ExportKind::Field | ExportKind::InverseField => {
             let mut progress = |done: u64, total: u64| {
                 watch.report(&file_name(out), Progress { stage: "field slices", done, total });
@@ -286,6 +305,20 @@ pub fn export_ui(
     {
         asked = Some((ExportKind::InverseField, path.clone()));
     }
+    ui.horizontal(|ui| {
+        for (label, quantity, hover) in [
+            (
+                "Export Jacobian map",
+                Quantity::Det,
+                "The Jacobian determinant at every voxel: below 1 squeezed, above 1 stretched, 0 or below folded",
+            ),
+            ("Export warp magnitude", Quantity::Magnitude, "How far the warp moves each voxel, in mm"),
+        ] {
+            if ui.add_enabled(enabled, egui::Button::new(label)).on_hover_text(hover).clicked() {
+                asked = Some((ExportKind::Map { quantity }, path.clone()));
+            }
+        }
+    });
     ui.horizontal(|ui| {
         let itk = ui.add_enabled(enabled, egui::Button::new("Export transform")).on_hover_text(
             "The exact warp, not a sampled field: an ITK transform file (.tfm) for ITK, ANTs and Slicer; .mat for \

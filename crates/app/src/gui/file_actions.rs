@@ -57,6 +57,7 @@ impl Ready {
             FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
             FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
             FileAction::ExportInverseField(path) => self.start_export(export::ExportKind::InverseField, path),
+            FileAction::ExportMap(quantity, path) => self.start_export(export::ExportKind::Map { quantity }, path),
             FileAction::ExportTransform(format, path) => {
                 self.start_export(export::ExportKind::Transform { format }, path);
             }

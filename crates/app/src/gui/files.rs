@@ -51,6 +51,8 @@ pub enum FileAction {
     ExportInverseField(std::path::PathBuf),
     /// Export the exact transform, as `warpbench transform [--format elastix]` does.
     ExportTransform(crate::transform::TransformFormat, std::path::PathBuf),
+    /// Export a map of the warp (det ∇u or |u(x) − x|) as a volume, as `warpbench jacobian` does.
+    ExportMap(crate::jacobian::Quantity, std::path::PathBuf),
     /// Put the displacement field read from this file (ITK or ANTs NIfTI, Slicer NRRD) under the landmarks.
     UseField(std::path::PathBuf),
     /// Take the displacement field away.
@@ -75,6 +77,7 @@ pub fn chosen(purpose: Purpose, path: std::path::PathBuf) -> Option<FileAction> 
         Purpose::ExportWarped => FileAction::ExportWarped(path),
         Purpose::ExportField => FileAction::ExportField(path),
         Purpose::ExportInverseField => FileAction::ExportInverseField(path),
+        Purpose::ExportMap(quantity) => FileAction::ExportMap(quantity, path),
         Purpose::ExportTransform(format) => FileAction::ExportTransform(format, path),
         Purpose::UseStart => FileAction::UseStart(path),
         Purpose::UseField => FileAction::UseField(path),
@@ -286,10 +289,12 @@ mod tests {
 
     #[test]
     fn a_path_chosen_in_a_dialog_is_the_file_action_of_its_purpose() {
+        use crate::jacobian::Quantity;
         use crate::transform::TransformFormat;
         let p = std::path::PathBuf::from("/data/x");
         let cases = [
             (Purpose::ExportInverseField, FileAction::ExportInverseField(p.clone())),
+            (Purpose::ExportMap(Quantity::Det), FileAction::ExportMap(Quantity::Det, p.clone())),
             (
                 Purpose::ExportTransform(TransformFormat::Elastix),
                 FileAction::ExportTransform(TransformFormat::Elastix, p.clone()),

@@ -12,6 +12,7 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::{Arc, Mutex, PoisonError};
 
 use super::viewer::{DeviceFacts, LayerData};
+use crate::jacobian::Quantity;
 use crate::transform::TransformFormat;
 use eframe::egui;
 use warpbench_io::error::ErrorKind;
@@ -178,6 +179,8 @@ pub enum Purpose {
     ExportWarped,
     ExportField,
     ExportInverseField,
+    /// A map of the warp (det ∇u or |u(x) − x|) as a volume.
+    ExportMap(Quantity),
     /// The exact transform, in ITK's or elastix's format.
     ExportTransform(TransformFormat),
     Screenshot,
@@ -203,7 +206,9 @@ impl Purpose {
             Self::ImportLandmarks | Self::ExportLandmarks => {
                 d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
             }
-            Self::ExportWarped => d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"]),
+            Self::ExportWarped | Self::ExportMap(_) => {
+                d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"])
+            }
             Self::ExportField | Self::ExportInverseField => {
                 d.add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
             }
@@ -233,6 +238,7 @@ impl Purpose {
                 | Self::ExportWarped
                 | Self::ExportField
                 | Self::ExportInverseField
+                | Self::ExportMap(_)
                 | Self::ExportTransform(_)
                 | Self::Screenshot
         )
@@ -501,6 +507,8 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         item(ui, "Export warped volume...", ready, OpenEvent::Dialog(Purpose::ExportWarped));
         item(ui, "Export displacement field...", ready, OpenEvent::Dialog(Purpose::ExportField));
         item(ui, "Export inverse field...", ready, OpenEvent::Dialog(Purpose::ExportInverseField));
+        item(ui, "Export Jacobian map...", ready, OpenEvent::Dialog(Purpose::ExportMap(Quantity::Det)));
+        item(ui, "Export warp magnitude...", ready, OpenEvent::Dialog(Purpose::ExportMap(Quantity::Magnitude)));
         item(ui, "Export transform...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Itk)));
         item(ui, "Export for elastix...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Elastix)));
         ui.separator();
