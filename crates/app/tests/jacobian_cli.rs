@@ -18,12 +18,19 @@ fn map(path: &Path) -> (Vec<f32>, [usize; 3], Transform<Lps, Index>) {
     (values, v.dims, v.lps_from_index)
 }
 
-fn jacobian(pairs: &Path, out: &Path, extra: &[&str]) -> Value {
+/// `warpbench <command>` on the MRI with itself and `pairs`, then `rest`.
+fn on_mri(command: &str, pairs: &Path, rest: &[&str]) -> std::process::Output {
     let m = mri();
-    let mut args = vec!["jacobian", "--fixed", s(&m), "--moving", s(&m), "--landmarks", s(pairs)];
-    args.extend_from_slice(extra);
-    args.extend(["--quiet", "--json", "--out", s(out)]);
-    let run = warpbench(&args);
+    let mut args = vec![command, "--fixed", s(&m), "--moving", s(&m), "--landmarks", s(pairs)];
+    args.extend_from_slice(rest);
+    warpbench(&args)
+}
+
+/// `jacobian` on the MRI with `pairs` (and `extra`) into `out`: its `--json` report.
+fn jacobian(pairs: &Path, out: &Path, extra: &[&str]) -> Value {
+    let mut rest = extra.to_vec();
+    rest.extend(["--quiet", "--json", "--out", s(out)]);
+    let run = on_mri("jacobian", pairs, &rest);
     assert_ok(&run);
     serde_json::from_slice(&run.stdout).expect("JSON")
 }
@@ -63,23 +70,7 @@ fn the_det_map_is_the_derivative_of_the_pullback_that_points_evaluates() {
     }
     let (input, output) = (dir.path().join("in.csv"), dir.path().join("out.csv"));
     std::fs::write(&input, lines.join("\n") + "\n").expect("write");
-    let m = mri();
-    assert_ok(&warpbench(&[
-        "points",
-        "--fixed",
-        s(&m),
-        "--moving",
-        s(&m),
-        "--landmarks",
-        s(&pairs),
-        "--from",
-        "fixed",
-        "--quiet",
-        "--in",
-        s(&input),
-        "--out",
-        s(&output),
-    ]));
+    assert_ok(&on_mri("points", &pairs, &["--from", "fixed", "--quiet", "--in", s(&input), "--out", s(&output)]));
     let text = std::fs::read_to_string(&output).expect("read");
     let u: Vec<[f64; 3]> = text
         .lines()
@@ -116,19 +107,7 @@ fn the_magnitude_map_is_the_length_of_the_fields_vectors() {
     assert_eq!(report["quantity"], "magnitude");
     assert!(report["fraction_folded"].is_null());
     let field = dir.path().join("field.nii.gz");
-    let m = mri();
-    assert_ok(&warpbench(&[
-        "field",
-        "--fixed",
-        s(&m),
-        "--moving",
-        s(&m),
-        "--landmarks",
-        s(&pairs),
-        "--quiet",
-        "--out",
-        s(&field),
-    ]));
+    assert_ok(&on_mri("field", &pairs, &["--quiet", "--out", s(&field)]));
     let (vectors, _) = warpbench_io::displacement::read_field(&field).expect("field");
     let (values, dims, _) = map(&out);
     assert_eq!(dims, vectors.dims);
@@ -168,31 +147,18 @@ fn crossing_pairs_are_reported_as_folding_where_they_fold() {
 #[test]
 fn bad_outputs_are_refused() {
     let dir = tempfile::tempdir().expect("tempdir");
-    let (m, pairs) = (mri(), data("itk/field_pairs.csv"));
+    let pairs = data("itk/field_pairs.csv");
     let txt = dir.path().join("det.txt");
-    let run = warpbench(&["jacobian", "--fixed", s(&m), "--moving", s(&m), "--landmarks", s(&pairs), "--out", s(&txt)]);
+    let run = on_mri("jacobian", &pairs, &["--out", s(&txt)]);
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("det.txt"), "{}", String::from_utf8_lossy(&run.stderr));
     assert!(!txt.exists());
     let existing = dir.path().join("det.nii");
     std::fs::write(&existing, b"mine").expect("write");
-    let run =
-        warpbench(&["jacobian", "--fixed", s(&m), "--moving", s(&m), "--landmarks", s(&pairs), "--out", s(&existing)]);
+    let run = on_mri("jacobian", &pairs, &["--out", s(&existing)]);
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("--force"));
     assert_eq!(std::fs::read(&existing).expect("read"), b"mine");
-    let run = warpbench(&[
-        "jacobian",
-        "--fixed",
-        s(&m),
-        "--moving",
-        s(&m),
-        "--landmarks",
-        s(&pairs),
-        "--quantity",
-        "volume",
-        "--out",
-        s(&existing),
-    ]);
+    let run = on_mri("jacobian", &pairs, &["--quantity", "volume", "--out", s(&existing)]);
     assert_eq!(run.status.code(), Some(2), "an unknown quantity");
 }
