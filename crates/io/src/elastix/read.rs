@@ -185,7 +185,14 @@ fn one_transform(name: &Path, map: &ParameterMap) -> Result<(Step, Option<String
                 center: center()?,
             })
         }
-        "BSplineTransform" | "RecursiveBSplineTransform" => Step::BSpline(bspline(name, map)?),
+        "BSplineTransform" | "RecursiveBSplineTransform" => {
+            let b = bspline(name, map)?;
+            // `bspline` checked the grid's axes: they are not degenerate.
+            let index_from_lps = b
+                .index_from_lps()
+                .ok_or_else(|| Error::invalid(name, "the B-spline's GridDirection and GridSpacing are singular"))?;
+            Step::BSpline(b, index_from_lps)
+        }
         "SplineKernelTransform" => Step::ThinPlate(kernel(name, map)?),
         other => {
             return Err(Error::unsupported(

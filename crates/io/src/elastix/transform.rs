@@ -17,8 +17,9 @@ pub const MAX_KERNEL_LANDMARKS: usize = 5_000;
 pub enum Step {
     /// `TranslationTransform`, `EulerTransform`, `SimilarityTransform`, `AffineTransform`.
     Linear(ItkAffine),
-    /// `BSplineTransform` (or `RecursiveBSplineTransform`, the same function), cubic.
-    BSpline(ItkBSpline),
+    /// `BSplineTransform` (or `RecursiveBSplineTransform`, the same function), cubic, with its grid's
+    /// `index_from_lps` ([`ItkBSpline::index_from_lps`]), found once for every point it maps.
+    BSpline(ItkBSpline, Matrix3<f64>),
     /// `SplineKernelTransform` with the `ThinPlateSpline` kernel.
     ThinPlate(ThinPlateKernel),
 }
@@ -29,7 +30,7 @@ impl Step {
     pub fn apply(&self, x: [f64; 3]) -> [f64; 3] {
         match self {
             Self::Linear(a) => a.apply(x),
-            Self::BSpline(b) => b.apply(x),
+            Self::BSpline(b, index_from_lps) => b.apply_with(index_from_lps, x),
             Self::ThinPlate(k) => k.apply(x),
         }
     }
@@ -70,7 +71,7 @@ impl ElastixTransform {
         for link in &self.links {
             let a = match &link.step {
                 Step::Linear(a) => a,
-                Step::BSpline(_) => return Err((&link.file, "BSplineTransform")),
+                Step::BSpline(..) => return Err((&link.file, "BSplineTransform")),
                 Step::ThinPlate(_) => return Err((&link.file, "SplineKernelTransform")),
             };
             offset = a.matrix * offset + Vector3::from(a.offset());

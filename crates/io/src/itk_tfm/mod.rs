@@ -270,7 +270,20 @@ impl ItkBSpline {
     /// transform domain, x itself outside it.
     #[must_use]
     pub fn apply(&self, x: [f64; 3]) -> [f64; 3] {
-        let Some(c) = self.continuous_index(x) else { return x };
+        self.index_from_lps().map_or(x, |m| self.apply_with(&m, x))
+    }
+
+    /// (D · diag(spacing))⁻¹, which maps a point's offset from the grid's origin to grid units; `None` when the
+    /// grid's axes are degenerate. Found once for [`Self::apply_with`], which maps many points.
+    #[must_use]
+    pub fn index_from_lps(&self) -> Option<Matrix3<f64>> {
+        Matrix3::from_fn(|r, c| self.grid_direction[r][c] * self.grid_spacing_mm[c]).try_inverse()
+    }
+
+    /// [`Self::apply`] with the grid's `index_from_lps` ([`Self::index_from_lps`]) given.
+    #[must_use]
+    pub fn apply_with(&self, index_from_lps: &Matrix3<f64>, x: [f64; 3]) -> [f64; 3] {
+        let c = self.continuous_index(index_from_lps, x);
         let inside = (0..3).all(|a| c[a] >= 1.0 && c[a] < self.grid_size[a] as f64 - 2.0);
         if !inside {
             return x;
@@ -295,17 +308,15 @@ impl ItkBSpline {
         [x[0] + d[0], x[1] + d[1], x[2] + d[2]]
     }
 
-    /// c = (D · diag(spacing))⁻¹ (x − origin), as ITK's `TransformPhysicalPointToContinuousIndex`; `None` when the
-    /// grid's axes are degenerate. A coordinate within [`SNAP_GRID_UNITS`] of a whole number is that number: the
+    /// c = (D · diag(spacing))⁻¹ (x − origin), as ITK's `TransformPhysicalPointToContinuousIndex`, with
+    /// `index_from_lps` = (D · diag(spacing))⁻¹. A coordinate within [`SNAP_GRID_UNITS`] of a whole number is that number: the
     /// transform jumps to the identity at the edge of its region, so a point on the edge (a voxel centre placed
     /// there, as a grid one spacing before an image's first voxel does) must not land on either side by rounding.
     /// Exact arithmetic puts it inside, and so does elastix's transformix on such grids.
-    fn continuous_index(&self, x: [f64; 3]) -> Option<[f64; 3]> {
-        let d = Matrix3::from_fn(|r, c| self.grid_direction[r][c] * self.grid_spacing_mm[c]);
-        let index_from_lps = d.try_inverse()?;
+    fn continuous_index(&self, index_from_lps: &Matrix3<f64>, x: [f64; 3]) -> [f64; 3] {
         let v = Vector3::from(x) - Vector3::from(self.grid_origin_lps);
         let c: [f64; 3] = (index_from_lps * v).into();
-        Some(c.map(|c| if (c - c.round()).abs() <= SNAP_GRID_UNITS { c.round() } else { c }))
+        c.map(|c| if (c - c.round()).abs() <= SNAP_GRID_UNITS { c.round() } else { c })
     }
 
     pub(crate) fn check(&self, name: &Path) -> Result<()> {
@@ -339,7 +350,7 @@ impl ItkBSpline {
         if !geometry.chain(self.coefficients_mm.iter().flatten()).all(|v| v.is_finite()) {
             return Err(Error::invalid(name, "the B-spline's grid or coefficients are not finite"));
         }
-        if self.continuous_index([0.0; 3]).is_none() {
+        if self.index_from_lps().is_none() {
             return Err(Error::invalid(name, format!("grid direction {:?} is singular", self.grid_direction)));
         }
         Ok(())
