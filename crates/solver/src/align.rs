@@ -389,7 +389,7 @@ fn centre_of_mass<S: warpbench_io::geometry::Space>(
     (mass > 0.0).then(|| sum / mass)
 }
 
-/// Seeded fixed samples: random voxels of `fixed`, jittered uniformly inside their voxel, with their box bin.
+/// Seeded fixed samples: points drawn uniformly over the box of `fixed`'s voxel centres, with their box bin.
 pub(crate) fn draw_samples(
     fixed: &Image<Fixed>,
     count: usize,
@@ -408,10 +408,11 @@ pub(crate) fn draw_samples(
         if points.len() == count {
             break;
         }
-        let i = rng.random_range(0..nx) as f64 + rng.random_range(-0.5..0.5);
-        let j = rng.random_range(0..ny) as f64 + rng.random_range(-0.5..0.5);
-        let k = rng.random_range(0..nz) as f64 + rng.random_range(-0.5..0.5);
-        let xi = [i.clamp(0.0, (nx - 1) as f64), j.clamp(0.0, (ny - 1) as f64), k.clamp(0.0, (nz - 1) as f64)];
+        // Uniform over the box of voxel centres: a voxel's jitter is its neighbours' half voxels, and nothing is
+        // clamped onto the box's faces. A sample on a face leaves the image under any outward step, so the measures
+        // would jump at the very point a minimiser starts from (as they did until 2026-12-06).
+        let mut along = |n: usize| if n > 1 { rng.random_range(0.0..(n - 1) as f64) } else { 0.0 };
+        let xi = [along(nx), along(ny), along(nz)];
         if let Some(v) = fixed.sample_index(xi).filter(|v| v.is_finite()) {
             let x = fixed.space_from_index().apply_point(warpbench_io::geometry::Point3::from_array(xi)).coords();
             points.push(Vector3::from(x));
@@ -675,6 +676,34 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Every sample lies strictly inside the image's box, so that no move small enough takes it out: a sample on the
+    /// box's face (a jitter clamped onto the outermost voxel centres, as drawn until 2026-12-06) left the image under
+    /// any outward step, and the measures jumped at the point a minimiser starts from. Each voxel still gets its
+    /// share: the edge voxels, which lose half their jitter, about half the share of the others, not more.
+    #[test]
+    fn samples_lie_strictly_inside_the_box_in_their_voxels_share() {
+        let fixed: Image<Fixed> = blobs(|v| v);
+        let (samples, _) = draw_samples(&fixed, 20_000, 32, 3).expect("samples");
+        let index_from_space = fixed.space_from_index().inverse().expect("invertible");
+        let dims = fixed.dims();
+        let (mut edge, mut interior) = (0usize, 0usize);
+        for s in &samples {
+            let xi = index_from_space.apply_point(warpbench_io::geometry::Point3::from_array(s.x.into())).coords();
+            for a in 0..3 {
+                let tiny = 1e-9;
+                assert!(xi[a] > tiny && xi[a] < (dims[a] - 1) as f64 - tiny, "{xi:?} is on or past the box's face");
+            }
+            let on_edge = (0..3).any(|a| xi[a] < 0.5 || xi[a] > dims[a] as f64 - 1.5);
+            if on_edge { edge += 1 } else { interior += 1 }
+        }
+        // Per voxel: the voxels within half a voxel of a face hold a sample with half (or less) the chance.
+        let interior_voxels: usize = dims.iter().map(|n| n - 2).product();
+        let edge_voxels = dims.iter().product::<usize>() - interior_voxels;
+        let (per_edge, per_interior) = (edge as f64 / edge_voxels as f64, interior as f64 / interior_voxels as f64);
+        assert!(per_edge < 0.6 * per_interior, "edge {per_edge:.3} vs interior {per_interior:.3} samples a voxel");
+        assert!(per_edge > 0.3 * per_interior, "edge {per_edge:.3} vs interior {per_interior:.3} samples a voxel");
     }
 
     /// β³ sums to one over integer shifts and its derivative matches central differences.
