@@ -320,7 +320,7 @@ pub fn register_on(
         let (samples, _) = draw_samples(&fixed_level, draws, params.bins, params.seed.wrapping_add(level as u64))?;
         let metric = match params.similarity {
             Similarity::Mi => LevelMetric::Mi(Metric::new(&warped, &samples, &lattice, params.bins, par, device)?),
-            Similarity::Ngf => LevelMetric::Ngf(Ngf::new(&fixed_level, &warped, &samples, &lattice, par)?),
+            Similarity::Ngf => LevelMetric::Ngf(Box::new(Ngf::new(&fixed_level, &warped, &samples, &lattice, par)?)),
             Similarity::Lncc => LevelMetric::Lncc(Lncc::new(&fixed_level, &warped, &samples, &lattice, par, device)?),
         };
         let pins = pairs
@@ -504,7 +504,7 @@ type ProgressFn<'p> = dyn FnMut(&RegisterProgress) -> ControlFlow<()> + 'p;
 #[derive(Debug)]
 enum LevelMetric<'a> {
     Mi(Metric<'a>),
-    Ngf(Ngf<'a>),
+    Ngf(Box<Ngf>),
     Lncc(Lncc<'a>),
 }
 
@@ -737,9 +737,9 @@ mod tests {
                 Metric::new(&warped, &samples, &lattice, params.bins, Parallelism::Sequential, None)
                     .expect("test input"),
             ),
-            Similarity::Ngf => LevelMetric::Ngf(
+            Similarity::Ngf => LevelMetric::Ngf(Box::new(
                 Ngf::new(&fixed, &warped, &samples, &lattice, Parallelism::Sequential).expect("test input"),
-            ),
+            )),
             Similarity::Lncc => {
                 let (centres, _) = draw_samples(&fixed, 200, params.bins, 1).expect("test input");
                 LevelMetric::Lncc(

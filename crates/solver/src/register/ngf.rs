@@ -15,8 +15,12 @@
 //!
 //! ∂NGF/∂φ_k = (∇B_k(x) · c) g + B_k(x) H (I + ∇D(x)) c,
 //!
-//! the first term through ∇D, the second through y. m' is trilinear, so H has a zero diagonal and the cell's mixed
-//! differences off it ([`Image::sample_with_hessian`]).
+//! the first term through ∇D, the second through y, with H_ij = ∂g_i/∂y_j (the sum runs over i). Both images'
+//! gradients are their voxels' central differences, interpolated trilinearly ([`Image::central_gradient`]): a gradient
+//! continuous in position, so that NGF is continuous in φ. The trilinear interpolant's own gradient jumps on every
+//! cell face, and with it NGF wherever a sample crosses one: along a search direction those jumps added up to a slope
+//! the analytic gradient does not see, and the minimiser could stall at a level's start. H is then the trilinear
+//! derivative of the interpolated gradient.
 
 use rayon::prelude::*;
 
@@ -33,9 +37,10 @@ pub const EDGE_SCALE: f64 = 0.1;
 
 /// The NGF measure over one level's fixed samples.
 #[derive(Debug)]
-pub(super) struct Ngf<'a> {
-    /// The moving image pulled back by the start u₀ onto the level's fixed grid (NaN where u₀ leaves it).
-    warped: &'a Image<Fixed>,
+pub(super) struct Ngf {
+    /// The gradient of the moving image pulled back by the start u₀ onto the level's fixed grid, one image per axis
+    /// (NaN where u₀ leaves it).
+    warped_gradient: [Image<Fixed>; 3],
     points: Vec<[f64; 3]>,
     /// a / |a|_η at each sample.
     fixed_normals: Vec<[f64; 3]>,
@@ -54,7 +59,7 @@ struct Term {
     w: [f64; 3],
 }
 
-impl<'a> Ngf<'a> {
+impl Ngf {
     /// The measure at `samples` of `fixed` (the level's image) against `warped`, with footprints in `lattice`.
     ///
     /// # Errors
@@ -62,22 +67,23 @@ impl<'a> Ngf<'a> {
     /// lands in `warped`.
     pub(super) fn new(
         fixed: &Image<Fixed>,
-        warped: &'a Image<Fixed>,
+        warped: &Image<Fixed>,
         samples: &[Sample],
         lattice: &ControlLattice,
         parallelism: Parallelism,
     ) -> crate::Result<Self> {
         let points: Vec<[f64; 3]> = samples.iter().map(|s| [s.x[0], s.x[1], s.x[2]]).collect();
         let norm = |g: [f64; 3]| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+        let fixed_gradient = fixed.central_gradient(parallelism)?;
+        let warped_gradient = warped.central_gradient(parallelism)?;
+        let at = |images: &[Image<Fixed>; 3], x: [f64; 3]| -> Option<[f64; 3]> {
+            let g = [images[0].sample(x)?, images[1].sample(x)?, images[2].sample(x)?];
+            g.iter().all(|v| v.is_finite()).then_some(g)
+        };
         let fixed_gradients: Vec<[f64; 3]> =
-            points.iter().map(|&x| fixed.sample_with_gradient(x).map_or([0.0; 3], |(_, g)| g)).collect();
+            points.iter().map(|&x| at(&fixed_gradient, x).unwrap_or([0.0; 3])).collect();
         let mean_fixed = fixed_gradients.iter().map(|&g| norm(g)).sum::<f64>() / points.len().max(1) as f64;
-        let moving: Vec<f64> = points
-            .iter()
-            .filter_map(|&x| warped.sample_with_gradient(x))
-            .filter(|(m, g)| m.is_finite() && g.iter().all(|v| v.is_finite()))
-            .map(|(_, g)| norm(g))
-            .collect();
+        let moving: Vec<f64> = points.iter().filter_map(|&x| at(&warped_gradient, x)).map(norm).collect();
         if moving.is_empty() {
             return Err(no_overlap());
         }
@@ -97,7 +103,7 @@ impl<'a> Ngf<'a> {
             .collect();
         let footprints = points.iter().map(|&x| JacobianPoint::of(lattice, x)).collect();
         Ok(Self {
-            warped,
+            warped_gradient,
             points,
             fixed_normals,
             footprints,
@@ -116,8 +122,12 @@ impl<'a> Ngf<'a> {
         let (d, jd) = displacement_and_jacobian(f, phi, dims);
         let x = self.points[n];
         let y = [x[0] + d[0], x[1] + d[1], x[2] + d[2]];
-        let (m, g, h) = self.warped.sample_with_hessian(y)?;
-        if !(m.is_finite() && g.iter().chain(h.iter().flatten()).all(|v| v.is_finite())) {
+        let mut g = [0.0; 3];
+        let mut h = [[0.0; 3]; 3];
+        for (i, image) in self.warped_gradient.iter().enumerate() {
+            (g[i], h[i]) = image.sample_with_gradient(y)?;
+        }
+        if !g.iter().chain(h.iter().flatten()).all(|v| v.is_finite()) {
             return None;
         }
         // b = (I + J)ᵀ g.
@@ -126,9 +136,9 @@ impl<'a> Ngf<'a> {
         let a = self.fixed_normals[n];
         let r = (a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / nb;
         let c: [f64; 3] = std::array::from_fn(|i| 2.0 * r * (a[i] - r * b[i] / nb) / nb);
-        // (I + J) c, then H times it.
+        // (I + J) c, then Hᵀ times it.
         let jc: [f64; 3] = std::array::from_fn(|r_| c[r_] + (0..3).map(|col| jd[r_][col] * c[col]).sum::<f64>());
-        let w: [f64; 3] = std::array::from_fn(|i| (0..3).map(|j| h[i][j] * jc[j]).sum());
+        let w: [f64; 3] = std::array::from_fn(|j| (0..3).map(|i| h[i][j] * jc[i]).sum());
         Some(Term { r_sq: r * r, c, g, w })
     }
 
