@@ -220,6 +220,17 @@ choice! {
     }
 }
 
+impl From<Similarity> for Metric {
+    /// The choice that is the solver's measure: [`Metric::similarity`] undone.
+    fn from(similarity: Similarity) -> Self {
+        match similarity {
+            Similarity::Mi => Self::Mi,
+            Similarity::Ngf => Self::Ngf,
+            Similarity::Lncc => Self::Lncc,
+        }
+    }
+}
+
 impl Metric {
     /// The solver's measure.
     #[must_use]
@@ -474,6 +485,7 @@ mod tests {
         for &m in Metric::ALL {
             // The solver's name of the measure, which `register --json` reports.
             assert_eq!(m.name(), m.similarity().to_string());
+            assert_eq!(Metric::from(m.similarity()), m);
         }
     }
 

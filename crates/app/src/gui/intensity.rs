@@ -54,8 +54,8 @@ pub struct RefineInput {
     /// The window's GPU, when it is a hardware one: the samples of mutual information and local correlation are read
     /// there ([`crate::gpu_samples`]; `register --backend auto`'s rule). A CPU driver is not passed.
     pub gpu: Option<Arc<warpbench_gpu::GpuContext>>,
-    /// What the volumes are matched by.
-    pub metric: Metric,
+    /// How the registration runs: the solver's defaults with the document's Match by as its measure.
+    pub params: RegisterParams,
     /// Read the fixed volume only where this mask volume is not 0.
     pub fixed_mask: Option<PathBuf>,
     /// Read the moving volume only where this mask volume is not 0.
@@ -198,7 +198,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         fixed_mask: masks[0].as_ref().map(|(volume, name)| (volume, name.as_str())),
         moving_mask: masks[1].as_ref().map(|(volume, name)| (volume, name.as_str())),
     };
-    let params = RegisterParams { similarity: input.metric.similarity(), ..RegisterParams::default() };
+    let params = &input.params;
     // A GPU whose pass cannot be made, or a measure it does not read, leaves the work on the CPU, as `--backend auto`
     // does.
     let gpu = input
@@ -208,7 +208,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
         .and_then(|ctx| GpuSamples::new(ctx).ok());
     let device = gpu.as_ref().map(|g| g as &dyn SampleDevice);
     let on = if gpu.is_some() { "on the GPU" } else { "on the CPU" };
-    let refinement = refine(inputs, layers, &params, device, &mut |p| {
+    let refinement = refine(inputs, layers, params, device, &mut |p| {
         if progress(0.95 * p.fraction()) { ControlFlow::Continue(()) } else { ControlFlow::Break(()) }
     })
     .map_err(|e| match e {
@@ -234,7 +234,7 @@ pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -
          {on}",
         refinement.start_name,
         masks_said(input),
-        input.metric.measure(),
+        Metric::from(params.similarity).measure(),
         refinement.registration.levels.first().map_or(0.0, |l| l.similarity_start),
         last.map_or(0.0, |l| l.similarity),
         refinement.jacobian.min_det,

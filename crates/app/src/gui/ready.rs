@@ -11,6 +11,7 @@ use warpbench_gpu::glam::Vec3;
 use warpbench_gpu::{GlyphInstance, GlyphPair, GlyphStyle, OrbitCamera, SlicePlane, pair_glyphs};
 use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
+use warpbench_solver::register::RegisterParams;
 use warpbench_solver::spaces::{Fixed, Moving, as_moving};
 use warpbench_solver::warp::Warp;
 
@@ -110,7 +111,10 @@ impl Ready {
             field: self.document.field.clone(),
             out: self.assist.refined_dir.join(format!("refined-{millis}.nii.gz")),
             gpu: (!self.viewer.ctx.is_cpu_driver()).then(|| Arc::clone(&self.viewer.ctx)),
-            metric: self.document.settings.refine_metric,
+            params: RegisterParams {
+                similarity: self.document.settings.refine_metric.similarity(),
+                ..RegisterParams::default()
+            },
             fixed_mask: self.document.fixed_mask.clone(),
             moving_mask: self.document.moving_mask.clone(),
         };
