@@ -10,12 +10,12 @@
 //! η and ε are [`EDGE_SCALE`] times the mean gradient magnitude of each image at the samples (the moving one at the
 //! level's start), so weak gradients, mostly noise, count little.
 //!
-//! With g = ∇m'(y), H = ∇²m'(y) and ∂NGF/∂b = (2r/n)(a/|a|_η − r b/|b|_ε)/|b|_ε =: c, the derivative in the
+//! With g = ∇m'(y), H = ∇g(y) and ∂NGF/∂b = (2r/n)(a/|a|_η − r b/|b|_ε)/|b|_ε =: c, the derivative in the
 //! coefficient φ_k of control point k (basis B_k) is
 //!
-//! ∂NGF/∂φ_k = (∇B_k(x) · c) g + B_k(x) H (I + ∇D(x)) c,
+//! ∂NGF/∂φ_k = (∇B_k(x) · c) g + B_k(x) Hᵀ (I + ∇D(x)) c,
 //!
-//! the first term through ∇D, the second through y, with H_ij = ∂g_i/∂y_j (the sum runs over i). Both images'
+//! the first term through ∇D, the second through y, with H_ij = ∂g_i/∂y_j. Both images'
 //! gradients are their voxels' central differences, interpolated trilinearly ([`Image::central_gradient`]): a gradient
 //! continuous in position, so that NGF is continuous in φ. The trilinear interpolant's own gradient jumps on every
 //! cell face, and with it NGF wherever a sample crosses one: along a search direction those jumps added up to a slope
