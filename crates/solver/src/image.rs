@@ -54,6 +54,9 @@ pub struct Image<S: Space> {
     index_from_space_translation: Vector3<f64>,
 }
 
+/// A chunk of each of three images, x, y and z, as [`Image::central_gradient`] fills them.
+type Chunks<'c> = ((&'c mut [f32], &'c mut [f32]), &'c mut [f32]);
+
 /// Values per task of [`Image::from_volume`]'s conversion and [`Image::value_range`].
 const CHUNK: usize = 1 << 16;
 
@@ -251,8 +254,8 @@ impl<S: Space> Image<S> {
 
     /// The image's gradient in mm⁻¹ along the space's axes, one image per axis on the same grid: central differences
     /// of the voxels (one-sided on the box's faces), NaN where a difference needs a voxel that has no value. Sampled
-    /// trilinearly, it is a gradient that is continuous in position, where the trilinear interpolant's own jumps on
-    /// every cell face; its trilinear derivatives are then the Hessian.
+    /// trilinearly, it is a gradient that is continuous in position, where the trilinear interpolant's own gradient
+    /// jumps on every cell face; its trilinear derivatives are then the Hessian.
     ///
     /// # Errors
     /// [`SolverError::Image`] when there is no memory for the three images.
@@ -268,22 +271,35 @@ impl<S: Space> Image<S> {
             (f64::from(self.values[hi]) - f64::from(self.values[lo])) / f64::from(u8::from(before) + u8::from(after))
         };
         let a = self.index_from_space_linear.transpose();
-        let axis = |c: usize| -> Result<Vec<f32>> {
-            let mut values = try_vec(n, "the image's gradient")?;
+        let mut images = [
+            try_vec(n, "the image's gradient")?,
+            try_vec(n, "the image's gradient")?,
+            try_vec(n, "the image's gradient")?,
+        ];
+        for values in &mut images {
             values.resize(n, 0.0);
-            let fill = |(chunk, block): (usize, &mut [f32])| {
-                for (k, v) in block.iter_mut().enumerate() {
-                    let o = chunk * CHUNK + k;
-                    *v = (a.row(c) * Vector3::new(along(o, 0), along(o, 1), along(o, 2)))[0] as f32;
-                }
-            };
-            match parallelism {
-                Parallelism::Sequential => values.chunks_mut(CHUNK).enumerate().for_each(fill),
-                Parallelism::Rayon => values.par_chunks_mut(CHUNK).enumerate().for_each(fill),
+        }
+        // Each voxel's gradient once, written to the three images: a chunk of each, x, y and z.
+        let fill = |(chunk, ((x, y), z)): (usize, Chunks<'_>)| {
+            for k in 0..x.len() {
+                let o = chunk * CHUNK + k;
+                let g = a * Vector3::new(along(o, 0), along(o, 1), along(o, 2));
+                (x[k], y[k], z[k]) = (g[0] as f32, g[1] as f32, g[2] as f32);
             }
-            Ok(values)
         };
-        let images = [axis(0)?, axis(1)?, axis(2)?];
+        let [x, y, z] = &mut images;
+        match parallelism {
+            Parallelism::Sequential => {
+                x.chunks_mut(CHUNK).zip(y.chunks_mut(CHUNK)).zip(z.chunks_mut(CHUNK)).enumerate().for_each(fill);
+            }
+            Parallelism::Rayon => {
+                x.par_chunks_mut(CHUNK)
+                    .zip(y.par_chunks_mut(CHUNK))
+                    .zip(z.par_chunks_mut(CHUNK))
+                    .enumerate()
+                    .for_each(fill);
+            }
+        }
         let [x, y, z] = images;
         let image = |values| Self::new(self.dims, values, self.space_from_index);
         Ok([image(x)?, image(y)?, image(z)?])
