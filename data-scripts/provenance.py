@@ -209,8 +209,11 @@ files (`elastix/rigid.txt`, `affine.txt` chained over it, `bspline.txt` chained 
 to elastix's coefficients, `similarity.txt`, `translation.txt`; `rigid_zyx.txt` is `rigid.txt` with `ComputeZYX
 "true"`), has transformix resample the moving volume (`elastix/moving_blobs.nii.gz`) through `bspline.txt`
 (`transformix_bspline_result.nii.gz`), and records in `elastix/transformix_reference.json` where transformix maps
-points through them and through the files `warpbench transform --format elastix` writes. Both scripts are
-deterministic: a rerun writes the same bytes.
+points through them and through the files `warpbench transform --format elastix` writes.
+`data-scripts/elastix_field_transform.py` writes two `DeformationFieldTransform` parameter files over
+`metaimage/transformix_field.mhd` (`elastix/field_nearest.txt`, interpolation order 0, and `field_linear.txt`, order
+1) and records in `elastix/transformix_field_transform.json` where transformix maps 120 points through each. The
+scripts are deterministic: a rerun writes the same bytes.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -230,6 +233,9 @@ ELASTIX_FILES = [
     ("elastix/similarity.txt", "elastix_transforms.py"),
     ("elastix/translation.txt", "elastix_transforms.py"),
     ("elastix/transformix_reference.json", "elastix_transforms.py"),
+    ("elastix/field_nearest.txt", "elastix_field_transform.py"),
+    ("elastix/field_linear.txt", "elastix_field_transform.py"),
+    ("elastix/transformix_field_transform.json", "elastix_field_transform.py"),
 ]
 
 

@@ -284,3 +284,86 @@ fn bad_deformable_files_are_refused_naming_the_file() {
     let y = t.apply([0.5, 0.25, 0.125]);
     assert!((0..3).all(|a| (y[a] - [1.5, 2.25, 3.125][a]).abs() < 1e-12), "a translation by (1, 2, 3): {y:?}");
 }
+
+/// elastix's `DeformationFieldTransform` (`field_nearest.txt`, `field_linear.txt`, made by
+/// `data-scripts/elastix_field_transform.py`) over transformix's own field of an oblique 9×8×7 grid maps 120 points
+/// where transformix mapped them: points drawn one voxel past the field's grid on every side, so that about half lie
+/// outside it (transformix leaves them where they are) and some in the half voxel past the outermost centres (the
+/// outermost vectors, held). The bound is transformix's printing, 1e-5 mm; reading a vector off by one voxel, or
+/// the wrong interpolation, moves points by tenths of a millimetre (the vectors reach 1.4 mm). At the field's own
+/// centres both read back its vectors, and a chain with the file sampled on its grid gives the field.
+#[test]
+fn deformation_field_transforms_map_points_where_transformix_did() {
+    let path = data_dir().join("transformix_field_transform.json");
+    let r: Value = serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("JSON");
+    let inputs = points(&r["points_lps"]);
+    let files = r["files"].as_array().expect("files");
+    let mut outcomes = Vec::new();
+    for f in files {
+        let file = f["file"].as_str().expect("file");
+        let want = points(&f["transformix_lps"]);
+        let chain = elastix::read_transform(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
+        let got: Vec<_> = inputs.iter().map(|x| chain.apply(*x)).collect();
+        assert!(worst(&got, &want) < 1e-5, "{file}: {} mm from transformix", worst(&got, &want));
+        let still = got.iter().zip(&inputs).filter(|(g, x)| worst(&[**g], &[**x]) == 0.0).count();
+        assert!((30..=90).contains(&still), "{file}: {still} of 120 points outside the field, by design about half");
+        let e = elastix::read_affine(&data_dir().join(file)).expect_err("not linear").to_string();
+        assert!(e.contains("DeformationFieldTransform is not a linear transform"), "{e}");
+        let sampled = elastix::read_field(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
+        outcomes.push((got, sampled));
+    }
+    let (nearest, linear) = (&outcomes[0], &outcomes[1]);
+    assert!(worst(&nearest.0, &linear.0) > 0.05, "the two interpolations differ between centres");
+    let field =
+        warpbench_io::metaimage::read_displacement_field(&data_dir().join("../metaimage/transformix_field.mhd"))
+            .expect("the field");
+    for (_, sampled) in [nearest, linear] {
+        assert_eq!(sampled.dims, field.dims);
+        let off = sampled
+            .displacements_lps
+            .iter()
+            .zip(&field.displacements_lps)
+            .flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs()))
+            .fold(0.0_f32, f32::max);
+        assert!(off < 1e-5, "at its own centres the transform is the field's vectors: {off} mm");
+    }
+}
+
+#[test]
+fn bad_deformation_field_transforms_are_refused_naming_the_file() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = std::fs::read_to_string(data_dir().join("field_linear.txt")).expect("read");
+    let field = data_dir().join("../metaimage/transformix_field.mhd");
+    let text = text.replace("../metaimage/transformix_field.mhd", &field.display().to_string());
+    let refused = |name: &str, text: &str, needle: &str| {
+        let p = write(dir.path(), name, text);
+        let e = elastix::read_transform(&p).expect_err(needle).to_string();
+        assert!(e.starts_with(&format!("{}: ", p.display())) && e.contains(needle), "{needle:?} in {e}");
+    };
+    assert!(elastix::read_transform(&write(dir.path(), "absolute.txt", &text)).is_ok(), "a field named by its path");
+    let order = text.replace("(DeformationFieldInterpolationOrder 1)", "(DeformationFieldInterpolationOrder 3)");
+    refused("order.txt", &order, "DeformationFieldInterpolationOrder [3.0] is neither 0 nor 1");
+    let unnamed = text.lines().filter(|l| !l.starts_with("(DeformationFieldFileName")).collect::<Vec<_>>().join("\n");
+    refused("unnamed.txt", &unnamed, "has no (DeformationFieldFileName …)");
+    refused(
+        "missing.txt",
+        &text.replace("transformix_field.mhd", "nowhere.mhd"),
+        "neither beside it nor where it says",
+    );
+    refused(
+        "cosines.txt",
+        &text.replace("(UseDirectionCosines \"true\")", "(UseDirectionCosines \"false\")"),
+        "UseDirectionCosines \"false\"",
+    );
+    // A parameter file is not a field, even its own name (which would loop).
+    refused("itself.txt", &text.replace(&field.display().to_string(), "itself.txt"), "not a field");
+    // A field that is not one: the reader's own message names the field's file.
+    let p = write(dir.path(), "volume.txt", &text.replace(&field.display().to_string(), "volume.mha"));
+    let volume = data_dir().join("../metaimage/oblique_f32.mha");
+    std::fs::copy(&volume, dir.path().join("volume.mha")).expect("copy");
+    let e = elastix::read_transform(&p).expect_err("a volume").to_string();
+    assert!(e.contains("volume.mha"), "{e}");
+    // From bytes there is no file beside to read the field from.
+    let e = elastix::parse_transform(&p, text.as_bytes()).expect_err("from bytes").to_string();
+    assert!(e.contains("DeformationFieldTransform"), "{e}");
+}

@@ -23,135 +23,17 @@
 //! sampled on its fixed grid. Anything else is refused. It returns LPS vectors whatever the flavour.
 
 pub(crate) mod check;
+mod flavour;
 
 use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
+pub use flavour::{FieldDirection, FieldFormat, FieldSource, ReadField};
+pub(crate) use flavour::{head, read_flavoured};
+
 use crate::nifti::{self, DisplacementField, NiftiVectorIntent};
 use crate::nrrd::field::{self as nrrd_field, NrrdFieldType};
-
-/// A displacement-field flavour (module docs).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum FieldFormat {
-    /// NIfTI, intent `DISPVECT` (1006), RAS vectors: ITK ≥ 5.3 and 3D Slicer.
-    Itk,
-    /// NIfTI, intent `VECTOR` (1007), LPS vectors: ANTs.
-    Ants,
-    /// NRRD, `kinds: vector domain domain domain`, LPS vectors: 3D Slicer.
-    Nrrd,
-    /// MetaImage, three channels, LPS vectors: elastix's transformix and every ITK.
-    MetaImage,
-}
-
-impl FieldFormat {
-    /// Every flavour, in the order the CLI lists them.
-    pub const ALL: [Self; 4] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage];
-
-    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`.
-    #[must_use]
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::Itk => "itk",
-            Self::Ants => "ants",
-            Self::Nrrd => "nrrd",
-            Self::MetaImage => "metaimage",
-        }
-    }
-
-    /// The container the name of `path` implies: `Some(Nrrd)` for `.nrrd` / `.nhdr`, `Some(MetaImage)` for `.mha` /
-    /// `.mhd`, `Some(Itk)` for `.nii` / `.nii.gz` (NIfTI, which is `itk` or `ants`: see [`Self::container_matches`]),
-    /// `None` for any other name.
-    #[must_use]
-    #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
-    pub fn from_extension(path: &Path) -> Option<Self> {
-        let name = path.file_name()?.to_string_lossy().to_ascii_lowercase();
-        if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
-            Some(Self::Nrrd)
-        } else if name.ends_with(".mha") || name.ends_with(".mhd") {
-            Some(Self::MetaImage)
-        } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
-            Some(Self::Itk)
-        } else {
-            None
-        }
-    }
-
-    /// Whether a file named `path` can hold this flavour: NIfTI names for `itk` and `ants`, NRRD names for `nrrd`,
-    /// MetaImage names for `metaimage`; any other name fits every flavour but `metaimage`, whose writer needs the name
-    /// to know whether its data are detached.
-    #[must_use]
-    pub fn container_matches(self, path: &Path) -> bool {
-        match Self::from_extension(path) {
-            None => matches!(self, Self::Itk | Self::Ants | Self::Nrrd),
-            Some(Self::Itk | Self::Ants) => matches!(self, Self::Itk | Self::Ants),
-            Some(container) => self == container,
-        }
-    }
-
-    /// The names a file of this flavour takes, for messages.
-    const fn names(self) -> &'static str {
-        match self {
-            Self::Itk | Self::Ants => "a .nii or .nii.gz name",
-            Self::Nrrd => "a .nrrd name",
-            Self::MetaImage => "a .mha name (or .mhd, with a .raw data file beside it)",
-        }
-    }
-}
-
-impl std::fmt::Display for FieldFormat {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// Which map a displacement field samples.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum FieldDirection {
-    /// D(x) = u(x) − x on the output (fixed) grid, u = moving_from_fixed: ITK's resampling convention.
-    #[default]
-    Pullback,
-    /// D(y) = d(y) − y on the moving grid, d = fixed_from_moving: a point y of the moving volume moves to y + D(y).
-    Forward,
-}
-
-impl FieldDirection {
-    /// `pullback` or `forward`.
-    #[must_use]
-    pub const fn name(self) -> &'static str {
-        match self {
-            Self::Pullback => "pullback",
-            Self::Forward => "forward",
-        }
-    }
-}
-
-impl std::fmt::Display for FieldDirection {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-/// What a field was read from.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FieldSource {
-    /// A displacement field file of a flavour.
-    Field(FieldFormat),
-    /// An elastix transform parameter file, sampled on its fixed grid as transformix does.
-    ElastixTransform,
-}
-
-/// What [`read_field_info`] found.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ReadField {
-    /// The grid and the vectors, LPS.
-    pub field: DisplacementField,
-    pub source: FieldSource,
-    /// The direction the file states, where it can: a NRRD field's `displacement field type` (resampling is the
-    /// pull-back, modeling the forward map); `None` when the file says nothing (NIfTI never does; readers then take
-    /// it as a pull-back, ITK's convention).
-    pub direction: Option<FieldDirection>,
-}
 
 /// Reads a displacement field of any flavour, told apart by content (module docs); the vectors are LPS.
 /// Errors name the file: a wrong intent, wrong dims, non-float samples, non-finite vectors, a field too large for
@@ -162,33 +44,11 @@ pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldSource)> {
 
 /// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
 pub fn read_field_info(path: &Path) -> Result<ReadField> {
-    crate::files::check_regular_file(path)?;
-    let mut head = [0u8; 64];
-    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
-    drop(f);
-    let head = &head[..n];
-    if head.starts_with(b"NRRD") {
-        let (field, kind) = nrrd_field::read_displacement_field(path)?;
-        let direction = kind.map(|k| match k {
-            NrrdFieldType::Resampling => FieldDirection::Pullback,
-            NrrdFieldType::Modeling => FieldDirection::Forward,
-        });
-        return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Nrrd), direction });
+    let head = flavour::head(path)?;
+    if let Some(read) = flavour::read_flavoured(path, &head)? {
+        return Ok(read);
     }
-    if crate::metaimage::looks_like_metaimage(head) {
-        let field = crate::metaimage::read_displacement_field(path)?;
-        return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::MetaImage), direction: None });
-    }
-    if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
-        let (field, intent) = nifti::read_vector_field(path)?;
-        let format = match intent {
-            NiftiVectorIntent::DispvectRas => FieldFormat::Itk,
-            NiftiVectorIntent::VectorLps => FieldFormat::Ants,
-        };
-        return Ok(ReadField { field, source: FieldSource::Field(format), direction: None });
-    }
-    if crate::elastix::looks_like_parameter_file(head) {
+    if crate::elastix::looks_like_parameter_file(&head) {
         let field = crate::elastix::read_field(path)?;
         return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None });
     }

@@ -40,11 +40,15 @@
 //! | `AffineTransform` | A row by row (9), t | A (x − c) + c + t |
 //! | `SplineKernelTransform` | the target landmarks (x y z each) | the thin-plate spline (kernel r) through `FixedImageLandmarks` → targets |
 //! | `BSplineTransform` | the control points' x displacements, then y, then z | x + cubic B-spline over `GridSize`, `GridOrigin`, `GridSpacing`, `GridDirection` |
+//! | `DeformationFieldTransform` | none: `DeformationFieldFileName` names a displacement field D | x + D(x) on D's grid, x outside it |
 //!
 //! `BSplineTransform` (or `RecursiveBSplineTransform`) is read when cubic (`BSplineTransformSplineOrder 3`), not
 //! cyclic, its grid indexed from 0: as ITK's, it is x itself outside the region where all 4 × 4 × 4 of a point's
 //! control points exist. `SplineKernelTransform` is read with the `ThinPlateSpline` kernel, solved as ITK solves it,
-//! relaxed by `SplineRelaxationFactor` ([`ThinPlateKernel`]).
+//! relaxed by `SplineRelaxationFactor` ([`ThinPlateKernel`]). `DeformationFieldTransform` reads its field as elastix
+//! does ([`FieldStep`]): the vector of the nearest voxel centre (`DeformationFieldInterpolationOrder 0`, the default)
+//! or trilinear between centres (`1`), the outermost vectors held to half a voxel past the outermost centres, and
+//! x itself beyond; the field is any flavour warpbench reads, looked for beside the parameter file, then as given.
 //!
 //! `InitialTransformParameterFileName` names a file whose transform is applied first: with `HowToCombineTransforms
 //! "Compose"` (the default) the chain is T(x) = T₁(T₀(x)). The `elastix` executable writes the path it was given;
@@ -60,12 +64,14 @@
 //! Checked against transformix (itk-elastix 0.25.4): the fixtures of `tests/data/elastix/` (elastix's own files, and
 //! warpbench's) map points where transformix maps them (`data-scripts/elastix_transforms.py`).
 
+mod deformation_field;
 mod field;
 mod params;
 mod read;
 mod transform;
 mod write;
 
+pub use deformation_field::{FieldInterpolation, FieldStep};
 pub use field::{read_field, sample};
 pub use params::looks_like_parameter_file;
 pub use read::{parse_transform, read_affine, read_transform};

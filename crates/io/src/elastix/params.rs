@@ -1,7 +1,7 @@
 //! The parameter file's syntax: `(Name value …)` lines, quoted strings, bare numbers, `//` comments (see
 //! [`super`]); a leaf that the reader and the dispatcher share.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 
@@ -157,6 +157,16 @@ pub(super) fn parse_bytes(name: &Path, bytes: &[u8]) -> Result<ParameterMap> {
     }
     let text = std::str::from_utf8(bytes).map_err(|_| Error::invalid(name, "the parameter file is not UTF-8 text"))?;
     parse(name, text)
+}
+
+/// A file that the parameter file `name` names under `key`: beside `name`, else as given.
+pub(super) fn find_beside(name: &Path, file: &str, key: &str) -> Result<PathBuf> {
+    let given = PathBuf::from(file);
+    let beside = name.parent().map(|d| d.join(&given));
+    beside
+        .filter(|p| p.is_file())
+        .or_else(|| given.is_file().then_some(given.clone()))
+        .ok_or_else(|| Error::invalid(name, format!("its {key} {file:?} is neither beside it nor where it says")))
 }
 
 #[cfg(test)]

@@ -1,11 +1,12 @@
 //! Reading an elastix transform parameter file and the chain of initial transforms under it ([`read_transform`]),
 //! as one affine when all are linear ([`read_affine`]).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use nalgebra::{Matrix3, Matrix4};
 
-use super::params::{ParameterMap, parse_bytes, read_file};
+use super::deformation_field;
+use super::params::{ParameterMap, find_beside, parse_bytes, read_file};
 use super::transform::{ElastixTransform, Link, Step, ThinPlateKernel};
 use super::write::ElastixGrid;
 use crate::error::{Error, Result};
@@ -34,7 +35,7 @@ pub fn read_transform(path: &Path) -> Result<ElastixTransform> {
             grid = fixed_grid(&at, &map)?;
         }
         let (step, initial) = one_transform(&at, &map)?;
-        let next = initial.map(|file| find_initial(&at, &file)).transpose()?;
+        let next = initial.map(|file| find_beside(&at, &file, "InitialTransformParameterFileName")).transpose()?;
         links.push(Link { file: at.clone(), step });
         match next {
             Some(next) => at = next,
@@ -54,6 +55,12 @@ pub fn read_transform(path: &Path) -> Result<ElastixTransform> {
 /// As [`read_transform`]; and a file that names an initial transform.
 pub fn parse_transform(name: &Path, bytes: &[u8]) -> Result<ElastixTransform> {
     let map = parse_bytes(name, bytes)?;
+    if map.text(name, "Transform")? == Some("DeformationFieldTransform") {
+        return Err(Error::unsupported(
+            name,
+            "it is a DeformationFieldTransform, whose field only a file beside it can give",
+        ));
+    }
     let grid = fixed_grid(name, &map)?;
     let (step, initial) = one_transform(name, &map)?;
     if let Some(file) = initial {
@@ -194,12 +201,23 @@ fn one_transform(name: &Path, map: &ParameterMap) -> Result<(Step, Option<String
             Step::BSpline(b, index_from_lps)
         }
         "SplineKernelTransform" => Step::ThinPlate(kernel(name, map)?),
+        "DeformationFieldTransform" => {
+            if let Some(cosines) = map.text(name, "UseDirectionCosines")?
+                && cosines != "true"
+            {
+                return Err(Error::unsupported(
+                    name,
+                    format!("UseDirectionCosines {cosines:?}: only fields read with their directions are read"),
+                ));
+            }
+            Step::Field(Box::new(deformation_field::read(name, map)?))
+        }
         other => {
             return Err(Error::unsupported(
                 name,
                 format!(
-                    "elastix's {other} is not read (translation, Euler, similarity, affine, B-spline and thin-plate \
-                     spline kernel transforms are); have transformix write it as a displacement field \
+                    "elastix's {other} is not read (translation, Euler, similarity, affine, B-spline, thin-plate \
+                     spline kernel and deformation field transforms are); have transformix write it as a displacement field \
                      (transformix -def all -tp FILE -out DIR) and give DIR/deformationField.mhd instead"
                 ),
             ));
@@ -296,18 +314,6 @@ fn kernel(name: &Path, map: &ParameterMap) -> Result<ThinPlateKernel> {
         _ => Err(Error::invalid(name, "(SplineRelaxationFactor …) has more than one number")),
     })?;
     ThinPlateKernel::solve(name, sources, &targets, stiffness)
-}
-
-/// The initial transform's file: beside `name`, else as given.
-fn find_initial(name: &Path, file: &str) -> Result<PathBuf> {
-    let given = PathBuf::from(file);
-    let beside = name.parent().map(|d| d.join(&given));
-    beside.filter(|p| p.is_file()).or_else(|| given.is_file().then_some(given.clone())).ok_or_else(|| {
-        Error::invalid(
-            name,
-            format!("its InitialTransformParameterFileName {file:?} is neither beside it nor where it says"),
-        )
-    })
 }
 
 /// ITK's `Euler3DTransform` matrix: Rz Rx Ry, or Rz Ry Rx when `zyx`.

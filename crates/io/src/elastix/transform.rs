@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
+use super::deformation_field::FieldStep;
 use super::write::ElastixGrid;
 use crate::error::{Error, Result};
 use crate::itk_tfm::{ItkAffine, ItkBSpline};
@@ -22,6 +23,8 @@ pub enum Step {
     BSpline(ItkBSpline, Matrix3<f64>),
     /// `SplineKernelTransform` with the `ThinPlateSpline` kernel.
     ThinPlate(ThinPlateKernel),
+    /// `DeformationFieldTransform`: the field it names.
+    Field(Box<FieldStep>),
 }
 
 impl Step {
@@ -32,6 +35,7 @@ impl Step {
             Self::Linear(a) => a.apply(x),
             Self::BSpline(b, index_from_lps) => b.apply_with(index_from_lps, x),
             Self::ThinPlate(k) => k.apply(x),
+            Self::Field(f) => f.apply(x),
         }
     }
 }
@@ -73,6 +77,7 @@ impl ElastixTransform {
                 Step::Linear(a) => a,
                 Step::BSpline(..) => return Err((&link.file, "BSplineTransform")),
                 Step::ThinPlate(_) => return Err((&link.file, "SplineKernelTransform")),
+                Step::Field(_) => return Err((&link.file, "DeformationFieldTransform")),
             };
             offset = a.matrix * offset + Vector3::from(a.offset());
             matrix = a.matrix * matrix;
