@@ -229,26 +229,11 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
             tfm.display()
         )));
     }
-    // The bar appears with the first slice, after the checks and the fit.
-    let mut bar: Option<Bar> = None;
     let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
     layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
-    let field = sample_field(grid, &made_of, direction, &mut |done, total| {
-        let _ =
-            bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress { stage: "sampling the field", done, total });
-        true
-    });
-    if let Some(bar) = bar {
-        bar.finish();
-    }
-    let field = field?;
-    if !quiet {
-        for w in &field.warnings {
-            eprintln!("warpbench: warning: {w}");
-        }
-    }
+    let field = sample_field_reporting(grid, &made_of, direction, quiet)?;
     write_field(&field, &output.path, format, tfm.as_deref())?;
 
     let summary = FieldSummary {
@@ -398,6 +383,35 @@ pub fn sample_field(
         transform,
         warnings: fit::fit_warnings(method, &c),
     })
+}
+
+/// [`sample_field`] as the commands run it: a progress bar on stderr from the first slice (after the checks and the
+/// fit) unless `quiet`, and the fit's warnings printed there after.
+///
+/// # Errors
+/// As [`sample_field`].
+pub fn sample_field_reporting(
+    grid: &Volume,
+    inputs: &FieldInputs,
+    direction: FieldDirection,
+    quiet: bool,
+) -> Result<Field, Failure> {
+    let mut bar: Option<Bar> = None;
+    let field = sample_field(grid, inputs, direction, &mut |done, total| {
+        let _ =
+            bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress { stage: "sampling the field", done, total });
+        true
+    });
+    if let Some(bar) = bar {
+        bar.finish();
+    }
+    let field = field?;
+    if !quiet {
+        for w in &field.warnings {
+            eprintln!("warpbench: warning: {w}");
+        }
+    }
+    Ok(field)
 }
 
 /// Refuses a field output before anything is computed: over an input or an existing file without `--force` (a

@@ -30,13 +30,16 @@
 //!
 //! `--format elastix` writes the same [`warpbench_io::itk_tfm::ItkTransform`] as an elastix transform parameter file
 //! ([`warpbench_io::elastix::write`]): `SplineKernelTransform`, `BSplineTransform` or `AffineTransform` over the fixed
-//! volume's grid.
+//! volume's grid. A stack with a field or a brush, which none of them holds, is written as a
+//! `DeformationFieldTransform` over the pull-back sampled on the fixed grid ([`write_field_transform`]): at the grid's
+//! voxel centres, where transformix resamples, it is u within the field's f32 rounding.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
 use warpbench_io::Volume;
+use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
 use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_solver::method::FittedWarp;
@@ -65,7 +68,9 @@ antsApplyTransforms and Slicer need to resample the moving volume onto the fixed
 and B-spline files; Slicer reads all three (Data > Add data, then apply the transform to the moving volume).
 
 --format elastix writes the same transform as an elastix transform parameter file instead, which transformix
-applies: SplineKernelTransform (ThinPlateSpline), BSplineTransform or AffineTransform.
+applies: SplineKernelTransform (ThinPlateSpline), BSplineTransform or AffineTransform. A session with a field or
+brush strokes, which no transform file holds exactly, is written for elastix as a DeformationFieldTransform over its
+field sampled on the fixed grid, saved beside it as NAME.field.mha (run transformix from the folder you ran this in).
 
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt";
@@ -87,7 +92,8 @@ pub struct TransformArgs {
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// itk (default): an ITK transform file (or ANTs' .mat by its name); elastix: an elastix transform parameter
-    /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform).
+    /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
+    /// DeformationFieldTransform over a field beside it for a session with a field or a brush).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: TransformFormat,
     #[command(flatten)]
@@ -123,9 +129,11 @@ pub struct TransformSummary {
     pub itk_class: &'static str,
     /// `itk` or `elastix`: whose file was written.
     pub format: &'static str,
-    /// With `--format elastix`, the file's `(Transform …)`: `SplineKernelTransform`, `BSplineTransform` or
-    /// `AffineTransform`; else null.
+    /// With `--format elastix`, the file's `(Transform …)`: `SplineKernelTransform`, `BSplineTransform`,
+    /// `AffineTransform`, or `DeformationFieldTransform` for a stack with a field or a brush; else null.
     pub elastix_transform: Option<&'static str>,
+    /// The field a `DeformationFieldTransform` names, written beside it; else null.
+    pub field: Option<String>,
     /// The method as fitted, e.g. `tps`, `tps(λ=0.5)`, `hbspline(4 levels)`, `affine`.
     pub method: String,
     /// Landmark pairs used (active, with both points).
@@ -219,21 +227,43 @@ pub fn write_transform(
     })
 }
 
+/// The field a `DeformationFieldTransform` written to `out` names: beside it, `out`'s name with `.field.mha` for
+/// its extension (`TransformParameters.0.txt` → `TransformParameters.0.field.mha`).
+#[must_use]
+pub fn field_file_beside(out: &Path) -> PathBuf {
+    let stem = out.file_stem().map_or_else(|| "transform".into(), |s| s.to_string_lossy().into_owned());
+    out.with_file_name(format!("{stem}.field.mha"))
+}
+
 /// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
-/// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`.
+/// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`. With
+/// `--format elastix`, a stack no transform file holds exactly (a session's field or brush) is written as a
+/// `DeformationFieldTransform` over its sampled field ([`field_file_beside`]).
 pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
     let TransformArgs { volumes, pairs, out: out_path, format, report: ReportArgs { json, force, quiet } } = args;
     let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
-    OutputFile { path: out_path.clone(), force }.check(&inputs.paths()).map_err(Failure::BadInput)?;
+    let input_paths = inputs.paths();
+    OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     check_transform_name(&out_path, format)?;
-    if !inputs.warp.brush.is_empty() {
+    let as_field =
+        format == TransformFormat::Elastix && (!inputs.warp.brush.is_empty() || inputs.warp.session_field.is_some());
+    let field_path = field_file_beside(&out_path);
+    if as_field {
+        crate::field::check_field_output(
+            &OutputFile { path: field_path.clone(), force },
+            FieldFormat::MetaImage,
+            &input_paths,
+        )?;
+    } else if !inputs.warp.brush.is_empty() {
         return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench field --session`",
+            "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench \
+             field --session`, or an elastix file over one with --format elastix",
             inputs.landmarks.describe()
         )));
     }
     let method = inputs.method().map_err(Failure::BadInput)?;
-    let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, None);
+    let brushed = if as_field { inputs.brushed().map_err(Failure::BadInput)? } else { None };
+    let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
     layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
     let pairs = inputs.pairs().map_err(Failure::BadInput)?;
@@ -246,24 +276,43 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         method: &method,
         layers: &layers,
     };
-    let exact = exact_transform(&made_of)?;
-    if !quiet {
-        for w in &exact.warnings {
-            eprintln!("warpbench: warning: {w}");
+    let summary = if as_field {
+        let field = crate::field::sample_field_reporting(&volumes.fixed, &made_of, FieldDirection::Pullback, quiet)?;
+        write_field_transform(&out_path, &field_path, &field)?;
+        TransformSummary {
+            schema: SCHEMA,
+            out: out_path.display().to_string(),
+            itk_class: "DisplacementFieldTransform_double_3_3",
+            format: format.name(),
+            elastix_transform: Some("DeformationFieldTransform"),
+            field: Some(field_path.display().to_string()),
+            method: layers.describe(&method, field.pairs),
+            pairs: field.pairs,
+            map: "moving_from_fixed",
+            domain_lps: None,
+            warnings: field.warnings,
         }
-    }
-    let elastix_transform = write_transform(&out_path, &exact.transform, format, &volumes.fixed)?;
-    let summary = TransformSummary {
-        schema: SCHEMA,
-        out: out_path.display().to_string(),
-        itk_class: exact.transform.type_name(),
-        format: format.name(),
-        elastix_transform,
-        method: exact.method,
-        pairs: exact.pairs,
-        map: "moving_from_fixed",
-        domain_lps: exact.domain_lps,
-        warnings: exact.warnings,
+    } else {
+        let exact = exact_transform(&made_of)?;
+        if !quiet {
+            for w in &exact.warnings {
+                eprintln!("warpbench: warning: {w}");
+            }
+        }
+        let elastix_transform = write_transform(&out_path, &exact.transform, format, &volumes.fixed)?;
+        TransformSummary {
+            schema: SCHEMA,
+            out: out_path.display().to_string(),
+            itk_class: exact.transform.type_name(),
+            format: format.name(),
+            elastix_transform,
+            field: None,
+            method: exact.method,
+            pairs: exact.pairs,
+            map: "moving_from_fixed",
+            domain_lps: exact.domain_lps,
+            warnings: exact.warnings,
+        }
     };
     if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
@@ -275,6 +324,32 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             summary.method,
             summary.pairs
         );
+        if let Some(field) = &summary.field {
+            eprintln!("wrote {field} (the field it names)");
+        }
     }
     Ok(summary)
+}
+
+/// Writes `field` (a pull-back's) as a MetaImage at `field_path`, then the elastix `DeformationFieldTransform` at
+/// `out` that names it as given (relative paths stay relative: transformix reads them from the folder it runs in,
+/// like elastix's `-out`), over the field's grid; each atomically. What `--format elastix` writes for a stack no
+/// transform file holds exactly.
+///
+/// # Errors
+/// A name that is not UTF-8, or what the writers refuse.
+pub fn write_field_transform(out: &Path, field_path: &Path, field: &crate::field::Field) -> Result<(), Failure> {
+    let name = field_path.to_str().ok_or_else(|| {
+        Failure::BadInput(anyhow::anyhow!("{}: elastix needs the field's name in UTF-8", field_path.display()))
+    })?;
+    displacement::write_field(
+        field_path,
+        FieldFormat::MetaImage,
+        field.dims,
+        &field.lps_from_index,
+        &field.displacements_lps,
+    )?;
+    let grid = ElastixGrid { dims: field.dims, lps_from_index: field.lps_from_index };
+    elastix::write_field_transform(out, name, &grid)?;
+    Ok(())
 }

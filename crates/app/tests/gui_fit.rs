@@ -764,6 +764,7 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
 fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     use warpbench_app::gui::files::FileAction;
     use warpbench_app::project::stack::FieldLayer;
+    use warpbench_app::transform::TransformFormat;
     use warpbench_io::displacement::{FieldFormat, write_field};
     use warpbench_io::geometry::{Index, Lps, Transform};
     if no_adapter() {
@@ -832,6 +833,32 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     for (q, p) in fixed.iter().zip(&moving) {
         let u = plain_at(ready, q.coords());
         assert!(u.iter().zip(p.coords()).all(|(a, b)| (a - b).abs() < 1e-5), "u({q:?}) = {u:?}, not {p:?}");
+    }
+
+    // Export for elastix: no transform file holds the field exactly, so it is a DeformationFieldTransform over the
+    // pull-back sampled on the fixed grid, the field beside it. Read back, it is u at the grid's voxel centres.
+    let elastix_out = dir.path().join("with_field.txt");
+    let export = Command::File(FileAction::ExportTransform(TransformFormat::Elastix, elastix_out.clone()));
+    harness.state_mut().ready_mut().expect("ready").apply(export);
+    let start = Instant::now();
+    while harness.state().ready().expect("ready").files.export.is_some() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(2), "the export did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("ready");
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(
+        message.contains("as DeformationFieldTransform over") && message.contains("with_field.field.mha"),
+        "{message}"
+    );
+    let chain = warpbench_io::elastix::read_transform(&elastix_out).unwrap_or_else(|e| panic!("{e}"));
+    let grid = chain.grid.as_ref().expect("the fixed grid").lps_from_index;
+    for ijk in [[45.0, 54.0, 45.0], [20.0, 70.0, 30.0], [0.0, 0.0, 0.0]] {
+        let x = grid.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+        let (got, want) = (chain.apply(x), plain_at(ready, x));
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the file maps to {got:?}, u = {want:?}");
     }
 
     let session = dir.path().join("with_field.warpbench.json");

@@ -677,6 +677,21 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     );
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("brush strokes have no exact ITK transform"));
+    // For elastix the brushed pull-back is a DeformationFieldTransform over its field, which is u at voxel centres.
+    let out = dir.path().join("brushed.txt");
+    let run = warpbench(
+        &[
+            &["transform", "--fixed", s(&mri), "--moving", s(&mri), "--format", "elastix", "--quiet"][..],
+            &session[..],
+            &["--out", s(&out)],
+        ]
+        .concat(),
+    );
+    assert_ok(&run);
+    let chain = warpbench_io::elastix::read_transform(&out).unwrap_or_else(|e| panic!("{e}"));
+    let x = plain.voxel_lps(50, 58, 51).coords();
+    let (got, want) = (chain.apply(x), common::map_through_session(dir.path(), [&mri, &mri, &session_path], x));
+    assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the file maps to {got:?}, u = {want:?}");
 }
 
 /// `--stiffness auto`: the λ the pairs make most likely, the same as the solver's
@@ -757,5 +772,31 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
         let want = layer.moving_from_fixed_raw(*x);
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "F({x:?}) = {want:?}, mapped {got:?}");
         assert!((0..3).any(|a| (got[a] - x[a]).abs() > 0.5), "the field moves {x:?}");
+    }
+
+    // No transform file holds the field exactly: `transform` refuses the ITK format, and with `--format elastix`
+    // writes a DeformationFieldTransform over the pull-back sampled on the fixed grid, the field beside it. Read
+    // back, it maps the grid's voxel centres as `points --session` does, within the field's f32 rounding.
+    let transform = |format: &str, out: &Path| {
+        let volumes = ["transform", "--fixed", s(&mri), "--moving", s(&mri), "--session", s(&session_path)];
+        warpbench(&[&volumes[..], &["--format", format, "--json", "--quiet", "--out", s(out)]].concat())
+    };
+    let refused = transform("itk", &dir.path().join("t.tfm"));
+    assert_eq!(refused.status.code(), Some(2), "{}", String::from_utf8_lossy(&refused.stderr));
+    let out = dir.path().join("TransformParameters.0.txt");
+    let run = transform("elastix", &out);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("transform JSON");
+    let field_file = dir.path().join("TransformParameters.0.field.mha");
+    assert_eq!(report["elastix_transform"], "DeformationFieldTransform", "{report}");
+    assert_eq!(report["field"], s(&field_file), "{report}");
+    let chain = warpbench_io::elastix::read_transform(&out).unwrap_or_else(|e| panic!("{e}"));
+    let centres: Vec<[f64; 3]> = [[0, 0, 0], [45, 54, 45], [12, 80, 33], [90, 108, 90]]
+        .map(|[i, j, k]| volume.voxel_lps(i, j, k).coords())
+        .into();
+    let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &centres);
+    for (x, want) in centres.iter().zip(&mapped) {
+        let got = chain.apply(*x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the file maps to {got:?}, u = {want:?}");
     }
 }

@@ -181,6 +181,25 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 resampled.backend
             ))
         }
+        ExportKind::Transform { format: TransformFormat::Elastix }
+            if layers.field.is_some() || layers.brush.is_some() =>
+        {
+            let mut progress = |done: u64, total: u64| {
+                watch.report(&file_name(out), Progress { stage: "field slices", done, total });
+                !watch.cancelled()
+            };
+            let f = field::sample_field(fixed, &made_of, FieldDirection::Pullback, &mut progress)?;
+            let field_path = transform::field_file_beside(out);
+            transform::write_field_transform(out, &field_path, &f)?;
+            Ok(format!(
+                "wrote {}: {} as DeformationFieldTransform over {} ({} pairs; no transform file holds a field or a \
+                 brush exactly)",
+                out.display(),
+                layers.describe(&input.method, f.pairs),
+                field_path.display(),
+                f.pairs
+            ))
+        }
         ExportKind::Transform { format } => {
             let exact = transform::exact_transform(&made_of)?;
             let class = transform::write_transform(out, &exact.transform, *format, fixed)?;
@@ -327,9 +346,10 @@ pub fn export_ui(
         if itk.clicked() {
             asked = Some((ExportKind::Transform { format: TransformFormat::Itk }, path.clone()));
         }
-        let elastix = ui
-            .add_enabled(enabled, egui::Button::new("Export for elastix"))
-            .on_hover_text("The exact warp as an elastix transform parameter file (.txt) that transformix applies");
+        let elastix = ui.add_enabled(enabled, egui::Button::new("Export for elastix")).on_hover_text(
+            "The warp as an elastix transform parameter file (.txt) that transformix applies: exact, or over a \
+                 field beside it when a field or the brush is in the warp",
+        );
         if elastix.clicked() {
             asked = Some((ExportKind::Transform { format: TransformFormat::Elastix }, path.clone()));
         }

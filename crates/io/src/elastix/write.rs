@@ -21,28 +21,7 @@ pub struct ElastixGrid {
 /// does), the B-spline a cubic `BSplineTransform` on the same lattice, the affine an `AffineTransform`.
 #[must_use]
 pub fn to_text(transform: &ItkTransform, grid: &ElastixGrid) -> String {
-    let (columns, spacing) = crate::metaimage::direction_spacing(&grid.lps_from_index);
-    let mut entries: Vec<(&str, String)> = vec![
-        ("CompressResultImage", quoted("false")),
-        ("DefaultPixelValue", "0".into()),
-        ("Direction", numbers(columns.iter().flatten().copied())),
-        ("FinalBSplineInterpolationOrder", "3".into()),
-        ("FixedImageDimension", "3".into()),
-        ("FixedInternalImagePixelType", quoted("float")),
-        ("HowToCombineTransforms", quoted("Compose")),
-        ("Index", "0 0 0".into()),
-        ("InitialTransformParameterFileName", quoted("NoInitialTransform")),
-        ("MovingImageDimension", "3".into()),
-        ("MovingInternalImagePixelType", quoted("float")),
-        ("Origin", numbers(grid.lps_from_index.translation())),
-        ("ResampleInterpolator", quoted("FinalBSplineInterpolator")),
-        ("Resampler", quoted("DefaultResampler")),
-        ("ResultImageFormat", quoted("nii")),
-        ("ResultImagePixelType", quoted("float")),
-        ("Size", grid.dims.map(|n| n.to_string()).join(" ")),
-        ("Spacing", numbers(spacing)),
-        ("UseDirectionCosines", quoted("true")),
-    ];
+    let mut entries = grid_entries(grid);
     let parameters: Vec<f64> = match transform {
         ItkTransform::Affine(a) => {
             entries.push(("Transform", quoted(transform_name(transform))));
@@ -72,6 +51,65 @@ pub fn to_text(transform: &ItkTransform, grid: &ElastixGrid) -> String {
     };
     entries.push(("NumberOfParameters", parameters.len().to_string()));
     entries.push(("TransformParameters", numbers(parameters)));
+    lines(entries)
+}
+
+/// The parameter file of a `DeformationFieldTransform` over `grid` whose field is the file `field_file` names
+/// (as the file will say it: transformix looks for it from the folder it runs in, warpbench beside the parameter
+/// file first), read trilinearly (`DeformationFieldInterpolationOrder 1`), so that at `grid`'s voxel centres it is
+/// the field's vectors.
+#[must_use]
+pub fn field_transform_text(field_file: &str, grid: &ElastixGrid) -> String {
+    let mut entries = grid_entries(grid);
+    entries.push(("Transform", quoted("DeformationFieldTransform")));
+    entries.push(("DeformationFieldFileName", quoted(field_file)));
+    entries.push(("DeformationFieldInterpolationOrder", "1".into()));
+    entries.push(("NumberOfParameters", "0".into()));
+    lines(entries)
+}
+
+/// Writes [`field_transform_text`] to `path`, atomically. A name elastix cannot quote (a `"` or a line break in
+/// it) or a grid that is not a valid affine is refused and nothing is written.
+pub fn write_field_transform(path: &Path, field_file: &str, grid: &ElastixGrid) -> Result<()> {
+    check_grid(path, grid)?;
+    if field_file.chars().any(|c| c == '"' || c.is_control()) {
+        return Err(Error::invalid(
+            path,
+            format!("the field's name {field_file:?} holds a quote or a control character, which elastix cannot read"),
+        ));
+    }
+    let text = field_transform_text(field_file, grid);
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}
+
+/// The entries every file writes: the fixed grid and transformix's resampler settings.
+fn grid_entries(grid: &ElastixGrid) -> Vec<(&'static str, String)> {
+    let (columns, spacing) = crate::metaimage::direction_spacing(&grid.lps_from_index);
+    vec![
+        ("CompressResultImage", quoted("false")),
+        ("DefaultPixelValue", "0".into()),
+        ("Direction", numbers(columns.iter().flatten().copied())),
+        ("FinalBSplineInterpolationOrder", "3".into()),
+        ("FixedImageDimension", "3".into()),
+        ("FixedInternalImagePixelType", quoted("float")),
+        ("HowToCombineTransforms", quoted("Compose")),
+        ("Index", "0 0 0".into()),
+        ("InitialTransformParameterFileName", quoted("NoInitialTransform")),
+        ("MovingImageDimension", "3".into()),
+        ("MovingInternalImagePixelType", quoted("float")),
+        ("Origin", numbers(grid.lps_from_index.translation())),
+        ("ResampleInterpolator", quoted("FinalBSplineInterpolator")),
+        ("Resampler", quoted("DefaultResampler")),
+        ("ResultImageFormat", quoted("nii")),
+        ("ResultImagePixelType", quoted("float")),
+        ("Size", grid.dims.map(|n| n.to_string()).join(" ")),
+        ("Spacing", numbers(spacing)),
+        ("UseDirectionCosines", quoted("true")),
+    ]
+}
+
+/// The entries sorted by name, one `(Name value …)` line each.
+fn lines(mut entries: Vec<(&str, String)>) -> String {
     entries.sort_by(|a, b| a.0.cmp(b.0));
     let mut text = String::new();
     for (key, value) in entries {
@@ -93,14 +131,20 @@ pub const fn transform_name(transform: &ItkTransform) -> &'static str {
 /// Writes [`to_text`] to `path`, atomically. A transform with a non-finite number, or a grid that is not a valid
 /// affine, is refused and nothing is written.
 pub fn write(path: &Path, transform: &ItkTransform, grid: &ElastixGrid) -> Result<()> {
-    if !grid.lps_from_index.is_valid_affine() {
-        return Err(Error::invalid(path, "the fixed grid's voxel-to-patient matrix is singular or not finite"));
-    }
+    check_grid(path, grid)?;
     if !is_finite(transform) {
         return Err(Error::invalid(path, "the transform holds a number that is not finite"));
     }
     let text = to_text(transform, grid);
     crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}
+
+fn check_grid(path: &Path, grid: &ElastixGrid) -> Result<()> {
+    if grid.lps_from_index.is_valid_affine() {
+        Ok(())
+    } else {
+        Err(Error::invalid(path, "the fixed grid's voxel-to-patient matrix is singular or not finite"))
+    }
 }
 
 fn is_finite(transform: &ItkTransform) -> bool {
