@@ -33,34 +33,16 @@ FIELD = ROOT / "tests" / "data" / "metaimage" / "transformix_field.mhd"
 FIELD_NAME = "../metaimage/transformix_field.mhd"
 
 
-def parameter_map(field: itk.Image, order: int) -> dict[str, list[str]]:
-    size = [int(n) for n in field.GetLargestPossibleRegion().GetSize()]
-    direction = itk.array_from_matrix(field.GetDirection())
-    return {
-        "Transform": ["DeformationFieldTransform"],
-        "DeformationFieldFileName": [FIELD_NAME],
-        "DeformationFieldInterpolationOrder": [str(order)],
-        "NumberOfParameters": ["0"],
-        "InitialTransformParameterFileName": ["NoInitialTransform"],
-        "HowToCombineTransforms": ["Compose"],
-        "FixedImageDimension": ["3"],
-        "MovingImageDimension": ["3"],
-        "FixedInternalImagePixelType": ["float"],
-        "MovingInternalImagePixelType": ["float"],
-        "Size": [str(n) for n in size],
-        "Index": ["0", "0", "0"],
-        "Spacing": [repr(float(s)) for s in field.GetSpacing()],
-        "Origin": [repr(float(o)) for o in field.GetOrigin()],
-        # Column by column, as elastix writes it.
-        "Direction": [repr(float(v)) for v in direction.T.flatten()],
-        "UseDirectionCosines": ["true"],
-        "ResampleInterpolator": ["FinalLinearInterpolator"],
-        "Resampler": ["DefaultResampler"],
-        "DefaultPixelValue": ["0"],
-        "ResultImageFormat": ["mhd"],
-        "ResultImagePixelType": ["float"],
-        "CompressResultImage": ["false"],
-    }
+def parameter_map(order: int) -> dict[str, list[str]]:
+    """The B-spline's own parameter map (whose fixed grid is the field's, as transformix wrote the field over it),
+    with its transform replaced by the field's."""
+    bspline = itk.ParameterObject.New()
+    bspline.ReadParameterFile(str(OUT / "bspline_oblique.txt"))
+    m = {k: list(v) for k, v in bspline.GetParameterMap(0).items()
+         if not k.startswith(("Grid", "BSpline", "TransformParameters", "UseCyclic"))}
+    m.update({"Transform": ["DeformationFieldTransform"], "DeformationFieldFileName": [FIELD_NAME],
+              "DeformationFieldInterpolationOrder": [str(order)], "NumberOfParameters": ["0"]})
+    return m
 
 
 def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image) -> list[list[float]]:
@@ -107,7 +89,7 @@ def main() -> None:
                        "itk_elastix": "0.25.4", "field": FIELD_NAME, "points_lps": points, "files": []}
     for name, order in [("field_nearest.txt", 0), ("field_linear.txt", 1)]:
         m = itk.ParameterObject.New()
-        m.AddParameterMap(parameter_map(field, order))
+        m.AddParameterMap(parameter_map(order))
         itk.ParameterObject.WriteParameterFile(m.GetParameterMap(0), str(OUT / name))
         mapped = transformix_points(OUT / name, points, image)
         moved = [float(np.linalg.norm(np.subtract(a, b))) for a, b in zip(mapped, points)]

@@ -12,7 +12,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use common::{data, mri};
-use window::{no_adapter, open_mri_pair, open_mri_pair_at, wait_for_failure, wait_until_shown};
+use window::{no_adapter, open_mri_pair, open_mri_pair_at, wait_for_export, wait_for_failure, wait_until_shown};
 
 use eframe::egui;
 use egui_kittest::Harness;
@@ -236,18 +236,6 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert_eq!(ready.document.fixed.as_deref(), Some(ct.as_path()));
     assert_eq!(ready.document.moving.as_deref(), Some(mri().as_path()));
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
-}
-
-/// Steps until the window's export finishes (or 2 min pass); returns the message it left.
-fn wait_for_export(harness: &mut Harness<'_, Workbench>) -> String {
-    let start = Instant::now();
-    while harness.state().ready().expect("loaded").files.export.is_some() {
-        harness.step();
-        assert!(start.elapsed() < Duration::from_mins(2), "the export did not finish");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    harness.run_steps(2);
-    harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default()
 }
 
 #[test]

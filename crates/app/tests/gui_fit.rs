@@ -840,15 +840,8 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     let elastix_out = dir.path().join("with_field.txt");
     let export = Command::File(FileAction::ExportTransform(TransformFormat::Elastix, elastix_out.clone()));
     harness.state_mut().ready_mut().expect("ready").apply(export);
-    let start = Instant::now();
-    while harness.state().ready().expect("ready").files.export.is_some() {
-        harness.step();
-        assert!(start.elapsed() < Duration::from_mins(2), "the export did not finish");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    harness.run_steps(2);
+    let message = window::wait_for_export(&mut harness);
     let ready = harness.state().ready().expect("ready");
-    let message = ready.files.message.clone().unwrap_or_default();
     assert!(
         message.contains("as DeformationFieldTransform over") && message.contains("with_field.field.mha"),
         "{message}"

@@ -28,6 +28,15 @@ fn worst(got: &[[f64; 3]], want: &[[f64; 3]]) -> f64 {
     got.iter().zip(want).flat_map(|(g, w)| (0..3).map(move |a| (g[a] - w[a]).abs())).fold(0.0, f64::max)
 }
 
+/// Reads the parameter file `file` of the fixtures (with its chain) and maps `inputs` through it; they must land
+/// where transformix put them (`want`), within its printing of 1e-6 mm. Returns where they land.
+fn maps_as_transformix_did(file: &str, inputs: &[[f64; 3]], want: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let chain = elastix::read_transform(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
+    let got: Vec<_> = inputs.iter().map(|x| chain.apply(*x)).collect();
+    assert!(worst(&got, want) < 1e-5, "{file}: {} mm from transformix", worst(&got, want));
+    got
+}
+
 /// Every file elastix wrote (Euler both ways round, similarity, translation, an affine over the rigid through
 /// InitialTransformParameterFileName, a B-spline over that affine, a B-spline on an oblique grid) maps the recorded
 /// points where transformix did, and the linear ones read as one affine that does too. transformix prints its points
@@ -43,9 +52,7 @@ fn every_file_elastix_wrote_maps_points_where_transformix_did() {
     for f in files {
         let file = f["file"].as_str().expect("file");
         let want = points(&f["transformix_lps"]);
-        let chain = elastix::read_transform(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
-        let got: Vec<_> = inputs.iter().map(|x| chain.apply(*x)).collect();
-        assert!(worst(&got, &want) < 1e-5, "{file}: {} mm from transformix", worst(&got, &want));
+        maps_as_transformix_did(file, &inputs, &want);
         if f["linear"] == true {
             let affine = elastix::read_affine(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
             let got: Vec<_> = inputs.iter().map(|x| affine.apply(*x)).collect();
@@ -301,10 +308,7 @@ fn deformation_field_transforms_map_points_where_transformix_did() {
     let mut outcomes = Vec::new();
     for f in files {
         let file = f["file"].as_str().expect("file");
-        let want = points(&f["transformix_lps"]);
-        let chain = elastix::read_transform(&data_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
-        let got: Vec<_> = inputs.iter().map(|x| chain.apply(*x)).collect();
-        assert!(worst(&got, &want) < 1e-5, "{file}: {} mm from transformix", worst(&got, &want));
+        let got = maps_as_transformix_did(file, &inputs, &points(&f["transformix_lps"]));
         let still = got.iter().zip(&inputs).filter(|(g, x)| worst(&[**g], &[**x]) == 0.0).count();
         assert!((30..=90).contains(&still), "{file}: {still} of 120 points outside the field, by design about half");
         let e = elastix::read_affine(&data_dir().join(file)).expect_err("not linear").to_string();

@@ -132,3 +132,15 @@ pub fn open_section(harness: &mut Harness<'_, Workbench>, title: &str) {
     // The section opens over a few frames.
     harness.run_steps(12);
 }
+
+/// Steps until the window's export finishes (or 2 min pass); returns the message it left.
+pub fn wait_for_export(harness: &mut Harness<'_, Workbench>) -> String {
+    let start = Instant::now();
+    while harness.state().ready().expect("loaded").files.export.is_some() {
+        harness.step();
+        assert!(start.elapsed() < Duration::from_mins(2), "the export did not finish");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    harness.run_steps(2);
+    harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default()
+}
