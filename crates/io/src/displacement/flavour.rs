@@ -117,7 +117,7 @@ pub enum FieldSource {
     ElastixTransform,
 }
 
-/// What [`read_field_info`] found.
+/// What [`super::read_field_info`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReadField {
     /// The grid and the vectors, LPS.
