@@ -235,6 +235,19 @@ pub fn field_file_beside(out: &Path) -> PathBuf {
     out.with_file_name(format!("{stem}.field.mha"))
 }
 
+/// The name a `DeformationFieldTransform` at `out` gives its field `field_path`, refused before anything is written
+/// when elastix cannot read it (not UTF-8, a quote or a control character in it).
+///
+/// # Errors
+/// That name, naming `out`.
+pub fn check_field_name<'p>(out: &Path, field_path: &'p Path) -> Result<&'p str, Failure> {
+    let name = field_path.to_str().ok_or_else(|| {
+        Failure::BadInput(anyhow::anyhow!("{}: elastix needs the field's name in UTF-8", field_path.display()))
+    })?;
+    elastix::check_field_name(out, name)?;
+    Ok(name)
+}
+
 /// Runs `warpbench transform`: checks the output, loads, fits the pull-back over the fixed box, writes the file
 /// atomically; prints the JSON summary to `out` with `--json`, else a line on stderr unless `--quiet`. With
 /// `--format elastix`, a stack no transform file holds exactly (a session's field or brush) is written as a
@@ -249,6 +262,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         format == TransformFormat::Elastix && (!inputs.warp.brush.is_empty() || inputs.warp.session_field.is_some());
     let field_path = field_file_beside(&out_path);
     if as_field {
+        check_field_name(&out_path, &field_path)?;
         crate::field::check_field_output(
             &OutputFile { path: field_path.clone(), force },
             FieldFormat::MetaImage,
@@ -337,11 +351,9 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
 /// transform file holds exactly.
 ///
 /// # Errors
-/// A name that is not UTF-8, or what the writers refuse.
+/// A name elastix cannot hold ([`check_field_name`]), or what the writers refuse; a refused name writes nothing.
 pub fn write_field_transform(out: &Path, field_path: &Path, field: &crate::field::Field) -> Result<(), Failure> {
-    let name = field_path.to_str().ok_or_else(|| {
-        Failure::BadInput(anyhow::anyhow!("{}: elastix needs the field's name in UTF-8", field_path.display()))
-    })?;
+    let name = check_field_name(out, field_path)?;
     displacement::write_field(
         field_path,
         FieldFormat::MetaImage,

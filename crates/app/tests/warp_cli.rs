@@ -783,6 +783,12 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
     };
     let refused = transform("itk", &dir.path().join("t.tfm"));
     assert_eq!(refused.status.code(), Some(2), "{}", String::from_utf8_lossy(&refused.stderr));
+    // A name elastix's parser cannot quote is refused before anything is written, the field included.
+    let quoted = dir.path().join("a\"b.txt");
+    let refused = transform("elastix", &quoted);
+    assert_eq!(refused.status.code(), Some(2), "{}", String::from_utf8_lossy(&refused.stderr));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("holds a quote"));
+    assert!(!quoted.exists() && !dir.path().join("a\"b.field.mha").exists(), "nothing written");
     let out = dir.path().join("TransformParameters.0.txt");
     let run = transform("elastix", &out);
     assert_ok(&run);

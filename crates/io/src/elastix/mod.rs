@@ -76,4 +76,6 @@ pub use field::{read_field, sample};
 pub use params::looks_like_parameter_file;
 pub use read::{parse_transform, read_affine, read_transform};
 pub use transform::{ElastixTransform, Link, MAX_KERNEL_LANDMARKS, Step, ThinPlateKernel};
-pub use write::{ElastixGrid, field_transform_text, to_text, transform_name, write, write_field_transform};
+pub use write::{
+    ElastixGrid, check_field_name, field_transform_text, to_text, transform_name, write, write_field_transform,
+};

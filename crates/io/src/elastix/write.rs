@@ -72,14 +72,24 @@ pub fn field_transform_text(field_file: &str, grid: &ElastixGrid) -> String {
 /// it) or a grid that is not a valid affine is refused and nothing is written.
 pub fn write_field_transform(path: &Path, field_file: &str, grid: &ElastixGrid) -> Result<()> {
     check_grid(path, grid)?;
+    check_field_name(path, field_file)?;
+    let text = field_transform_text(field_file, grid);
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}
+
+/// Refuses a field name the parameter file `path` cannot hold: one with a `"` or a control character in it, which
+/// elastix's parser cannot read. Callers that write the field first check here before.
+///
+/// # Errors
+/// That name, naming `path`.
+pub fn check_field_name(path: &Path, field_file: &str) -> Result<()> {
     if field_file.chars().any(|c| c == '"' || c.is_control()) {
         return Err(Error::invalid(
             path,
             format!("the field's name {field_file:?} holds a quote or a control character, which elastix cannot read"),
         ));
     }
-    let text = field_transform_text(field_file, grid);
-    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+    Ok(())
 }
 
 /// The entries every file writes: the fixed grid and transformix's resampler settings.
