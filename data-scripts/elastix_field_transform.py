@@ -11,16 +11,26 @@ the field's box widened by one voxel on every side, in the field's own index spa
 in the half voxel past the outermost centres (where the outermost vectors are held) and some outside (where the
 transform is the identity). The reference records them and transformix's `OutputPoint`s (printed to 6 decimals).
 
+Given the warpbench binary, it also checks what warpbench writes (and writes nothing to tests/data for it): a
+session whose warp is tests/data/itk/field_input_field.nii.gz under no landmarks, given to `warpbench transform
+--format elastix --out out/T.txt` in a scratch folder, which writes a DeformationFieldTransform naming
+`out/T.field.mha`; transformix, run from that folder, maps 100 voxel centres of the fixed volume
+(tests/data/itk/field_input_fixed.nii.gz) where `warpbench points --session --from fixed` maps them, within 1e-5 mm
+(the figure is printed).
+
 Deterministic: a rerun writes the same bytes. Run from the repository root, with itk-elastix==0.25.4 installed:
 
-    data-cache/elastix-venv/bin/python data-scripts/elastix_field_transform.py
+    data-cache/elastix-venv/bin/python data-scripts/elastix_field_transform.py [target/debug/warpbench]
 """
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import re
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -31,6 +41,8 @@ ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "tests" / "data" / "elastix"
 FIELD = ROOT / "tests" / "data" / "metaimage" / "transformix_field.mhd"
 FIELD_NAME = "../metaimage/transformix_field.mhd"
+ITK_DATA = ROOT / "tests" / "data" / "itk"
+AGREE_MM = 1e-5
 
 
 def parameter_map(order: int) -> dict[str, list[str]]:
@@ -45,8 +57,10 @@ def parameter_map(order: int) -> dict[str, list[str]]:
     return m
 
 
-def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image) -> list[list[float]]:
-    """transformix's `OutputPoint` for `points` (LPS mm), run from the parameter file's folder."""
+def transformix_points(parameter_file: Path, points: list[list[float]], image: itk.Image,
+                       run_in: Path | None = None) -> list[list[float]]:
+    """transformix's `OutputPoint` for `points` (LPS mm), run from `run_in` (the parameter file's folder unless
+    given), where it looks for the field the file names."""
     objects = itk.ParameterObject.New()
     objects.ReadParameterFile(str(parameter_file))
     here = os.getcwd()
@@ -55,7 +69,7 @@ def transformix_points(parameter_file: Path, points: list[list[float]], image: i
         inputs = tmp / "inputpoints.txt"
         inputs.write_text("point\n%d\n" % len(points) + "".join(" ".join(repr(float(v)) for v in p) + "\n"
                                                              for p in points))
-        os.chdir(parameter_file.parent)
+        os.chdir(run_in or parameter_file.parent)
         try:
             f = itk.TransformixFilter.New(Input=image, TransformParameterObject=objects)
             f.SetFixedPointSetFileName(str(inputs))
@@ -97,6 +111,54 @@ def main() -> None:
         print(f"{name}: transformix moves the points by up to {max(moved):.2f} mm; {still} of {len(points)} stay")
         reference["files"].append({"file": name, "order": order, "transformix_lps": mapped})
     (OUT / "transformix_field_transform.json").write_text(json.dumps(reference) + "\n")
+    if len(sys.argv) > 1:
+        check_written(str(Path(sys.argv[1]).resolve()))
+
+
+def minimal_session(fixed: Path, moving: Path, field: Path) -> dict:
+    """A warpbench session (schema warpbench-session/1) with no landmarks whose warp is `field`: the keys every
+    session file has, with the window's defaults."""
+    look = {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True}
+    return {
+        "schema": "warpbench-session/1", "fixed": str(fixed), "moving": str(moving), "landmarks": [],
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 64, "show_landmarks": True},
+        "layers": [look, look],
+        "camera": {"azimuth_deg": 0.0, "elevation_deg": 0.0, "zoom": 1.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": True, "field": str(field),
+    }
+
+
+def check_written(exe: str) -> None:
+    """transformix through the DeformationFieldTransform `warpbench transform --format elastix` writes for a session
+    with a field, against warpbench's own pull-back, at voxel centres of the fixed grid."""
+    fixed_path, moving_path = ITK_DATA / "field_input_fixed.nii.gz", ITK_DATA / "field_input_moving.nii.gz"
+    fixed = itk.imread(str(fixed_path), itk.F)
+    size = [int(n) for n in fixed.GetLargestPossibleRegion().GetSize()]
+    rng = np.random.default_rng(20261206)
+    centres = [list(fixed.TransformIndexToPhysicalPoint([int(rng.integers(0, n)) for n in size]))
+               for _ in range(100)]
+    volumes = ["--fixed", str(fixed_path), "--moving", str(moving_path)]
+    with tempfile.TemporaryDirectory() as tmp_name:
+        tmp = Path(tmp_name)
+        session = tmp / "s.warpbench.json"
+        session.write_text(json.dumps(minimal_session(fixed_path, moving_path, ITK_DATA / "field_input_field.nii.gz")))
+        (tmp / "out").mkdir()
+        subprocess.run([exe, "transform", *volumes, "--session", str(session), "--format", "elastix",
+                        "--out", "out/T.txt", "--quiet"], check=True, cwd=tmp)
+        assert '(DeformationFieldFileName "out/T.field.mha")' in (tmp / "out" / "T.txt").read_text()
+        (tmp / "in.csv").write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in centres))
+        subprocess.run([exe, "points", *volumes, "--session", str(session), "--from", "fixed", "--in", "in.csv",
+                        "--out", "ours.csv", "--quiet"], check=True, cwd=tmp)
+        with (tmp / "ours.csv").open() as f:
+            ours = [[float(v) for v in row[:3]] for row in csv.reader(f)]
+        theirs = transformix_points(tmp / "out" / "T.txt", centres, fixed, run_in=tmp)
+    worst = float(np.abs(np.subtract(ours, theirs)).max())
+    moved = max(float(np.linalg.norm(np.subtract(a, b))) for a, b in zip(theirs, centres))
+    print(f"warpbench's DeformationFieldTransform: transformix vs warpbench's pull-back at {len(centres)} voxel "
+          f"centres: {worst:.3g} mm (the points moved up to {moved:.2f} mm)")
+    assert worst <= AGREE_MM, worst
 
 
 if __name__ == "__main__":
