@@ -57,6 +57,53 @@ pub struct Image<S: Space> {
 /// A chunk of each of three images, x, y and z, as [`Image::central_gradient`] fills them.
 type Chunks<'c> = ((&'c mut [f32], &'c mut [f32]), &'c mut [f32]);
 
+/// A mask's values on its grid and the map to its continuous index from another image's voxel index: what
+/// [`Image::keep_inside`] reads, without the image's space, so that its loop is compiled here once.
+struct MaskGrid<'m> {
+    dims: [usize; 3],
+    values: &'m [f32],
+    from_index: [[f64; 4]; 3],
+}
+
+impl MaskGrid<'_> {
+    /// Whether voxel (i, j, k) of the other image is inside: the mask voxel nearest to it holds a number other
+    /// than 0.
+    fn keeps(&self, ijk: [usize; 3]) -> bool {
+        let [i, j, k] = ijk.map(|c| c as f64);
+        let mut at = [0usize; 3];
+        for (a, row) in self.from_index.iter().enumerate() {
+            let c = (row[0] * i + row[1] * j + row[2] * k + row[3]).round();
+            if !(c >= 0.0 && c < self.dims[a] as f64) {
+                return false;
+            }
+            at[a] = c as usize;
+        }
+        let v = self.values[at[0] + self.dims[0] * (at[1] + self.dims[1] * at[2])];
+        v.is_finite() && v != 0.0
+    }
+
+    /// Sets to NaN the voxels of `values` (on a grid of `dims`) outside the mask; returns how many keep theirs.
+    fn clear_outside(&self, values: &mut [f32], dims: [usize; 3], parallelism: Parallelism) -> usize {
+        let [nx, ny, _] = dims;
+        let clear = |(c, block): (usize, &mut [f32])| {
+            let mut kept = 0usize;
+            for (o, v) in block.iter_mut().enumerate() {
+                let o = c * CHUNK + o;
+                if self.keeps([o % nx, (o / nx) % ny, o / (nx * ny)]) {
+                    kept += 1;
+                } else {
+                    *v = f32::NAN;
+                }
+            }
+            kept
+        };
+        match parallelism {
+            Parallelism::Sequential => values.chunks_mut(CHUNK).enumerate().map(clear).sum(),
+            Parallelism::Rayon => values.par_chunks_mut(CHUNK).enumerate().map(clear).sum(),
+        }
+    }
+}
+
 /// Values per task of [`Image::from_volume`]'s conversion and [`Image::value_range`].
 const CHUNK: usize = 1 << 16;
 
@@ -380,35 +427,17 @@ impl<S: Space> Image<S> {
     /// # Errors
     /// When there is no memory for the copy.
     pub fn keep_inside(&self, mask: &Image<S>, parallelism: Parallelism) -> Result<(Self, usize)> {
-        let n = self.values.len();
-        let mut values = try_vec(n, "the masked image")?;
+        let mut values = try_vec(self.values.len(), "the masked image")?;
         values.extend_from_slice(&self.values);
-        let [nx, ny, _] = self.dims;
-        let inside = |o: usize| {
-            let x = self.voxel_point(o % nx, (o / nx) % ny, o / (nx * ny));
-            let xi = mask.index_of(x);
-            let ijk: [f64; 3] = std::array::from_fn(|a| xi[a].round());
-            if (0..3).any(|a| !(ijk[a] >= 0.0 && ijk[a] < mask.dims[a] as f64)) {
-                return false;
-            }
-            let v = mask.at(ijk[0] as usize, ijk[1] as usize, ijk[2] as usize);
-            v.is_finite() && v != 0.0
-        };
-        let clear = |(c, block): (usize, &mut [f32])| {
-            let mut kept = 0usize;
-            for (o, v) in block.iter_mut().enumerate() {
-                if inside(c * CHUNK + o) {
-                    kept += 1;
-                } else {
-                    *v = f32::NAN;
-                }
-            }
-            kept
-        };
-        let kept = match parallelism {
-            Parallelism::Sequential => values.chunks_mut(CHUNK).enumerate().map(clear).sum(),
-            Parallelism::Rayon => values.par_chunks_mut(CHUNK).enumerate().map(clear).sum(),
-        };
+        // The mask's continuous index of this image's voxel (i, j, k), one affine map: mask index ← space ← index.
+        let space_from_index = self.space_from_index.matrix();
+        let linear = mask.index_from_space_linear * space_from_index.fixed_view::<3, 3>(0, 0);
+        let shift = mask.index_from_space_linear * space_from_index.fixed_view::<3, 1>(0, 3)
+            + mask.index_from_space_translation;
+        let mask_from_index: [[f64; 4]; 3] =
+            std::array::from_fn(|r| [linear[(r, 0)], linear[(r, 1)], linear[(r, 2)], shift[r]]);
+        let grid = MaskGrid { dims: mask.dims, values: &mask.values, from_index: mask_from_index };
+        let kept = grid.clear_outside(&mut values, self.dims, parallelism);
         Ok((Self::new(self.dims, values, self.space_from_index)?, kept))
     }
 

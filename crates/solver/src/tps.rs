@@ -442,19 +442,8 @@ impl<To: Space, From: Space> Tps<To, From> {
     /// Evaluates f at one point (mm in `From` → mm in `To`). No allocation.
     #[inline]
     #[must_use]
-    #[allow(clippy::needless_range_loop)] // one lane index over six arrays: the form LLVM vectorises
     pub fn eval_point(&self, x: [f64; 3]) -> [f64; 3] {
-        let mut s = [[0.0; LANES]; 3];
-        for blk in &self.blocks {
-            for l in 0..LANES {
-                let (dx, dy, dz) = (x[0] - blk.px[l], x[1] - blk.py[l], x[2] - blk.pz[l]);
-                let r = (dx * dx + dy * dy + dz * dz).sqrt();
-                s[0][l] += r * blk.wx[l];
-                s[1][l] += r * blk.wy[l];
-                s[2][l] += r * blk.wz[l];
-            }
-        }
-        self.finish(x, &s)
+        eval_blocks(&self.blocks, &self.a, &self.b, x)
     }
 
     /// The kernel: `out[k]` = f(`points[k]`) (mm). Never allocates or spawns threads; split `points` and
@@ -467,14 +456,6 @@ impl<To: Space, From: Space> Tps<To, From> {
         for (x, y) in points.iter().zip(out.iter_mut()) {
             *y = self.eval_point(*x);
         }
-    }
-
-    /// Adds the affine part to the lane sums of the kernel terms.
-    #[inline]
-    fn finish(&self, x: [f64; 3], s: &[[f64; LANES]; 3]) -> [f64; 3] {
-        let a = &self.a;
-        let sum = |s: &[f64; LANES]| s.iter().sum::<f64>();
-        std::array::from_fn(|r| a[(r, 0)] * x[0] + a[(r, 1)] * x[1] + a[(r, 2)] * x[2] + self.b[r] + sum(&s[r]))
     }
 
     /// Checks the fitted system: finite coefficients, and a small backward error of f(pᵢ) + λwᵢ = qᵢ.
@@ -548,23 +529,48 @@ impl<To: Space, From: Space> Warp<To, From> for Tps<To, From> {
     /// Analytic: ∂f/∂x = A + Σᵢ wᵢ (x − pᵢ)ᵀ / ‖x − pᵢ‖. At a centre (r = 0) U = r is not differentiable;
     /// its term is taken as 0, the symmetric limit that central differences also give.
     fn jacobian_raw(&self, x: [f64; 3]) -> Matrix3<f64> {
-        let mut j = self.a;
-        for blk in &self.blocks {
-            for l in 0..LANES {
-                let d = [x[0] - blk.px[l], x[1] - blk.py[l], x[2] - blk.pz[l]];
-                let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                if r > 0.0 {
-                    let w = [blk.wx[l], blk.wy[l], blk.wz[l]];
-                    for (row, wr) in w.iter().enumerate() {
-                        for (col, dc) in d.iter().enumerate() {
-                            j[(row, col)] += wr * dc / r;
-                        }
+        jacobian_blocks(&self.blocks, &self.a, x)
+    }
+}
+
+// The kernels below are not generic over the spaces, so they are compiled once, here, with this crate's
+// optimisation: a caller built without it (a debug build of the app or its tests) still runs them optimised.
+
+/// f(x) = A x + b + Σᵢ wᵢ ‖x − pᵢ‖ over the centres in `blocks`.
+#[allow(clippy::needless_range_loop)] // one lane index over six arrays: the form LLVM vectorises
+fn eval_blocks(blocks: &[Block], a: &Matrix3<f64>, b: &[f64; 3], x: [f64; 3]) -> [f64; 3] {
+    let mut s = [[0.0; LANES]; 3];
+    for blk in blocks {
+        for l in 0..LANES {
+            let (dx, dy, dz) = (x[0] - blk.px[l], x[1] - blk.py[l], x[2] - blk.pz[l]);
+            let r = (dx * dx + dy * dy + dz * dz).sqrt();
+            s[0][l] += r * blk.wx[l];
+            s[1][l] += r * blk.wy[l];
+            s[2][l] += r * blk.wz[l];
+        }
+    }
+    let sum = |s: &[f64; LANES]| s.iter().sum::<f64>();
+    std::array::from_fn(|r| a[(r, 0)] * x[0] + a[(r, 1)] * x[1] + a[(r, 2)] * x[2] + b[r] + sum(&s[r]))
+}
+
+/// ∂f/∂x = A + Σᵢ wᵢ (x − pᵢ)ᵀ / ‖x − pᵢ‖ over the centres in `blocks` (0 for a centre at x).
+fn jacobian_blocks(blocks: &[Block], a: &Matrix3<f64>, x: [f64; 3]) -> Matrix3<f64> {
+    let mut j = *a;
+    for blk in blocks {
+        for l in 0..LANES {
+            let d = [x[0] - blk.px[l], x[1] - blk.py[l], x[2] - blk.pz[l]];
+            let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            if r > 0.0 {
+                let w = [blk.wx[l], blk.wy[l], blk.wz[l]];
+                for (row, wr) in w.iter().enumerate() {
+                    for (col, dc) in d.iter().enumerate() {
+                        j[(row, col)] += wr * dc / r;
                     }
                 }
             }
         }
-        j
     }
+    j
 }
 
 /// Smallest N whose solve runs on rayon's pool. Below it the O(N³) steps take a few milliseconds on one core, and
