@@ -1,6 +1,6 @@
 //! The workstation window (issue 30): the panes' layout chosen, maximised by a double click and saved in the session;
-//! the toolbar's tools with their shortcuts; the landmark panel's sorting, filter and marked rows; and nothing cut
-//! off at 1280 × 720 and 1920 × 1080.
+//! the views' history and named views; the toolbar's tools with their shortcuts; the landmark panel's sorting, filter
+//! and marked rows; and nothing cut off at 1280 × 720 and 1920 × 1080.
 
 mod common;
 #[path = "common/window.rs"]
@@ -11,9 +11,9 @@ use std::time::{Duration, Instant};
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable};
-use warpbench_app::gui::{GuiOptions, Placing, Ready, Workbench};
+use warpbench_app::gui::{Command, GuiOptions, Placing, Ready, Workbench};
 use warpbench_app::settings::Layout;
-use window::{no_adapter, open_mri_pair, wait_until_rendered, wait_until_shown};
+use window::{button, no_adapter, open_mri_pair, press_and_drag, wait_until_rendered, wait_until_shown};
 
 fn ready<'h>(harness: &'h Harness<'_, Workbench>) -> &'h Ready {
     harness.state().ready().expect("loaded")
@@ -80,6 +80,106 @@ fn the_layout_is_chosen_maximised_by_a_double_click_and_saved_in_the_session() {
     wait_until_shown(&mut reopened);
     assert_eq!(ready(&reopened).view.layout, Layout::Slices, "restored from the session");
     assert_eq!(views_shown(&reopened), [false, true, true, true]);
+}
+
+/// Opens the toolbar's Views menu, unless it is open.
+fn open_views_menu(harness: &mut Harness<'_, Workbench>) {
+    if harness.query_by_label("Save view").is_none() {
+        harness.get_by_label("Views").click();
+        harness.run_steps(2);
+    }
+}
+
+/// The views' history and named views (BigWarp #152): an orbit and a jump to a pair are steps that Back (its button,
+/// then Alt+Left) walks back through and Forward (Alt+Right) returns; a named view brings the camera and the slices
+/// back after they moved, reaches the autosave, is listed by a window opened on that session, and x forgets it. None
+/// of it is an undo step.
+#[test]
+fn the_views_go_back_and_forward_and_named_views_are_kept_in_the_session() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1280.0, 800.0));
+    let place = |h: &Harness<'_, Workbench>| ready(h).place();
+    let start = place(&harness);
+    let undo_steps = ready(&harness).history.can_undo();
+
+    // An orbit: a drag in the 3-D view, away from the glyphs.
+    let rect = harness.get_by_label("3-D view").rect();
+    let (from, to) = (rect.min + rect.size() * 0.15, rect.min + rect.size() * egui::vec2(0.45, 0.15));
+    press_and_drag(&mut harness, from, to, &[0.5, 1.0]);
+    harness.input_mut().events.push(button(to, false));
+    harness.run_steps(3);
+    let orbited = place(&harness);
+    assert!((orbited.camera.azimuth_rad - start.camera.azimuth_rad).abs() > 0.1, "orbited: {orbited:?}");
+    // A jump: pair 3's "go".
+    harness.state_mut().ready_mut().expect("loaded").apply(Command::JumpTo(2));
+    harness.run_steps(3);
+    let jumped = place(&harness);
+    assert_ne!(jumped, orbited);
+
+    harness.get_by_label("Back").click();
+    harness.run_steps(3);
+    assert_eq!(place(&harness), orbited, "Back: before the jump");
+    harness.key_press_modifiers(egui::Modifiers::ALT, egui::Key::ArrowLeft);
+    harness.run_steps(3);
+    assert_eq!(place(&harness), start, "Alt+Left: before the orbit");
+    assert!(harness.get_by_label("Back").accesskit_node().is_disabled(), "nothing further back");
+    harness.key_press_modifiers(egui::Modifiers::ALT, egui::Key::ArrowRight);
+    harness.run_steps(3);
+    assert_eq!(place(&harness), orbited, "Alt+Right: forward again");
+    assert_eq!(ready(&harness).history.can_undo(), undo_steps, "moving the views is no undo step");
+
+    // A named view (the toolbar's Views menu): saved where the views are, brought back after Reset camera moved them.
+    open_views_menu(&mut harness);
+    harness.get_by_label("View name").focus();
+    harness.run_steps(2);
+    harness.get_by_label("View name").type_text("left side");
+    harness.run_steps(2);
+    harness.get_by_label("Save view").click();
+    harness.run_steps(3);
+    harness.get_by_label("Reset camera").click();
+    harness.run_steps(3);
+    assert_ne!(place(&harness), orbited);
+    open_views_menu(&mut harness);
+    harness.get_by_label("left side").click();
+    harness.run_steps(3);
+    assert_eq!(place(&harness), orbited, "the named view");
+
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let start_wait = Instant::now();
+    let saved = loop {
+        harness.run_steps(2);
+        let session = warpbench_app::project::session::load(&autosave).ok();
+        if let Some(s) = session.filter(|s| !s.view.named_views.is_empty()) {
+            break s;
+        }
+        assert!(start_wait.elapsed() < Duration::from_mins(1), "the named view never reached the autosave");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert_eq!(saved.view.named_views[0].name, "left side");
+    let session = dir.path().join("saved.warpbench.json");
+    std::fs::copy(&autosave, &session).expect("copy the session");
+
+    open_views_menu(&mut harness);
+    harness.get_by_label("x").click();
+    harness.run_steps(3);
+    assert!(ready(&harness).view.places.named.is_empty(), "x forgets it");
+    assert!(harness.query_by_label("left side").is_none());
+    drop(harness);
+
+    let opts = GuiOptions { session: Some(session), ..GuiOptions::default() };
+    let mut reopened =
+        Harness::builder().with_size(egui::vec2(1280.0, 800.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut reopened);
+    open_views_menu(&mut reopened);
+    reopened.get_by_label("left side").click();
+    reopened.run_steps(3);
+    let there = place(&reopened);
+    let (a, b) = (there.camera, orbited.camera);
+    assert!((a.azimuth_rad - b.azimuth_rad).abs() < 1e-5 && (a.elevation_rad - b.elevation_rad).abs() < 1e-5);
+    assert_eq!((a.zoom, a.target_ref, a.pan_mm, there.slice_mm), (b.zoom, b.target_ref, b.pan_mm, orbited.slice_mm));
 }
 
 #[test]

@@ -519,7 +519,7 @@ fn map_points(dir: &Path, source: [&str; 2], side: &str, xs: &[[f64; 3]]) -> Vec
 #[test]
 fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     use warpbench_app::project::document::Document;
-    use warpbench_app::project::session::{self, SessionCamera, SessionFile, View};
+    use warpbench_app::project::session::{self, SessionFile, View};
     use warpbench_solver::brush::{Brush, BrushStroke};
     use warpbench_solver::warp::Warp;
 
@@ -531,17 +531,8 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
     let stroke = BrushStroke { centre_mm: [10.0, 0.0, 30.0], displacement_mm: [0.0, 8.0, 0.0], radius_mm: 30.0 };
     let mut document = Document::new([Some(mri.clone()), Some(mri.clone())], [&volume, &volume], pairs);
     document.brush = vec![stroke];
-    let camera = SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
     let session_path = dir.path().join("brushed.warpbench.json");
-    session::save(
-        &session_path,
-        &SessionFile::new(
-            document,
-            View { camera, slice_mm: [0.0; 3], layout: warpbench_app::settings::Layout::FourUp },
-            true,
-        ),
-    )
-    .expect("save the session");
+    session::save(&session_path, &SessionFile::new(document, View::default(), true)).expect("save the session");
     let brush = Brush::new(vec![stroke]).expect("brush");
     let (landmarks, session) = (["--landmarks", s(&csv)], ["--session", s(&session_path)]);
 
@@ -738,7 +729,7 @@ fn stiffness_auto_is_the_solvers_choice() {
 #[test]
 fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
     use warpbench_app::project::document::Document;
-    use warpbench_app::project::session::{self, SessionCamera, SessionFile, View};
+    use warpbench_app::project::session::{self, SessionFile, View};
     use warpbench_app::project::stack::FieldLayer;
     use warpbench_io::displacement::{FieldFormat, write_field};
     use warpbench_io::geometry::{Index, Lps, Transform};
@@ -760,10 +751,8 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
     let pairs = read_bigwarp_csv(&deformed_pairs(dir.path())).expect("pairs");
     let mut document = Document::new([Some(mri.clone()), Some(mri.clone())], [&volume, &volume], pairs[..2].to_vec());
     document.field = Some(field_path.clone());
-    let camera = SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
-    let view = View { camera, slice_mm: [0.0; 3], layout: warpbench_app::settings::Layout::FourUp };
     let session_path = dir.path().join("field.warpbench.json");
-    session::save(&session_path, &SessionFile::new(document, view, true)).expect("save the session");
+    session::save(&session_path, &SessionFile::new(document, View::default(), true)).expect("save the session");
 
     let xs = [[10.0, 8.0, 30.0], [-20.0, 40.0, -10.0]];
     let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &xs);

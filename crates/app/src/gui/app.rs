@@ -449,7 +449,8 @@ fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, read
 /// The keyboard shortcuts, as in BigWarp and Slicer where they have one: Ctrl+Z / Ctrl+Shift+Z undo and redo, the
 /// tools' keys ([`toolbar::Tool::key`]: Esc cancels adding, drops a suggestion or clears the selection, Space adds a
 /// pair, B brush, L leafer, P lens, T suggest, A auto-align), Enter takes a suggestion, Delete removes the selected
-/// pair, R resets the camera, W shows the worst pair. The single keys only act while no text field has the keyboard.
+/// pair, R resets the camera, W shows the worst pair, Alt+Left and Alt+Right move the views back and forward through
+/// their history ([`super::places`]). The single keys only act while no text field has the keyboard.
 fn keyboard(ui: &mut egui::Ui, ready: &Ready, tools: &toolbar::ToolStates) -> Vec<Command> {
     let mut commands = Vec::new();
     // Redo first: Ctrl+Shift+Z also matches Ctrl+Z logically.
@@ -479,6 +480,7 @@ fn keyboard(ui: &mut egui::Ui, ready: &Ready, tools: &toolbar::ToolStates) -> Ve
     if key(ui, egui::Key::W) {
         commands.push(Command::ShowWorstPair);
     }
+    commands.extend(super::places::place_keys(ui).map(Command::Place));
     commands
 }
 
@@ -507,7 +509,7 @@ fn workbench_ui(
     // The toolbar and the status bar span the window's width; the settings and landmark panels take its sides.
     let tools = toolbar::ToolStates::of(ready);
     let mut commands = keyboard(ui, ready, &tools);
-    commands.extend(toolbar::toolbar_ui(ui, &tools));
+    commands.extend(toolbar::toolbar_ui(ui, &tools, &mut ready.view.places));
     for command in commands {
         ready.apply(command);
     }
@@ -530,8 +532,14 @@ fn workbench_ui(
         ready.invalidate_view();
     }
     views::panes::show(ui, ready, render_state);
-    // A change becomes an undo step once it has settled (a slider drag is one step).
-    ready.settle(ui.input(|i| i.pointer.any_down()));
+    // A change becomes an undo step once it has settled (a slider drag is one step); a move of the views, a step of
+    // their history.
+    let held = ui.input(|i| i.pointer.any_down());
+    ready.settle(held);
+    let now = std::time::Duration::from_secs_f64(ui.input(|i| i.time).max(0.0));
+    if let Some(wait) = ready.observe_place(held, now) {
+        ui.ctx().request_repaint_after(wait);
+    }
     if ready.refining_in_background() {
         // The refining thread wakes the window when the view is done; until then only the progress changes.
         ui.ctx().request_repaint_after(REFINE_PROGRESS_EVERY);

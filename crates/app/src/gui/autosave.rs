@@ -163,12 +163,7 @@ mod tests {
             })
             .collect();
         let document = crate::project::document::Document::new([None, None], [&volume, &volume], pairs);
-        let camera = session::SessionCamera { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3] };
-        SessionFile::new(
-            document,
-            session::View { camera, slice_mm: [0.0; 3], layout: crate::settings::Layout::FourUp },
-            false,
-        )
+        SessionFile::new(document, session::View::default(), false)
     }
 
     fn on_disk(path: &Path) -> Option<SessionFile> {

@@ -110,6 +110,8 @@ pub enum Command {
     RefineByIntensities,
     /// Stop the refinement by intensities; the warp stays as it was.
     CancelRefineByIntensities,
+    /// Back, Forward, or a named view ([`super::places`]).
+    Place(super::places::PlaceAction),
     /// Take the suggested target of the pair being added as its fixed point (Enter; [`super::suggestion`]).
     AcceptSuggestion,
     /// Search again for pair `i`'s target from its moving point and the current warp, and move its fixed point there
@@ -158,6 +160,9 @@ fn effect(old: &ViewSettings, new: &ViewSettings) -> Effect {
 impl Ready {
     /// Carries out `command`.
     pub fn apply(&mut self, command: Command) {
+        if Self::jumps_views(&command) {
+            self.view.places.history.boundary();
+        }
         match command {
             Command::Undo => {
                 if let Some(s) = self.history.undo().cloned() {
@@ -334,7 +339,22 @@ impl Ready {
                 }
             }
             Command::RefinePair(i) => self.refine_pair(i),
+            Command::Place(action) => self.place_action(action),
         }
+    }
+
+    /// Whether `command` moves the views in one jump: a step of the views' history of its own
+    /// ([`super::places::ViewHistory::boundary`]).
+    fn jumps_views(command: &Command) -> bool {
+        matches!(
+            command,
+            Command::ResetCamera
+                | Command::JumpTo(_)
+                | Command::CentreSlices(_)
+                | Command::CentreViews(_)
+                | Command::ShowWorstPair
+                | Command::File(_)
+        )
     }
 
     /// Chooses the stiffness by the leave-one-out error of the pull-back's pairs (fixed → moving, the errors the
@@ -396,7 +416,7 @@ impl Ready {
     }
 
     /// The crosshair moved: the leafer's cut goes through it, so an open leafer redraws the 3-D view.
-    fn crosshair_moved(&mut self) {
+    pub(super) fn crosshair_moved(&mut self) {
         if self.view.leafer.is_open() {
             self.invalidate_view();
         }
@@ -420,7 +440,6 @@ impl Ready {
         self.invalidate_view();
     }
 
-    /// Centres the camera and the three slices on pair `i`'s fixed point.
     /// [`Command::ExcludeOutliers`]: the outliers among the pairs in the fit switched off, and the status bar says
     /// which (or that there were none).
     fn exclude_outliers(&mut self) {
@@ -440,6 +459,7 @@ impl Ready {
         self.refit_soon();
     }
 
+    /// Selects pair `i` and centres the camera and the three slices on its fixed point.
     fn jump_to(&mut self, i: usize) {
         let Some(q) = self.document.pairs.get(i).and_then(|p| p.fixed) else { return };
         self.pointer.selected = Some(i);

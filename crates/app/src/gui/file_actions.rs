@@ -5,8 +5,6 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
-use warpbench_gpu::glam::Vec3;
-
 use super::files::{self, FileAction, save_png};
 use super::{Ready, export};
 use crate::project::document::StartingTransform;
@@ -143,23 +141,21 @@ impl Ready {
     /// The session as it is now: the document and where the views look.
     #[must_use]
     pub fn to_session(&self, clean_exit: bool) -> session::SessionFile {
-        let camera = session::SessionCamera {
-            azimuth_deg: self.view.camera.azimuth_rad.to_degrees(),
-            elevation_deg: self.view.camera.elevation_rad.to_degrees(),
-            zoom: self.view.camera.zoom,
-            target_lps: self.view.camera.target_ref.to_array(),
+        let view = session::View {
+            camera: super::places::session_camera(&self.view.camera),
+            slice_mm: self.view.slice_mm,
+            layout: self.view.layout,
+            named_views: self.view.places.named.clone(),
         };
-        let view = session::View { camera, slice_mm: self.view.slice_mm, layout: self.view.layout };
         session::SessionFile::new(self.document.clone(), view, clean_exit)
     }
 
-    /// Points the camera and the slices where a session's views looked.
+    /// Points the camera and the slices where a session's views looked, with its layout and named views.
     pub fn apply_view(&mut self, v: &session::View) {
-        self.view.camera.azimuth_rad = v.camera.azimuth_deg.to_radians();
-        self.view.camera.elevation_rad = v.camera.elevation_deg.to_radians();
-        self.view.camera.zoom = v.camera.zoom;
-        self.view.camera.target_ref = Vec3::from_array(v.camera.target_lps);
+        self.view.places.history.boundary();
+        self.view.camera = super::places::with_session_camera(self.view.camera, &v.camera);
         self.view.slice_mm = v.slice_mm;
+        self.view.places.named.clone_from(&v.named_views);
         self.view.layout = v.layout;
         self.view.maximised = None;
         self.invalidate();

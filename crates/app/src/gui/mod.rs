@@ -17,6 +17,8 @@
 //!   and dragging that move it.
 //! - `images`: the rendered images and the 3-D view's state (stale, reduced, refining, full), with [`pacing`].
 //! - [`views`]: the slice strip and the 3-D view; [`panels`]: the side panel's sections; [`viewer`]: the GPU side.
+//! - [`places`]: where the views look, their history (Back, Forward) and the named views; [`view_moves`] moves
+//!   the views there.
 
 pub mod alignment;
 pub mod app;
@@ -44,6 +46,7 @@ pub mod overlay;
 pub mod pacing;
 pub mod panels;
 pub mod placement;
+pub mod places;
 pub mod ready;
 mod rendering;
 pub mod side_panel;
@@ -53,6 +56,7 @@ pub mod status;
 pub mod suggestion;
 pub mod tool;
 pub mod toolbar;
+pub mod view_moves;
 pub mod viewer;
 pub mod views;
 

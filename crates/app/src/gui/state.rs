@@ -41,6 +41,8 @@ pub struct View {
     pub landmarks: super::landmark_rows::LandmarkPanel,
     /// The panes' tiles, made for the layout and the maximised pane they hold.
     pub(super) tiles: Option<(PaneKey, egui_tiles::Tree<super::layout::Pane>)>,
+    /// The views' history and the named views ([`super::places`]).
+    pub places: super::places::Places,
 }
 
 /// What the panes' tiles were made for: the layout and the maximised pane.
@@ -66,6 +68,7 @@ impl View {
             maximised: None,
             landmarks: super::landmark_rows::LandmarkPanel::default(),
             tiles: None,
+            places: super::places::Places::default(),
         }
     }
 }

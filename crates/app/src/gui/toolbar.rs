@@ -1,6 +1,6 @@
 //! The toolbar along the top of the window: the tools (Select, Add pair, Brush, Leafer, Lens, Suggest, Auto-align),
 //! each a button with its icon and name and a tooltip that gives its shortcut, the active ones shown pressed; then
-//! Undo, Redo, Reset camera and the layout of the views. It reads the window's state through [`ToolStates`] and
+//! Undo, Redo, Reset camera, the views' Back, Forward and named views ([`super::places`]) and the layout of the views. It reads the window's state through [`ToolStates`] and
 //! returns what it asks for as [`Command`]s; the same shortcuts reach the same commands from the keyboard
 //! ([`shortcut_commands`]).
 
@@ -218,8 +218,9 @@ impl ToolStates {
     }
 }
 
-/// The toolbar; what its buttons asked for.
-pub fn toolbar_ui(ui: &mut egui::Ui, states: &ToolStates) -> Vec<Command> {
+/// The toolbar; what its buttons asked for. The views' Back, Forward and named views change `places` in place only
+/// for the name being typed.
+pub fn toolbar_ui(ui: &mut egui::Ui, states: &ToolStates, places: &mut super::places::Places) -> Vec<Command> {
     let mut commands = Vec::new();
     egui::Panel::top("toolbar").show(ui, |ui| {
         ui.horizontal_wrapped(|ui| {
@@ -238,6 +239,7 @@ pub fn toolbar_ui(ui: &mut egui::Ui, states: &ToolStates) -> Vec<Command> {
             if ui.button("Reset camera").on_hover_text("R").clicked() {
                 commands.push(Command::ResetCamera);
             }
+            commands.extend(super::places::places_ui(ui, places).map(Command::Place));
             ui.separator();
             commands.extend(super::panels::layout_ui(ui, states.layout));
         });

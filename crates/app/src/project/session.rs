@@ -1,6 +1,7 @@
 //! Sessions: `.warpbench.json` project files (schema `warpbench-session/1`): the [`Document`] (the input paths, the
-//! landmark pairs, the warp and view settings, each volume's look) and the [`View`] (the camera and the slice
-//! positions); and where the autosave that keeps every placed landmark across a crash goes.
+//! landmark pairs, the warp and view settings, each volume's look) and the [`View`] (the camera, the slice
+//! positions, the layout and the named views); and where the autosave that keeps every placed landmark across a
+//! crash goes.
 //!
 //! The window autosaves every 30 s and on exit to [`autosave_path`], with `clean_exit` false while it runs and true
 //! after a normal exit. A start that finds an autosave with `clean_exit` false offers to recover it. Every file is
@@ -16,13 +17,16 @@ use super::document::Document;
 /// The schema name written into every session file; a file with another one is refused.
 pub const SCHEMA: &str = "warpbench-session/1";
 
-/// The camera: orbit angles in degrees, zoom, and the point it looks at (ref mm).
+/// The camera: orbit angles in degrees, zoom, the point it looks at (ref mm) and its shift in the view plane.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SessionCamera {
     pub azimuth_deg: f32,
     pub elevation_deg: f32,
     pub zoom: f32,
     pub target_lps: [f32; 3],
+    /// The target's shift in the view plane (right, up), mm; sessions written before it have none.
+    #[serde(default)]
+    pub pan_mm: [f32; 2],
 }
 
 /// Where the views look: not part of the document (undo leaves it), but kept by a session.
@@ -34,6 +38,36 @@ pub struct View {
     /// How the views share the window; sessions written before it open four-up.
     #[serde(default, deserialize_with = "crate::settings::or_default")]
     pub layout: crate::settings::Layout,
+    /// The views the user named ("Save view"), in the order they were saved.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub named_views: Vec<NamedView>,
+}
+
+/// From the front, at zoom 1, onto the origin, unshifted.
+impl Default for SessionCamera {
+    fn default() -> Self {
+        Self { azimuth_deg: 0.0, elevation_deg: 0.0, zoom: 1.0, target_lps: [0.0; 3], pan_mm: [0.0; 2] }
+    }
+}
+
+/// The default camera, the slices through the origin, four-up, no named views.
+impl Default for View {
+    fn default() -> Self {
+        Self {
+            camera: SessionCamera::default(),
+            slice_mm: [0.0; 3],
+            layout: crate::settings::Layout::FourUp,
+            named_views: Vec::new(),
+        }
+    }
+}
+
+/// A view the user named: the camera and the slices as they were when it was saved.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct NamedView {
+    pub name: String,
+    pub camera: SessionCamera,
+    pub slice_mm: [f64; 3],
 }
 
 /// A whole session: the document and the view, flat in one JSON object.
@@ -74,7 +108,10 @@ pub fn load(path: &Path) -> anyhow::Result<SessionFile> {
     }
     let mut session: SessionFile =
         serde_json::from_value(value).with_context(|| format!("{}: malformed session", path.display()))?;
-    session.view.camera.zoom = session.view.camera.zoom.clamp(0.2, 20.0);
+    let view = &mut session.view;
+    for camera in std::iter::once(&mut view.camera).chain(view.named_views.iter_mut().map(|v| &mut v.camera)) {
+        camera.zoom = camera.zoom.clamp(0.2, 20.0);
+    }
     Ok(session)
 }
 
@@ -146,11 +183,19 @@ mod tests {
     }
 
     fn view() -> View {
-        View {
-            camera: SessionCamera { azimuth_deg: 30.0, elevation_deg: 10.0, zoom: 1.5, target_lps: [1.0, 2.0, 3.0] },
-            slice_mm: [4.0, -5.0, 6.0],
-            layout: crate::settings::Layout::Slices,
-        }
+        let camera = SessionCamera {
+            azimuth_deg: 30.0,
+            elevation_deg: 10.0,
+            zoom: 1.5,
+            target_lps: [1.0, 2.0, 3.0],
+            pan_mm: [-2.5, 4.0],
+        };
+        let named = NamedView {
+            name: "Tumour, from above".into(),
+            camera: SessionCamera { azimuth_deg: -90.0, elevation_deg: 80.0, ..camera.clone() },
+            slice_mm: [0.5, 1.5, -2.5],
+        };
+        View { camera, slice_mm: [4.0, -5.0, 6.0], layout: crate::settings::Layout::Slices, named_views: vec![named] }
     }
 
     #[test]
@@ -225,6 +270,8 @@ mod tests {
         );
         assert!(!d.layers[1].visible && !file.clean_exit);
         assert!((file.view.camera.zoom - 20.0).abs() < 1e-6, "the zoom is clamped to what the window offers");
+        assert!(file.view.camera.pan_mm.iter().all(|&v| v == 0.0), "no shift before it was saved");
+        assert!(file.view.named_views.is_empty(), "no named views before there were any");
         // What the window offers: the control texture is clamped when the document is opened on its volumes.
         let volume = crate::project::demo::phantom(4, 1.0, [0.0; 3], false);
         let mut d = d.clone();
