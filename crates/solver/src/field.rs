@@ -128,50 +128,61 @@ impl<To: Space, From: Space> SampledField<To, From> {
     /// D(x) (module docs): `None` outside the grid's box of voxel edges, where the warp is the identity.
     #[must_use]
     pub fn displacement_raw(&self, x: [f64; 3]) -> Option<[f64; 3]> {
-        let m = &self.index_from_lps;
-        let mut base = [0usize; 3];
-        let mut next = [0usize; 3];
-        let mut frac = [0.0f64; 3];
-        for a in 0..3 {
-            let c = m[a][0] * x[0] + m[a][1] * x[1] + m[a][2] * x[2] + m[a][3];
-            let n = self.dims[a];
-            let top = n as f64 - 0.5;
-            // Written so that NaN falls outside.
-            if !(c >= -0.5 - EDGE_TOLERANCE_VOX && c <= top + EDGE_TOLERANCE_VOX) {
-                return None;
-            }
-            // Clamping c to [0, n − 1] is clamping both taps to the grid, as ITK does.
-            let c = c.clamp(0.0, (n - 1) as f64);
-            let i0 = (c.floor() as usize).min(n.saturating_sub(2));
-            base[a] = i0;
-            next[a] = (i0 + 1).min(n - 1);
-            frac[a] = c - i0 as f64;
-        }
-        let [nx, ny, _] = self.dims;
-        let mut d = [0.0f64; 3];
-        for corner in 0..8 {
-            let pick = |a: usize| corner >> a & 1 == 1;
-            let mut w = 1.0;
-            let mut ijk = [0usize; 3];
-            for a in 0..3 {
-                if pick(a) {
-                    w *= frac[a];
-                    ijk[a] = next[a];
-                } else {
-                    w *= 1.0 - frac[a];
-                    ijk[a] = base[a];
-                }
-            }
-            if w == 0.0 {
-                continue;
-            }
-            let v = self.displacements[ijk[0] + nx * (ijk[1] + ny * ijk[2])];
-            for (da, va) in d.iter_mut().zip(v) {
-                *da += w * f64::from(va);
-            }
-        }
-        Some(d)
+        trilinear_displacement(self.dims, &self.index_from_lps, &self.displacements, x)
     }
+}
+
+/// [`SampledField::displacement_raw`]'s kernel. Not generic over the spaces, so it is compiled once, here, with this
+/// crate's optimisation: a caller built without it (a debug build of the app or its tests) still runs it optimised.
+fn trilinear_displacement(
+    dims: [usize; 3],
+    index_from_lps: &[[f64; 4]; 3],
+    displacements: &[[f32; 3]],
+    x: [f64; 3],
+) -> Option<[f64; 3]> {
+    let m = index_from_lps;
+    let mut base = [0usize; 3];
+    let mut next = [0usize; 3];
+    let mut frac = [0.0f64; 3];
+    for a in 0..3 {
+        let c = m[a][0] * x[0] + m[a][1] * x[1] + m[a][2] * x[2] + m[a][3];
+        let n = dims[a];
+        let top = n as f64 - 0.5;
+        // Written so that NaN falls outside.
+        if !(c >= -0.5 - EDGE_TOLERANCE_VOX && c <= top + EDGE_TOLERANCE_VOX) {
+            return None;
+        }
+        // Clamping c to [0, n − 1] is clamping both taps to the grid, as ITK does.
+        let c = c.clamp(0.0, (n - 1) as f64);
+        let i0 = (c.floor() as usize).min(n.saturating_sub(2));
+        base[a] = i0;
+        next[a] = (i0 + 1).min(n - 1);
+        frac[a] = c - i0 as f64;
+    }
+    let [nx, ny, _] = dims;
+    let mut d = [0.0f64; 3];
+    for corner in 0..8 {
+        let pick = |a: usize| corner >> a & 1 == 1;
+        let mut w = 1.0;
+        let mut ijk = [0usize; 3];
+        for a in 0..3 {
+            if pick(a) {
+                w *= frac[a];
+                ijk[a] = next[a];
+            } else {
+                w *= 1.0 - frac[a];
+                ijk[a] = base[a];
+            }
+        }
+        if w == 0.0 {
+            continue;
+        }
+        let v = displacements[ijk[0] + nx * (ijk[1] + ny * ijk[2])];
+        for (da, va) in d.iter_mut().zip(v) {
+            *da += w * f64::from(va);
+        }
+    }
+    Some(d)
 }
 
 impl<To: Space, From: Space> Warp<To, From> for SampledField<To, From> {
