@@ -12,6 +12,7 @@ use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::{NodeT, Queryable};
 use warpbench_app::gui::{Command, GuiOptions, Placing, Ready, Workbench};
+use warpbench_app::project::session::SessionFile;
 use warpbench_app::settings::Layout;
 use window::{button, no_adapter, open_mri_pair, press_and_drag, wait_until_rendered, wait_until_shown};
 
@@ -38,6 +39,25 @@ fn double_click(harness: &mut Harness<'_, Workbench>, title: &str) {
     harness.run_steps(3);
 }
 
+/// Steps until the autosave at `path` holds a session that `holds` (or a minute passes: a guard against a hang, not a
+/// timing); returns that session.
+fn wait_for_autosave(
+    harness: &mut Harness<'_, Workbench>,
+    path: &std::path::Path,
+    holds: impl Fn(&SessionFile) -> bool,
+) -> SessionFile {
+    let start = Instant::now();
+    loop {
+        harness.run_steps(2);
+        if let Some(s) = warpbench_app::project::session::load(path).ok().filter(|s| holds(s)) {
+            return s;
+        }
+        let text = std::fs::read_to_string(path).unwrap_or_default();
+        assert!(start.elapsed() < Duration::from_mins(1), "the autosave never held it: {text}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 #[test]
 fn the_layout_is_chosen_maximised_by_a_double_click_and_saved_in_the_session() {
     if no_adapter() {
@@ -61,16 +81,7 @@ fn the_layout_is_chosen_maximised_by_a_double_click_and_saved_in_the_session() {
 
     // The autosave holds it (it is written once the change has settled), and a window opened on it shows it.
     let autosave = dir.path().join("autosave.warpbench.json");
-    let start = Instant::now();
-    loop {
-        harness.run_steps(2);
-        let text = std::fs::read_to_string(&autosave).unwrap_or_default();
-        if text.contains("\"layout\": \"slices\"") {
-            break;
-        }
-        assert!(start.elapsed() < Duration::from_mins(1), "the layout never reached the autosave: {text}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    wait_for_autosave(&mut harness, &autosave, |s| s.view.layout == Layout::Slices);
     let session = dir.path().join("saved.warpbench.json");
     std::fs::copy(&autosave, &session).expect("copy the session");
     drop(harness);
@@ -148,16 +159,7 @@ fn the_views_go_back_and_forward_and_named_views_are_kept_in_the_session() {
     assert_eq!(place(&harness), orbited, "the named view");
 
     let autosave = dir.path().join("autosave.warpbench.json");
-    let start_wait = Instant::now();
-    let saved = loop {
-        harness.run_steps(2);
-        let session = warpbench_app::project::session::load(&autosave).ok();
-        if let Some(s) = session.filter(|s| !s.view.named_views.is_empty()) {
-            break s;
-        }
-        assert!(start_wait.elapsed() < Duration::from_mins(1), "the named view never reached the autosave");
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let saved = wait_for_autosave(&mut harness, &autosave, |s| !s.view.named_views.is_empty());
     assert_eq!(saved.view.named_views[0].name, "left side");
     let session = dir.path().join("saved.warpbench.json");
     std::fs::copy(&autosave, &session).expect("copy the session");

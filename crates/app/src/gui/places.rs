@@ -102,20 +102,25 @@ impl ViewHistory {
 
     /// Where Back goes from `now`, if anywhere; `now` becomes Forward's.
     pub fn back(&mut self, now: Place) -> Option<Place> {
-        self.end_step();
-        let to = self.back.pop()?;
-        self.forward.push(now);
-        self.seen = Some(to);
-        Some(to)
+        self.walk(Way::Back, now)
     }
 
     /// Where Forward goes from `now`, if anywhere; `now` becomes Back's.
     pub fn forward(&mut self, now: Place) -> Option<Place> {
+        self.walk(Way::Forward, now)
+    }
+
+    /// One place along `way` from `now`, which the other way gets.
+    fn walk(&mut self, way: Way, now: Place) -> Option<Place> {
         self.end_step();
-        let to = self.forward.pop()?;
-        self.back.push(now);
-        self.seen = Some(to);
-        Some(to)
+        let (from, to) = match way {
+            Way::Back => (&mut self.back, &mut self.forward),
+            Way::Forward => (&mut self.forward, &mut self.back),
+        };
+        let place = from.pop()?;
+        to.push(now);
+        self.seen = Some(place);
+        Some(place)
     }
 
     #[must_use]
@@ -143,6 +148,13 @@ impl ViewHistory {
             self.back.remove(0);
         }
     }
+}
+
+/// Which way [`ViewHistory::walk`] goes.
+#[derive(Clone, Copy, Debug)]
+enum Way {
+    Back,
+    Forward,
 }
 
 /// The session's form of `camera`.
