@@ -160,7 +160,7 @@ are in fact swapped, only the sign of the first column is wrong; nothing else de
 # Fixtures written by SimpleITK from synthetic data by our own scripts (not downloaded): listed with their sha256,
 # computed from the files on disk.
 SIMPLEITK_MADE = """
-## `metaimage/` and `itk/*.mat`: written by SimpleITK from synthetic data
+## `metaimage/`, `itk/*.mat` and `itk/h5_*`: written by SimpleITK from synthetic data
 
 Not downloaded: each file below is written by SimpleITK 2.5.7 (ITK 5.4; PyPI wheel `SimpleITK==2.5.7` in
 `data-cache/venv`) from values our scripts make up, so they carry the licence of the code (MIT OR Apache-2.0).
@@ -171,7 +171,11 @@ and `metaimage/sitk_reference.json`, what SimpleITK's `ReadImage` reports for ea
 of one affine to both names: ITK's MatlabTransformIO and its text writer), `itk/affine_be.mat` and
 `itk/affine_float.mat` (the same variables, big-endian doubles and little-endian floats, made by the script) and
 `itk/ants_mat_reference.json` (SimpleITK's `ReadTransform` of each `.mat`). Both scripts are deterministic: a rerun
-writes the same bytes.
+writes the same bytes. `data-scripts/itk_h5_sitk.py` writes `itk/h5_*.h5` (SimpleITK's `WriteTransform` to `.h5`,
+ITK's HDF5TransformIO: an affine, a displacement field, the two in a composite as ANTs writes `Composite.h5`, and a
+composite of two affines) and `itk/h5_reference.json` (SimpleITK's `TransformPoint` through each, and its
+`TransformToDisplacementField` on the field's grid); its values are deterministic, but HDF5 stamps the objects it
+writes with the time, so a rerun's `.h5` bytes differ.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -191,6 +195,11 @@ SIMPLEITK_FILES = [
     ("itk/affine_be.mat", "ants_mat_sitk.py"),
     ("itk/affine_float.mat", "ants_mat_sitk.py"),
     ("itk/ants_mat_reference.json", "ants_mat_sitk.py"),
+    ("itk/h5_affine.h5", "itk_h5_sitk.py"),
+    ("itk/h5_field.h5", "itk_h5_sitk.py"),
+    ("itk/h5_composite.h5", "itk_h5_sitk.py"),
+    ("itk/h5_linear_composite.h5", "itk_h5_sitk.py"),
+    ("itk/h5_reference.json", "itk_h5_sitk.py"),
 ]
 
 # Fixtures written by elastix and transformix (itk-elastix) from data and transforms our scripts make up.

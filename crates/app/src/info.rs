@@ -114,6 +114,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::NrrdSpacings => ("nrrd_spacings", None),
             GeometrySource::MetaImage => ("metaimage", None),
             GeometrySource::ElastixParameters => ("elastix", None),
+            GeometrySource::ItkTransformFile => ("itk_transform", None),
             GeometrySource::Assumed => ("assumed", None),
         };
         Self { kind, code }

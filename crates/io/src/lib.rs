@@ -12,6 +12,8 @@
 //! - [`geometry`]: points, vectors and transforms that carry their space in the type.
 //! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one transform: affine, thin-plate spline or cubic B-spline;
 //!   and the ANTs / ITK MATLAB affine (`.mat`).
+//! - [`itk_h5`]: ITK's HDF5 transform files (`.h5`: ANTs' `Composite.h5`, 3D Slicer's transforms), read as a chain
+//!   of affines, B-splines and displacement fields.
 //!
 //! Every error names the file and the problem ([`Error`]); bad input never panics, sizes are
 //! checked before allocating, and writers replace their output atomically ([`write_atomic`]).
@@ -25,6 +27,7 @@ pub mod elastix;
 pub mod error;
 mod files;
 pub mod geometry;
+pub mod itk_h5;
 pub mod itk_tfm;
 pub mod landmarks;
 pub mod metaimage;

@@ -182,6 +182,8 @@ pub enum GeometrySource {
     MetaImage,
     /// An elastix transform parameter file's fixed grid: `Size`, `Spacing`, `Origin` and `Direction`.
     ElastixParameters,
+    /// An ITK transform file's `DisplacementFieldTransform`: its fixed parameters (size, origin, spacing, direction).
+    ItkTransformFile,
     /// The file carries no geometry (e.g. a DICOM Secondary Capture without ImagePositionPatient,
     /// ImageOrientationPatient and PixelSpacing): identity directions, unit spacing, origin 0.
     /// Readers add a warning to the metadata when they assume it.

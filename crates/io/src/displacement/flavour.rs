@@ -115,6 +115,9 @@ pub enum FieldSource {
     Field(FieldFormat),
     /// An elastix transform parameter file, sampled on its fixed grid as transformix does.
     ElastixTransform,
+    /// An ITK HDF5 transform file (`.h5`) holding a displacement field, with the transforms around it, sampled on
+    /// that field's grid ([`crate::itk_h5::read_field`]).
+    ItkHdf5,
 }
 
 /// What [`super::read_field_info`] found.

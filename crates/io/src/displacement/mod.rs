@@ -52,10 +52,13 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
         let field = crate::elastix::read_field(path)?;
         return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None });
     }
+    if crate::itk_h5::looks_like_hdf5(&head) {
+        return crate::itk_h5::read_field(path);
+    }
     Err(Error::unsupported(
         path,
-        "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD, MetaImage nor an elastix transform \
-         parameter file",
+        "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD, MetaImage, an elastix transform \
+         parameter file nor an ITK transform file (.h5)",
     ))
 }
 
@@ -107,6 +110,9 @@ pub fn write_field_with(
 
 /// Refuses an output name that cannot hold `format` (see [`write_field_with`]), before anything is computed.
 pub fn check_output_name(path: &Path, format: FieldFormat) -> Result<()> {
+    if crate::itk_tfm::is_hdf5_name(path) {
+        return Err(Error::unsupported(path, crate::itk_tfm::HDF5_NOT_WRITTEN));
+    }
     if !format.container_matches(path) {
         return Err(Error::invalid(path, format!("the {format} field flavour is written to {}", format.names())));
     }

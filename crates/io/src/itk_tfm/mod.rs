@@ -68,6 +68,12 @@
 //! and [`write()`] and [`write_affine`] write one for a name ending in `.mat` (an affine only: a thin-plate spline or
 //! a B-spline is refused there). Little-endian doubles, as SimpleITK writes them, so the same transform gives the
 //! same bytes; big-endian and float files are read. The layout is in `ants_mat`'s docs.
+//!
+//! # ITK's HDF5 files
+//!
+//! ITK's `.h5` transform files (ANTs' `Composite.h5`, 3D Slicer's) hold the same classes in HDF5 datasets and are read
+//! by [`crate::itk_h5`]. They are not written: [`write()`] refuses a name ending in `.h5` ([`is_hdf5_name`]), since
+//! ITK would read a text `.tfm` of that name as HDF5.
 
 mod ants_mat;
 
@@ -391,6 +397,9 @@ pub fn to_mat_bytes(affine: &ItkAffine) -> Vec<u8> {
 /// is written.
 pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
     transform.check(path)?;
+    if is_hdf5_name(path) {
+        return Err(Error::unsupported(path, HDF5_NOT_WRITTEN));
+    }
     if is_mat_name(path) {
         let ItkTransform::Affine(affine) = transform else {
             return Err(Error::unsupported(
@@ -434,6 +443,17 @@ pub fn read_affine(path: &Path) -> Result<ItkAffine> {
     }
 }
 
+/// Why an output named `.h5` is refused: a text `.tfm` or a NIfTI under that name would be read by ITK as HDF5.
+pub const HDF5_NOT_WRITTEN: &str = "warpbench reads ITK's HDF5 transform files (.h5) but does not write them, and ITK \
+                               would read any other file named .h5 as one: name a transform .tfm (ITK, ANTs, 3D \
+                               Slicer) or .mat (ANTs), a displacement field .nii.gz, .nrrd or .mha";
+
+/// Whether `path` is named as an HDF5 file (`.h5`, `.hdf5`, `.hdf`, any case).
+#[must_use]
+pub fn is_hdf5_name(path: &Path) -> bool {
+    path.extension().is_some_and(|e| ["h5", "hdf5", "hdf"].iter().any(|x| e.eq_ignore_ascii_case(x)))
+}
+
 /// Whether `path` is named as a MATLAB `.mat` (any case).
 fn is_mat_name(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat"))
@@ -470,41 +490,49 @@ struct Lines<'a> {
 /// Parses the text of a `.tfm` holding one transform; `name` is used in errors.
 pub fn parse(name: &Path, text: &str) -> Result<ItkTransform> {
     let lines = parse_lines(name, text)?;
-    let transform = if AFFINE_TYPES.contains(&lines.kind) {
-        ItkTransform::Affine(affine_of(name, &lines)?)
-    } else if TPS_TYPES.contains(&lines.kind) {
-        if lines.params.len() % 3 != 0 {
+    transform_of(name, lines.kind, &lines.params, &lines.fixed)
+}
+
+/// The transform of ITK class `kind` with `params` (`Parameters`) and `fixed` (`FixedParameters`), checked as
+/// ITK needs it: what a `.tfm`'s three lines and an `.h5` group's three datasets ([`crate::itk_h5`]) hold alike.
+/// `name` is used in errors.
+pub(crate) fn transform_of(name: &Path, kind: &str, params: &[f64], fixed: &[f64]) -> Result<ItkTransform> {
+    let transform = if AFFINE_TYPES.contains(&kind) {
+        ItkTransform::Affine(affine_of(name, params, fixed)?)
+    } else if TPS_TYPES.contains(&kind) {
+        if !params.len().is_multiple_of(3) {
             return Err(Error::invalid(
                 name,
-                format!("Parameters: {} numbers is not a list of 3-D source landmarks", lines.params.len()),
+                format!("Parameters: {} numbers is not a list of 3-D source landmarks", params.len()),
             ));
         }
         let points = |v: &[f64]| v.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect::<Vec<_>>();
-        if lines.fixed.len() != lines.params.len() {
+        if fixed.len() != params.len() {
             return Err(Error::invalid(
                 name,
                 format!(
                     "FixedParameters: {} numbers, expected {} (a target landmark per source landmark)",
-                    lines.fixed.len(),
-                    lines.params.len()
+                    fixed.len(),
+                    params.len()
                 ),
             ));
         }
-        ItkTransform::ThinPlateSpline(ItkThinPlateSpline {
-            source_lps: points(&lines.params),
-            target_lps: points(&lines.fixed),
-        })
-    } else if BSPLINE_TYPES.contains(&lines.kind) {
-        ItkTransform::BSpline(bspline_of(name, &lines)?)
+        ItkTransform::ThinPlateSpline(ItkThinPlateSpline { source_lps: points(params), target_lps: points(fixed) })
+    } else if BSPLINE_TYPES.contains(&kind) {
+        ItkTransform::BSpline(bspline_of(name, params, fixed)?)
     } else {
-        let known: Vec<&str> = AFFINE_TYPES.iter().chain(&TPS_TYPES).chain(&BSPLINE_TYPES).copied().collect();
         return Err(Error::unsupported(
             name,
-            format!("transform type {:?}; only these are read: {}", lines.kind, known.join(", ")),
+            format!("transform type {kind:?}; only these are read: {}", known_types().join(", ")),
         ));
     };
     transform.check(name)?;
     Ok(transform)
+}
+
+/// The classes [`transform_of`] reads.
+pub(crate) fn known_types() -> Vec<&'static str> {
+    AFFINE_TYPES.iter().chain(&TPS_TYPES).chain(&BSPLINE_TYPES).copied().collect()
 }
 
 /// Parses the text of a `.tfm` holding one affine transform; `name` is used in errors.
@@ -516,11 +544,10 @@ pub fn parse_affine(name: &Path, text: &str) -> Result<ItkAffine> {
             format!("transform type {:?}; only an affine ({}) is read", lines.kind, AFFINE_TYPES.join(", ")),
         ));
     }
-    affine_of(name, &lines)
+    affine_of(name, &lines.params, &lines.fixed)
 }
 
-fn affine_of(name: &Path, lines: &Lines) -> Result<ItkAffine> {
-    let (p, c) = (&lines.params, &lines.fixed);
+fn affine_of(name: &Path, p: &[f64], c: &[f64]) -> Result<ItkAffine> {
     count(name, "Parameters", p, 12)?;
     count(name, "FixedParameters", c, 3)?;
     Ok(ItkAffine {
@@ -530,8 +557,7 @@ fn affine_of(name: &Path, lines: &Lines) -> Result<ItkAffine> {
     })
 }
 
-fn bspline_of(name: &Path, lines: &Lines) -> Result<ItkBSpline> {
-    let f = &lines.fixed;
+fn bspline_of(name: &Path, p: &[f64], f: &[f64]) -> Result<ItkBSpline> {
     count(name, "FixedParameters", f, 18)?;
     let mut grid_size = [0usize; 3];
     for (n, &v) in grid_size.iter_mut().zip(&f[..3]) {
@@ -550,7 +576,6 @@ fn bspline_of(name: &Path, lines: &Lines) -> Result<ItkBSpline> {
             format!("grid size {grid_size:?} exceeds {MAX_BSPLINE_CONTROL_POINTS} control points"),
         ));
     }
-    let p = &lines.params;
     count(name, "Parameters", p, 3 * points)?;
     Ok(ItkBSpline {
         grid_size,

@@ -1,0 +1,366 @@
+//! ITK's HDF5 transform files (`.h5`): what `antsRegistration` writes as `Composite.h5`, what 3D Slicer saves a
+//! transform as, and what ITK and SimpleITK write for a transform file named `.h5` (`HDF5TransformIO`). Read only:
+//! [`read`] (the file's transforms, [`ItkChain`]), [`read_affine`] (a chain of linear transforms as one affine, for a
+//! starting transform) and [`read_field`] (the whole chain sampled as a displacement field, for `--field`).
+//!
+//! # The format
+//!
+//! One group per transform under `/TransformGroup`, named `0`, `1`, …, each with three datasets:
+//!
+//! | dataset | holds |
+//! |---|---|
+//! | `TransformType` | the ITK class, a variable-length string (`AffineTransform_double_3_3`, …) |
+//! | `TransformFixedParameters` | the class's fixed parameters, doubles (or floats for a `_float_` class) |
+//! | `TransformParameters` | its parameters |
+//!
+//! The classes and their numbers are those of the text `.tfm` ([`crate::itk_tfm`]: an affine, a cubic B-spline; a
+//! thin-plate spline is refused here, since it would have to be fitted again), plus
+//! **`DisplacementFieldTransform_double_3_3`**: the fixed parameters are 18 numbers, the field's size (voxels per
+//! axis), origin (LPS mm), spacing (mm) and direction (row by row); the parameters are its vectors, LPS mm, three
+//! per voxel (x, y, z), voxels in image order (x fastest). ITK maps T(x) = x + D(x), with D read trilinearly between
+//! the voxel centres and the outermost centres held to the grid's edge, inside the grid (continuous index in
+//! [−½, n − ½) on every axis) and T(x) = x outside it ([`crate::elastix::FieldStep`] with
+//! [`crate::elastix::FieldInterpolation::Linear`] is the same rule).
+//!
+//! A composite (`CompositeTransform_double_3_3` in group `0`, with no parameters) lists its members in groups `1`,
+//! `2`, …; ITK applies the **last one first**: T(x) = T₁(T₂(… Tₙ(x))). `antsRegistration` writes the affine first
+//! and the displacement field after it, so a fixed point x goes to the moving point A(x + D(x)).
+//!
+//! Points are in LPS mm, as in every ITK file, and the transform maps the output (fixed) space to the input
+//! (moving) one: a pull-back, `moving_from_fixed`. 3D Slicer's `Inverse…` classes (a transform saved in its
+//! modeling direction) are refused with a message that says how to save the transform so that it can be read.
+//!
+//! Checked against SimpleITK 2.5.7 (`crates/io/tests/itk_h5.rs`; `tests/data/itk/h5_*.h5` written by SimpleITK, and
+//! what its `TransformPoint` and `TransformToDisplacementField` give for them).
+
+use std::path::Path;
+
+use hdf5_pure::File;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+use crate::displacement::check::first_non_finite;
+use crate::displacement::{FieldDirection, FieldSource, ReadField};
+use crate::elastix::{FieldInterpolation, FieldStep};
+use crate::error::{Error, Result};
+use crate::geometry::{Point3, Transform};
+use crate::itk_tfm::{ItkAffine, ItkTransform, known_types, transform_of};
+use crate::nifti::DisplacementField;
+use crate::volume::{self, GeometrySource};
+
+/// The first 8 bytes of every HDF5 file (without a user block, as ITK writes it).
+const SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
+
+/// The displacement-field classes read (ITK writes the double one).
+const FIELD_TYPES: [&str; 2] = ["DisplacementFieldTransform_double_3_3", "DisplacementFieldTransform_float_3_3"];
+
+/// The composite classes, which may stand only in group `0`.
+const COMPOSITE_TYPES: [&str; 2] = ["CompositeTransform_double_3_3", "CompositeTransform_float_3_3"];
+
+/// The longest file read: a displacement field of 256³ voxels in doubles is 400 MB.
+const MAX_FILE_BYTES: u64 = 4 << 30;
+
+/// The most transforms one file may hold (a composite's members); ANTs writes two or three.
+const MAX_TRANSFORMS: usize = 64;
+
+/// Whether `head`, a file's first bytes, is an HDF5 file.
+#[must_use]
+pub fn looks_like_hdf5(head: &[u8]) -> bool {
+    head.starts_with(SIGNATURE)
+}
+
+/// One transform of an `.h5` file.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ItkStep {
+    /// An affine or a cubic B-spline, as a `.tfm` holds them.
+    Transform(ItkTransform),
+    /// A `DisplacementFieldTransform`.
+    Field(Box<FieldStep>),
+}
+
+impl ItkStep {
+    /// T(x), LPS mm.
+    fn apply(&self, x: [f64; 3]) -> [f64; 3] {
+        match self {
+            Self::Transform(ItkTransform::Affine(a)) => a.apply(x),
+            Self::Transform(ItkTransform::BSpline(b)) => b.apply(x),
+            // `read` refuses a thin-plate spline: it has no weights until it is fitted again.
+            Self::Transform(ItkTransform::ThinPlateSpline(_)) => x,
+            Self::Field(f) => f.apply(x),
+        }
+    }
+}
+
+/// The transforms of an `.h5` file in the file's order (a composite's members; one for a file of one transform).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ItkChain {
+    /// T₁, …, Tₙ: the last is applied first (module docs).
+    pub steps: Vec<ItkStep>,
+}
+
+impl ItkChain {
+    /// T(x) = T₁(T₂(… Tₙ(x))): fixed → moving, LPS mm.
+    #[must_use]
+    pub fn apply(&self, x: [f64; 3]) -> [f64; 3] {
+        self.steps.iter().rev().fold(x, |p, step| step.apply(p))
+    }
+
+    /// The chain as one affine when every transform in it is an affine; else the class of the first that is not.
+    ///
+    /// # Errors
+    /// The ITK class of the first transform that is not linear.
+    pub fn affine(&self) -> std::result::Result<ItkAffine, &'static str> {
+        let (mut matrix, mut offset) = (Matrix3::identity(), Vector3::zeros());
+        for step in self.steps.iter().rev() {
+            let a = match step {
+                ItkStep::Transform(ItkTransform::Affine(a)) => a,
+                ItkStep::Transform(t) => return Err(t.type_name()),
+                ItkStep::Field(_) => return Err(FIELD_TYPES[0]),
+            };
+            offset = a.matrix * offset + Vector3::from(a.offset());
+            matrix = a.matrix * matrix;
+        }
+        Ok(ItkAffine::from_offset(matrix, offset.into()))
+    }
+
+    /// The displacement field applied first (the last in the file): the grid of the fixed space that the chain
+    /// starts from, where [`read_field`] samples it.
+    fn innermost_field(&self) -> Option<&FieldStep> {
+        self.steps.iter().rev().find_map(|s| match s {
+            ItkStep::Field(f) => Some(f.as_ref()),
+            ItkStep::Transform(_) => None,
+        })
+    }
+}
+
+/// Reads the transforms of an ITK `.h5` file (module docs). Errors name the file: one that is not HDF5, a group
+/// without its datasets, a class warpbench does not read, parameters of the wrong count, a field too large for
+/// memory.
+pub fn read(path: &Path) -> Result<ItkChain> {
+    let len = crate::files::check_regular_file(path)?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(Error::invalid(path, format!("{len} bytes is too long for a transform file")));
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse(path, bytes)
+}
+
+/// [`read`] of a file's bytes; `path` is used in errors.
+///
+/// # Errors
+/// As [`read`].
+pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
+    let file = File::from_bytes(bytes)
+        .map_err(|e| Error::invalid(path, format!("not an HDF5 file warpbench can read: {e}")))?;
+    let count = transform_count(path, &file)?;
+    let mut steps = Vec::with_capacity(count);
+    for i in 0..count {
+        let group = format!("/TransformGroup/{i}");
+        let kind = read_kind(path, &file, &group)?;
+        if COMPOSITE_TYPES.contains(&kind.as_str()) {
+            if i == 0 {
+                continue;
+            }
+            return Err(Error::unsupported(path, format!("{group} is a composite inside a composite ({kind})")));
+        }
+        if let Some(plain) = kind.strip_prefix("Inverse") {
+            return Err(Error::unsupported(
+                path,
+                format!(
+                    "{group} is {kind}, 3D Slicer's {plain} saved in its modeling direction, which warpbench does not \
+                     read; in Slicer, invert the transform (or harden it) before saving, or save the displacement \
+                     field as a .nrrd"
+                ),
+            ));
+        }
+        steps.push(read_step(path, &file, &group, &kind)?);
+    }
+    if steps.is_empty() {
+        return Err(Error::invalid(path, "the composite transform holds no transforms"));
+    }
+    Ok(ItkChain { steps })
+}
+
+/// Reads an `.h5` file whose transforms are all affine, as the one affine they make (fixed → moving, LPS mm): a
+/// starting transform.
+///
+/// # Errors
+/// As [`read`], and a file holding a transform that is not linear, named by its class.
+pub fn read_affine(path: &Path) -> Result<ItkAffine> {
+    let chain = read(path)?;
+    chain.affine().map_err(|kind| {
+        Error::unsupported(
+            path,
+            format!(
+                "it holds a {kind}, not only affine transforms; a starting transform is linear (read the file as a \
+                 displacement field instead, e.g. with --field)"
+            ),
+        )
+    })
+}
+
+/// Reads an `.h5` file holding a displacement field (alone, or in a composite with affines and B-splines) and
+/// samples the whole chain at every voxel centre x of the field applied first: D(x) = T(x) − x, LPS mm, the
+/// pull-back, as SimpleITK's `TransformToDisplacementField` gives it on that grid.
+///
+/// # Errors
+/// As [`read`], a file without a displacement field (its transforms are linear: a starting transform), a
+/// displacement that is not finite in f32.
+pub fn read_field(path: &Path) -> Result<ReadField> {
+    let chain = read(path)?;
+    let grid = chain.innermost_field().ok_or_else(|| {
+        Error::unsupported(
+            path,
+            "it holds no DisplacementFieldTransform, so it gives no grid to sample a field on; a file of linear \
+             transforms is a starting transform (--initial)",
+        )
+    })?;
+    let (dims, lps_from_index) = (grid.field.dims, grid.field.lps_from_index);
+    let n = volume::check_allocation(path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let mut displacements_lps: Vec<[f32; 3]> = volume::try_with_capacity(path, n, "the displacement vectors")?;
+    let [nx, ny, _] = dims;
+    (0..n)
+        .into_par_iter()
+        .map(|v| {
+            let ijk = [(v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64];
+            let x = lps_from_index.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+            let y = chain.apply(x);
+            [(y[0] - x[0]) as f32, (y[1] - x[1]) as f32, (y[2] - x[2]) as f32]
+        })
+        .collect_into_vec(&mut displacements_lps);
+    if let Some(ijk) = first_non_finite(dims, &displacements_lps) {
+        return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
+    }
+    let field = DisplacementField {
+        dims,
+        lps_from_index,
+        geometry_source: GeometrySource::ItkTransformFile,
+        displacements_lps,
+    };
+    Ok(ReadField { field, source: FieldSource::ItkHdf5, direction: Some(FieldDirection::Pullback) })
+}
+
+/// How many groups `/TransformGroup` holds, checked to be `0`, `1`, … with nothing else.
+fn transform_count(path: &Path, file: &File) -> Result<usize> {
+    let group = file.group("/TransformGroup").map_err(|e| {
+        Error::invalid(path, format!("no /TransformGroup ({e}): an HDF5 file, but not an ITK transform file"))
+    })?;
+    let names = group.groups().map_err(|e| Error::invalid(path, format!("/TransformGroup cannot be listed: {e}")))?;
+    if names.is_empty() {
+        return Err(Error::invalid(path, "/TransformGroup holds no transform"));
+    }
+    if names.len() > MAX_TRANSFORMS {
+        return Err(Error::invalid(path, format!("{} transforms; at most {MAX_TRANSFORMS} are read", names.len())));
+    }
+    let mut numbers: Vec<usize> = names.iter().filter_map(|n| n.parse().ok()).collect();
+    numbers.sort_unstable();
+    if numbers.len() != names.len() || numbers.iter().enumerate().any(|(i, &n)| i != n) {
+        return Err(Error::invalid(
+            path,
+            format!("/TransformGroup holds groups {names:?}; ITK numbers its transforms 0, 1, 2, …"),
+        ));
+    }
+    Ok(names.len())
+}
+
+/// The ITK class in `group`'s `TransformType`.
+fn read_kind(path: &Path, file: &File, group: &str) -> Result<String> {
+    let strings = file
+        .dataset(&format!("{group}/TransformType"))
+        .and_then(|d| d.read_string())
+        .map_err(|e| Error::invalid(path, format!("{group}/TransformType cannot be read: {e}")))?;
+    match strings.as_slice() {
+        [kind] => Ok(kind.trim_end_matches('\0').trim().to_owned()),
+        other => Err(Error::invalid(path, format!("{group}/TransformType holds {} strings, not one", other.len()))),
+    }
+}
+
+/// The numbers of `group`'s dataset `name`, finite, at most `limit` of them.
+fn read_numbers(path: &Path, file: &File, group: &str, name: &str, limit: usize) -> Result<Vec<f64>> {
+    let at = format!("{group}/{name}");
+    let dataset = file.dataset(&at).map_err(|e| Error::invalid(path, format!("{at} is missing: {e}")))?;
+    let shape = dataset.shape().map_err(|e| Error::invalid(path, format!("{at}: {e}")))?;
+    let len = shape.iter().try_fold(1u64, |a, &d| a.checked_mul(d)).unwrap_or(u64::MAX);
+    if len > limit as u64 {
+        return Err(Error::invalid(path, format!("{at} holds {len} numbers, more than the {limit} expected")));
+    }
+    let values =
+        dataset.read_f64().map_err(|e| Error::invalid(path, format!("{at} cannot be read as numbers: {e}")))?;
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(path, format!("{at}: number {} is not finite", i + 1)));
+    }
+    Ok(values)
+}
+
+/// The transform of class `kind` in `group`.
+fn read_step(path: &Path, file: &File, group: &str, kind: &str) -> Result<ItkStep> {
+    if FIELD_TYPES.contains(&kind) {
+        return read_displacement_field(path, file, group).map(|f| ItkStep::Field(Box::new(f)));
+    }
+    let known = known_types();
+    if !known.contains(&kind) {
+        let mut all = known;
+        all.extend(FIELD_TYPES);
+        return Err(Error::unsupported(path, format!("{group} is a {kind}; only these are read: {}", all.join(", "))));
+    }
+    let limit = 3 * crate::itk_tfm::MAX_BSPLINE_CONTROL_POINTS;
+    let fixed = read_numbers(path, file, group, "TransformFixedParameters", limit)?;
+    let params = read_numbers(path, file, group, "TransformParameters", limit)?;
+    match transform_of(path, kind, &params, &fixed)? {
+        ItkTransform::ThinPlateSpline(_) => Err(Error::unsupported(
+            path,
+            format!(
+                "{group} is a {kind}: ITK stores only its landmarks and fits it again on reading, which warpbench \
+                 does not do for an .h5; give its landmarks as pairs instead"
+            ),
+        )),
+        t => Ok(ItkStep::Transform(t)),
+    }
+}
+
+/// A `DisplacementFieldTransform` in `group` (module docs).
+fn read_displacement_field(path: &Path, file: &File, group: &str) -> Result<FieldStep> {
+    let f = read_numbers(path, file, group, "TransformFixedParameters", 18)?;
+    if f.len() != 18 {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "{group}/TransformFixedParameters: {} numbers, expected 18 (size, origin, spacing, direction)",
+                f.len()
+            ),
+        ));
+    }
+    let mut dims = [0usize; 3];
+    for (n, &v) in dims.iter_mut().zip(&f[..3]) {
+        if v.fract() != 0.0 || !(1.0..=f64::from(u32::MAX)).contains(&v) {
+            return Err(Error::invalid(
+                path,
+                format!("{group}: the field's size {:?} is not 3 whole numbers", &f[..3]),
+            ));
+        }
+        *n = v as usize;
+    }
+    let n = volume::check_allocation(path, dims, 24, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+    let spacing = Matrix3::from_diagonal(&Vector3::new(f[6], f[7], f[8]));
+    let direction = Matrix3::from_row_slice(&f[9..18]);
+    let lps_from_index = Transform::from_linear_translation(direction * spacing, [f[3], f[4], f[5]]);
+    let params = read_numbers(path, file, group, "TransformParameters", 3 * n)?;
+    if params.len() != 3 * n {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "{group}/TransformParameters: {} numbers, expected {} (3 per voxel of {dims:?})",
+                params.len(),
+                3 * n
+            ),
+        ));
+    }
+    let displacements_lps = params.chunks_exact(3).map(|v| [v[0] as f32, v[1] as f32, v[2] as f32]).collect();
+    let field = DisplacementField {
+        dims,
+        lps_from_index,
+        geometry_source: GeometrySource::ItkTransformFile,
+        displacements_lps,
+    };
+    FieldStep::new(path, path.to_path_buf(), field, FieldInterpolation::Linear)
+}
