@@ -60,8 +60,8 @@ pub struct PairArgs {
     #[command(flatten)]
     pub method: MethodArgs,
     /// A starting transform under the landmark warp: an ITK affine .tfm, the same affine as ANTs' .mat (e.g.
-    /// antsRegistration's 0GenericAffine.mat), or elastix's linear TransformParameters.N.txt, mapping fixed points to
-    /// moving points (LPS mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it alone is the warp.
+    /// antsRegistration's 0GenericAffine.mat), an ITK .h5 of affines, or elastix's linear TransformParameters.N.txt,
+    /// mapping fixed points to moving points (LPS mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it alone is the warp.
     #[arg(long, value_name = "TFM", conflicts_with = "session")]
     pub initial: Option<PathBuf>,
 }

@@ -19,6 +19,7 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use warpbench_io::elastix;
 use warpbench_io::geometry::Point3;
+use warpbench_io::itk_h5;
 use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
@@ -51,15 +52,19 @@ impl Start {
     }
 
     /// Reads an ITK affine transform file (`AffineTransform_double_3_3`, as `warpbench align` and `transform` write
-    /// it; a `.tfm`, or ANTs' MATLAB `.mat`), or an elastix transform parameter file holding a linear transform (and
+    /// it; a `.tfm`, or ANTs' MATLAB `.mat`), ITK's HDF5 transform file of one or more affines (`.h5`,
+    /// [`warpbench_io::itk_h5::read_affine`]), or an elastix transform parameter file holding a linear transform (and
     /// its chain of initial transforms, [`warpbench_io::elastix::read_affine`]): fixed points to moving points, LPS mm.
     ///
     /// # Errors
     /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let name = path.display().to_string();
-        if is_elastix(path) {
-            let affine = elastix::read_affine(path).with_context(|| format!("--initial {name}"))?;
+        let head = head(path);
+        if elastix::looks_like_parameter_file(&head) || itk_h5::looks_like_hdf5(&head) {
+            let affine =
+                if itk_h5::looks_like_hdf5(&head) { itk_h5::read_affine(path) } else { elastix::read_affine(path) }
+                    .with_context(|| format!("--initial {name}"))?;
             return Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name);
         }
         let transform = itk_tfm::read(path).with_context(|| format!("--initial {name}"))?;
@@ -86,14 +91,14 @@ impl Start {
     }
 }
 
-/// Whether the file at `path` reads as an elastix transform parameter file (its first 4 KiB; a file that cannot be
-/// read is left to the ITK reader, which says why).
-fn is_elastix(path: &Path) -> bool {
+/// The first 4 KiB of the regular file at `path`, to tell an elastix parameter file and an HDF5 file by; empty for
+/// a file that cannot be read, which is left to the ITK reader, which says why.
+fn head(path: &Path) -> Vec<u8> {
     use std::io::Read;
     let mut head = Vec::new();
-    std::fs::metadata(path).is_ok_and(|m| m.is_file())
-        && std::fs::File::open(path).and_then(|f| f.take(4096).read_to_end(&mut head)).is_ok()
-        && elastix::looks_like_parameter_file(&head)
+    let read = std::fs::metadata(path).is_ok_and(|m| m.is_file())
+        && std::fs::File::open(path).and_then(|f| f.take(4096).read_to_end(&mut head)).is_ok();
+    if read { head } else { Vec::new() }
 }
 
 /// The starting transform a subcommand was given: a session's (already read with it), else `--initial`'s file, read.

@@ -231,7 +231,8 @@ pub struct WarpArgs {
     pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
-    /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, or NRRD; u(x) = x + D(x)).
+    /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, NRRD, MetaImage, or an ITK
+    /// .h5 such as ANTs' Composite.h5; u(x) = x + D(x)).
     #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     pub field: Option<PathBuf>,
     /// Control-texture texels per axis over the output grid (2..=256).

@@ -5,6 +5,9 @@
 - the elastix parameter file transformix made it from (`tests/data/elastix/bspline_oblique.txt`) reads, sampled on
   its fixed grid, to the same field within f32 rounding (1e-6 mm), but for the voxels on the edge of the B-spline's
   region, where transformix breaks a tie by rounding (`crates/io/tests/elastix.rs`);
+- ITK's HDF5 transform file of an affine and a displacement field (`tests/data/itk/h5_composite.h5`, written by
+  SimpleITK as antsRegistration writes `Composite.h5`) reads to the field SimpleITK's TransformToDisplacementField
+  makes of it on the field's grid, within f32 rounding;
 - a field written by `Warp.field` in each flavour reads back to the same vectors and names its flavour;
 - `Warp.jacobian` is the limit of SimpleITK's finite-difference Jacobian determinant, and the CLI's map.
 """
@@ -50,6 +53,25 @@ def test_an_elastix_parameter_file_reads_as_the_field_transformix_wrote():
     inner = (slice(1, None), slice(1, None), slice(1, None))
     np.testing.assert_allclose(ours.array[inner], vectors[inner], rtol=0, atol=1e-6)
     assert np.abs(vectors).max() > 0.5
+
+
+def test_an_itk_h5_composite_reads_as_simpleitk_samples_it():
+    path = DATA / "itk" / "h5_composite.h5"
+    ours = wb.read_field(path)
+    assert ours.source == "itk_h5" and ours.direction == "pullback"
+    transform = sitk.ReadTransform(str(path))
+    inner = sitk.CompositeTransform(transform).GetNthTransform(1)
+    grid = sitk.DisplacementFieldTransform(inner).GetDisplacementField()
+    sampled = sitk.TransformToDisplacementField(transform, sitk.sitkVectorFloat64, grid.GetSize(), grid.GetOrigin(),
+                                                grid.GetSpacing(), grid.GetDirection())
+    vectors = sitk.GetArrayFromImage(sampled).transpose(2, 1, 0, 3)
+    direction = np.array(grid.GetDirection()).reshape(3, 3)
+    lps = np.eye(4)
+    lps[:3, :3] = direction * np.array(grid.GetSpacing())
+    lps[:3, 3] = grid.GetOrigin()
+    np.testing.assert_allclose(ours.lps_from_index, lps, atol=1e-12)
+    np.testing.assert_allclose(ours.array, vectors, rtol=0, atol=1e-5)
+    assert np.abs(vectors).max() > 2.0
 
 
 def test_a_written_field_reads_back_in_every_flavour(tmp_path):

@@ -172,7 +172,8 @@ fn file_row(
 pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
     let row = FileRow {
         label: "Displacement field file",
-        hint: "field.nii.gz (ITK, ANTs), field.nrrd (Slicer), deformationField.mhd or TransformParameters.1.txt (elastix)",
+        hint: "field.nii.gz (ITK, ANTs), Composite.h5 (ANTs), field.nrrd (Slicer), deformationField.mhd or \
+               TransformParameters.1.txt (elastix)",
         use_button: "Use field under landmarks",
         remove_button: "Remove field",
         current: "Field under the landmarks",
@@ -189,7 +190,7 @@ pub fn start_ui(ui: &mut egui::Ui, fields: &mut FileFields) -> Option<FileAction
     ui.add(
         egui::TextEdit::singleline(&mut fields.start)
             .desired_width(ui.available_width())
-            .hint_text("start.tfm, 0GenericAffine.mat (ANTs) or TransformParameters.0.txt (elastix)"),
+            .hint_text("start.tfm, 0GenericAffine.mat (ANTs), start.h5 (ITK) or TransformParameters.0.txt (elastix)"),
     )
     .labelled_by(ui.label("Starting transform file").id);
     let enabled = !fields.start.trim().is_empty();

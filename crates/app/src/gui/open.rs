@@ -213,9 +213,10 @@ impl Purpose {
                 d.add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
             }
             Self::UseField => d
-                .set_title("A displacement field, or an elastix transform, to put under the landmarks")
+                .set_title("A displacement field, or an elastix or ITK transform, to put under the landmarks")
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
-                .add_filter("elastix transform parameter file", &["txt"]),
+                .add_filter("elastix transform parameter file", &["txt"])
+                .add_filter("ITK transform with a field (ANTs Composite.h5)", &["h5"]),
             Self::ExportTransform(TransformFormat::Itk) => {
                 d.add_filter("ITK or ANTs transform", &["tfm", "txt", "mat"])
             }
@@ -224,7 +225,7 @@ impl Purpose {
             }
             Self::UseStart => d
                 .set_title("A linear transform to start from")
-                .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat"]),
+                .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat", "h5"]),
             Self::UseMask(side) => volumes(d.set_title(format!("A mask of the {} volume", side.name()))),
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
         }

@@ -193,9 +193,10 @@ class Field:
     """A displacement field read from a file (:func:`read_field`).
 
     ``array`` holds its vectors, LPS mm, shape ``(ni, nj, nk, 3)`` float32, at the voxel centres of the grid
-    ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``) or
-    ``"elastix"`` for a transform parameter file; ``direction`` is ``"pullback"`` or ``"forward"`` where the file says
-    (NRRD), else ``None``, and then it is a pull-back, as ITK takes it."""
+    ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``),
+    ``"elastix"`` for a transform parameter file or ``"itk_h5"`` for ITK's HDF5 transform file; ``direction`` is
+    ``"pullback"`` or ``"forward"`` where the file says (NRRD, and ``"pullback"`` for an ``.h5``), else ``None``, and
+    then it is a pull-back, as ITK takes it."""
 
     array: np.ndarray
     lps_from_index: np.ndarray
@@ -212,7 +213,8 @@ def read_field(path: PathLike) -> Field:
     """Reads a displacement field as ``warpbench warp --field`` reads it: ITK's or ANTs' NIfTI, Slicer's NRRD, a
     MetaImage vector image (transformix's ``deformationField.mhd``), or an elastix transform parameter file
     (``TransformParameters.N.txt`` and the files it names), sampled at every voxel centre of its fixed grid as
-    ``transformix -def all`` would write it."""
+    ``transformix -def all`` would write it, or ITK's HDF5 transform file holding a displacement field (ANTs'
+    ``Composite.h5``: the affine and the field together), sampled on that field's grid."""
     array, lps, source, direction = _warpbench.read_field(os.fspath(path))
     return Field(array, lps, source, direction)
 
