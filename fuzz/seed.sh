@@ -17,6 +17,7 @@ seed landmarks landmarks '*'
 seed metaimage metaimage '*.mh?'
 seed metaimage bad '*.mh?'
 seed elastix elastix '*.txt'
+seed itk_h5 itk '*.h5'
 
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {
