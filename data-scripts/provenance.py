@@ -175,7 +175,10 @@ writes the same bytes. `data-scripts/itk_h5_sitk.py` writes `itk/h5_*.h5` (Simpl
 ITK's HDF5TransformIO: an affine, a displacement field, the two in a composite as ANTs writes `Composite.h5`, and a
 composite of two affines) and `itk/h5_reference.json` (SimpleITK's `TransformPoint` through each, and its
 `TransformToDisplacementField` on the field's grid); its values are deterministic, but HDF5 stamps the objects it
-writes with the time, so a rerun's `.h5` bytes differ.
+writes with the time, so a rerun's `.h5` bytes differ. `data-scripts/itk_linear_sitk.py` writes
+`itk/linear_*.tfm` (one of each of ITK's linear classes besides the affine, by SimpleITK's `WriteTransform`),
+`itk/h5_linear_classes.h5` (all of them in one composite) and `itk/linear_reference.json` (SimpleITK's
+`TransformPoint` through each).
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -200,6 +203,15 @@ SIMPLEITK_FILES = [
     ("itk/h5_composite.h5", "itk_h5_sitk.py"),
     ("itk/h5_linear_composite.h5", "itk_h5_sitk.py"),
     ("itk/h5_reference.json", "itk_h5_sitk.py"),
+    ("itk/linear_translation.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_scale.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_euler.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_euler_zyx.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_versor.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_versor_rigid.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_similarity.tfm", "itk_linear_sitk.py"),
+    ("itk/h5_linear_classes.h5", "itk_linear_sitk.py"),
+    ("itk/linear_reference.json", "itk_linear_sitk.py"),
 ]
 
 # Fixtures written by elastix and transformix (itk-elastix) from data and transforms our scripts make up.

@@ -1,7 +1,8 @@
 """ITK's HDF5 transform files (`.h5`) from SimpleITK, read by the warpbench CLI.
 
-- A composite of two affines that SimpleITK writes to `.h5`: `warpbench points --initial` (too few pairs to refine
-  it, so it alone is the warp) maps points where SimpleITK's TransformPoint puts them.
+- A composite of two affines that SimpleITK writes to `.h5`, an Euler3DTransform `.tfm` and a VersorRigid3DTransform
+  `.h5` (what its rigid registrations write): `warpbench points --initial` (too few pairs to refine it, so it alone is
+  the warp) maps points where SimpleITK's TransformPoint puts them.
 - A composite of an affine and a displacement field on the fixed grid, as antsRegistration's `Composite.h5` holds
   them: `warpbench warp --field` resamples the moving volume as SimpleITK's Resample does through the same file.
 - `warpbench transform --out x.h5` is refused with exit 2: warpbench does not write HDF5, and nothing is written.
@@ -33,11 +34,17 @@ def affine(angle: float, translation: tuple, centre: tuple) -> "sitk.AffineTrans
     return a
 
 
-def test_initial_reads_simpleitks_h5_of_affines_as_simpleitk_applies_it(tmp_path: Path) -> None:
+@pytest.mark.parametrize("kind", ["affines.h5", "euler.tfm", "rigid.h5"])
+def test_initial_reads_simpleitks_linear_files_as_simpleitk_applies_them(tmp_path: Path, kind: str) -> None:
     fixed, moving = pair(tmp_path)
-    composite = sitk.CompositeTransform([affine(0.1, (3.0, -2.0, 1.5), (5.0, -4.0, 2.0)),
-                                         affine(-0.07, (-1.0, 0.5, 2.0), (-6.0, 3.0, 1.0))])
-    h5 = tmp_path / "start.h5"
+    composite = {
+        "affines.h5": sitk.CompositeTransform([affine(0.1, (3.0, -2.0, 1.5), (5.0, -4.0, 2.0)),
+                                               affine(-0.07, (-1.0, 0.5, 2.0), (-6.0, 3.0, 1.0))]),
+        # What a SimpleITK rigid registration writes: an Euler3DTransform about the centre it was initialised on.
+        "euler.tfm": sitk.Euler3DTransform((4.0, -6.0, 2.0), 0.05, -0.08, 0.12, (4.0, -3.0, 2.5)),
+        "rigid.h5": sitk.VersorRigid3DTransform((0.2, 1.0, -0.3), 0.15, (1.0, 2.0, 3.0), (-2.0, 0.5, 1.0)),
+    }[kind]
+    h5 = tmp_path / kind
     sitk.WriteTransform(composite, str(h5))
     pairs = tmp_path / "two.csv"
     pairs.write_text('"Pt-0","true","1","2","3","1","2","3"\n"Pt-1","true","-10","5","0","-10","5","0"\n')

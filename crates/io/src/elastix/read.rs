@@ -11,7 +11,7 @@ use super::transform::{ElastixTransform, Link, Step, ThinPlateKernel};
 use super::write::ElastixGrid;
 use crate::error::{Error, Result};
 use crate::geometry::Transform;
-use crate::itk_tfm::{ItkAffine, ItkBSpline};
+use crate::itk_tfm::{ItkAffine, ItkBSpline, euler_matrix, versor_matrix};
 
 /// How many files a chain of initial transforms may hold: more is taken for a loop.
 const MAX_CHAIN: usize = 32;
@@ -314,29 +314,4 @@ fn kernel(name: &Path, map: &ParameterMap) -> Result<ThinPlateKernel> {
         _ => Err(Error::invalid(name, "(SplineRelaxationFactor …) has more than one number")),
     })?;
     ThinPlateKernel::solve(name, sources, &targets, stiffness)
-}
-
-/// ITK's `Euler3DTransform` matrix: Rz Rx Ry, or Rz Ry Rx when `zyx`.
-fn euler_matrix(angles: [f64; 3], zyx: bool) -> Matrix3<f64> {
-    let [(sx, cx), (sy, cy), (sz, cz)] = angles.map(f64::sin_cos);
-    let rx = Matrix3::new(1.0, 0.0, 0.0, 0.0, cx, -sx, 0.0, sx, cx);
-    let ry = Matrix3::new(cy, 0.0, sy, 0.0, 1.0, 0.0, -sy, 0.0, cy);
-    let rz = Matrix3::new(cz, -sz, 0.0, sz, cz, 0.0, 0.0, 0.0, 1.0);
-    if zyx { rz * ry * rx } else { rz * rx * ry }
-}
-
-/// The rotation of the unit quaternion (w, x, y, z), w = √(1 − x² − y² − z²): ITK's `Versor::GetMatrix`.
-fn versor_matrix([x, y, z]: [f64; 3]) -> Matrix3<f64> {
-    let w = (1.0 - x * x - y * y - z * z).max(0.0).sqrt();
-    Matrix3::new(
-        1.0 - 2.0 * (y * y + z * z),
-        2.0 * (x * y - z * w),
-        2.0 * (x * z + y * w),
-        2.0 * (x * y + z * w),
-        1.0 - 2.0 * (x * x + z * z),
-        2.0 * (y * z - x * w),
-        2.0 * (x * z - y * w),
-        2.0 * (y * z + x * w),
-        1.0 - 2.0 * (x * x + y * y),
-    )
 }

@@ -55,6 +55,13 @@
 //!   origin is one spacing above the grid origin and which is (size − 3) spacings long — and T(x) = x elsewhere
 //!   (`BSplineTransform::InsideValidRegion`). [`ItkBSpline::apply`] is that rule.
 //!
+//! - **ITK's other linear classes**, read (not written) as the [`ItkAffine`] they are, x ↦ M (x − c) + c + t with the
+//!   centre c from the fixed parameters: `TranslationTransform` (t; no fixed parameters), `ScaleTransform` (the
+//!   diagonal of M; c), `Euler3DTransform` (angles θx, θy, θz and t; c, and ITK 5's ComputeZYX flag: M = Rz Rx Ry,
+//!   or Rz Ry Rx with the flag 1), `VersorTransform` (the versor's vector part; c), `VersorRigid3DTransform` (versor,
+//!   t; c) and `Similarity3DTransform` (versor, t, scale s: M = s R; c). These are what SimpleITK's registrations
+//!   write (an `Euler3DTransform` from `CenteredTransformInitializer`, say).
+//!
 //! Numbers are written with Rust's shortest round-trip formatting, so a written file reads back bit for bit.
 //! A float (`_float_3_3`) variant of each class is read too. Other transform types and files with several transforms
 //! (composites) are refused with an error that names the file and what it holds.
@@ -92,6 +99,16 @@ const MAGIC: &str = "#Insight Transform File V1.0";
 /// Transform types read as an affine (all share the 12 + 3 parameter layout).
 const AFFINE_TYPES: [&str; 3] =
     ["AffineTransform_double_3_3", "AffineTransform_float_3_3", "MatrixOffsetTransformBase_double_3_3"];
+
+/// ITK's other linear classes, read as the affine they are ([`linear_of`]); their `_float_3_3` twins too.
+const LINEAR_TYPES: [&str; 6] = [
+    "TranslationTransform_double_3_3",
+    "ScaleTransform_double_3_3",
+    "Euler3DTransform_double_3_3",
+    "VersorTransform_double_3_3",
+    "VersorRigid3DTransform_double_3_3",
+    "Similarity3DTransform_double_3_3",
+];
 
 /// Transform types read as a thin-plate spline.
 const TPS_TYPES: [&str; 2] = ["ThinPlateSplineKernelTransform_double_3_3", "ThinPlateSplineKernelTransform_float_3_3"];
@@ -520,6 +537,8 @@ pub(crate) fn transform_of(name: &Path, kind: &str, params: &[f64], fixed: &[f64
         ItkTransform::ThinPlateSpline(ItkThinPlateSpline { source_lps: points(params), target_lps: points(fixed) })
     } else if BSPLINE_TYPES.contains(&kind) {
         ItkTransform::BSpline(bspline_of(name, params, fixed)?)
+    } else if let Some(affine) = linear_of(name, kind, params, fixed)? {
+        ItkTransform::Affine(affine)
     } else {
         return Err(Error::unsupported(
             name,
@@ -530,21 +549,111 @@ pub(crate) fn transform_of(name: &Path, kind: &str, params: &[f64], fixed: &[f64
     Ok(transform)
 }
 
-/// The classes [`transform_of`] reads.
+/// The classes [`transform_of`] reads (the double ones; each also as `_float_3_3`).
 pub(crate) fn known_types() -> Vec<&'static str> {
-    AFFINE_TYPES.iter().chain(&TPS_TYPES).chain(&BSPLINE_TYPES).copied().collect()
+    AFFINE_TYPES.iter().chain(&LINEAR_TYPES).chain(&TPS_TYPES).chain(&BSPLINE_TYPES).copied().collect()
 }
 
 /// Parses the text of a `.tfm` holding one affine transform; `name` is used in errors.
 pub fn parse_affine(name: &Path, text: &str) -> Result<ItkAffine> {
     let lines = parse_lines(name, text)?;
-    if !AFFINE_TYPES.contains(&lines.kind) {
+    let linear = || AFFINE_TYPES.iter().chain(&LINEAR_TYPES).copied().collect::<Vec<_>>().join(", ");
+    if TPS_TYPES.contains(&lines.kind) || BSPLINE_TYPES.contains(&lines.kind) {
         return Err(Error::unsupported(
             name,
-            format!("transform type {:?}; only an affine ({}) is read", lines.kind, AFFINE_TYPES.join(", ")),
+            format!("transform type {:?}; only an affine or another linear class ({}) is read", lines.kind, linear()),
         ));
     }
-    affine_of(name, &lines.params, &lines.fixed)
+    match transform_of(name, lines.kind, &lines.params, &lines.fixed)? {
+        ItkTransform::Affine(a) => Ok(a),
+        other => Err(Error::unsupported(name, format!("transform type {:?} is not linear", other.type_name()))),
+    }
+}
+
+/// ITK's `Euler3DTransform` matrix: Rz Rx Ry, or Rz Ry Rx when `zyx`.
+pub(crate) fn euler_matrix(angles: [f64; 3], zyx: bool) -> Matrix3<f64> {
+    let [(sx, cx), (sy, cy), (sz, cz)] = angles.map(f64::sin_cos);
+    let rx = Matrix3::new(1.0, 0.0, 0.0, 0.0, cx, -sx, 0.0, sx, cx);
+    let ry = Matrix3::new(cy, 0.0, sy, 0.0, 1.0, 0.0, -sy, 0.0, cy);
+    let rz = Matrix3::new(cz, -sz, 0.0, sz, cz, 0.0, 0.0, 0.0, 1.0);
+    if zyx { rz * ry * rx } else { rz * rx * ry }
+}
+
+/// The rotation of the unit quaternion (w, x, y, z), w = √(1 − x² − y² − z²): ITK's `Versor::GetMatrix`.
+pub(crate) fn versor_matrix([x, y, z]: [f64; 3]) -> Matrix3<f64> {
+    let w = (1.0 - x * x - y * y - z * z).max(0.0).sqrt();
+    Matrix3::new(
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - z * w),
+        2.0 * (x * z + y * w),
+        2.0 * (x * y + z * w),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - x * w),
+        2.0 * (x * z - y * w),
+        2.0 * (y * z + x * w),
+        1.0 - 2.0 * (x * x + y * y),
+    )
+}
+
+/// ITK's other linear classes, each read as the [`ItkAffine`] it is (module docs); `None` for a class that is not one.
+fn linear_of(name: &Path, kind: &str, p: &[f64], f: &[f64]) -> Result<Option<ItkAffine>> {
+    let Some(class) = kind.strip_suffix("_double_3_3").or_else(|| kind.strip_suffix("_float_3_3")) else {
+        return Ok(None);
+    };
+    let centre = |f: &[f64]| -> Result<[f64; 3]> {
+        count(name, "FixedParameters", f, 3)?;
+        Ok([f[0], f[1], f[2]])
+    };
+    let versor = |v: &[f64]| -> Result<Matrix3<f64>> {
+        let versor = [v[0], v[1], v[2]];
+        if versor.iter().map(|x| x * x).sum::<f64>() > 1.0 {
+            return Err(Error::invalid(name, format!("Parameters: the versor {versor:?} is longer than 1")));
+        }
+        Ok(versor_matrix(versor))
+    };
+    let affine = match class {
+        "TranslationTransform" => {
+            count(name, "Parameters", p, 3)?;
+            count(name, "FixedParameters", f, 0)?;
+            ItkAffine::from_offset(Matrix3::identity(), [p[0], p[1], p[2]])
+        }
+        "ScaleTransform" => {
+            count(name, "Parameters", p, 3)?;
+            let center = centre(f)?;
+            ItkAffine { matrix: Matrix3::from_diagonal(&Vector3::new(p[0], p[1], p[2])), translation: [0.0; 3], center }
+        }
+        "Euler3DTransform" => {
+            count(name, "Parameters", p, 6)?;
+            // ITK 5 writes the centre and ComputeZYX (0 or 1); older files the centre alone.
+            let zyx = match f {
+                [_, _, _] => false,
+                [_, _, _, flag] if *flag == 0.0 => false,
+                [_, _, _, flag] if flag.to_bits() == 1f64.to_bits() => true,
+                _ => {
+                    return Err(Error::invalid(
+                        name,
+                        format!("FixedParameters: {f:?} is not a centre and a ComputeZYX flag (0 or 1)"),
+                    ));
+                }
+            };
+            let matrix = euler_matrix([p[0], p[1], p[2]], zyx);
+            ItkAffine { matrix, translation: [p[3], p[4], p[5]], center: centre(&f[..3])? }
+        }
+        "VersorTransform" => {
+            count(name, "Parameters", p, 3)?;
+            ItkAffine { matrix: versor(p)?, translation: [0.0; 3], center: centre(f)? }
+        }
+        "VersorRigid3DTransform" => {
+            count(name, "Parameters", p, 6)?;
+            ItkAffine { matrix: versor(p)?, translation: [p[3], p[4], p[5]], center: centre(f)? }
+        }
+        "Similarity3DTransform" => {
+            count(name, "Parameters", p, 7)?;
+            ItkAffine { matrix: versor(p)? * p[6], translation: [p[3], p[4], p[5]], center: centre(f)? }
+        }
+        _ => return Ok(None),
+    };
+    Ok(Some(affine))
 }
 
 fn affine_of(name: &Path, p: &[f64], c: &[f64]) -> Result<ItkAffine> {
@@ -833,7 +942,11 @@ mod tests {
             (bspline.replace(" 20 12.5 8 ", " 20 0 8 "), "is not positive"),
             (bspline.replace(" 20 12.5 8 1 0 0 0 1 0", " 20 12.5 8 1 0 0 1 0 0"), "is singular"),
             (tps.replace("ThinPlateSplineKernelTransform_double_3_3", "CompositeTransform_double_3_3"), "composite"),
-            (tps.replace("ThinPlateSplineKernelTransform_double_3_3", "Euler3DTransform_double_3_3"), "only these"),
+            (
+                tps.replace("ThinPlateSplineKernelTransform_double_3_3", "ScaleSkewVersor3DTransform_double_3_3"),
+                "only these",
+            ),
+            (tps.replace("ThinPlateSplineKernelTransform_double_3_3", "Euler3DTransform_double_3_3"), "expected 6"),
         ];
         for (text, want) in &cases {
             let e = parse(name, text).expect_err(want);
