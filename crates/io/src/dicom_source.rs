@@ -126,6 +126,9 @@ pub struct DicomSource {
     pub series_instance_uid: String,
     /// StudyInstanceUID (0020,000D), when the source has a valid one (a derived series joins that study).
     pub study_instance_uid: Option<String>,
+    /// FrameOfReferenceUID (0020,0052), when the source has a valid one: the patient coordinate system its positions
+    /// are in, which a spatial registration names ([`crate::dicom_reg`]).
+    pub frame_of_reference_uid: Option<String>,
     /// Every image of the series that has valid UIDs, in file-name order.
     pub instances: Vec<SourceInstance>,
     /// The copied attributes (the lists above), from the first image.
@@ -192,6 +195,7 @@ impl DicomSource {
             modality: text(&obj, tags::MODALITY).unwrap_or_default(),
             series_instance_uid: series_uid,
             study_instance_uid: text(&obj, tags::STUDY_INSTANCE_UID).filter(|u| is_valid_uid(u)),
+            frame_of_reference_uid: text(&obj, tags::FRAME_OF_REFERENCE_UID).filter(|u| is_valid_uid(u)),
             instances,
             attributes,
         })

@@ -98,7 +98,7 @@ impl Default for DicomSeriesOptions {
 }
 
 /// A new globally unique UID under the `2.25` (UUID-derived) root.
-fn new_uid() -> String {
+pub(crate) fn new_uid() -> String {
     use std::collections::hash_map::RandomState;
     use std::hash::{BuildHasher, Hasher};
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -116,7 +116,7 @@ fn new_uid() -> String {
 }
 
 /// A DS (decimal string) value of at most 16 characters, as precise as fits.
-fn ds(x: f64) -> String {
+pub(crate) fn ds(x: f64) -> String {
     if x == 0.0 || !x.is_finite() {
         return "0".into();
     }
@@ -130,7 +130,7 @@ fn ds(x: f64) -> String {
     format!("{x:.6e}")
 }
 
-fn ds_multi(xs: &[f64]) -> String {
+pub(crate) fn ds_multi(xs: &[f64]) -> String {
     xs.iter().map(|&x| ds(x)).collect::<Vec<_>>().join("\\")
 }
 
@@ -243,15 +243,15 @@ struct Plan {
 }
 
 /// Shortest names for building elements.
-fn text_el(tag: Tag, vr: VR, s: &str) -> DataElement<InMemDicomObject> {
+pub(crate) fn text_el(tag: Tag, vr: VR, s: &str) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, vr, PrimitiveValue::from(s.to_string()))
 }
 
-fn multi_el(tag: Tag, vr: VR, values: &[&str]) -> DataElement<InMemDicomObject> {
+pub(crate) fn multi_el(tag: Tag, vr: VR, values: &[&str]) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, vr, PrimitiveValue::Strs(values.iter().map(|s| (*s).to_string()).collect()))
 }
 
-fn empty_el(tag: Tag, vr: VR) -> DataElement<InMemDicomObject> {
+pub(crate) fn empty_el(tag: Tag, vr: VR) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, vr, PrimitiveValue::Empty)
 }
 
@@ -259,12 +259,12 @@ fn us_el(tag: Tag, value: u16) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, VR::US, PrimitiveValue::from(value))
 }
 
-fn seq_el(tag: Tag, items: Vec<InMemDicomObject>) -> DataElement<InMemDicomObject> {
+pub(crate) fn seq_el(tag: Tag, items: Vec<InMemDicomObject>) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, VR::SQ, DataSetSequence::from(items))
 }
 
 /// A code sequence item: (code value, coding scheme, meaning).
-fn code_item(value: &str, scheme: &str, meaning: &str) -> InMemDicomObject {
+pub(crate) fn code_item(value: &str, scheme: &str, meaning: &str) -> InMemDicomObject {
     InMemDicomObject::from_element_iter([
         text_el(tags::CODE_VALUE, VR::SH, value),
         text_el(tags::CODING_SCHEME_DESIGNATOR, VR::SH, scheme),
@@ -274,7 +274,7 @@ fn code_item(value: &str, scheme: &str, meaning: &str) -> InMemDicomObject {
 
 /// Text fit for a one-valued string VR of at most `max` bytes: no backslash (the value
 /// separator) or control characters, cut at a character boundary.
-fn one_value(s: &str, max: usize) -> String {
+pub(crate) fn one_value(s: &str, max: usize) -> String {
     let clean: String = s.chars().map(|c| if c == '\\' || c.is_control() { ' ' } else { c }).collect();
     let clean = clean.trim();
     let mut end = clean.len().min(max);
@@ -317,7 +317,7 @@ fn orientation_letters(v: [f64; 3]) -> String {
 
 /// Now, in UTC: (DA `YYYYMMDD`, TM `HHMMSS`). Civil date from days since 1970 (H. Hinnant's
 /// `civil_from_days`).
-fn utc_now() -> (String, String) {
+pub(crate) fn utc_now() -> (String, String) {
     let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
     let (days, rem) = ((secs / 86_400) as i64, secs % 86_400);
     let z = days + 719_468;
@@ -333,14 +333,14 @@ fn utc_now() -> (String, String) {
 }
 
 /// True when some text in `obj` (nested items included) is not ASCII.
-fn has_non_ascii(obj: &InMemDicomObject) -> bool {
+pub(crate) fn has_non_ascii(obj: &InMemDicomObject) -> bool {
     obj.iter().any(|e| match e.value() {
         dicom_core::value::Value::Sequence(seq) => seq.items().iter().any(has_non_ascii),
         v => v.to_str().is_ok_and(|s| !s.is_ascii()),
     })
 }
 
-const VERSION: &str = env!("CARGO_PKG_VERSION");
+pub(crate) const VERSION: &str = env!("CARGO_PKG_VERSION");
 
 impl Plan {
     fn new(dir: &Path, volume: &Volume, opts: &DicomSeriesOptions) -> Result<Self> {

@@ -12,6 +12,7 @@
 //! - [`geometry`]: points, vectors and transforms that carry their space in the type.
 //! - [`itk_tfm`]: ITK transform files (`.tfm`) holding one transform: affine, thin-plate spline or cubic B-spline;
 //!   and the ANTs / ITK MATLAB affine (`.mat`).
+//! - [`dicom_reg`]: a linear registration between two DICOM series as a DICOM Spatial Registration object.
 //! - [`itk_h5`]: ITK's HDF5 transform files (`.h5`: ANTs' `Composite.h5`, 3D Slicer's transforms), read as a chain
 //!   of affines, B-splines and displacement fields.
 //!
@@ -20,6 +21,7 @@
 
 pub mod atomic;
 pub mod dicom;
+pub mod dicom_reg;
 pub mod dicom_source;
 pub mod dicom_write;
 pub mod displacement;
