@@ -259,6 +259,25 @@ ELASTIX_FILES = [
     ("elastix/transformix_field_transform.json", "elastix_field_transform.py"),
 ]
 
+# plastimatch's DICOM Spatial Registration, the peer the REG writer is compared with.
+PLASTIMATCH_MADE = """
+## `dicom_reg/`: plastimatch's DICOM registration for a known transform
+
+Not downloaded: `data-scripts/plastimatch_reg.sh` has SimpleITK 2.5.7 write `dicom_reg/start.tfm` (an
+AffineTransform holding a rotation about a centre and a translation, values the script makes up) and plastimatch
+1.9.4 (Debian bookworm's `plastimatch` package) write `dicom_reg/plastimatch_reg.dcm`, its `xf-convert
+--output-dicom` of that transform between `dicom/pydicom_ct5n` and `dicom/mixed_ct5n_mr_small/MR_small.dcm`. The
+REG's patient and study attributes are copied from those pydicom test files (MIT); the rest carries the licence of
+the code. plastimatch stamps new UIDs and the time, so a rerun's bytes differ; the matrix is the same.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+PLASTIMATCH_FILES = [
+    ("dicom_reg/start.tfm", "plastimatch_reg.sh"),
+    ("dicom_reg/plastimatch_reg.dcm", "plastimatch_reg.sh"),
+]
+
 
 def script_made(data: Path, heading: str, files: list[tuple[str, str]]) -> str:
     rows = [heading]
@@ -304,6 +323,7 @@ def main() -> int:
     out.append(LANDMARKS_UPSTREAM)
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
+    out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))
     text = "".join(out)
     tmp = data / "PROVENANCE.md.tmp"
     tmp.write_text(text)

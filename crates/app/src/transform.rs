@@ -37,8 +37,11 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use nalgebra::{Matrix4, Vector3};
 use serde::Serialize;
 use warpbench_io::Volume;
+use warpbench_io::dicom_reg::{self, MatrixType, SpatialRegistration};
+use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
 use warpbench_io::itk_tfm::{self, ItkTransform};
@@ -72,8 +75,12 @@ applies: SplineKernelTransform (ThinPlateSpline), BSplineTransform or AffineTran
 brush strokes, which no transform file holds exactly, is written for elastix as a DeformationFieldTransform over its
 field sampled on the fixed grid, saved beside it as NAME.field.mha (run transformix from the folder you ran this in).
 
+--format dicom writes a DICOM Spatial Registration (one .dcm, modality REG) between two DICOM series, for planning
+systems and PACS: linear methods only; its matrix maps the moving series' patient coordinates to the fixed series'.
+
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
-    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt";
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt
+    warpbench transform --fixed ct_series/ --moving mr_series/ --landmarks pairs.csv --method rigid --format dicom --out reg.dcm";
 
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
@@ -87,13 +94,15 @@ pub struct TransformArgs {
     pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
-    /// The ITK transform file to write (.tfm or .txt; .mat, ANTs' MATLAB file, for the linear methods), or with
-    /// --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt).
+    /// The ITK transform file to write (.tfm or .txt; .mat, ANTs' MATLAB file, for the linear methods), with
+    /// --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt), with --format dicom a
+    /// DICOM registration (.dcm).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// itk (default): an ITK transform file (or ANTs' .mat by its name); elastix: an elastix transform parameter
     /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
-    /// DeformationFieldTransform over a field beside it for a session with a field or a brush).
+    /// DeformationFieldTransform over a field beside it for a session with a field or a brush); dicom: a DICOM
+    /// Spatial Registration between two DICOM series (rigid, similarity, affine).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: TransformFormat,
     #[command(flatten)]
@@ -107,15 +116,51 @@ pub enum TransformFormat {
     Itk,
     /// elastix's transform parameter file.
     Elastix,
+    /// A DICOM Spatial Registration object (`.dcm`, modality REG) between two DICOM series: linear warps only.
+    Dicom,
 }
 
 impl TransformFormat {
-    /// `itk` or `elastix`.
+    /// `itk`, `elastix` or `dicom`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
             Self::Itk => "itk",
             Self::Elastix => "elastix",
+            Self::Dicom => "dicom",
+        }
+    }
+}
+
+/// The volumes a transform is written for, with the files they were read from: a DICOM registration names their
+/// series.
+#[derive(Clone, Copy, Debug)]
+pub struct VolumePair<'a> {
+    pub fixed: &'a Volume,
+    pub moving: &'a Volume,
+    pub fixed_path: Option<&'a Path>,
+    pub moving_path: Option<&'a Path>,
+}
+
+/// What [`write_transform`] wrote.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Written {
+    /// An ITK transform file of the transform's class.
+    Itk,
+    /// An elastix parameter file of this `(Transform …)`.
+    Elastix(&'static str),
+    /// A DICOM Spatial Registration with this Frame of Reference Transformation Matrix Type.
+    Dicom(MatrixType),
+}
+
+impl Written {
+    /// How messages name what was written: the elastix class, the DICOM matrix type, else `itk_class`.
+    #[must_use]
+    pub const fn class(self, itk_class: &'static str) -> &'static str {
+        match self {
+            Self::Itk => itk_class,
+            Self::Elastix(class) => class,
+            Self::Dicom(kind) => kind.name(),
         }
     }
 }
@@ -132,13 +177,18 @@ pub struct TransformSummary {
     /// With `--format elastix`, the file's `(Transform …)`: `SplineKernelTransform`, `BSplineTransform`,
     /// `AffineTransform`, or `DeformationFieldTransform` for a stack with a field or a brush; else null.
     pub elastix_transform: Option<&'static str>,
+    /// With `--format dicom`, the Frame of Reference Transformation Matrix Type written: `RIGID`, `RIGID_SCALE` or
+    /// `AFFINE`; else null.
+    pub dicom_matrix_type: Option<&'static str>,
     /// The field a `DeformationFieldTransform` names, written beside it; else null.
     pub field: Option<String>,
     /// The method as fitted, e.g. `tps`, `tps(λ=0.5)`, `hbspline(4 levels)`, `affine`.
     pub method: String,
     /// Landmark pairs used (active, with both points).
     pub pairs: usize,
-    /// `moving_from_fixed`: the file maps fixed points to moving points (LPS mm), as ITK's resampler uses it.
+    /// `moving_from_fixed`: the file maps fixed points to moving points (LPS mm), as ITK's resampler uses it; for
+    /// `--format dicom` `fixed_from_moving`, the registration matrix's direction (moving patient coordinates to
+    /// fixed ones).
     pub map: &'static str,
     /// For a B-spline, the box (LPS mm, min then max) outside which ITK applies the identity; else null.
     pub domain_lps: Option<[[f64; 3]; 2]>,
@@ -193,38 +243,91 @@ pub fn exact_transform(inputs: &FieldInputs) -> Result<ExactTransform, Failure> 
 /// # Errors
 /// That name, in words.
 pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), Failure> {
-    if format == TransformFormat::Elastix && path.extension().is_some_and(|e| e.eq_ignore_ascii_case("mat")) {
+    let extension = |e: &str| path.extension().is_some_and(|x| x.eq_ignore_ascii_case(e));
+    if format == TransformFormat::Elastix && extension("mat") {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: an elastix transform parameter file is text, not a .mat; name it e.g. TransformParameters.0.txt",
+            path.display()
+        )));
+    }
+    if format == TransformFormat::Dicom && !extension("dcm") {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: a DICOM registration is written to one file named .dcm, e.g. mr_to_ct_reg.dcm",
             path.display()
         )));
     }
     Ok(())
 }
 
-/// Writes `transform` to `path` in `format`, atomically: an ITK `.tfm` (ANTs' `.mat` for a name ending so), or an
-/// elastix parameter file over `fixed`'s grid. Returns the elastix class written, if any.
+/// Writes `exact`'s transform to `path` in `format`, atomically: an ITK `.tfm` (ANTs' `.mat` for a name ending so),
+/// an elastix parameter file over the fixed volume's grid, or a DICOM Spatial Registration between the two DICOM
+/// series `pair` was read from ([`write_dicom_registration`]).
 ///
 /// # Errors
-/// What the writers refuse (a TPS or B-spline to `.mat`, a name that does not fit, numbers that are not finite).
+/// What the writers refuse (a TPS or B-spline to `.mat` or DICOM, a name that does not fit, numbers that are not
+/// finite, volumes that are not DICOM series for DICOM).
 pub fn write_transform(
     path: &Path,
-    transform: &ItkTransform,
+    exact: &ExactTransform,
     format: TransformFormat,
-    fixed: &Volume,
-) -> Result<Option<&'static str>, Failure> {
+    pair: VolumePair,
+) -> Result<Written, Failure> {
     check_transform_name(path, format)?;
+    let transform = &exact.transform;
     Ok(match format {
         TransformFormat::Itk => {
             itk_tfm::write(path, transform)?;
-            None
+            Written::Itk
         }
         TransformFormat::Elastix => {
-            let grid = ElastixGrid { dims: fixed.dims, lps_from_index: fixed.lps_from_index };
+            let grid = ElastixGrid { dims: pair.fixed.dims, lps_from_index: pair.fixed.lps_from_index };
             elastix::write(path, transform, &grid)?;
-            Some(elastix::transform_name(transform))
+            Written::Elastix(elastix::transform_name(transform))
         }
+        TransformFormat::Dicom => Written::Dicom(write_dicom_registration(path, exact, pair)?),
     })
+}
+
+/// Writes a linear pull-back as a DICOM Spatial Registration ([`warpbench_io::dicom_reg`]): the fixed and the moving
+/// volume must each have been read from a DICOM series, whose patient coordinate systems (Frames of Reference) it
+/// relates by the matrix M = u⁻¹ (moving → fixed).
+///
+/// # Errors
+/// A deformable transform (no matrix holds it), a volume not read from DICOM, a series without a Frame of Reference
+/// UID, both in one Frame of Reference, or the write's.
+pub fn write_dicom_registration(path: &Path, exact: &ExactTransform, pair: VolumePair) -> Result<MatrixType, Failure> {
+    let ItkTransform::Affine(u) = &exact.transform else {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: a DICOM Spatial Registration holds a matrix, and the {} warp is not linear; export its displacement \
+             field instead, or fit --method rigid, similarity or affine",
+            path.display(),
+            exact.method
+        )));
+    };
+    let source = |side: &str, volume: &Volume, at: Option<&Path>| -> Result<DicomSource, Failure> {
+        let not_dicom = |what: String| {
+            Failure::BadInput(anyhow::anyhow!(
+                "{}: a DICOM registration relates two DICOM series, and the {side} volume {what}",
+                path.display()
+            ))
+        };
+        let at = at.ok_or_else(|| not_dicom("was not read from a file".into()))?;
+        DicomSource::for_volume(at, volume)?.ok_or_else(|| not_dicom(format!("{} is not DICOM", at.display())))
+    };
+    let fixed = source("fixed", pair.fixed, pair.fixed_path)?;
+    let moving = source("moving", pair.moving, pair.moving_path)?;
+    let mut moving_from_fixed = Matrix4::identity();
+    moving_from_fixed.fixed_view_mut::<3, 3>(0, 0).copy_from(&u.matrix);
+    moving_from_fixed.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(u.offset()));
+    let fixed_from_moving = moving_from_fixed.try_inverse().ok_or_else(|| {
+        Failure::BadInput(anyhow::anyhow!("{}: the {} warp is not invertible", path.display(), exact.method))
+    })?;
+    let mut fixed_from_moving = fixed_from_moving;
+    // The inverse of an affine map is affine: its last row is exactly (0, 0, 0, 1), whatever the rounding.
+    fixed_from_moving.set_row(3, &nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0));
+    let description = format!("{} of {} pairs (warpbench)", exact.method, exact.pairs);
+    let reg = SpatialRegistration { fixed: &fixed, moving: &moving, fixed_from_moving, description };
+    Ok(dicom_reg::write(path, &reg)?)
 }
 
 /// The field a `DeformationFieldTransform` written to `out` names: beside it, `out`'s name with `.field.mha` for
@@ -299,6 +402,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             itk_class: "DisplacementFieldTransform_double_3_3",
             format: format.name(),
             elastix_transform: Some("DeformationFieldTransform"),
+            dicom_matrix_type: None,
             field: Some(field_path.display().to_string()),
             method: layers.describe(&method, field.pairs),
             pairs: field.pairs,
@@ -313,17 +417,30 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
                 eprintln!("warpbench: warning: {w}");
             }
         }
-        let elastix_transform = write_transform(&out_path, &exact.transform, format, &volumes.fixed)?;
+        let pair = VolumePair {
+            fixed: &volumes.fixed,
+            moving: &volumes.moving,
+            fixed_path: Some(&inputs.volumes.fixed),
+            moving_path: Some(&inputs.volumes.moving),
+        };
+        let written = write_transform(&out_path, &exact, format, pair)?;
         TransformSummary {
             schema: SCHEMA,
             out: out_path.display().to_string(),
             itk_class: exact.transform.type_name(),
             format: format.name(),
-            elastix_transform,
+            elastix_transform: match written {
+                Written::Elastix(class) => Some(class),
+                Written::Itk | Written::Dicom(_) => None,
+            },
+            dicom_matrix_type: match written {
+                Written::Dicom(kind) => Some(kind.name()),
+                Written::Itk | Written::Elastix(_) => None,
+            },
             field: None,
             method: exact.method,
             pairs: exact.pairs,
-            map: "moving_from_fixed",
+            map: if format == TransformFormat::Dicom { "fixed_from_moving" } else { "moving_from_fixed" },
             domain_lps: exact.domain_lps,
             warnings: exact.warnings,
         }
@@ -331,10 +448,15 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
     } else if !quiet {
+        let maps = if format == TransformFormat::Dicom {
+            "maps the moving series' patient coordinates to the fixed series'"
+        } else {
+            "maps fixed points to moving points, LPS mm"
+        };
         eprintln!(
-            "wrote {} ({}, {}, {} landmark pairs; maps fixed points to moving points, LPS mm)",
+            "wrote {} ({}, {}, {} landmark pairs; {maps})",
             summary.out,
-            summary.elastix_transform.unwrap_or(summary.itk_class),
+            summary.elastix_transform.or(summary.dicom_matrix_type).unwrap_or(summary.itk_class),
             summary.method,
             summary.pairs
         );

@@ -116,3 +116,216 @@ fn warp_out_dicom_writes_series_that_dciodvfy_accepts_and_that_read_back() {
         }
     }
 }
+
+/// The CT series (fixed) and the MR image (moving) of one set of pydicom's test files, in two Frames of Reference.
+fn reg_pair() -> (PathBuf, PathBuf) {
+    (data("dicom/pydicom_ct5n"), data("dicom/mixed_ct5n_mr_small/MR_small.dcm"))
+}
+
+/// p ↦ A p + b.
+fn apply(a: &[[f64; 4]; 3], p: [f64; 3]) -> [f64; 3] {
+    std::array::from_fn(|r| a[r][0] * p[0] + a[r][1] * p[1] + a[r][2] * p[2] + a[r][3])
+}
+
+/// The text of `obj`'s element `tag`, trimmed.
+fn text(obj: &dicom_object::InMemDicomObject, tag: dicom_object::Tag) -> String {
+    let e = obj.element(tag).unwrap_or_else(|_| panic!("{tag} is missing"));
+    e.to_str().expect("text").trim_matches(|c: char| c.is_whitespace() || c == '\0').to_owned()
+}
+
+/// The items of `obj`'s sequence `tag`.
+fn items(obj: &dicom_object::InMemDicomObject, tag: dicom_object::Tag) -> &[dicom_object::InMemDicomObject] {
+    obj.element(tag).unwrap_or_else(|_| panic!("{tag} is missing")).items().expect("a sequence")
+}
+
+/// One Registration Sequence item as read back.
+struct Registration {
+    frame: String,
+    /// Row by row.
+    matrix: [[f64; 4]; 4],
+    kind: String,
+}
+
+/// A REG, and its registration items.
+fn registrations(path: &Path) -> (dicom_object::DefaultDicomObject, Vec<Registration>) {
+    let obj = dicom_object::open_file(path).expect("read the REG back");
+    let found = items(&obj, tags::REGISTRATION_SEQUENCE)
+        .iter()
+        .map(|item| {
+            let registration = &items(item, tags::MATRIX_REGISTRATION_SEQUENCE)[0];
+            let matrix = &items(registration, tags::MATRIX_SEQUENCE)[0];
+            let values: Vec<f64> = text(matrix, tags::FRAME_OF_REFERENCE_TRANSFORMATION_MATRIX)
+                .split('\\')
+                .map(|v| v.trim().parse().expect("a number"))
+                .collect();
+            let m: [[f64; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|c| values[4 * r + c]));
+            Registration {
+                frame: text(item, tags::FRAME_OF_REFERENCE_UID),
+                matrix: m,
+                kind: text(matrix, tags::FRAME_OF_REFERENCE_TRANSFORMATION_MATRIX_TYPE),
+            }
+        })
+        .collect();
+    (obj, found)
+}
+
+/// `transform --format dicom` with the rigid, similarity and affine methods, on pairs made by a known map of each
+/// kind from the MR's plane into the CT's box: a Spatial Registration that dciodvfy accepts, in the CT's patient,
+/// study and Frame of Reference, whose second item maps the MR's frame onto the CT's by the matrix that carries
+/// every moving landmark onto its fixed one, and says which kind of matrix it is.
+#[test]
+fn a_dicom_registration_maps_the_moving_series_onto_the_fixed_one() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (ct, mr) = reg_pair();
+    let (ct_source, mr_source) = (DicomSource::read(&ct, None).expect("CT"), DicomSource::read(&mr, None).expect("MR"));
+    let (sin, cos) = 10f64.to_radians().sin_cos();
+    let (cm, cf) = ([-69.0, -84.0, 6.64], [-68.5, -139.3, 3.76]);
+    // Moving → fixed, about the patch's centre: a rotation, the same times 1.1, and a shear.
+    let maps: [(&str, &str, [[f64; 3]; 3]); 3] = [
+        ("rigid", "RIGID", [[cos, -sin, 0.0], [sin, cos, 0.0], [0.0, 0.0, 1.0]]),
+        ("similarity", "RIGID_SCALE", [[1.1 * cos, -1.1 * sin, 0.0], [1.1 * sin, 1.1 * cos, 0.0], [0.0, 0.0, 1.1]]),
+        ("affine", "AFFINE", [[1.0, 0.15, 0.0], [0.0, 0.95, 0.0], [0.1, 0.05, 1.0]]),
+    ];
+    // The MR is one slice 0.8 mm thick: the points leave its plane by a quarter of a millimetre, so that the affine
+    // fit has all three directions.
+    let offsets = [[-2.0, -2.0, 0.25], [2.0, -2.0, -0.25], [-2.0, 2.0, -0.25], [2.0, 2.0, 0.25], [0.5, -1.0, 0.0]];
+    let moving: Vec<[f64; 3]> = offsets.iter().map(|d| [cm[0] + d[0], cm[1] + d[1], cm[2] + d[2]]).collect();
+    for (method, kind, a) in maps {
+        let map: [[f64; 4]; 3] = std::array::from_fn(|r| {
+            let b = cf[r] - (0..3).map(|c| a[r][c] * cm[c]).sum::<f64>();
+            [a[r][0], a[r][1], a[r][2], b]
+        });
+        let pairs: Vec<([f64; 3], [f64; 3])> = moving.iter().map(|&p| (p, apply(&map, p))).collect();
+        let csv = tmp.path().join(format!("{method}.csv"));
+        write_pairs_csv(&csv, &pairs);
+        let out = tmp.path().join(format!("{method}.dcm"));
+        let flags = ["--method", method, "--format", "dicom", "--out", s(&out), "--quiet"];
+        assert_ok(&warpbench(
+            &[&["transform", "--fixed", s(&ct), "--moving", s(&mr), "--landmarks", s(&csv)][..], &flags].concat(),
+        ));
+        if let Some(errors) = dciodvfy_errors(std::slice::from_ref(&out)) {
+            assert!(errors.is_empty(), "{method}: dciodvfy found errors:\n{}", errors.join("\n"));
+        }
+        let (obj, regs) = registrations(&out);
+        assert_eq!(text(&obj, tags::SOP_CLASS_UID), "1.2.840.10008.5.1.4.1.1.66.1");
+        assert_eq!(text(&obj, tags::MODALITY), "REG");
+        assert_eq!(text(&obj, tags::PATIENT_ID), ct_source.text(tags::PATIENT_ID).expect("CT patient"));
+        assert_eq!(Some(text(&obj, tags::STUDY_INSTANCE_UID)), ct_source.study_instance_uid);
+        let (ct_frame, mr_frame) = (ct_source.frame_of_reference_uid.clone(), mr_source.frame_of_reference_uid.clone());
+        assert_eq!(Some(text(&obj, tags::FRAME_OF_REFERENCE_UID)), ct_frame);
+        assert_eq!(regs.len(), 2, "{method}");
+        let bits = |m: [[f64; 4]; 4]| m.map(|row| row.map(f64::to_bits));
+        let identity = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+        assert_eq!((Some(regs[0].frame.clone()), regs[0].kind.as_str()), (ct_frame, "RIGID"));
+        assert_eq!(bits(regs[0].matrix), bits(identity));
+        assert_eq!((Some(regs[1].frame.clone()), regs[1].kind.as_str()), (mr_frame, kind), "{method}");
+        let m = regs[1].matrix;
+        assert_eq!(bits(m)[3], bits(identity)[3]);
+        // The fit is exact for pairs made by a map of its own kind; the matrix carries 14 significant digits.
+        for (p, q) in &pairs {
+            let mapped = apply(&[m[0], m[1], m[2]], *p);
+            let err = (0..3).map(|i| (mapped[i] - q[i]).abs()).fold(0.0, f64::max);
+            assert!(err < 1e-6, "{method}: M {p:?} = {mapped:?}, the landmark is at {q:?}");
+        }
+        // Every image of both series is referenced; the MR's under its own study.
+        let other = &items(&obj, tags::STUDIES_CONTAINING_OTHER_REFERENCED_INSTANCES_SEQUENCE)[0];
+        assert_eq!(Some(text(other, tags::STUDY_INSTANCE_UID)), mr_source.study_instance_uid);
+        let series = &items(&obj, tags::REFERENCED_SERIES_SEQUENCE)[0];
+        assert_eq!(items(series, tags::REFERENCED_INSTANCE_SEQUENCE).len(), ct_source.instances.len());
+    }
+}
+
+/// plastimatch 1.9.4 writes the same matrix for the same transform (`data-scripts/plastimatch_reg.sh`: its REG for
+/// `start.tfm`, a rotation about a centre and a translation, between the same two series); it prints 6 decimals,
+/// so they agree within 5e-7 of each number.
+#[test]
+fn the_registration_matrix_is_plastimatchs_for_the_same_transform() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (ct, mr) = reg_pair();
+    // Two pairs, fewer than the rigid fit needs: the starting transform alone is the warp.
+    let csv = tmp.path().join("two.csv");
+    write_pairs_csv(
+        &csv,
+        &[([-71.0, -88.0, 6.64], [-70.5, -140.0, 6.94]), ([-66.0, -88.0, 6.64], [-65.5, -140.0, 6.94])],
+    );
+    let out = tmp.path().join("reg.dcm");
+    let start = data("dicom_reg/start.tfm");
+    assert_ok(&warpbench(&[
+        "transform",
+        "--fixed",
+        s(&ct),
+        "--moving",
+        s(&mr),
+        "--landmarks",
+        s(&csv),
+        "--initial",
+        s(&start),
+        "--method",
+        "rigid",
+        "--format",
+        "dicom",
+        "--out",
+        s(&out),
+        "--quiet",
+    ]));
+    let (_, ours) = registrations(&out);
+    let (_, theirs) = registrations(&data("dicom_reg/plastimatch_reg.dcm"));
+    assert_eq!(ours[1].kind, "RIGID");
+    for r in 0..4 {
+        for c in 0..4 {
+            let (a, b) = (ours[1].matrix[r][c], theirs[1].matrix[r][c]);
+            assert!((a - b).abs() <= 5e-7 + 1e-12, "M[{r}][{c}]: ours {a}, plastimatch {b}");
+        }
+    }
+}
+
+/// What a DICOM registration cannot hold is refused with exit 2, naming the file, and nothing is written: a
+/// deformable warp, a volume that is not DICOM, a name that is not `.dcm`, two series in one Frame of Reference.
+#[test]
+fn a_dicom_registration_refuses_what_it_cannot_hold() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (ct, mr) = reg_pair();
+    let csv = tmp.path().join("pairs.csv");
+    let pairs: Vec<([f64; 3], [f64; 3])> =
+        [[-71.0, -88.0, 6.4], [-66.0, -88.0, 6.9], [-69.0, -84.0, 6.9], [-67.0, -85.5, 6.4], [-68.0, -86.0, 6.6]]
+            .iter()
+            .map(|p| (*p, [p[0] + 0.5, p[1] - 52.0, p[2] + 0.3]))
+            .collect();
+    write_pairs_csv(&csv, &pairs);
+    // The CT onto itself: pairs inside its box on both sides.
+    let within_ct = tmp.path().join("within_ct.csv");
+    write_pairs_csv(&within_ct, &pairs.iter().map(|&(_, q)| ([q[0] - 0.2, q[1] + 0.1, q[2]], q)).collect::<Vec<_>>());
+    let nifti = data("nifti/avg152T1_LR_nifti.nii");
+    // (moving volume, pairs, method, output, what the message says); the fixed volume is the CT.
+    let cases: [(&Path, &Path, &str, &str, &[&str]); 4] = [
+        (&mr, &csv, "tps", "tps.dcm", &["tps.dcm", "not linear"]),
+        (&nifti, &csv, "rigid", "nifti.dcm", &["nifti.dcm", "moving volume", "is not DICOM"]),
+        (&mr, &csv, "rigid", "reg.tfm", &["reg.tfm", ".dcm"]),
+        (&ct, &within_ct, "rigid", "same.dcm", &["same.dcm", "share the Frame of Reference"]),
+    ];
+    let fixed = &ct;
+    for (moving, csv, method, name, words) in cases {
+        let out = tmp.path().join(name);
+        let run = warpbench(&[
+            "transform",
+            "--fixed",
+            s(fixed),
+            "--moving",
+            s(moving),
+            "--landmarks",
+            s(csv),
+            "--method",
+            method,
+            "--format",
+            "dicom",
+            "--out",
+            s(&out),
+        ]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{name}: {stderr}");
+        for w in words {
+            assert!(stderr.contains(w), "{name}: {stderr:?} lacks {w:?}");
+        }
+        assert!(!out.exists(), "{name} was written");
+    }
+}

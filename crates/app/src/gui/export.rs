@@ -202,12 +202,23 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
         }
         ExportKind::Transform { format } => {
             let exact = transform::exact_transform(&made_of)?;
-            let class = transform::write_transform(out, &exact.transform, *format, fixed)?;
+            let pair = transform::VolumePair {
+                fixed,
+                moving,
+                fixed_path: input.fixed_path.as_deref(),
+                moving_path: input.moving_path.as_deref(),
+            };
+            let written = transform::write_transform(out, &exact, *format, pair)?;
+            let maps = if *format == TransformFormat::Dicom {
+                "moving patient coordinates to fixed ones"
+            } else {
+                "fixed points to moving points, LPS mm"
+            };
             Ok(format!(
-                "wrote {}: {} as {} ({} pairs; maps fixed points to moving points, LPS mm)",
+                "wrote {}: {} as {} ({} pairs; maps {maps})",
                 out.display(),
                 exact.method,
-                class.unwrap_or(exact.transform.type_name()),
+                written.class(exact.transform.type_name()),
                 exact.pairs
             ))
         }
@@ -255,6 +266,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
     let fits = match format {
         TransformFormat::Itk => matches!(extension.as_str(), "tfm" | "txt" | "mat"),
         TransformFormat::Elastix => extension == "txt",
+        TransformFormat::Dicom => extension == "dcm",
     };
     if fits {
         return transform::check_transform_name(out, format).map_err(|f| format!("{:#}", f.error()));
@@ -266,6 +278,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Elastix => {
             format!("{}: an elastix transform parameter file is a .txt (e.g. TransformParameters.0.txt)", out.display())
         }
+        TransformFormat::Dicom => format!("{}: a DICOM registration is a .dcm (e.g. mr_to_ct_reg.dcm)", out.display()),
     })
 }
 
@@ -352,6 +365,13 @@ pub fn export_ui(
         );
         if elastix.clicked() {
             asked = Some((ExportKind::Transform { format: TransformFormat::Elastix }, path.clone()));
+        }
+        let dicom = ui.add_enabled(enabled, egui::Button::new("Export DICOM registration")).on_hover_text(
+            "A DICOM Spatial Registration (.dcm, modality REG) between the two DICOM series, for planning systems and \
+             PACS: linear methods only",
+        );
+        if dicom.clicked() {
+            asked = Some((ExportKind::Transform { format: TransformFormat::Dicom }, path.clone()));
         }
     });
     asked

@@ -304,6 +304,10 @@ mod tests {
                 Purpose::ExportTransform(TransformFormat::Itk),
                 FileAction::ExportTransform(TransformFormat::Itk, p.clone()),
             ),
+            (
+                Purpose::ExportTransform(TransformFormat::Dicom),
+                FileAction::ExportTransform(TransformFormat::Dicom, p.clone()),
+            ),
             (Purpose::UseStart, FileAction::UseStart(p.clone())),
             (Purpose::UseField, FileAction::UseField(p.clone())),
             (Purpose::UseMask(Side::Moving), FileAction::UseMask(Side::Moving, p.clone())),

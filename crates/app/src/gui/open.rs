@@ -223,6 +223,9 @@ impl Purpose {
             Self::ExportTransform(TransformFormat::Elastix) => {
                 d.add_filter("elastix transform parameter file", &["txt"]).set_file_name("TransformParameters.0.txt")
             }
+            Self::ExportTransform(TransformFormat::Dicom) => {
+                d.add_filter("DICOM Spatial Registration", &["dcm"]).set_file_name("registration.dcm")
+            }
             Self::UseStart => d
                 .set_title("A linear transform to start from")
                 .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat", "h5"]),
@@ -512,6 +515,12 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         item(ui, "Export warp magnitude...", ready, OpenEvent::Dialog(Purpose::ExportMap(Quantity::Magnitude)));
         item(ui, "Export transform...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Itk)));
         item(ui, "Export for elastix...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Elastix)));
+        item(
+            ui,
+            "Export DICOM registration...",
+            ready,
+            OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Dicom)),
+        );
         ui.separator();
         item(ui, "Use starting transform...", ready, OpenEvent::Dialog(Purpose::UseStart));
         item(ui, "Use displacement field...", ready, OpenEvent::Dialog(Purpose::UseField));
