@@ -266,9 +266,11 @@ PLASTIMATCH_MADE = """
 Not downloaded: `data-scripts/plastimatch_reg.sh` has SimpleITK 2.5.7 write `dicom_reg/start.tfm` (an
 AffineTransform holding a rotation about a centre and a translation, values the script makes up) and plastimatch
 1.9.4 (Debian bookworm's `plastimatch` package) write `dicom_reg/plastimatch_reg.dcm`, its `xf-convert
---output-dicom` of that transform between `dicom/pydicom_ct5n` and `dicom/mixed_ct5n_mr_small/MR_small.dcm`. The
+--output-dicom` of that transform between `dicom/pydicom_ct5n` and `dicom/mixed_ct5n_mr_small/MR_small.dcm`; and
+`dicom_reg/plastimatch_dsr.dcm`, plastimatch's Deformable Spatial Registration of the field `warpbench field` writes
+for the TPS through the five hand-made pairs of `dicom_reg/pairs.csv` between the same two series. The
 REG's patient and study attributes are copied from those pydicom test files (MIT); the rest carries the licence of
-the code. plastimatch stamps new UIDs and the time, so a rerun's bytes differ; the matrix is the same.
+the code. plastimatch stamps new UIDs and the time, so a rerun's bytes differ; the matrix and the vectors are the same.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -276,6 +278,8 @@ the code. plastimatch stamps new UIDs and the time, so a rerun's bytes differ; t
 PLASTIMATCH_FILES = [
     ("dicom_reg/start.tfm", "plastimatch_reg.sh"),
     ("dicom_reg/plastimatch_reg.dcm", "plastimatch_reg.sh"),
+    ("dicom_reg/pairs.csv", "plastimatch_reg.sh"),
+    ("dicom_reg/plastimatch_dsr.dcm", "plastimatch_reg.sh"),
 ]
 
 

@@ -40,7 +40,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix4, Vector3};
 use serde::Serialize;
 use warpbench_io::Volume;
-use warpbench_io::dicom_reg::{self, MatrixType, SpatialRegistration};
+use warpbench_io::dicom_reg::{self, DeformableRegistration, MatrixType, SpatialRegistration};
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
@@ -75,8 +75,9 @@ applies: SplineKernelTransform (ThinPlateSpline), BSplineTransform or AffineTran
 brush strokes, which no transform file holds exactly, is written for elastix as a DeformationFieldTransform over its
 field sampled on the fixed grid, saved beside it as NAME.field.mha (run transformix from the folder you ran this in).
 
---format dicom writes a DICOM Spatial Registration (one .dcm, modality REG) between two DICOM series, for planning
-systems and PACS: linear methods only; its matrix maps the moving series' patient coordinates to the fixed series'.
+--format dicom writes a DICOM registration (one .dcm, modality REG) between two DICOM series, for planning systems
+and PACS: a Spatial Registration for a linear warp (its matrix maps the moving series' patient coordinates to the
+fixed series'), a Deformable Spatial Registration of the warp sampled on the fixed grid for any other.
 
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt
@@ -102,7 +103,7 @@ pub struct TransformArgs {
     /// itk (default): an ITK transform file (or ANTs' .mat by its name); elastix: an elastix transform parameter
     /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
     /// DeformationFieldTransform over a field beside it for a session with a field or a brush); dicom: a DICOM
-    /// Spatial Registration between two DICOM series (rigid, similarity, affine).
+    /// (Deformable) Spatial Registration between two DICOM series.
     #[arg(long, value_enum, default_value = "itk")]
     pub format: TransformFormat,
     #[command(flatten)]
@@ -116,7 +117,8 @@ pub enum TransformFormat {
     Itk,
     /// elastix's transform parameter file.
     Elastix,
-    /// A DICOM Spatial Registration object (`.dcm`, modality REG) between two DICOM series: linear warps only.
+    /// A DICOM registration object (`.dcm`, modality REG) between two DICOM series: a Spatial Registration for a
+    /// linear warp, a Deformable Spatial Registration otherwise.
     Dicom,
 }
 
@@ -288,34 +290,101 @@ pub fn write_transform(
     })
 }
 
-/// Writes a linear pull-back as a DICOM Spatial Registration ([`warpbench_io::dicom_reg`]): the fixed and the moving
-/// volume must each have been read from a DICOM series, whose patient coordinate systems (Frames of Reference) it
-/// relates by the matrix M = u⁻¹ (moving → fixed).
+/// What [`write_dicom`] wrote.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum DicomRegistration {
+    /// A Spatial Registration whose matrix is of this type (a linear warp).
+    Spatial(MatrixType),
+    /// A Deformable Spatial Registration: the pull-back sampled on the fixed grid, moving points up to this far (mm).
+    Deformable { max_displacement_mm: f64 },
+}
+
+/// The DICOM registration [`write_dicom`] wrote, with what reports say of the warp.
+#[derive(Clone, Debug)]
+pub struct DicomExport {
+    pub registration: DicomRegistration,
+    /// The warp's name in reports.
+    pub method: String,
+    pub pairs: usize,
+    pub warnings: Vec<String>,
+}
+
+/// The DICOM series `pair` was read from, each as a [`DicomSource`].
 ///
 /// # Errors
-/// A deformable transform (no matrix holds it), a volume not read from DICOM, a series without a Frame of Reference
-/// UID, both in one Frame of Reference, or the write's.
-pub fn write_dicom_registration(path: &Path, exact: &ExactTransform, pair: VolumePair) -> Result<MatrixType, Failure> {
-    let ItkTransform::Affine(u) = &exact.transform else {
-        return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: a DICOM Spatial Registration holds a matrix, and the {} warp is not linear; export its displacement \
-             field instead, or fit --method rigid, similarity or affine",
-            path.display(),
-            exact.method
-        )));
-    };
+/// A volume not read from a file, or from a file or folder that is not DICOM, naming `out` and the volume.
+fn dicom_sources(out: &Path, pair: VolumePair) -> Result<(DicomSource, DicomSource), Failure> {
     let source = |side: &str, volume: &Volume, at: Option<&Path>| -> Result<DicomSource, Failure> {
         let not_dicom = |what: String| {
             Failure::BadInput(anyhow::anyhow!(
                 "{}: a DICOM registration relates two DICOM series, and the {side} volume {what}",
-                path.display()
+                out.display()
             ))
         };
         let at = at.ok_or_else(|| not_dicom("was not read from a file".into()))?;
         DicomSource::for_volume(at, volume)?.ok_or_else(|| not_dicom(format!("{} is not DICOM", at.display())))
     };
-    let fixed = source("fixed", pair.fixed, pair.fixed_path)?;
-    let moving = source("moving", pair.moving, pair.moving_path)?;
+    Ok((source("fixed", pair.fixed, pair.fixed_path)?, source("moving", pair.moving, pair.moving_path)?))
+}
+
+/// Writes the pull-back of `made_of` as a DICOM registration between the two DICOM series `pair` was read from: a
+/// Spatial Registration ([`write_dicom_registration`]) when the warp is linear, else a Deformable Spatial Registration
+/// of the pull-back sampled at the fixed volume's voxel centres by `sample` (as `warpbench field` samples it), which
+/// is also what a stack with a field or a brush is written as.
+///
+/// # Errors
+/// A volume not read from DICOM (before anything is fitted), the fit's, the sampling's, the writers'.
+pub fn write_dicom(
+    path: &Path,
+    made_of: &FieldInputs,
+    pair: VolumePair,
+    sample: &mut dyn FnMut(&FieldInputs) -> Result<crate::field::Field, Failure>,
+) -> Result<DicomExport, Failure> {
+    let (fixed, moving) = dicom_sources(path, pair)?;
+    let layered = made_of.layers.field.is_some() || made_of.layers.brush.is_some();
+    if !layered {
+        let exact = exact_transform(made_of)?;
+        if matches!(exact.transform, ItkTransform::Affine(_)) {
+            let kind = write_dicom_registration(path, &exact, pair)?;
+            let ExactTransform { method, pairs, warnings, .. } = exact;
+            return Ok(DicomExport { registration: DicomRegistration::Spatial(kind), method, pairs, warnings });
+        }
+    }
+    let field = sample(made_of)?;
+    let description = format!("{} of {} pairs (warpbench)", field.method, field.pairs);
+    let reg = DeformableRegistration {
+        fixed: &fixed,
+        moving: &moving,
+        dims: field.dims,
+        lps_from_index: field.lps_from_index,
+        displacements_lps: &field.displacements_lps,
+        description,
+    };
+    dicom_reg::write_deformable(path, &reg)?;
+    Ok(DicomExport {
+        registration: DicomRegistration::Deformable { max_displacement_mm: field.max_displacement_mm },
+        method: field.method,
+        pairs: field.pairs,
+        warnings: field.warnings,
+    })
+}
+
+/// Writes a linear pull-back as a DICOM Spatial Registration ([`warpbench_io::dicom_reg`]): the fixed and the moving
+/// volume must each have been read from a DICOM series, whose patient coordinate systems (Frames of Reference) it
+/// relates by the matrix M = u⁻¹ (moving → fixed).
+///
+/// # Errors
+/// A deformable transform (no matrix holds it: [`write_dicom`] writes those), a volume not read from DICOM, a series
+/// without a Frame of Reference UID, both in one Frame of Reference, or the write's.
+pub fn write_dicom_registration(path: &Path, exact: &ExactTransform, pair: VolumePair) -> Result<MatrixType, Failure> {
+    let ItkTransform::Affine(u) = &exact.transform else {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: a DICOM Spatial Registration holds a matrix, and the {} warp is not linear",
+            path.display(),
+            exact.method
+        )));
+    };
+    let (fixed, moving) = dicom_sources(path, pair)?;
     let mut moving_from_fixed = Matrix4::identity();
     moving_from_fixed.fixed_view_mut::<3, 3>(0, 0).copy_from(&u.matrix);
     moving_from_fixed.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(u.offset()));
@@ -361,8 +430,8 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let input_paths = inputs.paths();
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     check_transform_name(&out_path, format)?;
-    let as_field =
-        format == TransformFormat::Elastix && (!inputs.warp.brush.is_empty() || inputs.warp.session_field.is_some());
+    let layered = !inputs.warp.brush.is_empty() || inputs.warp.session_field.is_some();
+    let as_field = format == TransformFormat::Elastix && layered;
     let field_path = field_file_beside(&out_path);
     if as_field {
         check_field_name(&out_path, &field_path)?;
@@ -371,7 +440,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             FieldFormat::MetaImage,
             &input_paths,
         )?;
-    } else if !inputs.warp.brush.is_empty() {
+    } else if !inputs.warp.brush.is_empty() && format == TransformFormat::Itk {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench \
              field --session`, or an elastix file over one with --format elastix",
@@ -379,7 +448,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         )));
     }
     let method = inputs.method().map_err(Failure::BadInput)?;
-    let brushed = if as_field { inputs.brushed().map_err(Failure::BadInput)? } else { None };
+    let brushed = if layered { inputs.brushed().map_err(Failure::BadInput)? } else { None };
     let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
     layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
@@ -393,7 +462,44 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
         method: &method,
         layers: &layers,
     };
-    let summary = if as_field {
+    let summary = if format == TransformFormat::Dicom {
+        let pair = VolumePair {
+            fixed: &volumes.fixed,
+            moving: &volumes.moving,
+            fixed_path: Some(&inputs.volumes.fixed),
+            moving_path: Some(&inputs.volumes.moving),
+        };
+        let mut sample =
+            |m: &FieldInputs| crate::field::sample_field_reporting(&volumes.fixed, m, FieldDirection::Pullback, quiet);
+        let export = write_dicom(&out_path, &made_of, pair, &mut sample)?;
+        if matches!(export.registration, DicomRegistration::Spatial(_)) && !quiet {
+            // The deformable path's sampling prints them.
+            for w in &export.warnings {
+                eprintln!("warpbench: warning: {w}");
+            }
+        }
+        let (itk_class, dicom_matrix_type) = match export.registration {
+            DicomRegistration::Spatial(kind) => ("AffineTransform_double_3_3", Some(kind.name())),
+            DicomRegistration::Deformable { .. } => ("DisplacementFieldTransform_double_3_3", None),
+        };
+        TransformSummary {
+            schema: SCHEMA,
+            out: out_path.display().to_string(),
+            itk_class,
+            format: format.name(),
+            elastix_transform: None,
+            dicom_matrix_type,
+            field: None,
+            method: layers.describe(&method, export.pairs),
+            pairs: export.pairs,
+            map: match export.registration {
+                DicomRegistration::Spatial(_) => "fixed_from_moving",
+                DicomRegistration::Deformable { .. } => "moving_from_fixed",
+            },
+            domain_lps: None,
+            warnings: export.warnings,
+        }
+    } else if as_field {
         let field = crate::field::sample_field_reporting(&volumes.fixed, &made_of, FieldDirection::Pullback, quiet)?;
         write_field_transform(&out_path, &field_path, &field)?;
         TransformSummary {
@@ -448,15 +554,20 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     if json {
         crate::exit::print_json(out, &summary, "the JSON summary")?;
     } else if !quiet {
-        let maps = if format == TransformFormat::Dicom {
-            "maps the moving series' patient coordinates to the fixed series'"
-        } else {
-            "maps fixed points to moving points, LPS mm"
+        let maps = match (format, summary.map) {
+            (TransformFormat::Dicom, "fixed_from_moving") => {
+                "a matrix from the moving series' patient coordinates to the fixed series'"
+            }
+            (TransformFormat::Dicom, _) => "a deformation grid from the fixed series' frame to the moving series'",
+            _ => "maps fixed points to moving points, LPS mm",
         };
         eprintln!(
             "wrote {} ({}, {}, {} landmark pairs; {maps})",
             summary.out,
-            summary.elastix_transform.or(summary.dicom_matrix_type).unwrap_or(summary.itk_class),
+            summary.elastix_transform.or(summary.dicom_matrix_type).unwrap_or(match format {
+                TransformFormat::Dicom => "Deformable Spatial Registration",
+                _ => summary.itk_class,
+            }),
             summary.method,
             summary.pairs
         );

@@ -200,6 +200,36 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 f.pairs
             ))
         }
+        ExportKind::Transform { format: TransformFormat::Dicom } => {
+            let pair = transform::VolumePair {
+                fixed,
+                moving,
+                fixed_path: input.fixed_path.as_deref(),
+                moving_path: input.moving_path.as_deref(),
+            };
+            let mut sample = |m: &field::FieldInputs| {
+                let mut progress = |done: u64, total: u64| {
+                    watch.report(&file_name(out), Progress { stage: "field slices", done, total });
+                    !watch.cancelled()
+                };
+                field::sample_field(fixed, m, FieldDirection::Pullback, &mut progress)
+            };
+            let export = transform::write_dicom(out, &made_of, pair, &mut sample)?;
+            let what = match export.registration {
+                transform::DicomRegistration::Spatial(kind) => {
+                    format!("a DICOM Spatial Registration ({}, moving to fixed)", kind.name())
+                }
+                transform::DicomRegistration::Deformable { max_displacement_mm } => format!(
+                    "a DICOM Deformable Spatial Registration (the fixed grid, largest {max_displacement_mm:.1} mm)"
+                ),
+            };
+            Ok(format!(
+                "wrote {}: {} as {what} ({} pairs){consistency}",
+                out.display(),
+                layers.describe(&input.method, export.pairs),
+                export.pairs
+            ))
+        }
         ExportKind::Transform { format } => {
             let exact = transform::exact_transform(&made_of)?;
             let pair = transform::VolumePair {
@@ -367,8 +397,8 @@ pub fn export_ui(
             asked = Some((ExportKind::Transform { format: TransformFormat::Elastix }, path.clone()));
         }
         let dicom = ui.add_enabled(enabled, egui::Button::new("Export DICOM registration")).on_hover_text(
-            "A DICOM Spatial Registration (.dcm, modality REG) between the two DICOM series, for planning systems and \
-             PACS: linear methods only",
+            "A DICOM registration (.dcm, modality REG) between the two DICOM series, for planning systems and PACS: a \
+             matrix for the linear methods, the warp on the fixed grid for any other",
         );
         if dicom.clicked() {
             asked = Some((ExportKind::Transform { format: TransformFormat::Dicom }, path.clone()));
