@@ -42,7 +42,8 @@ use nalgebra::{Matrix4, Vector3};
 
 use crate::dicom_source::{self, DicomSource};
 use crate::dicom_write::{
-    VERSION, code_item, ds_multi, empty_el, has_non_ascii, new_uid, one_value, seq_el, text_el, utc_now,
+    PATIENT_STUDY_TYPE2, VERSION, code_item, ds_multi, empty_el, ensure, has_non_ascii, new_uid, one_value, seq_el,
+    text_el, utc_now,
 };
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Point3, Transform};
@@ -279,21 +280,8 @@ fn header(sop_class: &str, fixed: &DicomSource, fixed_frame: &str, description: 
             obj.put(e.clone());
         }
     }
-    for (tag, vr) in [
-        (tags::PATIENT_NAME, VR::PN),
-        (tags::PATIENT_ID, VR::LO),
-        (tags::PATIENT_BIRTH_DATE, VR::DA),
-        (tags::PATIENT_SEX, VR::CS),
-        (tags::STUDY_DATE, VR::DA),
-        (tags::STUDY_TIME, VR::TM),
-        (tags::REFERRING_PHYSICIAN_NAME, VR::PN),
-        (tags::STUDY_ID, VR::SH),
-        (tags::ACCESSION_NUMBER, VR::SH),
-        (tags::LATERALITY, VR::CS),
-    ] {
-        if obj.get(tag).is_none() {
-            obj.put(empty_el(tag, vr));
-        }
+    for (tag, vr) in PATIENT_STUDY_TYPE2 {
+        ensure(&mut obj, tag, vr);
     }
     let study_uid = fixed.study_instance_uid.clone().unwrap_or_else(new_uid);
     obj.put(text_el(tags::STUDY_INSTANCE_UID, VR::UI, &study_uid));

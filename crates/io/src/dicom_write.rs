@@ -242,6 +242,27 @@ struct Plan {
     common: InMemDicomObject,
 }
 
+/// The patient, study and series attributes of type 2 that every object written has, empty when unknown.
+pub(crate) const PATIENT_STUDY_TYPE2: [(Tag, VR); 10] = [
+    (tags::PATIENT_NAME, VR::PN),
+    (tags::PATIENT_ID, VR::LO),
+    (tags::PATIENT_BIRTH_DATE, VR::DA),
+    (tags::PATIENT_SEX, VR::CS),
+    (tags::STUDY_DATE, VR::DA),
+    (tags::STUDY_TIME, VR::TM),
+    (tags::REFERRING_PHYSICIAN_NAME, VR::PN),
+    (tags::STUDY_ID, VR::SH),
+    (tags::ACCESSION_NUMBER, VR::SH),
+    (tags::LATERALITY, VR::CS),
+];
+
+/// Puts `tag`, empty, into `obj` unless it is there (a type 2 attribute whose value is not known).
+pub(crate) fn ensure(obj: &mut InMemDicomObject, tag: Tag, vr: VR) {
+    if obj.get(tag).is_none() {
+        obj.put(empty_el(tag, vr));
+    }
+}
+
 /// Shortest names for building elements.
 pub(crate) fn text_el(tag: Tag, vr: VR, s: &str) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, vr, PrimitiveValue::from(s.to_string()))
@@ -402,11 +423,6 @@ impl Plan {
                 }
             }
         };
-        let ensure = |obj: &mut InMemDicomObject, tag: Tag, vr: VR| {
-            if obj.get(tag).is_none() {
-                obj.put(empty_el(tag, vr));
-            }
-        };
         copy(&mut obj, dicom_source::PATIENT);
         copy(&mut obj, dicom_source::STUDY);
         copy(&mut obj, dicom_source::SERIES);
@@ -421,19 +437,7 @@ impl Plan {
             obj.put(text_el(tags::MANUFACTURER_MODEL_NAME, VR::LO, "warpbench"));
             obj.put(text_el(tags::SOFTWARE_VERSIONS, VR::LO, VERSION));
         }
-        for (tag, vr) in [
-            (tags::PATIENT_NAME, VR::PN),
-            (tags::PATIENT_ID, VR::LO),
-            (tags::PATIENT_BIRTH_DATE, VR::DA),
-            (tags::PATIENT_SEX, VR::CS),
-            (tags::STUDY_DATE, VR::DA),
-            (tags::STUDY_TIME, VR::TM),
-            (tags::REFERRING_PHYSICIAN_NAME, VR::PN),
-            (tags::STUDY_ID, VR::SH),
-            (tags::ACCESSION_NUMBER, VR::SH),
-            (tags::LATERALITY, VR::CS),
-            (tags::MANUFACTURER, VR::LO),
-        ] {
+        for (tag, vr) in PATIENT_STUDY_TYPE2.into_iter().chain([(tags::MANUFACTURER, VR::LO)]) {
             ensure(&mut obj, tag, vr);
         }
         if iod != Iod::MultiFrameSc {
