@@ -42,8 +42,8 @@ use nalgebra::{Matrix4, Vector3};
 
 use crate::dicom_source::{self, DicomSource};
 use crate::dicom_write::{
-    PATIENT_STUDY_TYPE2, VERSION, code_item, ds_multi, empty_el, ensure, has_non_ascii, new_uid, one_value, seq_el,
-    text_el, utc_now,
+    PATIENT_STUDY_TYPE2, VERSION, code_item, ds_multi, empty_el, ensure, has_non_ascii, new_uid, one_value,
+    reference_item, seq_el, text_el, utc_now,
 };
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Point3, Transform};
@@ -370,16 +370,7 @@ fn referenced_series(source: &DicomSource) -> Option<InMemDicomObject> {
 
 /// (Referenced SOP Class UID, Referenced SOP Instance UID) of every image of `source`.
 fn instance_items(source: &DicomSource) -> Vec<InMemDicomObject> {
-    source
-        .instances
-        .iter()
-        .map(|i| {
-            InMemDicomObject::from_element_iter([
-                text_el(tags::REFERENCED_SOP_CLASS_UID, VR::UI, &i.sop_class_uid),
-                text_el(tags::REFERENCED_SOP_INSTANCE_UID, VR::UI, &i.sop_instance_uid),
-            ])
-        })
-        .collect()
+    source.instances.iter().map(reference_item).collect()
 }
 
 #[cfg(test)]

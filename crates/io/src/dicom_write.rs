@@ -263,6 +263,14 @@ pub(crate) fn ensure(obj: &mut InMemDicomObject, tag: Tag, vr: VR) {
     }
 }
 
+/// An image reference: its Referenced SOP Class UID and Referenced SOP Instance UID.
+pub(crate) fn reference_item(i: &dicom_source::SourceInstance) -> InMemDicomObject {
+    InMemDicomObject::from_element_iter([
+        text_el(tags::REFERENCED_SOP_CLASS_UID, VR::UI, &i.sop_class_uid),
+        text_el(tags::REFERENCED_SOP_INSTANCE_UID, VR::UI, &i.sop_instance_uid),
+    ])
+}
+
 /// Shortest names for building elements.
 pub(crate) fn text_el(tag: Tag, vr: VR, s: &str) -> DataElement<InMemDicomObject> {
     DataElement::new(tag, vr, PrimitiveValue::from(s.to_string()))
@@ -476,14 +484,12 @@ impl Plan {
                 .instances
                 .iter()
                 .map(|i| {
-                    InMemDicomObject::from_element_iter([
-                        text_el(tags::REFERENCED_SOP_CLASS_UID, VR::UI, &i.sop_class_uid),
-                        text_el(tags::REFERENCED_SOP_INSTANCE_UID, VR::UI, &i.sop_instance_uid),
-                        seq_el(
-                            tags::PURPOSE_OF_REFERENCE_CODE_SEQUENCE,
-                            vec![code_item("121322", "DCM", "Source image for image processing operation")],
-                        ),
-                    ])
+                    let mut item = reference_item(i);
+                    item.put(seq_el(
+                        tags::PURPOSE_OF_REFERENCE_CODE_SEQUENCE,
+                        vec![code_item("121322", "DCM", "Source image for image processing operation")],
+                    ));
+                    item
                 })
                 .collect();
             obj.put(seq_el(tags::SOURCE_IMAGE_SEQUENCE, items));
