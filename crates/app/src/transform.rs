@@ -44,7 +44,7 @@ use warpbench_io::dicom_reg::{self, DeformableRegistration, MatrixType, SpatialR
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
-use warpbench_io::itk_tfm::{self, ItkTransform};
+use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -351,16 +351,7 @@ pub fn write_dicom(
         }
     }
     let field = sample(made_of)?;
-    let description = format!("{} of {} pairs (warpbench)", field.method, field.pairs);
-    let reg = DeformableRegistration {
-        fixed: &fixed,
-        moving: &moving,
-        dims: field.dims,
-        lps_from_index: field.lps_from_index,
-        displacements_lps: &field.displacements_lps,
-        description,
-    };
-    dicom_reg::write_deformable(path, &reg)?;
+    write_deformable_registration(path, &fixed, &moving, &field)?;
     Ok(DicomExport {
         registration: DicomRegistration::Deformable { max_displacement_mm: field.max_displacement_mm },
         method: field.method,
@@ -385,18 +376,54 @@ pub fn write_dicom_registration(path: &Path, exact: &ExactTransform, pair: Volum
         )));
     };
     let (fixed, moving) = dicom_sources(path, pair)?;
+    let description = format!("{} of {} pairs (warpbench)", exact.method, exact.pairs);
+    write_spatial_registration(path, &fixed, &moving, u, &description)
+}
+
+/// Writes the linear pull-back `u` (fixed → moving) as a DICOM Spatial Registration from the series `moving` onto the
+/// series `fixed`, whose matrix is u⁻¹ ([`warpbench_io::dicom_reg`]).
+///
+/// # Errors
+/// A `u` that is not invertible, and the writer's.
+pub fn write_spatial_registration(
+    path: &Path,
+    fixed: &DicomSource,
+    moving: &DicomSource,
+    u: &ItkAffine,
+    description: &str,
+) -> Result<MatrixType, Failure> {
     let mut moving_from_fixed = Matrix4::identity();
     moving_from_fixed.fixed_view_mut::<3, 3>(0, 0).copy_from(&u.matrix);
     moving_from_fixed.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(u.offset()));
-    let fixed_from_moving = moving_from_fixed.try_inverse().ok_or_else(|| {
-        Failure::BadInput(anyhow::anyhow!("{}: the {} warp is not invertible", path.display(), exact.method))
+    let mut fixed_from_moving = moving_from_fixed.try_inverse().ok_or_else(|| {
+        Failure::BadInput(anyhow::anyhow!("{}: the warp ({description}) is not invertible", path.display()))
     })?;
-    let mut fixed_from_moving = fixed_from_moving;
     // The inverse of an affine map is affine: its last row is exactly (0, 0, 0, 1), whatever the rounding.
     fixed_from_moving.set_row(3, &nalgebra::RowVector4::new(0.0, 0.0, 0.0, 1.0));
-    let description = format!("{} of {} pairs (warpbench)", exact.method, exact.pairs);
-    let reg = SpatialRegistration { fixed: &fixed, moving: &moving, fixed_from_moving, description };
+    let reg = SpatialRegistration { fixed, moving, fixed_from_moving, description: description.to_owned() };
     Ok(dicom_reg::write(path, &reg)?)
+}
+
+/// Writes the pull-back `field` (sampled on a grid of the fixed frame) as a DICOM Deformable Spatial Registration from
+/// the series `moving` onto the series `fixed` ([`warpbench_io::dicom_reg::write_deformable`]).
+///
+/// # Errors
+/// The writer's.
+pub fn write_deformable_registration(
+    path: &Path,
+    fixed: &DicomSource,
+    moving: &DicomSource,
+    field: &crate::field::Field,
+) -> Result<(), Failure> {
+    let reg = DeformableRegistration {
+        fixed,
+        moving,
+        dims: field.dims,
+        lps_from_index: field.lps_from_index,
+        displacements_lps: &field.displacements_lps,
+        description: format!("{} of {} pairs (warpbench)", field.method, field.pairs),
+    };
+    Ok(dicom_reg::write_deformable(path, &reg)?)
 }
 
 /// The field a `DeformationFieldTransform` written to `out` names: beside it, `out`'s name with `.field.mha` for

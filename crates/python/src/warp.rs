@@ -22,11 +22,14 @@ use warpbench_app::project::diagnostics::DiagnosticsInput;
 use warpbench_app::project::stack::{Layers, StackForward, StackPullback};
 use warpbench_app::settings::MethodKind;
 use warpbench_app::start::Start;
+use warpbench_app::transform;
 use warpbench_app::warp::{self as warp_cmd, Backend, PullBackMode, WarpSettings};
+use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
 use warpbench_io::geometry::Space;
 use warpbench_io::geometry::{Index, Lps, Point3, Transform};
+use warpbench_io::itk_tfm::ItkTransform;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, itk_tfm};
@@ -406,6 +409,41 @@ impl Warp {
         guarded(py, || {
             let transform = self.pullback.itk_transform().map_err(bad_input)?;
             elastix::write(&path, &transform, &ElastixGrid { dims, lps_from_index }).map_err(io)
+        })
+    }
+
+    /// Writes the pull-back as a DICOM registration from the DICOM series at `moving_path` onto the one at
+    /// `fixed_path`, as `warpbench transform --format dicom` writes it: a Spatial Registration (its matrix u⁻¹) for a
+    /// linear warp, else a Deformable Spatial Registration of the pull-back sampled on `reference` (`(dims,
+    /// lps_from_index)`, the fixed volume's grid). Returns `RIGID`, `RIGID_SCALE`, `AFFINE` or `DEFORMABLE`.
+    fn to_dicom(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        fixed_path: PathBuf,
+        moving_path: PathBuf,
+        reference: (Vec<usize>, PyReadonlyArray2<'_, f64>),
+    ) -> PyResult<String> {
+        let (dims, lps) = grid(Path::new("reference"), reference)?;
+        let is_dcm = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("dcm"));
+        if !is_dcm {
+            return Err(PyValueError::new_err(format!(
+                "{}: a DICOM registration is written to one file named .dcm",
+                path.display()
+            )));
+        }
+        guarded(py, || {
+            let fixed = DicomSource::read(&fixed_path, None).map_err(io)?;
+            let moving = DicomSource::read(&moving_path, None).map_err(io)?;
+            if let Ok(ItkTransform::Affine(u)) = self.pullback.itk_transform() {
+                let description = format!("{} of {} pairs (warpbench)", self.method, self.used.moving.len());
+                let kind = transform::write_spatial_registration(&path, &fixed, &moving, &u, &description)
+                    .map_err(|f| to_py(&f))?;
+                return Ok(kind.name().to_owned());
+            }
+            let field = self.sample(&self.pullback, dims, &lps, FieldDirection::Pullback, None, FieldFormat::Itk)?;
+            transform::write_deformable_registration(&path, &fixed, &moving, &field).map_err(|f| to_py(&f))?;
+            Ok("DEFORMABLE".to_owned())
         })
     }
 

@@ -412,6 +412,19 @@ class Warp:
             raise ValueError("to_elastix: give reference=, or fit the warp with fixed= and moving=")
         self._native.to_elastix(os.fspath(path), reference._grid())
 
+    def to_dicom(self, path: PathLike, fixed: Optional["Volume"] = None, moving: Optional["Volume"] = None) -> str:
+        """Writes the pull-back as a DICOM registration (one ``.dcm``, modality REG) from the moving DICOM series onto
+        the fixed one, as ``warpbench transform --format dicom`` does: a Spatial Registration (a matrix from the
+        moving series' patient coordinates to the fixed series') for a linear warp, else a Deformable Spatial
+        Registration of the pull-back sampled on the fixed volume's grid. ``fixed`` and ``moving`` (default: the
+        volumes the warp was fitted with) must have been read from DICOM series. Returns the matrix type (``RIGID``,
+        ``RIGID_SCALE``, ``AFFINE``) or ``DEFORMABLE``."""
+        fixed = self.fixed if fixed is None else fixed
+        moving = self.moving if moving is None else moving
+        if fixed is None or moving is None or fixed.path is None or moving.path is None:
+            raise ValueError("to_dicom: give fixed= and moving= volumes read from DICOM series")
+        return self._native.to_dicom(os.fspath(path), os.fspath(fixed.path), os.fspath(moving.path), fixed._grid())
+
     def leave_one_out(self) -> Dict[str, Any]:
         """Each fitted pair's residual and leave-one-out error (the pair left out, the rest refitted, the distance
         at which its fixed point is mapped from its moving point), as the window's landmark table shows them.
@@ -474,7 +487,8 @@ def fit(
         pairs: from :func:`read_landmarks`, or ``Pairs(moving, fixed)``.
         method: ``"tps"``, ``"hbspline"``, ``"affine"``, ``"similarity"`` or ``"rigid"``.
         stiffness: the TPS's λ ≥ 0 (0 interpolates), or ``"auto"``: the λ under which the pairs are most likely.
-        initial: an ITK affine ``.tfm`` or ANTs ``.mat`` (fixed points to moving points) under the landmark warp,
+        initial: an ITK linear ``.tfm`` (affine, Euler, versor rigid, similarity, ...), an ANTs ``.mat`` or an ITK
+            ``.h5`` of affines (fixed points to moving points) under the landmark warp,
             as ``warpbench align`` writes it.
         fixed, moving: the volumes (only their grids are read). With them the pairs are checked to lie inside,
             and the fit's domains are their boxes, as on the command line; without them, the points' box grown by
