@@ -19,8 +19,8 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use warpbench_io::elastix;
 use warpbench_io::geometry::Point3;
-use warpbench_io::itk_h5;
 use warpbench_io::itk_tfm::{self, ItkTransform};
+use warpbench_io::{dicom_reg, itk_h5};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -53,7 +53,8 @@ impl Start {
 
     /// Reads an ITK affine transform file (`AffineTransform_double_3_3`, as `warpbench align` and `transform` write
     /// it; a `.tfm`, or ANTs' MATLAB `.mat`), ITK's HDF5 transform file of one or more affines (`.h5`,
-    /// [`warpbench_io::itk_h5::read_affine`]), or an elastix transform parameter file holding a linear transform (and
+    /// [`warpbench_io::itk_h5::read_affine`]), a DICOM Spatial Registration ([`warpbench_io::dicom_reg::read_affine`]),
+    /// or an elastix transform parameter file holding a linear transform (and
     /// its chain of initial transforms, [`warpbench_io::elastix::read_affine`]): fixed points to moving points, LPS mm.
     ///
     /// # Errors
@@ -61,10 +62,17 @@ impl Start {
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let name = path.display().to_string();
         let head = head(path);
-        if elastix::looks_like_parameter_file(&head) || itk_h5::looks_like_hdf5(&head) {
-            let affine =
-                if itk_h5::looks_like_hdf5(&head) { itk_h5::read_affine(path) } else { elastix::read_affine(path) }
-                    .with_context(|| format!("--initial {name}"))?;
+        let reader: Option<Reader> = if elastix::looks_like_parameter_file(&head) {
+            Some(elastix::read_affine)
+        } else if itk_h5::looks_like_hdf5(&head) {
+            Some(itk_h5::read_affine)
+        } else if dicom_reg::looks_like_dicom(&head) {
+            Some(dicom_reg::read_affine)
+        } else {
+            None
+        };
+        if let Some(read) = reader {
+            let affine = read(path).with_context(|| format!("--initial {name}"))?;
             return Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name);
         }
         let transform = itk_tfm::read(path).with_context(|| format!("--initial {name}"))?;
@@ -90,6 +98,9 @@ impl Start {
         &self.fixed_from_moving
     }
 }
+
+/// A reader of one kind of linear transform file.
+type Reader = fn(&Path) -> warpbench_io::Result<warpbench_io::itk_tfm::ItkAffine>;
 
 /// The first 4 KiB of the regular file at `path`, to tell an elastix parameter file and an HDF5 file by; empty for
 /// a file that cannot be read, which is left to the ITK reader, which says why.

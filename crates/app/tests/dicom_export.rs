@@ -399,3 +399,105 @@ fn a_deformable_registration_holds_the_pullback_on_the_fixed_grid() {
     let worst = ours.vectors.iter().zip(&theirs.vectors).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
     assert!(worst <= 1e-5, "plastimatch's vectors differ from ours by up to {worst} mm");
 }
+
+/// Both objects read back, ours and plastimatch's: a Spatial Registration as a starting transform (`--initial`), a
+/// Deformable Spatial Registration as a displacement field (`--field`); each as the other is refused, naming it.
+#[test]
+fn registrations_read_back_as_a_starting_transform_and_a_field() {
+    use warpbench_io::{dicom_reg, displacement, itk_tfm};
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let (ct, mr) = reg_pair();
+    let pairs = data("dicom_reg/pairs.csv");
+    let common = ["--fixed", s(&ct), "--moving", s(&mr), "--landmarks", s(&pairs), "--quiet"];
+    // Ours: the rigid fit's REG reads back as the .tfm of the same fit (14 significant digits a number).
+    let (reg, tfm) = (tmp.path().join("reg.dcm"), tmp.path().join("rigid.tfm"));
+    assert_ok(&warpbench(
+        &[&["transform"][..], &common, &["--method", "rigid", "--format", "dicom", "--out", s(&reg)]].concat(),
+    ));
+    assert_ok(&warpbench(&[&["transform"][..], &common, &["--method", "rigid", "--out", s(&tfm)]].concat()));
+    let (ours, want) = (dicom_reg::read_affine(&reg).expect("REG"), itk_tfm::read_affine(&tfm).expect("tfm"));
+    let probe = [[-70.0, -140.0, 5.0], [-65.0, -136.0, 0.0], [0.0, 0.0, 0.0]];
+    for p in probe {
+        let (a, b) = (ours.apply(p), want.apply(p));
+        assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-9), "{p:?}: {a:?} vs {b:?}");
+    }
+    // plastimatch's: its 6 decimals are 5e-7 of each number, so within 150 mm of the origin the points agree to
+    // 3 × 5e-7 × 150 + 5e-7 < 3e-4 mm (and the inverse, near the identity, adds no more than that again).
+    let theirs = dicom_reg::read_affine(&data("dicom_reg/plastimatch_reg.dcm")).expect("plastimatch's REG");
+    let start = itk_tfm::read_affine(&data("dicom_reg/start.tfm")).expect("start.tfm");
+    for p in probe {
+        let (a, b) = (theirs.apply(p), start.apply(p));
+        assert!((0..3).all(|i| (a[i] - b[i]).abs() < 6e-4), "{p:?}: {a:?} vs {b:?}");
+    }
+    // --initial takes it: too few pairs, so it alone is the warp, and points move as start.tfm moves them.
+    let (two, targets) = (tmp.path().join("two.csv"), tmp.path().join("targets.csv"));
+    std::fs::write(
+        &two,
+        "\"Pt-0\",\"true\",-71,-88,6.64,-70.5,-140,6.94\n\"Pt-1\",\"true\",-66,-88,6.64,-65.5,-140,6.94\n",
+    )
+    .expect("write");
+    std::fs::write(&targets, "-70,-140,5\n-65,-136,0\n").expect("write");
+    let mapped = |initial: &Path, name: &str| -> Vec<f64> {
+        let out = tmp.path().join(name);
+        assert_ok(&warpbench(&[
+            "points",
+            "--fixed",
+            s(&ct),
+            "--moving",
+            s(&mr),
+            "--landmarks",
+            s(&two),
+            "--initial",
+            s(initial),
+            "--from",
+            "fixed",
+            "--in",
+            s(&targets),
+            "--out",
+            s(&out),
+            "--quiet",
+        ]));
+        std::fs::read_to_string(&out)
+            .expect("points")
+            .lines()
+            .flat_map(|l| l.split(',').take(3).map(|v| v.parse::<f64>().expect("number")).collect::<Vec<_>>())
+            .collect()
+    };
+    let (via_reg, via_tfm) =
+        (mapped(&data("dicom_reg/plastimatch_reg.dcm"), "reg.csv"), mapped(&data("dicom_reg/start.tfm"), "tfm.csv"));
+    assert!(via_reg.iter().zip(&via_tfm).all(|(a, b)| (a - b).abs() < 6e-4), "{via_reg:?} vs {via_tfm:?}");
+
+    // The DSR: ours and plastimatch's read as the field `warpbench field` writes for the same TPS.
+    let (dsr, field) = (tmp.path().join("dsr.dcm"), tmp.path().join("field.nii.gz"));
+    assert_ok(&warpbench(
+        &[&["transform"][..], &common, &["--method", "tps", "--format", "dicom", "--out", s(&dsr)]].concat(),
+    ));
+    assert_ok(&warpbench(
+        &[&["field"][..], &common, &["--method", "tps", "--format", "ants", "--out", s(&field)]].concat(),
+    ));
+    let (want, _) = displacement::read_field(&field).expect("field");
+    for file in [dsr.clone(), data("dicom_reg/plastimatch_dsr.dcm")] {
+        let read = displacement::read_field_info(&file).expect("the DSR as a field");
+        assert_eq!(read.direction, Some(displacement::FieldDirection::Pullback));
+        assert_eq!(read.field.dims, want.dims, "{}", file.display());
+        assert!(read.field.lps_from_index.max_abs_diff(&want.lps_from_index) < 5e-6, "{}", file.display());
+        assert_eq!(read.field.displacements_lps, want.displacements_lps, "{}", file.display());
+    }
+    // Each as the other is refused, naming the file: exit 2 on the command line.
+    let e = dicom_reg::read_affine(&dsr).expect_err("a DSR is no matrix").to_string();
+    assert!(e.contains("dsr.dcm") && e.contains("Spatial Registration"), "{e}");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&ct),
+        "--moving",
+        s(&mr),
+        "--field",
+        s(&reg),
+        "--out",
+        s(&tmp.path().join("w.nii.gz")),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("reg.dcm") && stderr.contains("Deformable Spatial Registration"), "{stderr}");
+}

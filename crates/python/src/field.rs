@@ -18,8 +18,9 @@ pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
 
 /// Reads the displacement field at `path` as `warpbench warp --field` reads it: `(array, lps_from_index, source,
 /// direction)`, the array (ni, nj, nk, 3) float32 LPS vectors; `source` the flavour (`itk`, `ants`, `nrrd`,
-/// `metaimage`), `elastix` for a transform parameter file or `itk_h5` for ITK's HDF5 transform file; `direction`
-/// `pullback` or `forward` where the file says (NRRD, `.h5`), else `None`.
+/// `metaimage`), `elastix` for a transform parameter file, `itk_h5` for ITK's HDF5 transform file or `dicom` for a DICOM
+/// Deformable Spatial Registration; `direction` `pullback` or `forward` where the file says (NRRD, `.h5`, DICOM), else
+/// `None`.
 #[pyfunction]
 pub fn read_field(py: Python<'_>, path: PathBuf) -> PyResult<FieldParts> {
     let read = guarded(py, || displacement::read_field_info(&path).map_err(errors::io))?;
@@ -35,6 +36,7 @@ pub fn read_field(py: Python<'_>, path: PathBuf) -> PyResult<FieldParts> {
         FieldSource::Field(format) => format.name().to_owned(),
         FieldSource::ElastixTransform => "elastix".to_owned(),
         FieldSource::ItkHdf5 => "itk_h5".to_owned(),
+        FieldSource::DicomRegistration => "dicom".to_owned(),
     };
     let direction = read.direction.map(|d| d.name().to_owned());
     let lps = matrix(py, &field.lps_from_index.rows());

@@ -1,7 +1,8 @@
 """`Warp.to_dicom`: the same DICOM registration objects as `warpbench transform --format dicom`, between the CT and
 the MR of pydicom's test files: a Spatial Registration for a rigid fit (its matrix the CLI's, and carrying each
 moving landmark onto its fixed one), a Deformable Spatial Registration for a TPS (its vectors the CLI's); volumes
-that are not DICOM are refused with a Python exception."""
+that are not DICOM are refused with a Python exception; plastimatch's objects read back as a field and a starting
+transform."""
 
 from __future__ import annotations
 
@@ -84,3 +85,20 @@ def test_volumes_that_are_not_dicom_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"\.dcm"):
         warp.to_dicom(tmp_path / "x.tfm")
     assert not (tmp_path / "x.dcm").exists()
+
+
+def test_the_objects_read_back_as_a_field_and_a_starting_transform(tmp_path: Path) -> None:
+    fixed, moving = wb.read_volume(CT), wb.read_volume(MR)
+    warp = wb.fit(wb.read_landmarks(PAIRS), "tps", fixed=fixed, moving=moving)
+    dsr = DATA / "dicom_reg" / "plastimatch_dsr.dcm"
+    field = wb.read_field(dsr)
+    assert field.source == "dicom" and field.direction == "pullback"
+    np.testing.assert_array_equal(field.array, warp.field(fixed))
+    # plastimatch's REG of start.tfm starts a fit with too few pairs as start.tfm does (its 6 decimals: 6e-4 mm).
+    two = tmp_path / "two.csv"
+    two.write_text('"Pt-0","true","-71","-88","6.64","-70.5","-140","6.94"\n'
+                   '"Pt-1","true","-66","-88","6.64","-65.5","-140","6.94"\n')
+    points = np.array([[-70.0, -140.0, 5.0], [-65.0, -136.0, 0.0]])
+    mapped = [wb.fit(wb.read_landmarks(two), "rigid", fixed=fixed, moving=moving, initial=start).pullback(points)
+              for start in (DATA / "dicom_reg" / "plastimatch_reg.dcm", DATA / "dicom_reg" / "start.tfm")]
+    np.testing.assert_allclose(mapped[0], mapped[1], rtol=0, atol=6e-4)

@@ -216,7 +216,8 @@ impl Purpose {
                 .set_title("A displacement field, or an elastix or ITK transform, to put under the landmarks")
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
                 .add_filter("elastix transform parameter file", &["txt"])
-                .add_filter("ITK transform with a field (ANTs Composite.h5)", &["h5"]),
+                .add_filter("ITK transform with a field (ANTs Composite.h5)", &["h5"])
+                .add_filter("DICOM Deformable Spatial Registration", &["dcm"]),
             Self::ExportTransform(TransformFormat::Itk) => {
                 d.add_filter("ITK or ANTs transform", &["tfm", "txt", "mat"])
             }
@@ -228,7 +229,8 @@ impl Purpose {
             }
             Self::UseStart => d
                 .set_title("A linear transform to start from")
-                .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat", "h5"]),
+                .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat", "h5"])
+                .add_filter("DICOM Spatial Registration", &["dcm"]),
             Self::UseMask(side) => volumes(d.set_title(format!("A mask of the {} volume", side.name()))),
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
         }

@@ -122,6 +122,16 @@ pub fn read_file_bytes(name: &Path, bytes: &[u8], opts: &mut LoadOptions) -> Res
     read_series(name, &sources, headers, opts)
 }
 
+/// Opens the regular file `path` as one DICOM object once its element lengths have been checked (the guard every
+/// DICOM read goes through), for objects that are not images (a registration, say).
+///
+/// # Errors
+/// A file that is not DICOM, is truncated, or claims lengths its bytes do not have.
+pub(crate) fn open_checked(path: &Path) -> Result<dicom_object::DefaultDicomObject> {
+    crate::files::check_regular_file(path)?;
+    Source::File(path.to_path_buf()).open(false)
+}
+
 /// The DICOM image series in folder `dir`, sorted by SeriesNumber then SeriesInstanceUID.
 pub fn list_series(dir: &Path) -> Result<Vec<SeriesSummary>> {
     let sources = folder_files(dir)?;

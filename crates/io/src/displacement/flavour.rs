@@ -118,6 +118,8 @@ pub enum FieldSource {
     /// An ITK HDF5 transform file (`.h5`) holding a displacement field, with the transforms around it, sampled on
     /// that field's grid ([`crate::itk_h5::read_field`]).
     ItkHdf5,
+    /// A DICOM Deformable Spatial Registration's grid of vectors ([`crate::dicom_reg::read_field`]).
+    DicomRegistration,
 }
 
 /// What [`super::read_field_info`] found.
@@ -132,10 +134,10 @@ pub struct ReadField {
     pub direction: Option<FieldDirection>,
 }
 
-/// The first bytes of the regular file `path` (up to 64), to tell its kind by.
+/// The first bytes of the regular file `path` (up to 132: a DICOM file's preamble and `DICM`), to tell its kind by.
 pub(crate) fn head(path: &Path) -> Result<Vec<u8>> {
     crate::files::check_regular_file(path)?;
-    let mut head = [0u8; 64];
+    let mut head = [0u8; 132];
     let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
     Ok(head[..n].to_vec())

@@ -55,10 +55,18 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
     if crate::itk_h5::looks_like_hdf5(&head) {
         return crate::itk_h5::read_field(path);
     }
+    if crate::dicom_reg::looks_like_dicom(&head) {
+        let field = crate::dicom_reg::read_field(path)?;
+        return Ok(ReadField {
+            field,
+            source: FieldSource::DicomRegistration,
+            direction: Some(FieldDirection::Pullback),
+        });
+    }
     Err(Error::unsupported(
         path,
         "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD, MetaImage, an elastix transform \
-         parameter file nor an ITK transform file (.h5)",
+         parameter file, an ITK transform file (.h5) nor a DICOM Deformable Spatial Registration",
     ))
 }
 

@@ -29,8 +29,12 @@
 //! grid's axes must be perpendicular (DICOM's depth axis is row × column); a grid whose k axis points the other way
 //! is written from its last slice.
 //!
+//! Both are read back too ([`read_affine`], [`read_field`]): a starting transform and a displacement field.
+//!
 //! Checked with dicom3tools' `dciodvfy` (no error), read back, and against plastimatch 1.9.4, which writes the same
 //! matrix for the same transform and the same grid and vectors for the same field (`crates/app/tests/dicom_export.rs`).
+
+mod read;
 
 use std::io::Write;
 use std::path::Path;
@@ -47,6 +51,8 @@ use crate::dicom_write::{
 };
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Point3, Transform};
+
+pub use read::{RegistrationKind, looks_like_dicom, read_affine, read_field, registration_kind};
 
 /// The Spatial Registration Storage SOP Class.
 pub const SPATIAL_REGISTRATION_STORAGE: &str = "1.2.840.10008.5.1.4.1.1.66.1";
