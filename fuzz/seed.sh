@@ -18,6 +18,7 @@ seed metaimage metaimage '*.mh?'
 seed metaimage bad '*.mh?'
 seed elastix elastix '*.txt'
 seed itk_h5 itk '*.h5'
+seed dicom_reg dicom_reg '*.dcm'
 
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {
