@@ -263,7 +263,8 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
 
 /// Writes `exact`'s transform to `path` in `format`, atomically: an ITK `.tfm` (ANTs' `.mat` for a name ending so),
 /// an elastix parameter file over the fixed volume's grid, or a DICOM Spatial Registration between the two DICOM
-/// series `pair` was read from ([`write_dicom_registration`]).
+/// series `pair` was read from ([`write_dicom_registration`]; [`write_dicom`] also writes the deformable ones, and
+/// is what the command line and the window call for DICOM).
 ///
 /// # Errors
 /// What the writers refuse (a TPS or B-spline to `.mat` or DICOM, a name that does not fit, numbers that are not
@@ -344,8 +345,9 @@ pub fn write_dicom(
     let layered = made_of.layers.field.is_some() || made_of.layers.brush.is_some();
     if !layered {
         let exact = exact_transform(made_of)?;
-        if matches!(exact.transform, ItkTransform::Affine(_)) {
-            let kind = write_dicom_registration(path, &exact, pair)?;
+        if let ItkTransform::Affine(u) = &exact.transform {
+            let description = format!("{} of {} pairs (warpbench)", exact.method, exact.pairs);
+            let kind = write_spatial_registration(path, &fixed, &moving, u, &description)?;
             let ExactTransform { method, pairs, warnings, .. } = exact;
             return Ok(DicomExport { registration: DicomRegistration::Spatial(kind), method, pairs, warnings });
         }

@@ -13,8 +13,9 @@
 //! | `TransformFixedParameters` | the class's fixed parameters, doubles (or floats for a `_float_` class) |
 //! | `TransformParameters` | its parameters |
 //!
-//! The classes and their numbers are those of the text `.tfm` ([`crate::itk_tfm`]: an affine, a cubic B-spline; a
-//! thin-plate spline is refused here, since it would have to be fitted again), plus
+//! The classes and their numbers are those of the text `.tfm` ([`crate::itk_tfm`]: the affine and ITK's other linear
+//! classes, read as affines, and the cubic B-spline; a thin-plate spline is refused here, since it would have to be
+//! fitted again), plus
 //! **`DisplacementFieldTransform_double_3_3`**: the fixed parameters are 18 numbers, the field's size (voxels per
 //! axis), origin (LPS mm), spacing (mm) and direction (row by row); the parameters are its vectors, LPS mm, three
 //! per voxel (x, y, z), voxels in image order (x fastest). ITK maps T(x) = x + D(x), with D read trilinearly between
