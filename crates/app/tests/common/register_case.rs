@@ -4,9 +4,10 @@
 #![allow(dead_code, reason = "each test binary uses a subset")]
 
 use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
 
 use warpbench_io::Volume;
-use warpbench_io::geometry::Point3;
+use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 
 use crate::common::{mri, write_pairs_csv};
 
@@ -24,9 +25,9 @@ pub fn truth(x: [f64; 3]) -> [f64; 3] {
     y
 }
 
-/// Trilinear sample of a volume's values at an LPS point (0 outside).
-pub fn sample(v: &Volume, x: [f64; 3]) -> f64 {
-    let index = v.lps_from_index.inverse().expect("invertible").apply_point(Point3::from_array(x)).coords();
+/// Trilinear sample at an LPS point (0 outside) of `values` on a volume's grid, given its `index_from_lps`.
+fn sample(v: &Volume, values: &[f32], index_from_lps: &Transform<Index, Lps>, x: [f64; 3]) -> f64 {
+    let index = index_from_lps.apply_point(Point3::from_array(x)).coords();
     let mut sum = 0.0;
     let base = index.map(f64::floor);
     for c in 0..8 {
@@ -36,30 +37,42 @@ pub fn sample(v: &Volume, x: [f64; 3]) -> f64 {
         }
         let w: f64 = (0..3).map(|a| 1.0 - (index[a] - corner[a]).abs()).product();
         let [i, j, k] = corner.map(|c| c as usize);
-        sum += w * v.data.get_f64(i + v.dims[0] * (j + v.dims[1] * k));
+        sum += w * f64::from(values[i + v.dims[0] * (j + v.dims[1] * k)]);
     }
     sum
+}
+
+/// The fixed volume (the fixture through the truth) and the moving one (its contrast inverted), made once per test
+/// process: unoptimised, the pull-back of the fixture's 900 000 voxels took 9 s, and every test of a binary reads it.
+fn volumes() -> &'static (Volume, Volume) {
+    static VOLUMES: OnceLock<(Volume, Volume)> = OnceLock::new();
+    VOLUMES.get_or_init(|| {
+        let base = warpbench_io::open(mri()).expect("fixture");
+        let values: Vec<f32> = (0..base.data.len()).map(|o| base.data.get_f64(o) as f32).collect();
+        let index_from_lps = base.lps_from_index.inverse().expect("invertible");
+        let [nx, ny, nz] = base.dims;
+        let mut fixed = base.clone();
+        let pulled: Vec<f32> = (0..nx * ny * nz)
+            .map(|o| {
+                let ijk = [(o % nx) as f64, ((o / nx) % ny) as f64, (o / (nx * ny)) as f64];
+                let x = base.lps_from_index.apply_point(Point3::from_array(ijk)).coords();
+                sample(&base, &values, &index_from_lps, truth(x)) as f32
+            })
+            .collect();
+        fixed.data = warpbench_io::VoxelData::F32(pulled);
+        let mut moving = base;
+        moving.data = warpbench_io::VoxelData::F32(values.iter().map(|v| 300.0 - v).collect());
+        (fixed, moving)
+    })
 }
 
 /// The case's files in `dir`: the fixed volume (the fixture through the truth), the moving volume (the fixture with
 /// its contrast inverted), and 6 pairs of the truth.
 pub fn case(dir: &Path) -> (PathBuf, PathBuf, PathBuf, Vec<[f64; 3]>) {
-    let base = warpbench_io::open(mri()).expect("fixture");
-    let mut fixed = base.clone();
-    let [nx, ny, nz] = base.dims;
-    let values: Vec<f32> = (0..nx * ny * nz)
-        .map(|o| {
-            let ijk = [(o % nx) as f64, ((o / nx) % ny) as f64, (o / (nx * ny)) as f64];
-            sample(&base, truth(base.lps_from_index.apply_point(Point3::from_array(ijk)).coords())) as f32
-        })
-        .collect();
-    fixed.data = warpbench_io::VoxelData::F32(values);
-    let mut moving = base.clone();
-    let inverted: Vec<f32> = (0..nx * ny * nz).map(|o| (300.0 - base.data.get_f64(o)) as f32).collect();
-    moving.data = warpbench_io::VoxelData::F32(inverted);
+    let (fixed, moving) = volumes();
     let (f, m) = (dir.join("fixed.nii"), dir.join("moving.nii"));
-    warpbench_io::nifti::write(&f, &fixed).expect("write fixed");
-    warpbench_io::nifti::write(&m, &moving).expect("write moving");
+    warpbench_io::nifti::write(&f, fixed).expect("write fixed");
+    warpbench_io::nifti::write(&m, moving).expect("write moving");
     let qs = [
         [30.0, 10.0, 20.0],
         [-30.0, 0.0, 30.0],
