@@ -179,6 +179,9 @@ fn child_reads_the_file_named_in_the_environment() {
     }
 }
 
+/// The test a child runs: its full name in the io crate's test binary (`tests/main.rs`).
+const CHILD_TEST: &str = "bad_inputs::child_reads_the_file_named_in_the_environment";
+
 #[test]
 fn a_stream_that_inflates_past_the_address_space_is_an_error_not_an_abort() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -196,8 +199,8 @@ fn a_stream_that_inflates_past_the_address_space_is_an_error_not_an_abort() {
         let out = Command::new("sh")
             .arg("-c")
             .arg(format!(
-                "ulimit -v {CHILD_ADDRESS_SPACE_KIB} && exec \"$0\" --ignored --exact \
-                 child_reads_the_file_named_in_the_environment --nocapture --test-threads 1"
+                "ulimit -v {CHILD_ADDRESS_SPACE_KIB} && exec \"$0\" --ignored --exact {CHILD_TEST} --nocapture \
+                 --test-threads 1"
             ))
             .arg(&exe)
             .env("WARPBENCH_CHILD_READ", &path)
@@ -297,10 +300,7 @@ fn read_in_child(path: &Path, kib: u64) -> String {
     let exe = std::env::current_exe().expect("this test binary");
     let out = Command::new("sh")
         .arg("-c")
-        .arg(format!(
-            "ulimit -v {kib} && exec \"$0\" --ignored --exact child_reads_the_file_named_in_the_environment \
-             --nocapture --test-threads 1"
-        ))
+        .arg(format!("ulimit -v {kib} && exec \"$0\" --ignored --exact {CHILD_TEST} --nocapture --test-threads 1"))
         .arg(&exe)
         .env("WARPBENCH_CHILD_READ", path)
         .output()

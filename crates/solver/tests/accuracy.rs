@@ -6,7 +6,7 @@
 
 #![allow(clippy::approx_constant, reason = "3.14 mm is a measured TRE bound, not π")]
 
-mod common;
+use crate::common;
 
 use common::volume_box;
 use warpbench_io::geometry::Point3;

@@ -6,7 +6,7 @@
 //! with
 //!
 //! ```sh
-//! cargo test --release -p warpbench-solver --test register_accuracy -- --nocapture
+//! cargo test --release -p warpbench-solver --test solver register_accuracy:: -- --nocapture
 //! ```
 
 use std::ops::ControlFlow;

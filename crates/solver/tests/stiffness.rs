@@ -5,7 +5,7 @@
 
 #![allow(clippy::float_cmp, reason = "the noise levels are exact literals, and λ = 0 is the exact fallback")]
 
-mod common;
+use crate::common;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

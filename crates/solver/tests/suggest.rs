@@ -1,10 +1,10 @@
 //! Suggested targets (issue 18 item 2) on the real head MRI `ch2.nii.gz` against a known smooth warp of itself
 //! ([`suggest_case`]): the issue's targets in the same contrast and with the fixed intensities remapped
 //! non-monotonically (a second modality), and the refinement against a brute-force fine grid. The figures are in
-//! docs/accuracy.md; `cargo test -p warpbench-solver --test suggest -- --nocapture` prints them, and
+//! docs/accuracy.md; `cargo test -p warpbench-solver --test solver suggest:: -- --nocapture` prints them, and
 //! `cargo bench -p warpbench-solver --bench suggest_confidence` measures the confidence over more point seeds.
 
-mod suggest_case;
+use crate::suggest_case;
 
 use std::sync::OnceLock;
 

@@ -1,0 +1,18 @@
+//! The io crate's integration tests, one module per file beside this one, built as one test binary: each binary
+//! would link the crate again and compile its generics again at the crate's opt-level, 13 times over.
+//!
+//! Run one file's tests with its module name as the filter, e.g. `cargo test -p warpbench-io --test io nifti::`.
+
+mod ants_mat;
+mod bad_inputs;
+mod dicom;
+mod dicom_conformance;
+mod elastix;
+mod elastix_points;
+mod itk_h5;
+mod itk_linear;
+mod jpegls;
+mod landmarks;
+mod metaimage;
+mod nifti;
+mod nrrd;
