@@ -265,7 +265,7 @@ fn checked_files(path: &Path, series_instance_uid: Option<&str>) -> Result<Vec<P
 fn has_preamble(p: &Path) -> bool {
     let mut head = [0u8; 132];
     std::fs::File::open(p).and_then(|mut f| crate::files::read_up_to(&mut f, &mut head)).is_ok_and(|n| n == 132)
-        && &head[128..132] == b"DICM"
+        && crate::files::has_dicom_preamble(&head)
 }
 
 /// A UID as PS3.5 §9.1 allows it, with a registered root (1 = ISO, 2 = joint ISO/ITU-T; arc 0, ITU-T, is

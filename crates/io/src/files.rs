@@ -64,6 +64,11 @@ fn special_kind(meta: &std::fs::Metadata) -> &'static str {
     "a special file"
 }
 
+/// Whether `head`, a file's first bytes, is a DICOM file's: the 128-byte preamble and then `DICM` (PS3.10 §7.1).
+pub(crate) fn has_dicom_preamble(head: &[u8]) -> bool {
+    head.get(128..132).is_some_and(|magic| magic == b"DICM")
+}
+
 /// Reads as many bytes as are there, up to `buf.len()` (retrying interrupted reads); the shared
 /// helper of every reader that must tell a short file from a full one.
 pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {

@@ -91,7 +91,7 @@ impl Format {
         let head = &head[..n];
         if head.starts_with(b"NRRD") {
             Ok(Self::Nrrd)
-        } else if head.len() == 132 && &head[128..132] == b"DICM" {
+        } else if files::has_dicom_preamble(head) {
             Ok(Self::Dicom)
         } else if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
             Ok(Self::Nifti)

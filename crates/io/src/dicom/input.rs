@@ -42,9 +42,9 @@ impl Source<'_> {
                 let mut head = [0u8; 132];
                 let mut f = std::fs::File::open(p).map_err(|e| Error::io(p, e))?;
                 let n = crate::files::read_up_to(&mut f, &mut head).map_err(|e| Error::io(p, e))?;
-                Ok(n == 132 && &head[128..132] == b"DICM")
+                Ok(crate::files::has_dicom_preamble(&head[..n]))
             }
-            Self::Bytes(_, b) => Ok(b.len() >= 132 && &b[128..132] == b"DICM"),
+            Self::Bytes(_, b) => Ok(crate::files::has_dicom_preamble(b)),
         }
     }
 
@@ -55,7 +55,7 @@ impl Source<'_> {
             Self::File(p) => Cow::Owned(read_whole_file(p)?),
             Self::Bytes(_, b) => Cow::Borrowed(b),
         };
-        if bytes.len() < 132 || &bytes[128..132] != b"DICM" {
+        if !crate::files::has_dicom_preamble(&bytes) {
             return Err(Error::new(
                 path,
                 ErrorKind::BadMagic { format: "DICOM", detail: "no 'DICM' after the 128-byte preamble".into() },

@@ -42,7 +42,7 @@ pub enum RegistrationKind {
 /// Whether `head` (a file's first bytes) is a DICOM file: the preamble's `DICM`.
 #[must_use]
 pub fn looks_like_dicom(head: &[u8]) -> bool {
-    head.len() >= 132 && &head[128..132] == b"DICM"
+    crate::files::has_dicom_preamble(head)
 }
 
 /// The registration the DICOM file at `path` holds, by its SOP Class UID; `None` for any other object.
