@@ -12,7 +12,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use serde::Serialize;
-use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
+use warpbench_io::itk_tfm::{ItkAffine, ItkTransform};
+use warpbench_io::transform_file;
 use warpbench_solver::align::{AlignKind, AlignParams, LevelReport, align, rotation_angle_deg};
 use warpbench_solver::image::Image;
 use warpbench_solver::spaces::{Fixed, Moving};
@@ -50,8 +51,8 @@ writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0Ge
 pub struct AlignArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
-    /// The ITK transform file to write (.tfm or .txt; .mat for ANTs' MATLAB file): the pull-back, fixed points to
-    /// moving points.
+    /// The ITK transform file to write (.tfm or .txt; .h5 for ITK's HDF5 file, .mat for ANTs' MATLAB file): the
+    /// pull-back, fixed points to moving points.
     #[arg(long, value_name = "FILE")]
     pub out_tfm: PathBuf,
     /// Refine the rigid result to an affine one (12 parameters) at the finest level.
@@ -120,7 +121,7 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("aligning {} to {}: {e}", moving.display(), fixed.display())))?;
     let align_s = started.elapsed().as_secs_f64();
     let t = &result.moving_from_fixed;
-    itk_tfm::write(&out_tfm, &ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation())))?;
+    transform_file::write(&out_tfm, &ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation())))?;
 
     let dims = fixed_image.dims();
     let centre = warpbench_io::geometry::Point3::<Fixed>::from_array(

@@ -40,8 +40,9 @@ use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::geometry::{Index, Lps, Space, Transform};
-use warpbench_io::itk_tfm::{self, ItkTransform};
+use warpbench_io::itk_tfm::ItkTransform;
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::transform_file;
 use warpbench_io::{Progress, Volume, volume};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
@@ -101,7 +102,7 @@ pub struct FieldArgs {
     #[arg(long)]
     pub reference: Option<PathBuf>,
     /// Also write the pull-back as an ITK transform file: the exact TPS, B-spline or affine (see warpbench transform;
-    /// .mat, ANTs' MATLAB file, for the linear methods).
+    /// .h5 for ITK's HDF5 file; .mat, ANTs' MATLAB file, for the linear methods).
     #[arg(long)]
     pub tfm: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS)
@@ -448,7 +449,7 @@ pub fn write_field(field: &Field, out: &Path, format: FieldFormat, tfm: Option<&
         &field.displacements_lps,
     )?;
     if let Some((path, transform)) = tfm {
-        itk_tfm::write(path, transform)?;
+        transform_file::write(path, transform)?;
     }
     Ok(())
 }

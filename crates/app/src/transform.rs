@@ -28,6 +28,11 @@
 //!   `warp` and `field` never sample.
 //! - **Affine, similarity, rigid** → `AffineTransform_double_3_3` (centre 0, translation = offset).
 //!
+//! A name ending in `.h5` writes the same class in ITK's HDF5 transform file ([`warpbench_io::itk_h5`]), which can
+//! also hold a displacement field: a stack no other transform file holds exactly (a session's field or brush) is
+//! written there as a `DisplacementFieldTransform` over the pull-back sampled on the fixed grid
+//! ([`write_h5_field_transform`]).
+//!
 //! `--format elastix` writes the same [`warpbench_io::itk_tfm::ItkTransform`] as an elastix transform parameter file
 //! ([`warpbench_io::elastix::write`]): `SplineKernelTransform`, `BSplineTransform` or `AffineTransform` over the fixed
 //! volume's grid. A stack with a field or a brush, which none of them holds, is written as a
@@ -44,7 +49,9 @@ use warpbench_io::dicom_reg::{self, DeformableRegistration, MatrixType, SpatialR
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
+use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
+use warpbench_io::transform_file;
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -64,7 +71,10 @@ const HELP: &str = "\
 Write the landmark warp as an ITK transform file (.tfm), the exact transform instead of a sampled field: TPS
 as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
 B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
-identity outside it), affine, similarity and rigid as AffineTransform_double_3_3.
+identity outside it), affine, similarity and rigid as AffineTransform_double_3_3. Name the file .h5 for ITK's
+HDF5 transform file (what Slicer saves and ANTs writes as Composite.h5): the same class, and for a session with a
+field or brush strokes, which no other ITK file holds, a DisplacementFieldTransform of the warp sampled on the
+fixed grid.
 
 The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): what ITK's ResampleImageFilter,
 antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
@@ -80,6 +90,7 @@ and PACS: a Spatial Registration for a linear warp (its matrix maps the moving s
 fixed series'), a Deformable Spatial Registration of the warp sampled on the fixed grid for any other.
 
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --session case.wbsession --out mr_to_ct.h5
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt
     warpbench transform --fixed ct_series/ --moving mr_series/ --landmarks pairs.csv --method rigid --format dicom --out reg.dcm";
 
@@ -95,12 +106,14 @@ pub struct TransformArgs {
     pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
-    /// The ITK transform file to write (.tfm or .txt; .mat, ANTs' MATLAB file, for the linear methods), with
+    /// The ITK transform file to write (.tfm or .txt; .h5, ITK's HDF5 file; .mat, ANTs' MATLAB file, for the
+    /// linear methods), with
     /// --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt), with --format dicom a
     /// DICOM registration (.dcm).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
-    /// itk (default): an ITK transform file (or ANTs' .mat by its name); elastix: an elastix transform parameter
+    /// itk (default): an ITK transform file (ITK's HDF5 or ANTs' .mat by its name); elastix: an elastix transform
+    /// parameter
     /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
     /// DeformationFieldTransform over a field beside it for a session with a field or a brush); dicom: a DICOM
     /// (Deformable) Spatial Registration between two DICOM series.
@@ -113,7 +126,7 @@ pub struct TransformArgs {
 /// `--format`: whose transform file `transform` writes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum TransformFormat {
-    /// ITK's `.tfm` (ANTs' `.mat` for a name ending so).
+    /// ITK's `.tfm` (its HDF5 file for a name ending `.h5`, ANTs' `.mat` for one ending `.mat`).
     Itk,
     /// elastix's transform parameter file.
     Elastix,
@@ -240,15 +253,16 @@ pub fn exact_transform(inputs: &FieldInputs) -> Result<ExactTransform, Failure> 
 }
 
 /// Refuses a name `format` cannot be written to, before anything is computed: an elastix parameter file named `.mat`
-/// (ANTs' binary affine).
+/// (ANTs' binary affine) or `.h5` (ITK would read it as HDF5).
 ///
 /// # Errors
 /// That name, in words.
 pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), Failure> {
     let extension = |e: &str| path.extension().is_some_and(|x| x.eq_ignore_ascii_case(e));
-    if format == TransformFormat::Elastix && extension("mat") {
+    if format == TransformFormat::Elastix && (extension("mat") || itk_tfm::is_hdf5_name(path)) {
         return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: an elastix transform parameter file is text, not a .mat; name it e.g. TransformParameters.0.txt",
+            "{}: an elastix transform parameter file is text, not a .mat or an HDF5 file; name it e.g. \
+             TransformParameters.0.txt",
             path.display()
         )));
     }
@@ -261,7 +275,8 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
     Ok(())
 }
 
-/// Writes `exact`'s transform to `path` in `format`, atomically: an ITK `.tfm` (ANTs' `.mat` for a name ending so),
+/// Writes `exact`'s transform to `path` in `format`, atomically: an ITK `.tfm` (its HDF5 file or ANTs' `.mat` for a
+/// name ending so, [`transform_file::write`]),
 /// an elastix parameter file over the fixed volume's grid, or a DICOM Spatial Registration between the two DICOM
 /// series `pair` was read from ([`write_dicom_registration`]; [`write_dicom`] also writes the deformable ones, and
 /// is what the command line and the window call for DICOM).
@@ -279,7 +294,7 @@ pub fn write_transform(
     let transform = &exact.transform;
     Ok(match format {
         TransformFormat::Itk => {
-            itk_tfm::write(path, transform)?;
+            transform_file::write(path, transform)?;
             Written::Itk
         }
         TransformFormat::Elastix => {
@@ -460,6 +475,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     check_transform_name(&out_path, format)?;
     let layered = !inputs.warp.brush.is_empty() || inputs.warp.session_field.is_some();
+    let h5_field = format == TransformFormat::Itk && layered && itk_tfm::is_hdf5_name(&out_path);
     let as_field = format == TransformFormat::Elastix && layered;
     let field_path = field_file_beside(&out_path);
     if as_field {
@@ -469,10 +485,11 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             FieldFormat::MetaImage,
             &input_paths,
         )?;
-    } else if !inputs.warp.brush.is_empty() && format == TransformFormat::Itk {
+    } else if !inputs.warp.brush.is_empty() && format == TransformFormat::Itk && !h5_field {
         return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: the session's brush strokes have no exact ITK transform; write a displacement field with `warpbench \
-             field --session`, or an elastix file over one with --format elastix",
+            "{}: the session's brush strokes have no exact ITK transform; name the output .h5 for ITK's HDF5 \
+             transform file over the warp's displacement field, write the field with `warpbench field --session`, \
+             or an elastix file over one with --format elastix",
             inputs.landmarks.describe()
         )));
     }
@@ -527,6 +544,23 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             },
             domain_lps: None,
             warnings: export.warnings,
+        }
+    } else if h5_field {
+        let field = crate::field::sample_field_reporting(&volumes.fixed, &made_of, FieldDirection::Pullback, quiet)?;
+        write_h5_field_transform(&out_path, &field)?;
+        TransformSummary {
+            schema: SCHEMA,
+            out: out_path.display().to_string(),
+            itk_class: H5_FIELD_CLASS,
+            format: format.name(),
+            elastix_transform: None,
+            dicom_matrix_type: None,
+            field: None,
+            method: layers.describe(&method, field.pairs),
+            pairs: field.pairs,
+            map: "moving_from_fixed",
+            domain_lps: None,
+            warnings: field.warnings,
         }
     } else if as_field {
         let field = crate::field::sample_field_reporting(&volumes.fixed, &made_of, FieldDirection::Pullback, quiet)?;
@@ -625,5 +659,31 @@ pub fn write_field_transform(out: &Path, field_path: &Path, field: &crate::field
     )?;
     let grid = ElastixGrid { dims: field.dims, lps_from_index: field.lps_from_index };
     elastix::write_field_transform(out, name, &grid)?;
+    Ok(())
+}
+
+/// The class [`write_h5_field_transform`] writes (its vectors are single precision: [`warpbench_io::itk_h5`]).
+pub const H5_FIELD_CLASS: &str = "DisplacementFieldTransform_float_3_3";
+
+/// Writes `field`, a pull-back sampled on a grid, as ITK's HDF5 transform file at `out`, atomically: one
+/// `DisplacementFieldTransform` ([`H5_FIELD_CLASS`]), T(x) = x + D(x) between the voxel centres and x outside the
+/// grid. What `transform --out NAME.h5` writes for a stack no other ITK transform file holds exactly.
+///
+/// # Errors
+/// A field of the forward map (ITK's transform is the pull-back), or what the writer refuses.
+pub fn write_h5_field_transform(out: &Path, field: &crate::field::Field) -> Result<(), Failure> {
+    if field.direction != FieldDirection::Pullback {
+        return Err(Failure::Internal(anyhow::anyhow!(
+            "{}: an ITK transform holds the pull-back; this field samples the {} map",
+            out.display(),
+            field.direction
+        )));
+    }
+    let step = H5Transform::Field {
+        dims: field.dims,
+        lps_from_index: &field.lps_from_index,
+        displacements_lps: &field.displacements_lps,
+    };
+    itk_h5::write(out, &[step])?;
     Ok(())
 }

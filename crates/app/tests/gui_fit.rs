@@ -853,6 +853,25 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
         let (got, want) = (chain.apply(x), plain_at(ready, x));
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the file maps to {got:?}, u = {want:?}");
     }
+    // Export transform to an .h5: ITK's HDF5 file holds the same sampled pull-back as a DisplacementFieldTransform;
+    // to a .tfm it is refused, the message saying what to do.
+    let tfm_out = dir.path().join("with_field.tfm");
+    let export = Command::File(FileAction::ExportTransform(TransformFormat::Itk, tfm_out.clone()));
+    harness.state_mut().ready_mut().expect("ready").apply(export);
+    let message = window::wait_for_export(&mut harness);
+    assert!(message.contains(".h5") && !tfm_out.exists(), "{message}");
+    let h5_out = dir.path().join("with_field.h5");
+    let export = Command::File(FileAction::ExportTransform(TransformFormat::Itk, h5_out.clone()));
+    harness.state_mut().ready_mut().expect("ready").apply(export);
+    let message = window::wait_for_export(&mut harness);
+    let ready = harness.state().ready().expect("ready");
+    assert!(message.contains("as DisplacementFieldTransform_float_3_3 on the fixed grid"), "{message}");
+    let h5 = warpbench_io::itk_h5::read(&h5_out).unwrap_or_else(|e| panic!("{e}"));
+    for ijk in [[45.0, 54.0, 45.0], [20.0, 70.0, 30.0], [0.0, 0.0, 0.0]] {
+        let x = grid.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+        let (got, want) = (h5.apply(x), plain_at(ready, x));
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the .h5 maps to {got:?}, u = {want:?}");
+    }
 
     let session = dir.path().join("with_field.warpbench.json");
     apply(&mut harness, Command::File(FileAction::SaveSession(session.clone())));

@@ -667,7 +667,20 @@ fn a_sessions_brush_acts_on_top_of_the_landmarks() {
         .concat(),
     );
     assert_eq!(run.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&run.stderr).contains("brush strokes have no exact ITK transform"));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("brush strokes have no exact ITK transform") && stderr.contains(".h5"), "{stderr}");
+    // ITK's HDF5 file holds it as a DisplacementFieldTransform of the brushed pull-back on the fixed grid.
+    let h5 = dir.path().join("brushed.h5");
+    let run = warpbench(
+        &[&["transform", "--fixed", s(&mri), "--moving", s(&mri), "--quiet"][..], &session[..], &["--out", s(&h5)]]
+            .concat(),
+    );
+    assert_ok(&run);
+    let chain = warpbench_io::itk_h5::read(&h5).unwrap_or_else(|e| panic!("{e}"));
+    let x = plain.voxel_lps(50, 58, 51).coords();
+    let (got, want) = (chain.apply(x), common::map_through_session(dir.path(), [&mri, &mri, &session_path], x));
+    assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the .h5 maps to {got:?}, u = {want:?}");
+    assert!((0..3).any(|a| (got[a] - x[a]).abs() > 0.5), "the brush moves {x:?}");
     // For elastix the brushed pull-back is a DeformationFieldTransform over its field, which is u at voxel centres.
     let out = dir.path().join("brushed.txt");
     let run = warpbench(
@@ -772,6 +785,19 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
     };
     let refused = transform("itk", &dir.path().join("t.tfm"));
     assert_eq!(refused.status.code(), Some(2), "{}", String::from_utf8_lossy(&refused.stderr));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("NAME.h5"));
+    // An elastix parameter file is text: not under an HDF5 name, which ITK would read as HDF5.
+    let refused = transform("elastix", &dir.path().join("t.h5"));
+    assert_eq!(refused.status.code(), Some(2), "{}", String::from_utf8_lossy(&refused.stderr));
+    assert!(!dir.path().join("t.h5").exists());
+    // ITK's HDF5 file holds it: a DisplacementFieldTransform over the pull-back sampled on the fixed grid.
+    let h5 = dir.path().join("with_field.h5");
+    let run = transform("itk", &h5);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("transform JSON");
+    assert_eq!(report["itk_class"], "DisplacementFieldTransform_float_3_3", "{report}");
+    assert_eq!(report["field"], serde_json::Value::Null, "{report}");
+    let h5_chain = warpbench_io::itk_h5::read(&h5).unwrap_or_else(|e| panic!("{e}"));
     // A name elastix's parser cannot quote is refused before anything is written, the field included.
     let quoted = dir.path().join("a\"b.txt");
     let refused = transform("elastix", &quoted);
@@ -791,7 +817,8 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
         .into();
     let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &centres);
     for (x, want) in centres.iter().zip(&mapped) {
-        let got = chain.apply(*x);
-        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the file maps to {got:?}, u = {want:?}");
+        for got in [chain.apply(*x), h5_chain.apply(*x)] {
+            assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: a file maps to {got:?}, u = {want:?}");
+        }
     }
 }

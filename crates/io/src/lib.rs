@@ -38,6 +38,7 @@ pub mod nrrd;
 pub mod options;
 pub mod sample;
 pub mod series;
+pub mod transform_file;
 pub mod volume;
 
 use std::path::Path;

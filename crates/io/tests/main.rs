@@ -10,6 +10,7 @@ mod dicom_conformance;
 mod elastix;
 mod elastix_points;
 mod itk_h5;
+mod itk_h5_write;
 mod itk_linear;
 mod jpegls;
 mod landmarks;

@@ -32,7 +32,7 @@ use warpbench_io::geometry::{Index, Lps, Point3, Transform};
 use warpbench_io::itk_tfm::ItkTransform;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::volume::{GeometrySource, VoxelData};
-use warpbench_io::{Volume, itk_tfm};
+use warpbench_io::{Volume, transform_file};
 use warpbench_solver::diagnostics::jacobian_determinants;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed};
@@ -388,11 +388,12 @@ impl Warp {
     }
 
     /// Writes the pull-back as the ITK transform file that holds it exactly (thin-plate spline, B-spline, affine),
-    /// as `warpbench transform` writes it.
+    /// as `warpbench transform` writes it: text, ITK's HDF5 file for a name ending `.h5`, ANTs' `.mat` for one
+    /// ending `.mat`.
     fn to_itk_tfm(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         guarded(py, || {
             let transform = self.pullback.itk_transform().map_err(bad_input)?;
-            itk_tfm::write(&path, &transform).map_err(io)
+            transform_file::write(&path, &transform).map_err(io)
         })
     }
 

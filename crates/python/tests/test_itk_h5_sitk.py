@@ -5,13 +5,18 @@
   the warp) maps points where SimpleITK's TransformPoint puts them.
 - A composite of an affine and a displacement field on the fixed grid, as antsRegistration's `Composite.h5` holds
   them: `warpbench warp --field` resamples the moving volume as SimpleITK's Resample does through the same file.
-- `warpbench transform --out x.h5` is refused with exit 2: warpbench does not write HDF5, and nothing is written.
+- `warpbench transform --out x.h5` and `align --out-tfm x.h5` write ITK's HDF5 transform file: SimpleITK reads the
+  same class and numbers as from the `.tfm` of the same run.
+- A session with a displacement field under its landmarks, which no `.tfm` holds: `transform --session S --out
+  x.h5` writes a DisplacementFieldTransform that SimpleITK applies as `warpbench points --session` maps points.
+- `warpbench field --out x.h5` is refused with exit 2, and nothing is written: a field image is not an HDF5 file.
 
 Needs SimpleITK and numpy, and the CLI binary (`conftest.py`).
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -93,14 +98,94 @@ def test_warp_field_resamples_through_an_ants_style_composite_as_simpleitk_does(
     assert np.abs(theirs[inside]).max() > 100  # the blobs are there to compare
 
 
-def test_no_transform_or_field_is_written_to_an_h5_name(tmp_path: Path) -> None:
-    fixed, moving = pair(tmp_path)
+def five_pairs(tmp_path: Path) -> Path:
     pairs = tmp_path / "pairs.csv"
     rows = [(10, -20, 15), (-30, 5, 0), (25, 30, -10), (0, -40, 30), (-15, 10, -25)]
-    pairs.write_text("".join(f'"Pt-{n}","true",{x + 1},{y},{z},{x},{y},{z}\n' for n, (x, y, z) in enumerate(rows)))
-    for command in (["transform", "--out"], ["field", "--out"]):
-        out = tmp_path / f"{command[0]}.h5"
-        done = warpbench(command[0], "--fixed", fixed, "--moving", moving, "--landmarks", pairs, command[1], out,
-                         expect=2)
-        assert "does not write them" in done.stderr and out.name in done.stderr
-        assert not out.exists()
+    pairs.write_text("".join(f'"Pt-{n}","true",{x + 1},{y + 0.5},{z},{x},{y},{z}\n' for n, (x, y, z) in enumerate(rows)))
+    return pairs
+
+
+@pytest.mark.parametrize("how", ["affine", "hbspline", "align"])
+def test_simpleitk_reads_the_h5_as_the_tfm_of_the_same_run(tmp_path: Path, how: str) -> None:
+    fixed, moving = pair(tmp_path)
+    read = {}
+    for suffix in ("h5", "tfm"):
+        out = tmp_path / f"t.{suffix}"
+        if how == "align":
+            warpbench("align", "--fixed", fixed, "--moving", moving, "--seed", "3", "--quiet", "--out-tfm", out)
+        else:
+            warpbench("transform", "--fixed", fixed, "--moving", moving, "--landmarks", five_pairs(tmp_path),
+                      "--method", how, "--quiet", "--out", out)
+        read[suffix] = sitk.ReadTransform(str(out))
+    assert open(tmp_path / "t.h5", "rb").read(8) == b"\x89HDF\r\n\x1a\n"
+    h5, tfm = read["h5"], read["tfm"]
+    assert h5.GetName() == tfm.GetName() == ("BSplineTransform" if how == "hbspline" else "AffineTransform")
+    assert h5.GetParameters() == tfm.GetParameters()
+    assert h5.GetFixedParameters() == tfm.GetFixedParameters()
+    for p in [(12.5, -30.0, 8.0), (-20.0, 17.0, 25.0), (0.0, 0.0, 0.0)]:
+        assert h5.TransformPoint(p) == tfm.TransformPoint(p)
+
+
+def test_simpleitk_applies_a_sessions_field_from_the_h5_as_warpbench_maps_points(tmp_path: Path) -> None:
+    fixed_path, moving_path = pair(tmp_path)
+    fixed = sitk.ReadImage(str(fixed_path))
+    # A smooth field of up to 3 mm on a coarse grid over the fixed box, under two pairs: fewer than the TPS needs,
+    # so the field alone is the warp (docs/cli.md, "A window session as the warp").
+    coarse = sitk.Image([9, 9, 9], sitk.sitkVectorFloat64, 3)
+    coarse.SetSpacing((10.0, 10.0, 10.0))
+    coarse.SetOrigin((-40.0, -40.0, -40.0))
+    k, j, i = np.meshgrid(*(np.arange(9, dtype=float) for _ in range(3)), indexing="ij")
+    d = np.stack([3.0 * np.sin(j / 2.0), 2.0 * np.cos(i / 3.0), 1.5 * np.sin((i + k) / 4.0)], -1)
+    field = sitk.GetImageFromArray(d, isVector=True)
+    field.CopyInformation(coarse)
+    field_path = tmp_path / "under.nii.gz"
+    sitk.WriteImage(sitk.Cast(field, sitk.sitkVectorFloat32), str(field_path))
+    session = tmp_path / "case.warpbench.json"
+    session.write_text(json.dumps({
+        "schema": "warpbench-session/1", "fixed": str(fixed_path), "moving": str(moving_path),
+        "landmarks": [{"name": "a", "active": True, "moving_lps": [1.0, 2.0, 3.0], "fixed_lps": [1.0, 2.0, 3.0]}],
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 64, "show_landmarks": True},
+        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True},
+                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True}],
+        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": True, "field": str(field_path),
+    }))
+    h5 = tmp_path / "with_field.h5"
+    done = warpbench("transform", "--fixed", fixed_path, "--moving", moving_path, "--session", session, "--json",
+                     "--quiet", "--out", h5)
+    assert json.loads(done.stdout)["itk_class"] == "DisplacementFieldTransform_float_3_3"
+    theirs = sitk.ReadTransform(str(h5))
+    assert theirs.GetName() in ("DisplacementFieldTransform", "CompositeTransform")
+    # Voxel centres of the fixed grid, where the field was sampled, and points between them.
+    rng = np.random.default_rng(5)
+    size = np.array(fixed.GetSize())
+    indices = [tuple(int(v) for v in rng.integers(0, size)) for _ in range(20)]
+    points = [fixed.TransformIndexToPhysicalPoint(ix) for ix in indices]
+    points += [fixed.TransformContinuousIndexToPhysicalPoint(tuple(rng.uniform(2, size - 3))) for _ in range(20)]
+    targets = tmp_path / "targets.csv"
+    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points))
+    out = tmp_path / "mapped.csv"
+    warpbench("points", "--fixed", fixed_path, "--moving", moving_path, "--session", session, "--from", "fixed",
+              "--in", targets, "--out", out, "--quiet")
+    ours = [[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()]
+    moved = 0.0
+    for p, at_centre, want in zip(points, [True] * 20 + [False] * 20, ours):
+        got = theirs.TransformPoint(p)
+        # At a voxel centre SimpleITK reads the sampled vector itself (f32: 1e-6 of 3 mm); between centres it
+        # interpolates the samples trilinearly where warpbench evaluates the coarse field's own trilinear map, which
+        # differ by the field's curvature over half a 2 mm voxel (its second derivative is below 0.04 /mm here).
+        bound = 1e-5 if at_centre else 0.05
+        np.testing.assert_allclose(got, want, rtol=0, atol=bound, err_msg=f"at {p}")
+        moved = max(moved, float(np.max(np.abs(np.array(got) - p))))
+    assert moved > 0.5  # the field is there
+
+
+def test_no_field_image_is_written_to_an_h5_name(tmp_path: Path) -> None:
+    fixed, moving = pair(tmp_path)
+    out = tmp_path / "field.h5"
+    done = warpbench("field", "--fixed", fixed, "--moving", moving, "--landmarks", five_pairs(tmp_path), "--out", out,
+                     expect=2)
+    assert "a displacement field image is not one" in done.stderr and out.name in done.stderr
+    assert not out.exists()

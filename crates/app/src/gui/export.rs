@@ -14,6 +14,7 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 
 use eframe::egui;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_io::itk_tfm;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::{Progress, Volume};
 use warpbench_solver::method::Method;
@@ -38,7 +39,8 @@ pub enum ExportKind {
     /// --direction forward` writes it: what moving points and meshes need.
     InverseField,
     /// The pull-back as the exact transform file of `format`, as `warpbench transform` writes it: ITK's `.tfm`
-    /// (ANTs' `.mat` for a linear warp named so), or elastix's parameter file.
+    /// (its HDF5 file for a name ending `.h5`, over the sampled field for a warp with a field or the brush; ANTs'
+    /// `.mat` for a linear warp named so), or elastix's parameter file.
     Transform { format: TransformFormat },
     /// A map of the pull-back on the fixed grid (det ∇u, or |u(x) − x|) as a volume, as `warpbench jacobian`
     /// writes it.
@@ -181,6 +183,25 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 resampled.backend
             ))
         }
+        ExportKind::Transform { format: TransformFormat::Itk }
+            if (layers.field.is_some() || layers.brush.is_some()) && itk_tfm::is_hdf5_name(out) =>
+        {
+            let mut progress = |done: u64, total: u64| {
+                watch.report(&file_name(out), Progress { stage: "field slices", done, total });
+                !watch.cancelled()
+            };
+            let f = field::sample_field(fixed, &made_of, FieldDirection::Pullback, &mut progress)?;
+            transform::write_h5_field_transform(out, &f)?;
+            Ok(format!(
+                "wrote {}: {} as {} on the fixed grid ({} pairs, largest {:.1} mm; maps fixed points to moving points, \
+                 LPS mm){consistency}",
+                out.display(),
+                layers.describe(&input.method, f.pairs),
+                transform::H5_FIELD_CLASS,
+                f.pairs,
+                f.max_displacement_mm
+            ))
+        }
         ExportKind::Transform { format: TransformFormat::Elastix }
             if layers.field.is_some() || layers.brush.is_some() =>
         {
@@ -289,12 +310,12 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
     }
 }
 
-/// Refuses a transform export's name, in words for the status bar: an ITK transform is a `.tfm`, `.txt` or `.mat`
-/// (ANTs'), an elastix parameter file a `.txt`.
+/// Refuses a transform export's name, in words for the status bar: an ITK transform is a `.tfm`, `.txt`, `.h5`
+/// (HDF5) or `.mat` (ANTs'), an elastix parameter file a `.txt`.
 fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), String> {
     let extension = out.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
     let fits = match format {
-        TransformFormat::Itk => matches!(extension.as_str(), "tfm" | "txt" | "mat"),
+        TransformFormat::Itk => matches!(extension.as_str(), "tfm" | "txt" | "h5" | "mat"),
         TransformFormat::Elastix => extension == "txt",
         TransformFormat::Dicom => extension == "dcm",
     };
@@ -303,7 +324,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
     }
     Err(match format {
         TransformFormat::Itk => {
-            format!("{}: a transform is exported as ITK's .tfm (or .txt), or ANTs' .mat", out.display())
+            format!("{}: a transform is exported as ITK's .tfm (or .txt) or .h5 (HDF5), or ANTs' .mat", out.display())
         }
         TransformFormat::Elastix => {
             format!("{}: an elastix transform parameter file is a .txt (e.g. TransformParameters.0.txt)", out.display())
@@ -383,8 +404,9 @@ pub fn export_ui(
     });
     ui.horizontal(|ui| {
         let itk = ui.add_enabled(enabled, egui::Button::new("Export transform")).on_hover_text(
-            "The exact warp, not a sampled field: an ITK transform file (.tfm) for ITK, ANTs and Slicer; .mat for \
-             ANTs (linear methods)",
+            "The exact warp, not a sampled field: an ITK transform file (.tfm) for ITK, ANTs and Slicer; .h5 for \
+             ITK's HDF5 file, which also holds a warp with a field or the brush (over its field); .mat for ANTs \
+             (linear methods)",
         );
         if itk.clicked() {
             asked = Some((ExportKind::Transform { format: TransformFormat::Itk }, path.clone()));

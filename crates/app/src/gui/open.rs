@@ -219,7 +219,7 @@ impl Purpose {
                 .add_filter("ITK transform with a field (ANTs Composite.h5)", &["h5"])
                 .add_filter("DICOM Deformable Spatial Registration", &["dcm"]),
             Self::ExportTransform(TransformFormat::Itk) => {
-                d.add_filter("ITK or ANTs transform", &["tfm", "txt", "mat"])
+                d.add_filter("ITK or ANTs transform", &["tfm", "txt", "h5", "mat"])
             }
             Self::ExportTransform(TransformFormat::Elastix) => {
                 d.add_filter("elastix transform parameter file", &["txt"]).set_file_name("TransformParameters.0.txt")

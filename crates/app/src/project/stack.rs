@@ -341,8 +341,9 @@ impl StackPullback {
             None => "the brush".to_owned(),
         };
         Err(anyhow!(
-            "an ITK transform file cannot hold this warp exactly: it has {layer} as a layer; write it as a \
-             displacement field instead (`warpbench field`)"
+            "an ITK transform file cannot hold this warp exactly: it has {layer} as a layer; write it as ITK's \
+             HDF5 transform file over its displacement field (`warpbench transform --out NAME.h5`), or as a \
+             displacement field (`warpbench field`)"
         ))
     }
 }

@@ -119,7 +119,12 @@ pub fn write_field_with(
 /// Refuses an output name that cannot hold `format` (see [`write_field_with`]), before anything is computed.
 pub fn check_output_name(path: &Path, format: FieldFormat) -> Result<()> {
     if crate::itk_tfm::is_hdf5_name(path) {
-        return Err(Error::unsupported(path, crate::itk_tfm::HDF5_NOT_WRITTEN));
+        return Err(Error::unsupported(
+            path,
+            "ITK reads a file named .h5 as an HDF5 transform file, and a displacement field image is not one: name \
+             the field .nii.gz, .nrrd or .mha, or export the warp as a transform named .h5, ITK's HDF5 transform file, \
+             which holds its field",
+        ));
     }
     if !format.container_matches(path) {
         return Err(Error::invalid(path, format!("the {format} field flavour is written to {}", format.names())));

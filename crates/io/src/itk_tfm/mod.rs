@@ -79,8 +79,8 @@
 //! # ITK's HDF5 files
 //!
 //! ITK's `.h5` transform files (ANTs' `Composite.h5`, 3D Slicer's) hold the same classes in HDF5 datasets and are read
-//! by [`crate::itk_h5`]. They are not written: [`write()`] refuses a name ending in `.h5` ([`is_hdf5_name`]), since
-//! ITK would read a text `.tfm` of that name as HDF5.
+//! and written by [`crate::itk_h5`]; [`crate::transform_file::write`] writes either by the file's name. [`write()`]
+//! writes text, so it refuses a name ending in `.h5` ([`is_hdf5_name`]): ITK would read that file as HDF5.
 
 mod ants_mat;
 
@@ -157,37 +157,41 @@ impl ItkTransform {
     }
 
     fn write_text(&self, w: &mut dyn Write) -> std::io::Result<()> {
-        write!(w, "{MAGIC}\n#Transform 0\nTransform: {}\nParameters:", self.type_name())?;
-        let numbers = |w: &mut dyn Write, values: &mut dyn Iterator<Item = f64>| -> std::io::Result<()> {
+        let numbers = |w: &mut dyn Write, values: &[f64]| -> std::io::Result<()> {
             for v in values {
                 write!(w, " {v}")?;
             }
             writeln!(w)
         };
+        let (params, fixed) = self.parameters();
+        write!(w, "{MAGIC}\n#Transform 0\nTransform: {}\nParameters:", self.type_name())?;
+        numbers(w, &params)?;
+        write!(w, "FixedParameters:")?;
+        numbers(w, &fixed)
+    }
+
+    /// ITK's `Parameters` and `FixedParameters` of the transform (module docs): what a `.tfm` writes on its two
+    /// lines and an `.h5` group in its two datasets ([`crate::itk_h5`]).
+    pub(crate) fn parameters(&self) -> (Vec<f64>, Vec<f64>) {
         match self {
             Self::Affine(a) => {
                 let m = &a.matrix;
-                numbers(w, &mut (0..3).flat_map(|r| (0..3).map(move |c| m[(r, c)])).chain(a.translation))?;
-                write!(w, "FixedParameters:")?;
-                numbers(w, &mut a.center.into_iter())
+                ((0..3).flat_map(|r| (0..3).map(move |c| m[(r, c)])).chain(a.translation).collect(), a.center.to_vec())
             }
             Self::ThinPlateSpline(t) => {
-                numbers(w, &mut t.source_lps.iter().flatten().copied())?;
-                write!(w, "FixedParameters:")?;
-                numbers(w, &mut t.target_lps.iter().flatten().copied())
+                (t.source_lps.iter().flatten().copied().collect(), t.target_lps.iter().flatten().copied().collect())
             }
             Self::BSpline(b) => {
-                numbers(w, &mut (0..3).flat_map(|c| b.coefficients_mm.iter().map(move |phi| phi[c])))?;
-                write!(w, "FixedParameters:")?;
+                let params = (0..3).flat_map(|c| b.coefficients_mm.iter().map(move |phi| phi[c])).collect();
                 let size = b.grid_size.map(|n| n as f64);
                 let direction = b.grid_direction.iter().flatten().copied();
-                numbers(w, &mut size.into_iter().chain(b.grid_origin_lps).chain(b.grid_spacing_mm).chain(direction))
+                (params, size.into_iter().chain(b.grid_origin_lps).chain(b.grid_spacing_mm).chain(direction).collect())
             }
         }
     }
 
     /// Checks what ITK needs of the transform (module docs); `name` is used in errors.
-    fn check(&self, name: &Path) -> Result<()> {
+    pub(crate) fn check(&self, name: &Path) -> Result<()> {
         match self {
             Self::Affine(a) if !a.is_finite() => {
                 Err(Error::invalid(name, format!("the affine transform is not finite: {a:?}")))
@@ -415,7 +419,7 @@ pub fn to_mat_bytes(affine: &ItkAffine) -> Vec<u8> {
 pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
     transform.check(path)?;
     if is_hdf5_name(path) {
-        return Err(Error::unsupported(path, HDF5_NOT_WRITTEN));
+        return Err(Error::unsupported(path, HDF5_NAME_FOR_TEXT));
     }
     if is_mat_name(path) {
         let ItkTransform::Affine(affine) = transform else {
@@ -460,10 +464,10 @@ pub fn read_affine(path: &Path) -> Result<ItkAffine> {
     }
 }
 
-/// Why an output named `.h5` is refused: a text `.tfm` or a NIfTI under that name would be read by ITK as HDF5.
-pub const HDF5_NOT_WRITTEN: &str = "warpbench reads ITK's HDF5 transform files (.h5) but does not write them, and ITK \
-                               would read any other file named .h5 as one: name a transform .tfm (ITK, ANTs, 3D \
-                               Slicer) or .mat (ANTs), a displacement field .nii.gz, .nrrd or .mha";
+/// Why [`write()`] refuses an output named `.h5`: ITK would read a text transform file of that name as HDF5.
+const HDF5_NAME_FOR_TEXT: &str = "ITK reads a file named .h5 as HDF5, and a text transform file is not one: write \
+                                  ITK's HDF5 transform file with warpbench_io::transform_file::write, or name this \
+                                  one .tfm";
 
 /// Whether `path` is named as an HDF5 file (`.h5`, `.hdf5`, `.hdf`, any case).
 #[must_use]

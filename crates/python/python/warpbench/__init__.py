@@ -400,7 +400,8 @@ class Warp:
 
     def to_itk_tfm(self, path: PathLike) -> None:
         """Writes the pull-back as the ITK transform file that holds it exactly (thin-plate spline, B-spline,
-        affine), as ``warpbench transform`` does."""
+        affine), as ``warpbench transform`` does: a text ``.tfm``, ITK's HDF5 file for a name ending ``.h5``, or
+        ANTs' ``.mat`` (a linear warp) for one ending ``.mat``."""
         self._native.to_itk_tfm(os.fspath(path))
 
     def to_elastix(self, path: PathLike, reference: Optional["Volume"] = None) -> None:
