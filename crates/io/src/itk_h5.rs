@@ -495,8 +495,8 @@ fn field_fixed_parameters(
     }
     let linear = lps_from_index.linear();
     let spacing: [f64; 3] = std::array::from_fn(|a| linear.column(a).norm());
-    let singular = linear.determinant() == 0.0 || !linear.iter().all(|v| v.is_finite());
-    if singular {
+    let det = linear.determinant();
+    if det == 0.0 || !det.is_finite() {
         return Err(Error::invalid(path, format!("the field's grid is singular: index to LPS {linear}")));
     }
     let direction = Matrix3::from_fn(|r, c| linear[(r, c)] / spacing[c]);
@@ -504,5 +504,12 @@ fn field_fixed_parameters(
     fixed.extend(lps_from_index.translation());
     fixed.extend(spacing);
     fixed.extend((0..3).flat_map(|r| (0..3).map(move |c| direction[(r, c)])));
+    // A grid whose spacing overflows a double (axes near 1e308 mm) has no size, origin and spacing ITK can hold.
+    if let Some(i) = fixed.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(
+            path,
+            format!("the field's grid has no finite ITK geometry (fixed parameter {}): index to LPS {linear}", i + 1),
+        ));
+    }
     Ok(fixed)
 }

@@ -218,6 +218,14 @@ fn what_itk_could_not_read_is_refused_and_nothing_is_written() {
         &[H5Transform::Field { dims, lps_from_index: &flat, displacements_lps: &vectors }],
         &["singular"],
     );
+    // Finite axes whose length overflows a double: no spacing ITK can hold (found by the fuzzer).
+    let huge =
+        Transform::from_linear_translation(Matrix3::new(1e308, 0.0, 0.0, 1e308, 1.0, 0.0, 0.0, 0.0, 1.0), [0.0; 3]);
+    refused(
+        "huge.h5",
+        &[H5Transform::Field { dims, lps_from_index: &huge, displacements_lps: &vectors }],
+        &["no finite ITK geometry"],
+    );
     let ItkTransform::Affine(mut a) = affine else { unreachable!() };
     a.translation[2] = f64::INFINITY;
     let infinite = ItkTransform::Affine(a);
