@@ -7,6 +7,7 @@ mod ants_mat;
 mod bad_inputs;
 mod dicom;
 mod dicom_conformance;
+mod dicom_reg;
 mod elastix;
 mod elastix_points;
 mod itk_h5;

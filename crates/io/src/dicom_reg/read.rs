@@ -9,18 +9,23 @@
 //! u(x) = M_m⁻¹ M_f x.
 //!
 //! **Deformable.** The item with a Deformable Registration Grid: a registered point x of the grid reads the source
-//! point x + D(x) (PS3.3 C.20.3.1.1), the pull-back's displacement on that grid. Pre- and post-deformation matrices
-//! other than the identity are refused.
+//! point x + D(x) (PS3.3 C.20.3.1.1), the pull-back's displacement on that grid. With a pre- and a post-deformation
+//! matrix (what planning systems write when a rigid registration came first: Velocity and MIM put it in the pre
+//! matrix), the standard applies them to the registered point in this order: the source point is
+//! M_post (M_pre x + D(x)). It is read as the pull-back's displacement at each grid point, M_post (M_pre x + D) − x;
+//! between grid points trilinear interpolation of those vectors is the standard's map exactly, since it reproduces
+//! the affine part and D enters linearly. Outside the grid a field is zero (the identity), where the standard leaves
+//! the map to the implementation.
 
 use std::path::Path;
 
 use dicom_core::Tag;
 use dicom_dictionary_std::tags;
 use dicom_object::InMemDicomObject;
-use nalgebra::{Matrix3, Matrix4, Vector3};
+use nalgebra::{Matrix3, Matrix4, Vector3, Vector4};
 
 use crate::error::{Error, Result};
-use crate::geometry::Transform;
+use crate::geometry::{Point3, Transform};
 use crate::itk_tfm::ItkAffine;
 use crate::nifti::DisplacementField;
 use crate::volume::{self, GeometrySource};
@@ -90,8 +95,8 @@ pub fn read_affine(path: &Path) -> Result<ItkAffine> {
 /// Reads a Deformable Spatial Registration as its grid of pull-back vectors (module docs).
 ///
 /// # Errors
-/// Another object, no grid, pre- or post-deformation matrices other than the identity, a grid whose numbers do not
-/// fit together, vectors that are not finite, a grid too large for memory; the file named.
+/// Another object, no grid, a pre- or post-deformation matrix that is not affine, a grid whose numbers do not fit
+/// together, vectors that are not finite, a grid too large for memory; the file named.
 pub fn read_field(path: &Path) -> Result<DisplacementField> {
     let obj = object_of(path, DEFORMABLE, "a Deformable Spatial Registration (a grid of vectors)")?;
     let registrations = items(path, &obj, tags::DEFORMABLE_REGISTRATION_SEQUENCE)?;
@@ -100,17 +105,15 @@ pub fn read_field(path: &Path) -> Result<DisplacementField> {
     let [item] = with_grid.as_slice() else {
         return Err(Error::unsupported(path, format!("{} deformation grids; warpbench reads one", with_grid.len())));
     };
-    for (tag, name) in [
+    let [pre, post] = [
         (tags::PRE_DEFORMATION_MATRIX_REGISTRATION_SEQUENCE, "pre"),
         (tags::POST_DEFORMATION_MATRIX_REGISTRATION_SEQUENCE, "post"),
-    ] {
-        if item.get(tag).is_some() {
-            let m = matrix_of(path, &items(path, item, tag)?[0], &format!("the {name}-deformation matrix"))?;
-            if (m - Matrix4::identity()).iter().any(|v| v.abs() > 1e-9) {
-                return Err(Error::unsupported(path, format!("a {name}-deformation matrix other than the identity")));
-            }
-        }
-    }
+    ]
+    .map(|(tag, name)| match item.get(tag) {
+        Some(_) => matrix_of(path, &items(path, item, tag)?[0], &format!("the {name}-deformation matrix")),
+        None => Ok(Matrix4::identity()),
+    });
+    let (pre, post) = (pre?, post?);
     let grid = &items(path, item, tags::DEFORMABLE_REGISTRATION_GRID_SEQUENCE)?[0];
     let position = numbers(path, grid, tags::IMAGE_POSITION_PATIENT, 3)?;
     let orientation = numbers(path, grid, tags::IMAGE_ORIENTATION_PATIENT, 6)?;
@@ -142,12 +145,26 @@ pub fn read_field(path: &Path) -> Result<DisplacementField> {
     if let Some(i) = vectors.iter().position(|v| !v.is_finite()) {
         return Err(Error::invalid(path, format!("the vector of grid point {} is not finite (undefined)", i / 3 + 1)));
     }
-    Ok(DisplacementField {
-        dims,
-        lps_from_index: Transform::from_linear_translation(linear, [position[0], position[1], position[2]]),
-        geometry_source: GeometrySource::DicomPatient,
-        displacements_lps: vectors.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect(),
-    })
+    let lps_from_index = Transform::from_linear_translation(linear, [position[0], position[1], position[2]]);
+    let mut displacements_lps: Vec<[f32; 3]> = vectors.chunks_exact(3).map(|v| [v[0], v[1], v[2]]).collect();
+    if pre != Matrix4::identity() || post != Matrix4::identity() {
+        let [nx, ny, _] = dims;
+        for (v, d) in displacements_lps.iter_mut().enumerate() {
+            let ijk = [(v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64];
+            let [px, py, pz] = lps_from_index.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+            let x = Vector4::new(px, py, pz, 1.0);
+            let moved = pre * x + Vector4::new(f64::from(d[0]), f64::from(d[1]), f64::from(d[2]), 0.0);
+            let source = post * moved;
+            *d = std::array::from_fn(|a| (source[a] - x[a]) as f32);
+            if !d.iter().all(|c| c.is_finite()) {
+                return Err(Error::invalid(
+                    path,
+                    format!("the source point of grid point {} is out of range ({source:?})", v + 1),
+                ));
+            }
+        }
+    }
+    Ok(DisplacementField { dims, lps_from_index, geometry_source: GeometrySource::DicomPatient, displacements_lps })
 }
 
 /// The object at `path`, which must be of SOP Class `class` (`what`, in messages).
