@@ -3,9 +3,10 @@
 tests/data/itk/linear_*.tfm, h5_linear_classes.h5 and linear_reference.json.
 
 One `.tfm` per class (ITK's text writer): TranslationTransform, ScaleTransform, Euler3DTransform (ZXY and, with
-ComputeZYX, ZYX), VersorTransform, VersorRigid3DTransform and Similarity3DTransform, each with a non-zero centre
-where the class has one; and one `.h5` (ITK's HDF5TransformIO) holding all seven in a CompositeTransform. These are
-what SimpleITK's registration examples write (a CenteredTransformInitializer and an Euler3DTransform, say).
+ComputeZYX, ZYX), VersorTransform, VersorRigid3DTransform, Similarity3DTransform, ScaleVersor3DTransform and
+ScaleSkewVersor3DTransform (ITK 5's, 15 parameters), each with a non-zero centre where the class has one; and one `.h5`
+(ITK's HDF5TransformIO) holding all nine in a CompositeTransform. These are what SimpleITK's registration examples
+write (a CenteredTransformInitializer and an Euler3DTransform, say).
 linear_reference.json records, for each file, SimpleITK's ReadTransform class and TransformPoint at 12 points. The
 .tfm files and the values are deterministic; the .h5 bytes are not quite (HDF5 stamps its objects with the time).
 
@@ -28,6 +29,14 @@ def transforms():
     euler_zyx = sitk.Euler3DTransform((-4.0, 7.0, 12.0), -0.3, 0.15, 0.2, (-1.0, 2.5, -3.0))
     euler_zyx.SetComputeZYX(True)
     similarity = sitk.Similarity3DTransform(1.07, (0.3, -0.5, 1.0), 0.35, (4.0, -3.0, 2.0), (6.0, 8.0, -10.0))
+    # ITK adds these scales (and skews) to the rotation matrix rather than multiplying it.
+    scale_versor = sitk.ScaleVersor3DTransform()
+    scale_versor.SetParameters((0.12, -0.2, 0.25, 1.5, -2.5, 3.0, 1.1, 0.92, 1.05))
+    scale_versor.SetCenter((2.0, -6.0, 4.5))
+    scale_skew_versor = sitk.ScaleSkewVersor3DTransform()
+    scale_skew_versor.SetParameters((-0.1, 0.15, 0.3, -3.0, 1.0, 2.5, 0.95, 1.08, 1.12,
+                                     0.04, -0.06, 0.09, 0.03, -0.02, 0.05))
+    scale_skew_versor.SetCenter((-5.0, 1.5, 7.0))
     return {
         "linear_translation.tfm": sitk.TranslationTransform(3, (2.5, -1.25, 0.75)),
         "linear_scale.tfm": sitk.ScaleTransform(3, (1.1, 0.9, 1.25)),
@@ -37,6 +46,8 @@ def transforms():
         "linear_versor_rigid.tfm": sitk.VersorRigid3DTransform((-0.2, 1.0, 0.3), -0.4, (2.0, -5.0, 1.0),
                                                                 (1.5, 0.5, -2.5)),
         "linear_similarity.tfm": similarity,
+        "linear_scale_versor.tfm": scale_versor,
+        "linear_scale_skew_versor.tfm": scale_skew_versor,
     }
 
 

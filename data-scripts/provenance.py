@@ -209,6 +209,8 @@ SIMPLEITK_FILES = [
     ("itk/linear_euler_zyx.tfm", "itk_linear_sitk.py"),
     ("itk/linear_versor.tfm", "itk_linear_sitk.py"),
     ("itk/linear_versor_rigid.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_scale_versor.tfm", "itk_linear_sitk.py"),
+    ("itk/linear_scale_skew_versor.tfm", "itk_linear_sitk.py"),
     ("itk/linear_similarity.tfm", "itk_linear_sitk.py"),
     ("itk/h5_linear_classes.h5", "itk_linear_sitk.py"),
     ("itk/linear_reference.json", "itk_linear_sitk.py"),

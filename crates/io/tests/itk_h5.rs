@@ -174,9 +174,9 @@ fn bad_files_are_refused_naming_the_file_and_the_problem() {
     );
     refused(
         &hdf5_file(dir.path(), "skew.h5", |b| {
-            one_transform(b, "ScaleSkewVersor3DTransform_double_3_3", &[0.0; 3], &[0.0; 15]);
+            one_transform(b, "QuaternionRigidTransform_double_3_3", &[0.0; 3], &[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
         }),
-        &["ScaleSkewVersor3DTransform_double_3_3", "AffineTransform_double_3_3"],
+        &["QuaternionRigidTransform_double_3_3", "AffineTransform_double_3_3"],
     );
     let field_fixed = [2.0, 2.0, 2.0, 0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];
     refused(

@@ -1,5 +1,5 @@
 //! ITK's linear classes besides the affine (translation, scale, Euler in both orders, versor, versor rigid,
-//! similarity) against SimpleITK: the `.tfm` it writes for each, and one `.h5` composite of all of them
+//! similarity, scale versor, ITK 5's scale-skew versor) against SimpleITK: the `.tfm` it writes for each, and one `.h5` composite of all of them
 //! (`data-scripts/itk_linear_sitk.py`), read as affines that map points where SimpleITK's `TransformPoint` maps them;
 //! parameters a class cannot hold are refused naming the file.
 
@@ -27,7 +27,7 @@ fn every_class_maps_points_where_simpleitk_maps_them() {
     let text = std::fs::read_to_string(itk_dir().join("linear_reference.json")).expect("reference");
     let reference: Value = serde_json::from_str(&text).expect("JSON");
     let cases = reference["cases"].as_array().expect("cases");
-    assert_eq!(cases.len(), 8);
+    assert_eq!(cases.len(), 10);
     for case in cases {
         let file = case["file"].as_str().expect("file");
         let path = itk_dir().join(file);
@@ -56,7 +56,9 @@ fn parameters_a_class_cannot_hold_are_refused() {
         ("VersorRigid3DTransform_double_3_3", "0.8 0.8 0 1 2 3", "0 0 0", "longer than 1"),
         ("Similarity3DTransform_double_3_3", "0 0 0 1 2 3", "0 0 0", "6 numbers, expected 7"),
         ("TranslationTransform_double_3_3", "1 2 3", "4 5 6", "FixedParameters: 3 numbers, expected 0"),
-        ("ScaleSkewVersor3DTransform_double_3_3", "0 0 0 0 0 0 1 1 1 0 0 0 0 0 0", "0 0 0", "Euler3DTransform"),
+        ("QuaternionRigidTransform_double_3_3", "0 0 0 1 1 2 3", "0 0 0", "Euler3DTransform"),
+        ("ScaleSkewVersor3DTransform_double_3_3", "0 0 0 0 0 0 1 1 1 0 0 0", "0 0 0", "ITK 6"),
+        ("ScaleVersor3DTransform_double_3_3", "0 0 0 0 0 0 1 1", "0 0 0", "8 numbers, expected 9"),
     ];
     for (kind, params, fixed, words) in cases {
         let text = format!(
