@@ -1022,3 +1022,80 @@ fn the_warp_overlays_show_the_status_bars_values() {
     harness.run_steps(3);
     assert!(harness.state().ready().expect("ready").view.overlays.iter().all(Option::is_none));
 }
+
+/// Export DICOM registration from the window, on two DICOM series (pydicom's CT and an MR in its own Frame of
+/// Reference) with a rigid fit: the file is the one `warpbench transform --format dicom` writes for the same pairs,
+/// read back to the same matrix; on a NIfTI pair the export is refused in the status bar and writes nothing.
+#[test]
+fn export_dicom_registration_writes_what_the_command_line_writes() {
+    use warpbench_app::gui::files::FileAction;
+    use warpbench_app::settings::MethodKind;
+    use warpbench_app::transform::TransformFormat;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (ct, mr, csv) = (
+        common::data("dicom/pydicom_ct5n"),
+        common::data("dicom/mixed_ct5n_mr_small/MR_small.dcm"),
+        common::data("dicom_reg/pairs.csv"),
+    );
+    let opts = GuiOptions {
+        fixed: Some(ct.clone()),
+        moving: Some(mr.clone()),
+        landmarks: Some(LandmarkSource::Pairs(csv.clone())),
+        autosave: Some(dir.path().join("autosave.warpbench.json")),
+        ..GuiOptions::default()
+    };
+    let mut harness = workbench(opts, egui::vec2(900.0, 640.0));
+    wait_until_shown(&mut harness);
+    {
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.document.settings.method = MethodKind::Rigid;
+        ready.refit();
+    }
+    let out = dir.path().join("window_reg.dcm");
+    harness
+        .state_mut()
+        .ready_mut()
+        .expect("ready")
+        .apply(Command::File(FileAction::ExportTransform(TransformFormat::Dicom, out.clone())));
+    let message = window::wait_for_export(&mut harness);
+    assert!(message.contains("DICOM Spatial Registration (RIGID"), "{message}");
+    let cli = dir.path().join("cli_reg.dcm");
+    common::assert_ok(&common::warpbench(&[
+        "transform".as_ref(),
+        "--fixed".as_ref(),
+        ct.as_os_str(),
+        "--moving".as_ref(),
+        mr.as_os_str(),
+        "--landmarks".as_ref(),
+        csv.as_os_str(),
+        "--method".as_ref(),
+        "rigid".as_ref(),
+        "--format".as_ref(),
+        "dicom".as_ref(),
+        "--quiet".as_ref(),
+        "--out".as_ref(),
+        cli.as_os_str(),
+    ]));
+    let read = |p: &std::path::Path| warpbench_io::dicom_reg::read_affine(p).unwrap_or_else(|e| panic!("{e}"));
+    let (ours, theirs) = (read(&out), read(&cli));
+    for p in [[-69.0, -84.0, 6.6], [-60.0, -90.0, 7.0], [0.0, 0.0, 0.0]] {
+        let (a, b) = (ours.apply(p), theirs.apply(p));
+        // The same fit written through the same writer: the DS strings' 16 characters are all that round.
+        assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-9), "at {p:?}: window {a:?}, command line {b:?}");
+    }
+
+    // A NIfTI pair has no series to relate: refused, said, nothing written.
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
+    let refused = dir.path().join("nifti_reg.dcm");
+    harness
+        .state_mut()
+        .ready_mut()
+        .expect("ready")
+        .apply(Command::File(FileAction::ExportTransform(TransformFormat::Dicom, refused.clone())));
+    let message = window::wait_for_export(&mut harness);
+    assert!(message.contains("DICOM") && message.contains("not DICOM"), "{message}");
+    assert!(!refused.exists());
+}
