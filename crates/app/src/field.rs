@@ -40,7 +40,8 @@ use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::geometry::{Index, Lps, Space, Transform};
-use warpbench_io::itk_tfm::ItkTransform;
+use warpbench_io::itk_h5::{self, H5Transform};
+use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::transform_file;
 use warpbench_io::{Progress, Volume, volume};
@@ -113,7 +114,7 @@ pub struct FieldArgs {
     #[arg(long, value_enum, default_value = "pullback")]
     pub direction: DirectionArg,
     /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
-    /// metaimage).
+    /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -422,7 +423,51 @@ pub fn check_field_output(output: &OutputFile, format: FieldFormat, inputs: &[&P
     if format == FieldFormat::MetaImage {
         crate::warp::check_data_file(&output.path, inputs, output.force).map_err(Failure::BadInput)?;
     }
-    displacement::check_output_name(&output.path, format)?;
+    check_field_name(&output.path, format)
+}
+
+/// Refuses a name a field of `format` cannot be written to ([`displacement::check_output_name`]); a name ending
+/// `.h5` takes the default flavour only, and is written as ITK's HDF5 transform file ([`write_displacements`]).
+///
+/// # Errors
+/// The name, in words.
+pub fn check_field_name(path: &Path, format: FieldFormat) -> Result<(), Failure> {
+    if !itk_tfm::is_hdf5_name(path) {
+        return Ok(displacement::check_output_name(path, format)?);
+    }
+    if format != FieldFormat::Itk {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: a name ending .h5 is ITK's HDF5 transform file, which holds the field as ITK's \
+             DisplacementFieldTransform, not the {format} flavour: leave out --format, or name the file for the \
+             flavour",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Writes displacements sampled on a grid (`dims`, `lps_from_index`; LPS mm, i fastest) to `out`, atomically: for a
+/// name ending `.h5`, ITK's HDF5 transform file holding them as one `DisplacementFieldTransform`
+/// ([`crate::transform::H5_FIELD_CLASS`]: T(x) = x + D(x), a map from the grid's space, fixed to moving for a
+/// pull-back, moving to fixed for a forward field, as ANTs' `Composite.h5` and `InverseComposite.h5`); else the image
+/// of `format` ([`displacement::write_field_with`], which records `direction` where the flavour can).
+///
+/// # Errors
+/// A name that does not fit `format` ([`check_field_name`]), or what the writers refuse.
+pub fn write_displacements(
+    out: &Path,
+    format: FieldFormat,
+    direction: FieldDirection,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<(), Failure> {
+    if itk_tfm::is_hdf5_name(out) {
+        check_field_name(out, format)?;
+        itk_h5::write(out, &[H5Transform::Field { dims, lps_from_index, displacements_lps }])?;
+    } else {
+        displacement::write_field_with(out, format, direction, dims, lps_from_index, displacements_lps)?;
+    }
     Ok(())
 }
 
@@ -440,14 +485,7 @@ pub fn write_field(field: &Field, out: &Path, format: FieldFormat, tfm: Option<&
             )));
         }
     };
-    displacement::write_field_with(
-        out,
-        format,
-        field.direction,
-        field.dims,
-        &field.lps_from_index,
-        &field.displacements_lps,
-    )?;
+    write_displacements(out, format, field.direction, field.dims, &field.lps_from_index, &field.displacements_lps)?;
     if let Some((path, transform)) = tfm {
         transform_file::write(path, transform)?;
     }

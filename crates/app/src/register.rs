@@ -16,7 +16,7 @@ use std::time::Instant;
 use anyhow::anyhow;
 use serde::Serialize;
 use warpbench_io::Volume;
-use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_io::displacement::{FieldDirection, FieldFormat};
 use warpbench_io::geometry::{Point3, Space};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::SolverError;
@@ -81,7 +81,8 @@ pub struct RegisterArgs {
     #[command(flatten)]
     pub pairs: RegisterPairArgs,
     /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
-    /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage).
+    /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage; .h5 for ITK's HDF5 transform file holding it as
+    /// a DisplacementFieldTransform, as ANTs' Composite.h5).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
@@ -456,7 +457,7 @@ fn write_inverse<W: Warp<Moving, Fixed>>(
         true
     })
     .ok_or_else(|| Failure::Internal(anyhow!("sampling the inverse stopped")))?;
-    displacement::write_field_with(
+    crate::field::write_displacements(
         path,
         format,
         FieldDirection::Forward,
@@ -612,7 +613,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let Some(max_displacement_mm) = sampled.max_norm_mm else {
         return Err(Failure::Internal(anyhow!("the registered warp is not finite somewhere in the fixed grid")));
     };
-    displacement::write_field_with(
+    crate::field::write_displacements(
         &out_field,
         format,
         FieldDirection::Pullback,

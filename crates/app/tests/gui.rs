@@ -304,6 +304,19 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let metaimage_out = dir.path().join("field.mha");
     let message = export("Export displacement field", &metaimage_out);
     assert!(message.contains("displacement field"), "{message}");
+    // .h5: ITK's HDF5 transform file, holding the same vectors as a DisplacementFieldTransform.
+    let h5_out = dir.path().join("field.h5");
+    let message = export("Export displacement field", &h5_out);
+    assert!(message.contains("displacement field"), "{message}");
+    let (nifti, _) = warpbench_io::displacement::read_field(&field_out).expect("the NIfTI field");
+    let chain = warpbench_io::itk_h5::read(&h5_out).unwrap_or_else(|e| panic!("{e}"));
+    let [nx, ny, _] = nifti.dims;
+    for v in [0, nifti.displacements_lps.len() / 3, nifti.displacements_lps.len() - 1] {
+        let ijk = [(v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64];
+        let x = nifti.lps_from_index.apply_point(warpbench_io::geometry::Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+        let (y, d) = (chain.apply(x), nifti.displacements_lps[v]);
+        assert!((0..3).all(|a| (y[a] - x[a] - f64::from(d[a])).abs() < 1e-4), "voxel {ijk:?}: {y:?}, D {d:?}");
+    }
     let inverse_out = dir.path().join("inverse.nrrd");
     let message = export("Export inverse field", &inverse_out);
     assert!(message.contains("inverse (forward) displacement field"), "{message}");
@@ -335,7 +348,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     harness.get_by_label("Export displacement field").click();
     harness.run_steps(2);
     let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
-    assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, .mhd)"), "{message}");
+    assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd) or ITK's HDF5"), "{message}");
     assert!(!text.exists());
     let tfm_for_elastix = dir.path().join("elastix.tfm");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = tfm_for_elastix.display().to_string();

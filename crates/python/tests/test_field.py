@@ -8,7 +8,8 @@
 - ITK's HDF5 transform file of an affine and a displacement field (`tests/data/itk/h5_composite.h5`, written by
   SimpleITK as antsRegistration writes `Composite.h5`) reads to the field SimpleITK's TransformToDisplacementField
   makes of it on the field's grid, within f32 rounding;
-- a field written by `Warp.field` in each flavour reads back to the same vectors and names its flavour;
+- a field written by `Warp.field` in each flavour reads back to the same vectors and names its flavour, and one
+  named `.h5` is ITK's HDF5 transform file, which SimpleITK applies as x + D(x);
 - `Warp.jacobian` is the limit of SimpleITK's finite-difference Jacobian determinant, and the CLI's map.
 """
 
@@ -84,6 +85,17 @@ def test_a_written_field_reads_back_in_every_flavour(tmp_path):
         assert back.direction == ("pullback" if fmt == "nrrd" else None)
         np.testing.assert_allclose(back.array, sampled, rtol=0, atol=1e-6 if fmt == "itk" else 0)
         np.testing.assert_allclose(back.lps_from_index, head.lps_from_index, atol=1e-4)
+    # ITK's HDF5 transform file: the field as a DisplacementFieldTransform, read back by warpbench and SimpleITK.
+    sampled = warp.field(path=tmp_path / "f.h5")
+    back = wb.read_field(tmp_path / "f.h5")
+    assert (back.source, back.direction) == ("itk_h5", "pullback")
+    np.testing.assert_array_equal(back.array, sampled)
+    theirs = sitk.ReadTransform(str(tmp_path / "f.h5"))
+    x = head.lps_from_index @ np.array([40.0, 50.0, 30.0, 1.0])
+    np.testing.assert_allclose(theirs.TransformPoint(tuple(x[:3])), x[:3] + sampled[40, 50, 30], rtol=0, atol=1e-9)
+    with pytest.raises(ValueError, match="HDF5 transform file"):
+        warp.field(path=tmp_path / "n.h5", format="nrrd")
+    assert not (tmp_path / "n.h5").exists()
 
 
 def test_what_is_not_a_field_is_a_value_error_naming_it(tmp_path):

@@ -9,7 +9,9 @@
   same class and numbers as from the `.tfm` of the same run.
 - A session with a displacement field under its landmarks, which no `.tfm` holds: `transform --session S --out
   x.h5` writes a DisplacementFieldTransform that SimpleITK applies as `warpbench points --session` maps points.
-- `warpbench field --out x.h5` is refused with exit 2, and nothing is written: a field image is not an HDF5 file.
+- `warpbench field --out x.h5` writes the field as ITK's DisplacementFieldTransform, pull-back or forward: SimpleITK
+  applies it as the NIfTI field of the same run, and as `warpbench points` maps points; with another `--format` it is
+  refused with exit 2, and nothing is written.
 
 Needs SimpleITK and numpy, and the CLI binary (`conftest.py`).
 """
@@ -182,10 +184,38 @@ def test_simpleitk_applies_a_sessions_field_from_the_h5_as_warpbench_maps_points
     assert moved > 0.5  # the field is there
 
 
-def test_no_field_image_is_written_to_an_h5_name(tmp_path: Path) -> None:
+def test_a_field_named_h5_is_the_transform_simpleitk_applies(tmp_path: Path) -> None:
+    fixed_path, moving_path = pair(tmp_path)
+    common = ["--fixed", fixed_path, "--moving", moving_path, "--landmarks", five_pairs(tmp_path), "--quiet"]
+    for direction, grid_path, side in [("pullback", fixed_path, "fixed"), ("forward", moving_path, "moving")]:
+        h5, nii = tmp_path / f"{direction}.h5", tmp_path / f"{direction}.nii.gz"
+        for out in (h5, nii):
+            warpbench("field", *common, "--direction", direction, "--out", out)
+        theirs = sitk.ReadTransform(str(h5))
+        # The same vectors as the NIfTI flavour of the same run, which SimpleITK reads as a field image.
+        field = sitk.DisplacementFieldTransform(sitk.Cast(sitk.ReadImage(str(nii)), sitk.sitkVectorFloat64))
+        grid = sitk.ReadImage(str(grid_path))
+        rng = np.random.default_rng(11)
+        size = np.array(grid.GetSize())
+        points = [grid.TransformIndexToPhysicalPoint(tuple(int(v) for v in rng.integers(0, size))) for _ in range(30)]
+        points += [grid.TransformContinuousIndexToPhysicalPoint(tuple(rng.uniform(1, size - 2))) for _ in range(30)]
+        for p in points:
+            np.testing.assert_allclose(theirs.TransformPoint(p), field.TransformPoint(p), rtol=0, atol=1e-9)
+        # And the map warpbench means: fixed to moving for the pull-back, moving to fixed for the forward field.
+        targets = tmp_path / f"{direction}_targets.csv"
+        targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points[:30]))
+        mapped = tmp_path / f"{direction}_mapped.csv"
+        warpbench("points", *common, "--from", side, "--in", targets, "--out", mapped)
+        ours = [[float(v) for v in line.split(",")[:3]] for line in mapped.read_text().splitlines()]
+        for p, want in zip(points[:30], ours):
+            # At the grid's voxel centres the file holds the map itself, in f32 (1e-6 of a few mm).
+            np.testing.assert_allclose(theirs.TransformPoint(p), want, rtol=0, atol=1e-5, err_msg=f"{direction} {p}")
+
+
+def test_a_field_named_h5_takes_the_default_flavour_only(tmp_path: Path) -> None:
     fixed, moving = pair(tmp_path)
     out = tmp_path / "field.h5"
-    done = warpbench("field", "--fixed", fixed, "--moving", moving, "--landmarks", five_pairs(tmp_path), "--out", out,
-                     expect=2)
-    assert "a displacement field image is not one" in done.stderr and out.name in done.stderr
+    done = warpbench("field", "--fixed", fixed, "--moving", moving, "--landmarks", five_pairs(tmp_path), "--format",
+                     "nrrd", "--out", out, expect=2)
+    assert "HDF5 transform file" in done.stderr and out.name in done.stderr
     assert not out.exists()

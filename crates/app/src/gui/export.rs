@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, TryRecvError};
 
 use eframe::egui;
-use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
+use warpbench_io::displacement::{FieldDirection, FieldFormat};
 use warpbench_io::itk_tfm;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::{Progress, Volume};
@@ -87,7 +87,7 @@ impl ExportJob {
             }
             ExportKind::Map { .. } => warp::check_outputs(&out, None).map_err(|e| format!("{e:#}"))?,
             ExportKind::Field | ExportKind::InverseField => {
-                displacement::check_output_name(&out, field_format(&out)?).map_err(|e| e.to_string())?;
+                field::check_field_name(&out, field_format(&out)?).map_err(|f| format!("{:#}", f.error()))?;
             }
             ExportKind::Transform { format } => check_transform_output(&out, *format)?,
         }
@@ -335,14 +335,19 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
 
 /// The flavour a field exported to `out` is written in, by its name: `.nii`, `.nii.gz` ITK's (NIfTI `DISPVECT`,
 /// what ITK, ANTs and Slicer read), `.nrrd` Slicer's (which also records the direction), `.mha`, `.mhd` MetaImage
-/// (elastix's and ITK's).
+/// (elastix's and ITK's); `.h5` is ITK's HDF5 transform file holding the field ([`field::write_displacements`]).
 ///
 /// # Errors
 /// Any other name, in words for the status bar.
 pub fn field_format(out: &Path) -> Result<FieldFormat, String> {
+    if itk_tfm::is_hdf5_name(out) {
+        // ITK's HDF5 transform file ([`field::write_displacements`]); its flavour is the default's.
+        return Ok(FieldFormat::Itk);
+    }
     FieldFormat::from_extension(out).ok_or_else(|| {
         format!(
-            "{}: a displacement field is exported as NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, .mhd)",
+            "{}: a displacement field is exported as NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd) or \
+             ITK's HDF5 transform file (.h5)",
             out.display()
         )
     })

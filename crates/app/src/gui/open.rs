@@ -209,9 +209,9 @@ impl Purpose {
             Self::ExportWarped | Self::ExportMap(_) => {
                 d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"])
             }
-            Self::ExportField | Self::ExportInverseField => {
-                d.add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
-            }
+            Self::ExportField | Self::ExportInverseField => d
+                .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
+                .add_filter("ITK transform holding the field (HDF5)", &["h5"]),
             Self::UseField => d
                 .set_title("A displacement field, or an elastix or ITK transform, to put under the landmarks")
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])

@@ -334,7 +334,8 @@ class Warp:
         """The displacement field on ``reference``'s grid (default: the fixed volume for ``"pullback"``, the moving
         one for ``"forward"``): u(x) − x or d(y) − y, shape (ni, nj, nk, 3), float32 LPS vectors. With ``path``
         it is also written in ``format`` (``"itk"``: NIfTI DISPVECT, ``"ants"``, ``"nrrd"``, ``"metaimage"``: .mha or
-        .mhd, as elastix writes fields), as ``warpbench field`` writes it."""
+        .mhd, as elastix writes fields), as ``warpbench field`` writes it; a ``path`` ending ``.h5`` (with ``"itk"``)
+        is ITK's HDF5 transform file holding the field as a DisplacementFieldTransform."""
         if reference is None:
             reference = self.fixed if direction == "pullback" else self.moving
         if reference is None:
