@@ -838,6 +838,19 @@ fn a_group_0002_element_in_an_implicit_vr_data_set_is_walked_as_dicom_rs_reads_i
     );
 }
 
+/// Found by cargo-fuzz (2026-12-06, the registration reader's target): a 425-byte file whose Transfer Syntax UID,
+/// Implicit VR Little Endian, is padded with NULs and a tab. dicom-rs trims any trailing whitespace and read the data
+/// set as implicit VR; the length check trimmed only NULs and spaces, did not know the syntax, and walked the data
+/// set as explicit VR, where a (0000,0000) UL of dicom-rs's walk declared 3.6 GB, which it reserved. The check now
+/// trims as dicom-rs does and refuses that length.
+#[test]
+fn a_transfer_syntax_padded_with_whitespace_is_read_as_dicom_rs_reads_it() {
+    let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/bad/ts_tab_padding.dcm");
+    let err = warpbench_io::dicom_reg::read_affine(&corpus).expect_err("hostile file");
+    let msg = err.to_string();
+    assert!(msg.contains("ts_tab_padding.dcm") && msg.contains("(0000,0000)") && msg.contains("3640590336"), "{msg}");
+}
+
 /// Found by cargo-fuzz: a 1 KB deflated file whose file meta group length, (0002,0000), covers an element outside
 /// group 0002, (0003,0012). dicom-rs reads the meta group by its length, so it inflated the data set from a later
 /// byte than the length check did, and met an element declaring 3 GB, which it reserved before reading. The check

@@ -56,8 +56,12 @@ pub(super) fn check_lengths(data: &[u8]) -> std::result::Result<Checked, (bool, 
         }
         let value = w.value_range(tag, pos + header, len, data.len())?;
         if tag == (0x0002, 0x0010) {
-            ts =
-                String::from_utf8_lossy(&data[value.clone()]).trim_matches(|c: char| c == '\0' || c == ' ').to_string();
+            // Trimmed as dicom-rs trims it (`FileMetaTable::transfer_syntax`): any trailing whitespace or NUL. A tab
+            // among the padding once made this walk take the data set as explicit VR while dicom-rs read it as
+            // implicit VR, where a (0000,0000) UL declared 3.6 GB.
+            ts = String::from_utf8_lossy(&data[value.clone()])
+                .trim_end_matches(|c: char| c.is_whitespace() || c == '\0')
+                .to_string();
         }
         consumed += (header as u64) + u64::from(len);
         pos = value.end;
