@@ -90,7 +90,7 @@ and PACS: a Spatial Registration for a linear warp (its matrix maps the moving s
 fixed series'), a Deformable Spatial Registration of the warp sampled on the fixed grid for any other.
 
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
-    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --session case.wbsession --out mr_to_ct.h5
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --session case.warpbench.json --out mr_to_ct.h5
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt
     warpbench transform --fixed ct_series/ --moving mr_series/ --landmarks pairs.csv --method rigid --format dicom --out reg.dcm";
 
@@ -107,14 +107,12 @@ pub struct TransformArgs {
     #[command(flatten)]
     pub pairs: PairArgs,
     /// The ITK transform file to write (.tfm or .txt; .h5, ITK's HDF5 file; .mat, ANTs' MATLAB file, for the
-    /// linear methods), with
-    /// --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt), with --format dicom a
-    /// DICOM registration (.dcm).
+    /// linear methods), with --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt),
+    /// with --format dicom a DICOM registration (.dcm).
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// itk (default): an ITK transform file (ITK's HDF5 or ANTs' .mat by its name); elastix: an elastix transform
-    /// parameter
-    /// file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
+    /// parameter file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
     /// DeformationFieldTransform over a field beside it for a session with a field or a brush); dicom: a DICOM
     /// (Deformable) Spatial Registration between two DICOM series.
     #[arg(long, value_enum, default_value = "itk")]
@@ -276,10 +274,9 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
 }
 
 /// Writes `exact`'s transform to `path` in `format`, atomically: an ITK `.tfm` (its HDF5 file or ANTs' `.mat` for a
-/// name ending so, [`transform_file::write`]),
-/// an elastix parameter file over the fixed volume's grid, or a DICOM Spatial Registration between the two DICOM
-/// series `pair` was read from ([`write_dicom_registration`]; [`write_dicom`] also writes the deformable ones, and
-/// is what the command line and the window call for DICOM).
+/// name ending so, [`transform_file::write`]), an elastix parameter file over the fixed volume's grid, or a DICOM
+/// Spatial Registration between the two DICOM series `pair` was read from ([`write_dicom_registration`];
+/// [`write_dicom`] also writes the deformable ones, and is what the command line and the window call for DICOM).
 ///
 /// # Errors
 /// What the writers refuse (a TPS or B-spline to `.mat` or DICOM, a name that does not fit, numbers that are not

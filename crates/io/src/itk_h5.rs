@@ -38,12 +38,13 @@
 //!
 //! # Writing
 //!
-//! [`write()`] lays the file out as ITK does, with the datasets' names as ITK ≥ 4.7 spells them, a variable-length
-//! string for the class (what ITK's reader asks the HDF5 library for) and the parameters in doubles. A displacement
-//! field is written as `DisplacementFieldTransform_float_3_3` with its vectors in single precision, the precision
-//! warpbench samples fields in: the numbers are the field's own, at half the size of doubles (a 512 × 512 × 300
-//! field is 0.9 GB), and ITK reads the class into its double transform as it reads any float transform. ITK's
-//! version strings (`/ITKVersion`, `/OSName`, …) are not written: no reader needs them, and warpbench is not ITK.
+//! [`write()`] lays the file out as ITK does, with the datasets' names as SimpleITK 2.5.7 writes them (the table
+//! above), a variable-length ASCII string for the class (ITK's reader asks the HDF5 library for one, which converts
+//! neither a fixed-length nor a UTF-8 string to it) and the parameters in doubles. A displacement field is written as
+//! `DisplacementFieldTransform_float_3_3` with its vectors in single precision, the precision warpbench samples
+//! fields in: the numbers are the field's own, at half the size of doubles (a 512 × 512 × 300 field is 0.9 GB), and
+//! ITK reads the class into its double transform as it reads any float transform. ITK's version strings
+//! (`/ITKVersion`, `/OSName`, …) are not written: no reader needs them, and warpbench is not ITK.
 //! SimpleITK's reading of written files is checked in `crates/python/tests/test_itk_h5_sitk.py`.
 
 use std::path::Path;
