@@ -261,6 +261,30 @@ ELASTIX_FILES = [
     ("elastix/transformix_field_transform.json", "elastix_field_transform.py"),
 ]
 
+# ITK's thin-plate-spline transform files, ITK's class and 3D Slicer's, written by ITK's Python wheels.
+ITK_MADE = """
+## `itk/tps_*` and `itk/slicer_tps_reference.json`: written by ITK from synthetic landmarks
+
+Not downloaded: `data-scripts/slicer_tps.py` has ITK 5.4.7 (PyPI wheels `itk-core`, `itk-numerics`,
+`itk-filtering` and `itk-io` 5.4.7 in `data-cache/venv`) write a `ThinPlateSplineKernelTransform` through landmarks
+the script makes up (seeded), with its `TransformFileWriter`, as `.tfm` and `.h5`: `itk/tps_itk.*` from the fixed
+points to the moving ones, and `itk/tps_slicer.*` from the moving points to the fixed ones under 3D Slicer's class
+name, `InverseThinPlateSplineKernelTransform_double_3_3`, put in by the script (h5py 3.14.0 rewrites the `.h5`'s
+`TransformType`, as the variable-length ASCII string ITK writes). `itk/slicer_tps_reference.json` holds the points
+and ITK's `TransformPoint` of both splines at 60 query points. The values are deterministic, but HDF5 stamps the
+objects it writes with the time, so a rerun's `.h5` bytes differ. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+ITK_FILES = [
+    ("itk/tps_itk.tfm", "slicer_tps.py"),
+    ("itk/tps_itk.h5", "slicer_tps.py"),
+    ("itk/tps_slicer.tfm", "slicer_tps.py"),
+    ("itk/tps_slicer.h5", "slicer_tps.py"),
+    ("itk/slicer_tps_reference.json", "slicer_tps.py"),
+]
+
 # plastimatch's DICOM Spatial Registration, the peer the REG writer is compared with.
 PLASTIMATCH_MADE = """
 ## `dicom_reg/`: plastimatch's DICOM registration for a known transform
@@ -328,6 +352,7 @@ def main() -> int:
     out.append(CRANIUM)
     out.append(LANDMARKS_UPSTREAM)
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
+    out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))
     text = "".join(out)
