@@ -17,7 +17,7 @@
 //!
 //! The classes and their numbers are those of the text `.tfm` ([`crate::itk_tfm`]: the affine and ITK's other linear
 //! classes, read as affines, and the cubic B-spline; a thin-plate spline is refused here, since it would have to be
-//! fitted again), plus
+//! fitted again: its landmarks are read as pairs by [`crate::landmarks::read_landmark_pairs`]), plus
 //! **`DisplacementFieldTransform_double_3_3`**: the fixed parameters are 18 numbers, the field's size (voxels per
 //! axis), origin (LPS mm), spacing (mm) and direction (row by row); the parameters are its vectors, LPS mm, three
 //! per voxel (x, y, z), voxels in image order (x fastest). ITK maps T(x) = x + D(x), with D read trilinearly between
@@ -31,7 +31,8 @@
 //!
 //! Points are in LPS mm, as in every ITK file, and the transform maps the output (fixed) space to the input
 //! (moving) one: a pull-back, `moving_from_fixed`. 3D Slicer's `Inverse…` classes (a transform saved in its
-//! modeling direction) are refused with a message that says how to save the transform so that it can be read.
+//! modeling direction) are refused here with a message that says how to save the transform so that it can be read;
+//! the landmarks of its `InverseThinPlateSplineKernelTransform` are read as pairs, as those of ITK's spline.
 //!
 //! Checked against SimpleITK 2.5.7 (`crates/io/tests/itk_h5.rs`; `tests/data/itk/h5_*.h5` written by SimpleITK, and
 //! what its `TransformPoint` and `TransformToDisplacementField` give for them).
@@ -182,8 +183,9 @@ pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
                 path,
                 format!(
                     "{group} is {kind}, 3D Slicer's {plain} saved in its modeling direction, which warpbench does not \
-                     read; in Slicer, invert the transform (or harden it) before saving, or save the displacement \
-                     field as a .nrrd"
+                     read as a transform; a thin-plate spline's landmarks are read as pairs (--landmarks), and \
+                     otherwise, in Slicer, invert the transform (or harden it) before saving, or save the \
+                     displacement field as a .nrrd"
                 ),
             ));
         }
@@ -211,6 +213,50 @@ pub fn read_affine(path: &Path) -> Result<ItkAffine> {
             ),
         )
     })
+}
+
+/// The class and the numbers of a file's one transform, not yet interpreted: what a thin-plate spline's landmarks
+/// are read from ([`crate::landmarks`]), whatever its class.
+pub(crate) struct RawTransform {
+    /// The ITK class, as `TransformType` names it.
+    pub kind: String,
+    /// `TransformParameters`.
+    pub params: Vec<f64>,
+    /// `TransformFixedParameters`.
+    pub fixed: Vec<f64>,
+}
+
+/// The one transform of an `.h5` file's bytes (alone, or the only member of a composite); `path` is used in errors,
+/// which also refuse a file of several transforms, naming their classes.
+pub(crate) fn parse_single(path: &Path, bytes: Vec<u8>) -> Result<RawTransform> {
+    let file = File::from_bytes(bytes)
+        .map_err(|e| Error::invalid(path, format!("not an HDF5 file warpbench can read: {e}")))?;
+    let count = transform_count(path, &file)?;
+    let mut kinds = Vec::with_capacity(count);
+    for i in 0..count {
+        let group = format!("/TransformGroup/{i}");
+        let kind = read_kind(path, &file, &group)?;
+        if !(i == 0 && COMPOSITE_TYPES.contains(&kind.as_str())) {
+            kinds.push((group, kind));
+        }
+    }
+    match kinds.as_slice() {
+        [(group, kind)] => {
+            let limit = 3 * crate::itk_tfm::MAX_TPS_LANDMARKS;
+            let params = read_numbers(path, &file, group, "TransformParameters", limit)?;
+            let fixed = read_numbers(path, &file, group, "TransformFixedParameters", limit)?;
+            Ok(RawTransform { kind: kind.clone(), params, fixed })
+        }
+        [] => Err(Error::invalid(path, "the composite transform holds no transforms")),
+        many => Err(Error::unsupported(
+            path,
+            format!(
+                "{} transforms ({}); one was expected",
+                many.len(),
+                many.iter().map(|(_, k)| k.as_str()).collect::<Vec<_>>().join(", ")
+            ),
+        )),
+    }
 }
 
 /// Reads an `.h5` file holding a displacement field (alone, or in a composite with affines and B-splines) and
@@ -324,8 +370,8 @@ fn read_step(path: &Path, file: &File, group: &str, kind: &str) -> Result<ItkSte
         ItkTransform::ThinPlateSpline(_) => Err(Error::unsupported(
             path,
             format!(
-                "{group} is a {kind}: ITK stores only its landmarks and fits it again on reading, which warpbench \
-                 does not do for an .h5; give its landmarks as pairs instead"
+                "{group} is a {kind}: ITK stores only its landmarks and fits it again on reading; give the file as \
+                 landmark pairs (--landmarks), which warpbench fits the same way"
             ),
         )),
         t => Ok(ItkStep::Transform(t)),

@@ -13,6 +13,7 @@ mod elastix_points;
 mod itk_h5;
 mod itk_h5_write;
 mod itk_linear;
+mod itk_tps;
 mod jpegls;
 mod landmarks;
 mod metaimage;

@@ -96,7 +96,7 @@ use crate::error::{Error, ErrorKind, Result};
 use ants_mat::{MatAffine, mat_bytes, parse_mat_numbers};
 
 /// The first line of every ITK transform file.
-const MAGIC: &str = "#Insight Transform File V1.0";
+pub(crate) const MAGIC: &str = "#Insight Transform File V1.0";
 
 /// Transform types read as an affine (all share the 12 + 3 parameter layout).
 const AFFINE_TYPES: [&str; 3] =
@@ -506,10 +506,13 @@ fn read_file(path: &Path) -> Result<Contents> {
 }
 
 /// The three lines of a one-transform file, numbers parsed but not yet counted.
-struct Lines<'a> {
-    kind: &'a str,
-    params: Vec<f64>,
-    fixed: Vec<f64>,
+pub(crate) struct Lines<'a> {
+    /// The `Transform:` line's class.
+    pub kind: &'a str,
+    /// The `Parameters:` line.
+    pub params: Vec<f64>,
+    /// The `FixedParameters:` line.
+    pub fixed: Vec<f64>,
 }
 
 /// Parses the text of a `.tfm` holding one transform; `name` is used in errors.
@@ -547,6 +550,15 @@ pub(crate) fn transform_of(name: &Path, kind: &str, params: &[f64], fixed: &[f64
         ItkTransform::BSpline(bspline_of(name, params, fixed)?)
     } else if let Some(affine) = linear_of(name, kind, params, fixed)? {
         ItkTransform::Affine(affine)
+    } else if let Some(plain) = kind.strip_prefix("Inverse") {
+        return Err(Error::unsupported(
+            name,
+            format!(
+                "transform type {kind:?}, 3D Slicer's {plain} saved in its modeling direction, which warpbench does \
+                 not read as a transform; a thin-plate spline's landmarks are read as pairs (--landmarks), and \
+                 otherwise, in Slicer, invert the transform (or harden it) before saving"
+            ),
+        ));
     } else {
         return Err(Error::unsupported(
             name,
@@ -726,7 +738,8 @@ fn bspline_of(name: &Path, p: &[f64], f: &[f64]) -> Result<ItkBSpline> {
     })
 }
 
-fn parse_lines<'a>(name: &Path, text: &'a str) -> Result<Lines<'a>> {
+/// The lines of a `.tfm` holding one transform of any class; `name` is used in errors.
+pub(crate) fn parse_lines<'a>(name: &Path, text: &'a str) -> Result<Lines<'a>> {
     let mut lines = text.lines().map(str::trim).filter(|l| !l.is_empty());
     if lines.next() != Some(MAGIC) {
         return Err(Error::new(

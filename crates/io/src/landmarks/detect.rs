@@ -4,9 +4,11 @@ use std::path::Path;
 
 use super::bigwarp_json::{bigwarp_table, not_bigwarp, parse_gson_json};
 use super::elastix_points::{looks_like_elastix_points, looks_like_transformix_output};
+use super::itk_tps::looks_like_tfm;
 use super::plain_csv::looks_like_plain_csv;
-use super::text::{read_text, strip_bom};
+use super::text::{read_bytes, strip_bom, utf8};
 use crate::error::Result;
+use crate::itk_h5::looks_like_hdf5;
 
 /// The kinds of landmark file, as [`detect_landmark_format`] tells them apart.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -26,13 +28,19 @@ pub enum LandmarkFileFormat {
     ElastixPoints,
     /// transformix's `outputpoints.txt`: pairs (each input point, on the fixed image, and its image on the moving one).
     TransformixOutput,
+    /// An ITK or 3D Slicer thin-plate-spline transform file (`.tfm` text or `.h5`): pairs, its landmarks
+    /// ([`super::itk_tps`]).
+    ItkThinPlateSpline,
 }
 
 impl LandmarkFileFormat {
     /// Whether the file holds pairs (BigWarp) rather than one side (Slicer).
     #[must_use]
     pub fn holds_pairs(self) -> bool {
-        matches!(self, Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv | Self::TransformixOutput)
+        matches!(
+            self,
+            Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv | Self::TransformixOutput | Self::ItkThinPlateSpline
+        )
     }
 
     /// The format's name in messages and in `warpbench landmarks --json`.
@@ -46,6 +54,7 @@ impl LandmarkFileFormat {
             Self::PlainCsv => "plain-csv",
             Self::ElastixPoints => "elastix-points",
             Self::TransformixOutput => "transformix-output",
+            Self::ItkThinPlateSpline => "itk-tps",
         }
     }
 }
@@ -53,7 +62,8 @@ impl LandmarkFileFormat {
 /// Tells the landmark format of `text` by its content, not its name: JSON (after one BOM and white space, an
 /// `{` or `[`) is BigWarp when it holds a BigWarp landmark table (see
 /// [`parse_bigwarp_json`](super::parse_bigwarp_json)), Slicer when it has a `markups` list, and refused otherwise
-/// with what was expected; text whose first line starts with `#` is a Slicer `.fcsv`, and text whose first line's
+/// with what was expected; text whose first line is `#Insight Transform File V1.0` is an ITK transform file (a
+/// thin-plate spline's landmarks), other text whose first line starts with `#` a Slicer `.fcsv`, and text whose first line's
 /// first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes every field, so its lines start with `"`);
 /// text whose first word is `point` or `index` (or whose first line is a lone count) an elastix point file, and text
 /// whose first line is transformix's `Point 0 ; … ; OutputPoint = […]` its `outputpoints.txt`; anything else is
@@ -70,6 +80,9 @@ pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFor
             Err(not_bigwarp(name, &root))
         };
     }
+    if looks_like_tfm(body) {
+        return Ok(LandmarkFileFormat::ItkThinPlateSpline);
+    }
     if body.starts_with('#') {
         return Ok(LandmarkFileFormat::SlicerFcsv);
     }
@@ -85,7 +98,11 @@ pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFor
     Ok(LandmarkFileFormat::BigWarpCsv)
 }
 
-/// [`detect_landmark_format`] of the file at `path`.
+/// [`detect_landmark_format`] of the file at `path`; an HDF5 file is an ITK transform file (`.h5`).
 pub fn detect_landmark_file(path: &Path) -> Result<LandmarkFileFormat> {
-    detect_landmark_format(path, &read_text(path)?)
+    let bytes = read_bytes(path)?;
+    if looks_like_hdf5(&bytes) {
+        return Ok(LandmarkFileFormat::ItkThinPlateSpline);
+    }
+    detect_landmark_format(path, &utf8(path, bytes)?)
 }

@@ -77,6 +77,7 @@ mod detect;
 mod elastix_points;
 mod errors;
 mod fcsv;
+mod itk_tps;
 mod mrk_json;
 mod plain_csv;
 mod point_list;
@@ -99,6 +100,7 @@ pub use elastix_points::{
     transformix_pairs, write_elastix_points,
 };
 pub use fcsv::{parse_fcsv, read_fcsv, to_fcsv, write_fcsv};
+pub use itk_tps::{SplineFileClass, parse_spline_file};
 pub use mrk_json::{MARKUPS_SCHEMA, parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
 pub use plain_csv::{
     CsvCoordinates, looks_like_plain_csv, parse_plain_csv, plain_csv_header, read_plain_csv, to_plain_csv,
@@ -114,7 +116,7 @@ pub use slicer_pair::{read_slicer_pair, read_slicer_points, write_slicer_pair};
 pub use text::MAX_LANDMARK_FILE_BYTES;
 
 use errors::{elastix_one_side, slicer_one_side};
-use text::read_text;
+use text::{read_bytes, utf8};
 
 /// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON, plain CSV or transformix's `outputpoints.txt`, told
 /// apart by content; LPS mm.
@@ -128,8 +130,13 @@ pub fn read_landmark_pairs(path: &Path) -> Result<Vec<LandmarkPair>> {
 /// [`read_landmark_pairs`] with `options` for the BigWarp formats (a plain CSV's header states its own coordinate
 /// system).
 pub fn read_landmark_pairs_with(path: &Path, options: BigWarpCsvOptions) -> Result<Vec<LandmarkPair>> {
-    let text = read_text(path)?;
+    let bytes = read_bytes(path)?;
+    if crate::itk_h5::looks_like_hdf5(&bytes) {
+        return itk_tps::h5_pairs(path, bytes);
+    }
+    let text = utf8(path, bytes)?;
     match detect_landmark_format(path, &text)? {
+        LandmarkFileFormat::ItkThinPlateSpline => itk_tps::tfm_pairs(path, &text),
         LandmarkFileFormat::BigWarpCsv => parse_bigwarp_csv(path, &text, options),
         LandmarkFileFormat::BigWarpJson => parse_bigwarp_json(path, &text, options),
         LandmarkFileFormat::PlainCsv => parse_plain_csv(path, &text).map(|(pairs, _)| pairs),

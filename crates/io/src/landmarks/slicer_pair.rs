@@ -57,6 +57,11 @@ pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
             "transformix's outputpoints.txt holds pairs (each input point and its image), not a Slicer point list: \
              read it as a file of pairs",
         )),
+        Ok(LandmarkFileFormat::ItkThinPlateSpline) => Err(Error::unsupported(
+            path,
+            "an ITK transform file, not a Slicer point list: a thin-plate spline's file holds pairs (its landmarks); \
+             read it as a file of pairs",
+        )),
         // Slicer JSON, and JSON that is neither (parse_mrk_json says what it lacks).
         Ok(LandmarkFileFormat::SlicerMarkupsJson) | Err(_) => parse_mrk_json(path, &text),
     }

@@ -12,6 +12,16 @@ pub const MAX_LANDMARK_FILE_BYTES: u64 = 256 << 20;
 /// The text of the landmark file at `path`: a regular file (a named pipe would block, a device never end) of at
 /// most [`MAX_LANDMARK_FILE_BYTES`], checked before it is opened and bounded while it is read.
 pub(super) fn read_text(path: &Path) -> Result<String> {
+    utf8(path, read_bytes(path)?)
+}
+
+/// `bytes` of the file at `path` as text, or an error that names the file.
+pub(super) fn utf8(path: &Path, bytes: Vec<u8>) -> Result<String> {
+    String::from_utf8(bytes).map_err(|e| Error::invalid(path, format!("not UTF-8 text: {e}")))
+}
+
+/// The bytes of the landmark file at `path`, bounded as [`read_text`] reads them.
+pub(super) fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     let too_big = |bytes: u64| {
         Error::invalid(
             path,
@@ -31,7 +41,7 @@ pub(super) fn read_text(path: &Path) -> Result<String> {
     if bytes.len() as u64 > MAX_LANDMARK_FILE_BYTES {
         return Err(too_big(bytes.len() as u64));
     }
-    String::from_utf8(bytes).map_err(|e| Error::invalid(path, format!("not UTF-8 text: {e}")))
+    Ok(bytes)
 }
 
 /// `text` without one leading UTF-8 byte-order mark (U+FEFF), which Windows editors write and Slicer, BigWarp and
