@@ -225,6 +225,12 @@ pub fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Land
                     path.display()
                 )));
             }
+            if ras && format == LandmarkFileFormat::ItkThinPlateSpline {
+                return Err(Failure::BadInput(anyhow!(
+                    "{}: --ras is for BigWarp files; an ITK transform file is in LPS mm, as every ITK file",
+                    path.display()
+                )));
+            }
             if ras && format == LandmarkFileFormat::PlainCsv {
                 return Err(Failure::BadInput(anyhow!(
                     "{}: --ras is for BigWarp files; a plain CSV's header states its coordinate system (moving_l/p/s \

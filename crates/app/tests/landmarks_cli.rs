@@ -335,3 +335,28 @@ fn refusals_write_nothing() {
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("header states its coordinate system"));
 }
+
+/// A thin-plate-spline transform file (`data-scripts/slicer_tps.py`: ITK wrote it, with 3D Slicer's inverse class) is
+/// listed as the pairs it holds: its source landmarks are Slicer's moving points, as the script's JSON says; it
+/// converts to BigWarp like any file of pairs, and `--ras` is refused, since every ITK file is LPS.
+#[test]
+fn a_slicer_spline_file_lists_its_landmarks_as_pairs() {
+    let file = data("itk/tps_slicer.h5");
+    let text = std::fs::read_to_string(data("itk/slicer_tps_reference.json")).expect("reference");
+    let reference: Value = serde_json::from_str(&text).expect("JSON");
+    let listed = listing(&[utf8(&file)]);
+    assert_eq!(listed["format"], "itk-tps");
+    assert_eq!(listed["usable"], 10);
+    for (i, pair) in listed["pairs"].as_array().expect("pairs").iter().enumerate() {
+        assert_eq!(point(&pair["moving"]), point(&reference["moving"][i]), "pair {}", i + 1);
+        assert_eq!(point(&pair["fixed"]), point(&reference["fixed"][i]), "pair {}", i + 1);
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let csv = dir.path().join("pairs.csv");
+    assert_ok(&warpbench(&["landmarks", utf8(&file), "--out", utf8(&csv)]));
+    assert_eq!(pairs_of(&listing(&[utf8(&csv)])), pairs_of(&listed));
+    let run = warpbench(&["landmarks", utf8(&file), "--ras", "--json"]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("tps_slicer.h5") && stderr.contains("LPS"), "{stderr}");
+}

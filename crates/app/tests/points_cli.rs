@@ -606,3 +606,38 @@ fn suggest_finds_the_targets_of_a_known_rigid_transform() {
     }
     assert!(pairs[12].fixed.is_none() && !pairs[12].active);
 }
+
+/// ITK's and 3D Slicer's thin-plate-spline files (`data-scripts/slicer_tps.py`) given as `--landmarks` map points as
+/// ITK's `TransformPoint` maps them: ITK's class (fixed → moving) `--from fixed`, and the spline of Slicer's inverse
+/// class (moving → fixed, the transform Slicer resamples with being its inverse) `--from moving`. Both are the
+/// interpolating spline with kernel r that warpbench fits with TPS λ = 0; ITK solves it with an SVD and warpbench
+/// with an LU, each in doubles, so the two agree to rounding amplified by the system's condition (2e-14 mm here).
+#[test]
+fn itk_and_slicer_spline_files_map_points_as_itk_does() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let base = scene(dir.path());
+    let itk = data("itk");
+    let text = std::fs::read_to_string(itk.join("slicer_tps_reference.json")).expect("reference");
+    let reference: Value = serde_json::from_str(&text).expect("JSON");
+    let queries: Vec<[f64; 3]> = reference["queries"].as_array().expect("queries").iter().map(xyz).collect();
+    let input = dir.path().join("queries.csv");
+    write_point_csv(&input, &queries);
+    let cases = [
+        ("tps_itk.h5", "fixed", "moving_from_fixed"),
+        ("tps_itk.tfm", "fixed", "moving_from_fixed"),
+        ("tps_slicer.h5", "moving", "fixed_from_moving"),
+        ("tps_slicer.tfm", "moving", "fixed_from_moving"),
+    ];
+    for (name, from, map) in cases {
+        let s = Scene { fixed: base.fixed.clone(), moving: base.moving.clone(), landmarks: itk.join(name) };
+        let out = dir.path().join(format!("{name}.csv"));
+        let report = points(&s, &["--from", from, "--in", utf8(&input), "--out", utf8(&out), "--force"]);
+        assert_eq!(report["map"], map, "{name}");
+        assert_eq!(report["pairs"], 10, "{name}");
+        let want = reference[map].as_array().expect("outputs");
+        let got = report["points"].as_array().expect("points");
+        assert_eq!(got.len(), want.len(), "{name}");
+        let worst = got.iter().zip(want).map(|(g, w)| dist(xyz(&g["output_lps"]), xyz(w))).fold(0.0, f64::max);
+        assert!(worst < 1e-9, "{name}: {worst} mm from ITK");
+    }
+}

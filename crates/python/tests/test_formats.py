@@ -1,14 +1,16 @@
 """The Python and ITK worlds' formats through the package: MetaImage volumes, elastix point sets as pairs,
-transformix's output, and the ANTs affine .mat as fit's initial transform (each checked against the CLI, and the
+transformix's output, ITK's and 3D Slicer's thin-plate-spline files as pairs, and the ANTs affine .mat as fit's initial transform (each checked against the CLI, and the
 volumes against SimpleITK)."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 import pytest
 
 import warpbench as wb
-from conftest import FIXED, PAIRS, T1, run_cli
+from conftest import DATA, FIXED, PAIRS, T1, run_cli
 
 sitk = pytest.importorskip("SimpleITK")
 
@@ -51,6 +53,23 @@ def test_transformix_output_points_are_pairs(tmp_path):
     pairs = wb.read_landmarks(tmp_path / "outputpoints.txt")
     np.testing.assert_allclose(pairs.fixed, [[1.0, 2.0, 3.0], [10.0, -5.0, 7.5]])
     np.testing.assert_allclose(pairs.moving, pairs.fixed + [1.0, 0.0, -2.0])
+
+
+def test_a_slicer_spline_file_is_pairs_that_map_as_itk_does():
+    """3D Slicer's thin-plate spline (data-scripts/slicer_tps.py: ITK wrote it, under Slicer's inverse class), which
+    SimpleITK cannot read, gives its landmarks as pairs; the spline fitted on them is ITK's spline from the moving to
+    the fixed points, and ITK's own class gives the resampling spline."""
+    reference = json.loads((DATA / "itk" / "slicer_tps_reference.json").read_text())
+    for name in ["tps_slicer.h5", "tps_slicer.tfm"]:
+        with pytest.raises(RuntimeError):
+            sitk.ReadTransform(str(DATA / "itk" / name))
+        pairs = wb.read_landmarks(DATA / "itk" / name)
+        np.testing.assert_allclose(pairs.moving, reference["moving"], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(pairs.fixed, reference["fixed"], rtol=0, atol=1e-12)
+        warp = wb.fit(pairs, method="tps")
+        np.testing.assert_allclose(warp.forward(reference["queries"]), reference["fixed_from_moving"], rtol=0, atol=1e-9)
+    warp = wb.fit(wb.read_landmarks(DATA / "itk" / "tps_itk.h5"), method="tps")
+    np.testing.assert_allclose(warp.pullback(reference["queries"]), reference["moving_from_fixed"], rtol=0, atol=1e-9)
 
 
 def test_an_ants_mat_from_align_starts_a_fit_as_its_tfm_does(tmp_path):
