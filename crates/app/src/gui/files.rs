@@ -246,7 +246,8 @@ pub fn export_landmarks(path: &std::path::Path, pairs: &[LandmarkPair]) -> anyho
     Ok(())
 }
 
-/// Reads pairs from a BigWarp CSV or JSON (told apart by content), or from the `_moving` / `_fixed` Slicer lists
+/// Reads pairs from any file of pairs `--landmarks` takes (BigWarp CSV or JSON, the plain CSV, transformix's output, an
+/// ITK or 3D Slicer thin-plate-spline file; told apart by content), or from the `_moving` / `_fixed` Slicer lists
 /// named like [`export_landmarks`] writes them.
 pub fn import_landmarks(path: &std::path::Path) -> anyhow::Result<Vec<LandmarkPair>> {
     Ok(match slicer_pair_paths(path) {
@@ -352,5 +353,13 @@ mod tests {
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("pairs.json")).expect("read")).expect("JSON");
         assert_eq!(json["landmarks"]["type"], "BigWarpLandmarks", "{json}");
         assert!(import_landmarks(&dir.path().join("missing.csv")).is_err());
+    }
+
+    #[test]
+    fn a_slicer_spline_file_imports_as_its_pairs() {
+        let itk = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/itk");
+        let pairs = import_landmarks(&itk.join("tps_slicer.h5")).expect("import");
+        assert_eq!(pairs, warpbench_io::landmarks::read_landmark_pairs(&itk.join("tps_slicer.tfm")).expect("tfm"));
+        assert_eq!(pairs.len(), 10);
     }
 }

@@ -203,9 +203,11 @@ impl Purpose {
             Self::OpenFile(side) => volumes(d.set_title(format!("Open the {} volume", side.name()))),
             Self::OpenFolder(side) => d.set_title(format!("Open a DICOM folder as the {} volume", side.name())),
             Self::OpenSession | Self::SaveSession => d.add_filter("warpbench session", &["json"]),
-            Self::ImportLandmarks | Self::ExportLandmarks => {
-                d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
-            }
+            Self::ImportLandmarks => d
+                .add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
+                .add_filter("Thin-plate spline saved by 3D Slicer or ITK", &["h5", "tfm"])
+                .add_filter("transformix's outputpoints.txt", &["txt"]),
+            Self::ExportLandmarks => d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"]),
             Self::ExportWarped | Self::ExportMap(_) => {
                 d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"])
             }
