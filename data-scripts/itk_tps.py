@@ -68,7 +68,8 @@ def queries(rng: np.random.Generator, source: np.ndarray) -> np.ndarray:
     return np.vstack([source, inside, outside])
 
 
-def itk_outputs(itk, source, target, stiffness, query):
+def itk_spline(itk, source, target, stiffness=0.0):
+    """ITK's ThinPlateSplineKernelTransform<double, 3> from `source` to `target`, its weights computed."""
     tps = itk.ThinPlateSplineKernelTransform[itk.D, 3].New()
     point_set_type = type(tps.GetSourceLandmarks())
     sets = []
@@ -81,11 +82,20 @@ def itk_outputs(itk, source, target, stiffness, query):
     tps.SetTargetLandmarks(sets[1])
     tps.SetStiffness(stiffness)
     tps.ComputeWMatrix()
+    return tps
+
+
+def itk_map(itk, transform, points):
+    """`transform`'s TransformPoint of each point, as lists of floats."""
     out = []
-    for x in query:
-        y = tps.TransformPoint(itk.Point[itk.D, 3]([float(v) for v in x]))
+    for x in points:
+        y = transform.TransformPoint(itk.Point[itk.D, 3]([float(v) for v in x]))
         out.append([float(y[0]), float(y[1]), float(y[2])])
     return out
+
+
+def itk_outputs(itk, source, target, stiffness, query):
+    return itk_map(itk, itk_spline(itk, source, target, stiffness), query)
 
 
 def main() -> None:

@@ -36,6 +36,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from itk_tps import itk_map, itk_spline
+
 ITK_CORE_VERSION = "5.4.7"
 ITK_MODULES = ["core", "numerics", "filtering", "io"]
 H5PY_VERSION = "3.14.0"
@@ -68,29 +70,6 @@ def imports():
     return itk, h5py
 
 
-def spline(itk, source, target):
-    tps = itk.ThinPlateSplineKernelTransform[itk.D, 3].New()
-    point_set_type = type(tps.GetSourceLandmarks())
-    sets = []
-    for pts in (source, target):
-        ps = point_set_type.New()
-        for i, p in enumerate(pts):
-            ps.SetPoint(i, itk.Point[itk.D, 3]([float(v) for v in p]))
-        sets.append(ps)
-    tps.SetSourceLandmarks(sets[0])
-    tps.SetTargetLandmarks(sets[1])
-    tps.ComputeWMatrix()
-    return tps
-
-
-def mapped(itk, tps, points):
-    out = []
-    for x in points:
-        y = tps.TransformPoint(itk.Point[itk.D, 3]([float(v) for v in x]))
-        out.append([float(y[0]), float(y[1]), float(y[2])])
-    return out
-
-
 def rename_h5_class(h5py, path: Path) -> None:
     with h5py.File(path, "r+") as f:
         dataset = f["/TransformGroup/0/TransformType"]
@@ -115,11 +94,11 @@ def main() -> None:
     fixed += 1.2 * np.sin(moving / 7.0)[:, [1, 2, 0]]
     queries = np.vstack([moving, fixed, rng.uniform(-12.0, 12.0, (N_QUERIES, 3))])
 
-    resampling = spline(itk, fixed, moving)
+    resampling = itk_spline(itk, fixed, moving)
     itk.transformwrite([resampling], str(OUT / "tps_itk.tfm"))
     itk.transformwrite([resampling], str(OUT / "tps_itk.h5"))
 
-    slicer_spline = spline(itk, moving, fixed)
+    slicer_spline = itk_spline(itk, moving, fixed)
     itk.transformwrite([slicer_spline], str(OUT / "tps_slicer.tfm"))
     itk.transformwrite([slicer_spline], str(OUT / "tps_slicer.h5"))
     tfm = OUT / "tps_slicer.tfm"
@@ -140,8 +119,8 @@ def main() -> None:
         "note": "queries: the moving points, the fixed points, then random points; moving_from_fixed is ITK's "
         "TransformPoint of the spline from the fixed to the moving points (tps_itk.*), fixed_from_moving of the "
         "spline from the moving to the fixed points (Slicer's spline in tps_slicer.*, before its inversion)",
-        "moving_from_fixed": mapped(itk, resampling, queries),
-        "fixed_from_moving": mapped(itk, slicer_spline, queries),
+        "moving_from_fixed": itk_map(itk, resampling, queries),
+        "fixed_from_moving": itk_map(itk, slicer_spline, queries),
     }
     (OUT / "slicer_tps_reference.json").write_text(json.dumps(doc, separators=(",", ":")) + "\n")
     print(f"wrote tps_itk.{{tfm,h5}}, tps_slicer.{{tfm,h5}}, slicer_tps_reference.json into {OUT}")
