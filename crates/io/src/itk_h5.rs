@@ -165,19 +165,9 @@ pub fn read(path: &Path) -> Result<ItkChain> {
 /// # Errors
 /// As [`read`].
 pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
-    let file = File::from_bytes(bytes)
-        .map_err(|e| Error::invalid(path, format!("not an HDF5 file warpbench can read: {e}")))?;
-    let count = transform_count(path, &file)?;
-    let mut steps = Vec::with_capacity(count);
-    for i in 0..count {
-        let group = format!("/TransformGroup/{i}");
-        let kind = read_kind(path, &file, &group)?;
-        if COMPOSITE_TYPES.contains(&kind.as_str()) {
-            if i == 0 {
-                continue;
-            }
-            return Err(Error::unsupported(path, format!("{group} is a composite inside a composite ({kind})")));
-        }
+    let (file, members) = members(path, bytes)?;
+    let mut steps = Vec::with_capacity(members.len());
+    for Member { group, kind } in members {
         if let Some(plain) = kind.strip_prefix("Inverse") {
             return Err(Error::unsupported(
                 path,
@@ -191,10 +181,37 @@ pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
         }
         steps.push(read_step(path, &file, &group, &kind)?);
     }
-    if steps.is_empty() {
+    Ok(ItkChain { steps })
+}
+
+/// One transform of a file: its group and its class.
+struct Member {
+    group: String,
+    kind: String,
+}
+
+/// The opened file and its transforms, without the composite that may hold them (group `0`): at least one, and no
+/// composite inside the composite.
+fn members(path: &Path, bytes: Vec<u8>) -> Result<(File, Vec<Member>)> {
+    let file = File::from_bytes(bytes)
+        .map_err(|e| Error::invalid(path, format!("not an HDF5 file warpbench can read: {e}")))?;
+    let count = transform_count(path, &file)?;
+    let mut members = Vec::with_capacity(count);
+    for i in 0..count {
+        let group = format!("/TransformGroup/{i}");
+        let kind = read_kind(path, &file, &group)?;
+        if COMPOSITE_TYPES.contains(&kind.as_str()) {
+            if i == 0 {
+                continue;
+            }
+            return Err(Error::unsupported(path, format!("{group} is a composite inside a composite ({kind})")));
+        }
+        members.push(Member { group, kind });
+    }
+    if members.is_empty() {
         return Err(Error::invalid(path, "the composite transform holds no transforms"));
     }
-    Ok(ItkChain { steps })
+    Ok((file, members))
 }
 
 /// Reads an `.h5` file whose transforms are all affine, as the one affine they make (fixed → moving, LPS mm): a
@@ -229,31 +246,20 @@ pub(crate) struct RawTransform {
 /// The one transform of an `.h5` file's bytes (alone, or the only member of a composite); `path` is used in errors,
 /// which also refuse a file of several transforms, naming their classes.
 pub(crate) fn parse_single(path: &Path, bytes: Vec<u8>) -> Result<RawTransform> {
-    let file = File::from_bytes(bytes)
-        .map_err(|e| Error::invalid(path, format!("not an HDF5 file warpbench can read: {e}")))?;
-    let count = transform_count(path, &file)?;
-    let mut kinds = Vec::with_capacity(count);
-    for i in 0..count {
-        let group = format!("/TransformGroup/{i}");
-        let kind = read_kind(path, &file, &group)?;
-        if !(i == 0 && COMPOSITE_TYPES.contains(&kind.as_str())) {
-            kinds.push((group, kind));
-        }
-    }
-    match kinds.as_slice() {
-        [(group, kind)] => {
+    let (file, members) = members(path, bytes)?;
+    match members.as_slice() {
+        [Member { group, kind }] => {
             let limit = 3 * crate::itk_tfm::MAX_TPS_LANDMARKS;
             let params = read_numbers(path, &file, group, "TransformParameters", limit)?;
             let fixed = read_numbers(path, &file, group, "TransformFixedParameters", limit)?;
             Ok(RawTransform { kind: kind.clone(), params, fixed })
         }
-        [] => Err(Error::invalid(path, "the composite transform holds no transforms")),
         many => Err(Error::unsupported(
             path,
             format!(
                 "{} transforms ({}); one was expected",
                 many.len(),
-                many.iter().map(|(_, k)| k.as_str()).collect::<Vec<_>>().join(", ")
+                many.iter().map(|m| m.kind.as_str()).collect::<Vec<_>>().join(", ")
             ),
         )),
     }
