@@ -1,6 +1,7 @@
 //! Any bytes given to the ITK HDF5 transform reader give `Ok` or `Err`, never a panic or a hang; a chain it reads
 //! maps points without a panic and composes into an affine or says why not. What it reads, written again by
-//! `itk_h5::write`, reads back to the same map within rounding (or the writer refuses it, writing nothing).
+//! `itk_h5::write`, reads back to the same map within rounding (or the writer refuses it, writing nothing). The same
+//! bytes read as a thin-plate spline's landmark pairs give `Ok` or `Err`, and pairs with both points, finite.
 #![no_main]
 
 use std::path::Path;
@@ -10,6 +11,11 @@ use warpbench_io::itk_h5::{self, H5Transform};
 
 fuzz_target!(|data: &[u8]| {
     let name = Path::new("fuzz-input.h5");
+    if let Ok(pairs) = warpbench_io::landmarks::parse_spline_file(name, data.to_vec()) {
+        let finite =
+            |p: Option<warpbench_io::geometry::Point3<_>>| p.is_some_and(|q| q.coords().iter().all(|v| v.is_finite()));
+        assert!(pairs.iter().all(|p| finite(p.moving) && finite(p.fixed)), "a pair without two finite points");
+    }
     let Ok(chain) = itk_h5::parse(name, data.to_vec()) else { return };
     let points = [[0.0, 0.0, 0.0], [12.5, -40.0, 7.0], [1e6, -1e6, 3e5], [f64::NAN, 0.0, 1.0]];
     for x in points {
