@@ -9,6 +9,10 @@
 //! --quantity magnitude:       |u(x) − x| in mm, the length of the vector `warpbench field` writes there
 //! ```
 //!
+//! With `--direction forward` the map is of d = fixed_from_moving instead, on the moving grid (or `--reference`'s),
+//! fitted as `field --direction forward` fits it: det ∇d(y), how much the moving volume's content at y grows (above
+//! 1) or shrinks on its way to the fixed volume, and |d(y) − y|.
+//!
 //! These are the maps BigWarp shows as its Jacobian and warp-magnitude overlays and the window draws over its
 //! slices (and exports through [`jacobian_map`]); ANTs writes the first with `CreateJacobianDeterminantImage`. ITK's
 //! `DisplacementFieldJacobianDeterminantFilter` computes det ∇u by central differences of a field's voxels; this is
@@ -21,18 +25,19 @@ use std::path::{Path, PathBuf};
 use anyhow::anyhow;
 use rayon::prelude::*;
 use serde::Serialize;
+use warpbench_io::displacement::FieldDirection;
 use warpbench_io::geometry::Point3;
 use warpbench_io::volume::VoxelData;
 use warpbench_io::{Volume, volume};
-use warpbench_solver::spaces::Fixed;
+use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
 
 use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
-use crate::field::FieldInputs;
+use crate::field::{DirectionArg, FieldInputs};
 use crate::fit;
 use crate::inputs::{self, OutputFile, PairInputs, PairVolumes};
-use crate::project::stack::{Layers, StackPullback};
+use crate::project::stack::{Layers, StackForward, StackPullback};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-jacobian/1";
@@ -43,13 +48,16 @@ Write a map of the warp on the fixed grid as a volume: its Jacobian determinant,
 --quantity det (the default): det ∇u, below 1 where the warp squeezes, above 1 where it stretches, at or below 0
 where it folds; --quantity magnitude: |u(x) − x| in mm. u = moving_from_fixed, the pull-back fitted on the
 landmarks (and the session's or --initial's layers), evaluated exactly at every voxel centre.
+--direction forward maps d = fixed_from_moving on the moving grid instead (det ∇d: above 1 where the moving
+volume's content grows on its way to the fixed volume; |d(y) − y|), as field --direction forward samples d.
 
 The map is float32, written as its name says: .nii, .nii.gz, .nrrd, .mha or .mhd. --json reports the smallest and
 largest value, where the smallest is, and the fraction of voxels that fold.
 Examples:
 
     warpbench jacobian --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out det.nii.gz
-    warpbench jacobian --fixed ct.nii.gz --moving mr.nii.gz --session case.warpbench.json --quantity magnitude --out moved_mm.nrrd";
+    warpbench jacobian --fixed ct.nii.gz --moving mr.nii.gz --session case.warpbench.json --quantity magnitude --out moved_mm.nrrd
+    warpbench jacobian --fixed followup.nii.gz --moving baseline.nii.gz --landmarks pairs.csv --direction forward --out growth_on_baseline.nii.gz";
 
 /// The arguments of `warpbench jacobian`.
 #[derive(Debug, clap::Args)]
@@ -71,6 +79,10 @@ pub struct JacobianArgs {
     /// det (det ∇u) or magnitude (|u(x) − x|, mm).
     #[arg(long, value_enum, default_value = "det")]
     pub quantity: Quantity,
+    /// pullback: the map of u = moving_from_fixed on the fixed grid; forward: of d = fixed_from_moving on the moving
+    /// grid (det ∇d, |d(y) − y|), as `field --direction forward` samples d.
+    #[arg(long, value_enum, default_value = "pullback")]
+    pub direction: DirectionArg,
     /// The map to write: .nii, .nii.gz, .nrrd, .mha or .mhd.
     #[arg(long)]
     pub out: PathBuf,
@@ -98,17 +110,27 @@ impl Quantity {
         }
     }
 
-    /// The value at fixed point `x`.
+    /// The value of the pull-back at fixed point `x`.
     #[must_use]
     pub fn at(self, u: &StackPullback, x: [f64; 3]) -> f64 {
         match self {
             Self::Det => u.det_jacobian_at(x),
-            Self::Magnitude => {
-                let y = u.apply_raw(x);
-                ((y[0] - x[0]).powi(2) + (y[1] - x[1]).powi(2) + (y[2] - x[2]).powi(2)).sqrt()
-            }
+            Self::Magnitude => distance(u.apply_raw(x), x),
         }
     }
+
+    /// The value of the forward map at moving point `p`.
+    #[must_use]
+    pub fn at_forward(self, d: &StackForward, p: [f64; 3]) -> f64 {
+        match self {
+            Self::Det => d.det_jacobian_at(p),
+            Self::Magnitude => distance(d.apply_raw(p), p),
+        }
+    }
+}
+
+fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
 }
 
 /// The `--json` document, schema `warpbench-jacobian/1` (docs/cli.md).
@@ -120,8 +142,10 @@ pub struct JacobianSummary {
     /// The output grid: voxels along i, j, k and `lps_from_index` (row-major).
     pub dims: [usize; 3],
     pub lps_from_index: [[f64; 4]; 4],
-    /// `"fixed"` or `"reference"`: whose grid the map is sampled on.
+    /// `"fixed"`, `"moving"` (`--direction forward`) or `"reference"`: whose grid the map is sampled on.
     pub grid: &'static str,
+    /// `"pullback"` (u = moving_from_fixed) or `"forward"` (d = fixed_from_moving): whose map it is.
+    pub direction: &'static str,
     /// The method as fitted, e.g. `tps`.
     pub method: String,
     /// Landmark pairs used.
@@ -136,7 +160,8 @@ pub struct JacobianSummary {
 
 /// Runs `warpbench jacobian`: checks the output, loads, fits, samples, writes; the summary on `out` with `--json`.
 pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, Failure> {
-    let JacobianArgs { volumes, pairs, reference, quantity, out: out_path, report } = args;
+    let JacobianArgs { volumes, pairs, reference, quantity, direction, out: out_path, report } = args;
+    let direction = FieldDirection::from(direction);
     let ReportArgs { json, force, quiet } = report;
     let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
     let output = OutputFile { path: out_path, force };
@@ -149,14 +174,15 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
     let mut layers =
         Layers::new(inputs.start().map_err(Failure::BadInput)?, inputs.brushed().map_err(Failure::BadInput)?);
     layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
-    let (grid, grid_name) = match &reference {
-        Some(r) => (r, "reference"),
-        None => (&fixed, "fixed"),
+    let (grid, grid_name) = match (&reference, direction) {
+        (Some(r), _) => (r, "reference"),
+        (None, FieldDirection::Pullback) => (&fixed, "fixed"),
+        (None, FieldDirection::Forward) => (&moving, "moving"),
     };
     let pairs = inputs.pairs().map_err(Failure::BadInput)?;
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
-    let map = jacobian_map(grid, &made_of, quantity)?;
+    let map = jacobian_map(grid, &made_of, quantity, direction)?;
     warpbench_io::write_volume(&output.path, &map.volume)?;
     let summary = JacobianSummary {
         schema: SCHEMA,
@@ -165,6 +191,10 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
         dims: map.volume.dims,
         lps_from_index: map.volume.lps_from_index.rows(),
         grid: grid_name,
+        direction: match direction {
+            FieldDirection::Pullback => "pullback",
+            FieldDirection::Forward => "forward",
+        },
         method: map.method.clone(),
         pairs: map.pairs,
         min: map.min,
@@ -193,18 +223,32 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
 }
 
 /// `quantity` of the pull-back made of `inputs` (the pairs checked as `field` checks them, fitted over the fixed
-/// box on the stack's layers) at every voxel centre of `grid`: what `warpbench jacobian` writes, and the window's
-/// export.
+/// box on the stack's layers), or of the forward map (fitted over the moving box, as `field --direction forward`
+/// fits it), at every voxel centre of `grid`: what `warpbench jacobian` writes, and the window's export.
 ///
 /// # Errors
 /// Bad pairs or a failed fit (bad input), as `field`; and as [`sample_map`].
-pub fn jacobian_map(grid: &Volume, inputs: &FieldInputs, quantity: Quantity) -> Result<Map, Failure> {
+pub fn jacobian_map(
+    grid: &Volume,
+    inputs: &FieldInputs,
+    quantity: Quantity,
+    direction: FieldDirection,
+) -> Result<Map, Failure> {
     let FieldInputs { fixed, moving, pairs, names, method, layers } = *inputs;
     let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, layers.min_pairs(method))
         .map_err(Failure::BadInput)?;
-    let u = fit::pullback_stack(method, &c, inputs::volume_box::<Fixed>(fixed), layers.clone())
-        .map_err(Failure::BadInput)?;
-    let mut map = sample_map(&u, quantity, grid, &names.out)?;
+    let mut map = match direction {
+        FieldDirection::Pullback => {
+            let u = fit::pullback_stack(method, &c, inputs::volume_box::<Fixed>(fixed), layers.clone())
+                .map_err(Failure::BadInput)?;
+            sample_map(&u, quantity, grid, &names.out)?
+        }
+        FieldDirection::Forward => {
+            let d = fit::forward_stack(method, &c, inputs::volume_box::<Moving>(moving), layers.clone())
+                .map_err(Failure::BadInput)?;
+            sample_map_with(|p| quantity.at_forward(&d, p), quantity, grid, &names.out)?
+        }
+    };
     map.method = crate::brushed::describe(method, layers.brushed());
     map.pairs = c.moving.len();
     Ok(map)
@@ -232,6 +276,20 @@ pub struct Map {
 /// # Errors
 /// The map too large for memory; a value that is not finite in f32 (an internal error naming the voxel).
 pub fn sample_map(u: &StackPullback, quantity: Quantity, grid: &Volume, name: &Path) -> Result<Map, Failure> {
+    sample_map_with(|x| quantity.at(u, x), quantity, grid, name)
+}
+
+/// [`sample_map`] of `value`, the map's value at a voxel centre (LPS mm), which is `quantity` (of the pull-back or
+/// of the forward map: [`Quantity::at`], [`Quantity::at_forward`]).
+///
+/// # Errors
+/// As [`sample_map`].
+pub fn sample_map_with(
+    value: impl Fn([f64; 3]) -> f64 + Sync,
+    quantity: Quantity,
+    grid: &Volume,
+    name: &Path,
+) -> Result<Map, Failure> {
     let n = volume::check_allocation(name, grid.dims, 4, volume::DEFAULT_MAX_VOXEL_BYTES)?;
     let [nx, ny, _] = grid.dims;
     let lps_from_index = grid.lps_from_index;
@@ -239,7 +297,7 @@ pub fn sample_map(u: &StackPullback, quantity: Quantity, grid: &Volume, name: &P
         let ijk = [(v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64];
         lps_from_index.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords()
     };
-    let values: Vec<f32> = (0..n).into_par_iter().map(|v| quantity.at(u, centre(v)) as f32).collect();
+    let values: Vec<f32> = (0..n).into_par_iter().map(|v| value(centre(v)) as f32).collect();
     if let Some(v) = values.iter().position(|v| !v.is_finite()) {
         let ijk = [v % nx, (v / nx) % ny, v / (nx * ny)];
         return Err(Failure::Internal(anyhow!(

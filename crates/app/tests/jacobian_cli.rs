@@ -1,6 +1,7 @@
 //! `warpbench jacobian` end to end: the det ∇u map equals central differences of the pull-back that `points --from
-//! fixed` evaluates (a brute-force oracle of the same derivative), the magnitude map is the length of `field`'s
-//! vectors, a crossing pair of landmarks is reported as folding where it folds, and bad outputs are refused.
+//! fixed` evaluates (a brute-force oracle of the same derivative), and det ∇d with `--direction forward` those of
+//! the forward map `points --from moving` evaluates; the magnitude map is the length of `field`'s vectors (of
+//! `field --direction forward`'s with `--direction forward`), a crossing pair of landmarks is reported as folding where it folds, and bad outputs are refused.
 
 mod common;
 
@@ -41,13 +42,26 @@ fn jacobian(pairs: &Path, out: &Path, extra: &[&str]) -> Value {
 /// (6e-8 at det ≈ 1). Bound: 1e-6.
 #[test]
 fn the_det_map_is_the_derivative_of_the_pullback_that_points_evaluates() {
+    det_map_is_the_derivative_of_the_map_points_evaluates("pullback");
+}
+
+/// The same law for `--direction forward`: det ∇d on the moving grid against central differences of `points --from
+/// moving`.
+#[test]
+fn the_forward_det_map_is_the_derivative_of_the_forward_map_that_points_evaluates() {
+    det_map_is_the_derivative_of_the_map_points_evaluates("forward");
+}
+
+fn det_map_is_the_derivative_of_the_map_points_evaluates(direction: &str) {
+    let (from, grid) = if direction == "forward" { ("moving", "moving") } else { ("fixed", "fixed") };
     let dir = tempfile::tempdir().expect("tempdir");
     let pairs = data("itk/field_pairs.csv");
     let out = dir.path().join("det.nii.gz");
-    let report = jacobian(&pairs, &out, &[]);
+    let report = jacobian(&pairs, &out, &["--direction", direction]);
     assert_eq!(report["schema"], "warpbench-jacobian/1");
     assert_eq!(report["quantity"], "det");
-    assert_eq!(report["grid"], "fixed");
+    assert_eq!(report["grid"], grid);
+    assert_eq!(report["direction"], direction);
     let (values, dims, lps) = map(&out);
     assert_eq!(dims, [91, 109, 91]);
     let centre = |v: usize| {
@@ -70,7 +84,7 @@ fn the_det_map_is_the_derivative_of_the_pullback_that_points_evaluates() {
     }
     let (input, output) = (dir.path().join("in.csv"), dir.path().join("out.csv"));
     std::fs::write(&input, lines.join("\n") + "\n").expect("write");
-    assert_ok(&on_mri("points", &pairs, &["--from", "fixed", "--quiet", "--in", s(&input), "--out", s(&output)]));
+    assert_ok(&on_mri("points", &pairs, &["--from", from, "--quiet", "--in", s(&input), "--out", s(&output)]));
     let text = std::fs::read_to_string(&output).expect("read");
     let u: Vec<[f64; 3]> = text
         .lines()
@@ -97,17 +111,23 @@ fn the_det_map_is_the_derivative_of_the_pullback_that_points_evaluates() {
 }
 
 /// The magnitude map is the length of the vector `field` writes at each voxel (both f32 of f64 values under 10 mm:
-/// 1e-6 apart at most).
+/// 1e-6 apart at most), in either direction.
 #[test]
 fn the_magnitude_map_is_the_length_of_the_fields_vectors() {
+    for direction in ["pullback", "forward"] {
+        magnitude_is_the_length_of_the_fields_vectors(direction);
+    }
+}
+
+fn magnitude_is_the_length_of_the_fields_vectors(direction: &str) {
     let dir = tempfile::tempdir().expect("tempdir");
     let pairs = data("itk/field_pairs.csv");
     let out = dir.path().join("moved.nrrd");
-    let report = jacobian(&pairs, &out, &["--quantity", "magnitude"]);
+    let report = jacobian(&pairs, &out, &["--quantity", "magnitude", "--direction", direction]);
     assert_eq!(report["quantity"], "magnitude");
     assert!(report["fraction_folded"].is_null());
     let field = dir.path().join("field.nii.gz");
-    assert_ok(&on_mri("field", &pairs, &["--quiet", "--out", s(&field)]));
+    assert_ok(&on_mri("field", &pairs, &["--quiet", "--direction", direction, "--out", s(&field)]));
     let (vectors, _) = warpbench_io::displacement::read_field(&field).expect("field");
     let (values, dims, _) = map(&out);
     assert_eq!(dims, vectors.dims);

@@ -274,7 +274,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             ))
         }
         ExportKind::Map { quantity } => {
-            let map = jacobian::jacobian_map(fixed, &made_of, *quantity)?;
+            let map = jacobian::jacobian_map(fixed, &made_of, *quantity, FieldDirection::Pullback)?;
             warpbench_io::write_volume(out, &map.volume)?;
             let folded = map.fraction_folded.map_or_else(String::new, |f| format!(", {:.2} % folded", 100.0 * f));
             Ok(format!(

@@ -401,14 +401,42 @@ impl StackForward {
             _ => None,
         }
     }
+
+    /// d without the brush (the fit, then B⁻¹ on a field).
+    fn core_raw(&self, p: [f64; 3]) -> [f64; 3] {
+        match &self.core {
+            Landmarks::Folded(d) => d.as_ref().apply_raw(p),
+            Landmarks::OnField(s) => self.layers.base_inverse_raw(s.as_ref().map_or(p, |s| s.as_ref().apply_raw(p))),
+        }
+    }
+
+    /// det ∇d at moving point `p`: the fit's analytic Jacobian (central differences through the field's inverse on a
+    /// field), and with a brush on top det ∇(b ∘ d)(p) = det ∇b(d(p)) · det ∇d(p), from b's analytic Jacobian.
+    #[must_use]
+    pub fn det_jacobian_at(&self, p: [f64; 3]) -> f64 {
+        let core = match &self.core {
+            Landmarks::Folded(d) => d.as_ref().jacobian_raw(p).determinant(),
+            Landmarks::OnField(_) => ForwardUnbrushed(self).jacobian_raw(p).determinant(),
+        };
+        match &self.layers.brush {
+            None => core,
+            Some(b) => b.brush().jacobian_raw(self.core_raw(p)).determinant() * core,
+        }
+    }
+}
+
+/// d without the brush, as a warp (its Jacobian by central differences).
+struct ForwardUnbrushed<'a>(&'a StackForward);
+
+impl Warp<Fixed, Moving> for ForwardUnbrushed<'_> {
+    fn apply_raw(&self, p: [f64; 3]) -> [f64; 3] {
+        self.0.core_raw(p)
+    }
 }
 
 impl Warp<Fixed, Moving> for StackForward {
     fn apply_raw(&self, p: [f64; 3]) -> [f64; 3] {
-        let y = match &self.core {
-            Landmarks::Folded(d) => d.as_ref().apply_raw(p),
-            Landmarks::OnField(s) => self.layers.base_inverse_raw(s.as_ref().map_or(p, |s| s.as_ref().apply_raw(p))),
-        };
+        let y = self.core_raw(p);
         self.layers.brush.as_ref().map_or(y, |b| b.brush().apply_raw(y))
     }
 }
@@ -626,6 +654,50 @@ mod tests {
         let on_field = Layers { start: Some(s), field: Some(f), brush: None };
         assert_eq!(on_field.describe(&method, 7), "tps on field.nii.gz on start.tfm");
         assert_eq!((on_field.min_pairs(&method), Layers::default().min_pairs(&method)), (0, 4));
+    }
+
+    /// Every layer: the start, the field and a brush stroke around [45, 45, 45] mm.
+    fn every_layer() -> Layers {
+        let stroke = BrushStroke { centre_mm: [45.0, 45.0, 45.0], displacement_mm: [0.0, 3.0, 0.0], radius_mm: 12.0 };
+        let brushed = Arc::new(Brushed::new(&[stroke], "the brush").expect("brush").expect("a stroke"));
+        Layers { start: Some(start()), field: Some(Arc::new(field())), brush: Some(BrushLayer::Fitted(brushed)) }
+    }
+
+    /// det ∇d is the determinant of d's central differences (h = 1e-3 mm), with no layer (the fit's analytic
+    /// Jacobian), on a start, and on every layer with a brush stroke over one probe (the brush's chain rule). The
+    /// probes sit off the field's 2 mm grid, so a difference step never crosses a cell face of its trilinear
+    /// samples: the quotient is then off by h²/6 · |∂³d| and the rounding of d over h (1e-13 · 100 mm / 1e-3 mm),
+    /// and on a field by the field's own central differences; 1e-6 without a field, 1e-4 with one.
+    #[test]
+    fn the_forward_det_is_the_derivative_of_the_forward_map() {
+        let method = Method::Tps { stiffness: 0.0 };
+        let (fixed, moving) = pairs();
+        let fit = |layers| FittedStack::fit(&method, (&fixed, &moving), boxes(), layers).expect("fit").forward;
+        let cases = [
+            (Layers::default(), 1e-6),
+            (Layers { start: Some(start()), ..Layers::default() }, 1e-6),
+            (every_layer(), 1e-4),
+        ];
+        let probes: Vec<[f64; 3]> = PROBES.iter().chain(&[[40.0, 43.0, 47.0]]).map(|p| p.map(|v| v + 0.37)).collect();
+        for (i, (layers, tol)) in cases.into_iter().enumerate() {
+            let d = fit(layers);
+            for &p in &probes {
+                let h = 1e-3;
+                let j = Matrix3::from_fn(|r, c| {
+                    let (mut a, mut b) = (p, p);
+                    a[c] += h;
+                    b[c] -= h;
+                    (d.apply_raw(a)[r] - d.apply_raw(b)[r]) / (2.0 * h)
+                });
+                let (got, want) = (d.det_jacobian_at(p), j.determinant());
+                assert!((got - want).abs() <= tol, "case {i} at {p:?}: {got} vs {want}");
+            }
+        }
+        // The last probe is under the stroke: there the brush changes det ∇d, so its factor was checked.
+        let p = probes[probes.len() - 1];
+        let unbrushed = fit(Layers { brush: None, ..every_layer() });
+        let (with, without) = (fit(every_layer()).det_jacobian_at(p), unbrushed.det_jacobian_at(p));
+        assert!((with - without).abs() > 0.01, "the brush acts at {p:?}: {with} vs {without}");
     }
 
     /// A field read as the forward map (F⁻¹ in the file) is the same layer as its pull-back, inverted.
