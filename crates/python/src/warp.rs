@@ -286,21 +286,34 @@ impl Warp {
     }
 
     /// `quantity` (`det`: det ∇u; `magnitude`: |u(x) − x|, mm) at every voxel centre of `reference` (`(dims,
-    /// lps_from_index)`), as a (ni, nj, nk) float32 array: what `warpbench jacobian` writes.
-    #[pyo3(signature = (reference, quantity = "det"))]
+    /// lps_from_index)`), as a (ni, nj, nk) float32 array: what `warpbench jacobian` writes; of d (det ∇d, |d(y) −
+    /// y|) with `direction="forward"`.
+    #[pyo3(signature = (reference, quantity = "det", direction = "pullback"))]
     fn jacobian(
         &self,
         py: Python<'_>,
         reference: (Vec<usize>, PyReadonlyArray2<'_, f64>),
         quantity: &str,
+        direction: &str,
     ) -> PyResult<Py<PyAny>> {
         let name = Path::new("reference");
         let grid = grid(name, reference)?;
         let quantity = <jacobian::Quantity as clap::ValueEnum>::from_str(quantity, true)
             .map_err(|_| PyValueError::new_err(format!("quantity={quantity:?}: give det or magnitude")))?;
+        let direction =
+            <field::DirectionArg as clap::ValueEnum>::from_str(direction, true)
+                .map(FieldDirection::from)
+                .map_err(|_| PyValueError::new_err(format!("direction={direction:?}: give pullback or forward")))?;
         let volume = geometry_volume(name, &grid)?;
+        let out = Path::new("jacobian");
         let map = guarded(py, || {
-            jacobian::sample_map(&self.pullback, quantity, &volume, Path::new("jacobian")).map_err(|f| to_py(&f))
+            match direction {
+                FieldDirection::Pullback => jacobian::sample_map(&self.pullback, quantity, &volume, out),
+                FieldDirection::Forward => {
+                    jacobian::sample_map_with(|p| quantity.at_forward(&self.forward, p), quantity, &volume, out)
+                }
+            }
+            .map_err(|f| to_py(&f))
         })?;
         samples_to_numpy(py, map.volume.dims, map.volume.data)
     }

@@ -141,13 +141,24 @@ def test_jacobian_is_the_limit_of_simpleitks_finite_differences_and_the_clis_map
             assert np.ptp(ours) > 0.05, "the warp's det varies over the cube"
         assert gap[2.0] > 4 * gap[0.5], (method, gap)
         assert gap[0.25] < 2e-5, (method, gap)
+        # The forward map's det ∇d against ITK's differences of the forward field, at the finest spacing.
+        forward = warp.jacobian(reference, direction="forward")
+        theirs = _sitk_det(warp.field(reference, direction="forward"), lps)
+        assert np.abs(forward[inner] - theirs[inner]).max() < 2e-5, method
+        assert np.ptp(forward) > 0.05, "the forward map's det varies over the cube"
 
     warp = wb.fit(pairs, "tps", fixed=head, moving=head)
     out = tmp_path / "det.nii.gz"
     run_cli("jacobian", "--fixed", T1, "--moving", T1, "--landmarks", PAIRS, "--out", out, "--quiet")
     np.testing.assert_array_equal(warp.jacobian(), wb.read_volume(out).array)
+    out = tmp_path / "det_forward.nii.gz"
+    run_cli("jacobian", "--fixed", T1, "--moving", T1, "--landmarks", PAIRS, "--direction", "forward", "--out", out,
+            "--quiet")
+    np.testing.assert_array_equal(warp.jacobian(direction="forward"), wb.read_volume(out).array)
     moved = warp.jacobian(head, quantity="magnitude", path=tmp_path / "moved.nrrd")
     np.testing.assert_allclose(moved, np.linalg.norm(warp.field(head), axis=-1), rtol=0, atol=1e-5)
     np.testing.assert_array_equal(wb.read_volume(tmp_path / "moved.nrrd").array, moved)
     with pytest.raises(ValueError, match="give det or magnitude"):
         warp.jacobian(head, quantity="volume")
+    with pytest.raises(ValueError, match="give pullback or forward"):
+        warp.jacobian(head, direction="backward")

@@ -349,17 +349,20 @@ class Warp:
         reference: Optional[Volume] = None,
         *,
         quantity: str = "det",
+        direction: str = "pullback",
         path: Optional[PathLike] = None,
     ) -> np.ndarray:
         """A map of the pull-back on ``reference``'s grid (default: the fixed volume), as ``warpbench jacobian``
         writes it: det ∇u (``quantity="det"``: below 1 the warp squeezes, at or below 0 it folds) or |u(x) − x| in mm
-        (``"magnitude"``) at every voxel centre, shape (ni, nj, nk), float32. With ``path`` it is also written as a
-        volume (``.nii``, ``.nii.gz``, ``.nrrd``, ``.mha``, ``.mhd``)."""
+        (``"magnitude"``) at every voxel centre, shape (ni, nj, nk), float32. ``direction="forward"`` maps the forward
+        map d instead, on the moving volume's grid by default (det ∇d, |d(y) − y|), as ``warpbench jacobian
+        --direction forward``. With ``path`` it is also written as a volume (``.nii``, ``.nii.gz``, ``.nrrd``,
+        ``.mha``, ``.mhd``)."""
         if reference is None:
-            reference = self.fixed
+            reference = self.fixed if direction == "pullback" else self.moving
         if reference is None:
-            raise ValueError("jacobian: give reference=, or fit the warp with fixed=")
-        array = self._native.jacobian(reference._grid(), quantity)
+            raise ValueError("jacobian: give reference=, or fit the warp with fixed= and moving=")
+        array = self._native.jacobian(reference._grid(), quantity, direction)
         if path is not None:
             Volume(array, reference.lps_from_index).write(path)
         return array
