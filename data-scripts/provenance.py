@@ -263,26 +263,29 @@ ELASTIX_FILES = [
 
 # ITK's thin-plate-spline transform files, ITK's class and 3D Slicer's, written by ITK's Python wheels.
 ITK_MADE = """
-## `itk/tps_*` and `itk/slicer_tps_reference.json`: written by ITK from synthetic landmarks
+## `itk/tps_*`, `itk/slicer_tps_reference.json` and `itk/h5_field_slicer_inverse.h5`: 3D Slicer's classes
 
-Not downloaded: `data-scripts/slicer_tps.py` has ITK 5.4.7 (PyPI wheels `itk-core`, `itk-numerics`,
+Not downloaded: `data-scripts/slicer_transforms.py` has ITK 5.4.7 (PyPI wheels `itk-core`, `itk-numerics`,
 `itk-filtering` and `itk-io` 5.4.7 in `data-cache/venv`) write a `ThinPlateSplineKernelTransform` through landmarks
 the script makes up (seeded), with its `TransformFileWriter`, as `.tfm` and `.h5`: `itk/tps_itk.*` from the fixed
 points to the moving ones, and `itk/tps_slicer.*` from the moving points to the fixed ones under 3D Slicer's class
 name, `InverseThinPlateSplineKernelTransform_double_3_3`, put in by the script (h5py 3.14.0 rewrites the `.h5`'s
 `TransformType`, as the variable-length ASCII string ITK writes). `itk/slicer_tps_reference.json` holds the points
 and ITK's `TransformPoint` of both splines at 60 query points. The values are deterministic, but HDF5 stamps the
-objects it writes with the time, so a rerun's `.h5` bytes differ. They carry the licence of the code.
+objects it writes with the time, so a rerun's `.h5` bytes differ. `itk/h5_field_slicer_inverse.h5` is SimpleITK's
+`itk/h5_field.h5` (listed above) with its class renamed by the same script to Slicer's `InverseDisplacementFieldTransform`.
+They carry the licence of the code.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
 """
 ITK_FILES = [
-    ("itk/tps_itk.tfm", "slicer_tps.py"),
-    ("itk/tps_itk.h5", "slicer_tps.py"),
-    ("itk/tps_slicer.tfm", "slicer_tps.py"),
-    ("itk/tps_slicer.h5", "slicer_tps.py"),
-    ("itk/slicer_tps_reference.json", "slicer_tps.py"),
+    ("itk/tps_itk.tfm", "slicer_transforms.py"),
+    ("itk/tps_itk.h5", "slicer_transforms.py"),
+    ("itk/tps_slicer.tfm", "slicer_transforms.py"),
+    ("itk/tps_slicer.h5", "slicer_transforms.py"),
+    ("itk/slicer_tps_reference.json", "slicer_transforms.py"),
+    ("itk/h5_field_slicer_inverse.h5", "slicer_transforms.py"),
 ]
 
 # plastimatch's DICOM Spatial Registration, the peer the REG writer is compared with.

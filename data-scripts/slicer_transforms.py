@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Thin-plate-spline transform files as ITK writes them and as 3D Slicer writes them, and ITK's maps through them.
+"""Transform files as 3D Slicer saves them in their modeling direction, made from files ITK wrote, and ITK's maps.
 
 Writes into tests/data/itk/:
 - tps_itk.tfm, tps_itk.h5: ITK's ThinPlateSplineKernelTransform<double, 3> with the fixed points as its source
@@ -16,6 +16,12 @@ Writes into tests/data/itk/:
   ASCII string ITK writes) and the `Transform:` line (.tfm). Everything else in the files is ITK's.
 - slicer_tps_reference.json: the moving and fixed points; query points; ITK's TransformPoint of the resampling spline
   (fixed -> moving) at the queries, and of Slicer's spline (moving -> fixed) at the same queries.
+- h5_field_slicer_inverse.h5: h5_field.h5 (SimpleITK's DisplacementFieldTransform, data-scripts/itk_h5_sitk.py) under
+  Slicer's class for a grid transform computed in its modeling direction, InverseDisplacementFieldTransform_double_3_3
+  (vtkITKTransformConverter: SetITKOrientedGridTransformFromVTK writes it for a VTK grid whose inverse flag is set,
+  SetVTKOrientedGridTransformFromITK reads it back as that grid, inverted): the field is Slicer's map from the moving
+  space to the fixed one, and the resampling transform its inverse. Where SimpleITK maps points through h5_field.h5
+  (h5_reference.json) is where Slicer's field maps moving points.
 
 The points lie inside tests/data/itk/field_input_fixed.nii.gz's box (16 x 14 x 12 voxels of 2 mm, centred near the
 origin), so that `warpbench points` can map them with that volume as both fixed and moving.
@@ -23,7 +29,7 @@ origin), so that `warpbench points` can map them with that volume as both fixed 
 Run from the repository root (re-runnable: the values are deterministic, but HDF5 stamps the objects it writes with
 the time, so a rerun's .h5 bytes differ):
 
-    data-cache/venv/bin/python data-scripts/slicer_tps.py
+    data-cache/venv/bin/python data-scripts/slicer_transforms.py
 
 It installs the pinned wheels into data-cache/venv when an import fails (ITK's Python transform writer needs itk-io,
 which needs itk-numerics and itk-filtering beside itk-core).
@@ -32,6 +38,7 @@ which needs itk-numerics and itk-filtering beside itk-core).
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -46,6 +53,8 @@ N_LANDMARKS = 10
 N_QUERIES = 40
 SLICER_CLASS = "InverseThinPlateSplineKernelTransform_double_3_3"
 ITK_CLASS = "ThinPlateSplineKernelTransform_double_3_3"
+FIELD_CLASS = "DisplacementFieldTransform_double_3_3"
+SLICER_FIELD_CLASS = "InverseDisplacementFieldTransform_double_3_3"
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "tests" / "data" / "itk"
 
@@ -70,15 +79,15 @@ def imports():
     return itk, h5py
 
 
-def rename_h5_class(h5py, path: Path) -> None:
+def rename_h5_class(h5py, path: Path, old_class: str, new_class: str) -> None:
     with h5py.File(path, "r+") as f:
         dataset = f["/TransformGroup/0/TransformType"]
         old = [s.decode() if isinstance(s, bytes) else s for s in dataset[()]]
-        if old != [ITK_CLASS]:
-            sys.exit(f"{path}: expected TransformType [{ITK_CLASS!r}], found {old!r}")
+        if old != [old_class]:
+            sys.exit(f"{path}: expected TransformType [{old_class!r}], found {old!r}")
         dtype = dataset.dtype
         del f["/TransformGroup/0/TransformType"]
-        f["/TransformGroup/0"].create_dataset("TransformType", data=[SLICER_CLASS.encode()], dtype=dtype)
+        f["/TransformGroup/0"].create_dataset("TransformType", data=[new_class.encode()], dtype=dtype)
 
 
 def main() -> None:
@@ -106,10 +115,13 @@ def main() -> None:
     if text.count(f"Transform: {ITK_CLASS}") != 1:
         sys.exit(f"{tfm}: expected one `Transform: {ITK_CLASS}` line")
     tfm.write_text(text.replace(f"Transform: {ITK_CLASS}", f"Transform: {SLICER_CLASS}"))
-    rename_h5_class(h5py, OUT / "tps_slicer.h5")
+    rename_h5_class(h5py, OUT / "tps_slicer.h5", ITK_CLASS, SLICER_CLASS)
+    field = OUT / "h5_field_slicer_inverse.h5"
+    shutil.copyfile(OUT / "h5_field.h5", field)
+    rename_h5_class(h5py, field, FIELD_CLASS, SLICER_FIELD_CLASS)
 
     doc = {
-        "generator": "data-scripts/slicer_tps.py",
+        "generator": "data-scripts/slicer_transforms.py",
         "itk_version": itk.Version.GetITKVersion(),
         "h5py_version": h5py.__version__,
         "seed": SEED,
@@ -123,7 +135,7 @@ def main() -> None:
         "fixed_from_moving": itk_map(itk, slicer_spline, queries),
     }
     (OUT / "slicer_tps_reference.json").write_text(json.dumps(doc, separators=(",", ":")) + "\n")
-    print(f"wrote tps_itk.{{tfm,h5}}, tps_slicer.{{tfm,h5}}, slicer_tps_reference.json into {OUT}")
+    print(f"wrote tps_itk.{{tfm,h5}}, tps_slicer.{{tfm,h5}}, slicer_tps_reference.json, h5_field_slicer_inverse.h5 into {OUT}")
 
 
 if __name__ == "__main__":
