@@ -31,8 +31,11 @@
 //!
 //! Points are in LPS mm, as in every ITK file, and the transform maps the output (fixed) space to the input
 //! (moving) one: a pull-back, `moving_from_fixed`. 3D Slicer's `Inverse…` classes (a transform saved in its
-//! modeling direction) are refused here with a message that says how to save the transform so that it can be read;
-//! the landmarks of its `InverseThinPlateSplineKernelTransform` are read as pairs, as those of ITK's spline.
+//! modeling direction: Slicer reads the class's transform and inverts it) are refused as transforms, with a message
+//! that says how to save the transform so that it can be read, with two exceptions: [`read_field`] reads a file
+//! holding only an `InverseDisplacementFieldTransform` as the **forward** field it is (its vectors map a moving point
+//! y to the fixed point y + D(y)), and the landmarks of an `InverseThinPlateSplineKernelTransform` are read as pairs,
+//! as those of ITK's spline ([`crate::landmarks`]).
 //!
 //! Checked against SimpleITK 2.5.7 (`crates/io/tests/itk_h5.rs`; `tests/data/itk/h5_*.h5` written by SimpleITK, and
 //! what its `TransformPoint` and `TransformToDisplacementField` give for them).
@@ -71,6 +74,11 @@ const FIELD_TYPES: [&str; 2] = ["DisplacementFieldTransform_double_3_3", "Displa
 
 /// The composite classes, which may stand only in group `0`.
 const COMPOSITE_TYPES: [&str; 2] = ["CompositeTransform_double_3_3", "CompositeTransform_float_3_3"];
+
+/// 3D Slicer's class for a grid transform saved in its modeling direction: the field is the map from the moving
+/// space to the fixed one (module docs).
+const SLICER_INVERSE_FIELD_TYPES: [&str; 2] =
+    ["InverseDisplacementFieldTransform_double_3_3", "InverseDisplacementFieldTransform_float_3_3"];
 
 /// The longest file read: a displacement field of 256³ voxels in doubles is 400 MB.
 const MAX_FILE_BYTES: u64 = 4 << 30;
@@ -152,12 +160,16 @@ impl ItkChain {
 /// without its datasets, a class warpbench does not read, parameters of the wrong count, a field too large for
 /// memory.
 pub fn read(path: &Path) -> Result<ItkChain> {
+    parse(path, read_bytes(path)?)
+}
+
+/// The bytes of the regular file `path`, at most [`MAX_FILE_BYTES`].
+fn read_bytes(path: &Path) -> Result<Vec<u8>> {
     let len = crate::files::check_regular_file(path)?.len();
     if len > MAX_FILE_BYTES {
         return Err(Error::invalid(path, format!("{len} bytes is too long for a transform file")));
     }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse(path, bytes)
+    std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
 /// [`read`] of a file's bytes; `path` is used in errors.
@@ -166,6 +178,11 @@ pub fn read(path: &Path) -> Result<ItkChain> {
 /// As [`read`].
 pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
     let (file, members) = members(path, bytes)?;
+    chain_of(path, &file, members)
+}
+
+/// The chain of `members` of `file` (module docs).
+fn chain_of(path: &Path, file: &File, members: Vec<Member>) -> Result<ItkChain> {
     let mut steps = Vec::with_capacity(members.len());
     for Member { group, kind } in members {
         if let Some(plain) = kind.strip_prefix("Inverse") {
@@ -173,13 +190,14 @@ pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
                 path,
                 format!(
                     "{group} is {kind}, 3D Slicer's {plain} saved in its modeling direction, which warpbench does not \
-                     read as a transform; a thin-plate spline's landmarks are read as pairs (--landmarks), and \
-                     otherwise, in Slicer, invert the transform (or harden it) before saving, or save the \
-                     displacement field as a .nrrd"
+                     read as a transform here; a file holding only such a displacement field is read as a field \
+                     (--field, the forward map), a thin-plate spline's landmarks as pairs (--landmarks); otherwise, \
+                     in Slicer, invert the transform (or harden it) before saving, or save the displacement field \
+                     as a .nrrd"
                 ),
             ));
         }
-        steps.push(read_step(path, &file, &group, &kind)?);
+        steps.push(read_step(path, file, &group, &kind)?);
     }
     Ok(ItkChain { steps })
 }
@@ -267,13 +285,25 @@ pub(crate) fn parse_single(path: &Path, bytes: Vec<u8>) -> Result<RawTransform> 
 
 /// Reads an `.h5` file holding a displacement field (alone, or in a composite with affines and B-splines) and
 /// samples the whole chain at every voxel centre x of the field applied first: D(x) = T(x) − x, LPS mm, the
-/// pull-back, as SimpleITK's `TransformToDisplacementField` gives it on that grid.
+/// pull-back, as SimpleITK's `TransformToDisplacementField` gives it on that grid. A file holding only 3D Slicer's
+/// `InverseDisplacementFieldTransform` is its field as stored, stated to be the forward map (module docs).
 ///
 /// # Errors
 /// As [`read`], a file without a displacement field (its transforms are linear: a starting transform), a
 /// displacement that is not finite in f32.
 pub fn read_field(path: &Path) -> Result<ReadField> {
-    let chain = read(path)?;
+    let (file, members) = members(path, read_bytes(path)?)?;
+    if let [Member { group, kind }] = members.as_slice()
+        && SLICER_INVERSE_FIELD_TYPES.contains(&kind.as_str())
+    {
+        let step = read_displacement_field(path, &file, group)?;
+        return Ok(ReadField {
+            field: step.field,
+            source: FieldSource::ItkHdf5,
+            direction: Some(FieldDirection::Forward),
+        });
+    }
+    let chain = chain_of(path, &file, members)?;
     let grid = chain.innermost_field().ok_or_else(|| {
         Error::unsupported(
             path,

@@ -200,3 +200,23 @@ fn bad_files_are_refused_naming_the_file_and_the_problem() {
         &["1000000"],
     );
 }
+
+/// 3D Slicer's `InverseDisplacementFieldTransform` (`h5_field_slicer_inverse.h5`: SimpleITK's `h5_field.h5` under
+/// Slicer's class, `data-scripts/slicer_transforms.py`) is read as the forward field it holds: the same grid and
+/// vectors as SimpleITK's file (which it samples to SimpleITK's `TransformToDisplacementField`, above), stated to map
+/// moving points to fixed ones. Read as a chain of transforms, it is refused naming what it is and how it is read.
+#[test]
+fn slicers_inverse_field_is_the_forward_field_it_holds() {
+    let path = itk_dir().join("h5_field_slicer_inverse.h5");
+    let read = displacement::read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!((read.source, read.direction), (FieldSource::ItkHdf5, Some(FieldDirection::Forward)));
+    let plain = displacement::read_field_info(&itk_dir().join("h5_field.h5")).expect("plain");
+    assert_eq!(read.field.dims, plain.field.dims);
+    assert_eq!(read.field.lps_from_index.rows(), plain.field.lps_from_index.rows());
+    assert_eq!(read.field.displacements_lps, plain.field.displacements_lps);
+    let e = itk_h5::read(&path).expect_err("not a chain").to_string();
+    assert!(
+        e.contains("h5_field_slicer_inverse.h5") && e.contains("modeling direction") && e.contains("--field"),
+        "{e}"
+    );
+}

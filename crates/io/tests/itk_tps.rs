@@ -1,4 +1,4 @@
-//! Thin-plate-spline transform files read as landmark pairs, against files ITK wrote (`data-scripts/slicer_tps.py`):
+//! Thin-plate-spline transform files read as landmark pairs, against files ITK wrote (`data-scripts/slicer_transforms.py`):
 //! ITK's own class, whose source landmarks are the fixed points, and 3D Slicer's `Inverse…` class, whose source
 //! landmarks are the moving points, each as `.tfm` text and as `.h5`. The script's JSON holds the points it gave ITK.
 //! Other transforms are refused naming the file and what it holds.
