@@ -518,3 +518,73 @@ fn warp_takes_an_elastix_transform_file_as_transformix_applies_it() {
     let moved = unwarped.iter().zip(&expected).map(|(u, e)| (f64::from(*u) - e).abs()).fold(0.0, f64::max);
     assert!(moved > 100.0 * tolerance, "the warp changes the image: {moved}");
 }
+
+/// 3D Slicer's grid transform saved in its modeling direction (`itk/h5_field_slicer_inverse.h5`: SimpleITK's
+/// `h5_field.h5` under Slicer's `InverseDisplacementFieldTransform`, `data-scripts/slicer_transforms.py`) is a
+/// forward field: `points --from moving --field` maps SimpleITK's 40 points in and around its grid as SimpleITK's
+/// `TransformPoint` maps them through the plain file, which is Slicer's map from the moving space to the fixed one.
+/// The bound is the f32 rounding of the vectors (under 10 mm: 1e-6 mm each, a few summed by the trilinear weights).
+#[test]
+fn slicers_inverse_field_maps_moving_points_as_itk_maps_them_through_the_field() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let text = std::fs::read_to_string(data("itk/h5_reference.json")).expect("reference");
+    let reference: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    let case = reference["cases"].as_array().expect("cases").iter().find(|c| c["file"] == "h5_field.h5").expect("case");
+    let xyz = |v: &serde_json::Value| -> Vec<[f64; 3]> {
+        v.as_array()
+            .expect("points")
+            .iter()
+            .map(|p| std::array::from_fn(|a| p[a].as_f64().expect("a number")))
+            .collect()
+    };
+    let (points, want) = (xyz(&case["points"]), xyz(&case["transformed"]));
+    let list = dir.path().join("points.csv");
+    let lines: Vec<String> = points.iter().map(|p| format!("{:?},{:?},{:?}", p[0], p[1], p[2])).collect();
+    std::fs::write(&list, lines.join("\n") + "\n").expect("write");
+    let out = dir.path().join("mapped.csv");
+    let volume = data("nifti/avg152T1_LR_nifti.nii");
+    let field = data("itk/h5_field_slicer_inverse.h5");
+    // The field under no landmarks: a window session holding it, as the window saves one.
+    let session = dir.path().join("slicer.warpbench.json");
+    let doc = serde_json::json!({
+        "schema": "warpbench-session/1", "fixed": s(&volume), "moving": s(&volume), "landmarks": [],
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 64, "show_landmarks": true},
+        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true},
+                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true}],
+        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": true, "field": s(&field),
+    });
+    std::fs::write(&session, doc.to_string()).expect("write the session");
+    let run = warpbench(&[
+        "points",
+        "--fixed",
+        s(&volume),
+        "--moving",
+        s(&volume),
+        "--session",
+        s(&session),
+        "--from",
+        "moving",
+        "--in",
+        s(&list),
+        "--out",
+        s(&out),
+        "--quiet",
+    ]);
+    assert_ok(&run);
+    let text = std::fs::read_to_string(&out).expect("read");
+    let got: Vec<[f64; 3]> = text
+        .lines()
+        .map(|l| std::array::from_fn(|a| l.split(',').nth(a).expect("x,y,z").parse().expect("a number")))
+        .collect();
+    assert_eq!(got.len(), want.len());
+    let mut moved = 0;
+    for ((g, w), p) in got.iter().zip(&want).zip(&points) {
+        let diff = (0..3).map(|a| (g[a] - w[a]).abs()).fold(0.0, f64::max);
+        assert!(diff < 1e-5, "{p:?} went to {g:?}, SimpleITK {w:?}");
+        moved += usize::from((0..3).any(|a| (w[a] - p[a]).abs() > 0.1));
+    }
+    assert!(moved > 10, "the field moves most points ({moved} of {})", points.len());
+}

@@ -336,7 +336,7 @@ fn refusals_write_nothing() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("header states its coordinate system"));
 }
 
-/// A thin-plate-spline transform file (`data-scripts/slicer_tps.py`: ITK wrote it, with 3D Slicer's inverse class) is
+/// A thin-plate-spline transform file (`data-scripts/slicer_transforms.py`: ITK wrote it, with 3D Slicer's inverse class) is
 /// listed as the pairs it holds: its source landmarks are Slicer's moving points, as the script's JSON says; it
 /// converts to BigWarp like any file of pairs, and `--ras` is refused, since every ITK file is LPS.
 #[test]

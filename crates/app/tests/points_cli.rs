@@ -607,7 +607,7 @@ fn suggest_finds_the_targets_of_a_known_rigid_transform() {
     assert!(pairs[12].fixed.is_none() && !pairs[12].active);
 }
 
-/// ITK's and 3D Slicer's thin-plate-spline files (`data-scripts/slicer_tps.py`) given as `--landmarks` map points as
+/// ITK's and 3D Slicer's thin-plate-spline files (`data-scripts/slicer_transforms.py`) given as `--landmarks` map points as
 /// ITK's `TransformPoint` maps them: ITK's class (fixed → moving) `--from fixed`, and the spline of Slicer's inverse
 /// class (moving → fixed, the transform Slicer resamples with being its inverse) `--from moving`. Both are the
 /// interpolating spline with kernel r that warpbench fits with TPS λ = 0; ITK solves it with an SVD and warpbench

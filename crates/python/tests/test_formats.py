@@ -56,7 +56,7 @@ def test_transformix_output_points_are_pairs(tmp_path):
 
 
 def test_a_slicer_spline_file_is_pairs_that_map_as_itk_does():
-    """3D Slicer's thin-plate spline (data-scripts/slicer_tps.py: ITK wrote it, under Slicer's inverse class), which
+    """3D Slicer's thin-plate spline (data-scripts/slicer_transforms.py: ITK wrote it, under Slicer's inverse class), which
     SimpleITK cannot read, gives its landmarks as pairs; the spline fitted on them is ITK's spline from the moving to
     the fixed points, and ITK's own class gives the resampling spline."""
     reference = json.loads((DATA / "itk" / "slicer_tps_reference.json").read_text())
