@@ -29,7 +29,7 @@ pub enum LandmarkFileFormat {
     /// transformix's `outputpoints.txt`: pairs (each input point, on the fixed image, and its image on the moving one).
     TransformixOutput,
     /// An ITK or 3D Slicer thin-plate-spline transform file (`.tfm` text or `.h5`): pairs, its landmarks
-    /// ([`super::itk_tps`]).
+    /// ([`parse_spline_file`](super::parse_spline_file)).
     ItkThinPlateSpline,
 }
 
