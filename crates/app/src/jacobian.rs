@@ -1,5 +1,6 @@
-//! `warpbench jacobian`: maps of the warp on the fixed grid, as volumes: det ∇u, where the warp squeezes (below 1),
-//! stretches (above 1) or folds (at or below 0), and |u(x) − x|, how far it moves each point.
+//! `warpbench jacobian`: maps of the warp on the fixed grid (or of its forward map on the moving grid), as volumes:
+//! det ∇u, where the warp squeezes (below 1), stretches (above 1) or folds (at or below 0), and |u(x) − x|, how far
+//! it moves each point.
 //!
 //! At every voxel centre x of the output grid (the fixed volume's, or `--reference`'s), u = moving_from_fixed the
 //! pull-back of the whole warp stack (starting transform, field, landmark fit, brush) fitted as `field` fits it:
@@ -43,7 +44,7 @@ use crate::project::stack::{Layers, StackForward, StackPullback};
 pub const SCHEMA: &str = "warpbench-jacobian/1";
 
 const HELP: &str = "\
-Write a map of the warp on the fixed grid as a volume: its Jacobian determinant, or how far it moves each point.
+Write a map of the warp as a volume: its Jacobian determinant, or how far it moves each point.
 
 --quantity det (the default): det ∇u, below 1 where the warp squeezes, above 1 where it stretches, at or below 0
 where it folds; --quantity magnitude: |u(x) − x| in mm. u = moving_from_fixed, the pull-back fitted on the

@@ -63,11 +63,11 @@ impl LandmarkFileFormat {
 /// `{` or `[`) is BigWarp when it holds a BigWarp landmark table (see
 /// [`parse_bigwarp_json`](super::parse_bigwarp_json)), Slicer when it has a `markups` list, and refused otherwise
 /// with what was expected; text whose first line is `#Insight Transform File V1.0` is an ITK transform file (a
-/// thin-plate spline's landmarks), other text whose first line starts with `#` a Slicer `.fcsv`, and text whose first line's
-/// first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes every field, so its lines start with `"`);
-/// text whose first word is `point` or `index` (or whose first line is a lone count) an elastix point file, and text
-/// whose first line is transformix's `Point 0 ; … ; OutputPoint = […]` its `outputpoints.txt`; anything else is
-/// BigWarp CSV.
+/// thin-plate spline's landmarks), other text whose first line starts with `#` a Slicer `.fcsv`, and text whose
+/// first line's first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes every field, so its lines start
+/// with `"`); text whose first word is `point` or `index` (or whose first line is a lone count) an elastix point
+/// file, and text whose first line is transformix's `Point 0 ; … ; OutputPoint = […]` its `outputpoints.txt`;
+/// anything else is BigWarp CSV.
 pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFormat> {
     let body = strip_bom(text).trim_start();
     if body.starts_with(['{', '[']) {

@@ -17,7 +17,7 @@
 //!   points. Slicer's spline is warpbench's `fixed_from_moving` through the pairs (`warpbench points --from moving`,
 //!   `field --direction forward`); Slicer resamples with that spline's exact inverse, which agrees with warpbench's
 //!   pull-back at the landmarks and differs from it between them by as much as the warp is not inverse-consistent
-//!   (what `warpbench eval` reports).
+//!   (the window's fit panel shows it; `points --from moving` and back with `--from fixed` measures it).
 //!
 //! The `_float_3_3` twins are read too. A file of any other class, or of several transforms, is refused with what it
 //! holds. The pairs are named `Pt-0`, `Pt-1`, … in file order, as BigWarp names its points, and are all active.
