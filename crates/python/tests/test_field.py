@@ -75,6 +75,24 @@ def test_an_itk_h5_composite_reads_as_simpleitk_samples_it():
     assert np.abs(vectors).max() > 2.0
 
 
+def test_slicers_inverse_field_is_the_forward_field_it_holds():
+    """3D Slicer's InverseDisplacementFieldTransform (SimpleITK's h5_field.h5 under Slicer's class,
+    data-scripts/slicer_transforms.py), which SimpleITK cannot read, is read as a forward field: the vectors SimpleITK
+    reads from the plain file, on its grid."""
+    path = DATA / "itk" / "h5_field_slicer_inverse.h5"
+    with pytest.raises(RuntimeError):
+        sitk.ReadTransform(str(path))
+    ours = wb.read_field(path)
+    assert ours.source == "itk_h5" and ours.direction == "forward"
+    grid = sitk.DisplacementFieldTransform(sitk.ReadTransform(str(DATA / "itk" / "h5_field.h5"))).GetDisplacementField()
+    vectors = sitk.GetArrayFromImage(grid).transpose(2, 1, 0, 3)
+    np.testing.assert_allclose(ours.array, vectors, rtol=0, atol=1e-6)
+    lps = np.eye(4)
+    lps[:3, :3] = np.array(grid.GetDirection()).reshape(3, 3) * np.array(grid.GetSpacing())
+    lps[:3, 3] = grid.GetOrigin()
+    np.testing.assert_allclose(ours.lps_from_index, lps, atol=1e-12)
+
+
 def test_a_written_field_reads_back_in_every_flavour(tmp_path):
     head = wb.read_volume(T1)
     warp = wb.fit(wb.read_landmarks(PAIRS), "tps", fixed=head, moving=head)

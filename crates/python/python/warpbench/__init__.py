@@ -195,9 +195,9 @@ class Field:
     ``array`` holds its vectors, LPS mm, shape ``(ni, nj, nk, 3)`` float32, at the voxel centres of the grid
     ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``),
     ``"elastix"`` for a transform parameter file, ``"itk_h5"`` for ITK's HDF5 transform file or ``"dicom"`` for a
-    DICOM Deformable Spatial Registration; ``direction`` is ``"pullback"`` or ``"forward"`` where the file says (NRRD,
-    and ``"pullback"`` for an ``.h5`` or a DICOM registration), else ``None``, and then it is a pull-back, as ITK takes
-    it."""
+    DICOM Deformable Spatial Registration; ``direction`` is ``"pullback"`` or ``"forward"`` where the file says (NRRD;
+    ``"pullback"`` for an ``.h5`` or a DICOM registration, ``"forward"`` for an ``.h5`` holding only 3D Slicer's
+    ``InverseDisplacementFieldTransform``), else ``None``, and then it is a pull-back, as ITK takes it."""
 
     array: np.ndarray
     lps_from_index: np.ndarray
