@@ -89,7 +89,7 @@ pub(super) fn tfm_pairs(name: &Path, text: &str) -> Result<Vec<LandmarkPair>> {
 }
 
 /// The pairs of an `.h5` file's bytes (module docs); `name` is used in errors.
-pub(super) fn h5_pairs(name: &Path, bytes: Vec<u8>) -> Result<Vec<LandmarkPair>> {
+fn h5_pairs(name: &Path, bytes: Vec<u8>) -> Result<Vec<LandmarkPair>> {
     let raw = crate::itk_h5::parse_single(name, bytes)?;
     spline_pairs(name, &raw.kind, &raw.params, &raw.fixed)
 }

@@ -1,5 +1,5 @@
-//! Landmark pairs and their files: BigWarp CSV and JSON, Slicer `.mrk.json` and Slicer `.fcsv`, elastix point files
-//! and transformix's `outputpoints.txt`.
+//! Landmark pairs and their files: BigWarp CSV and JSON, Slicer `.mrk.json` and Slicer `.fcsv`, elastix point files,
+//! transformix's `outputpoints.txt`, and the landmarks of an ITK or 3D Slicer thin-plate-spline transform file.
 //!
 //! A [`LandmarkPair`] joins a point on the **moving** volume (the source of the warp) to the
 //! matching point on the **fixed** volume (the target), both in LPS mm. Either half may be
@@ -41,8 +41,8 @@
 //!   […]` line a point; read as pairs, `InputPoint` the fixed point and `OutputPoint` the moving one
 //!   ([`read_transformix_output`]).
 //!
-//! [`read_landmark_pairs`] reads one file of pairs (BigWarp CSV or JSON, plain CSV, transformix's output), telling
-//! them apart by content ([`detect_landmark_format`]), and refuses a Slicer list or an elastix point file (one side)
+//! [`read_landmark_pairs`] reads one file of pairs (BigWarp CSV or JSON, plain CSV, transformix's output, a
+//! thin-plate-spline transform file, [`parse_spline_file`]), telling them apart by content ([`detect_landmark_format`]), and refuses a Slicer list or an elastix point file (one side)
 //! or an unknown JSON with what it expected; [`write_landmark_pairs`] writes BigWarp JSON for `.json`, CSV otherwise.
 //!
 //! A Slicer file, like an elastix point file, holds **one side**: [`read_slicer_pair`] reads a moving and a fixed
@@ -118,8 +118,8 @@ pub use text::MAX_LANDMARK_FILE_BYTES;
 use errors::{elastix_one_side, slicer_one_side};
 use text::{read_bytes, utf8};
 
-/// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON, plain CSV or transformix's `outputpoints.txt`, told
-/// apart by content; LPS mm.
+/// Reads one file of landmark pairs, BigWarp CSV, BigWarp JSON, plain CSV, transformix's `outputpoints.txt` or an ITK
+/// or 3D Slicer thin-plate-spline transform file (`.tfm` text or `.h5`), told apart by content; LPS mm.
 ///
 /// A Slicer point list (`.mrk.json`, `.fcsv`) or an elastix point file holds the points of one volume only, and is
 /// refused here with a message that says so: read it with its partner through [`read_slicer_pair`].
@@ -132,7 +132,7 @@ pub fn read_landmark_pairs(path: &Path) -> Result<Vec<LandmarkPair>> {
 pub fn read_landmark_pairs_with(path: &Path, options: BigWarpCsvOptions) -> Result<Vec<LandmarkPair>> {
     let bytes = read_bytes(path)?;
     if crate::itk_h5::looks_like_hdf5(&bytes) {
-        return itk_tps::h5_pairs(path, bytes);
+        return parse_spline_file(path, bytes);
     }
     let text = utf8(path, bytes)?;
     match detect_landmark_format(path, &text)? {
