@@ -311,6 +311,29 @@ PLASTIMATCH_FILES = [
     ("dicom_reg/plastimatch_dsr.dcm", "plastimatch_reg.sh"),
 ]
 
+# NumPy's .npz archives, the layout Learn2Reg's displacement fields use.
+NUMPY_MADE = """
+## `learn2reg/`: Learn2Reg displacement fields written by NumPy
+
+Not downloaded: `data-scripts/learn2reg_numpy.py` has NumPy 2.4.6 (PyPI wheel `numpy==2.4.6` in `data-cache/venv`)
+write one field of values the script makes up, shape (5, 4, 2, 3), in the ways Learn2Reg's fields are saved
+(`np.savez_compressed` of float16 as the challenge's submissions are; `np.savez` of a Fortran-ordered float32 array;
+a big-endian float64 array under another name than `arr_0`), the challenge's 2021 layout (3, X, Y, Z) and an archive
+of two arrays, with `learn2reg/reference.json`, the array `numpy.load` returns. The zip entries hold the time, so a
+rerun's bytes differ; the arrays do not. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+NUMPY_FILES = [
+    ("learn2reg/disp_f16.npz", "learn2reg_numpy.py"),
+    ("learn2reg/disp_f32_fortran.npz", "learn2reg_numpy.py"),
+    ("learn2reg/disp_f64_named.npz", "learn2reg_numpy.py"),
+    ("learn2reg/disp_2021.npz", "learn2reg_numpy.py"),
+    ("learn2reg/two_arrays.npz", "learn2reg_numpy.py"),
+    ("learn2reg/reference.json", "learn2reg_numpy.py"),
+]
+
 
 def script_made(data: Path, heading: str, files: list[tuple[str, str]]) -> str:
     rows = [heading]
@@ -358,6 +381,7 @@ def main() -> int:
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))
+    out.append(script_made(data, NUMPY_MADE, NUMPY_FILES))
     text = "".join(out)
     tmp = data / "PROVENANCE.md.tmp"
     tmp.write_text(text)

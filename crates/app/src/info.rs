@@ -115,6 +115,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::MetaImage => ("metaimage", None),
             GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::ItkTransformFile => ("itk_transform", None),
+            GeometrySource::Learn2RegFixedImage => ("learn2reg_fixed_image", None),
             GeometrySource::Assumed => ("assumed", None),
         };
         Self { kind, code }

@@ -32,6 +32,7 @@ pub mod geometry;
 pub mod itk_h5;
 pub mod itk_tfm;
 pub mod landmarks;
+pub mod learn2reg;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;

@@ -184,6 +184,9 @@ pub enum GeometrySource {
     ElastixParameters,
     /// An ITK transform file's `DisplacementFieldTransform`: its fixed parameters (size, origin, spacing, direction).
     ItkTransformFile,
+    /// A Learn2Reg field (`.npz`), which carries no geometry, placed on the grid of the fixed image it was read
+    /// against ([`crate::learn2reg::pullback_from_voxels`]).
+    Learn2RegFixedImage,
     /// The file carries no geometry (e.g. a DICOM Secondary Capture without ImagePositionPatient,
     /// ImageOrientationPatient and PixelSpacing): identity directions, unit spacing, origin 0.
     /// Readers add a warning to the metadata when they assume it.

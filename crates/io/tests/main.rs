@@ -16,6 +16,7 @@ mod itk_linear;
 mod itk_tps;
 mod jpegls;
 mod landmarks;
+mod learn2reg;
 mod metaimage;
 mod nifti;
 mod nrrd;

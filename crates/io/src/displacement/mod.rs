@@ -21,6 +21,9 @@
 //! is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]. An elastix transform parameter file (its first line
 //! opens with `(`) is read as the field transformix writes for it ([`crate::elastix::read_field`]): its whole chain
 //! sampled on its fixed grid. Anything else is refused. It returns LPS vectors whatever the flavour.
+//!
+//! Learn2Reg's `.npz` fields ([`crate::learn2reg`]) hold voxel steps from the fixed image's grid to the moving one's,
+//! so they are read against the pair ([`crate::learn2reg::pullback_from_voxels`]); [`read_field`] refuses them.
 
 pub(crate) mod check;
 mod flavour;
@@ -54,6 +57,13 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
     }
     if crate::itk_h5::looks_like_hdf5(&head) {
         return crate::itk_h5::read_field(path);
+    }
+    if crate::learn2reg::looks_like_npz(&head) {
+        return Err(Error::unsupported(
+            path,
+            "a Learn2Reg displacement field (.npz) is in the voxels of its fixed and moving images, which this reader \
+             is not given: resample with it by `warpbench warp --fixed F --moving M --field` (docs/formats.md)",
+        ));
     }
     if crate::dicom_reg::looks_like_dicom(&head) {
         let field = crate::dicom_reg::read_field(path)?;
@@ -124,6 +134,13 @@ pub fn check_output_name(path: &Path, format: FieldFormat) -> Result<()> {
             "ITK reads a file named .h5 as an HDF5 transform file, and a displacement field image is not one: name \
              the field .nii.gz, .nrrd or .mha, or export the warp as a transform named .h5, ITK's HDF5 transform file, \
              which holds its field",
+        ));
+    }
+    if crate::learn2reg::is_npz_name(path) {
+        return Err(Error::unsupported(
+            path,
+            "a name ending .npz is Learn2Reg's field, in the voxels of the fixed and moving images: `warpbench field` \
+             writes it; name an image field .nii.gz, .nrrd or .mha",
         ));
     }
     if !format.container_matches(path) {

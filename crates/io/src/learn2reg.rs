@@ -1,0 +1,371 @@
+//! Learn2Reg's displacement fields: the `.npz` files the challenge's evaluation reads (`disp_XXXX_YYYY.npz`), and
+//! which learning-based registration methods (ConvexAdam, LapIRN, uniGradICON's Learn2Reg scripts) write.
+//!
+//! The file is NumPy's `.npz`: a zip archive of `.npy` arrays. The field is the array `arr_0` (what
+//! `np.savez_compressed(path, disp)` names it), of shape `(X, Y, Z, 3)`: one vector per voxel of the **fixed** image,
+//! indexed as nibabel indexes the NIfTI image (`[i, j, k]`), in **voxels**, not mm. The evaluation maps a fixed voxel
+//! index `i` to the moving voxel index `i + d[i]`: a pull-back u = moving_from_fixed, written in the two images' voxel
+//! indices. So the file carries no geometry: reading it needs the fixed grid and the moving grid
+//! ([`pullback_from_voxels`]), and so does writing one ([`voxels_from_pullback`]).
+//!
+//! [`read_voxel_field`] takes `float16`, `float32` and `float64` arrays in either byte order and C or Fortran order.
+//! [`write_voxel_field`] writes `float16` in C order, deflated, as the challenge's submissions are: each component is
+//! rounded to the nearest `float16`, within 2⁻¹¹ of its size (0.01 voxel at 20 voxels).
+//!
+//! The evaluation interpolates `d` between voxel centres with SciPy's cubic spline (`map_coordinates`, order 3);
+//! warpbench, like ITK, interpolates a displacement field trilinearly. The two agree at voxel centres.
+
+use std::io::{Cursor, Read, Seek, Write};
+use std::path::Path;
+
+use half::f16;
+use npyz::{DType, NpyFile, Order, TypeChar, WriterBuilder};
+
+use crate::error::{Error, ErrorKind, Result};
+use crate::geometry::{Index, Lps, Point3, Transform};
+use crate::nifti::DisplacementField;
+use crate::volume::GeometrySource;
+
+/// The name Learn2Reg's evaluation reads the field from: NumPy's name for the first unnamed array.
+pub const ARRAY_NAME: &str = "arr_0";
+
+/// A Learn2Reg field: for each fixed voxel `[i, j, k]` (i fastest), the step to the moving voxel it maps to, in
+/// voxels (module docs).
+#[derive(Clone, Debug, PartialEq)]
+pub struct VoxelField {
+    /// Voxels along i, j, k: the fixed image's dims.
+    pub dims: [usize; 3],
+    /// `d[i]`, i fastest: fixed index `i` maps to moving index `i + d[i]`.
+    pub voxels: Vec<[f32; 3]>,
+}
+
+/// Whether `path` is named as a NumPy archive (`.npz`, any case): the name that makes `warpbench field` write this
+/// flavour.
+#[must_use]
+pub fn is_npz_name(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz"))
+}
+
+/// Whether `head` (the first bytes of a file) opens a zip archive, as every `.npz` does.
+#[must_use]
+pub fn looks_like_npz(head: &[u8]) -> bool {
+    head.starts_with(b"PK\x03\x04")
+}
+
+/// Reads a Learn2Reg field from an `.npz` file (module docs). Errors name the file: not a zip archive, no `arr_0`
+/// (unless the archive holds exactly one array, which is taken), a shape other than `(X, Y, Z, 3)` (the 2021 layout
+/// `(3, X, Y, Z)` is named as such), a dtype other than float16/32/64, a vector that is not finite (named by its
+/// `[i, j, k]`), a field too large for memory.
+pub fn read_voxel_field(path: &Path) -> Result<VoxelField> {
+    crate::files::check_regular_file(path)?;
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    read_voxel_field_bytes(path, &bytes)
+}
+
+/// [`read_voxel_field`] of bytes already read; `name` is only for messages.
+pub fn read_voxel_field_bytes(name: &Path, bytes: &[u8]) -> Result<VoxelField> {
+    if !looks_like_npz(bytes) {
+        return Err(Error::invalid(name, "not a NumPy .npz archive (a zip file)"));
+    }
+    let bad_zip = |e: zip::result::ZipError| Error::invalid(name, format!("a damaged .npz (zip) archive: {e}"));
+    let mut archive = zip::ZipArchive::new(Cursor::new(bytes)).map_err(bad_zip)?;
+    let arrays: Vec<String> =
+        archive.file_names().filter_map(|n| n.ok().and_then(|n| n.strip_suffix(".npy").map(str::to_owned))).collect();
+    let member = if arrays.iter().any(|a| a == ARRAY_NAME) {
+        ARRAY_NAME.to_owned()
+    } else {
+        match arrays.as_slice() {
+            [only] => only.clone(),
+            [] => return Err(Error::invalid(name, "the .npz archive holds no array")),
+            many => {
+                return Err(Error::invalid(
+                    name,
+                    format!(
+                        "the .npz archive holds {} arrays ({}) and none is named {ARRAY_NAME}, the one Learn2Reg reads",
+                        many.len(),
+                        many.join(", ")
+                    ),
+                ));
+            }
+        }
+    };
+    let entry = archive.by_name(&format!("{member}.npy")).map_err(bad_zip)?;
+    let size = entry.size();
+    read_npy(name, &member, entry, size)
+}
+
+/// Reads the `.npy` array `member`, `size` bytes unpacked, from `reader` as a [`VoxelField`].
+fn read_npy(name: &Path, member: &str, reader: impl Read, size: u64) -> Result<VoxelField> {
+    let npy =
+        NpyFile::new(reader).map_err(|e| Error::invalid(name, format!("array {member}: not a .npy array: {e}")))?;
+    let shape = npy.shape().to_vec();
+    let dims = match shape.as_slice() {
+        &[x, y, z, 3] => [x, y, z].map(|d| usize::try_from(d).unwrap_or(usize::MAX)),
+        &[3, x, y, z] => {
+            return Err(Error::unsupported(
+                name,
+                format!(
+                    "array {member} has shape (3, {x}, {y}, {z}), Learn2Reg's 2021 layout (often at half resolution); \
+                     the evaluation now reads (X, Y, Z, 3): transpose it (disp.transpose(1, 2, 3, 0)) and resample \
+                     it to the fixed image's size"
+                ),
+            ));
+        }
+        other => {
+            return Err(Error::invalid(
+                name,
+                format!("array {member} has shape {other:?}; a Learn2Reg field has shape (X, Y, Z, 3)"),
+            ));
+        }
+    };
+    let n = crate::volume::checked_voxel_count(name, dims)?;
+    let fortran = npy.order() == Order::Fortran;
+    let values = read_floats(name, member, npy, n * 3, size)?;
+    let mut voxels = vec![[0f32; 3]; n];
+    let [nx, ny, nz] = dims;
+    for (c, plane) in [0usize, 1, 2].into_iter().map(|c| (c, c * n)) {
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    let at = if fortran { plane + i + nx * (j + ny * k) } else { ((i * ny + j) * nz + k) * 3 + c };
+                    voxels[i + nx * (j + ny * k)][c] = values[at];
+                }
+            }
+        }
+    }
+    if let Some(ijk) = crate::displacement::check::first_non_finite(dims, &voxels) {
+        return Err(Error::invalid(
+            name,
+            format!("array {member}: the vector at voxel {ijk:?} (i, j, k) is not finite"),
+        ));
+    }
+    Ok(VoxelField { dims, voxels })
+}
+
+/// The `len` values of a float array of any width, as f32; `size` is the array's size in the archive, which must
+/// hold them all before anything is allocated.
+fn read_floats(name: &Path, member: &str, npy: NpyFile<impl Read>, len: usize, size: u64) -> Result<Vec<f32>> {
+    let dtype = npy.dtype();
+    let width = match &dtype {
+        DType::Plain(t) if t.type_char() == TypeChar::Float => t.size_field(),
+        _ => 0,
+    };
+    let bytes = (len as u128) * u128::from(width);
+    if bytes > u128::from(size) {
+        return Err(Error::truncated(
+            name,
+            format!("array {member} is {size} bytes, short of the {bytes} bytes its shape and dtype need"),
+        ));
+    }
+    let short = |e: std::io::Error| Error::io(name, e);
+    let mut out = Vec::new();
+    out.try_reserve_exact(len).map_err(|_| {
+        Error::new(name, ErrorKind::OutOfMemory { what: format!("array {member}"), bytes: (len as u128) * 4 })
+    })?;
+    match width {
+        2 => out.extend(npy.into_vec::<f16>().map_err(short)?.into_iter().map(f16::to_f32)),
+        4 => out.extend(npy.into_vec::<f32>().map_err(short)?),
+        #[allow(clippy::cast_possible_truncation, reason = "a displacement in voxels; f32 holds what a grid needs")]
+        8 => out.extend(npy.into_vec::<f64>().map_err(short)?.into_iter().map(|v| v as f32)),
+        _ => {
+            return Err(Error::unsupported(
+                name,
+                format!("array {member} holds {}; a Learn2Reg field is float16, float32 or float64", dtype.descr()),
+            ));
+        }
+    }
+    if out.len() != len {
+        return Err(Error::truncated(name, format!("array {member} holds {} values, its shape {len}", out.len())));
+    }
+    Ok(out)
+}
+
+/// Writes `field` as Learn2Reg's `.npz`, atomically: the array `arr_0`, float16, C order, shape `(X, Y, Z, 3)`,
+/// deflated (as `np.savez_compressed`). A component beyond float16's range (±65504 voxels) or not finite is refused,
+/// naming its voxel.
+pub fn write_voxel_field(path: &Path, field: &VoxelField) -> Result<()> {
+    let n = crate::volume::checked_voxel_count(path, field.dims)?;
+    if field.voxels.len() != n {
+        return Err(Error::invalid(path, format!("{} vectors for dims {:?}", field.voxels.len(), field.dims)));
+    }
+    let [nx, ny, nz] = field.dims;
+    let mut halves = Vec::with_capacity(3 * n);
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                let v = field.voxels[i + nx * (j + ny * k)];
+                if !v.iter().all(|c| c.is_finite() && c.abs() <= f16::MAX.to_f32()) {
+                    return Err(Error::invalid(
+                        path,
+                        format!("the vector at voxel {:?} (i, j, k), {v:?} voxels, does not fit float16", [i, j, k]),
+                    ));
+                }
+                halves.extend(v.map(f16::from_f32));
+            }
+        }
+    }
+    let shape = [nx, ny, nz, 3].map(|d| d as u64);
+    let npy = npy_bytes(&halves, &shape).map_err(|e| Error::io(path, e))?;
+    let mut archive = zip::ZipWriter::new(Cursor::new(Vec::new()));
+    let options = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Deflated)
+        .large_file(npy.len() >= u32::MAX as usize);
+    let zipped = (|| {
+        archive.start_file(format!("{ARRAY_NAME}.npy"), options)?;
+        archive.write_all(&npy)?;
+        archive.finish()
+    })()
+    .map_err(|e| Error::invalid(path, format!("cannot build the .npz archive: {e}")))?;
+    crate::atomic::write_atomic(path, |w| w.write_all(zipped.get_ref()))
+}
+
+/// A `.npy` file of float16 `values` with `shape`, C order, little-endian.
+fn npy_bytes(values: &[f16], shape: &[u64]) -> std::io::Result<Vec<u8>> {
+    let mut out = Cursor::new(Vec::new());
+    let dtype = DType::Plain("<f2".parse().expect("a valid type string"));
+    let mut writer = npyz::WriteOptions::new().dtype(dtype).shape(shape).writer(&mut out).begin_nd()?;
+    writer.extend(values.iter().copied())?;
+    writer.finish()?;
+    out.rewind()?;
+    Ok(out.into_inner())
+}
+
+/// The pull-back field in LPS mm on the fixed grid that a Learn2Reg field states: at fixed voxel i, with x =
+/// fixed_lps_from_index(i), D(x) = moving_lps_from_index(i + d\[i\]) − x. `path` names the file in errors: a field whose
+/// dims are not the fixed grid's.
+pub fn pullback_from_voxels(
+    path: &Path,
+    field: &VoxelField,
+    fixed_dims: [usize; 3],
+    fixed_lps_from_index: &Transform<Lps, Index>,
+    moving_lps_from_index: &Transform<Lps, Index>,
+) -> Result<DisplacementField> {
+    if field.dims != fixed_dims {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "the field has shape {:?} and the fixed image {fixed_dims:?}: a Learn2Reg field holds one vector per \
+                 fixed voxel",
+                field.dims
+            ),
+        ));
+    }
+    let [nx, ny, _] = field.dims;
+    let displacements_lps = field
+        .voxels
+        .iter()
+        .enumerate()
+        .map(|(n, d)| {
+            let i = [n % nx, (n / nx) % ny, n / (nx * ny)].map(|c| c as f64);
+            let x = fixed_lps_from_index.apply_point(Point3::from_array(i)).coords();
+            let step = [i[0] + f64::from(d[0]), i[1] + f64::from(d[1]), i[2] + f64::from(d[2])];
+            let u = moving_lps_from_index.apply_point(Point3::from_array(step)).coords();
+            #[allow(clippy::cast_possible_truncation, reason = "a field's vectors are f32 in every flavour")]
+            [0, 1, 2].map(|c| (u[c] - x[c]) as f32)
+        })
+        .collect();
+    Ok(DisplacementField {
+        dims: field.dims,
+        lps_from_index: *fixed_lps_from_index,
+        geometry_source: GeometrySource::Learn2RegFixedImage,
+        displacements_lps,
+    })
+}
+
+/// The Learn2Reg field of a pull-back field in LPS mm on the fixed grid (`dims`, `fixed_lps_from_index`): d\[i\] =
+/// moving_index_from_lps(x + D(x)) − i. `path` names the output in errors: a singular moving grid.
+pub fn voxels_from_pullback(
+    path: &Path,
+    dims: [usize; 3],
+    fixed_lps_from_index: &Transform<Lps, Index>,
+    moving_lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<VoxelField> {
+    let moving_index_from_lps = moving_lps_from_index
+        .inverse()
+        .ok_or_else(|| Error::invalid(path, "the moving image's voxel-to-patient matrix is singular"))?;
+    let [nx, ny, _] = dims;
+    let voxels = displacements_lps
+        .iter()
+        .enumerate()
+        .map(|(n, d)| {
+            let i = [n % nx, (n / nx) % ny, n / (nx * ny)].map(|c| c as f64);
+            let x = fixed_lps_from_index.apply_point(Point3::from_array(i)).coords();
+            let u = [x[0] + f64::from(d[0]), x[1] + f64::from(d[1]), x[2] + f64::from(d[2])];
+            let j = moving_index_from_lps.apply_point(Point3::from_array(u)).coords();
+            #[allow(clippy::cast_possible_truncation, reason = "a step in voxels")]
+            [0, 1, 2].map(|c| (j[c] - i[c]) as f32)
+        })
+        .collect();
+    Ok(VoxelField { dims, voxels })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix3;
+
+    fn field() -> VoxelField {
+        let dims = [3, 4, 2];
+        let voxels = (0..24).map(|n| [n as f32 * 0.25 - 3.0, 1.0 - n as f32 * 0.125, (n % 5) as f32 * 0.5]).collect();
+        VoxelField { dims, voxels }
+    }
+
+    #[test]
+    fn a_written_field_reads_back_within_float16() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("disp_0001_0002.npz");
+        let f = field();
+        write_voxel_field(&path, &f).expect("write");
+        let back = read_voxel_field(&path).expect("read");
+        assert_eq!(back.dims, f.dims);
+        for (a, b) in back.voxels.iter().zip(&f.voxels) {
+            for c in 0..3 {
+                // These values are multiples of 1/8 below 8: float16 holds them exactly.
+                assert_eq!(a[c].to_bits(), b[c].to_bits());
+            }
+        }
+    }
+
+    #[test]
+    fn the_conversions_are_inverse_and_map_indices_through_both_grids() {
+        let (s, c) = 0.4f64.sin_cos();
+        let fixed = Transform::from_linear_translation(
+            Matrix3::new(c * 1.5, -s * 2.0, 0.0, s * 1.5, c * 2.0, 0.0, 0.0, 0.0, 2.5),
+            [-30.0, 12.5, 7.25],
+        );
+        let moving = Transform::from_linear_translation(Matrix3::from_diagonal_element(0.8), [5.0, -3.0, 1.0]);
+        let f = field();
+        let path = Path::new("f.npz");
+        let pullback = pullback_from_voxels(path, &f, f.dims, &fixed, &moving).expect("pullback");
+        // Voxel n = 7 is [1, 2, 0]: it maps to the moving index [1, 2, 0] + d, whose LPS point is x + D(x).
+        let d = f.voxels[7];
+        let want = moving.apply_point(Point3::new(1.0 + f64::from(d[0]), 2.0 + f64::from(d[1]), f64::from(d[2])));
+        let x = fixed.apply_point(Point3::new(1.0, 2.0, 0.0)).coords();
+        let got = pullback.displacements_lps[7];
+        for a in 0..3 {
+            assert!((x[a] + f64::from(got[a]) - want.coords()[a]).abs() < 1e-4);
+        }
+        let back = voxels_from_pullback(path, f.dims, &fixed, &moving, &pullback.displacements_lps).expect("back");
+        for (a, b) in back.voxels.iter().zip(&f.voxels) {
+            for c in 0..3 {
+                assert!((a[c] - b[c]).abs() < 1e-4, "{a:?} {b:?}");
+            }
+        }
+        let e = pullback_from_voxels(path, &f, [3, 4, 3], &fixed, &moving).expect_err("wrong dims").to_string();
+        assert!(e.contains("f.npz") && e.contains("[3, 4, 2]") && e.contains("[3, 4, 3]"), "{e}");
+    }
+
+    #[test]
+    fn bad_archives_are_named() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let path = dir.path().join("not.npz");
+        std::fs::write(&path, b"PK\x03\x04 but nothing else").expect("write");
+        let e = read_voxel_field(&path).expect_err("damaged").to_string();
+        assert!(e.contains("not.npz") && e.contains("damaged"), "{e}");
+        let big = VoxelField { dims: [1, 1, 1], voxels: vec![[70000.0, 0.0, 0.0]] };
+        let e = write_voxel_field(&dir.path().join("big.npz"), &big).expect_err("beyond float16").to_string();
+        assert!(e.contains("[0, 0, 0]") && e.contains("float16"), "{e}");
+        assert!(!dir.path().join("big.npz").exists());
+    }
+}
