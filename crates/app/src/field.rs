@@ -43,6 +43,7 @@ use warpbench_io::geometry::{Index, Lps, Space, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::learn2reg;
 use warpbench_io::transform_file;
 use warpbench_io::{Progress, Volume, volume};
 use warpbench_solver::method::Method;
@@ -114,7 +115,8 @@ pub struct FieldArgs {
     #[arg(long, value_enum, default_value = "pullback")]
     pub direction: DirectionArg,
     /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
-    /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform).
+    /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform; .npz for Learn2Reg's
+    /// field, float16 steps from fixed voxels to moving voxels).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -195,10 +197,16 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     let FieldArgs { volumes, pairs, reference, tfm, format, direction, out: out_path, report } = args;
     let ReportArgs { json, force, quiet } = report;
     let (format, direction) = (FieldFormat::from(format), FieldDirection::from(direction));
+    let reference_path = reference.clone();
     let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
     let output = OutputFile { path: out_path, force };
     let input_paths = inputs.paths();
-    check_field_output(&output, format, &input_paths)?;
+    let learn2reg = learn2reg::is_npz_name(&output.path);
+    if learn2reg {
+        check_learn2reg_output(&output, format, direction, reference_path.as_deref(), &input_paths)?;
+    } else {
+        check_field_output(&output, format, &input_paths)?;
+    }
     let method = inputs.method().map_err(Failure::BadInput)?;
     if let Some(tfm) = &tfm
         && direction == FieldDirection::Forward
@@ -236,7 +244,14 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field_reporting(grid, &made_of, direction, quiet)?;
-    write_field(&field, &output.path, format, tfm.as_deref())?;
+    if learn2reg {
+        write_learn2reg(&field, &moving, &output.path)?;
+        if let Some(path) = &tfm {
+            write_field_transform(&field, path)?;
+        }
+    } else {
+        write_field(&field, &output.path, format, tfm.as_deref())?;
+    }
 
     let summary = FieldSummary {
         schema: SCHEMA,
@@ -245,7 +260,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         spacing_mm: field.spacing_mm,
         lps_from_index: field.lps_from_index.rows(),
         grid: grid_name,
-        format: format.name(),
+        format: if learn2reg { "learn2reg" } else { format.name() },
         direction: field.direction.name(),
         method: field.method,
         pairs: field.pairs,
@@ -474,22 +489,86 @@ pub fn write_displacements(
 /// Writes `field` as `warpbench field` does: the displacement field at `out` in `format` and, when `tfm` is given,
 /// the pull-back as an ITK transform file. Each write is atomic.
 pub fn write_field(field: &Field, out: &Path, format: FieldFormat, tfm: Option<&Path>) -> Result<(), Failure> {
-    let tfm = match (tfm, &field.transform) {
-        (None, _) => None,
-        (Some(path), Some(transform)) => Some((path, transform)),
-        (Some(path), None) => {
-            return Err(Failure::BadInput(anyhow!(
-                "{}: an ITK transform file holds the pull-back; this field samples the {} map",
-                path.display(),
-                field.direction
-            )));
-        }
-    };
+    if let Some(path) = tfm
+        && field.transform.is_none()
+    {
+        return Err(no_transform(field, path));
+    }
     write_displacements(out, format, field.direction, field.dims, &field.lps_from_index, &field.displacements_lps)?;
-    if let Some((path, transform)) = tfm {
-        transform_file::write(path, transform)?;
+    if let Some(path) = tfm {
+        write_field_transform(field, path)?;
     }
     Ok(())
+}
+
+/// Writes the pull-back that `field` samples as an ITK transform file (`--tfm`), atomically.
+fn write_field_transform(field: &Field, path: &Path) -> Result<(), Failure> {
+    let transform = field.transform.as_ref().ok_or_else(|| no_transform(field, path))?;
+    Ok(transform_file::write(path, transform)?)
+}
+
+fn no_transform(field: &Field, path: &Path) -> Failure {
+    Failure::BadInput(anyhow!(
+        "{}: an ITK transform file holds the pull-back; this field samples the {} map",
+        path.display(),
+        field.direction
+    ))
+}
+
+/// Refuses a Learn2Reg output (a name ending `.npz`) before anything is computed: over an input or an existing file
+/// without `--force`, with another flavour than the default, the forward direction or a `--reference` grid (the
+/// challenge's field holds the pull-back on the fixed image's voxels).
+pub(crate) fn check_learn2reg_output(
+    output: &OutputFile,
+    format: FieldFormat,
+    direction: FieldDirection,
+    reference: Option<&Path>,
+    inputs: &[&Path],
+) -> Result<(), Failure> {
+    output.check(inputs).map_err(Failure::BadInput)?;
+    let name = output.path.display();
+    let refuse =
+        |why: String| Err(Failure::BadInput(anyhow!("{name}: a name ending .npz is Learn2Reg's field, {why}")));
+    if format != FieldFormat::Itk {
+        return refuse(format!("not the {format} flavour: leave out --format, or name the file for the flavour"));
+    }
+    if direction == FieldDirection::Forward {
+        return refuse("which maps fixed voxels to moving ones (the pull-back): leave out --direction forward".into());
+    }
+    if let Some(r) = reference {
+        return refuse(format!(
+            "which holds one vector per voxel of the fixed image: leave out --reference {}",
+            r.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Writes `field`, the pull-back sampled on the fixed grid, as Learn2Reg's `.npz` at `out`
+/// ([`learn2reg::voxels_from_pullback`]: each fixed voxel's step to the moving voxel it reads, in the voxels of the
+/// fixed grid and of `moving`), atomically.
+///
+/// # Errors
+/// A step beyond float16's range, a singular moving grid, a failed write.
+pub fn write_learn2reg(field: &Field, moving: &Volume, out: &Path) -> Result<(), Failure> {
+    write_learn2reg_displacements(out, field.dims, &field.lps_from_index, moving, &field.displacements_lps)
+}
+
+/// [`write_learn2reg`] of pull-back displacements sampled on the fixed grid (`dims`, `fixed_lps_from_index`; LPS
+/// mm, i fastest).
+///
+/// # Errors
+/// As [`write_learn2reg`].
+pub fn write_learn2reg_displacements(
+    out: &Path,
+    dims: [usize; 3],
+    fixed_lps_from_index: &Transform<Lps, Index>,
+    moving: &Volume,
+    displacements_lps: &[[f32; 3]],
+) -> Result<(), Failure> {
+    let voxels =
+        learn2reg::voxels_from_pullback(out, dims, fixed_lps_from_index, &moving.lps_from_index, displacements_lps)?;
+    Ok(learn2reg::write_voxel_field(out, &voxels)?)
 }
 
 /// A sampled displacement field.

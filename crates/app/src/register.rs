@@ -82,7 +82,8 @@ pub struct RegisterArgs {
     pub pairs: RegisterPairArgs,
     /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
     /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage; .h5 for ITK's HDF5 transform file holding it as
-    /// a DisplacementFieldTransform, as ANTs' Composite.h5).
+    /// a DisplacementFieldTransform, as ANTs' Composite.h5; .npz for Learn2Reg's field, float16 steps from fixed
+    /// voxels to moving voxels).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
@@ -534,7 +535,13 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     input_paths.extend(given.paths());
     input_paths.extend(fixed_mask.as_deref());
     input_paths.extend(moving_mask.as_deref());
-    crate::field::check_field_output(&OutputFile { path: out_field.clone(), force }, format, &input_paths)?;
+    let learn2reg = warpbench_io::learn2reg::is_npz_name(&out_field);
+    let field_output = OutputFile { path: out_field.clone(), force };
+    if learn2reg {
+        crate::field::check_learn2reg_output(&field_output, format, FieldDirection::Pullback, None, &input_paths)?;
+    } else {
+        crate::field::check_field_output(&field_output, format, &input_paths)?;
+    }
     if let Some(path) = &out_inverse_field {
         if path == &out_field || out_volume.as_ref() == Some(path) {
             return Err(Failure::BadInput(anyhow!("{}: --out-inverse-field is another output too", path.display())));
@@ -613,14 +620,24 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let Some(max_displacement_mm) = sampled.max_norm_mm else {
         return Err(Failure::Internal(anyhow!("the registered warp is not finite somewhere in the fixed grid")));
     };
-    crate::field::write_displacements(
-        &out_field,
-        format,
-        FieldDirection::Pullback,
-        dims,
-        &lps_from_index,
-        &sampled.displacements_lps,
-    )?;
+    if learn2reg {
+        crate::field::write_learn2reg_displacements(
+            &out_field,
+            dims,
+            &lps_from_index,
+            &moving_volume,
+            &sampled.displacements_lps,
+        )?;
+    } else {
+        crate::field::write_displacements(
+            &out_field,
+            format,
+            FieldDirection::Pullback,
+            dims,
+            &lps_from_index,
+            &sampled.displacements_lps,
+        )?;
+    }
     let inverse_consistency = match &out_inverse_field {
         Some(path) => Some(write_inverse(&u, [&fixed_volume, &moving_volume], path, format, &bar)?),
         None => None,

@@ -38,6 +38,7 @@ use warpbench_io::dicom_write::{self, DicomSeriesOptions};
 use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::learn2reg;
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, VolumeFileKind};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
@@ -186,6 +187,24 @@ pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
     })
 }
 
+/// Whether `path` holds a Learn2Reg field (a NumPy `.npz` archive, told by its first bytes); errors name the file.
+fn is_learn2reg_file(path: &Path) -> Result<bool, Failure> {
+    let mut head = [0u8; 4];
+    let mut file = std::fs::File::open(path).map_err(|e| warpbench_io::Error::io(path, e))?;
+    let n = std::io::Read::read(&mut file, &mut head).map_err(|e| warpbench_io::Error::io(path, e))?;
+    Ok(learn2reg::looks_like_npz(&head[..n]))
+}
+
+/// Reads a Learn2Reg field ([`learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`.
+/// Errors name the file: what [`learn2reg::read_voxel_field`] refuses, a shape other than the fixed volume's.
+pub fn read_learn2reg_field(path: &Path, fixed: &Volume, moving: &Volume) -> Result<WarpField, Failure> {
+    let voxels = learn2reg::read_voxel_field(path)?;
+    let field =
+        learn2reg::pullback_from_voxels(path, &voxels, fixed.dims, &fixed.lps_from_index, &moving.lps_from_index)?;
+    let bad = |e: warpbench_solver::SolverError| Failure::BadInput(anyhow!("{}: {e}", path.display()));
+    Ok(WarpField::Pullback(SampledField::from_displacement_field(field).map_err(bad)?))
+}
+
 /// [`read_warp_field`] for `render --field`, which takes the pull-back only: a forward field is refused.
 pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, Failure> {
     match read_warp_field(path)? {
@@ -211,7 +230,8 @@ series) with the fixed grid's geometry.
 The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
 app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
 any flavour warpbench field writes (ITK NIfTI DISPVECT, ANTs NIfTI VECTOR, Slicer NRRD): u(x) = x + D(x),
-D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. Examples:
+D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. A Learn2Reg
+field (.npz) holds steps from fixed voxels to moving voxels, read in the two volumes' voxels. Examples:
 
     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
@@ -232,7 +252,7 @@ pub struct WarpArgs {
     #[command(flatten)]
     pub pairs: PairArgs,
     /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, NRRD, MetaImage, or an ITK
-    /// .h5 such as ANTs' Composite.h5; u(x) = x + D(x)).
+    /// .h5 such as ANTs' Composite.h5; u(x) = x + D(x)), or Learn2Reg's .npz (steps from fixed to moving voxels).
     #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     pub field: Option<PathBuf>,
     /// Control-texture texels per axis over the output grid (2..=256).
@@ -928,6 +948,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             let layers = pairs.warp.layers(brushed).map_err(Failure::BadInput)?;
             Given::Pairs(method, pairs, Box::new(layers))
         }
+        WarpInputs::Field(f) if is_learn2reg_file(&f.field)? => Given::Learn2Reg(&f.field),
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();
@@ -952,6 +973,10 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             Fitted::new(grid, &fixed, &moving, (pairs, layers), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
+        Given::Learn2Reg(path) => {
+            let field = read_learn2reg_field(path, &fixed, &moving)?;
+            Fitted::from_field(grid, &moving, &field, path, &export)?
+        }
     };
     drop(given);
     drop(reference);
@@ -1026,6 +1051,8 @@ enum Given<'a> {
     Pairs(Method, &'a PairInputs, Box<Layers>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
+    /// A Learn2Reg field's file, read once the volumes are: its vectors are in their voxels.
+    Learn2Reg(&'a Path),
 }
 
 /// Seconds since the previous lap.

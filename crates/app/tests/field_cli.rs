@@ -314,6 +314,18 @@ fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
         &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--format", "nrrd", "--quiet", "--out", o],
         "x.nii.gz: invalid: the nrrd field flavour is written to a .nrrd name",
     );
+    // Learn2Reg's .npz holds the pull-back on the fixed voxels, in its one flavour.
+    let npz = dir.path().join("disp.npz");
+    let n = utf8(&npz);
+    let field = ["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--out", n];
+    for (extra, needle) in [
+        (&["--direction", "forward"][..], "disp.npz: a name ending .npz is Learn2Reg's field, which maps fixed voxels"),
+        (&["--reference", f][..], "which holds one vector per voxel of the fixed image: leave out --reference"),
+        (&["--format", "metaimage"][..], "not the metaimage flavour"),
+    ] {
+        expect_bad(&[&field[..], extra].concat(), needle);
+        assert!(!npz.exists());
+    }
     expect_bad(
         &[
             "field",

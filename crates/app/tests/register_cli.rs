@@ -429,3 +429,36 @@ fn the_inverse_field_undoes_the_registered_warp() {
     assert_eq!(same.status.code(), Some(2), "{}", String::from_utf8_lossy(&same.stderr));
     assert!(String::from_utf8_lossy(&same.stderr).contains("--out-inverse-field"));
 }
+
+/// `--out-field` named `.npz` writes Learn2Reg's field of the same registration: read back against the pair's grids
+/// it is the pull-back of a run that writes ITK's NIfTI (the runs repeat bit for bit), within float16's rounding of
+/// the steps (2⁻¹¹ of a step, times the 2 mm voxels). With `--format ants` it exits 2 and writes nothing.
+#[test]
+fn an_npz_field_is_learn2regs_of_the_same_registration() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, pairs, _) = case(dir.path());
+    let (npz, nii) = (dir.path().join("disp_0001_0002.npz"), dir.path().join("field.nii.gz"));
+    let run = register(&fixed, &moving, &pairs, &npz, &TINY);
+    assert_ok(&run);
+    assert_ok(&register(&fixed, &moving, &pairs, &nii, &TINY));
+    let (f, m) = (warpbench_io::open(&fixed).expect("fixed"), warpbench_io::open(&moving).expect("moving"));
+    let steps = warpbench_io::learn2reg::read_voxel_field(&npz).expect("the .npz");
+    let read =
+        warpbench_io::learn2reg::pullback_from_voxels(&npz, &steps, f.dims, &f.lps_from_index, &m.lps_from_index)
+            .expect("against the pair");
+    let want = read_field_info(&nii).expect("the NIfTI field").field;
+    let mut worst = 0f64;
+    for (a, b) in read.displacements_lps.iter().zip(&want.displacements_lps) {
+        let size = (0..3).map(|c| f64::from(b[c]).powi(2)).sum::<f64>().sqrt();
+        let gap = distance(a.map(f64::from), b.map(f64::from));
+        assert!(gap <= size * 2f64.powi(-11) * 2.0 * 3f64.sqrt() + 1e-4, "{a:?} against {b:?}");
+        worst = worst.max(size);
+    }
+    assert!(worst > 2.0, "the registration moved the voxels (largest {worst:.2} mm)");
+    let refused = dir.path().join("ants.npz");
+    let run = register(&fixed, &moving, &pairs, &refused, &[&TINY[..], &["--format", "ants"]].concat());
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("ants.npz") && stderr.contains("Learn2Reg"), "{stderr}");
+    assert!(!refused.exists());
+}
