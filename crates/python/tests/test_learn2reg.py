@@ -1,0 +1,110 @@
+"""Learn2Reg's `.npz` displacement fields, through the CLI, against NumPy and SimpleITK.
+
+Learn2Reg's evaluation (github.com/MDL-UzL/L2R, `evaluation/L2RTest/utils.py`) loads `arr_0` of the `.npz`, of shape
+(X, Y, Z, 3), and maps a fixed voxel index i to the moving voxel index i + d[i]. Here the fixed volume (16×14×12 at
+2 mm) and the moving one (16³ at 2.5 mm) have different grids, so a step in voxels is not one in mm:
+
+- `warpbench field --out disp.npz` writes what NumPy loads as float16 `arr_0`, and each step is SimpleITK's moving
+  continuous index of x + D(x), with D the ITK field `warpbench field` writes, minus the fixed index;
+- `warpbench warp --field` of a field NumPy wrote resamples as SimpleITK does through the same steps turned into
+  mm by SimpleITK's geometry;
+- the other readers refuse an `.npz`, naming it and the command that reads it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import warpbench as wb
+from conftest import FIXED, MOVING, cli_json, run_cli
+
+sitk = pytest.importorskip("SimpleITK")
+
+
+def indices(shape):
+    return np.stack(np.meshgrid(*(np.arange(n) for n in shape), indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def pairs(tmp_path):
+    """Six BigWarp pairs (moving, then fixed, LPS mm) inside both boxes, moved by up to 3 mm."""
+    rows = [
+        ((-6, -5, -4), (-8, -6, -3)),
+        ((7, -4, 2), (6, -6, 4)),
+        ((-5, 8, 3), (-4, 6, 1)),
+        ((6, 6, -5), (8, 7, -3)),
+        ((0, 0, 6), (1, -2, 7)),
+        ((2, -1, -7), (0, 0, -8)),
+    ]
+    path = tmp_path / "pairs.csv"
+    path.write_text("".join(f'"Pt-{n}","true",{",".join(f"{v:.1f}" for v in (*m, *f))}\n' for n, (m, f) in enumerate(rows)))
+    return path
+
+
+def test_field_writes_the_steps_simpleitk_computes_from_the_itk_field(tmp_path):
+    npz, nii = tmp_path / "disp_0001_0002.npz", tmp_path / "disp.nii.gz"
+    landmarks = pairs(tmp_path)
+    summary = cli_json("field", "--fixed", FIXED, "--moving", MOVING, "--landmarks", landmarks, "--out", npz)
+    assert summary["format"] == "learn2reg" and summary["grid"] == "fixed"
+    run_cli("field", "--fixed", FIXED, "--moving", MOVING, "--landmarks", landmarks, "--out", nii, "--quiet")
+    with np.load(npz) as archive:
+        assert archive.files == ["arr_0"]
+        steps = archive["arr_0"]
+    fixed, moving = sitk.ReadImage(str(FIXED)), sitk.ReadImage(str(MOVING))
+    assert steps.dtype == np.float16 and steps.shape == (*fixed.GetSize(), 3)
+    field = sitk.GetArrayFromImage(sitk.ReadImage(str(nii))).transpose(2, 1, 0, 3)  # k-j-i-c to i-j-k-c
+    want = np.empty(steps.shape)
+    for i, j, k in indices(steps.shape[:3]):
+        x = np.array(fixed.TransformIndexToPhysicalPoint((int(i), int(j), int(k))))
+        u = x + field[i, j, k].astype(np.float64)
+        want[i, j, k] = np.array(moving.TransformPhysicalPointToContinuousIndex(tuple(u))) - (i, j, k)
+    # float16 holds a step within 2^-11 of its size; the f32 vectors of the ITK field add ~1e-6 voxels.
+    np.testing.assert_allclose(steps.astype(np.float64), want, rtol=2.0**-11, atol=1e-4)
+    assert np.abs(want).max() > 1.0, "the steps must be more than the grid change"
+
+
+def test_warp_reads_a_numpy_field_as_simpleitk_resamples_through_it(tmp_path):
+    fixed, moving = sitk.ReadImage(str(FIXED), sitk.sitkFloat64), sitk.ReadImage(str(MOVING), sitk.sitkFloat64)
+    shape = fixed.GetSize()
+    ijk = indices(shape).reshape(*shape, 3).astype(np.float64)
+    # A smooth step of up to 1.5 moving voxels, exact in float16 after rounding here.
+    steps = np.stack(
+        [1.5 * np.sin(ijk[..., 1] / 4.0), 0.75 * np.cos(ijk[..., 2] / 5.0), 0.5 - ijk[..., 0] / 16.0], axis=-1
+    ).astype(np.float16)
+    npz = tmp_path / "disp.npz"
+    np.savez_compressed(npz, steps)
+    # The same steps as an ITK displacement field in mm, by SimpleITK's geometry of the two images.
+    mm = np.empty((*shape, 3))
+    for i, j, k in indices(shape):
+        x = np.array(fixed.TransformIndexToPhysicalPoint((int(i), int(j), int(k))))
+        to = tuple(float(v) for v in (i, j, k) + steps[i, j, k].astype(np.float64))
+        mm[i, j, k] = np.array(moving.TransformContinuousIndexToPhysicalPoint(to)) - x
+    image = sitk.GetImageFromArray(mm.transpose(2, 1, 0, 3), isVector=True)
+    image.CopyInformation(fixed)
+    transform = sitk.DisplacementFieldTransform(image)
+    want = sitk.GetArrayFromImage(sitk.Resample(moving, fixed, transform, sitk.sitkLinear, 0.0)).transpose(2, 1, 0)
+
+    out = tmp_path / "warped.nii.gz"
+    run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", npz, "--exact", "--float", "--out", out, "--quiet")
+    got = sitk.GetArrayFromImage(sitk.ReadImage(str(out))).transpose(2, 1, 0)
+    # At each fixed voxel centre both read the moving volume at the same point, trilinearly: f32 arithmetic apart.
+    scale = np.abs(want).max()
+    assert scale > 0
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4 * scale)
+    assert np.abs(steps).max() > 1.0
+
+
+def test_readers_without_the_pair_refuse_an_npz_by_name(tmp_path):
+    npz = tmp_path / "disp.npz"
+    np.savez_compressed(npz, np.zeros((16, 14, 12, 3), np.float16))
+    with pytest.raises(ValueError, match=r"disp\.npz.*Learn2Reg.*warp"):
+        wb.read_field(npz)
+    done = run_cli("render", "--fixed", FIXED, "--moving", MOVING, "--field", npz, "--out", tmp_path / "r.png",
+                   expect=2)
+    assert "disp.npz" in done.stderr and "Learn2Reg" in done.stderr
+    wrong = tmp_path / "wrong.npz"
+    np.savez_compressed(wrong, np.zeros((16, 14, 11, 3), np.float16))
+    done = run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", wrong, "--out", tmp_path / "w.nii.gz",
+                   expect=2)
+    assert "wrong.npz" in done.stderr and "[16, 14, 11]" in done.stderr and "[16, 14, 12]" in done.stderr
+    assert not (tmp_path / "w.nii.gz").exists()
