@@ -2,16 +2,28 @@
 //! MetaImage, or an elastix transform parameter file sampled on its fixed grid), as a (ni, nj, nk, 3) float32 array
 //! of LPS vectors with its `lps_from_index`.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use numpy::PyArray;
 use numpy::ndarray::{Array4, ShapeBuilder};
+use numpy::{PyArray, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
-use warpbench_io::displacement::{self, FieldSource};
+use warpbench_io::displacement::{self, FieldDirection, FieldSource, ReadField};
+use warpbench_io::learn2reg;
 
 use crate::errors::{self, guarded};
-use crate::volume::matrix;
+use crate::volume::{lps_from_index, matrix};
+
+/// A grid from Python: its sizes and its 4×4 `lps_from_index`.
+type Grid<'py> = (Vec<usize>, PyReadonlyArray2<'py, f64>);
+
+/// Whether the file at `path` opens as a NumPy `.npz` (a zip archive).
+fn is_npz(path: &Path) -> warpbench_io::Result<bool> {
+    let mut head = [0u8; 4];
+    let mut file = std::fs::File::open(path).map_err(|e| warpbench_io::Error::io(path, e))?;
+    let n = std::io::Read::read(&mut file, &mut head).map_err(|e| warpbench_io::Error::io(path, e))?;
+    Ok(learn2reg::looks_like_npz(&head[..n]))
+}
 
 /// What [`read_field`] returns: the vectors, `lps_from_index`, the source and the direction.
 pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
@@ -21,9 +33,29 @@ pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
 /// `metaimage`), `elastix` for a transform parameter file, `itk_h5` for ITK's HDF5 transform file or `dicom` for a DICOM
 /// Deformable Spatial Registration; `direction` `pullback` or `forward` where the file says (NRRD, `.h5`, DICOM), else
 /// `None`.
+///
+/// With `pair`, the fixed and the moving grid (`(dims, lps_from_index)` each), a Learn2Reg `.npz` is read too: its
+/// voxel steps turned into the pull-back on the fixed grid (`learn2reg`, direction `pullback`).
 #[pyfunction]
-pub fn read_field(py: Python<'_>, path: PathBuf) -> PyResult<FieldParts> {
-    let read = guarded(py, || displacement::read_field_info(&path).map_err(errors::io))?;
+#[pyo3(signature = (path, pair = None))]
+pub fn read_field(py: Python<'_>, path: PathBuf, pair: Option<(Grid<'_>, Grid<'_>)>) -> PyResult<FieldParts> {
+    let pair = match pair {
+        Some(((fixed_dims, fixed), (_, moving))) => {
+            let fixed_dims: [usize; 3] = fixed_dims.try_into().map_err(|d: Vec<usize>| {
+                PyValueError::new_err(format!("{}: the fixed grid has 3 sizes, not {d:?}", path.display()))
+            })?;
+            Some((fixed_dims, lps_from_index(&path, &fixed)?, lps_from_index(&path, &moving)?))
+        }
+        None => None,
+    };
+    let read = guarded(py, || match pair {
+        Some((dims, fixed, moving)) if is_npz(&path).map_err(errors::io)? => {
+            let steps = learn2reg::read_voxel_field(&path).map_err(errors::io)?;
+            let field = learn2reg::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
+            Ok(ReadField { field, source: FieldSource::Learn2Reg, direction: Some(FieldDirection::Pullback) })
+        }
+        _ => displacement::read_field_info(&path).map_err(errors::io),
+    })?;
     let field = read.field;
     let [ni, nj, nk] = field.dims;
     let mut flat = Vec::with_capacity(3 * field.displacements_lps.len());
@@ -37,6 +69,7 @@ pub fn read_field(py: Python<'_>, path: PathBuf) -> PyResult<FieldParts> {
         FieldSource::ElastixTransform => "elastix".to_owned(),
         FieldSource::ItkHdf5 => "itk_h5".to_owned(),
         FieldSource::DicomRegistration => "dicom".to_owned(),
+        FieldSource::Learn2Reg => "learn2reg".to_owned(),
     };
     let direction = read.direction.map(|d| d.name().to_owned());
     let lps = matrix(py, &field.lps_from_index.rows());

@@ -8,7 +8,8 @@ Learn2Reg's evaluation (github.com/MDL-UzL/L2R, `evaluation/L2RTest/utils.py`) l
   continuous index of x + D(x), with D the ITK field `warpbench field` writes, minus the fixed index;
 - `warpbench warp --field` of a field NumPy wrote resamples as SimpleITK does through the same steps turned into
   mm by SimpleITK's geometry;
-- the other readers refuse an `.npz`, naming it and the command that reads it.
+- Python's `read_field` given the two volumes reads the steps to SimpleITK's mm field;
+- the readers that are not given the pair refuse an `.npz`, naming it and the command that reads it.
 """
 
 from __future__ import annotations
@@ -79,6 +80,10 @@ def test_warp_reads_a_numpy_field_as_simpleitk_resamples_through_it(tmp_path):
         x = np.array(fixed.TransformIndexToPhysicalPoint((int(i), int(j), int(k))))
         to = tuple(float(v) for v in (i, j, k) + steps[i, j, k].astype(np.float64))
         mm[i, j, k] = np.array(moving.TransformContinuousIndexToPhysicalPoint(to)) - x
+    # Python reads the steps against the two volumes to the same field, in LPS mm (SimpleITK's physical space).
+    read = wb.read_field(npz, fixed=wb.read_volume(FIXED), moving=wb.read_volume(MOVING))
+    assert (read.source, read.direction, read.array.shape) == ("learn2reg", "pullback", (*shape, 3))
+    np.testing.assert_allclose(read.array, mm, rtol=0, atol=1e-5)
     image = sitk.GetImageFromArray(mm.transpose(2, 1, 0, 3), isVector=True)
     image.CopyInformation(fixed)
     transform = sitk.DisplacementFieldTransform(image)
@@ -99,6 +104,8 @@ def test_readers_without_the_pair_refuse_an_npz_by_name(tmp_path):
     np.savez_compressed(npz, np.zeros((16, 14, 12, 3), np.float16))
     with pytest.raises(ValueError, match=r"disp\.npz.*Learn2Reg.*warp"):
         wb.read_field(npz)
+    with pytest.raises(ValueError, match=r"disp\.npz: give both fixed and moving"):
+        wb.read_field(npz, fixed=wb.read_volume(FIXED))
     done = run_cli("render", "--fixed", FIXED, "--moving", MOVING, "--field", npz, "--out", tmp_path / "r.png",
                    expect=2)
     assert "disp.npz" in done.stderr and "Learn2Reg" in done.stderr

@@ -120,6 +120,8 @@ pub enum FieldSource {
     ItkHdf5,
     /// A DICOM Deformable Spatial Registration's grid of vectors ([`crate::dicom_reg::read_field`]).
     DicomRegistration,
+    /// A Learn2Reg `.npz`, read against the fixed and moving grids ([`crate::learn2reg::pullback_from_voxels`]).
+    Learn2Reg,
 }
 
 /// What [`super::read_field_info`] found.

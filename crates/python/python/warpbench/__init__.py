@@ -194,8 +194,8 @@ class Field:
 
     ``array`` holds its vectors, LPS mm, shape ``(ni, nj, nk, 3)`` float32, at the voxel centres of the grid
     ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``),
-    ``"elastix"`` for a transform parameter file, ``"itk_h5"`` for ITK's HDF5 transform file or ``"dicom"`` for a
-    DICOM Deformable Spatial Registration; ``direction`` is ``"pullback"`` or ``"forward"`` where the file says (NRRD;
+    ``"elastix"`` for a transform parameter file, ``"itk_h5"`` for ITK's HDF5 transform file, ``"dicom"`` for a
+    DICOM Deformable Spatial Registration or ``"learn2reg"`` for a Learn2Reg ``.npz`` (``"pullback"``); ``direction`` is ``"pullback"`` or ``"forward"`` where the file says (NRRD;
     ``"pullback"`` for an ``.h5`` or a DICOM registration, ``"forward"`` for an ``.h5`` holding only 3D Slicer's
     ``InverseDisplacementFieldTransform``), else ``None``, and then it is a pull-back, as ITK takes it."""
 
@@ -210,13 +210,20 @@ class Field:
         return tuple(int(n) for n in self.array.shape[:3])  # type: ignore[return-value]
 
 
-def read_field(path: PathLike) -> Field:
+def read_field(path: PathLike, fixed: Optional[Volume] = None, moving: Optional[Volume] = None) -> Field:
     """Reads a displacement field as ``warpbench warp --field`` reads it: ITK's or ANTs' NIfTI, Slicer's NRRD, a
     MetaImage vector image (transformix's ``deformationField.mhd``), or an elastix transform parameter file
     (``TransformParameters.N.txt`` and the files it names), sampled at every voxel centre of its fixed grid as
     ``transformix -def all`` would write it, or ITK's HDF5 transform file holding a displacement field (ANTs'
-    ``Composite.h5``: the affine and the field together), sampled on that field's grid."""
-    array, lps, source, direction = _warpbench.read_field(os.fspath(path))
+    ``Composite.h5``: the affine and the field together), sampled on that field's grid.
+
+    A Learn2Reg ``.npz`` (``arr_0``: steps from the fixed image's voxels to the moving image's) needs the two
+    volumes it was made for, ``fixed`` and ``moving``: it is read as the pull-back on the fixed grid, in LPS mm, with
+    ``source`` ``"learn2reg"``. Without them it raises ``ValueError``."""
+    if (fixed is None) != (moving is None):
+        raise ValueError(f"{os.fspath(path)}: give both fixed and moving, or neither")
+    pair = None if fixed is None or moving is None else (fixed._grid(), moving._grid())
+    array, lps, source, direction = _warpbench.read_field(os.fspath(path), pair)
     return Field(array, lps, source, direction)
 
 
