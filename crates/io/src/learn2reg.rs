@@ -36,7 +36,7 @@ pub struct VoxelField {
     /// Voxels along i, j, k: the fixed image's dims.
     pub dims: [usize; 3],
     /// `d[i]`, i fastest: fixed index `i` maps to moving index `i + d[i]`.
-    pub voxels: Vec<[f32; 3]>,
+    pub steps_vox: Vec<[f32; 3]>,
 }
 
 /// Whether `path` is named as a NumPy archive (`.npz`, any case): the name that makes `warpbench field` write this
@@ -120,26 +120,29 @@ fn read_npy(name: &Path, member: &str, reader: impl Read, size: u64) -> Result<V
     };
     let n = crate::volume::checked_voxel_count(name, dims)?;
     let fortran = npy.order() == Order::Fortran;
-    let values = read_floats(name, member, npy, n * 3, size)?;
-    let mut voxels = vec![[0f32; 3]; n];
+    let len = n.checked_mul(3).ok_or_else(|| {
+        Error::new(name, ErrorKind::OutOfMemory { what: format!("array {member}"), bytes: (n as u128) * 12 })
+    })?;
+    let values = read_floats(name, member, npy, len, size)?;
+    let mut steps_vox = vec![[0f32; 3]; n];
     let [nx, ny, nz] = dims;
     for (c, plane) in [0usize, 1, 2].into_iter().map(|c| (c, c * n)) {
         for k in 0..nz {
             for j in 0..ny {
                 for i in 0..nx {
                     let at = if fortran { plane + i + nx * (j + ny * k) } else { ((i * ny + j) * nz + k) * 3 + c };
-                    voxels[i + nx * (j + ny * k)][c] = values[at];
+                    steps_vox[i + nx * (j + ny * k)][c] = values[at];
                 }
             }
         }
     }
-    if let Some(ijk) = crate::displacement::check::first_non_finite(dims, &voxels) {
+    if let Some(ijk) = crate::displacement::check::first_non_finite(dims, &steps_vox) {
         return Err(Error::invalid(
             name,
             format!("array {member}: the vector at voxel {ijk:?} (i, j, k) is not finite"),
         ));
     }
-    Ok(VoxelField { dims, voxels })
+    Ok(VoxelField { dims, steps_vox })
 }
 
 /// The `len` values of a float array of any width, as f32; `size` is the array's size in the archive, which must
@@ -185,15 +188,15 @@ fn read_floats(name: &Path, member: &str, npy: NpyFile<impl Read>, len: usize, s
 /// naming its voxel.
 pub fn write_voxel_field(path: &Path, field: &VoxelField) -> Result<()> {
     let n = crate::volume::checked_voxel_count(path, field.dims)?;
-    if field.voxels.len() != n {
-        return Err(Error::invalid(path, format!("{} vectors for dims {:?}", field.voxels.len(), field.dims)));
+    if field.steps_vox.len() != n {
+        return Err(Error::invalid(path, format!("{} vectors for dims {:?}", field.steps_vox.len(), field.dims)));
     }
     let [nx, ny, nz] = field.dims;
     let mut halves = Vec::with_capacity(3 * n);
     for i in 0..nx {
         for j in 0..ny {
             for k in 0..nz {
-                let v = field.voxels[i + nx * (j + ny * k)];
+                let v = field.steps_vox[i + nx * (j + ny * k)];
                 if !v.iter().all(|c| c.is_finite() && c.abs() <= f16::MAX.to_f32()) {
                     return Err(Error::invalid(
                         path,
@@ -232,7 +235,7 @@ fn npy_bytes(values: &[f16], shape: &[u64]) -> std::io::Result<Vec<u8>> {
 
 /// The pull-back field in LPS mm on the fixed grid that a Learn2Reg field states: at fixed voxel i, with x =
 /// fixed_lps_from_index(i), D(x) = moving_lps_from_index(i + d\[i\]) − x. `path` names the file in errors: a field whose
-/// dims are not the fixed grid's.
+/// dims are not the fixed grid's, a step too large for a finite point.
 pub fn pullback_from_voxels(
     path: &Path,
     field: &VoxelField,
@@ -252,7 +255,7 @@ pub fn pullback_from_voxels(
     }
     let [nx, ny, _] = field.dims;
     let displacements_lps = field
-        .voxels
+        .steps_vox
         .iter()
         .enumerate()
         .map(|(n, d)| {
@@ -263,7 +266,13 @@ pub fn pullback_from_voxels(
             #[allow(clippy::cast_possible_truncation, reason = "a field's vectors are f32 in every flavour")]
             [0, 1, 2].map(|c| (u[c] - x[c]) as f32)
         })
-        .collect();
+        .collect::<Vec<_>>();
+    if let Some(ijk) = crate::displacement::check::first_non_finite(field.dims, &displacements_lps) {
+        return Err(Error::invalid(
+            path,
+            format!("the step at voxel {ijk:?} (i, j, k) leads beyond any finite point of the moving grid"),
+        ));
+    }
     Ok(DisplacementField {
         dims: field.dims,
         lps_from_index: *fixed_lps_from_index,
@@ -285,7 +294,7 @@ pub fn voxels_from_pullback(
         .inverse()
         .ok_or_else(|| Error::invalid(path, "the moving image's voxel-to-patient matrix is singular"))?;
     let [nx, ny, _] = dims;
-    let voxels = displacements_lps
+    let steps_vox = displacements_lps
         .iter()
         .enumerate()
         .map(|(n, d)| {
@@ -297,7 +306,7 @@ pub fn voxels_from_pullback(
             [0, 1, 2].map(|c| (j[c] - i[c]) as f32)
         })
         .collect();
-    Ok(VoxelField { dims, voxels })
+    Ok(VoxelField { dims, steps_vox })
 }
 
 #[cfg(test)]
@@ -307,8 +316,9 @@ mod tests {
 
     fn field() -> VoxelField {
         let dims = [3, 4, 2];
-        let voxels = (0..24).map(|n| [n as f32 * 0.25 - 3.0, 1.0 - n as f32 * 0.125, (n % 5) as f32 * 0.5]).collect();
-        VoxelField { dims, voxels }
+        let steps_vox =
+            (0..24).map(|n| [n as f32 * 0.25 - 3.0, 1.0 - n as f32 * 0.125, (n % 5) as f32 * 0.5]).collect();
+        VoxelField { dims, steps_vox }
     }
 
     #[test]
@@ -319,7 +329,7 @@ mod tests {
         write_voxel_field(&path, &f).expect("write");
         let back = read_voxel_field(&path).expect("read");
         assert_eq!(back.dims, f.dims);
-        for (a, b) in back.voxels.iter().zip(&f.voxels) {
+        for (a, b) in back.steps_vox.iter().zip(&f.steps_vox) {
             for c in 0..3 {
                 // These values are multiples of 1/8 below 8: float16 holds them exactly.
                 assert_eq!(a[c].to_bits(), b[c].to_bits());
@@ -339,7 +349,7 @@ mod tests {
         let path = Path::new("f.npz");
         let pullback = pullback_from_voxels(path, &f, f.dims, &fixed, &moving).expect("pullback");
         // Voxel n = 7 is [1, 2, 0]: it maps to the moving index [1, 2, 0] + d, whose LPS point is x + D(x).
-        let d = f.voxels[7];
+        let d = f.steps_vox[7];
         let want = moving.apply_point(Point3::new(1.0 + f64::from(d[0]), 2.0 + f64::from(d[1]), f64::from(d[2])));
         let x = fixed.apply_point(Point3::new(1.0, 2.0, 0.0)).coords();
         let got = pullback.displacements_lps[7];
@@ -347,13 +357,18 @@ mod tests {
             assert!((x[a] + f64::from(got[a]) - want.coords()[a]).abs() < 1e-4);
         }
         let back = voxels_from_pullback(path, f.dims, &fixed, &moving, &pullback.displacements_lps).expect("back");
-        for (a, b) in back.voxels.iter().zip(&f.voxels) {
+        for (a, b) in back.steps_vox.iter().zip(&f.steps_vox) {
             for c in 0..3 {
                 assert!((a[c] - b[c]).abs() < 1e-4, "{a:?} {b:?}");
             }
         }
         let e = pullback_from_voxels(path, &f, [3, 4, 3], &fixed, &moving).expect_err("wrong dims").to_string();
         assert!(e.contains("f.npz") && e.contains("[3, 4, 2]") && e.contains("[3, 4, 3]"), "{e}");
+        let mut huge = f.clone();
+        huge.steps_vox[5] = [f32::MAX, 0.0, 0.0];
+        let coarse = Transform::from_scale_translation([2.5; 3], [0.0; 3]);
+        let e = pullback_from_voxels(path, &huge, f.dims, &fixed, &coarse).expect_err("beyond f32").to_string();
+        assert!(e.contains("[2, 1, 0]") && e.contains("finite"), "{e}");
     }
 
     #[test]
@@ -363,7 +378,7 @@ mod tests {
         std::fs::write(&path, b"PK\x03\x04 but nothing else").expect("write");
         let e = read_voxel_field(&path).expect_err("damaged").to_string();
         assert!(e.contains("not.npz") && e.contains("damaged"), "{e}");
-        let big = VoxelField { dims: [1, 1, 1], voxels: vec![[70000.0, 0.0, 0.0]] };
+        let big = VoxelField { dims: [1, 1, 1], steps_vox: vec![[70000.0, 0.0, 0.0]] };
         let e = write_voxel_field(&dir.path().join("big.npz"), &big).expect_err("beyond float16").to_string();
         assert!(e.contains("[0, 0, 0]") && e.contains("float16"), "{e}");
         assert!(!dir.path().join("big.npz").exists());

@@ -29,7 +29,7 @@ fn numpy_files_read_as_numpy_reads_them() {
         let f = learn2reg::read_voxel_field(&dir().join(name)).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(f.dims.to_vec(), shape[..3], "{name}");
         let [nx, ny, _] = f.dims;
-        for (n, v) in f.voxels.iter().enumerate() {
+        for (n, v) in f.steps_vox.iter().enumerate() {
             let (i, j, k) = (n % nx, (n / nx) % ny, n / (nx * ny));
             for c in 0..3 {
                 // Every value is exact in float16, so every dtype reads it exactly.
@@ -53,13 +53,13 @@ fn the_2021_layout_and_ambiguous_archives_are_refused_by_name() {
 fn a_written_field_is_float16_arr_0_in_c_order() {
     let (_, disp) = reference();
     let dims = [5, 4, 2];
-    let voxels = (0..40)
+    let steps_vox = (0..40)
         .map(|n| {
             let (i, j, k) = (n % 5, (n / 5) % 4, n / 20);
             [0, 1, 2].map(|c| disp[i][j][k][c] as f32)
         })
         .collect();
-    let field = VoxelField { dims, voxels };
+    let field = VoxelField { dims, steps_vox };
     let tmp = tempfile::tempdir().expect("tempdir");
     let path = tmp.path().join("disp_0001_0002.npz");
     learn2reg::write_voxel_field(&path, &field).expect("write");
