@@ -187,14 +187,6 @@ pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
     })
 }
 
-/// Whether `path` holds a Learn2Reg field (a NumPy `.npz` archive, told by its first bytes); errors name the file.
-fn is_learn2reg_file(path: &Path) -> Result<bool, Failure> {
-    let mut head = [0u8; 4];
-    let mut file = std::fs::File::open(path).map_err(|e| warpbench_io::Error::io(path, e))?;
-    let n = std::io::Read::read(&mut file, &mut head).map_err(|e| warpbench_io::Error::io(path, e))?;
-    Ok(learn2reg::looks_like_npz(&head[..n]))
-}
-
 /// Reads a Learn2Reg field ([`learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`.
 /// Errors name the file: what [`learn2reg::read_voxel_field`] refuses, a shape other than the fixed volume's.
 pub fn read_learn2reg_field(path: &Path, fixed: &Volume, moving: &Volume) -> Result<WarpField, Failure> {
@@ -948,7 +940,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             let layers = pairs.warp.layers(brushed).map_err(Failure::BadInput)?;
             Given::Pairs(method, pairs, Box::new(layers))
         }
-        WarpInputs::Field(f) if is_learn2reg_file(&f.field)? => Given::Learn2Reg(&f.field),
+        WarpInputs::Field(f) if learn2reg::is_npz_file(&f.field)? => Given::Learn2Reg(&f.field),
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();

@@ -46,6 +46,15 @@ pub fn is_npz_name(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("npz"))
 }
 
+/// Whether the file at `path` opens as a zip archive, as every `.npz` does: how a reader given a field tells this
+/// flavour from the others, by content. Errors name the file.
+pub fn is_npz_file(path: &Path) -> Result<bool> {
+    let mut head = [0u8; 4];
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let n = crate::files::read_up_to(&mut file, &mut head).map_err(|e| Error::io(path, e))?;
+    Ok(looks_like_npz(&head[..n]))
+}
+
 /// Whether `head` (the first bytes of a file) opens a zip archive, as every `.npz` does.
 #[must_use]
 pub fn looks_like_npz(head: &[u8]) -> bool {
@@ -253,16 +262,13 @@ pub fn pullback_from_voxels(
             ),
         ));
     }
-    let [nx, ny, _] = field.dims;
     let displacements_lps = field
         .steps_vox
         .iter()
         .enumerate()
-        .map(|(n, d)| {
-            let i = [n % nx, (n / nx) % ny, n / (nx * ny)].map(|c| c as f64);
-            let x = fixed_lps_from_index.apply_point(Point3::from_array(i)).coords();
-            let step = [i[0] + f64::from(d[0]), i[1] + f64::from(d[1]), i[2] + f64::from(d[2])];
-            let u = moving_lps_from_index.apply_point(Point3::from_array(step)).coords();
+        .map(|(n, &d)| {
+            let (i, x) = voxel_centre(n, field.dims, fixed_lps_from_index);
+            let u = moving_lps_from_index.apply_point(Point3::from_array(plus(i, d))).coords();
             #[allow(clippy::cast_possible_truncation, reason = "a field's vectors are f32 in every flavour")]
             [0, 1, 2].map(|c| (u[c] - x[c]) as f32)
         })
@@ -293,20 +299,28 @@ pub fn voxels_from_pullback(
     let moving_index_from_lps = moving_lps_from_index
         .inverse()
         .ok_or_else(|| Error::invalid(path, "the moving image's voxel-to-patient matrix is singular"))?;
-    let [nx, ny, _] = dims;
     let steps_vox = displacements_lps
         .iter()
         .enumerate()
-        .map(|(n, d)| {
-            let i = [n % nx, (n / nx) % ny, n / (nx * ny)].map(|c| c as f64);
-            let x = fixed_lps_from_index.apply_point(Point3::from_array(i)).coords();
-            let u = [x[0] + f64::from(d[0]), x[1] + f64::from(d[1]), x[2] + f64::from(d[2])];
-            let j = moving_index_from_lps.apply_point(Point3::from_array(u)).coords();
+        .map(|(n, &d)| {
+            let (i, x) = voxel_centre(n, dims, fixed_lps_from_index);
+            let j = moving_index_from_lps.apply_point(Point3::from_array(plus(x, d))).coords();
             #[allow(clippy::cast_possible_truncation, reason = "a step in voxels")]
             [0, 1, 2].map(|c| (j[c] - i[c]) as f32)
         })
         .collect();
     Ok(VoxelField { dims, steps_vox })
+}
+
+/// The index i of voxel `n` (i fastest) of a grid of `dims`, and its centre x = lps_from_index(i).
+fn voxel_centre(n: usize, [nx, ny, _]: [usize; 3], lps_from_index: &Transform<Lps, Index>) -> ([f64; 3], [f64; 3]) {
+    let i = [n % nx, (n / nx) % ny, n / (nx * ny)].map(|c| c as f64);
+    (i, lps_from_index.apply_point(Point3::from_array(i)).coords())
+}
+
+/// a + d, in f64.
+fn plus(a: [f64; 3], d: [f32; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|c| a[c] + f64::from(d[c]))
 }
 
 #[cfg(test)]

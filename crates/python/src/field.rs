@@ -2,7 +2,7 @@
 //! MetaImage, or an elastix transform parameter file sampled on its fixed grid), as a (ni, nj, nk, 3) float32 array
 //! of LPS vectors with its `lps_from_index`.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use numpy::ndarray::{Array4, ShapeBuilder};
 use numpy::{PyArray, PyReadonlyArray2};
@@ -16,14 +16,6 @@ use crate::volume::{lps_from_index, matrix};
 
 /// A grid from Python: its sizes and its 4×4 `lps_from_index`.
 type Grid<'py> = (Vec<usize>, PyReadonlyArray2<'py, f64>);
-
-/// Whether the file at `path` opens as a NumPy `.npz` (a zip archive).
-fn is_npz(path: &Path) -> warpbench_io::Result<bool> {
-    let mut head = [0u8; 4];
-    let mut file = std::fs::File::open(path).map_err(|e| warpbench_io::Error::io(path, e))?;
-    let n = std::io::Read::read(&mut file, &mut head).map_err(|e| warpbench_io::Error::io(path, e))?;
-    Ok(learn2reg::looks_like_npz(&head[..n]))
-}
 
 /// What [`read_field`] returns: the vectors, `lps_from_index`, the source and the direction.
 pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
@@ -49,7 +41,7 @@ pub fn read_field(py: Python<'_>, path: PathBuf, pair: Option<(Grid<'_>, Grid<'_
         None => None,
     };
     let read = guarded(py, || match pair {
-        Some((dims, fixed, moving)) if is_npz(&path).map_err(errors::io)? => {
+        Some((dims, fixed, moving)) if learn2reg::is_npz_file(&path).map_err(errors::io)? => {
             let steps = learn2reg::read_voxel_field(&path).map_err(errors::io)?;
             let field = learn2reg::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
             Ok(ReadField { field, source: FieldSource::Learn2Reg, direction: Some(FieldDirection::Pullback) })
