@@ -245,7 +245,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field_reporting(grid, &made_of, direction, quiet)?;
     if learn2reg {
-        write_learn2reg(&field, &moving, &output.path)?;
+        write_learn2reg(&output.path, field.dims, &field.lps_from_index, &moving, &field.displacements_lps)?;
         if let Some(path) = &tfm {
             write_field_transform(&field, path)?;
         }
@@ -544,31 +544,22 @@ pub(crate) fn check_learn2reg_output(
     Ok(())
 }
 
-/// Writes `field`, the pull-back sampled on the fixed grid, as Learn2Reg's `.npz` at `out`
-/// ([`learn2reg::voxels_from_pullback`]: each fixed voxel's step to the moving voxel it reads, in the voxels of the
-/// fixed grid and of `moving`), atomically.
+/// Writes pull-back displacements sampled on the fixed grid (`dims`, `fixed_lps_from_index`; LPS mm, i fastest) as
+/// Learn2Reg's `.npz` at `out` ([`learn2reg::voxels_from_pullback`]: each fixed voxel's step to the moving voxel it
+/// reads, in the voxels of the fixed grid and of `moving`), atomically.
 ///
 /// # Errors
 /// A step beyond float16's range, a singular moving grid, a failed write.
-pub fn write_learn2reg(field: &Field, moving: &Volume, out: &Path) -> Result<(), Failure> {
-    write_learn2reg_displacements(out, field.dims, &field.lps_from_index, moving, &field.displacements_lps)
-}
-
-/// [`write_learn2reg`] of pull-back displacements sampled on the fixed grid (`dims`, `fixed_lps_from_index`; LPS
-/// mm, i fastest).
-///
-/// # Errors
-/// As [`write_learn2reg`].
-pub fn write_learn2reg_displacements(
+pub fn write_learn2reg(
     out: &Path,
     dims: [usize; 3],
     fixed_lps_from_index: &Transform<Lps, Index>,
     moving: &Volume,
     displacements_lps: &[[f32; 3]],
 ) -> Result<(), Failure> {
-    let voxels =
+    let steps =
         learn2reg::voxels_from_pullback(out, dims, fixed_lps_from_index, &moving.lps_from_index, displacements_lps)?;
-    Ok(learn2reg::write_voxel_field(out, &voxels)?)
+    Ok(learn2reg::write_voxel_field(out, &steps)?)
 }
 
 /// A sampled displacement field.

@@ -190,9 +190,9 @@ pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
 /// Reads a Learn2Reg field ([`learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`.
 /// Errors name the file: what [`learn2reg::read_voxel_field`] refuses, a shape other than the fixed volume's.
 pub fn read_learn2reg_field(path: &Path, fixed: &Volume, moving: &Volume) -> Result<WarpField, Failure> {
-    let voxels = learn2reg::read_voxel_field(path)?;
+    let steps = learn2reg::read_voxel_field(path)?;
     let field =
-        learn2reg::pullback_from_voxels(path, &voxels, fixed.dims, &fixed.lps_from_index, &moving.lps_from_index)?;
+        learn2reg::pullback_from_voxels(path, &steps, fixed.dims, &fixed.lps_from_index, &moving.lps_from_index)?;
     let bad = |e: warpbench_solver::SolverError| Failure::BadInput(anyhow!("{}: {e}", path.display()));
     Ok(WarpField::Pullback(SampledField::from_displacement_field(field).map_err(bad)?))
 }

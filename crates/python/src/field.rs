@@ -46,6 +46,11 @@ pub fn read_field(py: Python<'_>, path: PathBuf, pair: Option<(Grid<'_>, Grid<'_
             let field = learn2reg::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
             Ok(ReadField { field, source: FieldSource::Learn2Reg, direction: Some(FieldDirection::Pullback) })
         }
+        None if learn2reg::is_npz_file(&path).map_err(errors::io)? => Err(PyValueError::new_err(format!(
+            "{}: a Learn2Reg field (.npz) holds steps in the voxels of its fixed and moving images: read it with \
+             read_field(path, fixed=..., moving=...)",
+            path.display()
+        ))),
         _ => displacement::read_field_info(&path).map_err(errors::io),
     })?;
     let field = read.field;
