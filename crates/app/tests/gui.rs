@@ -317,6 +317,10 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
         let (y, d) = (chain.apply(x), nifti.displacements_lps[v]);
         assert!((0..3).all(|a| (y[a] - x[a] - f64::from(d[a])).abs() < 1e-4), "voxel {ijk:?}: {y:?}, D {d:?}");
     }
+    // .npz: Learn2Reg's field, the pull-back's steps in voxels (the inverse is refused under that name, below).
+    let npz_out = dir.path().join("disp_0001_0002.npz");
+    let message = export("Export displacement field", &npz_out);
+    assert!(message.contains("displacement field"), "{message}");
     let inverse_out = dir.path().join("inverse.nrrd");
     let message = export("Export inverse field", &inverse_out);
     assert!(message.contains("inverse (forward) displacement field"), "{message}");
@@ -340,6 +344,17 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let magnitude_out = dir.path().join("moved.nrrd");
     let message = export("Export warp magnitude", &magnitude_out);
     assert!(message.contains("warp magnitude (mm) map"), "{message}");
+    // Learn2Reg's .npz holds the pull-back only.
+    let inverse_npz = dir.path().join("inverse.npz");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = inverse_npz.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("Export inverse field").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("Export inverse field").click();
+    harness.run_steps(2);
+    let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
+    assert!(message.contains("inverse.npz") && message.contains("Export displacement field"), "{message}");
+    assert!(!inverse_npz.exists());
     let text = dir.path().join("field.txt");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = text.display().to_string();
     harness.run_steps(2);
@@ -348,7 +363,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     harness.get_by_label("Export displacement field").click();
     harness.run_steps(2);
     let message = harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default();
-    assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd) or ITK's HDF5"), "{message}");
+    assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd), ITK's HDF5"), "{message}");
     assert!(!text.exists());
     let tfm_for_elastix = dir.path().join("elastix.tfm");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = tfm_for_elastix.display().to_string();
@@ -378,6 +393,9 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let cli_metaimage = dir.path().join("cli_field.mha").display().to_string();
     cli(&[&["field"], &common[..], &["--format", "metaimage", "--out", cli_metaimage.as_str()]].concat());
     assert!(std::fs::read(&metaimage_out).expect("window's") == std::fs::read(&cli_metaimage).expect("CLI's"), "mha");
+    let cli_npz = dir.path().join("cli_field.npz").display().to_string();
+    cli(&[&["field"], &common[..], &["--out", cli_npz.as_str()]].concat());
+    assert!(std::fs::read(&npz_out).expect("window's") == std::fs::read(&cli_npz).expect("CLI's"), "npz");
     let cli_inverse = dir.path().join("cli_inverse.nrrd").display().to_string();
     let forward = ["--direction", "forward", "--format", "nrrd", "--out", cli_inverse.as_str()];
     cli(&[&["field"], &common[..], &forward[..]].concat());

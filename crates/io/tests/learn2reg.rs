@@ -64,6 +64,10 @@ fn a_written_field_is_float16_arr_0_in_c_order() {
     let path = tmp.path().join("disp_0001_0002.npz");
     learn2reg::write_voxel_field(&path, &field).expect("write");
     assert_eq!(learn2reg::read_voxel_field(&path).expect("read back"), field);
+    // The archive stamps no time: the same field writes the same bytes (the window's export equals the CLI's).
+    let again = tmp.path().join("again.npz");
+    learn2reg::write_voxel_field(&again, &field).expect("write again");
+    assert!(std::fs::read(&path).expect("first") == std::fs::read(&again).expect("second"));
     // The archive's one member and the .npy header NumPy writes for np.float16 of that shape, C order.
     let bytes = std::fs::read(&path).expect("read");
     let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bytes)).expect("zip");

@@ -16,6 +16,7 @@ use eframe::egui;
 use warpbench_io::displacement::{FieldDirection, FieldFormat};
 use warpbench_io::itk_tfm;
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::learn2reg;
 use warpbench_io::{Progress, Volume};
 use warpbench_solver::method::Method;
 
@@ -86,6 +87,15 @@ impl ExportJob {
                 warp::check_outputs(&out, dicom.as_deref()).map_err(|e| format!("{e:#}"))?;
             }
             ExportKind::Map { .. } => warp::check_outputs(&out, None).map_err(|e| format!("{e:#}"))?,
+            // Learn2Reg's .npz holds the pull-back on the fixed voxels ([`field::write_learn2reg`]).
+            ExportKind::Field if learn2reg::is_npz_name(&out) => {}
+            ExportKind::InverseField if learn2reg::is_npz_name(&out) => {
+                return Err(format!(
+                    "{}: a Learn2Reg field (.npz) holds the pull-back on the fixed grid: export it with Export \
+                     displacement field",
+                    out.display()
+                ));
+            }
             ExportKind::Field | ExportKind::InverseField => {
                 field::check_field_name(&out, field_format(&out)?).map_err(|f| format!("{:#}", f.error()))?;
             }
@@ -297,8 +307,12 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 _ => (FieldDirection::Pullback, fixed, "displacement field"),
             };
             let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
-            let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
-            field::write_field(&f, out, format, None)?;
+            if direction == FieldDirection::Pullback && learn2reg::is_npz_name(out) {
+                field::write_learn2reg(out, f.dims, &f.lps_from_index, moving, &f.displacements_lps)?;
+            } else {
+                let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
+                field::write_field(&f, out, format, None)?;
+            }
             Ok(format!(
                 "wrote {}: {} {what} of {} pairs, largest {:.1} mm{consistency}",
                 out.display(),
@@ -336,6 +350,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
 /// The flavour a field exported to `out` is written in, by its name: `.nii`, `.nii.gz` ITK's (NIfTI `DISPVECT`,
 /// what ITK, ANTs and Slicer read), `.nrrd` Slicer's (which also records the direction), `.mha`, `.mhd` MetaImage
 /// (elastix's and ITK's); `.h5` is ITK's HDF5 transform file holding the field ([`field::write_displacements`]).
+/// (`.npz`, Learn2Reg's field, is written apart, against the moving grid: [`field::write_learn2reg`].)
 ///
 /// # Errors
 /// Any other name, in words for the status bar.
@@ -346,8 +361,8 @@ pub fn field_format(out: &Path) -> Result<FieldFormat, String> {
     }
     FieldFormat::from_extension(out).ok_or_else(|| {
         format!(
-            "{}: a displacement field is exported as NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd) or \
-             ITK's HDF5 transform file (.h5)",
+            "{}: a displacement field is exported as NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd), \
+             ITK's HDF5 transform file (.h5) or Learn2Reg's .npz",
             out.display()
         )
     })
