@@ -98,9 +98,35 @@ pub fn read_voxel_field_bytes(name: &Path, bytes: &[u8]) -> Result<VoxelField> {
             }
         }
     };
-    let entry = archive.by_name(&format!("{member}.npy")).map_err(bad_zip)?;
+    let mut entry = archive.by_name(&format!("{member}.npy")).map_err(bad_zip)?;
     let size = entry.size();
-    read_npy(name, &member, entry, size)
+    let mut preamble = [0u8; 12];
+    let n = crate::files::read_up_to(&mut entry, &mut preamble).map_err(|e| Error::io(name, e))?;
+    check_npy_header_size(name, &member, &preamble[..n])?;
+    read_npy(name, &member, Cursor::new(&preamble[..n]).chain(entry), size)
+}
+
+/// The longest `.npy` header NumPy reads (`numpy.lib.format`'s `max_header_size`, 10 000 bytes): a header is a short
+/// Python literal, and its stated length is what a reader allocates before it has read a byte of it.
+const MAX_NPY_HEADER_BYTES: u64 = 10_000;
+
+/// Refuses a `.npy` whose preamble (magic, version, header length) states a header longer than
+/// [`MAX_NPY_HEADER_BYTES`], as NumPy does; anything else is left to the `.npy` reader's own checks.
+fn check_npy_header_size(name: &Path, member: &str, preamble: &[u8]) -> Result<()> {
+    let stated = match preamble {
+        [0x93, b'N', b'U', b'M', b'P', b'Y', 1, _, a, b, ..] => u64::from(u16::from_le_bytes([*a, *b])),
+        [0x93, b'N', b'U', b'M', b'P', b'Y', 2 | 3, _, a, b, c, d] => u64::from(u32::from_le_bytes([*a, *b, *c, *d])),
+        _ => return Ok(()),
+    };
+    if stated > MAX_NPY_HEADER_BYTES {
+        return Err(Error::invalid(
+            name,
+            format!(
+                "array {member}: its header claims {stated} bytes, more than the {MAX_NPY_HEADER_BYTES} NumPy reads"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 /// Reads the `.npy` array `member`, `size` bytes unpacked, from `reader` as a [`VoxelField`].

@@ -85,3 +85,18 @@ fn a_written_field_is_float16_arr_0_in_c_order() {
     let second = half::f16::from_le_bytes([npy[npy.len() - 240 + 2], npy[npy.len() - 240 + 3]]);
     assert_eq!(f64::from(second.to_f32()).to_bits(), disp[0][0][0][1].to_bits());
 }
+
+/// A `.npy` whose preamble claims a header of 4 GB is refused before anything is allocated for it, as NumPy refuses
+/// a header longer than 10 000 bytes (the fuzzer's finding: the claimed length was allocated at once).
+#[test]
+fn a_header_longer_than_numpy_reads_is_refused() {
+    let mut npy = b"\x93NUMPY\x02\x00".to_vec();
+    npy.extend_from_slice(&u32::MAX.to_le_bytes());
+    npy.extend_from_slice(b"{'descr': '<f4', 'fortran_order': False, 'shape': (1, 1, 1, 3), }\n");
+    let mut archive = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    archive.start_file("arr_0.npy", zip::write::SimpleFileOptions::default()).expect("entry");
+    std::io::Write::write_all(&mut archive, &npy).expect("write");
+    let bytes = archive.finish().expect("zip").into_inner();
+    let e = learn2reg::read_voxel_field_bytes(Path::new("huge_header.npz"), &bytes).expect_err("refused").to_string();
+    assert!(e.contains("huge_header.npz") && e.contains("4294967295 bytes") && e.contains("10000"), "{e}");
+}
