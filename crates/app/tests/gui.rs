@@ -344,24 +344,21 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let magnitude_out = dir.path().join("moved.nrrd");
     let message = export("Export warp magnitude", &magnitude_out);
     assert!(message.contains("warp magnitude (mm) map"), "{message}");
-    // Names a button refuses: the status bar says why, and nothing is written.
-    let mut refused = |button: &str, out: &Path| {
-        harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = out.display().to_string();
-        harness.run_steps(2);
-        harness.get_by_label(button).scroll_to_me();
-        harness.run_steps(3);
-        harness.get_by_label(button).click();
-        harness.run_steps(2);
-        assert!(!out.exists(), "{button} wrote {}", out.display());
-        harness.state().ready().expect("loaded").files.message.clone().unwrap_or_default()
-    };
-    // Learn2Reg's .npz holds the pull-back only.
-    let message = refused("Export inverse field", &dir.path().join("inverse.npz"));
-    assert!(message.contains("inverse.npz") && message.contains("Export displacement field"), "{message}");
-    let message = refused("Export displacement field", &dir.path().join("field.txt"));
-    assert!(message.contains("NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd), ITK's HDF5"), "{message}");
-    let message = refused("Export for elastix", &dir.path().join("elastix.tfm"));
-    assert!(message.contains("an elastix transform parameter file is a .txt"), "{message}");
+    // Names a button refuses (no export starts): the status bar says why, and nothing is written. Learn2Reg's .npz
+    // holds the pull-back only.
+    for (button, name, says) in [
+        ("Export inverse field", "inverse.npz", "inverse.npz: a Learn2Reg field (.npz) holds the pull-back"),
+        (
+            "Export displacement field",
+            "field.txt",
+            "NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd), ITK's HDF5",
+        ),
+        ("Export for elastix", "elastix.tfm", "an elastix transform parameter file is a .txt"),
+    ] {
+        let out = dir.path().join(name);
+        let message = export(button, &out);
+        assert!(message.contains(says) && !out.exists(), "{button}: {message}");
+    }
 
     // The same files as `warpbench warp --exact`, `warpbench field` (and `field --direction forward`), `transform`
     // and `jacobian` write for the same inputs, byte for byte.
