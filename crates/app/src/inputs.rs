@@ -240,7 +240,7 @@ pub struct PairWarp {
     pub session_start: Option<Box<crate::start::Start>>,
     /// A session's displacement field under the landmark fit (one chosen in the window, or Refine by intensities'),
     /// read when the warp is fitted ([`PairWarp::field`]).
-    pub session_field: Option<PathBuf>,
+    pub session_field: Option<crate::project::field_file::FieldFile>,
 }
 
 impl PairWarp {
@@ -259,10 +259,7 @@ impl PairWarp {
 
     /// The session's displacement field under the landmark fit, read (`None` without one); errors name the file.
     pub fn field(&self) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
-        self.session_field
-            .as_deref()
-            .map(|p| crate::project::stack::FieldLayer::read(p).map(std::sync::Arc::new))
-            .transpose()
+        self.session_field.as_ref().map(|f| f.layer().map(std::sync::Arc::new)).transpose()
     }
 
     /// The stack's layers around the landmark fit: the starting transform, the session's field and `brushed` on top.
@@ -359,7 +356,7 @@ impl LandmarkWarp {
     pub fn paths(&self) -> Vec<&Path> {
         let mut paths = self.landmarks.as_ref().map_or_else(Vec::new, |l| l.source.paths());
         paths.extend(self.warp.initial.as_deref());
-        paths.extend(self.warp.session_field.as_deref());
+        paths.extend(self.warp.session_field.as_ref().map(|f| f.path.as_path()));
         paths
     }
 }
@@ -397,7 +394,7 @@ impl PairInputs {
         paths.extend(self.landmarks.source.paths());
         paths.extend(self.reference.as_deref());
         paths.extend(self.warp.initial.as_deref());
-        paths.extend(self.warp.session_field.as_deref());
+        paths.extend(self.warp.session_field.as_ref().map(|f| f.path.as_path()));
         paths
     }
 

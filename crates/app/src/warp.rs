@@ -187,14 +187,15 @@ pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
     })
 }
 
-/// Reads a Learn2Reg field ([`learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`.
-/// Errors name the file: what [`learn2reg::read_voxel_field`] refuses, a shape other than the fixed volume's.
-pub fn read_learn2reg_field(path: &Path, fixed: &Volume, moving: &Volume) -> Result<WarpField, Failure> {
-    let steps = learn2reg::read_voxel_field(path)?;
-    let field =
-        learn2reg::pullback_from_voxels(path, &steps, fixed.dims, &fixed.lps_from_index, &moving.lps_from_index)?;
-    let bad = |e: warpbench_solver::SolverError| Failure::BadInput(anyhow!("{}: {e}", path.display()));
-    Ok(WarpField::Pullback(SampledField::from_displacement_field(field).map_err(bad)?))
+/// Reads a Learn2Reg field ([`learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`
+/// ([`crate::project::field_file::learn2reg_pullback`]). Errors name the file.
+pub fn read_learn2reg_field(
+    path: &Path,
+    fixed: &Volume,
+    moving: &Volume,
+) -> Result<SampledField<Moving, Fixed>, Failure> {
+    crate::project::field_file::learn2reg_pullback(path, fixed.dims, &fixed.lps_from_index, &moving.lps_from_index)
+        .map_err(Failure::BadInput)
 }
 
 /// [`read_warp_field`] for `render --field`, which takes the pull-back only: a forward field is refused.
@@ -966,7 +967,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
         Given::Learn2Reg(path) => {
-            let field = read_learn2reg_field(path, &fixed, &moving)?;
+            let field = WarpField::Pullback(read_learn2reg_field(path, &fixed, &moving)?);
             Fitted::from_field(grid, &moving, &field, path, &export)?
         }
     };

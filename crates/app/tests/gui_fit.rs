@@ -763,10 +763,12 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
 #[test]
 fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     use warpbench_app::gui::files::FileAction;
+    use warpbench_app::project::field_file::{FieldFile, VoxelGrid, VoxelGrids};
     use warpbench_app::project::stack::FieldLayer;
     use warpbench_app::transform::TransformFormat;
     use warpbench_io::displacement::{FieldFormat, write_field};
     use warpbench_io::geometry::{Index, Lps, Transform};
+    use warpbench_io::learn2reg::{VoxelField, write_voxel_field};
     if no_adapter() {
         return;
     }
@@ -816,7 +818,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
 
     apply(&mut harness, Command::File(FileAction::UseField(field_path.clone())));
     let ready = harness.state().ready().expect("ready");
-    assert_eq!(ready.document.field.as_deref(), Some(field_path.as_path()));
+    assert_eq!(ready.document.field_path(), Some(field_path.as_path()));
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     // The stack written out: u = F ∘ r, r fitted on qᵢ → F⁻¹(pᵢ).
     let layer = FieldLayer::read(&field_path).expect("read");
@@ -876,7 +878,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     let session = dir.path().join("with_field.warpbench.json");
     apply(&mut harness, Command::File(FileAction::SaveSession(session.clone())));
     let saved = warpbench_app::project::session::load(&session).expect("saved");
-    assert_eq!(saved.document.field.as_deref(), Some(field_path.as_path()), "the session keeps the field");
+    assert_eq!(saved.document.field_path(), Some(field_path.as_path()), "the session keeps the field");
 
     harness.get_by_label("Undo").click();
     harness.run_steps(3);
@@ -910,7 +912,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     ]));
     apply(&mut harness, Command::File(FileAction::UseField(elastix_file.clone())));
     let ready = harness.state().ready().expect("ready");
-    assert_eq!(ready.document.field.as_deref(), Some(elastix_file.as_path()));
+    assert_eq!(ready.document.field_path(), Some(elastix_file.as_path()));
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     let layer = FieldLayer::read(&elastix_file).expect("read");
     let chain = warpbench_io::elastix::read_transform(&elastix_file).expect("the transform");
@@ -921,6 +923,35 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
         let (got, want) = (layer.moving_from_fixed_raw(x), chain.apply(x));
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: {got:?}, elastix {want:?}");
         assert!((0..3).any(|a| (want[a] - x[a]).abs() > 0.1), "the transform moves {x:?}");
+    }
+
+    // A Learn2Reg field (.npz) is in the voxels of the pair open when it is chosen, whose grids the document keeps with
+    // it; the autosave then maps a point as the window shows it. One of another shape is refused, naming it.
+    let loaded = &harness.state().ready().expect("ready").loaded;
+    let grids = VoxelGrids { fixed: VoxelGrid::of(&loaded.fixed), moving: VoxelGrid::of(&loaded.moving) };
+    let dims = loaded.fixed.dims;
+    let steps_vox = (0..dims.iter().product::<usize>())
+        .map(|n| [1.5 * (((n / dims[0]) % dims[1]) as f32 / 9.0).sin(), 0.5, -1.0])
+        .collect();
+    let npz = dir.path().join("disp.npz");
+    write_voxel_field(&npz, &VoxelField { dims, steps_vox }).expect("npz written");
+    let wrong = dir.path().join("wrong.npz");
+    write_voxel_field(&wrong, &VoxelField { dims: [4; 3], steps_vox: vec![[0.0; 3]; 64] }).expect("npz written");
+    apply(&mut harness, Command::File(FileAction::UseField(wrong)));
+    let ready = harness.state().ready().expect("ready");
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("wrong.npz") && message.contains("shape"), "{message}");
+    assert_eq!(ready.document.field_path(), Some(elastix_file.as_path()), "the refused field is not kept");
+    apply(&mut harness, Command::File(FileAction::UseField(npz.clone())));
+    let ready = harness.state().ready().expect("ready");
+    assert_eq!(ready.document.field, Some(FieldFile { path: npz, voxel_grids: Some(Box::new(grids)) }));
+    assert!(ready.files.message.as_deref().is_some_and(|m| m.contains("Learn2Reg")), "{:?}", ready.files.message);
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    let autosave = dir.path().join("autosave.warpbench.json");
+    for x in [[10.0, -20.0, 15.0], [-30.0, 25.0, -5.0]] {
+        let got = common::map_through_session(dir.path(), [&mri(), &mri(), &autosave], x);
+        let want = plain_at(ready, x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs the window's {want:?}");
     }
 }
 

@@ -97,7 +97,7 @@ fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_
     wait_until_rendered(&mut harness);
 
     let ready = harness.state().ready().expect("ready");
-    let field = ready.document.field.clone().expect("the refinement is the document's field");
+    let field = ready.document.field_path().expect("the refinement is the document's field").to_owned();
     assert!(field.starts_with(dir.path()) && field.exists(), "{} beside the autosave", field.display());
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     // The section and the status bar say what it did.
@@ -109,7 +109,7 @@ fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_
     // In the autosave, where the command line reads it: `points --session` maps as the window shows.
     let autosave = dir.path().join("autosave.warpbench.json");
     let saved = warpbench_app::project::session::load(&autosave).expect("the autosave");
-    assert_eq!(saved.document.field.as_deref(), Some(field.as_path()));
+    assert_eq!(saved.document.field_path(), Some(field.as_path()));
     let (f, m) = (dir.path().join("fixed.nii"), dir.path().join("moving.nii"));
     let got = common::map_through_session(dir.path(), [&f, &m, &autosave], [10.0, -20.0, 15.0]);
     let want = ready.moving_shown_at([10.0, -20.0, 15.0]);
@@ -135,7 +135,7 @@ fn refine_by_intensities_becomes_the_field_under_the_landmarks_undoes_saves_and_
     assert_eq!(harness.state().ready().expect("ready").document, before, "undo gives the document back");
     harness.get_by_label("Redo").click();
     harness.run_steps(3);
-    assert_eq!(harness.state().ready().expect("ready").document.field.as_deref(), Some(field.as_path()));
+    assert_eq!(harness.state().ready().expect("ready").document.field_path(), Some(field.as_path()));
 }
 
 /// "Match by" chooses what the refinement matches: the choice is the document's (one undo step, in the autosave). That

@@ -11,6 +11,7 @@ use common::{assert_ok, data, utf8 as s, warpbench, write_pairs_csv as write_pai
 
 use warpbench_app::exit::Failure;
 use warpbench_app::inputs::Names;
+use warpbench_app::project::field_file::FieldFile;
 use warpbench_app::project::stack::Layers;
 use warpbench_app::warp::{self, Backend, PullBackMode, WarpSettings};
 use warpbench_gpu::export::{Interpolation, Progress};
@@ -763,7 +764,7 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
     write_field(&field_path, FieldFormat::Itk, [10; 3], &grid, &vectors).expect("field written");
     let pairs = read_bigwarp_csv(&deformed_pairs(dir.path())).expect("pairs");
     let mut document = Document::new([Some(mri.clone()), Some(mri.clone())], [&volume, &volume], pairs[..2].to_vec());
-    document.field = Some(field_path.clone());
+    document.field = Some(FieldFile::new(field_path.clone()));
     let session_path = dir.path().join("field.warpbench.json");
     session::save(&session_path, &SessionFile::new(document, View::default(), true)).expect("save the session");
 
@@ -821,4 +822,91 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
             assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: a file maps to {got:?}, u = {want:?}");
         }
     }
+}
+
+/// A session's Learn2Reg field (`.npz`, steps in voxels) is read against the grids the session recorded when it was
+/// chosen, whatever volumes the command is given: `points --session` maps the fixed voxel centre i to the moving
+/// grid's point at i + d\[i\] (the challenge's own definition, computed here from the grids). A session that names an
+/// `.npz` without its grids, or with a fixed grid of another shape, is refused naming the file.
+#[test]
+fn a_sessions_learn2reg_field_is_read_against_its_recorded_grids() {
+    use warpbench_app::project::document::Document;
+    use warpbench_app::project::field_file::{FieldFile, VoxelGrid, VoxelGrids};
+    use warpbench_app::project::session::{self, SessionFile, View};
+    use warpbench_io::geometry::{Index, Lps, Point3, Transform};
+    use warpbench_io::learn2reg::{VoxelField, write_voxel_field};
+
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mri = data("nifti/avg152T1_LR_nifti.nii");
+    let fixed = warpbench_io::open(&mri).expect("fixture");
+    // The moving image on another grid (2.5 mm voxels, shifted), so that a step in voxels is not one in mm and the
+    // command's volumes (the MRI twice) are not the recorded ones.
+    let mut moving = fixed.clone();
+    moving.lps_from_index = Transform::<Lps, Index>::from_scale_translation([2.5; 3], [-100.0, -140.0, -80.0]);
+    let moving_path = dir.path().join("moving.nii");
+    warpbench_io::write_volume(&moving_path, &moving).expect("moving written");
+    // Steps of up to 2 voxels, multiples of 1/64, which float16 holds exactly.
+    let [nx, ny, _] = fixed.dims;
+    let step_at = |n: usize| -> [f32; 3] {
+        let (j, k) = ((n / nx) % ny, n / (nx * ny));
+        [2.0 * (j as f32 / 9.0).sin(), -1.5 * (k as f32 / 11.0).cos(), 0.75].map(|v| (v * 64.0).round() / 64.0)
+    };
+    let field = VoxelField { dims: fixed.dims, steps_vox: (0..fixed.dims.iter().product()).map(step_at).collect() };
+    let npz = dir.path().join("disp_0001_0001.npz");
+    write_voxel_field(&npz, &field).expect("npz written");
+
+    let pairs = read_bigwarp_csv(&deformed_pairs(dir.path())).expect("pairs");
+    let grids = VoxelGrids { fixed: VoxelGrid::of(&fixed), moving: VoxelGrid::of(&moving) };
+    let save = |name: &str, file: FieldFile| {
+        let mut document =
+            Document::new([Some(mri.clone()), Some(moving_path.clone())], [&fixed, &moving], pairs[..2].to_vec());
+        document.field = Some(file);
+        let path = dir.path().join(name);
+        session::save(&path, &SessionFile::new(document, View::default(), true)).expect("save the session");
+        path
+    };
+    let session_path = save("l2r.warpbench.json", FieldFile { path: npz.clone(), voxel_grids: Some(Box::new(grids)) });
+    let reopened = session::load(&session_path).expect("the session reopens");
+    assert_eq!(reopened.document.field.and_then(|f| f.voxel_grids).as_deref(), Some(&grids), "the grids are kept");
+
+    let voxels = [[0, 0, 0], [45, 54, 45], [12, 80, 33], [90, 108, 90]];
+    let xs: Vec<[f64; 3]> = voxels.iter().map(|&[i, j, k]| fixed.voxel_lps(i, j, k).coords()).collect();
+    let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &xs);
+    for (&[i, j, k], got) in voxels.iter().zip(&mapped) {
+        let d = step_at(i + nx * (j + ny * k));
+        let ijk = [i as f64 + f64::from(d[0]), j as f64 + f64::from(d[1]), k as f64 + f64::from(d[2])];
+        let want = moving.lps_from_index.apply_point(Point3::from_array(ijk)).coords();
+        // The field keeps millimetres in f32: its rounding at |x| < 200 mm.
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-4), "voxel {:?}: {got:?}, not {want:?}", [i, j, k]);
+    }
+
+    let refused = |session_path: &Path, says: &str| {
+        let input = dir.path().join("one.csv");
+        std::fs::write(&input, "0,0,0,a\n").expect("write a point");
+        let run = warpbench(&[
+            "points",
+            "--fixed",
+            s(&mri),
+            "--moving",
+            s(&mri),
+            "--session",
+            s(session_path),
+            "--from",
+            "fixed",
+            "--in",
+            s(&input),
+            "--out",
+            s(&dir.path().join("never.csv")),
+        ]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains("disp_0001_0001.npz") && stderr.contains(says), "{stderr}");
+        assert!(!dir.path().join("never.csv").exists());
+    };
+    refused(&save("bare.warpbench.json", FieldFile::new(npz.clone())), "does not record which");
+    let small = VoxelGrids { fixed: VoxelGrid { dims: [10, 10, 10], ..grids.fixed }, ..grids };
+    refused(
+        &save("small.warpbench.json", FieldFile { path: npz.clone(), voxel_grids: Some(Box::new(small)) }),
+        "shape",
+    );
 }

@@ -521,7 +521,7 @@ impl Ready {
         match result {
             Ok(refined) => {
                 self.pointer.notice = Some(refined.summary.clone());
-                self.document.field = Some(refined.field.clone());
+                self.document.field = Some(crate::project::field_file::FieldFile::new(refined.field.clone()));
                 let (_, pairs) = self.fit_pairs();
                 self.assist.refined = Some(super::intensity::RefinedOn { refined, pairs });
                 self.refit_soon();

@@ -61,8 +61,8 @@ pub struct ExportInput {
     pub brush: Vec<warpbench_solver::brush::BrushStroke>,
     /// The starting transform under the landmark warp (Auto-align, [`crate::start`]).
     pub start: Option<crate::project::document::StartingTransform>,
-    /// The displacement field under the landmark warp ([`crate::project::stack::FieldLayer`]).
-    pub field: Option<PathBuf>,
+    /// The displacement field under the landmark warp ([`crate::project::field_file::FieldFile::layer`]).
+    pub field: Option<crate::project::field_file::FieldFile>,
 }
 
 /// An export running on a worker thread.
@@ -144,13 +144,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
         .transpose()
         .map_err(Failure::BadInput)?;
     let mut layers = crate::project::stack::Layers::new(start, brushed);
-    layers.field = input
-        .field
-        .as_deref()
-        .map(crate::project::stack::FieldLayer::read)
-        .transpose()
-        .map_err(Failure::BadInput)?
-        .map(Arc::new);
+    layers.field = input.field.as_ref().map(|f| f.layer().map(Arc::new)).transpose().map_err(Failure::BadInput)?;
     let pairs_and_brush = (input.pairs.as_slice(), &layers);
     let made_of = field::FieldInputs {
         fixed,

@@ -33,7 +33,7 @@ use warpbench_solver::register::device::SampleDevice;
 use crate::exit::Failure;
 use crate::gpu_samples::GpuSamples;
 use crate::project::document::{FitPoints, StartingTransform};
-use crate::project::stack::{FieldLayer, Layers};
+use crate::project::stack::Layers;
 use crate::register::{RefineInputs, refine};
 use crate::settings::Metric;
 
@@ -48,7 +48,7 @@ pub struct RefineInput {
     pub pairs: Vec<LandmarkPair>,
     pub method: Method,
     pub start: Option<StartingTransform>,
-    pub field: Option<PathBuf>,
+    pub field: Option<crate::project::field_file::FieldFile>,
     /// Where to write the refined field.
     pub out: PathBuf,
     /// The window's GPU, when it is a hardware one: the samples of mutual information and local correlation are read
@@ -176,7 +176,7 @@ fn field_grid(fixed: &Volume) -> ([usize; 3], Transform<Lps, Index>) {
 pub fn refine_pair(input: &RefineInput, progress: &mut dyn FnMut(f64) -> bool) -> Result<Refined, String> {
     let start = input.start.as_ref().map(StartingTransform::start).transpose().map_err(|e| format!("{e:#}"))?;
     let field = match &input.field {
-        Some(path) => Some(Arc::new(FieldLayer::read(path).map_err(|e| format!("{e:#}"))?)),
+        Some(file) => Some(Arc::new(file.layer().map_err(|e| format!("{e:#}"))?)),
         None => None,
     };
     let read_mask = |mask: &Option<PathBuf>, side: &str| match mask {

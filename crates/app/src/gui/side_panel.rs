@@ -73,7 +73,7 @@ fn section_ui(ui: &mut egui::Ui, section: Section, ready: &mut Ready) -> Vec<Com
             commands.extend(panels::method_ui(ui, &ready.document.settings, ready.current_stiffness_choice()));
             ui.separator();
             commands.extend(
-                super::files::field_ui(ui, &mut ready.files.fields, ready.document.field.as_deref()).map(Command::File),
+                super::files::field_ui(ui, &mut ready.files.fields, ready.document.field_path()).map(Command::File),
             );
             ui.separator();
             commands.extend(panels::brush_ui(ui, &ready.document.settings, ready.document.brush.len()));

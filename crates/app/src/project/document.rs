@@ -41,10 +41,11 @@ pub struct Document {
     /// The starting transform under the landmark warp (Auto-align, [`crate::start`]); `None`: the landmark warp alone.
     #[serde(default)]
     pub start: Option<StartingTransform>,
-    /// A displacement field under the landmark warp (`--field`'s flavours: ITK or ANTs NIfTI, Slicer NRRD), read
-    /// from this file ([`super::stack::FieldLayer`]); `None`: none. Sessions written before it open without one.
+    /// A displacement field under the landmark warp (`--field`'s flavours: ITK or ANTs NIfTI, Slicer NRRD, and the
+    /// others; a Learn2Reg field with its grids), read from this file ([`super::field_file::FieldFile::layer`]);
+    /// `None`: none. Sessions written before it open without one.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub field: Option<PathBuf>,
+    pub field: Option<super::field_file::FieldFile>,
     /// Where Refine by intensities reads the fixed volume: only where this mask volume is not 0 (`register
     /// --fixed-mask`); `None`: everywhere.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -110,6 +111,12 @@ impl Document {
             fixed_mask: None,
             moving_mask: None,
         }
+    }
+
+    /// The file of the displacement field under the landmarks, if there is one.
+    #[must_use]
+    pub fn field_path(&self) -> Option<&std::path::Path> {
+        self.field.as_ref().map(|f| f.path.as_path())
     }
 
     /// The pairs a fit uses (active, both points placed): their rows, and their fixed and moving points.

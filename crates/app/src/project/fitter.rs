@@ -6,7 +6,6 @@
 //! Every fit goes through the stack ([`super::stack`]): a starting transform and a displacement field under the
 //! landmark fit, the brush on top.
 
-use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::anyhow;
@@ -19,6 +18,7 @@ use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 
 use super::diagnostics::{Diagnostics, DiagnosticsInput, DiagnosticsJob, PairErrors};
 use super::document::{Document, StartingTransform};
+use super::field_file::FieldFile;
 use super::stack::{BrushLayer, FieldLayer, Layers};
 use crate::brushed::{Brushed, InverseConsistency};
 use crate::fit::{self, ControlRoute, ControlTarget, DragEvent, DragFit, Fitted};
@@ -66,8 +66,8 @@ pub struct Fitter {
     diagnostics: Option<DiagnosticsJob>,
     /// A fit asked for at the end of the frame (the window's `refit_soon`).
     pub pending: bool,
-    /// The document's displacement field, read once per path (or why it could not be).
-    field: Option<(PathBuf, Result<Arc<FieldLayer>, String>)>,
+    /// The document's displacement field, read once per file (or why it could not be).
+    field: Option<(FieldFile, Result<Arc<FieldLayer>, String>)>,
 }
 
 impl Fitter {
@@ -212,7 +212,7 @@ impl Fitter {
                 None
             }
         };
-        let field = document.field.as_deref().and_then(|path| match self.field_layer(path) {
+        let field = document.field.as_ref().and_then(|file| match self.field_layer(file) {
             Ok(f) => Some(f),
             Err(e) => {
                 problems.push(e);
@@ -245,24 +245,24 @@ impl Fitter {
         Layers { start, field, brush }
     }
 
-    /// Reads the displacement field at `path` for the next fits (what [`FieldLayer::read`] refuses, in its words).
+    /// Reads the displacement field `file` for the next fits (what [`FieldFile::layer`] refuses, in its words).
     ///
     /// # Errors
     /// The file cannot be read as a displacement field.
-    pub fn read_field(&mut self, path: &Path) -> Result<(), String> {
+    pub fn read_field(&mut self, file: &FieldFile) -> Result<(), String> {
         self.field = None;
-        self.field_layer(path).map(|_| ())
+        self.field_layer(file).map(|_| ())
     }
 
-    /// The field at `path`, read the first time it is asked for.
-    fn field_layer(&mut self, path: &Path) -> Result<Arc<FieldLayer>, String> {
-        if self.field.as_ref().is_none_or(|(p, _)| p != path) {
-            let read = FieldLayer::read(path).map(Arc::new).map_err(|e| format!("{e:#}"));
-            self.field = Some((path.to_owned(), read));
+    /// The field of `file`, read the first time it is asked for.
+    fn field_layer(&mut self, file: &FieldFile) -> Result<Arc<FieldLayer>, String> {
+        if self.field.as_ref().is_none_or(|(f, _)| f != file) {
+            let read = file.layer().map(Arc::new).map_err(|e| format!("{e:#}"));
+            self.field = Some((file.clone(), read));
         }
         match &self.field {
             Some((_, read)) => read.clone(),
-            None => Err(anyhow!("{}: not read", path.display()).to_string()),
+            None => Err(anyhow!("{}: not read", file.path.display()).to_string()),
         }
     }
 

@@ -8,6 +8,8 @@
 //!   texture made on the CPU or the GPU, a TPS drag's fast path, the brush, the diagnostics job.
 //! - [`session`]: the `.warpbench.json` file that keeps a document and the view, and where the autosave goes.
 //!
+//! - [`field_file`]: the displacement field under the landmarks as a document keeps it (its file, and a Learn2Reg
+//!   field's grids).
 //! - [`stack`]: the warp stack, the ordered layers that make the pull-back (a starting transform, a displacement
 //!   field, the landmark fit and the brush), fitted and evaluated in one place.
 //!
@@ -16,6 +18,7 @@
 pub mod demo;
 pub mod diagnostics;
 pub mod document;
+pub mod field_file;
 pub mod fitter;
 pub mod session;
 pub mod stack;
