@@ -6,7 +6,8 @@
 //! are drawn: each fixed (target) point qᵢ in blue, each moving (source) point where the warp shows it, d(pᵢ), in
 //! orange, and a line between them (the residual; zero length for an interpolating warp). With `--field F` instead of
 //! landmarks, the moving volume is pulled back through the displacement field (u(x) = x + D(x), read by
-//! [`crate::warp::read_pullback_field`]) sampled into the same control texture, and no glyphs are drawn. `--slice`
+//! [`crate::warp::read_pullback_field`], or for a Learn2Reg `.npz` against the two volumes'
+//! voxels by [`crate::warp::read_learn2reg_field`]) sampled into the same control texture, and no glyphs are drawn. `--slice`
 //! draws a slice of the fixed grid instead of the 3-D view. `--procedural KIND` deforms the moving volume in the shader
 //! by `eval`'s synthetic warp of that kind ([`crate::procedural`]), read at p(u(x)) after the warp.
 
@@ -21,6 +22,7 @@ use warpbench_gpu::{
     RenderSettings, RenderTarget, Shading, SlicePlane, VolumeBudget, pair_glyphs,
 };
 use warpbench_io::Volume;
+use warpbench_io::learn2reg;
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
@@ -40,7 +42,8 @@ headless, with the app's renderer.
 
 With --moving and landmarks the moving volume is pulled back through the fitted warp and the landmark pairs
 are drawn (fixed points blue, moving points orange where the warp shows them); with --field instead, through
-that pull-back displacement field, without glyphs. --slice draws a slice of the fixed grid instead of the
+that pull-back displacement field, without glyphs (a Learn2Reg .npz is read in the two volumes' voxels).
+--slice draws a slice of the fixed grid instead of the
 3-D view. Examples:
 
     warpbench render --fixed ct.nii.gz --out ct.png
@@ -61,7 +64,7 @@ pub struct RenderArgs {
     #[command(flatten)]
     pub pairs: PairArgs,
     /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
-    /// or NRRD); no glyphs are drawn.
+    /// NRRD, MetaImage, elastix, ITK HDF5, or Learn2Reg's .npz in the two volumes' voxels); no glyphs are drawn.
     #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     pub field: Option<PathBuf>,
     /// Control-texture texels per axis over the fixed box (2..=256).
@@ -177,11 +180,19 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
             "--procedural deforms the moving volume: give --moving (the --fixed file itself shows the volume eval tests)"
         )));
     }
-    // Read before the volumes: a field `render` refuses costs no loading.
-    let field = field_path.as_deref().map(crate::warp::read_pullback_field).transpose()?;
+    // Read before the volumes: a field `render` refuses costs no loading. A Learn2Reg field, in the volumes' voxels,
+    // is read after them.
+    let learn2reg = match &field_path {
+        Some(path) => learn2reg::is_npz_file(path)?,
+        None => false,
+    };
+    let mut field = field_path.as_deref().filter(|_| !learn2reg).map(crate::warp::read_pullback_field).transpose()?;
     let fixed = inputs::load_volume(&fixed_path, quiet).map_err(Failure::BadInput)?;
     let moving =
         moving_path.as_deref().map(|p| inputs::load_volume(p, quiet)).transpose().map_err(Failure::BadInput)?;
+    if let (true, Some(path), Some(moving)) = (learn2reg, &field_path, &moving) {
+        field = Some(crate::warp::read_learn2reg_field(path, &fixed, moving)?);
+    }
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
     let procedural = match (&procedural_spec, &moving) {
         (Some(spec), Some(m)) => Some(

@@ -341,6 +341,34 @@ fn render_shows_the_moving_volume_through_the_field() {
     assert!(differing > 16 && differing < 16 * 16, "{differing} of 256 pixels differ with the field");
     let same_corner = a.get_pixel(0, 0) == b.get_pixel(0, 0);
     assert!(same_corner, "outside the field's grid the warp is the identity");
+
+    // A Learn2Reg field (.npz, steps in voxels) is read against the two volumes: the frame is the one the same
+    // pull-back gives written in millimetres as ITK's NIfTI (steps that float16 holds exactly, up to 2 voxels).
+    let volume = warpbench_io::open(&moving).expect("the fixture");
+    let [nx, ny, _] = volume.dims;
+    let steps_vox = (0..volume.dims.iter().product::<usize>())
+        .map(|n| [(2.0 * ((n / nx) % ny) as f32 / 15.0).round_ties_even() / 2.0 - 0.5, 0.25, -1.0])
+        .collect();
+    let steps = warpbench_io::learn2reg::VoxelField { dims: volume.dims, steps_vox };
+    let npz = dir.path().join("disp.npz");
+    warpbench_io::learn2reg::write_voxel_field(&npz, &steps).expect("npz written");
+    let mm = warpbench_io::learn2reg::pullback_from_voxels(
+        &npz,
+        &steps,
+        volume.dims,
+        &volume.lps_from_index,
+        &volume.lps_from_index,
+    )
+    .expect("in mm");
+    let nifti = dir.path().join("disp.nii.gz");
+    write_field(&nifti, FieldFormat::Itk, mm.dims, &mm.lps_from_index, &mm.displacements_lps).expect("written");
+    let (through_npz, through_nifti) = (dir.path().join("npz.png"), dir.path().join("nifti.png"));
+    assert_ok(&render(&through_npz, &["--field", s(&npz)]));
+    assert_ok(&render(&through_nifti, &["--field", s(&nifti)]));
+    let (c, d) =
+        (image::open(&through_npz).expect("png").to_rgba8(), image::open(&through_nifti).expect("png").to_rgba8());
+    assert!(c == d, "the .npz shows as the same field in mm");
+    assert!(c != a, "the field moves the volume");
 }
 
 /// A forward field (`field --direction forward`, NRRD `modeling`) is inverted by `warp` (scattered-data
