@@ -311,16 +311,18 @@ PLASTIMATCH_FILES = [
     ("dicom_reg/plastimatch_dsr.dcm", "plastimatch_reg.sh"),
 ]
 
-# NumPy's .npz archives, the layout Learn2Reg's displacement fields use.
+# NumPy's .npz archives and nibabel's NIfTI files, the forms Learn2Reg's displacement fields take.
 NUMPY_MADE = """
-## `learn2reg/`: Learn2Reg displacement fields written by NumPy
+## `learn2reg/`: Learn2Reg displacement fields written by NumPy and nibabel
 
-Not downloaded: `data-scripts/learn2reg_numpy.py` has NumPy 2.4.6 (PyPI wheel `numpy==2.4.6` in `data-cache/venv`)
-write one field of values the script makes up, shape (5, 4, 2, 3), in the ways Learn2Reg's fields are saved
-(`np.savez_compressed` of float16 as the challenge's submissions are; `np.savez` of a Fortran-ordered float32 array;
-a big-endian float64 array under another name than `arr_0`), the challenge's 2021 layout (3, X, Y, Z) and an archive
-of two arrays, with `learn2reg/reference.json`, the array `numpy.load` returns. The zip entries hold the time, so a
-rerun's bytes differ; the arrays do not. They carry the licence of the code.
+Not downloaded: `data-scripts/learn2reg_numpy.py` has NumPy 2.4.6 and nibabel 5.4.2 (PyPI wheels `numpy==2.4.6`,
+`nibabel==5.4.2`, as `.ci/run` installs them) write one field of values the script makes up, shape (5, 4, 2, 3), in
+the ways Learn2Reg's fields are saved (`np.savez_compressed` of float16 as the challenge's submissions were until
+2021; `np.savez` of a Fortran-ordered float32 array; a big-endian float64 array under another name than `arr_0`;
+since 2022, `nib.save(nib.Nifti1Image(disp, affine))` with an image's affine, the identity or none), the challenge's
+2021 layout (3, X, Y, Z) and an archive of two arrays, with `learn2reg/reference.json`, the array `numpy.load` and
+nibabel's `get_fdata` return. The zip entries and gzip hold the time, so a rerun's bytes differ; the arrays do not.
+They carry the licence of the code.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -331,6 +333,9 @@ NUMPY_FILES = [
     ("learn2reg/disp_f64_named.npz", "learn2reg_numpy.py"),
     ("learn2reg/disp_2021.npz", "learn2reg_numpy.py"),
     ("learn2reg/two_arrays.npz", "learn2reg_numpy.py"),
+    ("learn2reg/disp_nibabel_f32.nii.gz", "learn2reg_numpy.py"),
+    ("learn2reg/disp_nibabel_f64_eye.nii", "learn2reg_numpy.py"),
+    ("learn2reg/disp_nibabel_noaffine.nii.gz", "learn2reg_numpy.py"),
     ("learn2reg/reference.json", "learn2reg_numpy.py"),
 ]
 

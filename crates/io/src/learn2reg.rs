@@ -1,5 +1,6 @@
-//! Learn2Reg's displacement fields: the `.npz` files the challenge's evaluation reads (`disp_XXXX_YYYY.npz`), and
-//! which learning-based registration methods (ConvexAdam, LapIRN, uniGradICON's Learn2Reg scripts) write.
+//! Learn2Reg's displacement fields: the `.npz` files the challenge's evaluation read until 2021
+//! (`disp_XXXX_YYYY.npz`), the NIfTI files it reads since 2022 (`disp_XXXX_YYYY.nii.gz`), and which learning-based
+//! registration methods (ConvexAdam, LapIRN, uniGradICON's Learn2Reg scripts) write.
 //!
 //! The file is NumPy's `.npz`: a zip archive of `.npy` arrays. The field is the array `arr_0` (what
 //! `np.savez_compressed(path, disp)` names it), of shape `(X, Y, Z, 3)`: one vector per voxel of the **fixed** image,
@@ -11,6 +12,13 @@
 //! [`read_voxel_field`] takes `float16`, `float32` and `float64` arrays in either byte order and C or Fortran order.
 //! [`write_voxel_field`] writes `float16` in C order, deflated, as the challenge's submissions are: each component is
 //! rounded to the nearest `float16`, within 2⁻¹¹ of its size (0.01 voxel at 20 voxels).
+//!
+//! The NIfTI form holds the same array as nibabel writes it (`nib.save(nib.Nifti1Image(disp, affine), path)`): dim =
+//! [4, X, Y, Z, 3], no intent, float32 or float64, and whatever affine the method passed (the fixed image's, the
+//! identity, none), which the evaluation reads past (`nib.load(path).get_fdata()`). Nothing in such a file says it is
+//! in voxels: an (X, Y, Z, 3) NIfTI of another tool may be in mm. So it is read as Learn2Reg's only when the caller
+//! says so ([`read_voxel_field`] given a NIfTI), never by guess. [`write_voxel_field_nifti`] writes float32 with the
+//! fixed image's affine, as ConvexAdam does.
 //!
 //! The evaluation interpolates `d` between voxel centres with SciPy's cubic spline (`map_coordinates`, order 3);
 //! warpbench, like ITK, interpolates a displacement field trilinearly. The two agree at voxel centres.
@@ -61,12 +69,26 @@ pub fn looks_like_npz(head: &[u8]) -> bool {
     head.starts_with(b"PK\x03\x04")
 }
 
-/// Reads a Learn2Reg field from an `.npz` file (module docs). Errors name the file: not a zip archive, no `arr_0`
-/// (unless the archive holds exactly one array, which is taken), a shape other than `(X, Y, Z, 3)` (the 2021 layout
-/// `(3, X, Y, Z)` is named as such), a dtype other than float16/32/64, a vector that is not finite (named by its
-/// `[i, j, k]`), a field too large for memory.
+/// Whether `head` (a file's first bytes) opens a NIfTI file or a gzip stream, which a `.nii.gz` is.
+fn nifti_or_gzip(head: &[u8]) -> bool {
+    crate::nifti::looks_like_nifti(head) || head.starts_with(&[0x1f, 0x8b])
+}
+
+/// Reads a Learn2Reg field from an `.npz` file, or from a NIfTI file of its 2022 form (module docs), told apart by
+/// their first bytes. Errors name the file: neither; for an `.npz`, no `arr_0` (unless the archive holds exactly one
+/// array, which is taken), a shape other than `(X, Y, Z, 3)` (the 2021 layout `(3, X, Y, Z)` is named as such), a
+/// dtype other than float16/32/64; for a NIfTI, what [`crate::nifti::read_frame_vectors`] refuses; a vector that is
+/// not finite (named by its `[i, j, k]`), a field too large for memory.
 pub fn read_voxel_field(path: &Path) -> Result<VoxelField> {
     crate::files::check_regular_file(path)?;
+    let mut head = [0u8; 4];
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let n = crate::files::read_up_to(&mut file, &mut head).map_err(|e| Error::io(path, e))?;
+    if !looks_like_npz(&head[..n]) && nifti_or_gzip(&head[..n]) {
+        let (dims, steps_vox) = crate::nifti::read_frame_vectors(path)?;
+        return Ok(VoxelField { dims, steps_vox });
+    }
+    drop(file);
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     read_voxel_field_bytes(path, &bytes)
 }
@@ -74,7 +96,14 @@ pub fn read_voxel_field(path: &Path) -> Result<VoxelField> {
 /// [`read_voxel_field`] of bytes already read; `name` is only for messages.
 pub fn read_voxel_field_bytes(name: &Path, bytes: &[u8]) -> Result<VoxelField> {
     if !looks_like_npz(bytes) {
-        return Err(Error::invalid(name, "not a NumPy .npz archive (a zip file)"));
+        if nifti_or_gzip(bytes) {
+            let (dims, steps_vox) = crate::nifti::read_frame_vectors_bytes(name, bytes)?;
+            return Ok(VoxelField { dims, steps_vox });
+        }
+        return Err(Error::invalid(
+            name,
+            "neither a NumPy .npz archive (a zip file) nor a NIfTI file: not a Learn2Reg displacement field",
+        ));
     }
     let bad_zip = |e: zip::result::ZipError| Error::invalid(name, format!("a damaged .npz (zip) archive: {e}"));
     let mut archive = zip::ZipArchive::new(Cursor::new(bytes)).map_err(bad_zip)?;
@@ -255,6 +284,23 @@ pub fn write_voxel_field(path: &Path, field: &VoxelField) -> Result<()> {
     })()
     .map_err(|e| Error::invalid(path, format!("cannot build the .npz archive: {e}")))?;
     crate::atomic::write_atomic(path, |w| w.write_all(zipped.get_ref()))
+}
+
+/// Writes `field` in Learn2Reg's NIfTI form (module docs), atomically: float32, dim = [4, X, Y, Z, 3], no intent,
+/// and the fixed image's grid (`fixed_lps_from_index`) as its sform and qform, which the challenge reads past. A
+/// vector that is not finite is refused, naming its voxel.
+pub fn write_voxel_field_nifti(
+    path: &Path,
+    field: &VoxelField,
+    fixed_lps_from_index: &Transform<Lps, Index>,
+) -> Result<()> {
+    crate::nifti::write_frame_vectors(
+        path,
+        field.dims,
+        fixed_lps_from_index,
+        &field.steps_vox,
+        "Learn2Reg displacement, fixed voxels to moving voxels",
+    )
 }
 
 /// A `.npy` file of float16 `values` with `shape`, C order, little-endian.

@@ -1,7 +1,9 @@
-//! Learn2Reg's `.npz` displacement fields, against files NumPy wrote (`data-scripts/learn2reg_numpy.py`): float16
-//! deflated as the challenge's submissions are, float32 stored in Fortran order, one big-endian float64 array under
-//! another name. The script's JSON holds what `numpy.load` returns. The 2021 layout and an archive of two arrays are
-//! refused naming the file; a field warpbench writes is what NumPy's layout says.
+//! Learn2Reg's displacement fields, against files NumPy and nibabel wrote (`data-scripts/learn2reg_numpy.py`): `.npz`
+//! float16 deflated as the challenge's submissions were until 2021, float32 stored in Fortran order, one big-endian
+//! float64 array under another name; the NIfTI form since 2022 with an image's affine, the identity or none. The
+//! script's JSON holds what `numpy.load` and nibabel's `get_fdata` return. The 2021 layout, an archive of two arrays
+//! and NIfTI files of other shapes are refused naming the file; a field warpbench writes is what NumPy's and
+//! nibabel's layouts say.
 
 use std::path::{Path, PathBuf};
 
@@ -25,7 +27,15 @@ fn reference() -> (Vec<usize>, Array4) {
 #[test]
 fn numpy_files_read_as_numpy_reads_them() {
     let (shape, disp) = reference();
-    for name in ["disp_f16.npz", "disp_f32_fortran.npz", "disp_f64_named.npz"] {
+    let names = [
+        "disp_f16.npz",
+        "disp_f32_fortran.npz",
+        "disp_f64_named.npz",
+        "disp_nibabel_f32.nii.gz",
+        "disp_nibabel_f64_eye.nii",
+        "disp_nibabel_noaffine.nii.gz",
+    ];
+    for name in names {
         let f = learn2reg::read_voxel_field(&dir().join(name)).unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(f.dims.to_vec(), shape[..3], "{name}");
         let [nx, ny, _] = f.dims;
@@ -46,7 +56,58 @@ fn the_2021_layout_and_ambiguous_archives_are_refused_by_name() {
     let e = learn2reg::read_voxel_field(&dir().join("two_arrays.npz")).expect_err("two").to_string();
     assert!(e.contains("two_arrays.npz") && e.contains("a, b") && e.contains("arr_0"), "{e}");
     let e = learn2reg::read_voxel_field(&dir().join("reference.json")).expect_err("not a zip").to_string();
-    assert!(e.contains("reference.json") && e.contains(".npz"), "{e}");
+    assert!(e.contains("reference.json") && e.contains(".npz") && e.contains("NIfTI"), "{e}");
+}
+
+/// A NIfTI file that is not an (X, Y, Z, 3) array is refused as Learn2Reg's field, naming the file: an ITK field in
+/// mm (intent DISPVECT, dim [5, X, Y, Z, 1, 3]) as such, a volume by its dim. And the ITK field reader, given
+/// Learn2Reg's form, says what it may be instead of reading it as mm.
+#[test]
+fn nifti_files_of_other_shapes_are_refused_and_the_form_is_named_to_the_field_reader() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let grid = warpbench_io::geometry::Transform::from_scale_translation([2.0; 3], [0.0; 3]);
+    let itk = tmp.path().join("itk_field.nii.gz");
+    warpbench_io::nifti::write_displacement_field(&itk, [2, 2, 2], &grid, &[[1.0, 0.0, 0.0]; 8]).expect("write");
+    let e = learn2reg::read_voxel_field(&itk).expect_err("mm").to_string();
+    assert!(e.contains("itk_field.nii.gz") && e.contains("intent_code 1006") && e.contains("in mm"), "{e}");
+    let volume = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/nifti/avg152T1_LR_nifti.nii");
+    let e = learn2reg::read_voxel_field(&volume).expect_err("a volume").to_string();
+    assert!(e.contains("avg152T1_LR_nifti.nii") && e.contains("dim = [3, 91, 109, 91"), "{e}");
+    let e = warpbench_io::displacement::read_field(&dir().join("disp_nibabel_f32.nii.gz")).expect_err("voxels");
+    let e = e.to_string();
+    assert!(e.contains("disp_nibabel_f32.nii.gz") && e.contains("Learn2Reg") && e.contains("learn2reg"), "{e}");
+}
+
+/// The NIfTI form warpbench writes is nibabel's layout of an (X, Y, Z, 3) float32 array (dim [4, X, Y, Z, 3], no
+/// intent, the components as frames) with the fixed image's grid as its sform, and reads back exactly.
+#[test]
+fn a_written_nifti_field_is_an_x_y_z_3_array_with_the_fixed_grid() {
+    let (_, disp) = reference();
+    let dims = [5, 4, 2];
+    let steps_vox: Vec<[f32; 3]> = (0..40)
+        .map(|n| {
+            let (i, j, k) = (n % 5, (n / 5) % 4, n / 20);
+            [0, 1, 2].map(|c| disp[i][j][k][c] as f32 + 1e-3)
+        })
+        .collect();
+    let field = VoxelField { dims, steps_vox };
+    let fixed = warpbench_io::geometry::Transform::from_scale_translation([1.5, 2.0, 2.5], [-10.0, 20.0, 5.0]);
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let path = tmp.path().join("disp_0001_0002.nii");
+    learn2reg::write_voxel_field_nifti(&path, &field, &fixed).expect("write");
+    // float32 keeps what float16 would round.
+    assert_eq!(learn2reg::read_voxel_field(&path).expect("read back"), field);
+    let raw = std::fs::read(&path).expect("read");
+    let i16_at = |o: usize| i16::from_le_bytes([raw[o], raw[o + 1]]);
+    let f32_at = |o: usize| f32::from_le_bytes([raw[o], raw[o + 1], raw[o + 2], raw[o + 3]]);
+    assert_eq!((0..8).map(|i| i16_at(40 + 2 * i)).collect::<Vec<_>>(), [4, 5, 4, 2, 3, 1, 1, 1]);
+    assert_eq!((i16_at(68), i16_at(70), i16_at(254)), (0, 16, 1), "no intent, float32, an sform");
+    // The sform in RAS: x and y of LPS negated.
+    let srow: Vec<f32> = (0..12).map(|i| f32_at(280 + 4 * i)).collect();
+    assert_eq!(srow, [-1.5, 0.0, 0.0, 10.0, 0.0, -2.0, 0.0, -20.0, 0.0, 0.0, 2.5, 5.0]);
+    // The second frame (y components) starts after the 40 x components, i fastest.
+    assert_eq!(f32_at(352 + 4 * 40).to_bits(), field.steps_vox[0][1].to_bits());
+    assert_eq!(f32_at(352 + 4 * 81).to_bits(), field.steps_vox[1][2].to_bits());
 }
 
 #[test]

@@ -3,7 +3,7 @@
 //! `NIFTI_INTENT_VECTOR` (1007) with LPS vectors, what ITK's writer makes of any vector image and so what ANTs'
 //! `*Warp.nii.gz` files are. Inside, the vectors are always LPS.
 
-use std::io::{self, Read};
+use std::io::{self, Read, Write};
 use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
@@ -13,7 +13,7 @@ use super::header::read_header;
 use super::layout::{Span, data_span, grid, stored_type};
 use super::samples::{datatype_code, scaling, stream_chunks};
 use super::source::{Extent, GZIP_MAGIC, Reporter, Source, open_file};
-use super::write::{Nifti1Content, nifti1_header_for, write_file};
+use super::write::{Nifti1Content, Shape, nifti1_header_for, write_file};
 use crate::displacement::check::first_non_finite;
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
@@ -111,22 +111,45 @@ pub fn write_vector_field(
     let what = Nifti1Content {
         type_code: datatype_code(SampleType::F32),
         descrip: format!("warpbench displacement field, {} mm", intent.frame()).into_bytes(),
-        vector: Some((intent.intent_code(), 3)),
+        shape: Shape::Vector { intent_code: intent.intent_code(), components: 3 },
     };
     let header = nifti1_header_for(path, dims, lps_from_index, &what)?;
-    write_file(path, &header, |w| {
-        let mut buf = Vec::with_capacity(64 << 10);
-        for (c, sign) in intent.signs().into_iter().enumerate() {
-            for chunk in displacements_lps.chunks(16 << 10) {
-                buf.clear();
-                for d in chunk {
-                    buf.extend_from_slice(&(sign * d[c]).to_le_bytes());
-                }
-                w.write_all(&buf)?;
+    write_file(path, &header, |w| write_planes(w, displacements_lps, intent.signs()))
+}
+
+/// Writes Learn2Reg's NIfTI form of a field ([`crate::learn2reg`]), atomically: float32, dim = [4, X, Y, Z, 3, 1, 1,
+/// 1] (the three components as frames, as nibabel writes an (X, Y, Z, 3) array), no intent, the grid's sform and
+/// qform, and `vectors` as they are (the challenge's voxel steps). Non-finite vectors are refused.
+pub fn write_frame_vectors(
+    path: &Path,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    vectors: &[[f32; 3]],
+    descrip: &str,
+) -> Result<()> {
+    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, vectors)?;
+    let what = Nifti1Content {
+        type_code: datatype_code(SampleType::F32),
+        descrip: descrip.bytes().take(79).collect(),
+        shape: Shape::Frames(3),
+    };
+    let header = nifti1_header_for(path, dims, lps_from_index, &what)?;
+    write_file(path, &header, |w| write_planes(w, vectors, [1.0; 3]))
+}
+
+/// The component planes one after the other (all x, then all y, then all z), each component times its sign.
+fn write_planes(w: &mut dyn Write, vectors: &[[f32; 3]], signs: [f32; 3]) -> io::Result<()> {
+    let mut buf = Vec::with_capacity(64 << 10);
+    for (c, sign) in signs.into_iter().enumerate() {
+        for chunk in vectors.chunks(16 << 10) {
+            buf.clear();
+            for d in chunk {
+                buf.extend_from_slice(&(sign * d[c]).to_le_bytes());
             }
+            w.write_all(&buf)?;
         }
-        Ok(())
-    })
+    }
+    Ok(())
 }
 
 /// Reads a displacement field written by [`write_displacement_field`] or by ITK, ANTs or Slicer: NIfTI-1 or -2,
@@ -179,6 +202,19 @@ fn read_field_source<S: Source>(
     let intent = match h.intent_code {
         c if c == i32::from(NIFTI_INTENT_DISPVECT) => NiftiVectorIntent::DispvectRas,
         c if c == i32::from(NIFTI_INTENT_VECTOR) && vector_too => NiftiVectorIntent::VectorLps,
+        c if vector_too && h.dim[0] == 4 && h.dim[4] == 3 => {
+            return Err(Error::invalid(
+                path,
+                format!(
+                    "intent_code is {c} and dim = {:?}: an (X, Y, Z, 3) array without a vector intent, as \
+                     Learn2Reg's fields are (steps in voxels, not mm; docs/formats.md). If it is one, read it as \
+                     Learn2Reg's against its fixed and moving volumes (command line: --field-format learn2reg; \
+                     Python: read_field(path, fixed=..., moving=..., learn2reg=True); window: tick Learn2Reg steps \
+                     in voxels)",
+                    h.dim
+                ),
+            ));
+        }
         c if vector_too => {
             return Err(Error::invalid(
                 path,
@@ -201,22 +237,84 @@ fn read_field_source<S: Source>(
             format!("dim = {:?}; a 3-D displacement field has dim = [5, X, Y, Z, 1, 3, …]", h.dim),
         ));
     }
-    let grid = grid(path, &h)?;
-    let dims = [grid[1], grid[2], grid[3]];
-    let datatype = stored_type(path, &h)?;
+    let dims = field_dims(path, &h)?;
+    let (lps_from_index, geometry_source, _) = lps_from_index(path, &h, dims)?;
+    let displacements_lps = read_planes(path, src, extent, &h, dims, intent.signs())?;
+    Ok((DisplacementField { dims, lps_from_index, geometry_source, displacements_lps }, intent))
+}
+
+/// Reads Learn2Reg's NIfTI form of a field ([`crate::learn2reg`]): dim = [4, X, Y, Z, 3], float32 or float64,
+/// unscaled, the three components as frames. Returns the grid's dims and the vectors as they are, i fastest. The
+/// header's geometry is not read: the challenge's files carry the fixed image's, the identity or none, and its
+/// evaluation ignores it. Errors name the file: another shape (an ITK or ANTs field in mm is named as such), a
+/// vector that is not finite.
+pub fn read_frame_vectors(path: &Path) -> Result<([usize; 3], Vec<[f32; 3]>)> {
+    let (mut src, extent) = open_file(path)?;
+    read_frames_source(path, &mut src, extent)
+}
+
+/// [`read_frame_vectors`] from memory (gzip detected by the magic bytes); `name` is used in errors.
+pub fn read_frame_vectors_bytes(name: &Path, bytes: &[u8]) -> Result<([usize; 3], Vec<[f32; 3]>)> {
+    if bytes.starts_with(&GZIP_MAGIC) {
+        read_frames_source(name, &mut MultiGzDecoder::new(bytes), Extent::Gzip(bytes.len() as u64))
+    } else {
+        let mut src = bytes;
+        read_frames_source(name, &mut src, Extent::Exact(bytes.len() as u64))
+    }
+}
+
+fn read_frames_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Result<([usize; 3], Vec<[f32; 3]>)> {
+    let h = read_header(path, src)?;
+    if [NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR].iter().any(|&c| i32::from(c) == h.intent_code) {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "intent_code {}: an ITK or ANTs displacement field in mm, not Learn2Reg's steps in voxels; read it \
+                 as a field of its own flavour",
+                h.intent_code
+            ),
+        ));
+    }
+    if h.dim[0] != 4 || h.dim[4] != 3 || h.dim[1..4].iter().any(|&d| d < 1) {
+        return Err(Error::invalid(
+            path,
+            format!("dim = {:?}; Learn2Reg's NIfTI field is an (X, Y, Z, 3) array, dim = [4, X, Y, Z, 3, …]", h.dim),
+        ));
+    }
+    let dims = field_dims(path, &h)?;
+    let vectors = read_planes(path, src, extent, &h, dims, [1.0; 3])?;
+    Ok((dims, vectors))
+}
+
+/// The field's grid from `h`, once its datatype (float32 or float64) and its lack of scaling are checked.
+fn field_dims(path: &Path, h: &super::header::Header) -> Result<[usize; 3]> {
+    let grid = grid(path, h)?;
+    let datatype = stored_type(path, h)?;
     if !matches!(datatype, StoredType::F32 | StoredType::F64) {
         return Err(Error::unsupported(
             path,
             format!("displacement field of datatype {}; float32 and float64 are read", h.datatype),
         ));
     }
-    if scaling(path, &h)?.is_some() {
+    if scaling(path, h)?.is_some() {
         return Err(Error::unsupported(
             path,
             format!("a scaled displacement field (scl_slope {}, scl_inter {})", h.scl_slope, h.scl_inter),
         ));
     }
-    let (lps_from_index, geometry_source, _) = lps_from_index(path, &h, dims)?;
+    Ok([grid[1], grid[2], grid[3]])
+}
+
+/// Reads the three component planes after the header, each times its sign; refuses a vector that is not finite.
+fn read_planes<S: Source>(
+    path: &Path,
+    src: &mut S,
+    extent: Extent,
+    h: &super::header::Header,
+    dims: [usize; 3],
+    signs: [f32; 3],
+) -> Result<Vec<[f32; 3]>> {
+    let datatype = stored_type(path, h)?;
     // The output is 12 bytes a voxel; a stored plane is at most 8 bytes a voxel, so both fit once this passes.
     let n = volume::check_allocation(path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
     let plane_bytes = n * datatype.bytes();
@@ -226,7 +324,7 @@ fn read_field_source<S: Source>(
         what: "the displacement field",
         detail: format!("dims {dims:?}, 3 components"),
     };
-    let vox_offset = data_span(path, &h, extent, &span)?;
+    let vox_offset = data_span(path, h, extent, &span)?;
     let mut opts = LoadOptions::new();
     let skip = vox_offset - h.version.header_bytes() as u64;
     if !src.seek_forward(skip).map_err(|e| Error::io(path, e))? {
@@ -235,7 +333,7 @@ fn read_field_source<S: Source>(
     let mut progress = Reporter { path, opts: &mut opts, done: 0, total: 3 * plane_bytes as u64 };
     let mut displacements_lps = volume::try_with_capacity(path, n, "the displacement vectors")?;
     displacements_lps.resize(n, [0.0f32; 3]);
-    for (c, sign) in intent.signs().into_iter().enumerate() {
+    for (c, sign) in signs.into_iter().enumerate() {
         let mut plane: Vec<f32> = volume::try_with_capacity(path, n, "the voxel samples")?;
         sample::with_stored_type!(datatype, T => stream_chunks(src, plane_bytes, &mut progress, |chunk| {
             plane.extend(sample::decode::<T>(chunk, h.big_endian).map(T::as_f32));
@@ -247,7 +345,7 @@ fn read_field_source<S: Source>(
     if let Some(ijk) = first_non_finite(dims, &displacements_lps) {
         return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
     }
-    Ok((DisplacementField { dims, lps_from_index, geometry_source, displacements_lps }, intent))
+    Ok(displacements_lps)
 }
 
 #[cfg(test)]

@@ -140,8 +140,8 @@ use flate2::read::MultiGzDecoder;
 
 pub use field::{
     DisplacementField, NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR, NiftiVectorIntent, read_displacement_field,
-    read_displacement_field_bytes, read_vector_field, read_vector_field_bytes, write_displacement_field,
-    write_vector_field,
+    read_displacement_field_bytes, read_frame_vectors, read_frame_vectors_bytes, read_vector_field,
+    read_vector_field_bytes, write_displacement_field, write_frame_vectors, write_vector_field,
 };
 pub use header::looks_like_nifti;
 pub use write::{WriteOptions, write, write_with};

@@ -123,18 +123,32 @@ fn descrip(volume: &Volume) -> Vec<u8> {
 }
 
 fn nifti1_header(path: &Path, volume: &Volume) -> Result<Vec<u8>> {
-    let what = Nifti1Content { type_code: datatype_code(volume.sample_type()), descrip: descrip(volume), vector: None };
+    let what = Nifti1Content {
+        type_code: datatype_code(volume.sample_type()),
+        descrip: descrip(volume),
+        shape: Shape::Scalar,
+    };
     nifti1_header_for(path, volume.dims, &volume.lps_from_index, &what)
 }
 
-/// What a NIfTI-1 header says besides the grid: the sample type, the description, and for a vector image its
-/// intent and component count (`dim[5]`).
+/// What a NIfTI-1 header says besides the grid: the sample type, the description, and what a voxel holds.
 pub(super) struct Nifti1Content {
     /// Datatype code and bitpix.
     pub(super) type_code: (i16, i16),
     pub(super) descrip: Vec<u8>,
-    /// `(intent_code, components)`: written as dim = [5, X, Y, Z, 1, components, 1, 1].
-    pub(super) vector: Option<(i16, i16)>,
+    pub(super) shape: Shape,
+}
+
+/// What a voxel of a NIfTI-1 file holds, and so its `dim` and `intent_code`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Shape {
+    /// One sample: dim = [3, X, Y, Z, 1, 1, 1, 1].
+    Scalar,
+    /// A vector of `components` with `intent_code`, as ITK writes one: dim = [5, X, Y, Z, 1, components, 1, 1].
+    Vector { intent_code: i16, components: i16 },
+    /// `frames` samples along the fourth axis, no intent, as nibabel writes an (X, Y, Z, frames) array: dim =
+    /// [4, X, Y, Z, frames, 1, 1, 1].
+    Frames(i16),
 }
 
 pub(super) fn nifti1_header_for(
@@ -158,12 +172,13 @@ pub(super) fn nifti1_header_for(
     let mut p = Put(&mut buf);
     p.i32(0, NIFTI1_HEADER_BYTES as i32);
     p.bytes(38, b"r"); // `regular`, as nibabel writes
-    let dim = match what.vector {
-        None => [3, nx, ny, nz, 1, 1, 1, 1],
-        Some((intent_code, components)) => {
+    let dim = match what.shape {
+        Shape::Scalar => [3, nx, ny, nz, 1, 1, 1, 1],
+        Shape::Vector { intent_code, components } => {
             p.i16(68, intent_code);
             [5, nx, ny, nz, 1, components, 1, 1]
         }
+        Shape::Frames(frames) => [4, nx, ny, nz, frames, 1, 1, 1],
     };
     for (i, d) in dim.into_iter().enumerate() {
         p.i16(40 + 2 * i, d);
