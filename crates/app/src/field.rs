@@ -78,13 +78,16 @@ moving points or meshes needs.
 --format ants: NIfTI intent VECTOR (1007), vectors in LPS, what antsApplyTransforms reads; --format nrrd: a NRRD
 vector image in LPS that Slicer reads, stating the direction (displacement field type resampling or modeling);
 --format metaimage: a MetaImage vector image in LPS (.mha, or .mhd with a .raw beside it), what elastix's
-transformix writes as deformationField.mhd and every ITK reads.
+transformix writes as deformationField.mhd and every ITK reads; --format learn2reg (or a name ending .npz):
+Learn2Reg's field, the pull-back's steps from fixed voxels to moving voxels, as .npz (float16, the challenge's
+form until 2021) or .nii.gz (float32 (X, Y, Z, 3), its form since 2022).
 Examples:
 
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm
-    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format metaimage --out deformationField.mhd";
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format metaimage --out deformationField.mhd
+    warpbench field --fixed 0001.nii.gz --moving 0002.nii.gz --landmarks pairs.csv --format learn2reg --out disp_0001_0002.nii.gz";
 
 /// The arguments of `warpbench field`.
 #[derive(Debug, clap::Args)]
@@ -107,38 +110,51 @@ pub struct FieldArgs {
     /// .h5 for ITK's HDF5 file; .mat, ANTs' MATLAB file, for the linear methods).
     #[arg(long)]
     pub tfm: Option<PathBuf>,
-    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS)
-    /// or metaimage (elastix's and ITK's .mha/.mhd, LPS).
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
+    /// metaimage (elastix's and ITK's .mha/.mhd, LPS) or learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// voxels: .npz, float16, the challenge's form until 2021; .nii.gz, float32, its form since 2022).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
     #[arg(long, value_enum, default_value = "pullback")]
     pub direction: DirectionArg,
     /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
-    /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform; .npz for Learn2Reg's
-    /// field, float16 steps from fixed voxels to moving voxels).
+    /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform; .npz, or .nii.gz with
+    /// --format learn2reg, for Learn2Reg's field, steps from fixed voxels to moving voxels).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
     pub report: ReportArgs,
 }
 
-/// `--format`: [`FieldFormat`] by its command-line name.
+/// `--format`: [`FieldFormat`] by its command-line name, or Learn2Reg's field ([`learn2reg`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum FormatArg {
     Itk,
     Ants,
     Nrrd,
     Metaimage,
+    /// Learn2Reg's field: steps from fixed voxels to moving voxels, `.npz` or `.nii.gz` by the name.
+    Learn2reg,
 }
 
-impl From<FormatArg> for FieldFormat {
-    fn from(arg: FormatArg) -> Self {
-        match arg {
-            FormatArg::Itk => Self::Itk,
-            FormatArg::Ants => Self::Ants,
-            FormatArg::Nrrd => Self::Nrrd,
-            FormatArg::Metaimage => Self::MetaImage,
+impl FormatArg {
+    /// Whether a pull-back field of this `--format` written to `out` is Learn2Reg's: `--format learn2reg`, or a
+    /// name ending `.npz`, which picks that flavour as `.h5` picks ITK's transform file.
+    #[must_use]
+    pub fn is_learn2reg(self, out: &Path) -> bool {
+        self == Self::Learn2reg || learn2reg::is_npz_name(out)
+    }
+
+    /// The image flavour it names; `learn2reg` writes the pull-back alone, so a forward or inverse field written
+    /// beside one takes the default flavour, `itk`.
+    #[must_use]
+    pub fn flavour(self) -> FieldFormat {
+        match self {
+            Self::Itk | Self::Learn2reg => FieldFormat::Itk,
+            Self::Ants => FieldFormat::Ants,
+            Self::Nrrd => FieldFormat::Nrrd,
+            Self::Metaimage => FieldFormat::MetaImage,
         }
     }
 }
@@ -171,7 +187,7 @@ pub struct FieldSummary {
     pub lps_from_index: [[f64; 4]; 4],
     /// `"fixed"`, `"moving"` (`--direction forward`) or `"reference"`: whose grid the field is sampled on.
     pub grid: &'static str,
-    /// The flavour written: `itk`, `ants`, `nrrd` or `metaimage`.
+    /// The flavour written: `itk`, `ants`, `nrrd`, `metaimage` or `learn2reg`.
     pub format: &'static str,
     /// `pullback` (D = u(x) − x) or `forward` (D = d(y) − y).
     pub direction: &'static str,
@@ -194,16 +210,16 @@ pub struct FieldSummary {
 /// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
 /// `--json`, else what it wrote on stderr unless `--quiet`.
 pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
-    let FieldArgs { volumes, pairs, reference, tfm, format, direction, out: out_path, report } = args;
+    let FieldArgs { volumes, pairs, reference, tfm, format: format_arg, direction, out: out_path, report } = args;
     let ReportArgs { json, force, quiet } = report;
-    let (format, direction) = (FieldFormat::from(format), FieldDirection::from(direction));
+    let (format, direction) = (format_arg.flavour(), FieldDirection::from(direction));
     let reference_path = reference.clone();
     let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
     let output = OutputFile { path: out_path, force };
     let input_paths = inputs.paths();
-    let learn2reg = learn2reg::is_npz_name(&output.path);
+    let learn2reg = format_arg.is_learn2reg(&output.path);
     if learn2reg {
-        check_learn2reg_output(&output, format, direction, reference_path.as_deref(), &input_paths)?;
+        check_learn2reg_output(&output, format_arg, direction, reference_path.as_deref(), &input_paths)?;
     } else {
         check_field_output(&output, format, &input_paths)?;
     }
@@ -515,22 +531,29 @@ fn no_transform(field: &Field, path: &Path) -> Failure {
     ))
 }
 
-/// Refuses a Learn2Reg output (a name ending `.npz`) before anything is computed: over an input or an existing file
-/// without `--force`, with another flavour than the default, the forward direction or a `--reference` grid (the
-/// challenge's field holds the pull-back on the fixed image's voxels).
+/// Refuses a Learn2Reg output ([`FormatArg::is_learn2reg`]) before anything is computed: over an input or an
+/// existing file without `--force`; a name ending `.npz` with a flavour other than the default or `learn2reg`;
+/// `--format learn2reg` under a name that is neither `.npz` nor NIfTI's; the forward direction or a `--reference`
+/// grid (the challenge's field holds the pull-back on the fixed image's voxels).
 pub(crate) fn check_learn2reg_output(
     output: &OutputFile,
-    format: FieldFormat,
+    format: FormatArg,
     direction: FieldDirection,
     reference: Option<&Path>,
     inputs: &[&Path],
 ) -> Result<(), Failure> {
     output.check(inputs).map_err(Failure::BadInput)?;
     let name = output.path.display();
-    let refuse =
-        |why: String| Err(Failure::BadInput(anyhow!("{name}: a name ending .npz is Learn2Reg's field, {why}")));
-    if format != FieldFormat::Itk {
+    let npz = learn2reg::is_npz_name(&output.path);
+    let what =
+        if npz { "a name ending .npz is Learn2Reg's field" } else { "--format learn2reg writes Learn2Reg's field" };
+    let refuse = |why: String| Err(Failure::BadInput(anyhow!("{name}: {what}, {why}")));
+    if !matches!(format, FormatArg::Itk | FormatArg::Learn2reg) {
+        let format = format.flavour();
         return refuse(format!("not the {format} flavour: leave out --format, or name the file for the flavour"));
+    }
+    if !npz && FieldFormat::from_extension(&output.path) != Some(FieldFormat::Itk) {
+        return refuse("as .npz (the challenge's form until 2021) or .nii.gz (its form since 2022)".into());
     }
     if direction == FieldDirection::Forward {
         return refuse("which maps fixed voxels to moving ones (the pull-back): leave out --direction forward".into());
@@ -545,11 +568,12 @@ pub(crate) fn check_learn2reg_output(
 }
 
 /// Writes pull-back displacements sampled on the fixed grid (`dims`, `fixed_lps_from_index`; LPS mm, i fastest) as
-/// Learn2Reg's `.npz` at `out` ([`learn2reg::voxels_from_pullback`]: each fixed voxel's step to the moving voxel it
-/// reads, in the voxels of the fixed grid and of `moving`), atomically.
+/// Learn2Reg's field at `out` ([`learn2reg::voxels_from_pullback`]: each fixed voxel's step to the moving voxel it
+/// reads, in the voxels of the fixed grid and of `moving`), atomically: `.npz` (float16) for a name ending so, else
+/// the NIfTI form (float32, the fixed grid's affine).
 ///
 /// # Errors
-/// A step beyond float16's range, a singular moving grid, a failed write.
+/// A step beyond float16's range in an `.npz`, a singular moving grid, a failed write.
 pub fn write_learn2reg(
     out: &Path,
     dims: [usize; 3],
@@ -559,7 +583,11 @@ pub fn write_learn2reg(
 ) -> Result<(), Failure> {
     let steps =
         learn2reg::voxels_from_pullback(out, dims, fixed_lps_from_index, &moving.lps_from_index, displacements_lps)?;
-    Ok(learn2reg::write_voxel_field(out, &steps)?)
+    if learn2reg::is_npz_name(out) {
+        Ok(learn2reg::write_voxel_field(out, &steps)?)
+    } else {
+        Ok(learn2reg::write_voxel_field_nifti(out, &steps, fixed_lps_from_index)?)
+    }
 }
 
 /// A sampled displacement field.

@@ -82,8 +82,8 @@ pub struct RegisterArgs {
     pub pairs: RegisterPairArgs,
     /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
     /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage; .h5 for ITK's HDF5 transform file holding it as
-    /// a DisplacementFieldTransform, as ANTs' Composite.h5; .npz for Learn2Reg's field, float16 steps from fixed
-    /// voxels to moving voxels).
+    /// a DisplacementFieldTransform, as ANTs' Composite.h5; .npz, or .nii.gz with --format learn2reg, for Learn2Reg's
+    /// field, steps from fixed voxels to moving voxels).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
@@ -96,8 +96,9 @@ pub struct RegisterArgs {
     /// closely it undoes u.
     #[arg(long, value_name = "FILE")]
     pub out_inverse_field: Option<PathBuf>,
-    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS)
-    /// or metaimage (elastix's and ITK's .mha/.mhd, LPS).
+    /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
+    /// metaimage (elastix's and ITK's .mha/.mhd, LPS) or learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// voxels, .npz or .nii.gz; an inverse field beside it is itk).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// The similarity measure: mi (Mattes mutual information: any two modalities; the default), ngf (normalised
@@ -225,7 +226,7 @@ pub struct RegisterSummary {
     /// How closely the inverse undoes the registered warp, ‖u(d(y)) − y‖ over a grid where it was fitted; null
     /// without `--out-inverse-field`.
     pub inverse_consistency: Option<InverseConsistency>,
-    /// The field's flavour: `itk`, `ants` or `nrrd`.
+    /// The field's flavour: `itk`, `ants`, `nrrd`, `metaimage` or `learn2reg`.
     pub format: &'static str,
     /// The warp the registration started from, e.g. `tps`, `tps on start.tfm`, `identity`.
     pub start: String,
@@ -512,7 +513,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         report,
     } = args;
     let ReportArgs { json, force, quiet } = report;
-    let format = FieldFormat::from(format);
+    let format_arg = format;
+    let format = format_arg.flavour();
     let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
     // The session's choices for Refine by intensities, where the command line does not make them.
     let session = given.session_refine.clone();
@@ -535,10 +537,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     input_paths.extend(given.paths());
     input_paths.extend(fixed_mask.as_deref());
     input_paths.extend(moving_mask.as_deref());
-    let learn2reg = warpbench_io::learn2reg::is_npz_name(&out_field);
+    let learn2reg = format_arg.is_learn2reg(&out_field);
     let field_output = OutputFile { path: out_field.clone(), force };
     if learn2reg {
-        crate::field::check_learn2reg_output(&field_output, format, FieldDirection::Pullback, None, &input_paths)?;
+        crate::field::check_learn2reg_output(&field_output, format_arg, FieldDirection::Pullback, None, &input_paths)?;
     } else {
         crate::field::check_field_output(&field_output, format, &input_paths)?;
     }
@@ -657,7 +659,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         out: out_volume.as_ref().map(|p| p.display().to_string()),
         out_inverse_field: out_inverse_field.as_ref().map(|p| p.display().to_string()),
         inverse_consistency,
-        format: format.name(),
+        format: if learn2reg { "learn2reg" } else { format.name() },
         start: refinement.start_name.clone(),
         settings: RegisterSettings {
             metric: params.similarity,

@@ -22,7 +22,6 @@ use warpbench_gpu::{
     RenderSettings, RenderTarget, Shading, SlicePlane, VolumeBudget, pair_glyphs,
 };
 use warpbench_io::Volume;
-use warpbench_io::learn2reg;
 use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
@@ -67,6 +66,8 @@ pub struct RenderArgs {
     /// NRRD, MetaImage, elastix, ITK HDF5, or Learn2Reg's .npz in the two volumes' voxels); no glyphs are drawn.
     #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     pub field: Option<PathBuf>,
+    #[command(flatten)]
+    pub field_format: crate::warp::FieldFormatArgs,
     /// Control-texture texels per axis over the fixed box (2..=256).
     #[arg(long, default_value_t = 64)]
     pub grid: usize,
@@ -140,6 +141,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         moving: moving_path,
         pairs,
         field: field_path,
+        field_format,
         grid: grid_n,
         settings: view,
         out,
@@ -183,7 +185,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     // Read before the volumes: a field `render` refuses costs no loading. A Learn2Reg field, in the volumes' voxels,
     // is read after them.
     let learn2reg = match &field_path {
-        Some(path) => learn2reg::is_npz_file(path)?,
+        Some(path) => field_format.format.is_learn2reg(path)?,
         None => false,
     };
     let mut field = field_path.as_deref().filter(|_| !learn2reg).map(crate::warp::read_pullback_field).transpose()?;

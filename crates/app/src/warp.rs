@@ -38,7 +38,6 @@ use warpbench_io::dicom_write::{self, DicomSeriesOptions};
 use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::landmarks::LandmarkPair;
-use warpbench_io::learn2reg;
 use warpbench_io::volume::{GeometrySource, VoxelData};
 use warpbench_io::{Volume, VolumeFileKind};
 use warpbench_solver::control::{ControlGrid, ControlTexture};
@@ -55,6 +54,8 @@ use crate::fit::{self, TpsParts};
 use crate::inputs::{self, LandmarkWarp, Names, OutputFile, PairInputs, PairVolumes};
 use crate::project::stack::Layers;
 use crate::scene;
+
+pub use crate::project::field_file::FieldReadFormat;
 
 /// Where the resampling runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -93,21 +94,33 @@ pub struct FieldInputs {
     pub volumes: VolumePairArgs,
     /// The displacement field: u(x) = x + D(x), u = moving_from_fixed.
     pub field: PathBuf,
+    /// How it is told apart.
+    pub format: FieldReadFormat,
     /// The output grid, when not the fixed volume's.
     pub reference: Option<PathBuf>,
 }
 
+/// `--field-format`, which `warp` and `render` share.
+#[derive(Clone, Copy, Debug, clap::Args)]
+pub struct FieldFormatArgs {
+    /// How --field is read: auto (by its content) or learn2reg (Learn2Reg's steps from fixed voxels to moving voxels,
+    /// .npz or an (X, Y, Z, 3) NIfTI, which says nothing of its units otherwise).
+    #[arg(long = "field-format", value_enum, default_value = "auto", requires = "field")]
+    pub format: FieldReadFormat,
+}
+
 impl WarpInputs {
-    /// From the command line: `--field` or the landmarks of `pairs`, exactly one of them.
+    /// From the command line: `--field` (read as `field_format` says) or the landmarks of `pairs`, exactly one of
+    /// them.
     pub fn from_args(
         volumes: VolumePairArgs,
         pairs: PairArgs,
-        field: Option<PathBuf>,
+        (field, format): (Option<PathBuf>, FieldReadFormat),
         reference: Option<PathBuf>,
     ) -> Result<Self, Failure> {
         let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
         match (field, given.landmarks) {
-            (Some(field), None) => Ok(Self::Field(FieldInputs { volumes, field, reference })),
+            (Some(field), None) => Ok(Self::Field(FieldInputs { volumes, field, format, reference })),
             (None, Some(landmarks)) => Ok(Self::Pairs(PairInputs { volumes, landmarks, warp: given.warp, reference })),
             (Some(_), Some(_)) => Err(Failure::BadInput(anyhow!(
                 "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
@@ -187,7 +200,7 @@ pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
     })
 }
 
-/// Reads a Learn2Reg field ([`learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`
+/// Reads a Learn2Reg field ([`warpbench_io::learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`
 /// ([`crate::project::field_file::learn2reg_pullback`]). Errors name the file.
 pub fn read_learn2reg_field(
     path: &Path,
@@ -224,7 +237,8 @@ The pull-back u = moving_from_fixed is sampled into a --grid³ control texture o
 app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
 any flavour warpbench field writes (ITK NIfTI DISPVECT, ANTs NIfTI VECTOR, Slicer NRRD): u(x) = x + D(x),
 D interpolated trilinearly and zero outside the field's grid, as ITK's DisplacementFieldTransform. A Learn2Reg
-field (.npz) holds steps from fixed voxels to moving voxels, read in the two volumes' voxels. Examples:
+field (.npz, or its NIfTI form with --field-format learn2reg) holds steps from fixed voxels to moving voxels,
+read in the two volumes' voxels. Examples:
 
     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out mr_in_ct.nii.gz
     warpbench warp --fixed ct.nii.gz --moving mr.nii.gz --moving-points mr.mrk.json --fixed-points ct.mrk.json --method rigid --interp cubic --out mr_rigid.nii.gz
@@ -245,9 +259,12 @@ pub struct WarpArgs {
     #[command(flatten)]
     pub pairs: PairArgs,
     /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, NRRD, MetaImage, or an ITK
-    /// .h5 such as ANTs' Composite.h5; u(x) = x + D(x)), or Learn2Reg's .npz (steps from fixed to moving voxels).
+    /// .h5 such as ANTs' Composite.h5; u(x) = x + D(x)), or Learn2Reg's field (steps from fixed to moving voxels:
+    /// an .npz, or its NIfTI form with --field-format learn2reg).
     #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
     pub field: Option<PathBuf>,
+    #[command(flatten)]
+    pub field_format: FieldFormatArgs,
     /// Control-texture texels per axis over the output grid (2..=256).
     #[arg(long, default_value_t = 64, conflicts_with = "exact")]
     pub grid: usize,
@@ -903,6 +920,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
         volumes,
         pairs,
         field,
+        field_format,
         grid,
         exact,
         interp,
@@ -914,7 +932,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
         out_dicom,
         report: ReportArgs { json, force, quiet },
     } = args;
-    let inputs = WarpInputs::from_args(volumes, pairs, field, reference)?;
+    let inputs = WarpInputs::from_args(volumes, pairs, (field, field_format.format), reference)?;
     let output = OutputFile { path: out_path, force };
     output.check(&inputs.paths()).map_err(Failure::BadInput)?;
     check_data_file(&output.path, &inputs.paths(), force).map_err(Failure::BadInput)?;
@@ -941,7 +959,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             let layers = pairs.warp.layers(brushed).map_err(Failure::BadInput)?;
             Given::Pairs(method, pairs, Box::new(layers))
         }
-        WarpInputs::Field(f) if learn2reg::is_npz_file(&f.field)? => Given::Learn2Reg(&f.field),
+        WarpInputs::Field(f) if f.format.is_learn2reg(&f.field)? => Given::Learn2Reg(&f.field),
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();

@@ -326,6 +326,16 @@ fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
         expect_bad(&[&field[..], extra].concat(), needle);
         assert!(!npz.exists());
     }
+    // --format learn2reg: the NIfTI form under a NIfTI name, with the same rules.
+    let form = dir.path().join("disp.nii.gz");
+    let field = ["field", "--fixed", f, "--moving", f, "--landmarks", l, "--format", "learn2reg", "--quiet"];
+    for (extra, needle) in [
+        (&["--out", utf8(&form), "--direction", "forward"][..], "disp.nii.gz: --format learn2reg writes Learn2Reg's"),
+        (&["--out", &format!("{o}.nrrd")][..], "as .npz (the challenge's form until 2021) or .nii.gz"),
+    ] {
+        expect_bad(&[&field[..], extra].concat(), needle);
+        assert!(!form.exists());
+    }
     expect_bad(
         &[
             "field",

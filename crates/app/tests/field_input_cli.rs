@@ -311,6 +311,13 @@ fn render_refuses_a_forward_field_and_both_refuse_both_warps_and_none() {
     expect_bad(&["warp"], &[], &["give the warp", "--landmarks", "--moving-points", "--field"]);
     let not_a_field = fixture("moving.nii.gz");
     expect_bad(&both, &["--field", s(&not_a_field)], &["field_input_moving.nii.gz"]);
+    // Learn2Reg's NIfTI form (an (X, Y, Z, 3) array, nibabel's) is in voxels only when told; an ITK field in mm is not
+    // read as one when told it is; --field-format needs --field.
+    let form = common::data("learn2reg/disp_nibabel_f32.nii.gz");
+    expect_bad(&both, &["--field", s(&form)], &["disp_nibabel_f32.nii.gz", "Learn2Reg", "--field-format learn2reg"]);
+    let as_l2r = ["--field", s(&itk_field), "--field-format", "learn2reg"];
+    expect_bad(&both, &as_l2r, &["field_input_field.nii.gz", "intent_code 1006", "in mm"]);
+    expect_bad(&["render"], &["--field-format", "learn2reg"], &["--field <FIELD>"]);
 }
 
 #[test]
@@ -362,12 +369,15 @@ fn render_shows_the_moving_volume_through_the_field() {
     .expect("in mm");
     let nifti = dir.path().join("disp.nii.gz");
     write_field(&nifti, FieldFormat::Itk, mm.dims, &mm.lps_from_index, &mm.displacements_lps).expect("written");
-    let (through_npz, through_nifti) = (dir.path().join("npz.png"), dir.path().join("nifti.png"));
-    assert_ok(&render(&through_npz, &["--field", s(&npz)]));
-    assert_ok(&render(&through_nifti, &["--field", s(&nifti)]));
-    let (c, d) =
-        (image::open(&through_npz).expect("png").to_rgba8(), image::open(&through_nifti).expect("png").to_rgba8());
-    assert!(c == d, "the .npz shows as the same field in mm");
+    // And in Learn2Reg's NIfTI form, read so when told.
+    let form = dir.path().join("disp_0001_0001.nii.gz");
+    warpbench_io::learn2reg::write_voxel_field_nifti(&form, &steps, &volume.lps_from_index).expect("written");
+    let pngs = ["npz.png", "nifti.png", "form.png"].map(|name| dir.path().join(name));
+    assert_ok(&render(&pngs[0], &["--field", s(&npz)]));
+    assert_ok(&render(&pngs[1], &["--field", s(&nifti)]));
+    assert_ok(&render(&pngs[2], &["--field", s(&form), "--field-format", "learn2reg"]));
+    let [c, d, e] = pngs.map(|p| image::open(&p).expect("png").to_rgba8());
+    assert!(c == d && e == d, "Learn2Reg's forms show as the same field in mm");
     assert!(c != a, "the field moves the volume");
 }
 

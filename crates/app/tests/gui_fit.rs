@@ -929,7 +929,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     // it; the autosave then maps a point as the window shows it. One of another shape is refused, naming it.
     let loaded = &harness.state().ready().expect("ready").loaded;
     let grids = VoxelGrids { fixed: VoxelGrid::of(&loaded.fixed), moving: VoxelGrid::of(&loaded.moving) };
-    let dims = loaded.fixed.dims;
+    let (dims, fixed_lps_from_index) = (loaded.fixed.dims, loaded.fixed.lps_from_index);
     let steps_vox = (0..dims.iter().product::<usize>())
         .map(|n| [1.5 * (((n / dims[0]) % dims[1]) as f32 / 9.0).sin(), 0.5, -1.0])
         .collect();
@@ -944,14 +944,46 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     assert_eq!(ready.document.field_path(), Some(elastix_file.as_path()), "the refused field is not kept");
     apply(&mut harness, Command::File(FileAction::UseField(npz.clone())));
     let ready = harness.state().ready().expect("ready");
-    assert_eq!(ready.document.field, Some(FieldFile { path: npz, voxel_grids: Some(Box::new(grids)) }));
+    assert_eq!(ready.document.field, Some(FieldFile { path: npz.clone(), voxel_grids: Some(Box::new(grids)) }));
     assert!(ready.files.message.as_deref().is_some_and(|m| m.contains("Learn2Reg")), "{:?}", ready.files.message);
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     let autosave = dir.path().join("autosave.warpbench.json");
-    for x in [[10.0, -20.0, 15.0], [-30.0, 25.0, -5.0]] {
+    let probes = [[10.0, -20.0, 15.0], [-30.0, 25.0, -5.0]];
+    let through_npz: Vec<[f64; 3]> = probes.iter().map(|&x| plain_at(ready, x)).collect();
+    for (&x, want) in probes.iter().zip(&through_npz) {
         let got = common::map_through_session(dir.path(), [&mri(), &mri(), &autosave], x);
-        let want = plain_at(ready, x);
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-6), "{got:?} vs the window's {want:?}");
+    }
+
+    // The NIfTI form (an (X, Y, Z, 3) array of the same steps) says nothing of its units: typed in the panel it is
+    // refused as a field in mm, naming what it may be; with "Learn2Reg steps in voxels" ticked it is the same warp.
+    let steps = warpbench_io::learn2reg::read_voxel_field(&npz).expect("the steps");
+    let form = dir.path().join("disp_0001_0001.nii.gz");
+    warpbench_io::learn2reg::write_voxel_field_nifti(&form, &steps, &fixed_lps_from_index).expect("written");
+    for ticked in [false, true] {
+        harness.state_mut().ready_mut().expect("ready").files.fields.field = form.display().to_string();
+        if ticked {
+            harness.get_by_label("Learn2Reg steps in voxels").click_accesskit();
+            harness.run_steps(2);
+        }
+        harness.get_by_label("Use field under landmarks").click_accesskit();
+        harness.run_steps(3);
+        wait_until_rendered(&mut harness);
+        let ready = harness.state().ready().expect("ready");
+        let message = ready.files.message.clone().unwrap_or_default();
+        if ticked {
+            assert_eq!(
+                ready.document.field,
+                Some(FieldFile { path: form.clone(), voxel_grids: Some(Box::new(grids)) })
+            );
+            for (&x, want) in probes.iter().zip(&through_npz) {
+                let got = plain_at(ready, x);
+                assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-9), "{got:?} vs the .npz's {want:?}");
+            }
+        } else {
+            assert!(message.contains("disp_0001_0001.nii.gz") && message.contains("tick Learn2Reg"), "{message}");
+            assert_eq!(ready.document.field_path().and_then(|p| p.file_name()), Some("disp.npz".as_ref()));
+        }
     }
 }
 

@@ -432,7 +432,9 @@ fn the_inverse_field_undoes_the_registered_warp() {
 
 /// `--out-field` named `.npz` writes Learn2Reg's field of the same registration: read back against the pair's grids
 /// it is the pull-back of a run that writes ITK's NIfTI (the runs repeat bit for bit), within float16's rounding of
-/// the steps (2⁻¹¹ of a step, times the 2 mm voxels). With `--format ants` it exits 2 and writes nothing.
+/// the steps (2⁻¹¹ of a step, times the 2 mm voxels); `--format learn2reg` to a `.nii.gz` writes the NIfTI form,
+/// float32, within f32's rounding. With `--format ants` to an `.npz`, or `learn2reg` to a `.nrrd`, it exits 2 and
+/// writes nothing.
 #[test]
 fn an_npz_field_is_learn2regs_of_the_same_registration() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -455,10 +457,24 @@ fn an_npz_field_is_learn2regs_of_the_same_registration() {
         worst = worst.max(size);
     }
     assert!(worst > 2.0, "the registration moved the voxels (largest {worst:.2} mm)");
-    let refused = dir.path().join("ants.npz");
-    let run = register(&fixed, &moving, &pairs, &refused, &[&TINY[..], &["--format", "ants"]].concat());
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(2), "{stderr}");
-    assert!(stderr.contains("ants.npz") && stderr.contains("Learn2Reg"), "{stderr}");
-    assert!(!refused.exists());
+    let form = dir.path().join("disp_0001_0002.nii.gz");
+    let run = register(&fixed, &moving, &pairs, &form, &[&TINY[..], &["--format", "learn2reg"]].concat());
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("register JSON");
+    assert_eq!(report["format"], "learn2reg");
+    let steps = warpbench_io::learn2reg::read_voxel_field(&form).expect("the NIfTI form");
+    let read =
+        warpbench_io::learn2reg::pullback_from_voxels(&form, &steps, f.dims, &f.lps_from_index, &m.lps_from_index)
+            .expect("against the pair");
+    for (a, b) in read.displacements_lps.iter().zip(&want.displacements_lps) {
+        assert!(distance(a.map(f64::from), b.map(f64::from)) < 1e-4, "{a:?} against {b:?}");
+    }
+    for (name, format) in [("ants.npz", "ants"), ("l2r.nrrd", "learn2reg")] {
+        let refused = dir.path().join(name);
+        let run = register(&fixed, &moving, &pairs, &refused, &[&TINY[..], &["--format", format]].concat());
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(name) && stderr.contains("Learn2Reg"), "{stderr}");
+        assert!(!refused.exists());
+    }
 }

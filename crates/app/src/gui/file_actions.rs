@@ -8,7 +8,7 @@ use std::sync::Arc;
 use super::files::{self, FileAction, save_png};
 use super::{Ready, export};
 use crate::project::document::StartingTransform;
-use crate::project::field_file::FieldFile;
+use crate::project::field_file::{FieldFile, FieldReadFormat};
 use crate::project::session;
 
 /// The document's mask of one volume for Refine by intensities.
@@ -62,27 +62,8 @@ impl Ready {
             }
             // A field that cannot be read is refused here, so the document never holds one the fit would skip.
             // A Learn2Reg field keeps the grids of the pair open now, in which its steps are counted.
-            FileAction::UseField(path) => {
-                let chosen = FieldFile::chosen(path, &self.loaded.fixed, &self.loaded.moving)
-                    .map_err(|e| format!("{e:#}"))
-                    .and_then(|file| self.fit.read_field(&file).map(|()| file));
-                match chosen {
-                    Ok(file) => {
-                        let grids = if file.voxel_grids.is_some() {
-                            " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)"
-                        } else {
-                            ""
-                        };
-                        self.files.message = Some(format!(
-                            "{} is the displacement field under the landmarks{grids}",
-                            file.path.display()
-                        ));
-                        self.document.field = Some(file);
-                        self.refit_soon();
-                    }
-                    Err(e) => self.files.message = Some(e),
-                }
-            }
+            FileAction::UseField(path) => self.use_field(path, FieldReadFormat::Auto),
+            FileAction::UseLearn2RegField(path) => self.use_field(path, FieldReadFormat::Learn2reg),
             // A mask that cannot be read is refused here, so a refinement never starts from one it cannot use.
             FileAction::UseMask(side, path) => match warpbench_io::open(&path) {
                 Ok(_) => {
@@ -147,6 +128,28 @@ impl Ready {
             Ok(job) => {
                 self.files.message = None;
                 self.files.export = Some(job);
+            }
+            Err(e) => self.files.message = Some(e),
+        }
+    }
+
+    /// Puts the field at `path` under the landmarks, read as `read` says; one that cannot be read is refused in the
+    /// status bar and the document keeps what it had.
+    fn use_field(&mut self, path: std::path::PathBuf, read: FieldReadFormat) {
+        let chosen = FieldFile::chosen(path, read, &self.loaded.fixed, &self.loaded.moving)
+            .map_err(|e| format!("{e:#}"))
+            .and_then(|file| self.fit.read_field(&file).map(|()| file));
+        match chosen {
+            Ok(file) => {
+                let grids = if file.voxel_grids.is_some() {
+                    " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)"
+                } else {
+                    ""
+                };
+                self.files.message =
+                    Some(format!("{} is the displacement field under the landmarks{grids}", file.path.display()));
+                self.document.field = Some(file);
+                self.refit_soon();
             }
             Err(e) => self.files.message = Some(e),
         }

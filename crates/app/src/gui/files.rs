@@ -30,6 +30,8 @@ pub struct FileFields {
     pub screenshot: String,
     /// A displacement field to put under the landmarks.
     pub field: String,
+    /// Whether it is read as Learn2Reg's steps in voxels ("Learn2Reg steps in voxels").
+    pub field_in_voxels: bool,
     /// Masks of the fixed and the moving volume for Refine by intensities.
     pub masks: [String; 2],
     /// A starting transform's file to put under the landmarks.
@@ -55,6 +57,8 @@ pub enum FileAction {
     ExportMap(crate::jacobian::Quantity, std::path::PathBuf),
     /// Put the displacement field read from this file (ITK or ANTs NIfTI, Slicer NRRD) under the landmarks.
     UseField(std::path::PathBuf),
+    /// The same, read as Learn2Reg's steps in voxels whatever its form ([`crate::project::field_file`]).
+    UseLearn2RegField(std::path::PathBuf),
     /// Take the displacement field away.
     RemoveField,
     /// Read one volume only where this mask volume is not 0 when refining by intensities.
@@ -173,12 +177,19 @@ pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::
     let row = FileRow {
         label: "Displacement field file",
         hint: "field.nii.gz (ITK, ANTs), Composite.h5 (ANTs), field.nrrd (Slicer), deformationField.mhd or \
-               TransformParameters.1.txt (elastix)",
+               TransformParameters.1.txt (elastix), disp_0001_0002.npz (Learn2Reg)",
         use_button: "Use field under landmarks",
         remove_button: "Remove field",
         current: "Field under the landmarks",
     };
-    file_row(ui, &row, &mut fields.field, field).map(|c| match c {
+    let choice = file_row(ui, &row, &mut fields.field, field);
+    ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
+        "Read the file as Learn2Reg's field, steps from the fixed volume's voxels to the moving volume's, as open \
+         now: an (X, Y, Z, 3) NIfTI such as disp_0001_0002.nii.gz, which does not say its units (an .npz is told \
+         without it)",
+    );
+    choice.map(|c| match c {
+        RowChoice::Use(path) if fields.field_in_voxels => FileAction::UseLearn2RegField(path),
         RowChoice::Use(path) => FileAction::UseField(path),
         RowChoice::Remove => FileAction::RemoveField,
     })

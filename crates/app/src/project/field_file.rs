@@ -23,6 +23,27 @@ use warpbench_solver::spaces::{Fixed, Moving};
 
 use super::stack::FieldLayer;
 
+/// How a displacement field's file is read (`--field-format`; the window's "Learn2Reg steps in voxels").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum FieldReadFormat {
+    /// Told apart by its content: ITK, ANTs, Slicer, MetaImage, elastix, ITK HDF5, DICOM, or Learn2Reg's `.npz`.
+    #[default]
+    Auto,
+    /// Learn2Reg's field, `.npz` or its NIfTI form (an (X, Y, Z, 3) array), in the voxels of the two volumes: a NIfTI
+    /// file says nothing of its units, so it is read so only when told.
+    Learn2reg,
+}
+
+impl FieldReadFormat {
+    /// Whether the field at `path` is read as Learn2Reg's: told so, or an `.npz` by its first bytes.
+    ///
+    /// # Errors
+    /// The file cannot be opened (named).
+    pub fn is_learn2reg(self, path: &Path) -> warpbench_io::Result<bool> {
+        Ok(self == Self::Learn2reg || learn2reg::is_npz_file(path)?)
+    }
+}
+
 /// A displacement field's file under the landmark warp, with the grids of a Learn2Reg field (module docs).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(from = "Form", into = "Form")]
@@ -76,13 +97,15 @@ impl FieldFile {
         Self { path, voxel_grids: None }
     }
 
-    /// The field at `path` as chosen with `fixed` and `moving` open: a Learn2Reg field (told by content, as `warp
-    /// --field` tells it) keeps their grids. Errors name the file: one that cannot be opened.
+    /// The field at `path` as chosen with `fixed` and `moving` open: a Learn2Reg field (an `.npz` told by content, as
+    /// `warp --field` tells it, or any file `read` says is one) keeps their grids. Errors name the file: one that
+    /// cannot be opened.
     ///
     /// # Errors
     /// The file cannot be opened to read its first bytes.
-    pub fn chosen(path: PathBuf, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
-        let voxel_grids = learn2reg::is_npz_file(&path)?
+    pub fn chosen(path: PathBuf, read: FieldReadFormat, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
+        let voxel_grids = read
+            .is_learn2reg(&path)?
             .then(|| Box::new(VoxelGrids { fixed: VoxelGrid::of(fixed), moving: VoxelGrid::of(moving) }));
         Ok(Self { path, voxel_grids })
     }
