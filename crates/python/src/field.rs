@@ -9,7 +9,7 @@ use numpy::{PyArray, PyReadonlyArray2};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use warpbench_io::displacement::{self, FieldDirection, FieldSource, ReadField};
-use warpbench_io::learn2reg;
+use warpbench_io::learn2reg as l2r;
 
 use crate::errors::{self, guarded};
 use crate::volume::{lps_from_index, matrix};
@@ -27,10 +27,16 @@ pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
 /// `None`.
 ///
 /// With `pair`, the fixed and the moving grid (`(dims, lps_from_index)` each), a Learn2Reg `.npz` is read too: its
-/// voxel steps turned into the pull-back on the fixed grid (`learn2reg`, direction `pullback`).
+/// voxel steps turned into the pull-back on the fixed grid (`learn2reg`, direction `pullback`); with `learn2reg`
+/// any file is read so (the challenge's NIfTI form says nothing of its units).
 #[pyfunction]
-#[pyo3(signature = (path, pair = None))]
-pub fn read_field(py: Python<'_>, path: PathBuf, pair: Option<(Grid<'_>, Grid<'_>)>) -> PyResult<FieldParts> {
+#[pyo3(signature = (path, pair = None, learn2reg = false))]
+pub fn read_field(
+    py: Python<'_>,
+    path: PathBuf,
+    pair: Option<(Grid<'_>, Grid<'_>)>,
+    learn2reg: bool,
+) -> PyResult<FieldParts> {
     let pair = match pair {
         Some(((fixed_dims, fixed), (_, moving))) => {
             let fixed_dims: [usize; 3] = fixed_dims.try_into().map_err(|d: Vec<usize>| {
@@ -40,18 +46,22 @@ pub fn read_field(py: Python<'_>, path: PathBuf, pair: Option<(Grid<'_>, Grid<'_
         }
         None => None,
     };
-    let read = guarded(py, || match pair {
-        Some((dims, fixed, moving)) if learn2reg::is_npz_file(&path).map_err(errors::io)? => {
-            let steps = learn2reg::read_voxel_field(&path).map_err(errors::io)?;
-            let field = learn2reg::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
-            Ok(ReadField { field, source: FieldSource::Learn2Reg, direction: Some(FieldDirection::Pullback) })
+    let read = guarded(py, || {
+        let steps_in_voxels = learn2reg || l2r::is_npz_file(&path).map_err(errors::io)?;
+        match pair {
+            Some((dims, fixed, moving)) if steps_in_voxels => {
+                let steps = l2r::read_voxel_field(&path).map_err(errors::io)?;
+                let field = l2r::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
+                Ok(ReadField { field, source: FieldSource::Learn2Reg, direction: Some(FieldDirection::Pullback) })
+            }
+            None if steps_in_voxels => Err(PyValueError::new_err(format!(
+                "{}: a Learn2Reg field holds steps in the voxels of its fixed and moving images: read it with \
+                 read_field(path, fixed=..., moving=...{})",
+                path.display(),
+                if learn2reg { ", learn2reg=True" } else { "" }
+            ))),
+            _ => displacement::read_field_info(&path).map_err(errors::io),
         }
-        None if learn2reg::is_npz_file(&path).map_err(errors::io)? => Err(PyValueError::new_err(format!(
-            "{}: a Learn2Reg field (.npz) holds steps in the voxels of its fixed and moving images: read it with \
-             read_field(path, fixed=..., moving=...)",
-            path.display()
-        ))),
-        _ => displacement::read_field_info(&path).map_err(errors::io),
     })?;
     let field = read.field;
     let [ni, nj, nk] = field.dims;

@@ -268,9 +268,18 @@ impl Warp {
             <field::DirectionArg as clap::ValueEnum>::from_str(direction, true)
                 .map(FieldDirection::from)
                 .map_err(|_| PyValueError::new_err(format!("direction={direction:?}: give pullback or forward")))?;
-        let format = <warpbench_app::field::FormatArg as clap::ValueEnum>::from_str(format, true)
-            .map(FieldFormat::from)
-            .map_err(|_| PyValueError::new_err(format!("format={format:?}: give itk, ants, nrrd or metaimage")))?;
+        let format = match <warpbench_app::field::FormatArg as clap::ValueEnum>::from_str(format, true) {
+            Ok(warpbench_app::field::FormatArg::Learn2reg) => {
+                return Err(PyValueError::new_err(
+                    "format='learn2reg' is written against the moving grid: write it with `warpbench field --format \
+                     learn2reg`; here give itk, ants, nrrd or metaimage",
+                ));
+            }
+            Ok(arg) => arg.flavour(),
+            Err(_) => {
+                return Err(PyValueError::new_err(format!("format={format:?}: give itk, ants, nrrd or metaimage")));
+            }
+        };
         let (dims, lps) = grid;
         let field = guarded(py, || match direction {
             FieldDirection::Pullback => self.sample(&self.pullback, dims, &lps, direction, path.as_deref(), format),

@@ -1,15 +1,20 @@
-"""Learn2Reg's `.npz` displacement fields, through the CLI, against NumPy and SimpleITK.
+"""Learn2Reg's displacement fields (`.npz`, and the NIfTI form since 2022), through the CLI, against NumPy, nibabel
+and SimpleITK.
 
-Learn2Reg's evaluation (github.com/MDL-UzL/L2R, `evaluation/L2RTest/utils.py`) loads `arr_0` of the `.npz`, of shape
-(X, Y, Z, 3), and maps a fixed voxel index i to the moving voxel index i + d[i]. Here the fixed volume (16×14×12 at
-2 mm) and the moving one (16³ at 2.5 mm) have different grids, so a step in voxels is not one in mm:
+Learn2Reg's evaluation (github.com/MDL-UzL/L2R, `evaluation/L2RTest/utils.py`; `evaluation/evaluation.py` since 2022
+with `nib.load(disp_path).get_fdata()`) loads an array of shape (X, Y, Z, 3) and maps a fixed voxel index i to the
+moving voxel index i + d[i]. Here the fixed volume (16×14×12 at 2 mm) and the moving one (16³ at 2.5 mm) have
+different grids, so a step in voxels is not one in mm:
 
-- `warpbench field --out disp.npz` writes what NumPy loads as float16 `arr_0`, and each step is SimpleITK's moving
-  continuous index of x + D(x), with D the ITK field `warpbench field` writes, minus the fixed index;
-- `warpbench warp --field` of a field NumPy wrote resamples as SimpleITK does through the same steps turned into
-  mm by SimpleITK's geometry;
+- `warpbench field --out disp.npz` writes what NumPy loads as float16 `arr_0`, and `--format learn2reg --out
+  disp.nii.gz` what nibabel loads as a float32 (X, Y, Z, 3) array with the fixed image's affine; each step is
+  SimpleITK's moving continuous index of x + D(x), with D the ITK field `warpbench field` writes, minus the fixed
+  index;
+- `warpbench warp --field` of a field NumPy or nibabel wrote resamples as SimpleITK does through the same steps
+  turned into mm by SimpleITK's geometry (the NIfTI form only with `--field-format learn2reg`);
 - Python's `read_field` given the two volumes reads the steps to SimpleITK's mm field;
-- the readers that are not given the pair refuse an `.npz`, naming it and the command that reads it.
+- the readers that are not given the pair refuse an `.npz`, and every reader a NIfTI form it is not told of, naming
+  the file and how to read it.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import warpbench as wb
 from conftest import FIXED, MOVING, cli_json, run_cli
 
 sitk = pytest.importorskip("SimpleITK")
+nib = pytest.importorskip("nibabel")
 
 
 def indices(shape):
@@ -63,6 +69,18 @@ def test_field_writes_the_steps_simpleitk_computes_from_the_itk_field(tmp_path):
     np.testing.assert_allclose(steps.astype(np.float64), want, rtol=2.0**-11, atol=1e-4)
     assert np.abs(want).max() > 1.0, "the steps must be more than the grid change"
 
+    # The NIfTI form since 2022: what nibabel loads, float32 (X, Y, Z, 3) with the fixed image's affine.
+    form = tmp_path / "disp_0001_0002.nii.gz"
+    args = ("field", "--fixed", FIXED, "--moving", MOVING, "--landmarks", landmarks, "--format", "learn2reg")
+    summary = cli_json(*args, "--out", form)
+    assert summary["format"] == "learn2reg"
+    image = nib.load(form)
+    assert image.header["dim"][0] == 4 and image.header["intent_code"] == 0 and image.get_data_dtype() == np.float32
+    np.testing.assert_allclose(image.affine, nib.load(FIXED).affine, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(image.get_fdata(), want, rtol=0, atol=1e-4)
+    done = run_cli(*args, "--out", tmp_path / "disp.nrrd", expect=2)
+    assert "disp.nrrd" in done.stderr and ".nii.gz" in done.stderr
+
 
 def test_warp_reads_a_numpy_field_as_simpleitk_resamples_through_it(tmp_path):
     fixed, moving = sitk.ReadImage(str(FIXED), sitk.sitkFloat64), sitk.ReadImage(str(MOVING), sitk.sitkFloat64)
@@ -89,29 +107,41 @@ def test_warp_reads_a_numpy_field_as_simpleitk_resamples_through_it(tmp_path):
     transform = sitk.DisplacementFieldTransform(image)
     want = sitk.GetArrayFromImage(sitk.Resample(moving, fixed, transform, sitk.sitkLinear, 0.0)).transpose(2, 1, 0)
 
-    out = tmp_path / "warped.nii.gz"
-    run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", npz, "--exact", "--float", "--out", out, "--quiet")
-    got = sitk.GetArrayFromImage(sitk.ReadImage(str(out))).transpose(2, 1, 0)
-    # At each fixed voxel centre both read the moving volume at the same point, trilinearly: f32 arithmetic apart.
+    # The same steps in the NIfTI form, as the challenge's zero fields are saved (float32, the identity affine).
+    form = tmp_path / "disp_0001_0002.nii.gz"
+    nib.save(nib.Nifti1Image(steps.astype(np.float32), np.eye(4)), form)
+    read = wb.read_field(form, fixed=wb.read_volume(FIXED), moving=wb.read_volume(MOVING), learn2reg=True)
+    assert read.source == "learn2reg"
+    np.testing.assert_allclose(read.array, mm, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match=r"disp_0001_0002\.nii\.gz.*Learn2Reg.*learn2reg=True"):
+        wb.read_field(form)
+
     scale = np.abs(want).max()
     assert scale > 0
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4 * scale)
+    for field, extra in ((npz, ()), (form, ("--field-format", "learn2reg"))):
+        out = tmp_path / "warped.nii.gz"
+        run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", field, *extra, "--exact", "--float",
+                "--out", out, "--quiet", "--force")
+        got = sitk.GetArrayFromImage(sitk.ReadImage(str(out))).transpose(2, 1, 0)
+        # At each fixed voxel centre both read the moving volume at the same point, trilinearly: f32 arithmetic apart.
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-4 * scale)
     assert np.abs(steps).max() > 1.0
+    done = run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", form, "--out", tmp_path / "w.nii.gz",
+                   expect=2)
+    assert "disp_0001_0002.nii.gz" in done.stderr and "--field-format learn2reg" in done.stderr
 
 
-def test_readers_without_the_pair_refuse_an_npz_by_name(tmp_path):
+def test_readers_without_the_pair_refuse_an_npz_and_a_wrong_shape_by_name(tmp_path):
     npz = tmp_path / "disp.npz"
     np.savez_compressed(npz, np.zeros((16, 14, 12, 3), np.float16))
     with pytest.raises(ValueError, match=r"disp\.npz: a Learn2Reg field .* read_field\(path, fixed=\.\.\., moving=\.\.\.\)"):
         wb.read_field(npz)
     with pytest.raises(ValueError, match=r"disp\.npz: give both fixed and moving"):
         wb.read_field(npz, fixed=wb.read_volume(FIXED))
-    done = run_cli("render", "--fixed", FIXED, "--moving", MOVING, "--field", npz, "--out", tmp_path / "r.png",
-                   expect=2)
-    assert "disp.npz" in done.stderr and "Learn2Reg" in done.stderr
     wrong = tmp_path / "wrong.npz"
     np.savez_compressed(wrong, np.zeros((16, 14, 11, 3), np.float16))
-    done = run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", wrong, "--out", tmp_path / "w.nii.gz",
-                   expect=2)
-    assert "wrong.npz" in done.stderr and "[16, 14, 11]" in done.stderr and "[16, 14, 12]" in done.stderr
-    assert not (tmp_path / "w.nii.gz").exists()
+    for command, out in (("warp", "w.nii.gz"), ("render", "r.png")):
+        done = run_cli(command, "--fixed", FIXED, "--moving", MOVING, "--field", wrong, "--out", tmp_path / out,
+                       expect=2)
+        assert "wrong.npz" in done.stderr and "[16, 14, 11]" in done.stderr and "[16, 14, 12]" in done.stderr
+        assert not (tmp_path / out).exists()

@@ -210,20 +210,24 @@ class Field:
         return tuple(int(n) for n in self.array.shape[:3])  # type: ignore[return-value]
 
 
-def read_field(path: PathLike, fixed: Optional[Volume] = None, moving: Optional[Volume] = None) -> Field:
+def read_field(
+    path: PathLike, fixed: Optional[Volume] = None, moving: Optional[Volume] = None, learn2reg: bool = False
+) -> Field:
     """Reads a displacement field as ``warpbench warp --field`` reads it: ITK's or ANTs' NIfTI, Slicer's NRRD, a
     MetaImage vector image (transformix's ``deformationField.mhd``), or an elastix transform parameter file
     (``TransformParameters.N.txt`` and the files it names), sampled at every voxel centre of its fixed grid as
     ``transformix -def all`` would write it, or ITK's HDF5 transform file holding a displacement field (ANTs'
     ``Composite.h5``: the affine and the field together), sampled on that field's grid.
 
-    A Learn2Reg ``.npz`` (``arr_0``: steps from the fixed image's voxels to the moving image's) needs the two
-    volumes it was made for, ``fixed`` and ``moving``: it is read as the pull-back on the fixed grid, in LPS mm, with
-    ``source`` ``"learn2reg"``. Without them it raises ``ValueError``."""
+    A Learn2Reg field (steps from the fixed image's voxels to the moving image's) needs the two volumes it was made
+    for, ``fixed`` and ``moving``: it is read as the pull-back on the fixed grid, in LPS mm, with ``source``
+    ``"learn2reg"``. An ``.npz`` is told by its content; the NIfTI form the challenge takes since 2022 (an (X, Y, Z, 3)
+    array, ``disp_XXXX_YYYY.nii.gz``) says nothing of its units, so it is read so only with ``learn2reg=True``. Without
+    the volumes either raises ``ValueError``."""
     if (fixed is None) != (moving is None):
         raise ValueError(f"{os.fspath(path)}: give both fixed and moving, or neither")
     pair = None if fixed is None or moving is None else (fixed._grid(), moving._grid())
-    array, lps, source, direction = _warpbench.read_field(os.fspath(path), pair)
+    array, lps, source, direction = _warpbench.read_field(os.fspath(path), pair, learn2reg)
     return Field(array, lps, source, direction)
 
 

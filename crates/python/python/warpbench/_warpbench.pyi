@@ -16,6 +16,7 @@ def write_volume(
 def read_field(
     path: str,
     pair: Optional[Tuple[Tuple[List[int], npt.NDArray[np.float64]], Tuple[List[int], npt.NDArray[np.float64]]]] = None,
+    learn2reg: bool = False,
 ) -> Tuple[np.ndarray, npt.NDArray[np.float64], str, Optional[str]]: ...
 def read_landmarks(
     path: str, fixed_path: Optional[str] = None, ras: bool = False
