@@ -261,7 +261,13 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field_reporting(grid, &made_of, direction, quiet)?;
     if learn2reg {
-        write_learn2reg(&output.path, field.dims, &field.lps_from_index, &moving, &field.displacements_lps)?;
+        write_learn2reg(
+            &output.path,
+            field.dims,
+            &field.lps_from_index,
+            &moving.lps_from_index,
+            &field.displacements_lps,
+        )?;
         if let Some(path) = &tfm {
             write_field_transform(&field, path)?;
         }
@@ -569,8 +575,8 @@ pub(crate) fn check_learn2reg_output(
 
 /// Writes pull-back displacements sampled on the fixed grid (`dims`, `fixed_lps_from_index`; LPS mm, i fastest) as
 /// Learn2Reg's field at `out` ([`learn2reg::voxels_from_pullback`]: each fixed voxel's step to the moving voxel it
-/// reads, in the voxels of the fixed grid and of `moving`), atomically: `.npz` (float16) for a name ending so, else
-/// the NIfTI form (float32, the fixed grid's affine).
+/// reads, in the voxels of the fixed grid and of the moving grid, `moving_lps_from_index`), atomically: `.npz`
+/// (float16) for a name ending so, else the NIfTI form (float32, the fixed grid's affine).
 ///
 /// # Errors
 /// A step beyond float16's range in an `.npz`, a singular moving grid, a failed write.
@@ -578,11 +584,11 @@ pub fn write_learn2reg(
     out: &Path,
     dims: [usize; 3],
     fixed_lps_from_index: &Transform<Lps, Index>,
-    moving: &Volume,
+    moving_lps_from_index: &Transform<Lps, Index>,
     displacements_lps: &[[f32; 3]],
 ) -> Result<(), Failure> {
     let steps =
-        learn2reg::voxels_from_pullback(out, dims, fixed_lps_from_index, &moving.lps_from_index, displacements_lps)?;
+        learn2reg::voxels_from_pullback(out, dims, fixed_lps_from_index, moving_lps_from_index, displacements_lps)?;
     if learn2reg::is_npz_name(out) {
         Ok(learn2reg::write_voxel_field(out, &steps)?)
     } else {

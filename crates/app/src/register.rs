@@ -623,7 +623,13 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         return Err(Failure::Internal(anyhow!("the registered warp is not finite somewhere in the fixed grid")));
     };
     if learn2reg {
-        crate::field::write_learn2reg(&out_field, dims, &lps_from_index, &moving_volume, &sampled.displacements_lps)?;
+        crate::field::write_learn2reg(
+            &out_field,
+            dims,
+            &lps_from_index,
+            &moving_volume.lps_from_index,
+            &sampled.displacements_lps,
+        )?;
     } else {
         crate::field::write_displacements(
             &out_field,

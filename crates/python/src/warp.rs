@@ -78,6 +78,15 @@ fn geometry_volume(name: &Path, (dims, lps): &Grid) -> PyResult<Volume> {
 }
 
 /// `(dims, lps_from_index)` from Python.
+/// Where [`Warp::field`] writes the field it samples, and how.
+enum Written<'a> {
+    Nothing,
+    /// A file of an image flavour.
+    Flavour(&'a Path, FieldFormat),
+    /// Learn2Reg's field, in the voxels of the moving grid given (`lps_from_index`).
+    Learn2Reg(&'a Path, Transform<Lps, Index>),
+}
+
 fn grid(name: &Path, (dims, lps): (Vec<usize>, PyReadonlyArray2<'_, f64>)) -> PyResult<Grid> {
     let dims: [usize; 3] = dims
         .try_into()
@@ -253,8 +262,10 @@ impl Warp {
 
     /// The displacement field on `reference` (`(dims, lps_from_index)`): u(x) − x (`direction="pullback"`) or
     /// d(y) − y (`"forward"`) at every voxel centre, as a (ni, nj, nk, 3) float32 array of LPS vectors, written to
-    /// `path` in `format` (`itk`, `ants`, `nrrd`, `metaimage`) when given, as `warpbench field` writes it.
-    #[pyo3(signature = (reference, direction = "pullback", path = None, format = "itk"))]
+    /// `path` in `format` (`itk`, `ants`, `nrrd`, `metaimage`, `learn2reg`) when given, as `warpbench field` writes it.
+    /// Learn2Reg's field (`learn2reg`, or a `path` ending `.npz`) is the pull-back's steps from `reference`'s voxels to
+    /// those of `moving` (`(dims, lps_from_index)`), which it needs.
+    #[pyo3(signature = (reference, direction = "pullback", path = None, format = "itk", moving = None))]
     fn field(
         &self,
         py: Python<'_>,
@@ -262,28 +273,40 @@ impl Warp {
         direction: &str,
         path: Option<PathBuf>,
         format: &str,
+        moving: Option<(Vec<usize>, PyReadonlyArray2<'_, f64>)>,
     ) -> PyResult<Py<PyAny>> {
-        let grid = grid(Path::new("reference"), reference)?;
+        let (dims, lps) = grid(Path::new("reference"), reference)?;
+        let moving = moving.map(|m| grid(Path::new("moving"), m)).transpose()?;
         let direction =
             <field::DirectionArg as clap::ValueEnum>::from_str(direction, true)
                 .map(FieldDirection::from)
                 .map_err(|_| PyValueError::new_err(format!("direction={direction:?}: give pullback or forward")))?;
-        let format = match <warpbench_app::field::FormatArg as clap::ValueEnum>::from_str(format, true) {
-            Ok(warpbench_app::field::FormatArg::Learn2reg) => {
-                return Err(PyValueError::new_err(
-                    "format='learn2reg' is written against the moving grid: write it with `warpbench field --format \
-                     learn2reg`; here give itk, ants, nrrd or metaimage",
-                ));
+        let arg = <field::FormatArg as clap::ValueEnum>::from_str(format, true).map_err(|_| {
+            PyValueError::new_err(format!("format={format:?}: give itk, ants, nrrd, metaimage or learn2reg"))
+        })?;
+        let to = match &path {
+            Some(path) if arg.is_learn2reg(path) => {
+                let Some((_, moving_lps)) = moving else {
+                    return Err(PyValueError::new_err(format!(
+                        "{}: Learn2Reg's field holds steps into the moving volume's voxels: fit the warp with moving=",
+                        path.display()
+                    )));
+                };
+                if direction == FieldDirection::Forward {
+                    return Err(PyValueError::new_err(format!(
+                        "{}: Learn2Reg's field maps fixed voxels to moving ones (the pull-back): leave out \
+                         direction=\"forward\"",
+                        path.display()
+                    )));
+                }
+                Written::Learn2Reg(path, moving_lps)
             }
-            Ok(arg) => arg.flavour(),
-            Err(_) => {
-                return Err(PyValueError::new_err(format!("format={format:?}: give itk, ants, nrrd or metaimage")));
-            }
+            Some(path) => Written::Flavour(path, arg.flavour()),
+            None => Written::Nothing,
         };
-        let (dims, lps) = grid;
         let field = guarded(py, || match direction {
-            FieldDirection::Pullback => self.sample(&self.pullback, dims, &lps, direction, path.as_deref(), format),
-            FieldDirection::Forward => self.sample(&self.forward, dims, &lps, direction, path.as_deref(), format),
+            FieldDirection::Pullback => self.sample(&self.pullback, dims, &lps, direction, &to),
+            FieldDirection::Forward => self.sample(&self.forward, dims, &lps, direction, &to),
         })?;
         let mut flat = Vec::with_capacity(3 * field.displacements_lps.len());
         for a in 0..3 {
@@ -464,7 +487,7 @@ impl Warp {
                     .map_err(|f| to_py(&f))?;
                 return Ok(kind.name().to_owned());
             }
-            let field = self.sample(&self.pullback, dims, &lps, FieldDirection::Pullback, None, FieldFormat::Itk)?;
+            let field = self.sample(&self.pullback, dims, &lps, FieldDirection::Pullback, &Written::Nothing)?;
             transform::write_deformable_registration(&path, &fixed, &moving, &field).map_err(|f| to_py(&f))?;
             Ok("DEFORMABLE".to_owned())
         })
@@ -516,10 +539,12 @@ impl Warp {
         dims: [usize; 3],
         lps: &Transform<Lps, Index>,
         direction: FieldDirection,
-        path: Option<&Path>,
-        format: FieldFormat,
+        to: &Written<'_>,
     ) -> PyResult<Field> {
-        let out = path.unwrap_or(Path::new("field"));
+        let out = match to {
+            Written::Flavour(path, _) | Written::Learn2Reg(path, _) => path,
+            Written::Nothing => Path::new("field"),
+        };
         warpbench_io::volume::check_allocation(out, dims, 12, warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES)
             .map_err(io)?;
         let sampled = field::sample_displacements(warp, dims, lps, &mut |_, _| true)
@@ -546,8 +571,12 @@ impl Warp {
             transform,
             warnings: fit::fit_warnings(&self.method, &self.used),
         };
-        if let Some(path) = path {
-            field::write_field(&field, path, format, None).map_err(|f| to_py(&f))?;
+        match to {
+            Written::Flavour(path, format) => field::write_field(&field, path, *format, None).map_err(|f| to_py(&f))?,
+            Written::Learn2Reg(path, moving_lps) => {
+                field::write_learn2reg(path, dims, lps, moving_lps, &field.displacements_lps).map_err(|f| to_py(&f))?;
+            }
+            Written::Nothing => {}
         }
         Ok(field)
     }

@@ -145,3 +145,27 @@ def test_readers_without_the_pair_refuse_an_npz_and_a_wrong_shape_by_name(tmp_pa
                        expect=2)
         assert "wrong.npz" in done.stderr and "[16, 14, 11]" in done.stderr and "[16, 14, 12]" in done.stderr
         assert not (tmp_path / out).exists()
+
+
+def test_python_writes_both_forms_as_the_cli_does(tmp_path):
+    """`Warp.field(path=…, format="learn2reg")` (or a path ending .npz) writes the bytes `warpbench field` writes for
+    the same pairs: the .npz byte for byte (it stamps no time), the NIfTI form to the same steps; without the moving
+    volume, or for the forward direction, it raises ValueError naming the file."""
+    landmarks = pairs(tmp_path)
+    fixed, moving = wb.read_volume(FIXED), wb.read_volume(MOVING)
+    warp = wb.fit(wb.read_landmarks(landmarks), "tps", fixed=fixed, moving=moving)
+    for name, extra in (("disp.npz", ()), ("disp.nii.gz", ("--format", "learn2reg"))):
+        ours, theirs = tmp_path / f"py_{name}", tmp_path / f"cli_{name}"
+        warp.field(path=ours, format="learn2reg" if extra else "itk")
+        run_cli("field", "--fixed", FIXED, "--moving", MOVING, "--landmarks", landmarks, *extra, "--out", theirs,
+                "--quiet")
+        if name.endswith(".npz"):
+            assert ours.read_bytes() == theirs.read_bytes()
+        else:
+            np.testing.assert_allclose(nib.load(ours).get_fdata(), nib.load(theirs).get_fdata(), rtol=0, atol=1e-5)
+            np.testing.assert_allclose(nib.load(ours).affine, nib.load(theirs).affine, rtol=0, atol=1e-6)
+    alone = wb.fit(wb.read_landmarks(landmarks), "tps")
+    with pytest.raises(ValueError, match=r"alone\.npz: Learn2Reg's field .* moving="):
+        alone.field(fixed, path=tmp_path / "alone.npz")
+    with pytest.raises(ValueError, match=r"fwd\.nii\.gz: Learn2Reg's field maps fixed voxels"):
+        warp.field(moving, direction="forward", path=tmp_path / "fwd.nii.gz", format="learn2reg")

@@ -302,7 +302,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             };
             let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
             if direction == FieldDirection::Pullback && learn2reg::is_npz_name(out) {
-                field::write_learn2reg(out, f.dims, &f.lps_from_index, moving, &f.displacements_lps)?;
+                field::write_learn2reg(out, f.dims, &f.lps_from_index, &moving.lps_from_index, &f.displacements_lps)?;
             } else {
                 let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
                 field::write_field(&f, out, format, None)?;

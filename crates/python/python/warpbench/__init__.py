@@ -346,13 +346,19 @@ class Warp:
         one for ``"forward"``): u(x) − x or d(y) − y, shape (ni, nj, nk, 3), float32 LPS vectors. With ``path``
         it is also written in ``format`` (``"itk"``: NIfTI DISPVECT, ``"ants"``, ``"nrrd"``, ``"metaimage"``: .mha or
         .mhd, as elastix writes fields), as ``warpbench field`` writes it; a ``path`` ending ``.h5`` (with ``"itk"``)
-        is ITK's HDF5 transform file holding the field as a DisplacementFieldTransform."""
+        is ITK's HDF5 transform file holding the field as a DisplacementFieldTransform. ``"learn2reg"`` (or a ``path``
+        ending ``.npz``) writes Learn2Reg's field, the pull-back's steps from the reference's voxels to the moving
+        volume's (``.npz`` float16, or ``.nii.gz`` float32), which needs the warp fitted with ``moving=``."""
         if reference is None:
             reference = self.fixed if direction == "pullback" else self.moving
         if reference is None:
             raise ValueError("field: give reference=, or fit the warp with fixed= and moving=")
         return self._native.field(
-            reference._grid(), direction, None if path is None else os.fspath(path), format
+            reference._grid(),
+            direction,
+            None if path is None else os.fspath(path),
+            format,
+            None if self.moving is None else self.moving._grid(),
         )
 
     def jacobian(

@@ -57,7 +57,12 @@ class Warp:
     def forward(self, points: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]: ...
     def jacobian(self, reference: Grid, quantity: str = "det") -> npt.NDArray[np.float32]: ...
     def field(
-        self, reference: Grid, direction: str = "pullback", path: Optional[str] = None, format: str = "itk"
+        self,
+        reference: Grid,
+        direction: str = "pullback",
+        path: Optional[str] = None,
+        format: str = "itk",
+        moving: Optional[Grid] = None,
     ) -> npt.NDArray[np.float32]: ...
     def resample(
         self,
