@@ -263,7 +263,7 @@ ELASTIX_FILES = [
 
 # ITK's thin-plate-spline transform files, ITK's class and 3D Slicer's, written by ITK's Python wheels.
 ITK_MADE = """
-## `itk/tps_*`, `itk/slicer_tps_reference.json` and `itk/h5_field_slicer_inverse.h5`: 3D Slicer's classes
+## `itk/tps_*`, `itk/slicer_tps_reference.json`, `itk/h5_field_slicer_inverse.h5` and `itk/h5_composite_slicer_inverse.*`: 3D Slicer's classes
 
 Not downloaded: `data-scripts/slicer_transforms.py` has ITK 5.4.7 (PyPI wheels `itk-core`, `itk-numerics`,
 `itk-filtering` and `itk-io` 5.4.7 in `data-cache/venv`) write a `ThinPlateSplineKernelTransform` through landmarks
@@ -274,7 +274,11 @@ name, `InverseThinPlateSplineKernelTransform_double_3_3`, put in by the script (
 and ITK's `TransformPoint` of both splines at 60 query points. The values are deterministic, but HDF5 stamps the
 objects it writes with the time, so a rerun's `.h5` bytes differ. `itk/h5_field_slicer_inverse.h5` is SimpleITK's
 `itk/h5_field.h5` (listed above) with its class renamed by the same script to Slicer's `InverseDisplacementFieldTransform`.
-They carry the licence of the code.
+`itk/h5_composite_slicer_inverse.h5` is ITK's `CompositeTransform` of an affine, a B-spline and a displacement field
+(values the script makes up, seeded), written by `data-scripts/slicer_inverse_composite.py` with the same wheels,
+the B-spline's and the field's classes then renamed to Slicer's `InverseBSplineTransform` and
+`InverseDisplacementFieldTransform`; `itk/h5_composite_slicer_inverse.json` holds seeded points and ITK's
+`TransformPoint` of the plain members there. They carry the licence of the code.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -286,6 +290,8 @@ ITK_FILES = [
     ("itk/tps_slicer.h5", "slicer_transforms.py"),
     ("itk/slicer_tps_reference.json", "slicer_transforms.py"),
     ("itk/h5_field_slicer_inverse.h5", "slicer_transforms.py"),
+    ("itk/h5_composite_slicer_inverse.h5", "slicer_inverse_composite.py"),
+    ("itk/h5_composite_slicer_inverse.json", "slicer_inverse_composite.py"),
 ]
 
 # plastimatch's DICOM Spatial Registration, the peer the REG writer is compared with.

@@ -31,11 +31,13 @@
 //!
 //! Points are in LPS mm, as in every ITK file, and the transform maps the output (fixed) space to the input
 //! (moving) one: a pull-back, `moving_from_fixed`. 3D Slicer's `Inverse…` classes (a transform saved in its
-//! modeling direction: Slicer reads the class's transform and inverts it) are refused as transforms, with a message
-//! that says how to save the transform so that it can be read, with two exceptions: [`read_field`] reads a file
-//! holding only an `InverseDisplacementFieldTransform` as the **forward** field it is (its vectors map a moving point
-//! y to the fixed point y + D(y)), and the landmarks of an `InverseThinPlateSplineKernelTransform` are read as pairs,
-//! as those of ITK's spline ([`crate::landmarks`]).
+//! modeling direction: Slicer's `vtkITKTransformInverse.h` stores the parameters of a transform S, and the transform
+//! meant is S⁻¹) are read for B-splines and displacement fields, in a composite or alone, as [`ItkStep::Inverse`]:
+//! S⁻¹(x) found point by point ([`inverse_point`]), as Slicer's VTK inverts them. [`read_field`] reads a file holding
+//! only an `InverseDisplacementFieldTransform` as the **forward** field it is (its vectors map a moving point y to
+//! the fixed point y + D(y)), which its caller inverts over the whole grid; the landmarks of an
+//! `InverseThinPlateSplineKernelTransform` are read as pairs, as those of ITK's spline ([`crate::landmarks`]); its
+//! other classes are refused, with a message that says how to save the transform so that it can be read.
 //!
 //! Checked against SimpleITK 2.5.7 (`crates/io/tests/itk_h5.rs`; `tests/data/itk/h5_*.h5` written by SimpleITK, and
 //! what its `TransformPoint` and `TransformToDisplacementField` give for them).
@@ -62,7 +64,7 @@ use crate::displacement::{FieldDirection, FieldSource, ReadField};
 use crate::elastix::{FieldInterpolation, FieldStep};
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Point3, Transform};
-use crate::itk_tfm::{ItkAffine, ItkTransform, known_types, transform_of};
+use crate::itk_tfm::{ItkAffine, ItkBSpline, ItkTransform, known_types, transform_of};
 use crate::nifti::DisplacementField;
 use crate::volume::{self, GeometrySource};
 
@@ -79,6 +81,10 @@ const COMPOSITE_TYPES: [&str; 2] = ["CompositeTransform_double_3_3", "CompositeT
 /// space to the fixed one (module docs).
 const SLICER_INVERSE_FIELD_TYPES: [&str; 2] =
     ["InverseDisplacementFieldTransform_double_3_3", "InverseDisplacementFieldTransform_float_3_3"];
+
+/// 3D Slicer's class for a B-spline held in its modeling direction: the transform meant is the spline's inverse.
+const SLICER_INVERSE_BSPLINE_TYPES: [&str; 2] =
+    ["InverseBSplineTransform_double_3_3", "InverseBSplineTransform_float_3_3"];
 
 /// The longest file read: a displacement field of 256³ voxels in doubles is 400 MB.
 const MAX_FILE_BYTES: u64 = 4 << 30;
@@ -99,10 +105,39 @@ pub enum ItkStep {
     Transform(ItkTransform),
     /// A `DisplacementFieldTransform`.
     Field(Box<FieldStep>),
+    /// 3D Slicer's `InverseBSplineTransform` or `InverseDisplacementFieldTransform` in a composite: the inverse of
+    /// the B-spline or field its parameters describe (module docs), found point by point.
+    Inverse(InverseStep),
+}
+
+/// What a 3D Slicer `Inverse…` class holds: the transform whose inverse it stands for.
+#[derive(Clone, Debug, PartialEq)]
+pub enum InverseStep {
+    BSpline(ItkBSpline),
+    Field(Box<FieldStep>),
+}
+
+impl InverseStep {
+    /// The forward map S(y) whose inverse the step is, LPS mm.
+    fn forward(&self, y: [f64; 3]) -> [f64; 3] {
+        match self {
+            Self::BSpline(b) => b.apply(y),
+            Self::Field(f) => f.apply(y),
+        }
+    }
+
+    /// Slicer's class for it (the `_double_3_3` one).
+    #[must_use]
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            Self::BSpline(_) => SLICER_INVERSE_BSPLINE_TYPES[0],
+            Self::Field(_) => SLICER_INVERSE_FIELD_TYPES[0],
+        }
+    }
 }
 
 impl ItkStep {
-    /// T(x), LPS mm.
+    /// T(x), LPS mm ([`inverse_point`] for [`Self::Inverse`]).
     fn apply(&self, x: [f64; 3]) -> [f64; 3] {
         match self {
             Self::Transform(ItkTransform::Affine(a)) => a.apply(x),
@@ -110,8 +145,66 @@ impl ItkStep {
             // `read` refuses a thin-plate spline: it has no weights until it is fitted again.
             Self::Transform(ItkTransform::ThinPlateSpline(_)) => x,
             Self::Field(f) => f.apply(x),
+            Self::Inverse(step) => inverse_point(|y| step.forward(y), x),
         }
     }
+}
+
+/// How close T(y) must come to x for y to be T⁻¹(x), mm: far below any image's precision, and reached in a few
+/// Newton steps by a smooth transform.
+const INVERSE_TOLERANCE_MM: f64 = 1e-6;
+
+/// The most Newton steps [`inverse_point`] takes.
+const INVERSE_ITERATIONS: usize = 100;
+
+/// y with S(y) = x within [`INVERSE_TOLERANCE_MM`], S = `forward`, by Newton's method from the better of x and
+/// x − (S(x) − x), on a central-difference Jacobian (h = 10⁻³ mm), each step halved until the residual falls. Where
+/// it does not converge (at a jump of S: ITK's B-spline and field are the identity outside their domain, so S jumps
+/// at its edge; or where S folds), the point of least residual found, as VTK gives its last estimate there
+/// (`vtkWarpTransform::InverseTransformPoint`, which inverts Slicer's warps to a looser 10⁻³ mm).
+fn inverse_point(forward: impl Fn([f64; 3]) -> [f64; 3], x: [f64; 3]) -> [f64; 3] {
+    const H: f64 = 1e-3;
+    let residual = |y: [f64; 3]| -> [f64; 3] {
+        let t = forward(y);
+        [t[0] - x[0], t[1] - x[1], t[2] - x[2]]
+    };
+    let norm = |r: [f64; 3]| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+    let at_x = residual(x);
+    let guess = [x[0] - at_x[0], x[1] - at_x[1], x[2] - at_x[2]];
+    let at_guess = residual(guess);
+    // Each step taken lowers the residual, so (y, r) is always the best point found.
+    let (mut y, mut r) = if norm(at_guess) < norm(at_x) { (guess, at_guess) } else { (x, at_x) };
+    for _ in 0..INVERSE_ITERATIONS {
+        let size = norm(r);
+        if size.is_nan() || size <= INVERSE_TOLERANCE_MM {
+            break;
+        }
+        let mut jacobian = Matrix3::zeros();
+        for a in 0..3 {
+            let (mut up, mut down) = (y, y);
+            up[a] += H;
+            down[a] -= H;
+            let (tu, td) = (forward(up), forward(down));
+            for c in 0..3 {
+                jacobian[(c, a)] = (tu[c] - td[c]) / (2.0 * H);
+            }
+        }
+        let Some(delta) = jacobian.lu().solve(&Vector3::from(r)) else { break };
+        let mut t = 1.0;
+        while t >= 1e-6 {
+            let next = [y[0] - t * delta[0], y[1] - t * delta[1], y[2] - t * delta[2]];
+            let rn = residual(next);
+            if norm(rn) < size {
+                (y, r) = (next, rn);
+                break;
+            }
+            t *= 0.5;
+        }
+        if t < 1e-6 {
+            break;
+        }
+    }
+    y
 }
 
 /// The transforms of an `.h5` file in the file's order (a composite's members; one for a file of one transform).
@@ -139,6 +232,7 @@ impl ItkChain {
                 ItkStep::Transform(ItkTransform::Affine(a)) => a,
                 ItkStep::Transform(t) => return Err(t.type_name()),
                 ItkStep::Field(_) => return Err(FIELD_TYPES[0]),
+                ItkStep::Inverse(inner) => return Err(inner.type_name()),
             };
             offset = a.matrix * offset + Vector3::from(a.offset());
             matrix = a.matrix * matrix;
@@ -150,8 +244,8 @@ impl ItkChain {
     /// starts from, where [`read_field`] samples it.
     fn innermost_field(&self) -> Option<&FieldStep> {
         self.steps.iter().rev().find_map(|s| match s {
-            ItkStep::Field(f) => Some(f.as_ref()),
-            ItkStep::Transform(_) => None,
+            ItkStep::Field(f) | ItkStep::Inverse(InverseStep::Field(f)) => Some(f.as_ref()),
+            ItkStep::Inverse(InverseStep::BSpline(_)) | ItkStep::Transform(_) => None,
         })
     }
 }
@@ -185,15 +279,29 @@ pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<ItkChain> {
 fn chain_of(path: &Path, file: &File, members: Vec<Member>) -> Result<ItkChain> {
     let mut steps = Vec::with_capacity(members.len());
     for Member { group, kind } in members {
+        if SLICER_INVERSE_BSPLINE_TYPES.contains(&kind.as_str()) || SLICER_INVERSE_FIELD_TYPES.contains(&kind.as_str())
+        {
+            let plain = kind.strip_prefix("Inverse").unwrap_or(&kind);
+            let inverse = match read_step(path, file, &group, plain)? {
+                ItkStep::Transform(ItkTransform::BSpline(b)) => InverseStep::BSpline(b),
+                ItkStep::Field(f) => InverseStep::Field(f),
+                _ => {
+                    return Err(Error::invalid(
+                        path,
+                        format!("{group} is {kind}, but its parameters are not a {plain}"),
+                    ));
+                }
+            };
+            steps.push(ItkStep::Inverse(inverse));
+            continue;
+        }
         if let Some(plain) = kind.strip_prefix("Inverse") {
             return Err(Error::unsupported(
                 path,
                 format!(
-                    "{group} is {kind}, 3D Slicer's {plain} saved in its modeling direction, which warpbench does not \
-                     read as a transform here; a file holding only such a displacement field is read as a field \
-                     (--field, the forward map), a thin-plate spline's landmarks as pairs (--landmarks); otherwise, \
-                     in Slicer, invert the transform (or harden it) before saving, or save the displacement field \
-                     as a .nrrd"
+                    "{group} is {kind}, 3D Slicer's {plain} saved in its modeling direction, which warpbench reads \
+                     only for B-splines and displacement fields; a thin-plate spline's landmarks are read as pairs \
+                     (--landmarks); otherwise, in Slicer, invert the transform (or harden it) before saving"
                 ),
             ));
         }
@@ -475,6 +583,8 @@ pub enum H5Transform<'a> {
         /// D at each voxel centre, LPS mm, i fastest.
         displacements_lps: &'a [[f32; 3]],
     },
+    /// 3D Slicer's `Inverse…` class of a B-spline or a field (module docs), written under that class.
+    Inverse(&'a InverseStep),
 }
 
 impl<'a> From<&'a ItkStep> for H5Transform<'a> {
@@ -487,6 +597,7 @@ impl<'a> From<&'a ItkStep> for H5Transform<'a> {
                 lps_from_index: &f.field.lps_from_index,
                 displacements_lps: &f.field.displacements_lps,
             },
+            ItkStep::Inverse(inverse) => Self::Inverse(inverse),
         }
     }
 }
@@ -517,24 +628,17 @@ pub fn write(path: &Path, chain: &[H5Transform<'_>]) -> Result<()> {
     for (i, step) in chain.iter().enumerate() {
         let mut group = transforms.create_group(&(i + offset).to_string());
         match *step {
-            H5Transform::Transform(t) => {
-                t.check(path)?;
-                let (params, fixed) = t.parameters();
-                write_class(&mut group, t.type_name());
-                group.create_dataset("TransformFixedParameters").with_f64_data(&fixed);
-                group.create_dataset("TransformParameters").with_f64_data(&params);
-            }
+            H5Transform::Transform(t) => write_transform(path, &mut group, t, t.type_name())?,
             H5Transform::Field { dims, lps_from_index, displacements_lps } => {
-                let fixed = field_fixed_parameters(path, dims, lps_from_index, displacements_lps.len())?;
-                if let Some(ijk) = first_non_finite(dims, displacements_lps) {
-                    return Err(Error::invalid(
-                        path,
-                        format!("the displacement at voxel {ijk:?} (i, j, k) is not finite"),
-                    ));
-                }
-                write_class(&mut group, FIELD_TYPES[1]);
-                group.create_dataset("TransformFixedParameters").with_f64_data(&fixed);
-                group.create_dataset("TransformParameters").with_f32_data(displacements_lps.as_flattened());
+                write_field_member(path, &mut group, (dims, lps_from_index, displacements_lps), FIELD_TYPES[1])?;
+            }
+            H5Transform::Inverse(InverseStep::BSpline(b)) => {
+                let spline = ItkTransform::BSpline(b.clone());
+                write_transform(path, &mut group, &spline, SLICER_INVERSE_BSPLINE_TYPES[0])?;
+            }
+            H5Transform::Inverse(InverseStep::Field(f)) => {
+                let field = (f.field.dims, &f.field.lps_from_index, f.field.displacements_lps.as_slice());
+                write_field_member(path, &mut group, field, SLICER_INVERSE_FIELD_TYPES[1])?;
             }
         }
         transforms.add_group(group.finish());
@@ -546,6 +650,34 @@ pub fn write(path: &Path, chain: &[H5Transform<'_>]) -> Result<()> {
             other => std::io::Error::other(other.to_string()),
         })
     })
+}
+
+/// An affine, a thin-plate spline or a B-spline in `group`, under `class`.
+fn write_transform(path: &Path, group: &mut GroupBuilder, t: &ItkTransform, class: &str) -> Result<()> {
+    t.check(path)?;
+    let (params, fixed) = t.parameters();
+    write_class(group, class);
+    group.create_dataset("TransformFixedParameters").with_f64_data(&fixed);
+    group.create_dataset("TransformParameters").with_f64_data(&params);
+    Ok(())
+}
+
+/// A displacement field (its grid's dims, `lps_from_index`, and its vectors, LPS mm) in `group`, under `class`, the
+/// vectors in single precision.
+fn write_field_member(
+    path: &Path,
+    group: &mut GroupBuilder,
+    (dims, lps_from_index, displacements_lps): ([usize; 3], &Transform<Lps, Index>, &[[f32; 3]]),
+    class: &str,
+) -> Result<()> {
+    let fixed = field_fixed_parameters(path, dims, lps_from_index, displacements_lps.len())?;
+    if let Some(ijk) = first_non_finite(dims, displacements_lps) {
+        return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
+    }
+    write_class(group, class);
+    group.create_dataset("TransformFixedParameters").with_f64_data(&fixed);
+    group.create_dataset("TransformParameters").with_f32_data(displacements_lps.as_flattened());
+    Ok(())
 }
 
 /// `group`'s `TransformType`, the class, as ITK writes it: one variable-length ASCII string. ITK reads it into a
