@@ -479,6 +479,20 @@ fn a_4d_input_is_refused_in_the_words_of_a_command_without_frame() {
 
 /// Runs `points` on `xs` with the pair and `source` (`--landmarks L` or `--session S`), from `side`; the mapped points.
 fn map_points(dir: &Path, source: [&str; 2], side: &str, xs: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let (run, _) = run_points(dir, source, side, xs);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("points JSON");
+    report["points"]
+        .as_array()
+        .expect("points")
+        .iter()
+        .map(|p| std::array::from_fn(|a| p["output_lps"][a].as_f64().expect("a coordinate")))
+        .collect()
+}
+
+/// Runs `points --json` on `xs` with the MRI as both volumes and `source`, from `side`, in `dir`: the run and its
+/// output's path.
+fn run_points(dir: &Path, source: [&str; 2], side: &str, xs: &[[f64; 3]]) -> (std::process::Output, PathBuf) {
     let mri = data("nifti/avg152T1_LR_nifti.nii");
     let input = dir.join(format!("in_{side}_{}.csv", source[0].trim_start_matches('-')));
     let lines: Vec<String> = xs.iter().enumerate().map(|(i, x)| format!("{},{},{},p{i}\n", x[0], x[1], x[2])).collect();
@@ -502,14 +516,7 @@ fn map_points(dir: &Path, source: [&str; 2], side: &str, xs: &[[f64; 3]]) -> Vec
         "--force",
         "--quiet",
     ]);
-    assert_ok(&run);
-    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("points JSON");
-    report["points"]
-        .as_array()
-        .expect("points")
-        .iter()
-        .map(|p| std::array::from_fn(|a| p["output_lps"][a].as_f64().expect("a coordinate")))
-        .collect()
+    (run, out)
 }
 
 /// A window session's brush (issue 17, item 4) acts on top of the landmark warp wherever `--session` is taken:
@@ -880,28 +887,14 @@ fn a_sessions_learn2reg_field_is_read_against_its_recorded_grids() {
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-4), "voxel {:?}: {got:?}, not {want:?}", [i, j, k]);
     }
 
+    let refusals = dir.path().join("refused");
+    std::fs::create_dir(&refusals).expect("a folder");
     let refused = |session_path: &Path, says: &str| {
-        let input = dir.path().join("one.csv");
-        std::fs::write(&input, "0,0,0,a\n").expect("write a point");
-        let run = warpbench(&[
-            "points",
-            "--fixed",
-            s(&mri),
-            "--moving",
-            s(&mri),
-            "--session",
-            s(session_path),
-            "--from",
-            "fixed",
-            "--in",
-            s(&input),
-            "--out",
-            s(&dir.path().join("never.csv")),
-        ]);
+        let (run, out) = run_points(&refusals, ["--session", s(session_path)], "fixed", &[[0.0; 3]]);
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert_eq!(run.status.code(), Some(2), "{stderr}");
         assert!(stderr.contains("disp_0001_0001.npz") && stderr.contains(says), "{stderr}");
-        assert!(!dir.path().join("never.csv").exists());
+        assert!(!out.exists());
     };
     refused(&save("bare.warpbench.json", FieldFile::new(npz.clone())), "does not record which");
     let small = VoxelGrids { fixed: VoxelGrid { dims: [10, 10, 10], ..grids.fixed }, ..grids };
