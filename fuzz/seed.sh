@@ -20,6 +20,7 @@ seed elastix elastix '*.txt'
 seed itk_h5 itk '*.h5'
 seed dicom_reg dicom_reg '*.dcm'
 seed learn2reg learn2reg '*.npz'
+seed learn2reg learn2reg '*.nii*'
 
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {
