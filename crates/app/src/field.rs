@@ -54,10 +54,10 @@ use crate::args::{PairArgs, ReportArgs, VolumePairArgs, help};
 use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit;
-use crate::inputs::{self, Names, OutputFile, PairInputs, PairVolumes};
+use crate::inputs::{self, Names, OutputFile, PairVolumes};
 use crate::progress::Bar;
-use crate::project::stack::Layers;
-use crate::warp::InverseConsistency;
+use crate::project::stack::{FieldLayer, Layers};
+use crate::warp::{FieldFormatArgs, InverseConsistency, WarpInputs};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-field/1";
@@ -67,6 +67,9 @@ pub const SCHEMA: &str = "warpbench-field/1";
 const HELP: &str = "\
 Write the warp as a displacement field in the flavour ITK, ANTs or 3D Slicer reads, and optionally the exact
 transform as an ITK transform file.
+
+With --field instead of landmarks, the warp is that displacement field, in any flavour warp --field reads: it is
+sampled on the output grid and written in --format, a converter between the flavours.
 
 --direction pullback (default): at each voxel centre x of the fixed grid (or --reference's) the field holds
 u(x) − x, u = moving_from_fixed fitted on the landmarks and evaluated exactly: ITK's DisplacementFieldTransform
@@ -87,7 +90,8 @@ Examples:
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format ants --out mr_to_ct1Warp.nii.gz
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format nrrd --out field.nrrd --tfm mr_to_ct.tfm
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format metaimage --out deformationField.mhd
-    warpbench field --fixed 0001.nii.gz --moving 0002.nii.gz --landmarks pairs.csv --format learn2reg --out disp_0001_0002.nii.gz";
+    warpbench field --fixed 0001.nii.gz --moving 0002.nii.gz --landmarks pairs.csv --format learn2reg --out disp_0001_0002.nii.gz
+    warpbench field --fixed ct.nii.gz --moving mr.nii.gz --field mr_to_ct1Warp.nii.gz --format nrrd --out field.nrrd";
 
 /// The arguments of `warpbench field`.
 #[derive(Debug, clap::Args)]
@@ -103,6 +107,13 @@ pub struct FieldArgs {
     pub volumes: VolumePairArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
+    /// A displacement field to write instead of a landmark warp (any flavour warp --field reads: ITK or ANTs NIfTI,
+    /// NRRD, MetaImage, elastix, ITK HDF5, DICOM, Learn2Reg), sampled on the output grid: a converter between the
+    /// flavours. A forward field is inverted point by point for the pull-back.
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
+    pub field: Option<PathBuf>,
+    #[command(flatten)]
+    pub field_format: FieldFormatArgs,
     /// Sample the field on this volume's grid instead of the fixed volume's.
     #[arg(long)]
     pub reference: Option<PathBuf>,
@@ -210,11 +221,22 @@ pub struct FieldSummary {
 /// Runs `warpbench field`: checks the outputs, loads, fits, samples, writes; prints the JSON summary to `out` with
 /// `--json`, else what it wrote on stderr unless `--quiet`.
 pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure> {
-    let FieldArgs { volumes, pairs, reference, tfm, format: format_arg, direction, out: out_path, report } = args;
+    let FieldArgs {
+        volumes,
+        pairs,
+        field: given_field,
+        field_format,
+        reference,
+        tfm,
+        format: format_arg,
+        direction,
+        out: out_path,
+        report,
+    } = args;
     let ReportArgs { json, force, quiet } = report;
     let (format, direction) = (format_arg.flavour(), FieldDirection::from(direction));
     let reference_path = reference.clone();
-    let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
+    let inputs = WarpInputs::from_args(volumes, pairs, (given_field, field_format.format), reference)?;
     let output = OutputFile { path: out_path, force };
     let input_paths = inputs.paths();
     let learn2reg = format_arg.is_learn2reg(&output.path);
@@ -223,7 +245,14 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     } else {
         check_field_output(&output, format, &input_paths)?;
     }
-    let method = inputs.method().map_err(Failure::BadInput)?;
+    if let (Some(tfm), WarpInputs::Field(f)) = (&tfm, &inputs) {
+        return Err(Failure::BadInput(anyhow!(
+            "{}: --tfm writes the exact transform of a landmark warp, and {} is a sampled field, which has none; \
+             name --out .h5 for ITK's transform file over the field",
+            tfm.display(),
+            f.field.display()
+        )));
+    }
     if let Some(tfm) = &tfm
         && direction == FieldDirection::Forward
     {
@@ -239,24 +268,47 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         }
         inputs::check_output(tfm, &input_paths, output.force).map_err(Failure::BadInput)?;
     }
+    // A field in its own geometry is read before the volumes, so that one refused costs no loading; a Learn2Reg
+    // field, in the volumes' voxels, after them.
+    let given = match &inputs {
+        WarpInputs::Field(f) if !f.format.is_learn2reg(&f.field)? => Some(crate::warp::read_warp_field(&f.field)?),
+        _ => None,
+    };
 
-    let PairVolumes { fixed, moving, reference } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
-    let pairs = inputs.pairs().map_err(Failure::BadInput)?;
+    let PairVolumes { fixed, moving, reference } =
+        crate::warp::load_volumes(&inputs, quiet).map_err(Failure::BadInput)?;
     let names = inputs.names(&output.path);
     let (grid, grid_name) = match (&reference, direction) {
         (Some(r), _) => (r, "reference"),
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
-    let brushed = inputs.brushed().map_err(Failure::BadInput)?;
-    if let (Some(tfm), Some(_)) = (&tfm, &brushed) {
-        return Err(Failure::BadInput(anyhow!(
-            "{}: the session's brush strokes have no exact ITK transform; write the displacement field alone",
-            tfm.display()
-        )));
-    }
-    let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
-    layers.field = inputs.warp.field().map_err(Failure::BadInput)?;
+    let (method, pairs, layers): (Method, &[LandmarkPair], Layers) = match &inputs {
+        WarpInputs::Pairs(p) => {
+            let brushed = p.brushed().map_err(Failure::BadInput)?;
+            if let (Some(tfm), Some(_)) = (&tfm, &brushed) {
+                return Err(Failure::BadInput(anyhow!(
+                    "{}: the session's brush strokes have no exact ITK transform; write the displacement field alone",
+                    tfm.display()
+                )));
+            }
+            let mut layers = Layers::new(p.start().map_err(Failure::BadInput)?, brushed);
+            layers.field = p.warp.field().map_err(Failure::BadInput)?;
+            (p.method().map_err(Failure::BadInput)?, p.pairs().map_err(Failure::BadInput)?, layers)
+        }
+        WarpInputs::Field(f) => {
+            let origin = f.field.display().to_string();
+            let layer = match given {
+                Some(crate::warp::WarpField::Pullback(s)) => FieldLayer::pullback(s, &origin),
+                Some(crate::warp::WarpField::Forward(s)) => FieldLayer::forward(s, &origin),
+                None => FieldLayer::pullback(crate::warp::read_learn2reg_field(&f.field, &fixed, &moving)?, &origin),
+            };
+            let mut layers = Layers::new(None, None);
+            layers.field = Some(std::sync::Arc::new(layer));
+            // No pairs: the field alone is the warp, whatever the method.
+            (Method::Tps { stiffness: 0.0 }, &[], layers)
+        }
+    };
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field_reporting(grid, &made_of, direction, quiet)?;
@@ -284,7 +336,10 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         grid: grid_name,
         format: if learn2reg { "learn2reg" } else { format.name() },
         direction: field.direction.name(),
-        method: field.method,
+        method: match &inputs {
+            WarpInputs::Field(f) => format!("field {}", f.field.display()),
+            WarpInputs::Pairs(_) => field.method,
+        },
         pairs: field.pairs,
         max_displacement_mm: field.max_displacement_mm,
         tfm: tfm.as_ref().map(|p| p.display().to_string()),
@@ -296,17 +351,13 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         crate::exit::print_json(out, &summary, "the JSON summary")?;
     } else if !quiet {
         let d = summary.dims;
+        let made_of = match &inputs {
+            WarpInputs::Field(f) => format!("from {}", f.field.display()),
+            WarpInputs::Pairs(_) => format!("{} landmark pairs, {}", summary.pairs, summary.method),
+        };
         eprintln!(
-            "wrote {} ({} {} field, {}×{}×{}, {} landmark pairs, {}, max |D| {:.2} mm)",
-            summary.out,
-            summary.format,
-            summary.direction,
-            d[0],
-            d[1],
-            d[2],
-            summary.pairs,
-            summary.method,
-            summary.max_displacement_mm
+            "wrote {} ({} {} field, {}×{}×{}, {made_of}, max |D| {:.2} mm)",
+            summary.out, summary.format, summary.direction, d[0], d[1], d[2], summary.max_displacement_mm
         );
         if let Some(tfm) = &summary.tfm {
             eprintln!("wrote {tfm}");

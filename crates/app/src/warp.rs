@@ -105,7 +105,14 @@ pub struct FieldInputs {
 pub struct FieldFormatArgs {
     /// How --field is read: auto (by its content) or learn2reg (Learn2Reg's steps from fixed voxels to moving voxels,
     /// .npz or an (X, Y, Z, 3) NIfTI, which says nothing of its units otherwise).
-    #[arg(long = "field-format", value_enum, default_value = "auto", requires = "field")]
+    #[arg(
+        long = "field-format",
+        id = "field_format",
+        value_name = "FORMAT",
+        value_enum,
+        default_value = "auto",
+        requires = "field"
+    )]
     pub format: FieldReadFormat,
 }
 
@@ -907,7 +914,7 @@ impl Fitted {
 }
 
 /// The fixed, moving and reference volumes of `inputs` ([`inputs::load_pair`], then the reference).
-fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
+pub(crate) fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
     let (fixed, moving) = inputs::load_pair(&inputs.volumes().fixed, &inputs.volumes().moving, quiet)?;
     let reference = inputs.reference().map(|p| inputs::load_volume(p, quiet)).transpose()?;
     Ok(PairVolumes { fixed, moving, reference })

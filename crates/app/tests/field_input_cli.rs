@@ -172,6 +172,76 @@ fn exact_field_warp_matches_simpleitk_in_every_flavour() {
     }
 }
 
+/// `field --field` converts a field between the flavours, sampling it on the output grid: the field on the fixed
+/// grid, written in each flavour (ITK, ANTs, Slicer's NRRD, MetaImage, ITK's `.h5`, Learn2Reg's NIfTI form), then
+/// applied by `warp --exact`, resamples as SimpleITK does through the original field (the same oracle as above: at
+/// fixed voxel centres the sampled field is the original one, trilinearly interpolated, and zero outside its grid).
+/// `--direction forward` samples the field's inverse on the moving grid: the original field maps each of its points
+/// back, F(y + D(y)) = y, where F is invertible near y. `--tfm` and landmarks are refused beside `--field`.
+#[test]
+fn field_converts_a_field_between_flavours_as_simpleitk_applies_it() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving, original) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"), fixture("field.nii.gz"));
+    let convert = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["field", "--fixed", s(&fixed), "--moving", s(&moving), "--field", s(&original)];
+        args.extend(extra);
+        args.extend(["--quiet", "--json", "--out", s(out)]);
+        warpbench(&args)
+    };
+    let flavours: [(&str, &[&str]); 6] = [
+        ("f.nii.gz", &[]),
+        ("a.nii.gz", &["--format", "ants"]),
+        ("f.nrrd", &["--format", "nrrd"]),
+        ("f.mha", &["--format", "metaimage"]),
+        ("f.h5", &[]),
+        ("disp.nii.gz", &["--format", "learn2reg"]),
+    ];
+    for (name, extra) in flavours {
+        let out = dir.path().join(name);
+        let run = convert(&out, extra);
+        assert_ok(&run);
+        let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("field JSON");
+        assert_eq!((report["pairs"].as_u64(), report["grid"].as_str()), (Some(0), Some("fixed")), "{name}");
+        assert_eq!(report["method"], format!("field {}", s(&original)), "{name}");
+        let warped = dir.path().join(format!("warped_{name}.nii.gz"));
+        let l2r: &[&str] = if name.starts_with("disp") { &["--field-format", "learn2reg"] } else { &[] };
+        let (run, _) = warp_field(&out, &warped, &[l2r, &["--exact", "--backend", "cpu"]].concat());
+        assert_ok(&run);
+        assert_matches_itk(&warped, name);
+    }
+
+    let forward = dir.path().join("forward.nrrd");
+    assert_ok(&convert(&forward, &["--direction", "forward", "--format", "nrrd"]));
+    let (inverse, _) = read_field(&forward).expect("the forward field");
+    let (given, _) = read_field(&original).expect("the field");
+    let f = SampledField::<Moving, Fixed>::from_displacement_field(given.clone()).expect("field");
+    let grid = given.lps_from_index;
+    let d = SampledField::<Fixed, Moving>::from_displacement_field(inverse).expect("its inverse");
+    let mut moved = 0.0f64;
+    for ijk in [[2.0, 2.0, 2.0], [4.5, 3.0, 3.5], [6.0, 5.0, 4.0], [3.0, 4.0, 2.5]] {
+        // Points well inside the field's grid, where F is invertible.
+        let y = grid.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+        let x = d.apply_raw(y);
+        let back = f.apply_raw(x);
+        moved = moved.max((0..3).map(|a| (x[a] - y[a]).abs()).fold(0.0, f64::max));
+        // d is sampled at the moving grid's voxel centres and interpolated between them: its error is the
+        // trilinear interpolation of the inverse over a voxel, not the inverse's own tolerance.
+        assert!((0..3).all(|a| (back[a] - y[a]).abs() < 0.05), "F(d({y:?})) = {back:?}");
+    }
+    assert!(moved > 0.2, "the inverse moves the points (at most {moved} mm)");
+
+    for (extra, says) in [
+        (&["--tfm", "t.tfm"][..], "is a sampled field, which has none"),
+        (&["--landmarks", "pairs.csv"][..], "'--field <FIELD>'"),
+    ] {
+        let run = convert(&dir.path().join("never.nii.gz"), extra);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{stderr}");
+        assert!(stderr.contains(says), "{stderr}");
+        assert!(!dir.path().join("never.nii.gz").exists());
+    }
+}
+
 /// Trilinear interpolation of `v` at the continuous index `c` (every tap inside the grid).
 fn trilinear(v: &[f32], dims: [usize; 3], c: [f64; 3]) -> f64 {
     let base: [usize; 3] = std::array::from_fn(|a| (c[a].floor() as usize).min(dims[a] - 2));
