@@ -51,3 +51,14 @@ pub fn run(command: Command, out: &mut dyn Write) -> Result<(), Failure> {
         Command::Register(args) => register::run(*args, out).map(|_| ()),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// clap's own checks of every subcommand's arguments (unique ids, `requires` and `conflicts_with` naming
+    /// arguments that exist), which it makes only when a command is parsed in a debug build.
+    #[test]
+    fn every_subcommand_is_well_formed() {
+        use clap::CommandFactory;
+        super::Headless::command().debug_assert();
+    }
+}
