@@ -33,7 +33,7 @@
 //! (moving) one: a pull-back, `moving_from_fixed`. 3D Slicer's `Inverse…` classes (a transform saved in its
 //! modeling direction: Slicer's `vtkITKTransformInverse.h` stores the parameters of a transform S, and the transform
 //! meant is S⁻¹) are read for B-splines and displacement fields, in a composite or alone, as [`ItkStep::Inverse`]:
-//! S⁻¹(x) found point by point ([`inverse_point`]), as Slicer's VTK inverts them. [`read_field`] reads a file holding
+//! S⁻¹(x) found point by point by Newton's method, as Slicer's VTK inverts them. [`read_field`] reads a file holding
 //! only an `InverseDisplacementFieldTransform` as the **forward** field it is (its vectors map a moving point y to
 //! the fixed point y + D(y)), which its caller inverts over the whole grid; the landmarks of an
 //! `InverseThinPlateSplineKernelTransform` are read as pairs, as those of ITK's spline ([`crate::landmarks`]); its
