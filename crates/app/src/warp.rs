@@ -133,7 +133,7 @@ impl WarpInputs {
                 "give either --field or landmarks (--landmarks, or --moving-points with --fixed-points), not both"
             ))),
             (None, None) => Err(Failure::BadInput(anyhow!(
-                "give the warp: --landmarks, or --moving-points with --fixed-points, or --field"
+                "give the warp: --landmarks, --moving-points with --fixed-points, --session, or --field"
             ))),
         }
     }

@@ -357,7 +357,10 @@ fn refuses_bad_landmarks_methods_and_unsafe_outputs() {
         &["field", "--fixed", f, "--moving", f, "--landmarks", utf8(&outside), "--quiet", "--out", o],
         "landmark 3 (Pt-2) is outside the moving volume",
     );
-    expect_bad(&["field", "--fixed", f, "--moving", f, "--quiet", "--out", o], "give --landmarks");
+    expect_bad(
+        &["field", "--fixed", f, "--moving", f, "--quiet", "--out", o],
+        "give the warp: --landmarks, --moving-points with --fixed-points, --session, or --field",
+    );
     expect_bad(
         &["field", "--fixed", f, "--moving", f, "--landmarks", l, "--quiet", "--out", f],
         "refusing to overwrite an input",
