@@ -245,6 +245,12 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     } else {
         check_field_output(&output, format, &input_paths)?;
     }
+    // The method before any volume is loaded (`--stiffness auto` reads the pairs, and refuses some); a field alone
+    // is the warp whatever the method.
+    let method = match &inputs {
+        WarpInputs::Pairs(p) => p.method().map_err(Failure::BadInput)?,
+        WarpInputs::Field(_) => Method::Tps { stiffness: 0.0 },
+    };
     if let (Some(tfm), WarpInputs::Field(f)) = (&tfm, &inputs) {
         return Err(Failure::BadInput(anyhow!(
             "{}: --tfm writes the exact transform of a landmark warp, and {} is a sampled field, which has none; \
@@ -283,7 +289,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
-    let (method, pairs, layers): (Method, &[LandmarkPair], Layers) = match &inputs {
+    let (pairs, layers): (&[LandmarkPair], Layers) = match &inputs {
         WarpInputs::Pairs(p) => {
             let brushed = p.brushed().map_err(Failure::BadInput)?;
             if let (Some(tfm), Some(_)) = (&tfm, &brushed) {
@@ -294,7 +300,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
             }
             let mut layers = Layers::new(p.start().map_err(Failure::BadInput)?, brushed);
             layers.field = p.warp.field().map_err(Failure::BadInput)?;
-            (p.method().map_err(Failure::BadInput)?, p.pairs().map_err(Failure::BadInput)?, layers)
+            (p.pairs().map_err(Failure::BadInput)?, layers)
         }
         WarpInputs::Field(f) => {
             let origin = f.field.display().to_string();
@@ -305,8 +311,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
             };
             let mut layers = Layers::new(None, None);
             layers.field = Some(std::sync::Arc::new(layer));
-            // No pairs: the field alone is the warp, whatever the method.
-            (Method::Tps { stiffness: 0.0 }, &[], layers)
+            (&[], layers)
         }
     };
     let made_of =

@@ -962,6 +962,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     warpbench_io::learn2reg::write_voxel_field_nifti(&form, &steps, &fixed_lps_from_index).expect("written");
     for ticked in [false, true] {
         harness.state_mut().ready_mut().expect("ready").files.fields.field = form.display().to_string();
+        harness.run_steps(2);
         if ticked {
             harness.get_by_label("Learn2Reg steps in voxels").click_accesskit();
             harness.run_steps(2);

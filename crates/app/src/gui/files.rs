@@ -30,7 +30,8 @@ pub struct FileFields {
     pub screenshot: String,
     /// A displacement field to put under the landmarks.
     pub field: String,
-    /// Whether it is read as Learn2Reg's steps in voxels ("Learn2Reg steps in voxels").
+    /// Whether a NIfTI one is read as Learn2Reg's steps in voxels ("Learn2Reg steps in voxels", shown for a NIfTI
+    /// name).
     pub field_in_voxels: bool,
     /// Masks of the fixed and the moving volume for Refine by intensities.
     pub masks: [String; 2],
@@ -183,13 +184,17 @@ pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::
         current: "Field under the landmarks",
     };
     let choice = file_row(ui, &row, &mut fields.field, field);
-    ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
-        "Read the file as Learn2Reg's field, steps from the fixed volume's voxels to the moving volume's, as open \
-         now: an (X, Y, Z, 3) NIfTI such as disp_0001_0002.nii.gz, which does not say its units (an .npz is told \
-         without it)",
-    );
+    // Only a NIfTI name can be Learn2Reg's form, and only it needs saying so (an .npz is told by its content).
+    let nifti = warpbench_io::displacement::FieldFormat::from_extension(std::path::Path::new(fields.field.trim()))
+        == Some(warpbench_io::displacement::FieldFormat::Itk);
+    if nifti {
+        ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
+            "Read the file as Learn2Reg's field, steps from the fixed volume's voxels to the moving volume's, as \
+             open now: an (X, Y, Z, 3) NIfTI such as disp_0001_0002.nii.gz, which does not say its units",
+        );
+    }
     choice.map(|c| match c {
-        RowChoice::Use(path) if fields.field_in_voxels => FileAction::UseLearn2RegField(path),
+        RowChoice::Use(path) if nifti && fields.field_in_voxels => FileAction::UseLearn2RegField(path),
         RowChoice::Use(path) => FileAction::UseField(path),
         RowChoice::Remove => FileAction::RemoveField,
     })

@@ -1,11 +1,12 @@
-//! The displacement field under the landmark warp as the document keeps it: its file, and for Learn2Reg's `.npz`
-//! the two grids its steps are counted in.
+//! The displacement field under the landmark warp as the document keeps it: its file, and for a Learn2Reg field (an
+//! `.npz`, or its NIfTI form chosen as such) the two grids its steps are counted in.
 //!
 //! A Learn2Reg field (`docs/formats.md`) holds, at each voxel of the fixed image, a step in voxels to the moving
 //! image's voxel, and no geometry of its own. The same file means other millimetres against other images. So when it
 //! is chosen in the window, the fixed and moving grids open then are recorded beside its path, and every later
 //! reader (the window, `--session` in every subcommand) reads it against those grids, whichever volumes it is given.
-//! A session that names an `.npz` without them is refused, never read against a guessed grid.
+//! A session that names an `.npz` without them is refused, never read against a guessed grid (a NIfTI without them
+//! is read as a field in mm, which refuses Learn2Reg's form).
 //!
 //! In the session file a field of any other flavour is its path, as before; a Learn2Reg field is
 //! `{"path": …, "voxel_grids": {"fixed": {"dims": [X, Y, Z], "lps_from_index": [[…], […], […]]}, "moving": …}}`,
@@ -156,7 +157,7 @@ pub fn learn2reg_pullback(
 #[serde(
     untagged,
     expecting = "a displacement field: its path, or {\"path\": …, \"voxel_grids\": {\"fixed\": …, \"moving\": …}} \
-                 for a Learn2Reg .npz"
+                 for a Learn2Reg field"
 )]
 enum Form {
     Path(PathBuf),
