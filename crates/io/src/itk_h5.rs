@@ -157,54 +157,34 @@ const INVERSE_TOLERANCE_MM: f64 = 1e-6;
 /// The most Newton steps [`inverse_point`] takes.
 const INVERSE_ITERATIONS: usize = 100;
 
-/// y with S(y) = x within [`INVERSE_TOLERANCE_MM`], S = `forward`, by Newton's method from the better of x and
-/// x − (S(x) − x), on a central-difference Jacobian (h = 10⁻³ mm), each step halved until the residual falls. Where
-/// it does not converge (at a jump of S: ITK's B-spline and field are the identity outside their domain, so S jumps
-/// at its edge; or where S folds), the point of least residual found, as VTK gives its last estimate there
+/// y with S(y) = x within [`INVERSE_TOLERANCE_MM`], S = `forward` ([`crate::geometry::newton_inverse`] on a
+/// central-difference Jacobian, h = 10⁻³ mm, from the better of x and x − (S(x) − x)). Where it does not converge
+/// (at a jump of S: ITK's B-spline and field are the identity outside their domain, so S jumps at its edge; or where
+/// S folds), the point of least residual found, as VTK gives its last estimate there
 /// (`vtkWarpTransform::InverseTransformPoint`, which inverts Slicer's warps to a looser 10⁻³ mm).
 fn inverse_point(forward: impl Fn([f64; 3]) -> [f64; 3], x: [f64; 3]) -> [f64; 3] {
     const H: f64 = 1e-3;
-    let residual = |y: [f64; 3]| -> [f64; 3] {
-        let t = forward(y);
-        [t[0] - x[0], t[1] - x[1], t[2] - x[2]]
-    };
-    let norm = |r: [f64; 3]| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-    let at_x = residual(x);
-    let guess = [x[0] - at_x[0], x[1] - at_x[1], x[2] - at_x[2]];
-    let at_guess = residual(guess);
-    // Each step taken lowers the residual, so (y, r) is always the best point found.
-    let (mut y, mut r) = if norm(at_guess) < norm(at_x) { (guess, at_guess) } else { (x, at_x) };
-    for _ in 0..INVERSE_ITERATIONS {
-        let size = norm(r);
-        if size.is_nan() || size <= INVERSE_TOLERANCE_MM {
-            break;
-        }
-        let mut jacobian = Matrix3::zeros();
+    let jacobian = |y: [f64; 3]| {
+        let mut j = Matrix3::zeros();
         for a in 0..3 {
             let (mut up, mut down) = (y, y);
             up[a] += H;
             down[a] -= H;
             let (tu, td) = (forward(up), forward(down));
             for c in 0..3 {
-                jacobian[(c, a)] = (tu[c] - td[c]) / (2.0 * H);
+                j[(c, a)] = (tu[c] - td[c]) / (2.0 * H);
             }
         }
-        let Some(delta) = jacobian.lu().solve(&Vector3::from(r)) else { break };
-        let mut t = 1.0;
-        while t >= 1e-6 {
-            let next = [y[0] - t * delta[0], y[1] - t * delta[1], y[2] - t * delta[2]];
-            let rn = residual(next);
-            if norm(rn) < size {
-                (y, r) = (next, rn);
-                break;
-            }
-            t *= 0.5;
-        }
-        if t < 1e-6 {
-            break;
-        }
-    }
-    y
+        j
+    };
+    let norm = |y: [f64; 3]| {
+        let f = forward(y);
+        ((f[0] - x[0]).powi(2) + (f[1] - x[1]).powi(2) + (f[2] - x[2]).powi(2)).sqrt()
+    };
+    let sx = forward(x);
+    let guess = [2.0 * x[0] - sx[0], 2.0 * x[1] - sx[1], 2.0 * x[2] - sx[2]];
+    let start = if norm(guess) < norm(x) { guess } else { x };
+    crate::geometry::newton_inverse(&forward, jacobian, x, start, (INVERSE_TOLERANCE_MM, INVERSE_ITERATIONS))
 }
 
 /// The transforms of an `.h5` file in the file's order (a composite's members; one for a file of one transform).

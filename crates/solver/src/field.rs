@@ -233,48 +233,17 @@ fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
 impl<To: Space, From: Space> Warp<From, To> for PointInverse<'_, To, From> {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
         let w = self.0;
-        let residual = |y: [f64; 3]| {
-            let wy = w.apply_raw(y);
-            [wy[0] - x[0], wy[1] - x[1], wy[2] - x[2]]
-        };
-        let norm = |r: [f64; 3]| (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
-        let mut y = match w.displacement_raw(x) {
+        let start = match w.displacement_raw(x) {
             Some(d) => [x[0] - d[0], x[1] - d[1], x[2] - d[2]],
             None => x,
         };
-        let mut r = residual(y);
-        let (mut best, mut best_norm) = (y, norm(r));
-        for _ in 0..POINT_INVERSE_MAX_STEPS {
-            if best_norm <= POINT_INVERSE_TOLERANCE_MM {
-                break;
-            }
-            let step = match w.jacobian_raw(y).try_inverse() {
-                Some(inv) => {
-                    let s = inv * nalgebra::Vector3::new(r[0], r[1], r[2]);
-                    [s[0], s[1], s[2]]
-                }
-                // The fixed-point step y ← y − r, i.e. y ← x − D(y).
-                None => r,
-            };
-            let mut scale = 1.0;
-            let mut moved = false;
-            for _ in 0..20 {
-                let trial = [y[0] - scale * step[0], y[1] - scale * step[1], y[2] - scale * step[2]];
-                let rt = residual(trial);
-                if norm(rt) < norm(r) {
-                    (y, r, moved) = (trial, rt, true);
-                    break;
-                }
-                scale *= 0.5;
-            }
-            if !moved {
-                break;
-            }
-            if norm(r) < best_norm {
-                (best, best_norm) = (y, norm(r));
-            }
-        }
-        best
+        warpbench_io::geometry::newton_inverse(
+            |y| w.apply_raw(y),
+            |y| w.jacobian_raw(y),
+            x,
+            start,
+            (POINT_INVERSE_TOLERANCE_MM, POINT_INVERSE_MAX_STEPS),
+        )
     }
 }
 
