@@ -71,13 +71,7 @@ pub fn read_field(
     }
     let array = Array4::from_shape_vec((ni, nj, nk, 3).f(), flat)
         .map_err(|e| PyValueError::new_err(format!("{}: {e}", path.display())))?;
-    let source = match read.source {
-        FieldSource::Field(format) => format.name().to_owned(),
-        FieldSource::ElastixTransform => "elastix".to_owned(),
-        FieldSource::ItkHdf5 => "itk_h5".to_owned(),
-        FieldSource::DicomRegistration => "dicom".to_owned(),
-        FieldSource::Learn2Reg => "learn2reg".to_owned(),
-    };
+    let source = read.source.name().to_owned();
     let direction = read.direction.map(|d| d.name().to_owned());
     let lps = matrix(py, &field.lps_from_index.rows());
     Ok((PyArray::from_owned_array(py, array).into_any().unbind(), lps, source, direction))

@@ -124,6 +124,21 @@ pub enum FieldSource {
     Learn2Reg,
 }
 
+impl FieldSource {
+    /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
+    /// `dicom`, `learn2reg`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Field(format) => format.name(),
+            Self::ElastixTransform => "elastix",
+            Self::ItkHdf5 => "itk_h5",
+            Self::DicomRegistration => "dicom",
+            Self::Learn2Reg => "learn2reg",
+        }
+    }
+}
+
 /// What [`super::read_field_info`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReadField {
