@@ -1,9 +1,10 @@
 //! `warpbench info <file-or-dir> [--json]`: dims, spacing, `lps_from_index`, where the geometry came
-//! from, sample type, value range, modality and series of a volume. With `--json` the output follows
+//! from, sample type, value range, modality and series of a volume; for a displacement field (any flavour `warp
+//! --field` reads), its flavour, direction, grid and largest displacement. With `--json` the output follows
 //! the `warpbench-info/1` schema documented in `docs/cli.md`.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use serde::Serialize;
@@ -21,7 +22,9 @@ modality and series.
 
 Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd), a DICOM series folder or
 one DICOM file.
-A folder with several series lists them. Example:
+A folder with several series lists them. A displacement field (any flavour warp --field reads, an ITK .h5 holding
+one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz) is described as a field: its flavour, the direction
+it states, its grid and its largest displacement. Example:
 
     warpbench info tests/data/nifti/ch2.nii.gz --json";
 
@@ -60,6 +63,61 @@ pub struct InfoJson {
 pub enum InfoContent {
     Volume(Box<VolumeInfo>),
     SeriesList { series: Vec<SeriesSummary> },
+    DisplacementField(Box<FieldInfo>),
+}
+
+/// A displacement field's description.
+#[derive(Debug, Serialize)]
+pub struct FieldInfo {
+    /// `itk`, `ants`, `nrrd`, `metaimage`, `elastix`, `itk_h5`, `dicom` or `learn2reg`.
+    pub format: &'static str,
+    /// `pullback` or `forward` where the file says (NRRD, `.h5`, DICOM, Learn2Reg), else null (NIfTI, which readers
+    /// take as a pull-back).
+    pub direction: Option<&'static str>,
+    pub dims: [usize; 3],
+    /// `mm`, or `voxels` for Learn2Reg's steps, which have no grid of their own.
+    pub units: &'static str,
+    /// The grid's spacing and row-major `lps_from_index`, as for a volume; null for Learn2Reg's.
+    pub spacing_mm: Option<[f64; 3]>,
+    pub lps_from_index: Option<[[f64; 4]; 4]>,
+    pub geometry_source: Option<GeometrySourceJson>,
+    /// The largest |D| over the grid, in `units`.
+    pub max_displacement: f64,
+}
+
+impl FieldInfo {
+    /// The field at `path` when it is one (`None` when no field reader takes it); an `.npz`, which only Learn2Reg's
+    /// reader takes, with that reader's refusal.
+    fn read(path: &Path) -> Result<Option<Self>, Failure> {
+        let largest = |vectors: &[[f32; 3]]| {
+            vectors.iter().map(|d| d.iter().map(|&c| f64::from(c).powi(2)).sum::<f64>().sqrt()).fold(0.0, f64::max)
+        };
+        if path.is_file() && warpbench_io::learn2reg::is_npz_file(path)? {
+            let steps = warpbench_io::learn2reg::read_voxel_field(path)?;
+            return Ok(Some(Self {
+                format: "learn2reg",
+                direction: Some("pullback"),
+                dims: steps.dims,
+                units: "voxels",
+                spacing_mm: None,
+                lps_from_index: None,
+                geometry_source: None,
+                max_displacement: largest(&steps.steps_vox),
+            }));
+        }
+        let Ok(read) = warpbench_io::displacement::read_field_info(path) else { return Ok(None) };
+        let f = &read.field;
+        Ok(Some(Self {
+            format: read.source.name(),
+            direction: read.direction.map(warpbench_io::displacement::FieldDirection::name),
+            dims: f.dims,
+            units: "mm",
+            spacing_mm: Some(warpbench_io::geometry::spacing_mm(&f.lps_from_index)),
+            lps_from_index: Some(f.lps_from_index.rows()),
+            geometry_source: Some(f.geometry_source.into()),
+            max_displacement: largest(&f.displacements_lps),
+        }))
+    }
 }
 
 /// One volume's description.
@@ -186,7 +244,16 @@ fn cli_error(e: warpbench_io::Error) -> Failure {
 /// Loads `opts.path` and describes it.
 pub fn inspect(opts: &InfoArgs) -> Result<InfoJson, Failure> {
     let path = &opts.path;
-    let format = Format::detect(path)?;
+    let described = |content| Ok(InfoJson { schema: "warpbench-info/1", path: path.display().to_string(), content });
+    let format = match Format::detect(path) {
+        Ok(format) => format,
+        Err(e) => {
+            return match FieldInfo::read(path)? {
+                Some(field) => described(InfoContent::DisplacementField(Box::new(field))),
+                None => Err(e.into()),
+            };
+        }
+    };
     let mut bar = Bar::new(opts.quiet);
     let mut load = LoadOptions::new().progress(|p| bar.update(p));
     load.frame = opts.frame;
@@ -198,10 +265,14 @@ pub fn inspect(opts: &InfoArgs) -> Result<InfoJson, Failure> {
         Ok(v) => InfoContent::Volume(Box::new(VolumeInfo::new(format, &v))),
         Err(e) => match e.kind {
             ErrorKind::MultipleSeries(series) => InfoContent::SeriesList { series },
-            _ => return Err(cli_error(e)),
+            // Not a volume: a field in a volume's container (a 5-D NIfTI, a vector NRRD or MetaImage, a DICOM DSR).
+            _ => match FieldInfo::read(path)? {
+                Some(field) => InfoContent::DisplacementField(Box::new(field)),
+                None => return Err(cli_error(e)),
+            },
         },
     };
-    Ok(InfoJson { schema: "warpbench-info/1", path: path.display().to_string(), content })
+    described(content)
 }
 
 /// Runs `warpbench info`, writing to `out`. The volume's warnings also go to stderr, where they are seen
@@ -241,7 +312,31 @@ fn write_text(info: &InfoJson, out: &mut dyn Write) -> std::io::Result<()> {
             }
         }
         InfoContent::Volume(v) => write_volume(v, out)?,
+        InfoContent::DisplacementField(f) => write_field(f, out)?,
     }
+    Ok(())
+}
+
+fn write_field(f: &FieldInfo, out: &mut dyn Write) -> std::io::Result<()> {
+    let d = f.dims;
+    writeln!(
+        out,
+        "  displacement field ({}), {}",
+        f.format,
+        f.direction.unwrap_or("direction not stated: a pull-back")
+    )?;
+    writeln!(out, "  dims            {} × {} × {}", d[0], d[1], d[2])?;
+    if let (Some(spacing), Some(m), Some(g)) = (f.spacing_mm, &f.lps_from_index, &f.geometry_source) {
+        writeln!(out, "  spacing         {} mm", fmt3(spacing))?;
+        writeln!(out, "  geometry from   {}", g.kind)?;
+        writeln!(out, "  lps_from_index")?;
+        for row in m {
+            writeln!(out, "    [{:>12.6} {:>12.6} {:>12.6} {:>12.6}]", row[0], row[1], row[2], row[3])?;
+        }
+    } else {
+        writeln!(out, "  grid            none: steps in the voxels of the fixed and moving images")?;
+    }
+    writeln!(out, "  max |D|         {} {}", trim(f.max_displacement), f.units)?;
     Ok(())
 }
 

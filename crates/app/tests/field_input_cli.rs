@@ -696,3 +696,52 @@ fn slicers_inverse_field_maps_moving_points_as_itk_maps_them_through_the_field()
     }
     assert!(moved > 10, "the field moves most points ({moved} of {})", points.len());
 }
+
+/// `info` describes a displacement field instead of refusing it as a volume: the ITK fixture's grid is where
+/// SimpleITK puts its voxels (the reference's probes, continuous index to physical point), NumPy's Learn2Reg file
+/// has NumPy's shape and largest step in voxels, and an `.h5` composite states its direction.
+#[test]
+fn info_describes_a_displacement_field_of_any_flavour() {
+    let info = |path: &Path| -> serde_json::Value {
+        let run = warpbench(&["info", "--json", "--quiet", s(path)]);
+        assert_ok(&run);
+        serde_json::from_slice(&run.stdout).expect("info JSON")
+    };
+    let itk = info(&fixture("field.nii.gz"));
+    assert_eq!((itk["kind"].as_str(), itk["format"].as_str()), (Some("displacement_field"), Some("itk")), "{itk}");
+    assert_eq!((itk["direction"].clone(), itk["units"].as_str()), (serde_json::Value::Null, Some("mm")));
+    assert_eq!(itk["dims"], serde_json::json!([9, 8, 7]));
+    let m: Vec<Vec<f64>> = serde_json::from_value(itk["lps_from_index"].clone()).expect("a matrix");
+    let mut largest_probe = 0.0f64;
+    for probe in reference()["probes"].as_array().expect("probes") {
+        let ijk: Vec<f64> = serde_json::from_value(probe["index"].clone()).expect("index");
+        let x: Vec<f64> = serde_json::from_value(probe["x"].clone()).expect("x");
+        let tx: Vec<f64> = serde_json::from_value(probe["T(x)"].clone()).expect("T(x)");
+        for r in 0..3 {
+            let got = m[r][0] * ijk[0] + m[r][1] * ijk[1] + m[r][2] * ijk[2] + m[r][3];
+            // The sform is stored in f32: its rounding at |x| < 20 mm.
+            assert!((got - x[r]).abs() < 1e-5, "row {r} at {ijk:?}: {got} vs SimpleITK's {}", x[r]);
+        }
+        largest_probe = largest_probe.max((0..3).map(|a| (tx[a] - x[a]).powi(2)).sum::<f64>().sqrt());
+    }
+    let largest = itk["max_displacement"].as_f64().expect("a number");
+    assert!(largest >= largest_probe - 1e-5 && largest < 10.0, "{largest} against the probes' {largest_probe}");
+
+    let npz = info(&data("learn2reg/disp_f16.npz"));
+    assert_eq!((npz["format"].as_str(), npz["units"].as_str()), (Some("learn2reg"), Some("voxels")), "{npz}");
+    assert_eq!(
+        (npz["dims"].clone(), npz["lps_from_index"].clone()),
+        (serde_json::json!([5, 4, 2]), serde_json::Value::Null)
+    );
+    let numpy: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data("learn2reg/reference.json")).expect("reference"))
+            .expect("JSON");
+    let steps: Vec<Vec<Vec<Vec<f64>>>> = serde_json::from_value(numpy["disp"].clone()).expect("disp");
+    let numpy_largest =
+        steps.iter().flatten().flatten().map(|d| d.iter().map(|c| c * c).sum::<f64>().sqrt()).fold(0.0, f64::max);
+    assert!((npz["max_displacement"].as_f64().expect("a number") - numpy_largest).abs() < 1e-6, "{npz}");
+
+    let h5 = info(&data("itk/h5_composite_slicer_inverse.h5"));
+    assert_eq!((h5["format"].as_str(), h5["direction"].as_str()), (Some("itk_h5"), Some("pullback")), "{h5}");
+    assert_eq!(h5["dims"], serde_json::json!([8, 7, 6]));
+}
