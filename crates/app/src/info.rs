@@ -232,11 +232,20 @@ fn voxel_sha256(data: &VoxelData) -> String {
 /// A reader's error in the words of this command: a 4-D file's frame is chosen with `--frame`.
 fn cli_error(e: warpbench_io::Error) -> Failure {
     match e.kind {
-        ErrorKind::FrameRequired { frames } => Failure::BadInput(anyhow::anyhow!(
-            "{}: 4-D file with {frames} frames: choose one with --frame N (N from 0 to {})",
-            e.path.display(),
-            frames.saturating_sub(1)
-        )),
+        ErrorKind::FrameRequired { frames } => {
+            // Three frames may be Learn2Reg's field, whose NIfTI form is an (X, Y, Z, 3) array: say where it is read.
+            let field = if frames == 3 {
+                "; if it is Learn2Reg's displacement field (steps in voxels), warp, render and field read it with \
+                 --field-format learn2reg"
+            } else {
+                ""
+            };
+            Failure::BadInput(anyhow::anyhow!(
+                "{}: 4-D file with {frames} frames: choose one with --frame N (N from 0 to {}){field}",
+                e.path.display(),
+                frames.saturating_sub(1)
+            ))
+        }
         _ => e.into(),
     }
 }

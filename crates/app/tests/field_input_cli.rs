@@ -741,6 +741,12 @@ fn info_describes_a_displacement_field_of_any_flavour() {
         steps.iter().flatten().flatten().map(|d| d.iter().map(|c| c * c).sum::<f64>().sqrt()).fold(0.0, f64::max);
     assert!((npz["max_displacement"].as_f64().expect("a number") - numpy_largest).abs() < 1e-6, "{npz}");
 
+    // Learn2Reg's NIfTI form says nothing of being a field: a volume of 3 frames, with where it is read as a field.
+    let run = warpbench(&["info", "--quiet", s(&data("learn2reg/disp_nibabel_f32.nii.gz"))]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("3 frames") && stderr.contains("--field-format learn2reg"), "{stderr}");
+
     let h5 = info(&data("itk/h5_composite_slicer_inverse.h5"));
     assert_eq!((h5["format"].as_str(), h5["direction"].as_str()), (Some("itk_h5"), Some("pullback")), "{h5}");
     assert_eq!(h5["dims"], serde_json::json!([8, 7, 6]));
