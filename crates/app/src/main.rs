@@ -74,8 +74,11 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(f) => {
-            eprintln!("warpbench: {}", f.message());
-            f.code()
+            let (code, message) = f.exit_code();
+            if let Some(message) = message {
+                eprintln!("warpbench: {message}");
+            }
+            code
         }
     }
 }
