@@ -309,6 +309,15 @@ pub fn register_on(
         let par = params.parallelism;
         // The finest level reads the fixed image itself: no copy of a full volume.
         let fixed_level = if shrink == 1 { Cow::Borrowed(fixed) } else { Cow::Owned(fixed.shrink(shrink, par)?) };
+        // Level 0 is the coarsest: an image too small for it is refused before any work, and not as "no overlap".
+        let voxels: usize = fixed_level.dims().iter().product();
+        if voxels < MIN_SAMPLES_INSIDE {
+            return Err(SolverError::Image(format!(
+                "the fixed image is too small for {} levels: shrunk {shrink}× for the coarsest, it has {voxels} \
+                 voxels, and the measure needs at least {MIN_SAMPLES_INSIDE} samples; use fewer levels",
+                params.levels
+            )));
+        }
         let warped = {
             let moving_level =
                 if shrink == 1 { Cow::Borrowed(moving) } else { Cow::Owned(moving.shrink(shrink, par)?) };
@@ -934,6 +943,24 @@ mod tests {
             Err(SolverError::Image(message)) => assert!(message.contains("too small"), "{message}"),
             other => panic!("expected a refusal, got {other:?}"),
         }
+    }
+
+    #[test]
+    fn an_image_too_small_for_the_levels_is_refused_as_such() {
+        // 24³ shrunk 4× for three levels is 6³ = 216 voxels, fewer than the samples MI needs; two levels are 12³.
+        let fixed = blobs::<Fixed>(0.0);
+        let moving = blobs::<Moving>(1.0);
+        let start = AffineWarp::<Moving, Fixed>::identity();
+        let mut progress = |_: &RegisterProgress| ControlFlow::Continue(());
+        let params = RegisterParams { samples: 1_000, levels: 3, grid_mm: 30.0, ..RegisterParams::default() };
+        match register(&fixed, &moving, &start, &[], &params, &mut progress) {
+            Err(SolverError::Image(message)) => {
+                assert!(message.contains("too small for 3 levels") && message.contains("216 voxels"), "{message}");
+            }
+            other => panic!("expected a refusal, got {:?}", other.map(|r| r.levels)),
+        }
+        let params = RegisterParams { levels: 2, max_iterations: 3, ..params };
+        register(&fixed, &moving, &start, &[], &params, &mut progress).expect("two levels");
     }
 
     #[test]
