@@ -64,6 +64,11 @@ pub struct PairArgs {
     /// mapping fixed points to moving points (LPS mm), as `warpbench align` writes it. The landmark warp refines it; with fewer pairs than the method needs, it alone is the warp.
     #[arg(long, value_name = "TFM", conflicts_with = "session")]
     pub initial: Option<PathBuf>,
+    /// A displacement field under the landmark warp, in mm: ITK's or ANTs' NIfTI, Slicer's NRRD, MetaImage, an ITK
+    /// .h5 holding one, or elastix's deformationField (e.g. a registration the landmarks correct). It maps fixed
+    /// points first and --initial after it, as antsApplyTransforms -t FIELD -t TFM does.
+    #[arg(long, value_name = "FIELD", conflicts_with = "session")]
+    pub initial_field: Option<PathBuf>,
 }
 
 /// `--method` with its parameters, parsed once into a [`warpbench_solver::method::Method`]

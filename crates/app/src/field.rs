@@ -110,7 +110,7 @@ pub struct FieldArgs {
     /// A displacement field to write instead of a landmark warp (any flavour warp --field reads: ITK or ANTs NIfTI,
     /// NRRD, MetaImage, elastix, ITK HDF5, DICOM, Learn2Reg), sampled on the output grid: a converter between the
     /// flavours. A forward field is inverted point by point for the pull-back.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial", "initial_field"])]
     pub field: Option<PathBuf>,
     #[command(flatten)]
     pub field_format: FieldFormatArgs,

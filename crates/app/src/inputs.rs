@@ -227,7 +227,7 @@ impl MethodChoice {
 }
 
 /// The warp [`PairArgs`] ask for around the landmarks: the method, and the warp stack's other layers (a session's
-/// brush strokes on top, a starting transform under the landmark fit).
+/// brush strokes on top, a starting transform and a displacement field under the landmark fit).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PairWarp {
     pub method: MethodChoice,
@@ -238,9 +238,9 @@ pub struct PairWarp {
     pub initial: Option<PathBuf>,
     /// A session's starting transform (its Auto-align), read with the session.
     pub session_start: Option<Box<crate::start::Start>>,
-    /// A session's displacement field under the landmark fit (one chosen in the window, or Refine by intensities'),
-    /// read when the warp is fitted ([`PairWarp::field`]).
-    pub session_field: Option<crate::project::field_file::FieldFile>,
+    /// The displacement field under the landmark fit: `--initial-field`'s, or a session's (one chosen in the window,
+    /// or Refine by intensities'), read when the warp is fitted ([`PairWarp::field`]).
+    pub base_field: Option<crate::project::field_file::FieldFile>,
 }
 
 impl PairWarp {
@@ -249,20 +249,20 @@ impl PairWarp {
         crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
     }
 
-    /// The fewest pairs a fit of `method` needs on this warp: none over a starting transform or a session's field
-    /// (the base alone is the warp then), the method's own otherwise.
+    /// The fewest pairs a fit of `method` needs on this warp: none over a starting transform or a field (the base
+    /// alone is the warp then), the method's own otherwise.
     #[must_use]
     pub fn min_pairs(&self, method: &Method) -> usize {
-        let base = self.initial.is_some() || self.session_start.is_some() || self.session_field.is_some();
+        let base = self.initial.is_some() || self.session_start.is_some() || self.base_field.is_some();
         if base { 0 } else { method.needs().min_pairs }
     }
 
-    /// The session's displacement field under the landmark fit, read (`None` without one); errors name the file.
+    /// The displacement field under the landmark fit, read (`None` without one); errors name the file.
     pub fn field(&self) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
-        self.session_field.as_ref().map(|f| f.layer().map(std::sync::Arc::new)).transpose()
+        self.base_field.as_ref().map(|f| f.layer().map(std::sync::Arc::new)).transpose()
     }
 
-    /// The stack's layers around the landmark fit: the starting transform, the session's field and `brushed` on top.
+    /// The stack's layers around the landmark fit: the starting transform, the field and `brushed` on top.
     pub fn layers(&self, brushed: Option<crate::brushed::Brushed>) -> Result<crate::project::stack::Layers> {
         let mut layers = crate::project::stack::Layers::new(self.start()?, brushed);
         layers.field = self.field()?;
@@ -303,7 +303,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                     brush: Vec::new(),
                     initial: args.initial,
                     session_start: None,
-                    session_field: None,
+                    base_field: args.initial_field.map(crate::project::field_file::FieldFile::new),
                 },
                 session_refine: None,
             });
@@ -331,7 +331,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                 brush: document.brush,
                 initial: None,
                 session_start,
-                session_field: document.field,
+                base_field: document.field,
             },
         })
     }
@@ -351,12 +351,12 @@ impl LandmarkWarp {
         self.warp.method.method(self.landmarks.as_ref())
     }
 
-    /// Every input file of the warp: the landmarks' and the starting transform's.
+    /// Every input file of the warp: the landmarks', the starting transform's and the field's.
     #[must_use]
     pub fn paths(&self) -> Vec<&Path> {
         let mut paths = self.landmarks.as_ref().map_or_else(Vec::new, |l| l.source.paths());
         paths.extend(self.warp.initial.as_deref());
-        paths.extend(self.warp.session_field.as_ref().map(|f| f.path.as_path()));
+        paths.extend(self.warp.base_field.as_ref().map(|f| f.path.as_path()));
         paths
     }
 }
@@ -394,7 +394,7 @@ impl PairInputs {
         paths.extend(self.landmarks.source.paths());
         paths.extend(self.reference.as_deref());
         paths.extend(self.warp.initial.as_deref());
-        paths.extend(self.warp.session_field.as_ref().map(|f| f.path.as_path()));
+        paths.extend(self.warp.base_field.as_ref().map(|f| f.path.as_path()));
         paths
     }
 

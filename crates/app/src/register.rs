@@ -151,7 +151,7 @@ pub struct RegisterArgs {
 pub struct RegisterPairArgs {
     /// A window session (.warpbench.json): its landmark pairs, its warp method, its starting transform and its brush
     /// strokes, instead of --landmarks and the method flags.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "initial"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "method", "stiffness", "initial", "initial_field"])]
     pub session: Option<PathBuf>,
     /// Landmark pairs: BigWarp CSV or BigWarp JSON (.json, also a BigWarp settings file), moving then fixed, LPS mm.
     #[arg(long)]
@@ -173,6 +173,10 @@ pub struct RegisterPairArgs {
     /// TransformParameters.N.txt) mapping fixed points to moving points (LPS mm), as `warpbench align` writes it.
     #[arg(long, value_name = "TFM")]
     pub initial: Option<PathBuf>,
+    /// A displacement field under the landmark warp, in mm (the flavours `warp --field` reads). It maps fixed points
+    /// first and --initial after it, as antsApplyTransforms -t FIELD -t TFM does.
+    #[arg(long, value_name = "FIELD")]
+    pub initial_field: Option<PathBuf>,
 }
 
 impl From<RegisterPairArgs> for PairArgs {
@@ -184,6 +188,7 @@ impl From<RegisterPairArgs> for PairArgs {
             fixed_points: a.fixed_points,
             method: MethodArgs { method: a.method, stiffness: a.stiffness, levels: None },
             initial: a.initial,
+            initial_field: a.initial_field,
         }
     }
 }

@@ -64,7 +64,7 @@ pub struct RenderArgs {
     pub pairs: PairArgs,
     /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
     /// NRRD, MetaImage, elastix, ITK HDF5, or Learn2Reg's .npz in the two volumes' voxels); no glyphs are drawn.
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial", "initial_field"])]
     pub field: Option<PathBuf>,
     #[command(flatten)]
     pub field_format: crate::warp::FieldFormatArgs,
@@ -153,17 +153,15 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     let procedural_spec = view.procedural_spec();
     let mut inputs_paths: Vec<&Path> = vec![&fixed_path];
     inputs_paths.extend(moving_path.as_deref());
-    if let Some(l) = &given.landmarks {
-        inputs_paths.extend(l.source.paths());
-    }
+    inputs_paths.extend(given.paths());
     inputs_paths.extend(field_path.as_deref());
-    inputs_paths.extend(given.warp.initial.as_deref());
     output.check(&inputs_paths).map_err(Failure::BadInput)?;
-    if let (Some(initial), None) = (&given.warp.initial, &given.landmarks) {
+    let base = (given.warp.initial.as_deref().map(|p| (p, "--initial")))
+        .or_else(|| given.warp.base_field.as_ref().map(|f| (f.path.as_path(), "--initial-field")));
+    if let (Some((path, flag)), None) = (base, &given.landmarks) {
         return Err(Failure::BadInput(anyhow!(
-            "{}: --initial starts a landmark warp: give landmarks too (a file with no pairs shows the starting \
-             transform alone)",
-            initial.display()
+            "{}: {flag} starts a landmark warp: give landmarks too (a file with no pairs shows it alone)",
+            path.display()
         )));
     }
     if given.landmarks.is_some() && field_path.is_some() {

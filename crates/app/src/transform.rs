@@ -471,7 +471,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let input_paths = inputs.paths();
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     check_transform_name(&out_path, format)?;
-    let layered = !inputs.warp.brush.is_empty() || inputs.warp.session_field.is_some();
+    let layered = !inputs.warp.brush.is_empty() || inputs.warp.base_field.is_some();
     let h5_field = format == TransformFormat::Itk && layered && itk_tfm::is_hdf5_name(&out_path);
     let as_field = format == TransformFormat::Elastix && layered;
     let field_path = field_file_beside(&out_path);

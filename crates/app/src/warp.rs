@@ -268,7 +268,7 @@ pub struct WarpArgs {
     /// A pull-back displacement field to apply instead of landmarks (ITK or ANTs NIfTI, NRRD, MetaImage, or an ITK
     /// .h5 such as ANTs' Composite.h5; u(x) = x + D(x)), or Learn2Reg's field (steps from fixed to moving voxels:
     /// an .npz, or its NIfTI form with --field-format learn2reg).
-    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial"])]
+    #[arg(long, conflicts_with_all = ["landmarks", "moving_points", "fixed_points", "session", "method", "stiffness", "levels", "initial", "initial_field"])]
     pub field: Option<PathBuf>,
     #[command(flatten)]
     pub field_format: FieldFormatArgs,

@@ -751,3 +751,123 @@ fn info_describes_a_displacement_field_of_any_flavour() {
     assert_eq!((h5["format"].as_str(), h5["direction"].as_str()), (Some("itk_h5"), Some("pullback")), "{h5}");
     assert_eq!(h5["dims"], serde_json::json!([8, 7, 6]));
 }
+
+/// `--initial-field` puts a field under the landmark warp, as a session's field lies under it: with no pairs it alone
+/// is the warp, and `warp --exact` resamples as SimpleITK does through it (the oracle above); with pairs, the TPS
+/// (λ = 0) is fitted after the field has acted, so each fixed landmark still maps onto its moving partner, and far
+/// from the pairs the warp is the field's (the pairs here are the field's own map at their fixed points, so the
+/// landmark fit is the identity and `points` must give ITK's `TransformPoint` everywhere, which the reference's
+/// resampled values already test voxel by voxel).
+#[test]
+fn initial_field_lies_under_the_landmarks() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
+    let field_path = fixture("field.nii.gz");
+    let none = dir.path().join("none.csv");
+    common::write_pairs_csv(&none, &[]);
+    let out = dir.path().join("alone.nii.gz");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&moving),
+        "--initial-field",
+        s(&field_path),
+        "--landmarks",
+        s(&none),
+        "--exact",
+        "--backend",
+        "cpu",
+        "--quiet",
+        "--json",
+        "--out",
+        s(&out),
+    ]);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert!(report["method"].as_str().expect("method").contains("field_input_field.nii.gz alone"), "{report}");
+    assert_matches_itk(&out, "--initial-field with no pairs");
+
+    // Pairs on top: fixed points inside the field, moving points off the field's map by a few mm.
+    let (field, _) = read_field(&field_path).expect("read the field");
+    let u: SampledField<Moving, Fixed> = SampledField::from_displacement_field(field).expect("field");
+    let fixed_points = [[-6.0, 4.0, 3.0], [5.0, -3.0, -2.0], [2.0, 6.0, -5.0], [-4.0, -5.0, 4.0], [0.5, 0.5, 0.5]];
+    let shifts = [[2.0, 0.0, 0.0], [0.0, -1.5, 0.5], [0.0, 0.0, 2.5], [-1.0, 1.0, 0.0], [0.0, 0.0, 0.0]];
+    let pairs: Vec<([f64; 3], [f64; 3])> = fixed_points
+        .iter()
+        .zip(&shifts)
+        .map(|(q, d)| {
+            let p = u.apply_raw(*q);
+            ([p[0] + d[0], p[1] + d[1], p[2] + d[2]], *q)
+        })
+        .collect();
+    let csv = dir.path().join("pairs.csv");
+    common::write_pairs_csv(&csv, &pairs);
+    let targets = dir.path().join("targets.csv");
+    let lines: Vec<String> = fixed_points.iter().map(|q| format!("{},{},{}", q[0], q[1], q[2])).collect();
+    std::fs::write(&targets, lines.join("\n")).expect("write");
+    let mapped = dir.path().join("mapped.csv");
+    let run = warpbench(&[
+        "points",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&moving),
+        "--initial-field",
+        s(&field_path),
+        "--landmarks",
+        s(&csv),
+        "--from",
+        "fixed",
+        "--in",
+        s(&targets),
+        "--out",
+        s(&mapped),
+        "--quiet",
+    ]);
+    assert_ok(&run);
+    let text = std::fs::read_to_string(&mapped).expect("mapped points");
+    for (line, (p, q)) in text.lines().zip(&pairs) {
+        let got: Vec<f64> = line.split(',').take(3).map(|v| v.parse().expect("mm")).collect();
+        let off = (0..3).map(|a| (got[a] - p[a]).powi(2)).sum::<f64>().sqrt();
+        assert!(off < 1e-6, "u({q:?}) = {got:?}, not its partner {p:?} ({off} mm)");
+    }
+}
+
+/// `--initial-field` is refused where it means nothing or cannot be read, exit 2, naming the file: beside `--field`
+/// (which is the whole warp) or `--session` (which carries its own), in `render` without landmarks, and for a
+/// Learn2Reg `.npz`, whose voxel steps need grids nothing records here.
+#[test]
+fn initial_field_refusals() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
+    let field = fixture("field.nii.gz");
+    let csv = dir.path().join("pairs.csv");
+    common::write_pairs_csv(&csv, &[]);
+    let out = dir.path().join("out.nii.gz");
+    let npz = common::data("learn2reg/disp_2021.npz");
+    let base = ["--fixed", s(&fixed), "--moving", s(&moving), "--quiet", "--out", s(&out)];
+    let cases: [(&str, Vec<&str>, &[&str]); 4] = [
+        ("warp", vec!["--field", s(&field), "--initial-field", s(&field)], &["'--initial-field <FIELD>'"]),
+        ("render", vec!["--initial-field", s(&field)], &["field_input_field.nii.gz", "give landmarks too"]),
+        (
+            "warp",
+            vec!["--initial-field", s(&npz), "--landmarks", s(&csv)],
+            &["disp_2021.npz", "Learn2Reg", "warpbench field --field"],
+        ),
+        ("field", vec!["--session", s(&csv), "--initial-field", s(&field)], &["'--initial-field <FIELD>'"]),
+    ];
+    for (command, extra, needles) in cases {
+        let mut args = vec![command];
+        args.extend(base);
+        args.extend(extra);
+        let run = warpbench(&args);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
+        for needle in needles {
+            assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
+        }
+        assert!(!out.exists(), "a refused run wrote {}", out.display());
+    }
+}

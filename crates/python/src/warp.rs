@@ -19,6 +19,7 @@ use warpbench_app::fit;
 use warpbench_app::inputs::{self, Correspondences, Names};
 use warpbench_app::jacobian;
 use warpbench_app::project::diagnostics::DiagnosticsInput;
+use warpbench_app::project::field_file::{FieldFile, FieldReadFormat};
 use warpbench_app::project::stack::{Layers, StackForward, StackPullback};
 use warpbench_app::settings::MethodKind;
 use warpbench_app::start::Start;
@@ -154,10 +155,11 @@ fn stiffness_arg(value: &Bound<'_, PyAny>) -> PyResult<StiffnessArg> {
 impl Warp {
     /// Fits `method` on the pairs (see `warpbench.fit`). `fixed_grid` and `moving_grid` are `(dims,
     /// lps_from_index)`: with them the pairs are checked against the volumes and the fit's domains are their boxes,
-    /// as on the command line.
+    /// as on the command line. `initial_field` lies under the fit, and `initial` after it (`--initial-field`); a
+    /// Learn2Reg `.npz` is read against the two grids.
     #[staticmethod]
     #[pyo3(signature = (moving, fixed, names, active, origin, method = "tps", stiffness = None, levels = None,
-        initial = None, fixed_grid = None, moving_grid = None))]
+        initial = None, fixed_grid = None, moving_grid = None, initial_field = None))]
     #[allow(clippy::too_many_arguments, reason = "the Python signature of warpbench.fit")]
     fn fit(
         py: Python<'_>,
@@ -172,6 +174,7 @@ impl Warp {
         initial: Option<PathBuf>,
         fixed_grid: Option<(Vec<usize>, PyReadonlyArray2<'_, f64>)>,
         moving_grid: Option<(Vec<usize>, PyReadonlyArray2<'_, f64>)>,
+        initial_field: Option<PathBuf>,
     ) -> PyResult<Self> {
         let pairs = pairs_from_arrays(&origin, &moving, &fixed, &names, &active)?;
         let kind = <MethodKind as clap::ValueEnum>::from_str(method, true).map_err(|_| {
@@ -185,13 +188,27 @@ impl Warp {
         };
         guarded(py, move || {
             let start = initial.as_deref().map(Start::read).transpose().map_err(bad_input)?;
-            let layers = Layers::new(start, None);
+            let mut layers = Layers::new(start, None);
             let zeros = grids
                 .as_ref()
                 .map(|(f, m)| {
                     Ok::<_, PyErr>((geometry_volume(Path::new("fixed"), f)?, geometry_volume(Path::new("moving"), m)?))
                 })
                 .transpose()?;
+            if let Some(path) = initial_field {
+                let file = match &zeros {
+                    Some((f, m)) => FieldFile::chosen(path, FieldReadFormat::Auto, f, m).map_err(bad_input)?,
+                    None if warpbench_io::learn2reg::is_npz_file(&path).map_err(io)? => {
+                        return Err(PyValueError::new_err(format!(
+                            "initial_field={}: a Learn2Reg field holds steps in the voxels of its fixed and moving \
+                             images: give fixed= and moving=",
+                            path.display()
+                        )));
+                    }
+                    None => FieldFile::new(path),
+                };
+                layers.field = Some(std::sync::Arc::new(file.layer().map_err(bad_input)?));
+            }
             let within = zeros.as_ref().map(|(f, m)| (m, f));
             // Checked with the fewest pairs any method needs on this base; the method's own count is checked by
             // the fit, whose message names it.

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import warpbench as wb
-from conftest import DATA, PAIRS, T1, run_cli
+from conftest import DATA, FIXED, MOVING, PAIRS, T1, run_cli
 
 sitk = pytest.importorskip("SimpleITK")
 
@@ -180,3 +180,54 @@ def test_jacobian_is_the_limit_of_simpleitks_finite_differences_and_the_clis_map
         warp.jacobian(head, quantity="volume")
     with pytest.raises(ValueError, match="give pullback or forward"):
         warp.jacobian(head, direction="backward")
+
+
+def test_initial_field_lies_under_initial_as_itks_composite_applies_them(tmp_path):
+    """``fit(initial_field=, initial=)`` and ``points --initial-field --initial`` with no pairs map a fixed point x to
+    A(F(x)), the field first, as SimpleITK's ``CompositeTransform([A, F])`` (ANTs' ``-t FIELD -t AFFINE``) maps it:
+    inside the oblique field's grid and outside it, where F is the identity. With pairs on top, the landmark fit
+    keeps each fixed landmark on its moving partner."""
+    field_path = DATA / "itk" / "field_input_field_sitk.nii.gz"
+    displacement = sitk.DisplacementFieldTransform(sitk.Cast(sitk.ReadImage(str(field_path)), sitk.sitkVectorFloat64))
+    affine = sitk.AffineTransform(3)
+    affine.SetMatrix((0.98, -0.1, 0.02, 0.09, 1.01, -0.04, -0.03, 0.05, 0.99))
+    affine.SetTranslation((2.5, -1.0, 3.0))
+    affine.SetCenter((1.0, -2.0, 0.5))
+    tfm = tmp_path / "affine.tfm"
+    sitk.WriteTransform(affine, str(tfm))
+    composite = sitk.CompositeTransform([affine, displacement])
+    points = np.array([[0.0, 0.0, 0.0], [-5.5, 3.25, 2.0], [4.0, -6.0, -3.5], [40.0, 30.0, -25.0], [-2.0, 9.0, 6.0]])
+    want = np.array([composite.TransformPoint(tuple(p)) for p in points])
+    moved = np.array([displacement.TransformPoint(tuple(p)) for p in points])
+    assert np.abs(moved - points).max() > 1.0, "the points feel the field"
+
+    none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    warp = wb.fit(none, initial=tfm, initial_field=field_path)
+    # ITK's field reads its f32 vectors and f32 sform into doubles as warpbench does: agreement to f32 geometry.
+    np.testing.assert_allclose(warp.pullback(points), want, rtol=0, atol=1e-4)
+    assert "field_input_field_sitk.nii.gz" in warp.method
+
+    targets, out = tmp_path / "targets.csv", tmp_path / "mapped.csv"
+    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points.tolist()))
+    empty = tmp_path / "none.csv"
+    empty.write_text("")
+    run_cli("points", "--fixed", FIXED, "--moving", MOVING, "--initial", tfm, "--initial-field", field_path,
+            "--landmarks", empty, "--from", "fixed", "--in", targets, "--out", out, "--quiet")
+    got = np.array([[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4)
+
+    # Pairs on top of the two: each fixed landmark maps onto its moving partner.
+    fixed_points = points[:4] * 0.5
+    moving_points = np.array([composite.TransformPoint(tuple(q)) for q in fixed_points]) + [[1.5, 0, 0], [0, -2, 0],
+                                                                                           [0, 0, 1], [1, 1, -1]]
+    on_top = wb.fit(wb.Pairs(moving_points, fixed_points), initial=tfm, initial_field=field_path)
+    np.testing.assert_allclose(on_top.pullback(fixed_points), moving_points, rtol=0, atol=1e-6)
+
+
+def test_a_learn2reg_initial_field_needs_the_volumes(tmp_path):
+    """A Learn2Reg ``.npz`` under the landmarks is read against ``fixed`` and ``moving``; without them it is a
+    ValueError naming the file."""
+    npz = DATA / "learn2reg" / "disp_2021.npz"
+    none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    with pytest.raises(ValueError, match="disp_2021.npz.*fixed= and moving="):
+        wb.fit(none, initial_field=npz)

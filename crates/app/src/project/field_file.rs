@@ -121,8 +121,9 @@ impl FieldFile {
         let Some(grids) = &self.voxel_grids else {
             if learn2reg::is_npz_name(&self.path) || learn2reg::is_npz_file(&self.path).unwrap_or(false) {
                 bail!(
-                    "{origin}: a Learn2Reg field's steps are in the voxels of its fixed and moving images, and the \
-                     session does not record which; choose it with Use displacement field... in the window, with \
+                    "{origin}: a Learn2Reg field's steps are in the voxels of its fixed and moving images, and \
+                     nothing here records which. Write it in mm first (warpbench field --field {origin} --fixed F \
+                     --moving M --out field.nii.gz), or choose it with Use displacement field... in the window, with \
                      those two volumes open"
                 );
             }

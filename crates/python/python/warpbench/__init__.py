@@ -503,6 +503,7 @@ def fit(
     fixed: Optional[Volume] = None,
     moving: Optional[Volume] = None,
     levels: Optional[int] = None,
+    initial_field: Optional[PathLike] = None,
 ) -> Warp:
     """Fits a warp on the active pairs with both points, as the command line fits it.
 
@@ -517,6 +518,9 @@ def fit(
             and the fit's domains are their boxes, as on the command line; without them, the points' box grown by
             a tenth (it matters only to ``hbspline``).
         levels: the hierarchical B-spline's levels.
+        initial_field: a displacement field under the landmark warp, in any flavour :func:`read_field` reads (a
+            registration the landmarks correct). It maps fixed points first and ``initial`` after it, as
+            ``antsApplyTransforms -t FIELD -t TFM`` does. A Learn2Reg ``.npz`` needs ``fixed`` and ``moving``.
     """
     if (fixed is None) != (moving is None):
         raise ValueError("give both fixed= and moving=, or neither")
@@ -533,6 +537,7 @@ def fit(
         None if initial is None else os.fspath(initial),
         None if fixed is None else fixed._grid(),
         None if moving is None else moving._grid(),
+        None if initial_field is None else os.fspath(initial_field),
     )
     return Warp(native, pairs, fixed, moving)
 

@@ -48,6 +48,7 @@ class Warp:
         initial: Optional[str] = None,
         fixed_grid: Optional[Grid] = None,
         moving_grid: Optional[Grid] = None,
+        initial_field: Optional[str] = None,
     ) -> "Warp": ...
     @property
     def method(self) -> str: ...
