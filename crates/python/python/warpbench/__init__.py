@@ -640,8 +640,8 @@ def register(
 ) -> Dict[str, Any]:
     """Deformable registration by intensities under the landmarks (``warpbench register``).
 
-    The options are the CLI's: ``session``, ``initial``, ``method``, ``stiffness``, ``metric`` (``"mi"``,
-    ``"ngf"`` or ``"lncc"``), ``fixed_mask`` and ``moving_mask`` (paths), ``grid_mm``, ``levels``,
+    The options are the CLI's: ``session``, ``initial``, ``initial_field``, ``method``, ``stiffness``, ``metric``
+    (``"mi"``, ``"ngf"`` or ``"lncc"``), ``fixed_mask`` and ``moving_mask`` (paths), ``grid_mm``, ``levels``,
     ``landmark_weight``, ``bending_weight``, ``samples``, ``iterations``, ``seed``, ``backend``, ``format``,
     ``force``, ``out_inverse_field`` (a path: the inverse as a forward field on the moving grid). ``out_field``
     (the displacement field) and ``out`` (the warped volume) are written when given.
@@ -671,8 +671,8 @@ def suggest(
     """Suggested fixed targets for moving ``points`` (``warpbench suggest``): a point-list file, or an N×3 array
     of LPS mm. The prediction comes from ``landmarks`` (or ``session``/``initial`` in the options) and the search
     from the images. ``out`` (BigWarp CSV or JSON) is written when given; the other options are the CLI's
-    (``search_radius_mm``, ``method``, ``stiffness``, ``initial``, ``session``, ``force``). Returns its ``--json``
-    report."""
+    (``search_radius_mm``, ``method``, ``stiffness``, ``initial``, ``initial_field``, ``session``, ``force``).
+    Returns its ``--json`` report."""
     with ExitStack() as stack:
         io = _Inputs(stack)
         argv = ["suggest", "--fixed", io.volume(fixed, "fixed"), "--moving", io.volume(moving, "moving")]
