@@ -238,6 +238,17 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
 }
 
+/// Types `out` into the export section and presses `button`; the status bar's message once the export is done.
+fn export(harness: &mut Harness<'_, Workbench>, button: &str, out: &Path) -> String {
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = out.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label(button).scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label(button).click();
+    harness.run_steps(1);
+    wait_for_export(harness)
+}
+
 #[test]
 fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_does() {
     if no_adapter() {
@@ -289,24 +300,15 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     harness.key_press(egui::Key::Escape);
     harness.run_steps(2);
     // A field's name picks its flavour: NIfTI is ITK's, .nrrd Slicer's (stating the direction), .mha MetaImage.
-    let mut export = |button: &str, out: &Path| {
-        harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = out.display().to_string();
-        harness.run_steps(2);
-        harness.get_by_label(button).scroll_to_me();
-        harness.run_steps(3);
-        harness.get_by_label(button).click();
-        harness.run_steps(1);
-        wait_for_export(&mut harness)
-    };
     let field_out = dir.path().join("field.nii.gz");
-    let message = export("Export displacement field", &field_out);
+    let message = export(&mut harness, "Export displacement field", &field_out);
     assert!(message.contains("displacement field"), "{message}");
     let metaimage_out = dir.path().join("field.mha");
-    let message = export("Export displacement field", &metaimage_out);
+    let message = export(&mut harness, "Export displacement field", &metaimage_out);
     assert!(message.contains("displacement field"), "{message}");
     // .h5: ITK's HDF5 transform file, holding the same vectors as a DisplacementFieldTransform.
     let h5_out = dir.path().join("field.h5");
-    let message = export("Export displacement field", &h5_out);
+    let message = export(&mut harness, "Export displacement field", &h5_out);
     assert!(message.contains("displacement field"), "{message}");
     let (nifti, _) = warpbench_io::displacement::read_field(&field_out).expect("the NIfTI field");
     let chain = warpbench_io::itk_h5::read(&h5_out).unwrap_or_else(|e| panic!("{e}"));
@@ -319,30 +321,51 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     }
     // .npz: Learn2Reg's field, the pull-back's steps in voxels (the inverse is refused under that name, below).
     let npz_out = dir.path().join("disp_0001_0002.npz");
-    let message = export("Export displacement field", &npz_out);
+    let message = export(&mut harness, "Export displacement field", &npz_out);
     assert!(message.contains("displacement field"), "{message}");
+    // A NIfTI name with Learn2Reg steps in voxels ticked: the challenge's NIfTI form of the same steps (and the
+    // inverse, which that form cannot hold, is not offered meanwhile).
+    let l2r_nifti_out = dir.path().join("disp_0001_0002.nii.gz");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = l2r_nifti_out.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("Learn2Reg steps in voxels").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("Learn2Reg steps in voxels").click();
+    harness.run_steps(2);
+    assert!(harness.state().ready().expect("loaded").files.export_fields.field_in_voxels, "ticked");
+    {
+        use egui_kittest::kittest::NodeT as _;
+        assert!(harness.get_by_label("Export inverse field").accesskit_node().is_disabled(), "inverse offered");
+    }
+    let message = export(&mut harness, "Export displacement field", &l2r_nifti_out);
+    assert!(message.contains("displacement field"), "{message}");
+    harness.get_by_label("Learn2Reg steps in voxels").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("Learn2Reg steps in voxels").click();
+    harness.run_steps(2);
+    assert!(!harness.state().ready().expect("loaded").files.export_fields.field_in_voxels);
     let inverse_out = dir.path().join("inverse.nrrd");
-    let message = export("Export inverse field", &inverse_out);
+    let message = export(&mut harness, "Export inverse field", &inverse_out);
     assert!(message.contains("inverse (forward) displacement field"), "{message}");
     let tfm_out = dir.path().join("moving_from_fixed.tfm");
-    let message = export("Export transform", &tfm_out);
+    let message = export(&mut harness, "Export transform", &tfm_out);
     assert!(message.contains("ThinPlateSplineKernelTransform_double_3_3 (5 pairs"), "{message}");
     let elastix_out = dir.path().join("TransformParameters.0.txt");
-    let message = export("Export for elastix", &elastix_out);
+    let message = export(&mut harness, "Export for elastix", &elastix_out);
     assert!(message.contains("SplineKernelTransform (5 pairs"), "{message}");
     // A DICOM registration relates two DICOM series: two NIfTI volumes are refused.
     let reg_out = dir.path().join("reg.dcm");
-    let message = export("Export DICOM registration", &reg_out);
+    let message = export(&mut harness, "Export DICOM registration", &reg_out);
     assert!(message.contains("reg.dcm") && message.contains("is not DICOM"), "{message}");
     assert!(!reg_out.exists());
     let det_out = dir.path().join("det.nii.gz");
-    let message = export("Export Jacobian map", &det_out);
+    let message = export(&mut harness, "Export Jacobian map", &det_out);
     assert!(
         message.contains("Jacobian determinant map of the tps warp (5 pairs)") && message.contains("% folded"),
         "{message}"
     );
     let magnitude_out = dir.path().join("moved.nrrd");
-    let message = export("Export warp magnitude", &magnitude_out);
+    let message = export(&mut harness, "Export warp magnitude", &magnitude_out);
     assert!(message.contains("warp magnitude (mm) map"), "{message}");
     // Names a button refuses (no export starts): the status bar says why, and nothing is written. Learn2Reg's .npz
     // holds the pull-back only.
@@ -356,7 +379,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
         ("Export for elastix", "elastix.tfm", "an elastix transform parameter file is a .txt"),
     ] {
         let out = dir.path().join(name);
-        let message = export(button, &out);
+        let message = export(&mut harness, button, &out);
         assert!(message.contains(says) && !out.exists(), "{button}: {message}");
     }
 
@@ -382,6 +405,10 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let cli_npz = dir.path().join("cli_field.npz").display().to_string();
     cli(&[&["field"], &common[..], &["--out", cli_npz.as_str()]].concat());
     assert!(std::fs::read(&npz_out).expect("window's") == std::fs::read(&cli_npz).expect("CLI's"), "npz");
+    let cli_l2r_nifti = dir.path().join("cli_disp.nii.gz").display().to_string();
+    cli(&[&["field"], &common[..], &["--format", "learn2reg", "--out", cli_l2r_nifti.as_str()]].concat());
+    let same = std::fs::read(&l2r_nifti_out).expect("window's") == std::fs::read(&cli_l2r_nifti).expect("CLI's");
+    assert!(same, "Learn2Reg's NIfTI form");
     let cli_inverse = dir.path().join("cli_inverse.nrrd").display().to_string();
     let forward = ["--direction", "forward", "--format", "nrrd", "--out", cli_inverse.as_str()];
     cli(&[&["field"], &common[..], &forward[..]].concat());

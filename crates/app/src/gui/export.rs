@@ -34,8 +34,9 @@ pub enum ExportKind {
     /// The warped moving volume as NIfTI, NRRD or MetaImage (by the name), and as a DICOM series in this (new or
     /// empty) folder when given.
     Warped { dicom: Option<PathBuf> },
-    /// The pull-back as a displacement field (NIfTI, ITK/ANTs/Slicer convention).
-    Field,
+    /// The pull-back as a displacement field: in mm, in the flavour its name picks ([`field_format`]), or in
+    /// Learn2Reg's voxel steps.
+    Field { form: FieldForm },
     /// The inverse, the forward map as a displacement field on the moving grid (NIfTI), as `warpbench field
     /// --direction forward` writes it: what moving points and meshes need.
     InverseField,
@@ -65,6 +66,25 @@ pub struct ExportInput {
     pub field: Option<crate::project::field_file::FieldFile>,
 }
 
+/// How an exported displacement field is written.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum FieldForm {
+    /// In mm, in the flavour its name picks; a name ending `.npz` is Learn2Reg's.
+    #[default]
+    ByName,
+    /// Learn2Reg's steps from the fixed voxels to the moving voxels, `.npz` or the NIfTI form by the name
+    /// ([`field::write_learn2reg`]): "Learn2Reg steps in voxels", for a NIfTI name.
+    Learn2Reg,
+}
+
+impl FieldForm {
+    /// Whether a field exported to `out` is Learn2Reg's.
+    #[must_use]
+    pub fn is_learn2reg(self, out: &Path) -> bool {
+        self == Self::Learn2Reg || learn2reg::is_npz_name(out)
+    }
+}
+
 /// An export running on a worker thread.
 #[derive(Debug)]
 pub struct ExportJob {
@@ -87,8 +107,18 @@ impl ExportJob {
                 warp::check_outputs(&out, dicom.as_deref()).map_err(|e| format!("{e:#}"))?;
             }
             ExportKind::Map { .. } => warp::check_outputs(&out, None).map_err(|e| format!("{e:#}"))?,
-            // Learn2Reg's .npz holds the pull-back on the fixed voxels ([`field::write_learn2reg`]).
-            ExportKind::Field if learn2reg::is_npz_name(&out) => {}
+            // Learn2Reg's field holds the pull-back on the fixed voxels ([`field::write_learn2reg`]), as an .npz or
+            // the NIfTI form.
+            ExportKind::Field { form } if form.is_learn2reg(&out) => {
+                let nifti = FieldFormat::from_extension(&out) == Some(FieldFormat::Itk);
+                if !learn2reg::is_npz_name(&out) && !nifti {
+                    return Err(format!(
+                        "{}: Learn2Reg's field is an .npz (the challenge's form until 2021) or a .nii.gz (its form \
+                         since 2022)",
+                        out.display()
+                    ));
+                }
+            }
             ExportKind::InverseField if learn2reg::is_npz_name(&out) => {
                 return Err(format!(
                     "{}: a Learn2Reg field (.npz) holds the pull-back on the fixed grid: export it with Export \
@@ -96,7 +126,7 @@ impl ExportJob {
                     out.display()
                 ));
             }
-            ExportKind::Field | ExportKind::InverseField => {
+            ExportKind::Field { .. } | ExportKind::InverseField => {
                 field::check_field_name(&out, field_format(&out)?).map_err(|f| format!("{:#}", f.error()))?;
             }
             ExportKind::Transform { format } => check_transform_output(&out, *format)?,
@@ -291,7 +321,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 map.max
             ))
         }
-        ExportKind::Field | ExportKind::InverseField => {
+        ExportKind::Field { .. } | ExportKind::InverseField => {
             let mut progress = |done: u64, total: u64| {
                 watch.report(&file_name(out), Progress { stage: "field slices", done, total });
                 !watch.cancelled()
@@ -301,7 +331,8 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 _ => (FieldDirection::Pullback, fixed, "displacement field"),
             };
             let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
-            if direction == FieldDirection::Pullback && learn2reg::is_npz_name(out) {
+            let learn2reg = matches!(kind, ExportKind::Field { form } if form.is_learn2reg(out));
+            if learn2reg {
                 field::write_learn2reg(out, f.dims, &f.lps_from_index, &moving.lps_from_index, &f.displacements_lps)?;
             } else {
                 let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
@@ -385,6 +416,7 @@ pub fn export_ui(
     .labelled_by(ui.label("DICOM series folder").id);
     let path = PathBuf::from(fields.out.trim());
     let enabled = !fields.out.trim().is_empty();
+    let nifti = FieldFormat::from_extension(&path) == Some(FieldFormat::Itk);
     let mut asked = None;
     ui.horizontal(|ui| {
         if ui.add_enabled(enabled, egui::Button::new("Export warped volume")).clicked() {
@@ -392,16 +424,30 @@ pub fn export_ui(
             asked = Some((ExportKind::Warped { dicom }, path.clone()));
         }
         if ui.add_enabled(enabled, egui::Button::new("Export displacement field")).clicked() {
-            asked = Some((ExportKind::Field, path.clone()));
+            let form = if nifti && fields.field_in_voxels { FieldForm::Learn2Reg } else { FieldForm::ByName };
+            asked = Some((ExportKind::Field { form }, path.clone()));
         }
     });
-    let inverse = ui.add_enabled(enabled, egui::Button::new("Export inverse field"));
-    if inverse
-        .on_hover_text("The forward map on the moving grid: where each moving point goes (points, meshes)")
-        .clicked()
-    {
-        asked = Some((ExportKind::InverseField, path.clone()));
-    }
+    ui.horizontal(|ui| {
+        // Learn2Reg's form holds the pull-back only.
+        let voxels = nifti && fields.field_in_voxels;
+        let inverse = ui.add_enabled(enabled && !voxels, egui::Button::new("Export inverse field"));
+        if inverse
+            .on_hover_text("The forward map on the moving grid: where each moving point goes (points, meshes)")
+            .on_disabled_hover_text("Learn2Reg's field holds the pull-back only: untick Learn2Reg steps in voxels")
+            .clicked()
+        {
+            asked = Some((ExportKind::InverseField, path.clone()));
+        }
+        // Only a NIfTI name can take Learn2Reg's form, and only it needs saying so (an .npz is Learn2Reg's).
+        if nifti {
+            ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
+                "Export displacement field writes Learn2Reg's form: at each fixed voxel, the step to the moving \
+                 voxel it reads, in voxels (float32, the fixed volume's affine), as the challenge's evaluation \
+                 reads disp_XXXX_YYYY.nii.gz",
+            );
+        }
+    });
     ui.horizontal(|ui| {
         for (label, quantity, hover) in [
             (
@@ -448,4 +494,6 @@ pub fn export_ui(
 pub struct ExportFields {
     pub out: String,
     pub dicom: String,
+    /// Whether a field exported under a NIfTI name is Learn2Reg's steps in voxels ([`FieldForm::Learn2Reg`]).
+    pub field_in_voxels: bool,
 }

@@ -54,7 +54,9 @@ impl Ready {
                 Err(e) => self.files.message = Some(format!("{e:#}")),
             },
             FileAction::ExportWarped(path) => self.start_export(export::ExportKind::Warped { dicom: None }, path),
-            FileAction::ExportField(path) => self.start_export(export::ExportKind::Field, path),
+            FileAction::ExportField(path) => {
+                self.start_export(export::ExportKind::Field { form: export::FieldForm::ByName }, path);
+            }
             FileAction::ExportInverseField(path) => self.start_export(export::ExportKind::InverseField, path),
             FileAction::ExportMap(quantity, path) => self.start_export(export::ExportKind::Map { quantity }, path),
             FileAction::ExportTransform(format, path) => {
