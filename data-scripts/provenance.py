@@ -178,7 +178,12 @@ composite of two affines) and `itk/h5_reference.json` (SimpleITK's `TransformPoi
 writes with the time, so a rerun's `.h5` bytes differ. `data-scripts/itk_linear_sitk.py` writes
 `itk/linear_*.tfm` (one of each of ITK's linear classes besides the affine, by SimpleITK's `WriteTransform`),
 `itk/h5_linear_classes.h5` (all of them in one composite) and `itk/linear_reference.json` (SimpleITK's
-`TransformPoint` through each).
+`TransformPoint` through each). `data-scripts/itk_tfm_chain.py` writes `itk/tfm_composite.tfm` (SimpleITK's
+`WriteTransform` of a composite of an affine and a B-spline to a text file), `itk/tfm_bspline.tfm` (the B-spline
+alone), `itk/tfm_slicer_inverse.tfm` (the composite's text with the B-spline's class renamed by the script to 3D
+Slicer's `InverseBSplineTransform_double_3_3`) and `itk/tfm_chain_reference.json` (SimpleITK's `TransformPoint`
+through the composite and the B-spline, and the affine's and the B-spline's images of seeded points); it is
+deterministic.
 
 | File (under tests/data) | Bytes | Made by | sha256 | Licence |
 |---|---|---|---|---|
@@ -214,6 +219,10 @@ SIMPLEITK_FILES = [
     ("itk/linear_similarity.tfm", "itk_linear_sitk.py"),
     ("itk/h5_linear_classes.h5", "itk_linear_sitk.py"),
     ("itk/linear_reference.json", "itk_linear_sitk.py"),
+    ("itk/tfm_composite.tfm", "itk_tfm_chain.py"),
+    ("itk/tfm_bspline.tfm", "itk_tfm_chain.py"),
+    ("itk/tfm_slicer_inverse.tfm", "itk_tfm_chain.py"),
+    ("itk/tfm_chain_reference.json", "itk_tfm_chain.py"),
 ]
 
 # Fixtures written by elastix and transformix (itk-elastix) from data and transforms our scripts make up.

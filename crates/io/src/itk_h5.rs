@@ -57,34 +57,20 @@ use std::path::Path;
 
 use hdf5_pure::{CharacterSet, Datatype, File, FileBuilder, GroupBuilder, StringPadding, make_u8_type};
 use nalgebra::{Matrix3, Vector3};
-use rayon::prelude::*;
 
 use crate::displacement::check::first_non_finite;
-use crate::displacement::{FieldDirection, FieldSource, ReadField};
+use crate::displacement::{FieldDirection, FieldSource, ReadField, SampleGrid};
 use crate::elastix::{FieldInterpolation, FieldStep};
 use crate::error::{Error, Result};
-use crate::geometry::{Index, Lps, Point3, Transform};
-use crate::itk_tfm::{ItkAffine, ItkBSpline, ItkTransform, known_types, transform_of};
+use crate::geometry::{Index, Lps, Transform};
+use crate::itk_chain::{COMPOSITE_TYPES, FIELD_TYPES, SLICER_INVERSE_BSPLINE_TYPES, SLICER_INVERSE_FIELD_TYPES};
+pub use crate::itk_chain::{InverseStep, ItkChain, ItkStep};
+use crate::itk_tfm::{ItkAffine, ItkTransform, known_types, transform_of};
 use crate::nifti::DisplacementField;
 use crate::volume::{self, GeometrySource};
 
 /// The first 8 bytes of every HDF5 file (without a user block, as ITK writes it).
 const SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
-
-/// The displacement-field classes read (ITK writes the double one).
-const FIELD_TYPES: [&str; 2] = ["DisplacementFieldTransform_double_3_3", "DisplacementFieldTransform_float_3_3"];
-
-/// The composite classes, which may stand only in group `0`.
-const COMPOSITE_TYPES: [&str; 2] = ["CompositeTransform_double_3_3", "CompositeTransform_float_3_3"];
-
-/// 3D Slicer's class for a grid transform saved in its modeling direction: the field is the map from the moving
-/// space to the fixed one (module docs).
-const SLICER_INVERSE_FIELD_TYPES: [&str; 2] =
-    ["InverseDisplacementFieldTransform_double_3_3", "InverseDisplacementFieldTransform_float_3_3"];
-
-/// 3D Slicer's class for a B-spline held in its modeling direction: the transform meant is the spline's inverse.
-const SLICER_INVERSE_BSPLINE_TYPES: [&str; 2] =
-    ["InverseBSplineTransform_double_3_3", "InverseBSplineTransform_float_3_3"];
 
 /// The longest file read: a displacement field of 256³ voxels in doubles is 400 MB.
 const MAX_FILE_BYTES: u64 = 4 << 30;
@@ -96,138 +82,6 @@ const MAX_TRANSFORMS: usize = 64;
 #[must_use]
 pub fn looks_like_hdf5(head: &[u8]) -> bool {
     head.starts_with(SIGNATURE)
-}
-
-/// One transform of an `.h5` file.
-#[derive(Clone, Debug, PartialEq)]
-pub enum ItkStep {
-    /// An affine or a cubic B-spline, as a `.tfm` holds them.
-    Transform(ItkTransform),
-    /// A `DisplacementFieldTransform`.
-    Field(Box<FieldStep>),
-    /// 3D Slicer's `InverseBSplineTransform` or `InverseDisplacementFieldTransform` in a composite: the inverse of
-    /// the B-spline or field its parameters describe (module docs), found point by point.
-    Inverse(InverseStep),
-}
-
-/// What a 3D Slicer `Inverse…` class holds: the transform whose inverse it stands for.
-#[derive(Clone, Debug, PartialEq)]
-pub enum InverseStep {
-    BSpline(ItkBSpline),
-    Field(Box<FieldStep>),
-}
-
-impl InverseStep {
-    /// The forward map S(y) whose inverse the step is, LPS mm.
-    fn forward(&self, y: [f64; 3]) -> [f64; 3] {
-        match self {
-            Self::BSpline(b) => b.apply(y),
-            Self::Field(f) => f.apply(y),
-        }
-    }
-
-    /// Slicer's class for it (the `_double_3_3` one).
-    #[must_use]
-    pub fn type_name(&self) -> &'static str {
-        match self {
-            Self::BSpline(_) => SLICER_INVERSE_BSPLINE_TYPES[0],
-            Self::Field(_) => SLICER_INVERSE_FIELD_TYPES[0],
-        }
-    }
-}
-
-impl ItkStep {
-    /// T(x), LPS mm ([`inverse_point`] for [`Self::Inverse`]).
-    fn apply(&self, x: [f64; 3]) -> [f64; 3] {
-        match self {
-            Self::Transform(ItkTransform::Affine(a)) => a.apply(x),
-            Self::Transform(ItkTransform::BSpline(b)) => b.apply(x),
-            // `read` refuses a thin-plate spline: it has no weights until it is fitted again.
-            Self::Transform(ItkTransform::ThinPlateSpline(_)) => x,
-            Self::Field(f) => f.apply(x),
-            Self::Inverse(step) => inverse_point(|y| step.forward(y), x),
-        }
-    }
-}
-
-/// How close T(y) must come to x for y to be T⁻¹(x), mm: far below any image's precision, and reached in a few
-/// Newton steps by a smooth transform.
-const INVERSE_TOLERANCE_MM: f64 = 1e-6;
-
-/// The most Newton steps [`inverse_point`] takes.
-const INVERSE_ITERATIONS: usize = 100;
-
-/// y with S(y) = x within [`INVERSE_TOLERANCE_MM`], S = `forward` ([`crate::geometry::newton_inverse`] on a
-/// central-difference Jacobian, h = 10⁻³ mm, from the better of x and x − (S(x) − x)). Where it does not converge
-/// (at a jump of S: ITK's B-spline and field are the identity outside their domain, so S jumps at its edge; or where
-/// S folds), the point of least residual found, as VTK gives its last estimate there
-/// (`vtkWarpTransform::InverseTransformPoint`, which inverts Slicer's warps to a looser 10⁻³ mm).
-fn inverse_point(forward: impl Fn([f64; 3]) -> [f64; 3], x: [f64; 3]) -> [f64; 3] {
-    const H: f64 = 1e-3;
-    let jacobian = |y: [f64; 3]| {
-        let mut j = Matrix3::zeros();
-        for a in 0..3 {
-            let (mut up, mut down) = (y, y);
-            up[a] += H;
-            down[a] -= H;
-            let (tu, td) = (forward(up), forward(down));
-            for c in 0..3 {
-                j[(c, a)] = (tu[c] - td[c]) / (2.0 * H);
-            }
-        }
-        j
-    };
-    let norm = |y: [f64; 3]| {
-        let f = forward(y);
-        ((f[0] - x[0]).powi(2) + (f[1] - x[1]).powi(2) + (f[2] - x[2]).powi(2)).sqrt()
-    };
-    let sx = forward(x);
-    let guess = [2.0 * x[0] - sx[0], 2.0 * x[1] - sx[1], 2.0 * x[2] - sx[2]];
-    let start = if norm(guess) < norm(x) { guess } else { x };
-    crate::geometry::newton_inverse(&forward, jacobian, x, start, (INVERSE_TOLERANCE_MM, INVERSE_ITERATIONS))
-}
-
-/// The transforms of an `.h5` file in the file's order (a composite's members; one for a file of one transform).
-#[derive(Clone, Debug, PartialEq)]
-pub struct ItkChain {
-    /// T₁, …, Tₙ: the last is applied first (module docs).
-    pub steps: Vec<ItkStep>,
-}
-
-impl ItkChain {
-    /// T(x) = T₁(T₂(… Tₙ(x))): fixed → moving, LPS mm.
-    #[must_use]
-    pub fn apply(&self, x: [f64; 3]) -> [f64; 3] {
-        self.steps.iter().rev().fold(x, |p, step| step.apply(p))
-    }
-
-    /// The chain as one affine when every transform in it is an affine; else the class of the first that is not.
-    ///
-    /// # Errors
-    /// The ITK class of the first transform that is not linear.
-    pub fn affine(&self) -> std::result::Result<ItkAffine, &'static str> {
-        let (mut matrix, mut offset) = (Matrix3::identity(), Vector3::zeros());
-        for step in self.steps.iter().rev() {
-            let a = match step {
-                ItkStep::Transform(ItkTransform::Affine(a)) => a,
-                ItkStep::Transform(t) => return Err(t.type_name()),
-                ItkStep::Field(_) => return Err(FIELD_TYPES[0]),
-                ItkStep::Inverse(inner) => return Err(inner.type_name()),
-            };
-            offset = a.matrix * offset + Vector3::from(a.offset());
-            matrix = a.matrix * matrix;
-        }
-        Ok(ItkAffine::from_offset(matrix, offset.into()))
-    }
-
-    /// The displacement field applied first (the last in the file): the grid of the fixed space that the chain
-    /// starts from, where [`read_field`] samples it.
-    fn innermost_field(&self) -> Option<&FieldStep> {
-        self.steps.iter().rev().find_map(|s| match s {
-            ItkStep::Field(f) | ItkStep::Inverse(InverseStep::Field(f)) => Some(f.as_ref()),
-            ItkStep::Inverse(InverseStep::BSpline(_)) | ItkStep::Transform(_) => None,
-        })
-    }
 }
 
 /// Reads the transforms of an ITK `.h5` file (module docs). Errors name the file: one that is not HDF5, a group
@@ -371,15 +225,14 @@ pub(crate) fn parse_single(path: &Path, bytes: Vec<u8>) -> Result<RawTransform> 
     }
 }
 
-/// Reads an `.h5` file holding a displacement field (alone, or in a composite with affines and B-splines) and
-/// samples the whole chain at every voxel centre x of the field applied first: D(x) = T(x) − x, LPS mm, the
-/// pull-back, as SimpleITK's `TransformToDisplacementField` gives it on that grid. A file holding only 3D Slicer's
-/// `InverseDisplacementFieldTransform` is its field as stored, stated to be the forward map (module docs).
+/// Reads an `.h5` file as a displacement field ([`crate::itk_chain::ItkChain::field_on`]: a chain holding a
+/// displacement field sampled on the grid of the field applied first; one of B-splines on `grid`). A file holding
+/// only 3D Slicer's `InverseDisplacementFieldTransform` is its field as stored, stated to be the forward map (module
+/// docs).
 ///
 /// # Errors
-/// As [`read`], a file without a displacement field (its transforms are linear: a starting transform), a
-/// displacement that is not finite in f32.
-pub fn read_field(path: &Path) -> Result<ReadField> {
+/// As [`read`] and [`crate::itk_chain::ItkChain::field_on`].
+pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField> {
     let (file, members) = members(path, read_bytes(path)?)?;
     if let [Member { group, kind }] = members.as_slice()
         && SLICER_INVERSE_FIELD_TYPES.contains(&kind.as_str())
@@ -392,36 +245,15 @@ pub fn read_field(path: &Path) -> Result<ReadField> {
         });
     }
     let chain = chain_of(path, &file, members)?;
-    let grid = chain.innermost_field().ok_or_else(|| {
-        Error::unsupported(
-            path,
-            "it holds no DisplacementFieldTransform, so it gives no grid to sample a field on; a file of linear \
-             transforms is a starting transform (--initial)",
-        )
-    })?;
-    let (dims, lps_from_index) = (grid.field.dims, grid.field.lps_from_index);
-    let n = volume::check_allocation(path, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
-    let mut displacements_lps: Vec<[f32; 3]> = volume::try_with_capacity(path, n, "the displacement vectors")?;
-    let [nx, ny, _] = dims;
-    (0..n)
-        .into_par_iter()
-        .map(|v| {
-            let ijk = [(v % nx) as f64, ((v / nx) % ny) as f64, (v / (nx * ny)) as f64];
-            let x = lps_from_index.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
-            let y = chain.apply(x);
-            [(y[0] - x[0]) as f32, (y[1] - x[1]) as f32, (y[2] - x[2]) as f32]
-        })
-        .collect_into_vec(&mut displacements_lps);
-    if let Some(ijk) = first_non_finite(dims, &displacements_lps) {
-        return Err(Error::invalid(path, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
-    }
-    let field = DisplacementField {
-        dims,
-        lps_from_index,
-        geometry_source: GeometrySource::ItkTransformFile,
-        displacements_lps,
-    };
-    Ok(ReadField { field, source: FieldSource::ItkHdf5, direction: Some(FieldDirection::Pullback) })
+    chain.field_on(path, grid, FieldSource::ItkHdf5)
+}
+
+/// [`read_field_on`] without a grid: a file that holds a displacement field.
+///
+/// # Errors
+/// As [`read_field_on`].
+pub fn read_field(path: &Path) -> Result<ReadField> {
+    read_field_on(path, None)
 }
 
 /// How many groups `/TransformGroup` holds, checked to be `0`, `1`, … with nothing else.

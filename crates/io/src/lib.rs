@@ -29,6 +29,7 @@ pub mod elastix;
 pub mod error;
 mod files;
 pub mod geometry;
+pub mod itk_chain;
 pub mod itk_h5;
 pub mod itk_tfm;
 pub mod landmarks;

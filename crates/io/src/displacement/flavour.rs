@@ -116,8 +116,11 @@ pub enum FieldSource {
     /// An elastix transform parameter file, sampled on its fixed grid as transformix does.
     ElastixTransform,
     /// An ITK HDF5 transform file (`.h5`) holding a displacement field, with the transforms around it, sampled on
-    /// that field's grid ([`crate::itk_h5::read_field`]).
+    /// that field's grid, or B-splines sampled on the grid a command gives ([`crate::itk_h5::read_field_on`]).
     ItkHdf5,
+    /// An ITK text transform file (`.tfm`) holding B-splines, with the affines around them, sampled on the grid a
+    /// command gives ([`crate::itk_chain::ItkChain::field_on`]).
+    ItkTransform,
     /// A DICOM Deformable Spatial Registration's grid of vectors ([`crate::dicom_reg::read_field`]).
     DicomRegistration,
     /// A Learn2Reg `.npz`, read against the fixed and moving grids ([`crate::learn2reg::pullback_from_voxels`]).
@@ -126,13 +129,14 @@ pub enum FieldSource {
 
 impl FieldSource {
     /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `dicom`, `learn2reg`.
+    /// `itk_tfm`, `dicom`, `learn2reg`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
             Self::Field(format) => format.name(),
             Self::ElastixTransform => "elastix",
             Self::ItkHdf5 => "itk_h5",
+            Self::ItkTransform => "itk_tfm",
             Self::DicomRegistration => "dicom",
             Self::Learn2Reg => "learn2reg",
         }
@@ -184,4 +188,22 @@ pub(crate) fn read_flavoured(path: &Path, head: &[u8]) -> Result<Option<ReadFiel
         return Ok(Some(ReadField { field, source: FieldSource::Field(format), direction: None }));
     }
     Ok(None)
+}
+
+/// A grid to sample a transform on that gives none of its own (ITK's B-spline): the fixed volume's, where a command
+/// has one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleGrid {
+    pub dims: [usize; 3],
+    pub lps_from_index: crate::geometry::Transform<crate::geometry::Lps, crate::geometry::Index>,
+    /// Where the grid's geometry came from (the volume's), which the sampled field keeps.
+    pub geometry_source: crate::volume::GeometrySource,
+}
+
+impl SampleGrid {
+    /// The grid of `volume`.
+    #[must_use]
+    pub fn of(volume: &crate::Volume) -> Self {
+        Self { dims: volume.dims, lps_from_index: volume.lps_from_index, geometry_source: volume.geometry_source }
+    }
 }

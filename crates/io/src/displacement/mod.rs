@@ -32,7 +32,7 @@ use std::path::Path;
 
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
-pub use flavour::{FieldDirection, FieldFormat, FieldSource, ReadField};
+pub use flavour::{FieldDirection, FieldFormat, FieldSource, ReadField, SampleGrid};
 pub(crate) use flavour::{head, read_flavoured};
 
 use crate::nifti::{self, DisplacementField, NiftiVectorIntent};
@@ -47,6 +47,25 @@ pub fn read_field(path: &Path) -> Result<(DisplacementField, FieldSource)> {
 
 /// [`read_field`], with the direction the file states (NRRD's `displacement field type`).
 pub fn read_field_info(path: &Path) -> Result<ReadField> {
+    read_field_on(path, None)
+}
+
+/// Whether the file at `path` is one of ITK's transform files, HDF5 or text (`.tfm`), by its first bytes: a file that
+/// may need a [`SampleGrid`] to be read as a field ([`read_field_on`]).
+///
+/// # Errors
+/// The file cannot be opened.
+pub fn is_itk_transform_file(path: &Path) -> Result<bool> {
+    let head = flavour::head(path)?;
+    Ok(crate::itk_h5::looks_like_hdf5(&head) || crate::itk_tfm::looks_like_text(&head))
+}
+
+/// [`read_field_info`], and an ITK transform file of B-splines (`.tfm` or `.h5`, which give no grid of their own)
+/// sampled at the voxel centres of `grid` ([`crate::itk_chain::ItkChain::field_on`]).
+///
+/// # Errors
+/// As [`read_field_info`]; such a file without `grid`.
+pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField> {
     let head = flavour::head(path)?;
     if let Some(read) = flavour::read_flavoured(path, &head)? {
         return Ok(read);
@@ -56,7 +75,11 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
         return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None });
     }
     if crate::itk_h5::looks_like_hdf5(&head) {
-        return crate::itk_h5::read_field(path);
+        return crate::itk_h5::read_field_on(path, grid);
+    }
+    if crate::itk_tfm::looks_like_text(&head) {
+        let chain = crate::transform_file::read_chain(path)?;
+        return chain.field_on(path, grid, FieldSource::ItkTransform);
     }
     if crate::learn2reg::looks_like_npz(&head) {
         return Err(Error::unsupported(
@@ -76,7 +99,7 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
     Err(Error::unsupported(
         path,
         "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD, MetaImage, an elastix transform \
-         parameter file, an ITK transform file (.h5) nor a DICOM Deformable Spatial Registration",
+         parameter file, an ITK transform file (.h5 or .tfm) nor a DICOM Deformable Spatial Registration",
     ))
 }
 

@@ -127,7 +127,7 @@ pub const MAX_BSPLINE_CONTROL_POINTS: usize = 1 << 21;
 pub const MAX_TPS_LANDMARKS: usize = 20_000;
 
 /// The longest file read: a B-spline of [`MAX_BSPLINE_CONTROL_POINTS`] at ~25 characters a number.
-const MAX_FILE_BYTES: u64 = 256 << 20;
+pub(crate) const MAX_FILE_BYTES: u64 = 256 << 20;
 
 /// One transform of an ITK transform file (module docs), LPS mm to LPS mm.
 #[derive(Clone, Debug, PartialEq)]
@@ -473,6 +473,12 @@ const HDF5_NAME_FOR_TEXT: &str = "ITK reads a file named .h5 as HDF5, and a text
                                   ITK's HDF5 transform file with warpbench_io::transform_file::write, or name this \
                                   one .tfm";
 
+/// Whether `head`, a file's first bytes, opens an ITK text transform file (`#Insight Transform File`).
+#[must_use]
+pub fn looks_like_text(head: &[u8]) -> bool {
+    head.starts_with(&MAGIC.as_bytes()[..23])
+}
+
 /// Whether `path` is named as an HDF5 file (`.h5`, `.hdf5`, `.hdf`, any case).
 #[must_use]
 pub fn is_hdf5_name(path: &Path) -> bool {
@@ -738,8 +744,33 @@ fn bspline_of(name: &Path, p: &[f64], f: &[f64]) -> Result<ItkBSpline> {
     })
 }
 
-/// The lines of a `.tfm` holding one transform of any class; `name` is used in errors.
+/// The lines of a `.tfm` holding one transform of any class; `name` is used in errors (a file of several
+/// transforms, or a composite, is refused here: [`crate::itk_chain::parse_text`] reads those).
 pub(crate) fn parse_lines<'a>(name: &Path, text: &'a str) -> Result<Lines<'a>> {
+    let mut blocks = parse_blocks(name, text)?;
+    if blocks.len() > 1 {
+        let kinds: Vec<&str> = blocks.iter().map(|b| b.kind).collect();
+        return Err(Error::unsupported(
+            name,
+            format!("{} transforms ({}); a single transform was expected here", blocks.len(), kinds.join(", ")),
+        ));
+    }
+    let lines = blocks.remove(0);
+    if lines.kind.contains("CompositeTransform") {
+        return Err(Error::unsupported(name, format!("{:?}: a composite transform holding nothing", lines.kind)));
+    }
+    Ok(lines)
+}
+
+/// The most transforms a text file may hold (a composite's members).
+const MAX_TRANSFORMS: usize = 64;
+
+/// A `#Transform N` block while it is read: its class, parameters and fixed parameters, each once seen.
+type PartialLines<'a> = (Option<&'a str>, Option<Vec<f64>>, Option<Vec<f64>>);
+
+/// The transforms of a `.tfm`, each `#Transform N` block's lines in the file's order, numbered 0, 1, …; `name` is
+/// used in errors. A composite's block has no numbers (ITK writes none for it).
+pub(crate) fn parse_blocks<'a>(name: &Path, text: &'a str) -> Result<Vec<Lines<'a>>> {
     let mut lines = text.lines().map(str::trim).filter(|l| !l.is_empty());
     if lines.next() != Some(MAGIC) {
         return Err(Error::new(
@@ -747,33 +778,65 @@ pub(crate) fn parse_lines<'a>(name: &Path, text: &'a str) -> Result<Lines<'a>> {
             ErrorKind::BadMagic { format: "transform (.tfm)", detail: format!("the first line is not {MAGIC:?}") },
         ));
     }
-    let (mut kind, mut params, mut fixed) = (None, None, None);
+    // Each block's lines so far.
+    let mut blocks: Vec<PartialLines<'a>> = Vec::new();
     for line in lines {
         if let Some(n) = line.strip_prefix("#Transform") {
-            if n.trim() != "0" {
-                return Err(Error::unsupported(
+            if n.trim() != blocks.len().to_string() {
+                return Err(Error::invalid(
                     name,
-                    format!("more than one transform ({line:?}); only a single transform is read"),
+                    format!(
+                        "{line:?}: the transforms are numbered 0, 1, … in order, and this is not #Transform {}",
+                        blocks.len()
+                    ),
                 ));
             }
-        } else if let Some(k) = line.strip_prefix("Transform:") {
-            kind = Some(k.trim());
+            if blocks.len() == MAX_TRANSFORMS {
+                return Err(Error::invalid(name, format!("more than {MAX_TRANSFORMS} transforms")));
+            }
+            blocks.push((None, None, None));
+            continue;
+        }
+        if line.starts_with('#') {
+            continue;
+        }
+        // A file of one transform may leave out "#Transform 0".
+        if blocks.is_empty() {
+            blocks.push((None, None, None));
+        }
+        let index = blocks.len() - 1;
+        let Some(block) = blocks.last_mut() else { continue };
+        if let Some(k) = line.strip_prefix("Transform:") {
+            if block.0.is_some() {
+                return Err(Error::invalid(name, format!("two \"Transform:\" lines in #Transform {index}")));
+            }
+            block.0 = Some(k.trim());
         } else if let Some(p) = line.strip_prefix("Parameters:") {
-            params = Some(numbers(name, "Parameters", p)?);
+            block.1 = Some(numbers(name, "Parameters", p)?);
         } else if let Some(p) = line.strip_prefix("FixedParameters:") {
-            fixed = Some(numbers(name, "FixedParameters", p)?);
-        } else if !line.starts_with('#') {
+            block.2 = Some(numbers(name, "FixedParameters", p)?);
+        } else {
             let shown: String = line.chars().take(80).collect();
             return Err(Error::invalid(name, format!("unexpected line {shown:?}")));
         }
     }
-    let kind = kind.ok_or_else(|| Error::invalid(name, "no \"Transform:\" line"))?;
-    if kind.contains("CompositeTransform") {
-        return Err(Error::unsupported(name, format!("{kind:?}: a composite transform; only a single one is read")));
+    if blocks.is_empty() {
+        return Err(Error::invalid(name, "no \"Transform:\" line"));
     }
-    let params = params.ok_or_else(|| Error::invalid(name, "no \"Parameters:\" line"))?;
-    let fixed = fixed.ok_or_else(|| Error::invalid(name, "no \"FixedParameters:\" line"))?;
-    Ok(Lines { kind, params, fixed })
+    blocks
+        .into_iter()
+        .enumerate()
+        .map(|(n, (kind, params, fixed))| {
+            let at = if n == 0 { String::new() } else { format!(" in #Transform {n}") };
+            let kind = kind.ok_or_else(|| Error::invalid(name, format!("no \"Transform:\" line{at}")))?;
+            if kind.contains("CompositeTransform") {
+                return Ok(Lines { kind, params: params.unwrap_or_default(), fixed: fixed.unwrap_or_default() });
+            }
+            let params = params.ok_or_else(|| Error::invalid(name, format!("no \"Parameters:\" line{at}")))?;
+            let fixed = fixed.ok_or_else(|| Error::invalid(name, format!("no \"FixedParameters:\" line{at}")))?;
+            Ok(Lines { kind, params, fixed })
+        })
+        .collect()
 }
 
 /// Finite numbers separated by white space.
@@ -841,7 +904,14 @@ mod tests {
         let cases = [
             ("not a transform\n", "not a transform (.tfm) file"),
             (&good.replace("AffineTransform_double_3_3", "BSplineTransform_double_3_3"), "transform type"),
-            (&good.replace("#Transform 0", "#Transform 1"), "more than one transform"),
+            (&good.replace("#Transform 0", "#Transform 1"), "numbered 0, 1, … in order"),
+            (
+                &format!(
+                    "{good}{}",
+                    good.replace("#Insight Transform File V1.0\n", "").replace("#Transform 0", "#Transform 1")
+                ),
+                "2 transforms (AffineTransform_double_3_3, AffineTransform_double_3_3); a single",
+            ),
             (&good.replace("Parameters: 1.02", "Parameters: nan"), "finite numbers"),
             (&good.replace("FixedParameters: 0 0 0", "FixedParameters: 0 0"), "2 numbers, expected 3"),
             (&good.replace("FixedParameters: 0 0 0\n", ""), "no \"FixedParameters:\" line"),
