@@ -275,9 +275,11 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         inputs::check_output(tfm, &input_paths, output.force).map_err(Failure::BadInput)?;
     }
     // A field in its own geometry is read before the volumes, so that one refused costs no loading; a Learn2Reg
-    // field, in the volumes' voxels, after them.
+    // field, in the volumes' voxels, and an ITK transform file, which may need the fixed grid, after them.
     let given = match &inputs {
-        WarpInputs::Field(f) if !f.format.is_learn2reg(&f.field)? => Some(crate::warp::read_warp_field(&f.field)?),
+        WarpInputs::Field(f) if !crate::warp::read_after_volumes(&f.field, f.format)? => {
+            Some(crate::warp::read_warp_field(&f.field, None)?)
+        }
         _ => None,
     };
 
@@ -299,15 +301,23 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
                 )));
             }
             let mut layers = Layers::new(p.start().map_err(Failure::BadInput)?, brushed);
-            layers.field = p.warp.field().map_err(Failure::BadInput)?;
+            layers.field = p.warp.field(&fixed).map_err(Failure::BadInput)?;
             (p.pairs().map_err(Failure::BadInput)?, layers)
         }
         WarpInputs::Field(f) => {
             let origin = f.field.display().to_string();
-            let layer = match given {
-                Some(crate::warp::WarpField::Pullback(s)) => FieldLayer::pullback(s, &origin),
-                Some(crate::warp::WarpField::Forward(s)) => FieldLayer::forward(s, &origin),
-                None => FieldLayer::pullback(crate::warp::read_learn2reg_field(&f.field, &fixed, &moving)?, &origin),
+            let read = match given {
+                Some(read) => read,
+                None if f.format.is_learn2reg(&f.field)? => {
+                    crate::warp::WarpField::Pullback(crate::warp::read_learn2reg_field(&f.field, &fixed, &moving)?)
+                }
+                // An ITK transform file: B-splines sampled on the output grid of a pull-back (the fixed one for the
+                // forward map, which inverts the pull-back there).
+                None => crate::warp::read_warp_field(&f.field, Some(reference.as_ref().unwrap_or(&fixed)))?,
+            };
+            let layer = match read {
+                crate::warp::WarpField::Pullback(s) => FieldLayer::pullback(s, &origin),
+                crate::warp::WarpField::Forward(s) => FieldLayer::forward(s, &origin),
             };
             let mut layers = Layers::new(None, None);
             layers.field = Some(std::sync::Arc::new(layer));

@@ -257,15 +257,24 @@ impl PairWarp {
         if base { 0 } else { method.needs().min_pairs }
     }
 
-    /// The displacement field under the landmark fit, read (`None` without one); errors name the file.
-    pub fn field(&self) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
-        self.base_field.as_ref().map(|f| f.layer().map(std::sync::Arc::new)).transpose()
+    /// The displacement field under the landmark fit, read (`None` without one): an ITK transform file of B-splines
+    /// is sampled on `fixed`'s grid unless a session recorded one ([`FieldFile::layer_on`]). Errors name the file.
+    ///
+    /// [`FieldFile::layer_on`]: crate::project::field_file::FieldFile::layer_on
+    pub fn field(&self, fixed: &Volume) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
+        let grid = warpbench_io::displacement::SampleGrid::of(fixed);
+        self.base_field.as_ref().map(|f| f.layer_on(Some(&grid)).map(std::sync::Arc::new)).transpose()
     }
 
-    /// The stack's layers around the landmark fit: the starting transform, the field and `brushed` on top.
-    pub fn layers(&self, brushed: Option<crate::brushed::Brushed>) -> Result<crate::project::stack::Layers> {
+    /// The stack's layers around the landmark fit: the starting transform, the field (on `fixed`'s grid, as
+    /// [`Self::field`]) and `brushed` on top.
+    pub fn layers(
+        &self,
+        brushed: Option<crate::brushed::Brushed>,
+        fixed: &Volume,
+    ) -> Result<crate::project::stack::Layers> {
         let mut layers = crate::project::stack::Layers::new(self.start()?, brushed);
-        layers.field = self.field()?;
+        layers.field = self.field(fixed)?;
         Ok(layers)
     }
 }
@@ -415,8 +424,8 @@ impl PairInputs {
     }
 
     /// The stack's layers around the landmark fit ([`PairWarp::layers`]) with the brush on top.
-    pub fn layers(&self) -> Result<crate::project::stack::Layers> {
-        self.warp.layers(self.brushed()?)
+    pub fn layers(&self, fixed: &Volume) -> Result<crate::project::stack::Layers> {
+        self.warp.layers(self.brushed()?, fixed)
     }
 
     /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.

@@ -181,17 +181,22 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         )));
     }
     // Read before the volumes: a field `render` refuses costs no loading. A Learn2Reg field, in the volumes' voxels,
-    // is read after them.
-    let learn2reg = match &field_path {
-        Some(path) => field_format.format.is_learn2reg(path)?,
+    // and an ITK transform file, which may need the fixed grid, are read after them.
+    let after = match &field_path {
+        Some(path) => crate::warp::read_after_volumes(path, field_format.format)?,
         None => false,
     };
-    let mut field = field_path.as_deref().filter(|_| !learn2reg).map(crate::warp::read_pullback_field).transpose()?;
+    let mut field =
+        field_path.as_deref().filter(|_| !after).map(|p| crate::warp::read_pullback_field(p, None)).transpose()?;
     let fixed = inputs::load_volume(&fixed_path, quiet).map_err(Failure::BadInput)?;
     let moving =
         moving_path.as_deref().map(|p| inputs::load_volume(p, quiet)).transpose().map_err(Failure::BadInput)?;
-    if let (true, Some(path), Some(moving)) = (learn2reg, &field_path, &moving) {
-        field = Some(crate::warp::read_learn2reg_field(path, &fixed, moving)?);
+    if let (true, Some(path), Some(moving)) = (after, &field_path, &moving) {
+        field = Some(if field_format.format.is_learn2reg(path)? {
+            crate::warp::read_learn2reg_field(path, &fixed, moving)?
+        } else {
+            crate::warp::read_pullback_field(path, Some(&fixed))?
+        });
     }
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
     let procedural = match (&procedural_spec, &moving) {
@@ -228,7 +233,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         }
         // The stack: u (with a brush, u ∘ b⁻¹) into the texture, and the moving glyphs at d(p) (b(d(p))).
         let mut layers = Layers::new(start, brushed);
-        layers.field = given.warp.field().map_err(Failure::BadInput)?;
+        layers.field = given.warp.field(&fixed).map_err(Failure::BadInput)?;
         let pullback = fit::pullback_stack(&method, &c, fixed_box, layers.clone()).map_err(Failure::BadInput)?;
         let forward =
             fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(moving), layers).map_err(Failure::BadInput)?;

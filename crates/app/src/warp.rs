@@ -192,10 +192,12 @@ pub enum WarpField {
     Forward(SampledField<Fixed, Moving>),
 }
 
-/// Reads a displacement field of any flavour ([`displacement::read_field_info`]): a pull-back unless the file
-/// says it is the forward map (NRRD's `displacement field type:=modeling`). Errors name the file.
-pub fn read_warp_field(path: &Path) -> Result<WarpField, Failure> {
-    let read = displacement::read_field_info(path)?;
+/// Reads a displacement field of any flavour ([`displacement::read_field_on`]: an ITK transform file of B-splines,
+/// which gives no grid of its own, sampled on `grid`): a pull-back unless the file says it is the forward map
+/// (NRRD's `displacement field type:=modeling`). Errors name the file.
+pub fn read_warp_field(path: &Path, grid: Option<&Volume>) -> Result<WarpField, Failure> {
+    let grid = grid.map(displacement::SampleGrid::of);
+    let read = displacement::read_field_on(path, grid.as_ref())?;
     let bad = |e: warpbench_solver::SolverError| Failure::BadInput(anyhow!("{}: {e}", path.display()));
     Ok(match read.direction {
         Some(FieldDirection::Forward) => {
@@ -218,9 +220,19 @@ pub fn read_learn2reg_field(
         .map_err(Failure::BadInput)
 }
 
+/// Whether `--field` at `path` is read once the volumes are: a Learn2Reg field (as `format` says), in their voxels,
+/// or an ITK transform file, which may hold B-splines that give no grid of their own. A field in its own geometry is
+/// read before them, so that one refused costs no loading.
+///
+/// # Errors
+/// The file cannot be opened.
+pub fn read_after_volumes(path: &Path, format: FieldReadFormat) -> Result<bool, Failure> {
+    Ok(format.is_learn2reg(path)? || displacement::is_itk_transform_file(path)?)
+}
+
 /// [`read_warp_field`] for `render --field`, which takes the pull-back only: a forward field is refused.
-pub fn read_pullback_field(path: &Path) -> Result<SampledField<Moving, Fixed>, Failure> {
-    match read_warp_field(path)? {
+pub fn read_pullback_field(path: &Path, grid: Option<&Volume>) -> Result<SampledField<Moving, Fixed>, Failure> {
+    match read_warp_field(path, grid)? {
         WarpField::Pullback(field) => Ok(field),
         WarpField::Forward(_) => Err(Failure::BadInput(anyhow!(
             "{}: a forward displacement field (displacement field type: modeling, fixed_from_moving); render \
@@ -963,11 +975,11 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             if brushed.is_none() {
                 check_pullback_mode(&method, export.pullback)?;
             }
-            let layers = pairs.warp.layers(brushed).map_err(Failure::BadInput)?;
-            Given::Pairs(method, pairs, Box::new(layers))
+            Given::Pairs(method, pairs, brushed.map(Box::new))
         }
         WarpInputs::Field(f) if f.format.is_learn2reg(&f.field)? => Given::Learn2Reg(&f.field),
-        WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field)?), &f.field),
+        WarpInputs::Field(f) if read_after_volumes(&f.field, f.format)? => Given::OnGrid(&f.field),
+        WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field, None)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();
     let mut lap = Lap(Instant::now());
@@ -977,26 +989,28 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
     // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
-    let fitted = match &given {
-        Given::Pairs(method, inputs, layers) => {
+    let fitted = match given {
+        Given::Pairs(method, inputs, brushed) => {
+            let layers = inputs.warp.layers(brushed.map(|b| *b), &fixed).map_err(Failure::BadInput)?;
             let pairs = inputs.pairs().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
-                method: *method,
+                method,
                 pullback: export.pullback,
                 interpolation: export.interpolation,
                 float: export.float,
                 backend: export.backend,
                 outside_value: export.outside_value,
             };
-            Fitted::new(grid, &fixed, &moving, (pairs, layers), &names, &settings)?
+            Fitted::new(grid, &fixed, &moving, (pairs, &layers), &names, &settings)?
         }
-        Given::Field(field, path) => Fitted::from_field(grid, &moving, field, path, &export)?,
+        Given::Field(field, path) => Fitted::from_field(grid, &moving, &field, path, &export)?,
         Given::Learn2Reg(path) => {
             let field = WarpField::Pullback(read_learn2reg_field(path, &fixed, &moving)?);
             Fitted::from_field(grid, &moving, &field, path, &export)?
         }
+        // Sampled on the output grid, so that `--exact` evaluates the transform itself at every output voxel.
+        Given::OnGrid(path) => Fitted::from_field(grid, &moving, &read_warp_field(path, Some(grid))?, path, &export)?,
     };
-    drop(given);
     drop(reference);
     drop(fixed);
 
@@ -1065,12 +1079,14 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
 /// The warp [`run`] applies, checked before any volume is loaded.
 enum Given<'a> {
     /// A method, to fit on the pairs of the inputs' landmarks (read once: `--stiffness auto` may have read them),
-    /// and the stack's other layers (a starting transform under it, a brush on top).
-    Pairs(Method, &'a PairInputs, Box<Layers>),
+    /// and the brush on top (the stack's other layers are read with the volumes: a field may need the fixed grid).
+    Pairs(Method, &'a PairInputs, Option<Box<Brushed>>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
     /// A Learn2Reg field's file, read once the volumes are: its vectors are in their voxels.
     Learn2Reg(&'a Path),
+    /// An ITK transform file, read once the volumes are: it may hold B-splines, sampled on the output grid.
+    OnGrid(&'a Path),
 }
 
 /// Seconds since the previous lap.

@@ -821,7 +821,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     assert_eq!(ready.document.field_path(), Some(field_path.as_path()));
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     // The stack written out: u = F ∘ r, r fitted on qᵢ → F⁻¹(pᵢ).
-    let layer = FieldLayer::read(&field_path).expect("read");
+    let layer = FieldLayer::read(&field_path, None).expect("read");
     let (_, (fixed, moving)) = ready.fit_pairs();
     let unbased: Vec<Point3<Fixed>> =
         moving.iter().map(|p| Point3::from_array(layer.fixed_from_moving_raw(p.coords()))).collect();
@@ -914,7 +914,7 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     let ready = harness.state().ready().expect("ready");
     assert_eq!(ready.document.field_path(), Some(elastix_file.as_path()));
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
-    let layer = FieldLayer::read(&elastix_file).expect("read");
+    let layer = FieldLayer::read(&elastix_file, None).expect("read");
     let chain = warpbench_io::elastix::read_transform(&elastix_file).expect("the transform");
     let grid = chain.grid.as_ref().expect("its grid").lps_from_index;
     // At voxel centres the field is the transform, to f32's rounding of millimetres.
@@ -925,11 +925,38 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
         assert!((0..3).any(|a| (want[a] - x[a]).abs() > 0.1), "the transform moves {x:?}");
     }
 
-    // A Learn2Reg field (.npz) is in the voxels of the pair open when it is chosen, whose grids the document keeps with
-    // it; the autosave then maps a point as the window shows it. One of another shape is refused, naming it.
+    // An ITK text transform file of an affine and a B-spline (SimpleITK's composite) gives no grid of its own: the
+    // document keeps the pair's grids with it, and the field is the transform at the fixed voxel centres; the
+    // autosave maps a point as the window shows it.
     let loaded = &harness.state().ready().expect("ready").loaded;
     let grids = VoxelGrids { fixed: VoxelGrid::of(&loaded.fixed), moving: VoxelGrid::of(&loaded.moving) };
     let (dims, fixed_lps_from_index) = (loaded.fixed.dims, loaded.fixed.lps_from_index);
+    let fixed_grid = fixed_lps_from_index;
+    let tfm = common::data("itk/tfm_composite.tfm");
+    apply(&mut harness, Command::File(FileAction::UseField(tfm.clone())));
+    let ready = harness.state().ready().expect("ready");
+    assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+    assert_eq!(ready.document.field, Some(FieldFile { path: tfm.clone(), voxel_grids: Some(Box::new(grids)) }));
+    let chain = warpbench_io::transform_file::read_chain(&tfm).expect("the chain");
+    let layer = ready.document.field.as_ref().expect("the field").layer().expect("read");
+    let autosave = dir.path().join("autosave.warpbench.json");
+    for ijk in [[45.0, 54.0, 45.0], [40.0, 60.0, 40.0], [50.0, 50.0, 47.0]] {
+        let x = fixed_grid.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
+        // At voxel centres the field is the transform, to f32's rounding of millimetres.
+        let (got, want) = (layer.moving_from_fixed_raw(x), chain.apply(x));
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: {got:?}, ITK's {want:?}");
+        let (shown, saved) =
+            (plain_at(ready, x), common::map_through_session(dir.path(), [&mri(), &mri(), &autosave], x));
+        assert!((0..3).all(|a| (saved[a] - shown[a]).abs() < 1e-6), "{saved:?} vs the window's {shown:?}");
+    }
+    let (_, (fixed, moving)) = ready.fit_pairs();
+    for (q, p) in fixed.iter().zip(&moving) {
+        let u = plain_at(ready, q.coords());
+        assert!(u.iter().zip(p.coords()).all(|(a, b)| (a - b).abs() < 1e-5), "u({q:?}) = {u:?}, not {p:?}");
+    }
+
+    // A Learn2Reg field (.npz) is in the voxels of the pair open when it is chosen, whose grids the document keeps with
+    // it; the autosave then maps a point as the window shows it. One of another shape is refused, naming it.
     let steps_vox = (0..dims.iter().product::<usize>())
         .map(|n| [1.5 * (((n / dims[0]) % dims[1]) as f32 / 9.0).sin(), 0.5, -1.0])
         .collect();
@@ -941,13 +968,12 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     let ready = harness.state().ready().expect("ready");
     let message = ready.files.message.clone().unwrap_or_default();
     assert!(message.contains("wrong.npz") && message.contains("shape"), "{message}");
-    assert_eq!(ready.document.field_path(), Some(elastix_file.as_path()), "the refused field is not kept");
+    assert_eq!(ready.document.field_path(), Some(tfm.as_path()), "the refused field is not kept");
     apply(&mut harness, Command::File(FileAction::UseField(npz.clone())));
     let ready = harness.state().ready().expect("ready");
     assert_eq!(ready.document.field, Some(FieldFile { path: npz.clone(), voxel_grids: Some(Box::new(grids)) }));
     assert!(ready.files.message.as_deref().is_some_and(|m| m.contains("Learn2Reg")), "{:?}", ready.files.message);
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
-    let autosave = dir.path().join("autosave.warpbench.json");
     let probes = [[10.0, -20.0, 15.0], [-30.0, 25.0, -5.0]];
     let through_npz: Vec<[f64; 3]> = probes.iter().map(|&x| plain_at(ready, x)).collect();
     for (&x, want) in probes.iter().zip(&through_npz) {

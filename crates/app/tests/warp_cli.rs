@@ -777,7 +777,7 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
 
     let xs = [[10.0, 8.0, 30.0], [-20.0, 40.0, -10.0]];
     let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &xs);
-    let layer = FieldLayer::read(&field_path).expect("read the field");
+    let layer = FieldLayer::read(&field_path, None).expect("read the field");
     for (x, got) in xs.iter().zip(&mapped) {
         let want = layer.moving_from_fixed_raw(*x);
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "F({x:?}) = {want:?}, mapped {got:?}");
@@ -896,7 +896,7 @@ fn a_sessions_learn2reg_field_is_read_against_its_recorded_grids() {
         assert!(stderr.contains("disp_0001_0001.npz") && stderr.contains(says), "{stderr}");
         assert!(!out.exists());
     };
-    refused(&save("bare.warpbench.json", FieldFile::new(npz.clone())), "does not record which");
+    refused(&save("bare.warpbench.json", FieldFile::new(npz.clone())), "nothing here records which");
     let small = VoxelGrids { fixed: VoxelGrid { dims: [10, 10, 10], ..grids.fixed }, ..grids };
     refused(
         &save("small.warpbench.json", FieldFile { path: npz.clone(), voxel_grids: Some(Box::new(small)) }),

@@ -22,13 +22,14 @@ pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
 
 /// Reads the displacement field at `path` as `warpbench warp --field` reads it: `(array, lps_from_index, source,
 /// direction)`, the array (ni, nj, nk, 3) float32 LPS vectors; `source` the flavour (`itk`, `ants`, `nrrd`,
-/// `metaimage`), `elastix` for a transform parameter file, `itk_h5` for ITK's HDF5 transform file or `dicom` for a DICOM
-/// Deformable Spatial Registration; `direction` `pullback` or `forward` where the file says (NRRD, `.h5`, DICOM), else
-/// `None`.
+/// `metaimage`), `elastix` for a transform parameter file, `itk_h5` for ITK's HDF5 transform file, `itk_tfm` for its
+/// text file or `dicom` for a DICOM Deformable Spatial Registration; `direction` `pullback` or `forward` where the
+/// file says (NRRD, `.h5`, `.tfm`, DICOM), else `None`.
 ///
 /// With `pair`, the fixed and the moving grid (`(dims, lps_from_index)` each), a Learn2Reg `.npz` is read too: its
 /// voxel steps turned into the pull-back on the fixed grid (`learn2reg`, direction `pullback`); with `learn2reg`
-/// any file is read so (the challenge's NIfTI form says nothing of its units).
+/// any file is read so (the challenge's NIfTI form says nothing of its units). An ITK transform file of B-splines
+/// (`.tfm` or `.h5`), which gives no grid of its own, is sampled on the fixed grid.
 #[pyfunction]
 #[pyo3(signature = (path, pair = None, learn2reg = false))]
 pub fn read_field(
@@ -60,7 +61,13 @@ pub fn read_field(
                 path.display(),
                 if learn2reg { ", learn2reg=True" } else { "" }
             ))),
-            _ => displacement::read_field_info(&path).map_err(errors::io),
+            // An ITK transform file of B-splines gives no grid of its own: it is sampled on the fixed grid.
+            Some((dims, fixed, _)) => {
+                let geometry_source = warpbench_io::volume::GeometrySource::ItkTransformFile;
+                let grid = displacement::SampleGrid { dims, lps_from_index: fixed, geometry_source };
+                displacement::read_field_on(&path, Some(&grid)).map_err(errors::io)
+            }
+            None => displacement::read_field_info(&path).map_err(errors::io),
         }
     })?;
     let field = read.field;

@@ -231,3 +231,71 @@ def test_a_learn2reg_initial_field_needs_the_volumes(tmp_path):
     none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
     with pytest.raises(ValueError, match="disp_2021.npz.*fixed= and moving="):
         wb.fit(none, initial_field=npz)
+
+
+def _bspline_composite(fixed_path):
+    """SimpleITK's composite of an affine A and a cubic B-spline B over the fixed image's domain, with seeded
+    coefficients of up to 2 mm: what its B-spline registration examples write."""
+    fixed = sitk.ReadImage(str(fixed_path))
+    b = sitk.BSplineTransformInitializer(fixed, [3, 3, 3], 3)
+    rng = np.random.default_rng(7)
+    b.SetParameters(tuple(float(v) for v in rng.uniform(-2.0, 2.0, len(b.GetParameters()))))
+    a = sitk.AffineTransform(3)
+    a.SetMatrix((1.01, 0.03, 0.0, -0.02, 0.99, 0.01, 0.0, 0.02, 1.0))
+    a.SetTranslation((0.8, -0.5, 0.3))
+    return a, b, sitk.CompositeTransform([a, b])
+
+
+def test_an_itk_bspline_transform_is_a_field_on_the_fixed_grid(tmp_path):
+    """A composite ``.tfm`` of an affine and a B-spline, as SimpleITK writes it, and a B-spline alone in an ``.h5``
+    (as 3D Slicer saves one), give no grid of their own: ``warp --field`` samples them on the output grid and
+    resamples as SimpleITK's ``Resample`` does through the transform; ``read_field(path, fixed, moving)`` is
+    SimpleITK's ``TransformToDisplacementField`` on the fixed grid; ``--initial-field`` and
+    ``fit(initial_field=...)`` put them under the landmarks, mapping points as ``TransformPoint`` does."""
+    a, b, composite = _bspline_composite(FIXED)
+    tfm, h5 = tmp_path / "result.tfm", tmp_path / "bspline.h5"
+    sitk.WriteTransform(composite, str(tfm))
+    sitk.WriteTransform(b, str(h5))
+    fixed, moving = sitk.ReadImage(str(FIXED)), sitk.ReadImage(str(MOVING), sitk.sitkFloat32)
+
+    # The warped volume, exact at every output voxel.
+    for path, transform in ((tfm, composite), (h5, b)):
+        out = tmp_path / f"warped_{path.suffix[1:]}.nii.gz"
+        run_cli("warp", "--fixed", FIXED, "--moving", MOVING, "--field", path, "--exact", "--backend", "cpu",
+                "--out", out, "--quiet")
+        want = sitk.GetArrayFromImage(sitk.Resample(moving, fixed, transform, sitk.sitkLinear, 0.0, sitk.sitkFloat32))
+        got = sitk.GetArrayFromImage(sitk.ReadImage(str(out)))
+        # The sampled vectors are f32 (1e-6 mm); the moving volume changes by at most ~60 per mm.
+        assert np.abs(got - want).max() < 1e-3 * max(1.0, np.abs(want).max()), path.name
+
+    # The field on the fixed grid.
+    field = wb.read_field(tfm, fixed=wb.read_volume(FIXED), moving=wb.read_volume(MOVING))
+    assert (field.source, field.direction) == ("itk_tfm", "pullback")
+    sitk_field = sitk.TransformToDisplacementField(composite, sitk.sitkVectorFloat64, fixed.GetSize(),
+                                                   fixed.GetOrigin(), fixed.GetSpacing(), fixed.GetDirection())
+    want = sitk.GetArrayFromImage(sitk_field).transpose(2, 1, 0, 3)
+    np.testing.assert_allclose(field.array, want, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="result.tfm.*no grid"):
+        wb.read_field(tfm)
+
+    # Under the landmarks: with no pairs, the B-spline alone maps points as ITK does (inside the domain, where B
+    # moves them, sampled on the fixed grid: exact at voxel centres, trilinear between them).
+    fixed_volume = wb.read_volume(FIXED)
+    lps = fixed_volume.lps_from_index
+    centres = np.array([[3, 4, 5], [8, 7, 6], [12, 9, 4], [5, 10, 8]], dtype=float)
+    points = (lps[:3, :3] @ centres.T).T + lps[:3, 3]
+    want = np.array([b.TransformPoint(tuple(p)) for p in points])
+    assert np.abs(want - points).max() > 0.5, "the points feel the B-spline"
+    none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    warp = wb.fit(none, initial_field=h5, fixed=fixed_volume, moving=wb.read_volume(MOVING))
+    np.testing.assert_allclose(warp.pullback(points), want, rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match="bspline.h5.*no grid"):
+        wb.fit(none, initial_field=h5)
+    targets, out = tmp_path / "targets.csv", tmp_path / "mapped.csv"
+    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points.tolist()))
+    empty = tmp_path / "none.csv"
+    empty.write_text("")
+    run_cli("points", "--fixed", FIXED, "--moving", MOVING, "--initial-field", h5, "--landmarks", empty,
+            "--from", "fixed", "--in", targets, "--out", out, "--quiet")
+    got = np.array([[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)

@@ -60,13 +60,15 @@ enum FieldMaps {
 }
 
 impl FieldLayer {
-    /// Reads a displacement field of any flavour ([`displacement::read_field_info`]), as a pull-back unless the
-    /// file says it is the forward map. Errors name the file.
+    /// Reads a displacement field of any flavour ([`displacement::read_field_on`]: an ITK transform file of
+    /// B-splines, which gives no grid of its own, sampled on `grid`), as a pull-back unless the file says it is the
+    /// forward map. Errors name the file.
     ///
     /// # Errors
-    /// A file that cannot be read as a field, or a field the solver refuses (a vector that is not finite).
-    pub fn read(path: &Path) -> anyhow::Result<Self> {
-        let read = displacement::read_field_info(path)?;
+    /// A file that cannot be read as a field (such a transform file without `grid`), or a field the solver refuses
+    /// (a vector that is not finite).
+    pub fn read(path: &Path, grid: Option<&displacement::SampleGrid>) -> anyhow::Result<Self> {
+        let read = displacement::read_field_on(path, grid)?;
         let origin = path.display().to_string();
         let bad = |e: SolverError| anyhow!("{origin}: {e}");
         let maps = match read.direction {

@@ -194,10 +194,11 @@ class Field:
 
     ``array`` holds its vectors, LPS mm, shape ``(ni, nj, nk, 3)`` float32, at the voxel centres of the grid
     ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``),
-    ``"elastix"`` for a transform parameter file, ``"itk_h5"`` for ITK's HDF5 transform file, ``"dicom"`` for a
-    DICOM Deformable Spatial Registration or ``"learn2reg"`` for a Learn2Reg ``.npz`` (``"pullback"``); ``direction`` is ``"pullback"`` or ``"forward"`` where the file says (NRRD;
-    ``"pullback"`` for an ``.h5`` or a DICOM registration, ``"forward"`` for an ``.h5`` holding only 3D Slicer's
-    ``InverseDisplacementFieldTransform``), else ``None``, and then it is a pull-back, as ITK takes it."""
+    ``"elastix"`` for a transform parameter file, ``"itk_h5"`` for ITK's HDF5 transform file, ``"itk_tfm"`` for its
+    text file (``.tfm``), ``"dicom"`` for a DICOM Deformable Spatial Registration or ``"learn2reg"`` for a Learn2Reg
+    ``.npz`` (``"pullback"``); ``direction`` is ``"pullback"`` or ``"forward"`` where the file says (NRRD;
+    ``"pullback"`` for an ``.h5``, a ``.tfm`` or a DICOM registration, ``"forward"`` for an ``.h5`` holding only 3D
+    Slicer's ``InverseDisplacementFieldTransform``), else ``None``, and then it is a pull-back, as ITK takes it."""
 
     array: np.ndarray
     lps_from_index: np.ndarray
@@ -217,7 +218,9 @@ def read_field(
     MetaImage vector image (transformix's ``deformationField.mhd``), or an elastix transform parameter file
     (``TransformParameters.N.txt`` and the files it names), sampled at every voxel centre of its fixed grid as
     ``transformix -def all`` would write it, or ITK's HDF5 transform file holding a displacement field (ANTs'
-    ``Composite.h5``: the affine and the field together), sampled on that field's grid.
+    ``Composite.h5``: the affine and the field together), sampled on that field's grid. An ITK transform file of
+    B-splines (``.tfm``, a composite as SimpleITK writes it, or ``.h5``, as 3D Slicer saves one) gives no grid of its
+    own: it is sampled on ``fixed``'s grid, and needs ``fixed`` and ``moving``.
 
     A Learn2Reg field (steps from the fixed image's voxels to the moving image's) needs the two volumes it was made
     for, ``fixed`` and ``moving``: it is read as the pull-back on the fixed grid, in LPS mm, with ``source``
