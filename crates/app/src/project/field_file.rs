@@ -134,18 +134,21 @@ impl FieldFile {
     /// ITK transform file of B-splines with neither.
     pub fn layer_on(&self, fixed: Option<&SampleGrid>) -> anyhow::Result<FieldLayer> {
         let origin = self.path.display().to_string();
+        // Recorded grids are checked before the file is read: a hand-edited session's are refused as such.
+        let recorded = match &self.voxel_grids {
+            Some(grids) => {
+                let fixed = grids.fixed.lps_from_index("fixed").with_context(|| origin.clone())?;
+                let moving = grids.moving.lps_from_index("moving").with_context(|| origin.clone())?;
+                Some((grids.fixed.dims, fixed, moving))
+            }
+            None => None,
+        };
         if displacement::is_itk_transform_file(&self.path)? {
-            let recorded = match &self.voxel_grids {
-                Some(grids) => {
-                    let lps_from_index = grids.fixed.lps_from_index("fixed").with_context(|| origin.clone())?;
-                    let geometry_source = warpbench_io::volume::GeometrySource::ItkTransformFile;
-                    Some(SampleGrid { dims: grids.fixed.dims, lps_from_index, geometry_source })
-                }
-                None => None,
-            };
-            return FieldLayer::read(&self.path, recorded.as_ref().or(fixed));
+            let geometry_source = warpbench_io::volume::GeometrySource::ItkTransformFile;
+            let grid = recorded.map(|(dims, lps_from_index, _)| SampleGrid { dims, lps_from_index, geometry_source });
+            return FieldLayer::read(&self.path, grid.as_ref().or(fixed));
         }
-        let Some(grids) = &self.voxel_grids else {
+        let Some((dims, fixed, moving)) = recorded else {
             if learn2reg::is_npz_name(&self.path) || learn2reg::is_npz_file(&self.path).unwrap_or(false) {
                 bail!(
                     "{origin}: a Learn2Reg field's steps are in the voxels of its fixed and moving images, and \
@@ -156,9 +159,7 @@ impl FieldFile {
             }
             return FieldLayer::read(&self.path, fixed);
         };
-        let fixed = grids.fixed.lps_from_index("fixed").with_context(|| origin.clone())?;
-        let moving = grids.moving.lps_from_index("moving").with_context(|| origin.clone())?;
-        let pullback = learn2reg_pullback(&self.path, grids.fixed.dims, &fixed, &moving)?;
+        let pullback = learn2reg_pullback(&self.path, dims, &fixed, &moving)?;
         Ok(FieldLayer::pullback(pullback, &origin))
     }
 }
