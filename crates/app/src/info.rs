@@ -1,6 +1,7 @@
 //! `warpbench info <file-or-dir> [--json]`: dims, spacing, `lps_from_index`, where the geometry came
 //! from, sample type, value range, modality and series of a volume; for a displacement field (any flavour `warp
-//! --field` reads), its flavour, direction, grid and largest displacement. With `--json` the output follows
+//! --field` reads), its flavour, direction, grid and largest displacement; for an ITK transform file (`.tfm`, `.h5`,
+//! `.mat`) without a field, the transforms it holds and how warpbench takes it. With `--json` the output follows
 //! the `warpbench-info/1` schema documented in `docs/cli.md`.
 
 use std::io::Write;
@@ -24,7 +25,8 @@ Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd), a 
 one DICOM file.
 A folder with several series lists them. A displacement field (any flavour warp --field reads, an ITK .h5 holding
 one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz) is described as a field: its flavour, the direction
-it states, its grid and its largest displacement. Example:
+it states, its grid and its largest displacement. An ITK transform file (.tfm, .h5, ANTs' .mat) is described by the
+transforms it holds and how warpbench takes it (--initial, --field or --landmarks). Example:
 
     warpbench info tests/data/nifti/ch2.nii.gz --json";
 
@@ -64,6 +66,100 @@ pub enum InfoContent {
     Volume(Box<VolumeInfo>),
     SeriesList { series: Vec<SeriesSummary> },
     DisplacementField(Box<FieldInfo>),
+    Transform(Box<TransformInfo>),
+}
+
+/// An ITK transform file's description: what a `.tfm`, an `.h5` without a displacement field or a `.mat` holds.
+#[derive(Debug, Serialize)]
+pub struct TransformInfo {
+    /// `itk_tfm`, `itk_h5` or `ants_mat`.
+    pub format: &'static str,
+    /// The transforms in the file's order (a composite's members; ITK applies the last one first).
+    pub transforms: Vec<TransformMember>,
+    /// How warpbench takes the file.
+    pub read_as: ReadAs,
+}
+
+/// One transform of a file.
+#[derive(Debug, Serialize)]
+pub struct TransformMember {
+    pub kind: MemberKind,
+    /// Control points per axis of a B-spline, voxels of a field's grid; null for an affine and a thin-plate spline.
+    pub size: Option<[usize; 3]>,
+    /// The landmarks of a thin-plate spline; null for the others.
+    pub landmarks: Option<usize>,
+}
+
+/// What one transform of a file is, as warpbench reads it (ITK's linear classes are all affines to it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MemberKind {
+    Affine,
+    Bspline,
+    ThinPlateSpline,
+    DisplacementField,
+    /// 3D Slicer's `InverseBSplineTransform`: the inverse of the B-spline its numbers describe.
+    InverseBspline,
+    /// 3D Slicer's `InverseDisplacementFieldTransform`.
+    InverseDisplacementField,
+}
+
+/// How warpbench takes a transform file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReadAs {
+    /// Linear transforms only: `--initial`, the window's starting transform.
+    StartingTransform,
+    /// A chain with a B-spline or a field: `--field`, `--initial-field`, the window's field under the landmarks.
+    DisplacementField,
+    /// A thin-plate spline alone: its landmarks, as pairs (`--landmarks`).
+    Landmarks,
+}
+
+impl TransformInfo {
+    /// The ITK transform file at `path` (`None` when it is not one warpbench reads).
+    fn read(path: &Path) -> Option<Self> {
+        use std::io::Read as _;
+        use warpbench_io::itk_chain::{InverseStep, ItkStep};
+        use warpbench_io::itk_tfm::ItkTransform;
+        let mut head = Vec::new();
+        std::fs::File::open(path).ok()?.take(64).read_to_end(&mut head).ok()?;
+        let chain = warpbench_io::transform_file::read_chain(path).ok()?;
+        let format = if warpbench_io::itk_h5::looks_like_hdf5(&head) {
+            "itk_h5"
+        } else if warpbench_io::itk_tfm::looks_like_text(&head) {
+            "itk_tfm"
+        } else {
+            "ants_mat"
+        };
+        let member = |kind, size, landmarks| TransformMember { kind, size, landmarks };
+        let transforms: Vec<TransformMember> = chain
+            .steps
+            .iter()
+            .map(|step| match step {
+                ItkStep::Transform(ItkTransform::Affine(_)) => member(MemberKind::Affine, None, None),
+                ItkStep::Transform(ItkTransform::BSpline(b)) => member(MemberKind::Bspline, Some(b.grid_size), None),
+                ItkStep::Transform(ItkTransform::ThinPlateSpline(t)) => {
+                    member(MemberKind::ThinPlateSpline, None, Some(t.source_lps.len()))
+                }
+                ItkStep::Field(f) => member(MemberKind::DisplacementField, Some(f.field.dims), None),
+                ItkStep::Inverse(InverseStep::BSpline(b)) => {
+                    member(MemberKind::InverseBspline, Some(b.grid_size), None)
+                }
+                ItkStep::Inverse(InverseStep::Field(f)) => {
+                    member(MemberKind::InverseDisplacementField, Some(f.field.dims), None)
+                }
+            })
+            .collect();
+        let read_as = if transforms.iter().all(|t| t.kind == MemberKind::Affine) {
+            ReadAs::StartingTransform
+        } else if transforms.iter().any(|t| t.kind == MemberKind::ThinPlateSpline) {
+            ReadAs::Landmarks
+        } else {
+            ReadAs::DisplacementField
+        };
+        Some(Self { format, transforms, read_as })
+    }
 }
 
 /// A displacement field's description.
@@ -257,8 +353,11 @@ pub fn inspect(opts: &InfoArgs) -> Result<InfoJson, Failure> {
     let format = match Format::detect(path) {
         Ok(format) => format,
         Err(e) => {
-            return match FieldInfo::read(path)? {
-                Some(field) => described(InfoContent::DisplacementField(Box::new(field))),
+            if let Some(field) = FieldInfo::read(path)? {
+                return described(InfoContent::DisplacementField(Box::new(field)));
+            }
+            return match TransformInfo::read(path) {
+                Some(transform) => described(InfoContent::Transform(Box::new(transform))),
                 None => Err(e.into()),
             };
         }
@@ -322,8 +421,49 @@ fn write_text(info: &InfoJson, out: &mut dyn Write) -> std::io::Result<()> {
         }
         InfoContent::Volume(v) => write_volume(v, out)?,
         InfoContent::DisplacementField(f) => write_field(f, out)?,
+        InfoContent::Transform(t) => write_transform(t, out)?,
     }
     Ok(())
+}
+
+fn write_transform(t: &TransformInfo, out: &mut dyn Write) -> std::io::Result<()> {
+    let n = t.transforms.len();
+    let order = if n > 1 { ", the last applied first" } else { "" };
+    let count = if n == 1 { "1 transform".to_owned() } else { format!("{n} transforms") };
+    writeln!(out, "  ITK transform file ({}), {count}{order}", t.format)?;
+    for (i, m) in t.transforms.iter().enumerate() {
+        let what = match m.kind {
+            MemberKind::Affine => "affine",
+            MemberKind::Bspline => "B-spline",
+            MemberKind::ThinPlateSpline => "thin-plate spline",
+            MemberKind::DisplacementField => "displacement field",
+            MemberKind::InverseBspline => "inverse of a B-spline (3D Slicer's)",
+            MemberKind::InverseDisplacementField => "inverse of a displacement field (3D Slicer's)",
+        };
+        let unit = if matches!(m.kind, MemberKind::Bspline | MemberKind::InverseBspline) {
+            "control points"
+        } else {
+            "voxels"
+        };
+        let size = m.size.map(|[a, b, c]| format!(", {a} × {b} × {c} {unit}")).unwrap_or_default();
+        let landmarks = m.landmarks.map(|l| format!(", {l} landmarks")).unwrap_or_default();
+        writeln!(out, "    {}  {what}{size}{landmarks}", i + 1)?;
+    }
+    let read_as = match t.read_as {
+        ReadAs::StartingTransform => "a starting transform (--initial)",
+        ReadAs::DisplacementField
+            if t.transforms
+                .iter()
+                .any(|m| matches!(m.kind, MemberKind::DisplacementField | MemberKind::InverseDisplacementField)) =>
+        {
+            "a displacement field (--field, --initial-field), sampled on its field's grid"
+        }
+        ReadAs::DisplacementField => {
+            "a displacement field (--field, --initial-field), sampled on the fixed volume's grid (it has none)"
+        }
+        ReadAs::Landmarks => "landmark pairs (--landmarks)",
+    };
+    writeln!(out, "  read as         {read_as}")
 }
 
 fn write_field(f: &FieldInfo, out: &mut dyn Write) -> std::io::Result<()> {

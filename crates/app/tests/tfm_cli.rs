@@ -655,3 +655,45 @@ fn initial_reads_elastix_linear_files_and_their_chain() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("not a .mat"));
     assert!(!mat.exists());
 }
+
+/// `info` describes an ITK transform file that holds no displacement field by what it holds and how warpbench takes
+/// it: SimpleITK's composite of an affine and a B-spline (a 3-cell mesh per axis: 6 control points,
+/// `data-scripts/itk_tfm_chain.py`) is a field, its affine `.mat` and `.h5` a starting transform, ITK's thin-plate
+/// spline through 10 landmarks (`data-scripts/slicer_transforms.py`) landmark pairs; 3D Slicer's inverse B-spline is
+/// named as such. An `.h5` holding a field is still described as the field.
+#[test]
+fn info_describes_a_transform_file_by_what_it_holds() {
+    let info = |name: &str| {
+        let run = warpbench(&["info", utf8(&data(&format!("itk/{name}"))), "--json"]);
+        assert_ok(&run);
+        serde_json::from_slice::<Value>(&run.stdout).expect("JSON")
+    };
+    let kinds = |v: &Value| -> Vec<String> {
+        v["transforms"]
+            .as_array()
+            .expect("transforms")
+            .iter()
+            .map(|t| t["kind"].as_str().expect("kind").into())
+            .collect()
+    };
+    let composite = info("tfm_composite.tfm");
+    assert_eq!((composite["kind"].as_str(), composite["format"].as_str()), (Some("transform"), Some("itk_tfm")));
+    assert_eq!(kinds(&composite), ["affine", "bspline"]);
+    assert_eq!(composite["transforms"][1]["size"], serde_json::json!([6, 6, 6]));
+    assert_eq!(composite["read_as"], "displacement_field");
+    assert_eq!(kinds(&info("tfm_slicer_inverse.tfm")), ["affine", "inverse_bspline"]);
+    for (name, format) in [("affine_sitk.mat", "ants_mat"), ("h5_affine.h5", "itk_h5")] {
+        let linear = info(name);
+        assert_eq!((linear["format"].as_str(), linear["read_as"].as_str()), (Some(format), Some("starting_transform")));
+    }
+    let tps = info("tps_itk.tfm");
+    assert_eq!((kinds(&tps), tps["transforms"][0]["landmarks"].as_u64()), (vec!["thin_plate_spline".into()], Some(10)));
+    assert_eq!(tps["read_as"], "landmarks");
+    assert_eq!(info("h5_composite.h5")["kind"], "displacement_field");
+    let text = warpbench(&["info", utf8(&data("itk/tfm_composite.tfm"))]);
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(
+        text.contains("2 transforms, the last applied first") && text.contains("6 × 6 × 6 control points"),
+        "{text}"
+    );
+}
