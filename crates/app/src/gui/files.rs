@@ -177,8 +177,9 @@ fn file_row(
 pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::path::Path>) -> Option<FileAction> {
     let row = FileRow {
         label: "Displacement field file",
-        hint: "field.nii.gz (ITK, ANTs), Composite.h5 (ANTs), field.nrrd (Slicer), deformationField.mhd or \
-               TransformParameters.1.txt (elastix), disp_0001_0002.npz (Learn2Reg)",
+        hint: "field.nii.gz (ITK, ANTs), Composite.h5 (ANTs), field.nrrd or bspline.h5 (Slicer), bspline.tfm \
+               (SimpleITK), deformationField.mhd or TransformParameters.1.txt (elastix), disp_0001_0002.npz \
+               (Learn2Reg)",
         use_button: "Use field under landmarks",
         remove_button: "Remove field",
         current: "Field under the landmarks",
