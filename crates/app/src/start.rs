@@ -19,7 +19,6 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use warpbench_io::elastix;
 use warpbench_io::geometry::Point3;
-use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_io::{dicom_reg, itk_h5};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
@@ -75,14 +74,15 @@ impl Start {
             let affine = read(path).with_context(|| format!("--initial {name}"))?;
             return Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name);
         }
-        let transform = itk_tfm::read(path).with_context(|| format!("--initial {name}"))?;
-        let ItkTransform::Affine(affine) = transform else {
-            return Err(anyhow!(
-                "{name}: --initial takes an affine transform (AffineTransform_double_3_3, as `warpbench align` writes \
-                 it); this file holds a {}",
-                transform.type_name()
-            ));
-        };
+        // A .tfm of one transform or a composite (SimpleITK writes a registration's result so), or a .mat.
+        let chain = warpbench_io::transform_file::read_chain(path).with_context(|| format!("--initial {name}"))?;
+        let affine = chain.affine().map_err(|kind| {
+            anyhow!(
+                "{name}: --initial takes an affine or another linear transform (AffineTransform_double_3_3, as \
+                 `warpbench align` writes it, or a composite of ITK's linear classes); this file holds a {kind}{}",
+                if kind.contains("BSpline") { " (give it to --field or --initial-field)" } else { "" }
+            )
+        })?;
         Self::new(AffineWarp::new(affine.matrix, affine.offset()), &name)
     }
 

@@ -89,3 +89,37 @@ def test_initial_reads_simpleitks_mat_as_simpleitk_applies_it(tmp_path: Path) ->
     assert mapped[".mat"] == mapped[".tfm"]
     for got, p in zip(mapped[".mat"], points):
         np.testing.assert_allclose(got, affine.TransformPoint(p), rtol=0, atol=1e-9)
+
+
+def test_initial_reads_a_composite_tfm_of_linear_transforms_as_simpleitk_applies_it(tmp_path: Path) -> None:
+    """SimpleITK writes a registration's result as a composite ``.tfm`` (an Euler start under a similarity, say):
+    ``--initial`` composes its members as ITK does, the last first, and maps points where SimpleITK's
+    ``TransformPoint`` does; a composite with a B-spline is refused there, saying where it goes."""
+    fixed, moving = pair(tmp_path)
+    euler = sitk.Euler3DTransform((5.0, -4.0, 2.0), 0.05, -0.1, 0.2, (2.0, -1.0, 3.5))
+    similarity = sitk.Similarity3DTransform()
+    similarity.SetScale(1.04)
+    similarity.SetRotation((0.0, 0.0, 1.0), 0.15)
+    similarity.SetTranslation((-1.5, 2.0, 0.5))
+    composite = sitk.CompositeTransform([similarity, euler])
+    tfm = tmp_path / "composite.tfm"
+    sitk.WriteTransform(composite, str(tfm))
+    assert "CompositeTransform" in tfm.read_text()
+    pairs = tmp_path / "two.csv"
+    pairs.write_text('"Pt-0","true","1","2","3","1","2","3"\n"Pt-1","true","-10","5","0","-10","5","0"\n')
+    points = [(12.5, -30.0, 8.0), (-20.0, 17.0, 25.0), (0.0, 0.0, 0.0)]
+    targets, out = tmp_path / "targets.csv", tmp_path / "mapped.csv"
+    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points))
+    warpbench("points", "--fixed", fixed, "--moving", moving, "--initial", tfm, "--landmarks", pairs,
+              "--from", "fixed", "--in", targets, "--out", out, "--quiet")
+    got = [[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()]
+    for g, p in zip(got, points):
+        np.testing.assert_allclose(g, composite.TransformPoint(p), rtol=0, atol=1e-9)
+
+    image = sitk.ReadImage(str(fixed))
+    bspline = sitk.BSplineTransformInitializer(image, [2, 2, 2], 3)
+    deformable = tmp_path / "deformable.tfm"
+    sitk.WriteTransform(sitk.CompositeTransform([euler, bspline]), str(deformable))
+    refused = warpbench("points", "--fixed", fixed, "--moving", moving, "--initial", deformable, "--landmarks",
+                        pairs, "--from", "fixed", "--in", targets, "--out", tmp_path / "never.csv", expect=2)
+    assert "deformable.tfm" in refused.stderr and "--initial-field" in refused.stderr, refused.stderr
