@@ -137,6 +137,9 @@ fn bad_files_are_refused_naming_the_file_and_the_problem() {
             "must hold 3 values",
         ),
         ("int32.mat", cat(variable(20, "AffineTransform_double_3_3", &p12), &fixed), "type code 20"),
+        // A type code whose big-endian reading is i32::MIN, from which the big-endian base (1000) cannot be taken in
+        // i32 (found by fuzzing).
+        ("min_code.mat", cat(variable(0x80, "AffineTransform_double_3_3", &p12), &fixed), "-2147483648 big-endian"),
         (
             "mixed_order.mat",
             cat(variable(0, "AffineTransform_double_3_3", &p12), &variable(1000, "fixed", &c3)),

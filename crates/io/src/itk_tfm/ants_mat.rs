@@ -71,8 +71,9 @@ pub(super) fn looks_like_mat(bytes: &[u8]) -> bool {
 fn type_code(bytes: &[u8]) -> Option<(bool, usize)> {
     let word: [u8; 4] = bytes.get(..4)?.try_into().ok()?;
     for (big_endian, value) in [(false, i32::from_le_bytes(word)), (true, i32::from_be_bytes(word))] {
-        let m = i32::from(big_endian);
-        match value - m * 1000 {
+        // In i64: any word read from a file, i32::MIN included, less 1000.
+        let m = i64::from(big_endian);
+        match i64::from(value) - m * 1000 {
             0 => return Some((big_endian, 8)),
             10 => return Some((big_endian, 4)),
             _ => {}
