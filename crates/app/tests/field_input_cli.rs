@@ -358,13 +358,7 @@ fn render_refuses_a_forward_field_and_both_refuse_both_warps_and_none() {
             let mut args = vec![*command];
             args.extend(base);
             args.extend(extra);
-            let run = warpbench(&args);
-            let stderr = String::from_utf8_lossy(&run.stderr);
-            assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
-            for needle in needles {
-                assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
-            }
-            assert!(!out.exists(), "a refused run wrote {}", out.display());
+            expect_refused(&args, &out, needles);
         }
     };
     let both = ["warp", "render"];
@@ -862,12 +856,17 @@ fn initial_field_refusals() {
         let mut args = vec![command];
         args.extend(base);
         args.extend(extra);
-        let run = warpbench(&args);
-        let stderr = String::from_utf8_lossy(&run.stderr);
-        assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
-        for needle in needles {
-            assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
-        }
-        assert!(!out.exists(), "a refused run wrote {}", out.display());
+        expect_refused(&args, &out, needles);
     }
+}
+
+/// Runs warpbench with `args`, which must exit 2 with each of `needles` on stderr and write nothing at `out`.
+fn expect_refused(args: &[&str], out: &Path, needles: &[&str]) {
+    let run = warpbench(args);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{args:?}: {stderr}");
+    for needle in needles {
+        assert!(stderr.contains(needle), "{args:?}: {stderr:?} lacks {needle:?}");
+    }
+    assert!(!out.exists(), "a refused run wrote {}", out.display());
 }
