@@ -937,6 +937,8 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     let ready = harness.state().ready().expect("ready");
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
     assert_eq!(ready.document.field, Some(FieldFile { path: tfm.clone(), voxel_grids: Some(Box::new(grids)) }));
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("tfm_composite.tfm") && message.contains("sampled at this fixed volume's"), "{message}");
     let chain = warpbench_io::transform_file::read_chain(&tfm).expect("the chain");
     let layer = ready.document.field.as_ref().expect("the field").layer().expect("read");
     let autosave = dir.path().join("autosave.warpbench.json");
