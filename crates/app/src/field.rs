@@ -301,7 +301,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
                 )));
             }
             let mut layers = Layers::new(p.start().map_err(Failure::BadInput)?, brushed);
-            layers.field = p.warp.field(&fixed).map_err(Failure::BadInput)?;
+            layers.field = p.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
             (p.pairs().map_err(Failure::BadInput)?, layers)
         }
         WarpInputs::Field(f) => {

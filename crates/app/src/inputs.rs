@@ -29,6 +29,8 @@ use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 
+use crate::project::field_file::{FieldFile, FieldReadFormat};
+
 use crate::args::{MethodArgs, PairArgs, VolumePairArgs};
 use crate::progress::Bar;
 use crate::settings::{MethodKind, Stiffness};
@@ -240,7 +242,28 @@ pub struct PairWarp {
     pub session_start: Option<Box<crate::start::Start>>,
     /// The displacement field under the landmark fit: `--initial-field`'s, or a session's (one chosen in the window,
     /// or Refine by intensities'), read when the warp is fitted ([`PairWarp::field`]).
-    pub base_field: Option<crate::project::field_file::FieldFile>,
+    pub base_field: Option<BaseField>,
+}
+
+/// Where the displacement field under the landmark fit comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum BaseField {
+    /// `--initial-field`: read against the command's volumes, as the window reads a field chosen with them open (a
+    /// Learn2Reg `.npz`'s voxel steps between their grids, an ITK transform file of B-splines on the fixed grid).
+    Given(PathBuf),
+    /// A session's, with the grids recorded when it was chosen (a Learn2Reg field without them is refused).
+    Session(FieldFile),
+}
+
+impl BaseField {
+    /// The field's file.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        match self {
+            Self::Given(path) => path,
+            Self::Session(file) => &file.path,
+        }
+    }
 }
 
 impl PairWarp {
@@ -257,24 +280,34 @@ impl PairWarp {
         if base { 0 } else { method.needs().min_pairs }
     }
 
-    /// The displacement field under the landmark fit, read (`None` without one): an ITK transform file of B-splines
-    /// is sampled on `fixed`'s grid unless a session recorded one ([`FieldFile::layer_on`]). Errors name the file.
-    ///
-    /// [`FieldFile::layer_on`]: crate::project::field_file::FieldFile::layer_on
-    pub fn field(&self, fixed: &Volume) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
-        let grid = warpbench_io::displacement::SampleGrid::of(fixed);
-        self.base_field.as_ref().map(|f| f.layer_on(Some(&grid)).map(std::sync::Arc::new)).transpose()
+    /// The displacement field under the landmark fit, read (`None` without one) against the command's volumes
+    /// ([`BaseField`]; an ITK transform file of B-splines in a session without recorded grids is sampled on `fixed`'s,
+    /// [`FieldFile::layer_on`]). Errors name the file.
+    pub fn field(
+        &self,
+        fixed: &Volume,
+        moving: &Volume,
+    ) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
+        let layer = match &self.base_field {
+            None => return Ok(None),
+            Some(BaseField::Given(path)) => {
+                FieldFile::chosen(path.clone(), FieldReadFormat::Auto, fixed, moving)?.layer()
+            }
+            Some(BaseField::Session(file)) => file.layer_on(Some(&warpbench_io::displacement::SampleGrid::of(fixed))),
+        };
+        Ok(Some(std::sync::Arc::new(layer?)))
     }
 
-    /// The stack's layers around the landmark fit: the starting transform, the field (on `fixed`'s grid, as
-    /// [`Self::field`]) and `brushed` on top.
+    /// The stack's layers around the landmark fit: the starting transform, the field (read against `fixed` and
+    /// `moving`, as [`Self::field`]) and `brushed` on top.
     pub fn layers(
         &self,
         brushed: Option<crate::brushed::Brushed>,
         fixed: &Volume,
+        moving: &Volume,
     ) -> Result<crate::project::stack::Layers> {
         let mut layers = crate::project::stack::Layers::new(self.start()?, brushed);
-        layers.field = self.field(fixed)?;
+        layers.field = self.field(fixed, moving)?;
         Ok(layers)
     }
 }
@@ -312,7 +345,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                     brush: Vec::new(),
                     initial: args.initial,
                     session_start: None,
-                    base_field: args.initial_field.map(crate::project::field_file::FieldFile::new),
+                    base_field: args.initial_field.map(BaseField::Given),
                 },
                 session_refine: None,
             });
@@ -340,7 +373,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                 brush: document.brush,
                 initial: None,
                 session_start,
-                base_field: document.field,
+                base_field: document.field.map(BaseField::Session),
             },
         })
     }
@@ -365,7 +398,7 @@ impl LandmarkWarp {
     pub fn paths(&self) -> Vec<&Path> {
         let mut paths = self.landmarks.as_ref().map_or_else(Vec::new, |l| l.source.paths());
         paths.extend(self.warp.initial.as_deref());
-        paths.extend(self.warp.base_field.as_ref().map(|f| f.path.as_path()));
+        paths.extend(self.warp.base_field.as_ref().map(BaseField::path));
         paths
     }
 }
@@ -403,7 +436,7 @@ impl PairInputs {
         paths.extend(self.landmarks.source.paths());
         paths.extend(self.reference.as_deref());
         paths.extend(self.warp.initial.as_deref());
-        paths.extend(self.warp.base_field.as_ref().map(|f| f.path.as_path()));
+        paths.extend(self.warp.base_field.as_ref().map(BaseField::path));
         paths
     }
 
@@ -424,8 +457,8 @@ impl PairInputs {
     }
 
     /// The stack's layers around the landmark fit ([`PairWarp::layers`]) with the brush on top.
-    pub fn layers(&self, fixed: &Volume) -> Result<crate::project::stack::Layers> {
-        self.warp.layers(self.brushed()?, fixed)
+    pub fn layers(&self, fixed: &Volume, moving: &Volume) -> Result<crate::project::stack::Layers> {
+        self.warp.layers(self.brushed()?, fixed, moving)
     }
 
     /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.

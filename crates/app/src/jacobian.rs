@@ -174,7 +174,7 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
     let names = inputs.names(&output.path);
     let mut layers =
         Layers::new(inputs.start().map_err(Failure::BadInput)?, inputs.brushed().map_err(Failure::BadInput)?);
-    layers.field = inputs.warp.field(&fixed).map_err(Failure::BadInput)?;
+    layers.field = inputs.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
     let (grid, grid_name) = match (&reference, direction) {
         (Some(r), _) => (r, "reference"),
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),

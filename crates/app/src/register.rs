@@ -609,7 +609,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     };
     let bar = Bar::new(quiet);
     let mut layers = Layers::new(start_transform, brushed);
-    layers.field = given.warp.field(&fixed_volume).map_err(Failure::BadInput)?;
+    layers.field = given.warp.field(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let refinement = refine(inputs, layers, &params, gpu.as_ref().map(|g| g as &dyn SampleDevice), &mut |p| {
         bar.set("registering", (p.fraction() * 1000.0) as u64, 1000);
         ControlFlow::Continue(())

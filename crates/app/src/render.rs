@@ -157,7 +157,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     inputs_paths.extend(field_path.as_deref());
     output.check(&inputs_paths).map_err(Failure::BadInput)?;
     let base = (given.warp.initial.as_deref().map(|p| (p, "--initial")))
-        .or_else(|| given.warp.base_field.as_ref().map(|f| (f.path.as_path(), "--initial-field")));
+        .or_else(|| given.warp.base_field.as_ref().map(|f| (f.path(), "--initial-field")));
     if let (Some((path, flag)), None) = (base, &given.landmarks) {
         return Err(Failure::BadInput(anyhow!(
             "{}: {flag} starts a landmark warp: give landmarks too (a file with no pairs shows it alone)",
@@ -233,7 +233,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         }
         // The stack: u (with a brush, u ∘ b⁻¹) into the texture, and the moving glyphs at d(p) (b(d(p))).
         let mut layers = Layers::new(start, brushed);
-        layers.field = given.warp.field(&fixed).map_err(Failure::BadInput)?;
+        layers.field = given.warp.field(&fixed, moving).map_err(Failure::BadInput)?;
         let pullback = fit::pullback_stack(&method, &c, fixed_box, layers.clone()).map_err(Failure::BadInput)?;
         let forward =
             fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(moving), layers).map_err(Failure::BadInput)?;

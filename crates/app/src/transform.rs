@@ -494,7 +494,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let brushed = if layered { inputs.brushed().map_err(Failure::BadInput)? } else { None };
     let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
-    layers.field = inputs.warp.field(&volumes.fixed).map_err(Failure::BadInput)?;
+    layers.field = inputs.warp.field(&volumes.fixed, &volumes.moving).map_err(Failure::BadInput)?;
     let pairs = inputs.pairs().map_err(Failure::BadInput)?;
     let names = inputs.names(&out_path);
     let made_of = FieldInputs {

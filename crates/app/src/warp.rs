@@ -991,7 +991,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
     let grid = reference.as_ref().unwrap_or(&fixed);
     let fitted = match given {
         Given::Pairs(method, inputs, brushed) => {
-            let layers = inputs.warp.layers(brushed.map(|b| *b), &fixed).map_err(Failure::BadInput)?;
+            let layers = inputs.warp.layers(brushed.map(|b| *b), &fixed, &moving).map_err(Failure::BadInput)?;
             let pairs = inputs.pairs().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method,

@@ -831,7 +831,7 @@ fn initial_field_lies_under_the_landmarks() {
 
 /// `--initial-field` is refused where it means nothing or cannot be read, exit 2, naming the file: beside `--field`
 /// (which is the whole warp) or `--session` (which carries its own), in `render` without landmarks, and for a
-/// Learn2Reg `.npz`, whose voxel steps need grids nothing records here.
+/// Learn2Reg `.npz` whose shape is not the fixed volume's.
 #[test]
 fn initial_field_refusals() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -840,16 +840,15 @@ fn initial_field_refusals() {
     let csv = dir.path().join("pairs.csv");
     common::write_pairs_csv(&csv, &[]);
     let out = dir.path().join("out.nii.gz");
-    let npz = common::data("learn2reg/disp_2021.npz");
     let base = ["--fixed", s(&fixed), "--moving", s(&moving), "--quiet", "--out", s(&out)];
+    // A Learn2Reg field is read against the volumes given: one of another shape is refused.
+    let npz = dir.path().join("disp_0001_0002.npz");
+    let steps = warpbench_io::learn2reg::VoxelField { dims: [4, 4, 4], steps_vox: vec![[0.5, 0.0, 0.0]; 64] };
+    warpbench_io::learn2reg::write_voxel_field(&npz, &steps).expect("npz written");
     let cases: [(&str, Vec<&str>, &[&str]); 4] = [
         ("warp", vec!["--field", s(&field), "--initial-field", s(&field)], &["'--initial-field <FIELD>'"]),
         ("render", vec!["--initial-field", s(&field)], &["field_input_field.nii.gz", "give landmarks too"]),
-        (
-            "warp",
-            vec!["--initial-field", s(&npz), "--landmarks", s(&csv)],
-            &["disp_2021.npz", "Learn2Reg", "warpbench field --field"],
-        ),
+        ("warp", vec!["--initial-field", s(&npz), "--landmarks", s(&csv)], &["disp_0001_0002.npz", "shape"]),
         ("field", vec!["--session", s(&csv), "--initial-field", s(&field)], &["'--initial-field <FIELD>'"]),
     ];
     for (command, extra, needles) in cases {

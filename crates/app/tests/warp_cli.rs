@@ -902,4 +902,36 @@ fn a_sessions_learn2reg_field_is_read_against_its_recorded_grids() {
         &save("small.warpbench.json", FieldFile { path: npz.clone(), voxel_grids: Some(Box::new(small)) }),
         "shape",
     );
+
+    // `--initial-field` reads it against the command's own volumes, as the window reads one chosen with them open:
+    // given the recorded pair, the same map.
+    let (input, out, none) =
+        (dir.path().join("l2r_in.csv"), dir.path().join("l2r_out.csv"), dir.path().join("none.csv"));
+    let lines: Vec<String> = xs.iter().map(|x| format!("{},{},{}\n", x[0], x[1], x[2])).collect();
+    std::fs::write(&input, lines.concat()).expect("write points");
+    common::write_pairs_csv(&none, &[]);
+    let run = warpbench(&[
+        "points",
+        "--fixed",
+        s(&mri),
+        "--moving",
+        s(&moving_path),
+        "--initial-field",
+        s(&npz),
+        "--landmarks",
+        s(&none),
+        "--from",
+        "fixed",
+        "--in",
+        s(&input),
+        "--out",
+        s(&out),
+        "--quiet",
+    ]);
+    assert_ok(&run);
+    let text = std::fs::read_to_string(&out).expect("mapped");
+    for (line, want) in text.lines().zip(&mapped) {
+        let got: Vec<f64> = line.split(',').take(3).map(|v| v.parse().expect("mm")).collect();
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-9), "{got:?}, through the session {want:?}");
+    }
 }

@@ -152,9 +152,9 @@ impl FieldFile {
             if learn2reg::is_npz_name(&self.path) || learn2reg::is_npz_file(&self.path).unwrap_or(false) {
                 bail!(
                     "{origin}: a Learn2Reg field's steps are in the voxels of its fixed and moving images, and \
-                     nothing here records which. Write it in mm first (warpbench field --field {origin} --fixed F \
-                     --moving M --out field.nii.gz), or choose it with Use displacement field... in the window, with \
-                     those two volumes open"
+                     nothing here records which: choose it with Use displacement field... in the window with those \
+                     two volumes open, or give it with them on the command line (--initial-field {origin} --fixed \
+                     F --moving M)"
                 );
             }
             return FieldLayer::read(&self.path, fixed);
