@@ -122,9 +122,10 @@ impl TransformInfo {
         use std::io::Read as _;
         use warpbench_io::itk_chain::{InverseStep, ItkStep};
         use warpbench_io::itk_tfm::ItkTransform;
+        // Read first: it refuses what is not a regular file (a named pipe would block the opening below).
+        let chain = warpbench_io::transform_file::read_chain(path).ok()?;
         let mut head = Vec::new();
         std::fs::File::open(path).ok()?.take(64).read_to_end(&mut head).ok()?;
-        let chain = warpbench_io::transform_file::read_chain(path).ok()?;
         let format = if warpbench_io::itk_h5::looks_like_hdf5(&head) {
             "itk_h5"
         } else if warpbench_io::itk_tfm::looks_like_text(&head) {
