@@ -460,7 +460,8 @@ fn write_transform(t: &TransformInfo, out: &mut dyn Write) -> std::io::Result<()
             "a displacement field (--field, --initial-field), sampled on its field's grid"
         }
         ReadAs::DisplacementField => {
-            "a displacement field (--field, --initial-field), sampled on the fixed volume's grid (it has none)"
+            "a displacement field (--field, --initial-field); it has no grid: --field samples it on the output grid, \
+             under the landmarks it acts as it is"
         }
         ReadAs::Landmarks => "landmark pairs (--landmarks)",
     };

@@ -249,7 +249,7 @@ pub struct PairWarp {
 #[derive(Clone, Debug, PartialEq)]
 pub enum BaseField {
     /// `--initial-field`: read against the command's volumes, as the window reads a field chosen with them open (a
-    /// Learn2Reg `.npz`'s voxel steps between their grids, an ITK transform file of B-splines on the fixed grid).
+    /// Learn2Reg `.npz`'s voxel steps between their grids).
     Given(PathBuf),
     /// A session's, with the grids recorded when it was chosen (a Learn2Reg field without them is refused).
     Session(FieldFile),
@@ -281,8 +281,7 @@ impl PairWarp {
     }
 
     /// The displacement field under the landmark fit, read (`None` without one) against the command's volumes
-    /// ([`BaseField`]; an ITK transform file of B-splines in a session without recorded grids is sampled on `fixed`'s,
-    /// [`FieldFile::layer_on`]). Errors name the file.
+    /// ([`BaseField`]). Errors name the file.
     pub fn field(
         &self,
         fixed: &Volume,
@@ -293,7 +292,7 @@ impl PairWarp {
             Some(BaseField::Given(path)) => {
                 FieldFile::chosen(path.clone(), FieldReadFormat::Auto, fixed, moving)?.layer()
             }
-            Some(BaseField::Session(file)) => file.layer_on(Some(&warpbench_io::displacement::SampleGrid::of(fixed))),
+            Some(BaseField::Session(file)) => file.layer(),
         };
         Ok(Some(std::sync::Arc::new(layer?)))
     }

@@ -777,7 +777,7 @@ fn a_sessions_field_alone_is_the_warp_below_the_methods_pairs() {
 
     let xs = [[10.0, 8.0, 30.0], [-20.0, 40.0, -10.0]];
     let mapped = map_points(dir.path(), ["--session", s(&session_path)], "fixed", &xs);
-    let layer = FieldLayer::read(&field_path, None).expect("read the field");
+    let layer = FieldLayer::read(&field_path).expect("read the field");
     for (x, got) in xs.iter().zip(&mapped) {
         let want = layer.moving_from_fixed_raw(*x);
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "F({x:?}) = {want:?}, mapped {got:?}");

@@ -218,6 +218,19 @@ impl ItkChain {
         Ok(DisplacementField { dims, lps_from_index, geometry_source, displacements_lps })
     }
 
+    /// T⁻¹(y), found point by point by Newton's method on T to 1e-6 mm (central-difference Jacobian; where it does
+    /// not converge, at a jump of a member at its domain's edge or where T folds, the point of least residual found).
+    #[must_use]
+    pub fn apply_inverse(&self, y: [f64; 3]) -> [f64; 3] {
+        inverse_point(|x| self.apply(x), y)
+    }
+
+    /// Whether it holds a displacement field (then it is sampled on that field's grid, [`Self::field_on`]).
+    #[must_use]
+    pub fn has_field(&self) -> bool {
+        self.innermost_field().is_some()
+    }
+
     /// The chain as a displacement field, the pull-back: sampled at the voxel centres of the field applied first
     /// when it holds one (whatever `grid` is given), else on `grid`. `source` is what the field is reported as; `path`
     /// is used in errors.

@@ -251,7 +251,8 @@ def test_an_itk_bspline_transform_is_a_field_on_the_fixed_grid(tmp_path):
     (as 3D Slicer saves one), give no grid of their own: ``warp --field`` samples them on the output grid and
     resamples as SimpleITK's ``Resample`` does through the transform; ``read_field(path, fixed, moving)`` is
     SimpleITK's ``TransformToDisplacementField`` on the fixed grid; ``--initial-field`` and
-    ``fit(initial_field=...)`` put them under the landmarks, mapping points as ``TransformPoint`` does."""
+    ``fit(initial_field=...)`` put them under the landmarks as they are, mapping points as ``TransformPoint`` does,
+    outside the fixed volume too (where the affine still acts)."""
     a, b, composite = _bspline_composite(FIXED)
     tfm, h5 = tmp_path / "result.tfm", tmp_path / "bspline.h5"
     sitk.WriteTransform(composite, str(tfm))
@@ -278,19 +279,22 @@ def test_an_itk_bspline_transform_is_a_field_on_the_fixed_grid(tmp_path):
     with pytest.raises(ValueError, match="result.tfm.*no grid"):
         wb.read_field(tfm)
 
-    # Under the landmarks: with no pairs, the B-spline alone maps points as ITK does (inside the domain, where B
-    # moves them, sampled on the fixed grid: exact at voxel centres, trilinear between them).
+    # Under the landmarks, with no pairs: the transforms themselves, at any point (the last two outside the fixed
+    # volume, where B is the identity and A still acts).
     fixed_volume = wb.read_volume(FIXED)
     lps = fixed_volume.lps_from_index
-    centres = np.array([[3, 4, 5], [8, 7, 6], [12, 9, 4], [5, 10, 8]], dtype=float)
+    centres = np.array([[3.5, 4, 5], [8, 7.25, 6], [12, 9, 4.5], [5, 10, 8], [-30, 5, 2], [40, -20, 30]])
     points = (lps[:3, :3] @ centres.T).T + lps[:3, 3]
     want = np.array([b.TransformPoint(tuple(p)) for p in points])
     assert np.abs(want - points).max() > 0.5, "the points feel the B-spline"
     none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
     warp = wb.fit(none, initial_field=h5, fixed=fixed_volume, moving=wb.read_volume(MOVING))
-    np.testing.assert_allclose(warp.pullback(points), want, rtol=0, atol=1e-5)
-    with pytest.raises(ValueError, match="bspline.h5.*no grid"):
-        wb.fit(none, initial_field=h5)
+    np.testing.assert_allclose(warp.pullback(points), want, rtol=0, atol=1e-9)
+    through_tfm = wb.fit(none, initial_field=tfm)
+    want_composite = np.array([composite.TransformPoint(tuple(p)) for p in points])
+    np.testing.assert_allclose(through_tfm.pullback(points), want_composite, rtol=0, atol=1e-9)
+    # The forward map inverts it by Newton's method, to its 1e-6 mm.
+    np.testing.assert_allclose(through_tfm.forward(want_composite), points, rtol=0, atol=1e-5)
     targets, out = tmp_path / "targets.csv", tmp_path / "mapped.csv"
     targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points.tolist()))
     empty = tmp_path / "none.csv"
@@ -298,4 +302,4 @@ def test_an_itk_bspline_transform_is_a_field_on_the_fixed_grid(tmp_path):
     run_cli("points", "--fixed", FIXED, "--moving", MOVING, "--initial-field", h5, "--landmarks", empty,
             "--from", "fixed", "--in", targets, "--out", out, "--quiet")
     got = np.array([[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()])
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)

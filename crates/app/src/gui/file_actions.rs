@@ -143,13 +143,10 @@ impl Ready {
             .and_then(|file| self.fit.read_field(&file).map(|()| file));
         match chosen {
             Ok(file) => {
-                let transform_file = warpbench_io::displacement::is_itk_transform_file(&file.path).unwrap_or(false);
-                let grids = match (&file.voxel_grids, transform_file) {
-                    (Some(_), true) => " (an ITK transform file, sampled at this fixed volume's voxel centres)",
-                    (Some(_), false) => {
-                        " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)"
-                    }
-                    (None, _) => "",
+                let grids = if file.voxel_grids.is_some() {
+                    " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)"
+                } else {
+                    ""
                 };
                 self.files.message =
                     Some(format!("{} is the displacement field under the landmarks{grids}", file.path.display()));

@@ -8,21 +8,18 @@
 //! A session that names an `.npz` without them is refused, never read against a guessed grid (a NIfTI without them
 //! is read as a field in mm, which refuses Learn2Reg's form).
 //!
-//! An ITK transform file (`.tfm` or `.h5`) may hold B-splines and no displacement field: a map in mm, but with no
-//! grid to sample it on. The window records the grids for it too, and the field is sampled at the fixed grid's voxel
-//! centres; without recorded grids (`--initial-field`) it is sampled on the fixed volume of the command
-//! ([`FieldFile::layer_on`]). Either way it is the same map in mm: the grid sets only where it is sampled.
+//! An ITK transform file (`.tfm` or `.h5`) may hold B-splines and no displacement field: a map in mm with no grid,
+//! which the stack applies as ITK does, point by point ([`FieldLayer::read`]); it needs no grids.
 //!
-//! In the session file a field of any other flavour is its path, as before; a Learn2Reg field or an ITK transform
-//! file is `{"path": …, "voxel_grids": {"fixed": {"dims": [X, Y, Z], "lps_from_index": [[…], […], […]]}, "moving":
-//! …}}`, each matrix the three rows of \[L | t\] with x_LPS = L·(i, j, k) + t.
+//! In the session file a field of any other flavour is its path, as before; a Learn2Reg field is
+//! `{"path": …, "voxel_grids": {"fixed": {"dims": [X, Y, Z], "lps_from_index": [[…], […], […]]}, "moving": …}}`,
+//! each matrix the three rows of \[L | t\] with x_LPS = L·(i, j, k) + t.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, anyhow, bail};
 use serde::{Deserialize, Serialize};
 use warpbench_io::Volume;
-use warpbench_io::displacement::{self, SampleGrid};
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::learn2reg;
 use warpbench_solver::field::SampledField;
@@ -56,8 +53,8 @@ impl FieldReadFormat {
 #[serde(from = "Form", into = "Form")]
 pub struct FieldFile {
     pub path: PathBuf,
-    /// The grids of the pair open when it was chosen: those a Learn2Reg field's voxel steps are counted in, or the
-    /// fixed grid an ITK transform file is sampled on; `None` for every other flavour, which states its own geometry.
+    /// The grids a Learn2Reg field's voxel steps are counted in; `None` for every other flavour, which states its
+    /// own geometry (or, as an ITK transform file of B-splines, needs none).
     pub voxel_grids: Option<Box<VoxelGrids>>,
 }
 
@@ -105,34 +102,24 @@ impl FieldFile {
     }
 
     /// The field at `path` as chosen with `fixed` and `moving` open: a Learn2Reg field (an `.npz` told by content, as
-    /// `warp --field` tells it, or any file `read` says is one) and an ITK transform file keep their grids. Errors
-    /// name the file: one that cannot be opened.
+    /// `warp --field` tells it, or any file `read` says is one) keeps their grids. Errors name the file: one that
+    /// cannot be opened.
     ///
     /// # Errors
     /// The file cannot be opened to read its first bytes.
     pub fn chosen(path: PathBuf, read: FieldReadFormat, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
-        let needs_grids = read.is_learn2reg(&path)? || displacement::is_itk_transform_file(&path)?;
-        let voxel_grids =
-            needs_grids.then(|| Box::new(VoxelGrids { fixed: VoxelGrid::of(fixed), moving: VoxelGrid::of(moving) }));
+        let voxel_grids = read
+            .is_learn2reg(&path)?
+            .then(|| Box::new(VoxelGrids { fixed: VoxelGrid::of(fixed), moving: VoxelGrid::of(moving) }));
         Ok(Self { path, voxel_grids })
     }
 
-    /// [`Self::layer_on`] with no grid but the recorded ones.
+    /// Reads the field as a layer of the stack ([`FieldLayer::read`], or for a Learn2Reg field the pull-back its
+    /// steps state between the recorded grids). Errors name the file.
     ///
     /// # Errors
-    /// As [`Self::layer_on`].
+    /// What the readers refuse; a Learn2Reg field without recorded grids, or whose shape is not the fixed grid's.
     pub fn layer(&self) -> anyhow::Result<FieldLayer> {
-        self.layer_on(None)
-    }
-
-    /// Reads the field as a layer of the stack ([`FieldLayer::read`]; for a Learn2Reg field the pull-back its steps
-    /// state between the recorded grids; for an ITK transform file of B-splines, sampled on the recorded fixed grid,
-    /// else on `fixed`, the fixed volume of the command). Errors name the file.
-    ///
-    /// # Errors
-    /// What the readers refuse; a Learn2Reg field without recorded grids, or whose shape is not the fixed grid's; an
-    /// ITK transform file of B-splines with neither.
-    pub fn layer_on(&self, fixed: Option<&SampleGrid>) -> anyhow::Result<FieldLayer> {
         let origin = self.path.display().to_string();
         // Recorded grids are checked before the file is read: a hand-edited session's are refused as such.
         let recorded = match &self.voxel_grids {
@@ -143,11 +130,6 @@ impl FieldFile {
             }
             None => None,
         };
-        if displacement::is_itk_transform_file(&self.path)? {
-            let geometry_source = warpbench_io::volume::GeometrySource::ItkTransformFile;
-            let grid = recorded.map(|(dims, lps_from_index, _)| SampleGrid { dims, lps_from_index, geometry_source });
-            return FieldLayer::read(&self.path, grid.as_ref().or(fixed));
-        }
         let Some((dims, fixed, moving)) = recorded else {
             if learn2reg::is_npz_name(&self.path) || learn2reg::is_npz_file(&self.path).unwrap_or(false) {
                 bail!(
@@ -157,7 +139,7 @@ impl FieldFile {
                      F --moving M)"
                 );
             }
-            return FieldLayer::read(&self.path, fixed);
+            return FieldLayer::read(&self.path);
         };
         let pullback = learn2reg_pullback(&self.path, dims, &fixed, &moving)?;
         Ok(FieldLayer::pullback(pullback, &origin))
@@ -181,13 +163,12 @@ pub fn learn2reg_pullback(
     SampledField::from_displacement_field(field).map_err(|e| anyhow!("{}: {e}", path.display()))
 }
 
-/// The session file's form: the path alone, or the path and the grids of a Learn2Reg field or an ITK transform file
-/// (module docs).
+/// The session file's form: the path alone, or the path and the grids of a Learn2Reg field (module docs).
 #[derive(Serialize, Deserialize)]
 #[serde(
     untagged,
     expecting = "a displacement field: its path, or {\"path\": …, \"voxel_grids\": {\"fixed\": …, \"moving\": …}} \
-                 for a Learn2Reg field or an ITK transform file"
+                 for a Learn2Reg field"
 )]
 enum Form {
     Path(PathBuf),

@@ -31,6 +31,7 @@ use anyhow::anyhow;
 use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::Point3;
 use warpbench_io::geometry::Space;
+use warpbench_io::itk_chain::{ItkChain, ItkStep};
 use warpbench_io::itk_tfm::{ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
 use warpbench_solver::SolverError;
 use warpbench_solver::brush::{Brush, PointwiseInverse};
@@ -57,19 +58,43 @@ enum FieldMaps {
     Pullback(SampledField<Moving, Fixed>),
     /// The file holds F⁻¹ (NRRD `displacement field type:=modeling`): F⁻¹(y) = y + D(y); F is its point inverse.
     Forward(SampledField<Fixed, Moving>),
+    /// An ITK transform file of B-splines (and affines) with no displacement field: F is its chain, evaluated as ITK
+    /// evaluates it at every point (no grid to sample it on), F⁻¹ by Newton's method.
+    Chain(Arc<ItkChain>),
 }
 
 impl FieldLayer {
-    /// Reads a displacement field of any flavour ([`displacement::read_field_on`]: an ITK transform file of
-    /// B-splines, which gives no grid of its own, sampled on `grid`), as a pull-back unless the file says it is the
-    /// forward map. Errors name the file.
+    /// Reads a displacement field of any flavour ([`displacement::read_field_info`]), as a pull-back unless the file
+    /// says it is the forward map; an ITK transform file of B-splines and affines without a field, which gives no
+    /// grid to sample on, as its chain, applied exactly. Errors name the file.
     ///
     /// # Errors
-    /// A file that cannot be read as a field (such a transform file without `grid`), or a field the solver refuses
-    /// (a vector that is not finite).
-    pub fn read(path: &Path, grid: Option<&displacement::SampleGrid>) -> anyhow::Result<Self> {
-        let read = displacement::read_field_on(path, grid)?;
+    /// A file that cannot be read as a field; a transform file of linear transforms only (a starting transform) or
+    /// holding a thin-plate spline (read as landmark pairs); a field the solver refuses (a vector that is not
+    /// finite).
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
         let origin = path.display().to_string();
+        if displacement::is_itk_transform_file(path)? {
+            let chain = warpbench_io::transform_file::read_chain(path)?;
+            if !chain.has_field() {
+                if chain.affine().is_ok() {
+                    return Err(anyhow!(
+                        "{origin}: it holds only linear transforms, and no displacement field: it is a starting \
+                         transform (--initial, or the window's starting transform from a file)"
+                    ));
+                }
+                let spline =
+                    chain.steps.iter().any(|s| matches!(s, ItkStep::Transform(ItkTransform::ThinPlateSpline(_))));
+                if spline {
+                    return Err(anyhow!(
+                        "{origin}: a thin-plate spline transform file is read as its landmark pairs (--landmarks, or \
+                         the window's Import landmarks)"
+                    ));
+                }
+                return Ok(Self { origin, maps: FieldMaps::Chain(Arc::new(chain)) });
+            }
+        }
+        let read = displacement::read_field_info(path)?;
         let bad = |e: SolverError| anyhow!("{origin}: {e}");
         let maps = match read.direction {
             Some(FieldDirection::Forward) => {
@@ -100,6 +125,7 @@ impl FieldLayer {
         match &self.maps {
             FieldMaps::Pullback(f) => f.apply_raw(x),
             FieldMaps::Forward(f) => PointInverse(f).apply_raw(x),
+            FieldMaps::Chain(chain) => chain.apply(x),
         }
     }
 
@@ -109,6 +135,7 @@ impl FieldLayer {
         match &self.maps {
             FieldMaps::Pullback(f) => PointInverse(f).apply_raw(p),
             FieldMaps::Forward(f) => f.apply_raw(p),
+            FieldMaps::Chain(chain) => chain.apply_inverse(p),
         }
     }
 }
