@@ -3,13 +3,17 @@
 //! `itk_h5::write`, reads back to the same map within rounding (or the writer refuses it, writing nothing); a chain
 //! with 3D Slicer's inverse members, whose points are found by Newton's method to a tolerance (and at a jump, to the
 //! nearest point found), reads back to the same members. The same
-//! bytes read as a thin-plate spline's landmark pairs give `Ok` or `Err`, and pairs with both points, finite.
+//! bytes read as a thin-plate spline's landmark pairs give `Ok` or `Err`, and pairs with both points, finite. The chain
+//! inverted at a few points, and sampled as a field on a small grid (or refused), never panics.
 #![no_main]
 
 use std::path::Path;
 
 use libfuzzer_sys::fuzz_target;
+use warpbench_io::displacement::{FieldSource, SampleGrid};
+use warpbench_io::geometry::Transform;
 use warpbench_io::itk_h5::{self, H5Transform, ItkStep};
+use warpbench_io::volume::GeometrySource;
 
 fuzz_target!(|data: &[u8]| {
     let name = Path::new("fuzz-input.h5");
@@ -22,8 +26,17 @@ fuzz_target!(|data: &[u8]| {
     let points = [[0.0, 0.0, 0.0], [12.5, -40.0, 7.0], [1e6, -1e6, 3e5], [f64::NAN, 0.0, 1.0]];
     for x in points {
         let _ = chain.apply(x);
+        let _ = chain.apply_inverse(x);
     }
     let _ = chain.affine();
+    let grid = SampleGrid {
+        dims: [4, 3, 2],
+        lps_from_index: Transform::from_scale_translation([7.0, 9.0, 11.0], [-12.0, -9.0, -6.0]),
+        geometry_source: GeometrySource::Assumed,
+    };
+    if !chain.has_field() {
+        let _ = chain.field_on(name, Some(&grid), FieldSource::ItkHdf5);
+    }
     let out = std::env::temp_dir().join(format!("fuzz-itk-h5-{}.h5", std::process::id()));
     let steps: Vec<H5Transform> = chain.steps.iter().map(H5Transform::from).collect();
     match itk_h5::write(&out, &steps) {

@@ -18,6 +18,7 @@ fuzz_target!(|data: &[u8]| {
     let Ok(chain) = warpbench_io::itk_chain::parse_text(name, text) else { return };
     for x in [[0.0, 0.0, 0.0], [12.5, -40.0, 7.0], [1e6, -1e6, 3e5], [f64::NAN, 0.0, 1.0]] {
         let _ = chain.apply(x);
+        let _ = chain.apply_inverse(x);
     }
     let _ = chain.affine();
     let grid = SampleGrid {
