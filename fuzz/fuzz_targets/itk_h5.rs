@@ -10,10 +10,10 @@
 use std::path::Path;
 
 use libfuzzer_sys::fuzz_target;
-use warpbench_io::displacement::{FieldSource, SampleGrid};
-use warpbench_io::geometry::Transform;
+use warpbench_io::displacement::FieldSource;
 use warpbench_io::itk_h5::{self, H5Transform, ItkStep};
-use warpbench_io::volume::GeometrySource;
+
+mod chain_checks;
 
 fuzz_target!(|data: &[u8]| {
     let name = Path::new("fuzz-input.h5");
@@ -23,20 +23,8 @@ fuzz_target!(|data: &[u8]| {
         assert!(pairs.iter().all(|p| finite(p.moving) && finite(p.fixed)), "a pair without two finite points");
     }
     let Ok(chain) = itk_h5::parse(name, data.to_vec()) else { return };
-    let points = [[0.0, 0.0, 0.0], [12.5, -40.0, 7.0], [1e6, -1e6, 3e5], [f64::NAN, 0.0, 1.0]];
-    for x in points {
-        let _ = chain.apply(x);
-        let _ = chain.apply_inverse(x);
-    }
-    let _ = chain.affine();
-    let grid = SampleGrid {
-        dims: [4, 3, 2],
-        lps_from_index: Transform::from_scale_translation([7.0, 9.0, 11.0], [-12.0, -9.0, -6.0]),
-        geometry_source: GeometrySource::Assumed,
-    };
-    if !chain.has_field() {
-        let _ = chain.field_on(name, Some(&grid), FieldSource::ItkHdf5);
-    }
+    chain_checks::exercise(&chain, name, FieldSource::ItkHdf5);
+    let points = chain_checks::POINTS;
     let out = std::env::temp_dir().join(format!("fuzz-itk-h5-{}.h5", std::process::id()));
     let steps: Vec<H5Transform> = chain.steps.iter().map(H5Transform::from).collect();
     match itk_h5::write(&out, &steps) {
