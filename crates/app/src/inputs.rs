@@ -29,10 +29,9 @@ use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 
-use crate::project::field_file::{FieldFile, FieldReadFormat};
-
 use crate::args::{MethodArgs, PairArgs, VolumePairArgs};
 use crate::progress::Bar;
+use crate::project::field_file::{FieldFile, FieldReadFormat};
 use crate::settings::{MethodKind, Stiffness};
 
 /// Loads the fixed and the moving volume ([`load_volume`]). With `quiet` they load on two threads: inflating and
@@ -453,11 +452,6 @@ impl PairInputs {
     /// The landmark pairs as read, once ([`Landmarks::pairs`]).
     pub fn pairs(&self) -> Result<&[LandmarkPair]> {
         self.landmarks.pairs()
-    }
-
-    /// The stack's layers around the landmark fit ([`PairWarp::layers`]) with the brush on top.
-    pub fn layers(&self, fixed: &Volume, moving: &Volume) -> Result<crate::project::stack::Layers> {
-        self.warp.layers(self.brushed()?, fixed, moving)
     }
 
     /// The brush on top of the landmark warp, inverted (`None` without strokes); errors name the landmark source.

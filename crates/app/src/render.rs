@@ -156,7 +156,11 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     inputs_paths.extend(given.paths());
     inputs_paths.extend(field_path.as_deref());
     output.check(&inputs_paths).map_err(Failure::BadInput)?;
-    let base = (given.warp.initial.as_deref().map(|p| (p, "--initial")))
+    let base = given
+        .warp
+        .initial
+        .as_deref()
+        .map(|p| (p, "--initial"))
         .or_else(|| given.warp.base_field.as_ref().map(|f| (f.path(), "--initial-field")));
     if let (Some((path, flag)), None) = (base, &given.landmarks) {
         return Err(Failure::BadInput(anyhow!(
