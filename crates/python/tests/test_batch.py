@@ -8,7 +8,7 @@ import csv
 import pytest
 
 import warpbench as wb
-from conftest import PAIRS, T1, run_cli
+from conftest import DATA, PAIRS, T1, run_cli
 
 pytest.importorskip("dask.distributed")
 
@@ -65,3 +65,18 @@ def test_case_names_must_differ(tmp_path):
     c = Case("same", T1, T1, PAIRS, out=tmp_path / "a.nii")
     with pytest.raises(ValueError, match="name"):
         run_cohort([c, c], client=object())
+
+
+def test_a_case_corrects_another_tools_registration_as_the_cli_does(tmp_path):
+    """``Case(initial_field=...)``: the landmarks fitted over another tool's result (SimpleITK's composite of an affine
+    and a B-spline, ``tests/data/itk/tfm_composite.tfm``) give the volume ``warpbench warp --initial-field`` gives."""
+    from warpbench.batch import run_case
+
+    composite = DATA / "itk" / "tfm_composite.tfm"
+    case = Case("s01", T1, T1, PAIRS, out=tmp_path / "s01.nii.gz", initial_field=composite)
+    result = run_case(case)
+    assert result.status == "ok", result.error
+    assert "tfm_composite.tfm" in result.method
+    run_cli("warp", "--fixed", T1, "--moving", T1, "--landmarks", PAIRS, "--initial-field", composite, "--backend",
+            "cpu", "--out", tmp_path / "cli.nii.gz", "--quiet")
+    assert (tmp_path / "s01.nii.gz").read_bytes() == (tmp_path / "cli.nii.gz").read_bytes()

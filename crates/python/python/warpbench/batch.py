@@ -39,7 +39,8 @@ class Case:
         out: the moving volume resampled onto the fixed grid (``.nii``, ``.nii.gz``, ``.nrrd``, ``.mha``).
         out_field: the pull-back as an ITK displacement field (optional).
         out_tfm: the pull-back as an ITK transform file (optional).
-        method, stiffness, initial: as :func:`warpbench.fit`.
+        method, stiffness, initial, initial_field: as :func:`warpbench.fit` (``initial_field``: another tool's
+            registration of the pair, which the landmarks correct).
         register: refine the landmark warp by intensities (:func:`warpbench.register`) before writing.
     """
 
@@ -53,6 +54,7 @@ class Case:
     method: str = "tps"
     stiffness: Union[float, str] = 0.0
     initial: Optional[PathLike] = None
+    initial_field: Optional[PathLike] = None
     register: bool = False
     options: Dict[str, Any] = field(default_factory=dict)
 
@@ -123,14 +125,28 @@ def run_case(case: Case, *, overwrite: bool = False) -> CaseResult:
         fixed = wb.read_volume(case.fixed)
         moving = wb.read_volume(case.moving)
         pairs = wb.read_landmarks(case.landmarks)
-        warp = wb.fit(pairs, case.method, case.stiffness, case.initial, fixed=fixed, moving=moving)
+        warp = wb.fit(
+            pairs,
+            case.method,
+            case.stiffness,
+            case.initial,
+            fixed=fixed,
+            moving=moving,
+            initial_field=case.initial_field,
+        )
         loo = warp.leave_one_out()
         folding = warp.folding(fixed, n=32)
         registration = None
         for p in case.outputs():
             p.parent.mkdir(parents=True, exist_ok=True)
         if case.register:
-            options = {"method": case.method, "stiffness": case.stiffness, "initial": case.initial, "force": True}
+            options = {
+                "method": case.method,
+                "stiffness": case.stiffness,
+                "initial": case.initial,
+                "initial_field": case.initial_field,
+                "force": True,
+            }
             options.update(case.options)
             registration = wb.register(
                 case.fixed, case.moving, case.landmarks, out_field=case.out_field, out=case.out, **options
