@@ -752,11 +752,8 @@ fn info_describes_a_displacement_field_of_any_flavour() {
 /// fixed landmark still maps onto its moving partner (which the field alone would miss).
 #[test]
 fn initial_field_lies_under_the_landmarks() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
-    let field_path = fixture("field.nii.gz");
-    let none = dir.path().join("none.csv");
-    common::write_pairs_csv(&none, &[]);
+    let (dir, none) = no_pairs();
+    let (fixed, moving, field_path) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"), fixture("field.nii.gz"));
     let out = dir.path().join("alone.nii.gz");
     let run = warpbench(&[
         "warp",
@@ -832,11 +829,8 @@ fn initial_field_lies_under_the_landmarks() {
 /// Learn2Reg `.npz` whose shape is not the fixed volume's.
 #[test]
 fn initial_field_refusals() {
-    let dir = tempfile::tempdir().expect("tempdir");
-    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
-    let field = fixture("field.nii.gz");
-    let csv = dir.path().join("pairs.csv");
-    common::write_pairs_csv(&csv, &[]);
+    let (dir, csv) = no_pairs();
+    let (fixed, moving, field) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"), fixture("field.nii.gz"));
     let out = dir.path().join("out.nii.gz");
     let base = ["--fixed", s(&fixed), "--moving", s(&moving), "--quiet", "--out", s(&out)];
     // A Learn2Reg field is read against the volumes given: one of another shape is refused.
@@ -855,6 +849,14 @@ fn initial_field_refusals() {
         args.extend(extra);
         expect_refused(&args, &out, needles);
     }
+}
+
+/// A temporary folder holding a landmark file of no pairs, `none.csv`, beside which the `--initial-field` runs write.
+fn no_pairs() -> (tempfile::TempDir, PathBuf) {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let none = dir.path().join("none.csv");
+    common::write_pairs_csv(&none, &[]);
+    (dir, none)
 }
 
 /// Runs warpbench with `args`, which must exit 2 with each of `needles` on stderr and write nothing at `out`.
