@@ -261,6 +261,14 @@ impl ItkChain {
     }
 }
 
+/// What an ITK transform file gives as a field, from one reading of it: a displacement field (one the file holds,
+/// with the chain around it sampled on its grid), or a chain of B-splines and affines, which has no grid.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FieldOrChain {
+    Field(ReadField),
+    Chain(ItkChain),
+}
+
 /// Parses the text of a `.tfm` holding one transform or a composite (module docs) as its chain; `name` is used in
 /// errors: a class warpbench does not read, numbers of the wrong count, a composite inside the composite, a
 /// thin-plate spline.

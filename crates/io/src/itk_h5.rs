@@ -64,7 +64,7 @@ use crate::elastix::{FieldInterpolation, FieldStep};
 use crate::error::{Error, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::itk_chain::{COMPOSITE_TYPES, FIELD_TYPES, SLICER_INVERSE_BSPLINE_TYPES, SLICER_INVERSE_FIELD_TYPES};
-pub use crate::itk_chain::{InverseStep, ItkChain, ItkStep};
+pub use crate::itk_chain::{FieldOrChain, InverseStep, ItkChain, ItkStep};
 use crate::itk_tfm::{ItkAffine, ItkTransform, known_types, transform_of};
 use crate::nifti::DisplacementField;
 use crate::volume::{self, GeometrySource};
@@ -233,19 +233,34 @@ pub(crate) fn parse_single(path: &Path, bytes: Vec<u8>) -> Result<RawTransform> 
 /// # Errors
 /// As [`read`] and [`crate::itk_chain::ItkChain::field_on`].
 pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField> {
+    match read_field_or_chain(path)? {
+        FieldOrChain::Field(read) => Ok(read),
+        FieldOrChain::Chain(chain) => chain.field_on(path, grid, FieldSource::ItkHdf5),
+    }
+}
+
+/// The `.h5` file read once, as the displacement field it holds (sampled on its grid, as [`read_field_on`] reads it)
+/// or, when it holds none, as its chain.
+///
+/// # Errors
+/// As [`read`], and what sampling the chain on its field's grid refuses.
+pub fn read_field_or_chain(path: &Path) -> Result<FieldOrChain> {
     let (file, members) = members(path, read_bytes(path)?)?;
     if let [Member { group, kind }] = members.as_slice()
         && SLICER_INVERSE_FIELD_TYPES.contains(&kind.as_str())
     {
         let step = read_displacement_field(path, &file, group)?;
-        return Ok(ReadField {
+        return Ok(FieldOrChain::Field(ReadField {
             field: step.field,
             source: FieldSource::ItkHdf5,
             direction: Some(FieldDirection::Forward),
-        });
+        }));
     }
     let chain = chain_of(path, &file, members)?;
-    chain.field_on(path, grid, FieldSource::ItkHdf5)
+    if chain.has_field() {
+        return chain.field_on(path, None, FieldSource::ItkHdf5).map(FieldOrChain::Field);
+    }
+    Ok(FieldOrChain::Chain(chain))
 }
 
 /// [`read_field_on`] without a grid: a file that holds a displacement field.

@@ -128,3 +128,22 @@ fn bad_chains_are_refused_naming_the_file() {
     let e = warpbench_io::itk_tfm::read(&itk("tfm_composite.tfm")).expect_err("composite").to_string();
     assert!(e.contains("3 transforms") && e.contains("a single transform"), "{e}");
 }
+
+/// One reading of a file tells a field from a chain: SimpleITK's `.h5` of an affine and a field (as ANTs' composite)
+/// is the field `read_field_info` gives, its `.h5` of an affine and its `.tfm` composite are chains, and a NIfTI field
+/// is a field.
+#[test]
+fn a_field_or_a_chain_from_one_reading() {
+    use warpbench_io::itk_chain::FieldOrChain;
+    let h5 = itk("h5_composite.h5");
+    match displacement::read_field_or_chain(&h5).expect("h5") {
+        FieldOrChain::Field(read) => assert_eq!(read, displacement::read_field_info(&h5).expect("the field")),
+        FieldOrChain::Chain(_) => panic!("a composite with a field is a field"),
+    }
+    for name in ["h5_affine.h5", "tfm_composite.tfm"] {
+        let read = displacement::read_field_or_chain(&itk(name)).expect(name);
+        assert!(matches!(read, FieldOrChain::Chain(_)), "{name}");
+    }
+    let nifti = itk("field_input_field.nii.gz");
+    assert!(matches!(displacement::read_field_or_chain(&nifti).expect("nifti"), FieldOrChain::Field(_)));
+}

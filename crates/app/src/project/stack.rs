@@ -31,7 +31,7 @@ use anyhow::anyhow;
 use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::Point3;
 use warpbench_io::geometry::Space;
-use warpbench_io::itk_chain::{ItkChain, ItkStep};
+use warpbench_io::itk_chain::{FieldOrChain, ItkChain, ItkStep};
 use warpbench_io::itk_tfm::{ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
 use warpbench_solver::SolverError;
 use warpbench_solver::brush::{Brush, PointwiseInverse};
@@ -74,9 +74,9 @@ impl FieldLayer {
     /// finite).
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let origin = path.display().to_string();
-        if displacement::is_itk_transform_file(path)? {
-            let chain = warpbench_io::transform_file::read_chain(path)?;
-            if !chain.has_field() {
+        let read = match displacement::read_field_or_chain(path)? {
+            FieldOrChain::Field(read) => read,
+            FieldOrChain::Chain(chain) => {
                 if chain.affine().is_ok() {
                     return Err(anyhow!(
                         "{origin}: it holds only linear transforms, and no displacement field: it is a starting \
@@ -93,8 +93,7 @@ impl FieldLayer {
                 }
                 return Ok(Self { origin, maps: FieldMaps::Chain(Arc::new(chain)) });
             }
-        }
-        let read = displacement::read_field_info(path)?;
+        };
         let bad = |e: SolverError| anyhow!("{origin}: {e}");
         let maps = match read.direction {
             Some(FieldDirection::Forward) => {

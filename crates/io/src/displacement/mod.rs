@@ -60,6 +60,23 @@ pub fn is_itk_transform_file(path: &Path) -> Result<bool> {
     Ok(crate::itk_h5::looks_like_hdf5(&head) || crate::itk_tfm::looks_like_text(&head))
 }
 
+/// The file read once, as a field ([`read_field_info`]) or, for an ITK transform file of B-splines and affines with no
+/// displacement field (which gives no grid to sample on), as its chain.
+///
+/// # Errors
+/// As [`read_field_info`].
+pub fn read_field_or_chain(path: &Path) -> Result<crate::itk_chain::FieldOrChain> {
+    use crate::itk_chain::FieldOrChain;
+    let head = flavour::head(path)?;
+    if crate::itk_h5::looks_like_hdf5(&head) {
+        return crate::itk_h5::read_field_or_chain(path);
+    }
+    if crate::itk_tfm::looks_like_text(&head) {
+        return crate::transform_file::read_chain(path).map(FieldOrChain::Chain);
+    }
+    read_field_info(path).map(FieldOrChain::Field)
+}
+
 /// [`read_field_info`], and an ITK transform file of B-splines (`.tfm` or `.h5`, which give no grid of their own)
 /// sampled at the voxel centres of `grid` ([`crate::itk_chain::ItkChain::field_on`]).
 ///
