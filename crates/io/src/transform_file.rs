@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::itk_chain::{ItkChain, ItkStep};
 use crate::itk_h5::{self, H5Transform};
 use crate::itk_tfm::{self, ItkTransform};
@@ -34,15 +34,11 @@ pub fn read_chain(path: &Path) -> Result<ItkChain> {
     if itk_h5::looks_like_hdf5(&head) {
         return itk_h5::read(path);
     }
-    if !itk_tfm::looks_like_text(&head) {
-        // An affine .mat (told by its name or its bytes), or what its reader refuses.
-        return Ok(ItkChain { steps: vec![ItkStep::Transform(itk_tfm::read(path)?)] });
+    match itk_tfm::read_file(path)? {
+        itk_tfm::Contents::Mat(bytes) => {
+            let affine = itk_tfm::parse_mat(path, &bytes)?;
+            Ok(ItkChain { steps: vec![ItkStep::Transform(ItkTransform::Affine(affine))] })
+        }
+        itk_tfm::Contents::Text(text) => crate::itk_chain::parse_text(path, &text),
     }
-    let len = crate::files::check_regular_file(path)?.len();
-    if len > itk_tfm::MAX_FILE_BYTES {
-        return Err(Error::invalid(path, format!("{len} bytes is too long for a transform file")));
-    }
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| Error::invalid(path, format!("the transform file is not UTF-8 text ({e})")))?;
-    crate::itk_chain::parse_text(path, &text)
 }

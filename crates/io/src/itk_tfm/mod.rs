@@ -127,7 +127,7 @@ pub const MAX_BSPLINE_CONTROL_POINTS: usize = 1 << 21;
 pub const MAX_TPS_LANDMARKS: usize = 20_000;
 
 /// The longest file read: a B-spline of [`MAX_BSPLINE_CONTROL_POINTS`] at ~25 characters a number.
-pub(crate) const MAX_FILE_BYTES: u64 = 256 << 20;
+const MAX_FILE_BYTES: u64 = 256 << 20;
 
 /// One transform of an ITK transform file (module docs), LPS mm to LPS mm.
 #[derive(Clone, Debug, PartialEq)]
@@ -476,7 +476,7 @@ const HDF5_NAME_FOR_TEXT: &str = "ITK reads a file named .h5 as HDF5, and a text
 /// Whether `head`, a file's first bytes, opens an ITK text transform file (`#Insight Transform File`).
 #[must_use]
 pub fn looks_like_text(head: &[u8]) -> bool {
-    head.starts_with(&MAGIC.as_bytes()[..23])
+    head.starts_with(b"#Insight Transform File")
 }
 
 /// Whether `path` is named as an HDF5 file (`.h5`, `.hdf5`, `.hdf`, any case).
@@ -491,12 +491,14 @@ fn is_mat_name(path: &Path) -> bool {
 }
 
 /// A transform file's contents: the text of a `.tfm`, or the bytes of a `.mat`.
-enum Contents {
+pub(crate) enum Contents {
     Text(String),
     Mat(Vec<u8>),
 }
 
-fn read_file(path: &Path) -> Result<Contents> {
+/// The contents of the transform file at `path`, a regular file of at most [`MAX_FILE_BYTES`]: a `.mat` by its name
+/// or its first bytes, else UTF-8 text.
+pub(crate) fn read_file(path: &Path) -> Result<Contents> {
     let len = crate::files::check_regular_file(path)?.len();
     // The largest file we read is a B-spline of MAX_BSPLINE_CONTROL_POINTS; a longer one is not read into memory.
     if len > MAX_FILE_BYTES {
