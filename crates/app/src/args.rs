@@ -69,6 +69,10 @@ pub struct PairArgs {
     /// points first and --initial after it, as antsApplyTransforms -t FIELD -t TFM does.
     #[arg(long, value_name = "FIELD", conflicts_with = "session")]
     pub initial_field: Option<PathBuf>,
+    /// How --initial-field is read: auto (by its content) or learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// voxels, .npz or an (X, Y, Z, 3) NIfTI, which says nothing of its units otherwise).
+    #[arg(long, value_name = "FORMAT", value_enum, default_value = "auto", requires = "initial_field")]
+    pub initial_field_format: crate::project::field_file::FieldReadFormat,
 }
 
 /// `--method` with its parameters, parsed once into a [`warpbench_solver::method::Method`]

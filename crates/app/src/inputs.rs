@@ -247,9 +247,9 @@ pub struct PairWarp {
 /// Where the displacement field under the landmark fit comes from.
 #[derive(Clone, Debug, PartialEq)]
 pub enum BaseField {
-    /// `--initial-field`: read against the command's volumes, as the window reads a field chosen with them open (a
-    /// Learn2Reg `.npz`'s voxel steps between their grids).
-    Given(PathBuf),
+    /// `--initial-field`, read as `--initial-field-format` says, against the command's volumes, as the window reads a
+    /// field chosen with them open (a Learn2Reg field's voxel steps between their grids).
+    Given { path: PathBuf, format: FieldReadFormat },
     /// A session's, with the grids recorded when it was chosen (a Learn2Reg field without them is refused).
     Session(FieldFile),
 }
@@ -259,7 +259,7 @@ impl BaseField {
     #[must_use]
     pub fn path(&self) -> &Path {
         match self {
-            Self::Given(path) => path,
+            Self::Given { path, .. } => path,
             Self::Session(file) => &file.path,
         }
     }
@@ -288,9 +288,7 @@ impl PairWarp {
     ) -> Result<Option<std::sync::Arc<crate::project::stack::FieldLayer>>> {
         let layer = match &self.base_field {
             None => return Ok(None),
-            Some(BaseField::Given(path)) => {
-                FieldFile::chosen(path.clone(), FieldReadFormat::Auto, fixed, moving)?.layer()
-            }
+            Some(BaseField::Given { path, format }) => FieldFile::chosen(path.clone(), *format, fixed, moving)?.layer(),
             Some(BaseField::Session(file)) => file.layer(),
         };
         Ok(Some(std::sync::Arc::new(layer?)))
@@ -343,7 +341,9 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                     brush: Vec::new(),
                     initial: args.initial,
                     session_start: None,
-                    base_field: args.initial_field.map(BaseField::Given),
+                    base_field: args
+                        .initial_field
+                        .map(|path| BaseField::Given { path, format: args.initial_field_format }),
                 },
                 session_refine: None,
             });

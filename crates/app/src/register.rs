@@ -177,6 +177,10 @@ pub struct RegisterPairArgs {
     /// first and --initial after it, as antsApplyTransforms -t FIELD -t TFM does.
     #[arg(long, value_name = "FIELD")]
     pub initial_field: Option<PathBuf>,
+    /// How --initial-field is read: auto (by its content) or learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// voxels, .npz or an (X, Y, Z, 3) NIfTI, which says nothing of its units otherwise).
+    #[arg(long, value_name = "FORMAT", value_enum, default_value = "auto", requires = "initial_field")]
+    pub initial_field_format: crate::project::field_file::FieldReadFormat,
 }
 
 impl From<RegisterPairArgs> for PairArgs {
@@ -189,6 +193,7 @@ impl From<RegisterPairArgs> for PairArgs {
             method: MethodArgs { method: a.method, stiffness: a.stiffness, levels: None },
             initial: a.initial,
             initial_field: a.initial_field,
+            initial_field_format: a.initial_field_format,
         }
     }
 }

@@ -824,6 +824,66 @@ fn initial_field_lies_under_the_landmarks() {
     }
 }
 
+/// `--initial-field-format learn2reg` reads Learn2Reg's NIfTI form (an (X, Y, Z, 3) array of voxel steps) under the
+/// landmarks as `--field-format learn2reg` reads it as the whole warp: `points` maps fixed points through it, with
+/// pairs on top, as through the same steps in an `.npz` and as through the pull-back they state written in
+/// millimetres as ITK's NIfTI (steps that float16 holds exactly, so all three hold the same field). Without the flag
+/// the form is refused, exit 2, and the message names the flag.
+#[test]
+fn initial_field_format_reads_learn2regs_nifti_form_under_the_landmarks() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (fixed, moving) = (fixture("fixed.nii.gz"), fixture("moving.nii.gz"));
+    let (f, m) = (warpbench_io::open(&fixed).expect("fixed"), warpbench_io::open(&moving).expect("moving"));
+    let [nx, ny, _] = f.dims;
+    let steps_vox = (0..f.dims.iter().product::<usize>())
+        .map(|n| [0.25, (2.0 * ((n % nx) as f32) / 15.0).round_ties_even() / 2.0 - 0.5, ((n / nx) % ny) as f32 / 8.0])
+        .collect();
+    let steps = warpbench_io::learn2reg::VoxelField { dims: f.dims, steps_vox };
+    let npz = dir.path().join("disp_0001_0002.npz");
+    warpbench_io::learn2reg::write_voxel_field(&npz, &steps).expect("npz written");
+    let form = dir.path().join("disp_0001_0002.nii.gz");
+    warpbench_io::learn2reg::write_voxel_field_nifti(&form, &steps, &f.lps_from_index).expect("written");
+    let mm = warpbench_io::learn2reg::pullback_from_voxels(&npz, &steps, f.dims, &f.lps_from_index, &m.lps_from_index)
+        .expect("in mm");
+    let itk = dir.path().join("disp_mm.nii.gz");
+    write_field(&itk, FieldFormat::Itk, mm.dims, &mm.lps_from_index, &mm.displacements_lps).expect("written");
+    // Two pairs on top, and points inside the fixed box.
+    let csv = dir.path().join("pairs.csv");
+    common::write_pairs_csv(&csv, &[([1.0, 2.0, -1.0], [0.0, 1.0, 0.0]), ([-3.0, 0.5, 2.0], [-4.0, 0.0, 3.0])]);
+    let targets = dir.path().join("targets.csv");
+    std::fs::write(&targets, "0,0,0\n-5,3,2\n4,-4,-3\n2.5,1.5,-6\n").expect("write");
+    let mapped = |field: &Path, extra: &[&str], name: &str| {
+        let out = dir.path().join(name);
+        let mut args = vec!["points", "--fixed", s(&fixed), "--moving", s(&moving), "--initial-field", s(field)];
+        args.extend(extra);
+        args.extend(["--landmarks", s(&csv), "--from", "fixed", "--in", s(&targets), "--out", s(&out), "--quiet"]);
+        assert_ok(&warpbench(&args));
+        std::fs::read_to_string(&out).expect("mapped points")
+    };
+    let from_npz = mapped(&npz, &[], "npz.csv");
+    let from_form = mapped(&form, &["--initial-field-format", "learn2reg"], "form.csv");
+    let from_mm = mapped(&itk, &[], "mm.csv");
+    assert_eq!(from_form, from_npz, "the NIfTI form and the .npz hold the same steps");
+    for (a, b) in from_form.lines().zip(from_mm.lines()) {
+        let parse = |l: &str| l.split(',').take(3).map(|v| v.parse::<f64>().expect("mm")).collect::<Vec<_>>();
+        let (a, b) = (parse(a), parse(b));
+        // The millimetre file's geometry goes through NIfTI's f32 sform.
+        let off = (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt();
+        assert!(off < ITK_TOL_MM, "{a:?} against {b:?} through the field in mm ({off} mm)");
+    }
+    assert_ne!(from_form.lines().next(), Some("0,0,0"), "the field moves the points");
+    let out = dir.path().join("refused.csv");
+    let args = ["points", "--fixed", s(&fixed), "--moving", s(&moving), "--initial-field", s(&form), "--landmarks"];
+    let mut args = args.to_vec();
+    args.extend([s(&csv), "--from", "fixed", "--in", s(&targets), "--out", s(&out), "--quiet"]);
+    expect_refused(&args, &out, &["disp_0001_0002.nii.gz", "Learn2Reg", "--initial-field-format learn2reg"]);
+    // The flag means nothing without the field.
+    let args = ["points", "--fixed", s(&fixed), "--moving", s(&moving), "--initial-field-format", "learn2reg"];
+    let mut args = args.to_vec();
+    args.extend(["--landmarks", s(&csv), "--from", "fixed", "--in", s(&targets), "--out", s(&out), "--quiet"]);
+    expect_refused(&args, &out, &["--initial-field <FIELD>"]);
+}
+
 /// `--initial-field` is refused where it means nothing or cannot be read, exit 2, naming the file: beside `--field`
 /// (which is the whole warp) or `--session` (which carries its own), in `render` without landmarks, and for a
 /// Learn2Reg `.npz` whose shape is not the fixed volume's.

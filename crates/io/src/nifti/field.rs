@@ -208,7 +208,8 @@ fn read_field_source<S: Source>(
                 format!(
                     "intent_code is {c} and dim = {:?}: an (X, Y, Z, 3) array without a vector intent, as \
                      Learn2Reg's fields are (steps in voxels, not mm; docs/formats.md). If it is one, read it as \
-                     Learn2Reg's against its fixed and moving volumes (command line: --field-format learn2reg; \
+                     Learn2Reg's against its fixed and moving volumes (command line: --field-format learn2reg, or \
+                     --initial-field-format learn2reg under the landmarks; \
                      Python: read_field(path, fixed=..., moving=..., learn2reg=True); window: tick Learn2Reg steps \
                      in voxels)",
                     h.dim
