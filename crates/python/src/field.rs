@@ -5,11 +5,13 @@
 use std::path::PathBuf;
 
 use numpy::ndarray::{Array4, ShapeBuilder};
-use numpy::{PyArray, PyReadonlyArray2};
+use numpy::{PyArray, PyReadonlyArray2, PyReadonlyArray4};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
+use warpbench_app::project::stack::FieldLayer;
 use warpbench_io::displacement::{self, FieldDirection, FieldSource, ReadField};
 use warpbench_io::learn2reg as l2r;
+use warpbench_solver::field::SampledField;
 
 use crate::errors::{self, guarded};
 use crate::volume::{lps_from_index, matrix};
@@ -82,4 +84,37 @@ pub fn read_field(
     let direction = read.direction.map(|d| d.name().to_owned());
     let lps = matrix(py, &field.lps_from_index.rows());
     Ok((PyArray::from_owned_array(py, array).into_any().unbind(), lps, source, direction))
+}
+
+/// A `Field`'s parts from Python, as `fit(initial_field=)` takes one: its (ni, nj, nk, 3) float32 LPS vectors, its
+/// 4×4 `lps_from_index`, and whether the file said it is the forward map (`direction == "forward"`).
+pub type FieldArrays<'py> = (PyReadonlyArray4<'py, f32>, PyReadonlyArray2<'py, f64>, bool);
+
+/// The layer of the warp stack a `Field` is under the landmark fit: its vectors on its grid, as the pull-back F
+/// (F(x) = x + D(x)), or as F⁻¹ when it is the forward map. `name` names it in messages.
+///
+/// # Errors
+/// An array that is not (ni, nj, nk, 3), a matrix that is not 4×4 or not invertible, a vector that is not finite.
+pub fn field_layer(name: &str, (array, lps, forward): &FieldArrays<'_>) -> PyResult<FieldLayer> {
+    let view = array.as_array();
+    let shape = view.shape();
+    if shape.len() != 4 || shape[3] != 3 {
+        return Err(PyValueError::new_err(format!("{name}: the field's array must be (ni, nj, nk, 3), not {shape:?}")));
+    }
+    let dims = [shape[0], shape[1], shape[2]];
+    let lps_from_index = lps_from_index(std::path::Path::new(name), lps)?;
+    let mut vectors = Vec::with_capacity(dims.iter().product());
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                vectors.push([view[[i, j, k, 0]], view[[i, j, k, 1]], view[[i, j, k, 2]]]);
+            }
+        }
+    }
+    let bad = |e: warpbench_solver::SolverError| PyValueError::new_err(format!("{name}: {e}"));
+    Ok(if *forward {
+        FieldLayer::forward(SampledField::new(dims, lps_from_index, vectors).map_err(bad)?, name)
+    } else {
+        FieldLayer::pullback(SampledField::new(dims, lps_from_index, vectors).map_err(bad)?, name)
+    })
 }

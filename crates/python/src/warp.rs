@@ -43,6 +43,13 @@ use crate::errors::{bad_input, guarded, io, to_py};
 use crate::landmarks::pairs_from_arrays;
 use crate::volume::{lps_from_index, samples_to_numpy, volume_from_numpy};
 
+/// `fit`'s `initial_field`: a file, or a `Field`'s arrays.
+#[derive(Debug, FromPyObject)]
+pub enum InitialField<'py> {
+    Path(PathBuf),
+    Arrays(crate::field::FieldArrays<'py>),
+}
+
 /// A grid: voxels along i, j, k and the 4×4 `lps_from_index`.
 type Grid = ([usize; 3], Transform<Lps, Index>);
 
@@ -155,8 +162,8 @@ fn stiffness_arg(value: &Bound<'_, PyAny>) -> PyResult<StiffnessArg> {
 impl Warp {
     /// Fits `method` on the pairs (see `warpbench.fit`). `fixed_grid` and `moving_grid` are `(dims,
     /// lps_from_index)`: with them the pairs are checked against the volumes and the fit's domains are their boxes,
-    /// as on the command line. `initial_field` lies under the fit, and `initial` after it (`--initial-field`); a
-    /// Learn2Reg `.npz` is read against the two grids.
+    /// as on the command line. `initial_field` (a file, or a `Field`'s `(array, lps_from_index, forward)`) lies under
+    /// the fit, and `initial` after it (`--initial-field`); a Learn2Reg `.npz` is read against the two grids.
     #[staticmethod]
     #[pyo3(signature = (moving, fixed, names, active, origin, method = "tps", stiffness = None, levels = None,
         initial = None, fixed_grid = None, moving_grid = None, initial_field = None))]
@@ -174,7 +181,7 @@ impl Warp {
         initial: Option<PathBuf>,
         fixed_grid: Option<(Vec<usize>, PyReadonlyArray2<'_, f64>)>,
         moving_grid: Option<(Vec<usize>, PyReadonlyArray2<'_, f64>)>,
-        initial_field: Option<PathBuf>,
+        initial_field: Option<InitialField<'_>>,
     ) -> PyResult<Self> {
         let pairs = pairs_from_arrays(&origin, &moving, &fixed, &names, &active)?;
         let kind = <MethodKind as clap::ValueEnum>::from_str(method, true).map_err(|_| {
@@ -186,6 +193,14 @@ impl Warp {
             (None, None) => None,
             _ => return Err(PyValueError::new_err("give both the fixed and the moving volume, or neither")),
         };
+        // A `Field`'s arrays become the layer here, while the GIL is held; a file is read below.
+        let (initial_path, given_layer) = match initial_field {
+            Some(InitialField::Path(path)) => (Some(path), None),
+            Some(InitialField::Arrays(parts)) => {
+                (None, Some(std::sync::Arc::new(crate::field::field_layer("initial_field", &parts)?)))
+            }
+            None => (None, None),
+        };
         guarded(py, move || {
             let start = initial.as_deref().map(Start::read).transpose().map_err(bad_input)?;
             let mut layers = Layers::new(start, None);
@@ -195,7 +210,8 @@ impl Warp {
                     Ok::<_, PyErr>((geometry_volume(Path::new("fixed"), f)?, geometry_volume(Path::new("moving"), m)?))
                 })
                 .transpose()?;
-            if let Some(path) = initial_field {
+            layers.field = given_layer;
+            if let Some(path) = initial_path {
                 let file = match &zeros {
                     Some((f, m)) => FieldFile::chosen(path, FieldReadFormat::Auto, f, m).map_err(bad_input)?,
                     None if warpbench_io::learn2reg::is_npz_file(&path).map_err(io)? => {

@@ -224,6 +224,57 @@ def test_initial_field_lies_under_initial_as_itks_composite_applies_them(tmp_pat
     np.testing.assert_allclose(on_top.pullback(fixed_points), moving_points, rtol=0, atol=1e-6)
 
 
+def test_a_field_object_lies_under_the_landmarks(tmp_path):
+    """``fit(initial_field=Field)``: a field read with :func:`read_field` lies under the landmarks as its file does,
+    point for point; one made from an array is the pull-back x + D(x) on its grid (a constant D, which trilinear
+    interpolation holds exactly) and the identity outside it, or with ``direction="forward"`` the map it inverts.
+    A malformed one is a ValueError naming ``initial_field``."""
+    field_path = DATA / "itk" / "field_input_field_sitk.nii.gz"
+    displacement = sitk.DisplacementFieldTransform(sitk.Cast(sitk.ReadImage(str(field_path)), sitk.sitkVectorFloat64))
+    points = np.array([[0.0, 0.0, 0.0], [-5.5, 3.25, 2.0], [4.0, -6.0, -3.5], [40.0, 30.0, -25.0]])
+    want = np.array([displacement.TransformPoint(tuple(p)) for p in points])
+    none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    from_file = wb.fit(none, initial_field=field_path)
+    from_field = wb.fit(none, initial_field=wb.read_field(field_path))
+    np.testing.assert_array_equal(from_field.pullback(points), from_file.pullback(points))
+    np.testing.assert_allclose(from_field.pullback(points), want, rtol=0, atol=1e-4)
+
+    # A constant displacement on an oblique 6×5×4 grid of 2 mm voxels about the origin.
+    c, s_ = np.cos(0.3), np.sin(0.3)
+    lps = np.eye(4)
+    lps[:3, :3] = np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]]) * 2.0
+    lps[:3, 3] = -lps[:3, :3] @ np.array([2.5, 2.0, 1.5])
+    d = np.array([1.25, -0.5, 0.75])
+    array = np.broadcast_to(d.astype(np.float32), (6, 5, 4, 3)).copy()
+    inside = np.array([[0.0, 0.0, 0.0], [1.0, -1.5, 0.5], [-2.0, 1.0, -1.0]])
+    outside = np.array([[30.0, 0.0, 0.0], [0.0, -25.0, 12.0]])
+    pullback = wb.fit(none, initial_field=wb.Field(array, lps, "numpy", None))
+    np.testing.assert_allclose(pullback.pullback(inside), inside + d, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(pullback.pullback(outside), outside, rtol=0, atol=0)
+    forward = wb.fit(none, initial_field=wb.Field(array, lps, "numpy", "forward"))
+    np.testing.assert_allclose(forward.pullback(inside + d), inside, rtol=0, atol=1e-5)
+    np.testing.assert_allclose(forward.forward(inside), inside + d, rtol=0, atol=1e-6)
+    # Pairs on top keep each fixed landmark on its moving partner.
+    fixed_points = np.array([[0.5, 0.5, 0.0], [-1.5, 1.0, 0.5], [1.0, -2.0, -0.5], [2.0, 2.0, 1.0]])
+    moving_points = fixed_points + d + [[0.5, 0, 0], [0, -0.5, 0], [0, 0, 0.25], [0, 0, 0]]
+    on_top = wb.fit(wb.Pairs(moving_points, fixed_points), initial_field=wb.Field(array, lps, "numpy", None))
+    np.testing.assert_allclose(on_top.pullback(fixed_points), moving_points, rtol=0, atol=1e-6)
+
+    bad = [
+        (wb.Field(array[..., :2], lps, "numpy", None), r"initial_field: .*\(ni, nj, nk, 3\)"),
+        (wb.Field(array, lps[:3], "numpy", None), r"initial_field: .*4×4"),
+        (wb.Field(np.full_like(array, np.nan), lps, "numpy", None), r"initial_field: .*not finite"),
+        (wb.Field(array, np.zeros((4, 4)), "numpy", None), r"initial_field: .*singular"),
+        (wb.Field(array, lps, "numpy", "backward"), r"initial_field: direction 'backward'"),
+    ]
+    for field, message in bad:
+        with pytest.raises(ValueError, match=message):
+            wb.fit(none, initial_field=field)
+    # The commands take files: a Field there is refused before anything runs.
+    with pytest.raises(ValueError, match="initial_field: the command takes a file, not a Field"):
+        wb.register(FIXED, MOVING, initial_field=wb.read_field(field_path))
+
+
 def test_a_learn2reg_initial_field_needs_the_volumes(tmp_path):
     """A Learn2Reg ``.npz`` under the landmarks is read against ``fixed`` and ``moving``; without them it is a
     ValueError naming the file."""

@@ -130,6 +130,24 @@ def test_warp_reads_a_numpy_field_as_simpleitk_resamples_through_it(tmp_path):
                    expect=2)
     assert "disp_0001_0002.nii.gz" in done.stderr and "--field-format learn2reg" in done.stderr
 
+    # Under the landmarks, with no pairs: the form as a Field (Python) and with --initial-field-format (CLI) maps
+    # fixed points as SimpleITK's transform of the same field in mm, inside the fixed box and outside it.
+    box = np.array(shape) - 1
+    centres = np.array([[2.5, 3.0, 1.5], [0.2, 7.7, 9.1], box * 0.5, box * [0.9, 0.1, 0.6], [-20.0, 3.0, 4.0]])
+    points = np.array([fixed.TransformContinuousIndexToPhysicalPoint(tuple(c)) for c in centres])
+    want = np.array([transform.TransformPoint(tuple(p)) for p in points])
+    assert np.abs(want[:4] - points[:4]).max() > 1.0 and np.allclose(want[4], points[4])
+    none = wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    warp = wb.fit(none, initial_field=read)
+    np.testing.assert_allclose(warp.pullback(points), want, rtol=0, atol=1e-5)
+    targets, mapped, empty = tmp_path / "targets.csv", tmp_path / "mapped.csv", tmp_path / "none.csv"
+    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points.tolist()))
+    empty.write_text("")
+    run_cli("points", "--fixed", FIXED, "--moving", MOVING, "--initial-field", form, "--initial-field-format",
+            "learn2reg", "--landmarks", empty, "--from", "fixed", "--in", targets, "--out", mapped, "--quiet")
+    got = np.array([[float(v) for v in line.split(",")[:3]] for line in mapped.read_text().splitlines()])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-5)
+
 
 def test_readers_without_the_pair_refuse_an_npz_and_a_wrong_shape_by_name(tmp_path):
     npz = tmp_path / "disp.npz"

@@ -506,7 +506,7 @@ def fit(
     fixed: Optional[Volume] = None,
     moving: Optional[Volume] = None,
     levels: Optional[int] = None,
-    initial_field: Optional[PathLike] = None,
+    initial_field: Union[PathLike, "Field", None] = None,
 ) -> Warp:
     """Fits a warp on the active pairs with both points, as the command line fits it.
 
@@ -521,9 +521,14 @@ def fit(
             and the fit's domains are their boxes, as on the command line; without them, the points' box grown by
             a tenth (it matters only to ``hbspline``).
         levels: the hierarchical B-spline's levels.
-        initial_field: a displacement field under the landmark warp, in any flavour :func:`read_field` reads (a
-            registration the landmarks correct). It maps fixed points first and ``initial`` after it, as
-            ``antsApplyTransforms -t FIELD -t TFM`` does. A Learn2Reg ``.npz`` needs ``fixed`` and ``moving``.
+        initial_field: a displacement field under the landmark warp (a registration the landmarks correct): a
+            file in any flavour :func:`read_field` reads, or a :class:`Field` (one :func:`read_field` returned, or
+            one made from another tool's array: LPS mm, the pull-back unless its ``direction`` is ``"forward"``).
+            It maps fixed points first and ``initial`` after it, as ``antsApplyTransforms -t FIELD -t TFM`` does.
+            A Learn2Reg ``.npz`` needs ``fixed`` and ``moving``; its NIfTI form is read with
+            ``read_field(path, fixed, moving, learn2reg=True)`` and given as that :class:`Field`. A file of ITK
+            B-spline transforms is applied exactly everywhere; the :class:`Field` read from it is its samples on the
+            fixed grid, and the identity outside it.
     """
     if (fixed is None) != (moving is None):
         raise ValueError("give both fixed= and moving=, or neither")
@@ -540,9 +545,22 @@ def fit(
         None if initial is None else os.fspath(initial),
         None if fixed is None else fixed._grid(),
         None if moving is None else moving._grid(),
-        None if initial_field is None else os.fspath(initial_field),
+        _initial_field(initial_field),
     )
     return Warp(native, pairs, fixed, moving)
+
+
+def _initial_field(field: Union[PathLike, Field, None]) -> Any:
+    """``fit``'s ``initial_field`` as the native fit takes it: a path, or a :class:`Field`'s arrays."""
+    if field is None:
+        return None
+    if isinstance(field, Field):
+        if field.direction not in (None, "pullback", "forward"):
+            raise ValueError(f"initial_field: direction {field.direction!r}: give 'pullback', 'forward' or None")
+        array = np.ascontiguousarray(field.array, dtype=np.float32)
+        lps = np.ascontiguousarray(field.lps_from_index, dtype=np.float64)
+        return (array, lps, field.direction == "forward")
+    return os.fspath(field)
 
 
 # --- The subcommands with a --json report ----------------------------------------------------------------------
@@ -558,6 +576,8 @@ def _flags(options: Dict[str, Any]) -> List[str]:
             continue
         if value is True:
             argv.append(flag)
+        elif isinstance(value, Field):
+            raise ValueError(f"{key}: the command takes a file, not a Field: give the path it was read from")
         elif isinstance(value, (list, tuple)):
             argv += [flag, ",".join(str(v) for v in value)]
         else:
@@ -643,7 +663,8 @@ def register(
 ) -> Dict[str, Any]:
     """Deformable registration by intensities under the landmarks (``warpbench register``).
 
-    The options are the CLI's: ``session``, ``initial``, ``initial_field``, ``method``, ``stiffness``, ``metric``
+    The options are the CLI's: ``session``, ``initial``, ``initial_field`` (a file; ``initial_field_format`` is
+    ``"learn2reg"`` for Learn2Reg's NIfTI form), ``method``, ``stiffness``, ``metric``
     (``"mi"``, ``"ngf"`` or ``"lncc"``), ``fixed_mask`` and ``moving_mask`` (paths), ``grid_mm``, ``levels``,
     ``landmark_weight``, ``bending_weight``, ``samples``, ``iterations``, ``seed``, ``backend``, ``format``,
     ``force``, ``out_inverse_field`` (a path: the inverse as a forward field on the moving grid). ``out_field``
@@ -674,7 +695,8 @@ def suggest(
     """Suggested fixed targets for moving ``points`` (``warpbench suggest``): a point-list file, or an N×3 array
     of LPS mm. The prediction comes from ``landmarks`` (or ``session``/``initial`` in the options) and the search
     from the images. ``out`` (BigWarp CSV or JSON) is written when given; the other options are the CLI's
-    (``search_radius_mm``, ``method``, ``stiffness``, ``initial``, ``initial_field``, ``session``, ``force``).
+    (``search_radius_mm``, ``method``, ``stiffness``, ``initial``, ``initial_field`` and ``initial_field_format``,
+    ``session``, ``force``).
     Returns its ``--json`` report."""
     with ExitStack() as stack:
         io = _Inputs(stack)

@@ -48,7 +48,7 @@ class Warp:
         initial: Optional[str] = None,
         fixed_grid: Optional[Grid] = None,
         moving_grid: Optional[Grid] = None,
-        initial_field: Optional[str] = None,
+        initial_field: Union[str, Tuple[npt.NDArray[np.float32], npt.NDArray[np.float64], bool], None] = None,
     ) -> "Warp": ...
     @property
     def method(self) -> str: ...
