@@ -29,9 +29,10 @@
 //! - **Affine, similarity, rigid** → `AffineTransform_double_3_3` (centre 0, translation = offset).
 //!
 //! A name ending in `.h5` writes the same class in ITK's HDF5 transform file ([`warpbench_io::itk_h5`]), which can
-//! also hold a displacement field: a stack no other transform file holds exactly (a session's field or brush) is
-//! written there as a `DisplacementFieldTransform` over the pull-back sampled on the fixed grid
-//! ([`write_h5_field_transform`]).
+//! also hold displacement fields and composites: a stack no other transform file holds exactly (a field or a brush)
+//! is written there as ITK's composite of its layers, the landmark fit sampled on the fixed grid where ITK has no
+//! class for it, or as one `DisplacementFieldTransform` over the whole pull-back sampled on the fixed grid
+//! ([`write_h5_stack`]).
 //!
 //! `--format elastix` writes the same [`warpbench_io::itk_tfm::ItkTransform`] as an elastix transform parameter file
 //! ([`warpbench_io::elastix::write`]): `SplineKernelTransform`, `BSplineTransform` or `AffineTransform` over the fixed
@@ -44,14 +45,15 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix4, Vector3};
 use serde::Serialize;
-use warpbench_io::Volume;
 use warpbench_io::dicom_reg::{self, DeformableRegistration, MatrixType, SpatialRegistration};
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
+use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_io::transform_file;
+use warpbench_io::{Progress, Volume, volume};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -60,7 +62,8 @@ use crate::exit::Failure;
 use crate::field::FieldInputs;
 use crate::fit;
 use crate::inputs::{self, OutputFile, PairInputs};
-use crate::project::stack::Layers;
+use crate::progress::Bar;
+use crate::project::stack::{ItkComposite, ItkRest, Layers};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-transform/1";
@@ -72,9 +75,10 @@ Write the landmark warp as an ITK transform file (.tfm), the exact transform ins
 as ThinPlateSplineKernelTransform_double_3_3 (any stiffness: the file is the same function), the hierarchical
 B-spline as one BSplineTransform_double_3_3 (its finest lattice, exact inside the fixed volume's box; ITK is the
 identity outside it), affine, similarity and rigid as AffineTransform_double_3_3. Name the file .h5 for ITK's
-HDF5 transform file (what Slicer saves and ANTs writes as Composite.h5): the same class, and for a session with a
-field or brush strokes, which no other ITK file holds, a DisplacementFieldTransform of the warp sampled on the
-fixed grid.
+HDF5 transform file (what Slicer saves and ANTs writes as Composite.h5): the same class, and for a warp with a
+field or brush strokes, which no other ITK file holds, ITK's composite of the starting transform, the field's own
+transforms and the landmark fit (a TPS or a brush sampled on the fixed grid), or for a forward field or a brush
+alone a DisplacementFieldTransform of the warp sampled on the fixed grid.
 
 The file maps fixed points to moving points (u = moving_from_fixed, LPS mm): what ITK's ResampleImageFilter,
 antsApplyTransforms and Slicer need to resample the moving volume onto the fixed one. SimpleITK reads the affine
@@ -183,8 +187,11 @@ impl Written {
 pub struct TransformSummary {
     pub schema: &'static str,
     pub out: String,
-    /// The ITK class that holds the transform (on a `.tfm`'s `Transform:` line).
+    /// The ITK class that holds the transform (on a `.tfm`'s `Transform:` line); `CompositeTransform_double_3_3`
+    /// for an `.h5` of several members.
     pub itk_class: &'static str,
+    /// An `.h5` composite's members, in ITK's order (the last is applied first); the one class of any other file.
+    pub members: Vec<&'static str>,
     /// `itk` or `elastix`: whose file was written.
     pub format: &'static str,
     /// With `--format elastix`, the file's `(Transform …)`: `SplineKernelTransform`, `BSplineTransform`,
@@ -529,6 +536,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             schema: SCHEMA,
             out: out_path.display().to_string(),
             itk_class,
+            members: vec![itk_class],
             format: format.name(),
             elastix_transform: None,
             dicom_matrix_type,
@@ -543,21 +551,38 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             warnings: export.warnings,
         }
     } else if h5_field {
-        let field = crate::field::sample_field_reporting(&volumes.fixed, &made_of, FieldDirection::Pullback, quiet)?;
-        write_h5_field_transform(&out_path, &field)?;
+        let mut bar: Option<Bar> = None;
+        let written = write_h5_stack(&out_path, &made_of, &mut |done, total| {
+            let _ = bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress {
+                stage: "sampling the field",
+                done,
+                total,
+            });
+            true
+        });
+        if let Some(bar) = bar {
+            bar.finish();
+        }
+        let written = written?;
+        if !quiet {
+            for w in &written.warnings {
+                eprintln!("warpbench: warning: {w}");
+            }
+        }
         TransformSummary {
             schema: SCHEMA,
             out: out_path.display().to_string(),
-            itk_class: H5_FIELD_CLASS,
+            itk_class: written.itk_class,
+            members: written.members,
             format: format.name(),
             elastix_transform: None,
             dicom_matrix_type: None,
             field: None,
-            method: layers.describe(&method, field.pairs),
-            pairs: field.pairs,
+            method: written.method,
+            pairs: written.pairs,
             map: "moving_from_fixed",
             domain_lps: None,
-            warnings: field.warnings,
+            warnings: written.warnings,
         }
     } else if as_field {
         let field = crate::field::sample_field_reporting(&volumes.fixed, &made_of, FieldDirection::Pullback, quiet)?;
@@ -566,6 +591,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             schema: SCHEMA,
             out: out_path.display().to_string(),
             itk_class: "DisplacementFieldTransform_double_3_3",
+            members: vec!["DisplacementFieldTransform_double_3_3"],
             format: format.name(),
             elastix_transform: Some("DeformationFieldTransform"),
             dicom_matrix_type: None,
@@ -594,6 +620,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             schema: SCHEMA,
             out: out_path.display().to_string(),
             itk_class: exact.transform.type_name(),
+            members: vec![exact.transform.type_name()],
             format: format.name(),
             elastix_transform: match written {
                 Written::Elastix(class) => Some(class),
@@ -683,4 +710,123 @@ pub fn write_h5_field_transform(out: &Path, field: &crate::field::Field) -> Resu
     };
     itk_h5::write(out, &[step])?;
     Ok(())
+}
+
+/// What [`write_h5_stack`] wrote.
+#[derive(Clone, Debug)]
+pub struct H5Stack {
+    /// The class in the file's group `0`: `CompositeTransform_double_3_3` over several members, else the one's.
+    pub itk_class: &'static str,
+    /// The members' classes in ITK's order (the last is applied first); one for a single transform.
+    pub members: Vec<&'static str>,
+    /// The warp's name in reports ([`Layers::describe`]).
+    pub method: String,
+    /// Landmark pairs used.
+    pub pairs: usize,
+    /// Whether a member is a field sampled on the fixed grid (all of u, or the part over its base): outside that
+    /// grid the member is the identity.
+    pub sampled: bool,
+    /// What the fit found suspicious in the pairs.
+    pub warnings: Vec<String>,
+}
+
+/// Writes the pull-back of `made_of` (a stack with a field or a brush, which no `.tfm` holds) as ITK's HDF5
+/// transform file at `out`, atomically. Over a pull-back field or a chain of ITK transforms (`--initial-field`, a
+/// session's field) it is ITK's composite u = T₀ ∘ F ∘ R ([`crate::project::stack::StackPullback::itk_composite`]):
+/// the starting transform and the field's own members as they are, so ITK applies them exactly, outside the fixed
+/// volume too, and the landmark fit R over them as itself (an affine or a B-spline) or sampled on the fixed grid
+/// (a TPS, or a brush). Otherwise (a forward field, or a brush alone) it is one `DisplacementFieldTransform` of u
+/// sampled on the fixed grid ([`write_h5_field_transform`]). `progress(done, total)` hears each slice sampled and
+/// cancels with `false`.
+///
+/// # Errors
+/// Pairs outside the volumes, a fit that fails, a grid too large, a cancel, or what the writer refuses.
+pub fn write_h5_stack(
+    out: &Path,
+    made_of: &FieldInputs,
+    progress: &mut dyn FnMut(u64, u64) -> bool,
+) -> Result<H5Stack, Failure> {
+    let FieldInputs { fixed, moving, pairs, names, method, layers } = *made_of;
+    if layers.field.as_ref().is_none_or(|f| f.itk_members().is_none()) {
+        let field = crate::field::sample_field(fixed, made_of, FieldDirection::Pullback, progress)?;
+        write_h5_field_transform(out, &field)?;
+        return Ok(H5Stack {
+            itk_class: H5_FIELD_CLASS,
+            members: vec![H5_FIELD_CLASS],
+            method: layers.describe(method, field.pairs),
+            pairs: field.pairs,
+            sampled: true,
+            warnings: field.warnings,
+        });
+    }
+    let c = inputs::check_pairs(&names.landmarks, pairs, moving, fixed, layers.min_pairs(method))
+        .map_err(Failure::BadInput)?;
+    let stack = fit::pullback_stack(method, &c, inputs::volume_box::<Fixed>(fixed), layers.clone())
+        .map_err(Failure::BadInput)?;
+    let composite = stack.itk_composite().ok_or_else(|| {
+        Failure::Internal(anyhow::anyhow!("{}: the warp on a pull-back field has no ITK composite", out.display()))
+    })?;
+    let grid = (fixed.dims, &fixed.lps_from_index);
+    let classes = write_h5_composite(out, &composite, Some(grid), &names.out, progress)?;
+    let sampled = matches!(composite.rest, ItkRest::Sampled(_));
+    Ok(H5Stack {
+        itk_class: match classes.as_slice() {
+            [one] => one,
+            _ => itk_h5::COMPOSITE_CLASS,
+        },
+        members: classes,
+        method: layers.describe(method, c.moving.len()),
+        pairs: c.moving.len(),
+        sampled,
+        warnings: fit::fit_warnings(method, &c),
+    })
+}
+
+/// Writes `composite` as ITK's HDF5 transform file at `out`, atomically, its members in ITK's order; a sampled rest
+/// ([`ItkRest::Sampled`]) is sampled first at every voxel centre of `grid` (the fixed volume's: dims and
+/// `lps_from_index`), `progress(done, total)` hearing each slice and cancelling with `false`. Returns the members'
+/// classes. `name` names the output in a refusal of its size.
+///
+/// # Errors
+/// A sampled rest without a grid, a grid too large, a cancel, a rest that is not finite, or what the writer
+/// refuses.
+pub fn write_h5_composite(
+    out: &Path,
+    composite: &ItkComposite<'_>,
+    grid: Option<([usize; 3], &Transform<Lps, Index>)>,
+    name: &Path,
+    progress: &mut dyn FnMut(u64, u64) -> bool,
+) -> Result<Vec<&'static str>, Failure> {
+    let sampled = match (&composite.rest, grid) {
+        (ItkRest::Sampled(_), None) => {
+            return Err(Failure::BadInput(anyhow::anyhow!(
+                "{}: the landmark fit over the field is sampled on the fixed grid, and no fixed volume was given",
+                out.display()
+            )));
+        }
+        (ItkRest::Sampled(rest), Some((dims, lps_from_index))) => {
+            volume::check_allocation(name, dims, 12, volume::DEFAULT_MAX_VOXEL_BYTES)?;
+            let field = crate::field::sample_displacements(rest, dims, lps_from_index, progress)
+                .ok_or_else(|| Failure::Cancelled(anyhow::anyhow!("sampling the displacement field: cancelled")))?;
+            if field.max_norm_mm.is_none() {
+                return Err(Failure::Internal(anyhow::anyhow!(
+                    "{}: the landmark fit is not finite somewhere in the fixed grid",
+                    out.display()
+                )));
+            }
+            Some((dims, lps_from_index, field.displacements_lps))
+        }
+        (ItkRest::Identity | ItkRest::Exact(_), _) => None,
+    };
+    let mut members: Vec<H5Transform<'_>> = composite.start.iter().map(H5Transform::Transform).collect();
+    members.extend(composite.field.iter().copied());
+    match (&composite.rest, &sampled) {
+        (ItkRest::Exact(t), _) => members.push(H5Transform::Transform(t)),
+        (_, Some((dims, lps_from_index, displacements_lps))) => {
+            members.push(H5Transform::Field { dims: *dims, lps_from_index, displacements_lps });
+        }
+        (ItkRest::Identity | ItkRest::Sampled(_), None) => {}
+    }
+    itk_h5::write(out, &members)?;
+    Ok(members.iter().map(H5Transform::class).collect())
 }

@@ -855,8 +855,9 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
         let (got, want) = (chain.apply(x), plain_at(ready, x));
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-5), "at {x:?}: the file maps to {got:?}, u = {want:?}");
     }
-    // Export transform to an .h5: ITK's HDF5 file holds the same sampled pull-back as a DisplacementFieldTransform;
-    // to a .tfm it is refused, the message saying what to do.
+    // Export transform to an .h5: ITK's composite of the field itself and the TPS over it sampled on the fixed grid
+    // (ITK's own readers take no TPS), so at the grid's voxel centres it is u; to a .tfm it is refused, the message
+    // saying what to do.
     let tfm_out = dir.path().join("with_field.tfm");
     let export = Command::File(FileAction::ExportTransform(TransformFormat::Itk, tfm_out.clone()));
     harness.state_mut().ready_mut().expect("ready").apply(export);
@@ -867,8 +868,10 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     harness.state_mut().ready_mut().expect("ready").apply(export);
     let message = window::wait_for_export(&mut harness);
     let ready = harness.state().ready().expect("ready");
-    assert!(message.contains("as DisplacementFieldTransform_float_3_3 on the fixed grid"), "{message}");
+    let members = "DisplacementFieldTransform_float_3_3, DisplacementFieldTransform_float_3_3, the last on the fixed";
+    assert!(message.contains(&format!("as CompositeTransform_double_3_3 of {members} grid")), "{message}");
     let h5 = warpbench_io::itk_h5::read(&h5_out).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(h5.steps.len(), 2, "the field, then the TPS sampled");
     for ijk in [[45.0, 54.0, 45.0], [20.0, 70.0, 30.0], [0.0, 0.0, 0.0]] {
         let x = grid.apply_point(Point3::new(ijk[0], ijk[1], ijk[2])).coords();
         let (got, want) = (h5.apply(x), plain_at(ready, x));

@@ -429,6 +429,22 @@ impl<'a> From<&'a ItkStep> for H5Transform<'a> {
     }
 }
 
+impl H5Transform<'_> {
+    /// The class [`write()`] writes it under (its group's `TransformType`).
+    #[must_use]
+    pub fn class(&self) -> &'static str {
+        match self {
+            Self::Transform(t) => t.type_name(),
+            Self::Field { .. } => FIELD_TYPES[1],
+            Self::Inverse(InverseStep::BSpline(_)) => SLICER_INVERSE_BSPLINE_TYPES[0],
+            Self::Inverse(InverseStep::Field(_)) => SLICER_INVERSE_FIELD_TYPES[1],
+        }
+    }
+}
+
+/// The class [`write()`] puts in group `0` over several transforms.
+pub const COMPOSITE_CLASS: &str = COMPOSITE_TYPES[0];
+
 /// Writes `chain` as ITK's HDF5 transform file, atomically (module docs, "Writing"): one transform in group `0`, or
 /// for several a `CompositeTransform_double_3_3` in group `0` and the transforms in `1`, `2`, … in ITK's order (the
 /// last is applied first: T(x) = T₁(T₂(… Tₙ(x)))).
@@ -449,23 +465,23 @@ pub fn write(path: &Path, chain: &[H5Transform<'_>]) -> Result<()> {
     let offset = usize::from(chain.len() > 1);
     if offset == 1 {
         let mut group = transforms.create_group("0");
-        write_class(&mut group, COMPOSITE_TYPES[0]);
+        write_class(&mut group, COMPOSITE_CLASS);
         transforms.add_group(group.finish());
     }
     for (i, step) in chain.iter().enumerate() {
         let mut group = transforms.create_group(&(i + offset).to_string());
+        let class = step.class();
         match *step {
-            H5Transform::Transform(t) => write_transform(path, &mut group, t, t.type_name())?,
+            H5Transform::Transform(t) => write_transform(path, &mut group, t, class)?,
             H5Transform::Field { dims, lps_from_index, displacements_lps } => {
-                write_field_member(path, &mut group, (dims, lps_from_index, displacements_lps), FIELD_TYPES[1])?;
+                write_field_member(path, &mut group, (dims, lps_from_index, displacements_lps), class)?;
             }
             H5Transform::Inverse(InverseStep::BSpline(b)) => {
-                let spline = ItkTransform::BSpline(b.clone());
-                write_transform(path, &mut group, &spline, SLICER_INVERSE_BSPLINE_TYPES[0])?;
+                write_transform(path, &mut group, &ItkTransform::BSpline(b.clone()), class)?;
             }
             H5Transform::Inverse(InverseStep::Field(f)) => {
                 let field = (f.field.dims, &f.field.lps_from_index, f.field.displacements_lps.as_slice());
-                write_field_member(path, &mut group, field, SLICER_INVERSE_FIELD_TYPES[1])?;
+                write_field_member(path, &mut group, field, class)?;
             }
         }
         transforms.add_group(group.finish());

@@ -224,16 +224,20 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 watch.report(&file_name(out), Progress { stage: "field slices", done, total });
                 !watch.cancelled()
             };
-            let f = field::sample_field(fixed, &made_of, FieldDirection::Pullback, &mut progress)?;
-            transform::write_h5_field_transform(out, &f)?;
+            let written = transform::write_h5_stack(out, &made_of, &mut progress)?;
+            let how = match written.members.as_slice() {
+                [_] if written.sampled => format!("{} on the fixed grid", written.itk_class),
+                [one] => (*one).to_owned(),
+                members if written.sampled => {
+                    format!("{} of {}, the last on the fixed grid", written.itk_class, members.join(", "))
+                }
+                members => format!("{} of {}", written.itk_class, members.join(", ")),
+            };
             Ok(format!(
-                "wrote {}: {} as {} on the fixed grid ({} pairs, largest {:.1} mm; maps fixed points to moving points, \
-                 LPS mm){consistency}",
+                "wrote {}: {} as {how} ({} pairs; maps fixed points to moving points, LPS mm){consistency}",
                 out.display(),
-                layers.describe(&input.method, f.pairs),
-                transform::H5_FIELD_CLASS,
-                f.pairs,
-                f.max_displacement_mm
+                written.method,
+                written.pairs,
             ))
         }
         ExportKind::Transform { format: TransformFormat::Elastix }

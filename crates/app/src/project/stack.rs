@@ -32,6 +32,7 @@ use warpbench_io::displacement::{self, FieldDirection};
 use warpbench_io::geometry::Point3;
 use warpbench_io::geometry::Space;
 use warpbench_io::itk_chain::{FieldOrChain, ItkChain, ItkStep};
+use warpbench_io::itk_h5::H5Transform;
 use warpbench_io::itk_tfm::{ItkAffine, ItkBSpline, ItkThinPlateSpline, ItkTransform};
 use warpbench_solver::SolverError;
 use warpbench_solver::brush::{Brush, PointwiseInverse};
@@ -116,6 +117,21 @@ impl FieldLayer {
     #[must_use]
     pub fn forward(field: SampledField<Fixed, Moving>, origin: &str) -> Self {
         Self { origin: origin.to_owned(), maps: FieldMaps::Forward(field) }
+    }
+
+    /// F as the members of an ITK composite transform, in ITK's order (the last is applied first): the field on its
+    /// own grid, or the chain's own transforms; `None` for a forward field, whose inverse no ITK class holds.
+    #[must_use]
+    pub fn itk_members(&self) -> Option<Vec<H5Transform<'_>>> {
+        match &self.maps {
+            FieldMaps::Pullback(f) => Some(vec![H5Transform::Field {
+                dims: f.dims(),
+                lps_from_index: f.lps_from_index(),
+                displacements_lps: f.displacements(),
+            }]),
+            FieldMaps::Forward(_) => None,
+            FieldMaps::Chain(chain) => Some(chain.steps.iter().map(H5Transform::from).collect()),
+        }
     }
 
     /// F(x): fixed → moving.
@@ -376,6 +392,65 @@ impl StackPullback {
     }
 }
 
+impl StackPullback {
+    /// u on a field as ITK's composite transform holds it: T₀, then F's own members, then the rest R = r ∘ b⁻¹ (the
+    /// landmark fit and the brush), so that u = T₀ ∘ F ∘ R as ITK applies the list, last first. `None` without a
+    /// field under the fit, or with a forward field (whose inverse no ITK class holds): then only a field sampled on
+    /// a grid holds u.
+    #[must_use]
+    pub fn itk_composite(&self) -> Option<ItkComposite<'_>> {
+        let Landmarks::OnField(r) = &self.core else { return None };
+        let field = self.layers.field.as_ref()?.itk_members()?;
+        let start = self.layers.start.as_ref().map(|s| {
+            let t = s.moving_from_fixed();
+            ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation()))
+        });
+        let rest = match (r, &self.layers.brush) {
+            (None, None) => ItkRest::Identity,
+            // ITK reads a thin-plate spline back only where its kernel transforms are registered (not SimpleITK's),
+            // so only an affine or a B-spline fit is written as itself.
+            (Some(r @ (FittedWarp::Linear(_) | FittedWarp::BSpline(_))), None) => ItkRest::Exact(itk_transform_of(r)),
+            (fit, brush) => ItkRest::Sampled(Rest { fit: fit.as_ref(), brush: brush.as_ref() }),
+        };
+        Some(ItkComposite { start, field, rest })
+    }
+}
+
+/// [`StackPullback::itk_composite`]: u = T₀ ∘ F ∘ R as the members of ITK's composite transform.
+#[derive(Debug)]
+pub struct ItkComposite<'a> {
+    /// T₀ as an affine, when there is a starting transform.
+    pub start: Option<ItkTransform>,
+    /// F's own members ([`FieldLayer::itk_members`]).
+    pub field: Vec<H5Transform<'a>>,
+    pub rest: ItkRest<'a>,
+}
+
+/// R = r ∘ b⁻¹ of [`ItkComposite`], as ITK can hold it.
+#[derive(Debug)]
+pub enum ItkRest<'a> {
+    /// Too few pairs to refine the base, and no brush: R is the identity, and no member holds it.
+    Identity,
+    /// An affine or a B-spline fit without a brush: the transform itself.
+    Exact(ItkTransform),
+    /// A thin-plate spline fit or a brush: R, to be sampled on a grid as a displacement field (zero outside it).
+    Sampled(Rest<'a>),
+}
+
+/// R = r ∘ b⁻¹: fixed → fixed, the part of u above its base (either may be absent).
+#[derive(Clone, Copy, Debug)]
+pub struct Rest<'a> {
+    fit: Option<&'a FittedWarp<Fixed, Fixed>>,
+    brush: Option<&'a BrushLayer>,
+}
+
+impl Warp<Fixed, Fixed> for Rest<'_> {
+    fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
+        let x = self.brush.map_or(x, |b| b.inverse_raw(x));
+        self.fit.map_or(x, |r| r.as_ref().apply_raw(x))
+    }
+}
+
 impl Warp<Moving, Fixed> for StackPullback {
     fn apply_raw(&self, x: [f64; 3]) -> [f64; 3] {
         self.core_raw(self.layers.brush.as_ref().map_or(x, |b| b.inverse_raw(x)))
@@ -501,7 +576,7 @@ impl FittedStack {
 /// The pull-back `moving_from_fixed` as the ITK transform that holds it exactly (a thin-plate spline by its centres and their images, a B-spline by its lattice, an affine
 /// by its matrix and offset).
 #[must_use]
-pub fn itk_transform_of(moving_from_fixed: &FittedWarp<Moving, Fixed>) -> ItkTransform {
+pub fn itk_transform_of<To: Space, From: Space>(moving_from_fixed: &FittedWarp<To, From>) -> ItkTransform {
     match moving_from_fixed {
         FittedWarp::Linear(warp) => ItkTransform::Affine(ItkAffine::from_offset(warp.linear(), warp.translation())),
         FittedWarp::Tps(tps) => {
