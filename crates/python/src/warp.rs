@@ -20,7 +20,7 @@ use warpbench_app::inputs::{self, Correspondences, Names};
 use warpbench_app::jacobian;
 use warpbench_app::project::diagnostics::DiagnosticsInput;
 use warpbench_app::project::field_file::{FieldFile, FieldReadFormat};
-use warpbench_app::project::stack::{Layers, StackForward, StackPullback};
+use warpbench_app::project::stack::{ItkRest, Layers, StackForward, StackPullback};
 use warpbench_app::settings::MethodKind;
 use warpbench_app::start::Start;
 use warpbench_app::transform;
@@ -470,8 +470,29 @@ impl Warp {
     /// ending `.mat`.
     fn to_itk_tfm(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         guarded(py, || {
-            let transform = self.pullback.itk_transform().map_err(bad_input)?;
-            transform_file::write(&path, &transform).map_err(io)
+            let no_transform = match self.pullback.itk_transform() {
+                Ok(transform) => return transform_file::write(&path, &transform).map_err(io),
+                Err(e) => e,
+            };
+            // A warp on a field: ITK's composite of its layers, in an .h5 only.
+            let Some(composite) = self.pullback.itk_composite() else { return Err(bad_input(no_transform)) };
+            if !warpbench_io::itk_tfm::is_hdf5_name(&path) {
+                return Err(PyValueError::new_err(format!(
+                    "{}: a text ITK transform file cannot hold this warp exactly (it lies on a displacement field): \
+                     name the file .h5 for ITK's composite of its layers",
+                    path.display()
+                )));
+            }
+            let sampled = matches!(composite.rest, ItkRest::Sampled(_));
+            if sampled && self.grids.is_none() {
+                return Err(PyValueError::new_err(format!(
+                    "{}: the TPS over the field is written sampled on the fixed grid: fit with fixed= and moving=",
+                    path.display()
+                )));
+            }
+            let grid = self.grids.as_ref().map(|((dims, lps), _)| (*dims, lps));
+            transform::write_h5_composite(&path, &composite, grid, &path, &mut |_, _| true).map_err(|f| to_py(&f))?;
+            Ok(())
         })
     }
 

@@ -9,6 +9,9 @@
   same class and numbers as from the `.tfm` of the same run.
 - A session with a displacement field under its landmarks, which no `.tfm` holds: `transform --session S --out
   x.h5` writes a DisplacementFieldTransform that SimpleITK applies as `warpbench points --session` maps points.
+- A warp over SimpleITK's B-spline result (`--initial-field` a composite `.tfm`, `--initial` an affine):
+  `transform --out x.h5` writes their composite with the landmark fit on top, which SimpleITK applies as `warpbench
+  points` maps points, exactly outside the fixed volume too.
 - `warpbench field --out x.h5` writes the field as ITK's DisplacementFieldTransform, pull-back or forward: SimpleITK
   applies it as the NIfTI field of the same run, and as `warpbench points` maps points; with another `--format` it is
   refused with exit 2, and nothing is written.
@@ -157,7 +160,10 @@ def test_simpleitk_applies_a_sessions_field_from_the_h5_as_warpbench_maps_points
     h5 = tmp_path / "with_field.h5"
     done = warpbench("transform", "--fixed", fixed_path, "--moving", moving_path, "--session", session, "--json",
                      "--quiet", "--out", h5)
-    assert json.loads(done.stdout)["itk_class"] == "DisplacementFieldTransform_float_3_3"
+    summary = json.loads(done.stdout)
+    # Too few pairs to refine the field: the file is the session's field itself, on its own grid.
+    assert summary["itk_class"] == "DisplacementFieldTransform_float_3_3", summary
+    assert summary["members"] == ["DisplacementFieldTransform_float_3_3"], summary
     theirs = sitk.ReadTransform(str(h5))
     assert theirs.GetName() in ("DisplacementFieldTransform", "CompositeTransform")
     # Voxel centres of the fixed grid, where the field was sampled, and points between them.
@@ -175,11 +181,9 @@ def test_simpleitk_applies_a_sessions_field_from_the_h5_as_warpbench_maps_points
     moved = 0.0
     for p, at_centre, want in zip(points, [True] * 20 + [False] * 20, ours):
         got = theirs.TransformPoint(p)
-        # At a voxel centre SimpleITK reads the sampled vector itself (f32: 1e-6 of 3 mm); between centres it
-        # interpolates the samples trilinearly where warpbench evaluates the coarse field's own trilinear map, which
-        # differ by the field's curvature over half a 2 mm voxel (its second derivative is below 0.04 /mm here).
-        bound = 1e-5 if at_centre else 0.05
-        np.testing.assert_allclose(got, want, rtol=0, atol=bound, err_msg=f"at {p}")
+        # Both interpolate the same coarse field's f32 vectors trilinearly, at voxel centres of the fixed grid and
+        # between them (f32 geometry: 1e-6 of a few mm).
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-5, err_msg=f"at {p} (a fixed voxel centre: {at_centre})")
         moved = max(moved, float(np.max(np.abs(np.array(got) - p))))
     assert moved > 0.5  # the field is there
 
@@ -219,3 +223,85 @@ def test_a_field_named_h5_takes_the_default_flavour_only(tmp_path: Path) -> None
                      "nrrd", "--out", out, expect=2)
     assert "HDF5 transform file" in done.stderr and out.name in done.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize("method", ["tps", "affine", "none"])
+def test_the_h5_of_a_warp_on_simpleitks_bspline_result_is_their_composite(tmp_path: Path, method: str) -> None:
+    """``transform --initial T --initial-field R.tfm --out x.h5`` over SimpleITK's B-spline result (an affine and a
+    B-spline in a composite ``.tfm``): the file is ITK's composite [T, R's members, the landmark fit], which
+    SimpleITK applies as ``warpbench points`` maps points. T and R's members are the transforms themselves, so they
+    act exactly everywhere, outside the fixed volume too. The fit over them is itself where ITK holds it (an affine;
+    with no pairs there is none), and a TPS is its field on the fixed grid: exact at the grid's voxel centres (f32),
+    and the identity outside the grid, where the rest still acts."""
+    from conftest import FIXED, MOVING  # noqa: PLC0415
+
+    fixed = sitk.ReadImage(str(FIXED))
+    b = sitk.BSplineTransformInitializer(fixed, [3, 3, 3], 3)
+    rng = np.random.default_rng(11)
+    b.SetParameters(tuple(float(v) for v in rng.uniform(-1.5, 1.5, len(b.GetParameters()))))
+    a = affine(0.04, (0.8, -0.5, 0.3), (1.0, 2.0, -1.0))
+    result = tmp_path / "sitk_result.tfm"
+    sitk.WriteTransform(sitk.CompositeTransform([a, b]), str(result))
+    start = tmp_path / "start.tfm"
+    t = affine(-0.03, (1.5, 0.5, -1.0), (0.0, 0.0, 0.0))
+    sitk.WriteTransform(t, str(start))
+    pairs = tmp_path / "pairs.csv"
+    # At voxel centres of the fixed grid (origin (-15, -13, -11) mm, 2 mm voxels), where a sampled fit is exact.
+    fixed_points = [(-7.0, 5.0, 3.0), (7.0, -5.0, -3.0), (1.0, 9.0, -5.0), (-5.0, -7.0, 7.0), (5.0, 3.0, 5.0)]
+    composite = sitk.CompositeTransform([t, a, b])
+    rows = []
+    for n, q in enumerate(fixed_points):
+        p = np.array(composite.TransformPoint(q)) + rng.uniform(-1.5, 1.5, 3)
+        rows.append(f'"Pt-{n}","true",' + ",".join(f'"{float(v)!r}"' for v in (*p, *q)))
+    pairs.write_text("\n".join(rows if method != "none" else []) + "\n")
+    h5 = tmp_path / "result.h5"
+    args = ["--fixed", FIXED, "--moving", MOVING, "--initial", start, "--initial-field", result, "--landmarks", pairs]
+    if method != "none":
+        args += ["--method", method]
+    summary = json.loads(warpbench("transform", *args, "--json", "--quiet", "--out", h5).stdout)
+    members = ["AffineTransform_double_3_3", "AffineTransform_double_3_3", "BSplineTransform_double_3_3"]
+    members += {"tps": ["DisplacementFieldTransform_float_3_3"], "affine": ["AffineTransform_double_3_3"],
+                "none": []}[method]
+    assert summary["itk_class"] == "CompositeTransform_double_3_3" and summary["members"] == members, summary
+    theirs = sitk.ReadTransform(str(h5))
+    assert theirs.GetName() == "CompositeTransform" and theirs.GetNumberOfTransforms() == len(members)
+
+    # Voxel centres of the fixed grid, and points far outside it (where the B-spline is the identity too).
+    size = np.array(fixed.GetSize())
+    centres = [tuple(int(v) for v in rng.integers(0, size)) for _ in range(30)]
+    inside = [fixed.TransformIndexToPhysicalPoint(ix) for ix in centres] + fixed_points
+    outside = [(60.0, -40.0, 25.0), (-45.0, 50.0, -70.0)]
+    targets = tmp_path / "targets.csv"
+    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in inside + outside))
+    out = tmp_path / "mapped.csv"
+    warpbench("points", *args, "--from", "fixed", "--in", targets, "--out", out, "--quiet")
+    ours = [[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()]
+    # The TPS's field holds f32 vectors of a few mm; the affine and the B-spline are the same doubles.
+    bound = 1e-5 if method == "tps" else 1e-9
+    for p, want in zip(inside, ours):
+        np.testing.assert_allclose(theirs.TransformPoint(p), want, rtol=0, atol=bound, err_msg=f"at {p}")
+    for p, want in zip(outside, ours[len(inside):]):
+        if method == "tps":
+            # The fit's field is the identity outside the fixed grid: there the file is T ∘ A ∘ B.
+            want = composite.TransformPoint(p)
+        np.testing.assert_allclose(theirs.TransformPoint(p), want, rtol=0, atol=1e-9, err_msg=f"at {p}")
+    # Python writes the same file from a warp fitted on the same inputs.
+    import warpbench as wb  # noqa: PLC0415
+
+    landmarks = wb.read_landmarks(pairs) if method != "none" else wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    volumes = {"fixed": wb.read_volume(FIXED), "moving": wb.read_volume(MOVING)}
+    fitted = wb.fit(landmarks, method if method != "none" else "tps", initial=start, initial_field=result, **volumes)
+    from_python = tmp_path / "python.h5"
+    fitted.to_itk_tfm(from_python)
+    assert from_python.read_bytes() == h5.read_bytes()
+    if method == "tps":
+        with pytest.raises(ValueError, match="python.tfm: .*name the file .h5"):
+            fitted.to_itk_tfm(tmp_path / "python.tfm")
+        bare = wb.fit(landmarks, initial=start, initial_field=result)
+        with pytest.raises(ValueError, match="sampled on the fixed grid: fit with fixed= and moving="):
+            bare.to_itk_tfm(tmp_path / "bare.h5")
+    if method == "tps":
+        # The interpolating TPS keeps each fixed landmark on its moving partner, in the file too.
+        for q, row in zip(fixed_points, rows):
+            p = [float(v.strip('"')) for v in row.split(",")[2:5]]
+            np.testing.assert_allclose(theirs.TransformPoint(q), p, rtol=0, atol=bound)

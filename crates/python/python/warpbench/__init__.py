@@ -425,7 +425,9 @@ class Warp:
     def to_itk_tfm(self, path: PathLike) -> None:
         """Writes the pull-back as the ITK transform file that holds it exactly (thin-plate spline, B-spline,
         affine), as ``warpbench transform`` does: a text ``.tfm``, ITK's HDF5 file for a name ending ``.h5``, or
-        ANTs' ``.mat`` (a linear warp) for one ending ``.mat``."""
+        ANTs' ``.mat`` (a linear warp) for one ending ``.mat``. A warp on an ``initial_field`` goes to an ``.h5``
+        only, as ITK's composite of ``initial``, the field's own transforms and the fit over them (a TPS sampled on
+        the fixed grid, which needs the warp fitted with ``fixed=`` and ``moving=``)."""
         self._native.to_itk_tfm(os.fspath(path))
 
     def to_elastix(self, path: PathLike, reference: Optional["Volume"] = None) -> None:
