@@ -355,6 +355,30 @@ NUMPY_FILES = [
 ]
 
 
+# FSL's FLIRT matrices, written and read by nitransforms between small nibabel volumes.
+NITRANSFORMS_MADE = """
+## `fsl/`: FLIRT matrices written by nitransforms
+
+Not downloaded: `data-scripts/fsl_flirt_nitransforms.py` has nibabel 5.4.2 write four 4 x 5 x 3 volumes whose grids
+are oblique or not, of either handedness (only the grids matter), and nitransforms 25.1.0 (PyPI wheel
+`nitransforms==25.1.0`, as `.ci/run` installs it) write a known transform as FSL's FLIRT matrix between two pairs
+of them, with `fsl/reference.json`, the transform nitransforms reads back from each file with the same volumes.
+gzip holds the time, so a rerun's volume bytes differ; the matrices do not. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+NITRANSFORMS_FILES = [
+    ("fsl/oblique.nii.gz", "fsl_flirt_nitransforms.py"),
+    ("fsl/las.nii.gz", "fsl_flirt_nitransforms.py"),
+    ("fsl/lps.nii.gz", "fsl_flirt_nitransforms.py"),
+    ("fsl/oblique_las.nii.gz", "fsl_flirt_nitransforms.py"),
+    ("fsl/oblique_from_las.mat", "fsl_flirt_nitransforms.py"),
+    ("fsl/lps_from_oblique_las.mat", "fsl_flirt_nitransforms.py"),
+    ("fsl/reference.json", "fsl_flirt_nitransforms.py"),
+]
+
+
 def script_made(data: Path, heading: str, files: list[tuple[str, str]]) -> str:
     rows = [heading]
     for rel, script in files:
@@ -398,6 +422,7 @@ def main() -> int:
     out.append(CRANIUM)
     out.append(LANDMARKS_UPSTREAM)
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
+    out.append(script_made(data, NITRANSFORMS_MADE, NITRANSFORMS_FILES))
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))

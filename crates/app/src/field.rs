@@ -300,7 +300,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
                     tfm.display()
                 )));
             }
-            let mut layers = Layers::new(p.start().map_err(Failure::BadInput)?, brushed);
+            let mut layers = Layers::new(p.start(&fixed, &moving).map_err(Failure::BadInput)?, brushed);
             layers.field = p.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
             (p.pairs().map_err(Failure::BadInput)?, layers)
         }

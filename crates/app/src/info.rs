@@ -69,10 +69,11 @@ pub enum InfoContent {
     Transform(Box<TransformInfo>),
 }
 
-/// An ITK transform file's description: what a `.tfm`, an `.h5` without a displacement field or a `.mat` holds.
+/// A transform file's description: what an ITK `.tfm`, an `.h5` without a displacement field, ANTs' `.mat` or FSL's
+/// FLIRT matrix holds.
 #[derive(Debug, Serialize)]
 pub struct TransformInfo {
-    /// `itk_tfm`, `itk_h5` or `ants_mat`.
+    /// `itk_tfm`, `itk_h5`, `ants_mat`, or `fsl` for FSL's FLIRT matrix.
     pub format: &'static str,
     /// The transforms in the file's order (a composite's members; ITK applies the last one first).
     pub transforms: Vec<TransformMember>,
@@ -122,7 +123,12 @@ impl TransformInfo {
         use std::io::Read as _;
         use warpbench_io::itk_chain::{InverseStep, ItkStep};
         use warpbench_io::itk_tfm::ItkTransform;
-        // Read first: it refuses what is not a regular file (a named pipe would block the opening below).
+        let member = |kind, size, landmarks| TransformMember { kind, size, landmarks };
+        // Each reader refuses what is not a regular file first (a named pipe would block the opening below).
+        if warpbench_io::fsl::read(path).is_ok() {
+            let transforms = vec![member(MemberKind::Affine, None, None)];
+            return Some(Self { format: "fsl", transforms, read_as: ReadAs::StartingTransform });
+        }
         let chain = warpbench_io::transform_file::read_chain(path).ok()?;
         let mut head = Vec::new();
         std::fs::File::open(path).ok()?.take(64).read_to_end(&mut head).ok()?;
@@ -133,7 +139,6 @@ impl TransformInfo {
         } else {
             "ants_mat"
         };
-        let member = |kind, size, landmarks| TransformMember { kind, size, landmarks };
         let transforms: Vec<TransformMember> = chain
             .steps
             .iter()
@@ -431,6 +436,16 @@ fn write_transform(t: &TransformInfo, out: &mut dyn Write) -> std::io::Result<()
     let n = t.transforms.len();
     let order = if n > 1 { ", the last applied first" } else { "" };
     let count = if n == 1 { "1 transform".to_owned() } else { format!("{n} transforms") };
+    if t.format == "fsl" {
+        writeln!(
+            out,
+            "  FSL FLIRT matrix (fsl): an affine in the voxel coordinates of the two images it was made with"
+        )?;
+        return writeln!(
+            out,
+            "  read as         a starting transform (--initial), against --fixed as FLIRT's -ref and --moving as its -in"
+        );
+    }
     writeln!(out, "  ITK transform file ({}), {count}{order}", t.format)?;
     for (i, m) in t.transforms.iter().enumerate() {
         let what = match m.kind {

@@ -266,9 +266,16 @@ impl BaseField {
 }
 
 impl PairWarp {
-    /// The starting transform under the landmark warp, read (`None` without `--initial` or a session's).
-    pub fn start(&self) -> Result<Option<crate::start::Start>> {
-        crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref())
+    /// The starting transform under the landmark warp, read (`None` without `--initial` or a session's); a FLIRT
+    /// matrix against `fixed` and `moving`.
+    pub fn start(&self, fixed: &Volume, moving: &Volume) -> Result<Option<crate::start::Start>> {
+        crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref(), fixed, moving)
+    }
+
+    /// Reads `--initial`'s file once before any volume is loaded, so one that cannot be read is refused first; what
+    /// it holds is read again with the volumes ([`Self::start`]).
+    pub fn check_start(&self) -> Result<()> {
+        self.initial.as_deref().map(crate::start::StartFile::read).transpose().map(|_| ())
     }
 
     /// The fewest pairs a fit of `method` needs on this warp: none over a starting transform or a field (the base
@@ -302,7 +309,7 @@ impl PairWarp {
         fixed: &Volume,
         moving: &Volume,
     ) -> Result<crate::project::stack::Layers> {
-        let mut layers = crate::project::stack::Layers::new(self.start()?, brushed);
+        let mut layers = crate::project::stack::Layers::new(self.start(fixed, moving)?, brushed);
         layers.field = self.field(fixed, moving)?;
         Ok(layers)
     }
@@ -438,9 +445,10 @@ impl PairInputs {
         paths
     }
 
-    /// The starting transform under the landmark warp, read (`None` without `--initial`).
-    pub fn start(&self) -> Result<Option<crate::start::Start>> {
-        self.warp.start()
+    /// The starting transform under the landmark warp, read (`None` without `--initial`); a FLIRT matrix against
+    /// `fixed` and `moving`.
+    pub fn start(&self, fixed: &Volume, moving: &Volume) -> Result<Option<crate::start::Start>> {
+        self.warp.start(fixed, moving)
     }
 
     /// The method ([`MethodChoice::method`]; `--stiffness auto` reads the pairs, and [`PairInputs::pairs`] gives

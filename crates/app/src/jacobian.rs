@@ -172,8 +172,10 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
     let method = inputs.method().map_err(Failure::BadInput)?;
     let PairVolumes { fixed, moving, reference } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
     let names = inputs.names(&output.path);
-    let mut layers =
-        Layers::new(inputs.start().map_err(Failure::BadInput)?, inputs.brushed().map_err(Failure::BadInput)?);
+    let mut layers = Layers::new(
+        inputs.start(&fixed, &moving).map_err(Failure::BadInput)?,
+        inputs.brushed().map_err(Failure::BadInput)?,
+    );
     layers.field = inputs.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
     let (grid, grid_name) = match (&reference, direction) {
         (Some(r), _) => (r, "reference"),

@@ -193,7 +193,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     input_paths.push(&input);
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     let method = inputs.method().map_err(Failure::BadInput)?;
-    let start = inputs.start().map_err(Failure::BadInput)?;
+    inputs.warp.check_start().map_err(Failure::BadInput)?;
 
     let options = PointFileOptions { ras };
     let mut file = read_point_file(&input, options)?;
@@ -203,6 +203,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     }
 
     let PairVolumes { fixed, moving, .. } = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
+    let start = inputs.start(&fixed, &moving).map_err(Failure::BadInput)?;
     let (from_volume, to_volume) = match from {
         Side::Moving => (&moving, &fixed),
         Side::Fixed => (&fixed, &moving),

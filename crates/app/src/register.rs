@@ -170,7 +170,8 @@ pub struct RegisterPairArgs {
     #[arg(long, default_value_t)]
     pub stiffness: Stiffness,
     /// A starting transform under the landmark warp: an ITK affine .tfm (or ANTs' .mat, or elastix's linear
-    /// TransformParameters.N.txt) mapping fixed points to moving points (LPS mm), as `warpbench align` writes it.
+    /// TransformParameters.N.txt) mapping fixed points to moving points (LPS mm), as `warpbench align` writes it; or
+    /// FSL's FLIRT matrix, read against --fixed (its -ref) and --moving (its -in).
     #[arg(long, value_name = "TFM")]
     pub initial: Option<PathBuf>,
     /// A displacement field under the landmark warp, in mm (the flavours `warp --field` reads). It maps fixed points
@@ -583,9 +584,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
             (Some(gpu), format!("gpu: {}", ctx.describe()), None)
         }
     };
-    let start_transform = given.warp.start().map_err(Failure::BadInput)?;
+    given.warp.check_start().map_err(Failure::BadInput)?;
     let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    let start_transform = given.warp.start(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
     let load_mask = |mask: &Option<PathBuf>| match mask {
         Some(path) => inputs::load_volume(path, quiet).map(|v| Some((v, path.display().to_string()))),

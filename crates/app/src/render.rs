@@ -192,6 +192,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     };
     let mut field =
         field_path.as_deref().filter(|_| !after).map(|p| crate::warp::read_pullback_field(p, None)).transpose()?;
+    given.warp.check_start().map_err(Failure::BadInput)?;
     let fixed = inputs::load_volume(&fixed_path, quiet).map_err(Failure::BadInput)?;
     let moving =
         moving_path.as_deref().map(|p| inputs::load_volume(p, quiet)).transpose().map_err(Failure::BadInput)?;
@@ -221,7 +222,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     let mut glyph_pairs = Vec::new();
     if let (Some(landmarks), Some(moving)) = (&given.landmarks, &moving) {
         let pairs = landmarks.pairs().map_err(Failure::BadInput)?;
-        let start = given.warp.start().map_err(Failure::BadInput)?;
+        let start = given.warp.start(&fixed, moving).map_err(Failure::BadInput)?;
         let source = &landmarks.source;
         let c = inputs::correspondences(source, pairs, moving, &fixed, given.warp.min_pairs(&method))
             .map_err(Failure::BadInput)?;

@@ -17,9 +17,9 @@
 use std::path::Path;
 
 use anyhow::{Context, anyhow};
-use warpbench_io::elastix;
+use nalgebra::Matrix4;
 use warpbench_io::geometry::Point3;
-use warpbench_io::{dicom_reg, itk_h5};
+use warpbench_io::{Volume, dicom_reg, elastix, fsl, itk_h5};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -55,17 +55,36 @@ impl Start {
     /// [`warpbench_io::itk_h5::read_affine`]), a DICOM Spatial Registration ([`warpbench_io::dicom_reg::read_affine`]),
     /// or an elastix transform parameter file holding a linear transform (and
     /// its chain of initial transforms, [`warpbench_io::elastix::read_affine`]): fixed points to moving points, LPS mm.
+    /// A FLIRT matrix, which needs the two volumes, is refused here ([`Self::read_on`] takes it).
     ///
     /// # Errors
     /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
+        match StartFile::read(path)? {
+            StartFile::Lps(start) => Ok(start),
+            StartFile::Flirt { origin, .. } => Err(anyhow!(
+                "{origin}: an FSL FLIRT matrix is in the voxel coordinates of the two images it was made with: it \
+                 needs the fixed volume (FLIRT's -ref) and the moving one (its -in)"
+            )),
+        }
+    }
+
+    /// [`Self::read`], a FLIRT matrix too: read against `fixed` (FLIRT's reference) and `moving` (its input).
+    ///
+    /// # Errors
+    /// As [`Self::read`] and [`StartFile::on`].
+    pub fn read_on(path: &Path, fixed: &Volume, moving: &Volume) -> anyhow::Result<Self> {
+        StartFile::read(path)?.on(fixed, moving)
+    }
+
+    /// [`Self::read`] of a file that states its transform in patient space.
+    fn read_lps(path: &Path, head: &[u8]) -> anyhow::Result<Self> {
         let name = path.display().to_string();
-        let head = head(path);
-        let reader: Option<Reader> = if elastix::looks_like_parameter_file(&head) {
+        let reader: Option<Reader> = if elastix::looks_like_parameter_file(head) {
             Some(elastix::read_affine)
-        } else if itk_h5::looks_like_hdf5(&head) {
+        } else if itk_h5::looks_like_hdf5(head) {
             Some(itk_h5::read_affine)
-        } else if dicom_reg::looks_like_dicom(&head) {
+        } else if dicom_reg::looks_like_dicom(head) {
             Some(dicom_reg::read_affine)
         } else {
             None
@@ -99,6 +118,47 @@ impl Start {
     }
 }
 
+/// A starting transform's file, read: T₀ itself, in patient space, or FSL's FLIRT matrix, which is in the voxel
+/// coordinates of the two images it was made with and becomes T₀ with them ([`warpbench_io::fsl`]).
+#[derive(Clone, Debug, PartialEq)]
+pub enum StartFile {
+    Lps(Start),
+    Flirt { matrix: Matrix4<f64>, origin: String },
+}
+
+impl StartFile {
+    /// Reads a starting transform's file ([`Start::read`]), or a FLIRT matrix (told by its content: four lines of
+    /// four numbers).
+    ///
+    /// # Errors
+    /// As [`Start::read`]; a FLIRT matrix that cannot be read.
+    pub fn read(path: &Path) -> anyhow::Result<Self> {
+        let head = head(path);
+        if fsl::looks_like_flirt_matrix(&head) {
+            let matrix = fsl::read(path).with_context(|| format!("--initial {}", path.display()))?;
+            return Ok(Self::Flirt { matrix, origin: path.display().to_string() });
+        }
+        Start::read_lps(path, &head).map(Self::Lps)
+    }
+
+    /// T₀, with a FLIRT matrix read against `fixed` (its reference, `-ref`) and `moving` (its input, `-in`).
+    ///
+    /// # Errors
+    /// A FLIRT matrix or a grid that cannot be inverted.
+    pub fn on(self, fixed: &Volume, moving: &Volume) -> anyhow::Result<Start> {
+        match self {
+            Self::Lps(start) => Ok(start),
+            Self::Flirt { matrix, origin } => {
+                let grid = |v: &Volume| (v.dims, v.lps_from_index);
+                let (f, m) = (grid(fixed), grid(moving));
+                let u = fsl::moving_from_fixed(Path::new(&origin), &matrix, (f.0, &f.1), (m.0, &m.1))?;
+                let linear = u.fixed_view::<3, 3>(0, 0).into_owned();
+                Start::new(AffineWarp::new(linear, [u[(0, 3)], u[(1, 3)], u[(2, 3)]]), &origin)
+            }
+        }
+    }
+}
+
 /// A reader of one kind of linear transform file.
 type Reader = fn(&Path) -> warpbench_io::Result<warpbench_io::itk_tfm::ItkAffine>;
 
@@ -112,14 +172,20 @@ fn head(path: &Path) -> Vec<u8> {
     if read { head } else { Vec::new() }
 }
 
-/// The starting transform a subcommand was given: a session's (already read with it), else `--initial`'s file, read.
+/// The starting transform a subcommand was given: a session's (already read with it), else `--initial`'s file, read
+/// (a FLIRT matrix against `fixed` and `moving`).
 ///
 /// # Errors
-/// As [`Start::read`].
-pub fn resolve(session: Option<&Start>, initial: Option<&Path>) -> anyhow::Result<Option<Start>> {
+/// As [`Start::read_on`].
+pub fn resolve(
+    session: Option<&Start>,
+    initial: Option<&Path>,
+    fixed: &Volume,
+    moving: &Volume,
+) -> anyhow::Result<Option<Start>> {
     match session {
         Some(s) => Ok(Some(s.clone())),
-        None => initial.map(Start::read).transpose(),
+        None => initial.map(|path| Start::read_on(path, fixed, moving)).transpose(),
     }
 }
 

@@ -49,6 +49,7 @@ use warpbench_io::dicom_reg::{self, DeformableRegistration, MatrixType, SpatialR
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
+use warpbench_io::fsl;
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
@@ -93,10 +94,15 @@ field sampled on the fixed grid, saved beside it as NAME.field.mha (run transfor
 and PACS: a Spatial Registration for a linear warp (its matrix maps the moving series' patient coordinates to the
 fixed series'), a Deformable Spatial Registration of the warp sampled on the fixed grid for any other.
 
+--format fsl writes FSL's FLIRT matrix (.mat, text) for a linear warp: from the moving volume's FSL coordinates to
+the fixed volume's, for flirt -applyxfm -init with the moving volume as -in and the fixed one as -ref. --initial
+takes such a matrix too, read against --fixed and --moving.
+
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --session case.warpbench.json --out mr_to_ct.h5
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt
-    warpbench transform --fixed ct_series/ --moving mr_series/ --landmarks pairs.csv --method rigid --format dicom --out reg.dcm";
+    warpbench transform --fixed ct_series/ --moving mr_series/ --landmarks pairs.csv --method rigid --format dicom --out reg.dcm
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method rigid --format fsl --out mr_to_ct.mat";
 
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
@@ -135,16 +141,19 @@ pub enum TransformFormat {
     /// A DICOM registration object (`.dcm`, modality REG) between two DICOM series: a Spatial Registration for a
     /// linear warp, a Deformable Spatial Registration otherwise.
     Dicom,
+    /// FSL's FLIRT matrix (`flirt -omat`) between the two volumes, for a linear warp.
+    Fsl,
 }
 
 impl TransformFormat {
-    /// `itk`, `elastix` or `dicom`.
+    /// `itk`, `elastix`, `dicom` or `fsl`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
             Self::Itk => "itk",
             Self::Elastix => "elastix",
             Self::Dicom => "dicom",
+            Self::Fsl => "fsl",
         }
     }
 }
@@ -168,14 +177,18 @@ pub enum Written {
     Elastix(&'static str),
     /// A DICOM Spatial Registration with this Frame of Reference Transformation Matrix Type.
     Dicom(MatrixType),
+    /// FSL's FLIRT matrix.
+    Fsl,
 }
 
 impl Written {
-    /// How messages name what was written: the elastix class, the DICOM matrix type, else `itk_class`.
+    /// How messages name what was written: the elastix class, the DICOM matrix type, FLIRT's matrix, else
+    /// `itk_class`.
     #[must_use]
     pub const fn class(self, itk_class: &'static str) -> &'static str {
         match self {
             Self::Itk => itk_class,
+            Self::Fsl => "FLIRT matrix",
             Self::Elastix(class) => class,
             Self::Dicom(kind) => kind.name(),
         }
@@ -271,6 +284,13 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
             path.display()
         )));
     }
+    if format == TransformFormat::Fsl && (extension("tfm") || extension("dcm") || itk_tfm::is_hdf5_name(path)) {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: FSL's FLIRT matrix is a text file of four lines, not an ITK, HDF5 or DICOM file; name it as \
+             `flirt -omat` does, e.g. mr_to_ct.mat",
+            path.display()
+        )));
+    }
     if format == TransformFormat::Dicom && !extension("dcm") {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: a DICOM registration is written to one file named .dcm, e.g. mr_to_ct_reg.dcm",
@@ -307,7 +327,35 @@ pub fn write_transform(
             Written::Elastix(elastix::transform_name(transform))
         }
         TransformFormat::Dicom => Written::Dicom(write_dicom_registration(path, exact, pair)?),
+        TransformFormat::Fsl => {
+            write_flirt(path, transform, pair)?;
+            Written::Fsl
+        }
     })
+}
+
+/// Writes the affine `transform` (the pull-back, LPS mm) as FSL's FLIRT matrix between `pair`'s volumes, the fixed
+/// one as FLIRT's reference and the moving one as its input ([`warpbench_io::fsl`]).
+///
+/// # Errors
+/// A transform that is not affine (a FLIRT matrix holds nothing else), or what the writer refuses.
+pub fn write_flirt(path: &Path, transform: &ItkTransform, pair: VolumePair) -> Result<(), Failure> {
+    let ItkTransform::Affine(affine) = transform else {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: FSL's FLIRT matrix holds an affine only, not a {}: use --method affine, similarity or rigid (or a \
+             starting transform alone), or write the deformable warp as a displacement field",
+            path.display(),
+            transform.type_name()
+        )));
+    };
+    let offset = affine.offset();
+    let mut u = Matrix4::identity();
+    u.fixed_view_mut::<3, 3>(0, 0).copy_from(&affine.matrix);
+    u.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(offset));
+    let (fixed, moving) = (pair.fixed, pair.moving);
+    let m = fsl::flirt_from(path, &u, (fixed.dims, &fixed.lps_from_index), (moving.dims, &moving.lps_from_index))?;
+    fsl::write(path, &m)?;
+    Ok(())
 }
 
 /// What [`write_dicom`] wrote.
@@ -489,6 +537,13 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             FieldFormat::MetaImage,
             &input_paths,
         )?;
+    } else if format == TransformFormat::Fsl && layered {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: FSL's FLIRT matrix holds an affine only, and this warp has {} as a layer: write it as a \
+             displacement field (`warpbench field`) or as ITK's HDF5 transform file (--out NAME.h5)",
+            out_path.display(),
+            if inputs.warp.base_field.is_some() { "a displacement field" } else { "the session's brush strokes" }
+        )));
     } else if !inputs.warp.brush.is_empty() && format == TransformFormat::Itk && !h5_field {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; name the output .h5 for ITK's HDF5 \
@@ -499,8 +554,10 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     }
     let method = inputs.method().map_err(Failure::BadInput)?;
     let brushed = if layered { inputs.brushed().map_err(Failure::BadInput)? } else { None };
-    let mut layers = Layers::new(inputs.start().map_err(Failure::BadInput)?, brushed);
+    inputs.warp.check_start().map_err(Failure::BadInput)?;
     let volumes = inputs.load_volumes(quiet).map_err(Failure::BadInput)?;
+    let start = inputs.start(&volumes.fixed, &volumes.moving).map_err(Failure::BadInput)?;
+    let mut layers = Layers::new(start, brushed);
     layers.field = inputs.warp.field(&volumes.fixed, &volumes.moving).map_err(Failure::BadInput)?;
     let pairs = inputs.pairs().map_err(Failure::BadInput)?;
     let names = inputs.names(&out_path);
@@ -624,16 +681,19 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             format: format.name(),
             elastix_transform: match written {
                 Written::Elastix(class) => Some(class),
-                Written::Itk | Written::Dicom(_) => None,
+                Written::Itk | Written::Dicom(_) | Written::Fsl => None,
             },
             dicom_matrix_type: match written {
                 Written::Dicom(kind) => Some(kind.name()),
-                Written::Itk | Written::Elastix(_) => None,
+                Written::Itk | Written::Elastix(_) | Written::Fsl => None,
             },
             field: None,
             method: exact.method,
             pairs: exact.pairs,
-            map: if format == TransformFormat::Dicom { "fixed_from_moving" } else { "moving_from_fixed" },
+            map: match format {
+                TransformFormat::Dicom | TransformFormat::Fsl => "fixed_from_moving",
+                TransformFormat::Itk | TransformFormat::Elastix => "moving_from_fixed",
+            },
             domain_lps: exact.domain_lps,
             warnings: exact.warnings,
         }
@@ -646,6 +706,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
                 "a matrix from the moving series' patient coordinates to the fixed series'"
             }
             (TransformFormat::Dicom, _) => "a deformation grid from the fixed series' frame to the moving series'",
+            (TransformFormat::Fsl, _) => "FLIRT's matrix from the moving volume's FSL coordinates to the fixed one's",
             _ => "maps fixed points to moving points, LPS mm",
         };
         eprintln!(
@@ -653,6 +714,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             summary.out,
             summary.elastix_transform.or(summary.dicom_matrix_type).unwrap_or(match format {
                 TransformFormat::Dicom => "Deformable Spatial Registration",
+                TransformFormat::Fsl => "FLIRT matrix",
                 _ => summary.itk_class,
             }),
             summary.method,

@@ -753,6 +753,34 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
     harness.get_by_label("Redo").click();
     harness.run_steps(2);
     assert_eq!(harness.state().ready().expect("loaded").document.start.as_ref(), Some(&found));
+
+    // FSL's FLIRT matrix is in the voxels of the two images: the window reads it against the open volumes, and keeps
+    // the transform it is on them (the session holds no grids to read it against again).
+    let flirt = common::data("fsl/oblique_from_las.mat");
+    harness.state_mut().ready_mut().expect("ready").files.fields.start.clear();
+    harness.get_by_label("Starting transform file").focus();
+    harness.run_steps(2);
+    harness.get_by_label("Starting transform file").type_text(&flirt.display().to_string());
+    harness.run_steps(2);
+    harness.get_by_label("Use as starting transform").click();
+    harness.run_steps(3);
+    let ready = harness.state().ready().expect("ready");
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("oblique_from_las.mat is the starting transform"), "{message}");
+    let (fixed, moving) = (&ready.loaded.fixed, &ready.loaded.moving);
+    let matrix = warpbench_io::fsl::read(&flirt).expect("the matrix");
+    let u = warpbench_io::fsl::moving_from_fixed(
+        &flirt,
+        &matrix,
+        (fixed.dims, &fixed.lps_from_index),
+        (moving.dims, &moving.lps_from_index),
+    )
+    .expect("the pull-back");
+    for x in [[10.0, -20.0, 15.0], [-60.0, 40.0, -30.0], [0.0, 0.0, 0.0]] {
+        let want = u * nalgebra::Vector4::new(x[0], x[1], x[2], 1.0);
+        let shown = ready.moving_shown_at(x);
+        assert!((0..3).all(|a| (shown[a] - want[a]).abs() < 1e-9), "shown {shown:?}, the FLIRT matrix {want:?}");
+    }
 }
 
 /// A displacement field under the landmarks (issue 29, item 2, as BigWarp's transform sequences): "Use field under

@@ -660,7 +660,8 @@ fn initial_reads_elastix_linear_files_and_their_chain() {
 /// it: SimpleITK's composite of an affine and a B-spline (a 3-cell mesh per axis: 6 control points,
 /// `data-scripts/itk_tfm_chain.py`) is a field, its affine `.mat` and `.h5` a starting transform, ITK's thin-plate
 /// spline through 10 landmarks (`data-scripts/slicer_transforms.py`) landmark pairs; 3D Slicer's inverse B-spline is
-/// named as such. An `.h5` holding a field is still described as the field.
+/// named as such. An `.h5` holding a field is still described as the field. FSL's FLIRT matrix is a starting
+/// transform read against the two volumes.
 #[test]
 fn info_describes_a_transform_file_by_what_it_holds() {
     let info = |name: &str| {
@@ -696,4 +697,14 @@ fn info_describes_a_transform_file_by_what_it_holds() {
         text.contains("2 transforms, the last applied first") && text.contains("6 × 6 × 6 control points"),
         "{text}"
     );
+    // FSL's FLIRT matrix (nitransforms', `data-scripts/fsl_flirt_nitransforms.py`): an affine that needs its images.
+    let flirt = data("fsl/oblique_from_las.mat");
+    let run = warpbench(&["info", utf8(&flirt), "--json"]);
+    assert_ok(&run);
+    let v: Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert_eq!((v["format"].as_str(), v["read_as"].as_str()), (Some("fsl"), Some("starting_transform")));
+    assert_eq!(kinds(&v), ["affine"]);
+    let text = warpbench(&["info", utf8(&flirt)]);
+    let text = String::from_utf8_lossy(&text.stdout);
+    assert!(text.contains("FSL FLIRT matrix") && text.contains("--fixed as FLIRT's -ref"), "{text}");
 }

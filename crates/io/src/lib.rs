@@ -28,6 +28,7 @@ pub mod displacement;
 pub mod elastix;
 pub mod error;
 mod files;
+pub mod fsl;
 pub mod geometry;
 pub mod itk_chain;
 pub mod itk_h5;

@@ -10,6 +10,7 @@ mod dicom_conformance;
 mod dicom_reg;
 mod elastix;
 mod elastix_points;
+mod fsl;
 mod itk_chain;
 mod itk_h5;
 mod itk_h5_write;

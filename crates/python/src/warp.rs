@@ -22,7 +22,7 @@ use warpbench_app::project::diagnostics::DiagnosticsInput;
 use warpbench_app::project::field_file::{FieldFile, FieldReadFormat};
 use warpbench_app::project::stack::{ItkRest, Layers, StackForward, StackPullback};
 use warpbench_app::settings::MethodKind;
-use warpbench_app::start::Start;
+use warpbench_app::start::{Start, StartFile};
 use warpbench_app::transform;
 use warpbench_app::warp::{self as warp_cmd, Backend, PullBackMode, WarpSettings};
 use warpbench_io::dicom_source::DicomSource;
@@ -202,14 +202,27 @@ impl Warp {
             None => (None, None),
         };
         guarded(py, move || {
-            let start = initial.as_deref().map(Start::read).transpose().map_err(bad_input)?;
-            let mut layers = Layers::new(start, None);
             let zeros = grids
                 .as_ref()
                 .map(|(f, m)| {
                     Ok::<_, PyErr>((geometry_volume(Path::new("fixed"), f)?, geometry_volume(Path::new("moving"), m)?))
                 })
                 .transpose()?;
+            let start = match (initial.as_deref(), &zeros) {
+                (None, _) => None,
+                (Some(path), Some((f, m))) => Some(Start::read_on(path, f, m).map_err(bad_input)?),
+                (Some(path), None) => match StartFile::read(path).map_err(bad_input)? {
+                    StartFile::Lps(start) => Some(start),
+                    StartFile::Flirt { .. } => {
+                        return Err(PyValueError::new_err(format!(
+                            "initial={}: an FSL FLIRT matrix is in the voxels of the two images it was made with: \
+                             give fixed= (FLIRT's -ref) and moving= (its -in)",
+                            path.display()
+                        )));
+                    }
+                },
+            };
+            let mut layers = Layers::new(start, None);
             layers.field = given_layer;
             if let Some(path) = initial_path {
                 let file = match &zeros {

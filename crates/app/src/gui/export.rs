@@ -361,6 +361,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Itk => matches!(extension.as_str(), "tfm" | "txt" | "h5" | "mat"),
         TransformFormat::Elastix => extension == "txt",
         TransformFormat::Dicom => extension == "dcm",
+        TransformFormat::Fsl => matches!(extension.as_str(), "mat" | "txt" | "xfm"),
     };
     if fits {
         return transform::check_transform_name(out, format).map_err(|f| format!("{:#}", f.error()));
@@ -373,6 +374,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
             format!("{}: an elastix transform parameter file is a .txt (e.g. TransformParameters.0.txt)", out.display())
         }
         TransformFormat::Dicom => format!("{}: a DICOM registration is a .dcm (e.g. mr_to_ct_reg.dcm)", out.display()),
+        TransformFormat::Fsl => format!("{}: FSL's FLIRT matrix is a .mat (e.g. mr_to_ct.mat)", out.display()),
     })
 }
 

@@ -83,22 +83,25 @@ impl Ready {
                 self.pointer.notice = Some(format!("Refine by intensities reads the whole {} volume", side.name()));
             }
             // A file that holds no invertible linear transform is refused here, naming it; the document is unchanged.
-            FileAction::UseStart(path) => match crate::start::Start::read(&path) {
-                Ok(start) => {
-                    let t = start.moving_from_fixed();
-                    let origin = path
-                        .file_name()
-                        .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
-                    let document_start = StartingTransform::new(t.linear(), t.translation(), origin);
-                    self.files.message =
-                        Some(format!("{} is the starting transform under the landmarks", path.display()));
-                    if self.document.start.as_ref() != Some(&document_start) {
-                        self.document.start = Some(document_start);
-                        self.refit_soon();
+            // A FLIRT matrix is read against the open volumes, and kept as the transform it is on them.
+            FileAction::UseStart(path) => {
+                match crate::start::Start::read_on(&path, &self.loaded.fixed, &self.loaded.moving) {
+                    Ok(start) => {
+                        let t = start.moving_from_fixed();
+                        let origin = path
+                            .file_name()
+                            .map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+                        let document_start = StartingTransform::new(t.linear(), t.translation(), origin);
+                        self.files.message =
+                            Some(format!("{} is the starting transform under the landmarks", path.display()));
+                        if self.document.start.as_ref() != Some(&document_start) {
+                            self.document.start = Some(document_start);
+                            self.refit_soon();
+                        }
                     }
+                    Err(e) => self.files.message = Some(format!("not used as the starting transform: {e:#}")),
                 }
-                Err(e) => self.files.message = Some(format!("not used as the starting transform: {e:#}")),
-            },
+            }
             FileAction::RemoveField => {
                 if self.document.field.take().is_some() {
                     self.files.message = Some("the displacement field is removed".into());

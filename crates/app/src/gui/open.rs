@@ -226,6 +226,7 @@ impl Purpose {
             Self::ExportTransform(TransformFormat::Elastix) => {
                 d.add_filter("elastix transform parameter file", &["txt"]).set_file_name("TransformParameters.0.txt")
             }
+            Self::ExportTransform(TransformFormat::Fsl) => d.add_filter("FSL FLIRT matrix", &["mat"]),
             Self::ExportTransform(TransformFormat::Dicom) => {
                 d.add_filter("DICOM Spatial Registration", &["dcm"]).set_file_name("registration.dcm")
             }
@@ -525,6 +526,7 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
             ready,
             OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Dicom)),
         );
+        item(ui, "Export for FSL...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Fsl)));
         ui.separator();
         item(ui, "Use starting transform...", ready, OpenEvent::Dialog(Purpose::UseStart));
         item(ui, "Use displacement field...", ready, OpenEvent::Dialog(Purpose::UseField));

@@ -113,6 +113,13 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
             direction: Some(FieldDirection::Pullback),
         });
     }
+    if crate::fsl::looks_like_flirt_matrix(&head) {
+        return Err(Error::unsupported(
+            path,
+            "FSL's FLIRT matrix, an affine and not a displacement field: it is a starting transform (--initial, or \
+             the window's starting transform from a file)",
+        ));
+    }
     Err(Error::unsupported(
         path,
         "not a displacement field: neither NIfTI (intent 1006 or 1007), NRRD, MetaImage, an elastix transform \

@@ -518,7 +518,8 @@ def fit(
         stiffness: the TPS's λ ≥ 0 (0 interpolates), or ``"auto"``: the λ under which the pairs are most likely.
         initial: an ITK linear ``.tfm`` (affine, Euler, versor rigid, similarity, ...), an ANTs ``.mat`` or an ITK
             ``.h5`` of affines (fixed points to moving points) under the landmark warp,
-            as ``warpbench align`` writes it.
+            as ``warpbench align`` writes it; or FSL's FLIRT matrix, read against ``fixed`` (FLIRT's ``-ref``) and
+            ``moving`` (its ``-in``), which it needs.
         fixed, moving: the volumes (only their grids are read). With them the pairs are checked to lie inside,
             and the fit's domains are their boxes, as on the command line; without them, the points' box grown by
             a tenth (it matters only to ``hbspline``).
