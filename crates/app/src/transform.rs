@@ -328,18 +328,19 @@ pub fn write_transform(
         }
         TransformFormat::Dicom => Written::Dicom(write_dicom_registration(path, exact, pair)?),
         TransformFormat::Fsl => {
-            write_flirt(path, transform, pair)?;
+            let (fixed, moving) = (pair.fixed, pair.moving);
+            write_flirt(path, transform, (fixed.dims, &fixed.lps_from_index), (moving.dims, &moving.lps_from_index))?;
             Written::Fsl
         }
     })
 }
 
-/// Writes the affine `transform` (the pull-back, LPS mm) as FSL's FLIRT matrix between `pair`'s volumes, the fixed
-/// one as FLIRT's reference and the moving one as its input ([`warpbench_io::fsl`]).
+/// Writes the affine `transform` (the pull-back, LPS mm) as FSL's FLIRT matrix between the `fixed` grid, FLIRT's
+/// reference, and the `moving` one, its input ([`warpbench_io::fsl`]).
 ///
 /// # Errors
 /// A transform that is not affine (a FLIRT matrix holds nothing else), or what the writer refuses.
-pub fn write_flirt(path: &Path, transform: &ItkTransform, pair: VolumePair) -> Result<(), Failure> {
+pub fn write_flirt(path: &Path, transform: &ItkTransform, fixed: fsl::Grid, moving: fsl::Grid) -> Result<(), Failure> {
     let ItkTransform::Affine(affine) = transform else {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: FSL's FLIRT matrix holds an affine only, not a {}: use --method affine, similarity or rigid (or a \
@@ -352,9 +353,7 @@ pub fn write_flirt(path: &Path, transform: &ItkTransform, pair: VolumePair) -> R
     let mut u = Matrix4::identity();
     u.fixed_view_mut::<3, 3>(0, 0).copy_from(&affine.matrix);
     u.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(offset));
-    let (fixed, moving) = (pair.fixed, pair.moving);
-    let m = fsl::flirt_from(path, &u, (fixed.dims, &fixed.lps_from_index), (moving.dims, &moving.lps_from_index))?;
-    fsl::write(path, &m)?;
+    fsl::write(path, &fsl::flirt_from(path, &u, fixed, moving)?)?;
     Ok(())
 }
 

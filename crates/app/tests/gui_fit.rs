@@ -781,6 +781,18 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
         let shown = ready.moving_shown_at(x);
         assert!((0..3).all(|a| (shown[a] - want[a]).abs() < 1e-9), "shown {shown:?}, the FLIRT matrix {want:?}");
     }
+    // File > Export for FSL writes it back: the same matrix, to the twelve decimals written (and doubles' rounding
+    // through the volumes' matrices, at translations of tens of mm).
+    let out = dir.path().join("back.mat");
+    let export = warpbench_app::gui::files::FileAction::ExportTransform(
+        warpbench_app::transform::TransformFormat::Fsl,
+        out.clone(),
+    );
+    harness.state_mut().ready_mut().expect("ready").apply(Command::File(export));
+    let message = window::wait_for_export(&mut harness);
+    assert!(message.contains("back.mat"), "{message}");
+    let back = warpbench_io::fsl::read(&out).unwrap_or_else(|e| panic!("{e}: {message}"));
+    assert!((back - matrix).abs().max() < 1e-10, "{back} written, {matrix} read");
 }
 
 /// A displacement field under the landmarks (issue 29, item 2, as BigWarp's transform sequences): "Use field under

@@ -509,6 +509,22 @@ impl Warp {
         })
     }
 
+    /// Writes the pull-back, a linear warp, as FSL's FLIRT matrix between the fixed grid (FLIRT's reference) and the
+    /// moving one (its input) the warp was fitted with, as `warpbench transform --format fsl` writes it.
+    fn to_fsl(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let Some(((fixed_dims, fixed_lps), (moving_dims, moving_lps))) = &self.grids else {
+            return Err(PyValueError::new_err(format!(
+                "{}: a FLIRT matrix is in the voxels of the two images: fit the warp with fixed= and moving=",
+                path.display()
+            )));
+        };
+        guarded(py, || {
+            let transform = self.pullback.itk_transform().map_err(bad_input)?;
+            transform::write_flirt(&path, &transform, (*fixed_dims, fixed_lps), (*moving_dims, moving_lps))
+                .map_err(|f| to_py(&f))
+        })
+    }
+
     /// Writes the pull-back as the elastix transform parameter file that holds it exactly (`SplineKernelTransform`,
     /// `BSplineTransform`, `AffineTransform`) over `reference`'s grid (where transformix resamples), as `warpbench
     /// transform --format elastix` writes it.

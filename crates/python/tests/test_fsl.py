@@ -151,6 +151,17 @@ def test_transform_writes_the_flirt_matrix_nitransforms_reads(tmp_path: Path, me
     np.testing.assert_allclose(got, ours, rtol=0, atol=1e-8)
     lines = out.read_text().splitlines()
     assert len(lines) == 4 and lines[3].split() == ["0.000000000000"] * 3 + ["1.000000000000"]
+    # Python writes the same file from the same fit.
+    landmarks = wb.read_landmarks(pairs) if method == "affine" else wb.Pairs(np.zeros((0, 3)), np.zeros((0, 3)))
+    volumes = {"fixed": wb.read_volume(fixed), "moving": wb.read_volume(moving)}
+    warp = wb.fit(landmarks, "affine" if method == "affine" else "tps", initial=start, **volumes)
+    from_python = tmp_path / "python.mat"
+    warp.to_fsl(from_python)
+    assert from_python.read_bytes() == out.read_bytes()
+    rng = np.random.default_rng(6)
+    bare = wb.fit(wb.Pairs(inside("LAS", 5, rng), inside("oblique", 5, rng)), "affine")
+    with pytest.raises(ValueError, match="bare.mat: .* fit the warp with fixed= and moving="):
+        bare.to_fsl(tmp_path / "bare.mat")
 
 
 def test_flirt_refusals(tmp_path: Path) -> None:

@@ -430,6 +430,12 @@ class Warp:
         the fixed grid, which needs the warp fitted with ``fixed=`` and ``moving=``)."""
         self._native.to_itk_tfm(os.fspath(path))
 
+    def to_fsl(self, path: PathLike) -> None:
+        """Writes a linear warp (``affine``, ``similarity``, ``rigid``, or ``initial`` alone) as FSL's FLIRT matrix
+        (``flirt -applyxfm -init``) between the volumes it was fitted with, the fixed one as FLIRT's ``-ref`` and the
+        moving one as its ``-in``, as ``warpbench transform --format fsl`` does. Needs ``fixed=`` and ``moving=``."""
+        self._native.to_fsl(os.fspath(path))
+
     def to_elastix(self, path: PathLike, reference: Optional["Volume"] = None) -> None:
         """Writes the pull-back as the elastix transform parameter file that holds it exactly (``SplineKernelTransform``,
         ``BSplineTransform``, ``AffineTransform``), naming ``reference``'s grid (default: the fixed volume's) as
