@@ -7,7 +7,7 @@ tools) is the independent reader and writer here:
 
 - a matrix nitransforms writes for a known transform between two volumes is read by ``--initial`` (and Python's
   ``fit(initial=, fixed=, moving=)``) as the transform nitransforms reads from it, mapping points within 1e-9 mm, for
-  volumes of either handedness, oblique, of different sizes and voxel sizes;
+  volumes of either handedness, oblique or not, with their own voxel sizes (``tests/data/fsl/``);
 - ``transform --format fsl`` writes a matrix that nitransforms reads as warpbench's own pull-back;
 - without the volumes, for a deformable warp and under a name of another format, it is refused.
 
@@ -16,6 +16,7 @@ Needs nitransforms (and its scipy and h5py), nibabel and numpy, and the CLI bina
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -25,44 +26,26 @@ nib = pytest.importorskip("nibabel")
 nitl = pytest.importorskip("nitransforms.linear")
 
 import warpbench as wb  # noqa: E402
-from conftest import run_cli  # noqa: E402
+from conftest import DATA, run_cli  # noqa: E402
 
 
-def rotation(ax: float, ay: float, az: float) -> np.ndarray:
-    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
-# Voxel-to-RAS matrices: oblique and neurological (det > 0), radiological (LAS, det < 0), LPS (det > 0, both first
-# axes reversed), and an oblique radiological one; each with its own voxel sizes and size.
-GRIDS = {
-    "oblique": ((20, 24, 18), rotation(0.1, -0.2, 0.3) @ np.diag([1.2, 0.9, 2.0]), (-30.0, 20.0, 10.0)),
-    "LAS": ((18, 22, 26), np.diag([-1.5, 1.0, 1.1]), (40.0, -25.0, -15.0)),
-    "LPS": ((16, 20, 14), np.diag([-2.0, -2.0, 2.5]), (20.0, 18.0, -12.0)),
-    "oblique-LAS": ((22, 18, 20), rotation(-0.15, 0.05, 0.2) @ np.diag([-1.0, 1.3, 1.6]), (12.0, -30.0, 5.0)),
-}
+# The volumes of `tests/data/fsl/` (`data-scripts/fsl_flirt_nitransforms.py`), 4 x 5 x 3 voxels, whose grids matter:
+# oblique and neurological (det > 0), radiological (LAS, det < 0), LPS (det > 0, both first axes reversed), and an
+# oblique radiological one, each with its own voxel sizes.
+FSL_DATA = DATA / "fsl"
 
 
 def volume(tmp_path: Path, name: str) -> Path:
-    shape, linear, origin = GRIDS[name]
-    affine = np.eye(4)
-    affine[:3, :3] = linear
-    affine[:3, 3] = origin
-    # A smooth ramp, so the volume is not constant (warpbench refuses nothing here, but a reader might).
-    data = np.fromfunction(lambda i, j, k: i + 2 * j + 3 * k, shape, dtype=np.float32).astype(np.float32)
-    path = tmp_path / f"{name}.nii.gz"
-    nib.save(nib.Nifti1Image(data, affine), path)
-    return path
+    """The fixture volume `name` (`tmp_path` is where a test's own files go)."""
+    del tmp_path
+    return FSL_DATA / f"{name}.nii.gz"
 
 
 def inside(name: str, n: int, rng: np.random.Generator) -> np.ndarray:
-    """`n` LPS points inside the volume `name`, away from its edges."""
-    shape, linear, origin = GRIDS[name]
-    ijk = rng.uniform(1.0, np.array(shape) - 2.0, (n, 3))
-    ras = (linear @ ijk.T).T + origin
+    """`n` LPS points inside the volume `name`, its voxel centres' box."""
+    image = nib.load(FSL_DATA / f"{name}.nii.gz")
+    ijk = rng.uniform(0.0, np.array(image.shape) - 1.0, (n, 3))
+    ras = (image.affine[:3, :3] @ ijk.T).T + image.affine[:3, 3]
     return ras * [-1.0, -1.0, 1.0]
 
 
@@ -75,11 +58,9 @@ def pair_rows(fixed: str, moving: str, rng: np.random.Generator) -> str:
 
 
 def known_transform() -> np.ndarray:
-    """A pull-back in RAS (reference points to moving points), as nitransforms holds a transform."""
-    t = np.eye(4)
-    t[:3, :3] = rotation(0.2, 0.1, -0.15) @ np.diag([1.05, 0.97, 1.02])
-    t[:3, 3] = [3.0, -2.0, 5.0]
-    return t
+    """A pull-back in RAS (reference points to moving points), as nitransforms holds a transform: the one the
+    fixtures' matrices were written from."""
+    return np.array(json.loads((FSL_DATA / "reference.json").read_text())["known_ras"])
 
 
 FLIP = np.diag([-1.0, -1.0, 1.0, 1.0])  # RAS ↔ LPS
@@ -101,7 +82,7 @@ def mapped_by_warpbench(tmp_path: Path, fixed: Path, moving: Path, initial: Path
     return np.array([[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()])
 
 
-@pytest.mark.parametrize("fixed_grid,moving_grid", [("oblique", "LAS"), ("LPS", "oblique-LAS"), ("LAS", "LPS")])
+@pytest.mark.parametrize("fixed_grid,moving_grid", [("oblique", "las"), ("lps", "oblique_las"), ("las", "lps")])
 def test_initial_reads_a_flirt_matrix_as_nitransforms_does(tmp_path: Path, fixed_grid: str, moving_grid: str) -> None:
     fixed, moving = volume(tmp_path, fixed_grid), volume(tmp_path, moving_grid)
     flirt = tmp_path / "mr_to_ct.mat"
@@ -125,12 +106,12 @@ def test_initial_reads_a_flirt_matrix_as_nitransforms_does(tmp_path: Path, fixed
 
 @pytest.mark.parametrize("method", ["start", "affine"])
 def test_transform_writes_the_flirt_matrix_nitransforms_reads(tmp_path: Path, method: str) -> None:
-    fixed, moving = volume(tmp_path, "oblique"), volume(tmp_path, "LAS")
+    fixed, moving = volume(tmp_path, "oblique"), volume(tmp_path, "las")
     start = tmp_path / "start.mat"
     nitl.Affine(known_transform(), reference=str(fixed)).to_filename(start, fmt="fsl", moving=str(moving))
     pairs = tmp_path / "pairs.csv"
     if method == "affine":
-        pairs.write_text(pair_rows("oblique", "LAS", np.random.default_rng(9)))
+        pairs.write_text(pair_rows("oblique", "las", np.random.default_rng(9)))
         args = ["--landmarks", pairs, "--method", "affine"]
     else:
         pairs.write_text("")
@@ -159,15 +140,15 @@ def test_transform_writes_the_flirt_matrix_nitransforms_reads(tmp_path: Path, me
     warp.to_fsl(from_python)
     assert from_python.read_bytes() == out.read_bytes()
     rng = np.random.default_rng(6)
-    bare = wb.fit(wb.Pairs(inside("LAS", 5, rng), inside("oblique", 5, rng)), "affine")
+    bare = wb.fit(wb.Pairs(inside("las", 5, rng), inside("oblique", 5, rng)), "affine")
     with pytest.raises(ValueError, match="bare.mat: .* fit the warp with fixed= and moving="):
         bare.to_fsl(tmp_path / "bare.mat")
 
 
 def test_flirt_refusals(tmp_path: Path) -> None:
-    fixed, moving = volume(tmp_path, "oblique"), volume(tmp_path, "LAS")
+    fixed, moving = volume(tmp_path, "oblique"), volume(tmp_path, "las")
     pairs = tmp_path / "pairs.csv"
-    pairs.write_text(pair_rows("oblique", "LAS", np.random.default_rng(2)))
+    pairs.write_text(pair_rows("oblique", "las", np.random.default_rng(2)))
     base = ["transform", "--fixed", fixed, "--moving", moving, "--landmarks", pairs, "--format", "fsl", "--quiet"]
     done = run_cli(*base, "--out", tmp_path / "tps.mat", expect=2)
     assert "tps.mat" in done.stderr and "FLIRT matrix holds an affine only" in done.stderr
