@@ -45,7 +45,7 @@ use warpbench_io::itk_tfm::{self, ItkTransform};
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_io::learn2reg;
 use warpbench_io::transform_file;
-use warpbench_io::{Progress, Volume, volume};
+use warpbench_io::{Volume, volume};
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Fixed, Moving};
 use warpbench_solver::warp::Warp;
@@ -55,7 +55,6 @@ use crate::brushed::Brushed;
 use crate::exit::Failure;
 use crate::fit;
 use crate::inputs::{self, Names, OutputFile, PairVolumes};
-use crate::progress::Bar;
 use crate::project::stack::{FieldLayer, Layers};
 use crate::warp::{FieldFormatArgs, InverseConsistency, WarpInputs};
 
@@ -501,15 +500,9 @@ pub fn sample_field_reporting(
     direction: FieldDirection,
     quiet: bool,
 ) -> Result<Field, Failure> {
-    let mut bar: Option<Bar> = None;
-    let field = sample_field(grid, inputs, direction, &mut |done, total| {
-        let _ =
-            bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress { stage: "sampling the field", done, total });
-        true
+    let field = crate::progress::with_bar(quiet, "sampling the field", |progress| {
+        sample_field(grid, inputs, direction, progress)
     });
-    if let Some(bar) = bar {
-        bar.finish();
-    }
     let field = field?;
     if !quiet {
         for w in &field.warnings {

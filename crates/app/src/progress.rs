@@ -49,3 +49,18 @@ impl Bar {
         self.bar.finish_and_clear();
     }
 }
+
+/// Runs `work` with a progress callback `(done, total)` that draws a bar labelled `stage` on stderr from its first
+/// report (none with `quiet`, or for work that reports nothing), cleared when `work` returns; the callback never
+/// cancels.
+pub fn with_bar<T>(quiet: bool, stage: &'static str, work: impl FnOnce(&mut dyn FnMut(u64, u64) -> bool) -> T) -> T {
+    let mut bar: Option<Bar> = None;
+    let result = work(&mut |done, total| {
+        let _ = bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress { stage, done, total });
+        true
+    });
+    if let Some(bar) = bar {
+        bar.finish();
+    }
+    result
+}

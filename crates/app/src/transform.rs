@@ -54,7 +54,7 @@ use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_io::transform_file;
-use warpbench_io::{Progress, Volume, volume};
+use warpbench_io::{Volume, volume};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -63,7 +63,7 @@ use crate::exit::Failure;
 use crate::field::FieldInputs;
 use crate::fit;
 use crate::inputs::{self, OutputFile, PairInputs};
-use crate::progress::Bar;
+use crate::progress::with_bar;
 use crate::project::stack::{ItkComposite, ItkRest, Layers};
 
 /// The `--json` schema name.
@@ -607,19 +607,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             warnings: export.warnings,
         }
     } else if h5_field {
-        let mut bar: Option<Bar> = None;
-        let written = write_h5_stack(&out_path, &made_of, &mut |done, total| {
-            let _ = bar.get_or_insert_with(|| Bar::new(quiet)).update(Progress {
-                stage: "sampling the field",
-                done,
-                total,
-            });
-            true
-        });
-        if let Some(bar) = bar {
-            bar.finish();
-        }
-        let written = written?;
+        let written = with_bar(quiet, "sampling the field", |progress| write_h5_stack(&out_path, &made_of, progress))?;
         if !quiet {
             for w in &written.warnings {
                 eprintln!("warpbench: warning: {w}");
