@@ -73,7 +73,7 @@ pub enum InfoContent {
 /// FLIRT matrix holds.
 #[derive(Debug, Serialize)]
 pub struct TransformInfo {
-    /// `itk_tfm`, `itk_h5`, `ants_mat`, or `fsl` for FSL's FLIRT matrix.
+    /// `itk_tfm`, `itk_h5`, `ants_mat`, `fsl` for FSL's FLIRT matrix, or `afni` for AFNI's matrix file.
     pub format: &'static str,
     /// The transforms in the file's order (a composite's members; ITK applies the last one first).
     pub transforms: Vec<TransformMember>,
@@ -125,9 +125,11 @@ impl TransformInfo {
         use warpbench_io::itk_tfm::ItkTransform;
         let member = |kind, size, landmarks| TransformMember { kind, size, landmarks };
         // Each reader refuses what is not a regular file first (a named pipe would block the opening below).
-        if warpbench_io::fsl::read(path).is_ok() {
-            let transforms = vec![member(MemberKind::Affine, None, None)];
-            return Some(Self { format: "fsl", transforms, read_as: ReadAs::StartingTransform });
+        for (format, read) in [("fsl", warpbench_io::fsl::read as Reader), ("afni", warpbench_io::afni::read)] {
+            if read(path).is_ok() {
+                let transforms = vec![member(MemberKind::Affine, None, None)];
+                return Some(Self { format, transforms, read_as: ReadAs::StartingTransform });
+            }
         }
         let chain = warpbench_io::transform_file::read_chain(path).ok()?;
         let mut head = Vec::new();
@@ -167,6 +169,9 @@ impl TransformInfo {
         Some(Self { format, transforms, read_as })
     }
 }
+
+/// A reader of a matrix file that needs the two volumes.
+type Reader = fn(&Path) -> warpbench_io::Result<nalgebra::Matrix4<f64>>;
 
 /// A displacement field's description.
 #[derive(Debug, Serialize)]
@@ -444,6 +449,13 @@ fn write_transform(t: &TransformInfo, out: &mut dyn Write) -> std::io::Result<()
         return writeln!(
             out,
             "  read as         a starting transform (--initial), against --fixed as FLIRT's -ref and --moving as its -in"
+        );
+    }
+    if t.format == "afni" {
+        writeln!(out, "  AFNI matrix file (afni): an affine from the base's DICOM coordinates to the source's")?;
+        return writeln!(
+            out,
+            "  read as         a starting transform (--initial), --fixed the base and --moving the source, neither oblique"
         );
     }
     writeln!(out, "  ITK transform file ({}), {count}{order}", t.format)?;

@@ -19,7 +19,7 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use nalgebra::Matrix4;
 use warpbench_io::geometry::Point3;
-use warpbench_io::{Volume, dicom_reg, elastix, fsl, itk_h5};
+use warpbench_io::{Volume, afni, dicom_reg, elastix, fsl, itk_h5};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -65,6 +65,10 @@ impl Start {
             StartFile::Flirt { origin, .. } => Err(anyhow!(
                 "{origin}: an FSL FLIRT matrix is in the voxel coordinates of the two images it was made with: it \
                  needs the fixed volume (FLIRT's -ref) and the moving one (its -in)"
+            )),
+            StartFile::Afni { origin, .. } => Err(anyhow!(
+                "{origin}: an AFNI matrix is read with the two volumes, to refuse oblique ones (whose coordinates \
+                 AFNI takes otherwise): it needs the fixed volume (AFNI's base) and the moving one (its source)"
             )),
         }
     }
@@ -118,12 +122,22 @@ impl Start {
     }
 }
 
-/// A starting transform's file, read: T₀ itself, in patient space, or FSL's FLIRT matrix, which is in the voxel
-/// coordinates of the two images it was made with and becomes T₀ with them ([`warpbench_io::fsl`]).
+/// A starting transform's file, read: T₀ itself, in patient space; FSL's FLIRT matrix, which is in the voxel
+/// coordinates of the two images it was made with and becomes T₀ with them ([`warpbench_io::fsl`]); or AFNI's matrix,
+/// T₀ between volumes that are not oblique.
 #[derive(Clone, Debug, PartialEq)]
 pub enum StartFile {
     Lps(Start),
-    Flirt { matrix: Matrix4<f64>, origin: String },
+    Flirt {
+        matrix: Matrix4<f64>,
+        origin: String,
+    },
+    /// AFNI's `.aff12.1D`: T₀ itself (base-to-source in DICOM's LPS), taken only between volumes that are not
+    /// oblique ([`warpbench_io::afni`]).
+    Afni {
+        matrix: Matrix4<f64>,
+        origin: String,
+    },
 }
 
 impl StartFile {
@@ -137,6 +151,10 @@ impl StartFile {
         if fsl::looks_like_flirt_matrix(&head) {
             let matrix = fsl::read(path).with_context(|| format!("--initial {}", path.display()))?;
             return Ok(Self::Flirt { matrix, origin: path.display().to_string() });
+        }
+        if afni::looks_like_afni_matrix(&head) {
+            let matrix = afni::read(path).with_context(|| format!("--initial {}", path.display()))?;
+            return Ok(Self::Afni { matrix, origin: path.display().to_string() });
         }
         Start::read_lps(path, &head).map(Self::Lps)
     }
@@ -152,11 +170,21 @@ impl StartFile {
                 let grid = |v: &Volume| (v.dims, v.lps_from_index);
                 let (f, m) = (grid(fixed), grid(moving));
                 let u = fsl::moving_from_fixed(Path::new(&origin), &matrix, (f.0, &f.1), (m.0, &m.1))?;
-                let linear = u.fixed_view::<3, 3>(0, 0).into_owned();
-                Start::new(AffineWarp::new(linear, [u[(0, 3)], u[(1, 3)], u[(2, 3)]]), &origin)
+                start_of(&u, &origin)
+            }
+            Self::Afni { matrix, origin } => {
+                afni::check_cardinal(Path::new(&origin), "fixed", &fixed.lps_from_index)?;
+                afni::check_cardinal(Path::new(&origin), "moving", &moving.lps_from_index)?;
+                start_of(&matrix, &origin)
             }
         }
     }
+}
+
+/// T₀ of the pull-back `u` (a 4 × 4 matrix in LPS mm), named `origin`.
+fn start_of(u: &Matrix4<f64>, origin: &str) -> anyhow::Result<Start> {
+    let linear = u.fixed_view::<3, 3>(0, 0).into_owned();
+    Start::new(AffineWarp::new(linear, [u[(0, 3)], u[(1, 3)], u[(2, 3)]]), origin)
 }
 
 /// A reader of one kind of linear transform file.

@@ -49,12 +49,12 @@ use warpbench_io::dicom_reg::{self, DeformableRegistration, MatrixType, SpatialR
 use warpbench_io::dicom_source::DicomSource;
 use warpbench_io::displacement::{self, FieldDirection, FieldFormat};
 use warpbench_io::elastix::{self, ElastixGrid};
-use warpbench_io::fsl;
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_io::transform_file;
 use warpbench_io::{Volume, volume};
+use warpbench_io::{afni, fsl};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -95,8 +95,9 @@ and PACS: a Spatial Registration for a linear warp (its matrix maps the moving s
 fixed series'), a Deformable Spatial Registration of the warp sampled on the fixed grid for any other.
 
 --format fsl writes FSL's FLIRT matrix (.mat, text) for a linear warp: from the moving volume's FSL coordinates to
-the fixed volume's, for flirt -applyxfm -init with the moving volume as -in and the fixed one as -ref. --initial
-takes such a matrix too, read against --fixed and --moving.
+the fixed volume's, for flirt -applyxfm -init with the moving volume as -in and the fixed one as -ref. --format afni
+writes AFNI's matrix file (.aff12.1D) for 3dAllineate -1Dmatrix_apply, between volumes that are not oblique.
+--initial takes either, read against --fixed and --moving.
 
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --session case.warpbench.json --out mr_to_ct.h5
@@ -143,10 +144,13 @@ pub enum TransformFormat {
     Dicom,
     /// FSL's FLIRT matrix (`flirt -omat`) between the two volumes, for a linear warp.
     Fsl,
+    /// AFNI's matrix file (`.aff12.1D`, `3dAllineate -1Dmatrix_apply`), for a linear warp between volumes that are not
+    /// oblique.
+    Afni,
 }
 
 impl TransformFormat {
-    /// `itk`, `elastix`, `dicom` or `fsl`.
+    /// `itk`, `elastix`, `dicom`, `fsl` or `afni`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -154,6 +158,7 @@ impl TransformFormat {
             Self::Elastix => "elastix",
             Self::Dicom => "dicom",
             Self::Fsl => "fsl",
+            Self::Afni => "afni",
         }
     }
 }
@@ -179,6 +184,8 @@ pub enum Written {
     Dicom(MatrixType),
     /// FSL's FLIRT matrix.
     Fsl,
+    /// AFNI's matrix file.
+    Afni,
 }
 
 impl Written {
@@ -189,6 +196,7 @@ impl Written {
         match self {
             Self::Itk => itk_class,
             Self::Fsl => "FLIRT matrix",
+            Self::Afni => "AFNI matrix",
             Self::Elastix(class) => class,
             Self::Dicom(kind) => kind.name(),
         }
@@ -291,6 +299,14 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
             path.display()
         )));
     }
+    if format == TransformFormat::Afni
+        && (extension("tfm") || extension("dcm") || extension("mat") || itk_tfm::is_hdf5_name(path))
+    {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: AFNI's matrix file is text; name it as 3dAllineate -1Dmatrix_save does, e.g. mr_to_ct.aff12.1D",
+            path.display()
+        )));
+    }
     if format == TransformFormat::Dicom && !extension("dcm") {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: a DICOM registration is written to one file named .dcm, e.g. mr_to_ct_reg.dcm",
@@ -332,7 +348,45 @@ pub fn write_transform(
             write_flirt(path, transform, (fixed.dims, &fixed.lps_from_index), (moving.dims, &moving.lps_from_index))?;
             Written::Fsl
         }
+        TransformFormat::Afni => {
+            write_afni(path, transform, &pair.fixed.lps_from_index, &pair.moving.lps_from_index)?;
+            Written::Afni
+        }
     })
+}
+
+/// Writes the affine `transform` (the pull-back, LPS mm) as AFNI's matrix file between volumes whose grids are
+/// `fixed` (AFNI's base) and `moving` (its source), neither oblique ([`warpbench_io::afni`]).
+///
+/// # Errors
+/// A transform that is not affine, an oblique volume, or what the writer refuses.
+pub fn write_afni(
+    path: &Path,
+    transform: &ItkTransform,
+    fixed: &Transform<Lps, Index>,
+    moving: &Transform<Lps, Index>,
+) -> Result<(), Failure> {
+    let u = affine_matrix(path, transform, "AFNI's matrix file")?;
+    afni::check_cardinal(path, "fixed", fixed)?;
+    afni::check_cardinal(path, "moving", moving)?;
+    afni::write(path, &u)?;
+    Ok(())
+}
+
+/// The affine `transform` as a 4 × 4 matrix; `what` names the file format that holds nothing else, in the refusal.
+fn affine_matrix(path: &Path, transform: &ItkTransform, what: &str) -> Result<Matrix4<f64>, Failure> {
+    let ItkTransform::Affine(affine) = transform else {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: {what} holds an affine only, not a {}: use --method affine, similarity or rigid (or a starting \
+             transform alone), or write the deformable warp as a displacement field",
+            path.display(),
+            transform.type_name()
+        )));
+    };
+    let mut u = Matrix4::identity();
+    u.fixed_view_mut::<3, 3>(0, 0).copy_from(&affine.matrix);
+    u.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(affine.offset()));
+    Ok(u)
 }
 
 /// Writes the affine `transform` (the pull-back, LPS mm) as FSL's FLIRT matrix between the `fixed` grid, FLIRT's
@@ -341,18 +395,7 @@ pub fn write_transform(
 /// # Errors
 /// A transform that is not affine (a FLIRT matrix holds nothing else), or what the writer refuses.
 pub fn write_flirt(path: &Path, transform: &ItkTransform, fixed: fsl::Grid, moving: fsl::Grid) -> Result<(), Failure> {
-    let ItkTransform::Affine(affine) = transform else {
-        return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: FSL's FLIRT matrix holds an affine only, not a {}: use --method affine, similarity or rigid (or a \
-             starting transform alone), or write the deformable warp as a displacement field",
-            path.display(),
-            transform.type_name()
-        )));
-    };
-    let offset = affine.offset();
-    let mut u = Matrix4::identity();
-    u.fixed_view_mut::<3, 3>(0, 0).copy_from(&affine.matrix);
-    u.fixed_view_mut::<3, 1>(0, 3).copy_from(&Vector3::from(offset));
+    let u = affine_matrix(path, transform, "FSL's FLIRT matrix")?;
     fsl::write(path, &fsl::flirt_from(path, &u, fixed, moving)?)?;
     Ok(())
 }
@@ -536,11 +579,12 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             FieldFormat::MetaImage,
             &input_paths,
         )?;
-    } else if format == TransformFormat::Fsl && layered {
+    } else if matches!(format, TransformFormat::Fsl | TransformFormat::Afni) && layered {
         return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: FSL's FLIRT matrix holds an affine only, and this warp has {} as a layer: write it as a \
-             displacement field (`warpbench field`) or as ITK's HDF5 transform file (--out NAME.h5)",
+            "{}: {} holds an affine only, and this warp has {} as a layer: write it as a displacement field \
+             (`warpbench field`) or as ITK's HDF5 transform file (--out NAME.h5)",
             out_path.display(),
+            if format == TransformFormat::Fsl { "FSL's FLIRT matrix" } else { "AFNI's matrix file" },
             if inputs.warp.base_field.is_some() { "a displacement field" } else { "the session's brush strokes" }
         )));
     } else if !inputs.warp.brush.is_empty() && format == TransformFormat::Itk && !h5_field {
@@ -668,18 +712,18 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             format: format.name(),
             elastix_transform: match written {
                 Written::Elastix(class) => Some(class),
-                Written::Itk | Written::Dicom(_) | Written::Fsl => None,
+                Written::Itk | Written::Dicom(_) | Written::Fsl | Written::Afni => None,
             },
             dicom_matrix_type: match written {
                 Written::Dicom(kind) => Some(kind.name()),
-                Written::Itk | Written::Elastix(_) | Written::Fsl => None,
+                Written::Itk | Written::Elastix(_) | Written::Fsl | Written::Afni => None,
             },
             field: None,
             method: exact.method,
             pairs: exact.pairs,
             map: match format {
                 TransformFormat::Dicom | TransformFormat::Fsl => "fixed_from_moving",
-                TransformFormat::Itk | TransformFormat::Elastix => "moving_from_fixed",
+                TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Afni => "moving_from_fixed",
             },
             domain_lps: exact.domain_lps,
             warnings: exact.warnings,
@@ -702,6 +746,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             summary.elastix_transform.or(summary.dicom_matrix_type).unwrap_or(match format {
                 TransformFormat::Dicom => "Deformable Spatial Registration",
                 TransformFormat::Fsl => "FLIRT matrix",
+                TransformFormat::Afni => "AFNI matrix",
                 _ => summary.itk_class,
             }),
             summary.method,

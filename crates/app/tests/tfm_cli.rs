@@ -707,4 +707,13 @@ fn info_describes_a_transform_file_by_what_it_holds() {
     let text = warpbench(&["info", utf8(&flirt)]);
     let text = String::from_utf8_lossy(&text.stdout);
     assert!(text.contains("FSL FLIRT matrix") && text.contains("--fixed as FLIRT's -ref"), "{text}");
+    // AFNI's matrix file: the same, its base and source the two volumes.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let afni = dir.path().join("mr_to_ct.aff12.1D");
+    std::fs::write(&afni, "# 3dAllineate matrices (DICOM-to-DICOM, row-by-row):\n1 0 0 2 0 1 0 -1 0 0 1 0.5\n")
+        .expect("write");
+    let run = warpbench(&["info", utf8(&afni), "--json"]);
+    assert_ok(&run);
+    let v: Value = serde_json::from_slice(&run.stdout).expect("JSON");
+    assert_eq!((v["format"].as_str(), v["read_as"].as_str()), (Some("afni"), Some("starting_transform")));
 }

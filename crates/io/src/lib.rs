@@ -19,6 +19,7 @@
 //! Every error names the file and the problem ([`Error`]); bad input never panics, sizes are
 //! checked before allocating, and writers replace their output atomically ([`write_atomic`]).
 
+pub mod afni;
 pub mod atomic;
 pub mod dicom;
 pub mod dicom_reg;

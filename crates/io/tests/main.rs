@@ -3,6 +3,7 @@
 //!
 //! Run one file's tests with its module name as the filter, e.g. `cargo test -p warpbench-io --test io nifti::`.
 
+mod afni;
 mod ants_mat;
 mod bad_inputs;
 mod dicom;

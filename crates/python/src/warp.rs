@@ -220,6 +220,13 @@ impl Warp {
                             path.display()
                         )));
                     }
+                    StartFile::Afni { .. } => {
+                        return Err(PyValueError::new_err(format!(
+                            "initial={}: an AFNI matrix is read with the two volumes, to refuse oblique ones: give \
+                             fixed= (AFNI's base) and moving= (its source)",
+                            path.display()
+                        )));
+                    }
                 },
             };
             let mut layers = Layers::new(start, None);
@@ -522,6 +529,22 @@ impl Warp {
             let transform = self.pullback.itk_transform().map_err(bad_input)?;
             transform::write_flirt(&path, &transform, (*fixed_dims, fixed_lps), (*moving_dims, moving_lps))
                 .map_err(|f| to_py(&f))
+        })
+    }
+
+    /// Writes the pull-back, a linear warp, as AFNI's matrix file (`.aff12.1D`) between the volumes the warp was
+    /// fitted with, as `warpbench transform --format afni` writes it.
+    fn to_afni(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        let Some(((_, fixed_lps), (_, moving_lps))) = &self.grids else {
+            return Err(PyValueError::new_err(format!(
+                "{}: an AFNI matrix is written between two volumes that are not oblique: fit the warp with fixed= \
+                 and moving=",
+                path.display()
+            )));
+        };
+        guarded(py, || {
+            let transform = self.pullback.itk_transform().map_err(bad_input)?;
+            transform::write_afni(&path, &transform, fixed_lps, moving_lps).map_err(|f| to_py(&f))
         })
     }
 

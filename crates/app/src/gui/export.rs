@@ -362,6 +362,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Elastix => extension == "txt",
         TransformFormat::Dicom => extension == "dcm",
         TransformFormat::Fsl => matches!(extension.as_str(), "mat" | "txt" | "xfm"),
+        TransformFormat::Afni => extension == "1d",
     };
     if fits {
         return transform::check_transform_name(out, format).map_err(|f| format!("{:#}", f.error()));
@@ -375,6 +376,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         }
         TransformFormat::Dicom => format!("{}: a DICOM registration is a .dcm (e.g. mr_to_ct_reg.dcm)", out.display()),
         TransformFormat::Fsl => format!("{}: FSL's FLIRT matrix is a .mat (e.g. mr_to_ct.mat)", out.display()),
+        TransformFormat::Afni => format!("{}: AFNI's matrix file is a .1D (e.g. mr_to_ct.aff12.1D)", out.display()),
     })
 }
 

@@ -227,6 +227,7 @@ impl Purpose {
                 d.add_filter("elastix transform parameter file", &["txt"]).set_file_name("TransformParameters.0.txt")
             }
             Self::ExportTransform(TransformFormat::Fsl) => d.add_filter("FSL FLIRT matrix", &["mat"]),
+            Self::ExportTransform(TransformFormat::Afni) => d.add_filter("AFNI matrix file", &["1D"]),
             Self::ExportTransform(TransformFormat::Dicom) => {
                 d.add_filter("DICOM Spatial Registration", &["dcm"]).set_file_name("registration.dcm")
             }
@@ -527,6 +528,7 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
             OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Dicom)),
         );
         item(ui, "Export for FSL...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Fsl)));
+        item(ui, "Export for AFNI...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Afni)));
         ui.separator();
         item(ui, "Use starting transform...", ready, OpenEvent::Dialog(Purpose::UseStart));
         item(ui, "Use displacement field...", ready, OpenEvent::Dialog(Purpose::UseField));

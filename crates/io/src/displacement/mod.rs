@@ -113,12 +113,19 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
             direction: Some(FieldDirection::Pullback),
         });
     }
-    if crate::fsl::looks_like_flirt_matrix(&head) {
-        return Err(Error::unsupported(
-            path,
-            "FSL's FLIRT matrix, an affine and not a displacement field: it is a starting transform (--initial, or \
-             the window's starting transform from a file)",
-        ));
+    for (looks, what) in [
+        (crate::fsl::looks_like_flirt_matrix(&head), "FSL's FLIRT matrix"),
+        (crate::afni::looks_like_afni_matrix(&head), "AFNI's matrix file"),
+    ] {
+        if looks {
+            return Err(Error::unsupported(
+                path,
+                format!(
+                    "{what}, an affine and not a displacement field: it is a starting transform (--initial, or the \
+                     window's starting transform from a file)"
+                ),
+            ));
+        }
     }
     Err(Error::unsupported(
         path,

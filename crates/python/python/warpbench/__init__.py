@@ -436,6 +436,12 @@ class Warp:
         moving one as its ``-in``, as ``warpbench transform --format fsl`` does. Needs ``fixed=`` and ``moving=``."""
         self._native.to_fsl(os.fspath(path))
 
+    def to_afni(self, path: PathLike) -> None:
+        """Writes a linear warp as AFNI's matrix file (``.aff12.1D``, for ``3dAllineate -1Dmatrix_apply``), the fixed
+        volume as AFNI's base and the moving one as its source, as ``warpbench transform --format afni`` does. Needs
+        ``fixed=`` and ``moving=``, neither oblique."""
+        self._native.to_afni(os.fspath(path))
+
     def to_elastix(self, path: PathLike, reference: Optional["Volume"] = None) -> None:
         """Writes the pull-back as the elastix transform parameter file that holds it exactly (``SplineKernelTransform``,
         ``BSplineTransform``, ``AffineTransform``), naming ``reference``'s grid (default: the fixed volume's) as
@@ -525,7 +531,8 @@ def fit(
         initial: an ITK linear ``.tfm`` (affine, Euler, versor rigid, similarity, ...), an ANTs ``.mat`` or an ITK
             ``.h5`` of affines (fixed points to moving points) under the landmark warp,
             as ``warpbench align`` writes it; or FSL's FLIRT matrix, read against ``fixed`` (FLIRT's ``-ref``) and
-            ``moving`` (its ``-in``), which it needs.
+            ``moving`` (its ``-in``), which it needs; or AFNI's ``.aff12.1D`` (``fixed`` its base, ``moving`` its
+            source, neither oblique), which needs them too.
         fixed, moving: the volumes (only their grids are read). With them the pairs are checked to lie inside,
             and the fit's domains are their boxes, as on the command line; without them, the points' box grown by
             a tenth (it matters only to ``hbspline``).
