@@ -23,6 +23,7 @@ seed itk_tfm itk '*.mat'
 seed dicom_reg dicom_reg '*.dcm'
 seed learn2reg learn2reg '*.npz'
 seed learn2reg learn2reg '*.nii*'
+seed matrix_text fsl '*.mat'
 
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {
