@@ -55,7 +55,7 @@ impl Start {
     /// [`warpbench_io::itk_h5::read_affine`]), a DICOM Spatial Registration ([`warpbench_io::dicom_reg::read_affine`]),
     /// or an elastix transform parameter file holding a linear transform (and
     /// its chain of initial transforms, [`warpbench_io::elastix::read_affine`]): fixed points to moving points, LPS mm.
-    /// A FLIRT matrix, which needs the two volumes, is refused here ([`Self::read_on`] takes it).
+    /// A FLIRT or AFNI matrix, which needs the two volumes, is refused here ([`Self::read_on`] takes it).
     ///
     /// # Errors
     /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.
@@ -73,7 +73,8 @@ impl Start {
         }
     }
 
-    /// [`Self::read`], a FLIRT matrix too: read against `fixed` (FLIRT's reference) and `moving` (its input).
+    /// [`Self::read`], FLIRT's and AFNI's matrices too: read against `fixed` (FLIRT's reference, AFNI's base) and
+    /// `moving` (FLIRT's input, AFNI's source).
     ///
     /// # Errors
     /// As [`Self::read`] and [`StartFile::on`].
@@ -141,11 +142,11 @@ pub enum StartFile {
 }
 
 impl StartFile {
-    /// Reads a starting transform's file ([`Start::read`]), or a FLIRT matrix (told by its content: four lines of
-    /// four numbers).
+    /// Reads a starting transform's file ([`Start::read`]), a FLIRT matrix (told by its content: four lines of four
+    /// numbers) or an AFNI matrix file (rows of twelve numbers).
     ///
     /// # Errors
-    /// As [`Start::read`]; a FLIRT matrix that cannot be read.
+    /// As [`Start::read`]; a FLIRT or AFNI matrix that cannot be read.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let head = head(path);
         if fsl::looks_like_flirt_matrix(&head) {
@@ -159,10 +160,11 @@ impl StartFile {
         Start::read_lps(path, &head).map(Self::Lps)
     }
 
-    /// T₀, with a FLIRT matrix read against `fixed` (its reference, `-ref`) and `moving` (its input, `-in`).
+    /// T₀, with a FLIRT matrix read against `fixed` (its reference, `-ref`) and `moving` (its input, `-in`), and an
+    /// AFNI matrix taken between them when neither is oblique.
     ///
     /// # Errors
-    /// A FLIRT matrix or a grid that cannot be inverted.
+    /// A FLIRT matrix or a grid that cannot be inverted; an oblique volume under an AFNI matrix.
     pub fn on(self, fixed: &Volume, moving: &Volume) -> anyhow::Result<Start> {
         match self {
             Self::Lps(start) => Ok(start),

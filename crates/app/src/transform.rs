@@ -53,8 +53,7 @@ use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_io::transform_file;
-use warpbench_io::{Volume, volume};
-use warpbench_io::{afni, fsl};
+use warpbench_io::{Volume, afni, fsl, volume};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -189,7 +188,7 @@ pub enum Written {
 }
 
 impl Written {
-    /// How messages name what was written: the elastix class, the DICOM matrix type, FLIRT's matrix, else
+    /// How messages name what was written: the elastix class, the DICOM matrix type, FLIRT's or AFNI's matrix, else
     /// `itk_class`.
     #[must_use]
     pub const fn class(self, itk_class: &'static str) -> &'static str {

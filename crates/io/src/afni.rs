@@ -39,11 +39,20 @@ fn rows(text: &str) -> Vec<&str> {
 }
 
 /// Whether `head` (a file's first bytes) is meant as an AFNI matrix file: text whose rows are each twelve numbers
-/// ([`parse`] says what else it needs).
+/// ([`parse`] says what else it needs). A last row without its line end may be cut by the head's length (3dvolreg's
+/// file of many rows), and is not looked at.
 #[must_use]
 pub fn looks_like_afni_matrix(head: &[u8]) -> bool {
-    let Ok(text) = std::str::from_utf8(head) else { return false };
-    let rows = rows(text);
+    // A multi-byte character cut at the end of the head is not an error of the file.
+    let text = match std::str::from_utf8(head) {
+        Ok(text) => text,
+        Err(e) if e.error_len().is_none() => std::str::from_utf8(&head[..e.valid_up_to()]).unwrap_or_default(),
+        Err(_) => return false,
+    };
+    let mut rows = rows(text);
+    if rows.len() > 1 && !text.ends_with('\n') {
+        rows.pop();
+    }
     !rows.is_empty()
         && rows.iter().all(|row| {
             let values: Vec<&str> = row.split_whitespace().collect();

@@ -27,6 +27,11 @@ fn the_documentations_matrices_read_row_by_row() {
     assert!(afni::looks_like_afni_matrix(both.as_bytes()));
     let e = afni::parse(name, &both).expect_err("two matrices").to_string();
     assert!(e.contains("volreg.aff12.1D") && e.contains("2 matrices"), "{e}");
+    // A long run's file is told by its first 4 KiB, whose last row is cut.
+    let long = format!("{header}\n{}", format!("{}\n", DOC_ROWS[0]).repeat(60));
+    assert!(long.len() > 4096 && afni::looks_like_afni_matrix(&long.as_bytes()[..4096]));
+    let e = afni::parse(name, &long).expect_err("60 matrices").to_string();
+    assert!(e.contains("60 matrices"), "{e}");
     for row in DOC_ROWS {
         let m = afni::parse(name, &format!("{header}\n{row}\n")).expect("one matrix");
         let numbers: Vec<f64> = row.split_whitespace().map(|v| v.parse().expect("a number")).collect();

@@ -94,11 +94,15 @@ def test_afni_refusals(tmp_path: Path) -> None:
     base = ["points", "--landmarks", none, "--from", "fixed", "--in", targets, "--out", tmp_path / "o.csv"]
     done = run_cli(*base, "--fixed", oblique, "--moving", lps, "--initial", afni, expect=2)
     assert "start.aff12.1D" in done.stderr and "fixed volume is oblique" in done.stderr
-    # 3dvolreg's file: one matrix per sub-brick.
+    # 3dvolreg's file: one matrix per sub-brick, here 60 rows as its documentation shows them (6.6 kB: more than the
+    # head a file is told by).
     volreg = tmp_path / "volreg.aff12.1D"
-    volreg.write_text("# 3dvolreg matrices (DICOM-to-DICOM, row-by-row):\n" + "1 0 0 0 0 1 0 0 0 0 1 0\n" * 3)
+    row = (" 1 0.000906864 -0.000222938 -0.0564219 -0.000908728 0.999963 -0.00850925 -0.660097 0.000215214"
+           " 0.00850945 0.999964 0.579968\n")
+    volreg.write_text("# 3dvolreg matrices (DICOM-to-DICOM, row-by-row):\n" + row * 60)
+    assert volreg.stat().st_size > 4096
     done = run_cli(*base, "--fixed", las, "--moving", lps, "--initial", volreg, expect=2)
-    assert "volreg.aff12.1D" in done.stderr and "3 matrices" in done.stderr
+    assert "volreg.aff12.1D" in done.stderr and "60 matrices" in done.stderr
     # A TPS has no AFNI matrix; nor does an oblique pair.
     pairs = tmp_path / "pairs.csv"
     pairs.write_text(pair_rows("las", "lps", np.random.default_rng(2)))
