@@ -1,6 +1,6 @@
 //! The starting transform of a registration (issue 18, item 1): an affine pull-back T₀ = `moving_from_fixed`, found
-//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`, or ANTs' `.mat` of one), that the
-//! landmark warp refines.
+//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`, ANTs' `.mat` of one, or FSL's and AFNI's
+//! matrices, read against the two volumes: [`StartFile`]), that the landmark warp refines.
 //!
 //! With pairs (pᵢ moving, qᵢ fixed) the landmark warp is fitted on top of T₀ in each direction, in the frame where
 //! T₀ has already acted, and put after it:
@@ -203,7 +203,7 @@ fn head(path: &Path) -> Vec<u8> {
 }
 
 /// The starting transform a subcommand was given: a session's (already read with it), else `--initial`'s file, read
-/// (a FLIRT matrix against `fixed` and `moving`).
+/// (a FLIRT or AFNI matrix against `fixed` and `moving`).
 ///
 /// # Errors
 /// As [`Start::read_on`].
