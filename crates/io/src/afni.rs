@@ -15,13 +15,12 @@
 //! one you mean), in a text file of at most 64 KiB; anything else is refused, naming the file. Writing puts AFNI's
 //! comment line and the row, each number as the shortest decimal that reads back to it.
 
-use std::io::Read;
 use std::path::Path;
 
 use nalgebra::Matrix4;
 
 use crate::error::{Error, Result};
-use crate::files::check_regular_file;
+use crate::files::read_small_text;
 use crate::geometry::{Index, Lps, Transform};
 
 /// The largest file read (3dvolreg's one row per sub-brick of a long run stays well under it).
@@ -66,16 +65,7 @@ pub fn looks_like_afni_matrix(head: &[u8]) -> bool {
 /// A file that is not a regular file or cannot be read, one larger than 64 KiB, or text that is not one AFNI matrix;
 /// the message names the file.
 pub fn read(path: &Path) -> Result<Matrix4<f64>> {
-    let meta = check_regular_file(path)?;
-    if meta.len() > MAX_BYTES {
-        return Err(Error::invalid(path, format!("{} bytes: not an AFNI matrix file (.aff12.1D)", meta.len())));
-    }
-    let mut bytes = Vec::new();
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MAX_BYTES).read_to_end(&mut bytes))
-        .map_err(|e| Error::io(path, e))?;
-    let text = std::str::from_utf8(&bytes).map_err(|_| Error::invalid(path, "not text: not an AFNI matrix file"))?;
-    parse(path, text)
+    parse(path, &read_small_text(path, MAX_BYTES, "an AFNI matrix file (.aff12.1D)")?)
 }
 
 /// Parses an AFNI matrix file's text (module docs); `path` names it in errors.

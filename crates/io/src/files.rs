@@ -19,6 +19,18 @@ pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
     Err(Error::new(path, ErrorKind::NotARegularFile { what }))
 }
 
+/// The text of the small regular file `path`: refused, naming `what` it is not, when it is larger than `max` bytes
+/// or not UTF-8 (a matrix file of FSL or AFNI).
+pub(crate) fn read_small_text(path: &Path, max: u64, what: &str) -> Result<String> {
+    let meta = check_regular_file(path)?;
+    if meta.len() > max {
+        return Err(Error::invalid(path, format!("{} bytes: not {what}", meta.len())));
+    }
+    let mut bytes = Vec::new();
+    File::open(path).and_then(|f| f.take(max).read_to_end(&mut bytes)).map_err(|e| Error::io(path, e))?;
+    String::from_utf8(bytes).map_err(|_| Error::invalid(path, format!("not text: not {what}")))
+}
+
 /// Opens the regular file `path` and hands `read_from` its buffered reader, its length and its folder (where a
 /// header's detached data file is looked for): the entry point of the readers of headers with data beside them.
 pub(crate) fn read_header_file<T>(

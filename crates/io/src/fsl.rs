@@ -23,13 +23,12 @@
 //! (0, 0, 0, 1) within 1e-6, in a file of at most 4 KiB; anything else is refused, naming the file. Writing puts
 //! each row on a line, twelve decimals, two spaces apart, as FLIRT writes its own (with six).
 
-use std::io::Read;
 use std::path::Path;
 
 use nalgebra::{Matrix3, Matrix4};
 
 use crate::error::{Error, Result};
-use crate::files::check_regular_file;
+use crate::files::read_small_text;
 use crate::geometry::{Index, Lps, Transform};
 
 /// The largest FLIRT matrix file read (FLIRT's own are about 150 bytes).
@@ -59,20 +58,7 @@ pub fn looks_like_flirt_matrix(head: &[u8]) -> bool {
 /// A file that is not a regular file or cannot be read, one larger than 4 KiB, or text that is not a FLIRT matrix;
 /// the message names the file.
 pub fn read(path: &Path) -> Result<Matrix4<f64>> {
-    let meta = check_regular_file(path)?;
-    if meta.len() > MAX_BYTES {
-        return Err(Error::invalid(
-            path,
-            format!("{} bytes: not a FLIRT matrix (four lines of four numbers)", meta.len()),
-        ));
-    }
-    let mut bytes = Vec::new();
-    std::fs::File::open(path)
-        .and_then(|f| f.take(MAX_BYTES).read_to_end(&mut bytes))
-        .map_err(|e| Error::io(path, e))?;
-    let text = std::str::from_utf8(&bytes)
-        .map_err(|_| Error::invalid(path, "not text: not a FLIRT matrix (four lines of four numbers)"))?;
-    parse(path, text)
+    parse(path, &read_small_text(path, MAX_BYTES, "a FLIRT matrix (four lines of four numbers)")?)
 }
 
 /// Parses a FLIRT matrix's text (module docs); `path` names it in errors.
