@@ -36,7 +36,8 @@ Rigid (6 parameters), or with --affine rigid then affine (12), maximising the Ma
 two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1), from their centres of mass.
 The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
 writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. A name ending in .mat
-writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0GenericAffine.mat). Examples:
+writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0GenericAffine.mat); one ending in
+.1D (.aff12.1D) as AFNI's matrix file, for 3dAllineate -1Dmatrix_apply, when neither volume is oblique. Examples:
 
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.mat --affine --json";
@@ -51,8 +52,8 @@ writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0Ge
 pub struct AlignArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
-    /// The ITK transform file to write (.tfm or .txt; .h5 for ITK's HDF5 file, .mat for ANTs' MATLAB file): the
-    /// pull-back, fixed points to moving points.
+    /// The ITK transform file to write (.tfm or .txt; .h5 for ITK's HDF5 file, .mat for ANTs' MATLAB file; .aff12.1D
+    /// for AFNI's matrix file): the pull-back, fixed points to moving points.
     #[arg(long, value_name = "FILE")]
     pub out_tfm: PathBuf,
     /// Refine the rigid result to an affine one (12 parameters) at the finest level.
@@ -111,6 +112,12 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
         ..AlignParams::default()
     };
     let (fixed_volume, moving_volume) = load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    // AFNI's matrix file holds the alignment only between volumes that are not oblique: refused before aligning.
+    let afni_out = warpbench_io::afni::is_afni_name(&out_tfm);
+    if afni_out {
+        warpbench_io::afni::check_cardinal(&out_tfm, "fixed", &fixed_volume.lps_from_index)?;
+        warpbench_io::afni::check_cardinal(&out_tfm, "moving", &moving_volume.lps_from_index)?;
+    }
     let fixed_image = Image::<Fixed>::from_volume(&fixed_volume, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", fixed.display())))?;
     let moving_image = Image::<Moving>::from_volume(&moving_volume, Parallelism::Rayon)
@@ -121,7 +128,11 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("aligning {} to {}: {e}", moving.display(), fixed.display())))?;
     let align_s = started.elapsed().as_secs_f64();
     let t = &result.moving_from_fixed;
-    transform_file::write(&out_tfm, &ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation())))?;
+    if afni_out {
+        warpbench_io::afni::write(&out_tfm, t.matrix())?;
+    } else {
+        transform_file::write(&out_tfm, &ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation())))?;
+    }
 
     let dims = fixed_image.dims();
     let centre = warpbench_io::geometry::Point3::<Fixed>::from_array(

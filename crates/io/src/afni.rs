@@ -32,6 +32,12 @@ const HEADER: &str = "# 3dAllineate matrices (DICOM-to-DICOM, row-by-row):";
 /// An oblique axis: more than this many degrees from the nearest axis of the patient space.
 pub const OBLIQUE_DEGREES: f64 = 0.01;
 
+/// Whether `path` is named as AFNI's matrix files are: ending `.1D` (`.aff12.1D`), in any case.
+#[must_use]
+pub fn is_afni_name(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("1d"))
+}
+
 /// The rows of `text` that are not comments or blank.
 fn rows(text: &str) -> Vec<&str> {
     text.lines().map(str::trim).filter(|l| !l.is_empty() && !l.starts_with('#')).collect()

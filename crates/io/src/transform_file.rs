@@ -16,6 +16,13 @@ use crate::itk_tfm::{self, ItkTransform};
 /// What [`itk_h5::write`] or [`itk_tfm::write`] refuse (a transform ITK cannot take, a spline in a `.mat`), or the
 /// write itself; nothing is written then.
 pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
+    if crate::afni::is_afni_name(path) {
+        return Err(crate::Error::invalid(
+            path,
+            "a name ending .1D is AFNI's matrix file, not an ITK transform file: name it .tfm, .h5 or .mat, or write \
+             AFNI's file (transform --format afni)",
+        ));
+    }
     if itk_tfm::is_hdf5_name(path) {
         itk_h5::write(path, &[H5Transform::Transform(transform)])
     } else {

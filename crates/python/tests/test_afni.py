@@ -83,6 +83,35 @@ def test_transform_writes_the_afni_matrix_nitransforms_reads(tmp_path: Path, met
     assert (tmp_path / "python.aff12.1D").read_bytes() == out.read_bytes()
 
 
+def test_align_writes_its_result_for_afni_as_its_tfm(tmp_path: Path) -> None:
+    """``align --out-tfm NAME.aff12.1D`` writes the alignment as AFNI's matrix file: nitransforms reads it to the
+    transform SimpleITK reads from the ``.tfm`` of the same seeded run. An oblique volume is refused before
+    aligning, and an ITK writer given a ``.1D`` name refuses it."""
+    sitk = pytest.importorskip("SimpleITK")
+    from test_ants_mat_sitk import pair  # noqa: PLC0415
+
+    fixed, moving = pair(tmp_path)
+    tfm, afni = tmp_path / "start.tfm", tmp_path / "start.aff12.1D"
+    for out in (tfm, afni):
+        run_cli("align", "--fixed", fixed, "--moving", moving, "--seed", "7", "--quiet", "--out-tfm", out)
+    theirs = nitl.load(afni, fmt="afni", reference=str(fixed), moving=str(moving))
+    itk = sitk.ReadTransform(str(tfm))
+    points = np.random.default_rng(1).uniform(-30.0, 30.0, (8, 3))
+    want = np.array([itk.TransformPoint(tuple(p)) for p in points])
+    assert np.abs(want - points).max() > 0.5, "the alignment moves points"
+    # The shortest decimals that read back (AFNI's file) against the .tfm's 17 significant digits.
+    np.testing.assert_allclose(apply_lps(theirs, points), want, rtol=0, atol=1e-9)
+    oblique = FSL_DATA / "oblique.nii.gz"
+    done = run_cli("align", "--fixed", oblique, "--moving", moving, "--quiet", "--out-tfm", tmp_path / "o.aff12.1D",
+                   expect=2)
+    assert "o.aff12.1D" in done.stderr and "fixed volume is oblique" in done.stderr
+    none = tmp_path / "none.csv"
+    none.write_text("")
+    done = run_cli("transform", "--fixed", fixed, "--moving", moving, "--initial", tfm, "--landmarks", none,
+                   "--out", tmp_path / "itk.1D", "--quiet", expect=2)
+    assert "itk.1D" in done.stderr and "AFNI's matrix file, not an ITK transform file" in done.stderr
+
+
 def test_afni_refusals(tmp_path: Path) -> None:
     las, lps, oblique = (FSL_DATA / f"{n}.nii.gz" for n in ("las", "lps", "oblique"))
     afni = tmp_path / "start.aff12.1D"
