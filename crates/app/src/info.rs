@@ -69,8 +69,8 @@ pub enum InfoContent {
     Transform(Box<TransformInfo>),
 }
 
-/// A transform file's description: what an ITK `.tfm`, an `.h5` without a displacement field, ANTs' `.mat` or FSL's
-/// FLIRT matrix holds.
+/// A transform file's description: what an ITK `.tfm`, an `.h5` without a displacement field, ANTs' `.mat`, FSL's
+/// FLIRT matrix or AFNI's matrix file holds.
 #[derive(Debug, Serialize)]
 pub struct TransformInfo {
     /// `itk_tfm`, `itk_h5`, `ants_mat`, `fsl` for FSL's FLIRT matrix, or `afni` for AFNI's matrix file.

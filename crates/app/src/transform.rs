@@ -372,6 +372,23 @@ pub fn write_afni(
     Ok(())
 }
 
+/// The refusal of a warp with a field (`field`) or else a brush as a layer, for a `format` that holds an affine only
+/// (FSL's, AFNI's); `None` for the formats that hold more.
+#[must_use]
+pub fn affine_only(out: &Path, format: TransformFormat, field: bool) -> Option<Failure> {
+    let what = match format {
+        TransformFormat::Fsl => "FSL's FLIRT matrix",
+        TransformFormat::Afni => "AFNI's matrix file",
+        TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Dicom => return None,
+    };
+    Some(Failure::BadInput(anyhow::anyhow!(
+        "{}: {what} holds an affine only, and this warp has {} as a layer: write it as a displacement field or as \
+         ITK's HDF5 transform file (a name ending .h5)",
+        out.display(),
+        if field { "a displacement field" } else { "brush strokes" }
+    )))
+}
+
 /// The affine `transform` as a 4 × 4 matrix; `what` names the file format that holds nothing else, in the refusal.
 fn affine_matrix(path: &Path, transform: &ItkTransform, what: &str) -> Result<Matrix4<f64>, Failure> {
     let ItkTransform::Affine(affine) = transform else {
@@ -578,14 +595,8 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             FieldFormat::MetaImage,
             &input_paths,
         )?;
-    } else if matches!(format, TransformFormat::Fsl | TransformFormat::Afni) && layered {
-        return Err(Failure::BadInput(anyhow::anyhow!(
-            "{}: {} holds an affine only, and this warp has {} as a layer: write it as a displacement field \
-             (`warpbench field`) or as ITK's HDF5 transform file (--out NAME.h5)",
-            out_path.display(),
-            if format == TransformFormat::Fsl { "FSL's FLIRT matrix" } else { "AFNI's matrix file" },
-            if inputs.warp.base_field.is_some() { "a displacement field" } else { "the session's brush strokes" }
-        )));
+    } else if layered && let Some(refusal) = affine_only(&out_path, format, inputs.warp.base_field.is_some()) {
+        return Err(refusal);
     } else if !inputs.warp.brush.is_empty() && format == TransformFormat::Itk && !h5_field {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: the session's brush strokes have no exact ITK transform; name the output .h5 for ITK's HDF5 \

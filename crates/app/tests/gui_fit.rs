@@ -903,6 +903,12 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
     harness.state_mut().ready_mut().expect("ready").apply(export);
     let message = window::wait_for_export(&mut harness);
     assert!(message.contains(".h5") && !tfm_out.exists(), "{message}");
+    // FSL's FLIRT matrix holds an affine only: refused, saying so, and nothing written.
+    let flirt_out = dir.path().join("with_field.mat");
+    let export = Command::File(FileAction::ExportTransform(TransformFormat::Fsl, flirt_out.clone()));
+    harness.state_mut().ready_mut().expect("ready").apply(export);
+    let refused = window::wait_for_export(&mut harness);
+    assert!(refused.contains("holds an affine only") && !flirt_out.exists(), "{refused}");
     let h5_out = dir.path().join("with_field.h5");
     let export = Command::File(FileAction::ExportTransform(TransformFormat::Itk, h5_out.clone()));
     harness.state_mut().ready_mut().expect("ready").apply(export);

@@ -290,6 +290,10 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             ))
         }
         ExportKind::Transform { format } => {
+            let layered = layers.field.is_some() || layers.brush.is_some();
+            if let Some(refusal) = transform::affine_only(out, *format, layers.field.is_some()).filter(|_| layered) {
+                return Err(refusal);
+            }
             let exact = transform::exact_transform(&made_of)?;
             let pair = transform::VolumePair {
                 fixed,
@@ -298,10 +302,12 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 moving_path: input.moving_path.as_deref(),
             };
             let written = transform::write_transform(out, &exact, *format, pair)?;
-            let maps = if *format == TransformFormat::Dicom {
-                "moving patient coordinates to fixed ones"
-            } else {
-                "fixed points to moving points, LPS mm"
+            let maps = match format {
+                TransformFormat::Dicom => "moving patient coordinates to fixed ones",
+                TransformFormat::Fsl => "the moving volume's FSL coordinates to the fixed one's",
+                TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Afni => {
+                    "fixed points to moving points, LPS mm"
+                }
             };
             Ok(format!(
                 "wrote {}: {} as {} ({} pairs; maps {maps})",
