@@ -379,14 +379,76 @@ NITRANSFORMS_FILES = [
 ]
 
 
-def script_made(data: Path, heading: str, files: list[tuple[str, str]]) -> str:
+# FreeSurfer MGH / MGZ volumes written by nibabel.
+NIBABEL_MGH_MADE = """
+## `mgh/`: FreeSurfer MGH and MGZ volumes written by nibabel
+
+Not downloaded: `data-scripts/mgh_nibabel.py` has nibabel 5.4.2 (PyPI wheel `nibabel==5.4.2`, as `.ci/run` installs
+it) write small volumes of values the script makes up as `.mgh` and `.mgz`: 5 x 4 x 3 on an oblique grid with unequal
+voxel sizes in each MGH sample type (u8, i16, u16, i32, f32), a 4-D file of two frames and a 6 x 5 x 4 one in
+FreeSurfer's conformed orientation (LIA); `with_tags.mgz` is `oblique_i16.mgh` with FreeSurfer-style tags appended and
+`no_ras_flag.mgh` is `oblique_u8.mgh` with goodRASFlag 0, both made by the script. `mgh/reference.json` holds
+nibabel's reading of each: header fields, affine and voxels. gzip holds the time, so a rerun's `.mgz` bytes differ;
+the `.mgh` bytes and the reference do not. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+NIBABEL_MGH_FILES = [
+    (f"mgh/{name}.{ext}", "mgh_nibabel.py")
+    for name in ("oblique_u8", "oblique_i16", "oblique_u16", "oblique_i32", "oblique_f32", "frames_f32", "conformed_lia_u8")
+    for ext in ("mgh", "mgz")
+] + [
+    ("mgh/with_tags.mgz", "mgh_nibabel.py"),
+    ("mgh/no_ras_flag.mgh", "mgh_nibabel.py"),
+    ("mgh/reference.json", "mgh_nibabel.py"),
+]
+
+# FreeSurfer's LTA files, as FreeSurfer's programs wrote them, copied from the nitransforms wheel.
+NITRANSFORMS_LTA = """
+## `lta/`: FreeSurfer's LTA files, from nitransforms' test data
+
+Not downloaded by hand: `data-scripts/lta_nitransforms.py` copies them from the nitransforms 25.1.0 wheel (PyPI
+`nitransforms==25.1.0`, as `.ci/run` installs it; `nitransforms/tests/data/`, `regressions/` flattened to a
+`regressions_` prefix), MIT (the wheel's `LICENSE`, Copyright (c) 2021 The NiPy developers). Each file's first lines
+say which FreeSurfer program wrote it: `bold-to-t1w.v2v.lta` bbregister (fMRIPrep), `bold-to-t1w.lta` lta_convert from
+it; the `regressions_*.lta` bbregister, mri_robust_register, mri_concatenate_lta and lta_convert (fMRIPrep 20.0.5),
+beside the ITK `.tfm` of each transform; `affine-*.fs*.lta` nitransforms itself. `lta/reference.json` (ours) holds what
+nitransforms reads from each LTA.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+LTA_FILES = [
+    (f"lta/{name}", "lta_nitransforms.py", "MIT (nitransforms)")
+    for name in (
+        "bold-to-t1w.lta", "bold-to-t1w.v2v.lta", "affine-RAS.fs.lta", "affine-RAS.fs.v2v.lta",
+        "affine-oblique.fs.lta",
+        "regressions_from-fsnative_to-bold_mode-image.lta",
+        "regressions_from-fsnative_to-bold_mode-image_type-ras2ras.lta",
+        "regressions_from-scanner_to-bold_mode-image.lta",
+        "regressions_from-scanner_to-bold_mode-image_type-ras2ras.lta",
+        "regressions_from-fsnative_to-scanner_mode-image.lta",
+        "regressions_from-scanner_to-fsnative_mode-image.lta",
+        "regressions_from-fsnative_to-bold_mode-image.tfm",
+        "regressions_from-scanner_to-bold_mode-image.tfm",
+        "regressions_from-fsnative_to-scanner_mode-image.tfm",
+        "regressions_from-scanner_to-fsnative_mode-image.tfm",
+    )
+] + [("lta/reference.json", "lta_nitransforms.py")]
+
+
+def script_made(data: Path, heading: str, files: list[tuple[str, ...]]) -> str:
+    """The table of files a script made: (path, script) rows carry the code's licence, (path, script, licence) rows
+    their own (a file the script copied from a package)."""
     rows = [heading]
-    for rel, script in files:
+    for rel, script, *licence in files:
         p = data / rel
         if not p.is_file():
             continue
         sha = hashlib.sha256(p.read_bytes()).hexdigest()
-        rows.append(f"| `{rel}` | {p.stat().st_size:,} | `data-scripts/{script}` | `{sha}` | MIT OR Apache-2.0 |\n")
+        lic = licence[0] if licence else "MIT OR Apache-2.0"
+        rows.append(f"| `{rel}` | {p.stat().st_size:,} | `data-scripts/{script}` | `{sha}` | {lic} |\n")
     return "".join(rows)
 
 
@@ -423,6 +485,8 @@ def main() -> int:
     out.append(LANDMARKS_UPSTREAM)
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
     out.append(script_made(data, NITRANSFORMS_MADE, NITRANSFORMS_FILES))
+    out.append(script_made(data, NIBABEL_MGH_MADE, NIBABEL_MGH_FILES))
+    out.append(script_made(data, NITRANSFORMS_LTA, LTA_FILES))
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))

@@ -16,6 +16,7 @@ seed dicom bad '*.dcm'
 seed landmarks landmarks '*'
 seed metaimage metaimage '*.mh?'
 seed metaimage bad '*.mh?'
+seed mgh mgh '*.mg?'
 seed elastix elastix '*.txt'
 seed itk_h5 itk '*.h5'
 seed itk_tfm itk '*.tfm'
@@ -24,6 +25,7 @@ seed dicom_reg dicom_reg '*.dcm'
 seed learn2reg learn2reg '*.npz'
 seed learn2reg learn2reg '*.nii*'
 seed matrix_text fsl '*.mat'
+seed lta lta '*.lta'
 
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {

@@ -278,6 +278,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::NrrdSpace => ("nrrd_space", None),
             GeometrySource::NrrdSpacings => ("nrrd_spacings", None),
             GeometrySource::MetaImage => ("metaimage", None),
+            GeometrySource::Mgh => ("mgh", None),
             GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::ItkTransformFile => ("itk_transform", None),
             GeometrySource::Learn2RegFixedImage => ("learn2reg_fixed_image", None),
@@ -302,6 +303,7 @@ fn format_name(f: Format) -> &'static str {
         Format::Nrrd => "nrrd",
         Format::Dicom => "dicom",
         Format::MetaImage => "metaimage",
+        Format::Mgh => "mgh",
     }
 }
 

@@ -3,10 +3,10 @@
 //! Readers and writers for the volumes and landmarks that warpbench registers, all placed in one
 //! patient space: **LPS, in mm** (see `docs/spaces.md`).
 //!
-//! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, `.nhdr`) or
-//!   MetaImage (`.mha`, `.mhd`) file, a DICOM series folder or a single DICOM file into a [`Volume`];
-//!   [`write_volume`] writes one in the format its name says.
-//! - [`nifti`], [`nrrd`], [`metaimage`], [`dicom`]: the format modules, with their writers.
+//! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, `.nhdr`),
+//!   MetaImage (`.mha`, `.mhd`) or FreeSurfer MGH (`.mgh`, `.mgz`) file, a DICOM series folder or a single DICOM file
+//!   into a [`Volume`]; [`write_volume`] writes one in the format its name says.
+//! - [`nifti`], [`nrrd`], [`metaimage`], [`mgh`], [`dicom`]: the format modules, with their writers.
 //! - [`landmarks`]: landmark pairs and point lists: BigWarp CSV and JSON, Slicer `.mrk.json` / `.fcsv`, elastix
 //!   point files.
 //! - [`geometry`]: points, vectors and transforms that carry their space in the type.
@@ -36,7 +36,9 @@ pub mod itk_h5;
 pub mod itk_tfm;
 pub mod landmarks;
 pub mod learn2reg;
+pub mod lta;
 pub mod metaimage;
+pub mod mgh;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
@@ -66,11 +68,13 @@ pub enum Format {
     Dicom,
     /// MetaImage: `.mha`, or a `.mhd` header with its data file.
     MetaImage,
+    /// FreeSurfer MGH: `.mgh`, or gzip-compressed `.mgz` (`.mgh.gz`). Known by its name only: it has no magic bytes.
+    Mgh,
 }
 
 impl Format {
-    /// Detects the format of `path`: folders are DICOM series; files by extension, then by magic bytes (`NRRD`,
-    /// `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage).
+    /// Detects the format of `path`: folders are DICOM series; files by extension (the only way for MGH), then by
+    /// magic bytes (`NRRD`, `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage).
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn detect(path: &Path) -> Result<Self> {
         if check_file_or_folder(path)?.is_dir() {
@@ -89,6 +93,9 @@ impl Format {
         }
         if name.ends_with(".mha") || name.ends_with(".mhd") {
             return Ok(Self::MetaImage);
+        }
+        if mgh::has_mgh_name(path) {
+            return Ok(Self::Mgh);
         }
         let mut head = [0u8; 132];
         let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
@@ -123,6 +130,7 @@ impl LoadOptions<'_> {
             Format::Dicom if path.is_dir() => dicom::read_folder(path, self),
             Format::Dicom => dicom::read_files(&[path.to_path_buf()], self),
             Format::MetaImage => metaimage::read(path, self),
+            Format::Mgh => mgh::read(path, self),
         }?;
         // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
         volume.note_geometry_warnings();
@@ -131,13 +139,14 @@ impl LoadOptions<'_> {
 }
 
 /// Writes `volume` in the format its name says: NIfTI-1 for `.nii` and `.nii.gz` ([`nifti::write`]), NRRD for `.nrrd`
-/// ([`nrrd::write`]), MetaImage for `.mha` and `.mhd` ([`metaimage::write`]); any other name is an error that lists
-/// these. Atomic, as every writer.
+/// ([`nrrd::write`]), MetaImage for `.mha` and `.mhd` ([`metaimage::write`]), FreeSurfer MGH for `.mgh`, `.mgz` and
+/// `.mgh.gz` ([`mgh::write`]); any other name is an error that lists these. Atomic, as every writer.
 pub fn write_volume(path: &Path, volume: &Volume) -> Result<()> {
     match VolumeFileKind::of(path) {
         Some(VolumeFileKind::Nifti) => nifti::write(path, volume),
         Some(VolumeFileKind::Nrrd) => nrrd::write(path, volume),
         Some(VolumeFileKind::MetaImage) => metaimage::write(path, volume),
+        Some(VolumeFileKind::Mgh) => mgh::write(path, volume),
         None => Err(Error::unsupported(path, VolumeFileKind::EXPECTED)),
     }
 }
@@ -151,12 +160,14 @@ pub enum VolumeFileKind {
     Nrrd,
     /// `.mha`, `.mhd`.
     MetaImage,
+    /// `.mgh`, `.mgz` (gzip), `.mgh.gz`.
+    Mgh,
 }
 
 impl VolumeFileKind {
     /// What a volume output may be named, for messages.
-    pub const EXPECTED: &str =
-        "a volume is written as NIfTI (.nii, .nii.gz), NRRD (.nrrd) or MetaImage (.mha, or .mhd with a .raw)";
+    pub const EXPECTED: &str = "a volume is written as NIfTI (.nii, .nii.gz), NRRD (.nrrd), \
+         MetaImage (.mha, or .mhd with a .raw) or FreeSurfer MGH (.mgh, .mgz)";
 
     /// The format `path`'s name says (case ignored), if it is one [`write_volume`] writes.
     #[must_use]
@@ -169,6 +180,8 @@ impl VolumeFileKind {
             Some(Self::Nrrd)
         } else if name.ends_with(".mha") || name.ends_with(".mhd") {
             Some(Self::MetaImage)
+        } else if mgh::has_mgh_name(path) {
+            Some(Self::Mgh)
         } else {
             None
         }

@@ -23,6 +23,13 @@ pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
              AFNI's file (transform --format afni)",
         ));
     }
+    if crate::lta::is_lta_name(path) {
+        return Err(crate::Error::invalid(
+            path,
+            "a name ending .lta is FreeSurfer's transform file, not an ITK one: name it .tfm, .h5 or .mat, or write \
+             FreeSurfer's file (transform --format lta)",
+        ));
+    }
     if itk_tfm::is_hdf5_name(path) {
         itk_h5::write(path, &[H5Transform::Transform(transform)])
     } else {

@@ -180,6 +180,9 @@ pub enum GeometrySource {
     NrrdSpacings,
     /// MetaImage `TransformMatrix`, `ElementSpacing` and `Offset` (ITK's LPS; MetaIO's defaults where missing).
     MetaImage,
+    /// FreeSurfer MGH / MGZ: `[Mdc · diag(delta) | c_ras − Mdc · diag(delta) · dims/2]` in RAS, flipped to LPS; when
+    /// goodRASflag ≤ 0, FreeSurfer's coronal default (LIA, 1 mm, c_ras 0), with a warning in the metadata.
+    Mgh,
     /// An elastix transform parameter file's fixed grid: `Size`, `Spacing`, `Origin` and `Direction`.
     ElastixParameters,
     /// An ITK transform file's `DisplacementFieldTransform`: its fixed parameters (size, origin, spacing, direction).

@@ -20,6 +20,8 @@ mod itk_tps;
 mod jpegls;
 mod landmarks;
 mod learn2reg;
+mod lta;
 mod metaimage;
+mod mgh;
 mod nifti;
 mod nrrd;
