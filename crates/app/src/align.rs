@@ -37,7 +37,8 @@ two volumes (so an MRI aligns to a CT), over 3 resolution levels (--shrink 4,2,1
 The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm), as ITK's registration
 writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. A name ending in .mat
 writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0GenericAffine.mat); one ending in
-.1D (.aff12.1D) as AFNI's matrix file, for 3dAllineate -1Dmatrix_apply, when neither volume is oblique. Examples:
+.1D (.aff12.1D) as AFNI's matrix file, for 3dAllineate -1Dmatrix_apply, when neither volume is oblique; one
+ending in .lta as FreeSurfer's LTA (src the moving volume, dst the fixed one), for mri_vol2vol --lta. Examples:
 
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.mat --affine --json";
@@ -53,7 +54,7 @@ pub struct AlignArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
     /// The ITK transform file to write (.tfm or .txt; .h5 for ITK's HDF5 file, .mat for ANTs' MATLAB file; .aff12.1D
-    /// for AFNI's matrix file): the pull-back, fixed points to moving points.
+    /// for AFNI's matrix file, .lta for FreeSurfer's): the pull-back, fixed points to moving points.
     #[arg(long, value_name = "FILE")]
     pub out_tfm: PathBuf,
     /// Refine the rigid result to an affine one (12 parameters) at the finest level.
@@ -122,6 +123,8 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", fixed.display())))?;
     let moving_image = Image::<Moving>::from_volume(&moving_volume, Parallelism::Rayon)
         .map_err(|e| Failure::BadInput(anyhow::anyhow!("{}: {e}", moving.display())))?;
+    // FreeSurfer's LTA states the two volumes' grids.
+    let grids = ((fixed_volume.dims, fixed_volume.lps_from_index), (moving_volume.dims, moving_volume.lps_from_index));
     drop((fixed_volume, moving_volume));
     let started = Instant::now();
     let result = align(&fixed_image, &moving_image, &params)
@@ -130,6 +133,15 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
     let t = &result.moving_from_fixed;
     if afni_out {
         warpbench_io::afni::write(&out_tfm, t.matrix())?;
+    } else if warpbench_io::lta::is_lta_name(&out_tfm) {
+        let ((fixed_dims, fixed_grid), (moving_dims, moving_grid)) = &grids;
+        let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
+        warpbench_io::lta::write(
+            &out_tfm,
+            t.matrix(),
+            ((*fixed_dims, fixed_grid), &fixed_name),
+            ((*moving_dims, moving_grid), &moving_name),
+        )?;
     } else {
         transform_file::write(&out_tfm, &ItkTransform::Affine(ItkAffine::from_offset(t.linear(), t.translation())))?;
     }

@@ -63,7 +63,9 @@ pub struct PairArgs {
     /// antsRegistration's 0GenericAffine.mat), an ITK .h5 of affines, or elastix's linear TransformParameters.N.txt,
     /// mapping fixed points to moving points (LPS mm), as `warpbench align` writes it; or FSL's FLIRT matrix (flirt
     /// -omat), read against --fixed as its -ref and --moving as its -in; or AFNI's .aff12.1D (--fixed its base,
-    /// --moving its source, neither oblique). The landmark warp refines it; with fewer pairs than the method needs, it alone is the warp.
+    /// --moving its source, neither oblique); or FreeSurfer's .lta (mri_robust_register, bbregister), whose volume
+    /// info must name --fixed or --moving. The landmark warp refines it; with fewer pairs than the method needs, it
+    /// alone is the warp.
     #[arg(long, value_name = "TFM", conflicts_with = "session")]
     pub initial: Option<PathBuf>,
     /// A displacement field under the landmark warp, in mm: ITK's or ANTs' NIfTI, Slicer's NRRD, MetaImage, an ITK

@@ -21,8 +21,8 @@ const HELP: &str = "\
 Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype, value range,
 modality and series.
 
-Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd), a DICOM series folder or
-one DICOM file.
+Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd), FreeSurfer's MGH (.mgh, .mgz),
+a DICOM series folder or one DICOM file.
 A folder with several series lists them. A displacement field (any flavour warp --field reads, an ITK .h5 holding
 one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz) is described as a field: its flavour, the direction
 it states, its grid and its largest displacement. An ITK transform file (.tfm, .h5, ANTs' .mat) is described by the
@@ -70,15 +70,30 @@ pub enum InfoContent {
 }
 
 /// A transform file's description: what an ITK `.tfm`, an `.h5` without a displacement field, ANTs' `.mat`, FSL's
-/// FLIRT matrix or AFNI's matrix file holds.
+/// FLIRT matrix, AFNI's matrix file or FreeSurfer's LTA holds.
 #[derive(Debug, Serialize)]
 pub struct TransformInfo {
-    /// `itk_tfm`, `itk_h5`, `ants_mat`, `fsl` for FSL's FLIRT matrix, or `afni` for AFNI's matrix file.
+    /// `itk_tfm`, `itk_h5`, `ants_mat`, `fsl` for FSL's FLIRT matrix, `afni` for AFNI's matrix file, or `lta` for
+    /// FreeSurfer's LTA.
     pub format: &'static str,
     /// The transforms in the file's order (a composite's members; ITK applies the last one first).
     pub transforms: Vec<TransformMember>,
     /// How warpbench takes the file.
     pub read_as: ReadAs,
+    /// An LTA's type and volumes; null for the other formats.
+    pub lta: Option<LtaVolumes>,
+}
+
+/// What an LTA says of itself: its type and the volumes it maps from (src) and to (dst).
+#[derive(Debug, Serialize)]
+pub struct LtaVolumes {
+    /// `LINEAR_VOX_TO_VOX` or `LINEAR_RAS_TO_RAS`.
+    #[serde(rename = "type")]
+    pub kind: &'static str,
+    /// The src volume's file as FreeSurfer noted it (`""` when it noted none), null without valid volume info.
+    pub src: Option<String>,
+    /// The dst volume's, likewise.
+    pub dst: Option<String>,
 }
 
 /// One transform of a file.
@@ -128,8 +143,14 @@ impl TransformInfo {
         for (format, read) in [("fsl", warpbench_io::fsl::read as Reader), ("afni", warpbench_io::afni::read)] {
             if read(path).is_ok() {
                 let transforms = vec![member(MemberKind::Affine, None, None)];
-                return Some(Self { format, transforms, read_as: ReadAs::StartingTransform });
+                return Some(Self { format, transforms, read_as: ReadAs::StartingTransform, lta: None });
             }
+        }
+        if let Ok(lta) = warpbench_io::lta::read(path) {
+            let file = |v: &Option<warpbench_io::lta::VolumeInfo>| v.as_ref().map(|v| v.filename.clone());
+            let lta = LtaVolumes { kind: lta.kind.code_and_name().1, src: file(&lta.src), dst: file(&lta.dst) };
+            let transforms = vec![member(MemberKind::Affine, None, None)];
+            return Some(Self { format: "lta", transforms, read_as: ReadAs::StartingTransform, lta: Some(lta) });
         }
         let chain = warpbench_io::transform_file::read_chain(path).ok()?;
         let mut head = Vec::new();
@@ -166,7 +187,7 @@ impl TransformInfo {
         } else {
             ReadAs::DisplacementField
         };
-        Some(Self { format, transforms, read_as })
+        Some(Self { format, transforms, read_as, lta: None })
     }
 }
 
@@ -451,6 +472,21 @@ fn write_transform(t: &TransformInfo, out: &mut dyn Write) -> std::io::Result<()
         return writeln!(
             out,
             "  read as         a starting transform (--initial), against --fixed as FLIRT's -ref and --moving as its -in"
+        );
+    }
+    if let Some(lta) = &t.lta {
+        let name = |f: &Option<String>| match f.as_deref() {
+            None => "not stated".to_owned(),
+            Some("") => "a volume it does not name".to_owned(),
+            Some(f) => f.to_owned(),
+        };
+        writeln!(out, "  FreeSurfer LTA (lta), {}: an affine from src to dst", lta.kind)?;
+        writeln!(out, "  src             {}", name(&lta.src))?;
+        writeln!(out, "  dst             {}", name(&lta.dst))?;
+        return writeln!(
+            out,
+            "  read as         a starting transform (--initial), between --fixed and --moving, which must be its src \
+             and dst (either way round)"
         );
     }
     if t.format == "afni" {

@@ -267,7 +267,7 @@ impl BaseField {
 
 impl PairWarp {
     /// The starting transform under the landmark warp, read (`None` without `--initial` or a session's); a FLIRT or
-    /// AFNI matrix against `fixed` and `moving`.
+    /// AFNI matrix or an LTA against `fixed` and `moving`.
     pub fn start(&self, fixed: &Volume, moving: &Volume) -> Result<Option<crate::start::Start>> {
         crate::start::resolve(self.session_start.as_deref(), self.initial.as_deref(), fixed, moving)
     }
@@ -445,8 +445,8 @@ impl PairInputs {
         paths
     }
 
-    /// The starting transform under the landmark warp, read (`None` without `--initial`); a FLIRT or AFNI matrix
-    /// against `fixed` and `moving`.
+    /// The starting transform under the landmark warp, read (`None` without `--initial`); a FLIRT or AFNI matrix or
+    /// an LTA against `fixed` and `moving`.
     pub fn start(&self, fixed: &Volume, moving: &Volume) -> Result<Option<crate::start::Start>> {
         self.warp.start(fixed, moving)
     }

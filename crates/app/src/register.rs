@@ -171,7 +171,8 @@ pub struct RegisterPairArgs {
     pub stiffness: Stiffness,
     /// A starting transform under the landmark warp: an ITK affine .tfm (or ANTs' .mat, or elastix's linear
     /// TransformParameters.N.txt) mapping fixed points to moving points (LPS mm), as `warpbench align` writes it; or
-    /// FSL's FLIRT matrix, read against --fixed (its -ref) and --moving (its -in), or AFNI's .aff12.1D.
+    /// FSL's FLIRT matrix, read against --fixed (its -ref) and --moving (its -in), AFNI's .aff12.1D or FreeSurfer's
+    /// .lta.
     #[arg(long, value_name = "TFM")]
     pub initial: Option<PathBuf>,
     /// A displacement field under the landmark warp, in mm (the flavours `warp --field` reads). It maps fixed points

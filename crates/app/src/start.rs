@@ -1,6 +1,6 @@
 //! The starting transform of a registration (issue 18, item 1): an affine pull-back T₀ = `moving_from_fixed`, found
-//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`, ANTs' `.mat` of one, or FSL's and AFNI's
-//! matrices, read against the two volumes: [`StartFile`]), that the landmark warp refines.
+//! by `warpbench align` or the window's Auto-align (or any ITK affine `.tfm`, ANTs' `.mat` of one, or FSL's, AFNI's and
+//! FreeSurfer's files, read against the two volumes: [`StartFile`]), that the landmark warp refines.
 //!
 //! With pairs (pᵢ moving, qᵢ fixed) the landmark warp is fitted on top of T₀ in each direction, in the frame where
 //! T₀ has already acted, and put after it:
@@ -19,7 +19,7 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use nalgebra::Matrix4;
 use warpbench_io::geometry::Point3;
-use warpbench_io::{Volume, afni, dicom_reg, elastix, fsl, itk_h5};
+use warpbench_io::{Volume, afni, dicom_reg, elastix, fsl, itk_h5, lta};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -70,11 +70,15 @@ impl Start {
                 "{origin}: an AFNI matrix is read with the two volumes, to refuse oblique ones (whose coordinates \
                  AFNI takes otherwise): it needs the fixed volume (AFNI's base) and the moving one (its source)"
             )),
+            StartFile::Lta { origin, .. } => Err(anyhow!(
+                "{origin}: a FreeSurfer LTA is read with the two volumes, whose grids tell which way it maps: it needs \
+                 the fixed volume (FreeSurfer's --dst or --targ) and the moving one (its --mov)"
+            )),
         }
     }
 
-    /// [`Self::read`], FLIRT's and AFNI's matrices too: read against `fixed` (FLIRT's reference, AFNI's base) and
-    /// `moving` (FLIRT's input, AFNI's source).
+    /// [`Self::read`], FLIRT's and AFNI's matrices and FreeSurfer's LTA too: read against `fixed` (FLIRT's reference,
+    /// AFNI's base, the LTA's dst) and `moving` (FLIRT's input, AFNI's source, the LTA's src).
     ///
     /// # Errors
     /// As [`Self::read`] and [`StartFile::on`].
@@ -124,8 +128,8 @@ impl Start {
 }
 
 /// A starting transform's file, read: T₀ itself, in patient space; FSL's FLIRT matrix, which is in the voxel
-/// coordinates of the two images it was made with and becomes T₀ with them ([`warpbench_io::fsl`]); or AFNI's matrix,
-/// T₀ between volumes that are not oblique.
+/// coordinates of the two images it was made with and becomes T₀ with them ([`warpbench_io::fsl`]); AFNI's matrix,
+/// T₀ between volumes that are not oblique; or FreeSurfer's LTA, whose direction the two volumes tell.
 #[derive(Clone, Debug, PartialEq)]
 pub enum StartFile {
     Lps(Start),
@@ -139,16 +143,26 @@ pub enum StartFile {
         matrix: Matrix4<f64>,
         origin: String,
     },
+    /// FreeSurfer's `.lta`: its src and dst geometries say which of the two volumes it maps to the other
+    /// ([`warpbench_io::lta`]).
+    Lta {
+        lta: Box<lta::Lta>,
+        origin: String,
+    },
 }
 
 impl StartFile {
     /// Reads a starting transform's file ([`Start::read`]), a FLIRT matrix (told by its content: four lines of four
-    /// numbers) or an AFNI matrix file (rows of twelve numbers).
+    /// numbers), an AFNI matrix file (rows of twelve numbers) or a FreeSurfer LTA (`type = …` first).
     ///
     /// # Errors
     /// As [`Start::read`]; a FLIRT or AFNI matrix that cannot be read.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let head = head(path);
+        if lta::looks_like_lta(&head) {
+            let lta = lta::read(path).with_context(|| format!("--initial {}", path.display()))?;
+            return Ok(Self::Lta { lta: Box::new(lta), origin: path.display().to_string() });
+        }
         if fsl::looks_like_flirt_matrix(&head) {
             let matrix = fsl::read(path).with_context(|| format!("--initial {}", path.display()))?;
             return Ok(Self::Flirt { matrix, origin: path.display().to_string() });
@@ -160,11 +174,12 @@ impl StartFile {
         Start::read_lps(path, &head).map(Self::Lps)
     }
 
-    /// T₀, with a FLIRT matrix read against `fixed` (its reference, `-ref`) and `moving` (its input, `-in`), and an
-    /// AFNI matrix taken between them when neither is oblique.
+    /// T₀, with a FLIRT matrix read against `fixed` (its reference, `-ref`) and `moving` (its input, `-in`), an AFNI
+    /// matrix taken between them when neither is oblique, and an LTA read the way their grids say.
     ///
     /// # Errors
-    /// A FLIRT matrix or a grid that cannot be inverted; an oblique volume under an AFNI matrix.
+    /// A FLIRT matrix or a grid that cannot be inverted; an oblique volume under an AFNI matrix; an LTA whose src and
+    /// dst are neither volume.
     pub fn on(self, fixed: &Volume, moving: &Volume) -> anyhow::Result<Start> {
         match self {
             Self::Lps(start) => Ok(start),
@@ -178,6 +193,12 @@ impl StartFile {
                 afni::check_cardinal(Path::new(&origin), "fixed", &fixed.lps_from_index)?;
                 afni::check_cardinal(Path::new(&origin), "moving", &moving.lps_from_index)?;
                 start_of(&matrix, &origin)
+            }
+            Self::Lta { lta, origin } => {
+                let grid = |v: &Volume| (v.dims, v.lps_from_index);
+                let (f, m) = (grid(fixed), grid(moving));
+                let u = lta::moving_from_fixed(Path::new(&origin), &lta, (f.0, &f.1), (m.0, &m.1))?;
+                start_of(&u, &origin)
             }
         }
     }

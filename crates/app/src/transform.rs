@@ -53,7 +53,7 @@ use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::itk_h5::{self, H5Transform};
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkTransform};
 use warpbench_io::transform_file;
-use warpbench_io::{Volume, afni, fsl, volume};
+use warpbench_io::{Volume, afni, fsl, lta, volume};
 use warpbench_solver::method::FittedWarp;
 use warpbench_solver::spaces::Fixed;
 
@@ -96,13 +96,16 @@ fixed series'), a Deformable Spatial Registration of the warp sampled on the fix
 --format fsl writes FSL's FLIRT matrix (.mat, text) for a linear warp: from the moving volume's FSL coordinates to
 the fixed volume's, for flirt -applyxfm -init with the moving volume as -in and the fixed one as -ref. --format afni
 writes AFNI's matrix file (.aff12.1D) for 3dAllineate -1Dmatrix_apply, between volumes that are not oblique.
---initial takes either, read against --fixed and --moving.
+--format lta writes FreeSurfer's LTA (.lta, LINEAR_RAS_TO_RAS) with the moving volume as its src and the fixed one
+as its dst, for mri_vol2vol --mov MOVING --targ FIXED --lta. --initial takes each of them, read against --fixed and
+--moving.
 
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method tps --out mr_to_ct.tfm
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --session case.warpbench.json --out mr_to_ct.h5
     warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --format elastix --out TransformParameters.0.txt
     warpbench transform --fixed ct_series/ --moving mr_series/ --landmarks pairs.csv --method rigid --format dicom --out reg.dcm
-    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method rigid --format fsl --out mr_to_ct.mat";
+    warpbench transform --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --method rigid --format fsl --out mr_to_ct.mat
+    warpbench transform --fixed orig.mgz --moving pet.nii.gz --landmarks pairs.csv --method rigid --format lta --out pet_to_t1.lta";
 
 /// The arguments of `warpbench transform`.
 #[derive(Debug, clap::Args)]
@@ -118,13 +121,14 @@ pub struct TransformArgs {
     pub pairs: PairArgs,
     /// The ITK transform file to write (.tfm or .txt; .h5, ITK's HDF5 file; .mat, ANTs' MATLAB file, for the
     /// linear methods), with --format elastix an elastix transform parameter file (e.g. TransformParameters.0.txt),
-    /// with --format dicom a DICOM registration (.dcm).
+    /// with --format dicom a DICOM registration (.dcm), with --format lta FreeSurfer's .lta.
     #[arg(long, value_name = "FILE")]
     pub out: PathBuf,
     /// itk (default): an ITK transform file (ITK's HDF5 or ANTs' .mat by its name); elastix: an elastix transform
     /// parameter file, which transformix applies (SplineKernelTransform, BSplineTransform or AffineTransform; a
     /// DeformationFieldTransform over a field beside it for a session with a field or a brush); dicom: a DICOM
-    /// (Deformable) Spatial Registration between two DICOM series.
+    /// (Deformable) Spatial Registration between two DICOM series; fsl, afni, lta: FSL's FLIRT matrix, AFNI's
+    /// .aff12.1D or FreeSurfer's .lta, for a linear warp.
     #[arg(long, value_enum, default_value = "itk")]
     pub format: TransformFormat,
     #[command(flatten)]
@@ -146,10 +150,12 @@ pub enum TransformFormat {
     /// AFNI's matrix file (`.aff12.1D`, `3dAllineate -1Dmatrix_apply`), for a linear warp between volumes that are not
     /// oblique.
     Afni,
+    /// FreeSurfer's LTA (`.lta`, `mri_vol2vol --lta`), for a linear warp: src the moving volume, dst the fixed one.
+    Lta,
 }
 
 impl TransformFormat {
-    /// `itk`, `elastix`, `dicom`, `fsl` or `afni`.
+    /// `itk`, `elastix`, `dicom`, `fsl`, `afni` or `lta`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -158,6 +164,7 @@ impl TransformFormat {
             Self::Dicom => "dicom",
             Self::Fsl => "fsl",
             Self::Afni => "afni",
+            Self::Lta => "lta",
         }
     }
 }
@@ -185,6 +192,8 @@ pub enum Written {
     Fsl,
     /// AFNI's matrix file.
     Afni,
+    /// FreeSurfer's LTA.
+    Lta,
 }
 
 impl Written {
@@ -196,6 +205,7 @@ impl Written {
             Self::Itk => itk_class,
             Self::Fsl => "FLIRT matrix",
             Self::Afni => "AFNI matrix",
+            Self::Lta => "LTA",
             Self::Elastix(class) => class,
             Self::Dicom(kind) => kind.name(),
         }
@@ -212,7 +222,7 @@ pub struct TransformSummary {
     pub itk_class: &'static str,
     /// An `.h5` composite's members, in ITK's order (the last is applied first); the one class of any other file.
     pub members: Vec<&'static str>,
-    /// `itk` or `elastix`: whose file was written.
+    /// `itk`, `elastix`, `dicom`, `fsl`, `afni` or `lta`: whose file was written.
     pub format: &'static str,
     /// With `--format elastix`, the file's `(Transform …)`: `SplineKernelTransform`, `BSplineTransform`,
     /// `AffineTransform`, or `DeformationFieldTransform` for a stack with a field or a brush; else null.
@@ -227,7 +237,7 @@ pub struct TransformSummary {
     /// Landmark pairs used (active, with both points).
     pub pairs: usize,
     /// `moving_from_fixed`: the file maps fixed points to moving points (LPS mm), as ITK's resampler uses it; for
-    /// `--format dicom` `fixed_from_moving`, the registration matrix's direction (moving patient coordinates to
+    /// `--format dicom`, `fsl` and `lta` `fixed_from_moving`, the file's matrix's direction (moving coordinates to
     /// fixed ones).
     pub map: &'static str,
     /// For a B-spline, the box (LPS mm, min then max) outside which ITK applies the identity; else null.
@@ -306,6 +316,12 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
             path.display()
         )));
     }
+    if format == TransformFormat::Lta && !extension("lta") {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: FreeSurfer tells its transform files by their names: name an LTA .lta, e.g. mr_to_ct.lta",
+            path.display()
+        )));
+    }
     if format == TransformFormat::Dicom && !extension("dcm") {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: a DICOM registration is written to one file named .dcm, e.g. mr_to_ct_reg.dcm",
@@ -351,7 +367,31 @@ pub fn write_transform(
             write_afni(path, transform, &pair.fixed.lps_from_index, &pair.moving.lps_from_index)?;
             Written::Afni
         }
+        TransformFormat::Lta => {
+            let name = |p: Option<&Path>| p.map(|p| p.display().to_string()).unwrap_or_default();
+            let fixed = ((pair.fixed.dims, &pair.fixed.lps_from_index), name(pair.fixed_path));
+            let moving = ((pair.moving.dims, &pair.moving.lps_from_index), name(pair.moving_path));
+            write_lta(path, transform, (fixed.0, &fixed.1), (moving.0, &moving.1))?;
+            Written::Lta
+        }
     })
+}
+
+/// Writes the affine `transform` (the pull-back, LPS mm) as FreeSurfer's LTA between the `fixed` volume, its dst, and
+/// the `moving` one, its src, each a grid with the file it was read from ([`warpbench_io::lta`]).
+///
+/// # Errors
+/// A transform that is not affine (an LTA holds nothing else), or what the writer refuses.
+pub fn write_lta(
+    path: &Path,
+    transform: &ItkTransform,
+    fixed: (fsl::Grid, &str),
+    moving: (fsl::Grid, &str),
+) -> Result<(), Failure> {
+    check_transform_name(path, TransformFormat::Lta)?;
+    let u = affine_matrix(path, transform, "FreeSurfer's LTA")?;
+    lta::write(path, &u, fixed, moving)?;
+    Ok(())
 }
 
 /// Writes the affine `transform` (the pull-back, LPS mm) as AFNI's matrix file between volumes whose grids are
@@ -379,6 +419,7 @@ pub fn affine_only(out: &Path, format: TransformFormat, field: bool) -> Option<F
     let what = match format {
         TransformFormat::Fsl => "FSL's FLIRT matrix",
         TransformFormat::Afni => "AFNI's matrix file",
+        TransformFormat::Lta => "FreeSurfer's LTA",
         TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Dicom => return None,
     };
     Some(Failure::BadInput(anyhow::anyhow!(
@@ -722,17 +763,17 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             format: format.name(),
             elastix_transform: match written {
                 Written::Elastix(class) => Some(class),
-                Written::Itk | Written::Dicom(_) | Written::Fsl | Written::Afni => None,
+                Written::Itk | Written::Dicom(_) | Written::Fsl | Written::Afni | Written::Lta => None,
             },
             dicom_matrix_type: match written {
                 Written::Dicom(kind) => Some(kind.name()),
-                Written::Itk | Written::Elastix(_) | Written::Fsl | Written::Afni => None,
+                Written::Itk | Written::Elastix(_) | Written::Fsl | Written::Afni | Written::Lta => None,
             },
             field: None,
             method: exact.method,
             pairs: exact.pairs,
             map: match format {
-                TransformFormat::Dicom | TransformFormat::Fsl => "fixed_from_moving",
+                TransformFormat::Dicom | TransformFormat::Fsl | TransformFormat::Lta => "fixed_from_moving",
                 TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Afni => "moving_from_fixed",
             },
             domain_lps: exact.domain_lps,
@@ -748,6 +789,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             }
             (TransformFormat::Dicom, _) => "a deformation grid from the fixed series' frame to the moving series'",
             (TransformFormat::Fsl, _) => "FLIRT's matrix from the moving volume's FSL coordinates to the fixed one's",
+            (TransformFormat::Lta, _) => "from the moving volume (src) to the fixed one (dst), RAS mm",
             _ => "maps fixed points to moving points, LPS mm",
         };
         eprintln!(
@@ -757,6 +799,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
                 TransformFormat::Dicom => "Deformable Spatial Registration",
                 TransformFormat::Fsl => "FLIRT matrix",
                 TransformFormat::Afni => "AFNI matrix",
+                TransformFormat::Lta => "LTA, LINEAR_RAS_TO_RAS",
                 _ => summary.itk_class,
             }),
             summary.method,

@@ -793,6 +793,22 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
     assert!(message.contains("back.mat"), "{message}");
     let back = warpbench_io::fsl::read(&out).unwrap_or_else(|e| panic!("{e}: {message}"));
     assert!((back - matrix).abs().max() < 1e-10, "{back} written, {matrix} read");
+    // File > Export for FreeSurfer: an LTA with the two open volumes as its dst (fixed) and src (moving), which reads
+    // back to the same pull-back (sixteen significant digits); and, read as the starting transform, is shown so.
+    let lta_out = dir.path().join("back.lta");
+    let export = warpbench_app::gui::files::FileAction::ExportTransform(
+        warpbench_app::transform::TransformFormat::Lta,
+        lta_out.clone(),
+    );
+    harness.state_mut().ready_mut().expect("ready").apply(Command::File(export));
+    let message = window::wait_for_export(&mut harness);
+    assert!(message.contains("back.lta") && message.contains("as LTA"), "{message}");
+    let ready = harness.state().ready().expect("ready");
+    let (fixed, moving) = (&ready.loaded.fixed, &ready.loaded.moving);
+    let lta = warpbench_io::lta::read(&lta_out).unwrap_or_else(|e| panic!("{e}: {message}"));
+    let grids = ((fixed.dims, &fixed.lps_from_index), (moving.dims, &moving.lps_from_index));
+    let from_lta = warpbench_io::lta::moving_from_fixed(&lta_out, &lta, grids.0, grids.1).expect("the pull-back");
+    assert!((from_lta - u).abs().max() < 1e-9, "{from_lta} written, {u} shown");
 }
 
 /// A displacement field under the landmarks (issue 29, item 2, as BigWarp's transform sequences): "Use field under

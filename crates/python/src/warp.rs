@@ -227,6 +227,13 @@ impl Warp {
                             path.display()
                         )));
                     }
+                    StartFile::Lta { .. } => {
+                        return Err(PyValueError::new_err(format!(
+                            "initial={}: a FreeSurfer LTA is read with the two volumes, whose grids tell which way it \
+                             maps: give fixed= (FreeSurfer's --dst or --targ) and moving= (its --mov)",
+                            path.display()
+                        )));
+                    }
                 },
             };
             let mut layers = Layers::new(start, None);
@@ -545,6 +552,25 @@ impl Warp {
         guarded(py, || {
             let transform = self.pullback.itk_transform().map_err(bad_input)?;
             transform::write_afni(&path, &transform, fixed_lps, moving_lps).map_err(|f| to_py(&f))
+        })
+    }
+
+    /// Writes the pull-back, a linear warp, as FreeSurfer's LTA (`LINEAR_RAS_TO_RAS`), src the moving volume and dst
+    /// the fixed one the warp was fitted with, each named by `fixed_name` and `moving_name` (its file, or empty), as
+    /// `warpbench transform --format lta` writes it.
+    #[pyo3(signature = (path, fixed_name, moving_name))]
+    fn to_lta(&self, py: Python<'_>, path: PathBuf, fixed_name: String, moving_name: String) -> PyResult<()> {
+        let Some(((fixed_dims, fixed_lps), (moving_dims, moving_lps))) = &self.grids else {
+            return Err(PyValueError::new_err(format!(
+                "{}: an LTA states the grids of the two volumes: fit the warp with fixed= and moving=",
+                path.display()
+            )));
+        };
+        guarded(py, || {
+            let transform = self.pullback.itk_transform().map_err(bad_input)?;
+            let fixed = ((*fixed_dims, fixed_lps), fixed_name.as_str());
+            let moving = ((*moving_dims, moving_lps), moving_name.as_str());
+            transform::write_lta(&path, &transform, fixed, moving).map_err(|f| to_py(&f))
         })
     }
 

@@ -98,7 +98,7 @@ impl ExportJob {
     /// Checks the output path and starts the export; a bad path is refused at once.
     ///
     /// # Errors
-    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`; a field's name picks its
+    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`; a field's name picks its
     /// flavour: [`field_format`]), is one of the inputs, or the DICOM folder is not empty.
     pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();
@@ -305,6 +305,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
             let maps = match format {
                 TransformFormat::Dicom => "moving patient coordinates to fixed ones",
                 TransformFormat::Fsl => "the moving volume's FSL coordinates to the fixed one's",
+                TransformFormat::Lta => "the moving volume (src) to the fixed one (dst), RAS mm",
                 TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Afni => {
                     "fixed points to moving points, LPS mm"
                 }
@@ -369,6 +370,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Dicom => extension == "dcm",
         TransformFormat::Fsl => matches!(extension.as_str(), "mat" | "txt" | "xfm"),
         TransformFormat::Afni => extension == "1d",
+        TransformFormat::Lta => extension == "lta",
     };
     if fits {
         return transform::check_transform_name(out, format).map_err(|f| format!("{:#}", f.error()));
@@ -383,6 +385,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Dicom => format!("{}: a DICOM registration is a .dcm (e.g. mr_to_ct_reg.dcm)", out.display()),
         TransformFormat::Fsl => format!("{}: FSL's FLIRT matrix is a .mat (e.g. mr_to_ct.mat)", out.display()),
         TransformFormat::Afni => format!("{}: AFNI's matrix file is a .1D (e.g. mr_to_ct.aff12.1D)", out.display()),
+        TransformFormat::Lta => format!("{}: FreeSurfer's LTA is a .lta (e.g. mr_to_t1.lta)", out.display()),
     })
 }
 

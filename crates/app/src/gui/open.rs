@@ -196,8 +196,11 @@ impl Purpose {
     fn dialog(self) -> rfd::FileDialog {
         let d = rfd::FileDialog::new();
         let volumes = |d: rfd::FileDialog| {
-            d.add_filter("Volumes (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "nhdr", "mha", "mhd"])
-                .add_filter("All files", &["*"])
+            d.add_filter(
+                "Volumes (NIfTI, NRRD, MetaImage, MGH)",
+                &["nii", "gz", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz"],
+            )
+            .add_filter("All files", &["*"])
         };
         match self {
             Self::OpenFile(side) => volumes(d.set_title(format!("Open the {} volume", side.name()))),
@@ -209,7 +212,7 @@ impl Purpose {
                 .add_filter("transformix's outputpoints.txt", &["txt"]),
             Self::ExportLandmarks => d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"]),
             Self::ExportWarped | Self::ExportMap(_) => {
-                d.add_filter("NIfTI, NRRD or MetaImage", &["nii", "gz", "nrrd", "mha", "mhd"])
+                d.add_filter("NIfTI, NRRD, MetaImage or MGH", &["nii", "gz", "nrrd", "mha", "mhd", "mgh", "mgz"])
             }
             Self::ExportField | Self::ExportInverseField => d
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
@@ -228,12 +231,14 @@ impl Purpose {
             }
             Self::ExportTransform(TransformFormat::Fsl) => d.add_filter("FSL FLIRT matrix", &["mat"]),
             Self::ExportTransform(TransformFormat::Afni) => d.add_filter("AFNI matrix file", &["1D"]),
+            Self::ExportTransform(TransformFormat::Lta) => d.add_filter("FreeSurfer LTA", &["lta"]),
             Self::ExportTransform(TransformFormat::Dicom) => {
                 d.add_filter("DICOM Spatial Registration", &["dcm"]).set_file_name("registration.dcm")
             }
             Self::UseStart => d
                 .set_title("A linear transform to start from")
                 .add_filter("ITK, ANTs or elastix transform", &["tfm", "txt", "mat", "h5"])
+                .add_filter("FSL, AFNI or FreeSurfer matrix", &["mat", "1D", "lta"])
                 .add_filter("DICOM Spatial Registration", &["dcm"]),
             Self::UseMask(side) => volumes(d.set_title(format!("A mask of the {} volume", side.name()))),
             Self::Screenshot => d.add_filter("PNG image", &["png"]),
@@ -529,6 +534,7 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         );
         item(ui, "Export for FSL...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Fsl)));
         item(ui, "Export for AFNI...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Afni)));
+        item(ui, "Export for FreeSurfer...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Lta)));
         ui.separator();
         item(ui, "Use starting transform...", ready, OpenEvent::Dialog(Purpose::UseStart));
         item(ui, "Use displacement field...", ready, OpenEvent::Dialog(Purpose::UseField));

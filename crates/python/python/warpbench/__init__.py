@@ -147,8 +147,8 @@ class Volume:
         return self.lps_from_index[:3, 3].copy()
 
     def write(self, path: PathLike) -> None:
-        """Writes the volume as the command line does: NIfTI-1 (``.nii``, ``.nii.gz``), NRRD (``.nrrd``) or
-        MetaImage (``.mha``, ``.mhd``), by the name, atomically (an interrupted write leaves no partial file)."""
+        """Writes the volume as the command line does: NIfTI-1 (``.nii``, ``.nii.gz``), NRRD (``.nrrd``),
+        MetaImage (``.mha``, ``.mhd``) or FreeSurfer's MGH (``.mgh``, ``.mgz``), by the name, atomically (an interrupted write leaves no partial file)."""
         _warpbench.write_volume(os.fspath(path), self.array, self.lps_from_index, self.modality)
 
     def to_nibabel(self) -> Any:
@@ -177,7 +177,7 @@ class Volume:
 
 def read_volume(path: PathLike, *, frame: Optional[int] = None) -> Volume:
     """Reads a volume in any format the command line reads: NIfTI-1/2, NRRD, a DICOM series (folder or file),
-    MetaImage. ``frame`` chooses one frame of a 4-D file."""
+    MetaImage, FreeSurfer's MGH/MGZ. ``frame`` chooses one frame of a 4-D file."""
     array, lps, header = _warpbench.read_volume(os.fspath(path), frame)
     info = json.loads(header)
     return Volume(array, lps, modality=info.get("modality"), path=path, header=info)
@@ -441,6 +441,16 @@ class Warp:
         volume as AFNI's base and the moving one as its source, as ``warpbench transform --format afni`` does. Needs
         ``fixed=`` and ``moving=``, neither oblique."""
         self._native.to_afni(os.fspath(path))
+
+    def to_lta(self, path: PathLike) -> None:
+        """Writes a linear warp as FreeSurfer's LTA (``.lta``, ``LINEAR_RAS_TO_RAS``, for ``mri_vol2vol --lta``), the
+        moving volume as its src and the fixed one as its dst, named by the files they were read from, as
+        ``warpbench transform --format lta`` does. Needs ``fixed=`` and ``moving=``."""
+
+        def name(volume: Optional[Volume]) -> str:
+            return os.fspath(volume.path) if volume is not None and volume.path is not None else ""
+
+        self._native.to_lta(os.fspath(path), name(self.fixed), name(self.moving))
 
     def to_elastix(self, path: PathLike, reference: Optional["Volume"] = None) -> None:
         """Writes the pull-back as the elastix transform parameter file that holds it exactly (``SplineKernelTransform``,
