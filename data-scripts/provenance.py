@@ -438,6 +438,30 @@ LTA_FILES = [
 ] + [("lta/reference.json", "lta_nitransforms.py")]
 
 
+# NIfTI pairs (.hdr + .img) written by nibabel.
+NIBABEL_PAIR_MADE = """
+## `nifti_pair/`: NIfTI pairs written by nibabel
+
+Not downloaded: `data-scripts/nifti_pair_nibabel.py` has nibabel 5.4.2 (PyPI wheel `nibabel==5.4.2`, as `.ci/run`
+installs it) write small volumes of values the script makes up as NIfTI pairs (`.hdr` + `.img`): NIfTI-1 int16 with a
+scale on an oblique grid, NIfTI-2 float32 of two frames, NIfTI-1 big-endian uint16, NIfTI-1 uint8 with both files
+gzip-compressed, and an Analyze 7.5 pair; `nifti_pair/reference.json` holds nibabel's reading of each NIfTI pair
+(affine and values). gzip stamps the time, so a rerun's `.gz` bytes differ; the others do not. They carry the licence
+of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+NIBABEL_PAIR_FILES = [
+    (f"nifti_pair/{name}", "nifti_pair_nibabel.py")
+    for name in (
+        "oblique_i16.hdr", "oblique_i16.img", "frames_f32.hdr", "frames_f32.img", "big_endian_u16.hdr",
+        "big_endian_u16.img", "compressed_u8.hdr.gz", "compressed_u8.img.gz", "analyze.hdr", "analyze.img",
+        "reference.json",
+    )
+]
+
+
 def script_made(data: Path, heading: str, files: list[tuple[str, ...]]) -> str:
     """The table of files a script made: (path, script) rows carry the code's licence, (path, script, licence) rows
     their own (a file the script copied from a package)."""
@@ -487,6 +511,7 @@ def main() -> int:
     out.append(script_made(data, NITRANSFORMS_MADE, NITRANSFORMS_FILES))
     out.append(script_made(data, NIBABEL_MGH_MADE, NIBABEL_MGH_FILES))
     out.append(script_made(data, NITRANSFORMS_LTA, LTA_FILES))
+    out.append(script_made(data, NIBABEL_PAIR_MADE, NIBABEL_PAIR_FILES))
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))

@@ -21,8 +21,8 @@ const HELP: &str = "\
 Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype, value range,
 modality and series.
 
-Reads NIfTI-1/2 (.nii, .nii.gz), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd), FreeSurfer's MGH (.mgh, .mgz),
-a DICOM series folder or one DICOM file.
+Reads NIfTI-1/2 (.nii, .nii.gz, or a .hdr/.img pair), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd),
+FreeSurfer's MGH (.mgh, .mgz), a DICOM series folder or one DICOM file.
 A folder with several series lists them. A displacement field (any flavour warp --field reads, an ITK .h5 holding
 one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz) is described as a field: its flavour, the direction
 it states, its grid and its largest displacement. An ITK transform file (.tfm, .h5, ANTs' .mat) is described by the

@@ -3,7 +3,7 @@
 //! Readers and writers for the volumes and landmarks that warpbench registers, all placed in one
 //! patient space: **LPS, in mm** (see `docs/spaces.md`).
 //!
-//! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`), NRRD (`.nrrd`, `.nhdr`),
+//! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`, or a `.hdr`/`.img` pair), NRRD (`.nrrd`, `.nhdr`),
 //!   MetaImage (`.mha`, `.mhd`) or FreeSurfer MGH (`.mgh`, `.mgz`) file, a DICOM series folder or a single DICOM file
 //!   into a [`Volume`]; [`write_volume`] writes one in the format its name says.
 //! - [`nifti`], [`nrrd`], [`metaimage`], [`mgh`], [`dicom`]: the format modules, with their writers.
@@ -82,7 +82,7 @@ impl Format {
         }
         // Lowercased above, so the comparisons below are case-insensitive.
         let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-        if name.ends_with(".nii") || name.ends_with(".nii.gz") {
+        if name.ends_with(".nii") || name.ends_with(".nii.gz") || nifti::pair_paths(path)?.is_some() {
             return Ok(Self::Nifti);
         }
         if name.ends_with(".nrrd") || name.ends_with(".nhdr") {

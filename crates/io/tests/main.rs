@@ -24,4 +24,5 @@ mod lta;
 mod metaimage;
 mod mgh;
 mod nifti;
+mod nifti_pair;
 mod nrrd;

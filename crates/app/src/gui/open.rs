@@ -198,7 +198,7 @@ impl Purpose {
         let volumes = |d: rfd::FileDialog| {
             d.add_filter(
                 "Volumes (NIfTI, NRRD, MetaImage, MGH)",
-                &["nii", "gz", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz"],
+                &["nii", "gz", "hdr", "img", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz"],
             )
             .add_filter("All files", &["*"])
         };

@@ -9,7 +9,7 @@ use std::path::Path;
 use flate2::read::MultiGzDecoder;
 
 use super::geometry::lps_from_index;
-use super::header::read_header;
+use super::header::{pair_error, read_header};
 use super::layout::{Span, data_span, grid, stored_type};
 use super::samples::{datatype_code, scaling, stream_chunks};
 use super::source::{Extent, GZIP_MAGIC, Reporter, Source, open_file};
@@ -199,6 +199,9 @@ fn read_field_source<S: Source>(
     vector_too: bool,
 ) -> Result<(DisplacementField, NiftiVectorIntent)> {
     let h = read_header(path, src)?;
+    if h.pair {
+        return Err(pair_error(path, "a displacement field is read from one .nii or .nii.gz file"));
+    }
     let intent = match h.intent_code {
         c if c == i32::from(NIFTI_INTENT_DISPVECT) => NiftiVectorIntent::DispvectRas,
         c if c == i32::from(NIFTI_INTENT_VECTOR) && vector_too => NiftiVectorIntent::VectorLps,
@@ -266,6 +269,9 @@ pub fn read_frame_vectors_bytes(name: &Path, bytes: &[u8]) -> Result<([usize; 3]
 
 fn read_frames_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Result<([usize; 3], Vec<[f32; 3]>)> {
     let h = read_header(path, src)?;
+    if h.pair {
+        return Err(pair_error(path, "a field of frames is read from one .nii or .nii.gz file"));
+    }
     if [NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR].iter().any(|&c| i32::from(c) == h.intent_code) {
         return Err(Error::invalid(
             path,

@@ -71,6 +71,8 @@ pub(super) struct Header {
     pub(super) qoffset: [f64; 3],
     pub(super) srow: [[f64; 4]; 3],
     pub(super) descrip: String,
+    /// The magic says `ni1` / `ni2`: the samples are in a separate `.img` file (a NIfTI pair).
+    pub(super) pair: bool,
 }
 
 /// Reads fixed-offset fields of one byte order from a header buffer.
@@ -147,20 +149,18 @@ fn bad_magic(path: &Path, version: Version, found: &[u8]) -> Error {
     )
 }
 
-fn pair_error(path: &Path) -> Error {
+/// Refuses a NIfTI pair's header where one file is expected (`what` says where: a `.nii` name, a displacement field).
+pub(super) fn pair_error(path: &Path, what: &str) -> Error {
     Error::unsupported(
         path,
-        "separate .hdr/.img pair files are not supported; convert to a single .nii or .nii.gz file",
+        format!("the header's magic (ni1/ni2) says its samples are in a separate .img file (a NIfTI pair): {what}"),
     )
 }
 
 /// NIfTI-1 layout (nifti1.h, `struct nifti_1_header`).
 fn parse_nifti1(path: &Path, f: &Fields) -> Result<Header> {
     let magic = &f.b[344..348];
-    if magic == NIFTI1_PAIR_MAGIC {
-        return Err(pair_error(path));
-    }
-    if magic != NIFTI1_MAGIC {
+    if magic != NIFTI1_MAGIC && magic != NIFTI1_PAIR_MAGIC {
         return Err(bad_magic(path, Version::Nifti1, magic));
     }
     Ok(Header {
@@ -181,16 +181,14 @@ fn parse_nifti1(path: &Path, f: &Fields) -> Result<Header> {
         qoffset: f.f32s(268),
         srow: [f.f32s(280), f.f32s(296), f.f32s(312)],
         descrip: f.text(148, 80),
+        pair: magic == NIFTI1_PAIR_MAGIC,
     })
 }
 
 /// NIfTI-2 layout (nifti2.h, `struct nifti_2_header`).
 fn parse_nifti2(path: &Path, f: &Fields) -> Result<Header> {
     let magic = &f.b[4..12];
-    if magic == NIFTI2_PAIR_MAGIC {
-        return Err(pair_error(path));
-    }
-    if magic != NIFTI2_MAGIC {
+    if magic != NIFTI2_MAGIC && magic != NIFTI2_PAIR_MAGIC {
         if magic[..4] == NIFTI2_MAGIC[..4] {
             return Err(Error::new(
                 path,
@@ -222,6 +220,7 @@ fn parse_nifti2(path: &Path, f: &Fields) -> Result<Header> {
         qoffset: f.f64s(376),
         srow: [f.f64s(400), f.f64s(432), f.f64s(464)],
         descrip: f.text(240, 80),
+        pair: magic == NIFTI2_PAIR_MAGIC,
     })
 }
 

@@ -66,12 +66,11 @@ pub(super) struct Span {
 /// file. An uncompressed source must hold it; a gzip stream cannot inflate to more than [`MAX_DEFLATE_RATIO`]
 /// times its size, so a tiny `.nii.gz` claiming gigabytes fails before anything is allocated.
 pub(super) fn data_span(path: &Path, h: &Header, extent: Extent, span: &Span) -> Result<u64> {
-    let header_bytes = h.version.header_bytes() as f64;
+    // A pair's samples are in their own file, from its byte vox_offset; a single file's follow the header.
+    let header_bytes = if h.pair { 0.0 } else { h.version.header_bytes() as f64 };
     if !h.vox_offset.is_finite() || h.vox_offset < header_bytes || h.vox_offset > 2f64.powi(62) {
-        return Err(Error::invalid(
-            path,
-            format!("vox_offset {} is not a byte offset past the {header_bytes}-byte header", h.vox_offset),
-        ));
+        let after = if h.pair { "of the .img file".to_owned() } else { format!("past the {header_bytes}-byte header") };
+        return Err(Error::invalid(path, format!("vox_offset {} is not a byte offset {after}", h.vox_offset)));
     }
     // nifti1_io and nibabel truncate a fractional offset.
     let vox_offset = h.vox_offset as u64;

@@ -11,8 +11,14 @@
 //! - **NIfTI-2** (`nifti2.h`, <https://nifti.nimh.nih.gov/pub/dist/doc/nifti2.h>): a 540-byte header,
 //!   magic `n+2\0\r\n\x1a\n` at byte 4; 64-bit `dim` and float64 geometry.
 //!
-//! The byte order is that in which `sizeof_hdr` reads 348 (or 540); both orders are read. The magics
-//! `ni1\0` / `ni2\0` mark separate `.hdr`/`.img` pair files, which we reject with a clear error.
+//! The byte order is that in which `sizeof_hdr` reads 348 (or 540); both orders are read.
+//!
+//! A **NIfTI pair** (magic `ni1\0` / `ni2\0`, what SPM and older tools write) has the same header alone in a `.hdr`
+//! and the samples in a `.img` beside it, from the `.img`'s byte `vox_offset` (0 as a rule); either may be
+//! gzip-compressed (`.hdr.gz`, `.img.gz`). [`read()`] takes either name and finds the other beside it, with the same
+//! stem and the name's case ([`pair_paths`]). A pair's header in a `.nii`, and a displacement field in a pair, are
+//! refused; so is an Analyze 7.5 `.hdr` (no NIfTI magic), whose orientation is not stored: tools guessed it
+//! differently (SPM's `defaults.analyze.flip`).
 //!
 //! # Geometry
 //!
@@ -155,10 +161,70 @@ use layout::layout;
 use samples::{CHUNK_BYTES, read_identity, rescale_samples, scaling};
 use source::{Extent, GZIP_MAGIC, Reporter, Source, fill, open_file};
 
-/// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content).
+/// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content), or a NIfTI pair by the name of
+/// either of its files (`.hdr`, `.img`, each perhaps `.gz`).
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
+    if let Some((hdr, img)) = pair_paths(path)? {
+        let (mut header_src, _) = open_file(&hdr)?;
+        let h = read_header(&hdr, &mut header_src).map_err(|e| match e.kind {
+            crate::ErrorKind::BadMagic { .. } => Error::unsupported(
+                &hdr,
+                "no NIfTI magic: an Analyze 7.5 header, which stores no orientation (tools guessed it differently, \
+                 e.g. SPM's defaults.analyze.flip); warpbench does not guess: convert the pair to NIfTI with the tool \
+                 that made it",
+            ),
+            _ => e,
+        })?;
+        if !h.pair {
+            return Err(Error::invalid(
+                &hdr,
+                "a .hdr whose magic is a single file's (n+1/n+2): its samples follow it; name the file .nii",
+            ));
+        }
+        let (mut src, extent) = open_file(&img)?;
+        return read_samples((&hdr, &img), &h, &mut src, extent, opts);
+    }
     let (mut src, extent) = open_file(path)?;
     read_source(path, &mut src, extent, opts)
+}
+
+/// The `.hdr` and `.img` of the NIfTI pair `path` names (either of them, each perhaps `.gz`), the other found beside
+/// it with the same stem and the name's case: `None` for any other name.
+///
+/// # Errors
+/// The pair's other file is missing.
+#[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
+pub fn pair_paths(path: &Path) -> Result<Option<(std::path::PathBuf, std::path::PathBuf)>> {
+    let Some(name) = path.file_name().and_then(|n| n.to_str()) else { return Ok(None) };
+    let lower = name.to_ascii_lowercase();
+    let plain = lower.strip_suffix(".gz").unwrap_or(&lower);
+    let is_header = plain.ends_with(".hdr");
+    if !is_header && !plain.ends_with(".img") {
+        return Ok(None);
+    }
+    let stem_len = plain.len() - 4;
+    let (stem, ext) = (&name[..stem_len], &name[stem_len + 1..stem_len + 4]);
+    // hdr ↔ img, letter by letter in the name's case.
+    let other: String = ext
+        .chars()
+        .zip(if is_header { "img" } else { "hdr" }.chars())
+        .map(|(had, want)| if had.is_ascii_uppercase() { want.to_ascii_uppercase() } else { want })
+        .collect();
+    let gz = if other.starts_with(char::is_uppercase) { ".GZ" } else { ".gz" };
+    let candidates = [format!("{stem}.{other}"), format!("{stem}.{other}{gz}")];
+    let found = candidates.iter().map(|c| path.with_file_name(c)).find(|p| p.exists());
+    let Some(found) = found else {
+        return Err(Error::invalid(
+            path,
+            format!(
+                "a NIfTI pair's {} file is missing: {} (or {}) was looked for beside it",
+                if is_header { "samples" } else { "header" },
+                candidates[0],
+                candidates[1]
+            ),
+        ));
+    };
+    Ok(Some(if is_header { (path.to_path_buf(), found) } else { (found, path.to_path_buf()) }))
 }
 
 /// Reads a NIfTI-1/2 volume from memory (gzip detected by the magic bytes 1f 8b); `name` is used in errors.
@@ -173,12 +239,30 @@ pub fn read_bytes(name: &Path, bytes: &[u8], opts: &mut LoadOptions) -> Result<V
 
 fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent, opts: &mut LoadOptions) -> Result<Volume> {
     let h = read_header(path, src)?;
-    let l = layout(path, &h, opts, extent)?;
-    let (lps_from_index, geometry_source, geometry_warning) = lps_from_index(path, &h, l.dims)?;
-    let scale = scaling(path, &h)?;
-    let max_voxel_bytes = opts.max_voxel_bytes;
+    if h.pair {
+        return Err(header::pair_error(path, "name the header .hdr, with its .img beside it"));
+    }
+    read_samples((path, path), &h, src, extent, opts)
+}
 
-    let skip = l.frame_offset - h.version.header_bytes() as u64;
+/// The volume of header `h` whose samples `src` holds after it (a single file, where the header has been read from
+/// `src`) or from its start (a pair's `.img`); `header_path` names the header in errors, `data_path` the samples.
+fn read_samples<S: Source>(
+    (header_path, data_path): (&Path, &Path),
+    h: &header::Header,
+    src: &mut S,
+    extent: Extent,
+    opts: &mut LoadOptions,
+) -> Result<Volume> {
+    let path = header_path;
+    let l = layout(data_path, h, opts, extent)?;
+    let (lps_from_index, geometry_source, geometry_warning) = lps_from_index(path, h, l.dims)?;
+    let scale = scaling(path, h)?;
+    let max_voxel_bytes = opts.max_voxel_bytes;
+    let consumed = if h.pair { 0 } else { h.version.header_bytes() as u64 };
+    let path = data_path;
+
+    let skip = l.frame_offset - consumed;
     let seeks = src.seek_forward(skip).map_err(|e| Error::io(path, e))?;
     let total = l.frame_bytes as u64 + if seeks { 0 } else { skip };
     let mut progress = Reporter { path, opts, done: 0, total };
