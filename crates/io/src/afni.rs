@@ -48,12 +48,7 @@ fn rows(text: &str) -> Vec<&str> {
 /// file of many rows), and is not looked at.
 #[must_use]
 pub fn looks_like_afni_matrix(head: &[u8]) -> bool {
-    // A multi-byte character cut at the end of the head is not an error of the file.
-    let text = match std::str::from_utf8(head) {
-        Ok(text) => text,
-        Err(e) if e.error_len().is_none() => std::str::from_utf8(&head[..e.valid_up_to()]).unwrap_or_default(),
-        Err(_) => return false,
-    };
+    let Some(text) = crate::files::head_text(head) else { return false };
     let mut rows = rows(text);
     if rows.len() > 1 && !text.ends_with('\n') {
         rows.pop();

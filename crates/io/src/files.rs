@@ -19,8 +19,18 @@ pub(crate) fn check_regular_file(path: &Path) -> Result<std::fs::Metadata> {
     Err(Error::new(path, ErrorKind::NotARegularFile { what }))
 }
 
+/// The text of a file's first bytes `head`, a multi-byte character cut at its end dropped (the cut is not the
+/// file's error); `None` when it is not UTF-8.
+pub(crate) fn head_text(head: &[u8]) -> Option<&str> {
+    match std::str::from_utf8(head) {
+        Ok(text) => Some(text),
+        Err(e) if e.error_len().is_none() => std::str::from_utf8(&head[..e.valid_up_to()]).ok(),
+        Err(_) => None,
+    }
+}
+
 /// The text of the small regular file `path`: refused, naming `what` it is not, when it is larger than `max` bytes
-/// or not UTF-8 (a matrix file of FSL or AFNI).
+/// or not UTF-8 (a matrix file of FSL, AFNI or FreeSurfer).
 pub(crate) fn read_small_text(path: &Path, max: u64, what: &str) -> Result<String> {
     let meta = check_regular_file(path)?;
     if meta.len() > max {

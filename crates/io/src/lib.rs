@@ -44,6 +44,7 @@ pub mod nrrd;
 pub mod options;
 pub mod sample;
 pub mod series;
+mod stream;
 pub mod transform_file;
 pub mod volume;
 
@@ -82,7 +83,10 @@ impl Format {
         }
         // Lowercased above, so the comparisons below are case-insensitive.
         let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-        if name.ends_with(".nii") || name.ends_with(".nii.gz") || nifti::pair_paths(path)?.is_some() {
+        // A `.hdr` or `.img` with its other half beside it is a NIfTI pair; without it, the content decides (a
+        // MetaImage may be named `.img`), and the missing half is the error when nothing else fits.
+        let pair = nifti::pair_paths(path);
+        if name.ends_with(".nii") || name.ends_with(".nii.gz") || matches!(pair, Ok(Some(_))) {
             return Ok(Self::Nifti);
         }
         if name.ends_with(".nrrd") || name.ends_with(".nhdr") {
@@ -110,7 +114,10 @@ impl Format {
         } else if metaimage::looks_like_metaimage(head) {
             Ok(Self::MetaImage)
         } else {
-            Err(Error::unsupported(path, "unknown file format (expected NIfTI, NRRD, MetaImage or DICOM)"))
+            pair.and(Err(Error::unsupported(
+                path,
+                "unknown file format (expected NIfTI, NRRD, MetaImage, MGH or DICOM)",
+            )))
         }
     }
 }

@@ -195,11 +195,7 @@ pub fn is_lta_name(path: &Path) -> bool {
 /// sets `type`.
 #[must_use]
 pub fn looks_like_lta(head: &[u8]) -> bool {
-    let text = match std::str::from_utf8(head) {
-        Ok(text) => text,
-        Err(e) if e.error_len().is_none() => std::str::from_utf8(&head[..e.valid_up_to()]).unwrap_or_default(),
-        Err(_) => return false,
-    };
+    let Some(text) = crate::files::head_text(head) else { return false };
     text.lines()
         .map(str::trim)
         .find(|l| !l.is_empty() && !l.starts_with('#'))

@@ -83,6 +83,7 @@ use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Point3, Ras, Transform, lps_from_ras, ras_from_lps};
 use crate::options::LoadOptions;
 use crate::sample::{self, StoredType};
+use crate::stream::{Extent, GZIP_MAGIC, MAX_DEFLATE_RATIO, Source};
 use crate::volume::{self, GeometrySource, SampleType, Volume, VoxelData};
 
 /// Where the samples start: the header, its unused space included.
@@ -102,12 +103,6 @@ const TYPE_CODES: [(i32, StoredType, &str); 5] = [
     (4, StoredType::I16, "SHORT"),
     (10, StoredType::U16, "USHRT"),
 ];
-
-/// gzip's first two bytes.
-const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
-
-/// Deflate's largest expansion (about 1032:1): a `.mgz` of n bytes holds at most this many times n.
-const MAX_DEFLATE_RATIO: u64 = 1032;
 
 /// Bytes read between progress reports (a multiple of every sample size).
 const CHUNK_BYTES: usize = 4 << 20;
@@ -206,41 +201,6 @@ fn check_gzip_magic(name: &Path, head: &[u8]) -> Result<()> {
         },
     ))
 }
-
-/// What bounds the bytes a source can deliver, checked before the samples are allocated.
-#[derive(Clone, Copy, Debug)]
-enum Extent {
-    /// An uncompressed file or buffer of this many bytes.
-    Exact(u64),
-    /// A gzip stream of this many bytes, which inflates to at most [`MAX_DEFLATE_RATIO`] times that.
-    Gzip(u64),
-}
-
-/// A byte stream that may skip forward without reading.
-trait Source: Read {
-    /// Skips `n` bytes when the source can seek; `Ok(false)`: the caller reads through them.
-    fn skip(&mut self, n: u64) -> io::Result<bool> {
-        let _ = n;
-        Ok(false)
-    }
-}
-
-impl Source for BufReader<File> {
-    fn skip(&mut self, n: u64) -> io::Result<bool> {
-        self.seek_relative(i64::try_from(n).map_err(io::Error::other)?)?;
-        Ok(true)
-    }
-}
-
-impl Source for &[u8] {
-    fn skip(&mut self, n: u64) -> io::Result<bool> {
-        let n = usize::try_from(n).unwrap_or(usize::MAX).min(self.len());
-        *self = &self[n..];
-        Ok(true)
-    }
-}
-
-impl<R: Read> Source for MultiGzDecoder<R> {}
 
 /// The fixed fields of the header.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -414,7 +374,7 @@ fn read_source<S: Source>(name: &Path, src: &mut S, extent: Extent, opts: &mut L
         _ => {}
     }
     let skip = u64::try_from(skip).unwrap_or(u64::MAX); // below `end`, which the extent bounds
-    let seeks = src.skip(skip).map_err(|e| Error::io(name, e))?;
+    let seeks = src.seek_forward(skip).map_err(|e| Error::io(name, e))?;
     let total = frame_bytes as u64 + if seeks { 0 } else { skip };
     let mut done = 0u64;
     opts.report(name, "reading", done, total)?;

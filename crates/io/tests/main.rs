@@ -26,3 +26,4 @@ mod mgh;
 mod nifti;
 mod nifti_pair;
 mod nrrd;
+mod support;

@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 use warpbench_io::metaimage::{self, MetaImageWriteOptions};
-use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume, VoxelData};
+use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume};
+
+use crate::support::{open_frame as open, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/metaimage")
@@ -33,16 +35,6 @@ fn expected_type(pixel_type: &str) -> SampleType {
         "32-bit float" | "64-bit float" => SampleType::F32,
         other => panic!("no rule for {other}"),
     }
-}
-
-fn samples_f64(data: &VoxelData) -> Vec<f64> {
-    (0..data.len()).map(|i| data.get_f64(i)).collect()
-}
-
-fn open(path: &Path, frame: Option<usize>) -> warpbench_io::Result<Volume> {
-    let mut opts = LoadOptions::new();
-    opts.frame = frame;
-    opts.open(path)
 }
 
 #[test]

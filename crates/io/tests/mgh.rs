@@ -9,6 +9,8 @@ use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::mgh;
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume, VolumeFileKind, VoxelData};
 
+use crate::support::{open_frame as open, samples_f64};
+
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/mgh")
 }
@@ -62,16 +64,6 @@ fn expected_type(dtype: &str) -> SampleType {
         "int32" | "float32" => SampleType::F32,
         other => panic!("no rule for {other}"),
     }
-}
-
-fn samples_f64(data: &VoxelData) -> Vec<f64> {
-    (0..data.len()).map(|i| data.get_f64(i)).collect()
-}
-
-fn open(path: &Path, frame: Option<usize>) -> warpbench_io::Result<Volume> {
-    let mut opts = LoadOptions::new();
-    opts.frame = frame;
-    opts.open(path)
 }
 
 #[test]

@@ -18,9 +18,7 @@ fn reference() -> serde_json::Value {
 }
 
 fn open(path: &Path, frame: Option<usize>) -> Volume {
-    let mut opts = LoadOptions::new();
-    opts.frame = frame;
-    opts.open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    crate::support::open_frame(path, frame).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
 
 /// nibabel's RAS affine, in LPS.
@@ -50,7 +48,7 @@ fn every_pair_reads_as_nibabel_reads_it_by_either_name() {
                 let got = volume.lps_from_index.matrix();
                 let want = lps(&case["affine"]);
                 assert!((got - want).abs().max() < 1e-9, "{name}: {got} against nibabel's {want}");
-                let read: Vec<f64> = (0..per_frame).map(|i| volume.data.get_f64(i)).collect();
+                let read = crate::support::samples_f64(&volume.data);
                 let want = &values[frame * per_frame..(frame + 1) * per_frame];
                 // Scaled samples become float32 here, unscaled ones keep their type: within float32 of nibabel's
                 // float64 values.

@@ -1,6 +1,6 @@
-//! The byte sources of the readers (a file, plain or gzip-compressed, or a buffer), the bound on what each can
-//! deliver ([`Extent`]), [`fill`], and the progress [`Reporter`]: shared by the volume reader in [`crate::nifti`]
-//! and the stages and field reader beside it.
+//! The NIfTI file as a byte source (plain or gzip-compressed, by content: [`open_file`]), [`fill`], and the progress
+//! [`Reporter`], shared by the volume reader in [`crate::nifti`] and the stages and field reader beside it; the
+//! sources themselves and the bound on what each can deliver are [`crate::stream`]'s, which MGH shares.
 
 use std::fs::File;
 use std::io::{self, BufReader, Read, Seek, SeekFrom};
@@ -11,20 +11,7 @@ use flate2::read::MultiGzDecoder;
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 
-pub(super) const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
-
-/// What bounds the bytes a source can deliver, checked before the voxel buffer is allocated.
-#[derive(Clone, Copy, Debug)]
-pub(super) enum Extent {
-    /// An uncompressed file or buffer of this many bytes: the data must end inside it.
-    Exact(u64),
-    /// A gzip stream of this many compressed bytes: it cannot inflate to more than
-    /// [`MAX_DEFLATE_RATIO`] times that, so a tiny `.nii.gz` claiming gigabytes fails early.
-    Gzip(u64),
-}
-
-/// Deflate's largest expansion: 258-byte matches coded in about 2 bits give about 1032:1.
-pub(super) const MAX_DEFLATE_RATIO: u64 = 1032;
+pub(super) use crate::stream::{Extent, GZIP_MAGIC, MAX_DEFLATE_RATIO, Source};
 
 /// A NIfTI file opened for reading: buffered, and through a gzip decoder when it starts with gzip's magic bytes
 /// (boxed: zlib-rs's inflate state is a few hundred bytes).
@@ -66,32 +53,6 @@ pub(super) fn open_file(path: &Path) -> Result<(FileSource, Extent)> {
         (FileSource::Plain(BufReader::new(file)), Extent::Exact(file_len))
     })
 }
-
-/// A byte stream that may be able to skip forward without reading.
-pub(super) trait Source: Read {
-    /// Skips `n` bytes if the source can seek; `Ok(false)` means the caller must read through them.
-    fn seek_forward(&mut self, n: u64) -> io::Result<bool> {
-        let _ = n;
-        Ok(false)
-    }
-}
-
-impl Source for BufReader<File> {
-    fn seek_forward(&mut self, n: u64) -> io::Result<bool> {
-        self.seek_relative(i64::try_from(n).map_err(io::Error::other)?)?;
-        Ok(true)
-    }
-}
-
-impl Source for &[u8] {
-    fn seek_forward(&mut self, n: u64) -> io::Result<bool> {
-        let n = usize::try_from(n).unwrap_or(usize::MAX).min(self.len());
-        *self = &self[n..];
-        Ok(true)
-    }
-}
-
-impl<R: Read> Source for MultiGzDecoder<R> {}
 
 /// Fills `buf` from `r`; a short stream is a truncated file, a corrupt gzip stream invalid data.
 pub(super) fn fill(path: &Path, r: &mut impl Read, buf: &mut [u8], what: &str) -> Result<()> {
