@@ -156,7 +156,7 @@ impl StartFile {
     /// numbers), an AFNI matrix file (rows of twelve numbers) or a FreeSurfer LTA (`type = …` first).
     ///
     /// # Errors
-    /// As [`Start::read`]; a FLIRT or AFNI matrix that cannot be read.
+    /// As [`Start::read`]; a FLIRT or AFNI matrix or an LTA that cannot be read.
     pub fn read(path: &Path) -> anyhow::Result<Self> {
         let head = head(path);
         if lta::looks_like_lta(&head) {
