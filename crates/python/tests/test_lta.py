@@ -27,6 +27,7 @@ lta_io = pytest.importorskip("nitransforms.io.lta")
 
 import warpbench as wb  # noqa: E402
 from conftest import DATA, run_cli  # noqa: E402
+from test_afni import mapped  # noqa: E402
 from test_fsl import FSL_DATA, pair_rows  # noqa: E402
 
 LTA_DATA = DATA / "lta"
@@ -47,13 +48,6 @@ def grid_volume(path: Path, geometry) -> Path:
     nib.Nifti1Image(np.zeros(tuple(int(n) for n in geometry["volume"]), np.uint8), geometry.as_affine()).to_filename(
         path)
     return path
-
-
-def mapped(tmp_path: Path, args: list, points_lps: np.ndarray) -> np.ndarray:
-    targets, out = tmp_path / "targets.csv", tmp_path / "mapped.csv"
-    targets.write_text("".join(f"{x!r},{y!r},{z!r}\n" for x, y, z in points_lps.tolist()))
-    run_cli("points", *args, "--from", "fixed", "--in", targets, "--out", out, "--quiet", "--force")
-    return np.array([[float(v) for v in line.split(",")[:3]] for line in out.read_text().splitlines()])
 
 
 def test_initial_reads_freesurfers_lta_either_way_round(tmp_path: Path) -> None:
