@@ -71,7 +71,7 @@
 //! old FreeSurfer release may not.
 
 use std::fs::File;
-use std::io::{self, BufReader, Read, Seek, SeekFrom, Write};
+use std::io::{self, BufReader, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use flate2::Compression;
@@ -83,7 +83,7 @@ use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Point3, Ras, Transform, lps_from_ras, ras_from_lps};
 use crate::options::LoadOptions;
 use crate::sample::{self, StoredType};
-use crate::stream::{Extent, GZIP_MAGIC, MAX_DEFLATE_RATIO, Source};
+use crate::stream::{Extent, GZIP_MAGIC, MAX_DEFLATE_RATIO, Source, fill, read_error};
 use crate::volume::{self, GeometrySource, SampleType, Volume, VoxelData};
 
 /// Where the samples start: the header, its unused space included.
@@ -306,26 +306,10 @@ impl Header {
     }
 }
 
-/// Fills `buf` from `r`; a short stream is a truncated file, corrupt gzip data invalid.
-fn fill(name: &Path, r: &mut impl Read, buf: &mut [u8], what: &str) -> Result<()> {
-    r.read_exact(buf).map_err(|e| stream_error(name, e, what))
-}
-
-/// The error of a failed read of `what`: a short stream is a truncated file, corrupt gzip data invalid.
-fn stream_error(name: &Path, e: io::Error, what: &str) -> Error {
-    match e.kind() {
-        io::ErrorKind::UnexpectedEof => Error::truncated(name, format!("the file ends inside {what}")),
-        io::ErrorKind::InvalidData | io::ErrorKind::InvalidInput => {
-            Error::invalid(name, format!("corrupt compressed data in {what}: {e}"))
-        }
-        _ => Error::io(name, e),
-    }
-}
-
 fn read_source<S: Source>(name: &Path, src: &mut S, extent: Extent, opts: &mut LoadOptions) -> Result<Volume> {
     const WHAT: &str = "the 284-byte MGH header";
     let mut head = [0u8; HEADER_BYTES];
-    let got = crate::files::read_up_to(src, &mut head).map_err(|e| stream_error(name, e, WHAT))?;
+    let got = crate::files::read_up_to(src, &mut head).map_err(|e| read_error(name, e, WHAT))?;
     let gzip_hint =
         if head[..got].starts_with(&GZIP_MAGIC) { " (the file is gzip-compressed: name it .mgz)" } else { "" };
     let h = Header::parse(&head);

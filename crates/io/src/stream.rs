@@ -1,11 +1,14 @@
 //! What the binary volume readers (NIfTI, MGH) read their samples through: a byte [`Source`] that may skip forward
-//! without reading (a plain file, a buffer) or not (a gzip stream), and the [`Extent`] that bounds what it can
-//! deliver, checked before the samples are allocated.
+//! without reading (a plain file, a buffer) or not (a gzip stream), the [`Extent`] that bounds what it can deliver,
+//! checked before the samples are allocated, and [`fill`], whose errors tell a short file from corrupt gzip data.
 
 use std::fs::File;
 use std::io::{self, BufReader, Read};
+use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
+
+use crate::error::{Error, Result};
 
 /// gzip's first two bytes.
 pub(crate) const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
@@ -48,3 +51,19 @@ impl Source for &[u8] {
 }
 
 impl<R: Read> Source for MultiGzDecoder<R> {}
+
+/// Fills `buf` from `r`; `what` names the part of the file in errors ([`read_error`]).
+pub(crate) fn fill(path: &Path, r: &mut impl Read, buf: &mut [u8], what: &str) -> Result<()> {
+    r.read_exact(buf).map_err(|e| read_error(path, e, what))
+}
+
+/// The error of a failed read of `what`: a short stream is a truncated file, corrupt gzip data invalid.
+pub(crate) fn read_error(path: &Path, e: io::Error, what: &str) -> Error {
+    match e.kind() {
+        io::ErrorKind::UnexpectedEof => Error::truncated(path, format!("the file ends inside {what}")),
+        io::ErrorKind::InvalidData | io::ErrorKind::InvalidInput => {
+            Error::invalid(path, format!("corrupt compressed data in {what}: {e}"))
+        }
+        _ => Error::io(path, e),
+    }
+}

@@ -11,7 +11,7 @@ use flate2::read::MultiGzDecoder;
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 
-pub(super) use crate::stream::{Extent, GZIP_MAGIC, MAX_DEFLATE_RATIO, Source};
+pub(super) use crate::stream::{Extent, GZIP_MAGIC, MAX_DEFLATE_RATIO, Source, fill};
 
 /// A NIfTI file opened for reading: buffered, and through a gzip decoder when it starts with gzip's magic bytes
 /// (boxed: zlib-rs's inflate state is a few hundred bytes).
@@ -51,17 +51,6 @@ pub(super) fn open_file(path: &Path) -> Result<(FileSource, Extent)> {
         (FileSource::Gzip(Box::new(MultiGzDecoder::new(BufReader::new(file)))), Extent::Gzip(file_len))
     } else {
         (FileSource::Plain(BufReader::new(file)), Extent::Exact(file_len))
-    })
-}
-
-/// Fills `buf` from `r`; a short stream is a truncated file, a corrupt gzip stream invalid data.
-pub(super) fn fill(path: &Path, r: &mut impl Read, buf: &mut [u8], what: &str) -> Result<()> {
-    r.read_exact(buf).map_err(|e| match e.kind() {
-        io::ErrorKind::UnexpectedEof => Error::truncated(path, format!("the file ends inside {what}")),
-        io::ErrorKind::InvalidData | io::ErrorKind::InvalidInput => {
-            Error::invalid(path, format!("corrupt compressed data in {what}: {e}"))
-        }
-        _ => Error::io(path, e),
     })
 }
 
