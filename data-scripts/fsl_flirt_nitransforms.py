@@ -30,16 +30,9 @@ import nibabel as nib
 import nitransforms
 import nitransforms.linear as nitl
 import numpy as np
+from fixture_grids import affine, rotation
 
 OUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "fsl"
-
-
-def rotation(ax: float, ay: float, az: float) -> np.ndarray:
-    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 GRIDS = {
@@ -54,14 +47,9 @@ PAIRS = {"oblique_from_las": ("oblique", "las"), "lps_from_oblique_las": ("lps",
 def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     for name, (linear, origin) in GRIDS.items():
-        affine = np.eye(4)
-        affine[:3, :3] = linear
-        affine[:3, 3] = origin
         data = np.arange(60, dtype=np.float32).reshape(4, 5, 3)
-        nib.save(nib.Nifti1Image(data, affine), OUT / f"{name}.nii.gz")
-    t = np.eye(4)
-    t[:3, :3] = rotation(0.2, 0.1, -0.15) @ np.diag([1.05, 0.97, 1.02])
-    t[:3, 3] = [3.0, -2.0, 5.0]
+        nib.save(nib.Nifti1Image(data, affine(linear, origin)), OUT / f"{name}.nii.gz")
+    t = affine(rotation(0.2, 0.1, -0.15) @ np.diag([1.05, 0.97, 1.02]), [3.0, -2.0, 5.0])
     reference = {"nitransforms": nitransforms.__version__, "nibabel": nib.__version__, "known_ras": t.tolist()}
     for mat, (fixed, moving) in PAIRS.items():
         f, m = str(OUT / f"{fixed}.nii.gz"), str(OUT / f"{moving}.nii.gz")

@@ -45,26 +45,16 @@ from pathlib import Path
 
 import nibabel as nib
 import numpy as np
+from fixture_grids import affine, rotation
 from nibabel.freesurfer.mghformat import MGHImage
 
 OUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "mgh"
 SHAPE = (5, 4, 3)
 
 
-def rotation(ax: float, ay: float, az: float) -> np.ndarray:
-    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
 def affine_of(linear: np.ndarray, c_ras, shape) -> np.ndarray:
     """The vox2ras whose centre voxel (shape / 2, as MGH defines it) is at c_ras."""
-    a = np.eye(4)
-    a[:3, :3] = linear
-    a[:3, 3] = np.asarray(c_ras) - linear @ (np.asarray(shape[:3]) / 2.0)
-    return a
+    return affine(linear, np.asarray(c_ras) - linear @ (np.asarray(shape[:3]) / 2.0))
 
 
 OBLIQUE = affine_of(rotation(0.3, -0.2, 0.5) @ np.diag([0.7, 1.3, 2.5]), (-12.5, 30.25, 7.0), SHAPE)

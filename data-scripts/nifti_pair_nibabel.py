@@ -28,23 +28,9 @@ from pathlib import Path
 
 import nibabel as nib
 import numpy as np
+from fixture_grids import affine, rotation
 
 OUT = Path(__file__).resolve().parent.parent / "tests" / "data" / "nifti_pair"
-
-
-def rotation(ax: float, ay: float, az: float) -> np.ndarray:
-    cx, sx, cy, sy, cz, sz = np.cos(ax), np.sin(ax), np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
-def affine(linear: np.ndarray, origin: tuple[float, float, float]) -> np.ndarray:
-    a = np.eye(4)
-    a[:3, :3] = linear
-    a[:3, 3] = origin
-    return a
 
 
 def pair(name: str, image, ext: str = "img") -> dict:
