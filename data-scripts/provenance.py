@@ -462,6 +462,34 @@ NIBABEL_PAIR_FILES = [
 ]
 
 
+MINC_MADE = """
+## `minc/`: MINC 1 and MINC 2 volumes, from nibabel's test data and written by SimpleITK, scipy and the script
+
+Not downloaded by hand: `data-scripts/minc_fixtures.py` copies ten files from the nibabel 5.4.2 wheel (PyPI
+`nibabel==5.4.2`, as `.ci/run` installs it; `nibabel/tests/data/`), MIT (nibabel's licence, `COPYING`, Copyright (c)
+2009-2019 Matthew Brett and others): made by minc-toolkit's own programs (rawtominc, mincresample, mincconcat,
+mincconvert, nii2mnc; each file's `history` says which). `small.mnc` is the MNI ICBM152 2009a symmetric template
+resampled to 7 x 8 x 9 mm (McConnell Brain Imaging Centre; its licence allows use and copying with the copyright
+notice: Copyright (C) 1993-2009 Louis Collins, McConnell Brain Imaging Centre, Montreal Neurological Institute, McGill
+University). The script has SimpleITK 2.5.7 (libminc 2.4.06) write `oblique_*.mnc`, edits three of them with h5py
+(`slice_scaled_i16`, `permuted_u8`, `negative_step_i16`), and has scipy write the MINC 1 `oblique_minc1_i16.mnc` and
+gzip it; these carry the licence of the code. `minc/reference.json` holds what nibabel and SimpleITK read from each.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+
+MINC_COPIED = ("minc1_1_scale.mnc", "minc1_4d.mnc", "minc1-no-att.mnc", "tiny.mnc", "minc2_1_scale.mnc", "minc2_4d.mnc",
+               "minc2-no-att.mnc", "minc2-4d-d.mnc", "minc2_baddim.mnc", "small.mnc")
+MINC_FILES = [(f"minc/{name}", "minc_fixtures.py", "MIT (nibabel)") for name in MINC_COPIED] + [
+    (f"minc/{name}", "minc_fixtures.py")
+    for name in (
+        "oblique_u8.mnc", "oblique_i16.mnc", "oblique_u16.mnc", "oblique_f32.mnc", "oblique_f64.mnc",
+        "slice_scaled_i16.mnc", "permuted_u8.mnc", "negative_step_i16.mnc", "oblique_minc1_i16.mnc",
+        "oblique_minc1_i16.mnc.gz", "reference.json",
+    )
+]
+
 def script_made(data: Path, heading: str, files: list[tuple[str, ...]]) -> str:
     """The table of files a script made: (path, script) rows carry the code's licence, (path, script, licence) rows
     their own (a file the script copied from a package)."""
@@ -512,6 +540,7 @@ def main() -> int:
     out.append(script_made(data, NIBABEL_MGH_MADE, NIBABEL_MGH_FILES))
     out.append(script_made(data, NITRANSFORMS_LTA, LTA_FILES))
     out.append(script_made(data, NIBABEL_PAIR_MADE, NIBABEL_PAIR_FILES))
+    out.append(script_made(data, MINC_MADE, MINC_FILES))
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))

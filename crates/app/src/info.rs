@@ -300,6 +300,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::NrrdSpacings => ("nrrd_spacings", None),
             GeometrySource::MetaImage => ("metaimage", None),
             GeometrySource::Mgh => ("mgh", None),
+            GeometrySource::Minc => ("minc", None),
             GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::ItkTransformFile => ("itk_transform", None),
             GeometrySource::Learn2RegFixedImage => ("learn2reg_fixed_image", None),
@@ -325,6 +326,7 @@ fn format_name(f: Format) -> &'static str {
         Format::Dicom => "dicom",
         Format::MetaImage => "metaimage",
         Format::Mgh => "mgh",
+        Format::Minc => "minc",
     }
 }
 

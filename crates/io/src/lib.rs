@@ -39,6 +39,7 @@ pub mod learn2reg;
 pub mod lta;
 pub mod metaimage;
 pub mod mgh;
+pub mod minc;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
@@ -71,11 +72,13 @@ pub enum Format {
     MetaImage,
     /// FreeSurfer MGH: `.mgh`, or gzip-compressed `.mgz` (`.mgh.gz`). Known by its name only: it has no magic bytes.
     Mgh,
+    /// MINC: `.mnc` (or `.mnc.gz`), MINC 1 (netCDF) or MINC 2 (HDF5).
+    Minc,
 }
 
 impl Format {
     /// Detects the format of `path`: folders are DICOM series; files by extension (the only way for MGH), then by
-    /// magic bytes (`NRRD`, `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage).
+    /// magic bytes (`NRRD`, `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage, `CDF` for MINC 1).
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn detect(path: &Path) -> Result<Self> {
         if check_file_or_folder(path)?.is_dir() {
@@ -101,6 +104,9 @@ impl Format {
         if mgh::has_mgh_name(path) {
             return Ok(Self::Mgh);
         }
+        if minc::has_minc_name(path) {
+            return Ok(Self::Minc);
+        }
         let mut head = [0u8; 132];
         let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
         let n = read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
@@ -113,10 +119,12 @@ impl Format {
             Ok(Self::Nifti)
         } else if metaimage::looks_like_metaimage(head) {
             Ok(Self::MetaImage)
+        } else if minc::looks_like_minc1(head) {
+            Ok(Self::Minc)
         } else {
             pair.and(Err(Error::unsupported(
                 path,
-                "unknown file format (expected NIfTI, NRRD, MetaImage, MGH or DICOM)",
+                "unknown file format (expected NIfTI, NRRD, MetaImage, MGH, MINC or DICOM)",
             )))
         }
     }
@@ -138,6 +146,7 @@ impl LoadOptions<'_> {
             Format::Dicom => dicom::read_files(&[path.to_path_buf()], self),
             Format::MetaImage => metaimage::read(path, self),
             Format::Mgh => mgh::read(path, self),
+            Format::Minc => minc::read(path, self),
         }?;
         // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
         volume.note_geometry_warnings();
@@ -147,13 +156,14 @@ impl LoadOptions<'_> {
 
 /// Writes `volume` in the format its name says: NIfTI-1 for `.nii` and `.nii.gz` ([`nifti::write`]), NRRD for `.nrrd`
 /// ([`nrrd::write`]), MetaImage for `.mha` and `.mhd` ([`metaimage::write`]), FreeSurfer MGH for `.mgh`, `.mgz` and
-/// `.mgh.gz` ([`mgh::write`]); any other name is an error that lists these. Atomic, as every writer.
+/// `.mgh.gz` ([`mgh::write`]), MINC 2 for `.mnc` ([`minc::write()`]); any other name is an error that lists these. Atomic, as every writer.
 pub fn write_volume(path: &Path, volume: &Volume) -> Result<()> {
     match VolumeFileKind::of(path) {
         Some(VolumeFileKind::Nifti) => nifti::write(path, volume),
         Some(VolumeFileKind::Nrrd) => nrrd::write(path, volume),
         Some(VolumeFileKind::MetaImage) => metaimage::write(path, volume),
         Some(VolumeFileKind::Mgh) => mgh::write(path, volume),
+        Some(VolumeFileKind::Minc) => minc::write(path, volume),
         None => Err(Error::unsupported(path, VolumeFileKind::EXPECTED)),
     }
 }
@@ -169,12 +179,14 @@ pub enum VolumeFileKind {
     MetaImage,
     /// `.mgh`, `.mgz` (gzip), `.mgh.gz`.
     Mgh,
+    /// `.mnc`: MINC 2.
+    Minc,
 }
 
 impl VolumeFileKind {
     /// What a volume output may be named, for messages.
     pub const EXPECTED: &str = "a volume is written as NIfTI (.nii, .nii.gz), NRRD (.nrrd), \
-         MetaImage (.mha, or .mhd with a .raw) or FreeSurfer MGH (.mgh, .mgz)";
+         MetaImage (.mha, or .mhd with a .raw), FreeSurfer MGH (.mgh, .mgz) or MINC 2 (.mnc)";
 
     /// The format `path`'s name says (case ignored), if it is one [`write_volume`] writes.
     #[must_use]
@@ -189,6 +201,8 @@ impl VolumeFileKind {
             Some(Self::MetaImage)
         } else if mgh::has_mgh_name(path) {
             Some(Self::Mgh)
+        } else if name.ends_with(".mnc") {
+            Some(Self::Minc)
         } else {
             None
         }

@@ -183,6 +183,9 @@ pub enum GeometrySource {
     /// FreeSurfer MGH / MGZ: `[Mdc · diag(delta) | c_ras − Mdc · diag(delta) · dims/2]` in RAS, flipped to LPS; when
     /// goodRASflag ≤ 0, FreeSurfer's coronal default (LIA, 1 mm, c_ras 0), with a warning in the metadata.
     Mgh,
+    /// MINC: each spatial dimension's `direction_cosines` × `step` as a column, voxel 0 at Σ cosines · `start`, in
+    /// RAS, flipped to LPS; MINC's defaults (the axis, 1 mm, 0) where the file leaves them out, with a warning.
+    Minc,
     /// An elastix transform parameter file's fixed grid: `Size`, `Spacing`, `Origin` and `Direction`.
     ElastixParameters,
     /// An ITK transform file's `DisplacementFieldTransform`: its fixed parameters (size, origin, spacing, direction).

@@ -23,6 +23,7 @@ mod learn2reg;
 mod lta;
 mod metaimage;
 mod mgh;
+mod minc;
 mod nifti;
 mod nifti_pair;
 mod nrrd;
