@@ -1,5 +1,5 @@
 //! MINC volumes (`.mnc`), the format of the Montreal Neurological Institute's tools (minc-toolkit, CIVET,
-//! BrainWeb's simulated brains) and one ITK reads: MINC 1, a netCDF classic file ([`minc1`]), and MINC 2, an HDF5 file
+//! BrainWeb's simulated brains) and one ITK reads: MINC 1, a netCDF classic file ([`minc1`], [`netcdf`]), and MINC 2, an HDF5 file
 //! ([`minc2`]); either may be gzip-compressed (`.mnc.gz`). Read only.
 //!
 //! # The model both share
@@ -25,6 +25,7 @@
 
 mod minc1;
 mod minc2;
+mod netcdf;
 mod write;
 
 pub use write::{to_bytes, write};
