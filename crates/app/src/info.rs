@@ -22,7 +22,7 @@ Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype
 modality and series.
 
 Reads NIfTI-1/2 (.nii, .nii.gz, or a .hdr/.img pair), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd),
-FreeSurfer's MGH (.mgh, .mgz), a DICOM series folder or one DICOM file.
+FreeSurfer's MGH (.mgh, .mgz), MINC 1 or 2 (.mnc, .mnc.gz), a DICOM series folder or one DICOM file.
 A folder with several series lists them. A displacement field (any flavour warp --field reads, an ITK .h5 holding
 one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz) is described as a field: its flavour, the direction
 it states, its grid and its largest displacement. An ITK transform file (.tfm, .h5, ANTs' .mat) is described by the

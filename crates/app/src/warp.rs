@@ -306,8 +306,8 @@ pub struct WarpArgs {
     /// The value of voxels that map outside the moving volume (default −1024 for a CT, else 0).
     #[arg(long, allow_hyphen_values = true)]
     pub outside: Option<f64>,
-    /// The volume to write: NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha; .mhd with a .raw beside it) or
-    /// FreeSurfer's MGH (.mgh, .mgz).
+    /// The volume to write: NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha; .mhd with a .raw beside it),
+    /// FreeSurfer's MGH (.mgh, .mgz) or MINC 2 (.mnc).
     #[arg(long)]
     pub out: PathBuf,
     /// Also write the result as a DICOM series (new UIDs) into this new folder.
@@ -519,12 +519,12 @@ pub fn check_data_file(out: &Path, inputs: &[&Path], force: bool) -> anyhow::Res
 }
 
 /// Refuses outputs `warp` cannot write: `out` not named as a volume [`warpbench_io::write_volume`] writes (`.nii`,
-/// `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`), or `out_dicom` an existing folder that is not empty. (Whether `out` may be
+/// `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`, `.mnc`), or `out_dicom` an existing folder that is not empty. (Whether `out` may be
 /// replaced is [`OutputFile::check`]'s business, and [`check_data_file`]'s for a `.mhd`'s data file.)
 pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> anyhow::Result<()> {
     if VolumeFileKind::of(out).is_none() {
         return Err(anyhow!(
-            "{}: --out must end in .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh or .mgz ({})",
+            "{}: --out must end in .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz or .mnc ({})",
             out.display(),
             VolumeFileKind::EXPECTED
         ));

@@ -197,8 +197,8 @@ impl Purpose {
         let d = rfd::FileDialog::new();
         let volumes = |d: rfd::FileDialog| {
             d.add_filter(
-                "Volumes (NIfTI, NRRD, MetaImage, MGH)",
-                &["nii", "gz", "hdr", "img", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz"],
+                "Volumes (NIfTI, NRRD, MetaImage, MGH, MINC)",
+                &["nii", "gz", "hdr", "img", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz", "mnc"],
             )
             .add_filter("All files", &["*"])
         };
@@ -211,9 +211,10 @@ impl Purpose {
                 .add_filter("Thin-plate spline saved by 3D Slicer or ITK", &["h5", "tfm"])
                 .add_filter("transformix's outputpoints.txt", &["txt"]),
             Self::ExportLandmarks => d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"]),
-            Self::ExportWarped | Self::ExportMap(_) => {
-                d.add_filter("NIfTI, NRRD, MetaImage or MGH", &["nii", "gz", "nrrd", "mha", "mhd", "mgh", "mgz"])
-            }
+            Self::ExportWarped | Self::ExportMap(_) => d.add_filter(
+                "NIfTI, NRRD, MetaImage, MGH or MINC",
+                &["nii", "gz", "nrrd", "mha", "mhd", "mgh", "mgz", "mnc"],
+            ),
             Self::ExportField | Self::ExportInverseField => d
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
                 .add_filter("ITK transform holding the field (HDF5)", &["h5"]),

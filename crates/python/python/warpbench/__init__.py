@@ -148,7 +148,7 @@ class Volume:
 
     def write(self, path: PathLike) -> None:
         """Writes the volume as the command line does: NIfTI-1 (``.nii``, ``.nii.gz``), NRRD (``.nrrd``),
-        MetaImage (``.mha``, ``.mhd``) or FreeSurfer's MGH (``.mgh``, ``.mgz``), by the name, atomically (an interrupted write leaves no partial file)."""
+        MetaImage (``.mha``, ``.mhd``), FreeSurfer's MGH (``.mgh``, ``.mgz``) or MINC 2 (``.mnc``), by the name, atomically (an interrupted write leaves no partial file)."""
         _warpbench.write_volume(os.fspath(path), self.array, self.lps_from_index, self.modality)
 
     def to_nibabel(self) -> Any:
@@ -177,7 +177,7 @@ class Volume:
 
 def read_volume(path: PathLike, *, frame: Optional[int] = None) -> Volume:
     """Reads a volume in any format the command line reads: NIfTI-1/2, NRRD, a DICOM series (folder or file),
-    MetaImage, FreeSurfer's MGH/MGZ. ``frame`` chooses one frame of a 4-D file."""
+    MetaImage, FreeSurfer's MGH/MGZ, MINC 1 and 2. ``frame`` chooses one frame of a 4-D file."""
     array, lps, header = _warpbench.read_volume(os.fspath(path), frame)
     info = json.loads(header)
     return Volume(array, lps, modality=info.get("modality"), path=path, header=info)
