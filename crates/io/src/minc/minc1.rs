@@ -7,8 +7,8 @@
 
 use std::path::Path;
 
+use super::model::{Dimension, Header, SliceRange, volume_of};
 use super::netcdf::{NcFile, NcType, Var};
-use super::{Dimension, Header, SliceRange, volume_of};
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 use crate::sample::{self, StoredType, with_stored_type};

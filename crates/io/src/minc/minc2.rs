@@ -10,7 +10,7 @@ use std::path::Path;
 
 use hdf5_pure::{AttrValue, DType, Dataset, File};
 
-use super::{Dimension, Header, SliceRange, volume_of};
+use super::model::{Dimension, Header, SliceRange, volume_of};
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 use crate::sample::{StoredType, with_stored_type};

@@ -11,7 +11,7 @@ use std::path::Path;
 use hdf5_pure::{AttrValue, DatasetBuilder, FileBuilder, LibVer};
 use nalgebra::{Matrix3, Vector3};
 
-use super::SPATIAL;
+use super::model::SPATIAL;
 use crate::error::{Error, Result};
 use crate::geometry::ras_from_lps;
 use crate::volume::{self, Volume, VoxelData};
