@@ -490,6 +490,29 @@ MINC_FILES = [(f"minc/{name}", "minc_fixtures.py", "MIT (nibabel)") for name in 
     )
 ]
 
+MNI_MADE = """
+## `mni/`: MNI tag point files and MNI transform files, written by VTK and by the script
+
+Not downloaded: `data-scripts/mni_vtk.py` has VTK 9.7.1 (PyPI `vtk==9.7.1`, as `.ci/run` installs it;
+`vtkMNITagPointWriter`, `vtkMNITransformWriter`, whose grid volumes are MINC 1 files of its `vtkMINCImageWriter`) and
+SimpleITK 2.5.7 (`grid_itk*`, a MINC 2 grid) write them, with creation times and idents fixed so that a rerun writes the
+same bytes; `hand_written.tag` is text in the layout of MNI's `register` (volume_io's `output_tag_points`), and
+`linear_inverted.xfm` is `linear.xfm` with the `Invert_Flag` line VTK does not write. `mni/reference.json` holds what
+VTK's readers and SimpleITK read from each. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+
+MNI_FILES = [
+    (f"mni/{name}", "mni_vtk.py")
+    for name in (
+        "pairs.tag", "pairs_ids.tag", "pairs_nolabels.tag", "one_volume.tag", "comments.tag", "hand_written.tag",
+        "linear.xfm", "linear_inverted.xfm", "concatenated.xfm", "grid.xfm", "grid_grid.mnc", "grid_inverted.xfm",
+        "grid_inverted_grid.mnc", "grid_itk.xfm", "grid_itk_grid_0.mnc", "tps.xfm", "reference.json",
+    )
+]
+
 def script_made(data: Path, heading: str, files: list[tuple[str, ...]]) -> str:
     """The table of files a script made: (path, script) rows carry the code's licence, (path, script, licence) rows
     their own (a file the script copied from a package)."""
@@ -541,6 +564,7 @@ def main() -> int:
     out.append(script_made(data, NITRANSFORMS_LTA, LTA_FILES))
     out.append(script_made(data, NIBABEL_PAIR_MADE, NIBABEL_PAIR_FILES))
     out.append(script_made(data, MINC_MADE, MINC_FILES))
+    out.append(script_made(data, MNI_MADE, MNI_FILES))
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))

@@ -38,7 +38,8 @@ The file (AffineTransform_double_3_3) maps fixed points to moving points (LPS mm
 writes its result: SimpleITK, ANTs and Slicer resample the moving volume with it. A name ending in .mat
 writes the same affine as ANTs' MATLAB file (what antsRegistration writes as 0GenericAffine.mat); one ending in
 .1D (.aff12.1D) as AFNI's matrix file, for 3dAllineate -1Dmatrix_apply, when neither volume is oblique; one
-ending in .lta as FreeSurfer's LTA (src the moving volume, dst the fixed one), for mri_vol2vol --lta. Examples:
+ending in .lta as FreeSurfer's LTA (src the moving volume, dst the fixed one), for mri_vol2vol --lta; one ending
+in .xfm as an MNI transform file (the moving volume's world to the fixed one's, RAS), for mincresample. Examples:
 
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.tfm
     warpbench align --fixed ct.nii.gz --moving mr.nii.gz --out-tfm mr_to_ct.mat --affine --json";
@@ -54,7 +55,7 @@ pub struct AlignArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
     /// The ITK transform file to write (.tfm or .txt; .h5 for ITK's HDF5 file, .mat for ANTs' MATLAB file; .aff12.1D
-    /// for AFNI's matrix file, .lta for FreeSurfer's): the pull-back, fixed points to moving points.
+    /// for AFNI's matrix file, .lta for FreeSurfer's, .xfm for MINC's): the pull-back, fixed points to moving points.
     #[arg(long, value_name = "FILE")]
     pub out_tfm: PathBuf,
     /// Refine the rigid result to an affine one (12 parameters) at the finest level.
@@ -133,6 +134,8 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
     let t = &result.moving_from_fixed;
     if afni_out {
         warpbench_io::afni::write(&out_tfm, t.matrix())?;
+    } else if warpbench_io::mni_xfm::is_xfm_name(&out_tfm) {
+        warpbench_io::mni_xfm::write(&out_tfm, t.matrix())?;
     } else if warpbench_io::lta::is_lta_name(&out_tfm) {
         let ((fixed_dims, fixed_grid), (moving_dims, moving_grid)) = &grids;
         let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());

@@ -17,7 +17,8 @@ use anyhow::{Context, anyhow};
 use serde::Serialize;
 use warpbench_io::landmarks::{
     self, BigWarpCsvOptions, CsvCoordinates, LandmarkFileFormat, LandmarkPair, read_landmark_pairs_with,
-    read_slicer_pair, write_bigwarp_csv_with, write_bigwarp_json_with, write_plain_csv, write_slicer_pair,
+    read_slicer_pair, write_bigwarp_csv_with, write_bigwarp_json_with, write_mni_tag, write_plain_csv,
+    write_slicer_pair,
 };
 
 use crate::args::ReportArgs;
@@ -36,10 +37,14 @@ pub enum PairFileFormat {
     BigwarpJson,
     /// A CSV with a header naming its columns and coordinate system.
     PlainCsv,
+    /// An MNI tag point file (MINC's `register`, `tagtoxfm`): volume 1 the fixed points, volume 2 the moving ones,
+    /// RAS mm.
+    MniTag,
 }
 
 impl PairFileFormat {
-    /// The format of an output named `path` when `--to` is not given: `.json` is BigWarp JSON, `.csv` BigWarp CSV.
+    /// The format of an output named `path` when `--to` is not given: `.json` is BigWarp JSON, `.csv` BigWarp CSV,
+    /// `.tag` an MNI tag file.
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn from_name(path: &Path) -> Result<Self, Failure> {
         let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
@@ -53,9 +58,10 @@ impl PairFileFormat {
         match Path::new(&lower).extension().and_then(|e| e.to_str()) {
             Some("json") => Ok(Self::BigwarpJson),
             Some("csv") => Ok(Self::BigwarpCsv),
+            Some("tag") => Ok(Self::MniTag),
             _ => Err(Failure::BadInput(anyhow!(
-                "{}: cannot tell the format from the name; end it in .csv (BigWarp CSV) or .json (BigWarp JSON), or \
-                 give --to bigwarp-csv, bigwarp-json or plain-csv",
+                "{}: cannot tell the format from the name; end it in .csv (BigWarp CSV), .json (BigWarp JSON) or .tag \
+                 (MNI tag file), or give --to bigwarp-csv, bigwarp-json, plain-csv or mni-tag",
                 path.display()
             ))),
         }
@@ -231,6 +237,12 @@ pub fn read_pairs(input: &inputs::LandmarkSource, ras: bool) -> Result<(Vec<Land
                     path.display()
                 )));
             }
+            if ras && format == LandmarkFileFormat::MniTag {
+                return Err(Failure::BadInput(anyhow!(
+                    "{}: --ras is for BigWarp files; an MNI tag file is in RAS mm, as every MINC file",
+                    path.display()
+                )));
+            }
             if ras && format == LandmarkFileFormat::PlainCsv {
                 return Err(Failure::BadInput(anyhow!(
                     "{}: --ras is for BigWarp files; a plain CSV's header states its coordinate system (moving_l/p/s \
@@ -274,6 +286,7 @@ pub fn write_pairs(output: &LandmarkOutput, pairs: &[LandmarkPair], out_ras: boo
         LandmarkOutput::Pairs { path, format: PairFileFormat::PlainCsv } => {
             write_plain_csv(path, pairs, if out_ras { CsvCoordinates::Ras } else { CsvCoordinates::Lps })
         }
+        LandmarkOutput::Pairs { path, format: PairFileFormat::MniTag } => write_mni_tag(path, pairs),
         LandmarkOutput::SlicerPair { moving, fixed } => write_slicer_pair(moving, fixed, pairs),
     };
     result.map_err(|e| Failure::BadInput(e.into()))
@@ -345,7 +358,7 @@ fn write_table(l: &LandmarksListing, out: &mut dyn Write) -> std::io::Result<()>
 /// `warpbench --help` show.
 const HELP: &str = "\
 Convert and list landmark pairs: BigWarp CSV ↔ BigWarp JSON ↔ a Slicer pair (.mrk.json or .fcsv, moving and
-fixed) ↔ plain CSV ↔ elastix point sets (.txt, moving and fixed; transformix's outputpoints.txt in); --json
+fixed) ↔ plain CSV ↔ MNI tag files (.tag: MINC's register) ↔ elastix point sets (.txt, moving and fixed; transformix's outputpoints.txt in); --json
 lists the pairs (name, active, moving, fixed, LPS mm) for scripts.
 
 Without --out (or --out-moving/--out-fixed) and --json it prints the pairs as a table. The coordinate system
@@ -363,8 +376,8 @@ comes from the file where it says it (Slicer files, the plain CSV's header); Big
 #[command(about = crate::args::summary(HELP), long_about = HELP)]
 #[allow(clippy::struct_excessive_bools, reason = "one bool per command-line flag")]
 pub struct LandmarksArgs {
-    /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file), plain CSV or transformix's
-    /// outputpoints.txt, told apart by content. For a Slicer pair or elastix point sets give --moving-points and
+    /// A file of pairs: BigWarp CSV, BigWarp JSON (also a BigWarp settings file), plain CSV, an MNI tag file or
+    /// transformix's outputpoints.txt, told apart by content. For a Slicer pair or elastix point sets give --moving-points and
     /// --fixed-points instead.
     #[arg(required_unless_present = "moving_points")]
     pub input: Option<PathBuf>,

@@ -19,7 +19,7 @@ use std::path::Path;
 use anyhow::{Context, anyhow};
 use nalgebra::Matrix4;
 use warpbench_io::geometry::Point3;
-use warpbench_io::{Volume, afni, dicom_reg, elastix, fsl, itk_h5, lta};
+use warpbench_io::{Volume, afni, dicom_reg, elastix, fsl, itk_h5, lta, mni_xfm};
 use warpbench_solver::linear::AffineWarp;
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
@@ -55,7 +55,9 @@ impl Start {
     /// [`warpbench_io::itk_h5::read_affine`]), a DICOM Spatial Registration ([`warpbench_io::dicom_reg::read_affine`]),
     /// or an elastix transform parameter file holding a linear transform (and
     /// its chain of initial transforms, [`warpbench_io::elastix::read_affine`]): fixed points to moving points, LPS mm.
-    /// A FLIRT or AFNI matrix, which needs the two volumes, is refused here ([`Self::read_on`] takes it).
+    /// A FLIRT or AFNI matrix, which needs the two volumes, is refused here ([`Self::read_on`] takes it). An MNI
+    /// transform file (`.xfm`, [`warpbench_io::mni_xfm`]) maps the moving volume's world to the fixed one's, and is
+    /// read as its inverse.
     ///
     /// # Errors
     /// When the file cannot be read, holds another kind of transform, or is not invertible; the message names it.
@@ -91,6 +93,8 @@ impl Start {
         let name = path.display().to_string();
         let reader: Option<Reader> = if elastix::looks_like_parameter_file(head) {
             Some(elastix::read_affine)
+        } else if mni_xfm::looks_like_xfm(head) {
+            Some(mni_xfm::read_affine)
         } else if itk_h5::looks_like_hdf5(head) {
             Some(itk_h5::read_affine)
         } else if dicom_reg::looks_like_dicom(head) {

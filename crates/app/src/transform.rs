@@ -152,10 +152,13 @@ pub enum TransformFormat {
     Afni,
     /// FreeSurfer's LTA (`.lta`, `mri_vol2vol --lta`), for a linear warp: src the moving volume, dst the fixed one.
     Lta,
+    /// An MNI transform file (`.xfm`, `mincresample -transformation`), for a linear warp: the moving volume's world to
+    /// the fixed one's, RAS mm.
+    Minc,
 }
 
 impl TransformFormat {
-    /// `itk`, `elastix`, `dicom`, `fsl`, `afni` or `lta`.
+    /// `itk`, `elastix`, `dicom`, `fsl`, `afni`, `lta` or `minc`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -165,6 +168,7 @@ impl TransformFormat {
             Self::Fsl => "fsl",
             Self::Afni => "afni",
             Self::Lta => "lta",
+            Self::Minc => "minc",
         }
     }
 }
@@ -194,6 +198,8 @@ pub enum Written {
     Afni,
     /// FreeSurfer's LTA.
     Lta,
+    /// An MNI transform file.
+    Minc,
 }
 
 impl Written {
@@ -206,6 +212,7 @@ impl Written {
             Self::Fsl => "FLIRT matrix",
             Self::Afni => "AFNI matrix",
             Self::Lta => "LTA",
+            Self::Minc => "MNI transform",
             Self::Elastix(class) => class,
             Self::Dicom(kind) => kind.name(),
         }
@@ -322,6 +329,12 @@ pub fn check_transform_name(path: &Path, format: TransformFormat) -> Result<(), 
             path.display()
         )));
     }
+    if format == TransformFormat::Minc && !extension("xfm") {
+        return Err(Failure::BadInput(anyhow::anyhow!(
+            "{}: MINC's tools tell a transform file by its name: name it .xfm, e.g. mr_to_ct.xfm",
+            path.display()
+        )));
+    }
     if format == TransformFormat::Dicom && !extension("dcm") {
         return Err(Failure::BadInput(anyhow::anyhow!(
             "{}: a DICOM registration is written to one file named .dcm, e.g. mr_to_ct_reg.dcm",
@@ -374,6 +387,10 @@ pub fn write_transform(
             write_lta(path, transform, (fixed.0, &fixed.1), (moving.0, &moving.1))?;
             Written::Lta
         }
+        TransformFormat::Minc => {
+            write_xfm(path, transform)?;
+            Written::Minc
+        }
     })
 }
 
@@ -391,6 +408,18 @@ pub fn write_lta(
     check_transform_name(path, TransformFormat::Lta)?;
     let u = affine_matrix(path, transform, "FreeSurfer's LTA")?;
     lta::write(path, &u, fixed, moving)?;
+    Ok(())
+}
+
+/// Writes the affine `transform` (the pull-back, LPS mm) as an MNI transform file: its inverse, the moving volume's
+/// world to the fixed one's, RAS mm ([`warpbench_io::mni_xfm`]).
+///
+/// # Errors
+/// A transform that is not affine (the file written holds a linear one), or what the writer refuses.
+pub fn write_xfm(path: &Path, transform: &ItkTransform) -> Result<(), Failure> {
+    check_transform_name(path, TransformFormat::Minc)?;
+    let u = affine_matrix(path, transform, "an MNI transform file")?;
+    warpbench_io::mni_xfm::write(path, &u)?;
     Ok(())
 }
 
@@ -420,6 +449,7 @@ pub fn affine_only(out: &Path, format: TransformFormat, field: bool) -> Option<F
         TransformFormat::Fsl => "FSL's FLIRT matrix",
         TransformFormat::Afni => "AFNI's matrix file",
         TransformFormat::Lta => "FreeSurfer's LTA",
+        TransformFormat::Minc => "an MNI transform file",
         TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Dicom => return None,
     };
     Some(Failure::BadInput(anyhow::anyhow!(
@@ -763,17 +793,21 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             format: format.name(),
             elastix_transform: match written {
                 Written::Elastix(class) => Some(class),
-                Written::Itk | Written::Dicom(_) | Written::Fsl | Written::Afni | Written::Lta => None,
+                Written::Itk | Written::Dicom(_) | Written::Fsl | Written::Afni | Written::Lta | Written::Minc => None,
             },
             dicom_matrix_type: match written {
                 Written::Dicom(kind) => Some(kind.name()),
-                Written::Itk | Written::Elastix(_) | Written::Fsl | Written::Afni | Written::Lta => None,
+                Written::Itk | Written::Elastix(_) | Written::Fsl | Written::Afni | Written::Lta | Written::Minc => {
+                    None
+                }
             },
             field: None,
             method: exact.method,
             pairs: exact.pairs,
             map: match format {
-                TransformFormat::Dicom | TransformFormat::Fsl | TransformFormat::Lta => "fixed_from_moving",
+                TransformFormat::Dicom | TransformFormat::Fsl | TransformFormat::Lta | TransformFormat::Minc => {
+                    "fixed_from_moving"
+                }
                 TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Afni => "moving_from_fixed",
             },
             domain_lps: exact.domain_lps,
@@ -790,6 +824,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
             (TransformFormat::Dicom, _) => "a deformation grid from the fixed series' frame to the moving series'",
             (TransformFormat::Fsl, _) => "FLIRT's matrix from the moving volume's FSL coordinates to the fixed one's",
             (TransformFormat::Lta, _) => "from the moving volume (src) to the fixed one (dst), RAS mm",
+            (TransformFormat::Minc, _) => "from the moving volume's world to the fixed one's, RAS mm",
             _ => "maps fixed points to moving points, LPS mm",
         };
         eprintln!(
@@ -800,6 +835,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
                 TransformFormat::Fsl => "FLIRT matrix",
                 TransformFormat::Afni => "AFNI matrix",
                 TransformFormat::Lta => "LTA, LINEAR_RAS_TO_RAS",
+                TransformFormat::Minc => "MNI transform, Linear",
                 _ => summary.itk_class,
             }),
             summary.method,

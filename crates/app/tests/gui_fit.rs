@@ -809,6 +809,22 @@ fn a_starting_transform_from_a_file_sits_under_the_landmarks() {
     let grids = ((fixed.dims, &fixed.lps_from_index), (moving.dims, &moving.lps_from_index));
     let from_lta = warpbench_io::lta::moving_from_fixed(&lta_out, &lta, grids.0, grids.1).expect("the pull-back");
     assert!((from_lta - u).abs().max() < 1e-9, "{from_lta} written, {u} shown");
+    // File > Export for MINC: an MNI transform file, the moving volume's world to the fixed one's, which reads back as
+    // the same pull-back.
+    let xfm_out = dir.path().join("back.xfm");
+    let export = warpbench_app::gui::files::FileAction::ExportTransform(
+        warpbench_app::transform::TransformFormat::Minc,
+        xfm_out.clone(),
+    );
+    harness.state_mut().ready_mut().expect("ready").apply(Command::File(export));
+    let message = window::wait_for_export(&mut harness);
+    assert!(message.contains("back.xfm") && message.contains("MNI transform"), "{message}");
+    let from_xfm = warpbench_io::mni_xfm::read_affine(&xfm_out).unwrap_or_else(|e| panic!("{e}: {message}"));
+    for x in [[10.0, -20.0, 15.0], [-60.0, 40.0, -30.0]] {
+        let want = u * nalgebra::Vector4::new(x[0], x[1], x[2], 1.0);
+        let got = from_xfm.apply(x);
+        assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-9), "{got:?} from the .xfm, {want:?} shown");
+    }
 }
 
 /// A displacement field under the landmarks (issue 29, item 2, as BigWarp's transform sequences): "Use field under

@@ -40,6 +40,7 @@ pub mod lta;
 pub mod metaimage;
 pub mod mgh;
 pub mod minc;
+pub mod mni_xfm;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;

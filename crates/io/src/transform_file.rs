@@ -30,6 +30,13 @@ pub fn write(path: &Path, transform: &ItkTransform) -> Result<()> {
              FreeSurfer's file (transform --format lta)",
         ));
     }
+    if crate::mni_xfm::is_xfm_name(path) {
+        return Err(crate::Error::invalid(
+            path,
+            "a name ending .xfm is an MNI (MINC) transform file, which ITK reads as one: name it .tfm, .h5 or .mat, or \
+             write the MNI file (transform --format minc)",
+        ));
+    }
     if itk_tfm::is_hdf5_name(path) {
         itk_h5::write(path, &[H5Transform::Transform(transform)])
     } else {

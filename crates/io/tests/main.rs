@@ -24,6 +24,7 @@ mod lta;
 mod metaimage;
 mod mgh;
 mod minc;
+mod mni;
 mod nifti;
 mod nifti_pair;
 mod nrrd;

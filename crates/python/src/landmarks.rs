@@ -75,7 +75,7 @@ pub fn pairs_from_arrays(
 }
 
 /// Writes pairs as `warpbench landmarks --out` does: BigWarp CSV (`.csv`) or JSON (`.json`), or `format`
-/// (`bigwarp-csv`, `bigwarp-json`, `plain-csv`); with `fixed_path`, a Slicer pair (`path` the moving list). `ras`:
+/// (`bigwarp-csv`, `bigwarp-json`, `plain-csv`, `mni-tag`); with `fixed_path`, a Slicer pair (`path` the moving list). `ras`:
 /// write BigWarp and plain CSV coordinates in RAS.
 #[pyfunction]
 #[pyo3(signature = (path, moving, fixed, names, active, fixed_path = None, format = None, ras = false))]
@@ -97,7 +97,7 @@ pub fn write_landmarks(
     } else {
         let format = match format {
             Some(name) => <PairFileFormat as clap::ValueEnum>::from_str(name, true).map_err(|_| {
-                PyValueError::new_err(format!("format={name:?}: give bigwarp-csv, bigwarp-json or plain-csv"))
+                PyValueError::new_err(format!("format={name:?}: give bigwarp-csv, bigwarp-json, plain-csv or mni-tag"))
             })?,
             None => PairFileFormat::from_name(&path).map_err(|f| to_py(&f))?,
         };

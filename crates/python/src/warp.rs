@@ -555,6 +555,15 @@ impl Warp {
         })
     }
 
+    /// Writes the pull-back, a linear warp, as an MNI transform file (`.xfm`): the moving volume's world to the fixed
+    /// one's, RAS mm, as `warpbench transform --format minc` writes it for `mincresample -transformation`.
+    fn to_xfm(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        guarded(py, || {
+            let transform = self.pullback.itk_transform().map_err(bad_input)?;
+            transform::write_xfm(&path, &transform).map_err(|f| to_py(&f))
+        })
+    }
+
     /// Writes the pull-back, a linear warp, as FreeSurfer's LTA (`LINEAR_RAS_TO_RAS`), src the moving volume and dst
     /// the fixed one the warp was fitted with, each named by `fixed_name` and `moving_name` (its file, or empty), as
     /// `warpbench transform --format lta` writes it.

@@ -306,6 +306,7 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 TransformFormat::Dicom => "moving patient coordinates to fixed ones",
                 TransformFormat::Fsl => "the moving volume's FSL coordinates to the fixed one's",
                 TransformFormat::Lta => "the moving volume (src) to the fixed one (dst), RAS mm",
+                TransformFormat::Minc => "the moving volume's world to the fixed one's, RAS mm",
                 TransformFormat::Itk | TransformFormat::Elastix | TransformFormat::Afni => {
                     "fixed points to moving points, LPS mm"
                 }
@@ -371,6 +372,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Fsl => matches!(extension.as_str(), "mat" | "txt" | "xfm"),
         TransformFormat::Afni => extension == "1d",
         TransformFormat::Lta => extension == "lta",
+        TransformFormat::Minc => extension == "xfm",
     };
     if fits {
         return transform::check_transform_name(out, format).map_err(|f| format!("{:#}", f.error()));
@@ -386,6 +388,7 @@ fn check_transform_output(out: &Path, format: TransformFormat) -> Result<(), Str
         TransformFormat::Fsl => format!("{}: FSL's FLIRT matrix is a .mat (e.g. mr_to_ct.mat)", out.display()),
         TransformFormat::Afni => format!("{}: AFNI's matrix file is a .1D (e.g. mr_to_ct.aff12.1D)", out.display()),
         TransformFormat::Lta => format!("{}: FreeSurfer's LTA is a .lta (e.g. mr_to_t1.lta)", out.display()),
+        TransformFormat::Minc => format!("{}: an MNI transform file is a .xfm (e.g. mr_to_t1.xfm)", out.display()),
     })
 }
 

@@ -252,7 +252,8 @@ pub fn mask_ui(
     })
 }
 
-/// Writes the pairs as BigWarp JSON (`.json`) or BigWarp CSV (any other name), or as a Slicer pair of point lists
+/// Writes the pairs as BigWarp JSON (`.json`), an MNI tag file (`.tag`) or BigWarp CSV (any other name), or as a Slicer
+/// pair of point lists
 /// for `.mrk.json` / `.fcsv`:
 /// `NAME.mrk.json` becomes `NAME_moving.mrk.json` and `NAME_fixed.mrk.json`.
 pub fn export_landmarks(path: &std::path::Path, pairs: &[LandmarkPair]) -> anyhow::Result<()> {

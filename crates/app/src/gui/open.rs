@@ -207,10 +207,12 @@ impl Purpose {
             Self::OpenFolder(side) => d.set_title(format!("Open a DICOM folder as the {} volume", side.name())),
             Self::OpenSession | Self::SaveSession => d.add_filter("warpbench session", &["json"]),
             Self::ImportLandmarks => d
-                .add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"])
+                .add_filter("Landmarks (BigWarp CSV or JSON, Slicer, MNI tag)", &["csv", "json", "fcsv", "tag"])
                 .add_filter("Thin-plate spline saved by 3D Slicer or ITK", &["h5", "tfm"])
                 .add_filter("transformix's outputpoints.txt", &["txt"]),
-            Self::ExportLandmarks => d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer)", &["csv", "json", "fcsv"]),
+            Self::ExportLandmarks => {
+                d.add_filter("Landmarks (BigWarp CSV or JSON, Slicer, MNI tag)", &["csv", "json", "fcsv", "tag"])
+            }
             Self::ExportWarped | Self::ExportMap(_) => d.add_filter(
                 "NIfTI, NRRD, MetaImage, MGH or MINC",
                 &["nii", "gz", "nrrd", "mha", "mhd", "mgh", "mgz", "mnc"],
@@ -233,6 +235,7 @@ impl Purpose {
             Self::ExportTransform(TransformFormat::Fsl) => d.add_filter("FSL FLIRT matrix", &["mat"]),
             Self::ExportTransform(TransformFormat::Afni) => d.add_filter("AFNI matrix file", &["1D"]),
             Self::ExportTransform(TransformFormat::Lta) => d.add_filter("FreeSurfer LTA", &["lta"]),
+            Self::ExportTransform(TransformFormat::Minc) => d.add_filter("MNI transform (MINC)", &["xfm"]),
             Self::ExportTransform(TransformFormat::Dicom) => {
                 d.add_filter("DICOM Spatial Registration", &["dcm"]).set_file_name("registration.dcm")
             }
@@ -536,6 +539,7 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         item(ui, "Export for FSL...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Fsl)));
         item(ui, "Export for AFNI...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Afni)));
         item(ui, "Export for FreeSurfer...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Lta)));
+        item(ui, "Export for MINC...", ready, OpenEvent::Dialog(Purpose::ExportTransform(TransformFormat::Minc)));
         ui.separator();
         item(ui, "Use starting transform...", ready, OpenEvent::Dialog(Purpose::UseStart));
         item(ui, "Use displacement field...", ready, OpenEvent::Dialog(Purpose::UseField));

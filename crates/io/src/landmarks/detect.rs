@@ -5,6 +5,7 @@ use std::path::Path;
 use super::bigwarp_json::{bigwarp_table, not_bigwarp, parse_gson_json};
 use super::elastix_points::{looks_like_elastix_points, looks_like_transformix_output};
 use super::itk_tps::looks_like_tfm;
+use super::mni_tag::looks_like_mni_tag;
 use super::plain_csv::looks_like_plain_csv;
 use super::text::{read_bytes, strip_bom, utf8};
 use crate::error::Result;
@@ -28,6 +29,8 @@ pub enum LandmarkFileFormat {
     ElastixPoints,
     /// transformix's `outputpoints.txt`: pairs (each input point, on the fixed image, and its image on the moving one).
     TransformixOutput,
+    /// An MNI tag point file (`.tag`): pairs when it has two volumes.
+    MniTag,
     /// An ITK or 3D Slicer thin-plate-spline transform file (`.tfm` text or `.h5`): pairs, its landmarks
     /// ([`parse_spline_file`](super::parse_spline_file)).
     ItkThinPlateSpline,
@@ -39,7 +42,12 @@ impl LandmarkFileFormat {
     pub fn holds_pairs(self) -> bool {
         matches!(
             self,
-            Self::BigWarpCsv | Self::BigWarpJson | Self::PlainCsv | Self::TransformixOutput | Self::ItkThinPlateSpline
+            Self::BigWarpCsv
+                | Self::BigWarpJson
+                | Self::PlainCsv
+                | Self::TransformixOutput
+                | Self::ItkThinPlateSpline
+                | Self::MniTag
         )
     }
 
@@ -55,6 +63,7 @@ impl LandmarkFileFormat {
             Self::ElastixPoints => "elastix-points",
             Self::TransformixOutput => "transformix-output",
             Self::ItkThinPlateSpline => "itk-tps",
+            Self::MniTag => "mni-tag",
         }
     }
 }
@@ -63,7 +72,7 @@ impl LandmarkFileFormat {
 /// `{` or `[`) is BigWarp when it holds a BigWarp landmark table (see
 /// [`parse_bigwarp_json`](super::parse_bigwarp_json)), Slicer when it has a `markups` list, and refused otherwise
 /// with what was expected; text whose first line is `#Insight Transform File V1.0` is an ITK transform file (a
-/// thin-plate spline's landmarks), other text whose first line starts with `#` a Slicer `.fcsv`, and text whose
+/// thin-plate spline's landmarks), text that starts `MNI Tag Point File` an MNI tag file, other text whose first line starts with `#` a Slicer `.fcsv`, and text whose
 /// first line's first field is an unquoted `name` a plain CSV (BigWarp's CSV quotes every field, so its lines start
 /// with `"`); text whose first word is `point` or `index` (or whose first line is a lone count) an elastix point
 /// file, and text whose first line is transformix's `Point 0 ; … ; OutputPoint = […]` its `outputpoints.txt`;
@@ -82,6 +91,9 @@ pub fn detect_landmark_format(name: &Path, text: &str) -> Result<LandmarkFileFor
     }
     if looks_like_tfm(body) {
         return Ok(LandmarkFileFormat::ItkThinPlateSpline);
+    }
+    if looks_like_mni_tag(body) {
+        return Ok(LandmarkFileFormat::MniTag);
     }
     if body.starts_with('#') {
         return Ok(LandmarkFileFormat::SlicerFcsv);

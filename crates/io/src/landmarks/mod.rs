@@ -37,11 +37,14 @@
 //!   `CorrespondingPointsEuclideanDistanceMetric` and of transformix. `point` rows are ITK physical coordinates, LPS
 //!   mm; `index` rows are voxel indices of an image, read and written only through that image's geometry.
 //!   [`read_elastix_points`], [`write_elastix_points`], [`ElastixPoints`].
+//! - **MNI tag point files** (`.tag`, MINC's `register` and `tagtoxfm`): `Volumes = 2;`, then `Points =` and one
+//!   `x1 y1 z1 x2 y2 z2 "label"` entry a pair, RAS mm, **volume 1 the fixed points and volume 2 the moving ones**
+//!   (`register` warps volume 2 onto volume 1). [`read_mni_tag`], [`write_mni_tag`].
 //! - **transformix's `outputpoints.txt`**: one `Point N ; InputIndex = […] ; InputPoint = […] ; … ; OutputPoint =
 //!   […]` line a point; read as pairs, `InputPoint` the fixed point and `OutputPoint` the moving one
 //!   ([`read_transformix_output`]).
 //!
-//! [`read_landmark_pairs`] reads one file of pairs (BigWarp CSV or JSON, plain CSV, transformix's output, a
+//! [`read_landmark_pairs`] reads one file of pairs (BigWarp CSV or JSON, plain CSV, an MNI tag file, transformix's output, a
 //! thin-plate-spline transform file, [`parse_spline_file`]), telling them apart by content ([`detect_landmark_format`]), and refuses a Slicer list or an elastix point file (one side)
 //! or an unknown JSON with what it expected; [`write_landmark_pairs`] writes BigWarp JSON for `.json`, CSV otherwise.
 //!
@@ -61,7 +64,7 @@
 //! round-trip formatting, so a write/read round trip is exact.
 //!
 //! # Modules
-//! One module per format: `bigwarp_csv`, `bigwarp_json`, `mrk_json`, `fcsv`, `plain_csv`, `point_list`,
+//! One module per format: `bigwarp_csv`, `bigwarp_json`, `mrk_json`, `fcsv`, `plain_csv`, `point_list`, `mni_tag`,
 //! `elastix_points` (elastix's point files and transformix's result), and `slicer_pair`, which pairs two one-side
 //! lists. What they share lives in leaves beside them: `points` (the point
 //! types), `text` (a file's bounded text, the byte-order mark, numbers), `errors`, and `detect` (which format a
@@ -78,6 +81,7 @@ mod elastix_points;
 mod errors;
 mod fcsv;
 mod itk_tps;
+mod mni_tag;
 mod mrk_json;
 mod plain_csv;
 mod point_list;
@@ -101,6 +105,7 @@ pub use elastix_points::{
 };
 pub use fcsv::{parse_fcsv, read_fcsv, to_fcsv, write_fcsv};
 pub use itk_tps::{SplineFileClass, parse_spline_file};
+pub use mni_tag::{looks_like_mni_tag, parse_mni_tag, read_mni_tag, to_mni_tag, write_mni_tag};
 pub use mrk_json::{MARKUPS_SCHEMA, parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
 pub use plain_csv::{
     CsvCoordinates, looks_like_plain_csv, parse_plain_csv, plain_csv_header, read_plain_csv, to_plain_csv,
@@ -141,12 +146,13 @@ pub fn read_landmark_pairs_with(path: &Path, options: BigWarpCsvOptions) -> Resu
         LandmarkFileFormat::BigWarpJson => parse_bigwarp_json(path, &text, options),
         LandmarkFileFormat::PlainCsv => parse_plain_csv(path, &text).map(|(pairs, _)| pairs),
         LandmarkFileFormat::TransformixOutput => transformix_pairs(path, &text),
+        LandmarkFileFormat::MniTag => parse_mni_tag(path, &text),
         LandmarkFileFormat::SlicerMarkupsJson | LandmarkFileFormat::SlicerFcsv => Err(slicer_one_side(path)),
         LandmarkFileFormat::ElastixPoints => Err(elastix_one_side(path)),
     }
 }
 
-/// Writes `pairs` to one file: BigWarp JSON for a `.json` name, BigWarp CSV otherwise. A Slicer name (`.mrk.json`,
+/// Writes `pairs` to one file: BigWarp JSON for a `.json` name, an MNI tag file for `.tag`, BigWarp CSV otherwise. A Slicer name (`.mrk.json`,
 /// `.fcsv`) is refused, since a Slicer list holds one side: use [`write_slicer_pair`].
 pub fn write_landmark_pairs(path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
     let lower = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
@@ -155,6 +161,8 @@ pub fn write_landmark_pairs(path: &Path, pairs: &[LandmarkPair]) -> Result<()> {
         Err(slicer_one_side(path))
     } else if has("json") {
         write_bigwarp_json(path, pairs)
+    } else if has("tag") {
+        write_mni_tag(path, pairs)
     } else {
         write_bigwarp_csv(path, pairs)
     }

@@ -57,6 +57,11 @@ pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
             "transformix's outputpoints.txt holds pairs (each input point and its image), not a Slicer point list: \
              read it as a file of pairs",
         )),
+        Ok(LandmarkFileFormat::MniTag) => Err(Error::unsupported(
+            path,
+            "an MNI tag file holds pairs (the points of two volumes), not a Slicer point list: read it as a file of \
+             pairs",
+        )),
         Ok(LandmarkFileFormat::ItkThinPlateSpline) => Err(Error::unsupported(
             path,
             "an ITK transform file, not a Slicer point list: a thin-plate spline's file holds pairs (its landmarks); \

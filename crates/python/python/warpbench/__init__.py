@@ -269,7 +269,8 @@ class Pairs:
 
 
 def read_landmarks(path: PathLike, fixed_path: Optional[PathLike] = None, *, ras: bool = False) -> Pairs:
-    """Reads landmark pairs: BigWarp CSV or JSON, a plain CSV of pairs, transformix's ``outputpoints.txt`` (the
+    """Reads landmark pairs: BigWarp CSV or JSON, a plain CSV of pairs, an MNI tag file (``.tag``: volume 1 the fixed
+    points, volume 2 the moving ones), transformix's ``outputpoints.txt`` (the
     input points fixed, the output points moving), a window session (``.warpbench.json``), or with ``fixed_path``
     two point lists matched by order (``path`` the moving one): Slicer ``.mrk.json``/``.fcsv`` or elastix point
     files (``point``, LPS mm). ``ras``: a BigWarp file's coordinates are RAS (BigWarp on NIfTI)."""
@@ -288,8 +289,8 @@ def write_landmarks(
     format: Optional[str] = None,
     ras: bool = False,
 ) -> None:
-    """Writes pairs as ``warpbench landmarks --out`` does: BigWarp CSV (``.csv``) or JSON (``.json``), or
-    ``format`` (``"bigwarp-csv"``, ``"bigwarp-json"``, ``"plain-csv"``); with ``fixed_path`` two point lists
+    """Writes pairs as ``warpbench landmarks --out`` does: BigWarp CSV (``.csv``) or JSON (``.json``), an MNI tag file
+    (``.tag``), or ``format`` (``"bigwarp-csv"``, ``"bigwarp-json"``, ``"plain-csv"``, ``"mni-tag"``); with ``fixed_path`` two point lists
     (``path`` the moving one), each a Slicer ``.mrk.json``/``.fcsv`` or an elastix point file (``.txt``) by its
     name. ``ras``: BigWarp and plain CSV coordinates in RAS."""
     moving, fixed, names, active = pairs._arrays()
@@ -441,6 +442,11 @@ class Warp:
         volume as AFNI's base and the moving one as its source, as ``warpbench transform --format afni`` does. Needs
         ``fixed=`` and ``moving=``, neither oblique."""
         self._native.to_afni(os.fspath(path))
+
+    def to_xfm(self, path: PathLike) -> None:
+        """Writes a linear warp as an MNI transform file (``.xfm``, for ``mincresample -transformation``): the map
+        from the moving volume's world to the fixed one's, RAS mm, as ``warpbench transform --format minc`` does."""
+        self._native.to_xfm(os.fspath(path))
 
     def to_lta(self, path: PathLike) -> None:
         """Writes a linear warp as FreeSurfer's LTA (``.lta``, ``LINEAR_RAS_TO_RAS``, for ``mri_vol2vol --lta``), the

@@ -1,0 +1,232 @@
+//! MNI transform files (`.xfm`): the transforms of minc-toolkit (`minctracc`, `bestlinreg`, `tagtoxfm`, `xfmconcat`),
+//! taken by `mincresample -transformation`, read by ITK's `MINCTransformIO` and VTK's `vtkMNITransformReader`.
+//!
+//! ```text
+//! MNI Transform File
+//! % comments
+//!
+//! Transform_Type = Linear;
+//! Linear_Transform =
+//!  a b c d
+//!  e f g h
+//!  i j k l;
+//! ```
+//!
+//! Each `Transform_Type` starts a transform: `Linear` (the 3 × 4 matrix of `Linear_Transform`, rows), `Grid_Transform`
+//! (a displacement field in a MINC file, `Displacement_Volume`) or `Thin_Plate_Spline_Transform`; an
+//! `Invert_Flag = True;` after it inverts it. Several are applied first to last. Points are world RAS mm. **A file
+//! maps the source (moving) volume's world to the target (fixed) one's**, as `minctracc source target out.xfm` writes
+//! it and `mincresample -transformation out.xfm source -like target` takes it, and as `register` and `tagtoxfm` compute
+//! it from a tag file (volume 2 onto volume 1, [`crate::landmarks::read_mni_tag`]). Read ([`read`], [`read_map`],
+//! [`read_affine`]; the last as the
+//! pull-back `moving_from_fixed` in LPS, the inverse of the file's map. Linear transforms only: a grid or a
+//! thin-plate-spline transform is refused, naming itself. Written ([`to_text`], [`write`]) as one `Linear` transform,
+//! with full precision.
+
+use std::path::Path;
+
+use nalgebra::{Matrix3, Matrix4};
+
+use crate::error::{Error, Result};
+use crate::itk_tfm::ItkAffine;
+
+const MAGIC: &str = "MNI Transform File";
+
+/// The longest `.xfm` read: a linear file is a few hundred bytes, a thin-plate spline's some kilobytes.
+const MAX_BYTES: u64 = 16 << 20;
+
+/// Whether `path` is named as an MNI transform file (`.xfm`, any case).
+#[must_use]
+pub fn is_xfm_name(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("xfm"))
+}
+
+/// Whether `head`, a file's first bytes, starts as an MNI transform file does.
+#[must_use]
+pub fn looks_like_xfm(head: &[u8]) -> bool {
+    crate::files::head_text(head).is_some_and(|t| t.trim_start_matches('\u{feff}').trim_start().starts_with(MAGIC))
+}
+
+/// One transform of a file.
+#[derive(Clone, Debug, PartialEq)]
+pub enum XfmStep {
+    /// A linear map (RAS mm), already inverted when the file said `Invert_Flag = True`.
+    Linear(Matrix4<f64>),
+    /// A transform warpbench does not read: its `Transform_Type`.
+    Other(String),
+}
+
+/// The transforms of the file at `path`, in the order they apply.
+///
+/// # Errors
+/// Not an MNI transform file, a malformed statement (named by its line), a singular linear transform under
+/// `Invert_Flag`.
+pub fn read(path: &Path) -> Result<Vec<XfmStep>> {
+    parse(path, &crate::files::read_small_text(path, MAX_BYTES, "an MNI transform file")?)
+}
+
+/// [`read`] of a text; `name` is used in errors.
+///
+/// # Errors
+/// As [`read`].
+pub fn parse(name: &Path, text: &str) -> Result<Vec<XfmStep>> {
+    let body = text.trim_start_matches('\u{feff}').trim_start();
+    let Some(rest) = body.strip_prefix(MAGIC) else {
+        return Err(Error::invalid(name, format!("not an MNI transform file: it does not start with {MAGIC:?}")));
+    };
+    // Each transform: its type, its line, its matrix once read, and whether it is inverted (the flag may come before
+    // or after the matrix: VTK writes it before, volume_io after).
+    let mut raw: Vec<(String, usize, Option<Matrix4<f64>>, bool)> = Vec::new();
+    for Statement { line, key, value } in statements(name, rest)? {
+        let at = |problem: String| Error::invalid(name, format!("line {line}: {problem}"));
+        match key.as_str() {
+            "Transform_Type" => raw.push((value, line, None, false)),
+            "Linear_Transform" => {
+                let numbers: Vec<f64> = value
+                    .split_whitespace()
+                    .map(|w| w.parse::<f64>().map_err(|_| at(format!("{w:?} in Linear_Transform is not a number"))))
+                    .collect::<Result<_>>()?;
+                if numbers.len() != 12 || numbers.iter().any(|x| !x.is_finite()) {
+                    return Err(at(format!("Linear_Transform has {} numbers; it takes 12 finite ones", numbers.len())));
+                }
+                match raw.last_mut() {
+                    Some((kind, _, matrix @ None, _)) if kind == "Linear" => {
+                        let row =
+                            |r: usize, c: usize| if r < 3 { numbers[4 * r + c] } else { f64::from(u8::from(c == 3)) };
+                        *matrix = Some(Matrix4::from_fn(row));
+                    }
+                    _ => return Err(at("Linear_Transform outside a Transform_Type = Linear".to_string())),
+                }
+            }
+            "Invert_Flag" => {
+                let invert = match value.as_str() {
+                    "True" | "TRUE" | "true" => true,
+                    "False" | "FALSE" | "false" => false,
+                    other => return Err(at(format!("Invert_Flag is {other:?}, not True or False"))),
+                };
+                let Some((_, _, _, inverted)) = raw.last_mut() else {
+                    return Err(at("Invert_Flag before any Transform_Type".to_string()));
+                };
+                *inverted = invert;
+            }
+            // Displacement_Volume, the thin-plate spline's Points and Displacements, …: their transform is refused.
+            _ => {}
+        }
+    }
+    if raw.is_empty() {
+        return Err(Error::invalid(name, "the file holds no transform (no Transform_Type)"));
+    }
+    raw.into_iter()
+        .map(|(kind, line, matrix, inverted)| match (kind.as_str(), matrix) {
+            ("Linear", Some(m)) if inverted => m.try_inverse().map(XfmStep::Linear).ok_or_else(|| {
+                Error::invalid(name, format!("line {line}: Invert_Flag on a singular linear transform"))
+            }),
+            ("Linear", Some(m)) => Ok(XfmStep::Linear(m)),
+            ("Linear", None) => {
+                Err(Error::invalid(name, format!("line {line}: a Transform_Type = Linear has no Linear_Transform")))
+            }
+            (_, _) => Ok(XfmStep::Other(if inverted { format!("{kind} (inverted)") } else { kind })),
+        })
+        .collect()
+}
+
+/// One `Key = value;` statement, the value's text with its line breaks.
+struct Statement {
+    line: usize,
+    key: String,
+    value: String,
+}
+
+/// The statements of `text` (what follows the magic line), `%` comments removed; `name` is used in errors.
+fn statements(name: &Path, text: &str) -> Result<Vec<Statement>> {
+    let clean: String = text.lines().flat_map(|l| [l.split('%').next().unwrap_or(""), "\n"]).collect();
+    let mut out = Vec::new();
+    let mut line = 1; // the magic's line
+    let mut rest = clean.as_str();
+    while let Some(end) = rest.find(';') {
+        let piece = &rest[..end];
+        let lead = piece.len() - piece.trim_start().len();
+        let start = line + piece[..lead].matches('\n').count();
+        line += piece.matches('\n').count();
+        let Some((key, value)) = piece.split_once('=') else {
+            return Err(Error::invalid(name, format!("line {start}: {:?} is not Key = value;", piece.trim())));
+        };
+        out.push(Statement { line: start, key: key.trim().to_string(), value: value.trim().to_string() });
+        rest = &rest[end + 1..];
+    }
+    if !rest.trim().is_empty() {
+        return Err(Error::invalid(name, format!("line {line}: {:?} has no closing ;", rest.trim())));
+    }
+    Ok(out)
+}
+
+/// The map of the file at `path` (its transforms composed, source to target, RAS mm), when every one is linear.
+///
+/// # Errors
+/// As [`read`]; a transform that is not linear (named, with what to do).
+pub fn read_map(path: &Path) -> Result<Matrix4<f64>> {
+    compose(path, &read(path)?)
+}
+
+/// The steps composed, first applied first.
+fn compose(name: &Path, steps: &[XfmStep]) -> Result<Matrix4<f64>> {
+    steps.iter().try_fold(Matrix4::identity(), |acc, step| match step {
+        XfmStep::Linear(m) => Ok(m * acc),
+        XfmStep::Other(kind) => Err(Error::unsupported(
+            name,
+            format!(
+                "it holds a {kind} transform; warpbench reads linear MNI transforms (a nonlinear one can be sampled \
+                 into a displacement field by minc-toolkit's `minc_displacement` and given to --field)"
+            ),
+        )),
+    })
+}
+
+/// The starting transform of the file at `path`: the pull-back `moving_from_fixed` in LPS mm, the inverse of the
+/// file's map (module docs).
+///
+/// # Errors
+/// As [`read_map`]; a map that cannot be inverted.
+pub fn read_affine(path: &Path) -> Result<ItkAffine> {
+    let fixed_from_moving = read_map(path)?;
+    let flip = Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0));
+    let u = (flip * fixed_from_moving * flip)
+        .try_inverse()
+        .ok_or_else(|| Error::invalid(path, "the transform is singular, so it has no pull-back"))?;
+    let matrix = Matrix3::from_fn(|r, c| u[(r, c)]);
+    Ok(ItkAffine::from_offset(matrix, [u[(0, 3)], u[(1, 3)], u[(2, 3)]]))
+}
+
+/// The text of a linear MNI transform file of the pull-back `moving_from_fixed` (LPS mm): its inverse, the map from the
+/// moving volume's world to the fixed one's, in RAS.
+///
+/// # Errors
+/// A pull-back that is not finite or not invertible; `name` is used in the message.
+pub fn to_text(name: &Path, moving_from_fixed: &Matrix4<f64>) -> Result<String> {
+    let flip = Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0));
+    let t = moving_from_fixed
+        .try_inverse()
+        .filter(|m| m.iter().all(|x| x.is_finite()))
+        .ok_or_else(|| Error::invalid(name, "the transform is not finite or not invertible"))?;
+    let t = flip * t * flip;
+    let mut out = format!(
+        "{MAGIC}\n% Written by warpbench: maps the moving (source) volume's world to the fixed (target) one's, RAS mm,\n\
+         % as mincresample -transformation takes it.\n\nTransform_Type = Linear;\nLinear_Transform =\n"
+    );
+    for r in 0..3 {
+        let row: Vec<String> = (0..4).map(|c| format!("{:?}", t[(r, c)])).collect();
+        out.push(' ');
+        out.push_str(&row.join(" "));
+        out.push_str(if r == 2 { ";\n" } else { "\n" });
+    }
+    Ok(out)
+}
+
+/// Writes [`to_text`] at `path`, atomically.
+///
+/// # Errors
+/// As [`to_text`]; the write's.
+pub fn write(path: &Path, moving_from_fixed: &Matrix4<f64>) -> Result<()> {
+    let text = to_text(path, moving_from_fixed)?;
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
+}

@@ -1,0 +1,224 @@
+//! MNI tag point files (`.tag`) and MNI transform files (`.xfm`) against VTK 9.7.1's `vtkMNITagPointReader` and
+//! `vtkMNITransformReader` (and SimpleITK 2.5.7's MINC transform reader): the fixtures of `tests/data/mni/`, written by
+//! VTK's writers and by hand in MNI's `register` layout (`data-scripts/mni_vtk.py`), read to what VTK reads; what we
+//! write reads back; bad files are refused naming the file, the landmark (1-based) or the line.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix4, Vector4};
+use serde_json::Value;
+use warpbench_io::ErrorKind;
+use warpbench_io::geometry::Point3;
+use warpbench_io::landmarks::{self, LandmarkFileFormat, LandmarkPair};
+use warpbench_io::mni_xfm::{self, XfmStep};
+
+fn data_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/mni")
+}
+
+fn reference() -> Value {
+    let path = data_dir().join("reference.json");
+    serde_json::from_str(&std::fs::read_to_string(&path).expect("reference")).expect("JSON")
+}
+
+fn triple(v: &Value) -> [f64; 3] {
+    let a = v.as_array().expect("triple");
+    std::array::from_fn(|k| a[k].as_f64().expect("number"))
+}
+
+fn ras(p: Point3<warpbench_io::geometry::Lps>) -> [f64; 3] {
+    let [x, y, z] = p.coords();
+    [-x, -y, z]
+}
+
+#[test]
+fn tag_files_read_as_vtk_reads_them_volume_1_fixed() {
+    let r = reference();
+    let tags = r["tags"].as_array().expect("tags");
+    let mut read = 0;
+    for t in tags {
+        let file = t["file"].as_str().expect("file");
+        let path = data_dir().join(file);
+        assert_eq!(landmarks::detect_landmark_file(&path).expect("detect"), LandmarkFileFormat::MniTag, "{file}");
+        if t["volumes"] == 1 {
+            let e = landmarks::read_landmark_pairs(&path).expect_err("one volume");
+            assert!(e.to_string().contains("one volume"), "{e}");
+            continue;
+        }
+        let pairs = landmarks::read_landmark_pairs(&path).unwrap_or_else(|e| panic!("{e}"));
+        let points = t["points"].as_array().expect("points");
+        let (fixed, moving) = (points[0].as_array().expect("1"), points[1].as_array().expect("2"));
+        assert_eq!(pairs.len(), fixed.len(), "{file}");
+        // VTK keeps points in float32: ours, parsed in double, round to VTK's.
+        for (i, p) in pairs.iter().enumerate() {
+            assert!(p.active && p.is_complete(), "{file} {i}");
+            let (f, m) = (ras(p.fixed.expect("fixed")), ras(p.moving.expect("moving")));
+            let (vf, vm) = (triple(&fixed[i]), triple(&moving[i]));
+            for k in 0..3 {
+                assert_eq!((f[k] as f32).to_bits(), (vf[k] as f32).to_bits(), "{file} pair {i} fixed {k}");
+                assert_eq!((m[k] as f32).to_bits(), (vm[k] as f32).to_bits(), "{file} pair {i} moving {k}");
+            }
+        }
+        let names: Vec<&str> = pairs.iter().map(|p| p.name.as_str()).collect();
+        match t["labels"].as_array() {
+            Some(labels) => {
+                let want: Vec<&str> = labels.iter().map(|l| l.as_str().unwrap_or("")).collect();
+                assert_eq!(names, want, "{file}");
+            }
+            None => assert!(names.iter().all(|n| n.is_empty()), "{file}: {names:?}"),
+        }
+        read += 1;
+    }
+    assert!(read >= 4, "{read} files of pairs");
+}
+
+#[test]
+fn a_tag_file_we_write_reads_back_and_keeps_register_s_order() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let pairs = landmarks::read_landmark_pairs(&data_dir().join("pairs_ids.tag")).expect("read");
+    let out = dir.path().join("out.tag");
+    landmarks::write_landmark_pairs(&out, &pairs).expect("write");
+    let text = std::fs::read_to_string(&out).expect("text");
+    assert!(text.starts_with("MNI Tag Point File\nVolumes = 2;\n"), "{text}");
+    assert_eq!(landmarks::read_landmark_pairs(&out).expect("back"), pairs);
+    // Volume 1's numbers, the fixed point in RAS, come first on each line.
+    let first = text.lines().find(|l| l.starts_with(' ')).expect("a point line");
+    let numbers: Vec<f64> = first.split_whitespace().take(3).map(|w| w.parse().expect("number")).collect();
+    assert_eq!(numbers, ras(pairs[0].fixed.expect("fixed")));
+    // Half-placed, inactive or oddly named pairs have no place in a tag file: refused, naming the landmark.
+    let p = |x: f64| Point3::new(x, 2.0, 3.0);
+    let cases = [
+        (LandmarkPair { moving: None, ..LandmarkPair::new("a", p(1.0), p(2.0)) }, "misses a half"),
+        (LandmarkPair { active: false, ..LandmarkPair::new("b", p(1.0), p(2.0)) }, "inactive"),
+        (LandmarkPair::new("say \"c\"", p(1.0), p(2.0)), "double quote"),
+    ];
+    for (bad, says) in cases {
+        let e = landmarks::to_mni_tag(&out, &[pairs[0].clone(), bad]).expect_err(says);
+        assert!(matches!(e.kind, ErrorKind::Landmark { index: 2, .. }), "{e}");
+        assert!(e.to_string().contains(says), "{e}");
+    }
+}
+
+#[test]
+fn bad_tag_files_are_refused_naming_the_file_and_the_landmark() {
+    let name = Path::new("bad.tag");
+    let head = "MNI Tag Point File\nVolumes = 2;\nPoints =\n";
+    let cases = [
+        ("MNI Tag Point File\nVolumes = 3;\nPoints = ;", "Volumes = 3"),
+        ("MNI Tag Point File\nVolumes = 2;\n", "expected Points ="),
+        (&*format!("{head} 1 2 3 4 5 6 \"a\"\n 1 2 3 4 x 6;"), "(1-based"),
+        (&*format!("{head} 1 2 3 4 5 6 \"a\"\n 1 2 3 4 5 nan;"), "coordinate 6 is NaN"),
+        (&*format!("{head} 1 2 3 4 5 6 \"open"), "no closing quote"),
+        (&*format!("{head} 1 2 3 4 5 6"), "without the closing ;"),
+        (&*format!("{head} 1 2 3 4 5 6 1.5 2 \"a\";"), "patient id"),
+    ];
+    for (text, says) in cases {
+        let e = landmarks::parse_mni_tag(name, text).expect_err(says);
+        let msg = e.to_string();
+        assert!(msg.starts_with("bad.tag"), "{msg}");
+        assert!(msg.contains(says), "{says}: {msg}");
+    }
+    let e = landmarks::parse_mni_tag(name, &format!("{head} 1 2 3 4 5 6 \"a\"\n 7 8 9 1 2 x;")).expect_err("x");
+    assert!(matches!(e.kind, ErrorKind::Landmark { index: 2, .. }), "{e}");
+    assert!(e.to_string().contains("line 5"), "{e}");
+}
+
+/// The map of a transform reference: VTK's points at the test points.
+fn vtk_points(t: &Value, key: &str) -> Option<Vec<[f64; 3]>> {
+    t["vtk"][key].as_array().map(|a| a.iter().map(triple).collect())
+}
+
+fn apply(m: &Matrix4<f64>, p: [f64; 3]) -> [f64; 3] {
+    let v = m * Vector4::new(p[0], p[1], p[2], 1.0);
+    [v[0], v[1], v[2]]
+}
+
+#[test]
+fn linear_transform_files_map_as_vtk_maps_them() {
+    let r = reference();
+    let test_points: Vec<[f64; 3]> = r["test_points"].as_array().expect("points").iter().map(triple).collect();
+    let mut linear = 0;
+    for t in r["transforms"].as_array().expect("transforms") {
+        let file = t["file"].as_str().expect("file");
+        let path = data_dir().join(file);
+        let classes: Vec<&str> =
+            t["vtk"]["classes"].as_array().expect("classes").iter().map(|c| c.as_str().expect("class")).collect();
+        if classes.iter().any(|c| *c != "vtkTransform") {
+            // A grid or thin-plate-spline transform: refused, naming it.
+            let e = mni_xfm::read_map(&path).expect_err(file);
+            assert!(e.to_string().contains("Grid_Transform") || e.to_string().contains("Thin_Plate_Spline"), "{e}");
+            assert!(warpbench_io::mni_xfm::read(&path).expect("parses").iter().any(|s| matches!(s, XfmStep::Other(_))));
+            continue;
+        }
+        let map = mni_xfm::read_map(&path).unwrap_or_else(|e| panic!("{e}"));
+        let want = vtk_points(t, "points").expect("VTK's points");
+        for (p, w) in test_points.iter().zip(&want) {
+            let got = apply(&map, *p);
+            for k in 0..3 {
+                assert!((got[k] - w[k]).abs() < 1e-9, "{file}: {got:?} vs VTK {w:?} at {p:?}");
+            }
+        }
+        // SimpleITK reads the numbers as they are (no RAS/LPS flip): the same map.
+        if let Some(sitk) = t["sitk"]["points"].as_array() {
+            for (p, w) in test_points.iter().zip(sitk.iter().map(triple)) {
+                let got = apply(&map, *p);
+                assert!((0..3).all(|k| (got[k] - w[k]).abs() < 1e-9), "{file}: {got:?} vs SimpleITK {w:?}");
+            }
+        }
+        // The starting transform is the pull-back: the inverse map, in LPS.
+        let u = mni_xfm::read_affine(&path).expect("affine");
+        for p in &test_points {
+            let q = apply(&map, *p);
+            let back = u.apply([-q[0], -q[1], q[2]]);
+            assert!((0..3).all(|k| (back[k] - [-p[0], -p[1], p[2]][k]).abs() < 1e-9), "{file}");
+        }
+        linear += 1;
+    }
+    assert!(linear >= 3, "{linear} linear files");
+}
+
+#[test]
+fn what_we_write_reads_back_and_bad_files_are_refused() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let u = Matrix4::new(0.9, 0.1, -0.05, 12.5, -0.08, 1.1, 0.02, -3.0, 0.04, -0.01, 0.95, 7.25, 0.0, 0.0, 0.0, 1.0);
+    let out = dir.path().join("out.xfm");
+    mni_xfm::write(&out, &u).expect("write");
+    let back = mni_xfm::read_affine(&out).expect("read");
+    for r in 0..3 {
+        for c in 0..3 {
+            assert!((back.matrix[(r, c)] - u[(r, c)]).abs() < 1e-12);
+        }
+        assert!((back.offset()[r] - u[(r, 3)]).abs() < 1e-12);
+    }
+    // ITK's writers refuse the name: ITK would read an .xfm as MINC's.
+    let e = warpbench_io::transform_file::write(
+        &dir.path().join("x.xfm"),
+        &warpbench_io::itk_tfm::ItkTransform::Affine(back),
+    )
+    .expect_err("itk to .xfm");
+    assert!(e.to_string().contains("MNI"), "{e}");
+    let name = Path::new("bad.xfm");
+    let cases = [
+        ("Transform_Type = Linear;", "does not start with"),
+        ("MNI Transform File\n% nothing\n", "no transform"),
+        ("MNI Transform File\nTransform_Type = Linear;\nLinear_Transform = 1 0 0 0 0 1 0 0 0 0 1;", "11 numbers"),
+        ("MNI Transform File\nTransform_Type = Linear;\n", "has no Linear_Transform"),
+        (
+            "MNI Transform File\nTransform_Type = Linear;\nLinear_Transform =\n 1 0 0 0\n 0 1 0 0\n 0 0 1 0",
+            "no closing ;",
+        ),
+        ("MNI Transform File\nLinear_Transform = 1 0 0 0 0 1 0 0 0 0 1 0;", "outside a Transform_Type"),
+        ("MNI Transform File\nTransform_Type = Linear;\nInvert_Flag = Maybe;", "not True or False"),
+        (
+            "MNI Transform File\nTransform_Type = Linear;\nInvert_Flag = True;\nLinear_Transform = 1 0 0 0 0 1 0 0 0 0 0 0;",
+            "singular",
+        ),
+    ];
+    for (text, says) in cases {
+        let e = mni_xfm::parse(name, text).expect_err(says);
+        assert!(e.to_string().starts_with("bad.xfm") && e.to_string().contains(says), "{says}: {e}");
+    }
+    let e = mni_xfm::parse(name, "MNI Transform File\n\nTransform_Type = Linear;\nLinear_Transform = 1 0 x;")
+        .expect_err("x");
+    assert!(e.to_string().contains("line 4"), "{e}");
+}
