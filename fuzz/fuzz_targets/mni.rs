@@ -1,0 +1,50 @@
+//! Any text given to the readers of MNI tag point files and MNI transform files gives `Ok` or `Err`, never a panic.
+//! Tag: pairs it reads are complete, active and finite; written by `to_mni_tag` (unless a name has a character the
+//! format cannot hold) they read back to the same positions and names. Transform: a file of linear transforms composes
+//! to a finite affine map; when that can be inverted, the text written of its pull-back reads back to the same map.
+#![no_main]
+
+use std::path::Path;
+
+use libfuzzer_sys::fuzz_target;
+use warpbench_io::landmarks::{parse_mni_tag, to_mni_tag};
+use warpbench_io::mni_xfm::{self, XfmStep};
+
+fuzz_target!(|data: &[u8]| {
+    let text = String::from_utf8_lossy(data);
+    let name = Path::new("fuzz.tag");
+    if let Ok(pairs) = parse_mni_tag(name, &text) {
+        for p in &pairs {
+            assert!(p.active && p.is_complete(), "{p:?}");
+            let coords = p.moving.iter().chain(&p.fixed).flat_map(|q| q.coords());
+            assert!(coords.into_iter().all(f64::is_finite), "{p:?}");
+        }
+        if let Ok(written) = to_mni_tag(name, &pairs) {
+            let back = parse_mni_tag(name, &written).unwrap_or_else(|e| panic!("written tags do not read back: {e}"));
+            assert_eq!(back, pairs, "written tags read back differently:\n{written}");
+        }
+    }
+    let name = Path::new("fuzz.xfm");
+    let Ok(steps) = mni_xfm::parse(name, &text) else { return };
+    if steps.iter().any(|s| matches!(s, XfmStep::Other(_))) {
+        return;
+    }
+    let map = steps.iter().fold(nalgebra::Matrix4::identity(), |acc, s| match s {
+        XfmStep::Linear(m) => m * acc,
+        XfmStep::Other(_) => acc,
+    });
+    let flip = nalgebra::Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0));
+    let Some(u) = (flip * map * flip).try_inverse() else { return };
+    if !u.iter().all(|x| x.is_finite()) {
+        return;
+    }
+    let Ok(written) = mni_xfm::to_text(name, &u) else { return };
+    let back = mni_xfm::parse(name, &written).unwrap_or_else(|e| panic!("written transform does not read back: {e}"));
+    let [XfmStep::Linear(m)] = back.as_slice() else { panic!("written transform is not one linear step: {back:?}") };
+    // `to_text` inverts the pull-back again: equal to the map within the conditioning of two inversions.
+    let scale = map.iter().fold(1.0f64, |a, x| a.max(x.abs()));
+    let cond = u.iter().fold(1.0f64, |a, x| a.max(x.abs())) * scale;
+    if cond < 1e6 {
+        assert!((m - map).abs().max() <= 1e-9 * scale * cond, "{m} written for {map}");
+    }
+});
