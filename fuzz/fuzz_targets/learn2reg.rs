@@ -30,7 +30,8 @@ fuzz_target!(|data: &[u8]| {
     }
     let out = std::env::temp_dir().join(format!("fuzz-learn2reg-{}.npz", std::process::id()));
     if learn2reg::write_voxel_field(&out, &field).is_ok() {
-        let again = learn2reg::read_voxel_field(&out).unwrap_or_else(|e| panic!("what was written does not read back: {e}"));
+        let again =
+            learn2reg::read_voxel_field(&out).unwrap_or_else(|e| panic!("what was written does not read back: {e}"));
         assert_eq!(again.dims, field.dims);
         for (a, b) in again.steps_vox.iter().zip(&field.steps_vox) {
             for c in 0..3 {

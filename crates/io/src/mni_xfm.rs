@@ -52,6 +52,9 @@ pub fn looks_like_xfm(head: &[u8]) -> bool {
 pub enum XfmStep {
     /// A linear map (RAS mm), already inverted when the file said `Invert_Flag = True`.
     Linear(Matrix4<f64>),
+    /// A `Grid_Transform`: x ↦ x + D(x), D the vectors of the MINC file `volume` (its name resolved against the
+    /// transform file's folder, as volume_io resolves it), or that map's inverse when `inverted`.
+    Grid { volume: std::path::PathBuf, inverted: bool },
     /// A transform warpbench does not read: its `Transform_Type`.
     Other(String),
 }
@@ -77,6 +80,7 @@ pub fn parse(name: &Path, text: &str) -> Result<Vec<XfmStep>> {
     // Each transform: its type, its line, its matrix once read, and whether it is inverted (the flag may come before
     // or after the matrix: VTK writes it before, volume_io after).
     let mut raw: Vec<(String, usize, Option<Matrix4<f64>>, bool)> = Vec::new();
+    let mut volumes: Vec<(usize, String)> = Vec::new();
     for Statement { line, key, value } in statements(name, rest)? {
         let at = |problem: String| Error::invalid(name, format!("line {line}: {problem}"));
         match key.as_str() {
@@ -109,15 +113,21 @@ pub fn parse(name: &Path, text: &str) -> Result<Vec<XfmStep>> {
                 };
                 *inverted = invert;
             }
-            // Displacement_Volume, the thin-plate spline's Points and Displacements, …: their transform is refused.
+            "Displacement_Volume" => match raw.last() {
+                Some((kind, ..)) if kind == "Grid_Transform" => volumes.push((raw.len() - 1, value)),
+                _ => return Err(at("Displacement_Volume outside a Transform_Type = Grid_Transform".to_string())),
+            },
+            // The thin-plate spline's Points and Displacements, …: their transform is refused.
             _ => {}
         }
     }
     if raw.is_empty() {
         return Err(Error::invalid(name, "the file holds no transform (no Transform_Type)"));
     }
+    let folder = name.parent().unwrap_or(Path::new(""));
     raw.into_iter()
-        .map(|(kind, line, matrix, inverted)| match (kind.as_str(), matrix) {
+        .enumerate()
+        .map(|(k, (kind, line, matrix, inverted))| match (kind.as_str(), matrix) {
             ("Linear", Some(m)) if inverted => m.try_inverse().map(XfmStep::Linear).ok_or_else(|| {
                 Error::invalid(name, format!("line {line}: Invert_Flag on a singular linear transform"))
             }),
@@ -125,6 +135,10 @@ pub fn parse(name: &Path, text: &str) -> Result<Vec<XfmStep>> {
             ("Linear", None) => {
                 Err(Error::invalid(name, format!("line {line}: a Transform_Type = Linear has no Linear_Transform")))
             }
+            ("Grid_Transform", _) => match volumes.iter().find(|(step, _)| *step == k) {
+                Some((_, file)) => Ok(XfmStep::Grid { volume: folder.join(file), inverted }),
+                None => Err(Error::invalid(name, format!("line {line}: a Grid_Transform has no Displacement_Volume"))),
+            },
             (_, _) => Ok(XfmStep::Other(if inverted { format!("{kind} (inverted)") } else { kind })),
         })
         .collect()
@@ -172,14 +186,55 @@ pub fn read_map(path: &Path) -> Result<Matrix4<f64>> {
 fn compose(name: &Path, steps: &[XfmStep]) -> Result<Matrix4<f64>> {
     steps.iter().try_fold(Matrix4::identity(), |acc, step| match step {
         XfmStep::Linear(m) => Ok(m * acc),
+        XfmStep::Grid { .. } => Err(Error::unsupported(
+            name,
+            "it holds a Grid_Transform, which is nonlinear: give it as a displacement field (--field), not as a \
+             starting transform",
+        )),
         XfmStep::Other(kind) => Err(Error::unsupported(
             name,
             format!(
-                "it holds a {kind} transform; warpbench reads linear MNI transforms (a nonlinear one can be sampled \
-                 into a displacement field by minc-toolkit's `minc_displacement` and given to --field)"
+                "it holds a {kind} transform; warpbench reads linear MNI transforms and grid transforms (a thin-plate \
+                 spline can be sampled into a displacement field by minc-toolkit's `minc_displacement`)"
             ),
         )),
     })
+}
+
+/// The displacement field of an MNI transform file holding one `Grid_Transform` (module docs): its grid's vectors in
+/// LPS mm, on the grid's own geometry. The file maps the moving volume's world to the fixed one's, so the field is the
+/// forward map (moving → fixed) and its caller inverts it; with `Invert_Flag = True` the grid holds the inverse map,
+/// and is the pull-back itself.
+///
+/// # Errors
+/// As [`read`]; a file of anything but one grid transform (a linear one with it is refused: give it to `--initial`
+/// and the grid alone to `--field`), a displacement volume that cannot be read (named).
+pub fn read_field(path: &Path) -> Result<crate::displacement::ReadField> {
+    use crate::displacement::{FieldDirection, FieldSource, ReadField};
+    let steps = read(path)?;
+    let [XfmStep::Grid { volume, inverted }] = steps.as_slice() else {
+        let kinds: Vec<&str> = steps
+            .iter()
+            .map(|s| match s {
+                XfmStep::Linear(_) => "Linear",
+                XfmStep::Grid { .. } => "Grid_Transform",
+                XfmStep::Other(kind) => kind.as_str(),
+            })
+            .collect();
+        return Err(Error::unsupported(
+            path,
+            format!(
+                "a displacement field is read from an MNI transform file of one Grid_Transform; this one holds {}: \
+                 split it (xfminvert, xfmconcat), the linear part for --initial",
+                kinds.join(", ")
+            ),
+        ));
+    };
+    let field = crate::minc::read_displacements(volume).map_err(|e| {
+        Error::invalid(path, format!("its Displacement_Volume {} cannot be read: {e}", volume.display()))
+    })?;
+    let direction = if *inverted { FieldDirection::Pullback } else { FieldDirection::Forward };
+    Ok(ReadField { field, source: FieldSource::MincGrid, direction: Some(direction) })
 }
 
 /// The starting transform of the file at `path`: the pull-back `moving_from_fixed` in LPS mm, the inverse of the

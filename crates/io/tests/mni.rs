@@ -147,7 +147,9 @@ fn linear_transform_files_map_as_vtk_maps_them() {
             // A grid or thin-plate-spline transform: refused, naming it.
             let e = mni_xfm::read_map(&path).expect_err(file);
             assert!(e.to_string().contains("Grid_Transform") || e.to_string().contains("Thin_Plate_Spline"), "{e}");
-            assert!(warpbench_io::mni_xfm::read(&path).expect("parses").iter().any(|s| matches!(s, XfmStep::Other(_))));
+            assert!(
+                warpbench_io::mni_xfm::read(&path).expect("parses").iter().all(|s| !matches!(s, XfmStep::Linear(_)))
+            );
             continue;
         }
         let map = mni_xfm::read_map(&path).unwrap_or_else(|e| panic!("{e}"));
@@ -221,4 +223,88 @@ fn what_we_write_reads_back_and_bad_files_are_refused() {
     let e = mni_xfm::parse(name, "MNI Transform File\n\nTransform_Type = Linear;\nLinear_Transform = 1 0 x;")
         .expect_err("x");
     assert!(e.to_string().contains("line 4"), "{e}");
+}
+
+/// The reference's grid volume: its values (RAS, the file's C order: z, y, x, component) at voxel (i, j, k).
+fn grid_value(g: &Value, [i, j, k]: [usize; 3], c: usize) -> f64 {
+    let shape: Vec<usize> =
+        g["shape"].as_array().expect("shape").iter().map(|x| x.as_u64().expect("n") as usize).collect();
+    let values = g["values"].as_array().expect("values");
+    values[((k * shape[1] + j) * shape[2] + i) * 3 + c].as_f64().expect("value")
+}
+
+#[test]
+fn grid_transforms_read_as_displacement_fields_on_their_grids() {
+    use warpbench_io::displacement::{FieldDirection, FieldSource, read_field_info};
+    use warpbench_io::elastix::{FieldInterpolation, FieldStep};
+    let r = reference();
+    let test_points: Vec<[f64; 3]> = r["test_points"].as_array().expect("points").iter().map(triple).collect();
+    for (file, direction) in [
+        ("grid.xfm", FieldDirection::Forward),
+        ("grid_inverted.xfm", FieldDirection::Pullback),
+        ("grid_itk.xfm", FieldDirection::Forward),
+    ] {
+        let t = r["transforms"].as_array().expect("transforms").iter().find(|t| t["file"] == file).expect(file);
+        let g = &t["grid_volume"];
+        let path = data_dir().join(file);
+        let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((read.source, read.direction), (FieldSource::MincGrid, Some(direction)), "{file}");
+        let field = &read.field;
+        assert_eq!(field.dims, [6, 5, 4], "{file}");
+        // 10 mm voxels from (-25, -20, -15) RAS, axis-aligned: in LPS, x and y flipped.
+        let want = [[-10.0, 0.0, 0.0, 25.0], [0.0, -10.0, 0.0, 20.0], [0.0, 0.0, 10.0, -15.0], [0.0, 0.0, 0.0, 1.0]];
+        assert_eq!(field.lps_from_index.rows(), want, "{file}");
+        for k in 0..4 {
+            for j in 0..5 {
+                for i in 0..6 {
+                    let d = field.displacements_lps[(k * 5 + j) * 6 + i];
+                    for (c, &x) in d.iter().enumerate() {
+                        let ras = if c < 2 { -x } else { x };
+                        let want = grid_value(g, [i, j, k], c) as f32;
+                        assert_eq!(ras.to_bits(), want.to_bits(), "{file} voxel {i} {j} {k} {c}");
+                    }
+                }
+            }
+        }
+        // x ↦ x + D(x) read trilinearly (ITK's DisplacementFieldTransform, FieldStep): SimpleITK's map at every point
+        // where it reads the file; VTK's (tricubic) where the two agree, at the grid's nodes (the first two test points
+        // past the 14 inside).
+        let step = FieldStep::new(&path, path.clone(), read.field.clone(), FieldInterpolation::Linear).expect("step");
+        let ours = |p: [f64; 3]| {
+            let q = step.apply([-p[0], -p[1], p[2]]);
+            [-q[0], -q[1], q[2]]
+        };
+        if let Some(sitk) = t["sitk"]["points"].as_array() {
+            for (p, w) in test_points.iter().zip(sitk.iter().map(triple)) {
+                let got = ours(*p);
+                assert!((0..3).all(|k| (got[k] - w[k]).abs() < 1e-5), "{file}: {got:?} vs SimpleITK {w:?} at {p:?}");
+            }
+        }
+        if direction == FieldDirection::Forward
+            && let Some(vtk) = vtk_points(t, "points")
+        {
+            for n in [14, 15] {
+                let got = ours(test_points[n]);
+                assert!((0..3).all(|k| (got[k] - vtk[n][k]).abs() < 1e-5), "{file}: node {n}: {got:?} vs VTK");
+            }
+        }
+    }
+    // A file of a linear and a grid transform, and a grid file that is not a grid, are refused, naming them.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let chain = dir.path().join("chain.xfm");
+    let linear = std::fs::read_to_string(data_dir().join("linear.xfm")).expect("linear");
+    std::fs::write(&chain, format!("{linear}\nTransform_Type = Grid_Transform;\nDisplacement_Volume = none.mnc;\n"))
+        .expect("write");
+    let e = read_field_info(&chain).expect_err("chain");
+    assert!(e.to_string().contains("holds Linear, Grid_Transform"), "{e}");
+    let not_grid = dir.path().join("volume.xfm");
+    std::fs::copy(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/minc/oblique_i16.mnc"),
+        dir.path().join("v.mnc"),
+    )
+    .expect("copy");
+    std::fs::write(&not_grid, "MNI Transform File\nTransform_Type = Grid_Transform;\nDisplacement_Volume = v.mnc;\n")
+        .expect("write");
+    let e = read_field_info(&not_grid).expect_err("a volume");
+    assert!(e.to_string().contains("v.mnc cannot be read") && e.to_string().contains("vector_dimension"), "{e}");
 }

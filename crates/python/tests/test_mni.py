@@ -131,3 +131,21 @@ def test_align_writes_its_result_as_an_xfm(tmp_path: Path) -> None:
     done = run_cli("transform", "--fixed", fixed, "--moving", moving, "--landmarks", none, "--initial",
                    DATA / "mni" / "grid.xfm", "--out", tmp_path / "x.tfm", expect=2)
     assert "grid.xfm" in done.stderr and "Grid_Transform" in done.stderr
+
+
+def test_a_grid_transform_is_a_displacement_field_on_its_grid(tmp_path: Path) -> None:
+    """An ``.xfm`` of one ``Grid_Transform`` reads as the field of its MINC grid: the forward map (the moving volume's
+    world to the fixed one's), or the pull-back with ``Invert_Flag``; SimpleITK reads the same vectors (RAS numbers)."""
+    path = DATA / "mni" / "grid_itk.xfm"
+    field = wb.read_field(path)
+    assert (field.source, field.direction, field.shape) == ("minc_grid", "forward", (6, 5, 4))
+    theirs = sitk.DisplacementFieldTransform(sitk.ReadTransform(str(path))).GetDisplacementField()
+    ras = sitk.GetArrayFromImage(theirs).transpose(2, 1, 0, 3)  # (i, j, k, 3), MINC's RAS numbers
+    np.testing.assert_array_equal(field.array * np.array([-1.0, -1.0, 1.0], dtype=np.float32), ras.astype(np.float32))
+    assert wb.read_field(DATA / "mni" / "grid_inverted.xfm").direction == "pullback"
+    # warp --field takes it (inverting the forward map) and info describes it.
+    info = run_cli("info", path).stdout
+    assert "minc_grid" in info and "forward" in info
+    done = run_cli("warp", "--fixed", T1, "--moving", T1, "--field", DATA / "mni" / "tps.xfm", "--out",
+                   tmp_path / "w.nii.gz", expect=2)
+    assert "tps.xfm" in done.stderr and "Thin_Plate_Spline_Transform" in done.stderr

@@ -225,7 +225,8 @@ impl Purpose {
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
                 .add_filter("elastix transform parameter file", &["txt"])
                 .add_filter("ITK transform with a field (ANTs Composite.h5)", &["h5"])
-                .add_filter("DICOM Deformable Spatial Registration", &["dcm"]),
+                .add_filter("DICOM Deformable Spatial Registration", &["dcm"])
+                .add_filter("MINC grid transform", &["xfm"]),
             Self::ExportTransform(TransformFormat::Itk) => {
                 d.add_filter("ITK or ANTs transform", &["tfm", "txt", "h5", "mat"])
             }

@@ -125,11 +125,13 @@ pub enum FieldSource {
     DicomRegistration,
     /// A Learn2Reg `.npz`, read against the fixed and moving grids ([`crate::learn2reg::pullback_from_voxels`]).
     Learn2Reg,
+    /// An MNI transform file's `Grid_Transform`, its MINC grid of vectors ([`crate::mni_xfm::read_field`]).
+    MincGrid,
 }
 
 impl FieldSource {
     /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `itk_tfm`, `dicom`, `learn2reg`.
+    /// `itk_tfm`, `dicom`, `learn2reg`, `minc_grid`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -139,6 +141,7 @@ impl FieldSource {
             Self::ItkTransform => "itk_tfm",
             Self::DicomRegistration => "dicom",
             Self::Learn2Reg => "learn2reg",
+            Self::MincGrid => "minc_grid",
         }
     }
 }

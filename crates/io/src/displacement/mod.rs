@@ -87,6 +87,9 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
     if let Some(read) = flavour::read_flavoured(path, &head)? {
         return Ok(read);
     }
+    if crate::mni_xfm::looks_like_xfm(&head) {
+        return crate::mni_xfm::read_field(path);
+    }
     if crate::elastix::looks_like_parameter_file(&head) {
         let field = crate::elastix::read_field(path)?;
         return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None });

@@ -7,14 +7,13 @@
 
 use std::path::Path;
 
-use super::model::{Dimension, Header, SliceRange, volume_of};
+use super::model::{Decoded, Dimension, Header, SliceRange, Want, finish};
 use super::netcdf::{NcFile, NcType, Var};
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 use crate::sample::{self, StoredType, with_stored_type};
-use crate::volume::Volume;
 
-pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions) -> Result<Volume> {
+pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions, want: Want) -> Result<Decoded> {
     let file_bytes = bytes.len() as u64;
     let nc = NcFile::parse(bytes).map_err(|e| Error::invalid(name, format!("not a readable netCDF file: {e}")))?;
     let Some(image) = nc.var("image") else {
@@ -26,7 +25,7 @@ pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions) -> Result<Vo
     // netCDF's integers are signed; an unsigned image's bytes are read as their unsigned type.
     with_stored_type!(header.stored, T => {
         let samples: Vec<T> = sample::decode::<T>(&raw, true).collect();
-        volume_of(name, &header, &samples, opts)
+        finish(name, &header, &samples, opts, want)
     })
 }
 

@@ -10,12 +10,11 @@ use std::path::Path;
 
 use hdf5_pure::{AttrValue, DType, Dataset, File};
 
-use super::model::{Dimension, Header, SliceRange, volume_of};
+use super::model::{Decoded, Dimension, Header, SliceRange, Want, finish};
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
 use crate::sample::{StoredType, with_stored_type};
 use crate::stream::MAX_DEFLATE_RATIO;
-use crate::volume::Volume;
 
 const IMAGE: &str = "/minc-2.0/image/0/image";
 const IMAGE_MIN: &str = "/minc-2.0/image/0/image-min";
@@ -25,7 +24,7 @@ const DIMENSIONS: &str = "/minc-2.0/dimensions";
 /// The most values `image-min` or `image-max` may hold: one per slice of a volume of many frames.
 const MAX_RANGE_VALUES: u64 = 1 << 24;
 
-pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions) -> Result<Volume> {
+pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions, want: Want) -> Result<Decoded> {
     let file_bytes = bytes.len() as u64;
     let file = File::from_bytes(bytes).map_err(|e| Error::invalid(name, format!("not a readable HDF5 file: {e}")))?;
     let image = file.dataset(IMAGE).map_err(|e| match e {
@@ -46,7 +45,7 @@ pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions) -> Result<Vo
     }
     with_stored_type!(header.stored, T => {
         let raw: Vec<T> = image.read::<T>().map_err(|e| Error::invalid(name, format!("{IMAGE} cannot be read: {e}")))?;
-        volume_of(name, &header, &raw, opts)
+        finish(name, &header, &raw, opts, want)
     })
 }
 

@@ -38,9 +38,11 @@ use std::path::Path;
 use flate2::read::MultiGzDecoder;
 
 use crate::error::{Error, ErrorKind, Result};
+use crate::nifti::DisplacementField;
 use crate::options::LoadOptions;
 use crate::stream::GZIP_MAGIC;
-use crate::volume::Volume;
+use crate::volume::{GeometrySource, Volume};
+use model::{Decoded, Want};
 
 /// The largest MINC file read (compressed or not): a 512 × 512 × 300 volume of doubles is 630 MB.
 const MAX_FILE_BYTES: u64 = 4 << 30;
@@ -78,11 +80,47 @@ pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
 /// As [`read()`].
 pub fn read_bytes(name: &Path, bytes: Vec<u8>, opts: &mut LoadOptions) -> Result<Volume> {
     opts.report(name, "reading", 0, 1)?;
+    let volume = match read_as(name, bytes, opts, Want::Volume)? {
+        Decoded::Volume(volume) => *volume,
+        Decoded::Vectors(..) => return Err(Error::invalid(name, "a displacement grid, not a volume")),
+    };
+    opts.report(name, "reading", 1, 1)?;
+    Ok(volume)
+}
+
+/// The displacement grid at `path`: a MINC file of vectors (a `vector_dimension` of 3 beside the spatial ones, as
+/// minc-toolkit writes a `Grid_Transform`'s `Displacement_Volume`), the vectors converted from RAS to LPS mm.
+///
+/// # Errors
+/// As [`read()`]; a file without 3 vector components, or one that does not give its geometry.
+pub fn read_displacements(path: &Path) -> Result<DisplacementField> {
+    let len = crate::files::check_regular_file(path)?.len();
+    if len > MAX_FILE_BYTES {
+        return Err(Error::invalid(path, format!("{len} bytes is more than a MINC file may have")));
+    }
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    read_displacements_bytes(path, bytes, &LoadOptions::new())
+}
+
+/// [`read_displacements`] of a file's bytes; `name` is used in errors.
+///
+/// # Errors
+/// As [`read_displacements`].
+pub fn read_displacements_bytes(name: &Path, bytes: Vec<u8>, opts: &LoadOptions) -> Result<DisplacementField> {
+    let ((dims, lps_from_index), displacements_lps) = match read_as(name, bytes, opts, Want::Vectors)? {
+        Decoded::Vectors(grid, vectors) => (grid, vectors),
+        Decoded::Volume(_) => return Err(Error::invalid(name, "a volume, not a displacement grid")),
+    };
+    Ok(DisplacementField { dims, lps_from_index, geometry_source: GeometrySource::Minc, displacements_lps })
+}
+
+/// The file's bytes read as `want` says, gzip-compressed or not, MINC 1 or 2 by the magic.
+fn read_as(name: &Path, bytes: Vec<u8>, opts: &LoadOptions, want: Want) -> Result<Decoded> {
     let bytes = if bytes.starts_with(&GZIP_MAGIC) { gunzip(name, &bytes, opts.max_voxel_bytes)? } else { bytes };
-    let volume = if looks_like_minc1(&bytes) {
-        minc1::read(name, bytes, opts)
+    if looks_like_minc1(&bytes) {
+        minc1::read(name, bytes, opts, want)
     } else if crate::itk_h5::looks_like_hdf5(&bytes) {
-        minc2::read(name, bytes, opts)
+        minc2::read(name, bytes, opts, want)
     } else {
         Err(Error::new(
             name,
@@ -91,9 +129,7 @@ pub fn read_bytes(name: &Path, bytes: Vec<u8>, opts: &mut LoadOptions) -> Result
                 detail: "it is neither a MINC 1 (netCDF, CDF) nor a MINC 2 (HDF5) file, nor gzip of one".to_string(),
             },
         ))
-    }?;
-    opts.report(name, "reading", 1, 1)?;
-    Ok(volume)
+    }
 }
 
 /// The inflated bytes of a gzip-compressed MINC file, at most what the voxel cap and a header allow.

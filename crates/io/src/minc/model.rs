@@ -7,7 +7,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Error, ErrorKind, Result};
-use crate::geometry::{Index, Ras, Transform, lps_from_ras};
+use crate::geometry::{Index, Lps, Ras, Transform, lps_from_ras};
 use crate::options::LoadOptions;
 use crate::sample::{Stored, StoredType, rescaled_type};
 use crate::volume::{self, GeometrySource, Rescale, SampleType, Volume, VoxelData};
@@ -18,6 +18,9 @@ pub(super) const SPATIAL: [(&str, [f64; 3]); 3] =
 
 /// The name of the dimension that holds frames.
 const TIME: &str = "time";
+
+/// The name of the dimension that holds a vector's components (a displacement grid's x, y and z).
+const VECTOR: &str = "vector_dimension";
 
 /// One of the image's dimensions, as the file describes it.
 #[derive(Clone, Debug, Default)]
@@ -74,7 +77,77 @@ impl Header {
 }
 
 /// The volume of `header` and its samples `raw`, all frames, in file order.
-pub(super) fn volume_of<T: Stored>(name: &Path, header: &Header, raw: &[T], opts: &LoadOptions) -> Result<Volume> {
+fn vectors_of<T: Stored>(
+    name: &Path,
+    header: &Header,
+    raw: &[T],
+    opts: &LoadOptions,
+) -> Result<(VectorGrid, Vec<[f32; 3]>)> {
+    let mut layout = Layout::with_frames(name, header, VECTOR, Some(0))?;
+    let Some((v, _)) = layout.time.filter(|&(v, _)| header.dims[v].len == 3) else {
+        return Err(Error::invalid(name, format!("a displacement grid has a {VECTOR} of 3 components")));
+    };
+    // A grid must say where it lies; axis-aligned (no direction_cosines, MINC's default) it may be.
+    for &a in &layout.spatial {
+        let d = &header.dims[a];
+        if d.start.is_none() || d.step.is_none() {
+            return Err(Error::invalid(
+                name,
+                format!("a displacement grid must give its place: {} has no start or no step", d.name),
+            ));
+        }
+    }
+    let mut warnings = Vec::new();
+    let ras_from_index = ras_from_index(name, header, &layout, &mut warnings)?;
+    let scale = Scale::of(name, header, T::TYPE)?;
+    let dims = layout.spatial.map(|a| header.dims[a].len);
+    let mut vectors = volume::try_zeros::<[f32; 3]>(name, dims.iter().product(), "the displacement vectors")?;
+    for c in 0..3 {
+        layout.time = Some((v, c));
+        let (data, _) = samples(name, header, &layout, &scale, raw, dims, opts)?;
+        for (n, out) in vectors.iter_mut().enumerate() {
+            // RAS to LPS: x and y negated.
+            let x = data.get_f64(n) as f32;
+            out[c] = if c < 2 { -x } else { x };
+        }
+    }
+    Ok(((dims, lps_from_ras() * ras_from_index), vectors))
+}
+
+/// What a reader is asked for: a volume, or a displacement grid's vectors.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Want {
+    Volume,
+    Vectors,
+}
+
+/// What a reader read.
+pub(super) enum Decoded {
+    Volume(Box<Volume>),
+    Vectors(VectorGrid, Vec<[f32; 3]>),
+}
+
+/// The volume or the vectors (as `want` says) of `header` and its samples `raw`, all frames, in file order.
+pub(super) fn finish<T: Stored>(
+    name: &Path,
+    header: &Header,
+    raw: &[T],
+    opts: &LoadOptions,
+    want: Want,
+) -> Result<Decoded> {
+    Ok(match want {
+        Want::Volume => Decoded::Volume(Box::new(volume_of(name, header, raw, opts)?)),
+        Want::Vectors => {
+            let (grid, vectors) = vectors_of(name, header, raw, opts)?;
+            Decoded::Vectors(grid, vectors)
+        }
+    })
+}
+
+/// A field's grid: voxels along i, j, k and `lps_from_index`.
+pub(super) type VectorGrid = ([usize; 3], Transform<Lps, Index>);
+
+fn volume_of<T: Stored>(name: &Path, header: &Header, raw: &[T], opts: &LoadOptions) -> Result<Volume> {
     let layout = Layout::of(name, header, opts.frame)?;
     let mut warnings = layout.warnings.clone();
     let ras_from_index = ras_from_index(name, header, &layout, &mut warnings)?;
@@ -100,6 +173,12 @@ struct Layout {
 
 impl Layout {
     fn of(name: &Path, header: &Header, frame: Option<usize>) -> Result<Self> {
+        Self::with_frames(name, header, TIME, frame)
+    }
+
+    /// The layout with `frames` (`time`, or `vector_dimension` for a field's components) the dimension whose samples
+    /// are chosen one at a time.
+    fn with_frames(name: &Path, header: &Header, frames: &str, frame: Option<usize>) -> Result<Self> {
         let names: Vec<&str> = header.dims.iter().map(|d| d.name.as_str()).collect();
         let mut spatial = Vec::new();
         let mut time = None;
@@ -109,7 +188,7 @@ impl Layout {
                     return Err(Error::invalid(name, format!("the image names {} twice: {names:?}", d.name)));
                 }
                 spatial.push(a);
-            } else if d.name == TIME {
+            } else if d.name == frames {
                 time = Some(a);
             } else if d.len > 1 {
                 let what = if d.name == "vector_dimension" { " (a vector or colour image)" } else { "" };
