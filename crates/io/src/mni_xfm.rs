@@ -14,14 +14,15 @@
 //!
 //! Each `Transform_Type` starts a transform: `Linear` (the 3 × 4 matrix of `Linear_Transform`, rows), `Grid_Transform`
 //! (a displacement field in a MINC file, `Displacement_Volume`) or `Thin_Plate_Spline_Transform`; an
-//! `Invert_Flag = True;` after it inverts it. Several are applied first to last. Points are world RAS mm. **A file
-//! maps the source (moving) volume's world to the target (fixed) one's**, as `minctracc source target out.xfm` writes
-//! it and `mincresample -transformation out.xfm source -like target` takes it, and as `register` and `tagtoxfm` compute
-//! it from a tag file (volume 2 onto volume 1, [`crate::landmarks::read_mni_tag`]). Read ([`read`], [`read_map`],
-//! [`read_affine`]; the last as the
-//! pull-back `moving_from_fixed` in LPS, the inverse of the file's map. Linear transforms only: a grid or a
-//! thin-plate-spline transform is refused, naming itself. Written ([`to_text`], [`write`]) as one `Linear` transform,
-//! with full precision.
+//! `Invert_Flag = True;` before or after its matrix inverts it. Several are applied first to last. Points are world
+//! RAS mm. **A file maps the source (moving) volume's world to the target (fixed) one's**, as `minctracc source target
+//! out.xfm` writes it and `mincresample -transformation out.xfm source -like target` takes it, and as `register` and
+//! `tagtoxfm` compute it from a tag file (volume 2 onto volume 1, [`crate::landmarks::read_mni_tag`]).
+//!
+//! Read: [`read`] (the transforms), [`read_map`] and [`read_affine`] (linear ones composed, the latter as the pull-back
+//! `moving_from_fixed` in LPS, the inverse of the file's map), [`read_field`] (one grid transform as the displacement
+//! field of its MINC grid: the forward map, or the pull-back when inverted). A thin-plate-spline transform is refused,
+//! naming itself. Written ([`to_text`], [`write()`]) as one `Linear` transform, in shortest round-trip numbers.
 
 use std::path::Path;
 
