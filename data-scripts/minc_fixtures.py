@@ -312,18 +312,15 @@ def ident_of(path: Path) -> bytes:
         return bytes(f["minc-2.0"].attrs["ident"])
 
 
-def write_sitk(arr: np.ndarray, path: Path) -> None:
-    """sitk.WriteImage, with $LOGNAME padded so that libminc's ident ("$LOGNAME:host:time:pid:counter") is
-    IDENT_LEN bytes long (rewritten until it is), which makes the HDF5 layout independent of the pid."""
-    img = sitk.GetImageFromArray(arr)
-    img.SetSpacing(SPACING)
-    img.SetOrigin(ORIGIN)
-    img.SetDirection(DIRECTION.flatten().tolist())
+def with_fixed_ident(write, written: Path) -> None:
+    """Runs `write` (a SimpleITK write whose libminc stamps the MINC 2 file `written` with its ident,
+    "$LOGNAME:host:time:pid:counter"), with $LOGNAME padded and the write repeated until the ident is IDENT_LEN bytes
+    long, which makes the HDF5 layout independent of the pid."""
     saved = os.environ.get("LOGNAME")
     try:
         for _ in range(4):
-            sitk.WriteImage(img, str(path))
-            ident = ident_of(path)
+            write()
+            ident = ident_of(written)
             if len(ident) == IDENT_LEN:
                 break
             user = len(ident.split(b":")[0])
@@ -333,6 +330,16 @@ def write_sitk(arr: np.ndarray, path: Path) -> None:
             os.environ.pop("LOGNAME", None)
         else:
             os.environ["LOGNAME"] = saved
+
+
+def write_sitk(arr: np.ndarray, path: Path) -> None:
+    """sitk.WriteImage, with $LOGNAME padded so that libminc's ident ("$LOGNAME:host:time:pid:counter") is
+    IDENT_LEN bytes long (rewritten until it is), which makes the HDF5 layout independent of the pid."""
+    img = sitk.GetImageFromArray(arr)
+    img.SetSpacing(SPACING)
+    img.SetOrigin(ORIGIN)
+    img.SetDirection(DIRECTION.flatten().tolist())
+    with_fixed_ident(lambda: sitk.WriteImage(img, str(path)), path)
 
 
 def set_str(obj, name: str, value) -> None:

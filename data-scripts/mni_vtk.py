@@ -147,7 +147,6 @@ FIXED_IDENT = b"warpbench:mni_vtk.py:2000.01.01.00.00.00:0:1"
 FIXED_HISTORY = b"Sat Jan  1 00:00:00 2000>>>Created by vtkMINCImageWriter\n"
 TIGHT_TOLERANCE = 1e-6  # mm, VTK's InverseTolerance for the *_tight readings
 TIGHT_ITERATIONS = 500
-IDENT_LEN = 64  # libminc's ident is brought to this length while SimpleITK writes (as minc_fixtures.py does)
 
 _VTK_MESSAGES = vtkStringOutputWindow()
 _VTK_SEEN = [0]  # how much of _VTK_MESSAGES's text vtk_error has consumed
@@ -610,28 +609,16 @@ def grid_volume_of(path: Path) -> Path | None:
 
 def write_sitk_grid(path: Path) -> None:
     """sitk.WriteTransform of the grid as a DisplacementFieldTransform (.xfm + MINC 2 grid), with $LOGNAME padded
-    so that libminc's ident is IDENT_LEN bytes long, then the grid normalised by minc_fixtures.normalise_hdf5."""
-    from minc_fixtures import ident_of, normalise_hdf5
+    so that libminc's ident is minc_fixtures.IDENT_LEN bytes long (minc_fixtures.with_fixed_ident), then the grid
+    normalised by minc_fixtures.normalise_hdf5."""
+    from minc_fixtures import normalise_hdf5, with_fixed_ident
 
     field = sitk.GetImageFromArray(np.ascontiguousarray(displacements().transpose(2, 1, 0, 3)), isVector=True)
     field.SetSpacing((GRID_SPACING,) * 3)
     field.SetOrigin(GRID_ORIGIN)
     tx = sitk.DisplacementFieldTransform(sitk.Cast(field, sitk.sitkVectorFloat64))
     grid = path.parent / f"{path.stem}_grid_0.mnc"
-    saved = os.environ.get("LOGNAME")
-    try:
-        for _ in range(4):
-            sitk.WriteTransform(tx, str(path))
-            ident = ident_of(grid)
-            if len(ident) == IDENT_LEN:
-                break
-            user = len(ident.split(b":")[0])
-            os.environ["LOGNAME"] = "w" * max(0, user + IDENT_LEN - len(ident))
-    finally:
-        if saved is None:
-            os.environ.pop("LOGNAME", None)
-        else:
-            os.environ["LOGNAME"] = saved
+    with_fixed_ident(lambda: sitk.WriteTransform(tx, str(path)), grid)
     normalise_hdf5(grid)
 
 

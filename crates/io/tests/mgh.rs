@@ -5,11 +5,10 @@
 use std::path::{Path, PathBuf};
 
 use serde_json::Value;
-use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::mgh;
-use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume, VolumeFileKind, VoxelData};
+use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, VolumeFileKind};
 
-use crate::support::{open_frame as open, samples_f64};
+use crate::support::{open_frame as open, sample_volumes, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/mgh")
@@ -152,29 +151,6 @@ fn a_file_of_several_frames_needs_a_frame_in_range() {
     assert!(e.to_string().contains("frame 2 is out of range: the file has 2 frame(s)"), "{e}");
     // A frame of a 3-D file: 0 only.
     assert!(open(&data_dir().join("oblique_u8.mgh"), Some(0)).is_ok());
-}
-
-/// An oblique, anisotropic grid of either handedness, away from the origin.
-fn grid(handed: f64) -> Transform<Lps, Index> {
-    let (c, s) = (0.4f64.cos(), 0.4f64.sin());
-    let rotation = nalgebra::Matrix3::new(c, -s, 0.0, s * 0.9, c * 0.9, -0.436, s * 0.436, c * 0.436, 0.9);
-    let linear = rotation * nalgebra::Matrix3::from_diagonal(&nalgebra::Vector3::new(0.8, 1.7 * handed, 3.1));
-    Transform::from_linear_translation(linear, [-81.25, 112.5, -40.0])
-}
-
-fn sample_volumes() -> Vec<Volume> {
-    let dims = [6, 5, 4];
-    let n = 120;
-    let data = [
-        VoxelData::U8((0..n).map(|i| (i * 37 % 256) as u8).collect()),
-        VoxelData::I16((0..n).map(|i| (i as i16 - 60) * 541).collect()),
-        VoxelData::U16((0..n).map(|i| (i * 547) as u16).collect()),
-        VoxelData::F32((0..n).map(|i| (i as f32 - 33.3).powi(3) * 1e-3).collect()),
-    ];
-    data.into_iter()
-        .zip([1.0, -1.0, 1.0, -1.0])
-        .map(|(d, handed)| Volume::new(Path::new("x"), dims, d, grid(handed), GeometrySource::Assumed).expect("volume"))
-        .collect()
 }
 
 /// The geometry is stored as f32: it reads back within f32's rounding of the coordinates (about 6e-8 relative).

@@ -5,14 +5,14 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 use serde_json::Value;
 use sha2::{Digest, Sha256};
-use warpbench_io::geometry::{Index, Lps, Transform, ras_from_lps};
+use warpbench_io::geometry::{Transform, ras_from_lps};
 use warpbench_io::minc;
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume, VolumeFileKind, VoxelData};
 
-use crate::support::{open_frame as open, samples_f64};
+use crate::support::{open_frame as open, sample_volumes, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/minc")
@@ -179,29 +179,6 @@ fn a_file_of_several_frames_needs_a_frame_in_range() {
         let e = open(&path, Some(frames)).expect_err("out of range");
         assert!(e.to_string().contains(&format!("frame {frames} is out of range")), "{e}");
     }
-}
-
-/// An oblique, anisotropic grid of either handedness, away from the origin.
-fn grid(handed: f64) -> Transform<Lps, Index> {
-    let (c, s) = (0.4f64.cos(), 0.4f64.sin());
-    let rotation = Matrix3::new(c, -s, 0.0, s * 0.9, c * 0.9, -0.436, s * 0.436, c * 0.436, 0.9);
-    let linear = rotation * Matrix3::from_diagonal(&Vector3::new(0.8, 1.7 * handed, 3.1));
-    Transform::from_linear_translation(linear, [-81.25, 112.5, -40.0])
-}
-
-fn sample_volumes() -> Vec<Volume> {
-    let dims = [6, 5, 4];
-    let n = 120;
-    let data = [
-        VoxelData::U8((0..n).map(|i| (i * 37 % 256) as u8).collect()),
-        VoxelData::I16((0..n).map(|i| (i as i16 - 60) * 541).collect()),
-        VoxelData::U16((0..n).map(|i| (i * 547) as u16).collect()),
-        VoxelData::F32((0..n).map(|i| (i as f32 - 33.3).powi(3) * 1e-3).collect()),
-    ];
-    data.into_iter()
-        .zip([1.0, -1.0, 1.0, -1.0])
-        .map(|(d, handed)| Volume::new(Path::new("x"), dims, d, grid(handed), GeometrySource::Assumed).expect("volume"))
-        .collect()
 }
 
 fn assert_close(got: [[f64; 4]; 4], want: [[f64; 4]; 4], what: &str) {
