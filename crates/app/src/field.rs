@@ -144,6 +144,8 @@ pub enum FormatArg {
     Ants,
     Nrrd,
     Metaimage,
+    /// An MNI transform file (`.xfm`) of one grid transform, its vectors in `NAME_grid_0.mnc` beside it.
+    Minc,
     /// Learn2Reg's field: steps from fixed voxels to moving voxels, `.npz` or `.nii.gz` by the name.
     Learn2reg,
 }
@@ -165,6 +167,7 @@ impl FormatArg {
             Self::Ants => FieldFormat::Ants,
             Self::Nrrd => FieldFormat::Nrrd,
             Self::Metaimage => FieldFormat::MetaImage,
+            Self::Minc => FieldFormat::Minc,
         }
     }
 }
@@ -518,6 +521,10 @@ pub fn check_field_output(output: &OutputFile, format: FieldFormat, inputs: &[&P
     output.check(inputs).map_err(Failure::BadInput)?;
     if format == FieldFormat::MetaImage {
         crate::warp::check_data_file(&output.path, inputs, output.force).map_err(Failure::BadInput)?;
+    }
+    if format == FieldFormat::Minc {
+        let grid = OutputFile { path: warpbench_io::mni_xfm::grid_file_of(&output.path), force: output.force };
+        grid.check(inputs).map_err(Failure::BadInput)?;
     }
     check_field_name(&output.path, format)
 }

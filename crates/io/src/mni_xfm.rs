@@ -211,7 +211,7 @@ fn compose(name: &Path, steps: &[XfmStep]) -> Result<Matrix4<f64>> {
 /// As [`read`]; a file of anything but one grid transform (a linear one with it is refused: give it to `--initial`
 /// and the grid alone to `--field`), a displacement volume that cannot be read (named).
 pub fn read_field(path: &Path) -> Result<crate::displacement::ReadField> {
-    use crate::displacement::{FieldDirection, FieldSource, ReadField};
+    use crate::displacement::{FieldDirection, FieldFormat, FieldSource, ReadField};
     let steps = read(path)?;
     let [XfmStep::Grid { volume, inverted }] = steps.as_slice() else {
         let kinds: Vec<&str> = steps
@@ -235,7 +235,48 @@ pub fn read_field(path: &Path) -> Result<crate::displacement::ReadField> {
         Error::invalid(path, format!("its Displacement_Volume {} cannot be read: {e}", volume.display()))
     })?;
     let direction = if *inverted { FieldDirection::Pullback } else { FieldDirection::Forward };
-    Ok(ReadField { field, source: FieldSource::MincGrid, direction: Some(direction) })
+    Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Minc), direction: Some(direction) })
+}
+
+/// The grid file [`write_grid`] writes beside the transform file `path`: `NAME_grid_0.mnc` for `NAME.xfm`.
+#[must_use]
+pub fn grid_file_of(path: &Path) -> std::path::PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let stem = match name.len().checked_sub(4) {
+        Some(cut) if name.is_char_boundary(cut) && name[cut..].eq_ignore_ascii_case(".xfm") => &name[..cut],
+        _ => name.as_str(),
+    };
+    path.with_file_name(format!("{stem}_grid_0.mnc"))
+}
+
+/// Writes a displacement field as an MNI transform file of one `Grid_Transform` at `path` (`.xfm`), its vectors in the
+/// MINC 2 file `NAME_grid_0.mnc` beside it (as ITK names it; [`crate::minc::grid_to_bytes`]): the grid first, then the
+/// transform file, each atomically. The file maps the moving volume's world to the fixed one's, so a `Forward` field
+/// (moving → fixed) is written as it is and a `Pullback` one with `Invert_Flag = True`.
+///
+/// # Errors
+/// What [`crate::minc::grid_to_bytes`] refuses; the writes.
+pub fn write_grid(
+    path: &Path,
+    direction: crate::displacement::FieldDirection,
+    dims: [usize; 3],
+    lps_from_index: &crate::geometry::Transform<crate::geometry::Lps, crate::geometry::Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<()> {
+    let grid = grid_file_of(path);
+    let grid_name = grid.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let bytes = crate::minc::grid_to_bytes(&grid, dims, lps_from_index, displacements_lps)?;
+    crate::write_atomic(&grid, |w| w.write_all(&bytes))?;
+    let invert = match direction {
+        crate::displacement::FieldDirection::Pullback => "Invert_Flag = True;\n",
+        crate::displacement::FieldDirection::Forward => "",
+    };
+    let text = format!(
+        "{MAGIC}\n% Written by warpbench: maps the moving (source) volume's world to the fixed (target) one's, RAS mm,\n\
+         % as mincresample -transformation takes it.\n\nTransform_Type = Grid_Transform;\n{invert}\
+         Displacement_Volume = {grid_name};\n"
+    );
+    crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
 }
 
 /// The starting transform of the file at `path`: the pull-back `moving_from_fixed` in LPS mm, the inverse of the

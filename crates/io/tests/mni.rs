@@ -235,7 +235,7 @@ fn grid_value(g: &Value, [i, j, k]: [usize; 3], c: usize) -> f64 {
 
 #[test]
 fn grid_transforms_read_as_displacement_fields_on_their_grids() {
-    use warpbench_io::displacement::{FieldDirection, FieldSource, read_field_info};
+    use warpbench_io::displacement::{FieldDirection, FieldFormat, FieldSource, read_field_info};
     use warpbench_io::elastix::{FieldInterpolation, FieldStep};
     let r = reference();
     let test_points: Vec<[f64; 3]> = r["test_points"].as_array().expect("points").iter().map(triple).collect();
@@ -248,7 +248,7 @@ fn grid_transforms_read_as_displacement_fields_on_their_grids() {
         let g = &t["grid_volume"];
         let path = data_dir().join(file);
         let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!((read.source, read.direction), (FieldSource::MincGrid, Some(direction)), "{file}");
+        assert_eq!((read.source, read.direction), (FieldSource::Field(FieldFormat::Minc), Some(direction)), "{file}");
         let field = &read.field;
         assert_eq!(field.dims, [6, 5, 4], "{file}");
         // 10 mm voxels from (-25, -20, -15) RAS, axis-aligned: in LPS, x and y flipped.
@@ -307,4 +307,49 @@ fn grid_transforms_read_as_displacement_fields_on_their_grids() {
         .expect("write");
     let e = read_field_info(&not_grid).expect_err("a volume");
     assert!(e.to_string().contains("v.mnc cannot be read") && e.to_string().contains("vector_dimension"), "{e}");
+}
+
+#[test]
+fn a_field_written_as_a_grid_transform_reads_back() {
+    use warpbench_io::displacement::{FieldDirection, FieldFormat, FieldSource, read_field_info, write_field_with};
+    let dir = tempfile::tempdir().expect("tempdir");
+    let grid = crate::support::oblique_grid(-1.0);
+    let dims = [4, 3, 2];
+    let vectors: Vec<[f32; 3]> =
+        (0..24).map(|i| [i as f32 * 0.25 - 3.0, 1.0 - i as f32 * 0.125, (i * i) as f32 * 0.01]).collect();
+    for direction in [FieldDirection::Pullback, FieldDirection::Forward] {
+        let out = dir.path().join(format!("u_{}.XFM", direction.name()));
+        write_field_with(&out, FieldFormat::Minc, direction, dims, &grid, &vectors).expect("write");
+        let grid_file = dir.path().join(format!("u_{}_grid_0.mnc", direction.name()));
+        assert!(grid_file.is_file(), "the grid beside it");
+        let text = std::fs::read_to_string(&out).expect("text");
+        assert_eq!(text.contains("Invert_Flag = True;"), direction == FieldDirection::Pullback, "{text}");
+        let read = read_field_info(&out).expect("read");
+        assert_eq!((read.source, read.direction), (FieldSource::Field(FieldFormat::Minc), Some(direction)));
+        assert_eq!(read.field.dims, dims);
+        assert_eq!(read.field.displacements_lps, vectors, "float32 vectors, exactly");
+        let (got, want) = (read.field.lps_from_index.rows(), grid.rows());
+        for r in 0..4 {
+            for c in 0..4 {
+                assert!((got[r][c] - want[r][c]).abs() < 1e-12, "{got:?} vs {want:?}");
+            }
+        }
+    }
+    // Only an .xfm name holds it; a non-finite vector is refused, naming the voxel, and nothing is written.
+    let e = write_field_with(
+        &dir.path().join("u.nii.gz"),
+        FieldFormat::Minc,
+        FieldDirection::Pullback,
+        dims,
+        &grid,
+        &vectors,
+    )
+    .expect_err("name");
+    assert!(e.to_string().contains(".xfm"), "{e}");
+    let mut bad = vectors.clone();
+    bad[5][1] = f32::NAN;
+    let out = dir.path().join("nan.xfm");
+    let e = write_field_with(&out, FieldFormat::Minc, FieldDirection::Pullback, dims, &grid, &bad).expect_err("NaN");
+    assert!(e.to_string().contains("[1, 1, 0]"), "{e}");
+    assert!(!out.exists() && !dir.path().join("nan_grid_0.mnc").exists());
 }

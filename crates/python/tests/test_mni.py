@@ -138,14 +138,40 @@ def test_a_grid_transform_is_a_displacement_field_on_its_grid(tmp_path: Path) ->
     world to the fixed one's), or the pull-back with ``Invert_Flag``; SimpleITK reads the same vectors (RAS numbers)."""
     path = DATA / "mni" / "grid_itk.xfm"
     field = wb.read_field(path)
-    assert (field.source, field.direction, field.shape) == ("minc_grid", "forward", (6, 5, 4))
+    assert (field.source, field.direction, field.shape) == ("minc", "forward", (6, 5, 4))
     theirs = sitk.DisplacementFieldTransform(sitk.ReadTransform(str(path))).GetDisplacementField()
     ras = sitk.GetArrayFromImage(theirs).transpose(2, 1, 0, 3)  # (i, j, k, 3), MINC's RAS numbers
     np.testing.assert_array_equal(field.array * np.array([-1.0, -1.0, 1.0], dtype=np.float32), ras.astype(np.float32))
     assert wb.read_field(DATA / "mni" / "grid_inverted.xfm").direction == "pullback"
     # warp --field takes it (inverting the forward map) and info describes it.
     info = run_cli("info", path).stdout
-    assert "minc_grid" in info and "forward" in info
+    assert "(minc)" in info and "forward" in info
     done = run_cli("warp", "--fixed", T1, "--moving", T1, "--field", DATA / "mni" / "tps.xfm", "--out",
                    tmp_path / "w.nii.gz", expect=2)
     assert "tps.xfm" in done.stderr and "Thin_Plate_Spline_Transform" in done.stderr
+
+
+@pytest.mark.parametrize("direction", ["pullback", "forward"])
+def test_field_format_minc_writes_a_grid_transform_libminc_reads(tmp_path: Path, direction: str) -> None:
+    """``field --format minc`` writes an ``.xfm`` and its MINC 2 grid beside it: warpbench reads back the same vectors
+    as the ITK flavour of the same field, and libminc (SimpleITK) reads the grid to them (RAS numbers); the forward
+    map as it is, the pull-back with ``Invert_Flag``."""
+    pairs = exact_affine_pairs()
+    csv = tmp_path / "pairs.csv"
+    wb.write_landmarks(csv, pairs)
+    base = ["field", "--fixed", T1, "--moving", T1, "--landmarks", csv, "--method", "tps", "--direction", direction,
+            "--quiet"]
+    out, nii = tmp_path / "u.xfm", tmp_path / "u.nii.gz"
+    run_cli(*base, "--format", "minc", "--out", out)
+    run_cli(*base, "--format", "itk", "--out", nii)
+    ours, ref = wb.read_field(out), wb.read_field(nii)
+    assert (ours.source, ours.direction) == ("minc", direction)
+    assert ("Invert_Flag = True;" in out.read_text()) == (direction == "pullback")
+    np.testing.assert_array_equal(ours.array, ref.array)
+    np.testing.assert_allclose(ours.lps_from_index, ref.lps_from_index, rtol=0, atol=1e-9)
+    grid = sitk.ReadImage(str(tmp_path / "u_grid_0.mnc"))
+    assert grid.GetNumberOfComponentsPerPixel() == 3
+    theirs = sitk.GetArrayFromImage(grid).transpose(2, 1, 0, 3)
+    np.testing.assert_array_equal(theirs.astype(np.float32), ours.array * np.array([-1, -1, 1], dtype=np.float32))
+    done = run_cli(*base, "--format", "minc", "--out", tmp_path / "u.nii.gz", "--force", expect=2)
+    assert "u.nii.gz" in done.stderr and ".xfm" in done.stderr

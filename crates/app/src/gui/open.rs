@@ -219,7 +219,7 @@ impl Purpose {
             ),
             Self::ExportField | Self::ExportInverseField => d
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])
-                .add_filter("ITK transform holding the field (HDF5)", &["h5"]),
+                .add_filter("ITK transform holding the field (HDF5), MNI grid transform", &["h5", "xfm"]),
             Self::UseField => d
                 .set_title("A displacement field, or an elastix or ITK transform, to put under the landmarks")
                 .add_filter("Displacement fields (NIfTI, NRRD, MetaImage)", &["nii", "gz", "nrrd", "mha", "mhd"])

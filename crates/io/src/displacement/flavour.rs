@@ -18,13 +18,16 @@ pub enum FieldFormat {
     Nrrd,
     /// MetaImage, three channels, LPS vectors: elastix's transformix and every ITK.
     MetaImage,
+    /// An MNI transform file (`.xfm`) of one `Grid_Transform`, its vectors in a MINC 2 file beside it: minc-toolkit
+    /// (`mincresample -transformation`) and ITK's MINC transform reader.
+    Minc,
 }
 
 impl FieldFormat {
     /// Every flavour, in the order the CLI lists them.
-    pub const ALL: [Self; 4] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage];
+    pub const ALL: [Self; 5] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage, Self::Minc];
 
-    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`.
+    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`, `minc`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -32,6 +35,7 @@ impl FieldFormat {
             Self::Ants => "ants",
             Self::Nrrd => "nrrd",
             Self::MetaImage => "metaimage",
+            Self::Minc => "minc",
         }
     }
 
@@ -48,6 +52,8 @@ impl FieldFormat {
             Some(Self::MetaImage)
         } else if name.ends_with(".nii") || name.ends_with(".nii.gz") {
             Some(Self::Itk)
+        } else if name.ends_with(".xfm") {
+            Some(Self::Minc)
         } else {
             None
         }
@@ -60,6 +66,7 @@ impl FieldFormat {
     pub fn container_matches(self, path: &Path) -> bool {
         match Self::from_extension(path) {
             None => matches!(self, Self::Itk | Self::Ants | Self::Nrrd),
+            Some(Self::Minc) => self == Self::Minc,
             Some(Self::Itk | Self::Ants) => matches!(self, Self::Itk | Self::Ants),
             Some(container) => self == container,
         }
@@ -71,6 +78,7 @@ impl FieldFormat {
             Self::Itk | Self::Ants => "a .nii or .nii.gz name",
             Self::Nrrd => "a .nrrd name",
             Self::MetaImage => "a .mha name (or .mhd, with a .raw data file beside it)",
+            Self::Minc => "a .xfm name (its grid is written beside it, NAME_grid_0.mnc)",
         }
     }
 }
@@ -125,13 +133,11 @@ pub enum FieldSource {
     DicomRegistration,
     /// A Learn2Reg `.npz`, read against the fixed and moving grids ([`crate::learn2reg::pullback_from_voxels`]).
     Learn2Reg,
-    /// An MNI transform file's `Grid_Transform`, its MINC grid of vectors ([`crate::mni_xfm::read_field`]).
-    MincGrid,
 }
 
 impl FieldSource {
     /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `itk_tfm`, `dicom`, `learn2reg`, `minc_grid`.
+    /// `itk_tfm`, `dicom`, `learn2reg` (`minc` is a flavour: an MNI transform file's grid).
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -141,7 +147,6 @@ impl FieldSource {
             Self::ItkTransform => "itk_tfm",
             Self::DicomRegistration => "dicom",
             Self::Learn2Reg => "learn2reg",
-            Self::MincGrid => "minc_grid",
         }
     }
 }

@@ -180,6 +180,7 @@ pub fn write_field_with(
         FieldFormat::MetaImage => {
             crate::metaimage::write_displacement_field(path, dims, lps_from_index, displacements_lps)
         }
+        FieldFormat::Minc => crate::mni_xfm::write_grid(path, direction, dims, lps_from_index, displacements_lps),
     }
 }
 
@@ -364,6 +365,7 @@ mod tests {
                 FieldFormat::Nrrd => "nrrd",
                 FieldFormat::MetaImage => "mha",
                 FieldFormat::Itk | FieldFormat::Ants => "nii",
+                FieldFormat::Minc => "xfm",
             };
             let p = dir.path().join(format!("nan_{format}.{extension}"));
             let e = write_field(&p, format, dims, &lps_from_index, &nan_field).expect_err("not finite");
@@ -377,6 +379,8 @@ mod tests {
             (FieldFormat::MetaImage, "x.nii"),
             (FieldFormat::MetaImage, "x.field"),
             (FieldFormat::Ants, "x.mha"),
+            (FieldFormat::Minc, "x.nii"),
+            (FieldFormat::Itk, "x.xfm"),
         ] {
             let p = dir.path().join(name);
             assert!(write_field(&p, format, dims, &lps_from_index, &field).is_err(), "{format} to {name}");

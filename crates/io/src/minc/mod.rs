@@ -30,7 +30,7 @@ mod model;
 mod netcdf;
 mod write;
 
-pub use write::{to_bytes, write};
+pub use write::{grid_to_bytes, to_bytes, write};
 
 use std::io::Read;
 use std::path::Path;

@@ -20,7 +20,7 @@ pub(super) const SPATIAL: [(&str, [f64; 3]); 3] =
 const TIME: &str = "time";
 
 /// The name of the dimension that holds a vector's components (a displacement grid's x, y and z).
-const VECTOR: &str = "vector_dimension";
+pub(super) const VECTOR: &str = "vector_dimension";
 
 /// One of the image's dimensions, as the file describes it.
 #[derive(Clone, Debug, Default)]

@@ -11,9 +11,9 @@ use std::path::Path;
 use hdf5_pure::{AttrValue, DatasetBuilder, FileBuilder, LibVer};
 use nalgebra::{Matrix3, Vector3};
 
-use super::model::SPATIAL;
+use super::model::{SPATIAL, VECTOR};
 use crate::error::{Error, Result};
-use crate::geometry::ras_from_lps;
+use crate::geometry::{Index, Lps, Transform, ras_from_lps};
 use crate::volume::{self, Volume, VoxelData};
 
 /// Writes `volume` as MINC 2 at `path` (module docs). Atomic.
@@ -28,10 +28,46 @@ pub fn to_bytes(name: &Path, volume: &Volume) -> Result<Vec<u8>> {
     if volume.data.len() != n {
         return Err(Error::invalid(name, format!("{} samples for dims {:?}", volume.data.len(), volume.dims)));
     }
-    if !volume.lps_from_index.is_valid_affine() {
+    layout(name, volume.dims, &volume.lps_from_index, Samples::Scalar(&volume.data))
+}
+
+/// The bytes of a MINC 2 displacement grid: `displacements_lps` (one vector a voxel, i fastest, LPS mm) on the grid
+/// `dims`, `lps_from_index`, written as float RAS vectors along a `vector_dimension` of 3, the fastest dimension, as
+/// libminc and ITK write a `Grid_Transform`'s `Displacement_Volume`; `name` is used in errors.
+///
+/// # Errors
+/// Vectors not one per voxel or not finite (the voxel named), a singular grid.
+pub fn grid_to_bytes(
+    name: &Path,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<Vec<u8>> {
+    let n = volume::checked_voxel_count(name, dims)?;
+    if displacements_lps.len() != n {
+        return Err(Error::invalid(name, format!("{} vectors for dims {dims:?}", displacements_lps.len())));
+    }
+    if let Some(ijk) = crate::displacement::check::first_non_finite(dims, displacements_lps) {
+        return Err(Error::invalid(name, format!("the displacement at voxel {ijk:?} (i, j, k) is not finite")));
+    }
+    let ras: Vec<f32> = displacements_lps.iter().flat_map(|&[x, y, z]| [-x, -y, z]).collect();
+    layout(name, dims, lps_from_index, Samples::Vectors(&ras))
+}
+
+/// What a file holds at each voxel.
+#[derive(Clone, Copy)]
+enum Samples<'a> {
+    Scalar(&'a VoxelData),
+    /// Three floats a voxel, RAS.
+    Vectors(&'a [f32]),
+}
+
+/// The MINC 2 file of `samples` on the grid `dims`, `lps_from_index` (module docs).
+fn layout(name: &Path, dims: [usize; 3], lps_from_index: &Transform<Lps, Index>, samples: Samples) -> Result<Vec<u8>> {
+    if !lps_from_index.is_valid_affine() {
         return Err(Error::invalid(name, "the voxel-to-patient matrix is singular or not finite"));
     }
-    let ras_from_index = ras_from_lps() * volume.lps_from_index;
+    let ras_from_index = ras_from_lps() * *lps_from_index;
     let linear = ras_from_index.linear();
     let origin = ras_from_index.translation();
     let steps: [f64; 3] = std::array::from_fn(|c| linear.column(c).norm());
@@ -62,7 +98,7 @@ pub fn to_bytes(name: &Path, volume: &Volume) -> Result<Vec<u8>> {
             ("class", AttrValue::AsciiString("spatial".into())),
             ("comments", AttrValue::AsciiString(comments.into())),
             ("direction_cosines", AttrValue::F64Array(vec![column[0], column[1], column[2]])),
-            ("length", AttrValue::I32(i32::try_from(volume.dims[axis]).unwrap_or(i32::MAX))),
+            ("length", AttrValue::I32(i32::try_from(dims[axis]).unwrap_or(i32::MAX))),
             ("spacing", AttrValue::AsciiString("regular__".into())),
             ("start", AttrValue::F64(starts[axis])),
             ("step", AttrValue::F64(steps[axis])),
@@ -73,18 +109,31 @@ pub fn to_bytes(name: &Path, volume: &Volume) -> Result<Vec<u8>> {
         standard(d);
         d.set_attr("vartype", AttrValue::AsciiString("dimension____".into()));
     }
+    if matches!(samples, Samples::Vectors(_)) {
+        let d = dimensions.create_dataset(VECTOR);
+        d.with_f64_data(&[0.0]).with_shape(&[]);
+        d.set_attr("length", AttrValue::I32(3));
+    }
     minc.add_group(dimensions.finish());
     let mut image_group = minc.create_group("image");
     let mut zero = image_group.create_group("0");
-    let dimorder = format!("{},{},{}", names[2], names[1], names[0]);
-    let shape = [volume.dims[2], volume.dims[1], volume.dims[0]].map(|n| n as u64);
-    let (lo, hi) = value_range(&volume.data);
+    let mut dimorder = format!("{},{},{}", names[2], names[1], names[0]);
+    let mut shape = vec![dims[2] as u64, dims[1] as u64, dims[0] as u64];
+    let (lo, hi) = match samples {
+        Samples::Scalar(data) => value_range(data),
+        Samples::Vectors(v) => float_range(v),
+    };
     let image = zero.create_dataset("image");
-    match &volume.data {
-        VoxelData::U8(v) => image.with_u8_data(v),
-        VoxelData::I16(v) => image.with_i16_data(v),
-        VoxelData::U16(v) => image.with_u16_data(v),
-        VoxelData::F32(v) => image.with_f32_data(v),
+    match samples {
+        Samples::Scalar(VoxelData::U8(v)) => image.with_u8_data(v),
+        Samples::Scalar(VoxelData::I16(v)) => image.with_i16_data(v),
+        Samples::Scalar(VoxelData::U16(v)) => image.with_u16_data(v),
+        Samples::Scalar(VoxelData::F32(v)) => image.with_f32_data(v),
+        Samples::Vectors(v) => {
+            dimorder.push_str(",vector_dimension");
+            shape.push(3);
+            image.with_f32_data(v)
+        }
     };
     image.with_shape(&shape);
     image.set_attr("dimorder", AttrValue::AsciiString(dimorder));
@@ -129,10 +178,13 @@ fn value_range(data: &VoxelData) -> (f64, f64) {
         VoxelData::U8(_) => (0.0, f64::from(u8::MAX)),
         VoxelData::I16(_) => (f64::from(i16::MIN), f64::from(i16::MAX)),
         VoxelData::U16(_) => (0.0, f64::from(u16::MAX)),
-        VoxelData::F32(v) => {
-            let finite = v.iter().filter(|x| x.is_finite()).map(|&x| f64::from(x));
-            let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)));
-            if lo <= hi { (lo, hi) } else { (0.0, 1.0) }
-        }
+        VoxelData::F32(v) => float_range(v),
     }
+}
+
+/// The range of the finite values of `v`, (0, 1) when there are none.
+fn float_range(v: &[f32]) -> (f64, f64) {
+    let finite = v.iter().filter(|x| x.is_finite()).map(|&x| f64::from(x));
+    let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| (lo.min(x), hi.max(x)));
+    if lo <= hi { (lo, hi) } else { (0.0, 1.0) }
 }

@@ -196,7 +196,7 @@ class Field:
     ``lps_from_index``; ``source`` is the file's flavour (``"itk"``, ``"ants"``, ``"nrrd"``, ``"metaimage"``),
     ``"elastix"`` for a transform parameter file, ``"itk_h5"`` for ITK's HDF5 transform file, ``"itk_tfm"`` for its
     text file (``.tfm``), ``"dicom"`` for a DICOM Deformable Spatial Registration, ``"learn2reg"`` for a Learn2Reg
-    ``.npz`` (``"pullback"``) or ``"minc_grid"`` for an MNI transform file's grid (``.xfm``: ``"forward"``, the moving
+    ``.npz`` (``"pullback"``) or ``"minc"`` for an MNI transform file's grid (``.xfm``: ``"forward"``, the moving
     volume's world to the fixed one's, or ``"pullback"`` with ``Invert_Flag``); ``direction`` is ``"pullback"`` or
     ``"forward"`` where the file says (NRRD; ``"pullback"`` for an ``.h5``, a ``.tfm`` or a DICOM registration,
     ``"forward"`` for an ``.h5`` holding only 3D Slicer's ``InverseDisplacementFieldTransform``), else ``None``, and
