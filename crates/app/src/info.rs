@@ -73,7 +73,8 @@ pub enum InfoContent {
 /// FLIRT matrix, AFNI's matrix file or FreeSurfer's LTA holds.
 #[derive(Debug, Serialize)]
 pub struct TransformInfo {
-    /// `itk_tfm`, `itk_h5`, `ants_mat`, `fsl` for FSL's FLIRT matrix, `afni` for AFNI's matrix file, or `lta` for
+    /// `itk_tfm`, `itk_h5`, `ants_mat`, `fsl` for FSL's FLIRT matrix, `afni` for AFNI's matrix file, `mni_xfm` for an
+    /// MNI transform file of linear transforms, or `lta` for
     /// FreeSurfer's LTA.
     pub format: &'static str,
     /// The transforms in the file's order (a composite's members; ITK applies the last one first).
@@ -151,6 +152,15 @@ impl TransformInfo {
             let lta = LtaVolumes { kind: lta.kind.code_and_name().1, src: file(&lta.src), dst: file(&lta.dst) };
             let transforms = vec![member(MemberKind::Affine, None, None)];
             return Some(Self { format: "lta", transforms, read_as: ReadAs::StartingTransform, lta: Some(lta) });
+        }
+        if let Ok(steps) = warpbench_io::mni_xfm::read(path) {
+            use warpbench_io::mni_xfm::XfmStep;
+            // A grid transform is described as the field it is (FieldInfo); a thin-plate spline is not read.
+            if !steps.iter().all(|s| matches!(s, XfmStep::Linear(_))) {
+                return None;
+            }
+            let transforms = steps.iter().map(|_| member(MemberKind::Affine, None, None)).collect();
+            return Some(Self { format: "mni_xfm", transforms, read_as: ReadAs::StartingTransform, lta: None });
         }
         let chain = warpbench_io::transform_file::read_chain(path).ok()?;
         let mut head = Vec::new();
@@ -490,6 +500,14 @@ fn write_transform(t: &TransformInfo, out: &mut dyn Write) -> std::io::Result<()
             "  read as         a starting transform (--initial), between --fixed and --moving, which must be its src \
              and dst (either way round)"
         );
+    }
+    if t.format == "mni_xfm" {
+        writeln!(
+            out,
+            "  MNI transform file (mni_xfm): {} linear transform(s), the moving volume's world to the fixed one's, RAS mm",
+            t.transforms.len()
+        )?;
+        return writeln!(out, "  read as         a starting transform (--initial), the inverse of the file's map");
     }
     if t.format == "afni" {
         writeln!(out, "  AFNI matrix file (afni): an affine from the base's DICOM coordinates to the source's")?;

@@ -108,6 +108,8 @@ def test_the_xfm_maps_moving_landmarks_onto_fixed_ones(tmp_path: Path) -> None:
     assert "tps.xfm" in done.stderr and "holds an affine only" in done.stderr
     done = run_cli(*base, "--method", "affine", "--format", "minc", "--out", tmp_path / "x.tfm", expect=2)
     assert "x.tfm" in done.stderr and "name it .xfm" in done.stderr
+    described = run_cli("info", cli, "--json").stdout
+    assert '"format": "mni_xfm"' in described and '"read_as": "starting_transform"' in described
     done = run_cli(*base, "--method", "affine", "--out", tmp_path / "itk.xfm", expect=2)
     assert "itk.xfm" in done.stderr and "MNI (MINC) transform file" in done.stderr
 
