@@ -315,6 +315,7 @@ fn read_numbers(path: &Path, file: &File, group: &str, name: &str, limit: usize)
     if len > limit as u64 {
         return Err(Error::invalid(path, format!("{at} holds {len} numbers, more than the {limit} expected")));
     }
+    crate::hdf5_guard::check_chunks(path, &dataset, &at, file.file_size())?;
     let values =
         dataset.read_f64().map_err(|e| Error::invalid(path, format!("{at} cannot be read as numbers: {e}")))?;
     if let Some(i) = values.iter().position(|v| !v.is_finite()) {

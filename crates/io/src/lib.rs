@@ -31,6 +31,7 @@ pub mod error;
 mod files;
 pub mod fsl;
 pub mod geometry;
+mod hdf5_guard;
 pub mod itk_chain;
 pub mod itk_h5;
 pub mod itk_tfm;

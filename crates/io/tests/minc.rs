@@ -253,6 +253,12 @@ fn bad_files_are_refused_naming_the_file_and_the_problem() {
         ("onerange.mnc", patched(&minc1, b"image-max", b"image-mxx"), "without the other"),
         ("sign.mnc", patched(&minc1, b"signed__", b"signed_x"), "signtype"),
         ("itk.mnc", h5.expect("itk h5"), "/minc-2.0/image/0/image"),
+        (
+            "huge_chunk.mnc",
+            std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/bad/huge_chunk.mnc"))
+                .expect("bad"),
+            "past the end of the file",
+        ),
     ];
     for (name, bytes, says) in cases {
         let path = dir.path().join(name);

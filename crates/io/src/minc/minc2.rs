@@ -33,7 +33,7 @@ pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions, want: Want) 
         }
         e => Error::invalid(name, format!("{IMAGE} cannot be found: the HDF5 file is truncated or corrupt ({e})")),
     })?;
-    let header = header(name, &file, &image)?;
+    let header = header(name, &file, &image, file_bytes)?;
     let compressed = !image.filters().is_empty();
     let n = header.checked_len(name, opts.max_voxel_bytes, (!compressed).then_some(file_bytes))?;
     if compressed && n as u128 * header.stored.bytes() as u128 > u128::from(file_bytes) * u128::from(MAX_DEFLATE_RATIO)
@@ -43,13 +43,14 @@ pub(super) fn read(name: &Path, bytes: Vec<u8>, opts: &LoadOptions, want: Want) 
             format!("its {n} compressed samples cannot come from a file of {file_bytes} bytes"),
         ));
     }
+    crate::hdf5_guard::check_chunks(name, &image, IMAGE, file_bytes)?;
     with_stored_type!(header.stored, T => {
         let raw: Vec<T> = image.read::<T>().map_err(|e| Error::invalid(name, format!("{IMAGE} cannot be read: {e}")))?;
         finish(name, &header, &raw, opts, want)
     })
 }
 
-fn header(name: &Path, file: &File, image: &Dataset) -> Result<Header> {
+fn header(name: &Path, file: &File, image: &Dataset, file_bytes: u64) -> Result<Header> {
     let shape = shape(name, image, IMAGE)?;
     let image_attrs = attrs(name, image, IMAGE)?;
     let order = dimorder(name, &image_attrs, IMAGE, shape.len())?;
@@ -94,8 +95,8 @@ fn header(name: &Path, file: &File, image: &Dataset) -> Result<Header> {
     };
     let range = match (file.dataset(IMAGE_MIN), file.dataset(IMAGE_MAX)) {
         (Ok(lo), Ok(hi)) => {
-            let (lo_dims, min) = slice_values(name, &lo, IMAGE_MIN)?;
-            let (hi_dims, max) = slice_values(name, &hi, IMAGE_MAX)?;
+            let (lo_dims, min) = slice_values(name, &lo, IMAGE_MIN, file_bytes)?;
+            let (hi_dims, max) = slice_values(name, &hi, IMAGE_MAX, file_bytes)?;
             if lo_dims != hi_dims {
                 return Err(Error::invalid(
                     name,
@@ -111,12 +112,13 @@ fn header(name: &Path, file: &File, image: &Dataset) -> Result<Header> {
 }
 
 /// The values of `image-min` or `image-max` and the dimensions they vary over.
-fn slice_values(name: &Path, d: &Dataset, at: &str) -> Result<(Vec<String>, Vec<f64>)> {
+fn slice_values(name: &Path, d: &Dataset, at: &str, file_bytes: u64) -> Result<(Vec<String>, Vec<f64>)> {
     let shape = shape(name, d, at)?;
     let count = shape.iter().try_fold(1u64, |a, &n| a.checked_mul(n as u64)).unwrap_or(u64::MAX);
     if count > MAX_RANGE_VALUES {
         return Err(Error::invalid(name, format!("{at} holds {count} values")));
     }
+    crate::hdf5_guard::check_chunks(name, d, at, file_bytes)?;
     let attrs = attrs(name, d, at)?;
     let dims = if shape.is_empty() { Vec::new() } else { dimorder(name, &attrs, at, shape.len())? };
     let values = d.read_f64().map_err(|e| Error::invalid(name, format!("{at} cannot be read as numbers: {e}")))?;
