@@ -479,54 +479,47 @@ def normalise_netcdf(path: Path) -> None:
     path.write_bytes(bytes(out))
 
 
+def grid_entry(path: Path, fmt: str, dims: list, data: np.ndarray, att) -> dict:
+    """One grid volume's description: `att(dimension, key)` reads a dimension's attribute (None when absent)."""
+    spatial = [d for d in dims if d != "vector_dimension"]
+    return {
+        "file": path.name,
+        "format": fmt,
+        "dimorder": dims,
+        "shape": list(data.shape),
+        "dtype": data.dtype.str,
+        "start": {d: att(d, "start") for d in spatial},
+        "step": {d: att(d, "step") for d in spatial},
+        "direction_cosines": {d: att(d, "direction_cosines") for d in spatial},
+        "values": floats(data.flatten()),
+    }
+
+
+def number_or_list(v):
+    return floats(np.atleast_1d(v)) if np.ndim(v) else float(v)
+
+
 def describe_grid_volume(path: Path) -> dict:
     """The displacement volume as stored: MINC 1 through scipy's netCDF reader, MINC 2 through h5py."""
     head = path.read_bytes()[:4]
     if head[:3] == b"CDF":
         with netcdf_file(str(path), "r", mmap=False) as f:
             img = f.variables["image"]
-            dims = list(img.dimensions)
-            data = np.array(img.data)
 
             def att(d, key):
                 if d not in f.variables or key not in f.variables[d]._attributes:
                     return None
-                v = f.variables[d]._attributes[key]
-                return floats(np.atleast_1d(v)) if np.ndim(v) else float(v)
+                return number_or_list(f.variables[d]._attributes[key])
 
-            spatial = [d for d in dims if d != "vector_dimension"]
-            return {
-                "file": path.name,
-                "format": f"MINC1 (netCDF CDF-{head[3]})",
-                "dimorder": dims,
-                "shape": list(data.shape),
-                "dtype": data.dtype.str,
-                "start": {d: att(d, "start") for d in spatial},
-                "step": {d: att(d, "step") for d in spatial},
-                "direction_cosines": {d: att(d, "direction_cosines") for d in spatial},
-                "values": floats(data.flatten()),
-            }
+            return grid_entry(path, f"MINC1 (netCDF CDF-{head[3]})", list(img.dimensions), np.array(img.data), att)
     with h5py.File(path, "r") as f:
         ds = f["minc-2.0/image/0/image"]
-        dims = ds.attrs["dimorder"].decode().split(",")
-        data = ds[()]
-        spatial = [d for d in dims if d != "vector_dimension"]
 
         def att(d, key):
             a = f[f"minc-2.0/dimensions/{d}"].attrs.get(key)
-            return None if a is None else (floats(np.atleast_1d(a)) if np.ndim(a) else float(a))
+            return None if a is None else number_or_list(a)
 
-        return {
-            "file": path.name,
-            "format": "MINC2 (HDF5)",
-            "dimorder": dims,
-            "shape": list(data.shape),
-            "dtype": data.dtype.str,
-            "start": {d: att(d, "start") for d in spatial},
-            "step": {d: att(d, "step") for d in spatial},
-            "direction_cosines": {d: att(d, "direction_cosines") for d in spatial},
-            "values": floats(data.flatten()),
-        }
+        return grid_entry(path, "MINC2 (HDF5)", ds.attrs["dimorder"].decode().split(","), ds[()], att)
 
 
 def read_xfm_vtk(path: Path, points) -> dict:
