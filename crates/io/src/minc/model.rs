@@ -76,7 +76,8 @@ impl Header {
     }
 }
 
-/// The volume of `header` and its samples `raw`, all frames, in file order.
+/// A displacement grid's vectors (LPS mm, i fastest) and grid, from `header` and its samples `raw` in file order: the
+/// `vector_dimension`'s three components read as frames are, each mapped to real values.
 fn vectors_of<T: Stored>(
     name: &Path,
     header: &Header,
