@@ -1,5 +1,5 @@
 //! Any text given to the readers of MNI tag point files and MNI transform files gives `Ok` or `Err`, never a panic.
-//! Tag: pairs it reads are complete, active and finite; written by `to_mni_tag` (unless a name has a character the
+//! Tag: pairs it reads are complete, active and finite, and so are the points of a file of one volume; written by `to_mni_tag` (unless a name has a character the
 //! format cannot hold) they read back to the same positions and names. Transform: a file of linear transforms composes
 //! to a finite affine map; when that can be inverted, the text written of its pull-back reads back to the same map.
 #![no_main]
@@ -7,7 +7,7 @@
 use std::path::Path;
 
 use libfuzzer_sys::fuzz_target;
-use warpbench_io::landmarks::{parse_mni_tag, to_mni_tag};
+use warpbench_io::landmarks::{parse_mni_tag, parse_mni_tag_points, to_mni_tag};
 use warpbench_io::mni_xfm::{self, XfmStep};
 
 fuzz_target!(|data: &[u8]| {
@@ -23,6 +23,10 @@ fuzz_target!(|data: &[u8]| {
             let back = parse_mni_tag(name, &written).unwrap_or_else(|e| panic!("written tags do not read back: {e}"));
             assert_eq!(back, pairs, "written tags read back differently:\n{written}");
         }
+    }
+    if let Ok(points) = parse_mni_tag_points(name, &text) {
+        let coords = points.iter().flat_map(|p| p.position.map(|q| q.coords()).unwrap_or([f64::NAN; 3]));
+        assert!(coords.into_iter().all(f64::is_finite), "{points:?}");
     }
     let name = Path::new("fuzz.xfm");
     let Ok(steps) = mni_xfm::parse(name, &text) else { return };

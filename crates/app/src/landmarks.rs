@@ -381,8 +381,8 @@ pub struct LandmarksArgs {
     /// --fixed-points instead.
     #[arg(required_unless_present = "moving_points")]
     pub input: Option<PathBuf>,
-    /// The moving volume's Slicer point list (.mrk.json or .fcsv) or elastix `point` file, with --fixed-points; paired
-    /// by order.
+    /// The moving volume's Slicer point list (.mrk.json or .fcsv), elastix `point` file or MNI tag file of one volume,
+    /// with --fixed-points; paired by order.
     #[arg(long, requires = "fixed_points", conflicts_with = "input")]
     pub moving_points: Option<PathBuf>,
     /// The fixed volume's Slicer point list, with --moving-points.

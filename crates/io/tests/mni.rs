@@ -353,3 +353,22 @@ fn a_field_written_as_a_grid_transform_reads_back() {
     assert!(e.to_string().contains("[1, 1, 0]"), "{e}");
     assert!(!out.exists() && !dir.path().join("nan_grid_0.mnc").exists());
 }
+
+#[test]
+fn a_tag_file_of_one_volume_is_one_side_of_the_pairs() {
+    let r = reference();
+    let t = r["tags"].as_array().expect("tags").iter().find(|t| t["file"] == "one_volume.tag").expect("one volume");
+    let path = data_dir().join("one_volume.tag");
+    let points = landmarks::read_slicer_points(&path).unwrap_or_else(|e| panic!("{e}"));
+    let vtk = t["points"][0].as_array().expect("points");
+    assert_eq!(points.len(), vtk.len());
+    for (p, v) in points.iter().zip(vtk.iter().map(triple)) {
+        let got = ras(p.position.expect("placed"));
+        assert!(p.selected && (0..3).all(|k| (got[k] as f32).to_bits() == (v[k] as f32).to_bits()), "{got:?} vs {v:?}");
+    }
+    // Two such lists pair by order, as Slicer's and elastix's do; a tag file of pairs is not a list.
+    let pairs = landmarks::read_slicer_pair(&path, &path).expect("pair");
+    assert!(pairs.iter().all(|p| p.is_complete() && p.moving == p.fixed));
+    let e = landmarks::read_slicer_points(&data_dir().join("pairs.tag")).expect_err("pairs");
+    assert!(e.to_string().contains("holds pairs"), "{e}");
+}

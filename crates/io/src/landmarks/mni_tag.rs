@@ -16,16 +16,17 @@
 //! points onto volume 1's (volume_io's `compute_transform_from_tags`: "the transform is from tag_list2 to tag_list1";
 //! `register` keeps it as `v2_to_v1_transform`), so a file of pairs warps volume 2 onto volume 1. The optional weight,
 //! structure id and patient id are read and not kept; the label, a double-quoted string with C escapes (as VTK reads
-//! it), is the pair's name. A file of one volume holds one side and is refused as a file of pairs. A tag file has no
+//! it), is the pair's name. A file of one volume holds one side: refused as a file of pairs, it is read as a point list
+//! ([`parse_mni_tag_points`]), beside the other side's list. A tag file has no
 //! inactive or half-placed points: [`to_mni_tag`] refuses a pair that is either, naming it.
 
 use std::path::Path;
 
 use super::errors::landmark_error;
-use super::points::{LandmarkPair, flip_xy};
+use super::points::{LandmarkPair, SlicerPoint, flip_xy};
 use super::text::{num, read_text, strip_bom};
 use crate::error::{Error, Result};
-use crate::geometry::Point3;
+use crate::geometry::{Lps, Point3};
 
 const MAGIC: &str = "MNI Tag Point File";
 
@@ -46,6 +47,45 @@ pub fn read_mni_tag(path: &Path) -> Result<Vec<LandmarkPair>> {
 /// Not a tag file, one volume, a malformed entry (named by its 1-based index and line), a coordinate that is not a
 /// finite number.
 pub fn parse_mni_tag(name: &Path, text: &str) -> Result<Vec<LandmarkPair>> {
+    let (volumes, entries) = parse(name, text)?;
+    if volumes == 1 {
+        return Err(Error::unsupported(
+            name,
+            "an MNI tag file of one volume holds the points of one side, not pairs; a file of pairs says Volumes = 2 \
+             (one of one volume is read as a point list, with the other side's list beside it)",
+        ));
+    }
+    Ok(entries
+        .into_iter()
+        .map(|(points, label)| LandmarkPair::new(label, flip_xy(points[1]), flip_xy(points[0])))
+        .collect())
+}
+
+/// The points of a tag file of one volume (`Volumes = 1;`), as a point list of one side (LPS, its labels; every
+/// point selected and placed); `name` is used in errors.
+///
+/// # Errors
+/// As [`parse_mni_tag`]; a file of two volumes, which holds pairs.
+pub fn parse_mni_tag_points(name: &Path, text: &str) -> Result<Vec<SlicerPoint>> {
+    let (volumes, entries) = parse(name, text)?;
+    if volumes == 2 {
+        return Err(Error::unsupported(
+            name,
+            "an MNI tag file of two volumes holds pairs (volume 1 the fixed points, volume 2 the moving ones), not \
+             the points of one side: read it as a file of pairs",
+        ));
+    }
+    Ok(entries
+        .into_iter()
+        .map(|(points, label)| SlicerPoint { label, selected: true, position: Some(flip_xy(points[0])) })
+        .collect())
+}
+
+/// One entry of a tag file: a point per volume (RAS, as stored) and the label.
+type Entry = (Vec<Point3<Lps>>, String);
+
+/// The number of volumes and the entries.
+fn parse(name: &Path, text: &str) -> Result<(usize, Vec<Entry>)> {
     let mut s = Scanner { text: strip_bom(text), at: 0, line: 1 };
     s.skip_space();
     if !s.rest().starts_with(MAGIC) {
@@ -59,14 +99,8 @@ pub fn parse_mni_tag(name: &Path, text: &str) -> Result<Vec<LandmarkPair>> {
             return Err(Error::invalid(name, format!("line {}: Volumes = {other}; a tag file has 1 or 2", s.line)));
         }
     };
-    if volumes == 1 {
-        return Err(Error::unsupported(
-            name,
-            "an MNI tag file of one volume holds the points of one side, not pairs; a file of pairs says Volumes = 2",
-        ));
-    }
     s.keyword(name, "Points")?;
-    let mut pairs = Vec::new();
+    let mut entries = Vec::new();
     loop {
         s.skip_space();
         if s.rest().starts_with(';') {
@@ -75,10 +109,10 @@ pub fn parse_mni_tag(name: &Path, text: &str) -> Result<Vec<LandmarkPair>> {
         if s.rest().is_empty() {
             return Err(Error::truncated(name, "the points end without the closing ;"));
         }
-        let index = pairs.len();
+        let index = entries.len();
         let line = u64::from(s.line);
         let bad = |problem: String| landmark_error(name, index, "", Some(line), problem);
-        let mut xyz = [0.0; 6];
+        let mut xyz = vec![0.0; 3 * volumes];
         for (k, v) in xyz.iter_mut().enumerate() {
             *v = s.number().ok_or_else(|| bad(format!("coordinate {} is missing or not a number", k + 1)))?;
             if !v.is_finite() {
@@ -99,12 +133,10 @@ pub fn parse_mni_tag(name: &Path, text: &str) -> Result<Vec<LandmarkPair>> {
             s.skip_blanks();
         }
         let label = if s.rest().starts_with('"') { s.quoted().map_err(|e| bad(e.to_string()))? } else { String::new() };
-        let [fx, fy, fz, mx, my, mz] = xyz;
-        let fixed = flip_xy(Point3::new(fx, fy, fz));
-        let moving = flip_xy(Point3::new(mx, my, mz));
-        pairs.push(LandmarkPair::new(label, moving, fixed));
+        let points = xyz.chunks_exact(3).map(|p| Point3::new(p[0], p[1], p[2])).collect();
+        entries.push((points, label));
     }
-    Ok(pairs)
+    Ok((volumes, entries))
 }
 
 /// The text of a tag file of `pairs` (module docs): volume 1 the fixed points, volume 2 the moving ones, RAS mm.

@@ -105,7 +105,7 @@ pub use elastix_points::{
 };
 pub use fcsv::{parse_fcsv, read_fcsv, to_fcsv, write_fcsv};
 pub use itk_tps::{SplineFileClass, parse_spline_file};
-pub use mni_tag::{looks_like_mni_tag, parse_mni_tag, read_mni_tag, to_mni_tag, write_mni_tag};
+pub use mni_tag::{looks_like_mni_tag, parse_mni_tag, parse_mni_tag_points, read_mni_tag, to_mni_tag, write_mni_tag};
 pub use mrk_json::{MARKUPS_SCHEMA, parse_mrk_json, read_mrk_json, to_mrk_json, write_mrk_json};
 pub use plain_csv::{
     CsvCoordinates, looks_like_plain_csv, parse_plain_csv, plain_csv_header, read_plain_csv, to_plain_csv,

@@ -8,6 +8,7 @@ use super::detect::{LandmarkFileFormat, detect_landmark_format};
 use super::elastix_points::{ElastixPoints, looks_like_elastix_points, parse_elastix_points, to_elastix_points};
 use super::errors::bigwarp_not_slicer;
 use super::fcsv::{parse_fcsv, to_fcsv};
+use super::mni_tag::parse_mni_tag_points;
 use super::mrk_json::{parse_mrk_json, to_mrk_json};
 use super::points::{LandmarkPair, SlicerPoint};
 use super::text::read_text;
@@ -57,11 +58,7 @@ pub fn read_slicer_points(path: &Path) -> Result<Vec<SlicerPoint>> {
             "transformix's outputpoints.txt holds pairs (each input point and its image), not a Slicer point list: \
              read it as a file of pairs",
         )),
-        Ok(LandmarkFileFormat::MniTag) => Err(Error::unsupported(
-            path,
-            "an MNI tag file holds pairs (the points of two volumes), not a Slicer point list: read it as a file of \
-             pairs",
-        )),
+        Ok(LandmarkFileFormat::MniTag) => parse_mni_tag_points(path, &text),
         Ok(LandmarkFileFormat::ItkThinPlateSpline) => Err(Error::unsupported(
             path,
             "an ITK transform file, not a Slicer point list: a thin-plate spline's file holds pairs (its landmarks); \

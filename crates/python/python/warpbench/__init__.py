@@ -274,8 +274,8 @@ def read_landmarks(path: PathLike, fixed_path: Optional[PathLike] = None, *, ras
     """Reads landmark pairs: BigWarp CSV or JSON, a plain CSV of pairs, an MNI tag file (``.tag``: volume 1 the fixed
     points, volume 2 the moving ones), transformix's ``outputpoints.txt`` (the
     input points fixed, the output points moving), a window session (``.warpbench.json``), or with ``fixed_path``
-    two point lists matched by order (``path`` the moving one): Slicer ``.mrk.json``/``.fcsv`` or elastix point
-    files (``point``, LPS mm). ``ras``: a BigWarp file's coordinates are RAS (BigWarp on NIfTI)."""
+    two point lists matched by order (``path`` the moving one): Slicer ``.mrk.json``/``.fcsv``, elastix point
+    files (``point``, LPS mm) or MNI tag files of one volume. ``ras``: a BigWarp file's coordinates are RAS (BigWarp on NIfTI)."""
     moving, fixed, names, active, fmt = _warpbench.read_landmarks(
         os.fspath(path), None if fixed_path is None else os.fspath(fixed_path), ras
     )
