@@ -29,6 +29,7 @@ use std::path::Path;
 use nalgebra::{Matrix3, Matrix4};
 
 use crate::error::{Error, Result};
+use crate::geometry::{Lps, Ras, Transform, lps_from_ras, ras_from_lps};
 use crate::itk_tfm::ItkAffine;
 
 const MAGIC: &str = "MNI Transform File";
@@ -279,15 +280,18 @@ pub fn write_grid(
     crate::write_atomic(path, |w| w.write_all(text.as_bytes()))
 }
 
+/// The map `m` between RAS spaces as the same map between LPS ones (`lps_from_ras · m · ras_from_lps`).
+fn lps_of(m: Matrix4<f64>) -> Matrix4<f64> {
+    *(lps_from_ras() * Transform::<Ras, Ras>::from_matrix(m) * ras_from_lps()).matrix()
+}
+
 /// The starting transform of the file at `path`: the pull-back `moving_from_fixed` in LPS mm, the inverse of the
 /// file's map (module docs).
 ///
 /// # Errors
 /// As [`read_map`]; a map that cannot be inverted.
 pub fn read_affine(path: &Path) -> Result<ItkAffine> {
-    let fixed_from_moving = read_map(path)?;
-    let flip = Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0));
-    let u = (flip * fixed_from_moving * flip)
+    let u = lps_of(read_map(path)?)
         .try_inverse()
         .ok_or_else(|| Error::invalid(path, "the transform is singular, so it has no pull-back"))?;
     let matrix = Matrix3::from_fn(|r, c| u[(r, c)]);
@@ -300,12 +304,11 @@ pub fn read_affine(path: &Path) -> Result<ItkAffine> {
 /// # Errors
 /// A pull-back that is not finite or not invertible; `name` is used in the message.
 pub fn to_text(name: &Path, moving_from_fixed: &Matrix4<f64>) -> Result<String> {
-    let flip = Matrix4::from_diagonal(&nalgebra::Vector4::new(-1.0, -1.0, 1.0, 1.0));
     let t = moving_from_fixed
         .try_inverse()
         .filter(|m| m.iter().all(|x| x.is_finite()))
         .ok_or_else(|| Error::invalid(name, "the transform is not finite or not invertible"))?;
-    let t = flip * t * flip;
+    let t = *(ras_from_lps() * Transform::<Lps, Lps>::from_matrix(t) * lps_from_ras()).matrix();
     let mut out = format!(
         "{MAGIC}\n% Written by warpbench: maps the moving (source) volume's world to the fixed (target) one's, RAS mm,\n\
          % as mincresample -transformation takes it.\n\nTransform_Type = Linear;\nLinear_Transform =\n"

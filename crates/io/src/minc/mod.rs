@@ -63,6 +63,11 @@ pub fn looks_like_minc1(head: &[u8]) -> bool {
 
 /// Reads the MINC file at `path` (module docs).
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
+    read_bytes(path, file_bytes(path)?, opts)
+}
+
+/// The bytes of the regular file `path`, at most [`MAX_FILE_BYTES`].
+fn file_bytes(path: &Path) -> Result<Vec<u8>> {
     let len = crate::files::check_regular_file(path)?.len();
     if len > MAX_FILE_BYTES {
         return Err(Error::invalid(
@@ -70,8 +75,7 @@ pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
             format!("{len} bytes is more than the {MAX_FILE_BYTES} a MINC file may have"),
         ));
     }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    read_bytes(path, bytes, opts)
+    std::fs::read(path).map_err(|e| Error::io(path, e))
 }
 
 /// [`read()`] of a file's bytes; `name` is used in errors.
@@ -94,12 +98,7 @@ pub fn read_bytes(name: &Path, bytes: Vec<u8>, opts: &mut LoadOptions) -> Result
 /// # Errors
 /// As [`read()`]; a file without 3 vector components, or one that does not give its geometry.
 pub fn read_displacements(path: &Path) -> Result<DisplacementField> {
-    let len = crate::files::check_regular_file(path)?.len();
-    if len > MAX_FILE_BYTES {
-        return Err(Error::invalid(path, format!("{len} bytes is more than a MINC file may have")));
-    }
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    read_displacements_bytes(path, bytes, &LoadOptions::new())
+    read_displacements_bytes(path, file_bytes(path)?, &LoadOptions::new())
 }
 
 /// [`read_displacements`] of a file's bytes; `name` is used in errors.
