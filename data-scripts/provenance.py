@@ -513,16 +513,56 @@ MNI_FILES = [
     )
 ]
 
+NGFF_MADE = """
+## `ngff/`: OME-Zarr (NGFF) image volumes, written by ngff-zarr and zarr-python
+
+Not downloaded: `data-scripts/ngff_fixtures.py` has ngff-zarr 0.50.0 (PyPI `ngff-zarr==0.50.0`, with its
+`zarrista` 0.1.0 writer, the ITK 5.4.7 wheels `itk-core`, `itk-filtering`, `itk-io`, `itk-numerics`, and `itkwasm`
+1.0b201 with `itkwasm-downsample` 2.0.2) and zarr-python 3.1.6 (`zarr==3.1.6`, `numcodecs==0.16.6`) write tiny
+volumes of values the script makes up as OME-Zarr 0.4, 0.5 and 0.6 folders (`*.ome.zarr`), some of them edited by
+the script (a rotation put into a 0.6 sequence, a chunk cut short, the inner chunks of the shards put in index
+order); `ngff/reference.json` holds what the specification gives for each (computed by the script from the JSON it
+wrote), what ngff-zarr reads and the values zarr-python reads. A rerun writes the same bytes. They carry the
+licence of the code. Each folder is one row: its bytes are the sum over its files, and its sha256 is that of the
+`sha256sum` listing of its files (paths relative to the folder, sorted bytewise), what
+`(cd DIR && find . -type f -printf '%P\\n' | LC_ALL=C sort | xargs sha256sum) | sha256sum` prints.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+
+NGFF_FILES = [
+    (f"ngff/{name}.ome.zarr", "ngff_fixtures.py")
+    for name in (
+        "v04_i16", "v05_u16_oriented", "v06_f32_ras", "v04_blosc_u8_levels", "v05_sharded_f64", "v05_time_i16",
+        "v05_channel1", "v04_um_bigendian_i32", "v05_xyz_order_fill", "v05_dorsal", "bad_two_channels",
+        "bad_rotation_06", "bad_unit", "bad_axis_names", "bad_truncated_chunk",
+    )
+] + [("ngff/reference.json", "ngff_fixtures.py")]
+
+
+def folder_digest(folder: Path) -> tuple[str, int, int]:
+    """(sha256 of the `sha256sum` listing of the folder's files, sorted by relative path; total bytes; file count)."""
+    files = sorted((q for q in folder.rglob("*") if q.is_file()), key=lambda q: q.relative_to(folder).as_posix())
+    listing = "".join(f"{hashlib.sha256(q.read_bytes()).hexdigest()}  {q.relative_to(folder).as_posix()}\n"
+                      for q in files)
+    return hashlib.sha256(listing.encode()).hexdigest(), sum(q.stat().st_size for q in files), len(files)
+
+
 def script_made(data: Path, heading: str, files: list[tuple[str, ...]]) -> str:
     """The table of files a script made: (path, script) rows carry the code's licence, (path, script, licence) rows
-    their own (a file the script copied from a package)."""
+    their own (a file the script copied from a package). A path that is a folder is one row for all its files."""
     rows = [heading]
     for rel, script, *licence in files:
         p = data / rel
+        lic = licence[0] if licence else "MIT OR Apache-2.0"
+        if p.is_dir():  # a folder of many small files (an OME-Zarr store): one row, see folder_digest
+            sha, size, count = folder_digest(p)
+            rows.append(f"| `{rel}/` ({count} files) | {size:,} | `data-scripts/{script}` | `{sha}` | {lic} |\n")
+            continue
         if not p.is_file():
             continue
         sha = hashlib.sha256(p.read_bytes()).hexdigest()
-        lic = licence[0] if licence else "MIT OR Apache-2.0"
         rows.append(f"| `{rel}` | {p.stat().st_size:,} | `data-scripts/{script}` | `{sha}` | {lic} |\n")
     return "".join(rows)
 
@@ -565,6 +605,7 @@ def main() -> int:
     out.append(script_made(data, NIBABEL_PAIR_MADE, NIBABEL_PAIR_FILES))
     out.append(script_made(data, MINC_MADE, MINC_FILES))
     out.append(script_made(data, MNI_MADE, MNI_FILES))
+    out.append(script_made(data, NGFF_MADE, NGFF_FILES))
     out.append(script_made(data, ITK_MADE, ITK_FILES))
     out.append(script_made(data, ELASTIX_MADE, ELASTIX_FILES))
     out.append(script_made(data, PLASTIMATCH_MADE, PLASTIMATCH_FILES))

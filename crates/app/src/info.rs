@@ -311,6 +311,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::MetaImage => ("metaimage", None),
             GeometrySource::Mgh => ("mgh", None),
             GeometrySource::Minc => ("minc", None),
+            GeometrySource::OmeZarr => ("ome-zarr", None),
             GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::ItkTransformFile => ("itk_transform", None),
             GeometrySource::Learn2RegFixedImage => ("learn2reg_fixed_image", None),
@@ -337,6 +338,7 @@ fn format_name(f: Format) -> &'static str {
         Format::MetaImage => "metaimage",
         Format::Mgh => "mgh",
         Format::Minc => "minc",
+        Format::OmeZarr => "ome-zarr",
     }
 }
 

@@ -4,8 +4,9 @@
 //! patient space: **LPS, in mm** (see `docs/spaces.md`).
 //!
 //! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`, or a `.hdr`/`.img` pair), NRRD (`.nrrd`, `.nhdr`),
-//!   MetaImage (`.mha`, `.mhd`) or FreeSurfer MGH (`.mgh`, `.mgz`) file, a DICOM series folder or a single DICOM file
-//!   into a [`Volume`]; [`write_volume`] writes one in the format its name says.
+//!   MetaImage (`.mha`, `.mhd`), FreeSurfer MGH (`.mgh`, `.mgz`) or MINC (`.mnc`) file, an OME-Zarr folder
+//!   ([`ngff`]), a DICOM series folder or a single DICOM file into a [`Volume`]; [`write_volume`] writes one in the
+//!   format its name says.
 //! - [`nifti`], [`nrrd`], [`metaimage`], [`mgh`], [`dicom`]: the format modules, with their writers.
 //! - [`landmarks`]: landmark pairs and point lists: BigWarp CSV and JSON, Slicer `.mrk.json` / `.fcsv`, elastix
 //!   point files.
@@ -42,6 +43,7 @@ pub mod metaimage;
 pub mod mgh;
 pub mod minc;
 pub mod mni_xfm;
+pub mod ngff;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
@@ -76,15 +78,17 @@ pub enum Format {
     Mgh,
     /// MINC: `.mnc` (or `.mnc.gz`), MINC 1 (netCDF) or MINC 2 (HDF5).
     Minc,
+    /// OME-Zarr (NGFF) 0.4 to 0.6: a folder holding a Zarr store.
+    OmeZarr,
 }
 
 impl Format {
-    /// Detects the format of `path`: folders are DICOM series; files by extension (the only way for MGH), then by
+    /// Detects the format of `path`: folders are OME-Zarr images when they hold a Zarr store, else DICOM series; files by extension (the only way for MGH), then by
     /// magic bytes (`NRRD`, `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage, `CDF` for MINC 1).
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn detect(path: &Path) -> Result<Self> {
         if check_file_or_folder(path)?.is_dir() {
-            return Ok(Self::Dicom);
+            return Ok(if ngff::looks_like_zarr(path) { Self::OmeZarr } else { Self::Dicom });
         }
         // Lowercased above, so the comparisons below are case-insensitive.
         let name = path.file_name().map(|n| n.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
@@ -149,6 +153,7 @@ impl LoadOptions<'_> {
             Format::MetaImage => metaimage::read(path, self),
             Format::Mgh => mgh::read(path, self),
             Format::Minc => minc::read(path, self),
+            Format::OmeZarr => ngff::read(path, self),
         }?;
         // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
         volume.note_geometry_warnings();

@@ -186,6 +186,9 @@ pub enum GeometrySource {
     /// MINC: each spatial dimension's `direction_cosines` × `step` as a column, voxel 0 at Σ cosines · `start`, in
     /// RAS, flipped to LPS; MINC's defaults (the axis, 1 mm, 0) where the file leaves them out, with a warning.
     Minc,
+    /// OME-Zarr: each space axis's scale, its RFC-4 orientation (or x, y, z as L, P, S) and voxel 0 at the x, y and z
+    /// translations, in LPS as ngff-zarr converts an image to ITK's; lengths in mm (`ngff` module docs).
+    OmeZarr,
     /// An elastix transform parameter file's fixed grid: `Size`, `Spacing`, `Origin` and `Direction`.
     ElastixParameters,
     /// An ITK transform file's `DisplacementFieldTransform`: its fixed parameters (size, origin, spacing, direction).

@@ -25,6 +25,7 @@ mod metaimage;
 mod mgh;
 mod minc;
 mod mni;
+mod ngff;
 mod nifti;
 mod nifti_pair;
 mod nrrd;
