@@ -204,7 +204,7 @@ impl Purpose {
         };
         match self {
             Self::OpenFile(side) => volumes(d.set_title(format!("Open the {} volume", side.name()))),
-            Self::OpenFolder(side) => d.set_title(format!("Open a DICOM folder as the {} volume", side.name())),
+            Self::OpenFolder(side) => d.set_title(format!("Open a DICOM or OME-Zarr folder: {}", side.name())),
             Self::OpenSession | Self::SaveSession => d.add_filter("warpbench session", &["json"]),
             Self::ImportLandmarks => d
                 .add_filter("Landmarks (BigWarp CSV or JSON, Slicer, MNI tag)", &["csv", "json", "fcsv", "tag"])
@@ -511,7 +511,7 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
             item(ui, &format!("Open {} volume...", side.name()), true, OpenEvent::Dialog(Purpose::OpenFile(side)));
             item(
                 ui,
-                &format!("Open {} DICOM folder...", side.name()),
+                &format!("Open {} folder (DICOM, OME-Zarr)...", side.name()),
                 true,
                 OpenEvent::Dialog(Purpose::OpenFolder(side)),
             );

@@ -177,7 +177,8 @@ class Volume:
 
 def read_volume(path: PathLike, *, frame: Optional[int] = None) -> Volume:
     """Reads a volume in any format the command line reads: NIfTI-1/2, NRRD, a DICOM series (folder or file),
-    MetaImage, FreeSurfer's MGH/MGZ, MINC 1 and 2. ``frame`` chooses one frame of a 4-D file."""
+    MetaImage, FreeSurfer's MGH/MGZ, MINC 1 and 2, an OME-Zarr folder (0.4 to 0.6). ``frame`` chooses one frame of a
+    4-D file."""
     array, lps, header = _warpbench.read_volume(os.fspath(path), frame)
     info = json.loads(header)
     return Volume(array, lps, modality=info.get("modality"), path=path, header=info)
