@@ -31,6 +31,19 @@ fn matrix(v: &Value) -> Vec<Vec<f64>> {
     v.as_array().expect("rows").iter().map(numbers).collect()
 }
 
+fn copy_folder(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).expect("mkdir");
+    for entry in std::fs::read_dir(from).expect("read_dir") {
+        let entry = entry.expect("entry");
+        let target = to.join(entry.file_name());
+        if entry.file_type().expect("type").is_dir() {
+            copy_folder(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).expect("copy");
+        }
+    }
+}
+
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().fold(String::new(), |mut s, b| {
         use std::fmt::Write;
@@ -205,4 +218,20 @@ fn bad_images_are_refused_naming_the_folder_and_the_problem() {
     .expect("write");
     let e = ngff::read(&store, &mut LoadOptions::new()).expect_err("0.3");
     assert!(e.to_string().contains("version 0.3"), "{e}");
+    // A shard of a million one-sample chunks would need a 16 MB index per shard: refused before `zarrs` reads one.
+    let sharded = data_dir().join("v05_sharded_f64.ome.zarr");
+    let copy = dir.path().join("sharded.ome.zarr");
+    copy_folder(&sharded, &copy);
+    let array = copy.join("scale0/image/zarr.json");
+    let text = std::fs::read_to_string(&array).expect("read");
+    let mut meta: Value = serde_json::from_str(&text).expect("JSON");
+    meta["chunk_grid"]["configuration"]["chunk_shape"] = serde_json::json!([1000, 1000, 1000]);
+    for codec in meta["codecs"].as_array_mut().expect("codecs") {
+        if codec["name"] == "sharding_indexed" {
+            codec["configuration"]["chunk_shape"] = serde_json::json!([1, 1, 1]);
+        }
+    }
+    std::fs::write(&array, serde_json::to_string(&meta).expect("JSON")).expect("write");
+    let e = ngff::read(&copy, &mut LoadOptions::new()).expect_err("huge shard index");
+    assert!(e.to_string().contains("more chunks than warpbench indexes"), "{e}");
 }

@@ -300,7 +300,11 @@ fn lps_from_index(
 /// The largest chunk decoded, in bytes, when the image itself is smaller.
 const MAX_CHUNK_BYTES: u128 = 1 << 30;
 
-/// Refuses chunks whose decoded size is past what the image could need, before `zarrs` allocates one.
+/// The most inner chunks a shard may index (16 bytes each in its index).
+const MAX_INNER_CHUNKS: u128 = 1 << 22;
+
+/// Refuses chunks whose decoded size is past what the image could need, and shards whose index would be larger than
+/// the cap, before `zarrs` allocates one.
 fn check_chunks(path: &Path, array: &ArrayMeta, max_voxel_bytes: u64) -> Result<()> {
     let cap = MAX_CHUNK_BYTES.min(u128::from(max_voxel_bytes)).max(1 << 20);
     for shape in &array.chunk_shapes {
@@ -311,6 +315,20 @@ fn check_chunks(path: &Path, array: &ArrayMeta, max_voxel_bytes: u64) -> Result<
             ));
         }
         let bytes = shape.iter().try_fold(array.stored.bytes() as u128, |a, &d| a.checked_mul(u128::from(d)));
+        if let [outer, inner] = array.chunk_shapes.as_slice()
+            && shape == outer
+        {
+            let count =
+                outer.iter().zip(inner).try_fold(1u128, |n, (&o, &i)| n.checked_mul(u128::from(o.div_ceil(i.max(1)))));
+            if count.is_none_or(|n| n > MAX_INNER_CHUNKS) {
+                return Err(Error::invalid(
+                    path,
+                    format!(
+                        "a shard of {outer:?} samples in chunks of {inner:?} holds more chunks than warpbench indexes"
+                    ),
+                ));
+            }
+        }
         if bytes.is_none_or(|b| b > cap) {
             return Err(Error::invalid(
                 path,
