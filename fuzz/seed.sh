@@ -52,3 +52,14 @@ nrrd skip_int 'type: int' 'dimension: 3' 'sizes: 2 1 1' 'spacings: 1 1 1' 'line 
 nrrd list1_uchar 'type: uchar' 'dimension: 4' "$lps" 'sizes: 1 2 2 2' \
     'space directions: none (1,0,0) (0,1,0) (0,0,1)' 'kinds: list domain domain domain' 'encoding: raw' -- bytes
 nrrd dims2_double 'type: double' 'dimension: 2' 'sizes: 2 1' 'spacings: 0.5 0.5' 'encoding: raw' -- bytes
+
+# OME-Zarr: each fixture folder packed as the ngff target reads it (entries `PATH\0BYTES` joined by `\n##\n`).
+mkdir -p corpus/ngff
+python3 - "$data/ngff" corpus/ngff <<'PY'
+import pathlib, sys
+src, out = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+for folder in sorted(src.glob("*.zarr")):
+    files = sorted(p for p in folder.rglob("*") if p.is_file())
+    packed = b"\n##\n".join(str(p.relative_to(folder)).encode() + b"\0" + p.read_bytes() for p in files)
+    (out / f"seed_{folder.name}").write_bytes(packed)
+PY
