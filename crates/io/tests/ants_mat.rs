@@ -8,6 +8,8 @@ use nalgebra::Matrix3;
 use serde_json::Value;
 use warpbench_io::itk_tfm::{self, ItkAffine, ItkThinPlateSpline, ItkTransform};
 
+use crate::support::numbers;
+
 fn itk_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/itk")
 }
@@ -15,10 +17,6 @@ fn itk_dir() -> PathBuf {
 fn reference() -> Value {
     let text = std::fs::read_to_string(itk_dir().join("ants_mat_reference.json")).expect("reference");
     serde_json::from_str(&text).expect("JSON")
-}
-
-fn numbers(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 fn parameters(a: &ItkAffine) -> Vec<f64> {

@@ -10,6 +10,8 @@ use warpbench_io::displacement::{self, FieldDirection, FieldSource};
 use warpbench_io::geometry::Point3;
 use warpbench_io::itk_h5;
 
+use crate::support::numbers;
+
 fn itk_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/itk")
 }
@@ -21,10 +23,6 @@ fn reference() -> Value {
 
 fn case(name: &str) -> Value {
     reference()["cases"].as_array().expect("cases").iter().find(|c| c["file"] == name).expect("case").clone()
-}
-
-fn numbers(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 fn triples(v: &Value) -> Vec<[f64; 3]> {

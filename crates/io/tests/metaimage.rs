@@ -9,7 +9,7 @@ use serde_json::Value;
 use warpbench_io::metaimage::{self, MetaImageWriteOptions};
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume};
 
-use crate::support::{open_frame as open, samples_f64};
+use crate::support::{numbers, open_frame as open, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/metaimage")
@@ -20,10 +20,6 @@ fn reference() -> Vec<Value> {
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let v: Value = serde_json::from_str(&text).expect("JSON");
     v["fixtures"].as_array().expect("fixtures").clone()
-}
-
-fn numbers(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 /// The sample type our rules give SimpleITK's pixel type, and each SimpleITK value as our sample.

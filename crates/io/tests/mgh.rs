@@ -8,7 +8,7 @@ use serde_json::Value;
 use warpbench_io::mgh;
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, VolumeFileKind};
 
-use crate::support::{open_frame as open, sample_volumes, samples_f64};
+use crate::support::{numbers, open_frame as open, sample_volumes, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/mgh")
@@ -19,10 +19,6 @@ fn reference() -> Vec<Value> {
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let v: Value = serde_json::from_str(&text).expect("JSON");
     v["volumes"].as_array().expect("volumes").clone()
-}
-
-fn numbers(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 fn matrix(v: &Value) -> [[f64; 4]; 4] {

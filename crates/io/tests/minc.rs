@@ -12,7 +12,7 @@ use warpbench_io::geometry::{Transform, ras_from_lps};
 use warpbench_io::minc;
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType, Volume, VolumeFileKind, VoxelData};
 
-use crate::support::{open_frame as open, sample_volumes, samples_f64};
+use crate::support::{numbers, open_frame as open, sample_volumes, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/minc")
@@ -23,10 +23,6 @@ fn reference() -> Vec<Value> {
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let v: Value = serde_json::from_str(&text).expect("JSON");
     v["files"].as_array().expect("files").clone()
-}
-
-fn numbers(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 /// The RAS position of each of the grid's 8 corner voxels, `ras_from_index` given as a function.
@@ -55,15 +51,7 @@ fn f32_sha256(data: &VoxelData) -> String {
     for x in samples_f64(data) {
         hasher.update((x as f32).to_le_bytes());
     }
-    hex(&hasher.finalize())
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().fold(String::new(), |mut s, b| {
-        use std::fmt::Write;
-        let _ = write!(s, "{b:02x}");
-        s
-    })
+    format!("{:x}", hasher.finalize())
 }
 
 /// nibabel builds the affine from the same doubles (cosines × step, Σ cosines × start), in another order of the sums.

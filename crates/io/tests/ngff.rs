@@ -10,7 +10,7 @@ use serde_json::Value;
 use sha2::{Digest, Sha256};
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, ngff};
 
-use crate::support::samples_f64;
+use crate::support::{numbers, samples_f64};
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/ngff")
@@ -21,10 +21,6 @@ fn reference() -> Vec<Value> {
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let v: Value = serde_json::from_str(&text).expect("JSON");
     v["files"].as_array().expect("files").clone()
-}
-
-fn numbers(v: &Value) -> Vec<f64> {
-    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 fn matrix(v: &Value) -> Vec<Vec<f64>> {
@@ -42,14 +38,6 @@ fn copy_folder(from: &Path, to: &Path) {
             std::fs::copy(entry.path(), target).expect("copy");
         }
     }
-}
-
-fn hex(bytes: &[u8]) -> String {
-    bytes.iter().fold(String::new(), |mut s, b| {
-        use std::fmt::Write;
-        let _ = write!(s, "{b:02x}");
-        s
-    })
 }
 
 /// The LPS centres of the grid's 8 corner voxels, `lps_from_index` given as a function of (i, j, k).
@@ -119,9 +107,17 @@ fn every_fixture_reads_to_the_reference_grid_and_values() {
                 h32.update((*x as f32).to_le_bytes());
                 h64.update(x.to_le_bytes());
             }
-            assert_eq!(hex(&h32.finalize()), want["sha256_f32"].as_str().expect("sha"), "{name} frame {frame}");
+            assert_eq!(
+                format!("{:x}", h32.finalize()),
+                want["sha256_f32"].as_str().expect("sha"),
+                "{name} frame {frame}"
+            );
             if matches!(f["dtype"].as_str(), Some("uint8" | "int8" | "int16" | "uint16" | "float32" | "int32")) {
-                assert_eq!(hex(&h64.finalize()), want["sha256"].as_str().expect("sha"), "{name} frame {frame}");
+                assert_eq!(
+                    format!("{:x}", h64.finalize()),
+                    want["sha256"].as_str().expect("sha"),
+                    "{name} frame {frame}"
+                );
             }
             let sum: f64 = ours.iter().sum();
             let want_sum = want["sum"].as_f64().expect("sum");
@@ -218,6 +214,18 @@ fn bad_images_are_refused_naming_the_folder_and_the_problem() {
     .expect("write");
     let e = ngff::read(&store, &mut LoadOptions::new()).expect_err("0.3");
     assert!(e.to_string().contains("version 0.3"), "{e}");
+    // bioformats2raw's layout (the image in the group `0` under a root that names the layout) opens its first image;
+    // a plate (a screen of many images) is refused.
+    let layout = dir.path().join("b2r.ome.zarr");
+    copy_folder(&data_dir().join("v04_i16.ome.zarr"), &layout.join("0"));
+    std::fs::write(layout.join(".zgroup"), r#"{"zarr_format": 2}"#).expect("write");
+    std::fs::write(layout.join(".zattrs"), r#"{"bioformats2raw.layout": 3}"#).expect("write");
+    let direct = warpbench_io::open(data_dir().join("v04_i16.ome.zarr")).expect("read");
+    let nested = warpbench_io::open(&layout).expect("bioformats2raw's layout");
+    assert_eq!((nested.dims, &nested.data, nested.lps_from_index), (direct.dims, &direct.data, direct.lps_from_index));
+    std::fs::write(layout.join(".zattrs"), r#"{"plate": {"wells": []}}"#).expect("write");
+    let e = warpbench_io::open(&layout).expect_err("a plate");
+    assert!(e.to_string().contains("plate or well"), "{e}");
     // A shard of a million one-sample chunks would need a 16 MB index per shard: refused before `zarrs` reads one.
     let sharded = data_dir().join("v05_sharded_f64.ome.zarr");
     let copy = dir.path().join("sharded.ome.zarr");

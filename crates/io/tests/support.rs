@@ -3,6 +3,7 @@
 use std::path::Path;
 
 use nalgebra::{Matrix3, Vector3};
+use serde_json::Value;
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::{GeometrySource, LoadOptions, Volume, VoxelData};
 
@@ -11,6 +12,11 @@ pub fn open_frame(path: &Path, frame: Option<usize>) -> warpbench_io::Result<Vol
     let mut opts = LoadOptions::new();
     opts.frame = frame;
     opts.open(path)
+}
+
+/// A JSON array of numbers (a reference file's), as f64.
+pub fn numbers(v: &Value) -> Vec<f64> {
+    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }
 
 /// Every sample as f64, in the volume's order (i fastest).

@@ -22,6 +22,18 @@ pub(super) enum AxisKind {
     Other(String),
 }
 
+impl AxisKind {
+    /// What samples along such an axis are, in a message about too many of them.
+    pub(super) fn samples(&self) -> String {
+        match self {
+            Self::Space => "samples on a fourth space axis".to_owned(),
+            Self::Time => "samples on a second time axis".to_owned(),
+            Self::Channel => "channels".to_owned(),
+            Self::Other(t) => format!("samples on an axis of type {t:?}"),
+        }
+    }
+}
+
 /// One axis of the image, in the array's order (slowest first).
 #[derive(Clone, Debug, PartialEq)]
 pub(super) struct Axis {

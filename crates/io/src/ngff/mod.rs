@@ -108,12 +108,7 @@ impl Layout {
                 AxisKind::Space => spatial.push(a),
                 AxisKind::Time if time.is_none() => time = Some(a),
                 kind if len > 1 => {
-                    let what = match kind {
-                        AxisKind::Channel => "channels".to_owned(),
-                        AxisKind::Time => "samples on a second time axis".to_owned(),
-                        AxisKind::Other(t) => format!("samples on an axis of type {t:?}"),
-                        AxisKind::Space => unreachable!("matched above"),
-                    };
+                    let what = kind.samples();
                     return Err(Error::unsupported(
                         path,
                         format!(
