@@ -52,7 +52,7 @@ landmarks (and the session's or --initial's layers), evaluated exactly at every 
 --direction forward maps d = fixed_from_moving on the moving grid instead (det ∇d: above 1 where the moving
 volume's content grows on its way to the fixed volume; |d(y) − y|), as field --direction forward samples d.
 
-The map is float32, written as its name says: .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz or .mnc. --json reports the smallest and
+The map is float32, written as its name says: .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz, .mnc or .ome.zarr. --json reports the smallest and
 largest value, where the smallest is, and the fraction of voxels that fold.
 Examples:
 
@@ -182,6 +182,7 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
+    crate::warp::check_output_grid(&output.path, grid).map_err(Failure::BadInput)?;
     let pairs = inputs.pairs().map_err(Failure::BadInput)?;
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };

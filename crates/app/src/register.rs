@@ -87,7 +87,7 @@ pub struct RegisterArgs {
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
-    /// .mha or .mhd).
+    /// .mha, .mhd, .mgh, .mgz, .mnc or .ome.zarr).
     #[arg(long, value_name = "FILE")]
     pub out: Option<PathBuf>,
     /// Also write the inverse, d(y) − y on the moving grid with d = fixed_from_moving ≈ u⁻¹, as `warpbench field
@@ -588,6 +588,9 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     given.warp.check_start().map_err(Failure::BadInput)?;
     let VolumePairArgs { fixed, moving } = volumes;
     let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    if let Some(path) = &out_volume {
+        crate::warp::check_output_grid(path, &fixed_volume).map_err(Failure::BadInput)?;
+    }
     let start_transform = given.warp.start(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
     let load_mask = |mask: &Option<PathBuf>| match mask {

@@ -307,7 +307,7 @@ pub struct WarpArgs {
     #[arg(long, allow_hyphen_values = true)]
     pub outside: Option<f64>,
     /// The volume to write: NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha; .mhd with a .raw beside it),
-    /// FreeSurfer's MGH (.mgh, .mgz) or MINC 2 (.mnc).
+    /// FreeSurfer's MGH (.mgh, .mgz), MINC 2 (.mnc) or OME-Zarr (a folder named .ome.zarr; an axis-aligned grid).
     #[arg(long)]
     pub out: PathBuf,
     /// Also write the result as a DICOM series (new UIDs) into this new folder.
@@ -519,12 +519,12 @@ pub fn check_data_file(out: &Path, inputs: &[&Path], force: bool) -> anyhow::Res
 }
 
 /// Refuses outputs `warp` cannot write: `out` not named as a volume [`warpbench_io::write_volume`] writes (`.nii`,
-/// `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`, `.mnc`), or `out_dicom` an existing folder that is not empty. (Whether `out` may be
+/// `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`, `.mnc`, `.ome.zarr`), or `out_dicom` an existing folder that is not empty. (Whether `out` may be
 /// replaced is [`OutputFile::check`]'s business, and [`check_data_file`]'s for a `.mhd`'s data file.)
 pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> anyhow::Result<()> {
     if VolumeFileKind::of(out).is_none() {
         return Err(anyhow!(
-            "{}: --out must end in .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz or .mnc ({})",
+            "{}: --out must end in .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz, .mnc or .ome.zarr ({})",
             out.display(),
             VolumeFileKind::EXPECTED
         ));
@@ -534,6 +534,15 @@ pub fn check_outputs(out: &Path, out_dicom: Option<&Path>) -> anyhow::Result<()>
         && std::fs::read_dir(dir).map_err(|e| anyhow!("{}: {e}", dir.display()))?.next().is_some()
     {
         return Err(anyhow!("{}: --out-dicom must be a new or empty folder", dir.display()));
+    }
+    Ok(())
+}
+
+/// Refuses an output grid that `out`'s format cannot hold (an oblique grid as OME-Zarr), once the volumes are loaded
+/// and before any work is spent on the result.
+pub fn check_output_grid(out: &Path, grid: &Volume) -> anyhow::Result<()> {
+    if VolumeFileKind::of(out) == Some(VolumeFileKind::OmeZarr) {
+        warpbench_io::ngff::check_grid(out, &grid.lps_from_index)?;
     }
     Ok(())
 }
@@ -990,6 +999,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
     // `resample` in two halves: only the grids' geometry is needed after the fit, so their voxels are freed before
     // the output is allocated (peak memory: the moving volume and the output).
     let grid = reference.as_ref().unwrap_or(&fixed);
+    check_output_grid(&output.path, grid).map_err(Failure::BadInput)?;
     let fitted = match given {
         Given::Pairs(method, inputs, brushed) => {
             let layers = inputs.warp.layers(brushed.map(|b| *b), &fixed, &moving).map_err(Failure::BadInput)?;

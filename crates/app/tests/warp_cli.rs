@@ -307,6 +307,43 @@ fn writes_the_volume_in_the_format_its_name_says() {
     let from_mha = warp_to(&dir.path().join("out.mha"), &dir.path().join("again.nii.gz"));
     let from_nii = warp_to(&dir.path().join("out.nii.gz"), &dir.path().join("again2.nii.gz"));
     assert_eq!(from_mha.data, from_nii.data);
+
+    // OME-Zarr: the samples stored along +L, +P, +S, each voxel where the NIfTI has it; read as the moving volume, it
+    // warps as the NIfTI does; an existing store is replaced only with --force.
+    let zarr = dir.path().join("out.ome.zarr");
+    let v = warp_to(&mri, &zarr);
+    assert_same_voxels_in_space(&reference, &v);
+    let from_zarr = warp_to(&zarr, &dir.path().join("again3.nii.gz"));
+    assert_eq!(from_zarr.data, from_nii.data);
+    // The warped volume warped again (so shifted twice) replaces the store.
+    let shifted = dir.path().join("out.nii.gz");
+    let again = |force: bool| {
+        let mut args = vec!["warp", "--fixed", s(&mri), "--moving", s(&shifted), "--landmarks", s(&csv)];
+        args.extend(["--method", "affine", "--backend", "cpu", "--quiet", "--out", s(&zarr)]);
+        args.extend(force.then_some("--force"));
+        warpbench(&args)
+    };
+    let run = again(false);
+    assert_eq!(run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("out.ome.zarr: exists; use --force"));
+    assert_ok(&again(true));
+    assert_ne!(from_nii.data, reference.data);
+    assert_same_voxels_in_space(&from_nii, &warpbench_io::open(&zarr).expect("read"));
+}
+
+/// Asserts that every voxel centre of `a` is a voxel centre of `b` (to 1e-6 of a voxel) holding the same value.
+fn assert_same_voxels_in_space(a: &warpbench_io::Volume, b: &warpbench_io::Volume) {
+    let b_index_from_lps = b.lps_from_index.inverse().expect("invertible");
+    let [ni, nj, nk] = a.dims;
+    for (i, j, k) in (0..nk).flat_map(|k| (0..nj).flat_map(move |j| (0..ni).map(move |i| (i, j, k)))) {
+        let at = b_index_from_lps.apply_point(a.voxel_lps(i, j, k)).coords();
+        let index = at.map(f64::round);
+        assert!(at.iter().zip(&index).all(|(x, r)| (x - r).abs() < 1e-6), "({i}, {j}, {k}) lands at {at:?}");
+        let [x, y, z] = index.map(|v| v as usize);
+        assert!(x < b.dims[0] && y < b.dims[1] && z < b.dims[2], "({i}, {j}, {k}) lands outside");
+        let (got, want) = (b.data.get_f64(b.offset(x, y, z)), a.data.get_f64(a.offset(i, j, k)));
+        assert!(got.to_bits() == want.to_bits(), "({i}, {j}, {k}): {got} != {want}");
+    }
 }
 
 /// Pairs on the MRI fixture: fixed points inside the brain, moving points shifted by (2, −1, 3) mm plus a few mm of
@@ -934,4 +971,31 @@ fn a_sessions_learn2reg_field_is_read_against_its_recorded_grids() {
         let got: Vec<f64> = line.split(',').take(3).map(|v| v.parse().expect("mm")).collect();
         assert!((0..3).all(|a| (got[a] - want[a]).abs() < 1e-9), "{got:?}, through the session {want:?}");
     }
+}
+
+#[test]
+fn an_oblique_grid_is_refused_as_ome_zarr_before_the_work() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let oblique = data("minc/oblique_i16.mnc");
+    let csv = dir.path().join("pairs.csv");
+    write_pairs(&csv, &[([0.0; 3], [0.0; 3]), ([5.0, 0.0, 0.0], [5.0, 0.0, 0.0]), ([0.0, 5.0, 0.0], [0.0, 5.0, 0.0])]);
+    let out = dir.path().join("o.ome.zarr");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&oblique),
+        "--moving",
+        s(&oblique),
+        "--landmarks",
+        s(&csv),
+        "--method",
+        "rigid",
+        "--quiet",
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(run.status.code(), Some(2), "{run:?}");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("o.ome.zarr") && stderr.contains("oblique grid") && stderr.contains("NIfTI"), "{stderr}");
+    assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 1, "only the pairs: nothing written");
 }

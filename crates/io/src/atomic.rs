@@ -100,6 +100,54 @@ impl StagingDir {
         test_pause(dest);
         self.0.persist(dest)
     }
+
+    /// Puts the staging folder in the place of the existing folder `dest` (whose mode it keeps) and removes the old
+    /// one. On Linux the two names are exchanged in one step, so `dest` is at every moment the old folder or the new
+    /// one. Where the system or the file system cannot exchange names, the old folder is renamed aside (to a
+    /// temporary's name) first, and a crash between the two renames leaves it there and no `dest`. The caller
+    /// decides that `dest` may be replaced.
+    pub fn persist_replacing(self, dest: &Path) -> Result<()> {
+        let meta = fs::symlink_metadata(dest).map_err(|e| Error::io(dest, e))?;
+        fs::set_permissions(self.path(), meta.permissions()).map_err(|e| Error::io(dest, e))?;
+        test_pause(dest);
+        let staged = self.0;
+        {
+            let _live = live();
+            exchange(&staged.path, dest).map_err(|e| Error::io(dest, e))?;
+        }
+        // The staging folder's name now holds the old folder, which dropping the temporary removes.
+        drop(staged);
+        Ok(())
+    }
+}
+
+/// Exchanges the folders `staged` (a temporary) and `dest`: in one step where the system can, else by renaming
+/// `dest` aside, `staged` onto `dest`, and the old one to `staged`'s name (`dest` put back if the second fails).
+fn exchange(staged: &Path, dest: &Path) -> std::io::Result<()> {
+    #[cfg(target_os = "linux")]
+    {
+        use rustix::fs::{CWD, RenameFlags, renameat_with};
+        use rustix::io::Errno;
+        match renameat_with(CWD, staged, CWD, dest, RenameFlags::EXCHANGE) {
+            Ok(()) => return Ok(()),
+            // A file system or kernel without the exchange: rename in steps.
+            Err(e) if e == Errno::INVAL || e == Errno::NOSYS || e == Errno::NOTSUP => {}
+            Err(e) => return Err(e.into()),
+        }
+    }
+    exchange_in_steps(staged, dest)
+}
+
+/// [`exchange`] in three renames, for systems without an exchange.
+fn exchange_in_steps(staged: &Path, dest: &Path) -> std::io::Result<()> {
+    let dest_name = dest.file_name().unwrap_or_else(|| OsStr::new("output"));
+    let aside = parent_dir(dest).join(partial_name(dest_name, &random_tag()));
+    fs::rename(dest, &aside)?;
+    if let Err(e) = fs::rename(staged, dest) {
+        let _ = fs::rename(&aside, dest);
+        return Err(e);
+    }
+    fs::rename(&aside, staged)
 }
 
 /// Removes every temporary this process has live and keeps any other thread from creating or renaming one from then
@@ -347,6 +395,30 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).expect("ls").count(), 0, "temporary file was not removed");
         write_atomic(&out, |w| w.write_all(b"done")).expect("write");
         assert_eq!(std::fs::read(&out).expect("read"), b"done");
+    }
+
+    /// Both ways of exchanging a staging folder with an existing one leave the new folder in its place, the old one
+    /// under the staging folder's name, and nothing else.
+    #[test]
+    fn a_folder_is_replaced_whole_in_one_step_or_in_three() {
+        for steps in [false, true] {
+            let dir = tempfile::tempdir().expect("tempdir");
+            let dest = dir.path().join("out.zarr");
+            fs::create_dir(&dest).expect("mkdir");
+            fs::write(dest.join("old"), b"old").expect("write");
+            let staging = StagingDir::new_beside(&dest).expect("staging");
+            fs::write(staging.path().join("new"), b"new").expect("write");
+            let staged = staging.path().to_owned();
+            if steps {
+                exchange_in_steps(&staged, &dest).expect("exchange");
+                assert!(staged.join("old").is_file(), "the old folder under the staging name");
+                drop(staging);
+            } else {
+                staging.persist_replacing(&dest).expect("replace");
+            }
+            assert_eq!(names(&dest), ["new"]);
+            assert_eq!(names(dir.path()), ["out.zarr"], "steps {steps}");
+        }
     }
 
     #[cfg(unix)]

@@ -163,7 +163,8 @@ impl LoadOptions<'_> {
 
 /// Writes `volume` in the format its name says: NIfTI-1 for `.nii` and `.nii.gz` ([`nifti::write`]), NRRD for `.nrrd`
 /// ([`nrrd::write`]), MetaImage for `.mha` and `.mhd` ([`metaimage::write`]), FreeSurfer MGH for `.mgh`, `.mgz` and
-/// `.mgh.gz` ([`mgh::write`]), MINC 2 for `.mnc` ([`minc::write()`]); any other name is an error that lists these. Atomic, as every writer.
+/// `.mgh.gz` ([`mgh::write`]), MINC 2 for `.mnc` ([`minc::write()`]), an OME-Zarr 0.5 folder for `.zarr` and
+/// `.ome.zarr` ([`ngff::write()`]); any other name is an error that lists these. Atomic, as every writer.
 pub fn write_volume(path: &Path, volume: &Volume) -> Result<()> {
     match VolumeFileKind::of(path) {
         Some(VolumeFileKind::Nifti) => nifti::write(path, volume),
@@ -171,6 +172,7 @@ pub fn write_volume(path: &Path, volume: &Volume) -> Result<()> {
         Some(VolumeFileKind::MetaImage) => metaimage::write(path, volume),
         Some(VolumeFileKind::Mgh) => mgh::write(path, volume),
         Some(VolumeFileKind::Minc) => minc::write(path, volume),
+        Some(VolumeFileKind::OmeZarr) => ngff::write(path, volume),
         None => Err(Error::unsupported(path, VolumeFileKind::EXPECTED)),
     }
 }
@@ -188,12 +190,15 @@ pub enum VolumeFileKind {
     Mgh,
     /// `.mnc`: MINC 2.
     Minc,
+    /// `.ome.zarr`, `.zarr`: an OME-Zarr 0.5 folder.
+    OmeZarr,
 }
 
 impl VolumeFileKind {
     /// What a volume output may be named, for messages.
     pub const EXPECTED: &str = "a volume is written as NIfTI (.nii, .nii.gz), NRRD (.nrrd), \
-         MetaImage (.mha, or .mhd with a .raw), FreeSurfer MGH (.mgh, .mgz) or MINC 2 (.mnc)";
+         MetaImage (.mha, or .mhd with a .raw), FreeSurfer MGH (.mgh, .mgz), MINC 2 (.mnc) or OME-Zarr (a folder \
+         named .ome.zarr)";
 
     /// The format `path`'s name says (case ignored), if it is one [`write_volume`] writes.
     #[must_use]
@@ -210,6 +215,8 @@ impl VolumeFileKind {
             Some(Self::Mgh)
         } else if name.ends_with(".mnc") {
             Some(Self::Minc)
+        } else if name.ends_with(".zarr") {
+            Some(Self::OmeZarr)
         } else {
             None
         }

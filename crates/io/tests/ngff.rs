@@ -243,3 +243,236 @@ fn bad_images_are_refused_naming_the_folder_and_the_problem() {
     let e = ngff::read(&copy, &mut LoadOptions::new()).expect_err("huge shard index");
     assert!(e.to_string().contains("more chunks than warpbench indexes"), "{e}");
 }
+
+// --- Writing --------------------------------------------------------------------------------------------------------
+
+/// Asserts that `written` holds `original`'s voxels where they are: each voxel centre of `original` is a voxel
+/// centre of `written` (to 1e-9 of a voxel) with the same value and type, and the two grids have the same voxels.
+fn assert_same_voxels_in_space(original: &warpbench_io::Volume, written: &warpbench_io::Volume, what: &str) {
+    assert_eq!(written.sample_type(), original.sample_type(), "{what}: type");
+    let sorted = |d: [usize; 3]| {
+        let mut d = d.to_vec();
+        d.sort_unstable();
+        d
+    };
+    assert_eq!(sorted(written.dims), sorted(original.dims), "{what}: dims");
+    let index_from_lps = written.lps_from_index.inverse().expect("invertible");
+    let [ni, nj, nk] = original.dims;
+    for k in 0..nk {
+        for j in 0..nj {
+            for i in 0..ni {
+                let at = index_from_lps.apply_point(original.voxel_lps(i, j, k)).coords();
+                let index = at.map(f64::round);
+                assert!(
+                    at.iter().zip(&index).all(|(a, r)| (a - r).abs() < 1e-9),
+                    "{what}: voxel ({i}, {j}, {k}) lands at {at:?}, between voxels"
+                );
+                let [x, y, z] = index.map(|v| v as usize);
+                let got = written.data.get_f64(written.offset(x, y, z));
+                let want = original.data.get_f64(original.offset(i, j, k));
+                assert!(got.to_bits() == want.to_bits(), "{what}: ({i}, {j}, {k}) {got} != {want}");
+            }
+        }
+    }
+}
+
+/// Real volumes stored in other orders: RAS (NIfTI), FreeSurfer's LIA, MINC's RAS with anisotropic steps, ngff-zarr's permuted axes,
+/// and a RAS-like 0.6 image.
+const AXIS_ALIGNED: [&str; 5] = [
+    "nifti/anatomical.nii",
+    "mgh/conformed_lia_u8.mgz",
+    "minc/small.mnc",
+    "ngff/v05_u16_oriented.ome.zarr",
+    "ngff/v06_f32_ras.ome.zarr",
+];
+
+#[test]
+fn written_images_read_back_with_every_voxel_where_it_was_and_nothing_assumed() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (n, name) in AXIS_ALIGNED.iter().enumerate() {
+        let source = data_dir().join("..").join(name);
+        let original = LoadOptions::new().open(&source).unwrap_or_else(|e| panic!("{e}"));
+        let out = dir.path().join(format!("out{n}.ome.zarr"));
+        assert_eq!(warpbench_io::VolumeFileKind::of(&out), Some(warpbench_io::VolumeFileKind::OmeZarr));
+        warpbench_io::write_volume(&out, &original).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let written = LoadOptions::new().open(&out).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(written.geometry_source, GeometrySource::OmeZarr);
+        // Orientation and units are given, and ngff-zarr's reading and RFC-4's text place voxel 0 alike.
+        assert_eq!(written.metadata.warnings, Vec::<String>::new(), "{name}");
+        // The samples are stored along +L, +P, +S.
+        let m = written.lps_from_index.linear();
+        assert!((0..3).all(|r| (0..3).all(|c| r == c && m[(r, c)] > 0.0 || r != c && m[(r, c)] == 0.0)), "{name}");
+        assert_same_voxels_in_space(&original, &written, name);
+    }
+}
+
+#[test]
+fn written_metadata_is_ome_zarr_0_5_with_rfc4_orientations() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let source = data_dir().join("../nifti/anatomical.nii");
+    let original = LoadOptions::new().open(&source).expect("read");
+    let out = dir.path().join("anatomical.ome.zarr");
+    warpbench_io::write_volume(&out, &original).expect("write");
+    let root: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("zarr.json")).expect("zarr.json")).expect("JSON");
+    assert_eq!(root["zarr_format"], 3);
+    assert_eq!(root["node_type"], "group");
+    let ome = &root["attributes"]["ome"];
+    assert_eq!(ome["version"], "0.5");
+    let ms = &ome["multiscales"][0];
+    assert_eq!(ms["name"], "anatomical");
+    let axes: Vec<(&str, &str, &str, &str)> = ms["axes"]
+        .as_array()
+        .expect("axes")
+        .iter()
+        .map(|a| {
+            (
+                a["name"].as_str().expect("name"),
+                a["type"].as_str().expect("type"),
+                a["unit"].as_str().expect("unit"),
+                a["orientation"]["value"].as_str().expect("orientation"),
+            )
+        })
+        .collect();
+    assert_eq!(
+        axes,
+        [
+            ("z", "space", "millimeter", "inferior-to-superior"),
+            ("y", "space", "millimeter", "anterior-to-posterior"),
+            ("x", "space", "millimeter", "right-to-left"),
+        ]
+    );
+    let dataset = &ms["datasets"][0];
+    assert_eq!(dataset["path"], "0");
+    // The scale is the spacing along S, P, L; the translation voxel 0's position: the corner of the RAS volume
+    // nearest the right, anterior, inferior side.
+    let spacing = original.spacing_mm();
+    let lps = original.lps_from_index.linear();
+    let along = |m: usize| (0..3).find(|&a| lps[(m, a)] != 0.0).expect("an axis along it");
+    assert_eq!(numbers(&dataset["coordinateTransformations"][0]["scale"]), [2, 1, 0].map(|m| spacing[along(m)]));
+    let corner_lps = |c: usize| {
+        let [ni, nj, nk] = original.dims;
+        let index = [ni, nj, nk].map(|n| [0, n - 1]);
+        (0..8)
+            .map(|b| original.voxel_lps(index[0][b & 1], index[1][b >> 1 & 1], index[2][b >> 2 & 1]).coords()[c])
+            .fold(f64::INFINITY, f64::min)
+    };
+    assert_eq!(numbers(&dataset["coordinateTransformations"][1]["translation"]), [2, 1, 0].map(corner_lps));
+    let array: Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("0/zarr.json")).expect("array")).expect("JSON");
+    assert_eq!(array["dimension_names"], serde_json::json!(["z", "y", "x"]));
+    assert_eq!(array["data_type"], "int16", "anatomical.nii's samples keep their type");
+}
+
+#[test]
+fn an_oblique_grid_is_refused_and_nothing_is_left() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let source = data_dir().join("../minc/oblique_i16.mnc");
+    let original = LoadOptions::new().open(&source).expect("read");
+    let out = dir.path().join("oblique.ome.zarr");
+    let e = warpbench_io::write_volume(&out, &original).expect_err("oblique");
+    let text = e.to_string();
+    assert!(text.contains("oblique.ome.zarr") && text.contains("oblique grid") && text.contains('°'), "{text}");
+    assert_eq!(std::fs::read_dir(dir.path()).expect("dir").count(), 0, "nothing written, no temporary left");
+}
+
+#[test]
+fn a_zarr_store_is_replaced_whole_and_nothing_else_is() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("out.ome.zarr");
+    let first = LoadOptions::new().open(data_dir().join("../nifti/anatomical.nii")).expect("read");
+    let second = LoadOptions::new().open(data_dir().join("../mgh/conformed_lia_u8.mgz")).expect("read");
+    warpbench_io::write_volume(&out, &first).expect("first");
+    // A file of the old store that the new one does not have must go with it.
+    std::fs::write(out.join("0/c/stale"), b"old").expect("stale");
+    warpbench_io::write_volume(&out, &second).expect("replacing");
+    assert!(!out.join("0/c/stale").exists(), "the old store is gone whole");
+    let written = LoadOptions::new().open(&out).expect("read back");
+    assert_same_voxels_in_space(&second, &written, "replaced");
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().into_string().expect("utf-8"))
+        .collect();
+    assert_eq!(names, ["out.ome.zarr"], "no temporary left beside it");
+
+    // An empty folder is written into; a folder of anything else, or a file, is refused and left as it was.
+    let empty = dir.path().join("empty.ome.zarr");
+    std::fs::create_dir(&empty).expect("mkdir");
+    warpbench_io::write_volume(&empty, &first).expect("an empty folder");
+    let other = dir.path().join("notes.zarr");
+    std::fs::create_dir(&other).expect("mkdir");
+    std::fs::write(other.join("notes.txt"), b"mine").expect("write");
+    let e = warpbench_io::write_volume(&other, &first).expect_err("another folder");
+    assert!(e.to_string().contains("notes.zarr") && e.to_string().contains("does not replace"), "{e}");
+    assert_eq!(std::fs::read(other.join("notes.txt")).expect("kept"), b"mine");
+    let file = dir.path().join("file.zarr");
+    std::fs::write(&file, b"a file").expect("write");
+    let e = warpbench_io::write_volume(&file, &first).expect_err("a file");
+    assert!(e.to_string().contains("file.zarr") && e.to_string().contains("not a folder"), "{e}");
+    assert_eq!(std::fs::read(&file).expect("kept"), b"a file");
+}
+
+/// A volume of `dims` whose axis a runs along patient axis `axes[a]`, reversed where `signs` has bit a, with
+/// `seed`'s samples of the type `kind` (0 u8, 1 i16, 2 u16, 3 f32).
+fn axis_aligned_volume(
+    dims: [usize; 3],
+    axes: [usize; 3],
+    signs: u8,
+    spacing: [f64; 3],
+    origin: [f64; 3],
+    (kind, seed): (u8, u64),
+) -> warpbench_io::Volume {
+    use warpbench_io::VoxelData;
+    let n = dims.iter().product::<usize>();
+    let mut s = seed | 1;
+    let mut next = || {
+        s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        s >> 32
+    };
+    let data = match kind {
+        0 => VoxelData::U8((0..n).map(|_| next() as u8).collect()),
+        1 => VoxelData::I16((0..n).map(|_| next() as i16).collect()),
+        2 => VoxelData::U16((0..n).map(|_| next() as u16).collect()),
+        _ => VoxelData::F32((0..n).map(|_| (next() as f32 - 2e9) * 1e-3).collect()),
+    };
+    let mut linear = nalgebra::Matrix3::zeros();
+    for a in 0..3 {
+        linear[(axes[a], a)] = if signs >> a & 1 == 1 { -spacing[a] } else { spacing[a] };
+    }
+    let grid = warpbench_io::geometry::Transform::from_linear_translation(linear, origin);
+    warpbench_io::Volume::new(Path::new("random"), dims, data, grid, GeometrySource::Assumed).expect("volume")
+}
+
+const PERMUTATIONS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 48, ..Default::default() })]
+
+    /// Law: any grid along the patient axes, in any order and sense, of any sample type, is written and read back
+    /// with every voxel where it was, the samples along +L, +P, +S, and nothing assumed.
+    #[test]
+    fn axis_aligned_volumes_round_trip_through_ome_zarr(
+        dims in (1usize..6, 1usize..6, 1usize..5),
+        permutation in 0usize..6,
+        signs in 0u8..8,
+        spacing in (0.05f64..5.0, 0.05f64..5.0, 0.05f64..5.0),
+        origin in (-300f64..300.0, -300f64..300.0, -300f64..300.0),
+        kind in 0u8..4,
+        seed in proptest::prelude::any::<u64>(),
+    ) {
+        let volume = axis_aligned_volume(
+            [dims.0, dims.1, dims.2],
+            PERMUTATIONS[permutation],
+            signs,
+            [spacing.0, spacing.1, spacing.2],
+            [origin.0, origin.1, origin.2],
+            (kind, seed),
+        );
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("v.ome.zarr");
+        warpbench_io::write_volume(&out, &volume).expect("write");
+        let written = LoadOptions::new().open(&out).expect("read back");
+        proptest::prop_assert!(written.metadata.warnings.is_empty(), "{:?}", written.metadata.warnings);
+        assert_same_voxels_in_space(&volume, &written, "random");
+    }
+}

@@ -98,7 +98,7 @@ impl ExportJob {
     /// Checks the output path and starts the export; a bad path is refused at once.
     ///
     /// # Errors
-    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`, `.mnc`; a field's name picks its
+    /// The output is not named as a volume (`.nii`, `.nii.gz`, `.nrrd`, `.mha`, `.mhd`, `.mgh`, `.mgz`, `.mnc`, `.ome.zarr`; a field's name picks its
     /// flavour: [`field_format`]), is one of the inputs, or the DICOM folder is not empty.
     pub fn start(ctx: &egui::Context, kind: ExportKind, out: PathBuf, input: ExportInput) -> Result<Self, String> {
         let inputs: Vec<&Path> = input.fixed_path.iter().chain(&input.moving_path).map(PathBuf::as_path).collect();

@@ -1,7 +1,8 @@
 //! OME-Zarr images (NGFF, the "next-generation file format" of the Open Microscopy Environment; a folder, usually
 //! named `.ome.zarr`): the format of napari, BigWarp's and webknossos' Zarr exports, bioformats2raw, ngff-zarr and
 //! ITK's `itk.imwrite(..., "x.ome.zarr")`. Versions 0.4 (Zarr v2) and 0.5 and 0.6 (Zarr v3) are read ([`read()`]);
-//! the chunks are decoded by the `zarrs` crate (zstd, Blosc, gzip, sharding).
+//! the chunks are decoded by the `zarrs` crate (zstd, Blosc, gzip, sharding). A volume is written as 0.5
+//! ([`write()`], module `write`: samples in LPS order, so that every reading of the placement agrees).
 //!
 //! # What is read
 //!
@@ -27,6 +28,9 @@
 //! or change their type as in every reader (`docs/formats.md`, "Sample types and rescale").
 
 mod meta;
+mod write;
+
+pub use write::{MAX_OBLIQUE_SINE, check_grid, write};
 
 use std::path::Path;
 use std::sync::Arc;

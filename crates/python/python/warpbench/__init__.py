@@ -148,7 +148,8 @@ class Volume:
 
     def write(self, path: PathLike) -> None:
         """Writes the volume as the command line does: NIfTI-1 (``.nii``, ``.nii.gz``), NRRD (``.nrrd``),
-        MetaImage (``.mha``, ``.mhd``), FreeSurfer's MGH (``.mgh``, ``.mgz``) or MINC 2 (``.mnc``), by the name, atomically (an interrupted write leaves no partial file)."""
+        MetaImage (``.mha``, ``.mhd``), FreeSurfer's MGH (``.mgh``, ``.mgz``), MINC 2 (``.mnc``) or OME-Zarr 0.5 (a folder named ``.ome.zarr``, for a grid
+        along the patient axes), by the name, atomically (an interrupted write leaves no partial file)."""
         _warpbench.write_volume(os.fspath(path), self.array, self.lps_from_index, self.modality)
 
     def to_nibabel(self) -> Any:

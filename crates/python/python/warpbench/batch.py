@@ -36,7 +36,8 @@ class Case:
         name: the case's name in the results.
         fixed, moving: the volumes (any format warpbench reads).
         landmarks: landmark pairs (BigWarp CSV or JSON, a plain CSV, a session).
-        out: the moving volume resampled onto the fixed grid (``.nii``, ``.nii.gz``, ``.nrrd``, ``.mha``, ``.mgz``, ``.mnc``).
+        out: the moving volume resampled onto the fixed grid (``.nii``, ``.nii.gz``, ``.nrrd``, ``.mha``, ``.mgz``, ``.mnc``,
+            ``.ome.zarr``).
         out_field: the pull-back as an ITK displacement field (optional).
         out_tfm: the pull-back as an ITK transform file (optional).
         method, stiffness, initial, initial_field: as :func:`warpbench.fit` (``initial_field``: another tool's
