@@ -249,8 +249,8 @@ pub use crate::brushed::InverseConsistency;
 /// `warpbench --help` show.
 const HELP: &str = "\
 Resample the moving volume into the fixed volume's grid through the landmark warp, or through a displacement
-field (--field), and write a volume (NIfTI, NRRD or MetaImage, by --out's name; and, with --out-dicom, a DICOM
-series) with the fixed grid's geometry.
+field (--field), and write a volume (NIfTI, NRRD, MetaImage, MGH, MINC or OME-Zarr, by --out's name; and, with
+--out-dicom, a DICOM series) with the fixed grid's geometry.
 
 The pull-back u = moving_from_fixed is sampled into a --grid³ control texture over the output grid (what the
 app shows), or evaluated exactly per voxel with --exact (TPS, a field). --field takes a pull-back field in
