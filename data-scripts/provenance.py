@@ -522,7 +522,10 @@ Not downloaded: `data-scripts/ngff_fixtures.py` has ngff-zarr 0.50.0 (PyPI `ngff
 volumes of values the script makes up as OME-Zarr 0.4, 0.5 and 0.6 folders (`*.ome.zarr`), some of them edited by
 the script (a rotation put into a 0.6 sequence, a chunk cut short, the inner chunks of the shards put in index
 order); `ngff/reference.json` holds what the specification gives for each (computed by the script from the JSON it
-wrote), what ngff-zarr reads and the values zarr-python reads. A rerun writes the same bytes. They carry the
+wrote), what ngff-zarr reads and the values zarr-python reads. `data-scripts/ngff_field_fixtures.py`, with the same
+packages, writes 0.6 displacement fields (RFC-5's `displacements`) of a made-up smooth ITK field through ngff-zarr's
+own converters, and `ngff/field_reference.json` holds what ngff-zarr reads back from each as an ITK transform. A
+rerun writes the same bytes. They carry the
 licence of the code. Each folder is one row: its bytes are the sum over its files, and its sha256 is that of the
 `sha256sum` listing of its files (paths relative to the folder, sorted bytewise), what
 `(cd DIR && find . -type f -printf '%P\\n' | LC_ALL=C sort | xargs sha256sum) | sha256sum` prints.
@@ -538,7 +541,13 @@ NGFF_FILES = [
         "v05_channel1", "v04_um_bigendian_i32", "v05_xyz_order_fill", "v05_dorsal", "bad_two_channels",
         "bad_rotation_06", "bad_unit", "bad_axis_names", "bad_truncated_chunk",
     )
-] + [("ngff/reference.json", "ngff_fixtures.py")]
+] + [("ngff/reference.json", "ngff_fixtures.py")] + [
+    (f"ngff/{name}", "ngff_field_fixtures.py")
+    for name in (
+        "field_plain.ome.zarr", "field_lps_mm.ome.zarr", "field_um.ome.zarr", "image_with_field.ome.zarr",
+        "bad_field_ras.ome.zarr", "field_reference.json",
+    )
+]
 
 
 def folder_digest(folder: Path) -> tuple[str, int, int]:

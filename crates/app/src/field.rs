@@ -121,7 +121,8 @@ pub struct FieldArgs {
     #[arg(long)]
     pub tfm: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
-    /// metaimage (elastix's and ITK's .mha/.mhd, LPS) or learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// metaimage (elastix's and ITK's .mha/.mhd, LPS), minc (an MNI grid transform .xfm), ngff (an OME-Zarr 0.6 field
+    /// folder, .ome.zarr, which its name picks too) or learn2reg (Learn2Reg's steps from fixed voxels to moving
     /// voxels: .npz, float16, the challenge's form until 2021; .nii.gz, float32, its form since 2022).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
@@ -130,7 +131,8 @@ pub struct FieldArgs {
     pub direction: DirectionArg,
     /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
     /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform; .npz, or .nii.gz with
-    /// --format learn2reg, for Learn2Reg's field, steps from fixed voxels to moving voxels).
+    /// --format learn2reg, for Learn2Reg's field, steps from fixed voxels to moving voxels; a folder named .ome.zarr
+    /// for OME-Zarr 0.6, RFC-5's displacements, on an axis-aligned grid).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -148,6 +150,8 @@ pub enum FormatArg {
     Minc,
     /// Learn2Reg's field: steps from fixed voxels to moving voxels, `.npz` or `.nii.gz` by the name.
     Learn2reg,
+    /// An OME-Zarr 0.6 field folder (`.ome.zarr`): RFC-5's `displacements`, as ngff-zarr reads it.
+    Ngff,
 }
 
 impl FormatArg {
@@ -168,6 +172,17 @@ impl FormatArg {
             Self::Nrrd => FieldFormat::Nrrd,
             Self::Metaimage => FieldFormat::MetaImage,
             Self::Minc => FieldFormat::Minc,
+            Self::Ngff => FieldFormat::Ngff,
+        }
+    }
+
+    /// [`Self::flavour`], except that the default (`itk`) writes an output named `.zarr` (`.ome.zarr`) as OME-Zarr,
+    /// as a name ending `.npz` picks Learn2Reg's flavour.
+    #[must_use]
+    pub fn flavour_for(self, out: &Path) -> FieldFormat {
+        match (self, FieldFormat::from_extension(out)) {
+            (Self::Itk, Some(FieldFormat::Ngff)) => FieldFormat::Ngff,
+            _ => self.flavour(),
         }
     }
 }
@@ -236,7 +251,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         report,
     } = args;
     let ReportArgs { json, force, quiet } = report;
-    let (format, direction) = (format_arg.flavour(), FieldDirection::from(direction));
+    let (format, direction) = (format_arg.flavour_for(&out_path), FieldDirection::from(direction));
     let reference_path = reference.clone();
     let inputs = WarpInputs::from_args(volumes, pairs, (given_field, field_format.format), reference)?;
     let output = OutputFile { path: out_path, force };
@@ -280,7 +295,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     // field, in the volumes' voxels, and an ITK transform file, which may need the fixed grid, after them.
     let given = match &inputs {
         WarpInputs::Field(f) if !crate::warp::read_after_volumes(&f.field, f.format)? => {
-            Some(crate::warp::read_warp_field(&f.field, None)?)
+            Some(crate::warp::read_warp_field(&f.field, None, quiet)?)
         }
         _ => None,
     };
@@ -293,6 +308,10 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
+    if format == FieldFormat::Ngff && !learn2reg {
+        warpbench_io::ngff::check_grid(&output.path, &grid.lps_from_index)
+            .map_err(|e| Failure::BadInput(anyhow!("{e} (the {grid_name} grid)")))?;
+    }
     let (pairs, layers): (&[LandmarkPair], Layers) = match &inputs {
         WarpInputs::Pairs(p) => {
             let brushed = p.brushed().map_err(Failure::BadInput)?;
@@ -304,6 +323,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
             }
             let mut layers = Layers::new(p.start(&fixed, &moving).map_err(Failure::BadInput)?, brushed);
             layers.field = p.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
+            crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
             (p.pairs().map_err(Failure::BadInput)?, layers)
         }
         WarpInputs::Field(f) => {
@@ -315,7 +335,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
                 }
                 // An ITK transform file: B-splines sampled on the output grid of a pull-back (the fixed one for the
                 // forward map, which inverts the pull-back there).
-                None => crate::warp::read_warp_field(&f.field, Some(reference.as_ref().unwrap_or(&fixed)))?,
+                None => crate::warp::read_warp_field(&f.field, Some(reference.as_ref().unwrap_or(&fixed)), quiet)?,
             };
             let layer = match read {
                 crate::warp::WarpField::Pullback(s) => FieldLayer::pullback(s, &origin),

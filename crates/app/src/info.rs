@@ -207,7 +207,7 @@ type Reader = fn(&Path) -> warpbench_io::Result<nalgebra::Matrix4<f64>>;
 /// A displacement field's description.
 #[derive(Debug, Serialize)]
 pub struct FieldInfo {
-    /// `itk`, `ants`, `nrrd`, `metaimage`, `elastix`, `itk_h5`, `dicom` or `learn2reg`.
+    /// `itk`, `ants`, `nrrd`, `metaimage`, `minc`, `ngff`, `elastix`, `itk_h5`, `dicom` or `learn2reg`.
     pub format: &'static str,
     /// `pullback` or `forward` where the file says (NRRD, `.h5`, DICOM, Learn2Reg), else null (NIfTI, which readers
     /// take as a pull-back).
@@ -221,6 +221,8 @@ pub struct FieldInfo {
     pub geometry_source: Option<GeometrySourceJson>,
     /// The largest |D| over the grid, in `units`.
     pub max_displacement: f64,
+    /// What the reader assumed where the file is silent (an OME-Zarr field's axes without a unit, say).
+    pub warnings: Vec<String>,
 }
 
 impl FieldInfo {
@@ -241,6 +243,7 @@ impl FieldInfo {
                 lps_from_index: None,
                 geometry_source: None,
                 max_displacement: largest(&steps.steps_vox),
+                warnings: Vec::new(),
             }));
         }
         let Ok(read) = warpbench_io::displacement::read_field_info(path) else { return Ok(None) };
@@ -254,6 +257,7 @@ impl FieldInfo {
             lps_from_index: Some(f.lps_from_index.rows()),
             geometry_source: Some(f.geometry_source.into()),
             max_displacement: largest(&f.displacements_lps),
+            warnings: read.warnings.clone(),
         }))
     }
 }
@@ -575,6 +579,9 @@ fn write_field(f: &FieldInfo, out: &mut dyn Write) -> std::io::Result<()> {
         writeln!(out, "  grid            none: steps in the voxels of the fixed and moving images")?;
     }
     writeln!(out, "  max |D|         {} {}", trim(f.max_displacement), f.units)?;
+    for w in &f.warnings {
+        writeln!(out, "  warning         {w}")?;
+    }
     Ok(())
 }
 

@@ -315,6 +315,19 @@ impl PairWarp {
     }
 }
 
+/// Prints what the reader of the displacement field under the fit assumed ([`FieldLayer::warnings`]) on stderr, unless
+/// `quiet`, as a volume's reader warnings are printed.
+///
+/// [`FieldLayer::warnings`]: crate::project::stack::FieldLayer::warnings
+pub fn note_field_warnings(field: Option<&crate::project::stack::FieldLayer>, quiet: bool) {
+    if quiet {
+        return;
+    }
+    for w in field.map(|f| f.warnings.as_slice()).unwrap_or_default() {
+        eprintln!("warpbench: warning: {w}");
+    }
+}
+
 /// [`PairArgs`] parsed once: the landmarks, if any were given, and the warp around them.
 #[derive(Clone, Debug)]
 pub struct LandmarkWarp {

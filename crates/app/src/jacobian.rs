@@ -177,6 +177,7 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
         inputs.brushed().map_err(Failure::BadInput)?,
     );
     layers.field = inputs.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
+    crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
     let (grid, grid_name) = match (&reference, direction) {
         (Some(r), _) => (r, "reference"),
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),

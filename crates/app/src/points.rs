@@ -226,6 +226,7 @@ pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failur
     let brushed = inputs.brushed().map_err(Failure::BadInput)?;
     let mut layers = crate::project::stack::Layers::new(start.clone(), brushed);
     layers.field = inputs.warp.field(&fixed, &moving).map_err(Failure::BadInput)?;
+    crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
     let (source_volume, source_path) = match from {
         Side::Moving => {
             let fixed_from_moving = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving), layers)

@@ -526,7 +526,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     } = args;
     let ReportArgs { json, force, quiet } = report;
     let format_arg = format;
-    let format = format_arg.flavour();
+    let format = format_arg.flavour_for(&out_field);
     let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
     // The session's choices for Refine by intensities, where the command line does not make them.
     let session = given.session_refine.clone();
@@ -591,6 +591,15 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     if let Some(path) = &out_volume {
         crate::warp::check_output_grid(path, &fixed_volume).map_err(Failure::BadInput)?;
     }
+    if format == FieldFormat::Ngff {
+        let grids =
+            [(Some(&out_field).filter(|_| !learn2reg), &fixed_volume), (out_inverse_field.as_ref(), &moving_volume)];
+        for (path, grid) in grids {
+            if let Some(path) = path {
+                warpbench_io::ngff::check_grid(path, &grid.lps_from_index).map_err(|e| Failure::BadInput(e.into()))?;
+            }
+        }
+    }
     let start_transform = given.warp.start(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
     let load_mask = |mask: &Option<PathBuf>| match mask {
@@ -621,6 +630,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let bar = Bar::new(quiet);
     let mut layers = Layers::new(start_transform, brushed);
     layers.field = given.warp.field(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
+    crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
     let refinement = refine(inputs, layers, &params, gpu.as_ref().map(|g| g as &dyn SampleDevice), &mut |p| {
         bar.set("registering", (p.fraction() * 1000.0) as u64, 1000);
         ControlFlow::Continue(())

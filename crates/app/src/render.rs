@@ -190,8 +190,11 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         Some(path) => crate::warp::read_after_volumes(path, field_format.format)?,
         None => false,
     };
-    let mut field =
-        field_path.as_deref().filter(|_| !after).map(|p| crate::warp::read_pullback_field(p, None)).transpose()?;
+    let mut field = field_path
+        .as_deref()
+        .filter(|_| !after)
+        .map(|p| crate::warp::read_pullback_field(p, None, quiet))
+        .transpose()?;
     given.warp.check_start().map_err(Failure::BadInput)?;
     let fixed = inputs::load_volume(&fixed_path, quiet).map_err(Failure::BadInput)?;
     let moving =
@@ -200,7 +203,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         field = Some(if field_format.format.is_learn2reg(path)? {
             crate::warp::read_learn2reg_field(path, &fixed, moving)?
         } else {
-            crate::warp::read_pullback_field(path, Some(&fixed))?
+            crate::warp::read_pullback_field(path, Some(&fixed), quiet)?
         });
     }
     let fixed_box = inputs::volume_box::<Fixed>(&fixed);
@@ -239,6 +242,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         // The stack: u (with a brush, u ∘ b⁻¹) into the texture, and the moving glyphs at d(p) (b(d(p))).
         let mut layers = Layers::new(start, brushed);
         layers.field = given.warp.field(&fixed, moving).map_err(Failure::BadInput)?;
+        crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
         let pullback = fit::pullback_stack(&method, &c, fixed_box, layers.clone()).map_err(Failure::BadInput)?;
         let forward =
             fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(moving), layers).map_err(Failure::BadInput)?;

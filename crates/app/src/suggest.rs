@@ -154,6 +154,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
             .map_err(Failure::BadInput)?;
             let mut layers = crate::project::stack::Layers::new(start.clone(), None);
             layers.field = given.warp.field(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
+            crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
             let d = fit::forward_stack(&method, &c, inputs::volume_box::<Moving>(&moving_volume), layers)
                 .map_err(Failure::BadInput)?;
             (d, crate::start::describe(&method, inputs::min_pairs(&method), c.moving.len(), start.as_ref()))

@@ -683,6 +683,7 @@ pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary,
     let start = inputs.start(&volumes.fixed, &volumes.moving).map_err(Failure::BadInput)?;
     let mut layers = Layers::new(start, brushed);
     layers.field = inputs.warp.field(&volumes.fixed, &volumes.moving).map_err(Failure::BadInput)?;
+    crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
     let pairs = inputs.pairs().map_err(Failure::BadInput)?;
     let names = inputs.names(&out_path);
     let made_of = FieldInputs {

@@ -194,10 +194,16 @@ pub enum WarpField {
 
 /// Reads a displacement field of any flavour ([`displacement::read_field_on`]: an ITK transform file of B-splines,
 /// which gives no grid of its own, sampled on `grid`): a pull-back unless the file says it is the forward map
-/// (NRRD's `displacement field type:=modeling`). Errors name the file.
-pub fn read_warp_field(path: &Path, grid: Option<&Volume>) -> Result<WarpField, Failure> {
+/// (NRRD's `displacement field type:=modeling`). What the reader assumed is printed on stderr unless `quiet`.
+/// Errors name the file.
+pub fn read_warp_field(path: &Path, grid: Option<&Volume>, quiet: bool) -> Result<WarpField, Failure> {
     let grid = grid.map(displacement::SampleGrid::of);
     let read = displacement::read_field_on(path, grid.as_ref())?;
+    if !quiet {
+        for w in &read.warnings {
+            eprintln!("warpbench: warning: {}: {w}", path.display());
+        }
+    }
     let bad = |e: warpbench_solver::SolverError| Failure::BadInput(anyhow!("{}: {e}", path.display()));
     Ok(match read.direction {
         Some(FieldDirection::Forward) => {
@@ -231,8 +237,12 @@ pub fn read_after_volumes(path: &Path, format: FieldReadFormat) -> Result<bool, 
 }
 
 /// [`read_warp_field`] for `render --field`, which takes the pull-back only: a forward field is refused.
-pub fn read_pullback_field(path: &Path, grid: Option<&Volume>) -> Result<SampledField<Moving, Fixed>, Failure> {
-    match read_warp_field(path, grid)? {
+pub fn read_pullback_field(
+    path: &Path,
+    grid: Option<&Volume>,
+    quiet: bool,
+) -> Result<SampledField<Moving, Fixed>, Failure> {
+    match read_warp_field(path, grid, quiet)? {
         WarpField::Pullback(field) => Ok(field),
         WarpField::Forward(_) => Err(Failure::BadInput(anyhow!(
             "{}: a forward displacement field (displacement field type: modeling, fixed_from_moving); render \
@@ -989,7 +999,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
         }
         WarpInputs::Field(f) if f.format.is_learn2reg(&f.field)? => Given::Learn2Reg(&f.field),
         WarpInputs::Field(f) if read_after_volumes(&f.field, f.format)? => Given::OnGrid(&f.field),
-        WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field, None)?), &f.field),
+        WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field, None, quiet)?), &f.field),
     };
     let field_seconds = start.elapsed().as_secs_f64();
     let mut lap = Lap(Instant::now());
@@ -1003,6 +1013,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
     let fitted = match given {
         Given::Pairs(method, inputs, brushed) => {
             let layers = inputs.warp.layers(brushed.map(|b| *b), &fixed, &moving).map_err(Failure::BadInput)?;
+            crate::inputs::note_field_warnings(layers.field.as_deref(), quiet);
             let pairs = inputs.pairs().map_err(Failure::BadInput)?;
             let settings = WarpSettings {
                 method,
@@ -1020,7 +1031,9 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             Fitted::from_field(grid, &moving, &field, path, &export)?
         }
         // Sampled on the output grid, so that `--exact` evaluates the transform itself at every output voxel.
-        Given::OnGrid(path) => Fitted::from_field(grid, &moving, &read_warp_field(path, Some(grid))?, path, &export)?,
+        Given::OnGrid(path) => {
+            Fitted::from_field(grid, &moving, &read_warp_field(path, Some(grid), quiet)?, path, &export)?
+        }
     };
     drop(reference);
     drop(fixed);

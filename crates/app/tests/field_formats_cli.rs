@@ -587,3 +587,53 @@ fn the_defaults_are_the_itk_flavour_and_the_pullback_on_the_fixed_grid() {
     let json = write_small(&moving, &landmarks, &dir.path().join("on_fixed.nii.gz"), &[]);
     assert_eq!((json["grid"].as_str(), &json["dims"]), (Some("fixed"), &serde_json::json!(DIMS)));
 }
+
+#[test]
+fn an_ome_zarr_field_holds_the_itk_flavours_vectors_and_warps_alike() {
+    // `field --out x.ome.zarr` (the name picks the ngff flavour) on the MRI grid (stored RAS, written in LPS order):
+    // each voxel's vector is where the itk flavour has it, equal to the float32 bit; `warp --field` through either
+    // writes the same volume; `--direction forward` writes the forward map on the moving grid as well.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let (zarr, nifti) = (dir.path().join("u.ome.zarr"), dir.path().join("u.nii.gz"));
+    write(&zarr, &[]);
+    write(&nifti, &[]);
+    let read = |p: &Path| warpbench_io::displacement::read_field_info(p).expect("read back");
+    let (z, n) = (read(&zarr), read(&nifti));
+    assert_eq!(z.source.name(), "ngff");
+    assert!(z.warnings.is_empty(), "{:?}", z.warnings);
+    let (z, n) = (z.field, n.field);
+    let index_from_lps = z.lps_from_index.inverse().expect("invertible");
+    for k in 0..DIMS[2] {
+        for j in 0..DIMS[1] {
+            for i in 0..DIMS[0] {
+                let c = n.lps_from_index.apply_point(warpbench_io::geometry::Point3::new(i as f64, j as f64, k as f64));
+                let at = index_from_lps.apply_point(c).coords().map(|v| v.round() as usize);
+                let got = z.displacements_lps[at[0] + z.dims[0] * (at[1] + z.dims[1] * at[2])];
+                let want = n.displacements_lps[voxel([i, j, k])];
+                assert_eq!(got.map(f32::to_bits), want.map(f32::to_bits), "voxel ({i}, {j}, {k})");
+            }
+        }
+    }
+    let warp = |field: &Path, out: &Path| {
+        let f = mri();
+        assert_ok(&warpbench(&[
+            "warp",
+            "--fixed",
+            utf8(&f),
+            "--moving",
+            utf8(&f),
+            "--field",
+            utf8(field),
+            "--backend",
+            "cpu",
+            "--quiet",
+            "--out",
+            utf8(out),
+        ]));
+        std::fs::read(out).expect("the warped volume")
+    };
+    assert_eq!(warp(&zarr, &dir.path().join("a.nii")), warp(&nifti, &dir.path().join("b.nii")));
+    let forward = dir.path().join("d.ome.zarr");
+    write(&forward, &["--format", "ngff", "--direction", "forward"]);
+    assert_eq!(read(&forward).field.dims, z.dims);
+}

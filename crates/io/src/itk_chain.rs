@@ -257,7 +257,7 @@ impl ItkChain {
             ));
         };
         let field = self.sample(path, dims, lps_from_index, geometry_source)?;
-        Ok(ReadField { field, source, direction: Some(FieldDirection::Pullback) })
+        Ok(ReadField { field, source, direction: Some(FieldDirection::Pullback), warnings: Vec::new() })
     }
 }
 

@@ -254,6 +254,7 @@ pub fn read_field_or_chain(path: &Path) -> Result<FieldOrChain> {
             field: step.field,
             source: FieldSource::ItkHdf5,
             direction: Some(FieldDirection::Forward),
+            warnings: Vec::new(),
         }));
     }
     let chain = chain_of(path, &file, members)?;

@@ -57,6 +57,10 @@ pub fn is_npz_name(path: &Path) -> bool {
 /// Whether the file at `path` opens as a zip archive, as every `.npz` does: how a reader given a field tells this
 /// flavour from the others, by content. Errors name the file.
 pub fn is_npz_file(path: &Path) -> Result<bool> {
+    if path.is_dir() {
+        // A folder (an OME-Zarr field store) is no zip archive.
+        return Ok(false);
+    }
     let mut head = [0u8; 4];
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let n = crate::files::read_up_to(&mut file, &mut head).map_err(|e| Error::io(path, e))?;

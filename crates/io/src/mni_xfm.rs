@@ -236,7 +236,12 @@ pub fn read_field(path: &Path) -> Result<crate::displacement::ReadField> {
         Error::invalid(path, format!("its Displacement_Volume {} cannot be read: {e}", volume.display()))
     })?;
     let direction = if *inverted { FieldDirection::Pullback } else { FieldDirection::Forward };
-    Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Minc), direction: Some(direction) })
+    Ok(ReadField {
+        field,
+        source: FieldSource::Field(FieldFormat::Minc),
+        direction: Some(direction),
+        warnings: Vec::new(),
+    })
 }
 
 /// The grid file [`write_grid`] writes beside the transform file `path`: `NAME_grid_0.mnc` for `NAME.xfm`.

@@ -172,7 +172,7 @@ fn assumptions_are_warned_about() {
     let warned = |name: &str, what: &str| read(name).metadata.warnings.iter().any(|w| w.contains(what));
     // Orientations that name no patient axis: x, y, z placed as L, P, S.
     assert!(warned("v05_dorsal", "dorsal-to-ventral"));
-    assert!(warned("v05_channel1", "no anatomical orientation"));
+    assert!(warned("v05_channel1", "no axis gives an anatomical orientation"));
     assert!(!warned("v04_i16", "orientation"), "v04_i16 is oriented");
     assert!(warned("v04_i16", "no unit: taken as mm"));
     assert!(!warned("v05_time_i16", "unit"), "v05_time_i16 gives millimeter");
@@ -475,4 +475,103 @@ proptest::proptest! {
         proptest::prop_assert!(written.metadata.warnings.is_empty(), "{:?}", written.metadata.warnings);
         assert_same_voxels_in_space(&volume, &written, "random");
     }
+}
+
+// --- Displacement fields (OME-Zarr 0.6, RFC-5) ---------------------------------------------------------------------
+
+fn field_reference() -> Value {
+    let path = data_dir().join("field_reference.json");
+    serde_json::from_str(&std::fs::read_to_string(&path).expect("field_reference.json")).expect("JSON")
+}
+
+#[test]
+fn fields_read_to_what_ngff_zarr_gives_itk() {
+    use warpbench_io::displacement::{FieldFormat, FieldSource, read_field_info};
+    let reference = field_reference();
+    let fields = reference["fields"].as_array().expect("fields");
+    assert_eq!(fields.len(), 4);
+    for f in fields {
+        let name = f["name"].as_str().expect("name");
+        let mm = f["mm_per_unit"].as_f64().expect("mm");
+        let read = read_field_info(&data_dir().join(format!("{name}.ome.zarr"))).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(read.source, FieldSource::Field(FieldFormat::Ngff), "{name}");
+        assert_eq!(read.direction, None, "{name}: a pull-back, as ITK takes it");
+        let field = &read.field;
+        let size = numbers(&f["size"]);
+        assert_eq!(field.dims.map(|d| d as f64).to_vec(), size, "{name}");
+        // ITK's grid (LPS), in the store's units: warpbench's in mm.
+        let (origin, spacing, direction) = (numbers(&f["origin"]), numbers(&f["spacing"]), matrix(&f["direction"]));
+        let m = field.lps_from_index.matrix();
+        for r in 0..3 {
+            assert!((m[(r, 3)] - origin[r] * mm).abs() < 1e-12, "{name}: origin");
+            for c in 0..3 {
+                assert!((m[(r, c)] - direction[r][c] * spacing[c] * mm).abs() < 1e-12, "{name}: ({r}, {c})");
+            }
+        }
+        let vectors: Vec<Vec<f64>> = f["vectors"].as_array().expect("vectors").iter().map(numbers).collect();
+        assert_eq!(vectors.len(), field.displacements_lps.len(), "{name}");
+        for (n, (got, want)) in field.displacements_lps.iter().zip(&vectors).enumerate() {
+            for a in 0..3 {
+                let want = (want[a] * mm) as f32;
+                assert!((got[a] - want).abs() <= 1e-6 * want.abs().max(1e-3), "{name}: voxel {n} {got:?}");
+            }
+        }
+        let assumed = read.warnings.join("; ");
+        if name == "field_plain" {
+            assert!(assumed.contains("taken as mm") && assumed.contains("left, posterior and superior"), "{assumed}");
+        } else {
+            assert_eq!(read.warnings, Vec::<String>::new(), "{name}");
+        }
+    }
+}
+
+#[test]
+fn fields_the_store_cannot_place_are_refused_and_a_field_is_no_volume() {
+    let reference = field_reference();
+    let bad = data_dir().join(format!("{}.ome.zarr", reference["refused"]["name"].as_str().expect("name")));
+    let e = warpbench_io::displacement::read_field_info(&bad).expect_err("RAS-oriented");
+    let text = e.to_string();
+    assert!(
+        text.contains("bad_field_ras") && text.contains("x left-to-right") && text.contains("two images"),
+        "{text}"
+    );
+    let e = LoadOptions::new().open(data_dir().join("field_plain.ome.zarr")).expect_err("a field");
+    assert!(e.to_string().contains("a displacement field") && e.to_string().contains("--field"), "{e}");
+    // An image is no field.
+    let e = warpbench_io::displacement::read_field_info(&data_dir().join("v04_i16.ome.zarr")).expect_err("image");
+    assert!(e.to_string().contains("declares no displacements"), "{e}");
+}
+
+#[test]
+fn written_fields_read_back_with_every_vector_where_it_was() {
+    use warpbench_io::displacement::{FieldFormat, read_field_info, write_field};
+    let dir = tempfile::tempdir().expect("tempdir");
+    for (n, (axes, signs)) in [([0, 1, 2], 0b011), ([2, 0, 1], 0b101), ([1, 2, 0], 0)].into_iter().enumerate() {
+        let volume = axis_aligned_volume([4, 3, 5], axes, signs, [1.5, 0.75, 2.0], [-40.0, 12.5, 3.0], (3, 7));
+        let count = 60;
+        let field: Vec<[f32; 3]> =
+            (0..count).map(|i| [i as f32 * 0.5 - 9.0, 3.0 - i as f32 * 0.25, (i % 7) as f32]).collect();
+        let out = dir.path().join(format!("f{n}.ome.zarr"));
+        write_field(&out, FieldFormat::Ngff, volume.dims, &volume.lps_from_index, &field).expect("write");
+        let read = read_field_info(&out).expect("read back");
+        assert!(read.warnings.is_empty(), "{:?}", read.warnings);
+        let back = &read.field;
+        let index_from_lps = back.lps_from_index.inverse().expect("invertible");
+        let [ni, nj, _] = volume.dims;
+        for (at, d) in field.iter().enumerate() {
+            let (i, j, k) = (at % ni, at / ni % nj, at / (ni * nj));
+            let p = index_from_lps.apply_point(volume.voxel_lps(i, j, k)).coords().map(f64::round);
+            let [x, y, z] = p.map(|v| v as usize);
+            let got = back.displacements_lps[x + back.dims[0] * (y + back.dims[1] * z)];
+            assert_eq!(got.map(f32::to_bits), d.map(f32::to_bits), "field {n}: voxel ({i}, {j}, {k})");
+        }
+    }
+    // An oblique grid cannot be written; nothing is left.
+    let oblique = LoadOptions::new().open(data_dir().join("../minc/oblique_i16.mnc")).expect("read");
+    let n = oblique.dims.iter().product::<usize>();
+    let out = dir.path().join("oblique.ome.zarr");
+    let e = write_field(&out, FieldFormat::Ngff, oblique.dims, &oblique.lps_from_index, &vec![[0.0; 3]; n])
+        .expect_err("oblique");
+    assert!(e.to_string().contains("oblique grid"), "{e}");
+    assert!(!out.exists());
 }

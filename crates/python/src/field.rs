@@ -20,7 +20,7 @@ use crate::volume::{lps_from_index, matrix};
 type Grid<'py> = (Vec<usize>, PyReadonlyArray2<'py, f64>);
 
 /// What [`read_field`] returns: the vectors, `lps_from_index`, the source and the direction.
-pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>);
+pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>, Vec<String>);
 
 /// Reads the displacement field at `path` as `warpbench warp --field` reads it: `(array, lps_from_index, source,
 /// direction)`, the array (ni, nj, nk, 3) float32 LPS vectors; `source` the flavour (`itk`, `ants`, `nrrd`,
@@ -55,7 +55,12 @@ pub fn read_field(
             Some((dims, fixed, moving)) if steps_in_voxels => {
                 let steps = l2r::read_voxel_field(&path).map_err(errors::io)?;
                 let field = l2r::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
-                Ok(ReadField { field, source: FieldSource::Learn2Reg, direction: Some(FieldDirection::Pullback) })
+                Ok(ReadField {
+                    field,
+                    source: FieldSource::Learn2Reg,
+                    direction: Some(FieldDirection::Pullback),
+                    warnings: Vec::new(),
+                })
             }
             None if steps_in_voxels => Err(PyValueError::new_err(format!(
                 "{}: a Learn2Reg field holds steps in the voxels of its fixed and moving images: read it with \
@@ -83,7 +88,7 @@ pub fn read_field(
     let source = read.source.name().to_owned();
     let direction = read.direction.map(|d| d.name().to_owned());
     let lps = matrix(py, &field.lps_from_index.rows());
-    Ok((PyArray::from_owned_array(py, array).into_any().unbind(), lps, source, direction))
+    Ok((PyArray::from_owned_array(py, array).into_any().unbind(), lps, source, direction, read.warnings))
 }
 
 /// A `Field`'s parts from Python, as `fit(initial_field=)` takes one: its (ni, nj, nk, 3) float32 LPS vectors, its

@@ -322,7 +322,8 @@ impl Warp {
 
     /// The displacement field on `reference` (`(dims, lps_from_index)`): u(x) − x (`direction="pullback"`) or
     /// d(y) − y (`"forward"`) at every voxel centre, as a (ni, nj, nk, 3) float32 array of LPS vectors, written to
-    /// `path` in `format` (`itk`, `ants`, `nrrd`, `metaimage`, `learn2reg`) when given, as `warpbench field` writes it.
+    /// `path` in `format` (`itk`, `ants`, `nrrd`, `metaimage`, `minc`, `ngff`, `learn2reg`) when given, as `warpbench
+    /// field` writes it.
     /// Learn2Reg's field (`learn2reg`, or a `path` ending `.npz`) is the pull-back's steps from `reference`'s voxels to
     /// those of `moving` (`(dims, lps_from_index)`), which it needs.
     #[pyo3(signature = (reference, direction = "pullback", path = None, format = "itk", moving = None))]
@@ -342,7 +343,9 @@ impl Warp {
                 .map(FieldDirection::from)
                 .map_err(|_| PyValueError::new_err(format!("direction={direction:?}: give pullback or forward")))?;
         let arg = <field::FormatArg as clap::ValueEnum>::from_str(format, true).map_err(|_| {
-            PyValueError::new_err(format!("format={format:?}: give itk, ants, nrrd, metaimage or learn2reg"))
+            PyValueError::new_err(format!(
+                "format={format:?}: give itk, ants, nrrd, metaimage, minc, ngff or learn2reg"
+            ))
         })?;
         let to = match &path {
             Some(path) if arg.is_learn2reg(path) => {
@@ -361,7 +364,7 @@ impl Warp {
                 }
                 Written::Learn2Reg(path, moving_lps)
             }
-            Some(path) => Written::Flavour(path, arg.flavour()),
+            Some(path) => Written::Flavour(path, arg.flavour_for(path)),
             None => Written::Nothing,
         };
         let field = guarded(py, || match direction {

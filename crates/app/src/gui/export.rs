@@ -407,7 +407,8 @@ pub fn field_format(out: &Path) -> Result<FieldFormat, String> {
     FieldFormat::from_extension(out).ok_or_else(|| {
         format!(
             "{}: a displacement field is exported as NIfTI (.nii, .nii.gz), NRRD (.nrrd), MetaImage (.mha, .mhd), \
-             ITK's HDF5 transform file (.h5), an MNI grid transform (.xfm) or Learn2Reg's .npz",
+             ITK's HDF5 transform file (.h5), an MNI grid transform (.xfm), OME-Zarr (a folder named .ome.zarr) or \
+             Learn2Reg's .npz",
             out.display()
         )
     })

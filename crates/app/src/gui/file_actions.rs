@@ -143,16 +143,19 @@ impl Ready {
     fn use_field(&mut self, path: std::path::PathBuf, read: FieldReadFormat) {
         let chosen = FieldFile::chosen(path, read, &self.loaded.fixed, &self.loaded.moving)
             .map_err(|e| format!("{e:#}"))
-            .and_then(|file| self.fit.read_field(&file).map(|()| file));
+            .and_then(|file| self.fit.read_field(&file).map(|warnings| (file, warnings)));
         match chosen {
-            Ok(file) => {
+            Ok((file, warnings)) => {
                 let grids = if file.voxel_grids.is_some() {
                     " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)"
                 } else {
                     ""
                 };
-                self.files.message =
-                    Some(format!("{} is the displacement field under the landmarks{grids}", file.path.display()));
+                let assumed: String = warnings.iter().flat_map(|w| ["; warning: ", w.as_str()]).collect();
+                self.files.message = Some(format!(
+                    "{} is the displacement field under the landmarks{grids}{assumed}",
+                    file.path.display()
+                ));
                 self.document.field = Some(file);
                 self.refit_soon();
             }

@@ -245,13 +245,14 @@ impl Fitter {
         Layers { start, field, brush }
     }
 
-    /// Reads the displacement field `file` for the next fits (what [`FieldFile::layer`] refuses, in its words).
+    /// Reads the displacement field `file` for the next fits (what [`FieldFile::layer`] refuses, in its words), and
+    /// returns what its reader assumed ([`FieldLayer::warnings`]).
     ///
     /// # Errors
     /// The file cannot be read as a displacement field.
-    pub fn read_field(&mut self, file: &FieldFile) -> Result<(), String> {
+    pub fn read_field(&mut self, file: &FieldFile) -> Result<Vec<String>, String> {
         self.field = None;
-        self.field_layer(file).map(|_| ())
+        self.field_layer(file).map(|layer| layer.warnings.clone())
     }
 
     /// The field of `file`, read the first time it is asked for.

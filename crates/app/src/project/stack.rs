@@ -51,6 +51,9 @@ pub struct FieldLayer {
     /// How messages name it: the file's path.
     pub origin: String,
     maps: FieldMaps,
+    /// What the reader assumed where the file is silent (an OME-Zarr field without units, say), each prefixed with
+    /// the file, for the user to see ([`crate::inputs::note_field_warnings`], the window's status).
+    pub warnings: Vec<String>,
 }
 
 #[derive(Clone, Debug)]
@@ -92,7 +95,7 @@ impl FieldLayer {
                          the window's Import landmarks)"
                     ));
                 }
-                return Ok(Self { origin, maps: FieldMaps::Chain(Arc::new(chain)) });
+                return Ok(Self { origin, maps: FieldMaps::Chain(Arc::new(chain)), warnings: Vec::new() });
             }
         };
         let bad = |e: SolverError| anyhow!("{origin}: {e}");
@@ -104,19 +107,20 @@ impl FieldLayer {
                 FieldMaps::Pullback(SampledField::from_displacement_field(read.field).map_err(bad)?)
             }
         };
-        Ok(Self { origin, maps })
+        let warnings = read.warnings.iter().map(|w| format!("{origin}: {w}")).collect();
+        Ok(Self { origin, maps, warnings })
     }
 
     /// The layer of a pull-back field F (F(x) = x + D(x), fixed → moving).
     #[must_use]
     pub fn pullback(field: SampledField<Moving, Fixed>, origin: &str) -> Self {
-        Self { origin: origin.to_owned(), maps: FieldMaps::Pullback(field) }
+        Self { origin: origin.to_owned(), maps: FieldMaps::Pullback(field), warnings: Vec::new() }
     }
 
     /// The layer of a forward field F⁻¹ (moving → fixed).
     #[must_use]
     pub fn forward(field: SampledField<Fixed, Moving>, origin: &str) -> Self {
-        Self { origin: origin.to_owned(), maps: FieldMaps::Forward(field) }
+        Self { origin: origin.to_owned(), maps: FieldMaps::Forward(field), warnings: Vec::new() }
     }
 
     /// F as the members of an ITK composite transform, in ITK's order (the last is applied first): the field on its

@@ -21,13 +21,15 @@ pub enum FieldFormat {
     /// An MNI transform file (`.xfm`) of one `Grid_Transform`, its vectors in a MINC 2 file beside it: minc-toolkit
     /// (`mincresample -transformation`) and ITK's MINC transform reader.
     Minc,
+    /// An OME-Zarr 0.6 field store (a folder named `.ome.zarr`): RFC-5's `displacements`, as ngff-zarr writes it.
+    Ngff,
 }
 
 impl FieldFormat {
     /// Every flavour, in the order the CLI lists them.
-    pub const ALL: [Self; 5] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage, Self::Minc];
+    pub const ALL: [Self; 6] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage, Self::Minc, Self::Ngff];
 
-    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`, `minc`.
+    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`, `minc`, `ngff`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -36,12 +38,13 @@ impl FieldFormat {
             Self::Nrrd => "nrrd",
             Self::MetaImage => "metaimage",
             Self::Minc => "minc",
+            Self::Ngff => "ngff",
         }
     }
 
     /// The container the name of `path` implies: `Some(Nrrd)` for `.nrrd` / `.nhdr`, `Some(MetaImage)` for `.mha` /
     /// `.mhd`, `Some(Itk)` for `.nii` / `.nii.gz` (NIfTI, which is `itk` or `ants`: see [`Self::container_matches`]),
-    /// `None` for any other name.
+    /// `Some(Minc)` for `.xfm`, `Some(Ngff)` for `.zarr` (`.ome.zarr`), `None` for any other name.
     #[must_use]
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn from_extension(path: &Path) -> Option<Self> {
@@ -54,6 +57,8 @@ impl FieldFormat {
             Some(Self::Itk)
         } else if name.ends_with(".xfm") {
             Some(Self::Minc)
+        } else if name.ends_with(".zarr") {
+            Some(Self::Ngff)
         } else {
             None
         }
@@ -67,6 +72,7 @@ impl FieldFormat {
         match Self::from_extension(path) {
             None => matches!(self, Self::Itk | Self::Ants | Self::Nrrd),
             Some(Self::Minc) => self == Self::Minc,
+            Some(Self::Ngff) => self == Self::Ngff,
             Some(Self::Itk | Self::Ants) => matches!(self, Self::Itk | Self::Ants),
             Some(container) => self == container,
         }
@@ -79,6 +85,7 @@ impl FieldFormat {
             Self::Nrrd => "a .nrrd name",
             Self::MetaImage => "a .mha name (or .mhd, with a .raw data file beside it)",
             Self::Minc => "a .xfm name (its grid is written beside it, NAME_grid_0.mnc)",
+            Self::Ngff => "a folder named .ome.zarr",
         }
     }
 }
@@ -161,6 +168,9 @@ pub struct ReadField {
     /// pull-back, modeling the forward map); `None` when the file says nothing (NIfTI never does; readers then take
     /// it as a pull-back, ITK's convention).
     pub direction: Option<FieldDirection>,
+    /// What the reader assumed where the file is silent (an OME-Zarr field's axes without a unit, say), for the user
+    /// to see.
+    pub warnings: Vec<String>,
 }
 
 /// The first bytes of the regular file `path` (up to 132: a DICOM file's preamble and `DICM`), to tell its kind by.
@@ -181,11 +191,21 @@ pub(crate) fn read_flavoured(path: &Path, head: &[u8]) -> Result<Option<ReadFiel
             NrrdFieldType::Resampling => FieldDirection::Pullback,
             NrrdFieldType::Modeling => FieldDirection::Forward,
         });
-        return Ok(Some(ReadField { field, source: FieldSource::Field(FieldFormat::Nrrd), direction }));
+        return Ok(Some(ReadField {
+            field,
+            source: FieldSource::Field(FieldFormat::Nrrd),
+            direction,
+            warnings: Vec::new(),
+        }));
     }
     if crate::metaimage::looks_like_metaimage(head) {
         let field = crate::metaimage::read_displacement_field(path)?;
-        return Ok(Some(ReadField { field, source: FieldSource::Field(FieldFormat::MetaImage), direction: None }));
+        return Ok(Some(ReadField {
+            field,
+            source: FieldSource::Field(FieldFormat::MetaImage),
+            direction: None,
+            warnings: Vec::new(),
+        }));
     }
     if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
         let (field, intent) = nifti::read_vector_field(path)?;
@@ -193,7 +213,12 @@ pub(crate) fn read_flavoured(path: &Path, head: &[u8]) -> Result<Option<ReadFiel
             NiftiVectorIntent::DispvectRas => FieldFormat::Itk,
             NiftiVectorIntent::VectorLps => FieldFormat::Ants,
         };
-        return Ok(Some(ReadField { field, source: FieldSource::Field(format), direction: None }));
+        return Ok(Some(ReadField {
+            field,
+            source: FieldSource::Field(format),
+            direction: None,
+            warnings: Vec::new(),
+        }));
     }
     Ok(None)
 }

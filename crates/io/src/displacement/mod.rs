@@ -11,12 +11,14 @@
 //! | [`FieldFormat::Ants`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | `intent_code` 1007 `VECTOR` | LPS | ANTs (`antsApplyTransforms`, `*Warp.nii.gz`), every ITK |
 //! | [`FieldFormat::Nrrd`] | NRRD0004 `.nrrd`, float, sizes `3 X Y Z` | `kinds: vector domain domain domain` | LPS (`space: left-posterior-superior`) | 3D Slicer, ITK's `NrrdImageIO` |
 //! | [`FieldFormat::MetaImage`] | MetaImage `.mha`, or `.mhd` + `.raw`, `MET_FLOAT` | `ElementNumberOfChannels = 3` | LPS | elastix and transformix (`deformationField.mhd`), every ITK |
+//! | [`FieldFormat::Ngff`] | OME-Zarr 0.6 folder `.ome.zarr`, float32 (c, z, y, x) | RFC-5 `displacements` | along the axes, written L, P, S | ngff-zarr (`ngff_displacement_field_to_itk_transform`) |
 //!
 //! The component planes of the NIfTI flavours follow one another (all x, then all y, then all z); NRRD and
 //! MetaImage interleave them. See [`crate::nifti`] ("Displacement fields"), [`crate::nrrd::field`] and
 //! [`crate::metaimage::read_displacement_field`] for the exact layouts and the ITK behaviour they rest on.
 //!
-//! [`read_field`] detects the flavour from the bytes, not the name: a NRRD magic is [`FieldFormat::Nrrd`]; a
+//! [`read_field`] detects the flavour from the bytes, not the name: a folder holding a Zarr store is
+//! [`FieldFormat::Ngff`] ([`crate::ngff::read_field`]); a NRRD magic is [`FieldFormat::Nrrd`]; a
 //! MetaImage header (`ObjectType = …`) is [`FieldFormat::MetaImage`]; a NIfTI header (plain or gzip) with intent 1006
 //! is [`FieldFormat::Itk`], with 1007 [`FieldFormat::Ants`]. An elastix transform parameter file (its first line
 //! opens with `(`) is read as the field transformix writes for it ([`crate::elastix::read_field`]): its whole chain
@@ -56,6 +58,10 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
 /// # Errors
 /// The file cannot be opened.
 pub fn is_itk_transform_file(path: &Path) -> Result<bool> {
+    if path.is_dir() {
+        // A folder (an OME-Zarr field store) gives its own grid.
+        return Ok(false);
+    }
     let head = flavour::head(path)?;
     Ok(crate::itk_h5::looks_like_hdf5(&head) || crate::itk_tfm::looks_like_text(&head))
 }
@@ -67,6 +73,9 @@ pub fn is_itk_transform_file(path: &Path) -> Result<bool> {
 /// As [`read_field_info`].
 pub fn read_field_or_chain(path: &Path) -> Result<crate::itk_chain::FieldOrChain> {
     use crate::itk_chain::FieldOrChain;
+    if path.is_dir() {
+        return read_field_info(path).map(FieldOrChain::Field);
+    }
     let head = flavour::head(path)?;
     if crate::itk_h5::looks_like_hdf5(&head) {
         return crate::itk_h5::read_field_or_chain(path);
@@ -83,6 +92,10 @@ pub fn read_field_or_chain(path: &Path) -> Result<crate::itk_chain::FieldOrChain
 /// # Errors
 /// As [`read_field_info`]; such a file without `grid`.
 pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField> {
+    if path.is_dir() && crate::ngff::looks_like_zarr(path) {
+        let (field, warnings) = crate::ngff::read_field(path)?;
+        return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Ngff), direction: None, warnings });
+    }
     let head = flavour::head(path)?;
     if let Some(read) = flavour::read_flavoured(path, &head)? {
         return Ok(read);
@@ -92,7 +105,7 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
     }
     if crate::elastix::looks_like_parameter_file(&head) {
         let field = crate::elastix::read_field(path)?;
-        return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None });
+        return Ok(ReadField { field, source: FieldSource::ElastixTransform, direction: None, warnings: Vec::new() });
     }
     if crate::itk_h5::looks_like_hdf5(&head) {
         return crate::itk_h5::read_field_on(path, grid);
@@ -114,6 +127,7 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
             field,
             source: FieldSource::DicomRegistration,
             direction: Some(FieldDirection::Pullback),
+            warnings: Vec::new(),
         });
     }
     for (looks, what) in [
@@ -181,6 +195,7 @@ pub fn write_field_with(
             crate::metaimage::write_displacement_field(path, dims, lps_from_index, displacements_lps)
         }
         FieldFormat::Minc => crate::mni_xfm::write_grid(path, direction, dims, lps_from_index, displacements_lps),
+        FieldFormat::Ngff => crate::ngff::write_field(path, dims, lps_from_index, displacements_lps),
     }
 }
 
@@ -366,6 +381,7 @@ mod tests {
                 FieldFormat::MetaImage => "mha",
                 FieldFormat::Itk | FieldFormat::Ants => "nii",
                 FieldFormat::Minc => "xfm",
+                FieldFormat::Ngff => "ome.zarr",
             };
             let p = dir.path().join(format!("nan_{format}.{extension}"));
             let e = write_field(&p, format, dims, &lps_from_index, &nan_field).expect_err("not finite");
@@ -381,6 +397,8 @@ mod tests {
             (FieldFormat::Ants, "x.mha"),
             (FieldFormat::Minc, "x.nii"),
             (FieldFormat::Itk, "x.xfm"),
+            (FieldFormat::Ngff, "x.nii"),
+            (FieldFormat::Itk, "x.ome.zarr"),
         ] {
             let p = dir.path().join(name);
             assert!(write_field(&p, format, dims, &lps_from_index, &field).is_err(), "{format} to {name}");

@@ -68,6 +68,13 @@ pub(super) struct ArrayMeta {
     pub chunk_shapes: Vec<Vec<u64>>,
 }
 
+/// Whether the folder `dir` is a Zarr store (a v2 group's `.zattrs` or `.zgroup`, or a v3 `zarr.json`), which
+/// [`super::read()`] tells an OME-Zarr image from any other.
+#[must_use]
+pub fn looks_like_zarr(dir: &Path) -> bool {
+    ["zarr.json", ".zattrs", ".zgroup"].iter().any(|f| dir.join(f).is_file())
+}
+
 /// Where the image's metadata is: a Zarr v2 group's `.zattrs` or a v3 group's `zarr.json`, read from `root`;
 /// `group` is the group's path inside the store ("" for the root).
 pub(super) fn read_image(root: &Path, group: &str) -> Result<Image> {
@@ -121,6 +128,61 @@ pub(super) fn read_image(root: &Path, group: &str) -> Result<Image> {
     let (axes, map) =
         if version == "0.6" { transforms_06(root, ms, dataset)? } else { transforms_04(root, ms, dataset)? };
     Ok(Image { version, array_path, axes, scale: map.scale, translation: map.translation, levels: datasets.len() })
+}
+
+/// A 0.6 multiscale's field transformation (RFC-5's `displacements` or `coordinates`): where its field is, and the
+/// axes its components follow.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(super) struct FieldEntry {
+    /// `displacements` or `coordinates`.
+    pub kind: String,
+    /// Where the field is in the store: the multiscale's first dataset (a standalone field), or a group that is a
+    /// multiscale of its own.
+    pub group: String,
+    /// The names of the output coordinate system's space axes, in order (the i-th component is along the i-th
+    /// axis); empty where the system is not declared.
+    pub component_axes: Vec<String>,
+}
+
+/// The field transformation of the root group's first multiscale, if it is a 0.6 one and has one.
+pub(super) fn field_entry(root: &Path) -> Result<Option<FieldEntry>> {
+    let (attrs, v3) = group_attributes(root, "")?;
+    let Some(Value::Object(ome)) = attrs.get("ome").filter(|_| v3) else { return Ok(None) };
+    let Some(ms) = ome.get("multiscales").and_then(Value::as_array).and_then(|m| m.first()) else { return Ok(None) };
+    let Some(list) = ms.get("coordinateTransformations").and_then(Value::as_array) else { return Ok(None) };
+    let Some(t) =
+        list.iter().find(|t| matches!(t.get("type").and_then(Value::as_str), Some("displacements" | "coordinates")))
+    else {
+        return Ok(None);
+    };
+    let kind = t.get("type").and_then(Value::as_str).unwrap_or_default().to_owned();
+    let Some(path) = t.get("path").and_then(Value::as_str) else {
+        return Err(Error::invalid(root, format!("the {kind} transformation has no \"path\" to its field")));
+    };
+    let datasets: Vec<&str> = ms
+        .get("datasets")
+        .and_then(Value::as_array)
+        .map(|d| d.iter().filter_map(|d| d.get("path").and_then(Value::as_str)).collect())
+        .unwrap_or_default();
+    let group = match datasets.iter().position(|&d| d == path) {
+        Some(0) => String::new(),
+        Some(level) => {
+            return Err(Error::unsupported(
+                root,
+                format!("the {kind} transformation's field is resolution level {level}, not the full one"),
+            ));
+        }
+        None => path.trim_matches('/').to_owned(),
+    };
+    let output = t.get("output").and_then(|o| o.get("name")).and_then(Value::as_str);
+    let component_axes = ms
+        .get("coordinateSystems")
+        .and_then(Value::as_array)
+        .and_then(|systems| systems.iter().find(|s| s.get("name").and_then(Value::as_str) == output))
+        .and_then(|s| parse_axes(root, s.get("axes")).ok())
+        .map(|axes| axes.into_iter().filter(|a| a.kind == AxisKind::Space).map(|a| a.name).collect())
+        .unwrap_or_default();
+    Ok(Some(FieldEntry { kind, group, component_axes }))
 }
 
 /// The attributes of the group at `group`, and whether it is a Zarr v3 group.

@@ -36,10 +36,10 @@ use crate::volume::{Volume, VoxelData};
 pub const MAX_OBLIQUE_SINE: f64 = 1e-6;
 
 /// The chunk edge, in voxels.
-const CHUNK: u64 = 64;
+pub(super) const CHUNK: u64 = 64;
 
 /// zstd's level: its default, which zarr-python and ngff-zarr use.
-const ZSTD_LEVEL: i32 = 3;
+pub(super) const ZSTD_LEVEL: i32 = 3;
 
 /// The RFC-4 orientation of x, y, z as warpbench writes them: +L, +P, +S.
 const ORIENTATIONS: [&str; 3] = ["right-to-left", "anterior-to-posterior", "inferior-to-superior"];
@@ -47,14 +47,14 @@ const ORIENTATIONS: [&str; 3] = ["right-to-left", "anterior-to-posterior", "infe
 /// How the volume's axes become the written ones: the written axis along L, P and S (x, y, z) is the volume's
 /// axis `source[m]`, reversed where `reversed[m]`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct Reorder {
+pub(super) struct Reorder {
     source: [usize; 3],
     reversed: [bool; 3],
 }
 
 impl Reorder {
     /// The reorder of the grid `lps_from_index`, or an error saying how oblique it is.
-    fn of(path: &Path, lps_from_index: &Transform<Lps, Index>) -> Result<Self> {
+    pub(super) fn of(path: &Path, lps_from_index: &Transform<Lps, Index>) -> Result<Self> {
         let m = lps_from_index.matrix();
         let mut source = [usize::MAX; 3];
         let mut reversed = [false; 3];
@@ -86,12 +86,17 @@ impl Reorder {
     }
 
     /// The written grid's voxels along x, y, z.
-    fn dims(self, dims: [usize; 3]) -> [usize; 3] {
+    pub(super) fn dims(self, dims: [usize; 3]) -> [usize; 3] {
         self.source.map(|a| dims[a])
     }
 
+    /// The spacing along x, y, z of a grid whose spacing along i, j, k is `spacing`.
+    pub(super) fn source_spacing(self, spacing: [f64; 3]) -> [f64; 3] {
+        self.source.map(|a| spacing[a])
+    }
+
     /// The volume's index of the written voxel 0.
-    fn first_voxel(self, dims: [usize; 3]) -> [usize; 3] {
+    pub(super) fn first_voxel(self, dims: [usize; 3]) -> [usize; 3] {
         let mut index = [0; 3];
         for m in 0..3 {
             if self.reversed[m] {
@@ -102,7 +107,7 @@ impl Reorder {
     }
 
     /// `samples` (the volume's, i fastest) in the written order, x fastest.
-    fn apply<T: Copy + Send + Sync + Default>(self, dims: [usize; 3], samples: &[T]) -> Vec<T> {
+    pub(super) fn apply<T: Copy + Send + Sync + Default>(self, dims: [usize; 3], samples: &[T]) -> Vec<T> {
         let strides = [1, dims[0], dims[0] * dims[1]];
         let first = self.first_voxel(dims);
         let start: isize = (0..3).map(|a| (first[a] * strides[a]) as isize).sum();
@@ -163,12 +168,12 @@ pub fn write(path: &Path, volume: &Volume) -> Result<()> {
 }
 
 /// Whether `path` exists as a Zarr store to replace; `Ok(false)` for a new path or an empty folder.
-fn check_destination(path: &Path) -> Result<bool> {
+pub(super) fn check_destination(path: &Path) -> Result<bool> {
     let Ok(meta) = std::fs::symlink_metadata(path) else { return Ok(false) };
     if !meta.is_dir() {
         return Err(Error::invalid(path, "exists and is not a folder: an OME-Zarr image is a folder"));
     }
-    if super::looks_like_zarr(path) {
+    if super::meta::looks_like_zarr(path) {
         return Ok(true);
     }
     if std::fs::read_dir(path).map_err(|e| Error::io(path, e))?.next().is_some() {
@@ -211,24 +216,11 @@ fn store_array<T: Element + Copy + Send + Sync + Default + Into<ArrayBuilderFill
 
 /// The root group's `zarr.json`: the OME-Zarr 0.5 multiscale of the one level.
 fn group_attributes(path: &Path, volume: &Volume, reorder: Reorder) -> serde_json::Value {
-    let spacing = volume.spacing_mm();
-    let [x, y, z] = reorder.source.map(|a| spacing[a]);
+    let [x, y, z] = reorder.source_spacing(volume.spacing_mm());
     let first = reorder.first_voxel(volume.dims);
     let [l, p, s] = volume.voxel_lps(first[0], first[1], first[2]).coords();
-    let axes: Vec<serde_json::Value> = [2, 1, 0]
-        .iter()
-        .map(|&m| {
-            let axis = ["x", "y", "z"][m];
-            json!({
-                "name": axis,
-                "type": "space",
-                "unit": "millimeter",
-                "orientation": { "type": "anatomical", "value": ORIENTATIONS[m] },
-            })
-        })
-        .collect();
-    let name = path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
-    let name = name.strip_suffix(".zarr").and_then(|n| n.strip_suffix(".ome").or(Some(n))).unwrap_or(&name);
+    let axes: Vec<serde_json::Value> = [2, 1, 0].into_iter().map(space_axis).collect();
+    let name = image_name(path);
     json!({
         "zarr_format": 3,
         "node_type": "group",
@@ -251,9 +243,28 @@ fn group_attributes(path: &Path, volume: &Volume, reorder: Reorder) -> serde_jso
     })
 }
 
+/// The space axis along patient axis `m` (0 L, 1 P, 2 S) as written: `x`, `y` or `z`, in millimetres, with its
+/// RFC-4 orientation.
+pub(super) fn space_axis(m: usize) -> serde_json::Value {
+    let name = ["x", "y", "z"][m];
+    json!({
+        "name": name,
+        "type": "space",
+        "unit": "millimeter",
+        "orientation": { "type": "anatomical", "value": ORIENTATIONS[m] },
+    })
+}
+
+/// The multiscale's `name`: the folder's name without `.zarr` and `.ome`.
+pub(super) fn image_name(path: &Path) -> String {
+    let name = path.file_name().map_or_else(String::new, |n| n.to_string_lossy().into_owned());
+    let stem = name.strip_suffix(".zarr").map(|n| n.strip_suffix(".ome").unwrap_or(n));
+    stem.unwrap_or(&name).to_owned()
+}
+
 /// Flushes every file and folder under `dir` to disk, so that the rename that publishes them comes after their
 /// data.
-fn sync_tree(dir: &Path) -> std::io::Result<()> {
+pub(super) fn sync_tree(dir: &Path) -> std::io::Result<()> {
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
         let kind = entry.file_type()?;

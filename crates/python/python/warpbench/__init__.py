@@ -202,12 +202,15 @@ class Field:
     volume's world to the fixed one's, or ``"pullback"`` with ``Invert_Flag``); ``direction`` is ``"pullback"`` or
     ``"forward"`` where the file says (NRRD; ``"pullback"`` for an ``.h5``, a ``.tfm`` or a DICOM registration,
     ``"forward"`` for an ``.h5`` holding only 3D Slicer's ``InverseDisplacementFieldTransform``), else ``None``, and
-    then it is a pull-back, as ITK takes it."""
+    then it is a pull-back, as ITK takes it. ``"ngff"`` is an OME-Zarr 0.6 field folder (RFC-5's ``displacements``);
+    ``warnings`` says what its reader assumed where the file is silent (axes without a unit taken as mm, axes
+    without an orientation as L, P, S)."""
 
     array: np.ndarray
     lps_from_index: np.ndarray
     source: str
     direction: Optional[str]
+    warnings: Tuple[str, ...] = ()
 
     @property
     def shape(self) -> Tuple[int, int, int]:
@@ -234,8 +237,8 @@ def read_field(
     if (fixed is None) != (moving is None):
         raise ValueError(f"{os.fspath(path)}: give both fixed and moving, or neither")
     pair = None if fixed is None or moving is None else (fixed._grid(), moving._grid())
-    array, lps, source, direction = _warpbench.read_field(os.fspath(path), pair, learn2reg)
-    return Field(array, lps, source, direction)
+    array, lps, source, direction, warnings = _warpbench.read_field(os.fspath(path), pair, learn2reg)
+    return Field(array, lps, source, direction, tuple(warnings))
 
 
 @dataclass
@@ -353,7 +356,9 @@ class Warp:
         """The displacement field on ``reference``'s grid (default: the fixed volume for ``"pullback"``, the moving
         one for ``"forward"``): u(x) − x or d(y) − y, shape (ni, nj, nk, 3), float32 LPS vectors. With ``path``
         it is also written in ``format`` (``"itk"``: NIfTI DISPVECT, ``"ants"``, ``"nrrd"``, ``"metaimage"``: .mha or
-        .mhd, as elastix writes fields), as ``warpbench field`` writes it; a ``path`` ending ``.h5`` (with ``"itk"``)
+        .mhd, as elastix writes fields, ``"minc"``: an MNI grid transform ``.xfm``, ``"ngff"``: an OME-Zarr 0.6 field
+        folder, which a ``path`` ending ``.ome.zarr`` picks too), as ``warpbench field`` writes it; a ``path`` ending
+        ``.h5`` (with ``"itk"``)
         is ITK's HDF5 transform file holding the field as a DisplacementFieldTransform. ``"learn2reg"`` (or a ``path``
         ending ``.npz``) writes Learn2Reg's field, the pull-back's steps from the reference's voxels to the moving
         volume's (``.npz`` float16, or ``.nii.gz`` float32), which needs the warp fitted with ``moving=``."""
