@@ -1,6 +1,6 @@
-//! Any OME-Zarr folder given to the reader (its metadata parsed here, its chunks decoded by `zarrs`) gives `Ok` or
-//! `Err`, never a panic, a hang or an unchecked allocation, and a volume it reads has one sample per voxel and an
-//! invertible grid. The input is a folder packed as entries `PATH\0BYTES` separated by `\n##\n` (`seed.sh` packs the
+//! Any OME-Zarr folder given to the readers, of volumes and of displacement fields (its metadata parsed here, its
+//! chunks decoded by `zarrs`), gives `Ok` or `Err`, never a panic, a hang or an unchecked allocation; a volume read has
+//! one sample per voxel and a field one finite vector per voxel, each on an invertible grid. The input is a folder packed as entries `PATH\0BYTES` separated by `\n##\n` (`seed.sh` packs the
 //! fixtures so); paths are kept inside the folder.
 #![no_main]
 
@@ -43,7 +43,14 @@ fuzz_target!(|data: &[u8]| {
     }
     // A small memory cap keeps the fuzzer from allocating what hostile metadata claims; frame 0 reads a 4-D image.
     let mut opts = LoadOptions::new().max_voxel_bytes(64 << 20).frame(0);
-    let Ok(volume) = ngff::read(Path::new(&root), &mut opts) else { return };
-    assert_eq!(volume.data.len(), volume.dims.iter().product::<usize>());
-    assert!(volume.lps_from_index.inverse().is_some(), "{:?}", volume.lps_from_index);
+    if let Ok(volume) = ngff::read(Path::new(&root), &mut opts) {
+        assert_eq!(volume.data.len(), volume.dims.iter().product::<usize>());
+        assert!(volume.lps_from_index.inverse().is_some(), "{:?}", volume.lps_from_index);
+    }
+    // The same folder as a displacement field (OME-Zarr 0.6): one finite vector per voxel on an invertible grid.
+    if let Ok((field, _)) = ngff::read_field_capped(Path::new(&root), 64 << 20) {
+        assert_eq!(field.displacements_lps.len(), field.dims.iter().product::<usize>());
+        assert!(field.lps_from_index.inverse().is_some(), "{:?}", field.lps_from_index);
+        assert!(field.displacements_lps.iter().flatten().all(|v| v.is_finite()));
+    }
 });

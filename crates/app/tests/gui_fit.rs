@@ -1096,6 +1096,16 @@ fn a_displacement_field_sits_under_the_landmarks_saves_and_undoes() {
             assert_eq!(ready.document.field_path().and_then(|p| p.file_name()), Some("disp.npz".as_ref()));
         }
     }
+
+    // An OME-Zarr 0.6 field folder that gives no unit or orientation goes under the landmarks, and the status bar says
+    // what its reader assumed.
+    let zarr = common::data("ngff/field_plain.ome.zarr");
+    apply(&mut harness, Command::File(FileAction::UseField(zarr.clone())));
+    let ready = harness.state().ready().expect("ready");
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("field_plain.ome.zarr is the displacement field"), "{message}");
+    assert!(message.contains("warning:") && message.contains("taken as mm"), "{message}");
+    assert_eq!(ready.document.field_path(), Some(zarr.as_path()));
 }
 
 /// Warp overlays (issue 30, item 5): chosen by label, each slice draws det ∇u or |u(x) − x| over its image, and the

@@ -179,7 +179,7 @@ pub fn field_ui(ui: &mut egui::Ui, fields: &mut FileFields, field: Option<&std::
         label: "Displacement field file",
         hint: "field.nii.gz (ITK, ANTs), Composite.h5 (ANTs), field.nrrd or bspline.h5 (Slicer), bspline.tfm \
                (SimpleITK), deformationField.mhd or TransformParameters.1.txt (elastix), disp_0001_0002.npz \
-               (Learn2Reg)",
+               (Learn2Reg), field.ome.zarr (an OME-Zarr folder)",
         use_button: "Use field under landmarks",
         remove_button: "Remove field",
         current: "Field under the landmarks",

@@ -41,12 +41,6 @@ use crate::nifti::DisplacementField;
 use crate::sample::with_stored_type;
 use crate::volume::{DEFAULT_MAX_VOXEL_BYTES, GeometrySource, check_allocation};
 
-/// Whether the folder `path` is an OME-Zarr store whose multiscale declares a field transformation (module docs).
-#[must_use]
-pub fn is_field(path: &Path) -> bool {
-    path.is_dir() && meta::looks_like_zarr(path) && matches!(meta::field_entry(path), Ok(Some(_)))
-}
-
 /// Reads the displacement field of the OME-Zarr store `path` (module docs), with a warning for each assumption (an
 /// axis without a unit taken as mm, axes without orientation taken as L, P, S).
 ///
@@ -54,6 +48,14 @@ pub fn is_field(path: &Path) -> bool {
 /// A store without a `displacements` transformation, axes other than one component axis of three and `x`, `y`, `z`,
 /// an unknown unit, a corrupt chunk, a vector that is not finite, a field over the memory cap; each names `path`.
 pub fn read_field(path: &Path) -> Result<(DisplacementField, Vec<String>)> {
+    read_field_capped(path, DEFAULT_MAX_VOXEL_BYTES)
+}
+
+/// [`read_field`], refusing a field of more than `max_voxel_bytes` of samples (before anything is decoded).
+///
+/// # Errors
+/// As [`read_field`].
+pub fn read_field_capped(path: &Path, max_voxel_bytes: u64) -> Result<(DisplacementField, Vec<String>)> {
     crate::files::check_file_or_folder(path)?;
     let Some(entry) = meta::field_entry(path)? else {
         return Err(Error::unsupported(
@@ -74,8 +76,8 @@ pub fn read_field(path: &Path) -> Result<(DisplacementField, Vec<String>)> {
     check_orientation(path, &image, &layout)?;
     let mut warnings = Vec::new();
     let grid = lps_from_index(path, &image, &layout, &mut warnings)?;
-    let n = check_allocation(path, layout.dims, 3 * array.stored.bytes(), DEFAULT_MAX_VOXEL_BYTES)?;
-    check_chunks(path, &array, DEFAULT_MAX_VOXEL_BYTES)?;
+    let n = check_allocation(path, layout.dims, 3 * array.stored.bytes(), max_voxel_bytes)?;
+    check_chunks(path, &array, max_voxel_bytes)?;
     let values = with_stored_type!(array.stored, T => samples::<T>(path, &image, &layout, 3 * n)?).to_f32();
 
     // The LPS mm of one unit along each component: component q is along the output axis of its name, which is the

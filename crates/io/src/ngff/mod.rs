@@ -36,7 +36,7 @@ mod image;
 mod meta;
 mod write;
 
-pub use field::{is_field, read_field, write_field};
+pub use field::{read_field, read_field_capped, write_field};
 pub use image::read;
 pub use meta::looks_like_zarr;
 pub use write::{MAX_OBLIQUE_SINE, check_grid, write};
