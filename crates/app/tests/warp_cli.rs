@@ -230,7 +230,7 @@ fn writes_a_dicom_series_and_refuses_bad_requests() {
     );
     expect_bad(
         &["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", s(&dir.path().join("x.png"))],
-        "--out must end in .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz or .mnc",
+        "--out must end in .nii, .nii.gz, .nrrd, .mha, .mhd, .mgh, .mgz, .mnc or .ome.zarr",
     );
     expect_bad(&["warp", "--fixed", m, "--moving", m, "--landmarks", l, "-q", "--out", s(&out)], "exists; use --force");
     expect_bad(

@@ -79,4 +79,4 @@ def test_warp_writes_a_warped_volume_freesurfer_reads(tmp_path: Path) -> None:
     assert theirs.shape == nib.load(fixed).shape and theirs.get_data_dtype().newbyteorder("=") == np.int16
     done = run_cli("warp", "--fixed", fixed, "--moving", moving, "--initial", identity, "--landmarks", none, "--out",
                    tmp_path / "warped.mgzz", expect=2)
-    assert "warped.mgzz" in done.stderr and ".mgz or .mnc" in done.stderr
+    assert "warped.mgzz" in done.stderr and ".mgz, .mnc or .ome.zarr" in done.stderr

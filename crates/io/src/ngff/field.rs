@@ -32,7 +32,7 @@ use zarrs::filesystem::FilesystemStore;
 
 use super::image::{Layout, check_chunks, lps_from_index, samples};
 use super::meta::{self, AxisKind};
-use super::write::{CHUNK, Reorder, ZSTD_LEVEL, check_destination, image_name, space_axis, sync_tree};
+use super::write::{CHUNK, Reorder, ZSTD_LEVEL, check_destination, image_name, publish, space_axis};
 use crate::atomic::StagingDir;
 use crate::displacement::check::{check_field_to_write, first_non_finite};
 use crate::error::{Error, Result};
@@ -290,10 +290,5 @@ pub fn write_field(
             }],
         }] } },
     });
-    crate::write_atomic(&staging.path().join("zarr.json"), |w| {
-        serde_json::to_writer_pretty(&mut *w, &root).map_err(std::io::Error::other)?;
-        w.write_all(b"\n")
-    })?;
-    sync_tree(staging.path()).map_err(|e| Error::io(path, e))?;
-    if replacing { staging.persist_replacing(path) } else { staging.persist(path) }
+    publish(path, staging, &root, replacing)
 }

@@ -158,9 +158,14 @@ pub fn write(path: &Path, volume: &Volume) -> Result<()> {
         VoxelData::U16(s) => store_array(path, staging.path(), volume.dims, reorder, s, data_type::uint16())?,
         VoxelData::F32(s) => store_array(path, staging.path(), volume.dims, reorder, s, data_type::float32())?,
     }
-    let attributes = group_attributes(path, volume, reorder);
+    publish(path, staging, &group_attributes(path, volume, reorder), replacing)
+}
+
+/// Writes the root group's `zarr.json` (`root`) into `staging`, flushes everything under it, and renames it onto
+/// `path` (replacing the store there when `replacing`).
+pub(super) fn publish(path: &Path, staging: StagingDir, root: &serde_json::Value, replacing: bool) -> Result<()> {
     crate::write_atomic(&staging.path().join("zarr.json"), |w| {
-        serde_json::to_writer_pretty(&mut *w, &attributes).map_err(std::io::Error::other)?;
+        serde_json::to_writer_pretty(&mut *w, root).map_err(std::io::Error::other)?;
         w.write_all(b"\n")
     })?;
     sync_tree(staging.path()).map_err(|e| Error::io(path, e))?;
@@ -264,7 +269,7 @@ pub(super) fn image_name(path: &Path) -> String {
 
 /// Flushes every file and folder under `dir` to disk, so that the rename that publishes them comes after their
 /// data.
-pub(super) fn sync_tree(dir: &Path) -> std::io::Result<()> {
+fn sync_tree(dir: &Path) -> std::io::Result<()> {
     for entry in std::fs::read_dir(dir)? {
         let entry = entry?;
         let kind = entry.file_type()?;
