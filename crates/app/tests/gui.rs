@@ -291,6 +291,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
         "Export DICOM registration...",
         "Use starting transform...",
         "Use displacement field...",
+        "Use displacement field folder (OME-Zarr)...",
         "Use fixed mask...",
         "Use moving mask...",
     ] {

@@ -85,7 +85,7 @@ pub fn chosen(purpose: Purpose, path: std::path::PathBuf) -> Option<FileAction> 
         Purpose::ExportMap(quantity) => FileAction::ExportMap(quantity, path),
         Purpose::ExportTransform(format) => FileAction::ExportTransform(format, path),
         Purpose::UseStart => FileAction::UseStart(path),
-        Purpose::UseField => FileAction::UseField(path),
+        Purpose::UseField | Purpose::UseFieldFolder => FileAction::UseField(path),
         Purpose::UseMask(side) => FileAction::UseMask(side, path),
         Purpose::OpenFile(_) | Purpose::OpenFolder(_) | Purpose::OpenSession | Purpose::ImportLandmarks => return None,
     })
@@ -329,6 +329,7 @@ mod tests {
             ),
             (Purpose::UseStart, FileAction::UseStart(p.clone())),
             (Purpose::UseField, FileAction::UseField(p.clone())),
+            (Purpose::UseFieldFolder, FileAction::UseField(p.clone())),
             (Purpose::UseMask(Side::Moving), FileAction::UseMask(Side::Moving, p.clone())),
             (Purpose::ExportField, FileAction::ExportField(p.clone())),
             (Purpose::SaveSession, FileAction::SaveSession(p.clone())),
