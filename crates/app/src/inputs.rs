@@ -655,7 +655,8 @@ impl OutputFile {
     }
 }
 
-/// Refuses to write `out` over an input, or over an existing file without `force`.
+/// Refuses to write `out` over an input, over an existing file without `force`, or over a folder other than a Zarr
+/// store (which an output named `.zarr` replaces).
 pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
     let canonical = |p: &Path| std::fs::canonicalize(p).ok();
     if let Some(out_c) = canonical(out)
@@ -665,6 +666,17 @@ pub fn check_output(out: &Path, inputs: &[&Path], force: bool) -> Result<()> {
     }
     if out.exists() && !force {
         return Err(anyhow!("{}: exists; use --force to overwrite it", out.display()));
+    }
+    // A folder is replaced only when it is a Zarr store and the output is one (`.zarr`); an empty one is written into.
+    if out.is_dir() {
+        let zarr = warpbench_io::VolumeFileKind::of(out) == Some(warpbench_io::VolumeFileKind::OmeZarr);
+        let empty = std::fs::read_dir(out).is_ok_and(|mut d| d.next().is_none());
+        if !(zarr && (empty || warpbench_io::ngff::looks_like_zarr(out))) {
+            return Err(anyhow!(
+                "{}: a folder that warpbench does not replace (only a Zarr store, by an output named .zarr)",
+                out.display()
+            ));
+        }
     }
     Ok(())
 }

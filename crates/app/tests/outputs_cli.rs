@@ -259,11 +259,15 @@ fn io_errors_name_the_destination_once_without_the_temporary() {
     let run = Command::new(BIN).args(warp_args(&pairs, &under_a_file, &[])).output().expect("run");
     assert_names_destination_once(&run, &under_a_file, "Not a directory (os error 20)");
 
-    // The rename fails: --out is a folder (with --force), and the temporary is gone afterwards.
+    // --out is a folder (with --force): refused before anything is written, named once, no temporary left (the
+    // rename onto a folder, which would fail, is not reached).
     let folder = dir.path().join("folder.nii.gz");
     std::fs::create_dir(&folder).expect("mkdir");
     let run = Command::new(BIN).args(warp_args(&pairs, &folder, &["--force"])).output().expect("run");
-    assert_names_destination_once(&run, &folder, "Is a directory (os error 21)");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(2), "{stderr}");
+    assert_eq!(stderr.matches(utf8(&folder)).count(), 1, "the destination once: {stderr}");
+    assert!(stderr.contains("a folder that warpbench does not replace"), "{stderr}");
     assert!(temporaries(dir.path()).is_empty(), "{:?}", names(dir.path()));
 
     // A read-only folder (where permissions apply: root writes anyway).

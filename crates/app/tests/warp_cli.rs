@@ -328,6 +328,25 @@ fn writes_the_volume_in_the_format_its_name_says() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("out.ome.zarr: exists; use --force"));
     assert_ok(&again(true));
     assert_ne!(from_nii.data, reference.data);
+    // A folder of anything else is refused up front, with --force too, and kept.
+    let notes = dir.path().join("notes.ome.zarr");
+    std::fs::create_dir(&notes).expect("mkdir");
+    std::fs::write(notes.join("mine.txt"), "keep").expect("write");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&mri),
+        "--moving",
+        s(&mri),
+        "--landmarks",
+        s(&csv),
+        "--force",
+        "--out",
+        s(&notes),
+    ]);
+    assert_eq!(run.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("a folder that warpbench does not replace"));
+    assert_eq!(std::fs::read_to_string(notes.join("mine.txt")).expect("kept"), "keep");
     assert_same_voxels_in_space(&from_nii, &warpbench_io::open(&zarr).expect("read"));
 }
 

@@ -397,6 +397,21 @@ mod tests {
         assert_eq!(std::fs::read(&out).expect("read"), b"done");
     }
 
+    /// A rename that fails (the destination is a folder) names the destination once, not the temporary, and leaves
+    /// no temporary (the command line refuses a folder before this; the library keeps the promise on its own).
+    #[test]
+    fn a_failed_rename_names_the_destination_and_leaves_nothing() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let out = dir.path().join("folder.nii");
+        fs::create_dir(&out).expect("mkdir");
+        fs::write(out.join("inside"), b"x").expect("write");
+        let e = write_atomic(&out, |w| w.write_all(b"data")).expect_err("onto a folder");
+        let text = e.to_string();
+        assert_eq!(text.matches("folder.nii").count(), 1, "{text}");
+        assert!(!text.contains(PARTIAL_PREFIX), "{text}");
+        assert_eq!(names(dir.path()), ["folder.nii"]);
+    }
+
     /// Both ways of exchanging a staging folder with an existing one leave the new folder in its place, the old one
     /// under the staging folder's name, and nothing else.
     #[test]
