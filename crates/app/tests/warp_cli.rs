@@ -317,33 +317,22 @@ fn writes_the_volume_in_the_format_its_name_says() {
     assert_eq!(from_zarr.data, from_nii.data);
     // The warped volume warped again (so shifted twice) replaces the store.
     let shifted = dir.path().join("out.nii.gz");
-    let again = |force: bool| {
+    let warp_shifted = |out: &Path, force: bool| {
         let mut args = vec!["warp", "--fixed", s(&mri), "--moving", s(&shifted), "--landmarks", s(&csv)];
-        args.extend(["--method", "affine", "--backend", "cpu", "--quiet", "--out", s(&zarr)]);
+        args.extend(["--method", "affine", "--backend", "cpu", "--quiet", "--out", s(out)]);
         args.extend(force.then_some("--force"));
         warpbench(&args)
     };
-    let run = again(false);
+    let run = warp_shifted(&zarr, false);
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("out.ome.zarr: exists; use --force"));
-    assert_ok(&again(true));
+    assert_ok(&warp_shifted(&zarr, true));
     assert_ne!(from_nii.data, reference.data);
     // A folder of anything else is refused up front, with --force too, and kept.
     let notes = dir.path().join("notes.ome.zarr");
     std::fs::create_dir(&notes).expect("mkdir");
     std::fs::write(notes.join("mine.txt"), "keep").expect("write");
-    let run = warpbench(&[
-        "warp",
-        "--fixed",
-        s(&mri),
-        "--moving",
-        s(&mri),
-        "--landmarks",
-        s(&csv),
-        "--force",
-        "--out",
-        s(&notes),
-    ]);
+    let run = warp_shifted(&notes, true);
     assert_eq!(run.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&run.stderr).contains("a folder that warpbench does not replace"));
     assert_eq!(std::fs::read_to_string(notes.join("mine.txt")).expect("kept"), "keep");
