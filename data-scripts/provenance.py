@@ -379,6 +379,30 @@ NITRANSFORMS_FILES = [
 ]
 
 
+# FSL FNIRT warps, written and read back by fslpy between small nibabel volumes.
+FSLPY_MADE = """
+## `fnirt/`: FNIRT warps written by fslpy
+
+Not downloaded: `data-scripts/fnirt_fixtures.py` has nibabel 5.4.2 write three empty volumes whose grids only matter
+(two references, one with a positive voxel-to-world determinant, and a rotated source), and fslpy 3.29.1 (PyPI wheel
+`fslpy==3.29.1`, FSL's own Python library) write seeded cubic B-spline coefficients as FNIRT's `--cout` files
+(`fsl.transform.fnirt.toFnirt`), the same warp as relative and absolute deformation fields, and two copies with
+another FSL intent (quadratic coefficients, a TOPUP field). `fnirt/reference.json` holds where fslpy's
+`readFnirt(...).transform` takes 60 reference voxels in each warp, and the deformation type it detects. gzip's time
+field is zeroed, so a rerun writes the same bytes. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+FSLPY_FILES = [
+    (f"fnirt/{name}", "fnirt_fixtures.py")
+    for name in (
+        "ref_neuro.nii.gz", "ref_radio.nii.gz", "src.nii.gz", "coef_neuro.nii.gz", "coef_radio.nii.gz",
+        "field_rel.nii.gz", "field_abs.nii.gz", "coef_quadratic.nii.gz", "topup_field.nii.gz", "reference.json",
+    )
+]
+
+
 # FreeSurfer MGH / MGZ volumes written by nibabel.
 NIBABEL_MGH_MADE = """
 ## `mgh/`: FreeSurfer MGH and MGZ volumes written by nibabel
@@ -609,6 +633,7 @@ def main() -> int:
     out.append(LANDMARKS_UPSTREAM)
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
     out.append(script_made(data, NITRANSFORMS_MADE, NITRANSFORMS_FILES))
+    out.append(script_made(data, FSLPY_MADE, FSLPY_FILES))
     out.append(script_made(data, NIBABEL_MGH_MADE, NIBABEL_MGH_FILES))
     out.append(script_made(data, NITRANSFORMS_LTA, LTA_FILES))
     out.append(script_made(data, NIBABEL_PAIR_MADE, NIBABEL_PAIR_FILES))

@@ -330,8 +330,8 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
             let origin = f.field.display().to_string();
             let read = match given {
                 Some(read) => read,
-                None if f.format.is_learn2reg(&f.field)? => {
-                    crate::warp::WarpField::Pullback(crate::warp::read_learn2reg_field(&f.field, &fixed, &moving)?)
+                None if f.format.reads_against_pair(&f.field)? => {
+                    crate::warp::WarpField::Pullback(crate::warp::read_pair_field(&f.field, &fixed, &moving, quiet)?)
                 }
                 // An ITK transform file: B-splines sampled on the output grid of a pull-back (the fixed one for the
                 // forward map, which inverts the pull-back there).

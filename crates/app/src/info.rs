@@ -227,7 +227,7 @@ pub struct FieldInfo {
 
 impl FieldInfo {
     /// The field at `path` when it is one (`None` when no field reader takes it); an `.npz`, which only Learn2Reg's
-    /// reader takes, with that reader's refusal.
+    /// reader takes, with that reader's refusal; an FSL FNIRT file as far as it can be told without its images.
     fn read(path: &Path) -> Result<Option<Self>, Failure> {
         let largest = |vectors: &[[f32; 3]]| {
             vectors.iter().map(|d| d.iter().map(|&c| f64::from(c).powi(2)).sum::<f64>().sqrt()).fold(0.0, f64::max)
@@ -244,6 +244,20 @@ impl FieldInfo {
                 geometry_source: None,
                 max_displacement: largest(&steps.steps_vox),
                 warnings: Vec::new(),
+            }));
+        }
+        if crate::project::field_file::is_fnirt_file(path)? {
+            let summary = warpbench_io::fnirt::summary(path)?;
+            return Ok(Some(Self {
+                format: "fnirt",
+                direction: Some("pullback"),
+                dims: summary.dims,
+                units: "mm",
+                spacing_mm: summary.lps_from_index.as_ref().map(|(t, _)| warpbench_io::geometry::spacing_mm(t)),
+                lps_from_index: summary.lps_from_index.as_ref().map(|(t, _)| t.rows()),
+                geometry_source: summary.lps_from_index.map(|(_, source)| source.into()),
+                max_displacement: summary.max_displacement_mm,
+                warnings: summary.notes,
             }));
         }
         let Ok(read) = warpbench_io::displacement::read_field_info(path) else { return Ok(None) };
@@ -319,6 +333,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::ItkTransformFile => ("itk_transform", None),
             GeometrySource::Learn2RegFixedImage => ("learn2reg_fixed_image", None),
+            GeometrySource::FnirtReferenceImage => ("fnirt_reference_image", None),
             GeometrySource::Assumed => ("assumed", None),
         };
         Self { kind, code }
@@ -575,6 +590,8 @@ fn write_field(f: &FieldInfo, out: &mut dyn Write) -> std::io::Result<()> {
         for row in m {
             writeln!(out, "    [{:>12.6} {:>12.6} {:>12.6} {:>12.6}]", row[0], row[1], row[2], row[3])?;
         }
+    } else if f.format == "fnirt" {
+        writeln!(out, "  grid            none of its own: FSL's coordinates of its reference and input images")?;
     } else {
         writeln!(out, "  grid            none: steps in the voxels of the fixed and moving images")?;
     }

@@ -6,8 +6,9 @@
 //! are drawn: each fixed (target) point qᵢ in blue, each moving (source) point where the warp shows it, d(pᵢ), in
 //! orange, and a line between them (the residual; zero length for an interpolating warp). With `--field F` instead of
 //! landmarks, the moving volume is pulled back through the displacement field (u(x) = x + D(x), read by
-//! [`crate::warp::read_pullback_field`], or for a Learn2Reg `.npz` against the two volumes'
-//! voxels by [`crate::warp::read_learn2reg_field`]) sampled into the same control texture, and no glyphs are drawn. `--slice`
+//! [`crate::warp::read_pullback_field`], or for a Learn2Reg `.npz` against the two volumes' voxels, or an FNIRT warp
+//! in their FSL coordinates, by [`crate::warp::read_pair_field`]) sampled into the same control texture, and no glyphs
+//! are drawn. `--slice`
 //! draws a slice of the fixed grid instead of the 3-D view. `--procedural KIND` deforms the moving volume in the shader
 //! by `eval`'s synthetic warp of that kind ([`crate::procedural`]), read at p(u(x)) after the warp.
 
@@ -184,8 +185,9 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
             "--procedural deforms the moving volume: give --moving (the --fixed file itself shows the volume eval tests)"
         )));
     }
-    // Read before the volumes: a field `render` refuses costs no loading. A Learn2Reg field, in the volumes' voxels,
-    // and an ITK transform file, which may need the fixed grid, are read after them.
+    // Read before the volumes: a field `render` refuses costs no loading. A Learn2Reg field or an FNIRT warp (in the
+    // volumes' voxels or FSL coordinates) and an ITK transform file, which may need the fixed grid, are read after
+    // them.
     let after = match &field_path {
         Some(path) => crate::warp::read_after_volumes(path, field_format.format)?,
         None => false,
@@ -200,8 +202,8 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     let moving =
         moving_path.as_deref().map(|p| inputs::load_volume(p, quiet)).transpose().map_err(Failure::BadInput)?;
     if let (true, Some(path), Some(moving)) = (after, &field_path, &moving) {
-        field = Some(if field_format.format.is_learn2reg(path)? {
-            crate::warp::read_learn2reg_field(path, &fixed, moving)?
+        field = Some(if field_format.format.reads_against_pair(path)? {
+            crate::warp::read_pair_field(path, &fixed, moving, quiet)?
         } else {
             crate::warp::read_pullback_field(path, Some(&fixed), quiet)?
         });

@@ -215,25 +215,39 @@ pub fn read_warp_field(path: &Path, grid: Option<&Volume>, quiet: bool) -> Resul
     })
 }
 
-/// Reads a Learn2Reg field ([`warpbench_io::learn2reg`]) as the pull-back it states between the voxels of `fixed` and `moving`
-/// ([`crate::project::field_file::learn2reg_pullback`]). Errors name the file.
-pub fn read_learn2reg_field(
+/// Reads a field that is read against the pair's grids (a Learn2Reg field, [`warpbench_io::learn2reg`], or an FSL
+/// FNIRT warp, [`warpbench_io::fnirt`]) as the pull-back it states between `fixed` and `moving`
+/// ([`crate::project::field_file::pair_pullback`]); what the reader inferred is printed on stderr unless `quiet`.
+/// Errors name the file.
+pub fn read_pair_field(
     path: &Path,
     fixed: &Volume,
     moving: &Volume,
+    quiet: bool,
 ) -> Result<SampledField<Moving, Fixed>, Failure> {
-    crate::project::field_file::learn2reg_pullback(path, fixed.dims, &fixed.lps_from_index, &moving.lps_from_index)
-        .map_err(Failure::BadInput)
+    let (field, warnings) = crate::project::field_file::pair_pullback(
+        path,
+        (fixed.dims, &fixed.lps_from_index),
+        (moving.dims, &moving.lps_from_index),
+    )
+    .map_err(Failure::BadInput)?;
+    if !quiet {
+        for w in &warnings {
+            eprintln!("warpbench: warning: {}: {w}", path.display());
+        }
+    }
+    Ok(field)
 }
 
 /// Whether `--field` at `path` is read once the volumes are: a Learn2Reg field (as `format` says), in their voxels,
-/// or an ITK transform file, which may hold B-splines that give no grid of their own. A field in its own geometry is
+/// an FNIRT warp, in their FSL coordinates, or an ITK transform file, which may hold B-splines that give no grid of
+/// their own. A field in its own geometry is
 /// read before them, so that one refused costs no loading.
 ///
 /// # Errors
 /// The file cannot be opened.
 pub fn read_after_volumes(path: &Path, format: FieldReadFormat) -> Result<bool, Failure> {
-    Ok(format.is_learn2reg(path)? || displacement::is_itk_transform_file(path)?)
+    Ok(format.reads_against_pair(path)? || displacement::is_itk_transform_file(path)?)
 }
 
 /// [`read_warp_field`] for `render --field`, which takes the pull-back only: a forward field is refused.
@@ -997,7 +1011,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             }
             Given::Pairs(method, pairs, brushed.map(Box::new))
         }
-        WarpInputs::Field(f) if f.format.is_learn2reg(&f.field)? => Given::Learn2Reg(&f.field),
+        WarpInputs::Field(f) if f.format.reads_against_pair(&f.field)? => Given::PairGrids(&f.field),
         WarpInputs::Field(f) if read_after_volumes(&f.field, f.format)? => Given::OnGrid(&f.field),
         WarpInputs::Field(f) => Given::Field(Box::new(read_warp_field(&f.field, None, quiet)?), &f.field),
     };
@@ -1026,8 +1040,8 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
             Fitted::new(grid, &fixed, &moving, (pairs, &layers), &names, &settings)?
         }
         Given::Field(field, path) => Fitted::from_field(grid, &moving, &field, path, &export)?,
-        Given::Learn2Reg(path) => {
-            let field = WarpField::Pullback(read_learn2reg_field(path, &fixed, &moving)?);
+        Given::PairGrids(path) => {
+            let field = WarpField::Pullback(read_pair_field(path, &fixed, &moving, quiet)?);
             Fitted::from_field(grid, &moving, &field, path, &export)?
         }
         // Sampled on the output grid, so that `--exact` evaluates the transform itself at every output voxel.
@@ -1107,8 +1121,9 @@ enum Given<'a> {
     Pairs(Method, &'a PairInputs, Option<Box<Brushed>>),
     /// A displacement field, read, and its file.
     Field(Box<WarpField>, &'a Path),
-    /// A Learn2Reg field's file, read once the volumes are: its vectors are in their voxels.
-    Learn2Reg(&'a Path),
+    /// A Learn2Reg field's or an FNIRT warp's file, read once the volumes are: its vectors are in their voxels or
+    /// their FSL coordinates.
+    PairGrids(&'a Path),
     /// An ITK transform file, read once the volumes are: it may hold B-splines, sampled on the output grid.
     OnGrid(&'a Path),
 }

@@ -929,3 +929,96 @@ fn expect_refused(args: &[&str], out: &Path, needles: &[&str]) {
     }
     assert!(!out.exists(), "a refused run wrote {}", out.display());
 }
+
+/// An FSL FNIRT warp, read against its reference (`--fixed`) and input (`--moving`), end to end: `field` writes the
+/// pull-back that takes every reference voxel where fslpy 3.29.1 takes it (`tests/data/fnirt/reference.json`, made
+/// by `data-scripts/fnirt_fixtures.py`) and says how it read a deformation field; `warp` resamples through it;
+/// `info` tells what the file is; a fixed volume that is not the warp's reference is refused with exit 2, naming the
+/// file.
+#[test]
+fn an_fnirt_warp_is_read_against_its_reference_and_input() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let reference: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data("fnirt/reference.json")).expect("reference")).expect("JSON");
+    let src = data("fnirt/src.nii.gz");
+    for (name, inferred) in
+        [("coef_neuro.nii.gz", None), ("coef_radio.nii.gz", None), ("field_abs.nii.gz", Some("absolute"))]
+    {
+        let case = &reference["warps"][name];
+        let fixed = data(&format!("fnirt/{}.nii.gz", case["reference"].as_str().expect("a name")));
+        let out = tmp.path().join("u.nii.gz");
+        let warp = data(&format!("fnirt/{name}"));
+        let run = warpbench(&[
+            "field",
+            "--fixed",
+            s(&fixed),
+            "--moving",
+            s(&src),
+            "--field",
+            s(&warp),
+            "--out",
+            s(&out),
+            "--force",
+        ]);
+        assert_ok(&run);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        match inferred {
+            Some(kind) => assert!(stderr.contains(&format!("read as {kind} positions")), "{name}: {stderr}"),
+            None => assert!(!stderr.contains("warning"), "{name}: {stderr}"),
+        }
+        let (field, _) = read_field(&out).expect("read the output");
+        let volume = warpbench_io::open(&fixed).expect("the reference");
+        let mut worst = 0.0f64;
+        for (v, want) in
+            reference["voxels"].as_array().expect("voxels").iter().zip(case["moving_lps"].as_array().expect("points"))
+        {
+            let ijk: Vec<usize> =
+                v.as_array().expect("a voxel").iter().map(|c| c.as_u64().expect("index") as usize).collect();
+            let x = volume.voxel_lps(ijk[0], ijk[1], ijk[2]).coords();
+            let d = field.displacements_lps[ijk[0] + field.dims[0] * (ijk[1] + field.dims[1] * ijk[2])];
+            for c in 0..3 {
+                worst = worst.max((x[c] + f64::from(d[c]) - want[c].as_f64().expect("a number")).abs());
+            }
+        }
+        // The NIfTI output keeps float32 vectors of up to ~60 mm, in RAS: a few ULPs.
+        assert!(worst < 1e-4, "{name}: {worst} mm from fslpy");
+    }
+    let warped = tmp.path().join("w.nii.gz");
+    let (fixed, coef) = (data("fnirt/ref_neuro.nii.gz"), data("fnirt/coef_neuro.nii.gz"));
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&src),
+        "--field",
+        s(&coef),
+        "--out",
+        s(&warped),
+        "--json",
+    ]);
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("the report");
+    assert_eq!(report["method"], "field", "{report}");
+    assert_eq!(warpbench_io::open(&warped).expect("the output").dims, [20, 24, 18]);
+    let info = warpbench(&["info", "--json", s(&coef)]);
+    assert_ok(&info);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("JSON");
+    assert_eq!((&info["kind"], &info["format"]), (&"displacement_field".into(), &"fnirt".into()), "{info}");
+    // The input as the reference: not the grid the coefficients were made over.
+    let run = warpbench(&[
+        "field",
+        "--fixed",
+        s(&src),
+        "--moving",
+        s(&src),
+        "--field",
+        s(&coef),
+        "--out",
+        s(&tmp.path().join("x.nii.gz")),
+    ]);
+    assert_eq!(run.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("coef_neuro.nii.gz") && stderr.contains("fnirt's --ref"), "{stderr}");
+    assert!(!tmp.path().join("x.nii.gz").exists());
+}

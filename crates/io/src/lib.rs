@@ -30,6 +30,7 @@ pub mod displacement;
 pub mod elastix;
 pub mod error;
 mod files;
+pub mod fnirt;
 pub mod fsl;
 pub mod geometry;
 mod hdf5_guard;

@@ -196,6 +196,9 @@ pub enum GeometrySource {
     /// A Learn2Reg field (`.npz`), which carries no geometry, placed on the grid of the fixed image it was read
     /// against ([`crate::learn2reg::pullback_from_voxels`]).
     Learn2RegFixedImage,
+    /// An FSL FNIRT warp (`--fout`, `--cout`), whose FSL coordinates mean nothing without its reference image, placed
+    /// on the grid of the fixed image it was read against ([`crate::fnirt::read_pullback`]).
+    FnirtReferenceImage,
     /// The file carries no geometry (e.g. a DICOM Secondary Capture without ImagePositionPatient,
     /// ImageOrientationPatient and PixelSpacing): identity directions, unit spacing, origin 0.
     /// Readers add a warning to the metadata when they assume it.

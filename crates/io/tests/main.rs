@@ -11,6 +11,7 @@ mod dicom_conformance;
 mod dicom_reg;
 mod elastix;
 mod elastix_points;
+mod fnirt;
 mod fsl;
 mod itk_chain;
 mod itk_h5;

@@ -30,8 +30,9 @@ pub type FieldParts = (Py<PyAny>, Py<PyAny>, String, Option<String>, Vec<String>
 ///
 /// With `pair`, the fixed and the moving grid (`(dims, lps_from_index)` each), a Learn2Reg `.npz` is read too: its
 /// voxel steps turned into the pull-back on the fixed grid (`learn2reg`, direction `pullback`); with `learn2reg`
-/// any file is read so (the challenge's NIfTI form says nothing of its units). An ITK transform file of B-splines
-/// (`.tfm` or `.h5`), which gives no grid of its own, is sampled on the fixed grid.
+/// any file is read so (the challenge's NIfTI form says nothing of its units). An FSL FNIRT warp (`--fout`, `--cout`)
+/// is read against the two grids too, the fixed one its reference (`fnirt`, direction `pullback`). An ITK transform
+/// file of B-splines (`.tfm` or `.h5`), which gives no grid of its own, is sampled on the fixed grid.
 #[pyfunction]
 #[pyo3(signature = (path, pair = None, learn2reg = false))]
 pub fn read_field(
@@ -40,19 +41,35 @@ pub fn read_field(
     pair: Option<(Grid<'_>, Grid<'_>)>,
     learn2reg: bool,
 ) -> PyResult<FieldParts> {
+    let three = |side: &str, d: Vec<usize>| -> PyResult<[usize; 3]> {
+        d.try_into().map_err(|d: Vec<usize>| {
+            PyValueError::new_err(format!("{}: the {side} grid has 3 sizes, not {d:?}", path.display()))
+        })
+    };
     let pair = match pair {
-        Some(((fixed_dims, fixed), (_, moving))) => {
-            let fixed_dims: [usize; 3] = fixed_dims.try_into().map_err(|d: Vec<usize>| {
-                PyValueError::new_err(format!("{}: the fixed grid has 3 sizes, not {d:?}", path.display()))
-            })?;
-            Some((fixed_dims, lps_from_index(&path, &fixed)?, lps_from_index(&path, &moving)?))
-        }
+        Some(((fixed_dims, fixed), (moving_dims, moving))) => Some((
+            three("fixed", fixed_dims)?,
+            lps_from_index(&path, &fixed)?,
+            three("moving", moving_dims)?,
+            lps_from_index(&path, &moving)?,
+        )),
         None => None,
     };
     let read = guarded(py, || {
-        let steps_in_voxels = learn2reg || l2r::is_npz_file(&path).map_err(errors::io)?;
+        let fnirt = path.is_file() && warpbench_io::nifti::fsl_intent(&path).map_err(errors::io)?.is_some();
+        let steps_in_voxels = !fnirt && (learn2reg || l2r::is_npz_file(&path).map_err(errors::io)?);
         match pair {
-            Some((dims, fixed, moving)) if steps_in_voxels => {
+            Some((dims, fixed, moving_dims, moving)) if fnirt => {
+                let read = warpbench_io::fnirt::read_pullback(&path, (dims, &fixed), (moving_dims, &moving))
+                    .map_err(errors::io)?;
+                Ok(ReadField {
+                    field: read.field,
+                    source: FieldSource::Fnirt,
+                    direction: Some(FieldDirection::Pullback),
+                    warnings: read.warnings,
+                })
+            }
+            Some((dims, fixed, _, moving)) if steps_in_voxels => {
                 let steps = l2r::read_voxel_field(&path).map_err(errors::io)?;
                 let field = l2r::pullback_from_voxels(&path, &steps, dims, &fixed, &moving).map_err(errors::io)?;
                 Ok(ReadField {
@@ -69,7 +86,7 @@ pub fn read_field(
                 if learn2reg { ", learn2reg=True" } else { "" }
             ))),
             // An ITK transform file of B-splines gives no grid of its own: it is sampled on the fixed grid.
-            Some((dims, fixed, _)) => {
+            Some((dims, fixed, _, _)) => {
                 let geometry_source = warpbench_io::volume::GeometrySource::ItkTransformFile;
                 let grid = displacement::SampleGrid { dims, lps_from_index: fixed, geometry_source };
                 displacement::read_field_on(&path, Some(&grid)).map_err(errors::io)

@@ -241,10 +241,10 @@ impl Warp {
             if let Some(path) = initial_path {
                 let file = match &zeros {
                     Some((f, m)) => FieldFile::chosen(path, FieldReadFormat::Auto, f, m).map_err(bad_input)?,
-                    None if warpbench_io::learn2reg::is_npz_file(&path).map_err(io)? => {
+                    None if FieldReadFormat::Auto.reads_against_pair(&path).map_err(io)? => {
                         return Err(PyValueError::new_err(format!(
-                            "initial_field={}: a Learn2Reg field holds steps in the voxels of its fixed and moving \
-                             images: give fixed= and moving=",
+                            "initial_field={}: a Learn2Reg field (steps in voxels) or an FSL FNIRT warp (in FSL's \
+                             coordinates) is read against its fixed and moving images: give fixed= and moving=",
                             path.display()
                         )));
                     }

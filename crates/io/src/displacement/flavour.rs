@@ -140,11 +140,13 @@ pub enum FieldSource {
     DicomRegistration,
     /// A Learn2Reg `.npz`, read against the fixed and moving grids ([`crate::learn2reg::pullback_from_voxels`]).
     Learn2Reg,
+    /// An FSL FNIRT warp, read against its reference (the fixed grid) and input ([`crate::fnirt::read_pullback`]).
+    Fnirt,
 }
 
 impl FieldSource {
     /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `itk_tfm`, `dicom`, `learn2reg` (`minc` is a flavour: an MNI transform file's grid).
+    /// `itk_tfm`, `dicom`, `learn2reg`, `fnirt` (`minc` is a flavour: an MNI transform file's grid).
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -154,6 +156,7 @@ impl FieldSource {
             Self::ItkTransform => "itk_tfm",
             Self::DicomRegistration => "dicom",
             Self::Learn2Reg => "learn2reg",
+            Self::Fnirt => "fnirt",
         }
     }
 }

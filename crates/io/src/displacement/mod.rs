@@ -25,7 +25,8 @@
 //! sampled on its fixed grid. Anything else is refused. It returns LPS vectors whatever the flavour.
 //!
 //! Learn2Reg's `.npz` fields ([`crate::learn2reg`]) hold voxel steps from the fixed image's grid to the moving one's,
-//! so they are read against the pair ([`crate::learn2reg::pullback_from_voxels`]); [`read_field`] refuses them.
+//! so they are read against the pair ([`crate::learn2reg::pullback_from_voxels`]); [`read_field`] refuses them, as it
+//! refuses FSL's FNIRT warps, in the FSL coordinates of the pair ([`crate::fnirt::read_pullback`]).
 
 pub(crate) mod check;
 mod flavour;
@@ -95,6 +96,17 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
     if path.is_dir() && crate::ngff::looks_like_zarr(path) {
         let (field, warnings) = crate::ngff::read_field(path)?;
         return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Ngff), direction: None, warnings });
+    }
+    if let Some(code) = nifti::fsl_intent(path)? {
+        return Err(Error::unsupported(
+            path,
+            format!(
+                "intent_code {code}: an FSL FNIRT warp (or another FSL field) is in FSL's coordinates of its reference \
+                 and input images, which this reader is not given: read it against them (command line: `warpbench \
+                 warp --fixed REF --moving IN --field W`; Python: read_field(path, fixed=REF, moving=IN); \
+                 docs/formats.md)"
+            ),
+        ));
     }
     let head = flavour::head(path)?;
     if let Some(read) = flavour::read_flavoured(path, &head)? {

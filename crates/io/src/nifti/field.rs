@@ -294,7 +294,7 @@ fn read_frames_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Re
 }
 
 /// The field's grid from `h`, once its datatype (float32 or float64) and its lack of scaling are checked.
-fn field_dims(path: &Path, h: &super::header::Header) -> Result<[usize; 3]> {
+pub(super) fn field_dims(path: &Path, h: &super::header::Header) -> Result<[usize; 3]> {
     let grid = grid(path, h)?;
     let datatype = stored_type(path, h)?;
     if !matches!(datatype, StoredType::F32 | StoredType::F64) {
@@ -313,7 +313,7 @@ fn field_dims(path: &Path, h: &super::header::Header) -> Result<[usize; 3]> {
 }
 
 /// Reads the three component planes after the header, each times its sign; refuses a vector that is not finite.
-fn read_planes<S: Source>(
+pub(super) fn read_planes<S: Source>(
     path: &Path,
     src: &mut S,
     extent: Extent,

@@ -133,6 +133,7 @@
 //! each can deliver and the progress reporter. This module holds the volume reader that runs those stages.
 
 mod field;
+mod fnirt;
 mod geometry;
 mod header;
 mod layout;
@@ -148,6 +149,10 @@ pub use field::{
     DisplacementField, NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR, NiftiVectorIntent, read_displacement_field,
     read_displacement_field_bytes, read_frame_vectors, read_frame_vectors_bytes, read_vector_field,
     read_vector_field_bytes, write_displacement_field, write_frame_vectors, write_vector_field,
+};
+pub use fnirt::{
+    CoefficientField, FSL_CUBIC_SPLINE_COEFFICIENTS, FSL_FNIRT_DISPLACEMENT_FIELD, FSL_INTENTS, FnirtFile, fsl_intent,
+    read_fnirt_file, read_fnirt_file_bytes,
 };
 pub use header::looks_like_nifti;
 pub use write::{WriteOptions, write, write_with};

@@ -204,7 +204,8 @@ class Field:
     ``"forward"`` for an ``.h5`` holding only 3D Slicer's ``InverseDisplacementFieldTransform``), else ``None``, and
     then it is a pull-back, as ITK takes it. ``"ngff"`` is an OME-Zarr 0.6 field folder (RFC-5's ``displacements``);
     ``warnings`` says what its reader assumed where the file is silent (axes without a unit taken as mm, axes
-    without an orientation as L, P, S)."""
+    without an orientation as L, P, S). ``"fnirt"`` is an FSL FNIRT warp read against its reference and input
+    (``"pullback"``, on the reference's grid)."""
 
     array: np.ndarray
     lps_from_index: np.ndarray
@@ -232,8 +233,14 @@ def read_field(
     A Learn2Reg field (steps from the fixed image's voxels to the moving image's) needs the two volumes it was made
     for, ``fixed`` and ``moving``: it is read as the pull-back on the fixed grid, in LPS mm, with ``source``
     ``"learn2reg"``. An ``.npz`` is told by its content; the NIfTI form the challenge takes since 2022 (an (X, Y, Z, 3)
-    array, ``disp_XXXX_YYYY.nii.gz``) says nothing of its units, so it is read so only with ``learn2reg=True``. Without
-    the volumes either raises ``ValueError``."""
+    array, ``disp_XXXX_YYYY.nii.gz``) says nothing of its units, so it is read so only with ``learn2reg=True``.
+
+    An FSL FNIRT warp (``fnirt --fout`` or ``convertwarp`` deformation fields, ``fnirt --cout`` cubic coefficients;
+    told by its NIfTI intent) maps FSL's coordinates of its reference image to its input's: give the reference as
+    ``fixed`` and the input as ``moving``. It is read as the pull-back on the fixed grid with ``source`` ``"fnirt"``;
+    ``warnings`` says whether a deformation field was taken as relative displacements or absolute positions.
+
+    Without the volumes either raises ``ValueError``."""
     if (fixed is None) != (moving is None):
         raise ValueError(f"{os.fspath(path)}: give both fixed and moving, or neither")
     pair = None if fixed is None or moving is None else (fixed._grid(), moving._grid())
