@@ -27,6 +27,7 @@ seed itk_tfm itk '*.mat'
 seed dicom_reg dicom_reg '*.dcm'
 seed learn2reg learn2reg '*.npz'
 seed learn2reg learn2reg '*.nii*'
+seed fnirt fnirt '*.nii*'
 seed matrix_text fsl '*.mat'
 seed lta lta '*.lta'
 

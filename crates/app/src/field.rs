@@ -122,8 +122,10 @@ pub struct FieldArgs {
     pub tfm: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
     /// metaimage (elastix's and ITK's .mha/.mhd, LPS), minc (an MNI grid transform .xfm), ngff (an OME-Zarr 0.6 field
-    /// folder, .ome.zarr, which its name picks too) or learn2reg (Learn2Reg's steps from fixed voxels to moving
-    /// voxels: .npz, float16, the challenge's form until 2021; .nii.gz, float32, its form since 2022).
+    /// folder, .ome.zarr, which its name picks too), learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// voxels: .npz, float16, the challenge's form until 2021; .nii.gz, float32, its form since 2022) or fnirt (FSL
+    /// FNIRT's relative deformation field, .nii or .nii.gz, for `applywarp --ref=GRID --in=MOVING --warp=OUT --rel`,
+    /// GRID the output grid's volume: --reference, or the fixed one).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
@@ -131,8 +133,9 @@ pub struct FieldArgs {
     pub direction: DirectionArg,
     /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
     /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform; .npz, or .nii.gz with
-    /// --format learn2reg, for Learn2Reg's field, steps from fixed voxels to moving voxels; a folder named .ome.zarr
-    /// for OME-Zarr 0.6, RFC-5's displacements, on an axis-aligned grid).
+    /// --format learn2reg, for Learn2Reg's field, steps from fixed voxels to moving voxels; .nii.gz with --format
+    /// fnirt for FSL's applywarp; a folder named .ome.zarr for OME-Zarr 0.6, RFC-5's displacements, on an
+    /// axis-aligned grid).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
@@ -152,6 +155,81 @@ pub enum FormatArg {
     Learn2reg,
     /// An OME-Zarr 0.6 field folder (`.ome.zarr`): RFC-5's `displacements`, as ngff-zarr reads it.
     Ngff,
+    /// FSL FNIRT's deformation field of relative displacements (`.nii`, `.nii.gz`), in the FSL coordinates of the
+    /// output grid (FNIRT's reference) and the moving volume (its input), as `fnirt --fout` writes one.
+    Fnirt,
+}
+
+/// A field written against the pair's grids rather than in a flavour of its own ([`FormatArg::pair_output`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PairOutput {
+    /// Learn2Reg's steps from fixed voxels to moving voxels ([`write_learn2reg`]).
+    Learn2Reg,
+    /// FNIRT's relative deformation field in the two grids' FSL coordinates ([`warpbench_io::fnirt::write_pullback`]).
+    Fnirt,
+}
+
+impl PairOutput {
+    /// How the summary names it: `learn2reg`, `fnirt`.
+    #[must_use]
+    pub const fn name(self) -> &'static str {
+        match self {
+            Self::Learn2Reg => "learn2reg",
+            Self::Fnirt => "fnirt",
+        }
+    }
+
+    /// Refuses the output before anything is computed ([`check_learn2reg_output`]; for FNIRT's field: over an input or
+    /// an existing file without `--force`, a name other than NIfTI's, the forward direction).
+    ///
+    /// # Errors
+    /// As said, naming the output.
+    pub(crate) fn check(
+        self,
+        output: &OutputFile,
+        format: FormatArg,
+        direction: FieldDirection,
+        reference: Option<&Path>,
+        inputs: &[&Path],
+    ) -> Result<(), Failure> {
+        if self == Self::Learn2Reg {
+            return check_learn2reg_output(output, format, direction, reference, inputs);
+        }
+        output.check(inputs).map_err(Failure::BadInput)?;
+        let refuse = |why: &str| {
+            Err(Failure::BadInput(anyhow!(
+                "{}: --format fnirt writes FNIRT's deformation field, {why}",
+                output.path.display()
+            )))
+        };
+        if FieldFormat::from_extension(&output.path) != Some(FieldFormat::Itk) {
+            return refuse("a NIfTI file: name it .nii or .nii.gz");
+        }
+        if direction == FieldDirection::Forward {
+            return refuse(
+                "which maps the reference (fixed) grid into the input (the pull-back): leave out --direction forward",
+            );
+        }
+        Ok(())
+    }
+
+    /// Writes the pull-back `displacements_lps`, sampled on the grid `fixed` (LPS mm, i fastest), against the grid of
+    /// the moving volume, atomically.
+    ///
+    /// # Errors
+    /// What the writers refuse (a step beyond float16's range in an `.npz`, a singular grid), a failed write.
+    pub fn write(
+        self,
+        out: &Path,
+        fixed: ([usize; 3], &Transform<Lps, Index>),
+        moving: ([usize; 3], &Transform<Lps, Index>),
+        displacements_lps: &[[f32; 3]],
+    ) -> Result<(), Failure> {
+        match self {
+            Self::Learn2Reg => write_learn2reg(out, fixed.0, fixed.1, moving.1, displacements_lps),
+            Self::Fnirt => Ok(warpbench_io::fnirt::write_pullback(out, fixed, moving, displacements_lps)?),
+        }
+    }
 }
 
 impl FormatArg {
@@ -162,12 +240,25 @@ impl FormatArg {
         self == Self::Learn2reg || learn2reg::is_npz_name(out)
     }
 
-    /// The image flavour it names; `learn2reg` writes the pull-back alone, so a forward or inverse field written
-    /// beside one takes the default flavour, `itk`.
+    /// The field written against the pair's grids that a pull-back of this `--format` written to `out` is:
+    /// Learn2Reg's ([`Self::is_learn2reg`]) or FNIRT's (`--format fnirt`); `None` for a flavour of its own.
+    #[must_use]
+    pub fn pair_output(self, out: &Path) -> Option<PairOutput> {
+        if self == Self::Fnirt {
+            Some(PairOutput::Fnirt)
+        } else if self.is_learn2reg(out) {
+            Some(PairOutput::Learn2Reg)
+        } else {
+            None
+        }
+    }
+
+    /// The image flavour it names; `learn2reg` and `fnirt` write the pull-back alone, so a forward or inverse field
+    /// written beside one takes the default flavour, `itk`.
     #[must_use]
     pub fn flavour(self) -> FieldFormat {
         match self {
-            Self::Itk | Self::Learn2reg => FieldFormat::Itk,
+            Self::Itk | Self::Learn2reg | Self::Fnirt => FieldFormat::Itk,
             Self::Ants => FieldFormat::Ants,
             Self::Nrrd => FieldFormat::Nrrd,
             Self::Metaimage => FieldFormat::MetaImage,
@@ -256,9 +347,9 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     let inputs = WarpInputs::from_args(volumes, pairs, (given_field, field_format.format), reference)?;
     let output = OutputFile { path: out_path, force };
     let input_paths = inputs.paths();
-    let learn2reg = format_arg.is_learn2reg(&output.path);
-    if learn2reg {
-        check_learn2reg_output(&output, format_arg, direction, reference_path.as_deref(), &input_paths)?;
+    let pair_output = format_arg.pair_output(&output.path);
+    if let Some(kind) = pair_output {
+        kind.check(&output, format_arg, direction, reference_path.as_deref(), &input_paths)?;
     } else {
         check_field_output(&output, format, &input_paths)?;
     }
@@ -308,7 +399,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         (None, FieldDirection::Pullback) => (&fixed, "fixed"),
         (None, FieldDirection::Forward) => (&moving, "moving"),
     };
-    if format == FieldFormat::Ngff && !learn2reg {
+    if format == FieldFormat::Ngff && pair_output.is_none() {
         warpbench_io::ngff::check_grid(&output.path, &grid.lps_from_index)
             .map_err(|e| Failure::BadInput(anyhow!("{e} (the {grid_name} grid)")))?;
     }
@@ -349,12 +440,11 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     let made_of =
         FieldInputs { fixed: &fixed, moving: &moving, pairs, names: &names, method: &method, layers: &layers };
     let field = sample_field_reporting(grid, &made_of, direction, quiet)?;
-    if learn2reg {
-        write_learn2reg(
+    if let Some(kind) = pair_output {
+        kind.write(
             &output.path,
-            field.dims,
-            &field.lps_from_index,
-            &moving.lps_from_index,
+            (field.dims, &field.lps_from_index),
+            (moving.dims, &moving.lps_from_index),
             &field.displacements_lps,
         )?;
         if let Some(path) = &tfm {
@@ -371,7 +461,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
         spacing_mm: field.spacing_mm,
         lps_from_index: field.lps_from_index.rows(),
         grid: grid_name,
-        format: if learn2reg { "learn2reg" } else { format.name() },
+        format: pair_output.map_or(format.name(), PairOutput::name),
         direction: field.direction.name(),
         method: match &inputs {
             WarpInputs::Field(f) => format!("field {}", f.field.display()),

@@ -83,7 +83,7 @@ pub struct RegisterArgs {
     /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
     /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage; .h5 for ITK's HDF5 transform file holding it as
     /// a DisplacementFieldTransform, as ANTs' Composite.h5; .npz, or .nii.gz with --format learn2reg, for Learn2Reg's
-    /// field, steps from fixed voxels to moving voxels).
+    /// field, steps from fixed voxels to moving voxels; .nii.gz with --format fnirt for FSL's applywarp).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
@@ -97,8 +97,9 @@ pub struct RegisterArgs {
     #[arg(long, value_name = "FILE")]
     pub out_inverse_field: Option<PathBuf>,
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
-    /// metaimage (elastix's and ITK's .mha/.mhd, LPS) or learn2reg (Learn2Reg's steps from fixed voxels to moving
-    /// voxels, .npz or .nii.gz; an inverse field beside it is itk).
+    /// metaimage (elastix's and ITK's .mha/.mhd, LPS), learn2reg (Learn2Reg's steps from fixed voxels to moving
+    /// voxels, .npz or .nii.gz) or fnirt (FSL FNIRT's relative deformation field, .nii or .nii.gz, for `applywarp
+    /// --ref=FIXED --in=MOVING --warp=FILE --rel`); an inverse field beside learn2reg or fnirt is itk.
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// The similarity measure: mi (Mattes mutual information: any two modalities; the default), ngf (normalised
@@ -238,7 +239,7 @@ pub struct RegisterSummary {
     /// How closely the inverse undoes the registered warp, ‖u(d(y)) − y‖ over a grid where it was fitted; null
     /// without `--out-inverse-field`.
     pub inverse_consistency: Option<InverseConsistency>,
-    /// The field's flavour: `itk`, `ants`, `nrrd`, `metaimage` or `learn2reg`.
+    /// The field's flavour: `itk`, `ants`, `nrrd`, `metaimage`, `learn2reg` or `fnirt`.
     pub format: &'static str,
     /// The warp the registration started from, e.g. `tps`, `tps on start.tfm`, `identity`.
     pub start: String,
@@ -549,10 +550,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     input_paths.extend(given.paths());
     input_paths.extend(fixed_mask.as_deref());
     input_paths.extend(moving_mask.as_deref());
-    let learn2reg = format_arg.is_learn2reg(&out_field);
+    let pair_output = format_arg.pair_output(&out_field);
     let field_output = OutputFile { path: out_field.clone(), force };
-    if learn2reg {
-        crate::field::check_learn2reg_output(&field_output, format_arg, FieldDirection::Pullback, None, &input_paths)?;
+    if let Some(kind) = pair_output {
+        kind.check(&field_output, format_arg, FieldDirection::Pullback, None, &input_paths)?;
     } else {
         crate::field::check_field_output(&field_output, format, &input_paths)?;
     }
@@ -592,8 +593,10 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         crate::warp::check_output_grid(path, &fixed_volume).map_err(Failure::BadInput)?;
     }
     if format == FieldFormat::Ngff {
-        let grids =
-            [(Some(&out_field).filter(|_| !learn2reg), &fixed_volume), (out_inverse_field.as_ref(), &moving_volume)];
+        let grids = [
+            (Some(&out_field).filter(|_| pair_output.is_none()), &fixed_volume),
+            (out_inverse_field.as_ref(), &moving_volume),
+        ];
         for (path, grid) in grids {
             if let Some(path) = path {
                 warpbench_io::ngff::check_grid(path, &grid.lps_from_index).map_err(|e| Failure::BadInput(e.into()))?;
@@ -648,12 +651,11 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let Some(max_displacement_mm) = sampled.max_norm_mm else {
         return Err(Failure::Internal(anyhow!("the registered warp is not finite somewhere in the fixed grid")));
     };
-    if learn2reg {
-        crate::field::write_learn2reg(
+    if let Some(kind) = pair_output {
+        kind.write(
             &out_field,
-            dims,
-            &lps_from_index,
-            &moving_volume.lps_from_index,
+            (dims, &lps_from_index),
+            (moving_volume.dims, &moving_volume.lps_from_index),
             &sampled.displacements_lps,
         )?;
     } else {
@@ -691,7 +693,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         out: out_volume.as_ref().map(|p| p.display().to_string()),
         out_inverse_field: out_inverse_field.as_ref().map(|p| p.display().to_string()),
         inverse_consistency,
-        format: if learn2reg { "learn2reg" } else { format.name() },
+        format: pair_output.map_or(format.name(), crate::field::PairOutput::name),
         start: refinement.start_name.clone(),
         settings: RegisterSettings {
             metric: params.similarity,

@@ -1021,4 +1021,49 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(stderr.contains("coef_neuro.nii.gz") && stderr.contains("fnirt's --ref"), "{stderr}");
     assert!(!tmp.path().join("x.nii.gz").exists());
+
+    // Written back as FNIRT's relative field (`--format fnirt`): the same warp, read against the same pair.
+    let written = tmp.path().join("fnirt.nii.gz");
+    let run = warpbench(&[
+        "field",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&src),
+        "--field",
+        s(&coef),
+        "--format",
+        "fnirt",
+        "--out",
+        s(&written),
+        "--json",
+    ]);
+    assert_ok(&run);
+    let summary: serde_json::Value = serde_json::from_slice(&run.stdout).expect("the summary");
+    assert_eq!(summary["format"], "fnirt", "{summary}");
+    let volume = |p: &Path| warpbench_io::open(p).expect("volume");
+    let (f, m) = (volume(&fixed), volume(&src));
+    let pullback = |w: &Path| {
+        warpbench_io::fnirt::read_pullback(w, (f.dims, &f.lps_from_index), (m.dims, &m.lps_from_index))
+            .unwrap_or_else(|e| panic!("{e}"))
+            .field
+            .displacements_lps
+    };
+    let worst = pullback(&written)
+        .iter()
+        .zip(pullback(&coef))
+        .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0f32, f32::max))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "{worst} mm");
+    // FNIRT's field is a NIfTI pull-back: another name or the forward map exits 2 before any work.
+    for (out, extra) in [("w.nrrd", &[][..]), ("fwd.nii.gz", &["--direction", "forward"][..])] {
+        let out = tmp.path().join(out);
+        let mut args = vec!["field", "--fixed", s(&fixed), "--moving", s(&src), "--field", s(&coef)];
+        args.extend(["--format", "fnirt", "--out", s(&out)]);
+        args.extend(extra);
+        let run = warpbench(&args);
+        assert_eq!(run.status.code(), Some(2), "{extra:?}");
+        assert!(String::from_utf8_lossy(&run.stderr).contains("--format fnirt"), "{extra:?}");
+        assert!(!out.exists());
+    }
 }

@@ -433,8 +433,9 @@ fn the_inverse_field_undoes_the_registered_warp() {
 /// `--out-field` named `.npz` writes Learn2Reg's field of the same registration: read back against the pair's grids
 /// it is the pull-back of a run that writes ITK's NIfTI (the runs repeat bit for bit), within float16's rounding of
 /// the steps (2⁻¹¹ of a step, times the 2 mm voxels); `--format learn2reg` to a `.nii.gz` writes the NIfTI form,
-/// float32, within f32's rounding. With `--format ants` to an `.npz`, or `learn2reg` to a `.nrrd`, it exits 2 and
-/// writes nothing.
+/// float32, within f32's rounding; `--format fnirt` writes FSL FNIRT's field, which reads back against the pair to the
+/// same pull-back. With `--format ants` to an `.npz`, or `learn2reg` or `fnirt` to a `.nrrd`, it exits 2 and writes
+/// nothing.
 #[test]
 fn an_npz_field_is_learn2regs_of_the_same_registration() {
     let dir = tempfile::tempdir().expect("tempdir");
@@ -469,12 +470,25 @@ fn an_npz_field_is_learn2regs_of_the_same_registration() {
     for (a, b) in read.displacements_lps.iter().zip(&want.displacements_lps) {
         assert!(distance(a.map(f64::from), b.map(f64::from)) < 1e-4, "{a:?} against {b:?}");
     }
-    for (name, format) in [("ants.npz", "ants"), ("l2r.nrrd", "learn2reg")] {
+    // FSL FNIRT's relative deformation field of the same run, read back against the pair.
+    let fnirt = dir.path().join("warp_fnirt.nii.gz");
+    let run = register(&fixed, &moving, &pairs, &fnirt, &[&TINY[..], &["--format", "fnirt"]].concat());
+    assert_ok(&run);
+    let report: serde_json::Value = serde_json::from_slice(&run.stdout).expect("register JSON");
+    assert_eq!(report["format"], "fnirt");
+    let read = warpbench_io::fnirt::read_pullback(&fnirt, (f.dims, &f.lps_from_index), (m.dims, &m.lps_from_index))
+        .expect("against the pair");
+    for (a, b) in read.field.displacements_lps.iter().zip(&want.displacements_lps) {
+        assert!(distance(a.map(f64::from), b.map(f64::from)) < 1e-4, "{a:?} against {b:?}");
+    }
+    for (name, format, what) in
+        [("ants.npz", "ants", "Learn2Reg"), ("l2r.nrrd", "learn2reg", "Learn2Reg"), ("fnirt.nrrd", "fnirt", "FNIRT")]
+    {
         let refused = dir.path().join(name);
         let run = register(&fixed, &moving, &pairs, &refused, &[&TINY[..], &["--format", format]].concat());
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert_eq!(run.status.code(), Some(2), "{stderr}");
-        assert!(stderr.contains(name) && stderr.contains("Learn2Reg"), "{stderr}");
+        assert!(stderr.contains(name) && stderr.contains(what), "{stderr}");
         assert!(!refused.exists());
     }
 }

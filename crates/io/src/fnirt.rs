@@ -138,6 +138,36 @@ pub fn read_pullback(path: &Path, fixed: Grid<'_>, moving: Grid<'_>) -> Result<R
     Ok(ReadFnirt { field, warnings })
 }
 
+/// Writes the pull-back `displacements_lps` (u(x) − x at the voxel centres of `fixed`, LPS mm, i fastest) as an FNIRT
+/// deformation field of relative displacements on that grid, atomically, with `fixed` as FNIRT's reference and
+/// `moving` as its input: at reference voxel i, v = S_moving · W_moving⁻¹ · u(x) − S_fixed · i, what `applywarp
+/// --ref=FIXED --in=MOVING --warp=OUT --rel` applies. [`read_pullback`] reads it back to the same pull-back.
+///
+/// # Errors
+/// A singular grid, a vector that is not finite, a grid NIfTI-1 cannot hold, a failed write (named by `path`).
+pub fn write_pullback(path: &Path, fixed: Grid<'_>, moving: Grid<'_>, displacements_lps: &[[f32; 3]]) -> Result<()> {
+    let singular = |what: &str| Error::invalid(path, format!("{what} cannot be inverted"));
+    let moving_fsl_from_lps =
+        fsl_from_index(moving) * moving.1.matrix().try_inverse().ok_or_else(|| singular("the moving volume's grid"))?;
+    let fixed_fsl_from_index = fsl_from_index(fixed);
+    let lps_from_fixed_index = fixed.1.matrix();
+    let dims = fixed.0;
+    #[allow(clippy::cast_possible_truncation, reason = "a field's vectors are f32 in every flavour")]
+    let displacements_fsl = displacements_lps
+        .par_iter()
+        .enumerate()
+        .map(|(n, d)| {
+            let i = index_point(n, dims);
+            let x = lps_from_fixed_index * i;
+            let u = Vector4::new(x[0] + f64::from(d[0]), x[1] + f64::from(d[1]), x[2] + f64::from(d[2]), 1.0);
+            let q = moving_fsl_from_lps * u;
+            let p = fixed_fsl_from_index * i;
+            [0, 1, 2].map(|c| (q[c] - p[c]) as f32)
+        })
+        .collect::<Vec<_>>();
+    crate::nifti::write_deformation_field(path, (dims, fixed.1), &displacements_fsl)
+}
+
 /// What can be told of an FNIRT file without its images ([`summary`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Summary {

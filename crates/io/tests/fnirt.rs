@@ -109,3 +109,31 @@ fn what_is_not_an_fnirt_warp_against_its_reference_is_refused_naming_the_file() 
     assert_eq!(warpbench_io::nifti::fsl_intent(&dir().join("reference.json")).expect("read"), None);
     refused("src.nii.gz", &neuro, "not an FSL FNIRT warp");
 }
+
+/// What `write_pullback` writes is FNIRT's relative deformation field (intent 2006, float32, the reference's sform)
+/// and reads back, as such, to the pull-back it was given: here the coefficients' own, on the reference grid of each
+/// handedness. (`crates/python/tests/test_fnirt.py` has nibabel read the header.)
+#[test]
+fn a_pullback_written_as_an_fnirt_field_reads_back_to_itself() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let src = open("src.nii.gz");
+    for (coef, reference) in [("coef_neuro.nii.gz", "ref_neuro.nii.gz"), ("coef_radio.nii.gz", "ref_radio.nii.gz")] {
+        let fixed = open(reference);
+        let (f, m) = ((fixed.dims, &fixed.lps_from_index), (src.dims, &src.lps_from_index));
+        let read = fnirt::read_pullback(&dir().join(coef), f, m).unwrap_or_else(|e| panic!("{e}"));
+        let out = tmp.path().join("w.nii.gz");
+        fnirt::write_pullback(&out, f, m, &read.field.displacements_lps).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(warpbench_io::nifti::fsl_intent(&out).expect("read"), Some(2006));
+        let again = fnirt::read_pullback(&out, f, m).unwrap_or_else(|e| panic!("{e}"));
+        assert!(again.warnings.iter().any(|w| w.starts_with("read as relative")), "{:?}", again.warnings);
+        let worst = again
+            .field
+            .displacements_lps
+            .iter()
+            .zip(&read.field.displacements_lps)
+            .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0f32, f32::max))
+            .fold(0.0f32, f32::max);
+        // Two float32 roundings of vectors up to ~60 mm.
+        assert!(worst < 2e-5, "{coef}: {worst} mm");
+    }
+}

@@ -91,8 +91,8 @@ enum Written<'a> {
     Nothing,
     /// A file of an image flavour.
     Flavour(&'a Path, FieldFormat),
-    /// Learn2Reg's field, in the voxels of the moving grid given (`lps_from_index`).
-    Learn2Reg(&'a Path, Transform<Lps, Index>),
+    /// Learn2Reg's field or FNIRT's, in the voxels or the FSL coordinates of the moving grid given.
+    Pair(field::PairOutput, &'a Path, ([usize; 3], Transform<Lps, Index>)),
 }
 
 fn grid(name: &Path, (dims, lps): (Vec<usize>, PyReadonlyArray2<'_, f64>)) -> PyResult<Grid> {
@@ -344,25 +344,37 @@ impl Warp {
                 .map_err(|_| PyValueError::new_err(format!("direction={direction:?}: give pullback or forward")))?;
         let arg = <field::FormatArg as clap::ValueEnum>::from_str(format, true).map_err(|_| {
             PyValueError::new_err(format!(
-                "format={format:?}: give itk, ants, nrrd, metaimage, minc, ngff or learn2reg"
+                "format={format:?}: give itk, ants, nrrd, metaimage, minc, ngff, learn2reg or fnirt"
             ))
         })?;
         let to = match &path {
-            Some(path) if arg.is_learn2reg(path) => {
-                let Some((_, moving_lps)) = moving else {
+            Some(path) if let Some(kind) = arg.pair_output(path) => {
+                let what = match kind {
+                    field::PairOutput::Learn2Reg => "Learn2Reg's field holds steps into the moving volume's voxels",
+                    field::PairOutput::Fnirt => "FNIRT's field is in the moving volume's FSL coordinates",
+                };
+                let Some(moving) = moving else {
                     return Err(PyValueError::new_err(format!(
-                        "{}: Learn2Reg's field holds steps into the moving volume's voxels: fit the warp with moving=",
+                        "{}: {what}: fit the warp with moving=",
                         path.display()
                     )));
                 };
                 if direction == FieldDirection::Forward {
                     return Err(PyValueError::new_err(format!(
-                        "{}: Learn2Reg's field maps fixed voxels to moving ones (the pull-back): leave out \
-                         direction=\"forward\"",
+                        "{}: {what}, and maps the fixed grid into it (the pull-back): leave out direction=\"forward\"",
                         path.display()
                     )));
                 }
-                Written::Learn2Reg(path, moving_lps)
+                if kind == field::PairOutput::Fnirt
+                    && warpbench_io::displacement::FieldFormat::from_extension(path)
+                        != Some(warpbench_io::displacement::FieldFormat::Itk)
+                {
+                    return Err(PyValueError::new_err(format!(
+                        "{}: format=\"fnirt\" writes FNIRT's deformation field, a NIfTI file: name it .nii or .nii.gz",
+                        path.display()
+                    )));
+                }
+                Written::Pair(kind, path, moving)
             }
             Some(path) => Written::Flavour(path, arg.flavour_for(path)),
             None => Written::Nothing,
@@ -686,7 +698,7 @@ impl Warp {
         to: &Written<'_>,
     ) -> PyResult<Field> {
         let out = match to {
-            Written::Flavour(path, _) | Written::Learn2Reg(path, _) => path,
+            Written::Flavour(path, _) | Written::Pair(_, path, _) => path,
             Written::Nothing => Path::new("field"),
         };
         warpbench_io::volume::check_allocation(out, dims, 12, warpbench_io::volume::DEFAULT_MAX_VOXEL_BYTES)
@@ -717,8 +729,9 @@ impl Warp {
         };
         match to {
             Written::Flavour(path, format) => field::write_field(&field, path, *format, None).map_err(|f| to_py(&f))?,
-            Written::Learn2Reg(path, moving_lps) => {
-                field::write_learn2reg(path, dims, lps, moving_lps, &field.displacements_lps).map_err(|f| to_py(&f))?;
+            Written::Pair(kind, path, (moving_dims, moving_lps)) => {
+                kind.write(path, (dims, lps), (*moving_dims, moving_lps), &field.displacements_lps)
+                    .map_err(|f| to_py(&f))?;
             }
             Written::Nothing => {}
         }

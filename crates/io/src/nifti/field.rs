@@ -127,11 +127,22 @@ pub fn write_frame_vectors(
     vectors: &[[f32; 3]],
     descrip: &str,
 ) -> Result<()> {
+    write_frames_with_intent(path, (dims, lps_from_index), vectors, descrip, 0)
+}
+
+/// [`write_frame_vectors`] with `intent_code` in the header (FNIRT's deformation fields: 2006).
+pub(super) fn write_frames_with_intent(
+    path: &Path,
+    (dims, lps_from_index): ([usize; 3], &Transform<Lps, Index>),
+    vectors: &[[f32; 3]],
+    descrip: &str,
+    intent_code: i16,
+) -> Result<()> {
     crate::displacement::check::check_field_to_write(path, dims, lps_from_index, vectors)?;
     let what = Nifti1Content {
         type_code: datatype_code(SampleType::F32),
         descrip: descrip.bytes().take(79).collect(),
-        shape: Shape::Frames(3),
+        shape: Shape::Frames { frames: 3, intent_code },
     };
     let header = nifti1_header_for(path, dims, lps_from_index, &what)?;
     write_file(path, &header, |w| write_planes(w, vectors, [1.0; 3]))

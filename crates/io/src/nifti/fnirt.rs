@@ -11,7 +11,7 @@ use std::path::Path;
 use flate2::read::MultiGzDecoder;
 use nalgebra::Matrix4;
 
-use super::field::{field_dims, read_planes};
+use super::field::{field_dims, read_planes, write_frames_with_intent};
 use super::geometry::lps_from_index;
 use super::header::{Header, pair_error, read_header};
 use super::source::{Extent, GZIP_MAGIC, Source, open_file};
@@ -208,4 +208,20 @@ fn coefficient_field(
         reference_from_source_fsl: m,
         coefficients,
     })
+}
+
+/// Writes an FNIRT deformation field of relative displacements (what `fnirt --fout` writes), atomically: float32,
+/// dim = [4, X, Y, Z, 3], intent 2006, the reference grid's sform and qform, and `displacements_fsl` (mm, in the
+/// reference's and input's FSL coordinates) as they are. Non-finite vectors are refused.
+///
+/// # Errors
+/// A grid NIfTI-1 cannot hold, a vector that is not finite, a failed write (named by `path`).
+pub fn write_deformation_field(
+    path: &Path,
+    reference: ([usize; 3], &Transform<Lps, Index>),
+    displacements_fsl: &[[f32; 3]],
+) -> Result<()> {
+    #[allow(clippy::cast_possible_truncation, reason = "2006 fits in NIfTI-1's i16 intent code")]
+    let intent = FSL_FNIRT_DISPLACEMENT_FIELD as i16;
+    write_frames_with_intent(path, reference, displacements_fsl, "warpbench FNIRT field, relative, mm", intent)
 }

@@ -146,9 +146,9 @@ pub(super) enum Shape {
     Scalar,
     /// A vector of `components` with `intent_code`, as ITK writes one: dim = [5, X, Y, Z, 1, components, 1, 1].
     Vector { intent_code: i16, components: i16 },
-    /// `frames` samples along the fourth axis, no intent, as nibabel writes an (X, Y, Z, frames) array: dim =
-    /// [4, X, Y, Z, frames, 1, 1, 1].
-    Frames(i16),
+    /// `frames` samples along the fourth axis, as nibabel writes an (X, Y, Z, frames) array: dim =
+    /// [4, X, Y, Z, frames, 1, 1, 1], with `intent_code` (0: none; FNIRT's deformation fields carry 2006).
+    Frames { frames: i16, intent_code: i16 },
 }
 
 pub(super) fn nifti1_header_for(
@@ -178,7 +178,10 @@ pub(super) fn nifti1_header_for(
             p.i16(68, intent_code);
             [5, nx, ny, nz, 1, components, 1, 1]
         }
-        Shape::Frames(frames) => [4, nx, ny, nz, frames, 1, 1, 1],
+        Shape::Frames { frames, intent_code } => {
+            p.i16(68, intent_code);
+            [4, nx, ny, nz, frames, 1, 1, 1]
+        }
     };
     for (i, d) in dim.into_iter().enumerate() {
         p.i16(40 + 2 * i, d);

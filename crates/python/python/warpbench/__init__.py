@@ -368,7 +368,10 @@ class Warp:
         ``.h5`` (with ``"itk"``)
         is ITK's HDF5 transform file holding the field as a DisplacementFieldTransform. ``"learn2reg"`` (or a ``path``
         ending ``.npz``) writes Learn2Reg's field, the pull-back's steps from the reference's voxels to the moving
-        volume's (``.npz`` float16, or ``.nii.gz`` float32), which needs the warp fitted with ``moving=``."""
+        volume's (``.npz`` float16, or ``.nii.gz`` float32), which needs the warp fitted with ``moving=``.
+        ``"fnirt"`` writes FSL FNIRT's relative deformation field (``.nii`` or ``.nii.gz``), in the FSL coordinates
+        of ``reference`` (``applywarp``'s ``--ref``) and of the moving volume (its ``--in``), which needs ``moving=``
+        too: ``applywarp --ref=REF --in=MOVING --warp=PATH --rel`` applies it."""
         if reference is None:
             reference = self.fixed if direction == "pullback" else self.moving
         if reference is None:
