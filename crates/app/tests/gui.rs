@@ -345,6 +345,44 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     harness.get_by_label("Learn2Reg steps in voxels").click();
     harness.run_steps(2);
     assert!(!harness.state().ready().expect("loaded").files.export_fields.field_in_voxels);
+    // A NIfTI name with FSL FNIRT field ticked: FNIRT's relative field of the same warp, which reads back against the
+    // pair to the ITK field above; ticking Learn2Reg's form unticks it (one form at a time).
+    let fnirt_out = dir.path().join("warp_fnirt.nii.gz");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = fnirt_out.display().to_string();
+    harness.run_steps(2);
+    harness.get_by_label("FSL FNIRT field").scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label("FSL FNIRT field").click();
+    harness.run_steps(2);
+    {
+        use egui_kittest::kittest::NodeT as _;
+        assert!(harness.get_by_label("Export inverse field").accesskit_node().is_disabled(), "inverse offered");
+    }
+    let message = export(&mut harness, "Export displacement field", &fnirt_out);
+    assert!(message.contains("displacement field"), "{message}");
+    let (fixed, moving) = {
+        let loaded = &harness.state().ready().expect("loaded").loaded;
+        ((loaded.fixed.dims, loaded.fixed.lps_from_index), (loaded.moving.dims, loaded.moving.lps_from_index))
+    };
+    let read = warpbench_io::fnirt::read_pullback(&fnirt_out, (fixed.0, &fixed.1), (moving.0, &moving.1))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let worst = read
+        .field
+        .displacements_lps
+        .iter()
+        .zip(&nifti.displacements_lps)
+        .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0f32, f32::max))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "{worst} mm from the ITK field");
+    for _ in 0..2 {
+        harness.get_by_label("Learn2Reg steps in voxels").scroll_to_me();
+        harness.run_steps(3);
+        harness.get_by_label("Learn2Reg steps in voxels").click();
+        harness.run_steps(2);
+        let fields = &harness.state().ready().expect("loaded").files.export_fields;
+        assert!(!fields.field_fnirt, "one form at a time");
+    }
+    assert!(!harness.state().ready().expect("loaded").files.export_fields.field_in_voxels);
     let inverse_out = dir.path().join("inverse.nrrd");
     let message = export(&mut harness, "Export inverse field", &inverse_out);
     assert!(message.contains("inverse (forward) displacement field"), "{message}");

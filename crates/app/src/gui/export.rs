@@ -75,6 +75,9 @@ pub enum FieldForm {
     /// Learn2Reg's steps from the fixed voxels to the moving voxels, `.npz` or the NIfTI form by the name
     /// ([`field::write_learn2reg`]): "Learn2Reg steps in voxels", for a NIfTI name.
     Learn2Reg,
+    /// FSL FNIRT's relative deformation field, for `applywarp --rel` ([`warpbench_io::fnirt::write_pullback`]): "FSL
+    /// FNIRT field", for a NIfTI name.
+    Fnirt,
 }
 
 impl FieldForm {
@@ -82,6 +85,16 @@ impl FieldForm {
     #[must_use]
     pub fn is_learn2reg(self, out: &Path) -> bool {
         self == Self::Learn2Reg || learn2reg::is_npz_name(out)
+    }
+
+    /// The field written against the pair's grids that a field exported to `out` is, if any.
+    #[must_use]
+    pub fn pair_output(self, out: &Path) -> Option<field::PairOutput> {
+        if self == Self::Fnirt {
+            Some(field::PairOutput::Fnirt)
+        } else {
+            self.is_learn2reg(out).then_some(field::PairOutput::Learn2Reg)
+        }
     }
 }
 
@@ -109,6 +122,11 @@ impl ExportJob {
             ExportKind::Map { .. } => warp::check_outputs(&out, None).map_err(|e| format!("{e:#}"))?,
             // Learn2Reg's field holds the pull-back on the fixed voxels ([`field::write_learn2reg`]), as an .npz or
             // the NIfTI form.
+            ExportKind::Field { form: FieldForm::Fnirt } => {
+                if FieldFormat::from_extension(&out) != Some(FieldFormat::Itk) {
+                    return Err(format!("{}: FNIRT's field is a NIfTI file: name it .nii or .nii.gz", out.display()));
+                }
+            }
             ExportKind::Field { form } if form.is_learn2reg(&out) => {
                 let nifti = FieldFormat::from_extension(&out) == Some(FieldFormat::Itk);
                 if !learn2reg::is_npz_name(&out) && !nifti {
@@ -343,9 +361,13 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 _ => (FieldDirection::Pullback, fixed, "displacement field"),
             };
             let f = field::sample_field(grid, &made_of, direction, &mut progress)?;
-            let learn2reg = matches!(kind, ExportKind::Field { form } if form.is_learn2reg(out));
-            if learn2reg {
-                field::write_learn2reg(out, f.dims, &f.lps_from_index, &moving.lps_from_index, &f.displacements_lps)?;
+            let pair_output = match kind {
+                ExportKind::Field { form } => form.pair_output(out),
+                _ => None,
+            };
+            if let Some(pair) = pair_output {
+                let moving_grid = (moving.dims, &moving.lps_from_index);
+                pair.write(out, (f.dims, &f.lps_from_index), moving_grid, &f.displacements_lps)?;
             } else {
                 let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
                 field::write_field(&f, out, format, None)?;
@@ -445,28 +467,46 @@ pub fn export_ui(
             asked = Some((ExportKind::Warped { dicom }, path.clone()));
         }
         if ui.add_enabled(enabled, egui::Button::new("Export displacement field")).clicked() {
-            let form = if nifti && fields.field_in_voxels { FieldForm::Learn2Reg } else { FieldForm::ByName };
+            let form = match (nifti, fields.field_in_voxels, fields.field_fnirt) {
+                (true, true, _) => FieldForm::Learn2Reg,
+                (true, false, true) => FieldForm::Fnirt,
+                _ => FieldForm::ByName,
+            };
             asked = Some((ExportKind::Field { form }, path.clone()));
         }
     });
     ui.horizontal(|ui| {
-        // Learn2Reg's form holds the pull-back only.
-        let voxels = nifti && fields.field_in_voxels;
-        let inverse = ui.add_enabled(enabled && !voxels, egui::Button::new("Export inverse field"));
+        // Learn2Reg's and FNIRT's forms hold the pull-back only.
+        let pullback_only = nifti && (fields.field_in_voxels || fields.field_fnirt);
+        let inverse = ui.add_enabled(enabled && !pullback_only, egui::Button::new("Export inverse field"));
         if inverse
             .on_hover_text("The forward map on the moving grid: where each moving point goes (points, meshes)")
-            .on_disabled_hover_text("Learn2Reg's field holds the pull-back only: untick Learn2Reg steps in voxels")
+            .on_disabled_hover_text(
+                "Learn2Reg's and FNIRT's fields hold the pull-back only: untick Learn2Reg steps in voxels or FSL \
+                 FNIRT field",
+            )
             .clicked()
         {
             asked = Some((ExportKind::InverseField, path.clone()));
         }
         // Only a NIfTI name can take Learn2Reg's form, and only it needs saying so (an .npz is Learn2Reg's).
         if nifti {
-            ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
+            let l2r = ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
                 "Export displacement field writes Learn2Reg's form: at each fixed voxel, the step to the moving \
                  voxel it reads, in voxels (float32, the fixed volume's affine), as the challenge's evaluation \
                  reads disp_XXXX_YYYY.nii.gz",
             );
+            let fnirt = ui.checkbox(&mut fields.field_fnirt, "FSL FNIRT field").on_hover_text(
+                "Export displacement field writes FSL FNIRT's relative deformation field, in the FSL coordinates of \
+                 the fixed volume and the moving one: applywarp --ref=FIXED --in=MOVING --warp=FILE --rel",
+            );
+            // One form at a time: ticking one unticks the other.
+            if l2r.changed() && fields.field_in_voxels {
+                fields.field_fnirt = false;
+            }
+            if fnirt.changed() && fields.field_fnirt {
+                fields.field_in_voxels = false;
+            }
         }
     });
     ui.horizontal(|ui| {
@@ -517,4 +557,6 @@ pub struct ExportFields {
     pub dicom: String,
     /// Whether a field exported under a NIfTI name is Learn2Reg's steps in voxels ([`FieldForm::Learn2Reg`]).
     pub field_in_voxels: bool,
+    /// Whether a field exported under a NIfTI name is FSL FNIRT's ([`FieldForm::Fnirt`]).
+    pub field_fnirt: bool,
 }
