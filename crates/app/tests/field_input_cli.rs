@@ -941,32 +941,26 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
     let reference: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(data("fnirt/reference.json")).expect("reference")).expect("JSON");
     let src = data("fnirt/src.nii.gz");
+    // `warpbench field` with FNIRT's reference as the fixed volume and `warp` under it.
+    let field = |fixed: &Path, warp: &Path, out: &Path, extra: &[&str]| {
+        let mut args = vec!["field", "--fixed", s(fixed), "--moving", s(&src), "--field", s(warp), "--out", s(out)];
+        args.extend(extra);
+        warpbench(&args)
+    };
     for (name, inferred) in
         [("coef_neuro.nii.gz", None), ("coef_radio.nii.gz", None), ("field_abs.nii.gz", Some("absolute"))]
     {
         let case = &reference["warps"][name];
         let fixed = data(&format!("fnirt/{}.nii.gz", case["reference"].as_str().expect("a name")));
         let out = tmp.path().join("u.nii.gz");
-        let warp = data(&format!("fnirt/{name}"));
-        let run = warpbench(&[
-            "field",
-            "--fixed",
-            s(&fixed),
-            "--moving",
-            s(&src),
-            "--field",
-            s(&warp),
-            "--out",
-            s(&out),
-            "--force",
-        ]);
+        let run = field(&fixed, &data(&format!("fnirt/{name}")), &out, &["--force"]);
         assert_ok(&run);
         let stderr = String::from_utf8_lossy(&run.stderr);
         match inferred {
             Some(kind) => assert!(stderr.contains(&format!("read as {kind} positions")), "{name}: {stderr}"),
             None => assert!(!stderr.contains("warning"), "{name}: {stderr}"),
         }
-        let (field, _) = read_field(&out).expect("read the output");
+        let (written, _) = read_field(&out).expect("read the output");
         let volume = warpbench_io::open(&fixed).expect("the reference");
         let mut worst = 0.0f64;
         for (v, want) in
@@ -975,7 +969,7 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
             let ijk: Vec<usize> =
                 v.as_array().expect("a voxel").iter().map(|c| c.as_u64().expect("index") as usize).collect();
             let x = volume.voxel_lps(ijk[0], ijk[1], ijk[2]).coords();
-            let d = field.displacements_lps[ijk[0] + field.dims[0] * (ijk[1] + field.dims[1] * ijk[2])];
+            let d = written.displacements_lps[ijk[0] + written.dims[0] * (ijk[1] + written.dims[1] * ijk[2])];
             for c in 0..3 {
                 worst = worst.max((x[c] + f64::from(d[c]) - want[c].as_f64().expect("a number")).abs());
             }
@@ -1006,17 +1000,7 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
     let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("JSON");
     assert_eq!((&info["kind"], &info["format"]), (&"displacement_field".into(), &"fnirt".into()), "{info}");
     // The input as the reference: not the grid the coefficients were made over.
-    let run = warpbench(&[
-        "field",
-        "--fixed",
-        s(&src),
-        "--moving",
-        s(&src),
-        "--field",
-        s(&coef),
-        "--out",
-        s(&tmp.path().join("x.nii.gz")),
-    ]);
+    let run = field(&src, &coef, &tmp.path().join("x.nii.gz"), &[]);
     assert_eq!(run.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(stderr.contains("coef_neuro.nii.gz") && stderr.contains("fnirt's --ref"), "{stderr}");
@@ -1024,20 +1008,7 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
 
     // Written back as FNIRT's relative field (`--format fnirt`): the same warp, read against the same pair.
     let written = tmp.path().join("fnirt.nii.gz");
-    let run = warpbench(&[
-        "field",
-        "--fixed",
-        s(&fixed),
-        "--moving",
-        s(&src),
-        "--field",
-        s(&coef),
-        "--format",
-        "fnirt",
-        "--out",
-        s(&written),
-        "--json",
-    ]);
+    let run = field(&fixed, &coef, &written, &["--format", "fnirt", "--json"]);
     assert_ok(&run);
     let summary: serde_json::Value = serde_json::from_slice(&run.stdout).expect("the summary");
     assert_eq!(summary["format"], "fnirt", "{summary}");
@@ -1058,10 +1029,7 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
     // FNIRT's field is a NIfTI pull-back: another name or the forward map exits 2 before any work.
     for (out, extra) in [("w.nrrd", &[][..]), ("fwd.nii.gz", &["--direction", "forward"][..])] {
         let out = tmp.path().join(out);
-        let mut args = vec!["field", "--fixed", s(&fixed), "--moving", s(&src), "--field", s(&coef)];
-        args.extend(["--format", "fnirt", "--out", s(&out)]);
-        args.extend(extra);
-        let run = warpbench(&args);
+        let run = field(&fixed, &coef, &out, &[&["--format", "fnirt"][..], extra].concat());
         assert_eq!(run.status.code(), Some(2), "{extra:?}");
         assert!(String::from_utf8_lossy(&run.stderr).contains("--format fnirt"), "{extra:?}");
         assert!(!out.exists());
