@@ -67,7 +67,15 @@ pub fn read_pullback(path: &Path, fixed: Grid<'_>, moving: Grid<'_>) -> Result<R
     let lps_from_moving_fsl = moving.1.matrix() * moving_index_from_fsl;
     let fixed_fsl_from_index = fsl_from_index(fixed);
     let mut warnings = Vec::new();
-    let (positions_fsl, dims) = match file {
+    let lps_from_fixed_index = fixed.1.matrix();
+    // u(x) − x at reference voxel n, from the input's FSL position q it reads.
+    #[allow(clippy::cast_possible_truncation, reason = "a field's vectors are f32 in every flavour")]
+    let displacement = |n: usize, dims: [usize; 3], q: [f64; 3]| {
+        let x = lps_from_fixed_index * index_point(n, dims);
+        let u = lps_from_moving_fsl * Vector4::new(q[0], q[1], q[2], 1.0);
+        [0, 1, 2].map(|c| (u[c] - x[c]) as f32)
+    };
+    let (displacements_lps, dims) = match file {
         FnirtFile::Deformation { dims, lps_from_index, vectors } => {
             check_deformation_grid(path, fixed, dims, lps_from_index.as_ref().map(|(t, _)| t), &mut warnings)?;
             let absolute = looks_absolute(dims, &vectors, &fixed_fsl_from_index);
@@ -80,49 +88,34 @@ pub fn read_pullback(path: &Path, fixed: Grid<'_>, moving: Grid<'_>) -> Result<R
                  less than positions would (fslpy's test)"
                     .to_string()
             });
-            let positions = vectors
+            let displacements = vectors
                 .par_iter()
                 .enumerate()
                 .map(|(n, v)| {
                     let v = v.map(f64::from);
-                    if absolute {
+                    let q = if absolute {
                         v
                     } else {
                         let p = fixed_fsl_from_index * index_point(n, dims);
                         [p[0] + v[0], p[1] + v[1], p[2] + v[2]]
-                    }
+                    };
+                    displacement(n, dims, q)
                 })
                 .collect::<Vec<_>>();
-            (positions, dims)
+            (displacements, dims)
         }
         FnirtFile::CubicCoefficients(c) => {
             check_coefficient_reference(path, fixed, &c)?;
             let source_from_reference =
                 c.reference_from_source_fsl.try_inverse().ok_or_else(|| singular("the starting affine (the sform)"))?;
             let dims = fixed.0;
-            let d = spline_displacements(&c, dims);
-            let positions = d
-                .par_iter()
-                .enumerate()
-                .map(|(n, d)| {
-                    let q = source_from_reference * (fixed_fsl_from_index * index_point(n, dims));
-                    [q[0] + d[0], q[1] + d[1], q[2] + d[2]]
-                })
-                .collect::<Vec<_>>();
-            (positions, dims)
+            let displacements = spline_displacements(&c, dims, &|n, d| {
+                let q = source_from_reference * (fixed_fsl_from_index * index_point(n, dims));
+                displacement(n, dims, [q[0] + d[0], q[1] + d[1], q[2] + d[2]])
+            });
+            (displacements, dims)
         }
     };
-    let lps_from_fixed_index = fixed.1.matrix();
-    #[allow(clippy::cast_possible_truncation, reason = "a field's vectors are f32 in every flavour")]
-    let displacements_lps = positions_fsl
-        .par_iter()
-        .enumerate()
-        .map(|(n, q)| {
-            let x = lps_from_fixed_index * index_point(n, dims);
-            let u = lps_from_moving_fsl * Vector4::new(q[0], q[1], q[2], 1.0);
-            [0, 1, 2].map(|c| (u[c] - x[c]) as f32)
-        })
-        .collect::<Vec<_>>();
     if let Some(ijk) = crate::displacement::check::first_non_finite(dims, &displacements_lps) {
         return Err(Error::invalid(
             path,
@@ -348,10 +341,14 @@ fn taps(i: usize, s: f64) -> (isize, [f64; 4]) {
     (base as isize, weights(f - base))
 }
 
-/// The spline's displacement (FSL mm) at every voxel of the reference grid `dims`, i fastest; taps outside the knot
-/// grid count as zero, as in fslpy. Separable: per row of the reference grid, the knots are combined along j and k
-/// once, then along i per voxel.
-fn spline_displacements(c: &CoefficientField, dims: [usize; 3]) -> Vec<[f64; 3]> {
+/// `finish(n, d)` of the spline's displacement d (FSL mm) at every voxel n of the reference grid `dims`, i fastest;
+/// taps outside the knot grid count as zero, as in fslpy. Separable: per row of the reference grid, the knots are
+/// combined along j and k once, then along i per voxel.
+fn spline_displacements(
+    c: &CoefficientField,
+    dims: [usize; 3],
+    finish: &(dyn Fn(usize, [f64; 3]) -> [f32; 3] + Sync),
+) -> Vec<[f32; 3]> {
     let [kx, ky, kz] = c.dims;
     let knot = |a: isize, b: isize, n: isize| -> Option<&[f32; 3]> {
         let inside = |v: isize, len: usize| usize::try_from(v).ok().filter(|&v| v < len);
@@ -359,7 +356,7 @@ fn spline_displacements(c: &CoefficientField, dims: [usize; 3]) -> Vec<[f64; 3]>
         c.coefficients.get(a + kx * (b + ky * n))
     };
     let x_taps: Vec<_> = (0..dims[0]).map(|i| taps(i, c.knot_spacing[0])).collect();
-    let mut out = vec![[0.0; 3]; dims[0] * dims[1] * dims[2]];
+    let mut out = vec![[0.0f32; 3]; dims[0] * dims[1] * dims[2]];
     out.par_chunks_mut(dims[0]).enumerate().for_each(|(row, out)| {
         let (j, k) = (row % dims[1], row / dims[1]);
         let (bj, wj) = taps(j, c.knot_spacing[1]);
@@ -381,15 +378,17 @@ fn spline_displacements(c: &CoefficientField, dims: [usize; 3]) -> Vec<[f64; 3]>
                 sum
             })
             .collect();
-        for (o, &(bi, wi)) in out.iter_mut().zip(&x_taps) {
+        for (i, (o, &(bi, wi))) in out.iter_mut().zip(&x_taps).enumerate() {
+            let mut d = [0.0; 3];
             for (l, wl) in wi.iter().enumerate() {
                 let a = bi + l as isize;
                 if let Some(v) = usize::try_from(a).ok().and_then(|a| combined.get(a)) {
-                    for (o, v) in o.iter_mut().zip(v) {
-                        *o += wl * v;
+                    for (d, v) in d.iter_mut().zip(v) {
+                        *d += wl * v;
                     }
                 }
             }
+            *o = finish(row * dims[0] + i, d);
         }
     });
     out
