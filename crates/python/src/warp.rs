@@ -349,9 +349,15 @@ impl Warp {
         })?;
         let to = match &path {
             Some(path) if let Some(kind) = arg.pair_output(path) => {
-                let what = match kind {
-                    field::PairOutput::Learn2Reg => "Learn2Reg's field holds steps into the moving volume's voxels",
-                    field::PairOutput::Fnirt => "FNIRT's field is in the moving volume's FSL coordinates",
+                let (what, pullback) = match kind {
+                    field::PairOutput::Learn2Reg => (
+                        "Learn2Reg's field holds steps into the moving volume's voxels",
+                        "Learn2Reg's field maps fixed voxels to moving ones (the pull-back)",
+                    ),
+                    field::PairOutput::Fnirt => (
+                        "FNIRT's field is in the moving volume's FSL coordinates",
+                        "FNIRT's field maps the reference (fixed) grid into the input (the pull-back)",
+                    ),
                 };
                 let Some(moving) = moving else {
                     return Err(PyValueError::new_err(format!(
@@ -361,7 +367,7 @@ impl Warp {
                 };
                 if direction == FieldDirection::Forward {
                     return Err(PyValueError::new_err(format!(
-                        "{}: {what}, and maps the fixed grid into it (the pull-back): leave out direction=\"forward\"",
+                        "{}: {pullback}: leave out direction=\"forward\"",
                         path.display()
                     )));
                 }
