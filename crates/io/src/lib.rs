@@ -48,6 +48,7 @@ pub mod ngff;
 pub mod nifti;
 pub mod nrrd;
 pub mod options;
+mod pargz;
 pub mod sample;
 pub mod series;
 mod stream;

@@ -74,9 +74,9 @@ use std::fs::File;
 use std::io::{self, BufReader, Seek, SeekFrom, Write};
 use std::path::Path;
 
+use crate::pargz::ParGzWriter;
 use flate2::Compression;
 use flate2::read::MultiGzDecoder;
-use flate2::write::GzEncoder;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::error::{Error, ErrorKind, Result};
@@ -437,7 +437,7 @@ fn header_of(name: &Path, volume: &Volume) -> Result<Header> {
 /// Writes the header, the samples big-endian a bounded chunk at a time, and the zero scan parameters.
 fn write_to(w: &mut dyn Write, header: &Header, data: &VoxelData, gzip: bool) -> io::Result<()> {
     if gzip {
-        let mut enc = GzEncoder::new(w, Compression::default());
+        let mut enc = ParGzWriter::new(w, Compression::default());
         write_plain(&mut enc, header, data)?;
         enc.finish()?;
         Ok(())

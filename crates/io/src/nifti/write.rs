@@ -4,8 +4,8 @@
 use std::io::{self, Write};
 use std::path::Path;
 
+use crate::pargz::ParGzWriter;
 use flate2::Compression;
-use flate2::write::GzEncoder;
 
 use super::geometry::qform_from_linear;
 use super::header::{NIFTI1_HEADER_BYTES, NIFTI1_MAGIC, NIFTI2_HEADER_BYTES, NIFTI2_MAGIC};
@@ -52,7 +52,7 @@ pub(super) fn write_file(
     let gz = path.file_name().is_some_and(|n| n.to_string_lossy().to_ascii_lowercase().ends_with(".gz"));
     crate::write_atomic(path, |w| {
         if gz {
-            let mut enc = GzEncoder::new(w, Compression::default());
+            let mut enc = ParGzWriter::new(w, Compression::default());
             enc.write_all(header)?;
             samples(&mut enc)?;
             enc.finish()?;

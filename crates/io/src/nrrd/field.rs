@@ -28,8 +28,8 @@ use std::fs::File;
 use std::io::{self, BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
+use crate::pargz::ParGzWriter;
 use flate2::Compression;
-use flate2::write::GzEncoder;
 
 use super::data::{decode_payload, preflight_size};
 use super::header::{Header, SpaceKind, parse_header, read_header_lines};
@@ -206,7 +206,7 @@ pub fn write_displacement_field(
     let header = header_text(dims, lps_from_index, field_type);
     crate::write_atomic(path, |w| {
         w.write_all(header.as_bytes())?;
-        let mut gz = GzEncoder::new(w, Compression::default());
+        let mut gz = ParGzWriter::new(w, Compression::default());
         write_vectors(&mut gz, displacements_lps)?;
         gz.finish()?;
         Ok(())

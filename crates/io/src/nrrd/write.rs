@@ -3,8 +3,8 @@
 use std::io::{self, Write};
 use std::path::Path;
 
+use crate::pargz::ParGzWriter;
 use flate2::Compression;
-use flate2::write::GzEncoder;
 
 use crate::error::{Error, Result};
 use crate::volume::{SampleType, Volume, VoxelData};
@@ -40,7 +40,7 @@ pub fn write_with(path: &Path, volume: &Volume, options: NrrdWriteOptions) -> Re
     crate::write_atomic(path, |w| {
         w.write_all(header.as_bytes())?;
         if options.gzip {
-            let mut gz = GzEncoder::new(w, Compression::default());
+            let mut gz = ParGzWriter::new(w, Compression::default());
             write_samples(&mut gz, &volume.data)?;
             gz.finish()?;
             Ok(())
