@@ -24,18 +24,16 @@ Usage, from the repository root (the `.ci/run` venv, which has fslpy, and a rele
 from __future__ import annotations
 
 import argparse
-import os
-import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import nibabel as nib
 import numpy as np
 from fsl.data.image import Image
 from fsl.transform import affine, fnirt, nonlinear
+
+from process_timing import alternate, report
 
 FSLPY = (
     "import sys, numpy as np; from fsl.data.image import Image; from fsl.transform import fnirt, nonlinear; "
@@ -72,17 +70,6 @@ def make(folder: Path) -> tuple[Path, Path, Path]:
     return ref, src, coef
 
 
-def run(cmd: list[str]) -> tuple[float, float]:
-    """Wall seconds and CPU seconds of one whole process."""
-    start = time.monotonic()
-    child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(child.pid, 0)
-    wall = time.monotonic() - start
-    if os.waitstatus_to_exitcode(status) != 0:
-        sys.exit(f"{cmd[0]} failed: {child.stderr.read().decode()}")
-    return wall, usage.ru_utime + usage.ru_stime
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=5)
@@ -93,11 +80,7 @@ def main() -> None:
         a_cmd = [args.bin, "field", "--fixed", str(ref), "--moving", str(src), "--field", str(coef),
                  "--out", str(Path(tmp) / "a.nii.gz"), "--quiet", "--force"]
         b_cmd = [sys.executable, "-c", FSLPY, str(coef), str(ref), str(src), str(Path(tmp) / "b.nii.gz")]
-        run(a_cmd), run(b_cmd)  # warm-up, not counted
-        a, b = [], []
-        for _ in range(args.runs):
-            a.append(run(a_cmd))
-            b.append(run(b_cmd))
+        a, b = alternate(a_cmd, b_cmd, args.runs)
         # The two outputs are one warp, compared through the input's points they take every 7th voxel to: fslpy's
         # relative field is in FSL mm (here the 1 mm voxels, both images radiological), warpbench's ITK field holds
         # RAS vectors in mm.
@@ -109,10 +92,7 @@ def main() -> None:
         mine = ijk @ ref_aff[:3, :3].T + ref_aff[:3, 3] + ours
         print(f"largest difference between the two fields' points: {np.abs(theirs - mine).max():.2e} mm "
               f"(largest displacement {np.linalg.norm(ours, axis=1).max():.1f} mm)")
-    med = lambda xs, k: statistics.median(x[k] for x in xs)  # noqa: E731
-    for what, k in (("wall s", 0), ("cpu s", 1)):
-        ratio = statistics.median(x[k] / y[k] for x, y in zip(a, b))
-        print(f"{what:9} A {med(a, k):8.3f}  B {med(b, k):8.3f}  A/B {ratio:.2f}")
+    report(a, b)
 
 
 if __name__ == "__main__":

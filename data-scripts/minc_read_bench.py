@@ -17,17 +17,15 @@ Usage, from the repository root (the `.ci/run` venv and a release build):
 from __future__ import annotations
 
 import argparse
-import os
-import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import h5py
 import numpy as np
 import SimpleITK as sitk
+
+from process_timing import alternate, report
 
 NIBABEL_LOAD = (
     "import sys, numpy as np, nibabel as nib; "
@@ -50,17 +48,6 @@ def make(folder: Path) -> Path:
     return chunked
 
 
-def run(cmd: list[str]) -> tuple[float, float]:
-    """Wall seconds and CPU seconds of one whole process."""
-    start = time.monotonic()
-    child = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(child.pid, 0)
-    wall = time.monotonic() - start
-    if os.waitstatus_to_exitcode(status) != 0:
-        sys.exit(f"{cmd[0]} failed")
-    return wall, usage.ru_utime + usage.ru_stime
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", type=int, default=7)
@@ -70,15 +57,8 @@ def main() -> None:
         path = make(Path(tmp))
         a_cmd = [args.bin, "info", str(path), "--quiet"]
         b_cmd = [sys.executable, "-c", NIBABEL_LOAD, str(path)]
-        run(a_cmd), run(b_cmd)  # warm-up, not counted
-        a, b = [], []
-        for _ in range(args.runs):
-            a.append(run(a_cmd))
-            b.append(run(b_cmd))
-    med = lambda xs, k: statistics.median(x[k] for x in xs)  # noqa: E731
-    for what, k in (("wall s", 0), ("cpu s", 1)):
-        ratio = statistics.median(x[k] / y[k] for x, y in zip(a, b))
-        print(f"{what:9} A {med(a, k):8.3f}  B {med(b, k):8.3f}  A/B {ratio:.2f}")
+        a, b = alternate(a_cmd, b_cmd, args.runs)
+    report(a, b)
 
 
 if __name__ == "__main__":
