@@ -236,6 +236,28 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert_eq!(ready.document.fixed.as_deref(), Some(ct.as_path()));
     assert_eq!(ready.document.moving.as_deref(), Some(mri().as_path()));
     assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+
+    // A displacement field dropped on the window goes under the landmarks, told by its header (ITK's DISPVECT); an
+    // FNIRT warp made for other images is refused in the status bar, naming it, and the field stays.
+    let field = data("itk/field_input_field.nii.gz");
+    drop_files(&mut harness, std::slice::from_ref(&field));
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.document.field.as_ref().map(|f| f.path.as_path()), Some(field.as_path()));
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("is the displacement field under the landmarks"), "{message}");
+    drop_files(&mut harness, &[data("fnirt/coef_neuro.nii.gz")]);
+    let ready = harness.state().ready().expect("loaded");
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("coef_neuro.nii.gz") && message.contains("fnirt's --ref"), "{message}");
+    assert_eq!(ready.document.field.as_ref().map(|f| f.path.as_path()), Some(field.as_path()));
+    // With FNIRT's reference and input open, it is used, and the status bar says how it is read.
+    drop_files(&mut harness, &[data("fnirt/ref_neuro.nii.gz"), data("fnirt/src.nii.gz")]);
+    wait_for_reads(&mut harness);
+    drop_files(&mut harness, &[data("fnirt/coef_neuro.nii.gz")]);
+    let ready = harness.state().ready().expect("loaded");
+    let message = ready.files.message.clone().unwrap_or_default();
+    assert!(message.contains("an FSL FNIRT warp, with this fixed volume as its reference"), "{message}");
+    assert!(ready.document.field.as_ref().is_some_and(|f| f.voxel_grids.is_some()), "the grids are recorded");
 }
 
 /// Types `out` into the export section and presses `button`; the status bar's message once the export is done.

@@ -254,6 +254,13 @@ impl Workbench {
                 Phase::Ready(ready) => ready.apply(Command::File(files::FileAction::ImportLandmarks(path))),
                 _ => self.dialogs.error = Some("Open a pair of volumes before importing landmarks.".into()),
             },
+            OpenEvent::UseField(path) => match &mut self.phase {
+                Phase::Ready(ready) => ready.apply(Command::File(files::FileAction::UseField(path))),
+                _ => {
+                    self.dialogs.error =
+                        Some("Open a pair of volumes before using a displacement field under the landmarks.".into());
+                }
+            },
             OpenEvent::Chosen(purpose, path) => {
                 let Phase::Ready(ready) = &mut self.phase else { return };
                 if let Some(action) = files::chosen(purpose, path) {

@@ -146,10 +146,13 @@ impl Ready {
             .and_then(|file| self.fit.read_field(&file).map(|warnings| (file, warnings)));
         match chosen {
             Ok((file, warnings)) => {
-                let grids = if file.voxel_grids.is_some() {
-                    " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)"
-                } else {
-                    ""
+                let grids = match &file.voxel_grids {
+                    Some(_) if crate::project::field_file::is_fnirt_file(&file.path).unwrap_or(false) => {
+                        " (an FSL FNIRT warp, with this fixed volume as its reference and this moving volume as its \
+                         input)"
+                    }
+                    Some(_) => " (Learn2Reg voxel steps, from this fixed volume's voxels to this moving volume's)",
+                    None => "",
                 };
                 let assumed: String = warnings.iter().flat_map(|w| ["; warning: ", w.as_str()]).collect();
                 self.files.message = Some(format!(

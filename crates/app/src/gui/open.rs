@@ -150,12 +150,16 @@ impl VolumeJob {
     }
 }
 
-/// What a dropped (or chosen) file is, from its name: a session, a landmark file, or a volume (a folder is a
-/// DICOM series).
+/// What a dropped (or chosen) file is: a session or a landmark file by its name, a displacement field by what its
+/// first bytes say unambiguously, or else a volume (a folder is a DICOM series or an OME-Zarr image).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum FileKind {
     Session,
     Landmarks,
+    /// A NIfTI of intent `DISPVECT` (1006: ITK, Slicer) or one of FSL's (an FNIRT warp), or a Learn2Reg `.npz`: used
+    /// as the displacement field under the landmarks. (ANTs' `VECTOR`, 1007, is any vector image, so it stays a
+    /// volume.)
+    Field,
     Volume,
 }
 
@@ -168,9 +172,19 @@ pub fn classify(path: &Path) -> FileKind {
         FileKind::Session
     } else if [".csv", ".fcsv", ".json"].iter().any(|e| name.ends_with(e)) {
         FileKind::Landmarks
+    } else if is_field_file(path) {
+        FileKind::Field
     } else {
         FileKind::Volume
     }
+}
+
+/// Whether the file says it is a displacement field ([`FileKind::Field`]); one that cannot be read is not.
+fn is_field_file(path: &Path) -> bool {
+    let intent = warpbench_io::nifti::intent_code(path).ok().flatten();
+    let dispvect = i32::from(warpbench_io::nifti::NIFTI_INTENT_DISPVECT);
+    intent.is_some_and(|c| c == dispvect || warpbench_io::nifti::FSL_INTENTS.contains(&c))
+        || warpbench_io::learn2reg::is_npz_file(path).unwrap_or(false)
 }
 
 /// What the user asked for through a menu, a dialog, a drop or a chooser.
@@ -184,6 +198,8 @@ pub enum OpenEvent {
     },
     OpenSession(PathBuf),
     ImportLandmarks(PathBuf),
+    /// Use this displacement field under the landmarks (a field dropped on the window).
+    UseField(PathBuf),
     /// A dialog for a file action (saving, exporting, a file to use) returned a path.
     Chosen(Purpose, PathBuf),
     /// Start a native dialog.
@@ -225,8 +241,8 @@ impl OpenDialogs {
         }
     }
 
-    /// Files dropped on the window this frame: sessions and landmark files open directly; a volume asks which
-    /// side it is (two volumes dropped together are the fixed and the moving one, in that order).
+    /// Files dropped on the window this frame: sessions, landmark files and displacement fields open directly; a
+    /// volume asks which side it is (two volumes dropped together are the fixed and the moving one, in that order).
     pub fn take_dropped(&mut self, ctx: &egui::Context) -> Vec<OpenEvent> {
         let dropped: Vec<PathBuf> = ctx.input(|i| {
             i.raw.dropped_files.iter().map(|f| f.path().to_path_buf()).filter(|p| !p.as_os_str().is_empty()).collect()
@@ -237,6 +253,7 @@ impl OpenDialogs {
             match classify(&path) {
                 FileKind::Session => events.push(OpenEvent::OpenSession(path)),
                 FileKind::Landmarks => events.push(OpenEvent::ImportLandmarks(path)),
+                FileKind::Field => events.push(OpenEvent::UseField(path)),
                 FileKind::Volume => volumes.push(path),
             }
         }
@@ -419,12 +436,26 @@ mod tests {
     }
 
     #[test]
-    fn files_are_classified_by_name() {
+    fn files_are_classified_by_name_and_fields_by_content() {
         let dir = tempfile::tempdir().expect("tempdir");
         assert_eq!(classify(&dir.path().join("a.warpbench.json")), FileKind::Session);
         assert_eq!(classify(&dir.path().join("pairs.CSV")), FileKind::Landmarks);
         assert_eq!(classify(&dir.path().join("moving.mrk.json")), FileKind::Landmarks);
         assert_eq!(classify(&dir.path().join("ct.nii.gz")), FileKind::Volume);
+        // A field by what its header or its first bytes say: ITK's DISPVECT, FSL's warps, Learn2Reg's .npz; a plain
+        // NIfTI and Learn2Reg's NIfTI form (no intent) stay volumes.
+        let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data");
+        for field in [
+            "itk/field_input_field.nii.gz",
+            "fnirt/coef_neuro.nii.gz",
+            "fnirt/field_rel.nii.gz",
+            "learn2reg/disp_f16.npz",
+        ] {
+            assert_eq!(classify(&data.join(field)), FileKind::Field, "{field}");
+        }
+        for volume in ["fnirt/src.nii.gz", "learn2reg/disp_nibabel_f32.nii.gz", "itk/field_input_fixed.nii.gz"] {
+            assert_eq!(classify(&data.join(volume)), FileKind::Volume, "{volume}");
+        }
         // A folder is a DICOM series, whatever its name.
         let folder = dir.path().join("series.csv");
         std::fs::create_dir(&folder).expect("mkdir");

@@ -86,12 +86,20 @@ pub struct CoefficientField {
 /// # Errors
 /// The file cannot be opened or read.
 pub fn fsl_intent(path: &Path) -> Result<Option<i32>> {
+    Ok(intent_code(path)?.filter(|c| FSL_INTENTS.contains(c)))
+}
+
+/// The intent code of the NIfTI file at `path` (plain or gzip), read from its header alone; `None` for a folder or a
+/// file whose first bytes are no NIfTI header.
+///
+/// # Errors
+/// The file cannot be opened or read.
+pub fn intent_code(path: &Path) -> Result<Option<i32>> {
     if path.is_dir() {
         return Ok(None);
     }
     let (mut src, _) = open_file(path)?;
-    // A file whose first bytes are no NIfTI header (plain or gzip) is not FSL's.
-    Ok(read_header(path, &mut src).ok().map(|h| h.intent_code).filter(|c| FSL_INTENTS.contains(c)))
+    Ok(read_header(path, &mut src).ok().map(|h| h.intent_code))
 }
 
 /// Reads the FNIRT file at `path` (`.nii` or `.nii.gz`). Errors name the file: another intent (a TOPUP field, a DCT

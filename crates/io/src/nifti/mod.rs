@@ -152,7 +152,7 @@ pub use field::{
 };
 pub use fnirt::{
     CoefficientField, FSL_CUBIC_SPLINE_COEFFICIENTS, FSL_FNIRT_DISPLACEMENT_FIELD, FSL_INTENTS, FnirtFile, fsl_intent,
-    read_fnirt_file, read_fnirt_file_bytes, write_deformation_field,
+    intent_code, read_fnirt_file, read_fnirt_file_bytes, write_deformation_field,
 };
 pub use header::looks_like_nifti;
 pub use write::{WriteOptions, write, write_with};
