@@ -260,6 +260,14 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert!(ready.document.field.as_ref().is_some_and(|f| f.voxel_grids.is_some()), "the grids are recorded");
 }
 
+/// Scrolls the check box `label` into view and clicks it.
+fn tick(harness: &mut Harness<'_, Workbench>, label: &str) {
+    harness.get_by_label(label).scroll_to_me();
+    harness.run_steps(3);
+    harness.get_by_label(label).click();
+    harness.run_steps(2);
+}
+
 /// Types `out` into the export section and presses `button`; the status bar's message once the export is done.
 fn export(harness: &mut Harness<'_, Workbench>, button: &str, out: &Path) -> String {
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = out.display().to_string();
@@ -351,10 +359,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let l2r_nifti_out = dir.path().join("disp_0001_0002.nii.gz");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = l2r_nifti_out.display().to_string();
     harness.run_steps(2);
-    harness.get_by_label("Learn2Reg steps in voxels").scroll_to_me();
-    harness.run_steps(3);
-    harness.get_by_label("Learn2Reg steps in voxels").click();
-    harness.run_steps(2);
+    tick(&mut harness, "Learn2Reg steps in voxels");
     assert!(harness.state().ready().expect("loaded").files.export_fields.field_in_voxels, "ticked");
     {
         use egui_kittest::kittest::NodeT as _;
@@ -362,20 +367,14 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     }
     let message = export(&mut harness, "Export displacement field", &l2r_nifti_out);
     assert!(message.contains("displacement field"), "{message}");
-    harness.get_by_label("Learn2Reg steps in voxels").scroll_to_me();
-    harness.run_steps(3);
-    harness.get_by_label("Learn2Reg steps in voxels").click();
-    harness.run_steps(2);
+    tick(&mut harness, "Learn2Reg steps in voxels");
     assert!(!harness.state().ready().expect("loaded").files.export_fields.field_in_voxels);
     // A NIfTI name with FSL FNIRT field ticked: FNIRT's relative field of the same warp, which reads back against the
     // pair to the ITK field above; ticking Learn2Reg's form unticks it (one form at a time).
     let fnirt_out = dir.path().join("warp_fnirt.nii.gz");
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = fnirt_out.display().to_string();
     harness.run_steps(2);
-    harness.get_by_label("FSL FNIRT field").scroll_to_me();
-    harness.run_steps(3);
-    harness.get_by_label("FSL FNIRT field").click();
-    harness.run_steps(2);
+    tick(&mut harness, "FSL FNIRT field");
     {
         use egui_kittest::kittest::NodeT as _;
         assert!(harness.get_by_label("Export inverse field").accesskit_node().is_disabled(), "inverse offered");
@@ -397,10 +396,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
         .fold(0.0f32, f32::max);
     assert!(worst < 1e-4, "{worst} mm from the ITK field");
     for _ in 0..2 {
-        harness.get_by_label("Learn2Reg steps in voxels").scroll_to_me();
-        harness.run_steps(3);
-        harness.get_by_label("Learn2Reg steps in voxels").click();
-        harness.run_steps(2);
+        tick(&mut harness, "Learn2Reg steps in voxels");
         let fields = &harness.state().ready().expect("loaded").files.export_fields;
         assert!(!fields.field_fnirt, "one form at a time");
     }
