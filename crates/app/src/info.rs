@@ -22,9 +22,10 @@ Print what a volume holds: dims, spacing, lps_from_index, geometry source, dtype
 modality and series.
 
 Reads NIfTI-1/2 (.nii, .nii.gz, or a .hdr/.img pair), NRRD (.nrrd, .nhdr), MetaImage (.mha, .mhd),
-FreeSurfer's MGH (.mgh, .mgz), MINC 1 or 2 (.mnc, .mnc.gz), a DICOM series folder or one DICOM file.
-A folder with several series lists them. A displacement field (any flavour warp --field reads, an ITK .h5 holding
-one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz) is described as a field: its flavour, the direction
+FreeSurfer's MGH (.mgh, .mgz), MINC 1 or 2 (.mnc, .mnc.gz), an AFNI dataset (.HEAD with its .BRIK or .BRIK.gz),
+a DICOM series folder or one DICOM file. A folder with several series lists them. A displacement field (any flavour
+warp --field reads, an ITK .h5 holding one, a DICOM Deformable Spatial Registration, Learn2Reg's .npz, AFNI's
+3dQwarp warp) is described as a field: its flavour, the direction
 it states, its grid and its largest displacement. An ITK transform file (.tfm, .h5, ANTs' .mat) is described by the
 transforms it holds and how warpbench takes it (--initial, --field or --landmarks). Example:
 
@@ -330,6 +331,7 @@ impl From<GeometrySource> for GeometrySourceJson {
             GeometrySource::Mgh => ("mgh", None),
             GeometrySource::Minc => ("minc", None),
             GeometrySource::OmeZarr => ("ome-zarr", None),
+            GeometrySource::Afni => ("afni", None),
             GeometrySource::ElastixParameters => ("elastix", None),
             GeometrySource::ItkTransformFile => ("itk_transform", None),
             GeometrySource::Learn2RegFixedImage => ("learn2reg_fixed_image", None),
@@ -358,6 +360,7 @@ fn format_name(f: Format) -> &'static str {
         Format::Mgh => "mgh",
         Format::Minc => "minc",
         Format::OmeZarr => "ome-zarr",
+        Format::Afni => "afni",
     }
 }
 

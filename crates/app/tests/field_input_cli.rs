@@ -1035,3 +1035,80 @@ fn an_fnirt_warp_is_read_against_its_reference_and_input() {
         assert!(!out.exists());
     }
 }
+
+#[test]
+fn an_afni_warp_is_read_as_its_pullback_and_described() {
+    let tmp = tempfile::tempdir().expect("tempdir");
+    let reference: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data("afni_made/reference.json")).expect("reference"))
+            .expect("JSON");
+    for (stem, case) in reference["warps"].as_object().expect("warps") {
+        // A volume on the warp's own grid as the fixed one, so the output's voxels are the warp's.
+        let warp = data(&format!("afni_made/{stem}.HEAD"));
+        let read = warpbench_io::displacement::read_field_info(&warp).expect("the warp");
+        let n = read.field.displacements_lps.len();
+        let grid = Volume::new(
+            &warp,
+            read.field.dims,
+            VoxelData::U8(vec![0; n]),
+            read.field.lps_from_index,
+            GeometrySource::Afni,
+        )
+        .expect("a grid");
+        let fixed = tmp.path().join("fixed.nii.gz");
+        warpbench_io::write_volume(&fixed, &grid).expect("write");
+        let out = tmp.path().join(format!("{stem}_ants.nii.gz"));
+        let run = warpbench(&[
+            "field",
+            "--fixed",
+            s(&fixed),
+            "--moving",
+            s(&fixed),
+            "--field",
+            s(&warp),
+            "--format",
+            "ants",
+            "--out",
+            s(&out),
+        ]);
+        assert_ok(&run);
+        let (written, _) = read_field(&out).expect("read the output");
+        let mut worst = 0.0f64;
+        let voxels = case["voxels"].as_array().expect("voxels");
+        let points = case["nitransforms_lps"].as_array().expect("points");
+        for (v, want) in voxels.iter().zip(points) {
+            let ijk: Vec<usize> =
+                v.as_array().expect("a voxel").iter().map(|c| c.as_u64().expect("index") as usize).collect();
+            let x = grid.voxel_lps(ijk[0], ijk[1], ijk[2]).coords();
+            let d = written.displacements_lps[ijk[0] + written.dims[0] * (ijk[1] + written.dims[1] * ijk[2])];
+            for c in 0..3 {
+                worst = worst.max((x[c] + f64::from(d[c]) - want[c].as_f64().expect("a number")).abs());
+            }
+        }
+        // The NIfTI grid is stored in float32: a few ULPs of the coordinates.
+        assert!(worst < 1e-4, "{stem}: {worst} mm from nitransforms");
+        let info = warpbench(&["info", "--json", s(&warp)]);
+        assert_ok(&info);
+        let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("JSON");
+        assert_eq!((&info["kind"], &info["format"]), (&"displacement_field".into(), &"afni".into()), "{info}");
+    }
+    // AFNI's other datasets are volumes: one sub-brick chosen with --frame.
+    let dataset = data("afni/example4d+orig.HEAD");
+    let info = warpbench(&["info", "--json", "--frame", "2", s(&dataset)]);
+    assert_ok(&info);
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("JSON");
+    assert_eq!(
+        (&info["kind"], &info["format"], &info["description"]),
+        (&"volume".into(), &"afni".into(), &"#2".into()),
+        "{info}"
+    );
+    // ...and refused as a field, naming the file and its labels.
+    let out = tmp.path().join("x.nii.gz");
+    let fixed = data("afni/scaled+tlrc.HEAD");
+    let run =
+        warpbench(&["field", "--fixed", s(&fixed), "--moving", s(&fixed), "--field", s(&dataset), "--out", s(&out)]);
+    assert_eq!(run.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(stderr.contains("example4d+orig.HEAD") && stderr.contains("not a 3dQwarp warp"), "{stderr}");
+    assert!(!out.exists());
+}

@@ -4,7 +4,7 @@
 //! patient space: **LPS, in mm** (see `docs/spaces.md`).
 //!
 //! - [`open`] / [`LoadOptions::open`]: read a NIfTI-1/2 (`.nii`, `.nii.gz`, or a `.hdr`/`.img` pair), NRRD (`.nrrd`, `.nhdr`),
-//!   MetaImage (`.mha`, `.mhd`), FreeSurfer MGH (`.mgh`, `.mgz`) or MINC (`.mnc`) file, an OME-Zarr folder
+//!   MetaImage (`.mha`, `.mhd`), FreeSurfer MGH (`.mgh`, `.mgz`), MINC (`.mnc`) or AFNI (`.HEAD`/`.BRIK`) file, an OME-Zarr folder
 //!   ([`ngff`]), a DICOM series folder or a single DICOM file into a [`Volume`]; [`write_volume`] writes one in the
 //!   format its name says.
 //! - [`nifti`], [`nrrd`], [`metaimage`], [`mgh`], [`dicom`]: the format modules, with their writers.
@@ -21,6 +21,7 @@
 //! checked before allocating, and writers replace their output atomically ([`write_atomic`]).
 
 pub mod afni;
+pub mod afni_dataset;
 pub mod atomic;
 pub mod dicom;
 pub mod dicom_reg;
@@ -82,6 +83,8 @@ pub enum Format {
     Minc,
     /// OME-Zarr (NGFF) 0.4 to 0.6: a folder holding a Zarr store.
     OmeZarr,
+    /// An AFNI dataset: a `.HEAD` beside a `.BRIK` (or `.BRIK.gz`), named by either. Known by its name only.
+    Afni,
 }
 
 impl Format {
@@ -115,6 +118,9 @@ impl Format {
         if minc::has_minc_name(path) {
             return Ok(Self::Minc);
         }
+        if afni_dataset::has_afni_name(path) {
+            return Ok(Self::Afni);
+        }
         let mut head = [0u8; 132];
         let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
         let n = read_up_to(&mut f, &mut head).map_err(|e| Error::io(path, e))?;
@@ -132,7 +138,7 @@ impl Format {
         } else {
             pair.and(Err(Error::unsupported(
                 path,
-                "unknown file format (expected NIfTI, NRRD, MetaImage, MGH, MINC or DICOM)",
+                "unknown file format (expected NIfTI, NRRD, MetaImage, MGH, MINC, AFNI (.HEAD/.BRIK) or DICOM)",
             )))
         }
     }
@@ -156,6 +162,7 @@ impl LoadOptions<'_> {
             Format::Mgh => mgh::read(path, self),
             Format::Minc => minc::read(path, self),
             Format::OmeZarr => ngff::read(path, self),
+            Format::Afni => afni_dataset::read(path, self),
         }?;
         // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
         volume.note_geometry_warnings();

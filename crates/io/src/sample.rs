@@ -185,6 +185,29 @@ pub(crate) fn decode<S: Stored>(bytes: &[u8], big_endian: bool) -> impl Iterator
     bytes.chunks_exact(S::BYTES).map(move |b| S::decode(b, big_endian))
 }
 
+/// The rescaled samples `slope · stored + intercept` (float64), in the narrowest type of the rules.
+pub(crate) fn rescale_samples<S: Stored>(
+    path: &Path,
+    raw: &[u8],
+    dims: [usize; 3],
+    big_endian: bool,
+    (slope, inter): (f64, f64),
+    limit: u64,
+) -> Result<VoxelData> {
+    let values = || decode::<S>(raw, big_endian).map(|x| slope * x.to_f64() + inter);
+    let mut target = SampleType::F32;
+    if slope.fract() == 0.0 && inter.fract() == 0.0 {
+        let (integral, lo, hi) = values().fold((true, f64::INFINITY, f64::NEG_INFINITY), |(int, lo, hi), v| {
+            (int && v.fract() == 0.0, lo.min(v), hi.max(v))
+        });
+        target = rescaled_type(integral, lo, hi);
+    }
+    let n = crate::volume::check_allocation(path, dims, target.bytes(), limit)?;
+    let mut data = VoxelData::try_empty(path, target, n, "the rescaled samples")?;
+    data.extend_from(values());
+    Ok(data)
+}
+
 impl VoxelData {
     /// No samples of type `t`, with room for `n`, allocated fallibly ([`try_with_capacity`]).
     pub(crate) fn try_empty(path: &Path, t: SampleType, n: usize, what: &str) -> Result<Self> {

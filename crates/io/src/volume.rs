@@ -189,6 +189,9 @@ pub enum GeometrySource {
     /// OME-Zarr: each space axis's scale, its RFC-4 orientation (or x, y, z as L, P, S) and voxel 0 at the x, y and z
     /// translations, in LPS as ngff-zarr converts an image to ITK's; lengths in mm (`ngff` module docs).
     OmeZarr,
+    /// An AFNI dataset's `IJK_TO_DICOM_REAL`, or without it its `ORIENT_SPECIFIC`, `ORIGIN` and `DELTA`, in DICOM's
+    /// coordinates, which are LPS ([`crate::afni_dataset`]).
+    Afni,
     /// An elastix transform parameter file's fixed grid: `Size`, `Spacing`, `Origin` and `Direction`.
     ElastixParameters,
     /// An ITK transform file's `DisplacementFieldTransform`: its fixed parameters (size, origin, spacing, direction).

@@ -4,6 +4,7 @@
 //! Run one file's tests with its module name as the filter, e.g. `cargo test -p warpbench-io --test io nifti::`.
 
 mod afni;
+mod afni_dataset;
 mod ants_mat;
 mod bad_inputs;
 mod dicom;

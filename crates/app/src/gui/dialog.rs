@@ -45,8 +45,8 @@ impl Purpose {
         let d = rfd::FileDialog::new();
         let volumes = |d: rfd::FileDialog| {
             d.add_filter(
-                "Volumes (NIfTI, NRRD, MetaImage, MGH, MINC)",
-                &["nii", "gz", "hdr", "img", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz", "mnc"],
+                "Volumes (NIfTI, NRRD, MetaImage, MGH, MINC, AFNI)",
+                &["nii", "gz", "hdr", "img", "nrrd", "nhdr", "mha", "mhd", "mgh", "mgz", "mnc", "HEAD", "BRIK"],
             )
             .add_filter("All files", &["*"])
         };
@@ -77,7 +77,8 @@ impl Purpose {
                 .add_filter("elastix transform parameter file", &["txt"])
                 .add_filter("ITK transform with a field (ANTs Composite.h5)", &["h5"])
                 .add_filter("DICOM Deformable Spatial Registration", &["dcm"])
-                .add_filter("MINC grid transform", &["xfm"]),
+                .add_filter("MINC grid transform", &["xfm"])
+                .add_filter("AFNI 3dQwarp warp", &["HEAD", "BRIK"]),
             Self::UseFieldFolder => d.set_title("An OME-Zarr displacement field folder to put under the landmarks"),
             Self::ExportTransform(TransformFormat::Itk) => {
                 d.add_filter("ITK or ANTs transform", &["tfm", "txt", "h5", "mat"])

@@ -156,8 +156,8 @@ impl VolumeJob {
 pub enum FileKind {
     Session,
     Landmarks,
-    /// A NIfTI of intent `DISPVECT` (1006: ITK, Slicer) or one of FSL's (an FNIRT warp), or a Learn2Reg `.npz`: used
-    /// as the displacement field under the landmarks. (ANTs' `VECTOR`, 1007, is any vector image, so it stays a
+    /// A NIfTI of intent `DISPVECT` (1006: ITK, Slicer) or one of FSL's (an FNIRT warp), a Learn2Reg `.npz`, or an
+    /// AFNI dataset labelled as `3dQwarp`'s warp: used as the displacement field under the landmarks. (ANTs' `VECTOR`, 1007, is any vector image, so it stays a
     /// volume.)
     Field,
     Volume,
@@ -185,6 +185,7 @@ fn is_field_file(path: &Path) -> bool {
     let dispvect = i32::from(warpbench_io::nifti::NIFTI_INTENT_DISPVECT);
     intent.is_some_and(|c| c == dispvect || warpbench_io::nifti::FSL_INTENTS.contains(&c))
         || warpbench_io::learn2reg::is_npz_file(path).unwrap_or(false)
+        || warpbench_io::afni_dataset::is_warp_file(path).unwrap_or(false)
 }
 
 /// What the user asked for through a menu, a dialog, a drop or a chooser.
@@ -442,18 +443,27 @@ mod tests {
         assert_eq!(classify(&dir.path().join("pairs.CSV")), FileKind::Landmarks);
         assert_eq!(classify(&dir.path().join("moving.mrk.json")), FileKind::Landmarks);
         assert_eq!(classify(&dir.path().join("ct.nii.gz")), FileKind::Volume);
-        // A field by what its header or its first bytes say: ITK's DISPVECT, FSL's warps, Learn2Reg's .npz; a plain
-        // NIfTI and Learn2Reg's NIfTI form (no intent) stay volumes.
+        // A field by what its header or its first bytes say: ITK's DISPVECT, FSL's warps, Learn2Reg's .npz, AFNI's
+        // 3dQwarp warps (by either file); a plain NIfTI, Learn2Reg's NIfTI form (no intent) and AFNI's other
+        // datasets stay volumes.
         let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data");
         for field in [
             "itk/field_input_field.nii.gz",
             "fnirt/coef_neuro.nii.gz",
             "fnirt/field_rel.nii.gz",
             "learn2reg/disp_f16.npz",
+            "afni_made/warp_rai+tlrc.HEAD",
+            "afni_made/warp_lps+orig.BRIK.gz",
         ] {
             assert_eq!(classify(&data.join(field)), FileKind::Field, "{field}");
         }
-        for volume in ["fnirt/src.nii.gz", "learn2reg/disp_nibabel_f32.nii.gz", "itk/field_input_fixed.nii.gz"] {
+        for volume in [
+            "fnirt/src.nii.gz",
+            "learn2reg/disp_nibabel_f32.nii.gz",
+            "itk/field_input_fixed.nii.gz",
+            "afni/example4d+orig.HEAD",
+            "afni/scaled+tlrc.BRIK",
+        ] {
             assert_eq!(classify(&data.join(volume)), FileKind::Volume, "{volume}");
         }
         // A folder is a DICOM series, whatever its name.

@@ -142,11 +142,13 @@ pub enum FieldSource {
     Learn2Reg,
     /// An FSL FNIRT warp, read against its reference (the fixed grid) and input ([`crate::fnirt::read_pullback`]).
     Fnirt,
+    /// An AFNI `3dQwarp` warp: a dataset of `x_delta`, `y_delta` and `z_delta` ([`crate::afni_dataset::read_warp`]).
+    Afni,
 }
 
 impl FieldSource {
     /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `itk_tfm`, `dicom`, `learn2reg`, `fnirt` (`minc` is a flavour: an MNI transform file's grid).
+    /// `itk_tfm`, `dicom`, `learn2reg`, `fnirt`, `afni` (`minc` is a flavour: an MNI transform file's grid).
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -157,6 +159,7 @@ impl FieldSource {
             Self::DicomRegistration => "dicom",
             Self::Learn2Reg => "learn2reg",
             Self::Fnirt => "fnirt",
+            Self::Afni => "afni",
         }
     }
 }

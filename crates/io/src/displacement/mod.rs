@@ -24,6 +24,8 @@
 //! opens with `(`) is read as the field transformix writes for it ([`crate::elastix::read_field`]): its whole chain
 //! sampled on its fixed grid. Anything else is refused. It returns LPS vectors whatever the flavour.
 //!
+//! An AFNI dataset (`.HEAD`/`.BRIK`, by its name) is read as `3dQwarp`'s warp ([`crate::afni_dataset::read_warp`]).
+//!
 //! Learn2Reg's `.npz` fields ([`crate::learn2reg`]) hold voxel steps from the fixed image's grid to the moving one's,
 //! so they are read against the pair ([`crate::learn2reg::pullback_from_voxels`]); [`read_field`] refuses them, as it
 //! refuses FSL's FNIRT warps, in the FSL coordinates of the pair ([`crate::fnirt::read_pullback`]).
@@ -96,6 +98,9 @@ pub fn read_field_on(path: &Path, grid: Option<&SampleGrid>) -> Result<ReadField
     if path.is_dir() && crate::ngff::looks_like_zarr(path) {
         let (field, warnings) = crate::ngff::read_field(path)?;
         return Ok(ReadField { field, source: FieldSource::Field(FieldFormat::Ngff), direction: None, warnings });
+    }
+    if crate::afni_dataset::has_afni_name(path) {
+        return crate::afni_dataset::read_warp(path);
     }
     if let Some(code) = nifti::fsl_intent(path)? {
         return Err(Error::unsupported(

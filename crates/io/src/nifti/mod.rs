@@ -159,11 +159,12 @@ pub use write::{WriteOptions, write, write_with};
 
 use crate::error::{Error, Result};
 use crate::options::LoadOptions;
+use crate::sample::rescale_samples;
 use crate::volume::{self, Rescale, Volume};
 use geometry::lps_from_index;
 use header::read_header;
 use layout::layout;
-use samples::{CHUNK_BYTES, read_identity, rescale_samples, scaling};
+use samples::{CHUNK_BYTES, read_identity, scaling};
 use source::{Extent, GZIP_MAGIC, Reporter, Source, fill, open_file};
 
 /// Reads a NIfTI-1/2 file (`.nii` or gzip-compressed `.nii.gz`, detected by content), or a NIfTI pair by the name of

@@ -7,7 +7,7 @@ use std::path::Path;
 use super::header::Header;
 use super::source::{Reporter, fill};
 use crate::error::{Error, Result};
-use crate::sample::{self, Stored, StoredType, rescaled_type};
+use crate::sample::{self, StoredType};
 use crate::volume::{self, Rescale, SampleType, VoxelData};
 
 /// Bytes read between progress reports (a multiple of every sample size).
@@ -107,28 +107,5 @@ pub(super) fn read_identity(
     sample::with_stored_type!(stored, T => stream_chunks(r, frame_bytes, progress, |chunk| {
         data.extend_from(sample::decode::<T>(chunk, big_endian));
     }))?;
-    Ok(data)
-}
-
-/// The rescaled samples `slope · stored + intercept` (float64), in the narrowest type of the rules.
-pub(super) fn rescale_samples<S: Stored>(
-    path: &Path,
-    raw: &[u8],
-    dims: [usize; 3],
-    big_endian: bool,
-    (slope, inter): (f64, f64),
-    limit: u64,
-) -> Result<VoxelData> {
-    let values = || sample::decode::<S>(raw, big_endian).map(|x| slope * x.to_f64() + inter);
-    let mut target = SampleType::F32;
-    if slope.fract() == 0.0 && inter.fract() == 0.0 {
-        let (integral, lo, hi) = values().fold((true, f64::INFINITY, f64::NEG_INFINITY), |(int, lo, hi), v| {
-            (int && v.fract() == 0.0, lo.min(v), hi.max(v))
-        });
-        target = rescaled_type(integral, lo, hi);
-    }
-    let n = volume::check_allocation(path, dims, target.bytes(), limit)?;
-    let mut data = VoxelData::try_empty(path, target, n, "the rescaled samples")?;
-    data.extend_from(values());
     Ok(data)
 }

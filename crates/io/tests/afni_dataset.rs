@@ -1,0 +1,214 @@
+//! AFNI datasets against nibabel 5.4.2 and nitransforms 25.1.0 (`data-scripts/afni_fixtures.py`): AFNI's own files
+//! from nibabel's test data (three gzip-compressed short sub-bricks; one short sub-brick with a scale factor) read to
+//! nibabel's grid and values; 3dQwarp-style warps (RAI little-endian with `IJK_TO_DICOM_REAL`; L-P-S big-endian,
+//! gzip-compressed, without it) read as the pull-back that takes each voxel centre where nitransforms maps it; and
+//! what is not such a dataset, or is damaged, refused naming the file.
+
+use std::path::{Path, PathBuf};
+
+use warpbench_io::displacement::{FieldSource, read_field_info};
+use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType};
+
+fn data(folder: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data").join(folder)
+}
+
+fn reference() -> serde_json::Value {
+    let text = std::fs::read_to_string(data("afni_made").join("reference.json")).expect("the reference");
+    serde_json::from_str(&text).expect("JSON")
+}
+
+fn matrix(v: &serde_json::Value) -> Vec<Vec<f64>> {
+    v.as_array()
+        .expect("rows")
+        .iter()
+        .map(|r| r.as_array().expect("a row").iter().map(|x| x.as_f64().expect("a number")).collect())
+        .collect()
+}
+
+fn voxels(v: &serde_json::Value) -> Vec<[usize; 3]> {
+    v.as_array()
+        .expect("voxels")
+        .iter()
+        .map(|p| std::array::from_fn(|c| p[c].as_u64().expect("an index") as usize))
+        .collect()
+}
+
+fn temp(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("warpbench-afni-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("a temporary folder");
+    dir
+}
+
+/// Copies a dataset's two files into a fresh folder, the header passed through `edit`, the samples through `cut`.
+fn copy_with(folder: &str, stem: &str, brik: &str, edit: impl Fn(&str) -> String, cut: usize) -> PathBuf {
+    let dir = temp(&format!("{stem}-{cut}"));
+    let head = std::fs::read_to_string(data(folder).join(format!("{stem}.HEAD"))).expect("the header");
+    std::fs::write(dir.join(format!("{stem}.HEAD")), edit(&head)).expect("write");
+    let bytes = std::fs::read(data(folder).join(format!("{stem}{brik}"))).expect("the samples");
+    std::fs::write(dir.join(format!("{stem}{brik}")), &bytes[..bytes.len() - cut]).expect("write");
+    dir.join(format!("{stem}.HEAD"))
+}
+
+#[test]
+fn afnis_own_datasets_read_as_nibabel_reads_them() {
+    let reference = reference();
+    for (stem, case) in reference["datasets"].as_object().expect("datasets") {
+        let want_grid = matrix(&case["lps_from_index"]);
+        let bricks = case["sub_bricks"].as_u64().expect("a count") as usize;
+        let at = voxels(&case["voxels"]);
+        // Either file names the dataset.
+        let brik = if stem == "example4d+orig" { ".BRIK.gz" } else { ".BRIK" };
+        for name in [format!("{stem}.HEAD"), format!("{stem}{brik}")] {
+            let path = data("afni").join(&name);
+            assert_eq!(Format::detect(&path).expect("detect"), Format::Afni, "{name}");
+            for t in 0..bricks {
+                let mut opts = LoadOptions::new();
+                if bricks > 1 {
+                    opts.frame = Some(t);
+                }
+                let v = opts.open(&path).unwrap_or_else(|e| panic!("{e}"));
+                let dims: Vec<u64> =
+                    case["dims"].as_array().expect("dims").iter().filter_map(serde_json::Value::as_u64).collect();
+                assert_eq!(v.dims.map(|n| n as u64).to_vec(), dims, "{name}");
+                assert_eq!(v.geometry_source, GeometrySource::Afni);
+                for (r, row) in want_grid.iter().enumerate().take(3) {
+                    for (c, want) in row.iter().enumerate() {
+                        let got = v.lps_from_index.rows()[r][c];
+                        // The header's floats are printed to 7 digits; nibabel reads the same text.
+                        assert!((got - want).abs() <= 1e-9 * want.abs().max(1.0), "{name} [{r}][{c}]: {got} {want}");
+                    }
+                }
+                let labels: Vec<&str> =
+                    case["labels"].as_array().expect("labels").iter().map(|l| l.as_str().expect("a label")).collect();
+                assert_eq!(v.metadata.description.as_deref(), Some(labels[t]), "{name}");
+                for (ijk, want) in at.iter().zip(case["values"][t].as_array().expect("values")) {
+                    let n = ijk[0] + v.dims[0] * (ijk[1] + v.dims[1] * ijk[2]);
+                    let (got, want) = (v.data.get_f64(n), want.as_f64().expect("a number"));
+                    // A scale factor is applied in float64 and kept as float32.
+                    assert!((got - want).abs() <= 1e-6 * want.abs(), "{name} sub-brick {t} at {ijk:?}: {got} {want}");
+                }
+                if stem == "scaled+tlrc" {
+                    assert_eq!(v.sample_type(), SampleType::F32);
+                    assert!(v.rescale.applied && (v.rescale.slope - 3.883_363e-08).abs() < 1e-15);
+                } else {
+                    assert_eq!(v.sample_type(), SampleType::I16);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn several_sub_bricks_ask_which_one() {
+    let path = data("afni").join("example4d+orig.HEAD");
+    let e = warpbench_io::open(&path).expect_err("three sub-bricks");
+    assert!(matches!(e.kind, ErrorKind::FrameRequired { frames: 3 }), "{e}");
+    let mut opts = LoadOptions::new();
+    opts.frame = Some(3);
+    let e = opts.open(&path).expect_err("out of range");
+    assert!(e.to_string().contains("sub-brick 3 is out of range"), "{e}");
+}
+
+#[test]
+fn each_warp_takes_its_voxels_where_nitransforms_takes_them() {
+    let reference = reference();
+    for (stem, case) in reference["warps"].as_object().expect("warps") {
+        let path = data("afni_made").join(format!("{stem}.HEAD"));
+        let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(read.source, FieldSource::Afni);
+        assert!(read.warnings.is_empty(), "{:?}", read.warnings);
+        let want_grid = matrix(&case["lps_from_index"]);
+        let rows = read.field.lps_from_index.rows();
+        for (r, row) in want_grid.iter().enumerate() {
+            for (c, want) in row.iter().enumerate() {
+                assert!((rows[r][c] - want).abs() < 1e-12, "{stem} [{r}][{c}]");
+            }
+        }
+        let dims = read.field.dims;
+        let mut worst = 0.0f64;
+        let points = case["nitransforms_lps"].as_array().expect("points");
+        let fixed = case["fixed_lps"].as_array().expect("points");
+        for ((ijk, want), x) in voxels(&case["voxels"]).iter().zip(points).zip(fixed) {
+            let n = ijk[0] + dims[0] * (ijk[1] + dims[1] * ijk[2]);
+            let d = read.field.displacements_lps[n];
+            for c in 0..3 {
+                let got = x[c].as_f64().expect("a number") + f64::from(d[c]);
+                worst = worst.max((got - want[c].as_f64().expect("a number")).abs());
+            }
+        }
+        // nitransforms keeps the float32 deltas and adds them in float32.
+        assert!(worst < 1e-4, "{stem}: {worst} mm");
+    }
+}
+
+#[test]
+fn a_dataset_that_is_not_a_warp_is_refused_as_a_field() {
+    let e = read_field_info(&data("afni").join("example4d+orig.HEAD")).expect_err("not a warp");
+    assert!(e.to_string().contains("not a 3dQwarp warp") && e.to_string().contains("#0"), "{e}");
+}
+
+#[test]
+fn an_oblique_warp_is_refused() {
+    let head = copy_with(
+        "afni_made",
+        "warp_rai+tlrc",
+        ".BRIK",
+        |h| {
+            // IJK_TO_DICOM_REAL's first row tilted: no longer the cardinal grid.
+            h.replacen(
+                "name  = IJK_TO_DICOM_REAL\ncount = 12\n           2.5              0",
+                "name  = IJK_TO_DICOM_REAL\ncount = 12\n           2.5            0.3",
+                1,
+            )
+        },
+        0,
+    );
+    let e = read_field_info(&head).expect_err("oblique");
+    assert!(e.to_string().contains("oblique") && e.to_string().contains("warp_rai+tlrc.HEAD"), "{e}");
+}
+
+#[test]
+fn damaged_datasets_are_refused_naming_the_file() {
+    // The samples end early: the .BRIK is named.
+    let head = copy_with("afni", "scaled+tlrc", ".BRIK", str::to_string, 100);
+    let e = warpbench_io::open(&head).expect_err("short");
+    assert!(matches!(e.kind, ErrorKind::Truncated(_)) && e.to_string().contains("scaled+tlrc.BRIK"), "{e}");
+
+    // A type the reader does not take.
+    let head = copy_with(
+        "afni",
+        "scaled+tlrc",
+        ".BRIK",
+        |h| h.replace("name = BRICK_TYPES\ncount = 1\n 1", "name = BRICK_TYPES\ncount = 1\n 5"),
+        0,
+    );
+    let e = warpbench_io::open(&head).expect_err("complex");
+    assert!(e.to_string().contains("type 5 (complex)") && e.to_string().contains("scaled+tlrc.HEAD"), "{e}");
+
+    // A malformed attribute is named.
+    let head = copy_with("afni", "scaled+tlrc", ".BRIK", |h| h.replace("count = 3\n 1 2 4", "count = 3\n 1 2 x"), 0);
+    let e = warpbench_io::open(&head).expect_err("malformed");
+    assert!(e.to_string().contains("ORIENT_SPECIFIC") && e.to_string().contains("'x'"), "{e}");
+
+    // A count larger than the file allocates nothing.
+    let head =
+        copy_with("afni", "scaled+tlrc", ".BRIK", |h| h.replace("count = 3\n 1 2 4", "count = 999999999\n 1 2 4"), 0);
+    let e = warpbench_io::open(&head).expect_err("huge count");
+    assert!(e.to_string().contains("count 999999999"), "{e}");
+
+    // The header missing beside the samples, and the samples missing beside the header.
+    let dir = temp("alone");
+    std::fs::copy(data("afni").join("scaled+tlrc.BRIK"), dir.join("scaled+tlrc.BRIK")).expect("copy");
+    let e = warpbench_io::open(dir.join("scaled+tlrc.BRIK")).expect_err("no header");
+    assert!(e.to_string().contains("scaled+tlrc.HEAD is not beside it"), "{e}");
+    std::fs::copy(data("afni").join("example4d+orig.HEAD"), dir.join("example4d+orig.HEAD")).expect("copy");
+    let e = warpbench_io::open(dir.join("example4d+orig.HEAD")).expect_err("no samples");
+    assert!(e.to_string().contains("no example4d+orig.BRIK"), "{e}");
+
+    // A compression AFNI writes but this reader does not inflate.
+    std::fs::copy(data("afni").join("scaled+tlrc.HEAD"), dir.join("scaled+tlrc.HEAD")).expect("copy");
+    std::fs::rename(dir.join("scaled+tlrc.BRIK"), dir.join("scaled+tlrc.BRIK.bz2")).expect("rename");
+    let e = warpbench_io::open(dir.join("scaled+tlrc.HEAD")).expect_err("bzip2");
+    assert!(e.to_string().contains("bzip2") && e.to_string().contains("scaled+tlrc.BRIK.bz2"), "{e}");
+}
