@@ -14,6 +14,11 @@ Writes into tests/data/afni_made/:
   little-endian, with IJK_TO_DICOM_REAL;
 - `warp_lps+orig.HEAD`, `.BRIK.gz`: another warp on an L-P-I grid, big-endian, gzip-compressed, and without
   IJK_TO_DICOM_REAL (as AFNI wrote before 2007), so that its geometry comes from ORIENT_SPECIFIC, ORIGIN and DELTA;
+- `warp_rai_WARP.nii.gz`: the first warp as AFNI saves a warp named `.nii.gz` (`3dQwarp -prefix x.nii.gz`, AFNI's
+  `THD_write_nifti`): an (X, Y, Z, 1, 3) float32 array of the same DICOM-order deltas, intent 0, sform and qform
+  code 3 (Talairach, the `+tlrc` view), and AFNI's extension (code 4) whose NIML labels the sub-bricks;
+- `nitransforms_afni.nii.gz`: the same warp as nitransforms' own writer saves it (`to_filename(fmt="afni")`): no AFNI
+  extension, so nothing in the file says it is a warp; warpbench refuses it;
 - `reference.json`: for each copied dataset, nibabel's affine (made LPS) and, at 40 seeded voxels of every
   sub-brick, nibabel's value (`get_fdata`, scale factor applied); for each warp, at 60 voxel centres (the eight
   corners and seeded ones), the point nitransforms maps it to (`DenseFieldTransform` of the warp in AFNI's NIfTI
@@ -107,6 +112,53 @@ def voxels(shape, rng, n: int) -> np.ndarray:
     return np.concatenate([corners, seeded])
 
 
+NIML = """<?xml version='1.0' ?>
+<AFNI_attributes
+  self_idcode="AFN_warpbench_fixture_0001"
+  NIfTI_nums="{nums}"
+  ni_form="ni_group" >
+<AFNI_atr
+  ni_type="String"
+  ni_dimen="1"
+  atr_name="TYPESTRING" >
+ "3DIM_HEAD_ANAT"
+</AFNI_atr>
+<AFNI_atr
+  ni_type="String"
+  ni_dimen="1"
+  atr_name="BRICK_LABS" >
+ "x_delta~y_delta~z_delta"
+</AFNI_atr>
+</AFNI_attributes>
+"""
+
+
+def save_nifti(img: nib.Nifti1Image, path: Path) -> None:
+    img.to_filename(path)
+    raw = gzip.decompress(path.read_bytes())
+    path.write_bytes(gzip.compress(raw, compresslevel=9, mtime=0))
+
+
+def write_nifti_forms(field: np.ndarray, affine: np.ndarray, xfm_reference) -> None:
+    """The warp as AFNI writes it to NIfTI (with its extension), and as nitransforms does (without)."""
+    shape = field.shape[:3]
+    img = nib.Nifti1Image(field.reshape(*shape, 1, 3), affine)
+    img.header.set_sform(affine, code=3)
+    img.header.set_qform(affine, code=3)
+    nums = ",".join(str(n) for n in (*shape, 1, 3, 16))
+    img.header.extensions.append(nib.nifti1.Nifti1Extension(4, NIML.format(nums=nums).encode() + b"\0"))
+    path = MADE / "warp_rai_WARP.nii.gz"
+    save_nifti(img, path)
+    # nitransforms reads AFNI's file to the same map as the dataset.
+    ras, mapped = xfm_reference
+    again = DenseFieldTransform.from_filename(path, fmt="afni").map(ras)
+    assert np.allclose(again, mapped, atol=1e-5)
+    out = MADE / "nitransforms_afni.nii.gz"
+    DenseFieldTransform.from_filename(path, fmt="afni").to_filename(out, fmt="afni")
+    save_nifti(nib.load(out), out)
+    assert not nib.load(out).header.extensions
+
+
 def write_warp(stem: str, shape, orient, origin, delta, big_endian: bool, real: bool, gz: bool, rng) -> dict:
     head, m = warp_head(shape, orient, origin, delta, big_endian, real)
     field = smooth_warp(shape, rng)
@@ -137,6 +189,8 @@ def write_warp(stem: str, shape, orient, origin, delta, big_endian: bool, real: 
         ijk = voxels(shape, rng, 60)
         ras = nib.affines.apply_affine(affine, ijk)
         mapped = xfm.map(ras)
+    if stem == "warp_rai+tlrc":
+        write_nifti_forms(field, affine, (ras, mapped))
     lps = lambda p: (p * [-1.0, -1.0, 1.0]).tolist()  # noqa: E731
     return {
         "dims": list(shape),

@@ -412,7 +412,9 @@ AFNI_MADE = """
 Not downloaded: `data-scripts/afni_fixtures.py` writes two warps as AFNI datasets (`.HEAD` text in the layout of
 AFNI's `THD_write_atr`, three float sub-bricks labelled `x_delta`, `y_delta`, `z_delta` as AFNI's `IW3D_to_dataset`
 writes them) of seeded smooth displacements: one in AFNI's usual RAI order, little-endian, with `IJK_TO_DICOM_REAL`;
-one on an L-P-S grid, big-endian, gzip-compressed (time field zeroed), without it. nibabel 5.4.2 reads each header
+one on an L-P-S grid, big-endian, gzip-compressed (time field zeroed), without it; the first again as AFNI saves a
+warp named `.nii.gz` (an (X, Y, Z, 1, 3) array, intent 0, AFNI's extension of code 4 labelling the sub-bricks,
+written by nibabel) and as nitransforms' own AFNI writer saves it (no extension). nibabel 5.4.2 reads each header
 back to the grid and values written, and `reference.json` holds nibabel's reading of the two AFNI datasets copied
 into `afni/` (grid, labels, values at 40 voxels of each sub-brick) and, for each warp, where nitransforms 25.1.0
 (`DenseFieldTransform.from_filename(..., fmt="afni")` on the warp's NIfTI form) maps 60 voxel centres. A rerun writes
@@ -424,7 +426,8 @@ the same bytes. They carry the licence of the code.
 AFNI_FILES = [
     (f"afni_made/{name}", "afni_fixtures.py")
     for name in (
-        "warp_rai+tlrc.HEAD", "warp_rai+tlrc.BRIK", "warp_lps+orig.HEAD", "warp_lps+orig.BRIK.gz", "reference.json",
+        "warp_rai+tlrc.HEAD", "warp_rai+tlrc.BRIK", "warp_lps+orig.HEAD", "warp_lps+orig.BRIK.gz",
+        "warp_rai_WARP.nii.gz", "nitransforms_afni.nii.gz", "reference.json",
     )
 ]
 

@@ -42,7 +42,9 @@
 //!
 //! `3dQwarp` writes its warp as a dataset of three float sub-bricks labelled `x_delta`, `y_delta` and `z_delta`
 //! (AFNI's `IW3D_to_dataset`): at each voxel centre x of the base's grid, the displacement in DICOM mm to the
-//! source's point, which `3dNwarpApply` reads at x + D(x). That is warpbench's pull-back, in LPS as it stands.
+//! source's point, which `3dNwarpApply` reads at x + D(x). That is warpbench's pull-back, in LPS as it stands. A warp
+//! saved as NIfTI (`-prefix x_WARP.nii.gz`) is the same three sub-bricks, told apart by AFNI's extension
+//! ([`crate::nifti::afni_extension`]).
 //!
 //! # Robustness
 //!
@@ -72,8 +74,7 @@ use crate::volume::{self, GeometrySource, Rescale, Volume, VoxelData};
 /// The largest `.HEAD` read: AFNI's own are a few kB, with a long history note a few hundred.
 pub const MAX_HEAD_BYTES: u64 = 16 << 20;
 
-/// The labels of a `3dQwarp` warp's first three sub-bricks.
-pub const WARP_LABELS: [&str; 3] = ["x_delta", "y_delta", "z_delta"];
+pub use crate::nifti::afni_extension::WARP_LABELS;
 
 /// Bytes read between progress reports.
 const CHUNK_BYTES: usize = 4 << 20;
@@ -385,8 +386,7 @@ impl Header {
     /// Whether the first three sub-bricks are labelled as a `3dQwarp` warp's ([`WARP_LABELS`]).
     #[must_use]
     pub fn is_warp(&self) -> bool {
-        let labels = self.labels();
-        labels.len() >= 3 && labels[..3].iter().zip(WARP_LABELS).all(|(l, w)| l == w)
+        crate::nifti::afni_extension::are_warp_labels(&self.labels())
     }
 
     /// The grid from `ORIENT_SPECIFIC`, `ORIGIN` and `DELTA` (module docs, "Geometry").

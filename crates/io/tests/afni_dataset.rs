@@ -212,3 +212,34 @@ fn damaged_datasets_are_refused_naming_the_file() {
     let e = warpbench_io::open(dir.join("scaled+tlrc.HEAD")).expect_err("bzip2");
     assert!(e.to_string().contains("bzip2") && e.to_string().contains("scaled+tlrc.BRIK.bz2"), "{e}");
 }
+
+#[test]
+fn afnis_nifti_form_of_a_warp_is_the_same_warp() {
+    let dataset = read_field_info(&data("afni_made").join("warp_rai+tlrc.HEAD")).expect("the dataset");
+    let path = data("afni_made").join("warp_rai_WARP.nii.gz");
+    assert!(warpbench_io::nifti::afni_extension::is_afni_warp(&path).expect("read"));
+    let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(read.source, FieldSource::Afni);
+    assert_eq!(read.field.dims, dataset.field.dims);
+    // The same float32 deltas, in the same (DICOM, LPS) order: nothing is negated.
+    assert_eq!(read.field.displacements_lps, dataset.field.displacements_lps);
+    let (a, b) = (read.field.lps_from_index.rows(), dataset.field.lps_from_index.rows());
+    for (r, (x, y)) in a.iter().zip(&b).enumerate() {
+        for c in 0..4 {
+            // The NIfTI grid is float32.
+            assert!((x[c] - y[c]).abs() < 1e-5, "[{r}][{c}]: {} {}", x[c], y[c]);
+        }
+    }
+}
+
+#[test]
+fn a_nifti_warp_without_afnis_labels_is_refused() {
+    // nitransforms' own AFNI writer keeps no extension: nothing says the 5-D array is a warp, nor in which frame.
+    let path = data("afni_made").join("nitransforms_afni.nii.gz");
+    assert!(!warpbench_io::nifti::afni_extension::is_afni_warp(&path).expect("read"));
+    let e = read_field_info(&path).expect_err("no labels");
+    assert!(
+        e.to_string().contains("no AFNI extension labels it") && e.to_string().contains("nitransforms_afni"),
+        "{e}"
+    );
+}

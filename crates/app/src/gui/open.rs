@@ -186,6 +186,7 @@ fn is_field_file(path: &Path) -> bool {
     intent.is_some_and(|c| c == dispvect || warpbench_io::nifti::FSL_INTENTS.contains(&c))
         || warpbench_io::learn2reg::is_npz_file(path).unwrap_or(false)
         || warpbench_io::afni_dataset::is_warp_file(path).unwrap_or(false)
+        || warpbench_io::nifti::afni_extension::is_afni_warp(path).unwrap_or(false)
 }
 
 /// What the user asked for through a menu, a dialog, a drop or a chooser.
@@ -454,6 +455,7 @@ mod tests {
             "learn2reg/disp_f16.npz",
             "afni_made/warp_rai+tlrc.HEAD",
             "afni_made/warp_lps+orig.BRIK.gz",
+            "afni_made/warp_rai_WARP.nii.gz",
         ] {
             assert_eq!(classify(&data.join(field)), FileKind::Field, "{field}");
         }

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use crate::error::{Error, Result};
-use crate::nifti::{self, DisplacementField, NiftiVectorIntent};
+use crate::nifti::{self, DisplacementField, NiftiFieldKind, NiftiVectorIntent};
 use crate::nrrd::field::{self as nrrd_field, NrrdFieldType};
 
 /// A displacement-field flavour (module docs).
@@ -142,7 +142,8 @@ pub enum FieldSource {
     Learn2Reg,
     /// An FSL FNIRT warp, read against its reference (the fixed grid) and input ([`crate::fnirt::read_pullback`]).
     Fnirt,
-    /// An AFNI `3dQwarp` warp: a dataset of `x_delta`, `y_delta` and `z_delta` ([`crate::afni_dataset::read_warp`]).
+    /// An AFNI `3dQwarp` warp: a dataset of `x_delta`, `y_delta` and `z_delta` ([`crate::afni_dataset::read_warp`]), or
+    /// the same saved as NIfTI with AFNI's extension ([`crate::nifti::afni_extension`]).
     Afni,
 }
 
@@ -214,17 +215,13 @@ pub(crate) fn read_flavoured(path: &Path, head: &[u8]) -> Result<Option<ReadFiel
         }));
     }
     if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
-        let (field, intent) = nifti::read_vector_field(path)?;
-        let format = match intent {
-            NiftiVectorIntent::DispvectRas => FieldFormat::Itk,
-            NiftiVectorIntent::VectorLps => FieldFormat::Ants,
+        let (field, kind) = nifti::read_vector_field(path)?;
+        let source = match kind {
+            NiftiFieldKind::Intent(NiftiVectorIntent::DispvectRas) => FieldSource::Field(FieldFormat::Itk),
+            NiftiFieldKind::Intent(NiftiVectorIntent::VectorLps) => FieldSource::Field(FieldFormat::Ants),
+            NiftiFieldKind::AfniWarp => FieldSource::Afni,
         };
-        return Ok(Some(ReadField {
-            field,
-            source: FieldSource::Field(format),
-            direction: None,
-            warnings: Vec::new(),
-        }));
+        return Ok(Some(ReadField { field, source, direction: None, warnings: Vec::new() }));
     }
     Ok(None)
 }

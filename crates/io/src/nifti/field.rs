@@ -8,6 +8,7 @@ use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
 
+use super::afni_extension::{WARP_LABELS, are_warp_labels, brick_labels, read_afni_extension};
 use super::geometry::lps_from_index;
 use super::header::{pair_error, read_header};
 use super::layout::{Span, data_span, grid, stored_type};
@@ -71,6 +72,16 @@ impl NiftiVectorIntent {
             Self::VectorLps => "LPS",
         }
     }
+}
+
+/// What a NIfTI displacement field's header says its vectors are ([`read_vector_field`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NiftiFieldKind {
+    /// A vector intent, 1006 or 1007 ([`NiftiVectorIntent`]).
+    Intent(NiftiVectorIntent),
+    /// No vector intent, but AFNI's extension labels the three components `x_delta`, `y_delta`, `z_delta`: a
+    /// `3dQwarp` warp saved as NIfTI, its vectors in DICOM order, LPS ([`super::afni_extension`]).
+    AfniWarp,
 }
 
 /// A displacement field read by [`read_displacement_field`]: one vector per voxel of a grid.
@@ -179,13 +190,13 @@ pub fn read_displacement_field_bytes(name: &Path, bytes: &[u8]) -> Result<Displa
 /// `warpbench field --format itk`) or 1007 with LPS vectors (ANTs, `--format ants`), shape [X, Y, Z, 1, 3], float32
 /// or float64; the vectors are returned in LPS, with the intent found. Non-finite vectors are refused, naming the
 /// voxel.
-pub fn read_vector_field(path: &Path) -> Result<(DisplacementField, NiftiVectorIntent)> {
+pub fn read_vector_field(path: &Path) -> Result<(DisplacementField, NiftiFieldKind)> {
     let (mut src, extent) = open_file(path)?;
     read_field_source(path, &mut src, extent, true)
 }
 
 /// [`read_vector_field`] from memory (gzip detected by the magic bytes); `name` is used in errors.
-pub fn read_vector_field_bytes(name: &Path, bytes: &[u8]) -> Result<(DisplacementField, NiftiVectorIntent)> {
+pub fn read_vector_field_bytes(name: &Path, bytes: &[u8]) -> Result<(DisplacementField, NiftiFieldKind)> {
     read_vector_field_bytes_with(name, bytes, true)
 }
 
@@ -193,7 +204,7 @@ fn read_vector_field_bytes_with(
     name: &Path,
     bytes: &[u8],
     vector_too: bool,
-) -> Result<(DisplacementField, NiftiVectorIntent)> {
+) -> Result<(DisplacementField, NiftiFieldKind)> {
     if bytes.starts_with(&GZIP_MAGIC) {
         read_field_source(name, &mut MultiGzDecoder::new(bytes), Extent::Gzip(bytes.len() as u64), vector_too)
     } else {
@@ -202,16 +213,42 @@ fn read_vector_field_bytes_with(
     }
 }
 
-/// Reads the field; `vector_too` accepts intent 1007 (LPS vectors) besides 1006.
+/// Reads the field; `vector_too` accepts intent 1007 (LPS vectors) and AFNI's warps besides 1006.
 fn read_field_source<S: Source>(
     path: &Path,
     src: &mut S,
     extent: Extent,
     vector_too: bool,
-) -> Result<(DisplacementField, NiftiVectorIntent)> {
+) -> Result<(DisplacementField, NiftiFieldKind)> {
     let h = read_header(path, src)?;
     if h.pair {
         return Err(pair_error(path, "a displacement field is read from one .nii or .nii.gz file"));
+    }
+    let vector_dims = h.dim[0] == 5 && h.dim[4] == 1 && h.dim[5] == 3;
+    let intent_given = [NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR].map(i32::from).contains(&h.intent_code);
+    let mut consumed = 0;
+    if vector_too && vector_dims && !intent_given {
+        let (afni, n) = read_afni_extension(path, src, &h)?;
+        consumed = n;
+        match afni.as_deref().map(brick_labels) {
+            Some(Some(labels)) if are_warp_labels(&labels) => {
+                let dims = field_dims(path, &h)?;
+                let (lps_from_index, geometry_source, _) = lps_from_index(path, &h, dims)?;
+                let displacements_lps = read_planes(path, src, extent, &h, dims, [1.0; 3], consumed)?;
+                let field = DisplacementField { dims, lps_from_index, geometry_source, displacements_lps };
+                return Ok((field, NiftiFieldKind::AfniWarp));
+            }
+            Some(Some(labels)) => {
+                return Err(Error::invalid(
+                    path,
+                    format!(
+                        "an AFNI dataset of three sub-bricks labelled {labels:?}, not a 3dQwarp warp (whose are \
+                         {WARP_LABELS:?}): not a displacement field"
+                    ),
+                ));
+            }
+            _ => {}
+        }
     }
     let intent = match h.intent_code {
         c if c == i32::from(NIFTI_INTENT_DISPVECT) => NiftiVectorIntent::DispvectRas,
@@ -235,7 +272,8 @@ fn read_field_source<S: Source>(
                 path,
                 format!(
                     "intent_code is {c}, neither NIFTI_INTENT_DISPVECT (1006, ITK and Slicer) nor \
-                     NIFTI_INTENT_VECTOR (1007, ANTs): not a displacement field"
+                     NIFTI_INTENT_VECTOR (1007, ANTs), and no AFNI extension labels it a 3dQwarp warp (x_delta, \
+                     y_delta, z_delta): not a displacement field"
                 ),
             ));
         }
@@ -254,8 +292,8 @@ fn read_field_source<S: Source>(
     }
     let dims = field_dims(path, &h)?;
     let (lps_from_index, geometry_source, _) = lps_from_index(path, &h, dims)?;
-    let displacements_lps = read_planes(path, src, extent, &h, dims, intent.signs())?;
-    Ok((DisplacementField { dims, lps_from_index, geometry_source, displacements_lps }, intent))
+    let displacements_lps = read_planes(path, src, extent, &h, dims, intent.signs(), consumed)?;
+    Ok((DisplacementField { dims, lps_from_index, geometry_source, displacements_lps }, NiftiFieldKind::Intent(intent)))
 }
 
 /// Reads Learn2Reg's NIfTI form of a field ([`crate::learn2reg`]): dim = [4, X, Y, Z, 3], float32 or float64,
@@ -300,7 +338,7 @@ fn read_frames_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Re
         ));
     }
     let dims = field_dims(path, &h)?;
-    let vectors = read_planes(path, src, extent, &h, dims, [1.0; 3])?;
+    let vectors = read_planes(path, src, extent, &h, dims, [1.0; 3], 0)?;
     Ok((dims, vectors))
 }
 
@@ -323,7 +361,8 @@ pub(super) fn field_dims(path: &Path, h: &super::header::Header) -> Result<[usiz
     Ok([grid[1], grid[2], grid[3]])
 }
 
-/// Reads the three component planes after the header, each times its sign; refuses a vector that is not finite.
+/// Reads the three component planes after the header (`consumed` bytes after it already read), each times its sign;
+/// refuses a vector that is not finite.
 pub(super) fn read_planes<S: Source>(
     path: &Path,
     src: &mut S,
@@ -331,6 +370,7 @@ pub(super) fn read_planes<S: Source>(
     h: &super::header::Header,
     dims: [usize; 3],
     signs: [f32; 3],
+    consumed: u64,
 ) -> Result<Vec<[f32; 3]>> {
     let datatype = stored_type(path, h)?;
     // The output is 12 bytes a voxel; a stored plane is at most 8 bytes a voxel, so both fit once this passes.
@@ -344,7 +384,7 @@ pub(super) fn read_planes<S: Source>(
     };
     let vox_offset = data_span(path, h, extent, &span)?;
     let mut opts = LoadOptions::new();
-    let skip = vox_offset - h.version.header_bytes() as u64;
+    let skip = vox_offset - h.version.header_bytes() as u64 - consumed;
     if !src.seek_forward(skip).map_err(|e| Error::io(path, e))? {
         io::copy(&mut src.by_ref().take(skip), &mut io::sink()).map_err(|e| Error::io(path, e))?;
     }

@@ -152,7 +152,7 @@ fn read_source<S: Source>(path: &Path, src: &mut S, extent: Extent) -> Result<Fn
         ));
     }
     let dims = field_dims(path, &h)?;
-    let vectors = read_planes(path, src, extent, &h, dims, [1.0; 3])?;
+    let vectors = read_planes(path, src, extent, &h, dims, [1.0; 3], 0)?;
     if h.intent_code == FSL_FNIRT_DISPLACEMENT_FIELD {
         let lps_from_index = if h.sform_code > 0 || h.qform_code > 0 {
             let (t, source, _) = lps_from_index(path, &h, dims)?;

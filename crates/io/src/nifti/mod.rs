@@ -132,6 +132,7 @@
 //! displacement fields; `source` holds the byte sources (a file, plain or gzip, or a buffer), the bound on what
 //! each can deliver and the progress reporter. This module holds the volume reader that runs those stages.
 
+pub mod afni_extension;
 mod field;
 mod fnirt;
 mod geometry;
@@ -146,9 +147,9 @@ use std::path::Path;
 use flate2::read::MultiGzDecoder;
 
 pub use field::{
-    DisplacementField, NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR, NiftiVectorIntent, read_displacement_field,
-    read_displacement_field_bytes, read_frame_vectors, read_frame_vectors_bytes, read_vector_field,
-    read_vector_field_bytes, write_displacement_field, write_frame_vectors, write_vector_field,
+    DisplacementField, NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR, NiftiFieldKind, NiftiVectorIntent,
+    read_displacement_field, read_displacement_field_bytes, read_frame_vectors, read_frame_vectors_bytes,
+    read_vector_field, read_vector_field_bytes, write_displacement_field, write_frame_vectors, write_vector_field,
 };
 pub use fnirt::{
     CoefficientField, FSL_CUBIC_SPLINE_COEFFICIENTS, FSL_FNIRT_DISPLACEMENT_FIELD, FSL_INTENTS, FnirtFile, fsl_intent,
