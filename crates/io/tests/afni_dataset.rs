@@ -219,7 +219,7 @@ fn afnis_nifti_form_of_a_warp_is_the_same_warp() {
     let path = data("afni_made").join("warp_rai_WARP.nii.gz");
     assert!(warpbench_io::nifti::afni_extension::is_afni_warp(&path).expect("read"));
     let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!(read.source, FieldSource::Afni);
+    assert_eq!((read.source, read.direction), (FieldSource::Afni, dataset.direction));
     assert_eq!(read.field.dims, dataset.field.dims);
     // The same float32 deltas, in the same (DICOM, LPS) order: nothing is negated.
     assert_eq!(read.field.displacements_lps, dataset.field.displacements_lps);

@@ -216,12 +216,14 @@ pub(crate) fn read_flavoured(path: &Path, head: &[u8]) -> Result<Option<ReadFiel
     }
     if head.starts_with(&[0x1f, 0x8b]) || nifti::looks_like_nifti(head) {
         let (field, kind) = nifti::read_vector_field(path)?;
-        let source = match kind {
-            NiftiFieldKind::Intent(NiftiVectorIntent::DispvectRas) => FieldSource::Field(FieldFormat::Itk),
-            NiftiFieldKind::Intent(NiftiVectorIntent::VectorLps) => FieldSource::Field(FieldFormat::Ants),
-            NiftiFieldKind::AfniWarp => FieldSource::Afni,
+        // ITK's and ANTs' files do not say which map they sample (a pull-back, as ITK takes them); AFNI's warp is
+        // always 3dNwarpApply's pull-back.
+        let (source, direction) = match kind {
+            NiftiFieldKind::Intent(NiftiVectorIntent::DispvectRas) => (FieldSource::Field(FieldFormat::Itk), None),
+            NiftiFieldKind::Intent(NiftiVectorIntent::VectorLps) => (FieldSource::Field(FieldFormat::Ants), None),
+            NiftiFieldKind::AfniWarp => (FieldSource::Afni, Some(FieldDirection::Pullback)),
         };
-        return Ok(Some(ReadField { field, source, direction: None, warnings: Vec::new() }));
+        return Ok(Some(ReadField { field, source, direction, warnings: Vec::new() }));
     }
     Ok(None)
 }

@@ -178,8 +178,8 @@ class Volume:
 
 def read_volume(path: PathLike, *, frame: Optional[int] = None) -> Volume:
     """Reads a volume in any format the command line reads: NIfTI-1/2, NRRD, a DICOM series (folder or file),
-    MetaImage, FreeSurfer's MGH/MGZ, MINC 1 and 2, an OME-Zarr folder (0.4 to 0.6). ``frame`` chooses one frame of a
-    4-D file."""
+    MetaImage, FreeSurfer's MGH/MGZ, MINC 1 and 2, an OME-Zarr folder (0.4 to 0.6), an AFNI dataset (its ``.HEAD``,
+    ``.BRIK`` or ``.BRIK.gz``). ``frame`` chooses one frame of a 4-D file (one sub-brick of an AFNI dataset)."""
     array, lps, header = _warpbench.read_volume(os.fspath(path), frame)
     info = json.loads(header)
     return Volume(array, lps, modality=info.get("modality"), path=path, header=info)
@@ -205,7 +205,8 @@ class Field:
     then it is a pull-back, as ITK takes it. ``"ngff"`` is an OME-Zarr 0.6 field folder (RFC-5's ``displacements``);
     ``warnings`` says what its reader assumed where the file is silent (axes without a unit taken as mm, axes
     without an orientation as L, P, S). ``"fnirt"`` is an FSL FNIRT warp read against its reference and input
-    (``"pullback"``, on the reference's grid)."""
+    (``"pullback"``, on the reference's grid). ``"afni"`` is AFNI's ``3dQwarp`` warp (``"pullback"``): a dataset whose
+    sub-bricks are labelled ``x_delta``, ``y_delta``, ``z_delta``, or the same saved as NIfTI with AFNI's extension."""
 
     array: np.ndarray
     lps_from_index: np.ndarray
@@ -234,6 +235,9 @@ def read_field(
     for, ``fixed`` and ``moving``: it is read as the pull-back on the fixed grid, in LPS mm, with ``source``
     ``"learn2reg"``. An ``.npz`` is told by its content; the NIfTI form the challenge takes since 2022 (an (X, Y, Z, 3)
     array, ``disp_XXXX_YYYY.nii.gz``) says nothing of its units, so it is read so only with ``learn2reg=True``.
+
+    An AFNI ``3dQwarp`` warp (``PREFIX_WARP+tlrc.HEAD`` with its ``.BRIK``, or ``PREFIX_WARP.nii.gz``) is read on its own
+    grid as ``3dNwarpApply`` applies it, with ``source`` ``"afni"``.
 
     An FSL FNIRT warp (``fnirt --fout`` or ``convertwarp`` deformation fields, ``fnirt --cout`` cubic coefficients;
     told by its NIfTI intent) maps FSL's coordinates of its reference image to its input's: give the reference as
