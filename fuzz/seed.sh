@@ -31,6 +31,16 @@ seed fnirt fnirt '*.nii*'
 seed matrix_text fsl '*.mat'
 seed lta lta '*.lta'
 
+# AFNI: each dataset's two files in one (the .HEAD's length as a little-endian u32, the .HEAD, the .BRIK).
+mkdir -p corpus/afni
+for head in "$data"/afni/*.HEAD "$data"/afni_made/*.HEAD; do
+    brik=$(ls "${head%.HEAD}".BRIK* | head -n 1)
+    [ "$(stat -c %s "$brik")" -lt 2000000 ] || continue
+    python3 -c 'import struct, sys; sys.stdout.buffer.write(struct.pack("<I", int(sys.argv[1])))' "$(stat -c %s "$head")" \
+        >"corpus/afni/seed_$(basename "${head%.HEAD}")"
+    cat "$head" "$brik" >>"corpus/afni/seed_$(basename "${head%.HEAD}")"
+done
+
 # NRRD: header lines, then the samples. `nrrd NAME HEADER-LINES... -- SAMPLES-COMMAND`.
 nrrd() {
     local name=$1 && shift

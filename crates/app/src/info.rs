@@ -398,6 +398,13 @@ fn voxel_sha256(data: &VoxelData) -> String {
 /// A reader's error in the words of this command: a 4-D file's frame is chosen with `--frame`.
 fn cli_error(e: warpbench_io::Error) -> Failure {
     match e.kind {
+        ErrorKind::FrameRequired { frames } if warpbench_io::afni_dataset::has_afni_name(&e.path) => {
+            Failure::BadInput(anyhow::anyhow!(
+                "{}: an AFNI dataset of {frames} sub-bricks: choose one with --frame N (N from 0 to {})",
+                e.path.display(),
+                frames.saturating_sub(1)
+            ))
+        }
         ErrorKind::FrameRequired { frames } => {
             // Three frames may be Learn2Reg's field, whose NIfTI form is an (X, Y, Z, 3) array: say where it is read.
             let field = if frames == 3 {
@@ -472,6 +479,12 @@ pub fn run(opts: &InfoArgs, out: &mut dyn Write) -> Result<(), Failure> {
 
 fn fmt3(v: [f64; 3]) -> String {
     format!("{} × {} × {}", trim(v[0]), trim(v[1]), trim(v[2]))
+}
+
+/// [`trim`], or in scientific notation for a number that six decimals would round to 0 (an AFNI scale factor of
+/// 3.9e-08).
+fn number(x: f64) -> String {
+    if x != 0.0 && x.abs() < 1e-4 { format!("{x:e}") } else { trim(x) }
 }
 
 fn trim(x: f64) -> String {
@@ -632,7 +645,7 @@ fn write_volume(v: &VolumeInfo, out: &mut dyn Write) -> std::io::Result<()> {
     }
     let r = &v.rescale;
     if r.applied {
-        writeln!(out, "  rescale         value = {} × stored + {} (applied)", trim(r.slope), trim(r.intercept))?;
+        writeln!(out, "  rescale         value = {} × stored + {} (applied)", number(r.slope), number(r.intercept))?;
     } else {
         writeln!(out, "  rescale         none")?;
     }

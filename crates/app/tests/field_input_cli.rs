@@ -1102,6 +1102,14 @@ fn an_afni_warp_is_read_as_its_pullback_and_described() {
         (&"volume".into(), &"afni".into(), &"#2".into()),
         "{info}"
     );
+    // Without --frame, the choice is asked for in AFNI's words (no Learn2Reg hint for its 3 sub-bricks).
+    let info = warpbench(&["info", s(&dataset)]);
+    assert_eq!(info.status.code(), Some(2));
+    let stderr = String::from_utf8_lossy(&info.stderr);
+    assert!(
+        stderr.contains("an AFNI dataset of 3 sub-bricks: choose one with --frame N") && !stderr.contains("Learn2Reg"),
+        "{stderr}"
+    );
     // ...and refused as a field, naming the file and its labels.
     let out = tmp.path().join("x.nii.gz");
     let fixed = data("afni/scaled+tlrc.HEAD");
