@@ -5,7 +5,9 @@ from them.
 Copies into tests/data/afni/ the two AFNI datasets of nibabel 5.4.2's own test data (written by AFNI):
 
 - `example4d+orig.HEAD`, `example4d+orig.BRIK.gz`: three short sub-bricks, gzip-compressed;
-- `scaled+tlrc.HEAD`, `scaled+tlrc.BRIK`: one short sub-brick with a scale factor (BRICK_FLOAT_FACS).
+- `scaled+tlrc.HEAD`, `scaled+tlrc.BRIK`: one short sub-brick with a scale factor (BRICK_FLOAT_FACS);
+- `bad_attribute+orig.HEAD`, `bad_datatype+orig.HEAD`: example4d's header with `BYTEORDER_STRING` typed as an
+  integer, and with a complex sub-brick, which nibabel refuses (no `.BRIK`: nibabel's tests give none).
 
 Writes into tests/data/afni_made/:
 
@@ -52,6 +54,8 @@ COPIED = {
     "example4d+orig": ("example4d+orig.HEAD", "example4d+orig.BRIK.gz"),
     "scaled+tlrc": ("scaled+tlrc.HEAD", "scaled+tlrc.BRIK"),
 }
+# nibabel's two damaged headers (example4d's, one attribute changed), which nibabel refuses.
+BAD = ("bad_attribute+orig.HEAD", "bad_datatype+orig.HEAD")
 LPS_FROM_RAS = np.diag([-1.0, -1.0, 1.0, 1.0])
 
 
@@ -220,7 +224,7 @@ def copied_reference(stem: str, rng) -> dict:
 def main() -> int:
     COPIES.mkdir(parents=True, exist_ok=True)
     MADE.mkdir(parents=True, exist_ok=True)
-    for names in COPIED.values():
+    for names in [*COPIED.values(), BAD]:
         for name in names:
             shutil.copyfile(NIBABEL_DATA / name, COPIES / name)
     rng = np.random.default_rng(SEED)

@@ -34,7 +34,9 @@ seed lta lta '*.lta'
 # AFNI: each dataset's two files in one (the .HEAD's length as a little-endian u32, the .HEAD, the .BRIK).
 mkdir -p corpus/afni
 for head in "$data"/afni/*.HEAD "$data"/afni_made/*.HEAD; do
-    brik=$(ls "${head%.HEAD}".BRIK* | head -n 1)
+    # nibabel's damaged headers come without samples: example4d's stand in.
+    brik=$(find "$(dirname "$head")" -name "$(basename "${head%.HEAD}").BRIK*" | head -n 1)
+    [ -n "$brik" ] || brik="$data/afni/example4d+orig.BRIK.gz"
     [ "$(stat -c %s "$brik")" -lt 2000000 ] || continue
     python3 -c 'import struct, sys; sys.stdout.buffer.write(struct.pack("<I", int(sys.argv[1])))' "$(stat -c %s "$head")" \
         >"corpus/afni/seed_$(basename "${head%.HEAD}")"

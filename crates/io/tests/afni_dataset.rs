@@ -197,6 +197,20 @@ fn damaged_datasets_are_refused_naming_the_file() {
     let e = warpbench_io::open(&head).expect_err("huge count");
     assert!(e.to_string().contains("count 999999999"), "{e}");
 
+    // nibabel's own damaged headers, beside example4d's samples: a string typed as integers, a complex sub-brick.
+    for (stem, needle) in [
+        ("bad_attribute+orig", "attribute BYTEORDER_STRING: value 1 ''LSB_FIRST~' is not a number"),
+        ("bad_datatype+orig", "sub-brick 2 has type 5 (complex)"),
+    ] {
+        let dir = temp(stem);
+        std::fs::copy(data("afni").join(format!("{stem}.HEAD")), dir.join(format!("{stem}.HEAD"))).expect("copy");
+        std::fs::copy(data("afni").join("example4d+orig.BRIK.gz"), dir.join(format!("{stem}.BRIK.gz"))).expect("copy");
+        let mut opts = LoadOptions::new();
+        opts.frame = Some(0);
+        let e = opts.open(dir.join(format!("{stem}.HEAD"))).expect_err("nibabel refuses it too");
+        assert!(e.to_string().contains(needle) && e.to_string().contains(&format!("{stem}.HEAD")), "{e}");
+    }
+
     // The header missing beside the samples, and the samples missing beside the header.
     let dir = temp("alone");
     std::fs::copy(data("afni").join("scaled+tlrc.BRIK"), dir.join("scaled+tlrc.BRIK")).expect("copy");
