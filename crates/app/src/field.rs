@@ -82,7 +82,9 @@ vector image in LPS that Slicer reads, stating the direction (displacement field
 --format metaimage: a MetaImage vector image in LPS (.mha, or .mhd with a .raw beside it), what elastix's
 transformix writes as deformationField.mhd and every ITK reads; --format learn2reg (or a name ending .npz):
 Learn2Reg's field, the pull-back's steps from fixed voxels to moving voxels, as .npz (float16, the challenge's
-form until 2021) or .nii.gz (float32 (X, Y, Z, 3), its form since 2022).
+form until 2021) or .nii.gz (float32 (X, Y, Z, 3), its form since 2022); --format afni: AFNI's warp as 3dQwarp
+saves one to .nii.gz (LPS vectors, AFNI's extension labelling them x_delta, y_delta, z_delta), which
+3dNwarpApply -nwarp applies; --format fnirt: FSL FNIRT's relative deformation field for applywarp --rel.
 Examples:
 
     warpbench field --fixed ct.nii.gz --moving mr.nii.gz --landmarks pairs.csv --out field.nii.gz
@@ -123,9 +125,10 @@ pub struct FieldArgs {
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
     /// metaimage (elastix's and ITK's .mha/.mhd, LPS), minc (an MNI grid transform .xfm), ngff (an OME-Zarr 0.6 field
     /// folder, .ome.zarr, which its name picks too), learn2reg (Learn2Reg's steps from fixed voxels to moving
-    /// voxels: .npz, float16, the challenge's form until 2021; .nii.gz, float32, its form since 2022) or fnirt (FSL
+    /// voxels: .npz, float16, the challenge's form until 2021; .nii.gz, float32, its form since 2022), fnirt (FSL
     /// FNIRT's relative deformation field, .nii or .nii.gz, for `applywarp --ref=GRID --in=MOVING --warp=OUT --rel`,
-    /// GRID the output grid's volume: --reference, or the fixed one).
+    /// GRID the output grid's volume: --reference, or the fixed one) or afni (AFNI's warp, .nii or .nii.gz, for
+    /// `3dNwarpApply -nwarp OUT -source MOVING -master GRID`).
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// pullback (u(x) − x on the fixed grid) or forward (d(y) − y on the moving grid).
@@ -134,7 +137,7 @@ pub struct FieldArgs {
     /// The displacement field to write (.nii or .nii.gz; .nrrd for --format nrrd; .mha or .mhd for --format
     /// metaimage; .h5 for ITK's HDF5 transform file holding it as a DisplacementFieldTransform; .npz, or .nii.gz with
     /// --format learn2reg, for Learn2Reg's field, steps from fixed voxels to moving voxels; .nii.gz with --format
-    /// fnirt for FSL's applywarp; a folder named .ome.zarr for OME-Zarr 0.6, RFC-5's displacements, on an
+    /// fnirt for FSL's applywarp or --format afni for AFNI's 3dNwarpApply; a folder named .ome.zarr for OME-Zarr 0.6, RFC-5's displacements, on an
     /// axis-aligned grid).
     #[arg(long)]
     pub out: PathBuf,
@@ -158,6 +161,9 @@ pub enum FormatArg {
     /// FSL FNIRT's deformation field of relative displacements (`.nii`, `.nii.gz`), in the FSL coordinates of the
     /// output grid (FNIRT's reference) and the moving volume (its input), as `fnirt --fout` writes one.
     Fnirt,
+    /// AFNI's warp (`.nii`, `.nii.gz`), as `3dQwarp` saves one: LPS (DICOM) vectors, AFNI's extension labelling them,
+    /// for `3dNwarpApply -nwarp`.
+    Afni,
 }
 
 /// A field written against the pair's grids rather than in a flavour of its own ([`FormatArg::pair_output`]).
@@ -264,6 +270,7 @@ impl FormatArg {
             Self::Metaimage => FieldFormat::MetaImage,
             Self::Minc => FieldFormat::Minc,
             Self::Ngff => FieldFormat::Ngff,
+            Self::Afni => FieldFormat::Afni,
         }
     }
 

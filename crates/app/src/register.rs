@@ -83,7 +83,8 @@ pub struct RegisterArgs {
     /// The displacement field to write: the registered pull-back, u(x) − x on the fixed grid (.nii or .nii.gz;
     /// .nrrd for --format nrrd; .mha or .mhd for --format metaimage; .h5 for ITK's HDF5 transform file holding it as
     /// a DisplacementFieldTransform, as ANTs' Composite.h5; .npz, or .nii.gz with --format learn2reg, for Learn2Reg's
-    /// field, steps from fixed voxels to moving voxels; .nii.gz with --format fnirt for FSL's applywarp).
+    /// field, steps from fixed voxels to moving voxels; .nii.gz with --format fnirt for FSL's applywarp, with --format
+    /// afni for AFNI's 3dNwarpApply).
     #[arg(long, value_name = "FILE")]
     pub out_field: PathBuf,
     /// Also write the moving volume resampled through the registered warp onto the fixed grid (.nii, .nii.gz, .nrrd,
@@ -99,7 +100,8 @@ pub struct RegisterArgs {
     /// The field's flavour: itk (NIfTI DISPVECT, RAS vectors), ants (NIfTI VECTOR, LPS), nrrd (Slicer's NRRD, LPS),
     /// metaimage (elastix's and ITK's .mha/.mhd, LPS), learn2reg (Learn2Reg's steps from fixed voxels to moving
     /// voxels, .npz or .nii.gz) or fnirt (FSL FNIRT's relative deformation field, .nii or .nii.gz, for `applywarp
-    /// --ref=FIXED --in=MOVING --warp=FILE --rel`); an inverse field beside learn2reg or fnirt is itk.
+    /// --ref=FIXED --in=MOVING --warp=FILE --rel`) or afni (AFNI's warp, .nii or .nii.gz, for `3dNwarpApply -nwarp
+    /// FILE`); an inverse field beside learn2reg or fnirt is itk.
     #[arg(long, value_enum, default_value = "itk")]
     pub format: FormatArg,
     /// The similarity measure: mi (Mattes mutual information: any two modalities; the default), ngf (normalised
@@ -239,7 +241,7 @@ pub struct RegisterSummary {
     /// How closely the inverse undoes the registered warp, ‖u(d(y)) − y‖ over a grid where it was fitted; null
     /// without `--out-inverse-field`.
     pub inverse_consistency: Option<InverseConsistency>,
-    /// The field's flavour: `itk`, `ants`, `nrrd`, `metaimage`, `learn2reg` or `fnirt`.
+    /// The field's flavour: `itk`, `ants`, `nrrd`, `metaimage`, `learn2reg`, `fnirt` or `afni`.
     pub format: &'static str,
     /// The warp the registration started from, e.g. `tps`, `tps on start.tfm`, `identity`.
     pub start: String,

@@ -1087,6 +1087,25 @@ fn an_afni_warp_is_read_as_its_pullback_and_described() {
         }
         // The NIfTI grid is stored in float32: a few ULPs of the coordinates.
         assert!(worst < 1e-4, "{stem}: {worst} mm from nitransforms");
+        // Written back for AFNI: the same vectors, in AFNI's NIfTI form (as the fixture made by nibabel is).
+        let afni = tmp.path().join(format!("{stem}_WARP.nii.gz"));
+        let run = warpbench(&[
+            "field",
+            "--fixed",
+            s(&fixed),
+            "--moving",
+            s(&fixed),
+            "--field",
+            s(&warp),
+            "--format",
+            "afni",
+            "--out",
+            s(&afni),
+        ]);
+        assert_ok(&run);
+        let again = warpbench_io::displacement::read_field_info(&afni).expect("the AFNI field");
+        assert_eq!(again.source.name(), "afni");
+        assert_eq!(again.field.displacements_lps, read.field.displacements_lps, "{stem}");
         let info = warpbench(&["info", "--json", s(&warp)]);
         assert_ok(&info);
         let info: serde_json::Value = serde_json::from_slice(&info.stdout).expect("JSON");

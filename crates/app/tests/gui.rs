@@ -17,6 +17,7 @@ use window::{no_adapter, open_mri_pair, open_mri_pair_at, wait_for_export, wait_
 use eframe::egui;
 use egui_kittest::Harness;
 use egui_kittest::kittest::Queryable;
+use warpbench_app::gui::export::FieldForm;
 use warpbench_app::gui::{GuiOptions, Workbench};
 
 #[test]
@@ -360,7 +361,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = l2r_nifti_out.display().to_string();
     harness.run_steps(2);
     tick(&mut harness, "Learn2Reg steps in voxels");
-    assert!(harness.state().ready().expect("loaded").files.export_fields.field_in_voxels, "ticked");
+    assert_eq!(harness.state().ready().expect("loaded").files.export_fields.field_form, FieldForm::Learn2Reg, "ticked");
     {
         use egui_kittest::kittest::NodeT as _;
         assert!(harness.get_by_label("Export inverse field").accesskit_node().is_disabled(), "inverse offered");
@@ -368,7 +369,7 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
     let message = export(&mut harness, "Export displacement field", &l2r_nifti_out);
     assert!(message.contains("displacement field"), "{message}");
     tick(&mut harness, "Learn2Reg steps in voxels");
-    assert!(!harness.state().ready().expect("loaded").files.export_fields.field_in_voxels);
+    assert_eq!(harness.state().ready().expect("loaded").files.export_fields.field_form, FieldForm::ByName);
     // A NIfTI name with FSL FNIRT field ticked: FNIRT's relative field of the same warp, which reads back against the
     // pair to the ITK field above; ticking Learn2Reg's form unticks it (one form at a time).
     let fnirt_out = dir.path().join("warp_fnirt.nii.gz");
@@ -395,12 +396,24 @@ fn exports_the_warped_volume_the_fields_and_the_transform_as_the_command_line_do
         .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0f32, f32::max))
         .fold(0.0f32, f32::max);
     assert!(worst < 1e-4, "{worst} mm from the ITK field");
+    // A NIfTI name with AFNI warp ticked: AFNI's warp of the same vectors, read back as AFNI's; ticking it unticked
+    // FNIRT's form (one form at a time).
+    let afni_out = dir.path().join("anat_WARP.nii.gz");
+    harness.state_mut().ready_mut().expect("loaded").files.export_fields.out = afni_out.display().to_string();
+    harness.run_steps(2);
+    tick(&mut harness, "AFNI warp");
+    assert_eq!(harness.state().ready().expect("loaded").files.export_fields.field_form, FieldForm::Afni);
+    let message = export(&mut harness, "Export displacement field", &afni_out);
+    assert!(message.contains("displacement field"), "{message}");
+    let afni = warpbench_io::displacement::read_field_info(&afni_out).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(afni.source.name(), "afni");
+    assert_eq!(afni.field.displacements_lps, nifti.displacements_lps, "the ITK field's vectors");
     for _ in 0..2 {
         tick(&mut harness, "Learn2Reg steps in voxels");
         let fields = &harness.state().ready().expect("loaded").files.export_fields;
-        assert!(!fields.field_fnirt, "one form at a time");
+        assert_ne!(fields.field_form, FieldForm::Afni, "one form at a time");
     }
-    assert!(!harness.state().ready().expect("loaded").files.export_fields.field_in_voxels);
+    assert_eq!(harness.state().ready().expect("loaded").files.export_fields.field_form, FieldForm::ByName);
     let inverse_out = dir.path().join("inverse.nrrd");
     let message = export(&mut harness, "Export inverse field", &inverse_out);
     assert!(message.contains("inverse (forward) displacement field"), "{message}");

@@ -62,7 +62,7 @@ use std::path::{Path, PathBuf};
 use flate2::read::MultiGzDecoder;
 use nalgebra::Matrix3;
 
-use crate::displacement::{FieldDirection, FieldSource, ReadField};
+use crate::displacement::{FieldDirection, FieldFormat, FieldSource, ReadField};
 use crate::error::{Error, ErrorKind, Result};
 use crate::geometry::{Index, Lps, Transform};
 use crate::nifti::DisplacementField;
@@ -678,7 +678,7 @@ pub fn read_warp(path: &Path) -> Result<ReadField> {
         DisplacementField { dims: d.dims, lps_from_index, geometry_source: GeometrySource::Afni, displacements_lps };
     Ok(ReadField {
         field,
-        source: FieldSource::Afni,
+        source: FieldSource::Field(FieldFormat::Afni),
         direction: Some(FieldDirection::Pullback),
         warnings: order_warning.into_iter().collect(),
     })

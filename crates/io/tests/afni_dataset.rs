@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use warpbench_io::displacement::{FieldSource, read_field_info};
+use warpbench_io::displacement::{FieldFormat, FieldSource, read_field_info};
 use warpbench_io::{ErrorKind, Format, GeometrySource, LoadOptions, SampleType};
 
 fn data(folder: &str) -> PathBuf {
@@ -116,7 +116,7 @@ fn each_warp_takes_its_voxels_where_nitransforms_takes_them() {
     for (stem, case) in reference["warps"].as_object().expect("warps") {
         let path = data("afni_made").join(format!("{stem}.HEAD"));
         let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
-        assert_eq!(read.source, FieldSource::Afni);
+        assert_eq!(read.source, FieldSource::Field(FieldFormat::Afni));
         assert!(read.warnings.is_empty(), "{:?}", read.warnings);
         let want_grid = matrix(&case["lps_from_index"]);
         let rows = read.field.lps_from_index.rows();
@@ -233,7 +233,7 @@ fn afnis_nifti_form_of_a_warp_is_the_same_warp() {
     let path = data("afni_made").join("warp_rai_WARP.nii.gz");
     assert!(warpbench_io::nifti::afni_extension::is_afni_warp(&path).expect("read"));
     let read = read_field_info(&path).unwrap_or_else(|e| panic!("{e}"));
-    assert_eq!((read.source, read.direction), (FieldSource::Afni, dataset.direction));
+    assert_eq!((read.source, read.direction), (FieldSource::Field(FieldFormat::Afni), dataset.direction));
     assert_eq!(read.field.dims, dataset.field.dims);
     // The same float32 deltas, in the same (DICOM, LPS) order: nothing is negated.
     assert_eq!(read.field.displacements_lps, dataset.field.displacements_lps);

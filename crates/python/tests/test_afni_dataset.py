@@ -5,7 +5,9 @@ nitransforms read here and now:
   nibabel's affine and values, each sub-brick chosen with ``frame=``;
 - the repository's 3dQwarp-style warp (``data-scripts/afni_fixtures.py``: a dataset, named by either file, and AFNI's
   NIfTI form of it) read by ``read_field`` as the pull-back nitransforms maps every voxel centre to;
-- an AFNI dataset that is not a warp, and a NIfTI warp without AFNI's labels, refused with ``ValueError``.
+- an AFNI dataset that is not a warp, and a NIfTI warp without AFNI's labels, refused with ``ValueError``;
+- a warp written with ``format="afni"`` read back as itself, laid out as AFNI saves a warp, and mapped by
+  nitransforms' AFNI reader where warpbench's pull-back maps each point.
 """
 
 from __future__ import annotations
@@ -71,3 +73,25 @@ def test_what_is_not_an_afni_warp_is_refused() -> None:
         wb.read_field(DATA / "afni" / "example4d+orig.HEAD")
     with pytest.raises(ValueError, match="no AFNI extension labels it"):
         wb.read_field(DATA / "afni_made" / "nitransforms_afni.nii.gz")
+
+
+def test_a_warp_written_for_afni_is_read_by_nitransforms_as_warpbench_maps_points(tmp_path: Path) -> None:
+    from conftest import PAIRS, T1
+
+    head = wb.read_volume(T1)
+    warp = wb.fit(wb.read_landmarks(PAIRS), "tps", fixed=head, moving=head)
+    out = tmp_path / "anat_WARP.nii.gz"
+    sampled = warp.field(path=out, format="afni")
+    back = wb.read_field(out)
+    assert (back.source, back.direction) == ("afni", "pullback")
+    np.testing.assert_array_equal(back.array, sampled)
+    # AFNI's layout as nibabel sees it: (X, Y, Z, 1, 3), no intent, AFNI's extension (code 4).
+    image = nib.load(out)
+    assert image.shape == (*head.shape, 1, 3) and int(image.header["intent_code"]) == 0
+    assert [e.get_code() for e in image.header.extensions] == [4]
+    # nitransforms' AFNI reader maps voxel centres where warpbench's pull-back maps them.
+    rng = np.random.default_rng(7)
+    ijk = np.stack([rng.integers(0, n, 200) for n in head.shape], axis=1)
+    lps = ijk @ head.lps_from_index[:3, :3].T + head.lps_from_index[:3, 3]
+    theirs = np.asarray(nitnl.DenseFieldTransform.from_filename(out, fmt="afni").map(lps * [-1.0, -1.0, 1.0]))
+    np.testing.assert_allclose(theirs * [-1.0, -1.0, 1.0], warp.pullback(lps), rtol=0, atol=1e-4)

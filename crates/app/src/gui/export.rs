@@ -78,6 +78,8 @@ pub enum FieldForm {
     /// FSL FNIRT's relative deformation field, for `applywarp --rel` ([`warpbench_io::fnirt::write_pullback`]): "FSL
     /// FNIRT field", for a NIfTI name.
     Fnirt,
+    /// AFNI's warp, for `3dNwarpApply -nwarp` ([`FieldFormat::Afni`]): "AFNI warp", for a NIfTI name.
+    Afni,
 }
 
 impl FieldForm {
@@ -122,9 +124,10 @@ impl ExportJob {
             ExportKind::Map { .. } => warp::check_outputs(&out, None).map_err(|e| format!("{e:#}"))?,
             // Learn2Reg's field holds the pull-back on the fixed voxels ([`field::write_learn2reg`]), as an .npz or
             // the NIfTI form.
-            ExportKind::Field { form: FieldForm::Fnirt } => {
+            ExportKind::Field { form: form @ (FieldForm::Fnirt | FieldForm::Afni) } => {
                 if FieldFormat::from_extension(&out) != Some(FieldFormat::Itk) {
-                    return Err(format!("{}: FNIRT's field is a NIfTI file: name it .nii or .nii.gz", out.display()));
+                    let whose = if *form == FieldForm::Fnirt { "FNIRT's field" } else { "AFNI's warp" };
+                    return Err(format!("{}: {whose} is a NIfTI file: name it .nii or .nii.gz", out.display()));
                 }
             }
             ExportKind::Field { form } if form.is_learn2reg(&out) => {
@@ -369,7 +372,10 @@ fn run(kind: &ExportKind, out: &Path, input: &ExportInput, watch: &Watch) -> Res
                 let moving_grid = (moving.dims, &moving.lps_from_index);
                 pair.write(out, (f.dims, &f.lps_from_index), moving_grid, &f.displacements_lps)?;
             } else {
-                let format = field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?;
+                let format = match kind {
+                    ExportKind::Field { form: FieldForm::Afni } => FieldFormat::Afni,
+                    _ => field_format(out).map_err(|e| Failure::BadInput(anyhow::anyhow!(e)))?,
+                };
                 field::write_field(&f, out, format, None)?;
             }
             Ok(format!(
@@ -467,45 +473,52 @@ pub fn export_ui(
             asked = Some((ExportKind::Warped { dicom }, path.clone()));
         }
         if ui.add_enabled(enabled, egui::Button::new("Export displacement field")).clicked() {
-            let form = match (nifti, fields.field_in_voxels, fields.field_fnirt) {
-                (true, true, _) => FieldForm::Learn2Reg,
-                (true, false, true) => FieldForm::Fnirt,
-                _ => FieldForm::ByName,
-            };
+            let form = if nifti { fields.field_form } else { FieldForm::ByName };
             asked = Some((ExportKind::Field { form }, path.clone()));
         }
     });
-    ui.horizontal(|ui| {
-        // Learn2Reg's and FNIRT's forms hold the pull-back only.
-        let pullback_only = nifti && (fields.field_in_voxels || fields.field_fnirt);
+    ui.horizontal_wrapped(|ui| {
+        // The forms a NIfTI name can take besides ITK's hold the pull-back only.
+        let pullback_only = nifti && fields.field_form != FieldForm::ByName;
         let inverse = ui.add_enabled(enabled && !pullback_only, egui::Button::new("Export inverse field"));
         if inverse
             .on_hover_text("The forward map on the moving grid: where each moving point goes (points, meshes)")
             .on_disabled_hover_text(
-                "Learn2Reg's and FNIRT's fields hold the pull-back only: untick Learn2Reg steps in voxels or FSL \
-                 FNIRT field",
+                "Learn2Reg's, FNIRT's and AFNI's forms here hold the pull-back only: untick the form to export the \
+                 inverse (warpbench field --direction forward writes any flavour)",
             )
             .clicked()
         {
             asked = Some((ExportKind::InverseField, path.clone()));
         }
-        // Only a NIfTI name can take Learn2Reg's form, and only it needs saying so (an .npz is Learn2Reg's).
+        // Only a NIfTI name can take these forms, and only it needs saying so (an .npz is Learn2Reg's). One form at a
+        // time: ticking one unticks the others.
         if nifti {
-            let l2r = ui.checkbox(&mut fields.field_in_voxels, "Learn2Reg steps in voxels").on_hover_text(
-                "Export displacement field writes Learn2Reg's form: at each fixed voxel, the step to the moving \
-                 voxel it reads, in voxels (float32, the fixed volume's affine), as the challenge's evaluation \
-                 reads disp_XXXX_YYYY.nii.gz",
-            );
-            let fnirt = ui.checkbox(&mut fields.field_fnirt, "FSL FNIRT field").on_hover_text(
-                "Export displacement field writes FSL FNIRT's relative deformation field, in the FSL coordinates of \
-                 the fixed volume and the moving one: applywarp --ref=FIXED --in=MOVING --warp=FILE --rel",
-            );
-            // One form at a time: ticking one unticks the other.
-            if l2r.changed() && fields.field_in_voxels {
-                fields.field_fnirt = false;
-            }
-            if fnirt.changed() && fields.field_fnirt {
-                fields.field_in_voxels = false;
+            for (form, label, hover) in [
+                (
+                    FieldForm::Learn2Reg,
+                    "Learn2Reg steps in voxels",
+                    "Export displacement field writes Learn2Reg's form: at each fixed voxel, the step to the moving \
+                     voxel it reads, in voxels (float32, the fixed volume's affine), as the challenge's evaluation \
+                     reads disp_XXXX_YYYY.nii.gz",
+                ),
+                (
+                    FieldForm::Fnirt,
+                    "FSL FNIRT field",
+                    "Export displacement field writes FSL FNIRT's relative deformation field, in the FSL coordinates \
+                     of the fixed volume and the moving one: applywarp --ref=FIXED --in=MOVING --warp=FILE --rel",
+                ),
+                (
+                    FieldForm::Afni,
+                    "AFNI warp",
+                    "Export displacement field writes AFNI's warp as 3dQwarp saves one to NIfTI: 3dNwarpApply -nwarp \
+                     FILE -source MOVING -master FIXED",
+                ),
+            ] {
+                let mut on = fields.field_form == form;
+                if ui.checkbox(&mut on, label).on_hover_text(hover).changed() {
+                    fields.field_form = if on { form } else { FieldForm::ByName };
+                }
             }
         }
     });
@@ -555,8 +568,7 @@ pub fn export_ui(
 pub struct ExportFields {
     pub out: String,
     pub dicom: String,
-    /// Whether a field exported under a NIfTI name is Learn2Reg's steps in voxels ([`FieldForm::Learn2Reg`]).
-    pub field_in_voxels: bool,
-    /// Whether a field exported under a NIfTI name is FSL FNIRT's ([`FieldForm::Fnirt`]).
-    pub field_fnirt: bool,
+    /// The form of a field exported under a NIfTI name: ITK's ([`FieldForm::ByName`]), Learn2Reg's steps in voxels,
+    /// FSL FNIRT's or AFNI's, by the check box ticked.
+    pub field_form: FieldForm,
 }

@@ -23,13 +23,17 @@ pub enum FieldFormat {
     Minc,
     /// An OME-Zarr 0.6 field store (a folder named `.ome.zarr`): RFC-5's `displacements`, as ngff-zarr writes it.
     Ngff,
+    /// AFNI's `3dQwarp` warp saved as NIfTI: an (X, Y, Z, 1, 3) float32 array of LPS (DICOM) vectors, no intent, AFNI's
+    /// extension labelling the sub-bricks `x_delta`, `y_delta`, `z_delta` (`3dNwarpApply -nwarp`). Read from an AFNI
+    /// dataset (`.HEAD`/`.BRIK`) too.
+    Afni,
 }
 
 impl FieldFormat {
     /// Every flavour, in the order the CLI lists them.
-    pub const ALL: [Self; 6] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage, Self::Minc, Self::Ngff];
+    pub const ALL: [Self; 7] = [Self::Itk, Self::Ants, Self::Nrrd, Self::MetaImage, Self::Minc, Self::Ngff, Self::Afni];
 
-    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`, `minc`, `ngff`.
+    /// The flavour's name on the command line and in JSON: `itk`, `ants`, `nrrd`, `metaimage`, `minc`, `ngff`, `afni`.
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -39,6 +43,7 @@ impl FieldFormat {
             Self::MetaImage => "metaimage",
             Self::Minc => "minc",
             Self::Ngff => "ngff",
+            Self::Afni => "afni",
         }
     }
 
@@ -64,7 +69,7 @@ impl FieldFormat {
         }
     }
 
-    /// Whether a file named `path` can hold this flavour: NIfTI names for `itk` and `ants`, NRRD names for `nrrd`,
+    /// Whether a file named `path` can hold this flavour: NIfTI names for `itk`, `ants` and `afni`, NRRD names for `nrrd`,
     /// MetaImage names for `metaimage`; any other name fits every flavour but `metaimage`, whose writer needs the name
     /// to know whether its data are detached.
     #[must_use]
@@ -73,7 +78,7 @@ impl FieldFormat {
             None => matches!(self, Self::Itk | Self::Ants | Self::Nrrd),
             Some(Self::Minc) => self == Self::Minc,
             Some(Self::Ngff) => self == Self::Ngff,
-            Some(Self::Itk | Self::Ants) => matches!(self, Self::Itk | Self::Ants),
+            Some(Self::Itk | Self::Ants) => matches!(self, Self::Itk | Self::Ants | Self::Afni),
             Some(container) => self == container,
         }
     }
@@ -81,7 +86,7 @@ impl FieldFormat {
     /// The names a file of this flavour takes, for messages.
     pub(super) const fn names(self) -> &'static str {
         match self {
-            Self::Itk | Self::Ants => "a .nii or .nii.gz name",
+            Self::Itk | Self::Ants | Self::Afni => "a .nii or .nii.gz name",
             Self::Nrrd => "a .nrrd name",
             Self::MetaImage => "a .mha name (or .mhd, with a .raw data file beside it)",
             Self::Minc => "a .xfm name (its grid is written beside it, NAME_grid_0.mnc)",
@@ -142,14 +147,11 @@ pub enum FieldSource {
     Learn2Reg,
     /// An FSL FNIRT warp, read against its reference (the fixed grid) and input ([`crate::fnirt::read_pullback`]).
     Fnirt,
-    /// An AFNI `3dQwarp` warp: a dataset of `x_delta`, `y_delta` and `z_delta` ([`crate::afni_dataset::read_warp`]), or
-    /// the same saved as NIfTI with AFNI's extension ([`crate::nifti::afni_extension`]).
-    Afni,
 }
 
 impl FieldSource {
     /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `itk_tfm`, `dicom`, `learn2reg`, `fnirt`, `afni` (`minc` is a flavour: an MNI transform file's grid).
+    /// `itk_tfm`, `dicom`, `learn2reg`, `fnirt` (`afni` is a flavour, read from a NIfTI or an AFNI dataset; `minc` is a flavour: an MNI transform file's grid).
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
@@ -160,7 +162,6 @@ impl FieldSource {
             Self::DicomRegistration => "dicom",
             Self::Learn2Reg => "learn2reg",
             Self::Fnirt => "fnirt",
-            Self::Afni => "afni",
         }
     }
 }
@@ -221,7 +222,7 @@ pub(crate) fn read_flavoured(path: &Path, head: &[u8]) -> Result<Option<ReadFiel
         let (source, direction) = match kind {
             NiftiFieldKind::Intent(NiftiVectorIntent::DispvectRas) => (FieldSource::Field(FieldFormat::Itk), None),
             NiftiFieldKind::Intent(NiftiVectorIntent::VectorLps) => (FieldSource::Field(FieldFormat::Ants), None),
-            NiftiFieldKind::AfniWarp => (FieldSource::Afni, Some(FieldDirection::Pullback)),
+            NiftiFieldKind::AfniWarp => (FieldSource::Field(FieldFormat::Afni), Some(FieldDirection::Pullback)),
         };
         return Ok(Some(ReadField { field, source, direction, warnings: Vec::new() }));
     }

@@ -11,6 +11,7 @@
 //! | [`FieldFormat::Ants`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | `intent_code` 1007 `VECTOR` | LPS | ANTs (`antsApplyTransforms`, `*Warp.nii.gz`), every ITK |
 //! | [`FieldFormat::Nrrd`] | NRRD0004 `.nrrd`, float, sizes `3 X Y Z` | `kinds: vector domain domain domain` | LPS (`space: left-posterior-superior`) | 3D Slicer, ITK's `NrrdImageIO` |
 //! | [`FieldFormat::MetaImage`] | MetaImage `.mha`, or `.mhd` + `.raw`, `MET_FLOAT` | `ElementNumberOfChannels = 3` | LPS | elastix and transformix (`deformationField.mhd`), every ITK |
+//! | [`FieldFormat::Afni`] | NIfTI-1 `.nii(.gz)`, float32, dim `[5, X, Y, Z, 1, 3, 1, 1]` | none; AFNI's extension (code 4) labels `x_delta`, `y_delta`, `z_delta` | LPS (DICOM) | AFNI (`3dNwarpApply -nwarp`) |
 //! | [`FieldFormat::Ngff`] | OME-Zarr 0.6 folder `.ome.zarr`, float32 (c, z, y, x) | RFC-5 `displacements` | along the axes, written L, P, S | ngff-zarr (`ngff_displacement_field_to_itk_transform`) |
 //!
 //! The component planes of the NIfTI flavours follow one another (all x, then all y, then all z); NRRD and
@@ -213,6 +214,7 @@ pub fn write_field_with(
         }
         FieldFormat::Minc => crate::mni_xfm::write_grid(path, direction, dims, lps_from_index, displacements_lps),
         FieldFormat::Ngff => crate::ngff::write_field(path, dims, lps_from_index, displacements_lps),
+        FieldFormat::Afni => nifti::afni_extension::write_afni_warp(path, dims, lps_from_index, displacements_lps),
     }
 }
 
@@ -396,7 +398,7 @@ mod tests {
             let extension = match format {
                 FieldFormat::Nrrd => "nrrd",
                 FieldFormat::MetaImage => "mha",
-                FieldFormat::Itk | FieldFormat::Ants => "nii",
+                FieldFormat::Itk | FieldFormat::Ants | FieldFormat::Afni => "nii",
                 FieldFormat::Minc => "xfm",
                 FieldFormat::Ngff => "ome.zarr",
             };
@@ -416,6 +418,7 @@ mod tests {
             (FieldFormat::Itk, "x.xfm"),
             (FieldFormat::Ngff, "x.nii"),
             (FieldFormat::Itk, "x.ome.zarr"),
+            (FieldFormat::Afni, "x.nrrd"),
         ] {
             let p = dir.path().join(name);
             assert!(write_field(&p, format, dims, &lps_from_index, &field).is_err(), "{format} to {name}");

@@ -160,7 +160,7 @@ pub(super) fn write_frames_with_intent(
 }
 
 /// The component planes one after the other (all x, then all y, then all z), each component times its sign.
-fn write_planes(w: &mut dyn Write, vectors: &[[f32; 3]], signs: [f32; 3]) -> io::Result<()> {
+pub(super) fn write_planes(w: &mut dyn Write, vectors: &[[f32; 3]], signs: [f32; 3]) -> io::Result<()> {
     let mut buf = Vec::with_capacity(64 << 10);
     for (c, sign) in signs.into_iter().enumerate() {
         for chunk in vectors.chunks(16 << 10) {

@@ -375,7 +375,9 @@ class Warp:
         volume's (``.npz`` float16, or ``.nii.gz`` float32), which needs the warp fitted with ``moving=``.
         ``"fnirt"`` writes FSL FNIRT's relative deformation field (``.nii`` or ``.nii.gz``), in the FSL coordinates
         of ``reference`` (``applywarp``'s ``--ref``) and of the moving volume (its ``--in``), which needs ``moving=``
-        too: ``applywarp --ref=REF --in=MOVING --warp=PATH --rel`` applies it."""
+        too: ``applywarp --ref=REF --in=MOVING --warp=PATH --rel`` applies it. ``"afni"`` writes AFNI's warp as
+        ``3dQwarp`` saves one to NIfTI (``.nii`` or ``.nii.gz``: LPS vectors, AFNI's extension labelling them):
+        ``3dNwarpApply -nwarp PATH -source MOVING -master REF`` applies it."""
         if reference is None:
             reference = self.fixed if direction == "pullback" else self.moving
         if reference is None:
