@@ -8,6 +8,8 @@ data=../tests/data
 seed() { mkdir -p "corpus/$1"; find "$data/$2" -type f -size -2M -name "$3" ! -name '*.md' -exec cp {} "corpus/$1/" \; ; }
 seed nifti nifti '*.nii*'
 seed nifti bad '*.nii*'
+seed nifti afni_made '*.nii*'
+seed nifti itk '*.nii*'
 seed nrrd nrrd '*.n*'
 seed nrrd bad '*.nrrd'
 # DICOM fixtures often have no extension (pydicom_ct2/17106); every file under dicom/ is one.
