@@ -214,7 +214,7 @@ pub fn write_field_with(
         }
         FieldFormat::Minc => crate::mni_xfm::write_grid(path, direction, dims, lps_from_index, displacements_lps),
         FieldFormat::Ngff => crate::ngff::write_field(path, dims, lps_from_index, displacements_lps),
-        FieldFormat::Afni => nifti::afni_extension::write_afni_warp(path, dims, lps_from_index, displacements_lps),
+        FieldFormat::Afni => nifti::write_afni_warp(path, dims, lps_from_index, displacements_lps),
     }
 }
 

@@ -18,14 +18,9 @@
 use std::io::Read;
 use std::path::Path;
 
-use super::field::write_planes;
 use super::header::Header;
-use super::samples::datatype_code;
 use super::source::fill;
-use super::write::{Nifti1Content, Shape, nifti1_header_for, write_file};
 use crate::error::{Error, Result};
-use crate::geometry::{Index, Lps, Transform};
-use crate::volume::SampleType;
 
 /// The code of AFNI's extension (`NIFTI_ECODE_AFNI`, nifti1_io.h).
 pub const NIFTI_ECODE_AFNI: i32 = 4;
@@ -91,27 +86,12 @@ pub fn is_afni_warp(path: &Path) -> Result<bool> {
     Ok(afni.as_deref().and_then(brick_labels).is_some_and(|l| are_warp_labels(&l)))
 }
 
-/// Writes a pull-back as AFNI's `3dQwarp` saves a warp named `.nii` or `.nii.gz` (gzip by the name), atomically:
-/// float32, dim = [5, X, Y, Z, 1, 3, 1, 1], no intent, the grid's sform and qform (scanner: AFNI's `+orig` view), the
-/// LPS vectors as they are (AFNI's DICOM order) one component plane after another, and AFNI's extension naming the
-/// sub-bricks [`WARP_LABELS`], with `NIfTI_nums` as AFNI checks it against the header. `3dNwarpApply -nwarp PATH`
-/// applies it; non-finite vectors are refused.
-pub fn write_afni_warp(
-    path: &Path,
-    dims: [usize; 3],
-    lps_from_index: &Transform<Lps, Index>,
-    displacements_lps: &[[f32; 3]],
-) -> Result<()> {
-    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
-    let what = Nifti1Content {
-        type_code: datatype_code(SampleType::F32),
-        descrip: b"warpbench warp for AFNI, LPS (DICOM) mm".to_vec(),
-        shape: Shape::Vector { intent_code: 0, components: 3 },
-    };
-    let mut header = nifti1_header_for(path, dims, lps_from_index, &what)?;
-    let (datatype, _) = what.type_code;
+/// Appends AFNI's extension for a warp of `dims` to `header` (a NIfTI-1 header with its 4-byte extension flag, as
+/// written with no extension), sets the flag and moves `vox_offset` past it: the NIML naming the sub-bricks
+/// [`WARP_LABELS`], with `NIfTI_nums` (X, Y, Z, 1, 3, float32) as AFNI checks it against the header.
+pub(super) fn append_warp_extension(header: &mut Vec<u8>, dims: [usize; 3]) {
     let niml = format!(
-        "<?xml version='1.0' ?>\n<AFNI_attributes\n  NIfTI_nums=\"{},{},{},1,3,{datatype}\"\n  ni_form=\"ni_group\" >\n\
+        "<?xml version='1.0' ?>\n<AFNI_attributes\n  NIfTI_nums=\"{},{},{},1,3,16\"\n  ni_form=\"ni_group\" >\n\
          <AFNI_atr\n  ni_type=\"String\"\n  ni_dimen=\"1\"\n  atr_name=\"BRICK_LABS\" >\n \"{}\"\n</AFNI_atr>\n\
          </AFNI_attributes>\n",
         dims[0],
@@ -129,7 +109,6 @@ pub fn write_afni_warp(
     header.resize(header_bytes + 4 + size, 0);
     let vox_offset = header.len() as f32;
     header[108..112].copy_from_slice(&vox_offset.to_le_bytes());
-    write_file(path, &header, |w| write_planes(w, displacements_lps, [1.0; 3]))
 }
 
 /// The sub-bricks' labels in AFNI's NIML text (`BRICK_LABS`), `None` when it gives none.
@@ -167,27 +146,5 @@ mod tests {
         assert_eq!(brick_labels(b"atr_name=\"BRICK_LABS\" >a~b</AFNI_atr>").expect("labels"), ["a", "b"]);
         assert!(!are_warp_labels(&["x_delta".to_string(), "y_delta".to_string()]));
         assert_eq!(brick_labels(b"<AFNI_attributes ni_form=\"ni_group\" ></AFNI_attributes>"), None);
-    }
-
-    /// What the writer writes reads back as AFNI's warp: the same vectors, LPS, no intent, the extension at its place.
-    #[test]
-    fn a_written_warp_reads_back_as_afnis() {
-        let dir = tempfile::tempdir().expect("tempdir");
-        let dims = [4, 3, 2];
-        let grid = Transform::from_scale_translation([2.0, -2.5, 3.0], [10.0, -5.0, 7.0]);
-        let vectors: Vec<[f32; 3]> = (0..24).map(|k| [k as f32 * 0.25, -(k as f32), 1.5]).collect();
-        for name in ["w.nii", "w.nii.gz"] {
-            let path = dir.path().join(name);
-            write_afni_warp(&path, dims, &grid, &vectors).expect("write");
-            assert!(is_afni_warp(&path).expect("read"));
-            let (field, kind) = super::super::read_vector_field(&path).expect("read back");
-            assert_eq!(kind, super::super::NiftiFieldKind::AfniWarp);
-            assert_eq!((field.dims, field.displacements_lps.as_slice()), (dims, vectors.as_slice()));
-        }
-        let raw = std::fs::read(dir.path().join("w.nii")).expect("read");
-        let vox_offset = f32::from_le_bytes([raw[108], raw[109], raw[110], raw[111]]) as usize;
-        assert_eq!((raw[348], vox_offset % 16, raw.len() - vox_offset), (1, 0, 24 * 12));
-        assert_eq!(i16::from_le_bytes([raw[68], raw[69]]), 0, "no intent");
-        assert_eq!(i32::from_le_bytes([raw[356], raw[357], raw[358], raw[359]]), NIFTI_ECODE_AFNI);
     }
 }

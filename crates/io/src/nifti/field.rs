@@ -8,7 +8,7 @@ use std::path::Path;
 
 use flate2::read::MultiGzDecoder;
 
-use super::afni_extension::{WARP_LABELS, are_warp_labels, brick_labels, read_afni_extension};
+use super::afni_extension::{WARP_LABELS, append_warp_extension, are_warp_labels, brick_labels, read_afni_extension};
 use super::geometry::lps_from_index;
 use super::header::{pair_error, read_header};
 use super::layout::{Span, data_span, grid, stored_type};
@@ -128,6 +128,28 @@ pub fn write_vector_field(
     write_file(path, &header, |w| write_planes(w, displacements_lps, intent.signs()))
 }
 
+/// Writes a pull-back as AFNI's `3dQwarp` saves a warp named `.nii` or `.nii.gz` (gzip by the name), atomically:
+/// float32, dim = [5, X, Y, Z, 1, 3, 1, 1], no intent, the grid's sform and qform (scanner: AFNI's `+orig` view), the
+/// LPS vectors as they are (AFNI's DICOM order) one component plane after another, and AFNI's extension naming the
+/// sub-bricks `x_delta`, `y_delta`, `z_delta` ([`super::afni_extension`]). `3dNwarpApply -nwarp PATH` applies it;
+/// non-finite vectors are refused.
+pub fn write_afni_warp(
+    path: &Path,
+    dims: [usize; 3],
+    lps_from_index: &Transform<Lps, Index>,
+    displacements_lps: &[[f32; 3]],
+) -> Result<()> {
+    crate::displacement::check::check_field_to_write(path, dims, lps_from_index, displacements_lps)?;
+    let what = Nifti1Content {
+        type_code: datatype_code(SampleType::F32),
+        descrip: b"warpbench warp for AFNI, LPS (DICOM) mm".to_vec(),
+        shape: Shape::Vector { intent_code: 0, components: 3 },
+    };
+    let mut header = nifti1_header_for(path, dims, lps_from_index, &what)?;
+    append_warp_extension(&mut header, dims);
+    write_file(path, &header, |w| write_planes(w, displacements_lps, [1.0; 3]))
+}
+
 /// Writes Learn2Reg's NIfTI form of a field ([`crate::learn2reg`]), atomically: float32, dim = [4, X, Y, Z, 3, 1, 1,
 /// 1] (the three components as frames, as nibabel writes an (X, Y, Z, 3) array), no intent, the grid's sform and
 /// qform, and `vectors` as they are (the challenge's voxel steps). Non-finite vectors are refused.
@@ -160,7 +182,7 @@ pub(super) fn write_frames_with_intent(
 }
 
 /// The component planes one after the other (all x, then all y, then all z), each component times its sign.
-pub(super) fn write_planes(w: &mut dyn Write, vectors: &[[f32; 3]], signs: [f32; 3]) -> io::Result<()> {
+fn write_planes(w: &mut dyn Write, vectors: &[[f32; 3]], signs: [f32; 3]) -> io::Result<()> {
     let mut buf = Vec::with_capacity(64 << 10);
     for (c, sign) in signs.into_iter().enumerate() {
         for chunk in vectors.chunks(16 << 10) {
@@ -514,5 +536,30 @@ mod tests {
         let e = write_displacement_field(&bad, dims, &lps_from_index, &nan).expect_err("NaN");
         assert!(e.to_string().contains("voxel [0, 1, 0] (i, j, k)"), "{e}");
         assert!(!bad.exists());
+    }
+
+    /// What the writer writes reads back as AFNI's warp: the same vectors, LPS, no intent, the extension at its place.
+    #[test]
+    fn a_written_warp_reads_back_as_afnis() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let dims = [4, 3, 2];
+        let grid = Transform::from_scale_translation([2.0, -2.5, 3.0], [10.0, -5.0, 7.0]);
+        let vectors: Vec<[f32; 3]> = (0..24).map(|k| [k as f32 * 0.25, -(k as f32), 1.5]).collect();
+        for name in ["w.nii", "w.nii.gz"] {
+            let path = dir.path().join(name);
+            write_afni_warp(&path, dims, &grid, &vectors).expect("write");
+            assert!(super::super::afni_extension::is_afni_warp(&path).expect("read"));
+            let (field, kind) = read_vector_field(&path).expect("read back");
+            assert_eq!(kind, NiftiFieldKind::AfniWarp);
+            assert_eq!((field.dims, field.displacements_lps.as_slice()), (dims, vectors.as_slice()));
+        }
+        let raw = std::fs::read(dir.path().join("w.nii")).expect("read");
+        let vox_offset = f32::from_le_bytes([raw[108], raw[109], raw[110], raw[111]]) as usize;
+        assert_eq!((raw[348], vox_offset % 16, raw.len() - vox_offset), (1, 0, 24 * 12));
+        assert_eq!(i16::from_le_bytes([raw[68], raw[69]]), 0, "no intent");
+        assert_eq!(
+            i32::from_le_bytes([raw[356], raw[357], raw[358], raw[359]]),
+            super::super::afni_extension::NIFTI_ECODE_AFNI
+        );
     }
 }

@@ -149,7 +149,8 @@ use flate2::read::MultiGzDecoder;
 pub use field::{
     DisplacementField, NIFTI_INTENT_DISPVECT, NIFTI_INTENT_VECTOR, NiftiFieldKind, NiftiVectorIntent,
     read_displacement_field, read_displacement_field_bytes, read_frame_vectors, read_frame_vectors_bytes,
-    read_vector_field, read_vector_field_bytes, write_displacement_field, write_frame_vectors, write_vector_field,
+    read_vector_field, read_vector_field_bytes, write_afni_warp, write_displacement_field, write_frame_vectors,
+    write_vector_field,
 };
 pub use fnirt::{
     CoefficientField, FSL_CUBIC_SPLINE_COEFFICIENTS, FSL_FNIRT_DISPLACEMENT_FIELD, FSL_INTENTS, FnirtFile, fsl_intent,
