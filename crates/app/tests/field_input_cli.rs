@@ -1121,6 +1121,23 @@ fn an_afni_warp_is_read_as_its_pullback_and_described() {
         (&"volume".into(), &"afni".into(), &"#2".into()),
         "{info}"
     );
+    // AFNI's own names: a bare dataset name with a sub-brick selector as --fixed, a warp by its bare name as --field.
+    let warped = tmp.path().join("w.nii.gz");
+    let fixed = data("afni/example4d+orig[0]");
+    let bare_warp = data("afni_made/warp_rai+tlrc");
+    let run = warpbench(&[
+        "warp",
+        "--fixed",
+        s(&fixed),
+        "--moving",
+        s(&fixed),
+        "--field",
+        s(&bare_warp),
+        "--out",
+        s(&warped),
+    ]);
+    assert_ok(&run);
+    assert_eq!(warpbench_io::open(&warped).expect("the output").dims, [33, 41, 25]);
     // Without --frame, the choice is asked for in AFNI's words (no Learn2Reg hint for its 3 sub-bricks).
     let info = warpbench(&["info", s(&dataset)]);
     assert_eq!(info.status.code(), Some(2));

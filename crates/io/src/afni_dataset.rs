@@ -105,14 +105,19 @@ enum Packing {
     Other(&'static str),
 }
 
-/// Whether `path`'s name is one of an AFNI dataset's files (`.HEAD`, `.BRIK`, `.BRIK.gz`, …; case ignored): what
-/// [`crate::Format::detect`] goes by.
+/// AFNI's views, the last part of a dataset's name (`anat+orig`).
+const VIEWS: [&str; 3] = ["+orig", "+acpc", "+tlrc"];
+
+/// Whether `path` names an AFNI dataset: one of its files (`.HEAD`, `.BRIK`, `.BRIK.gz`, …; case ignored), or, as
+/// AFNI's programs take it, the dataset's bare name (`anat+orig`, `anat+orig.`) when that is not a file itself, either
+/// perhaps with a sub-brick selector (`anat+orig[2]`, `anat+orig.HEAD[$]`): what [`crate::Format::detect`] goes by.
 #[must_use]
 pub fn has_afni_name(path: &Path) -> bool {
-    split_name(path).is_some()
+    split_name(path).is_some_and(|n| (n.part.is_some() && n.selector.is_none()) || !path.is_file())
 }
 
-/// Whether `path` names an AFNI dataset whose header says it is a `3dQwarp` warp ([`Header::is_warp`]).
+/// Whether `path` names an AFNI dataset ([`has_afni_name`]) whose header says it is a `3dQwarp` warp
+/// ([`Header::is_warp`]).
 ///
 /// # Errors
 /// The header is missing or malformed (named).
@@ -120,20 +125,60 @@ pub fn is_warp_file(path: &Path) -> Result<bool> {
     if !has_afni_name(path) {
         return Ok(false);
     }
-    let Some((stem, _)) = split_name(path) else { return Ok(false) };
-    let head = path.with_file_name(format!("{stem}.HEAD"));
+    let Some(name) = split_name(path) else { return Ok(false) };
+    let head = path.with_file_name(format!("{}.HEAD", name.stem));
     Ok(Header::read(&head)?.is_warp())
 }
 
-/// The dataset's name without its suffix (`anat+orig`) and which file `path` is.
-fn split_name(path: &Path) -> Option<(String, Part)> {
-    let name = path.file_name()?.to_string_lossy().into_owned();
+/// A dataset's name taken apart: `stem` without a suffix (`anat+orig`), which file the name is (none for the bare
+/// name) and the sub-brick selector's text between its brackets.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct Name {
+    stem: String,
+    part: Option<Part>,
+    selector: Option<String>,
+}
+
+fn split_name(path: &Path) -> Option<Name> {
+    let mut name = path.file_name()?.to_string_lossy().into_owned();
+    let mut selector = None;
+    if name.ends_with(']')
+        && let Some(open) = name.rfind('[')
+    {
+        selector = Some(name[open + 1..name.len() - 1].to_string());
+        name.truncate(open);
+    }
     let lower = name.to_ascii_lowercase();
-    SUFFIXES
+    let suffix = SUFFIXES
         .iter()
         .filter(|(suffix, _)| lower.ends_with(suffix) && lower.len() > suffix.len())
-        .max_by_key(|(suffix, _)| suffix.len())
-        .map(|&(suffix, part)| (name[..name.len() - suffix.len()].to_string(), part))
+        .max_by_key(|(suffix, _)| suffix.len());
+    if let Some(&(suffix, part)) = suffix {
+        return Some(Name { stem: name[..name.len() - suffix.len()].to_string(), part: Some(part), selector });
+    }
+    let stem = name.strip_suffix('.').unwrap_or(&name);
+    let viewed = VIEWS.iter().any(|v| stem.len() > v.len() && stem.ends_with(v));
+    viewed.then(|| Name { stem: stem.to_string(), part: None, selector })
+}
+
+/// The sub-brick a selector names: `N`, or `$` for the last; AFNI's lists, ranges and labels are refused.
+fn sub_brick(head: &Path, selector: &str, bricks: usize) -> Result<usize> {
+    let t = match selector.trim() {
+        "$" => bricks - 1,
+        n => n.parse::<usize>().map_err(|_| {
+            Error::unsupported(
+                head,
+                format!(
+                    "sub-brick selector [{selector}]: one sub-brick is read, [N] or [$] (the last); a list, a \
+                     range or a label is not"
+                ),
+            )
+        })?,
+    };
+    if t >= bricks {
+        return Err(Error::invalid(head, format!("sub-brick {t} is out of range: the dataset has {bricks}")));
+    }
+    Ok(t)
 }
 
 /// The two files of the dataset `path` names (either of them).
@@ -143,24 +188,33 @@ struct Files {
     brik: PathBuf,
     /// Whether the `.BRIK` is gzip-compressed (the only compression read).
     gzip: bool,
+    /// The sub-brick selector the name ends with (`[2]`), if any.
+    selector: Option<String>,
 }
 
 impl Files {
     fn of(path: &Path) -> Result<Self> {
-        let Some((stem, part)) = split_name(path) else {
+        let Some(Name { stem, part, selector }) = split_name(path) else {
             return Err(Error::invalid(path, "not an AFNI dataset: its name ends neither in .HEAD nor in .BRIK"));
         };
         let folder = path.parent().unwrap_or_else(|| Path::new(""));
-        let head = match part {
-            Part::Head => path.to_path_buf(),
-            Part::Brik(_) => folder.join(format!("{stem}.HEAD")),
+        let head = match (part, &selector) {
+            (Some(Part::Head), None) => path.to_path_buf(),
+            _ => folder.join(format!("{stem}.HEAD")),
         };
         if !head.is_file() {
             return Err(Error::invalid(path, format!("an AFNI dataset's header {} is not beside it", head.display())));
         }
         let candidates = match part {
-            Part::Brik(packing) => vec![(path.to_path_buf(), packing)],
-            Part::Head => SUFFIXES
+            Some(Part::Brik(packing)) if selector.is_none() => vec![(path.to_path_buf(), packing)],
+            Some(Part::Brik(packing)) => {
+                let brik = path.with_file_name(path.file_name().map_or_else(String::new, |n| {
+                    let n = n.to_string_lossy();
+                    n[..n.rfind('[').unwrap_or(n.len())].to_string()
+                }));
+                vec![(brik, packing)]
+            }
+            Some(Part::Head) | None => SUFFIXES
                 .iter()
                 .filter_map(|&(suffix, p)| match p {
                     Part::Brik(packing) => Some((folder.join(format!("{stem}{}", brik_suffix(suffix))), packing)),
@@ -168,6 +222,7 @@ impl Files {
                 })
                 .collect(),
         };
+        let selector = selector.filter(|s| !s.is_empty());
         let Some((brik, packing)) = candidates.into_iter().find(|(p, _)| p.is_file()) else {
             return Err(Error::invalid(
                 &head,
@@ -180,7 +235,7 @@ impl Files {
                 format!("a .BRIK compressed with {how}: decompress it, or gzip it, first"),
             ));
         }
-        Ok(Self { head, brik, gzip: packing == Packing::Gzip })
+        Ok(Self { head, brik, gzip: packing == Packing::Gzip, selector })
     }
 }
 
@@ -598,7 +653,17 @@ fn read_span<S: Source>(
 pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
     let d = Dataset::open(path)?;
     let frames = d.types.len();
-    let t = match (opts.frame, frames) {
+    let chosen = match (&d.files.selector, opts.frame) {
+        (Some(s), None) => Some(sub_brick(&d.files.head, s, frames)?),
+        (Some(s), Some(t)) => {
+            return Err(Error::invalid(
+                &d.files.head,
+                format!("the name selects sub-brick [{s}] and frame {t} was asked for too: choose one way"),
+            ));
+        }
+        (None, frame) => frame,
+    };
+    let t = match (chosen, frames) {
         (None, 1) => 0,
         (None, frames) => return Err(Error::new(&d.files.head, ErrorKind::FrameRequired { frames })),
         (Some(t), n) if t >= n => {
@@ -636,6 +701,12 @@ pub fn read(path: &Path, opts: &mut LoadOptions) -> Result<Volume> {
 /// grid; a displacement that is not finite.
 pub fn read_warp(path: &Path) -> Result<ReadField> {
     let d = Dataset::open(path)?;
+    if let Some(s) = &d.files.selector {
+        return Err(Error::unsupported(
+            &d.files.head,
+            format!("a warp is read whole, its x_delta, y_delta and z_delta: drop the sub-brick selector [{s}]"),
+        ));
+    }
     if !d.header.is_warp() {
         let labels = d.header.labels();
         return Err(Error::unsupported(

@@ -92,6 +92,10 @@ impl Format {
     /// magic bytes (`NRRD`, `DICM` at 128, gzip or a NIfTI header, `ObjectType =` for MetaImage, `CDF` for MINC 1).
     #[allow(clippy::case_sensitive_file_extension_comparisons, reason = "the name is lowercased first")]
     pub fn detect(path: &Path) -> Result<Self> {
+        // AFNI's bare dataset names (`anat+orig`, `anat+orig[2]`) are no file themselves.
+        if !path.exists() && afni_dataset::has_afni_name(path) {
+            return Ok(Self::Afni);
+        }
         if check_file_or_folder(path)?.is_dir() {
             return Ok(if ngff::looks_like_zarr(path) { Self::OmeZarr } else { Self::Dicom });
         }

@@ -257,3 +257,49 @@ fn a_nifti_warp_without_afnis_labels_is_refused() {
         "{e}"
     );
 }
+
+#[test]
+fn afnis_own_names_open_the_dataset_and_its_sub_bricks() {
+    let dir = data("afni");
+    let frame = |t: usize| {
+        let mut opts = LoadOptions::new();
+        opts.frame = Some(t);
+        opts.open(dir.join("example4d+orig.HEAD")).unwrap_or_else(|e| panic!("{e}"))
+    };
+    // The bare name, with or without AFNI's trailing dot, and a sub-brick selector on any form of the name.
+    for (name, t) in [
+        ("example4d+orig[1]", 1),
+        ("example4d+orig.[0]", 0),
+        ("example4d+orig.HEAD[2]", 2),
+        ("example4d+orig.BRIK.gz[1]", 1),
+        ("example4d+orig[$]", 2),
+    ] {
+        let path = dir.join(name);
+        assert_eq!(Format::detect(&path).expect("detect"), Format::Afni, "{name}");
+        let v = warpbench_io::open(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(v.data, frame(t).data, "{name}");
+    }
+    let v = warpbench_io::open(dir.join("scaled+tlrc")).expect("the bare name");
+    assert_eq!(v.dims, [47, 54, 43]);
+    // A selector out of range, one AFNI allows but that picks several, and a selector with --frame too.
+    for (name, says) in [
+        ("example4d+orig[3]", "sub-brick 3 is out of range"),
+        ("example4d+orig[0..2]", "a list, a range or a label is not"),
+    ] {
+        let e = warpbench_io::open(dir.join(name)).expect_err(name);
+        assert!(e.to_string().contains(says) && e.to_string().contains("example4d+orig.HEAD"), "{e}");
+    }
+    let mut opts = LoadOptions::new();
+    opts.frame = Some(0);
+    let e = opts.open(dir.join("example4d+orig[1]")).expect_err("twice");
+    assert!(e.to_string().contains("choose one way"), "{e}");
+    // A warp by its bare name; a warp with a selector is refused (it is read whole).
+    let warp = data("afni_made");
+    let read = read_field_info(&warp.join("warp_rai+tlrc")).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(read.source, FieldSource::Field(FieldFormat::Afni));
+    let e = read_field_info(&warp.join("warp_rai+tlrc[0]")).expect_err("a selector");
+    assert!(e.to_string().contains("a warp is read whole"), "{e}");
+    // A bare name with no dataset behind it says which header is missing.
+    let e = warpbench_io::open(dir.join("missing+orig")).expect_err("no dataset");
+    assert!(e.to_string().contains("missing+orig.HEAD"), "{e}");
+}

@@ -57,7 +57,8 @@ pub fn read_field(
     };
     let read = guarded(py, || {
         let fnirt = path.is_file() && warpbench_io::nifti::fsl_intent(&path).map_err(errors::io)?.is_some();
-        let steps_in_voxels = !fnirt && (learn2reg || l2r::is_npz_file(&path).map_err(errors::io)?);
+        let steps_in_voxels =
+            !fnirt && (learn2reg || (path.is_file() && l2r::is_npz_file(&path).map_err(errors::io)?));
         match pair {
             Some((dims, fixed, moving_dims, moving)) if fnirt => {
                 let read = warpbench_io::fnirt::read_pullback(&path, (dims, &fixed), (moving_dims, &moving))

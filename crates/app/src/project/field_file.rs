@@ -45,7 +45,8 @@ impl FieldReadFormat {
     /// # Errors
     /// The file cannot be opened (named).
     pub fn is_learn2reg(self, path: &Path) -> warpbench_io::Result<bool> {
-        Ok(self == Self::Learn2reg || learn2reg::is_npz_file(path)?)
+        // A name that is no file (AFNI's bare `warp+tlrc`) is not an .npz; its own reader says what it is.
+        Ok(self == Self::Learn2reg || (path.is_file() && learn2reg::is_npz_file(path)?))
     }
 
     /// Whether the field at `path` is read against the fixed and moving grids ([`pair_pullback`]): a Learn2Reg field

@@ -62,8 +62,8 @@ pub fn read_field_info(path: &Path) -> Result<ReadField> {
 /// # Errors
 /// The file cannot be opened.
 pub fn is_itk_transform_file(path: &Path) -> Result<bool> {
-    if path.is_dir() {
-        // A folder (an OME-Zarr field store) gives its own grid.
+    if path.is_dir() || crate::afni_dataset::has_afni_name(path) {
+        // A folder (an OME-Zarr field store) and an AFNI warp give their own grids.
         return Ok(false);
     }
     let head = flavour::head(path)?;
@@ -77,7 +77,7 @@ pub fn is_itk_transform_file(path: &Path) -> Result<bool> {
 /// As [`read_field_info`].
 pub fn read_field_or_chain(path: &Path) -> Result<crate::itk_chain::FieldOrChain> {
     use crate::itk_chain::FieldOrChain;
-    if path.is_dir() {
+    if path.is_dir() || crate::afni_dataset::has_afni_name(path) {
         return read_field_info(path).map(FieldOrChain::Field);
     }
     let head = flavour::head(path)?;
