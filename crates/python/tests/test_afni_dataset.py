@@ -95,3 +95,13 @@ def test_a_warp_written_for_afni_is_read_by_nitransforms_as_warpbench_maps_point
     lps = ijk @ head.lps_from_index[:3, :3].T + head.lps_from_index[:3, 3]
     theirs = np.asarray(nitnl.DenseFieldTransform.from_filename(out, fmt="afni").map(lps * [-1.0, -1.0, 1.0]))
     np.testing.assert_allclose(theirs * [-1.0, -1.0, 1.0], warp.pullback(lps), rtol=0, atol=1e-4)
+
+
+def test_afnis_own_names_read_the_dataset() -> None:
+    dataset = DATA / "afni" / "example4d+orig"
+    np.testing.assert_array_equal(
+        wb.read_volume(f"{dataset}[1]").array, wb.read_volume(f"{dataset}.HEAD", frame=1).array
+    )
+    assert wb.read_field(DATA / "afni_made" / "warp_rai+tlrc").source == "afni"
+    with pytest.raises(ValueError, match="a list, a range or a label is not"):
+        wb.read_volume(f"{dataset}[0..2]")
