@@ -1057,21 +1057,25 @@ fn an_afni_warp_is_read_as_its_pullback_and_described() {
         .expect("a grid");
         let fixed = tmp.path().join("fixed.nii.gz");
         warpbench_io::write_volume(&fixed, &grid).expect("write");
+        // `field` on the warp's own grid, in a flavour.
+        let convert = |format: &str, out: &Path| {
+            let run = warpbench(&[
+                "field",
+                "--fixed",
+                s(&fixed),
+                "--moving",
+                s(&fixed),
+                "--field",
+                s(&warp),
+                "--format",
+                format,
+                "--out",
+                s(out),
+            ]);
+            assert_ok(&run);
+        };
         let out = tmp.path().join(format!("{stem}_ants.nii.gz"));
-        let run = warpbench(&[
-            "field",
-            "--fixed",
-            s(&fixed),
-            "--moving",
-            s(&fixed),
-            "--field",
-            s(&warp),
-            "--format",
-            "ants",
-            "--out",
-            s(&out),
-        ]);
-        assert_ok(&run);
+        convert("ants", &out);
         let (written, _) = read_field(&out).expect("read the output");
         let mut worst = 0.0f64;
         let voxels = case["voxels"].as_array().expect("voxels");
@@ -1089,20 +1093,7 @@ fn an_afni_warp_is_read_as_its_pullback_and_described() {
         assert!(worst < 1e-4, "{stem}: {worst} mm from nitransforms");
         // Written back for AFNI: the same vectors, in AFNI's NIfTI form (as the fixture made by nibabel is).
         let afni = tmp.path().join(format!("{stem}_WARP.nii.gz"));
-        let run = warpbench(&[
-            "field",
-            "--fixed",
-            s(&fixed),
-            "--moving",
-            s(&fixed),
-            "--field",
-            s(&warp),
-            "--format",
-            "afni",
-            "--out",
-            s(&afni),
-        ]);
-        assert_ok(&run);
+        convert("afni", &afni);
         let again = warpbench_io::displacement::read_field_info(&afni).expect("the AFNI field");
         assert_eq!(again.source.name(), "afni");
         assert_eq!(again.field.displacements_lps, read.field.displacements_lps, "{stem}");
