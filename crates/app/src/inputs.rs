@@ -59,13 +59,15 @@ pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
     bar.finish();
     let volume = loaded.map_err(|e| match e.kind {
         // The library names no option: these commands have no --frame, so say what to do here.
-        warpbench_io::ErrorKind::FrameRequired { frames } if warpbench_io::afni_dataset::has_afni_name(path) => anyhow!(
-            "{}: an AFNI dataset of {frames} sub-bricks: this command reads one 3-D volume; save one as a file of its \
-             own (AFNI: 3dbucket -prefix one.nii.gz 'DATASET[N]'; `warpbench info --frame N` shows sub-brick N, 0 \
-             to {})",
-            path.display(),
-            frames.saturating_sub(1)
-        ),
+        warpbench_io::ErrorKind::FrameRequired { frames } if warpbench_io::afni_dataset::has_afni_name(path) => {
+            anyhow!(
+                "{}: an AFNI dataset of {frames} sub-bricks: this command reads one 3-D volume; name one as AFNI's \
+             programs do, '{}[N]' (N from 0 to {}; quoted for the shell)",
+                path.display(),
+                path.display(),
+                frames.saturating_sub(1)
+            )
+        }
         warpbench_io::ErrorKind::FrameRequired { frames } => anyhow!(
             "{}: 4-D file with {frames} frames: this command reads one 3-D volume; save one frame as a file of its \
              own (`warpbench info --frame N` shows frame N, 0 to {})",

@@ -157,8 +157,8 @@ pub enum FileKind {
     Session,
     Landmarks,
     /// A NIfTI of intent `DISPVECT` (1006: ITK, Slicer) or one of FSL's (an FNIRT warp), a Learn2Reg `.npz`, or an
-    /// AFNI dataset labelled as `3dQwarp`'s warp: used as the displacement field under the landmarks. (ANTs' `VECTOR`, 1007, is any vector image, so it stays a
-    /// volume.)
+    /// AFNI dataset labelled as `3dQwarp`'s warp: used as the displacement field under the landmarks. (ANTs'
+    /// `VECTOR`, 1007, is any vector image, so it stays a volume.)
     Field,
     Volume,
 }

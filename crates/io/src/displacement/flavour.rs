@@ -150,8 +150,9 @@ pub enum FieldSource {
 }
 
 impl FieldSource {
-    /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`), or `elastix`, `itk_h5`,
-    /// `itk_tfm`, `dicom`, `learn2reg`, `fnirt` (`afni` is a flavour, read from a NIfTI or an AFNI dataset; `minc` is a flavour: an MNI transform file's grid).
+    /// How reports name it: the flavour's name (`itk`, `ants`, `nrrd`, `metaimage`, `minc`, `ngff`, `afni`), or
+    /// `elastix`, `itk_h5`, `itk_tfm`, `dicom`, `learn2reg`, `fnirt`. (`minc` is an MNI transform file's grid; `afni` is
+    /// read from a NIfTI file or an AFNI dataset.)
     #[must_use]
     pub const fn name(self) -> &'static str {
         match self {
