@@ -101,10 +101,10 @@ pub struct AlignSummary {
 /// Runs `warpbench align`: checks the output, loads both volumes, aligns, writes the file atomically; prints the JSON
 /// summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure> {
-    let AlignArgs { volumes: VolumePairArgs { fixed, moving }, out_tfm, affine, samples, bins, shrink, seed, report } =
-        args;
+    let AlignArgs { volumes, out_tfm, affine, samples, bins, shrink, seed, report } = args;
+    let VolumePairArgs { fixed, moving, .. } = &volumes;
     let ReportArgs { json, force, quiet } = report;
-    OutputFile { path: out_tfm.clone(), force }.check(&[&fixed, &moving]).map_err(Failure::BadInput)?;
+    OutputFile { path: out_tfm.clone(), force }.check(&[fixed, moving]).map_err(Failure::BadInput)?;
     let params = AlignParams {
         kind: if affine { AlignKind::Affine } else { AlignKind::Rigid },
         bins,
@@ -113,7 +113,7 @@ pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure
         seed,
         ..AlignParams::default()
     };
-    let (fixed_volume, moving_volume) = load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    let (fixed_volume, moving_volume) = load_pair(&volumes, quiet).map_err(Failure::BadInput)?;
     // AFNI's matrix file holds the alignment only between volumes that are not oblique: refused before aligning.
     let afni_out = warpbench_io::afni::is_afni_name(&out_tfm);
     if afni_out {

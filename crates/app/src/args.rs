@@ -1,7 +1,7 @@
 //! The command-line argument groups that several subcommands share (clap), one per concept, each flattened into the
-//! subcommands' own `Args` structs: the volume pair ([`VolumePairArgs`]), the landmarks and the warp around them
-//! ([`PairArgs`], with the method, [`MethodArgs`]), the report flags ([`ReportArgs`]) and the render settings
-//! ([`RenderSettingsArgs`]).
+//! subcommands' own `Args` structs: the volume pair ([`VolumePairArgs`], with which volume of a 4-D file or a DICOM
+//! folder each side reads, [`PartArgs`]), the landmarks and the warp around them ([`PairArgs`], with the method,
+//! [`MethodArgs`]), the report flags ([`ReportArgs`]) and the render settings ([`RenderSettingsArgs`]).
 //!
 //! This module declares flags and parses values only; [`crate::inputs`] turns the groups into the model's types
 //! (`TryFrom<PairArgs>`), once, at the start of a subcommand. A subcommand that describes a shared flag in its own
@@ -9,6 +9,8 @@
 //! text, the `--help` page, comes from [`summary`] of one string beside its `Args` struct.
 
 use std::path::PathBuf;
+
+use warpbench_io::Part;
 
 use crate::procedural::ProceduralSpec;
 use crate::settings::{Blend, MethodKind, Preset, ProceduralKind, Shading, Stiffness};
@@ -39,6 +41,38 @@ pub struct VolumePairArgs {
     /// The moving volume.
     #[arg(long)]
     pub moving: PathBuf,
+    #[command(flatten)]
+    pub parts: PartArgs,
+}
+
+/// `--fixed-frame`, `--fixed-series`, `--moving-frame` and `--moving-series`: which volume each side reads from a
+/// file or folder that holds several.
+#[derive(Clone, Debug, Default, PartialEq, Eq, clap::Args)]
+pub struct PartArgs {
+    /// The frame of a 4-D fixed file to read (NIfTI, MetaImage, MGH, MINC, OME-Zarr; an AFNI sub-brick), from 0.
+    #[arg(long, value_name = "N", requires = "fixed", conflicts_with = "fixed_series")]
+    pub fixed_frame: Option<usize>,
+    /// The series to read from a fixed DICOM folder of several, by its SeriesInstanceUID (`warpbench info FOLDER`
+    /// lists them).
+    #[arg(long, value_name = "UID", requires = "fixed")]
+    pub fixed_series: Option<String>,
+    /// The frame of a 4-D moving file to read, from 0.
+    #[arg(long, value_name = "N", requires = "moving", conflicts_with = "moving_series")]
+    pub moving_frame: Option<usize>,
+    /// The series to read from a moving DICOM folder of several, by its SeriesInstanceUID.
+    #[arg(long, value_name = "UID", requires = "moving")]
+    pub moving_series: Option<String>,
+}
+
+impl PartArgs {
+    /// The fixed and the moving volume's part, where one was chosen.
+    #[must_use]
+    pub fn parts(&self) -> [Option<Part>; 2] {
+        let part = |frame: Option<usize>, series: &Option<String>| {
+            frame.map(Part::Frame).or_else(|| series.clone().map(Part::Series))
+        };
+        [part(self.fixed_frame, &self.fixed_series), part(self.moving_frame, &self.moving_series)]
+    }
 }
 
 /// The landmarks and the warp around them, shared by `warp`, `field`, `render`, `points`, `transform` and `suggest`.

@@ -34,44 +34,100 @@ use crate::progress::Bar;
 use crate::project::field_file::{FieldFile, FieldReadFormat};
 use crate::settings::{MethodKind, Stiffness};
 
-/// Loads the fixed and the moving volume ([`load_volume`]). With `quiet` they load on two threads: inflating and
-/// decoding a file is one thread's work, so the two take about the time of the slower one (the 176×256×256 head
-/// MRI of `data-scripts/compare_itk_warp.py` loaded as both, on a busy 2-core machine: 0.76 s, against 1.03 s one
-/// after the other). With progress bars they load one after the other, so that the bars do not interleave. Errors
-/// come in the same order either way: the fixed volume's first.
-pub fn load_pair(fixed: &Path, moving: &Path, quiet: bool) -> Result<(Volume, Volume)> {
+/// Loads the fixed and the moving volume of `volumes` ([`load_volume`], each its `--fixed-frame`/`--fixed-series`
+/// part). With `quiet` they load on two threads: inflating and decoding a file is one thread's work, so the two take
+/// about the time of the slower one (the 176×256×256 head MRI of `data-scripts/compare_itk_warp.py` loaded as both,
+/// on a busy 2-core machine: 0.76 s, against 1.03 s one after the other). With progress bars they load one after the
+/// other, so that the bars do not interleave. Errors come in the same order either way: the fixed volume's first.
+pub fn load_pair(volumes: &VolumePairArgs, quiet: bool) -> Result<(Volume, Volume)> {
+    let [fixed_part, moving_part] = volumes.parts.parts();
+    let fixed = VolumeArg { path: &volumes.fixed, part: fixed_part.as_ref(), role: Role::Fixed };
+    let moving = VolumeArg { path: &volumes.moving, part: moving_part.as_ref(), role: Role::Moving };
     let (fixed, moving) = if quiet {
         std::thread::scope(|s| {
-            let moving = s.spawn(|| load_volume(moving, true));
-            let fixed = load_volume(fixed, true);
+            let moving = s.spawn(|| load_volume(&moving, true));
+            let fixed = load_volume(&fixed, true);
             (fixed, moving.join().unwrap_or_else(|panic| std::panic::resume_unwind(panic)))
         })
     } else {
-        (load_volume(fixed, false), load_volume(moving, false))
+        (load_volume(&fixed, false), load_volume(&moving, false))
     };
     Ok((fixed?, moving?))
 }
 
-/// Loads a volume (any format `io` reads), with a progress bar unless `quiet`.
-pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
+/// Which of a command's volumes a file is, for the option that would choose its frame or series in a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// `--fixed` (`--fixed-frame`, `--fixed-series`).
+    Fixed,
+    /// `--moving` (`--moving-frame`, `--moving-series`).
+    Moving,
+    /// A volume without such options (a mask, a reference grid, `eval`'s volume).
+    Other,
+}
+
+impl Role {
+    /// The option's prefix: `fixed`, `moving`.
+    fn option(self) -> Option<&'static str> {
+        match self {
+            Self::Fixed => Some("fixed"),
+            Self::Moving => Some("moving"),
+            Self::Other => None,
+        }
+    }
+}
+
+/// A volume a command reads: its file, the part of it that was chosen, and which of the command's volumes it is.
+#[derive(Clone, Copy, Debug)]
+pub struct VolumeArg<'a> {
+    pub path: &'a Path,
+    pub part: Option<&'a warpbench_io::Part>,
+    pub role: Role,
+}
+
+impl<'a> VolumeArg<'a> {
+    /// A volume read whole, without a frame or series option (a mask, a reference grid).
+    #[must_use]
+    pub fn other(path: &'a Path) -> Self {
+        Self { path, part: None, role: Role::Other }
+    }
+}
+
+/// Loads a volume (any format `io` reads, the part chosen), with a progress bar unless `quiet`. A file of several
+/// frames or a folder of several series, with none chosen, is refused with the option that chooses one.
+pub fn load_volume(volume: &VolumeArg<'_>, quiet: bool) -> Result<Volume> {
+    let path = volume.path;
     let mut bar = Bar::new(quiet);
-    let loaded = LoadOptions::new().progress(|p| bar.update(p)).open(path);
+    let loaded = LoadOptions::new().part(volume.part).progress(|p| bar.update(p)).open(path);
     bar.finish();
-    let volume = loaded.map_err(|e| match e.kind {
-        // The library names no option: these commands have no --frame, so say what to do here.
-        warpbench_io::ErrorKind::FrameRequired { frames } if warpbench_io::afni_dataset::has_afni_name(path) => {
+    let volume = loaded.map_err(|e| match (&e.kind, volume.role.option()) {
+        (&warpbench_io::ErrorKind::FrameRequired { frames }, Some(option)) => anyhow!(
+            "{}: {}: this command reads one 3-D volume; choose one with --{option}-frame N (N from 0 to {})",
+            path.display(),
+            frames_of(path, frames),
+            frames.saturating_sub(1)
+        ),
+        (warpbench_io::ErrorKind::MultipleSeries(_), Some(option)) => {
+            anyhow!("{e}\nchoose one with --{option}-series UID")
+        }
+        // A volume without --frame: say what to do here.
+        (&warpbench_io::ErrorKind::FrameRequired { frames }, None)
+            if warpbench_io::afni_dataset::has_afni_name(path) =>
+        {
             anyhow!(
-                "{}: an AFNI dataset of {frames} sub-bricks: this command reads one 3-D volume; name one as AFNI's \
-             programs do, '{}[N]' (N from 0 to {}; quoted for the shell)",
+                "{}: {}: this command reads one 3-D volume; name one as AFNI's programs do, '{}[N]' (N from 0 \
+                 to {}; quoted for the shell)",
                 path.display(),
+                frames_of(path, frames),
                 path.display(),
                 frames.saturating_sub(1)
             )
         }
-        warpbench_io::ErrorKind::FrameRequired { frames } => anyhow!(
-            "{}: 4-D file with {frames} frames: this command reads one 3-D volume; save one frame as a file of its \
-             own (`warpbench info --frame N` shows frame N, 0 to {})",
+        (&warpbench_io::ErrorKind::FrameRequired { frames }, None) => anyhow!(
+            "{}: {}: this command reads one 3-D volume; save one frame as a file of its own (`warpbench info \
+             --frame N` shows frame N, 0 to {})",
             path.display(),
+            frames_of(path, frames),
             frames.saturating_sub(1)
         ),
         _ => anyhow::Error::from(e),
@@ -82,6 +138,16 @@ pub fn load_volume(path: &Path, quiet: bool) -> Result<Volume> {
         }
     }
     Ok(volume)
+}
+
+/// What a file of `frames` frames is, in its own format's words: "an AFNI dataset of 3 sub-bricks", "4-D file with 5
+/// frames".
+fn frames_of(path: &Path, frames: usize) -> String {
+    if warpbench_io::afni_dataset::has_afni_name(path) {
+        format!("an AFNI dataset of {frames} sub-bricks")
+    } else {
+        format!("4-D file with {frames} frames")
+    }
 }
 
 /// Where the landmark pairs come from.
@@ -502,8 +568,8 @@ impl PairInputs {
     /// Loads the fixed, moving and reference volumes ([`load_pair`], then the reference; with progress bars unless
     /// `quiet`).
     pub fn load_volumes(&self, quiet: bool) -> Result<PairVolumes> {
-        let (fixed, moving) = load_pair(&self.volumes.fixed, &self.volumes.moving, quiet)?;
-        let reference = self.reference.as_deref().map(|p| load_volume(p, quiet)).transpose()?;
+        let (fixed, moving) = load_pair(&self.volumes, quiet)?;
+        let reference = self.reference.as_deref().map(|p| load_volume(&VolumeArg::other(p), quiet)).transpose()?;
         Ok(PairVolumes { fixed, moving, reference })
     }
 }

@@ -589,8 +589,8 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
         }
     };
     given.warp.check_start().map_err(Failure::BadInput)?;
-    let VolumePairArgs { fixed, moving } = volumes;
-    let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    let (fixed_volume, moving_volume) = inputs::load_pair(&volumes, quiet).map_err(Failure::BadInput)?;
+    let VolumePairArgs { fixed, moving, .. } = volumes;
     if let Some(path) = &out_volume {
         crate::warp::check_output_grid(path, &fixed_volume).map_err(Failure::BadInput)?;
     }
@@ -608,7 +608,9 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let start_transform = given.warp.start(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let (fixed_name, moving_name) = (fixed.display().to_string(), moving.display().to_string());
     let load_mask = |mask: &Option<PathBuf>| match mask {
-        Some(path) => inputs::load_volume(path, quiet).map(|v| Some((v, path.display().to_string()))),
+        Some(path) => {
+            inputs::load_volume(&inputs::VolumeArg::other(path), quiet).map(|v| Some((v, path.display().to_string())))
+        }
         None => Ok(None),
     };
     let masks =

@@ -30,7 +30,7 @@ use warpbench_solver::warp::Warp;
 use crate::args::{PairArgs, RenderSettingsArgs, SliceSpec};
 use crate::brushed::Brushed;
 use crate::exit::Failure;
-use crate::inputs::{self, LandmarkWarp, OutputFile};
+use crate::inputs::{self, LandmarkWarp, OutputFile, Role, VolumeArg};
 use crate::project::stack::Layers;
 use crate::{fit, scene, settings};
 
@@ -61,6 +61,8 @@ pub struct RenderArgs {
     /// The moving volume, shown deformed by the landmark warp.
     #[arg(long)]
     pub moving: Option<PathBuf>,
+    #[command(flatten)]
+    pub parts: crate::args::PartArgs,
     #[command(flatten)]
     pub pairs: PairArgs,
     /// A pull-back displacement field to show the moving volume through instead of landmarks (ITK or ANTs NIfTI,
@@ -140,6 +142,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
     let RenderArgs {
         fixed: fixed_path,
         moving: moving_path,
+        parts,
         pairs,
         field: field_path,
         field_format,
@@ -198,9 +201,14 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         .map(|p| crate::warp::read_pullback_field(p, None, quiet))
         .transpose()?;
     given.warp.check_start().map_err(Failure::BadInput)?;
-    let fixed = inputs::load_volume(&fixed_path, quiet).map_err(Failure::BadInput)?;
-    let moving =
-        moving_path.as_deref().map(|p| inputs::load_volume(p, quiet)).transpose().map_err(Failure::BadInput)?;
+    let [fixed_part, moving_part] = parts.parts();
+    let fixed = VolumeArg { path: &fixed_path, part: fixed_part.as_ref(), role: Role::Fixed };
+    let fixed = inputs::load_volume(&fixed, quiet).map_err(Failure::BadInput)?;
+    let moving = moving_path
+        .as_deref()
+        .map(|path| inputs::load_volume(&VolumeArg { path, part: moving_part.as_ref(), role: Role::Moving }, quiet))
+        .transpose()
+        .map_err(Failure::BadInput)?;
     if let (true, Some(path), Some(moving)) = (after, &field_path, &moving) {
         field = Some(if field_format.format.reads_against_pair(path)? {
             crate::warp::read_pair_field(path, &fixed, moving, quiet)?

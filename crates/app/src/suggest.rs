@@ -128,8 +128,8 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     }
     given.warp.check_start().map_err(Failure::BadInput)?;
     let file = read_point_file(&points, PointFileOptions { ras })?;
-    let VolumePairArgs { fixed, moving } = volumes;
-    let (fixed_volume, moving_volume) = inputs::load_pair(&fixed, &moving, quiet).map_err(Failure::BadInput)?;
+    let (fixed_volume, moving_volume) = inputs::load_pair(&volumes, quiet).map_err(Failure::BadInput)?;
+    let VolumePairArgs { fixed, moving, .. } = volumes;
     let start = given.warp.start(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let moving_points: Vec<(String, Point3<Lps>)> =
         crate::points::input_points(&points, &file, crate::points::Side::Moving, Some(&moving_volume))?

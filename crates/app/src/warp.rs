@@ -961,8 +961,8 @@ impl Fitted {
 
 /// The fixed, moving and reference volumes of `inputs` ([`inputs::load_pair`], then the reference).
 pub(crate) fn load_volumes(inputs: &WarpInputs, quiet: bool) -> anyhow::Result<PairVolumes> {
-    let (fixed, moving) = inputs::load_pair(&inputs.volumes().fixed, &inputs.volumes().moving, quiet)?;
-    let reference = inputs.reference().map(|p| inputs::load_volume(p, quiet)).transpose()?;
+    let (fixed, moving) = inputs::load_pair(inputs.volumes(), quiet)?;
+    let reference = inputs.reference().map(|p| inputs::load_volume(&inputs::VolumeArg::other(p), quiet)).transpose()?;
     Ok(PairVolumes { fixed, moving, reference })
 }
 

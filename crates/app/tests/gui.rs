@@ -261,6 +261,73 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert!(ready.document.field.as_ref().is_some_and(|f| f.voxel_grids.is_some()), "the grids are recorded");
 }
 
+#[test]
+fn a_4d_file_asks_for_a_frame_and_the_session_reads_the_same_frame_again() {
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let mut harness = open_mri_pair(dir.path(), egui::vec2(1100.0, 760.0));
+    let functional = data("nifti/functional.nii");
+    let frame = |t: usize| warpbench_io::LoadOptions::new().frame(t).open(&functional).expect("the fixture's frame");
+
+    // A 4-D file of 20 frames: the chooser asks which, the frame is read and becomes the moving volume.
+    drop_files(&mut harness, std::slice::from_ref(&functional));
+    harness.get_by_label("the moving volume").click();
+    harness.run_steps(2);
+    wait_for_reads(&mut harness);
+    assert!(harness.state().dialogs.error.is_none(), "{:?}", harness.state().dialogs.error);
+    harness.get_by_label_contains("holds 20 frames");
+    // As a screen reader sets it; past the last frame is kept to the last.
+    harness.get_by_label("Frame (0 to 19)").set_value_accesskit(25.0);
+    harness.run_steps(2);
+    assert_eq!(harness.state().dialogs.frames.as_ref().map(|c| c.chosen), Some(19));
+    harness.get_by_label("Frame (0 to 19)").set_value_accesskit(3.0);
+    harness.run_steps(2);
+    assert_eq!(harness.state().dialogs.frames.as_ref().map(|c| c.chosen), Some(3));
+    harness.get_by_label("Open").click();
+    harness.run_steps(2);
+    wait_for_reads(&mut harness);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!(ready.document.moving.as_deref(), Some(functional.as_path()));
+    assert_eq!(ready.document.moving_part, Some(warpbench_io::Part::Frame(3)));
+    assert_eq!(ready.loaded.moving.data, frame(3).data, "frame 3, not another");
+    assert_ne!(frame(3).data, frame(0).data, "the fixture's frames differ");
+    assert!(ready.loaded.title.ends_with("functional.nii [frame 3]"), "{}", ready.loaded.title);
+
+    // Undo gives the MRI back whole; redo the frame.
+    harness.get_by_label("Undo").click();
+    harness.run_steps(2);
+    let ready = harness.state().ready().expect("loaded");
+    assert_eq!((ready.document.moving.as_deref(), &ready.document.moving_part), (Some(mri().as_path()), &None));
+    harness.get_by_label("Redo").click();
+    harness.run_steps(2);
+    assert_eq!(harness.state().ready().expect("loaded").document.moving_part, Some(warpbench_io::Part::Frame(3)));
+
+    // The autosave keeps which frame; opened as a session, the same frame is read again.
+    harness.state_mut().autosave_now(false);
+    let autosave = dir.path().join("autosave.warpbench.json");
+    let opts = GuiOptions { session: Some(autosave), ..GuiOptions::default() };
+    let mut reopened =
+        Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut reopened);
+    let ready = reopened.state().ready().expect("the session opened");
+    assert_eq!(ready.document.moving_part, Some(warpbench_io::Part::Frame(3)));
+    assert_eq!(ready.loaded.moving.data, frame(3).data);
+
+    // An AFNI dataset's chooser shows each sub-brick's label.
+    drop_files(&mut reopened, &[data("afni/example4d+orig.HEAD")]);
+    reopened.get_by_label("the fixed volume").click();
+    reopened.run_steps(2);
+    wait_for_reads(&mut reopened);
+    reopened.get_by_label_contains("holds 3 sub-bricks");
+    let header = warpbench_io::afni_dataset::Header::read(&data("afni/example4d+orig.HEAD")).expect("the header");
+    reopened.get_by_label(&format!("\"{}\"", header.labels()[0]));
+    reopened.get_by_label("Cancel").click();
+    reopened.run_steps(2);
+    assert!(reopened.state().dialogs.frames.is_none());
+}
+
 /// Scrolls the check box `label` into view and clicks it.
 fn tick(harness: &mut Harness<'_, Workbench>, label: &str) {
     harness.get_by_label(label).scroll_to_me();

@@ -498,28 +498,121 @@ fn the_in_memory_core_stops_when_progress_says_so() {
     assert_eq!(std::fs::read_dir(dir.path()).expect("list").count(), 1, "only the pairs: nothing was written");
 }
 
+/// `warp` with identity pairs at five voxel centres of `grid` (the fixed volume as read: not coplanar, inside both
+/// boxes when both sides are the same file), `extra` choosing the parts. Returns the run and the output's path.
+fn warp_identity(
+    dir: &Path,
+    name: &str,
+    grid: &warpbench_io::Volume,
+    [fixed, moving]: [&Path; 2],
+    extra: &[&str],
+) -> (std::process::Output, PathBuf) {
+    let out = dir.join(format!("{name}.nii.gz"));
+    let mut args = vec!["warp", "--fixed", s(fixed), "--moving", s(moving)];
+    args.extend_from_slice(extra);
+    let csv = dir.join(format!("{name}.csv"));
+    args.extend_from_slice(&["--landmarks", s(&csv), "--quiet", "--out", s(&out)]);
+    let [ni, nj, nk] = grid.dims.map(|n| n - 1);
+    let corners = [[0, 0, 0], [ni, 0, 0], [0, nj, 0], [0, 0, nk], [ni / 2, nj / 2, nk / 2]];
+    let pairs: Vec<_> = corners
+        .iter()
+        .map(|&[i, j, k]| {
+            let x = grid.voxel_lps(i, j, k).coords();
+            (x, x)
+        })
+        .collect();
+    write_pairs(&csv, &pairs);
+    (warpbench(&args), out)
+}
+
 #[test]
-fn a_4d_input_is_refused_in_the_words_of_a_command_without_frame() {
+fn a_4d_input_is_read_by_the_frame_chosen_for_its_side() {
     let dir = tempfile::tempdir().expect("tempdir");
     let bold = data("nifti/functional.nii");
-    let out = dir.path().join("out.nii.gz");
-    let result = warpbench(&[
-        "warp",
-        "--fixed",
-        s(&bold),
-        "--moving",
-        s(&bold),
-        "--landmarks",
-        s(&data("landmarks/bigwarp_pairs.csv")),
-        "--out",
-        s(&out),
-    ]);
+    let frame = |t: usize| warpbench_io::LoadOptions::new().frame(t).open(&bold).expect("the fixture's frame");
+    // Without a choice: refused with the option that chooses, for the side at fault.
+    let (result, out) = warp_identity(dir.path(), "none", &frame(0), [&bold, &bold], &[]);
     assert_eq!(result.status.code(), Some(2));
     let err = String::from_utf8_lossy(&result.stderr);
-    assert!(err.contains("functional.nii: 4-D file with 20 frames: this command reads one 3-D volume"), "{err}");
-    // `warp` has no --frame option; the library's neutral wording is not what the user sees either.
-    assert!(!err.contains("choose one frame to read") && !err.contains("with --frame N (N"), "{err}");
+    assert!(
+        err.contains(
+            "functional.nii: 4-D file with 20 frames: this command reads one 3-D volume; choose one with \
+                      --fixed-frame N (N from 0 to 19)"
+        ),
+        "{err}"
+    );
     assert!(!out.exists());
+    let (result, _) = warp_identity(dir.path(), "moving", &frame(0), [&bold, &bold], &["--fixed-frame", "3"]);
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("choose one with --moving-frame N (N from 0 to 19)"), "{err}");
+    // Chosen: identity pairs give the chosen frame back, voxel for voxel.
+    let (result, out) =
+        warp_identity(dir.path(), "three", &frame(0), [&bold, &bold], &["--fixed-frame", "3", "--moving-frame", "3"]);
+    assert_ok(&result);
+    let warped = warpbench_io::open(&out).expect("the output");
+    assert_eq!(warped.data, frame(3).data);
+    assert_ne!(frame(3).data, frame(4).data, "the fixture's frames differ");
+    // A frame past the last, a series of a file, and a frame of a one-volume format are refused, naming the file.
+    for (extra, words) in [
+        (["--fixed-frame", "3", "--moving-frame", "20"], "frame 20 is out of range: the file has 20 frame(s)"),
+        (["--fixed-frame", "3", "--moving-series", "1.2.3"], "a DICOM series was chosen, but this is not DICOM"),
+    ] {
+        let (result, out) = warp_identity(dir.path(), "bad", &frame(0), [&bold, &bold], &extra);
+        assert_eq!(result.status.code(), Some(2), "{extra:?}");
+        let err = String::from_utf8_lossy(&result.stderr);
+        assert!(err.contains("functional.nii") && err.contains(words), "{extra:?}: {err}");
+        assert!(!out.exists());
+    }
+    let nrrd = data("nrrd/").read_dir().expect("the NRRD fixtures").map(|e| e.expect("entry").path());
+    let nrrd = nrrd.filter(|p| p.extension().is_some_and(|e| e == "nrrd")).find(|p| warpbench_io::open(p).is_ok());
+    let nrrd = nrrd.expect("a NRRD volume");
+    let (result, _) = warp_identity(
+        dir.path(),
+        "nrrd",
+        &warpbench_io::open(&nrrd).expect("NRRD"),
+        [&nrrd, &nrrd],
+        &["--moving-frame", "1"],
+    );
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("frame 1 is out of range: the file has 1 frame"), "{err}");
+    // Both options for one side are a usage error.
+    let (result, _) = warp_identity(
+        dir.path(),
+        "both",
+        &frame(0),
+        [&bold, &bold],
+        &["--fixed-frame", "3", "--fixed-series", "1.2.3"],
+    );
+    assert_eq!(result.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&result.stderr).contains("cannot be used with"));
+}
+
+#[test]
+fn a_dicom_folder_of_several_series_is_read_by_the_series_chosen() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let folder = data("dicom/mixed_ct5n_mr_small");
+    let Err(e) = warpbench_io::open(&folder) else { panic!("the folder holds two series") };
+    let warpbench_io::ErrorKind::MultipleSeries(list) = e.kind else { panic!("{e}") };
+    // The CT series: five slices, so that the pairs are not coplanar.
+    let ct = list.iter().find(|s| s.modality == "CT").expect("a CT series").series_instance_uid.clone();
+    let series = warpbench_io::LoadOptions::new().series(ct.clone()).open(&folder).expect("the CT series");
+    assert_eq!(series.modality, warpbench_io::Modality::Ct);
+    let (result, out) = warp_identity(dir.path(), "none", &series, [&folder, &folder], &["--fixed-series", &ct]);
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("the folder holds 2 DICOM series") && err.contains(&ct), "{err}");
+    assert!(err.contains("choose one with --moving-series UID"), "{err}");
+    assert!(!out.exists());
+    let chosen = ["--fixed-series", &ct, "--moving-series", &ct];
+    let (result, out) = warp_identity(dir.path(), "ct", &series, [&folder, &folder], &chosen);
+    assert_ok(&result);
+    assert_eq!(warpbench_io::open(&out).expect("the output").data.to_f32(), series.data.to_f32());
+    let unknown = ["--fixed-series", "1.2.3", "--moving-series", &ct];
+    let (result, _) = warp_identity(dir.path(), "unknown", &series, [&folder, &folder], &unknown);
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("mixed_ct5n_mr_small") && err.contains("1.2.3"), "{err}");
 }
 
 /// Runs `points` on `xs` with the pair and `source` (`--landmarks L` or `--session S`), from `side`; the mapped points.

@@ -62,7 +62,7 @@ pub use atomic::write_atomic;
 /// The DICOM reader's JPEG-LS decoder, which benches and tests also call on its own.
 pub use dicom::jpegls;
 pub use error::{Error, ErrorKind, Result};
-pub use options::{LoadOptions, Progress};
+pub use options::{LoadOptions, Part, Progress};
 pub use series::SeriesSummary;
 pub use volume::{GeometrySource, Metadata, Modality, Rescale, SampleType, Volume, VoxelData};
 
@@ -157,7 +157,9 @@ impl LoadOptions<'_> {
     /// Reads the volume at `path` (a file or a DICOM series folder).
     pub fn open(&mut self, path: impl AsRef<Path>) -> Result<Volume> {
         let path = path.as_ref();
-        let mut volume = match Format::detect(path)? {
+        let format = Format::detect(path)?;
+        self.check_part_applies(path, format)?;
+        let mut volume = match format {
             Format::Nifti => nifti::read(path, self),
             Format::Nrrd => nrrd::read(path, self),
             Format::Dicom if path.is_dir() => dicom::read_folder(path, self),
@@ -171,6 +173,23 @@ impl LoadOptions<'_> {
         // Every format's volume gets the same geometry warnings (a reader that sets its own metadata keeps them).
         volume.note_geometry_warnings();
         Ok(volume)
+    }
+
+    /// Refuses a choice the file has nothing to choose from: a series of anything but DICOM, or a frame past the
+    /// first of a format that holds one volume (NRRD, DICOM), which would otherwise read the whole file unasked.
+    fn check_part_applies(&self, path: &Path, format: Format) -> Result<()> {
+        if self.series_instance_uid.is_some() && format != Format::Dicom {
+            return Err(Error::invalid(
+                path,
+                "a DICOM series was chosen, but this is not DICOM: a series is chosen in a DICOM folder",
+            ));
+        }
+        match (self.frame, format) {
+            (Some(t @ 1..), Format::Nrrd | Format::Dicom) => {
+                Err(Error::invalid(path, format!("frame {t} is out of range: the file has 1 frame")))
+            }
+            _ => Ok(()),
+        }
     }
 }
 

@@ -23,6 +23,28 @@ impl Progress {
     }
 }
 
+/// Which volume of a file or folder that holds several: one series of a DICOM folder, or one frame of a 4-D file
+/// (a sub-brick of an AFNI dataset). Sessions keep it beside the path (as `{"series": UID}` or `{"frame": N}`), so that
+/// the same volume is read again.
+#[derive(Clone, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Part {
+    /// The DICOM series with this SeriesInstanceUID.
+    Series(String),
+    /// The frame with this index (0-based), the t index of a 4-D file.
+    Frame(usize),
+}
+
+impl fmt::Display for Part {
+    /// `series 1.2.3` or `frame 4`, as messages and the window's title name it.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Series(uid) => write!(f, "series {uid}"),
+            Self::Frame(t) => write!(f, "frame {t}"),
+        }
+    }
+}
+
 /// A progress callback. Returning `ControlFlow::Break(())` cancels the load.
 pub type ProgressFn<'a> = dyn FnMut(Progress) -> ControlFlow<()> + Send + 'a;
 
@@ -68,6 +90,15 @@ impl<'a> LoadOptions<'a> {
     pub fn series(mut self, uid: impl Into<String>) -> Self {
         self.series_instance_uid = Some(uid.into());
         self
+    }
+    /// Reads `part` of the file: [`Self::series`] or [`Self::frame`]; `None` changes nothing.
+    #[must_use]
+    pub fn part(self, part: Option<&Part>) -> Self {
+        match part {
+            None => self,
+            Some(Part::Series(uid)) => self.series(uid.clone()),
+            Some(Part::Frame(t)) => self.frame(*t),
+        }
     }
     #[must_use]
     pub fn max_voxel_bytes(mut self, limit: u64) -> Self {

@@ -14,27 +14,38 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use warpbench_io::geometry::{Index, Lps, Transform};
 use warpbench_io::volume::{GeometrySource, Modality, VoxelData};
-use warpbench_io::{LoadOptions, Volume};
+use warpbench_io::{LoadOptions, Part, Volume};
 
 use crate::errors::{self, guarded};
 
 /// Reads a volume in any format the command line reads (NIfTI, NRRD, DICOM series folder or file, MetaImage):
 /// `(array, lps_from_index, header)`, the header a JSON text (geometry source, modality, rescale, metadata).
+/// `frame` chooses a frame of a 4-D file, `series` a series of a DICOM folder of several (by its SeriesInstanceUID).
 #[pyfunction]
-#[pyo3(signature = (path, frame = None))]
-pub fn read_volume(py: Python<'_>, path: PathBuf, frame: Option<usize>) -> PyResult<(Py<PyAny>, Py<PyAny>, String)> {
+#[pyo3(signature = (path, frame = None, series = None))]
+pub fn read_volume(
+    py: Python<'_>,
+    path: PathBuf,
+    frame: Option<usize>,
+    series: Option<String>,
+) -> PyResult<(Py<PyAny>, Py<PyAny>, String)> {
+    if frame.is_some() && series.is_some() {
+        return Err(PyValueError::new_err(format!(
+            "{}: pass frame= (a frame of a 4-D file) or series= (a series of a DICOM folder), not both",
+            path.display()
+        )));
+    }
+    let part = frame.map(Part::Frame).or(series.map(Part::Series));
     let volume = guarded(py, || {
-        let options = LoadOptions::new();
-        let mut options = match frame {
-            Some(t) => options.frame(t),
-            None => options,
-        };
-        options.open(&path).map_err(|e| match e.kind {
-            warpbench_io::ErrorKind::FrameRequired { frames } => PyValueError::new_err(format!(
+        LoadOptions::new().part(part.as_ref()).open(&path).map_err(|e| match &e.kind {
+            &warpbench_io::ErrorKind::FrameRequired { frames } => PyValueError::new_err(format!(
                 "{}: 4-D file with {frames} frames: pass frame=N (0 to {}) to read one",
                 path.display(),
                 frames.saturating_sub(1)
             )),
+            warpbench_io::ErrorKind::MultipleSeries(_) => {
+                PyValueError::new_err(format!("{e}\npass series=UID to read one"))
+            }
             _ => errors::io(e),
         })
     })?;

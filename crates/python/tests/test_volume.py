@@ -86,3 +86,29 @@ def test_bad_files_raise_with_the_file_named(tmp_path):
     with pytest.raises(ValueError, match="v.xyz"):
         wb.Volume.from_array(np.zeros((2, 2, 2), np.uint8), np.eye(4)).write(tmp_path / "v.xyz")
     assert not (tmp_path / "v.xyz").exists()
+
+
+def test_a_dicom_folder_of_several_series_reads_the_series_chosen():
+    folder = DATA / "dicom" / "mixed_ct5n_mr_small"
+    with pytest.raises(ValueError, match=r"holds 2 DICOM series[\s\S]*pass series=UID to read one"):
+        wb.read_volume(folder)
+    read = 0
+    for uid in sitk.ImageSeriesReader.GetGDCMSeriesIDs(str(folder)):
+        files = sitk.ImageSeriesReader.GetGDCMSeriesFileNames(str(folder), uid)
+        v = wb.read_volume(folder, series=uid)
+        assert v.header["metadata"]["series_instance_uid"] == uid
+        if len(files) < 2:
+            continue  # SimpleITK reads a one-file series as a 2-D image
+        image = sitk.ReadImage(files)
+        np.testing.assert_allclose(v.array, sitk.GetArrayViewFromImage(image).T)
+        ijk = (1, 2, len(files) - 1)
+        expected = v.lps_from_index @ np.array([*ijk, 1.0])
+        np.testing.assert_allclose(image.TransformIndexToPhysicalPoint(ijk), expected[:3], atol=1e-4)
+        read += 1
+    assert read == 1, "the CT series of five files was compared"
+    with pytest.raises(ValueError, match="mixed_ct5n_mr_small"):
+        wb.read_volume(folder, series="1.2.3")
+    with pytest.raises(ValueError, match="not both"):
+        wb.read_volume(folder, frame=0, series="1.2.3")
+    with pytest.raises(ValueError, match="a DICOM series was chosen, but this is not DICOM"):
+        wb.read_volume(T1, series="1.2.3")

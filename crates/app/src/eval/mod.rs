@@ -253,7 +253,7 @@ struct Subject {
 
 impl Subject {
     fn load(path: &Path, quiet: bool) -> Result<Self, Failure> {
-        let volume = inputs::load_volume(path, quiet).map_err(Failure::BadInput)?;
+        let volume = inputs::load_volume(&inputs::VolumeArg::other(path), quiet).map_err(Failure::BadInput)?;
         let values = volume.data.to_f32();
         let threshold = sampling::otsu_threshold(&values).ok_or_else(|| {
             bad(format!("{}: the volume has fewer than two distinct values, so no foreground", path.display()))

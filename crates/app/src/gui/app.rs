@@ -25,7 +25,7 @@ use crate::project::session;
 #[derive(Debug)]
 struct Pending {
     volume: Arc<Volume>,
-    path: PathBuf,
+    source: open::VolumeSource,
     layer: Option<LayerData>,
 }
 
@@ -177,14 +177,14 @@ impl Workbench {
         };
     }
 
-    /// Starts reading a volume for one side of the pair (File > Open, a drop, the series chooser); a read already
-    /// running for that side is cancelled.
-    pub fn open_volume(&mut self, ctx: &egui::Context, side: open::Side, path: PathBuf, series: Option<String>) {
+    /// Starts reading a volume for one side of the pair (File > Open, a drop, the series or frame chooser); a read
+    /// already running for that side is cancelled.
+    pub fn open_volume(&mut self, ctx: &egui::Context, side: open::Side, source: open::VolumeSource) {
         for job in self.jobs.iter().filter(|j| j.side == side) {
             job.watch.cancel();
         }
         self.jobs.retain(|j| j.side != side);
-        self.jobs.push(open::VolumeJob::start(ctx, side, path, series, self.facts));
+        self.jobs.push(open::VolumeJob::start(ctx, side, source, self.facts));
     }
 
     /// The volume reads still running (for tests).
@@ -194,41 +194,42 @@ impl Workbench {
     }
 
     /// Takes finished reads: a volume replaces its side of the shown pair, or waits for the other side when no
-    /// pair is shown; a failure opens the error dialog or the series chooser.
+    /// pair is shown; a failure opens the error dialog, or the series or frame chooser.
     fn poll_volume_jobs(&mut self, ctx: &egui::Context) {
         let mut finished = Vec::new();
         self.jobs.retain(|job| match job.poll() {
             Some(result) => {
-                finished.push((job.side, job.path.clone(), result));
+                finished.push((job.side, job.source.clone(), result));
                 false
             }
             None => true,
         });
-        for (side, path, result) in finished {
+        for (side, source, result) in finished {
             let (volume, layer) = match result {
                 Ok(open::ReadVolume { layer: Some(Err(e)), .. }) => {
-                    self.dialogs.error = Some(format!("{}: {e:#}", path.display()));
+                    self.dialogs.error = Some(format!("{}: {e:#}", source.path.display()));
                     continue;
                 }
                 Ok(open::ReadVolume { volume, layer }) => (Arc::new(volume), layer.and_then(Result::ok)),
                 Err(e) => {
-                    self.dialogs.failed(side, &path, &e);
+                    self.dialogs.failed(side, &source.path, &e);
                     continue;
                 }
             };
             if let Phase::Ready(ready) = &mut self.phase {
-                if let Err(e) = ready.replace_volume(side, volume, layer, path) {
+                if let Err(e) = ready.replace_volume(side, volume, layer, source) {
                     self.dialogs.error = Some(format!("{e:#}"));
                 }
                 continue;
             }
-            self.pending[side as usize] = Some(Pending { volume, path, layer });
+            self.pending[side as usize] = Some(Pending { volume, source, layer });
             if let [Some(_), Some(_)] = &self.pending {
                 let [Some(fixed), Some(moving)] = std::mem::take(&mut self.pending) else { continue };
                 let layers = fixed.layer.zip(moving.layer).map(|(f, m)| [f, m]);
-                let title = format!("{} -> {}", open::file_name(&fixed.path), open::file_name(&moving.path));
-                let paths = [Some(fixed.path), Some(moving.path)];
-                let document = Document::new(paths, [&fixed.volume, &moving.volume], Vec::new());
+                let title = format!("{} -> {}", fixed.source.name(), moving.source.name());
+                let paths = [Some(fixed.source.path), Some(moving.source.path)];
+                let mut document = Document::new(paths, [&fixed.volume, &moving.volume], Vec::new());
+                (document.fixed_part, document.moving_part) = (fixed.source.part, moving.source.part);
                 let loaded = Loaded { title, fixed: fixed.volume, moving: moving.volume };
                 let opened = Opened { loaded, document, view: None };
                 self.phase = match self.upload(ctx, LoadedPair { opened, layers }) {
@@ -243,7 +244,7 @@ impl Workbench {
     fn handle(&mut self, ctx: &egui::Context, event: open::OpenEvent) {
         use open::OpenEvent;
         match event {
-            OpenEvent::Volume { side, path, series } => self.open_volume(ctx, side, path, series),
+            OpenEvent::Volume { side, source } => self.open_volume(ctx, side, source),
             OpenEvent::OpenSession(path) => {
                 self.phase =
                     Self::start_loading(ctx, GuiOptions { session: Some(path), ..GuiOptions::default() }, self.facts);
@@ -348,7 +349,7 @@ impl Workbench {
         if !self.jobs.is_empty() {
             egui::Panel::top("reading").show(ui, |ui| {
                 for job in &self.jobs {
-                    ui.label(format!("Opening {} as the {} volume", open::file_name(&job.path), job.side.name()));
+                    ui.label(format!("Opening {} as the {} volume", job.source.name(), job.side.name()));
                     open::progress_ui(ui, &job.watch);
                 }
             });

@@ -479,14 +479,13 @@ impl Ready {
     /// Puts `s` back: the volumes (prepared again for the GPU when they differ) and the document; fits the warp
     /// again.
     fn restore(&mut self, s: &Snapshot) {
-        let paths = [s.document.fixed.clone(), s.document.moving.clone()];
-        let now = [(&self.loaded.fixed, &self.document.fixed), (&self.loaded.moving, &self.document.moving)]
-            .map(|(v, p)| (Arc::clone(v), p.clone()));
-        for (side, ((volume, path), (now_volume, now_path))) in
-            [open::Side::Fixed, open::Side::Moving].into_iter().zip(s.volumes.iter().zip(paths).zip(now))
+        let sources = s.document.sources();
+        let now = [&self.loaded.fixed, &self.loaded.moving].map(Arc::clone).into_iter().zip(self.document.sources());
+        for (side, ((volume, source), (now_volume, now_source))) in
+            [open::Side::Fixed, open::Side::Moving].into_iter().zip(s.volumes.iter().zip(sources).zip(now))
         {
-            if (!Arc::ptr_eq(volume, &now_volume) || path != now_path)
-                && let Err(e) = self.swap_volume(side, Arc::clone(volume), path, None)
+            if (!Arc::ptr_eq(volume, &now_volume) || source != now_source)
+                && let Err(e) = self.swap_volume(side, Arc::clone(volume), source, None)
             {
                 self.files.message = Some(format!("restoring the {} volume: {e:#}", side.name()));
             }

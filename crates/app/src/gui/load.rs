@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use anyhow::anyhow;
-use warpbench_io::Volume;
+use warpbench_io::{Part, Volume};
 
 use super::viewer::{DeviceFacts, LayerData};
 use super::{GuiOptions, open};
@@ -54,13 +54,19 @@ impl LoadedPair {
 /// Loads what `opts` names: a session, two volumes (with landmarks), or the demo pair when it names nothing,
 /// reporting each file's progress to `watch` and stopping when it is cancelled.
 pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>) -> anyhow::Result<Opened> {
-    let read = |p: &std::path::Path| watch.load_options(p).open(p).map(Arc::new);
+    let read_part = |p: &std::path::Path, part: Option<&Part>| watch.load_options(p).part(part).open(p).map(Arc::new);
+    let read = |p: &std::path::Path| read_part(p, None);
     let name =
         |p: &std::path::Path| p.file_name().map_or_else(|| p.display().to_string(), |n| n.to_string_lossy().into());
     if let Some(path) = &opts.session {
         let file = session::load(path)?;
-        let Document { fixed, moving, .. } = &file.document;
-        let only_volumes = GuiOptions { fixed: fixed.clone(), moving: moving.clone(), ..GuiOptions::default() };
+        let Document { fixed, moving, fixed_part, moving_part, .. } = &file.document;
+        let only_volumes = GuiOptions {
+            fixed: fixed.clone(),
+            moving: moving.clone(),
+            parts: [fixed_part.clone(), moving_part.clone()],
+            ..GuiOptions::default()
+        };
         let mut opened = load(&only_volumes, watch)?;
         opened.loaded.title = format!("{} ({})", opened.loaded.title, name(path));
         opened.document = file.document;
@@ -70,18 +76,17 @@ pub fn load(opts: &GuiOptions, watch: &Arc<open::Watch>) -> anyhow::Result<Opene
     }
     match (&opts.fixed, &opts.moving) {
         (Some(f), Some(m)) => {
-            let fixed = read(f)?;
-            let moving = read(m)?;
+            let [fixed_part, moving_part] = opts.parts.clone();
+            let fixed = read_part(f, fixed_part.as_ref())?;
+            let moving = read_part(m, moving_part.as_ref())?;
             let pairs = match &opts.landmarks {
                 Some(source) => source.read().map_err(|e| anyhow!("{e:#}"))?,
                 None => Vec::new(),
             };
-            let document = Document::new([Some(f.clone()), Some(m.clone())], [&fixed, &moving], pairs);
-            Ok(Opened {
-                loaded: Loaded { title: format!("{} -> {}", name(f), name(m)), fixed, moving },
-                document,
-                view: None,
-            })
+            let mut document = Document::new([Some(f.clone()), Some(m.clone())], [&fixed, &moving], pairs);
+            (document.fixed_part, document.moving_part) = (fixed_part, moving_part);
+            let [f, m] = document.sources().map(|s| s.map(|s| s.name()).unwrap_or_default());
+            Ok(Opened { loaded: Loaded { title: format!("{f} -> {m}"), fixed, moving }, document, view: None })
         }
         (None, None) => {
             let (title, fixed, moving) = if let Some((f, m)) = demo::demo_paths() {

@@ -1,5 +1,5 @@
 //! Opening files from the window: volumes read on a worker thread with a progress bar and a cancel button, a chooser
-//! when a DICOM folder holds several series, the File menu of native file dialogs ([`super::dialog`]), files dropped
+//! when a DICOM folder holds several series or a file several frames, the File menu of native file dialogs ([`super::dialog`]), files dropped
 //! on the window, and the dialog that reports a file that could not be opened.
 //!
 //! Everything here is state plus `*_ui` functions that return what the user asked for ([`OpenEvent`]); the
@@ -15,10 +15,11 @@ pub use super::dialog::{DialogJob, Purpose};
 pub use super::side::Side;
 use super::viewer::{DeviceFacts, LayerData};
 use crate::jacobian::Quantity;
+pub use crate::project::document::VolumeSource;
 use crate::transform::TransformFormat;
 use eframe::egui;
 use warpbench_io::error::ErrorKind;
-use warpbench_io::{LoadOptions, Progress, SeriesSummary, Volume};
+use warpbench_io::{LoadOptions, Part, Progress, SeriesSummary, Volume};
 
 /// Progress and cancellation shared between a worker thread and the window.
 #[derive(Debug, Default)]
@@ -94,7 +95,7 @@ pub fn progress_ui(ui: &mut egui::Ui, watch: &Watch) -> bool {
 #[derive(Debug)]
 pub struct VolumeJob {
     pub side: Side,
-    pub path: PathBuf,
+    pub source: VolumeSource,
     pub watch: Arc<Watch>,
     rx: Receiver<warpbench_io::Result<ReadVolume>>,
 }
@@ -108,32 +109,23 @@ pub struct ReadVolume {
 }
 
 impl VolumeJob {
-    /// Starts reading `path` (`series`: the SeriesInstanceUID to read from a DICOM folder with several), and
+    /// Starts reading `source` (its part: the frame of a 4-D file, the series of a DICOM folder with several), and
     /// preparing it for a device like `facts`.
     #[must_use]
-    pub fn start(
-        ctx: &egui::Context,
-        side: Side,
-        path: PathBuf,
-        series: Option<String>,
-        facts: Option<DeviceFacts>,
-    ) -> Self {
+    pub fn start(ctx: &egui::Context, side: Side, source: VolumeSource, facts: Option<DeviceFacts>) -> Self {
         let watch = Arc::new(Watch::default());
         let (tx, rx) = std::sync::mpsc::channel();
-        let (worker_watch, worker_path, ctx) = (Arc::clone(&watch), path.clone(), ctx.clone());
+        let (worker_watch, worker_source, ctx) = (Arc::clone(&watch), source.clone(), ctx.clone());
         std::thread::spawn(move || {
-            let mut options = worker_watch.load_options(&worker_path);
-            if let Some(uid) = series {
-                options = options.series(uid);
-            }
-            let read = options.open(&worker_path).map(|volume| {
+            let path = &worker_source.path;
+            let read = worker_watch.load_options(path).part(worker_source.part.as_ref()).open(path).map(|volume| {
                 let layer = facts.map(|facts| LayerData::prepare(&volume, facts));
                 ReadVolume { volume, layer }
             });
             let _ = tx.send(read);
             ctx.request_repaint();
         });
-        Self { side, path, watch, rx }
+        Self { side, source, watch, rx }
     }
 
     /// The result, once the worker is done.
@@ -143,7 +135,7 @@ impl VolumeJob {
             Ok(result) => Some(result),
             Err(TryRecvError::Empty) => None,
             Err(TryRecvError::Disconnected) => Some(Err(warpbench_io::Error::new(
-                &self.path,
+                &self.source.path,
                 ErrorKind::Io(std::io::Error::other("the loading thread stopped")),
             ))),
         }
@@ -192,11 +184,10 @@ fn is_field_file(path: &Path) -> bool {
 /// What the user asked for through a menu, a dialog, a drop or a chooser.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum OpenEvent {
-    /// Read this volume (from this series of a DICOM folder) as one side of the pair.
+    /// Read this volume (this series of a DICOM folder, this frame of a 4-D file) as one side of the pair.
     Volume {
         side: Side,
-        path: PathBuf,
-        series: Option<String>,
+        source: VolumeSource,
     },
     OpenSession(PathBuf),
     ImportLandmarks(PathBuf),
@@ -210,13 +201,15 @@ pub enum OpenEvent {
     Demo,
 }
 
-/// The dialogs of opening: the error report, the series chooser and the question a dropped volume asks.
+/// The dialogs of opening: the error report, the series and frame choosers and the question a dropped volume asks.
 #[derive(Debug, Default)]
 pub struct OpenDialogs {
     /// A file that could not be opened, and why.
     pub error: Option<String>,
     /// A DICOM folder with several series: which to read, for which side.
     pub series: Option<(Side, PathBuf, Vec<SeriesSummary>)>,
+    /// A 4-D file: which frame to read, for which side.
+    pub frames: Option<FrameChoice>,
     /// A dropped volume waiting for "fixed or moving?".
     pub dropped: Option<PathBuf>,
     /// The native dialog that is open.
@@ -230,15 +223,7 @@ impl OpenDialogs {
         match &error.kind {
             ErrorKind::MultipleSeries(list) => self.series = Some((side, path.to_path_buf(), list.clone())),
             ErrorKind::Cancelled => {}
-            ErrorKind::FrameRequired { frames } => {
-                self.error = Some(format!(
-                    "Could not open the {} volume: {} is a 4-D file with {frames} frames (0 to {}), and the window \
-                     shows one 3-D volume. Save the frame you want as a file of its own and open that.",
-                    side.name(),
-                    path.display(),
-                    frames.saturating_sub(1)
-                ));
-            }
+            &ErrorKind::FrameRequired { frames } => self.frames = Some(FrameChoice::new(side, path, frames)),
             _ => self.error = Some(format!("Could not open the {} volume: {error}", side.name())),
         }
     }
@@ -261,8 +246,8 @@ impl OpenDialogs {
         }
         match <[PathBuf; 2]>::try_from(volumes) {
             Ok([fixed, moving]) => {
-                events.push(OpenEvent::Volume { side: Side::Fixed, path: fixed, series: None });
-                events.push(OpenEvent::Volume { side: Side::Moving, path: moving, series: None });
+                events.push(OpenEvent::Volume { side: Side::Fixed, source: VolumeSource::whole(fixed) });
+                events.push(OpenEvent::Volume { side: Side::Moving, source: VolumeSource::whole(moving) });
             }
             Err(mut volumes) => {
                 if let Some(last) = volumes.pop() {
@@ -284,7 +269,7 @@ impl OpenDialogs {
             if let Some(path) = chosen {
                 events.push(match purpose {
                     Purpose::OpenFile(side) | Purpose::OpenFolder(side) => {
-                        OpenEvent::Volume { side, path, series: None }
+                        OpenEvent::Volume { side, source: VolumeSource::whole(path) }
                     }
                     Purpose::OpenSession => OpenEvent::OpenSession(path),
                     Purpose::ImportLandmarks => OpenEvent::ImportLandmarks(path),
@@ -322,11 +307,8 @@ impl OpenDialogs {
                         s.files
                     );
                     if ui.button(text).clicked() {
-                        events.push(OpenEvent::Volume {
-                            side,
-                            path: path.clone(),
-                            series: Some(s.series_instance_uid.clone()),
-                        });
+                        let part = Some(Part::Series(s.series_instance_uid.clone()));
+                        events.push(OpenEvent::Volume { side, source: VolumeSource { path: path.clone(), part } });
                         close = true;
                     }
                 }
@@ -338,6 +320,17 @@ impl OpenDialogs {
                 self.series = None;
             }
         }
+        if let Some(choice) = &mut self.frames {
+            let mut close = false;
+            egui::Window::new("Choose a frame").collapsible(false).show(ctx, |ui| {
+                if let Some(source) = choice.ui(ui, &mut close) {
+                    events.push(OpenEvent::Volume { side: choice.side, source });
+                }
+            });
+            if close {
+                self.frames = None;
+            }
+        }
         if let Some(path) = self.dropped.clone() {
             let mut close = false;
             egui::Window::new("Open the dropped volume").collapsible(false).show(ctx, |ui| {
@@ -345,7 +338,7 @@ impl OpenDialogs {
                 ui.horizontal(|ui| {
                     for side in [Side::Fixed, Side::Moving] {
                         if ui.button(format!("the {} volume", side.name())).clicked() {
-                            events.push(OpenEvent::Volume { side, path: path.clone(), series: None });
+                            events.push(OpenEvent::Volume { side, source: VolumeSource::whole(path.clone()) });
                             close = true;
                         }
                     }
@@ -359,6 +352,63 @@ impl OpenDialogs {
             }
         }
         events
+    }
+}
+
+/// The frame chooser of a 4-D file (an AFNI dataset's sub-bricks, with their labels).
+#[derive(Debug)]
+pub struct FrameChoice {
+    pub side: Side,
+    pub path: PathBuf,
+    pub frames: usize,
+    /// The frame the chooser shows, 0-based.
+    pub chosen: usize,
+    /// Each frame's label, where the file names them (AFNI's sub-brick labels); empty otherwise.
+    labels: Vec<String>,
+}
+
+impl FrameChoice {
+    /// Frame 0 of the `frames` of `path`, for `side`.
+    #[must_use]
+    pub fn new(side: Side, path: &Path, frames: usize) -> Self {
+        let labels = if warpbench_io::afni_dataset::has_afni_name(path) {
+            warpbench_io::afni_dataset::Header::read(path).map(|h| h.labels()).unwrap_or_default()
+        } else {
+            Vec::new()
+        };
+        Self { side, path: path.to_path_buf(), frames, chosen: 0, labels }
+    }
+
+    /// The chooser: the frame's number (and label), Open and Cancel. Returns the source to read when Open is
+    /// clicked; sets `close` when the chooser is done.
+    fn ui(&mut self, ui: &mut egui::Ui, close: &mut bool) -> Option<VolumeSource> {
+        let what = if self.labels.is_empty() { "frames" } else { "sub-bricks" };
+        ui.label(format!(
+            "{} holds {} {what}, and the window shows one 3-D volume. Open which as the {} volume?",
+            self.path.display(),
+            self.frames,
+            self.side.name()
+        ));
+        let last = self.frames.saturating_sub(1);
+        let mut opened = None;
+        ui.horizontal(|ui| {
+            let label = ui.label(format!("Frame (0 to {last})"));
+            ui.add(egui::DragValue::new(&mut self.chosen).range(0..=last)).labelled_by(label.id);
+            if let Some(name) = self.labels.get(self.chosen) {
+                ui.label(format!("\"{name}\""));
+            }
+        });
+        ui.horizontal(|ui| {
+            if ui.button("Open").clicked() {
+                let part = Some(Part::Frame(self.chosen.min(last)));
+                opened = Some(VolumeSource { path: self.path.clone(), part });
+                *close = true;
+            }
+            if ui.button("Cancel").clicked() {
+                *close = true;
+            }
+        });
+        opened
     }
 }
 
@@ -425,16 +475,29 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_4d_file_is_explained_in_the_windows_words() {
+    fn a_4d_file_asks_for_a_frame_and_an_afni_dataset_shows_its_labels() {
         let mut dialogs = OpenDialogs::default();
         let path = Path::new("/data/bold.nii.gz");
         let error = warpbench_io::Error::new(path, ErrorKind::FrameRequired { frames: 3 });
         dialogs.failed(Side::Moving, path, &error);
-        let message = dialogs.error.expect("an error dialog");
-        assert!(message.contains("moving volume") && message.contains("/data/bold.nii.gz"), "{message}");
-        assert!(message.contains("4-D file with 3 frames (0 to 2)"), "{message}");
-        // No option of another interface (the command line's --frame, the library's LoadOptions).
-        assert!(!message.contains("--frame") && !message.contains("LoadOptions"), "{message}");
+        assert!(dialogs.error.is_none(), "{:?}", dialogs.error);
+        let choice = dialogs.frames.expect("the frame chooser");
+        assert_eq!((choice.side, choice.path.as_path(), choice.frames, choice.chosen), (Side::Moving, path, 3, 0));
+        assert!(choice.labels.is_empty());
+        // AFNI's sub-brick labels, as nibabel's copy of its dataset has them.
+        let afni = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/data/afni/example4d+orig.HEAD");
+        let choice = FrameChoice::new(Side::Fixed, &afni, 3);
+        assert_eq!(choice.labels.len(), 3, "{:?}", choice.labels);
+        let header = warpbench_io::afni_dataset::Header::read(&afni).expect("the header");
+        assert_eq!(choice.labels, header.labels());
+    }
+
+    #[test]
+    fn a_source_is_named_with_its_part() {
+        let source = |part| VolumeSource { path: PathBuf::from("/data/bold.nii.gz"), part };
+        assert_eq!(source(None).name(), "bold.nii.gz");
+        assert_eq!(source(Some(Part::Frame(4))).name(), "bold.nii.gz [frame 4]");
+        assert_eq!(source(Some(Part::Series("1.2.840.113619.42".into()))).name(), "bold.nii.gz [series ...42]");
     }
 
     #[test]

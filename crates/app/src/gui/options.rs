@@ -2,6 +2,8 @@
 
 use std::path::PathBuf;
 
+use warpbench_io::Part;
+
 use crate::inputs::LandmarkSource;
 
 /// What the window opens with.
@@ -10,6 +12,8 @@ pub struct GuiOptions {
     /// `None` (with `moving` `None`): the demo pair.
     pub fixed: Option<PathBuf>,
     pub moving: Option<PathBuf>,
+    /// Which volume of `fixed` and of `moving` to read, when a file holds several (a frame, a DICOM series).
+    pub parts: [Option<Part>; 2],
     pub landmarks: Option<LandmarkSource>,
     /// Save a screenshot of the window here after `exit_after_frames` frames with the pair shown and fully rendered,
     /// then close.
@@ -44,6 +48,8 @@ pub struct GuiArgs {
     /// The moving volume to open (with --fixed).
     #[arg(long, requires = "fixed")]
     pub moving: Option<PathBuf>,
+    #[command(flatten)]
+    pub parts: crate::args::PartArgs,
     /// Landmark pairs (BigWarp CSV or BigWarp JSON, also a BigWarp settings file) to open with them.
     #[arg(long, requires = "fixed")]
     pub landmarks: Option<PathBuf>,
@@ -69,6 +75,7 @@ impl From<GuiArgs> for GuiOptions {
         Self {
             fixed: a.fixed,
             moving: a.moving,
+            parts: a.parts.parts(),
             landmarks: a.landmarks.map(LandmarkSource::Pairs),
             exit_after_frames: a.exit_after_frames.or(a.screenshot.is_some().then_some(5)),
             screenshot: a.screenshot,

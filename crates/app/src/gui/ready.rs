@@ -3,7 +3,6 @@
 //! (`rendering.rs`): fitting through the [`Fitter`], Auto-align, where glyphs and slices are, and the status
 //! bar's read-outs.
 
-use std::path::PathBuf;
 use std::sync::Arc;
 
 use eframe::egui;
@@ -205,9 +204,9 @@ impl Ready {
         side: open::Side,
         volume: Arc<Volume>,
         layer: Option<LayerData>,
-        path: PathBuf,
+        source: open::VolumeSource,
     ) -> anyhow::Result<()> {
-        self.document.layers[side as usize] = self.swap_volume(side, volume, Some(path), layer)?;
+        self.document.layers[side as usize] = self.swap_volume(side, volume, Some(source), layer)?;
         self.refit_soon();
         Ok(())
     }
@@ -219,7 +218,7 @@ impl Ready {
         &mut self,
         side: open::Side,
         volume: Arc<Volume>,
-        path: Option<PathBuf>,
+        source: Option<open::VolumeSource>,
         layer: Option<LayerData>,
     ) -> anyhow::Result<document::Look> {
         self.assist.matching.reset();
@@ -228,12 +227,15 @@ impl Ready {
             None => LayerData::prepare(&volume, DeviceFacts::of(&self.viewer.ctx))?,
         };
         self.viewer.replace_layer(side == open::Side::Fixed, &layer)?;
+        let (path, part) = source.map_or((None, None), |s| (Some(s.path), s.part));
+        let d = &mut self.document;
         match side {
-            open::Side::Fixed => (self.loaded.fixed, self.document.fixed) = (volume, path),
-            open::Side::Moving => (self.loaded.moving, self.document.moving) = (volume, path),
+            open::Side::Fixed => (self.loaded.fixed, d.fixed, d.fixed_part) = (volume, path, part),
+            open::Side::Moving => (self.loaded.moving, d.moving, d.moving_part) = (volume, path, part),
         }
-        let name = |p: &Option<PathBuf>| p.as_deref().map_or_else(|| "(demo)".to_owned(), open::file_name);
-        self.loaded.title = format!("{} -> {}", name(&self.document.fixed), name(&self.document.moving));
+        let [fixed, moving] = self.document.sources();
+        let name = |s: Option<open::VolumeSource>| s.map_or_else(|| "(demo)".to_owned(), |s| s.name());
+        self.loaded.title = format!("{} -> {}", name(fixed), name(moving));
         if side == open::Side::Fixed {
             let (lo, hi) = self.viewer.scene_box();
             let (azimuth, elevation) = (self.view.camera.azimuth_rad, self.view.camera.elevation_rad);

@@ -11,9 +11,9 @@ use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
 use warpbench_gpu::{BlendMode, RenderSettings};
-use warpbench_io::Volume;
 use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
+use warpbench_io::{Part, Volume};
 use warpbench_solver::brush::BrushStroke;
 use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
@@ -28,6 +28,13 @@ pub struct Document {
     /// `None` with `moving` `None`: the demo pair.
     pub fixed: Option<PathBuf>,
     pub moving: Option<PathBuf>,
+    /// Which volume of `fixed` was read, when it holds several: a frame of a 4-D file, a series of a DICOM folder.
+    /// Sessions written before it read the file whole.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fixed_part: Option<Part>,
+    /// The same for `moving`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moving_part: Option<Part>,
     /// LPS mm; the table's rows in order.
     #[serde(rename = "landmarks", with = "pairs_lps")]
     pub pairs: Vec<LandmarkPair>,
@@ -53,6 +60,37 @@ pub struct Document {
     /// The same for the moving volume (`register --moving-mask`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub moving_mask: Option<PathBuf>,
+}
+
+/// Where a volume is read from: its file or folder, and which of its volumes when it holds several (the session
+/// keeps both).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct VolumeSource {
+    pub path: PathBuf,
+    pub part: Option<Part>,
+}
+
+impl VolumeSource {
+    /// The whole of `path`.
+    #[must_use]
+    pub fn whole(path: PathBuf) -> Self {
+        Self { path, part: None }
+    }
+
+    /// The name the title and messages give it: the file name, and the frame, or the end of the series' UID.
+    #[must_use]
+    pub fn name(&self) -> String {
+        let file =
+            self.path.file_name().map_or_else(|| self.path.display().to_string(), |n| n.to_string_lossy().into());
+        match &self.part {
+            None => file,
+            Some(Part::Frame(t)) => format!("{file} [frame {t}]"),
+            Some(Part::Series(uid)) => {
+                let tail = uid.rsplit('.').next().unwrap_or(uid);
+                format!("{file} [series ...{tail}]")
+            }
+        }
+    }
 }
 
 /// The fixed and the moving points of the pairs a fit uses, in the same order.
@@ -102,6 +140,8 @@ impl Document {
         Self {
             fixed,
             moving,
+            fixed_part: None,
+            moving_part: None,
             pairs,
             settings: ViewSettings::default(),
             layers: volumes.map(Look::auto),
@@ -111,6 +151,15 @@ impl Document {
             fixed_mask: None,
             moving_mask: None,
         }
+    }
+
+    /// Where the fixed and the moving volume were read from (`None`: the demo pair's).
+    #[must_use]
+    pub fn sources(&self) -> [Option<VolumeSource>; 2] {
+        let source = |path: &Option<PathBuf>, part: &Option<Part>| {
+            path.clone().map(|path| VolumeSource { path, part: part.clone() })
+        };
+        [source(&self.fixed, &self.fixed_part), source(&self.moving, &self.moving_part)]
     }
 
     /// The file of the displacement field under the landmarks, if there is one.

@@ -179,6 +179,8 @@ mod tests {
             moving_from_fixed: [[0.9, -0.1, 0.05, 12.5], [0.1, 0.99, 0.0, -3.0], [0.0, 0.02, 1.01, 7.25]],
             origin: "Auto-align (rigid)".into(),
         });
+        d.fixed_part = Some(warpbench_io::Part::Frame(2));
+        d.moving_part = Some(warpbench_io::Part::Series("1.2.840.10008.42".into()));
         d
     }
 
@@ -205,6 +207,11 @@ mod tests {
         let file = SessionFile::new(document(), view(), true);
         save(&path, &file).expect("save");
         assert_eq!(load(&path).expect("load"), file);
+        // Which volume of each file, in the words docs/formats.md gives.
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+        assert_eq!(json["fixed_part"], serde_json::json!({"frame": 2}));
+        assert_eq!(json["moving_part"], serde_json::json!({"series": "1.2.840.10008.42"}));
     }
 
     #[test]
@@ -247,6 +254,7 @@ mod tests {
         let d = &file.document;
         assert_eq!((d.fixed.as_deref(), d.moving.as_deref()), (Some(std::path::Path::new("/data/ct.nii.gz")), None));
         assert!(d.field.is_none(), "no displacement field before there was one");
+        assert_eq!((&d.fixed_part, &d.moving_part), (&None, &None), "each file read whole before parts were kept");
         assert_eq!(file.view.layout, crate::settings::Layout::FourUp, "four-up before there were layouts");
         assert_eq!(
             d.pairs,

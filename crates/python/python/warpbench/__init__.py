@@ -176,11 +176,12 @@ class Volume:
         return f"Volume({self.shape}, {self.array.dtype}, spacing {np.round(self.spacing, 4).tolist()} mm{where})"
 
 
-def read_volume(path: PathLike, *, frame: Optional[int] = None) -> Volume:
+def read_volume(path: PathLike, *, frame: Optional[int] = None, series: Optional[str] = None) -> Volume:
     """Reads a volume in any format the command line reads: NIfTI-1/2, NRRD, a DICOM series (folder or file),
     MetaImage, FreeSurfer's MGH/MGZ, MINC 1 and 2, an OME-Zarr folder (0.4 to 0.6), an AFNI dataset (its ``.HEAD``,
-    ``.BRIK`` or ``.BRIK.gz``). ``frame`` chooses one frame of a 4-D file (one sub-brick of an AFNI dataset)."""
-    array, lps, header = _warpbench.read_volume(os.fspath(path), frame)
+    ``.BRIK`` or ``.BRIK.gz``). ``frame`` chooses one frame of a 4-D file (one sub-brick of an AFNI dataset);
+    ``series`` one series of a DICOM folder that holds several, by its SeriesInstanceUID."""
+    array, lps, header = _warpbench.read_volume(os.fspath(path), frame, series)
     info = json.loads(header)
     return Volume(array, lps, modality=info.get("modality"), path=path, header=info)
 

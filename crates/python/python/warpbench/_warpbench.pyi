@@ -9,7 +9,9 @@ __version__: str
 
 Grid = Tuple[Sequence[int], npt.NDArray[np.float64]]
 
-def read_volume(path: str, frame: Optional[int] = None) -> Tuple[np.ndarray, npt.NDArray[np.float64], str]: ...
+def read_volume(
+    path: str, frame: Optional[int] = None, series: Optional[str] = None
+) -> Tuple[np.ndarray, npt.NDArray[np.float64], str]: ...
 def write_volume(
     path: str, array: np.ndarray, lps_from_index: npt.NDArray[np.float64], modality: Optional[str] = None
 ) -> None: ...
