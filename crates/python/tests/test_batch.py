@@ -80,3 +80,39 @@ def test_a_case_corrects_another_tools_registration_as_the_cli_does(tmp_path):
     run_cli("warp", "--fixed", T1, "--moving", T1, "--landmarks", PAIRS, "--initial-field", composite, "--backend",
             "cpu", "--out", tmp_path / "cli.nii.gz", "--quiet")
     assert (tmp_path / "s01.nii.gz").read_bytes() == (tmp_path / "cli.nii.gz").read_bytes()
+
+
+def test_a_case_reads_the_frame_chosen_of_a_4d_file_as_the_cli_does(tmp_path):
+    """``Case(moving_frame=N)``: the frame is read for the fit and the output, and passed to ``register``; a case
+    without a choice fails alone, saying how to choose."""
+    from warpbench.batch import run_case
+
+    nib = pytest.importorskip("nibabel")
+    np = pytest.importorskip("numpy")
+    t1 = nib.load(str(T1))
+    data = np.asanyarray(t1.dataobj).astype(np.float32)
+    four_d = tmp_path / "two_frames.nii.gz"
+    nib.save(nib.Nifti1Image(np.stack([data, data[::-1] * 0.5 + 7.0], axis=3), t1.affine), str(four_d))
+
+    case = Case("s01", T1, four_d, PAIRS, out=tmp_path / "s01.nii.gz", moving_frame=1)
+    assert case.parts() == {"moving_frame": 1}
+    result = run_case(case)
+    assert result.status == "ok", result.error
+    run_cli("warp", "--fixed", T1, "--moving", four_d, "--moving-frame", "1", "--landmarks", PAIRS, "--backend",
+            "cpu", "--out", tmp_path / "cli.nii.gz", "--quiet")
+    assert (tmp_path / "s01.nii.gz").read_bytes() == (tmp_path / "cli.nii.gz").read_bytes()
+    frame0 = run_case(Case("s02", T1, four_d, PAIRS, out=tmp_path / "s02.nii.gz", moving_frame=0))
+    assert frame0.status == "ok", frame0.error
+    assert (tmp_path / "s02.nii.gz").read_bytes() != (tmp_path / "s01.nii.gz").read_bytes()
+
+    registered = run_case(
+        Case("s03", T1, four_d, PAIRS, out=tmp_path / "s03.nii.gz", moving_frame=1, register=True,
+             options={"levels": 1, "iterations": 2})
+    )
+    assert registered.status == "ok", registered.error
+    assert registered.registration["levels"]
+
+    unchosen = run_case(Case("s04", T1, four_d, PAIRS, out=tmp_path / "s04.nii.gz"))
+    assert unchosen.status == "failed"
+    assert "two_frames.nii.gz: 4-D file with 2 frames: pass frame=N (0 to 1)" in unchosen.error
+    assert not (tmp_path / "s04.nii.gz").exists()

@@ -43,6 +43,8 @@ class Case:
         method, stiffness, initial, initial_field: as :func:`warpbench.fit` (``initial_field``: another tool's
             registration of the pair, which the landmarks correct).
         register: refine the landmark warp by intensities (:func:`warpbench.register`) before writing.
+        fixed_frame, moving_frame: the frame to read of a 4-D fixed or moving file (from 0).
+        fixed_series, moving_series: the series to read of a DICOM folder of several, by its SeriesInstanceUID.
     """
 
     name: str
@@ -58,6 +60,20 @@ class Case:
     initial_field: Optional[PathLike] = None
     register: bool = False
     options: Dict[str, Any] = field(default_factory=dict)
+    fixed_frame: Optional[int] = None
+    moving_frame: Optional[int] = None
+    fixed_series: Optional[str] = None
+    moving_series: Optional[str] = None
+
+    def parts(self) -> Dict[str, Any]:
+        """The frame and series choices that were made, by the command line's option names."""
+        chosen = {
+            "fixed_frame": self.fixed_frame,
+            "moving_frame": self.moving_frame,
+            "fixed_series": self.fixed_series,
+            "moving_series": self.moving_series,
+        }
+        return {k: v for k, v in chosen.items() if v is not None}
 
     @property
     def report_path(self) -> Path:
@@ -123,8 +139,8 @@ def run_case(case: Case, *, overwrite: bool = False) -> CaseResult:
         except (OSError, ValueError, KeyError, TypeError):
             pass  # an unreadable report: run the case again
     try:
-        fixed = wb.read_volume(case.fixed)
-        moving = wb.read_volume(case.moving)
+        fixed = wb.read_volume(case.fixed, frame=case.fixed_frame, series=case.fixed_series)
+        moving = wb.read_volume(case.moving, frame=case.moving_frame, series=case.moving_series)
         pairs = wb.read_landmarks(case.landmarks)
         warp = wb.fit(
             pairs,
@@ -147,6 +163,7 @@ def run_case(case: Case, *, overwrite: bool = False) -> CaseResult:
                 "initial": case.initial,
                 "initial_field": case.initial_field,
                 "force": True,
+                **case.parts(),
             }
             options.update(case.options)
             registration = wb.register(
