@@ -67,9 +67,10 @@ for round in $(seq "$rounds"); do
         app_pid=$!
         wait_for "$log" '$3 == "full"' 600
         window="$(xdotool search --sync --pid "$app_pid" --onlyvisible | head -1)"
-        # The 3-D view fills the top right of the window (side panel 260 pt on the left, slices below).
-        xdotool mousemove --window "$window" 900 250 mousedown 1
-        for step in $(seq 10); do xdotool mousemove --window "$window" $((900 + 6 * step)) 250; sleep 0.05; done
+        # The default layout is four-up: the 3-D view is the top left pane of the views (x 320-625, y 75-435 at the
+        # default 1280×860; the settings panel is left of it, the axial slice right of it).
+        xdotool mousemove --window "$window" 440 250 mousedown 1
+        for step in $(seq 10); do xdotool mousemove --window "$window" $((440 + 6 * step)) 250; sleep 0.05; done
         xdotool mouseup 1
         wait_for "$log" '$4 == 1 {r=1} r && $3 == "full"' 600
         kill "$app_pid" 2>/dev/null || true

@@ -178,6 +178,14 @@ const SHADING_NONE: u32 = 0u;
 const SHADING_DVR: u32 = 1u;
 const SHADING_ISO: u32 = 2u;
 
+// What the frame's two volumes' flags have in common, which the raycast and slice pipelines are specialised on
+// (crates/gpu/src/raycast.rs, LayerVariant): whether any volume is filtered by hand (VOLUME_MANUAL_FILTER), and whether
+// every volume has a prefiltered copy (VOLUME_HAS_PREFILTER). A branch on a volume's flag that the variant settles is
+// compiled out: a CPU driver runs both sides of a branch it cannot prove uniform, masked, so the hand filter and the
+// gradients without a copy cost there even where no volume takes them. The defaults keep every branch (picks).
+override ANY_MANUAL_FILTER: bool = true;
+override ALL_PREFILTERED: bool = false;
+
 // Below this squared gradient length (normalised texel units per mm) the normal is undefined: |n·l| = 1.
 const MIN_GRADIENT_SQ: f32 = 1e-12;
 
@@ -492,7 +500,7 @@ fn outside_tex(p_tex: vec3<f32>) -> bool {
 
 // The volume's normalised texel at p_tex.
 fn volume_texel(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f32 {
-    if EXACT_FILTER || (v.flags & VOLUME_MANUAL_FILTER) != 0u {
+    if EXACT_FILTER || (ANY_MANUAL_FILTER && (v.flags & VOLUME_MANUAL_FILTER) != 0u) {
         return sample_manual(vol, p_tex);
     }
     return textureSampleLevel(vol, volume_sampler, p_tex, 0.0).r;
@@ -515,7 +523,7 @@ fn volume_value(vol: texture_3d<f32>, v: VolumeUniforms, p_tex: vec3<f32>) -> f3
 // v(Φ(x − h e_i))] / 2h.
 fn warped_gradient_at(vol: texture_3d<f32>, ctrl: texture_3d<f32>, grad: texture_3d<f32>, v: VolumeUniforms, x_ref: vec3<f32>, y_lps: vec3<f32>) -> vec3<f32> {
     let h = u.gradient_step_mm;
-    if (v.flags & VOLUME_HAS_PREFILTER) == 0u {
+    if !ALL_PREFILTERED && (v.flags & VOLUME_HAS_PREFILTER) == 0u {
         var g = vec3<f32>(0.0);
         for (var i = 0; i < 3; i++) {
             var e = vec3<f32>(0.0);

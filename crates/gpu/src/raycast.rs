@@ -32,8 +32,11 @@
 //! with opacity > 0; iso mode takes, per layer, the first sample with value ≥ [`LayerStyle::iso_value`], refines it
 //! by bisection, lights it opaque, and blends the two layers' hits once by the [`BlendMode`] (the checkerboard cell
 //! is chosen at the nearer hit). Each shading mode (and each set of deformations computed in the shader,
-//! [`RaycastUniforms::deformations`]) has its own pipeline (WGSL overrides `SHADING`, `DEFORMATIONS`), created on first
-//! use, so the unlit pass compiles none of the lighting code and pays nothing for it.
+//! [`RaycastUniforms::deformations`], and what the two volumes' flags have in common: a volume filtered by hand, both
+//! prefiltered) has its own pipeline (WGSL overrides `SHADING`, `DEFORMATIONS`, `ANY_MANUAL_FILTER`,
+//! `ALL_PREFILTERED`), created on first use, so the unlit pass compiles none of the lighting code and pays nothing for
+//! it, and a CPU driver, which runs both sides of a branch it cannot prove uniform, none of the branches no volume
+//! takes.
 //!
 //! Types: [`RaycastRenderer`] (long-lived: pipeline, layout, samplers) and [`RaycastDrawData`] (one frame: bind
 //! group and uniforms over the volumes, control textures and transfer functions). [`RaycastUniforms`] is built by
@@ -83,8 +86,57 @@ pub const RAYCAST_PREINTEGRATED: u32 = 2;
 /// has a view deformation. The pipelines are specialised on them (WGSL override `DEFORMATIONS`).
 pub const DEFORM_PROCEDURAL: u32 = 1;
 pub const DEFORM_VIEW: u32 = 2;
-/// Pipeline variants per shading mode: every combination of the `DEFORM_*` bits.
-const DEFORMATION_VARIANTS: usize = 4;
+
+/// What a frame's two volumes' flags have in common, which the raycast and slice pipelines are specialised on (WGSL
+/// overrides `ANY_MANUAL_FILTER`, `ALL_PREFILTERED`): a branch on a volume's flag that the variant settles is compiled
+/// out. The image is the same either way; the cost is not on a CPU driver, which runs both sides of a branch it cannot
+/// prove uniform (masked): on lavapipe the hand filter and the gradients without a prefiltered copy cost every sample
+/// even where no volume takes them (the demo pair's shaded frame took twice as long, `docs/benchmarks.md`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct LayerVariant {
+    /// A volume is filtered by hand ([`VOLUME_MANUAL_FILTER`]).
+    any_manual_filter: bool,
+    /// Both volumes have a prefiltered copy ([`VOLUME_HAS_PREFILTER`]).
+    all_prefiltered: bool,
+}
+
+impl LayerVariant {
+    /// Every branch kept (what the picks compile).
+    const ALL: Self = Self { any_manual_filter: true, all_prefiltered: false };
+
+    fn of(u: &RaycastUniforms) -> Self {
+        let flags = [u.fixed.flags, u.moving.flags];
+        Self {
+            any_manual_filter: flags.iter().any(|f| f & VOLUME_MANUAL_FILTER != 0),
+            all_prefiltered: flags.iter().all(|f| f & VOLUME_HAS_PREFILTER != 0),
+        }
+    }
+
+    /// The WGSL overrides that select it.
+    fn constants(self) -> [(&'static str, f64); 2] {
+        [
+            ("ANY_MANUAL_FILTER", f64::from(u8::from(self.any_manual_filter))),
+            ("ALL_PREFILTERED", f64::from(u8::from(self.all_prefiltered))),
+        ]
+    }
+}
+
+/// Which of the module's entry points a pipeline runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Entry {
+    Raycast,
+    Slice,
+}
+
+/// What a pipeline is specialised on: its entry point, the shading mode's code (`SHADING`; raycast only), the
+/// deformations computed in the shader (`DEFORMATIONS`) and the volumes' flags ([`LayerVariant`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+struct PipelineKey {
+    entry: Entry,
+    shading: u32,
+    deformations: u32,
+    variant: LayerVariant,
+}
 
 /// Pre-integration tables a renderer keeps for reuse ([`RaycastRenderer`]): two layers at the full and the interactive
 /// rate.
@@ -503,11 +555,8 @@ pub struct RaycastRenderer {
     device: wgpu::Device,
     module: wgpu::ShaderModule,
     pipeline_layout: wgpu::PipelineLayout,
-    /// One per [`ShadingMode`] and deformations ([`RaycastUniforms::deformations`]), created on first use
-    /// ([`Self::pipeline`]).
-    pipelines: [[std::sync::OnceLock<wgpu::ComputePipeline>; DEFORMATION_VARIANTS]; 3],
-    /// The slice pipelines (`cs_slice`), one per deformations, created on first use.
-    slice_pipelines: [std::sync::OnceLock<wgpu::ComputePipeline>; DEFORMATION_VARIANTS],
+    /// The raycast and slice pipelines, one per [`PipelineKey`], created on first use ([`Self::pipeline`]).
+    pipelines: std::sync::Mutex<std::collections::HashMap<PipelineKey, wgpu::ComputePipeline>>,
     /// The frame's bind group (group [`FRAME_GROUP`]), shared with the picking pass.
     layout: wgpu::BindGroupLayout,
     /// The output's bind group (group [`OUTPUT_GROUP`]).
@@ -664,8 +713,7 @@ impl RaycastRenderer {
             device: device.clone(),
             module,
             pipeline_layout,
-            pipelines: Default::default(),
-            slice_pipelines: Default::default(),
+            pipelines: std::sync::Mutex::default(),
             layout,
             output_layout,
             volume_sampler,
@@ -678,20 +726,50 @@ impl RaycastRenderer {
             volumes_filterable,
         };
         // The unlit pipeline now, so that shader errors surface here; the others on first use.
-        renderer.pipeline(ShadingMode::None.code(), 0);
+        renderer.pipeline(PipelineKey {
+            entry: Entry::Raycast,
+            shading: ShadingMode::None.code(),
+            deformations: 0,
+            variant: LayerVariant::ALL,
+        });
         ctx.check_errors()?;
         Ok(renderer)
     }
 
-    /// The pipeline specialised for shading mode `code` (the WGSL override `SHADING`) and the deformations
-    /// `deformations` (`DEFORMATIONS`), created on first use: each compiles only its own code, so the unlit pass
-    /// carries none of the lighting, and a frame without deformations computed in the shader none of theirs.
-    fn pipeline(&self, code: u32, deformations: u32) -> &wgpu::ComputePipeline {
-        let code = code.min(ShadingMode::Iso.code());
-        let deformations = deformations & (DEFORM_PROCEDURAL | DEFORM_VIEW);
-        self.pipelines[code as usize][deformations as usize].get_or_init(|| {
-            let constants = [("SHADING", f64::from(code)), ("DEFORMATIONS", f64::from(deformations))];
-            self.create_pipeline("raycast", Self::ENTRY_POINT, &constants)
+    /// The pipeline for `key`, created on first use: each compiles only its own code, so the unlit pass carries none
+    /// of the lighting, a frame without deformations computed in the shader none of theirs, and a volume none of the
+    /// branches its flags do not take.
+    fn pipeline(&self, key: PipelineKey) -> wgpu::ComputePipeline {
+        let mut pipelines = self.pipelines.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        pipelines
+            .entry(key)
+            .or_insert_with(|| {
+                let [manual, prefiltered] = key.variant.constants();
+                let deformations = ("DEFORMATIONS", f64::from(key.deformations));
+                match key.entry {
+                    Entry::Raycast => {
+                        let shading = ("SHADING", f64::from(key.shading));
+                        let constants = [shading, deformations, manual, prefiltered];
+                        self.create_pipeline("raycast", Self::ENTRY_POINT, &constants)
+                    }
+                    Entry::Slice => {
+                        self.create_pipeline("slice", Self::SLICE_ENTRY_POINT, &[deformations, manual, prefiltered])
+                    }
+                }
+            })
+            .clone()
+    }
+
+    /// The pipeline of `entry` for `uniforms`' shading mode, deformations and volumes.
+    fn pipeline_for(&self, entry: Entry, uniforms: &RaycastUniforms) -> wgpu::ComputePipeline {
+        self.pipeline(PipelineKey {
+            entry,
+            shading: match entry {
+                Entry::Raycast => uniforms.shading_mode.min(ShadingMode::Iso.code()),
+                Entry::Slice => 0,
+            },
+            deformations: uniforms.deformations() & (DEFORM_PROCEDURAL | DEFORM_VIEW),
+            variant: LayerVariant::of(uniforms),
         })
     }
 
@@ -715,15 +793,6 @@ impl RaycastRenderer {
         }
         cache.push(table.clone());
         table
-    }
-
-    /// The slice pipeline: the same module and layout, entry point [`Self::SLICE_ENTRY_POINT`].
-    fn slice_pipeline(&self, deformations: u32) -> &wgpu::ComputePipeline {
-        let deformations = deformations & (DEFORM_PROCEDURAL | DEFORM_VIEW);
-        self.slice_pipelines[deformations as usize].get_or_init(|| {
-            let constants = [("DEFORMATIONS", f64::from(deformations))];
-            self.create_pipeline("slice", Self::SLICE_ENTRY_POINT, &constants)
-        })
     }
 
     fn create_pipeline(&self, label: &str, entry_point: &str, constants: &[(&str, f64)]) -> wgpu::ComputePipeline {
@@ -752,14 +821,14 @@ impl RaycastRenderer {
     /// Renders the slice `data` ([`RaycastUniforms::for_slice`]) into `target` (the plane's size; every pixel is
     /// written, the hit depth is left as it was) and submits.
     pub fn render_slice(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        let pipeline = self.slice_pipeline(data.uniforms.deformations());
-        self.dispatch(ctx, pipeline, data, target, 0..target.height, "slice")
+        let pipeline = self.pipeline_for(Entry::Slice, &data.uniforms);
+        self.dispatch(ctx, &pipeline, data, target, 0..target.height, "slice")
     }
 
     /// Renders `data` into `target` (every pixel is written) and submits.
     pub fn render(&self, ctx: &GpuContext, data: &RaycastDrawData, target: &RenderTarget) -> Result<()> {
-        let pipeline = self.pipeline(data.uniforms.shading_mode, data.uniforms.deformations());
-        self.dispatch(ctx, pipeline, data, target, 0..target.height, "raycast")
+        let pipeline = self.pipeline_for(Entry::Raycast, &data.uniforms);
+        self.dispatch(ctx, &pipeline, data, target, 0..target.height, "raycast")
     }
 
     /// Renders the rows `rows` of `data`'s frame (a band across the whole width, rows counted from the top) into
@@ -781,8 +850,8 @@ impl RaycastRenderer {
         if rows.start == 0 && rows.end < target.height {
             target.clear(ctx);
         }
-        let pipeline = self.pipeline(data.uniforms.shading_mode, data.uniforms.deformations());
-        self.dispatch(ctx, pipeline, data, target, rows, "raycast")
+        let pipeline = self.pipeline_for(Entry::Raycast, &data.uniforms);
+        self.dispatch(ctx, &pipeline, data, target, rows, "raycast")
     }
 
     /// Runs `pipeline` over the rows `rows` of `target` (one invocation per pixel) and submits.
@@ -1055,5 +1124,37 @@ impl RaycastDrawData {
     #[must_use]
     pub fn bind_group(&self) -> &wgpu::BindGroup {
         &self.bind_group
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A variant compiles out a branch only where no volume takes it: the hand filter when no volume has it, the
+    /// gradients without a copy when both volumes have one.
+    #[test]
+    fn a_variant_keeps_every_branch_some_volume_takes() {
+        let variant = |fixed: u32, moving: u32| {
+            let mut u = RaycastUniforms::zeroed();
+            (u.fixed.flags, u.moving.flags) = (fixed | VOLUME_VISIBLE, moving | VOLUME_HAS_WARP);
+            LayerVariant::of(&u)
+        };
+        let both = VOLUME_HAS_PREFILTER;
+        assert_eq!(variant(both, both), LayerVariant { any_manual_filter: false, all_prefiltered: true });
+        assert_eq!(variant(both, 0), LayerVariant { any_manual_filter: false, all_prefiltered: false });
+        assert_eq!(
+            variant(0, both | VOLUME_MANUAL_FILTER),
+            LayerVariant { any_manual_filter: true, all_prefiltered: false }
+        );
+        assert_eq!(
+            variant(VOLUME_MANUAL_FILTER | both, both),
+            LayerVariant { any_manual_filter: true, all_prefiltered: true }
+        );
+        // The variant that keeps every branch is what a pipeline without these overrides compiles (WGSL defaults).
+        let source = include_str!("../../../shaders/raycast.wgsl");
+        assert!(source.contains("override ANY_MANUAL_FILTER: bool = true;"));
+        assert!(source.contains("override ALL_PREFILTERED: bool = false;"));
+        assert_eq!(LayerVariant::ALL.constants(), [("ANY_MANUAL_FILTER", 1.0), ("ALL_PREFILTERED", 0.0)]);
     }
 }
