@@ -35,16 +35,6 @@ pub enum Part {
     Frame(usize),
 }
 
-impl fmt::Display for Part {
-    /// `series 1.2.3` or `frame 4`, as messages and the window's title name it.
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::Series(uid) => write!(f, "series {uid}"),
-            Self::Frame(t) => write!(f, "frame {t}"),
-        }
-    }
-}
-
 /// A progress callback. Returning `ControlFlow::Break(())` cancels the load.
 pub type ProgressFn<'a> = dyn FnMut(Progress) -> ControlFlow<()> + Send + 'a;
 

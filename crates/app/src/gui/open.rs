@@ -1,6 +1,6 @@
 //! Opening files from the window: volumes read on a worker thread with a progress bar and a cancel button, a chooser
-//! when a DICOM folder holds several series or a file several frames, the File menu of native file dialogs ([`super::dialog`]), files dropped
-//! on the window, and the dialog that reports a file that could not be opened.
+//! when a DICOM folder holds several series or a file several frames, the File menu of native file dialogs
+//! ([`super::dialog`]), files dropped on the window, and the dialog that reports a file that could not be opened.
 //!
 //! Everything here is state plus `*_ui` functions that return what the user asked for ([`OpenEvent`]); the
 //! workbench ([`super::Workbench`]) acts on the events.
@@ -490,14 +490,6 @@ mod tests {
         assert_eq!(choice.labels.len(), 3, "{:?}", choice.labels);
         let header = warpbench_io::afni_dataset::Header::read(&afni).expect("the header");
         assert_eq!(choice.labels, header.labels());
-    }
-
-    #[test]
-    fn a_source_is_named_with_its_part() {
-        let source = |part| VolumeSource { path: PathBuf::from("/data/bold.nii.gz"), part };
-        assert_eq!(source(None).name(), "bold.nii.gz");
-        assert_eq!(source(Some(Part::Frame(4))).name(), "bold.nii.gz [frame 4]");
-        assert_eq!(source(Some(Part::Series("1.2.840.113619.42".into()))).name(), "bold.nii.gz [series ...42]");
     }
 
     #[test]

@@ -409,3 +409,16 @@ mod pairs_lps {
             .collect())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_source_is_named_with_its_part() {
+        let source = |part| VolumeSource { path: PathBuf::from("/data/bold.nii.gz"), part };
+        assert_eq!(source(None).name(), "bold.nii.gz");
+        assert_eq!(source(Some(Part::Frame(4))).name(), "bold.nii.gz [frame 4]");
+        assert_eq!(source(Some(Part::Series("1.2.840.113619.42".into()))).name(), "bold.nii.gz [series ...42]");
+    }
+}
