@@ -73,6 +73,20 @@ impl PartArgs {
         };
         [part(self.fixed_frame, &self.fixed_series), part(self.moving_frame, &self.moving_series)]
     }
+
+    /// These choices, with `defaults`' part (fixed, moving) for a side that made none.
+    #[must_use]
+    pub fn or(self, defaults: [Option<Part>; 2]) -> Self {
+        let [fixed, moving] = self.parts();
+        let [default_fixed, default_moving] = defaults;
+        let [(fixed_frame, fixed_series), (moving_frame, moving_series)] =
+            [fixed.or(default_fixed), moving.or(default_moving)].map(|part| match part {
+                None => (None, None),
+                Some(Part::Frame(n)) => (Some(n), None),
+                Some(Part::Series(uid)) => (None, Some(uid)),
+            });
+        Self { fixed_frame, fixed_series, moving_frame, moving_series }
+    }
 }
 
 /// The landmarks and the warp around them, shared by `warp`, `field`, `render`, `points`, `transform` and `suggest`.

@@ -351,7 +351,7 @@ pub fn run(args: FieldArgs, out: &mut dyn Write) -> Result<FieldSummary, Failure
     let ReportArgs { json, force, quiet } = report;
     let (format, direction) = (format_arg.flavour_for(&out_path), FieldDirection::from(direction));
     let reference_path = reference.clone();
-    let inputs = WarpInputs::from_args(volumes, pairs, (given_field, field_format.format), reference)?;
+    let inputs = WarpInputs::from_args(volumes, pairs, (given_field, field_format.format), reference, quiet)?;
     let output = OutputFile { path: out_path, force };
     let input_paths = inputs.paths();
     let pair_output = format_arg.pair_output(&output.path);

@@ -29,8 +29,9 @@ use warpbench_solver::bspline::BSplineParams;
 use warpbench_solver::method::Method;
 use warpbench_solver::spaces::{Aabb, Fixed, Moving, as_fixed, as_moving};
 
-use crate::args::{MethodArgs, PairArgs, VolumePairArgs};
+use crate::args::{MethodArgs, PairArgs, PartArgs, VolumePairArgs};
 use crate::progress::Bar;
+use crate::project::document::VolumeSource;
 use crate::project::field_file::{FieldFile, FieldReadFormat};
 use crate::settings::{MethodKind, Stiffness};
 
@@ -138,6 +139,22 @@ pub fn load_volume(volume: &VolumeArg<'_>, quiet: bool) -> Result<Volume> {
         }
     }
     Ok(volume)
+}
+
+/// Whether `a` and `b` name one file: the same path once resolved (the same text where either cannot be).
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    }
+}
+
+/// A part in words: "frame 3", "series 1.2.840.…".
+fn describe_part(part: &warpbench_io::Part) -> String {
+    match part {
+        warpbench_io::Part::Frame(n) => format!("frame {n}"),
+        warpbench_io::Part::Series(uid) => format!("series {uid}"),
+    }
 }
 
 /// What a file of `frames` frames is, in its own format's words: "an AFNI dataset of 3 sub-bricks", "4-D file with 5
@@ -410,6 +427,8 @@ pub struct LandmarkWarp {
     pub warp: PairWarp,
     /// A session's choices for Refine by intensities, which `register --session` takes unless told otherwise.
     pub session_refine: Option<SessionRefine>,
+    /// The files a session read, fixed then moving, with the frame or series of each (`None`s without a session).
+    pub session_sources: [Option<VolumeSource>; 2],
 }
 
 /// What a session chose for Refine by intensities.
@@ -441,6 +460,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                         .map(|path| BaseField::Given { path, format: args.initial_field_format }),
                 },
                 session_refine: None,
+                session_sources: [None, None],
             });
         };
         let session = crate::project::session::load(&path)?;
@@ -453,6 +473,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         let s = &session.document.settings;
         let method = checked_method(s.method, s.stiffness, Some(s.bspline_levels))?;
         let document = session.document;
+        let session_sources = document.sources();
         let session_refine = Some(SessionRefine {
             metric: document.settings.refine_metric,
             fixed_mask: document.fixed_mask,
@@ -460,6 +481,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         });
         Ok(Self {
             session_refine,
+            session_sources,
             landmarks: Some(Landmarks::read_from(LandmarkSource::Session(path), document.pairs)),
             warp: PairWarp {
                 method: MethodChoice::Given(method),
@@ -479,6 +501,36 @@ impl LandmarkWarp {
             .landmarks
             .ok_or_else(|| anyhow!("give --landmarks, --moving-points with --fixed-points, or --session"))?;
         Ok((landmarks, self.warp))
+    }
+
+    /// `parts` with the session's frame or series for a side that chose none, where `paths` (fixed, moving) name
+    /// the file the session read (`None`: no such volume): a session of a 4-D file or a DICOM folder of several series reads the same volume
+    /// on the command line as in the window. Each part taken is said on stderr, unless `quiet`.
+    #[must_use]
+    pub fn session_parts(&self, paths: [Option<&Path>; 2], parts: PartArgs, quiet: bool) -> PartArgs {
+        let given = parts.parts();
+        let defaults = [0, 1].map(|side| {
+            let (source, path) = (self.session_sources[side].as_ref()?, paths[side]?);
+            let part = source.part.clone().filter(|_| given[side].is_none() && same_file(path, &source.path))?;
+            if !quiet {
+                let option = ["fixed", "moving"][side];
+                eprintln!(
+                    "warpbench: {}: reading {}, as the session did (--{option}-frame or --{option}-series chooses \
+                     another)",
+                    path.display(),
+                    describe_part(&part)
+                );
+            }
+            Some(part)
+        });
+        parts.or(defaults)
+    }
+
+    /// `volumes` with the session's parts ([`Self::session_parts`]).
+    #[must_use]
+    pub fn session_volumes(&self, volumes: VolumePairArgs, quiet: bool) -> VolumePairArgs {
+        let parts = self.session_parts([Some(&volumes.fixed), Some(&volumes.moving)], volumes.parts.clone(), quiet);
+        VolumePairArgs { parts, ..volumes }
     }
 
     /// The method ([`MethodChoice::method`] on these landmarks).
@@ -516,9 +568,12 @@ pub struct PairVolumes {
 }
 
 impl PairInputs {
-    /// Parses the arguments once ([`LandmarkWarp`]); landmarks are required.
-    pub fn new(volumes: VolumePairArgs, pairs: PairArgs, reference: Option<PathBuf>) -> Result<Self> {
-        let (landmarks, warp) = LandmarkWarp::try_from(pairs)?.require()?;
+    /// Parses the arguments once ([`LandmarkWarp`]); landmarks are required. A session's frame or series is read
+    /// where the command line chooses none ([`LandmarkWarp::session_parts`]).
+    pub fn new(volumes: VolumePairArgs, pairs: PairArgs, reference: Option<PathBuf>, quiet: bool) -> Result<Self> {
+        let given = LandmarkWarp::try_from(pairs)?;
+        let volumes = given.session_volumes(volumes, quiet);
+        let (landmarks, warp) = given.require()?;
         Ok(Self { volumes, landmarks, warp, reference })
     }
 

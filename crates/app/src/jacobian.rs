@@ -164,7 +164,7 @@ pub fn run(args: JacobianArgs, out: &mut dyn Write) -> Result<JacobianSummary, F
     let JacobianArgs { volumes, pairs, reference, quantity, direction, out: out_path, report } = args;
     let direction = FieldDirection::from(direction);
     let ReportArgs { json, force, quiet } = report;
-    let inputs = PairInputs::new(volumes, pairs, reference).map_err(Failure::BadInput)?;
+    let inputs = PairInputs::new(volumes, pairs, reference, quiet).map_err(Failure::BadInput)?;
     let output = OutputFile { path: out_path, force };
     output.check(&inputs.paths()).map_err(Failure::BadInput)?;
     crate::warp::check_data_file(&output.path, &inputs.paths(), force).map_err(Failure::BadInput)?;

@@ -188,7 +188,7 @@ pub struct MappedPoint {
 pub fn run(args: PointsArgs, out: &mut dyn Write) -> Result<PointsReport, Failure> {
     let PointsArgs { volumes, pairs, from, input, out: out_path, ras, report: ReportArgs { json, force, quiet } } =
         args;
-    let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
+    let inputs = PairInputs::new(volumes, pairs, None, quiet).map_err(Failure::BadInput)?;
     let mut input_paths = inputs.paths();
     input_paths.push(&input);
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;

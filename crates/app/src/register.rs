@@ -531,6 +531,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let format_arg = format;
     let format = format_arg.flavour_for(&out_field);
     let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
+    let volumes = given.session_volumes(volumes, quiet);
     // The session's choices for Refine by intensities, where the command line does not make them.
     let session = given.session_refine.clone();
     let metric = metric.or(session.as_ref().map(|s| s.metric)).unwrap_or_default();

@@ -201,7 +201,8 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         .map(|p| crate::warp::read_pullback_field(p, None, quiet))
         .transpose()?;
     given.warp.check_start().map_err(Failure::BadInput)?;
-    let [fixed_part, moving_part] = parts.parts();
+    let [fixed_part, moving_part] =
+        given.session_parts([Some(&fixed_path), moving_path.as_deref()], parts, quiet).parts();
     let fixed = VolumeArg { path: &fixed_path, part: fixed_part.as_ref(), role: Role::Fixed };
     let fixed = inputs::load_volume(&fixed, quiet).map_err(Failure::BadInput)?;
     let moving = moving_path

@@ -117,6 +117,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     let params = SuggestParams { search_radius_mm, ..SuggestParams::default() };
     params.validate().map_err(|e| Failure::BadInput(anyhow!("--search-radius-mm: {e}")))?;
     let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+    let volumes = given.session_volumes(volumes, quiet);
     let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path(), points.as_path()];
     input_paths.extend(given.paths());
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;

@@ -651,7 +651,7 @@ pub fn check_field_name<'p>(out: &Path, field_path: &'p Path) -> Result<&'p str,
 /// `DeformationFieldTransform` over its sampled field ([`field_file_beside`]).
 pub fn run(args: TransformArgs, out: &mut dyn Write) -> Result<TransformSummary, Failure> {
     let TransformArgs { volumes, pairs, out: out_path, format, report: ReportArgs { json, force, quiet } } = args;
-    let inputs = PairInputs::new(volumes, pairs, None).map_err(Failure::BadInput)?;
+    let inputs = PairInputs::new(volumes, pairs, None, quiet).map_err(Failure::BadInput)?;
     let input_paths = inputs.paths();
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
     check_transform_name(&out_path, format)?;

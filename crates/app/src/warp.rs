@@ -124,8 +124,10 @@ impl WarpInputs {
         pairs: PairArgs,
         (field, format): (Option<PathBuf>, FieldReadFormat),
         reference: Option<PathBuf>,
+        quiet: bool,
     ) -> Result<Self, Failure> {
         let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+        let volumes = given.session_volumes(volumes, quiet);
         match (field, given.landmarks) {
             (Some(field), None) => Ok(Self::Field(FieldInputs { volumes, field, format, reference })),
             (None, Some(landmarks)) => Ok(Self::Pairs(PairInputs { volumes, landmarks, warp: given.warp, reference })),
@@ -985,7 +987,7 @@ pub fn run(args: WarpArgs, out: &mut dyn Write) -> Result<WarpReport, Failure> {
         out_dicom,
         report: ReportArgs { json, force, quiet },
     } = args;
-    let inputs = WarpInputs::from_args(volumes, pairs, (field, field_format.format), reference)?;
+    let inputs = WarpInputs::from_args(volumes, pairs, (field, field_format.format), reference, quiet)?;
     let output = OutputFile { path: out_path, force };
     output.check(&inputs.paths()).map_err(Failure::BadInput)?;
     check_data_file(&output.path, &inputs.paths(), force).map_err(Failure::BadInput)?;

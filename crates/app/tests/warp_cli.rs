@@ -589,6 +589,74 @@ fn a_4d_input_is_read_by_the_frame_chosen_for_its_side() {
 }
 
 #[test]
+fn a_session_of_a_4d_file_reads_the_frame_the_window_read() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let bold = data("nifti/functional.nii");
+    let frame = |t: usize| warpbench_io::LoadOptions::new().frame(t).open(&bold).expect("the fixture's frame");
+    let grid = frame(0);
+    let [ni, nj, nk] = grid.dims.map(|n| n - 1);
+    let landmarks: Vec<_> = [[0, 0, 0], [ni, 0, 0], [0, nj, 0], [0, 0, nk], [ni / 2, nj / 2, nk / 2]]
+        .iter()
+        .enumerate()
+        .map(|(n, &[i, j, k])| {
+            let x = grid.voxel_lps(i, j, k).coords();
+            serde_json::json!({"name": format!("Pt-{n}"), "active": true, "moving_lps": x, "fixed_lps": x})
+        })
+        .collect();
+    // A session as the window saves one after "Choose a frame": the file, and frame 3 of it on both sides.
+    let session = dir.path().join("bold.warpbench.json");
+    let doc = serde_json::json!({
+        "schema": "warpbench-session/1", "fixed": s(&bold), "moving": s(&bold),
+        "fixed_part": {"frame": 3}, "moving_part": {"frame": 3}, "landmarks": landmarks,
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 64, "show_landmarks": true},
+        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true},
+                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true}],
+        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": true,
+    });
+    std::fs::write(&session, doc.to_string()).expect("write the session");
+    let warp = |name: &str, fixed: &Path, extra: &[&str]| {
+        let out = dir.path().join(format!("{name}.nii.gz"));
+        let mut args = vec!["warp", "--fixed", s(fixed), "--moving", s(&bold), "--session", s(&session)];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--out", s(&out)]);
+        (warpbench(&args), out)
+    };
+    // The session's frame on both sides, said on stderr.
+    let (result, out) = warp("session", &bold, &[]);
+    assert_ok(&result);
+    assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        err.contains(
+            "functional.nii: reading frame 3, as the session did (--moving-frame or --moving-series chooses another)"
+        ),
+        "{err}"
+    );
+    assert!(err.contains("--fixed-frame or --fixed-series chooses another"), "{err}");
+    // The command line's choice wins, side by side: frame 4 of the moving file on frame 3's grid.
+    let (result, out) = warp("four", &bold, &["--moving-frame", "4", "--quiet"]);
+    assert_ok(&result);
+    assert!(result.stderr.is_empty(), "{}", String::from_utf8_lossy(&result.stderr));
+    assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(4).data);
+    assert_ne!(frame(3).data, frame(4).data, "the fixture's frames differ");
+    // Another file than the session's takes nothing from it: the same file by another name is still the session's.
+    let copy = dir.path().join("copy.nii");
+    std::fs::copy(&bold, &copy).expect("copy");
+    let (result, out) = warp("other", &copy, &["--quiet"]);
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("copy.nii: 4-D file with 20 frames") && err.contains("--fixed-frame N"), "{err}");
+    assert!(!out.exists());
+    let relative = bold.parent().expect("folder").join("../nifti/functional.nii");
+    let (result, out) = warp("relative", &relative, &["--quiet"]);
+    assert_ok(&result);
+    assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
+}
+
+#[test]
 fn a_dicom_folder_of_several_series_is_read_by_the_series_chosen() {
     let dir = tempfile::tempdir().expect("tempdir");
     let folder = data("dicom/mixed_ct5n_mr_small");
