@@ -9,10 +9,11 @@
 //! - forward: d = T₀⁻¹ ∘ s, s fitted on pᵢ → T₀(qᵢ) over the moving box (so d(pᵢ) ≈ qᵢ).
 //!
 //! Each is the fitted warp followed by an affine map, which stays in the method's family
-//! ([`FittedWarp::followed_by`]): the GPU, the exporters and the ITK transform file take it as any fit. For a rigid
-//! T₀ the TPS and the linear fits are the same warps as without T₀ (they are equivariant under rigid maps); what T₀
+//! ([`FittedWarp::followed_by`]): the GPU, the exporters and the ITK transform file take it as any fit. A TPS
+//! (interpolating or smoothing) and an affine fit are linear in their data and fit affine data exactly, so on any T₀
+//! they are the same warps as without it ([`tps_ignores`]); the rigid and similarity fits are for a rigid T₀. What T₀
 //! changes is everything else: with fewer pairs than the method needs, T₀ alone is the warp (u = T₀, d = T₀⁻¹), and
-//! the hierarchical B-spline and a smoothing TPS refine the aligned volumes instead of undoing the whole offset.
+//! the hierarchical B-spline refines the aligned volumes instead of undoing the whole offset.
 
 use std::path::Path;
 
@@ -250,6 +251,15 @@ pub fn refines(method: &Method, pairs: usize) -> bool {
     pairs >= method.needs().min_pairs
 }
 
+/// Whether the pairs refine T₀ with a TPS, which makes T₀ vanish from the warp: a TPS fit (interpolating or
+/// smoothing, λ fixed) is linear in its data and fits affine data exactly, so T₀ ∘ (the fit of qᵢ → T₀⁻¹(pᵢ)) is
+/// the fit of qᵢ → pᵢ, and likewise for the forward map, to rounding. A landmark drag then takes its O(N²) path on the
+/// raw pairs ([`crate::fit::DragFit`]).
+#[must_use]
+pub fn tps_ignores(method: &Method, pairs: usize) -> bool {
+    matches!(method, Method::Tps { .. }) && refines(method, pairs)
+}
+
 /// The pull-back u = T₀ ∘ r (module docs); T₀ alone when there are too few pairs for `method`.
 ///
 /// # Errors
@@ -344,5 +354,44 @@ mod tests {
         let rigid = Method::Linear(LinearKind::Rigid);
         assert_eq!(describe(&rigid, 3, 2, Some(&s)), "test alone (2 pairs; rigid needs 3)");
         assert_eq!(describe(&rigid, 3, 5, Some(&s)), "rigid on test");
+    }
+
+    /// A TPS fit and an affine fit are linear in their data and keep affine data exactly, so on top of any affine T₀
+    /// (here sheared and scaled) each is the fit of the raw pairs, the TPS interpolating or smoothing: what lets a
+    /// landmark drag take its O(N²) path with a starting transform ([`tps_ignores`]).
+    #[test]
+    fn a_tps_on_an_affine_start_is_the_tps_of_the_raw_pairs() {
+        let linear = Matrix3::new(1.1, 0.2, -0.05, 0.0, 0.9, 0.15, 0.1, -0.1, 1.3);
+        let s = Start::new(AffineWarp::new(linear, [5.0, -3.0, 8.0]), "sheared").expect("invertible");
+        let fixed: Vec<Point3<Fixed>> = (0..12)
+            .map(|i| {
+                let t = f64::from(i);
+                Point3::new(40.0 * (0.7 * t).sin(), 35.0 * (1.3 * t).cos(), 3.0 * t - 18.0)
+            })
+            .collect();
+        let moving: Vec<Point3<Moving>> = fixed
+            .iter()
+            .map(Point3::coords)
+            .map(|[x, y, z]| Point3::new(x + 3.0 * (y / 20.0).sin(), y - 2.0, z + 0.1 * x))
+            .collect();
+        let fixed_box = Aabb::new(Point3::new(-60.0, -60.0, -60.0), Point3::new(60.0, 60.0, 60.0));
+        let moving_box = Aabb::new(Point3::new(-70.0, -70.0, -70.0), Point3::new(70.0, 70.0, 70.0));
+        let affine = Method::Linear(LinearKind::Affine);
+        for tps in [Method::Tps { stiffness: 0.0 }, Method::Tps { stiffness: 2.5 }, affine] {
+            assert_eq!(tps_ignores(&tps, fixed.len()), tps != affine);
+            let (u, d) =
+                (pullback(&s, &tps, &fixed, &moving, fixed_box), forward(&s, &tps, &fixed, &moving, moving_box));
+            let (u, d) = (u.expect("fit"), d.expect("fit"));
+            let raw_u = tps.fit(&fixed, &moving, fixed_box).expect("fit");
+            let raw_d = tps.fit(&moving, &fixed, moving_box).expect("fit");
+            for i in 0..40 {
+                let x = [f64::from(i) * 2.9 - 55.0, 30.0 - f64::from(i) * 1.7, f64::from(i % 9) * 12.0 - 48.0];
+                let (a, b) = (u.as_ref().apply_raw(x), raw_u.as_ref().apply_raw(x));
+                let (c, e) = (d.as_ref().apply_raw(x), raw_d.as_ref().apply_raw(x));
+                assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-9 && (c[k] - e[k]).abs() < 1e-9), "{tps}: {x:?}");
+            }
+        }
+        assert!(!tps_ignores(&Method::Tps { stiffness: 0.0 }, 3), "too few pairs: T₀ alone");
+        assert!(!tps_ignores(&Method::Linear(LinearKind::Rigid), 12));
     }
 }

@@ -16,6 +16,7 @@ use egui_kittest::kittest::Queryable;
 use warpbench_app::fit::ControlRoute;
 use warpbench_app::gui::{Command, End, GuiOptions, Ready, Workbench};
 use warpbench_app::inputs::LandmarkSource;
+use warpbench_app::project::document::StartingTransform;
 use warpbench_io::geometry::Point3;
 use warpbench_io::landmarks::LandmarkPair;
 use warpbench_solver::method::FittedWarp;
@@ -242,7 +243,8 @@ fn shown_pullback(ready: &Ready) -> (Tps<Moving, Fixed>, Vec<[f32; 4]>, bool) {
 /// A drag on the real-GPU route (issue 28): every event updates both warps' coefficients in O(N²) and the GPU
 /// evaluates the pull-back into the control texture (no refit, no CPU texture); after a sequence of events that
 /// texture equals the one the release's full refit evaluates, within the f32 evaluation bound of both
-/// ([`f32_evaluation_bound`]), and the moving glyphs stand where the refit's forward warp puts them.
+/// ([`f32_evaluation_bound`]), and the moving glyphs stand where the refit's forward warp puts them. The second drag
+/// is on a starting transform.
 #[test]
 fn a_drag_on_the_gpu_evaluates_the_updated_coefficients_as_a_full_refit_would() {
     if no_adapter() {
@@ -281,6 +283,15 @@ fn a_drag_on_the_gpu_evaluates_the_updated_coefficients_as_a_full_refit_would() 
 
     for (pair, end) in [(5, End::Fixed), (17, End::Moving)] {
         let ready = harness.state_mut().ready_mut().expect("loaded");
+        if end == End::Moving {
+            // On a starting transform (an affine one, as Auto-align's or a read one), which a TPS makes vanish from
+            // the warp: the drag keeps its O(N²) path, and the release's refit on the start gives the same warp.
+            let linear = nalgebra::Matrix3::new(1.04, 0.03, -0.02, -0.01, 0.97, 0.05, 0.02, -0.04, 1.01);
+            let start = StartingTransform::new(linear, [2.0, -1.5, 3.0], "Auto-align (affine)".into());
+            ready.document.start = Some(start);
+            ready.refit();
+            assert!(ready.fit.error.is_none(), "{:?}", ready.fit.error);
+        }
         let (_, before, _) = shown_pullback(ready);
         let start = match end {
             End::Fixed => ready.document.pairs[pair].fixed,

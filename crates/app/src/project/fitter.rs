@@ -150,8 +150,10 @@ impl Fitter {
         }
         let plain = layers.brush.is_none() && layers.field.is_none();
         let on_gpu = plain && !alone && evaluation == Evaluation::Gpu && fit::gpu_evaluates(&method);
-        // A drag's O(N²) updates know the pairs alone, not a layer under or over them.
-        let fast = if full || !plain || layers.start.is_some() {
+        // A drag's O(N²) updates know the pairs alone, not a layer under or over them; a starting transform under a
+        // TPS vanishes from the warp (`start::tps_ignores`), so the drag takes the raw pairs.
+        let start_vanishes = layers.start.is_none() || crate::start::tps_ignores(&method, moving.len());
+        let fast = if full || !plain || !start_vanishes {
             None
         } else {
             let route = if on_gpu { ControlRoute::Gpu } else { ControlRoute::Cpu };
