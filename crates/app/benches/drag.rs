@@ -28,7 +28,9 @@
 //! (on a CPU driver, the prefilter as a compute pass at upload instead of on the CPU while preparing), `--refine`
 //! (after the events, the release as the window paces it on a CPU driver ([`warpbench_app::gui::pacing`]): the
 //! reduced view, then the full view band by band, once with the cost per pixel unknown and once with it measured; it
-//! reports the longest band, which is what a UI frame waits for, against the one-pass full view). The adapter is wgpu's
+//! reports the longest band, which is what a UI frame waits for, against the one-pass full view), `--field` (a smooth
+//! displacement field under the pairs, as Refine by intensities leaves one: the drag updates the landmark layers and
+//! applies the field to the CPU texture; with `--gpu-eval` it refits in full, as the window does). The adapter is wgpu's
 //! default, or the one `WGPU_BACKEND` chooses. It only runs when `--bench` is among the arguments (as `cargo bench`
 //! passes), so `cargo test --benches` does not run it.
 
@@ -62,6 +64,15 @@ struct Options {
     gpu_prefilter: bool,
     end: DraggedEnd,
     event_fit: EventFit,
+    under: Under,
+}
+
+/// What lies under the pairs in the warp stack.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Under {
+    Nothing,
+    /// A smooth displacement field (`--field`, [`field_layers`]).
+    Field,
 }
 
 /// How a TPS drag event fits.
@@ -105,6 +116,7 @@ fn options() -> Result<Options, String> {
         gpu_prefilter: false,
         end: DraggedEnd::Fixed,
         event_fit: EventFit::DragFastPath,
+        under: Under::Nothing,
     };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut it = args.iter();
@@ -126,6 +138,7 @@ fn options() -> Result<Options, String> {
             "--refine" => o.refine = true,
             "--gpu-prefilter" => o.gpu_prefilter = true,
             "--full-refit" => o.event_fit = EventFit::FullRefit,
+            "--field" => o.under = Under::Field,
             "--end" => {
                 o.end = match value()?.as_str() {
                     "fixed" => DraggedEnd::Fixed,
@@ -228,7 +241,14 @@ fn main() {
     let boxes =
         (warpbench_app::inputs::volume_box::<Fixed>(&fixed), warpbench_app::inputs::volume_box::<Moving>(&moving));
     let (mut q, mut p) = pairs(&fixed, o.pairs);
-    let fast = o.event_fit == EventFit::DragFastPath && matches!(method, Method::Tps { .. });
+    let stack = match o.under {
+        Under::Field => field_layers(&fixed),
+        Under::Nothing => Layers::default(),
+    };
+    // A field under the pairs keeps the full fit on the GPU route (`DragFit::start`).
+    let fast = o.event_fit == EventFit::DragFastPath
+        && matches!(method, Method::Tps { .. })
+        && !(o.under == Under::Field && o.gpu_eval);
     let route = if o.gpu_eval { ControlRoute::Gpu } else { ControlRoute::Cpu };
     let (mut drag, mut drag_start) = (None::<DragFit>, Duration::ZERO);
     let (q0, p0) = (q[0].coords(), p[0].coords());
@@ -244,7 +264,8 @@ fn main() {
         let moving_pts: Vec<_> = p.iter().copied().map(as_moving).collect();
         if fast && drag.is_none() {
             // The drag's first event, as the window starts it.
-            let start = DragFit::start(&method, (&fixed_pts, &moving_pts), boxes.0, o.grid, (0, o.end), route);
+            let start =
+                DragFit::start(&method, (&fixed_pts, &moving_pts), (boxes.0, o.grid), (0, o.end), route, &stack);
             drag = Some(start.expect("a TPS").unwrap_or_else(|e| panic!("{e:#}")));
             drag_start = t0.elapsed();
         }
@@ -254,13 +275,11 @@ fn main() {
             drag.show(&event, &mut viewer).unwrap_or_else(|e| panic!("{e:#}"));
             (event.into_fitted(), t1)
         } else if o.gpu_eval {
-            let fitted =
-                fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, &Layers::default());
+            let fitted = fit_warp_on_gpu(&method, &fixed_pts, &moving_pts, boxes, o.grid, &mut viewer, &stack);
             (fitted.unwrap_or_else(|e| panic!("{e:#}")), Instant::now())
         } else {
-            let (fitted, prepared) =
-                fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, &Layers::default())
-                    .unwrap_or_else(|e| panic!("{e:#}"));
+            let (fitted, prepared) = fit_warp(&method, &fixed_pts, &moving_pts, boxes, o.grid, filterable, &stack)
+                .unwrap_or_else(|e| panic!("{e:#}"));
             let t1 = Instant::now();
             viewer.set_control(Some(&prepared));
             (fitted, t1)
@@ -450,4 +469,28 @@ fn slices(viewer: &Viewer, fixed: &Volume, settings: &RenderSettings) {
     let best = (0..5).map(|_| render()).min().unwrap_or_default();
     let sizes: Vec<String> = planes.iter().map(|p| format!("{}x{}", p.size.0, p.size.1)).collect();
     println!("three slices ({}): best of 5 {:.1} ms", sizes.join(", "), best.as_secs_f64() * 1e3);
+}
+
+/// A smooth displacement field under the landmarks (`--field`), on the fixed volume's box at 2 mm, up to 4 mm: what
+/// the window's Refine by intensities or a field chosen under the landmarks leaves as a layer of the warp stack.
+fn field_layers(fixed: &Volume) -> Layers {
+    use warpbench_app::project::stack::FieldLayer;
+    use warpbench_io::geometry::{Index, Transform};
+    use warpbench_solver::field::SampledField;
+    let fixed_box = warpbench_app::inputs::volume_box::<Fixed>(fixed);
+    let (lo, hi) = (fixed_box.min.coords(), fixed_box.max.coords());
+    let dims: [usize; 3] = std::array::from_fn(|a| ((hi[a] - lo[a]) / 2.0).ceil() as usize + 1);
+    let lps_from_index = Transform::<Lps, Index>::from_scale_translation([2.0; 3], lo);
+    let mut displacements = Vec::with_capacity(dims.iter().product());
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let [x, y, z] = [i, j, k].map(|n| n as f64 * 2.0);
+                let d = [4.0 * (y / 40.0).sin(), 3.0 * (z / 35.0).cos(), 2.0 * (x / 50.0).sin()];
+                displacements.push(d.map(|v| v as f32));
+            }
+        }
+    }
+    let field = SampledField::new(dims, lps_from_index, displacements).unwrap_or_else(|e| panic!("{e}"));
+    Layers { field: Some(std::sync::Arc::new(FieldLayer::pullback(field, "the bench's field"))), ..Layers::default() }
 }

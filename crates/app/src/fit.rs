@@ -22,6 +22,7 @@
 use std::fmt;
 
 use anyhow::anyhow;
+use rayon::prelude::*;
 use warpbench_gpu::{BSplineDesc, ControlGridDesc, LatticeDesc, PreparedControl, TpsDesc};
 use warpbench_io::geometry::Point3;
 use warpbench_solver::SolverError;
@@ -174,49 +175,60 @@ enum DragControl {
 /// never see the fast path.
 #[derive(Debug)]
 pub struct DragFit {
-    drag: PairDrag,
+    drag: DragPairs,
     control: DragControl,
     fixed: Vec<Point3<Fixed>>,
     moving: Vec<Point3<Moving>>,
 }
 
+/// What a [`DragFit`] updates.
+#[derive(Debug)]
+enum DragPairs {
+    /// u and d themselves: no layer under the pairs, or a starting transform alone, which a TPS makes vanish
+    /// ([`crate::start::tps_ignores`]).
+    Plain(PairDrag),
+    /// The landmark layers on a field (and perhaps a starting transform) B: r fitted on qᵢ → B⁻¹(pᵢ), s on
+    /// pᵢ → B(qᵢ), and u = B ∘ r, d = B⁻¹ ∘ s ([`crate::project::stack`]).
+    OnField { drag: PairDrag<Fixed, Moving>, layers: Box<Layers> },
+}
+
 /// One drag event's warps ([`DragFit::event`]), before its control texture is made ([`DragFit::show`]).
 #[derive(Debug)]
 pub struct DragEvent {
-    step: DragStep,
+    step: EventStep,
     fixed: Vec<Point3<Fixed>>,
     moving: Vec<Point3<Moving>>,
 }
 
+/// The coefficients of one event, as [`DragPairs`] holds them.
+#[derive(Debug)]
+enum EventStep {
+    Plain(DragStep),
+    OnField(DragStep<Fixed, Moving>, Box<Layers>),
+}
+
 impl DragEvent {
-    /// The pull-back u = `moving_from_fixed` with the dragged point moved (what the control texture holds).
-    #[must_use]
-    pub fn pullback(&self) -> &Tps<Moving, Fixed> {
-        &self.step.pullback
-    }
-
-    /// The forward warp d = `fixed_from_moving` with the dragged point moved (where the moving glyphs are drawn).
-    #[must_use]
-    pub fn forward(&self) -> &Tps<Fixed, Moving> {
-        &self.step.forward
-    }
-
     /// Both warps as [`fit_warp`] gives them.
     #[must_use]
     pub fn into_fitted(self) -> Fitted {
-        Fitted {
-            pairs: self.moving.len(),
-            pullback: StackPullback::folded(FittedWarp::Tps(self.step.pullback)),
-            forward: StackForward::folded(FittedWarp::Tps(self.step.forward)),
-            fixed: self.fixed,
-            moving: self.moving,
-        }
+        let (pullback, forward) = match self.step {
+            EventStep::Plain(step) => (
+                StackPullback::folded(FittedWarp::Tps(step.pullback)),
+                StackForward::folded(FittedWarp::Tps(step.forward)),
+            ),
+            EventStep::OnField(step, layers) => (
+                StackPullback::on_field((*layers).clone(), FittedWarp::Tps(step.pullback)),
+                StackForward::on_field(*layers, FittedWarp::Tps(step.forward)),
+            ),
+        };
+        Fitted { pairs: self.moving.len(), pullback, forward, fixed: self.fixed, moving: self.moving }
     }
 }
 
 impl DragFit {
-    /// Starts the drag of pair `pair`'s `end` (0-based among `fixed`/`moving`) for a TPS `method` (`None` for any
-    /// other method: it keeps the full fit), with the control texture of [`fit_warp`] (`grid_n`³ over the fixed box)
+    /// Starts the drag of pair `pair`'s `end` (0-based among `fixed`/`moving`) for a TPS `method` on the stack's
+    /// other `layers` (`None` for any other method, a brush, or a field with the texture on the GPU, which evaluates
+    /// a TPS alone: those keep the full fit), with the control texture of [`fit_warp`] (`grid_n`³ over the fixed box)
     /// made on `route`: both directions factorised, and on the CPU route the drag start's texture sampled.
     ///
     /// # Errors
@@ -226,19 +238,41 @@ impl DragFit {
     pub fn start(
         method: &Method,
         (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
-        fixed_box: Aabb<Fixed>,
-        grid_n: usize,
+        (fixed_box, grid_n): (Aabb<Fixed>, usize),
         (pair, end): (usize, DraggedEnd),
         route: ControlRoute,
+        layers: &Layers,
     ) -> Option<anyhow::Result<Self>> {
         let Method::Tps { stiffness } = *method else { return None };
+        let on_field = layers.field.is_some();
+        let start_vanishes = layers.start.is_none() || crate::start::tps_ignores(method, moving.len());
+        if layers.brush.is_some() || (on_field && route == ControlRoute::Gpu) || !(on_field || start_vanishes) {
+            return None;
+        }
         Some((|| {
             enough_pairs(method, moving.len())?;
             let grid = scene::control_grid(fixed_box, grid_n)?;
-            let drag = PairDrag::new(fixed, moving, pair, end, Regularisation::Smoothing(stiffness))
-                .map_err(|e| anyhow!("{method}: {e}"))?;
+            let regularisation = Regularisation::Smoothing(stiffness);
+            let drag = if on_field {
+                let unbased: Vec<Point3<Fixed>> =
+                    moving.iter().map(|p| Point3::from_array(layers.base_inverse_raw(p.coords()))).collect();
+                let based: Vec<Point3<Moving>> =
+                    fixed.iter().map(|q| Point3::from_array(layers.base_raw(q.coords()))).collect();
+                let drag = PairDrag::on_base((fixed, &unbased), (moving, &based), (pair, end), regularisation);
+                DragPairs::OnField {
+                    drag: drag.map_err(|e| anyhow!("{method}: {e}"))?,
+                    layers: Box::new(Layers { start: layers.start.clone(), field: layers.field.clone(), brush: None }),
+                }
+            } else {
+                DragPairs::Plain(
+                    PairDrag::new(fixed, moving, pair, end, regularisation).map_err(|e| anyhow!("{method}: {e}"))?,
+                )
+            };
             let control = match route {
-                ControlRoute::Cpu => DragControl::Cpu(DragTexture::new(&drag, grid)),
+                ControlRoute::Cpu => DragControl::Cpu(match &drag {
+                    DragPairs::Plain(d) => DragTexture::new(d, grid),
+                    DragPairs::OnField { drag, .. } => DragTexture::new(drag, grid),
+                }),
                 ControlRoute::Gpu => DragControl::Gpu(control_grid_desc(&grid)),
             };
             Ok(Self { drag, control, fixed: fixed.to_vec(), moving: moving.to_vec() })
@@ -254,12 +288,28 @@ impl DragFit {
         }
     }
 
+    /// Whether this drag was started on `layers`' starting transform and field (what a drag event may not change).
+    #[must_use]
+    pub fn same_layers(&self, layers: &Layers) -> bool {
+        let field =
+            |f: &Option<std::sync::Arc<crate::project::stack::FieldLayer>>| f.as_ref().map(std::sync::Arc::as_ptr);
+        match &self.drag {
+            DragPairs::Plain(_) => layers.field.is_none() && layers.brush.is_none(),
+            DragPairs::OnField { layers: own, .. } => {
+                own.start == layers.start && field(&own.field) == field(&layers.field) && layers.brush.is_none()
+            }
+        }
+    }
+
     /// Both warps for the pairs (`fixed`, `moving`), as [`fit_warp`] fits them, in O(N²); `None` when the pairs
     /// differ from the drag's start in anything but the dragged point, or the fast path refuses (a point landing on
     /// another): then refit in full.
     #[must_use]
     pub fn event(&self, fixed: &[Point3<Fixed>], moving: &[Point3<Moving>]) -> Option<DragEvent> {
-        let (pair, end) = (self.drag.pair(), self.drag.end());
+        let (pair, end) = match &self.drag {
+            DragPairs::Plain(d) => (d.pair(), d.end()),
+            DragPairs::OnField { drag, .. } => (drag.pair(), drag.end()),
+        };
         match moved_point((&self.fixed, &self.moving), fixed, moving) {
             Some((i, e)) if (i, e) == (pair, end) => {}
             None if fixed == self.fixed.as_slice() && moving == self.moving.as_slice() => {}
@@ -269,7 +319,18 @@ impl DragFit {
             DraggedEnd::Fixed => fixed[pair].coords(),
             DraggedEnd::Moving => moving[pair].coords(),
         };
-        let step = self.drag.step(to).ok()?;
+        let step = match &self.drag {
+            DragPairs::Plain(d) => EventStep::Plain(d.step(to).ok()?),
+            // The moved point as each layer sees it: a moving point is r's datum B⁻¹(p′) and s's centre, a fixed
+            // point r's centre and s's datum B(q′).
+            DragPairs::OnField { drag, layers } => {
+                let (pullback_to, forward_to) = match end {
+                    DraggedEnd::Moving => (layers.base_inverse_raw(to), to),
+                    DraggedEnd::Fixed => (to, layers.base_raw(to)),
+                };
+                EventStep::OnField(drag.step_on_base(pullback_to, forward_to).ok()?, layers.clone())
+            }
+        };
         Some(DragEvent { step, fixed: fixed.to_vec(), moving: moving.to_vec() })
     }
 
@@ -287,7 +348,8 @@ impl DragFit {
         Some(self.filled(texture, event, float32_filterable))
     }
 
-    /// `texture` filled for `event` and prepared for upload.
+    /// `texture` filled for `event` and prepared for upload: on a field, the landmark layer's r(x) − x followed by
+    /// the base, u(x) − x = B(r(x)) − x at each texel centre.
     fn filled(
         &self,
         texture: &DragTexture,
@@ -295,7 +357,20 @@ impl DragFit {
         float32_filterable: bool,
     ) -> anyhow::Result<PreparedControl> {
         let mut texels = vec![[0.0f32; 4]; texture.grid().texel_count()];
-        texture.fill(&self.drag, &event.step, &mut texels);
+        match (&self.drag, &event.step) {
+            (DragPairs::Plain(d), EventStep::Plain(step)) => texture.fill(d, step, &mut texels),
+            (DragPairs::OnField { drag, layers }, EventStep::OnField(step, _)) => {
+                texture.fill(drag, step, &mut texels);
+                let grid = *texture.grid();
+                let [nx, ny, _] = grid.dims;
+                texels.par_iter_mut().enumerate().for_each(|(i, t)| {
+                    let x = grid.texel_centre([i % nx, (i / nx) % ny, i / (nx * ny)]);
+                    let u = layers.base_raw(std::array::from_fn(|a| x[a] + f64::from(t[a])));
+                    *t = [(u[0] - x[0]) as f32, (u[1] - x[1]) as f32, (u[2] - x[2]) as f32, 0.0];
+                });
+            }
+            _ => return Err(anyhow!("the drag's control texture: an event of another drag (a bug)")),
+        }
         let texture = texture.texture(texels);
         PreparedControl::prepare(&scene::control_desc(&texture.grid, &texture), float32_filterable)
             .map_err(|e| anyhow!("the drag's control texture: {e}"))
@@ -307,13 +382,19 @@ impl DragFit {
     /// # Errors
     /// The texture cannot be made (not finite) or the GPU pass fails.
     pub fn show(&self, event: &DragEvent, target: &mut dyn ControlTarget) -> anyhow::Result<()> {
-        match &self.control {
-            DragControl::Cpu(texture) => {
+        match (&self.control, &event.step) {
+            (DragControl::Cpu(texture), _) => {
                 let prepared = self.filled(texture, event, target.float32_filterable())?;
                 target.upload(&prepared);
                 Ok(())
             }
-            DragControl::Gpu(grid) => target.evaluate_tps(&TpsParts::new(event.pullback()).desc(), grid),
+            (DragControl::Gpu(grid), EventStep::Plain(step)) => {
+                target.evaluate_tps(&TpsParts::new(&step.pullback).desc(), grid)
+            }
+            // A drag on a field is never started on the GPU route (`start`).
+            (DragControl::Gpu(_), EventStep::OnField(..)) => {
+                Err(anyhow!("the drag's control texture: a field under the pairs on the GPU route (a bug)"))
+            }
         }
     }
 }
@@ -514,21 +595,35 @@ mod tests {
         )
     }
 
-    /// Each drag event through [`DragFit`] gives the warps of the full [`fit_warp`] (to 1e-6 mm at probe points), and
-    /// a change of any other point leaves the fast path.
-    #[test]
-    fn drag_events_match_the_full_fit() {
+    /// A smooth field under the pairs, up to 4 mm, on a 5 mm grid over the fixed box.
+    fn field_layers() -> Layers {
+        use crate::project::stack::FieldLayer;
+        use warpbench_io::geometry::{Index, Lps, Transform};
+        use warpbench_solver::field::SampledField;
+        let dims = [41, 41, 41];
+        let lps_from_index = Transform::<Lps, Index>::from_scale_translation([5.0; 3], [-100.0; 3]);
+        let displacements = (0..41 * 41 * 41)
+            .map(|i| {
+                let [x, y, z] = [i % 41, (i / 41) % 41, i / 1681].map(|n| n as f64 * 5.0 - 100.0);
+                [4.0 * (y / 40.0).sin(), 3.0 * (z / 35.0).cos(), 2.0 * (x / 50.0).sin()].map(|v| v as f32)
+            })
+            .collect();
+        let field = SampledField::new(dims, lps_from_index, displacements).expect("field");
+        Layers { field: Some(std::sync::Arc::new(FieldLayer::pullback(field, "test field"))), ..Layers::default() }
+    }
+
+    /// Each drag event through [`DragFit`] on `layers` gives the warps of the full [`fit_warp`] on them (to 1e-6 mm at
+    /// probe points) and its control texture (within f32 rounding), and a change of any other point leaves the fast
+    /// path.
+    fn check_drags(layers: &Layers, routes: &[(DraggedEnd, ControlRoute)]) {
         let method = Method::Tps { stiffness: 0.0 };
         let (mut fixed, mut moving) = pairs(40);
-        for (end, route) in [
-            (DraggedEnd::Fixed, ControlRoute::Cpu),
-            (DraggedEnd::Moving, ControlRoute::Cpu),
-            (DraggedEnd::Fixed, ControlRoute::Gpu),
-        ] {
-            let drag = DragFit::start(&method, (&fixed, &moving), boxes().0, 16, (7, end), route)
+        for &(end, route) in routes {
+            let drag = DragFit::start(&method, (&fixed, &moving), (boxes().0, 16), (7, end), route, layers)
                 .expect("a TPS")
                 .expect("start");
             assert_eq!(drag.route(), route);
+            assert!(drag.same_layers(layers));
             for step in [0.5, 2.0, -6.0] {
                 match end {
                     DraggedEnd::Fixed => fixed[7] = Point3::new(fixed[7].coords()[0] + step, 1.0, 2.0),
@@ -539,19 +634,19 @@ mod tests {
                 let texture = drag.control_texture(&event, true);
                 assert_eq!(texture.is_some(), route == ControlRoute::Cpu, "{route:?}");
                 let (full, full_texture) =
-                    fit_warp(&method, &fixed, &moving, boxes(), 16, true, &Layers::default()).expect("full fit");
+                    fit_warp(&method, &fixed, &moving, boxes(), 16, true, layers).expect("full fit");
                 if let Some(texture) = texture {
-                    // f32 texels of the same displacements (tests/tps_drag.rs holds them within 8 ε of the largest).
+                    // f32 texels of the same displacements (tests/tps_drag.rs holds them within 8 ε of the largest;
+                    // on a field the base follows r(x), rounded to f32 on the way, whose error the field's slope
+                    // (under 0.2 here) carries over: at most 16 ε).
                     let texels = texture.expect("a texture").texels;
                     let largest = full_texture.texels.iter().flatten().fold(0.0f32, |m, v| m.max(v.abs()));
                     let worst = texels
                         .iter()
                         .zip(&full_texture.texels)
                         .flat_map(|(a, b)| (0..4).map(move |c| (a[c] - b[c]).abs()));
-                    assert!(
-                        worst.fold(0.0f32, f32::max) <= 8.0 * f32::EPSILON * largest,
-                        "{end:?}: the drag's texture"
-                    );
+                    let tol = if layers.field.is_some() { 16.0 } else { 8.0 } * f32::EPSILON * largest;
+                    assert!(worst.fold(0.0f32, f32::max) <= tol, "{end:?}: the drag's texture");
                 }
                 let fast = event.into_fitted();
                 for i in 0..50 {
@@ -568,6 +663,17 @@ mod tests {
             assert!(drag.event(&other, &moving).is_none(), "another point moved: refit");
             (fixed, moving) = pairs(40);
         }
+    }
+
+    #[test]
+    fn drag_events_match_the_full_fit() {
+        let routes = [
+            (DraggedEnd::Fixed, ControlRoute::Cpu),
+            (DraggedEnd::Moving, ControlRoute::Cpu),
+            (DraggedEnd::Fixed, ControlRoute::Gpu),
+        ];
+        check_drags(&Layers::default(), &routes);
+        let (fixed, moving) = pairs(40);
         assert_eq!(moved_point((&fixed, &moving), &fixed, &moving), None);
         let mut two = fixed.clone();
         two[1] = Point3::new(1.0, 1.0, 1.0);
@@ -576,6 +682,32 @@ mod tests {
         assert_eq!(moved_point((&fixed, &moving), &two, &moving), None);
         let other = Method::Linear(warpbench_solver::linear::LinearKind::Affine);
         let start = (0, DraggedEnd::Fixed);
-        assert!(DragFit::start(&other, (&fixed, &moving), boxes().0, 16, start, ControlRoute::Gpu).is_none());
+        let none = Layers::default();
+        assert!(DragFit::start(&other, (&fixed, &moving), (boxes().0, 16), start, ControlRoute::Gpu, &none).is_none());
+    }
+
+    /// On a field under the pairs (the window's Refine by intensities, a field chosen under the landmarks), the
+    /// drag updates the landmark layers and puts the field after them, as the full fit does; the GPU route, which
+    /// evaluates a TPS alone, keeps the full fit.
+    #[test]
+    fn drag_events_on_a_field_match_the_full_fit() {
+        let layers = field_layers();
+        check_drags(&layers, &[(DraggedEnd::Fixed, ControlRoute::Cpu), (DraggedEnd::Moving, ControlRoute::Cpu)]);
+        let (fixed, moving) = pairs(40);
+        let tps = Method::Tps { stiffness: 0.0 };
+        let moved = (3, DraggedEnd::Fixed);
+        assert!(DragFit::start(&tps, (&fixed, &moving), (boxes().0, 16), moved, ControlRoute::Gpu, &layers).is_none());
+        // Another starting transform or field under a drag on a field is another drag.
+        let drag = DragFit::start(&tps, (&fixed, &moving), (boxes().0, 16), moved, ControlRoute::Cpu, &layers)
+            .expect("a TPS")
+            .expect("start");
+        let shifted = crate::start::Start::new(
+            warpbench_solver::linear::AffineWarp::new(nalgebra::Matrix3::identity(), [1.0, 0.0, 0.0]),
+            "shifted",
+        )
+        .expect("start");
+        assert!(!drag.same_layers(&Layers { start: Some(shifted), ..layers.clone() }));
+        assert!(!drag.same_layers(&field_layers()), "the same values, another field read");
+        assert!(!drag.same_layers(&Layers::default()));
     }
 }

@@ -34,6 +34,13 @@
 //! [`crate::pairs::SAME_POSITION_RTOL`] of that side's extent), or a rank-2 update whose 2×2 matrix S is
 //! numerically singular, gives [`SolverError::Degenerate`]: the caller refits in full, whose error names the pairs.
 //! Pairs given twice are refused when the drag starts ([`PairDrag::new`]).
+//!
+//! # On a base
+//!
+//! Under a displacement field B (the warp stack's base), the landmark layers are r, fitted on qᵢ → B⁻¹(pᵢ), and s,
+//! on pᵢ → B(qᵢ), and u = B ∘ r, d = B⁻¹ ∘ s. A drag still changes one datum and one centre of each: a moving point
+//! moves r's datum to B⁻¹(p′) and s's centre to p′, a fixed point r's centre to q′ and s's datum to B(q′), so the
+//! same updates serve ([`PairDrag::on_base`], [`PairDrag::step_on_base`]); the caller evaluates B.
 
 #![allow(
     clippy::inline_always,
@@ -322,14 +329,18 @@ pub enum DraggedEnd {
 /// One pair's drag: both directions kept factorised, with pair k's unit responses gₖ = L⁻¹ eₖ. [`PairDrag::step`]
 /// gives both warps with the pair's point at a new position in O(N²) (module docs); the pull-back's control texture
 /// is the caller's ([`DragTexture`] on the CPU, or the GPU from the step's pull-back).
+///
+/// On a base B under the landmark warp (a displacement field, [`PairDrag::on_base`]) the two directions are the
+/// landmark layers r and s, fitted on data the base has moved: r on qᵢ → B⁻¹(pᵢ), in `U`, and s on pᵢ → B(qᵢ), in
+/// `D`; without one, `U` = [`Moving`] and `D` = [`Fixed`], and they are u and d themselves.
 #[derive(Debug)]
-pub struct PairDrag {
+pub struct PairDrag<U: Space = Moving, D: Space = Fixed> {
     pair: usize,
     end: DraggedEnd,
-    /// u = `moving_from_fixed`: centres qᵢ, data pᵢ.
-    pullback: FactoredTps<Moving, Fixed>,
-    /// d = `fixed_from_moving`: centres pᵢ, data qᵢ.
-    forward: FactoredTps<Fixed, Moving>,
+    /// u = `moving_from_fixed` (or r): centres qᵢ, data pᵢ (or B⁻¹(pᵢ)).
+    pullback: FactoredTps<U, Fixed>,
+    /// d = `fixed_from_moving` (or s): centres pᵢ, data qᵢ (or B(qᵢ)).
+    forward: FactoredTps<D, Moving>,
     /// L⁻¹ eₖ of each.
     g_pullback: DVector<f64>,
     g_forward: DVector<f64>,
@@ -337,9 +348,9 @@ pub struct PairDrag {
 
 /// Both warps of one drag event, and how the pull-back changed (for [`DragTexture::fill`]).
 #[derive(Clone, Debug)]
-pub struct DragStep {
-    pub pullback: Tps<Moving, Fixed>,
-    pub forward: Tps<Fixed, Moving>,
+pub struct DragStep<U: Space = Moving, D: Space = Fixed> {
+    pub pullback: Tps<U, Fixed>,
+    pub forward: Tps<D, Moving>,
     /// The dragged pair and the number of pairs, so that a step is never filled into another drag's texture.
     pair: usize,
     pairs: usize,
@@ -377,12 +388,44 @@ impl PairDrag {
         end: DraggedEnd,
         regularisation: Regularisation,
     ) -> Result<Self> {
-        if pair >= moving.len() {
-            return Err(SolverError::InvalidParameter(format!("dragged pair {} of {} pairs", pair + 1, moving.len())));
+        Self::on_base((fixed, moving), (moving, fixed), (pair, end), regularisation)
+    }
+
+    /// Both warps with the dragged point at `to` (LPS mm, in its own volume's space) and the other points where the
+    /// drag started: one datum update (an axpy) in one direction and one rank-2 update (one O(N²) solve) in the
+    /// other.
+    ///
+    /// # Errors
+    /// [`SolverError::Degenerate`] or [`SolverError::NonFinite`] when the fast path refuses (module docs): refit.
+    pub fn step(&self, to: [f64; 3]) -> Result<DragStep> {
+        self.step_on_base(to, to)
+    }
+}
+
+impl<U: Space, D: Space> PairDrag<U, D> {
+    /// Fits both directions kept factorised on a base under the landmarks: the pull-back's on the fixed points →
+    /// `pullback_data` (B⁻¹(pᵢ)), the forward's on the moving points → `forward_data` (B(qᵢ)), all distinct; pair
+    /// `pair`'s `end` is dragged. The cost of two fits, once per drag.
+    ///
+    /// # Errors
+    /// `pair` out of range, lists of different lengths, pairs given twice, or a fit that fails
+    /// ([`Tps::fit_regularised`]'s errors).
+    pub fn on_base(
+        (fixed, pullback_data): (&[Point3<Fixed>], &[Point3<U>]),
+        (moving, forward_data): (&[Point3<Moving>], &[Point3<D>]),
+        (pair, end): (usize, DraggedEnd),
+        regularisation: Regularisation,
+    ) -> Result<Self> {
+        let n = moving.len();
+        if [fixed.len(), pullback_data.len(), forward_data.len()].iter().any(|&m| m != n) {
+            return Err(SolverError::InvalidParameter("a drag's point lists differ in length".into()));
+        }
+        if pair >= n {
+            return Err(SolverError::InvalidParameter(format!("dragged pair {} of {n} pairs", pair + 1)));
         }
         let (pullback, forward) = rayon::join(
-            || FactoredTps::<Moving, Fixed>::fit(fixed, moving, regularisation),
-            || FactoredTps::<Fixed, Moving>::fit(moving, fixed, regularisation),
+            || FactoredTps::<U, Fixed>::fit(fixed, pullback_data, regularisation),
+            || FactoredTps::<D, Moving>::fit(moving, forward_data, regularisation),
         );
         let (pullback, forward) = (pullback?, forward?);
         let g_pullback = pullback.unit_response(pair)?;
@@ -390,7 +433,7 @@ impl PairDrag {
         Ok(Self { pair, end, pullback, forward, g_pullback, g_forward })
     }
 
-    /// The dragged pair (0-based, in the pairs given to [`PairDrag::new`]).
+    /// The dragged pair (0-based, in the pairs given to [`PairDrag::new`] or [`PairDrag::on_base`]).
     #[must_use]
     pub fn pair(&self) -> usize {
         self.pair
@@ -414,19 +457,21 @@ impl PairDrag {
         &self.forward.centres
     }
 
-    /// Both warps with the dragged point at `to` (LPS mm, in its own volume's space) and the other points where the
-    /// drag started: one datum update (an axpy) in one direction and one rank-2 update (one O(N²) solve) in the
-    /// other.
+    /// Both directions with the dragged point moved, on a base: `pullback_to` is where the point goes for the
+    /// pull-back's layer (a moving point: B⁻¹(p′), its datum; a fixed point: q′, its centre), `forward_to` for the
+    /// forward's (a moving point: p′, its centre; a fixed point: B(q′), its datum). Without a base both are the new
+    /// position ([`PairDrag::step`]).
     ///
     /// # Errors
     /// [`SolverError::Degenerate`] or [`SolverError::NonFinite`] when the fast path refuses (module docs): refit.
-    pub fn step(&self, to: [f64; 3]) -> Result<DragStep> {
+    pub fn step_on_base(&self, pullback_to: [f64; 3], forward_to: [f64; 3]) -> Result<DragStep<U, D>> {
         let k = self.pair;
         let pairs = self.pullback.len();
         match self.end {
             DraggedEnd::Moving => {
-                FactoredTps::<Fixed, Moving>::check_moved(&self.forward.centres, k, to)?;
-                let c_u = self.pullback.with_datum(&self.g_pullback, k, to);
+                let to = forward_to;
+                FactoredTps::<D, Moving>::check_moved(&self.forward.centres, k, to)?;
+                let c_u = self.pullback.with_datum(&self.g_pullback, k, pullback_to);
                 let c_d = self.forward.with_centre(&self.g_forward, k, to)?;
                 let mut moved = self.forward.centres.clone();
                 moved[k] = to;
@@ -436,13 +481,14 @@ impl PairDrag {
                     forward: self.forward.tps_with(&moved, &c_d.coefficients),
                     pair: k,
                     pairs,
-                    change: PullbackChange::Datum { delta: std::array::from_fn(|a| to[a] - p[a]) },
+                    change: PullbackChange::Datum { delta: std::array::from_fn(|a| pullback_to[a] - p[a]) },
                 })
             }
             DraggedEnd::Fixed => {
-                FactoredTps::<Moving, Fixed>::check_moved(&self.pullback.centres, k, to)?;
+                let to = pullback_to;
+                FactoredTps::<U, Fixed>::check_moved(&self.pullback.centres, k, to)?;
                 let update = self.pullback.with_centre(&self.g_pullback, k, to)?;
-                let c_d = self.forward.with_datum(&self.g_forward, k, to);
+                let c_d = self.forward.with_datum(&self.g_forward, k, forward_to);
                 let mut moved = self.pullback.centres.clone();
                 moved[k] = to;
                 let c_k = std::array::from_fn(|a| update.coefficients[(k, a)]);
@@ -461,7 +507,8 @@ impl PairDrag {
 /// The pull-back's control texture through one drag, made on the CPU: the texture at the drag's start (u(x) − x at
 /// the texel centres, f64) and pair k's cardinal function φₖ there, sampled once ([`DragTexture::new`]); each event
 /// then adds the pull-back's change ([`DragTexture::fill`]): an axpy over the texels for a moving point, one f64 sum
-/// of N terms per texel for a fixed point (module docs).
+/// of N terms per texel for a fixed point (module docs). On a base ([`PairDrag::on_base`]) it holds the landmark
+/// layer r(x) − x; the caller puts the base after it.
 #[derive(Debug)]
 pub struct DragTexture {
     grid: ControlGrid,
@@ -481,7 +528,7 @@ impl DragTexture {
     /// Samples `drag`'s pull-back and its cardinal function φₖ on `grid`: one pass of N kernel terms per texel, once
     /// per drag.
     #[must_use]
-    pub fn new(drag: &PairDrag, grid: ControlGrid) -> Self {
+    pub fn new<U: Space, D: Space>(drag: &PairDrag<U, D>, grid: ControlGrid) -> Self {
         let pullback = &drag.pullback;
         let origin = grid_origin(&grid);
         // One f64 pass: the pull-back's kernel sums (3 channels) and φₖ's (the fourth).
@@ -525,7 +572,7 @@ impl DragTexture {
     ///
     /// # Panics
     /// When `texels` does not match the grid or `step` comes from another drag (a bug of the caller).
-    pub fn fill(&self, drag: &PairDrag, step: &DragStep, texels: &mut [[f32; 4]]) {
+    pub fn fill<U: Space, D: Space>(&self, drag: &PairDrag<U, D>, step: &DragStep<U, D>, texels: &mut [[f32; 4]]) {
         assert_eq!(texels.len(), self.grid.texel_count(), "DragTexture::fill: texels must match the grid");
         assert!(
             (step.pair, step.pairs) == (self.pair, self.pairs)
@@ -546,7 +593,7 @@ impl DragTexture {
     /// The texture for a moved pull-back centre z: the drag start's texels plus
     /// u′ − u = −t₀ φₖ − t₁ ψ + c′ₖ (U(‖x − z‖) − U(‖x − qₖ‖)), where ψ is h's function on the drag start's centres,
     /// the one sum of N terms per texel (about the grid's centre); the rest is f64.
-    fn fill_centre(&self, drag: &PairDrag, moved: &CentreMove, texels: &mut [[f32; 4]]) {
+    fn fill_centre<U: Space, D: Space>(&self, drag: &PairDrag<U, D>, moved: &CentreMove, texels: &mut [[f32; 4]]) {
         let CentreMove { z, ref h, t, c_k: ck } = *moved;
         let n = self.pairs;
         let origin = grid_origin(&self.grid);

@@ -150,14 +150,12 @@ impl Fitter {
         }
         let plain = layers.brush.is_none() && layers.field.is_none();
         let on_gpu = plain && !alone && evaluation == Evaluation::Gpu && fit::gpu_evaluates(&method);
-        // A drag's O(N²) updates know the pairs alone, not a layer under or over them; a starting transform under a
-        // TPS vanishes from the warp (`start::tps_ignores`), so the drag takes the raw pairs.
-        let start_vanishes = layers.start.is_none() || crate::start::tps_ignores(&method, moving.len());
-        let fast = if full || !plain || !start_vanishes {
+        // A drag's O(N²) updates take the layers under the pairs (`DragFit::start` says which), not a brush over them.
+        let fast = if full {
             None
         } else {
             let route = if on_gpu { ControlRoute::Gpu } else { ControlRoute::Cpu };
-            self.drag_event(&method, (&fixed, &moving), boxes.0, document.settings.grid_n, route)
+            self.drag_event(&method, (&fixed, &moving), (boxes.0, document.settings.grid_n), route, &layers)
         };
         let grid_n = document.settings.grid_n;
         let result = if let (Some(event), Some(drag)) = (fast, &self.drag) {
@@ -269,25 +267,25 @@ impl Fitter {
         }
     }
 
-    /// The drag's fast path for the pairs (`fixed`, `moving`) with its texture on `route`: the drag in progress when
-    /// only its point moved, else a new drag when exactly one point moved since the last fit; `None` (and no drag
-    /// kept) otherwise.
+    /// The drag's fast path for the pairs (`fixed`, `moving`) on `layers` with its texture (box, edge) on `route`: the
+    /// drag in progress when only its point moved, else a new drag when exactly one point moved since the last fit;
+    /// `None` (and no drag kept) otherwise.
     fn drag_event(
         &mut self,
         method: &Method,
         (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
-        fixed_box: Aabb<Fixed>,
-        grid_n: usize,
+        texture: (Aabb<Fixed>, usize),
         route: ControlRoute,
+        layers: &Layers,
     ) -> Option<DragEvent> {
-        let current = self.drag.as_ref().filter(|d| d.route() == route);
+        let current = self.drag.as_ref().filter(|d| d.route() == route && d.same_layers(layers));
         if let Some(event) = current.and_then(|d| d.event(fixed, moving)) {
             return Some(event);
         }
         self.drag = None;
         let before = self.fitted.as_ref()?;
         let moved = fit::moved_point((&before.fixed, &before.moving), fixed, moving)?;
-        let drag = DragFit::start(method, (fixed, moving), fixed_box, grid_n, moved, route)?.ok()?;
+        let drag = DragFit::start(method, (fixed, moving), texture, moved, route, layers)?.ok()?;
         let event = drag.event(fixed, moving);
         self.drag = Some(drag);
         event

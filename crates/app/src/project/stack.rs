@@ -236,13 +236,15 @@ impl Layers {
     }
 
     /// B(x) = T₀(F(x)).
-    fn base_raw(&self, x: [f64; 3]) -> [f64; 3] {
+    #[must_use]
+    pub fn base_raw(&self, x: [f64; 3]) -> [f64; 3] {
         let x = self.field.as_ref().map_or(x, |f| f.moving_from_fixed_raw(x));
         self.start.as_ref().map_or(x, |s| s.moving_from_fixed().apply_raw(x))
     }
 
     /// B⁻¹(p) = F⁻¹(T₀⁻¹(p)).
-    fn base_inverse_raw(&self, p: [f64; 3]) -> [f64; 3] {
+    #[must_use]
+    pub fn base_inverse_raw(&self, p: [f64; 3]) -> [f64; 3] {
         let p = self.start.as_ref().map_or(p, |s| s.fixed_from_moving().apply_raw(p));
         self.field.as_ref().map_or(p, |f| f.fixed_from_moving_raw(p))
     }
@@ -288,6 +290,14 @@ impl StackPullback {
     #[must_use]
     pub fn folded(u: FittedWarp<Moving, Fixed>) -> Self {
         Self { layers: Layers::default(), core: Landmarks::Folded(u) }
+    }
+
+    /// u = B ∘ r on `layers`' field (and starting transform) for a landmark layer r fitted elsewhere (a drag event's,
+    /// [`crate::fit::DragFit`]), as [`Self::fit`] makes it; `layers` has no brush.
+    #[must_use]
+    pub fn on_field(layers: Layers, r: FittedWarp<Fixed, Fixed>) -> Self {
+        debug_assert!(layers.field.is_some() && layers.brush.is_none(), "a drag's layers: a field, no brush");
+        Self { layers, core: Landmarks::OnField(Some(r)) }
     }
 
     /// u at one point with b⁻¹ solved there to rounding (not read off its fitted spline, which the control texture
@@ -475,6 +485,13 @@ impl StackForward {
     #[must_use]
     pub fn folded(d: FittedWarp<Fixed, Moving>) -> Self {
         Self { layers: Layers::default(), core: Landmarks::Folded(d) }
+    }
+
+    /// d = B⁻¹ ∘ s on `layers`' field for a landmark layer s fitted elsewhere ([`StackPullback::on_field`]).
+    #[must_use]
+    pub fn on_field(layers: Layers, s: FittedWarp<Moving, Moving>) -> Self {
+        debug_assert!(layers.field.is_some() && layers.brush.is_none(), "a drag's layers: a field, no brush");
+        Self { layers, core: Landmarks::OnField(Some(s)) }
     }
 
     /// Fits d on the pairs (`moving[i]` ↔ `fixed[i]`) over `moving_box`, on top of `layers`' base.
