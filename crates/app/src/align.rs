@@ -21,7 +21,7 @@ use warpbench_solver::warp::Parallelism;
 
 use crate::args::{ReportArgs, VolumePairArgs, help};
 use crate::exit::Failure;
-use crate::inputs::{OutputFile, load_pair};
+use crate::inputs::{OutputFile, VolumePair, load_pair};
 
 /// The `--json` schema name.
 pub const SCHEMA: &str = "warpbench-align/1";
@@ -102,7 +102,8 @@ pub struct AlignSummary {
 /// summary to `out` with `--json`, else a line on stderr unless `--quiet`.
 pub fn run(args: AlignArgs, out: &mut dyn Write) -> Result<AlignSummary, Failure> {
     let AlignArgs { volumes, out_tfm, affine, samples, bins, shrink, seed, report } = args;
-    let VolumePairArgs { fixed, moving, .. } = &volumes;
+    let volumes = VolumePair::given(volumes).map_err(Failure::BadInput)?;
+    let VolumePair { fixed, moving, .. } = &volumes;
     let ReportArgs { json, force, quiet } = report;
     OutputFile { path: out_tfm.clone(), force }.check(&[fixed, moving]).map_err(Failure::BadInput)?;
     let params = AlignParams {

@@ -32,17 +32,31 @@ pub fn summary(help: &'static str) -> &'static str {
 }
 
 /// `--fixed` and `--moving`: the pair of volumes a pair subcommand reads (NIfTI, NRRD or a DICOM series folder).
-/// Each subcommand describes them in its own words ([`help`]).
+/// Each subcommand describes them in its own words ([`help`]). Both are required, except where a subcommand takes
+/// them from `--session` ([`or_session`]); [`crate::inputs::LandmarkWarp::volumes`] gives the files to read.
 #[derive(Clone, Debug, PartialEq, Eq, clap::Args)]
 pub struct VolumePairArgs {
     /// The fixed volume.
-    #[arg(long)]
-    pub fixed: PathBuf,
+    #[arg(long, required = true)]
+    pub fixed: Option<PathBuf>,
     /// The moving volume.
-    #[arg(long)]
-    pub moving: PathBuf,
+    #[arg(long, required = true)]
+    pub moving: Option<PathBuf>,
     #[command(flatten)]
     pub parts: PartArgs,
+}
+
+/// For `#[command(mut_args(crate::args::or_session))]` on a subcommand that takes `--session`: `--fixed` and
+/// `--moving` may be left out there, and the session's volumes (the files the window read) are read.
+#[must_use]
+pub fn or_session(arg: clap::Arg) -> clap::Arg {
+    if !matches!(arg.get_id().as_str(), "fixed" | "moving") {
+        return arg;
+    }
+    let text = arg.get_help().map_or_else(String::new, ToString::to_string);
+    arg.required(false)
+        .required_unless_present("session")
+        .help(format!("{text}; with --session, the session's by default"))
 }
 
 /// `--fixed-frame`, `--fixed-series`, `--moving-frame` and `--moving-series`: which volume each side reads from a
@@ -50,17 +64,17 @@ pub struct VolumePairArgs {
 #[derive(Clone, Debug, Default, PartialEq, Eq, clap::Args)]
 pub struct PartArgs {
     /// The frame of a 4-D fixed file to read (NIfTI, MetaImage, MGH, MINC, OME-Zarr; an AFNI sub-brick), from 0.
-    #[arg(long, value_name = "N", requires = "fixed", conflicts_with = "fixed_series")]
+    #[arg(long, value_name = "N", conflicts_with = "fixed_series")]
     pub fixed_frame: Option<usize>,
     /// The series to read from a fixed DICOM folder of several, by its SeriesInstanceUID (`warpbench info FOLDER`
     /// lists them).
-    #[arg(long, value_name = "UID", requires = "fixed")]
+    #[arg(long, value_name = "UID")]
     pub fixed_series: Option<String>,
     /// The frame of a 4-D moving file to read, from 0.
-    #[arg(long, value_name = "N", requires = "moving", conflicts_with = "moving_series")]
+    #[arg(long, value_name = "N", conflicts_with = "moving_series")]
     pub moving_frame: Option<usize>,
     /// The series to read from a moving DICOM folder of several, by its SeriesInstanceUID.
-    #[arg(long, value_name = "UID", requires = "moving")]
+    #[arg(long, value_name = "UID")]
     pub moving_series: Option<String>,
 }
 
@@ -86,6 +100,17 @@ impl PartArgs {
                 Some(Part::Series(uid)) => (None, Some(uid)),
             });
         Self { fixed_frame, fixed_series, moving_frame, moving_series }
+    }
+}
+
+/// For `#[command(mut_args(…))]` where `--fixed` and `--moving` are the only source of the volumes (the window's
+/// command line): a frame or series chosen needs its volume.
+#[must_use]
+pub fn parts_need_volumes(arg: clap::Arg) -> clap::Arg {
+    match arg.get_id().as_str() {
+        "fixed_frame" | "fixed_series" => arg.requires("fixed"),
+        "moving_frame" | "moving_series" => arg.requires("moving"),
+        _ => arg,
     }
 }
 

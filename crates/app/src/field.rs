@@ -103,6 +103,7 @@ Examples:
     ("json", "Print a JSON summary (schema warpbench-field/1, see docs/cli.md) to stdout"),
     ("force", "Overwrite --out (and --tfm) if they exist"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct FieldArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,

@@ -40,7 +40,7 @@ use crate::settings::{MethodKind, Stiffness};
 /// about the time of the slower one (the 176×256×256 head MRI of `data-scripts/compare_itk_warp.py` loaded as both,
 /// on a busy 2-core machine: 0.76 s, against 1.03 s one after the other). With progress bars they load one after the
 /// other, so that the bars do not interleave. Errors come in the same order either way: the fixed volume's first.
-pub fn load_pair(volumes: &VolumePairArgs, quiet: bool) -> Result<(Volume, Volume)> {
+pub fn load_pair(volumes: &VolumePair, quiet: bool) -> Result<(Volume, Volume)> {
     let [fixed_part, moving_part] = volumes.parts.parts();
     let fixed = VolumeArg { path: &volumes.fixed, part: fixed_part.as_ref(), role: Role::Fixed };
     let moving = VolumeArg { path: &volumes.moving, part: moving_part.as_ref(), role: Role::Moving };
@@ -427,8 +427,38 @@ pub struct LandmarkWarp {
     pub warp: PairWarp,
     /// A session's choices for Refine by intensities, which `register --session` takes unless told otherwise.
     pub session_refine: Option<SessionRefine>,
-    /// The files a session read, fixed then moving, with the frame or series of each (`None`s without a session).
-    pub session_sources: [Option<VolumeSource>; 2],
+    /// With `--session`, the session's file and the volumes it read.
+    pub session: Option<SessionVolumes>,
+}
+
+/// A session's file and the volumes the window read with it: what `--fixed` and `--moving` default to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SessionVolumes {
+    pub path: PathBuf,
+    /// Fixed, then moving, with the frame or series of each; `None`s for the demo pair.
+    pub sources: [Option<VolumeSource>; 2],
+}
+
+/// The two volumes a pair subcommand reads, as [`LandmarkWarp::volumes`] resolves `--fixed`, `--moving` and
+/// `--session`: the files, and the frame or series of each.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct VolumePair {
+    pub fixed: PathBuf,
+    pub moving: PathBuf,
+    pub parts: PartArgs,
+}
+
+impl VolumePair {
+    /// `--fixed` and `--moving` of a subcommand without `--session`, where the argument parser requires both.
+    ///
+    /// # Errors
+    /// Either left out.
+    pub fn given(args: VolumePairArgs) -> Result<Self> {
+        match (args.fixed, args.moving) {
+            (Some(fixed), Some(moving)) => Ok(Self { fixed, moving, parts: args.parts }),
+            _ => Err(anyhow!("give --fixed and --moving")),
+        }
+    }
 }
 
 /// What a session chose for Refine by intensities.
@@ -460,7 +490,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
                         .map(|path| BaseField::Given { path, format: args.initial_field_format }),
                 },
                 session_refine: None,
-                session_sources: [None, None],
+                session: None,
             });
         };
         let session = crate::project::session::load(&path)?;
@@ -473,7 +503,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         let s = &session.document.settings;
         let method = checked_method(s.method, s.stiffness, Some(s.bspline_levels))?;
         let document = session.document;
-        let session_sources = document.sources();
+        let session_volumes = SessionVolumes { path: path.clone(), sources: document.sources() };
         let session_refine = Some(SessionRefine {
             metric: document.settings.refine_metric,
             fixed_mask: document.fixed_mask,
@@ -481,7 +511,7 @@ impl TryFrom<PairArgs> for LandmarkWarp {
         });
         Ok(Self {
             session_refine,
-            session_sources,
+            session: Some(session_volumes),
             landmarks: Some(Landmarks::read_from(LandmarkSource::Session(path), document.pairs)),
             warp: PairWarp {
                 method: MethodChoice::Given(method),
@@ -503,34 +533,74 @@ impl LandmarkWarp {
         Ok((landmarks, self.warp))
     }
 
-    /// `parts` with the session's frame or series for a side that chose none, where `paths` (fixed, moving) name
-    /// the file the session read (`None`: no such volume): a session of a 4-D file or a DICOM folder of several series reads the same volume
-    /// on the command line as in the window. Each part taken is said on stderr, unless `quiet`.
-    #[must_use]
-    pub fn session_parts(&self, paths: [Option<&Path>; 2], parts: PartArgs, quiet: bool) -> PartArgs {
-        let given = parts.parts();
-        let defaults = [0, 1].map(|side| {
-            let (source, path) = (self.session_sources[side].as_ref()?, paths[side]?);
-            let part = source.part.clone().filter(|_| given[side].is_none() && same_file(path, &source.path))?;
-            if !quiet {
-                let option = ["fixed", "moving"][side];
+    /// The files and parts to read for the command line's `--fixed` and `--moving` (`given`; either may be left out)
+    /// and their `parts`. With `--session`, a side left out reads the session's file, and its frame or series unless
+    /// the command line chose one; a side that names the session's file (by any path) and chooses no part reads the
+    /// session's part. What the session chose is said on stderr, unless `quiet`; a side left out without a session
+    /// stays `None`.
+    ///
+    /// # Errors
+    /// A side left out with a session of the demo pair, which has no files; a frame or series chosen for a side that
+    /// has no file.
+    pub fn resolve_volumes(
+        &self,
+        given: [Option<PathBuf>; 2],
+        parts: PartArgs,
+        quiet: bool,
+    ) -> Result<([Option<PathBuf>; 2], PartArgs)> {
+        let chosen = parts.parts();
+        let mut paths = given;
+        let mut defaults = [None, None];
+        for (side, name) in ["fixed", "moving"].into_iter().enumerate() {
+            let Some(session) = &self.session else { continue };
+            let Some(source) = &session.sources[side] else {
+                if paths[side].is_none() {
+                    return Err(anyhow!(
+                        "{}: the session shows the demo pair, which has no files: give --fixed and --moving",
+                        session.path.display()
+                    ));
+                }
+                continue;
+            };
+            let from_session = paths[side].is_none();
+            let path = paths[side].get_or_insert_with(|| source.path.clone());
+            let part = source
+                .part
+                .clone()
+                .filter(|_| chosen[side].is_none() && (from_session || same_file(path, &source.path)));
+            if !quiet && from_session {
+                let what = part.as_ref().map(|p| format!(", {}", describe_part(p))).unwrap_or_default();
                 eprintln!(
-                    "warpbench: {}: reading {}, as the session did (--{option}-frame or --{option}-series chooses \
+                    "warpbench: {}: the {name} volume is {}{what}, as the session read it (--{name} chooses another)",
+                    session.path.display(),
+                    path.display()
+                );
+            } else if let (false, Some(part)) = (quiet, &part) {
+                eprintln!(
+                    "warpbench: {}: reading {}, as the session did (--{name}-frame or --{name}-series chooses \
                      another)",
                     path.display(),
-                    describe_part(&part)
+                    describe_part(part)
                 );
             }
-            Some(part)
-        });
-        parts.or(defaults)
+            defaults[side] = part;
+        }
+        for (side, name) in ["fixed", "moving"].into_iter().enumerate() {
+            if paths[side].is_none() && chosen[side].is_some() {
+                return Err(anyhow!("--{name}-frame and --{name}-series choose a volume of --{name}: give --{name}"));
+            }
+        }
+        Ok((paths, parts.or(defaults)))
     }
 
-    /// `volumes` with the session's parts ([`Self::session_parts`]).
-    #[must_use]
-    pub fn session_volumes(&self, volumes: VolumePairArgs, quiet: bool) -> VolumePairArgs {
-        let parts = self.session_parts([Some(&volumes.fixed), Some(&volumes.moving)], volumes.parts.clone(), quiet);
-        VolumePairArgs { parts, ..volumes }
+    /// The two volumes to read for `args` ([`Self::resolve_volumes`]; without a session the argument parser
+    /// requires both).
+    ///
+    /// # Errors
+    /// As [`Self::resolve_volumes`].
+    pub fn volumes(&self, args: VolumePairArgs, quiet: bool) -> Result<VolumePair> {
+        let (paths, parts) = self.resolve_volumes([args.fixed, args.moving], args.parts, quiet)?;
+        VolumePair::given(VolumePairArgs { fixed: paths[0].clone(), moving: paths[1].clone(), parts })
     }
 
     /// The method ([`MethodChoice::method`] on these landmarks).
@@ -552,7 +622,7 @@ impl LandmarkWarp {
 /// around them, and the grid to sample on when it is not the fixed volume's.
 #[derive(Clone, Debug)]
 pub struct PairInputs {
-    pub volumes: VolumePairArgs,
+    pub volumes: VolumePair,
     pub landmarks: Landmarks,
     pub warp: PairWarp,
     /// The output grid, when not the fixed volume's.
@@ -568,11 +638,11 @@ pub struct PairVolumes {
 }
 
 impl PairInputs {
-    /// Parses the arguments once ([`LandmarkWarp`]); landmarks are required. A session's frame or series is read
-    /// where the command line chooses none ([`LandmarkWarp::session_parts`]).
+    /// Parses the arguments once ([`LandmarkWarp`]); landmarks are required. A session's volumes are read where the
+    /// command line names none ([`LandmarkWarp::volumes`]).
     pub fn new(volumes: VolumePairArgs, pairs: PairArgs, reference: Option<PathBuf>, quiet: bool) -> Result<Self> {
         let given = LandmarkWarp::try_from(pairs)?;
-        let volumes = given.session_volumes(volumes, quiet);
+        let volumes = given.volumes(volumes, quiet)?;
         let (landmarks, warp) = given.require()?;
         Ok(Self { volumes, landmarks, warp, reference })
     }

@@ -69,6 +69,7 @@ Examples:
     ("json", "Print a JSON summary (schema warpbench-jacobian/1, see docs/cli.md) to stdout"),
     ("force", "Overwrite --out if it exists"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct JacobianArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,

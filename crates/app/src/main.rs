@@ -13,6 +13,7 @@ use warpbench_app::gui::{self, GuiArgs};
 /// demo pair (a head CT and a head MRI).
 #[derive(Debug, Parser)]
 #[command(name = "warpbench", version, about, args_conflicts_with_subcommands = true)]
+#[command(mut_args(warpbench_app::args::parts_need_volumes))]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,

@@ -115,6 +115,7 @@ lesion_ct.csv then holds the lesion where it lies in the CT (and in mr_in_ct.nii
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and, with --from fixed, the points"),
     ("moving", "The moving volume: its box checks the landmarks and, with --from moving, the points"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct PointsArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,

@@ -75,6 +75,7 @@ spacing of --grid-mm. The field holds u(x) − x at each voxel of the fixed grid
     ("json", "Print a JSON summary (schema warpbench-register/2, see docs/cli.md) to stdout"),
     ("force", "Overwrite --out-field (and --out) if they exist"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct RegisterArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
@@ -531,7 +532,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     let format_arg = format;
     let format = format_arg.flavour_for(&out_field);
     let given = LandmarkWarp::try_from(PairArgs::from(pairs)).map_err(Failure::BadInput)?;
-    let volumes = given.session_volumes(volumes, quiet);
+    let volumes = given.volumes(volumes, quiet).map_err(Failure::BadInput)?;
     // The session's choices for Refine by intensities, where the command line does not make them.
     let session = given.session_refine.clone();
     let metric = metric.or(session.as_ref().map(|s| s.metric)).unwrap_or_default();
@@ -591,7 +592,7 @@ pub fn run(args: RegisterArgs, out: &mut dyn Write) -> Result<RegisterSummary, F
     };
     given.warp.check_start().map_err(Failure::BadInput)?;
     let (fixed_volume, moving_volume) = inputs::load_pair(&volumes, quiet).map_err(Failure::BadInput)?;
-    let VolumePairArgs { fixed, moving, .. } = volumes;
+    let inputs::VolumePair { fixed, moving, .. } = volumes;
     if let Some(path) = &out_volume {
         crate::warp::check_output_grid(path, &fixed_volume).map_err(Failure::BadInput)?;
     }

@@ -55,10 +55,11 @@ that pull-back displacement field, without glyphs (a Learn2Reg .npz is read in t
 #[derive(Debug, clap::Args)]
 #[command(about = crate::args::summary(HELP), long_about = HELP)]
 pub struct RenderArgs {
-    /// The fixed volume (the render space): NIfTI, NRRD or a DICOM series folder.
-    #[arg(long)]
-    pub fixed: PathBuf,
-    /// The moving volume, shown deformed by the landmark warp.
+    /// The fixed volume (the render space): NIfTI, NRRD or a DICOM series folder; with --session, the session's by
+    /// default.
+    #[arg(long, required_unless_present = "session")]
+    pub fixed: Option<PathBuf>,
+    /// The moving volume, shown deformed by the landmark warp; with --session, the session's by default.
     #[arg(long)]
     pub moving: Option<PathBuf>,
     #[command(flatten)]
@@ -153,6 +154,9 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         quiet,
     } = args;
     let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
+    let ([fixed_path, moving_path], parts) =
+        given.resolve_volumes([fixed_path, moving_path], parts, quiet).map_err(Failure::BadInput)?;
+    let fixed_path = fixed_path.ok_or_else(|| Failure::BadInput(anyhow!("give --fixed")))?;
     let output = OutputFile { path: out, force };
     let procedural_spec = view.procedural_spec();
     let mut inputs_paths: Vec<&Path> = vec![&fixed_path];
@@ -201,8 +205,7 @@ pub fn run(args: RenderArgs) -> Result<Rendered, Failure> {
         .map(|p| crate::warp::read_pullback_field(p, None, quiet))
         .transpose()?;
     given.warp.check_start().map_err(Failure::BadInput)?;
-    let [fixed_part, moving_part] =
-        given.session_parts([Some(&fixed_path), moving_path.as_deref()], parts, quiet).parts();
+    let [fixed_part, moving_part] = parts.parts();
     let fixed = VolumeArg { path: &fixed_path, part: fixed_part.as_ref(), role: Role::Fixed };
     let fixed = inputs::load_volume(&fixed, quiet).map_err(Failure::BadInput)?;
     let moving = moving_path

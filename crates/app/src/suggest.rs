@@ -56,6 +56,7 @@ search radius. Examples:
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder), where the targets are searched"),
     ("moving", "The moving volume, where the points are"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct SuggestArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,
@@ -117,7 +118,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     let params = SuggestParams { search_radius_mm, ..SuggestParams::default() };
     params.validate().map_err(|e| Failure::BadInput(anyhow!("--search-radius-mm: {e}")))?;
     let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
-    let volumes = given.session_volumes(volumes, quiet);
+    let volumes = given.volumes(volumes, quiet).map_err(Failure::BadInput)?;
     let mut input_paths = vec![volumes.fixed.as_path(), volumes.moving.as_path(), points.as_path()];
     input_paths.extend(given.paths());
     OutputFile { path: out_path.clone(), force }.check(&input_paths).map_err(Failure::BadInput)?;
@@ -130,7 +131,7 @@ pub fn run(args: SuggestArgs, out: &mut dyn Write) -> Result<SuggestReport, Fail
     given.warp.check_start().map_err(Failure::BadInput)?;
     let file = read_point_file(&points, PointFileOptions { ras })?;
     let (fixed_volume, moving_volume) = inputs::load_pair(&volumes, quiet).map_err(Failure::BadInput)?;
-    let VolumePairArgs { fixed, moving, .. } = volumes;
+    let inputs::VolumePair { fixed, moving, .. } = volumes;
     let start = given.warp.start(&fixed_volume, &moving_volume).map_err(Failure::BadInput)?;
     let moving_points: Vec<(String, Point3<Lps>)> =
         crate::points::input_points(&points, &file, crate::points::Side::Moving, Some(&moving_volume))?

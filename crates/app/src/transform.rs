@@ -114,6 +114,7 @@ as its dst, for mri_vol2vol --mov MOVING --targ FIXED --lta. --initial takes eac
     ("fixed", "The fixed volume (NIfTI, NRRD or a DICOM series folder): its box checks the landmarks and is the B-spline's domain"),
     ("moving", "The moving volume: its box checks the landmarks"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct TransformArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,

@@ -91,7 +91,7 @@ pub enum WarpInputs {
 /// The inputs of `warp --field`.
 #[derive(Clone, Debug)]
 pub struct FieldInputs {
-    pub volumes: VolumePairArgs,
+    pub volumes: inputs::VolumePair,
     /// The displacement field: u(x) = x + D(x), u = moving_from_fixed.
     pub field: PathBuf,
     /// How it is told apart.
@@ -127,7 +127,7 @@ impl WarpInputs {
         quiet: bool,
     ) -> Result<Self, Failure> {
         let given = LandmarkWarp::try_from(pairs).map_err(Failure::BadInput)?;
-        let volumes = given.session_volumes(volumes, quiet);
+        let volumes = given.volumes(volumes, quiet).map_err(Failure::BadInput)?;
         match (field, given.landmarks) {
             (Some(field), None) => Ok(Self::Field(FieldInputs { volumes, field, format, reference })),
             (None, Some(landmarks)) => Ok(Self::Pairs(PairInputs { volumes, landmarks, warp: given.warp, reference })),
@@ -142,7 +142,7 @@ impl WarpInputs {
 
     /// The fixed and the moving volume.
     #[must_use]
-    pub fn volumes(&self) -> &VolumePairArgs {
+    pub fn volumes(&self) -> &inputs::VolumePair {
         match self {
             Self::Pairs(p) => &p.volumes,
             Self::Field(f) => &f.volumes,
@@ -298,6 +298,7 @@ read in the two volumes' voxels. Examples:
     ("json", "Print a JSON report (schema warpbench-warp/1) to stdout"),
     ("force", "Overwrite --out if it exists"),
 ])))]
+#[command(mut_args(crate::args::or_session))]
 pub struct WarpArgs {
     #[command(flatten)]
     pub volumes: VolumePairArgs,

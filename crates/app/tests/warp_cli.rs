@@ -589,7 +589,7 @@ fn a_4d_input_is_read_by_the_frame_chosen_for_its_side() {
 }
 
 #[test]
-fn a_session_of_a_4d_file_reads_the_frame_the_window_read() {
+fn a_session_gives_the_volumes_and_the_frames_the_window_read() {
     let dir = tempfile::tempdir().expect("tempdir");
     let bold = data("nifti/functional.nii");
     let frame = |t: usize| warpbench_io::LoadOptions::new().frame(t).open(&bold).expect("the fixture's frame");
@@ -617,15 +617,15 @@ fn a_session_of_a_4d_file_reads_the_frame_the_window_read() {
         "slice_mm": [0.0, 0.0, 0.0], "clean_exit": true,
     });
     std::fs::write(&session, doc.to_string()).expect("write the session");
-    let warp = |name: &str, fixed: &Path, extra: &[&str]| {
+    let warp = |name: &str, volumes: &[&str]| {
         let out = dir.path().join(format!("{name}.nii.gz"));
-        let mut args = vec!["warp", "--fixed", s(fixed), "--moving", s(&bold), "--session", s(&session)];
-        args.extend_from_slice(extra);
+        let mut args = vec!["warp", "--session", s(&session)];
+        args.extend_from_slice(volumes);
         args.extend_from_slice(&["--out", s(&out)]);
         (warpbench(&args), out)
     };
     // The session's frame on both sides, said on stderr.
-    let (result, out) = warp("session", &bold, &[]);
+    let (result, out) = warp("session", &["--fixed", s(&bold), "--moving", s(&bold)]);
     assert_ok(&result);
     assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
     let err = String::from_utf8_lossy(&result.stderr);
@@ -637,7 +637,7 @@ fn a_session_of_a_4d_file_reads_the_frame_the_window_read() {
     );
     assert!(err.contains("--fixed-frame or --fixed-series chooses another"), "{err}");
     // The command line's choice wins, side by side: frame 4 of the moving file on frame 3's grid.
-    let (result, out) = warp("four", &bold, &["--moving-frame", "4", "--quiet"]);
+    let (result, out) = warp("four", &["--fixed", s(&bold), "--moving", s(&bold), "--moving-frame", "4", "--quiet"]);
     assert_ok(&result);
     assert!(result.stderr.is_empty(), "{}", String::from_utf8_lossy(&result.stderr));
     assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(4).data);
@@ -645,15 +645,53 @@ fn a_session_of_a_4d_file_reads_the_frame_the_window_read() {
     // Another file than the session's takes nothing from it: the same file by another name is still the session's.
     let copy = dir.path().join("copy.nii");
     std::fs::copy(&bold, &copy).expect("copy");
-    let (result, out) = warp("other", &copy, &["--quiet"]);
+    let (result, out) = warp("other", &["--fixed", s(&copy), "--moving", s(&bold), "--quiet"]);
     assert_eq!(result.status.code(), Some(2));
     let err = String::from_utf8_lossy(&result.stderr);
     assert!(err.contains("copy.nii: 4-D file with 20 frames") && err.contains("--fixed-frame N"), "{err}");
     assert!(!out.exists());
     let relative = bold.parent().expect("folder").join("../nifti/functional.nii");
-    let (result, out) = warp("relative", &relative, &["--quiet"]);
+    let (result, out) = warp("relative", &["--fixed", s(&relative), "--moving", s(&bold), "--quiet"]);
     assert_ok(&result);
     assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
+    // Without --fixed and --moving the session's volumes are read, each with its frame, and stderr says which.
+    let (result, out) = warp("both", &[]);
+    assert_ok(&result);
+    assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
+    let err = String::from_utf8_lossy(&result.stderr);
+    for side in ["fixed", "moving"] {
+        let said =
+            format!("bold.warpbench.json: the {side} volume is {}, frame 3, as the session read it", bold.display());
+        assert!(err.contains(&said), "{err}");
+    }
+    // One side given, the other the session's: the copy's frame 4 as the grid, the session's frame 3 resampled.
+    let (result, out) = warp("one", &["--fixed", s(&copy), "--fixed-frame", "4", "--quiet"]);
+    assert_ok(&result);
+    assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
+    // A session of the demo pair names no files.
+    let demo = dir.path().join("demo.warpbench.json");
+    let mut doc = doc;
+    doc["fixed"] = serde_json::Value::Null;
+    doc["moving"] = serde_json::Value::Null;
+    std::fs::write(&demo, doc.to_string()).expect("write the session");
+    let out = dir.path().join("demo.nii.gz");
+    let result = warpbench(&["warp", "--session", s(&demo), "--moving", s(&bold), "--out", s(&out)]);
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("demo.warpbench.json: the session shows the demo pair, which has no files"), "{err}");
+    assert!(!out.exists());
+    // Without a session both are required, as before.
+    let result = warpbench(&["warp", "--moving", s(&bold), "--landmarks", s(&session), "--out", s(&out)]);
+    assert_eq!(result.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&result.stderr).contains("--fixed <FIXED>"));
+    // A frame chosen for a volume no option or session names.
+    let png = dir.path().join("frame.png");
+    let result =
+        warpbench(&["render", "--fixed", s(&bold), "--fixed-frame", "0", "--moving-frame", "1", "--out", s(&png)]);
+    assert_eq!(result.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&result.stderr);
+    assert!(err.contains("--moving-frame and --moving-series choose a volume of --moving: give --moving"), "{err}");
+    assert!(!png.exists());
 }
 
 #[test]
