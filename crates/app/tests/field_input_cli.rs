@@ -648,16 +648,8 @@ fn slicers_inverse_field_maps_moving_points_as_itk_maps_them_through_the_field()
     let field = data("itk/h5_field_slicer_inverse.h5");
     // The field under no landmarks: a window session holding it, as the window saves one.
     let session = dir.path().join("slicer.warpbench.json");
-    let doc = serde_json::json!({
-        "schema": "warpbench-session/1", "fixed": s(&volume), "moving": s(&volume), "landmarks": [],
-        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
-                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
-                     "control_texels": 64, "show_landmarks": true},
-        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true},
-                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true}],
-        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
-        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": true, "field": s(&field),
-    });
+    let mut doc = common::session_json(&volume, &volume);
+    doc["field"] = s(&field).into();
     std::fs::write(&session, doc.to_string()).expect("write the session");
     let run = warpbench(&[
         "points",

@@ -605,17 +605,10 @@ fn a_session_gives_the_volumes_and_the_frames_the_window_read() {
         .collect();
     // A session as the window saves one after "Choose a frame": the file, and frame 3 of it on both sides.
     let session = dir.path().join("bold.warpbench.json");
-    let doc = serde_json::json!({
-        "schema": "warpbench-session/1", "fixed": s(&bold), "moving": s(&bold),
-        "fixed_part": {"frame": 3}, "moving_part": {"frame": 3}, "landmarks": landmarks,
-        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
-                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
-                     "control_texels": 64, "show_landmarks": true},
-        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true},
-                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true}],
-        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
-        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": true,
-    });
+    let mut doc = common::session_json(&bold, &bold);
+    doc["fixed_part"] = serde_json::json!({"frame": 3});
+    doc["moving_part"] = serde_json::json!({"frame": 3});
+    doc["landmarks"] = landmarks.into();
     std::fs::write(&session, doc.to_string()).expect("write the session");
     let warp = |name: &str, volumes: &[&str]| {
         let out = dir.path().join(format!("{name}.nii.gz"));
@@ -670,7 +663,6 @@ fn a_session_gives_the_volumes_and_the_frames_the_window_read() {
     assert_eq!(warpbench_io::open(&out).expect("the output").data, frame(3).data);
     // A session of the demo pair names no files.
     let demo = dir.path().join("demo.warpbench.json");
-    let mut doc = doc;
     doc["fixed"] = serde_json::Value::Null;
     doc["moving"] = serde_json::Value::Null;
     std::fs::write(&demo, doc.to_string()).expect("write the session");

@@ -168,3 +168,18 @@ pub fn map_through_session(dir: &Path, [fixed, moving, session]: [&Path; 3], x: 
         .collect();
     [got[0], got[1], got[2]]
 }
+
+/// A window session as the window saves one (schema `warpbench-session/1`), of the volumes `fixed` and `moving`, with
+/// no landmarks and the window's usual settings; a test sets what it needs (`landmarks`, `fixed_part`, `field`).
+pub fn session_json(fixed: &Path, moving: &Path) -> serde_json::Value {
+    serde_json::json!({
+        "schema": "warpbench-session/1", "fixed": utf8(fixed), "moving": utf8(moving), "landmarks": [],
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 64, "show_landmarks": true},
+        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true},
+                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": true}],
+        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": true,
+    })
+}
