@@ -31,7 +31,7 @@ use warpbench_solver::control::{ControlGrid, ControlTexture};
 use warpbench_solver::method::{FittedWarp, Method};
 use warpbench_solver::spaces::{Aabb, Fixed, Moving};
 use warpbench_solver::tps::{Regularisation, Tps};
-use warpbench_solver::tps_drag::{DragStep, DragTexture, DraggedEnd, PairDrag};
+use warpbench_solver::tps_drag::{DragStep, DragTexture, DraggedEnd, FactoredTps, PairDrag};
 
 use crate::inputs::{self, Correspondences};
 use crate::project::stack::{Layers, StackForward, StackPullback};
@@ -225,11 +225,99 @@ impl DragEvent {
     }
 }
 
+/// Both directions of a TPS fit kept factorised on a set of pairs and the layers under them: what a drag starts from.
+/// [`DragFit::start`] makes one on the drag's first event (the O(N³) part of a drag's start); the window makes one
+/// after each full fit on a thread of its own ([`DragBasis::new`]), so that the next drag finds it ready
+/// ([`DragFit::from_basis`]).
+#[derive(Debug)]
+pub struct DragBasis {
+    kind: BasisKind,
+    method: Method,
+    fixed: Vec<Point3<Fixed>>,
+    moving: Vec<Point3<Moving>>,
+}
+
+/// [`DragBasis`]'s factorisations, as [`DragPairs`] takes them.
+#[derive(Debug)]
+enum BasisKind {
+    Plain(FactoredTps<Moving, Fixed>, FactoredTps<Fixed, Moving>),
+    OnField { pullback: FactoredTps<Fixed, Fixed>, forward: FactoredTps<Moving, Moving>, layers: Box<Layers> },
+}
+
+impl DragBasis {
+    /// Factorises both directions of a TPS `method` on the pairs (`fixed`, `moving`) and the stack's other `layers`;
+    /// `None` where a drag keeps the full fit: another method, a brush on top, or a starting transform the pairs are
+    /// too few to refine.
+    ///
+    /// # Errors
+    /// Too few pairs, or a fit that fails (the full fit's error names the pairs).
+    #[must_use]
+    pub fn new(
+        method: &Method,
+        (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
+        layers: &Layers,
+    ) -> Option<anyhow::Result<Self>> {
+        let Method::Tps { stiffness } = *method else { return None };
+        let on_field = layers.field.is_some();
+        let start_vanishes = layers.start.is_none() || crate::start::tps_ignores(method, moving.len());
+        if layers.brush.is_some() || !(on_field || start_vanishes) {
+            return None;
+        }
+        Some((|| {
+            enough_pairs(method, moving.len())?;
+            let regularisation = Regularisation::Smoothing(stiffness);
+            let failed = |e: SolverError| anyhow!("{method}: {e}");
+            let kind = if on_field {
+                let unbased: Vec<Point3<Fixed>> =
+                    moving.iter().map(|p| Point3::from_array(layers.base_inverse_raw(p.coords()))).collect();
+                let based: Vec<Point3<Moving>> =
+                    fixed.iter().map(|q| Point3::from_array(layers.base_raw(q.coords()))).collect();
+                let (pullback, forward) = rayon::join(
+                    || FactoredTps::fit(fixed, &unbased, regularisation),
+                    || FactoredTps::fit(moving, &based, regularisation),
+                );
+                let layers = Box::new(Layers { start: layers.start.clone(), field: layers.field.clone(), brush: None });
+                BasisKind::OnField { pullback: pullback.map_err(failed)?, forward: forward.map_err(failed)?, layers }
+            } else {
+                let (pullback, forward) = rayon::join(
+                    || FactoredTps::fit(fixed, moving, regularisation),
+                    || FactoredTps::fit(moving, fixed, regularisation),
+                );
+                BasisKind::Plain(pullback.map_err(failed)?, forward.map_err(failed)?)
+            };
+            Ok(Self { kind, method: *method, fixed: fixed.to_vec(), moving: moving.to_vec() })
+        })())
+    }
+
+    /// Whether this basis was made for `method` on the pairs (`fixed`, `moving`) and `layers`' starting transform and
+    /// field.
+    #[must_use]
+    pub fn fits(
+        &self,
+        method: &Method,
+        (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
+        layers: &Layers,
+    ) -> bool {
+        let same_pairs = self.method == *method && self.fixed == fixed && self.moving == moving;
+        same_pairs
+            && match &self.kind {
+                BasisKind::Plain(..) => layers.field.is_none() && layers.brush.is_none(),
+                BasisKind::OnField { layers: own, .. } => same_base(own, layers),
+            }
+    }
+}
+
+/// Whether `layers` has `own`'s starting transform and field (the same one read, not an equal one), and no brush.
+fn same_base(own: &Layers, layers: &Layers) -> bool {
+    let field = |f: &Option<std::sync::Arc<crate::project::stack::FieldLayer>>| f.as_ref().map(std::sync::Arc::as_ptr);
+    own.start == layers.start && field(&own.field) == field(&layers.field) && layers.brush.is_none()
+}
+
 impl DragFit {
     /// Starts the drag of pair `pair`'s `end` (0-based among `fixed`/`moving`) for a TPS `method` on the stack's
-    /// other `layers` (`None` for any other method, a brush, or a field with the texture on the GPU, which evaluates
-    /// a TPS alone: those keep the full fit), with the control texture of [`fit_warp`] (`grid_n`³ over the fixed box)
-    /// made on `route`: both directions factorised, and on the CPU route the drag start's texture sampled.
+    /// other `layers` (`None` where [`DragBasis::new`] or [`Self::from_basis`] keep the full fit), with the control
+    /// texture of [`fit_warp`] (`grid_n`³ over the fixed box) made on `route`: both directions factorised, and on the
+    /// CPU route the drag start's texture sampled.
     ///
     /// # Errors
     /// A fit that fails (the caller refits in full, whose error names the pairs), or a texture grid that cannot be
@@ -237,36 +325,49 @@ impl DragFit {
     #[must_use]
     pub fn start(
         method: &Method,
-        (fixed, moving): (&[Point3<Fixed>], &[Point3<Moving>]),
-        (fixed_box, grid_n): (Aabb<Fixed>, usize),
-        (pair, end): (usize, DraggedEnd),
+        pairs: (&[Point3<Fixed>], &[Point3<Moving>]),
+        texture: (Aabb<Fixed>, usize),
+        moved: (usize, DraggedEnd),
         route: ControlRoute,
         layers: &Layers,
     ) -> Option<anyhow::Result<Self>> {
-        let Method::Tps { stiffness } = *method else { return None };
-        let on_field = layers.field.is_some();
-        let start_vanishes = layers.start.is_none() || crate::start::tps_ignores(method, moving.len());
-        if layers.brush.is_some() || (on_field && route == ControlRoute::Gpu) || !(on_field || start_vanishes) {
+        if layers.field.is_some() && route == ControlRoute::Gpu {
             return None;
         }
+        match DragBasis::new(method, pairs, layers)? {
+            Ok(basis) => Self::from_basis(basis, texture, moved, route),
+            Err(e) => Some(Err(e)),
+        }
+    }
+
+    /// Starts the drag of pair `pair`'s `end` from `basis` (the pairs it was made on are the drag's start; an event
+    /// moves that point from there): O(N²), and on the CPU route the drag start's texture sampled. `None` for a
+    /// field under the pairs on the GPU route, which evaluates a TPS alone: that keeps the full fit.
+    ///
+    /// # Errors
+    /// The pair out of range, a unit response that cannot be solved, or a texture grid that cannot be made.
+    #[must_use]
+    pub fn from_basis(
+        basis: DragBasis,
+        (fixed_box, grid_n): (Aabb<Fixed>, usize),
+        (pair, end): (usize, DraggedEnd),
+        route: ControlRoute,
+    ) -> Option<anyhow::Result<Self>> {
+        if matches!(basis.kind, BasisKind::OnField { .. }) && route == ControlRoute::Gpu {
+            return None;
+        }
+        let DragBasis { kind, fixed, moving, .. } = basis;
         Some((|| {
-            enough_pairs(method, moving.len())?;
             let grid = scene::control_grid(fixed_box, grid_n)?;
-            let regularisation = Regularisation::Smoothing(stiffness);
-            let drag = if on_field {
-                let unbased: Vec<Point3<Fixed>> =
-                    moving.iter().map(|p| Point3::from_array(layers.base_inverse_raw(p.coords()))).collect();
-                let based: Vec<Point3<Moving>> =
-                    fixed.iter().map(|q| Point3::from_array(layers.base_raw(q.coords()))).collect();
-                let drag = PairDrag::on_base((fixed, &unbased), (moving, &based), (pair, end), regularisation);
-                DragPairs::OnField {
-                    drag: drag.map_err(|e| anyhow!("{method}: {e}"))?,
-                    layers: Box::new(Layers { start: layers.start.clone(), field: layers.field.clone(), brush: None }),
+            let failed = |e: SolverError| anyhow!("the drag of pair {}: {e}", pair + 1);
+            let drag = match kind {
+                BasisKind::Plain(pullback, forward) => {
+                    DragPairs::Plain(PairDrag::from_factored((pullback, forward), (pair, end)).map_err(failed)?)
                 }
-            } else {
-                DragPairs::Plain(
-                    PairDrag::new(fixed, moving, pair, end, regularisation).map_err(|e| anyhow!("{method}: {e}"))?,
-                )
+                BasisKind::OnField { pullback, forward, layers } => DragPairs::OnField {
+                    drag: PairDrag::from_factored((pullback, forward), (pair, end)).map_err(failed)?,
+                    layers,
+                },
             };
             let control = match route {
                 ControlRoute::Cpu => DragControl::Cpu(match &drag {
@@ -275,7 +376,7 @@ impl DragFit {
                 }),
                 ControlRoute::Gpu => DragControl::Gpu(control_grid_desc(&grid)),
             };
-            Ok(Self { drag, control, fixed: fixed.to_vec(), moving: moving.to_vec() })
+            Ok(Self { drag, control, fixed, moving })
         })())
     }
 
@@ -291,13 +392,9 @@ impl DragFit {
     /// Whether this drag was started on `layers`' starting transform and field (what a drag event may not change).
     #[must_use]
     pub fn same_layers(&self, layers: &Layers) -> bool {
-        let field =
-            |f: &Option<std::sync::Arc<crate::project::stack::FieldLayer>>| f.as_ref().map(std::sync::Arc::as_ptr);
         match &self.drag {
             DragPairs::Plain(_) => layers.field.is_none() && layers.brush.is_none(),
-            DragPairs::OnField { layers: own, .. } => {
-                own.start == layers.start && field(&own.field) == field(&layers.field) && layers.brush.is_none()
-            }
+            DragPairs::OnField { layers: own, .. } => same_base(own, layers),
         }
     }
 
@@ -595,6 +692,15 @@ mod tests {
         )
     }
 
+    /// Where a test's drag gets its factorisations.
+    #[derive(Clone, Copy, Debug)]
+    enum Basis {
+        /// [`DragFit::start`] on the drag's pairs.
+        AtStart,
+        /// [`DragBasis::new`] beforehand (as the window makes one after a full fit), then [`DragFit::from_basis`].
+        Made,
+    }
+
     /// A smooth field under the pairs, up to 4 mm, on a 5 mm grid over the fixed box.
     fn field_layers() -> Layers {
         use crate::project::stack::FieldLayer;
@@ -615,13 +721,23 @@ mod tests {
     /// Each drag event through [`DragFit`] on `layers` gives the warps of the full [`fit_warp`] on them (to 1e-6 mm at
     /// probe points) and its control texture (within f32 rounding), and a change of any other point leaves the fast
     /// path.
-    fn check_drags(layers: &Layers, routes: &[(DraggedEnd, ControlRoute)]) {
+    fn check_drags(layers: &Layers, routes: &[(DraggedEnd, ControlRoute, Basis)]) {
         let method = Method::Tps { stiffness: 0.0 };
         let (mut fixed, mut moving) = pairs(40);
-        for &(end, route) in routes {
-            let drag = DragFit::start(&method, (&fixed, &moving), (boxes().0, 16), (7, end), route, layers)
-                .expect("a TPS")
-                .expect("start");
+        for &(end, route, basis) in routes {
+            let texture = (boxes().0, 16);
+            let drag = match basis {
+                Basis::AtStart => DragFit::start(&method, (&fixed, &moving), texture, (7, end), route, layers),
+                Basis::Made => {
+                    let basis = DragBasis::new(&method, (&fixed, &moving), layers).expect("a TPS").expect("basis");
+                    assert!(basis.fits(&method, (&fixed, &moving), layers));
+                    assert!(!basis.fits(&Method::Tps { stiffness: 1.0 }, (&fixed, &moving), layers));
+                    assert!(!basis.fits(&method, (&fixed[1..], &moving[1..]), layers));
+                    DragFit::from_basis(basis, texture, (7, end), route)
+                }
+            }
+            .expect("a TPS")
+            .expect("start");
             assert_eq!(drag.route(), route);
             assert!(drag.same_layers(layers));
             for step in [0.5, 2.0, -6.0] {
@@ -668,9 +784,10 @@ mod tests {
     #[test]
     fn drag_events_match_the_full_fit() {
         let routes = [
-            (DraggedEnd::Fixed, ControlRoute::Cpu),
-            (DraggedEnd::Moving, ControlRoute::Cpu),
-            (DraggedEnd::Fixed, ControlRoute::Gpu),
+            (DraggedEnd::Fixed, ControlRoute::Cpu, Basis::AtStart),
+            (DraggedEnd::Moving, ControlRoute::Cpu, Basis::Made),
+            (DraggedEnd::Fixed, ControlRoute::Gpu, Basis::Made),
+            (DraggedEnd::Moving, ControlRoute::Gpu, Basis::AtStart),
         ];
         check_drags(&Layers::default(), &routes);
         let (fixed, moving) = pairs(40);
@@ -692,11 +809,18 @@ mod tests {
     #[test]
     fn drag_events_on_a_field_match_the_full_fit() {
         let layers = field_layers();
-        check_drags(&layers, &[(DraggedEnd::Fixed, ControlRoute::Cpu), (DraggedEnd::Moving, ControlRoute::Cpu)]);
+        let routes = [
+            (DraggedEnd::Fixed, ControlRoute::Cpu, Basis::Made),
+            (DraggedEnd::Moving, ControlRoute::Cpu, Basis::AtStart),
+        ];
+        check_drags(&layers, &routes);
         let (fixed, moving) = pairs(40);
         let tps = Method::Tps { stiffness: 0.0 };
         let moved = (3, DraggedEnd::Fixed);
         assert!(DragFit::start(&tps, (&fixed, &moving), (boxes().0, 16), moved, ControlRoute::Gpu, &layers).is_none());
+        let basis = DragBasis::new(&tps, (&fixed, &moving), &layers).expect("a TPS").expect("basis");
+        assert!(!basis.fits(&tps, (&fixed, &moving), &field_layers()), "another field read");
+        assert!(DragFit::from_basis(basis, (boxes().0, 16), moved, ControlRoute::Gpu).is_none());
         // Another starting transform or field under a drag on a field is another drag.
         let drag = DragFit::start(&tps, (&fixed, &moving), (boxes().0, 16), moved, ControlRoute::Cpu, &layers)
             .expect("a TPS")

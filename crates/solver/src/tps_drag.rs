@@ -427,7 +427,26 @@ impl<U: Space, D: Space> PairDrag<U, D> {
             || FactoredTps::<U, Fixed>::fit(fixed, pullback_data, regularisation),
             || FactoredTps::<D, Moving>::fit(moving, forward_data, regularisation),
         );
-        let (pullback, forward) = (pullback?, forward?);
+        Self::from_factored((pullback?, forward?), (pair, end))
+    }
+
+    /// The drag of pair `pair`'s `end` on both directions already factorised (`pullback` on the fixed points,
+    /// `forward` on the moving points, as [`PairDrag::on_base`] fits them, perhaps before the drag began): only pair
+    /// k's unit responses are solved, O(N²).
+    ///
+    /// # Errors
+    /// `pair` out of range, directions of different sizes, or a unit response that cannot be solved.
+    pub fn from_factored(
+        (pullback, forward): (FactoredTps<U, Fixed>, FactoredTps<D, Moving>),
+        (pair, end): (usize, DraggedEnd),
+    ) -> Result<Self> {
+        let n = pullback.len();
+        if forward.len() != n {
+            return Err(SolverError::InvalidParameter("a drag's two directions differ in size".into()));
+        }
+        if pair >= n {
+            return Err(SolverError::InvalidParameter(format!("dragged pair {} of {n} pairs", pair + 1)));
+        }
         let g_pullback = pullback.unit_response(pair)?;
         let g_forward = forward.unit_response(pair)?;
         Ok(Self { pair, end, pullback, forward, g_pullback, g_forward })

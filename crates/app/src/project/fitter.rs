@@ -21,7 +21,7 @@ use super::document::{Document, StartingTransform};
 use super::field_file::FieldFile;
 use super::stack::{BrushLayer, FieldLayer, Layers};
 use crate::brushed::{Brushed, InverseConsistency};
-use crate::fit::{self, ControlRoute, ControlTarget, DragEvent, DragFit, Fitted};
+use crate::fit::{self, ControlRoute, ControlTarget, DragBasis, DragEvent, DragFit, Fitted};
 
 /// How much a fit does.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,6 +62,9 @@ pub struct Fitter {
     pub brush_consistency: Option<InverseConsistency>,
     /// The TPS drag in progress, from its first event until the full refit of its release.
     drag: Option<DragFit>,
+    /// What the next drag starts from, being factorised on a thread after the last full fit (so that a drag's first
+    /// event does no O(N³) work).
+    drag_basis: Option<std::sync::mpsc::Receiver<Option<anyhow::Result<DragBasis>>>>,
     /// The last fit's diagnostics being computed; `pair_errors` and `jacobian` wait for them.
     diagnostics: Option<DiagnosticsJob>,
     /// A fit asked for at the end of the frame (the window's `refit_soon`).
@@ -173,6 +176,7 @@ impl Fitter {
             Ok(fitted) => {
                 self.pair_errors.resize(document.pairs.len(), None);
                 if full && !alone {
+                    self.drag_basis = start_drag_basis(method, (fixed.clone(), moving.clone()), &layers);
                     // Residuals, leave-one-out and folding follow on a thread of their own.
                     let input = DiagnosticsInput {
                         method,
@@ -285,9 +289,38 @@ impl Fitter {
         self.drag = None;
         let before = self.fitted.as_ref()?;
         let moved = fit::moved_point((&before.fixed, &before.moving), fixed, moving)?;
-        let drag = DragFit::start(method, (fixed, moving), texture, moved, route, layers)?.ok()?;
+        // The basis the last full fit left, on its pairs (the drag's start, before this event's move); it is waited
+        // for if its thread is still at work, which costs no more than factorising here.
+        let basis = self.drag_basis.take().and_then(|job| job.recv().ok().flatten()?.ok());
+        let drag = match basis.filter(|b| b.fits(method, (&before.fixed, &before.moving), layers)) {
+            Some(basis) => DragFit::from_basis(basis, texture, moved, route)?.ok()?,
+            None => DragFit::start(method, (fixed, moving), texture, moved, route, layers)?.ok()?,
+        };
         let event = drag.event(fixed, moving);
         self.drag = Some(drag);
         event
     }
+}
+
+/// Starts factorising the next drag's basis ([`DragBasis::new`]) for `method` on the pairs and `layers` on a thread
+/// of its own; `None` where a drag keeps the full fit, or where the thread cannot be started (the drag then
+/// factorises on its first event).
+fn start_drag_basis(
+    method: Method,
+    (fixed, moving): (Vec<Point3<Fixed>>, Vec<Point3<Moving>>),
+    layers: &Layers,
+) -> Option<std::sync::mpsc::Receiver<Option<anyhow::Result<DragBasis>>>> {
+    if !matches!(method, Method::Tps { .. }) || layers.brush.is_some() {
+        return None;
+    }
+    let layers = Layers { start: layers.start.clone(), field: layers.field.clone(), brush: None };
+    let (send, done) = std::sync::mpsc::channel();
+    std::thread::Builder::new()
+        .name("drag basis".into())
+        .spawn(move || {
+            // The receiver is gone when a newer fit replaced this one.
+            let _ = send.send(DragBasis::new(&method, (&fixed, &moving), &layers));
+        })
+        .ok()?;
+    Some(done)
 }
