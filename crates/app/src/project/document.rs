@@ -153,6 +153,15 @@ impl Document {
         }
     }
 
+    /// Rewrites every file path the document holds (the volumes, the field under the landmarks, the masks) by `f`:
+    /// how a session stores them relative to its folder and reads them back ([`super::session`]).
+    pub fn map_paths(&mut self, mut f: impl FnMut(&std::path::Path) -> PathBuf) {
+        let paths = [&mut self.fixed, &mut self.moving, &mut self.fixed_mask, &mut self.moving_mask];
+        for path in paths.into_iter().flatten().chain(self.field.as_mut().map(|field| &mut field.path)) {
+            *path = f(path);
+        }
+    }
+
     /// Where the fixed and the moving volume were read from (`None`: the demo pair's).
     #[must_use]
     pub fn sources(&self) -> [Option<VolumeSource>; 2] {

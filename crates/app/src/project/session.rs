@@ -89,9 +89,20 @@ impl SessionFile {
     }
 }
 
-/// Writes `session` to `path` atomically, as pretty JSON.
+/// Writes `session` to `path` atomically, as pretty JSON. A file the document names inside `path`'s folder (or
+/// below it) is stored relative to that folder, so that a project folder moved or shared whole keeps its files; any
+/// other is stored absolute (one given relative to the current folder included).
 pub fn save(path: &Path, session: &SessionFile) -> anyhow::Result<()> {
-    let text = serde_json::to_string_pretty(session).context("encoding the session")?;
+    let folder = session_folder(path);
+    let mut stored = session.clone();
+    stored.document.map_paths(|p| {
+        let absolute = std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        match absolute.strip_prefix(&folder) {
+            Ok(inside) if !inside.as_os_str().is_empty() => inside.to_path_buf(),
+            _ => absolute,
+        }
+    });
+    let text = serde_json::to_string_pretty(&stored).context("encoding the session")?;
     warpbench_io::atomic::write_atomic(path, |out| out.write_all(text.as_bytes()))?;
     Ok(())
 }
@@ -108,11 +119,24 @@ pub fn load(path: &Path) -> anyhow::Result<SessionFile> {
     }
     let mut session: SessionFile =
         serde_json::from_value(value).with_context(|| format!("{}: malformed session", path.display()))?;
+    // Relative paths are the session folder's ([`save`]); a session written before that kept them relative to the
+    // folder the window ran in, which is taken where the session's folder has no such file.
+    let folder = session_folder(path);
+    session.document.map_paths(|p| {
+        let inside = folder.join(p);
+        if p.is_absolute() || inside.exists() || !p.exists() { inside } else { p.to_path_buf() }
+    });
     let view = &mut session.view;
     for camera in std::iter::once(&mut view.camera).chain(view.named_views.iter_mut().map(|v| &mut v.camera)) {
         camera.zoom = camera.zoom.clamp(0.2, 20.0);
     }
     Ok(session)
+}
+
+/// The folder of the session file at `path`, absolute (the current folder for a bare file name).
+fn session_folder(path: &Path) -> PathBuf {
+    let folder = path.parent().filter(|f| !f.as_os_str().is_empty()).unwrap_or_else(|| Path::new("."));
+    std::path::absolute(folder).unwrap_or_else(|_| folder.to_path_buf())
 }
 
 /// Where the window autosaves: `$WARPBENCH_STATE_DIR`, else `$XDG_STATE_HOME/warpbench`, else
@@ -296,5 +320,50 @@ mod tests {
         }
         assert_eq!(again["settings"]["method"], "similarity");
         assert_eq!(again["landmarks"][0]["moving_lps"], serde_json::json!([1.0, 2.0, 3.0]));
+    }
+
+    /// Files inside the session's folder are stored relative to it, so the folder moved whole opens with its files;
+    /// files elsewhere are stored absolute; a session written before (a path relative to the folder the window ran
+    /// in) still opens where only that file exists.
+    #[test]
+    fn paths_inside_the_session_folder_travel_with_it() {
+        let dir = tempfile::tempdir().expect("tempdir");
+        let project = dir.path().join("project");
+        std::fs::create_dir_all(project.join("data")).expect("mkdir");
+        for name in ["data/ct.nii.gz", "data/field.nii.gz", "mask.nii.gz"] {
+            std::fs::write(project.join(name), b"x").expect("write");
+        }
+        let elsewhere = dir.path().join("mr.nii.gz");
+        let mut file = SessionFile::new(document(), View::default(), true);
+        let d = &mut file.document;
+        (d.fixed, d.moving) = (Some(project.join("data/ct.nii.gz")), Some(elsewhere.clone()));
+        d.fixed_mask = Some(project.join("mask.nii.gz"));
+        d.field = Some(super::super::field_file::FieldFile::new(project.join("data/field.nii.gz")));
+        let path = project.join("case.warpbench.json");
+        save(&path, &file).expect("save");
+        let json: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+        assert_eq!(json["fixed"], "data/ct.nii.gz");
+        assert_eq!(json["fixed_mask"], "mask.nii.gz");
+        assert_eq!(json["field"], "data/field.nii.gz");
+        assert_eq!(json["moving"], elsewhere.to_str().expect("utf-8"), "outside the folder: absolute");
+        assert_eq!(load(&path).expect("load").document, file.document, "read back as they were");
+        // The folder moved whole: its files follow it; the file outside stays where it was.
+        let moved = dir.path().join("moved");
+        std::fs::rename(&project, &moved).expect("move");
+        let opened = load(&moved.join("case.warpbench.json")).expect("load").document;
+        assert_eq!(opened.fixed, Some(moved.join("data/ct.nii.gz")));
+        assert_eq!(opened.field.map(|f| f.path), Some(moved.join("data/field.nii.gz")));
+        assert_eq!(opened.fixed_mask, Some(moved.join("mask.nii.gz")));
+        assert_eq!(opened.moving, Some(elsewhere));
+        // An older session's path relative to the current folder, where the session's folder has no such file.
+        let mut older = json.clone();
+        older["fixed"] = "Cargo.toml".into();
+        let older_path = moved.join("older.warpbench.json");
+        std::fs::write(&older_path, older.to_string()).expect("write");
+        assert_eq!(load(&older_path).expect("load").document.fixed, Some(PathBuf::from("Cargo.toml")));
+        // A relative path is the session folder's where both exist.
+        std::fs::write(moved.join("Cargo.toml"), b"x").expect("write");
+        assert_eq!(load(&older_path).expect("load").document.fixed, Some(moved.join("Cargo.toml")));
     }
 }
