@@ -261,6 +261,43 @@ fn opens_volumes_by_drop_reports_bad_files_and_chooses_a_dicom_series() {
     assert!(ready.document.field.as_ref().is_some_and(|f| f.voxel_grids.is_some()), "the grids are recorded");
 }
 
+/// A session saved (or opened) is offered again under File > Open recent session, in a window started later with
+/// the same state folder; choosing it opens it.
+#[test]
+fn a_saved_session_is_offered_again_under_open_recent_session() {
+    use warpbench_app::gui::Command;
+    use warpbench_app::gui::files::FileAction;
+    if no_adapter() {
+        return;
+    }
+    let dir = tempfile::tempdir().expect("tempdir");
+    let session = dir.path().join("case.warpbench.json");
+    {
+        let mut harness = open_mri_pair(dir.path(), egui::vec2(900.0, 640.0));
+        let ready = harness.state_mut().ready_mut().expect("loaded");
+        ready.apply(Command::File(FileAction::SaveSession(session.clone())));
+        harness.run_steps(2);
+    }
+    let recent = std::fs::read_to_string(dir.path().join("recent.json")).expect("the recent sessions");
+    assert!(recent.contains("case.warpbench.json"), "{recent}");
+    // A later window (the demo pair) offers it, and opens it when chosen.
+    let opts = GuiOptions { autosave: Some(dir.path().join("later.warpbench.json")), ..GuiOptions::default() };
+    let mut harness =
+        Harness::builder().with_size(egui::vec2(900.0, 640.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
+    wait_until_shown(&mut harness);
+    assert_eq!(harness.state().ready().expect("the demo pair").document.fixed, None);
+    harness.get_by_label("File").click();
+    harness.run_steps(2);
+    harness.get_by_label("Open recent session").click();
+    harness.run_steps(2);
+    harness.get_by_label_contains("case.warpbench.json").click();
+    harness.run_steps(2);
+    wait_until_shown(&mut harness);
+    let ready = harness.state().ready().expect("the session");
+    assert_eq!(ready.document.fixed.as_deref(), Some(mri().as_path()));
+    assert_eq!(ready.document.pairs.len(), 5, "the session's pairs");
+}
+
 #[test]
 fn a_4d_file_asks_for_a_frame_and_the_session_reads_the_same_frame_again() {
     if no_adapter() {

@@ -58,6 +58,8 @@ pub struct Workbench {
     pub dialogs: open::OpenDialogs,
     /// `--frame-log`: one line per frame.
     frame_log: Option<super::frame_log::FrameLog>,
+    /// The sessions opened or saved most recently (File > Open recent session), kept beside the autosave.
+    recent: crate::project::recent::Recent,
 }
 
 impl std::fmt::Debug for Workbench {
@@ -81,6 +83,10 @@ impl Workbench {
             warpbench_io::atomic::write_atomic(&copy, |w| std::io::Write::write_all(w, &bytes)).ok().map(|()| copy)
         });
         let facts = cc.wgpu_render_state.as_ref().map(|rs| DeviceFacts::of(&Viewer::context(rs)));
+        let mut recent = crate::project::recent::Recent::load(autosave_path.with_file_name("recent.json"));
+        if let Some(path) = &opts.session {
+            note_recent(&mut recent, path);
+        }
         Self {
             phase: Self::start_loading(&cc.egui_ctx, opts.clone(), facts),
             facts,
@@ -95,6 +101,7 @@ impl Workbench {
             pending: [None, None],
             dialogs: open::OpenDialogs::default(),
             frame_log: None,
+            recent,
         }
     }
 
@@ -133,8 +140,11 @@ impl Workbench {
 
     /// Hands the document as it is at the end of this frame to the autosave.
     fn autosave_changes(&mut self, ctx: &egui::Context) {
-        if let Phase::Ready(ready) = &self.phase {
+        if let Phase::Ready(ready) = &mut self.phase {
             autosave_changes(&mut self.autosave, ctx, ready);
+            if let Some(path) = ready.files.saved_session.take() {
+                note_recent(&mut self.recent, &path);
+            }
         }
     }
 
@@ -246,6 +256,7 @@ impl Workbench {
         match event {
             OpenEvent::Volume { side, source } => self.open_volume(ctx, side, source),
             OpenEvent::OpenSession(path) => {
+                note_recent(&mut self.recent, &path);
                 self.phase =
                     Self::start_loading(ctx, GuiOptions { session: Some(path), ..GuiOptions::default() }, self.facts);
             }
@@ -343,7 +354,7 @@ impl Workbench {
         egui::Panel::top("menu").show(ui, |ui| {
             egui::MenuBar::new().ui(ui, |ui| {
                 let ready = matches!(self.phase, Phase::Ready(_));
-                events.extend(open::file_menu(ui, ready, self.dialogs.dialog.is_some()));
+                events.extend(open::file_menu(ui, ready, self.dialogs.dialog.is_some(), self.recent.sessions()));
             });
         });
         if !self.jobs.is_empty() {
@@ -446,6 +457,14 @@ impl Workbench {
 
 /// Hands the document as it is now to the autosave ([`autosave::Autosave::observe`]), coalescing while the pointer
 /// is held.
+/// Puts `session` first in the recent sessions (a list that cannot be written is said on stderr: it is a
+/// convenience, not the user's work).
+fn note_recent(recent: &mut crate::project::recent::Recent, session: &std::path::Path) {
+    if let Err(e) = recent.note(session) {
+        eprintln!("warpbench: the recent sessions: {e:#}");
+    }
+}
+
 fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, ready: &Ready) {
     let file = ready.to_session(false);
     let held = ctx.input(|i| i.pointer.any_down()) || ready.drag().is_some();

@@ -26,7 +26,11 @@ impl Ready {
             FileAction::SaveSession(path) => {
                 let file = self.to_session(true);
                 self.files.message = Some(match session::save(&path, &file) {
-                    Ok(()) => format!("saved {}", path.display()),
+                    Ok(()) => {
+                        let message = format!("saved {}", path.display());
+                        self.files.saved_session = Some(path);
+                        message
+                    }
                     Err(e) => format!("{e:#}"),
                 });
             }

@@ -20,6 +20,8 @@ pub struct Files {
     pub export_fields: export::ExportFields,
     /// The export running on a worker thread.
     pub export: Option<export::ExportJob>,
+    /// A session just saved, for the recent sessions (taken by the window each frame).
+    pub saved_session: Option<std::path::PathBuf>,
 }
 
 /// The paths typed into the side panel's file section.

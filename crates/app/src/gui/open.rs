@@ -413,9 +413,10 @@ impl FrameChoice {
 }
 
 /// The File menu. Items that need a path open a native dialog (their text fields in the side panel do the same
-/// without one).
-pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<OpenEvent> {
+/// without one); *Open recent session* lists `recent`, newest first (a file no longer there is shown disabled).
+pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool, recent: &[PathBuf]) -> Option<OpenEvent> {
     let mut event = None;
+    let mut chosen_recent = None;
     ui.menu_button("File", |ui| {
         let mut item = |ui: &mut egui::Ui, text: &str, enabled: bool, e: OpenEvent| {
             if ui.add_enabled(enabled && !dialog_open, egui::Button::new(text)).clicked() {
@@ -435,6 +436,20 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         item(ui, "Open the demo pair", true, OpenEvent::Demo);
         ui.separator();
         item(ui, "Open session...", true, OpenEvent::Dialog(Purpose::OpenSession));
+        ui.add_enabled_ui(!dialog_open && !recent.is_empty(), |ui| {
+            ui.menu_button("Open recent session", |ui| {
+                for path in recent {
+                    let name =
+                        path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into());
+                    let folder = path.parent().map(|f| f.display().to_string()).unwrap_or_default();
+                    let button = ui.add_enabled(path.is_file(), egui::Button::new(format!("{name}  ({folder})")));
+                    if button.on_disabled_hover_text("This session file is no longer there.").clicked() {
+                        chosen_recent = Some(OpenEvent::OpenSession(path.clone()));
+                        ui.close();
+                    }
+                }
+            });
+        });
         item(ui, "Save session...", ready, OpenEvent::Dialog(Purpose::SaveSession));
         ui.separator();
         item(ui, "Import landmarks...", ready, OpenEvent::Dialog(Purpose::ImportLandmarks));
@@ -467,7 +482,7 @@ pub fn file_menu(ui: &mut egui::Ui, ready: bool, dialog_open: bool) -> Option<Op
         ui.separator();
         item(ui, "Save screenshot...", ready, OpenEvent::Dialog(Purpose::Screenshot));
     });
-    event
+    event.or(chosen_recent)
 }
 
 #[cfg(test)]

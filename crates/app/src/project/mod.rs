@@ -7,6 +7,7 @@
 //! - [`fitter`]: the one owner of fitting for the window ([`fitter::Fitter::fit`]): the stack fitted, its control
 //!   texture made on the CPU or the GPU, a TPS drag's fast path, the brush, the diagnostics job.
 //! - [`session`]: the `.warpbench.json` file that keeps a document and the view, and where the autosave goes.
+//! - [`recent`]: the sessions opened or saved most recently (the window's File > Open recent session).
 //!
 //! - [`field_file`]: the displacement field under the landmarks as a document keeps it (its file, and a Learn2Reg
 //!   field's grids).
@@ -20,5 +21,6 @@ pub mod diagnostics;
 pub mod document;
 pub mod field_file;
 pub mod fitter;
+pub mod recent;
 pub mod session;
 pub mod stack;
