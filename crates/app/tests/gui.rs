@@ -344,7 +344,8 @@ fn a_4d_file_asks_for_a_frame_and_the_session_reads_the_same_frame_again() {
     // The autosave keeps which frame; opened as a session, the same frame is read again.
     harness.state_mut().autosave_now(false);
     let autosave = dir.path().join("autosave.warpbench.json");
-    let opts = GuiOptions { session: Some(autosave), ..GuiOptions::default() };
+    let reopened_autosave = Some(dir.path().join("reopened.warpbench.json"));
+    let opts = GuiOptions { session: Some(autosave), autosave: reopened_autosave, ..GuiOptions::default() };
     let mut reopened =
         Harness::builder().with_size(egui::vec2(1100.0, 760.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
     wait_until_shown(&mut reopened);

@@ -85,7 +85,8 @@ fn the_layout_is_chosen_maximised_by_a_double_click_and_saved_in_the_session() {
     let session = dir.path().join("saved.warpbench.json");
     std::fs::copy(&autosave, &session).expect("copy the session");
     drop(harness);
-    let opts = GuiOptions { session: Some(session), ..GuiOptions::default() };
+    let reopened_autosave = Some(dir.path().join("reopened.warpbench.json"));
+    let opts = GuiOptions { session: Some(session), autosave: reopened_autosave, ..GuiOptions::default() };
     let mut reopened =
         Harness::builder().with_size(egui::vec2(1280.0, 800.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
     wait_until_shown(&mut reopened);
@@ -171,7 +172,8 @@ fn the_views_go_back_and_forward_and_named_views_are_kept_in_the_session() {
     assert!(harness.query_by_label("left side").is_none());
     drop(harness);
 
-    let opts = GuiOptions { session: Some(session), ..GuiOptions::default() };
+    let reopened_autosave = Some(dir.path().join("reopened.warpbench.json"));
+    let opts = GuiOptions { session: Some(session), autosave: reopened_autosave, ..GuiOptions::default() };
     let mut reopened =
         Harness::builder().with_size(egui::vec2(1280.0, 800.0)).wgpu().build_eframe(|cc| Workbench::new(cc, opts));
     wait_until_shown(&mut reopened);
