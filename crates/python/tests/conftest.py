@@ -36,6 +36,21 @@ def cli_json(*args: object) -> dict:
     return json.loads(run_cli(*args, "--json", "--quiet").stdout)
 
 
+def session_json(fixed: object, moving: object, **extra: object) -> str:
+    """A window session as the window saves one (schema warpbench-session/1) of `fixed` and `moving`, no landmarks and
+    the window's usual settings, with `extra` keys set (`landmarks`, `field`, ...)."""
+    return json.dumps({
+        "schema": "warpbench-session/1", "fixed": str(fixed), "moving": str(moving), "landmarks": [],
+        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
+                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
+                     "control_texels": 64, "show_landmarks": True},
+        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True},
+                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True}],
+        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
+        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": True, **extra,
+    })
+
+
 @pytest.fixture
 def cli():
     return run_cli

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import warpbench as wb
-from conftest import PAIRS, T1, cli_json
+from conftest import PAIRS, T1, cli_json, session_json
 
 
 def without_times(value):
@@ -67,6 +67,26 @@ def test_register_returns_the_clis_report_and_field(tmp_path, shifted):
     again = wb.register(T1, moved, known, out_field=tmp_path / "again.nii.gz", **flags)
     assert (tmp_path / "again.nii.gz").read_bytes() == (tmp_path / "py.nii.gz").read_bytes()
     assert again["jacobian"]["min_det"] > 0
+
+
+def test_register_reads_a_sessions_volumes_and_pairs(tmp_path, shifted):
+    moved, turn = shifted
+    # The session's method (a TPS) stands: --session excludes --method.
+    flags = dict(levels=1, iterations=4, samples=4000, grid_mm=32)
+    q = wb.read_landmarks(PAIRS).fixed
+    p = (turn @ np.c_[q, np.ones(len(q))].T).T[:, :3]
+    landmarks = [{"name": f"P{i}", "active": True, "moving_lps": list(a), "fixed_lps": list(b)}
+                 for i, (a, b) in enumerate(zip(p.tolist(), q.tolist()))]
+    session = tmp_path / "case.warpbench.json"
+    session.write_text(session_json(T1, moved, landmarks=landmarks))
+    # The session alone: its volumes and its pairs, as the same call with the volumes given.
+    alone = wb.register(session=session, out_field=tmp_path / "alone.nii.gz", **flags)
+    given = wb.register(T1, moved, session=session, out_field=tmp_path / "given.nii.gz", **flags)
+    assert (tmp_path / "alone.nii.gz").read_bytes() == (tmp_path / "given.nii.gz").read_bytes()
+    assert alone["pairs"] == given["pairs"] == len(landmarks)
+    with pytest.raises(ValueError, match="give fixed and moving, or session="):
+        wb.register(out_field=tmp_path / "none.nii.gz", **flags)
+    assert not (tmp_path / "none.nii.gz").exists()
 
 
 def test_register_matches_by_the_metric_asked_for(tmp_path, shifted):

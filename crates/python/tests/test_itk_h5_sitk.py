@@ -30,6 +30,7 @@ import pytest
 sitk = pytest.importorskip("SimpleITK")
 
 from conftest import run_cli as warpbench  # noqa: E402
+from conftest import session_json  # noqa: E402
 from test_ants_mat_sitk import pair  # noqa: E402
 
 
@@ -146,17 +147,8 @@ def test_simpleitk_applies_a_sessions_field_from_the_h5_as_warpbench_maps_points
     field_path = tmp_path / "under.nii.gz"
     sitk.WriteImage(sitk.Cast(field, sitk.sitkVectorFloat32), str(field_path))
     session = tmp_path / "case.warpbench.json"
-    session.write_text(json.dumps({
-        "schema": "warpbench-session/1", "fixed": str(fixed_path), "moving": str(moving_path),
-        "landmarks": [{"name": "a", "active": True, "moving_lps": [1.0, 2.0, 3.0], "fixed_lps": [1.0, 2.0, 3.0]}],
-        "settings": {"blend": "red-cyan", "mix_weight": 0.5, "checker_mm": 16.0, "shading": "iso",
-                     "samples_per_voxel": 1.0, "method": "tps", "stiffness": 0.0, "bspline_levels": 4,
-                     "control_texels": 64, "show_landmarks": True},
-        "layers": [{"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True},
-                   {"preset": "mr-t1", "window_low": 0.0, "window_high": 100.0, "visible": True}],
-        "camera": {"azimuth_deg": 30.0, "elevation_deg": 10.0, "zoom": 100.0, "target_lps": [0.0, 0.0, 0.0]},
-        "slice_mm": [0.0, 0.0, 0.0], "clean_exit": True, "field": str(field_path),
-    }))
+    landmarks = [{"name": "a", "active": True, "moving_lps": [1.0, 2.0, 3.0], "fixed_lps": [1.0, 2.0, 3.0]}]
+    session.write_text(session_json(fixed_path, moving_path, landmarks=landmarks, field=str(field_path)))
     h5 = tmp_path / "with_field.h5"
     done = warpbench("transform", "--fixed", fixed_path, "--moving", moving_path, "--session", session, "--json",
                      "--quiet", "--out", h5)

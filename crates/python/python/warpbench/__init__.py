@@ -710,8 +710,8 @@ def align(
 
 
 def register(
-    fixed: Union[PathLike, Volume],
-    moving: Union[PathLike, Volume],
+    fixed: Optional[Union[PathLike, Volume]] = None,
+    moving: Optional[Union[PathLike, Volume]] = None,
     landmarks: Optional[Union[PathLike, Pairs]] = None,
     *,
     out_field: Optional[PathLike] = None,
@@ -726,11 +726,17 @@ def register(
     (``"mi"``, ``"ngf"`` or ``"lncc"``), ``fixed_mask`` and ``moving_mask`` (paths), ``grid_mm``, ``levels``,
     ``landmark_weight``, ``bending_weight``, ``samples``, ``iterations``, ``seed``, ``backend``, ``format``,
     ``force``, ``out_inverse_field`` (a path: the inverse as a forward field on the moving grid). ``out_field``
-    (the displacement field) and ``out`` (the warped volume) are written when given.
+    (the displacement field) and ``out`` (the warped volume) are written when given. With ``session``, ``fixed``
+    and ``moving`` may be left out: the session's volumes are read, each with the frame or series the window read.
     Returns the CLI's ``--json`` report (schema ``warpbench-register/2``)."""
+    if (fixed is None or moving is None) and options.get("session") is None:
+        raise ValueError("register: give fixed and moving, or session= (whose volumes are read)")
     with ExitStack() as stack:
         io = _Inputs(stack)
-        argv = ["register", "--fixed", io.volume(fixed, "fixed"), "--moving", io.volume(moving, "moving")]
+        argv = ["register"]
+        for name, volume in (("fixed", fixed), ("moving", moving)):
+            if volume is not None:
+                argv += ["--" + name, io.volume(volume, name)]
         if landmarks is not None:
             argv += ["--landmarks", io.pairs(landmarks)]
         argv += ["--out-field", io.output(out_field, "field.nii.gz")]
