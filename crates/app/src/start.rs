@@ -377,18 +377,18 @@ mod tests {
         let fixed_box = Aabb::new(Point3::new(-60.0, -60.0, -60.0), Point3::new(60.0, 60.0, 60.0));
         let moving_box = Aabb::new(Point3::new(-70.0, -70.0, -70.0), Point3::new(70.0, 70.0, 70.0));
         let affine = Method::Linear(LinearKind::Affine);
-        for tps in [Method::Tps { stiffness: 0.0 }, Method::Tps { stiffness: 2.5 }, affine] {
-            assert_eq!(tps_ignores(&tps, fixed.len()), tps != affine);
+        for method in [Method::Tps { stiffness: 0.0 }, Method::Tps { stiffness: 2.5 }, affine] {
+            assert_eq!(tps_ignores(&method, fixed.len()), method != affine);
             let (u, d) =
-                (pullback(&s, &tps, &fixed, &moving, fixed_box), forward(&s, &tps, &fixed, &moving, moving_box));
+                (pullback(&s, &method, &fixed, &moving, fixed_box), forward(&s, &method, &fixed, &moving, moving_box));
             let (u, d) = (u.expect("fit"), d.expect("fit"));
-            let raw_u = tps.fit(&fixed, &moving, fixed_box).expect("fit");
-            let raw_d = tps.fit(&moving, &fixed, moving_box).expect("fit");
+            let raw_u = method.fit(&fixed, &moving, fixed_box).expect("fit");
+            let raw_d = method.fit(&moving, &fixed, moving_box).expect("fit");
             for i in 0..40 {
                 let x = [f64::from(i) * 2.9 - 55.0, 30.0 - f64::from(i) * 1.7, f64::from(i % 9) * 12.0 - 48.0];
                 let (a, b) = (u.as_ref().apply_raw(x), raw_u.as_ref().apply_raw(x));
                 let (c, e) = (d.as_ref().apply_raw(x), raw_d.as_ref().apply_raw(x));
-                assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-9 && (c[k] - e[k]).abs() < 1e-9), "{tps}: {x:?}");
+                assert!((0..3).all(|k| (a[k] - b[k]).abs() < 1e-9 && (c[k] - e[k]).abs() < 1e-9), "{method}: {x:?}");
             }
         }
         assert!(!tps_ignores(&Method::Tps { stiffness: 0.0 }, 3), "too few pairs: T₀ alone");

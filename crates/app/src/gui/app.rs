@@ -455,8 +455,6 @@ impl Workbench {
     }
 }
 
-/// Hands the document as it is now to the autosave ([`autosave::Autosave::observe`]), coalescing while the pointer
-/// is held.
 /// Puts `session` first in the recent sessions (a list that cannot be written is said on stderr: it is a
 /// convenience, not the user's work).
 fn note_recent(recent: &mut crate::project::recent::Recent, session: &std::path::Path) {
@@ -465,6 +463,8 @@ fn note_recent(recent: &mut crate::project::recent::Recent, session: &std::path:
     }
 }
 
+/// Hands the document as it is now to the autosave ([`autosave::Autosave::observe`]), coalescing while the pointer
+/// is held.
 fn autosave_changes(autosave: &mut autosave::Autosave, ctx: &egui::Context, ready: &Ready) {
     let file = ready.to_session(false);
     let held = ctx.input(|i| i.pointer.any_down()) || ready.drag().is_some();
